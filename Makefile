@@ -1,0 +1,30 @@
+# rstrace: `make demo` runs the main job, `make test` runs the tests. Both set up .venv.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint bench extension clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test,bench]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) examples/demo.py --out out/demo
+
+test: $(STAMP)
+	$(PY) -m ruff check rstrace_engine addon tests examples
+	$(PY) -m pytest -q tests
+
+lint: $(STAMP)
+	$(PY) -m ruff check rstrace_engine addon tests examples
+
+bench: $(STAMP)
+	$(PY) -m rstrace_engine.bench raycast
+	$(PY) -m rstrace_engine.bench frame
+
+clean:
+	rm -rf $(VENV) dist build out *.egg-info

@@ -1,0 +1,79 @@
+"""Render settings and the rendered frame, shared by the tracers and the Blender engine."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MODES = ("BASE", "INTERPOLANT", "RI_TREE")
+ACCELERATORS = ("BVH", "EMBREE", "VISIBILITY_FIELD")
+
+# Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
+CLASS_BACKGROUND = 0
+CLASS_TRACED = 1  # traced by the base tracer (BASE mode, or no interpolant applies)
+CLASS_INTERPOLATED = 2
+CLASS_FAIL_SILHOUETTE = 3  # failed at a silhouette or a miss
+CLASS_FAIL_SHADOW = 4  # failed at a shadow / visibility change
+CLASS_FAIL_NONLINEAR = 5  # failed by non-linearity at the depth cap
+CLASS_REBUILT = 6  # interpolant rebuilt after an edit
+
+CLASS_NAMES = ("background", "traced", "interpolated", "fail_silhouette", "fail_shadow",
+               "fail_nonlinear", "rebuilt")
+# False colours for the Interpolation pass (linear RGB), after the paper's Plate B.
+CLASS_COLORS = np.array([
+    [0.0, 0.0, 0.0],  # background: black
+    [0.5, 0.5, 0.5],  # traced: grey
+    [0.1, 0.7, 0.1],  # interpolated: green
+    [0.9, 0.1, 0.1],  # silhouette / miss: red
+    [0.1, 0.2, 0.9],  # shadow / visibility: blue
+    [0.9, 0.8, 0.1],  # non-linearity at the depth cap: yellow
+    [0.9, 0.2, 0.9],  # rebuilt after an edit: magenta
+], dtype=np.float32)
+
+
+@dataclass
+class RenderSettings:
+    """What the user controls. Validated by :meth:`validated` (clear messages)."""
+
+    mode: str = "BASE"
+    epsilon: float = 0.01  # display-space error bound for interpolants
+    max_depth: int = 5  # Whitted ray depth (0: primary rays and direct light only)
+    samples: int = 1  # jittered samples per pixel
+    accelerator: str = "BVH"
+    depth_cap: int = 6  # linetree depth cap
+    memory_cap_mb: float = 256.0  # interpolant memory cap
+    seed: int = 0
+
+    def validated(self) -> RenderSettings:
+        from .scene import SceneError
+
+        if self.mode not in MODES:
+            raise SceneError(f"setting 'mode': {self.mode!r} not one of {MODES}")
+        if self.accelerator not in ACCELERATORS:
+            raise SceneError(f"setting 'accelerator': {self.accelerator!r} not one of "
+                             f"{ACCELERATORS}")
+        if not (np.isfinite(self.epsilon) and 0.0 <= self.epsilon <= 1.0):
+            raise SceneError(f"setting 'epsilon': {self.epsilon} outside [0, 1]")
+        if not 0 <= int(self.max_depth) <= 32:
+            raise SceneError(f"setting 'max_ray_depth': {self.max_depth} outside [0, 32]")
+        if not 1 <= int(self.samples) <= 4096:
+            raise SceneError(f"setting 'samples': {self.samples} outside [1, 4096]")
+        if not 0 <= int(self.depth_cap) <= 16:
+            raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, 16]")
+        if not (np.isfinite(self.memory_cap_mb) and self.memory_cap_mb >= 0.0):
+            raise SceneError(f"setting 'memory_cap_mb': {self.memory_cap_mb} must be >= 0")
+        return self
+
+
+@dataclass
+class Frame:
+    """A rendered image. Rows are bottom-up (row 0 is the bottom), as in Blender."""
+
+    radiance: np.ndarray  # (h, w, 3) float32 linear RGB
+    pixel_class: np.ndarray  # (h, w) uint8, one of the CLASS_* values
+    stats: dict = field(default_factory=dict)
+
+    def class_image(self) -> np.ndarray:
+        """(h, w, 3) float32 false-colour image of the pixel classes."""
+        return CLASS_COLORS[self.pixel_class]

@@ -1,0 +1,142 @@
+"""Built-in benchmark scenes, built with the core API.
+
+* ``three_spheres`` — the paper's Plate A: three spheres (one a mirror) on a plane, two lights.
+* ``museum`` — a room with 1,000+ objects (pedestals and sculptures), a mirror wall, several
+  lights, 100k+ triangles.
+* ``grid`` — 20 icospheres on a plane, ~100k triangles (the ray-cast benchmark).
+* ``torus_knot`` — smooth non-convex objects (tori) on a plane, for interpolant tests.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import shapes
+from .scene import Camera, Light, Material, Scene
+
+
+def _camera(eye, target, width, height, lens=35.0) -> Camera:
+    return Camera(matrix=shapes.look_at(eye, target), lens=lens, width=width, height=height)
+
+
+def three_spheres(width: int = 640, height: int = 480, subdivisions: int = 4) -> Scene:
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.55, 0.55, 0.5), specular=(0.1,) * 3,
+                                    roughness=0.25))
+    red = s.add_material(Material("red", diffuse=(0.7, 0.12, 0.1), specular=(0.25,) * 3,
+                                  roughness=0.15))
+    blue = s.add_material(Material("blue", diffuse=(0.1, 0.2, 0.65), specular=(0.2,) * 3,
+                                   roughness=0.3))
+    mirror = s.add_material(Material("mirror", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    sphere = s.add_mesh(shapes.icosphere(subdivisions, name="sphere"))
+    ground = s.add_mesh(shapes.plane(12.0, name="ground"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    s.add_instance(sphere, shapes.transform((-1.6, 0.4, 1.0)), [red], name="RedSphere")
+    s.add_instance(sphere, shapes.transform((0.6, -0.9, 1.0)), [mirror], name="MirrorSphere")
+    s.add_instance(sphere, shapes.transform((1.5, 1.6, 0.8), 0.8), [blue], name="BlueSphere")
+    s.add_light(Light("Key", "POINT", power=2500.0, position=(-3.0, -4.0, 6.0)))
+    s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=900.0,
+                      position=(4.0, -2.0, 3.5)))
+    s.set_world_color((0.05, 0.06, 0.08))
+    s.set_camera(_camera((0.0, -8.5, 3.6), (0.0, 0.3, 0.8), width, height))
+    return s
+
+
+def grid(width: int = 640, height: int = 480, subdivisions: int = 4) -> Scene:
+    """20 icospheres (5,120 triangles each) on a plane: ~102k triangles."""
+    s = Scene()
+    mat = s.add_material(Material("grey", diffuse=(0.6, 0.6, 0.6), specular=(0.2,) * 3))
+    floor = s.add_material(Material("floor", diffuse=(0.4, 0.45, 0.4)))
+    sphere = s.add_mesh(shapes.icosphere(subdivisions, name="ico"))
+    ground = s.add_mesh(shapes.plane(30.0, divisions=8, name="ground"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    for k in range(20):
+        i, j = divmod(k, 5)
+        s.add_instance(sphere, shapes.transform((-6.0 + 3.0 * j, -4.5 + 3.0 * i, 1.0)),
+                       [mat], name=f"Ico{k:02d}")
+    s.add_light(Light("Sun", "SUN", power=3.0, direction=(-0.3, 0.4, -1.0)))
+    s.add_light(Light("Lamp", "POINT", power=3000.0, position=(0.0, -6.0, 8.0)))
+    s.set_world_color((0.1, 0.1, 0.12))
+    s.set_camera(_camera((0.0, -16.0, 9.0), (0.0, 0.0, 0.5), width, height))
+    return s
+
+
+def museum(width: int = 640, height: int = 480, rows: int = 25, cols: int = 40) -> Scene:
+    """A 40 x 30 m hall: rows x cols plinths (boxes), each with a sculpture on top.
+
+    With the defaults: 1,000 plinths + 1,000 sculptures + room + mirror = 2,002 objects and
+    about 300k triangles (sculptures alternate between an icosphere and a torus).
+    """
+    s = Scene()
+    wall = s.add_material(Material("wall", diffuse=(0.7, 0.68, 0.62)))
+    stone = s.add_material(Material("stone", diffuse=(0.5, 0.5, 0.52), specular=(0.1,) * 3,
+                                    roughness=0.3))
+    bronze = s.add_material(Material("bronze", diffuse=(0.35, 0.22, 0.1),
+                                     specular=(0.35, 0.3, 0.2), roughness=0.2))
+    marble = s.add_material(Material("marble", diffuse=(0.8, 0.8, 0.78), specular=(0.15,) * 3,
+                                     roughness=0.1))
+    mirror = s.add_material(Material("mirror", diffuse=(0.02,) * 3, mirror=(0.92,) * 3))
+    W, D, H = 40.0, 30.0, 8.0
+    room = s.add_mesh(shapes.box((W, D, H), name="room", inward=True))
+    plinth = s.add_mesh(shapes.box((0.5, 0.5, 1.0), name="plinth"))
+    ico = s.add_mesh(shapes.icosphere(2, 0.3, name="sculpture_ico"))
+    tor = s.add_mesh(shapes.torus(0.25, 0.09, 16, 8, name="sculpture_torus"))
+    glass = s.add_mesh(shapes.plane(1.0, name="mirror_panel"))
+    s.add_instance(room, shapes.transform((0, 0, H / 2)), [wall], name="Room")
+    s.add_instance(glass, shapes.transform((0, D / 2 - 0.05, 3.0), (20.0, 5.0, 1.0), 0, 90),
+                   [mirror], name="MirrorWall")
+    xs = np.linspace(-W / 2 + 2.0, W / 2 - 2.0, cols)
+    ys = np.linspace(-D / 2 + 2.0, D / 2 - 3.0, rows)
+    k = 0
+    for y in ys:
+        for x in xs:
+            s.add_instance(plinth, shapes.transform((x, y, 0.5)), [stone], name=f"Plinth{k:04d}")
+            if k % 2 == 0:
+                s.add_instance(ico, shapes.transform((x, y, 1.3)), [marble],
+                               name=f"Sculpture{k:04d}")
+            else:
+                s.add_instance(tor, shapes.transform((x, y, 1.35), 1.0, 30.0 * k, 60.0),
+                               [bronze], name=f"Sculpture{k:04d}")
+            k += 1
+    for j, (x, y) in enumerate([(-12, -8), (12, -8), (-12, 6), (12, 6), (0, -1)]):
+        s.add_light(Light(f"Ceiling{j}", "POINT", power=6000.0, position=(x, y, H - 0.5)))
+    s.add_light(Light("Spot", "SPOT", power=8000.0, position=(0.0, -D / 2 + 1.0, H - 1.0),
+                      direction=(0.0, 1.0, -0.6), spot_size=math.radians(50)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((-14.0, -13.5, 4.2), (2.0, 4.0, 1.0), width, height, lens=24.0))
+    return s
+
+
+def tori(width: int = 640, height: int = 480) -> Scene:
+    """Smooth non-convex objects: three tori (one glossy, one mirror) on a plane."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.5, 0.5, 0.5)))
+    gold = s.add_material(Material("gold", diffuse=(0.45, 0.3, 0.08), specular=(0.4,) * 3,
+                                   roughness=0.2))
+    green = s.add_material(Material("green", diffuse=(0.15, 0.55, 0.2), specular=(0.1,) * 3))
+    chrome = s.add_material(Material("chrome", diffuse=(0.05,) * 3, mirror=(0.85,) * 3))
+    tor = s.add_mesh(shapes.torus(1.0, 0.35, 96, 48, name="torus"))
+    ground = s.add_mesh(shapes.plane(12.0, name="ground"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    s.add_instance(tor, shapes.transform((-1.8, 0.5, 0.35)), [gold], name="GoldTorus")
+    s.add_instance(tor, shapes.transform((0.6, -0.6, 1.2), 1.0, 20.0, 70.0), [chrome],
+                   name="ChromeTorus")
+    s.add_instance(tor, shapes.transform((2.2, 1.8, 0.35), 0.8), [green], name="GreenTorus")
+    s.add_light(Light("Key", "POINT", power=2500.0, position=(-3.0, -4.0, 6.0)))
+    s.add_light(Light("Sun", "SUN", power=1.5, direction=(0.5, 0.3, -1.0)))
+    s.set_world_color((0.05, 0.06, 0.08))
+    s.set_camera(_camera((0.0, -8.5, 4.0), (0.0, 0.3, 0.6), width, height))
+    return s
+
+
+SCENES = {"three_spheres": three_spheres, "museum": museum, "grid": grid, "tori": tori}
+
+
+def build(name: str, width: int = 640, height: int = 480) -> Scene:
+    """Build a benchmark scene by name (one of :data:`SCENES`)."""
+    try:
+        return SCENES[name](width, height)
+    except KeyError:
+        raise ValueError(f"unknown scene {name!r}; choose from {sorted(SCENES)}") from None

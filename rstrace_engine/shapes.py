@@ -1,0 +1,149 @@
+"""Mesh generators (object space) for tests, benchmarks and the demo.
+
+Each returns a :class:`~rstrace_engine.scene.Mesh`; none of this is used by the hot paths.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import Mesh
+
+
+def icosphere(subdivisions: int = 3, radius: float = 1.0, name: str = "icosphere") -> Mesh:
+    """A geodesic sphere: 20 * 4**subdivisions triangles, smooth normals, spherical uvs."""
+    t = (1.0 + 5 ** 0.5) / 2.0
+    verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t),
+             (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9),
+             (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2),
+             (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+             (8, 6, 7), (9, 8, 1)]
+    v = np.array(verts, dtype=np.float64)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    f = np.array(faces, dtype=np.int64)
+    for _ in range(subdivisions):
+        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+        mids = v[uniq[:, 0]] + v[uniq[:, 1]]
+        mids /= np.linalg.norm(mids, axis=1, keepdims=True)
+        base = len(v)
+        v = np.concatenate([v, mids])
+        m = inv.reshape(3, -1).T + base  # midpoints of edges (01, 12, 20)
+        a, b, c = f[:, 0], f[:, 1], f[:, 2]
+        ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
+        f = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1),
+                            np.stack([c, ca, bc], 1), np.stack([ab, bc, ca], 1)])
+    normals = v[f].astype(np.float32)
+    uv = np.stack([0.5 + np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi),
+                   0.5 + np.arcsin(np.clip(v[:, 2], -1, 1)) / np.pi], axis=1)
+    return Mesh(name, v * radius, f.astype(np.int32), corner_normals=normals,
+                corner_uvs=uv[f].astype(np.float32))
+
+
+def uv_sphere(segments: int = 32, rings: int = 16, radius: float = 1.0,
+              name: str = "uv_sphere") -> Mesh:
+    """A latitude/longitude sphere with smooth normals."""
+    th = np.linspace(0, np.pi, rings + 1)
+    ph = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    T, P = np.meshgrid(th[1:-1], ph, indexing="ij")
+    ring = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    v = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]])
+    faces = []
+    n = segments
+    for j in range(n):
+        faces.append((0, 1 + j, 1 + (j + 1) % n))
+    for r in range(rings - 2):
+        for j in range(n):
+            a, b = 1 + r * n + j, 1 + r * n + (j + 1) % n
+            c, d = a + n, b + n
+            faces += [(a, c, b), (b, c, d)]
+    last = len(v) - 1
+    base = 1 + (rings - 2) * n
+    for j in range(n):
+        faces.append((base + j, last, base + (j + 1) % n))
+    f = np.array(faces, dtype=np.int32)
+    return Mesh(name, v * radius, f, corner_normals=v[f].astype(np.float32))
+
+
+def plane(size_x: float = 2.0, size_y: float | None = None, divisions: int = 1,
+          name: str = "plane") -> Mesh:
+    """A flat grid in the XY plane, normal +Z, centred at the origin, uvs in [0, 1]."""
+    size_y = size_x if size_y is None else size_y
+    n = max(int(divisions), 1)
+    xs = np.linspace(-size_x / 2, size_x / 2, n + 1)
+    ys = np.linspace(-size_y / 2, size_y / 2, n + 1)
+    X, Y = np.meshgrid(xs, ys, indexing="xy")
+    v = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
+    uv = np.stack([(X.ravel() - xs[0]) / size_x, (Y.ravel() - ys[0]) / size_y], 1)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    f = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]).astype(np.int32)
+    return Mesh(name, v, f, corner_normals=np.tile(np.float32([0, 0, 1]), (len(f), 3, 1)),
+                corner_uvs=uv[f].astype(np.float32))
+
+
+def box(size=(1.0, 1.0, 1.0), name: str = "box", inward: bool = False) -> Mesh:
+    """An axis-aligned box centred at the origin with flat faces (12 triangles).
+
+    ``inward=True`` flips the faces so the normals point inside (a room).
+    """
+    sx, sy, sz = (np.asarray(size, dtype=np.float64) / 2).tolist()
+    v = np.array([[x, y, z] for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    f = []
+    for a, b, c, d in quads:
+        f += [(a, b, c), (a, c, d)]
+    f = np.array(f, dtype=np.int32)
+    if inward:
+        f = f[:, ::-1].copy()
+    return Mesh(name, v, f, smooth=False)
+
+
+def torus(major: float = 1.0, minor: float = 0.35, segments: int = 48, sides: int = 24,
+          name: str = "torus") -> Mesh:
+    """A smooth torus around +Z: a non-convex test object."""
+    u = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    w = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    U, W = np.meshgrid(u, w, indexing="ij")
+    centre = np.stack([np.cos(U), np.sin(U), np.zeros_like(U)], -1)
+    nrm = np.stack([np.cos(W) * np.cos(U), np.cos(W) * np.sin(U), np.sin(W)], -1)
+    v = (centre * major + nrm * minor).reshape(-1, 3)
+    nrm = nrm.reshape(-1, 3)
+    idx = np.arange(segments * sides).reshape(segments, sides)
+    a = idx
+    b = np.roll(idx, -1, axis=0)
+    c = np.roll(idx, -1, axis=1)
+    d = np.roll(b, -1, axis=1)
+    f = np.concatenate([np.stack([a.ravel(), b.ravel(), d.ravel()], 1),
+                        np.stack([a.ravel(), d.ravel(), c.ravel()], 1)]).astype(np.int32)
+    return Mesh(name, v, f, corner_normals=nrm[f].astype(np.float32))
+
+
+def transform(translate=(0.0, 0.0, 0.0), scale=1.0, rotate_z_deg: float = 0.0,
+              rotate_x_deg: float = 0.0) -> np.ndarray:
+    """A 4x4 object-to-world matrix: scale, then rotate about X then Z, then translate."""
+    s = np.diag(np.broadcast_to(np.asarray(scale, dtype=np.float64), 3))
+    ax, az = np.radians(rotate_x_deg), np.radians(rotate_z_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    m = np.eye(4)
+    m[:3, :3] = rz @ rx @ s
+    m[:3, 3] = translate
+    return m
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world matrix of a camera at ``eye`` looking at ``target`` (Blender axes)."""
+    eye = np.asarray(eye, dtype=np.float64)
+    fwd = np.asarray(target, dtype=np.float64) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(up, dtype=np.float64))
+    if np.linalg.norm(right) < 1e-12:
+        right = np.cross(fwd, (0.0, 1.0, 0.0))
+    right /= np.linalg.norm(right)
+    cam_up = np.cross(right, fwd)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, cam_up, -fwd, eye
+    return m

@@ -1,0 +1,32 @@
+"""Every numerical tolerance rstrace uses, in one place.
+
+Ray math is float64. Offsets that move a spawned ray off its surface scale with the
+magnitude of the coordinates involved (never a fixed 1e-4), so a scene renders the same
+at 1e-4 and at 1e5 scale, or translated by 1e6.
+"""
+
+#: Relative size of the self-intersection offset: a ray spawned at point p starts at
+#: ``p + n * offset`` with ``offset = SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)``.
+#: Float64 keeps ~16 digits; 1e-9 leaves ~7 digits of headroom for the hit-point error.
+SPAWN_OFFSET_REL = 1e-9
+
+#: Shadow rays stop this fraction short of the light (relative to their length).
+SHADOW_END_REL = 1e-9
+
+#: A triangle whose doubled area is below ``DEGENERATE_AREA_REL * longest_edge**2`` is
+#: dropped at scene build (counted in the stats).
+DEGENERATE_AREA_REL = 1e-12
+
+#: A world matrix whose |det| is below ``SINGULAR_DET_REL * (column norms product)`` is
+#: rejected as singular (zero scale on some axis).
+SINGULAR_DET_REL = 1e-12
+
+#: Normals shorter than this (after interpolation) fall back to the geometric normal.
+NORMAL_MIN_LENGTH = 1e-12
+
+#: Radiance values above this are treated as a sign of broken input (NaN/Inf guard).
+RADIANCE_MAX = 1e30
+
+#: Largest coordinate magnitude accepted in scene input (beyond this float64 ray math
+#: loses the precision the offsets rely on).
+COORD_MAX = 1e12

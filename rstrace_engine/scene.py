@@ -448,8 +448,8 @@ class Scene:
             self._mesh_arrays = dict(
                 verts=np.ascontiguousarray(np.concatenate([m["verts"] for m in self.meshes])),
                 tris=np.ascontiguousarray(np.concatenate(
-                    [m["tris"] + np.int32(vs) for m, vs in zip(self.meshes, vstart)])
-                    .astype(np.int32)),
+                    [m["tris"] + np.int32(vs)
+                     for m, vs in zip(self.meshes, vstart[:-1], strict=True)]).astype(np.int32)),
                 tri_normals=np.ascontiguousarray(np.concatenate(
                     [m["normals"] for m in self.meshes])),
                 tri_uvs=np.ascontiguousarray(np.concatenate([m["uvs"] for m in self.meshes])),
@@ -467,7 +467,6 @@ class Scene:
         if not self.materials:
             raise SceneError("scene has no materials")
         geo = self._pack_meshes()
-        ni = len(self.instances)
         xf = np.stack([i["matrix"] for i in self.instances])
         inv = np.linalg.inv(xf)
         nmat = np.transpose(inv[:, :3, :3], (0, 2, 1)).copy()

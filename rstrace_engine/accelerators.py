@@ -1,0 +1,193 @@
+"""Ray accelerators behind one batch interface, created by name.
+
+``create_accelerator(name, scene_arrays)`` returns an object with
+
+* ``closest_hit(origins, directions, tmin, tmax) -> Hits``
+* ``any_hit(origins, directions, tmin, tmax) -> (n,) bool``
+* ``intersect_object(inst, origins, directions, tmin, tmax) -> Hits`` (that object alone)
+* ``update(scene_arrays)``: take a new packing of the scene, reusing per-mesh structures whose
+  mesh content is unchanged
+* ``name`` and ``stats`` (a dict)
+
+Rays: ``origins``, ``directions`` (n, 3) float64 (directions need not be unit length),
+``tmin``, ``tmax`` (n,) float64; hits with ``tmin <= t <= tmax`` count. Distances are along
+the given direction. Names: ``"BVH"`` (the default, :mod:`.bvh`), ``"EMBREE"`` (:mod:`.embree`,
+needs ``embreex``), ``"BRUTE_FORCE"`` (every triangle of every instance: the test oracle),
+``"VISIBILITY_FIELD"`` (not implemented yet).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from .bvh import ray_to_object
+from .scene import SceneArrays, SceneError
+from .triangle import intersect, ray_shear
+
+log = logging.getLogger(__name__)
+
+NAMES = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
+
+
+class AcceleratorUnavailable(SceneError):
+    """The requested accelerator does not exist or cannot run here (message says why)."""
+
+
+class Hits(NamedTuple):
+    """Closest hits of a batch of ``n`` rays."""
+
+    t: np.ndarray  # (n,) float64, inf on miss
+    inst: np.ndarray  # (n,) int32 instance id, -1 on miss
+    prim: np.ndarray  # (n,) int32 triangle index, global into SceneArrays.tris, -1 on miss
+    u: np.ndarray  # (n,) float64 barycentric of vertex 1
+    v: np.ndarray  # (n,) float64 barycentric of vertex 2
+
+
+def empty_hits(n: int) -> Hits:
+    """Hits of ``n`` rays that all miss."""
+    return Hits(np.full(n, np.inf), np.full(n, -1, np.int32), np.full(n, -1, np.int32),
+                np.zeros(n), np.zeros(n))
+
+
+def check_rays(origins, directions, tmin, tmax):
+    """Validate and convert a ray batch to contiguous float64 arrays.
+
+    Returns ``origins (n, 3), directions (n, 3), tmin (n,), tmax (n,)``; raises
+    :class:`ValueError` naming the problem (wrong shapes, NaN or infinite origins or
+    directions, NaN bounds).
+    """
+    o = np.ascontiguousarray(origins, dtype=np.float64)
+    d = np.ascontiguousarray(directions, dtype=np.float64)
+    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+        raise ValueError(f"rays: origins {o.shape} and directions {d.shape} must both be (n, 3)")
+    n = o.shape[0]
+    lo = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, dtype=np.float64), (n,)))
+    hi = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,)))
+    if not (np.isfinite(o).all() and np.isfinite(d).all()):
+        raise ValueError("rays: NaN or infinite origin or direction")
+    if np.isnan(lo).any() or np.isnan(hi).any():
+        raise ValueError("rays: NaN tmin or tmax")
+    return o, d, lo, hi
+
+
+def instance_array(inst, n: int, n_instances: int) -> np.ndarray:
+    """``inst`` (an int or (n,) ints) as a contiguous (n,) int32 array, range-checked."""
+    a = np.ascontiguousarray(np.broadcast_to(np.asarray(inst, dtype=np.int32), (n,)))
+    if n and (a.min() < 0 or a.max() >= n_instances):
+        raise ValueError(f"intersect_object: instance id out of range [0, {n_instances})")
+    return a
+
+
+class Accelerator:
+    """Common batch interface; subclasses implement ``_trace`` and ``update``."""
+
+    name = "?"
+
+    def __init__(self, scene_arrays: SceneArrays) -> None:
+        self.sa = scene_arrays
+        self.stats: dict = {}
+
+    def update(self, scene_arrays: SceneArrays) -> None:
+        self.sa = scene_arrays
+
+    def _trace(self, o, d, tmin, tmax, only, anyhit: bool) -> Hits:
+        raise NotImplementedError
+
+    def closest_hit(self, origins, directions, tmin, tmax) -> Hits:
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        return self._trace(o, d, lo, hi, None, False)
+
+    def any_hit(self, origins, directions, tmin, tmax) -> np.ndarray:
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        return self._trace(o, d, lo, hi, None, True).inst >= 0
+
+    def intersect_object(self, inst, origins, directions, tmin, tmax) -> Hits:
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        only = instance_array(inst, len(o), len(self.sa.inst_mesh))
+        return self._trace(o, d, lo, hi, only, False)
+
+
+# ----------------------------------------------------------------------------- brute force
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _brute_kernel(verts, tris, mesh_tri_start, inst_mesh, inst_inv, o, d, tmin, tmax, only,
+                  anyhit, out_t, out_inst, out_prim, out_u, out_v):
+    """Every triangle of every instance (or of ``only[r]`` when ``only[r] >= 0``)."""
+    n = o.shape[0]
+    ni = inst_mesh.shape[0]
+    for r in prange(n):
+        best = tmax[r]
+        bi, bp, bu, bv = -1, -1, 0.0, 0.0
+        i0, i1 = 0, ni
+        if only[r] >= 0:
+            i0, i1 = only[r], only[r] + 1
+        for i in range(i0, i1):
+            ox, oy, oz, dx, dy, dz = ray_to_object(inst_inv, i, o[r, 0], o[r, 1], o[r, 2],
+                                                   d[r, 0], d[r, 1], d[r, 2])
+            kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+            m = inst_mesh[i]
+            for p in range(mesh_tri_start[m], mesh_tri_start[m + 1]):
+                a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
+                hit, t, u, v = intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
+                                         verts[a, 0], verts[a, 1], verts[a, 2],
+                                         verts[b, 0], verts[b, 1], verts[b, 2],
+                                         verts[c, 0], verts[c, 1], verts[c, 2], tmin[r], best)
+                if hit:
+                    best, bi, bp, bu, bv = t, i, p, u, v
+                    if anyhit:
+                        break
+            if anyhit and bi >= 0:
+                break
+        if bi >= 0:
+            out_t[r], out_inst[r], out_prim[r], out_u[r], out_v[r] = best, bi, bp, bu, bv
+
+
+class BruteForce(Accelerator):
+    """Every triangle of every instance, in numba: slow, simple, the test oracle."""
+
+    name = "BRUTE_FORCE"
+
+    def _trace(self, o, d, tmin, tmax, only, anyhit):
+        n = len(o)
+        hits = empty_hits(n)
+        if only is None:
+            only = np.full(n, -1, np.int32)
+        sa = self.sa
+        t0 = time.perf_counter()
+        _brute_kernel(sa.verts, sa.tris, sa.mesh_tri_start, sa.inst_mesh, sa.inst_inv, o, d,
+                      tmin, tmax, only, anyhit, *hits)
+        self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
+        self.stats["rays"] = self.stats.get("rays", 0) + n
+        return hits
+
+
+# ----------------------------------------------------------------------------- factory
+
+
+def create_accelerator(name: str, scene_arrays: SceneArrays) -> Accelerator:
+    """Build the accelerator called ``name`` (one of :data:`NAMES`) over ``scene_arrays``.
+
+    Raises :class:`AcceleratorUnavailable` for unknown names, for ``"EMBREE"`` when
+    ``embreex`` is not installed, and for ``"VISIBILITY_FIELD"`` (not implemented yet).
+    """
+    key = str(name).upper()
+    if key == "BRUTE_FORCE":
+        return BruteForce(scene_arrays)
+    if key == "BVH":
+        from .bvh import BVHAccelerator
+
+        return BVHAccelerator(scene_arrays)
+    if key == "EMBREE":
+        from .embree import EmbreeAccelerator
+
+        return EmbreeAccelerator(scene_arrays)
+    if key == "VISIBILITY_FIELD":
+        raise AcceleratorUnavailable("accelerator 'VISIBILITY_FIELD' is not implemented yet; "
+                                     "use 'BVH'")
+    raise AcceleratorUnavailable(f"unknown accelerator {name!r}; choose from {list(NAMES)}")

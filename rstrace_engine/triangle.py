@@ -1,0 +1,98 @@
+"""Watertight ray/triangle intersection (Woop, Benthin, Wald, JCGT 2013), in float64.
+
+The ray is sheared so that its direction becomes +Z; each triangle edge is then tested with
+a 2D edge function computed from the *transformed vertex coordinates* alone. A shared edge of
+two triangles yields exactly opposite edge-function values in both (IEEE products and
+differences are sign-symmetric), so a ray can never slip between two triangles that share an
+edge or a vertex: it hits at least one of them. Both sides of a triangle are hit (no culling).
+
+Usage from numba kernels::
+
+    kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)           # once per ray (per space)
+    hit, t, u, v = intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
+                             ax, ay, az, bx, by, bz, cx, cy, cz, tmin, tmax)
+
+``u`` and ``v`` are the barycentric weights of vertices 1 (b) and 2 (c); the hit point is
+``(1 - u - v) * a + u * b + v * c`` and equals ``o + t * d`` for the (not necessarily unit)
+direction ``d`` the shear was computed from.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def ray_shear(dx, dy, dz):
+    """Axis permutation and shear constants of a ray direction (float64 scalars).
+
+    Returns ``(kx, ky, kz, sx, sy, sz)``: ``kz`` is the dominant axis of ``d``; ``kx, ky``
+    the other two (swapped when ``d[kz] < 0`` to keep the winding); ``sx = d[kx] / d[kz]``,
+    ``sy = d[ky] / d[kz]``, ``sz = 1 / d[kz]``. A zero direction gives ``sz = inf`` and
+    every test misses.
+    """
+    ax_, ay_, az_ = abs(dx), abs(dy), abs(dz)
+    if ax_ >= ay_ and ax_ >= az_:
+        kz = 0
+    elif ay_ >= az_:
+        kz = 1
+    else:
+        kz = 2
+    kx = kz + 1
+    if kx == 3:
+        kx = 0
+    ky = kx + 1
+    if ky == 3:
+        ky = 0
+    dkz = dx if kz == 0 else (dy if kz == 1 else dz)
+    if dkz < 0.0:
+        kx, ky = ky, kx
+    dkx = dx if kx == 0 else (dy if kx == 1 else dz)
+    dky = dx if ky == 0 else (dy if ky == 1 else dz)
+    if dkz == 0.0:
+        return kx, ky, kz, 0.0, 0.0, float("inf")
+    sz = 1.0 / dkz
+    return kx, ky, kz, dkx * sz, dky * sz, sz
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pick(k, x, y, z):
+    return x if k == 0 else (y if k == 1 else z)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
+              ax, ay, az, bx, by, bz, cx, cy, cz, tmin, tmax):
+    """Watertight test of one ray against triangle ``(a, b, c)`` (all float64 scalars).
+
+    Returns ``(hit, t, u, v)``; ``hit`` is True when the ray meets the triangle at
+    ``tmin <= t <= tmax`` (inclusive bounds, so a hit exactly at a bound is kept).
+    """
+    # vertices relative to the ray origin, permuted so that the ray runs along +Z
+    a0, a1, a2 = ax - ox, ay - oy, az - oz
+    b0, b1, b2 = bx - ox, by - oy, bz - oz
+    c0, c1, c2 = cx - ox, cy - oy, cz - oz
+    akz = _pick(kz, a0, a1, a2)
+    bkz = _pick(kz, b0, b1, b2)
+    ckz = _pick(kz, c0, c1, c2)
+    Ax = _pick(kx, a0, a1, a2) - sx * akz
+    Ay = _pick(ky, a0, a1, a2) - sy * akz
+    Bx = _pick(kx, b0, b1, b2) - sx * bkz
+    By = _pick(ky, b0, b1, b2) - sy * bkz
+    Cx = _pick(kx, c0, c1, c2) - sx * ckz
+    Cy = _pick(ky, c0, c1, c2) - sy * ckz
+    # scaled barycentrics: U weighs a, V weighs b, W weighs c
+    U = Cx * By - Cy * Bx
+    V = Ax * Cy - Ay * Cx
+    W = Bx * Ay - By * Ax
+    if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
+        return False, 0.0, 0.0, 0.0
+    det = U + V + W
+    if det == 0.0:
+        return False, 0.0, 0.0, 0.0
+    T = (U * akz + V * bkz + W * ckz) * sz
+    t = T / det
+    if not (t >= tmin and t <= tmax):  # also rejects NaN
+        return False, 0.0, 0.0, 0.0
+    inv = 1.0 / det
+    return True, t, V * inv, W * inv

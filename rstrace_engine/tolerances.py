@@ -30,3 +30,11 @@ RADIANCE_MAX = 1e30
 #: Largest coordinate magnitude accepted in scene input (beyond this float64 ray math
 #: loses the precision the offsets rely on).
 COORD_MAX = 1e12
+
+#: The spawn offset never drops below this fraction of the scene extent times
+#: ``SPAWN_OFFSET_REL`` (points near the origin of a large scene still get a usable offset).
+SPAWN_OFFSET_EXTENT_FRAC = 1e-3
+
+#: A reflection/refraction ray whose path weight (largest RGB channel of the product of
+#: reflectances along its path) is below this is not spawned: its contribution is invisible.
+PATH_WEIGHT_MIN = 1e-8

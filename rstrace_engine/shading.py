@@ -1,0 +1,263 @@
+"""Shading math for the Whitted tracer: numba device functions over scalars.
+
+Everything here is a small ``@njit`` function that the tracer's kernels call per ray; vectors
+are passed and returned as separate float64 components (no per-ray array allocation).
+Conventions:
+
+* ``d`` is a ray direction (unit, pointing *away* from the eye), ``n`` a unit normal.
+* Direction arguments of the BRDF both point *away* from the surface: ``wi`` toward the
+  light, ``wo`` toward the viewer.
+* ``eta`` is the ratio ``n1 / n2`` of the indices of refraction on the incident and the
+  transmitted side.
+
+Ward isotropic BRDF (Ward 1992, the normalisation used by Radiance)::
+
+    f = rho_d / pi + rho_s * exp(-tan^2(delta) / alpha^2) / (4 pi alpha^2 sqrt(cos_i cos_o))
+
+with ``delta`` the angle between the normal and the half vector. Its peak, at the mirror
+direction of ``wo`` (``delta = 0``), is ``rho_d / pi + rho_s / (4 pi alpha^2 cos_o)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from . import tolerances as tol
+
+INV_PI = 1.0 / math.pi
+
+
+@njit(cache=True, nogil=True)
+def dot3(ax, ay, az, bx, by, bz):
+    """Dot product of two 3-vectors given as components."""
+    return ax * bx + ay * by + az * bz
+
+
+@njit(cache=True, nogil=True)
+def normalize3(x, y, z):
+    """``(x, y, z) / |(x, y, z)|`` and the length (zero vector: returned unchanged, length 0)."""
+    ln = math.sqrt(x * x + y * y + z * z)
+    if ln > 0.0:
+        return x / ln, y / ln, z / ln, ln
+    return x, y, z, 0.0
+
+
+# ----------------------------------------------------------------------------- BRDF
+
+
+@njit(cache=True, nogil=True)
+def ward_specular(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha):
+    """Ward isotropic specular lobe (without ``rho_s``), sr^-1.
+
+    ``n`` unit normal, ``wi`` (toward the light) and ``wo`` (toward the viewer) unit, all
+    on the same side. Returns 0 when either direction is below the surface.
+    """
+    ci = nx * ix + ny * iy + nz * iz
+    co = nx * ox + ny * oy + nz * oz
+    if ci <= 0.0 or co <= 0.0:
+        return 0.0
+    hx = ix + ox
+    hy = iy + oy
+    hz = iz + oz
+    hn = nx * hx + ny * hy + nz * hz
+    if hn <= 0.0:
+        return 0.0
+    h2 = hx * hx + hy * hy + hz * hz
+    tan2 = max(h2 - hn * hn, 0.0) / (hn * hn)  # tan^2(delta), h need not be unit
+    a2 = alpha * alpha
+    return math.exp(-tan2 / a2) / (4.0 * math.pi * a2 * math.sqrt(ci * co))
+
+
+@njit(cache=True, nogil=True)
+def ward_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha):
+    """Full Ward isotropic BRDF value ``(r, g, b)`` for diffuse ``d*`` and specular ``s*``."""
+    spec = 0.0
+    if sr > 0.0 or sg > 0.0 or sb > 0.0:
+        spec = ward_specular(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
+    return (dr * INV_PI + sr * spec, dg * INV_PI + sg * spec, db * INV_PI + sb * spec)
+
+
+# ----------------------------------------------------------------------------- mirror / glass
+
+
+@njit(cache=True, nogil=True)
+def reflect(dx, dy, dz, nx, ny, nz):
+    """Mirror direction of ``d`` about the unit normal ``n``: ``d - 2 (d.n) n``."""
+    k = 2.0 * (dx * nx + dy * ny + dz * nz)
+    return dx - k * nx, dy - k * ny, dz - k * nz
+
+
+@njit(cache=True, nogil=True)
+def refract(dx, dy, dz, nx, ny, nz, eta):
+    """Snell refraction of unit ``d`` through a surface with unit normal ``n`` facing ``-d``.
+
+    Returns ``(ok, tx, ty, tz)``; ``ok`` is False on total internal reflection (then ``t``
+    is zero). ``t`` is unit: ``t = eta d + (eta cos_i - cos_t) n``.
+    """
+    cos_i = -(dx * nx + dy * ny + dz * nz)
+    sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i)
+    if sin2_t >= 1.0:
+        return False, 0.0, 0.0, 0.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    k = eta * cos_i - cos_t
+    tx = eta * dx + k * nx
+    ty = eta * dy + k * ny
+    tz = eta * dz + k * nz
+    tx, ty, tz, _ = normalize3(tx, ty, tz)
+    return True, tx, ty, tz
+
+
+@njit(cache=True, nogil=True)
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a dielectric interface (1 on total reflection).
+
+    ``cos_i`` cosine of the incidence angle (>= 0), ``eta = n1 / n2``. At normal incidence
+    this is ``((n2 - n1) / (n2 + n1))**2``.
+    """
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin2_t = eta * eta * (1.0 - cos_i * cos_i)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+# ----------------------------------------------------------------------------- lights
+
+
+@njit(cache=True, nogil=True)
+def smoothstep(x):
+    """Hermite smoothstep of ``x`` clamped to [0, 1]: ``3x^2 - 2x^3``."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@njit(cache=True, nogil=True)
+def spot_falloff(cos_angle, cos_outer, cos_inner):
+    """Spot light falloff for a direction at ``cos_angle`` from the spot axis.
+
+    0 outside the cone (``cos_angle <= cos_outer``), 1 inside the inner cone, and a
+    smoothstep across the blend region between them, as Blender does. ``cos_inner`` comes
+    from :class:`~rstrace_engine.scene.SceneArrays` (equal to ``cos_outer`` when blend is 0).
+    """
+    if cos_angle <= cos_outer:
+        return 0.0
+    span = cos_inner - cos_outer
+    if span <= 0.0 or cos_angle >= cos_inner:
+        return 1.0
+    return smoothstep((cos_angle - cos_outer) / span)
+
+
+# ----------------------------------------------------------------------------- surfaces
+
+
+@njit(cache=True, nogil=True)
+def geometric_normal(verts, tris, nmat, tri):
+    """Unit world-space geometric normal of global triangle ``tri`` (winding order).
+
+    verts : (V, 3) float64 object space; tris : (T, 3) int32; nmat : (3, 3) float64 normal
+    matrix of the instance (inverse transpose, so mirrored instances keep their outside).
+    """
+    a = tris[tri, 0]
+    b = tris[tri, 1]
+    c = tris[tri, 2]
+    e1x = verts[b, 0] - verts[a, 0]
+    e1y = verts[b, 1] - verts[a, 1]
+    e1z = verts[b, 2] - verts[a, 2]
+    e2x = verts[c, 0] - verts[a, 0]
+    e2y = verts[c, 1] - verts[a, 1]
+    e2z = verts[c, 2] - verts[a, 2]
+    cx = e1y * e2z - e1z * e2y
+    cy = e1z * e2x - e1x * e2z
+    cz = e1x * e2y - e1y * e2x
+    wx = nmat[0, 0] * cx + nmat[0, 1] * cy + nmat[0, 2] * cz
+    wy = nmat[1, 0] * cx + nmat[1, 1] * cy + nmat[1, 2] * cz
+    wz = nmat[2, 0] * cx + nmat[2, 1] * cy + nmat[2, 2] * cz
+    wx, wy, wz, _ = normalize3(wx, wy, wz)
+    return wx, wy, wz
+
+
+@njit(cache=True, nogil=True)
+def shading_normal(tri_normals, nmat, tri, b1, b2, gx, gy, gz):
+    """Interpolated unit world-space shading normal at barycentrics ``(b1, b2)``.
+
+    tri_normals : (T, 3, 3) float32 per-corner object-space normals. Falls back to the
+    geometric normal ``g`` when the interpolated normal is (near) zero.
+    """
+    b0 = 1.0 - b1 - b2
+    ox = b0 * tri_normals[tri, 0, 0] + b1 * tri_normals[tri, 1, 0] + b2 * tri_normals[tri, 2, 0]
+    oy = b0 * tri_normals[tri, 0, 1] + b1 * tri_normals[tri, 1, 1] + b2 * tri_normals[tri, 2, 1]
+    oz = b0 * tri_normals[tri, 0, 2] + b1 * tri_normals[tri, 1, 2] + b2 * tri_normals[tri, 2, 2]
+    wx = nmat[0, 0] * ox + nmat[0, 1] * oy + nmat[0, 2] * oz
+    wy = nmat[1, 0] * ox + nmat[1, 1] * oy + nmat[1, 2] * oz
+    wz = nmat[2, 0] * ox + nmat[2, 1] * oy + nmat[2, 2] * oz
+    wx, wy, wz, ln = normalize3(wx, wy, wz)
+    if not ln > tol.NORMAL_MIN_LENGTH:  # also catches NaN
+        return gx, gy, gz
+    return wx, wy, wz
+
+
+@njit(cache=True, nogil=True)
+def surface_uv(tri_uvs, tri, b1, b2):
+    """Texture coordinates ``(u, v)`` interpolated from per-corner uvs (T, 3, 2) float32."""
+    b0 = 1.0 - b1 - b2
+    u = b0 * tri_uvs[tri, 0, 0] + b1 * tri_uvs[tri, 1, 0] + b2 * tri_uvs[tri, 2, 0]
+    v = b0 * tri_uvs[tri, 0, 1] + b1 * tri_uvs[tri, 1, 1] + b2 * tri_uvs[tri, 2, 1]
+    return u, v
+
+
+@njit(cache=True, nogil=True)
+def texture_lookup(tex_data, tex_start, tex_size, tex, u, v):
+    """Bilinear, repeating lookup of texture ``tex`` at ``(u, v)``; returns ``(r, g, b)``.
+
+    tex_data : (X, 3) float32 texels, textures concatenated row-major, row 0 at ``v = 0``
+    (bottom, as Blender stores images); tex_start : (NT + 1,) int64; tex_size : (NT, 2)
+    int32 (width, height). Texel centres sit at ``((i + 0.5) / w, (j + 0.5) / h)``.
+    """
+    w = tex_size[tex, 0]
+    h = tex_size[tex, 1]
+    base = tex_start[tex]
+    if not (math.isfinite(u) and math.isfinite(v)):
+        u = 0.0
+        v = 0.0
+    x = u * w - 0.5
+    y = v * h - 0.5
+    fx0 = math.floor(x)
+    fy0 = math.floor(y)
+    fx = x - fx0
+    fy = y - fy0
+    x0 = int(fx0 - w * math.floor(fx0 / w))
+    y0 = int(fy0 - h * math.floor(fy0 / h))
+    x0 = min(max(x0, 0), w - 1)
+    y0 = min(max(y0, 0), h - 1)
+    x1 = x0 + 1 if x0 + 1 < w else 0
+    y1 = y0 + 1 if y0 + 1 < h else 0
+    i00 = base + y0 * w + x0
+    i10 = base + y0 * w + x1
+    i01 = base + y1 * w + x0
+    i11 = base + y1 * w + x1
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w10 = fx * (1.0 - fy)
+    w01 = (1.0 - fx) * fy
+    w11 = fx * fy
+    r = (w00 * tex_data[i00, 0] + w10 * tex_data[i10, 0] + w01 * tex_data[i01, 0]
+         + w11 * tex_data[i11, 0])
+    g = (w00 * tex_data[i00, 1] + w10 * tex_data[i10, 1] + w01 * tex_data[i01, 1]
+         + w11 * tex_data[i11, 1])
+    b = (w00 * tex_data[i00, 2] + w10 * tex_data[i10, 2] + w01 * tex_data[i01, 2]
+         + w11 * tex_data[i11, 2])
+    return r, g, b
+
+
+@njit(cache=True, nogil=True)
+def spawn_offset(px, py, pz, scene_extent):
+    """Self-intersection offset at point ``p``: scales with the coordinate magnitude.
+
+    ``SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)`` (see :mod:`.tolerances`).
+    """
+    m = max(abs(px), abs(py), abs(pz), scene_extent * tol.SPAWN_OFFSET_EXTENT_FRAC)
+    return tol.SPAWN_OFFSET_REL * m

@@ -1,0 +1,567 @@
+"""The base tracer: wavefront Whitted ray tracing that also records ray trees.
+
+Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geometric normal
+``g``, both turned to the side the ray comes from, so every surface is two-sided)::
+
+    L = emission + sum_j V_j f_ward(l_j, -d) E_j + R * L(reflect) + T * L(refract)
+
+* ``E_j`` is the irradiance light ``j`` would give: ``I cos / r^2`` for point lights (times
+  the spot falloff for spots), ``strength * cos`` for suns, ``cos = n . l_j``. A light counts
+  only when it is on the lit side of the *geometric* surface and of the shading normal (it
+  never leaks through a surface via an interpolated normal). ``V_j`` is a hard shadow ray:
+  any occluder blocks.
+* Mirror reflectance ``M`` and transmission ``T_m`` with index of refraction ``ior``: with
+  the dielectric Fresnel factor ``F`` at the interface, ``R = M + F T_m`` and ``T = (1-F) T_m``;
+  on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
+  (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
+* A ray that misses returns the world colour.
+
+The wavefront: every depth level intersects its batch of rays, runs a surface kernel (hit
+point, normals, material, one shadow ray per light), intersects the shadow rays, runs a shade
+kernel (direct light, reflection/refraction rays into preallocated slots), compacts the
+spawned rays and goes on with them. Each spawned ray carries the index of the input ray it
+contributes to and its path weight; it is not spawned when that weight is below
+``tolerances.PATH_WEIGHT_MIN``. ``max_depth`` counts reflection/refraction bounces (0: primary
+rays and direct light only).
+
+With ``record=True`` the ray tree of every input ray is returned as a :class:`RayTree`; its
+shadow rays then use ``closest_hit`` so that each occluder's instance id is known.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from . import tolerances as tol
+from .accelerators import Hits, create_accelerator
+from .cameras import camera_params, camera_rays, pixel_jitter
+from .frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
+from .scene import LIGHT_SPOT, LIGHT_SUN, Scene, SceneArrays
+from .shading import (
+    dot3,
+    fresnel_dielectric,
+    geometric_normal,
+    normalize3,
+    reflect,
+    refract,
+    shading_normal,
+    spawn_offset,
+    spot_falloff,
+    surface_uv,
+    texture_lookup,
+    ward_brdf,
+)
+
+log = logging.getLogger(__name__)
+
+#: Rays per batch in :func:`render` (primary rays of one tile of rows, all samples).
+TILE_RAYS = 1 << 16
+
+# shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
+_SH_TRACE = 1
+OCC_NONE = -1  # light unoccluded
+OCC_NOT_FACING = -2  # light behind the surface, outside its cone, or the ray missed
+
+
+class RayTree(NamedTuple):
+    """Ray trees of a batch of rays, one row per node (see docs/CONTRACTS.md).
+
+    Rows are ordered by depth level; the first ``n`` rows are the input rays (row i is
+    ray i). ``node_occluder[k, j]`` is the occluding instance of light ``j`` (``-1``
+    unoccluded, ``-2`` light not facing, outside its cone, or the node is a miss).
+    """
+
+    node_ray: np.ndarray  # (Nn,) int32 input ray index
+    node_parent: np.ndarray  # (Nn,) int32 parent row, -1 for roots
+    node_path: np.ndarray  # (Nn,) int64 root 1, reflect child 2p, refract child 2p + 1
+    node_inst: np.ndarray  # (Nn,) int32 instance hit, -1 = miss
+    node_tri: np.ndarray  # (Nn,) int32 global triangle, -1 on miss
+    node_origin: np.ndarray  # (Nn, 3) float64 segment start
+    node_point: np.ndarray  # (Nn, 3) float64 hit point; far beyond the scene on a miss
+    node_light_mask: np.ndarray  # (Nn,) uint64 bit j: light j contributes
+    node_occluder: np.ndarray  # (Nn, L) int32
+
+
+# ----------------------------------------------------------------------------- kernels
+
+
+@njit(cache=True, nogil=True)
+def _material_of(sa, inst, tri):
+    """Material id of triangle ``tri`` on instance ``inst`` (slot clamped to the list)."""
+    s0 = sa.inst_mat_start[inst]
+    cnt = sa.inst_mat_start[inst + 1] - s0
+    slot = sa.tri_slot[tri]
+    if slot >= cnt:
+        slot = cnt - 1
+    return sa.inst_mat[s0 + slot]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
+                    P, NG, NS, VD, ENTER, MAT, sh_o, sh_d, sh_tmax, sh_state):
+    """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
+
+    Inputs: o, d (n, 3) float64; t, tmax, bu, bv (n,) float64; inst, prim (n,) int32.
+    Outputs: P, NG, NS, VD (n, 3) float64 hit point, geometric and shading normal turned
+    toward the incoming ray, unit ray direction; ENTER (n,) bool (the ray enters the
+    surface's inside); MAT (n,) int32 material or -1 on a miss (then P is a point far
+    beyond the scene). Shadow rays for light j at row ``i * L + j``: sh_o, sh_d (n L, 3),
+    sh_tmax (n L,), sh_state (n L,) int8 = 1 to trace, -2 light not facing / outside cone.
+    """
+    n = o.shape[0]
+    L = sa.light_kind.shape[0]
+    ext = sa.scene_extent
+    cx = 0.5 * (sa.scene_aabb[0, 0] + sa.scene_aabb[1, 0])
+    cy = 0.5 * (sa.scene_aabb[0, 1] + sa.scene_aabb[1, 1])
+    cz = 0.5 * (sa.scene_aabb[0, 2] + sa.scene_aabb[1, 2])
+    for i in prange(n):
+        ux, uy, uz, dl = normalize3(d[i, 0], d[i, 1], d[i, 2])
+        VD[i, 0] = ux
+        VD[i, 1] = uy
+        VD[i, 2] = uz
+        k = inst[i]
+        if k < 0:
+            # a point past the scene box along the ray (segment end for shafts)
+            far = 2.0 * (math.sqrt((o[i, 0] - cx) ** 2 + (o[i, 1] - cy) ** 2
+                                   + (o[i, 2] - cz) ** 2) + ext)
+            s = far / dl if dl > 0.0 else 0.0
+            if tmax[i] < s:
+                s = tmax[i]
+            P[i, 0] = o[i, 0] + d[i, 0] * s
+            P[i, 1] = o[i, 1] + d[i, 1] * s
+            P[i, 2] = o[i, 2] + d[i, 2] * s
+            MAT[i] = -1
+            ENTER[i] = False
+            for j in range(L):
+                sh_state[i * L + j] = -2
+            continue
+        tri = prim[i]
+        px = o[i, 0] + d[i, 0] * t[i]
+        py = o[i, 1] + d[i, 1] * t[i]
+        pz = o[i, 2] + d[i, 2] * t[i]
+        P[i, 0] = px
+        P[i, 1] = py
+        P[i, 2] = pz
+        nm = sa.inst_nmat[k]
+        gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, tri)
+        sx, sy, sz = shading_normal(sa.tri_normals, nm, tri, bu[i], bv[i], gx, gy, gz)
+        enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
+        if not enter:
+            gx, gy, gz = -gx, -gy, -gz
+            sx, sy, sz = -sx, -sy, -sz
+        ENTER[i] = enter
+        NG[i, 0] = gx
+        NG[i, 1] = gy
+        NG[i, 2] = gz
+        NS[i, 0] = sx
+        NS[i, 1] = sy
+        NS[i, 2] = sz
+        MAT[i] = _material_of(sa, k, tri)
+        off = spawn_offset(px, py, pz, ext)
+        qx = px + gx * off
+        qy = py + gy * off
+        qz = pz + gz * off
+        for j in range(L):
+            r = i * L + j
+            sh_state[r] = -2
+            if sa.light_kind[j] == LIGHT_SUN:
+                lx = -sa.light_dir[j, 0]
+                ly = -sa.light_dir[j, 1]
+                lz = -sa.light_dir[j, 2]
+                if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
+                    sh_state[r] = _SH_TRACE
+                    sh_o[r, 0] = qx
+                    sh_o[r, 1] = qy
+                    sh_o[r, 2] = qz
+                    sh_d[r, 0] = lx
+                    sh_d[r, 1] = ly
+                    sh_d[r, 2] = lz
+                    sh_tmax[r] = np.inf
+                continue
+            lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
+                                          sa.light_pos[j, 2] - pz)
+            if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
+                    and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
+                continue
+            if sa.light_kind[j] == LIGHT_SPOT:
+                ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                           sa.light_dir[j, 2])
+                if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
+                    continue
+            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
+                                        sa.light_pos[j, 2] - qz)
+            if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
+                continue  # the light sits within the offset of the surface
+            sh_state[r] = _SH_TRACE
+            sh_o[r, 0] = qx
+            sh_o[r, 1] = qy
+            sh_o[r, 2] = qz
+            sh_d[r, 0] = wx
+            sh_d[r, 1] = wy
+            sh_d[r, 2] = wz
+            sh_tmax[r] = wl * (1.0 - tol.SHADOW_END_REL)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spawn,
+                  contrib, c_o, c_d, c_w, c_ok):
+    """Direct light and secondary rays of a batch of ``n`` surface points.
+
+    prim (n,) int32, bu, bv (n,) float64: the hits (for texture coordinates); the surface
+    arrays come from :func:`_surface_kernel`. vis : (n L,) bool light j visible from point
+    i (row ``i * L + j``); weight : (n, 3) float64 path weights; spawn : whether
+    reflection/refraction rays may be spawned.
+    Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; spawned rays
+    in slots ``2 i`` (reflection) and ``2 i + 1`` (refraction): c_o, c_d, c_w (2n, 3),
+    c_ok (2n,) bool.
+    """
+    n = P.shape[0]
+    L = sa.light_kind.shape[0]
+    ext = sa.scene_extent
+    wmin = tol.PATH_WEIGHT_MIN
+    for i in prange(n):
+        c_ok[2 * i] = False
+        c_ok[2 * i + 1] = False
+        w0 = weight[i, 0]
+        w1 = weight[i, 1]
+        w2 = weight[i, 2]
+        m = MAT[i]
+        if m < 0:
+            contrib[i, 0] = w0 * sa.world_color[0]
+            contrib[i, 1] = w1 * sa.world_color[1]
+            contrib[i, 2] = w2 * sa.world_color[2]
+            continue
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
+        sx, sy, sz = NS[i, 0], NS[i, 1], NS[i, 2]
+        dx, dy, dz = VD[i, 0], VD[i, 1], VD[i, 2]
+        dr = sa.mat_diffuse[m, 0]
+        dg = sa.mat_diffuse[m, 1]
+        db = sa.mat_diffuse[m, 2]
+        tex = sa.mat_tex[m]
+        if tex >= 0:
+            u, v = surface_uv(sa.tri_uvs, prim[i], bu[i], bv[i])
+            xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
+            dr *= xr
+            dg *= xg
+            db *= xb
+        lr = sa.mat_emission[m, 0]
+        lg = sa.mat_emission[m, 1]
+        lb = sa.mat_emission[m, 2]
+        sr = sa.mat_specular[m, 0]
+        sg = sa.mat_specular[m, 1]
+        sb = sa.mat_specular[m, 2]
+        alpha = sa.mat_roughness[m]
+        for j in range(L):
+            if not vis[i * L + j]:
+                continue
+            if sa.light_kind[j] == LIGHT_SUN:
+                lx = -sa.light_dir[j, 0]
+                ly = -sa.light_dir[j, 1]
+                lz = -sa.light_dir[j, 2]
+                e = dot3(sx, sy, sz, lx, ly, lz)
+            else:
+                lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px,
+                                              sa.light_pos[j, 1] - py,
+                                              sa.light_pos[j, 2] - pz)
+                e = dot3(sx, sy, sz, lx, ly, lz) / (dist * dist)
+                if sa.light_kind[j] == LIGHT_SPOT:
+                    ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                               sa.light_dir[j, 2])
+                    e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
+            if e <= 0.0:
+                continue
+            fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                   dr, dg, db, sr, sg, sb, alpha)
+            lr += fr * e * sa.light_intensity[j, 0]
+            lg += fg * e * sa.light_intensity[j, 1]
+            lb += fb * e * sa.light_intensity[j, 2]
+        contrib[i, 0] = w0 * lr
+        contrib[i, 1] = w1 * lg
+        contrib[i, 2] = w2 * lb
+        if not spawn:
+            continue
+        rr = sa.mat_mirror[m, 0]
+        rg = sa.mat_mirror[m, 1]
+        rb = sa.mat_mirror[m, 2]
+        tr = sa.mat_transmission[m, 0]
+        tg = sa.mat_transmission[m, 1]
+        tb = sa.mat_transmission[m, 2]
+        off = spawn_offset(px, py, pz, ext)
+        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+            ior = sa.mat_ior[m]
+            eta = 1.0 / ior if ENTER[i] else ior
+            nx, ny, nz = sx, sy, sz
+            if dot3(dx, dy, dz, nx, ny, nz) >= 0.0:
+                nx, ny, nz = gx, gy, gz
+            ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
+            if ok and dot3(tx, ty, tz, gx, gy, gz) >= 0.0:
+                # the shading normal would send the ray back out: refract about g instead
+                nx, ny, nz = gx, gy, gz
+                ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
+            if ok:
+                f = fresnel_dielectric(-dot3(dx, dy, dz, nx, ny, nz), eta)
+                rr += f * tr
+                rg += f * tg
+                rb += f * tb
+                cr = w0 * (1.0 - f) * tr
+                cg = w1 * (1.0 - f) * tg
+                cb = w2 * (1.0 - f) * tb
+                if max(cr, cg, cb) > wmin:
+                    k = 2 * i + 1
+                    c_ok[k] = True
+                    c_o[k, 0] = px - gx * off
+                    c_o[k, 1] = py - gy * off
+                    c_o[k, 2] = pz - gz * off
+                    c_d[k, 0] = tx
+                    c_d[k, 1] = ty
+                    c_d[k, 2] = tz
+                    c_w[k, 0] = cr
+                    c_w[k, 1] = cg
+                    c_w[k, 2] = cb
+            else:  # total internal reflection
+                rr += tr
+                rg += tg
+                rb += tb
+        cr = w0 * rr
+        cg = w1 * rg
+        cb = w2 * rb
+        if max(cr, cg, cb) > wmin:
+            qx, qy, qz = reflect(dx, dy, dz, sx, sy, sz)
+            if dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
+                qx, qy, qz = reflect(dx, dy, dz, gx, gy, gz)
+            k = 2 * i
+            c_ok[k] = True
+            c_o[k, 0] = px + gx * off
+            c_o[k, 1] = py + gy * off
+            c_o[k, 2] = pz + gz * off
+            c_d[k, 0] = qx
+            c_d[k, 1] = qy
+            c_d[k, 2] = qz
+            c_w[k, 0] = cr
+            c_w[k, 1] = cg
+            c_w[k, 2] = cb
+
+
+@njit(cache=True, nogil=True)
+def _scatter_add(dst, idx, src):
+    """``dst[idx[i]] += src[i]`` for (n, 3) rows (serial: indices may repeat)."""
+    for i in range(idx.shape[0]):
+        k = idx[i]
+        dst[k, 0] += src[i, 0]
+        dst[k, 1] += src[i, 1]
+        dst[k, 2] += src[i, 2]
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def _as_hits(h: Hits) -> Hits:
+    return Hits(np.ascontiguousarray(h.t, np.float64), np.ascontiguousarray(h.inst, np.int32),
+                np.ascontiguousarray(h.prim, np.int32), np.ascontiguousarray(h.u, np.float64),
+                np.ascontiguousarray(h.v, np.float64))
+
+
+def _count(counters: dict | None, key: str, n: int) -> None:
+    if counters is not None:
+        counters[key] = counters.get(key, 0) + int(n)
+
+
+def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
+          record: bool = False, primary: Hits | None = None, counters: dict | None = None):
+    """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
+
+    sa : the scene's :class:`~rstrace_engine.scene.SceneArrays`; accel : an accelerator over
+    it (:func:`~rstrace_engine.accelerators.create_accelerator`).
+    origins, directions : (n, 3) float64 (directions need not be unit); tmin, tmax : (n,)
+    float64 (or scalars) bounds of the input rays. max_depth : reflection/refraction
+    bounces (0: direct light only). record : also return the :class:`RayTree`.
+    primary : optional :class:`~rstrace_engine.accelerators.Hits` of the input rays (e.g.
+    from ``intersect_object``), used instead of ``accel.closest_hit`` for the first level.
+    counters : optional dict; ``primary``, ``secondary`` and ``shadow`` ray counts are added.
+
+    Returns ``(radiance (n, 3) float64, RayTree or None)``.
+    """
+    o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    n = o.shape[0]
+    if d.shape != o.shape:
+        raise ValueError(f"trace: origins {o.shape} and directions {d.shape} differ")
+    t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, np.float64), (n,)))
+    t1 = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    if primary is not None and len(primary.t) != n:
+        raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
+    max_depth = int(max_depth)
+    if max_depth < 0:
+        raise ValueError(f"trace: max_depth {max_depth} < 0")
+    L = len(sa.light_kind)
+    radiance = np.zeros((n, 3))
+    src = np.arange(n, dtype=np.int32)
+    weight = np.ones((n, 3))
+    parent = np.full(n, -1, np.int32)
+    path = np.ones(n, np.int64)
+    levels: list[dict] = []
+    n_nodes = 0
+    for level in range(max_depth + 1):
+        nb = len(src)
+        if nb == 0:
+            break
+        if level == 0 and primary is not None:
+            hits = _as_hits(primary)
+        else:
+            hits = _as_hits(accel.closest_hit(o, d, t0, t1))
+        _count(counters, "primary" if level == 0 else "secondary", nb)
+        P = np.empty((nb, 3))
+        NG = np.empty((nb, 3))
+        NS = np.empty((nb, 3))
+        VD = np.empty((nb, 3))
+        enter = np.empty(nb, np.bool_)
+        mat = np.empty(nb, np.int32)
+        sh_o = np.empty((nb * L, 3))
+        sh_d = np.empty((nb * L, 3))
+        sh_tmax = np.empty(nb * L)
+        sh_state = np.empty(nb * L, np.int8)
+        _surface_kernel(sa, o, d, hits.t, t1, hits.inst, hits.prim, hits.u, hits.v,
+                        P, NG, NS, VD, enter, mat, sh_o, sh_d, sh_tmax, sh_state)
+        todo = np.flatnonzero(sh_state == _SH_TRACE)
+        vis = np.zeros(nb * L, np.bool_)
+        occ = None
+        if len(todo):
+            so, sd, st = sh_o[todo], sh_d[todo], sh_tmax[todo]
+            zero = np.zeros(len(todo))
+            if record:
+                occ_inst = accel.closest_hit(so, sd, zero, st).inst
+                vis[todo] = occ_inst < 0
+            else:
+                vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st), np.bool_)
+            _count(counters, "shadow", len(todo))
+        if record:
+            occ = np.full(nb * L, OCC_NOT_FACING, np.int32)
+            if len(todo):
+                occ[todo] = np.where(occ_inst < 0, OCC_NONE, occ_inst).astype(np.int32)
+        spawn = level < max_depth
+        contrib = np.empty((nb, 3))
+        c_o = np.empty((2 * nb, 3))
+        c_d = np.empty((2 * nb, 3))
+        c_w = np.empty((2 * nb, 3))
+        c_ok = np.empty(2 * nb, np.bool_)
+        _shade_kernel(sa, hits.prim, hits.u, hits.v, P, NG, NS, VD, enter, mat, vis, weight,
+                      spawn, contrib, c_o, c_d, c_w, c_ok)
+        _scatter_add(radiance, src, contrib)
+        if record:
+            rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32)
+            bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
+            mask = (vis.reshape(nb, L).astype(np.uint64) * bits).sum(axis=1, dtype=np.uint64)
+            levels.append(dict(ray=src, parent=parent, path=path, inst=hits.inst,
+                               tri=hits.prim, origin=o, point=P, mask=mask,
+                               occ=occ.reshape(nb, L)))
+        else:
+            rows = None
+        if not spawn:
+            break
+        kids = np.flatnonzero(c_ok)
+        which = kids // 2
+        o = c_o[kids]
+        d = c_d[kids]
+        weight = c_w[kids]
+        src = src[which]
+        t0 = np.zeros(len(kids))
+        t1 = np.full(len(kids), np.inf)
+        if record:
+            parent = rows[which]
+            path = path[which] * 2 + (kids & 1)
+        n_nodes += nb
+    tree = None
+    if record:
+        cat = np.concatenate
+        tree = RayTree(
+            node_ray=cat([lv["ray"] for lv in levels]).astype(np.int32),
+            node_parent=cat([lv["parent"] for lv in levels]).astype(np.int32),
+            node_path=cat([lv["path"] for lv in levels]).astype(np.int64),
+            node_inst=cat([lv["inst"] for lv in levels]).astype(np.int32),
+            node_tri=cat([lv["tri"] for lv in levels]).astype(np.int32),
+            node_origin=cat([lv["origin"] for lv in levels]).reshape(-1, 3),
+            node_point=cat([lv["point"] for lv in levels]).reshape(-1, 3),
+            node_light_mask=cat([lv["mask"] for lv in levels]).astype(np.uint64),
+            node_occluder=cat([lv["occ"] for lv in levels]).reshape(-1, L).astype(np.int32),
+        )
+    return radiance, tree
+
+
+def render(scene: Scene, settings: RenderSettings | None = None, accel=None, progress=None,
+           cancel=None) -> Frame:
+    """Render ``scene``'s camera with the base tracer, in tiles of rows.
+
+    settings : :class:`~rstrace_engine.frame.RenderSettings` (``max_depth``, ``samples``,
+    ``seed``, ``accelerator`` are used; the mode is not looked at). accel : an accelerator
+    over ``scene.arrays()``; built from ``settings.accelerator`` when omitted.
+    progress(fraction, message) is called after every tile; cancel() -> bool is polled
+    before every tile, and a cancelled frame keeps the tiles done so far (``stats
+    ["cancelled"]``). Returns a :class:`~rstrace_engine.frame.Frame`: radiance (h, w, 3)
+    float32, rows bottom-up; pixel_class ``CLASS_TRACED`` where a primary ray hit,
+    ``CLASS_BACKGROUND`` elsewhere. Samples whose radiance is NaN, infinite or above
+    ``tolerances.RADIANCE_MAX`` are left out of the pixel average and counted in
+    ``stats["nonfinite_samples"]``.
+    """
+    settings = (settings or RenderSettings()).validated()
+    t_start = time.perf_counter()
+    sa = scene.arrays()
+    build_s = 0.0
+    if accel is None:
+        tb = time.perf_counter()
+        accel = create_accelerator(settings.accelerator, sa)
+        build_s = time.perf_counter() - tb
+    cp = camera_params(scene.camera)
+    w, h = cp.width, cp.height
+    spp = int(settings.samples)
+    depth = int(settings.max_depth)
+    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+    image = np.zeros((h * w, 3), np.float32)
+    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    counters: dict = {}
+    bad_total = 0
+    cancelled = False
+    rows_done = 0
+    for y0 in range(0, h, rows_per_tile):
+        if cancel is not None and cancel():
+            cancelled = True
+            break
+        y1 = min(h, y0 + rows_per_tile)
+        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+        npx = len(pix)
+        jitter = pixel_jitter(npx, spp, seed=int(settings.seed) * 1000003 + y0)
+        o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+        hits = accel.closest_hit(o, dr, tmin, tmax)
+        rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits, counters=counters)
+        good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
+        bad_total += int(np.count_nonzero(~good))
+        rad = np.where(good[:, None], rad, 0.0).reshape(spp, npx, 3)
+        ngood = good.reshape(spp, npx).sum(axis=0)
+        image[pix] = (rad.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
+        hit_any = (np.asarray(hits.inst).reshape(spp, npx) >= 0).any(axis=0)
+        pclass[pix] = np.where(hit_any, CLASS_TRACED, CLASS_BACKGROUND)
+        rows_done = y1
+        if progress is not None:
+            progress(y1 / h, f"traced {y1}/{h} rows")
+    elapsed = time.perf_counter() - t_start
+    rays = sum(counters.values())
+    if bad_total:
+        log.warning("render: %d sample(s) with NaN/infinite radiance left out", bad_total)
+    stats = dict(
+        time_s=elapsed, accel_build_s=build_s, accelerator=getattr(accel, "name", "?"),
+        rays_traced=rays, primary_rays=counters.get("primary", 0),
+        secondary_rays=counters.get("secondary", 0), shadow_rays=counters.get("shadow", 0),
+        rays_per_s=rays / elapsed if elapsed > 0 else 0.0,
+        width=w, height=h, samples=spp, max_depth=depth, rows_done=rows_done,
+        cancelled=cancelled, nonfinite_samples=bad_total,
+        triangles=scene.triangle_count, instances=len(scene.instances),
+        degenerate_triangles=int(scene.stats.get("degenerate_triangles", 0)),
+        warnings=list(scene.warnings),
+    )
+    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)

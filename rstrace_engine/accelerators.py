@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from . import bvh
 from .bvh import ray_to_object
 from .scene import SceneArrays, SceneError
 from .triangle import intersect, ray_shear
@@ -167,6 +168,82 @@ class BruteForce(Accelerator):
         return hits
 
 
+# ----------------------------------------------------------------------------- BVH
+
+
+class BVHAccelerator(Accelerator):
+    """The two-level numba BVH (:mod:`.bvh`).
+
+    Mesh BVHs are cached by a content hash of their triangles; :meth:`update` reuses them
+    and rebuilds only the top level (and the concatenation the kernel reads).
+    """
+
+    name = "BVH"
+
+    def __init__(self, scene_arrays: SceneArrays) -> None:
+        super().__init__(scene_arrays)
+        self._cache: dict[bytes, bvh.MeshBVH] = {}
+        self._mesh_keys: list[bytes] = []
+        self._geometry = None  # (verts, tris, mesh_tri_start) identity of the last packing
+        self._concat = None
+        self.stats.update(meshes_built=0, meshes_reused=0, mesh_build_s=0.0, top_build_s=0.0)
+        self._build(scene_arrays)
+
+    def update(self, scene_arrays: SceneArrays) -> None:
+        self._build(scene_arrays)
+
+    def _build(self, sa: SceneArrays) -> None:
+        t0 = time.perf_counter()
+        same_geometry = (self._geometry is not None and self._geometry[0] is sa.verts
+                         and self._geometry[1] is sa.tris
+                         and np.array_equal(self._geometry[2], sa.mesh_tri_start))
+        if not same_geometry:
+            keys, built, reused = [], 0, 0
+            cache: dict[bytes, bvh.MeshBVH] = {}
+            for m in range(len(sa.mesh_tri_start) - 1):
+                tv = bvh.mesh_triangles(sa, m)
+                key = bvh.mesh_key(tv)
+                mb = cache.get(key) or self._cache.get(key)
+                if mb is None:
+                    mb = bvh.build_mesh_bvh(tv)
+                    built += 1
+                    self.stats["mesh_build_s"] += mb.build_s
+                else:
+                    reused += 1
+                cache[key] = mb
+                keys.append(key)
+            self._cache = cache  # meshes that left the scene are dropped
+            self._mesh_keys = keys
+            self._concat = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy())
+            self.stats["meshes_built"] += built
+            self.stats["meshes_reused"] += reused
+            log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
+        t1 = time.perf_counter()
+        top = bvh.build_top(sa.inst_aabb)
+        bounds, child, tv, tri, mesh_root = self._concat
+        self.sb = bvh.SceneBVH(top.bounds, top.child, top.perm, bounds, child, tv, tri,
+                               mesh_root, np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
+                               np.ascontiguousarray(sa.inst_inv, dtype=np.float64))
+        self.sa = sa
+        self.stats["top_build_s"] = time.perf_counter() - t1
+        self.stats["build_s"] = time.perf_counter() - t0
+        self.stats["nodes"] = int(len(child) + len(top.child))
+        self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
+                                  for k in self._mesh_keys}
+
+    def _trace(self, o, d, tmin, tmax, only, anyhit):
+        n = len(o)
+        hits = empty_hits(n)
+        if only is None:
+            only = np.full(n, -1, np.int32)
+        t0 = time.perf_counter()
+        bvh.trace_kernel(self.sb, o, d, tmin, tmax, only, anyhit, bvh.chunk_order(n), *hits)
+        self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
+        self.stats["rays"] = self.stats.get("rays", 0) + n
+        return hits
+
+
 # ----------------------------------------------------------------------------- factory
 
 
@@ -180,8 +257,6 @@ def create_accelerator(name: str, scene_arrays: SceneArrays) -> Accelerator:
     if key == "BRUTE_FORCE":
         return BruteForce(scene_arrays)
     if key == "BVH":
-        from .bvh import BVHAccelerator
-
         return BVHAccelerator(scene_arrays)
     if key == "EMBREE":
         from .embree import EmbreeAccelerator

@@ -38,3 +38,11 @@ SPAWN_OFFSET_EXTENT_FRAC = 1e-3
 #: A reflection/refraction ray whose path weight (largest RGB channel of the product of
 #: reflectances along its path) is below this is not spawned: its contribution is invisible.
 PATH_WEIGHT_MIN = 1e-8
+
+#: Ray/box slab test: the exit distance is scaled by ``1 + 2 * gamma(3)`` for float64
+#: (pbrt-v4, section 6.8.2) so rounding never makes a ray miss a box it touches.
+BOX_TFAR_SCALE = 1.0 + 2.0 * (3.0 * 2.0**-53) / (1.0 - 3.0 * 2.0**-53)
+
+#: Instance world boxes in the top-level BVH are padded by this fraction of their magnitude
+#: (the world -> object transform of a ray and of the box corners both round).
+INSTANCE_BOX_PAD_REL = 1e-9

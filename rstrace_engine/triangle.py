@@ -22,7 +22,7 @@ from __future__ import annotations
 from numba import njit
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def ray_shear(dx, dy, dz):
     """Axis permutation and shear constants of a ray direction (float64 scalars).
 
@@ -55,32 +55,28 @@ def ray_shear(dx, dy, dz):
     return kx, ky, kz, dkx * sz, dky * sz, sz
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _pick(k, x, y, z):
     return x if k == 0 else (y if k == 1 else z)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
-              ax, ay, az, bx, by, bz, cx, cy, cz, tmin, tmax):
-    """Watertight test of one ray against triangle ``(a, b, c)`` (all float64 scalars).
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def intersect_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz,
+                      sx, sy, sz, tmin, tmax):
+    """The watertight test on coordinates already permuted by ``(kx, ky, kz)``.
 
-    Returns ``(hit, t, u, v)``; ``hit`` is True when the ray meets the triangle at
-    ``tmin <= t <= tmax`` (inclusive bounds, so a hit exactly at a bound is kept).
+    ``akx = a[kx]`` etc. for the three vertices and the ray origin (float64 scalars); the
+    other arguments as :func:`intersect`. Returns ``(hit, t, u, v)``.
     """
-    # vertices relative to the ray origin, permuted so that the ray runs along +Z
-    a0, a1, a2 = ax - ox, ay - oy, az - oz
-    b0, b1, b2 = bx - ox, by - oy, bz - oz
-    c0, c1, c2 = cx - ox, cy - oy, cz - oz
-    akz = _pick(kz, a0, a1, a2)
-    bkz = _pick(kz, b0, b1, b2)
-    ckz = _pick(kz, c0, c1, c2)
-    Ax = _pick(kx, a0, a1, a2) - sx * akz
-    Ay = _pick(ky, a0, a1, a2) - sy * akz
-    Bx = _pick(kx, b0, b1, b2) - sx * bkz
-    By = _pick(ky, b0, b1, b2) - sy * bkz
-    Cx = _pick(kx, c0, c1, c2) - sx * ckz
-    Cy = _pick(ky, c0, c1, c2) - sy * ckz
+    a2 = akz - okz
+    b2 = bkz - okz
+    c2 = ckz - okz
+    Ax = (akx - okx) - sx * a2
+    Ay = (aky - oky) - sy * a2
+    Bx = (bkx - okx) - sx * b2
+    By = (bky - oky) - sy * b2
+    Cx = (ckx - okx) - sx * c2
+    Cy = (cky - oky) - sy * c2
     # scaled barycentrics: U weighs a, V weighs b, W weighs c
     U = Cx * By - Cy * Bx
     V = Ax * Cy - Ay * Cx
@@ -90,9 +86,23 @@ def intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
     det = U + V + W
     if det == 0.0:
         return False, 0.0, 0.0, 0.0
-    T = (U * akz + V * bkz + W * ckz) * sz
-    t = T / det
+    t = (U * a2 + V * b2 + W * c2) * sz / det
     if not (t >= tmin and t <= tmax):  # also rejects NaN
         return False, 0.0, 0.0, 0.0
     inv = 1.0 / det
     return True, t, V * inv, W * inv
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
+              ax, ay, az, bx, by, bz, cx, cy, cz, tmin, tmax):
+    """Watertight test of one ray against triangle ``(a, b, c)`` (all float64 scalars).
+
+    Returns ``(hit, t, u, v)``; ``hit`` is True when the ray meets the triangle at
+    ``tmin <= t <= tmax`` (inclusive bounds, so a hit exactly at a bound is kept).
+    """
+    return intersect_sheared(_pick(kx, ax, ay, az), _pick(ky, ax, ay, az), _pick(kz, ax, ay, az),
+                             _pick(kx, bx, by, bz), _pick(ky, bx, by, bz), _pick(kz, bx, by, bz),
+                             _pick(kx, cx, cy, cz), _pick(ky, cx, cy, cz), _pick(kz, cx, cy, cz),
+                             _pick(kx, ox, oy, oz), _pick(ky, ox, oy, oz), _pick(kz, ox, oy, oz),
+                             sx, sy, sz, tmin, tmax)

@@ -388,7 +388,7 @@ def _slab(bounds, node, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1):
     return np.nan
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
                 st_node, st_t):
     """Closest (or any) hit in one mesh BVH; the ray is in object space.

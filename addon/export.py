@@ -1,0 +1,675 @@
+"""Evaluated depsgraph -> :class:`rstrace_engine.scene.Scene`.
+
+One pass over ``depsgraph.object_instances``: meshes are read once per evaluated mesh
+datablock with ``foreach_get`` into numpy (no per-vertex Python), and every instance of that
+mesh (collection instances, geometry-node instances, curves and text evaluated to meshes)
+shares it. Materials are read from the Principled BSDF (or a Diffuse, Emission, Glossy or
+Glass BSDF) feeding the material output, falling back to the viewport colour. Point, sun and
+spot lights map directly; area lights and light radii are approximated. Anything the
+renderer cannot represent is collected in :class:`Notes` and reported once per render, never
+silently dropped; an object that cannot be rendered at all (zero scale, NaN transform, no
+faces) is skipped with a message naming it.
+
+Layer: imports ``properties``-level modules only (no session, engine or ui).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from rstrace_engine.scene import (
+    MAX_LIGHTS,
+    Camera,
+    Light,
+    Material,
+    Mesh,
+    Scene,
+    SceneError,
+    check_matrix,
+)
+
+log = logging.getLogger(__name__)
+
+#: Used for empty material slots and objects without materials (Cycles' default surface).
+DEFAULT_MATERIAL = Material("default", diffuse=(0.8, 0.8, 0.8))
+
+#: Roughness below which reflection is a Whitted mirror, above which a Ward highlight;
+#: linear blend in between.
+MIRROR_ROUGHNESS = 0.1
+GLOSSY_ROUGHNESS = 0.3
+
+#: Object types whose evaluated geometry arrives as MESH instances in ``object_instances``
+#: (so the object itself is skipped), and types with nothing to render.
+_MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
+_NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
+
+
+# ----------------------------------------------------------------------------- notes
+
+
+class Notes:
+    """Problems found during export, grouped so that each kind is reported once.
+
+    ``warn(kind, name)`` collects object names under one message per kind;
+    ``skip(message)`` records an object that was left out; ``info`` is for the stats only.
+    """
+
+    def __init__(self) -> None:
+        self._kinds: dict[str, list[str]] = {}
+        self.skipped: list[str] = []
+        self.info: list[str] = []
+
+    def warn(self, kind: str, name: str | None = None) -> None:
+        names = self._kinds.setdefault(kind, [])
+        if name is not None and name not in names:
+            names.append(name)
+
+    def skip(self, message: str) -> None:
+        if message not in self.skipped:
+            self.skipped.append(message)
+
+    @property
+    def warnings(self) -> list[str]:
+        """One line per kind of problem, then one per skipped object."""
+        out = []
+        for kind, names in self._kinds.items():
+            if names:
+                shown = ", ".join(f"'{n}'" for n in names[:6])
+                more = f" and {len(names) - 6} more" if len(names) > 6 else ""
+                out.append(f"{kind}: {shown}{more}")
+            else:
+                out.append(kind)
+        return out + self.skipped
+
+
+@dataclass
+class Exported:
+    """The result of :func:`export_scene`."""
+
+    scene: Scene
+    notes: Notes
+    width: int
+    height: int
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> list[str]:
+        return self.notes.warnings + self.scene.warnings
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def render_size(render) -> tuple[int, int]:
+    """Blender's output size: resolution x percentage (at least one pixel)."""
+    pct = render.resolution_percentage
+    return (max(1, render.resolution_x * pct // 100), max(1, render.resolution_y * pct // 100))
+
+
+def _matrix(m) -> np.ndarray:
+    """A mathutils 4x4 matrix as a float64 array (a copy: instance matrices are transient)."""
+    return np.array(m, dtype=np.float64)
+
+
+def _instance_name(inst) -> str:
+    ob = inst.object
+    if inst.is_instance and inst.parent is not None:
+        return f"{inst.parent.name}/{ob.name}"
+    return ob.name
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function inverted (IEC 61966-2-1)."""
+    c = np.clip(c, 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _rgb(value) -> np.ndarray:
+    return np.clip(np.array(value[:3], dtype=np.float64), 0.0, None)
+
+
+# ----------------------------------------------------------------------------- meshes
+
+
+def mesh_arrays(me, name: str) -> Mesh | None:
+    """Triangles of an evaluated mesh datablock as a :class:`Mesh`, or None if it has none.
+
+    Vertices, triangles, per-corner normals (in the mesh's own normals domain), the active
+    render UV map and material indices are read with ``foreach_get``; the only Python work
+    is a handful of numpy calls.
+    """
+    tris_rna = me.loop_triangles
+    nt = len(tris_rna)
+    if nt == 0:
+        return None
+    nv = len(me.vertices)
+    verts = np.empty(nv * 3, np.float32)
+    me.vertices.foreach_get("co", verts)
+    tris = np.empty(nt * 3, np.int32)
+    tris_rna.foreach_get("vertices", tris)
+    loops = np.empty(nt * 3, np.int32)
+    tris_rna.foreach_get("loops", loops)
+    slots = np.empty(nt, np.int32)
+    tris_rna.foreach_get("material_index", slots)
+
+    domain = me.normals_domain
+    if domain == "POINT":
+        vn = np.empty(nv * 3, np.float32)
+        me.vertex_normals.foreach_get("vector", vn)
+        normals = vn.reshape(-1, 3)[tris]
+    elif domain == "FACE":
+        pn = np.empty(len(me.polygons) * 3, np.float32)
+        me.polygon_normals.foreach_get("vector", pn)
+        poly = np.empty(nt, np.int32)
+        me.loop_triangle_polygons.foreach_get("value", poly)
+        normals = np.repeat(pn.reshape(-1, 3)[poly], 3, axis=0)
+    else:  # CORNER: custom or split normals
+        cn = np.empty(len(me.loops) * 3, np.float32)
+        me.corner_normals.foreach_get("vector", cn)
+        normals = cn.reshape(-1, 3)[loops]
+
+    uvs = None
+    layer = next((u for u in me.uv_layers if u.active_render), None)
+    if layer is not None:
+        uv = np.empty(len(me.loops) * 2, np.float32)
+        layer.uv.foreach_get("vector", uv)
+        uvs = uv.reshape(-1, 2)[loops].reshape(nt, 3, 2)
+    nslots = max(len(me.materials), 1)
+    np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices
+    return Mesh(name, verts.reshape(nv, 3), tris.reshape(nt, 3),
+                corner_normals=normals.reshape(nt, 3, 3), corner_uvs=uvs, slots=slots)
+
+
+# ----------------------------------------------------------------------------- materials
+
+
+def _follow(socket):
+    """The node and output socket feeding ``socket`` (through reroutes), or (None, None)."""
+    seen = 0
+    while socket.is_linked and seen < 64:
+        link = socket.links[0]
+        if not link.is_valid or link.is_muted:
+            return None, None
+        node = link.from_node
+        if node.bl_idname == "NodeReroute":
+            socket = node.inputs[0]
+            seen += 1
+            continue
+        return node, link.from_socket
+    return None, None
+
+
+class MaterialReader:
+    """Converts Blender materials to :class:`Material` (each once per export)."""
+
+    def __init__(self, scene: Scene, notes: Notes) -> None:
+        self.scene = scene
+        self.notes = notes
+        self._ids: dict[int, int] = {}
+        self._default_id: int | None = None
+
+    def default_id(self) -> int:
+        if self._default_id is None:
+            self._default_id = self.scene.add_material(DEFAULT_MATERIAL)
+        return self._default_id
+
+    def material_id(self, mat) -> int:
+        if mat is None:
+            return self.default_id()
+        key = mat.original.session_uid
+        mid = self._ids.get(key)
+        if mid is None:
+            try:
+                mid = self.scene.add_material(self.convert(mat))
+            except SceneError as exc:  # conversion produced something invalid: say so
+                self.notes.warn(f"material unusable, rendered with the default ({exc})",
+                                mat.name)
+                mid = self.default_id()
+            self._ids[key] = mid
+        return mid
+
+    # -- conversion --------------------------------------------------------------------
+
+    def convert(self, mat) -> Material:
+        name = mat.name
+        tree = mat.node_tree if _uses_nodes(mat) else None
+        if tree is None:
+            return self._viewport(mat)
+        out = tree.get_output_node("CYCLES")
+        if out is None:
+            self.notes.warn("materials without an active Material Output node use their "
+                            "viewport colour", name)
+            return self._viewport(mat)
+        node, _ = _follow(out.inputs["Surface"])
+        if node is None:
+            self.notes.warn("materials with nothing connected to Surface use their viewport "
+                            "colour", name)
+            return self._viewport(mat)
+        kind = node.bl_idname
+        if kind == "ShaderNodeBsdfPrincipled":
+            return self._principled(name, node)
+        if kind == "ShaderNodeBsdfDiffuse":
+            colour, tex = self._colour(name, node.inputs["Color"])
+            return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=tex)
+        if kind == "ShaderNodeEmission":
+            colour, _ = self._colour(name, node.inputs["Color"])
+            strength = self._value(name, node.inputs["Strength"])
+            return Material(name, diffuse=(0.0,) * 3, emission=tuple(colour * strength))
+        if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
+                    "ShaderNodeBsdfMetallic"):
+            sock = node.inputs.get("Color") or node.inputs.get("Base Color")
+            colour, _ = self._colour(name, sock)
+            rough = self._value(name, node.inputs["Roughness"])
+            return self._mix(name, base=colour, metallic=1.0, roughness=rough)
+        if kind == "ShaderNodeBsdfGlass":
+            colour, _ = self._colour(name, node.inputs["Color"])
+            rough = self._value(name, node.inputs["Roughness"])
+            ior = self._value(name, node.inputs["IOR"])
+            return self._mix(name, base=colour, roughness=rough, ior=ior, transmission=1.0)
+        self.notes.warn(f"'{node.bl_label}' shaders are not supported; the material's "
+                        f"viewport colour is used", name)
+        return self._viewport(mat)
+
+    def _viewport(self, mat) -> Material:
+        return self._mix(mat.name, base=_rgb(mat.diffuse_color), metallic=mat.metallic,
+                         roughness=mat.roughness)
+
+    def _principled(self, name: str, node) -> Material:
+        inp = node.inputs
+        base, tex = self._colour(name, inp["Base Color"])
+        metallic = self._value(name, inp["Metallic"])
+        rough = self._value(name, inp["Roughness"])
+        ior = self._value(name, inp["IOR"])
+        trans = self._value(name, inp["Transmission Weight"])
+        level = self._value(name, inp["Specular IOR Level"])
+        tint, _ = self._colour(name, inp["Specular Tint"])
+        emit, _ = self._colour(name, inp["Emission Color"])
+        strength = self._value(name, inp["Emission Strength"])
+        for label, sock in (("subsurface", "Subsurface Weight"), ("coat", "Coat Weight"),
+                            ("sheen", "Sheen Weight"), ("thin film", "Thin Film Thickness"),
+                            ("anisotropy", "Anisotropic")):
+            s = inp.get(sock)
+            if s is not None and (s.is_linked or float(s.default_value) > 0.0):
+                self.notes.warn(f"Principled {label} is not supported (ignored)", name)
+        alpha = inp.get("Alpha")
+        if alpha is not None and (alpha.is_linked or alpha.default_value < 1.0):
+            self.notes.warn("transparency (Principled alpha) is not supported: rendered "
+                            "opaque", name)
+        normal = inp.get("Normal")
+        if normal is not None and normal.is_linked:
+            self.notes.warn("normal and bump maps are not supported (ignored)", name)
+        return self._mix(name, base=base, metallic=metallic, roughness=rough, ior=ior,
+                         transmission=trans, specular_level=level, specular_tint=tint,
+                         emission=emit * strength, texture=tex)
+
+    def _mix(self, name: str, base, metallic: float = 0.0, roughness: float = 0.5,
+             ior: float = 1.5, transmission: float = 0.0, specular_level: float = 0.5,
+             specular_tint=(1.0, 1.0, 1.0), emission=(0.0, 0.0, 0.0),
+             texture: np.ndarray | None = None) -> Material:
+        """Principled parameters -> Ward/Whitted weights that never create energy.
+
+        Metals reflect their base colour; dielectrics reflect F0 (from the IOR, scaled by
+        the specular IOR level as Principled v2 does) and pass the rest to diffuse or, with
+        transmission, to refraction. Reflection goes to the Whitted mirror when smooth and
+        to the Ward lobe (alpha = roughness^2) when rough.
+        """
+        base = np.clip(np.asarray(base, np.float64), 0.0, 1.0)
+        if texture is not None:
+            tex_mean = np.clip(texture.reshape(-1, 3).mean(axis=0), 0.0, 1.0)
+            if metallic > 0.0:
+                self.notes.warn("a textured metallic colour is approximated by the texture's "
+                                "average", name)
+            metal_colour = tex_mean
+            base_factor = np.ones(3)
+        else:
+            metal_colour = base
+            base_factor = base
+        m = float(np.clip(metallic, 0.0, 1.0))
+        t = float(np.clip(transmission, 0.0, 1.0))
+        r = float(np.clip(roughness, 0.0, 1.0))
+        ior = float(np.clip(ior, 1.0, 10.0))
+        f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * float(np.clip(specular_level, 0, 1))
+        f0 = np.clip(f0 * np.clip(np.asarray(specular_tint, np.float64), 0, 1), 0.0, 1.0)
+        diffuse = (1 - m) * (1 - t) * base_factor * (1 - f0)
+        refract = (1 - m) * t * base_factor * (1 - f0)
+        if texture is not None and t > 0.0:
+            refract = (1 - m) * t * tex_mean * (1 - f0)
+            self.notes.warn("textured transmission is approximated by the texture's average",
+                            name)
+        reflect = m * metal_colour + (1 - m) * f0
+        sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
+                              0.0, 1.0))
+        if t > 0.0 and r > MIRROR_ROUGHNESS:
+            self.notes.warn("rough transmission is rendered as smooth refraction", name)
+        total = diffuse + refract + reflect
+        scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-12), 1.0)  # rounding guard
+        return Material(
+            name,
+            diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
+            roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
+            transmission=tuple(refract * scale), ior=ior,
+            emission=tuple(np.clip(np.asarray(emission, np.float64), 0.0, None)),
+            texture=texture,
+        )
+
+    # -- sockets -------------------------------------------------------------------------
+
+    def _value(self, name: str, socket) -> float:
+        node, out = _follow(socket)
+        if node is None:
+            return float(socket.default_value)
+        if node.bl_idname == "ShaderNodeValue":
+            return float(out.default_value)
+        self.notes.warn(f"inputs driven by '{node.bl_label}' nodes use the socket's own value",
+                        name)
+        return float(socket.default_value)
+
+    def _colour(self, name: str, socket) -> tuple[np.ndarray, np.ndarray | None]:
+        """(linear RGB, optional (h, w, 3) texture) for a colour socket."""
+        node, out = _follow(socket)
+        if node is None:
+            return _rgb(socket.default_value), None
+        if node.bl_idname == "ShaderNodeRGB":
+            return _rgb(out.default_value), None
+        if node.bl_idname == "ShaderNodeTexImage" and out.name == "Color":
+            tex = self._image(name, node)
+            if tex is not None:
+                return np.ones(3), tex
+            return _rgb(socket.default_value), None
+        self.notes.warn(f"colours driven by '{node.bl_label}' nodes use the socket's own "
+                        f"value", name)
+        return _rgb(socket.default_value), None
+
+    def _image(self, name: str, node) -> np.ndarray | None:
+        img = node.image
+        if img is None:
+            self.notes.warn("image texture nodes without an image are ignored", name)
+            return None
+        vec, _ = _follow(node.inputs["Vector"])
+        if vec is not None and vec.bl_idname not in ("ShaderNodeUVMap", "ShaderNodeTexCoord"):
+            self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not "
+                            f"supported: the render UV map is used", name)
+        if node.projection != "FLAT" or node.extension not in ("REPEAT", "EXTEND", "CLIP"):
+            self.notes.warn("image projections other than flat UV are not supported", name)
+        return read_image(img, self.notes)
+
+
+def read_image(img, notes: Notes) -> np.ndarray | None:
+    """An image's pixels as a (h, w, 3) float32 linear RGB array, bottom row first."""
+    w, h = img.size
+    if w == 0 or h == 0 or not img.has_data and not _try_load(img):
+        notes.warn("images that could not be loaded are ignored", img.name)
+        return None
+    w, h = img.size
+    ch = img.channels
+    px = np.empty(w * h * ch, np.float32)
+    img.pixels.foreach_get(px)
+    px = px.reshape(h, w, ch)
+    rgb = np.repeat(px[:, :, :1], 3, axis=2) if ch < 3 else px[:, :, :3]
+    space = img.colorspace_settings.name
+    if not img.is_float:
+        if space == "sRGB":
+            rgb = srgb_to_linear(rgb)
+        elif space not in ("Non-Color", "Linear Rec.709", "Linear", "Raw"):
+            notes.warn(f"image colour space '{space}' is read as sRGB", img.name)
+            rgb = srgb_to_linear(rgb)
+    if not np.all(np.isfinite(rgb)):
+        notes.warn("images with NaN or infinite pixels have them replaced by 0", img.name)
+        rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)
+    if float(rgb.max(initial=0.0)) > 1.0:
+        notes.warn("texture values above 1 are clipped (energy conservation)", img.name)
+    return np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32)
+
+
+def _try_load(img) -> bool:
+    try:
+        img.reload()
+        _ = img.pixels[0]
+    except (RuntimeError, IndexError, ReferenceError):
+        return False
+    return img.size[0] > 0 and img.size[1] > 0
+
+
+def _uses_nodes(idblock) -> bool:
+    # use_nodes is deprecated (always on) from Blender 5.0; reading it there warns
+    if bpy.app.version >= (5, 0, 0):
+        return idblock.node_tree is not None
+    return bool(idblock.use_nodes) and idblock.node_tree is not None
+
+
+# ----------------------------------------------------------------------------- lights
+
+
+def _light(inst, notes: Notes) -> Light | None:
+    ob = inst.object
+    data = ob.data
+    name = _instance_name(inst)
+    m = _matrix(inst.matrix_world)
+    if not np.all(np.isfinite(m)):
+        notes.skip(f"light '{name}' skipped: its transform has NaN or infinite values")
+        return None
+    z = m[:3, 2]
+    zn = float(np.linalg.norm(z))
+    if zn == 0.0:
+        notes.skip(f"light '{name}' skipped: zero scale leaves it without a direction")
+        return None
+    direction = tuple(-z / zn)
+    colour = _rgb(data.color)
+    if getattr(data, "use_temperature", False):
+        colour = colour * _rgb(data.temperature_color)
+    power = float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
+    if not data.use_shadow:
+        notes.warn("lights with shadows turned off still cast shadows", name)
+    if _uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
+        notes.warn("light node trees are ignored", name)
+    if data.diffuse_factor != 1.0 or data.specular_factor != 1.0:
+        notes.warn("light diffuse/specular factors are ignored", name)
+    kind = data.type
+    if kind in ("POINT", "SPOT") and data.shadow_soft_size > 0.0:
+        notes.warn("lights with a radius are rendered as points (hard shadows)", name)
+    if kind == "POINT":
+        return Light(name, "POINT", tuple(colour), power, tuple(m[:3, 3]), direction)
+    if kind == "SUN":
+        if data.angle > math.radians(1.0):
+            notes.warn("sun angles are ignored (hard shadows)", name)
+        return Light(name, "SUN", tuple(colour), power, tuple(m[:3, 3]), direction)
+    if kind == "SPOT":
+        size = float(np.clip(data.spot_size, 1e-4, math.pi))
+        return Light(name, "SPOT", tuple(colour), power, tuple(m[:3, 3]), direction,
+                     spot_size=size, spot_blend=float(np.clip(data.spot_blend, 0.0, 1.0)))
+    if kind == "AREA":
+        # A Lambertian emitter of power P has on-axis intensity P/pi and falls off as cos;
+        # a 180-degree spot with blend 1 falls off as smoothstep(cos), which integrates to
+        # the same power when its nominal power is 4P (a point light's intensity is P/4pi).
+        notes.warn("area lights are approximated by a point at their centre with a "
+                   "cosine-like falloff (hard shadows)", name)
+        return Light(name, "SPOT", tuple(colour), 4.0 * power, tuple(m[:3, 3]), direction,
+                     spot_size=math.pi, spot_blend=1.0)
+    notes.warn(f"{kind.lower()} lights are not supported (skipped)", name)
+    return None
+
+
+# ----------------------------------------------------------------------------- camera, world
+
+
+def camera_from_object(cam_ob, width: int, height: int, render, notes: Notes) -> Camera:
+    """A :class:`Camera` from an evaluated camera object. Raises :class:`SceneError`."""
+    if cam_ob is None:
+        raise SceneError("the scene has no active camera: add a camera and make it active "
+                         "(Scene properties > Camera)")
+    if cam_ob.type != "CAMERA":
+        raise SceneError(f"the active camera '{cam_ob.name}' is a {cam_ob.type.lower()}, "
+                         f"not a camera")
+    cd = cam_ob.data
+    if cd.type not in ("PERSP", "ORTHO"):
+        raise SceneError(f"camera '{cam_ob.name}': {cd.type.lower()} cameras are not "
+                         f"supported (use perspective or orthographic)")
+    if cd.dof.use_dof:
+        notes.warn("depth of field is not supported (everything is in focus)", cam_ob.name)
+    if render.pixel_aspect_x != render.pixel_aspect_y:
+        notes.warn("non-square pixel aspect is not supported (square pixels rendered)")
+    if render.use_motion_blur:
+        notes.warn("motion blur is not supported")
+    m = _matrix(cam_ob.matrix_world)
+    try:
+        check_matrix(cam_ob.name, m)
+    except SceneError as exc:
+        raise SceneError(f"camera {exc}") from None
+    return Camera(matrix=m, kind=cd.type, lens=cd.lens, sensor_width=cd.sensor_width,
+                  sensor_height=cd.sensor_height, sensor_fit=cd.sensor_fit,
+                  shift_x=cd.shift_x, shift_y=cd.shift_y, clip_start=cd.clip_start,
+                  clip_end=cd.clip_end, ortho_scale=cd.ortho_scale, width=width, height=height)
+
+
+def world_colour(world, notes: Notes) -> np.ndarray:
+    """The world's constant colour: a Background node's Color x Strength, or world.color."""
+    if world is None:
+        return np.zeros(3)
+    tree = world.node_tree if _uses_nodes(world) else None
+    if tree is None:
+        return _rgb(world.color)
+    out = tree.get_output_node("CYCLES")
+    node, _ = _follow(out.inputs["Surface"]) if out is not None else (None, None)
+    if node is None:
+        return np.zeros(3)
+    if node.bl_idname != "ShaderNodeBackground":
+        notes.warn(f"world shader '{node.bl_label}' is not supported: world.color is used",
+                   world.name)
+        return _rgb(world.color)
+    colour_in = node.inputs["Color"]
+    src, out_sock = _follow(colour_in)
+    if src is None:
+        colour = _rgb(colour_in.default_value)
+    elif src.bl_idname == "ShaderNodeRGB":
+        colour = _rgb(out_sock.default_value)
+    else:
+        notes.warn(f"world colours from '{src.bl_label}' nodes (environment textures, "
+                   f"skies) are not supported: the Background colour value is used",
+                   world.name)
+        colour = _rgb(colour_in.default_value)
+    strength_in = node.inputs["Strength"]
+    strength = float(strength_in.default_value)
+    if strength_in.is_linked:
+        notes.warn("a linked world strength is not supported: its own value is used",
+                   world.name)
+    return colour * max(strength, 0.0)
+
+
+# ----------------------------------------------------------------------------- scene
+
+
+def export_scene(depsgraph, camera_object=None, width: int | None = None,
+                 height: int | None = None) -> Exported:
+    """Export the evaluated ``depsgraph`` (a render or viewport depsgraph).
+
+    camera_object : the camera to render through (default: the scene's active camera)
+    width, height : output size in pixels (default: resolution x percentage)
+
+    Raises :class:`SceneError` for problems that leave nothing sensible to render (no
+    camera, a broken camera); everything else is skipped or approximated and noted.
+    """
+    t0 = time.perf_counter()
+    bscene = depsgraph.scene_eval
+    render = bscene.render
+    if width is None or height is None:
+        width, height = render_size(render)
+    notes = Notes()
+    scene = Scene()
+
+    cam = camera_object if camera_object is not None else bscene.camera
+    cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
+    scene.set_camera(camera_from_object(cam_eval, width, height, render, notes))
+    scene.set_world_color(world_colour(bscene.world, notes))
+
+    materials = MaterialReader(scene, notes)
+    meshes: dict[int, int | str] = {}  # evaluated mesh datablock -> mesh id or why not
+    n_instances = n_lights = 0
+    t_mesh = 0.0
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        kind = ob.type
+        if kind == "MESH":
+            if not inst.show_self or (not inst.is_instance and ob.original.hide_render):
+                continue
+            name = _instance_name(inst)
+            matrix = _matrix(inst.matrix_world)
+            try:
+                check_matrix(name, matrix)
+            except SceneError as exc:
+                notes.skip(f"skipped {exc}")
+                continue
+            me = ob.data
+            key = me.as_pointer()
+            if key not in meshes:
+                t1 = time.perf_counter()
+                meshes[key] = _add_mesh(scene, me)
+                t_mesh += time.perf_counter() - t1
+            mesh_id = meshes[key]
+            if isinstance(mesh_id, str):
+                notes.skip(f"skipped object '{name}': {mesh_id}")
+                continue
+            slots = ob.material_slots
+            mats = [materials.material_id(s.material) for s in slots] if len(slots) else \
+                [materials.material_id(m) for m in me.materials]
+            nslots = max(len(me.materials), 1)
+            if len(mats) < nslots:
+                mats += [materials.default_id()] * (nslots - len(mats))
+            if not mats:
+                mats = [materials.default_id()]
+            _check_visibility(ob, name, notes)
+            scene.add_instance(mesh_id, matrix, mats, name=name)
+            n_instances += 1
+        elif kind == "LIGHT":
+            if not inst.is_instance and ob.original.hide_render:
+                continue
+            light = _light(inst, notes)
+            if light is None:
+                continue
+            if len(scene.lights) >= MAX_LIGHTS:
+                notes.skip(f"light '{light.name}' skipped: at most {MAX_LIGHTS} lights are "
+                           f"supported")
+                continue
+            try:
+                scene.add_light(light)
+                n_lights += 1
+            except SceneError as exc:
+                notes.skip(f"skipped {exc}")
+        elif kind in _MESH_VIA_INSTANCES or kind in _NOTHING_TO_RENDER:
+            continue
+        else:
+            notes.warn(f"{kind.lower().replace('_', ' ')} objects are not supported (skipped)",
+                       _instance_name(inst))
+    if n_lights == 0:
+        notes.warn("the scene has no lights: only emission and the world colour are visible")
+    if n_instances == 0:
+        raise SceneError("nothing to render: the scene has no visible mesh objects"
+                         + (f" ({'; '.join(notes.skipped)})" if notes.skipped else ""))
+    elapsed = time.perf_counter() - t0
+    stats = dict(objects=n_instances, meshes=len(scene.meshes), lights=n_lights,
+                 materials=len(scene.materials), triangles=scene.triangle_count,
+                 export_seconds=elapsed, mesh_seconds=t_mesh)
+    return Exported(scene, notes, width, height, stats)
+
+
+def _add_mesh(scene: Scene, me) -> int | str:
+    """The new mesh's id, or the reason it cannot be rendered."""
+    mesh = mesh_arrays(me, me.name)
+    if mesh is None:
+        return f"its mesh '{me.name}' has no faces"
+    try:
+        return scene.add_mesh(mesh)
+    except SceneError as exc:
+        return str(exc)
+
+
+def _check_visibility(ob, name: str, notes: Notes) -> None:
+    if not (ob.visible_camera and ob.visible_shadow and ob.visible_glossy
+            and ob.visible_transmission):
+        notes.warn("per-object ray visibility is not supported (objects are visible to all "
+                   "rays)", name)

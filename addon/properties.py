@@ -1,0 +1,86 @@
+"""Render settings: one ``PointerProperty`` namespace on the scene, ``scene.rstrace``.
+
+Lowest layer of the add-on: imports nothing from the rest of it. The values map one to one
+onto :class:`rstrace_engine.frame.RenderSettings` through :func:`render_settings`.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+MODE_ITEMS = (
+    ("BASE", "Base Tracer", "Classical Whitted ray tracing of every pixel"),
+    ("INTERPOLANT", "Radiance Interpolants",
+     "Interpolate radiance from per-object 4D linetrees within the error bound epsilon; "
+     "edits invalidate only what they affect (ray segment trees)"),
+    ("RI_TREE", "RI-Tree",
+     "Interpolate ray-surface intersections (hit point, normal, exit ray, thickness) from "
+     "per-object 4D kd-trees"),
+)
+
+ACCELERATOR_ITEMS = (
+    ("BVH", "BVH", "Two-level bounding volume hierarchy (numba); moving an object rebuilds "
+     "only the top level"),
+    ("EMBREE", "Embree", "Intel Embree through the embreex package, where it is installed"),
+    ("VISIBILITY_FIELD", "Visibility Field",
+     "Parallel beam tilings in many directions, cheap to update for moving objects"),
+)
+
+
+class RSTraceSettings(bpy.types.PropertyGroup):
+    """Settings of the RSTrace render engine (``scene.rstrace``)."""
+
+    mode: EnumProperty(name="Mode", items=MODE_ITEMS, default="BASE",
+                       description="How pixels are computed")
+    epsilon: FloatProperty(
+        name="Epsilon", default=0.01, min=0.0, max=1.0, soft_max=0.2, precision=3,
+        description="Error bound for interpolated radiance, in display space (0..1 of the "
+                    "displayed value); smaller is more accurate and slower")
+    max_ray_depth: IntProperty(
+        name="Max Ray Depth", default=5, min=0, max=32, soft_max=12,
+        description="Reflection and refraction depth of the Whitted tracer (0: direct light "
+                    "only)")
+    samples: IntProperty(
+        name="Samples", default=1, min=1, max=4096, soft_max=64,
+        description="Jittered (stratified) samples per pixel, averaged with a box filter")
+    accelerator: EnumProperty(name="Accelerator", items=ACCELERATOR_ITEMS, default="BVH",
+                              description="Ray intersection structure")
+    depth_cap: IntProperty(
+        name="Depth Cap", default=6, min=0, max=16,
+        description="Deepest subdivision of a linetree or RI-tree; cells that still fail "
+                    "there are traced")
+    memory_cap: FloatProperty(
+        name="Memory Cap", default=256.0, min=0.0, soft_max=8192.0, precision=0,
+        description="Memory for interpolants and RI-tree samples, in MiB; the least "
+                    "recently used are evicted beyond it")
+    seed: IntProperty(name="Seed", default=0, min=0,
+                      description="Seed of the pixel jitter pattern")
+
+
+def render_settings(props: RSTraceSettings):
+    """The scene's settings as a (validated) :class:`rstrace_engine.frame.RenderSettings`."""
+    from rstrace_engine.frame import RenderSettings
+
+    return RenderSettings(
+        mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
+        samples=int(props.samples), accelerator=props.accelerator,
+        depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
+        seed=int(props.seed),
+    ).validated()
+
+
+classes = (RSTraceSettings,)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.rstrace = PointerProperty(type=RSTraceSettings, name="RSTrace",
+                                              description="RSTrace render settings")
+
+
+def unregister() -> None:
+    del bpy.types.Scene.rstrace
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

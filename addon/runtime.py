@@ -1,0 +1,105 @@
+"""Numba inside Blender: where compiled kernels are cached, and one render at a time.
+
+:func:`configure` must run before any ``rstrace_engine`` module that defines kernels is
+imported: numba binds a kernel to its cache directory when the kernel is decorated. The
+add-on's ``__init__`` calls it first thing.
+
+* Installed as an extension, kernels are cached in the extension's user directory
+  (``bpy.utils.extension_path_user(__package__, path="numba_cache")``), which is writable
+  and survives Blender restarts; a new version of the extension recompiles once.
+* Imported as a plain package (``import addon`` from a checkout, as the tests and the demo
+  do), numba's own default applies: ``__pycache__`` beside the ``rstrace_engine`` sources,
+  or numba's per-user cache where that is not writable. This shares the cache with plain
+  Python use of ``rstrace_engine``.
+* ``NUMBA_CACHE_DIR`` in the environment always wins.
+
+Threads: Blender may render the viewport and an F12 render at the same time, from different
+threads. Numba's ``workqueue`` threading layer (the fallback where neither TBB nor OpenMP is
+available) aborts the process when two threads launch parallel kernels at once, and TBB
+inside Blender is whatever version Blender ships. :data:`RENDER_LOCK` serialises every call
+into the renderer, which is safe under every layer; renders are parallel inside.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: Held around every call into rstrace_engine that may run numba kernels.
+RENDER_LOCK = threading.Lock()
+
+_state = {"cache_dir": None, "configured": False, "kernels_ready": False}
+
+
+def configure(package: str) -> str | None:
+    """Point numba's cache at the extension's user directory; return the directory used.
+
+    ``package`` is the add-on's ``__package__``: ``bl_ext.<repo>.rstrace`` when installed
+    as an extension, ``addon`` when imported from a checkout.
+    """
+    import numba
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        path = os.environ["NUMBA_CACHE_DIR"]
+    elif package.startswith("bl_ext."):
+        import bpy
+
+        path = bpy.utils.extension_path_user(package, path="numba_cache", create=True)
+        numba.config.CACHE_DIR = path
+    else:
+        path = None  # numba's default: beside the sources
+    _state.update(cache_dir=path, configured=True)
+    log.debug("numba cache directory: %s", path or "numba default")
+    return path
+
+
+def cache_dir() -> str | None:
+    return _state["cache_dir"]
+
+
+def _cache_is_cold() -> bool:
+    """True when no compiled kernel of rstrace_engine is cached yet (first render)."""
+    if _state["cache_dir"]:
+        root = Path(_state["cache_dir"])
+    else:
+        import importlib.util
+
+        spec = importlib.util.find_spec("rstrace_engine")
+        if spec is None or spec.origin is None:
+            return True
+        root = Path(spec.origin).parent
+    try:
+        return next(root.rglob("*.nbi"), None) is None
+    except OSError:
+        return True
+
+
+def kernel_status() -> str | None:
+    """A status-line message while kernels still have to be compiled or loaded.
+
+    None once a render has completed in this process (kernels are in memory).
+    """
+    if _state["kernels_ready"]:
+        return None
+    if _cache_is_cold():
+        return "compiling kernels (first render after install, this takes a minute)"
+    return "loading compiled kernels"
+
+
+def mark_kernels_ready() -> None:
+    _state["kernels_ready"] = True
+
+
+def set_threads(render) -> int:
+    """Use Blender's render thread setting (Fixed) for numba's parallel loops."""
+    import numba
+
+    n = numba.config.NUMBA_NUM_THREADS
+    if render.threads_mode == "FIXED":
+        n = max(1, min(int(render.threads), n))
+    numba.set_num_threads(n)
+    return n

@@ -1,0 +1,258 @@
+"""The session glue: one persistent ``rstrace_engine`` session per Blender scene, and the
+F12 / animation render path of the engine (export, render, passes, progress, stats).
+
+:class:`FrameRenderer` is what ``RenderEngine`` dispatches to. Per scene, a
+:class:`SceneState` keeps the core :class:`~rstrace_engine.session.Session` between frames
+and renders (so an animation or a re-render after an edit rebuilds only what changed), the
+statistics of the last render and its messages (shown by the Statistics panel). States are
+dropped when a file is loaded and when the add-on is unregistered.
+
+Layer: imports ``properties``, ``export`` and ``runtime``; never ``engine`` or ``ui``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+from bpy.app.handlers import persistent
+
+from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_NAMES, Frame
+from rstrace_engine.scene import SceneError
+
+from . import export, properties, runtime
+
+log = logging.getLogger(__name__)
+
+INTERPOLATION_PASS = "Interpolation"
+
+
+@dataclass
+class SceneState:
+    """What survives between renders of one Blender scene."""
+
+    session: object = None  # rstrace_engine.session.Session
+    renders: int = 0
+    stats: dict = field(default_factory=dict)  # of the last render (export + frame)
+    messages: list = field(default_factory=list)  # (level, text) of the last render
+    reported: set = field(default_factory=set)  # warnings already reported in this job
+    error: str | None = None
+
+
+_STATES: dict[int, SceneState] = {}
+
+
+def state_for(scene) -> SceneState:
+    """The persistent state of a Blender scene (created on first use)."""
+    key = scene.original.session_uid
+    state = _STATES.get(key)
+    if state is None:
+        state = _STATES[key] = SceneState()
+    return state
+
+
+def peek_state(scene) -> SceneState | None:
+    """The state of ``scene`` if it was ever rendered, without creating one."""
+    return _STATES.get(scene.original.session_uid)
+
+
+def forget_all() -> None:
+    """Drop every session (file load, unregister)."""
+    _STATES.clear()
+
+
+@persistent
+def _on_load_pre(*_args) -> None:
+    forget_all()
+
+
+# ----------------------------------------------------------------------------- rendering
+
+
+class FrameRenderer:
+    """F12 and animation renders for one ``RenderEngine`` instance."""
+
+    def __init__(self, engine) -> None:
+        self.engine = engine
+
+    # -- passes ----------------------------------------------------------------------------
+
+    def update_render_passes(self, scene, render_layer) -> None:
+        """Declare our passes to Blender (compositor sockets, EXR layers)."""
+        self.engine.register_pass(scene, render_layer, "Combined", 4, "RGBA", "COLOR")
+        self.engine.register_pass(scene, render_layer, INTERPOLATION_PASS, 3, "RGB", "COLOR")
+
+    # -- render ----------------------------------------------------------------------------
+
+    def render(self, depsgraph) -> None:
+        engine = self.engine
+        scene = depsgraph.scene
+        state = state_for(scene)
+        if not engine.is_animation or scene.frame_current == scene.frame_start:
+            state.reported.clear()  # a new render job reports its warnings again
+        state.messages = []
+        state.error = None
+        try:
+            self._render(depsgraph, scene, state)
+        except SceneError as exc:
+            self._error(state, str(exc))
+        except Exception as exc:  # never let an exception escape into Blender's render job
+            log.exception("RSTrace render failed")
+            self._error(state, f"internal error: {type(exc).__name__}: {exc}")
+
+    def _render(self, depsgraph, scene, state: SceneState) -> None:
+        engine = self.engine
+        t0 = time.perf_counter()
+        settings = properties.render_settings(scene.rstrace)
+        engine.update_stats("", "RSTrace | exporting scene")
+        exported = export.export_scene(depsgraph, camera_object=engine.camera_override)
+        for message in exported.warnings:
+            self._warn(state, message)
+        if engine.test_break():
+            return
+        t_export = time.perf_counter() - t0
+
+        status = runtime.kernel_status()
+        if status:
+            engine.update_stats("", f"RSTrace | {status}")
+        with runtime.RENDER_LOCK:
+            threads = runtime.set_threads(scene.render)
+            t1 = time.perf_counter()
+            session = self._session(state, exported.scene, settings)
+            t_update = time.perf_counter() - t1
+            t2 = time.perf_counter()
+            frame = session.render(progress=self._progress, cancel=engine.test_break)
+            t_render = time.perf_counter() - t2
+            runtime.mark_kernels_ready()
+            session_stats = dict(getattr(session, "stats", {}) or {})
+
+        self._write_result(depsgraph, scene, frame)
+        state.renders += 1
+        stats = dict(exported.stats)
+        stats.update(session_stats)
+        stats.update(frame.stats or {})
+        stats.update(export_seconds=t_export, update_seconds=t_update, render_seconds=t_render,
+                     total_seconds=time.perf_counter() - t0, threads=threads,
+                     width=exported.width, height=exported.height, mode=settings.mode,
+                     accelerator=settings.accelerator, renders=state.renders,
+                     pixel_classes=_class_counts(frame))
+        state.stats = stats
+        mem = _memory_mb(stats, exported.scene)
+        engine.update_memory_stats(memory_used=mem, memory_peak=mem)
+        engine.update_stats("", status_line(stats))
+        engine.update_progress(1.0)
+
+    def _session(self, state: SceneState, scene, settings):
+        """The scene's persistent core session, created or updated for this render."""
+        from rstrace_engine.session import Session
+
+        if state.session is None:
+            state.session = Session(scene, settings)
+        else:
+            state.session.update_settings(settings)
+            state.session.update_scene(scene)
+        return state.session
+
+    def _progress(self, fraction: float, message: str = "") -> None:
+        self.engine.update_progress(float(min(max(fraction, 0.0), 1.0)))
+        if message:
+            self.engine.update_stats("", f"RSTrace | {message}")
+
+    def _write_result(self, depsgraph, scene, frame: Frame) -> None:
+        """Combined (linear radiance, alpha) and the Interpolation false-colour pass."""
+        h, w = frame.pixel_class.shape
+        rgba = np.empty((h, w, 4), np.float32)
+        rgba[..., :3] = frame.radiance
+        rgba[..., 3] = 1.0
+        if scene.render.film_transparent:
+            rgba[frame.pixel_class == CLASS_BACKGROUND] = 0.0
+        classes = frame.class_image()
+        x0, y0, bw, bh = _region(scene.render, w, h)
+        engine = self.engine
+        layer_name = depsgraph.view_layer.name
+        engine.add_pass(INTERPOLATION_PASS, 3, "RGB", layer=layer_name)
+        result = engine.begin_result(x0, y0, bw, bh, layer=layer_name)
+        try:
+            layer = result.layers[0]
+            layer.passes["Combined"].rect.foreach_set(
+                np.ascontiguousarray(rgba[y0:y0 + bh, x0:x0 + bw]).ravel())
+            ipass = layer.passes.get(INTERPOLATION_PASS)
+            if ipass is not None:
+                ipass.rect.foreach_set(
+                    np.ascontiguousarray(classes[y0:y0 + bh, x0:x0 + bw]).ravel())
+        finally:
+            engine.end_result(result)
+
+    # -- messages -----------------------------------------------------------------------------
+
+    def _warn(self, state: SceneState, message: str) -> None:
+        state.messages.append(("WARNING", message))
+        if message not in state.reported:
+            state.reported.add(message)
+            self.engine.report({"WARNING"}, f"RSTrace: {message}")
+
+    def _error(self, state: SceneState, message: str) -> None:
+        log.error("RSTrace: %s", message)
+        state.messages.append(("ERROR", message))
+        state.error = message
+        self.engine.report({"ERROR"}, f"RSTrace: {message}")
+        self.engine.error_set(f"RSTrace: {message}")
+        self.engine.update_stats("", f"RSTrace | error: {message}")
+
+
+def _region(render, w: int, h: int) -> tuple[int, int, int, int]:
+    """The render region (border) in pixels: x, y, width, height; the whole frame if unset."""
+    if not render.use_border:
+        return 0, 0, w, h
+    x0 = min(max(round(render.border_min_x * w), 0), w - 1)
+    x1 = min(max(round(render.border_max_x * w), x0 + 1), w)
+    y0 = min(max(round(render.border_min_y * h), 0), h - 1)
+    y1 = min(max(round(render.border_max_y * h), y0 + 1), h)
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def _class_counts(frame: Frame) -> dict:
+    counts = np.bincount(frame.pixel_class.ravel(), minlength=len(CLASS_NAMES))
+    return {name: int(c) for name, c in zip(CLASS_NAMES, counts[:len(CLASS_NAMES)], strict=True)
+            if c}
+
+
+def _memory_mb(stats: dict, scene) -> float:
+    """Memory in MiB: the session's own count when it gives one, else the scene arrays."""
+    for key in ("memory_bytes", "memory"):
+        if isinstance(stats.get(key), (int, float)):
+            return float(stats[key]) / 2**20
+    if isinstance(stats.get("memory_mb"), (int, float)):
+        return float(stats["memory_mb"])
+    try:
+        arrays = scene.arrays()
+    except SceneError:
+        return 0.0
+    return sum(getattr(a, "nbytes", 0) for a in arrays) / 2**20
+
+
+def status_line(stats: dict) -> str:
+    """The status-line summary of a finished render."""
+    parts = [f"RSTrace | {stats.get('mode', '?')} | {stats.get('width')}x{stats.get('height')}",
+             f"{stats.get('triangles', 0):,} tris, {stats.get('objects', 0)} objects",
+             f"export {stats.get('export_seconds', 0.0):.2f}s",
+             f"render {stats.get('render_seconds', 0.0):.2f}s"]
+    classes = stats.get("pixel_classes") or {}
+    total = sum(classes.values())
+    if total and classes.get("interpolated"):
+        parts.append(f"interpolated {100.0 * classes['interpolated'] / total:.1f}%")
+    return " | ".join(parts)
+
+
+def register() -> None:
+    if _on_load_pre not in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.append(_on_load_pre)
+
+
+def unregister() -> None:
+    if _on_load_pre in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_on_load_pre)
+    forget_all()

@@ -1,0 +1,129 @@
+"""Panels: the RSTrace settings in Render Properties, the last render's statistics and
+messages, and Blender's stock panels (camera, lights, materials, world, output, ...) enabled
+for this engine through their ``COMPAT_ENGINES`` sets.
+
+Layer: top (imports ``session`` for the statistics; nothing imports this).
+"""
+
+from __future__ import annotations
+
+import bpy
+
+from . import session
+
+ENGINE = "RSTRACE"
+
+#: Stock panels shown for BLENDER_RENDER that make no sense here.
+_EXCLUDE = {
+    "DATA_PT_camera_dof",  # no depth of field
+    "DATA_PT_camera_dof_aperture",
+    "DATA_PT_preview",  # previews are declined
+    "MATERIAL_PT_preview",
+    "RENDER_PT_simplify",
+}
+
+#: EEVEE's node-based material and world panels: the generic way to edit a Principled
+#: material or a world Background without the Cycles add-on's panels.
+_EXTRA = (
+    "EEVEE_MATERIAL_PT_context_material",
+    "EEVEE_MATERIAL_PT_surface",
+    "EEVEE_WORLD_PT_surface",
+)
+
+
+class RSTracePanel:
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+
+class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
+    bl_label = "RSTrace"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.rstrace
+        col = layout.column()
+        col.prop(props, "mode")
+        col.prop(props, "accelerator")
+        col = layout.column(align=True)
+        col.prop(props, "samples")
+        col.prop(props, "seed")
+        layout.prop(props, "max_ray_depth")
+
+
+class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):
+    bl_label = "Interpolation"
+    bl_parent_id = "RSTRACE_PT_render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.rstrace
+        layout.active = props.mode != "BASE"
+        layout.prop(props, "epsilon")
+        layout.prop(props, "depth_cap")
+        layout.prop(props, "memory_cap", text="Memory Cap (MiB)")
+
+
+class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
+    bl_label = "Last Render"
+    bl_parent_id = "RSTRACE_PT_render"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        state = session.peek_state(context.scene)
+        if state is None or (not state.stats and not state.messages):
+            layout.label(text="Not rendered yet")
+            return
+        stats = state.stats
+        if stats:
+            col = layout.column(align=True)
+            col.label(text=f"{stats.get('width')} x {stats.get('height')} px, "
+                           f"{stats.get('mode')}, {stats.get('accelerator')}")
+            col.label(text=f"{stats.get('triangles', 0):,} triangles, "
+                           f"{stats.get('objects', 0)} objects, {stats.get('lights', 0)} lights")
+            col.label(text=f"Export {stats.get('export_seconds', 0.0):.2f} s, "
+                           f"render {stats.get('render_seconds', 0.0):.2f} s")
+            for name, count in (stats.get("pixel_classes") or {}).items():
+                col.label(text=f"{name.replace('_', ' ')}: {count:,} px")
+        for level, text in state.messages:
+            layout.label(text=text, icon="ERROR" if level == "ERROR" else "INFO")
+
+
+classes = (RSTRACE_PT_render, RSTRACE_PT_interpolation, RSTRACE_PT_statistics)
+
+
+def stock_panels() -> list:
+    """Blender's panels this engine reuses (as Cycles does: every BLENDER_RENDER panel)."""
+    panels = []
+    for panel in bpy.types.Panel.__subclasses__():
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if engines is None or panel.__name__ in _EXCLUDE:
+            continue
+        if "BLENDER_RENDER" in engines or panel.__name__ in _EXTRA:
+            panels.append(panel)
+    return panels
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for panel in stock_panels():
+        panel.COMPAT_ENGINES.add(ENGINE)
+
+
+def unregister() -> None:
+    for panel in stock_panels():
+        panel.COMPAT_ENGINES.discard(ENGINE)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

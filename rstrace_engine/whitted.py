@@ -480,16 +480,17 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     tree = None
     if record:
         cat = np.concatenate
+        total = sum(len(lv["ray"]) for lv in levels)
         tree = RayTree(
             node_ray=cat([lv["ray"] for lv in levels]).astype(np.int32),
             node_parent=cat([lv["parent"] for lv in levels]).astype(np.int32),
             node_path=cat([lv["path"] for lv in levels]).astype(np.int64),
             node_inst=cat([lv["inst"] for lv in levels]).astype(np.int32),
             node_tri=cat([lv["tri"] for lv in levels]).astype(np.int32),
-            node_origin=cat([lv["origin"] for lv in levels]).reshape(-1, 3),
-            node_point=cat([lv["point"] for lv in levels]).reshape(-1, 3),
+            node_origin=cat([lv["origin"] for lv in levels]).reshape(total, 3),
+            node_point=cat([lv["point"] for lv in levels]).reshape(total, 3),
             node_light_mask=cat([lv["mask"] for lv in levels]).astype(np.uint64),
-            node_occluder=cat([lv["occ"] for lv in levels]).reshape(-1, L).astype(np.int32),
+            node_occluder=cat([lv["occ"] for lv in levels]).reshape(total, L).astype(np.int32),
         )
     return radiance, tree
 

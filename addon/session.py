@@ -107,6 +107,7 @@ class FrameRenderer:
         engine = self.engine
         t0 = time.perf_counter()
         settings = properties.render_settings(scene.rstrace)
+        check_available(settings)
         engine.update_stats("", "RSTrace | exporting scene")
         exported = export.export_scene(depsgraph, camera_object=engine.camera_override)
         for message in exported.warnings:
@@ -151,9 +152,13 @@ class FrameRenderer:
 
         if state.session is None:
             state.session = Session(scene, settings)
-        else:
+            return state.session
+        try:
             state.session.update_settings(settings)
             state.session.update_scene(scene)
+        except BaseException:
+            state.session = None  # half-updated: start afresh next time
+            raise
         return state.session
 
     def _progress(self, fraction: float, message: str = "") -> None:
@@ -201,6 +206,19 @@ class FrameRenderer:
         self.engine.report({"ERROR"}, f"RSTrace: {message}")
         self.engine.error_set(f"RSTrace: {message}")
         self.engine.update_stats("", f"RSTrace | error: {message}")
+
+
+def check_available(settings) -> None:
+    """Refuse, with a clear message, a mode the renderer does not offer yet (rather than
+    render something else). Accelerators are checked by the core when it builds one."""
+    from rstrace_engine import session as core
+
+    available = getattr(core, "AVAILABLE_MODES", ("BASE",))
+    if settings.mode not in available:
+        label = dict((k, n) for k, n, _ in properties.MODE_ITEMS).get(settings.mode)
+        raise SceneError(f"mode '{label}' is not available yet in this version of RSTrace "
+                         f"(available: {', '.join(available)}); choose another mode in Render "
+                         f"Properties > RSTrace")
 
 
 def _region(render, w: int, h: int) -> tuple[int, int, int, int]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -38,18 +39,21 @@ def point_intensity(light: Light) -> np.ndarray:
     return np.asarray(light.color, np.float64) * light.power / (4.0 * math.pi)
 
 
-def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Scene:
+def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0),
+                gain: float = 1.0) -> Scene:
     """A copy of ``scene`` scaled by ``scale`` about the origin, then translated.
 
     Point/spot powers scale with ``scale**2`` so irradiance (and the image) stays the same;
-    camera clipping and ortho scale follow the geometry.
+    camera clipping and ortho scale follow the geometry. ``gain`` multiplies every light,
+    the emission and the world colour, so the image is ``gain`` times the original (this
+    keeps light powers within the scene's limit at large scales).
     """
     g = np.eye(4)
     g[:3, :3] *= scale
     g[:3, 3] = offset
     out = Scene()
     for m in scene.materials:
-        out.add_material(m)
+        out.add_material(replace(m, emission=tuple(np.asarray(m.emission) * gain)))
     for m in scene.meshes:
         out.add_mesh(Mesh(m["name"], m["verts"], m["tris"], corner_normals=m["normals"],
                           corner_uvs=m["uvs"], slots=m["slots"]))
@@ -57,12 +61,12 @@ def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Sce
         out.add_instance(inst["mesh"], g @ inst["matrix"], inst["materials"], inst["name"])
     for li in scene.lights:
         pos = g[:3, :3] @ np.asarray(li.position) + g[:3, 3]
-        power = li.power if li.kind == "SUN" else li.power * scale * scale
+        power = gain * (li.power if li.kind == "SUN" else li.power * scale * scale)
         out.add_light(Light(li.name, li.kind, li.color, power, tuple(pos), li.direction,
                             li.spot_size, li.spot_blend))
     c = scene.camera
     out.set_camera(Camera(g @ c.matrix, c.kind, c.lens, c.sensor_width, c.sensor_height,
                           c.sensor_fit, c.shift_x, c.shift_y, c.clip_start * scale,
                           c.clip_end * scale, c.ortho_scale * scale, c.width, c.height))
-    out.set_world_color(scene.world_color)
+    out.set_world_color(np.asarray(scene.world_color) * gain)
     return out

@@ -1,0 +1,238 @@
+"""Scene validation: bad input is rejected with a message that names the offending object."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rstrace_engine import shapes, whitted
+from rstrace_engine.accelerators import create_accelerator
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.scene import Camera, Light, Material, Mesh, Scene, SceneError, check_matrix
+
+TRI = np.array([[0, 1, 2]], np.int32)
+VERTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def scene_with_mesh(mesh: Mesh | None = None) -> Scene:
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_mesh(mesh or Mesh("tri", VERTS, TRI))
+    return s
+
+
+# ----------------------------------------------------------------------------- meshes
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nonfinite_vertices_rejected(bad):
+    v = VERTS.copy()
+    v[1, 2] = bad
+    with pytest.raises(SceneError, match="Teapot.*NaN or infinite"):
+        Scene().add_mesh(Mesh("Teapot", v, TRI))
+
+
+def test_nonfinite_normals_and_uvs_rejected():
+    n = np.zeros((1, 3, 3), np.float32)
+    n[0, 0, 0] = np.nan
+    with pytest.raises(SceneError, match="Normals"):
+        Scene().add_mesh(Mesh("Normals", VERTS, TRI, corner_normals=n))
+    uv = np.zeros((1, 3, 2))
+    uv[0, 1, 1] = np.inf
+    with pytest.raises(SceneError, match="Uvs"):
+        Scene().add_mesh(Mesh("Uvs", VERTS, TRI, corner_uvs=uv))
+    with pytest.raises(SceneError, match="Short.*corner normal"):
+        Scene().add_mesh(Mesh("Short", VERTS, TRI, corner_normals=np.zeros((2, 3, 3))))
+
+
+def test_empty_and_malformed_meshes_rejected():
+    with pytest.raises(SceneError, match="Empty.*no triangles"):
+        Scene().add_mesh(Mesh("Empty", np.zeros((0, 3)), np.zeros((0, 3), np.int32)))
+    with pytest.raises(SceneError, match="NoFaces.*no triangles"):
+        Scene().add_mesh(Mesh("NoFaces", VERTS, np.zeros((0, 3), np.int32)))
+    with pytest.raises(SceneError, match="OutOfRange.*index out of range"):
+        Scene().add_mesh(Mesh("OutOfRange", VERTS, np.array([[0, 1, 3]])))
+    with pytest.raises(SceneError, match="Floats.*integers"):
+        Scene().add_mesh(Mesh("Floats", VERTS, np.array([[0.0, 1.0, 2.0]])))
+    with pytest.raises(SceneError, match="Flat2D"):
+        Scene().add_mesh(Mesh("Flat2D", VERTS[:, :2], TRI))
+    with pytest.raises(SceneError, match="Huge.*exceed"):
+        Scene().add_mesh(Mesh("Huge", VERTS * 1e13, TRI))
+
+
+def test_degenerate_triangles_dropped_and_counted():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0]], float)
+    tris = np.array([[0, 1, 2],  # fine
+                     [0, 1, 3],  # collinear: zero area
+                     [2, 2, 4],  # repeated vertex
+                     [1, 4, 2]])  # fine
+    s = Scene()
+    s.add_material(Material("m"))
+    mid = s.add_mesh(Mesh("Sliver", v, tris))
+    assert s.stats["degenerate_triangles"] == 2
+    assert any("Sliver" in w and "2 degenerate" in w for w in s.warnings)
+    s.add_instance(mid, np.eye(4), [0], name="Obj")
+    sa = s.arrays()
+    assert len(sa.tris) == 2
+    # the count reaches the frame statistics, and the mesh still renders
+    s.add_light(Light("Sun", "SUN", power=1.0))
+    s.set_camera(Camera(matrix=shapes.look_at((0.5, 0.3, 3.0), (0.5, 0.3, 0.0)), width=8,
+                        height=6))
+    frame = whitted.render(s, RenderSettings(max_depth=0),
+                           accel=create_accelerator("BRUTE_FORCE", s.arrays()))
+    assert frame.stats["degenerate_triangles"] == 2
+    assert any("Sliver" in w for w in frame.stats["warnings"])
+    assert np.isfinite(frame.radiance).all()
+
+
+def test_all_degenerate_mesh_rejected():
+    v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2]], float)
+    with pytest.raises(SceneError, match="Needle.*degenerate"):
+        Scene().add_mesh(Mesh("Needle", v, TRI))
+
+
+# ----------------------------------------------------------------------------- matrices
+
+
+@pytest.mark.parametrize("kind", ["nan", "inf", "zero_scale", "singular", "projective",
+                                  "shape", "huge"])
+def test_bad_world_matrix_rejected(kind):
+    m = np.eye(4)
+    if kind == "nan":
+        m[0, 3] = np.nan
+    elif kind == "inf":
+        m[1, 1] = np.inf
+    elif kind == "zero_scale":
+        m[2, 2] = 0.0
+    elif kind == "singular":
+        m[:3, :3] = [[1, 0, 0], [0, 1, 0], [1, 1, 0]]  # columns coplanar
+    elif kind == "projective":
+        m[3, 0] = 0.5
+    elif kind == "shape":
+        m = np.eye(3)
+    elif kind == "huge":
+        m[0, 3] = 1e13
+    s = scene_with_mesh()
+    with pytest.raises(SceneError, match="Statue"):
+        s.add_instance(0, m, [0], name="Statue")
+    assert s.instances == []
+
+
+def test_moving_an_instance_to_a_bad_matrix_is_rejected():
+    s = scene_with_mesh()
+    s.add_instance(0, np.eye(4), [0], name="Statue")
+    with pytest.raises(SceneError, match="Statue.*singular"):
+        s.set_instance_matrix(0, np.diag([1.0, 0.0, 1.0, 1.0]))
+    np.testing.assert_array_equal(s.instances[0]["matrix"], np.eye(4))
+
+
+def test_tiny_but_regular_scale_accepted():
+    m = np.diag([1e-6, 1e-6, 1e-6, 1.0])
+    np.testing.assert_array_equal(check_matrix("Small", m), m)
+
+
+def test_instance_references_checked():
+    s = scene_with_mesh()
+    with pytest.raises(SceneError, match="Ghost.*unknown mesh"):
+        s.add_instance(5, np.eye(4), [0], name="Ghost")
+    with pytest.raises(SceneError, match="Ghost.*unknown material"):
+        s.add_instance(0, np.eye(4), [3], name="Ghost")
+
+
+# ----------------------------------------------------------------------------- materials
+
+
+@pytest.mark.parametrize("field,value,msg", [
+    ("diffuse", (1.2, 0.5, 0.5), "diffuse"),
+    ("diffuse", (-0.1, 0.5, 0.5), "diffuse"),
+    ("diffuse", (np.nan, 0.5, 0.5), "diffuse"),
+    ("specular", (0.5, 0.5), "specular"),
+    ("mirror", (2.0, 0.0, 0.0), "mirror"),
+    ("transmission", (0.0, -1.0, 0.0), "transmission"),
+    ("emission", (-1.0, 0.0, 0.0), "emission"),
+    ("emission", (np.inf, 0.0, 0.0), "emission"),
+    ("roughness", 0.0, "roughness"),
+    ("roughness", 1.5, "roughness"),
+    ("roughness", np.nan, "roughness"),
+    ("ior", 0.5, "IOR"),
+    ("ior", np.inf, "IOR"),
+])
+def test_out_of_range_material_values_rejected(field, value, msg):
+    mat = Material("Brass", **{field: value})
+    with pytest.raises(SceneError, match=f"Brass.*{msg}|{msg}.*Brass"):
+        Scene().add_material(mat)
+
+
+def test_energy_creating_material_rejected():
+    with pytest.raises(SceneError, match="Glow.*exceeds 1"):
+        Scene().add_material(Material("Glow", diffuse=(0.6,) * 3, mirror=(0.5,) * 3))
+    # exactly 1 is fine
+    Scene().add_material(Material("Ok", diffuse=(0.5,) * 3, transmission=(0.5,) * 3))
+
+
+def test_bad_texture_rejected():
+    tex = np.zeros((4, 4, 3), np.float32)
+    tex[1, 1, 1] = np.nan
+    with pytest.raises(SceneError, match="Checker"):
+        Scene().add_material(Material("Checker", texture=tex))
+    with pytest.raises(SceneError, match="Stripe.*texture"):
+        Scene().add_material(Material("Stripe", texture=np.zeros((4, 4))))
+
+
+# ----------------------------------------------------------------------------- lights, camera
+
+
+@pytest.mark.parametrize("light,msg", [
+    (Light("Lamp", "AREA"), "unknown kind"),
+    (Light("Lamp", power=-1.0), "power"),
+    (Light("Lamp", power=np.nan), "power"),
+    (Light("Lamp", position=(0.0, np.nan, 0.0)), "position"),
+    (Light("Lamp", "SUN", direction=(0.0, 0.0, 0.0)), "direction"),
+    (Light("Lamp", "SPOT", spot_size=0.0), "spot size"),
+    (Light("Lamp", "SPOT", spot_blend=1.5), "blend"),
+    (Light("Lamp", color=(1.0, -1.0, 1.0)), "colour"),
+])
+def test_bad_lights_rejected(light, msg):
+    with pytest.raises(SceneError, match=f"Lamp.*{msg}|{msg}.*Lamp"):
+        Scene().add_light(light)
+
+
+def test_light_direction_normalised():
+    s = Scene()
+    s.add_light(Light("Sun", "SUN", direction=(0.0, 0.0, -5.0)))
+    assert s.lights[0].direction == pytest.approx((0.0, 0.0, -1.0))
+
+
+@pytest.mark.parametrize("kw,msg", [
+    (dict(lens=0.0), "lens"),
+    (dict(kind="PANO"), "unsupported"),
+    (dict(sensor_fit="DIAGONAL"), "sensor fit"),
+    (dict(clip_start=2.0, clip_end=1.0), "clip end"),
+    (dict(width=0), "resolution"),
+    (dict(matrix=np.full((4, 4), np.nan)), "matrix"),
+    (dict(ortho_scale=-1.0, kind="ORTHO"), "ortho scale"),
+])
+def test_bad_camera_rejected(kw, msg):
+    with pytest.raises(SceneError, match=f"camera.*{msg}"):
+        Scene().set_camera(Camera(**kw))
+
+
+def test_empty_scene_cannot_be_packed():
+    with pytest.raises(SceneError, match="no objects"):
+        Scene().arrays()
+    s = scene_with_mesh()
+    with pytest.raises(SceneError, match="no objects"):
+        s.arrays()
+
+
+def test_spot_cone_cosines_packed():
+    s = scene_with_mesh()
+    s.add_instance(0, np.eye(4), [0], name="Obj")
+    s.add_light(Light("Spot", "SPOT", spot_size=math.radians(60.0), spot_blend=0.25))
+    s.add_light(Light("Point", "POINT"))
+    sa = s.arrays()
+    assert sa.light_cos_outer[0] == pytest.approx(math.cos(math.radians(30.0)))
+    assert sa.light_cos_outer[0] < sa.light_cos_inner[0] < 1.0
+    assert sa.light_intensity[1] == pytest.approx([1000.0 / (4 * math.pi)] * 3)

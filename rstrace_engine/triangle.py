@@ -15,6 +15,10 @@ Usage from numba kernels::
 ``u`` and ``v`` are the barycentric weights of vertices 1 (b) and 2 (c); the hit point is
 ``(1 - u - v) * a + u * b + v * c`` and equals ``o + t * d`` for the (not necessarily unit)
 direction ``d`` the shear was computed from.
+
+These functions are inlined into the cached kernels of :mod:`.bvh` and :mod:`.accelerators`;
+numba's cache does not track that dependency, so after editing this file delete those
+modules' ``__pycache__/*.nbi`` / ``*.nbc`` files (or run with a fresh ``NUMBA_CACHE_DIR``).
 """
 
 from __future__ import annotations

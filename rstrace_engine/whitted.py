@@ -104,15 +104,16 @@ def _material_of(sa, inst, tri):
 
 @njit(cache=True, nogil=True, parallel=True)
 def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
-                    P, NG, NS, VD, ENTER, MAT, sh_o, sh_d, sh_tmax, sh_state):
+                    P, NG, NS, VD, ENTER, MAT, Q, sh_state):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
 
     Inputs: o, d (n, 3) float64; t, tmax, bu, bv (n,) float64; inst, prim (n,) int32.
     Outputs: P, NG, NS, VD (n, 3) float64 hit point, geometric and shading normal turned
     toward the incoming ray, unit ray direction; ENTER (n,) bool (the ray enters the
     surface's inside); MAT (n,) int32 material or -1 on a miss (then P is a point far
-    beyond the scene). Shadow rays for light j at row ``i * L + j``: sh_o, sh_d (n L, 3),
-    sh_tmax (n L,), sh_state (n L,) int8 = 1 to trace, -2 light not facing / outside cone.
+    beyond the scene); Q (n, 3) float64 the shadow-ray origin (P moved off the surface on
+    the lit side). sh_state (n L,) int8 at row ``i * L + j``: 1 trace a shadow ray from
+    point i to light j (:func:`_shadow_kernel` makes it), -2 light not facing / outside cone.
     """
     n = o.shape[0]
     L = sa.light_kind.shape[0]
@@ -167,6 +168,9 @@ def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
         qx = px + gx * off
         qy = py + gy * off
         qz = pz + gz * off
+        Q[i, 0] = qx
+        Q[i, 1] = qy
+        Q[i, 2] = qz
         for j in range(L):
             r = i * L + j
             sh_state[r] = -2
@@ -176,13 +180,6 @@ def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
                 lz = -sa.light_dir[j, 2]
                 if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
                     sh_state[r] = _SH_TRACE
-                    sh_o[r, 0] = qx
-                    sh_o[r, 1] = qy
-                    sh_o[r, 2] = qz
-                    sh_d[r, 0] = lx
-                    sh_d[r, 1] = ly
-                    sh_d[r, 2] = lz
-                    sh_tmax[r] = np.inf
                 continue
             lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
                                           sa.light_pos[j, 2] - pz)
@@ -199,13 +196,36 @@ def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
             if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
                 continue  # the light sits within the offset of the surface
             sh_state[r] = _SH_TRACE
-            sh_o[r, 0] = qx
-            sh_o[r, 1] = qy
-            sh_o[r, 2] = qz
-            sh_d[r, 0] = wx
-            sh_d[r, 1] = wy
-            sh_d[r, 2] = wz
-            sh_tmax[r] = wl * (1.0 - tol.SHADOW_END_REL)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
+    """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
+
+    Q : (n, 3) float64 origins from :func:`_surface_kernel`. Outputs sh_o, sh_d (k, 3)
+    float64 (unit directions), sh_tmax (k,) float64: just short of a point or spot light,
+    infinite for a sun.
+    """
+    L = sa.light_kind.shape[0]
+    for k in prange(todo.shape[0]):
+        i = todo[k] // L
+        j = todo[k] - i * L
+        sh_o[k, 0] = Q[i, 0]
+        sh_o[k, 1] = Q[i, 1]
+        sh_o[k, 2] = Q[i, 2]
+        if sa.light_kind[j] == LIGHT_SUN:
+            sh_d[k, 0] = -sa.light_dir[j, 0]
+            sh_d[k, 1] = -sa.light_dir[j, 1]
+            sh_d[k, 2] = -sa.light_dir[j, 2]
+            sh_tmax[k] = np.inf
+        else:
+            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - Q[i, 0],
+                                        sa.light_pos[j, 1] - Q[i, 1],
+                                        sa.light_pos[j, 2] - Q[i, 2])
+            sh_d[k, 0] = wx
+            sh_d[k, 1] = wy
+            sh_d[k, 2] = wz
+            sh_tmax[k] = wl * (1.0 - tol.SHADOW_END_REL)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -423,17 +443,18 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         VD = np.empty((nb, 3))
         enter = np.empty(nb, np.bool_)
         mat = np.empty(nb, np.int32)
-        sh_o = np.empty((nb * L, 3))
-        sh_d = np.empty((nb * L, 3))
-        sh_tmax = np.empty(nb * L)
+        Q = np.empty((nb, 3))
         sh_state = np.empty(nb * L, np.int8)
         _surface_kernel(sa, o, d, hits.t, t1, hits.inst, hits.prim, hits.u, hits.v,
-                        P, NG, NS, VD, enter, mat, sh_o, sh_d, sh_tmax, sh_state)
+                        P, NG, NS, VD, enter, mat, Q, sh_state)
         todo = np.flatnonzero(sh_state == _SH_TRACE)
         vis = np.zeros(nb * L, np.bool_)
         occ = None
         if len(todo):
-            so, sd, st = sh_o[todo], sh_d[todo], sh_tmax[todo]
+            so = np.empty((len(todo), 3))
+            sd = np.empty((len(todo), 3))
+            st = np.empty(len(todo))
+            _shadow_kernel(sa, Q, todo, so, sd, st)
             zero = np.zeros(len(todo))
             if record:
                 occ_inst = accel.closest_hit(so, sd, zero, st).inst

@@ -623,6 +623,10 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
             if not mats:
                 mats = [materials.default_id()]
             _check_visibility(ob, name, notes)
+            if len(me.uv_layers) == 0 and any(
+                    scene.materials[k].texture is not None for k in mats):
+                notes.warn("textured objects without a UV map sample their texture at (0, 0)",
+                           name)
             scene.add_instance(mesh_id, matrix, mats, name=name)
             n_instances += 1
         elif kind == "LIGHT":

@@ -95,6 +95,7 @@ class FrameRenderer:
             state.reported.clear()  # a new render job reports its warnings again
         state.messages = []
         state.error = None
+        state.stats = {}
         try:
             self._render(depsgraph, scene, state)
         except SceneError as exc:
@@ -167,7 +168,11 @@ class FrameRenderer:
             self.engine.update_stats("", f"RSTrace | {message}")
 
     def _write_result(self, depsgraph, scene, frame: Frame) -> None:
-        """Combined (linear radiance, alpha) and the Interpolation false-colour pass."""
+        """Combined (linear radiance, alpha) and the Interpolation false-colour pass.
+
+        With a render region (border) Blender's result covers only that region, addressed
+        from its own corner; the frame is rendered whole and the region copied out.
+        """
         h, w = frame.pixel_class.shape
         rgba = np.empty((h, w, 4), np.float32)
         rgba[..., :3] = frame.radiance
@@ -179,8 +184,9 @@ class FrameRenderer:
         engine = self.engine
         layer_name = depsgraph.view_layer.name
         engine.add_pass(INTERPOLATION_PASS, 3, "RGB", layer=layer_name)
-        result = engine.begin_result(x0, y0, bw, bh, layer=layer_name)
+        result = engine.begin_result(0, 0, bw, bh, layer=layer_name)
         try:
+            bw, bh = min(bw, result.resolution_x), min(bh, result.resolution_y)
             layer = result.layers[0]
             layer.passes["Combined"].rect.foreach_set(
                 np.ascontiguousarray(rgba[y0:y0 + bh, x0:x0 + bw]).ravel())
@@ -222,13 +228,16 @@ def check_available(settings) -> None:
 
 
 def _region(render, w: int, h: int) -> tuple[int, int, int, int]:
-    """The render region (border) in pixels: x, y, width, height; the whole frame if unset."""
+    """The render region (border) in pixels: x, y, width, height; the whole frame if unset.
+
+    Truncated as Blender does (``disprect = border * size``, converted to int).
+    """
     if not render.use_border:
         return 0, 0, w, h
-    x0 = min(max(round(render.border_min_x * w), 0), w - 1)
-    x1 = min(max(round(render.border_max_x * w), x0 + 1), w)
-    y0 = min(max(round(render.border_min_y * h), 0), h - 1)
-    y1 = min(max(round(render.border_max_y * h), y0 + 1), h)
+    x0 = min(max(int(render.border_min_x * w), 0), w - 1)
+    x1 = min(max(int(render.border_max_x * w), x0 + 1), w)
+    y0 = min(max(int(render.border_min_y * h), 0), h - 1)
+    y1 = min(max(int(render.border_max_y * h), y0 + 1), h)
     return x0, y0, x1 - x0, y1 - y0
 
 

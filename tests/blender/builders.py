@@ -18,6 +18,7 @@ def uv_sphere(name: str, radius: float = 1.0, segments: int = 32, rings: int = 1
               smooth: bool = True):
     me = bpy.data.meshes.new(name)
     bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")
     bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius,
                               calc_uvs=True)
     bm.to_mesh(me)
@@ -29,6 +30,7 @@ def uv_sphere(name: str, radius: float = 1.0, segments: int = 32, rings: int = 1
 def grid(name: str, size: float = 10.0, divisions: int = 1):
     me = bpy.data.meshes.new(name)
     bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")
     bmesh.ops.create_grid(bm, x_segments=divisions, y_segments=divisions, size=size / 2,
                           calc_uvs=True)
     bm.to_mesh(me)

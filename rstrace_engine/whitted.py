@@ -379,6 +379,48 @@ def _scatter_add(dst, idx, src):
         dst[k, 2] += src[i, 2]
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _accumulate(rad, inst, spp, out, pclass):
+    """Average ``spp`` samples per pixel into ``out``, leaving out broken samples.
+
+    rad : (spp * m, 3) float64 sample radiance, sample-major (sample s of pixel p at row
+    ``s * m + p``); inst : (spp * m,) int32 primary hit instance. Outputs: out (m, 3)
+    float32 mean of the finite samples not above ``RADIANCE_MAX`` (0 if none), pclass (m,)
+    uint8 ``CLASS_TRACED`` when some sample hit, else ``CLASS_BACKGROUND``. Returns the
+    number of samples left out.
+    """
+    m = out.shape[0]
+    bad = np.zeros(m, np.int64)
+    for p in prange(m):
+        r = 0.0
+        g = 0.0
+        b = 0.0
+        good = 0
+        hit = False
+        for s in range(spp):
+            k = s * m + p
+            hit = hit or inst[k] >= 0
+            x, y, z = rad[k, 0], rad[k, 1], rad[k, 2]
+            # written so that NaN fails the test
+            if (abs(x) <= tol.RADIANCE_MAX and abs(y) <= tol.RADIANCE_MAX
+                    and abs(z) <= tol.RADIANCE_MAX):
+                r += x
+                g += y
+                b += z
+                good += 1
+            else:
+                bad[p] += 1
+        if good > 0:
+            r /= good
+            g /= good
+            b /= good
+        out[p, 0] = r
+        out[p, 1] = g
+        out[p, 2] = b
+        pclass[p] = CLASS_TRACED if hit else CLASS_BACKGROUND
+    return bad.sum()
+
+
 # ----------------------------------------------------------------------------- driver
 
 
@@ -561,13 +603,8 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
         hits = accel.closest_hit(o, dr, tmin, tmax)
         rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits, counters=counters)
-        good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
-        bad_total += int(np.count_nonzero(~good))
-        rad = np.where(good[:, None], rad, 0.0).reshape(spp, npx, 3)
-        ngood = good.reshape(spp, npx).sum(axis=0)
-        image[pix] = (rad.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
-        hit_any = (np.asarray(hits.inst).reshape(spp, npx) >= 0).any(axis=0)
-        pclass[pix] = np.where(hit_any, CLASS_TRACED, CLASS_BACKGROUND)
+        bad_total += _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp,
+                                 image[y0 * w:y1 * w], pclass[y0 * w:y1 * w])
         rows_done = y1
         if progress is not None:
             progress(y1 / h, f"traced {y1}/{h} rows")

@@ -472,3 +472,29 @@ def test_cli_render_writes_png_and_stats(tmp_path):
     assert px.shape == (18, 24, 3) and px.max() > 0
     stats = json.loads(out.with_suffix(".json").read_text())
     assert stats["scene"] == "three_spheres" and stats["rays_traced"] > 24 * 18
+
+
+def test_diffuse_texture_through_uvs():
+    rng = np.random.default_rng(11)
+    tex = rng.random((3, 5, 3)).astype(np.float32)
+    size = 4.0
+    sun = Light("Sun", "SUN", power=2.0, direction=(0.0, 0.0, -1.0))
+    sc = plane_scene(Material("tiles", diffuse=(0.5, 0.6, 0.7), texture=tex), [sun],
+                     size=size)
+    frame = whitted.render(sc, RenderSettings(max_depth=0), accel=brute(sc))
+    p = floor_hits(sc)
+    u = (p[:, 0] + size / 2) / size  # shapes.plane's uvs span [0, 1] over the plane
+    v = (p[:, 1] + size / 2) / size
+    # bilinear, repeating reference lookup (texel centres at (i + 0.5) / w), row 0 at v = 0
+    h, w = tex.shape[:2]
+    x, y = u * w - 0.5, v * h - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+
+    def texel(i, j):
+        return tex[j % h, i % w].astype(np.float64)
+
+    ref = ((1 - fx) * (1 - fy) * texel(x0, y0) + fx * (1 - fy) * texel(x0 + 1, y0)
+           + (1 - fx) * fy * texel(x0, y0 + 1) + fx * fy * texel(x0 + 1, y0 + 1))
+    want = np.array([0.5, 0.6, 0.7]) * ref / math.pi * 2.0
+    np.testing.assert_allclose(frame.radiance.reshape(-1, 3), want, rtol=1e-5)

@@ -498,3 +498,17 @@ def test_diffuse_texture_through_uvs():
            + (1 - fx) * fy * texel(x0, y0 + 1) + fx * fy * texel(x0 + 1, y0 + 1))
     want = np.array([0.5, 0.6, 0.7]) * ref / math.pi * 2.0
     np.testing.assert_allclose(frame.radiance.reshape(-1, 3), want, rtol=1e-5)
+
+
+def test_bench_frame_runs_and_reports(tmp_path):
+    from rstrace_engine.bench import frame as bench_frame
+
+    res = bench_frame.run(["three_spheres"], width=24, height=18, depth=1, out=tmp_path)
+    row = res["frames"][0]
+    assert row["scene"] == "three_spheres" and row["rays"] > 24 * 18
+    assert row["time_s"] > 0 and row["mrays_per_s"] > 0
+    assert (tmp_path / "three_spheres_rstrace.png").exists()
+    pytest.importorskip("mitsuba")
+    assert row["mitsuba_s"] > 0 and row["ratio"] > 0
+    mit = image.read_png(tmp_path / "three_spheres_mitsuba.png")
+    assert mit.shape == (18, 24, 3) and mit.max() > 0  # the same camera sees lit geometry

@@ -36,8 +36,8 @@ def three_spheres(width: int = 640, height: int = 480, subdivisions: int = 4) ->
     s.add_instance(sphere, shapes.transform((-1.6, 0.4, 1.0)), [red], name="RedSphere")
     s.add_instance(sphere, shapes.transform((0.6, -0.9, 1.0)), [mirror], name="MirrorSphere")
     s.add_instance(sphere, shapes.transform((1.5, 1.6, 0.8), 0.8), [blue], name="BlueSphere")
-    s.add_light(Light("Key", "POINT", power=2500.0, position=(-3.0, -4.0, 6.0)))
-    s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=900.0,
+    s.add_light(Light("Key", "POINT", power=1500.0, position=(-3.0, -4.0, 6.0)))
+    s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=500.0,
                       position=(4.0, -2.0, 3.5)))
     s.set_world_color((0.05, 0.06, 0.08))
     s.set_camera(_camera((0.0, -8.5, 3.6), (0.0, 0.3, 0.8), width, height))
@@ -101,8 +101,8 @@ def museum(width: int = 640, height: int = 480, rows: int = 25, cols: int = 40) 
                                [bronze], name=f"Sculpture{k:04d}")
             k += 1
     for j, (x, y) in enumerate([(-12, -8), (12, -8), (-12, 6), (12, 6), (0, -1)]):
-        s.add_light(Light(f"Ceiling{j}", "POINT", power=6000.0, position=(x, y, H - 0.5)))
-    s.add_light(Light("Spot", "SPOT", power=8000.0, position=(0.0, -D / 2 + 1.0, H - 1.0),
+        s.add_light(Light(f"Ceiling{j}", "POINT", power=1200.0, position=(x, y, H - 0.5)))
+    s.add_light(Light("Spot", "SPOT", power=4000.0, position=(0.0, -D / 2 + 1.0, H - 1.0),
                       direction=(0.0, 1.0, -0.6), spot_size=math.radians(50)))
     s.set_world_color((0.0, 0.0, 0.0))
     s.set_camera(_camera((-14.0, -13.5, 4.2), (2.0, 4.0, 1.0), width, height, lens=24.0))

@@ -22,6 +22,12 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check rstrace_engine addon tests examples
 
+# Blender extension zips, one per platform: dist/rstrace-<version>-<platform>.zip.
+# EXT_PLATFORMS=linux-x64 skips the (optional) Windows and macOS wheel downloads.
+EXT_PLATFORMS ?= linux-x64 windows-x64 macos-arm64
+extension: $(STAMP)
+	$(PY) scripts/build_extension.py --platforms $(EXT_PLATFORMS)
+
 bench: $(STAMP)
 	$(PY) -m rstrace_engine.bench raycast
 	$(PY) -m rstrace_engine.bench frame

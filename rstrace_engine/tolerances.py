@@ -46,3 +46,30 @@ BOX_TFAR_SCALE = 1.0 + 2.0 * (3.0 * 2.0**-53) / (1.0 - 3.0 * 2.0**-53)
 #: Instance world boxes in the top-level BVH are padded by this fraction of their magnitude
 #: (the world -> object transform of a ray and of the box corners both round).
 INSTANCE_BOX_PAD_REL = 1e-9
+
+# ----------------------------------------------------------------------------- interpolants
+
+#: Linetree boxes: every object's world box is padded on each side by this fraction of the
+#: scene extent (a flat object still gets a box of positive thickness) ...
+LINETREE_PAD_SCENE_REL = 1e-3
+#: ... plus this fraction of the object's own diagonal.
+LINETREE_PAD_OBJECT_REL = 1e-3
+
+#: Surface classes: adjacent triangles belong to one smooth patch when their per-corner
+#: shading normals at the shared vertices differ by less than this (unit vectors) ...
+CLASS_NORMAL_TOL = 1e-5
+#: ... and their uvs there differ by less than this.
+CLASS_UV_TOL = 1e-6
+#: A mesh is convex when no vertex lies more than this fraction of its diagonal in front of
+#: any triangle's plane.
+CONVEX_TOL_REL = 1e-9
+#: Facing tests of the error predicate (triangle normal against a line direction or the
+#: direction to a light) count as decided only beyond this fraction of the product of
+#: lengths; nearer to zero they count as both (the conservative side).
+FACING_EPS_REL = 1e-12
+#: Tunnel and deeper-level shafts pad the boxes of their 16 end points by this fraction of
+#: the boxes' diagonal (secondary hit points of interior lines are not bounded exactly).
+TUNNEL_MARGIN_REL = 0.05
+#: Shaft planes are moved outward by this fraction of the scene's coordinate magnitude
+#: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
+SHAFT_SLACK_REL = 1e-9

@@ -1,0 +1,167 @@
+"""Frames rendered with radiance interpolants (``mode = "INTERPOLANT"``).
+
+A frame: camera rays (the same rays, jitter and tiles as :func:`~.whitted.render`) -> their
+visible hits through the whole scene (``closest_hit``) -> for every ray that hits an object,
+its line in that object's linetree -> :meth:`~.interpolants.InterpolantCache.resolve`
+interpolates what valid interpolants cover and builds the cells the frame needs -> every
+other ray (misses, failed cells, pixels too few to be worth a cell) is traced by the base
+tracer from the hits already found. Each pixel gets a class (:data:`~.frame.CLASS_NAMES`).
+
+Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
+frames and camera moves; it starts a new cache only when the scene packing, epsilon, the
+depth cap or the ray depth change (edits are the edits issue's business).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from . import tolerances as tol
+from .accelerators import Hits
+from .cameras import camera_params, camera_rays, pixel_jitter
+from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
+from .interpolants import InterpolantCache
+from .whitted import TILE_RAYS, trace
+
+log = logging.getLogger(__name__)
+
+
+def _camera_batch(cp, spp: int, seed: int):
+    """All camera rays of a frame, tile by tile as the base tracer makes them.
+
+    Returns ``origins, directions, tmin, tmax`` and the tiles as ``(start, pixels)``.
+    """
+    w, h = cp.width, cp.height
+    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+    pix_all, jit_all, tiles, start = [], [], [], 0
+    for y0 in range(0, h, rows_per_tile):
+        y1 = min(h, y0 + rows_per_tile)
+        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+        jitter = pixel_jitter(len(pix), spp, seed=seed * 1000003 + y0)
+        pix_all.append(np.tile(pix, spp))
+        jit_all.append(jitter.reshape(-1, 2))
+        tiles.append((start, pix))
+        start += len(pix) * spp
+    o, d, tmin, tmax = camera_rays(cp, np.concatenate(pix_all), np.concatenate(jit_all))
+    return o, d, tmin, tmax, tiles
+
+
+def _take(h: Hits, idx: np.ndarray) -> Hits:
+    return Hits(h.t[idx], h.inst[idx], h.prim[idx], h.u[idx], h.v[idx])
+
+
+def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
+                 cancel=None) -> Frame:
+    """Render ``scene``'s camera with the interpolants of ``cache`` (building what it needs).
+
+    ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
+    are the cache's. progress(fraction, message); cancel() -> bool is polled between stages
+    (a cancelled frame keeps its interpolated pixels, ``stats["cancelled"]``).
+    """
+    settings = settings.validated()
+    t0 = time.perf_counter()
+    sa, accel = cache.sa, cache.accel
+    cp = camera_params(scene.camera)
+    w, h = cp.width, cp.height
+    spp = int(settings.samples)
+    o, d, tmin, tmax, tiles = _camera_batch(cp, spp, int(settings.seed))
+    n = len(o)
+    hits = accel.closest_hit(o, d, tmin, tmax)
+    t_vis = time.perf_counter()
+    if progress is not None:
+        progress(0.2, "visibility")
+    hit = np.flatnonzero(hits.inst >= 0)
+    hsub = _take(hits, hit)
+    face, abcd, zp, clsp = cache.pixel_lines(hsub, o[hit], d[hit])
+    res = cache.resolve(hsub.inst, face, abcd, zp, clsp, cancel=cancel)
+    t_res = time.perf_counter()
+    if progress is not None:
+        progress(0.7, "interpolants")
+    rad = np.zeros((n, 3))
+    ray_class = np.full(n, CLASS_BACKGROUND, np.uint8)
+    ray_class[hit] = res.pixel_class
+    interp = np.zeros(n, bool)
+    interp[hit] = res.interpolated
+    rad[hit[res.interpolated]] = res.radiance[res.interpolated]
+    todo = np.flatnonzero(~interp)
+    cancelled = cancel is not None and cancel()
+    counters: dict = {}
+    if len(todo) and not cancelled:
+        rad[todo], _ = trace(sa, accel, o[todo], d[todo], tmin[todo], tmax[todo],
+                             int(settings.max_depth), primary=_take(hits, todo),
+                             counters=counters)
+    t_trace = time.perf_counter()
+    good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
+    bad_total = int(np.count_nonzero(~good))
+    rad = np.where(good[:, None], rad, 0.0)
+    image = np.zeros((h * w, 3), np.float32)
+    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    for start, pix in tiles:
+        npx = len(pix)
+        sl = slice(start, start + npx * spp)
+        r = rad[sl].reshape(spp, npx, 3)
+        ngood = good[sl].reshape(spp, npx).sum(axis=0)
+        image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
+        c = ray_class[sl].reshape(spp, npx)
+        # a pixel's class: its first sample that is not background
+        first = np.argmax(c != CLASS_BACKGROUND, axis=0)
+        pclass[pix] = c[first, np.arange(npx)]
+    if progress is not None:
+        progress(1.0, "done")
+    elapsed = time.perf_counter() - t0
+    counts = np.bincount(ray_class, minlength=len(CLASS_NAMES))
+    fs = cache.frame_stats
+    stats = dict(
+        mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,
+        build_s=fs.get("build_s", 0.0), trace_s=t_trace - t_res,
+        interpolated_fraction=float(np.count_nonzero(interp)) / max(n, 1),
+        traced_rays=len(todo), shadow_rays=counters.get("shadow", 0),
+        secondary_rays=counters.get("secondary", 0),
+        cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
+        samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
+        cell_outcomes=dict(fs.get("reasons", {})),
+        interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
+        memory_mb=cache.memory_bytes / 1e6,
+        interpolant_memory_mb=cache.interpolant_bytes / 1e6,
+        epsilon=cache.epsilon, depth_cap=cache.depth_cap,
+        memory_cap_mb=cache.memory_cap_bytes / 1e6,
+        class_counts={CLASS_NAMES[k]: int(counts[k]) for k in range(len(CLASS_NAMES))},
+        width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
+        cancelled=bool(cancelled), nonfinite_samples=bad_total,
+        accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
+    )
+    log.debug("interpolant frame: %.3f s, %.1f%% interpolated, %d cells built",
+              elapsed, 100 * stats["interpolated_fraction"], stats["cells_built"])
+    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)
+
+
+class InterpolantRenderer:
+    """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid."""
+
+    def __init__(self) -> None:
+        self.cache: InterpolantCache | None = None
+
+    def reset(self) -> None:
+        """Forget every interpolant (a new scene export)."""
+        self.cache = None
+
+    def render(self, scene, settings: RenderSettings, accel, progress=None,
+               cancel=None) -> Frame:
+        settings = settings.validated()
+        sa = scene.arrays()
+        c = self.cache
+        if c is None or c.accel is not accel or not c.compatible(
+                sa, settings.epsilon, settings.depth_cap, settings.max_depth):
+            self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
+                                              settings.memory_cap_mb, settings.max_depth)
+        elif c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
+            c.set_memory_cap(settings.memory_cap_mb)
+        frame = render_frame(c, scene, settings, progress=progress, cancel=cancel)
+        frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
+        return frame
+
+
+__all__ = ["render_frame", "InterpolantRenderer", "CLASS_INTERPOLATED"]

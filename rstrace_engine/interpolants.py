@@ -1,0 +1,733 @@
+"""Radiance interpolants: building them in batches, keeping them under an LRU memory cap.
+
+An :class:`InterpolantCache` holds everything that outlives a frame for one packing of a scene:
+the linetrees (:mod:`.linetree`), the traced *samples* (corner and test lines, keyed by their
+lattice point so that neighbouring cells share them; a numba hash map from ``(instance, face
+pair, a, b, c, d)`` to the sample) and the interpolant pool (16 RGB radiance samples, the slab
+and surface class the predicate certified, the 16 sample ids whose ray trees name what the
+interpolant depends on, and an LRU stamp). Camera moves invalidate nothing.
+
+:meth:`InterpolantCache.resolve` takes the visible hits of a frame's rays on their objects and
+walks them down the linetrees level by level. Per level: leaves holding an interpolant
+interpolate (when the pixel's hit is the slab crossing the interpolant certifies); every empty
+leaf with enough pixels is built (all of them in one batch: their missing samples are traced
+together, against the object alone with :meth:`intersect_object`, then shaded through the
+whole scene with :func:`~.whitted.trace` and ray trees recorded; then the error predicate of
+:mod:`.interpolant_predicate` and the radiance test run on the batch); failed leaves above
+the depth cap split. Whatever is left is returned to be traced, with its pixel class.
+
+The radiance test: at the cell's test lines (its centre, the 8 centres of its boundary
+facets, and for non-convex meshes 4 more interior lines) the quadrilinear interpolation of
+the corner radiance must match the traced radiance within epsilon in display space (clamp to
+[0, 1], sRGB, per channel). Test lines lie on the lattice of the children, so a split reuses
+them as corners. With epsilon = 0 nothing is interpolated: no finite set of test lines proves
+an interpolant exact.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from . import image
+from .accelerators import Hits
+from .frame import (
+    CLASS_FAIL_NONLINEAR,
+    CLASS_FAIL_SILHOUETTE,
+    CLASS_INTERPOLATED,
+    CLASS_TRACED,
+)
+from .interpolant_predicate import (
+    REASONS,
+    VALID,
+    SampleArrays,
+    check_cells,
+    mesh_topology,
+    query_scene,
+)
+from .linetree import (
+    EMPTY,
+    LATTICE_DEPTH,
+    MAX_DEPTH,
+    Linetrees,
+    corner_weight,
+    corner_weights,
+    descend,
+    expanded_boxes,
+    fail_class,
+    fail_code,
+    lattice_lines,
+    line_points,
+    parameterize,
+    point_depth,
+)
+from .shading import dot3, geometric_normal, spawn_offset
+from .whitted import trace
+
+log = logging.getLogger(__name__)
+
+#: Cells shallower than this are split without being built (their lines span so much of
+#: the face pair that they essentially never pass).
+MIN_BUILD_DEPTH = 2
+#: A leaf is built (or a failed leaf split) only when at least this many of the frame's rays
+#: fall in it; fewer are cheaper to trace.
+MIN_PIXELS = 12
+#: Back-facing crossings skipped while looking for a line's front-facing crossing.
+MAX_BACKFACE_SKIPS = 8
+
+#: Test lines in local cell coordinates: the centre and the 8 facet centres ...
+TEST_BASE = np.array([[.5, .5, .5, .5],
+                      [.5, .5, .5, 0], [.5, .5, .5, 1], [.5, .5, 0, .5], [.5, .5, 1, .5],
+                      [.5, 0, .5, .5], [.5, 1, .5, .5], [0, .5, .5, .5], [1, .5, .5, .5]])
+#: ... and 4 more interior lines for non-convex meshes.
+TEST_EXTRA = np.array([[.25, .25, .25, .25], [.75, .75, .75, .75],
+                       [.25, .75, .25, .75], [.75, .25, .75, .25]])
+TEST_POINTS = np.concatenate([TEST_BASE, TEST_EXTRA])
+N_TEST_BASE = len(TEST_BASE)
+N_TEST_ALL = len(TEST_POINTS)
+_TEST_WEIGHTS = corner_weights(TEST_POINTS)  # (13, 16)
+
+#: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids)
+INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4
+
+
+# ----------------------------------------------------------------------------- hash map
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _slot(k1, k2, mask):
+    h = np.uint64(k1) * np.uint64(0x9E3779B97F4A7C15)
+    h ^= np.uint64(k2) * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= h >> np.uint64(31)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(29)
+    return np.int64(h & np.uint64(mask))
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _map_lookup(tk1, tk2, tval, k1, k2, out):
+    mask = tk1.shape[0] - 1
+    for r in prange(k1.shape[0]):
+        s = _slot(k1[r], k2[r], mask)
+        out[r] = -1
+        while tk1[s] != -1:
+            if tk1[s] == k1[r] and tk2[s] == k2[r]:
+                out[r] = tval[s]
+                break
+            s = (s + 1) & mask
+
+
+@njit(cache=True, nogil=True)
+def _map_insert(tk1, tk2, tval, k1, k2, vals):
+    mask = tk1.shape[0] - 1
+    for r in range(k1.shape[0]):
+        s = _slot(k1[r], k2[r], mask)
+        while tk1[s] != -1 and not (tk1[s] == k1[r] and tk2[s] == k2[r]):
+            s = (s + 1) & mask
+        tk1[s] = k1[r]
+        tk2[s] = k2[r]
+        tval[s] = vals[r]
+
+
+class SampleStore:
+    """Traced lines keyed by lattice point, with their ray trees (growth owned here)."""
+
+    def __init__(self, n_lights: int) -> None:
+        self.L = max(int(n_lights), 0)
+        self.clear()
+
+    def clear(self) -> None:
+        self.n = 0
+        self.n_nodes = 0
+        self.key1 = np.empty(0, np.int64)
+        self.key2 = np.empty(0, np.int64)
+        self._rad = np.empty((0, 3))
+        self._inst = np.empty(0, np.int32)
+        self._cls = np.empty(0, np.int32)
+        self._depth = np.empty(0)
+        self._nstart = np.empty(0, np.int64)
+        self._ncount = np.empty(0, np.int32)
+        self._npath = np.empty(0, np.int64)
+        self._ninst = np.empty(0, np.int32)
+        self._ncls = np.empty(0, np.int32)
+        self._nocc = np.empty((0, self.L), np.int32)
+        self._npoint = np.empty((0, 3))
+        self._map_alloc(1024)
+
+    def _map_alloc(self, cap: int) -> None:
+        self.tk1 = np.full(cap, -1, np.int64)
+        self.tk2 = np.zeros(cap, np.int64)
+        self.tval = np.zeros(cap, np.int32)
+        if self.n:
+            _map_insert(self.tk1, self.tk2, self.tval, self.key1[:self.n], self.key2[:self.n],
+                        np.arange(self.n, dtype=np.int32))
+
+    @property
+    def memory_bytes(self) -> int:
+        per_sample = 8 + 8 + 24 + 4 + 4 + 8 + 8 + 4
+        per_node = 8 + 4 + 4 + 4 * self.L + 24
+        return self.n * per_sample + self.n_nodes * per_node + 20 * len(self.tk1)
+
+    def view(self) -> SampleArrays:
+        n, m = self.n, self.n_nodes
+        return SampleArrays(self._rad[:n], self._inst[:n], self._cls[:n], self._depth[:n],
+                            self._nstart[:n], self._ncount[:n], self._npath[:m],
+                            self._ninst[:m], self._ncls[:m], self._nocc[:m], self._npoint[:m])
+
+    def radiance(self) -> np.ndarray:
+        return self._rad[:self.n]
+
+    def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
+        out = np.empty(len(k1), np.int32)
+        _map_lookup(self.tk1, self.tk2, self.tval, k1, k2, out)
+        return out
+
+    @staticmethod
+    def _grow(arr: np.ndarray, need: int) -> np.ndarray:
+        if len(arr) >= need:
+            return arr
+        new = np.empty((max(need, 2 * len(arr), 256),) + arr.shape[1:], arr.dtype)
+        new[:len(arr)] = arr
+        return new
+
+    def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls) -> np.ndarray:
+        """Append samples and their ray-tree nodes; returns their ids (n,) int32."""
+        n = len(k1)
+        s0, s1 = self.n, self.n + n
+        for name in ("key1", "key2", "_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount"):
+            setattr(self, name, self._grow(getattr(self, name), s1))
+        order = np.argsort(tree.node_ray, kind="stable")
+        count = np.bincount(tree.node_ray, minlength=n).astype(np.int32)
+        m0, m1 = self.n_nodes, self.n_nodes + len(order)
+        for name in ("_npath", "_ninst", "_ncls", "_nocc", "_npoint"):
+            setattr(self, name, self._grow(getattr(self, name), m1))
+        self.key1[s0:s1] = k1
+        self.key2[s0:s1] = k2
+        self._rad[s0:s1] = rad
+        self._inst[s0:s1] = inst
+        self._cls[s0:s1] = cls
+        self._depth[s0:s1] = depth
+        self._ncount[s0:s1] = count
+        self._nstart[s0:s1] = m0 + np.concatenate([[0], np.cumsum(count)[:-1]])
+        self._npath[m0:m1] = tree.node_path[order]
+        self._ninst[m0:m1] = tree.node_inst[order]
+        self._ncls[m0:m1] = node_cls[order]
+        self._nocc[m0:m1] = tree.node_occluder[order].reshape(len(order), self.L)
+        self._npoint[m0:m1] = tree.node_point[order]
+        self.n, self.n_nodes = s1, m1
+        if 2 * self.n > len(self.tk1):
+            self._map_alloc(1 << int(math.ceil(math.log2(4 * self.n))))
+        else:
+            _map_insert(self.tk1, self.tk2, self.tval, k1, k2,
+                        np.arange(s0, s1, dtype=np.int32))
+        return np.arange(s0, s1, dtype=np.int32)
+
+    def compact(self, keep: np.ndarray) -> np.ndarray:
+        """Keep samples where ``keep`` (n,) bool; returns the old -> new id map (-1: gone)."""
+        remap = np.full(self.n, -1, np.int32)
+        ids = np.flatnonzero(keep)
+        remap[ids] = np.arange(len(ids), dtype=np.int32)
+        cnt = self._ncount[ids]
+        rows = (np.repeat(self._nstart[ids] - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+                + np.arange(int(cnt.sum())))
+        self.key1, self.key2 = self.key1[ids], self.key2[ids]
+        self._rad, self._inst, self._cls = self._rad[ids], self._inst[ids], self._cls[ids]
+        self._depth, self._ncount = self._depth[ids], cnt
+        self._nstart = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+        self._npath, self._ninst = self._npath[rows], self._ninst[rows]
+        self._ncls, self._nocc, self._npoint = self._ncls[rows], self._nocc[rows], \
+            self._npoint[rows]
+        self.n, self.n_nodes = len(ids), len(rows)
+        self._map_alloc(1 << int(math.ceil(math.log2(max(4 * self.n, 1024)))))
+        return remap
+
+
+# ----------------------------------------------------------------------------- kernels
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _facing(sa, inst, prim, d, front):
+    """front[r]: hit r is on the side its geometric normal points to (against d)."""
+    for r in prange(inst.shape[0]):
+        if inst[r] < 0:
+            front[r] = True
+            continue
+        gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[inst[r]], prim[r])
+        front[r] = dot3(gx, gy, gz, d[r, 0], d[r, 1], d[r, 2]) < 0.0
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _skip_tmin(o, d, t, ext, out):
+    """Parameter just past hit t (the tracer's spawn offset along the line)."""
+    for r in prange(t.shape[0]):
+        px = o[r, 0] + d[r, 0] * t[r]
+        py = o[r, 1] + d[r, 1] * t[r]
+        pz = o[r, 2] + d[r, 2] * t[r]
+        dl = math.sqrt(d[r, 0] ** 2 + d[r, 1] ** 2 + d[r, 2] ** 2)
+        out[r] = t[r] + spawn_offset(px, py, pz, ext) / dl
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _cell_keys(box, inst, face, depth, coord, tests, ntest, aabb, k2, ok):
+    """Lattice keys of each cell's 16 corners and test lines, and the cheap pre-test that
+    all 16 corner lines meet the object's world box (else the cell cannot pass)."""
+    for c in prange(inst.shape[0]):
+        sh = LATTICE_DEPTH - depth[c]
+        unit = 1 << sh
+        ok[c] = True
+        F = np.empty(3)
+        B = np.empty(3)
+        sc = 1.0 / (1 << depth[c])
+        o = inst[c]
+        for q in range(16 + ntest[c]):
+            key = 0
+            for m in range(4):
+                if q < 16:
+                    x = (coord[c, m] + ((q >> m) & 1)) * unit
+                else:
+                    x = coord[c, m] * unit + int(tests[q - 16, m] * unit)
+                key = (key << 15) | x
+            k2[c, q] = key
+        for q in range(16):
+            line_points(box, o, face[c], (coord[c, 0] + (q & 1)) * sc,
+                        (coord[c, 1] + ((q >> 1) & 1)) * sc, (coord[c, 2] + ((q >> 2) & 1)) * sc,
+                        (coord[c, 3] + ((q >> 3) & 1)) * sc, F, B)
+            t0 = 0.0
+            t1 = 1.0
+            for m in range(3):
+                dm = B[m] - F[m]
+                lo = aabb[o, 0, m]
+                hi = aabb[o, 1, m]
+                if dm == 0.0:
+                    if F[m] < lo or F[m] > hi:
+                        t0 = 2.0
+                    continue
+                ta = (lo - F[m]) / dm
+                tb = (hi - F[m]) / dm
+                t0 = max(t0, min(ta, tb))
+                t1 = min(t1, max(ta, tb))
+            if t0 > t1 * (1.0 + 1e-9) + 1e-12:
+                ok[c] = False
+                break
+
+
+@njit(cache=True, nogil=True)
+def _unpack(k2, lattice):
+    for r in range(k2.shape[0]):
+        for m in range(4):
+            lattice[r, m] = (k2[r] >> (15 * (3 - m))) & 0x7FFF
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _interpolate(lt, nodes, abcd, zp, clsp, ids, rad16, izlo, izhi, icls, out, ok):
+    """Quadrilinear radiance of rays whose leaf holds an interpolant, where the ray's
+    visible hit is the interpolant's slab crossing (class and depth)."""
+    for r in prange(nodes.shape[0]):
+        nd = nodes[r]
+        q = ids[r]
+        if clsp[r] != icls[q] or zp[r] < izlo[q] or zp[r] > izhi[q]:
+            ok[r] = False
+            continue
+        ok[r] = True
+        s = float(1 << lt.depth[nd])
+        u = np.empty(4)
+        for m in range(4):
+            u[m] = min(max(abcd[r, m] * s - lt.coord[nd, m], 0.0), 1.0)
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        for k in range(16):
+            w = corner_weight(k, u[0], u[1], u[2], u[3])
+            x += w * rad16[q, k, 0]
+            y += w * rad16[q, k, 1]
+            z += w * rad16[q, k, 2]
+        out[r, 0] = x
+        out[r, 1] = y
+        out[r, 2] = z
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _hit_depths(box, cls_of_tri, inst, prim, t, o, d, face, zp, clsp):
+    """Slab depth and surface class of visible hits on their objects."""
+    for r in prange(inst.shape[0]):
+        px = o[r, 0] + d[r, 0] * t[r]
+        py = o[r, 1] + d[r, 1] * t[r]
+        pz = o[r, 2] + d[r, 2] * t[r]
+        zp[r] = point_depth(box, inst[r], face[r], px, py, pz)
+        clsp[r] = cls_of_tri[prim[r]]
+
+
+# ----------------------------------------------------------------------------- pool
+
+
+class InterpolantPool:
+    """Interpolant records with a free list and LRU stamps."""
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self.cap = 0
+        self.rad = np.empty((0, 16, 3))
+        self.zlo = np.empty(0)
+        self.zhi = np.empty(0)
+        self.cls = np.empty(0, np.int32)
+        self.node = np.empty(0, np.int32)
+        self.stamp = np.empty(0, np.int64)
+        self.samples = np.empty((0, 16), np.int32)
+        self.live = np.empty(0, bool)
+        self._free = np.empty(0, np.int32)
+        self._grow(capacity)
+
+    def _grow(self, cap: int) -> None:
+        old = self.cap
+        for name in ("rad", "zlo", "zhi", "cls", "node", "stamp", "samples", "live"):
+            a = getattr(self, name)
+            new = np.zeros((cap,) + a.shape[1:], a.dtype)
+            new[:old] = a
+            setattr(self, name, new)
+        self._free = np.concatenate([np.arange(cap - 1, old - 1, -1, dtype=np.int32),
+                                     self._free])
+        self.cap = cap
+
+    @property
+    def n_live(self) -> int:
+        return self.cap - len(self._free)
+
+    def alloc(self, n: int) -> np.ndarray:
+        if n > len(self._free):
+            self._grow(max(2 * self.cap, self.cap + n))
+        ids = self._free[len(self._free) - n:][::-1].copy()
+        self._free = self._free[:len(self._free) - n]
+        self.live[ids] = True
+        return ids
+
+    def release(self, ids: np.ndarray) -> None:
+        self.live[ids] = False
+        self._free = np.concatenate([self._free, np.asarray(ids, np.int32)])
+
+
+class ResolveResult(NamedTuple):
+    """Outcome of :meth:`InterpolantCache.resolve` for ``n`` rays."""
+
+    radiance: np.ndarray  # (n, 3) float64, valid where interpolated
+    interpolated: np.ndarray  # (n,) bool
+    pixel_class: np.ndarray  # (n,) uint8 class of each ray (traced ones: why)
+
+
+# ----------------------------------------------------------------------------- the cache
+
+
+class InterpolantCache:
+    """Interpolants of one scene packing (see the module doc).
+
+    sa : the :class:`~.scene.SceneArrays`; accel : an accelerator over it; epsilon : display
+    error bound; depth_cap : deepest linetree level (at most :data:`~.linetree.MAX_DEPTH`);
+    memory_cap_mb : LRU cap on interpolants plus their samples (linetree nodes are counted
+    apart); max_depth : the tracer's reflection/refraction depth.
+    """
+
+    def __init__(self, sa, accel, epsilon: float, depth_cap: int, memory_cap_mb: float,
+                 max_depth: int) -> None:
+        t0 = time.perf_counter()
+        self.sa = sa
+        self.accel = accel
+        self.epsilon = float(epsilon)
+        self.depth_cap = min(int(depth_cap), MAX_DEPTH)
+        if int(depth_cap) > MAX_DEPTH:
+            log.info("interpolants: depth cap %d lowered to %d", depth_cap, MAX_DEPTH)
+        self.memory_cap_bytes = float(memory_cap_mb) * 1e6
+        self.max_depth = int(max_depth)
+        self.box = expanded_boxes(sa)
+        self.topo = mesh_topology(sa)
+        self.qs = query_scene(sa, self.topo)
+        self.n_test = np.where(self.topo.mesh_convex[sa.inst_mesh], N_TEST_BASE,
+                               N_TEST_ALL).astype(np.int32)
+        self.trees = Linetrees(len(sa.inst_mesh))
+        self.samples = SampleStore(len(sa.light_kind))
+        self.pool = InterpolantPool()
+        self.clock = 0
+        self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0)
+        self.frame_stats: dict = {}
+        self.setup_s = time.perf_counter() - t0
+
+    # -- configuration ----------------------------------------------------------------
+
+    def compatible(self, sa, epsilon: float, depth_cap: int, max_depth: int) -> bool:
+        """Whether this cache's interpolants hold for these inputs."""
+        return (sa is self.sa and float(epsilon) == self.epsilon
+                and min(int(depth_cap), MAX_DEPTH) == self.depth_cap
+                and int(max_depth) == self.max_depth)
+
+    def set_memory_cap(self, memory_cap_mb: float) -> None:
+        self.memory_cap_bytes = float(memory_cap_mb) * 1e6
+        self.enforce_cap()
+
+    def clear(self) -> None:
+        """Drop every interpolant, sample and tree node."""
+        self.trees.clear()
+        self.samples.clear()
+        self.pool = InterpolantPool()
+
+    # -- memory -----------------------------------------------------------------------
+
+    @property
+    def interpolant_bytes(self) -> int:
+        """Memory under the cap: interpolant records plus the samples they keep."""
+        return self.pool.n_live * INTERP_BYTES + self.samples.memory_bytes
+
+    @property
+    def memory_bytes(self) -> int:
+        return self.interpolant_bytes + self.trees.memory_bytes
+
+    def _compact_samples(self) -> None:
+        live = np.flatnonzero(self.pool.live)
+        keep = np.zeros(self.samples.n, bool)
+        keep[self.pool.samples[live].reshape(-1)] = True
+        remap = self.samples.compact(keep)
+        self.pool.samples[live] = remap[self.pool.samples[live]]
+
+    def evict(self, ids: np.ndarray) -> None:
+        """Drop interpolants ``ids``: their leaves become empty (rebuilt on demand)."""
+        ids = np.asarray(ids, np.int32)
+        if len(ids) == 0:
+            return
+        self.trees.arrays.leaf[self.pool.node[ids]] = EMPTY
+        self.pool.release(ids)
+        self.totals["evicted"] += len(ids)
+
+    def enforce_cap(self) -> None:
+        """Evict least recently used interpolants until the cap holds."""
+        cap = self.memory_cap_bytes
+        if self.interpolant_bytes <= cap:
+            return
+        self._compact_samples()
+        while self.interpolant_bytes > cap and self.pool.n_live > 0:
+            live = np.flatnonzero(self.pool.live)
+            per = self.interpolant_bytes / len(live)
+            k = min(len(live), max(1, int(math.ceil((self.interpolant_bytes - cap) / per))))
+            order = np.argsort(self.pool.stamp[live], kind="stable")
+            self.evict(live[order[:k]])
+            self._compact_samples()
+
+    # -- rays -------------------------------------------------------------------------
+
+    def pixel_lines(self, hits: Hits, origins: np.ndarray, directions: np.ndarray):
+        """Line coordinates of rays that hit: ``face (n,) int8, abcd (n, 4), depth (n,),
+        surface class (n,)`` of their visible hits ``hits`` (all with ``inst >= 0``)."""
+        n = len(hits.t)
+        face = np.empty(n, np.int8)
+        abcd = np.empty((n, 4))
+        zp = np.empty(n)
+        clsp = np.empty(n, np.int32)
+        parameterize(self.box, hits.inst, origins, directions, face, abcd)
+        _hit_depths(self.box, self.topo.tri_class, hits.inst, hits.prim, hits.t, origins,
+                    directions, face, zp, clsp)
+        return face, abcd, zp, clsp
+
+    def resolve(self, inst, face, abcd, zp, clsp, cancel=None) -> ResolveResult:
+        """Interpolate what the linetrees cover, building cells as needed (module doc).
+
+        inst (n,) int32 visible objects; face, abcd, zp, clsp from :meth:`pixel_lines`.
+        """
+        n = len(inst)
+        rad = np.zeros((n, 3))
+        done = np.zeros(n, bool)
+        pcls = np.full(n, CLASS_TRACED, np.uint8)
+        st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, levels=0,
+                  reasons={})
+        self.frame_stats = st
+        if n == 0 or self.epsilon <= 0.0:
+            return ResolveResult(rad, done, pcls)
+        lt = self.trees
+        roots = lt.get_roots(inst, face)
+        pending = np.arange(n)
+        nodes = np.empty(n, np.int32)
+        for _ in range(self.depth_cap + MIN_BUILD_DEPTH + 2):
+            if len(pending) == 0 or (cancel is not None and cancel()):
+                break
+            st["levels"] += 1
+            self.clock += 1
+            leaf_nodes = np.empty(len(pending), np.int32)
+            descend(lt.arrays, roots[pending], abcd[pending], leaf_nodes)
+            nodes[pending] = leaf_nodes
+            state = lt.arrays.leaf[leaf_nodes]
+            has = state >= 0
+            if np.any(has):
+                idx = pending[has]
+                ids = state[has]
+                out = np.empty((len(idx), 3))
+                ok = np.empty(len(idx), bool)
+                p = self.pool
+                _interpolate(lt.arrays, leaf_nodes[has], abcd[idx], zp[idx],
+                             clsp[idx], ids, p.rad, p.zlo, p.zhi, p.cls, out, ok)
+                p.stamp[ids] = self.clock
+                rad[idx[ok]] = out[ok]
+                done[idx[ok]] = True
+                pcls[idx[ok]] = CLASS_INTERPOLATED
+                pcls[idx[~ok]] = CLASS_FAIL_SILHOUETTE
+                self.enforce_cap()
+            rest = pending[~has]
+            if len(rest) == 0:
+                break
+            uniq, inv, cnt = np.unique(nodes[rest], return_inverse=True, return_counts=True)
+            ustate = lt.arrays.leaf[uniq]
+            udepth = lt.arrays.depth[uniq].astype(np.int64)
+            enough = cnt >= MIN_PIXELS
+            empty = ustate == EMPTY
+            first = min(MIN_BUILD_DEPTH, self.depth_cap)
+            split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
+            build = enough & empty & (udepth >= first)
+            going = split | build
+            failed = ~empty & ~split
+            pcls[rest[failed[inv]]] = fail_class(ustate[inv][failed[inv]]).astype(np.uint8)
+            pcls[rest[~going[inv] & ~failed[inv]]] = CLASS_TRACED
+            lt.split(uniq[split])
+            if np.any(build):
+                tb = time.perf_counter()
+                cells = uniq[build]
+                self._build(cells, st)
+                # failed cells with room below go one level down right away
+                again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
+                lt.split(cells[again])
+                st["build_s"] += time.perf_counter() - tb
+            pending = rest[going[inv]]
+        self.enforce_cap()
+        lt.collapse()
+        for k in ("cells_built", "cells_valid", "samples_traced"):
+            self.totals[k] += st[k]
+        return ResolveResult(rad, done, pcls)
+
+    # -- building ---------------------------------------------------------------------
+
+    def _front_hits(self, inst, o, d) -> Hits:
+        """Each line's first crossing of its object that faces the line (back faces are
+        skipped: from inside a room, its far walls are what is seen)."""
+        n = len(inst)
+        t = np.full(n, np.inf)
+        hi = np.full(n, -1, np.int32)
+        pr = np.full(n, -1, np.int32)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        tmin = np.zeros(n)
+        todo = np.arange(n)
+        for _ in range(MAX_BACKFACE_SKIPS):
+            if len(todo) == 0:
+                break
+            h = self.accel.intersect_object(inst[todo], o[todo], d[todo], tmin[todo],
+                                            np.ones(len(todo)))
+            front = np.empty(len(todo), bool)
+            _facing(self.sa, h.inst, h.prim, d[todo], front)
+            fin = todo[front]
+            t[fin], hi[fin], pr[fin] = h.t[front], h.inst[front], h.prim[front]
+            u[fin], v[fin] = h.u[front], h.v[front]
+            back = ~front
+            todo = todo[back]
+            nxt = np.empty(len(todo))
+            _skip_tmin(o[todo], d[todo], h.t[back], float(self.sa.scene_extent), nxt)
+            tmin[todo] = nxt
+        return Hits(t, hi, pr, u, v)
+
+    def _trace_samples(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
+        """Trace new lattice lines (keys unique, not in the store); returns their ids."""
+        n = len(k1)
+        inst = (k1 >> 3).astype(np.int32)
+        face = (k1 & 7).astype(np.int8)
+        lattice = np.empty((n, 4), np.int64)
+        _unpack(k2, lattice)
+        o = np.empty((n, 3))
+        d = np.empty((n, 3))
+        lattice_lines(self.box, inst, face, lattice, o, d)
+        hits = self._front_hits(inst, o, d)
+        rad, tree = trace(self.sa, self.accel, o, d, 0.0, 1.0, self.max_depth, record=True,
+                          primary=hits)
+        hit = hits.inst >= 0
+        k = face.astype(np.int64) >> 1
+        depth = np.where(hit, hits.t, 0.0) * (self.box[inst, 1, k] - self.box[inst, 0, k])
+        cls = np.where(hit, self.topo.tri_class[np.maximum(hits.prim, 0)], -1).astype(np.int32)
+        node_cls = np.where(tree.node_tri >= 0,
+                            self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
+        return self.samples.add(k1, k2, rad, hits.inst, cls, depth, tree,
+                                node_cls.astype(np.int32))
+
+    def _build(self, cells: np.ndarray, st: dict) -> None:
+        """Build the cells (unique EMPTY leaves) in one batch and store the outcome."""
+        a = self.trees.arrays
+        tree = a.tree[cells].astype(np.int64)
+        inst = (tree // 6).astype(np.int32)
+        face = (tree % 6).astype(np.int8)
+        depth = a.depth[cells].astype(np.int64)
+        coord = a.coord[cells].astype(np.int64)
+        nc = len(cells)
+        ntest = self.n_test[inst]
+        ns = 16 + N_TEST_ALL
+        k2 = np.full((nc, ns), -1, np.int64)
+        pre = np.empty(nc, bool)
+        _cell_keys(self.box, inst, face, depth, coord, TEST_POINTS, ntest, self.sa.inst_aabb,
+                   k2, pre)
+        status = np.full(nc, CLASS_FAIL_SILHOUETTE, np.int32)
+        go = np.flatnonzero(pre)
+        st["cells_built"] += nc
+        if len(go):
+            nsamp = (16 + ntest[go]).astype(np.int32)
+            used = np.arange(ns)[None, :] < nsamp[:, None]
+            k1 = np.broadcast_to((inst[go].astype(np.int64) * 8 + face[go])[:, None],
+                                 (len(go), ns))[used]
+            kk2 = k2[go][used]
+            ids = self.samples.lookup(k1, kk2)
+            miss = ids < 0
+            if np.any(miss):
+                mk = np.stack([k1[miss], kk2[miss]], axis=1)
+                uk, uinv = np.unique(mk, axis=0, return_inverse=True)
+                new = self._trace_samples(np.ascontiguousarray(uk[:, 0]),
+                                          np.ascontiguousarray(uk[:, 1]))
+                ids[miss] = new[uinv.reshape(-1)]
+                st["samples_traced"] += len(uk)
+            cell_samples = np.full((len(go), ns), -1, np.int32)
+            cell_samples[used] = ids
+            sub_status = np.empty(len(go), np.int32)
+            detail = np.empty(len(go), np.int8)
+            zlo = np.zeros(len(go))
+            zhi = np.zeros(len(go))
+            cls = np.zeros(len(go), np.int32)
+            check_cells(self.qs, self.box, self.samples.view(), inst[go], face[go],
+                        depth[go], coord[go], cell_samples, nsamp, sub_status, detail, zlo,
+                        zhi, cls)
+            ok = np.flatnonzero(sub_status == VALID)
+            lin = self._radiance_ok(cell_samples[ok], nsamp[ok])
+            sub_status[ok[~lin]] = CLASS_FAIL_NONLINEAR
+            detail[ok[~lin]] = len(REASONS)
+            why = st["reasons"]
+            for r, k in zip(*np.unique(detail, return_counts=True), strict=True):
+                name = REASONS[r] if r < len(REASONS) else "radiance"
+                why[name] = why.get(name, 0) + int(k)
+            status[go] = sub_status
+            good = np.flatnonzero(sub_status == VALID)
+            if len(good):
+                pids = self.pool.alloc(len(good))
+                p = self.pool
+                p.rad[pids] = self.samples.radiance()[cell_samples[good, :16]]
+                p.zlo[pids], p.zhi[pids], p.cls[pids] = zlo[good], zhi[good], cls[good]
+                p.node[pids] = cells[go[good]]
+                p.stamp[pids] = self.clock
+                p.samples[pids] = cell_samples[good, :16]
+                a.leaf[cells[go[good]]] = pids
+        st["reasons"]["box_miss"] = st["reasons"].get("box_miss", 0) + int(nc - len(go))
+        bad = status != VALID
+        a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
+        st["cells_valid"] += int(np.count_nonzero(~bad))
+
+    def _radiance_ok(self, cell_samples: np.ndarray, nsamp: np.ndarray) -> np.ndarray:
+        """Quadrilinear interpolation within epsilon of the traced test lines (display)."""
+        rad = self.samples.radiance()
+        corners = rad[cell_samples[:, :16]]  # (m, 16, 3)
+        tests = rad[np.maximum(cell_samples[:, 16:], 0)]  # (m, T, 3)
+        interp = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, corners)
+        err = np.abs(image.to_display(interp) - image.to_display(tests)).max(axis=2)
+        used = np.arange(N_TEST_ALL)[None, :] < (nsamp - 16)[:, None]
+        err = np.where(used, err, 0.0)
+        finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(
+            np.where(used[:, :, None], tests, 0.0)).all(axis=(1, 2))
+        return finite & (err.max(axis=1) <= self.epsilon)

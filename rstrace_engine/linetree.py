@@ -1,0 +1,380 @@
+"""Per-object line parameterisation and the 4D linetree (seed 000, sections 2.1-2.2).
+
+Face pairs
+----------
+Every object gets an *expanded* world box: its world bounds padded on every side by
+``LINETREE_PAD_SCENE_REL * scene_extent + LINETREE_PAD_OBJECT_REL * object_diagonal``
+(:mod:`.tolerances`), so a flat object still has a box of positive thickness and every surface
+point lies strictly inside. Face pair ``f = 2 k + s`` has principal axis ``k`` (x, y, z) and
+direction ``+`` (``s = 0``) or ``-`` (``s = 1``); its lateral axes are ``i = (k + 1) % 3`` and
+``j = (k + 2) % 3``. With ``L`` the box depth along ``k``, its two faces span the box's
+cross-section grown by ``L`` on every side: a line whose direction has its largest component
+along ``k`` moves at most ``L`` sideways while crossing the box, so every such line that meets
+the box crosses both faces. A line is ``(a, b, c, d)`` in ``[0, 1]^4``: ``(a, b)`` its
+intercept with the front face (where it enters), ``(c, d)`` with the back face, as fractions of
+the face's ``i`` and ``j`` extents. A ray is assigned the face pair of its dominant direction
+(ties go to the lower axis; either pair parameterises such a line exactly). The *depth* of a
+point on the line is its distance from the front face along ``k``: the line runs from depth 0
+at ``(a, b)`` to depth ``L`` at ``(c, d)``.
+
+Linetrees
+---------
+One 4D tree per (object, face pair), 16 children per split (one bit per coordinate: child
+``bit0 = a, bit1 = b, bit2 = c, bit3 = d``), created lazily. All trees of a scene share one
+node pool, :class:`LinetreeArrays` (flat arrays, a numba argument), owned by
+:class:`Linetrees`, which allocates the 16 children of a split as one block and recycles
+freed blocks. A node at depth ``D`` with lattice coordinates ``coord`` covers
+``coord / 2^D <= (a, b, c, d) <= (coord + 1) / 2^D``. A leaf holds ``EMPTY``, an interpolant
+id (``>= 0``), or a fail code :func:`fail_code` carrying the pixel class of the failure.
+A coordinate exactly on a cell boundary belongs to the upper cell (the last cell keeps 1.0).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from . import tolerances as tol
+
+log = logging.getLogger(__name__)
+
+N_FACES = 6
+#: Sample keys quantise line coordinates on the lattice of this depth (15 bits each).
+LATTICE_DEPTH = 14
+#: The deepest cell: its test lines sit on the lattice two levels further down.
+MAX_DEPTH = LATTICE_DEPTH - 2
+#: Leaf state of a node that holds nothing (yet).
+EMPTY = -1
+#: Node state of a freed node (in a recycled block).
+DEAD_TREE = -1
+_BLOCK = 16
+
+
+def fail_code(pixel_class):
+    """Leaf code of a failed cell whose pixels get ``pixel_class`` (a ``CLASS_FAIL_*``;
+    works on arrays)."""
+    return -2 - pixel_class
+
+
+def fail_class(code):
+    """Inverse of :func:`fail_code` (works on arrays)."""
+    return -2 - code
+
+
+# ----------------------------------------------------------------------------- face pairs
+
+
+def expanded_boxes(sa) -> np.ndarray:
+    """Expanded world boxes of every instance: (I, 2, 3) float64 (see the module doc)."""
+    lo = sa.inst_aabb[:, 0]
+    hi = sa.inst_aabb[:, 1]
+    diag = np.linalg.norm(hi - lo, axis=1)
+    pad = (tol.LINETREE_PAD_SCENE_REL * float(sa.scene_extent)
+           + tol.LINETREE_PAD_OBJECT_REL * diag)[:, None]
+    return np.ascontiguousarray(np.stack([lo - pad, hi + pad], axis=1))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def face_frame(box, inst, face):
+    """Geometry of face pair ``face`` of instance ``inst``'s expanded box.
+
+    Returns ``k, i, j, neg, front, L, li, wi, lj, wj``: principal and lateral axes, whether
+    the principal direction is negative, the front face's coordinate along ``k``, the depth
+    ``L``, and the faces' lateral origins and widths along ``i`` and ``j``.
+    """
+    k = face >> 1
+    neg = (face & 1) == 1
+    i = (k + 1) % 3
+    j = (k + 2) % 3
+    L = box[inst, 1, k] - box[inst, 0, k]
+    front = box[inst, 1, k] if neg else box[inst, 0, k]
+    li = box[inst, 0, i] - L
+    wi = box[inst, 1, i] - box[inst, 0, i] + 2.0 * L
+    lj = box[inst, 0, j] - L
+    wj = box[inst, 1, j] - box[inst, 0, j] + 2.0 * L
+    return k, i, j, neg, front, L, li, wi, lj, wj
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dominant_face(dx, dy, dz):
+    """Face pair of a direction: its largest component (ties to the lower axis) and sign."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    if ax >= ay and ax >= az:
+        return 0 if dx >= 0.0 else 1
+    if ay >= az:
+        return 2 if dy >= 0.0 else 3
+    return 4 if dz >= 0.0 else 5
+
+
+@njit(cache=True, nogil=True)
+def line_points(box, inst, face, a, b, c, d, F, B):
+    """World points of line ``(a, b, c, d)``: ``F`` on the front face, ``B`` on the back."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    F[k] = front
+    B[k] = front - L if neg else front + L
+    F[i] = li + a * wi
+    F[j] = lj + b * wj
+    B[i] = li + c * wi
+    B[j] = lj + d * wj
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def parameterize(box, inst, origins, directions, face, abcd):
+    """Face pair and line coordinates of ``n`` rays that meet their instance's box.
+
+    box : (I, 2, 3) float64 expanded boxes; inst : (n,) int32; origins, directions : (n, 3)
+    float64. Outputs: face (n,) int8, abcd (n, 4) float64 clamped to [0, 1] (a ray that
+    meets the box is inside up to rounding).
+    """
+    for r in prange(inst.shape[0]):
+        o = inst[r]
+        dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        f = dominant_face(dx, dy, dz)
+        face[r] = f
+        k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, o, f)
+        dk = directions[r, k]
+        back = front - L if neg else front + L
+        tf = (front - origins[r, k]) / dk
+        tb = (back - origins[r, k]) / dk
+        a = (origins[r, i] + tf * directions[r, i] - li) / wi
+        b = (origins[r, j] + tf * directions[r, j] - lj) / wj
+        c = (origins[r, i] + tb * directions[r, i] - li) / wi
+        d = (origins[r, j] + tb * directions[r, j] - lj) / wj
+        abcd[r, 0] = min(max(a, 0.0), 1.0)
+        abcd[r, 1] = min(max(b, 0.0), 1.0)
+        abcd[r, 2] = min(max(c, 0.0), 1.0)
+        abcd[r, 3] = min(max(d, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def point_depth(box, inst, face, px, py, pz):
+    """Depth of world point ``p`` below the front face of ``face`` (along its axis)."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    pk = px if k == 0 else (py if k == 1 else pz)
+    return front - pk if neg else pk - front
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def lattice_lines(box, inst, face, lattice, origins, directions):
+    """Lines of lattice points: origin on the front face, direction to the back face.
+
+    inst (n,) int32, face (n,) int8, lattice (n, 4) int64 coordinates at
+    :data:`LATTICE_DEPTH`. Outputs origins, directions (n, 3) float64; the line reaches the
+    back face at parameter 1 and depth ``L * t`` at parameter ``t``.
+    """
+    scale = 1.0 / (1 << LATTICE_DEPTH)
+    for r in prange(inst.shape[0]):
+        F = np.empty(3)
+        B = np.empty(3)
+        line_points(box, inst[r], face[r], lattice[r, 0] * scale, lattice[r, 1] * scale,
+                    lattice[r, 2] * scale, lattice[r, 3] * scale, F, B)
+        for m in range(3):
+            origins[r, m] = F[m]
+            directions[r, m] = B[m] - F[m]
+
+
+# ----------------------------------------------------------------------------- interpolation
+
+
+@njit(cache=True, nogil=True, inline="always")
+def corner_weight(corner, u0, u1, u2, u3):
+    """Quadrilinear weight of corner ``corner`` (bit m set: upper end of coordinate m)."""
+    w = u0 if corner & 1 else 1.0 - u0
+    w *= u1 if corner & 2 else 1.0 - u1
+    w *= u2 if corner & 4 else 1.0 - u2
+    w *= u3 if corner & 8 else 1.0 - u3
+    return w
+
+
+def corner_weights(u: np.ndarray) -> np.ndarray:
+    """Quadrilinear weights of local coordinates ``u`` (n, 4) in [0, 1]: (n, 16) float64."""
+    u = np.asarray(u, np.float64).reshape(-1, 4)
+    bits = (np.arange(16)[:, None] >> np.arange(4)[None, :]) & 1  # (16, 4)
+    f = np.where(bits[None, :, :] == 1, u[:, None, :], 1.0 - u[:, None, :])
+    return f.prod(axis=2)
+
+
+@njit(cache=True, nogil=True)
+def local_coords(depth, coord, abcd, out):
+    """Local coordinates in [0, 1] of ``abcd`` (4,) in the cell (depth, coord (4,))."""
+    s = float(1 << depth)
+    for m in range(4):
+        u = abcd[m] * s - coord[m]
+        out[m] = min(max(u, 0.0), 1.0)
+
+
+# ----------------------------------------------------------------------------- linetrees
+
+
+class LinetreeArrays(NamedTuple):
+    """The node pool of all linetrees (capacity ``N``; see the module doc)."""
+
+    child: np.ndarray  # (N,) int32 first node of the 16 children, -1 for a leaf
+    leaf: np.ndarray  # (N,) int32 EMPTY, interpolant id (>= 0) or fail_code(class)
+    depth: np.ndarray  # (N,) int8
+    coord: np.ndarray  # (N, 4) int32 lattice coordinates at the node's depth
+    tree: np.ndarray  # (N,) int32 inst * 6 + face, DEAD_TREE for a freed node
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def descend(lt, start, abcd, out):
+    """Leaf holding each line: from node ``start[r]`` down by ``abcd[r]``.
+
+    start (n,) int32 nodes (usually roots), abcd (n, 4) float64; out (n,) int32 leaves.
+    """
+    for r in prange(start.shape[0]):
+        nd = start[r]
+        while lt.child[nd] >= 0:
+            s = float(1 << (lt.depth[nd] + 1))
+            bits = 0
+            for m in range(4):
+                c2 = 2 * lt.coord[nd, m]
+                x = int(np.floor(abcd[r, m] * s))
+                if x < c2:
+                    x = c2
+                elif x > c2 + 1:
+                    x = c2 + 1
+                bits |= (x - c2) << m
+            nd = lt.child[nd] + bits
+        out[r] = nd
+
+
+@njit(cache=True, nogil=True)
+def _init_children(lt, parents, bases):
+    for q in range(parents.shape[0]):
+        p = parents[q]
+        base = bases[q]
+        lt.child[p] = base  # lt.leaf[p] stays: a collapse restores it
+        for c in range(_BLOCK):
+            nd = base + c
+            lt.child[nd] = -1
+            lt.leaf[nd] = EMPTY
+            lt.depth[nd] = lt.depth[p] + 1
+            lt.tree[nd] = lt.tree[p]
+            for m in range(4):
+                lt.coord[nd, m] = 2 * lt.coord[p, m] + ((c >> m) & 1)
+
+
+@njit(cache=True, nogil=True)
+def _collapse_pass(lt, n, freed):
+    """Turn inner nodes whose 16 children are EMPTY leaves back into leaves (with the state
+    they had before their split: EMPTY or a fail code).
+
+    Writes the freed block starts to ``freed``; returns how many.
+    """
+    nf = 0
+    for p in range(n):
+        base = lt.child[p]
+        if base < 0 or lt.tree[p] == DEAD_TREE:
+            continue
+        ok = True
+        for c in range(_BLOCK):
+            if lt.child[base + c] >= 0 or lt.leaf[base + c] != EMPTY:
+                ok = False
+                break
+        if ok:
+            for c in range(_BLOCK):
+                lt.tree[base + c] = DEAD_TREE
+            lt.child[p] = -1
+            freed[nf] = base
+            nf += 1
+    return nf
+
+
+class Linetrees:
+    """Owner of the linetree node pool: lazy roots, splits, freed-block recycling."""
+
+    #: bytes per node (child, leaf, depth, coord, tree)
+    NODE_BYTES = 4 + 4 + 1 + 16 + 4
+
+    def __init__(self, n_instances: int, capacity: int = 4096) -> None:
+        self.roots = np.full((max(int(n_instances), 0), N_FACES), -1, np.int32)
+        self.n_nodes = 0
+        self._free: list[int] = []
+        self.arrays = self._alloc(max(int(capacity), _BLOCK))
+
+    @staticmethod
+    def _alloc(cap: int) -> LinetreeArrays:
+        return LinetreeArrays(np.full(cap, -1, np.int32), np.full(cap, EMPTY, np.int32),
+                              np.zeros(cap, np.int8), np.zeros((cap, 4), np.int32),
+                              np.full(cap, DEAD_TREE, np.int32))
+
+    def _reserve(self, extra: int) -> None:
+        need = self.n_nodes + extra
+        cap = len(self.arrays.child)
+        if need <= cap:
+            return
+        new = self._alloc(max(need, 2 * cap))
+        for old, fresh in zip(self.arrays, new, strict=True):
+            fresh[:cap] = old
+        self.arrays = new
+
+    @property
+    def live_nodes(self) -> int:
+        return self.n_nodes - _BLOCK * len(self._free)
+
+    @property
+    def memory_bytes(self) -> int:
+        return self.live_nodes * self.NODE_BYTES
+
+    def get_roots(self, inst: np.ndarray, face: np.ndarray) -> np.ndarray:
+        """Root node of each (inst, face) pair, creating missing roots: (n,) int32."""
+        inst = np.asarray(inst, np.int64)
+        face = np.asarray(face, np.int64)
+        roots = self.roots[inst, face]
+        missing = roots < 0
+        if np.any(missing):
+            keys = np.unique(inst[missing] * N_FACES + face[missing])
+            self._reserve(len(keys))
+            ids = np.arange(self.n_nodes, self.n_nodes + len(keys), dtype=np.int32)
+            self.n_nodes += len(keys)
+            a = self.arrays
+            a.child[ids] = -1
+            a.leaf[ids] = EMPTY
+            a.depth[ids] = 0
+            a.coord[ids] = 0
+            a.tree[ids] = keys.astype(np.int32)
+            self.roots.reshape(-1)[keys] = ids
+            roots = self.roots[inst, face]
+        return roots
+
+    def split(self, nodes: np.ndarray) -> None:
+        """Give each leaf in ``nodes`` (unique) 16 EMPTY children. A split leaf must not hold
+        an interpolant; its EMPTY or fail state is kept for :meth:`collapse`."""
+        nodes = np.asarray(nodes, np.int32)
+        if len(nodes) == 0:
+            return
+        if np.any(self.arrays.child[nodes] >= 0) or np.any(self.arrays.leaf[nodes] >= 0):
+            raise ValueError("linetree: split of a node that is not an empty or failed leaf")
+        reuse = min(len(self._free), len(nodes))
+        fresh = len(nodes) - reuse
+        self._reserve(fresh * _BLOCK)
+        bases = np.empty(len(nodes), np.int32)
+        if reuse:
+            bases[:reuse] = self._free[-reuse:]
+            del self._free[-reuse:]
+        bases[reuse:] = self.n_nodes + _BLOCK * np.arange(fresh, dtype=np.int32)
+        self.n_nodes += _BLOCK * fresh
+        _init_children(self.arrays, nodes, bases)
+
+    def collapse(self) -> int:
+        """Compact: recursively free every block of 16 EMPTY leaves (the parent gets back
+        the state it had when it was split). Returns the number of blocks freed."""
+        total = 0
+        freed = np.empty(max(self.n_nodes // _BLOCK + 1, 1), np.int32)
+        while True:
+            nf = _collapse_pass(self.arrays, self.n_nodes, freed)
+            if nf == 0:
+                return total
+            self._free.extend(int(x) for x in freed[:nf])
+            total += nf
+
+    def clear(self) -> None:
+        """Drop every tree."""
+        self.roots[:] = -1
+        self.n_nodes = 0
+        self._free.clear()
+        self.arrays = self._alloc(len(self.arrays.child))

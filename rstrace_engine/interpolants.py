@@ -134,18 +134,80 @@ def _map_insert(tk1, tk2, tval, k1, k2, vals):
         tval[s] = vals[r]
 
 
+class KeyMap:
+    """An append-only numba hash map from key pairs (int64, int64) to their insertion index."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.k1 = np.empty(0, np.int64)
+        self.k2 = np.empty(0, np.int64)
+        self._table(1024)
+
+    def _table(self, cap: int) -> None:
+        self.tk1 = np.full(cap, -1, np.int64)
+        self.tk2 = np.zeros(cap, np.int64)
+        self.tval = np.zeros(cap, np.int32)
+        if self.n:
+            _map_insert(self.tk1, self.tk2, self.tval, self.k1[:self.n], self.k2[:self.n],
+                        np.arange(self.n, dtype=np.int32))
+
+    @property
+    def memory_bytes(self) -> int:
+        return 16 * self.n + 20 * len(self.tk1)
+
+    def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
+        """Index of each key, -1 when absent: (m,) int32."""
+        out = np.empty(len(k1), np.int32)
+        _map_lookup(self.tk1, self.tk2, self.tval, np.ascontiguousarray(k1, np.int64),
+                    np.ascontiguousarray(k2, np.int64), out)
+        return out
+
+    def add(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
+        """Append new (unique, absent) keys; returns their indices."""
+        m = len(k1)
+        s0, s1 = self.n, self.n + m
+        self.k1 = _grow(self.k1, s1)
+        self.k2 = _grow(self.k2, s1)
+        self.k1[s0:s1] = k1
+        self.k2[s0:s1] = k2
+        self.n = s1
+        if 2 * s1 > len(self.tk1):
+            self._table(1 << int(math.ceil(math.log2(4 * s1))))
+        else:
+            _map_insert(self.tk1, self.tk2, self.tval, self.k1[s0:s1], self.k2[s0:s1],
+                        np.arange(s0, s1, dtype=np.int32))
+        return np.arange(s0, s1, dtype=np.int32)
+
+    def keep(self, ids: np.ndarray) -> None:
+        """Keep only keys ``ids`` (sorted), renumbered 0.. in that order."""
+        self.k1 = self.k1[ids]
+        self.k2 = self.k2[ids]
+        self.n = len(ids)
+        self._table(1 << int(math.ceil(math.log2(max(4 * self.n, 1024)))))
+
+
+def _grow(arr: np.ndarray, need: int) -> np.ndarray:
+    """``arr`` with room for ``need`` rows (doubling)."""
+    if len(arr) >= need:
+        return arr
+    new = np.empty((max(need, 2 * len(arr), 256),) + arr.shape[1:], arr.dtype)
+    new[:len(arr)] = arr
+    return new
+
+
 class SampleStore:
     """Traced lines keyed by lattice point, with their ray trees (growth owned here)."""
+
+    _SAMPLE = ("_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount")
+    _NODE = ("_npath", "_ninst", "_ncls", "_nocc", "_npoint")
 
     def __init__(self, n_lights: int) -> None:
         self.L = max(int(n_lights), 0)
         self.clear()
 
     def clear(self) -> None:
-        self.n = 0
+        self.keys = KeyMap()
         self.n_nodes = 0
-        self.key1 = np.empty(0, np.int64)
-        self.key2 = np.empty(0, np.int64)
         self._rad = np.empty((0, 3))
         self._inst = np.empty(0, np.int32)
         self._cls = np.empty(0, np.int32)
@@ -157,21 +219,16 @@ class SampleStore:
         self._ncls = np.empty(0, np.int32)
         self._nocc = np.empty((0, self.L), np.int32)
         self._npoint = np.empty((0, 3))
-        self._map_alloc(1024)
 
-    def _map_alloc(self, cap: int) -> None:
-        self.tk1 = np.full(cap, -1, np.int64)
-        self.tk2 = np.zeros(cap, np.int64)
-        self.tval = np.zeros(cap, np.int32)
-        if self.n:
-            _map_insert(self.tk1, self.tk2, self.tval, self.key1[:self.n], self.key2[:self.n],
-                        np.arange(self.n, dtype=np.int32))
+    @property
+    def n(self) -> int:
+        return self.keys.n
 
     @property
     def memory_bytes(self) -> int:
-        per_sample = 8 + 8 + 24 + 4 + 4 + 8 + 8 + 4
+        per_sample = 24 + 4 + 4 + 8 + 8 + 4
         per_node = 8 + 4 + 4 + 4 * self.L + 24
-        return self.n * per_sample + self.n_nodes * per_node + 20 * len(self.tk1)
+        return self.n * per_sample + self.n_nodes * per_node + self.keys.memory_bytes
 
     def view(self) -> SampleArrays:
         n, m = self.n, self.n_nodes
@@ -183,31 +240,19 @@ class SampleStore:
         return self._rad[:self.n]
 
     def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
-        out = np.empty(len(k1), np.int32)
-        _map_lookup(self.tk1, self.tk2, self.tval, k1, k2, out)
-        return out
-
-    @staticmethod
-    def _grow(arr: np.ndarray, need: int) -> np.ndarray:
-        if len(arr) >= need:
-            return arr
-        new = np.empty((max(need, 2 * len(arr), 256),) + arr.shape[1:], arr.dtype)
-        new[:len(arr)] = arr
-        return new
+        return self.keys.lookup(k1, k2)
 
     def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls) -> np.ndarray:
-        """Append samples and their ray-tree nodes; returns their ids (n,) int32."""
+        """Append samples (keys unique and absent) and their ray-tree nodes; returns ids."""
         n = len(k1)
         s0, s1 = self.n, self.n + n
-        for name in ("key1", "key2", "_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount"):
-            setattr(self, name, self._grow(getattr(self, name), s1))
+        for name in self._SAMPLE:
+            setattr(self, name, _grow(getattr(self, name), s1))
         order = np.argsort(tree.node_ray, kind="stable")
         count = np.bincount(tree.node_ray, minlength=n).astype(np.int32)
         m0, m1 = self.n_nodes, self.n_nodes + len(order)
-        for name in ("_npath", "_ninst", "_ncls", "_nocc", "_npoint"):
-            setattr(self, name, self._grow(getattr(self, name), m1))
-        self.key1[s0:s1] = k1
-        self.key2[s0:s1] = k2
+        for name in self._NODE:
+            setattr(self, name, _grow(getattr(self, name), m1))
         self._rad[s0:s1] = rad
         self._inst[s0:s1] = inst
         self._cls[s0:s1] = cls
@@ -219,13 +264,8 @@ class SampleStore:
         self._ncls[m0:m1] = node_cls[order]
         self._nocc[m0:m1] = tree.node_occluder[order].reshape(len(order), self.L)
         self._npoint[m0:m1] = tree.node_point[order]
-        self.n, self.n_nodes = s1, m1
-        if 2 * self.n > len(self.tk1):
-            self._map_alloc(1 << int(math.ceil(math.log2(4 * self.n))))
-        else:
-            _map_insert(self.tk1, self.tk2, self.tval, k1, k2,
-                        np.arange(s0, s1, dtype=np.int32))
-        return np.arange(s0, s1, dtype=np.int32)
+        self.n_nodes = m1
+        return self.keys.add(k1, k2)
 
     def compact(self, keep: np.ndarray) -> np.ndarray:
         """Keep samples where ``keep`` (n,) bool; returns the old -> new id map (-1: gone)."""
@@ -233,18 +273,44 @@ class SampleStore:
         ids = np.flatnonzero(keep)
         remap[ids] = np.arange(len(ids), dtype=np.int32)
         cnt = self._ncount[ids]
-        rows = (np.repeat(self._nstart[ids] - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
-                + np.arange(int(cnt.sum())))
-        self.key1, self.key2 = self.key1[ids], self.key2[ids]
-        self._rad, self._inst, self._cls = self._rad[ids], self._inst[ids], self._cls[ids]
-        self._depth, self._ncount = self._depth[ids], cnt
-        self._nstart = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        self._npath, self._ninst = self._npath[rows], self._ninst[rows]
-        self._ncls, self._nocc, self._npoint = self._ncls[rows], self._nocc[rows], \
-            self._npoint[rows]
-        self.n, self.n_nodes = len(ids), len(rows)
-        self._map_alloc(1 << int(math.ceil(math.log2(max(4 * self.n, 1024)))))
+        start = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+        rows = np.repeat(self._nstart[ids] - start, cnt) + np.arange(int(cnt.sum()))
+        for name in self._SAMPLE:
+            setattr(self, name, getattr(self, name)[ids])
+        self._ncount, self._nstart = cnt, start
+        for name in self._NODE:
+            setattr(self, name, getattr(self, name)[rows])
+        self.n_nodes = len(rows)
+        self.keys.keep(ids)
         return remap
+
+
+class _Geometry:
+    """Slab crossings of lines computed during one build (before any is shaded)."""
+
+    def __init__(self) -> None:
+        self.keys = KeyMap()
+        self.o = np.empty((0, 3))
+        self.d = np.empty((0, 3))
+        self.t = np.empty(0)
+        self.inst = np.empty(0, np.int32)
+        self.prim = np.empty(0, np.int32)
+        self.u = np.empty(0)
+        self.v = np.empty(0)
+        self.cls = np.empty(0, np.int32)
+
+    def add(self, k1, k2, o, d, hits: Hits, cls) -> None:
+        s0 = self.keys.n
+        s1 = s0 + len(k1)
+        for name, val in (("o", o), ("d", d), ("t", hits.t), ("inst", hits.inst),
+                          ("prim", hits.prim), ("u", hits.u), ("v", hits.v), ("cls", cls)):
+            arr = _grow(getattr(self, name), s1)
+            arr[s0:s1] = val
+            setattr(self, name, arr)
+        self.keys.add(k1, k2)
+
+    def hits(self, ids) -> Hits:
+        return Hits(self.t[ids], self.inst[ids], self.prim[ids], self.u[ids], self.v[ids])
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -314,6 +380,12 @@ def _cell_keys(box, inst, face, depth, coord, tests, ntest, aabb, k2, ok):
             if t0 > t1 * (1.0 + 1e-9) + 1e-12:
                 ok[c] = False
                 break
+
+
+@njit(cache=True, nogil=True)
+def _count(nodes, counts):
+    for r in range(nodes.shape[0]):
+        counts[nodes[r]] += 1
 
 
 @njit(cache=True, nogil=True)
@@ -542,18 +614,18 @@ class InterpolantCache:
         if n == 0 or self.epsilon <= 0.0:
             return ResolveResult(rad, done, pcls)
         lt = self.trees
-        roots = lt.get_roots(inst, face)
         pending = np.arange(n)
-        nodes = np.empty(n, np.int32)
+        nodes = lt.get_roots(inst, face)
+        first = min(MIN_BUILD_DEPTH, self.depth_cap)
         for _ in range(self.depth_cap + MIN_BUILD_DEPTH + 2):
             if len(pending) == 0 or (cancel is not None and cancel()):
                 break
             st["levels"] += 1
             self.clock += 1
-            leaf_nodes = np.empty(len(pending), np.int32)
-            descend(lt.arrays, roots[pending], abcd[pending], leaf_nodes)
-            nodes[pending] = leaf_nodes
-            state = lt.arrays.leaf[leaf_nodes]
+            cur = nodes[pending]
+            descend(lt.arrays, cur, abcd[pending], cur)
+            nodes[pending] = cur
+            state = lt.arrays.leaf[cur]
             has = state >= 0
             if np.any(has):
                 idx = pending[has]
@@ -561,29 +633,34 @@ class InterpolantCache:
                 out = np.empty((len(idx), 3))
                 ok = np.empty(len(idx), bool)
                 p = self.pool
-                _interpolate(lt.arrays, leaf_nodes[has], abcd[idx], zp[idx],
-                             clsp[idx], ids, p.rad, p.zlo, p.zhi, p.cls, out, ok)
+                _interpolate(lt.arrays, cur[has], abcd[idx], zp[idx], clsp[idx], ids, p.rad,
+                             p.zlo, p.zhi, p.cls, out, ok)
                 p.stamp[ids] = self.clock
                 rad[idx[ok]] = out[ok]
                 done[idx[ok]] = True
                 pcls[idx[ok]] = CLASS_INTERPOLATED
                 pcls[idx[~ok]] = CLASS_FAIL_SILHOUETTE
                 self.enforce_cap()
-            rest = pending[~has]
-            if len(rest) == 0:
+                pending = pending[~has]
+                cur = cur[~has]
+            if len(pending) == 0:
                 break
-            uniq, inv, cnt = np.unique(nodes[rest], return_inverse=True, return_counts=True)
+            counts = np.zeros(lt.n_nodes, np.int32)
+            _count(cur, counts)
+            uniq = np.flatnonzero(counts).astype(np.int32)
             ustate = lt.arrays.leaf[uniq]
             udepth = lt.arrays.depth[uniq].astype(np.int64)
-            enough = cnt >= MIN_PIXELS
+            enough = counts[uniq] >= MIN_PIXELS
             empty = ustate == EMPTY
-            first = min(MIN_BUILD_DEPTH, self.depth_cap)
             split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
             build = enough & empty & (udepth >= first)
             going = split | build
-            failed = ~empty & ~split
-            pcls[rest[failed[inv]]] = fail_class(ustate[inv][failed[inv]]).astype(np.uint8)
-            pcls[rest[~going[inv] & ~failed[inv]]] = CLASS_TRACED
+            node_cls = np.zeros(lt.n_nodes, np.uint8)
+            node_cls[uniq] = np.where(empty, CLASS_TRACED, fail_class(ustate))
+            node_cls[uniq[going]] = 255
+            pc = node_cls[cur]
+            stay = pc == 255
+            pcls[pending[~stay]] = pc[~stay]
             lt.split(uniq[split])
             if np.any(build):
                 tb = time.perf_counter()
@@ -593,7 +670,7 @@ class InterpolantCache:
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])
                 st["build_s"] += time.perf_counter() - tb
-            pending = rest[going[inv]]
+            pending = pending[stay]
         self.enforce_cap()
         lt.collapse()
         for k in ("cells_built", "cells_valid", "samples_traced"):
@@ -630,30 +707,72 @@ class InterpolantCache:
             tmin[todo] = nxt
         return Hits(t, hi, pr, u, v)
 
-    def _trace_samples(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
-        """Trace new lattice lines (keys unique, not in the store); returns their ids."""
-        n = len(k1)
-        inst = (k1 >> 3).astype(np.int32)
-        face = (k1 & 7).astype(np.int8)
-        lattice = np.empty((n, 4), np.int64)
-        _unpack(k2, lattice)
-        o = np.empty((n, 3))
-        d = np.empty((n, 3))
-        lattice_lines(self.box, inst, face, lattice, o, d)
-        hits = self._front_hits(inst, o, d)
-        rad, tree = trace(self.sa, self.accel, o, d, 0.0, 1.0, self.max_depth, record=True,
-                          primary=hits)
-        hit = hits.inst >= 0
-        k = face.astype(np.int64) >> 1
-        depth = np.where(hit, hits.t, 0.0) * (self.box[inst, 1, k] - self.box[inst, 0, k])
-        cls = np.where(hit, self.topo.tri_class[np.maximum(hits.prim, 0)], -1).astype(np.int32)
+    def _geometry(self, k1: np.ndarray, k2: np.ndarray, geo: _Geometry):
+        """Slab-crossing instance and class of lattice lines (m keys, repeats allowed):
+        from stored samples, else from ``geo``, else computed now (``intersect_object``
+        only, no shading) and added to ``geo``. Returns ``inst (m,), cls (m,)``."""
+        m = len(k1)
+        inst = np.empty(m, np.int32)
+        cls = np.empty(m, np.int32)
+        sid = self.samples.lookup(k1, k2)
+        have = sid >= 0
+        inst[have] = self.samples._inst[sid[have]]
+        cls[have] = self.samples._cls[sid[have]]
+        rest = np.flatnonzero(~have)
+        if len(rest):
+            gid = geo.keys.lookup(k1[rest], k2[rest])
+            new = gid < 0
+            if np.any(new):
+                uk = np.unique(np.stack([k1[rest[new]], k2[rest[new]]], axis=1), axis=0)
+                n1, n2 = np.ascontiguousarray(uk[:, 0]), np.ascontiguousarray(uk[:, 1])
+                li = (n1 >> 3).astype(np.int32)
+                lf = (n1 & 7).astype(np.int8)
+                lattice = np.empty((len(uk), 4), np.int64)
+                _unpack(n2, lattice)
+                o = np.empty((len(uk), 3))
+                d = np.empty((len(uk), 3))
+                lattice_lines(self.box, li, lf, lattice, o, d)
+                hits = self._front_hits(li, o, d)
+                hcls = np.where(hits.inst >= 0, self.topo.tri_class[np.maximum(hits.prim, 0)],
+                                -1).astype(np.int32)
+                geo.add(n1, n2, o, d, hits, hcls)
+                gid[new] = geo.keys.lookup(k1[rest[new]], k2[rest[new]])
+            inst[rest] = geo.inst[gid]
+            cls[rest] = geo.cls[gid]
+        return inst, cls
+
+    def _shade(self, k1: np.ndarray, k2: np.ndarray, geo: _Geometry) -> np.ndarray:
+        """Sample ids of lattice lines (m keys, repeats allowed); lines not stored yet are
+        shaded through the whole scene from their ``geo`` crossings, with ray trees."""
+        sid = self.samples.lookup(k1, k2)
+        miss = np.flatnonzero(sid < 0)
+        if len(miss) == 0:
+            return sid
+        gid = geo.keys.lookup(k1[miss], k2[miss])
+        ug, uinv = np.unique(gid, return_inverse=True)
+        hits = geo.hits(ug)
+        rad, tree = trace(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
+                          record=True, primary=hits)
+        li = hits.inst
+        k = (geo.keys.k1[ug] & 7) >> 1
+        inst_box = (geo.keys.k1[ug] >> 3)
+        depth = np.where(li >= 0, hits.t, 0.0) * (self.box[inst_box, 1, k]
+                                                  - self.box[inst_box, 0, k])
         node_cls = np.where(tree.node_tri >= 0,
                             self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
-        return self.samples.add(k1, k2, rad, hits.inst, cls, depth, tree,
-                                node_cls.astype(np.int32))
+        new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
+                               tree, node_cls.astype(np.int32))
+        self.frame_stats["samples_traced"] += len(ug)
+        sid[miss] = new[uinv.reshape(-1)]
+        return sid
 
     def _build(self, cells: np.ndarray, st: dict) -> None:
-        """Build the cells (unique EMPTY leaves) in one batch and store the outcome."""
+        """Build the cells (unique EMPTY leaves) in one batch and store the outcome.
+
+        Cheap tests first: the corner lines against the object's box, then the corners'
+        and the test lines' slab crossings (geometry only); only cells that pass those are
+        shaded and go through the predicate and the radiance test.
+        """
         a = self.trees.arrays
         tree = a.tree[cells].astype(np.int64)
         inst = (tree // 6).astype(np.int32)
@@ -667,26 +786,36 @@ class InterpolantCache:
         pre = np.empty(nc, bool)
         _cell_keys(self.box, inst, face, depth, coord, TEST_POINTS, ntest, self.sa.inst_aabb,
                    k2, pre)
+        kc = inst.astype(np.int64) * 8 + face
         status = np.full(nc, CLASS_FAIL_SILHOUETTE, np.int32)
-        go = np.flatnonzero(pre)
+        why = st["reasons"]
         st["cells_built"] += nc
+        go = np.flatnonzero(pre)
+        why["box_miss"] = why.get("box_miss", 0) + nc - len(go)
+        geo = _Geometry()
+        cls0 = np.zeros(nc, np.int32)
+        for lo, hi in ((0, 16), (16, ns)):
+            if len(go) == 0:
+                break
+            used = np.arange(lo, hi)[None, :] < (16 + ntest[go])[:, None]
+            k1 = np.broadcast_to(kc[go][:, None], used.shape)[used]
+            g_inst, g_cls = self._geometry(k1, k2[go, lo:hi][used], geo)
+            gi = np.full(used.shape, -1, np.int32)
+            gc = np.full(used.shape, -1, np.int32)
+            gi[used], gc[used] = g_inst, g_cls
+            if lo == 0:
+                cls0[go] = gc[:, 0]
+            miss = np.any(used & (gi != inst[go][:, None]), axis=1)
+            jump = ~miss & np.any(used & (gc != cls0[go][:, None]), axis=1)
+            why["corner_miss"] = why.get("corner_miss", 0) + int(np.count_nonzero(miss))
+            why["class_change"] = why.get("class_change", 0) + int(np.count_nonzero(jump))
+            go = go[~miss & ~jump]
         if len(go):
             nsamp = (16 + ntest[go]).astype(np.int32)
             used = np.arange(ns)[None, :] < nsamp[:, None]
-            k1 = np.broadcast_to((inst[go].astype(np.int64) * 8 + face[go])[:, None],
-                                 (len(go), ns))[used]
-            kk2 = k2[go][used]
-            ids = self.samples.lookup(k1, kk2)
-            miss = ids < 0
-            if np.any(miss):
-                mk = np.stack([k1[miss], kk2[miss]], axis=1)
-                uk, uinv = np.unique(mk, axis=0, return_inverse=True)
-                new = self._trace_samples(np.ascontiguousarray(uk[:, 0]),
-                                          np.ascontiguousarray(uk[:, 1]))
-                ids[miss] = new[uinv.reshape(-1)]
-                st["samples_traced"] += len(uk)
+            k1 = np.broadcast_to(kc[go][:, None], used.shape)[used]
             cell_samples = np.full((len(go), ns), -1, np.int32)
-            cell_samples[used] = ids
+            cell_samples[used] = self._shade(k1, k2[go][used], geo)
             sub_status = np.empty(len(go), np.int32)
             detail = np.empty(len(go), np.int8)
             zlo = np.zeros(len(go))
@@ -699,7 +828,6 @@ class InterpolantCache:
             lin = self._radiance_ok(cell_samples[ok], nsamp[ok])
             sub_status[ok[~lin]] = CLASS_FAIL_NONLINEAR
             detail[ok[~lin]] = len(REASONS)
-            why = st["reasons"]
             for r, k in zip(*np.unique(detail, return_counts=True), strict=True):
                 name = REASONS[r] if r < len(REASONS) else "radiance"
                 why[name] = why.get(name, 0) + int(k)
@@ -714,7 +842,6 @@ class InterpolantCache:
                 p.stamp[pids] = self.clock
                 p.samples[pids] = cell_samples[good, :16]
                 a.leaf[cells[go[good]]] = pids
-        st["reasons"]["box_miss"] = st["reasons"].get("box_miss", 0) + int(nc - len(go))
         bad = status != VALID
         a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
         st["cells_valid"] += int(np.count_nonzero(~bad))

@@ -284,6 +284,20 @@ def _collapse_pass(lt, n, freed):
     return nf
 
 
+@njit(cache=True, nogil=True)
+def _assign_roots(table, keys, next_id, out, new_keys):
+    """Root of each key (inst * 6 + face), numbering missing roots from ``next_id``."""
+    n_new = 0
+    for r in range(keys.shape[0]):
+        k = keys[r]
+        if table[k] < 0:
+            table[k] = next_id + n_new
+            new_keys[n_new] = k
+            n_new += 1
+        out[r] = table[k]
+    return n_new
+
+
 class Linetrees:
     """Owner of the linetree node pool: lazy roots, splits, freed-block recycling."""
 
@@ -322,24 +336,22 @@ class Linetrees:
 
     def get_roots(self, inst: np.ndarray, face: np.ndarray) -> np.ndarray:
         """Root node of each (inst, face) pair, creating missing roots: (n,) int32."""
-        inst = np.asarray(inst, np.int64)
-        face = np.asarray(face, np.int64)
-        roots = self.roots[inst, face]
-        missing = roots < 0
-        if np.any(missing):
-            keys = np.unique(inst[missing] * N_FACES + face[missing])
-            self._reserve(len(keys))
-            ids = np.arange(self.n_nodes, self.n_nodes + len(keys), dtype=np.int32)
-            self.n_nodes += len(keys)
+        keys = np.asarray(inst, np.int64) * N_FACES + np.asarray(face, np.int64)
+        table = self.roots.reshape(-1)
+        out = np.empty(len(keys), np.int32)
+        new_keys = np.empty(min(len(keys), len(table)), np.int64)
+        n_new = _assign_roots(table, keys, self.n_nodes, out, new_keys)
+        if n_new:
+            self._reserve(n_new)
+            ids = np.arange(self.n_nodes, self.n_nodes + n_new, dtype=np.int32)
+            self.n_nodes += n_new
             a = self.arrays
             a.child[ids] = -1
             a.leaf[ids] = EMPTY
             a.depth[ids] = 0
             a.coord[ids] = 0
-            a.tree[ids] = keys.astype(np.int32)
-            self.roots.reshape(-1)[keys] = ids
-            roots = self.roots[inst, face]
-        return roots
+            a.tree[ids] = new_keys[:n_new].astype(np.int32)
+        return out
 
     def split(self, nodes: np.ndarray) -> None:
         """Give each leaf in ``nodes`` (unique) 16 EMPTY children. A split leaf must not hold

@@ -140,7 +140,7 @@ class FrameRenderer:
                      total_seconds=time.perf_counter() - t0, threads=threads,
                      width=exported.width, height=exported.height, mode=settings.mode,
                      accelerator=settings.accelerator, renders=state.renders,
-                     pixel_classes=_class_counts(frame))
+                     pixel_classes=_class_counts(frame), export_warnings=exported.warnings)
         state.stats = stats
         mem = _memory_mb(stats, exported.scene)
         engine.update_memory_stats(memory_used=mem, memory_peak=mem)
@@ -271,6 +271,12 @@ def status_line(stats: dict) -> str:
     total = sum(classes.values())
     if total and classes.get("interpolated"):
         parts.append(f"interpolated {100.0 * classes['interpolated'] / total:.1f}%")
+    if stats.get("cancelled"):
+        parts.append("cancelled")
+    warnings = stats.get("export_warnings") or []
+    if warnings:
+        parts.append(f"{len(warnings)} warning{'s' if len(warnings) > 1 else ''} "
+                     f"(RSTrace > Last Render)")
     return " | ".join(parts)
 
 

@@ -91,6 +91,7 @@ def test_progress_stats_memory_and_passes():
     assert engine.progress[-1] == 1.0
     assert engine.info[-1].startswith("RSTrace | BASE | 40x30")
     assert engine.memory and engine.memory[-1][0] > 0.0
+    assert "warning" not in engine.info[-1]
     passes = engine.results[-1].layers[0].passes
     combined = passes["Combined"].data.reshape(30, 40, 4)
     assert np.all(combined[..., 3] == 1.0) and combined[..., :3].max() > 0.1
@@ -104,9 +105,21 @@ def test_cancel_between_batches_keeps_a_partial_frame():
     state = _render(engine)
     assert not engine.errors
     assert state.stats["cancelled"] and 0 < state.stats["rows_done"] < 48
+    assert "cancelled" in engine.info[-1]
     combined = engine.results[-1].layers[0].passes["Combined"].data.reshape(48, 64, 4)
     rows = state.stats["rows_done"]
     assert combined[:rows, :, :3].max() > 0.1 and combined[rows:, :, :3].max() == 0.0
+
+
+def test_status_line_counts_warnings():
+    b.three_spheres_scene(16, 12)
+    area = bpy.data.lights.new("Panel", "AREA")
+    b.add_object("Panel", area, (0.0, -3.0, 4.0))
+    engine = FakeEngine()
+    state = _render(engine)
+    assert "1 warning" in engine.info[-1]
+    assert any("area lights" in w for w in state.stats["export_warnings"])
+    assert [k for k, m in engine.reports] == [{"WARNING"}] and "'Panel'" in engine.reports[0][1]
 
 
 def test_first_render_says_compiling_kernels(tmp_path, monkeypatch):

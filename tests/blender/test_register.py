@@ -73,3 +73,15 @@ def test_kernel_status_reports_compiling_with_an_empty_cache(tmp_path, monkeypat
     assert runtime.kernel_status() == "loading compiled kernels"
     monkeypatch.setitem(runtime._state, "kernels_ready", True)
     assert runtime.kernel_status() is None
+
+
+def test_interpolation_pass_is_registered_for_the_compositor():
+    sc = bpy.context.scene
+    sc.render.engine = "RSTRACE"
+    tree = bpy.data.node_groups.new("Compositing", "CompositorNodeTree")
+    if hasattr(sc, "compositing_node_group"):  # Blender 5
+        sc.compositing_node_group = tree
+    node = tree.nodes.new("CompositorNodeRLayers")
+    node.scene = sc
+    enabled = {o.name for o in node.outputs if o.enabled}
+    assert {"Image", "Alpha", "Interpolation"} <= enabled

@@ -18,6 +18,7 @@ import argparse
 import glob
 import importlib.metadata
 import importlib.util
+import logging
 import re
 import shutil
 import subprocess
@@ -36,8 +37,11 @@ PIP_PLATFORMS = {
 DEPENDENCIES = ("numba", "llvmlite")
 
 
+_log = logging.getLogger("build_extension")
+
+
 def log(msg: str) -> None:
-    print(f"build_extension: {msg}", flush=True)
+    _log.info(msg)
 
 
 def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
@@ -132,6 +136,7 @@ def main(argv=None) -> int:
     ap.add_argument("--stage", type=Path, default=ROOT / "build" / "extension")
     ap.add_argument("--wheel-cache", type=Path, default=ROOT / "build" / "wheel-cache")
     args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="build_extension: %(message)s")
 
     version = engine_version()
     stage = args.stage.resolve()
@@ -143,7 +148,7 @@ def main(argv=None) -> int:
             deps = dependency_wheels(platform, args.wheel_cache.resolve())
         except (subprocess.CalledProcessError, RuntimeError) as exc:
             if platform in REQUIRED:
-                raise SystemExit(f"{platform}: cannot get numba/llvmlite wheels ({exc})")
+                raise SystemExit(f"{platform}: cannot get numba/llvmlite wheels ({exc})") from exc
             log(f"warning: {platform} left out, no wheels ({exc})")
             continue
         for w in deps:

@@ -131,15 +131,31 @@ def test_render_region_writes_only_the_border(tmp_path):
             assert np.all(part[20:, :, :3] == 0.0)
 
 
-def test_unavailable_mode_is_a_clean_error(tmp_path):
-    sc = b.three_spheres_scene(16, 12)
-    for mode in ("INTERPOLANT", "RI_TREE"):
-        sc.rstrace.mode = mode
+def _core_modes():
+    from rstrace_engine import session as core
+
+    return getattr(core, "AVAILABLE_MODES", ("BASE",))
+
+
+@pytest.mark.parametrize("mode", ["INTERPOLANT", "RI_TREE"])
+def test_each_mode_renders_or_is_a_clean_error(mode, tmp_path):
+    """A mode the core offers renders in that mode; one it does not is refused, clearly,
+    rather than rendered in another mode."""
+    sc = b.three_spheres_scene(24, 18)
+    sc.rstrace.mode = mode
+    if mode not in _core_modes():
         with pytest.raises(RuntimeError, match="RSTrace: mode .* is not available"):
             b.render_exr(tmp_path / "m.exr")  # operators raise on an engine's error
         state = _state()
         assert state.error is not None and "not available" in state.error, state.messages
         assert state.stats == {}  # nothing was rendered in another mode
+        return
+    out = b.render_exr(tmp_path / "m.exr")
+    state = _state()
+    assert state.error is None and state.stats["mode"] == mode, state.messages
+    classes = out["Interpolation"].reshape(-1, 3)
+    known = np.all(np.isclose(classes[:, None, :], CLASS_COLORS[None]), axis=-1).any(axis=1)
+    assert known.all() and np.isfinite(out["Combined"]).all()
 
 
 def test_unavailable_accelerator_is_a_clean_error(tmp_path):

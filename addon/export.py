@@ -536,6 +536,9 @@ def camera_from_object(cam_ob, width: int, height: int, render, notes: Notes) ->
         notes.warn("non-square pixel aspect is not supported (square pixels rendered)")
     if render.use_motion_blur:
         notes.warn("motion blur is not supported")
+    if render.use_multiview:
+        notes.warn("stereo and multi-view rendering are not supported: one centre view is "
+                   "rendered")
     m = _matrix(cam_ob.matrix_world)
     try:
         check_matrix(cam_ob.name, m)

@@ -23,9 +23,15 @@ ROOT = Path(__file__).resolve().parents[2]
 
 SCRIPT = textwrap.dedent('''
     import json, os, sys, time
+
+    zip_path, out_dir, repo = sys.argv[1], sys.argv[2], os.path.realpath(sys.argv[3])
+    # A user's Blender has no checkout: hide the repository (a path entry, or the finder of
+    # an editable install from `make`) so that rstrace_engine must come from the wheel.
+    sys.path[:] = [p for p in sys.path if os.path.realpath(p or ".") != repo]
+    sys.meta_path[:] = [f for f in sys.meta_path
+                        if not getattr(f, "__module__", "").startswith("__editable__")]
     import bpy
 
-    zip_path, out_dir = sys.argv[1], sys.argv[2]
     result = {}
     t0 = time.perf_counter()
     bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
@@ -109,7 +115,7 @@ def test_extension_installs_renders_and_uninstalls(tmp_path):
     env["BLENDER_USER_RESOURCES"] = str(user)
     script = tmp_path / "install_and_render.py"
     script.write_text(SCRIPT)
-    proc = subprocess.run([sys.executable, str(script), str(zip_path), str(tmp_path)],
+    proc = subprocess.run([sys.executable, str(script), str(zip_path), str(tmp_path), str(ROOT)],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     assert proc.returncode == 0 and lines, proc.stdout[-3000:] + proc.stderr[-3000:]

@@ -15,12 +15,15 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(PY) examples/demo.py --out out/demo
 
+# The bpy tests run in their own process: bpy brings its own TBB/Embree and changes which
+# numba threading layer the core tests would get.
 test: $(STAMP)
-	$(PY) -m ruff check rstrace_engine addon tests examples
-	$(PY) -m pytest -q tests
+	$(PY) -m ruff check rstrace_engine addon tests examples scripts
+	$(PY) -m pytest -q tests --ignore=tests/blender
+	$(PY) -m pytest -q tests/blender
 
 lint: $(STAMP)
-	$(PY) -m ruff check rstrace_engine addon tests examples
+	$(PY) -m ruff check rstrace_engine addon tests examples scripts
 
 # Blender extension zips, one per platform: dist/rstrace-<version>-<platform>.zip.
 # EXT_PLATFORMS=linux-x64 skips the (optional) Windows and macOS wheel downloads.

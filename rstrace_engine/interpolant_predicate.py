@@ -25,10 +25,10 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   not bounded exactly (curved mirrors), so this part is conservative only up to the padding
   :data:`~.tolerances.TUNNEL_MARGIN_REL`: tested, not guaranteed.
 
-Triangle queries walk per-mesh BVHs built with :mod:`.bvh` (object space; a shaft's planes are
-taken to object space exactly) under a BVH over the instances' world boxes. Triangles are
-clipped against a shaft's planes (Sutherland-Hodgman), so the overlap test is exact up to the
-planes' outward slack :data:`~.tolerances.SHAFT_SLACK_REL`.
+Triangle queries walk per-mesh binary BVHs built with :func:`.bvh.build_flat` (object space;
+a shaft's planes are taken to object space exactly) under a BVH over the instances' world
+boxes. Triangles are clipped against a shaft's planes (Sutherland-Hodgman), so the overlap test
+is exact up to the planes' outward slack :data:`~.tolerances.SHAFT_SLACK_REL`.
 """
 
 from __future__ import annotations
@@ -189,12 +189,17 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
 
 
 class QueryScene(NamedTuple):
-    """What the predicate kernels read: instance and triangle BVHs, topology, lights."""
+    """What the predicate kernels read: instance and triangle BVHs, topology, lights.
 
-    top_bounds: np.ndarray  # (Nt, 12) float32 instance BVH (bvh.FlatBVH layout)
+    The BVHs are binary (:func:`.bvh.build_flat`): ``bounds (N, 12)`` float64 holds the boxes
+    of both children (``lo xyz, hi xyz`` each), ``child (N, 2)`` an inner node or a leaf
+    ``~(start << 3 | count)`` over consecutive primitives in leaf order.
+    """
+
+    top_bounds: np.ndarray  # (Nt, 12) float64 instance BVH over world boxes
     top_child: np.ndarray  # (Nt, 2) int32
     top_inst: np.ndarray  # (I,) int32 instance ids in leaf order
-    bounds: np.ndarray  # (N, 12) float32 all mesh BVH nodes (object space)
+    bounds: np.ndarray  # (N, 12) float64 all mesh BVH nodes (object space)
     child: np.ndarray  # (N, 2) int32
     tv: np.ndarray  # (T, 9) float64 triangle vertices in leaf order
     tri: np.ndarray  # (T,) int32 global triangle index
@@ -212,19 +217,42 @@ class QueryScene(NamedTuple):
     slack: float  # absolute outward slack of shaft planes
 
 
+def _binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
+    b, c, perm, _ = bvh.build_flat(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                                   max_leaf, bvh.SAH_BINS, bvh.SAH_TRAVERSAL_COST)
+    return b, c, perm
+
+
 def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
-    """Build the predicate's query structures over ``sa`` (mesh BVHs reuse :mod:`.bvh`)."""
-    meshes = [bvh.build_mesh_bvh(bvh.mesh_triangles(sa, m))
-              for m in range(len(sa.mesh_tri_start) - 1)]
-    bounds, child, tv, tri, mesh_root = bvh.concat_meshes(meshes, sa.mesh_tri_start)
-    top = bvh.build_top(sa.inst_aabb)
-    lo, hi = sa.scene_aabb
+    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh`)."""
+    bounds, childs, tvs, tris, roots = [], [], [], [], []
+    n_nodes = n_tris = 0
+    for m in range(len(sa.mesh_tri_start) - 1):
+        tv = bvh.mesh_triangles(sa, m)
+        b, c, perm = _binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh.MAX_LEAF)
+        c = c.astype(np.int64)
+        code = ~c
+        c = np.where(c < 0, ~(((code >> 3) + n_tris) << 3 | (code & 7)), c + n_nodes)
+        bounds.append(b)
+        childs.append(c.astype(np.int32))
+        tvs.append(tv[perm].reshape(-1, 9))
+        tris.append(perm.astype(np.int64) + sa.mesh_tri_start[m])
+        roots.append(n_nodes)
+        n_nodes += len(b)
+        n_tris += len(perm)
+    lo, hi = sa.inst_aabb[:, 0], sa.inst_aabb[:, 1]
+    mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
+    pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
+    tb, tc, tperm = _binary_bvh(lo - pad, hi + pad, 1)
+    lo_s, hi_s = sa.scene_aabb
     mag = float(sa.scene_extent + np.max(np.abs(sa.scene_aabb)))
-    return QueryScene(top.bounds, top.child, np.ascontiguousarray(top.perm, np.int32), bounds,
-                      child, tv, tri, mesh_root, np.ascontiguousarray(sa.inst_mesh, np.int32),
-                      sa.inst_xform, sa.inst_inv, topo.tri_class, topo.tri_boundary,
-                      sa.light_kind, sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
-                      0.5 * (lo + hi), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag)
+    return QueryScene(tb, tc, tperm.astype(np.int32), np.concatenate(bounds),
+                      np.concatenate(childs), np.ascontiguousarray(np.concatenate(tvs)),
+                      np.concatenate(tris).astype(np.int32), np.array(roots, np.int32),
+                      np.ascontiguousarray(sa.inst_mesh, np.int32), sa.inst_xform, sa.inst_inv,
+                      topo.tri_class, topo.tri_boundary, sa.light_kind,
+                      sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
+                      0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag)
 
 
 # ----------------------------------------------------------------------------- shafts
@@ -689,11 +717,13 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
 
 
 @njit(cache=True, nogil=True)
-def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac):
+def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
     """Geometry test of the slab shaft ``pl`` (6 planes, world) against the object itself.
 
     dirs (16, 3) world corner directions. Sets per light ``fac[j]`` / ``bfac[j]`` when some
-    slab triangle faces / faces away from light j. Returns True when the cell passes.
+    slab triangle faces / faces away from light j, and ``hb`` (6,) to the world box of the
+    object's surface inside the slab (which holds every slab crossing). Returns True when
+    the cell passes.
     """
     xf = qs.inst_xform[inst]
     inv = qs.inst_inv[inst]
@@ -709,10 +739,20 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac):
         for k in range(3):
             do[c, k] = inv[k, 0] * dirs[c, 0] + inv[k, 1] * dirs[c, 1] + inv[k, 2] * dirs[c, 2]
     L = qs.light_kind.shape[0]
+    for k in range(3):
+        hb[k] = np.inf
+        hb[3 + k] = -np.inf
     for q in range(nc):
         t = cand[q]
         if qs.tri_class[qs.tri[t]] != cls:
             return False
+        _load_tri(qs.tv, t, P)
+        nv = clip_polygon(plo, 0, 6, P, 3, Q)
+        for v in range(nv):
+            for k in range(3):
+                w = xf[k, 0] * P[v, 0] + xf[k, 1] * P[v, 1] + xf[k, 2] * P[v, 2] + xf[k, 3]
+                hb[k] = min(hb[k], w)
+                hb[3 + k] = max(hb[3 + k], w)
         nx, ny, nz = _tri_normal(qs.tv, t)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         for c in range(16):
@@ -869,13 +909,19 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     Q = np.empty((MAX_PLANES + 8, 3))
     fac = np.zeros(max(L, 1), np.bool_)
     bfac = np.zeros(max(L, 1), np.bool_)
-    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac):
+    hb = np.empty(6)
+    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
         return R_SLAB
+    # the light shafts and the first tunnels start from the surface inside the slab
+    if hb[0] > hb[3]:
+        hb[:] = bb
     lo = np.empty(3)
     hi = np.empty(3)
     for k in range(3):
-        lo[k] = bb[k]
-        hi[k] = bb[3 + k]
+        hb[k] -= qs.slack
+        hb[3 + k] += qs.slack
+        lo[k] = hb[k]
+        hi[k] = hb[3 + k]
     spl = np.empty((MAX_PLANES, 4))
     sbb = np.empty(6)
     plo = np.empty((MAX_PLANES, 4))
@@ -898,8 +944,8 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
                 pq = x
         if pq == 0:
             for k in range(3):
-                plo_[k] = bb[k]
-                phi_[k] = bb[3 + k]
+                plo_[k] = hb[k]
+                phi_[k] = hb[3 + k]
         else:
             _points_box(sm, ids, ns, pq, tol.TUNNEL_MARGIN_REL, qs.slack, plo_, phi_)
         _points_box(sm, ids, ns, q, tol.TUNNEL_MARGIN_REL, qs.slack, lo, hi)

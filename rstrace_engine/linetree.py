@@ -220,14 +220,18 @@ class LinetreeArrays(NamedTuple):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def descend(lt, start, abcd, out):
+def descend(lt, start, abcd, out, inherited):
     """Leaf holding each line: from node ``start[r]`` down by ``abcd[r]``.
 
-    start (n,) int32 nodes (usually roots), abcd (n, 4) float64; out (n,) int32 leaves.
+    start (n,) int32 nodes (usually roots), abcd (n, 4) float64; out (n,) int32 leaves;
+    inherited (n,) int32: the fail code of the deepest split node passed on the way (a
+    failed cell that was split keeps its code), updated only where one was passed.
     """
     for r in prange(start.shape[0]):
         nd = start[r]
         while lt.child[nd] >= 0:
+            if lt.leaf[nd] < EMPTY:
+                inherited[r] = lt.leaf[nd]
             s = float(1 << (lt.depth[nd] + 1))
             bits = 0
             for m in range(4):

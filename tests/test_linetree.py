@@ -155,7 +155,10 @@ def test_descend_cell_boundaries_and_local_coordinates():
                      [0.25, 0.75, 0.25, 0.75],  # boundary inside the deeper cell
                      [0.49999999, 0.5, 0.1, 0.5]])
     out = np.empty(len(abcd), np.int32)
-    descend(lt.arrays, np.full(len(abcd), root, np.int32), abcd, out)
+    lt.arrays.leaf[first + 0b1010] = fail_code(CLASS_FAIL_SHADOW)  # split after failing
+    inherited = np.full(len(abcd), EMPTY, np.int32)
+    descend(lt.arrays, np.full(len(abcd), root, np.int32), abcd, out, inherited)
+    assert list(inherited) == [EMPTY, EMPTY, EMPTY] + [fail_code(CLASS_FAIL_SHADOW)] * 2
     a = lt.arrays
     for r in range(len(abcd)):
         nd = out[r]

@@ -14,6 +14,7 @@ depth cap or the ray depth change (edits are the edits issue's business).
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 
@@ -22,7 +23,7 @@ import numpy as np
 from . import tolerances as tol
 from .accelerators import Hits
 from .cameras import camera_params, camera_rays, pixel_jitter
-from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
+from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
 from .interpolants import InterpolantCache
 from .whitted import TILE_RAYS, trace
 
@@ -138,30 +139,55 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)
 
 
+def scene_fingerprint(sa) -> bytes:
+    """Content hash of a scene packing (geometry, instances, materials, lights, world)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in sa:
+        h.update(np.ascontiguousarray(a).view(np.uint8) if isinstance(a, np.ndarray)
+                 else repr(a).encode())
+    return h.digest()
+
+
 class InterpolantRenderer:
-    """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid."""
+    """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid.
+
+    A new export of an unchanged scene (same content, e.g. after a camera move) keeps the
+    cache; any change of content, epsilon, depth cap, ray depth or accelerator starts a new
+    one (edits are invalidated selectively by the edits machinery, not here).
+    """
 
     def __init__(self) -> None:
         self.cache: InterpolantCache | None = None
+        self._fingerprint: bytes | None = None
 
     def reset(self) -> None:
-        """Forget every interpolant (a new scene export)."""
+        """Forget every interpolant."""
         self.cache = None
+        self._fingerprint = None
+
+    def _same_scene(self, sa) -> bool:
+        c = self.cache
+        if sa is c.sa:
+            return True
+        fp = scene_fingerprint(sa)
+        if fp != self._fingerprint:
+            return False
+        c.sa = sa  # same content, new packing
+        return True
 
     def render(self, scene, settings: RenderSettings, accel, progress=None,
                cancel=None) -> Frame:
+        """Render ``scene``'s camera in INTERPOLANT mode with accelerator ``accel``."""
         settings = settings.validated()
         sa = scene.arrays()
         c = self.cache
-        if c is None or c.accel is not accel or not c.compatible(
+        if c is None or c.accel is not accel or not self._same_scene(sa) or not c.compatible(
                 sa, settings.epsilon, settings.depth_cap, settings.max_depth):
             self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
                                               settings.memory_cap_mb, settings.max_depth)
+            self._fingerprint = scene_fingerprint(sa)
         elif c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
             c.set_memory_cap(settings.memory_cap_mb)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame
-
-
-__all__ = ["render_frame", "InterpolantRenderer", "CLASS_INTERPOLATED"]

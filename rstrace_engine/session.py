@@ -4,7 +4,8 @@ The session owns the :class:`~rstrace_engine.scene.Scene` and its accelerator. A
 of the scene goes through :meth:`Session.update_scene`, which hands the new packing to the
 accelerator's ``update`` so that per-mesh structures of unchanged meshes are reused and only
 the top level is rebuilt. ``BASE`` mode renders with the Whitted tracer
-(:func:`rstrace_engine.whitted.render`); the interpolant modes are not available yet.
+(:func:`rstrace_engine.whitted.render`); ``INTERPOLANT`` mode with radiance interpolants kept
+across frames and camera moves (:class:`~rstrace_engine.interpolant_render.InterpolantRenderer`).
 """
 
 from __future__ import annotations
@@ -14,12 +15,13 @@ import time
 
 from .accelerators import create_accelerator
 from .frame import Frame, RenderSettings
+from .interpolant_render import InterpolantRenderer
 from .scene import Scene, SceneError
 from .whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
 
-AVAILABLE_MODES = ("BASE",)
+AVAILABLE_MODES = ("BASE", "INTERPOLANT")
 
 
 class Session:
@@ -34,6 +36,7 @@ class Session:
         self.scene = scene
         self.accel = None
         self.stats: dict = {}
+        self.interpolants = InterpolantRenderer()
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -75,8 +78,12 @@ class Session:
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
-        frame = whitted_render(self.scene, self.settings, accel=self.accel, progress=progress,
-                               cancel=cancel)
+        if mode == "INTERPOLANT":
+            frame = self.interpolants.render(self.scene, self.settings, self.accel,
+                                             progress=progress, cancel=cancel)
+        else:
+            frame = whitted_render(self.scene, self.settings, accel=self.accel,
+                                   progress=progress, cancel=cancel)
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]

@@ -23,6 +23,10 @@ the quadrilinear interpolation of the corner radiance must match the traced radi
 margin stands in for the error between test lines, which samples cannot bound. Test lines lie
 on the lattice of the children and grandchildren, so a split reuses them as corners. With
 epsilon = 0 nothing is interpolated: no finite set of test lines proves an interpolant exact.
+
+Kernels over a frame's rays (``descend``, ``_interpolate``) and the predicate run in parallel;
+the small per-batch kernels are serial on purpose: on a busy machine every parallel region can
+cost a scheduler time slice, far more than their work.
 """
 
 from __future__ import annotations
@@ -116,10 +120,10 @@ def _slot(k1, k2, mask):
     return np.int64(h & np.uint64(mask))
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _map_lookup(tk1, tk2, tval, k1, k2, out):
     mask = tk1.shape[0] - 1
-    for r in prange(k1.shape[0]):
+    for r in range(k1.shape[0]):
         s = _slot(k1[r], k2[r], mask)
         out[r] = -1
         while tk1[s] != -1:
@@ -324,10 +328,10 @@ class _Geometry:
 # ----------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _facing(sa, inst, prim, d, front):
     """front[r]: hit r is on the side its geometric normal points to (against d)."""
-    for r in prange(inst.shape[0]):
+    for r in range(inst.shape[0]):
         if inst[r] < 0:
             front[r] = True
             continue
@@ -335,10 +339,10 @@ def _facing(sa, inst, prim, d, front):
         front[r] = dot3(gx, gy, gz, d[r, 0], d[r, 1], d[r, 2]) < 0.0
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _skip_tmin(o, d, t, ext, out):
     """Parameter just past hit t (the tracer's spawn offset along the line)."""
-    for r in prange(t.shape[0]):
+    for r in range(t.shape[0]):
         px = o[r, 0] + d[r, 0] * t[r]
         py = o[r, 1] + d[r, 1] * t[r]
         pz = o[r, 2] + d[r, 2] * t[r]
@@ -346,11 +350,11 @@ def _skip_tmin(o, d, t, ext, out):
         out[r] = t[r] + spawn_offset(px, py, pz, ext) / dl
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _cell_keys(box, inst, face, depth, coord, tests, ntest, aabb, k2, ok):
     """Lattice keys of each cell's 16 corners and test lines, and the cheap pre-test that
     all 16 corner lines meet the object's world box (else the cell cannot pass)."""
-    for c in prange(inst.shape[0]):
+    for c in range(inst.shape[0]):
         sh = LATTICE_DEPTH - depth[c]
         unit = 1 << sh
         ok[c] = True
@@ -431,10 +435,10 @@ def _interpolate(lt, nodes, abcd, zp, clsp, ids, rad16, izlo, izhi, icls, out, o
         out[r, 2] = z
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _hit_depths(box, cls_of_tri, inst, prim, t, o, d, face, zp, clsp):
     """Slab depth and surface class of visible hits on their objects."""
-    for r in prange(inst.shape[0]):
+    for r in range(inst.shape[0]):
         px = o[r, 0] + d[r, 0] * t[r]
         py = o[r, 1] + d[r, 1] * t[r]
         pz = o[r, 2] + d[r, 2] * t[r]

@@ -121,7 +121,7 @@ def line_points(box, inst, face, a, b, c, d, F, B):
     B[j] = lj + d * wj
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def parameterize(box, inst, origins, directions, face, abcd):
     """Face pair and line coordinates of ``n`` rays that meet their instance's box.
 
@@ -129,7 +129,7 @@ def parameterize(box, inst, origins, directions, face, abcd):
     float64. Outputs: face (n,) int8, abcd (n, 4) float64 clamped to [0, 1] (a ray that
     meets the box is inside up to rounding).
     """
-    for r in prange(inst.shape[0]):
+    for r in range(inst.shape[0]):
         o = inst[r]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
         f = dominant_face(dx, dy, dz)
@@ -157,7 +157,7 @@ def point_depth(box, inst, face, px, py, pz):
     return front - pk if neg else pk - front
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def lattice_lines(box, inst, face, lattice, origins, directions):
     """Lines of lattice points: origin on the front face, direction to the back face.
 
@@ -166,7 +166,7 @@ def lattice_lines(box, inst, face, lattice, origins, directions):
     back face at parameter 1 and depth ``L * t`` at parameter ``t``.
     """
     scale = 1.0 / (1 << LATTICE_DEPTH)
-    for r in prange(inst.shape[0]):
+    for r in range(inst.shape[0]):
         F = np.empty(3)
         B = np.empty(3)
         line_points(box, inst[r], face[r], lattice[r, 0] * scale, lattice[r, 1] * scale,

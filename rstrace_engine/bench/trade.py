@@ -1,0 +1,247 @@
+"""The speed/accuracy trade of radiance interpolants, measured against the base tracer.
+
+``python -m rstrace_engine.bench trade [--json] [--width W] [--height H]
+[--scenes three_spheres,museum,tori] [--out DIR] [--quick]``
+
+For each scene (default *three_spheres*, *museum* and the smooth non-convex *tori*, at
+640x480, ray depth 5) the base tracer renders three cameras: the scene's camera, a step
+forward by 0.5% of the scene size, and a pan of 2.5 degrees about the vertical. Then, per
+setting, a fresh interpolant renderer renders the first camera (*first frame*: everything
+is built), the step and the pan (each reusing the interpolants kept so far). Speedups are
+base time / interpolant time of the same camera, measured in the same run (each time is the
+best of ``--repeat`` runs; a repeated first frame starts from an empty cache again). The
+errors compare the first frame with the base frame in display space (clamp to [0, 1], sRGB):
+mean and max absolute error, the fraction of pixels whose largest channel error exceeds
+epsilon, PSNR. Settings: epsilon in {0, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1} at the default
+caps, and at epsilon = 0.01 a few depth caps and memory caps.
+
+Writes ``DIR/trade.md`` (a markdown table) and ``DIR/trade.png`` (speedup against error, one
+curve per scene; DIR defaults to ``docs``). ``--json`` prints ``{"rows": [{"scene",
+"epsilon", "depth_cap", "memory_cap_mb", "first_frame_speedup", "camera_step_speedup",
+"pan_speedup", "mean_error", "max_error", "frac_over_epsilon", "psnr",
+"interpolated_fraction", "memory_mb"}, ...]}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import image, scenes
+from ..accelerators import create_accelerator
+from ..frame import RenderSettings
+from ..interpolant_render import InterpolantRenderer
+from ..scene import Camera
+from ..whitted import render
+
+EPSILONS = (0.0, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+DEPTH_CAPS = (4, 8)
+MEMORY_CAPS = (4.0, 0.5)
+STEP_FRACTION = 0.005
+PAN_DEGREES = 2.5
+JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "first_frame_speedup",
+             "camera_step_speedup", "pan_speedup", "mean_error", "max_error",
+             "frac_over_epsilon", "psnr", "interpolated_fraction", "memory_mb")
+
+
+def moved_cameras(scene) -> dict[str, Camera]:
+    """The scene's camera, a step forward by 0.5% of the scene size, a 2.5 degree pan."""
+    cam = scene.camera
+    step = cam.matrix.copy()
+    fwd = -step[:3, 2] / np.linalg.norm(step[:3, 2])
+    step[:3, 3] += STEP_FRACTION * scene.arrays().scene_extent * fwd
+    a = math.radians(PAN_DEGREES)
+    rz = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
+                   [0.0, 0.0, 1.0]])
+    pan = cam.matrix.copy()
+    pan[:3, :3] = rz @ pan[:3, :3]
+    return {"first": cam, "step": replace(cam, matrix=step), "pan": replace(cam, matrix=pan)}
+
+
+def _timed(fn, repeat: int):
+    best, out = math.inf, None
+    for _ in range(max(repeat, 1)):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def settings_grid(quick: bool = False) -> list[tuple[float, int, float]]:
+    """(epsilon, depth cap, memory cap MB) of every row."""
+    d = RenderSettings()
+    eps = (0.0, 0.01, 0.1) if quick else EPSILONS
+    rows = [(e, d.depth_cap, d.memory_cap_mb) for e in eps]
+    if not quick:
+        rows += [(0.01, c, d.memory_cap_mb) for c in DEPTH_CAPS]
+        rows += [(0.01, d.depth_cap, m) for m in MEMORY_CAPS]
+    return rows
+
+
+def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int = 2,
+              log=None) -> list[dict]:
+    """Measure every setting of ``grid`` on scene ``name``; returns the rows."""
+    sc = scenes.build(name, width, height)
+    accel = create_accelerator("BVH", sc.arrays())
+    cams = moved_cameras(sc)
+    base_settings = RenderSettings(max_depth=depth)
+    warm = scenes.build(name, 16, 12)  # numba compile / cache load is not timed
+    render(warm, base_settings)
+    InterpolantRenderer().render(warm, replace(base_settings, mode="INTERPOLANT"),
+                                 create_accelerator("BVH", warm.arrays()))
+    base = {}
+    for key, cam in cams.items():
+        sc.set_camera(cam)
+        t, frame = _timed(lambda: render(sc, base_settings, accel=accel), repeat)
+        base[key] = (t, frame)
+    rows = []
+    for eps, cap, mem in grid:
+        st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=cap, memory_cap_mb=mem,
+                            max_depth=depth)
+        sc.set_camera(cams["first"])
+        holder: dict = {}
+
+        def first(st=st, holder=holder):
+            holder["r"] = InterpolantRenderer()
+            return holder["r"].render(sc, st, accel)
+
+        t_first, f_first = _timed(first, repeat)
+        r = holder["r"]
+        memory = r.cache.memory_bytes / 1e6
+        times = {"first": t_first}
+        for key in ("step", "pan"):
+            sc.set_camera(cams[key])
+            # a repeat of a moved frame reuses what its first run built: time the first run
+            t0 = time.perf_counter()
+            r.render(sc, st, accel)
+            times[key] = time.perf_counter() - t0
+        m = image.compare(f_first.radiance, base["first"][1].radiance, eps)
+        row = dict(
+            scene=name, epsilon=eps, depth_cap=cap, memory_cap_mb=mem,
+            first_frame_speedup=base["first"][0] / t_first,
+            camera_step_speedup=base["step"][0] / times["step"],
+            pan_speedup=base["pan"][0] / times["pan"],
+            mean_error=m["mean_error"], max_error=m["max_error"],
+            frac_over_epsilon=m["frac_over"], psnr=m["psnr"],
+            interpolated_fraction=f_first.stats["interpolated_fraction"], memory_mb=memory,
+            base_s=base["first"][0], first_s=t_first, step_s=times["step"],
+            pan_s=times["pan"], cells_built=f_first.stats["cells_built"],
+        )
+        rows.append(row)
+        if log is not None:
+            log(f"{name} eps={eps:g} cap={cap} mem={mem:g}: "
+                f"first {row['first_frame_speedup']:.2f}x "
+                f"step {row['camera_step_speedup']:.2f}x pan {row['pan_speedup']:.2f}x "
+                f"interp {100 * row['interpolated_fraction']:.1f}% "
+                f"over-eps {100 * row['frac_over_epsilon']:.3f}%")
+    sc.set_camera(cams["first"])
+    return rows
+
+
+def _fmt(x, nd=3):
+    if isinstance(x, float):
+        if math.isinf(x):
+            return "inf"
+        return f"{x:.{nd}f}"
+    return str(x)
+
+
+def markdown(rows: list[dict], width: int, height: int) -> str:
+    head = ("| scene | eps | depth cap | mem cap MB | first frame | camera step | pan | "
+            "mean err | max err | >eps px % | PSNR dB | interp % | memory MB | base s | "
+            "first s | step s | pan s |")
+    lines = [f"Interpolant speed/accuracy trade at {width}x{height}, ray depth 5 "
+             f"(`python -m rstrace_engine.bench trade`). Speedups are base tracer time / "
+             f"interpolant time of the same frame in the same run; errors compare the "
+             f"first frame with the base frame in display space.", "", head,
+             "|" + "---|" * 17]
+    for r in rows:
+        lines.append("| " + " | ".join([
+            r["scene"], f"{r['epsilon']:g}", str(r["depth_cap"]), f"{r['memory_cap_mb']:g}",
+            f"{r['first_frame_speedup']:.2f}x", f"{r['camera_step_speedup']:.2f}x",
+            f"{r['pan_speedup']:.2f}x", f"{r['mean_error']:.5f}", f"{r['max_error']:.4f}",
+            f"{100 * r['frac_over_epsilon']:.3f}", _fmt(r["psnr"], 1),
+            f"{100 * r['interpolated_fraction']:.1f}", f"{r['memory_mb']:.1f}",
+            f"{r['base_s']:.3f}", f"{r['first_s']:.3f}", f"{r['step_s']:.3f}",
+            f"{r['pan_s']:.3f}"]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict], path: Path) -> bool:
+    """Speedup against mean display error, one curve per scene (epsilon sweep rows)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    d = RenderSettings()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), sharey=False)
+    keys = (("first_frame_speedup", "first frame"), ("camera_step_speedup", "camera step"),
+            ("pan_speedup", "pan 2.5 deg"))
+    for ax, (key, title) in zip(axes, keys, strict=True):
+        for name in dict.fromkeys(r["scene"] for r in rows):
+            sel = [r for r in rows if r["scene"] == name and r["depth_cap"] == d.depth_cap
+                   and r["memory_cap_mb"] == d.memory_cap_mb]
+            sel.sort(key=lambda r: r["epsilon"])
+            x = [max(r["mean_error"], 1e-6) for r in sel]
+            y = [r[key] for r in sel]
+            ax.plot(x, y, marker="o", label=name)
+            for r, xi, yi in zip(sel, x, y, strict=True):
+                ax.annotate(f"{r['epsilon']:g}", (xi, yi), fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
+        ax.set_xscale("log")
+        ax.axhline(1.0, color="grey", lw=0.8, ls="--")
+        ax.set_xlabel("mean display error vs base frame (labels: epsilon)")
+        ax.set_ylabel(f"{title} speedup over the base tracer")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m rstrace_engine.bench trade")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--depth", type=int, default=5)
+    p.add_argument("--scenes", default="three_spheres,museum,tori")
+    p.add_argument("--out", default="docs", help="directory for trade.md and trade.png")
+    p.add_argument("--repeat", type=int, default=2, help="timing runs per frame (best)")
+    p.add_argument("--quick", action="store_true", help="three epsilons, no cap sweep")
+    args = p.parse_args(argv)
+    grid = settings_grid(args.quick)
+    rows = []
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    for name in args.scenes.split(","):
+        rows += run_scene(name.strip(), args.width, args.height, args.depth, grid,
+                          repeat=args.repeat, log=log)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "trade.md").write_text(markdown(rows, args.width, args.height))
+    plotted = plot(rows, out / "trade.png")
+    if not plotted:
+        log("matplotlib is not installed: no trade.png (pip install rstrace_engine[bench])")
+    if args.json:
+        clean = [{k: (None if isinstance(r[k], float) and not math.isfinite(r[k]) else r[k])
+                  for k in JSON_KEYS} for r in rows]
+        print(json.dumps({"rows": clean}, indent=1))
+    else:
+        print(markdown(rows, args.width, args.height))
+    return 0

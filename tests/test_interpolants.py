@@ -165,14 +165,21 @@ def test_valid_cells_keep_their_geometric_and_light_guarantees(name):
     cache = r.cache
     assert cache.pool.n_live > 20
     q, inst, face, o, d = _random_lines_in_valid_cells(cache)
-    hits = cache._front_hits(inst, o, d)
     p = cache.pool
-    assert np.all(hits.inst == inst)
-    cls = cache.topo.tri_class[hits.prim]
-    assert np.all(cls == p.cls[q])
     k = face // 2
-    depth = hits.t * (cache.box[inst, 1, k] - cache.box[inst, 0, k])
-    assert np.all((depth >= p.zlo[q]) & (depth <= p.zhi[q]))
+    L = cache.box[inst, 1, k] - cache.box[inst, 0, k]
+    t0, t1 = p.zlo[q] / L, p.zhi[q] / L
+    hits = cache.accel.intersect_object(inst, o, d, t0, t1)
+    assert np.all(hits.inst == inst)  # a crossing inside the slab ...
+    cls = cache.topo.tri_class[hits.prim]
+    assert np.all(cls == p.cls[q])  # ... on the certified class ...
+    tri = cache.sa.tris[hits.prim]
+    v = cache.sa.verts
+    n_obj = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    n_world = np.einsum("nij,nj->ni", cache.sa.inst_nmat[inst], n_obj)
+    assert np.all(np.einsum("ni,ni->n", n_world, d) < 0)  # ... facing the line ...
+    again = cache.accel.intersect_object(inst, o, d, hits.t * (1 + 1e-9) + 1e-12, t1)
+    assert np.all(again.inst < 0)  # ... and the only one there
     # lights: traced ray trees of the interior lines against the cell's corners
     _, tree = whitted.trace(cache.sa, cache.accel, o, d, 0.0, 1.0, 0, record=True,
                             primary=hits)

@@ -7,14 +7,16 @@
   primitive per instance). At an instance leaf the ray is taken to object space (direction not
   normalised, so distances stay world distances) and the mesh BVH is traversed.
 
-Layout (flattened, pbrt/pynndescent style): binary nodes that hold the boxes of *both*
-children, so one visit tests two boxes and descends front to back.
+Build and layout (flattened, pbrt/pynndescent style): a binary binned-SAH tree is built
+(:func:`build_flat`) and collapsed into a 4-wide tree (:func:`collapse4`) whose nodes hold
+the boxes of their four children, so one visit tests four boxes and pushes those hit
+farthest first (front-to-back traversal with a small fixed stack).
 
-* ``bounds`` (N, 12) float32: child 0 ``lo xyz, hi xyz``, then child 1; rounded outward from
-  float64 so a box always contains its geometry.
-* ``child`` (N, 2) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
-  over ``count`` (1..7) consecutive primitives in leaf order. An empty child has an inverted
-  box (``lo = +inf``) and is never entered.
+* ``bounds`` (N, 24) float32, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
+  lo z[4], hi x[4], hi y[4], hi z[4]``; rounded outward from float64 so a box always contains
+  its geometry. An unused lane has an inverted box (``lo = +inf``) and is never entered.
+* ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
+  over ``count`` (0..7) consecutive primitives in leaf order.
 
 The box test is the conservative slab test of pbrt-v4 (``t_far`` scaled by
 :data:`~.tolerances.BOX_TFAR_SCALE`) and the triangle test is watertight (:mod:`.triangle`),
@@ -44,17 +46,18 @@ SAH_BINS = 24
 SAH_TRAVERSAL_COST = 1.0
 #: Past this depth the builder splits at the object median (bounds the traversal stack).
 DEPTH_CAP = 60
-#: Traversal stack entries (> DEPTH_CAP + 31: median splits below the cap add <= 31).
-STACK_SIZE = 96
+#: Traversal stack entries: a 4-wide visit pushes <= 4 and pops 1, the depth is <= DEPTH_CAP
+#: + 31 (median splits below the cap add <= 31 levels).
+STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
 #: Rays per parallel work item.
 CHUNK = 64
 
 
 class FlatBVH(NamedTuple):
-    """A flattened binary BVH (see the module docstring)."""
+    """A flattened 4-wide BVH (see the module docstring)."""
 
-    bounds: np.ndarray  # (N, 12) float32, child boxes
-    child: np.ndarray  # (N, 2) int32, inner node index or ~(start << 3 | count)
+    bounds: np.ndarray  # (N, 24) float32, child boxes (SoA over 4 lanes)
+    child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
     perm: np.ndarray  # (n,) int32, primitive ids in leaf order
 
 
@@ -71,11 +74,11 @@ class MeshBVH(NamedTuple):
 class SceneBVH(NamedTuple):
     """Everything the traversal kernel reads: both levels, concatenated (what numba takes)."""
 
-    top_bounds: np.ndarray  # (Nt, 12) float32
-    top_child: np.ndarray  # (Nt, 2) int32
+    top_bounds: np.ndarray  # (Nt, 24) float32
+    top_child: np.ndarray  # (Nt, 4) int32
     top_inst: np.ndarray  # (I,) int32, instance ids in leaf order
-    bounds: np.ndarray  # (N, 12) float32, all mesh BVH nodes
-    child: np.ndarray  # (N, 2) int32, node and triangle indices already offset
+    bounds: np.ndarray  # (N, 24) float32, all mesh BVH nodes
+    child: np.ndarray  # (N, 4) int32, node and triangle indices already offset
     tv: np.ndarray  # (T, 9) float64, triangle vertices in leaf order
     tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris)
     mesh_root: np.ndarray  # (M,) int32, root node of each mesh
@@ -288,6 +291,78 @@ def outward_f32(bounds64: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.stack([lo, hi], axis=2).reshape(-1, 12), dtype=np.float32)
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def collapse4(b2, c2):
+    """Binary BVH (child boxes (N, 12) float32, children (N, 2) int32) -> 4-wide BVH.
+
+    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
+    child of largest surface area until it has four. Returns ``bounds (M, 24) float32``
+    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
+    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
+    """
+    n2 = c2.shape[0]
+    b4 = np.empty((n2, 24), np.float32)
+    c4 = np.empty((n2, 4), np.int32)
+    todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
+    cb = np.empty((4, 6), np.float32)
+    cc = np.empty(4, np.int64)
+    sp = 0
+    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
+    sp = 1
+    m = 0
+    while sp > 0:
+        sp -= 1
+        bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
+        k = m
+        m += 1
+        if parent >= 0:
+            c4[parent, lane] = k
+        cnt = 0
+        for j in range(2):
+            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
+                cb[cnt, :] = b2[bn, 6 * j:6 * j + 6]
+                cc[cnt] = c2[bn, j]
+                cnt += 1
+        while cnt < 4:
+            pick = -1
+            best = -1.0
+            for j in range(cnt):
+                if cc[j] >= 0:
+                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
+                                      cb[j, 5])
+                    if area > best:
+                        best, pick = area, j
+            if pick < 0:
+                break
+            inner = cc[pick]
+            cb[pick, :] = b2[inner, 0:6]
+            cc[pick] = c2[inner, 0]
+            cb[cnt, :] = b2[inner, 6:12]
+            cc[cnt] = c2[inner, 1]
+            cnt += 1
+        for j in range(4):
+            if j < cnt:
+                for q in range(6):
+                    b4[k, 4 * q + j] = cb[j, q]
+                c4[k, j] = cc[j]
+            else:
+                for q in range(3):
+                    b4[k, 4 * q + j] = np.inf
+                    b4[k, 12 + 4 * q + j] = -np.inf
+                c4[k, j] = -1  # ~0: a leaf of no triangles
+        for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
+            if cc[j] >= 0:
+                todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
+                sp += 1
+    return b4[:m].copy(), c4[:m].copy()
+
+
+def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
+    """Binary build output -> the traversal layout (4-wide, float32 boxes rounded out)."""
+    b4, c4 = collapse4(outward_f32(b64), child)
+    return FlatBVH(b4, c4, perm)
+
+
 def mesh_triangles(sa, mesh: int) -> np.ndarray:
     """Object-space vertices of mesh ``mesh``'s triangles: (m, 3, 3) float64."""
     s, e = sa.mesh_tri_start[mesh], sa.mesh_tri_start[mesh + 1]
@@ -305,7 +380,7 @@ def build_mesh_bvh(tv: np.ndarray) -> MeshBVH:
     lo = np.ascontiguousarray(tv.min(axis=1))
     hi = np.ascontiguousarray(tv.max(axis=1))
     b64, child, perm, sah = build_flat(lo, hi, MAX_LEAF, SAH_BINS, SAH_TRAVERSAL_COST)
-    flat = FlatBVH(outward_f32(b64), child, perm)
+    flat = flatten(b64, child, perm)
     return MeshBVH(flat, np.ascontiguousarray(tv[perm].reshape(-1, 9)), perm, float(sah),
                    time.perf_counter() - t0)
 
@@ -321,7 +396,7 @@ def build_top(inst_aabb: np.ndarray) -> FlatBVH:
     b64, child, perm, _ = build_flat(np.ascontiguousarray(lo - pad),
                                      np.ascontiguousarray(hi + pad), 1, SAH_BINS,
                                      SAH_TRAVERSAL_COST)
-    return FlatBVH(outward_f32(b64), child, perm)
+    return flatten(b64, child, perm)
 
 
 def concat_meshes(meshes: list[MeshBVH], mesh_tri_start: np.ndarray):
@@ -334,7 +409,7 @@ def concat_meshes(meshes: list[MeshBVH], mesh_tri_start: np.ndarray):
         leaf = c < 0
         code = ~c
         moved = ~(((code >> 3) + tb) << 3 | (code & 7))
-        childs.append(np.where(leaf, moved, c + nb))
+        childs.append(np.where(leaf & (c != -1), moved, np.where(leaf, c, c + nb)))
     child = np.concatenate(childs)
     if child.min() < np.iinfo(np.int32).min:
         raise OverflowError("BVH: too many triangles for 32-bit leaf codes")
@@ -357,13 +432,13 @@ def ray_to_object(inv, i, ox, oy, oz, dx, dy, dz):
     The direction is transformed without normalisation, so a distance ``t`` along the
     object-space ray is the same ``t`` along the world ray.
     """
-    m = inv[i]
-    return (m[0, 0] * ox + m[0, 1] * oy + m[0, 2] * oz + m[0, 3],
-            m[1, 0] * ox + m[1, 1] * oy + m[1, 2] * oz + m[1, 3],
-            m[2, 0] * ox + m[2, 1] * oy + m[2, 2] * oz + m[2, 3],
-            m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz,
-            m[1, 0] * dx + m[1, 1] * dy + m[1, 2] * dz,
-            m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz)
+    # element indexing only: a view (inv[i]) would cost a reference count in the hot loop
+    return (inv[i, 0, 0] * ox + inv[i, 0, 1] * oy + inv[i, 0, 2] * oz + inv[i, 0, 3],
+            inv[i, 1, 0] * ox + inv[i, 1, 1] * oy + inv[i, 1, 2] * oz + inv[i, 1, 3],
+            inv[i, 2, 0] * ox + inv[i, 2, 1] * oy + inv[i, 2, 2] * oz + inv[i, 2, 3],
+            inv[i, 0, 0] * dx + inv[i, 0, 1] * dy + inv[i, 0, 2] * dz,
+            inv[i, 1, 0] * dx + inv[i, 1, 1] * dy + inv[i, 1, 2] * dz,
+            inv[i, 2, 0] * dx + inv[i, 2, 1] * dy + inv[i, 2, 2] * dz)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -375,17 +450,63 @@ def _inv_dir(x):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _slab(bounds, node, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1):
-    """Entry distance of the ray into child ``c`` of ``node``, NaN when it misses."""
-    o = 6 * c
-    tn = max(max((bounds[node, o + nx] - ox) * ix, (bounds[node, o + ny] - oy) * iy),
-             max((bounds[node, o + nz] - oz) * iz, t0))
-    tf = min(min((bounds[node, o + 3 - nx] - ox) * ix,
-                 (bounds[node, o + 5 - ny] - oy) * iy),
-             min((bounds[node, o + 7 - nz] - oz) * iz, t1))
+def _lane(bounds, node, j, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1):
+    """Entry distance of the ray into lane ``j`` of a 4-wide node; inf when it misses."""
+    tn = max(max((bounds[node, nx + j] - ox) * ix, (bounds[node, ny + j] - oy) * iy),
+             max((bounds[node, nz + j] - oz) * iz, t0))
+    tf = min(min((bounds[node, 12 - nx + j] - ox) * ix, (bounds[node, 20 - ny + j] - oy) * iy),
+             min((bounds[node, 28 - nz + j] - oz) * iz, t1))
     if tn <= tf * tol.BOX_TFAR_SCALE:
         return tn
-    return np.nan
+    return np.inf
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_node, st_t, sp):
+    """Test the four children of ``node``; push those hit, farthest first. Returns ``sp``."""
+    ta = _lane(bounds, node, 0, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    tb = _lane(bounds, node, 1, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    tc = _lane(bounds, node, 2, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    td = _lane(bounds, node, 3, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    ca, cb, cc, cd = child[node, 0], child[node, 1], child[node, 2], child[node, 3]
+    # sorting network, ascending
+    if tb < ta:
+        ta, tb, ca, cb = tb, ta, cb, ca
+    if td < tc:
+        tc, td, cc, cd = td, tc, cd, cc
+    if tc < ta:
+        ta, tc, ca, cc = tc, ta, cc, ca
+    if td < tb:
+        tb, td, cb, cd = td, tb, cd, cb
+    if tc < tb:
+        tb, tc, cb, cc = tc, tb, cc, cb
+    if td < np.inf:
+        st_node[sp], st_t[sp] = cd, td
+        sp += 1
+    if tc < np.inf:
+        st_node[sp], st_t[sp] = cc, tc
+        sp += 1
+    if tb < np.inf:
+        st_node[sp], st_t[sp] = cb, tb
+        sp += 1
+    if ta < np.inf:
+        st_node[sp], st_t[sp] = ca, ta
+        sp += 1
+    return sp
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _inv_dir(x):
+    # tiny or zero components get a huge finite reciprocal: (b - o) * inv stays NaN-free
+    if x >= 0.0:
+        return 1e300 if x < 1e-300 else 1.0 / x
+    return -1e300 if x > -1e-300 else 1.0 / x
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _near(ix, iy, iz):
+    """Offsets of the near planes of each axis in a node's SoA bounds."""
+    return 0 if ix >= 0.0 else 12, 4 if iy >= 0.0 else 16, 8 if iz >= 0.0 else 20
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -400,123 +521,79 @@ def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhi
     oky = ox if ky == 0 else (oy if ky == 1 else oz)
     okz = ox if kz == 0 else (oy if kz == 1 else oz)
     ix, iy, iz = _inv_dir(dx), _inv_dir(dy), _inv_dir(dz)
-    nx = 0 if ix >= 0.0 else 3
-    ny = 1 if iy >= 0.0 else 4
-    nz = 2 if iz >= 0.0 else 5
+    nx, ny, nz = _near(ix, iy, iz)
     found = False
     bp, bu, bv = -1, 0.0, 0.0
-    sp = 0
-    node = root
-    while True:
-        ta = _slab(bounds, node, 0, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best)
-        tb = _slab(bounds, node, 1, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best)
-        ca, cb = child[node, 0], child[node, 1]
-        if tb < ta or ta != ta:  # nearer first; a miss (NaN) last
-            ta, tb = tb, ta
-            ca, cb = cb, ca
-        nxt = -1
-        for step in range(2):
-            tn = ta if step == 0 else tb
-            c = ca if step == 0 else cb
-            if not tn <= best:
-                continue
-            if c < 0:
-                code = ~c
-                s = code >> 3
-                for p in range(s, s + (code & 7)):
-                    hit, t, u, v = intersect_sheared(
-                        tv[p, kx], tv[p, ky], tv[p, kz], tv[p, 3 + kx], tv[p, 3 + ky],
-                        tv[p, 3 + kz], tv[p, 6 + kx], tv[p, 6 + ky], tv[p, 6 + kz],
-                        okx, oky, okz, sx, sy, sz, t0, best)
-                    if hit:
-                        found, best, bp, bu, bv = True, t, p, u, v
-                        if anyhit:
-                            return found, best, bp, bu, bv
-            elif nxt < 0:
-                nxt = c
-            else:
-                st_node[sp] = c
-                st_t[sp] = tn
-                sp += 1
-        if nxt >= 0:
-            node = nxt
+    st_node[0], st_t[0] = root, t0  # one _visit call site: it is inlined, keep it small
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        if st_t[sp] > best:
             continue
-        node = -1
-        while sp > 0:
-            sp -= 1
-            if st_t[sp] <= best:
-                node = st_node[sp]
-                break
-        if node < 0:
-            break
+        c = st_node[sp]
+        if c >= 0:
+            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best,
+                        st_node, st_t, sp)
+            continue
+        code = ~c
+        s = code >> 3
+        for p in range(s, s + (code & 7)):
+            hit, t, u, v = intersect_sheared(
+                tv[p, kx], tv[p, ky], tv[p, kz], tv[p, 3 + kx], tv[p, 3 + ky], tv[p, 3 + kz],
+                tv[p, 6 + kx], tv[p, 6 + ky], tv[p, 6 + kz], okx, oky, okz, sx, sy, sz, t0,
+                best)
+            if hit:
+                found, best, bp, bu, bv = True, t, p, u, v
+                if anyhit:
+                    return found, best, bp, bu, bv
     return found, best, bp, bu, bv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t, st2_node,
                st2_t):
-    """One world ray through both levels. Returns ``(inst, t, leaf_index, u, v)``."""
+    """One world ray through both levels (or only instance ``only`` when ``only >= 0``).
+
+    Returns ``(inst, t, leaf_index, u, v)``. Each inlined helper has a single call site (the
+    instance range ``q..q_end`` of a top-level leaf, or ``only``, is drained before the next
+    pop), which keeps the kernel's compile time reasonable.
+    """
     bi, bp, bu, bv = -1, -1, 0.0, 0.0
-    if only >= 0:
-        lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, only, ox, oy, oz, dx, dy, dz)
-        found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.tv,
-                                        sb.mesh_root[sb.inst_mesh[only]], lx, ly, lz,
-                                        ex, ey, ez, t0, best, anyhit, st_node, st_t)
-        if found:
-            return only, t, p, u, v
-        return bi, best, bp, bu, bv
-    bounds, child = sb.top_bounds, sb.top_child
+    bounds, child, top_inst = sb.top_bounds, sb.top_child, sb.top_inst
     ix, iy, iz = _inv_dir(dx), _inv_dir(dy), _inv_dir(dz)
-    nx = 0 if ix >= 0.0 else 3
-    ny = 1 if iy >= 0.0 else 4
-    nz = 2 if iz >= 0.0 else 5
+    nx, ny, nz = _near(ix, iy, iz)
     sp = 0
-    node = 0
+    q, q_end = 0, 0
+    if only >= 0:
+        q_end = 1
+    else:
+        st_node[0], st_t[0] = 0, t0
+        sp = 1
     while True:
-        ta = _slab(bounds, node, 0, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best)
-        tb = _slab(bounds, node, 1, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best)
-        ca, cb = child[node, 0], child[node, 1]
-        if tb < ta or ta != ta:  # nearer first; a miss (NaN) last
-            ta, tb = tb, ta
-            ca, cb = cb, ca
-        nxt = -1
-        for step in range(2):
-            tn = ta if step == 0 else tb
-            c = ca if step == 0 else cb
-            if not tn <= best:
-                continue
-            if c < 0:
-                code = ~c
-                s = code >> 3
-                for q in range(s, s + (code & 7)):
-                    i = sb.top_inst[q]
-                    lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz,
-                                                           dx, dy, dz)
-                    found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.tv,
-                                                    sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
-                                                    ex, ey, ez, t0, best, anyhit, st2_node,
-                                                    st2_t)
-                    if found:
-                        bi, best, bp, bu, bv = i, t, p, u, v
-                        if anyhit:
-                            return bi, best, bp, bu, bv
-            elif nxt < 0:
-                nxt = c
-            else:
-                st_node[sp] = c
-                st_t[sp] = tn
-                sp += 1
-        if nxt >= 0:
-            node = nxt
+        if q < q_end:
+            i = only if only >= 0 else top_inst[q]
+            q += 1
+            lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz, dx, dy, dz)
+            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.tv,
+                                            sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
+                                            ex, ey, ez, t0, best, anyhit, st2_node, st2_t)
+            if found:
+                bi, best, bp, bu, bv = i, t, p, u, v
+                if anyhit:
+                    break
             continue
-        node = -1
-        while sp > 0:
-            sp -= 1
-            if st_t[sp] <= best:
-                node = st_node[sp]
-                break
-        if node < 0:
+        if sp == 0:
             break
+        sp -= 1
+        if st_t[sp] > best:
+            continue
+        c = st_node[sp]
+        if c >= 0:
+            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best,
+                        st_node, st_t, sp)
+        else:
+            q = (~c) >> 3
+            q_end = q + ((~c) & 7)
     return bi, best, bp, bu, bv
 
 

@@ -46,20 +46,21 @@ def test_mesh_bvh_structure(mesh):
     mb = bvh.build_mesh_bvh(tv)
     b, child = mb.bvh.bounds, mb.bvh.child
     assert b.dtype == np.float32 and child.dtype == np.int32
+    assert b.shape[1] == 24 and child.shape[1] == 4
     seen = np.zeros(len(tv), np.int64)
     # walk the tree: every triangle in exactly one leaf, inside every box on its path
-    stack = [(0, None)]
+    stack = [(0, [])]
     depth_max = 0
     while stack:
-        node, boxes = stack.pop()
-        for slot in range(2):
-            box = b[node, 6 * slot:6 * slot + 6]
-            if box[0] > box[3]:  # the empty child of a single-leaf root
-                assert node == 0
+        node, path0 = stack.pop()
+        for lane in range(4):
+            box = b[node, lane::4].astype(np.float64)  # lo x, lo y, lo z, hi x, hi y, hi z
+            c = int(child[node, lane])
+            if box[0] > box[3]:  # an unused lane
+                assert c == -1
                 continue
-            path = (boxes or []) + [box]
+            path = path0 + [box]
             depth_max = max(depth_max, len(path))
-            c = int(child[node, slot])
             if c >= 0:
                 assert c > node  # depth-first numbering
                 stack.append((c, path))
@@ -70,8 +71,7 @@ def test_mesh_bvh_structure(mesh):
                 seen[p] += 1
                 tri = mb.tv[p].reshape(3, 3)
                 for bx in path:
-                    assert np.all(tri >= bx[:3].astype(np.float64))
-                    assert np.all(tri <= bx[3:].astype(np.float64))
+                    assert np.all(tri >= bx[:3]) and np.all(tri <= bx[3:])
     assert np.all(seen == 1)
     assert sorted(mb.tri.tolist()) == list(range(len(tv)))
     assert np.array_equal(mb.tv.reshape(-1, 3, 3), tv[mb.tri])
@@ -94,7 +94,7 @@ def test_build_degenerate_centroids_and_depth():
 
 
 def test_outward_rounding():
-    b64 = np.array([[0.1, -0.1, 1e-30, 0.3, 0.7, 1.0 / 3.0] * 2])
+    b64 = np.array([[0.1, -0.1, 1e-30, 0.3, 0.7, 1.0 / 3.0] * 2])  # two binary child boxes
     b32 = bvh.outward_f32(b64).astype(np.float64)
     assert np.all(b32[0, [0, 1, 2, 6, 7, 8]] <= b64[0, [0, 1, 2, 6, 7, 8]])
     assert np.all(b32[0, [3, 4, 5, 9, 10, 11]] >= b64[0, [3, 4, 5, 9, 10, 11]])

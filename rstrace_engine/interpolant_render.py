@@ -74,20 +74,17 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_vis = time.perf_counter()
     if progress is not None:
         progress(0.2, "visibility")
-    hit = np.flatnonzero(hits.inst >= 0)
-    hsub = _take(hits, hit)
-    face, abcd, zp, clsp = cache.pixel_lines(hsub, o[hit], d[hit])
-    res = cache.resolve(hsub.inst, face, abcd, zp, clsp, cancel=cancel)
+    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
     t_res = time.perf_counter()
     if progress is not None:
         progress(0.7, "interpolants")
-    rad = np.zeros((n, 3))
-    ray_class = np.full(n, CLASS_BACKGROUND, np.uint8)
-    ray_class[hit] = res.pixel_class
-    interp = np.zeros(n, bool)
-    interp[hit] = res.interpolated
-    rad[hit[res.interpolated]] = res.radiance[res.interpolated]
-    todo = np.flatnonzero(~interp)
+    # a miss is the world colour (exactly what the tracer gives it)
+    rad = res.radiance
+    rad[hits.inst < 0] = np.asarray(sa.world_color, np.float64)
+    ray_class = res.pixel_class
+    interp = res.interpolated
+    todo = np.flatnonzero(~interp & (hits.inst >= 0))
     cancelled = cancel is not None and cancel()
     counters: dict = {}
     if len(todo) and not cancelled:
@@ -97,19 +94,24 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_trace = time.perf_counter()
     good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
     bad_total = int(np.count_nonzero(~good))
-    rad = np.where(good[:, None], rad, 0.0)
-    image = np.zeros((h * w, 3), np.float32)
-    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
-    for start, pix in tiles:
-        npx = len(pix)
-        sl = slice(start, start + npx * spp)
-        r = rad[sl].reshape(spp, npx, 3)
-        ngood = good[sl].reshape(spp, npx).sum(axis=0)
-        image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
-        c = ray_class[sl].reshape(spp, npx)
-        # a pixel's class: its first sample that is not background
-        first = np.argmax(c != CLASS_BACKGROUND, axis=0)
-        pclass[pix] = c[first, np.arange(npx)]
+    if bad_total:
+        rad[~good] = 0.0
+    if spp == 1:  # the rays are the pixels, in order
+        image = rad.astype(np.float32)
+        pclass = ray_class
+    else:
+        image = np.zeros((h * w, 3), np.float32)
+        pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+        for start, pix in tiles:
+            npx = len(pix)
+            sl = slice(start, start + npx * spp)
+            r = rad[sl].reshape(spp, npx, 3)
+            ngood = good[sl].reshape(spp, npx).sum(axis=0)
+            image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
+            c = ray_class[sl].reshape(spp, npx)
+            # a pixel's class: its first sample that is not background
+            first = np.argmax(c != CLASS_BACKGROUND, axis=0)
+            pclass[pix] = c[first, np.arange(npx)]
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0

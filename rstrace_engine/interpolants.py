@@ -42,6 +42,7 @@ from numba import njit, prange
 from . import image
 from .accelerators import Hits
 from .frame import (
+    CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
     CLASS_FAIL_SILHOUETTE,
     CLASS_INTERPOLATED,
@@ -62,14 +63,14 @@ from .linetree import (
     Linetrees,
     corner_weight,
     corner_weights,
-    descend,
+    descend_one,
     expanded_boxes,
     fail_class,
     fail_code,
     lattice_lines,
     line_points,
-    parameterize,
     point_depth,
+    ray_line,
 )
 from .shading import dot3, geometric_normal, spawn_offset
 from .whitted import trace
@@ -81,7 +82,7 @@ log = logging.getLogger(__name__)
 MIN_BUILD_DEPTH = 2
 #: A leaf is built (or a failed leaf split) only when at least this many of the frame's rays
 #: fall in it; fewer are cheaper to trace.
-MIN_PIXELS = 12
+MIN_PIXELS = 24
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.
 MAX_BACKFACE_SKIPS = 8
 
@@ -395,12 +396,6 @@ def _cell_keys(box, inst, face, depth, coord, tests, ntest, aabb, k2, ok):
 
 
 @njit(cache=True, nogil=True)
-def _count(nodes, counts):
-    for r in range(nodes.shape[0]):
-        counts[nodes[r]] += 1
-
-
-@njit(cache=True, nogil=True)
 def _unpack(k2, lattice):
     for r in range(k2.shape[0]):
         for m in range(4):
@@ -408,41 +403,86 @@ def _unpack(k2, lattice):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _interpolate(lt, nodes, abcd, zp, clsp, ids, rad16, izlo, izhi, icls, out, ok):
-    """Quadrilinear radiance of rays whose leaf holds an interpolant, where the ray's
-    visible hit is the interpolant's slab crossing (class and depth)."""
+def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp, clsp, active,
+          rad, done, pcls):
+    """One level of a frame's walk down the linetrees, for every active ray: descend to the
+    leaf; where it holds an interpolant, the ray is finished: interpolated (quadrilinear) if
+    its visible hit is the interpolant's slab crossing (class and depth), else to be traced
+    (silhouette). The interpolant's LRU stamp becomes ``clock``."""
     for r in prange(nodes.shape[0]):
-        nd = nodes[r]
-        q = ids[r]
-        if clsp[r] != icls[q] or zp[r] < izlo[q] or zp[r] > izhi[q]:
-            ok[r] = False
+        if not active[r]:
             continue
-        ok[r] = True
+        nd, inh = descend_one(lt, nodes[r], abcd[r], inherited[r])
+        nodes[r] = nd
+        inherited[r] = inh
+        q = lt.leaf[nd]
+        if q < 0:
+            continue
+        active[r] = False
+        istamp[q] = clock
+        if clsp[r] != icls[q] or zp[r] < izlo[q] or zp[r] > izhi[q]:
+            pcls[r] = CLASS_FAIL_SILHOUETTE
+            continue
         s = float(1 << lt.depth[nd])
-        u = np.empty(4)
-        for m in range(4):
-            u[m] = min(max(abcd[r, m] * s - lt.coord[nd, m], 0.0), 1.0)
+        u0 = min(max(abcd[r, 0] * s - lt.coord[nd, 0], 0.0), 1.0)
+        u1 = min(max(abcd[r, 1] * s - lt.coord[nd, 1], 0.0), 1.0)
+        u2 = min(max(abcd[r, 2] * s - lt.coord[nd, 2], 0.0), 1.0)
+        u3 = min(max(abcd[r, 3] * s - lt.coord[nd, 3], 0.0), 1.0)
         x = 0.0
         y = 0.0
         z = 0.0
         for k in range(16):
-            w = corner_weight(k, u[0], u[1], u[2], u[3])
+            w = corner_weight(k, u0, u1, u2, u3)
             x += w * rad16[q, k, 0]
             y += w * rad16[q, k, 1]
             z += w * rad16[q, k, 2]
-        out[r, 0] = x
-        out[r, 1] = y
-        out[r, 2] = z
+        rad[r, 0] = x
+        rad[r, 1] = y
+        rad[r, 2] = z
+        done[r] = True
+        pcls[r] = CLASS_INTERPOLATED
 
 
 @njit(cache=True, nogil=True)
-def _hit_depths(box, cls_of_tri, inst, prim, t, o, d, face, zp, clsp):
-    """Slab depth and surface class of visible hits on their objects."""
-    for r in range(inst.shape[0]):
-        px = o[r, 0] + d[r, 0] * t[r]
-        py = o[r, 1] + d[r, 1] * t[r]
-        pz = o[r, 2] + d[r, 2] * t[r]
-        zp[r] = point_depth(box, inst[r], face[r], px, py, pz)
+def _count_active(nodes, active, counts):
+    """Rays per leaf (active rays only); returns how many rays are active."""
+    n = 0
+    for r in range(nodes.shape[0]):
+        if active[r]:
+            counts[nodes[r]] += 1
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _settle(node_cls, nodes, inherited, active, pcls):
+    """Rays of leaves that are neither built nor split this level are finished (to be
+    traced): ``node_cls`` is their class, 0 for a cell too small to build (it shows the
+    class of the failed cell it was split from, if any), 255 for leaves that go on."""
+    for r in range(nodes.shape[0]):
+        if not active[r]:
+            continue
+        c = node_cls[nodes[r]]
+        if c == 255:
+            continue
+        active[r] = False
+        if c == 0:
+            c = -2 - inherited[r] if inherited[r] < EMPTY else CLASS_TRACED
+        pcls[r] = c
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _pixel_lines(box, cls_of_tri, inst, prim, t, o, d, face, abcd, zp, clsp):
+    """Line coordinates, slab depth and surface class of the visible hits of a frame's rays
+    (rays that miss, ``inst < 0``, are skipped)."""
+    for r in prange(inst.shape[0]):
+        k = inst[r]
+        if k < 0:
+            continue
+        f = ray_line(box, k, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2], abcd[r])
+        face[r] = f
+        zp[r] = point_depth(box, k, f, o[r, 0] + d[r, 0] * t[r], o[r, 1] + d[r, 1] * t[r],
+                            o[r, 2] + d[r, 2] * t[r])
         clsp[r] = cls_of_tri[prim[r]]
 
 
@@ -498,7 +538,8 @@ class ResolveResult(NamedTuple):
 
     radiance: np.ndarray  # (n, 3) float64, valid where interpolated
     interpolated: np.ndarray  # (n,) bool
-    pixel_class: np.ndarray  # (n,) uint8 class of each ray (traced ones: why)
+    pixel_class: np.ndarray  # (n,) uint8 class of each ray (traced ones: why; misses:
+    # background)
 
 
 # ----------------------------------------------------------------------------- the cache
@@ -602,69 +643,50 @@ class InterpolantCache:
     # -- rays -------------------------------------------------------------------------
 
     def pixel_lines(self, hits: Hits, origins: np.ndarray, directions: np.ndarray):
-        """Line coordinates of rays that hit: ``face (n,) int8, abcd (n, 4), depth (n,),
-        surface class (n,)`` of their visible hits ``hits`` (all with ``inst >= 0``)."""
+        """Line coordinates of a frame's rays: ``face (n,) int8, abcd (n, 4), depth (n,),
+        surface class (n,)`` of their visible hits ``hits`` (undefined where they miss)."""
         n = len(hits.t)
-        face = np.empty(n, np.int8)
-        abcd = np.empty((n, 4))
-        zp = np.empty(n)
-        clsp = np.empty(n, np.int32)
-        parameterize(self.box, hits.inst, origins, directions, face, abcd)
-        _hit_depths(self.box, self.topo.tri_class, hits.inst, hits.prim, hits.t, origins,
-                    directions, face, zp, clsp)
+        face = np.zeros(n, np.int8)
+        abcd = np.zeros((n, 4))
+        zp = np.zeros(n)
+        clsp = np.zeros(n, np.int32)
+        _pixel_lines(self.box, self.topo.tri_class, hits.inst, hits.prim, hits.t, origins,
+                     directions, face, abcd, zp, clsp)
         return face, abcd, zp, clsp
 
     def resolve(self, inst, face, abcd, zp, clsp, cancel=None) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
-        inst (n,) int32 visible objects; face, abcd, zp, clsp from :meth:`pixel_lines`.
+        inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
+        clsp from :meth:`pixel_lines`.
         """
         n = len(inst)
         rad = np.zeros((n, 3))
         done = np.zeros(n, bool)
-        pcls = np.full(n, CLASS_TRACED, np.uint8)
+        pcls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
         st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, levels=0,
                   reasons={})
         self.frame_stats = st
-        if n == 0 or self.epsilon <= 0.0:
+        active = inst >= 0
+        if not np.any(active) or self.epsilon <= 0.0:
             return ResolveResult(rad, done, pcls)
         lt = self.trees
-        pending = np.arange(n)
-        nodes = lt.get_roots(inst, face)
+        nodes = np.zeros(n, np.int32)
+        nodes[active] = lt.get_roots(inst[active], face[active])
         inherited = np.full(n, EMPTY, np.int32)
         first = min(MIN_BUILD_DEPTH, self.depth_cap)
         for _ in range(self.depth_cap + MIN_BUILD_DEPTH + 2):
-            if len(pending) == 0 or (cancel is not None and cancel()):
+            if cancel is not None and cancel():
                 break
             st["levels"] += 1
             self.clock += 1
-            cur = nodes[pending]
-            inh = inherited[pending]
-            descend(lt.arrays, cur, abcd[pending], cur, inh)
-            nodes[pending] = cur
-            inherited[pending] = inh
-            state = lt.arrays.leaf[cur]
-            has = state >= 0
-            if np.any(has):
-                idx = pending[has]
-                ids = state[has]
-                out = np.empty((len(idx), 3))
-                ok = np.empty(len(idx), bool)
-                p = self.pool
-                _interpolate(lt.arrays, cur[has], abcd[idx], zp[idx], clsp[idx], ids, p.rad,
-                             p.zlo, p.zhi, p.cls, out, ok)
-                p.stamp[ids] = self.clock
-                rad[idx[ok]] = out[ok]
-                done[idx[ok]] = True
-                pcls[idx[ok]] = CLASS_INTERPOLATED
-                pcls[idx[~ok]] = CLASS_FAIL_SILHOUETTE
-                self.enforce_cap()
-                pending = pending[~has]
-                cur = cur[~has]
-            if len(pending) == 0:
-                break
+            p = self.pool
+            _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, self.clock, nodes,
+                  inherited, abcd, zp, clsp, active, rad, done, pcls)
+            self.enforce_cap()
             counts = np.zeros(lt.n_nodes, np.int32)
-            _count(cur, counts)
+            if _count_active(nodes, active, counts) == 0:
+                break
             uniq = np.flatnonzero(counts).astype(np.int32)
             ustate = lt.arrays.leaf[uniq]
             udepth = lt.arrays.depth[uniq].astype(np.int64)
@@ -672,17 +694,10 @@ class InterpolantCache:
             empty = ustate == EMPTY
             split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
             build = enough & empty & (udepth >= first)
-            going = split | build
             node_cls = np.zeros(lt.n_nodes, np.uint8)
-            node_cls[uniq] = np.where(empty, 0, fail_class(ustate))
-            node_cls[uniq[going]] = 255
-            pc = node_cls[cur]
-            stay = pc == 255
-            # pixels of an empty cell too small to build: the class of the failed cell it
-            # was split from (or plain "traced")
-            inh = inherited[pending]
-            pc = np.where(pc == 0, np.where(inh < EMPTY, fail_class(inh), CLASS_TRACED), pc)
-            pcls[pending[~stay]] = pc[~stay]
+            node_cls[uniq[~empty]] = fail_class(ustate[~empty])
+            node_cls[uniq[split | build]] = 255
+            _settle(node_cls, nodes, inherited, active, pcls)
             lt.split(uniq[split])
             if np.any(build):
                 tb = time.perf_counter()
@@ -692,7 +707,6 @@ class InterpolantCache:
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])
                 st["build_s"] += time.perf_counter() - tb
-            pending = pending[stay]
         self.enforce_cap()
         lt.collapse()
         for k in ("cells_built", "cells_valid", "samples_traced"):

@@ -121,6 +121,24 @@ def line_points(box, inst, face, a, b, c, d, F, B):
     B[j] = lj + d * wj
 
 
+@njit(cache=True, nogil=True, inline="always")
+def ray_line(box, inst, ox, oy, oz, dx, dy, dz, abcd):
+    """Face pair (returned) and line coordinates ``abcd`` (4,) of one ray that meets
+    instance ``inst``'s box; coordinates clamped to [0, 1] (inside up to rounding)."""
+    f = dominant_face(dx, dy, dz)
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, f)
+    o = (ox, oy, oz)
+    dv = (dx, dy, dz)
+    back = front - L if neg else front + L
+    tf = (front - o[k]) / dv[k]
+    tb = (back - o[k]) / dv[k]
+    abcd[0] = min(max((o[i] + tf * dv[i] - li) / wi, 0.0), 1.0)
+    abcd[1] = min(max((o[j] + tf * dv[j] - lj) / wj, 0.0), 1.0)
+    abcd[2] = min(max((o[i] + tb * dv[i] - li) / wi, 0.0), 1.0)
+    abcd[3] = min(max((o[j] + tb * dv[j] - lj) / wj, 0.0), 1.0)
+    return f
+
+
 @njit(cache=True, nogil=True)
 def parameterize(box, inst, origins, directions, face, abcd):
     """Face pair and line coordinates of ``n`` rays that meet their instance's box.
@@ -130,23 +148,8 @@ def parameterize(box, inst, origins, directions, face, abcd):
     meets the box is inside up to rounding).
     """
     for r in range(inst.shape[0]):
-        o = inst[r]
-        dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
-        f = dominant_face(dx, dy, dz)
-        face[r] = f
-        k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, o, f)
-        dk = directions[r, k]
-        back = front - L if neg else front + L
-        tf = (front - origins[r, k]) / dk
-        tb = (back - origins[r, k]) / dk
-        a = (origins[r, i] + tf * directions[r, i] - li) / wi
-        b = (origins[r, j] + tf * directions[r, j] - lj) / wj
-        c = (origins[r, i] + tb * directions[r, i] - li) / wi
-        d = (origins[r, j] + tb * directions[r, j] - lj) / wj
-        abcd[r, 0] = min(max(a, 0.0), 1.0)
-        abcd[r, 1] = min(max(b, 0.0), 1.0)
-        abcd[r, 2] = min(max(c, 0.0), 1.0)
-        abcd[r, 3] = min(max(d, 0.0), 1.0)
+        face[r] = ray_line(box, inst[r], origins[r, 0], origins[r, 1], origins[r, 2],
+                           directions[r, 0], directions[r, 1], directions[r, 2], abcd[r])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -219,31 +222,35 @@ class LinetreeArrays(NamedTuple):
     tree: np.ndarray  # (N,) int32 inst * 6 + face, DEAD_TREE for a freed node
 
 
+@njit(cache=True, nogil=True, inline="always")
+def descend_one(lt, nd, abcd, inherited):
+    """Leaf below node ``nd`` holding line ``abcd`` (4,); returns ``(leaf, inherited)``
+    where ``inherited`` becomes the fail code of the deepest split node passed (a failed
+    cell that was split keeps its code), if any."""
+    while lt.child[nd] >= 0:
+        if lt.leaf[nd] < EMPTY:
+            inherited = lt.leaf[nd]
+        s = float(1 << (lt.depth[nd] + 1))
+        bits = 0
+        for m in range(4):
+            c2 = 2 * lt.coord[nd, m]
+            x = int(np.floor(abcd[m] * s))
+            if x < c2:
+                x = c2
+            elif x > c2 + 1:
+                x = c2 + 1
+            bits |= (x - c2) << m
+        nd = lt.child[nd] + bits
+    return nd, inherited
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def descend(lt, start, abcd, out, inherited):
-    """Leaf holding each line: from node ``start[r]`` down by ``abcd[r]``.
-
-    start (n,) int32 nodes (usually roots), abcd (n, 4) float64; out (n,) int32 leaves;
-    inherited (n,) int32: the fail code of the deepest split node passed on the way (a
-    failed cell that was split keeps its code), updated only where one was passed.
-    """
+    """Leaf holding each line: from node ``start[r]`` down by ``abcd[r]`` (see
+    :func:`descend_one`). start (n,) int32, abcd (n, 4) float64; out (n,) int32 leaves;
+    inherited (n,) int32 updated in place."""
     for r in prange(start.shape[0]):
-        nd = start[r]
-        while lt.child[nd] >= 0:
-            if lt.leaf[nd] < EMPTY:
-                inherited[r] = lt.leaf[nd]
-            s = float(1 << (lt.depth[nd] + 1))
-            bits = 0
-            for m in range(4):
-                c2 = 2 * lt.coord[nd, m]
-                x = int(np.floor(abcd[r, m] * s))
-                if x < c2:
-                    x = c2
-                elif x > c2 + 1:
-                    x = c2 + 1
-                bits |= (x - c2) << m
-            nd = lt.child[nd] + bits
-        out[r] = nd
+        out[r], inherited[r] = descend_one(lt, start[r], abcd[r], inherited[r])
 
 
 @njit(cache=True, nogil=True)

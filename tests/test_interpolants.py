@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from tracer_scenes import ortho_down, transformed
 
-from rstrace_engine import image, scenes, shapes, whitted
+from rstrace_engine import image, interpolants, scenes, shapes, whitted
 from rstrace_engine.accelerators import create_accelerator
 from rstrace_engine.frame import (
     CLASS_BACKGROUND,
@@ -27,6 +27,12 @@ from rstrace_engine.scene import Camera, Light, Material, Scene
 from rstrace_engine.session import Session
 
 W, H = 64, 48
+
+
+@pytest.fixture(autouse=True)
+def small_cells(monkeypatch):
+    """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 24)."""
+    monkeypatch.setattr(interpolants, "MIN_PIXELS", 6)
 
 
 def settings(**kw) -> RenderSettings:

@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
+from numba import njit
 
 from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .scene import SceneArrays
@@ -77,6 +78,7 @@ class EmbreeAccelerator(Accelerator):
             self._keep.append(_mc.TriangleMesh(scene, v, f))
         self.scene = scene
         self.sa = sa
+        self._prim_offset = np.ascontiguousarray(sa.mesh_tri_start[sa.inst_mesh], np.int32)
         self._objects: dict[int, object] = {}
         self.stats["build_s"] = time.perf_counter() - t0
 
@@ -91,74 +93,87 @@ class EmbreeAccelerator(Accelerator):
 
     # -- running -----------------------------------------------------------------------
 
-    def _run(self, scene, o, d, tmin, tmax, query):
-        """Run ``query`` on float32 rays, split across threads; returns a list of results
-        per chunk and the chunk slices."""
-        org = np.ascontiguousarray(o + tmin[:, None] * d, dtype=np.float32)
-        dirs = np.ascontiguousarray(d, dtype=np.float32)
-        dist = np.ascontiguousarray(tmax - tmin, dtype=np.float32)
-        n = len(o)
-        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
-        bounds = np.linspace(0, n, threads + 1).astype(int)
-        parts = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-
-        def job(s):
-            if query == "OCCLUDED":
-                return scene.run(org[s], dirs[s], dists=dist[s], query="OCCLUDED")
-            return scene.run(org[s], dirs[s], dists=dist[s], output=1)
-
-        if threads == 1:
-            return [job(parts[0])], parts
-        if self._pool is None or self._pool._max_workers < threads:
-            self._pool = ThreadPoolExecutor(max_workers=threads)
-        return list(self._pool.map(job, parts)), parts
-
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)
         hits = empty_hits(n)
         if n == 0:
             return hits
         t0 = time.perf_counter()
-        valid = tmin <= tmax
-        if not valid.all():
-            idx = np.flatnonzero(valid)
-            sub = self._trace(o[idx], d[idx], tmin[idx], tmax[idx],
-                              None if only is None else only[idx], anyhit)
-            for full, part in zip(hits, sub, strict=True):
-                full[idx] = part
-            return hits
         if only is not None:
             for i in np.unique(only):
                 idx = np.flatnonzero(only == i)
-                self._fill(hits, idx, self._object_scene(int(i)), o[idx], d[idx], tmin[idx],
+                sub = empty_hits(len(idx))
+                self._fill(sub, self._object_scene(int(i)), o[idx], d[idx], tmin[idx],
                            tmax[idx], anyhit, int(i))
+                for full, part in zip(hits, sub, strict=True):
+                    full[idx] = part
         else:
-            self._fill(hits, slice(None), self.scene, o, d, tmin, tmax, anyhit, -1)
+            self._fill(hits, self.scene, o, d, tmin, tmax, anyhit, -1)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits
 
-    def _fill(self, hits: Hits, where, scene, o, d, tmin, tmax, anyhit, inst):
-        results, parts = self._run(scene, o, d, tmin, tmax, "OCCLUDED" if anyhit else None)
-        sa = self.sa
-        t = np.full(len(o), np.inf)
-        ii = np.full(len(o), -1, np.int32)
-        pp = np.full(len(o), -1, np.int32)
-        uu = np.zeros(len(o))
-        vv = np.zeros(len(o))
-        for res, s in zip(results, parts, strict=True):
+    def _fill(self, hits: Hits, scene, o, d, tmin, tmax, anyhit, inst):
+        """Trace rays with ``scene`` into ``hits`` (pre-filled as misses), in chunks on the
+        thread pool; conversion to and from Embree's float32 runs in the workers too."""
+        n = len(o)
+        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
+        edges = np.linspace(0, n, threads + 1).astype(int)
+        parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        offset = self._prim_offset
+
+        def job(s):
+            m = s.stop - s.start
+            org = np.empty((m, 3), np.float32)
+            dirs = np.empty((m, 3), np.float32)
+            dist = np.empty(m, np.float32)
+            _to_embree(o[s], d[s], tmin[s], tmax[s], org, dirs, dist)
             if anyhit:
-                ii[s] = np.where(np.asarray(res) != -1, max(inst, 0), -1)
-                continue
-            geom = res["geomID"]
-            hit = geom >= 0
-            ii[s] = np.where(hit, geom if inst < 0 else inst, -1)
-            t[s] = np.where(hit, res["tfar"].astype(np.float64) + tmin[s], np.inf)
-            pp[s] = np.where(hit, res["primID"], -1)
-            uu[s] = np.where(hit, res["u"], 0.0)
-            vv[s] = np.where(hit, res["v"], 0.0)
-        if not anyhit:
-            hit = ii >= 0
-            pp[hit] += sa.mesh_tri_start[sa.inst_mesh[ii[hit]]]
-        hits.t[where], hits.inst[where], hits.prim[where] = t, ii, pp
-        hits.u[where], hits.v[where] = uu, vv
+                res = scene.run(org, dirs, dists=dist, query="OCCLUDED")
+                _store_occluded(np.asarray(res, np.int32), tmin[s], tmax[s], max(inst, 0),
+                                hits.inst[s])
+            else:
+                res = scene.run(org, dirs, dists=dist, output=1)
+                _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
+                            tmin[s], tmax[s], inst, offset, hits.t[s], hits.inst[s],
+                            hits.prim[s], hits.u[s], hits.v[s])
+
+        if threads == 1:
+            job(parts[0])
+            return
+        if self._pool is None or self._pool._max_workers < threads:
+            self._pool = ThreadPoolExecutor(max_workers=threads)
+        list(self._pool.map(job, parts))
+
+
+@njit(cache=True, nogil=True)
+def _to_embree(o, d, tmin, tmax, org, dirs, dist):
+    """float64 rays -> Embree's float32 (origin moved to ``o + tmin d``, range ``tmax-tmin``)."""
+    for r in range(o.shape[0]):
+        t0 = tmin[r] if tmin[r] > 0.0 else 0.0
+        for k in range(3):
+            org[r, k] = o[r, k] + t0 * d[r, k]
+            dirs[r, k] = d[r, k]
+        dist[r] = tmax[r] - t0 if tmax[r] >= tmin[r] else -1.0
+
+
+@njit(cache=True, nogil=True)
+def _store_hits(geom, prim, tfar, u, v, tmin, tmax, inst, prim_offset, out_t, out_inst,
+                out_prim, out_u, out_v):
+    """Embree results -> :class:`Hits` rows (global triangle ids, float64 distances)."""
+    for r in range(geom.shape[0]):
+        if geom[r] < 0 or not tmin[r] <= tmax[r]:
+            continue
+        i = geom[r] if inst < 0 else inst
+        out_inst[r] = i
+        out_prim[r] = prim[r] + prim_offset[i]
+        out_t[r] = np.float64(tfar[r]) + (tmin[r] if tmin[r] > 0.0 else 0.0)
+        out_u[r] = u[r]
+        out_v[r] = v[r]
+
+
+@njit(cache=True, nogil=True)
+def _store_occluded(res, tmin, tmax, inst, out_inst):
+    for r in range(res.shape[0]):
+        if res[r] != -1 and tmin[r] <= tmax[r]:
+            out_inst[r] = inst

@@ -146,6 +146,35 @@ def _map_insert(tk1, tk2, tval, k1, k2, vals):
         tval[s] = vals[r]
 
 
+@njit(cache=True, nogil=True)
+def unique_keys(k1, k2):
+    """First occurrences of key pairs, in order of appearance (no sort): returns
+    ``(first (u,) int64 indices, inverse (m,) int32)``."""
+    m = k1.shape[0]
+    cap = 16
+    while cap < 2 * m:
+        cap *= 2
+    tk1 = np.full(cap, -1, np.int64)
+    tk2 = np.zeros(cap, np.int64)
+    tval = np.zeros(cap, np.int32)
+    first = np.empty(m, np.int64)
+    inv = np.empty(m, np.int32)
+    u = 0
+    mask = cap - 1
+    for r in range(m):
+        s = _slot(k1[r], k2[r], mask)
+        while tk1[s] != -1 and not (tk1[s] == k1[r] and tk2[s] == k2[r]):
+            s = (s + 1) & mask
+        if tk1[s] == -1:
+            tk1[s] = k1[r]
+            tk2[s] = k2[r]
+            tval[s] = u
+            first[u] = r
+            u += 1
+        inv[r] = tval[s]
+    return first[:u], inv
+
+
 class KeyMap:
     """An append-only numba hash map from key pairs (int64, int64) to their insertion index."""
 
@@ -444,14 +473,18 @@ def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp
 
 
 @njit(cache=True, nogil=True)
-def _count_active(nodes, active, counts):
-    """Rays per leaf (active rays only); returns how many rays are active."""
-    n = 0
+def _group_active(nodes, active, counts, uniq):
+    """Leaves of the active rays, in order of appearance, into ``uniq``; ``counts[leaf]``
+    (zero on entry) gets each leaf's ray count. Returns the number of leaves."""
+    u = 0
     for r in range(nodes.shape[0]):
         if active[r]:
-            counts[nodes[r]] += 1
-            n += 1
-    return n
+            nd = nodes[r]
+            if counts[nd] == 0:
+                uniq[u] = nd
+                u += 1
+            counts[nd] += 1
+    return u
 
 
 @njit(cache=True, nogil=True)
@@ -675,6 +708,9 @@ class InterpolantCache:
         nodes[active] = lt.get_roots(inst[active], face[active])
         inherited = np.full(n, EMPTY, np.int32)
         first = min(MIN_BUILD_DEPTH, self.depth_cap)
+        counts = np.zeros(0, np.int32)  # per node scratch, zero between levels
+        node_cls = np.zeros(0, np.uint8)
+        uniq_buf = np.empty(n, np.int32)
         for _ in range(self.depth_cap + MIN_BUILD_DEPTH + 2):
             if cancel is not None and cancel():
                 break
@@ -684,20 +720,25 @@ class InterpolantCache:
             _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, self.clock, nodes,
                   inherited, abcd, zp, clsp, active, rad, done, pcls)
             self.enforce_cap()
-            counts = np.zeros(lt.n_nodes, np.int32)
-            if _count_active(nodes, active, counts) == 0:
+            if len(counts) < lt.n_nodes:
+                counts = np.zeros(2 * lt.n_nodes, np.int32)
+                node_cls = np.zeros(2 * lt.n_nodes, np.uint8)
+            nu = _group_active(nodes, active, counts, uniq_buf)
+            if nu == 0:
                 break
-            uniq = np.flatnonzero(counts).astype(np.int32)
+            uniq = uniq_buf[:nu].copy()
+            ucount = counts[uniq]
+            counts[uniq] = 0
             ustate = lt.arrays.leaf[uniq]
             udepth = lt.arrays.depth[uniq].astype(np.int64)
-            enough = counts[uniq] >= MIN_PIXELS
+            enough = ucount >= MIN_PIXELS
             empty = ustate == EMPTY
             split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
             build = enough & empty & (udepth >= first)
-            node_cls = np.zeros(lt.n_nodes, np.uint8)
             node_cls[uniq[~empty]] = fail_class(ustate[~empty])
             node_cls[uniq[split | build]] = 255
             _settle(node_cls, nodes, inherited, active, pcls)
+            node_cls[uniq] = 0
             lt.split(uniq[split])
             if np.any(build):
                 tb = time.perf_counter()
@@ -759,14 +800,15 @@ class InterpolantCache:
             gid = geo.keys.lookup(k1[rest], k2[rest])
             new = gid < 0
             if np.any(new):
-                uk = np.unique(np.stack([k1[rest[new]], k2[rest[new]]], axis=1), axis=0)
-                n1, n2 = np.ascontiguousarray(uk[:, 0]), np.ascontiguousarray(uk[:, 1])
+                c1, c2 = k1[rest[new]], k2[rest[new]]
+                firsts, _ = unique_keys(c1, c2)
+                n1, n2 = c1[firsts], c2[firsts]
                 li = (n1 >> 3).astype(np.int32)
                 lf = (n1 & 7).astype(np.int8)
-                lattice = np.empty((len(uk), 4), np.int64)
+                lattice = np.empty((len(n1), 4), np.int64)
                 _unpack(n2, lattice)
-                o = np.empty((len(uk), 3))
-                d = np.empty((len(uk), 3))
+                o = np.empty((len(n1), 3))
+                d = np.empty((len(n1), 3))
                 lattice_lines(self.box, li, lf, lattice, o, d)
                 hits = self._front_hits(li, o, d)
                 hcls = np.where(hits.inst >= 0, self.topo.tri_class[np.maximum(hits.prim, 0)],
@@ -785,7 +827,8 @@ class InterpolantCache:
         if len(miss) == 0:
             return sid
         gid = geo.keys.lookup(k1[miss], k2[miss])
-        ug, uinv = np.unique(gid, return_inverse=True)
+        firsts, uinv = unique_keys(gid.astype(np.int64), np.zeros(len(gid), np.int64))
+        ug = gid[firsts]
         hits = geo.hits(ug)
         rad, tree = trace(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
                           record=True, primary=hits)

@@ -238,7 +238,7 @@ class BVHAccelerator(Accelerator):
         if only is None:
             only = np.full(n, -1, np.int32)
         t0 = time.perf_counter()
-        bvh.trace_kernel(self.sb, o, d, tmin, tmax, only, anyhit, bvh.chunk_order(n), *hits)
+        bvh.trace(self.sb, o, d, tmin, tmax, only, anyhit, hits)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits

@@ -30,6 +30,7 @@ import logging
 import time
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -51,6 +52,8 @@ DEPTH_CAP = 60
 STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
 #: Rays per parallel work item.
 CHUNK = 64
+#: Work items a thread takes at a time (dynamic scheduling).
+PARALLEL_CHUNKSIZE = 16
 
 
 class FlatBVH(NamedTuple):
@@ -598,23 +601,22 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, order, out_t, out_inst, out_prim,
-                 out_u, out_v):
+def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, out_u, out_v):
     """Closest (``anyhit=False``) or any hit of each ray through a :class:`SceneBVH`.
 
     o, d : (n, 3) float64; tmin, tmax : (n,) float64; only : (n,) int32, ``>= 0`` restricts
-    a ray to that instance; order : (nchunks,) int64, a permutation of the CHUNK-ray work
-    items (interleaved, to balance the static schedule). Outputs (n,): t float64 (inf on
-    miss), inst int32, prim int32 (global triangle), u, v float64; rows that miss are left
-    untouched (callers pre-fill them).
+    a ray to that instance. Outputs (n,): t float64 (inf on miss), inst int32, prim int32
+    (global triangle), u, v float64; rows that miss are left untouched (callers pre-fill
+    them). Work items are :data:`CHUNK` consecutive rays; call it under
+    ``numba.parallel_chunksize(PARALLEL_CHUNKSIZE)`` (:func:`trace`) so threads take work
+    items dynamically (cost per ray varies a lot across an image).
     """
     n = o.shape[0]
-    for w in prange(order.shape[0]):
+    for c in prange((n + CHUNK - 1) // CHUNK):
         st_node = np.empty(STACK_SIZE, np.int32)
         st_t = np.empty(STACK_SIZE)
         st2_node = np.empty(STACK_SIZE, np.int32)
         st2_t = np.empty(STACK_SIZE)
-        c = order[w]
         for r in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not tmin[r] <= tmax[r]:
                 continue
@@ -629,8 +631,7 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, order, out_t, out_inst, out
                 out_v[r] = v
 
 
-def chunk_order(n: int) -> np.ndarray:
-    """Work-item order for :func:`trace_kernel`: chunks interleaved in groups of 16, so a
-    static split across threads gives every thread parts of every image region."""
-    nchunks = (n + CHUNK - 1) // CHUNK
-    return np.argsort(np.arange(nchunks) % 16, kind="stable").astype(np.int64)
+def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits) -> None:
+    """Run :func:`trace_kernel` with dynamic scheduling into ``hits`` (t, inst, prim, u, v)."""
+    with numba.parallel_chunksize(PARALLEL_CHUNKSIZE):
+        trace_kernel(sb, o, d, tmin, tmax, only, anyhit, *hits)

@@ -12,9 +12,10 @@ Build and layout (flattened, pbrt/pynndescent style): a binary binned-SAH tree i
 the boxes of their four children, so one visit tests four boxes and pushes those hit
 farthest first (front-to-back traversal with a small fixed stack).
 
-* ``bounds`` (N, 24) float32, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
-  lo z[4], hi x[4], hi y[4], hi z[4]``; rounded outward from float64 so a box always contains
-  its geometry. An unused lane has an inverted box (``lo = +inf``) and is never entered.
+* ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
+  lo z[4], hi x[4], hi y[4], hi z[4]``: exact min / max of the vertex coordinates (float64
+  measured ~5% faster than float32 boxes here: no conversions in the slab test). An unused
+  lane has an inverted box (``lo = +inf``) and is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
 
@@ -59,7 +60,7 @@ PARALLEL_CHUNKSIZE = 16
 class FlatBVH(NamedTuple):
     """A flattened 4-wide BVH (see the module docstring)."""
 
-    bounds: np.ndarray  # (N, 24) float32, child boxes (SoA over 4 lanes)
+    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
     child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
     perm: np.ndarray  # (n,) int32, primitive ids in leaf order
 
@@ -77,10 +78,10 @@ class MeshBVH(NamedTuple):
 class SceneBVH(NamedTuple):
     """Everything the traversal kernel reads: both levels, concatenated (what numba takes)."""
 
-    top_bounds: np.ndarray  # (Nt, 24) float32
+    top_bounds: np.ndarray  # (Nt, 24) float64
     top_child: np.ndarray  # (Nt, 4) int32
     top_inst: np.ndarray  # (I,) int32, instance ids in leaf order
-    bounds: np.ndarray  # (N, 24) float32, all mesh BVH nodes
+    bounds: np.ndarray  # (N, 24) float64, all mesh BVH nodes
     child: np.ndarray  # (N, 4) int32, node and triangle indices already offset
     tv: np.ndarray  # (T, 9) float64, triangle vertices in leaf order
     tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris)
@@ -283,31 +284,20 @@ def build_flat(lo, hi, max_leaf, nbins, trav_cost):
     return bounds[:nn].copy(), child[:nn].copy(), perm, sah
 
 
-def outward_f32(bounds64: np.ndarray) -> np.ndarray:
-    """(N, 12) float64 child boxes -> float32 rounded outward (lo down, hi up)."""
-    b = bounds64.reshape(-1, 2, 2, 3)
-    lo = b[:, :, 0].astype(np.float32)
-    hi = b[:, :, 1].astype(np.float32)
-    with np.errstate(invalid="ignore"):
-        lo = np.where(lo > b[:, :, 0], np.nextafter(lo, np.float32(-np.inf)), lo)
-        hi = np.where(hi < b[:, :, 1], np.nextafter(hi, np.float32(np.inf)), hi)
-    return np.ascontiguousarray(np.stack([lo, hi], axis=2).reshape(-1, 12), dtype=np.float32)
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def collapse4(b2, c2):
-    """Binary BVH (child boxes (N, 12) float32, children (N, 2) int32) -> 4-wide BVH.
+    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
 
     Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Returns ``bounds (M, 24) float32``
+    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
     (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
     ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
     """
     n2 = c2.shape[0]
-    b4 = np.empty((n2, 24), np.float32)
+    b4 = np.empty((n2, 24))
     c4 = np.empty((n2, 4), np.int32)
     todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
-    cb = np.empty((4, 6), np.float32)
+    cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
     sp = 0
     todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
@@ -361,8 +351,8 @@ def collapse4(b2, c2):
 
 
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide, float32 boxes rounded out)."""
-    b4, c4 = collapse4(outward_f32(b64), child)
+    """Binary build output -> the traversal layout (4-wide)."""
+    b4, c4 = collapse4(np.ascontiguousarray(b64), child)
     return FlatBVH(b4, c4, perm)
 
 

@@ -74,8 +74,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_vis = time.perf_counter()
     if progress is not None:
         progress(0.2, "visibility")
-    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
+    if cache.epsilon > 0.0:
+        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
+    else:  # nothing is interpolated at epsilon = 0
+        res = cache.resolve(hits.inst, None, None, None, None)
     t_res = time.perf_counter()
     if progress is not None:
         progress(0.7, "interpolants")
@@ -87,10 +90,13 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     todo = np.flatnonzero(~interp & (hits.inst >= 0))
     cancelled = cancel is not None and cancel()
     counters: dict = {}
-    if len(todo) and not cancelled:
-        rad[todo], _ = trace(sa, accel, o[todo], d[todo], tmin[todo], tmax[todo],
-                             int(settings.max_depth), primary=_take(hits, todo),
-                             counters=counters)
+    if not cancelled:
+        # in tiles of the base tracer's size: its per-level arrays stay cache-sized
+        for s0 in range(0, len(todo), TILE_RAYS):
+            part = todo[s0:s0 + TILE_RAYS]
+            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                 int(settings.max_depth), primary=_take(hits, part),
+                                 counters=counters)
     t_trace = time.perf_counter()
     good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
     bad_total = int(np.count_nonzero(~good))

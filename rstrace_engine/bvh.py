@@ -13,9 +13,10 @@ the boxes of their four children, so one visit tests four boxes and pushes those
 farthest first (front-to-back traversal with a small fixed stack).
 
 * ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
-  lo z[4], hi x[4], hi y[4], hi z[4]``: exact min / max of the vertex coordinates (float64
-  measured ~5% faster than float32 boxes here: no conversions in the slab test). An unused
-  lane has an inverted box (``lo = +inf``) and is never entered.
+  lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
+  ulp (:func:`pad_outward`; float64 measured ~5% faster than float32 boxes here: no
+  conversions in the slab test). An unused lane has an inverted box (``lo = +inf``) and is
+  never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
 
@@ -350,9 +351,26 @@ def collapse4(b2, c2):
     return b4[:m].copy(), c4[:m].copy()
 
 
+def pad_outward(b64: np.ndarray) -> np.ndarray:
+    """Child boxes (N, 12) float64 widened by one ulp on every side.
+
+    A ray with a zero direction component has a huge finite reciprocal (:func:`_inv_dir`);
+    if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
+    +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
+    geometry, an origin on a face is outside the geometry, so culling it is right.
+    """
+    b = b64.reshape(-1, 2, 2, 3)
+    out = np.empty_like(b)
+    out[:, :, 0] = np.nextafter(b[:, :, 0], -np.inf)
+    out[:, :, 1] = np.nextafter(b[:, :, 1], np.inf)
+    bad = ~np.isfinite(b)  # the inverted (+inf, -inf) box of an empty child stays as is
+    out[bad] = b[bad]
+    return np.ascontiguousarray(out.reshape(-1, 12))
+
+
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
     """Binary build output -> the traversal layout (4-wide)."""
-    b4, c4 = collapse4(np.ascontiguousarray(b64), child)
+    b4, c4 = collapse4(pad_outward(b64), child)
     return FlatBVH(b4, c4, perm)
 
 

@@ -158,6 +158,20 @@ def test_axis_and_diagonal_rays_through_box(backend):
             h = acc.closest_hit(o, d, 0.0, np.inf)
             assert np.all(h.inst == 0)
             assert np.allclose(h.t, 2.5, rtol=0, atol=1e-12)
+    # rays exactly along the box's boundary: the edges and faces of its silhouette, where a
+    # box test that is not conservative would cull what the triangle test accepts
+    xs = np.array([-0.5, -0.25, 0.0, 0.25, 0.5])
+    X, Y = np.meshgrid(xs, xs)
+    for axis in range(3):
+        o = np.zeros((X.size, 3))
+        o[:, axis] = 5.0
+        o[:, (axis + 1) % 3] = X.ravel()
+        o[:, (axis + 2) % 3] = Y.ravel()
+        d = np.zeros_like(o)
+        d[:, axis] = -1.0
+        h = acc.closest_hit(o, d, 0.0, np.inf)
+        assert np.all(h.inst == 0)  # the brute-force test is edge-inclusive: all hit
+        assert np.allclose(h.t, 4.5, rtol=0, atol=1e-12)
     # diagonals through the corners: each enters at a vertex
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5)
                         for z in (-0.5, 0.5)])

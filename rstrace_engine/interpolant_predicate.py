@@ -59,6 +59,9 @@ REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change"
  R_TUNNEL_LIGHT) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
+#: Meshes with more than sqrt(this) triangles are not tested for convexity (the test is
+#: quadratic); they count as non-convex, which only adds test lines.
+CONVEXITY_TEST_MAX = 4e8
 #: Triangles a self query may collect before the cell fails (conservatively).
 MAX_CANDIDATES = 4096
 #: Most planes a shaft has (6 box planes and 12 edge planes).
@@ -176,7 +179,7 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
     for m in range(n_mesh):
         s, e = sa.mesh_tri_start[m], sa.mesh_tri_start[m + 1]
         closed[m] = not np.any(boundary[s:e])
-        if closed[m]:
+        if closed[m] and (e - s) * (e - s) <= CONVEXITY_TEST_MAX:
             vids = np.unique(sa.tris[s:e])
             v = sa.verts[vids.min():vids.max() + 1]
             diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))

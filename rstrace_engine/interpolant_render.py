@@ -6,6 +6,7 @@ its line in that object's linetree -> :meth:`~.interpolants.InterpolantCache.res
 interpolates what valid interpolants cover and builds the cells the frame needs -> every
 other ray (misses, failed cells, pixels too few to be worth a cell) is traced by the base
 tracer from the hits already found. Each pixel gets a class (:data:`~.frame.CLASS_NAMES`).
+At epsilon = 0 nothing can be interpolated, and the frame is the base tracer's.
 
 Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
 frames and camera moves; it starts a new cache only when the scene packing, epsilon, the
@@ -25,7 +26,7 @@ from .accelerators import Hits
 from .cameras import camera_params, camera_rays, pixel_jitter
 from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
 from .interpolants import InterpolantCache
-from .whitted import TILE_RAYS, trace
+from .whitted import TILE_RAYS, render, trace
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     (a cancelled frame keeps its interpolated pixels, ``stats["cancelled"]``).
     """
     settings = settings.validated()
+    if cache.epsilon <= 0.0:
+        # nothing can be interpolated within a zero error bound: this is a base frame
+        frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel)
+        frame.stats.update(mode="INTERPOLANT", interpolated_fraction=0.0, cells_built=0,
+                           cells_valid=0, samples_traced=0, interpolants=cache.pool.n_live,
+                           memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
+                           depth_cap=cache.depth_cap)
+        return frame
     t0 = time.perf_counter()
     sa, accel = cache.sa, cache.accel
     cp = camera_params(scene.camera)
@@ -74,11 +83,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_vis = time.perf_counter()
     if progress is not None:
         progress(0.2, "visibility")
-    if cache.epsilon > 0.0:
-        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
-    else:  # nothing is interpolated at epsilon = 0
-        res = cache.resolve(hits.inst, None, None, None, None)
+    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
     t_res = time.perf_counter()
     if progress is not None:
         progress(0.7, "interpolants")

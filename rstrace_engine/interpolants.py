@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -599,10 +600,6 @@ class InterpolantCache:
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6
         self.max_depth = int(max_depth)
         self.box = expanded_boxes(sa)
-        self.topo = mesh_topology(sa)
-        self.qs = query_scene(sa, self.topo)
-        self.n_test = np.where(self.topo.mesh_convex[sa.inst_mesh], N_TEST_BASE,
-                               N_TEST_ALL).astype(np.int32)
         self.trees = Linetrees(len(sa.inst_mesh))
         self.samples = SampleStore(len(sa.light_kind))
         self.pool = InterpolantPool()
@@ -610,6 +607,24 @@ class InterpolantCache:
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0)
         self.frame_stats: dict = {}
         self.setup_s = time.perf_counter() - t0
+
+    # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
+
+    @cached_property
+    def topo(self):
+        """Surface classes, boundary edges, convexity (:func:`.mesh_topology`)."""
+        return mesh_topology(self.sa)
+
+    @cached_property
+    def qs(self):
+        """The predicate's query structures (:func:`.query_scene`)."""
+        return query_scene(self.sa, self.topo)
+
+    @cached_property
+    def n_test(self) -> np.ndarray:
+        """Test lines per instance: more for non-convex meshes."""
+        return np.where(self.topo.mesh_convex[self.sa.inst_mesh], N_TEST_BASE,
+                        N_TEST_ALL).astype(np.int32)
 
     # -- configuration ----------------------------------------------------------------
 

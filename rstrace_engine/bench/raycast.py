@@ -44,7 +44,7 @@ def _time(fn, args) -> float:
     return time.perf_counter() - t0
 
 
-def run(repeats: int = 5, n_random: int = 1_000_000, threads=(1, 2)) -> dict:
+def run(repeats: int = 7, n_random: int = 1_000_000, threads=(1, 2)) -> dict:
     """Measure every workload; returns the ``{"workloads": [...]}`` dict (plus ``"scene"``)."""
     scene = grid()
     sa = scene.arrays()
@@ -91,7 +91,7 @@ def run(repeats: int = 5, n_random: int = 1_000_000, threads=(1, 2)) -> dict:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="python -m rstrace_engine.bench raycast")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--random", type=int, default=1_000_000, help="number of random rays")
     args = ap.parse_args(argv)
     res = run(args.repeats, args.random)

@@ -175,7 +175,10 @@ class BVHAccelerator(Accelerator):
     """The two-level numba BVH (:mod:`.bvh`).
 
     Mesh BVHs are cached by a content hash of their triangles; :meth:`update` reuses them
-    and rebuilds only the top level (and the concatenation the kernel reads).
+    and rebuilds only the top level (and the concatenation the kernel reads). When the new
+    packing shares the previous one's ``verts`` / ``tris`` arrays (a :class:`~.scene.Scene`
+    repacked after moving objects), even the hashing is skipped: packed arrays are treated
+    as immutable.
     """
 
     name = "BVH"

@@ -41,10 +41,10 @@ class Session:
 
     # -- state -------------------------------------------------------------------------
 
-    def _build_accelerator(self) -> None:
+    def _build_accelerator(self, kind: str | None = None) -> None:
         sa = self.scene.arrays()
         t0 = time.perf_counter()
-        self.accel = create_accelerator(self.settings.accelerator, sa)
+        self.accel = create_accelerator(kind or self.settings.accelerator, sa)
         self.stats["accel_build_s"] = time.perf_counter() - t0
         self.stats["accelerator"] = self.accel.name
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
@@ -62,10 +62,9 @@ class Session:
     def update_settings(self, settings: RenderSettings) -> None:
         """New settings; the accelerator is rebuilt only when its kind changes."""
         settings = settings.validated()
-        old = self.settings
+        if settings.accelerator != self.settings.accelerator:
+            self._build_accelerator(settings.accelerator)  # raises before anything changes
         self.settings = settings
-        if settings.accelerator != old.accelerator:
-            self._build_accelerator()
 
     # -- rendering ---------------------------------------------------------------------
 

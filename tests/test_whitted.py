@@ -516,3 +516,15 @@ def test_bench_frame_runs_and_reports(tmp_path):
     assert row["mitsuba_s"] > 0 and row["ratio"] > 0
     mit = image.read_png(tmp_path / "three_spheres_mitsuba.png")
     assert mit.shape == (18, 24, 3) and mit.max() > 0  # the same camera sees lit geometry
+
+
+def test_session_keeps_its_settings_when_an_accelerator_is_unavailable():
+    from rstrace_engine.accelerators import AcceleratorUnavailable
+    from rstrace_engine.scenes import three_spheres
+    from rstrace_engine.session import Session
+
+    sess = Session(three_spheres(16, 12), RenderSettings(max_depth=1))
+    with pytest.raises(AcceleratorUnavailable, match="VISIBILITY_FIELD"):
+        sess.update_settings(RenderSettings(accelerator="VISIBILITY_FIELD"))
+    assert sess.settings.accelerator == "BVH" and sess.accel.name == "BVH"
+    assert sess.render().radiance.shape == (12, 16, 3)

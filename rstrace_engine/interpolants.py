@@ -19,10 +19,12 @@ the depth cap split. Whatever is left is returned to be traced, with its pixel c
 The radiance test: at the cell's test lines (its centre, the 8 centres of its boundary
 facets, 4 interior lines on the diagonals ``a = c, b = d``, and for non-convex meshes 4 more)
 the quadrilinear interpolation of the corner radiance must match the traced radiance within
-``TEST_EPS_FRAC * epsilon`` in display space (clamp to [0, 1], sRGB, per channel): the
-margin stands in for the error between test lines, which samples cannot bound. Test lines lie
-on the lattice of the children and grandchildren, so a split reuses them as corners. With
-epsilon = 0 nothing is interpolated: no finite set of test lines proves an interpolant exact.
+``TEST_EPS_FRAC * epsilon`` in display space (clamp to [0, 1], sRGB, per channel; above 1 the
+transform is continued linearly, so saturated samples cannot hide a dip below 1 between
+them): the margin stands in for the error between test lines, which samples cannot bound.
+Test lines lie on the lattice of the children and grandchildren, so a split reuses them as
+corners. With epsilon = 0 nothing is interpolated: no finite set of test lines proves an
+interpolant exact.
 
 Kernels over a frame's rays (``descend``, ``_interpolate``) and the predicate run in parallel;
 the small per-batch kernels are serial on purpose: on a busy machine every parallel region can
@@ -520,6 +522,22 @@ def _pixel_lines(box, cls_of_tri, inst, prim, t, o, d, face, abcd, zp, clsp):
         clsp[r] = cls_of_tri[prim[r]]
 
 
+#: Slope of the sRGB curve at 1 (d sRGB / dx at x = 1).
+_SRGB_SLOPE_AT_1 = 1.055 / 2.4
+
+
+def extended_display(linear: np.ndarray) -> np.ndarray:
+    """The display transform (:func:`.image.to_display`) continued linearly above 1.
+
+    The radiance test compares samples here: clamping at 1 would let corners that are all
+    saturated vouch for the inside of a cell where the true radiance dips below 1 (the ring
+    around a light's bright spot). Below 1 it is exactly the display transform.
+    """
+    x = np.nan_to_num(np.asarray(linear, np.float64), nan=0.0)
+    over = np.maximum(x - 1.0, 0.0)
+    return image.to_display(x) + _SRGB_SLOPE_AT_1 * over
+
+
 # ----------------------------------------------------------------------------- pool
 
 
@@ -946,7 +964,7 @@ class InterpolantCache:
         corners = rad[cell_samples[:, :16]]  # (m, 16, 3)
         tests = rad[np.maximum(cell_samples[:, 16:], 0)]  # (m, T, 3)
         interp = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, corners)
-        err = np.abs(image.to_display(interp) - image.to_display(tests)).max(axis=2)
+        err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
         used = np.arange(N_TEST_ALL)[None, :] < (nsamp - 16)[:, None]
         err = np.where(used, err, 0.0)
         finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(

@@ -415,3 +415,15 @@ def test_shaft_contains_both_boxes_and_clips_exactly():
         seg_in = (((e0 + ts * (e1 - e0)) @ pl[:n, :3].T + pl[:n, 3]) >= 0).all(axis=1).any()
         if seg_in:
             assert segment_in(pl, n, *e0, *e1)
+
+
+def test_saturated_samples_cannot_vouch_for_a_dip_below_one():
+    from rstrace_engine.interpolants import extended_display
+
+    x = np.array([0.0, 0.002, 0.5, 0.999, 1.0])
+    np.testing.assert_array_equal(extended_display(x), image.to_display(x))
+    # clamped, 2.5 and 0.85 look alike near the top; extended, they are far apart
+    a, b = np.array([2.5]), np.array([0.85])
+    assert abs(image.to_display(a) - image.to_display(b))[0] < 0.08
+    assert abs(extended_display(a) - extended_display(b))[0] > 0.6
+    assert np.all(np.diff(extended_display(np.linspace(0, 5, 200))) > 0)

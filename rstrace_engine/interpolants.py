@@ -42,7 +42,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from . import image
 from .accelerators import Hits
 from .frame import (
     CLASS_BACKGROUND,
@@ -52,20 +51,21 @@ from .frame import (
     CLASS_TRACED,
 )
 from .interpolant_predicate import (
+    N_TEST_ALL,
+    N_TEST_BASE,
     REASONS,
+    TEST_POINTS,
     VALID,
-    SampleArrays,
     check_cells,
-    mesh_topology,
-    query_scene,
+    radiance_ok,
 )
+from .interpolant_samples import LineCrossings, SampleStore, unique_keys
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
     MAX_DEPTH,
     Linetrees,
     corner_weight,
-    corner_weights,
     descend_one,
     expanded_boxes,
     fail_class,
@@ -75,7 +75,9 @@ from .linetree import (
     point_depth,
     ray_line,
 )
+from .mesh_topology import mesh_topology
 from .shading import dot3, geometric_normal, spawn_offset
+from .shafts import query_scene
 from .whitted import trace
 
 log = logging.getLogger(__name__)
@@ -89,273 +91,8 @@ MIN_PIXELS = 24
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.
 MAX_BACKFACE_SKIPS = 8
 
-#: Test lines in local cell coordinates: the centre, the 8 facet centres and 4 lines on the
-#: diagonals a = c, b = d (where the lines of distant viewpoints run) ...
-TEST_BASE = np.array([[.5, .5, .5, .5],
-                      [.5, .5, .5, 0], [.5, .5, .5, 1], [.5, .5, 0, .5], [.5, .5, 1, .5],
-                      [.5, 0, .5, .5], [.5, 1, .5, .5], [0, .5, .5, .5], [1, .5, .5, .5],
-                      [.25, .25, .25, .25], [.75, .75, .75, .75],
-                      [.25, .75, .25, .75], [.75, .25, .75, .25]])
-#: ... and 4 more interior lines for non-convex meshes.
-TEST_EXTRA = np.array([[.25, .5, .25, .5], [.75, .5, .75, .5],
-                       [.5, .25, .5, .25], [.5, .75, .5, .75]])
-TEST_POINTS = np.concatenate([TEST_BASE, TEST_EXTRA])
-N_TEST_BASE = len(TEST_BASE)
-N_TEST_ALL = len(TEST_POINTS)
-_TEST_WEIGHTS = corner_weights(TEST_POINTS)  # (13, 16)
-
-#: The radiance test asks for this fraction of epsilon at the test lines (the error between
-#: them is not bounded by the samples).
-TEST_EPS_FRAC = 0.5
 #: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids)
 INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4
-
-
-# ----------------------------------------------------------------------------- hash map
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _slot(k1, k2, mask):
-    h = np.uint64(k1) * np.uint64(0x9E3779B97F4A7C15)
-    h ^= np.uint64(k2) * np.uint64(0xC2B2AE3D27D4EB4F)
-    h ^= h >> np.uint64(31)
-    h *= np.uint64(0x94D049BB133111EB)
-    h ^= h >> np.uint64(29)
-    return np.int64(h & np.uint64(mask))
-
-
-@njit(cache=True, nogil=True)
-def _map_lookup(tk1, tk2, tval, k1, k2, out):
-    mask = tk1.shape[0] - 1
-    for r in range(k1.shape[0]):
-        s = _slot(k1[r], k2[r], mask)
-        out[r] = -1
-        while tk1[s] != -1:
-            if tk1[s] == k1[r] and tk2[s] == k2[r]:
-                out[r] = tval[s]
-                break
-            s = (s + 1) & mask
-
-
-@njit(cache=True, nogil=True)
-def _map_insert(tk1, tk2, tval, k1, k2, vals):
-    mask = tk1.shape[0] - 1
-    for r in range(k1.shape[0]):
-        s = _slot(k1[r], k2[r], mask)
-        while tk1[s] != -1 and not (tk1[s] == k1[r] and tk2[s] == k2[r]):
-            s = (s + 1) & mask
-        tk1[s] = k1[r]
-        tk2[s] = k2[r]
-        tval[s] = vals[r]
-
-
-@njit(cache=True, nogil=True)
-def unique_keys(k1, k2):
-    """First occurrences of key pairs, in order of appearance (no sort): returns
-    ``(first (u,) int64 indices, inverse (m,) int32)``."""
-    m = k1.shape[0]
-    cap = 16
-    while cap < 2 * m:
-        cap *= 2
-    tk1 = np.full(cap, -1, np.int64)
-    tk2 = np.zeros(cap, np.int64)
-    tval = np.zeros(cap, np.int32)
-    first = np.empty(m, np.int64)
-    inv = np.empty(m, np.int32)
-    u = 0
-    mask = cap - 1
-    for r in range(m):
-        s = _slot(k1[r], k2[r], mask)
-        while tk1[s] != -1 and not (tk1[s] == k1[r] and tk2[s] == k2[r]):
-            s = (s + 1) & mask
-        if tk1[s] == -1:
-            tk1[s] = k1[r]
-            tk2[s] = k2[r]
-            tval[s] = u
-            first[u] = r
-            u += 1
-        inv[r] = tval[s]
-    return first[:u], inv
-
-
-class KeyMap:
-    """An append-only numba hash map from key pairs (int64, int64) to their insertion index."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.k1 = np.empty(0, np.int64)
-        self.k2 = np.empty(0, np.int64)
-        self._table(1024)
-
-    def _table(self, cap: int) -> None:
-        self.tk1 = np.full(cap, -1, np.int64)
-        self.tk2 = np.zeros(cap, np.int64)
-        self.tval = np.zeros(cap, np.int32)
-        if self.n:
-            _map_insert(self.tk1, self.tk2, self.tval, self.k1[:self.n], self.k2[:self.n],
-                        np.arange(self.n, dtype=np.int32))
-
-    @property
-    def table_bytes(self) -> int:
-        return 20 * len(self.tk1)
-
-    def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
-        """Index of each key, -1 when absent: (m,) int32."""
-        out = np.empty(len(k1), np.int32)
-        _map_lookup(self.tk1, self.tk2, self.tval, np.ascontiguousarray(k1, np.int64),
-                    np.ascontiguousarray(k2, np.int64), out)
-        return out
-
-    def add(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
-        """Append new (unique, absent) keys; returns their indices."""
-        m = len(k1)
-        s0, s1 = self.n, self.n + m
-        self.k1 = _grow(self.k1, s1)
-        self.k2 = _grow(self.k2, s1)
-        self.k1[s0:s1] = k1
-        self.k2[s0:s1] = k2
-        self.n = s1
-        if 2 * s1 > len(self.tk1):
-            self._table(1 << int(math.ceil(math.log2(4 * s1))))
-        else:
-            _map_insert(self.tk1, self.tk2, self.tval, self.k1[s0:s1], self.k2[s0:s1],
-                        np.arange(s0, s1, dtype=np.int32))
-        return np.arange(s0, s1, dtype=np.int32)
-
-    def keep(self, ids: np.ndarray) -> None:
-        """Keep only keys ``ids`` (sorted), renumbered 0.. in that order."""
-        self.k1 = self.k1[ids]
-        self.k2 = self.k2[ids]
-        self.n = len(ids)
-        self._table(1 << int(math.ceil(math.log2(max(4 * self.n, 1024)))))
-
-
-def _grow(arr: np.ndarray, need: int) -> np.ndarray:
-    """``arr`` with room for ``need`` rows (doubling)."""
-    if len(arr) >= need:
-        return arr
-    new = np.empty((max(need, 2 * len(arr), 256),) + arr.shape[1:], arr.dtype)
-    new[:len(arr)] = arr
-    return new
-
-
-class SampleStore:
-    """Traced lines keyed by lattice point, with their ray trees (growth owned here)."""
-
-    _SAMPLE = ("_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount")
-    _NODE = ("_npath", "_ninst", "_ncls", "_nocc", "_npoint")
-
-    def __init__(self, n_lights: int) -> None:
-        self.L = max(int(n_lights), 0)
-        self.clear()
-
-    def clear(self) -> None:
-        self.keys = KeyMap()
-        self.n_nodes = 0
-        self._rad = np.empty((0, 3))
-        self._inst = np.empty(0, np.int32)
-        self._cls = np.empty(0, np.int32)
-        self._depth = np.empty(0)
-        self._nstart = np.empty(0, np.int64)
-        self._ncount = np.empty(0, np.int32)
-        self._npath = np.empty(0, np.int64)
-        self._ninst = np.empty(0, np.int32)
-        self._ncls = np.empty(0, np.int32)
-        self._nocc = np.empty((0, self.L), np.int32)
-        self._npoint = np.empty((0, 3))
-
-    @property
-    def n(self) -> int:
-        return self.keys.n
-
-    @property
-    def memory_bytes(self) -> int:
-        """Bytes of the samples, their ray-tree nodes and keys (not the hash table)."""
-        per_sample = 24 + 4 + 4 + 8 + 8 + 4 + 16
-        per_node = 8 + 4 + 4 + 4 * self.L + 24
-        return self.n * per_sample + self.n_nodes * per_node
-
-    def view(self) -> SampleArrays:
-        n, m = self.n, self.n_nodes
-        return SampleArrays(self._rad[:n], self._inst[:n], self._cls[:n], self._depth[:n],
-                            self._nstart[:n], self._ncount[:n], self._npath[:m],
-                            self._ninst[:m], self._ncls[:m], self._nocc[:m], self._npoint[:m])
-
-    def radiance(self) -> np.ndarray:
-        return self._rad[:self.n]
-
-    def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
-        return self.keys.lookup(k1, k2)
-
-    def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls) -> np.ndarray:
-        """Append samples (keys unique and absent) and their ray-tree nodes; returns ids."""
-        n = len(k1)
-        s0, s1 = self.n, self.n + n
-        for name in self._SAMPLE:
-            setattr(self, name, _grow(getattr(self, name), s1))
-        order = np.argsort(tree.node_ray, kind="stable")
-        count = np.bincount(tree.node_ray, minlength=n).astype(np.int32)
-        m0, m1 = self.n_nodes, self.n_nodes + len(order)
-        for name in self._NODE:
-            setattr(self, name, _grow(getattr(self, name), m1))
-        self._rad[s0:s1] = rad
-        self._inst[s0:s1] = inst
-        self._cls[s0:s1] = cls
-        self._depth[s0:s1] = depth
-        self._ncount[s0:s1] = count
-        self._nstart[s0:s1] = m0 + np.concatenate([[0], np.cumsum(count)[:-1]])
-        self._npath[m0:m1] = tree.node_path[order]
-        self._ninst[m0:m1] = tree.node_inst[order]
-        self._ncls[m0:m1] = node_cls[order]
-        self._nocc[m0:m1] = tree.node_occluder[order].reshape(len(order), self.L)
-        self._npoint[m0:m1] = tree.node_point[order]
-        self.n_nodes = m1
-        return self.keys.add(k1, k2)
-
-    def compact(self, keep: np.ndarray) -> np.ndarray:
-        """Keep samples where ``keep`` (n,) bool; returns the old -> new id map (-1: gone)."""
-        remap = np.full(self.n, -1, np.int32)
-        ids = np.flatnonzero(keep)
-        remap[ids] = np.arange(len(ids), dtype=np.int32)
-        cnt = self._ncount[ids]
-        start = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        rows = np.repeat(self._nstart[ids] - start, cnt) + np.arange(int(cnt.sum()))
-        for name in self._SAMPLE:
-            setattr(self, name, getattr(self, name)[ids])
-        self._ncount, self._nstart = cnt, start
-        for name in self._NODE:
-            setattr(self, name, getattr(self, name)[rows])
-        self.n_nodes = len(rows)
-        self.keys.keep(ids)
-        return remap
-
-
-class _Geometry:
-    """Slab crossings of lines computed during one build (before any is shaded)."""
-
-    def __init__(self) -> None:
-        self.keys = KeyMap()
-        self.o = np.empty((0, 3))
-        self.d = np.empty((0, 3))
-        self.t = np.empty(0)
-        self.inst = np.empty(0, np.int32)
-        self.prim = np.empty(0, np.int32)
-        self.u = np.empty(0)
-        self.v = np.empty(0)
-        self.cls = np.empty(0, np.int32)
-
-    def add(self, k1, k2, o, d, hits: Hits, cls) -> None:
-        s0 = self.keys.n
-        s1 = s0 + len(k1)
-        for name, val in (("o", o), ("d", d), ("t", hits.t), ("inst", hits.inst),
-                          ("prim", hits.prim), ("u", hits.u), ("v", hits.v), ("cls", cls)):
-            arr = _grow(getattr(self, name), s1)
-            arr[s0:s1] = val
-            setattr(self, name, arr)
-        self.keys.add(k1, k2)
-
-    def hits(self, ids) -> Hits:
-        return Hits(self.t[ids], self.inst[ids], self.prim[ids], self.u[ids], self.v[ids])
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -522,22 +259,6 @@ def _pixel_lines(box, cls_of_tri, inst, prim, t, o, d, face, abcd, zp, clsp):
         clsp[r] = cls_of_tri[prim[r]]
 
 
-#: Slope of the sRGB curve at 1 (d sRGB / dx at x = 1).
-_SRGB_SLOPE_AT_1 = 1.055 / 2.4
-
-
-def extended_display(linear: np.ndarray) -> np.ndarray:
-    """The display transform (:func:`.image.to_display`) continued linearly above 1.
-
-    The radiance test compares samples here: clamping at 1 would let corners that are all
-    saturated vouch for the inside of a cell where the true radiance dips below 1 (the ring
-    around a light's bright spot). Below 1 it is exactly the display transform.
-    """
-    x = np.nan_to_num(np.asarray(linear, np.float64), nan=0.0)
-    over = np.maximum(x - 1.0, 0.0)
-    return image.to_display(x) + _SRGB_SLOPE_AT_1 * over
-
-
 # ----------------------------------------------------------------------------- pool
 
 
@@ -630,12 +351,12 @@ class InterpolantCache:
 
     @cached_property
     def topo(self):
-        """Surface classes, boundary edges, convexity (:func:`.mesh_topology`)."""
+        """Surface classes, boundary edges, convexity (:func:`.mesh_topology.mesh_topology`)."""
         return mesh_topology(self.sa)
 
     @cached_property
     def qs(self):
-        """The predicate's query structures (:func:`.query_scene`)."""
+        """The predicate's query structures (:func:`.shafts.query_scene`)."""
         return query_scene(self.sa, self.topo)
 
     @cached_property
@@ -817,7 +538,7 @@ class InterpolantCache:
             tmin[todo] = nxt
         return Hits(t, hi, pr, u, v)
 
-    def _geometry(self, k1: np.ndarray, k2: np.ndarray, geo: _Geometry):
+    def _geometry(self, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings):
         """Slab-crossing instance and class of lattice lines (m keys, repeats allowed):
         from stored samples, else from ``geo``, else computed now (``intersect_object``
         only, no shading) and added to ``geo``. Returns ``inst (m,), cls (m,)``."""
@@ -852,7 +573,7 @@ class InterpolantCache:
             cls[rest] = geo.cls[gid]
         return inst, cls
 
-    def _shade(self, k1: np.ndarray, k2: np.ndarray, geo: _Geometry) -> np.ndarray:
+    def _shade(self, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings) -> np.ndarray:
         """Sample ids of lattice lines (m keys, repeats allowed); lines not stored yet are
         shaded through the whole scene from their ``geo`` crossings, with ray trees."""
         sid = self.samples.lookup(k1, k2)
@@ -904,7 +625,7 @@ class InterpolantCache:
         st["cells_built"] += nc
         go = np.flatnonzero(pre)
         why["box_miss"] = why.get("box_miss", 0) + nc - len(go)
-        geo = _Geometry()
+        geo = LineCrossings()
         cls0 = np.zeros(nc, np.int32)
         for lo, hi in ((0, 16), (16, ns)):
             if len(go) == 0:
@@ -937,7 +658,7 @@ class InterpolantCache:
                         depth[go], coord[go], cell_samples, nsamp, sub_status, detail, zlo,
                         zhi, cls)
             ok = np.flatnonzero(sub_status == VALID)
-            lin = self._radiance_ok(cell_samples[ok], nsamp[ok])
+            lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon)
             sub_status[ok[~lin]] = CLASS_FAIL_NONLINEAR
             detail[ok[~lin]] = len(REASONS)
             for r, k in zip(*np.unique(detail, return_counts=True), strict=True):
@@ -957,16 +678,3 @@ class InterpolantCache:
         bad = status != VALID
         a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
         st["cells_valid"] += int(np.count_nonzero(~bad))
-
-    def _radiance_ok(self, cell_samples: np.ndarray, nsamp: np.ndarray) -> np.ndarray:
-        """Quadrilinear interpolation within epsilon of the traced test lines (display)."""
-        rad = self.samples.radiance()
-        corners = rad[cell_samples[:, :16]]  # (m, 16, 3)
-        tests = rad[np.maximum(cell_samples[:, 16:], 0)]  # (m, T, 3)
-        interp = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, corners)
-        err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
-        used = np.arange(N_TEST_ALL)[None, :] < (nsamp - 16)[:, None]
-        err = np.where(used, err, 0.0)
-        finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(
-            np.where(used[:, :, None], tests, 0.0)).all(axis=(1, 2))
-        return finite & (err.max(axis=1) <= TEST_EPS_FRAC * self.epsilon)

@@ -19,12 +19,12 @@ from rstrace_engine.frame import (
     CLASS_TRACED,
     RenderSettings,
 )
-from rstrace_engine.interpolant_predicate import clip_polygon, hw_shaft, segment_in
 from rstrace_engine.interpolant_render import InterpolantRenderer, render_frame
 from rstrace_engine.interpolants import INTERP_BYTES, InterpolantCache
 from rstrace_engine.linetree import LATTICE_DEPTH, corner_weights, lattice_lines, line_points
 from rstrace_engine.scene import Camera, Light, Material, Scene
 from rstrace_engine.session import Session
+from rstrace_engine.shafts import clip_polygon, hw_shaft, segment_in
 
 W, H = 64, 48
 
@@ -418,7 +418,7 @@ def test_shaft_contains_both_boxes_and_clips_exactly():
 
 
 def test_saturated_samples_cannot_vouch_for_a_dip_below_one():
-    from rstrace_engine.interpolants import extended_display
+    from rstrace_engine.interpolant_predicate import extended_display
 
     x = np.array([0.0, 0.002, 0.5, 0.999, 1.0])
     np.testing.assert_array_equal(extended_display(x), image.to_display(x))

@@ -1,0 +1,468 @@
+"""Shafts and triangle queries: what the interpolant predicate (and edits) cull with.
+
+A *shaft* is a convex polyhedron given by planes ``pl (P, 4)`` (inside: ``n . x + d >= 0``)
+and a world box ``bb (6,)`` containing it: the Haines-Wallace shaft between two boxes
+(:func:`hw_shaft`), or a hexahedron with box topology (:func:`hexa_planes`). Planes are moved
+outward by an absolute slack (:data:`~.tolerances.SHAFT_SLACK_REL` of the scene's coordinate
+magnitude) so rounding never lets a touching triangle escape.
+
+Queries walk per-mesh binary BVHs built with :func:`.bvh.build_flat` (object space: a shaft's
+planes are taken to object space exactly, :func:`to_object`) under a BVH over the instances'
+world boxes (:class:`QueryScene`). Triangles are clipped against the planes
+(Sutherland-Hodgman, :func:`clip_polygon`), so "meets the shaft" is exact up to the slack.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from . import bvh
+from . import tolerances as tol
+from .mesh_topology import MeshTopology
+from .scene import LIGHT_SUN, SceneArrays
+
+#: Most planes a shaft has (6 box planes and 12 edge planes).
+MAX_PLANES = 18
+_STACK = 128
+
+
+class QueryScene(NamedTuple):
+    """What the predicate kernels read: instance and triangle BVHs, topology, lights.
+
+    The BVHs are binary (:func:`.bvh.build_flat`): ``bounds (N, 12)`` float64 holds the boxes
+    of both children (``lo xyz, hi xyz`` each), ``child (N, 2)`` an inner node or a leaf
+    ``~(start << 3 | count)`` over consecutive primitives in leaf order.
+    """
+
+    top_bounds: np.ndarray  # (Nt, 12) float64 instance BVH over world boxes
+    top_child: np.ndarray  # (Nt, 2) int32
+    top_inst: np.ndarray  # (I,) int32 instance ids in leaf order
+    bounds: np.ndarray  # (N, 12) float64 all mesh BVH nodes (object space)
+    child: np.ndarray  # (N, 2) int32
+    tv: np.ndarray  # (T, 9) float64 triangle vertices in leaf order
+    tri: np.ndarray  # (T,) int32 global triangle index
+    mesh_root: np.ndarray  # (M,) int32
+    inst_mesh: np.ndarray  # (I,) int32
+    inst_xform: np.ndarray  # (I, 4, 4) float64
+    inst_inv: np.ndarray  # (I, 4, 4) float64
+    tri_class: np.ndarray  # (T,) int32 by global triangle
+    tri_boundary: np.ndarray  # (T,) uint8 by global triangle
+    light_kind: np.ndarray  # (L,) int32
+    light_pos: np.ndarray  # (L, 3) float64
+    light_dir: np.ndarray  # (L, 3) float64
+    scene_center: np.ndarray  # (3,) float64
+    extent: float
+    slack: float  # absolute outward slack of shaft planes
+
+
+def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
+    b, c, perm, _ = bvh.build_flat(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                                   max_leaf, bvh.SAH_BINS, bvh.SAH_TRAVERSAL_COST)
+    return b, c, perm
+
+
+def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
+    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh`)."""
+    bounds, childs, tvs, tris, roots = [], [], [], [], []
+    n_nodes = n_tris = 0
+    for m in range(len(sa.mesh_tri_start) - 1):
+        tv = bvh.mesh_triangles(sa, m)
+        b, c, perm = binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh.MAX_LEAF)
+        c = c.astype(np.int64)
+        code = ~c
+        c = np.where(c < 0, ~(((code >> 3) + n_tris) << 3 | (code & 7)), c + n_nodes)
+        bounds.append(b)
+        childs.append(c.astype(np.int32))
+        tvs.append(tv[perm].reshape(-1, 9))
+        tris.append(perm.astype(np.int64) + sa.mesh_tri_start[m])
+        roots.append(n_nodes)
+        n_nodes += len(b)
+        n_tris += len(perm)
+    lo, hi = sa.inst_aabb[:, 0], sa.inst_aabb[:, 1]
+    mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
+    pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
+    tb, tc, tperm = binary_bvh(lo - pad, hi + pad, 1)
+    lo_s, hi_s = sa.scene_aabb
+    mag = float(sa.scene_extent + np.max(np.abs(sa.scene_aabb)))
+    return QueryScene(tb, tc, tperm.astype(np.int32), np.concatenate(bounds),
+                      np.concatenate(childs), np.ascontiguousarray(np.concatenate(tvs)),
+                      np.concatenate(tris).astype(np.int32), np.array(roots, np.int32),
+                      np.ascontiguousarray(sa.inst_mesh, np.int32), sa.inst_xform, sa.inst_inv,
+                      topo.tri_class, topo.tri_boundary, sa.light_kind,
+                      sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
+                      0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag)
+
+
+@njit(cache=True, nogil=True)
+def hw_shaft(alo, ahi, blo, bhi, slack, pl, bb):
+    """Haines-Wallace shaft between boxes A and B: writes planes ``pl`` (>= 18, 4) and the
+    joint box ``bb`` (6,); returns the plane count. Inside: ``n . x + d >= 0``; every plane
+    is moved outward by ``slack``. Degenerate boxes (a point light) are fine."""
+    for k in range(3):
+        bb[k] = min(alo[k], blo[k])
+        bb[3 + k] = max(ahi[k], bhi[k])
+    npl = 0
+    for k in range(3):
+        pl[npl, 0] = 0.0
+        pl[npl, 1] = 0.0
+        pl[npl, 2] = 0.0
+        pl[npl, k] = 1.0
+        pl[npl, 3] = -bb[k] + slack
+        npl += 1
+        pl[npl, 0] = 0.0
+        pl[npl, 1] = 0.0
+        pl[npl, 2] = 0.0
+        pl[npl, k] = -1.0
+        pl[npl, 3] = bb[3 + k] + slack
+        npl += 1
+    for u in range(3):
+        for v in range(u + 1, 3):
+            for su in range(2):
+                for sv in range(2):
+                    au = alo[u] if su == 0 else ahi[u]
+                    bu = blo[u] if su == 0 else bhi[u]
+                    av = alo[v] if sv == 0 else ahi[v]
+                    bv = blo[v] if sv == 0 else bhi[v]
+                    a_u = au < bu if su == 0 else au > bu
+                    b_u = bu < au if su == 0 else bu > au
+                    a_v = av < bv if sv == 0 else av > bv
+                    b_v = bv < av if sv == 0 else bv > av
+                    if not ((a_u and b_v) or (b_u and a_v)):
+                        continue
+                    nu = -(bv - av)
+                    nv = bu - au
+                    ln = math.sqrt(nu * nu + nv * nv)
+                    if ln == 0.0:
+                        continue
+                    nu /= ln
+                    nv /= ln
+                    cu = 0.25 * (alo[u] + ahi[u] + blo[u] + bhi[u])
+                    cv = 0.25 * (alo[v] + ahi[v] + blo[v] + bhi[v])
+                    if nu * (cu - au) + nv * (cv - av) < 0.0:
+                        nu = -nu
+                        nv = -nv
+                    pl[npl, 0] = 0.0
+                    pl[npl, 1] = 0.0
+                    pl[npl, 2] = 0.0
+                    pl[npl, u] = nu
+                    pl[npl, v] = nv
+                    pl[npl, 3] = -(nu * au + nv * av) + slack
+                    npl += 1
+    return npl
+
+
+@njit(cache=True, nogil=True)
+def hexa_planes(V, slack, pl):
+    """Planes of a hexahedron with box topology (vertex bit0 i, bit1 j, bit2 depth):
+    order i-min, i-max, j-min, j-max, z-lo, z-hi, each moved outward by ``slack``."""
+    faces = ((0, 2, 4), (1, 5, 3), (0, 4, 1), (2, 3, 6), (0, 1, 2), (4, 6, 5))
+    cx = cy = cz = 0.0
+    for v in range(8):
+        cx += V[v, 0] / 8.0
+        cy += V[v, 1] / 8.0
+        cz += V[v, 2] / 8.0
+    for f in range(6):
+        p0, p1, p2 = faces[f]
+        e1 = V[p1] - V[p0]
+        e2 = V[p2] - V[p0]
+        n = np.cross(e1, e2)
+        ln = math.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+        if ln > 0.0:
+            n /= ln
+        d = -(n[0] * V[p0, 0] + n[1] * V[p0, 1] + n[2] * V[p0, 2])
+        if n[0] * cx + n[1] * cy + n[2] * cz + d < 0.0:
+            n = -n
+            d = -d
+        pl[f, 0] = n[0]
+        pl[f, 1] = n[1]
+        pl[f, 2] = n[2]
+        pl[f, 3] = d + slack
+
+
+@njit(cache=True, nogil=True)
+def to_object(xf, inv, pl, npl, bb, plo, bbo):
+    """Planes and box of a world shaft in an instance's object space (exact for planes)."""
+    for p in range(npl):
+        nx, ny, nz = pl[p, 0], pl[p, 1], pl[p, 2]
+        plo[p, 0] = xf[0, 0] * nx + xf[1, 0] * ny + xf[2, 0] * nz
+        plo[p, 1] = xf[0, 1] * nx + xf[1, 1] * ny + xf[2, 1] * nz
+        plo[p, 2] = xf[0, 2] * nx + xf[1, 2] * ny + xf[2, 2] * nz
+        plo[p, 3] = nx * xf[0, 3] + ny * xf[1, 3] + nz * xf[2, 3] + pl[p, 3]
+    for k in range(3):
+        bbo[k] = np.inf
+        bbo[3 + k] = -np.inf
+    for c in range(8):
+        x = bb[3] if c & 1 else bb[0]
+        y = bb[4] if c & 2 else bb[1]
+        z = bb[5] if c & 4 else bb[2]
+        for k in range(3):
+            w = inv[k, 0] * x + inv[k, 1] * y + inv[k, 2] * z + inv[k, 3]
+            bbo[k] = min(bbo[k], w)
+            bbo[3 + k] = max(bbo[3 + k], w)
+    # rounding of the transform: grow the box a little
+    pad = 1e-12 * (abs(bbo[0]) + abs(bbo[1]) + abs(bbo[2]) + abs(bbo[3]) + abs(bbo[4])
+                   + abs(bbo[5]) + (bbo[3] - bbo[0]) + (bbo[4] - bbo[1]) + (bbo[5] - bbo[2]))
+    for k in range(3):
+        bbo[k] -= pad
+        bbo[3 + k] += pad
+
+
+@njit(cache=True, nogil=True)
+def box_out(pl, npl, bb, bounds, node, c):
+    """Child ``c`` of BVH node ``node`` lies outside the shaft (box or some plane)."""
+    o = 6 * c
+    lx, ly, lz = bounds[node, o], bounds[node, o + 1], bounds[node, o + 2]
+    hx, hy, hz = bounds[node, o + 3], bounds[node, o + 4], bounds[node, o + 5]
+    if lx > hx or hx < bb[0] or hy < bb[1] or hz < bb[2] or lx > bb[3] or ly > bb[4] \
+            or lz > bb[5]:
+        return True
+    for p in range(npl):
+        px = hx if pl[p, 0] > 0.0 else lx
+        py = hy if pl[p, 1] > 0.0 else ly
+        pz = hz if pl[p, 2] > 0.0 else lz
+        if pl[p, 0] * px + pl[p, 1] * py + pl[p, 2] * pz + pl[p, 3] < 0.0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def clip_polygon(pl, p0, p1, P, n, Q):
+    """Clip convex polygon ``P[:n]`` (n >= 3) by planes ``p0 <= p < p1`` of ``pl`` (keep
+    ``n . x + d >= 0``); the result is left in ``P``. ``Q`` is scratch of the same size
+    (>= n + p1 - p0 rows). Returns the vertex count (0: nothing left)."""
+    for p in range(p0, p1):
+        if n == 0:
+            return 0
+        m = 0
+        for a in range(n):
+            b = a + 1 if a + 1 < n else 0
+            da = pl[p, 0] * P[a, 0] + pl[p, 1] * P[a, 1] + pl[p, 2] * P[a, 2] + pl[p, 3]
+            db = pl[p, 0] * P[b, 0] + pl[p, 1] * P[b, 1] + pl[p, 2] * P[b, 2] + pl[p, 3]
+            if da >= 0.0:
+                Q[m, 0] = P[a, 0]
+                Q[m, 1] = P[a, 1]
+                Q[m, 2] = P[a, 2]
+                m += 1
+            if (da >= 0.0) != (db >= 0.0):
+                s = da / (da - db)
+                Q[m, 0] = P[a, 0] + s * (P[b, 0] - P[a, 0])
+                Q[m, 1] = P[a, 1] + s * (P[b, 1] - P[a, 1])
+                Q[m, 2] = P[a, 2] + s * (P[b, 2] - P[a, 2])
+                m += 1
+        for a in range(m):
+            P[a, 0] = Q[a, 0]
+            P[a, 1] = Q[a, 1]
+            P[a, 2] = Q[a, 2]
+        n = m
+    return n
+
+
+@njit(cache=True, nogil=True)
+def segment_in(pl, npl, ax, ay, az, bx, by, bz):
+    """Does segment a-b meet the intersection of the half-spaces ``pl[:npl]``?"""
+    t0 = 0.0
+    t1 = 1.0
+    for p in range(npl):
+        da = pl[p, 0] * ax + pl[p, 1] * ay + pl[p, 2] * az + pl[p, 3]
+        db = pl[p, 0] * bx + pl[p, 1] * by + pl[p, 2] * bz + pl[p, 3]
+        if da < 0.0 and db < 0.0:
+            return False
+        if da < 0.0:
+            t0 = max(t0, da / (da - db))
+        elif db < 0.0:
+            t1 = min(t1, da / (da - db))
+        if t0 > t1:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def load_tri(tv, t, P):
+    for v in range(3):
+        P[v, 0] = tv[t, 3 * v]
+        P[v, 1] = tv[t, 3 * v + 1]
+        P[v, 2] = tv[t, 3 * v + 2]
+
+
+@njit(cache=True, nogil=True)
+def tri_in(tv, t, plo, npl, P, Q):
+    load_tri(tv, t, P)
+    return clip_polygon(plo, 0, npl, P, 3, Q) > 0
+
+
+@njit(cache=True, nogil=True)
+def mesh_candidates(qs, m, plo, npl, bbo, out, P, Q):
+    """Leaf-order triangles of mesh ``m`` meeting the (object-space) shaft; writes them to
+    ``out`` and returns their count, or -1 when ``out`` is too small."""
+    stack = np.empty(_STACK, np.int32)
+    sp = 0
+    stack[0] = qs.mesh_root[m]
+    sp = 1
+    cnt = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(2):
+            if box_out(plo, npl, bbo, qs.bounds, node, c):
+                continue
+            ch = qs.child[node, c]
+            if ch >= 0:
+                if sp >= _STACK:
+                    return -1
+                stack[sp] = ch
+                sp += 1
+            else:
+                code = ~ch
+                start = code >> 3
+                for t in range(start, start + (code & 7)):
+                    if tri_in(qs.tv, t, plo, npl, P, Q):
+                        if cnt >= out.shape[0]:
+                            return -1
+                        out[cnt] = t
+                        cnt += 1
+    return cnt
+
+
+@njit(cache=True, nogil=True)
+def other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
+    """Does a triangle of an instance not in ``named[:n_named]`` meet the world shaft?"""
+    stack = np.empty(_STACK, np.int32)
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(2):
+            if box_out(pl, npl, bb, qs.top_bounds, node, c):
+                continue
+            ch = qs.top_child[node, c]
+            if ch >= 0:
+                if sp >= _STACK:
+                    return True
+                stack[sp] = ch
+                sp += 1
+                continue
+            code = ~ch
+            start = code >> 3
+            for q in range(start, start + (code & 7)):
+                inst = qs.top_inst[q]
+                skip = False
+                for k in range(n_named):
+                    if named[k] == inst:
+                        skip = True
+                if skip:
+                    continue
+                to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, npl, bb, plo, bbo)
+                if mesh_any(qs, qs.inst_mesh[inst], plo, npl, bbo, P, Q):
+                    return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def mesh_any(qs, m, plo, npl, bbo, P, Q):
+    stack = np.empty(_STACK, np.int32)
+    stack[0] = qs.mesh_root[m]
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(2):
+            if box_out(plo, npl, bbo, qs.bounds, node, c):
+                continue
+            ch = qs.child[node, c]
+            if ch >= 0:
+                if sp >= _STACK:
+                    return True
+                stack[sp] = ch
+                sp += 1
+            else:
+                code = ~ch
+                start = code >> 3
+                for t in range(start, start + (code & 7)):
+                    if tri_in(qs.tv, t, plo, npl, P, Q):
+                        return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def boundary_edge_in(qs, t, plo, npl):
+    """Does a boundary edge of leaf-order triangle ``t`` meet the (object-space) shaft?"""
+    mask = qs.tri_boundary[qs.tri[t]]
+    if mask == 0:
+        return False
+    tv = qs.tv
+    for e in range(3):
+        if not (mask >> e) & 1:
+            continue
+        f = (e + 1) % 3
+        if segment_in(plo, npl, tv[t, 3 * e], tv[t, 3 * e + 1], tv[t, 3 * e + 2],
+                      tv[t, 3 * f], tv[t, 3 * f + 1], tv[t, 3 * f + 2]):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def tri_normal(tv, t):
+    e1x = tv[t, 3] - tv[t, 0]
+    e1y = tv[t, 4] - tv[t, 1]
+    e1z = tv[t, 5] - tv[t, 2]
+    e2x = tv[t, 6] - tv[t, 0]
+    e2y = tv[t, 7] - tv[t, 1]
+    e2z = tv[t, 8] - tv[t, 2]
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@njit(cache=True, nogil=True)
+def light_side(qs, inv, t, j, nx, ny, nz):
+    """Side of leaf-order triangle ``t`` (object-space normal n) facing light ``j``:
+    1 faces it, -1 faces away, 0 undecided (within the tolerance)."""
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if qs.light_kind[j] == LIGHT_SUN:
+        wx, wy, wz = -qs.light_dir[j, 0], -qs.light_dir[j, 1], -qs.light_dir[j, 2]
+        lx = inv[0, 0] * wx + inv[0, 1] * wy + inv[0, 2] * wz
+        ly = inv[1, 0] * wx + inv[1, 1] * wy + inv[1, 2] * wz
+        lz = inv[2, 0] * wx + inv[2, 1] * wy + inv[2, 2] * wz
+        s = nx * lx + ny * ly + nz * lz
+        lim = tol.FACING_EPS_REL * ln * math.sqrt(lx * lx + ly * ly + lz * lz)
+        return 1 if s > lim else (-1 if s < -lim else 0)
+    px, py, pz = qs.light_pos[j, 0], qs.light_pos[j, 1], qs.light_pos[j, 2]
+    ox = inv[0, 0] * px + inv[0, 1] * py + inv[0, 2] * pz + inv[0, 3]
+    oy = inv[1, 0] * px + inv[1, 1] * py + inv[1, 2] * pz + inv[1, 3]
+    oz = inv[2, 0] * px + inv[2, 1] * py + inv[2, 2] * pz + inv[2, 3]
+    side = 2
+    for v in range(3):
+        dx = ox - qs.tv[t, 3 * v]
+        dy = oy - qs.tv[t, 3 * v + 1]
+        dz = oz - qs.tv[t, 3 * v + 2]
+        s = nx * dx + ny * dy + nz * dz
+        lim = tol.FACING_EPS_REL * ln * math.sqrt(dx * dx + dy * dy + dz * dz)
+        sv = 1 if s > lim else (-1 if s < -lim else 0)
+        if side == 2:
+            side = sv
+        elif side != sv:
+            side = 0
+    return side
+
+
+@njit(cache=True, nogil=True)
+def light_box(qs, j, lo, hi, blo, bhi):
+    """The far end of light ``j``'s shaft from box (lo, hi): the light's point, or for a
+    sun the box moved far beyond the scene toward the sun."""
+    if qs.light_kind[j] == LIGHT_SUN:
+        far = 0.0
+        for k in range(3):
+            c = 0.5 * (lo[k] + hi[k]) - qs.scene_center[k]
+            far += c * c
+        far = 4.0 * (math.sqrt(far) + qs.extent + (hi[0] - lo[0]) + (hi[1] - lo[1])
+                     + (hi[2] - lo[2]))
+        for k in range(3):
+            blo[k] = lo[k] - qs.light_dir[j, k] * far
+            bhi[k] = hi[k] - qs.light_dir[j, k] * far
+    else:
+        for k in range(3):
+            blo[k] = qs.light_pos[j, k]
+            bhi[k] = qs.light_pos[j, k]

@@ -26,9 +26,9 @@ Test lines lie on the lattice of the children and grandchildren, so a split reus
 corners. With epsilon = 0 nothing is interpolated: no finite set of test lines proves an
 interpolant exact.
 
-Kernels over a frame's rays (``descend``, ``_interpolate``) and the predicate run in parallel;
-the small per-batch kernels are serial on purpose: on a busy machine every parallel region can
-cost a scheduler time slice, far more than their work.
+Kernels over a frame's rays (``_pixel_lines``, ``_walk``: descend and interpolate) and the
+predicate run in parallel; the small per-batch kernels are serial on purpose: on a busy
+machine every parallel region can cost a scheduler time slice, far more than their work.
 """
 
 from __future__ import annotations
@@ -376,12 +376,6 @@ class InterpolantCache:
     def set_memory_cap(self, memory_cap_mb: float) -> None:
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6
         self.enforce_cap()
-
-    def clear(self) -> None:
-        """Drop every interpolant, sample and tree node."""
-        self.trees.clear()
-        self.samples.clear()
-        self.pool = InterpolantPool()
 
     # -- memory -----------------------------------------------------------------------
 

@@ -394,10 +394,3 @@ class Linetrees:
                 return total
             self._free.extend(int(x) for x in freed[:nf])
             total += nf
-
-    def clear(self) -> None:
-        """Drop every tree."""
-        self.roots[:] = -1
-        self.n_nodes = 0
-        self._free.clear()
-        self.arrays = self._alloc(len(self.arrays.child))

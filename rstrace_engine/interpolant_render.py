@@ -20,6 +20,7 @@ import logging
 import time
 
 import numpy as np
+from numba import njit
 
 from . import tolerances as tol
 from .accelerators import Hits
@@ -53,6 +54,42 @@ def _camera_batch(cp, spp: int, seed: int):
 
 def _take(h: Hits, idx: np.ndarray) -> Hits:
     return Hits(h.t[idx], h.inst[idx], h.prim[idx], h.u[idx], h.v[idx])
+
+
+@njit(cache=True, nogil=True)
+def _to_trace(inst, interp, world, rad, todo):
+    """Misses get the world colour (what the tracer gives them); the other rays that were
+    not interpolated go to ``todo``. Returns their number."""
+    k = 0
+    for r in range(inst.shape[0]):
+        if inst[r] < 0:
+            rad[r, 0] = world[0]
+            rad[r, 1] = world[1]
+            rad[r, 2] = world[2]
+        elif not interp[r]:
+            todo[k] = r
+            k += 1
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _finish(rad, radmax, ray_class, good, counts):
+    """good[r]: ray r's radiance is finite and at most ``radmax`` per channel (else it
+    becomes 0); counts[c] += rays of class c. Returns the number of bad rays."""
+    bad = 0
+    for r in range(rad.shape[0]):
+        ok = True
+        for c in range(3):
+            if not abs(rad[r, c]) <= radmax:  # also false for NaN
+                ok = False
+        good[r] = ok
+        if not ok:
+            rad[r, 0] = 0.0
+            rad[r, 1] = 0.0
+            rad[r, 2] = 0.0
+            bad += 1
+        counts[ray_class[r]] += 1
+    return bad
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
@@ -90,10 +127,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         progress(0.7, "interpolants")
     # a miss is the world colour (exactly what the tracer gives it)
     rad = res.radiance
-    rad[hits.inst < 0] = np.asarray(sa.world_color, np.float64)
     ray_class = res.pixel_class
     interp = res.interpolated
-    todo = np.flatnonzero(~interp & (hits.inst >= 0))
+    todo = np.empty(n, np.int64)
+    todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
+                           todo)]
     cancelled = cancel is not None and cancel()
     counters: dict = {}
     if not cancelled:
@@ -104,10 +142,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                  int(settings.max_depth), primary=_take(hits, part),
                                  counters=counters)
     t_trace = time.perf_counter()
-    good = np.isfinite(rad).all(axis=1) & (np.abs(rad) <= tol.RADIANCE_MAX).all(axis=1)
-    bad_total = int(np.count_nonzero(~good))
-    if bad_total:
-        rad[~good] = 0.0
+    good = np.empty(n, np.bool_)
+    counts = np.zeros(len(CLASS_NAMES), np.int64)
+    bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
     if spp == 1:  # the rays are the pixels, in order
         image = rad.astype(np.float32)
         pclass = ray_class
@@ -127,7 +164,6 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
-    counts = np.bincount(ray_class, minlength=len(CLASS_NAMES))
     fs = cache.frame_stats
     stats = dict(
         mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,

@@ -12,6 +12,7 @@ from tracer_scenes import ortho_down, transformed
 
 from rstrace_engine import image, interpolants, scenes, shapes, whitted
 from rstrace_engine.accelerators import create_accelerator
+from rstrace_engine.cameras import camera_rays
 from rstrace_engine.frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_SHADOW,
@@ -427,3 +428,21 @@ def test_saturated_samples_cannot_vouch_for_a_dip_below_one():
     assert abs(image.to_display(a) - image.to_display(b))[0] < 0.08
     assert abs(extended_display(a) - extended_display(b))[0] > 0.6
     assert np.all(np.diff(extended_display(np.linspace(0, 5, 200))) > 0)
+
+
+def test_the_walk_does_not_depend_on_ray_order(spheres):
+    """Rays reuse the leaf of the ray before them: any order gives the same pixels."""
+    sc, accel = spheres
+    cache = InterpolantCache(sc.arrays(), accel, 0.02, 10, 64.0, 5)
+    render_frame(cache, sc, settings(epsilon=0.02))  # builds what this camera needs
+    o, d, tmin, tmax = camera_rays(sc.camera)
+    hits = accel.closest_hit(o, d, tmin, tmax)
+    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+    a = cache.resolve(hits.inst, face, abcd, zp, clsp)
+    assert np.any(a.interpolated)
+    perm = np.random.default_rng(3).permutation(len(o))
+    b = cache.resolve(hits.inst[perm], face[perm], abcd[perm], zp[perm], clsp[perm])
+    inv = np.argsort(perm)
+    assert np.array_equal(a.interpolated, b.interpolated[inv])
+    assert np.array_equal(a.pixel_class, b.pixel_class[inv])
+    assert np.array_equal(a.radiance[a.interpolated], b.radiance[inv][a.interpolated])

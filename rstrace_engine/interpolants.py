@@ -179,8 +179,9 @@ WALK_BLOCK = 4096
 
 @njit(cache=True, nogil=True, parallel=True)
 def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp, clsp, active,
-          rad, done, pcls):
-    """One level of a frame's walk down the linetrees, for every active ray: descend to the
+          idx, rad, done, pcls):
+    """One level of a frame's walk down the linetrees, for the active rays among ``idx``
+    (ray ids in increasing order): descend to the
     leaf; where it holds an interpolant, the ray is finished: interpolated (quadrilinear) if
     its visible hit is the interpolant's slab crossing (class and depth), else to be traced
     (silhouette). The interpolant's LRU stamp becomes ``clock``.
@@ -189,7 +190,7 @@ def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp
     in that ray's leaf cell takes that leaf without descending: the descent from the start
     follows the prefixes of the leaf's lattice coordinates (scaling by powers of two is
     exact), so it would reach the same leaf with the same inherited code."""
-    n = nodes.shape[0]
+    n = idx.shape[0]
     for b in prange((n + WALK_BLOCK - 1) // WALK_BLOCK):
         pstart = -1
         pinh = 0
@@ -197,7 +198,8 @@ def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp
         pout = 0
         lo = np.zeros(4)
         hi = np.zeros(4)
-        for r in range(b * WALK_BLOCK, min(n, (b + 1) * WALK_BLOCK)):
+        for k in range(b * WALK_BLOCK, min(n, (b + 1) * WALK_BLOCK)):
+            r = idx[k]
             if not active[r]:
                 continue
             a0 = abcd[r, 0]
@@ -249,11 +251,13 @@ def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp
 
 
 @njit(cache=True, nogil=True)
-def _group_active(nodes, active, counts, uniq):
-    """Leaves of the active rays, in order of appearance, into ``uniq``; ``counts[leaf]``
-    (zero on entry) gets each leaf's ray count. Returns the number of leaves."""
+def _group_active(nodes, active, idx, counts, uniq):
+    """Leaves of the active rays among ``idx``, in order of appearance, into ``uniq``;
+    ``counts[leaf]`` (zero on entry) gets each leaf's ray count. Returns the number of
+    leaves."""
     u = 0
-    for r in range(nodes.shape[0]):
+    for k in range(idx.shape[0]):
+        r = idx[k]
         if active[r]:
             nd = nodes[r]
             if counts[nd] == 0:
@@ -264,11 +268,13 @@ def _group_active(nodes, active, counts, uniq):
 
 
 @njit(cache=True, nogil=True)
-def _settle(node_cls, nodes, inherited, active, pcls):
+def _settle(node_cls, nodes, inherited, active, idx, pcls):
     """Rays of leaves that are neither built nor split this level are finished (to be
     traced): ``node_cls`` is their class, 0 for a cell too small to build (it shows the
-    class of the failed cell it was split from, if any), 255 for leaves that go on."""
-    for r in range(nodes.shape[0]):
+    class of the failed cell it was split from, if any), 255 for leaves that go on. Only
+    the rays among ``idx`` are looked at."""
+    for k in range(idx.shape[0]):
+        r = idx[k]
         if not active[r]:
             continue
         c = node_cls[nodes[r]]
@@ -489,7 +495,8 @@ class InterpolantCache:
             return ResolveResult(rad, done, pcls)
         lt = self.trees
         nodes = np.zeros(n, np.int32)
-        nodes[active] = lt.get_roots(inst[active], face[active])
+        idx = np.flatnonzero(active)  # the rays still walking, in order
+        nodes[idx] = lt.get_roots(inst[idx], face[idx])
         inherited = np.full(n, EMPTY, np.int32)
         first = min(MIN_BUILD_DEPTH, self.depth_cap)
         counts = np.zeros(0, np.int32)  # per node scratch, zero between levels
@@ -502,12 +509,12 @@ class InterpolantCache:
             self.clock += 1
             p = self.pool
             _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, self.clock, nodes,
-                  inherited, abcd, zp, clsp, active, rad, done, pcls)
+                  inherited, abcd, zp, clsp, active, idx, rad, done, pcls)
             self.enforce_cap()
             if len(counts) < lt.n_nodes:
                 counts = np.zeros(2 * lt.n_nodes, np.int32)
                 node_cls = np.zeros(2 * lt.n_nodes, np.uint8)
-            nu = _group_active(nodes, active, counts, uniq_buf)
+            nu = _group_active(nodes, active, idx, counts, uniq_buf)
             if nu == 0:
                 break
             uniq = uniq_buf[:nu].copy()
@@ -521,7 +528,8 @@ class InterpolantCache:
             build = enough & empty & (udepth >= first)
             node_cls[uniq[~empty]] = fail_class(ustate[~empty])
             node_cls[uniq[split | build]] = 255
-            _settle(node_cls, nodes, inherited, active, pcls)
+            _settle(node_cls, nodes, inherited, active, idx, pcls)
+            idx = idx[active[idx]]
             node_cls[uniq] = 0
             lt.split(uniq[split])
             if np.any(build):

@@ -135,9 +135,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     cancelled = cancel is not None and cancel()
     counters: dict = {}
     if not cancelled:
-        # in tiles of the base tracer's size: its per-level arrays stay cache-sized
-        for s0 in range(0, len(todo), TILE_RAYS):
-            part = todo[s0:s0 + TILE_RAYS]
+        # in tiles of about the base tracer's size (its per-level arrays stay cache-sized),
+        # split evenly: a small last tile would cost the tracer's per-level overhead alone
+        n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+        for k in range(n_tiles):
+            part = todo[k * len(todo) // n_tiles:(k + 1) * len(todo) // n_tiles]
             rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
                                  int(settings.max_depth), primary=_take(hits, part),
                                  counters=counters)

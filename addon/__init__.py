@@ -4,7 +4,8 @@ The renderer is the ``rstrace_engine`` package (numpy + numba, no Blender import
 package turns Blender data into its calls and its frames back into render passes.
 
 Module layers, lower never importing higher:
-``runtime`` (numba set-up) < ``properties`` < ``export`` < ``session`` < ``engine`` < ``ui``.
+``runtime`` (numba set-up) < ``properties`` < ``materials`` < ``export`` < ``session`` <
+``engine`` < ``ui``.
 
 ``runtime.configure`` runs before anything imports ``rstrace_engine`` kernels, so numba
 caches them in the extension's user directory. Used as a plain package (scripts, tests)::

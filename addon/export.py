@@ -20,72 +20,27 @@ import math
 import time
 from dataclasses import dataclass, field
 
-import bpy
 import numpy as np
 
 from rstrace_engine.scene import (
     MAX_LIGHTS,
     Camera,
     Light,
-    Material,
     Mesh,
     Scene,
     SceneError,
     check_matrix,
 )
 
+from .materials import MaterialReader, Notes, follow_link, rgb, uses_nodes
+
 log = logging.getLogger(__name__)
 
-#: Used for empty material slots and objects without materials (Cycles' default surface).
-DEFAULT_MATERIAL = Material("default", diffuse=(0.8, 0.8, 0.8))
-
-#: Roughness below which reflection is a Whitted mirror, above which a Ward highlight;
-#: linear blend in between.
-MIRROR_ROUGHNESS = 0.1
-GLOSSY_ROUGHNESS = 0.3
 
 #: Object types whose evaluated geometry arrives as MESH instances in ``object_instances``
 #: (so the object itself is skipped), and types with nothing to render.
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
-
-
-# ----------------------------------------------------------------------------- notes
-
-
-class Notes:
-    """Problems found during export, grouped so that each kind is reported once.
-
-    ``warn(kind, name)`` collects object names under one message per kind;
-    ``skip(message)`` records an object that was left out; ``info`` is for the stats only.
-    """
-
-    def __init__(self) -> None:
-        self._kinds: dict[str, list[str]] = {}
-        self.skipped: list[str] = []
-        self.info: list[str] = []
-
-    def warn(self, kind: str, name: str | None = None) -> None:
-        names = self._kinds.setdefault(kind, [])
-        if name is not None and name not in names:
-            names.append(name)
-
-    def skip(self, message: str) -> None:
-        if message not in self.skipped:
-            self.skipped.append(message)
-
-    @property
-    def warnings(self) -> list[str]:
-        """One line per kind of problem, then one per skipped object."""
-        out = []
-        for kind, names in self._kinds.items():
-            if names:
-                shown = ", ".join(f"'{n}'" for n in names[:6])
-                more = f" and {len(names) - 6} more" if len(names) > 6 else ""
-                out.append(f"{kind}: {shown}{more}")
-            else:
-                out.append(kind)
-        return out + self.skipped
 
 
 @dataclass
@@ -123,15 +78,6 @@ def _instance_name(inst) -> str:
         return f"{inst.parent.name}/{ob.name}"
     return ob.name
 
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function inverted (IEC 61966-2-1)."""
-    c = np.clip(c, 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def _rgb(value) -> np.ndarray:
-    return np.clip(np.array(value[:3], dtype=np.float64), 0.0, None)
 
 
 # ----------------------------------------------------------------------------- meshes
@@ -206,263 +152,6 @@ def mesh_arrays(me, name: str) -> Mesh | None:
                 corner_normals=normals.reshape(nt, 3, 3), corner_uvs=uvs, slots=slots)
 
 
-# ----------------------------------------------------------------------------- materials
-
-
-def _follow(socket):
-    """The node and output socket feeding ``socket`` (through reroutes), or (None, None)."""
-    seen = 0
-    while socket.is_linked and seen < 64:
-        link = socket.links[0]
-        if not link.is_valid or link.is_muted:
-            return None, None
-        node = link.from_node
-        if node.bl_idname == "NodeReroute":
-            socket = node.inputs[0]
-            seen += 1
-            continue
-        return node, link.from_socket
-    return None, None
-
-
-class MaterialReader:
-    """Converts Blender materials to :class:`Material` (each once per export)."""
-
-    def __init__(self, scene: Scene, notes: Notes) -> None:
-        self.scene = scene
-        self.notes = notes
-        self._ids: dict[int, int] = {}
-        self._default_id: int | None = None
-
-    def default_id(self) -> int:
-        if self._default_id is None:
-            self._default_id = self.scene.add_material(DEFAULT_MATERIAL)
-        return self._default_id
-
-    def material_id(self, mat) -> int:
-        if mat is None:
-            return self.default_id()
-        key = mat.original.session_uid
-        mid = self._ids.get(key)
-        if mid is None:
-            try:
-                mid = self.scene.add_material(self.convert(mat))
-            except SceneError as exc:  # conversion produced something invalid: say so
-                self.notes.warn(f"material unusable, rendered with the default ({exc})",
-                                mat.name)
-                mid = self.default_id()
-            self._ids[key] = mid
-        return mid
-
-    # -- conversion --------------------------------------------------------------------
-
-    def convert(self, mat) -> Material:
-        name = mat.name
-        tree = mat.node_tree if _uses_nodes(mat) else None
-        if tree is None:
-            return self._viewport(mat)
-        out = tree.get_output_node("CYCLES")
-        if out is None:
-            self.notes.warn("materials without an active Material Output node use their "
-                            "viewport colour", name)
-            return self._viewport(mat)
-        node, _ = _follow(out.inputs["Surface"])
-        if node is None:
-            self.notes.warn("materials with nothing connected to Surface use their viewport "
-                            "colour", name)
-            return self._viewport(mat)
-        kind = node.bl_idname
-        if kind == "ShaderNodeBsdfPrincipled":
-            return self._principled(name, node)
-        if kind == "ShaderNodeBsdfDiffuse":
-            colour, tex = self._colour(name, node.inputs["Color"])
-            return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=tex)
-        if kind == "ShaderNodeEmission":
-            colour, _ = self._colour(name, node.inputs["Color"])
-            strength = self._value(name, node.inputs["Strength"])
-            return Material(name, diffuse=(0.0,) * 3, emission=tuple(colour * strength))
-        if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
-                    "ShaderNodeBsdfMetallic"):
-            sock = node.inputs.get("Color") or node.inputs.get("Base Color")
-            colour, _ = self._colour(name, sock)
-            rough = self._value(name, node.inputs["Roughness"])
-            return self._mix(name, base=colour, metallic=1.0, roughness=rough)
-        if kind == "ShaderNodeBsdfGlass":
-            colour, _ = self._colour(name, node.inputs["Color"])
-            rough = self._value(name, node.inputs["Roughness"])
-            ior = self._value(name, node.inputs["IOR"])
-            return self._mix(name, base=colour, roughness=rough, ior=ior, transmission=1.0)
-        self.notes.warn(f"'{node.bl_label}' shaders are not supported; the material's "
-                        f"viewport colour is used", name)
-        return self._viewport(mat)
-
-    def _viewport(self, mat) -> Material:
-        return self._mix(mat.name, base=_rgb(mat.diffuse_color), metallic=mat.metallic,
-                         roughness=mat.roughness)
-
-    def _principled(self, name: str, node) -> Material:
-        inp = node.inputs
-        base, tex = self._colour(name, inp["Base Color"])
-        metallic = self._value(name, inp["Metallic"])
-        rough = self._value(name, inp["Roughness"])
-        ior = self._value(name, inp["IOR"])
-        trans = self._value(name, inp["Transmission Weight"])
-        level = self._value(name, inp["Specular IOR Level"])
-        tint, _ = self._colour(name, inp["Specular Tint"])
-        emit, _ = self._colour(name, inp["Emission Color"])
-        strength = self._value(name, inp["Emission Strength"])
-        for label, sock in (("subsurface", "Subsurface Weight"), ("coat", "Coat Weight"),
-                            ("sheen", "Sheen Weight"), ("thin film", "Thin Film Thickness"),
-                            ("anisotropy", "Anisotropic")):
-            s = inp.get(sock)
-            if s is not None and (s.is_linked or float(s.default_value) > 0.0):
-                self.notes.warn(f"Principled {label} is not supported (ignored)", name)
-        alpha = inp.get("Alpha")
-        if alpha is not None and (alpha.is_linked or alpha.default_value < 1.0):
-            self.notes.warn("transparency (Principled alpha) is not supported: rendered "
-                            "opaque", name)
-        normal = inp.get("Normal")
-        if normal is not None and normal.is_linked:
-            self.notes.warn("normal and bump maps are not supported (ignored)", name)
-        return self._mix(name, base=base, metallic=metallic, roughness=rough, ior=ior,
-                         transmission=trans, specular_level=level, specular_tint=tint,
-                         emission=emit * strength, texture=tex)
-
-    def _mix(self, name: str, base, metallic: float = 0.0, roughness: float = 0.5,
-             ior: float = 1.5, transmission: float = 0.0, specular_level: float = 0.5,
-             specular_tint=(1.0, 1.0, 1.0), emission=(0.0, 0.0, 0.0),
-             texture: np.ndarray | None = None) -> Material:
-        """Principled parameters -> Ward/Whitted weights that never create energy.
-
-        Metals reflect their base colour; dielectrics reflect F0 (from the IOR, scaled by
-        the specular IOR level as Principled v2 does) and pass the rest to diffuse or, with
-        transmission, to refraction. Reflection goes to the Whitted mirror when smooth and
-        to the Ward lobe (alpha = roughness^2) when rough.
-        """
-        base = np.clip(np.asarray(base, np.float64), 0.0, 1.0)
-        if texture is not None:
-            tex_mean = np.clip(texture.reshape(-1, 3).mean(axis=0), 0.0, 1.0)
-            if metallic > 0.0:
-                self.notes.warn("a textured metallic colour is approximated by the texture's "
-                                "average", name)
-            metal_colour = tex_mean
-            base_factor = np.ones(3)
-        else:
-            metal_colour = base
-            base_factor = base
-        m = float(np.clip(metallic, 0.0, 1.0))
-        t = float(np.clip(transmission, 0.0, 1.0))
-        r = float(np.clip(roughness, 0.0, 1.0))
-        ior = float(np.clip(ior, 1.0, 10.0))
-        f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * float(np.clip(specular_level, 0, 1))
-        f0 = np.clip(f0 * np.clip(np.asarray(specular_tint, np.float64), 0, 1), 0.0, 1.0)
-        diffuse = (1 - m) * (1 - t) * base_factor * (1 - f0)
-        refract = (1 - m) * t * base_factor * (1 - f0)
-        if texture is not None and t > 0.0:
-            refract = (1 - m) * t * tex_mean * (1 - f0)
-            self.notes.warn("textured transmission is approximated by the texture's average",
-                            name)
-        reflect = m * metal_colour + (1 - m) * f0
-        sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
-                              0.0, 1.0))
-        if t > 0.0 and r > MIRROR_ROUGHNESS:
-            self.notes.warn("rough transmission is rendered as smooth refraction", name)
-        total = diffuse + refract + reflect
-        scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-12), 1.0)  # rounding guard
-        return Material(
-            name,
-            diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
-            roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
-            transmission=tuple(refract * scale), ior=ior,
-            emission=tuple(np.clip(np.asarray(emission, np.float64), 0.0, None)),
-            texture=texture,
-        )
-
-    # -- sockets -------------------------------------------------------------------------
-
-    def _value(self, name: str, socket) -> float:
-        node, out = _follow(socket)
-        if node is None:
-            return float(socket.default_value)
-        if node.bl_idname == "ShaderNodeValue":
-            return float(out.default_value)
-        self.notes.warn(f"inputs driven by '{node.bl_label}' nodes use the socket's own value",
-                        name)
-        return float(socket.default_value)
-
-    def _colour(self, name: str, socket) -> tuple[np.ndarray, np.ndarray | None]:
-        """(linear RGB, optional (h, w, 3) texture) for a colour socket."""
-        node, out = _follow(socket)
-        if node is None:
-            return _rgb(socket.default_value), None
-        if node.bl_idname == "ShaderNodeRGB":
-            return _rgb(out.default_value), None
-        if node.bl_idname == "ShaderNodeTexImage" and out.name == "Color":
-            tex = self._image(name, node)
-            if tex is not None:
-                return np.ones(3), tex
-            return _rgb(socket.default_value), None
-        self.notes.warn(f"colours driven by '{node.bl_label}' nodes use the socket's own "
-                        f"value", name)
-        return _rgb(socket.default_value), None
-
-    def _image(self, name: str, node) -> np.ndarray | None:
-        img = node.image
-        if img is None:
-            self.notes.warn("image texture nodes without an image are ignored", name)
-            return None
-        vec, _ = _follow(node.inputs["Vector"])
-        if vec is not None and vec.bl_idname not in ("ShaderNodeUVMap", "ShaderNodeTexCoord"):
-            self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not "
-                            f"supported: the render UV map is used", name)
-        if node.projection != "FLAT" or node.extension not in ("REPEAT", "EXTEND", "CLIP"):
-            self.notes.warn("image projections other than flat UV are not supported", name)
-        return read_image(img, self.notes)
-
-
-def read_image(img, notes: Notes) -> np.ndarray | None:
-    """An image's pixels as a (h, w, 3) float32 linear RGB array, bottom row first."""
-    w, h = img.size
-    if w == 0 or h == 0 or not img.has_data and not _try_load(img):
-        notes.warn("images that could not be loaded are ignored", img.name)
-        return None
-    w, h = img.size
-    ch = img.channels
-    px = np.empty(w * h * ch, np.float32)
-    img.pixels.foreach_get(px)
-    px = px.reshape(h, w, ch)
-    rgb = np.repeat(px[:, :, :1], 3, axis=2) if ch < 3 else px[:, :, :3]
-    space = img.colorspace_settings.name
-    if not img.is_float:
-        if space == "sRGB":
-            rgb = srgb_to_linear(rgb)
-        elif space not in ("Non-Color", "Linear Rec.709", "Linear", "Raw"):
-            notes.warn(f"image colour space '{space}' is read as sRGB", img.name)
-            rgb = srgb_to_linear(rgb)
-    if not np.all(np.isfinite(rgb)):
-        notes.warn("images with NaN or infinite pixels have them replaced by 0", img.name)
-        rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)
-    if float(rgb.max(initial=0.0)) > 1.0:
-        notes.warn("texture values above 1 are clipped (energy conservation)", img.name)
-    return np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32)
-
-
-def _try_load(img) -> bool:
-    try:
-        img.reload()
-        _ = img.pixels[0]
-    except (RuntimeError, IndexError, ReferenceError):
-        return False
-    return img.size[0] > 0 and img.size[1] > 0
-
-
-def _uses_nodes(idblock) -> bool:
-    # use_nodes is deprecated (always on) from Blender 5.0; reading it there warns
-    if bpy.app.version >= (5, 0, 0):
-        return idblock.node_tree is not None
-    return bool(idblock.use_nodes) and idblock.node_tree is not None
-
-
 # ----------------------------------------------------------------------------- lights
 
 
@@ -480,13 +169,13 @@ def _light(inst, notes: Notes) -> Light | None:
         notes.skip(f"light '{name}' skipped: zero scale leaves it without a direction")
         return None
     direction = tuple(-z / zn)
-    colour = _rgb(data.color)
+    colour = rgb(data.color)
     if getattr(data, "use_temperature", False):
-        colour = colour * _rgb(data.temperature_color)
+        colour = colour * rgb(data.temperature_color)
     power = float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
-    if _uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
+    if uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
         notes.warn("light node trees are ignored", name)
     if data.diffuse_factor != 1.0 or data.specular_factor != 1.0:
         notes.warn("light diffuse/specular factors are ignored", name)
@@ -554,28 +243,28 @@ def world_colour(world, notes: Notes) -> np.ndarray:
     """The world's constant colour: a Background node's Color x Strength, or world.color."""
     if world is None:
         return np.zeros(3)
-    tree = world.node_tree if _uses_nodes(world) else None
+    tree = world.node_tree if uses_nodes(world) else None
     if tree is None:
-        return _rgb(world.color)
+        return rgb(world.color)
     out = tree.get_output_node("CYCLES")
-    node, _ = _follow(out.inputs["Surface"]) if out is not None else (None, None)
+    node, _ = follow_link(out.inputs["Surface"]) if out is not None else (None, None)
     if node is None:
         return np.zeros(3)
     if node.bl_idname != "ShaderNodeBackground":
         notes.warn(f"world shader '{node.bl_label}' is not supported: world.color is used",
                    world.name)
-        return _rgb(world.color)
+        return rgb(world.color)
     colour_in = node.inputs["Color"]
-    src, out_sock = _follow(colour_in)
+    src, out_sock = follow_link(colour_in)
     if src is None:
-        colour = _rgb(colour_in.default_value)
+        colour = rgb(colour_in.default_value)
     elif src.bl_idname == "ShaderNodeRGB":
-        colour = _rgb(out_sock.default_value)
+        colour = rgb(out_sock.default_value)
     else:
         notes.warn(f"world colours from '{src.bl_label}' nodes (environment textures, "
                    f"skies) are not supported: the Background colour value is used",
                    world.name)
-        colour = _rgb(colour_in.default_value)
+        colour = rgb(colour_in.default_value)
     strength_in = node.inputs["Strength"]
     strength = float(strength_in.default_value)
     if strength_in.is_linked:

@@ -40,6 +40,7 @@ class SceneState:
     messages: list = field(default_factory=list)  # (level, text) of the last render
     reported: set = field(default_factory=set)  # warnings already reported in this job
     error: str | None = None
+    frame: object = None  # the last rstrace_engine Frame, for scripts (linear radiance)
 
 
 _STATES: dict[int, SceneState] = {}
@@ -132,6 +133,7 @@ class FrameRenderer:
             session_stats = dict(getattr(session, "stats", {}) or {})
 
         self._write_result(depsgraph, scene, frame)
+        state.frame = frame
         state.renders += 1
         stats = dict(exported.stats)
         stats.update(session_stats)

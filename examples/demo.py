@@ -9,8 +9,10 @@ through the same persistent session, and writes into ``--out``:
 * ``before.png``, ``after.png`` — the two frames (Blender's colour management applied);
 * ``before.exr``, ``after.exr`` — multilayer EXRs with the linear Combined and the
   Interpolation (per-pixel class) passes;
-* ``stats.json`` — export and render statistics of both renders, the edit, and how many
-  pixels it changed.
+* ``interpolated.png``, ``interpolated.exr`` — the edited scene again with radiance
+  interpolants (epsilon 0.01); its Interpolation pass shows which pixels were interpolated;
+* ``stats.json`` — export and render statistics of the renders, the edit, how many pixels it
+  changed, and the interpolated frame's error against the base tracer's.
 
     python examples/demo.py --out out/demo [--width 320 --height 240 --samples 4]
 """
@@ -127,6 +129,20 @@ def render(bpy, sc, out: Path, label: str) -> dict:
     return stats
 
 
+def render_interpolated(bpy, sc, out: Path, epsilon: float) -> tuple[dict, dict]:
+    """The edited scene again in INTERPOLANT mode, compared with the base tracer's frame."""
+    import addon
+    from rstrace_engine.image import compare
+
+    base = addon.session.state_for(sc).frame.radiance.copy()
+    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", epsilon
+    stats = render(bpy, sc, out, "interpolated")
+    frame = addon.session.state_for(sc).frame
+    accuracy = compare(frame.radiance, base, epsilon)
+    sc.rstrace.mode = "BASE"
+    return stats, accuracy
+
+
 def changed_fraction(bpy, a: Path, b: Path) -> float:
     import numpy as np
 
@@ -169,13 +185,20 @@ def main(argv=None) -> int:
         red.location.y -= 0.6
         after = render(bpy, sc, out, "after")
         print(f"demo: moved RedSphere, after.png in {after['wall_seconds']:.2f} s")
+        interpolated, accuracy = render_interpolated(bpy, sc, out, epsilon=0.01)
+        print(f"demo: interpolated.png (radiance interpolants, epsilon 0.01) in "
+              f"{interpolated['wall_seconds']:.2f} s: "
+              f"{interpolated.get('interpolated_fraction', 0.0):.1%} of pixels interpolated, "
+              f"max display error {accuracy['max_error']:.4f}, "
+              f"{accuracy['frac_over']:.3%} of pixels over epsilon")
         report = dict(
             scene="Plate A: three spheres (one a mirror) on a plane, two point lights",
             resolution=[args.width, args.height], samples=args.samples,
             max_ray_depth=args.depth,
             edit=dict(object="RedSphere", kind="transform", old_location=old,
                       new_location=tuple(red.location)),
-            renders=dict(before=before, after=after),
+            renders=dict(before=before, after=after, interpolated=interpolated),
+            interpolated_vs_base=accuracy,
             changed_pixels_fraction=changed_fraction(bpy, out / "before.png",
                                                      out / "after.png"),
             files=sorted(p.name for p in out.iterdir() if p.suffix in (".png", ".exr")),

@@ -1,0 +1,27 @@
+"""The main job (`make demo`) runs end to end in a fresh process and writes what it says."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_demo_renders_edits_and_reports(tmp_path):
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, str(ROOT / "examples" / "demo.py"), "--out", str(out),
+                           "--width", "96", "--height", "72", "--samples", "1"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    for name in ("before", "after", "interpolated"):
+        for ext in ("png", "exr"):
+            assert (out / f"{name}.{ext}").stat().st_size > 0
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["edit"]["object"] == "RedSphere"
+    assert 0.0 < stats["changed_pixels_fraction"] < 0.5
+    assert stats["renders"]["interpolated"]["mode"] == "INTERPOLANT"
+    acc = stats["interpolated_vs_base"]
+    assert acc["frac_over"] <= 0.001 and acc["max_error"] < 0.05

@@ -18,6 +18,7 @@ from numba import njit
 
 from .accelerators import Hits
 from .interpolant_predicate import SampleArrays
+from .shading import dot3, geometric_normal, spawn_offset
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -262,3 +263,28 @@ class LineCrossings:
 
     def hits(self, ids) -> Hits:
         return Hits(self.t[ids], self.inst[ids], self.prim[ids], self.u[ids], self.v[ids])
+
+
+# ----------------------------------------------------------------------------- line crossings
+
+
+@njit(cache=True, nogil=True)
+def facing(sa, inst, prim, d, front):
+    """front[r]: hit r is on the side its geometric normal points to (against d)."""
+    for r in range(inst.shape[0]):
+        if inst[r] < 0:
+            front[r] = True
+            continue
+        gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[inst[r]], prim[r])
+        front[r] = dot3(gx, gy, gz, d[r, 0], d[r, 1], d[r, 2]) < 0.0
+
+
+@njit(cache=True, nogil=True)
+def skip_tmin(o, d, t, ext, out):
+    """Parameter just past hit t (the tracer's spawn offset along the line)."""
+    for r in range(t.shape[0]):
+        px = o[r, 0] + d[r, 0] * t[r]
+        py = o[r, 1] + d[r, 1] * t[r]
+        pz = o[r, 2] + d[r, 2] * t[r]
+        dl = math.sqrt(d[r, 0] ** 2 + d[r, 1] ** 2 + d[r, 2] ** 2)
+        out[r] = t[r] + spawn_offset(px, py, pz, ext) / dl

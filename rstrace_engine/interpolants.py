@@ -59,7 +59,7 @@ from .interpolant_predicate import (
     check_cells,
     radiance_ok,
 )
-from .interpolant_samples import LineCrossings, SampleStore, unique_keys
+from .interpolant_samples import LineCrossings, SampleStore, facing, skip_tmin, unique_keys
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
@@ -76,7 +76,6 @@ from .linetree import (
     ray_line,
 )
 from .mesh_topology import mesh_topology
-from .shading import dot3, geometric_normal, spawn_offset
 from .shafts import query_scene
 from .whitted import trace
 
@@ -97,28 +96,6 @@ INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4
 
 
 # ----------------------------------------------------------------------------- kernels
-
-
-@njit(cache=True, nogil=True)
-def _facing(sa, inst, prim, d, front):
-    """front[r]: hit r is on the side its geometric normal points to (against d)."""
-    for r in range(inst.shape[0]):
-        if inst[r] < 0:
-            front[r] = True
-            continue
-        gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[inst[r]], prim[r])
-        front[r] = dot3(gx, gy, gz, d[r, 0], d[r, 1], d[r, 2]) < 0.0
-
-
-@njit(cache=True, nogil=True)
-def _skip_tmin(o, d, t, ext, out):
-    """Parameter just past hit t (the tracer's spawn offset along the line)."""
-    for r in range(t.shape[0]):
-        px = o[r, 0] + d[r, 0] * t[r]
-        py = o[r, 1] + d[r, 1] * t[r]
-        pz = o[r, 2] + d[r, 2] * t[r]
-        dl = math.sqrt(d[r, 0] ** 2 + d[r, 1] ** 2 + d[r, 2] ** 2)
-        out[r] = t[r] + spawn_offset(px, py, pz, ext) / dl
 
 
 @njit(cache=True, nogil=True)
@@ -565,14 +542,14 @@ class InterpolantCache:
             h = self.accel.intersect_object(inst[todo], o[todo], d[todo], tmin[todo],
                                             np.ones(len(todo)))
             front = np.empty(len(todo), bool)
-            _facing(self.sa, h.inst, h.prim, d[todo], front)
+            facing(self.sa, h.inst, h.prim, d[todo], front)
             fin = todo[front]
             t[fin], hi[fin], pr[fin] = h.t[front], h.inst[front], h.prim[front]
             u[fin], v[fin] = h.u[front], h.v[front]
             back = ~front
             todo = todo[back]
             nxt = np.empty(len(todo))
-            _skip_tmin(o[todo], d[todo], h.t[back], float(self.sa.scene_extent), nxt)
+            skip_tmin(o[todo], d[todo], h.t[back], float(self.sa.scene_extent), nxt)
             tmin[todo] = nxt
         return Hits(t, hi, pr, u, v)
 

@@ -52,7 +52,7 @@ class RSTraceSettings(bpy.types.PropertyGroup):
                     "there are traced")
     memory_cap: FloatProperty(
         name="Memory Cap", default=256.0, min=0.0, soft_max=8192.0, precision=0,
-        description="Memory for interpolants and RI-tree samples, in MiB; the least "
+        description="Memory for interpolants and RI-tree samples, in MB; the least "
                     "recently used are evicted beyond it")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")

@@ -495,9 +495,8 @@ class Scene:
             if li.kind == "SPOT":
                 half = 0.5 * li.spot_size
                 cos_outer[j] = math.cos(half)
-                # Blender: smoothstep over the outer `blend` fraction of the cone
-                cos_inner[j] = math.cos(half * (1.0 - li.spot_blend)) if li.spot_blend > 0 \
-                    else cos_outer[j]
+                # Cycles: smoothstep((cos - cos_outer) / ((1 - cos_outer) * blend))
+                cos_inner[j] = cos_outer[j] + (1.0 - cos_outer[j]) * li.spot_blend
         lo, hi = aabb[:, 0].min(axis=0), aabb[:, 1].max(axis=0)
         extent = float(np.linalg.norm(hi - lo))
         if not extent > 0.0:

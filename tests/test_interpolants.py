@@ -80,7 +80,7 @@ def test_small_epsilon_bounds_the_error(spheres):
     err = display_error(frame.radiance, base.radiance)
     interp = frame.pixel_class == CLASS_INTERPOLATED
     assert interp.mean() > 0.05
-    assert np.mean(err > 0.02) < 0.01
+    assert np.mean(err > 0.02) <= 0.001  # the goal: at most 0.1% of pixels over epsilon
     assert np.all(err[~interp] == 0.0)  # traced pixels are the base tracer's
     assert np.all((frame.pixel_class == CLASS_BACKGROUND) == (base.pixel_class == CLASS_BACKGROUND))
 
@@ -91,7 +91,7 @@ def test_huge_epsilon_is_finite_and_bounded(spheres):
     assert np.all(np.isfinite(frame.radiance))
     assert frame.stats["interpolated_fraction"] > 0.15
     m = image.compare(frame.radiance, base.radiance)
-    assert m["max_error"] <= 1.0 and m["mean_error"] < 0.05
+    assert m["max_error"] < 0.25 and m["mean_error"] < 0.01, m
 
 
 # ----------------------------------------------------------------------------- shadows
@@ -120,7 +120,7 @@ def test_a_shadow_boundary_is_never_interpolated_across(occluders):
     # epsilon = 1 switches the radiance test off: only the ray trees and the shafts stand
     # between the interpolants and the shadows
     frame, base, r = render_pair(sc, epsilon=1.0, depth_cap=10)
-    floor = (frame.pixel_class != CLASS_BACKGROUND) & (base.radiance[..., 0] >= 0)
+    floor = frame.pixel_class != CLASS_BACKGROUND
     lit = base.radiance[..., 0] > 0.05
     dark = floor & ~lit
     assert dark.sum() > 0 and lit.sum() > 0
@@ -361,9 +361,9 @@ def test_a_moved_camera_session_equals_a_fresh_session():
     fresh = Session(sc, st).render()
     base = Session(sc, RenderSettings()).render()
     err = display_error(moved.radiance, fresh.radiance)
-    assert np.mean(err > 0.02) < 0.01 and err.max() <= 2 * 0.02 + 0.05
+    assert np.mean(err > 0.02) <= 0.001 and err.max() <= 2 * 0.02 + 0.05
     for f in (moved, fresh):
-        assert np.mean(display_error(f.radiance, base.radiance) > 0.02) < 0.01
+        assert np.mean(display_error(f.radiance, base.radiance) > 0.02) <= 0.001
 
 
 def test_session_keeps_interpolants_across_a_new_export_of_the_same_scene():

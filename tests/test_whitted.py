@@ -91,7 +91,8 @@ def test_spot_cone_and_blend():
     r = np.linalg.norm(v, axis=1)
     cos = v[:, 2] / r  # angle to the normal equals angle to the spot axis here
     half = size / 2
-    c_out, c_in = math.cos(half), math.cos(half * (1 - blend))
+    c_out = math.cos(half)
+    c_in = c_out + (1 - c_out) * blend  # Cycles blends in cosine space
     x = np.clip((cos - c_out) / (c_in - c_out), 0.0, 1.0)
     fall = np.where(cos > c_out, x * x * (3 - 2 * x), 0.0)
     want = 0.8 / math.pi * point_intensity(spot)[0] * cos / r ** 2 * fall

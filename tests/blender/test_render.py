@@ -384,3 +384,20 @@ def test_orthographic_camera_and_shift(tmp_path):
     shifted = b.render_exr(tmp_path / "s.exr")["Combined"]
     np.testing.assert_allclose(shifted[:, :-8], a[:, 8:], atol=0.02)
     assert math.isfinite(float(shifted.sum()))
+
+
+@needs_cycles
+def test_spot_light_cone_and_blend_agree_with_cycles():
+    """A spot's cone and blend (smoothstep in cosine space) match Cycles on a floor."""
+    sc = b.setup_render(48, 36, samples=16, max_depth=0)
+    b.set_world((0.0, 0.0, 0.0))
+    b.add_object("Ground", b.grid("Ground", 12.0), material=b.diffuse("Floor", (0.6, 0.6, 0.6)))
+    spot = b.point_light("Spot", (0.0, 0.0, 4.0), 3000.0, kind="SPOT")
+    spot.data.spot_size, spot.data.spot_blend = math.radians(70.0), 0.6
+    spot.rotation_euler = (0.0, 0.0, 0.0)  # points down -Z
+    b.camera((0.0, -7.0, 6.0), (0.0, 0.0, 0.0))
+    stats = _compare(_ours(), _cycles(max_bounces=0))
+    assert stats["rel_l1"] < 0.02
+    assert abs(stats["median_ratio"] - 1.0) < 0.01
+    assert stats["frac_over"] < 0.03
+    assert sc.render.engine == "RSTRACE"

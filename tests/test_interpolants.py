@@ -32,7 +32,7 @@ W, H = 64, 48
 
 @pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
-    """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 24)."""
+    """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 48)."""
     monkeypatch.setattr(interpolants, "MIN_PIXELS", 6)
 
 

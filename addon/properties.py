@@ -47,7 +47,7 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     accelerator: EnumProperty(name="Accelerator", items=ACCELERATOR_ITEMS, default="BVH",
                               description="Ray intersection structure")
     depth_cap: IntProperty(
-        name="Depth Cap", default=6, min=0, max=16,
+        name="Depth Cap", default=6, min=0, max=12,  # linetree.MAX_DEPTH
         description="Deepest subdivision of a linetree or RI-tree; cells that still fail "
                     "there are traced")
     memory_cap: FloatProperty(

@@ -71,7 +71,7 @@ class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):
         layout.active = props.mode != "BASE"
         layout.prop(props, "epsilon")
         layout.prop(props, "depth_cap")
-        layout.prop(props, "memory_cap", text="Memory Cap (MiB)")
+        layout.prop(props, "memory_cap", text="Memory Cap (MB)")
 
 
 class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):

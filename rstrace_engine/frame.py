@@ -59,8 +59,10 @@ class RenderSettings:
             raise SceneError(f"setting 'max_ray_depth': {self.max_depth} outside [0, 32]")
         if not 1 <= int(self.samples) <= 4096:
             raise SceneError(f"setting 'samples': {self.samples} outside [1, 4096]")
-        if not 0 <= int(self.depth_cap) <= 16:
-            raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, 16]")
+        from .linetree import MAX_DEPTH
+
+        if not 0 <= int(self.depth_cap) <= MAX_DEPTH:
+            raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, {MAX_DEPTH}]")
         if not (np.isfinite(self.memory_cap_mb) and self.memory_cap_mb >= 0.0):
             raise SceneError(f"setting 'memory_cap_mb': {self.memory_cap_mb} must be >= 0")
         return self

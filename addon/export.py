@@ -1,4 +1,4 @@
-"""Evaluated depsgraph -> :class:`rstrace_engine.scene.Scene`.
+"""Evaluated depsgraph -> :class:`rstrace_engine.geometry.scene.Scene`.
 
 One pass over ``depsgraph.object_instances``: meshes are read once per evaluated mesh
 datablock with ``foreach_get`` into numpy (no per-vertex Python), and every instance of that
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rstrace_engine.scene import (
+from rstrace_engine.geometry.scene import (
     MAX_LIGHTS,
     Camera,
     Light,

@@ -1,4 +1,4 @@
-"""Blender materials -> :class:`rstrace_engine.scene.Material` (export's material half).
+"""Blender materials -> :class:`rstrace_engine.geometry.scene.Material` (export's material half).
 
 Reads the Principled BSDF (or a Diffuse, Emission, Glossy or Glass BSDF) feeding the material
 output, with an Image Texture on Base Color read into a numpy texture; anything else falls
@@ -14,7 +14,7 @@ import logging
 import bpy
 import numpy as np
 
-from rstrace_engine.scene import Material, Scene, SceneError
+from rstrace_engine.geometry.scene import Material, Scene, SceneError
 
 log = logging.getLogger(__name__)
 

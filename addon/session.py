@@ -21,7 +21,7 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_NAMES, Frame
-from rstrace_engine.scene import SceneError
+from rstrace_engine.geometry.scene import SceneError
 
 from . import export, properties, runtime
 

@@ -1,7 +1,15 @@
 """rstrace_engine: the core of rstrace, an interactive ray tracer (no Blender imports).
 
-Scene model in :mod:`.scene`, accelerators in :mod:`.accelerators`, the base Whitted tracer
-in :mod:`.whitted`, benchmarks in :mod:`.bench`.
+Subpackages, in import order (a module imports only from its own layer or lower ones):
+
+1. ``tolerances``, ``frame`` (settings, modes, pixel classes), ``image``: shared leaves.
+2. ``geometry``: the scene model, cameras, shapes, mesh topology.
+3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force).
+4. ``tracing``: shading and the wavefront Whitted base tracer.
+5. ``interpolants``: radiance interpolants (linetrees, samples, predicate, shafts, cache,
+   interpolated frames).
+6. ``session``: the persistent render session a host (the Blender add-on) holds per scene.
+7. ``scenes`` (benchmark scenes), ``bench``, ``__main__``: tools on top.
 """
 
 __version__ = "0.1.0"

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from . import image, scenes
 from .frame import ACCELERATORS, RenderSettings
-from .scene import SceneError
+from .geometry.scene import SceneError
 from .session import Session
 
 

@@ -46,7 +46,7 @@ class RenderSettings:
     seed: int = 0
 
     def validated(self) -> RenderSettings:
-        from .scene import SceneError
+        from .geometry.scene import SceneError
 
         if self.mode not in MODES:
             raise SceneError(f"setting 'mode': {self.mode!r} not one of {MODES}")
@@ -59,7 +59,7 @@ class RenderSettings:
             raise SceneError(f"setting 'max_ray_depth': {self.max_depth} outside [0, 32]")
         if not 1 <= int(self.samples) <= 4096:
             raise SceneError(f"setting 'samples': {self.samples} outside [1, 4096]")
-        from .linetree import MAX_DEPTH
+        from .interpolants.linetree import MAX_DEPTH
 
         if not 0 <= int(self.depth_cap) <= MAX_DEPTH:
             raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, {MAX_DEPTH}]")

@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from . import shapes
-from .scene import Camera, Light, Material, Scene
+from .geometry import shapes
+from .geometry.scene import Camera, Light, Material, Scene
 
 
 def _camera(eye, target, width, height, lens=35.0) -> Camera:

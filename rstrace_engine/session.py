@@ -1,11 +1,12 @@
 """A persistent render session: one per Blender scene, kept across frames and edits.
 
-The session owns the :class:`~rstrace_engine.scene.Scene` and its accelerator. A new export
+The session owns the :class:`~rstrace_engine.geometry.scene.Scene` and its accelerator. A new export
 of the scene goes through :meth:`Session.update_scene`, which hands the new packing to the
 accelerator's ``update`` so that per-mesh structures of unchanged meshes are reused and only
 the top level is rebuilt. ``BASE`` mode renders with the Whitted tracer
-(:func:`rstrace_engine.whitted.render`); ``INTERPOLANT`` mode with radiance interpolants kept
-across frames and camera moves (:class:`~rstrace_engine.interpolant_render.InterpolantRenderer`).
+(:func:`rstrace_engine.tracing.whitted.render`); ``INTERPOLANT`` mode with radiance
+interpolants kept across frames and camera moves
+(:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`).
 """
 
 from __future__ import annotations
@@ -13,11 +14,11 @@ from __future__ import annotations
 import logging
 import time
 
-from .accelerators import create_accelerator
+from .accel.accelerators import create_accelerator
 from .frame import Frame, RenderSettings
-from .interpolant_render import InterpolantRenderer
-from .scene import Scene, SceneError
-from .whitted import render as whitted_render
+from .geometry.scene import Scene, SceneError
+from .interpolants.render import InterpolantRenderer
+from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +72,7 @@ class Session:
     def render(self, progress=None, cancel=None) -> Frame:
         """Render the scene's camera. progress(fraction, message); cancel() -> bool.
 
-        Raises :class:`~rstrace_engine.scene.SceneError` for a mode that is not available.
+        Raises :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
         """
         mode = self.settings.mode
         if mode not in AVAILABLE_MODES:

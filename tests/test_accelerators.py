@@ -9,14 +9,15 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from rstrace_engine import scenes, shapes
-from rstrace_engine.accelerators import (
+from rstrace_engine import scenes
+from rstrace_engine.accel.accelerators import (
     AcceleratorUnavailable,
     Hits,
     create_accelerator,
 )
-from rstrace_engine.cameras import camera_rays
-from rstrace_engine.scene import Material, Scene, SceneError
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.cameras import camera_rays
+from rstrace_engine.geometry.scene import Material, Scene, SceneError
 
 
 def mixed_scene() -> Scene:

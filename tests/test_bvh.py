@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rstrace_engine import bvh, shapes
-from rstrace_engine.accelerators import create_accelerator
-from rstrace_engine.scene import Material, Mesh, Scene
+from rstrace_engine.accel import bvh
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Material, Mesh, Scene
 
 BACKENDS = ("BVH", "BRUTE_FORCE")
 

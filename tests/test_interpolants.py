@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from tracer_scenes import ortho_down, transformed
 
-from rstrace_engine import image, interpolants, scenes, shapes, whitted
-from rstrace_engine.accelerators import create_accelerator
-from rstrace_engine.cameras import camera_rays
+from rstrace_engine import image, scenes
+from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_SHADOW,
@@ -20,12 +19,21 @@ from rstrace_engine.frame import (
     CLASS_TRACED,
     RenderSettings,
 )
-from rstrace_engine.interpolant_render import InterpolantRenderer, render_frame
-from rstrace_engine.interpolants import INTERP_BYTES, InterpolantCache
-from rstrace_engine.linetree import LATTICE_DEPTH, corner_weights, lattice_lines, line_points
-from rstrace_engine.scene import Camera, Light, Material, Scene
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.cameras import camera_rays
+from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
+from rstrace_engine.interpolants import cache as interpolant_cache
+from rstrace_engine.interpolants.cache import INTERP_BYTES, InterpolantCache
+from rstrace_engine.interpolants.linetree import (
+    LATTICE_DEPTH,
+    corner_weights,
+    lattice_lines,
+    line_points,
+)
+from rstrace_engine.interpolants.render import InterpolantRenderer, render_frame
+from rstrace_engine.interpolants.shafts import clip_polygon, hw_shaft, segment_in
 from rstrace_engine.session import Session
-from rstrace_engine.shafts import clip_polygon, hw_shaft, segment_in
+from rstrace_engine.tracing import whitted
 
 W, H = 64, 48
 
@@ -33,7 +41,7 @@ W, H = 64, 48
 @pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
     """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 48)."""
-    monkeypatch.setattr(interpolants, "MIN_PIXELS", 6)
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
 
 
 def settings(**kw) -> RenderSettings:
@@ -245,7 +253,7 @@ def test_rays_on_face_pair_boundaries_render(spheres):
     cam = Camera(matrix=shapes.look_at((-6.0, -6.0, 6.0), (0.0, 0.0, 0.0)), kind="ORTHO",
                  ortho_scale=9.0, width=W, height=H)
     sc.set_camera(cam)
-    from rstrace_engine.cameras import camera_rays
+    from rstrace_engine.geometry.cameras import camera_rays
 
     _, d, _, _ = camera_rays(sc.camera)
     assert np.all(np.abs(d[:, 0]) == np.abs(d[:, 1])) and np.all(
@@ -419,7 +427,7 @@ def test_shaft_contains_both_boxes_and_clips_exactly():
 
 
 def test_saturated_samples_cannot_vouch_for_a_dip_below_one():
-    from rstrace_engine.interpolant_predicate import extended_display
+    from rstrace_engine.interpolants.predicate import extended_display
 
     x = np.array([0.0, 0.002, 0.5, 0.999, 1.0])
     np.testing.assert_array_equal(extended_display(x), image.to_display(x))

@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rstrace_engine import scenes, shapes
+from rstrace_engine import scenes
 from rstrace_engine.frame import CLASS_FAIL_SHADOW
-from rstrace_engine.linetree import (
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Material, Scene
+from rstrace_engine.interpolants.linetree import (
     EMPTY,
     LATTICE_DEPTH,
     Linetrees,
@@ -22,7 +24,6 @@ from rstrace_engine.linetree import (
     local_coords,
     parameterize,
 )
-from rstrace_engine.scene import Material, Scene
 
 
 def _one_object_scene(mesh, matrix=None) -> Scene:

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 from tracer_scenes import ortho_down, plane_scene, point_intensity, transformed
 
-from rstrace_engine import image, scenes, shapes, whitted
-from rstrace_engine.accelerators import create_accelerator
-from rstrace_engine.cameras import camera_rays
+from rstrace_engine import image, scenes
+from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import RenderSettings
-from rstrace_engine.scene import Camera, Light, Material, Scene
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.cameras import camera_rays
+from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
+from rstrace_engine.tracing import whitted
 
 ACCELS = ["BRUTE_FORCE", "BVH"]
 

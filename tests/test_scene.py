@@ -7,10 +7,19 @@ import math
 import numpy as np
 import pytest
 
-from rstrace_engine import shapes, whitted
-from rstrace_engine.accelerators import create_accelerator
+from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import RenderSettings
-from rstrace_engine.scene import Camera, Light, Material, Mesh, Scene, SceneError, check_matrix
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import (
+    Camera,
+    Light,
+    Material,
+    Mesh,
+    Scene,
+    SceneError,
+    check_matrix,
+)
+from rstrace_engine.tracing import whitted
 
 TRI = np.array([[0, 1, 2]], np.int32)
 VERTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from rstrace_engine import shading, tolerances
+from rstrace_engine import tolerances
+from rstrace_engine.tracing import shading
 
 RNG = np.random.default_rng(7)
 

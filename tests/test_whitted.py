@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 from tracer_scenes import ortho_down, plane_scene, point_intensity
 
-from rstrace_engine import image, scenes, shapes, whitted
+from rstrace_engine import image, scenes
 from rstrace_engine.__main__ import main as cli_main
-from rstrace_engine.accelerators import Hits, create_accelerator
-from rstrace_engine.cameras import camera_rays
+from rstrace_engine.accel.accelerators import Hits, create_accelerator
 from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_TRACED, RenderSettings
-from rstrace_engine.scene import Light, Material, Scene, SceneError
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.cameras import camera_rays
+from rstrace_engine.geometry.scene import Light, Material, Scene, SceneError
 from rstrace_engine.session import Session
+from rstrace_engine.tracing import whitted
 
 
 def brute(scene: Scene):
@@ -520,7 +522,7 @@ def test_bench_frame_runs_and_reports(tmp_path):
 
 
 def test_session_keeps_its_settings_when_an_accelerator_is_unavailable():
-    from rstrace_engine.accelerators import AcceleratorUnavailable
+    from rstrace_engine.accel.accelerators import AcceleratorUnavailable
     from rstrace_engine.scenes import three_spheres
     from rstrace_engine.session import Session
 

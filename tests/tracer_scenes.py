@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from rstrace_engine import shapes
-from rstrace_engine.scene import Camera, Light, Material, Mesh, Scene
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Camera, Light, Material, Mesh, Scene
 
 
 def ortho_down(height: float = 10.0, scale: float = 4.0, width: int = 32, rows: int = 24,

@@ -4,7 +4,7 @@
 [--scenes three_spheres,museum] [--accelerator BVH] [--no-mitsuba] [--out DIR]``
 
 For each scene (default *three_spheres* and *museum* at 640x480, depth 5) it renders one
-frame with :func:`rstrace_engine.whitted.render` (after a tiny warm-up frame so that numba's
+frame with :func:`rstrace_engine.tracing.whitted.render` (after a tiny warm-up frame so that numba's
 compile/cache load is not timed) and reports the time, the rays traced and rays per second.
 Where the ``mitsuba`` package imports, it then renders the *same triangles and lights* with
 Mitsuba 3's ``scalar_rgb`` variant and its ``direct`` integrator (as many emitter samples
@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import image, scenes
-from ..accelerators import create_accelerator
+from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
-from ..scene import LIGHT_SPOT, LIGHT_SUN, Scene
-from ..whitted import render
+from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene
+from ..tracing.whitted import render
 
 
 def world_triangles(scene: Scene):

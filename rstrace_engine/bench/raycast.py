@@ -7,7 +7,7 @@ triangles): ``grid-primary``, the 640x480 primary rays of its camera, and ``grid
 1M rays with origins uniform in the scene box and uniformly random directions. Each runs with
 1 and 2 threads (``numba.set_num_threads``; the Embree backend splits a batch into as many
 chunks on a thread pool, ``embreex`` releases the GIL). Both backends take the same float64
-rays through the accelerator interface and return :class:`~rstrace_engine.accelerators.Hits`;
+rays through the accelerator interface and return :class:`~rstrace_engine.accel.accelerators.Hits`;
 both are warmed up first, and the best of ``--repeats`` interleaved runs is kept.
 ``--json`` prints one object
 ``{"workloads": [{"name", "threads", "numba_mrays", "embree_mrays", "ratio"}, ...]}``
@@ -24,8 +24,8 @@ import time
 import numba
 import numpy as np
 
-from ..accelerators import AcceleratorUnavailable, create_accelerator
-from ..cameras import camera_rays
+from ..accel.accelerators import AcceleratorUnavailable, create_accelerator
+from ..geometry.cameras import camera_rays
 from ..scenes import grid
 
 

@@ -35,12 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from .. import image, scenes
-from ..accelerators import create_accelerator
-from ..cameras import camera_rays
+from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
-from ..interpolant_render import InterpolantRenderer
-from ..scene import Camera
-from ..whitted import render
+from ..geometry.cameras import camera_rays
+from ..geometry.scene import Camera
+from ..interpolants.render import InterpolantRenderer
+from ..tracing.whitted import render
 
 EPSILONS = (0.0, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 DEPTH_CAPS = (4, 8)

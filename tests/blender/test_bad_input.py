@@ -76,7 +76,7 @@ def test_nan_light_is_skipped(tmp_path, capfd):
 
 def test_no_camera_is_a_clean_error(tmp_path):
     import addon
-    from rstrace_engine.scene import SceneError
+    from rstrace_engine.geometry.scene import SceneError
 
     _scene()
     bpy.context.scene.camera = None

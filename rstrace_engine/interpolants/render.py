@@ -22,12 +22,12 @@ import time
 import numpy as np
 from numba import njit
 
-from . import tolerances as tol
-from .accelerators import Hits
-from .cameras import camera_params, camera_rays, pixel_jitter
-from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
-from .interpolants import InterpolantCache
-from .whitted import TILE_RAYS, render, trace
+from .. import tolerances as tol
+from ..accel.accelerators import Hits
+from ..frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
+from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
+from ..tracing.whitted import TILE_RAYS, render, trace
+from .cache import InterpolantCache
 
 log = logging.getLogger(__name__)
 

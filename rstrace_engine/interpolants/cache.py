@@ -42,24 +42,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .accelerators import Hits
-from .frame import (
+from ..accel.accelerators import Hits
+from ..frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
     CLASS_FAIL_SILHOUETTE,
     CLASS_INTERPOLATED,
     CLASS_TRACED,
 )
-from .interpolant_predicate import (
-    N_TEST_ALL,
-    N_TEST_BASE,
-    REASONS,
-    TEST_POINTS,
-    VALID,
-    check_cells,
-    radiance_ok,
-)
-from .interpolant_samples import LineCrossings, SampleStore, facing, skip_tmin, unique_keys
+from ..geometry.mesh_topology import mesh_topology
+from ..tracing.whitted import trace
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
@@ -75,9 +67,17 @@ from .linetree import (
     point_depth,
     ray_line,
 )
-from .mesh_topology import mesh_topology
+from .predicate import (
+    N_TEST_ALL,
+    N_TEST_BASE,
+    REASONS,
+    TEST_POINTS,
+    VALID,
+    check_cells,
+    radiance_ok,
+)
+from .samples import LineCrossings, SampleStore, facing, skip_tmin, unique_keys
 from .shafts import query_scene
-from .whitted import trace
 
 log = logging.getLogger(__name__)
 

@@ -25,9 +25,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from ..geometry.scene import SceneArrays, SceneError
 from . import bvh
 from .bvh import ray_to_object
-from .scene import SceneArrays, SceneError
 from .triangle import intersect, ray_shear
 
 log = logging.getLogger(__name__)

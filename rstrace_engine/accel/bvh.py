@@ -36,7 +36,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from . import tolerances as tol
+from .. import tolerances as tol
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)

@@ -20,10 +20,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from . import bvh
-from . import tolerances as tol
-from .mesh_topology import MeshTopology
-from .scene import LIGHT_SUN, SceneArrays
+from .. import tolerances as tol
+from ..accel import bvh
+from ..geometry.mesh_topology import MeshTopology
+from ..geometry.scene import LIGHT_SUN, SceneArrays
 
 #: Most planes a shaft has (6 box planes and 12 edge planes).
 MAX_PLANES = 18

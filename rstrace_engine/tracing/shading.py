@@ -24,7 +24,7 @@ import math
 
 from numba import njit
 
-from . import tolerances as tol
+from .. import tolerances as tol
 
 INV_PI = 1.0 / math.pi
 
@@ -142,7 +142,7 @@ def spot_falloff(cos_angle, cos_outer, cos_inner):
 
     0 outside the cone (``cos_angle <= cos_outer``), 1 inside the inner cone, and a
     smoothstep across the blend region between them, as Blender does. ``cos_inner`` comes
-    from :class:`~rstrace_engine.scene.SceneArrays` (equal to ``cos_outer`` when blend is 0).
+    from :class:`~.geometry.scene.SceneArrays` (equal to ``cos_outer`` when blend is 0).
     """
     if cos_angle <= cos_outer:
         return 0.0

@@ -1,6 +1,6 @@
 """Mesh generators (object space) for tests, benchmarks and the demo.
 
-Each returns a :class:`~rstrace_engine.scene.Mesh`; none of this is used by the hot paths.
+Each returns a :class:`~rstrace_engine.geometry.scene.Mesh`; none of this is used by the hot paths.
 """
 
 from __future__ import annotations

@@ -22,8 +22,8 @@ import numba
 import numpy as np
 from numba import njit
 
+from ..geometry.scene import SceneArrays
 from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
-from .scene import SceneArrays
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import tolerances as tol
+from .. import tolerances as tol
 
 log = logging.getLogger(__name__)
 

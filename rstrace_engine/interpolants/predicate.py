@@ -38,9 +38,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from . import image
-from . import tolerances as tol
-from .frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
+from .. import image
+from .. import tolerances as tol
+from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from .linetree import corner_weights, face_frame, line_points
 from .shafts import (
     MAX_PLANES,

@@ -16,9 +16,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .accelerators import Hits
-from .interpolant_predicate import SampleArrays
-from .shading import dot3, geometric_normal, spawn_offset
+from ..accel.accelerators import Hits
+from ..tracing.shading import dot3, geometric_normal, spawn_offset
+from .predicate import SampleArrays
 
 
 @njit(cache=True, nogil=True, inline="always")

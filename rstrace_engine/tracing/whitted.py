@@ -38,11 +38,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from . import tolerances as tol
-from .accelerators import Hits, create_accelerator
-from .cameras import camera_params, camera_rays, pixel_jitter
-from .frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
-from .scene import LIGHT_SPOT, LIGHT_SUN, Scene, SceneArrays
+from .. import tolerances as tol
+from ..accel.accelerators import Hits, create_accelerator
+from ..frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
+from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
+from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene, SceneArrays
 from .shading import (
     dot3,
     fresnel_dielectric,
@@ -439,12 +439,12 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
           record: bool = False, primary: Hits | None = None, counters: dict | None = None):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
-    sa : the scene's :class:`~rstrace_engine.scene.SceneArrays`; accel : an accelerator over
-    it (:func:`~rstrace_engine.accelerators.create_accelerator`).
+    sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
+    it (:func:`~rstrace_engine.accel.accelerators.create_accelerator`).
     origins, directions : (n, 3) float64 (directions need not be unit); tmin, tmax : (n,)
     float64 (or scalars) bounds of the input rays. max_depth : reflection/refraction
     bounces (0: direct light only). record : also return the :class:`RayTree`.
-    primary : optional :class:`~rstrace_engine.accelerators.Hits` of the input rays (e.g.
+    primary : optional :class:`~rstrace_engine.accel.accelerators.Hits` of the input rays (e.g.
     from ``intersect_object``), used instead of ``accel.closest_hit`` for the first level.
     counters : optional dict; ``primary``, ``secondary`` and ``shadow`` ray counts are added.
 

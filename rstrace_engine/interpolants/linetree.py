@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from . import tolerances as tol
+from .. import tolerances as tol
 
 log = logging.getLogger(__name__)
 

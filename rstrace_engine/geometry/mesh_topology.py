@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from . import tolerances as tol
+from .. import tolerances as tol
 from .scene import SceneArrays
 
 #: Meshes with more than sqrt(this) triangles are not tested for convexity (the test is

@@ -10,6 +10,11 @@ at 1e-4 and at 1e5 scale, or translated by 1e6.
 #: Float64 keeps ~16 digits; 1e-9 leaves ~7 digits of headroom for the hit-point error.
 SPAWN_OFFSET_REL = 1e-9
 
+#: Float32 accelerators (Embree) skip hits closer than this fraction of the scene's (and the
+#: ray origin's) coordinate magnitude: about 16 float32 ulps, past the rounding of float32
+#: vertices and origins, so a ray spawned off a surface never hits that surface again.
+FLOAT32_TNEAR_REL = 2e-6
+
 #: Shadow rays stop this fraction short of the light (relative to their length).
 SHADOW_END_REL = 1e-9
 

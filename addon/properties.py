@@ -27,6 +27,14 @@ ACCELERATOR_ITEMS = (
      "Parallel beam tilings in many directions, cheap to update for moving objects"),
 )
 
+SHADING_MODEL_ITEMS = (
+    ("PRINCIPLED", "Principled", "Materials follow Blender's Principled BSDF: a Fresnel-"
+     "weighted GGX highlight over a diffuse base that loses what the highlight reflects "
+     "(agrees with Cycles' direct lighting)"),
+    ("WARD", "Ward", "Ward's isotropic highlight with a constant reflectance and a Whitted "
+     "mirror for smooth surfaces (the model of the radiance-interpolant paper)"),
+)
+
 
 class RSTraceSettings(bpy.types.PropertyGroup):
     """Settings of the RSTrace render engine (``scene.rstrace``)."""
@@ -56,6 +64,9 @@ class RSTraceSettings(bpy.types.PropertyGroup):
                     "recently used are evicted beyond it")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
+    shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,
+                                default="PRINCIPLED",
+                                description="How Blender materials are shaded")
 
 
 def render_settings(props: RSTraceSettings):

@@ -264,7 +264,7 @@ def test_world_light_and_emissive_meshes_are_said_once(tmp_path, capfd):
 def test_embree_renders_the_bvh_image(tmp_path, capfd):
     """An accelerator must not change the image: Blender's default cube on a floor, lit by a
     point light and a sun (grazing shadows), rendered with both, compared pixel by pixel.
-    Embree once gave 325 black lit pixels here against the BVH's 162."""
+    Embree once gave 864 black pixels (of 3,072) here against the BVH's 0."""
     pytest.importorskip("embreex")
     sc = b.setup_render(64, 48, samples=1, max_depth=2)
     b.set_world((0.05, 0.05, 0.05))
@@ -291,4 +291,6 @@ def test_embree_renders_the_bvh_image(tmp_path, capfd):
     black = [int(np.count_nonzero(x.max(axis=-1) < 1e-3)) for x in (a, e)]
     assert abs(black[0] - black[1]) <= 1, black
     diff = np.abs(a - e).max(axis=-1)
+    print(f"black pixels BVH/Embree {black}, pixels > 1e-3: {np.count_nonzero(diff > 1e-3)}, "
+          f"max {diff.max():.2g}")
     assert np.count_nonzero(diff > 1e-3) <= 2 and diff.max() < 0.05, diff.max()

@@ -54,7 +54,7 @@ def ior_from_f0(f0: float) -> float:
 def _scalar(name: str, label: str, value) -> float:
     v = float(value)
     if not math.isfinite(v):
-        raise SceneError(f"material '{name}': Principled input '{label}' is {v} (not a "
+        raise SceneError(f"material '{name}': input '{label}' is {v} (not a "
                          f"finite number)")
     return v
 
@@ -64,7 +64,7 @@ def _rgb(name: str, label: str, value) -> np.ndarray:
     if arr.size == 1:
         arr = np.repeat(arr, 3)
     if not np.all(np.isfinite(arr)):
-        raise SceneError(f"material '{name}': Principled input '{label}' has NaN or infinite "
+        raise SceneError(f"material '{name}': input '{label}' has NaN or infinite "
                          f"values ({arr.tolist()})")
     return arr
 

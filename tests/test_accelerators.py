@@ -15,11 +15,11 @@ from rstrace_engine.accel.accelerators import (
     Hits,
     create_accelerator,
 )
+from rstrace_engine.frame import CLASS_BACKGROUND, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.cameras import camera_rays
-from rstrace_engine.frame import CLASS_BACKGROUND, RenderSettings
-from rstrace_engine.tolerances import FLOAT32_TNEAR_REL
 from rstrace_engine.geometry.scene import Material, Scene, SceneError
+from rstrace_engine.tolerances import FLOAT32_TNEAR_REL
 from rstrace_engine.tracing.whitted import render
 
 

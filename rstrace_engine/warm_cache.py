@@ -11,8 +11,9 @@ through a tiny scene made for the purpose (64x48 pixels, just enough for interpo
 every material feature, point, sun and spot lights, perspective and orthographic cameras)
 in every available mode and accelerator, through the steps an animation takes (a first
 frame, a camera move, a moved object, an interpolant memory cap small enough to evict).
-No image is written; the frames are discarded. What it reports (``kernel_cache.counts``) says how many kernels were
-compiled and how many loaded, and names any render kernel it did not reach.
+No image is written; the frames are discarded. What it reports (``kernel_cache.counts``)
+says how many kernels were compiled and how many loaded, and names any render kernel it
+did not reach.
 """
 
 from __future__ import annotations

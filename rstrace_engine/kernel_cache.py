@@ -45,6 +45,7 @@ LOCK_NAME = ".rstrace-cache.lock"
 #: Modules (name prefixes) whose kernels get the locked cache and are counted.
 _PREFIXES: set[str] = {"rstrace_engine"}
 _COMPILED: Counter = Counter()  # (module, qualname) -> compilations in this process
+_SIGNATURES: dict = {}  # (module, qualname) -> argument types of those compilations
 _STATE = {"installed": False, "warned": False}
 _THREAD_LOCK = threading.Lock()
 
@@ -148,6 +149,8 @@ class _CompileListener(event.Listener):
         if dispatcher is not None and _ours(dispatcher):
             protect(dispatcher)  # before numba saves what it is about to compile
             _COMPILED[_name(dispatcher)] += 1  # a compilation starts (not a cache load)
+            _SIGNATURES.setdefault(_name(dispatcher), []).append(
+                ", ".join(str(a) for a in ev.data.get("args") or ()))
 
     def on_end(self, ev):
         pass
@@ -199,7 +202,8 @@ def counts(prefix: str = "rstrace_engine") -> dict:
     """Kernels of ``prefix`` compiled and loaded from the disk cache in this process.
 
     ``compiled`` counts compilations (signatures), ``loaded`` signatures read from the
-    cache; ``kernels`` is the number of dispatchers, ``used`` those with any signature.
+    cache; ``kernels`` is the number of dispatchers, ``used`` those with any signature;
+    ``compiled_kernels`` maps each compiled kernel to the argument types it was compiled for.
     """
     ds = dispatchers(prefix)
     compiled = sum(n for (mod, _), n in _COMPILED.items()
@@ -207,5 +211,6 @@ def counts(prefix: str = "rstrace_engine") -> dict:
     loaded = sum(sum(d.stats.cache_hits.values()) for d in ds)
     used = sum(1 for d in ds if d.signatures)
     return {"kernels": len(ds), "used": used, "compiled": compiled, "loaded": loaded,
-            "compiled_kernels": sorted(f"{m}.{q}" for (m, q), n in _COMPILED.items()
-                                       if n and (m == prefix or m.startswith(prefix + ".")))}
+            "compiled_kernels": {f"{m}.{q}": _SIGNATURES.get((m, q), [])
+                                 for (m, q), n in sorted(_COMPILED.items())
+                                 if n and (m == prefix or m.startswith(prefix + "."))}}

@@ -137,3 +137,15 @@ def test_chunked_workers_render_the_same_frames_as_one_process(tmp_path, warm_ca
                            for f in FRAMES)
     print(f"INTERPOLANT one process vs chunks, max linear difference {single_vs_chunks:.5f}")
     assert os.path.exists(base_blend)
+
+
+def test_warm_cache_operator_compiles_nothing_on_a_warm_cache(warm_cache):
+    """``bpy.ops.rstrace.warm_cache()``: the command-line warm-up step inside Blender."""
+    import addon
+
+    assert bpy.ops.rstrace.warm_cache() == {"FINISHED"}
+    result = addon.runtime.warm_cache()
+    assert result["compiled"] == 0, result["compiled_kernels"]  # the cache is warm
+    assert set(result["modes"]) >= {"BASE", "INTERPOLANT"}
+    assert addon.runtime.kernel_status() is None  # kernels are in memory now
+    assert warm_cache["loaded"] + warm_cache["compiled"] >= result["loaded"] > 0

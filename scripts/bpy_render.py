@@ -131,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
 
     errors = [f"frame {f['frame']}: {f['error']}" for f in frames if f["error"]]
     result.update(frames=frames, total_s=time.perf_counter() - T_START,
+                  cpu_s=time.process_time(),  # all threads: independent of other load
                   kernels=kernel_cache.counts(), engine=scene.render.engine, errors=errors,
                   mode=scene.rstrace.mode if hasattr(scene, "rstrace") else None)
     sys.stdout.write("RESULT " + json.dumps(result, default=str) + "\n")

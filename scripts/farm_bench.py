@@ -121,12 +121,13 @@ def cold(blends, work: Path, frames: int) -> dict:
             (blends["INTERPOLANT"], work / "cold" / "w2", ["-f", f"{half + 1}..{frames}"],
              cache)]
     results, wall = together(jobs)
-    out["two_cold_workers"] = [dict(wall_s=r["wall_s"], compiled=r["kernels"]["compiled"],
+    out["two_cold_workers"] = [dict(wall_s=r["wall_s"], cpu_s=r["cpu_s"],
+                                    compiled=r["kernels"]["compiled"],
                                     loaded=r["kernels"]["loaded"], errors=r["errors"],
                                     first_frame_s=r["frames"][0]["seconds"])
                                for r in results]
     (third,), _ = together([(blends["INTERPOLANT"], work / "cold" / "w3", ["-f", "1"], cache)])
-    out["third_worker_after"] = dict(compiled=third["kernels"]["compiled"],
+    out["third_worker_after"] = dict(compiled=third["kernels"]["compiled"], cpu_s=third["cpu_s"],
                                      loaded=third["kernels"]["loaded"],
                                      wall_s=third["wall_s"])
     leftovers = [p.name for p in cache.rglob("*") if ".tmp." in p.name]
@@ -136,13 +137,28 @@ def cold(blends, work: Path, frames: int) -> dict:
     return out
 
 
+def cold_single(blends, work: Path) -> dict:
+    """One worker alone on an empty cache, one INTERPOLANT frame, then one on the warm cache."""
+    cache = work / "cold_cache_single"
+    out = {}
+    for name in ("cold", "warm"):
+        (r,), _ = together([(blends["INTERPOLANT"], work / f"single_{name}", ["-f", "1"],
+                             cache)])
+        out[name] = dict(wall_s=r["wall_s"], cpu_s=r["cpu_s"], import_bpy_s=r["import_bpy_s"],
+                         first_frame_s=r["frames"][0]["seconds"],
+                         compiled=r["kernels"]["compiled"], loaded=r["kernels"]["loaded"])
+    log.info("one worker, cold then warm: %s", out)
+    return out
+
+
 def warm_startup(blends, work: Path, repeats: int = 3) -> dict:
     runs = []
     for i in range(repeats):
         (r,), _ = together([(blends["BASE"], work / f"start{i}", ["-f", "1..3"], None)])
         steady = statistics.median(f["seconds"] for f in r["frames"][1:])
         first = r["frames"][0]["seconds"]
-        runs.append(dict(process_wall_s=r["wall_s"], import_bpy_s=r["import_bpy_s"],
+        runs.append(dict(process_wall_s=r["wall_s"], cpu_s=r["cpu_s"],
+                         import_bpy_s=r["import_bpy_s"],
                          addon_s=r["addon_s"] - r["import_bpy_s"],
                          open_s=r["open_s"] - r["addon_s"], first_frame_s=first,
                          steady_frame_s=steady,
@@ -188,6 +204,8 @@ def main() -> int:
     p.add_argument("--size", type=int, nargs=2, default=(320, 240))
     p.add_argument("--samples", type=int, default=1, help="samples per pixel")
     p.add_argument("--skip-cold", action="store_true")
+    p.add_argument("--cold-single", action="store_true",
+                   help="only: one worker on an empty cache, then on that cache warm")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -197,6 +215,12 @@ def main() -> int:
         result = dict(frames=args.frames, size=list(args.size), samples=args.samples,
                       cpus=os.cpu_count(),
                       loadavg_before=os.getloadavg())
+        if args.cold_single:
+            result["cold_single"] = cold_single(blends, work)
+            sys.stdout.write(json.dumps(result, indent=2) + "\n")
+            if args.json:
+                Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+            return 0
         warm = subprocess.run([sys.executable, "-m", "rstrace_engine", "warm-cache", "--json"],
                               cwd=ROOT, capture_output=True, text=True, timeout=3600,
                               env={k: v for k, v in os.environ.items()

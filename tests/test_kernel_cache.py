@@ -226,3 +226,23 @@ def test_a_save_waits_for_the_shared_lock_and_writes_data_before_its_index(tmp_p
     # both signatures kept, each with its own data file and the right contents
     assert mine._load_index() == {"sig-a": "k.1.nbc", "sig-b": "k.2.nbc"}
     assert mine.load("sig-a") == b"code for a" and mine.load("sig-b") == b"code for b"
+
+
+def test_column_major_host_matrices_reach_the_kernels_c_ordered():
+    """Blender hands matrices over column-major; numba compiles one kernel per array layout,
+    so the packed scene and the camera must be C-ordered whatever the host gave (else a
+    Blender scene compiles, and caches, a second copy of every kernel)."""
+    import numpy as np
+
+    from rstrace_engine import scenes
+    from rstrace_engine.geometry.cameras import camera_params
+
+    scene = scenes.three_spheres(32, 24, subdivisions=1)
+    for i, inst in enumerate(scene.instances):
+        scene.set_instance_matrix(i, np.asfortranarray(inst["matrix"]))
+    scene.camera.matrix = np.asfortranarray(scene.camera.matrix)
+    sa = scene.arrays()
+    bad = [name for name, a in zip(sa._fields, sa, strict=True)
+           if isinstance(a, np.ndarray) and not a.flags.c_contiguous]
+    assert bad == []
+    assert camera_params(scene.camera).xform.flags.c_contiguous

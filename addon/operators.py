@@ -4,8 +4,9 @@ Farm workers and fresh installs run it once, from the command line::
 
     blender -b --python-expr "import bpy; bpy.ops.rstrace.warm_cache()"
 
-or from *F3 > Warm RSTrace Kernel Cache*. It blocks until done (a minute or more on a cold
-cache, a few seconds on a warm one) and reports how many kernels it compiled and loaded.
+or from *Render > Warm RSTrace Kernel Cache* in the top bar (also found by F3 search). It
+blocks until done (minutes on a cold cache, a few seconds on a warm one) and reports how
+many kernels it compiled and loaded.
 
 Layer: imports ``runtime`` only.
 """
@@ -41,14 +42,23 @@ class RSTRACE_OT_warm_cache(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def _render_menu(self, context) -> None:
+    """An entry in the top bar's Render menu, while RSTrace is the scene's engine."""
+    if context.scene is not None and context.scene.render.engine == "RSTRACE":
+        self.layout.separator()
+        self.layout.operator(RSTRACE_OT_warm_cache.bl_idname, icon="FILE_REFRESH")
+
+
 classes = (RSTRACE_OT_warm_cache,)
 
 
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_render.append(_render_menu)
 
 
 def unregister() -> None:
+    bpy.types.TOPBAR_MT_render.remove(_render_menu)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

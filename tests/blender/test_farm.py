@@ -143,6 +143,7 @@ def test_warm_cache_operator_compiles_nothing_on_a_warm_cache(warm_cache):
     """``bpy.ops.rstrace.warm_cache()``: the command-line warm-up step inside Blender."""
     import addon
 
+    assert addon.operators._render_menu in bpy.types.TOPBAR_MT_render.draw._draw_funcs
     assert bpy.ops.rstrace.warm_cache() == {"FINISHED"}
     result = addon.runtime.warm_cache()
     assert result["compiled"] == 0, result["compiled_kernels"]  # the cache is warm

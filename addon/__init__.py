@@ -5,7 +5,7 @@ package turns Blender data into its calls and its frames back into render passes
 
 Module layers, lower never importing higher:
 ``runtime`` (numba set-up) < ``properties`` < ``materials`` < ``export`` < ``session`` <
-``engine`` < ``ui``.
+``engine`` < ``ui``; ``operators`` (the kernel-cache warm-up) imports ``runtime`` only.
 
 ``runtime.configure`` runs before anything imports ``rstrace_engine`` kernels, so numba
 caches them in the extension's user directory. Used as a plain package (scripts, tests)::
@@ -18,13 +18,13 @@ from . import runtime
 
 runtime.configure(__package__)
 
-from . import engine, export, properties, session, ui  # noqa: E402  (after numba set-up)
+from . import engine, export, operators, properties, session, ui  # noqa: E402  (after numba)
 
-__all__ = ["engine", "export", "properties", "register", "runtime", "session", "ui",
-           "unregister"]
+__all__ = ["engine", "export", "operators", "properties", "register", "runtime", "session",
+           "ui", "unregister"]
 
 #: Registered in this order, unregistered in reverse.
-_MODULES = (properties, session, engine, ui)
+_MODULES = (properties, session, engine, operators, ui)
 
 
 def register() -> None:

@@ -515,7 +515,9 @@ class Scene:
         if not self.materials:
             raise SceneError("scene has no materials")
         geo = self._pack_meshes()
-        xf = np.stack([i["matrix"] for i in self.instances])
+        # C order whatever the host gave (Blender's matrices arrive column-major): kernels
+        # are compiled per array layout, so one layout means one compile and one cache entry
+        xf = np.ascontiguousarray(np.stack([i["matrix"] for i in self.instances]))
         inv = np.linalg.inv(xf)
         nmat = np.transpose(inv[:, :3, :3], (0, 2, 1)).copy()
         aabb = np.stack([_transform_aabb(self.meshes[i["mesh"]]["lo"],

@@ -75,6 +75,9 @@ class Frame:
     radiance: np.ndarray  # (h, w, 3) float32 linear RGB
     pixel_class: np.ndarray  # (h, w) uint8, one of the CLASS_* values
     stats: dict = field(default_factory=dict)
+    # (h, w) int32 id of the interpolant each pixel used (-1: traced or background); set by
+    # INTERPOLANT frames so an edit can find the pixels of the interpolants it invalidated.
+    pixel_interpolant: np.ndarray | None = None
 
     def class_image(self) -> np.ndarray:
         """(h, w, 3) float32 false-colour image of the pixel classes."""

@@ -6,8 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Every render mode, and the ones this version implements (the only lists: the session,
+#: the command line and the Blender add-on all read these).
 MODES = ("BASE", "INTERPOLANT", "RI_TREE")
-ACCELERATORS = ("BVH", "EMBREE", "VISIBILITY_FIELD")
+AVAILABLE_MODES = ("BASE", "INTERPOLANT")
+#: Every accelerator name, and the ones this version implements (``EMBREE`` also needs the
+#: ``embreex`` package at run time: :func:`~.accel.accelerators.create_accelerator` says so).
+ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
+AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE")
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
 CLASS_BACKGROUND = 0

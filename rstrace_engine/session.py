@@ -22,13 +22,14 @@ the same edits: both paths share one implementation. An edit
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 
 import numpy as np
 
 from .accel.accelerators import create_accelerator
-from .frame import AVAILABLE_MODES, CLASS_REBUILT, Frame, RenderSettings
+from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, RenderSettings
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
@@ -117,23 +118,19 @@ class Session:
         return report
 
     def _invalidate_interpolants(self, sa, fx: EditEffects, report: EditReport):
-        """Invalidate what the edits may affect in the interpolant cache; returns the ids."""
-        r = self.interpolants
-        c = r.cache
+        """Invalidate what the edits may affect in the interpolant cache (its ray segment
+        trees and membership index) and move it to the edited scene; returns the ids."""
+        c = self.interpolants.cache
         if c is None or not fx.scene_content_changed:
-            return None
-        adopt = getattr(r, "scene_edited", None)
-        if fx.world or not hasattr(c, "invalidate") or adopt is None:
-            # a world colour change reaches every interpolant whose rays miss somewhere
-            r.reset()
-            report.messages.append("interpolant cache dropped (world colour changed)"
-                                   if fx.world else "interpolant cache dropped")
+            if c is not None and c.sa is not sa:
+                c.set_scene(sa, self.accel)
             return None
         t0 = time.perf_counter()
-        inv = c.invalidate(fx.region_array(), set(fx.objects), set(fx.lights),
-                           set(fx.materials))
-        adopt(sa, self.accel)
+        inv = c.invalidate(fx.region_array(), set(fx.objects), set(fx.lights_moved),
+                           set(fx.materials), world=fx.world,
+                           light_shading=set(fx.lights) - set(fx.lights_moved))
         report.rst_query_ms = 1e3 * (time.perf_counter() - t0)
+        c.set_scene(sa, self.accel)
         report.invalidated_interpolants = int(inv.count)
         return np.asarray(inv.ids)
 
@@ -198,7 +195,8 @@ class Session:
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
-        incremental = (mode == "BASE" and self.frame is not None and self.records is not None
+        keeps_records = mode == "BASE" or _accepts(self.interpolants.render, "records")
+        incremental = (keeps_records and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
         if incremental:
             records = self.records
@@ -207,7 +205,18 @@ class Session:
             records = PixelRecords(cam.width, cam.height, self.settings.samples, sa.scene_aabb)
             pixels = None
         if mode == "INTERPOLANT":
-            frame = self._render_interpolant(records, pixels, progress, cancel)
+            base = self.frame if incremental else None
+            if keeps_records:
+                frame = self.interpolants.render(self.scene, self.settings, self.accel,
+                                                 progress=progress, cancel=cancel,
+                                                 records=records, pixels=pixels, base=base)
+            else:
+                frame = self.interpolants.render(self.scene, self.settings, self.accel,
+                                                 progress=progress, cancel=cancel)
+            if incremental and self._rebuilt is not None and self._rebuilt.any():
+                # pixels of invalidated interpolants, interpolated again: "rebuilt" (magenta)
+                pc = frame.pixel_class.reshape(-1)
+                pc[self._rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
@@ -219,7 +228,7 @@ class Session:
             records.finish(drop_rays=None if pixels is None
                            else np.tile(pixels, self.settings.samples))
             self.frame, self.records, self._frame_key = frame, records, key
-            if mode != "BASE":  # records of interpolated frames: not kept yet
+            if not keeps_records:  # this interpolant renderer keeps no per-pixel records
                 self.records = None
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)
@@ -235,10 +244,10 @@ class Session:
         self.stats.update(frame.stats)
         return frame
 
-    def _render_interpolant(self, records, pixels, progress, cancel) -> Frame:
-        frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                         progress=progress, cancel=cancel)
-        if pixels is not None and self._rebuilt is not None and self._rebuilt.any():
-            pc = frame.pixel_class.reshape(-1)
-            pc[self._rebuilt & (pc != 0)] = CLASS_REBUILT
-        return frame
+
+def _accepts(fn, name: str) -> bool:
+    """Whether callable ``fn`` takes a keyword argument ``name``."""
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False

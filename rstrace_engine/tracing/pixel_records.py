@@ -340,6 +340,23 @@ class PixelRecords:
             self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
                                   nb))
 
+    def add_primary(self, rays: np.ndarray, inst: np.ndarray, origins: np.ndarray,
+                    directions: np.ndarray, t: np.ndarray) -> None:
+        """Record samples that were not traced (interpolated from an interpolant, whose
+        own dependencies the ray segment trees track): only their view segment, from
+        ``origins`` (n, 3) along ``directions`` (n, 3) to the hit at ``t`` (n,) on ``inst``
+        (n,) (-1: a miss). A later :meth:`add` for some of them overwrites this."""
+        inst = np.asarray(inst, np.int32)
+        d = np.asarray(directions, np.float64)
+        nrm = np.linalg.norm(d, axis=1, keepdims=True)
+        unit = d / np.where(nrm > 0, nrm, 1.0)
+        tt = np.where(inst >= 0, np.asarray(t, np.float64), 0.0)
+        point = np.asarray(origins, np.float64) + d * tt[:, None]
+        zero = np.zeros(len(inst), np.uint64)
+        self.add(np.asarray(rays, np.int64),
+                 [dict(ray=np.arange(len(inst)), parent=np.full(len(inst), -1), inst=inst,
+                       point=point, dir=unit, traced=zero, lit=zero)])
+
     def finish(self, drop_rays: np.ndarray | None = None) -> None:
         """Fold the batches added since the last call into the secondary arrays, first
         dropping the secondary nodes of the samples in ``drop_rays`` ((n_rays,) bool)."""

@@ -168,6 +168,13 @@ class Session:
         self.settings = settings
 
     @property
+    def dirty_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
+        if self._dirty is None or self.frame is None:
+            return None
+        return self._dirty.reshape(self.frame.pixel_class.shape).copy()
+
+    @property
     def records_bytes(self) -> int:
         """Memory of the per-pixel records of the last frame (bytes)."""
         return self.records.nbytes if self.records is not None else 0
@@ -225,11 +232,12 @@ class Session:
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self._dirty = None
         else:
-            records.finish(drop_rays=None if pixels is None
-                           else np.tile(pixels, self.settings.samples))
+            if keeps_records:
+                records.finish(drop_rays=None if pixels is None
+                               else np.tile(pixels, self.settings.samples))
+            else:  # this interpolant renderer keeps no per-pixel records: full frames
+                records = None
             self.frame, self.records, self._frame_key = frame, records, key
-            if not keeps_records:  # this interpolant renderer keeps no per-pixel records
-                self.records = None
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)
         n = cam.width * cam.height

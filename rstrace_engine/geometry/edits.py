@@ -266,7 +266,10 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
     elif isinstance(e, ObjectTransform):
         slot = s.instance_slot(e.key)
         before = _visible_box(s, slot)
+        old_matrix = s.instances[slot]["matrix"]
         s.set_instance_matrix(slot, e.matrix)
+        if np.array_equal(old_matrix, s.instances[slot]["matrix"]):
+            return  # not moved: nothing to invalidate
         _object_region(fx, before, _visible_box(s, slot))
         fx.objects.add(slot)
     elif isinstance(e, ObjectGeometry):
@@ -288,6 +291,8 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
         fx.objects.add(slot)
     elif isinstance(e, ObjectVisibility):
         slot = s.instance_slot(e.key)
+        if s.instances[slot]["visible"] == bool(e.visible):
+            return
         before = _visible_box(s, slot)
         s.set_instance_visible(slot, e.visible)
         _object_region(fx, before, _visible_box(s, slot))

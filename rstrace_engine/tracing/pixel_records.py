@@ -394,8 +394,9 @@ class PixelRecords:
         used = np.zeros(len(self.combo), bool)
         used[self.p_combo] = True
         used[self.s_combo] = True
-        if used.all() and len(self.combo) <= 65535:
-            self._narrow()
+        n_used = int(np.count_nonzero(used))
+        if len(self.combo) <= min(65535, 2 * n_used + 1024):
+            self._narrow()  # few stale rows: compact later (amortised)
             return
         remap = np.cumsum(used) - 1
         self.combo = self.combo[used]

@@ -100,7 +100,7 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
         s.add_material(Material("highlight", diffuse=(0.8, 0.8, 0.78), specular=(0.15,) * 3,
                                 roughness=0.1), key="highlight")
         s.set_instance_materials(s.instance_slot("Sculpture0205"), [s.material_id("highlight")])
-        pin, pout = _cube_positions(s, 12.0, 4.0, 13.0, 0.5)
+        pin, pout = _cube_positions(s, 12.0, 4.0, 13.0, 2.0)  # above the plinths
         pout = np.clip(pout, (-19.0, -14.0, 0.0), (19.0, 14.0, 8.0))
         size, small_key, small_step = 1.0, "Sculpture0166", 0.15
         top, bottom = "Sculpture0088", "Plinth0090"

@@ -261,3 +261,32 @@ def test_memory_is_freed_and_caps_hold_over_many_edits(monkeypatch):
         assert deps.rst.n_tun <= 2 * live_t + 1
         rst_mem.append(cache.rst_memory_bytes())
     assert max(rst_mem[12:]) <= 2.5 * max(rst_mem[:12]) + 1e5
+
+
+def _after_moving_blue_away(retry: bool):
+    s0 = spheres()
+    r, accel = warm_cache(s0)
+    cache = r.cache
+    r.render(s0, settings(), accel)
+    if not retry:
+        cache.deps.failed.query = lambda *a, **k: 0
+    s1 = spheres(blue=(30.0, 25.0, 0.8))
+    inv = cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
+    sa1 = s1.arrays()
+    accel1 = create_accelerator("BVH", sa1)
+    cache.set_scene(sa1, accel1)
+    return inv, cache, r.render(s1, settings(), accel1), s1, accel1
+
+
+def test_failed_cells_around_a_moved_occluders_shadow_are_tried_again():
+    inv, cache, f1, s1, accel1 = _after_moving_blue_away(retry=True)
+    assert inv.failed_retried > 0
+    assert np.all(cache.deps.domain[1] >= s1.arrays().inst_aabb[3, 1])  # trees followed
+    _, _, control, _, _ = _after_moving_blue_away(retry=False)
+    # the blue sphere's shadow is gone: its cells are built again and interpolate
+    after, stale = f1.stats["class_counts"], control.stats["class_counts"]
+    assert after["fail_shadow"] < stale["fail_shadow"]
+    assert after["rebuilt"] > stale["rebuilt"]
+    base = whitted.render(s1, settings(), accel=accel1)
+    err = np.abs(image.to_display(f1.radiance) - image.to_display(base.radiance)).max()
+    assert err <= settings().epsilon, err

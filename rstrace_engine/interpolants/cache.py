@@ -502,7 +502,7 @@ class InterpolantCache:
                 st["build_s"] += time.perf_counter() - tb
         self.enforce_cap()
         lt.collapse()
-        self.deps.compact(self.pool)
+        self.deps.compact(self.pool, lt)
         for k in ("cells_built", "cells_valid", "samples_traced"):
             self.totals[k] += st[k]
         return ResolveResult(rad, done, pcls, pinterp)
@@ -664,6 +664,9 @@ class InterpolantCache:
                 name = REASONS[r] if r < len(REASONS) else "radiance"
                 why[name] = why.get(name, 0) + int(k)
             status[go] = sub_status
+            shaded_bad = np.flatnonzero(sub_status != VALID)
+            self.deps.add_failed(self, cells[go[shaded_bad]], cell_samples[shaded_bad],
+                                 nsamp[shaded_bad])
             good = np.flatnonzero(sub_status == VALID)
             if len(good):
                 pids = self.pool.alloc(len(good))

@@ -642,13 +642,18 @@ class RaySegmentTrees:
         keep = np.empty(self.n_tun, np.bool_)
         return int(live_tunnels(self.arrays, self.n_tun, pool_serial, pool_live, keep))
 
-    def compact(self, pool_serial, pool_live, force: bool = False) -> bool:
+    def compact(self, pool_serial, pool_live, force: bool = False, domain=None,
+                slack: float | None = None) -> bool:
         """Rebuild from the live tunnels once the dead ones outnumber them (or with
-        ``force``). Returns whether it rebuilt."""
+        ``force``; over a new ``domain`` if given). Returns whether it rebuilt."""
         keep = np.empty(self.n_tun, np.bool_)
         live = int(live_tunnels(self.arrays, self.n_tun, pool_serial, pool_live, keep))
         if not force and self.n_tun - live <= live + COMPACT_SLACK:
             return False
+        if domain is not None:
+            self.dom = np.ascontiguousarray(domain, np.float64).reshape(2, 3)
+        if slack is not None:
+            self.slack = float(slack)
         a, n = self.arrays, self.n_tun
         ta, tb, ti = a.tun_a[:n][keep], a.tun_b[:n][keep], a.tun_inf[:n][keep]
         tq, ts = a.tun_q[:n][keep], a.tun_serial[:n][keep]

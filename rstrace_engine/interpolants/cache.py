@@ -326,6 +326,7 @@ class InterpolantCache:
         self.samples = SampleStore(len(sa.light_kind))
         self.pool = InterpolantPool()
         self.clock = 0
+        self.samples_stale = False  # an edit may have made unreferenced samples stale
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
@@ -376,6 +377,7 @@ class InterpolantCache:
 
     def compact_samples(self) -> None:
         """Drop the samples no interpolant refers to (test lines, failed cells)."""
+        self.samples_stale = False
         live = np.flatnonzero(self.pool.live)
         keep = np.zeros(self.samples.n, bool)
         keep[self.pool.samples[live].reshape(-1)] = True
@@ -451,6 +453,8 @@ class InterpolantCache:
                   reasons={})
         self.frame_stats = st
         active = inst >= 0
+        if self.samples_stale:  # an edit invalidated interpolants (set_scene not called)
+            self.compact_samples()
         if not np.any(active) or self.epsilon <= 0.0:
             return ResolveResult(rad, done, pcls, pinterp)
         lt = self.trees

@@ -48,8 +48,8 @@ class Invalidation(NamedTuple):
 
     count: int  # interpolants invalidated
     ids: np.ndarray  # (count,) int32 their ids (pool slots, free again now)
-    query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed)
-    free_ms: float  # compaction afterwards (samples, linetree blocks, dead entries)
+    query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed;
+    # the memory they held is compacted by set_scene or the next frame)
     rst_visits: int  # RST nodes visited
     tunnel_tests: int  # tunnel sections tested against a region
     live_before: int  # live interpolants before the edit
@@ -241,9 +241,11 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     whose power or colour alone changed (only interpolants they shade). Camera edits
     invalidate nothing (call nothing).
 
-    Invalidated interpolants are freed at once; their cells are rebuilt by the next frame
-    that needs them. Failed cells whose ray trees named an edited object are emptied too
-    (tried again). Call :func:`set_scene` with the edited scene before the next frame.
+    Invalidated interpolants are freed at once (their pool ids are free, their tree and
+    list entries dead); their cells are rebuilt by the next frame that needs them. Failed
+    cells whose ray trees named an edited object are emptied too (tried again). Call
+    :func:`set_scene` with the edited scene before the next frame: it compacts the memory
+    (samples only freed interpolants kept, emptied linetree blocks, dead entries).
     """
     t0 = time.perf_counter()
     pool = cache.pool
@@ -257,15 +259,14 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     lt.mark_dirty(retry)
     lt.arrays.leaf[retry] = EMPTY
     cache.evict(ids, invalidated=True)
+    # samples no live interpolant keeps may be stale now: dropped before anything is built
+    # again (set_scene, or the next frame), with the linetree and list compaction
+    cache.samples_stale = True
     t1 = time.perf_counter()
-    cache.compact_samples()
-    lt.collapse()
-    cache.deps.compact(pool, lt)
-    t2 = time.perf_counter()
-    log.debug("invalidate: %d of %d interpolants, %.3f ms (+%.3f ms freeing)", len(ids),
-              live_before, 1e3 * (t1 - t0), 1e3 * (t2 - t1))
-    return Invalidation(len(ids), ids, 1e3 * (t1 - t0), 1e3 * (t2 - t1), a.rst_visits,
-                        a.tunnel_tests, live_before, len(retry))
+    log.debug("invalidate: %d of %d interpolants, %.3f ms", len(ids), live_before,
+              1e3 * (t1 - t0))
+    return Invalidation(len(ids), ids, 1e3 * (t1 - t0), a.rst_visits, a.tunnel_tests,
+                        live_before, len(retry))
 
 
 def _mesh_changed(old, new) -> np.ndarray:
@@ -330,6 +331,7 @@ def set_scene(cache, sa, accel) -> None:
         cache.__dict__.pop(name, None)
     cache.compact_samples()
     trees.collapse()
+    cache.deps.compact(cache.pool, trees)
     cache.deps.follow_scene(sa, cache.pool)
     log.debug("set_scene: %d objects with new linetrees, %d interpolants kept", len(reset),
               cache.pool.n_live)

@@ -351,6 +351,7 @@ class Scene:
         self.instance_keys = _Keys("object")
         self.light_keys = _Keys("light")
         self._arrays: SceneArrays | None = None
+        self._counts = None  # (objects, triangles) of the packing in _arrays
         self._mesh_arrays = None  # packed geometry, reused while meshes are unchanged
 
     def copy(self) -> Scene:
@@ -369,6 +370,7 @@ class Scene:
         c.instance_keys = self.instance_keys.copy()
         c.light_keys = self.light_keys.copy()
         c._arrays = self._arrays
+        c._counts = self._counts
         c._mesh_arrays = self._mesh_arrays
         return c
 
@@ -396,6 +398,9 @@ class Scene:
 
     @property
     def n_instances(self) -> int:
+        """Objects in the scene (tombstoned slots do not count)."""
+        if self._arrays is not None and self._counts is not None:
+            return self._counts[0]
         return sum(i is not None for i in self.instances)
 
     @property
@@ -790,9 +795,13 @@ class Scene:
             world_color=np.asarray(self.world_color, f64),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
         )
+        self._counts = (sum(i is not None for i in self.instances),
+                        sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))
         return self._arrays
 
     @property
     def triangle_count(self) -> int:
         """Triangles in the world (instances count their mesh's triangles each)."""
+        if self._arrays is not None and self._counts is not None:
+            return self._counts[1]
         return sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances())

@@ -510,8 +510,8 @@ class PixelRecords:
             self.p_combo = remap[self.p_combo].astype(np.uint32)
             self.s_combo = remap[self.s_combo].astype(np.uint32)
         dt = np.uint16 if self.n_table <= 65535 else np.uint32
-        self.p_combo = self.p_combo.astype(dt)
-        self.s_combo = self.s_combo.astype(dt)
+        self.p_combo = self.p_combo.astype(dt, copy=False)
+        self.s_combo = self.s_combo.astype(dt, copy=False)
 
     @property
     def nbytes(self) -> int:

@@ -81,6 +81,7 @@ class Dependencies:
         self.lights = Membership()
         self.failed = Membership()  # failed linetree leaves, by the objects they name
         self.next_fail = 1
+        self._warm = False
 
     def _set_domain(self, domain: np.ndarray) -> None:
         self.domain = domain
@@ -155,6 +156,17 @@ class Dependencies:
         self.next_fail += len(nodes)
         lt.fstamp[nodes] = stamps
         self.failed.add(okeys, np.repeat(nodes, oc).astype(np.int32), np.repeat(stamps, oc))
+
+    def warm(self, cache) -> None:
+        """Run the query kernels once on nothing (numba loads compiled kernels on their
+        first call: some 30 ms, which the first edit should not pay)."""
+        if self._warm:
+            return
+        self._warm = True
+        nothing = np.array([[[1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]]])  # an empty box
+        affected(cache, nothing, objects=(-1,), lights=(-1,))
+        self.rst.query_brute(nothing, cache.pool.serial, cache.pool.live,
+                             np.zeros(cache.pool.cap, np.bool_))
 
     def compact(self, pool, trees, force: bool = False) -> None:
         self.rst.compact(pool.serial, pool.live, force)

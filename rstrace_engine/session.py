@@ -33,6 +33,7 @@ from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, Re
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
+from .incremental import ensure_cache, render_interpolant
 from .interpolants.render import InterpolantRenderer
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
@@ -216,8 +217,12 @@ class Session:
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
-        keeps_records = mode == "BASE" or _accepts(self.interpolants.render, "records")
-        incremental = (keeps_records and self.frame is not None and self.records is not None
+        own_records = _accepts(self.interpolants.render, "records")
+        new_cache = False
+        if mode == "INTERPOLANT" and not own_records:
+            cache, new_cache = ensure_cache(self.interpolants, self.scene, self.settings,
+                                            self.accel)
+        incremental = (not new_cache and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
         if incremental:
             records = self.records
@@ -227,13 +232,14 @@ class Session:
             pixels = None
         if mode == "INTERPOLANT":
             base = self.frame if incremental else None
-            if keeps_records:
+            if own_records:
                 frame = self.interpolants.render(self.scene, self.settings, self.accel,
                                                  progress=progress, cancel=cancel,
                                                  records=records, pixels=pixels, base=base)
             else:
-                frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                                 progress=progress, cancel=cancel)
+                frame = render_interpolant(cache, self.scene, self.settings, records,
+                                           pixels=pixels, base=base, progress=progress,
+                                           cancel=cancel)
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
@@ -251,11 +257,8 @@ class Session:
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self._dirty = None
         else:
-            if keeps_records:
-                records.finish(drop_rays=None if pixels is None
-                               else np.tile(pixels, self.settings.samples))
-            else:  # this interpolant renderer keeps no per-pixel records: full frames
-                records = None
+            records.finish(drop_rays=None if pixels is None
+                           else np.tile(pixels, self.settings.samples))
             self.frame, self.records, self._frame_key = stored, records, key
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)

@@ -70,10 +70,12 @@ def test_random_edits_interpolant_within_epsilon():
     sess = Session(gen.scene.copy(), settings)
     prev_base = fresh_frame(sess.scene, base_settings)
     sess.render()
+    incremental = 0
     for _ in range(12):
         sess.apply(gen.step())
         dirty = sess.dirty_mask
         frame = sess.render()
+        incremental += frame.stats["incremental"]
         base = fresh_frame(sess.scene, base_settings)
         fresh = fresh_frame(sess.scene, settings)
         for f in (frame, fresh):
@@ -86,6 +88,7 @@ def test_random_edits_interpolant_within_epsilon():
             changed = np.any(prev_base.radiance != base.radiance, axis=2)
             assert not (changed & ~dirty).any()
         prev_base = base
+    assert incremental >= 4
 
 
 def test_moving_a_small_object_dirties_little():

@@ -34,7 +34,7 @@ def small_cells(monkeypatch):
 
 def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0,
             fill_pos=(4.0, -2.0, 3.5), world=(0.05, 0.06, 0.08), extra=None, extra_scale=0.3,
-            sun=False, delete=(), hide=(),
+            sun=False, delete=(), hide=(), sphere_subdiv=3,
             camera=((0.0, -8.5, 3.6), (0.0, 0.3, 0.8))) -> Scene:
     """three_spheres and a back wall, with knobs; instance slots: 0 ground, 1 red,
     2 mirror, 3 blue, 4 wall (material 4), 5 the extra sphere (if any); lights 0 key,
@@ -48,7 +48,7 @@ def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0
                                      roughness=0.3))
     mirror = s.add_material(Material("mirror", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
     wall = s.add_material(Material("wall", diffuse=wall_diffuse))
-    sphere = s.add_mesh(shapes.icosphere(3, name="sphere"))
+    sphere = s.add_mesh(shapes.icosphere(sphere_subdiv, name="sphere"))
     ground = s.add_mesh(shapes.plane(12.0, name="ground"))
     s.add_instance(ground, np.eye(4), [floor], name="Ground")
     s.add_instance(sphere, shapes.transform((-1.6, 0.4, 1.0)), [red], name="Red")
@@ -166,6 +166,9 @@ EDITS = {
         regions=np.empty((0, 2, 3)), lights={1})),
     "world": (dict(world=(0.5, 0.2, 0.1)), lambda s0, s1: dict(
         regions=np.empty((0, 2, 3)), world=True)),
+    # the spheres' mesh replaced by a coarser one: the ground's triangles move in the arrays
+    "remesh": (dict(sphere_subdiv=2), lambda s0, s1: dict(
+        regions=np.stack([box_of(s0, k) for k in (1, 2, 3)]), objects={1, 2, 3})),
     "delete": (dict(delete=(3,)), lambda s0, s1: dict(regions=box_of(s0, 3)[None],
                                                      objects={3})),
     "hide": (dict(hide=(1,)), lambda s0, s1: dict(regions=box_of(s0, 1)[None],
@@ -310,6 +313,28 @@ def test_failed_cells_around_a_moved_occluders_shadow_are_tried_again():
     after, stale = f1.stats["class_counts"], control.stats["class_counts"]
     assert after["fail_shadow"] < stale["fail_shadow"]
     assert after["rebuilt"] > stale["rebuilt"]
+    base = whitted.render(s1, settings(), accel=accel1)
+    err = np.abs(image.to_display(f1.radiance) - image.to_display(base.radiance)).max()
+    assert err <= settings().epsilon, err
+
+
+def test_interpolants_kept_across_a_remesh_are_used_again():
+    """A mesh replaced by one of another size moves the triangle (and surface class) ids of
+    the meshes after it: the ground's and wall's interpolants must still be used."""
+    s0 = spheres()
+    r, accel = warm_cache(s0)
+    cache = r.cache
+    s1 = spheres(sphere_subdiv=2)
+    assert len(s1.arrays().tris) < len(s0.arrays().tris)
+    inv = cache.invalidate(np.stack([box_of(s0, k) for k in (1, 2, 3)]), {1, 2, 3})
+    kept = np.flatnonzero(cache.pool.live)
+    assert len(kept) > 0
+    sa1 = s1.arrays()
+    accel1 = create_accelerator("BVH", sa1)
+    cache.set_scene(sa1, accel1)
+    f1 = r.render(s1, settings(), accel1)
+    reused = np.isin(f1.pixel_interpolant, kept) & (f1.pixel_class == CLASS_INTERPOLATED)
+    assert reused.sum() > 0.5 * (f1.pixel_class == CLASS_INTERPOLATED).sum(), inv.count
     base = whitted.render(s1, settings(), accel=accel1)
     err = np.abs(image.to_display(f1.radiance) - image.to_display(base.radiance)).max()
     assert err <= settings().epsilon, err

@@ -297,6 +297,31 @@ def _mesh_changed(old, new) -> np.ndarray:
     return out
 
 
+def _remap_classes(cache, old, new, mesh_changed) -> None:
+    """Surface class ids are global triangle indices (the least of the class,
+    :func:`.mesh_topology.mesh_topology`): when a mesh changes size, the triangles of the
+    meshes after it move. Move the class ids the kept interpolants and samples hold
+    (unchanged meshes keep their classes; ids on changed meshes become -2, matching
+    nothing a fresh sample has)."""
+    if np.array_equal(old.mesh_tri_start, new.mesh_tri_start):
+        return
+    f = np.full(len(old.tris) + 1, -2, np.int64)
+    for m in range(min(len(old.mesh_tri_start), len(new.mesh_tri_start)) - 1):
+        a0, a1 = int(old.mesh_tri_start[m]), int(old.mesh_tri_start[m + 1])
+        b0, b1 = int(new.mesh_tri_start[m]), int(new.mesh_tri_start[m + 1])
+        if a1 - a0 == b1 - b0 and not mesh_changed[m]:
+            f[a0:a1] = np.arange(b0, b1)
+
+    def remap(c):
+        return np.where(c >= 0, f[np.clip(c, 0, len(f) - 1)], c).astype(c.dtype)
+
+    p, sm = cache.pool, cache.samples
+    live = np.flatnonzero(p.live)
+    p.cls[live] = remap(p.cls[live])
+    sm._cls[:sm.n] = remap(sm._cls[:sm.n])
+    sm._ncls[:sm.n_nodes] = remap(sm._ncls[:sm.n_nodes])
+
+
 def set_scene(cache, sa, accel) -> None:
     """Move ``cache`` to the edited scene ``sa`` (accelerator ``accel`` over it), keeping
     every interpolant still live (call :func:`invalidate` with the edits first).
@@ -337,11 +362,12 @@ def set_scene(cache, sa, accel) -> None:
     ch = changed[:n_new]
     box[ch] = fresh[ch]
     cache.box = np.ascontiguousarray(box)
+    cache.compact_samples()
+    _remap_classes(cache, old, sa, mesh_changed)
     cache.sa = sa
     cache.accel = accel
     for name in ("topo", "qs", "n_test"):
         cache.__dict__.pop(name, None)
-    cache.compact_samples()
     trees.collapse()
     cache.deps.compact(cache.pool, trees)
     cache.deps.follow_scene(sa, cache.pool)

@@ -53,7 +53,8 @@ class Session:
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None) -> None:
         self.settings = (settings or RenderSettings()).validated()
-        self.scene = scene
+        scene.arrays()  # validated before anything is built
+        self.scene = scene.copy()  # the host may go on changing its own scene object
         self.accel = None
         self.stats: dict = {}
         self.interpolants = InterpolantRenderer()

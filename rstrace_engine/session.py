@@ -64,6 +64,10 @@ class Session:
         self._frame_key = None
         self._dirty: np.ndarray | None = None  # (h * w,) bool pixels the next frame redoes
         self._rebuilt: np.ndarray | None = None  # dirty through an invalidated interpolant
+        # INTERPOLANT: the serial of every interpolant id when the last frame ended, and the
+        # kept pixels whose interpolant was evicted since (no longer tracked by the RSTs)
+        self._snap: np.ndarray | None = None
+        self._untracked: np.ndarray | None = None
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -169,6 +173,12 @@ class Session:
         dirty = rec.dirty_pixels(old_sa, camera_params(self.scene.camera), fx)
         if rebuilt is not None:
             dirty |= rebuilt
+        if f.pixel_interpolant is not None and fx.scene_content_changed:
+            # pixels whose interpolant the RSTs no longer track (evicted by the memory cap
+            # after the pixel was rendered), and pixels whose samples used several
+            dirty |= f.pixel_interpolant.reshape(-1) == -2
+            if self._untracked is not None:
+                dirty |= self._untracked
         report.records_query_ms = 1e3 * (time.perf_counter() - t0)
         self._dirty |= dirty
         report.full_frame = False
@@ -182,6 +192,38 @@ class Session:
             self._build_accelerator(settings.accelerator)  # raises before anything changes
             self.interpolants.reset()
         self.settings = settings
+
+    def _track_interpolants(self, frame: Frame, pixels, pool0) -> None:
+        """After an INTERPOLANT frame: note the pixels whose interpolant the RSTs no longer
+        track -- kept pixels whose interpolant was evicted since it was used, and, when the
+        memory cap evicted anything during the frame, every pixel it interpolated (an id
+        may have been freed and reused within the frame) -- so that the next content edit
+        re-renders them; snapshot the serials."""
+        c = self.interpolants.cache
+        pi = frame.pixel_interpolant
+        if c is None or pi is None:
+            self._snap = self._untracked = None
+            return
+        pi = pi.reshape(-1)
+        pool = c.pool
+        untracked = np.zeros(len(pi), bool)
+        # a cache made during the frame started with serial 1 and nothing live
+        s0, live0 = (pool0[1], pool0[2]) if pool0 is not None and pool0[0] is c else (1, 0)
+        evicted = (pool.next_serial - s0) - (pool.n_live - live0) > 0
+        if evicted:
+            rendered = np.ones(len(pi), bool) if pixels is None else pixels
+            untracked |= rendered & (pi != -1)
+        if pixels is not None and self._snap is not None and self._untracked is not None:
+            kept = ~pixels & (pi >= 0)
+            idx = pi[kept]
+            n = min(len(pool.serial), len(self._snap))
+            inside = idx < n
+            safe = np.where(inside, idx, 0)
+            gone = ~inside | ~pool.live[safe] | (pool.serial[safe] != self._snap[safe])
+            untracked[np.flatnonzero(kept)[gone]] = True
+            untracked |= self._untracked & ~pixels
+        self._untracked = untracked
+        self._snap = pool.serial.copy()
 
     @property
     def dirty_mask(self) -> np.ndarray | None:
@@ -231,6 +273,8 @@ class Session:
         else:
             records = PixelRecords(cam.width, cam.height, self.settings.samples, sa.scene_aabb)
             pixels = None
+        c0 = self.interpolants.cache
+        pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
             base = self.frame if incremental else None
             if own_records:
@@ -260,6 +304,7 @@ class Session:
         else:
             records.finish(drop_rays=None if pixels is None
                            else np.tile(pixels, self.settings.samples))
+            self._track_interpolants(stored, pixels if incremental else None, pool0)
             self.frame, self.records, self._frame_key = stored, records, key
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)

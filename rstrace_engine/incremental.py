@@ -23,8 +23,9 @@ from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
 from .geometry.cameras import camera_params, camera_rays
 from .interpolants.cache import InterpolantCache
 from .interpolants.render import _finish, _take, _to_trace, scene_fingerprint
-from .tracing.whitted import TILE_RAYS, _batches, trace
+from .tracing.batches import TILE_RAYS, frame_batches
 from .tracing.whitted import render as whitted_render
+from .tracing.whitted import trace
 
 
 def ensure_cache(renderer, scene, settings: RenderSettings, accel):
@@ -64,7 +65,7 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     w, h = cp.width, cp.height
     spp = int(settings.samples)
     rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
-    parts = list(_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels))
+    parts = list(frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels))
     if parts:
         pix = np.concatenate([p for p, _, _ in parts])
         jitter = np.concatenate([j for _, j, _ in parts], axis=1)

@@ -62,6 +62,19 @@ def test_random_edits_base_exact(scene_name):
     assert np.median(fractions) < 0.75, fractions
 
 
+@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE"])
+def test_random_edits_base_exact_other_accelerators(accelerator):
+    if accelerator == "EMBREE":
+        pytest.importorskip("embreex")
+    settings = RenderSettings(mode="BASE", max_depth=3, accelerator=accelerator)
+    gen = EditGenerator(SOAK_SCENES["room"](24, 18), seed=4)
+    sess = Session(gen.scene.copy(), settings)
+    prev = sess.render()
+    for _ in range(14):
+        sess.apply(gen.step())
+        prev, _ = check_base_step(sess, prev, settings)
+
+
 @pytest.mark.parametrize("memory_cap_mb", [256.0, 0.004])
 def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
     """Also under a memory cap so small that interpolants are evicted every frame (a kept

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from . import tolerances as tol
-from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
+from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
 from .geometry.cameras import camera_params, camera_rays
 from .interpolants.cache import InterpolantCache
 from .interpolants.render import _finish, _take, _to_trace, scene_fingerprint
@@ -72,9 +72,18 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     else:
         pix, jitter = np.zeros(0, np.int64), np.zeros((spp, 0, 2))
     k = len(pix)
-    if k == 0 and base is not None:  # nothing is dirty: the previous frame
-        return Frame(base.radiance.copy(), base.pixel_class.copy(),
-                     dict(base.stats, time_s=time.perf_counter() - t0, traced_pixels=0),
+    if k == 0 and base is not None:  # nothing is dirty: the previous frame, no work done
+        interp = np.count_nonzero(base.pixel_class == CLASS_INTERPOLATED)
+        stats = dict(mode="INTERPOLANT", time_s=time.perf_counter() - t0, traced_pixels=0,
+                     traced_rays=0, cells_built=0, cells_valid=0,
+                     interpolated_fraction=interp / max(base.pixel_class.size, 1),
+                     interpolants=cache.pool.n_live, memory_mb=cache.memory_bytes / 1e6,
+                     rst_memory_mb=cache.rst_memory_bytes() / 1e6, epsilon=cache.epsilon,
+                     depth_cap=cache.depth_cap, width=w, height=h, samples=spp,
+                     max_depth=int(settings.max_depth), cancelled=False, nonfinite_samples=0,
+                     accelerator=getattr(accel, "name", "?"))
+        stats["interpolated_pct"] = 100.0 * stats["interpolated_fraction"]
+        return Frame(base.radiance.copy(), base.pixel_class.copy(), stats,
                      pixel_interpolant=base.pixel_interpolant.copy())
     o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
     n = len(o)
@@ -127,7 +136,9 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     fs = cache.frame_stats
     stats = dict(
         mode="INTERPOLANT", time_s=time.perf_counter() - t0,
-        interpolated_fraction=float(np.count_nonzero(interp)) / max(n, 1),
+        # of the whole frame (kept pixels included)
+        interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
+        / max(len(pclass), 1),
         traced_rays=len(todo), traced_pixels=k, cells_built=fs.get("cells_built", 0),
         cells_valid=fs.get("cells_valid", 0), interpolants=cache.pool.n_live,
         memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,

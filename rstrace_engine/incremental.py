@@ -23,7 +23,7 @@ from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, Ren
 from .geometry.cameras import camera_params, camera_rays
 from .interpolants.cache import InterpolantCache
 from .interpolants.render import _finish, _take, _to_trace, scene_fingerprint
-from .tracing.batches import TILE_RAYS, frame_batches
+from .tracing.batches import TILE_RAYS, frame_batches, threads_for
 from .tracing.whitted import render as whitted_render
 from .tracing.whitted import trace
 
@@ -85,32 +85,33 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
         stats["interpolated_pct"] = 100.0 * stats["interpolated_fraction"]
         return Frame(base.radiance.copy(), base.pixel_class.copy(), stats,
                      pixel_interpolant=base.pixel_interpolant.copy())
-    o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-    n = len(o)
-    gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
-    hits = accel.closest_hit(o, d, tmin, tmax)
-    if progress is not None:
-        progress(0.2, "visibility")
-    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
-    if progress is not None:
-        progress(0.7, "interpolants")
-    rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
-    todo = np.empty(n, np.int64)
-    todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
-                           todo)]
-    records.add_primary(gids, hits.inst, o, d, hits.t)
-    cancelled = cancel is not None and cancel()
-    counters: dict = {}
-    if not cancelled:
-        n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-        for q in range(n_tiles):
-            part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
-            segs: list = []
-            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                 int(settings.max_depth), primary=_take(hits, part),
-                                 counters=counters, segments=segs)
-            records.add(gids[part], segs)
+    with threads_for(k * spp):  # the dirty pixels of an edit: one thread (see batches)
+        o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+        n = len(o)
+        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
+        hits = accel.closest_hit(o, d, tmin, tmax)
+        if progress is not None:
+            progress(0.2, "visibility")
+        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
+        if progress is not None:
+            progress(0.7, "interpolants")
+        rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
+        todo = np.empty(n, np.int64)
+        todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
+                               todo)]
+        records.add_primary(gids, hits.inst, o, d, hits.t)
+        cancelled = cancel is not None and cancel()
+        counters: dict = {}
+        if not cancelled:
+            n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+            for q in range(n_tiles):
+                part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+                segs: list = []
+                rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                     int(settings.max_depth), primary=_take(hits, part),
+                                     counters=counters, segments=segs)
+                records.add(gids[part], segs)
     good = np.empty(n, np.bool_)
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))

@@ -22,27 +22,10 @@ from . import tolerances as tol
 from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
 from .geometry.cameras import camera_params, camera_rays
 from .interpolants.cache import InterpolantCache
-from .interpolants.render import _finish, _take, _to_trace, scene_fingerprint
+from .interpolants.render import _finish, _take, _to_trace
 from .tracing.batches import TILE_RAYS, frame_batches, threads_for
 from .tracing.whitted import render as whitted_render
 from .tracing.whitted import trace
-
-
-def ensure_cache(renderer, scene, settings: RenderSettings, accel):
-    """The renderer's cache for this scene and these settings, as
-    :meth:`InterpolantRenderer.render` keeps it; returns ``(cache, new)``."""
-    sa = scene.arrays()
-    c = renderer.cache
-    if c is None or c.accel is not accel or not renderer._same_scene(sa) or not c.compatible(
-            sa, settings.epsilon, settings.depth_cap, settings.max_depth):
-        renderer.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
-                                              settings.memory_cap_mb, settings.max_depth)
-        renderer._fingerprint = scene_fingerprint(sa)
-        renderer._fingerprint_of = sa
-        return c, True
-    if c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
-        c.set_memory_cap(settings.memory_cap_mb)
-    return c, False
 
 
 def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings, records,

@@ -85,12 +85,17 @@ def _accelerators() -> tuple[str, ...]:
 
 
 def _animate(session, ortho: bool) -> None:
-    """What frames of an animation do: render, move the camera, move an object, render."""
+    """What frames of an animation do: render, move the camera, move an object (a full
+    frame when the scene box grows, an incremental one when it does not), render."""
     session.render()
     session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1)))
     session.render()
     session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
                                     glossy_at=(-0.9, 0.1, 0.9)))
+    session.render()
+    # the same camera and scene box: an incremental frame (dirty-pixel queries)
+    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
+                                    glossy_at=(-0.6, 0.1, 0.9)))
     session.render()
 
 

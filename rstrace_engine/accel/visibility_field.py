@@ -1,0 +1,626 @@
+"""The visibility field (Khanna, Mortensen, Yu, Slater; seed 003): a ray accelerator built
+from parallel beams, cheap to update for moving objects.
+
+Structure (all flat arrays, built and queried by numba kernels)
+    * ``l`` directions from a subdivided tetrahedron with a constant-time nearest-direction
+      look-up (:mod:`.directions`).
+    * For each direction ``w`` a *parallel subfield*: the (padded) scene box projected along
+      ``w`` onto the plane spanned by ``e1, e2`` (``e1, e2, w`` orthonormal) and cut into
+      ``n x n`` tiles. Every triangle of every instance (a *reference*: instance + global
+      triangle) is scan-converted, in world space, into the tiles its projection covers
+      (row by row, the span of the triangle within each row; conservatively grown by
+      :data:`~.tolerances.VF_PAD_REL`). Tile ``t = (k * n + row) * n + col`` lists its
+      references in ``ref[start[t]:start[t + 1]]`` (one flat candidate array).
+    * Within a tile the references are ordered along the beam by ``zmin`` (their smallest
+      depth ``x . w``), with ``pmax`` the running maximum of their largest depth. A ray
+      walks a tile from the first entry whose ``pmax`` reaches the ray's start depth (a
+      binary search skips everything behind the origin) and stops at the first entry whose
+      ``zmin`` lies beyond the closest hit found so far: the "type of BSP tree" of the paper
+      replaced by an order along the beam with an early exit (measured in the benchmark).
+      Depths are stored as float32, rounded outward.
+
+Query
+    nearest direction ``w`` of the ray -> the ray's segment inside the field box projected
+    onto that subfield (usually one tile; every tile the projected segment crosses is
+    visited, row by row along the ray) -> the candidates are tested with the watertight test
+    of :mod:`.triangle` *in object space*, with the ray taken to object space exactly as the
+    BVH does (:func:`.bvh.ray_to_object`), so hits and distances equal the BVH's bit for bit
+    (up to ties between triangles at the same distance).
+
+Dynamic objects (the paper's section 3)
+    :meth:`VisibilityField.update` compares the new packing's instance transforms with the
+    previous ones; an instance whose transform changed becomes *dynamic* (for the lifetime of
+    the field). Its static entries are skipped from then on (per-instance state, see
+    :func:`instance_states`), and all dynamic instances are scan-converted into per-tile
+    dynamic lists stamped with a version ``V``: a global ``GV`` is incremented each time the
+    dynamic set moves, a query reads a tile's dynamic list only when ``V == GV``, so stale
+    lists die without being visited (no pass over the ``l n^2`` tiles); the flat dynamic
+    array is allocated afresh each time (the old one is reclaimed). A query searches the
+    static candidates, then the valid dynamic ones linearly. A dynamic object that leaves the
+    field box, or any change of geometry or of the instance set, rebuilds the field.
+
+Memory: ``l n^2`` tiles cost 28 bytes (offsets, version, dynamic offsets and count), each
+static entry 12 bytes, each dynamic one 12; beyond ``memory_cap_mb`` the build stops with a
+:class:`~.scene.SceneError` that names the settings.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .. import tolerances as tol
+from ..geometry.scene import SceneArrays, SceneError
+from .accelerators import Accelerator, empty_hits
+from .bvh import ray_to_object
+from .directions import (
+    MAX_LEVEL,
+    direction_count,
+    direction_table,
+    level_for,
+    nearest_direction,
+)
+from .triangle import intersect_sheared, ray_shear
+
+log = logging.getLogger(__name__)
+
+#: Default number of directions ``l`` (subdivision level 3).
+DEFAULT_DIRECTIONS = 130
+#: Default tiles per side ``n`` of each subfield.
+DEFAULT_TILES = 32
+#: Largest ``n`` accepted.
+MAX_TILES = 1024
+#: Default memory cap of one field (MB).
+MEMORY_CAP_MB = 2048.0
+#: Bytes per tile (static offset int64, dynamic version int64, offset int64, count int32).
+TILE_BYTES = 28
+#: Bytes per static entry (reference int32, zmin float32, pmax float32).
+ENTRY_BYTES = 12
+#: Rays per parallel work item and work items a thread takes at a time.
+CHUNK = 64
+PARALLEL_CHUNKSIZE = 16
+
+#: Instance states (:func:`instance_states`).
+STATIC, DYNAMIC, NEVER = 0, 1, 2
+
+# raster modes
+_COUNT, _FILL, _DYN_COUNT, _DYN_FILL = 0, 1, 2, 3
+
+
+class Subfields(NamedTuple):
+    """The parallel subfields' geometry: one row per direction ``k``."""
+
+    frame: np.ndarray  # (l, 9) float64: e1, e2, w
+    grid: np.ndarray  # (l, 4) float64: u0, v0, n / width_u, n / width_v
+    box: np.ndarray  # (2, 3) float64 field box (padded scene box)
+    pad: float  # world-space margin (VF_PAD_REL * coordinate magnitude)
+    n: int  # tiles per side
+
+
+class StaticLists(NamedTuple):
+    """Static candidates: tile ``t`` owns ``ref[start[t]:start[t + 1]]`` (ordered by zmin)."""
+
+    start: np.ndarray  # (l n^2 + 1,) int64
+    ref: np.ndarray  # (E,) int32 reference id
+    zmin: np.ndarray  # (E,) float32 smallest depth along w (rounded down)
+    pmax: np.ndarray  # (E,) float32 running max of the largest depth (rounded up)
+
+
+class DynamicLists(NamedTuple):
+    """Dynamic candidates: tile ``t`` is valid when ``stamp[t] == GV``; it owns
+    ``ref[start[t]:start[t] + count[t]]``."""
+
+    stamp: np.ndarray  # (l n^2,) int64 version V of the tile's list
+    start: np.ndarray  # (l n^2,) int64
+    count: np.ndarray  # (l n^2,) int32
+    ref: np.ndarray  # (D,) int32
+    zmin: np.ndarray  # (D,) float32
+    zmax: np.ndarray  # (D,) float32
+
+
+class References(NamedTuple):
+    """Every (instance, triangle) pair of the scene and the object-space triangles."""
+
+    inst: np.ndarray  # (R,) int32
+    prim: np.ndarray  # (R,) int32 global triangle
+    first: np.ndarray  # (I + 1,) int64: instance i owns references first[i]:first[i + 1]
+    tv: np.ndarray  # (T, 9) float64 object-space vertices of every global triangle
+
+
+# ----------------------------------------------------------------------------- build helpers
+
+
+def references(sa: SceneArrays) -> References:
+    """The scene's references, instance by instance."""
+    s = sa.mesh_tri_start.astype(np.int64)
+    m = sa.inst_mesh.astype(np.int64)
+    cnt = s[m + 1] - s[m]
+    first = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
+    inst = np.repeat(np.arange(len(m), dtype=np.int32), cnt)
+    prim = (s[m][inst] + np.arange(first[-1]) - first[:-1][inst]).astype(np.int32)
+    tv = np.ascontiguousarray(sa.verts[sa.tris].reshape(-1, 9))
+    return References(inst, prim, first, tv)
+
+
+def instance_states(n_instances: int, dynamic: np.ndarray) -> np.ndarray:
+    """Per-instance state (I,) int8: :data:`STATIC`, :data:`DYNAMIC` or :data:`NEVER`.
+
+    The one place that decides which instances a query may hit and through which lists;
+    instances that must never be hit (e.g. deleted ones kept in their slot) get ``NEVER``.
+    """
+    state = np.full(n_instances, STATIC, np.int8)
+    state[dynamic] = DYNAMIC
+    return state
+
+
+def subfields(dirs: np.ndarray, scene_aabb: np.ndarray, n: int) -> Subfields:
+    """Frames and tile grids of every direction over the padded scene box."""
+    lo, hi = scene_aabb
+    mag = float(np.abs(scene_aabb).max() + np.linalg.norm(hi - lo))
+    pad = tol.VF_PAD_REL * max(mag, 1e-300)
+    box = np.array([lo - 4.0 * pad, hi + 4.0 * pad])
+    helper = np.where(np.abs(dirs[:, :1]) < 0.6, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(dirs, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(dirs, e1)
+    corners = np.array([[x, y, z] for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]])
+    pu, pv = corners @ e1.T, corners @ e2.T  # (8, l)
+    u0, v0 = pu.min(axis=0) - pad, pv.min(axis=0) - pad
+    wu, wv = pu.max(axis=0) + pad - u0, pv.max(axis=0) + pad - v0
+    grid = np.stack([u0, v0, n / wu, n / wv], axis=1)
+    return Subfields(np.ascontiguousarray(np.concatenate([e1, e2, dirs], axis=1)),
+                     np.ascontiguousarray(grid), box, float(pad), int(n))
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _world_triangles(tv, ref_inst, ref_prim, xform, sel):
+    """World-space vertices (len(sel), 9) float64 of the references ``sel``."""
+    out = np.empty((sel.shape[0], 9))
+    for q in prange(sel.shape[0]):
+        r = sel[q]
+        i, p = ref_inst[r], ref_prim[r]
+        for c in range(3):
+            x, y, z = tv[p, 3 * c], tv[p, 3 * c + 1], tv[p, 3 * c + 2]
+            for a in range(3):
+                out[q, 3 * c + a] = (xform[i, a, 0] * x + xform[i, a, 1] * y
+                                     + xform[i, a, 2] * z + xform[i, a, 3])
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _down32(x):
+    """float32 not above ``x``."""
+    y = np.float32(x)
+    if y > x:
+        y = np.nextafter(y, np.float32(-np.inf))
+    return y
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _up32(x):
+    """float32 not below ``x``."""
+    y = np.float32(x)
+    if y < x:
+        y = np.nextafter(y, np.float32(np.inf))
+    return y
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _slab_span(u0, v0, u1, v1, u2, v2, ya, yb):
+    """Smallest and largest ``u`` of triangle (u_i, v_i) within the slab ``ya <= v <= yb``
+    (vertices inside plus edge crossings of the slab's two lines); (inf, -inf) if none."""
+    lo, hi = np.inf, -np.inf
+    for c in range(3):
+        pu = u0 if c == 0 else (u1 if c == 1 else u2)
+        pv = v0 if c == 0 else (v1 if c == 1 else v2)
+        qu = u1 if c == 0 else (u2 if c == 1 else u0)
+        qv = v1 if c == 0 else (v2 if c == 1 else v0)
+        if ya <= pv <= yb:
+            lo, hi = min(lo, pu), max(hi, pu)
+        for s in range(2):
+            y = ya if s == 0 else yb
+            if (pv - y) * (qv - y) < 0.0:
+                x = pu + (y - pv) * (qu - pu) / (qv - pv)
+                lo, hi = min(lo, x), max(hi, x)
+    return lo, hi
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _cell(x, x0, inv, n):
+    """Tile coordinate of ``x`` on an axis starting at ``x0`` with ``n`` tiles, clamped."""
+    c = np.floor((x - x0) * inv)
+    if c < 0.0:
+        return 0
+    if c > n - 1:
+        return n - 1
+    return int(c)
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _raster(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+            out_zmax, stamp, gv, dir_total):
+    """Scan-convert world triangles ``wv`` (m, 9) (references ``refs``) into every subfield.
+
+    Parallel over directions (a direction owns its tiles, so no two threads write one).
+    ``mode``: 0 count into ``counts``; 1 fill at the cursors ``starts`` (advanced);
+    2 dynamic count (tiles first touched get ``stamp = -gv`` and a zero count; per-direction
+    totals in ``dir_total``); 3 dynamic fill (``starts`` are assigned from ``dir_total``,
+    which holds the direction's first entry, and ``stamp`` becomes ``gv``).
+    """
+    nn = n * n
+    for k in prange(frame.shape[0]):
+        e1x, e1y, e1z = frame[k, 0], frame[k, 1], frame[k, 2]
+        e2x, e2y, e2z = frame[k, 3], frame[k, 4], frame[k, 5]
+        wx, wy, wz = frame[k, 6], frame[k, 7], frame[k, 8]
+        gu, gv0, iu, iv = grid[k, 0], grid[k, 1], grid[k, 2], grid[k, 3]
+        for q in range(wv.shape[0]):
+            u0 = wv[q, 0] * e1x + wv[q, 1] * e1y + wv[q, 2] * e1z
+            u1 = wv[q, 3] * e1x + wv[q, 4] * e1y + wv[q, 5] * e1z
+            u2 = wv[q, 6] * e1x + wv[q, 7] * e1y + wv[q, 8] * e1z
+            v0 = wv[q, 0] * e2x + wv[q, 1] * e2y + wv[q, 2] * e2z
+            v1 = wv[q, 3] * e2x + wv[q, 4] * e2y + wv[q, 5] * e2z
+            v2 = wv[q, 6] * e2x + wv[q, 7] * e2y + wv[q, 8] * e2z
+            z0 = wv[q, 0] * wx + wv[q, 1] * wy + wv[q, 2] * wz
+            z1 = wv[q, 3] * wx + wv[q, 4] * wy + wv[q, 5] * wz
+            z2 = wv[q, 6] * wx + wv[q, 7] * wy + wv[q, 8] * wz
+            zlo, zhi = min(z0, z1, z2) - pad, max(z0, z1, z2) + pad
+            r0 = _cell(min(v0, v1, v2) - pad, gv0, iv, n)
+            r1 = _cell(max(v0, v1, v2) + pad, gv0, iv, n)
+            for r in range(r0, r1 + 1):
+                ya = gv0 + r / iv - pad  # row r, grown by pad (as the query computes it)
+                yb = gv0 + (r + 1) / iv + pad
+                lo, hi = _slab_span(u0, v0, u1, v1, u2, v2, ya, yb)
+                if lo > hi:
+                    continue
+                c0 = _cell(lo - pad, gu, iu, n)
+                c1 = _cell(hi + pad, gu, iu, n)
+                for c in range(c0, c1 + 1):
+                    t = k * nn + r * n + c
+                    if mode == 0:
+                        counts[t] += 1
+                        continue
+                    if mode == 2:
+                        if stamp[t] != -gv:
+                            stamp[t] = -gv
+                            counts[t] = 0
+                        counts[t] += 1
+                        dir_total[k] += 1
+                        continue
+                    if mode == 3:
+                        if stamp[t] == -gv:
+                            stamp[t] = gv
+                            starts[t] = dir_total[k]
+                            dir_total[k] += counts[t]
+                            counts[t] = 0
+                        e = starts[t] + counts[t]
+                        counts[t] += 1
+                    else:
+                        e = starts[t]
+                        starts[t] += 1
+                    out_ref[e] = refs[q]
+                    out_zmin[e] = _down32(zlo)
+                    out_zmax[e] = _up32(zhi)
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _order_tiles(start, ref, zmin, zmax):
+    """Sort each tile's entries by zmin; turn ``zmax`` into its running maximum (pmax)."""
+    for t in prange(start.shape[0] - 1):
+        s, e = start[t], start[t + 1]
+        if e - s > 1:
+            order = np.argsort(zmin[s:e], kind="mergesort") + s
+            r, a, b = ref[order], zmin[order], zmax[order]
+            ref[s:e], zmin[s:e], zmax[s:e] = r, a, b
+        m = np.float32(-np.inf)
+        for x in range(s, e):
+            m = max(m, zmax[x])
+            zmax[x] = m
+
+
+# ----------------------------------------------------------------------------- query
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _clip_box(box, ox, oy, oz, dx, dy, dz, t0, t1):
+    """Ray interval ``[t0, t1]`` clipped to the field box (may come back empty)."""
+    for a in range(3):
+        o = ox if a == 0 else (oy if a == 1 else oz)
+        d = dx if a == 0 else (dy if a == 1 else dz)
+        if d == 0.0:
+            if o < box[0, a] or o > box[1, a]:
+                return 1.0, 0.0
+            continue
+        ta, tb = (box[0, a] - o) / d, (box[1, a] - o) / d
+        if ta > tb:
+            ta, tb = tb, ta
+        t0, t1 = max(t0, ta), min(t1, tb)
+    return t0, t1
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_prim, tv,
+               inst_inv, state, gv, ox, oy, oz, dx, dy, dz, tmin, tmax, anyhit, only):
+    """One ray through the field. Returns ``(inst, t, prim, u, v)`` (inst -1 on a miss)."""
+    bi, bp, bu, bv = -1, -1, 0.0, 0.0
+    best = tmax
+    t0, t1 = _clip_box(box, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if not t0 <= t1:
+        return bi, best, bp, bu, bv
+    k = nearest_direction(tab.dirs, tab.corners, tab.face_inv, tab.res, tab.cell_start,
+                          tab.cell_dirs, dx, dy, dz)
+    ou = ox * sf_frame[k, 0] + oy * sf_frame[k, 1] + oz * sf_frame[k, 2]
+    du = dx * sf_frame[k, 0] + dy * sf_frame[k, 1] + dz * sf_frame[k, 2]
+    ov = ox * sf_frame[k, 3] + oy * sf_frame[k, 4] + oz * sf_frame[k, 5]
+    dv = dx * sf_frame[k, 3] + dy * sf_frame[k, 4] + dz * sf_frame[k, 5]
+    ow = ox * sf_frame[k, 6] + oy * sf_frame[k, 7] + oz * sf_frame[k, 8]
+    dw = dx * sf_frame[k, 6] + dy * sf_frame[k, 7] + dz * sf_frame[k, 8]  # > 0: nearest w
+    ua, ub, va, vb = ou + t0 * du, ou + t1 * du, ov + t0 * dv, ov + t1 * dv
+    gu, gv0, iu, iv = sf_grid[k, 0], sf_grid[k, 1], sf_grid[k, 2], sf_grid[k, 3]
+    d_start = ow + t0 * dw - pad
+    ra = _cell(va - pad if vb >= va else va + pad, gv0, iv, n)
+    rb = _cell(vb + pad if vb >= va else vb - pad, gv0, iv, n)
+    rstep = 1 if rb >= ra else -1
+    li = -1
+    lx, ly, lz, kx, ky, kz, sx, sy, sz = 0.0, 0.0, 0.0, 0, 1, 2, 0.0, 0.0, 0.0
+    for r in range(ra, rb + rstep, rstep):
+        # the part of the projected segment inside row r (grown by pad)
+        ya = gv0 + r / iv - pad
+        yb = gv0 + (r + 1) / iv + pad
+        s0, s1 = 0.0, 1.0
+        if vb != va:
+            sa_, sb_ = (ya - va) / (vb - va), (yb - va) / (vb - va)
+            s0, s1 = max(0.0, min(sa_, sb_)), min(1.0, max(sa_, sb_))
+            if s0 > s1:
+                continue
+        xa, xb = ua + s0 * (ub - ua), ua + s1 * (ub - ua)
+        ca = _cell(xa - pad if xb >= xa else xa + pad, gu, iu, n)
+        cb = _cell(xb + pad if xb >= xa else xb - pad, gu, iu, n)
+        cstep = 1 if cb >= ca else -1
+        for c in range(ca, cb + cstep, cstep):
+            t = (k * n + r) * n + c
+            for phase in range(2):
+                if phase == 0:
+                    a, b = st.start[t], st.start[t + 1]
+                    while a < b:  # first entry that reaches the ray's start depth
+                        mid = (a + b) >> 1
+                        if st.pmax[mid] < d_start:
+                            a = mid + 1
+                        else:
+                            b = mid
+                    b = st.start[t + 1]
+                else:
+                    if dyn.stamp[t] != gv:
+                        break
+                    a = dyn.start[t]
+                    b = a + dyn.count[t]
+                for x in range(a, b):
+                    d_stop = ow + min(best, t1) * dw + pad
+                    if phase == 0:
+                        if st.zmin[x] > d_stop:
+                            break  # ordered along the beam: nothing nearer follows
+                        q = st.ref[x]
+                    else:
+                        if dyn.zmin[x] > d_stop or dyn.zmax[x] < d_start:
+                            continue
+                        q = dyn.ref[x]
+                    i = refs_inst[q]
+                    if state[i] != phase or (only >= 0 and i != only):
+                        continue
+                    if i != li:
+                        li = i
+                        lx, ly, lz, ex, ey, ez = ray_to_object(inst_inv, i, ox, oy, oz,
+                                                               dx, dy, dz)
+                        kx, ky, kz, sx, sy, sz = ray_shear(ex, ey, ez)
+                        lx, ly, lz = (lx if kx == 0 else (ly if kx == 1 else lz),
+                                      lx if ky == 0 else (ly if ky == 1 else lz),
+                                      lx if kz == 0 else (ly if kz == 1 else lz))
+                    p = refs_prim[q]
+                    hit, th, uh, vh = intersect_sheared(
+                        tv[p, kx], tv[p, ky], tv[p, kz], tv[p, 3 + kx], tv[p, 3 + ky],
+                        tv[p, 3 + kz], tv[p, 6 + kx], tv[p, 6 + ky], tv[p, 6 + kz],
+                        lx, ly, lz, sx, sy, sz, tmin, best)
+                    if hit:
+                        bi, best, bp, bu, bv = i, th, p, uh, vh
+                        if anyhit:
+                            return bi, best, bp, bu, bv
+    return bi, best, bp, bu, bv
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def trace_kernel(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_prim, tv,
+                 inst_inv, state, gv, o, d, tmin, tmax, only, anyhit, out_t, out_inst,
+                 out_prim, out_u, out_v):
+    """Closest (or any) hit of each ray; outputs as :func:`.bvh.trace_kernel` (rows that miss
+    are left untouched)."""
+    n_rays = o.shape[0]
+    for ch in prange((n_rays + CHUNK - 1) // CHUNK):
+        for r in range(ch * CHUNK, min(n_rays, (ch + 1) * CHUNK)):
+            if not tmin[r] <= tmax[r]:
+                continue
+            bi, t, p, u, v = _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn,
+                                        refs_inst, refs_prim, tv, inst_inv, state, gv,
+                                        o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
+                                        tmin[r], tmax[r], anyhit, only[r])
+            if bi >= 0:
+                out_t[r], out_inst[r], out_prim[r], out_u[r], out_v[r] = t, bi, p, u, v
+
+
+# ----------------------------------------------------------------------------- accelerator
+
+
+def check_settings(directions: int, tiles: int, memory_cap_mb: float) -> None:
+    """Raise :class:`SceneError` naming a setting outside its range."""
+    lmax = direction_count(MAX_LEVEL)
+    if not 1 <= int(directions) <= lmax:
+        raise SceneError(f"setting 'vf_directions': {directions} outside [1, {lmax}]")
+    if not 1 <= int(tiles) <= MAX_TILES:
+        raise SceneError(f"setting 'vf_tiles': {tiles} outside [1, {MAX_TILES}]")
+    if not (np.isfinite(memory_cap_mb) and memory_cap_mb > 0):
+        raise SceneError(f"visibility field: memory cap {memory_cap_mb} MB must be > 0")
+
+
+class VisibilityField(Accelerator):
+    """The visibility field behind the common batch interface (see the module docstring).
+
+    ``directions`` is rounded up to the next count the tetrahedron gives (4, 10, 34, 130,
+    514, 2050); ``tiles`` is ``n`` (``n x n`` tiles per direction).
+    """
+
+    name = "VISIBILITY_FIELD"
+
+    def __init__(self, scene_arrays: SceneArrays, directions: int = DEFAULT_DIRECTIONS,
+                 tiles: int = DEFAULT_TILES, memory_cap_mb: float = MEMORY_CAP_MB) -> None:
+        super().__init__(scene_arrays)
+        check_settings(directions, tiles, memory_cap_mb)
+        self.level = level_for(int(directions))
+        self.n = int(tiles)
+        self.cap_mb = float(memory_cap_mb)
+        self.table = direction_table(self.level)
+        self.stats.update(rebuilds=0, updates=0, update_s=0.0)
+        self._build(scene_arrays)
+
+    # -- build -------------------------------------------------------------------------
+
+    def _check_memory(self, n_entries: int) -> float:
+        l_, nn = len(self.table.dirs), self.n * self.n
+        mb = (l_ * nn * TILE_BYTES + n_entries * ENTRY_BYTES) / 2**20
+        if mb > self.cap_mb:
+            raise SceneError(
+                f"visibility field: {l_} directions x {self.n}^2 tiles and {n_entries} "
+                f"entries need {mb:.0f} MB, over the cap of {self.cap_mb:.0f} MB; lower "
+                "'vf_directions' or 'vf_tiles'")
+        return mb
+
+    def _build(self, sa: SceneArrays) -> None:
+        t0 = time.perf_counter()
+        self._check_memory(0)  # before anything of size l n^2 is allocated
+        refs = references(sa)
+        sf = subfields(self.table.dirs, sa.scene_aabb, self.n)
+        tiles = len(self.table.dirs) * self.n * self.n
+        counts = np.zeros(tiles, np.int64)
+        wv = _world_triangles(refs.tv, refs.inst, refs.prim, sa.inst_xform,
+                              np.arange(len(refs.inst), dtype=np.int64))
+        sel = np.arange(len(refs.inst), dtype=np.int32)
+        args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel)
+        dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
+        stamp0, tot0 = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        _raster(*args, _COUNT, counts, counts, dummy_i, dummy_f, dummy_f, stamp0, 0, tot0)
+        n_entries = int(counts.sum())
+        mb = self._check_memory(n_entries)
+        start = np.zeros(tiles + 1, np.int64)
+        np.cumsum(counts, out=start[1:])
+        cursor = start[:-1].copy()
+        ref = np.empty(n_entries, np.int32)
+        zmin = np.empty(n_entries, np.float32)
+        zmax = np.empty(n_entries, np.float32)
+        _raster(*args, _FILL, counts, cursor, ref, zmin, zmax, stamp0, 0, tot0)
+        _order_tiles(start, ref, zmin, zmax)
+        self.sf, self.refs, self.sa = sf, refs, sa
+        self.static = StaticLists(start, ref, zmin, zmax)
+        self.gv = 0
+        self.dynamic = DynamicLists(np.zeros(tiles, np.int64), np.zeros(tiles, np.int64),
+                                    np.zeros(tiles, np.int32), dummy_i, dummy_f, dummy_f)
+        self._dynamic = np.zeros(len(sa.inst_mesh), bool)
+        self._state = instance_states(len(sa.inst_mesh), self._dynamic)
+        self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy(), sa.inst_mesh.copy())
+        build_s = time.perf_counter() - t0
+        self.stats.update(directions=len(self.table.dirs), level=self.level, tiles=self.n,
+                          static_entries=n_entries, dynamic_entries=0, dynamic_instances=0,
+                          gv=0, memory_mb=round(mb, 3), build_s=build_s,
+                          entries_per_tile=n_entries / tiles)
+        log.debug("visibility field: %d directions x %d^2 tiles, %d entries, %.1f MB, "
+                  "%.3f s", len(self.table.dirs), self.n, n_entries, mb, build_s)
+
+    def _same_geometry(self, sa: SceneArrays) -> bool:
+        verts, tris, mts, im = self._geometry
+        if len(sa.inst_mesh) != len(im) or not np.array_equal(sa.inst_mesh, im):
+            return False
+        if not np.array_equal(sa.mesh_tri_start, mts):
+            return False
+        return ((sa.verts is verts or np.array_equal(sa.verts, verts))
+                and (sa.tris is tris or np.array_equal(sa.tris, tris)))
+
+    # -- dynamic objects ---------------------------------------------------------------
+
+    def update(self, scene_arrays: SceneArrays) -> None:
+        """Take a new packing: instances whose transform changed become dynamic and the
+        dynamic lists are rewritten under a new ``GV``; other changes rebuild the field."""
+        t0 = time.perf_counter()
+        sa = scene_arrays
+        self.stats["updates"] += 1
+        if not self._same_geometry(sa):
+            self.stats["rebuilds"] += 1
+            self._build(sa)
+            self.stats["update_s"] = time.perf_counter() - t0
+            return
+        moved = np.any(sa.inst_xform != self.sa.inst_xform, axis=(1, 2))
+        self.sa = sa
+        if moved.any():
+            self._dynamic |= moved
+            box = self.sf.box
+            dyn_box = sa.inst_aabb[self._dynamic]
+            if np.any(dyn_box[:, 0] < box[0]) or np.any(dyn_box[:, 1] > box[1]):
+                self.stats["rebuilds"] += 1  # a moving object left the field box
+                self._build(sa)
+            else:
+                self._state = instance_states(len(sa.inst_mesh), self._dynamic)
+                self._rasterize_dynamic()
+        self.stats["update_s"] = time.perf_counter() - t0
+
+    def _rasterize_dynamic(self) -> None:
+        """Write every dynamic instance into the tiles under a new version ``GV``."""
+        self.gv += 1
+        refs, sf, dyn = self.refs, self.sf, self.dynamic
+        inst = np.flatnonzero(self._state == DYNAMIC)
+        sel = (np.concatenate([np.arange(refs.first[i], refs.first[i + 1]) for i in inst])
+               if len(inst) else np.zeros(0, np.int64)).astype(np.int64)
+        wv = _world_triangles(refs.tv, refs.inst, refs.prim, self.sa.inst_xform, sel)
+        sel32 = sel.astype(np.int32)
+        l_ = len(self.table.dirs)
+        total = np.zeros(l_, np.int64)
+        dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
+        args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel32)
+        _raster(*args, _DYN_COUNT, dyn.count, dyn.start, dummy_i, dummy_f, dummy_f, dyn.stamp,
+                self.gv, total)
+        n_dyn = int(total.sum())
+        self._check_memory(self.stats["static_entries"] + n_dyn)
+        base = np.zeros(l_, np.int64)
+        np.cumsum(total[:-1], out=base[1:])
+        ref = np.empty(n_dyn, np.int32)  # the previous version's array is dropped here
+        zmin = np.empty(n_dyn, np.float32)
+        zmax = np.empty(n_dyn, np.float32)
+        _raster(*args, _DYN_FILL, dyn.count, dyn.start, ref, zmin, zmax, dyn.stamp, self.gv,
+                base)
+        self.dynamic = DynamicLists(dyn.stamp, dyn.start, dyn.count, ref, zmin, zmax)
+        mb = self._check_memory(self.stats["static_entries"] + n_dyn)
+        self.stats.update(dynamic_entries=n_dyn, dynamic_instances=len(inst), gv=self.gv,
+                          memory_mb=round(mb, 3))
+
+    def set_dynamic(self, instances) -> None:
+        """Mark ``instances`` (ids) dynamic now, e.g. ahead of an animation."""
+        self._dynamic[np.asarray(instances, dtype=np.int64)] = True
+        self._state = instance_states(len(self.sa.inst_mesh), self._dynamic)
+        self._rasterize_dynamic()
+
+    # -- query -------------------------------------------------------------------------
+
+    def _trace(self, o, d, tmin, tmax, only, anyhit):
+        n = len(o)
+        hits = empty_hits(n)
+        if only is None:
+            only = np.full(n, -1, np.int32)
+        sf, refs = self.sf, self.refs
+        t0 = time.perf_counter()
+        with numba.parallel_chunksize(PARALLEL_CHUNKSIZE):
+            trace_kernel(sf.frame, sf.grid, sf.box, sf.pad, sf.n, self.table, self.static,
+                         self.dynamic, refs.inst, refs.prim, refs.tv,
+                         np.ascontiguousarray(self.sa.inst_inv, dtype=np.float64),
+                         self._state, self.gv, o, d, tmin, tmax, only, anyhit, *hits)
+        self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
+        self.stats["rays"] = self.stats.get("rays", 0) + n
+        return hits

@@ -2,10 +2,10 @@
 nearest-direction look-up (the direction set of the visibility field, seed 003).
 
 Directions
-    Each face of a regular tetrahedron (circumradius 1, centred at the origin) is cut into
-    ``K * K`` triangles (``K = 2**level``) and every grid vertex is projected onto the unit
-    sphere; shared edge and corner vertices are kept once. ``level`` 0..5 gives
-    ``4, 10, 34, 130, 514, 2050`` directions (:func:`direction_count`).
+    The faces of a regular tetrahedron (circumradius 1, centred at the origin), projected
+    onto the unit sphere, are subdivided recursively ``level`` times (each spherical triangle
+    into four by its normalised edge midpoints); shared vertices are kept once. ``level``
+    0..5 gives ``4, 10, 34, 130, 514, 2050`` directions (:func:`direction_count`).
 
     The paper keeps ``l`` directions on a *hemisphere* and walks a beam either way. A
     subdivided tetrahedron is not symmetric under ``d -> -d`` (its corners are not), so here
@@ -18,7 +18,8 @@ Constant-time look-up (in the spirit of Slater 2002)
        centre).
     2. Barycentric coordinates of ``d`` in that face (a precomputed 3x3 inverse; scaling
        ``d`` does not matter, the coordinates are divided by their sum) index one cell of a
-       finer ``R x R`` triangular grid on the face (``R = 2 K``; lower/upper half-cell).
+       ``R x R`` triangular grid on the flat face (``R = 2**(level + 1)``; lower/upper
+       half-cell). The cells need not match the directions' own triangles.
     3. Each cell stores the few directions that can be nearest to *any* point of its
        (spherical) triangle: with the cell's centre ``c``, its angular radius ``rho`` (largest
        angle from ``c`` to a corner; the gnomonic image of a flat triangle is a geodesic
@@ -84,12 +85,20 @@ def _unit(x: np.ndarray) -> np.ndarray:
 
 
 def tetra_directions(level: int) -> np.ndarray:
-    """The ``direction_count(level)`` unit directions, (l, 3) float64, in a fixed order."""
-    k = 2 ** int(level)
-    ii, jj = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
-    keep = ii + jj <= k
-    pts = np.concatenate([_face_points(f, k, ii[keep], jj[keep]) for f in range(4)])
-    pts = _unit(pts)
+    """The ``direction_count(level)`` unit directions, (l, 3) float64, in a fixed order.
+
+    Recursive subdivision: each spherical triangle (starting from the four faces) is split
+    into four by its edges' midpoints pushed out onto the sphere, ``level`` times. More
+    uniform than projecting a flat grid on each face (nearest-neighbour angles vary by a
+    factor 2.5 at level 5 instead of 4.9).
+    """
+    tris = _CORNERS[_FACES]
+    for _ in range(int(level)):
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        ab, bc, ca = _unit(a + b), _unit(b + c), _unit(c + a)
+        tris = np.concatenate([np.stack(t, axis=1) for t in
+                               ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    pts = tris.reshape(-1, 3)
     # shared edge / corner vertices: identical up to rounding; keep one of each
     _, first = np.unique(np.round(pts, 9), axis=0, return_index=True)
     dirs = np.ascontiguousarray(pts[np.sort(first)])

@@ -4,7 +4,8 @@ from parallel beams, cheap to update for moving objects.
 Structure (all flat arrays, built and queried by numba kernels)
     * ``l`` directions from a subdivided tetrahedron with a constant-time nearest-direction
       look-up (:mod:`.directions`).
-    * For each direction ``w`` a *parallel subfield*: the (padded) scene box projected along
+    * For each direction ``w`` a *parallel subfield*: the field box (the scene box grown by
+      :data:`BOX_MARGIN_REL`) projected along
       ``w`` onto the plane spanned by ``e1, e2`` (``e1, e2, w`` orthonormal) and cut into
       ``n x n`` tiles. Every triangle of every instance (a *reference*: instance + global
       triangle) is scan-converted, in world space, into the tiles its projection covers
@@ -75,6 +76,9 @@ DEFAULT_DIRECTIONS = 130
 DEFAULT_TILES = 32
 #: Largest ``n`` accepted.
 MAX_TILES = 1024
+#: The field box is the scene box grown by this fraction of its diagonal on every side, so
+#: objects can move a little beyond the scene's first extent without a rebuild.
+BOX_MARGIN_REL = 0.1
 #: Default memory cap of one field (MB).
 MEMORY_CAP_MB = 2048.0
 #: Bytes per tile (static offset int64, dynamic version int64, offset int64, count int32).
@@ -163,7 +167,8 @@ def subfields(dirs: np.ndarray, scene_aabb: np.ndarray, n: int) -> Subfields:
     lo, hi = scene_aabb
     mag = float(np.abs(scene_aabb).max() + np.linalg.norm(hi - lo))
     pad = tol.VF_PAD_REL * max(mag, 1e-300)
-    box = np.array([lo - 4.0 * pad, hi + 4.0 * pad])
+    margin = BOX_MARGIN_REL * float(np.linalg.norm(hi - lo)) + 4.0 * pad
+    box = np.array([lo - margin, hi + margin])
     helper = np.where(np.abs(dirs[:, :1]) < 0.6, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     e1 = np.cross(dirs, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)

@@ -42,14 +42,25 @@ class Session:
 
     # -- state -------------------------------------------------------------------------
 
-    def _build_accelerator(self, kind: str | None = None) -> None:
+    def _build_accelerator(self, kind: str | None = None,
+                           settings: RenderSettings | None = None) -> None:
         sa = self.scene.arrays()
         t0 = time.perf_counter()
-        self.accel = create_accelerator(kind or self.settings.accelerator, sa)
+        self.accel = create_accelerator(kind or self.settings.accelerator, sa,
+                                        **(settings or self.settings).accelerator_options())
         self.stats["accel_build_s"] = time.perf_counter() - t0
         self.stats["accelerator"] = self.accel.name
+        self._accel_memory()
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
                  len(sa.inst_mesh), self.stats["accel_build_s"])
+
+    def _accel_memory(self) -> None:
+        """The accelerator's own memory count (MB), where it keeps one."""
+        mb = self.accel.stats.get("memory_mb")
+        if mb is None:
+            self.stats.pop("accel_memory_mb", None)
+        else:
+            self.stats["accel_memory_mb"] = float(mb)
 
     def update_scene(self, scene: Scene) -> None:
         """Take a new export of the scene; the accelerator reuses unchanged meshes."""
@@ -58,13 +69,18 @@ class Session:
         t0 = time.perf_counter()
         self.accel.update(sa)
         self.stats["accel_update_s"] = time.perf_counter() - t0
+        self._accel_memory()
         log.info("session: accelerator updated in %.3f s", self.stats["accel_update_s"])
 
     def update_settings(self, settings: RenderSettings) -> None:
-        """New settings; the accelerator is rebuilt only when its kind changes."""
+        """New settings; the accelerator is rebuilt only when its kind (or the visibility
+        field's directions / tiles) changes."""
         settings = settings.validated()
-        if settings.accelerator != self.settings.accelerator:
-            self._build_accelerator(settings.accelerator)  # raises before anything changes
+        if (settings.accelerator != self.settings.accelerator
+                or settings.accelerator_options() != self.settings.accelerator_options()
+                and settings.accelerator == "VISIBILITY_FIELD"):
+            # raises before anything changes
+            self._build_accelerator(settings.accelerator, settings)
         self.settings = settings
 
     # -- rendering ---------------------------------------------------------------------
@@ -87,6 +103,8 @@ class Session:
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]
+        if "accel_memory_mb" in self.stats:
+            frame.stats["accel_memory_mb"] = self.stats["accel_memory_mb"]
         frame.stats["mode"] = mode
         self.stats.update(frame.stats)
         return frame

@@ -13,18 +13,23 @@ Structure (all flat arrays, built and queried by numba kernels)
       :data:`~.tolerances.VF_PAD_REL`). Tile ``t = (k * n + row) * n + col`` lists its
       references in ``ref[start[t]:start[t + 1]]`` (one flat candidate array).
     * Within a tile the references are ordered along the beam by ``zmin`` (their smallest
-      depth ``x . w``), with ``pmax`` the running maximum of their largest depth. A ray
-      walks a tile from the first entry whose ``pmax`` reaches the ray's start depth (a
-      binary search skips everything behind the origin) and stops at the first entry whose
-      ``zmin`` lies beyond the closest hit found so far: the "type of BSP tree" of the paper
-      replaced by an order along the beam with an early exit (measured in the benchmark).
-      Depths are stored as float32, rounded outward.
+      depth ``x . w``), with ``pmax`` the running maximum of their largest depth, and each
+      entry carries an 8 x 8 bit mask of the sub-tiles its triangle covers. A ray walks a
+      tile from the first entry whose ``pmax`` reaches the depth where the ray enters the
+      tile (a binary search skips everything behind it), skips entries whose mask misses
+      the sub-tiles the ray crosses there, and stops at the first entry whose ``zmin`` lies
+      beyond the closest hit found so far or beyond where the ray leaves the tile: the
+      paper's "type of BSP tree" replaced by an order along the beam with an early exit
+      (the benchmark measures it against testing every candidate). Depths are float32,
+      rounded outward.
 
 Query
     nearest direction ``w`` of the ray -> the ray's segment inside the field box projected
     onto that subfield (usually one tile; every tile the projected segment crosses is
     visited, row by row along the ray) -> the candidates are tested with the watertight test
-    of :mod:`.triangle` *in object space*, with the ray taken to object space exactly as the
+    of :mod:`.triangle` *in object space*. Tiles are visited in the ray's order and the walk
+    ends at the first tile the ray enters beyond the closest hit. The ray is taken to
+    object space exactly as the
     BVH does (:func:`.bvh.ray_to_object`), so hits and distances equal the BVH's bit for bit
     (up to ties between triangles at the same distance).
 
@@ -41,8 +46,8 @@ Dynamic objects (the paper's section 3)
     field box, or any change of geometry or of the instance set, rebuilds the field.
 
 Memory: ``l n^2`` tiles cost 28 bytes (offsets, version, dynamic offsets and count), each
-static entry 12 bytes, each dynamic one 12; beyond ``memory_cap_mb`` the build stops with a
-:class:`~.scene.SceneError` that names the settings.
+entry 20 (reference, two depths, mask); beyond ``memory_cap_mb`` the build stops with a
+:class:`~.scene.SceneError` that names the settings, before the big arrays are allocated.
 """
 
 from __future__ import annotations
@@ -83,11 +88,16 @@ BOX_MARGIN_REL = 0.1
 MEMORY_CAP_MB = 2048.0
 #: Bytes per tile (static offset int64, dynamic version int64, offset int64, count int32).
 TILE_BYTES = 28
-#: Bytes per static entry (reference int32, zmin float32, pmax float32).
-ENTRY_BYTES = 12
+#: Bytes per entry (reference int32, zmin float32, pmax or zmax float32, sub-tile mask int64).
+ENTRY_BYTES = 20
+#: Each tile is split into SUB x SUB sub-tiles (one bit each in an entry's mask).
+SUB = 8
 #: Rays per parallel work item and work items a thread takes at a time.
 CHUNK = 64
 PARALLEL_CHUNKSIZE = 16
+
+#: Rasterise in parallel from this many (direction, triangle) pairs on.
+PARALLEL_RASTER_MIN = 2_000_000
 
 #: Instance states (:func:`instance_states`).
 STATIC, DYNAMIC, NEVER = 0, 1, 2
@@ -113,6 +123,7 @@ class StaticLists(NamedTuple):
     ref: np.ndarray  # (E,) int32 reference id
     zmin: np.ndarray  # (E,) float32 smallest depth along w (rounded down)
     pmax: np.ndarray  # (E,) float32 running max of the largest depth (rounded up)
+    mask: np.ndarray  # (E,) int64 sub-tile cells (8 x 8, bit 8 row + col) it covers
 
 
 class DynamicLists(NamedTuple):
@@ -125,6 +136,7 @@ class DynamicLists(NamedTuple):
     ref: np.ndarray  # (D,) int32
     zmin: np.ndarray  # (D,) float32
     zmax: np.ndarray  # (D,) float32
+    mask: np.ndarray  # (D,) int64
 
 
 class References(NamedTuple):
@@ -182,11 +194,11 @@ def subfields(dirs: np.ndarray, scene_aabb: np.ndarray, n: int) -> Subfields:
                      np.ascontiguousarray(grid), box, float(pad), int(n))
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _world_triangles(tv, ref_inst, ref_prim, xform, sel):
     """World-space vertices (len(sel), 9) float64 of the references ``sel``."""
     out = np.empty((sel.shape[0], 9))
-    for q in prange(sel.shape[0]):
+    for q in range(sel.shape[0]):
         r = sel[q]
         i, p = ref_inst[r], ref_prim[r]
         for c in range(3):
@@ -246,81 +258,126 @@ def _cell(x, x0, inv, n):
     return int(c)
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _raster(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-            out_zmax, stamp, gv, dir_total):
-    """Scan-convert world triangles ``wv`` (m, 9) (references ``refs``) into every subfield.
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _row_bits(lo, hi, x0, inv, row):
+    """Mask bits of sub-tile row ``row`` for the u-interval ``[lo, hi]`` (tile starts at
+    ``x0``, ``inv`` sub-tiles per unit)."""
+    a = _cell(lo, x0, inv, SUB)
+    b = _cell(hi, x0, inv, SUB)
+    return ((1 << (b + 1)) - (1 << a)) << (SUB * row)
 
-    Parallel over directions (a direction owns its tiles, so no two threads write one).
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+                out_zmax, out_mask, stamp, gv, dir_total):
+    """Scan-convert world triangles ``wv`` (m, 9) (references ``refs``) into subfield ``k``.
+
     ``mode``: 0 count into ``counts``; 1 fill at the cursors ``starts`` (advanced);
     2 dynamic count (tiles first touched get ``stamp = -gv`` and a zero count; per-direction
     totals in ``dir_total``); 3 dynamic fill (``starts`` are assigned from ``dir_total``,
     which holds the direction's first entry, and ``stamp`` becomes ``gv``).
     """
     nn = n * n
-    for k in prange(frame.shape[0]):
-        e1x, e1y, e1z = frame[k, 0], frame[k, 1], frame[k, 2]
-        e2x, e2y, e2z = frame[k, 3], frame[k, 4], frame[k, 5]
-        wx, wy, wz = frame[k, 6], frame[k, 7], frame[k, 8]
-        gu, gv0, iu, iv = grid[k, 0], grid[k, 1], grid[k, 2], grid[k, 3]
-        for q in range(wv.shape[0]):
-            u0 = wv[q, 0] * e1x + wv[q, 1] * e1y + wv[q, 2] * e1z
-            u1 = wv[q, 3] * e1x + wv[q, 4] * e1y + wv[q, 5] * e1z
-            u2 = wv[q, 6] * e1x + wv[q, 7] * e1y + wv[q, 8] * e1z
-            v0 = wv[q, 0] * e2x + wv[q, 1] * e2y + wv[q, 2] * e2z
-            v1 = wv[q, 3] * e2x + wv[q, 4] * e2y + wv[q, 5] * e2z
-            v2 = wv[q, 6] * e2x + wv[q, 7] * e2y + wv[q, 8] * e2z
-            z0 = wv[q, 0] * wx + wv[q, 1] * wy + wv[q, 2] * wz
-            z1 = wv[q, 3] * wx + wv[q, 4] * wy + wv[q, 5] * wz
-            z2 = wv[q, 6] * wx + wv[q, 7] * wy + wv[q, 8] * wz
-            zlo, zhi = min(z0, z1, z2) - pad, max(z0, z1, z2) + pad
-            r0 = _cell(min(v0, v1, v2) - pad, gv0, iv, n)
-            r1 = _cell(max(v0, v1, v2) + pad, gv0, iv, n)
-            for r in range(r0, r1 + 1):
-                ya = gv0 + r / iv - pad  # row r, grown by pad (as the query computes it)
-                yb = gv0 + (r + 1) / iv + pad
-                lo, hi = _slab_span(u0, v0, u1, v1, u2, v2, ya, yb)
-                if lo > hi:
+    e1x, e1y, e1z = frame[k, 0], frame[k, 1], frame[k, 2]
+    e2x, e2y, e2z = frame[k, 3], frame[k, 4], frame[k, 5]
+    wx, wy, wz = frame[k, 6], frame[k, 7], frame[k, 8]
+    gu, gv0, iu, iv = grid[k, 0], grid[k, 1], grid[k, 2], grid[k, 3]
+    for q in range(wv.shape[0]):
+        u0 = wv[q, 0] * e1x + wv[q, 1] * e1y + wv[q, 2] * e1z
+        u1 = wv[q, 3] * e1x + wv[q, 4] * e1y + wv[q, 5] * e1z
+        u2 = wv[q, 6] * e1x + wv[q, 7] * e1y + wv[q, 8] * e1z
+        v0 = wv[q, 0] * e2x + wv[q, 1] * e2y + wv[q, 2] * e2z
+        v1 = wv[q, 3] * e2x + wv[q, 4] * e2y + wv[q, 5] * e2z
+        v2 = wv[q, 6] * e2x + wv[q, 7] * e2y + wv[q, 8] * e2z
+        z0 = wv[q, 0] * wx + wv[q, 1] * wy + wv[q, 2] * wz
+        z1 = wv[q, 3] * wx + wv[q, 4] * wy + wv[q, 5] * wz
+        z2 = wv[q, 6] * wx + wv[q, 7] * wy + wv[q, 8] * wz
+        zlo, zhi = min(z0, z1, z2) - pad, max(z0, z1, z2) + pad
+        r0 = _cell(min(v0, v1, v2) - pad, gv0, iv, n)
+        r1 = _cell(max(v0, v1, v2) + pad, gv0, iv, n)
+        for r in range(r0, r1 + 1):
+            ya = gv0 + r / iv - pad  # row r, grown by pad (as the query computes it)
+            yb = gv0 + (r + 1) / iv + pad
+            lo, hi = _slab_span(u0, v0, u1, v1, u2, v2, ya, yb)
+            if lo > hi:
+                continue
+            c0 = _cell(lo - pad, gu, iu, n)
+            c1 = _cell(hi + pad, gu, iu, n)
+            for c in range(c0, c1 + 1):
+                t = k * nn + r * n + c
+                if mode == 0:
+                    counts[t] += 1
                     continue
-                c0 = _cell(lo - pad, gu, iu, n)
-                c1 = _cell(hi + pad, gu, iu, n)
-                for c in range(c0, c1 + 1):
-                    t = k * nn + r * n + c
-                    if mode == 0:
-                        counts[t] += 1
-                        continue
-                    if mode == 2:
-                        if stamp[t] != -gv:
-                            stamp[t] = -gv
-                            counts[t] = 0
-                        counts[t] += 1
-                        dir_total[k] += 1
-                        continue
-                    if mode == 3:
-                        if stamp[t] == -gv:
-                            stamp[t] = gv
-                            starts[t] = dir_total[k]
-                            dir_total[k] += counts[t]
-                            counts[t] = 0
-                        e = starts[t] + counts[t]
-                        counts[t] += 1
-                    else:
-                        e = starts[t]
-                        starts[t] += 1
-                    out_ref[e] = refs[q]
-                    out_zmin[e] = _down32(zlo)
-                    out_zmax[e] = _up32(zhi)
+                if mode == 2:
+                    if stamp[t] != -gv:
+                        stamp[t] = -gv
+                        counts[t] = 0
+                    counts[t] += 1
+                    dir_total[k] += 1
+                    continue
+                if mode == 3:
+                    if stamp[t] == -gv:
+                        stamp[t] = gv
+                        starts[t] = dir_total[k]
+                        dir_total[k] += counts[t]
+                        counts[t] = 0
+                    e = starts[t] + counts[t]
+                    counts[t] += 1
+                else:
+                    e = starts[t]
+                    starts[t] += 1
+                out_ref[e] = refs[q]
+                out_zmin[e] = _down32(zlo)
+                out_zmax[e] = _up32(zhi)
+                # the sub-tiles of tile (r, c) the triangle covers (padded spans)
+                tu0, tv0 = gu + c / iu, gv0 + r / iv
+                su, sv = SUB * iu, SUB * iv
+                m = 0
+                for sr in range(SUB):
+                    lo2, hi2 = _slab_span(u0, v0, u1, v1, u2, v2, tv0 + sr / sv - pad,
+                                          tv0 + (sr + 1) / sv + pad)
+                    if lo2 <= hi2:
+                        m |= _row_bits(lo2 - pad, hi2 + pad, tu0, su, sr)
+                out_mask[e] = m
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _order_tiles(start, ref, zmin, zmax):
+def _raster_parallel(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+                     out_zmax, out_mask, stamp, gv, dir_total):
+    """:func:`_raster_dir` for every direction, in parallel (a direction owns its tiles)."""
+    for k in prange(frame.shape[0]):
+        _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+                    out_zmax, out_mask, stamp, gv, dir_total)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raster_serial(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+                   out_zmax, out_mask, stamp, gv, dir_total):
+    """:func:`_raster_dir` for every direction on this thread (small dynamic updates: a
+    parallel launch costs more than the work on a busy machine)."""
+    for k in range(frame.shape[0]):
+        _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
+                    out_zmax, out_mask, stamp, gv, dir_total)
+
+
+def _raster(*args) -> None:
+    """Run the rasteriser, in parallel when the work (directions x triangles) is large."""
+    frame, wv = args[0], args[4]
+    if frame.shape[0] * wv.shape[0] >= PARALLEL_RASTER_MIN:
+        _raster_parallel(*args)
+    else:
+        _raster_serial(*args)
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _order_tiles(start, ref, zmin, zmax, mask):
     """Sort each tile's entries by zmin; turn ``zmax`` into its running maximum (pmax)."""
     for t in prange(start.shape[0] - 1):
         s, e = start[t], start[t + 1]
         if e - s > 1:
             order = np.argsort(zmin[s:e], kind="mergesort") + s
-            r, a, b = ref[order], zmin[order], zmax[order]
-            ref[s:e], zmin[s:e], zmax[s:e] = r, a, b
+            r, a, b, m = ref[order], zmin[order], zmax[order], mask[order]
+            ref[s:e], zmin[s:e], zmax[s:e], mask[s:e] = r, a, b, m
         m = np.float32(-np.inf)
         for x in range(s, e):
             m = max(m, zmax[x])
@@ -348,9 +405,24 @@ def _clip_box(box, ox, oy, oz, dx, dy, dz, t0, t1):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _clip_slab(xa, xb, lo, hi, s0, s1):
+    """``[s0, s1]`` clipped to where ``xa + s (xb - xa)`` lies in ``[lo, hi]``."""
+    if xb == xa:
+        if xa < lo or xa > hi:
+            return 1.0, 0.0
+        return s0, s1
+    sa_, sb_ = (lo - xa) / (xb - xa), (hi - xa) / (xb - xa)
+    return max(s0, min(sa_, sb_)), min(s1, max(sa_, sb_))
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_prim, tv,
-               inst_inv, state, gv, ox, oy, oz, dx, dy, dz, tmin, tmax, anyhit, only):
-    """One ray through the field. Returns ``(inst, t, prim, u, v)`` (inst -1 on a miss)."""
+               inst_inv, state, gv, ox, oy, oz, dx, dy, dz, tmin, tmax, anyhit, only,
+               ordered):
+    """One ray through the field. Returns ``(inst, t, prim, u, v)`` (inst -1 on a miss).
+
+    ``ordered`` False ignores the order along the beam (every static candidate of a tile is
+    tested; for the benchmark's measurement of what the order buys)."""
     bi, bp, bu, bv = -1, -1, 0.0, 0.0
     best = tmax
     t0, t1 = _clip_box(box, ox, oy, oz, dx, dy, dz, tmin, tmax)
@@ -366,34 +438,48 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
     dw = dx * sf_frame[k, 6] + dy * sf_frame[k, 7] + dz * sf_frame[k, 8]  # > 0: nearest w
     ua, ub, va, vb = ou + t0 * du, ou + t1 * du, ov + t0 * dv, ov + t1 * dv
     gu, gv0, iu, iv = sf_grid[k, 0], sf_grid[k, 1], sf_grid[k, 2], sf_grid[k, 3]
-    d_start = ow + t0 * dw - pad
     ra = _cell(va - pad if vb >= va else va + pad, gv0, iv, n)
     rb = _cell(vb + pad if vb >= va else vb - pad, gv0, iv, n)
     rstep = 1 if rb >= ra else -1
     li = -1
     lx, ly, lz, kx, ky, kz, sx, sy, sz = 0.0, 0.0, 0.0, 0, 1, 2, 0.0, 0.0, 0.0
+    # rows in the ray's order, then columns in the ray's order: the part of the segment in
+    # each tile (s in [0, 1] from t0 to t1), grown by pad, gives the tile's depth window
     for r in range(ra, rb + rstep, rstep):
-        # the part of the projected segment inside row r (grown by pad)
-        ya = gv0 + r / iv - pad
-        yb = gv0 + (r + 1) / iv + pad
-        s0, s1 = 0.0, 1.0
-        if vb != va:
-            sa_, sb_ = (ya - va) / (vb - va), (yb - va) / (vb - va)
-            s0, s1 = max(0.0, min(sa_, sb_)), min(1.0, max(sa_, sb_))
-            if s0 > s1:
-                continue
+        s0, s1 = _clip_slab(va, vb, gv0 + r / iv - pad, gv0 + (r + 1) / iv + pad, 0.0, 1.0)
+        if s0 > s1:
+            continue
+        if t0 + s0 * (t1 - t0) > best:
+            break  # this row and every later one lie beyond the closest hit
         xa, xb = ua + s0 * (ub - ua), ua + s1 * (ub - ua)
         ca = _cell(xa - pad if xb >= xa else xa + pad, gu, iu, n)
         cb = _cell(xb + pad if xb >= xa else xb - pad, gu, iu, n)
         cstep = 1 if cb >= ca else -1
         for c in range(ca, cb + cstep, cstep):
+            c0, c1 = _clip_slab(ua, ub, gu + c / iu - pad, gu + (c + 1) / iu + pad, s0, s1)
+            if c0 > c1:
+                continue
+            t_in, t_out = t0 + c0 * (t1 - t0), t0 + c1 * (t1 - t0)
+            if t_in > best:
+                break
+            d_in = ow + t_in * dw - pad
             t = (k * n + r) * n + c
+            # the sub-tiles the ray's part in this tile crosses
+            tu0, tv0 = gu + c / iu, gv0 + r / iv
+            su, sv = SUB * iu, SUB * iv
+            rmask = 0
+            for sr in range(SUB):
+                e0, e1 = _clip_slab(va, vb, tv0 + sr / sv - pad, tv0 + (sr + 1) / sv + pad,
+                                    c0, c1)
+                if e0 <= e1:
+                    xa2, xb2 = ua + e0 * (ub - ua), ua + e1 * (ub - ua)
+                    rmask |= _row_bits(min(xa2, xb2) - pad, max(xa2, xb2) + pad, tu0, su, sr)
             for phase in range(2):
                 if phase == 0:
                     a, b = st.start[t], st.start[t + 1]
-                    while a < b:  # first entry that reaches the ray's start depth
+                    while ordered and a < b:  # first entry that reaches the window
                         mid = (a + b) >> 1
-                        if st.pmax[mid] < d_start:
+                        if st.pmax[mid] < d_in:
                             a = mid + 1
                         else:
                             b = mid
@@ -404,13 +490,16 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
                     a = dyn.start[t]
                     b = a + dyn.count[t]
                 for x in range(a, b):
-                    d_stop = ow + min(best, t1) * dw + pad
+                    d_out = ow + min(best, t_out) * dw + pad
                     if phase == 0:
-                        if st.zmin[x] > d_stop:
+                        if st.zmin[x] > d_out and ordered:
                             break  # ordered along the beam: nothing nearer follows
+                        if st.mask[x] & rmask == 0:
+                            continue
                         q = st.ref[x]
                     else:
-                        if dyn.zmin[x] > d_stop or dyn.zmax[x] < d_start:
+                        if (dyn.zmin[x] > d_out or dyn.zmax[x] < d_in
+                                or dyn.mask[x] & rmask == 0):
                             continue
                         q = dyn.ref[x]
                     i = refs_inst[q]
@@ -438,8 +527,8 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def trace_kernel(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_prim, tv,
-                 inst_inv, state, gv, o, d, tmin, tmax, only, anyhit, out_t, out_inst,
-                 out_prim, out_u, out_v):
+                 inst_inv, state, gv, o, d, tmin, tmax, only, anyhit, ordered, out_t,
+                 out_inst, out_prim, out_u, out_v):
     """Closest (or any) hit of each ray; outputs as :func:`.bvh.trace_kernel` (rows that miss
     are left untouched)."""
     n_rays = o.shape[0]
@@ -450,7 +539,7 @@ def trace_kernel(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_p
             bi, t, p, u, v = _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn,
                                         refs_inst, refs_prim, tv, inst_inv, state, gv,
                                         o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
-                                        tmin[r], tmax[r], anyhit, only[r])
+                                        tmin[r], tmax[r], anyhit, only[r], ordered)
             if bi >= 0:
                 out_t[r], out_inst[r], out_prim[r], out_u[r], out_v[r] = t, bi, p, u, v
 
@@ -477,6 +566,9 @@ class VisibilityField(Accelerator):
     """
 
     name = "VISIBILITY_FIELD"
+    #: Walk each tile in its order along the beam (binary search to the ray's start, stop
+    #: past the closest hit); False tests every candidate (for measurements only).
+    ordered = True
 
     def __init__(self, scene_arrays: SceneArrays, directions: int = DEFAULT_DIRECTIONS,
                  tiles: int = DEFAULT_TILES, memory_cap_mb: float = MEMORY_CAP_MB) -> None:
@@ -514,7 +606,8 @@ class VisibilityField(Accelerator):
         args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel)
         dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
         stamp0, tot0 = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        _raster(*args, _COUNT, counts, counts, dummy_i, dummy_f, dummy_f, stamp0, 0, tot0)
+        _raster(*args, _COUNT, counts, counts, dummy_i, dummy_f, dummy_f, stamp0, stamp0, 0,
+                tot0)
         n_entries = int(counts.sum())
         mb = self._check_memory(n_entries)
         start = np.zeros(tiles + 1, np.int64)
@@ -523,13 +616,15 @@ class VisibilityField(Accelerator):
         ref = np.empty(n_entries, np.int32)
         zmin = np.empty(n_entries, np.float32)
         zmax = np.empty(n_entries, np.float32)
-        _raster(*args, _FILL, counts, cursor, ref, zmin, zmax, stamp0, 0, tot0)
-        _order_tiles(start, ref, zmin, zmax)
+        mask = np.empty(n_entries, np.int64)
+        _raster(*args, _FILL, counts, cursor, ref, zmin, zmax, mask, stamp0, 0, tot0)
+        _order_tiles(start, ref, zmin, zmax, mask)
         self.sf, self.refs, self.sa = sf, refs, sa
-        self.static = StaticLists(start, ref, zmin, zmax)
+        self.static = StaticLists(start, ref, zmin, zmax, mask)
         self.gv = 0
         self.dynamic = DynamicLists(np.zeros(tiles, np.int64), np.zeros(tiles, np.int64),
-                                    np.zeros(tiles, np.int32), dummy_i, dummy_f, dummy_f)
+                                    np.zeros(tiles, np.int32), dummy_i, dummy_f, dummy_f,
+                                    stamp0)
         self._dynamic = np.zeros(len(sa.inst_mesh), bool)
         self._state = instance_states(len(sa.inst_mesh), self._dynamic)
         self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy(), sa.inst_mesh.copy())
@@ -590,8 +685,8 @@ class VisibilityField(Accelerator):
         total = np.zeros(l_, np.int64)
         dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
         args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel32)
-        _raster(*args, _DYN_COUNT, dyn.count, dyn.start, dummy_i, dummy_f, dummy_f, dyn.stamp,
-                self.gv, total)
+        _raster(*args, _DYN_COUNT, dyn.count, dyn.start, dummy_i, dummy_f, dummy_f,
+                np.zeros(0, np.int64), dyn.stamp, self.gv, total)
         n_dyn = int(total.sum())
         self._check_memory(self.stats["static_entries"] + n_dyn)
         base = np.zeros(l_, np.int64)
@@ -599,9 +694,10 @@ class VisibilityField(Accelerator):
         ref = np.empty(n_dyn, np.int32)  # the previous version's array is dropped here
         zmin = np.empty(n_dyn, np.float32)
         zmax = np.empty(n_dyn, np.float32)
-        _raster(*args, _DYN_FILL, dyn.count, dyn.start, ref, zmin, zmax, dyn.stamp, self.gv,
-                base)
-        self.dynamic = DynamicLists(dyn.stamp, dyn.start, dyn.count, ref, zmin, zmax)
+        mask = np.empty(n_dyn, np.int64)
+        _raster(*args, _DYN_FILL, dyn.count, dyn.start, ref, zmin, zmax, mask, dyn.stamp,
+                self.gv, base)
+        self.dynamic = DynamicLists(dyn.stamp, dyn.start, dyn.count, ref, zmin, zmax, mask)
         mb = self._check_memory(self.stats["static_entries"] + n_dyn)
         self.stats.update(dynamic_entries=n_dyn, dynamic_instances=len(inst), gv=self.gv,
                           memory_mb=round(mb, 3))
@@ -625,7 +721,8 @@ class VisibilityField(Accelerator):
             trace_kernel(sf.frame, sf.grid, sf.box, sf.pad, sf.n, self.table, self.static,
                          self.dynamic, refs.inst, refs.prim, refs.tv,
                          np.ascontiguousarray(self.sa.inst_inv, dtype=np.float64),
-                         self._state, self.gv, o, d, tmin, tmax, only, anyhit, *hits)
+                         self._state, self.gv, o, d, tmin, tmax, only, anyhit,
+                         self.ordered, *hits)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits

@@ -199,3 +199,31 @@ def test_dynamic_updates_match_bvh():
     vf.update(sa)
     assert vf.stats["rebuilds"] == 2
     assert_same_hits(sa, vf.closest_hit(*rays), create_accelerator("BVH", sa).closest_hit(*rays))
+
+
+# ----------------------------------------------------------------------------- bench
+
+
+def test_bench_accel_json_quick():
+    import io
+    import json
+    from contextlib import redirect_stdout
+
+    from rstrace_engine.bench import accel
+
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        assert accel.main(["--json", "--quick", "--directions", "34", "--tiles", "8"]) == 0
+    rows = json.loads(buf.getvalue())["rows"]
+    keys = {"scene", "accelerator", "dynamic_objects", "workload", "mrays", "update_ms",
+            "build_s", "memory_mb"}
+    assert all(keys <= set(r) for r in rows)
+    names = {r["accelerator"] for r in rows}
+    assert {"BVH", "VISIBILITY_FIELD"} <= names <= {"BVH", "EMBREE", "VISIBILITY_FIELD"}
+    fig2 = [r for r in rows if r["workload"] == "figure2-primary"]
+    assert {r["dynamic_objects"] for r in fig2} == {0, 2}
+    assert all(r["mrays"] > 0 and r["update_ms"] >= 0 for r in fig2)
+    vf = [r for r in fig2 if r["accelerator"] == "VISIBILITY_FIELD"]
+    assert all(r["memory_mb"] > 0 and r["rebuilds"] == 0 for r in vf)
+    # the moving dolphins' entries make the field bigger than the static scene alone
+    assert vf[1]["memory_mb"] > vf[0]["memory_mb"]

@@ -464,16 +464,8 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
                 break
             d_in = ow + t_in * dw - pad
             t = (k * n + r) * n + c
-            # the sub-tiles the ray's part in this tile crosses
-            tu0, tv0 = gu + c / iu, gv0 + r / iv
-            su, sv = SUB * iu, SUB * iv
             rmask = 0
-            for sr in range(SUB):
-                e0, e1 = _clip_slab(va, vb, tv0 + sr / sv - pad, tv0 + (sr + 1) / sv + pad,
-                                    c0, c1)
-                if e0 <= e1:
-                    xa2, xb2 = ua + e0 * (ub - ua), ua + e1 * (ub - ua)
-                    rmask |= _row_bits(min(xa2, xb2) - pad, max(xa2, xb2) + pad, tu0, su, sr)
+            have_mask = False  # the ray's sub-tile mask, computed at the first candidate
             for phase in range(2):
                 if phase == 0:
                     a, b = st.start[t], st.start[t + 1]
@@ -491,6 +483,17 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
                     b = a + dyn.count[t]
                 for x in range(a, b):
                     d_out = ow + min(best, t_out) * dw + pad
+                    if not have_mask:  # the sub-tiles the ray's part in this tile crosses
+                        have_mask = True
+                        tu0, tv0 = gu + c / iu, gv0 + r / iv
+                        su, sv = SUB * iu, SUB * iv
+                        for sr in range(SUB):
+                            e0, e1 = _clip_slab(va, vb, tv0 + sr / sv - pad,
+                                                tv0 + (sr + 1) / sv + pad, c0, c1)
+                            if e0 <= e1:
+                                xa2, xb2 = ua + e0 * (ub - ua), ua + e1 * (ub - ua)
+                                rmask |= _row_bits(min(xa2, xb2) - pad, max(xa2, xb2) + pad,
+                                                   tu0, su, sr)
                     if phase == 0:
                         if st.zmin[x] > d_out and ordered:
                             break  # ordered along the beam: nothing nearer follows

@@ -1,7 +1,8 @@
 """Accelerators side by side: the BVH, Embree and the visibility field on the same rays.
 
 ``python -m rstrace_engine.bench accel [--json] [--quick] [--random N] [--frames F]
-[--threads T] [--plot PATH]`` (one thread by default, as the paper's single processor).
+[--threads T] [--parts static,figure2,settings] [--plot PATH]`` (one thread by default, as
+the paper's single processor).
 
 * ``static``: ``primary`` (the scene camera's 640x480 rays) and ``random`` (``--random``
   rays, origins uniform in the scene box, uniform directions) on ``grid`` (~102k triangles)
@@ -241,6 +242,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--directions", type=int, default=130, help="visibility field l")
     p.add_argument("--tiles", type=int, default=32, help="visibility field n")
     p.add_argument("--plot", default="", help="write the Figure 2 plot (PNG) here")
+    p.add_argument("--parts", default="static,figure2,settings",
+                   help="comma-separated parts to run (static, figure2, settings)")
     p.add_argument("--threads", type=int, default=1,
                    help="numba / Embree threads (default 1: one processor, as the paper's "
                         "Figure 2; 0: all)")
@@ -275,10 +278,14 @@ def _main(a) -> int:
                                  build_s, memory_mb(acc)))
             rows += run_figure2(names, 1, (0, 2), options, log, small=True)
         else:
-            rows += run_static(names, a.random, a.repeats, options, log)
-            rows += run_figure2(names, a.frames, DYNAMIC_COUNTS, options, log)
-            rows += run_settings([(34, 32), (130, 16), (130, 32), (130, 64), (514, 32)],
-                                 a.repeats, log)
+            parts = set(a.parts.split(","))
+            if "static" in parts:
+                rows += run_static(names, a.random, a.repeats, options, log)
+            if "figure2" in parts:
+                rows += run_figure2(names, a.frames, DYNAMIC_COUNTS, options, log)
+            if "settings" in parts:
+                rows += run_settings([(34, 32), (130, 16), (130, 32), (130, 64), (514, 32)],
+                                     a.repeats, log)
     except AcceleratorUnavailable as e:
         print(f"accel: {e}", file=sys.stderr)
         return 1

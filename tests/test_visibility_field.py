@@ -227,3 +227,23 @@ def test_bench_accel_json_quick():
     assert all(r["memory_mb"] > 0 and r["rebuilds"] == 0 for r in vf)
     # the moving dolphins' entries make the field bigger than the static scene alone
     assert vf[1]["memory_mb"] > vf[0]["memory_mb"]
+
+
+def test_far_from_origin_and_degenerate_rays():
+    """Offsets scale with the coordinates: the scene moved 1e5 away still equals the BVH;
+    zero-length directions and empty intervals miss, as they do for the BVH."""
+    s = mixed_scene()
+    shift = shapes.transform((1e5, -2e5, 3e4))
+    for i in range(len(s.instances)):
+        s.set_instance_matrix(i, shift @ s.instances[i]["matrix"])
+    sa = s.arrays()
+    vf = create_accelerator("VISIBILITY_FIELD", sa, **VF_OPTIONS)
+    bvh = create_accelerator("BVH", sa)
+    rays = random_rays(sa, 2000, seed=21)
+    assert_same_hits(sa, vf.closest_hit(*rays), bvh.closest_hit(*rays))
+    o, d = rays[0][:50].copy(), rays[1][:50].copy()
+    d[:25] = 0.0
+    h = vf.closest_hit(o, d, 0.0, np.inf)
+    assert np.array_equal(h.inst, bvh.closest_hit(o, d, 0.0, np.inf).inst)
+    assert np.all(h.inst[:25] == -1)
+    assert not vf.any_hit(o, d, np.full(50, 2.0), np.full(50, 1.0)).any()

@@ -247,3 +247,25 @@ def test_far_from_origin_and_degenerate_rays():
     assert np.array_equal(h.inst, bvh.closest_hit(o, d, 0.0, np.inf).inst)
     assert np.all(h.inst[:25] == -1)
     assert not vf.any_hit(o, d, np.full(50, 2.0), np.full(50, 1.0)).any()
+
+
+def test_session_moves_make_objects_dynamic_and_frames_equal_bvh():
+    """Through the session (what the add-on holds): a moved object becomes dynamic, and the
+    frame equals the BVH session's pixel for pixel."""
+    from rstrace_engine import scenes
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.session import Session
+
+    frames = {}
+    for acc in ("BVH", "VISIBILITY_FIELD"):
+        sc = scenes.three_spheres(32, 24, subdivisions=2)
+        sess = Session(sc, RenderSettings(max_depth=2, accelerator=acc, vf_directions=34,
+                                          vf_tiles=8))
+        sess.render()
+        sc.set_instance_matrix(1, shapes.transform((0.3, 0.2, 1.0)))
+        sess.update_scene(sc)
+        frames[acc] = sess.render().radiance
+        if acc == "VISIBILITY_FIELD":
+            assert sess.accel.stats["dynamic_instances"] == 1 and sess.accel.gv == 1
+            assert sess.stats["accel_memory_mb"] > 0
+    np.testing.assert_array_equal(frames["VISIBILITY_FIELD"], frames["BVH"])

@@ -10,8 +10,9 @@ Structure (all flat arrays, built and queried by numba kernels)
       ``n x n`` tiles. Every triangle of every instance (a *reference*: instance + global
       triangle) is scan-converted, in world space, into the tiles its projection covers
       (row by row, the span of the triangle within each row; conservatively grown by
-      :data:`~.tolerances.VF_PAD_REL`). Tile ``t = (k * n + row) * n + col`` lists its
-      references in ``ref[start[t]:start[t + 1]]`` (one flat candidate array).
+      :data:`~.tolerances.VF_PAD_REL`; the kernels are in :mod:`.tiles`). Tile
+      ``t = (k * n + row) * n + col`` lists its references in ``ref[start[t]:start[t + 1]]``
+      (one flat candidate array).
     * Within a tile the references are ordered along the beam by ``zmin`` (their smallest
       depth ``x . w``), with ``pmax`` the running maximum of their largest depth, and each
       entry carries an 8 x 8 bit mask of the sub-tiles its triangle covers. A ray walks a
@@ -71,6 +72,18 @@ from .directions import (
     level_for,
     nearest_direction,
 )
+from .tiles import (
+    COUNT,
+    DYN_COUNT,
+    DYN_FILL,
+    FILL,
+    SUB,
+    cell,
+    order_tiles,
+    raster,
+    row_bits,
+    world_triangles,
+)
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -90,20 +103,14 @@ MEMORY_CAP_MB = 2048.0
 TILE_BYTES = 28
 #: Bytes per entry (reference int32, zmin float32, pmax or zmax float32, sub-tile mask int64).
 ENTRY_BYTES = 20
-#: Each tile is split into SUB x SUB sub-tiles (one bit each in an entry's mask).
-SUB = 8
 #: Rays per parallel work item and work items a thread takes at a time.
 CHUNK = 64
 PARALLEL_CHUNKSIZE = 16
 
-#: Rasterise in parallel from this many (direction, triangle) pairs on.
-PARALLEL_RASTER_MIN = 2_000_000
 
 #: Instance states (:func:`instance_states`).
 STATIC, DYNAMIC, NEVER = 0, 1, 2
 
-# raster modes
-_COUNT, _FILL, _DYN_COUNT, _DYN_FILL = 0, 1, 2, 3
 
 
 class Subfields(NamedTuple):
@@ -194,196 +201,6 @@ def subfields(dirs: np.ndarray, scene_aabb: np.ndarray, n: int) -> Subfields:
                      np.ascontiguousarray(grid), box, float(pad), int(n))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _world_triangles(tv, ref_inst, ref_prim, xform, sel):
-    """World-space vertices (len(sel), 9) float64 of the references ``sel``."""
-    out = np.empty((sel.shape[0], 9))
-    for q in range(sel.shape[0]):
-        r = sel[q]
-        i, p = ref_inst[r], ref_prim[r]
-        for c in range(3):
-            x, y, z = tv[p, 3 * c], tv[p, 3 * c + 1], tv[p, 3 * c + 2]
-            for a in range(3):
-                out[q, 3 * c + a] = (xform[i, a, 0] * x + xform[i, a, 1] * y
-                                     + xform[i, a, 2] * z + xform[i, a, 3])
-    return out
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _down32(x):
-    """float32 not above ``x``."""
-    y = np.float32(x)
-    if y > x:
-        y = np.nextafter(y, np.float32(-np.inf))
-    return y
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _up32(x):
-    """float32 not below ``x``."""
-    y = np.float32(x)
-    if y < x:
-        y = np.nextafter(y, np.float32(np.inf))
-    return y
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _slab_span(u0, v0, u1, v1, u2, v2, ya, yb):
-    """Smallest and largest ``u`` of triangle (u_i, v_i) within the slab ``ya <= v <= yb``
-    (vertices inside plus edge crossings of the slab's two lines); (inf, -inf) if none."""
-    lo, hi = np.inf, -np.inf
-    for c in range(3):
-        pu = u0 if c == 0 else (u1 if c == 1 else u2)
-        pv = v0 if c == 0 else (v1 if c == 1 else v2)
-        qu = u1 if c == 0 else (u2 if c == 1 else u0)
-        qv = v1 if c == 0 else (v2 if c == 1 else v0)
-        if ya <= pv <= yb:
-            lo, hi = min(lo, pu), max(hi, pu)
-        for s in range(2):
-            y = ya if s == 0 else yb
-            if (pv - y) * (qv - y) < 0.0:
-                x = pu + (y - pv) * (qu - pu) / (qv - pv)
-                lo, hi = min(lo, x), max(hi, x)
-    return lo, hi
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _cell(x, x0, inv, n):
-    """Tile coordinate of ``x`` on an axis starting at ``x0`` with ``n`` tiles, clamped."""
-    c = np.floor((x - x0) * inv)
-    if c < 0.0:
-        return 0
-    if c > n - 1:
-        return n - 1
-    return int(c)
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _row_bits(lo, hi, x0, inv, row):
-    """Mask bits of sub-tile row ``row`` for the u-interval ``[lo, hi]`` (tile starts at
-    ``x0``, ``inv`` sub-tiles per unit)."""
-    a = _cell(lo, x0, inv, SUB)
-    b = _cell(hi, x0, inv, SUB)
-    return ((1 << (b + 1)) - (1 << a)) << (SUB * row)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-                out_zmax, out_mask, stamp, gv, dir_total):
-    """Scan-convert world triangles ``wv`` (m, 9) (references ``refs``) into subfield ``k``.
-
-    ``mode``: 0 count into ``counts``; 1 fill at the cursors ``starts`` (advanced);
-    2 dynamic count (tiles first touched get ``stamp = -gv`` and a zero count; per-direction
-    totals in ``dir_total``); 3 dynamic fill (``starts`` are assigned from ``dir_total``,
-    which holds the direction's first entry, and ``stamp`` becomes ``gv``).
-    """
-    nn = n * n
-    e1x, e1y, e1z = frame[k, 0], frame[k, 1], frame[k, 2]
-    e2x, e2y, e2z = frame[k, 3], frame[k, 4], frame[k, 5]
-    wx, wy, wz = frame[k, 6], frame[k, 7], frame[k, 8]
-    gu, gv0, iu, iv = grid[k, 0], grid[k, 1], grid[k, 2], grid[k, 3]
-    for q in range(wv.shape[0]):
-        u0 = wv[q, 0] * e1x + wv[q, 1] * e1y + wv[q, 2] * e1z
-        u1 = wv[q, 3] * e1x + wv[q, 4] * e1y + wv[q, 5] * e1z
-        u2 = wv[q, 6] * e1x + wv[q, 7] * e1y + wv[q, 8] * e1z
-        v0 = wv[q, 0] * e2x + wv[q, 1] * e2y + wv[q, 2] * e2z
-        v1 = wv[q, 3] * e2x + wv[q, 4] * e2y + wv[q, 5] * e2z
-        v2 = wv[q, 6] * e2x + wv[q, 7] * e2y + wv[q, 8] * e2z
-        z0 = wv[q, 0] * wx + wv[q, 1] * wy + wv[q, 2] * wz
-        z1 = wv[q, 3] * wx + wv[q, 4] * wy + wv[q, 5] * wz
-        z2 = wv[q, 6] * wx + wv[q, 7] * wy + wv[q, 8] * wz
-        zlo, zhi = min(z0, z1, z2) - pad, max(z0, z1, z2) + pad
-        r0 = _cell(min(v0, v1, v2) - pad, gv0, iv, n)
-        r1 = _cell(max(v0, v1, v2) + pad, gv0, iv, n)
-        for r in range(r0, r1 + 1):
-            ya = gv0 + r / iv - pad  # row r, grown by pad (as the query computes it)
-            yb = gv0 + (r + 1) / iv + pad
-            lo, hi = _slab_span(u0, v0, u1, v1, u2, v2, ya, yb)
-            if lo > hi:
-                continue
-            c0 = _cell(lo - pad, gu, iu, n)
-            c1 = _cell(hi + pad, gu, iu, n)
-            for c in range(c0, c1 + 1):
-                t = k * nn + r * n + c
-                if mode == 0:
-                    counts[t] += 1
-                    continue
-                if mode == 2:
-                    if stamp[t] != -gv:
-                        stamp[t] = -gv
-                        counts[t] = 0
-                    counts[t] += 1
-                    dir_total[k] += 1
-                    continue
-                if mode == 3:
-                    if stamp[t] == -gv:
-                        stamp[t] = gv
-                        starts[t] = dir_total[k]
-                        dir_total[k] += counts[t]
-                        counts[t] = 0
-                    e = starts[t] + counts[t]
-                    counts[t] += 1
-                else:
-                    e = starts[t]
-                    starts[t] += 1
-                out_ref[e] = refs[q]
-                out_zmin[e] = _down32(zlo)
-                out_zmax[e] = _up32(zhi)
-                # the sub-tiles of tile (r, c) the triangle covers (padded spans)
-                tu0, tv0 = gu + c / iu, gv0 + r / iv
-                su, sv = SUB * iu, SUB * iv
-                m = 0
-                for sr in range(SUB):
-                    lo2, hi2 = _slab_span(u0, v0, u1, v1, u2, v2, tv0 + sr / sv - pad,
-                                          tv0 + (sr + 1) / sv + pad)
-                    if lo2 <= hi2:
-                        m |= _row_bits(lo2 - pad, hi2 + pad, tu0, su, sr)
-                out_mask[e] = m
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _raster_parallel(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-                     out_zmax, out_mask, stamp, gv, dir_total):
-    """:func:`_raster_dir` for every direction, in parallel (a direction owns its tiles)."""
-    for k in prange(frame.shape[0]):
-        _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-                    out_zmax, out_mask, stamp, gv, dir_total)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _raster_serial(frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-                   out_zmax, out_mask, stamp, gv, dir_total):
-    """:func:`_raster_dir` for every direction on this thread (small dynamic updates: a
-    parallel launch costs more than the work on a busy machine)."""
-    for k in range(frame.shape[0]):
-        _raster_dir(k, frame, grid, n, pad, wv, refs, mode, counts, starts, out_ref, out_zmin,
-                    out_zmax, out_mask, stamp, gv, dir_total)
-
-
-def _raster(*args) -> None:
-    """Run the rasteriser, in parallel when the work (directions x triangles) is large."""
-    frame, wv = args[0], args[4]
-    if frame.shape[0] * wv.shape[0] >= PARALLEL_RASTER_MIN:
-        _raster_parallel(*args)
-    else:
-        _raster_serial(*args)
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _order_tiles(start, ref, zmin, zmax, mask):
-    """Sort each tile's entries by zmin; turn ``zmax`` into its running maximum (pmax)."""
-    for t in prange(start.shape[0] - 1):
-        s, e = start[t], start[t + 1]
-        if e - s > 1:
-            order = np.argsort(zmin[s:e], kind="mergesort") + s
-            r, a, b, m = ref[order], zmin[order], zmax[order], mask[order]
-            ref[s:e], zmin[s:e], zmax[s:e], mask[s:e] = r, a, b, m
-        m = np.float32(-np.inf)
-        for x in range(s, e):
-            m = max(m, zmax[x])
-            zmax[x] = m
-
-
 # ----------------------------------------------------------------------------- query
 
 
@@ -438,8 +255,8 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
     dw = dx * sf_frame[k, 6] + dy * sf_frame[k, 7] + dz * sf_frame[k, 8]  # > 0: nearest w
     ua, ub, va, vb = ou + t0 * du, ou + t1 * du, ov + t0 * dv, ov + t1 * dv
     gu, gv0, iu, iv = sf_grid[k, 0], sf_grid[k, 1], sf_grid[k, 2], sf_grid[k, 3]
-    ra = _cell(va - pad if vb >= va else va + pad, gv0, iv, n)
-    rb = _cell(vb + pad if vb >= va else vb - pad, gv0, iv, n)
+    ra = cell(va - pad if vb >= va else va + pad, gv0, iv, n)
+    rb = cell(vb + pad if vb >= va else vb - pad, gv0, iv, n)
     rstep = 1 if rb >= ra else -1
     li = -1
     lx, ly, lz, kx, ky, kz, sx, sy, sz = 0.0, 0.0, 0.0, 0, 1, 2, 0.0, 0.0, 0.0
@@ -452,8 +269,8 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
         if t0 + s0 * (t1 - t0) > best:
             break  # this row and every later one lie beyond the closest hit
         xa, xb = ua + s0 * (ub - ua), ua + s1 * (ub - ua)
-        ca = _cell(xa - pad if xb >= xa else xa + pad, gu, iu, n)
-        cb = _cell(xb + pad if xb >= xa else xb - pad, gu, iu, n)
+        ca = cell(xa - pad if xb >= xa else xa + pad, gu, iu, n)
+        cb = cell(xb + pad if xb >= xa else xb - pad, gu, iu, n)
         cstep = 1 if cb >= ca else -1
         for c in range(ca, cb + cstep, cstep):
             c0, c1 = _clip_slab(ua, ub, gu + c / iu - pad, gu + (c + 1) / iu + pad, s0, s1)
@@ -492,7 +309,7 @@ def _trace_ray(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_pri
                                                 tv0 + (sr + 1) / sv + pad, c0, c1)
                             if e0 <= e1:
                                 xa2, xb2 = ua + e0 * (ub - ua), ua + e1 * (ub - ua)
-                                rmask |= _row_bits(min(xa2, xb2) - pad, max(xa2, xb2) + pad,
+                                rmask |= row_bits(min(xa2, xb2) - pad, max(xa2, xb2) + pad,
                                                    tu0, su, sr)
                     if phase == 0:
                         if st.zmin[x] > d_out and ordered:
@@ -603,13 +420,13 @@ class VisibilityField(Accelerator):
         sf = subfields(self.table.dirs, sa.scene_aabb, self.n)
         tiles = len(self.table.dirs) * self.n * self.n
         counts = np.zeros(tiles, np.int64)
-        wv = _world_triangles(refs.tv, refs.inst, refs.prim, sa.inst_xform,
+        wv = world_triangles(refs.tv, refs.inst, refs.prim, sa.inst_xform,
                               np.arange(len(refs.inst), dtype=np.int64))
         sel = np.arange(len(refs.inst), dtype=np.int32)
         args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel)
         dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
         stamp0, tot0 = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        _raster(*args, _COUNT, counts, counts, dummy_i, dummy_f, dummy_f, stamp0, stamp0, 0,
+        raster(*args, COUNT, counts, counts, dummy_i, dummy_f, dummy_f, stamp0, stamp0, 0,
                 tot0)
         n_entries = int(counts.sum())
         mb = self._check_memory(n_entries)
@@ -620,8 +437,8 @@ class VisibilityField(Accelerator):
         zmin = np.empty(n_entries, np.float32)
         zmax = np.empty(n_entries, np.float32)
         mask = np.empty(n_entries, np.int64)
-        _raster(*args, _FILL, counts, cursor, ref, zmin, zmax, mask, stamp0, 0, tot0)
-        _order_tiles(start, ref, zmin, zmax, mask)
+        raster(*args, FILL, counts, cursor, ref, zmin, zmax, mask, stamp0, 0, tot0)
+        order_tiles(start, ref, zmin, zmax, mask)
         self.sf, self.refs, self.sa = sf, refs, sa
         self.static = StaticLists(start, ref, zmin, zmax, mask)
         self.gv = 0
@@ -682,13 +499,13 @@ class VisibilityField(Accelerator):
         inst = np.flatnonzero(self._state == DYNAMIC)
         sel = (np.concatenate([np.arange(refs.first[i], refs.first[i + 1]) for i in inst])
                if len(inst) else np.zeros(0, np.int64)).astype(np.int64)
-        wv = _world_triangles(refs.tv, refs.inst, refs.prim, self.sa.inst_xform, sel)
+        wv = world_triangles(refs.tv, refs.inst, refs.prim, self.sa.inst_xform, sel)
         sel32 = sel.astype(np.int32)
         l_ = len(self.table.dirs)
         total = np.zeros(l_, np.int64)
         dummy_i, dummy_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
         args = (sf.frame, sf.grid, sf.n, sf.pad, wv, sel32)
-        _raster(*args, _DYN_COUNT, dyn.count, dyn.start, dummy_i, dummy_f, dummy_f,
+        raster(*args, DYN_COUNT, dyn.count, dyn.start, dummy_i, dummy_f, dummy_f,
                 np.zeros(0, np.int64), dyn.stamp, self.gv, total)
         n_dyn = int(total.sum())
         self._check_memory(self.stats["static_entries"] + n_dyn)
@@ -698,7 +515,7 @@ class VisibilityField(Accelerator):
         zmin = np.empty(n_dyn, np.float32)
         zmax = np.empty(n_dyn, np.float32)
         mask = np.empty(n_dyn, np.int64)
-        _raster(*args, _DYN_FILL, dyn.count, dyn.start, ref, zmin, zmax, mask, dyn.stamp,
+        raster(*args, DYN_FILL, dyn.count, dyn.start, ref, zmin, zmax, mask, dyn.stamp,
                 self.gv, base)
         self.dynamic = DynamicLists(dyn.stamp, dyn.start, dyn.count, ref, zmin, zmax, mask)
         mb = self._check_memory(self.stats["static_entries"] + n_dyn)

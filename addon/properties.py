@@ -57,12 +57,12 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
     vf_directions: IntProperty(
-        name="Directions", default=130, min=1, max=2050,
+        name="Directions", default=34, min=1, max=2050,
         description="Visibility field: number of beam directions l (rounded up to 4, 10, 34, "
                     "130, 514 or 2050); more directions, fewer candidates per ray, more "
                     "memory")
     vf_tiles: IntProperty(
-        name="Tiles", default=32, min=1, max=1024, soft_max=128,
+        name="Tiles", default=64, min=1, max=1024, soft_max=256,
         description="Visibility field: n, the n x n tiles of each direction's beam grid; "
                     "memory grows with l x n^2")
 

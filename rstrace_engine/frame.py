@@ -44,8 +44,8 @@ class RenderSettings:
     depth_cap: int = 6  # linetree depth cap
     memory_cap_mb: float = 256.0  # interpolant memory cap
     seed: int = 0
-    vf_directions: int = 130  # visibility field: directions l (rounded up to 4, 10, 34, 130..)
-    vf_tiles: int = 32  # visibility field: n x n tiles per direction
+    vf_directions: int = 34  # visibility field: directions l (rounded up to 4, 10, 34, 130..)
+    vf_tiles: int = 64  # visibility field: n x n tiles per direction
 
     def accelerator_options(self) -> dict:
         """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""

@@ -73,6 +73,15 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,
                                 default="PRINCIPLED",
                                 description="How Blender materials are shaded")
+    vf_directions: IntProperty(
+        name="Directions", default=34, min=1, max=2050,
+        description="Visibility field: number of beam directions l (rounded up to 4, 10, 34, "
+                    "130, 514 or 2050); more directions, fewer candidates per ray, more "
+                    "memory")
+    vf_tiles: IntProperty(
+        name="Tiles", default=64, min=1, max=1024, soft_max=256,
+        description="Visibility field: n, the n x n tiles of each direction's beam grid; "
+                    "memory grows with l x n^2")
 
 
 def render_settings(props: RSTraceSettings):
@@ -83,7 +92,8 @@ def render_settings(props: RSTraceSettings):
         mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
         samples=int(props.samples), accelerator=props.accelerator,
         depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
-        seed=int(props.seed),
+        seed=int(props.seed), vf_directions=int(props.vf_directions),
+        vf_tiles=int(props.vf_tiles),
     ).validated()
 
 

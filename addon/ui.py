@@ -53,6 +53,10 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col = layout.column()
         col.prop(props, "mode")
         col.prop(props, "accelerator")
+        if props.accelerator == "VISIBILITY_FIELD":
+            sub = col.column(align=True)
+            sub.prop(props, "vf_directions")
+            sub.prop(props, "vf_tiles")
         col = layout.column(align=True)
         col.prop(props, "samples")
         col.prop(props, "seed")
@@ -95,6 +99,9 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                            f"{stats.get('objects', 0)} objects, {stats.get('lights', 0)} lights")
             col.label(text=f"Export {stats.get('export_seconds', 0.0):.2f} s, "
                            f"render {stats.get('render_seconds', 0.0):.2f} s")
+            if stats.get("accel_memory_mb") is not None:
+                col.label(text=f"{stats.get('accelerator')} memory "
+                               f"{stats['accel_memory_mb']:.1f} MB")
             for name, count in (stats.get("pixel_classes") or {}).items():
                 col.label(text=f"{name.replace('_', ' ')}: {count:,} px")
         for level, text in state.messages:

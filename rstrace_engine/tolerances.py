@@ -87,3 +87,12 @@ TUNNEL_MARGIN_REL = 0.05
 #: Shaft planes are moved outward by this fraction of the scene's coordinate magnitude
 #: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
 SHAFT_SLACK_REL = 1e-9
+
+# ----------------------------------------------------------------------------- visibility field
+
+#: Visibility field: triangles are scan-converted into tiles with their projection grown by
+#: this fraction of the scene's coordinate magnitude (largest |coordinate| + extent), rays
+#: are projected with the same margin, and the depth bounds used to skip and stop along a
+#: beam are widened by it: the world -> object transform of a ray and the object -> world
+#: transform of a triangle both round, so a hit may lie a few ulps off the world triangle.
+VF_PAD_REL = 1e-9

@@ -28,7 +28,7 @@ from rstrace_engine.geometry.edits import (
 from rstrace_engine.geometry.scene import Light, Material, Mesh, Scene, SceneError
 from rstrace_engine.session import Session
 
-ACCELS = ["BVH", "BRUTE_FORCE"] + (["EMBREE"] if embree.available() else [])
+ACCELS = ["BVH", "BRUTE_FORCE", "VISIBILITY_FIELD"] + (["EMBREE"] if embree.available() else [])
 
 
 def row_scene(w: int = 24, h: int = 18, key_light: bool = True) -> Scene:

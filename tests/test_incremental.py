@@ -62,7 +62,7 @@ def test_random_edits_base_exact(scene_name):
     assert np.median(fractions) < 0.75, fractions
 
 
-@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE"])
+@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD"])
 def test_random_edits_base_exact_other_accelerators(accelerator):
     if accelerator == "EMBREE":
         pytest.importorskip("embreex")

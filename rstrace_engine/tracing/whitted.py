@@ -647,7 +647,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     build_s = 0.0
     if accel is None:
         tb = time.perf_counter()
-        accel = create_accelerator(settings.accelerator, sa)
+        accel = create_accelerator(settings.accelerator, sa, **settings.accelerator_options())
         build_s = time.perf_counter() - tb
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height

@@ -160,10 +160,13 @@ def test_each_mode_renders_or_is_a_clean_error(mode, tmp_path):
     assert known.all() and np.isfinite(out["Combined"]).all()
 
 
-def test_unavailable_accelerator_is_a_clean_error(tmp_path):
+def test_unbuildable_accelerator_is_a_clean_error(tmp_path):
+    """An accelerator that cannot be built (a visibility field past its memory cap) is
+    refused with the reason; the scene renders again once the settings are sane."""
     sc = b.three_spheres_scene(16, 12)
     sc.rstrace.accelerator = "VISIBILITY_FIELD"
-    with pytest.raises(RuntimeError, match="RSTrace: .*VISIBILITY_FIELD"):
+    sc.rstrace.vf_directions, sc.rstrace.vf_tiles = 2050, 1024
+    with pytest.raises(RuntimeError, match="RSTrace: .*visibility field.*over the cap"):
         b.render_exr(tmp_path / "v.exr")
     assert _state().error is not None and _state().stats == {}
     sc.rstrace.accelerator = "BVH"  # and the scene renders again afterwards

@@ -577,7 +577,10 @@ class Scene:
         ni = len(self.instances)
         eye = np.eye(4)
         alive = np.array(live, bool)
-        xf = np.stack([eye if i is None else i["matrix"] for i in self.instances])
+        # C order whatever the host gave (Blender's matrices arrive column-major, and
+        # np.stack keeps their layout): one layout, one compiled kernel
+        xf = np.ascontiguousarray(
+            np.stack([eye if i is None else i["matrix"] for i in self.instances]))
         inv = np.stack([eye if i is None else i["inv"] for i in self.instances])
         nmat = np.stack([eye[:3, :3] if i is None else i["nmat"] for i in self.instances])
         aabb = np.stack([i["aabb"] if ok else DEAD_AABB

@@ -42,6 +42,17 @@ log = logging.getLogger(__name__)
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
 
+#: What a Whitted tracer does not model, said once per render where the scene has it. Neither
+#: is modelled on purpose: an emissive mesh as an area light needs sampled (noisy) soft
+#: shadows, and occluded world light needs sampled ambient occlusion; the radiance
+#: interpolants, their error predicate (point-light shadows only) and the RI-tree assume a
+#: deterministic, point-lit shading, and an unoccluded ambient term would be a silently wrong
+#: image against Cycles instead of a reported gap.
+NOT_MODELLED_WORLD = ("the world colour is seen as background and in mirrors but lights no "
+                      "surface (world lighting is not modelled by the Whitted tracer)")
+NOT_MODELLED_EMISSION = ("emissive objects are seen directly and in mirrors but light no "
+                         "other surface (emissive meshes are not light sources)")
+
 
 @dataclass
 class Exported:
@@ -297,9 +308,13 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
     cam = camera_object if camera_object is not None else bscene.camera
     cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
     scene.set_camera(camera_from_object(cam_eval, width, height, render, notes))
-    scene.set_world_color(world_colour(bscene.world, notes))
+    world = world_colour(bscene.world, notes)
+    scene.set_world_color(world)
+    if float(np.max(world)) > 0.0:
+        notes.warn(NOT_MODELLED_WORLD)
 
-    materials = MaterialReader(scene, notes)
+    props = getattr(bscene, "rstrace", None)
+    materials = MaterialReader(scene, notes, getattr(props, "shading_model", "PRINCIPLED"))
     meshes: dict[int, int | str] = {}  # evaluated mesh datablock -> mesh id or why not
     n_instances = n_lights = 0
     t_read = t_add = 0.0
@@ -338,6 +353,8 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
             if not mats:
                 mats = [materials.default_id()]
             _check_visibility(ob, name, notes)
+            if any(max(scene.materials[k].emission) > 0.0 for k in mats):
+                notes.warn(NOT_MODELLED_EMISSION, name)
             if len(me.uv_layers) == 0 and any(
                     scene.materials[k].texture is not None for k in mats):
                 notes.warn("textured objects without a UV map sample their texture at (0, 0)",

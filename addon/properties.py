@@ -34,6 +34,14 @@ _ACCELERATOR_UI = {
 MODE_ITEMS = tuple((k, *_MODE_UI.get(k, (k.title(), k))) for k in MODES)
 ACCELERATOR_ITEMS = tuple((k, *_ACCELERATOR_UI.get(k, (k.title(), k))) for k in ACCELERATORS)
 
+SHADING_MODEL_ITEMS = (
+    ("PRINCIPLED", "Principled", "Materials follow Blender's Principled BSDF: a Fresnel-"
+     "weighted GGX highlight over a diffuse base that loses what the highlight reflects "
+     "(agrees with Cycles' direct lighting)"),
+    ("WARD", "Ward", "Ward's isotropic highlight with a constant reflectance and a Whitted "
+     "mirror for smooth surfaces (the model of the radiance-interpolant paper)"),
+)
+
 
 class RSTraceSettings(bpy.types.PropertyGroup):
     """Settings of the RSTrace render engine (``scene.rstrace``)."""
@@ -63,6 +71,9 @@ class RSTraceSettings(bpy.types.PropertyGroup):
                     "recently used are evicted beyond it")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
+    shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,
+                                default="PRINCIPLED",
+                                description="How Blender materials are shaded")
 
 
 def render_settings(props: RSTraceSettings):

@@ -28,6 +28,7 @@ from . import export, properties, runtime
 log = logging.getLogger(__name__)
 
 INTERPOLATION_PASS = "Interpolation"
+INTERRUPTED = "render interrupted (Ctrl+C): cancelled, nothing written"
 
 
 @dataclass
@@ -101,6 +102,12 @@ class FrameRenderer:
             self._render(depsgraph, scene, state)
         except SceneError as exc:
             self._error(state, str(exc))
+        except KeyboardInterrupt:
+            # Ctrl+C (SIGINT) in a background render: a cancel. Escaping into Blender, it
+            # crashed writing a result never started (EXR) or wrote a blank image (PNG); an
+            # error report makes Blender stop the job and write nothing.
+            log.warning("RSTrace render interrupted")
+            self._error(state, INTERRUPTED)
         except Exception as exc:  # never let an exception escape into Blender's render job
             log.exception("RSTrace render failed")
             self._error(state, f"internal error: {type(exc).__name__}: {exc}")
@@ -144,6 +151,10 @@ class FrameRenderer:
                      accelerator=settings.accelerator, renders=state.renders,
                      pixel_classes=_class_counts(frame), export_warnings=exported.warnings)
         state.stats = stats
+        dropped = int(stats.get("nonfinite_samples") or 0)
+        if dropped:
+            self._warn(state, f"{dropped} sample(s) with NaN, infinite or too large radiance "
+                              f"(>= 1e30, e.g. emission) were left out of the image")
         mem = _memory_mb(stats, exported.scene)
         engine.update_memory_stats(memory_used=mem, memory_peak=mem)
         engine.update_stats("", status_line(stats))

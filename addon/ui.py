@@ -57,6 +57,7 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col.prop(props, "samples")
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
+        layout.prop(props, "shading_model")
 
 
 class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):

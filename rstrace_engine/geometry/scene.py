@@ -15,8 +15,9 @@ Conventions
   ``c * S`` (W/m^2) on a surface facing it. This is Blender's (and Cycles') convention:
   a Lambertian surface of albedo rho at distance r from a point light gets
   ``L = rho / pi * P / (4 pi r^2) * cos(theta)``.
-* Materials are Ward isotropic (diffuse albedo, specular albedo, roughness alpha) plus
-  Whitted mirror reflectance, transmission with an index of refraction, and emission.
+* Materials are Ward isotropic (diffuse albedo, specular albedo, roughness alpha) or
+  Principled-like (Lambertian base under a Fresnel-weighted GGX layer), plus Whitted mirror
+  reflectance, transmission with an index of refraction, and emission.
 """
 
 from __future__ import annotations
@@ -100,12 +101,31 @@ def check_matrix(name: str, matrix) -> np.ndarray:
 # ----------------------------------------------------------------------------- authoring
 
 
+#: Shading models of :class:`Material` (their codes in ``SceneArrays.mat_model``).
+MODEL_WARD, MODEL_PRINCIPLED = 0, 1
+SHADING_MODELS = {"WARD": MODEL_WARD, "PRINCIPLED": MODEL_PRINCIPLED}
+
+
 @dataclass
 class Material:
-    """A Ward isotropic + Whitted material. Colours are linear RGB in [0, 1].
+    """A Ward or Principled-like material plus Whitted mirror and refraction. Colours are
+    linear RGB in [0, 1].
 
-    ``roughness`` is Ward's alpha (RMS slope), in (0, 1]. ``texture`` is an optional
-    ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
+    ``model`` ``"WARD"`` (seed 000's model, the default here): ``diffuse`` Lambertian albedo,
+    ``specular`` Ward's rho_s with ``roughness`` Ward's alpha (RMS slope) in (0, 1], ``mirror``
+    a constant mirror reflectance.
+
+    ``model`` ``"PRINCIPLED"`` (what Blender materials export to by default): ``diffuse`` the
+    base under a GGX layer (scaled in the tracer by one minus that layer's albedo toward the
+    viewer), ``specular`` the dielectric layer's weight times its tint, with the exact Fresnel
+    of index ``specular_ior`` (1: no dielectric reflection), ``metallic`` the conductor's
+    weight and ``metal`` its colour at normal incidence; ``roughness`` is GGX alpha. Lights
+    make highlights through the GGX lobe; ``mirror`` (in [0, 1]) is the share of the layer's
+    Fresnel reflectance that mirror rays carry (1 for a smooth surface, 0 for a rough one).
+
+    Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
+    splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
+    optional ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
     """
 
     name: str = "material"
@@ -117,30 +137,49 @@ class Material:
     ior: float = 1.45
     emission: tuple = (0.0, 0.0, 0.0)
     texture: np.ndarray | None = None
+    model: str = "WARD"
+    metallic: float = 0.0
+    metal: tuple = (0.0, 0.0, 0.0)
+    specular_ior: float = 1.5
 
     def validated(self) -> Material:
         n = self.name
+        if self.model not in SHADING_MODELS:
+            raise SceneError(f"material '{n}': unknown shading model {self.model!r} "
+                             f"(expected one of {sorted(SHADING_MODELS)})")
         d = _colour(n, f"material '{n}' diffuse", self.diffuse)
         s = _colour(n, f"material '{n}' specular", self.specular)
         m = _colour(n, f"material '{n}' mirror", self.mirror)
         t = _colour(n, f"material '{n}' transmission", self.transmission)
         e = _colour(n, f"material '{n}' emission", self.emission, hi=None)
-        if np.any(d + s + m + t > 1.0 + 1e-6):
-            raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
-                             f"exceeds 1 in some channel (energy would be created)")
+        mc = _colour(n, f"material '{n}' metal", self.metal)
+        mw = float(self.metallic)
+        if not (math.isfinite(mw) and 0.0 <= mw <= 1.0):
+            raise SceneError(f"material '{n}': metallic {mw} outside [0, 1]")
+        if self.model == "WARD":
+            if np.any(d + s + m + t > 1.0 + 1e-6):
+                raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
+                                 f"exceeds 1 in some channel (energy would be created)")
+        elif np.any(d + t + mw > 1.0 + 1e-6) or np.any(s + t + mw > 1.0 + 1e-6):
+            raise SceneError(f"material '{n}': diffuse (or specular) + transmission + "
+                             f"metallic exceeds 1 in some channel (energy would be created)")
         r = float(self.roughness)
         if not (math.isfinite(r) and 1e-4 <= r <= 1.0):
             raise SceneError(f"material '{n}': roughness {r} outside [1e-4, 1]")
         ior = float(self.ior)
         if not (math.isfinite(ior) and 1.0 <= ior <= 10.0):
             raise SceneError(f"material '{n}': IOR {ior} outside [1, 10]")
+        sior = float(self.specular_ior)
+        if not (math.isfinite(sior) and 1.0 <= sior <= 10.0):
+            raise SceneError(f"material '{n}': specular IOR {sior} outside [1, 10]")
         tex = None
         if self.texture is not None:
             tex = _finite_array(n, f"material '{n}' texture", self.texture, None, np.float32)
             if tex.ndim != 3 or tex.shape[2] < 3 or tex.shape[0] < 1 or tex.shape[1] < 1:
                 raise SceneError(f"material '{n}': texture must be (h, w, 3), got {tex.shape}")
             tex = np.ascontiguousarray(tex[:, :, :3])
-        return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex)
+        return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
+                        self.model, mw, tuple(mc), sior)
 
 
 @dataclass
@@ -239,6 +278,10 @@ class SceneArrays(NamedTuple):
     mat_ior: np.ndarray  # (NM,)
     mat_emission: np.ndarray  # (NM, 3)
     mat_tex: np.ndarray  # (NM,) int32 texture id or -1
+    mat_model: np.ndarray  # (NM,) int32 MODEL_WARD or MODEL_PRINCIPLED
+    mat_metallic: np.ndarray  # (NM,) float64
+    mat_metal: np.ndarray  # (NM, 3) float64
+    mat_specular_ior: np.ndarray  # (NM,) float64
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
     tex_size: np.ndarray  # (NT, 2) int32 (width, height)
@@ -670,8 +713,13 @@ class Scene:
                                  ("clip start", c.clip_start, 0.0, 1e12),
                                  ("shift x", c.shift_x, -100, 100),
                                  ("shift y", c.shift_y, -100, 100)):
-            if not (math.isfinite(v) and lo <= v <= hi):
-                raise SceneError(f"camera: {label} {v} outside [{lo:g}, {hi:g}]")
+            # Blender stores these as float32: a limit typed in Blender arrives rounded
+            # (1e-9 as 9.99999997e-10), so the limits allow for that rounding
+            slack = tol.FLOAT32_INPUT_REL
+            if not (math.isfinite(v) and lo - slack * abs(lo) <= v <= hi + slack * abs(hi)):
+                side = (f"is below the minimum {lo:g}" if v < lo else
+                        f"is above the maximum {hi:g}" if v > hi else "is not a number")
+                raise SceneError(f"camera: {label} {v:.9g} {side}")
         if not (math.isfinite(c.clip_end) and c.clip_end > c.clip_start):
             raise SceneError(f"camera: clip end {c.clip_end} must exceed clip start "
                              f"{c.clip_start}")
@@ -784,6 +832,10 @@ class Scene:
             mat_ior=np.array([m.ior for m in mats], f64),
             mat_emission=np.array([m.emission for m in mats], f64),
             mat_tex=np.array(tex_ids, np.int32),
+            mat_model=np.array([SHADING_MODELS[m.model] for m in mats], np.int32),
+            mat_metallic=np.array([m.metallic for m in mats], f64),
+            mat_metal=np.array([m.metal for m in mats], f64).reshape(-1, 3),
+            mat_specular_ior=np.array([m.specular_ior for m in mats], f64),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
             light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,

@@ -24,9 +24,11 @@ def _lum(a: np.ndarray) -> np.ndarray:
     return a[..., :3].mean(axis=-1)
 
 
-def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2)):
-    """Render the current scene with Cycles (direct light plus ``max_bounces`` glossy
-    bounces, box filter of one pixel, no denoising) once per seed."""
+def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2),
+            transmission_bounces: int = 0):
+    """Render the current scene with Cycles (direct light plus ``max_bounces`` glossy and
+    ``transmission_bounces`` transmission bounces, box filter of one pixel, no denoising)
+    once per seed."""
     sc = bpy.context.scene
     engine = sc.render.engine
     sc.render.engine = "CYCLES"
@@ -35,10 +37,10 @@ def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2)):
     cy.samples = samples
     cy.use_adaptive_sampling = False
     cy.use_denoising = False
-    cy.max_bounces = max_bounces
+    cy.max_bounces = max(max_bounces, transmission_bounces)
     cy.diffuse_bounces = 0
     cy.glossy_bounces = max_bounces
-    cy.transmission_bounces = 0
+    cy.transmission_bounces = transmission_bounces
     cy.caustics_reflective = cy.caustics_refractive = False
     cy.pixel_filter_type = "BOX"
     cy.filter_width = 1.0

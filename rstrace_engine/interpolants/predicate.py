@@ -43,9 +43,12 @@ from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from .linetree import corner_weights, face_frame, line_points
 from .shafts import (
+    CONE_OFF,
+    CONE_STEP,
     MAX_PLANES,
     boundary_edge_in,
     clip_polygon,
+    cone_state,
     hexa_planes,
     hw_shaft,
     light_box,
@@ -65,9 +68,10 @@ _SIL = CLASS_FAIL_SILHOUETTE
 _SHD = CLASS_FAIL_SHADOW
 #: Why a cell failed, finer than its pixel class (``check_cells``'s ``detail`` output).
 REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change", "slab",
-           "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light")
+           "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light", "spot_cone",
+           "self_tunnel")
 (R_VALID, R_MISS, R_CLASS, R_LIGHT, R_TREE, R_SLAB, R_FACING, R_SHAFT, R_SELF, R_TUNNEL,
- R_TUNNEL_LIGHT) = range(len(REASONS))
+ R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
 #: Triangles a self query may collect before the cell fails (conservatively).
@@ -107,22 +111,44 @@ def extended_display(linear: np.ndarray) -> np.ndarray:
     return image.to_display(x) + _SRGB_SLOPE_AT_1 * over
 
 def radiance_ok(rad: np.ndarray, cell_samples: np.ndarray, nsamp: np.ndarray,
-                epsilon: float) -> np.ndarray:
+                epsilon: float, tex=None, tex_max=None) -> np.ndarray:
     """The radiance test of cells (m of them): quadrilinear interpolation of the 16 corner
     samples within ``TEST_EPS_FRAC * epsilon`` of every traced test line, in the extended
     display space; non-finite radiance fails.
 
     rad (S, 3) sample radiance; cell_samples (m, 16 + N_TEST_ALL) sample ids (corners, then
     test lines in :data:`TEST_POINTS` order); nsamp (m,) how many are used. Returns (m,) bool.
+
+    Textures (:func:`.samples.texture_split`): with ``tex = (D, texel, flag)`` per sample,
+    ``rad`` is R and a line's radiance ``R + texel * D``; a pixel gets the interpolated R
+    and D with its own texel. So at every test line the interpolated and the traced
+    radiance are compared for its own texel and for texels ``0, 1/4, ... 1`` times
+    ``tex_max`` (3,) (the texel range: a pixel's texel can be any of them). A cell with a
+    flagged sample (a texture below the root, a failed split) fails.
     """
     corners = rad[cell_samples[:, :16]]  # (m, 16, 3)
-    tests = rad[np.maximum(cell_samples[:, 16:], 0)]  # (m, T, 3)
+    tid = np.maximum(cell_samples[:, 16:], 0)
+    tests = rad[tid]  # (m, T, 3)
     interp = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, corners)
-    err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
     used = np.arange(N_TEST_ALL)[None, :] < (nsamp - 16)[:, None]
-    err = np.where(used, err, 0.0)
     finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(
         np.where(used[:, :, None], tests, 0.0)).all(axis=(1, 2))
+    err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
+    if tex is not None:
+        dif, texel, flag = tex
+        ids = np.where(np.arange(cell_samples.shape[1])[None, :] < nsamp[:, None],
+                       cell_samples, cell_samples[:, :1])
+        finite &= (flag[ids] == 0).all(axis=1)
+        dc = dif[cell_samples[:, :16]]
+        if np.any(dc != 0.0):
+            dt = dif[tid]
+            idif = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, dc)
+            tmax = np.ones(3) if tex_max is None else np.asarray(tex_max, np.float64)
+            for t in [texel[tid]] + [f * tmax for f in (0.0, 0.25, 0.5, 0.75, 1.0)]:
+                e = np.abs(extended_display(interp + t * idif)
+                           - extended_display(tests + t * dt)).max(axis=2)
+                err = np.maximum(err, e)
+    err = np.where(used, err, 0.0)
     return finite & (err.max(axis=1) <= TEST_EPS_FRAC * epsilon)
 
 
@@ -317,6 +343,13 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
     for j in range(L):
         occ = sm.node_occ[sm.node_start[s0] + row, j]
         lit = occ == -1
+        # the spot cone over the points' box: a step inside the cell fails it; a cell the
+        # cone leaves entirely dark is off for every line
+        cone = cone_state(qs, j, lo, hi)
+        if cone == CONE_STEP or (cone == CONE_OFF and occ != -2):
+            return R_CONE
+        if occ == -2 and cone == CONE_OFF:
+            continue
         if occ == -2:
             if not self_ok:
                 continue  # below the root: tested only
@@ -449,11 +482,18 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
         npl = hw_shaft(plo_, phi_, lo, hi, qs.slack, spl, sbb)
         named[0] = sm.node_inst[base + pq]
         named[1] = sm.node_inst[base + q]
+        if named[0] == named[1] and named[0] >= 0 and not qs.mesh_convex[
+                qs.inst_mesh[named[0]]]:
+            # reflection / refraction into the same non-convex object: its own geometry
+            # could cut interior lines' segments (for a convex one it cannot)
+            return R_SELF_TUNNEL
         if other_geometry(qs, spl, npl, sbb, named, 2, plo, bbo, P, Q):
             return R_TUNNEL
         if sm.node_inst[base + q] >= 0:
             r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
                               cand, P, Q, spl, sbb, plo, bbo, named)
+            if r == R_CONE:
+                return R_CONE
             if r != R_VALID:
                 return R_TUNNEL_LIGHT
     zlo_out[c] = zlo

@@ -61,29 +61,26 @@ def spot_floor(kind: str) -> Scene:
 
 
 def gallery(kind: str) -> Scene:
-    """A torus (a non-convex, partial occluder: light leaks through its hole) over a floor,
-    a glass sphere, a mirror box and a diffuse box."""
+    """A polished floor (a partial mirror reflecting the scene), a torus over it (a
+    non-convex, partial occluder: light leaks through its hole), a glass sphere seen
+    against the sky, a diffuse box."""
     s = Scene()
-    floor = s.add_material(Material("floor", diffuse=(0.55, 0.55, 0.5), specular=(0.1,) * 3,
-                                    roughness=0.25))
+    floor = s.add_material(Material("floor", diffuse=(0.45, 0.45, 0.42), mirror=(0.35,) * 3))
     bronze = s.add_material(Material("bronze", diffuse=(0.35, 0.22, 0.1),
                                      specular=(0.35, 0.3, 0.2), roughness=0.2))
     glass = s.add_material(Material("glass", diffuse=(0.0,) * 3, transmission=(0.95,) * 3,
                                     ior=1.45))
-    mirror = s.add_material(Material("mirror", diffuse=(0.03,) * 3, mirror=(0.9,) * 3))
     s.add_instance(s.add_mesh(shapes.plane(12.0, name="floor")), np.eye(4), [floor], "Floor")
     s.add_instance(s.add_mesh(shapes.torus(0.9, 0.25, 32, 16, name="ring")),
-                   shapes.transform((-1.2, 0.6, 1.6), rotate_x_deg=15.0), [bronze], "Ring")
-    s.add_instance(s.add_mesh(shapes.icosphere(2, name="ball")),
-                   shapes.transform((1.3, -0.4, 0.8), 0.8), [glass], "Glass")
+                   shapes.transform((-1.2, 0.6, 1.2), rotate_x_deg=15.0), [bronze], "Ring")
+    s.add_instance(s.add_mesh(shapes.icosphere(3, name="ball")),
+                   shapes.transform((1.3, 0.8, 2.4), 1.1), [glass], "Glass")
     cube = s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="cube"))
-    s.add_instance(cube, shapes.transform((1.2, 2.2, 0.9), (1.8, 0.2, 1.8)), [mirror],
-                   "Mirror")
-    s.add_instance(cube, shapes.transform((-0.2, -1.6, 0.4), 0.8), [bronze], "Box")
+    s.add_instance(cube, shapes.transform((0.4, -1.6, 0.4), 0.8), [bronze], "Box")
     s.add_light(Light("Key", "POINT", power=1500.0, position=(-2.0, -0.5, 6.0)))
     s.add_light(Light("Sun", "SUN", power=1.5, direction=(0.3, 0.5, -1.0)))
-    s.set_world_color((0.05, 0.06, 0.08))
-    s.set_camera(_camera(kind, (0.5, -7.0, 4.0), (0.0, 0.4, 0.7), 8.0))
+    s.set_world_color((0.3, 0.35, 0.45))
+    s.set_camera(_camera(kind, (0.5, -7.0, 2.5), (0.0, 0.4, 1.2), 8.0))
     return s
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from bound_scenes import SCENES, gallery, spot_floor, textured_floor
 
 from rstrace_engine import image
@@ -56,7 +55,8 @@ def test_max_error_is_within_epsilon(name, kind):
     frame, base, r = frames(SCENES[name](kind))
     err = display_error(frame.radiance, base.radiance)
     interp = frame.pixel_class == CLASS_INTERPOLATED
-    assert interp.mean() > 0.1, (name, kind, interp.mean())  # the test tests something
+    # the test tests something (the gallery's glass is traced: its ray trees change)
+    assert interp.mean() > (0.05 if name == "gallery" else 0.2), (name, kind, interp.mean())
     assert np.all(err[~interp] == 0.0)  # traced pixels are the base tracer's
     assert err.max() <= EPS + FLOAT_TOL, (name, kind, err.max(), int((err > EPS).sum()))
 
@@ -92,9 +92,8 @@ def test_spot_cone_is_part_of_the_predicate():
 
 
 def test_bound_notes_name_what_is_only_tested():
-    frame, _, _ = frames(gallery("PERSP"))
-    notes = frame.stats["bound_notes"]
-    assert NOTE_SECONDARY in notes or NOTE_OCCLUDER in notes
+    frame, _, _ = frames(gallery("PERSP"))  # the polished floor, the torus's shadow
+    assert set(frame.stats["bound_notes"]) == {NOTE_SECONDARY, NOTE_OCCLUDER}
     frame, _, _ = frames(spot_floor("PERSP"))
     assert frame.stats["bound_notes"] == []  # everything there is proven
 

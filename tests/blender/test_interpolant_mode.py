@@ -41,7 +41,8 @@ def test_f12_interpolant_mode_matches_base_within_epsilon(tmp_path):
     # bounded error in display space against the base tracer's frame of the same scene
     err = np.abs(to_display(out["Combined"][..., :3]) - to_display(base)).max(axis=-1)
     assert np.isfinite(out["Combined"]).all()
-    assert (err > eps).mean() <= 0.001, f"{(err > eps).mean():.4%} of pixels over epsilon"
+    # every pixel (float32 EXR: 1e-6 of display slack, see tests/test_interpolant_bound.py)
+    assert err.max() <= eps + 1e-6, f"max error {err.max():.5f}, {(err > eps).sum()} over"
 
     # a second F12 with nothing changed reuses every interpolant of the persistent session
     again = b.render_exr(tmp_path / "again.exr")["Combined"][..., :3]

@@ -55,8 +55,10 @@ def test_max_error_is_within_epsilon(name, kind):
     frame, base, r = frames(SCENES[name](kind))
     err = display_error(frame.radiance, base.radiance)
     interp = frame.pixel_class == CLASS_INTERPOLATED
-    # the test tests something (the gallery's glass is traced: its ray trees change)
-    assert interp.mean() > (0.05 if name == "gallery" else 0.2), (name, kind, interp.mean())
+    # the test tests something (the gallery is mostly traced: its glass's ray trees change,
+    # the polished floor reflects everything; 30+ pixels are interpolated there)
+    assert interp.sum() > (30 if name == "gallery" else 0.2 * interp.size), (name, kind,
+                                                                            interp.mean())
     assert np.all(err[~interp] == 0.0)  # traced pixels are the base tracer's
     assert err.max() <= EPS + FLOAT_TOL, (name, kind, err.max(), int((err > EPS).sum()))
 

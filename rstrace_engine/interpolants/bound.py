@@ -1,8 +1,9 @@
 """What the error bound of a frame's interpolants rests on: proven, or only tested.
 
 The predicate (:mod:`.predicate`) proves the geometry of a cell's own object, the state of
-every light at the root of the ray trees (shafts, self shadow, the spot cone), and it applies
-textures per pixel (:mod:`.samples`). Two scene classes are certified by the test lines only
+every light at the root of the ray trees (shafts, self shadow, the spot cone, a named
+occluder's coverage: :mod:`.occluders`), and it applies textures per pixel
+(:mod:`.samples`). Reflections and refractions are certified only up to the tunnel padding
 (docs/INTERPOLANTS.md, "What is guaranteed, and what is only tested"); a frame that
 interpolated pixels from such interpolants says so in ``stats["bound_notes"]``, which the
 Blender add-on shows as messages.
@@ -13,8 +14,6 @@ from __future__ import annotations
 import numpy as np
 
 #: The notes, one per scene class whose bound is tested rather than proven.
-NOTE_OCCLUDER = ("epsilon is tested, not proven, for interpolated pixels in the shadow of a "
-                 "named occluder (its coverage of the cell is checked at test lines)")
 NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose radiance "
                   "includes reflections or refractions (secondary hit points are bounded "
                   "only up to the tunnel padding)")
@@ -31,8 +30,6 @@ def bound_notes(cache, used: np.ndarray) -> list[str]:
     notes = []
     if len(s0) == 0:
         return notes
-    if sm.node_occ.shape[1] and np.any(sm.node_occ[sm.node_start[s0]] >= 0):
-        notes.append(NOTE_OCCLUDER)
     if np.any(sm.node_count[s0] > 1):
         notes.append(NOTE_SECONDARY)
     return notes

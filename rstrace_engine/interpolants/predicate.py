@@ -42,6 +42,7 @@ from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from .linetree import corner_weights, face_frame, line_points
+from .occluders import occluder_covers
 from .shafts import (
     CONE_OFF,
     CONE_STEP,
@@ -69,9 +70,9 @@ _SHD = CLASS_FAIL_SHADOW
 #: Why a cell failed, finer than its pixel class (``check_cells``'s ``detail`` output).
 REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change", "slab",
            "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light", "spot_cone",
-           "self_tunnel")
+           "self_tunnel", "partial_occluder")
 (R_VALID, R_MISS, R_CLASS, R_LIGHT, R_TREE, R_SLAB, R_FACING, R_SHAFT, R_SELF, R_TUNNEL,
- R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL) = range(len(REASONS))
+ R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
 #: Triangles a self query may collect before the cell fails (conservatively).
@@ -367,6 +368,8 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             n_named = 2
         if other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
             return R_SHAFT
+        if not lit and not occluder_covers(qs, occ, j, lo, hi, pl, npl, bb, cand, P, Q):
+            return R_PARTIAL  # the occluder may let light through between the test lines
         if lit and self_ok:
             if bfac[j] or not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
                 return R_SELF
@@ -492,8 +495,8 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
         if sm.node_inst[base + q] >= 0:
             r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
                               cand, P, Q, spl, sbb, plo, bbo, named)
-            if r == R_CONE:
-                return R_CONE
+            if r == R_CONE or r == R_PARTIAL:
+                return r
             if r != R_VALID:
                 return R_TUNNEL_LIGHT
     zlo_out[c] = zlo

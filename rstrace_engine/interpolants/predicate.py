@@ -17,8 +17,13 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   triangle of the object itself inside it faces the light with no boundary edge inside it;
   then no interior point is shadowed (a shadow ray would have to enter the object through a
   triangle facing away from the light). For an occluded light, the shaft meets nothing but
-  the object and the named occluder. A light off at every corner must be behind every slab
-  triangle (or, if in front of all of them, its shaft must be empty as for a lit light).
+  the object and the named occluder, and the occluder must cover every shadow segment
+  (:func:`.occluders.occluder_covers`). A light off at every corner must be behind every slab
+  triangle, or outside its spot cone over the whole slab (or, if in front of all of them,
+  its shaft must be empty as for a lit light). A spot cone edge with blend 0 (a step) may not
+  cross the slab (:func:`.shafts.cone_state`).
+* **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
+  (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the
   padded boxes of the 16 parent points and the 16 node points, and each node's light shafts,
   meet no other object than those the tree names. Secondary hit points of interior lines are

@@ -10,7 +10,14 @@ segment from the box to the light -- lies inside the union of ``b``'s triangles 
 plane (clipped areas of same-facing coplanar triangles summing to the hull's area, not more:
 overlaps prove nothing). Then every shadow segment crosses ``b``.
 Computed in ``b``'s object space (affine maps keep coverage and area ratios in a plane).
-Curved occluders (no plane of triangles holds the whole projection) fail: conservative.
+
+A closed convex occluder K (a tessellated sphere) is proven differently: the set of points
+whose segment to a point light crosses K, ``{p + t (k - p): k in K, t >= 1}``, is convex
+(and so is a sun's, with a direction instead of p), so the cell's surface lies in it when
+the vertices of its hull do: one segment test per vertex against K (strictly inside a
+triangle, strictly inside the segment).
+Curved non-convex occluders (no plane of triangles holds the whole projection) fail:
+conservative.
 """
 
 from __future__ import annotations
@@ -27,6 +34,9 @@ from .shafts import MAX_PLANES, mesh_candidates, to_object, tri_normal
 MAX_SEEDS = 48
 #: Relative slack of the plane tests and the area comparison.
 COVER_EPS = 1e-9
+#: Margins of the corner segment tests (barycentric, and segment parameter at both ends).
+COVER_BARY = 1e-9
+COVER_T = 1e-6
 
 
 @njit(cache=True, nogil=True)
@@ -85,9 +95,44 @@ def _hull(ux, uy, n, hx, hy):
 
 
 @njit(cache=True, nogil=True)
-def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
-    """Does instance ``b`` block light ``j`` for every point of the world box (lo, hi)?
-    ``pl``/``npl``/``bb``: the light shaft from the box (world). See the module doc."""
+def _segment_hits(qs, cand, nc, ox, oy, oz, dx, dy, dz, tmax):
+    """Does the segment o + t d, t in (COVER_T, tmax - COVER_T), cross a triangle of
+    ``cand`` strictly inside (a margin on the barycentrics: a crossing on an edge does not
+    count, which only makes the proof more conservative)?"""
+    for q in range(nc):
+        t = cand[q]
+        v0x, v0y, v0z = qs.tv[t, 0], qs.tv[t, 1], qs.tv[t, 2]
+        e1x, e1y, e1z = qs.tv[t, 3] - v0x, qs.tv[t, 4] - v0y, qs.tv[t, 5] - v0z
+        e2x, e2y, e2z = qs.tv[t, 6] - v0x, qs.tv[t, 7] - v0y, qs.tv[t, 8] - v0z
+        px = dy * e2z - dz * e2y
+        py = dz * e2x - dx * e2z
+        pz = dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz
+        if det == 0.0:
+            continue
+        inv = 1.0 / det
+        sx, sy, sz = ox - v0x, oy - v0y, oz - v0z
+        u = (sx * px + sy * py + sz * pz) * inv
+        if not (COVER_BARY < u < 1.0 - COVER_BARY):
+            continue
+        qx = sy * e1z - sz * e1y
+        qy = sz * e1x - sx * e1z
+        qz = sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) * inv
+        if not (COVER_BARY < v and u + v < 1.0 - COVER_BARY):
+            continue
+        tt = (e2x * qx + e2y * qy + e2z * qz) * inv
+        if COVER_T < tt < tmax - COVER_T:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
+    """Does instance ``b`` block light ``j`` for every point of the convex hull of world
+    points ``pts[:npts]`` (the cell's surface: the vertices of its slab polygons, or the
+    corners of its box)? ``pl``/``npl``/``bb``: the light shaft from there (world). See the
+    module doc."""
     if b < 0:
         return False
     xf = qs.inst_xform[b]
@@ -99,14 +144,12 @@ def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
     if nc <= 0:
         return False
     # the box corners and the light in object space
-    X = np.empty((8, 3))
-    for c in range(8):
-        w = np.empty(3)
-        w[0] = hi[0] if c & 1 else lo[0]
-        w[1] = hi[1] if c & 2 else lo[1]
-        w[2] = hi[2] if c & 4 else lo[2]
+    n = npts
+    X = np.empty((n, 3))
+    for c in range(n):
         for k in range(3):
-            X[c, k] = inv[k, 0] * w[0] + inv[k, 1] * w[1] + inv[k, 2] * w[2] + inv[k, 3]
+            X[c, k] = (inv[k, 0] * pts[c, 0] + inv[k, 1] * pts[c, 1] + inv[k, 2] * pts[c, 2]
+                       + inv[k, 3])
     sun = qs.light_kind[j] == LIGHT_SUN
     L = np.empty(3)
     for k in range(3):
@@ -116,16 +159,43 @@ def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
         else:
             L[k] = (inv[k, 0] * qs.light_pos[j, 0] + inv[k, 1] * qs.light_pos[j, 1]
                     + inv[k, 2] * qs.light_pos[j, 2] + inv[k, 3])
-    ux = np.empty(8)
-    uy = np.empty(8)
-    hx = np.empty(17)
-    hy = np.empty(17)
-    ax = np.empty(24)
-    ay = np.empty(24)
-    bx = np.empty(24)
-    by = np.empty(24)
+    if qs.mesh_convex[qs.inst_mesh[b]]:
+        # a closed convex occluder: its shadow is convex, so the 8 corners' shadow
+        # segments crossing it prove every segment from the box does
+        far = 0.0
+        for c in range(n):
+            for k in range(3):
+                far = max(far, abs(X[c, k]))
+        for k in range(3):
+            far = max(far, abs(L[k]))
+        for q in range(nc):  # and beyond every candidate triangle
+            for k in range(9):
+                far = max(far, abs(qs.tv[cand[q], k]))
+        all_in = True
+        for c in range(n):
+            if sun:  # toward the sun, far beyond the occluder
+                f = 4.0 * (far + 1.0) / max(math.sqrt(L[0] ** 2 + L[1] ** 2 + L[2] ** 2),
+                                            1e-300)
+                hit = _segment_hits(qs, cand, nc, X[c, 0], X[c, 1], X[c, 2], L[0] * f,
+                                    L[1] * f, L[2] * f, 1.0)
+            else:
+                hit = _segment_hits(qs, cand, nc, X[c, 0], X[c, 1], X[c, 2], L[0] - X[c, 0],
+                                    L[1] - X[c, 1], L[2] - X[c, 2], 1.0)
+            if not hit:
+                all_in = False
+                break
+        if all_in:
+            return True
+    ux = np.empty(n)
+    uy = np.empty(n)
+    hx = np.empty(2 * n + 1)
+    hy = np.empty(2 * n + 1)
+    ax = np.empty(2 * n + 8)
+    ay = np.empty(2 * n + 8)
+    bx = np.empty(2 * n + 8)
+    by = np.empty(2 * n + 8)
     scale = 0.0
-    for c in range(8):
+    for c in range(n):
         for k in range(3):
             scale = max(scale, abs(X[c, k] - X[0, k]))
     for k in range(3):
@@ -151,8 +221,8 @@ def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
                 continue
         # every corner strictly on the other side from the light
         ok = True
-        sx = np.empty(8)
-        for c in range(8):
+        sx = np.empty(n)
+        for c in range(n):
             sx[c] = nx * X[c, 0] + ny * X[c, 1] + nz * X[c, 2] - d0
             if sun:
                 if not (sx[c] * sl < 0.0 and abs(sx[c]) > tolp):
@@ -173,7 +243,7 @@ def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
         e2x = ny * e1z - nz * e1y
         e2y = nz * e1x - nx * e1z
         e2z = nx * e1y - ny * e1x
-        for c in range(8):
+        for c in range(n):
             if sun:
                 f = sx[c] / sl
                 y0 = X[c, 0] - L[0] * f
@@ -186,7 +256,7 @@ def occluder_covers(qs, b, j, lo, hi, pl, npl, bb, cand, P, Q):
                 y2 = L[2] + (X[c, 2] - L[2]) * f
             ux[c] = e1x * y0 + e1y * y1 + e1z * y2
             uy[c] = e2x * y0 + e2y * y1 + e2z * y2
-        nh = _hull(ux, uy, 8, hx, hy)
+        nh = _hull(ux, uy, n, hx, hy)
         if nh < 3:
             continue
         area = _area2(hx, hy, nh)

@@ -177,6 +177,18 @@ class SampleArrays(NamedTuple):
     node_point: np.ndarray  # (Nn, 3) float64
 
 
+#: Vertices of the slab polygons kept for the occluder proof (more: the box's corners).
+MAX_HULL_POINTS = 64
+
+
+@njit(cache=True, nogil=True)
+def _box_corners(lo, hi, out):
+    for c in range(8):
+        out[c, 0] = hi[0] if c & 1 else lo[0]
+        out[c, 1] = hi[1] if c & 2 else lo[1]
+        out[c, 2] = hi[2] if c & 4 else lo[2]
+
+
 @njit(cache=True, nogil=True)
 def _same_tree(sm, s, r):
     """R_VALID when samples s and r have the same position-independent ray tree, else
@@ -246,13 +258,14 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
 
 
 @njit(cache=True, nogil=True)
-def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
+def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
     """Geometry test of the slab shaft ``pl`` (6 planes, world) against the object itself.
 
     dirs (16, 3) world corner directions. Sets per light ``fac[j]`` / ``bfac[j]`` when some
     slab triangle faces / faces away from light j, and ``hb`` (6,) to the world box of the
-    object's surface inside the slab (which holds every slab crossing). Returns True when
-    the cell passes.
+    object's surface inside the slab (which holds every slab crossing), and ``hv[:nhv[0]]``
+    to the vertices of those clipped polygons (``nhv[0] = -1`` when more than ``hv`` holds).
+    Returns True when the cell passes.
     """
     xf = qs.inst_xform[inst]
     inv = qs.inst_inv[inst]
@@ -278,10 +291,17 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
         load_tri(qs.tv, t, P)
         nv = clip_polygon(plo, 0, 6, P, 3, Q)
         for v in range(nv):
+            m_ = nhv[0]
+            if m_ >= hv.shape[0]:
+                nhv[0] = -1
             for k in range(3):
                 w = xf[k, 0] * P[v, 0] + xf[k, 1] * P[v, 1] + xf[k, 2] * P[v, 2] + xf[k, 3]
                 hb[k] = min(hb[k], w)
                 hb[3 + k] = max(hb[3 + k], w)
+                if 0 <= m_ < hv.shape[0]:
+                    hv[m_, k] = w
+            if 0 <= m_ < hv.shape[0]:
+                nhv[0] = m_ + 1
         nx, ny, nz = tri_normal(qs.tv, t)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         for c in range(16):
@@ -338,11 +358,12 @@ def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
 
 @njit(cache=True, nogil=True)
 def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q, pl, bb,
-                  plo, bbo, named):
+                  plo, bbo, named, pts, npts):
     """Light tests of one ray-tree node (row offset ``row`` in sample ``s0``) whose points
     lie in box (lo, hi) on instance ``inst``. ``self_ok``: run the self-shadow test (root
     level, where the slab facing flags ``fac``/``bfac`` are known). Returns R_VALID or the
-    reason (R_FACING, R_SHAFT, R_SELF; the caller maps these below the root)."""
+    reason (R_FACING, R_SHAFT, R_SELF; the caller maps these below the root). ``pts[:npts]``:
+    world points whose convex hull holds the node's points (for the occluder proof)."""
     L = qs.light_kind.shape[0]
     blo = np.empty(3)
     bhi = np.empty(3)
@@ -373,7 +394,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             n_named = 2
         if other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
             return R_SHAFT
-        if not lit and not occluder_covers(qs, occ, j, lo, hi, pl, npl, bb, cand, P, Q):
+        if not lit and not occluder_covers(qs, occ, j, pts, npts, pl, npl, bb, cand, P, Q):
             return R_PARTIAL  # the occluder may let light through between the test lines
         if lit and self_ok:
             if bfac[j] or not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
@@ -448,7 +469,9 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     fac = np.zeros(max(L, 1), np.bool_)
     bfac = np.zeros(max(L, 1), np.bool_)
     hb = np.empty(6)
-    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
+    hv = np.empty((MAX_HULL_POINTS, 3))
+    nhv = np.zeros(1, np.int64)
+    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
         return R_SLAB
     # the light shafts and the first tunnels start from the surface inside the slab
     if hb[0] > hb[3]:
@@ -465,8 +488,11 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     plo = np.empty((MAX_PLANES, 4))
     bbo = np.empty(6)
     named = np.empty(2, np.int32)
+    if nhv[0] <= 0:  # too many polygon vertices: the box's corners
+        _box_corners(lo, hi, hv)
+        nhv[0] = 8
     r = _light_shafts(qs, sm, s0, 0, inst, lo, hi, True, fac, bfac, cand, P, Q, spl, sbb,
-                      plo, bbo, named)
+                      plo, bbo, named, hv, nhv[0])
     if r != R_VALID:
         return r
     # reflection / refraction tunnels and their lights
@@ -498,8 +524,9 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
         if other_geometry(qs, spl, npl, sbb, named, 2, plo, bbo, P, Q):
             return R_TUNNEL
         if sm.node_inst[base + q] >= 0:
+            _box_corners(lo, hi, hv)
             r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
-                              cand, P, Q, spl, sbb, plo, bbo, named)
+                              cand, P, Q, spl, sbb, plo, bbo, named, hv, 8)
             if r == R_CONE or r == R_PARTIAL:
                 return r
             if r != R_VALID:

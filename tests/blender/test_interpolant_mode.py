@@ -44,6 +44,14 @@ def test_f12_interpolant_mode_matches_base_within_epsilon(tmp_path):
     # every pixel (float32 EXR: 1e-6 of display slack, see tests/test_interpolant_bound.py)
     assert err.max() <= eps + 1e-6, f"max error {err.max():.5f}, {(err > eps).sum()} over"
 
+    # what the bound only tests (reflections, refractions) is said in the render's messages
+    import addon
+
+    state = addon.session.state_for(bpy.context.scene)
+    info = [text for level, text in state.messages if level == "INFO"]
+    assert info == list(first.get("bound_notes") or []), (info, first.get("bound_notes"))
+    assert "bound_notes" in first
+
     # a second F12 with nothing changed reuses every interpolant of the persistent session
     again = b.render_exr(tmp_path / "again.exr")["Combined"][..., :3]
     assert _stats()["cells_built"] == 0

@@ -158,3 +158,21 @@ def test_occluder_coverage_is_proven_or_refused():
     # under its tube: covered, but a curved non-convex occluder has no plane that holds the
     # projection: refused (conservative, documented)
     assert not _covers(cache, 3, 2, (5.0, 0.0), 0.02)
+
+
+def test_refraction_into_a_non_convex_object_is_refused():
+    """A glass torus: lines refracted into it may meet its own other side between the test
+    lines (the tunnel test names the object, so it cannot see its own triangles); such cells
+    are refused (self_tunnel). A glass sphere (convex) is fine by convexity."""
+    s = Scene()
+    glass = s.add_material(Material("glass", diffuse=(0.0,) * 3, transmission=(0.95,) * 3,
+                                    ior=1.45))
+    s.add_instance(s.add_mesh(shapes.torus(1.6, 0.6, 48, 24)),
+                   shapes.transform((0.0, 0.0, 1.0), rotate_x_deg=70.0), [glass], "Ring")
+    s.set_world_color((0.3, 0.35, 0.45))  # no lights, only the sky: the trees agree widely
+    s.set_camera(Camera(matrix=shapes.look_at((0.0, -6.0, 2.0), (0.0, 0.0, 1.0)), width=64,
+                        height=48))
+    frame, base, r = frames(s, epsilon=1.0)
+    assert r.cache.frame_stats["reasons"].get("self_tunnel", 0) > 0
+    frame, base, r = frames(s)
+    assert display_error(frame.radiance, base.radiance).max() <= EPS + FLOAT_TOL

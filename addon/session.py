@@ -155,6 +155,9 @@ class FrameRenderer:
         if dropped:
             self._warn(state, f"{dropped} sample(s) with NaN, infinite or too large radiance "
                               f"(>= 1e30, e.g. emission) were left out of the image")
+        for note in stats.get("bound_notes") or []:  # INTERPOLANT: what is only tested
+            state.messages.append(("INFO", note))
+            engine.report({"INFO"}, f"RSTrace: {note}")
         mem = _memory_mb(stats, exported.scene)
         engine.update_memory_stats(memory_used=mem, memory_peak=mem)
         engine.update_stats("", status_line(stats))

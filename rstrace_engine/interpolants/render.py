@@ -32,6 +32,7 @@ from ..accel.accelerators import Hits
 from ..frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
 from ..tracing.whitted import TILE_RAYS, render, trace
+from .bound import bound_notes
 from .cache import InterpolantCache
 
 log = logging.getLogger(__name__)
@@ -127,7 +128,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if progress is not None:
         progress(0.2, "visibility")
     face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
+    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits)
     t_res = time.perf_counter()
     if progress is not None:
         progress(0.7, "interpolants")
@@ -199,6 +200,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
+        bound_notes=bound_notes(cache, res.interpolant),
     )
     log.debug("interpolant frame: %.3f s, %.1f%% interpolated, %d cells built",
               elapsed, 100 * stats["interpolated_fraction"], stats["cells_built"])

@@ -22,7 +22,6 @@ the same edits: both paths share one implementation. An edit
 
 from __future__ import annotations
 
-import inspect
 import logging
 import time
 
@@ -33,8 +32,7 @@ from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, Re
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
-from .incremental import render_interpolant
-from .interpolants.render import InterpolantRenderer
+from .interpolants.render import InterpolantRenderer, render_frame
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
 
@@ -278,9 +276,8 @@ class Session:
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
-        own_records = _accepts(self.interpolants.render, "records")
         new_cache = False
-        if mode == "INTERPOLANT" and not own_records:
+        if mode == "INTERPOLANT":
             cache, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
         incremental = (not new_cache and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
@@ -293,15 +290,10 @@ class Session:
         c0 = self.interpolants.cache
         pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
-            base = self.frame if incremental else None
-            if own_records:
-                frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                                 progress=progress, cancel=cancel,
-                                                 records=records, pixels=pixels, base=base)
-            else:
-                frame = render_interpolant(cache, self.scene, self.settings, records,
-                                           pixels=pixels, base=base, progress=progress,
-                                           cancel=cancel)
+            frame = render_frame(cache, self.scene, self.settings, progress=progress,
+                                 cancel=cancel, records=records, pixels=pixels,
+                                 base=self.frame if incremental else None)
+            frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
@@ -339,10 +331,3 @@ class Session:
         self.stats.update(frame.stats)
         return frame
 
-
-def _accepts(fn, name: str) -> bool:
-    """Whether callable ``fn`` takes a keyword argument ``name``."""
-    try:
-        return name in inspect.signature(fn).parameters
-    except (TypeError, ValueError):
-        return False

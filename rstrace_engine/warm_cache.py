@@ -81,7 +81,7 @@ def _modes() -> tuple[str, ...]:
 def _accelerators() -> tuple[str, ...]:
     from .accel import embree
 
-    return ("BVH", "EMBREE") if embree.available() else ("BVH",)
+    return ("BVH", "VISIBILITY_FIELD") + (("EMBREE",) if embree.available() else ())
 
 
 def _animate(session, ortho: bool) -> None:

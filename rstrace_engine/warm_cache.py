@@ -99,6 +99,27 @@ def _animate(session, ortho: bool) -> None:
     session.render()
 
 
+def _warm_edited_interpolants(progress=None) -> None:
+    """Interpolants that pass the error predicate (their tunnels go into the ray segment
+    trees and the membership index), then an edit that queries and invalidates them. The
+    warm scene is too small and too hard (textures, a spot, occluders) for any cell to pass."""
+    from . import scenes
+    from .frame import RenderSettings
+    from .geometry import shapes
+    from .geometry.edits import ObjectTransform
+    from .session import Session
+
+    message = "warming kernels: interpolants and an edit"
+    log.info(message)
+    if progress is not None:
+        progress(message)
+    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
+    session = Session(scenes.three_spheres(128, 96, subdivisions=2), settings)
+    session.render()
+    session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
+    session.render()
+
+
 def warm(modes=None, accelerators=None, progress=None) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
@@ -126,6 +147,8 @@ def warm(modes=None, accelerators=None, progress=None) -> dict:
             settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
         session = Session(warm_scene(ortho=ortho), settings)
         _animate(session, ortho)
+    if "INTERPOLANT" in modes:
+        _warm_edited_interpolants(progress)
     import importlib
 
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",

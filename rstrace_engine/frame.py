@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 MODES = ("BASE", "INTERPOLANT", "RI_TREE")
+#: deepest RI-tree depth constraint accepted (cells of 2^-16 of a face per axis)
+RI_MAX_DEPTH = 64
 ACCELERATORS = ("BVH", "EMBREE", "VISIBILITY_FIELD")
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
@@ -44,6 +46,13 @@ class RenderSettings:
     depth_cap: int = 6  # linetree depth cap
     memory_cap_mb: float = 256.0  # interpolant memory cap
     seed: int = 0
+    # RI-tree (seed 004); the paper's ranges are the panel's soft limits
+    ri_dist_thresh: float = 0.05  # distance threshold (4D line space), 0.01-0.25
+    ri_ang_thresh: float = 30.0  # angular threshold, degrees, 5-30
+    ri_depth: int = 28  # depth constraint of the binary 4D kd-trees, 22-30
+    ri_cache_mb: float = 100.0  # RI-tree cache size, MB
+    thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
+    thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
 
     def validated(self) -> RenderSettings:
         from .geometry.scene import SceneError
@@ -65,6 +74,17 @@ class RenderSettings:
             raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, {MAX_DEPTH}]")
         if not (np.isfinite(self.memory_cap_mb) and self.memory_cap_mb >= 0.0):
             raise SceneError(f"setting 'memory_cap_mb': {self.memory_cap_mb} must be >= 0")
+        for name, lo, hi in (("ri_dist_thresh", 0.0, 10.0), ("ri_ang_thresh", 0.0, 180.0)):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and lo < v <= hi):
+                raise SceneError(f"setting '{name}': {v} outside ({lo:g}, {hi:g}]")
+        if not 1 <= int(self.ri_depth) <= RI_MAX_DEPTH:
+            raise SceneError(f"setting 'ri_depth': {self.ri_depth} outside [1, {RI_MAX_DEPTH}]")
+        if not (np.isfinite(self.ri_cache_mb) and 0.0 < self.ri_cache_mb <= 1e6):
+            raise SceneError(f"setting 'ri_cache_mb': {self.ri_cache_mb} outside (0, 1e6] MB")
+        if not (np.isfinite(self.thickness_distance) and self.thickness_distance >= 0.0):
+            raise SceneError(f"setting 'thickness_distance': {self.thickness_distance} must "
+                             f"be >= 0 (0: automatic)")
         return self
 
 

@@ -6,7 +6,10 @@ accelerator's ``update`` so that per-mesh structures of unchanged meshes are reu
 the top level is rebuilt. ``BASE`` mode renders with the Whitted tracer
 (:func:`rstrace_engine.tracing.whitted.render`); ``INTERPOLANT`` mode with radiance
 interpolants kept across frames and camera moves
-(:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`).
+(:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`); ``RI_TREE`` mode with
+per-object RI-trees (:class:`~rstrace_engine.ri_tree.render.RITreeRenderer`). With
+``thickness_view`` set, BASE and INTERPOLANT render the thickness view exactly and RI_TREE
+interpolates it.
 """
 
 from __future__ import annotations
@@ -18,11 +21,12 @@ from .accel.accelerators import create_accelerator
 from .frame import Frame, RenderSettings
 from .geometry.scene import Scene, SceneError
 from .interpolants.render import InterpolantRenderer
+from .ri_tree.render import RITreeRenderer, render_thickness_exact
 from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
 
-AVAILABLE_MODES = ("BASE", "INTERPOLANT")
+AVAILABLE_MODES = ("BASE", "INTERPOLANT", "RI_TREE")
 
 
 class Session:
@@ -38,6 +42,7 @@ class Session:
         self.accel = None
         self.stats: dict = {}
         self.interpolants = InterpolantRenderer()
+        self.ri_tree = RITreeRenderer()  # invalidate(slots) drops edited objects' RI-trees
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -78,7 +83,13 @@ class Session:
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
-        if mode == "INTERPOLANT":
+        if self.settings.thickness_view and mode != "RI_TREE":
+            frame = render_thickness_exact(self.scene, self.settings, self.accel,
+                                           progress=progress, cancel=cancel)
+        elif mode == "RI_TREE":
+            frame = self.ri_tree.render(self.scene, self.settings, self.accel,
+                                        progress=progress, cancel=cancel)
+        elif mode == "INTERPOLANT":
             frame = self.interpolants.render(self.scene, self.settings, self.accel,
                                              progress=progress, cancel=cancel)
         else:

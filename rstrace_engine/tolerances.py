@@ -73,3 +73,13 @@ TUNNEL_MARGIN_REL = 0.05
 #: Shaft planes are moved outward by this fraction of the scene's coordinate magnitude
 #: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
 SHAFT_SLACK_REL = 1e-9
+
+# ----------------------------------------------------------------------------- RI-tree
+
+#: Rays spawned from an *interpolated* hit on an object (shadow, reflection and exit rays)
+#: ignore that object's own surface closer than this fraction of its box diagonal: the
+#: interpolated point lies off the mesh by the interpolation error, far more than the
+#: spawn offset.
+RI_SELF_OFFSET_REL = 2e-3
+#: Thickness walks step past each crossing by this fraction of the object's diagonal.
+THICKNESS_STEP_REL = 1e-9

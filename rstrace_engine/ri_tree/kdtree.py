@@ -107,7 +107,7 @@ def split_leaves(nd, parents, first, new_ids, wscale, lines):
                 best = ln
                 m = a
         mid = 0.5 * (nd.lo[p, m] + nd.hi[p, m])
-        c0 = first[q]
+        c0 = np.int64(first[q])
         c1 = c0 + 1
         nd.child[p] = c0
         nd.axis[p] = m

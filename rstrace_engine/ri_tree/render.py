@@ -49,12 +49,12 @@ from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import (
+    _SH_TRACE,
     TILE_RAYS,
     _accumulate,
     _scatter_add,
     _shade_kernel,
     _shadow_kernel,
-    _SH_TRACE,
     _surface_kernel,
     light_states,
 )
@@ -114,8 +114,9 @@ def instance_fingerprints(sa) -> list[bytes]:
         if m not in mesh_keys:
             h = hashlib.blake2b(digest_size=16)
             tris = sa.tris[tstart[m]:tstart[m + 1]]
-            for a in (tris, sa.verts[tris.min():tris.max() + 1],
-                      sa.tri_normals[tstart[m]:tstart[m + 1]], sa.tri_slot[tstart[m]:tstart[m + 1]]):
+            rng = slice(tstart[m], tstart[m + 1])
+            for a in (tris, sa.verts[tris.min():tris.max() + 1], sa.tri_normals[rng],
+                      sa.tri_slot[rng]):
                 h.update(np.ascontiguousarray(a).view(np.uint8))
             mesh_keys[m] = h.digest()
         h = hashlib.blake2b(mesh_keys[m], digest_size=16)

@@ -228,6 +228,8 @@ class RITreeCache:
             open_ = np.unique(leaf[nd.state[leaf] == OPEN])
             if len(open_) == 0:
                 return
+            log.debug("ri-tree level: %d open leaves, depths %s..%s, %d samples", len(open_),
+                      nd.depth[open_].min(), nd.depth[open_].max(), f.n_samples)
             keys = nd.tree[open_].astype(np.int64)
             inst = (keys // 6).astype(np.int32)
             face = (keys % 6).astype(np.int8)
@@ -241,7 +243,7 @@ class RITreeCache:
                 mids = self._trace(ri, rf, mid_abcd)
                 dist = np.empty(len(rest))
                 midpoint_distances(nd, rest, self.samples, mids, self.box, ri,
-                                   self.thickness, self.diag[ri], dist)
+                                   self.thickness, self.diag[ri], self.cosmin, dist)
                 f._free_samples.extend(int(s) for s in mids)  # midpoints are not kept
                 over = dist > self.dist_thresh
                 split = rest[over]

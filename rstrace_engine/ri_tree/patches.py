@@ -60,10 +60,11 @@ def _angle_ok(S, ids, key, cosmin):
     return True
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def finalize(nd, leaves, S, cosmin):
-    """Mark ``leaves`` FINAL with their classes and angular test results."""
-    for q in prange(leaves.shape[0]):
+    """Mark ``leaves`` FINAL with their classes and angular test results (serial: writes
+    through the node tuple are lost from a parallel loop)."""
+    for q in range(leaves.shape[0]):
         x = leaves[q]
         nc = 0
         c0 = MISS
@@ -148,9 +149,14 @@ def interpolate(nd, x, S, abcd, key, r, P, NS, NG, OP, OD, gain, thick, nint, ma
 
 @njit(cache=True, nogil=True, inline="always")
 def _line4(box, inst, face, px, py, pz, dx, dy, dz, out):
-    """Unclamped line coordinates of the ray (p, d) in face pair ``face``; False when the
-    direction is parallel to the faces."""
+    """Unclamped line coordinates of the ray (p, d) in face pair ``face``, in units of the
+    object's box faces (as the paper's plane pairs; the linetree faces are grown by the
+    box depth on every side); False when the direction is parallel to the faces."""
     k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    li += L
+    lj += L
+    wi -= 2.0 * L
+    wj -= 2.0 * L
     p = (px, py, pz)
     dv = (dx, dy, dz)
     if dv[k] == 0.0:
@@ -166,12 +172,14 @@ def _line4(box, inst, face, px, py, pz, dx, dy, dz, out):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, dist):
+def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, cosmin, dist):
     """Distance between each leaf's traced midpoint sample ``mids[q]`` (ids into ``S``) and
     its interpolation from the corners (inf when the midpoint's class cannot be
     interpolated there): the L2 distance of the output rays in 4D line space (the face pair
     of the traced output direction), or for the thickness view the length difference over
-    the object's diagonal."""
+    the object's diagonal. A cell whose corners of that class fail the angular threshold
+    counts as inf too: it splits while it may, and only cells at the depth constraint are
+    left to the query-time angular test."""
     for q in prange(leaves.shape[0]):
         x = leaves[q]
         m = mids[q]
@@ -209,7 +217,7 @@ def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, dist):
         ni = np.empty(1, np.int16)
         mt = np.empty(1, np.int32)
         cnt = interpolate(nd, x, S, abcd, key, 0, P, NS, NG, OP, OD, gn, th, ni, mt)
-        if cnt < MIN_USABLE:
+        if cnt < MIN_USABLE or not _angle_ok(S, nd.corner[x], key, cosmin):
             dist[q] = np.inf
             continue
         if thickness:

@@ -242,8 +242,8 @@ class RITreeCache:
                 mid_abcd = 0.5 * (nd.lo[rest] + nd.hi[rest])
                 mids = self._trace(ri, rf, mid_abcd)
                 dist = np.empty(len(rest))
-                midpoint_distances(nd, rest, self.samples, mids, self.box, ri,
-                                   self.thickness, self.diag[ri], self.cosmin, dist)
+                midpoint_distances(nd, rest, self.samples, mids, self.box, self.sa.inst_aabb,
+                                   ri, rf, self.thickness, self.diag[ri], self.cosmin, dist)
                 f._free_samples.extend(int(s) for s in mids)  # midpoints are not kept
                 over = dist > self.dist_thresh
                 split = rest[over]

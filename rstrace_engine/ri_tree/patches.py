@@ -171,8 +171,30 @@ def _line4(box, inst, face, px, py, pz, dx, dy, dz, out):
     return True
 
 
+@njit(cache=True, nogil=True)
+def _misses_box(nd, x, box, aabb, inst, face):
+    """True when no line of cell ``x`` can meet instance ``inst``'s world box ``aabb``
+    (conservative: the hull of the cell's lateral extent over the box's depth range)."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    lo = aabb[inst, 0, k]
+    hi = aabb[inst, 1, k]
+    t0 = (front - hi if neg else lo - front) / L
+    t1 = (front - lo if neg else hi - front) / L
+    for axis, ori, wid, ax in ((0, li, wi, i), (1, lj, wj, j)):
+        a_lo = ori + nd.lo[x, axis] * wid
+        a_hi = ori + nd.hi[x, axis] * wid
+        c_lo = ori + nd.lo[x, axis + 2] * wid
+        c_hi = ori + nd.hi[x, axis + 2] * wid
+        mn = min((1 - t0) * a_lo + t0 * c_lo, (1 - t1) * a_lo + t1 * c_lo)
+        mx = max((1 - t0) * a_hi + t0 * c_hi, (1 - t1) * a_hi + t1 * c_hi)
+        if mx < aabb[inst, 0, ax] or mn > aabb[inst, 1, ax]:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, cosmin, dist):
+def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, diag, cosmin,
+                       dist):
     """Distance between each leaf's traced midpoint sample ``mids[q]`` (ids into ``S``) and
     its interpolation from the corners (inf when the midpoint's class cannot be
     interpolated there): the L2 distance of the output rays in 4D line space (the face pair
@@ -204,8 +226,27 @@ def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, cosmin, 
         if nc >= 3 or (key != c0 and key != c1):
             dist[q] = np.inf
             continue
+        # a final leaf must be able to interpolate each of its classes
+        bad = False
+        for c in (c0, c1):
+            if c == MISS or (c == c1 and nc < 2):
+                continue
+            n_c = 0
+            for k in range(16):
+                if S.cls[nd.corner[x, k]] == c:
+                    n_c += 1
+            if n_c < MIN_USABLE or not _angle_ok(S, nd.corner[x], c, cosmin):
+                bad = True
+        if bad:
+            dist[q] = np.inf
+            continue
         if key == MISS:
-            dist[q] = 0.0
+            # a cell that misses at its corners and midpoint is final only when none of
+            # its lines can meet the object's box (or it holds hits at some corners)
+            if nc == 1 and not _misses_box(nd, x, box, aabb, inst[q], face[q]):
+                dist[q] = np.inf
+            else:
+                dist[q] = 0.0
             continue
         P = np.empty((1, 3))
         NS = np.empty((1, 3))
@@ -217,7 +258,7 @@ def midpoint_distances(nd, leaves, S, mids, box, inst, thickness, diag, cosmin, 
         ni = np.empty(1, np.int16)
         mt = np.empty(1, np.int32)
         cnt = interpolate(nd, x, S, abcd, key, 0, P, NS, NG, OP, OD, gn, th, ni, mt)
-        if cnt < MIN_USABLE or not _angle_ok(S, nd.corner[x], key, cosmin):
+        if cnt < MIN_USABLE:
             dist[q] = np.inf
             continue
         if thickness:

@@ -59,7 +59,7 @@ def test_sphere_attributes_match_analytic_and_error_falls_with_threshold():
     sc = _scene(glass=True)
     c = np.array([0.0, 0.0, 1.2])
     o, d = _rays_at(c, 1.0, 3000)
-    errs = []
+    errs, perr = [], []
     for dist in (0.25, 0.02):
         cache, sa = _cache(sc, dist=dist)
         q = cache.query(np.ones(len(o), np.int32), o, d)
@@ -68,14 +68,16 @@ def test_sphere_attributes_match_analytic_and_error_falls_with_threshold():
         # analytic: the hit lies on the sphere, the normal is radial
         P = q.P[hit]
         radial = (P - c) / np.linalg.norm(P - c, axis=1, keepdims=True)
-        assert np.abs(np.linalg.norm(P - c, axis=1) - 1.0).max() < 0.02
+        off = np.abs(np.linalg.norm(P - c, axis=1) - 1.0)
+        assert off.max() < 0.06
+        perr.append(off.mean())
         cosn = np.einsum("ij,ij->i", q.NS[hit], radial)
         assert cosn.min() > np.cos(np.radians(3.0))
         # analytic exit ray of a glass sphere: it leaves the sphere on its surface, and
         # by symmetry the exit direction makes the same angle with the outward normal
         # there as the incoming ray with the entry normal
         X = q.OP[hit]
-        assert np.abs(np.linalg.norm(X - c, axis=1) - 1.0).max() < 0.03
+        assert np.abs(np.linalg.norm(X - c, axis=1) - 1.0).max() < 0.06
         nx = (X - c) / np.linalg.norm(X - c, axis=1, keepdims=True)
         cin = -np.einsum("ij,ij->i", d[hit], radial)
         cout = np.einsum("ij,ij->i", q.OD[hit], nx)
@@ -84,6 +86,7 @@ def test_sphere_attributes_match_analytic_and_error_falls_with_threshold():
                            - np.degrees(np.arccos(np.clip(cout[ok], -1, 1)))).mean())
         assert errs[-1] < 5.0
     assert errs[1] < errs[0], f"exit-angle error did not fall: {errs}"
+    assert perr[1] < perr[0], f"hit-point error did not fall: {perr}"
 
 
 def test_torus_attributes_match_traced_ones():

@@ -273,6 +273,9 @@ def trace_samples(sa, accel, tri_class, box, inst, face, abcd, thickness: bool) 
                 return accel.intersect_object(inst[hit][rows], oo, dd, lo, hi)
 
             s.thick[hit] = walk(sa, one, o[hit], d[hit], 0.0, np.inf)
+            # the output direction of the thickness view: the normal (angular test)
+            s.OD[hit] = s.NS[hit]
+            s.OP[hit] = s.P[hit]
         return s
     rows = np.flatnonzero(glass)
     po = path_o[rows]

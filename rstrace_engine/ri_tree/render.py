@@ -245,6 +245,7 @@ class RITreeRenderer:
         self.convex = None
         self._box = None
         self._tri_class = None
+        self._topo = None
 
     def reset(self) -> None:
         self.__init__()
@@ -259,7 +260,9 @@ class RITreeRenderer:
 
     def _sync(self, sa, accel, settings: RenderSettings) -> None:
         fp = instance_fingerprints(sa)
-        topo = mesh_topology(sa)
+        if self._topo is None or self._topo[0] is not sa.tris or self._topo[1] is not sa.verts:
+            self._topo = (sa.tris, sa.verts, mesh_topology(sa))  # packed arrays: immutable
+        topo = self._topo[2]
         box = expanded_boxes(sa)
         same_meshes = (self._sa is not None and self._sa.tris.shape == sa.tris.shape
                        and self._tri_class is not None

@@ -7,7 +7,7 @@ onto :class:`rstrace_engine.frame.RenderSettings` through :func:`render_settings
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 from rstrace_engine.frame import ACCELERATORS, INTERNAL_ACCELERATORS, MODES
 
@@ -82,6 +82,33 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         name="Tiles", default=64, min=1, max=1024, soft_max=256,
         description="Visibility field: n, the n x n tiles of each direction's beam grid; "
                     "memory grows with l x n^2")
+    # RI-tree: the paper's ranges (seed 004, Table 2) are the soft limits
+    ri_dist_thresh: FloatProperty(
+        name="Distance Threshold", default=0.05, min=1e-6, max=10.0, soft_min=0.01,
+        soft_max=0.25, precision=3,
+        description="RI-tree cells split while the traced and the interpolated output ray "
+                    "at their midpoint differ by more than this (4D line space)")
+    ri_ang_thresh: FloatProperty(
+        name="Angular Threshold", default=30.0, min=0.01, max=180.0, soft_min=5.0,
+        soft_max=30.0, precision=1,
+        description="Rays are traced where the output directions of a cell's corners differ "
+                    "by more than this many degrees (high curvature)")
+    ri_depth: IntProperty(
+        name="Depth Constraint", default=28, min=1, max=64, soft_min=22, soft_max=30,
+        description="Deepest level of the RI-tree's binary 4D kd-trees")
+    ri_cache_mb: FloatProperty(
+        name="Cache Size", default=100.0, min=0.001, max=1e6, soft_min=0.128,
+        soft_max=4096.0, precision=3,
+        description="Memory for RI-tree nodes and samples, in MB; the least recently used "
+                    "are pruned beyond it")
+    thickness_view: BoolProperty(
+        name="Thickness View", default=False,
+        description="Render objects as semi-transparent volumes by the distance a ray "
+                    "travels inside them (exact in Base mode, interpolated in RI-Tree mode)")
+    thickness_distance: FloatProperty(
+        name="Thickness Distance", default=0.0, min=0.0, soft_max=100.0, unit="LENGTH",
+        description="Distance inside objects that darkens a pixel to 1/e (0: a tenth of the "
+                    "scene size)")
 
 
 def render_settings(props: RSTraceSettings):
@@ -93,7 +120,10 @@ def render_settings(props: RSTraceSettings):
         samples=int(props.samples), accelerator=props.accelerator,
         depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
         seed=int(props.seed), vf_directions=int(props.vf_directions),
-        vf_tiles=int(props.vf_tiles),
+        vf_tiles=int(props.vf_tiles), ri_dist_thresh=float(props.ri_dist_thresh),
+        ri_ang_thresh=float(props.ri_ang_thresh), ri_depth=int(props.ri_depth),
+        ri_cache_mb=float(props.ri_cache_mb), thickness_view=bool(props.thickness_view),
+        thickness_distance=float(props.thickness_distance),
     ).validated()
 
 

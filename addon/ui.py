@@ -79,6 +79,28 @@ class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):
         layout.prop(props, "memory_cap", text="Memory Cap (MB)")
 
 
+class RSTRACE_PT_ri_tree(RSTracePanel, bpy.types.Panel):
+    bl_label = "RI-Tree"
+    bl_parent_id = "RSTRACE_PT_render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.rstrace
+        col = layout.column()
+        col.active = props.mode == "RI_TREE"
+        col.prop(props, "ri_dist_thresh")
+        col.prop(props, "ri_ang_thresh")
+        col.prop(props, "ri_depth")
+        col.prop(props, "ri_cache_mb", text="Cache Size (MB)")
+        col = layout.column()
+        col.prop(props, "thickness_view")
+        sub = col.column()
+        sub.active = props.thickness_view
+        sub.prop(props, "thickness_distance")
+
+
 class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
     bl_label = "Last Render"
     bl_parent_id = "RSTRACE_PT_render"
@@ -108,7 +130,8 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
             layout.label(text=text, icon="ERROR" if level == "ERROR" else "INFO")
 
 
-classes = (RSTRACE_PT_render, RSTRACE_PT_interpolation, RSTRACE_PT_statistics)
+classes = (RSTRACE_PT_render, RSTRACE_PT_interpolation, RSTRACE_PT_ri_tree,
+           RSTRACE_PT_statistics)
 
 
 def stock_panels() -> list:

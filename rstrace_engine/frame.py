@@ -9,7 +9,7 @@ import numpy as np
 #: Every render mode, and the ones this version implements (the only lists: the session,
 #: the command line and the Blender add-on all read these).
 MODES = ("BASE", "INTERPOLANT", "RI_TREE")
-AVAILABLE_MODES = ("BASE", "INTERPOLANT")
+AVAILABLE_MODES = ("BASE", "INTERPOLANT", "RI_TREE")
 #: Every accelerator name, and the ones this version implements (``EMBREE`` also needs the
 #: ``embreex`` package at run time: :func:`~.accel.accelerators.create_accelerator` says so).
 ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
@@ -17,6 +17,8 @@ AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
 #: Not offered in the Blender add-on: brute force is the tests' reference, far too slow for
 #: a real scene.
 INTERNAL_ACCELERATORS = ("BRUTE_FORCE",)
+#: deepest RI-tree depth constraint accepted (cells of 2^-16 of a face per axis)
+RI_MAX_DEPTH = 64
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
 CLASS_BACKGROUND = 0
@@ -56,6 +58,14 @@ class RenderSettings:
     vf_directions: int = 34  # visibility field: directions l (rounded up to 4, 10, 34, 130..)
     vf_tiles: int = 64  # visibility field: n x n tiles per direction
 
+    # RI-tree (seed 004); the paper's ranges are the panel's soft limits
+    ri_dist_thresh: float = 0.05  # distance threshold (4D line space), 0.01-0.25
+    ri_ang_thresh: float = 30.0  # angular threshold, degrees, 5-30
+    ri_depth: int = 28  # depth constraint of the binary 4D kd-trees, 22-30
+    ri_cache_mb: float = 100.0  # RI-tree cache size, MB
+    thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
+    thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
+
     def accelerator_options(self) -> dict:
         """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""
         return {"directions": int(self.vf_directions), "tiles": int(self.vf_tiles)}
@@ -83,6 +93,17 @@ class RenderSettings:
         from .accel.visibility_field import MEMORY_CAP_MB, check_settings
 
         check_settings(self.vf_directions, self.vf_tiles, MEMORY_CAP_MB)
+        for name, lo, hi in (("ri_dist_thresh", 0.0, 10.0), ("ri_ang_thresh", 0.0, 180.0)):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and lo < v <= hi):
+                raise SceneError(f"setting '{name}': {v} outside ({lo:g}, {hi:g}]")
+        if not 1 <= int(self.ri_depth) <= RI_MAX_DEPTH:
+            raise SceneError(f"setting 'ri_depth': {self.ri_depth} outside [1, {RI_MAX_DEPTH}]")
+        if not (np.isfinite(self.ri_cache_mb) and 0.0 < self.ri_cache_mb <= 1e6):
+            raise SceneError(f"setting 'ri_cache_mb': {self.ri_cache_mb} outside (0, 1e6] MB")
+        if not (np.isfinite(self.thickness_distance) and self.thickness_distance >= 0.0):
+            raise SceneError(f"setting 'thickness_distance': {self.thickness_distance} must "
+                             f"be >= 0 (0: automatic)")
         return self
 
 

@@ -207,8 +207,131 @@ def tori(width: int = 640, height: int = 480) -> Scene:
     return s
 
 
+def _sky_texture(seed: int = 7, w: int = 128, h: int = 64) -> np.ndarray:
+    """A pseudo-random procedural texture (sum of sinusoids), linear RGB (h, w, 3)."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, w), np.linspace(0, np.pi, h))
+    val = np.zeros((h, w))
+    for _ in range(12):
+        a, b, c = rng.integers(1, 9), rng.integers(1, 7), rng.uniform(0, 2 * np.pi)
+        val += np.sin(a * u + c) * np.sin(b * v + c * 0.7) / (a + b)
+    val = (val - val.min()) / (val.max() - val.min())
+    tex = np.stack([0.25 + 0.6 * val, 0.3 + 0.45 * val ** 2, 0.55 + 0.35 * (1 - val)], -1)
+    return tex.astype(np.float32)
+
+
+def _sky(s: Scene, radius: float) -> None:
+    """The paper's large procedurally textured sphere around the scene (faces inward)."""
+    sky = shapes.icosphere(3, radius, name="sky")
+    sky.triangles = sky.triangles[:, ::-1].copy()
+    sky.corner_normals = -sky.corner_normals[:, ::-1]
+    sky.corner_uvs = sky.corner_uvs[:, ::-1].copy()
+    mat = s.add_material(Material("sky", diffuse=(0.2,) * 3, emission=(0.6, 0.6, 0.6),
+                                  texture=_sky_texture()))
+    s.add_instance(s.add_mesh(sky), np.eye(4), [mat], name="Sky")
+
+
+def bezier_surface(width: int = 600, height: int = 600) -> Scene:
+    """Seed 004's Bezier surface: a smooth reflective C2 surface (a bicubic B-spline of
+    10 x 10 patches, 73k triangles) inside a large procedurally textured sphere."""
+    s = Scene()
+    rng = np.random.default_rng(4)
+    heights = rng.uniform(-0.45, 0.45, (13, 13))
+    surf = s.add_mesh(shapes.bspline_surface(heights, (6.0, 6.0), 190, name="bezier"))
+    chrome = s.add_material(Material("chrome", diffuse=(0.08, 0.08, 0.1), specular=(0.1,) * 3,
+                                     roughness=0.15, mirror=(0.8,) * 3))
+    s.add_instance(surf, shapes.transform((0, 0, 0), 1.0, 25.0), [chrome], name="Bezier")
+    _sky(s, 30.0)
+    s.add_light(Light("Key", "POINT", power=6000.0, position=(-4.0, -5.0, 7.0)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((0.0, -7.5, 4.5), (0.0, 0.0, -0.2), width, height))
+    return s
+
+
+def random_volumes(width: int = 600, height: int = 600, count: int = 6, seed: int = 11) -> Scene:
+    """Seed 004's random volumes: non-intersecting random convex refractive blobs (surfaces
+    of revolution of random convex profiles), one per cell of a random axis-aligned split of
+    the region, over a checkered floor inside the textured sphere."""
+    s = Scene()
+    rng = np.random.default_rng(seed)
+    glass = s.add_material(Material("glass", diffuse=(0.0,) * 3, specular=(0.0,) * 3,
+                                    transmission=(0.92, 0.95, 0.97), ior=1.5))
+    n = 16
+    check = ((np.indices((n * 8, n * 8)).sum(axis=0) // 8) % 2).astype(np.float32)
+    tex = np.stack([0.2 + 0.6 * check, 0.2 + 0.5 * check, 0.25 + 0.3 * check], -1)
+    floor = s.add_material(Material("floor", diffuse=(0.9,) * 3, texture=tex))
+    s.add_instance(s.add_mesh(shapes.plane(14.0, name="floor")), np.eye(4), [floor],
+                   name="Floor")
+    cells = [(-3.0, 3.0, -3.0, 3.0)]
+    while len(cells) < count:
+        cells.sort(key=lambda c: -(c[1] - c[0]) * (c[3] - c[2]))
+        x0, x1, y0, y1 = cells.pop(0)
+        if x1 - x0 >= y1 - y0:
+            m = rng.uniform(0.4, 0.6) * (x1 - x0) + x0
+            cells += [(x0, m, y0, y1), (m, x1, y0, y1)]
+        else:
+            m = rng.uniform(0.4, 0.6) * (y1 - y0) + y0
+            cells += [(x0, x1, y0, m), (x0, x1, m, y1)]
+    for k, (x0, x1, y0, y1) in enumerate(cells):
+        rmax = 0.45 * min(x1 - x0, y1 - y0)
+        hgt = rng.uniform(0.8, 2.2) * rmax
+        p = rng.uniform(0.45, 0.9)
+        sz = np.linspace(0.0, 1.0, 33)
+        prof = rmax * np.sin(np.pi * sz) ** p
+        mesh = shapes.revolve(prof, sz * hgt, 64, name=f"blob{k}")
+        s.add_instance(s.add_mesh(mesh), shapes.transform(
+            (0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.05), 1.0, rng.uniform(0, 360)), [glass],
+            name=f"Volume{k}")
+    _sky(s, 30.0)
+    s.add_light(Light("Key", "POINT", power=4000.0, position=(-3.0, -4.0, 8.0)))
+    s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.5, -1.0)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((0.0, -8.0, 6.0), (0.0, 0.0, 0.4), width, height))
+    return s
+
+
+def tomatoes(width: int = 1200, height: int = 900) -> Scene:
+    """Seed 004's tomatoes: spheres in a reflective bowl under a transparent, reflective,
+    non-refractive wrap, a smooth tomato beside it, on a reflective table, inside the
+    textured sphere."""
+    s = Scene()
+    red = s.add_material(Material("tomato", diffuse=(0.6, 0.06, 0.03), specular=(0.25,) * 3,
+                                  roughness=0.12))
+    bowl_m = s.add_material(Material("bowl", diffuse=(0.1, 0.1, 0.12), mirror=(0.75,) * 3))
+    wrap_m = s.add_material(Material("wrap", diffuse=(0.0,) * 3, mirror=(0.12,) * 3,
+                                     transmission=(0.85,) * 3, ior=1.0))
+    table_m = s.add_material(Material("table", diffuse=(0.35, 0.25, 0.15), mirror=(0.35,) * 3))
+    table = s.add_mesh(shapes.box((9.0, 7.0, 0.3), name="table"))
+    s.add_instance(table, shapes.transform((0, 0, -0.15)), [table_m], name="Table")
+    # the bowl: an open surface of revolution (a shell seen from both sides)
+    a = np.linspace(0.0, 1.0, 40)
+    bowl = shapes.revolve(1.6 * np.sin(a * 0.5 * np.pi * 0.95), 1.6 * (1 - np.cos(
+        a * 0.5 * np.pi * 0.95)), 96, name="bowl")
+    s.add_instance(s.add_mesh(bowl), shapes.transform((-0.6, 0.3, 0.0)), [bowl_m], name="Bowl")
+    tom = s.add_mesh(shapes.icosphere(3, 0.42, name="tomato"))
+    for k, (x, y, z) in enumerate([(-0.95, 0.15, 0.55), (-0.2, 0.35, 0.6), (-0.65, 0.85, 0.62),
+                                   (-0.55, -0.3, 0.58), (-0.6, 0.3, 1.05)]):
+        s.add_instance(tom, shapes.transform((x, y, z)), [red], name=f"Tomato{k}")
+    sz = np.linspace(0.0, 1.0, 33)
+    btom = shapes.revolve(0.55 * np.sin(np.pi * sz) ** 0.7, 0.8 * sz, 64, name="bezier_tomato")
+    s.add_instance(s.add_mesh(btom), shapes.transform((1.9, -0.6, 0.0)), [red],
+                   name="BezierTomato")
+    rng = np.random.default_rng(9)
+    hts = 1.75 + 0.12 * rng.uniform(-1, 1, (8, 8))
+    hts[0, :] = hts[-1, :] = hts[:, 0] = hts[:, -1] = 0.9
+    wrap = shapes.bspline_surface(hts, (4.2, 4.2), 120, name="wrap")
+    s.add_instance(s.add_mesh(wrap), shapes.transform((-0.6, 0.3, 0.0)), [wrap_m], name="Wrap")
+    _sky(s, 30.0)
+    s.add_light(Light("Key", "POINT", power=5000.0, position=(-3.0, -5.0, 8.0)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((1.5, -7.0, 4.2), (-0.2, 0.2, 0.6), width, height))
+    return s
+
+
 SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
-          "grid": grid, "tori": tori}
+          "grid": grid, "tori": tori,
+          "bezier_surface": bezier_surface, "random_volumes": random_volumes,
+          "tomatoes": tomatoes}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

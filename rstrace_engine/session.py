@@ -17,7 +17,11 @@ the same edits: both paths share one implementation. An edit
 
 ``BASE`` mode renders with the Whitted tracer (:func:`rstrace_engine.tracing.whitted.render`);
 ``INTERPOLANT`` mode with radiance interpolants kept across frames, camera moves and edits
-(:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`).
+(:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`); ``RI_TREE`` mode with
+per-object RI-trees (:class:`~rstrace_engine.ri_tree.render.RITreeRenderer`), whose trees an
+edit drops for the instance slots it touches; RI_TREE frames are always full frames (no
+per-pixel records). With ``thickness_view`` set, BASE and INTERPOLANT render the thickness
+view exactly (full frames too) and RI_TREE interpolates it.
 """
 
 from __future__ import annotations
@@ -33,12 +37,17 @@ from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
 from .interpolants.render import InterpolantRenderer, render_frame
+from .ri_tree.render import RITreeRenderer, render_thickness_exact
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
 
 __all__ = ["AVAILABLE_MODES", "Session"]  # AVAILABLE_MODES: frame.py's, re-exported
+
+#: material properties an RI-tree depends on (its exit paths and their gains, eligibility)
+_OPTICAL = ("mat_mirror", "mat_transmission", "mat_ior", "mat_tex", "mat_model",
+            "mat_specular", "mat_specular_ior", "mat_metallic", "mat_metal")
 
 
 class Session:
@@ -66,6 +75,7 @@ class Session:
         # kept pixels whose interpolant was evicted since (no longer tracked by the RSTs)
         self._snap: np.ndarray | None = None
         self._untracked: np.ndarray | None = None
+        self.ri_tree = RITreeRenderer()  # invalidate(slots) drops edited objects' RI-trees
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -125,6 +135,7 @@ class Session:
             self.stats["accel_update_s"] = time.perf_counter() - t1
             self._accel_memory()
         self.scene = new_scene
+        self._invalidate_ri_trees(old_sa, new_sa, fx)
         ids = self._invalidate_interpolants(new_sa, fx, report)
         self._mark_dirty(old_sa, new_sa, fx, ids, report)
         report.apply_ms = 1e3 * (time.perf_counter() - t0)
@@ -133,6 +144,33 @@ class Session:
                  "%.2f ms", n_edits, report.kinds, report.invalidated_interpolants,
                  report.dirty_pixels, report.apply_ms)
         return report
+
+    def _invalidate_ri_trees(self, old_sa, new_sa, fx: EditEffects) -> None:
+        """Drop the RI-trees of the instance slots the edits touched: the objects named
+        (transform, geometry, deletion, visibility, materials assigned) and the objects
+        using a material whose optical properties changed (a colour alone keeps them:
+        trees hold geometry and exit paths only). The next RI_TREE frame also compares
+        per-slot fingerprints (:func:`~.ri_tree.render.instance_fingerprints`)."""
+        if not self.ri_tree.caches or not (fx.objects or fx.materials):
+            return
+        slots = set(int(k) for k in fx.objects)
+        optical = []
+        n_old = len(old_sa.mat_ior)
+        for m in fx.materials:
+            m = int(m)
+            if m >= n_old or m >= len(new_sa.mat_ior) or any(
+                    not np.array_equal(getattr(old_sa, f)[m], getattr(new_sa, f)[m])
+                    for f in _OPTICAL):
+                optical.append(m)
+        if optical:
+            uses = np.isin(new_sa.inst_mat, optical)
+            slot_of = np.repeat(np.arange(len(new_sa.inst_mesh)),
+                                np.diff(new_sa.inst_mat_start))
+            slots.update(int(k) for k in np.unique(slot_of[uses]))
+        if slots:
+            n = self.ri_tree.invalidate(sorted(slots))
+            self.stats["ri_trees_invalidated"] = int(n)
+            log.info("session: %d RI-tree(s) of %d slot(s) dropped", n, len(slots))
 
     def _invalidate_interpolants(self, sa, fx: EditEffects, report: EditReport):
         """Invalidate what the edits may affect in the interpolant cache (its ray segment
@@ -266,13 +304,16 @@ class Session:
         """Render the scene's camera. progress(fraction, message); cancel() -> bool.
 
         With the camera and settings unchanged since the last frame, only the pixels the
-        edits since then made dirty are re-rendered. Raises
+        edits since then made dirty are re-rendered (BASE and INTERPOLANT; RI_TREE frames
+        and thickness views are always full frames). Raises
         :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
         """
         mode = self.settings.mode
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
+        if mode == "RI_TREE" or self.settings.thickness_view:
+            return self._render_full(mode, progress, cancel)
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
@@ -320,6 +361,28 @@ class Session:
         n = cam.width * cam.height
         frame.stats["incremental"] = bool(incremental)
         frame.stats["dirty_pixels"] = int(np.count_nonzero(pixels)) if incremental else n
+        return self._finish_stats(frame, mode)
+
+    def _render_full(self, mode: str, progress, cancel) -> Frame:
+        """An RI_TREE frame or a thickness view: always a full frame, without per-pixel
+        records (the next BASE / INTERPOLANT frame is a full one too)."""
+        if mode != "RI_TREE":
+            frame = render_thickness_exact(self.scene, self.settings, self.accel,
+                                           progress=progress, cancel=cancel)
+        else:
+            frame = self.ri_tree.render(self.scene, self.settings, self.accel,
+                                        progress=progress, cancel=cancel)
+        self.frame = None if frame.stats.get("cancelled") else frame
+        self.records = self._dirty = self._rebuilt = None
+        self._snap = self._untracked = None
+        self._frame_key = None
+        cam = self.scene.camera
+        frame.stats["incremental"] = False
+        frame.stats["dirty_pixels"] = cam.width * cam.height
+        return self._finish_stats(frame, mode)
+
+    def _finish_stats(self, frame: Frame, mode: str) -> Frame:
+        n = frame.pixel_class.size
         frame.stats["dirty_fraction"] = frame.stats["dirty_pixels"] / max(n, 1)
         frame.stats["records_mb"] = self.records_bytes / 1e6
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
@@ -330,4 +393,3 @@ class Session:
         frame.stats["mode"] = mode
         self.stats.update(frame.stats)
         return frame
-

@@ -96,3 +96,13 @@ SHAFT_SLACK_REL = 1e-9
 #: beam are widened by it: the world -> object transform of a ray and the object -> world
 #: transform of a triangle both round, so a hit may lie a few ulps off the world triangle.
 VF_PAD_REL = 1e-9
+
+# ----------------------------------------------------------------------------- RI-tree
+
+#: Rays spawned from an *interpolated* hit on an object (shadow, reflection and exit rays)
+#: ignore that object's own surface closer than this fraction of its box diagonal: the
+#: interpolated point lies off the mesh by the interpolation error, far more than the
+#: spawn offset.
+RI_SELF_OFFSET_REL = 2e-3
+#: Thickness walks step past each crossing by this fraction of the object's diagonal.
+THICKNESS_STEP_REL = 1e-9

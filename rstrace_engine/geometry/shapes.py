@@ -147,3 +147,87 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     m = np.eye(4)
     m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, cam_up, -fwd, eye
     return m
+
+
+def _bspline_basis(t: np.ndarray):
+    """Uniform cubic B-spline basis (4, n) and its derivative at local parameters t (n,)."""
+    t2, t3 = t * t, t * t * t
+    b = np.stack([(1 - t) ** 3, 3 * t3 - 6 * t2 + 4, -3 * t3 + 3 * t2 + 3 * t + 1, t3]) / 6.0
+    db = np.stack([-(1 - t) ** 2, 9 * t2 - 12 * t, -9 * t2 + 6 * t + 3, 3 * t2]) / 6.0
+    return b, db
+
+
+def bspline_surface(heights, size=(4.0, 4.0), resolution: int = 96,
+                    name: str = "bspline_surface") -> Mesh:
+    """A smooth height field ``z(x, y)``: a uniform bicubic B-spline (C2 across its patches,
+    like the paper's joined Bezier patches) over a grid of control heights (m, n), m, n >= 4,
+    spanning ``size`` centred at the origin, tessellated ``resolution`` quads per side with
+    exact analytic normals (one smooth patch class)."""
+    h = np.asarray(heights, np.float64)
+    m, n = h.shape
+    res = max(int(resolution), 1)
+    s = np.linspace(0.0, m - 3, res + 1)
+    t = np.linspace(0.0, n - 3, res + 1)
+
+    def basis(u, count):
+        i = np.minimum(np.floor(u).astype(int), count - 4)
+        b, db = _bspline_basis(u - i)
+        return i, b, db
+
+    iu, bu, dbu = basis(s, m)
+    iv, bv, dbv = basis(t, n)
+    z = np.zeros((res + 1, res + 1))
+    zu = np.zeros_like(z)
+    zv = np.zeros_like(z)
+    for a in range(4):
+        for b in range(4):
+            c = h[iu[:, None] + a, iv[None, :] + b]
+            z += bu[a][:, None] * bv[b][None, :] * c
+            zu += dbu[a][:, None] * bv[b][None, :] * c
+            zv += bu[a][:, None] * dbv[b][None, :] * c
+    sx, sy = float(size[0]), float(size[1])
+    X = (s / (m - 3) - 0.5) * sx
+    Y = (t / (n - 3) - 0.5) * sy
+    Xg, Yg = np.meshgrid(X, Y, indexing="ij")
+    v = np.stack([Xg.ravel(), Yg.ravel(), z.ravel()], 1)
+    # dz/dx = zu * (m - 3) / sx
+    nx = -zu * (m - 3) / sx
+    ny = -zv * (n - 3) / sy
+    nrm = np.stack([nx.ravel(), ny.ravel(), np.ones(z.size)], 1)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    idx = np.arange((res + 1) ** 2).reshape(res + 1, res + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()
+    f = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]).astype(np.int32)
+    uv = np.stack([Xg.ravel() / sx + 0.5, Yg.ravel() / sy + 0.5], 1)
+    return Mesh(name, v, f, corner_normals=nrm[f].astype(np.float32),
+                corner_uvs=uv[f].astype(np.float32))
+
+
+def revolve(radius, height, segments: int = 64, name: str = "revolve", closed: bool = True) -> Mesh:
+    """A surface of revolution about +Z of the profile ``(radius[k], height[k])`` (bottom to
+    top), smooth normals. ``closed``: the profile's ends (radius 0) become poles."""
+    r = np.asarray(radius, np.float64)
+    z = np.asarray(height, np.float64)
+    ph = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    rings = [(k, rk, zk) for k, (rk, zk) in enumerate(zip(r, z, strict=True))]
+    verts, ring_ids = [], []
+    for _, rk, zk in rings:
+        if rk <= 0.0:
+            ring_ids.append([len(verts)] * segments)
+            verts.append((0.0, 0.0, zk))
+        else:
+            ring_ids.append(list(range(len(verts), len(verts) + segments)))
+            verts += [(rk * np.cos(p), rk * np.sin(p), zk) for p in ph]
+    faces = []
+    for k in range(len(rings) - 1):
+        lo, hi = ring_ids[k], ring_ids[k + 1]
+        for j in range(segments):
+            j1 = (j + 1) % segments
+            a, b, c, d = lo[j], lo[j1], hi[j], hi[j1]
+            if a != b:
+                faces.append((a, b, d))
+            if c != d:
+                faces.append((a, d, c))
+    f = np.array(faces, np.int32)
+    return Mesh(name, np.array(verts), f, smooth=True)

@@ -108,6 +108,41 @@ def _material_of(sa, inst, tri):
     return sa.inst_mat[s0 + slot]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state):
+    """Shadow-ray states of surface point ``i`` (rows ``i * L + j``): ``_SH_TRACE`` when
+    light ``j`` faces the point (geometric and shading normal ``g``, ``s`` turned toward
+    the viewer; spot cone) and is not within the offset of shadow origin ``q``; else -2."""
+    L = sa.light_kind.shape[0]
+    for j in range(L):
+        r = i * L + j
+        sh_state[r] = -2
+        if sa.light_kind[j] < 0:
+            continue  # a deleted light's slot (LIGHT_NONE)
+        if sa.light_kind[j] == LIGHT_SUN:
+            lx = -sa.light_dir[j, 0]
+            ly = -sa.light_dir[j, 1]
+            lz = -sa.light_dir[j, 2]
+            if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
+                sh_state[r] = _SH_TRACE
+            continue
+        lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
+                                      sa.light_pos[j, 2] - pz)
+        if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
+                and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
+            continue
+        if sa.light_kind[j] == LIGHT_SPOT:
+            ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                       sa.light_dir[j, 2])
+            if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
+                continue
+        wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
+                                    sa.light_pos[j, 2] - qz)
+        if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
+            continue  # the light sits within the offset of the surface
+        sh_state[r] = _SH_TRACE
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
                     P, NG, NS, VD, ENTER, MAT, Q, sh_state):
@@ -177,33 +212,7 @@ def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
         Q[i, 0] = qx
         Q[i, 1] = qy
         Q[i, 2] = qz
-        for j in range(L):
-            r = i * L + j
-            sh_state[r] = -2
-            if sa.light_kind[j] < 0:
-                continue  # a deleted light's slot
-            if sa.light_kind[j] == LIGHT_SUN:
-                lx = -sa.light_dir[j, 0]
-                ly = -sa.light_dir[j, 1]
-                lz = -sa.light_dir[j, 2]
-                if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
-                    sh_state[r] = _SH_TRACE
-                continue
-            lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
-                                          sa.light_pos[j, 2] - pz)
-            if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
-                    and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
-                continue
-            if sa.light_kind[j] == LIGHT_SPOT:
-                ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
-                           sa.light_dir[j, 2])
-                if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
-                    continue
-            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
-                                        sa.light_pos[j, 2] - qz)
-            if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
-                continue  # the light sits within the offset of the surface
-            sh_state[r] = _SH_TRACE
+        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -1,0 +1,286 @@
+"""Patch equivalence classes, the angular threshold and interpolation (seed 004, 2.4-2.5).
+
+A sample's *class key* is its first hit's smooth patch (the surface classes of
+:mod:`..geometry.mesh_topology`: faces joined by smooth edges, split at sharp edges, seams of
+normals and uvs, and material borders) combined with the topology of its exit path through
+glass (how many interfaces inside), or ``MISS``. A final leaf records the classes among its
+16 corners:
+
+* one class: interpolate from all 16 corners (quadrilinear: bilinear in ``(c, d)`` within
+  each directional group, then in ``(a, b)``);
+* exactly two: one cheap test, the query ray's first hit on the object alone, decides its
+  class; only the corners of that class are *usable* (the weights renormalised), and at
+  least :data:`MIN_USABLE` of them must be;
+* three or more: trace.
+
+The angular threshold rejects a class whose corners' output directions (normal, reflected
+ray or exit ray) differ pairwise by more than the threshold: high curvature.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ..interpolants.linetree import corner_weight, face_frame
+from .kdtree import FINAL
+from .sampling import MISS, PATH_BITS
+
+#: a class may be interpolated from at least this many of the 16 corners
+MIN_USABLE = 6
+#: ... and when their quadrilinear weights at the query sum to at least this
+MIN_WEIGHT = 1e-3
+
+# query outcomes
+ST_HIT, ST_MISS, ST_TEST, ST_FAIL_CLASS, ST_FAIL_ANGLE = 0, 1, 2, 3, 4
+
+
+@njit(cache=True, nogil=True, inline="always")
+def patch_of(key):
+    """The patch part of a class key (MISS stays MISS)."""
+    return key // PATH_BITS if key >= 0 else MISS
+
+
+@njit(cache=True, nogil=True)
+def _angle_ok(S, ids, key, cosmin):
+    for a in range(16):
+        sa_ = ids[a]
+        if S.cls[sa_] != key:
+            continue
+        for b in range(a + 1, 16):
+            sb = ids[b]
+            if S.cls[sb] != key:
+                continue
+            c = (S.OD[sa_, 0] * S.OD[sb, 0] + S.OD[sa_, 1] * S.OD[sb, 1]
+                 + S.OD[sa_, 2] * S.OD[sb, 2])
+            if c < cosmin:
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def finalize(nd, leaves, S, cosmin):
+    """Mark ``leaves`` FINAL with their classes and angular test results (serial: writes
+    through the node tuple are lost from a parallel loop)."""
+    for q in range(leaves.shape[0]):
+        x = leaves[q]
+        nc = 0
+        c0 = MISS
+        c1 = MISS
+        for k in range(16):
+            key = S.cls[nd.corner[x, k]]
+            if nc == 0:
+                c0 = key
+                nc = 1
+            elif key != c0:
+                if nc == 1:
+                    c1 = key
+                    nc = 2
+                elif key != c1:
+                    nc = 3
+        nd.nclass[x] = nc
+        nd.cls[x, 0] = c0
+        nd.cls[x, 1] = c1
+        bits = 0
+        if c0 == MISS or _angle_ok(S, nd.corner[x], c0, cosmin):
+            bits |= 1
+        if nc >= 2 and (c1 == MISS or _angle_ok(S, nd.corner[x], c1, cosmin)):
+            bits |= 2
+        nd.ang_ok[x] = bits
+        nd.state[x] = FINAL
+
+
+@njit(cache=True, nogil=True)
+def interpolate(nd, x, S, abcd, key, r, P, NS, NG, OP, OD, gain, thick, nint, mat):
+    """Interpolate class ``key``'s corners of node ``x`` at line ``abcd`` into row ``r``.
+
+    Returns the number of usable corners (0 when their weights vanish)."""
+    u = np.empty(4)
+    for m in range(4):
+        w = nd.hi[x, m] - nd.lo[x, m]
+        t = (abcd[m] - nd.lo[x, m]) / w if w > 0.0 else 0.5
+        u[m] = min(max(t, 0.0), 1.0)
+    wsum = 0.0
+    cnt = 0
+    for c in range(3):
+        P[r, c] = 0.0
+        NS[r, c] = 0.0
+        NG[r, c] = 0.0
+        OP[r, c] = 0.0
+        OD[r, c] = 0.0
+        gain[r, c] = 0.0
+    thick[r] = 0.0
+    for q in range(16):
+        s = nd.corner[x, q]
+        if S.cls[s] != key:
+            continue
+        cnt += 1
+        w = corner_weight(q, u[0], u[1], u[2], u[3])
+        if w <= 0.0:
+            continue
+        wsum += w
+        nint[r] = S.nint[s]
+        mat[r] = S.mat[s]
+        for c in range(3):
+            P[r, c] += w * S.P[s, c]
+            NS[r, c] += w * S.NS[s, c]
+            NG[r, c] += w * S.NG[s, c]
+            OP[r, c] += w * S.OP[s, c]
+            OD[r, c] += w * S.OD[s, c]
+            gain[r, c] += w * S.gain[s, c]
+        thick[r] += w * S.thick[s]
+    if wsum < MIN_WEIGHT:
+        return 0
+    inv = 1.0 / wsum
+    for c in range(3):
+        P[r, c] *= inv
+        OP[r, c] *= inv
+        gain[r, c] *= inv
+    thick[r] *= inv
+    for A in (NS, NG, OD):
+        ln = math.sqrt(A[r, 0] ** 2 + A[r, 1] ** 2 + A[r, 2] ** 2)
+        if ln > 0.0:
+            for c in range(3):
+                A[r, c] /= ln
+    return cnt
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _line4(box, inst, face, px, py, pz, dx, dy, dz, out):
+    """Unclamped line coordinates of the ray (p, d) in face pair ``face``, in units of the
+    object's box faces (as the paper's plane pairs; the linetree faces are grown by the
+    box depth on every side); False when the direction is parallel to the faces."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    li += L
+    lj += L
+    wi -= 2.0 * L
+    wj -= 2.0 * L
+    p = (px, py, pz)
+    dv = (dx, dy, dz)
+    if dv[k] == 0.0:
+        return False
+    back = front - L if neg else front + L
+    tf = (front - p[k]) / dv[k]
+    tb = (back - p[k]) / dv[k]
+    out[0] = (p[i] + tf * dv[i] - li) / wi
+    out[1] = (p[j] + tf * dv[j] - lj) / wj
+    out[2] = (p[i] + tb * dv[i] - li) / wi
+    out[3] = (p[j] + tb * dv[j] - lj) / wj
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _misses_box(nd, x, box, aabb, inst, face):
+    """True when no line of cell ``x`` can meet instance ``inst``'s world box ``aabb``
+    (conservative: the hull of the cell's lateral extent over the box's depth range)."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    lo = aabb[inst, 0, k]
+    hi = aabb[inst, 1, k]
+    t0 = (front - hi if neg else lo - front) / L
+    t1 = (front - lo if neg else hi - front) / L
+    for axis, ori, wid, ax in ((0, li, wi, i), (1, lj, wj, j)):
+        a_lo = ori + nd.lo[x, axis] * wid
+        a_hi = ori + nd.hi[x, axis] * wid
+        c_lo = ori + nd.lo[x, axis + 2] * wid
+        c_hi = ori + nd.hi[x, axis + 2] * wid
+        mn = min((1 - t0) * a_lo + t0 * c_lo, (1 - t1) * a_lo + t1 * c_lo)
+        mx = max((1 - t0) * a_hi + t0 * c_hi, (1 - t1) * a_hi + t1 * c_hi)
+        if mx < aabb[inst, 0, ax] or mn > aabb[inst, 1, ax]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, diag, cosmin,
+                       dist):
+    """Distance between each leaf's traced midpoint sample ``mids[q]`` (ids into ``S``) and
+    its interpolation from the corners (inf when the midpoint's class cannot be
+    interpolated there): the L2 distance of the output rays in 4D line space (the face pair
+    of the traced output direction), or for the thickness view the length difference over
+    the object's diagonal. A cell whose corners of that class fail the angular threshold
+    counts as inf too: it splits while it may, and only cells at the depth constraint are
+    left to the query-time angular test."""
+    for q in prange(leaves.shape[0]):
+        x = leaves[q]
+        m = mids[q]
+        key = S.cls[m]
+        abcd = np.empty(4)
+        for a in range(4):
+            abcd[a] = 0.5 * (nd.lo[x, a] + nd.hi[x, a])
+        nc = 0
+        c0 = MISS
+        c1 = MISS
+        for k in range(16):
+            kk = S.cls[nd.corner[x, k]]
+            if nc == 0:
+                c0 = kk
+                nc = 1
+            elif kk != c0:
+                if nc == 1:
+                    c1 = kk
+                    nc = 2
+                elif kk != c1:
+                    nc = 3
+        if nc >= 3 or (key != c0 and key != c1):
+            dist[q] = np.inf
+            continue
+        # a final leaf must be able to interpolate each of its classes
+        bad = False
+        for c in (c0, c1):
+            if c == MISS or (c == c1 and nc < 2):
+                continue
+            n_c = 0
+            for k in range(16):
+                if S.cls[nd.corner[x, k]] == c:
+                    n_c += 1
+            if n_c < MIN_USABLE or not _angle_ok(S, nd.corner[x], c, cosmin):
+                bad = True
+        if bad:
+            dist[q] = np.inf
+            continue
+        if key == MISS:
+            # a cell that misses at its corners and midpoint is final only when none of
+            # its lines can meet the object's box (or it holds hits at some corners)
+            if nc == 1 and not _misses_box(nd, x, box, aabb, inst[q], face[q]):
+                dist[q] = np.inf
+            else:
+                dist[q] = 0.0
+            continue
+        P = np.empty((1, 3))
+        NS = np.empty((1, 3))
+        NG = np.empty((1, 3))
+        OP = np.empty((1, 3))
+        OD = np.empty((1, 3))
+        gn = np.empty((1, 3))
+        th = np.empty(1)
+        ni = np.empty(1, np.int16)
+        mt = np.empty(1, np.int32)
+        cnt = interpolate(nd, x, S, abcd, key, 0, P, NS, NG, OP, OD, gn, th, ni, mt)
+        if cnt < MIN_USABLE:
+            dist[q] = np.inf
+            continue
+        if thickness:
+            dist[q] = abs(th[0] - S.thick[m]) / diag[q]
+            continue
+        ox, oy, oz = S.OD[m, 0], S.OD[m, 1], S.OD[m, 2]
+        ax, ay, az = abs(ox), abs(oy), abs(oz)
+        if ax >= ay and ax >= az:
+            f = 0 if ox >= 0.0 else 1
+        elif ay >= az:
+            f = 2 if oy >= 0.0 else 3
+        else:
+            f = 4 if oz >= 0.0 else 5
+        a4 = np.empty(4)
+        b4 = np.empty(4)
+        ok1 = _line4(box, inst[q], f, S.OP[m, 0], S.OP[m, 1], S.OP[m, 2], ox, oy, oz, a4)
+        ok2 = _line4(box, inst[q], f, OP[0, 0], OP[0, 1], OP[0, 2], OD[0, 0], OD[0, 1],
+                     OD[0, 2], b4)
+        if not (ok1 and ok2):
+            dist[q] = np.inf
+            continue
+        s2 = 0.0
+        for a in range(4):
+            s2 += (a4[a] - b4[a]) ** 2
+        dist[q] = math.sqrt(s2)

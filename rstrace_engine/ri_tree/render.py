@@ -1,0 +1,730 @@
+"""Frames rendered with RI-trees (``mode = "RI_TREE"``) and the thickness view.
+
+Which objects get an RI-tree ("model only what a scene requires", seed 004 section 3.1):
+objects with a mirror or transmissive material (their exit rays are where tracing is
+expensive), at least :data:`MIN_TRIANGLES` triangles and no texture; in the thickness view
+every object of at least that size. Everything else is traced by a second accelerator over
+the other objects only.
+
+The wavefront is the base tracer's (:mod:`..tracing.whitted`): per level, every ray is
+intersected with the traced objects (``closest_hit``) and with the boxes of the RI-tree
+objects; a ray that enters an RI-tree object's box from outside *queries* its tree
+(:meth:`.cache.RITreeCache.query`), one that starts inside is traced against the object.
+The nearest hit wins. Interpolated hits are shaded exactly as traced ones (direct light,
+hard shadows, reflection and refraction from the interpolated point and normals); at an
+interpolated glass hit the refracted ray is replaced by the interpolated *exit ray* with
+the path's weight, ``nint`` levels further down. Rays leaving an interpolated hit ignore
+that object's own surface nearer than ``RI_SELF_OFFSET_REL`` of its diagonal (a convex
+object entirely). Shadow rays query the trees too.
+
+A pixel's class (Interpolation pass): ``interpolated`` when its primary hit came from a
+tree, ``traced`` when it was traced (no tree, or the ray starts inside the object's box),
+``fail_silhouette`` when the patch-class test failed (three or more classes, or too few
+usable corners), ``fail_nonlinear`` when the angular threshold failed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from .. import tolerances as tol
+from ..accel.accelerators import create_accelerator
+from ..frame import (
+    CLASS_BACKGROUND,
+    CLASS_FAIL_NONLINEAR,
+    CLASS_FAIL_SILHOUETTE,
+    CLASS_INTERPOLATED,
+    CLASS_NAMES,
+    CLASS_TRACED,
+    Frame,
+    RenderSettings,
+)
+from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
+from ..geometry.mesh_topology import mesh_topology
+from ..interpolants.linetree import expanded_boxes
+from ..tracing.shading import dot3, normalize3, spawn_offset
+from ..tracing.whitted import (
+    _SH_TRACE,
+    TILE_RAYS,
+    _accumulate,
+    _scatter_add,
+    _shade_kernel,
+    _shadow_kernel,
+    _surface_kernel,
+    light_states,
+)
+from . import thickness as thick
+from .cache import RITreeCache
+from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS
+
+log = logging.getLogger(__name__)
+
+#: objects with fewer triangles are traced (cheaper than any tree)
+MIN_TRIANGLES = 200
+
+# candidate kinds
+_QUERY, _TRACE = 0, 1
+
+
+def eligible(sa, thickness_view: bool, min_triangles: int = MIN_TRIANGLES) -> np.ndarray:
+    """Which instances get an RI-tree: (I,) bool (module doc)."""
+    n_tri = np.diff(sa.mesh_tri_start)[sa.inst_mesh]
+    out = (n_tri >= int(min_triangles)) & sa.inst_alive  # a dead slot (tombstone): no tree
+    for k in np.flatnonzero(out):
+        mats = sa.inst_mat[sa.inst_mat_start[k]:sa.inst_mat_start[k + 1]]
+        if np.any(sa.mat_tex[mats] >= 0):
+            out[k] = False
+        elif not thickness_view and not np.any(
+                (sa.mat_mirror[mats] > 0).any(axis=1) | (sa.mat_transmission[mats] > 0).any(
+                    axis=1)):
+            out[k] = False
+    return out
+
+
+def subset(sa, keep: np.ndarray):
+    """The scene packing restricted to instances ``keep`` (ids renumbered)."""
+    keep = np.asarray(keep, np.int64)
+    starts = sa.inst_mat_start
+    mats = [sa.inst_mat[starts[k]:starts[k + 1]] for k in keep]
+    lens = np.array([len(m) for m in mats], np.int64)
+    return sa._replace(
+        inst_mesh=np.ascontiguousarray(sa.inst_mesh[keep]),
+        inst_xform=np.ascontiguousarray(sa.inst_xform[keep]),
+        inst_inv=np.ascontiguousarray(sa.inst_inv[keep]),
+        inst_nmat=np.ascontiguousarray(sa.inst_nmat[keep]),
+        inst_aabb=np.ascontiguousarray(sa.inst_aabb[keep]),
+        inst_alive=np.ascontiguousarray(sa.inst_alive[keep]),
+        inst_mat_start=np.concatenate([[0], np.cumsum(lens)]).astype(np.int32),
+        inst_mat=(np.concatenate(mats).astype(np.int32) if len(mats)
+                  else np.zeros(0, np.int32)))
+
+
+def instance_fingerprints(sa) -> list[bytes]:
+    """Per instance: a hash of what its RI-tree depends on (mesh, transform, materials'
+    mirror / transmission / IOR). Lights and colours do not matter to geometry."""
+    out = []
+    tstart = sa.mesh_tri_start
+    mesh_keys = {}
+    for k in range(len(sa.inst_mesh)):
+        m = int(sa.inst_mesh[k])
+        if m not in mesh_keys:
+            h = hashlib.blake2b(digest_size=16)
+            tris = sa.tris[tstart[m]:tstart[m + 1]]
+            rng = slice(tstart[m], tstart[m + 1])
+            for a in (tris, sa.verts[tris.min():tris.max() + 1], sa.tri_normals[rng],
+                      sa.tri_slot[rng]):
+                h.update(np.ascontiguousarray(a).view(np.uint8))
+            mesh_keys[m] = h.digest()
+        h = hashlib.blake2b(mesh_keys[m], digest_size=16)
+        mats = sa.inst_mat[sa.inst_mat_start[k]:sa.inst_mat_start[k + 1]]
+        for a in (sa.inst_xform[k], sa.mat_mirror[mats], sa.mat_transmission[mats],
+                  sa.mat_ior[mats], sa.mat_model[mats], sa.mat_specular[mats],
+                  sa.mat_specular_ior[mats], sa.mat_metallic[mats], sa.mat_metal[mats],
+                  sa.inst_alive[k:k + 1]):
+            h.update(np.ascontiguousarray(a).view(np.uint8))
+        out.append(h.digest())
+    return out
+
+
+# ----------------------------------------------------------------------------- kernels
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, count, rows, objs,
+                kind, tlo):
+    """Ray/object pairs to resolve: each RI-tree object ``ri[k]`` whose box ray ``r`` meets
+    before ``best[r]``. With ``count`` True only counts per ray (into ``rows[r]``);
+    otherwise fills pairs from offsets ``rows`` (rows, objs, kind, tlo written at
+    ``rows[r] + j``)."""
+    n = o.shape[0]
+    for r in prange(n):
+        c = 0
+        base = 0 if count else rows[r]
+        for q in range(ri.shape[0]):
+            k = ri[q]
+            if self_inst[r] == k and convex[k]:
+                continue
+            tn = t0[r]
+            tf = min(t1[r], best[r])
+            inside = True
+            for a in range(3):
+                lo = box[k, 0, a]
+                hi = box[k, 1, a]
+                if o[r, a] < lo or o[r, a] > hi:
+                    inside = False
+                if d[r, a] != 0.0:
+                    inv = 1.0 / d[r, a]
+                    ta = (lo - o[r, a]) * inv
+                    tb = (hi - o[r, a]) * inv
+                    if ta > tb:
+                        ta, tb = tb, ta
+                    tn = max(tn, ta)
+                    tf = min(tf, tb * tol.BOX_TFAR_SCALE)
+                elif o[r, a] < lo or o[r, a] > hi:
+                    tf = -1.0
+            if tn > tf:
+                continue
+            if not count:
+                j = base + c
+                objs[j] = k
+                if inside or self_inst[r] == k:
+                    kind[j] = _TRACE
+                    tlo[j] = max(t0[r], self_tmin[r]) if self_inst[r] == k else t0[r]
+                else:
+                    kind[j] = _QUERY
+                    tlo[j] = t0[r]
+            c += 1
+        if count:
+            rows[r] = c
+
+
+@njit(cache=True, nogil=True)
+def _pick(rows, t, ci, best, win):
+    """win[r] = candidate with the smallest t below best[r] (best updated)."""
+    for q in range(rows.shape[0]):
+        r = rows[q]
+        if t[q] < best[r]:
+            best[r] = t[q]
+            win[r] = ci[q]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _interp_surface(sa, rows, o, d, P, NS, NG, mat,
+                    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state):
+    """Surface arrays (as the base tracer's surface kernel makes them) of interpolated hits
+    ``rows`` (into the level's arrays); shadow origins are moved off the surface by the
+    normal spawn offset (the self-offset is applied by the shadow test)."""
+    ext = sa.scene_extent
+    for q in prange(rows.shape[0]):
+        i = rows[q]
+        ux, uy, uz, _ = normalize3(d[i, 0], d[i, 1], d[i, 2])
+        VD[i, 0], VD[i, 1], VD[i, 2] = ux, uy, uz
+        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
+        gx, gy, gz = NG[q, 0], NG[q, 1], NG[q, 2]
+        sx, sy, sz = NS[q, 0], NS[q, 1], NS[q, 2]
+        enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
+        if not enter:
+            gx, gy, gz = -gx, -gy, -gz
+            sx, sy, sz = -sx, -sy, -sz
+        if dot3(ux, uy, uz, sx, sy, sz) > 0.0:
+            # an interpolated normal may lean past the view ray: bend it back to the view
+            a = dot3(ux, uy, uz, sx, sy, sz) + 1e-6
+            sx, sy, sz, _ = normalize3(sx - a * ux, sy - a * uy, sz - a * uz)
+        ENTER[i] = enter
+        Pw[i, 0], Pw[i, 1], Pw[i, 2] = px, py, pz
+        NGw[i, 0], NGw[i, 1], NGw[i, 2] = gx, gy, gz
+        NSw[i, 0], NSw[i, 1], NSw[i, 2] = sx, sy, sz
+        MAT[i] = mat[q]
+        off = spawn_offset(px, py, pz, ext)
+        qx, qy, qz = px + gx * off, py + gy * off, pz + gz * off
+        Q[i, 0], Q[i, 1], Q[i, 2] = qx, qy, qz
+        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
+
+
+# ----------------------------------------------------------------------------- renderer
+
+
+class RITreeRenderer:
+    """The RI_TREE mode's state in a session: the RI-tree caches (shaded and thickness
+    view) and the accelerator over the traced objects, kept while they stay valid.
+
+    A new export keeps the trees of every instance whose geometry, transform and optical
+    materials are unchanged (:func:`instance_fingerprints`); :meth:`invalidate` drops the
+    trees of given instance slots (for the edits machinery: moved or edited objects).
+    """
+
+    def __init__(self) -> None:
+        self.caches: dict[bool, RITreeCache] = {}
+        self._fp: list[bytes] | None = None
+        self._sa = None
+        self._accel = None
+        self._sub = None  # (accelerator over traced objects, their ids) per view
+        self.ri: dict[bool, np.ndarray] = {}
+        self.convex = None
+        self._box = None
+        self._tri_class = None
+        self._topo = None
+
+    def reset(self) -> None:
+        self.__init__()
+
+    def invalidate(self, slots) -> int:
+        """Drop the RI-trees of instance slots ``slots`` (an edit moved or changed them).
+
+        Returns the number of trees dropped. The next frame rebuilds them on demand."""
+        return sum(c.invalidate(slots) for c in self.caches.values())
+
+    # -- state ---------------------------------------------------------------------------
+
+    def _sync(self, sa, accel, settings: RenderSettings) -> None:
+        fp = instance_fingerprints(sa)
+        if self._topo is None or self._topo[0] is not sa.tris or self._topo[1] is not sa.verts:
+            self._topo = (sa.tris, sa.verts, mesh_topology(sa))  # packed arrays: immutable
+        topo = self._topo[2]
+        box = expanded_boxes(sa)
+        same_meshes = (self._sa is not None and self._sa.tris.shape == sa.tris.shape
+                       and self._tri_class is not None
+                       and np.array_equal(self._tri_class, topo.tri_class))
+        if (self._fp is None or len(fp) != len(self._fp) or accel is not self._accel
+                or not same_meshes):
+            self.caches = {}
+            self._sub = {}
+            self.ri = {}
+        elif sa is not self._sa:
+            changed = [k for k, (a, b) in enumerate(zip(fp, self._fp, strict=True))
+                       if a != b or not np.array_equal(box[k], self._box[k])]
+            if changed:
+                self.invalidate(changed)
+            for c in self.caches.values():
+                c.sa = sa
+                c.box = box
+                c.diag = np.linalg.norm(box[:, 1] - box[:, 0], axis=1)
+            self._sub = {}
+            self.ri = {}
+        self._fp = fp
+        self._sa = sa
+        self._box = box
+        self._tri_class = topo.tri_class
+        self._accel = accel
+        self.convex = topo.mesh_convex[sa.inst_mesh].copy()
+        view = bool(settings.thickness_view)
+        c = self.caches.get(view)
+        if c is None or not c.compatible(settings.ri_dist_thresh, settings.ri_ang_thresh,
+                                         settings.ri_depth, view):
+            self.caches[view] = RITreeCache(sa, accel, settings.ri_dist_thresh,
+                                            settings.ri_ang_thresh, settings.ri_depth,
+                                            settings.ri_cache_mb, view)
+        self.caches[view].cache_bytes = float(settings.ri_cache_mb) * 1e6
+        if view not in self.ri:
+            ri = eligible(sa, view)
+            self.ri[view] = np.flatnonzero(ri).astype(np.int32)
+            keep = np.flatnonzero(~ri)
+            sub = create_accelerator(settings.accelerator, subset(sa, keep),
+                                     **settings.accelerator_options()) if len(keep) else None
+            self._sub[view] = (sub, keep.astype(np.int32))
+
+    # -- intersection --------------------------------------------------------------------
+
+    def _intersect(self, view, o, d, t0, t1, self_inst, anyhit=False):
+        """Nearest hits of a batch through traced objects and RI-trees (module doc).
+
+        Returns dict(t, inst, prim, u, v, interp (index into the query result or -1),
+        status (per ray, of the winning RI query), q (QueryResult or None)).
+        """
+        n = len(o)
+        sub, ids = self._sub[view]
+        cache = self.caches[view]
+        best = np.full(n, np.inf)
+        inst = np.full(n, -1, np.int32)
+        prim = np.full(n, -1, np.int32)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        if sub is not None and n:
+            if anyhit:
+                hit = np.asarray(sub.any_hit(o, d, t0, t1), np.bool_)
+                best[hit] = -np.inf
+            else:
+                h = sub.closest_hit(o, d, t0, t1)
+                ok = h.inst >= 0
+                best[ok] = h.t[ok]
+                inst[ok] = ids[h.inst[ok]]
+                prim[ok] = h.prim[ok]
+                u[ok] = h.u[ok]
+                v[ok] = h.v[ok]
+        out = dict(t=best, inst=inst, prim=prim, u=u, v=v, interp=np.full(n, -1, np.int64),
+                   status=np.full(n, -1, np.int8), q=None, qrows=None)
+        ri = self.ri[view]
+        if len(ri) == 0 or n == 0:
+            return out
+        diag = cache.diag
+        self_tmin = np.where(self_inst >= 0, tol.RI_SELF_OFFSET_REL
+                             * diag[np.maximum(self_inst, 0)]
+                             / np.maximum(np.linalg.norm(d, axis=1), 1e-300), 0.0)
+        cnt = np.empty(n, np.int64)
+        dummy_i = np.empty(0, np.int32)
+        dummy_f = np.empty(0)
+        e8 = np.empty(0, np.int8)
+        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
+                    True, cnt, dummy_i, e8, dummy_f)
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+        total = int(cnt.sum())
+        if total == 0:
+            return out
+        objs = np.empty(total, np.int32)
+        kind = np.empty(total, np.int8)
+        tlo = np.empty(total)
+        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
+                    False, starts, objs, kind, tlo)
+        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
+        qi = np.flatnonzero(kind == _QUERY)
+        trace_pairs = [np.flatnonzero(kind == _TRACE)]
+        q = None
+        cand_rows, cand_t, cand_id = [], [], []
+        if len(qi):
+            qr = rows[qi]
+            q = cache.query(objs[qi], o[qr], d[qr])
+            hit = (q.status == ST_HIT) & (q.t > t0[qr]) & (q.t <= t1[qr])
+            sel = np.flatnonzero(hit)
+            cand_rows.append(qr[sel])
+            cand_t.append(q.t[sel])
+            cand_id.append(sel.astype(np.int64))  # >= 0: query result row
+            # failed queries with the cheap test's exact hit need no second trace
+            tested = np.flatnonzero((q.status != ST_HIT) & (q.status != ST_MISS)
+                                    & (q.test_prim >= 0))
+            okt = tested[(q.test_t[tested] > t0[qr[tested]]) & (q.test_t[tested]
+                                                                   <= t1[qr[tested]])]
+            cand_rows.append(qr[okt])
+            cand_t.append(q.test_t[okt])
+            cand_id.append(-2 - (len(qi) + okt).astype(np.int64))
+            fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
+                                  & (q.test_prim < 0))
+            trace_pairs.append(qi[fail])
+            # the class of a primary pixel: the status of its nearest query
+            st = out["status"]
+            order = np.argsort(-q.t)
+            st[qr[order]] = q.status[order]
+        tp = np.concatenate(trace_pairs)
+        th = None
+        if len(tp):
+            tr = rows[tp]
+            th = self._accel.intersect_object(objs[tp], o[tr], d[tr], tlo[tp], t1[tr])
+            ok = np.flatnonzero(th.inst >= 0)
+            cand_rows.append(tr[ok])
+            cand_t.append(th.t[ok])
+            cand_id.append(-2 - (2 * total + ok).astype(np.int64))
+        if not cand_rows:
+            return out
+        cr = np.concatenate(cand_rows)
+        ct = np.concatenate(cand_t)
+        cid = np.concatenate(cand_id)
+        if anyhit:
+            best[cr] = -np.inf
+            return out
+        win = np.full(n, -1, np.int64)
+        _pick(cr, ct, cid, best, win)
+        interp = win >= 0
+        out["interp"][interp] = win[interp]
+        inst[interp] = objs[qi[win[interp]]]
+        prim[interp] = -1
+        # tested exact hits
+        m = np.flatnonzero(win <= -2)
+        code = -2 - win[m]
+        tested = m[code < 2 * total]
+        ti = code[code < 2 * total] - len(qi)
+        if len(tested):
+            inst[tested] = objs[qi[ti]]
+            prim[tested] = q.test_prim[ti]
+            u[tested] = q.test_u[ti]
+            v[tested] = q.test_v[ti]
+        traced = m[code >= 2 * total]
+        k = code[code >= 2 * total] - 2 * total
+        if len(traced):
+            inst[traced] = objs[tp[k]]
+            prim[traced] = th.prim[k]
+            u[traced] = th.u[k]
+            v[traced] = th.v[k]
+        # a ray whose nearest hit is traced after a query attempt keeps the failure class;
+        # one decided by a traced object keeps "traced"
+        st = out["status"]
+        st[(win == -1)] = -1
+        st[interp] = ST_HIT
+        out["q"] = q
+        out["qrows"] = None
+        return out
+
+    # -- shaded frames -------------------------------------------------------------------
+
+    def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters):
+        """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
+        primary instance (n,))."""
+        view = False
+        n = len(o)
+        L = len(sa.light_kind)
+        radiance = np.zeros((n, 3))
+        pclass = np.full(n, CLASS_BACKGROUND, np.uint8)
+        prim_inst = np.full(n, -1, np.int32)
+        src = np.arange(n, dtype=np.int32)
+        weight = np.ones((n, 3))
+        level = np.zeros(n, np.int64)
+        self_inst = np.full(n, -1, np.int32)
+        first = True
+        while len(src):
+            nb = len(src)
+            H = self._intersect(view, o, d, t0, t1, self_inst)
+            counters["rays"] = counters.get("rays", 0) + nb
+            interp = np.flatnonzero(H["interp"] >= 0)
+            rest = np.flatnonzero(H["interp"] < 0)
+            if first:
+                prim_inst[:] = H["inst"]
+                st = H["status"]
+                cls = np.where(H["inst"] >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+                cls[(st == ST_FAIL_CLASS) & (H["inst"] >= 0)] = CLASS_FAIL_SILHOUETTE
+                cls[(st == ST_FAIL_ANGLE) & (H["inst"] >= 0)] = CLASS_FAIL_NONLINEAR
+                cls[interp] = CLASS_INTERPOLATED
+                pclass[:] = cls
+                counters["interpolated"] = counters.get("interpolated", 0) + len(interp)
+                first = False
+            P = np.empty((nb, 3))
+            NG = np.empty((nb, 3))
+            NS = np.empty((nb, 3))
+            VD = np.empty((nb, 3))
+            enter = np.empty(nb, np.bool_)
+            mat = np.empty(nb, np.int32)
+            Q = np.empty((nb, 3))
+            sh_state = np.empty(nb * L, np.int8)
+            if len(rest):
+                rP, rNG, rNS, rVD = (np.empty((len(rest), 3)) for _ in range(4))
+                ren = np.empty(len(rest), np.bool_)
+                rmat = np.empty(len(rest), np.int32)
+                rQ = np.empty((len(rest), 3))
+                rsh = np.empty(len(rest) * L, np.int8)
+                _surface_kernel(sa, o[rest], d[rest], H["t"][rest], t1[rest], H["inst"][rest],
+                                H["prim"][rest], H["u"][rest], H["v"][rest], rP, rNG, rNS, rVD,
+                                ren, rmat, rQ, rsh)
+                P[rest], NG[rest], NS[rest], VD[rest] = rP, rNG, rNS, rVD
+                enter[rest], mat[rest], Q[rest] = ren, rmat, rQ
+                sh_state.reshape(nb, L)[rest] = rsh.reshape(len(rest), L)
+            q = H["q"]
+            qi = H["interp"][interp]
+            if len(interp):
+                _interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
+                                q.mat[qi], P, NG, NS, VD, enter, mat,
+                                Q, sh_state)
+            # shadow rays (their origin's own object ignored near an interpolated point)
+            todo = np.flatnonzero(sh_state == _SH_TRACE)
+            vis = np.zeros(nb * L, np.bool_)
+            if len(todo):
+                so = np.empty((len(todo), 3))
+                sd = np.empty((len(todo), 3))
+                stm = np.empty(len(todo))
+                _shadow_kernel(sa, Q, todo, so, sd, stm)
+                hit_self = np.full(nb, -1, np.int32)
+                hit_self[interp] = H["inst"][interp]
+                ss = hit_self[todo // L]
+                Hs = self._intersect(view, so, sd, np.zeros(len(todo)), stm, ss, anyhit=True)
+                vis[todo] = ~(Hs["t"] < np.inf)
+                counters["shadow"] = counters.get("shadow", 0) + len(todo)
+            contrib = np.empty((nb, 3))
+            c_o = np.empty((2 * nb, 3))
+            c_d = np.empty((2 * nb, 3))
+            c_w = np.empty((2 * nb, 3))
+            c_ok = np.empty(2 * nb, np.bool_)
+            prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
+            _shade_kernel(sa, prim_safe, H["u"], H["v"], P, NG, NS, VD, enter, mat, vis, weight,
+                          True, contrib, c_o, c_d, c_w, c_ok)
+            _scatter_add(radiance, src, contrib)
+            stop = level >= max_depth
+            c_ok[0::2] &= ~stop
+            c_ok[1::2] &= ~stop
+            child_level = np.repeat(level + 1, 2)
+            child_self = np.full(2 * nb, -1, np.int32)
+            if len(interp):
+                child_self[2 * interp] = H["inst"][interp]
+                # glass: the refracted ray becomes the interpolated exit ray
+                ni = q.nint[qi].astype(np.int64)
+                glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
+                tr = 2 * interp + 1
+                has_tr = np.flatnonzero(c_ok[tr] & _is_transmissive(sa, q.mat[qi]))
+                keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
+                drop = np.setdiff1d(has_tr, keep)
+                c_ok[tr[drop]] = False
+                kt = tr[keep]
+                c_o[kt] = q.OP[qi[keep]]
+                c_d[kt] = q.OD[qi[keep]]
+                c_w[kt] *= q.gain[qi[keep]]
+                child_level[kt] = level[interp[keep]] + ni[keep] + 1
+                child_self[kt] = H["inst"][interp[keep]]
+                c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
+            kids = np.flatnonzero(c_ok)
+            which = kids // 2
+            o = c_o[kids]
+            d = c_d[kids]
+            weight = c_w[kids]
+            src = src[which]
+            level = child_level[kids]
+            self_inst = child_self[kids]
+            t0 = np.zeros(len(kids))
+            t1 = np.full(len(kids), np.inf)
+        return radiance, pclass, prim_inst
+
+    def render(self, scene, settings: RenderSettings, accel, progress=None,
+               cancel=None) -> Frame:
+        """Render ``scene``'s camera in RI_TREE mode (or its thickness view)."""
+        settings = settings.validated()
+        t_start = time.perf_counter()
+        sa = scene.arrays()
+        self._sync(sa, accel, settings)
+        view = bool(settings.thickness_view)
+        cache = self.caches[view]
+        c0 = dict(cache.counters)
+        cp = camera_params(scene.camera)
+        w, h = cp.width, cp.height
+        spp = int(settings.samples)
+        rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+        image = np.zeros((h * w, 3), np.float32)
+        pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+        counters: dict = {}
+        cancelled = False
+        bad_total = 0
+        dist = thick.auto_distance(sa, settings.thickness_distance)
+        for y0 in range(0, h, rows_per_tile):
+            if cancel is not None and cancel():
+                cancelled = True
+                break
+            y1 = min(h, y0 + rows_per_tile)
+            pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+            jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
+            o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+            if view:
+                length, cls, pinst = self._thickness_tile(sa, o, dr, tmin, tmax, counters)
+                rad = thick.display(length, dist)
+            else:
+                rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
+                                                   int(settings.max_depth), counters)
+            tile_cls = np.empty(len(pix), np.uint8)
+            bad_total += _accumulate(rad, pinst, spp, image[y0 * w:y1 * w], tile_cls)
+            # a pixel's class: that of its first sample that hit something
+            c = cls.reshape(spp, len(pix))
+            firsthit = np.argmax(c != CLASS_BACKGROUND, axis=0)
+            pclass[y0 * w:y1 * w] = c[firsthit, np.arange(len(pix))]
+            if progress is not None:
+                progress(y1 / h, f"RI-tree {y1}/{h} rows")
+        elapsed = time.perf_counter() - t_start
+        counts = np.bincount(pclass, minlength=len(CLASS_NAMES))
+        hit_px = max(int(np.count_nonzero(pclass != CLASS_BACKGROUND)), 1)
+        cc = cache.counters
+        stats = dict(
+            mode="RI_TREE", view="THICKNESS" if view else "SHADED", time_s=elapsed,
+            width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
+            interpolated_fraction=float(counts[CLASS_INTERPOLATED]) / (w * h),
+            traced_fraction=float(hit_px - counts[CLASS_INTERPOLATED]) / (w * h),
+            ri_objects=int(len(self.ri[view])),
+            samples_traced=cc["samples_traced"] - c0["samples_traced"],
+            cells_split=cc["cells_split"] - c0["cells_split"],
+            prunes=cc["prunes"] - c0["prunes"],
+            memory_mb=cache.memory_bytes / 1e6, peak_memory_mb=cache.peak_bytes / 1e6,
+            cache_mb=cache.cache_bytes / 1e6, dist_thresh=cache.dist_thresh,
+            ang_thresh=cache.ang_thresh_deg, depth=cache.depth,
+            rays_traced=counters.get("rays", 0), shadow_rays=counters.get("shadow", 0),
+            class_counts={CLASS_NAMES[k]: int(counts[k]) for k in range(len(CLASS_NAMES))},
+            cancelled=cancelled, nonfinite_samples=int(bad_total),
+            accelerator=getattr(accel, "name", "?"),
+        )
+        return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)
+
+    # -- thickness view ------------------------------------------------------------------
+
+    def _thickness_tile(self, sa, o, d, t0, t1, counters):
+        """Lengths inside objects of camera rays: traced objects walked exactly, RI-tree
+        objects interpolated where the ray enters their box from outside."""
+        view = True
+        n = len(o)
+        sub, ids = self._sub[view]
+        cache = self.caches[view]
+        length = np.zeros(n)
+        cls = np.full(n, CLASS_BACKGROUND, np.uint8)
+        hit_any = np.full(n, -1, np.int32)
+        if sub is not None:
+            def through_sub(oo, dd, lo, hi, rows):
+                hh = sub.closest_hit(oo, dd, lo, hi)
+                ok = hh.inst >= 0
+                inst = np.where(ok, ids[np.maximum(hh.inst, 0)], -1).astype(np.int32)
+                return hh._replace(inst=inst)
+
+            length += thick.walk(sa, through_sub, o, d, t0, t1)
+            cls[length > 0] = CLASS_TRACED
+            hit_any[length > 0] = 0
+        ri = self.ri[view]
+        if len(ri) == 0:
+            return length, cls, hit_any
+        cnt = np.empty(n, np.int64)
+        e32 = np.empty(0, np.int32)
+        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
+                    np.full(n, -1, np.int32), np.zeros(n), True, cnt, e32, np.empty(0, np.int8),
+                    np.empty(0))
+        total = int(cnt.sum())
+        if total == 0:
+            return length, cls, hit_any
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+        objs = np.empty(total, np.int32)
+        kind = np.empty(total, np.int8)
+        tlo = np.empty(total)
+        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
+                    np.full(n, -1, np.int32), np.zeros(n), False, starts, objs, kind, tlo)
+        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
+        qi = np.flatnonzero(kind == _QUERY)
+        walk_pairs = [np.flatnonzero(kind == _TRACE)]
+        if len(qi):
+            qr = rows[qi]
+            q = cache.query(objs[qi], o[qr], d[qr])
+            okq = np.flatnonzero(q.status == ST_HIT)
+            np.add.at(length, qr[okq], q.thick[okq])
+            cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
+            hit_any[qr[okq]] = 0
+            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
+            fc = np.where(q.status[fail] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
+                          CLASS_FAIL_NONLINEAR).astype(np.uint8)
+            cls[qr[fail]] = np.where(cls[qr[fail]] == CLASS_INTERPOLATED, cls[qr[fail]], fc)
+            walk_pairs.append(qi[fail])
+        wp = np.concatenate(walk_pairs)
+        if len(wp):
+            wr = rows[wp]
+            wobj = objs[wp]
+
+            def one(oo, dd, lo, hi, rr):
+                return self._accel.intersect_object(wobj[rr], oo, dd, lo, hi)
+
+            ln = thick.walk(sa, one, o[wr], d[wr], t0[wr], t1[wr])
+            np.add.at(length, wr, ln)
+            pos = wr[ln > 0]
+            cls[pos] = np.where(cls[pos] == CLASS_BACKGROUND, CLASS_TRACED, cls[pos])
+            hit_any[pos] = 0
+        counters["rays"] = counters.get("rays", 0) + n
+        return length, cls, hit_any
+
+
+def _is_transmissive(sa, mats) -> np.ndarray:
+    return (sa.mat_transmission[np.maximum(mats, 0)] > 0).any(axis=1) & (mats >= 0)
+
+
+def render_thickness_exact(scene, settings: RenderSettings, accel, progress=None,
+                           cancel=None) -> Frame:
+    """The thickness view traced exactly (BASE mode): every crossing walked."""
+    settings = settings.validated()
+    t_start = time.perf_counter()
+    sa = scene.arrays()
+    cp = camera_params(scene.camera)
+    w, h = cp.width, cp.height
+    spp = int(settings.samples)
+    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+    image = np.zeros((h * w, 3), np.float32)
+    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    dist = thick.auto_distance(sa, settings.thickness_distance)
+    cancelled = False
+
+    def through(oo, dd, lo, hi, rows):
+        return accel.closest_hit(oo, dd, lo, hi)
+
+    for y0 in range(0, h, rows_per_tile):
+        if cancel is not None and cancel():
+            cancelled = True
+            break
+        y1 = min(h, y0 + rows_per_tile)
+        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+        jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
+        o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+        length = thick.walk(sa, through, o, dr, tmin, tmax)
+        inst = np.where(length > 0, 0, -1).astype(np.int32)
+        _accumulate(thick.display(length, dist), inst, spp, image[y0 * w:y1 * w],
+                    pclass[y0 * w:y1 * w])
+        if progress is not None:
+            progress(y1 / h, f"thickness {y1}/{h} rows")
+    stats = dict(mode=settings.mode, view="THICKNESS", time_s=time.perf_counter() - t_start,
+                 width=w, height=h, samples=spp, cancelled=cancelled,
+                 thickness_distance=dist)
+    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)

@@ -1,0 +1,217 @@
+"""The RI-tree (seed 004): interpolated attributes against traced and analytic ones, error
+falling with the thresholds, patch classes, the cache cap, invalidation, frames and the
+thickness view against the base tracer."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rstrace_engine import image
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
+from rstrace_engine.ri_tree.cache import RITreeCache
+from rstrace_engine.ri_tree.patches import ST_HIT
+from rstrace_engine.ri_tree.render import RITreeRenderer, render_thickness_exact
+from rstrace_engine.session import Session
+from rstrace_engine.tracing.whitted import render
+
+
+def _scene(glass=True, w=64, h=48, obj="sphere") -> Scene:
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.5, 0.5, 0.5)))
+    if glass:
+        m = s.add_material(Material("glass", diffuse=(0.0,) * 3, transmission=(0.95,) * 3,
+                                    ior=1.5))
+    else:
+        m = s.add_material(Material("chrome", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    mesh = shapes.icosphere(4) if obj == "sphere" else shapes.torus(1.0, 0.4, 96, 48)
+    s.add_instance(s.add_mesh(shapes.plane(10.0)), np.eye(4), [floor], name="Floor")
+    s.add_instance(s.add_mesh(mesh), shapes.transform((0.0, 0.0, 1.2), 1.0, 0.0, 20.0),
+                   [m], name="Obj")
+    s.add_light(Light("Key", "POINT", power=1500.0, position=(-3.0, -4.0, 6.0)))
+    s.set_world_color((0.3, 0.35, 0.4))
+    s.set_camera(Camera(matrix=shapes.look_at((0.0, -6.0, 2.5), (0.0, 0.0, 1.0)), lens=40.0,
+                        width=w, height=h))
+    return s
+
+
+def _rays_at(center, radius, n, seed=0):
+    """Rays from far outside aimed at points near a sphere of ``radius`` at ``center``."""
+    rng = np.random.default_rng(seed)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    target = center + rng.uniform(-1, 1, (n, 3)) * radius * 0.9
+    return target - 8.0 * radius * dirs, dirs
+
+
+def _cache(sc, dist=0.05, ang=30.0, depth=28, cache_mb=100.0, thickness=False):
+    sa = sc.arrays()
+    return RITreeCache(sa, create_accelerator("BVH", sa), dist, ang, depth, cache_mb,
+                       thickness), sa
+
+
+def test_sphere_attributes_match_analytic_and_error_falls_with_threshold():
+    sc = _scene(glass=True)
+    c = np.array([0.0, 0.0, 1.2])
+    o, d = _rays_at(c, 1.0, 3000)
+    errs, perr = [], []
+    for dist in (0.25, 0.02):
+        cache, sa = _cache(sc, dist=dist)
+        q = cache.query(np.ones(len(o), np.int32), o, d)
+        hit = q.status == ST_HIT
+        assert hit.mean() > 0.5
+        # analytic: the hit lies on the sphere, the normal is radial
+        P = q.P[hit]
+        radial = (P - c) / np.linalg.norm(P - c, axis=1, keepdims=True)
+        off = np.abs(np.linalg.norm(P - c, axis=1) - 1.0)
+        assert off.max() < 0.06
+        perr.append(off.mean())
+        cosn = np.einsum("ij,ij->i", q.NS[hit], radial)
+        assert cosn.min() > np.cos(np.radians(3.0))
+        # analytic exit ray of a glass sphere: it leaves the sphere on its surface, and
+        # by symmetry the exit direction makes the same angle with the outward normal
+        # there as the incoming ray with the entry normal
+        X = q.OP[hit]
+        assert np.abs(np.linalg.norm(X - c, axis=1) - 1.0).max() < 0.06
+        nx = (X - c) / np.linalg.norm(X - c, axis=1, keepdims=True)
+        cin = -np.einsum("ij,ij->i", d[hit], radial)
+        cout = np.einsum("ij,ij->i", q.OD[hit], nx)
+        ok = q.nint[hit] == 1  # direct exits (no total internal reflection)
+        errs.append(np.abs(np.degrees(np.arccos(np.clip(cin[ok], -1, 1)))
+                           - np.degrees(np.arccos(np.clip(cout[ok], -1, 1)))).mean())
+        assert errs[-1] < 5.0
+    assert errs[1] < errs[0], f"exit-angle error did not fall: {errs}"
+    assert perr[1] < perr[0], f"hit-point error did not fall: {perr}"
+
+
+def test_torus_attributes_match_traced_ones():
+    sc = _scene(glass=False, obj="torus")
+    cache, sa = _cache(sc, dist=0.02)
+    rng = np.random.default_rng(3)
+    o, d = _rays_at(np.array([0.0, 0.0, 1.2]), 1.3, 4000, seed=3)
+    q = cache.query(np.ones(len(o), np.int32), o, d)
+    hit = np.flatnonzero(q.status == ST_HIT)
+    assert len(hit) > 500
+    h = cache.accel.intersect_object(1, o[hit], d[hit], 0.0, np.inf)
+    good = h.inst >= 0
+    assert good.mean() > 0.99  # an interpolated hit is a real hit
+    P = o[hit] + d[hit] * h.t[:, None]
+    err = np.linalg.norm(q.P[hit] - P, axis=1)[good]
+    assert np.percentile(err, 99) < 0.05 and err.mean() < 0.01
+    del rng
+
+
+def test_patch_classes_never_cross_sharp_edges_or_material_borders():
+    s = Scene()
+    mirror = s.add_material(Material("m", diffuse=(0.1,) * 3, mirror=(0.8,) * 3))
+    glass = s.add_material(Material("g", diffuse=(0.0,) * 3, transmission=(0.9,) * 3))
+    box = shapes.box((2.0, 2.0, 2.0))
+    s.add_instance(s.add_mesh(box), np.eye(4), [mirror], name="Box")
+    sph = shapes.icosphere(4)
+    tri_z = sph.vertices[sph.triangles].mean(axis=1)[:, 2]
+    sph.slots = (tri_z > 0).astype(np.int32)
+    s.add_instance(s.add_mesh(sph), shapes.transform((4.0, 0.0, 0.0)), [mirror, glass],
+                   name="TwoMaterials")
+    s.set_camera(Camera())
+    cache, sa = _cache(s, dist=0.25)
+    cache_box_normals = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1],
+                                  [0, 0, -1]], float)
+    o, d = _rays_at(np.zeros(3), 1.2, 3000, seed=5)
+    # the box has 12 triangles: force it into the tree by querying it directly
+    q = cache.query(np.zeros(len(o), np.int32), o, d)
+    hit = q.status == ST_HIT
+    assert hit.sum() > 200
+    # interpolated only inside one face: the normal is exactly that face's
+    dots = np.abs(q.NS[hit] @ cache_box_normals.T).max(axis=1)
+    assert dots.min() > 1.0 - 1e-9
+    o2, d2 = _rays_at(np.array([4.0, 0.0, 0.0]), 1.0, 3000, seed=6)
+    q2 = cache.query(np.ones(len(o2), np.int32), o2, d2)
+    hit2 = np.flatnonzero(q2.status == ST_HIT)
+    assert len(hit2) > 200
+    h = cache.accel.intersect_object(1, o2[hit2], d2[hit2], 0.0, np.inf)
+    exact_mat = np.where(sa.tri_slot[h.prim] == 1, glass, mirror)
+    ok = h.inst >= 0
+    assert np.array_equal(q2.mat[hit2][ok], exact_mat[ok])
+
+
+def test_frame_close_to_base_and_cache_reused():
+    sc = _scene(glass=True, w=64, h=48)
+    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.05)
+    sess = Session(sc, st)
+    base = render(sc, replace(st, mode="BASE"), accel=sess.accel)
+    f = sess.render()
+    assert f.stats["mode"] == "RI_TREE" and f.stats["ri_objects"] == 1
+    assert (f.pixel_class == CLASS_INTERPOLATED).mean() > 0.1
+    assert np.isfinite(f.radiance).all()
+    m = image.compare(f.radiance, base.radiance, 0.05)
+    assert m["mean_error"] < 0.02, m
+    again = sess.render()
+    assert again.stats["samples_traced"] == 0  # the trees are kept across frames
+    np.testing.assert_allclose(again.radiance, f.radiance, atol=1e-6)
+
+
+def test_tiny_cache_cap_is_honoured():
+    sc = _scene(glass=True, w=64, h=48)
+    sa = sc.arrays()
+    accel = create_accelerator("BVH", sa)
+    cap = 0.05
+    st = RenderSettings(mode="RI_TREE", max_depth=3, ri_cache_mb=cap)
+    r = RITreeRenderer()
+    f = r.render(sc, st, accel)
+    assert f.stats["prunes"] > 0
+    assert f.stats["memory_mb"] <= cap
+    big = RITreeRenderer().render(sc, replace(st, ri_cache_mb=100.0), accel)
+    assert np.isfinite(f.radiance).all()
+    assert image.compare(f.radiance, big.radiance, 0.05)["mean_error"] < 0.02
+
+
+def test_edit_invalidates_only_the_edited_objects_tree():
+    sc = _scene(glass=True, w=48, h=36)
+    sc.add_instance(sc.add_mesh(shapes.icosphere(3)), shapes.transform((2.0, 1.0, 1.0), 0.6),
+                    [1], name="Second")
+    sa = sc.arrays()
+    accel = create_accelerator("BVH", sa)
+    st = RenderSettings(mode="RI_TREE", max_depth=3)
+    r = RITreeRenderer()
+    r.render(sc, st, accel)
+    cache = r.caches[False]
+    assert (cache.forest.roots[1] >= 0).any() and (cache.forest.roots[2] >= 0).any()
+    sc.set_instance_matrix(2, shapes.transform((1.8, 1.2, 1.0), 0.6))
+    accel.update(sc.arrays())
+    f = r.render(sc, st, accel)
+    fresh = RITreeRenderer().render(sc, st, accel)
+    np.testing.assert_allclose(f.radiance, fresh.radiance, atol=1e-5)
+    assert 0 < f.stats["samples_traced"] < fresh.stats["samples_traced"]
+    # the explicit call of the edits machinery
+    assert r.invalidate([1]) > 0
+    assert (r.caches[False].forest.roots[1] < 0).all()
+
+
+def test_thickness_view_exact_and_interpolated():
+    sc = _scene(glass=True, w=48, h=36)
+    sa = sc.arrays()
+    accel = create_accelerator("BVH", sa)
+    st = RenderSettings(mode="BASE", thickness_view=True, thickness_distance=1.0)
+    exact = render_thickness_exact(sc, st, accel)
+    # the centre pixel looks at the sphere: its chord is close to a diameter
+    cy, cx = 36 // 2, 48 // 2
+    assert exact.radiance[cy, cx, 0] < np.exp(-1.5)
+    r = RITreeRenderer()
+    f = r.render(sc, replace(st, mode="RI_TREE"), accel)
+    assert f.stats["view"] == "THICKNESS"
+    assert (f.pixel_class == CLASS_INTERPOLATED).mean() > 0.05
+    assert image.compare(f.radiance, exact.radiance, 0.05)["mean_error"] < 0.02
+
+
+@pytest.mark.parametrize("field,value", [("ri_dist_thresh", 0.0), ("ri_dist_thresh", np.nan),
+                                         ("ri_ang_thresh", 500.0), ("ri_depth", 0),
+                                         ("ri_depth", 1000), ("ri_cache_mb", -1.0),
+                                         ("thickness_distance", -2.0)])
+def test_absurd_ri_settings_are_rejected(field, value):
+    with pytest.raises(SceneError, match=field):
+        replace(RenderSettings(), **{field: value}).validated()

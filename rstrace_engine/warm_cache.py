@@ -120,6 +120,46 @@ def _warm_edited_interpolants(progress=None) -> None:
     session.render()
 
 
+def _warm_ri_trees(accelerators, progress=None) -> None:
+    """RI-trees that are built, queried, pruned, invalidated by an edit and walked for the
+    thickness view (exact and interpolated). The warm scene's objects are too small for a
+    tree (``MIN_TRIANGLES``): a 40x30 glass sphere and a mirror torus, with coarse RI
+    settings so that the step stays short."""
+    from dataclasses import replace
+
+    from .frame import RenderSettings
+    from .geometry import shapes
+    from .geometry.edits import LightDelete, ObjectTransform
+    from .geometry.scene import Light, Material
+    from .session import Session
+
+    s = warm_scene(40, 30)
+    glass = s.add_material(Material("ri_glass", diffuse=(0.0,) * 3, mirror=(1.0,) * 3,
+                                    specular=(0.1,) * 3, transmission=(0.9,) * 3, ior=1.5,
+                                    roughness=0.05, model="PRINCIPLED"))
+    chrome = s.add_material(Material("ri_chrome", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    s.add_instance(s.add_mesh(shapes.icosphere(2, 0.6, name="ri_ball")),
+                   shapes.transform((-0.2, -0.6, 0.9)), [glass], name="RIGlass")
+    s.add_instance(s.add_mesh(shapes.torus(0.5, 0.18, 24, 12, name="ri_torus")),
+                   shapes.transform((0.8, 0.6, 0.9), 1.0, 30.0), [chrome], name="RIMirror")
+    s.add_light(Light("Gone", "POINT", power=100.0, position=(0.0, 0.0, 5.0)))
+    for accel in accelerators:
+        message = f"warming kernels: RI-trees, {accel}"
+        log.info(message)
+        if progress is not None:
+            progress(message)
+        settings = RenderSettings(mode="RI_TREE", accelerator=accel, max_depth=3,
+                                  ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05)
+        session = Session(s, settings)
+        session.render()
+        session.apply([ObjectTransform("RIGlass", shapes.transform((-0.1, -0.6, 0.9))),
+                       LightDelete("Gone")])
+        session.render()
+        for mode in ("RI_TREE", "BASE"):
+            session.update_settings(replace(settings, mode=mode, thickness_view=True))
+            session.render()
+
+
 def warm(modes=None, accelerators=None, progress=None) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
@@ -149,11 +189,15 @@ def warm(modes=None, accelerators=None, progress=None) -> dict:
         _animate(session, ortho)
     if "INTERPOLANT" in modes:
         _warm_edited_interpolants(progress)
+    if "RI_TREE" in modes:
+        _warm_ri_trees(accelerators[:1], progress)
     import importlib
 
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
                  "tracing.shading", "interpolants.render", "interpolants.cache",
-                 "geometry.mesh_topology", "geometry.cameras"):
+                 "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
+                 "ri_tree.cache", "ri_tree.sampling", "ri_tree.patches", "ri_tree.kdtree",
+                 "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")
     result = kernel_cache.counts()
     unreached = [f"{d.py_func.__module__}.{d.py_func.__qualname__}"

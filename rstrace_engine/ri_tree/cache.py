@@ -147,7 +147,8 @@ class RITreeCache:
     """
 
     def __init__(self, sa, accel, dist_thresh: float, ang_thresh_deg: float, depth: int,
-                 cache_mb: float, thickness: bool = False) -> None:
+                 cache_mb: float, thickness: bool = False, extent: float | None = None
+                 ) -> None:
         t0 = time.perf_counter()
         self.sa = sa
         self.accel = accel
@@ -157,7 +158,10 @@ class RITreeCache:
         self.depth = int(depth)
         self.cache_bytes = float(cache_mb) * 1e6
         self.thickness = bool(thickness)
-        self.box = expanded_boxes(sa)
+        # the scene extent the boxes' padding scales with, frozen (default: sa's) so that a
+        # tree's line parameterisation survives edits of other objects
+        self.extent = float(sa.scene_extent if extent is None else extent)
+        self.box = expanded_boxes(sa, self.extent)
         self.diag = np.linalg.norm(self.box[:, 1] - self.box[:, 0], axis=1)
         self.tri_class = np.ascontiguousarray(mesh_topology(sa).tri_class, np.int32)
         self.forest = KdForest(len(sa.inst_mesh))

@@ -249,6 +249,7 @@ class RITreeRenderer:
         self._box = None
         self._tri_class = None
         self._topo = None
+        self._extent = None  # scene extent the trees' boxes were padded with
 
     def reset(self) -> None:
         self.__init__()
@@ -266,12 +267,17 @@ class RITreeRenderer:
         if self._topo is None or self._topo[0] is not sa.tris or self._topo[1] is not sa.verts:
             self._topo = (sa.tris, sa.verts, mesh_topology(sa))  # packed arrays: immutable
         topo = self._topo[2]
-        box = expanded_boxes(sa)
         same_meshes = (self._sa is not None and self._sa.tris.shape == sa.tris.shape
                        and self._tri_class is not None
                        and np.array_equal(self._tri_class, topo.tri_class))
-        if (self._fp is None or len(fp) != len(self._fp) or accel is not self._accel
-                or not same_meshes):
+        reset = (self._fp is None or len(fp) != len(self._fp) or accel is not self._accel
+                 or not same_meshes)
+        if reset:
+            # the boxes' padding scales with the extent of the scene the trees started in:
+            # an edit that grows the scene box keeps the other objects' trees valid
+            self._extent = float(sa.scene_extent)
+        box = expanded_boxes(sa, self._extent)
+        if reset:
             self.caches = {}
             self._sub = {}
             self.ri = {}
@@ -298,7 +304,7 @@ class RITreeRenderer:
                                          settings.ri_depth, view):
             self.caches[view] = RITreeCache(sa, accel, settings.ri_dist_thresh,
                                             settings.ri_ang_thresh, settings.ri_depth,
-                                            settings.ri_cache_mb, view)
+                                            settings.ri_cache_mb, view, self._extent)
         self.caches[view].cache_bytes = float(settings.ri_cache_mb) * 1e6
         if view not in self.ri:
             ri = eligible(sa, view)

@@ -118,6 +118,9 @@ def _warm_edited_interpolants(progress=None) -> None:
     session.render()
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
     session.render()
+    # the dependency indexes' compaction (after many edits; forced here: nothing changes)
+    c = session.interpolants.cache
+    c.deps.compact(c.pool, c.trees, force=True)
 
 
 def _warm_ri_trees(accelerators, progress=None) -> None:

@@ -175,6 +175,9 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         "rstrace_engine.interpolants.linetree.descend",
         "rstrace_engine.interpolants.linetree.local_coords",
         "rstrace_engine.interpolants.linetree.parameterize",
+        # the visibility field's batch direction look-up (directions.lookup): tests and
+        # tools only; the tracing kernel inlines nearest_direction
+        "rstrace_engine.accel.directions.nearest_directions",
         # the visibility field's parallel rasteriser: only for l x triangles >= 2M (a big
         # scene's build), compiled by the first such build
         "rstrace_engine.accel.tiles.raster_parallel"}

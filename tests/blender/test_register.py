@@ -40,7 +40,8 @@ def test_settings_map_to_render_settings():
     rs = properties.render_settings(props)
     assert rs == RenderSettings(mode="INTERPOLANT", epsilon=pytest.approx(0.05), max_depth=3,
                                 samples=9, accelerator="EMBREE", depth_cap=4,
-                                memory_cap_mb=64.0, seed=0)
+                                memory_cap_mb=64.0, seed=0,
+                                ri_dist_thresh=pytest.approx(0.05))  # a float32 property
     mode_ids = {i.identifier for i in props.bl_rna.properties["mode"].enum_items}
     accel_ids = {i.identifier for i in props.bl_rna.properties["accelerator"].enum_items}
     assert mode_ids == {"BASE", "INTERPOLANT", "RI_TREE"}

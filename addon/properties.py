@@ -9,23 +9,30 @@ from __future__ import annotations
 import bpy
 from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty
 
-MODE_ITEMS = (
-    ("BASE", "Base Tracer", "Classical Whitted ray tracing of every pixel"),
-    ("INTERPOLANT", "Radiance Interpolants",
-     "Interpolate radiance from per-object 4D linetrees within the error bound epsilon; "
-     "edits invalidate only what they affect (ray segment trees)"),
-    ("RI_TREE", "RI-Tree",
-     "Interpolate ray-surface intersections (hit point, normal, exit ray, thickness) from "
-     "per-object 4D kd-trees"),
-)
+from rstrace_engine.frame import ACCELERATORS, MODES
 
-ACCELERATOR_ITEMS = (
-    ("BVH", "BVH", "Two-level bounding volume hierarchy (numba); moving an object rebuilds "
-     "only the top level"),
-    ("EMBREE", "Embree", "Intel Embree through the embreex package, where it is installed"),
-    ("VISIBILITY_FIELD", "Visibility Field",
-     "Parallel beam tilings in many directions, cheap to update for moving objects"),
-)
+_MODE_UI = {
+    "BASE": ("Base Tracer", "Classical Whitted ray tracing of every pixel"),
+    "INTERPOLANT": ("Radiance Interpolants",
+                    "Interpolate radiance from per-object 4D linetrees within the error bound "
+                    "epsilon; edits invalidate only what they affect (ray segment trees)"),
+    "RI_TREE": ("RI-Tree",
+                "Interpolate ray-surface intersections (hit point, normal, exit ray, "
+                "thickness) from per-object 4D kd-trees"),
+}
+_ACCELERATOR_UI = {
+    "BVH": ("BVH", "Two-level bounding volume hierarchy (numba); moving an object rebuilds "
+            "only the top level"),
+    "EMBREE": ("Embree", "Intel Embree through the embreex package, where it is installed"),
+    "BRUTE_FORCE": ("Brute Force", "Every triangle of every object: very slow, the reference "
+                    "the others are tested against"),
+    "VISIBILITY_FIELD": ("Visibility Field",
+                         "Parallel beam tilings in many directions, cheap to update for "
+                         "moving objects"),
+}
+# the names come from the core's single lists (rstrace_engine.frame); only labels live here
+MODE_ITEMS = tuple((k, *_MODE_UI.get(k, (k.title(), k))) for k in MODES)
+ACCELERATOR_ITEMS = tuple((k, *_ACCELERATOR_UI.get(k, (k.title(), k))) for k in ACCELERATORS)
 
 
 class RSTraceSettings(bpy.types.PropertyGroup):

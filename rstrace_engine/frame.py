@@ -6,8 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Every render mode, and the ones this version implements (the only lists: the session,
+#: the command line and the Blender add-on all read these).
 MODES = ("BASE", "INTERPOLANT", "RI_TREE")
-ACCELERATORS = ("BVH", "EMBREE", "VISIBILITY_FIELD")
+AVAILABLE_MODES = ("BASE", "INTERPOLANT")
+#: Every accelerator name, and the ones this version implements (``EMBREE`` also needs the
+#: ``embreex`` package at run time: :func:`~.accel.accelerators.create_accelerator` says so).
+ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
+AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE")
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
 CLASS_BACKGROUND = 0
@@ -75,6 +81,9 @@ class Frame:
     radiance: np.ndarray  # (h, w, 3) float32 linear RGB
     pixel_class: np.ndarray  # (h, w) uint8, one of the CLASS_* values
     stats: dict = field(default_factory=dict)
+    # (h, w) int32 id of the interpolant each pixel used (-1: traced or background); set by
+    # INTERPOLANT frames so an edit can find the pixels of the interpolants it invalidated.
+    pixel_interpolant: np.ndarray | None = None
 
     def class_image(self) -> np.ndarray:
         """(h, w, 3) float32 false-colour image of the pixel classes."""

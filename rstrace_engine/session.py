@@ -1,35 +1,53 @@
 """A persistent render session: one per Blender scene, kept across frames and edits.
 
-The session owns the :class:`~rstrace_engine.geometry.scene.Scene` and its accelerator. A new export
-of the scene goes through :meth:`Session.update_scene`, which hands the new packing to the
-accelerator's ``update`` so that per-mesh structures of unchanged meshes are reused and only
-the top level is rebuilt. ``BASE`` mode renders with the Whitted tracer
-(:func:`rstrace_engine.tracing.whitted.render`); ``INTERPOLANT`` mode with radiance
-interpolants kept across frames and camera moves
+The session owns the :class:`~rstrace_engine.geometry.scene.Scene`, its accelerator, the
+interpolant cache and the last frame with its per-pixel records. Scene changes arrive as
+:mod:`~rstrace_engine.geometry.edits` through :meth:`Session.apply`, or as a whole new export
+through :meth:`Session.update_scene`, which diffs it against the current scene by key into
+the same edits: both paths share one implementation. An edit
+
+* is applied all or nothing (a bad edit raises :class:`SceneError` naming the object and the
+  session keeps its previous state);
+* updates the accelerator (only the top level when meshes are unchanged);
+* invalidates the interpolants it may affect (ray segment trees and membership, in the
+  interpolant cache) -- camera edits invalidate nothing;
+* with the camera fixed, marks the *dirty* pixels: the next frame re-renders only those
+  (the per-pixel records of :mod:`~rstrace_engine.tracing.pixel_records`) and keeps the rest
+  of the previous frame. In BASE mode that frame equals a fresh one bit for bit.
+
+``BASE`` mode renders with the Whitted tracer (:func:`rstrace_engine.tracing.whitted.render`);
+``INTERPOLANT`` mode with radiance interpolants kept across frames, camera moves and edits
 (:class:`~rstrace_engine.interpolants.render.InterpolantRenderer`).
 """
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 
+import numpy as np
+
 from .accel.accelerators import create_accelerator
-from .frame import Frame, RenderSettings
+from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, RenderSettings
+from .geometry.cameras import camera_params
+from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
 from .interpolants.render import InterpolantRenderer
+from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
 
-AVAILABLE_MODES = ("BASE", "INTERPOLANT")
+__all__ = ["AVAILABLE_MODES", "Session"]  # AVAILABLE_MODES: frame.py's, re-exported
 
 
 class Session:
-    """Scene + accelerator + settings, reused from frame to frame.
+    """Scene + accelerator + settings + caches, reused from frame to frame.
 
     ``stats`` (a dict) holds the numbers for the status line: the last frame's statistics
     plus accelerator build/update times and the scene's counts and warnings.
+    ``last_report`` is the :class:`EditReport` of the last :meth:`apply`.
     """
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None) -> None:
@@ -38,6 +56,12 @@ class Session:
         self.accel = None
         self.stats: dict = {}
         self.interpolants = InterpolantRenderer()
+        self.frame: Frame | None = None  # the last complete frame
+        self.records: PixelRecords | None = None  # its per-pixel records (BASE / INTERPOLANT)
+        self.last_report: EditReport | None = None
+        self._frame_key = None
+        self._dirty: np.ndarray | None = None  # (h * w,) bool pixels the next frame redoes
+        self._rebuilt: np.ndarray | None = None  # dirty through an invalidated interpolant
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -51,42 +75,187 @@ class Session:
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
                  len(sa.inst_mesh), self.stats["accel_build_s"])
 
-    def update_scene(self, scene: Scene) -> None:
-        """Take a new export of the scene; the accelerator reuses unchanged meshes."""
-        sa = scene.arrays()  # validates and packs before anything is replaced
-        self.scene = scene
+    def apply(self, edits) -> EditReport:
+        """Apply a batch of :mod:`~rstrace_engine.geometry.edits`, all or nothing.
+
+        Raises :class:`SceneError` (naming the object) for a bad edit; the session then
+        keeps its previous state. Returns an :class:`EditReport`.
+        """
         t0 = time.perf_counter()
-        self.accel.update(sa)
-        self.stats["accel_update_s"] = time.perf_counter() - t0
-        log.info("session: accelerator updated in %.3f s", self.stats["accel_update_s"])
+        edits = list(edits)
+        new_scene, fx = apply_edits(self.scene, edits)
+        return self._commit(new_scene, fx, len(edits), t0)
+
+    def update_scene(self, scene: Scene) -> EditReport:
+        """Take a new export of the whole scene: it is diffed against the current one by
+        key (:func:`~rstrace_engine.geometry.edits.diff_scenes`) and applied as edits."""
+        t0 = time.perf_counter()
+        scene.arrays()  # a bad export is refused before anything is compared
+        edits = diff_scenes(self.scene, scene)
+        new_scene, fx = apply_edits(self.scene, edits)
+        new_scene.warnings = list(scene.warnings)
+        new_scene.stats = dict(scene.stats)
+        return self._commit(new_scene, fx, len(edits), t0)
+
+    def _commit(self, new_scene: Scene, fx: EditEffects, n_edits: int, t0: float
+                ) -> EditReport:
+        old_sa = self.scene.arrays()
+        new_sa = new_scene.arrays()
+        report = EditReport(edits=n_edits, kinds=dict(fx.kinds), camera_changed=fx.camera,
+                            regions=len(fx.regions))
+        if new_sa is not old_sa:
+            t1 = time.perf_counter()
+            self.accel.update(new_sa)  # (the BVH reuses unchanged mesh structures)
+            self.stats["accel_update_s"] = time.perf_counter() - t1
+        self.scene = new_scene
+        ids = self._invalidate_interpolants(new_sa, fx, report)
+        self._mark_dirty(old_sa, new_sa, fx, ids, report)
+        report.apply_ms = 1e3 * (time.perf_counter() - t0)
+        self.last_report = report
+        log.info("session: %d edit(s) %s, %d interpolants invalidated, %s dirty pixels, "
+                 "%.2f ms", n_edits, report.kinds, report.invalidated_interpolants,
+                 report.dirty_pixels, report.apply_ms)
+        return report
+
+    def _invalidate_interpolants(self, sa, fx: EditEffects, report: EditReport):
+        """Invalidate what the edits may affect in the interpolant cache (its ray segment
+        trees and membership index) and move it to the edited scene; returns the ids."""
+        c = self.interpolants.cache
+        if c is None or not fx.scene_content_changed:
+            if c is not None and c.sa is not sa:
+                c.set_scene(sa, self.accel)
+            return None
+        t0 = time.perf_counter()
+        inv = c.invalidate(fx.region_array(), set(fx.objects), set(fx.lights_moved),
+                           set(fx.materials), world=fx.world,
+                           light_shading=set(fx.lights) - set(fx.lights_moved))
+        report.rst_query_ms = 1e3 * (time.perf_counter() - t0)
+        c.set_scene(sa, self.accel)
+        report.invalidated_interpolants = int(inv.count)
+        return np.asarray(inv.ids)
+
+    def _mark_dirty(self, old_sa, new_sa, fx: EditEffects, ids, report: EditReport) -> None:
+        f, rec = self.frame, self.records
+        if (f is None or rec is None or self._dirty is None or fx.camera
+                or not np.array_equal(old_sa.scene_aabb, new_sa.scene_aabb)):
+            # no previous frame to keep, the camera moved, or the scene box changed (spawn
+            # offsets scale with it, so every pixel may change in the last bits)
+            self._dirty = None
+            report.full_frame = True
+            report.dirty_pixels = -1
+            report.dirty_fraction = 1.0
+            if not fx.camera and f is not None and rec is not None:
+                report.messages.append("full frame: the scene's bounding box changed")
+            return
+        t0 = time.perf_counter()
+        dirty = rec.dirty_pixels(old_sa, camera_params(self.scene.camera), fx)
+        if ids is not None and len(ids) and f.pixel_interpolant is not None:
+            rebuilt = np.isin(f.pixel_interpolant.reshape(-1), ids)
+            self._rebuilt |= rebuilt
+            dirty |= rebuilt
+        report.records_query_ms = 1e3 * (time.perf_counter() - t0)
+        self._dirty |= dirty
+        report.full_frame = False
+        report.dirty_pixels = int(np.count_nonzero(self._dirty))
+        report.dirty_fraction = report.dirty_pixels / max(len(self._dirty), 1)
 
     def update_settings(self, settings: RenderSettings) -> None:
         """New settings; the accelerator is rebuilt only when its kind changes."""
         settings = settings.validated()
         if settings.accelerator != self.settings.accelerator:
             self._build_accelerator(settings.accelerator)  # raises before anything changes
+            self.interpolants.reset()
         self.settings = settings
 
+    @property
+    def dirty_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
+        if self._dirty is None or self.frame is None:
+            return None
+        return self._dirty.reshape(self.frame.pixel_class.shape).copy()
+
+    @property
+    def records_bytes(self) -> int:
+        """Memory of the per-pixel records of the last frame (bytes)."""
+        return self.records.nbytes if self.records is not None else 0
+
     # -- rendering ---------------------------------------------------------------------
+
+    def _key(self) -> tuple:
+        s, cam = self.settings, self.scene.camera
+        return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
+                s.accelerator, cam.matrix.tobytes(), cam.kind, cam.lens, cam.sensor_width,
+                cam.sensor_height, cam.sensor_fit, cam.shift_x, cam.shift_y, cam.clip_start,
+                cam.clip_end, cam.ortho_scale, cam.width, cam.height)
 
     def render(self, progress=None, cancel=None) -> Frame:
         """Render the scene's camera. progress(fraction, message); cancel() -> bool.
 
-        Raises :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
+        With the camera and settings unchanged since the last frame, only the pixels the
+        edits since then made dirty are re-rendered. Raises
+        :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
         """
         mode = self.settings.mode
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
+        key = self._key()
+        sa = self.scene.arrays()
+        cam = self.scene.camera
+        keeps_records = mode == "BASE" or _accepts(self.interpolants.render, "records")
+        incremental = (keeps_records and self.frame is not None and self.records is not None
+                       and self._dirty is not None and key == self._frame_key)
+        if incremental:
+            records = self.records
+            pixels = self._dirty
+        else:
+            records = PixelRecords(cam.width, cam.height, self.settings.samples, sa.scene_aabb)
+            pixels = None
         if mode == "INTERPOLANT":
-            frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                             progress=progress, cancel=cancel)
+            base = self.frame if incremental else None
+            if keeps_records:
+                frame = self.interpolants.render(self.scene, self.settings, self.accel,
+                                                 progress=progress, cancel=cancel,
+                                                 records=records, pixels=pixels, base=base)
+            else:
+                frame = self.interpolants.render(self.scene, self.settings, self.accel,
+                                                 progress=progress, cancel=cancel)
+            if incremental and self._rebuilt is not None and self._rebuilt.any():
+                # pixels of invalidated interpolants, interpolated again: "rebuilt" (magenta)
+                pc = frame.pixel_class.reshape(-1)
+                pc[self._rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
-                                   progress=progress, cancel=cancel)
+                                   progress=progress, cancel=cancel, records=records,
+                                   pixels=pixels, base=self.frame if incremental else None)
+        if frame.stats.get("cancelled"):
+            # a part-done frame: its records are incomplete, the next frame is a full one
+            self.frame = self.records = self._dirty = None
+        else:
+            if keeps_records:
+                records.finish(drop_rays=None if pixels is None
+                               else np.tile(pixels, self.settings.samples))
+            else:  # this interpolant renderer keeps no per-pixel records: full frames
+                records = None
+            self.frame, self.records, self._frame_key = frame, records, key
+            self._dirty = np.zeros(cam.width * cam.height, bool)
+            self._rebuilt = np.zeros(cam.width * cam.height, bool)
+        n = cam.width * cam.height
+        frame.stats["incremental"] = bool(incremental)
+        frame.stats["dirty_pixels"] = int(np.count_nonzero(pixels)) if incremental else n
+        frame.stats["dirty_fraction"] = frame.stats["dirty_pixels"] / max(n, 1)
+        frame.stats["records_mb"] = self.records_bytes / 1e6
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]
         frame.stats["mode"] = mode
         self.stats.update(frame.stats)
         return frame
+
+
+def _accepts(fn, name: str) -> bool:
+    """Whether callable ``fn`` takes a keyword argument ``name``."""
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False

@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from ..frame import ACCELERATORS, AVAILABLE_ACCELERATORS
 from ..geometry.scene import SceneArrays, SceneError
 from . import bvh
 from .bvh import ray_to_object
@@ -32,7 +33,7 @@ from .triangle import intersect, ray_shear
 
 log = logging.getLogger(__name__)
 
-NAMES = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
+NAMES = ACCELERATORS  # the one list lives in frame.py
 
 
 class AcceleratorUnavailable(SceneError):
@@ -110,6 +111,15 @@ class Accelerator:
     def intersect_object(self, inst, origins, directions, tmin, tmax) -> Hits:
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         only = instance_array(inst, len(o), len(self.sa.inst_mesh))
+        dead = ~self.sa.inst_alive[only]
+        if dead.any():  # a tombstoned or hidden slot is never hit
+            keep = np.flatnonzero(~dead)
+            hits = empty_hits(len(o))
+            if len(keep):
+                part = self._trace(o[keep], d[keep], lo[keep], hi[keep], only[keep], False)
+                for full, p in zip(hits, part, strict=True):
+                    full[keep] = p
+            return hits
         return self._trace(o, d, lo, hi, only, False)
 
 
@@ -117,9 +127,9 @@ class Accelerator:
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _brute_kernel(verts, tris, mesh_tri_start, inst_mesh, inst_inv, o, d, tmin, tmax, only,
-                  anyhit, out_t, out_inst, out_prim, out_u, out_v):
-    """Every triangle of every instance (or of ``only[r]`` when ``only[r] >= 0``)."""
+def _brute_kernel(verts, tris, mesh_tri_start, inst_mesh, inst_inv, alive, o, d, tmin, tmax,
+                  only, anyhit, out_t, out_inst, out_prim, out_u, out_v):
+    """Every triangle of every live instance (or of ``only[r]`` when ``only[r] >= 0``)."""
     n = o.shape[0]
     ni = inst_mesh.shape[0]
     for r in prange(n):
@@ -129,6 +139,8 @@ def _brute_kernel(verts, tris, mesh_tri_start, inst_mesh, inst_inv, o, d, tmin, 
         if only[r] >= 0:
             i0, i1 = only[r], only[r] + 1
         for i in range(i0, i1):
+            if not alive[i]:
+                continue
             ox, oy, oz, dx, dy, dz = ray_to_object(inst_inv, i, o[r, 0], o[r, 1], o[r, 2],
                                                    d[r, 0], d[r, 1], d[r, 2])
             kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
@@ -161,7 +173,8 @@ class BruteForce(Accelerator):
             only = np.full(n, -1, np.int32)
         sa = self.sa
         t0 = time.perf_counter()
-        _brute_kernel(sa.verts, sa.tris, sa.mesh_tri_start, sa.inst_mesh, sa.inst_inv, o, d,
+        _brute_kernel(sa.verts, sa.tris, sa.mesh_tri_start, sa.inst_mesh, sa.inst_inv,
+                      np.ascontiguousarray(sa.inst_alive, np.bool_), o, d,
                       tmin, tmax, only, anyhit, *hits)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
@@ -223,9 +236,11 @@ class BVHAccelerator(Accelerator):
             self.stats["meshes_reused"] += reused
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
-        top = bvh.build_top(sa.inst_aabb)
+        live = np.flatnonzero(sa.inst_alive).astype(np.int32)
+        top = bvh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
+        top_inst = np.ascontiguousarray(live[top.perm], np.int32)
         bounds, child, tv, tri, mesh_root = self._concat
-        self.sb = bvh.SceneBVH(top.bounds, top.child, top.perm, bounds, child, tv, tri,
+        self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, tv, tri,
                                mesh_root, np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
                                np.ascontiguousarray(sa.inst_inv, dtype=np.float64))
         self.sa = sa
@@ -265,7 +280,6 @@ def create_accelerator(name: str, scene_arrays: SceneArrays) -> Accelerator:
         from .embree import EmbreeAccelerator
 
         return EmbreeAccelerator(scene_arrays)
-    if key == "VISIBILITY_FIELD":
-        raise AcceleratorUnavailable("accelerator 'VISIBILITY_FIELD' is not implemented yet; "
-                                     "use 'BVH'")
+    if key in ACCELERATORS and key not in AVAILABLE_ACCELERATORS:
+        raise AcceleratorUnavailable(f"accelerator {key!r} is not implemented yet; use 'BVH'")
     raise AcceleratorUnavailable(f"unknown accelerator {name!r}; choose from {list(NAMES)}")

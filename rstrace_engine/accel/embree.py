@@ -73,8 +73,10 @@ class EmbreeAccelerator(Accelerator):
         t0 = time.perf_counter()
         scene = _rs.EmbreeScene(robust=True)
         self._keep = []  # embreex geometries must outlive the scene's use of them
-        for i in range(len(sa.inst_mesh)):
-            v, f = _instance_geometry(sa, i)
+        # geometry ids are given in order: geom_slot maps them back to instance slots
+        self._geom_slot = np.ascontiguousarray(np.flatnonzero(sa.inst_alive), np.int32)
+        for i in self._geom_slot:
+            v, f = _instance_geometry(sa, int(i))
             self._keep.append(_mc.TriangleMesh(scene, v, f))
         self.scene = scene
         self.sa = sa
@@ -135,7 +137,8 @@ class EmbreeAccelerator(Accelerator):
             else:
                 res = scene.run(org, dirs, dists=dist, output=1)
                 _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
-                            tmin[s], tmax[s], inst, offset, hits.t[s], hits.inst[s],
+                            tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
+                            hits.inst[s],
                             hits.prim[s], hits.u[s], hits.v[s])
 
         if threads == 1:
@@ -158,13 +161,13 @@ def _to_embree(o, d, tmin, tmax, org, dirs, dist):
 
 
 @njit(cache=True, nogil=True)
-def _store_hits(geom, prim, tfar, u, v, tmin, tmax, inst, prim_offset, out_t, out_inst,
-                out_prim, out_u, out_v):
+def _store_hits(geom, prim, tfar, u, v, tmin, tmax, inst, geom_slot, prim_offset, out_t,
+                out_inst, out_prim, out_u, out_v):
     """Embree results -> :class:`Hits` rows (global triangle ids, float64 distances)."""
     for r in range(geom.shape[0]):
         if geom[r] < 0 or not tmin[r] <= tmax[r]:
             continue
-        i = geom[r] if inst < 0 else inst
+        i = geom_slot[geom[r]] if inst < 0 else inst
         out_inst[r] = i
         out_prim[r] = prim[r] + prim_offset[i]
         out_t[r] = np.float64(tfar[r]) + (tmin[r] if tmin[r] > 0.0 else 0.0)

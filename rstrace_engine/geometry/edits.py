@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import Camera, Light, Material, Mesh
+from .scene import Camera, Light, Material, Mesh, Scene, SceneError
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,7 @@ class ObjectAdd:
     matrix: np.ndarray  # (4, 4) float64 object-to-world
     material_keys: tuple = ()
     name: str | None = None
+    visible: bool = True
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,38 @@ Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | 
 
 
 @dataclass
+class EditEffects:
+    """What a batch of edits touched, in the terms invalidation works in.
+
+    ``regions`` are world boxes (old and new box of every geometry-type edit, as two rows
+    each, see :meth:`region_array`); ``objects`` the instance slots named, ``lights`` the
+    light slots whose contribution changed, ``lights_moved`` the subset whose position,
+    direction, cone or kind changed (or that were added: they may now light any surface),
+    ``materials`` the material ids whose parameters changed.
+    """
+
+    regions: list = field(default_factory=list)  # (2, 3) float64 world boxes
+    objects: set = field(default_factory=set)
+    lights: set = field(default_factory=set)
+    lights_moved: set = field(default_factory=set)
+    materials: set = field(default_factory=set)
+    world: bool = False
+    camera: bool = False
+    kinds: dict = field(default_factory=dict)
+
+    def region_array(self) -> np.ndarray:
+        """(k, 2, 3) float64: one box per geometry-type edit (old box union new box)."""
+        if not self.regions:
+            return np.zeros((0, 2, 3))
+        return np.ascontiguousarray(np.stack(self.regions), dtype=np.float64)
+
+    @property
+    def scene_content_changed(self) -> bool:
+        return bool(self.regions or self.objects or self.lights or self.materials
+                    or self.world)
+
+
+@dataclass
 class EditReport:
     """What :meth:`Session.apply` did, for the status line and the benchmarks."""
 
@@ -126,5 +159,245 @@ class EditReport:
     dirty_fraction: float = 0.0
     camera_changed: bool = False
     rst_query_ms: float = 0.0  # RST traversal + membership + invalidation
+    records_query_ms: float = 0.0  # finding the dirty pixels in the per-pixel records
     apply_ms: float = 0.0  # everything apply() did
     messages: list = field(default_factory=list)
+    regions: int = 0  # world boxes the geometry-type edits touched
+    full_frame: bool = True  # the next frame renders every pixel (camera moved, no records)
+
+
+# ----------------------------------------------------------------------------- applying
+
+
+def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
+
+
+def _visible_box(scene: Scene, slot: int) -> np.ndarray | None:
+    inst = scene.instances[slot]
+    if inst is None or not inst["visible"]:
+        return None
+    return inst["aabb"].copy()
+
+
+def _light_geometry(li: Light) -> tuple:
+    """What decides where a light's shadow rays go and which surfaces face it."""
+    return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
+            float(li.spot_blend))
+
+
+def _material_ids(scene: Scene, name: str, keys) -> list[int]:
+    ids = []
+    for k in keys:
+        try:
+            ids.append(scene.material_id(k))
+        except SceneError:
+            raise SceneError(f"object '{name}': unknown material key {k!r}") from None
+    return ids
+
+
+def apply_edits(scene: Scene, edits) -> tuple[Scene, EditEffects]:
+    """Apply ``edits`` in order to a *copy* of ``scene``; return ``(new scene, effects)``.
+
+    All or nothing: any bad edit raises :class:`SceneError` naming the object (the given
+    scene is never modified), and the new scene is packed (validated) before it is returned.
+    """
+    new = scene.copy()
+    fx = EditEffects()
+    for e in edits:
+        name = type(e).__name__
+        fx.kinds[name] = fx.kinds.get(name, 0) + 1
+        _apply_one(new, e, fx)
+    new.arrays()  # validates the whole packing before anyone sees it
+    return new, fx
+
+
+def _object_region(fx: EditEffects, old_box, new_box) -> None:
+    box = _union(old_box, new_box)
+    if box is not None:
+        fx.regions.append(box)
+
+
+def _apply_one(s: Scene, e, fx: EditEffects) -> None:
+    if isinstance(e, CameraChange):
+        s.set_camera(e.camera)
+        fx.camera = True
+    elif isinstance(e, WorldColor):
+        s.set_world_color(e.color)
+        fx.world = True
+    elif isinstance(e, MeshSet):
+        if e.key in s.mesh_keys.slot:
+            mid = s.mesh_id(e.key)
+            users = [k for k, i in s.live_instances() if i["mesh"] == mid]
+            before = {k: _visible_box(s, k) for k in users}
+            s.set_mesh(mid, e.mesh)
+            for k in users:
+                _object_region(fx, before[k], _visible_box(s, k))
+                fx.objects.add(k)
+        else:
+            s.add_mesh(e.mesh, key=e.key)
+    elif isinstance(e, MaterialSet):
+        if e.key in s.material_keys.slot:
+            mid = s.material_id(e.key)
+            s.set_material(mid, e.material)
+            fx.materials.add(mid)
+        else:
+            s.add_material(e.material, key=e.key)
+    elif isinstance(e, ObjectAdd):
+        try:
+            mesh = s.mesh_id(e.mesh_key)
+        except SceneError:
+            raise SceneError(f"object '{e.name or e.key}': unknown mesh key "
+                             f"{e.mesh_key!r}") from None
+        mats = _material_ids(s, e.name or str(e.key), e.material_keys)
+        slot = s.add_instance(mesh, e.matrix, mats, name=e.name or str(e.key), key=e.key,
+                              visible=e.visible)
+        _object_region(fx, None, _visible_box(s, slot))
+        fx.objects.add(slot)
+    elif isinstance(e, ObjectDelete):
+        slot = s.instance_slot(e.key)
+        _object_region(fx, _visible_box(s, slot), None)
+        s.delete_instance(slot)
+        fx.objects.add(slot)
+    elif isinstance(e, ObjectTransform):
+        slot = s.instance_slot(e.key)
+        before = _visible_box(s, slot)
+        old_matrix = s.instances[slot]["matrix"]
+        s.set_instance_matrix(slot, e.matrix)
+        if np.array_equal(old_matrix, s.instances[slot]["matrix"]):
+            return  # not moved: nothing to invalidate
+        _object_region(fx, before, _visible_box(s, slot))
+        fx.objects.add(slot)
+    elif isinstance(e, ObjectGeometry):
+        slot = s.instance_slot(e.key)
+        inst = s.instances[slot]
+        try:
+            mesh = s.mesh_id(e.mesh_key)
+        except SceneError:
+            raise SceneError(f"object '{inst['name']}': unknown mesh key "
+                             f"{e.mesh_key!r}") from None
+        before = _visible_box(s, slot)
+        s.set_instance_mesh(slot, mesh)
+        _object_region(fx, before, _visible_box(s, slot))
+        fx.objects.add(slot)
+    elif isinstance(e, ObjectMaterials):
+        slot = s.instance_slot(e.key)
+        inst = s.instances[slot]
+        s.set_instance_materials(slot, _material_ids(s, inst["name"], e.material_keys))
+        fx.objects.add(slot)
+    elif isinstance(e, ObjectVisibility):
+        slot = s.instance_slot(e.key)
+        if s.instances[slot]["visible"] == bool(e.visible):
+            return
+        before = _visible_box(s, slot)
+        s.set_instance_visible(slot, e.visible)
+        _object_region(fx, before, _visible_box(s, slot))
+        fx.objects.add(slot)
+    elif isinstance(e, LightSet):
+        if e.key in s.light_keys.slot:
+            j = s.light_slot(e.key)
+            old = s.lights[j]
+            s.set_light(j, e.light)
+            fx.lights.add(j)
+            if _light_geometry(old) != _light_geometry(s.lights[j]):
+                fx.lights_moved.add(j)
+        else:
+            j = s.add_light(e.light, key=e.key)
+            fx.lights.add(j)
+            fx.lights_moved.add(j)
+    elif isinstance(e, LightDelete):
+        j = s.light_slot(e.key)
+        s.delete_light(j)
+        fx.lights.add(j)
+    else:
+        raise SceneError(f"edit {e!r}: not an edit (see rstrace_engine.geometry.edits)")
+
+
+# ----------------------------------------------------------------------------- diffing
+
+
+def _same_mesh(a: dict, b: dict) -> bool:
+    if a is b:
+        return True
+    return all(np.array_equal(a[k], b[k]) for k in ("verts", "tris", "normals", "uvs", "slots"))
+
+
+def _same_material(a: Material, b: Material) -> bool:
+    if a is b:
+        return True
+    fields = ("diffuse", "specular", "roughness", "mirror", "transmission", "ior", "emission")
+    if any(getattr(a, f) != getattr(b, f) for f in fields):
+        return False
+    if (a.texture is None) != (b.texture is None):
+        return False
+    return a.texture is None or np.array_equal(a.texture, b.texture)
+
+
+def _same_camera(a: Camera, b: Camera) -> bool:
+    if not np.array_equal(a.matrix, b.matrix):
+        return False
+    return all(getattr(a, f) == getattr(b, f) for f in (
+        "kind", "lens", "sensor_width", "sensor_height", "sensor_fit", "shift_x", "shift_y",
+        "clip_start", "clip_end", "ortho_scale", "width", "height"))
+
+
+def _as_mesh(d: dict) -> Mesh:
+    return Mesh(d["name"], d["verts"], d["tris"], corner_normals=d["normals"],
+                corner_uvs=d["uvs"], slots=d["slots"])
+
+
+def diff_scenes(old: Scene, new: Scene) -> list:
+    """The edits that turn ``old`` into ``new``, matching items by their keys.
+
+    Meshes and materials first (objects refer to them), then deletions (their slots are
+    reused by additions), then additions and changes, then the world and the camera.
+    """
+    edits: list = []
+    mesh_key = {v: k for k, v in new.mesh_keys.slot.items()}
+    mat_key = {v: k for k, v in new.material_keys.slot.items()}
+    old_mesh_key = {v: k for k, v in old.mesh_keys.slot.items()}
+    old_mat_key = {v: k for k, v in old.material_keys.slot.items()}
+    for key, mid in new.mesh_keys.slot.items():
+        o = old.mesh_keys.slot.get(key)
+        if o is None or not _same_mesh(old.meshes[o], new.meshes[mid]):
+            edits.append(MeshSet(key, _as_mesh(new.meshes[mid])))
+    for key, mid in new.material_keys.slot.items():
+        o = old.material_keys.slot.get(key)
+        if o is None or not _same_material(old.materials[o], new.materials[mid]):
+            edits.append(MaterialSet(key, new.materials[mid]))
+    for key in old.light_keys.slot:
+        if key not in new.light_keys.slot:
+            edits.append(LightDelete(key))
+    for key in old.instance_keys.slot:
+        if key not in new.instance_keys.slot:
+            edits.append(ObjectDelete(key))
+    for key, slot in new.instance_keys.slot.items():
+        ni = new.instances[slot]
+        mats = tuple(mat_key[m] for m in ni["materials"])
+        o = old.instance_keys.slot.get(key)
+        if o is None:
+            edits.append(ObjectAdd(key, mesh_key[ni["mesh"]], ni["matrix"], mats, ni["name"],
+                                   ni["visible"]))
+            continue
+        oi = old.instances[o]
+        if old_mesh_key[oi["mesh"]] != mesh_key[ni["mesh"]]:
+            edits.append(ObjectGeometry(key, mesh_key[ni["mesh"]]))
+        if not np.array_equal(oi["matrix"], ni["matrix"]):
+            edits.append(ObjectTransform(key, ni["matrix"]))
+        if tuple(old_mat_key[m] for m in oi["materials"]) != mats:
+            edits.append(ObjectMaterials(key, mats))
+        if oi["visible"] != ni["visible"]:
+            edits.append(ObjectVisibility(key, ni["visible"]))
+    for key, j in new.light_keys.slot.items():
+        o = old.light_keys.slot.get(key)
+        if o is None or old.lights[o] != new.lights[j]:
+            edits.append(LightSet(key, new.lights[j]))
+    if not np.array_equal(old.world_color, new.world_color):
+        edits.append(WorldColor(tuple(float(x) for x in new.world_color)))
+    if not _same_camera(old.camera, new.camera):
+        edits.append(CameraChange(new.camera))
+    return edits

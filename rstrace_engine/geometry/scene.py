@@ -33,6 +33,7 @@ from .. import tolerances as tol
 log = logging.getLogger(__name__)
 
 LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT = 0, 1, 2
+LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
 LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
 
 MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
@@ -209,7 +210,13 @@ class Camera:
 
 
 class SceneArrays(NamedTuple):
-    """The scene as flat arrays, for numba kernels. ``T`` triangles, ``I`` instances."""
+    """The scene as flat arrays, for numba kernels. ``T`` triangles, ``I`` instance slots.
+
+    Instance slots and light slots are stable across edits (see :class:`Scene`): a deleted or
+    hidden object keeps its slot as a *tombstone* (``inst_alive`` False, an empty box
+    ``lo > hi``, identity matrices) that no accelerator ever hits; a deleted light keeps its
+    slot with kind ``LIGHT_NONE`` and zero intensity, and the tracers skip it.
+    """
 
     verts: np.ndarray  # (V, 3) float64, object space, all meshes concatenated
     tris: np.ndarray  # (T, 3) int32, global indices into verts
@@ -221,7 +228,7 @@ class SceneArrays(NamedTuple):
     inst_xform: np.ndarray  # (I, 4, 4) float64 object -> world
     inst_inv: np.ndarray  # (I, 4, 4) float64 world -> object
     inst_nmat: np.ndarray  # (I, 3, 3) float64 normal matrix (inverse transpose)
-    inst_aabb: np.ndarray  # (I, 2, 3) float64 world bounds
+    inst_aabb: np.ndarray  # (I, 2, 3) float64 world bounds (empty, lo > hi, when dead)
     inst_mat_start: np.ndarray  # (I + 1,) int32 into inst_mat
     inst_mat: np.ndarray  # (K,) int32 material ids per slot
     mat_diffuse: np.ndarray  # (NM, 3) float64
@@ -235,22 +242,32 @@ class SceneArrays(NamedTuple):
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
     tex_size: np.ndarray  # (NT, 2) int32 (width, height)
-    light_kind: np.ndarray  # (L,) int32
+    light_kind: np.ndarray  # (L,) int32, LIGHT_NONE for a deleted light's slot
     light_pos: np.ndarray  # (L, 3) float64
     light_dir: np.ndarray  # (L, 3) float64 unit, the way the light points
     light_intensity: np.ndarray  # (L, 3) W/sr (point, spot) or W/m^2 (sun)
     light_cos_outer: np.ndarray  # (L,) spot cone cosines (1.0 / -1.0 otherwise)
     light_cos_inner: np.ndarray  # (L,)
     world_color: np.ndarray  # (3,) float64
-    scene_aabb: np.ndarray  # (2, 3) float64 bounds of all instances
+    scene_aabb: np.ndarray  # (2, 3) float64 bounds of all live instances
     scene_extent: float  # length of the scene box diagonal (> 0)
+    inst_alive: np.ndarray  # (I,) bool: the slot holds a visible object
 
 
-def _transform_aabb(lo: np.ndarray, hi: np.ndarray, m: np.ndarray) -> np.ndarray:
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-    w = corners @ m[:3, :3].T + m[:3, 3]
-    return np.stack([w.min(axis=0), w.max(axis=0)])
+#: The box of a dead instance slot: empty (lo > hi), finite, so no overlap test passes.
+DEAD_AABB = np.array([[tol.COORD_MAX * 10] * 3, [-tol.COORD_MAX * 10] * 3])
+
+
+def transform_aabb(lo: np.ndarray, hi: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """World box (2, 3) of the object box ``lo, hi`` under the affine matrix ``m``."""
+    c = 0.5 * (lo + hi)
+    e = 0.5 * (hi - lo)
+    wc = m[:3, :3] @ c + m[:3, 3]
+    we = np.abs(m[:3, :3]) @ e
+    return np.stack([wc - we, wc + we])
+
+
+_transform_aabb = transform_aabb
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -264,8 +281,57 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return np.divide(acc, ln, out=np.zeros_like(acc), where=ln > 0)
 
 
+class _Keys:
+    """Stable host keys of one kind of item (key -> slot), with a free list of slots."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.slot: dict = {}
+        self.free: list[int] = []  # tombstoned slots, reused lowest first
+
+    def copy(self) -> _Keys:
+        k = _Keys(self.kind)
+        k.slot = dict(self.slot)
+        k.free = list(self.free)
+        return k
+
+    def new_key(self, key, name: str | None, n: int):
+        """The key for a new item: ``key`` if given (must be unused), else the name when it
+        is unused, else a generated one."""
+        if key is not None:
+            try:
+                hash(key)
+            except TypeError:
+                raise SceneError(f"{self.kind} '{name}': key {key!r} is not hashable") from None
+            if key in self.slot:
+                raise SceneError(f"{self.kind} '{name}': key {key!r} is already in use")
+            return key
+        if name is not None and name not in self.slot:
+            return name
+        k = n
+        while f"{name or self.kind}#{k}" in self.slot:
+            k += 1
+        return f"{name or self.kind}#{k}"
+
+    def lookup(self, key) -> int:
+        try:
+            return self.slot[key]
+        except (KeyError, TypeError):
+            raise SceneError(f"{self.kind} '{key}': unknown key (no such {self.kind} in the "
+                             f"scene)") from None
+
+
 class Scene:
     """A mutable scene that validates on input and packs to :class:`SceneArrays`.
+
+    Items have stable *slots* and host *keys*. ``add_mesh / add_material / add_instance /
+    add_light`` take ``key=`` (any hashable; by default the item's name when unused, else a
+    generated key) and return the slot; ``mesh_id / material_id / instance_slot /
+    light_slot(key)`` look a key up. Instance and light slots never move: a deleted one is a
+    tombstone (``None`` in :attr:`instances` / :attr:`lights`) reused by a later addition,
+    because instance ids are baked into interpolant keys, linetree roots and ray trees.
+    Meshes and materials are never removed; ``set_mesh`` / ``set_material`` replace one in
+    place.
 
     ``stats`` collects counts of tolerated problems (dropped degenerate triangles, ...);
     ``warnings`` collects one message per distinct problem, for the host to report once.
@@ -274,14 +340,71 @@ class Scene:
     def __init__(self) -> None:
         self.meshes: list[dict] = []
         self.materials: list[Material] = []
-        self.instances: list[dict] = []
-        self.lights: list[Light] = []
+        self.instances: list[dict | None] = []  # None: a tombstoned slot
+        self.lights: list[Light | None] = []  # None: a tombstoned slot
         self.camera: Camera = Camera()
         self.world_color = np.zeros(3)
         self.stats: dict[str, int] = {"degenerate_triangles": 0}
         self.warnings: list[str] = []
+        self.mesh_keys = _Keys("mesh")
+        self.material_keys = _Keys("material")
+        self.instance_keys = _Keys("object")
+        self.light_keys = _Keys("light")
         self._arrays: SceneArrays | None = None
         self._mesh_arrays = None  # packed geometry, reused while meshes are unchanged
+
+    def copy(self) -> Scene:
+        """An independent copy (item data are shared: they are replaced, never mutated)."""
+        c = Scene.__new__(Scene)
+        c.meshes = list(self.meshes)
+        c.materials = list(self.materials)
+        c.instances = [None if i is None else dict(i) for i in self.instances]
+        c.lights = list(self.lights)
+        c.camera = self.camera
+        c.world_color = self.world_color.copy()
+        c.stats = dict(self.stats)
+        c.warnings = list(self.warnings)
+        c.mesh_keys = self.mesh_keys.copy()
+        c.material_keys = self.material_keys.copy()
+        c.instance_keys = self.instance_keys.copy()
+        c.light_keys = self.light_keys.copy()
+        c._arrays = self._arrays
+        c._mesh_arrays = self._mesh_arrays
+        return c
+
+    # -- lookups -----------------------------------------------------------------------
+
+    def mesh_id(self, key) -> int:
+        return self.mesh_keys.lookup(key)
+
+    def material_id(self, key) -> int:
+        return self.material_keys.lookup(key)
+
+    def instance_slot(self, key) -> int:
+        return self.instance_keys.lookup(key)
+
+    def light_slot(self, key) -> int:
+        return self.light_keys.lookup(key)
+
+    def live_instances(self):
+        """``(slot, instance dict)`` of every object that is not tombstoned."""
+        return [(k, i) for k, i in enumerate(self.instances) if i is not None]
+
+    def live_lights(self):
+        """``(slot, Light)`` of every light that is not tombstoned."""
+        return [(k, li) for k, li in enumerate(self.lights) if li is not None]
+
+    @property
+    def n_instances(self) -> int:
+        return sum(i is not None for i in self.instances)
+
+    @property
+    def n_lights(self) -> int:
+        return sum(li is not None for li in self.lights)
+
+    def instance_box(self, slot: int) -> np.ndarray:
+        """World box (2, 3) of the object in ``slot`` (even when hidden)."""
+        return self.instances[slot]["aabb"]
 
     # -- authoring -------------------------------------------------------------------
 
@@ -290,13 +413,41 @@ class Scene:
             self.warnings.append(message)
             log.warning(message)
 
-    def add_material(self, material: Material) -> int:
+    def add_material(self, material: Material, key=None) -> int:
+        key = self.material_keys.new_key(key, material.name, len(self.materials))
         self.materials.append(material.validated())
+        self.material_keys.slot[key] = len(self.materials) - 1
         self._arrays = None
         return len(self.materials) - 1
 
-    def add_mesh(self, mesh: Mesh) -> int:
+    def set_material(self, material_id: int, material: Material) -> None:
+        """Replace material ``material_id``'s parameters (validated first)."""
+        if not 0 <= material_id < len(self.materials):
+            raise SceneError(f"material '{material.name}': unknown material id {material_id}")
+        self.materials[material_id] = material.validated()
+        self._arrays = None
+
+    def add_mesh(self, mesh: Mesh, key=None) -> int:
         """Validate and store a mesh; degenerate triangles are dropped and counted."""
+        key = self.mesh_keys.new_key(key, mesh.name, len(self.meshes))
+        self.meshes.append(self._checked_mesh(mesh))
+        self.mesh_keys.slot[key] = len(self.meshes) - 1
+        self._arrays = None
+        self._mesh_arrays = None
+        return len(self.meshes) - 1
+
+    def set_mesh(self, mesh_id: int, mesh: Mesh) -> None:
+        """Replace mesh ``mesh_id``'s data; every object using it follows."""
+        if not 0 <= mesh_id < len(self.meshes):
+            raise SceneError(f"mesh '{mesh.name}': unknown mesh id {mesh_id}")
+        self.meshes[mesh_id] = self._checked_mesh(mesh)
+        for i in self.instances:
+            if i is not None and i["mesh"] == mesh_id:
+                self._place(i)
+        self._arrays = None
+        self._mesh_arrays = None
+
+    def _checked_mesh(self, mesh: Mesh) -> dict:
         n = mesh.name
         verts = _finite_array(n, "mesh", mesh.vertices, (3,))
         tris = np.asarray(mesh.triangles)
@@ -351,42 +502,106 @@ class Scene:
             normals = normals[keep]
         uvs = np.zeros((len(tris), 3, 2), np.float32) if uvs is None else uvs[keep]
         slots = np.zeros(len(tris), np.int32) if slots is None else slots[keep]
-        self.meshes.append(dict(name=n, verts=verts, tris=tris, normals=normals, uvs=uvs,
-                                slots=slots, lo=verts.min(axis=0), hi=verts.max(axis=0)))
-        self._arrays = None
-        self._mesh_arrays = None
-        return len(self.meshes) - 1
+        return dict(name=n, verts=verts, tris=tris, normals=normals, uvs=uvs, slots=slots,
+                    lo=verts.min(axis=0), hi=verts.max(axis=0))
 
-    def add_instance(self, mesh_id: int, matrix, materials=(0,), name: str | None = None) -> int:
-        """Place mesh ``mesh_id`` with object-to-world ``matrix`` and per-slot materials."""
+    # objects
+
+    def add_instance(self, mesh_id: int, matrix, materials=(0,), name: str | None = None,
+                     key=None, visible: bool = True) -> int:
+        """Place mesh ``mesh_id`` with object-to-world ``matrix`` and per-slot materials.
+
+        Returns the object's slot: the lowest tombstoned slot, else a new one.
+        """
         name = name or f"instance{len(self.instances)}"
         if not 0 <= mesh_id < len(self.meshes):
             raise SceneError(f"object '{name}': unknown mesh id {mesh_id}")
+        mats = self._checked_materials(name, materials)
+        m = check_matrix(name, matrix)
+        key = self.instance_keys.new_key(key, name, len(self.instances))
+        inst = dict(name=name, key=key, mesh=mesh_id, matrix=m, materials=mats,
+                    visible=bool(visible))
+        self._place(inst)
+        keys = self.instance_keys
+        if keys.free:
+            keys.free.sort()
+            slot = keys.free.pop(0)
+            self.instances[slot] = inst
+        else:
+            slot = len(self.instances)
+            self.instances.append(inst)
+        keys.slot[key] = slot
+        self._arrays = None
+        return slot
+
+    def _checked_materials(self, name: str, materials) -> list[int]:
         mats = [int(x) for x in materials] or [0]
         for mid in mats:
             if not 0 <= mid < len(self.materials):
                 raise SceneError(f"object '{name}': unknown material id {mid} (add "
                                  f"materials first)")
-        m = check_matrix(name, matrix)
-        self.instances.append(dict(name=name, mesh=mesh_id, matrix=m, materials=mats))
-        self._arrays = None
-        return len(self.instances) - 1
+        return mats
+
+    def _place(self, inst: dict) -> None:
+        """Cache an instance's inverse, normal matrix and world box (packing stacks them)."""
+        m = inst["matrix"]
+        mesh = self.meshes[inst["mesh"]]
+        inv = np.linalg.inv(m)
+        inst["inv"] = inv
+        inst["nmat"] = inv[:3, :3].T.copy()
+        inst["aabb"] = transform_aabb(mesh["lo"], mesh["hi"], m)
+
+    def _live(self, slot: int) -> dict:
+        if not 0 <= slot < len(self.instances) or self.instances[slot] is None:
+            raise SceneError(f"object slot {slot}: no such object (deleted or never added)")
+        return self.instances[slot]
 
     def set_instance_matrix(self, index: int, matrix) -> None:
         """Move an instance (an edit): only its transform and bounds are repacked."""
-        inst = self.instances[index]
-        inst["matrix"] = check_matrix(inst["name"], matrix)
+        inst = self._live(index)
+        m = check_matrix(inst["name"], matrix)
+        inst["matrix"] = m
+        self._place(inst)
         self._arrays = None
 
-    def add_light(self, light: Light) -> int:
+    def set_instance_mesh(self, index: int, mesh_id: int) -> None:
+        inst = self._live(index)
+        if not 0 <= mesh_id < len(self.meshes):
+            raise SceneError(f"object '{inst['name']}': unknown mesh id {mesh_id}")
+        inst["mesh"] = int(mesh_id)
+        self._place(inst)
+        self._arrays = None
+
+    def set_instance_materials(self, index: int, materials) -> None:
+        inst = self._live(index)
+        inst["materials"] = self._checked_materials(inst["name"], materials)
+        self._arrays = None
+
+    def set_instance_visible(self, index: int, visible: bool) -> None:
+        inst = self._live(index)
+        inst["visible"] = bool(visible)
+        self._arrays = None
+
+    def delete_instance(self, index: int) -> None:
+        """Remove an object: its slot becomes a tombstone, reused by a later addition."""
+        inst = self._live(index)
+        self.instances[index] = None
+        del self.instance_keys.slot[inst["key"]]
+        self.instance_keys.free.append(index)
+        self._arrays = None
+
+    # lights
+
+    def _checked_light(self, light: Light) -> Light:
         n = light.name
         if light.kind not in LIGHT_KINDS:
             raise SceneError(f"light '{n}': unknown kind {light.kind!r} "
                              f"(expected one of {sorted(LIGHT_KINDS)})")
-        if len(self.lights) >= MAX_LIGHTS:
-            raise SceneError(f"light '{n}': at most {MAX_LIGHTS} lights are supported")
         col = _colour(n, f"light '{n}' colour", light.color, hi=None)
-        p = float(light.power)
+        try:
+            p = float(light.power)
+        except (TypeError, ValueError):
+            raise SceneError(f"light '{n}': power {light.power!r} is not a number") from None
         if not (math.isfinite(p) and 0.0 <= p <= 1e12):
             raise SceneError(f"light '{n}': power {p} outside [0, 1e12]")
         pos = _colour(n, f"light '{n}' position", light.position, lo=-tol.COORD_MAX,
@@ -399,10 +614,44 @@ class Scene:
         blend = float(light.spot_blend)
         if light.kind == "SPOT" and not (0.0 < size <= math.pi and 0.0 <= blend <= 1.0):
             raise SceneError(f"light '{n}': spot size {size} / blend {blend} out of range")
-        self.lights.append(Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d / ln),
-                                 size, blend))
+        return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d / ln), size, blend)
+
+    def add_light(self, light: Light, key=None) -> int:
+        """Add a light; returns its slot (the lowest tombstoned one, else a new one)."""
+        li = self._checked_light(light)
+        keys = self.light_keys
+        if not keys.free and len(self.lights) >= MAX_LIGHTS:
+            raise SceneError(f"light '{light.name}': at most {MAX_LIGHTS} lights are supported")
+        key = keys.new_key(key, light.name, len(self.lights))
+        if keys.free:
+            keys.free.sort()
+            slot = keys.free.pop(0)
+            self.lights[slot] = li
+        else:
+            slot = len(self.lights)
+            self.lights.append(li)
+        keys.slot[key] = slot
         self._arrays = None
-        return len(self.lights) - 1
+        return slot
+
+    def set_light(self, slot: int, light: Light) -> None:
+        """Replace the light in ``slot`` (validated first)."""
+        if not 0 <= slot < len(self.lights) or self.lights[slot] is None:
+            raise SceneError(f"light '{light.name}': no light in slot {slot}")
+        self.lights[slot] = self._checked_light(light)
+        self._arrays = None
+
+    def delete_light(self, slot: int) -> None:
+        if not 0 <= slot < len(self.lights) or self.lights[slot] is None:
+            raise SceneError(f"light slot {slot}: no such light (deleted or never added)")
+        self.lights[slot] = None
+        key = next(k for k, v in self.light_keys.slot.items() if v == slot)
+        del self.light_keys.slot[key]
+        self.light_keys.free.append(slot)
+        self._arrays = None
+
+    def light_key(self, slot: int):
+        return next(k for k, v in self.light_keys.slot.items() if v == slot)
 
     def set_camera(self, camera: Camera) -> None:
         c = camera
@@ -462,18 +711,22 @@ class Scene:
         """Pack (or return the cached packing of) the scene. Raises :class:`SceneError`."""
         if self._arrays is not None:
             return self._arrays
-        if not self.instances:
+        live = [i is not None and i["visible"] for i in self.instances]
+        if not any(i is not None for i in self.instances):
             raise SceneError("scene has no objects to render")
         if not self.materials:
             raise SceneError("scene has no materials")
         geo = self._pack_meshes()
-        xf = np.stack([i["matrix"] for i in self.instances])
-        inv = np.linalg.inv(xf)
-        nmat = np.transpose(inv[:, :3, :3], (0, 2, 1)).copy()
-        aabb = np.stack([_transform_aabb(self.meshes[i["mesh"]]["lo"],
-                                         self.meshes[i["mesh"]]["hi"], i["matrix"])
-                         for i in self.instances])
-        mat_start = np.cumsum([0] + [len(i["materials"]) for i in self.instances])
+        ni = len(self.instances)
+        eye = np.eye(4)
+        alive = np.array(live, bool)
+        xf = np.stack([eye if i is None else i["matrix"] for i in self.instances])
+        inv = np.stack([eye if i is None else i["inv"] for i in self.instances])
+        nmat = np.stack([eye[:3, :3] if i is None else i["nmat"] for i in self.instances])
+        aabb = np.stack([i["aabb"] if ok else DEAD_AABB
+                         for i, ok in zip(self.instances, live, strict=True)])
+        inst_mats = [[0] if i is None else i["materials"] for i in self.instances]
+        mat_start = np.cumsum([0] + [len(m) for m in inst_mats])
         mats = self.materials
         tex_list = [m.texture for m in mats if m.texture is not None]
         tex_ids, k = [], 0
@@ -486,10 +739,19 @@ class Scene:
                     if tex_list else np.zeros((1, 3), np.float32))
         lights = self.lights
         nl = len(lights)
+        kind = np.full(nl, LIGHT_NONE, np.int32)
+        pos = np.zeros((nl, 3))
+        ldir = np.zeros((nl, 3))
+        ldir[:, 2] = -1.0
         intensity = np.zeros((nl, 3))
         cos_outer = np.full(nl, -1.0)
         cos_inner = np.full(nl, -1.0)
         for j, li in enumerate(lights):
+            if li is None:
+                continue
+            kind[j] = LIGHT_KINDS[li.kind]
+            pos[j] = li.position
+            ldir[j] = li.direction
             c = np.asarray(li.color)
             intensity[j] = c * li.power if li.kind == "SUN" else c * li.power / (4 * math.pi)
             if li.kind == "SPOT":
@@ -497,7 +759,10 @@ class Scene:
                 cos_outer[j] = math.cos(half)
                 # Cycles: smoothstep((cos - cos_outer) / ((1 - cos_outer) * blend))
                 cos_inner[j] = cos_outer[j] + (1.0 - cos_outer[j]) * li.spot_blend
-        lo, hi = aabb[:, 0].min(axis=0), aabb[:, 1].max(axis=0)
+        if alive.any():
+            lo, hi = aabb[alive, 0].min(axis=0), aabb[alive, 1].max(axis=0)
+        else:  # every object hidden: an empty picture of the world colour
+            lo, hi = -np.ones(3), np.ones(3)
         extent = float(np.linalg.norm(hi - lo))
         if not extent > 0.0:
             extent = max(float(np.max(np.abs(hi))), 1.0)
@@ -506,10 +771,11 @@ class Scene:
             verts=geo["verts"], tris=geo["tris"], tri_normals=geo["tri_normals"],
             tri_uvs=geo["tri_uvs"], tri_slot=geo["tri_slot"],
             mesh_tri_start=geo["mesh_tri_start"],
-            inst_mesh=np.array([i["mesh"] for i in self.instances], np.int32),
+            inst_mesh=np.array([0 if i is None else i["mesh"] for i in self.instances],
+                               np.int32).reshape(ni),
             inst_xform=xf, inst_inv=inv, inst_nmat=nmat, inst_aabb=aabb,
             inst_mat_start=mat_start.astype(np.int32),
-            inst_mat=np.array([x for i in self.instances for x in i["materials"]], np.int32),
+            inst_mat=np.array([x for m in inst_mats for x in m], np.int32),
             mat_diffuse=np.array([m.diffuse for m in mats], f64),
             mat_specular=np.array([m.specular for m in mats], f64),
             mat_roughness=np.array([m.roughness for m in mats], f64),
@@ -519,16 +785,14 @@ class Scene:
             mat_emission=np.array([m.emission for m in mats], f64),
             mat_tex=np.array(tex_ids, np.int32),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
-            light_kind=np.array([LIGHT_KINDS[li.kind] for li in lights], np.int32),
-            light_pos=np.array([li.position for li in lights], f64).reshape(nl, 3),
-            light_dir=np.array([li.direction for li in lights], f64).reshape(nl, 3),
+            light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,
             world_color=np.asarray(self.world_color, f64),
-            scene_aabb=np.stack([lo, hi]), scene_extent=extent,
+            scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
         )
         return self._arrays
 
     @property
     def triangle_count(self) -> int:
         """Triangles in the world (instances count their mesh's triangles each)."""
-        return sum(len(self.meshes[i["mesh"]]["tris"]) for i in self.instances)
+        return sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances())

@@ -48,10 +48,12 @@ from ..frame import (
     CLASS_FAIL_NONLINEAR,
     CLASS_FAIL_SILHOUETTE,
     CLASS_INTERPOLATED,
+    CLASS_REBUILT,
     CLASS_TRACED,
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
+from .invalidation import Dependencies, Invalidation, invalidate, set_scene
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
@@ -67,6 +69,7 @@ from .linetree import (
     point_depth,
     ray_line,
 )
+from .pool import INTERP_BYTES, InterpolantPool
 from .predicate import (
     N_TEST_ALL,
     N_TEST_BASE,
@@ -90,9 +93,6 @@ MIN_BUILD_DEPTH = 2
 MIN_PIXELS = 48
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.
 MAX_BACKFACE_SKIPS = 8
-
-#: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids)
-INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -155,13 +155,15 @@ WALK_BLOCK = 4096
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp, clsp, active,
-          idx, rad, done, pcls):
+def _walk(lt, rad16, izlo, izhi, icls, istamp, irebuilt, clock, nodes, inherited, abcd, zp,
+          clsp, active, idx, rad, done, pcls, pinterp):
     """One level of a frame's walk down the linetrees, for the active rays among ``idx``
     (ray ids in increasing order): descend to the
     leaf; where it holds an interpolant, the ray is finished: interpolated (quadrilinear) if
     its visible hit is the interpolant's slab crossing (class and depth), else to be traced
-    (silhouette). The interpolant's LRU stamp becomes ``clock``.
+    (silhouette). The interpolant's LRU stamp becomes ``clock``; ``pinterp[r]`` the id of the
+    interpolant an interpolated ray used, and its class ``CLASS_REBUILT`` if that interpolant
+    was rebuilt after an edit.
 
     A ray from the same start node and inherited code as the ray before it whose line lies
     in that ray's leaf cell takes that leaf without descending: the descent from the start
@@ -224,7 +226,8 @@ def _walk(lt, rad16, izlo, izhi, icls, istamp, clock, nodes, inherited, abcd, zp
             rad[r, 1] = y
             rad[r, 2] = z
             done[r] = True
-            pcls[r] = CLASS_INTERPOLATED
+            pinterp[r] = q
+            pcls[r] = CLASS_REBUILT if irebuilt[q] else CLASS_INTERPOLATED
 
 
 @njit(cache=True, nogil=True)
@@ -281,50 +284,6 @@ def _pixel_lines(box, cls_of_tri, inst, prim, t, o, d, face, abcd, zp, clsp):
 # ----------------------------------------------------------------------------- pool
 
 
-class InterpolantPool:
-    """Interpolant records with a free list and LRU stamps."""
-
-    def __init__(self, capacity: int = 1024) -> None:
-        self.cap = 0
-        self.rad = np.empty((0, 16, 3))
-        self.zlo = np.empty(0)
-        self.zhi = np.empty(0)
-        self.cls = np.empty(0, np.int32)
-        self.node = np.empty(0, np.int32)
-        self.stamp = np.empty(0, np.int64)
-        self.samples = np.empty((0, 16), np.int32)
-        self.live = np.empty(0, bool)
-        self._free = np.empty(0, np.int32)
-        self._grow(capacity)
-
-    def _grow(self, cap: int) -> None:
-        old = self.cap
-        for name in ("rad", "zlo", "zhi", "cls", "node", "stamp", "samples", "live"):
-            a = getattr(self, name)
-            new = np.zeros((cap,) + a.shape[1:], a.dtype)
-            new[:old] = a
-            setattr(self, name, new)
-        self._free = np.concatenate([np.arange(cap - 1, old - 1, -1, dtype=np.int32),
-                                     self._free])
-        self.cap = cap
-
-    @property
-    def n_live(self) -> int:
-        return self.cap - len(self._free)
-
-    def alloc(self, n: int) -> np.ndarray:
-        if n > len(self._free):
-            self._grow(max(2 * self.cap, self.cap + n))
-        ids = self._free[len(self._free) - n:][::-1].copy()
-        self._free = self._free[:len(self._free) - n]
-        self.live[ids] = True
-        return ids
-
-    def release(self, ids: np.ndarray) -> None:
-        self.live[ids] = False
-        self._free = np.concatenate([self._free, np.asarray(ids, np.int32)])
-
-
 class ResolveResult(NamedTuple):
     """Outcome of :meth:`InterpolantCache.resolve` for ``n`` rays."""
 
@@ -332,6 +291,7 @@ class ResolveResult(NamedTuple):
     interpolated: np.ndarray  # (n,) bool
     pixel_class: np.ndarray  # (n,) uint8 class of each ray (traced ones: why; misses:
     # background)
+    interpolant: np.ndarray  # (n,) int32 interpolant an interpolated ray used, else -1
 
 
 # ----------------------------------------------------------------------------- the cache
@@ -357,12 +317,17 @@ class InterpolantCache:
             log.info("interpolants: depth cap %d lowered to %d", depth_cap, MAX_DEPTH)
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6
         self.max_depth = int(max_depth)
-        self.box = expanded_boxes(sa)
+        #: the scene extent the objects' boxes are padded with, frozen: an object's box (its
+        #: lines' parameterisation) depends on that object alone
+        self.box_extent = float(sa.scene_extent)
+        self.box = expanded_boxes(sa, self.box_extent)
         self.trees = Linetrees(len(sa.inst_mesh))
+        self.deps = Dependencies(sa)
         self.samples = SampleStore(len(sa.light_kind))
         self.pool = InterpolantPool()
         self.clock = 0
-        self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0)
+        self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
+                           invalidated=0)
         self.frame_stats: dict = {}
         self.setup_s = time.perf_counter() - t0
 
@@ -417,14 +382,15 @@ class InterpolantCache:
         remap = self.samples.compact(keep)
         self.pool.samples[live] = remap[self.pool.samples[live]]
 
-    def evict(self, ids: np.ndarray) -> None:
-        """Drop interpolants ``ids``: their leaves become empty (rebuilt on demand)."""
+    def evict(self, ids: np.ndarray, invalidated: bool = False) -> None:
+        """Drop interpolants ``ids``: their leaves become empty (rebuilt on demand). Their
+        tunnels and membership entries die with them (the pool's serials)."""
         ids = np.asarray(ids, np.int32)
         if len(ids) == 0:
             return
         self.trees.arrays.leaf[self.pool.node[ids]] = EMPTY
         self.pool.release(ids)
-        self.totals["evicted"] += len(ids)
+        self.totals["invalidated" if invalidated else "evicted"] += len(ids)
 
     def enforce_cap(self) -> None:
         """Evict least recently used interpolants until the cap holds."""
@@ -439,6 +405,22 @@ class InterpolantCache:
             order = np.argsort(self.pool.stamp[live], kind="stable")
             self.evict(live[order[:k]])
             self.compact_samples()
+
+    # -- edits ------------------------------------------------------------------------
+
+    def invalidate(self, regions, objects=(), lights=(), materials=(), world: bool = False,
+                   light_shading=()) -> Invalidation:
+        """Invalidate what an edit may change (:func:`.invalidation.invalidate`)."""
+        return invalidate(self, regions, objects, lights, materials, world, light_shading)
+
+    def set_scene(self, sa, accel) -> None:
+        """Go on with the edited scene, keeping every valid interpolant
+        (:func:`.invalidation.set_scene`)."""
+        set_scene(self, sa, accel)
+
+    def rst_memory_bytes(self) -> int:
+        """Bytes of the ray segment trees and the membership index."""
+        return self.deps.memory_bytes
 
     # -- rays -------------------------------------------------------------------------
 
@@ -463,13 +445,14 @@ class InterpolantCache:
         n = len(inst)
         rad = np.zeros((n, 3))
         done = np.zeros(n, bool)
+        pinterp = np.full(n, -1, np.int32)
         pcls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
         st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, levels=0,
                   reasons={})
         self.frame_stats = st
         active = inst >= 0
         if not np.any(active) or self.epsilon <= 0.0:
-            return ResolveResult(rad, done, pcls)
+            return ResolveResult(rad, done, pcls, pinterp)
         lt = self.trees
         nodes = np.zeros(n, np.int32)
         idx = np.flatnonzero(active)  # the rays still walking, in order
@@ -485,8 +468,8 @@ class InterpolantCache:
             st["levels"] += 1
             self.clock += 1
             p = self.pool
-            _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, self.clock, nodes,
-                  inherited, abcd, zp, clsp, active, idx, rad, done, pcls)
+            _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, p.rebuilt, self.clock, nodes,
+                  inherited, abcd, zp, clsp, active, idx, rad, done, pcls, pinterp)
             self.enforce_cap()
             if len(counts) < lt.n_nodes:
                 counts = np.zeros(2 * lt.n_nodes, np.int32)
@@ -519,9 +502,10 @@ class InterpolantCache:
                 st["build_s"] += time.perf_counter() - tb
         self.enforce_cap()
         lt.collapse()
+        self.deps.compact(self.pool)
         for k in ("cells_built", "cells_valid", "samples_traced"):
             self.totals[k] += st[k]
-        return ResolveResult(rad, done, pcls)
+        return ResolveResult(rad, done, pcls, pinterp)
 
     # -- building ---------------------------------------------------------------------
 
@@ -689,7 +673,11 @@ class InterpolantCache:
                 p.node[pids] = cells[go[good]]
                 p.stamp[pids] = self.clock
                 p.samples[pids] = cell_samples[good, :16]
+                p.rebuilt[pids] = a.dirty[cells[go[good]]]
                 a.leaf[cells[go[good]]] = pids
+                g = go[good]
+                self.deps.add(self, pids, inst[g], face[g], depth[g], coord[g], zlo[good],
+                              zhi[good], cell_samples[good], nsamp[good])
         bad = status != VALID
         a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
         st["cells_valid"] += int(np.count_nonzero(~bad))

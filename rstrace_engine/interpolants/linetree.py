@@ -67,13 +67,22 @@ def fail_class(code):
 # ----------------------------------------------------------------------------- face pairs
 
 
-def expanded_boxes(sa) -> np.ndarray:
-    """Expanded world boxes of every instance: (I, 2, 3) float64 (see the module doc)."""
-    lo = sa.inst_aabb[:, 0]
-    hi = sa.inst_aabb[:, 1]
+def expanded_boxes(sa, extent: float | None = None) -> np.ndarray:
+    """Expanded world boxes of every instance: (I, 2, 3) float64 (see the module doc).
+
+    ``extent``: the scene extent the padding scales with (default: ``sa``'s). A cache
+    freezes it when it is made, so that an object's box (its lines' parameterisation)
+    depends on that object alone and survives edits of the others. Instances without finite
+    bounds (a tombstoned slot) get a unit box at the origin (nothing hits them)."""
+    ext = float(sa.scene_extent if extent is None else extent)
+    lo = np.array(sa.inst_aabb[:, 0], np.float64)
+    hi = np.array(sa.inst_aabb[:, 1], np.float64)
+    bad = ~(np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1)
+            & np.all(lo <= hi, axis=1))
+    lo[bad] = -0.5
+    hi[bad] = 0.5
     diag = np.linalg.norm(hi - lo, axis=1)
-    pad = (tol.LINETREE_PAD_SCENE_REL * float(sa.scene_extent)
-           + tol.LINETREE_PAD_OBJECT_REL * diag)[:, None]
+    pad = (tol.LINETREE_PAD_SCENE_REL * ext + tol.LINETREE_PAD_OBJECT_REL * diag)[:, None]
     return np.ascontiguousarray(np.stack([lo - pad, hi + pad], axis=1))
 
 
@@ -220,6 +229,7 @@ class LinetreeArrays(NamedTuple):
     depth: np.ndarray  # (N,) int8
     coord: np.ndarray  # (N, 4) int32 lattice coordinates at the node's depth
     tree: np.ndarray  # (N,) int32 inst * 6 + face, DEAD_TREE for a freed node
+    dirty: np.ndarray  # (N,) bool invalidated by the last edit (children inherit it)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -265,6 +275,7 @@ def _init_children(lt, parents, bases):
             lt.leaf[nd] = EMPTY
             lt.depth[nd] = lt.depth[p] + 1
             lt.tree[nd] = lt.tree[p]
+            lt.dirty[nd] = lt.dirty[p]
             for m in range(4):
                 lt.coord[nd, m] = 2 * lt.coord[p, m] + ((c >> m) & 1)
 
@@ -288,11 +299,51 @@ def _collapse_pass(lt, n, freed):
                 break
         if ok:
             for c in range(_BLOCK):
+                if lt.dirty[base + c]:
+                    lt.dirty[p] = True  # a cell rebuilt here replaces invalidated ones
                 lt.tree[base + c] = DEAD_TREE
             lt.child[p] = -1
             freed[nf] = base
             nf += 1
     return nf
+
+
+@njit(cache=True, nogil=True)
+def _free_subtrees(lt, roots, freed, held):
+    """Free every block below ``roots`` (which become dirty EMPTY leaves); interpolant ids
+    found in leaves go to ``held``. Returns (blocks freed, ids held)."""
+    nf = 0
+    nh = 0
+    stack = np.empty(64 * _BLOCK, np.int32)
+    for r in range(roots.shape[0]):
+        root = roots[r]
+        sp = 0
+        if lt.child[root] >= 0:
+            stack[0] = lt.child[root]
+            sp = 1
+        elif lt.leaf[root] >= 0:
+            held[nh] = lt.leaf[root]
+            nh += 1
+        while sp > 0:
+            sp -= 1
+            base = stack[sp]
+            for c in range(_BLOCK):
+                nd = base + c
+                if lt.child[nd] >= 0:
+                    stack[sp] = lt.child[nd]
+                    sp += 1
+                elif lt.leaf[nd] >= 0:
+                    held[nh] = lt.leaf[nd]
+                    nh += 1
+                lt.tree[nd] = DEAD_TREE
+                lt.child[nd] = -1
+                lt.leaf[nd] = EMPTY
+            freed[nf] = base
+            nf += 1
+        lt.child[root] = -1
+        lt.leaf[root] = EMPTY
+        lt.dirty[root] = True
+    return nf, nh
 
 
 @njit(cache=True, nogil=True)
@@ -313,10 +364,12 @@ class Linetrees:
     """Owner of the linetree node pool: lazy roots, splits, freed-block recycling."""
 
     #: bytes per node (child, leaf, depth, coord, tree)
-    NODE_BYTES = 4 + 4 + 1 + 16 + 4
+    NODE_BYTES = 4 + 4 + 1 + 16 + 4 + 1
 
     def __init__(self, n_instances: int, capacity: int = 4096) -> None:
         self.roots = np.full((max(int(n_instances), 0), N_FACES), -1, np.int32)
+        #: per instance: roots made from now on start dirty (their object was reset)
+        self.fresh_dirty = np.zeros(len(self.roots), np.bool_)
         self.n_nodes = 0
         self._free: list[int] = []
         self.arrays = self._alloc(max(int(capacity), _BLOCK))
@@ -325,7 +378,7 @@ class Linetrees:
     def _alloc(cap: int) -> LinetreeArrays:
         return LinetreeArrays(np.full(cap, -1, np.int32), np.full(cap, EMPTY, np.int32),
                               np.zeros(cap, np.int8), np.zeros((cap, 4), np.int32),
-                              np.full(cap, DEAD_TREE, np.int32))
+                              np.full(cap, DEAD_TREE, np.int32), np.zeros(cap, np.bool_))
 
     def _reserve(self, extra: int) -> None:
         need = self.n_nodes + extra
@@ -362,7 +415,42 @@ class Linetrees:
             a.depth[ids] = 0
             a.coord[ids] = 0
             a.tree[ids] = new_keys[:n_new].astype(np.int32)
+            a.dirty[ids] = self.fresh_dirty[new_keys[:n_new] // N_FACES]
         return out
+
+    def grow_instances(self, n_instances: int) -> None:
+        """Room for roots of ``n_instances`` instances (slots are stable: new ones append)."""
+        n = int(n_instances)
+        if n > len(self.roots):
+            roots = np.full((n, N_FACES), -1, np.int32)
+            roots[:len(self.roots)] = self.roots
+            self.roots = roots
+            fd = np.zeros(n, np.bool_)
+            fd[:len(self.fresh_dirty)] = self.fresh_dirty
+            self.fresh_dirty = fd
+
+    def reset_trees(self, insts: np.ndarray) -> np.ndarray:
+        """Empty the six trees of each instance in ``insts`` (their roots become EMPTY
+        leaves; every block below is freed). Returns the interpolant ids their leaves held
+        (the caller frees them)."""
+        insts = np.asarray(insts, np.int64)
+        insts = insts[insts < len(self.roots)]
+        roots = self.roots[insts].reshape(-1)
+        roots = roots[roots >= 0].astype(np.int32)
+        if len(roots) == 0:
+            return np.empty(0, np.int32)
+        freed = np.empty(max(self.n_nodes // _BLOCK + 1, 1), np.int32)
+        held = np.empty(max(self.n_nodes, 1), np.int32)
+        nf, nh = _free_subtrees(self.arrays, roots, freed, held)
+        self._free.extend(int(x) for x in freed[:nf])
+        return held[:nh].copy()
+
+    def mark_dirty(self, nodes: np.ndarray) -> None:
+        self.arrays.dirty[np.asarray(nodes, np.int64)] = True
+
+    def clear_dirty(self) -> None:
+        self.arrays.dirty[:] = False
+        self.fresh_dirty[:] = False
 
     def split(self, nodes: np.ndarray) -> None:
         """Give each leaf in ``nodes`` (unique) 16 EMPTY children. A split leaf must not hold

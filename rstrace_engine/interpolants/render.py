@@ -9,8 +9,13 @@ tracer from the hits already found. Each pixel gets a class (:data:`~.frame.CLAS
 At epsilon = 0 nothing can be interpolated, and the frame is the base tracer's.
 
 Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
-frames and camera moves; it starts a new cache only when the scene packing, epsilon, the
-depth cap or the ray depth change (edits are the edits issue's business).
+frames and camera moves; it starts a new cache when epsilon, the depth cap, the ray depth or
+the accelerator change, or when the scene's content changed without the cache being told
+(:meth:`~.cache.InterpolantCache.invalidate` then
+:meth:`~.cache.InterpolantCache.set_scene` keep every interpolant an edit leaves valid).
+
+``frame.pixel_interpolant`` (h, w) int32 holds the interpolant each pixel used (-1: traced or
+background; with several samples per pixel, -2 where its samples used different ones).
 """
 
 from __future__ import annotations
@@ -104,6 +109,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if cache.epsilon <= 0.0:
         # nothing can be interpolated within a zero error bound: this is a base frame
         frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel)
+        frame.pixel_interpolant = np.full(frame.pixel_class.shape, -1, np.int32)
         frame.stats.update(mode="INTERPOLANT", interpolated_fraction=0.0, cells_built=0,
                            cells_valid=0, samples_traced=0, interpolants=cache.pool.n_live,
                            memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
@@ -150,7 +156,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if spp == 1:  # the rays are the pixels, in order
         image = rad.astype(np.float32)
         pclass = ray_class
+        pinterp = res.interpolant
     else:
+        pinterp = np.full(h * w, -1, np.int32)
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         for start, pix in tiles:
@@ -163,6 +171,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             # a pixel's class: its first sample that is not background
             first = np.argmax(c != CLASS_BACKGROUND, axis=0)
             pclass[pix] = c[first, np.arange(npx)]
+            # the interpolant the pixel's samples used: -2 where they used several
+            qi = res.interpolant[sl].reshape(spp, npx)
+            hi = qi.max(axis=0)
+            lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
+            pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
@@ -177,7 +190,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
         cell_outcomes=dict(fs.get("reasons", {})),
         interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
-        memory_mb=cache.memory_bytes / 1e6,
+        memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,
         interpolant_memory_mb=cache.interpolant_bytes / 1e6,
         epsilon=cache.epsilon, depth_cap=cache.depth_cap,
         memory_cap_mb=cache.memory_cap_bytes / 1e6,
@@ -188,7 +201,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     )
     log.debug("interpolant frame: %.3f s, %.1f%% interpolated, %d cells built",
               elapsed, 100 * stats["interpolated_fraction"], stats["cells_built"])
-    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)
+    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
+                 pixel_interpolant=pinterp.reshape(h, w))
 
 
 def scene_fingerprint(sa) -> bytes:
@@ -204,27 +218,34 @@ class InterpolantRenderer:
     """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid.
 
     A new export of an unchanged scene (same content, e.g. after a camera move) keeps the
-    cache; any change of content, epsilon, depth cap, ray depth or accelerator starts a new
-    one (edits are invalidated selectively by the edits machinery, not here).
+    cache, and so does a scene the cache was moved to by
+    :meth:`~.cache.InterpolantCache.set_scene` after an edit; a change of content it was not
+    told of, of epsilon, depth cap, ray depth or accelerator starts a new one.
     """
 
     def __init__(self) -> None:
         self.cache: InterpolantCache | None = None
         self._fingerprint: bytes | None = None
+        self._fingerprint_of = None  # the packing the fingerprint is of
 
     def reset(self) -> None:
         """Forget every interpolant."""
         self.cache = None
         self._fingerprint = None
+        self._fingerprint_of = None
 
     def _same_scene(self, sa) -> bool:
         c = self.cache
         if sa is c.sa:
             return True
+        if self._fingerprint_of is not c.sa:  # moved to an edited scene (set_scene)
+            self._fingerprint = scene_fingerprint(c.sa)
+            self._fingerprint_of = c.sa
         fp = scene_fingerprint(sa)
         if fp != self._fingerprint:
             return False
         c.sa = sa  # same content, new packing
+        self._fingerprint_of = sa
         return True
 
     def render(self, scene, settings: RenderSettings, accel, progress=None,
@@ -238,6 +259,7 @@ class InterpolantRenderer:
             self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
                                               settings.memory_cap_mb, settings.max_depth)
             self._fingerprint = scene_fingerprint(sa)
+            self._fingerprint_of = sa
         elif c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
             c.set_memory_cap(settings.memory_cap_mb)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel)

@@ -174,6 +174,8 @@ def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
         for j in range(L):
             r = i * L + j
             sh_state[r] = -2
+            if sa.light_kind[j] < 0:
+                continue  # a deleted light's slot
             if sa.light_kind[j] == LIGHT_SUN:
                 lx = -sa.light_dir[j, 0]
                 ly = -sa.light_dir[j, 1]
@@ -435,8 +437,26 @@ def _count(counters: dict | None, key: str, n: int) -> None:
         counters[key] = counters.get(key, 0) + int(n)
 
 
+@njit(cache=True, nogil=True)
+def _light_masks(sh_state, vis, L, traced, lit):
+    """Per point: bit j of ``traced`` when a shadow ray to light j was traced, of ``lit``
+    when light j is visible. sh_state, vis : (n L,); traced, lit : (n,) uint64 outputs."""
+    for i in range(traced.shape[0]):
+        a = np.uint64(0)
+        b = np.uint64(0)
+        for j in range(L):
+            bit = np.uint64(1) << np.uint64(j)
+            if sh_state[i * L + j] == _SH_TRACE:
+                a |= bit
+            if vis[i * L + j]:
+                b |= bit
+        traced[i] = a
+        lit[i] = b
+
+
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
-          record: bool = False, primary: Hits | None = None, counters: dict | None = None):
+          record: bool = False, primary: Hits | None = None, counters: dict | None = None,
+          segments: list | None = None):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -447,6 +467,12 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     primary : optional :class:`~rstrace_engine.accel.accelerators.Hits` of the input rays (e.g.
     from ``intersect_object``), used instead of ``accel.closest_hit`` for the first level.
     counters : optional dict; ``primary``, ``secondary`` and ``shadow`` ray counts are added.
+    segments : optional list; for every depth level a dict of arrays is appended, the compact
+    ray-tree nodes the per-pixel records keep (:mod:`.pixel_records`): ``ray`` (input ray),
+    ``parent`` (row of the parent node, rows numbered level after level, -1 for roots),
+    ``inst`` (-1: a miss), ``point`` (hit point), ``dir`` (unit ray direction), ``traced``
+    and ``lit`` (uint64 light bits: shadow ray traced / light visible). Cheaper than
+    ``record`` (shadow rays stay any-hit queries).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -517,14 +543,21 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         _shade_kernel(sa, hits.prim, hits.u, hits.v, P, NG, NS, VD, enter, mat, vis, weight,
                       spawn, contrib, c_o, c_d, c_w, c_ok)
         _scatter_add(radiance, src, contrib)
-        if record:
+        if segments is not None:
+            traced = np.empty(nb, np.uint64)
+            lit = np.empty(nb, np.uint64)
+            _light_masks(sh_state, vis, L, traced, lit)
+            segments.append(dict(ray=src, parent=parent, inst=hits.inst, point=P, dir=VD,
+                                 traced=traced, lit=lit))
+        if record or segments is not None:
             rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32)
+        if record:
             bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
             mask = (vis.reshape(nb, L).astype(np.uint64) * bits).sum(axis=1, dtype=np.uint64)
             levels.append(dict(ray=src, parent=parent, path=path, inst=hits.inst,
                                tri=hits.prim, origin=o, point=P, mask=mask,
                                occ=occ.reshape(nb, L)))
-        else:
+        elif segments is None:
             rows = None
         if not spawn:
             break
@@ -536,7 +569,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         src = src[which]
         t0 = np.zeros(len(kids))
         t1 = np.full(len(kids), np.inf)
-        if record:
+        if record or segments is not None:
             parent = rows[which]
             path = path[which] * 2 + (kids & 1)
         n_nodes += nb
@@ -559,7 +592,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
 
 
 def render(scene: Scene, settings: RenderSettings | None = None, accel=None, progress=None,
-           cancel=None) -> Frame:
+           cancel=None, records=None, pixels: np.ndarray | None = None,
+           base: Frame | None = None) -> Frame:
     """Render ``scene``'s camera with the base tracer, in tiles of rows.
 
     settings : :class:`~rstrace_engine.frame.RenderSettings` (``max_depth``, ``samples``,
@@ -572,6 +606,13 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     ``CLASS_BACKGROUND`` elsewhere. Samples whose radiance is NaN, infinite or above
     ``tolerances.RADIANCE_MAX`` are left out of the pixel average and counted in
     ``stats["nonfinite_samples"]``.
+
+    Incremental frames: with ``pixels`` ((h * w,) bool) only those pixels are traced (every
+    sample, with the same jitter as a full frame, so they come out bit for bit as a full
+    frame's) and the others are copied from ``base``, the previous frame of the same camera.
+    records : optional :class:`~.pixel_records.PixelRecords` that receives the ray trees of
+    every traced sample (then ``records.finish`` folds them in, replacing the old trees of
+    the traced pixels).
     """
     settings = (settings or RenderSettings()).validated()
     t_start = time.perf_counter()
@@ -586,26 +627,50 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     spp = int(settings.samples)
     depth = int(settings.max_depth)
     rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
-    image = np.zeros((h * w, 3), np.float32)
-    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    if pixels is not None:
+        if base is None or base.radiance.shape[:2] != (h, w):
+            raise ValueError("render: an incremental frame needs the previous frame of the "
+                             "same camera as base")
+        pixels = np.asarray(pixels, bool).reshape(h * w)
+        image = base.radiance.reshape(h * w, 3).copy()
+        pclass = base.pixel_class.reshape(h * w).copy()
+    else:
+        image = np.zeros((h * w, 3), np.float32)
+        pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
     counters: dict = {}
     bad_total = 0
     cancelled = False
     rows_done = 0
+    traced_pixels = 0
     for y0 in range(0, h, rows_per_tile):
         if cancel is not None and cancel():
             cancelled = True
             break
         y1 = min(h, y0 + rows_per_tile)
         pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+        jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
+        if pixels is not None:
+            sel = np.flatnonzero(pixels[pix])
+            pix = pix[sel]
+            jitter = jitter[:, sel]
         npx = len(pix)
-        jitter = pixel_jitter(npx, spp, seed=int(settings.seed) * 1000003 + y0)
+        rows_done = y1
+        if npx == 0:
+            continue
+        traced_pixels += npx
         o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
         hits = accel.closest_hit(o, dr, tmin, tmax)
-        rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits, counters=counters)
-        bad_total += _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp,
-                                 image[y0 * w:y1 * w], pclass[y0 * w:y1 * w])
-        rows_done = y1
+        segs = [] if records is not None else None
+        rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits, counters=counters,
+                       segments=segs)
+        if records is not None:
+            gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
+            records.add(gids, segs)
+        out = np.empty((npx, 3), np.float32)
+        pc = np.empty(npx, np.uint8)
+        bad_total += _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp, out, pc)
+        image[pix] = out
+        pclass[pix] = pc
         if progress is not None:
             progress(y1 / h, f"traced {y1}/{h} rows")
     elapsed = time.perf_counter() - t_start
@@ -619,8 +684,9 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         rays_per_s=rays / elapsed if elapsed > 0 else 0.0,
         width=w, height=h, samples=spp, max_depth=depth, rows_done=rows_done,
         cancelled=cancelled, nonfinite_samples=bad_total,
-        triangles=scene.triangle_count, instances=len(scene.instances),
+        triangles=scene.triangle_count, instances=scene.n_instances,
         degenerate_triangles=int(scene.stats.get("degenerate_triangles", 0)),
-        warnings=list(scene.warnings),
+        warnings=list(scene.warnings), incremental=pixels is not None,
+        traced_pixels=traced_pixels,
     )
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)

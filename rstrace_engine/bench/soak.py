@@ -1,0 +1,227 @@
+"""Random edit sequences: the generator behind the property test and the edit soak.
+
+:class:`EditGenerator` turns a seed into a sequence of edit batches of every kind
+(:mod:`~rstrace_engine.geometry.edits`): moving, adding, deleting, hiding and re-meshing
+objects, changing their materials, material parameters, mesh data, lights (power, colour,
+position, cone, added, deleted), the world colour and the camera. It keeps its own copy of
+the scene in step so every edit is valid, and keeps the number of objects, lights and meshes
+bounded (slots are reused). :data:`SOAK_SCENES` are small scenes with mirrors and glass
+whose boxes the edits stay inside (so most frames are incremental).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import scenes
+from ..geometry import shapes
+from ..geometry.edits import (
+    CameraChange,
+    LightDelete,
+    LightSet,
+    MaterialSet,
+    MeshSet,
+    ObjectAdd,
+    ObjectDelete,
+    ObjectGeometry,
+    ObjectMaterials,
+    ObjectTransform,
+    ObjectVisibility,
+    WorldColor,
+    apply_edits,
+)
+from ..geometry.scene import Camera, Light, Material, Scene
+
+
+def room(width: int = 64, height: int = 48) -> Scene:
+    """A floor and two walls (one a mirror), boxes, a small cube, a glass ball; point,
+    spot and sun lights."""
+    s = Scene()
+    s.add_material(Material("wall", diffuse=(0.7, 0.68, 0.6)), key="wall")
+    s.add_material(Material("red", diffuse=(0.7, 0.15, 0.1), specular=(0.2,) * 3,
+                            roughness=0.2), key="red")
+    s.add_material(Material("mirror", diffuse=(0.03,) * 3, mirror=(0.9,) * 3), key="mirror")
+    s.add_material(Material("glass", diffuse=(0.0,) * 3, transmission=(0.9,) * 3, ior=1.5),
+                   key="glass")
+    s.add_material(Material("blue", diffuse=(0.1, 0.2, 0.7)), key="blue")
+    s.add_mesh(shapes.plane(12.0, name="floor"), key="floor")
+    s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="cube"), key="cube")
+    s.add_mesh(shapes.icosphere(2, 0.5, name="ball"), key="ball")
+    s.add_mesh(shapes.plane(1.0, name="panel"), key="panel")
+    mid = s.mesh_id
+    mat = s.material_id
+    s.add_instance(mid("floor"), np.eye(4), [mat("wall")], name="Floor")
+    s.add_instance(mid("panel"), shapes.transform((0.0, 5.5, 2.0), (10.0, 4.0, 1.0), 0, 90),
+                   [mat("mirror")], name="Mirror")
+    s.add_instance(mid("panel"), shapes.transform((-5.5, 0.0, 2.0), (10.0, 4.0, 1.0), 90, 90),
+                   [mat("wall")], name="Wall")
+    s.add_instance(mid("cube"), shapes.transform((-1.5, 1.0, 0.5)), [mat("red")], name="Box")
+    s.add_instance(mid("cube"), shapes.transform((1.0, -0.5, 0.15), 0.3), [mat("blue")],
+                   name="Small")
+    s.add_instance(mid("ball"), shapes.transform((1.5, 1.5, 0.6)), [mat("glass")],
+                   name="Glass")
+    s.add_light(Light("Lamp", "POINT", power=900.0, position=(-2.0, -2.0, 3.5)))
+    s.add_light(Light("Spot", "SPOT", power=1500.0, position=(3.0, -3.0, 3.0),
+                      direction=(-0.5, 0.6, -0.6), spot_size=math.radians(60)))
+    s.add_light(Light("Sun", "SUN", power=0.8, direction=(0.3, 0.5, -1.0)))
+    s.set_world_color((0.05, 0.05, 0.08))
+    s.set_camera(Camera(matrix=shapes.look_at((0.5, -7.0, 3.0), (0.0, 0.5, 0.8)), lens=28.0,
+                        width=width, height=height))
+    return s
+
+
+def spheres(width: int = 64, height: int = 48) -> Scene:
+    """The paper's three spheres (one a mirror) on a plane, coarse tessellation."""
+    return scenes.three_spheres(width, height, subdivisions=2)
+
+
+SOAK_SCENES = {"room": room, "spheres": spheres}
+
+
+class EditGenerator:
+    """Seeded random edit batches of every kind on a scene (a copy is kept in step)."""
+
+    KINDS = ("move", "add", "delete", "visibility", "geometry", "materials", "material_set",
+             "mesh_set", "light_power", "light_move", "light_add", "light_delete", "world",
+             "camera")
+
+    def __init__(self, scene: Scene, seed: int = 0, camera: bool = True) -> None:
+        self.scene = scene.copy()
+        self.rng = np.random.default_rng(seed)
+        self.camera = camera
+        self.kinds_done: dict[str, int] = {}
+        self.max_objects = len(scene.instances) + 4
+        self.max_lights = max(len(scene.lights), 1) + 2
+        self.max_meshes = len(scene.meshes) + 2
+        box = scene.arrays().scene_aabb
+        self.lo = box[0] + 0.2 * (box[1] - box[0])
+        self.hi = box[1] - 0.2 * (box[1] - box[0])
+        self.hi[2] = box[0][2] + 0.6 * (box[1][2] - box[0][2])
+        self._serial = 0
+        self._order: list[str] = []
+
+    # -- helpers -------------------------------------------------------------------------
+
+    def _objects(self):
+        """Keys of the movable objects (the first, a floor, stays put)."""
+        first = self.scene.live_instances()[0][0]
+        return [i["key"] for k, i in self.scene.live_instances() if k != first]
+
+    def _pick(self, seq):
+        return seq[int(self.rng.integers(len(seq)))]
+
+    def _matrix(self, scale_max: float = 0.6) -> np.ndarray:
+        pos = self.rng.uniform(self.lo, self.hi)
+        s = self.rng.uniform(0.15, scale_max)
+        return shapes.transform(pos, s, float(self.rng.uniform(0, 360)))
+
+    def _light(self, name: str) -> Light:
+        kind = self._pick(("POINT", "SPOT", "SUN"))
+        if kind == "SUN":
+            return Light(name, "SUN", power=float(self.rng.uniform(0.2, 1.5)),
+                         direction=tuple(self.rng.normal(0, 0.4, 3) + (0.0, 0.0, -1.0)))
+        pos = self.rng.uniform(self.lo, self.hi)
+        pos[2] = self.hi[2] + self.rng.uniform(1.0, 3.0)
+        return Light(name, kind, color=tuple(self.rng.uniform(0.6, 1.0, 3)),
+                     power=float(self.rng.uniform(200, 1500)), position=tuple(pos),
+                     direction=tuple(self.rng.normal(0, 0.3, 3) + (0.0, 0.0, -1.0)),
+                     spot_size=float(self.rng.uniform(0.4, 1.4)),
+                     spot_blend=float(self.rng.uniform(0.0, 0.5)))
+
+    def _material(self, name: str) -> Material:
+        kind = self.rng.integers(4)
+        col = tuple(self.rng.uniform(0.05, 0.8, 3))
+        if kind == 0:
+            return Material(name, diffuse=(0.03,) * 3, mirror=(0.85,) * 3)
+        if kind == 1:
+            return Material(name, diffuse=(0.0,) * 3, transmission=(0.85,) * 3, ior=1.4)
+        return Material(name, diffuse=col, specular=(0.1,) * 3,
+                        roughness=float(self.rng.uniform(0.05, 0.5)))
+
+    # -- one batch -----------------------------------------------------------------------
+
+    def _edit(self, kind: str):
+        s, rng = self.scene, self.rng
+        objects = self._objects()
+        mesh_keys = list(s.mesh_keys.slot)
+        mat_keys = list(s.material_keys.slot)
+        light_keys = list(s.light_keys.slot)
+        if kind == "move" and objects:
+            key = self._pick(objects)
+            m = s.instances[s.instance_slot(key)]["matrix"].copy()
+            m[:3, 3] = np.clip(m[:3, 3] + rng.normal(0, 0.4, 3), self.lo, self.hi)
+            return [ObjectTransform(key, m)]
+        if kind == "add" and s.n_instances < self.max_objects:
+            self._serial += 1
+            return [ObjectAdd(f"obj{self._serial}", self._pick(mesh_keys[1:] or mesh_keys),
+                              self._matrix(), (self._pick(mat_keys),))]
+        if kind == "delete" and len(objects) > 2:
+            return [ObjectDelete(self._pick(objects))]
+        if kind == "visibility" and objects:
+            key = self._pick(objects)
+            return [ObjectVisibility(key, not s.instances[s.instance_slot(key)]["visible"])]
+        if kind == "geometry" and objects:
+            return [ObjectGeometry(self._pick(objects), self._pick(mesh_keys[1:] or mesh_keys))]
+        if kind == "materials" and objects:
+            return [ObjectMaterials(self._pick(objects), (self._pick(mat_keys),))]
+        if kind == "material_set":
+            key = self._pick(mat_keys)
+            return [MaterialSet(key, self._material(str(key)))]
+        if kind == "mesh_set":
+            if len(mesh_keys) < self.max_meshes:
+                key = f"mesh{len(mesh_keys)}"
+            else:
+                key = self._pick(mesh_keys[1:])
+            size = tuple(rng.uniform(0.3, 1.2, 3))
+            mesh = (shapes.box(size, name=str(key)) if rng.integers(2)
+                    else shapes.icosphere(1, float(size[0]) * 0.6, name=str(key)))
+            edits = [MeshSet(key, mesh)]
+            if objects:
+                edits.append(ObjectGeometry(self._pick(objects), key))
+            return edits
+        if kind == "light_power" and light_keys:
+            key = self._pick(light_keys)
+            li = s.lights[s.light_slot(key)]
+            return [LightSet(key, Light(li.name, li.kind, tuple(rng.uniform(0.5, 1.0, 3)),
+                                        li.power * float(rng.uniform(0.3, 2.0)), li.position,
+                                        li.direction, li.spot_size, li.spot_blend))]
+        if kind == "light_move" and light_keys:
+            key = self._pick(light_keys)
+            return [LightSet(key, self._light(str(key)))]
+        if kind == "light_add" and s.n_lights < self.max_lights and len(s.lights) < 64:
+            self._serial += 1
+            return [LightSet(f"light{self._serial}", self._light(f"light{self._serial}"))]
+        if kind == "light_delete" and len(light_keys) > 1:
+            return [LightDelete(self._pick(light_keys))]
+        if kind == "world":
+            return [WorldColor(tuple(rng.uniform(0.0, 0.2, 3)))]
+        if kind == "camera" and self.camera:
+            cam = s.camera
+            m = cam.matrix.copy()
+            m[:3, 3] += rng.normal(0, 0.1, 3)
+            return [CameraChange(Camera(m, cam.kind, cam.lens, cam.sensor_width,
+                                        cam.sensor_height, cam.sensor_fit, cam.shift_x,
+                                        cam.shift_y, cam.clip_start, cam.clip_end,
+                                        cam.ortho_scale, cam.width, cam.height))]
+        return None
+
+    def step(self) -> list:
+        """One batch of edits (one kind, sometimes two kinds at once), already applied to
+        :attr:`scene`."""
+        batch = []
+        if not self._order:  # every kind once in a shuffled round, then the next round
+            self._order = [k for k in self.KINDS if self.camera or k != "camera"]
+            self.rng.shuffle(self._order)
+        first = self._order.pop()
+        for n in range(1 + int(self.rng.random() < 0.2)):
+            for _try in range(20):
+                kind = first if n == 0 and _try == 0 else self._pick(self.KINDS)
+                edits = self._edit(kind)
+                if edits:
+                    self.scene, _ = apply_edits(self.scene, edits)
+                    self.kinds_done[kind] = self.kinds_done.get(kind, 0) + 1
+                    batch += edits
+                    break
+        return batch

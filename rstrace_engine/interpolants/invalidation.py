@@ -1,0 +1,263 @@
+"""Edits: which interpolants an edit may change, freeing them, going on with the new scene.
+
+Seed 000, section 5. Every valid interpolant, when it is built, leaves
+
+* its tunnel sections (:mod:`.tunnels`) in the global ray segment trees
+  (:mod:`.ray_segment_tree`): geometry edits find the interpolants whose tunnels meet the
+  edited region (old and new world box of the edited object);
+* membership entries (:mod:`.membership`) under every object its ray trees name (hit, or
+  occluding a light) and every light (shading it, or occluded);
+* a flag if some ray-tree node misses (the world colour shows).
+
+:func:`invalidate` takes the union of what an edit names (seed 000, 5.2: the region query,
+then the position-independent ray trees) and frees those interpolants: their linetree leaves
+become empty (rebuilt lazily by the next frame that needs them, shown as ``CLASS_REBUILT``),
+the samples only they kept are dropped, and the trees and lists are compacted once dead
+entries outnumber live ones. :func:`set_scene` then moves the cache to the edited scene:
+objects whose geometry or box changed get new, empty linetrees (their expanded box, the
+parameterisation of their lines, is made anew; every other object keeps its box and trees).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import tolerances as tol
+from ..geometry.scene import LIGHT_SUN
+from .linetree import expanded_boxes
+from .membership import Membership
+from .ray_segment_tree import RaySegmentTrees
+from .tunnels import (
+    LIGHT_OCCLUDED,
+    LIGHT_SHADES,
+    OBJ_HIT,
+    OBJ_OCCLUDES,
+    cell_members,
+    cell_tunnels,
+)
+
+log = logging.getLogger(__name__)
+
+
+class Invalidation(NamedTuple):
+    """What :func:`invalidate` did."""
+
+    count: int  # interpolants invalidated
+    ids: np.ndarray  # (count,) int32 their ids (pool slots, free again now)
+    query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed)
+    free_ms: float  # compaction afterwards (samples, linetree blocks, dead entries)
+    rst_visits: int  # RST nodes visited
+    tunnel_tests: int  # tunnel sections tested against a region
+    live_before: int  # live interpolants before the edit
+
+
+def rst_domain(sa) -> np.ndarray:
+    """The ray segment trees' domain: the scene box with its point and spot lights, padded
+    by 1% of its diagonal (2, 3)."""
+    lo = np.array(sa.scene_aabb[0], np.float64)
+    hi = np.array(sa.scene_aabb[1], np.float64)
+    pos = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
+    kind = np.asarray(sa.light_kind)
+    pts = pos[(kind != LIGHT_SUN) & (kind >= 0) & np.all(np.isfinite(pos), axis=1)]
+    if len(pts):
+        lo = np.minimum(lo, pts.min(axis=0))
+        hi = np.maximum(hi, pts.max(axis=0))
+    pad = 0.01 * float(np.linalg.norm(hi - lo)) + 1e-6 * (1.0 + float(np.abs([lo, hi]).max()))
+    return np.stack([lo - pad, hi + pad])
+
+
+class Dependencies:
+    """The ray segment trees and the membership indexes of one cache."""
+
+    def __init__(self, sa) -> None:
+        self.domain = rst_domain(sa)
+        mag = float(np.linalg.norm(self.domain[1] - self.domain[0])
+                    + np.abs(self.domain).max())
+        self.slack = tol.SHAFT_SLACK_REL * mag
+        self.reach = 4.0 * mag  # sun shafts end this far (then prolonged as infinite)
+        self.rst = RaySegmentTrees(self.domain, self.slack)
+        self.objects = Membership()
+        self.lights = Membership()
+
+    @property
+    def memory_bytes(self) -> int:
+        return self.rst.memory_bytes + self.objects.memory_bytes + self.lights.memory_bytes
+
+    def add(self, cache, pids, inst, face, depth, coord, zlo, zhi, cell_samples,
+            nsamp) -> None:
+        """Record the tunnels and memberships of new interpolants ``pids`` (their cells'
+        data as :meth:`~.cache.InterpolantCache._build` has it)."""
+        sa = cache.sa
+        sm = cache.samples.view()
+        nc = len(pids)
+        ids = np.ascontiguousarray(cell_samples, np.int32)
+        ns = np.ascontiguousarray(nsamp, np.int32)
+        lk = np.ascontiguousarray(sa.light_kind, np.int32)
+        lp = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
+        ld = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
+        args = (inst.astype(np.int32), face.astype(np.int8), depth.astype(np.int64),
+                np.ascontiguousarray(coord, np.int64), np.ascontiguousarray(zlo),
+                np.ascontiguousarray(zhi), ids, ns)
+        counts = np.zeros(nc, np.int64)
+        none = np.empty((0, 6))
+        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, lp, ld, self.reach, self.slack, *args,
+                     False, counts, counts, none, none, np.empty(0, np.bool_))
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        m = int(counts.sum())
+        ta = np.empty((m, 6))
+        tb = np.empty((m, 6))
+        tinf = np.empty(m, np.bool_)
+        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, lp, ld, self.reach, self.slack, *args,
+                     True, start, counts, ta, tb, tinf)
+        pool = cache.pool
+        q = np.repeat(pids, counts).astype(np.int32)
+        self.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])
+        roots = np.ascontiguousarray(ids[:, 0])
+        oc = np.zeros(nc, np.int64)
+        lc = np.zeros(nc, np.int64)
+        world = np.zeros(nc, np.bool_)
+        e = np.empty(0, np.int64)
+        cell_members(sm, roots, False, oc, lc, oc, lc, e, e, world)
+        os_ = np.concatenate([[0], np.cumsum(oc)[:-1]]).astype(np.int64)
+        ls_ = np.concatenate([[0], np.cumsum(lc)[:-1]]).astype(np.int64)
+        okeys = np.empty(int(oc.sum()), np.int64)
+        lkeys = np.empty(int(lc.sum()), np.int64)
+        cell_members(sm, roots, True, os_, ls_, oc, lc, okeys, lkeys, world)
+        qo = np.repeat(pids, oc).astype(np.int32)
+        ql = np.repeat(pids, lc).astype(np.int32)
+        self.objects.add(okeys, qo, pool.serial[qo])
+        self.lights.add(lkeys, ql, pool.serial[ql])
+        pool.world[pids] = world
+
+    def compact(self, pool, force: bool = False) -> None:
+        self.rst.compact(pool.serial, pool.live, force)
+        self.objects.compact(pool.serial, pool.live, force)
+        self.lights.compact(pool.serial, pool.live, force)
+
+
+def _material_objects(sa, materials) -> np.ndarray:
+    """Instances with a slot using one of ``materials``."""
+    mats = np.asarray(sorted(int(m) for m in materials), np.int64)
+    if len(mats) == 0 or len(sa.inst_mat) == 0:
+        return np.empty(0, np.int64)
+    uses = np.isin(sa.inst_mat, mats)
+    slot_inst = np.repeat(np.arange(len(sa.inst_mesh)), np.diff(sa.inst_mat_start))
+    return np.unique(slot_inst[uses[:len(slot_inst)]]).astype(np.int64)
+
+
+def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
+               light_shading=()) -> Invalidation:
+    """Invalidate every interpolant an edit may change, and free it.
+
+    regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
+    transform, presence or visibility changed); objects : instance slots the edits name (a
+    geometry, transform, material, visibility edit or a deletion: every interpolant whose
+    ray trees name the object); lights : lights changed in any way (every interpolant
+    shaded by or occluded from them); materials : material ids whose parameters changed
+    (every interpolant whose ray trees hit an object using them); world : the world colour
+    changed (every interpolant with a ray-tree node that misses); light_shading : lights
+    whose power or colour alone changed (only interpolants they shade). Camera edits
+    invalidate nothing (call nothing).
+
+    Invalidated interpolants are freed at once; their cells are rebuilt by the next frame
+    that needs them. Call :func:`set_scene` with the edited scene before the next frame.
+    """
+    t0 = time.perf_counter()
+    pool = cache.pool
+    deps: Dependencies = cache.deps
+    live_before = pool.n_live
+    hit = np.zeros(pool.cap, np.bool_)
+    regions = np.asarray(regions, np.float64).reshape(-1, 2, 3)
+    visits, tests = deps.rst.query(regions, pool.serial, pool.live, hit)
+    okeys = [2 * int(o) + k for o in objects for k in (OBJ_HIT, OBJ_OCCLUDES)]
+    okeys += [2 * int(o) + OBJ_HIT for o in _material_objects(cache.sa, materials)]
+    deps.objects.query(okeys, pool.serial, pool.live, hit)
+    lkeys = [2 * int(j) + k for j in lights for k in (LIGHT_SHADES, LIGHT_OCCLUDED)]
+    lkeys += [2 * int(j) + LIGHT_SHADES for j in light_shading]
+    deps.lights.query(lkeys, pool.serial, pool.live, hit)
+    if world:
+        hit |= pool.world & pool.live
+    ids = np.flatnonzero(hit & pool.live).astype(np.int32)
+    cache.trees.clear_dirty()
+    pool.rebuilt[:] = False
+    cache.trees.mark_dirty(pool.node[ids])
+    cache.evict(ids, invalidated=True)
+    t1 = time.perf_counter()
+    cache.compact_samples()
+    cache.trees.collapse()
+    deps.compact(pool)
+    t2 = time.perf_counter()
+    log.debug("invalidate: %d of %d interpolants, %.3f ms (+%.3f ms freeing)", len(ids),
+              live_before, 1e3 * (t1 - t0), 1e3 * (t2 - t1))
+    return Invalidation(len(ids), ids, 1e3 * (t1 - t0), 1e3 * (t2 - t1), visits, tests,
+                        live_before)
+
+
+def _mesh_changed(old, new) -> np.ndarray:
+    """Per mesh of ``new``: its triangles differ from ``old``'s mesh of the same id."""
+    nm = len(new.mesh_tri_start) - 1
+    om = len(old.mesh_tri_start) - 1
+    if (om == nm and np.array_equal(old.mesh_tri_start, new.mesh_tri_start)
+            and np.array_equal(old.tris, new.tris) and np.array_equal(old.verts, new.verts)):
+        return np.zeros(nm, bool)
+    out = np.ones(nm, bool)
+    for m in range(min(nm, om)):
+        a0, a1 = old.mesh_tri_start[m], old.mesh_tri_start[m + 1]
+        b0, b1 = new.mesh_tri_start[m], new.mesh_tri_start[m + 1]
+        if a1 - a0 == b1 - b0:
+            out[m] = not np.array_equal(old.verts[old.tris[a0:a1]], new.verts[new.tris[b0:b1]])
+    return out
+
+
+def set_scene(cache, sa, accel) -> None:
+    """Move ``cache`` to the edited scene ``sa`` (accelerator ``accel`` over it), keeping
+    every interpolant still live (call :func:`invalidate` with the edits first).
+
+    Instance slots are stable (a deleted object's slot is a tombstone, an added object
+    takes a new or a freed slot). An object whose mesh, transform or box changed gets new
+    empty linetrees over its new expanded box (any interpolant left in the old ones is
+    freed); the other objects keep theirs. A change in the number of lights starts over
+    (the ray trees record a state per light).
+    """
+    old = cache.sa
+    if len(sa.light_kind) != len(old.light_kind):
+        cache.__init__(sa, accel, cache.epsilon, cache.depth_cap,
+                       cache.memory_cap_bytes / 1e6, cache.max_depth)
+        return
+    n_old, n_new = len(old.inst_mesh), len(sa.inst_mesh)
+    m = min(n_old, n_new)
+    changed = np.ones(max(n_old, n_new), bool)
+    mesh_changed = _mesh_changed(old, sa)
+    with np.errstate(invalid="ignore"):
+        same = ((old.inst_mesh[:m] == sa.inst_mesh[:m])
+                & np.all((old.inst_xform[:m] == sa.inst_xform[:m]).reshape(m, -1), axis=1)
+                & np.all((old.inst_aabb[:m] == sa.inst_aabb[:m]).reshape(m, -1), axis=1))
+    same &= ~mesh_changed[np.clip(sa.inst_mesh[:m], 0, max(len(mesh_changed) - 1, 0))] \
+        if len(mesh_changed) else True
+    changed[:m] = ~same
+    trees = cache.trees
+    trees.grow_instances(n_new)
+    reset = np.flatnonzero(changed)
+    held = trees.reset_trees(reset)
+    held = held[cache.pool.live[held]]
+    if len(held):
+        cache.evict(held, invalidated=True)
+    trees.fresh_dirty[reset[reset < len(trees.fresh_dirty)]] = True
+    box = np.empty((n_new, 2, 3))
+    box[:min(len(cache.box), n_new)] = cache.box[:n_new]
+    fresh = expanded_boxes(sa, cache.box_extent)
+    ch = changed[:n_new]
+    box[ch] = fresh[ch]
+    cache.box = np.ascontiguousarray(box)
+    cache.sa = sa
+    cache.accel = accel
+    for name in ("topo", "qs", "n_test"):
+        cache.__dict__.pop(name, None)
+    cache.compact_samples()
+    trees.collapse()
+    log.debug("set_scene: %d objects with new linetrees, %d interpolants kept", len(reset),
+              cache.pool.n_live)

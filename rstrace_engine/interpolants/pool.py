@@ -1,0 +1,72 @@
+"""The interpolant pool: records of valid interpolants, a free list, LRU stamps, serials."""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids,
+#: serial, rebuilt and world flags)
+INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4 + 8 + 1 + 1
+
+
+class InterpolantPool:
+    """Interpolant records with a free list and LRU stamps.
+
+    ``serial[q]`` numbers every interpolant ever made (ids are reused, serials never), so the
+    ray segment trees and the membership index can tell a freed interpolant's entries from
+    its successor's without being told of every eviction. ``rebuilt[q]``: built in a cell an
+    edit invalidated (shown as ``CLASS_REBUILT``); ``world[q]``: some ray-tree node misses
+    (the world colour shows in its radiance).
+    """
+
+    _FIELDS = ("rad", "zlo", "zhi", "cls", "node", "stamp", "samples", "live", "serial",
+               "rebuilt", "world")
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self.cap = 0
+        self.rad = np.empty((0, 16, 3))
+        self.zlo = np.empty(0)
+        self.zhi = np.empty(0)
+        self.cls = np.empty(0, np.int32)
+        self.node = np.empty(0, np.int32)
+        self.stamp = np.empty(0, np.int64)
+        self.samples = np.empty((0, 16), np.int32)
+        self.live = np.empty(0, bool)
+        self.serial = np.empty(0, np.int64)
+        self.rebuilt = np.empty(0, bool)
+        self.world = np.empty(0, bool)
+        self.next_serial = 1
+        self._free = np.empty(0, np.int32)
+        self._grow(capacity)
+
+    def _grow(self, cap: int) -> None:
+        old = self.cap
+        for name in self._FIELDS:
+            a = getattr(self, name)
+            new = np.zeros((cap,) + a.shape[1:], a.dtype)
+            new[:old] = a
+            setattr(self, name, new)
+        self._free = np.concatenate([np.arange(cap - 1, old - 1, -1, dtype=np.int32),
+                                     self._free])
+        self.cap = cap
+
+    @property
+    def n_live(self) -> int:
+        return self.cap - len(self._free)
+
+    def alloc(self, n: int) -> np.ndarray:
+        """``n`` fresh ids (live, new serials, flags cleared)."""
+        if n > len(self._free):
+            self._grow(max(2 * self.cap, self.cap + n))
+        ids = self._free[len(self._free) - n:][::-1].copy()
+        self._free = self._free[:len(self._free) - n]
+        self.live[ids] = True
+        self.serial[ids] = np.arange(self.next_serial, self.next_serial + n)
+        self.next_serial += n
+        self.rebuilt[ids] = False
+        self.world[ids] = False
+        return ids
+
+    def release(self, ids: np.ndarray) -> None:
+        self.live[ids] = False
+        self._free = np.concatenate([self._free, np.asarray(ids, np.int32)])

@@ -1,0 +1,488 @@
+"""Per-pixel records: what every traced sample of a frame depended on, kept compact.
+
+After an edit with the camera fixed, a frame re-renders only the *dirty* pixels (beyond the
+paper, its own future work): a sample is dirty when its ray tree touches the edit. The
+records keep, for every ray-tree node of every sample of the last frame,
+
+* which *position-independent* part it had -- a row of a small shared table (``combo``):
+  the instance hit (-1 a miss), the lights whose shadow rays were traced, the lights that
+  were visible (uint64 bits), and flags;
+* where it ended: the hit point quantised to 32 bits in the scene box (11 + 11 + 10 bits,
+  the finest axes where the box is longest), or, for a miss, its direction in 32-bit
+  octahedral coordinates;
+* for reflection and refraction nodes only: the parent node.
+
+So a primary sample costs 6 bytes (2-byte combo index while the table has fewer than 65,536
+rows, 4-byte point) and a secondary node 12. The segments are rebuilt from these: primary
+rays start at the camera; a secondary ray at its parent's point; shadow rays go from the
+point to each traced light (positions from the scene the records describe). Quantisation
+and spawn offsets are covered by growing the edited regions by the quantisation step and a
+relative slack, and misses by a cone around the stored direction, so the test is
+conservative: a sample is never wrongly left clean.
+
+A sample is dirty when one of its nodes
+
+* has a segment (primary, reflection/refraction or shadow) crossing an edited region (old
+  or new world box of a moved, added, deleted, hidden or re-meshed object: whatever the edit
+  changed is inside those boxes, so a ray that crosses neither hits exactly what it hit);
+* hit an object the edits name (its material list changed) or one whose material changed;
+* had a visible light whose power or colour changed or that was deleted;
+* hit anything, when a light moved or was added (which surfaces face a light, and through
+  which cone, depends on normals the records do not keep);
+* missed, when the world colour changed.
+
+Why per-pixel records rather than the traced pixels' segments in the ray segment trees:
+measured on museum at 640x480, the records of a frame take about 2 MB and a query over all
+of them 5-20 ms; putting ~2 million shadow and view segments as 5D boxes into the RSTs would
+cost several times the RSTs' own memory (their leaves hold a pointer and a 5D box per
+entry, 40+ bytes) for a query that still has to touch every pixel near the edit. Screen
+space tiles were the other candidate: cheaper still in memory, but a tile mixes silhouettes,
+its segments' bounds grow to the tile's depth range and a small object's move dirties whole
+tiles around it -- the dirty fraction, which is what the incremental frame costs, grew.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ..geometry.scene import LIGHT_SUN
+
+#: bits of the quantised point on the longest, middle and shortest axis of the box
+POINT_BITS = (11, 11, 10)
+FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
+#: angular error bound of the octahedral direction encoding (16 + 16 bits), radians
+DIR_ERROR = 2e-4
+#: slack relative to the scene size for spawn offsets and rounding
+SLACK_REL = 1e-6
+
+
+# ----------------------------------------------------------------------------- encoding
+
+
+@njit(cache=True, nogil=True)
+def _oct_encode(x, y, z):
+    s = abs(x) + abs(y) + abs(z)
+    if s == 0.0:
+        return np.uint32(0)
+    u = x / s
+    v = y / s
+    if z < 0.0:
+        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
+        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
+        u, v = uu, vv
+    a = int(round((u * 0.5 + 0.5) * 65535.0))
+    b = int(round((v * 0.5 + 0.5) * 65535.0))
+    return np.uint32((a << 16) | b)
+
+
+@njit(cache=True, nogil=True)
+def _oct_decode(code):
+    a = (code >> 16) & 0xFFFF
+    b = code & 0xFFFF
+    u = a / 65535.0 * 2.0 - 1.0
+    v = b / 65535.0 * 2.0 - 1.0
+    z = 1.0 - abs(u) - abs(v)
+    if z < 0.0:
+        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
+        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
+        u, v = uu, vv
+    n = math.sqrt(u * u + v * v + z * z)
+    return u / n, v / n, z / n
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _encode_nodes(inst, point, dirn, lo, step, levels, shift, codes, outside):
+    """Quantised points (hits) or octahedral directions (misses) of n nodes."""
+    for i in prange(inst.shape[0]):
+        outside[i] = False
+        if inst[i] < 0:
+            codes[i] = _oct_encode(dirn[i, 0], dirn[i, 1], dirn[i, 2])
+            continue
+        c = np.uint32(0)
+        for k in range(3):
+            q = (point[i, k] - lo[k]) / step[k]
+            r = int(round(q)) if q == q else 0
+            if r < 0 or r > levels[k]:
+                outside[i] = True
+                r = 0 if r < 0 else levels[k]
+            c |= np.uint32(r) << np.uint32(shift[k])
+        codes[i] = c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _decode_point(code, lo, step, levels, shift):
+    x = lo[0] + ((code >> shift[0]) & levels[0]) * step[0]
+    y = lo[1] + ((code >> shift[1]) & levels[1]) * step[1]
+    z = lo[2] + ((code >> shift[2]) & levels[2]) * step[2]
+    return x, y, z
+
+
+# ----------------------------------------------------------------------------- tests
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _segment_box(ax, ay, az, bx, by, bz, lo, hi, ray):
+    """Does the segment a -> b (the ray from a through b when ``ray``) meet the box?"""
+    t0 = 0.0
+    t1 = 1e300 if ray else 1.0
+    a = (ax, ay, az)
+    d = (bx - ax, by - ay, bz - az)
+    for k in range(3):
+        if d[k] == 0.0:
+            if a[k] < lo[k] or a[k] > hi[k]:
+                return False
+            continue
+        ta = (lo[k] - a[k]) / d[k]
+        tb = (hi[k] - a[k]) / d[k]
+        if ta > tb:
+            ta, tb = tb, ta
+        if ta > t0:
+            t0 = ta
+        if tb < t1:
+            t1 = tb
+        if t0 > t1:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cone_sphere(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, err):
+    """Can the ray from o along unit d, give or take ``err`` radians, meet the sphere?"""
+    vx, vy, vz = cx - ox, cy - oy, cz - oz
+    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if dist <= r:
+        return True
+    c = (vx * dx + vy * dy + vz * dz) / dist
+    c = min(1.0, max(-1.0, c))
+    return math.acos(c) <= math.asin(r / dist) + err
+
+
+@njit(cache=True, nogil=True)
+def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, levels, shift,
+                reg_lo, reg_hi, reg_c, reg_r, light_kind, light_pos, light_dir):
+    """Geometric test of one node: its segment and its shadow segments against the regions."""
+    k_reg = reg_lo.shape[0]
+    if k_reg == 0:
+        return False
+    if inst < 0:
+        dx, dy, dz = _oct_decode(code)
+        for q in range(k_reg):
+            if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, reg_c[q, 0],
+                            reg_c[q, 1], reg_c[q, 2], reg_r[q], DIR_ERROR):
+                return True
+        return False
+    px, py, pz = _decode_point(code, lo, step, levels, shift)
+    for q in range(k_reg):
+        if _segment_box(origin_x, origin_y, origin_z, px, py, pz, reg_lo[q], reg_hi[q],
+                        False):
+            return True
+    L = light_kind.shape[0]
+    for j in range(L):
+        if not (traced >> np.uint64(j)) & np.uint64(1):
+            continue
+        for q in range(k_reg):
+            if light_kind[j] == LIGHT_SUN:
+                hit = _segment_box(px, py, pz, px - light_dir[j, 0], py - light_dir[j, 1],
+                                   pz - light_dir[j, 2], reg_lo[q], reg_hi[q], True)
+            else:
+                hit = _segment_box(px, py, pz, light_pos[j, 0], light_pos[j, 1],
+                                   light_pos[j, 2], reg_lo[q], reg_hi[q], False)
+            if hit:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin,
+                   ortho_origins, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                   light_kind, light_pos, light_dir, out):
+    n = p_combo.shape[0]
+    for g in prange(n):
+        c = p_combo[g]
+        if combo_dirty[c]:
+            out[g] = True
+            continue
+        if ortho_origins.shape[0] > 0:
+            ox = ortho_origins[g, 0]
+            oy = ortho_origins[g, 1]
+            oz = ortho_origins[g, 2]
+        else:
+            ox, oy, oz = cam_origin[0], cam_origin[1], cam_origin[2]
+        out[g] = _node_dirty(p_code[g], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
+                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
+                             light_pos, light_dir)
+
+
+@njit(cache=True, nogil=True)
+def _secondary_rays(s_parent, n_rays, s_ray):
+    """The sample each secondary node belongs to (parents come before their children)."""
+    for k in range(s_parent.shape[0]):
+        p = s_parent[k]
+        s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_secondary(s_parent, s_combo, s_code, p_combo, p_code, n_rays, combo_dirty,
+                     combo_inst, combo_traced, lo, step, levels, shift, reg_lo, reg_hi,
+                     reg_c, reg_r, light_kind, light_pos, light_dir, out):
+    m = s_parent.shape[0]
+    for k in prange(m):
+        c = s_combo[k]
+        if combo_dirty[c]:
+            out[k] = True
+            continue
+        p = s_parent[k]
+        pcode = p_code[p] if p < n_rays else s_code[p - n_rays]
+        ox, oy, oz = _decode_point(pcode, lo, step, levels, shift)
+        out[k] = _node_dirty(s_code[k], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
+                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
+                             light_pos, light_dir)
+
+
+@njit(cache=True, nogil=True)
+def _mark_rays(s_ray, s_dirty, ray_dirty):
+    for k in range(s_ray.shape[0]):
+        if s_dirty[k]:
+            ray_dirty[s_ray[k]] = True
+
+
+# ----------------------------------------------------------------------------- records
+
+
+def _levels_for(extent: np.ndarray):
+    """Per axis: quantisation levels (2^bits - 1) and bit shift, most bits on long axes."""
+    order = np.argsort(-extent, kind="stable")
+    levels = np.zeros(3, np.uint32)
+    shift = np.zeros(3, np.uint32)
+    pos = 0
+    for rank, axis in enumerate(order):
+        bits = POINT_BITS[rank]
+        levels[axis] = (1 << bits) - 1
+        shift[axis] = pos
+        pos += bits
+    return levels, shift
+
+
+class PixelRecords:
+    """The compact ray trees of every sample of one fixed-camera frame.
+
+    Samples are numbered ``g = s * (width * height) + pixel``. ``box`` (2, 3) is the scene
+    box the points are quantised in (the frame's ``scene_aabb``, padded).
+    """
+
+    def __init__(self, width: int, height: int, spp: int, box: np.ndarray) -> None:
+        self.width, self.height, self.spp = int(width), int(height), int(spp)
+        self.n_pixels = self.width * self.height
+        self.n_rays = self.n_pixels * self.spp
+        lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
+        pad = 1e-3 * np.linalg.norm(hi - lo) + 1e-9 * np.abs(np.concatenate([lo, hi])).max()
+        self.lo = lo - pad - 1e-12
+        ext = np.maximum(hi - lo + 2 * pad, 1e-9)
+        self.levels, self.shift = _levels_for(ext)
+        self.step = ext / self.levels
+        self.combo = np.zeros((0, 4), np.uint64)  # inst (as int64 bits), traced, lit, flags
+        self._combo_index: dict = {}
+        self.p_combo = np.zeros(self.n_rays, np.uint32)
+        self.p_code = np.zeros(self.n_rays, np.uint32)
+        self.s_parent = np.zeros(0, np.int32)
+        self.s_combo = np.zeros(0, np.uint32)
+        self.s_code = np.zeros(0, np.uint32)
+        self._pending: list = []
+
+    # -- building ------------------------------------------------------------------------
+
+    def _intern(self, inst, traced, lit, flags) -> np.ndarray:
+        rows = np.stack([inst.astype(np.int64).view(np.uint64), traced.astype(np.uint64),
+                         lit.astype(np.uint64), flags.astype(np.uint64)], axis=1)
+        if len(rows) == 0:
+            return np.zeros(0, np.uint32)
+        uniq, inv = np.unique(rows, axis=0, return_inverse=True)
+        ids = np.empty(len(uniq), np.uint32)
+        new = []
+        for k, row in enumerate(map(tuple, uniq.tolist())):
+            c = self._combo_index.get(row)
+            if c is None:
+                c = len(self._combo_index)
+                self._combo_index[row] = c
+                new.append(row)
+            ids[k] = c
+        if new:
+            self.combo = np.concatenate([self.combo, np.array(new, np.uint64).reshape(-1, 4)])
+        return ids[inv.reshape(-1)]
+
+    def add(self, rays: np.ndarray, levels: list) -> None:
+        """Record the trees of a traced batch: ``rays`` (nb,) int64 global sample numbers of
+        its input rays; ``levels`` the per-level dicts of :func:`~.whitted.trace`'s
+        ``segments``."""
+        if not levels:
+            return
+        inst = np.concatenate([lv["inst"] for lv in levels]).astype(np.int32)
+        point = np.concatenate([lv["point"] for lv in levels])
+        dirn = np.concatenate([lv["dir"] for lv in levels])
+        traced = np.concatenate([lv["traced"] for lv in levels])
+        lit = np.concatenate([lv["lit"] for lv in levels])
+        codes = np.empty(len(inst), np.uint32)
+        outside = np.empty(len(inst), np.bool_)
+        _encode_nodes(inst, np.ascontiguousarray(point), np.ascontiguousarray(dirn), self.lo,
+                      self.step, self.levels, self.shift, codes, outside)
+        combos = self._intern(inst, traced, lit, np.where(outside, FLAG_ALWAYS, 0))
+        if len(self.combo) > 65535 and self.p_combo.dtype != np.uint32:
+            self.p_combo = self.p_combo.astype(np.uint32)
+            self.s_combo = self.s_combo.astype(np.uint32)
+        nb = len(levels[0]["inst"])
+        self.p_combo[rays] = combos[:nb]
+        self.p_code[rays] = codes[:nb]
+        if len(inst) > nb:
+            parent = np.concatenate([lv["parent"] for lv in levels[1:]]).astype(np.int64)
+            self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
+                                  nb))
+
+    def add_primary(self, rays: np.ndarray, inst: np.ndarray, origins: np.ndarray,
+                    directions: np.ndarray, t: np.ndarray) -> None:
+        """Record samples that were not traced (interpolated from an interpolant, whose
+        own dependencies the ray segment trees track): only their view segment, from
+        ``origins`` (n, 3) along ``directions`` (n, 3) to the hit at ``t`` (n,) on ``inst``
+        (n,) (-1: a miss). A later :meth:`add` for some of them overwrites this."""
+        inst = np.asarray(inst, np.int32)
+        d = np.asarray(directions, np.float64)
+        nrm = np.linalg.norm(d, axis=1, keepdims=True)
+        unit = d / np.where(nrm > 0, nrm, 1.0)
+        tt = np.where(inst >= 0, np.asarray(t, np.float64), 0.0)
+        point = np.asarray(origins, np.float64) + d * tt[:, None]
+        zero = np.zeros(len(inst), np.uint64)
+        self.add(np.asarray(rays, np.int64),
+                 [dict(ray=np.arange(len(inst)), parent=np.full(len(inst), -1), inst=inst,
+                       point=point, dir=unit, traced=zero, lit=zero)])
+
+    def finish(self, drop_rays: np.ndarray | None = None) -> None:
+        """Fold the batches added since the last call into the secondary arrays, first
+        dropping the secondary nodes of the samples in ``drop_rays`` ((n_rays,) bool)."""
+        base = len(self.s_parent)
+        if drop_rays is not None and base:
+            s_ray = np.empty(base, np.int32)
+            _secondary_rays(self.s_parent, self.n_rays, s_ray)
+            keep = ~drop_rays[s_ray]
+            if not keep.all():
+                new_index = np.cumsum(keep) - 1
+                par = self.s_parent[keep].astype(np.int64)
+                sec = par >= self.n_rays
+                par[sec] = new_index[par[sec] - self.n_rays] + self.n_rays
+                self.s_parent = par.astype(np.int32)
+                self.s_combo = self.s_combo[keep]
+                self.s_code = self.s_code[keep]
+                base = len(self.s_parent)
+        parents, combos, codes = [self.s_parent], [self.s_combo], [self.s_code]
+        for parent, comb, code, rays, nb in self._pending:
+            # batch rows: 0..nb-1 are the input rays, then the secondary nodes in order
+            glob = np.where(parent < nb, rays[np.minimum(parent, nb - 1)],
+                            self.n_rays + base + (parent - nb))
+            parents.append(glob.astype(np.int32))
+            combos.append(comb)
+            codes.append(code)
+            base += len(parent)
+        self._pending = []
+        self.s_parent = np.concatenate(parents).astype(np.int32)
+        self.s_combo = np.concatenate(combos).astype(np.uint32)
+        self.s_code = np.concatenate(codes).astype(np.uint32)
+        self._compact()
+
+    def _compact(self) -> None:
+        """Drop table rows no node uses any more; keep indices 16-bit where they fit."""
+        used = np.zeros(len(self.combo), bool)
+        used[self.p_combo] = True
+        used[self.s_combo] = True
+        if used.all() and len(self.combo) <= 65535:
+            self._narrow()
+            return
+        remap = np.cumsum(used) - 1
+        self.combo = self.combo[used]
+        self._combo_index = {tuple(r): k for k, r in enumerate(self.combo.tolist())}
+        self.p_combo = remap[self.p_combo].astype(np.uint32)
+        self.s_combo = remap[self.s_combo].astype(np.uint32)
+        self._narrow()
+
+    def _narrow(self) -> None:
+        dt = np.uint16 if len(self.combo) <= 65535 else np.uint32
+        self.p_combo = self.p_combo.astype(dt)
+        self.s_combo = self.s_combo.astype(dt)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the records (arrays and the shared table), bytes."""
+        return int(sum(a.nbytes for a in (self.combo, self.p_combo, self.p_code,
+                                           self.s_parent, self.s_combo, self.s_code)))
+
+    # -- querying ------------------------------------------------------------------------
+
+    def dirty_rays(self, sa, cp, fx) -> np.ndarray:
+        """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
+        change. ``sa``: the packing of the scene the records describe (before the edits);
+        ``cp``: the frame's camera parameters."""
+        combo_inst = self.combo[:, 0].view(np.int64).astype(np.int64)
+        combo_traced = np.ascontiguousarray(self.combo[:, 1])
+        combo_lit = self.combo[:, 2]
+        n_slots = max(len(sa.inst_mesh), int(combo_inst.max(initial=-1)) + 1, 1)
+        hot = np.zeros(n_slots + 1, bool)  # last entry: a miss
+        for k in fx.objects:
+            if 0 <= k < n_slots:
+                hot[k] = True
+        if fx.materials:
+            counts = np.diff(sa.inst_mat_start)
+            owner = np.repeat(np.arange(len(counts)), counts)
+            hit = np.isin(sa.inst_mat, np.fromiter(fx.materials, np.int64))
+            hot[owner[hit]] = True
+        lights = np.uint64(0)
+        for j in fx.lights:
+            lights |= np.uint64(1) << np.uint64(j)
+        is_hit = combo_inst >= 0
+        dirty = ((self.combo[:, 3] & FLAG_ALWAYS) != 0) | ((combo_lit & lights) != 0)
+        dirty |= is_hit & hot[np.where(is_hit, combo_inst, n_slots)]
+        if fx.lights_moved:
+            dirty |= is_hit
+        if fx.world:
+            dirty |= ~is_hit
+        regions = fx.region_array()
+        scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
+                      + np.abs(sa.scene_aabb).max())
+        margin = 0.5 * self.step + SLACK_REL * scale
+        if cp.ortho:
+            margin = margin + cp.pixsize
+            gx = np.arange(self.n_rays) % self.n_pixels
+            u = cp.x0 + (gx % cp.width + 0.5) * cp.pixsize
+            v = cp.y0 + (gx // cp.width + 0.5) * cp.pixsize
+            m = cp.xform
+            origins = m[:3, 3] + u[:, None] * m[:3, 0] + v[:, None] * m[:3, 1]
+        else:
+            origins = np.zeros((0, 3))
+        reg_lo = np.ascontiguousarray(regions[:, 0] - margin)
+        reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
+        reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
+        reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
+        combo_dirty = np.ascontiguousarray(dirty)
+        inst64 = np.ascontiguousarray(combo_inst)
+        kind = np.ascontiguousarray(sa.light_kind, np.int32)
+        pos = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
+        ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
+        out = np.zeros(self.n_rays, np.bool_)
+        _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
+                       np.ascontiguousarray(cp.xform[:3, 3]), np.ascontiguousarray(origins),
+                       self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi, reg_c,
+                       reg_r, kind, pos, ldir, out)
+        m = len(self.s_parent)
+        if m:
+            s_dirty = np.zeros(m, np.bool_)
+            _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
+                             self.p_code, self.n_rays, combo_dirty, inst64, combo_traced,
+                             self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
+                             reg_c, reg_r, kind, pos, ldir, s_dirty)
+            s_ray = np.empty(m, np.int32)
+            _secondary_rays(self.s_parent, self.n_rays, s_ray)
+            _mark_rays(s_ray, s_dirty, out)
+        return out
+
+    def dirty_pixels(self, sa, cp, fx) -> np.ndarray:
+        """(height * width,) bool: pixels with a dirty sample."""
+        return self.dirty_rays(sa, cp, fx).reshape(self.spp, self.n_pixels).any(axis=0)

@@ -1,0 +1,147 @@
+"""Incremental frames after edits (fixed camera) against fresh sessions of the edited scene.
+
+BASE: the incremental frame equals a fresh session's frame bit for bit (to 1e-6) and every
+pixel whose radiance changed was marked dirty. INTERPOLANT: the session's frame and a fresh
+one both stay within epsilon of the BASE frame of the edited scene (a stale interpolant would
+not), and every pixel whose BASE radiance changed was marked dirty. A seeded generator runs
+random sequences of every edit kind mixed with camera moves on several small scenes; the
+bench command runs the long soak (``python -m rstrace_engine.bench edit --soak N``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rstrace_engine import image
+from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
+from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.edits import ObjectTransform
+from rstrace_engine.session import Session
+
+W, H = 32, 24
+
+
+def fresh_frame(scene, settings):
+    return Session(scene.copy(), settings).render()
+
+
+def check_base_step(sess, prev, settings):
+    """The session's next frame against a fresh session's; returns (frame, dirty fraction)."""
+    dirty = sess.dirty_mask
+    frame = sess.render()
+    fresh = fresh_frame(sess.scene, settings)
+    np.testing.assert_allclose(frame.radiance, fresh.radiance, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(frame.pixel_class, fresh.pixel_class)
+    if dirty is not None and prev is not None:
+        assert frame.stats["incremental"]
+        changed = np.any(prev.radiance != fresh.radiance, axis=2)
+        missed = changed & ~dirty
+        assert not missed.any(), f"{int(missed.sum())} changed pixels not marked dirty"
+        return frame, float(dirty.mean())
+    return frame, 1.0
+
+
+@pytest.mark.parametrize("scene_name", sorted(SOAK_SCENES))
+def test_random_edits_base_exact(scene_name):
+    """Seeded random sequences of every edit kind and camera moves: BASE stays exact."""
+    settings = RenderSettings(mode="BASE", max_depth=3)
+    gen = EditGenerator(SOAK_SCENES[scene_name](W, H), seed=11)
+    sess = Session(gen.scene.copy(), settings)
+    prev = sess.render()
+    fractions = []
+    for _ in range(36):
+        edits = gen.step()
+        sess.apply(edits)
+        prev, frac = check_base_step(sess, prev, settings)
+        fractions.append(frac)
+    assert set(gen.kinds_done) >= set(EditGenerator.KINDS), gen.kinds_done
+    print(scene_name, np.round(fractions, 2))
+    # most steps re-render a part of the frame only
+    assert np.median(fractions) < 0.75, fractions
+
+
+def test_random_edits_interpolant_within_epsilon():
+    eps = 0.05
+    settings = RenderSettings(mode="INTERPOLANT", epsilon=eps, max_depth=3)
+    base_settings = RenderSettings(mode="BASE", max_depth=3)
+    gen = EditGenerator(SOAK_SCENES["spheres"](48, 36), seed=5)
+    sess = Session(gen.scene.copy(), settings)
+    prev_base = fresh_frame(sess.scene, base_settings)
+    sess.render()
+    for _ in range(12):
+        sess.apply(gen.step())
+        dirty = sess.dirty_mask
+        frame = sess.render()
+        base = fresh_frame(sess.scene, base_settings)
+        fresh = fresh_frame(sess.scene, settings)
+        for f in (frame, fresh):
+            m = image.compare(f.radiance, base.radiance, eps)
+            assert m["frac_over"] <= 0.01, m
+            traced = f.pixel_class != CLASS_INTERPOLATED
+            traced &= f.pixel_class != CLASS_REBUILT  # rebuilt pixels are interpolated too
+            np.testing.assert_allclose(f.radiance[traced], base.radiance[traced], atol=1e-6)
+        if dirty is not None:
+            changed = np.any(prev_base.radiance != base.radiance, axis=2)
+            assert not (changed & ~dirty).any()
+        prev_base = base
+
+
+def test_moving_a_small_object_dirties_little():
+    settings = RenderSettings(max_depth=3)
+    scene = SOAK_SCENES["room"](64, 48)
+    sess = Session(scene, settings)
+    prev = sess.render()
+    slot = scene.instance_slot("Small")
+    m = scene.instances[slot]["matrix"].copy()
+    m[0, 3] += 0.2
+    rep = sess.apply([ObjectTransform("Small", m)])
+    assert not rep.full_frame and 0 < rep.dirty_fraction < 0.25
+    frame, _ = check_base_step(sess, prev, settings)
+    assert frame.stats["traced_pixels"] == rep.dirty_pixels
+
+
+def test_memory_stays_bounded_over_thousands_of_edits():
+    settings = RenderSettings(mode="BASE", max_depth=2)
+    gen = EditGenerator(SOAK_SCENES["room"](16, 12), seed=2, camera=False)
+    sess = Session(gen.scene.copy(), settings)
+    sess.render()
+    sizes = []
+    for k in range(2000):
+        sess.apply(gen.step())
+        if k % 50 == 49:
+            sess.render()
+            sizes.append(sess.records_bytes)
+    assert len(sess.scene.instances) <= gen.max_objects + 2
+    assert len(sess.scene.lights) <= gen.max_lights
+    assert len(sess.scene.meshes) <= gen.max_meshes
+    # the records of a 16x12 frame: bounded by the pixels, not by the edits
+    assert max(sizes) < 16 * 12 * 64 + 65536, sizes
+    assert len(sess.records.combo) <= 16 * 12 * 8
+
+
+def test_cancelled_incremental_frame_falls_back_to_full():
+    settings = RenderSettings(max_depth=2)
+    scene = SOAK_SCENES["room"](32, 24)
+    sess = Session(scene, settings)
+    sess.render()
+    m = scene.instances[scene.instance_slot("Small")]["matrix"].copy()
+    m[1, 3] += 0.3
+    sess.apply([ObjectTransform("Small", m)])
+    part = sess.render(cancel=lambda: True)
+    assert part.stats["cancelled"] and sess.dirty_mask is None
+    full = sess.render()
+    assert not full.stats["incremental"]
+    np.testing.assert_array_equal(full.radiance, fresh_frame(sess.scene, settings).radiance)
+
+
+def test_scene_box_change_renders_a_full_frame():
+    settings = RenderSettings(max_depth=2)
+    scene = SOAK_SCENES["room"](32, 24)
+    sess = Session(scene, settings)
+    sess.render()
+    rep = sess.apply([ObjectTransform("Small", shapes.transform((0.0, 40.0, 0.3)))])
+    assert rep.full_frame and any("bounding box" in m for m in rep.messages)
+    frame = sess.render()
+    np.testing.assert_array_equal(frame.radiance, fresh_frame(sess.scene, settings).radiance)

@@ -1,0 +1,263 @@
+"""Selective invalidation of interpolants after edits, against brute force (seed 000, 5).
+
+A cache builds interpolants for a small scene; an edit is applied through
+``InterpolantCache.invalidate`` and ``set_scene``; then every interpolant that existed before
+is re-evaluated from scratch in the edited scene (its 16 corner lines and its centre line
+traced again): any whose radiance changed must be among those invalidated, and the survivors
+must still be exact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rstrace_engine import image
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
+from rstrace_engine.interpolants import cache as interpolant_cache
+from rstrace_engine.interpolants import membership as membership_mod
+from rstrace_engine.interpolants import ray_segment_tree as rst_mod
+from rstrace_engine.interpolants.linetree import LATTICE_DEPTH, lattice_lines, line_points
+from rstrace_engine.interpolants.render import InterpolantRenderer
+from rstrace_engine.tracing import whitted
+
+W, H = 112, 84
+
+
+@pytest.fixture(autouse=True)
+def small_cells(monkeypatch):
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+
+
+def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0,
+            fill_pos=(4.0, -2.0, 3.5), world=(0.05, 0.06, 0.08), extra=None,
+            camera=((0.0, -8.5, 3.6), (0.0, 0.3, 0.8))) -> Scene:
+    """three_spheres and a back wall, with knobs; instance slots: 0 ground, 1 red,
+    2 mirror, 3 blue, 4 wall (material 4), 5 the extra sphere (if any)."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.55, 0.55, 0.5), specular=(0.1,) * 3,
+                                    roughness=0.25))
+    red = s.add_material(Material("red", diffuse=(0.7, 0.12, 0.1), specular=(0.25,) * 3,
+                                  roughness=0.15))
+    blue_m = s.add_material(Material("blue", diffuse=(0.1, 0.2, 0.65), specular=(0.2,) * 3,
+                                     roughness=0.3))
+    mirror = s.add_material(Material("mirror", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    wall = s.add_material(Material("wall", diffuse=wall_diffuse))
+    sphere = s.add_mesh(shapes.icosphere(3, name="sphere"))
+    ground = s.add_mesh(shapes.plane(12.0, name="ground"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    s.add_instance(sphere, shapes.transform((-1.6, 0.4, 1.0)), [red], name="Red")
+    s.add_instance(sphere, shapes.transform((0.6, -0.9, 1.0)), [mirror], name="Mirror")
+    s.add_instance(sphere, shapes.transform(blue, 0.8), [blue_m], name="Blue")
+    s.add_instance(ground, shapes.transform((0.0, 4.0, 2.0), (1.0, 0.4, 1.0), 0.0, 90.0),
+                   [wall], name="Wall")
+    if extra is not None:
+        s.add_instance(sphere, shapes.transform(extra, 0.3), [red], name="Extra")
+    s.add_light(Light("Key", "POINT", power=key_power, position=(-3.0, -4.0, 6.0)))
+    s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=500.0,
+                      position=fill_pos))
+    s.set_world_color(world)
+    s.set_camera(Camera(matrix=shapes.look_at(*camera), lens=35.0, width=W, height=H))
+    return s
+
+
+def settings() -> RenderSettings:
+    return RenderSettings(mode="INTERPOLANT", epsilon=0.01)
+
+
+def warm_cache(scene):
+    """A renderer whose cache holds the interpolants of two views of ``scene``."""
+    sa = scene.arrays()
+    accel = create_accelerator("BVH", sa)
+    r = InterpolantRenderer()
+    r.render(scene, settings(), accel)
+    cam = scene.camera
+    scene.set_camera(Camera(matrix=shapes.look_at((3.0, -7.0, 4.5), (0.0, 0.5, 0.8)),
+                            lens=35.0, width=W, height=H))
+    r.render(scene, settings(), accel)
+    scene.set_camera(cam)
+    return r, accel
+
+
+def line_radiance(cache, inst, o, d):
+    """Radiance of lines on their objects' front-facing crossings, traced from scratch."""
+    hits = cache._front_hits(inst, o, d)
+    rad, _ = whitted.trace(cache.sa, cache.accel, o, d, 0.0, 1.0, cache.max_depth,
+                           primary=hits)
+    return rad
+
+
+def snapshot(cache):
+    """Every live interpolant's corner lines and centre line, and their radiance now."""
+    p = cache.pool
+    live = np.flatnonzero(p.live)
+    sid = p.samples[live].reshape(-1)
+    k1 = cache.samples.keys.k1[sid]
+    k2 = cache.samples.keys.k2[sid]
+    inst = (k1 >> 3).astype(np.int32)
+    face = (k1 & 7).astype(np.int8)
+    lat = np.stack([(k2 >> (15 * (3 - m))) & 0x7FFF for m in range(4)], axis=1)
+    o = np.empty((len(sid), 3))
+    d = np.empty((len(sid), 3))
+    lattice_lines(cache.box, inst, face, lat.astype(np.int64), o, d)
+    a = cache.trees.arrays
+    nodes = p.node[live]
+    tree = a.tree[nodes]
+    ci = (tree // 6).astype(np.int32)
+    co = np.empty((len(live), 3))
+    cd = np.empty((len(live), 3))
+    F = np.empty(3)
+    B = np.empty(3)
+    for r, nd in enumerate(nodes):
+        s = 1.0 / (1 << int(a.depth[nd]))
+        c = (a.coord[nd] + 0.5) * s
+        line_points(cache.box, ci[r], int(tree[r] % 6), c[0], c[1], c[2], c[3], F, B)
+        co[r], cd[r] = F, B - F
+    assert LATTICE_DEPTH == 14
+    return dict(ids=live, serial=p.serial[live].copy(), inst=inst, o=o, d=d, ci=ci, co=co,
+                cd=cd, rad=p.rad[live].reshape(-1, 3).copy(),
+                centre=line_radiance(cache, ci, co, cd))
+
+
+def changed_after(cache, snap):
+    """Per snapshot interpolant: does a corner or the centre trace differently now?"""
+    rad = line_radiance(cache, snap["inst"], snap["o"], snap["d"])
+    centre = line_radiance(cache, snap["ci"], snap["co"], snap["cd"])
+    tol = 1e-9 + 1e-7 * np.abs(snap["rad"])
+    corner = np.any(np.abs(rad - snap["rad"]) > tol, axis=1).reshape(-1, 16).any(axis=1)
+    ctol = 1e-9 + 1e-7 * np.abs(snap["centre"])
+    mid = np.any(np.abs(centre - snap["centre"]) > ctol, axis=1)
+    return corner | mid
+
+
+def box_of(scene, slot):
+    return scene.arrays().inst_aabb[slot]
+
+
+EDITS = {
+    # name: (edited scene kwargs, invalidate kwargs builder)
+    "move_small": (dict(blue=(1.8, 1.3, 0.8)), lambda s0, s1: dict(
+        regions=np.stack([box_of(s0, 3), box_of(s1, 3)]), objects={3})),
+    "move_far": (dict(blue=(30.0, 25.0, 0.8)), lambda s0, s1: dict(
+        regions=np.stack([box_of(s0, 3), box_of(s1, 3)]), objects={3})),
+    "add_object": (dict(extra=(-0.5, -2.0, 0.3)), lambda s0, s1: dict(
+        regions=box_of(s1, 5)[None], objects=set())),
+    "recolor": (dict(wall_diffuse=(0.1, 0.7, 0.1)), lambda s0, s1: dict(
+        regions=np.empty((0, 2, 3)), materials={4})),
+    "light_power": (dict(key_power=3000.0), lambda s0, s1: dict(
+        regions=np.empty((0, 2, 3)), light_shading={0})),
+    "move_light": (dict(fill_pos=(3.0, 1.0, 4.0)), lambda s0, s1: dict(
+        regions=np.empty((0, 2, 3)), lights={1})),
+    "world": (dict(world=(0.5, 0.2, 0.1)), lambda s0, s1: dict(
+        regions=np.empty((0, 2, 3)), world=True)),
+}
+
+
+@pytest.mark.parametrize("name", list(EDITS))
+def test_invalidation_has_no_false_negatives(name):
+    kw, inv_kw = EDITS[name]
+    s0 = spheres()
+    r, _ = warm_cache(s0)
+    cache = r.cache
+    snap = snapshot(cache)
+    assert len(snap["ids"]) > 50
+    s1 = spheres(**kw)
+    inv = cache.invalidate(**inv_kw(s0, s1))
+    sa1 = s1.arrays()
+    cache.set_scene(sa1, create_accelerator("BVH", sa1))
+    changed = changed_after(cache, snap)
+    hit = np.isin(snap["ids"], inv.ids)
+    assert changed.any(), "the edit changed no interpolant: the test proves nothing"
+    missed = np.flatnonzero(changed & ~hit)
+    assert len(missed) == 0, f"{name}: {len(missed)} changed interpolants not invalidated"
+    # survivors are still in the cache, untouched
+    alive = cache.pool.live[snap["ids"]] & (cache.pool.serial[snap["ids"]] == snap["serial"])
+    np.testing.assert_array_equal(alive, ~hit)
+    assert inv.count == hit.sum() and inv.live_before == len(snap["ids"])
+    if name in ("move_small", "add_object", "recolor"):
+        assert hit.mean() < 0.5, f"{name}: {hit.mean():.0%} invalidated"
+
+
+def test_frames_after_an_edit_rebuild_and_stay_within_epsilon():
+    s0 = spheres()
+    r, accel = warm_cache(s0)
+    cache = r.cache
+    f0 = r.render(s0, settings(), accel)
+    used = f0.pixel_interpolant
+    assert used.shape == (H, W) and used.dtype == np.int32
+    interp = f0.pixel_class == CLASS_INTERPOLATED
+    assert interp.any() and np.all(used[interp] >= 0) and np.all(used[~interp] == -1)
+    assert np.all(cache.pool.live[used[interp]])
+    s1 = spheres(blue=(1.8, 1.3, 0.8))
+    inv = cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
+    sa1 = s1.arrays()
+    accel1 = create_accelerator("BVH", sa1)
+    cache.set_scene(sa1, accel1)
+    f1 = r.render(s1, settings(), accel1)
+    assert r.cache is cache, "the renderer dropped the cache after set_scene"
+    rebuilt = f1.pixel_class == CLASS_REBUILT
+    assert rebuilt.any()
+    assert np.all(cache.pool.rebuilt[f1.pixel_interpolant[rebuilt]])
+    # pixels that used an invalidated interpolant before were rebuilt or traced now
+    was = np.isin(used, inv.ids) & (used >= 0)
+    assert not np.any(was & (f1.pixel_class == CLASS_INTERPOLATED)
+                      & (f1.pixel_interpolant == used))
+    base = whitted.render(s1, settings(), accel=accel1)
+    err = np.abs(image.to_display(f1.radiance) - image.to_display(base.radiance)).max()
+    assert err <= settings().epsilon, err
+
+
+def test_moving_an_object_keeps_the_other_objects_boxes_and_trees():
+    s0 = spheres()
+    r, _ = warm_cache(s0)
+    cache = r.cache
+    box0 = cache.box.copy()
+    roots0 = cache.trees.roots.copy()
+    on = cache.trees.arrays.tree[cache.pool.node[cache.pool.live]] // 6
+    s1 = spheres(blue=(30.0, 25.0, 0.8))  # the scene's extent changes a lot
+    assert s1.arrays().scene_extent > 2 * s0.arrays().scene_extent
+    cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
+    sa1 = s1.arrays()
+    cache.set_scene(sa1, create_accelerator("BVH", sa1))
+    others = np.arange(len(box0)) != 3
+    np.testing.assert_array_equal(cache.box[others], box0[others])
+    np.testing.assert_array_equal(cache.trees.roots[others], roots0[others])
+    assert not np.array_equal(cache.box[3], box0[3])
+    assert np.all(cache.box[3, 0] < sa1.inst_aabb[3, 0])
+    assert np.all(cache.box[3, 1] > sa1.inst_aabb[3, 1])
+    left = cache.trees.arrays.tree[cache.pool.node[cache.pool.live]] // 6
+    assert not np.any(left == 3)
+    assert np.isin(left, on).all() and len(left) > 0
+
+
+def test_memory_is_freed_and_caps_hold_over_many_edits(monkeypatch):
+    monkeypatch.setattr(rst_mod, "COMPACT_SLACK", 0)
+    monkeypatch.setattr(membership_mod, "COMPACT_SLACK", 0)
+    cap_mb = 0.4
+    s = spheres()
+    sa = s.arrays()
+    accel = create_accelerator("BVH", sa)
+    r = InterpolantRenderer()
+    st = RenderSettings(mode="INTERPOLANT", epsilon=0.01, memory_cap_mb=cap_mb)
+    r.render(s, st, accel)
+    cache = r.cache
+    rst_mem = []
+    for k in range(24):
+        pos = (1.5 + 0.3 * (k % 2), 1.6 - 0.2 * (k % 3), 0.8)
+        old = s.arrays().inst_aabb[3]
+        s = spheres(blue=pos, key_power=1500.0 + 10.0 * (k % 2))
+        sa = s.arrays()
+        cache.invalidate(np.stack([old, sa.inst_aabb[3]]), {3}, light_shading={0})
+        accel = create_accelerator("BVH", sa)
+        cache.set_scene(sa, accel)
+        r.render(s, st, accel)
+        assert r.cache is cache
+        assert cache.interpolant_bytes <= cap_mb * 1e6
+        deps = cache.deps
+        live_t = deps.rst.live_count(cache.pool.serial, cache.pool.live)
+        assert deps.rst.n_tun <= 2 * live_t + 1
+        rst_mem.append(cache.rst_memory_bytes())
+    assert max(rst_mem[12:]) <= 2.5 * max(rst_mem[:12]) + 1e5

@@ -64,11 +64,14 @@ class ViewportRenderer:
         self.last_edits = 0  # edits queued by the last view_update (tests, stats)
         self.updates_seen = 0
         self.error: str | None = None
+        self.freed = False
         _LIVE.add(self)
 
     # -- view_update -----------------------------------------------------------------
 
     def view_update(self, context, depsgraph) -> None:
+        if self.freed:
+            return
         scene = depsgraph.scene
         try:
             self._update(scene, depsgraph)
@@ -196,9 +199,9 @@ class ViewportRenderer:
 
         tex = self.texture(img)
         shader = gpu.shader.from_builtin("IMAGE")
-        batch = batch_for_shader(shader, "TRI_FAN", {
-            "pos": ((0, 0), (width, 0), (width, height), (0, height)),
-            "texCoord": ((0, 0), (1, 0), (1, 1), (0, 1))})
+        batch = batch_for_shader(shader, "TRI_STRIP", {
+            "pos": ((0, 0), (width, 0), (0, height), (width, height)),
+            "texCoord": ((0, 0), (1, 0), (0, 1), (1, 1))})
         shader.uniform_sampler("image", tex)
         batch.draw(shader)
         self.new_image.clear()
@@ -226,6 +229,7 @@ class ViewportRenderer:
 
     def free(self) -> None:
         """Stop and join the worker (idempotent). Blender freeing the engine calls this."""
+        self.freed = True
         worker, self.worker = self.worker, None
         if worker is not None and not worker.stop(timeout=30.0):
             log.error("RSTrace viewport worker did not stop within 30 s")

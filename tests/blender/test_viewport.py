@@ -123,6 +123,7 @@ def test_camera_from_view_matches_the_camera_object():
 def test_worker_renders_progressively_and_draws_into_an_offscreen(gpu_context):
     import gpu
     from mathutils import Matrix
+
     from rstrace_engine.session import Session
 
     _, vr = _start()

@@ -9,7 +9,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty
 
-from rstrace_engine.frame import ACCELERATORS, MODES
+from rstrace_engine.frame import ACCELERATORS, INTERNAL_ACCELERATORS, MODES
 
 _MODE_UI = {
     "BASE": ("Base Tracer", "Classical Whitted ray tracing of every pixel"),
@@ -24,15 +24,14 @@ _ACCELERATOR_UI = {
     "BVH": ("BVH", "Two-level bounding volume hierarchy (numba); moving an object rebuilds "
             "only the top level"),
     "EMBREE": ("Embree", "Intel Embree through the embreex package, where it is installed"),
-    "BRUTE_FORCE": ("Brute Force", "Every triangle of every object: very slow, the reference "
-                    "the others are tested against"),
     "VISIBILITY_FIELD": ("Visibility Field",
                          "Parallel beam tilings in many directions, cheap to update for "
                          "moving objects"),
 }
 # the names come from the core's single lists (rstrace_engine.frame); only labels live here
 MODE_ITEMS = tuple((k, *_MODE_UI.get(k, (k.title(), k))) for k in MODES)
-ACCELERATOR_ITEMS = tuple((k, *_ACCELERATOR_UI.get(k, (k.title(), k))) for k in ACCELERATORS)
+ACCELERATOR_ITEMS = tuple((k, *_ACCELERATOR_UI.get(k, (k.title(), k))) for k in ACCELERATORS
+                          if k not in INTERNAL_ACCELERATORS)
 
 
 class RSTraceSettings(bpy.types.PropertyGroup):

@@ -14,6 +14,9 @@ AVAILABLE_MODES = ("BASE", "INTERPOLANT")
 #: ``embreex`` package at run time: :func:`~.accel.accelerators.create_accelerator` says so).
 ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
 AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE")
+#: Not offered in the Blender add-on: brute force is the tests' reference, far too slow for
+#: a real scene.
+INTERNAL_ACCELERATORS = ("BRUTE_FORCE",)
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
 CLASS_BACKGROUND = 0

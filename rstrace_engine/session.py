@@ -126,17 +126,33 @@ class Session:
                 c.set_scene(sa, self.accel)
             return None
         t0 = time.perf_counter()
+        live = c.pool.n_live
         inv = c.invalidate(fx.region_array(), set(fx.objects), set(fx.lights_moved),
                            set(fx.materials), world=fx.world,
                            light_shading=set(fx.lights) - set(fx.lights_moved))
         report.rst_query_ms = 1e3 * (time.perf_counter() - t0)
         c.set_scene(sa, self.accel)
         report.invalidated_interpolants = int(inv.count)
+        if c.pool.n_live < live - int(inv.count):
+            # the cache dropped more than it reported (it started over, e.g. when the
+            # number of light slots changed): no pixel of the last frame can be trusted
+            report.messages.append("interpolant cache started over: full frame")
+            return None
         return np.asarray(inv.ids)
 
     def _mark_dirty(self, old_sa, new_sa, fx: EditEffects, ids, report: EditReport) -> None:
         f, rec = self.frame, self.records
-        if (f is None or rec is None or self._dirty is None or fx.camera
+        rebuilt = None
+        if f is not None and f.pixel_interpolant is not None and ids is not None and len(ids):
+            # pixels of invalidated interpolants (with several samples per pixel, -2: the
+            # samples used different interpolants, any of which may be gone)
+            pi = f.pixel_interpolant.reshape(-1)
+            rebuilt = np.isin(pi, ids) | (pi == -2)
+            if not fx.camera:
+                self._rebuilt = rebuilt if self._rebuilt is None else self._rebuilt | rebuilt
+        interp_lost = (self.settings.mode == "INTERPOLANT" and self.interpolants.cache is not None
+                       and fx.scene_content_changed and ids is None)
+        if (f is None or rec is None or self._dirty is None or fx.camera or interp_lost
                 or not np.array_equal(old_sa.scene_aabb, new_sa.scene_aabb)):
             # no previous frame to keep, the camera moved, or the scene box changed (spawn
             # offsets scale with it, so every pixel may change in the last bits)
@@ -149,9 +165,7 @@ class Session:
             return
         t0 = time.perf_counter()
         dirty = rec.dirty_pixels(old_sa, camera_params(self.scene.camera), fx)
-        if ids is not None and len(ids) and f.pixel_interpolant is not None:
-            rebuilt = np.isin(f.pixel_interpolant.reshape(-1), ids)
-            self._rebuilt |= rebuilt
+        if rebuilt is not None:
             dirty |= rebuilt
         report.records_query_ms = 1e3 * (time.perf_counter() - t0)
         self._dirty |= dirty
@@ -220,14 +234,19 @@ class Session:
             else:
                 frame = self.interpolants.render(self.scene, self.settings, self.accel,
                                                  progress=progress, cancel=cancel)
-            if incremental and self._rebuilt is not None and self._rebuilt.any():
-                # pixels of invalidated interpolants, interpolated again: "rebuilt" (magenta)
-                pc = frame.pixel_class.reshape(-1)
-                pc[self._rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
                                    pixels=pixels, base=self.frame if incremental else None)
+        rebuilt = self._rebuilt if key == self._frame_key else None
+        stored = frame
+        if mode == "INTERPOLANT" and rebuilt is not None and rebuilt.any():
+            # pixels of invalidated interpolants, interpolated again: "rebuilt after an
+            # edit" (magenta) in this frame; the kept frame says "interpolated"
+            pc = frame.pixel_class.reshape(-1)
+            stored = Frame(frame.radiance, pc.copy().reshape(frame.pixel_class.shape),
+                           frame.stats, frame.pixel_interpolant)
+            pc[rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
         if frame.stats.get("cancelled"):
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self._dirty = None
@@ -237,7 +256,7 @@ class Session:
                                else np.tile(pixels, self.settings.samples))
             else:  # this interpolant renderer keeps no per-pixel records: full frames
                 records = None
-            self.frame, self.records, self._frame_key = frame, records, key
+            self.frame, self.records, self._frame_key = stored, records, key
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)
         n = cam.width * cam.height

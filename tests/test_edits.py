@@ -219,3 +219,18 @@ def test_update_settings_keeps_the_session():
     sess.update_settings(RenderSettings(max_depth=1, seed=3, samples=2))
     b = sess.render()
     assert not b.stats["incremental"] and a.radiance.shape == b.radiance.shape
+
+
+def test_the_callers_arrays_are_copied():
+    """A host that reuses (mutates) its matrix array must not change the scene behind the
+    session's back: the next edit with the same array object is still an edit."""
+    sess = Session(row_scene())
+    sess.render()
+    m = shapes.transform((-2.0, 0.0, 0.5))
+    for _ in range(2):
+        m[1, 3] += 0.3
+        rep = sess.apply([ObjectTransform("Cube0", m)])
+        assert rep.regions == 1 and rep.dirty_pixels > 0
+        frame = sess.render()
+        np.testing.assert_array_equal(frame.radiance,
+                                      Session(sess.scene.copy()).render().radiance)

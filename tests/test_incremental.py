@@ -118,7 +118,7 @@ def test_memory_stays_bounded_over_thousands_of_edits():
     assert len(sess.scene.meshes) <= gen.max_meshes
     # the records of a 16x12 frame: bounded by the pixels, not by the edits
     assert max(sizes) < 16 * 12 * 64 + 65536, sizes
-    assert len(sess.records.combo) <= 16 * 12 * 8
+    assert sess.records.n_table <= 16 * 12 * 8
 
 
 def test_cancelled_incremental_frame_falls_back_to_full():

@@ -33,10 +33,12 @@ def small_cells(monkeypatch):
 
 
 def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0,
-            fill_pos=(4.0, -2.0, 3.5), world=(0.05, 0.06, 0.08), extra=None,
+            fill_pos=(4.0, -2.0, 3.5), world=(0.05, 0.06, 0.08), extra=None, extra_scale=0.3,
+            sun=False, delete=(), hide=(),
             camera=((0.0, -8.5, 3.6), (0.0, 0.3, 0.8))) -> Scene:
     """three_spheres and a back wall, with knobs; instance slots: 0 ground, 1 red,
-    2 mirror, 3 blue, 4 wall (material 4), 5 the extra sphere (if any)."""
+    2 mirror, 3 blue, 4 wall (material 4), 5 the extra sphere (if any); lights 0 key,
+    1 fill, 2 a sun (if any). ``delete`` / ``hide``: slots deleted (tombstones) / hidden."""
     s = Scene()
     floor = s.add_material(Material("floor", diffuse=(0.55, 0.55, 0.5), specular=(0.1,) * 3,
                                     roughness=0.25))
@@ -55,13 +57,24 @@ def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0
     s.add_instance(ground, shapes.transform((0.0, 4.0, 2.0), (1.0, 0.4, 1.0), 0.0, 90.0),
                    [wall], name="Wall")
     if extra is not None:
-        s.add_instance(sphere, shapes.transform(extra, 0.3), [red], name="Extra")
+        s.add_instance(sphere, shapes.transform(extra, extra_scale), [red], name="Extra")
     s.add_light(Light("Key", "POINT", power=key_power, position=(-3.0, -4.0, 6.0)))
     s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=500.0,
                       position=fill_pos))
+    if sun:
+        s.add_light(Light("Sun", "SUN", power=2.0, direction=SUN_DIR))
+    for k in delete:
+        s.delete_instance(k)
+    for k in hide:
+        s.set_instance_visible(k, False)
     s.set_world_color(world)
     s.set_camera(Camera(matrix=shapes.look_at(*camera), lens=35.0, width=W, height=H))
     return s
+
+
+SUN_DIR = (-0.3, 0.4, -1.0)
+#: far outside the scene toward the sun (a big occluder only infinite tunnels can see)
+FAR_SUNWARD = tuple(-45.0 * np.array(SUN_DIR) / np.linalg.norm(SUN_DIR))
 
 
 def settings() -> RenderSettings:
@@ -153,13 +166,23 @@ EDITS = {
         regions=np.empty((0, 2, 3)), lights={1})),
     "world": (dict(world=(0.5, 0.2, 0.1)), lambda s0, s1: dict(
         regions=np.empty((0, 2, 3)), world=True)),
+    "delete": (dict(delete=(3,)), lambda s0, s1: dict(regions=box_of(s0, 3)[None],
+                                                     objects={3})),
+    "hide": (dict(hide=(1,)), lambda s0, s1: dict(regions=box_of(s0, 1)[None],
+                                                  objects={1})),
+    # a big sphere added far outside the scene, toward the sun: found through the trees'
+    # list of tunnels leaving their domain (sun shadow rays, reflected misses)
+    "add_far_sunward": (dict(sun=True, extra=FAR_SUNWARD, extra_scale=8.0),
+                        lambda s0, s1: dict(regions=box_of(s1, 5)[None], objects=set())),
 }
+#: edits whose base scene has the sun
+SUN_EDITS = {"add_far_sunward"}
 
 
 @pytest.mark.parametrize("name", list(EDITS))
 def test_invalidation_has_no_false_negatives(name):
     kw, inv_kw = EDITS[name]
-    s0 = spheres()
+    s0 = spheres(sun=name in SUN_EDITS)
     r, _ = warm_cache(s0)
     cache = r.cache
     snap = snapshot(cache)
@@ -177,7 +200,7 @@ def test_invalidation_has_no_false_negatives(name):
     alive = cache.pool.live[snap["ids"]] & (cache.pool.serial[snap["ids"]] == snap["serial"])
     np.testing.assert_array_equal(alive, ~hit)
     assert inv.count == hit.sum() and inv.live_before == len(snap["ids"])
-    if name in ("move_small", "add_object", "recolor"):
+    if name in ("move_small", "add_object", "recolor", "delete"):
         assert hit.mean() < 0.5, f"{name}: {hit.mean():.0%} invalidated"
 
 
@@ -261,3 +284,32 @@ def test_memory_is_freed_and_caps_hold_over_many_edits(monkeypatch):
         assert deps.rst.n_tun <= 2 * live_t + 1
         rst_mem.append(cache.rst_memory_bytes())
     assert max(rst_mem[12:]) <= 2.5 * max(rst_mem[:12]) + 1e5
+
+
+def _after_moving_blue_away(retry: bool):
+    s0 = spheres()
+    r, accel = warm_cache(s0)
+    cache = r.cache
+    r.render(s0, settings(), accel)
+    if not retry:
+        cache.deps.failed.query = lambda *a, **k: 0
+    s1 = spheres(blue=(30.0, 25.0, 0.8))
+    inv = cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
+    sa1 = s1.arrays()
+    accel1 = create_accelerator("BVH", sa1)
+    cache.set_scene(sa1, accel1)
+    return inv, cache, r.render(s1, settings(), accel1), s1, accel1
+
+
+def test_failed_cells_around_a_moved_occluders_shadow_are_tried_again():
+    inv, cache, f1, s1, accel1 = _after_moving_blue_away(retry=True)
+    assert inv.failed_retried > 0
+    assert np.all(cache.deps.domain[1] >= s1.arrays().inst_aabb[3, 1])  # trees followed
+    _, _, control, _, _ = _after_moving_blue_away(retry=False)
+    # the blue sphere's shadow is gone: its cells are built again and interpolate
+    after, stale = f1.stats["class_counts"], control.stats["class_counts"]
+    assert after["fail_shadow"] < stale["fail_shadow"]
+    assert after["rebuilt"] > stale["rebuilt"]
+    base = whitted.render(s1, settings(), accel=accel1)
+    err = np.abs(image.to_display(f1.radiance) - image.to_display(base.radiance)).max()
+    assert err <= settings().epsilon, err

@@ -48,7 +48,7 @@ class SceneError(ValueError):
 
 def _finite_array(name: str, what: str, value, shape_tail, dtype=np.float64) -> np.ndarray:
     try:
-        arr = np.asarray(value, dtype=dtype)
+        arr = np.array(value, dtype=dtype)  # a copy: the caller may change its array later
     except (TypeError, ValueError) as exc:
         raise SceneError(f"{what} '{name}': cannot read as numbers ({exc})") from None
     if shape_tail is not None:
@@ -78,7 +78,7 @@ def _colour(name: str, what: str, value, lo: float = 0.0, hi: float | None = 1.0
 
 def check_matrix(name: str, matrix) -> np.ndarray:
     """Validate a 4x4 affine object-to-world matrix; return it as float64."""
-    m = np.asarray(matrix, dtype=np.float64)
+    m = np.array(matrix, dtype=np.float64)  # a copy: the caller may change its array later
     if m.shape != (4, 4):
         raise SceneError(f"object '{name}': world matrix must be 4x4, got {m.shape}")
     if not np.all(np.isfinite(m)):
@@ -351,6 +351,7 @@ class Scene:
         self.instance_keys = _Keys("object")
         self.light_keys = _Keys("light")
         self._arrays: SceneArrays | None = None
+        self._counts = None  # (objects, triangles) of the packing in _arrays
         self._mesh_arrays = None  # packed geometry, reused while meshes are unchanged
 
     def copy(self) -> Scene:
@@ -369,6 +370,7 @@ class Scene:
         c.instance_keys = self.instance_keys.copy()
         c.light_keys = self.light_keys.copy()
         c._arrays = self._arrays
+        c._counts = self._counts
         c._mesh_arrays = self._mesh_arrays
         return c
 
@@ -396,6 +398,9 @@ class Scene:
 
     @property
     def n_instances(self) -> int:
+        """Objects in the scene (tombstoned slots do not count)."""
+        if self._arrays is not None and self._counts is not None:
+            return self._counts[0]
         return sum(i is not None for i in self.instances)
 
     @property
@@ -473,7 +478,7 @@ class Scene:
             if len(uvs) != m:
                 raise SceneError(f"mesh '{n}': {len(uvs)} corner uv triples for {m} triangles")
         if mesh.slots is not None:
-            slots = np.asarray(mesh.slots, dtype=np.int32).reshape(-1)
+            slots = np.array(mesh.slots, dtype=np.int32).reshape(-1)
             if len(slots) != m or (m and slots.min() < 0):
                 raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
 
@@ -655,7 +660,7 @@ class Scene:
 
     def set_camera(self, camera: Camera) -> None:
         c = camera
-        m = np.asarray(c.matrix, dtype=np.float64)
+        m = np.array(c.matrix, dtype=np.float64)
         if m.shape != (4, 4) or not np.all(np.isfinite(m)):
             raise SceneError("camera: matrix must be a finite 4x4")
         check_matrix("camera", m)
@@ -790,9 +795,13 @@ class Scene:
             world_color=np.asarray(self.world_color, f64),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
         )
+        self._counts = (sum(i is not None for i in self.instances),
+                        sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))
         return self._arrays
 
     @property
     def triangle_count(self) -> int:
         """Triangles in the world (instances count their mesh's triangles each)."""
+        if self._arrays is not None and self._counts is not None:
+            return self._counts[1]
         return sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances())

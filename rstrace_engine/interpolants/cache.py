@@ -326,6 +326,7 @@ class InterpolantCache:
         self.samples = SampleStore(len(sa.light_kind))
         self.pool = InterpolantPool()
         self.clock = 0
+        self.samples_stale = False  # an edit may have made unreferenced samples stale
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
@@ -370,12 +371,14 @@ class InterpolantCache:
 
     @property
     def memory_bytes(self) -> int:
-        """Everything: interpolants, samples, the samples' hash table, linetree nodes."""
+        """Everything: interpolants, samples, the samples' hash table, linetree nodes, the
+        ray segment trees and membership index."""
         return (self.interpolant_bytes + self.samples.keys.table_bytes
-                + self.trees.memory_bytes)
+                + self.trees.memory_bytes + self.deps.memory_bytes)
 
     def compact_samples(self) -> None:
         """Drop the samples no interpolant refers to (test lines, failed cells)."""
+        self.samples_stale = False
         live = np.flatnonzero(self.pool.live)
         keep = np.zeros(self.samples.n, bool)
         keep[self.pool.samples[live].reshape(-1)] = True
@@ -447,10 +450,12 @@ class InterpolantCache:
         done = np.zeros(n, bool)
         pinterp = np.full(n, -1, np.int32)
         pcls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
-        st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, levels=0,
-                  reasons={})
+        st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, deps_s=0.0,
+                  levels=0, reasons={})
         self.frame_stats = st
         active = inst >= 0
+        if self.samples_stale:  # an edit invalidated interpolants (set_scene not called)
+            self.compact_samples()
         if not np.any(active) or self.epsilon <= 0.0:
             return ResolveResult(rad, done, pcls, pinterp)
         lt = self.trees
@@ -502,7 +507,8 @@ class InterpolantCache:
                 st["build_s"] += time.perf_counter() - tb
         self.enforce_cap()
         lt.collapse()
-        self.deps.compact(self.pool)
+        self.deps.compact(self.pool, lt)
+        self.deps.warm(self)
         for k in ("cells_built", "cells_valid", "samples_traced"):
             self.totals[k] += st[k]
         return ResolveResult(rad, done, pcls, pinterp)
@@ -664,6 +670,11 @@ class InterpolantCache:
                 name = REASONS[r] if r < len(REASONS) else "radiance"
                 why[name] = why.get(name, 0) + int(k)
             status[go] = sub_status
+            td = time.perf_counter()
+            shaded_bad = np.flatnonzero(sub_status != VALID)
+            self.deps.add_failed(self, cells[go[shaded_bad]], cell_samples[shaded_bad],
+                                 nsamp[shaded_bad])
+            st["deps_s"] += time.perf_counter() - td
             good = np.flatnonzero(sub_status == VALID)
             if len(good):
                 pids = self.pool.alloc(len(good))
@@ -676,8 +687,10 @@ class InterpolantCache:
                 p.rebuilt[pids] = a.dirty[cells[go[good]]]
                 a.leaf[cells[go[good]]] = pids
                 g = go[good]
+                td = time.perf_counter()
                 self.deps.add(self, pids, inst[g], face[g], depth[g], coord[g], zlo[good],
                               zhi[good], cell_samples[good], nsamp[good])
+                st["deps_s"] += time.perf_counter() - td
         bad = status != VALID
         a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
         st["cells_valid"] += int(np.count_nonzero(~bad))

@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
-from .linetree import expanded_boxes
+from .linetree import EMPTY, expanded_boxes
 from .membership import Membership
 from .ray_segment_tree import RaySegmentTrees
 from .tunnels import (
@@ -48,11 +48,12 @@ class Invalidation(NamedTuple):
 
     count: int  # interpolants invalidated
     ids: np.ndarray  # (count,) int32 their ids (pool slots, free again now)
-    query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed)
-    free_ms: float  # compaction afterwards (samples, linetree blocks, dead entries)
+    query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed;
+    # the memory they held is compacted by set_scene or the next frame)
     rst_visits: int  # RST nodes visited
     tunnel_tests: int  # tunnel sections tested against a region
     live_before: int  # live interpolants before the edit
+    failed_retried: int  # failed cells naming an edited object, emptied to be tried again
 
 
 def rst_domain(sa) -> np.ndarray:
@@ -74,18 +75,36 @@ class Dependencies:
     """The ray segment trees and the membership indexes of one cache."""
 
     def __init__(self, sa) -> None:
-        self.domain = rst_domain(sa)
-        mag = float(np.linalg.norm(self.domain[1] - self.domain[0])
-                    + np.abs(self.domain).max())
-        self.slack = tol.SHAFT_SLACK_REL * mag
-        self.reach = 4.0 * mag  # sun shafts end this far (then prolonged as infinite)
+        self._set_domain(rst_domain(sa))
         self.rst = RaySegmentTrees(self.domain, self.slack)
         self.objects = Membership()
         self.lights = Membership()
+        self.failed = Membership()  # failed linetree leaves, by the objects they name
+        self.next_fail = 1
+        self._warm = False
+
+    def _set_domain(self, domain: np.ndarray) -> None:
+        self.domain = domain
+        mag = float(np.linalg.norm(domain[1] - domain[0]) + np.abs(domain).max())
+        self.slack = tol.SHAFT_SLACK_REL * mag
+        self.reach = 4.0 * mag  # sun shafts end this far (then prolonged as infinite)
+
+    def follow_scene(self, sa, pool) -> bool:
+        """Grow the trees' domain when the edited scene left it (objects moved away, lights
+        added far off): the trees are rebuilt over the union (tunnels leaving the domain
+        are answered by brute force meanwhile, correct but slower). Returns whether."""
+        want = rst_domain(sa)
+        if np.all(want[0] >= self.domain[0]) and np.all(want[1] <= self.domain[1]):
+            return False
+        self._set_domain(np.stack([np.minimum(want[0], self.domain[0]),
+                                   np.maximum(want[1], self.domain[1])]))
+        self.rst.compact(pool.serial, pool.live, True, self.domain, self.slack)
+        return True
 
     @property
     def memory_bytes(self) -> int:
-        return self.rst.memory_bytes + self.objects.memory_bytes + self.lights.memory_bytes
+        return (self.rst.memory_bytes + self.objects.memory_bytes + self.lights.memory_bytes
+                + self.failed.memory_bytes)
 
     def add(self, cache, pids, inst, face, depth, coord, zlo, zhi, cell_samples,
             nsamp) -> None:
@@ -116,27 +135,62 @@ class Dependencies:
         pool = cache.pool
         q = np.repeat(pids, counts).astype(np.int32)
         self.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])
-        roots = np.ascontiguousarray(ids[:, 0])
-        oc = np.zeros(nc, np.int64)
-        lc = np.zeros(nc, np.int64)
-        world = np.zeros(nc, np.bool_)
-        e = np.empty(0, np.int64)
-        cell_members(sm, roots, False, oc, lc, oc, lc, e, e, world)
-        os_ = np.concatenate([[0], np.cumsum(oc)[:-1]]).astype(np.int64)
-        ls_ = np.concatenate([[0], np.cumsum(lc)[:-1]]).astype(np.int64)
-        okeys = np.empty(int(oc.sum()), np.int64)
-        lkeys = np.empty(int(lc.sum()), np.int64)
-        cell_members(sm, roots, True, os_, ls_, oc, lc, okeys, lkeys, world)
+        okeys, oc, lkeys, lc, world = _members(sm, ids, np.ones(nc, np.int32))
         qo = np.repeat(pids, oc).astype(np.int32)
         ql = np.repeat(pids, lc).astype(np.int32)
         self.objects.add(okeys, qo, pool.serial[qo])
         self.lights.add(lkeys, ql, pool.serial[ql])
         pool.world[pids] = world
 
-    def compact(self, pool, force: bool = False) -> None:
+    def add_failed(self, cache, nodes, cell_samples, nsamp) -> None:
+        """Remember which objects the ray trees of failed cells (leaves ``nodes`` that were
+        shaded) name: when one of them is edited, the cell is tried again (seed 000, 5.2:
+        no subdivision stays around a shadow that no longer exists)."""
+        if len(nodes) == 0:
+            return
+        sm = cache.samples.view()
+        okeys, oc, _, _, _ = _members(sm, np.ascontiguousarray(cell_samples, np.int32),
+                                      np.ascontiguousarray(nsamp, np.int32))
+        lt = cache.trees.arrays
+        stamps = np.arange(self.next_fail, self.next_fail + len(nodes), dtype=np.int64)
+        self.next_fail += len(nodes)
+        lt.fstamp[nodes] = stamps
+        self.failed.add(okeys, np.repeat(nodes, oc).astype(np.int32), np.repeat(stamps, oc))
+
+    def warm(self, cache) -> None:
+        """Run the query kernels once on nothing (numba loads compiled kernels on their
+        first call: some 30 ms, which the first edit should not pay)."""
+        if self._warm:
+            return
+        self._warm = True
+        nothing = np.array([[[1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]]])  # an empty box
+        affected(cache, nothing, objects=(-1,), lights=(-1,))
+        self.rst.query_brute(nothing, cache.pool.serial, cache.pool.live,
+                             np.zeros(cache.pool.cap, np.bool_))
+
+    def compact(self, pool, trees, force: bool = False) -> None:
         self.rst.compact(pool.serial, pool.live, force)
         self.objects.compact(pool.serial, pool.live, force)
         self.lights.compact(pool.serial, pool.live, force)
+        n = trees.n_nodes
+        self.failed.compact(trees.arrays.fstamp[:n], trees.arrays.leaf[:n] < EMPTY, force)
+
+
+def _members(sm, ids, ns):
+    """Membership keys of cells (:func:`.tunnels.cell_members`): ``okeys, ocount, lkeys,
+    lcount, world``."""
+    nc = len(ids)
+    oc = np.zeros(nc, np.int64)
+    lc = np.zeros(nc, np.int64)
+    world = np.zeros(nc, np.bool_)
+    e = np.empty(0, np.int64)
+    cell_members(sm, ids, ns, False, oc, lc, oc, lc, e, e, world)
+    os_ = np.concatenate([[0], np.cumsum(oc)[:-1]]).astype(np.int64)
+    ls_ = np.concatenate([[0], np.cumsum(lc)[:-1]]).astype(np.int64)
+    okeys = np.empty(int(oc.sum()), np.int64)
+    lkeys = np.empty(int(lc.sum()), np.int64)
+    cell_members(sm, ids, ns, True, os_, ls_, oc, lc, okeys, lkeys, world)
+    return okeys, oc, lkeys, lc, world
 
 
 def _material_objects(sa, materials) -> np.ndarray:
@@ -147,6 +201,42 @@ def _material_objects(sa, materials) -> np.ndarray:
     uses = np.isin(sa.inst_mat, mats)
     slot_inst = np.repeat(np.arange(len(sa.inst_mesh)), np.diff(sa.inst_mat_start))
     return np.unique(slot_inst[uses[:len(slot_inst)]]).astype(np.int64)
+
+
+class Affected(NamedTuple):
+    """What an edit may change (:func:`affected`), nothing freed yet."""
+
+    ids: np.ndarray  # (m,) int32 live interpolants
+    retry: np.ndarray  # (r,) int32 failed linetree leaves naming an edited object
+    rst_visits: int
+    tunnel_tests: int
+
+
+def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
+             light_shading=()) -> Affected:
+    """The interpolants an edit may change (the arguments of :func:`invalidate`), and the
+    failed cells it may let pass; changes nothing."""
+    pool = cache.pool
+    deps: Dependencies = cache.deps
+    hit = np.zeros(pool.cap, np.bool_)
+    regions = np.asarray(regions, np.float64).reshape(-1, 2, 3)
+    visits, tests = deps.rst.query(regions, pool.serial, pool.live, hit)
+    okeys = [2 * int(o) + k for o in objects for k in (OBJ_HIT, OBJ_OCCLUDES)]
+    mkeys = [2 * int(o) + OBJ_HIT for o in _material_objects(cache.sa, materials)]
+    deps.objects.query(okeys + mkeys, pool.serial, pool.live, hit)
+    lkeys = [2 * int(j) + k for j in lights for k in (LIGHT_SHADES, LIGHT_OCCLUDED)]
+    lkeys += [2 * int(j) + LIGHT_SHADES for j in light_shading]
+    deps.lights.query(lkeys, pool.serial, pool.live, hit)
+    if world:
+        hit |= pool.world & pool.live
+    ids = np.flatnonzero(hit & pool.live).astype(np.int32)
+    # failed cells whose ray trees name an edited object are tried again
+    lt = cache.trees
+    n = lt.n_nodes
+    failed = np.zeros(n, np.bool_)
+    if okeys:
+        deps.failed.query(okeys, lt.arrays.fstamp[:n], lt.arrays.leaf[:n] < EMPTY, failed)
+    return Affected(ids, np.flatnonzero(failed).astype(np.int32), visits, tests)
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
@@ -163,38 +253,32 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     whose power or colour alone changed (only interpolants they shade). Camera edits
     invalidate nothing (call nothing).
 
-    Invalidated interpolants are freed at once; their cells are rebuilt by the next frame
-    that needs them. Call :func:`set_scene` with the edited scene before the next frame.
+    Invalidated interpolants are freed at once (their pool ids are free, their tree and
+    list entries dead); their cells are rebuilt by the next frame that needs them. Failed
+    cells whose ray trees named an edited object are emptied too (tried again). Call
+    :func:`set_scene` with the edited scene before the next frame: it compacts the memory
+    (samples only freed interpolants kept, emptied linetree blocks, dead entries).
     """
     t0 = time.perf_counter()
     pool = cache.pool
-    deps: Dependencies = cache.deps
     live_before = pool.n_live
-    hit = np.zeros(pool.cap, np.bool_)
-    regions = np.asarray(regions, np.float64).reshape(-1, 2, 3)
-    visits, tests = deps.rst.query(regions, pool.serial, pool.live, hit)
-    okeys = [2 * int(o) + k for o in objects for k in (OBJ_HIT, OBJ_OCCLUDES)]
-    okeys += [2 * int(o) + OBJ_HIT for o in _material_objects(cache.sa, materials)]
-    deps.objects.query(okeys, pool.serial, pool.live, hit)
-    lkeys = [2 * int(j) + k for j in lights for k in (LIGHT_SHADES, LIGHT_OCCLUDED)]
-    lkeys += [2 * int(j) + LIGHT_SHADES for j in light_shading]
-    deps.lights.query(lkeys, pool.serial, pool.live, hit)
-    if world:
-        hit |= pool.world & pool.live
-    ids = np.flatnonzero(hit & pool.live).astype(np.int32)
-    cache.trees.clear_dirty()
+    a = affected(cache, regions, objects, lights, materials, world, light_shading)
+    ids, retry = a.ids, a.retry
+    lt = cache.trees
+    lt.clear_dirty()
     pool.rebuilt[:] = False
-    cache.trees.mark_dirty(pool.node[ids])
+    lt.mark_dirty(pool.node[ids])
+    lt.mark_dirty(retry)
+    lt.arrays.leaf[retry] = EMPTY
     cache.evict(ids, invalidated=True)
+    # samples no live interpolant keeps may be stale now: dropped before anything is built
+    # again (set_scene, or the next frame), with the linetree and list compaction
+    cache.samples_stale = True
     t1 = time.perf_counter()
-    cache.compact_samples()
-    cache.trees.collapse()
-    deps.compact(pool)
-    t2 = time.perf_counter()
-    log.debug("invalidate: %d of %d interpolants, %.3f ms (+%.3f ms freeing)", len(ids),
-              live_before, 1e3 * (t1 - t0), 1e3 * (t2 - t1))
-    return Invalidation(len(ids), ids, 1e3 * (t1 - t0), 1e3 * (t2 - t1), visits, tests,
-                        live_before)
+    log.debug("invalidate: %d of %d interpolants, %.3f ms", len(ids), live_before,
+              1e3 * (t1 - t0))
+    return Invalidation(len(ids), ids, 1e3 * (t1 - t0), a.rst_visits, a.tunnel_tests,
+                        live_before, len(retry))
 
 
 def _mesh_changed(old, new) -> np.ndarray:
@@ -259,5 +343,7 @@ def set_scene(cache, sa, accel) -> None:
         cache.__dict__.pop(name, None)
     cache.compact_samples()
     trees.collapse()
+    cache.deps.compact(cache.pool, trees)
+    cache.deps.follow_scene(sa, cache.pool)
     log.debug("set_scene: %d objects with new linetrees, %d interpolants kept", len(reset),
               cache.pool.n_live)

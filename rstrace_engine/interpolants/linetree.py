@@ -230,6 +230,7 @@ class LinetreeArrays(NamedTuple):
     coord: np.ndarray  # (N, 4) int32 lattice coordinates at the node's depth
     tree: np.ndarray  # (N,) int32 inst * 6 + face, DEAD_TREE for a freed node
     dirty: np.ndarray  # (N,) bool invalidated by the last edit (children inherit it)
+    fstamp: np.ndarray  # (N,) int64 stamp of the node's fail code (edits' dependencies)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -276,6 +277,7 @@ def _init_children(lt, parents, bases):
             lt.depth[nd] = lt.depth[p] + 1
             lt.tree[nd] = lt.tree[p]
             lt.dirty[nd] = lt.dirty[p]
+            lt.fstamp[nd] = 0
             for m in range(4):
                 lt.coord[nd, m] = 2 * lt.coord[p, m] + ((c >> m) & 1)
 
@@ -364,7 +366,7 @@ class Linetrees:
     """Owner of the linetree node pool: lazy roots, splits, freed-block recycling."""
 
     #: bytes per node (child, leaf, depth, coord, tree)
-    NODE_BYTES = 4 + 4 + 1 + 16 + 4 + 1
+    NODE_BYTES = 4 + 4 + 1 + 16 + 4 + 1 + 8
 
     def __init__(self, n_instances: int, capacity: int = 4096) -> None:
         self.roots = np.full((max(int(n_instances), 0), N_FACES), -1, np.int32)
@@ -378,7 +380,8 @@ class Linetrees:
     def _alloc(cap: int) -> LinetreeArrays:
         return LinetreeArrays(np.full(cap, -1, np.int32), np.full(cap, EMPTY, np.int32),
                               np.zeros(cap, np.int8), np.zeros((cap, 4), np.int32),
-                              np.full(cap, DEAD_TREE, np.int32), np.zeros(cap, np.bool_))
+                              np.full(cap, DEAD_TREE, np.int32), np.zeros(cap, np.bool_),
+                              np.zeros(cap, np.int64))
 
     def _reserve(self, extra: int) -> None:
         need = self.n_nodes + extra
@@ -416,6 +419,7 @@ class Linetrees:
             a.coord[ids] = 0
             a.tree[ids] = new_keys[:n_new].astype(np.int32)
             a.dirty[ids] = self.fresh_dirty[new_keys[:n_new] // N_FACES]
+            a.fstamp[ids] = 0
         return out
 
     def grow_instances(self, n_instances: int) -> None:

@@ -60,7 +60,7 @@ SPLIT = 24
 #: Deepest node level.
 MAX_DEPTH = 4
 #: A section meeting more children than this stays at the node.
-KEEP = 4
+KEEP = 2
 #: Relative slack of the interval tests (rounding never hides an overlap).
 EPS = 1e-9
 _STACK = 4 * FANOUT * (MAX_DEPTH + 1)
@@ -73,16 +73,16 @@ class RSTArrays(NamedTuple):
 
     child: np.ndarray  # (N,) int32 first of 32 children, -1 for a leaf
     depth: np.ndarray  # (N,) int8
-    coord: np.ndarray  # (N, 5) int32 lattice coordinates (a, b, c, d, t) at the depth
+    coord: np.ndarray  # (N, 5) uint8 lattice coordinates (a, b, c, d, t) at the depth
     head: np.ndarray  # (N,) int32 newest entry at the node, -1 none
     count: np.ndarray  # (N,) int32 entries at the node
     e_sec: np.ndarray  # (E,) int32 section of an entry
     e_next: np.ndarray  # (E,) int32 next entry at the same node
-    sec_box: np.ndarray  # (S, 10) float64 a0 a1 b0 b1 c0 c1 d0 d1 t0 t1
+    sec_box: np.ndarray  # (S, 10) float32 a0 a1 b0 b1 c0 c1 d0 d1 t0 t1 (rounded outward)
     sec_face: np.ndarray  # (S,) int8
     sec_tun: np.ndarray  # (S,) int32
-    tun_a: np.ndarray  # (T, 6) float64 box A (lo xyz, hi xyz)
-    tun_b: np.ndarray  # (T, 6) float64 box B
+    tun_a: np.ndarray  # (T, 6) float32 box A (lo xyz, hi xyz; rounded outward)
+    tun_b: np.ndarray  # (T, 6) float32 box B
     tun_inf: np.ndarray  # (T,) bool segments go on to infinity through B
     tun_q: np.ndarray  # (T,) int32 interpolant
     tun_serial: np.ndarray  # (T,) int64 its serial
@@ -272,10 +272,15 @@ def _shaft_meets(alo, ahi, blo, bhi, slack, lo, hi, pl, bb):
 def tunnel_meets(rst, t, lo, hi, slack, pl, bb):
     """Does tunnel ``t`` meet the world box (lo, hi)? (Infinite tunnels are prolonged past
     the box first.)"""
-    alo = rst.tun_a[t, :3]
-    ahi = rst.tun_a[t, 3:]
-    blo = rst.tun_b[t, :3]
-    bhi = rst.tun_b[t, 3:]
+    alo = np.empty(3)
+    ahi = np.empty(3)
+    blo = np.empty(3)
+    bhi = np.empty(3)
+    for m in range(3):
+        alo[m] = rst.tun_a[t, m]
+        ahi[m] = rst.tun_a[t, 3 + m]
+        blo[m] = rst.tun_b[t, m]
+        bhi[m] = rst.tun_b[t, 3 + m]
     if rst.tun_inf[t]:
         elo = np.empty(3)
         ehi = np.empty(3)
@@ -290,19 +295,24 @@ def tunnel_meets(rst, t, lo, hi, slack, pl, bb):
 
 @njit(cache=True, nogil=True)
 def make_sections(dom, tun_a, tun_b, tun_inf, t0, t1, sec_box, sec_face, sec_tun, esc):
-    """Sections of tunnels ``t0..t1`` (up to 6 each) appended to the section arrays (which
-    have room for ``6 (t1 - t0)``); esc[t - t0]: the tunnel leaves the domain. Returns the
-    number of sections."""
+    """Sections of tunnels ``t0..t1`` (up to 6 each) written to ``sec_box (6 (t1 - t0),
+    10) float64``, ``sec_face``, ``sec_tun``; esc[t - t0]: the tunnel leaves the domain.
+    Returns the number of sections."""
     ns = 0
     elo = np.empty(3)
     ehi = np.empty(3)
     dlo = dom[0]
     dhi = dom[1]
+    alo = np.empty(3)
+    ahi = np.empty(3)
+    blo = np.empty(3)
+    bhi = np.empty(3)
     for t in range(t0, t1):
-        alo = tun_a[t, :3]
-        ahi = tun_a[t, 3:]
-        blo = tun_b[t, :3]
-        bhi = tun_b[t, 3:]
+        for m in range(3):
+            alo[m] = tun_a[t, m]
+            ahi[m] = tun_a[t, 3 + m]
+            blo[m] = tun_b[t, m]
+            bhi[m] = tun_b[t, 3 + m]
         out = tun_inf[t]
         if tun_inf[t]:
             if not extend_infinite(alo, ahi, blo, bhi, dlo, dhi, elo, ehi):
@@ -492,6 +502,21 @@ def live_tunnels(rst, n, pool_serial, pool_live, keep):
 # ----------------------------------------------------------------------------- the owner
 
 
+def outward32(lo: np.ndarray, hi: np.ndarray):
+    """float32 copies of bounds ``lo <= hi`` rounded outward (never inside the float64)."""
+    lo32 = np.asarray(lo).astype(np.float32)
+    hi32 = np.asarray(hi).astype(np.float32)
+    lo32 = np.where(lo32 > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+    hi32 = np.where(hi32 < hi, np.nextafter(hi32, np.float32(np.inf)), hi32)
+    return lo32, hi32
+
+
+def _boxes32(b: np.ndarray) -> np.ndarray:
+    """(m, 6) lo-xyz/hi-xyz boxes as float32, rounded outward."""
+    lo, hi = outward32(b[:, :3], b[:, 3:])
+    return np.concatenate([lo, hi], axis=1)
+
+
 def _grown(a: np.ndarray, need: int, fill=None) -> np.ndarray:
     if len(a) >= need:
         return a
@@ -506,10 +531,10 @@ class RaySegmentTrees:
     """The six trees over ``domain`` (2, 3) and their tunnels (growth, compaction)."""
 
     #: bytes per node, entry, section, tunnel as stored
-    NODE_BYTES = 4 + 1 + 20 + 4 + 4
+    NODE_BYTES = 4 + 1 + 5 + 4 + 4
     ENTRY_BYTES = 4 + 4
-    SECTION_BYTES = 80 + 1 + 4
-    TUNNEL_BYTES = 48 + 48 + 1 + 4 + 8
+    SECTION_BYTES = 40 + 1 + 4
+    TUNNEL_BYTES = 24 + 24 + 1 + 4 + 8
 
     def __init__(self, domain: np.ndarray, slack: float) -> None:
         self.dom = np.ascontiguousarray(domain, np.float64).reshape(2, 3)
@@ -520,10 +545,11 @@ class RaySegmentTrees:
         nodes, entries, secs, tuns = 1024, 4096, 1024, 256
         self.arrays = RSTArrays(
             np.full(nodes, -1, np.int32), np.zeros(nodes, np.int8),
-            np.zeros((nodes, 5), np.int32), np.full(nodes, -1, np.int32),
+            np.zeros((nodes, 5), np.uint8), np.full(nodes, -1, np.int32),
             np.zeros(nodes, np.int32), np.empty(entries, np.int32),
-            np.empty(entries, np.int32), np.empty((secs, 10)), np.empty(secs, np.int8),
-            np.empty(secs, np.int32), np.empty((tuns, 6)), np.empty((tuns, 6)),
+            np.empty(entries, np.int32), np.empty((secs, 10), np.float32),
+            np.empty(secs, np.int8), np.empty(secs, np.int32),
+            np.empty((tuns, 6), np.float32), np.empty((tuns, 6), np.float32),
             np.empty(tuns, np.bool_), np.empty(tuns, np.int32), np.empty(tuns, np.int64))
         self.n_nodes = 6  # the roots, one per face pair
         self.n_entries = 0
@@ -552,8 +578,8 @@ class RaySegmentTrees:
                   tun_inf=_grown(a.tun_inf, t1), tun_q=_grown(a.tun_q, t1),
                   tun_serial=_grown(a.tun_serial, t1))
         a = self.arrays
-        a.tun_a[t0:t1] = ta
-        a.tun_b[t0:t1] = tb
+        a.tun_a[t0:t1] = ta if ta.dtype == np.float32 else _boxes32(ta)
+        a.tun_b[t0:t1] = tb if tb.dtype == np.float32 else _boxes32(tb)
         a.tun_inf[t0:t1] = tinf
         a.tun_q[t0:t1] = q
         a.tun_serial[t0:t1] = serial
@@ -563,8 +589,12 @@ class RaySegmentTrees:
                   sec_tun=_grown(a.sec_tun, s0 + 6 * m))
         a = self.arrays
         esc = np.zeros(m, np.bool_)
-        ns = make_sections(self.dom, a.tun_a, a.tun_b, a.tun_inf, t0, t1, a.sec_box[s0:],
+        box = np.empty((6 * m, 10))
+        ns = make_sections(self.dom, a.tun_a, a.tun_b, a.tun_inf, t0, t1, box,
                            a.sec_face[s0:], a.sec_tun[s0:], esc)
+        lo, hi = outward32(box[:ns, 0::2], box[:ns, 1::2])
+        a.sec_box[s0:s0 + ns, 0::2] = lo
+        a.sec_box[s0:s0 + ns, 1::2] = hi
         self.n_sec = s0 + ns
         if np.any(esc):
             self.escape = np.concatenate([self.escape,
@@ -612,13 +642,18 @@ class RaySegmentTrees:
         keep = np.empty(self.n_tun, np.bool_)
         return int(live_tunnels(self.arrays, self.n_tun, pool_serial, pool_live, keep))
 
-    def compact(self, pool_serial, pool_live, force: bool = False) -> bool:
+    def compact(self, pool_serial, pool_live, force: bool = False, domain=None,
+                slack: float | None = None) -> bool:
         """Rebuild from the live tunnels once the dead ones outnumber them (or with
-        ``force``). Returns whether it rebuilt."""
+        ``force``; over a new ``domain`` if given). Returns whether it rebuilt."""
         keep = np.empty(self.n_tun, np.bool_)
         live = int(live_tunnels(self.arrays, self.n_tun, pool_serial, pool_live, keep))
         if not force and self.n_tun - live <= live + COMPACT_SLACK:
             return False
+        if domain is not None:
+            self.dom = np.ascontiguousarray(domain, np.float64).reshape(2, 3)
+        if slack is not None:
+            self.slack = float(slack)
         a, n = self.arrays, self.n_tun
         ta, tb, ti = a.tun_a[:n][keep], a.tun_b[:n][keep], a.tun_inf[:n][keep]
         tq, ts = a.tun_q[:n][keep], a.tun_serial[:n][keep]

@@ -182,7 +182,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     fs = cache.frame_stats
     stats = dict(
         mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,
-        build_s=fs.get("build_s", 0.0), trace_s=t_trace - t_res,
+        build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
+        trace_s=t_trace - t_res,
         interpolated_fraction=float(np.count_nonzero(interp)) / max(n, 1),
         traced_rays=len(todo), shadow_rays=counters.get("shadow", 0),
         secondary_rays=counters.get("secondary", 0),

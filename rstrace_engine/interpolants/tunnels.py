@@ -182,8 +182,9 @@ def _add_key(keys, n, key):
 
 
 @njit(cache=True, nogil=True)
-def cell_members(sm, roots, write, ostart, lstart, ocount, lcount, okeys, lkeys, world):
-    """Membership keys of cells whose (shared) ray tree is sample ``roots[c]``'s.
+def cell_members(sm, ids, ns, write, ostart, lstart, ocount, lcount, okeys, lkeys, world):
+    """Membership keys of cells: the union over the ray trees of samples ``ids[c, :ns[c]]``
+    (a valid cell's samples share one position-independent tree: one sample is enough).
 
     Object keys ``2 * instance + OBJ_HIT / OBJ_OCCLUDES``, light keys ``2 * light +
     LIGHT_SHADES / LIGHT_OCCLUDED`` (each once per cell); ``world[c]``: some node misses (the
@@ -192,29 +193,30 @@ def cell_members(sm, roots, write, ostart, lstart, ocount, lcount, okeys, lkeys,
     L = sm.node_occ.shape[1]
     ob = np.empty(64, np.int64)
     lb = np.empty(2 * max(L, 1), np.int64)
-    for c in range(roots.shape[0]):
-        s0 = roots[c]
-        base = sm.node_start[s0]
+    for c in range(ids.shape[0]):
         no = 0
         nl = 0
         w = False
-        for q in range(sm.node_count[s0]):
-            oi = sm.node_inst[base + q]
-            if oi < 0:
-                w = True
-                continue
-            if no + 1 + L > ob.shape[0]:
-                nb = np.empty(2 * ob.shape[0] + L, np.int64)
-                nb[:no] = ob[:no]
-                ob = nb
-            no = _add_key(ob, no, 2 * oi + OBJ_HIT)
-            for j in range(L):
-                occ = sm.node_occ[base + q, j]
-                if occ >= 0:
-                    no = _add_key(ob, no, 2 * occ + OBJ_OCCLUDES)
-                    nl = _add_key(lb, nl, 2 * j + LIGHT_OCCLUDED)
-                else:
-                    nl = _add_key(lb, nl, 2 * j + LIGHT_SHADES)
+        for u in range(ns[c]):
+            s0 = ids[c, u]
+            base = sm.node_start[s0]
+            for q in range(sm.node_count[s0]):
+                oi = sm.node_inst[base + q]
+                if oi < 0:
+                    w = True
+                    continue
+                if no + 1 + L > ob.shape[0]:
+                    nb = np.empty(2 * ob.shape[0] + L, np.int64)
+                    nb[:no] = ob[:no]
+                    ob = nb
+                no = _add_key(ob, no, 2 * oi + OBJ_HIT)
+                for j in range(L):
+                    occ = sm.node_occ[base + q, j]
+                    if occ >= 0:
+                        no = _add_key(ob, no, 2 * occ + OBJ_OCCLUDES)
+                        nl = _add_key(lb, nl, 2 * j + LIGHT_OCCLUDED)
+                    else:
+                        nl = _add_key(lb, nl, 2 * j + LIGHT_SHADES)
         ocount[c] = no
         lcount[c] = nl
         world[c] = w

@@ -216,6 +216,94 @@ def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_o
                              light_pos, light_dir)
 
 
+TILE = 8  # pixels per side of the screen tiles the primary query culls with
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
+                 height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                 light_kind, light_pos, light_dir, out):
+    """The primary query, culled by screen tiles (perspective cameras).
+
+    Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
+    union of its traced lights. A segment from the camera to any point of the box lies
+    within the box's half-size of the segment to its centre (and likewise towards a
+    light), so growing the regions by that half-size makes one test per tile and light
+    conservative; only tiles that fail it (or hold a miss) test their rays one by one.
+    """
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
+    k_reg = reg_lo.shape[0]
+    for t in prange(n_tiles):
+        s = t // (tw * th)
+        r = t - s * tw * th
+        ty = r // tw
+        tx = r - ty * tw
+        x0, y0 = tx * TILE, ty * TILE
+        x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+        blo = np.full(3, np.inf)
+        bhi = np.full(3, -np.inf)
+        traced = np.uint64(0)
+        check = False
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                g = s * n_pixels + y * width + x
+                c = p_combo[g]
+                if combo_inst[c] < 0:
+                    check = True  # misses are tested ray by ray
+                    continue
+                traced |= combo_traced[c]
+                px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
+                blo[0] = min(blo[0], px)
+                blo[1] = min(blo[1], py)
+                blo[2] = min(blo[2], pz)
+                bhi[0] = max(bhi[0], px)
+                bhi[1] = max(bhi[1], py)
+                bhi[2] = max(bhi[2], pz)
+        if not check and blo[0] <= bhi[0] and k_reg > 0:
+            cx = 0.5 * (blo[0] + bhi[0])
+            cy = 0.5 * (blo[1] + bhi[1])
+            cz = 0.5 * (blo[2] + bhi[2])
+            glo = np.empty(3)
+            ghi = np.empty(3)
+            for q in range(k_reg):
+                for k in range(3):
+                    half = 0.5 * (bhi[k] - blo[k])
+                    glo[k] = reg_lo[q, k] - half
+                    ghi[k] = reg_hi[q, k] + half
+                if _segment_box(cam_origin[0], cam_origin[1], cam_origin[2], cx, cy, cz,
+                                glo, ghi, False):
+                    check = True
+                    break
+                for j in range(light_kind.shape[0]):
+                    if not (traced >> np.uint64(j)) & np.uint64(1):
+                        continue
+                    if light_kind[j] == LIGHT_SUN:
+                        hit = _segment_box(cx, cy, cz, cx - light_dir[j, 0],
+                                           cy - light_dir[j, 1], cz - light_dir[j, 2], glo,
+                                           ghi, True)
+                    else:
+                        hit = _segment_box(cx, cy, cz, light_pos[j, 0], light_pos[j, 1],
+                                           light_pos[j, 2], glo, ghi, False)
+                    if hit:
+                        check = True
+                        break
+                if check:
+                    break
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                g = s * n_pixels + y * width + x
+                c = p_combo[g]
+                if combo_dirty[c]:
+                    out[g] = True
+                elif check:
+                    out[g] = _node_dirty(p_code[g], cam_origin[0], cam_origin[1],
+                                         cam_origin[2], combo_inst[c], combo_traced[c], lo,
+                                         step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                                         light_kind, light_pos, light_dir)
+
+
 @njit(cache=True, nogil=True)
 def _secondary_rays(s_parent, n_rays, s_ray):
     """The sample each secondary node belongs to (parents come before their children)."""
@@ -283,8 +371,11 @@ class PixelRecords:
         ext = np.maximum(hi - lo + 2 * pad, 1e-9)
         self.levels, self.shift = _levels_for(ext)
         self.step = ext / self.levels
-        self.combo = np.zeros((0, 4), np.uint64)  # inst (as int64 bits), traced, lit, flags
-        self._combo_index: dict = {}
+        # the shared table of position-independent parts, one row per distinct part
+        self.t_inst = np.zeros(0, np.int32)  # instance hit, -1 a miss
+        self.t_traced = np.zeros(0, np.uint8)  # light bits (as narrow as the lights allow)
+        self.t_lit = np.zeros(0, np.uint8)
+        self.t_flags = np.zeros(0, np.uint8)
         self.p_combo = np.zeros(self.n_rays, np.uint32)
         self.p_code = np.zeros(self.n_rays, np.uint32)
         self.s_parent = np.zeros(0, np.int32)
@@ -294,24 +385,42 @@ class PixelRecords:
 
     # -- building ------------------------------------------------------------------------
 
+    def _wide(self) -> np.ndarray:
+        """The table as (C, 4) uint64 rows (inst bits, traced, lit, flags) for interning."""
+        return np.stack([self.t_inst.astype(np.int64).view(np.uint64),
+                         self.t_traced.astype(np.uint64), self.t_lit.astype(np.uint64),
+                         self.t_flags.astype(np.uint64)], axis=1)
+
+    def _set_table(self, wide: np.ndarray) -> None:
+        masks = wide[:, 1:3]
+        top = int(masks.max(initial=0))
+        dt = (np.uint8 if top < 1 << 8 else np.uint16 if top < 1 << 16
+              else np.uint32 if top < 1 << 32 else np.uint64)
+        self.t_inst = wide[:, 0].view(np.int64).astype(np.int32)
+        self.t_traced = wide[:, 1].astype(dt)
+        self.t_lit = wide[:, 2].astype(dt)
+        self.t_flags = wide[:, 3].astype(np.uint8)
+
+    @property
+    def n_table(self) -> int:
+        return len(self.t_inst)
+
     def _intern(self, inst, traced, lit, flags) -> np.ndarray:
+        """Table ids of rows (inst, traced, lit, flags), adding the rows not there yet."""
         rows = np.stack([inst.astype(np.int64).view(np.uint64), traced.astype(np.uint64),
                          lit.astype(np.uint64), flags.astype(np.uint64)], axis=1)
         if len(rows) == 0:
             return np.zeros(0, np.uint32)
-        uniq, inv = np.unique(rows, axis=0, return_inverse=True)
-        ids = np.empty(len(uniq), np.uint32)
-        new = []
-        for k, row in enumerate(map(tuple, uniq.tolist())):
-            c = self._combo_index.get(row)
-            if c is None:
-                c = len(self._combo_index)
-                self._combo_index[row] = c
-                new.append(row)
-            ids[k] = c
-        if new:
-            self.combo = np.concatenate([self.combo, np.array(new, np.uint64).reshape(-1, 4)])
-        return ids[inv.reshape(-1)]
+        old = self._wide()
+        c = len(old)
+        void = np.dtype((np.void, 32))
+        both = np.ascontiguousarray(np.concatenate([old, rows])).view(void).reshape(-1)
+        uniq, first, inv = np.unique(both, return_index=True, return_inverse=True)
+        is_new = first >= c
+        ids = np.where(is_new, c + np.cumsum(is_new) - 1, first)
+        if is_new.any():
+            self._set_table(np.concatenate([old, np.concatenate([old, rows])[first[is_new]]]))
+        return ids[inv.reshape(-1)[c:]].astype(np.uint32)
 
     def add(self, rays: np.ndarray, levels: list) -> None:
         """Record the trees of a traced batch: ``rays`` (nb,) int64 global sample numbers of
@@ -329,7 +438,7 @@ class PixelRecords:
         _encode_nodes(inst, np.ascontiguousarray(point), np.ascontiguousarray(dirn), self.lo,
                       self.step, self.levels, self.shift, codes, outside)
         combos = self._intern(inst, traced, lit, np.where(outside, FLAG_ALWAYS, 0))
-        if len(self.combo) > 65535 and self.p_combo.dtype != np.uint32:
+        if self.n_table > 65535 and self.p_combo.dtype != np.uint32:
             self.p_combo = self.p_combo.astype(np.uint32)
             self.s_combo = self.s_combo.astype(np.uint32)
         nb = len(levels[0]["inst"])
@@ -391,28 +500,24 @@ class PixelRecords:
 
     def _compact(self) -> None:
         """Drop table rows no node uses any more; keep indices 16-bit where they fit."""
-        used = np.zeros(len(self.combo), bool)
+        used = np.zeros(self.n_table, bool)
         used[self.p_combo] = True
         used[self.s_combo] = True
-        if used.all() and len(self.combo) <= 65535:
-            self._narrow()
-            return
-        remap = np.cumsum(used) - 1
-        self.combo = self.combo[used]
-        self._combo_index = {tuple(r): k for k, r in enumerate(self.combo.tolist())}
-        self.p_combo = remap[self.p_combo].astype(np.uint32)
-        self.s_combo = remap[self.s_combo].astype(np.uint32)
-        self._narrow()
-
-    def _narrow(self) -> None:
-        dt = np.uint16 if len(self.combo) <= 65535 else np.uint32
-        self.p_combo = self.p_combo.astype(dt)
-        self.s_combo = self.s_combo.astype(dt)
+        n_used = int(np.count_nonzero(used))
+        if self.n_table > min(65535, 2 * n_used + 1024):  # else compact later (amortised)
+            remap = np.cumsum(used) - 1
+            self._set_table(self._wide()[used])
+            self.p_combo = remap[self.p_combo].astype(np.uint32)
+            self.s_combo = remap[self.s_combo].astype(np.uint32)
+        dt = np.uint16 if self.n_table <= 65535 else np.uint32
+        self.p_combo = self.p_combo.astype(dt, copy=False)
+        self.s_combo = self.s_combo.astype(dt, copy=False)
 
     @property
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes."""
-        return int(sum(a.nbytes for a in (self.combo, self.p_combo, self.p_code,
+        return int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
+                                           self.t_flags, self.p_combo, self.p_code,
                                            self.s_parent, self.s_combo, self.s_code)))
 
     # -- querying ------------------------------------------------------------------------
@@ -421,9 +526,9 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
-        combo_inst = self.combo[:, 0].view(np.int64).astype(np.int64)
-        combo_traced = np.ascontiguousarray(self.combo[:, 1])
-        combo_lit = self.combo[:, 2]
+        combo_inst = self.t_inst.astype(np.int64)
+        combo_traced = self.t_traced.astype(np.uint64)
+        combo_lit = self.t_lit.astype(np.uint64)
         n_slots = max(len(sa.inst_mesh), int(combo_inst.max(initial=-1)) + 1, 1)
         hot = np.zeros(n_slots + 1, bool)  # last entry: a miss
         for k in fx.objects:
@@ -438,7 +543,7 @@ class PixelRecords:
         for j in fx.lights:
             lights |= np.uint64(1) << np.uint64(j)
         is_hit = combo_inst >= 0
-        dirty = ((self.combo[:, 3] & FLAG_ALWAYS) != 0) | ((combo_lit & lights) != 0)
+        dirty = ((self.t_flags & np.uint8(FLAG_ALWAYS)) != 0) | ((combo_lit & lights) != 0)
         dirty |= is_hit & hot[np.where(is_hit, combo_inst, n_slots)]
         if fx.lights_moved:
             dirty |= is_hit
@@ -467,10 +572,16 @@ class PixelRecords:
         pos = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
-        _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
-                       np.ascontiguousarray(cp.xform[:3, 3]), np.ascontiguousarray(origins),
-                       self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi, reg_c,
-                       reg_r, kind, pos, ldir, out)
+        if cp.ortho:
+            _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
+                           np.ascontiguousarray(cp.xform[:3, 3]),
+                           np.ascontiguousarray(origins), self.lo, self.step, self.levels,
+                           self.shift, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+        else:
+            _query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
+                         np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
+                         self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,
+                         reg_hi, reg_c, reg_r, kind, pos, ldir, out)
         m = len(self.s_parent)
         if m:
             s_dirty = np.zeros(m, np.bool_)

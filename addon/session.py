@@ -56,6 +56,7 @@ class SceneState:
     pending: list = field(default_factory=list)  # viewport edits not applied yet
     new_snapshot: object = None  # a viewport snapshot waiting for its session
     last_report: object = None  # EditReport of the last apply
+    dirty_mask: object = None  # (h, w) bool pixels the last F12 re-rendered; None: all
 
 
 _STATES: dict[int, SceneState] = {}
@@ -198,6 +199,7 @@ class FrameRenderer:
                 self._warn(state, message)
             if engine.test_break():
                 return
+            state.dirty_mask = getattr(session, "dirty_mask", None)
             t2 = time.perf_counter()
             frame = session.render(progress=self._progress, cancel=engine.test_break)
             t_render = time.perf_counter() - t2

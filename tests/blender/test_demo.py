@@ -25,3 +25,14 @@ def test_demo_renders_edits_and_reports(tmp_path):
     assert stats["renders"]["interpolated"]["mode"] == "INTERPOLANT"
     acc = stats["interpolated_vs_base"]
     assert acc["frac_over"] <= 0.001 and acc["max_error"] < 0.05
+    # the edit loop: each edit rendered incrementally, with its dirty pixels beside it
+    loop = stats["edit_loop"]
+    assert [r["edit"].split()[0] for r in loop][:4] == ["move", "rotate", "BlueSphere's",
+                                                        "Key"]
+    assert all(sum(r["depsgraph_edits"].values()) >= 1 for r in loop)
+    colour = loop[2]
+    assert colour["depsgraph_edits"] == {"MaterialSet": 1}
+    assert colour["incremental"] and colour["dirty_fraction"] < 0.2
+    assert (out / "edits" / "edits.txt").read_text().count("\n") == len(loop)
+    for k in range(1, len(loop) + 1):
+        assert len(list((out / "edits").glob(f"{k:02d}_*.png"))) == 2

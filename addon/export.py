@@ -23,25 +23,30 @@ Layer: imports ``materials``, ``meshes``, ``lights``, ``cameras`` (no session, e
 
 from __future__ import annotations
 
-import inspect
 import time
 from collections.abc import Hashable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from rstrace_engine import tolerances as tol
 from rstrace_engine.geometry.scene import (
     MAX_LIGHTS,
-    Camera,
     Light,
-    Material,
-    Mesh,
-    Scene,
     SceneError,
     check_matrix,
 )
 
+from .caches import (
+    DEFAULT_MATERIAL_KEY,
+    Dirty,
+    ExportCache,
+    Exported,
+    MaterialEntry,
+    MeshEntry,
+    ObjectRecord,
+    Snapshot,
+    build_scene,
+)
 from .cameras import camera_from_object
 from .lights import read_light, world_colour
 from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
@@ -51,79 +56,6 @@ from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
 #: (so the object itself is skipped), and types with nothing to render.
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
-
-DEFAULT_MATERIAL_KEY = "default"
-
-
-@dataclass
-class ObjectRecord:
-    """One rendered object (or instance) as the renderer sees it."""
-
-    name: str
-    mesh_key: Hashable
-    matrix: np.ndarray  # (4, 4) float64
-    material_keys: tuple
-
-
-@dataclass
-class MeshEntry:
-    mesh: Mesh | None  # None: cannot be rendered (``reason`` says why)
-    reason: str | None
-    fingerprint: bytes
-    source: str  # "VIEWPORT" or "RENDER": which depsgraph it was read from
-
-
-@dataclass
-class MaterialEntry:
-    material: Material
-    notes: list  # (kind, name) warnings its conversion produced, re-reported every export
-
-
-@dataclass
-class Dirty:
-    """What ``depsgraph.updates`` said changed: session_uids of objects with new geometry,
-    mesh datablocks, and materials; ``all_materials`` after node-group or image updates."""
-
-    objects: set = field(default_factory=set)
-    data: set = field(default_factory=set)
-    materials: set = field(default_factory=set)
-    all_materials: bool = False
-
-
-@dataclass
-class Snapshot:
-    """The scene as one depsgraph showed it (keys -> plain values, no Blender references)."""
-
-    objects: dict  # key -> ObjectRecord
-    hidden: set  # keys of objects present but hidden from renders
-    lights: dict  # key -> Light
-    world: tuple
-    camera: Camera | None
-    notes: Notes
-    width: int
-    height: int
-    stats: dict = field(default_factory=dict)
-
-    @property
-    def warnings(self) -> list[str]:
-        return self.notes.warnings
-
-
-class ExportCache:
-    """Per-datablock caches that survive between exports of one scene."""
-
-    def __init__(self) -> None:
-        self.meshes: dict[Hashable, MeshEntry] = {}
-        self.materials: dict[Hashable, MaterialEntry] = {
-            DEFAULT_MATERIAL_KEY: MaterialEntry(DEFAULT_MATERIAL.validated(), [])}
-        self.textures: dict = {}
-
-    def mesh(self, key: Hashable) -> Mesh:
-        return self.meshes[key].mesh
-
-    def material(self, key: Hashable) -> Material:
-        return self.materials[key].material
-
 
 # ----------------------------------------------------------------------------- keys
 
@@ -347,71 +279,6 @@ def _check_visibility(ob, name: str, notes: Notes) -> None:
             and ob.visible_transmission):
         notes.warn("per-object ray visibility is not supported (objects are visible to all "
                    "rays)", name)
-
-
-# ----------------------------------------------------------------------------- scene
-
-
-def _takes_key(method) -> bool:
-    try:
-        return "key" in inspect.signature(method).parameters
-    except (TypeError, ValueError):
-        return False
-
-
-def build_scene(snap: Snapshot, cache: ExportCache, camera: Camera | None = None) -> Scene:
-    """A :class:`Scene` holding everything ``snap`` renders (keys given where supported).
-
-    Raises :class:`SceneError` when nothing is left to render.
-    """
-    if not snap.objects:
-        raise SceneError("nothing to render: the scene has no visible mesh objects"
-                         + (f" ({'; '.join(snap.notes.skipped)})" if snap.notes.skipped
-                            else ""))
-    scene = Scene()
-    keyed = _takes_key(scene.add_mesh)
-
-    def add(method, value, key):
-        return method(value, key=key) if keyed else method(value)
-
-    mesh_ids: dict = {}
-    mat_ids: dict = {}
-    for key, rec in snap.objects.items():
-        if rec.mesh_key not in mesh_ids:
-            mesh_ids[rec.mesh_key] = add(scene.add_mesh, cache.mesh(rec.mesh_key),
-                                         rec.mesh_key)
-        ids = []
-        for mk in rec.material_keys:
-            if mk not in mat_ids:
-                mat_ids[mk] = add(scene.add_material, cache.material(mk), mk)
-            ids.append(mat_ids[mk])
-        if keyed:
-            scene.add_instance(mesh_ids[rec.mesh_key], rec.matrix, ids, name=rec.name,
-                               key=key)
-        else:
-            scene.add_instance(mesh_ids[rec.mesh_key], rec.matrix, ids, name=rec.name)
-    for key, light in snap.lights.items():
-        add(scene.add_light, light, key)
-    scene.set_world_color(snap.world)
-    cam = camera if camera is not None else snap.camera
-    if cam is not None:
-        scene.set_camera(cam)
-    return scene
-
-
-@dataclass
-class Exported:
-    """The result of :func:`export_scene`."""
-
-    scene: Scene
-    notes: Notes
-    width: int
-    height: int
-    stats: dict = field(default_factory=dict)
-
-    @property
-    def warnings(self) -> list[str]:
-        return self.notes.warnings + self.scene.warnings
 
 
 def export_scene(depsgraph, camera_object=None, width: int | None = None,

@@ -205,3 +205,19 @@ def test_last_render_stats_is_documented_and_filled():
                 "interpolated_fraction", "invalidated_interpolants", "memory_mb", "edits"):
         assert key in stats and key in addon.last_render_stats.__doc__, key
     assert stats["memory_mb"] > 0.0
+
+
+def test_animation_frames_pass_what_moved_as_edits():
+    sc = _scene(24, 18)
+    red = bpy.data.objects["RedSphere"]
+    red.keyframe_insert("location", frame=1)
+    red.location.x += 0.5
+    red.keyframe_insert("location", frame=2)
+    sc.frame_set(1)
+    _f12()
+    sc.frame_set(2)
+    inc, stats = _f12()
+    assert stats["edit_kinds"] == {"ObjectTransform": 1} and stats["meshes_read"] == 0
+    assert stats["incremental"] and stats["dirty_fraction"] < 1.0
+    ref, _ = _f12(fresh=True)
+    np.testing.assert_array_equal(inc, ref)

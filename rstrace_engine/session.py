@@ -33,6 +33,7 @@ from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, Re
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
+from .incremental import ensure_cache, render_interpolant
 from .interpolants.render import InterpolantRenderer
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
@@ -52,7 +53,8 @@ class Session:
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None) -> None:
         self.settings = (settings or RenderSettings()).validated()
-        self.scene = scene
+        scene.arrays()  # validated before anything is built
+        self.scene = scene.copy()  # the host may go on changing its own scene object
         self.accel = None
         self.stats: dict = {}
         self.interpolants = InterpolantRenderer()
@@ -62,6 +64,10 @@ class Session:
         self._frame_key = None
         self._dirty: np.ndarray | None = None  # (h * w,) bool pixels the next frame redoes
         self._rebuilt: np.ndarray | None = None  # dirty through an invalidated interpolant
+        # INTERPOLANT: the serial of every interpolant id when the last frame ended, and the
+        # kept pixels whose interpolant was evicted since (no longer tracked by the RSTs)
+        self._snap: np.ndarray | None = None
+        self._untracked: np.ndarray | None = None
         self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
@@ -167,6 +173,12 @@ class Session:
         dirty = rec.dirty_pixels(old_sa, camera_params(self.scene.camera), fx)
         if rebuilt is not None:
             dirty |= rebuilt
+        if f.pixel_interpolant is not None and fx.scene_content_changed:
+            # pixels whose interpolant the RSTs no longer track (evicted by the memory cap
+            # after the pixel was rendered), and pixels whose samples used several
+            dirty |= f.pixel_interpolant.reshape(-1) == -2
+            if self._untracked is not None:
+                dirty |= self._untracked
         report.records_query_ms = 1e3 * (time.perf_counter() - t0)
         self._dirty |= dirty
         report.full_frame = False
@@ -180,6 +192,38 @@ class Session:
             self._build_accelerator(settings.accelerator)  # raises before anything changes
             self.interpolants.reset()
         self.settings = settings
+
+    def _track_interpolants(self, frame: Frame, pixels, pool0) -> None:
+        """After an INTERPOLANT frame: note the pixels whose interpolant the RSTs no longer
+        track -- kept pixels whose interpolant was evicted since it was used, and, when the
+        memory cap evicted anything during the frame, every pixel it interpolated (an id
+        may have been freed and reused within the frame) -- so that the next content edit
+        re-renders them; snapshot the serials."""
+        c = self.interpolants.cache
+        pi = frame.pixel_interpolant
+        if c is None or pi is None:
+            self._snap = self._untracked = None
+            return
+        pi = pi.reshape(-1)
+        pool = c.pool
+        untracked = np.zeros(len(pi), bool)
+        # a cache made during the frame started with serial 1 and nothing live
+        s0, live0 = (pool0[1], pool0[2]) if pool0 is not None and pool0[0] is c else (1, 0)
+        evicted = (pool.next_serial - s0) - (pool.n_live - live0) > 0
+        if evicted:
+            rendered = np.ones(len(pi), bool) if pixels is None else pixels
+            untracked |= rendered & (pi != -1)
+        if pixels is not None and self._snap is not None and self._untracked is not None:
+            kept = ~pixels & (pi >= 0)
+            idx = pi[kept]
+            n = min(len(pool.serial), len(self._snap))
+            inside = idx < n
+            safe = np.where(inside, idx, 0)
+            gone = ~inside | ~pool.live[safe] | (pool.serial[safe] != self._snap[safe])
+            untracked[np.flatnonzero(kept)[gone]] = True
+            untracked |= self._untracked & ~pixels
+        self._untracked = untracked
+        self._snap = pool.serial.copy()
 
     @property
     def dirty_mask(self) -> np.ndarray | None:
@@ -216,8 +260,12 @@ class Session:
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
-        keeps_records = mode == "BASE" or _accepts(self.interpolants.render, "records")
-        incremental = (keeps_records and self.frame is not None and self.records is not None
+        own_records = _accepts(self.interpolants.render, "records")
+        new_cache = False
+        if mode == "INTERPOLANT" and not own_records:
+            cache, new_cache = ensure_cache(self.interpolants, self.scene, self.settings,
+                                            self.accel)
+        incremental = (not new_cache and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
         if incremental:
             records = self.records
@@ -225,15 +273,18 @@ class Session:
         else:
             records = PixelRecords(cam.width, cam.height, self.settings.samples, sa.scene_aabb)
             pixels = None
+        c0 = self.interpolants.cache
+        pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
             base = self.frame if incremental else None
-            if keeps_records:
+            if own_records:
                 frame = self.interpolants.render(self.scene, self.settings, self.accel,
                                                  progress=progress, cancel=cancel,
                                                  records=records, pixels=pixels, base=base)
             else:
-                frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                                 progress=progress, cancel=cancel)
+                frame = render_interpolant(cache, self.scene, self.settings, records,
+                                           pixels=pixels, base=base, progress=progress,
+                                           cancel=cancel)
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
@@ -251,11 +302,9 @@ class Session:
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self._dirty = None
         else:
-            if keeps_records:
-                records.finish(drop_rays=None if pixels is None
-                               else np.tile(pixels, self.settings.samples))
-            else:  # this interpolant renderer keeps no per-pixel records: full frames
-                records = None
+            records.finish(drop_rays=None if pixels is None
+                           else np.tile(pixels, self.settings.samples))
+            self._track_interpolants(stored, pixels if incremental else None, pool0)
             self.frame, self.records, self._frame_key = stored, records, key
             self._dirty = np.zeros(cam.width * cam.height, bool)
             self._rebuilt = np.zeros(cam.width * cam.height, bool)

@@ -234,3 +234,14 @@ def test_the_callers_arrays_are_copied():
         frame = sess.render()
         np.testing.assert_array_equal(frame.radiance,
                                       Session(sess.scene.copy()).render().radiance)
+
+
+def test_host_changing_its_scene_object_is_a_diff():
+    """A host that edits the very Scene object it gave the session, then hands it back."""
+    s = row_scene()
+    sess = Session(s)
+    sess.render()
+    s.set_instance_matrix(s.instance_slot("Cube2"), shapes.transform((2.0, 1.5, 0.5)))
+    rep = sess.update_scene(s)
+    assert rep.kinds == {"ObjectTransform": 1}
+    np.testing.assert_array_equal(sess.render().radiance, Session(s).render().radiance)

@@ -62,18 +62,25 @@ def test_random_edits_base_exact(scene_name):
     assert np.median(fractions) < 0.75, fractions
 
 
-def test_random_edits_interpolant_within_epsilon():
+@pytest.mark.parametrize("memory_cap_mb", [256.0, 0.004])
+def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
+    """Also under a memory cap so small that interpolants are evicted every frame (a kept
+    pixel whose interpolant was evicted is no longer tracked by the RSTs)."""
     eps = 0.05
-    settings = RenderSettings(mode="INTERPOLANT", epsilon=eps, max_depth=3)
+    settings = RenderSettings(mode="INTERPOLANT", epsilon=eps, max_depth=3,
+                              memory_cap_mb=memory_cap_mb)
     base_settings = RenderSettings(mode="BASE", max_depth=3)
-    gen = EditGenerator(SOAK_SCENES["spheres"](48, 36), seed=5)
+    gen = EditGenerator(SOAK_SCENES["spheres"](128, 96), seed=5)  # big enough to interpolate
     sess = Session(gen.scene.copy(), settings)
     prev_base = fresh_frame(sess.scene, base_settings)
     sess.render()
-    for _ in range(12):
+    incremental = interpolated = 0
+    for _ in range(10):
         sess.apply(gen.step())
         dirty = sess.dirty_mask
         frame = sess.render()
+        incremental += frame.stats["incremental"]
+        interpolated += int(np.count_nonzero(frame.pixel_class == CLASS_INTERPOLATED))
         base = fresh_frame(sess.scene, base_settings)
         fresh = fresh_frame(sess.scene, settings)
         for f in (frame, fresh):
@@ -86,6 +93,7 @@ def test_random_edits_interpolant_within_epsilon():
             changed = np.any(prev_base.radiance != base.radiance, axis=2)
             assert not (changed & ~dirty).any()
         prev_base = base
+    assert incremental >= 4 and interpolated > 0
 
 
 def test_moving_a_small_object_dirties_little():

@@ -77,7 +77,12 @@ def spheres(width: int = 64, height: int = 48) -> Scene:
     return scenes.three_spheres(width, height, subdivisions=2)
 
 
-SOAK_SCENES = {"room": room, "spheres": spheres}
+def tori(width: int = 64, height: int = 48) -> Scene:
+    """Smooth non-convex objects (tori, one a mirror), a point light and a sun."""
+    return scenes.tori(width, height)
+
+
+SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori}
 
 
 class EditGenerator:

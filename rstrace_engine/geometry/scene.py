@@ -23,190 +23,29 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
 from .. import tolerances as tol
+from .elements import (  # noqa: F401 - re-exported, the scene model's public names
+    LIGHT_KINDS,
+    LIGHT_NONE,
+    LIGHT_POINT,
+    LIGHT_SPOT,
+    LIGHT_SUN,
+    MAX_LIGHTS,
+    Camera,
+    Light,
+    Material,
+    Mesh,
+    SceneError,
+    _colour,
+    _finite_array,
+    check_matrix,
+)
 
 log = logging.getLogger(__name__)
-
-LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT = 0, 1, 2
-LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
-LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
-
-MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
-
-
-class SceneError(ValueError):
-    """Invalid scene input. The message names the offending object or setting."""
-
-
-# ----------------------------------------------------------------------------- checks
-
-
-def _finite_array(name: str, what: str, value, shape_tail, dtype=np.float64) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=dtype)  # a copy: the caller may change its array later
-    except (TypeError, ValueError) as exc:
-        raise SceneError(f"{what} '{name}': cannot read as numbers ({exc})") from None
-    if shape_tail is not None:
-        tail = tuple(shape_tail)
-        if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail:
-            raise SceneError(f"{what} '{name}': expected shape (n, {', '.join(map(str, tail))}),"
-                             f" got {arr.shape}")
-    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
-        bad = int(np.count_nonzero(~np.isfinite(arr)))
-        raise SceneError(f"{what} '{name}': {bad} NaN or infinite value(s)")
-    return arr
-
-
-def _colour(name: str, what: str, value, lo: float = 0.0, hi: float | None = 1.0) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.size == 1:
-        arr = np.repeat(arr, 3)
-    if arr.size != 3:
-        raise SceneError(f"{what}: expected an RGB triple, got {arr.size} values ({name})")
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f"{what}: NaN or infinite value ({name})")
-    if np.any(arr < lo) or (hi is not None and np.any(arr > hi)):
-        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
-        raise SceneError(f"{what}: {arr.tolist()} is outside {rng} ({name})")
-    return arr
-
-
-def check_matrix(name: str, matrix) -> np.ndarray:
-    """Validate a 4x4 affine object-to-world matrix; return it as float64."""
-    m = np.array(matrix, dtype=np.float64)  # a copy: the caller may change its array later
-    if m.shape != (4, 4):
-        raise SceneError(f"object '{name}': world matrix must be 4x4, got {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise SceneError(f"object '{name}': world matrix has NaN or infinite entries")
-    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), rtol=0, atol=1e-9):
-        raise SceneError(f"object '{name}': world matrix is projective (bottom row "
-                         f"{m[3].tolist()}), only affine transforms are supported")
-    lin = m[:3, :3]
-    norms = np.linalg.norm(lin, axis=0)
-    det = float(np.linalg.det(lin))
-    if np.min(norms) == 0.0 or abs(det) <= tol.SINGULAR_DET_REL * float(np.prod(norms)):
-        raise SceneError(f"object '{name}': world matrix is singular (zero scale on some "
-                         f"axis, scale {norms.tolist()})")
-    if np.max(np.abs(m[:3, 3])) > tol.COORD_MAX or np.max(norms) > tol.COORD_MAX:
-        raise SceneError(f"object '{name}': world matrix magnitude exceeds {tol.COORD_MAX:g}")
-    return m
-
-
-# ----------------------------------------------------------------------------- authoring
-
-
-@dataclass
-class Material:
-    """A Ward isotropic + Whitted material. Colours are linear RGB in [0, 1].
-
-    ``roughness`` is Ward's alpha (RMS slope), in (0, 1]. ``texture`` is an optional
-    ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
-    """
-
-    name: str = "material"
-    diffuse: tuple = (0.8, 0.8, 0.8)
-    specular: tuple = (0.0, 0.0, 0.0)
-    roughness: float = 0.2
-    mirror: tuple = (0.0, 0.0, 0.0)
-    transmission: tuple = (0.0, 0.0, 0.0)
-    ior: float = 1.45
-    emission: tuple = (0.0, 0.0, 0.0)
-    texture: np.ndarray | None = None
-
-    def validated(self) -> Material:
-        n = self.name
-        d = _colour(n, f"material '{n}' diffuse", self.diffuse)
-        s = _colour(n, f"material '{n}' specular", self.specular)
-        m = _colour(n, f"material '{n}' mirror", self.mirror)
-        t = _colour(n, f"material '{n}' transmission", self.transmission)
-        e = _colour(n, f"material '{n}' emission", self.emission, hi=None)
-        if np.any(d + s + m + t > 1.0 + 1e-6):
-            raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
-                             f"exceeds 1 in some channel (energy would be created)")
-        r = float(self.roughness)
-        if not (math.isfinite(r) and 1e-4 <= r <= 1.0):
-            raise SceneError(f"material '{n}': roughness {r} outside [1e-4, 1]")
-        ior = float(self.ior)
-        if not (math.isfinite(ior) and 1.0 <= ior <= 10.0):
-            raise SceneError(f"material '{n}': IOR {ior} outside [1, 10]")
-        tex = None
-        if self.texture is not None:
-            tex = _finite_array(n, f"material '{n}' texture", self.texture, None, np.float32)
-            if tex.ndim != 3 or tex.shape[2] < 3 or tex.shape[0] < 1 or tex.shape[1] < 1:
-                raise SceneError(f"material '{n}': texture must be (h, w, 3), got {tex.shape}")
-            tex = np.ascontiguousarray(tex[:, :, :3])
-        return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex)
-
-
-@dataclass
-class Mesh:
-    """Triangle mesh in object space.
-
-    vertices : (n, 3) float64
-    triangles : (m, 3) int, indices into ``vertices``
-    corner_normals : (m, 3, 3) optional per-corner shading normals; when absent, smooth
-        area-weighted vertex normals are computed (``smooth=False`` gives flat normals)
-    corner_uvs : (m, 3, 2) optional per-corner texture coordinates
-    slots : (m,) optional material slot per triangle (index into the instance's list)
-    """
-
-    name: str
-    vertices: np.ndarray
-    triangles: np.ndarray
-    corner_normals: np.ndarray | None = None
-    corner_uvs: np.ndarray | None = None
-    slots: np.ndarray | None = None
-    smooth: bool = True
-
-
-@dataclass
-class Light:
-    """A point, sun or spot light. ``power`` is watts (point, spot) or W/m^2 (sun).
-
-    ``direction`` is the direction the light points (sun, spot), world space.
-    ``spot_size`` is the full cone angle in radians, ``spot_blend`` Blender's blend in [0, 1].
-    """
-
-    name: str = "light"
-    kind: str = "POINT"
-    color: tuple = (1.0, 1.0, 1.0)
-    power: float = 1000.0
-    position: tuple = (0.0, 0.0, 0.0)
-    direction: tuple = (0.0, 0.0, -1.0)
-    spot_size: float = math.radians(45.0)
-    spot_blend: float = 0.15
-
-
-@dataclass
-class Camera:
-    """A Blender-style camera. ``matrix`` is camera-to-world (looks down local -Z, +Y up).
-
-    ``kind`` is ``"PERSP"`` or ``"ORTHO"``. Lens and sensor are in millimetres; ``sensor_fit``
-    is ``"AUTO"``, ``"HORIZONTAL"`` or ``"VERTICAL"``; shifts are in units of the larger
-    image dimension, as in Blender.
-    """
-
-    matrix: np.ndarray = field(default_factory=lambda: np.eye(4))
-    kind: str = "PERSP"
-    lens: float = 50.0
-    sensor_width: float = 36.0
-    sensor_height: float = 24.0
-    sensor_fit: str = "AUTO"
-    shift_x: float = 0.0
-    shift_y: float = 0.0
-    clip_start: float = 1e-3
-    clip_end: float = 1e6
-    ortho_scale: float = 7.0
-    width: int = 640
-    height: int = 480
-
-
-# ----------------------------------------------------------------------------- packed
 
 
 class SceneArrays(NamedTuple):

@@ -327,6 +327,7 @@ class InterpolantCache:
         self.pool = InterpolantPool()
         self.clock = 0
         self.samples_stale = False  # an edit may have made unreferenced samples stale
+        self.edit_pending = False  # invalidate() was called, set_scene() not yet
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
@@ -354,7 +355,12 @@ class InterpolantCache:
 
     def compatible(self, sa, epsilon: float, depth_cap: int, max_depth: int) -> bool:
         """Whether this cache's interpolants hold for these inputs."""
-        return (sa is self.sa and float(epsilon) == self.epsilon
+        return sa is self.sa and self.compatible_settings(epsilon, depth_cap, max_depth)
+
+    def compatible_settings(self, epsilon: float, depth_cap: int, max_depth: int) -> bool:
+        """Whether this cache's interpolants hold for these settings (any scene:
+        :meth:`set_scene` moves them to another)."""
+        return (float(epsilon) == self.epsilon
                 and min(int(depth_cap), MAX_DEPTH) == self.depth_cap
                 and int(max_depth) == self.max_depth)
 
@@ -416,10 +422,10 @@ class InterpolantCache:
         """Invalidate what an edit may change (:func:`.invalidation.invalidate`)."""
         return invalidate(self, regions, objects, lights, materials, world, light_shading)
 
-    def set_scene(self, sa, accel) -> None:
-        """Go on with the edited scene, keeping every valid interpolant
-        (:func:`.invalidation.set_scene`)."""
-        set_scene(self, sa, accel)
+    def set_scene(self, sa, accel):
+        """Go on with the edited scene, keeping every valid interpolant; invalidates what
+        changed that :meth:`invalidate` was not told of (:func:`.invalidation.set_scene`)."""
+        return set_scene(self, sa, accel)
 
     def rst_memory_bytes(self) -> int:
         """Bytes of the ray segment trees and the membership index."""

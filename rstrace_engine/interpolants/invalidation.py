@@ -240,7 +240,7 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-               light_shading=()) -> Invalidation:
+               light_shading=(), new_edit: bool = True) -> Invalidation:
     """Invalidate every interpolant an edit may change, and free it.
 
     regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
@@ -251,7 +251,8 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     (every interpolant whose ray trees hit an object using them); world : the world colour
     changed (every interpolant with a ray-tree node that misses); light_shading : lights
     whose power or colour alone changed (only interpolants they shade). Camera edits
-    invalidate nothing (call nothing).
+    invalidate nothing (call nothing). ``new_edit`` False: part of the same edit as the
+    last call (the cells it emptied stay marked as rebuilt after an edit).
 
     Invalidated interpolants are freed at once (their pool ids are free, their tree and
     list entries dead); their cells are rebuilt by the next frame that needs them. Failed
@@ -265,8 +266,10 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     a = affected(cache, regions, objects, lights, materials, world, light_shading)
     ids, retry = a.ids, a.retry
     lt = cache.trees
-    lt.clear_dirty()
-    pool.rebuilt[:] = False
+    if new_edit:
+        lt.clear_dirty()
+        pool.rebuilt[:] = False
+    cache.edit_pending = True
     lt.mark_dirty(pool.node[ids])
     lt.mark_dirty(retry)
     lt.arrays.leaf[retry] = EMPTY
@@ -281,48 +284,150 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
                         live_before, len(retry))
 
 
+_TRI_DATA = ("tri_normals", "tri_uvs", "tri_slot")
+
+
 def _mesh_changed(old, new) -> np.ndarray:
-    """Per mesh of ``new``: its triangles differ from ``old``'s mesh of the same id."""
+    """Per mesh of ``new``: its triangles (positions, normals, uvs, slots) differ from
+    ``old``'s mesh of the same id."""
     nm = len(new.mesh_tri_start) - 1
     om = len(old.mesh_tri_start) - 1
     if (om == nm and np.array_equal(old.mesh_tri_start, new.mesh_tri_start)
-            and np.array_equal(old.tris, new.tris) and np.array_equal(old.verts, new.verts)):
+            and np.array_equal(old.tris, new.tris) and np.array_equal(old.verts, new.verts)
+            and all(np.array_equal(getattr(old, k), getattr(new, k)) for k in _TRI_DATA)):
         return np.zeros(nm, bool)
     out = np.ones(nm, bool)
     for m in range(min(nm, om)):
         a0, a1 = old.mesh_tri_start[m], old.mesh_tri_start[m + 1]
         b0, b1 = new.mesh_tri_start[m], new.mesh_tri_start[m + 1]
         if a1 - a0 == b1 - b0:
-            out[m] = not np.array_equal(old.verts[old.tris[a0:a1]], new.verts[new.tris[b0:b1]])
+            out[m] = not (np.array_equal(old.verts[old.tris[a0:a1]], new.verts[new.tris[b0:b1]])
+                          and all(np.array_equal(getattr(old, k)[a0:a1], getattr(new, k)[b0:b1])
+                                  for k in _TRI_DATA))
     return out
 
 
-def set_scene(cache, sa, accel) -> None:
+class SceneDiff(NamedTuple):
+    """What changed between two packings of a scene, as :func:`invalidate` takes it."""
+
+    regions: np.ndarray  # (k, 2, 3)
+    objects: set
+    lights: set
+    light_shading: set
+    materials: set
+    world: bool
+    geometry: np.ndarray  # (max(I_old, I_new),) bool slots whose mesh, transform or box changed
+
+
+_MAT = ("mat_diffuse", "mat_specular", "mat_roughness", "mat_mirror", "mat_transmission",
+        "mat_ior", "mat_emission", "mat_tex")
+_LIGHT_GEOMETRY = ("light_kind", "light_pos", "light_dir", "light_cos_outer", "light_cos_inner")
+
+
+def _rows_differ(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: row i of a and b differ (NaN equal to NaN)."""
+    a = np.asarray(a).reshape(len(a), -1)[:n]
+    b = np.asarray(b).reshape(len(b), -1)[:n]
+    return ~np.all((a == b) | ((a != a) & (b != b)), axis=1)
+
+
+def scene_diff(old, new, mesh_changed: np.ndarray | None = None) -> SceneDiff:
+    """Diff two packings of one scene with stable instance and light slots (same number
+    of light slots): the edits that lead from ``old`` to ``new``."""
+    if mesh_changed is None:
+        mesh_changed = _mesh_changed(old, new)
+    n_old, n_new = len(old.inst_mesh), len(new.inst_mesh)
+    m = min(n_old, n_new)
+    geo = np.ones(max(n_old, n_new), bool)
+    same = ((old.inst_mesh[:m] == new.inst_mesh[:m])
+            & ~_rows_differ(old.inst_xform, new.inst_xform, m)
+            & ~_rows_differ(old.inst_aabb, new.inst_aabb, m))
+    if len(mesh_changed):
+        same &= ~mesh_changed[np.clip(new.inst_mesh[:m], 0, len(mesh_changed) - 1)]
+    geo[:m] = ~same
+    objects = set(np.flatnonzero(geo).tolist())
+    if not (np.array_equal(old.inst_mat_start[:m + 1], new.inst_mat_start[:m + 1])
+            and np.array_equal(old.inst_mat[:old.inst_mat_start[m]],
+                               new.inst_mat[:new.inst_mat_start[m]])):
+        for k in range(m):
+            if not np.array_equal(old.inst_mat[old.inst_mat_start[k]:old.inst_mat_start[k + 1]],
+                                  new.inst_mat[new.inst_mat_start[k]:new.inst_mat_start[k + 1]]):
+                objects.add(k)
+    boxes = [sa_.inst_aabb[k] for k in np.flatnonzero(geo)
+             for sa_ in (old, new) if k < len(sa_.inst_aabb)]
+    boxes = [b for b in boxes if np.all(b[0] <= b[1]) and np.all(np.isfinite(b))]
+    regions = np.stack(boxes) if boxes else np.zeros((0, 2, 3))
+    nm = min(len(old.mat_diffuse), len(new.mat_diffuse))
+    mat = np.zeros(nm, bool)
+    for k in _MAT:
+        mat |= _rows_differ(getattr(old, k), getattr(new, k), nm)
+    if not (np.array_equal(old.tex_start, new.tex_start) and np.array_equal(
+            old.tex_size, new.tex_size) and np.array_equal(old.tex_data, new.tex_data)):
+        mat |= new.mat_tex[:nm] >= 0  # a texture changed: every textured material
+    L = min(len(old.light_kind), len(new.light_kind))
+    moved = np.zeros(L, bool)
+    for k in _LIGHT_GEOMETRY:
+        moved |= _rows_differ(getattr(old, k), getattr(new, k), L)
+    shade = _rows_differ(old.light_intensity, new.light_intensity, L) & ~moved
+    world = not np.array_equal(old.world_color, new.world_color)
+    return SceneDiff(regions, objects, set(np.flatnonzero(moved).tolist()),
+                     set(np.flatnonzero(shade).tolist()), set(np.flatnonzero(mat).tolist()),
+                     world, geo)
+
+
+def _remap_classes(cache, old, new, mesh_changed) -> None:
+    """Surface class ids are global triangle indices (the least of the class,
+    :func:`.mesh_topology.mesh_topology`): when a mesh changes size, the triangles of the
+    meshes after it move. Move the class ids the kept interpolants and samples hold
+    (unchanged meshes keep their classes; ids on changed meshes become -2, matching
+    nothing a fresh sample has)."""
+    if np.array_equal(old.mesh_tri_start, new.mesh_tri_start):
+        return
+    f = np.full(len(old.tris) + 1, -2, np.int64)
+    for m in range(min(len(old.mesh_tri_start), len(new.mesh_tri_start)) - 1):
+        a0, a1 = int(old.mesh_tri_start[m]), int(old.mesh_tri_start[m + 1])
+        b0, b1 = int(new.mesh_tri_start[m]), int(new.mesh_tri_start[m + 1])
+        if a1 - a0 == b1 - b0 and not mesh_changed[m]:
+            f[a0:a1] = np.arange(b0, b1)
+
+    def remap(c):
+        return np.where(c >= 0, f[np.clip(c, 0, len(f) - 1)], c).astype(c.dtype)
+
+    p, sm = cache.pool, cache.samples
+    live = np.flatnonzero(p.live)
+    p.cls[live] = remap(p.cls[live])
+    sm._cls[:sm.n] = remap(sm._cls[:sm.n])
+    sm._ncls[:sm.n_nodes] = remap(sm._ncls[:sm.n_nodes])
+
+
+def set_scene(cache, sa, accel) -> Invalidation | None:
     """Move ``cache`` to the edited scene ``sa`` (accelerator ``accel`` over it), keeping
-    every interpolant still live (call :func:`invalidate` with the edits first).
+    every interpolant still valid.
+
+    Call :func:`invalidate` with the edits first (that is the fast, timed path); whatever
+    changed that it was not told of is found here by diffing the two packings
+    (:func:`scene_diff`) and invalidated too, so a host that only hands over a new export
+    loses only what the changes affect. Returns that second invalidation, if any.
 
     Instance slots are stable (a deleted object's slot is a tombstone, an added object
     takes a new or a freed slot). An object whose mesh, transform or box changed gets new
-    empty linetrees over its new expanded box (any interpolant left in the old ones is
-    freed); the other objects keep theirs. A change in the number of lights starts over
-    (the ray trees record a state per light).
+    empty linetrees over its new expanded box; the other objects keep theirs. A change in
+    the number of light slots starts over (the ray trees record a state per light).
     """
     old = cache.sa
     if len(sa.light_kind) != len(old.light_kind):
         cache.__init__(sa, accel, cache.epsilon, cache.depth_cap,
                        cache.memory_cap_bytes / 1e6, cache.max_depth)
-        return
-    n_old, n_new = len(old.inst_mesh), len(sa.inst_mesh)
-    m = min(n_old, n_new)
-    changed = np.ones(max(n_old, n_new), bool)
+        return None
+    n_new = len(sa.inst_mesh)
     mesh_changed = _mesh_changed(old, sa)
-    with np.errstate(invalid="ignore"):
-        same = ((old.inst_mesh[:m] == sa.inst_mesh[:m])
-                & np.all((old.inst_xform[:m] == sa.inst_xform[:m]).reshape(m, -1), axis=1)
-                & np.all((old.inst_aabb[:m] == sa.inst_aabb[:m]).reshape(m, -1), axis=1))
-    same &= ~mesh_changed[np.clip(sa.inst_mesh[:m], 0, max(len(mesh_changed) - 1, 0))] \
-        if len(mesh_changed) else True
-    changed[:m] = ~same
+    d = scene_diff(old, sa, mesh_changed)
+    extra = None
+    if len(d.regions) or d.objects or d.lights or d.light_shading or d.materials or d.world:
+        extra = invalidate(cache, d.regions, d.objects, d.lights, d.materials, d.world,
+                           d.light_shading, new_edit=not cache.edit_pending)
+    cache.edit_pending = False
+    changed = d.geometry
     trees = cache.trees
     trees.grow_instances(n_new)
     reset = np.flatnonzero(changed)
@@ -337,13 +442,15 @@ def set_scene(cache, sa, accel) -> None:
     ch = changed[:n_new]
     box[ch] = fresh[ch]
     cache.box = np.ascontiguousarray(box)
+    cache.compact_samples()
+    _remap_classes(cache, old, sa, mesh_changed)
     cache.sa = sa
     cache.accel = accel
     for name in ("topo", "qs", "n_test"):
         cache.__dict__.pop(name, None)
-    cache.compact_samples()
     trees.collapse()
     cache.deps.compact(cache.pool, trees)
     cache.deps.follow_scene(sa, cache.pool)
     log.debug("set_scene: %d objects with new linetrees, %d interpolants kept", len(reset),
               cache.pool.n_live)
+    return extra

@@ -56,7 +56,7 @@ log = logging.getLogger(__name__)
 #: Children per split (every axis of the 5D box halved).
 FANOUT = 32
 #: A leaf with more entries than this splits (if above MAX_DEPTH).
-SPLIT = 24
+SPLIT = 64
 #: Deepest node level.
 MAX_DEPTH = 4
 #: A section meeting more children than this stays at the node.

@@ -218,10 +218,11 @@ def scene_fingerprint(sa) -> bytes:
 class InterpolantRenderer:
     """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid.
 
-    A new export of an unchanged scene (same content, e.g. after a camera move) keeps the
-    cache, and so does a scene the cache was moved to by
-    :meth:`~.cache.InterpolantCache.set_scene` after an edit; a change of content it was not
-    told of, of epsilon, depth cap, ray depth or accelerator starts a new one.
+    A change of epsilon, depth cap or ray depth starts a new cache. A new packing of the
+    scene or a new accelerator moves the cache to it
+    (:meth:`~.cache.InterpolantCache.set_scene`): an unchanged export keeps everything, and
+    an edited one loses only the interpolants its changes may affect (a session calls
+    :meth:`~.cache.InterpolantCache.invalidate` with its edits first, the fast path).
     """
 
     def __init__(self) -> None:
@@ -249,20 +250,29 @@ class InterpolantRenderer:
         self._fingerprint_of = sa
         return True
 
+    def prepare(self, sa, settings: RenderSettings, accel):
+        """The cache for scene packing ``sa``, ``settings`` and ``accel`` (see the class
+        doc); returns ``(cache, new)``."""
+        c = self.cache
+        new = False
+        if c is None or not c.compatible_settings(settings.epsilon, settings.depth_cap,
+                                                  settings.max_depth):
+            self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
+                                              settings.memory_cap_mb, settings.max_depth)
+            self._fingerprint = None
+            self._fingerprint_of = None
+            new = True
+        elif sa is not c.sa or accel is not c.accel:
+            c.set_scene(sa, accel)  # diffs the packings: invalidates what changed
+        if c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
+            c.set_memory_cap(settings.memory_cap_mb)
+        return c, new
+
     def render(self, scene, settings: RenderSettings, accel, progress=None,
                cancel=None) -> Frame:
         """Render ``scene``'s camera in INTERPOLANT mode with accelerator ``accel``."""
         settings = settings.validated()
-        sa = scene.arrays()
-        c = self.cache
-        if c is None or c.accel is not accel or not self._same_scene(sa) or not c.compatible(
-                sa, settings.epsilon, settings.depth_cap, settings.max_depth):
-            self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
-                                              settings.memory_cap_mb, settings.max_depth)
-            self._fingerprint = scene_fingerprint(sa)
-            self._fingerprint_of = sa
-        elif c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
-            c.set_memory_cap(settings.memory_cap_mb)
+        c, _ = self.prepare(scene.arrays(), settings, accel)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame

@@ -31,14 +31,16 @@ A sample is dirty when one of its nodes
   which cone, depends on normals the records do not keep);
 * missed, when the world colour changed.
 
-Why per-pixel records rather than the traced pixels' segments in the ray segment trees:
-measured on museum at 640x480, the records of a frame take about 2 MB and a query over all
-of them 5-20 ms; putting ~2 million shadow and view segments as 5D boxes into the RSTs would
-cost several times the RSTs' own memory (their leaves hold a pointer and a 5D box per
-entry, 40+ bytes) for a query that still has to touch every pixel near the edit. Screen
-space tiles were the other candidate: cheaper still in memory, but a tile mixes silhouettes,
-its segments' bounds grow to the tile's depth range and a small object's move dirties whole
-tiles around it -- the dirty fraction, which is what the incremental frame costs, grew.
+Why per-pixel records rather than the traced pixels' segments in the ray segment trees
+(measured on museum, 640x480, ray depth 5): a frame's samples have 307,200 view segments,
+17,811 reflection/refraction segments and 1,178,505 shadow segments. As RST tunnels each
+would cost at least a tunnel, a section and an entry (61 + 45 + 8 bytes in
+:mod:`~rstrace_engine.interpolants.ray_segment_tree`), about 170 MB, against 2.1 MB for
+these records (1.4 bytes per segment: the segments are rebuilt from shared endpoints and
+the light positions), and an RST query would then return pixels one segment at a time.
+Screen-space tiles were the other candidate: a tile mixes silhouettes and its segments'
+bounds grow to the tile's depth range, so a small object's move dirties whole tiles; the
+records keep the per-sample precision and use tiles only to cull the query (8x8 pixels).
 """
 
 from __future__ import annotations

@@ -33,18 +33,17 @@ from __future__ import annotations
 import logging
 import math
 import time
-from contextlib import contextmanager
 from typing import NamedTuple
 
-import numba
 import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator
 from ..frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
-from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
+from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene, SceneArrays
+from .batches import TILE_RAYS, frame_batches, threads_for  # noqa: F401 - TILE_RAYS re-exported
 from .shading import (
     dot3,
     fresnel_dielectric,
@@ -61,31 +60,6 @@ from .shading import (
 )
 
 log = logging.getLogger(__name__)
-
-#: Rays per batch in :func:`render` (primary rays of one tile of rows, all samples).
-#: 16k rays: cancel() is polled about every 10-20 ms on 2 cores (the viewport's interrupt
-#: latency), and measured as fast as 64k tiles or faster (museum 640x480: 1.23 s vs 2.24 s
-#: on a loaded 2-core machine, one run; the per-tile arrays stay cache-sized).
-TILE_RAYS = 1 << 14
-#: Batches of fewer rays (the dirty pixels of an incremental frame) run their kernels on
-#: one thread: measured on a busy 2-core machine, every parallel region then costs a
-#: scheduler time slice, and 5,500 dirty pixels of museum took 0.2 s on two threads and
-#: 0.04 s on one.
-SERIAL_BELOW = 1 << 14
-
-
-@contextmanager
-def _threads_for(n_rays: int):
-    """Run numba's parallel kernels on one thread inside, for a small batch."""
-    if n_rays >= SERIAL_BELOW:
-        yield
-        return
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
 
 # shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
 _SH_TRACE = 1
@@ -615,35 +589,6 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     return radiance, tree
 
 
-def _batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
-             pixels: np.ndarray | None):
-    """The pixels of a frame in batches, with their jitter: ``(pix (k,) int64, jitter
-    (spp, k, 2), last row done)``. A full frame goes tile by tile (``rows_per_tile`` rows);
-    an incremental one (``pixels`` (h * w,) bool) gathers the selected pixels of all tiles
-    into batches of about a tile's size. Jitter is always drawn per tile as in a full frame,
-    so a pixel's samples are the same either way."""
-    chunk = rows_per_tile * w
-    pend_pix: list = []
-    pend_jit: list = []
-    n_pend = 0
-    for y0 in range(0, h, rows_per_tile):
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=seed * 1000003 + y0)
-        if pixels is None:
-            yield pix, jitter, y1
-            continue
-        sel = np.flatnonzero(pixels[pix])
-        if len(sel):
-            pend_pix.append(pix[sel])
-            pend_jit.append(jitter[:, sel])
-            n_pend += len(sel)
-        if n_pend >= chunk or (y1 == h and n_pend):
-            yield (np.concatenate(pend_pix), np.ascontiguousarray(np.concatenate(pend_jit, 1)),
-                   y1)
-            pend_pix, pend_jit, n_pend = [], [], 0
-
-
 def render(scene: Scene, settings: RenderSettings | None = None, accel=None, progress=None,
            cancel=None, records=None, pixels: np.ndarray | None = None,
            base: Frame | None = None) -> Frame:
@@ -695,7 +640,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     cancelled = False
     rows_done = 0
     traced_pixels = 0
-    for pix, jitter, y1 in _batches(w, h, spp, int(settings.seed), rows_per_tile, pixels):
+    for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels):
         if cancel is not None and cancel():
             cancelled = True
             break
@@ -704,7 +649,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         if npx == 0:
             continue
         traced_pixels += npx
-        with _threads_for(npx * spp):
+        with threads_for(npx * spp):
             o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
             hits = accel.closest_hit(o, dr, tmin, tmax)
             segs = [] if records is not None else None

@@ -1,0 +1,70 @@
+"""How a frame's pixels become batches of rays: tiles of rows, their jitter, dirty pixels.
+
+A full frame goes tile by tile (:data:`TILE_RAYS` rays); an incremental one gathers the
+selected pixels of every tile into batches of about that size, with the jitter each pixel
+gets in a full frame, so that a re-rendered pixel comes out bit for bit as in a full frame.
+Small batches run numba's parallel kernels on one thread (:func:`threads_for`).
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+import numba
+import numpy as np
+
+from ..geometry.cameras import pixel_jitter
+
+#: Rays per batch in :func:`~.whitted.render` (primary rays of one tile of rows, all samples).
+#: 32k rays: cancel() is polled about every 30 ms on 2 cores (the viewport's interrupt
+#: latency), still above SERIAL_BELOW (full tiles run on every thread), and it measured as
+#: fast as 64k tiles (see the viewport benchmark in the README).
+TILE_RAYS = 1 << 15
+#: Batches of fewer rays (the dirty pixels of an incremental frame) run their kernels on
+#: one thread: measured on a busy 2-core machine, every parallel region then costs a
+#: scheduler time slice, and 5,500 dirty pixels of museum took 0.2 s on two threads and
+#: 0.04 s on one.
+SERIAL_BELOW = 1 << 14
+
+
+@contextmanager
+def threads_for(n_rays: int):
+    """Run numba's parallel kernels on one thread inside, for a small batch."""
+    if n_rays >= SERIAL_BELOW:
+        yield
+        return
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+
+
+def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
+                  pixels: np.ndarray | None):
+    """The pixels of a frame in batches, with their jitter: ``(pix (k,) int64, jitter
+    (spp, k, 2), last row done)``. A full frame goes tile by tile (``rows_per_tile`` rows);
+    an incremental one (``pixels`` (h * w,) bool) gathers the selected pixels of all tiles
+    into batches of about a tile's size. Jitter is always drawn per tile as in a full frame,
+    so a pixel's samples are the same either way."""
+    chunk = rows_per_tile * w
+    pend_pix: list = []
+    pend_jit: list = []
+    n_pend = 0
+    for y0 in range(0, h, rows_per_tile):
+        y1 = min(h, y0 + rows_per_tile)
+        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
+        jitter = pixel_jitter(len(pix), spp, seed=seed * 1000003 + y0)
+        if pixels is None:
+            yield pix, jitter, y1
+            continue
+        sel = np.flatnonzero(pixels[pix])
+        if len(sel):
+            pend_pix.append(pix[sel])
+            pend_jit.append(jitter[:, sel])
+            n_pend += len(sel)
+        if n_pend >= chunk or (y1 == h and n_pend):
+            yield (np.concatenate(pend_pix), np.ascontiguousarray(np.concatenate(pend_jit, 1)),
+                   y1)
+            pend_pix, pend_jit, n_pend = [], [], 0

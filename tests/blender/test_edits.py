@@ -221,3 +221,43 @@ def test_animation_frames_pass_what_moved_as_edits():
     assert stats["incremental"] and stats["dirty_fraction"] < 1.0
     ref, _ = _f12(fresh=True)
     np.testing.assert_array_equal(inc, ref)
+
+
+def _instancer(target, count: int):
+    """An object whose geometry nodes put ``count`` instances of ``target`` on a line."""
+    ng = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = ng.nodes, ng.links
+    out = nodes.new("NodeGroupOutput")
+    line = nodes.new("GeometryNodeMeshLine")
+    line.inputs["Count"].default_value = count
+    line.inputs["Offset"].default_value = (0.0, 1.5, 0.0)
+    info = nodes.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = target
+    inst = nodes.new("GeometryNodeInstanceOnPoints")
+    links.new(line.outputs["Mesh"], inst.inputs["Points"])
+    links.new(info.outputs["Geometry"], inst.inputs["Instance"])
+    links.new(inst.outputs["Instances"], out.inputs["Geometry"])
+    holder = bpy.data.objects.new("Scatter", bpy.data.meshes.new("ScatterMesh"))
+    holder.modifiers.new("GN", "NODES").node_group = ng
+    holder.location = (-3.0, -2.0, 0.5)
+    return holder, line
+
+
+def test_geometry_node_instances_appear_and_vanish():
+    _scene()
+    red = bpy.data.objects["RedSphere"]
+    c = Collector()
+    holder, line = _instancer(red, 3)
+    kinds, out = c.step(lambda: bpy.context.scene.collection.objects.link(holder))
+    adds = [e for e in out if type(e).__name__ == "ObjectAdd"]
+    assert len(adds) == 3 and all(e.key[0] == holder.session_uid for e in adds)
+    assert kinds.count("MeshSet") == 1  # the instanced geometry, read once, shared by all
+    assert len({e.mesh_key for e in adds}) == 1
+    kinds, out = c.step(lambda: setattr(line.inputs["Count"], "default_value", 5))
+    assert kinds == ["ObjectAdd", "ObjectAdd"]  # same geometry: no MeshSet
+    kinds, out = c.step(lambda: setattr(line.inputs["Count"], "default_value", 1))
+    assert kinds.count("ObjectDelete") == 4 and "ObjectAdd" not in kinds
+    kinds, out = c.step(lambda: setattr(holder.location, "x", -2.0))
+    assert kinds == ["ObjectTransform"]

@@ -7,8 +7,7 @@ viewport starts: it renders a tiny built-in scene in the chosen mode only (BASE 
 tracer's kernels; INTERPOLANT adds the interpolant kernels), with the render lock held, so
 the kernels are compiled (or loaded) once and a real render afterwards only runs them.
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
-bar; it counts the numba dispatchers of the packages that mode uses that have a compiled
-signature.
+bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signature.
 
 The thread never touches ``bpy``; :func:`stop` asks it to stop between kernels and joins it
 (unregister).
@@ -21,7 +20,6 @@ from __future__ import annotations
 
 import importlib
 import logging
-import pkgutil
 import threading
 import time
 
@@ -29,35 +27,50 @@ from . import runtime
 
 log = logging.getLogger(__name__)
 
-#: Packages of rstrace_engine whose kernels each mode runs.
-MODE_PACKAGES = {
-    "BASE": ("geometry", "accel", "tracing"),
-    "INTERPOLANT": ("geometry", "accel", "tracing", "interpolants"),
-}
+#: The kernels a mode's frames call (each compiles the njit helpers it inlines): what a
+#: viewport session of that mode runs on its first image, its first full frame and its
+#: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
+#: that every name exists); the progress counts these.
+_BASE = ("accel.bvh.build_flat", "accel.bvh.collapse4", "accel.bvh.trace_kernel",
+         "geometry.cameras.generate_rays", "tracing.whitted._surface_kernel",
+         "tracing.whitted._shadow_kernel", "tracing.whitted._shade_kernel",
+         "tracing.whitted._light_masks", "tracing.whitted._scatter_add",
+         "tracing.whitted._accumulate", "tracing.pixel_records._encode_nodes",
+         "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
+         "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays")
+_INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
+                "interpolants.cache._group_active", "interpolants.cache._pixel_lines",
+                "interpolants.cache._settle", "interpolants.cache._walk",
+                "interpolants.linetree._assign_roots", "interpolants.linetree._collapse_pass",
+                "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
+                "interpolants.membership._valid", "interpolants.ray_segment_tree.live_tunnels",
+                "interpolants.ray_segment_tree.query_list", "interpolants.render._finish",
+                "interpolants.render._to_trace")
+MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}
 _lock = threading.Lock()
 
 
-def dispatchers(packages) -> list:
-    """The numba dispatchers (``@njit`` functions) defined in ``rstrace_engine.<package>``."""
-    from numba.core.registry import CPUDispatcher
-
+def dispatchers(mode: str) -> list:
+    """The numba dispatchers of :data:`MODE_KERNELS` for ``mode`` (missing names skipped)."""
     found = []
-    for pkg_name in packages:
-        pkg = importlib.import_module(f"rstrace_engine.{pkg_name}")
-        for info in pkgutil.iter_modules(pkg.__path__):
-            mod = importlib.import_module(f"{pkg.__name__}.{info.name}")
-            for value in vars(mod).values():
-                if isinstance(value, CPUDispatcher) and value.py_func.__module__ == mod.__name__:
-                    found.append(value)
+    for name in MODE_KERNELS.get(mode, MODE_KERNELS["INTERPOLANT"]):
+        module, _, attr = name.rpartition(".")
+        try:
+            mod = importlib.import_module(f"rstrace_engine.{module}")
+        except ImportError:
+            continue
+        d = getattr(mod, attr, None)
+        if d is not None and hasattr(d, "signatures"):
+            found.append(d)
     return found
 
 
 def counts(mode: str = "BASE") -> tuple[int, int]:
-    """(kernels compiled or loaded in this process, kernels in the packages ``mode`` uses)."""
-    ds = dispatchers(MODE_PACKAGES.get(mode, MODE_PACKAGES["INTERPOLANT"]))
+    """(kernels compiled or loaded in this process, kernels ``mode`` uses)."""
+    ds = dispatchers(mode)
     return sum(1 for d in ds if d.signatures), len(ds)
 
 
@@ -80,6 +93,7 @@ def _warm(mode: str) -> None:
     """Render a tiny scene in ``mode``: every kernel that mode's frames use is compiled."""
     from rstrace_engine import scenes
     from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.geometry.edits import ObjectTransform
     from rstrace_engine.interactive import coarse_camera, trace_view
     from rstrace_engine.session import Session
 
@@ -89,10 +103,17 @@ def _warm(mode: str) -> None:
     with runtime.RENDER_LOCK:
         if _state["stop"]:
             return
+        stop = lambda: _state["stop"]  # noqa: E731
         session = Session(scene, settings)
-        session.render(cancel=lambda: _state["stop"])
-        trace_view(session, coarse_camera(scene.camera, 4), settings,
-                   cancel=lambda: _state["stop"])
+        trace_view(session, coarse_camera(scene.camera, 4), settings, cancel=stop)
+        session.render(cancel=stop)
+        # an edit and the incremental frame after it (invalidation, dirty pixels)
+        inst = scene.instances[1]
+        matrix = inst["matrix"].copy()
+        matrix[0, 3] += 0.1
+        if not stop():
+            session.apply([ObjectTransform(inst["key"], matrix)])
+            session.render(cancel=stop)
     if not _state["stop"]:
         _state["modes_done"].add(mode)
         runtime.mark_kernels_ready()

@@ -84,6 +84,8 @@ def progress_text() -> str | None:
     if t is None or not t.is_alive():
         return None
     done, total = counts(_state["mode"])
+    if done >= total:
+        return None  # all in memory: only the tiny warm-up frame itself is left
     verb = "compiling" if runtime.kernel_status() and "compiling" in runtime.kernel_status() \
         else "loading"
     return f"{verb} kernels {done}/{total}"

@@ -33,7 +33,7 @@ from rstrace_engine.geometry.edits import CameraChange
 from rstrace_engine.geometry.scene import SceneError
 from rstrace_engine.interactive import same_camera
 
-from . import edits, properties, runtime
+from . import edits, kernels, properties, runtime
 
 log = logging.getLogger(__name__)
 
@@ -186,7 +186,7 @@ class FrameRenderer:
         settings = properties.render_settings(scene.rstrace)
         check_available(settings)
         engine.update_stats("", "RSTrace | syncing scene")
-        status = runtime.kernel_status()
+        status = kernels.progress_text() or runtime.kernel_status()
         if status:
             engine.update_stats("", f"RSTrace | {status}")
         with runtime.RENDER_LOCK:

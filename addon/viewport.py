@@ -65,6 +65,7 @@ class ViewportRenderer:
         self.updates_seen = 0
         self.error: str | None = None
         self.freed = False
+        self._status_set = False
         _LIVE.add(self)
 
     # -- view_update -----------------------------------------------------------------
@@ -173,6 +174,18 @@ class ViewportRenderer:
             finally:
                 _end_display(engine, gpu_state)
         engine.update_stats("", self.status(img))
+        self._status_bar(context)
+
+    def _status_bar(self, context) -> None:
+        """Kernel compile progress in Blender's status bar while a warm-up runs."""
+        progress = kernels.progress_text()
+        if progress is None and not self._status_set:
+            return
+        workspace = getattr(context, "workspace", None)
+        if workspace is None:
+            return
+        workspace.status_text_set(f"RSTrace: {progress}" if progress else None)
+        self._status_set = progress is not None
 
     def draw_view(self, camera, border) -> None:
         """Restart the worker when the view's camera or border changed."""

@@ -210,7 +210,9 @@ class FrameRenderer:
         state.frame = frame
         state.renders += 1
         core = session.scene
-        stats = dict(session_stats)
+        # the frame's own numbers; from the session only what is not per frame
+        stats = {k: session_stats[k] for k in ("accel_build_s", "accel_update_s",
+                                               "accelerator") if k in session_stats}
         stats.update(frame.stats or {})
         stats.update(
             objects=len(snap.objects), lights=len(snap.lights), meshes=len(core.meshes),

@@ -74,7 +74,8 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     k = len(pix)
     if k == 0 and base is not None:  # nothing is dirty: the previous frame
         return Frame(base.radiance.copy(), base.pixel_class.copy(),
-                     dict(base.stats, time_s=time.perf_counter() - t0, traced_pixels=0),
+                     dict(base.stats, time_s=time.perf_counter() - t0, traced_pixels=0,
+                          traced_rays=0, cells_built=0, samples_traced=0),
                      pixel_interpolant=base.pixel_interpolant.copy())
     o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
     n = len(o)

@@ -207,16 +207,11 @@ class ViewportRenderer:
 
     def draw_image(self, img: ViewImage, width: int, height: int) -> None:
         """Draw ``img`` stretched over a ``width`` x ``height`` region (current framebuffer)."""
-        import gpu
-        from gpu_extras.batch import batch_for_shader
+        from gpu_extras.presets import draw_texture_2d
 
-        tex = self.texture(img)
-        shader = gpu.shader.from_builtin("IMAGE")
-        batch = batch_for_shader(shader, "TRI_STRIP", {
-            "pos": ((0, 0), (width, 0), (0, height), (width, height)),
-            "texCoord": ((0, 0), (1, 0), (0, 1), (1, 1))})
-        shader.uniform_sampler("image", tex)
-        batch.draw(shader)
+        # (between bind/unbind_display_space_shader in view_draw, as Blender's own example
+        # of a RenderEngine viewport does: the display transform is Blender's)
+        draw_texture_2d(self.texture(img), (0, 0), width, height)
         self.new_image.clear()
 
     def status(self, img: ViewImage | None) -> str:

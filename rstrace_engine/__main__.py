@@ -1,7 +1,8 @@
 """Command line: ``python -m rstrace_engine render <scene> --out x.png [options]``.
 
-Renders a built-in scene (:mod:`rstrace_engine.scenes`) with the base tracer and writes the
-image as PNG plus a JSON file of the frame's statistics next to it (``x.json``).
+Renders a built-in scene (:mod:`rstrace_engine.scenes`) with the base tracer (or
+``--mode INTERPOLANT``) and writes the image as PNG plus a JSON file of the frame's
+statistics next to it (``x.json``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import sys
 from pathlib import Path
 
 from . import image, scenes
-from .frame import ACCELERATORS, RenderSettings
+from .frame import AVAILABLE_ACCELERATORS, AVAILABLE_MODES, RenderSettings
 from .geometry.scene import SceneError
 from .session import Session
 
@@ -29,7 +30,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--height", type=int, default=480)
     r.add_argument("--depth", type=int, default=5, help="max reflection/refraction depth")
     r.add_argument("--samples", type=int, default=1, help="jittered samples per pixel")
-    r.add_argument("--accelerator", default="BVH", choices=ACCELERATORS)
+    r.add_argument("--accelerator", default="BVH", choices=AVAILABLE_ACCELERATORS)
+    r.add_argument("--mode", default="BASE", choices=AVAILABLE_MODES)
+    r.add_argument("--epsilon", type=float, default=0.01,
+                   help="error bound of interpolated radiance (INTERPOLANT mode)")
     r.add_argument("--npy", action="store_true", help="also save linear radiance as .npy")
     r.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -37,8 +41,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def render_command(args) -> int:
     scene = scenes.build(args.scene, args.width, args.height)
-    settings = RenderSettings(max_depth=args.depth, samples=args.samples,
-                              accelerator=args.accelerator)
+    settings = RenderSettings(mode=args.mode, epsilon=args.epsilon, max_depth=args.depth,
+                              samples=args.samples, accelerator=args.accelerator)
     session = Session(scene, settings)
     frame = session.render()
     out = Path(args.out)
@@ -48,9 +52,11 @@ def render_command(args) -> int:
     stats = dict(scene=args.scene, **session.stats)
     stats_path = out.with_suffix(".json")
     stats_path.write_text(json.dumps(stats, indent=2, default=str) + "\n")
-    print(f"{out}: {frame.stats['width']}x{frame.stats['height']} {args.scene} in "
-          f"{frame.stats['time_s']:.2f} s, {frame.stats['rays_per_s'] / 1e6:.2f} Mrays/s "
-          f"(stats: {stats_path})")
+    fs = frame.stats
+    speed = (f"{fs['rays_per_s'] / 1e6:.2f} Mrays/s" if "rays_per_s" in fs else
+             f"{100 * fs.get('interpolated_fraction', 0.0):.1f}% interpolated")
+    print(f"{out}: {fs['width']}x{fs['height']} {args.scene} {args.mode} in "
+          f"{fs['time_s']:.2f} s, {speed} (stats: {stats_path})")
     return 0
 
 

@@ -19,30 +19,13 @@ import time
 import numpy as np
 
 from . import tolerances as tol
-from .frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
+from .frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
 from .geometry.cameras import camera_params, camera_rays
 from .interpolants.cache import InterpolantCache
-from .interpolants.render import _finish, _take, _to_trace, scene_fingerprint
-from .tracing.batches import TILE_RAYS, frame_batches
+from .interpolants.render import _finish, _take, _to_trace
+from .tracing.batches import TILE_RAYS, frame_batches, threads_for
 from .tracing.whitted import render as whitted_render
 from .tracing.whitted import trace
-
-
-def ensure_cache(renderer, scene, settings: RenderSettings, accel):
-    """The renderer's cache for this scene and these settings, as
-    :meth:`InterpolantRenderer.render` keeps it; returns ``(cache, new)``."""
-    sa = scene.arrays()
-    c = renderer.cache
-    if c is None or c.accel is not accel or not renderer._same_scene(sa) or not c.compatible(
-            sa, settings.epsilon, settings.depth_cap, settings.max_depth):
-        renderer.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
-                                              settings.memory_cap_mb, settings.max_depth)
-        renderer._fingerprint = scene_fingerprint(sa)
-        renderer._fingerprint_of = sa
-        return c, True
-    if c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
-        c.set_memory_cap(settings.memory_cap_mb)
-    return c, False
 
 
 def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings, records,
@@ -72,37 +55,46 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     else:
         pix, jitter = np.zeros(0, np.int64), np.zeros((spp, 0, 2))
     k = len(pix)
-    if k == 0 and base is not None:  # nothing is dirty: the previous frame
-        return Frame(base.radiance.copy(), base.pixel_class.copy(),
-                     dict(base.stats, time_s=time.perf_counter() - t0, traced_pixels=0,
-                          traced_rays=0, cells_built=0, samples_traced=0),
+    if k == 0 and base is not None:  # nothing is dirty: the previous frame, no work done
+        interp = np.count_nonzero(base.pixel_class == CLASS_INTERPOLATED)
+        stats = dict(mode="INTERPOLANT", time_s=time.perf_counter() - t0, traced_pixels=0,
+                     traced_rays=0, cells_built=0, cells_valid=0,
+                     interpolated_fraction=interp / max(base.pixel_class.size, 1),
+                     interpolants=cache.pool.n_live, memory_mb=cache.memory_bytes / 1e6,
+                     rst_memory_mb=cache.rst_memory_bytes() / 1e6, epsilon=cache.epsilon,
+                     depth_cap=cache.depth_cap, width=w, height=h, samples=spp,
+                     max_depth=int(settings.max_depth), cancelled=False, nonfinite_samples=0,
+                     accelerator=getattr(accel, "name", "?"))
+        stats["interpolated_pct"] = 100.0 * stats["interpolated_fraction"]
+        return Frame(base.radiance.copy(), base.pixel_class.copy(), stats,
                      pixel_interpolant=base.pixel_interpolant.copy())
-    o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-    n = len(o)
-    gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
-    hits = accel.closest_hit(o, d, tmin, tmax)
-    if progress is not None:
-        progress(0.2, "visibility")
-    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
-    if progress is not None:
-        progress(0.7, "interpolants")
-    rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
-    todo = np.empty(n, np.int64)
-    todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
-                           todo)]
-    records.add_primary(gids, hits.inst, o, d, hits.t)
-    cancelled = cancel is not None and cancel()
-    counters: dict = {}
-    if not cancelled:
-        n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-        for q in range(n_tiles):
-            part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
-            segs: list = []
-            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                 int(settings.max_depth), primary=_take(hits, part),
-                                 counters=counters, segments=segs)
-            records.add(gids[part], segs)
+    with threads_for(k * spp):  # the dirty pixels of an edit: one thread (see batches)
+        o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+        n = len(o)
+        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
+        hits = accel.closest_hit(o, d, tmin, tmax)
+        if progress is not None:
+            progress(0.2, "visibility")
+        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
+        if progress is not None:
+            progress(0.7, "interpolants")
+        rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
+        todo = np.empty(n, np.int64)
+        todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
+                               todo)]
+        records.add_primary(gids, hits.inst, o, d, hits.t)
+        cancelled = cancel is not None and cancel()
+        counters: dict = {}
+        if not cancelled:
+            n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+            for q in range(n_tiles):
+                part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+                segs: list = []
+                rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                     int(settings.max_depth), primary=_take(hits, part),
+                                     counters=counters, segments=segs)
+                records.add(gids[part], segs)
     good = np.empty(n, np.bool_)
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
@@ -128,7 +120,9 @@ def render_interpolant(cache: InterpolantCache, scene, settings: RenderSettings,
     fs = cache.frame_stats
     stats = dict(
         mode="INTERPOLANT", time_s=time.perf_counter() - t0,
-        interpolated_fraction=float(np.count_nonzero(interp)) / max(n, 1),
+        # of the whole frame (kept pixels included)
+        interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
+        / max(len(pclass), 1),
         traced_rays=len(todo), traced_pixels=k, cells_built=fs.get("cells_built", 0),
         cells_valid=fs.get("cells_valid", 0), interpolants=cache.pool.n_live,
         memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,

@@ -33,7 +33,7 @@ from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, Re
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
-from .incremental import ensure_cache, render_interpolant
+from .incremental import render_interpolant
 from .interpolants.render import InterpolantRenderer
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
@@ -263,8 +263,7 @@ class Session:
         own_records = _accepts(self.interpolants.render, "records")
         new_cache = False
         if mode == "INTERPOLANT" and not own_records:
-            cache, new_cache = ensure_cache(self.interpolants, self.scene, self.settings,
-                                            self.accel)
+            cache, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
         incremental = (not new_cache and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
         if incremental:

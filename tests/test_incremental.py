@@ -62,6 +62,19 @@ def test_random_edits_base_exact(scene_name):
     assert np.median(fractions) < 0.75, fractions
 
 
+@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE"])
+def test_random_edits_base_exact_other_accelerators(accelerator):
+    if accelerator == "EMBREE":
+        pytest.importorskip("embreex")
+    settings = RenderSettings(mode="BASE", max_depth=3, accelerator=accelerator)
+    gen = EditGenerator(SOAK_SCENES["room"](24, 18), seed=4)
+    sess = Session(gen.scene.copy(), settings)
+    prev = sess.render()
+    for _ in range(14):
+        sess.apply(gen.step())
+        prev, _ = check_base_step(sess, prev, settings)
+
+
 @pytest.mark.parametrize("memory_cap_mb", [256.0, 0.004])
 def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
     """Also under a memory cap so small that interpolants are evicted every frame (a kept
@@ -153,3 +166,35 @@ def test_scene_box_change_renders_a_full_frame():
     assert rep.full_frame and any("bounding box" in m for m in rep.messages)
     frame = sess.render()
     np.testing.assert_array_equal(frame.radiance, fresh_frame(sess.scene, settings).radiance)
+
+
+def test_rebuilt_pixels_are_magenta_and_camera_moves_invalidate_nothing():
+    from rstrace_engine.geometry.edits import CameraChange, MaterialSet
+    from rstrace_engine.geometry.scene import Camera, Material
+
+    scene = SOAK_SCENES["spheres"](128, 96)
+    settings = RenderSettings(mode="INTERPOLANT", epsilon=0.05, max_depth=3)
+    sess = Session(scene, settings)
+    first = sess.render()
+    used = first.pixel_interpolant[first.pixel_class == CLASS_INTERPOLATED]
+    assert len(used) > 0
+    cache = sess.interpolants.cache
+    live = cache.pool.n_live
+    cam = scene.camera
+    m = cam.matrix.copy()
+    m[0, 3] += 0.05
+    rep = sess.apply([CameraChange(Camera(m, width=cam.width, height=cam.height,
+                                          lens=cam.lens))])
+    assert rep.invalidated_interpolants == 0 and rep.full_frame
+    assert sess.interpolants.cache is cache and cache.pool.n_live == live
+    sess.render()
+    assert not np.any(first.pixel_class == CLASS_REBUILT)
+    # recolouring the floor invalidates the floor's interpolants: their pixels come back
+    # "rebuilt after an edit" (magenta in the Interpolation pass)
+    rep = sess.apply([MaterialSet("floor", Material("floor", diffuse=(0.3, 0.5, 0.3)))])
+    assert rep.invalidated_interpolants > 0 and not rep.full_frame
+    frame = sess.render()
+    assert frame.stats["incremental"]
+    assert np.count_nonzero(frame.pixel_class == CLASS_REBUILT) > 0
+    base = fresh_frame(sess.scene, RenderSettings(max_depth=3))
+    assert image.compare(frame.radiance, base.radiance, 0.05)["frac_over"] <= 0.01

@@ -230,12 +230,15 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
     if world:
         hit |= pool.world & pool.live
     ids = np.flatnonzero(hit & pool.live).astype(np.int32)
-    # failed cells whose ray trees name an edited object are tried again
+    # failed cells whose ray trees name an edited object are tried again, and after a light
+    # moved every failed cell that was shaded (their light states are all stale)
     lt = cache.trees
     n = lt.n_nodes
     failed = np.zeros(n, np.bool_)
     if okeys:
         deps.failed.query(okeys, lt.arrays.fstamp[:n], lt.arrays.leaf[:n] < EMPTY, failed)
+    if len(lights):
+        failed |= (lt.arrays.leaf[:n] < EMPTY) & (lt.arrays.fstamp[:n] > 0)
     return Affected(ids, np.flatnonzero(failed).astype(np.int32), visits, tests)
 
 

@@ -51,6 +51,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..geometry.scene import LIGHT_SUN
+from .batches import threads_for
 
 #: bits of the quantised point on the longest, middle and shortest axis of the box
 POINT_BITS = (11, 11, 10)
@@ -574,6 +575,13 @@ class PixelRecords:
         pos = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
+        with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
+            self._query(cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
+                        reg_r, kind, pos, ldir, out)
+        return out
+
+    def _query(self, cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
+               reg_r, kind, pos, ldir, out) -> None:
         if cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
@@ -594,7 +602,6 @@ class PixelRecords:
             s_ray = np.empty(m, np.int32)
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
             _mark_rays(s_ray, s_dirty, out)
-        return out
 
     def dirty_pixels(self, sa, cp, fx) -> np.ndarray:
         """(height * width,) bool: pixels with a dirty sample."""

@@ -35,7 +35,7 @@ import numpy as np
 from .. import scenes
 from ..frame import RenderSettings
 from ..geometry import edits as E
-from ..interactive import STAGE_COARSE, STAGE_FULL, ViewportWorker
+from ..interactive import ViewportWorker
 from ..session import Session
 
 #: museum keys (the core's default keys are the names): a sculpture near the camera, the
@@ -87,18 +87,16 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
                 edits, new_cam = _edit(session, name, step)
                 prepare = (lambda ed=edits: (session.apply(ed), session)[1]) if edits \
                     else None
-                t0 = time.perf_counter()
+                worker.stats["stages"].clear()
                 job = worker.submit(prepare=prepare, camera=new_cam)
                 if new_cam is not None:
                     camera = new_cam
-                first = worker.wait_for(lambda im, j=job: im.job == j, 60)
-                t1 = time.perf_counter()
-                full = worker.wait_for(lambda im, j=job: im.job == j and im.stage != STAGE_COARSE,
-                                       60)
-                t2 = time.perf_counter()
-                if first is not None and full is not None:
-                    firsts.append(1e3 * (t1 - t0) if first.stage == STAGE_COARSE else math.nan)
-                    fulls.append(1e3 * (t2 - t0) if full.stage == STAGE_FULL else math.nan)
+                worker.wait_idle(600)
+                # the worker's own clock: from this submission to each stage's image
+                st = worker.stats["stages"]
+                if worker.latest().job == job and "full_ms" in st:
+                    firsts.append(st.get("coarse_ms", math.nan))
+                    fulls.append(st["full_ms"])
                 # interrupt: re-submit while the next full frame is being rendered
                 worker.wait_idle(600)
                 n_before = len(worker.stats["interrupts"])

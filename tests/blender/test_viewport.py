@@ -283,3 +283,24 @@ def test_f12_while_the_viewport_is_live(tmp_path):
         assert img.stage == "refine" and addon.session.state_for(sc).session is state.session
     finally:
         vr.free()
+
+
+def test_orthographic_view_with_clipping_behind_the_eye():
+    """Blender's orthographic user views clip from -far/2: the eye moves back so that the
+    camera's clipping range starts at 0 and still covers what the view shows."""
+    import addon
+    from rstrace_engine.geometry.cameras import camera_rays
+
+    near, far, half = -50.0, 50.0, 4.0
+    proj = np.eye(4)
+    proj[0, 0], proj[1, 1] = 1.0 / half, 1.0 / (half * 0.75)
+    proj[2, 2], proj[2, 3] = -2.0 / (far - near), -(far + near) / (far - near)
+    view = np.eye(4)
+    view[2, 3] = -10.0  # eye at z = 10 looking down -z
+    cam = addon.cameras.camera_from_view(view, proj, 40, 30)
+    assert cam.kind == "ORTHO" and cam.clip_start == 0.0
+    assert np.isclose(cam.clip_end, 100.0) and np.isclose(cam.ortho_scale, 8.0)
+    o, d, tmin, tmax = camera_rays(cam)
+    assert np.allclose(d, [0.0, 0.0, -1.0])
+    assert np.allclose(o[:, 2], 60.0)  # 10 + 50: the near plane behind the eye
+    assert np.isclose(o[:, 0].min(), -4.0 + 0.1) and np.isclose(o[:, 0].max(), 4.0 - 0.1)

@@ -35,13 +35,16 @@ from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
 from .geometry.edits import CameraChange
 from .geometry.scene import Camera, SceneError
+from .tracing.batches import SERIAL_BELOW, threads_for
 from .tracing.whitted import _accumulate, trace
 
 log = logging.getLogger(__name__)
 
-#: Primary rays per tile of an interactive frame: the cancel poll granularity (about 10 ms
-#: of tracing on 2 cores for a depth-5 scene).
-VIEW_TILE_RAYS = 8192
+#: Primary rays per tile of an interactive frame: the cancel poll granularity (about 15 ms
+#: of tracing on 2 idle cores for a depth-5 scene); at least ``batches.SERIAL_BELOW`` so
+#: that full-resolution tiles run on every thread (smaller batches, like the coarse frame's,
+#: run on one: on a busy machine each parallel region costs a scheduler time slice).
+VIEW_TILE_RAYS = SERIAL_BELOW
 #: The coarse first frame's resolution divisor.
 COARSE_FACTOR = 8
 
@@ -101,12 +104,13 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
                                   seed=int(settings.seed) * 1000003 + ya)[sample % samples]
         else:
             jitter = None
-        o, d, tmin, tmax = camera_rays(cp, pix, jitter)
-        hits = session.accel.closest_hit(o, d, tmin, tmax)
-        rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits)
-        out = np.empty((len(pix), 3), np.float32)
-        cls = np.empty(len(pix), np.uint8)
-        _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
+        with threads_for(len(pix)):
+            o, d, tmin, tmax = camera_rays(cp, pix, jitter)
+            hits = session.accel.closest_hit(o, d, tmin, tmax)
+            rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits)
+            out = np.empty((len(pix), 3), np.float32)
+            cls = np.empty(len(pix), np.uint8)
+            _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
         rgb[pix] = out
         pclass[pix] = cls
     return rgb.reshape(h, w, 3), pclass.reshape(h, w), True

@@ -6,7 +6,8 @@ package turns Blender data into its calls and its frames back into render passes
 Module layers, lower never importing higher:
 ``runtime`` (numba set-up) < ``kernels`` (background compile) < ``properties`` <
 ``materials`` < ``meshes`` / ``lights`` / ``cameras`` < ``export`` < ``edits`` < ``session``
-< ``viewport`` < ``engine`` < ``ui``.
+< ``viewport`` < ``engine`` < ``ui``; ``operators`` (the kernel-cache warm-up) imports
+``runtime`` only.
 
 :func:`last_render_stats` (``session.last_render_stats``) gives a script the statistics of
 a scene's last F12 / animation render.
@@ -27,6 +28,7 @@ from . import (  # noqa: E402  (after numba set-up)
     engine,
     export,
     kernels,
+    operators,
     properties,
     session,
     ui,
@@ -34,11 +36,11 @@ from . import (  # noqa: E402  (after numba set-up)
 )
 from .session import last_render_stats  # noqa: E402
 
-__all__ = ["edits", "engine", "export", "kernels", "last_render_stats", "properties",
-           "register", "runtime", "session", "ui", "unregister", "viewport"]
+__all__ = ["edits", "engine", "export", "kernels", "last_render_stats", "operators",
+           "properties", "register", "runtime", "session", "ui", "unregister", "viewport"]
 
 #: Registered in this order, unregistered in reverse.
-_MODULES = (properties, session, viewport, engine, ui)
+_MODULES = (properties, session, viewport, engine, operators, ui)
 
 
 def register() -> None:

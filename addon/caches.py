@@ -84,6 +84,12 @@ class ExportCache:
         self.materials: dict[Hashable, MaterialEntry] = {
             DEFAULT_MATERIAL_KEY: MaterialEntry(DEFAULT_MATERIAL.validated(), [])}
         self.textures: dict = {}
+        self.model = "PRINCIPLED"  # the shading model the cached materials were converted to
+
+    def set_model(self, model: str) -> None:
+        """Another shading model: the cached materials are stale (textures are not)."""
+        self.model = model
+        self.materials = {k: v for k, v in self.materials.items() if k == DEFAULT_MATERIAL_KEY}
 
     def mesh(self, key: Hashable) -> Mesh:
         return self.meshes[key].mesh

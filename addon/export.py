@@ -57,6 +57,17 @@ from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
 
+#: What a Whitted tracer does not model, said once per render where the scene has it. Neither
+#: is modelled on purpose: an emissive mesh as an area light needs sampled (noisy) soft
+#: shadows, and occluded world light needs sampled ambient occlusion; the radiance
+#: interpolants, their error predicate (point-light shadows only) and the RI-tree assume a
+#: deterministic, point-lit shading, and an unoccluded ambient term would be a silently wrong
+#: image against Cycles instead of a reported gap.
+NOT_MODELLED_WORLD = ("the world colour is seen as background and in mirrors but lights no "
+                      "surface (world lighting is not modelled by the Whitted tracer)")
+NOT_MODELLED_EMISSION = ("emissive objects are seen directly and in mirrors but light no "
+                         "other surface (emissive meshes are not light sources)")
+
 # ----------------------------------------------------------------------------- keys
 
 
@@ -137,9 +148,9 @@ class _Reader:
         d = self.dirty
         if entry is None or d is None or d.all_materials or key in d.materials:
             notes = Notes()
-            reader = MaterialReader(None, notes, textures=self.cache.textures)
+            reader = MaterialReader(None, notes, self.cache.model, textures=self.cache.textures)
             try:
-                material = reader.convert(mat).validated()
+                material = reader.read(mat).validated()
             except SceneError as exc:  # conversion produced something invalid: say so
                 notes.warn(f"material unusable, rendered with the default ({exc})", mat.name)
                 material = DEFAULT_MATERIAL.validated()
@@ -203,6 +214,10 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     render = bscene.render
     if width is None or height is None:
         width, height = render_size(render)
+    props = getattr(bscene, "rstrace", None)
+    model = getattr(props, "shading_model", "PRINCIPLED")
+    if cache.model != model:  # every material converts differently: re-read them all
+        cache.set_model(model)
     r = _Reader(cache, dirty, source)
     notes = r.notes
     camera = None
@@ -211,6 +226,8 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
         camera = camera_from_object(cam_eval, width, height, render, notes)
     world = tuple(float(c) for c in world_colour(bscene.world, notes))
+    if max(world) > 0.0:
+        notes.warn(NOT_MODELLED_WORLD)
 
     objects: dict = {}
     hidden: set = set()
@@ -244,6 +261,8 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
             nslots = max(len(me.materials), 1)
             mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
             _check_visibility(ob, name, notes)
+            if any(max(cache.material(k).emission) > 0.0 for k in mats):
+                notes.warn(NOT_MODELLED_EMISSION, name)
             if len(me.uv_layers) == 0 and any(
                     cache.material(k).texture is not None for k in mats):
                 notes.warn("textured objects without a UV map sample their texture at (0, 0)",

@@ -14,6 +14,8 @@ import logging
 import bpy
 import numpy as np
 
+from rstrace_engine import tolerances as tol
+from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Material, Scene, SceneError
 
 log = logging.getLogger(__name__)
@@ -21,10 +23,6 @@ log = logging.getLogger(__name__)
 #: Used for empty material slots and objects without materials (Cycles' default surface).
 DEFAULT_MATERIAL = Material("default", diffuse=(0.8, 0.8, 0.8))
 
-#: Roughness below which reflection is a Whitted mirror, above which a Ward highlight;
-#: linear blend in between.
-MIRROR_ROUGHNESS = 0.1
-GLOSSY_ROUGHNESS = 0.3
 
 
 class Notes:
@@ -104,9 +102,11 @@ def follow_link(socket):
 class MaterialReader:
     """Converts Blender materials to :class:`Material` (each once per export)."""
 
-    def __init__(self, scene: Scene | None, notes: Notes, textures: dict | None = None) -> None:
+    def __init__(self, scene: Scene | None, notes: Notes, model: str = "PRINCIPLED",
+                 textures: dict | None = None) -> None:
         self.scene = scene
         self.notes = notes
+        self.model = model  # shading model of the Principled conversions
         self.textures = textures  # image session_uid -> (generation, pixels): kept by caller
         self._ids: dict[int, int] = {}
         self._default_id: int | None = None
@@ -123,13 +123,23 @@ class MaterialReader:
         mid = self._ids.get(key)
         if mid is None:
             try:
-                mid = self.scene.add_material(self.convert(mat))
+                mid = self.scene.add_material(self.read(mat))
             except SceneError as exc:  # conversion produced something invalid: say so
                 self.notes.warn(f"material unusable, rendered with the default ({exc})",
                                 mat.name)
                 mid = self.default_id()
             self._ids[key] = mid
         return mid
+
+    def read(self, mat) -> Material:
+        """:meth:`convert`, noting emission the renderer leaves out (at or above the
+        radiance limit)."""
+        converted = self.convert(mat)
+        if max(converted.emission) >= tol.RADIANCE_MAX:
+            self.notes.warn(f"emission at or above the radiance limit "
+                            f"{tol.RADIANCE_MAX:g}: samples that see it are left out "
+                            f"(black)", mat.name)
+        return converted
 
     # -- conversion --------------------------------------------------------------------
 
@@ -209,51 +219,16 @@ class MaterialReader:
              ior: float = 1.5, transmission: float = 0.0, specular_level: float = 0.5,
              specular_tint=(1.0, 1.0, 1.0), emission=(0.0, 0.0, 0.0),
              texture: np.ndarray | None = None) -> Material:
-        """Principled parameters -> Ward/Whitted weights that never create energy.
-
-        Metals reflect their base colour; dielectrics reflect F0 (from the IOR, scaled by
-        the specular IOR level as Principled v2 does) and pass the rest to diffuse or, with
-        transmission, to refraction. Reflection goes to the Whitted mirror when smooth and
-        to the Ward lobe (alpha = roughness^2) when rough.
-        """
-        base = np.clip(np.asarray(base, np.float64), 0.0, 1.0)
-        if texture is not None:
-            tex_mean = np.clip(texture.reshape(-1, 3).mean(axis=0), 0.0, 1.0)
-            if metallic > 0.0:
-                self.notes.warn("a textured metallic colour is approximated by the texture's "
-                                "average", name)
-            metal_colour = tex_mean
-            base_factor = np.ones(3)
-        else:
-            metal_colour = base
-            base_factor = base
-        m = float(np.clip(metallic, 0.0, 1.0))
-        t = float(np.clip(transmission, 0.0, 1.0))
-        r = float(np.clip(roughness, 0.0, 1.0))
-        ior = float(np.clip(ior, 1.0, 10.0))
-        f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * float(np.clip(specular_level, 0, 1))
-        f0 = np.clip(f0 * np.clip(np.asarray(specular_tint, np.float64), 0, 1), 0.0, 1.0)
-        diffuse = (1 - m) * (1 - t) * base_factor * (1 - f0)
-        refract = (1 - m) * t * base_factor * (1 - f0)
-        if texture is not None and t > 0.0:
-            refract = (1 - m) * t * tex_mean * (1 - f0)
-            self.notes.warn("textured transmission is approximated by the texture's average",
-                            name)
-        reflect = m * metal_colour + (1 - m) * f0
-        sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
-                              0.0, 1.0))
-        if t > 0.0 and r > MIRROR_ROUGHNESS:
-            self.notes.warn("rough transmission is rendered as smooth refraction", name)
-        total = diffuse + refract + reflect
-        scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-12), 1.0)  # rounding guard
-        return Material(
-            name,
-            diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
-            roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
-            transmission=tuple(refract * scale), ior=ior,
-            emission=tuple(np.clip(np.asarray(emission, np.float64), 0.0, None)),
-            texture=texture,
-        )
+        """Principled parameters -> a material of the render's shading model (see
+        :func:`rstrace_engine.geometry.principled.principled_material`); what had to be
+        approximated goes to the notes."""
+        material, messages = principled_material(
+            name, base, metallic=metallic, roughness=roughness, ior=ior,
+            transmission=transmission, specular_level=specular_level,
+            specular_tint=specular_tint, emission=emission, texture=texture, model=self.model)
+        for message in messages:
+            self.notes.warn(message, name)
+        return material
 
     # -- sockets -------------------------------------------------------------------------
 

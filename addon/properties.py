@@ -33,6 +33,14 @@ MODE_ITEMS = tuple((k, *_MODE_UI.get(k, (k.title(), k))) for k in MODES)
 ACCELERATOR_ITEMS = tuple((k, *_ACCELERATOR_UI.get(k, (k.title(), k))) for k in ACCELERATORS
                           if k not in INTERNAL_ACCELERATORS)
 
+SHADING_MODEL_ITEMS = (
+    ("PRINCIPLED", "Principled", "Materials follow Blender's Principled BSDF: a Fresnel-"
+     "weighted GGX highlight over a diffuse base that loses what the highlight reflects "
+     "(agrees with Cycles' direct lighting)"),
+    ("WARD", "Ward", "Ward's isotropic highlight with a constant reflectance and a Whitted "
+     "mirror for smooth surfaces (the model of the radiance-interpolant paper)"),
+)
+
 
 class RSTraceSettings(bpy.types.PropertyGroup):
     """Settings of the RSTrace render engine (``scene.rstrace``)."""
@@ -66,6 +74,18 @@ class RSTraceSettings(bpy.types.PropertyGroup):
                     "recently used are evicted beyond it")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
+    shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,
+                                default="PRINCIPLED",
+                                description="How Blender materials are shaded")
+    vf_directions: IntProperty(
+        name="Directions", default=34, min=1, max=2050,
+        description="Visibility field: number of beam directions l (rounded up to 4, 10, 34, "
+                    "130, 514 or 2050); more directions, fewer candidates per ray, more "
+                    "memory")
+    vf_tiles: IntProperty(
+        name="Tiles", default=64, min=1, max=1024, soft_max=256,
+        description="Visibility field: n, the n x n tiles of each direction's beam grid; "
+                    "memory grows with l x n^2")
 
 
 def render_settings(props: RSTraceSettings):
@@ -76,7 +96,8 @@ def render_settings(props: RSTraceSettings):
         mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
         samples=int(props.samples), accelerator=props.accelerator,
         depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
-        seed=int(props.seed),
+        seed=int(props.seed), vf_directions=int(props.vf_directions),
+        vf_tiles=int(props.vf_tiles),
     ).validated()
 
 

@@ -38,6 +38,7 @@ from . import edits, kernels, properties, runtime
 log = logging.getLogger(__name__)
 
 INTERPOLATION_PASS = "Interpolation"
+INTERRUPTED = "render interrupted (Ctrl+C): cancelled, nothing written"
 
 
 @dataclass
@@ -176,6 +177,15 @@ class FrameRenderer:
             self._render(depsgraph, scene, state)
         except SceneError as exc:
             self._error(state, str(exc))
+        except KeyboardInterrupt:
+            # Ctrl+C (SIGINT) in a background render: a cancel. Escaping into Blender, it
+            # crashed writing a result never started (EXR) or wrote a blank image (PNG); an
+            # error report makes Blender stop the job and write nothing.
+            # The session may have stopped between any two steps: the next render starts
+            # afresh.
+            log.warning("RSTrace render interrupted")
+            drop_session(state)
+            self._error(state, INTERRUPTED)
         except Exception as exc:  # never let an exception escape into Blender's render job
             log.exception("RSTrace render failed")
             self._error(state, f"internal error: {type(exc).__name__}: {exc}")
@@ -229,6 +239,13 @@ class FrameRenderer:
         stats.setdefault("interpolated_fraction", 0.0)
         stats["memory_mb"] = _memory_mb(stats, core)
         state.stats = stats
+        dropped = int(stats.get("nonfinite_samples") or 0)
+        if dropped:
+            self._warn(state, f"{dropped} sample(s) with NaN, infinite or too large radiance "
+                              f"(>= 1e30, e.g. emission) were left out of the image")
+        for note in stats.get("bound_notes") or []:  # INTERPOLANT: what is only tested
+            state.messages.append(("INFO", note))
+            engine.report({"INFO"}, f"RSTrace: {note}")
         engine.update_memory_stats(memory_used=stats["memory_mb"],
                                    memory_peak=stats["memory_mb"])
         engine.update_stats("", status_line(stats))

@@ -53,11 +53,16 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col = layout.column()
         col.prop(props, "mode")
         col.prop(props, "accelerator")
+        if props.accelerator == "VISIBILITY_FIELD":
+            sub = col.column(align=True)
+            sub.prop(props, "vf_directions")
+            sub.prop(props, "vf_tiles")
         col = layout.column(align=True)
         col.prop(props, "samples")
         col.prop(props, "viewport_samples", text="Viewport")
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
+        layout.prop(props, "shading_model")
 
 
 class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):
@@ -108,6 +113,9 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                                f", {stats.get('invalidated_interpolants', 0):,} interpolants "
                                f"invalidated")
             col.label(text=f"Memory {stats.get('memory_mb', 0.0):.1f} MB")
+            if stats.get("accel_memory_mb") is not None:
+                col.label(text=f"{stats.get('accelerator')} memory "
+                               f"{stats['accel_memory_mb']:.1f} MB")
             for name, count in (stats.get("pixel_classes") or {}).items():
                 col.label(text=f"{name.replace('_', ' ')}: {count:,} px")
         for level, text in state.messages:

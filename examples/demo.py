@@ -36,6 +36,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+#: The interpolated frame must be within epsilon of the base frame at EVERY pixel, up to
+#: this display-space slack for float32 images.
+BOUND_FLOAT_TOL = 1e-6
+
+
 def build_scene(bpy, width: int, height: int, samples: int, depth: int):
     """Plate A: three spheres (one a mirror) on a plane, two lights, a dim world."""
     import bmesh
@@ -287,6 +292,10 @@ def main(argv=None) -> int:
         (out / "stats.json").write_text(json.dumps(report, indent=2, default=_json))
         print(f"demo: {report['changed_pixels_fraction']:.1%} of the pixels changed; "
               f"wrote {', '.join(report['files'])} and stats.json to {out}")
+        if accuracy["max_error"] > 0.01 + BOUND_FLOAT_TOL:
+            print(f"demo: FAILED: the interpolated frame exceeds epsilon 0.01 (max display "
+                  f"error {accuracy['max_error']:.5f}, {accuracy['n_over']} pixels)")
+            return 1
     finally:
         addon.unregister()
     return 0

@@ -3,6 +3,9 @@
 Renders a built-in scene (:mod:`rstrace_engine.scenes`) with the base tracer (or
 ``--mode INTERPOLANT``) and writes the image as PNG plus a JSON file of the frame's
 statistics next to it (``x.json``).
+
+``python -m rstrace_engine warm-cache [--json]`` compiles every render kernel into numba's
+cache (``NUMBA_CACHE_DIR`` if set) without rendering anything (:mod:`.warm_cache`).
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="error bound of interpolated radiance (INTERPOLANT mode)")
     r.add_argument("--npy", action="store_true", help="also save linear radiance as .npy")
     r.add_argument("-v", "--verbose", action="store_true")
+    w = sub.add_parser("warm-cache", help="compile every kernel into numba's cache, no render")
+    w.add_argument("--json", action="store_true", help="print the counts as JSON")
+    w.add_argument("-v", "--verbose", action="store_true")
     return p
 
 
@@ -60,11 +66,30 @@ def render_command(args) -> int:
     return 0
 
 
+def warm_cache_command(args) -> int:
+    import numba
+
+    from . import warm_cache
+
+    result = warm_cache.warm(progress=None if args.json else print)
+    result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"kernel cache ({result['cache_dir']}) warm in {result['seconds']:.1f} s: "
+          f"{result['compiled']} compiled, {result['loaded']} loaded from the cache")
+    if result["unreached"]:
+        print("kernels no render step uses (not cached): " + ", ".join(result["unreached"]))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
+        if args.command == "warm-cache":
+            return warm_cache_command(args)
         return render_command(args)
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -13,7 +13,7 @@ AVAILABLE_MODES = ("BASE", "INTERPOLANT")
 #: Every accelerator name, and the ones this version implements (``EMBREE`` also needs the
 #: ``embreex`` package at run time: :func:`~.accel.accelerators.create_accelerator` says so).
 ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
-AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE")
+AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
 #: Not offered in the Blender add-on: brute force is the tests' reference, far too slow for
 #: a real scene.
 INTERNAL_ACCELERATORS = ("BRUTE_FORCE",)
@@ -53,6 +53,12 @@ class RenderSettings:
     depth_cap: int = 6  # linetree depth cap
     memory_cap_mb: float = 256.0  # interpolant memory cap
     seed: int = 0
+    vf_directions: int = 34  # visibility field: directions l (rounded up to 4, 10, 34, 130..)
+    vf_tiles: int = 64  # visibility field: n x n tiles per direction
+
+    def accelerator_options(self) -> dict:
+        """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""
+        return {"directions": int(self.vf_directions), "tiles": int(self.vf_tiles)}
 
     def validated(self) -> RenderSettings:
         from .geometry.scene import SceneError
@@ -74,6 +80,9 @@ class RenderSettings:
             raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, {MAX_DEPTH}]")
         if not (np.isfinite(self.memory_cap_mb) and self.memory_cap_mb >= 0.0):
             raise SceneError(f"setting 'memory_cap_mb': {self.memory_cap_mb} must be >= 0")
+        from .accel.visibility_field import MEMORY_CAP_MB, check_settings
+
+        check_settings(self.vf_directions, self.vf_tiles, MEMORY_CAP_MB)
         return self
 
 

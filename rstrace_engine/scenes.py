@@ -3,6 +3,8 @@
 * ``three_spheres`` — the paper's Plate A: three spheres (one a mirror) on a plane, two lights.
 * ``museum`` — a room with 1,000+ objects (pedestals and sculptures), a mirror wall, several
   lights, 100k+ triangles.
+* ``museum_1999`` — like seed 000's museum: a room, four sculptures of ~1,100 primitives, a
+  mirror, two lights and a spot (most pixels large smooth surfaces, as in the paper).
 * ``grid`` — 20 icospheres on a plane, ~100k triangles (the ray-cast benchmark).
 * ``torus_knot`` — smooth non-convex objects (tori) on a plane, for interpolant tests.
 """
@@ -109,6 +111,80 @@ def museum(width: int = 640, height: int = 480, rows: int = 25, cols: int = 40) 
     return s
 
 
+def museum_1999(width: int = 640, height: int = 480) -> Scene:
+    """A scene like seed 000's museum (Plate B): a 45 x 30 ft room (13.7 x 9.1 m, 4.5 m
+    high), a mirror on a wall, a green cube, and four sculptures on plinths made of about
+    1,100 primitives: a twisted tower of 60 boxes under a sphere (Edit-(a)/(b): its top and
+    bottom), a spiral of 600 small spheres, a stepped pyramid of 204 boxes and a ring of 200
+    small tori. Two ceiling lights and a spot, as in Plates A-C. Unlike ``museum`` (2,000
+    small objects, the hard case) most pixels are large smooth surfaces, as in the paper.
+    """
+    s = Scene()
+    wall = s.add_material(Material("wall", diffuse=(0.72, 0.7, 0.64)))
+    floor = s.add_material(Material("floor", diffuse=(0.45, 0.38, 0.3), specular=(0.08,) * 3,
+                                    roughness=0.3))
+    stone = s.add_material(Material("stone", diffuse=(0.55, 0.55, 0.57)))
+    marble = s.add_material(Material("marble", diffuse=(0.8, 0.8, 0.78), specular=(0.12,) * 3,
+                                     roughness=0.15))
+    bronze = s.add_material(Material("bronze", diffuse=(0.4, 0.26, 0.12),
+                                     specular=(0.3, 0.25, 0.18), roughness=0.25))
+    green = s.add_material(Material("green", diffuse=(0.12, 0.5, 0.15)))
+    mirror = s.add_material(Material("mirror", diffuse=(0.02,) * 3, mirror=(0.9,) * 3))
+    W, D, H = 13.7, 9.1, 4.5
+    room = s.add_mesh(shapes.box((W, D, H), name="room", inward=True))
+    box = s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="unit_box"))
+    ball = s.add_mesh(shapes.icosphere(3, 1.0, name="ball"))
+    pebble = s.add_mesh(shapes.icosphere(1, 1.0, name="pebble"))
+    ring = s.add_mesh(shapes.torus(1.0, 0.3, 16, 8, name="ring"))
+    panel = s.add_mesh(shapes.plane(1.0, name="mirror_panel"))
+    s.add_instance(room, shapes.transform((0, 0, H / 2)), [wall, floor], name="Room")
+    s.add_instance(panel, shapes.transform((-W / 2 + 0.02, 0.5, 1.9), (4.0, 2.6, 1.0), 90, 90),
+                   [mirror], name="Mirror")
+    s.add_instance(box, shapes.transform((4.3, -2.6, 0.4), 0.8, 20.0), [green], name="GreenCube")
+    k = 0
+
+    def add(mesh, m, mat):
+        nonlocal k
+        s.add_instance(mesh, m, [mat], name=f"Prim{k:04d}")
+        k += 1
+
+    # A: the twisted tower on a plinth (centre)
+    add(box, shapes.transform((0.0, 1.0, 0.4), (1.2, 1.2, 0.8)), stone)
+    for j in range(60):
+        add(box, shapes.transform((0.0, 1.0, 0.8 + 0.04 * j + 0.02), (0.55, 0.55, 0.04),
+                                  3.0 * j), bronze)
+    add(ball, shapes.transform((0.0, 1.0, 3.25), 0.42), marble)
+    # B: a spiral of small spheres (left)
+    add(box, shapes.transform((-3.6, 2.0, 0.3), (1.4, 1.4, 0.6)), stone)
+    for j in range(600):
+        a = 0.105 * j
+        r = 0.2 + 0.45 * j / 600
+        add(pebble, shapes.transform((-3.6 + r * math.cos(a), 2.0 + r * math.sin(a),
+                                      0.65 + 0.0036 * j), 0.05), marble)
+    # C: a stepped pyramid of boxes (right)
+    for lv in range(8):
+        n = 8 - lv
+        for i in range(n):
+            for jj in range(n):
+                add(box, shapes.transform((3.4 + 0.2 * (i - (n - 1) / 2),
+                                           2.2 + 0.2 * (jj - (n - 1) / 2), 0.1 + 0.2 * lv),
+                                          0.2), stone if lv % 2 == 0 else marble)
+    # D: a ring of small tori (front left)
+    add(box, shapes.transform((-2.2, -2.0, 0.35), (1.0, 1.0, 0.7)), stone)
+    for j in range(200):
+        a = 2 * math.pi * j / 200
+        add(ring, shapes.transform((-2.2 + 0.4 * math.cos(a), -2.0 + 0.4 * math.sin(a),
+                                    1.05 + 0.35 * math.sin(3 * a)), 0.05, math.degrees(a),
+                                   60.0), bronze)
+    s.add_light(Light("Ceiling0", "POINT", power=300.0, position=(-3.0, 0.0, H - 0.4)))
+    s.add_light(Light("Ceiling1", "POINT", power=300.0, position=(3.0, 0.0, H - 0.4)))
+    s.add_light(Light("Spot", "SPOT", power=600.0, position=(0.0, -3.5, H - 0.3),
+                      direction=(0.0, 0.55, -0.6), spot_size=math.radians(40)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((1.5, -4.3, 1.7), (-0.3, 1.5, 1.2), width, height, lens=22.0))
+    return s
+
+
 def tori(width: int = 640, height: int = 480) -> Scene:
     """Smooth non-convex objects: three tori (one glossy, one mirror) on a plane."""
     s = Scene()
@@ -131,7 +207,8 @@ def tori(width: int = 640, height: int = 480) -> Scene:
     return s
 
 
-SCENES = {"three_spheres": three_spheres, "museum": museum, "grid": grid, "tori": tori}
+SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
+          "grid": grid, "tori": tori}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

@@ -22,7 +22,6 @@ the same edits: both paths share one implementation. An edit
 
 from __future__ import annotations
 
-import inspect
 import logging
 import time
 
@@ -33,8 +32,7 @@ from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, Re
 from .geometry.cameras import camera_params
 from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
 from .geometry.scene import Scene, SceneError
-from .incremental import render_interpolant
-from .interpolants.render import InterpolantRenderer
+from .interpolants.render import InterpolantRenderer, render_frame
 from .tracing.pixel_records import PixelRecords
 from .tracing.whitted import render as whitted_render
 
@@ -72,14 +70,26 @@ class Session:
 
     # -- state -------------------------------------------------------------------------
 
-    def _build_accelerator(self, kind: str | None = None) -> None:
+    def _build_accelerator(self, kind: str | None = None,
+                           settings: RenderSettings | None = None) -> None:
         sa = self.scene.arrays()
         t0 = time.perf_counter()
-        self.accel = create_accelerator(kind or self.settings.accelerator, sa)
+        self.accel = create_accelerator(kind or self.settings.accelerator, sa,
+                                        **(settings or self.settings).accelerator_options())
         self.stats["accel_build_s"] = time.perf_counter() - t0
         self.stats["accelerator"] = self.accel.name
+        self._accel_memory()
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
                  len(sa.inst_mesh), self.stats["accel_build_s"])
+
+    def _accel_memory(self) -> None:
+        """The accelerator's own memory count (MB), where it keeps one."""
+        mb = self.accel.stats.get("memory_mb")
+        if mb is None:
+            self.stats.pop("accel_memory_mb", None)
+        else:
+            self.stats["accel_memory_mb"] = float(mb)
+
 
     def apply(self, edits) -> EditReport:
         """Apply a batch of :mod:`~rstrace_engine.geometry.edits`, all or nothing.
@@ -113,6 +123,7 @@ class Session:
             t1 = time.perf_counter()
             self.accel.update(new_sa)  # (the BVH reuses unchanged mesh structures)
             self.stats["accel_update_s"] = time.perf_counter() - t1
+            self._accel_memory()
         self.scene = new_scene
         ids = self._invalidate_interpolants(new_sa, fx, report)
         self._mark_dirty(old_sa, new_sa, fx, ids, report)
@@ -186,10 +197,14 @@ class Session:
         report.dirty_fraction = report.dirty_pixels / max(len(self._dirty), 1)
 
     def update_settings(self, settings: RenderSettings) -> None:
-        """New settings; the accelerator is rebuilt only when its kind changes."""
+        """New settings; the accelerator is rebuilt only when its kind (or the visibility
+        field's directions / tiles) changes."""
         settings = settings.validated()
-        if settings.accelerator != self.settings.accelerator:
-            self._build_accelerator(settings.accelerator)  # raises before anything changes
+        if (settings.accelerator != self.settings.accelerator
+                or settings.accelerator_options() != self.settings.accelerator_options()
+                and settings.accelerator == "VISIBILITY_FIELD"):
+            # raises before anything changes
+            self._build_accelerator(settings.accelerator, settings)
             self.interpolants.reset()
         self.settings = settings
 
@@ -242,7 +257,8 @@ class Session:
     def _key(self) -> tuple:
         s, cam = self.settings, self.scene.camera
         return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
-                s.accelerator, cam.matrix.tobytes(), cam.kind, cam.lens, cam.sensor_width,
+                s.accelerator, tuple(sorted(s.accelerator_options().items())),
+                cam.matrix.tobytes(), cam.kind, cam.lens, cam.sensor_width,
                 cam.sensor_height, cam.sensor_fit, cam.shift_x, cam.shift_y, cam.clip_start,
                 cam.clip_end, cam.ortho_scale, cam.width, cam.height)
 
@@ -260,9 +276,8 @@ class Session:
         key = self._key()
         sa = self.scene.arrays()
         cam = self.scene.camera
-        own_records = _accepts(self.interpolants.render, "records")
         new_cache = False
-        if mode == "INTERPOLANT" and not own_records:
+        if mode == "INTERPOLANT":
             cache, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
         incremental = (not new_cache and self.frame is not None and self.records is not None
                        and self._dirty is not None and key == self._frame_key)
@@ -275,15 +290,10 @@ class Session:
         c0 = self.interpolants.cache
         pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
-            base = self.frame if incremental else None
-            if own_records:
-                frame = self.interpolants.render(self.scene, self.settings, self.accel,
-                                                 progress=progress, cancel=cancel,
-                                                 records=records, pixels=pixels, base=base)
-            else:
-                frame = render_interpolant(cache, self.scene, self.settings, records,
-                                           pixels=pixels, base=base, progress=progress,
-                                           cancel=cancel)
+            frame = render_frame(cache, self.scene, self.settings, progress=progress,
+                                 cancel=cancel, records=records, pixels=pixels,
+                                 base=self.frame if incremental else None)
+            frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         else:
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
@@ -315,14 +325,9 @@ class Session:
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]
+        if "accel_memory_mb" in self.stats:
+            frame.stats["accel_memory_mb"] = self.stats["accel_memory_mb"]
         frame.stats["mode"] = mode
         self.stats.update(frame.stats)
         return frame
 
-
-def _accepts(fn, name: str) -> bool:
-    """Whether callable ``fn`` takes a keyword argument ``name``."""
-    try:
-        return name in inspect.signature(fn).parameters
-    except (TypeError, ValueError):
-        return False

@@ -10,6 +10,20 @@ at 1e-4 and at 1e5 scale, or translated by 1e6.
 #: Float64 keeps ~16 digits; 1e-9 leaves ~7 digits of headroom for the hit-point error.
 SPAWN_OFFSET_REL = 1e-9
 
+#: Float32 accelerators (Embree) skip hits closer than this fraction of the scene's (and the
+#: ray origin's) coordinate magnitude: about 16 float32 ulps, past the rounding of float32
+#: vertices and origins, so a ray spawned off a surface never hits that surface again.
+FLOAT32_TNEAR_REL = 2e-6
+
+#: The Principled-like GGX lobe lights nothing below this alpha (roughness 0.05): a point
+#: light's highlight on a near mirror is a sub-pixel spike (Cycles shows none at roughness 0);
+#: such surfaces reflect through mirror rays.
+GLOSSY_ALPHA_MIN = 0.0025
+
+#: Relative rounding of a float32 input (2^-23, one ulp, with room): limits on settings that
+#: Blender stores in float32 accept values this close to them.
+FLOAT32_INPUT_REL = 2.0 ** -22
+
 #: Shadow rays stop this fraction short of the light (relative to their length).
 SHADOW_END_REL = 1e-9
 
@@ -73,3 +87,12 @@ TUNNEL_MARGIN_REL = 0.05
 #: Shaft planes are moved outward by this fraction of the scene's coordinate magnitude
 #: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
 SHAFT_SLACK_REL = 1e-9
+
+# ----------------------------------------------------------------------------- visibility field
+
+#: Visibility field: triangles are scan-converted into tiles with their projection grown by
+#: this fraction of the scene's coordinate magnitude (largest |coordinate| + extent), rays
+#: are projected with the same margin, and the depth bounds used to skip and stop along a
+#: beam are widened by it: the world -> object transform of a ray and the object -> world
+#: transform of a triangle both round, so a hit may lie a few ulps off the world triangle.
+VF_PAD_REL = 1e-9

@@ -28,7 +28,7 @@ from rstrace_engine.geometry.edits import (
 from rstrace_engine.geometry.scene import Light, Material, Mesh, Scene, SceneError
 from rstrace_engine.session import Session
 
-ACCELS = ["BVH", "BRUTE_FORCE"] + (["EMBREE"] if embree.available() else [])
+ACCELS = ["BVH", "BRUTE_FORCE", "VISIBILITY_FIELD"] + (["EMBREE"] if embree.available() else [])
 
 
 def row_scene(w: int = 24, h: int = 18, key_light: bool = True) -> Scene:
@@ -65,8 +65,9 @@ def test_one_list_of_modes_and_accelerators():
     assert session.AVAILABLE_MODES is frame_mod.AVAILABLE_MODES
     assert set(frame_mod.AVAILABLE_MODES) <= set(frame_mod.MODES)
     assert set(frame_mod.AVAILABLE_ACCELERATORS) <= set(frame_mod.ACCELERATORS)
-    with pytest.raises(SceneError, match="not implemented"):
-        accelerators.create_accelerator("VISIBILITY_FIELD", row_scene().arrays())
+    assert set(frame_mod.AVAILABLE_ACCELERATORS) == set(frame_mod.ACCELERATORS)
+    with pytest.raises(SceneError, match="VOXELS"):
+        accelerators.create_accelerator("VOXELS", row_scene().arrays())
 
 
 # ----------------------------------------------------------------------------- slots

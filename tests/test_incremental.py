@@ -62,7 +62,7 @@ def test_random_edits_base_exact(scene_name):
     assert np.median(fractions) < 0.75, fractions
 
 
-@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE"])
+@pytest.mark.parametrize("accelerator", ["EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD"])
 def test_random_edits_base_exact_other_accelerators(accelerator):
     if accelerator == "EMBREE":
         pytest.importorskip("embreex")
@@ -98,7 +98,7 @@ def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
         fresh = fresh_frame(sess.scene, settings)
         for f in (frame, fresh):
             m = image.compare(f.radiance, base.radiance, eps)
-            assert m["frac_over"] <= 0.01, m
+            assert m["max_error"] <= eps + 1e-6, m  # every pixel (float32 slack)
             traced = f.pixel_class != CLASS_INTERPOLATED
             traced &= f.pixel_class != CLASS_REBUILT  # rebuilt pixels are interpolated too
             np.testing.assert_allclose(f.radiance[traced], base.radiance[traced], atol=1e-6)

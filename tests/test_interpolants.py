@@ -37,6 +37,9 @@ from rstrace_engine.session import Session
 from rstrace_engine.tracing import whitted
 
 W, H = 64, 48
+#: Display-space slack for float arithmetic (float32 frames, float64 sums): see
+#: tests/test_interpolant_bound.py.
+FLOAT_TOL = 1e-6
 
 
 @pytest.fixture(autouse=True)
@@ -89,7 +92,7 @@ def test_small_epsilon_bounds_the_error(spheres):
     err = display_error(frame.radiance, base.radiance)
     interp = frame.pixel_class == CLASS_INTERPOLATED
     assert interp.mean() > 0.05
-    assert np.mean(err > 0.02) <= 0.001  # the goal: at most 0.1% of pixels over epsilon
+    assert err.max() <= 0.02 + FLOAT_TOL  # the bound holds for every pixel
     assert np.all(err[~interp] == 0.0)  # traced pixels are the base tracer's
     assert np.all((frame.pixel_class == CLASS_BACKGROUND) == (base.pixel_class == CLASS_BACKGROUND))
 
@@ -242,7 +245,7 @@ def test_lines_on_cell_boundaries(spheres):
     np.testing.assert_array_equal(res.radiance[corner], p.rad[q[corner], 0])
     # and within epsilon of the traced radiance there
     rad, _ = whitted.trace(cache.sa, accel, o, d, 0.0, 1.0, 5, primary=hits)
-    assert display_error(res.radiance, rad).max() <= 0.05
+    assert display_error(res.radiance, rad).max() <= 0.05 + FLOAT_TOL
 
 
 # ----------------------------------------------------------------------------- robustness
@@ -262,7 +265,7 @@ def test_rays_on_face_pair_boundaries_render(spheres):
     frame, base, _ = render_pair(sc, epsilon=0.02)
     assert frame.stats["interpolated_fraction"] > 0.1
     err = display_error(frame.radiance, base.radiance)
-    assert np.all(np.isfinite(frame.radiance)) and np.mean(err > 0.02) < 0.01
+    assert np.all(np.isfinite(frame.radiance)) and err.max() <= 0.02 + FLOAT_TOL
 
 
 def test_zero_thickness_object():
@@ -276,7 +279,7 @@ def test_zero_thickness_object():
     frame, base, _ = render_pair(s, epsilon=0.02, depth_cap=8)
     assert frame.stats["interpolated_fraction"] > 0.3
     err = display_error(frame.radiance, base.radiance)
-    assert np.mean(err > 0.02) < 0.01
+    assert err.max() <= 0.02 + FLOAT_TOL
 
 
 def _sun_spheres() -> Scene:
@@ -304,7 +307,7 @@ def test_scenes_at_extreme_scales_behave_like_unit_scale(scale):
     big = transformed(sc, scale=scale, offset=(3.0 * scale, -1.0 * scale, 0.5 * scale))
     frame, base, _ = render_pair(big, epsilon=0.02)
     err = display_error(frame.radiance, base.radiance)
-    assert np.all(np.isfinite(frame.radiance)) and np.mean(err > 0.02) < 0.01
+    assert np.all(np.isfinite(frame.radiance)) and err.max() <= 0.02 + FLOAT_TOL
     a = unit.stats["interpolated_fraction"]
     b = frame.stats["interpolated_fraction"]
     assert b > 0.1 and abs(a - b) < 0.03, (a, b)
@@ -328,7 +331,7 @@ def test_memory_cap_of_one_interpolant(spheres):
                                       base.pixel_class == CLASS_BACKGROUND)
         err = display_error(frame.radiance, base.radiance)
         assert frame.stats["interpolated_fraction"] > 0.5 * free.stats["interpolated_fraction"]
-        assert np.mean(err > 0.02) < 0.01
+        assert err.max() <= 0.02 + FLOAT_TOL
         assert frame.stats["cells_built"] > 0
 
 
@@ -374,9 +377,9 @@ def test_a_moved_camera_session_equals_a_fresh_session():
     fresh = Session(sc, st).render()
     base = Session(sc, RenderSettings()).render()
     err = display_error(moved.radiance, fresh.radiance)
-    assert np.mean(err > 0.02) <= 0.001 and err.max() <= 2 * 0.02 + 0.05
+    assert err.max() <= 2 * 0.02 + FLOAT_TOL  # both within epsilon of the base frame:
     for f in (moved, fresh):
-        assert np.mean(display_error(f.radiance, base.radiance) > 0.02) <= 0.001
+        assert display_error(f.radiance, base.radiance).max() <= 0.02 + FLOAT_TOL
 
 
 def test_session_keeps_interpolants_across_a_new_export_of_the_same_scene():

@@ -522,12 +522,13 @@ def test_bench_frame_runs_and_reports(tmp_path):
 
 
 def test_session_keeps_its_settings_when_an_accelerator_is_unavailable():
-    from rstrace_engine.accel.accelerators import AcceleratorUnavailable
     from rstrace_engine.scenes import three_spheres
     from rstrace_engine.session import Session
 
     sess = Session(three_spheres(16, 12), RenderSettings(max_depth=1))
-    with pytest.raises(AcceleratorUnavailable, match="VISIBILITY_FIELD"):
-        sess.update_settings(RenderSettings(accelerator="VISIBILITY_FIELD"))
+    # a visibility field of 2050 x 1024^2 tiles: over its memory cap, refused before building
+    with pytest.raises(SceneError, match="visibility field: .* over the cap"):
+        sess.update_settings(RenderSettings(accelerator="VISIBILITY_FIELD",
+                                            vf_directions=2050, vf_tiles=1024))
     assert sess.settings.accelerator == "BVH" and sess.accel.name == "BVH"
     assert sess.render().radiance.shape == (12, 16, 3)

@@ -13,7 +13,8 @@ Rays: ``origins``, ``directions`` (n, 3) float64 (directions need not be unit le
 ``tmin``, ``tmax`` (n,) float64; hits with ``tmin <= t <= tmax`` count. Distances are along
 the given direction. Names: ``"BVH"`` (the default, :mod:`.bvh`), ``"EMBREE"`` (:mod:`.embree`,
 needs ``embreex``), ``"BRUTE_FORCE"`` (every triangle of every instance: the test oracle),
-``"VISIBILITY_FIELD"`` (not implemented yet).
+``"VISIBILITY_FIELD"`` (:mod:`.visibility_field`; options ``directions``, ``tiles``,
+``memory_cap_mb``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ..frame import ACCELERATORS, AVAILABLE_ACCELERATORS
+from ..frame import ACCELERATORS
 from ..geometry.scene import SceneArrays, SceneError
 from . import bvh
 from .bvh import ray_to_object
@@ -265,11 +266,13 @@ class BVHAccelerator(Accelerator):
 # ----------------------------------------------------------------------------- factory
 
 
-def create_accelerator(name: str, scene_arrays: SceneArrays) -> Accelerator:
+def create_accelerator(name: str, scene_arrays: SceneArrays, **options) -> Accelerator:
     """Build the accelerator called ``name`` (one of :data:`NAMES`) over ``scene_arrays``.
 
-    Raises :class:`AcceleratorUnavailable` for unknown names, for ``"EMBREE"`` when
-    ``embreex`` is not installed, and for ``"VISIBILITY_FIELD"`` (not implemented yet).
+    ``options`` go to accelerators that take them (``"VISIBILITY_FIELD"``: ``directions``,
+    ``tiles``, ``memory_cap_mb``) and are ignored by the others. Raises
+    :class:`AcceleratorUnavailable` for unknown names and for ``"EMBREE"`` when ``embreex``
+    is not installed.
     """
     key = str(name).upper()
     if key == "BRUTE_FORCE":
@@ -280,6 +283,8 @@ def create_accelerator(name: str, scene_arrays: SceneArrays) -> Accelerator:
         from .embree import EmbreeAccelerator
 
         return EmbreeAccelerator(scene_arrays)
-    if key in ACCELERATORS and key not in AVAILABLE_ACCELERATORS:
-        raise AcceleratorUnavailable(f"accelerator {key!r} is not implemented yet; use 'BVH'")
+    if key == "VISIBILITY_FIELD":
+        from .visibility_field import VisibilityField
+
+        return VisibilityField(scene_arrays, **options)
     raise AcceleratorUnavailable(f"unknown accelerator {name!r}; choose from {list(NAMES)}")

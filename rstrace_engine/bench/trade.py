@@ -1,7 +1,7 @@
 """The speed/accuracy trade of radiance interpolants, measured against the base tracer.
 
 ``python -m rstrace_engine.bench trade [--json] [--width W] [--height H]
-[--scenes three_spheres,museum,tori] [--out DIR] [--quick]``
+[--scenes three_spheres,museum,tori] [--out DIR] [--quick] [--spp 1,4,16]``
 
 For each scene (default *three_spheres*, *museum* and the smooth non-convex *tori*, at
 640x480, ray depth 5) the base tracer renders three cameras: the scene's camera, a step
@@ -13,13 +13,16 @@ best of ``--repeat`` runs of the whole sequence, each starting from an empty cac
 errors compare the first frame with the base frame in display space (clamp to [0, 1], sRGB):
 mean and max absolute error, the fraction of pixels whose largest channel error exceeds
 epsilon, PSNR. Settings: epsilon in {0, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1} at the default
-caps, and at epsilon = 0.01 a few depth caps and memory caps.
+caps, and at epsilon = 0.01 a few depth caps and memory caps; ``--spp`` adds a row at
+epsilon = 0.01 per count of samples per pixel (base frames with the same samples).
 
 Writes ``DIR/trade.md`` (a markdown table) and ``DIR/trade.png`` (speedup against error, one
 curve per scene; DIR defaults to ``docs``). ``--json`` prints ``{"rows": [{"scene",
-"epsilon", "depth_cap", "memory_cap_mb", "first_frame_speedup", "camera_step_speedup",
-"pan_speedup", "mean_error", "max_error", "frac_over_epsilon", "psnr",
-"interpolated_fraction", "memory_mb"}, ...]}``.
+"epsilon", "depth_cap", "memory_cap_mb", "spp", "first_frame_speedup",
+"camera_step_speedup", "pan_speedup", "mean_error", "max_error", "frac_over_epsilon",
+"n_over_epsilon" (pixels over epsilon + 1e-6), "psnr", "interpolated_fraction",
+"reprojected_fraction" (pixels whose visibility came from reprojection: 0, not implemented),
+"memory_mb"}, ...]}``.
 """
 
 from __future__ import annotations
@@ -47,9 +50,12 @@ DEPTH_CAPS = (4, 8)
 MEMORY_CAPS = (4.0, 0.5)
 STEP_FRACTION = 0.005
 PAN_DEGREES = 2.5
-JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "first_frame_speedup",
+JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "spp", "first_frame_speedup",
              "camera_step_speedup", "pan_speedup", "mean_error", "max_error",
-             "frac_over_epsilon", "psnr", "interpolated_fraction", "memory_mb")
+             "frac_over_epsilon", "n_over_epsilon", "psnr", "interpolated_fraction",
+             "reprojected_fraction", "memory_mb")
+#: display-space slack of ``n_over_epsilon`` (float32 frames)
+FLOAT_TOL = 1e-6
 
 
 def moved_cameras(scene) -> dict[str, Camera]:
@@ -80,14 +86,17 @@ def _timed(fn, repeat: int):
     return best, out
 
 
-def settings_grid(quick: bool = False) -> list[tuple[float, int, float]]:
-    """(epsilon, depth cap, memory cap MB) of every row."""
+def settings_grid(quick: bool = False, spps=(1,)) -> list[tuple[float, int, float, int]]:
+    """(epsilon, depth cap, memory cap MB, samples per pixel) of every row: the sweeps at 1
+    sample per pixel, and epsilon 0.01 at the default caps for every other count of
+    ``spps``."""
     d = RenderSettings()
     eps = (0.0, 0.01, 0.1) if quick else EPSILONS
-    rows = [(e, d.depth_cap, d.memory_cap_mb) for e in eps]
+    rows = [(e, d.depth_cap, d.memory_cap_mb, 1) for e in eps]
     if not quick:
-        rows += [(0.01, c, d.memory_cap_mb) for c in DEPTH_CAPS]
-        rows += [(0.01, d.depth_cap, m) for m in MEMORY_CAPS]
+        rows += [(0.01, c, d.memory_cap_mb, 1) for c in DEPTH_CAPS]
+        rows += [(0.01, d.depth_cap, m, 1) for m in MEMORY_CAPS]
+    rows += [(0.01, d.depth_cap, d.memory_cap_mb, int(k)) for k in spps if int(k) != 1]
     return rows
 
 
@@ -107,14 +116,20 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
         render(warm, base_settings, accel=wacc)
         wr.render(warm, replace(base_settings, mode="INTERPOLANT"), wacc)
     sc.set_camera(cams["first"])
-    t_base, base_frame = _timed(lambda: render(sc, base_settings, accel=accel), repeat + 1)
     # the floor of any frame that finds its visible surfaces with one ray per pixel
     rays = camera_rays(sc.camera)
     t_vis, _ = _timed(lambda: accel.closest_hit(*rays), repeat + 1)
     rows = []
-    for eps, cap, mem in grid:
+    base_frames: dict = {}
+    for eps, cap, mem, spp in grid:
+        base_settings = RenderSettings(max_depth=depth, samples=spp)
+        if spp not in base_frames:
+            sc.set_camera(cams["first"])
+            base_frames[spp] = _timed(lambda bs=base_settings: render(sc, bs, accel=accel),
+                                      repeat + 1 if spp == 1 else 1)
+        t_base, base_frame = base_frames[spp]
         st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=cap, memory_cap_mb=mem,
-                            max_depth=depth)
+                            max_depth=depth, samples=spp)
         # the whole sequence (first frame from an empty cache, step, pan) is repeated; each
         # interpolant frame is timed right after a base frame of the same camera (the
         # machine's load drifts), and each keeps its best time
@@ -135,8 +150,12 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                     memory = r.cache.memory_bytes / 1e6
         t_first = times["first"]
         m = image.compare(f_first.radiance, base_frame.radiance, eps)
+        err = np.abs(image.to_display(f_first.radiance)
+                     - image.to_display(base_frame.radiance)).max(axis=-1)
         row = dict(
-            scene=name, epsilon=eps, depth_cap=cap, memory_cap_mb=mem,
+            scene=name, epsilon=eps, depth_cap=cap, memory_cap_mb=mem, spp=spp,
+            n_over_epsilon=int(np.count_nonzero(err > eps + FLOAT_TOL)),
+            reprojected_fraction=float(f_first.stats.get("reprojected_fraction", 0.0)),
             first_frame_speedup=btimes["first"] / t_first,
             camera_step_speedup=btimes["step"] / times["step"],
             pan_speedup=btimes["pan"] / times["pan"],
@@ -145,11 +164,11 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
             interpolated_fraction=f_first.stats["interpolated_fraction"], memory_mb=memory,
             base_s=btimes["first"], first_s=t_first, step_s=times["step"],
             pan_s=times["pan"], cells_built=f_first.stats["cells_built"],
-            visibility_bound=t_base / t_vis,
+            visibility_bound=t_base / (t_vis * spp),
         )
         rows.append(row)
         if log is not None:
-            log(f"{name} eps={eps:g} cap={cap} mem={mem:g}: "
+            log(f"{name} eps={eps:g} cap={cap} mem={mem:g} spp={spp}: "
                 f"first {row['first_frame_speedup']:.2f}x "
                 f"step {row['camera_step_speedup']:.2f}x pan {row['pan_speedup']:.2f}x "
                 f"interp {100 * row['interpolated_fraction']:.1f}% "
@@ -167,23 +186,25 @@ def _fmt(x, nd=3):
 
 
 def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
-    head = ("| scene | eps | depth cap | mem cap MB | first frame | camera step | pan | "
-            "mean err | max err | >eps px % | PSNR dB | interp % | memory MB | base s | "
-            "first s | step s | pan s | base / primary rays |")
+    head = ("| scene | eps | depth cap | mem cap MB | spp | first frame | camera step | pan | "
+            "mean err | max err | >eps px | PSNR dB | interp % | reprojected % | memory MB | "
+            "base s | first s | step s | pan s | base / primary rays |")
     lines = [f"Interpolant speed/accuracy trade at {width}x{height}, ray depth 5 "
              f"(`python -m rstrace_engine.bench trade`). Speedups are base tracer time / "
              f"interpolant time of the same frame in the same run; errors compare the "
              f"first frame with the base frame in display space. The last column is the "
              f"base frame time over the time of its primary rays alone: the most any frame "
              f"that casts one visibility ray per pixel could gain. {note}", "", head,
-             "|" + "---|" * 18]
+             "|" + "---|" * 20]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], f"{r['epsilon']:g}", str(r["depth_cap"]), f"{r['memory_cap_mb']:g}",
+            str(r["spp"]),
             f"{r['first_frame_speedup']:.2f}x", f"{r['camera_step_speedup']:.2f}x",
             f"{r['pan_speedup']:.2f}x", f"{r['mean_error']:.5f}", f"{r['max_error']:.4f}",
-            f"{100 * r['frac_over_epsilon']:.3f}", _fmt(r["psnr"], 1),
-            f"{100 * r['interpolated_fraction']:.1f}", f"{r['memory_mb']:.1f}",
+            str(r["n_over_epsilon"]), _fmt(r["psnr"], 1),
+            f"{100 * r['interpolated_fraction']:.1f}",
+            f"{100 * r['reprojected_fraction']:.1f}", f"{r['memory_mb']:.1f}",
             f"{r['base_s']:.3f}", f"{r['first_s']:.3f}", f"{r['step_s']:.3f}",
             f"{r['pan_s']:.3f}", f"{r['visibility_bound']:.1f}x"]) + " |")
     return "\n".join(lines) + "\n"
@@ -205,7 +226,7 @@ def plot(rows: list[dict], path: Path) -> bool:
     for ax, (key, title) in zip(axes, keys, strict=True):
         for name in dict.fromkeys(r["scene"] for r in rows):
             sel = [r for r in rows if r["scene"] == name and r["depth_cap"] == d.depth_cap
-                   and r["memory_cap_mb"] == d.memory_cap_mb]
+                   and r["memory_cap_mb"] == d.memory_cap_mb and r["spp"] == 1]
             sel.sort(key=lambda r: r["epsilon"])
             x = [max(r["mean_error"], 1e-6) for r in sel]
             y = [r[key] for r in sel]
@@ -237,6 +258,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", default="docs", help="directory for trade.md and trade.png")
     p.add_argument("--repeat", type=int, default=3, help="timing runs per frame (best)")
     p.add_argument("--quick", action="store_true", help="three epsilons, no cap sweep")
+    p.add_argument("--spp", default="1", help="samples per pixel, comma separated (counts "
+                                              "other than 1: one row each at epsilon 0.01)")
     p.add_argument("--threads", type=int, default=0, help="numba threads (0: all)")
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                    help="wall time, or this process's CPU time (with --threads 1 on a "
@@ -248,7 +271,7 @@ def main(argv: list[str]) -> int:
         import numba
 
         numba.set_num_threads(args.threads)
-    grid = settings_grid(args.quick)
+    grid = settings_grid(args.quick, [int(k) for k in args.spp.split(",")])
     rows = []
 
     def log(msg):

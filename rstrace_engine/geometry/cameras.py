@@ -33,7 +33,7 @@ def camera_params(cam: Camera, width: int | None = None, height: int | None = No
     """Blender's viewplane (``BKE_camera_params_compute_viewplane``) for ``cam``."""
     w = int(width or cam.width)
     h = int(height or cam.height)
-    m = np.array(cam.matrix, dtype=np.float64)
+    m = np.array(cam.matrix, dtype=np.float64, order="C")  # one layout: one compiled kernel
     # Normalise axes: object scale on a camera does not change its projection in Blender.
     for k in range(3):
         m[:3, k] /= np.linalg.norm(m[:3, k])

@@ -82,12 +82,31 @@ def check_matrix(name: str, matrix) -> np.ndarray:
 # ----------------------------------------------------------------------------- authoring
 
 
+#: Shading models of :class:`Material` (their codes in ``SceneArrays.mat_model``).
+MODEL_WARD, MODEL_PRINCIPLED = 0, 1
+SHADING_MODELS = {"WARD": MODEL_WARD, "PRINCIPLED": MODEL_PRINCIPLED}
+
+
 @dataclass
 class Material:
-    """A Ward isotropic + Whitted material. Colours are linear RGB in [0, 1].
+    """A Ward or Principled-like material plus Whitted mirror and refraction. Colours are
+    linear RGB in [0, 1].
 
-    ``roughness`` is Ward's alpha (RMS slope), in (0, 1]. ``texture`` is an optional
-    ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
+    ``model`` ``"WARD"`` (seed 000's model, the default here): ``diffuse`` Lambertian albedo,
+    ``specular`` Ward's rho_s with ``roughness`` Ward's alpha (RMS slope) in (0, 1], ``mirror``
+    a constant mirror reflectance.
+
+    ``model`` ``"PRINCIPLED"`` (what Blender materials export to by default): ``diffuse`` the
+    base under a GGX layer (scaled in the tracer by one minus that layer's albedo toward the
+    viewer), ``specular`` the dielectric layer's weight times its tint, with the exact Fresnel
+    of index ``specular_ior`` (1: no dielectric reflection), ``metallic`` the conductor's
+    weight and ``metal`` its colour at normal incidence; ``roughness`` is GGX alpha. Lights
+    make highlights through the GGX lobe; ``mirror`` (in [0, 1]) is the share of the layer's
+    Fresnel reflectance that mirror rays carry (1 for a smooth surface, 0 for a rough one).
+
+    Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
+    splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
+    optional ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
     """
 
     name: str = "material"
@@ -99,30 +118,49 @@ class Material:
     ior: float = 1.45
     emission: tuple = (0.0, 0.0, 0.0)
     texture: np.ndarray | None = None
+    model: str = "WARD"
+    metallic: float = 0.0
+    metal: tuple = (0.0, 0.0, 0.0)
+    specular_ior: float = 1.5
 
     def validated(self) -> Material:
         n = self.name
+        if self.model not in SHADING_MODELS:
+            raise SceneError(f"material '{n}': unknown shading model {self.model!r} "
+                             f"(expected one of {sorted(SHADING_MODELS)})")
         d = _colour(n, f"material '{n}' diffuse", self.diffuse)
         s = _colour(n, f"material '{n}' specular", self.specular)
         m = _colour(n, f"material '{n}' mirror", self.mirror)
         t = _colour(n, f"material '{n}' transmission", self.transmission)
         e = _colour(n, f"material '{n}' emission", self.emission, hi=None)
-        if np.any(d + s + m + t > 1.0 + 1e-6):
-            raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
-                             f"exceeds 1 in some channel (energy would be created)")
+        mc = _colour(n, f"material '{n}' metal", self.metal)
+        mw = float(self.metallic)
+        if not (math.isfinite(mw) and 0.0 <= mw <= 1.0):
+            raise SceneError(f"material '{n}': metallic {mw} outside [0, 1]")
+        if self.model == "WARD":
+            if np.any(d + s + m + t > 1.0 + 1e-6):
+                raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
+                                 f"exceeds 1 in some channel (energy would be created)")
+        elif np.any(d + t + mw > 1.0 + 1e-6) or np.any(s + t + mw > 1.0 + 1e-6):
+            raise SceneError(f"material '{n}': diffuse (or specular) + transmission + "
+                             f"metallic exceeds 1 in some channel (energy would be created)")
         r = float(self.roughness)
         if not (math.isfinite(r) and 1e-4 <= r <= 1.0):
             raise SceneError(f"material '{n}': roughness {r} outside [1e-4, 1]")
         ior = float(self.ior)
         if not (math.isfinite(ior) and 1.0 <= ior <= 10.0):
             raise SceneError(f"material '{n}': IOR {ior} outside [1, 10]")
+        sior = float(self.specular_ior)
+        if not (math.isfinite(sior) and 1.0 <= sior <= 10.0):
+            raise SceneError(f"material '{n}': specular IOR {sior} outside [1, 10]")
         tex = None
         if self.texture is not None:
             tex = _finite_array(n, f"material '{n}' texture", self.texture, None, np.float32)
             if tex.ndim != 3 or tex.shape[2] < 3 or tex.shape[0] < 1 or tex.shape[1] < 1:
                 raise SceneError(f"material '{n}': texture must be (h, w, 3), got {tex.shape}")
             tex = np.ascontiguousarray(tex[:, :, :3])
-        return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex)
+        return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
+                        self.model, mw, tuple(mc), sior)
 
 
 @dataclass

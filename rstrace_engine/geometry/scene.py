@@ -15,8 +15,9 @@ Conventions
   ``c * S`` (W/m^2) on a surface facing it. This is Blender's (and Cycles') convention:
   a Lambertian surface of albedo rho at distance r from a point light gets
   ``L = rho / pi * P / (4 pi r^2) * cos(theta)``.
-* Materials are Ward isotropic (diffuse albedo, specular albedo, roughness alpha) plus
-  Whitted mirror reflectance, transmission with an index of refraction, and emission.
+* Materials are Ward isotropic (diffuse albedo, specular albedo, roughness alpha) or
+  Principled-like (Lambertian base under a Fresnel-weighted GGX layer), plus Whitted mirror
+  reflectance, transmission with an index of refraction, and emission.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     LIGHT_SPOT,
     LIGHT_SUN,
     MAX_LIGHTS,
+    MODEL_PRINCIPLED,
+    MODEL_WARD,
+    SHADING_MODELS,
     Camera,
     Light,
     Material,
@@ -78,6 +82,10 @@ class SceneArrays(NamedTuple):
     mat_ior: np.ndarray  # (NM,)
     mat_emission: np.ndarray  # (NM, 3)
     mat_tex: np.ndarray  # (NM,) int32 texture id or -1
+    mat_model: np.ndarray  # (NM,) int32 MODEL_WARD or MODEL_PRINCIPLED
+    mat_metallic: np.ndarray  # (NM,) float64
+    mat_metal: np.ndarray  # (NM, 3) float64
+    mat_specular_ior: np.ndarray  # (NM,) float64
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
     tex_size: np.ndarray  # (NT, 2) int32 (width, height)
@@ -514,8 +522,13 @@ class Scene:
                                  ("clip start", c.clip_start, 0.0, 1e12),
                                  ("shift x", c.shift_x, -100, 100),
                                  ("shift y", c.shift_y, -100, 100)):
-            if not (math.isfinite(v) and lo <= v <= hi):
-                raise SceneError(f"camera: {label} {v} outside [{lo:g}, {hi:g}]")
+            # Blender stores these as float32: a limit typed in Blender arrives rounded
+            # (1e-9 as 9.99999997e-10), so the limits allow for that rounding
+            slack = tol.FLOAT32_INPUT_REL
+            if not (math.isfinite(v) and lo - slack * abs(lo) <= v <= hi + slack * abs(hi)):
+                side = (f"is below the minimum {lo:g}" if v < lo else
+                        f"is above the maximum {hi:g}" if v > hi else "is not a number")
+                raise SceneError(f"camera: {label} {v:.9g} {side}")
         if not (math.isfinite(c.clip_end) and c.clip_end > c.clip_start):
             raise SceneError(f"camera: clip end {c.clip_end} must exceed clip start "
                              f"{c.clip_start}")
@@ -564,7 +577,10 @@ class Scene:
         ni = len(self.instances)
         eye = np.eye(4)
         alive = np.array(live, bool)
-        xf = np.stack([eye if i is None else i["matrix"] for i in self.instances])
+        # C order whatever the host gave (Blender's matrices arrive column-major, and
+        # np.stack keeps their layout): one layout, one compiled kernel
+        xf = np.ascontiguousarray(
+            np.stack([eye if i is None else i["matrix"] for i in self.instances]))
         inv = np.stack([eye if i is None else i["inv"] for i in self.instances])
         nmat = np.stack([eye[:3, :3] if i is None else i["nmat"] for i in self.instances])
         aabb = np.stack([i["aabb"] if ok else DEAD_AABB
@@ -628,6 +644,10 @@ class Scene:
             mat_ior=np.array([m.ior for m in mats], f64),
             mat_emission=np.array([m.emission for m in mats], f64),
             mat_tex=np.array(tex_ids, np.int32),
+            mat_model=np.array([SHADING_MODELS[m.model] for m in mats], np.int32),
+            mat_metallic=np.array([m.metallic for m in mats], f64),
+            mat_metal=np.array([m.metal for m in mats], f64).reshape(-1, 3),
+            mat_specular_ior=np.array([m.specular_ior for m in mats], f64),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
             light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,

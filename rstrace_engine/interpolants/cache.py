@@ -79,7 +79,15 @@ from .predicate import (
     check_cells,
     radiance_ok,
 )
-from .samples import LineCrossings, SampleStore, facing, skip_tmin, unique_keys
+from .samples import (
+    LineCrossings,
+    SampleStore,
+    TextureApplier,
+    facing,
+    skip_tmin,
+    texture_split,
+    unique_keys,
+)
 from .shafts import query_scene
 
 log = logging.getLogger(__name__)
@@ -345,6 +353,15 @@ class InterpolantCache:
         """The predicate's query structures (:func:`.shafts.query_scene`)."""
         return query_scene(self.sa, self.topo)
 
+    @property
+    def tex_max(self) -> np.ndarray:
+        """(3,) the largest texel of any texture (the radiance test's texel range)."""
+        memo = getattr(self, "_tex_max", None)
+        if memo is None or memo[0] is not self.sa.tex_data:
+            memo = (self.sa.tex_data, np.maximum(np.asarray(self.sa.tex_data).max(axis=0), 0.0))
+            self._tex_max = memo
+        return memo[1]
+
     @cached_property
     def n_test(self) -> np.ndarray:
         """Test lines per instance: more for non-convex meshes."""
@@ -445,12 +462,14 @@ class InterpolantCache:
                      directions, face, abcd, zp, clsp)
         return face, abcd, zp, clsp
 
-    def resolve(self, inst, face, abcd, zp, clsp, cancel=None) -> ResolveResult:
+    def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
         inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
-        clsp from :meth:`pixel_lines`.
+        clsp from :meth:`pixel_lines`. hits: the rays' visible hits, needed when the scene
+        has textures (applied per ray, :func:`.samples.apply_textures`).
         """
+        texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
         rad = np.zeros((n, 3))
         done = np.zeros(n, bool)
@@ -481,6 +500,8 @@ class InterpolantCache:
             p = self.pool
             _walk(lt.arrays, p.rad, p.zlo, p.zhi, p.cls, p.stamp, p.rebuilt, self.clock, nodes,
                   inherited, abcd, zp, clsp, active, idx, rad, done, pcls, pinterp)
+            if texture is not None:  # before the cap may evict what was just used
+                texture.apply(abcd, pinterp, rad)
             self.enforce_cap()
             if len(counts) < lt.n_nodes:
                 counts = np.zeros(2 * lt.n_nodes, np.int32)
@@ -604,8 +625,10 @@ class InterpolantCache:
                                                   - self.box[inst_box, 0, k])
         node_cls = np.where(tree.node_tri >= 0,
                             self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
+        rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
+                                              tree, rad, self.max_depth, trace)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
-                               tree, node_cls.astype(np.int32))
+                               tree, node_cls.astype(np.int32), dif, texel, flag)
         self.frame_stats["samples_traced"] += len(ug)
         sid[miss] = new[uinv.reshape(-1)]
         return sid
@@ -669,7 +692,8 @@ class InterpolantCache:
                         depth[go], coord[go], cell_samples, nsamp, sub_status, detail, zlo,
                         zhi, cls)
             ok = np.flatnonzero(sub_status == VALID)
-            lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon)
+            lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon,
+                              self.samples.texture_terms(), self.tex_max)
             sub_status[ok[~lin]] = CLASS_FAIL_NONLINEAR
             detail[ok[~lin]] = len(REASONS)
             for r, k in zip(*np.unique(detail, return_counts=True), strict=True):

@@ -17,8 +17,13 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   triangle of the object itself inside it faces the light with no boundary edge inside it;
   then no interior point is shadowed (a shadow ray would have to enter the object through a
   triangle facing away from the light). For an occluded light, the shaft meets nothing but
-  the object and the named occluder. A light off at every corner must be behind every slab
-  triangle (or, if in front of all of them, its shaft must be empty as for a lit light).
+  the object and the named occluder, and the occluder must cover every shadow segment
+  (:func:`.occluders.occluder_covers`). A light off at every corner must be behind every slab
+  triangle, or outside its spot cone over the whole slab (or, if in front of all of them,
+  its shaft must be empty as for a lit light). A spot cone edge with blend 0 (a step) may not
+  cross the slab (:func:`.shafts.cone_state`).
+* **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
+  (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the
   padded boxes of the 16 parent points and the 16 node points, and each node's light shafts,
   meet no other object than those the tree names. Secondary hit points of interior lines are
@@ -42,10 +47,14 @@ from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from .linetree import corner_weights, face_frame, line_points
+from .occluders import occluder_covers
 from .shafts import (
+    CONE_OFF,
+    CONE_STEP,
     MAX_PLANES,
     boundary_edge_in,
     clip_polygon,
+    cone_state,
     hexa_planes,
     hw_shaft,
     light_box,
@@ -65,9 +74,10 @@ _SIL = CLASS_FAIL_SILHOUETTE
 _SHD = CLASS_FAIL_SHADOW
 #: Why a cell failed, finer than its pixel class (``check_cells``'s ``detail`` output).
 REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change", "slab",
-           "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light")
+           "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light", "spot_cone",
+           "self_tunnel", "partial_occluder")
 (R_VALID, R_MISS, R_CLASS, R_LIGHT, R_TREE, R_SLAB, R_FACING, R_SHAFT, R_SELF, R_TUNNEL,
- R_TUNNEL_LIGHT) = range(len(REASONS))
+ R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
 #: Triangles a self query may collect before the cell fails (conservatively).
@@ -107,22 +117,44 @@ def extended_display(linear: np.ndarray) -> np.ndarray:
     return image.to_display(x) + _SRGB_SLOPE_AT_1 * over
 
 def radiance_ok(rad: np.ndarray, cell_samples: np.ndarray, nsamp: np.ndarray,
-                epsilon: float) -> np.ndarray:
+                epsilon: float, tex=None, tex_max=None) -> np.ndarray:
     """The radiance test of cells (m of them): quadrilinear interpolation of the 16 corner
     samples within ``TEST_EPS_FRAC * epsilon`` of every traced test line, in the extended
     display space; non-finite radiance fails.
 
     rad (S, 3) sample radiance; cell_samples (m, 16 + N_TEST_ALL) sample ids (corners, then
     test lines in :data:`TEST_POINTS` order); nsamp (m,) how many are used. Returns (m,) bool.
+
+    Textures (:func:`.samples.texture_split`): with ``tex = (D, texel, flag)`` per sample,
+    ``rad`` is R and a line's radiance ``R + texel * D``; a pixel gets the interpolated R
+    and D with its own texel. So at every test line the interpolated and the traced
+    radiance are compared for its own texel and for texels ``0, 1/4, ... 1`` times
+    ``tex_max`` (3,) (the texel range: a pixel's texel can be any of them). A cell with a
+    flagged sample (a texture below the root, a failed split) fails.
     """
     corners = rad[cell_samples[:, :16]]  # (m, 16, 3)
-    tests = rad[np.maximum(cell_samples[:, 16:], 0)]  # (m, T, 3)
+    tid = np.maximum(cell_samples[:, 16:], 0)
+    tests = rad[tid]  # (m, T, 3)
     interp = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, corners)
-    err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
     used = np.arange(N_TEST_ALL)[None, :] < (nsamp - 16)[:, None]
-    err = np.where(used, err, 0.0)
     finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(
         np.where(used[:, :, None], tests, 0.0)).all(axis=(1, 2))
+    err = np.abs(extended_display(interp) - extended_display(tests)).max(axis=2)
+    if tex is not None:
+        dif, texel, flag = tex
+        ids = np.where(np.arange(cell_samples.shape[1])[None, :] < nsamp[:, None],
+                       cell_samples, cell_samples[:, :1])
+        finite &= (flag[ids] == 0).all(axis=1)
+        dc = dif[cell_samples[:, :16]]
+        if np.any(dc != 0.0):
+            dt = dif[tid]
+            idif = np.einsum("tk,mkc->mtc", _TEST_WEIGHTS, dc)
+            tmax = np.ones(3) if tex_max is None else np.asarray(tex_max, np.float64)
+            for t in [texel[tid]] + [f * tmax for f in (0.0, 0.25, 0.5, 0.75, 1.0)]:
+                e = np.abs(extended_display(interp + t * idif)
+                           - extended_display(tests + t * dt)).max(axis=2)
+                err = np.maximum(err, e)
+    err = np.where(used, err, 0.0)
     return finite & (err.max(axis=1) <= TEST_EPS_FRAC * epsilon)
 
 
@@ -143,6 +175,18 @@ class SampleArrays(NamedTuple):
     node_cls: np.ndarray  # (Nn,) int32, -1 miss
     node_occ: np.ndarray  # (Nn, L) int32 occluder per light (-1 none, -2 not facing)
     node_point: np.ndarray  # (Nn, 3) float64
+
+
+#: Vertices of the slab polygons kept for the occluder proof (more: the box's corners).
+MAX_HULL_POINTS = 64
+
+
+@njit(cache=True, nogil=True)
+def _box_corners(lo, hi, out):
+    for c in range(8):
+        out[c, 0] = hi[0] if c & 1 else lo[0]
+        out[c, 1] = hi[1] if c & 2 else lo[1]
+        out[c, 2] = hi[2] if c & 4 else lo[2]
 
 
 @njit(cache=True, nogil=True)
@@ -214,13 +258,14 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
 
 
 @njit(cache=True, nogil=True)
-def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
+def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
     """Geometry test of the slab shaft ``pl`` (6 planes, world) against the object itself.
 
     dirs (16, 3) world corner directions. Sets per light ``fac[j]`` / ``bfac[j]`` when some
     slab triangle faces / faces away from light j, and ``hb`` (6,) to the world box of the
-    object's surface inside the slab (which holds every slab crossing). Returns True when
-    the cell passes.
+    object's surface inside the slab (which holds every slab crossing), and ``hv[:nhv[0]]``
+    to the vertices of those clipped polygons (``nhv[0] = -1`` when more than ``hv`` holds).
+    Returns True when the cell passes.
     """
     xf = qs.inst_xform[inst]
     inv = qs.inst_inv[inst]
@@ -246,10 +291,17 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
         load_tri(qs.tv, t, P)
         nv = clip_polygon(plo, 0, 6, P, 3, Q)
         for v in range(nv):
+            m_ = nhv[0]
+            if m_ >= hv.shape[0]:
+                nhv[0] = -1
             for k in range(3):
                 w = xf[k, 0] * P[v, 0] + xf[k, 1] * P[v, 1] + xf[k, 2] * P[v, 2] + xf[k, 3]
                 hb[k] = min(hb[k], w)
                 hb[3 + k] = max(hb[3 + k], w)
+                if 0 <= m_ < hv.shape[0]:
+                    hv[m_, k] = w
+            if 0 <= m_ < hv.shape[0]:
+                nhv[0] = m_ + 1
         nx, ny, nz = tri_normal(qs.tv, t)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         for c in range(16):
@@ -306,17 +358,25 @@ def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
 
 @njit(cache=True, nogil=True)
 def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q, pl, bb,
-                  plo, bbo, named):
+                  plo, bbo, named, pts, npts):
     """Light tests of one ray-tree node (row offset ``row`` in sample ``s0``) whose points
     lie in box (lo, hi) on instance ``inst``. ``self_ok``: run the self-shadow test (root
     level, where the slab facing flags ``fac``/``bfac`` are known). Returns R_VALID or the
-    reason (R_FACING, R_SHAFT, R_SELF; the caller maps these below the root)."""
+    reason (R_FACING, R_SHAFT, R_SELF; the caller maps these below the root). ``pts[:npts]``:
+    world points whose convex hull holds the node's points (for the occluder proof)."""
     L = qs.light_kind.shape[0]
     blo = np.empty(3)
     bhi = np.empty(3)
     for j in range(L):
         occ = sm.node_occ[sm.node_start[s0] + row, j]
         lit = occ == -1
+        # the spot cone over the points' box: a step inside the cell fails it; a cell the
+        # cone leaves entirely dark is off for every line
+        cone = cone_state(qs, j, lo, hi)
+        if cone == CONE_STEP or (cone == CONE_OFF and occ != -2):
+            return R_CONE
+        if occ == -2 and cone == CONE_OFF:
+            continue
         if occ == -2:
             if not self_ok:
                 continue  # below the root: tested only
@@ -334,6 +394,8 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             n_named = 2
         if other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
             return R_SHAFT
+        if not lit and not occluder_covers(qs, occ, j, pts, npts, pl, npl, bb, cand, P, Q):
+            return R_PARTIAL  # the occluder may let light through between the test lines
         if lit and self_ok:
             if bfac[j] or not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
                 return R_SELF
@@ -407,7 +469,9 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     fac = np.zeros(max(L, 1), np.bool_)
     bfac = np.zeros(max(L, 1), np.bool_)
     hb = np.empty(6)
-    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb):
+    hv = np.empty((MAX_HULL_POINTS, 3))
+    nhv = np.zeros(1, np.int64)
+    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
         return R_SLAB
     # the light shafts and the first tunnels start from the surface inside the slab
     if hb[0] > hb[3]:
@@ -424,8 +488,11 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     plo = np.empty((MAX_PLANES, 4))
     bbo = np.empty(6)
     named = np.empty(2, np.int32)
+    if nhv[0] <= 0:  # too many polygon vertices: the box's corners
+        _box_corners(lo, hi, hv)
+        nhv[0] = 8
     r = _light_shafts(qs, sm, s0, 0, inst, lo, hi, True, fac, bfac, cand, P, Q, spl, sbb,
-                      plo, bbo, named)
+                      plo, bbo, named, hv, nhv[0])
     if r != R_VALID:
         return r
     # reflection / refraction tunnels and their lights
@@ -449,11 +516,19 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
         npl = hw_shaft(plo_, phi_, lo, hi, qs.slack, spl, sbb)
         named[0] = sm.node_inst[base + pq]
         named[1] = sm.node_inst[base + q]
+        if named[0] == named[1] and named[0] >= 0 and not qs.mesh_convex[
+                qs.inst_mesh[named[0]]]:
+            # reflection / refraction into the same non-convex object: its own geometry
+            # could cut interior lines' segments (for a convex one it cannot)
+            return R_SELF_TUNNEL
         if other_geometry(qs, spl, npl, sbb, named, 2, plo, bbo, P, Q):
             return R_TUNNEL
         if sm.node_inst[base + q] >= 0:
+            _box_corners(lo, hi, hv)
             r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
-                              cand, P, Q, spl, sbb, plo, bbo, named)
+                              cand, P, Q, spl, sbb, plo, bbo, named, hv, 8)
+            if r == R_CONE or r == R_PARTIAL:
+                return r
             if r != R_VALID:
                 return R_TUNNEL_LIGHT
     zlo_out[c] = zlo

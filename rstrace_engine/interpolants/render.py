@@ -29,32 +29,14 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
-from ..frame import CLASS_BACKGROUND, CLASS_NAMES, Frame, RenderSettings
-from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
-from ..tracing.whitted import TILE_RAYS, render, trace
+from ..frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
+from ..geometry.cameras import camera_params, camera_rays
+from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
+from ..tracing.whitted import render, trace
+from .bound import bound_notes
 from .cache import InterpolantCache
 
 log = logging.getLogger(__name__)
-
-
-def _camera_batch(cp, spp: int, seed: int):
-    """All camera rays of a frame, tile by tile as the base tracer makes them.
-
-    Returns ``origins, directions, tmin, tmax`` and the tiles as ``(start, pixels)``.
-    """
-    w, h = cp.width, cp.height
-    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
-    pix_all, jit_all, tiles, start = [], [], [], 0
-    for y0 in range(0, h, rows_per_tile):
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=seed * 1000003 + y0)
-        pix_all.append(np.tile(pix, spp))
-        jit_all.append(jitter.reshape(-1, 2))
-        tiles.append((start, pix))
-        start += len(pix) * spp
-    o, d, tmin, tmax = camera_rays(cp, np.concatenate(pix_all), np.concatenate(jit_all))
-    return o, d, tmin, tmax, tiles
 
 
 def _take(h: Hits, idx: np.ndarray) -> Hits:
@@ -98,18 +80,28 @@ def _finish(rad, radmax, ray_class, good, counts):
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
-                 cancel=None) -> Frame:
+                 cancel=None, records=None, pixels: np.ndarray | None = None,
+                 base: Frame | None = None) -> Frame:
     """Render ``scene``'s camera with the interpolants of ``cache`` (building what it needs).
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
     are the cache's. progress(fraction, message); cancel() -> bool is polled between stages
     (a cancelled frame keeps its interpolated pixels, ``stats["cancelled"]``).
+
+    Incremental frames (the session's, with a fixed camera): ``pixels`` (h * w,) bool renders
+    only those pixels (all their samples, with the jitter of a full frame) over a copy of
+    ``base``, the previous frame. ``records`` (a :class:`~.tracing.pixel_records.PixelRecords`)
+    receives every rendered sample's view segment and the compact ray tree of every traced
+    one; what an interpolated sample depends on beyond its view segment is its interpolant's,
+    which the ray segment trees track.
     """
     settings = settings.validated()
     if cache.epsilon <= 0.0:
         # nothing can be interpolated within a zero error bound: this is a base frame
-        frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel)
-        frame.pixel_interpolant = np.full(frame.pixel_class.shape, -1, np.int32)
+        frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel,
+                       records=records, pixels=pixels, base=base)
+        frame.pixel_interpolant = (np.full(frame.pixel_class.shape, -1, np.int32)
+                                   if base is None else base.pixel_interpolant.copy())
         frame.stats.update(mode="INTERPOLANT", interpolated_fraction=0.0, cells_built=0,
                            cells_valid=0, samples_traced=0, interpolants=cache.pool.n_live,
                            memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
@@ -120,62 +112,73 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height
     spp = int(settings.samples)
-    o, d, tmin, tmax, tiles = _camera_batch(cp, spp, int(settings.seed))
-    n = len(o)
-    hits = accel.closest_hit(o, d, tmin, tmax)
-    t_vis = time.perf_counter()
-    if progress is not None:
-        progress(0.2, "visibility")
-    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel)
-    t_res = time.perf_counter()
-    if progress is not None:
-        progress(0.7, "interpolants")
-    # a miss is the world colour (exactly what the tracer gives it)
-    rad = res.radiance
-    ray_class = res.pixel_class
-    interp = res.interpolated
-    todo = np.empty(n, np.int64)
-    todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64), rad,
-                           todo)]
-    cancelled = cancel is not None and cancel()
+    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+    parts = list(frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels))
+    if parts:
+        pix = np.concatenate([q for q, _, _ in parts])
+        jitter = np.concatenate([j for _, j, _ in parts], axis=1)
+    else:
+        pix, jitter = np.zeros(0, np.int64), np.zeros((spp, 0, 2))
+    k = len(pix)
+    n = k * spp
+    # rays sample-major over the pixels: ray s * k + i is sample s of pixel pix[i]
     counters: dict = {}
-    if not cancelled:
-        # in tiles of about the base tracer's size (its per-level arrays stay cache-sized),
-        # split evenly: a small last tile would cost the tracer's per-level overhead alone
-        n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-        for k in range(n_tiles):
-            part = todo[k * len(todo) // n_tiles:(k + 1) * len(todo) // n_tiles]
-            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                 int(settings.max_depth), primary=_take(hits, part),
-                                 counters=counters)
+    with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
+        o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
+        hits = accel.closest_hit(o, d, tmin, tmax)
+        t_vis = time.perf_counter()
+        if progress is not None:
+            progress(0.2, "visibility")
+        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits)
+        t_res = time.perf_counter()
+        if progress is not None:
+            progress(0.7, "interpolants")
+        # a miss is the world colour (exactly what the tracer gives it)
+        rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
+        todo = np.empty(n, np.int64)
+        todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
+                               rad, todo)]
+        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
+        if records is not None:
+            records.add_primary(gids, hits.inst, o, d, hits.t)
+        cancelled = cancel is not None and cancel()
+        if not cancelled:
+            # in tiles of about the base tracer's size (its per-level arrays stay
+            # cache-sized), split evenly: a small last tile would cost the tracer's per-level
+            # overhead alone
+            n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+            for q in range(n_tiles):
+                part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+                segs: list | None = [] if records is not None else None
+                rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                     int(settings.max_depth), primary=_take(hits, part),
+                                     counters=counters, segments=segs)
+                if records is not None:
+                    records.add(gids[part], segs)
     t_trace = time.perf_counter()
     good = np.empty(n, np.bool_)
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
-    if spp == 1:  # the rays are the pixels, in order
-        image = rad.astype(np.float32)
-        pclass = ray_class
-        pinterp = res.interpolant
+    if base is not None and pixels is not None:
+        image = base.radiance.reshape(h * w, 3).copy()
+        pclass = base.pixel_class.reshape(h * w).copy()
+        pinterp = base.pixel_interpolant.reshape(h * w).copy()
     else:
-        pinterp = np.full(h * w, -1, np.int32)
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
-        for start, pix in tiles:
-            npx = len(pix)
-            sl = slice(start, start + npx * spp)
-            r = rad[sl].reshape(spp, npx, 3)
-            ngood = good[sl].reshape(spp, npx).sum(axis=0)
-            image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
-            c = ray_class[sl].reshape(spp, npx)
-            # a pixel's class: its first sample that is not background
-            first = np.argmax(c != CLASS_BACKGROUND, axis=0)
-            pclass[pix] = c[first, np.arange(npx)]
-            # the interpolant the pixel's samples used: -2 where they used several
-            qi = res.interpolant[sl].reshape(spp, npx)
-            hi = qi.max(axis=0)
-            lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
-            pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
+        pinterp = np.full(h * w, -1, np.int32)
+    r = rad.reshape(spp, k, 3)
+    ngood = good.reshape(spp, k).sum(axis=0)
+    image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
+    c = ray_class.reshape(spp, k)
+    # a pixel's class: its first sample that is not background
+    pclass[pix] = c[np.argmax(c != CLASS_BACKGROUND, axis=0), np.arange(k)]
+    # the interpolant the pixel's samples used: -2 where they used several
+    qi = res.interpolant.reshape(spp, k)
+    hi = qi.max(axis=0)
+    lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
+    pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
@@ -184,8 +187,10 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,
         build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
         trace_s=t_trace - t_res,
-        interpolated_fraction=float(np.count_nonzero(interp)) / max(n, 1),
-        traced_rays=len(todo), shadow_rays=counters.get("shadow", 0),
+        # of the whole frame (kept pixels included)
+        interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
+        / max(len(pclass), 1),
+        traced_pixels=k, traced_rays=len(todo), shadow_rays=counters.get("shadow", 0),
         secondary_rays=counters.get("secondary", 0),
         cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
         samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
@@ -195,13 +200,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         interpolant_memory_mb=cache.interpolant_bytes / 1e6,
         epsilon=cache.epsilon, depth_cap=cache.depth_cap,
         memory_cap_mb=cache.memory_cap_bytes / 1e6,
-        class_counts={CLASS_NAMES[k]: int(counts[k]) for k in range(len(CLASS_NAMES))},
+        class_counts={CLASS_NAMES[q]: int(counts[q]) for q in range(len(CLASS_NAMES))},
         width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
+        bound_notes=bound_notes(cache, res.interpolant),
     )
-    log.debug("interpolant frame: %.3f s, %.1f%% interpolated, %d cells built",
-              elapsed, 100 * stats["interpolated_fraction"], stats["cells_built"])
+    log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
+              elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
                  pixel_interpolant=pinterp.reshape(h, w))
 
@@ -268,11 +274,13 @@ class InterpolantRenderer:
             c.set_memory_cap(settings.memory_cap_mb)
         return c, new
 
-    def render(self, scene, settings: RenderSettings, accel, progress=None,
-               cancel=None) -> Frame:
-        """Render ``scene``'s camera in INTERPOLANT mode with accelerator ``accel``."""
+    def render(self, scene, settings: RenderSettings, accel, progress=None, cancel=None,
+               **incremental) -> Frame:
+        """Render ``scene``'s camera in INTERPOLANT mode with accelerator ``accel``
+        (``incremental``: ``records``, ``pixels``, ``base`` of :func:`render_frame`)."""
         settings = settings.validated()
         c, _ = self.prepare(scene.arrays(), settings, accel)
-        frame = render_frame(c, scene, settings, progress=progress, cancel=cancel)
+        frame = render_frame(c, scene, settings, progress=progress, cancel=cancel,
+                             **incremental)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame

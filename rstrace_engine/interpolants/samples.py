@@ -17,7 +17,14 @@ import numpy as np
 from numba import njit
 
 from ..accel.accelerators import Hits
-from ..tracing.shading import dot3, geometric_normal, spawn_offset
+from ..tracing.shading import (
+    dot3,
+    geometric_normal,
+    spawn_offset,
+    surface_uv,
+    texture_lookup,
+)
+from .linetree import corner_weight
 from .predicate import SampleArrays
 
 
@@ -149,7 +156,8 @@ def _grow(arr: np.ndarray, need: int) -> np.ndarray:
 class SampleStore:
     """Traced lines keyed by lattice point, with their ray trees (growth owned here)."""
 
-    _SAMPLE = ("_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount")
+    _SAMPLE = ("_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount", "_dif", "_tex",
+               "_flag")
     _NODE = ("_npath", "_ninst", "_ncls", "_nocc", "_npoint")
 
     def __init__(self, n_lights: int) -> None:
@@ -165,6 +173,9 @@ class SampleStore:
         self._depth = np.empty(0)
         self._nstart = np.empty(0, np.int64)
         self._ncount = np.empty(0, np.int32)
+        self._dif = np.empty((0, 3))
+        self._tex = np.empty((0, 3))
+        self._flag = np.empty(0, np.uint8)
         self._npath = np.empty(0, np.int64)
         self._ninst = np.empty(0, np.int32)
         self._ncls = np.empty(0, np.int32)
@@ -178,7 +189,7 @@ class SampleStore:
     @property
     def memory_bytes(self) -> int:
         """Bytes of the samples, their ray-tree nodes and keys (not the hash table)."""
-        per_sample = 24 + 4 + 4 + 8 + 8 + 4 + 16
+        per_sample = 24 + 4 + 4 + 8 + 8 + 4 + 16 + 24 + 24 + 1
         per_node = 8 + 4 + 4 + 4 * self.L + 24
         return self.n * per_sample + self.n_nodes * per_node
 
@@ -189,13 +200,23 @@ class SampleStore:
                             self._ninst[:m], self._ncls[:m], self._nocc[:m], self._npoint[:m])
 
     def radiance(self) -> np.ndarray:
+        """(n, 3) the radiance without the root's texture (``L = R + texel * D``; L itself
+        for a line whose root is not textured)."""
         return self._rad[:self.n]
+
+    def texture_terms(self):
+        """``(D (n, 3), texel (n, 3), flag (n,) uint8)``: the radiance per unit texel of the
+        root's texture, the texel at the root (see :func:`texture_split`) and
+        :data:`TEX_BELOW` / :data:`TEX_MISMATCH` flags."""
+        return self._dif[:self.n], self._tex[:self.n], self._flag[:self.n]
 
     def lookup(self, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
         return self.keys.lookup(k1, k2)
 
-    def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls) -> np.ndarray:
-        """Append samples (keys unique and absent) and their ray-tree nodes; returns ids."""
+    def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls, dif=None, tex=None,
+            flag=None) -> np.ndarray:
+        """Append samples (keys unique and absent) and their ray-tree nodes; returns ids.
+        ``rad`` is R, ``dif``/``tex``/``flag`` the texture terms (default: untextured)."""
         n = len(k1)
         s0, s1 = self.n, self.n + n
         for name in self._SAMPLE:
@@ -210,6 +231,9 @@ class SampleStore:
         self._cls[s0:s1] = cls
         self._depth[s0:s1] = depth
         self._ncount[s0:s1] = count
+        self._dif[s0:s1] = 0.0 if dif is None else dif
+        self._tex[s0:s1] = 1.0 if tex is None else tex
+        self._flag[s0:s1] = 0 if flag is None else flag
         self._nstart[s0:s1] = m0 + np.concatenate([[0], np.cumsum(count)[:-1]])
         self._npath[m0:m1] = tree.node_path[order]
         self._ninst[m0:m1] = tree.node_inst[order]
@@ -288,3 +312,152 @@ def skip_tmin(o, d, t, ext, out):
         pz = o[r, 2] + d[r, 2] * t[r]
         dl = math.sqrt(d[r, 0] ** 2 + d[r, 1] ** 2 + d[r, 2] ** 2)
         out[r] = t[r] + spawn_offset(px, py, pz, ext) / dl
+
+
+# ----------------------------------------------------------------------------- textures
+#
+# A texture multiplies the diffuse albedo of the material it is on, so the radiance of a line
+# is affine in the texel at its first hit: L = R + texel * D (per channel), with R and D
+# smooth where the untextured radiance is. Interpolants interpolate R and D and apply the
+# texture per pixel, at the pixel's own hit (exactly what the base tracer does): a texture's
+# detail never enters the interpolation, however fine it is. A texture further down the ray
+# tree (a textured floor in a mirror) is baked into R: cells whose samples have one fail.
+
+#: flag bits of a sample: a textured material below the root of its ray tree; the affine
+#: split did not reproduce the traced radiance.
+TEX_BELOW = 1
+TEX_MISMATCH = 2
+#: relative tolerance of the affine check ``|R + texel D - L|``
+TEX_SPLIT_REL = 1e-9
+
+
+@njit(cache=True, nogil=True)
+def hit_material(sa, inst, prim):
+    """Material id of triangle ``prim`` on instance ``inst`` (-1 for a miss)."""
+    if inst < 0:
+        return -1
+    s0 = sa.inst_mat_start[inst]
+    cnt = sa.inst_mat_start[inst + 1] - s0
+    slot = sa.tri_slot[prim]
+    if slot >= cnt:
+        slot = cnt - 1
+    return sa.inst_mat[s0 + slot]
+
+
+@njit(cache=True, nogil=True)
+def _textured(sa, inst, prim, out):
+    for r in range(inst.shape[0]):
+        m = hit_material(sa, inst[r], prim[r])
+        out[r] = m >= 0 and sa.mat_tex[m] >= 0
+
+
+@njit(cache=True, nogil=True)
+def _root_texels(sa, inst, prim, u, v, out):
+    for r in range(inst.shape[0]):
+        m = hit_material(sa, inst[r], prim[r])
+        uu, vv = surface_uv(sa.tri_uvs, prim[r], u[r], v[r])
+        out[r, 0], out[r, 1], out[r, 2] = texture_lookup(sa.tex_data, sa.tex_start,
+                                                         sa.tex_size, sa.mat_tex[m], uu, vv)
+
+
+def texture_split(sa, accel, o, d, hits: Hits, tree, rad, max_depth: int, trace):
+    """Split the radiance of traced lines into ``R + texel * D`` (module comment above).
+
+    o, d, hits: the lines and their root hits; tree: their recorded ray trees; rad (n, 3)
+    their radiance; trace: :func:`~.whitted.trace`. Lines whose root is textured are traced
+    again twice (no ray trees): with every texel 0 (R) and with no texture (R + D).
+    Returns ``R, D, texel, flag`` ((n, 3) x 3, (n,) uint8).
+    """
+    n = len(rad)
+    R = np.array(rad, np.float64)
+    D = np.zeros((n, 3))
+    texel = np.ones((n, 3))
+    flag = np.zeros(n, np.uint8)
+    if n == 0 or not np.any(sa.mat_tex >= 0):
+        return R, D, texel, flag
+    below = tree.node_path > 1
+    tex_node = np.empty(len(tree.node_inst), np.bool_)
+    _textured(sa, tree.node_inst, np.maximum(tree.node_tri, 0), tex_node)
+    bad = np.bincount(tree.node_ray[below & tex_node], minlength=n)[:n] > 0
+    flag[bad] = TEX_BELOW
+    root = np.empty(n, np.bool_)
+    _textured(sa, np.ascontiguousarray(hits.inst, np.int32),
+              np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), root)
+    idx = np.flatnonzero(root & ~bad)
+    if len(idx) == 0:
+        return R, D, texel, flag
+    h = Hits(hits.t[idx], hits.inst[idx], hits.prim[idx], hits.u[idx], hits.v[idx])
+    zero = sa._replace(tex_data=np.zeros_like(sa.tex_data))
+    plain = sa._replace(mat_tex=np.full_like(sa.mat_tex, -1))
+    r0, _ = trace(zero, accel, o[idx], d[idx], 0.0, 1.0, max_depth, primary=h)
+    r1, _ = trace(plain, accel, o[idx], d[idx], 0.0, 1.0, max_depth, primary=h)
+    tx = np.empty((len(idx), 3))
+    _root_texels(sa, h.inst.astype(np.int32), h.prim.astype(np.int32),
+                 np.asarray(h.u, np.float64), np.asarray(h.v, np.float64), tx)
+    R[idx] = r0
+    D[idx] = r1 - r0
+    texel[idx] = tx
+    err = np.abs(r0 + tx * (r1 - r0) - rad[idx]).max(axis=1)
+    scale = np.abs(rad[idx]).max(axis=1) + np.abs(r1).max(axis=1)
+    flag[idx[~(err <= TEX_SPLIT_REL * scale + 1e-300)]] |= TEX_MISMATCH
+    return R, D, texel, flag
+
+
+class TextureApplier:
+    """Applies textures to a frame's interpolated rays, level by level of the walk (an
+    interpolant used at one level may be evicted by the memory cap before the next)."""
+
+    def __init__(self, cache, hits: Hits) -> None:
+        if hits is None:
+            raise ValueError("resolve: a scene with textures needs the rays' hits")
+        self.cache = cache
+        self.inst = np.ascontiguousarray(hits.inst, np.int32)
+        self.prim = np.ascontiguousarray(hits.prim, np.int32)
+        self.u = np.ascontiguousarray(hits.u, np.float64)
+        self.v = np.ascontiguousarray(hits.v, np.float64)
+        self.done = np.zeros(len(self.inst), np.bool_)
+
+    def apply(self, abcd, pinterp, rad) -> None:
+        c = self.cache
+        lt = c.trees.arrays
+        apply_textures(c.sa, lt.depth, lt.coord, c.pool.node, c.pool.samples,
+                       c.samples.texture_terms()[0], pinterp, abcd, self.inst, self.prim,
+                       self.u, self.v, rad, self.done)
+
+
+@njit(cache=True, nogil=True)
+def apply_textures(sa, lt_depth, lt_coord, pool_node, pool_samples, dif, pinterp, abcd, inst,
+                   prim, u, v, rad, done):
+    """Add ``texel * D`` to interpolated rays on textured materials: D interpolated
+    quadrilinearly from the interpolant's 16 corner samples like R, the texel looked up at
+    the ray's own hit (bilinear, as the tracer does). ``pinterp[r]``: the interpolant ray r
+    used (-1: none); rays with ``done[r]`` are skipped, the others marked."""
+    for r in range(pinterp.shape[0]):
+        q = pinterp[r]
+        if q < 0 or done[r]:
+            continue
+        done[r] = True
+        m = hit_material(sa, inst[r], prim[r])
+        if m < 0 or sa.mat_tex[m] < 0:
+            continue
+        nd = pool_node[q]
+        s = float(1 << lt_depth[nd])
+        u0 = min(max(abcd[r, 0] * s - lt_coord[nd, 0], 0.0), 1.0)
+        u1 = min(max(abcd[r, 1] * s - lt_coord[nd, 1], 0.0), 1.0)
+        u2 = min(max(abcd[r, 2] * s - lt_coord[nd, 2], 0.0), 1.0)
+        u3 = min(max(abcd[r, 3] * s - lt_coord[nd, 3], 0.0), 1.0)
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        for k in range(16):
+            w = corner_weight(k, u0, u1, u2, u3)
+            sid = pool_samples[q, k]
+            x += w * dif[sid, 0]
+            y += w * dif[sid, 1]
+            z += w * dif[sid, 2]
+        uu, vv = surface_uv(sa.tri_uvs, prim[r], u[r], v[r])
+        tr, tg, tb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, sa.mat_tex[m],
+                                    uu, vv)
+        rad[r, 0] += tr * x
+        rad[r, 1] += tg * y
+        rad[r, 2] += tb * z

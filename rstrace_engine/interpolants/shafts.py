@@ -23,7 +23,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..accel import bvh
 from ..geometry.mesh_topology import MeshTopology
-from ..geometry.scene import LIGHT_SUN, SceneArrays
+from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, SceneArrays
 
 #: Most planes a shaft has (6 box planes and 12 edge planes).
 MAX_PLANES = 18
@@ -57,6 +57,9 @@ class QueryScene(NamedTuple):
     scene_center: np.ndarray  # (3,) float64
     extent: float
     slack: float  # absolute outward slack of shaft planes
+    light_cos_outer: np.ndarray  # (L,) spot cone cosines (1 / -1 for other lights)
+    light_cos_inner: np.ndarray  # (L,)
+    mesh_convex: np.ndarray  # (M,) bool closed and convex
 
 
 def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
@@ -94,7 +97,10 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.inst_mesh, np.int32), sa.inst_xform, sa.inst_inv,
                       topo.tri_class, topo.tri_boundary, sa.light_kind,
                       sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
-                      0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag)
+                      0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag,
+                      np.ascontiguousarray(sa.light_cos_outer, np.float64),
+                      np.ascontiguousarray(sa.light_cos_inner, np.float64),
+                      np.ascontiguousarray(topo.mesh_convex, np.bool_))
 
 
 @njit(cache=True, nogil=True)
@@ -466,3 +472,52 @@ def light_box(qs, j, lo, hi, blo, bhi):
         for k in range(3):
             blo[k] = qs.light_pos[j, k]
             bhi[k] = qs.light_pos[j, k]
+
+
+#: :func:`cone_state` outcomes: the spot falloff over a box is 1 everywhere, 0 everywhere,
+#: a smooth part of the blend region, or it may jump (a step: blend 0, or a cell wider than
+#: the blend region).
+CONE_ON, CONE_OFF, CONE_SMOOTH, CONE_STEP = 1, -1, 0, 2
+
+
+@njit(cache=True, nogil=True)
+def cone_state(qs, j, lo, hi):
+    """How light ``j``'s spot cone meets the world box (lo, hi) (:data:`CONE_ON` ...).
+
+    The angle from the spot axis of every point of the box lies within the angular radius
+    ``asin(r / |c - p|)`` of the box's bounding sphere (centre c, radius r) around the angle
+    of c: a conservative interval ``[ca_min, ca_max]`` of the cosine. Off when ``ca_max <=
+    cos_outer``, on when ``ca_min > cos_inner``; in between the falloff is a smoothstep of
+    the cosine (C1), accepted only when the interval fits in the blend region's width
+    (``cos_inner - cos_outer``; 0 for blend 0: a step). Lights other than spots are on."""
+    if qs.light_kind[j] != LIGHT_SPOT:
+        return CONE_ON
+    r2 = 0.0
+    v2 = 0.0
+    vd = 0.0
+    for k in range(3):
+        h = 0.5 * (hi[k] - lo[k])
+        r2 += h * h
+        v = 0.5 * (hi[k] + lo[k]) - qs.light_pos[j, k]
+        v2 += v * v
+        vd += v * qs.light_dir[j, k]
+    r = math.sqrt(r2) + qs.slack
+    dc = math.sqrt(v2)
+    co = qs.light_cos_outer[j]
+    ci = qs.light_cos_inner[j]
+    if dc <= r:
+        ca_min = -1.0
+        ca_max = 1.0
+    else:
+        tc = math.acos(min(1.0, max(-1.0, vd / dc)))
+        al = math.asin(min(1.0, r / dc))
+        ca_max = math.cos(max(0.0, tc - al)) + 1e-12
+        ca_min = math.cos(min(math.pi, tc + al)) - 1e-12
+    if ca_max <= co:
+        return CONE_OFF
+    if ca_min > ci:
+        return CONE_ON
+    span = ci - co
+    if span > 0.0 and ca_max - ca_min <= span:
+        return CONE_SMOOTH
+    return CONE_STEP

@@ -16,6 +16,11 @@ Ward isotropic BRDF (Ward 1992, the normalisation used by Radiance)::
 
 with ``delta`` the angle between the normal and the half vector. Its peak, at the mirror
 direction of ``wo`` (``delta = 0``), is ``rho_d / pi + rho_s / (4 pi alpha^2 cos_o)``.
+
+Principled-like model (the default for Blender materials, close to Cycles' Principled BSDF
+in direct light): a Lambertian base under a GGX layer whose Fresnel is exact for the
+dielectric part and Schlick for the metallic part; the base is scaled by one minus the
+layer's directional albedo (see :func:`principled_brdf`).
 """
 
 from __future__ import annotations
@@ -77,6 +82,139 @@ def ward_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
     if sr > 0.0 or sg > 0.0 or sb > 0.0:
         spec = ward_specular(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
     return (dr * INV_PI + sr * spec, dg * INV_PI + sg * spec, db * INV_PI + sb * spec)
+
+
+# ----------------------------------------------------------------------------- Principled-like
+
+
+@njit(cache=True, nogil=True)
+def ggx_lambda(cos_t, a2):
+    """Smith's Lambda of GGX for a direction at ``cos_t`` from the normal (``a2 = alpha^2``)."""
+    c2 = cos_t * cos_t
+    if c2 <= 0.0:
+        return 0.0
+    tan2 = max(1.0 - c2, 0.0) / c2
+    return 0.5 * (math.sqrt(1.0 + a2 * tan2) - 1.0)
+
+
+@njit(cache=True, nogil=True)
+def ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha):
+    """GGX microfacet lobe without its Fresnel factor, and the cosine it is evaluated at.
+
+    Returns ``(D G2 / (4 cos_i cos_o), wi . h)`` with Trowbridge-Reitz ``D`` and the
+    height-correlated Smith ``G2 = 1 / (1 + Lambda(wi) + Lambda(wo))`` (what Cycles uses);
+    ``(0, 1)`` when either direction is below the surface.
+    """
+    ci = nx * ix + ny * iy + nz * iz
+    co = nx * ox + ny * oy + nz * oz
+    if ci <= 0.0 or co <= 0.0:
+        return 0.0, 1.0
+    hx, hy, hz, hl = normalize3(ix + ox, iy + oy, iz + oz)
+    if hl <= 0.0:
+        return 0.0, 1.0
+    ch = nx * hx + ny * hy + nz * hz
+    if ch <= 0.0:
+        return 0.0, 1.0
+    a2 = alpha * alpha
+    t = ch * ch * (a2 - 1.0) + 1.0
+    dist = a2 / (math.pi * t * t)
+    g2 = 1.0 / (1.0 + ggx_lambda(ci, a2) + ggx_lambda(co, a2))
+    return dist * g2 / (4.0 * ci * co), max(ix * hx + iy * hy + iz * hz, 0.0)
+
+
+#: Stratified samples of the microfacet normal (cos theta_h, phi over a half circle: the
+#: integrand is symmetric about the plane of the normal and the viewer) in
+#: :func:`ggx_albedo`. 8 x 4 keeps the dielectric albedo within 0.005 of a 32 x 16 estimate
+#: and the white albedo within 5% (tests/test_principled.py).
+ALBEDO_SAMPLES_THETA = 8
+ALBEDO_SAMPLES_PHI = 4
+
+
+@njit(cache=True, nogil=True)
+def ggx_albedo(cos_o, alpha, eta_s):
+    """Directional albedos ``(E_white, E_dielectric)`` of the GGX lobe seen from ``cos_o``.
+
+    ``E_white``: with Fresnel 1 (the energy single scattering keeps); ``E_dielectric``: with
+    the exact dielectric Fresnel of index ``eta_s`` (0 when ``eta_s`` is 1). Deterministic
+    quadrature over microfacet normals drawn from ``D cos_h`` (stratified, see
+    ``ALBEDO_SAMPLES_*``): the estimator ``G2 (wo . h) / (cos_h cos_o)`` is smooth, so few
+    samples do.
+    """
+    co = min(max(cos_o, 1e-4), 1.0)
+    a2 = alpha * alpha
+    so = math.sqrt(max(0.0, 1.0 - co * co))
+    lo = ggx_lambda(co, a2)
+    ew = 0.0
+    ed = 0.0
+    nu = ALBEDO_SAMPLES_THETA
+    nphi = ALBEDO_SAMPLES_PHI
+    for i in range(nu):
+        u = (i + 0.5) / nu
+        ct = math.sqrt((1.0 - u) / (1.0 + (a2 - 1.0) * u))
+        st = math.sqrt(max(0.0, 1.0 - ct * ct))
+        for j in range(nphi):
+            voh = co * ct + so * st * math.cos(math.pi * (j + 0.5) / nphi)
+            if voh <= 0.0:
+                continue
+            nol = 2.0 * voh * ct - co
+            if nol <= 0.0:
+                continue
+            w = voh / ((1.0 + ggx_lambda(nol, a2) + lo) * ct * co)
+            ew += w
+            if eta_s != 1.0:
+                ed += w * fresnel_dielectric(voh, 1.0 / eta_s)
+    n = nu * nphi
+    return min(ew / n, 1.0), min(ed / n, 1.0)
+
+
+@njit(cache=True, nogil=True)
+def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb):
+    """Reflectance ``(r, g, b)`` of the Principled-like specular layer at cosine ``c``.
+
+    ``s*`` the dielectric layer's weight times its tint with the exact dielectric Fresnel of
+    index ``eta_s`` (none when ``eta_s`` is 1); ``metallic`` the conductor's weight and
+    ``m*`` its colour at normal incidence, with Schlick's curve to white at grazing angles
+    (Cycles' F82 with a white tint).
+    """
+    fd = 0.0
+    if eta_s != 1.0:
+        fd = fresnel_dielectric(c, 1.0 / eta_s)
+    x = 1.0 - min(max(c, 0.0), 1.0)
+    x5 = x * x * x * x * x
+    return (sr * fd + metallic * (mr + (1.0 - mr) * x5),
+            sg * fd + metallic * (mg + (1.0 - mg) * x5),
+            sb * fd + metallic * (mb + (1.0 - mb) * x5))
+
+
+@njit(cache=True, nogil=True)
+def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
+                    metallic, mr, mg, mb, alpha, e_white, e_diel):
+    """Principled-like BRDF value ``(r, g, b)``: Lambertian diffuse under a GGX layer.
+
+    ``d*`` the diffuse albedo, scaled by ``1 - e_diel``, one minus the dielectric layer's
+    albedo toward the viewer (the energy the layer reflects never reaches the base, as in
+    Cycles' layering); the GGX lobe (:func:`ggx_lobe`) carries the Fresnel of
+    :func:`principled_fresnel` at ``wi . h`` and Turquin's multiple-scattering factor
+    ``1 + F0 (1 - E) / E`` with ``E = e_white`` (Cycles' multiscatter GGX keeps the energy
+    of rough metals). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
+    lobe below ``tolerances.GLOSSY_ALPHA_MIN``: a (near) mirror reflects through mirror rays.
+    """
+    kd = (1.0 - e_diel) * INV_PI
+    r = dr * kd
+    g = dg * kd
+    bl = db * kd
+    if alpha < tol.GLOSSY_ALPHA_MIN or not (sr > 0.0 or sg > 0.0 or sb > 0.0
+                                            or metallic > 0.0):
+        return r, g, bl
+    lobe, ch = ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
+    if lobe <= 0.0:
+        return r, g, bl
+    fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+    e = max(e_white, 1e-3)
+    k = (1.0 - e) / e
+    f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+    return (r + lobe * fr * (1.0 + f0r * k), g + lobe * fg * (1.0 + f0g * k),
+            bl + lobe * fb * (1.0 + f0b * k))
 
 
 # ----------------------------------------------------------------------------- mirror / glass

@@ -3,15 +3,20 @@
 Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geometric normal
 ``g``, both turned to the side the ray comes from, so every surface is two-sided)::
 
-    L = emission + sum_j V_j f_ward(l_j, -d) E_j + R * L(reflect) + T * L(refract)
+    L = emission + sum_j V_j f(l_j, -d) E_j + R * L(reflect) + T * L(refract)
+
+* ``f`` is the material's BRDF: Ward (seed 000's model) or the Principled-like GGX layer
+  over a Lambertian base (:func:`~.shading.principled_brdf`).
 
 * ``E_j`` is the irradiance light ``j`` would give: ``I cos / r^2`` for point lights (times
   the spot falloff for spots), ``strength * cos`` for suns, ``cos = n . l_j``. A light counts
   only when it is on the lit side of the *geometric* surface and of the shading normal (it
   never leaks through a surface via an interpolated normal). ``V_j`` is a hard shadow ray:
   any occluder blocks.
-* Mirror reflectance ``M`` and transmission ``T_m`` with index of refraction ``ior``: with
-  the dielectric Fresnel factor ``F`` at the interface, ``R = M + F T_m`` and ``T = (1-F) T_m``;
+* Mirror reflectance ``M`` (Principled-like: the material's mirror share times the layer's
+  Fresnel reflectance toward the viewer) and transmission ``T_m`` with index of refraction
+  ``ior``: with the dielectric Fresnel factor ``F`` at the interface, ``R = M + F T_m`` and
+  ``T = (1-F) T_m`` (the tracer's Fresnel alone splits the transmissive part);
   on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
   (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
 * A ray that misses returns the world colour.
@@ -42,13 +47,16 @@ from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator
 from ..frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene, SceneArrays
+from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, frame_batches, threads_for  # noqa: F401 - TILE_RAYS re-exported
 from .shading import (
     dot3,
     fresnel_dielectric,
     geometric_normal,
+    ggx_albedo,
     normalize3,
+    principled_brdf,
+    principled_fresnel,
     reflect,
     refract,
     shading_normal,
@@ -278,6 +286,16 @@ def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spaw
         sg = sa.mat_specular[m, 1]
         sb = sa.mat_specular[m, 2]
         alpha = sa.mat_roughness[m]
+        principled = sa.mat_model[m] == MODEL_PRINCIPLED
+        eta_s = sa.mat_specular_ior[m]
+        metallic = sa.mat_metallic[m]
+        mr = sa.mat_metal[m, 0]
+        mg = sa.mat_metal[m, 1]
+        mb = sa.mat_metal[m, 2]
+        e_white = 1.0
+        e_diel = 0.0
+        if principled:
+            e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
         for j in range(L):
             if not vis[i * L + j]:
                 continue
@@ -297,8 +315,13 @@ def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spaw
                     e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
             if e <= 0.0:
                 continue
-            fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                   dr, dg, db, sr, sg, sb, alpha)
+            if principled:
+                fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                             dr, dg, db, sr, sg, sb, eta_s, metallic,
+                                             mr, mg, mb, alpha, e_white, e_diel)
+            else:
+                fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                       dr, dg, db, sr, sg, sb, alpha)
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -310,6 +333,12 @@ def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spaw
         rr = sa.mat_mirror[m, 0]
         rg = sa.mat_mirror[m, 1]
         rb = sa.mat_mirror[m, 2]
+        if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
+            fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
+                                            metallic, mr, mg, mb)
+            rr *= fr
+            rg *= fg
+            rb *= fb
         tr = sa.mat_transmission[m, 0]
         tg = sa.mat_transmission[m, 1]
         tb = sa.mat_transmission[m, 2]
@@ -618,7 +647,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     build_s = 0.0
     if accel is None:
         tb = time.perf_counter()
-        accel = create_accelerator(settings.accelerator, sa)
+        accel = create_accelerator(settings.accelerator, sa, **settings.accelerator_options())
         build_s = time.perf_counter() - tb
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height

@@ -152,6 +152,30 @@ def three_spheres_scene(width=48, height=36):
     return bpy.context.scene
 
 
+def animated_three_spheres(width=64, height=48, frame_end=4):
+    """Plate A with the red sphere (location), the blue sphere (rotation, scale), the key
+    light (location, power) and the camera (location) keyframed from frame 1 to
+    ``frame_end``."""
+    sc = three_spheres_scene(width, height)
+    sc.frame_start, sc.frame_end = 1, frame_end
+    red, blue = bpy.data.objects["RedSphere"], bpy.data.objects["BlueSphere"]
+    key, cam = bpy.data.objects["Key"], bpy.data.objects["Camera"]
+    for frame, t in ((1, 0.0), (frame_end, 1.0)):
+        red.location.x = -2.2 + 2.0 * t
+        red.keyframe_insert("location", frame=frame)
+        blue.rotation_euler.z = 1.2 * t
+        blue.scale = (0.8 + 0.3 * t,) * 3
+        blue.keyframe_insert("rotation_euler", frame=frame)
+        blue.keyframe_insert("scale", frame=frame)
+        key.location.x = -3.0 + 2.5 * t
+        key.keyframe_insert("location", frame=frame)
+        key.data.energy = 2500.0 - 900.0 * t
+        key.data.keyframe_insert("energy", frame=frame)
+        cam.location = (0.8 * t, -8.5 + 0.6 * t, 3.6 + 0.3 * t)
+        cam.keyframe_insert("location", frame=frame)
+    return sc
+
+
 def render_exr(path=None, layer: str = "ViewLayer") -> dict[str, np.ndarray]:
     """F12 (write_still) to a multilayer EXR and read its passes back.
 

@@ -24,7 +24,8 @@ def test_demo_renders_edits_and_reports(tmp_path):
     assert 0.0 < stats["changed_pixels_fraction"] < 0.5
     assert stats["renders"]["interpolated"]["mode"] == "INTERPOLANT"
     acc = stats["interpolated_vs_base"]
-    assert acc["frac_over"] <= 0.001 and acc["max_error"] < 0.05
+    # the bound holds for every pixel (epsilon 0.01, float32 slack 1e-6)
+    assert acc["n_over"] == 0 and acc["max_error"] <= 0.01 + 1e-6, acc
     # the edit loop: each edit rendered incrementally, with its dirty pixels beside it
     loop = stats["edit_loop"]
     assert [r["edit"].split()[0] for r in loop][:4] == ["move", "rotate", "BlueSphere's",

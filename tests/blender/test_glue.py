@@ -84,6 +84,7 @@ def _render(engine):
 
 def test_progress_stats_memory_and_passes():
     b.three_spheres_scene(40, 30)
+    b.set_world((0.0, 0.0, 0.0))  # a lit world is reported (world lighting not modelled)
     engine = FakeEngine()
     state = _render(engine)
     assert not engine.errors and state.error is None
@@ -113,6 +114,7 @@ def test_cancel_between_batches_keeps_a_partial_frame():
 
 def test_status_line_counts_warnings():
     b.three_spheres_scene(16, 12)
+    b.set_world((0.0, 0.0, 0.0))  # a lit world would be a second warning
     area = bpy.data.lights.new("Panel", "AREA")
     b.add_object("Panel", area, (0.0, -3.0, 4.0))
     engine = FakeEngine()

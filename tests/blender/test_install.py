@@ -38,6 +38,8 @@ SCRIPT = textwrap.dedent('''
                                              enable_on_install=True)
     result["install_s"] = time.perf_counter() - t0
     result["enabled"] = "bl_ext.user_default.rstrace" in bpy.context.preferences.addons
+    # the farm's warm-up step (docs/FARM.md) is registered by the installed extension
+    result["warm_cache_operator"] = "warm_cache" in dir(bpy.ops.rstrace)
     import numba
     import rstrace_engine
     result["engine_file"] = rstrace_engine.__file__
@@ -119,6 +121,7 @@ def test_extension_installs_renders_and_uninstalls(tmp_path):
     r = json.loads(lines[-1][len("RESULT "):])
     print("install test:", {k: v for k, v in r.items() if k.endswith("_s")})
     assert r["enabled"]
+    assert r["warm_cache_operator"]
     assert r["engine_file"].startswith(str(user)), "rstrace_engine must come from the wheel"
     assert r["cache_dir"] == r["expected_cache_dir"] and r["cached_kernels"] > 0
     from .exr import read_exr, read_pass

@@ -24,9 +24,11 @@ def _lum(a: np.ndarray) -> np.ndarray:
     return a[..., :3].mean(axis=-1)
 
 
-def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2)):
-    """Render the current scene with Cycles (direct light plus ``max_bounces`` glossy
-    bounces, box filter of one pixel, no denoising) once per seed."""
+def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2),
+            transmission_bounces: int = 0):
+    """Render the current scene with Cycles (direct light plus ``max_bounces`` glossy and
+    ``transmission_bounces`` transmission bounces, box filter of one pixel, no denoising)
+    once per seed."""
     sc = bpy.context.scene
     engine = sc.render.engine
     sc.render.engine = "CYCLES"
@@ -35,10 +37,10 @@ def _cycles(samples: int = 128, max_bounces: int = 0, seeds=(1, 2)):
     cy.samples = samples
     cy.use_adaptive_sampling = False
     cy.use_denoising = False
-    cy.max_bounces = max_bounces
+    cy.max_bounces = max(max_bounces, transmission_bounces)
     cy.diffuse_bounces = 0
     cy.glossy_bounces = max_bounces
-    cy.transmission_bounces = 0
+    cy.transmission_bounces = transmission_bounces
     cy.caustics_reflective = cy.caustics_refractive = False
     cy.pixel_filter_type = "BOX"
     cy.filter_width = 1.0
@@ -158,10 +160,13 @@ def test_each_mode_renders_or_is_a_clean_error(mode, tmp_path):
     assert known.all() and np.isfinite(out["Combined"]).all()
 
 
-def test_unavailable_accelerator_is_a_clean_error(tmp_path):
+def test_unbuildable_accelerator_is_a_clean_error(tmp_path):
+    """An accelerator that cannot be built (a visibility field past its memory cap) is
+    refused with the reason; the scene renders again once the settings are sane."""
     sc = b.three_spheres_scene(16, 12)
     sc.rstrace.accelerator = "VISIBILITY_FIELD"
-    with pytest.raises(RuntimeError, match="RSTrace: .*VISIBILITY_FIELD"):
+    sc.rstrace.vf_directions, sc.rstrace.vf_tiles = 2050, 1024
+    with pytest.raises(RuntimeError, match="RSTrace: .*visibility field.*over the cap"):
         b.render_exr(tmp_path / "v.exr")
     assert _state().error is not None and _state().stats == {}
     sc.rstrace.accelerator = "BVH"  # and the scene renders again afterwards

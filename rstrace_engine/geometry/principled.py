@@ -1,0 +1,140 @@
+"""Principled BSDF parameters -> :class:`~.scene.Material` (what a Blender material becomes).
+
+:func:`principled_material` takes the inputs of Blender's Principled BSDF (Base Color,
+Metallic, Roughness, IOR, Transmission Weight, Specular IOR Level, Specular Tint, Emission)
+and returns a material of either shading model, with the problems it had to approximate as
+messages (the add-on reports them once per render):
+
+``"PRINCIPLED"`` (default; follows Cycles' layering in direct light)
+    a Lambertian base ``(1 - metallic)(1 - transmission) base`` under a GGX layer: the
+    dielectric part reflects with the exact Fresnel of the IOR (adjusted by the specular IOR
+    level as Cycles does: ``F0 = F0(IOR) 2 level``), tinted; the metallic part reflects its
+    base colour with Schlick's curve to white. Lights light the whole layer (no energy lost
+    to the mirror term); mirror rays carry the layer's reflectance on smooth surfaces
+    (roughness <= ``MIRROR_ROUGHNESS``), fading out by ``GLOSSY_ROUGHNESS``.
+
+``"WARD"`` (seed 000's model)
+    a constant F0 split between a Whitted mirror (smooth) and Ward's lobe (rough) with a
+    linear blend between the two roughnesses.
+
+Both models give the transmissive part to refraction *undivided*: the tracer's dielectric
+Fresnel splits it into reflection and refraction at each interface. (Giving it a mirror
+weight F0 and a refraction weight 1 - F0 as well applied the Fresnel twice: a glass slab
+transmitted 0.926 of Cycles' light.)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .scene import Material, SceneError
+
+#: Roughness below which reflection is a Whitted mirror, above which a glossy lobe; linear
+#: blend in between (the glossy lobe of the PRINCIPLED model lights at every roughness).
+MIRROR_ROUGHNESS = 0.1
+GLOSSY_ROUGHNESS = 0.3
+
+#: IORs the tracer handles; others are clamped into it, with a message.
+IOR_RANGE = (1.0, 10.0)
+
+
+def f0_from_ior(ior: float) -> float:
+    """Reflectance of a dielectric at normal incidence: ``((ior - 1) / (ior + 1))^2``."""
+    return ((ior - 1.0) / (ior + 1.0)) ** 2
+
+
+def ior_from_f0(f0: float) -> float:
+    """The IOR whose normal-incidence reflectance is ``f0`` (in [0, 1))."""
+    r = math.sqrt(min(max(f0, 0.0), 0.99))
+    return (1.0 + r) / (1.0 - r)
+
+
+def _scalar(name: str, label: str, value) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise SceneError(f"material '{name}': input '{label}' is {v} (not a "
+                         f"finite number)")
+    return v
+
+
+def _rgb(name: str, label: str, value) -> np.ndarray:
+    arr = np.asarray(value, np.float64).reshape(-1)[:3]
+    if arr.size == 1:
+        arr = np.repeat(arr, 3)
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"material '{name}': input '{label}' has NaN or infinite "
+                         f"values ({arr.tolist()})")
+    return arr
+
+
+def principled_material(name: str, base, metallic: float = 0.0, roughness: float = 0.5,
+                        ior: float = 1.5, transmission: float = 0.0,
+                        specular_level: float = 0.5, specular_tint=(1.0, 1.0, 1.0),
+                        emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
+                        model: str = "PRINCIPLED") -> tuple[Material, list[str]]:
+    """A material from Principled BSDF inputs, and messages about what was approximated.
+
+    Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
+    ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
+    colour is needed: metals, transmission).
+    """
+    notes: list[str] = []
+    base = np.clip(_rgb(name, "Base Color", base), 0.0, 1.0)
+    metallic = _scalar(name, "Metallic", metallic)
+    roughness = _scalar(name, "Roughness", roughness)
+    ior = _scalar(name, "IOR", ior)
+    transmission = _scalar(name, "Transmission Weight", transmission)
+    specular_level = _scalar(name, "Specular IOR Level", specular_level)
+    tint = np.clip(_rgb(name, "Specular Tint", specular_tint), 0.0, 1.0)
+    emission = np.clip(_rgb(name, "Emission", emission), 0.0, None)
+    lo, hi = IOR_RANGE
+    if not lo <= ior <= hi:
+        clamped = min(max(ior, lo), hi)
+        notes.append(f"IOR {ior:g} is outside [{lo:g}, {hi:g}]: rendered with IOR "
+                     f"{clamped:g}")
+        ior = clamped
+    if texture is not None:
+        tex_mean = np.clip(texture.reshape(-1, 3).mean(axis=0), 0.0, 1.0)
+        if metallic > 0.0:
+            notes.append("a textured metallic colour is approximated by the texture's average")
+        metal_colour, base_factor = tex_mean, np.ones(3)
+    else:
+        tex_mean = metal_colour = base_factor = base
+    m = float(np.clip(metallic, 0.0, 1.0))
+    t = float(np.clip(transmission, 0.0, 1.0))
+    r = float(np.clip(roughness, 0.0, 1.0))
+    refract = (1 - m) * t * (tex_mean if texture is not None else base)
+    if texture is not None and t > 0.0:
+        notes.append("textured transmission is approximated by the texture's average")
+    if t > 0.0 and r > MIRROR_ROUGHNESS:
+        notes.append("rough transmission is rendered as smooth refraction")
+    # Cycles' specular IOR level: F0 scaled by 2 level, the IOR of the reflection adjusted
+    level = float(np.clip(specular_level, 0.0, 1.0))
+    f0 = f0_from_ior(ior) * 2.0 * level
+    sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
+                          0.0, 1.0))
+    alpha = float(np.clip(r * r, 1e-4, 1.0))
+    emission_t = tuple(emission)
+    if model == "PRINCIPLED":
+        layer = (1 - m) * (1 - t)
+        spec_ior = min(ior_from_f0(f0), hi) if f0 > 0.0 else 1.0
+        spec = layer * tint if spec_ior > 1.0 else np.zeros(3)
+        return Material(
+            name, diffuse=tuple(layer * base_factor), specular=tuple(np.clip(spec, 0, 1)),
+            roughness=alpha, mirror=(sharp,) * 3, transmission=tuple(refract), ior=ior,
+            emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
+            metal=tuple(metal_colour), specular_ior=spec_ior), notes
+    if model != "WARD":
+        raise SceneError(f"material '{name}': unknown shading model {model!r}")
+    f0c = np.clip(f0 * tint, 0.0, 1.0)
+    diffuse = (1 - m) * (1 - t) * base_factor * (1 - f0c)
+    reflect = m * metal_colour + (1 - m) * (1 - t) * f0c
+    total = diffuse + refract + reflect
+    scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-12), 1.0)  # rounding guard
+    return Material(
+        name, diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
+        roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
+        transmission=tuple(refract * scale), ior=ior, emission=emission_t, texture=texture,
+        model="WARD"), notes

@@ -1,0 +1,35 @@
+"""What the error bound of a frame's interpolants rests on: proven, or only tested.
+
+The predicate (:mod:`.predicate`) proves the geometry of a cell's own object, the state of
+every light at the root of the ray trees (shafts, self shadow, the spot cone, a named
+occluder's coverage: :mod:`.occluders`), and it applies textures per pixel
+(:mod:`.samples`). Reflections and refractions are certified only up to the tunnel padding
+(docs/INTERPOLANTS.md, "What is guaranteed, and what is only tested"); a frame that
+interpolated pixels from such interpolants says so in ``stats["bound_notes"]``, which the
+Blender add-on shows as messages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The notes, one per scene class whose bound is tested rather than proven.
+NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose radiance "
+                  "includes reflections or refractions (secondary hit points are bounded "
+                  "only up to the tunnel padding)")
+
+
+def bound_notes(cache, used: np.ndarray) -> list[str]:
+    """The notes that apply to interpolants ``used`` (ids, -1 for none) of ``cache``."""
+    q = np.unique(used[used >= 0])
+    if len(q) == 0:
+        return []
+    sm = cache.samples.view()
+    s0 = cache.pool.samples[q, 0]
+    s0 = s0[(s0 >= 0) & (s0 < len(sm.node_count))]
+    notes = []
+    if len(s0) == 0:
+        return notes
+    if np.any(sm.node_count[s0] > 1):
+        notes.append(NOTE_SECONDARY)
+    return notes

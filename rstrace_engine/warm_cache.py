@@ -1,0 +1,168 @@
+"""Warm numba's kernel cache: compile (or load) every render kernel, render nothing.
+
+``python -m rstrace_engine warm-cache`` and the add-on's
+``addon.runtime.warm_cache()`` run :func:`warm`. A render-farm worker (or a user after
+installing the extension) runs it once, so that the first frame of every later process loads
+compiled kernels instead of compiling them (a minute or more on a small machine).
+
+numba compiles a kernel for the argument *types* it is called with, so the only way to
+compile exactly the kernels a render uses is to call them: :func:`warm` drives the renderer
+through a tiny scene made for the purpose (64x48 pixels, just enough for interpolant cells;
+every material feature, point, sun and spot lights, perspective and orthographic cameras)
+in every available mode and accelerator, through the steps an animation takes (a first
+frame, a camera move, a moved object, an interpolant memory cap small enough to evict).
+No image is written; the frames are discarded. What it reports (``kernel_cache.counts``)
+says how many kernels were compiled and how many loaded, and names any render kernel it
+did not reach.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from . import kernel_cache
+
+log = logging.getLogger(__name__)
+
+#: Modules whose kernels a render never calls (benchmark helpers).
+NOT_RENDER_KERNELS = ("rstrace_engine.bench",)
+
+
+def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
+               eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8)):
+    """A tiny scene with every feature the kernels branch on."""
+    from .geometry import shapes
+    from .geometry.scene import Camera, Light, Material, Scene
+
+    s = Scene()
+    checker = np.indices((4, 4)).sum(axis=0) % 2
+    texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.6 + 0.2
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6), texture=texture))
+    glossy = s.add_material(Material("glossy", diffuse=(0.5, 0.2, 0.1), specular=(0.3,) * 3,
+                                     roughness=0.2))
+    mirror = s.add_material(Material("mirror", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    glass = s.add_material(Material("glass", diffuse=(0.0,) * 3, mirror=(0.05,) * 3,
+                                    transmission=(0.9,) * 3, ior=1.5))
+    glow = s.add_material(Material("glow", diffuse=(0.2,) * 3, emission=(2.0, 1.5, 1.0)))
+    ground = s.add_mesh(shapes.plane(8.0, divisions=2, name="ground"))
+    sphere = s.add_mesh(shapes.uv_sphere(12, 6, name="sphere"))
+    ico = s.add_mesh(shapes.icosphere(1, name="ico"))
+    box = s.add_mesh(shapes.box((0.8, 0.8, 0.8), name="box"))
+    torus = s.add_mesh(shapes.torus(0.6, 0.2, 12, 6, name="torus"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    s.add_instance(sphere, shapes.transform(glossy_at), [glossy], name="Glossy")
+    s.add_instance(ico, shapes.transform((0.9, -0.4, 0.8)), [mirror], name="Mirror")
+    s.add_instance(box, shapes.transform((0.0, 1.2, 0.4), 1.0, 30.0), [glass], name="Glass")
+    s.add_instance(torus, shapes.transform((1.6, 1.4, 0.3), 1.0, 20.0, 70.0), [glow],
+                   name="Glow")
+    s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0)))
+    s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.2, -1.0)))
+    s.add_light(Light("Spot", "SPOT", power=900.0, position=(2.0, -2.0, 3.0),
+                      direction=(-0.4, 0.4, -1.0)))
+    s.set_world_color((0.05, 0.06, 0.08))
+    matrix = shapes.look_at(eye, (0.0, 0.3, 0.5))
+    if ortho:
+        s.set_camera(Camera(matrix=matrix, kind="ORTHO", ortho_scale=6.0, width=width,
+                            height=height))
+    else:
+        s.set_camera(Camera(matrix=matrix, lens=35.0, width=width, height=height))
+    return s
+
+
+def _modes() -> tuple[str, ...]:
+    from .session import AVAILABLE_MODES
+
+    return tuple(AVAILABLE_MODES)
+
+
+def _accelerators() -> tuple[str, ...]:
+    from .accel import embree
+
+    return ("BVH", "VISIBILITY_FIELD") + (("EMBREE",) if embree.available() else ())
+
+
+def _animate(session, ortho: bool) -> None:
+    """What frames of an animation do: render, move the camera, move an object (a full
+    frame when the scene box grows, an incremental one when it does not), render."""
+    session.render()
+    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1)))
+    session.render()
+    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
+                                    glossy_at=(-0.9, 0.1, 0.9)))
+    session.render()
+    # the same camera and scene box: an incremental frame (dirty-pixel queries)
+    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
+                                    glossy_at=(-0.6, 0.1, 0.9)))
+    session.render()
+
+
+def _warm_edited_interpolants(progress=None) -> None:
+    """Interpolants that pass the error predicate (their tunnels go into the ray segment
+    trees and the membership index), then an edit that queries and invalidates them. The
+    warm scene is too small and too hard (textures, a spot, occluders) for any cell to pass."""
+    from . import scenes
+    from .frame import RenderSettings
+    from .geometry import shapes
+    from .geometry.edits import ObjectTransform
+    from .session import Session
+
+    message = "warming kernels: interpolants and an edit"
+    log.info(message)
+    if progress is not None:
+        progress(message)
+    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
+    session = Session(scenes.three_spheres(128, 96, subdivisions=2), settings)
+    session.render()
+    session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
+    session.render()
+
+
+def warm(modes=None, accelerators=None, progress=None) -> dict:
+    """Compile or load every render kernel; return counts and the time taken.
+
+    ``progress(message)`` is called before each step. Returns ``kernel_cache.counts()``
+    plus ``seconds``, ``modes``, ``accelerators`` and ``unreached``: render kernels with
+    nothing in the disk cache afterwards (kernels inlined into their callers never have
+    their own code and are not listed).
+    """
+    from .frame import RenderSettings
+    from .session import Session
+
+    t0 = time.perf_counter()
+    modes = tuple(modes or _modes())
+    accelerators = tuple(accelerators or _accelerators())
+    steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)]
+    for i, (mode, accel, ortho) in enumerate(steps):
+        message = f"warming kernels {i + 1}/{len(steps)}: {mode}, {accel}" + (
+            ", orthographic" if ortho else "")
+        log.info(message)
+        if progress is not None:
+            progress(message)
+        settings = RenderSettings(mode=mode, accelerator=accel, samples=2, max_depth=3,
+                                  epsilon=0.02, depth_cap=3)
+        if ortho:
+            settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
+        session = Session(warm_scene(ortho=ortho), settings)
+        _animate(session, ortho)
+    if "INTERPOLANT" in modes:
+        _warm_edited_interpolants(progress)
+    import importlib
+
+    for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
+                 "tracing.shading", "interpolants.render", "interpolants.cache",
+                 "geometry.mesh_topology", "geometry.cameras"):
+        importlib.import_module(f"{__package__}.{name}")
+    result = kernel_cache.counts()
+    unreached = [f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+                 for d in kernel_cache.dispatchers()
+                 if d.targetoptions.get("inline") != "always"
+                 and not d.py_func.__module__.startswith(NOT_RENDER_KERNELS)
+                 and not kernel_cache.cached_signatures(d)]
+    result.update(seconds=time.perf_counter() - t0, modes=list(modes),
+                  accelerators=list(accelerators), unreached=unreached)
+    log.info("kernel cache warm in %.1f s: %d compiled, %d loaded, %d unreached",
+             result["seconds"], result["compiled"], result["loaded"], len(unreached))
+    return result

@@ -1,0 +1,189 @@
+"""The base tracer against Cycles set up as a Whitted tracer (issue 11): sun, glass slab and
+sphere, Principled highlights at normal and grazing views, emission seen directly and in a
+mirror. Spot, point lights, camera models and the mirror sphere are in test_render.
+
+Each case's thresholds sit next to the measured values in the README table "Accuracy of the
+base tracer". Scenes are small (64 x 48 px) and Cycles renders direct light only, plus the
+glossy/transmission bounces the case needs; emissive meshes light nothing there (invisible to
+diffuse rays: Cycles still samples them as lights with ``emission_sampling = 'NONE'``), as
+RSTrace does not model them as light sources.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from . import builders as b
+from .test_render import _compare, _cycles, _lum, _ours, needs_cycles
+
+pytestmark = needs_cycles
+
+W, H = 64, 48
+
+
+def _block_error(ours: list, cycles: list, block: int = 8, floor: float = 0.05) -> float:
+    """Largest relative error of block means (``block`` x ``block`` px, luminance) over the
+    blocks holding at least ``floor`` of the brightest block's light."""
+    def blocks(a):
+        lum = _lum((a[0] + a[1]) / 2)
+        h, w = (lum.shape[0] // block) * block, (lum.shape[1] // block) * block
+        return lum[:h, :w].reshape(h // block, block, w // block, block).mean(axis=(1, 3))
+
+    o, c = blocks(ours), blocks(cycles)
+    keep = c > floor * c.max()
+    err = float(np.max(np.abs(o[keep] - c[keep]) / c[keep]))
+    print(f"block error {err:.4f} over {int(keep.sum())} blocks")
+    return err
+
+
+def _setup(max_depth: int = 0, samples: int = 16):
+    sc = b.setup_render(W, H, samples=samples, max_depth=max_depth)
+    b.set_world((0.0, 0.0, 0.0))
+    return sc
+
+
+def _emissive(name: str, colour, strength: float):
+    mat = b.principled(name, (0.0, 0.0, 0.0), roughness=0.5, specular_level=0.0)
+    node = mat.node_tree.nodes["Principled BSDF"]
+    node.inputs["Emission Color"].default_value = (*colour, 1.0)
+    node.inputs["Emission Strength"].default_value = strength
+    return mat
+
+
+def _box(name: str):
+    """A cube from -1 to 1 (bmesh; flat shaded)."""
+    import bmesh
+
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=2.0)
+    bm.to_mesh(me)
+    bm.free()
+    return me
+
+
+def _glass(name: str = "Glass"):
+    return b.principled(name, (1.0, 1.0, 1.0), roughness=0.0,
+                        **{"IOR": 1.5, "Transmission Weight": 1.0})
+
+
+# ----------------------------------------------------------------------------- lights
+
+
+def test_sun_agrees_with_cycles():
+    _setup()
+    b.add_object("Ground", b.grid("Ground", 12.0), material=b.diffuse("Floor", (0.6, 0.6, 0.55)))
+    b.add_object("Ball", b.uv_sphere("Ball", 1.0, 32, 16), (0.0, 0.3, 1.0),
+                 b.diffuse("Red", (0.7, 0.15, 0.1)))
+    sun = b.point_light("Sun", (0.0, 0.0, 5.0), 3.0, kind="SUN")
+    sun.data.angle = 0.0
+    sun.rotation_euler = (math.radians(35.0), 0.0, math.radians(-30.0))
+    b.camera((0.0, -8.5, 3.6), (0.0, 0.3, 0.8))
+    stats = _compare(_ours(), _cycles())
+    assert stats["rel_l1"] < 0.01
+    assert abs(stats["median_ratio"] - 1.0) < 0.005
+    assert stats["frac_over"] < 0.03
+
+
+# ----------------------------------------------------------------------------- glass
+
+
+def _backdrop():
+    """An emissive checker-free backdrop (radiance (1, 0.8, 0.6) x 2) facing the camera."""
+    wall = b.add_object("Backdrop", b.grid("Backdrop", 20.0), (0.0, 4.0, 0.0),
+                        _emissive("Glow", (1.0, 0.8, 0.6), 2.0))
+    wall.rotation_euler = (math.radians(90.0), 0.0, 0.0)
+    return wall
+
+
+@pytest.mark.parametrize("shape", ["slab", "sphere"])
+def test_glass_agrees_with_cycles(shape):
+    """Clear glass (Principled transmission 1, IOR 1.5, roughness 0) in front of an emissive
+    wall. The old conversion applied the Fresnel factor twice: the slab passed 0.926 and the
+    sphere 0.954 of Cycles' light, which the median-ratio threshold rejects."""
+    _setup(max_depth=8)
+    _backdrop()
+    if shape == "slab":  # 3 wide, 2 tall, 0.3 thick along the view
+        b.add_object("Slab", _box("Slab"), material=_glass(), scale=(1.5, 0.15, 1.0))
+    else:
+        b.add_object("Ball", b.uv_sphere("Ball", 1.0, 64, 32), material=_glass())
+    b.camera((0.0, -6.0, 0.0), (0.0, 0.0, 0.0), lens=50.0)
+    ours = _ours()
+    cycles = _cycles(max_bounces=8, transmission_bounces=8)
+    stats = _compare(ours, cycles)
+    # the glass covers the middle of the frame: compare there
+    mid = (slice(H // 4, 3 * H // 4), slice(W // 3, 2 * W // 3))
+    o = _lum((ours[0] + ours[1]) / 2)[mid]
+    c = _lum((cycles[0] + cycles[1]) / 2)[mid]
+    ratio = float(np.median(o / np.maximum(c, 1e-6)))
+    print(f"glass {shape}: median ratio in the glass {ratio:.4f}")
+    assert abs(ratio - 1.0) < 0.01 if shape == "slab" else abs(ratio - 1.0) < 0.02
+    assert abs(stats["median_ratio"] - 1.0) < 0.01
+    assert stats["rel_l1"] < 0.01
+
+
+# ----------------------------------------------------------------------------- highlights
+
+
+def _glossy_scene(view: str, model: str):
+    sc = _setup()
+    sc.rstrace.shading_model = model
+    b.add_object("Ground", b.grid("Ground", 16.0),
+                 material=b.principled("Glossy", (0.5, 0.3, 0.2), roughness=0.3))
+    b.add_object("Ball", b.uv_sphere("Ball", 0.8, 48, 24), (-1.6, 1.2, 0.8),
+                 b.principled("Blue", (0.1, 0.25, 0.6), roughness=0.2))
+    if view == "normal":
+        b.point_light("Key", (1.5, 0.0, 3.0), 800.0)
+        b.camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0))
+    else:  # about 76 degrees from the floor's normal
+        b.point_light("Key", (0.0, 4.0, 1.5), 800.0)
+        b.camera((0.0, -8.0, 2.0), (0.0, 0.0, 0.0))
+    return sc
+
+
+@pytest.mark.parametrize("view", ["normal", "grazing"])
+def test_principled_highlights_agree_with_cycles(view):
+    """Specular level 0.5, roughness 0.3 (floor) and 0.2 (ball): the default Principled-like
+    model agrees with Cycles' direct lighting within 5% in every block of 8 x 8 px. Ward
+    (seed 000's model, kept as an option) is measured and must stay far off."""
+    _glossy_scene(view, "PRINCIPLED")
+    cycles = _cycles(samples=256)
+    ours = _ours()
+    stats = _compare(ours, cycles)
+    assert _block_error(ours, cycles) < 0.05
+    assert abs(stats["median_ratio"] - 1.0) < 0.02
+    bpy.context.scene.rstrace.shading_model = "WARD"
+    ward = _ours()
+    ward_stats = _compare(ward, cycles)
+    assert _block_error(ward, cycles) > 0.05  # the reason for the default
+    assert ward_stats["rel_l1"] > stats["rel_l1"]
+
+
+# ----------------------------------------------------------------------------- emission
+
+
+@pytest.mark.parametrize("where", ["direct", "mirror"])
+def test_emission_agrees_with_cycles(where):
+    """An emissive sphere seen directly, and in a metallic roughness-0 mirror floor."""
+    depth = 0 if where == "direct" else 1
+    _setup(max_depth=depth)
+    ball = _emissive("Glow", (1.0, 0.5, 0.2), 3.0)
+    ob = b.add_object("Ball", b.uv_sphere("Ball", 1.0, 48, 24), (0.0, 0.0, 1.2), ball)
+    ob.visible_diffuse = False  # Cycles: not a light source for the floor (nor in RSTrace)
+    if where == "direct":
+        b.add_object("Ground", b.grid("Ground", 16.0),
+                     material=b.diffuse("Floor", (0.6, 0.6, 0.6)))
+        b.point_light("Key", (3.0, -3.0, 5.0), 1000.0)
+    else:
+        b.add_object("Ground", b.grid("Ground", 16.0),
+                     material=b.principled("Mirror", (0.9, 0.9, 0.9), metallic=1.0,
+                                           roughness=0.0))
+    b.camera((0.0, -7.0, 2.5), (0.0, 0.0, 0.5))
+    stats = _compare(_ours(), _cycles(max_bounces=depth))
+    assert stats["rel_l1"] < 0.01
+    assert abs(stats["median_ratio"] - 1.0) < 0.005
+    assert stats["frac_over"] < 0.02

@@ -1,0 +1,251 @@
+"""A cold numba cache shared by workers that compile at the same moment (render farms).
+
+The full kernel set takes minutes to compile, so these tests use a tiny kernel module
+written into a temporary folder (several signatures per kernel, a parallel kernel, a kernel
+calling another), guarded like ``rstrace_engine``'s own kernels through
+``kernel_cache.install(prefix)``. Worker processes start together on one empty
+``NUMBA_CACHE_DIR`` and compile the signatures in *opposite orders*: that is the case where
+numba alone may pair an index entry with another signature's machine code. A last process
+must then load every signature from the cache (nothing compiled) and compute exact results.
+The full-size measurement (every kernel, cold, 2 workers) is ``scripts/farm_bench.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+KERNELS = textwrap.dedent('''
+    import numpy as np
+    from numba import njit, prange
+
+    from rstrace_engine import kernel_cache
+
+    kernel_cache.install(__name__)
+
+
+    @njit(cache=True, nogil=True)
+    def axpy(a, x, y):
+        return a * x + y
+
+
+    @njit(cache=True, nogil=True, parallel=True)
+    def scaled(x, s):
+        out = np.empty_like(x)
+        for i in prange(x.shape[0]):
+            out[i] = x[i] * s
+        return out
+
+
+    @njit(cache=True, nogil=True)
+    def inner(v):
+        return v * 3 + 1
+
+
+    @njit(cache=True, nogil=True)
+    def total(x):
+        t = x.dtype.type(0)
+        for v in x:
+            t += inner(v)
+        return t
+''')
+
+WORKER = textwrap.dedent('''
+    import json, os, sys, time
+    import numpy as np
+
+    folder, name, order = sys.argv[1], sys.argv[2], sys.argv[3]
+    sys.path.insert(0, folder)
+    import tinykernels as k
+    from rstrace_engine import kernel_cache
+
+    calls = [
+        ("axpy i8", lambda: k.axpy(np.int64(3), np.int64(4), np.int64(5)), 17),
+        ("axpy f8", lambda: k.axpy(1.5, 2.0, 0.25), 3.25),
+        ("axpy c16", lambda: k.axpy(1j, 1j, 1.0 + 0j), 0j),
+        ("scaled f4", lambda: float(k.scaled(np.arange(4, dtype=np.float32), 0.5).sum()), 3.0),
+        ("scaled i8", lambda: int(k.scaled(np.arange(4, dtype=np.int64), 3).sum()), 18),
+        ("total i4", lambda: int(k.total(np.arange(5, dtype=np.int32))), 35),
+        ("total f8", lambda: float(k.total(np.arange(5, dtype=np.float64) / 2)), 20.0),
+    ]
+    if order == "reverse":
+        calls.reverse()
+    open(os.path.join(folder, f"ready-{name}"), "w").close()
+    while not os.path.exists(os.path.join(folder, "go")):
+        time.sleep(0.005)
+    wrong = []
+    for label, call, expected in calls:
+        got = call()
+        if got != expected or type(got) is not type(expected):
+            wrong.append(f"{label}: {got!r} != {expected!r}")
+    c = kernel_cache.counts("tinykernels")
+    print("RESULT " + json.dumps(dict(name=name, wrong=wrong, compiled=c["compiled"],
+                                      loaded=c["loaded"], signatures=len(calls))))
+''')
+
+
+def _start(folder: Path, cache: Path, name: str, order: str) -> subprocess.Popen:
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, str(folder / "worker.py"), str(folder), name,
+                             order], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _result(proc: subprocess.Popen) -> dict:
+    out, err = proc.communicate(timeout=300)
+    lines = [ln for ln in out.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, out[-2000:] + err[-3000:]
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def _run_together(folder: Path, cache: Path, names_orders) -> list[dict]:
+    (folder / "go").unlink(missing_ok=True)
+    procs = [_start(folder, cache, n, o) for n, o in names_orders]
+    deadline = time.monotonic() + 120
+    while not all((folder / f"ready-{n}").exists() for n, _ in names_orders):
+        if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
+            break
+        time.sleep(0.01)
+    (folder / "go").touch()  # every worker starts compiling at the same moment
+    return [_result(p) for p in procs]
+
+
+@pytest.fixture
+def kernel_folder(tmp_path) -> Path:
+    folder = tmp_path / "kernels"
+    folder.mkdir()
+    (folder / "tinykernels.py").write_text(KERNELS)
+    (folder / "worker.py").write_text(WORKER)
+    return folder
+
+
+def test_cold_cache_compiled_by_concurrent_workers_in_opposite_orders(kernel_folder, tmp_path):
+    cache = tmp_path / "shared_cache"
+    workers = [("w0", "forward"), ("w1", "reverse"), ("w2", "forward")]
+    results = _run_together(kernel_folder, cache, workers)
+    for r in results:
+        assert r["wrong"] == [], r
+        # every signature compiled or loaded once per worker: bounded by the worker count
+        assert r["compiled"] + r["loaded"] >= r["signatures"]
+        assert r["compiled"] <= r["signatures"] + 1  # +1: inner, compiled inside total
+    total_compiled = sum(r["compiled"] for r in results)
+    print("compiled per worker:", [r["compiled"] for r in results],
+          "loaded:", [r["loaded"] for r in results])
+    assert total_compiled <= len(workers) * (results[0]["signatures"] + 1)
+
+    # nothing half-written is left, and a new worker finds every signature, correct
+    leftovers = [p.name for p in cache.rglob("*") if ".tmp." in p.name]
+    assert leftovers == []
+    (after,) = _run_together(kernel_folder, cache, [("after", "reverse")])
+    assert after["wrong"] == [] and after["compiled"] == 0
+    assert after["loaded"] == after["signatures"]
+
+
+def test_warm_cache_command_reports_compiled_and_loaded_kernels():
+    """``python -m rstrace_engine warm-cache`` twice: the second run compiles nothing.
+
+    Uses this checkout's default cache (beside the sources), which the other tests share: a
+    cold checkout pays the compile once here instead of in the first test that renders.
+    """
+    cmd = [sys.executable, "-m", "rstrace_engine", "warm-cache", "--json"]
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    runs = []
+    for _ in range(2):
+        proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True,
+                              timeout=900)
+        assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+        runs.append(json.loads(proc.stdout))
+    warm = runs[1]
+    print({k: warm[k] for k in ("kernels", "compiled", "loaded", "seconds", "unreached")})
+    assert warm["compiled"] == 0 and warm["loaded"] > 20
+    assert set(warm["modes"]) >= {"BASE", "INTERPOLANT"}
+    # what the warm-up does not reach is no render kernel: the brute-force reference
+    # accelerator (tests only) and linetree helpers used by the tests, not by renders
+    assert set(warm["unreached"]) <= {
+        "rstrace_engine.accel.accelerators._brute_kernel",
+        "rstrace_engine.interpolants.linetree.descend",
+        "rstrace_engine.interpolants.linetree.local_coords",
+        "rstrace_engine.interpolants.linetree.parameterize",
+        # the visibility field's parallel rasteriser: only for l x triangles >= 2M (a big
+        # scene's build), compiled by the first such build
+        "rstrace_engine.accel.tiles.raster_parallel"}
+
+
+SAVER = textwrap.dedent('''
+    import sys
+    from numba.core import caching
+    from rstrace_engine import kernel_cache
+
+    folder = sys.argv[1]
+    f = caching.IndexDataCacheFile(cache_path=folder, filename_base="k", source_stamp=(1, 2))
+    kernel_cache.protect(type("D", (), {"_cache": type("C", (), {"_cache_file": f})()})())
+    assert type(f).__name__ == "_LockedCacheFile"
+    f.save("sig-b", b"code for b")
+    print("SAVED", f._load_index())
+''')
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="the test holds the lock with fcntl")
+def test_a_save_waits_for_the_shared_lock_and_writes_data_before_its_index(tmp_path):
+    import fcntl
+
+    from numba.core import caching
+
+    from rstrace_engine import kernel_cache
+
+    mine = caching.IndexDataCacheFile(cache_path=str(tmp_path), filename_base="k",
+                                      source_stamp=(1, 2))
+    order = []
+    mine.__class__ = type("Recording", (kernel_cache._LockedCacheFile,), {
+        "_save_data": lambda self, n, d: (order.append("data"),
+                                          kernel_cache._LockedCacheFile._save_data(self, n, d)),
+        "_save_index": lambda self, o: (order.append("index"),
+                                        kernel_cache._LockedCacheFile._save_index(self, o))})
+    mine.save("sig-a", b"code for a")
+    assert order == ["data", "index"]
+
+    script = tmp_path / "saver.py"
+    script.write_text(SAVER)
+    with open(tmp_path / kernel_cache.LOCK_NAME, "a+b") as lock:
+        fcntl.flock(lock.fileno(), fcntl.LOCK_EX)  # another process is saving
+        proc = subprocess.Popen([sys.executable, str(script), str(tmp_path)], cwd=ROOT,
+                                env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(3.0)
+        assert proc.poll() is None, proc.communicate()  # blocked on the lock
+        assert mine._load_index() == {"sig-a": "k.1.nbc"}
+        fcntl.flock(lock.fileno(), fcntl.LOCK_UN)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    # both signatures kept, each with its own data file and the right contents
+    assert mine._load_index() == {"sig-a": "k.1.nbc", "sig-b": "k.2.nbc"}
+    assert mine.load("sig-a") == b"code for a" and mine.load("sig-b") == b"code for b"
+
+
+def test_column_major_host_matrices_reach_the_kernels_c_ordered():
+    """Blender hands matrices over column-major; numba compiles one kernel per array layout,
+    so the packed scene and the camera must be C-ordered whatever the host gave (else a
+    Blender scene compiles, and caches, a second copy of every kernel)."""
+    import numpy as np
+
+    from rstrace_engine import scenes
+    from rstrace_engine.geometry.cameras import camera_params
+
+    scene = scenes.three_spheres(32, 24, subdivisions=1)
+    for i, inst in enumerate(scene.instances):
+        scene.set_instance_matrix(i, np.asfortranarray(inst["matrix"]))
+    scene.camera.matrix = np.asfortranarray(scene.camera.matrix)
+    sa = scene.arrays()
+    bad = [name for name, a in zip(sa._fields, sa, strict=True)
+           if isinstance(a, np.ndarray) and not a.flags.c_contiguous]
+    assert bad == []
+    assert camera_params(scene.camera).xform.flags.c_contiguous

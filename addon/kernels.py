@@ -4,8 +4,11 @@ On a fresh install the first render compiles every kernel it touches, which take
 or more on two cores. :func:`start_warmup` starts that work on a background thread as soon
 as the add-on is enabled with RSTrace as a scene's engine, the engine is selected, or a
 viewport starts: it renders a tiny built-in scene in the chosen mode only (BASE touches the
-tracer's kernels; INTERPOLANT adds the interpolant kernels), with the render lock held, so
-the kernels are compiled (or loaded) once and a real render afterwards only runs them.
+tracer's kernels; INTERPOLANT adds the interpolant kernels) through
+``runtime.warm_cache`` (``rstrace_engine.warm_cache.warm``, the same warm-up as the
+``rstrace.warm_cache`` operator and ``python -m rstrace_engine warm-cache``, restricted to
+that mode and the BVH), with the render lock held, so the kernels are compiled (or loaded)
+once and a real render afterwards only runs them.
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
 bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signature.
 
@@ -92,35 +95,19 @@ def progress_text() -> str | None:
 
 
 def _warm(mode: str) -> None:
-    """Render a tiny scene in ``mode``: every kernel that mode's frames use is compiled."""
-    from rstrace_engine import scenes
-    from rstrace_engine.frame import RenderSettings
-    from rstrace_engine.geometry.edits import ObjectTransform
-    from rstrace_engine.interactive import coarse_camera, trace_view
-    from rstrace_engine.session import Session
-
-    t0 = time.perf_counter()
-    scene = scenes.three_spheres(16, 12, subdivisions=1)
-    settings = RenderSettings(mode=mode)
-    with runtime.RENDER_LOCK:
-        if _state["stop"]:
-            return
-        stop = lambda: _state["stop"]  # noqa: E731
-        session = Session(scene, settings)
-        trace_view(session, coarse_camera(scene.camera, 4), settings, cancel=stop)
-        session.render(cancel=stop)
-        # an edit and the incremental frame after it (invalidation, dirty pixels)
-        inst = scene.instances[1]
-        matrix = inst["matrix"].copy()
-        matrix[0, 3] += 0.1
-        if not stop():
-            session.apply([ObjectTransform(inst["key"], matrix)])
-            session.render(cancel=stop)
-    if not _state["stop"]:
+    """Compile (or load) every kernel ``mode`` uses: ``rstrace_engine.warm_cache.warm`` for
+    that mode and the BVH (the viewport's coarse image, frames, a camera move, an edit and
+    the incremental frame after it), the farm's warm-up restricted to one mode."""
+    stop = lambda: _state["stop"]  # noqa: E731
+    if stop():
+        return
+    result = runtime.warm_cache(modes=(mode,), accelerators=("BVH",), cancel=stop,
+                                report_unreached=False)
+    if not result.get("cancelled") and not stop():
         _state["modes_done"].add(mode)
-        runtime.mark_kernels_ready()
-        _state["seconds"][mode] = time.perf_counter() - t0
-        log.info("RSTrace: %s kernels ready in %.1f s", mode, _state["seconds"][mode])
+        _state["seconds"][mode] = result["seconds"]
+        log.info("RSTrace: %s kernels ready in %.1f s (%d compiled, %d loaded)", mode,
+                 result["seconds"], result["compiled"], result["loaded"])
 
 
 def _run(modes: list[str]) -> None:

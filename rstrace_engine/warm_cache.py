@@ -135,6 +135,11 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     _check(cancel)
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
     session.render(cancel=cancel)
+    # the dependency lists' compaction (a long edit session frees more entries than stay
+    # live; too many for a tiny scene to reach): forced once, with what the edit freed
+    cache = session.interpolants.cache
+    if cache is not None:
+        cache.deps.compact(cache.pool, cache.trees, force=True)
 
 
 def warm(modes=None, accelerators=None, progress=None, cancel=None,

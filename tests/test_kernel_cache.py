@@ -177,7 +177,10 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         "rstrace_engine.interpolants.linetree.parameterize",
         # the visibility field's parallel rasteriser: only for l x triangles >= 2M (a big
         # scene's build), compiled by the first such build
-        "rstrace_engine.accel.tiles.raster_parallel"}
+        "rstrace_engine.accel.tiles.raster_parallel",
+        # the batch direction look-up (directions.lookup): tests only, the field's build
+        # and traversal inline nearest_direction
+        "rstrace_engine.accel.directions.nearest_directions"}
 
 
 SAVER = textwrap.dedent('''

@@ -145,7 +145,7 @@ class SceneSync:
             for mk in rec.material_keys:
                 mat = cache.material(mk)
                 if materials.get(mk) is not mat:
-                    if not _same_material(materials.get(mk), mat):
+                    if not E.same_material(materials.get(mk), mat):
                         out.append(E.MaterialSet(mk, mat))
                     materials[mk] = mat
         objects = dict(snap.objects)
@@ -218,19 +218,6 @@ class SceneSync:
     def scene(self, snap: export.Snapshot, camera: Camera | None = None):
         """A whole :class:`Scene` for ``snap`` (a new session, or update_scene)."""
         return export.build_scene(snap, self.cache, camera)
-
-
-def _same_material(a: Material | None, b: Material) -> bool:
-    if a is None:
-        return False
-    for name in ("diffuse", "specular", "roughness", "mirror", "transmission", "ior",
-                 "emission"):
-        if getattr(a, name) != getattr(b, name):
-            return False
-    if a.texture is None or b.texture is None:
-        return a.texture is b.texture
-    return a.texture is b.texture or (a.texture.shape == b.texture.shape
-                                      and np.array_equal(a.texture, b.texture))
 
 
 def existing_objects() -> set:

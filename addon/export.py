@@ -214,7 +214,9 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     render = bscene.render
     if width is None or height is None:
         width, height = render_size(render)
-    props = getattr(bscene, "rstrace", None)
+    # the original scene's settings: the evaluated copy's property group is not refreshed
+    # when only a setting changes (as render_settings reads them)
+    props = getattr(getattr(depsgraph, "scene", None) or bscene, "rstrace", None)
     model = getattr(props, "shading_model", "PRINCIPLED")
     if cache.model != model:  # every material converts differently: re-read them all
         cache.set_model(model)

@@ -195,6 +195,21 @@ def test_f12_after_edits_equals_a_fresh_render(mode):
             assert err <= 2 * eps + 1e-6, (name, err)
 
 
+def test_shading_model_switch_rereads_the_cached_materials():
+    """The per-datablock material cache is per shading model: switching it between two F12
+    renders of one session converts every material again (MaterialSet edits), and the frame
+    equals a fresh render of the new model."""
+    sc = _scene(32, 24)
+    principled, _ = _f12()
+    sc.rstrace.shading_model = "WARD"
+    bpy.context.view_layer.update()
+    ward, stats = _f12()
+    assert not stats["new_session"] and stats["edit_kinds"].get("MaterialSet", 0) >= 3
+    ref, _ = _f12(fresh=True)
+    np.testing.assert_array_equal(ward, ref)
+    assert np.abs(ward - principled).max() > 1e-3  # the models shade differently
+
+
 def test_last_render_stats_is_documented_and_filled():
     import addon
 

@@ -4,8 +4,13 @@ The renderer is the ``rstrace_engine`` package (numpy + numba, no Blender import
 package turns Blender data into its calls and its frames back into render passes.
 
 Module layers, lower never importing higher:
-``runtime`` (numba set-up) < ``properties`` < ``materials`` < ``export`` < ``session`` <
-``engine`` < ``ui``; ``operators`` (the kernel-cache warm-up) imports ``runtime`` only.
+``runtime`` (numba set-up) < ``kernels`` (background compile) < ``properties`` <
+``materials`` < ``meshes`` / ``lights`` / ``cameras`` < ``export`` < ``edits`` < ``session``
+< ``viewport`` < ``engine`` < ``ui``; ``operators`` (the kernel-cache warm-up) imports
+``runtime`` only.
+
+:func:`last_render_stats` (``session.last_render_stats``) gives a script the statistics of
+a scene's last F12 / animation render.
 
 ``runtime.configure`` runs before anything imports ``rstrace_engine`` kernels, so numba
 caches them in the extension's user directory. Used as a plain package (scripts, tests)::
@@ -18,20 +23,50 @@ from . import runtime
 
 runtime.configure(__package__)
 
-from . import engine, export, operators, properties, session, ui  # noqa: E402  (after numba)
+from . import (  # noqa: E402  (after numba set-up)
+    edits,
+    engine,
+    export,
+    kernels,
+    operators,
+    properties,
+    session,
+    ui,
+    viewport,
+)
+from .session import last_render_stats  # noqa: E402
 
-__all__ = ["engine", "export", "operators", "properties", "register", "runtime", "session",
-           "ui", "unregister"]
+__all__ = ["edits", "engine", "export", "kernels", "last_render_stats", "operators",
+           "properties", "register", "runtime", "session", "ui", "unregister", "viewport"]
 
 #: Registered in this order, unregistered in reverse.
-_MODULES = (properties, session, engine, operators, ui)
+_MODULES = (properties, session, viewport, engine, operators, ui)
 
 
 def register() -> None:
     for module in _MODULES:
         module.register()
+    import bpy
+
+    bpy.app.timers.register(_warm_if_selected, first_interval=0.5)
+
+
+def _warm_if_selected():
+    """After enabling: compile/load the kernels if a scene already renders with RSTrace."""
+    import bpy
+
+    scenes = getattr(bpy.data, "scenes", ())
+    modes = {s.rstrace.mode for s in scenes if s.render.engine == "RSTRACE"}
+    if modes:
+        kernels.start_warmup("INTERPOLANT" if "INTERPOLANT" in modes else "BASE")
+    return None
 
 
 def unregister() -> None:
+    import bpy
+
+    if bpy.app.timers.is_registered(_warm_if_selected):
+        bpy.app.timers.unregister(_warm_if_selected)
+    kernels.stop()
     for module in reversed(_MODULES):
         module.unregister()

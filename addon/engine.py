@@ -1,14 +1,14 @@
 """The ``RenderEngine``: a dispatcher. Every method is one line into a session object.
 
-Layer: imports ``session`` (and through it everything below); nothing imports this but the
-package ``__init__`` and ``ui``.
+Layer: imports ``session`` and ``viewport`` (and through them everything below); nothing
+imports this but the package ``__init__`` and ``ui``.
 """
 
 from __future__ import annotations
 
 import bpy
 
-from . import session
+from . import session, viewport
 
 
 class RSTraceRenderEngine(bpy.types.RenderEngine):
@@ -27,9 +27,21 @@ class RSTraceRenderEngine(bpy.types.RenderEngine):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.session = session.FrameRenderer(self)
+        self.viewport = viewport.ViewportRenderer()
+
+    def __del__(self):
+        # Blender frees the engine (rendered shading left, file closed, engine switched):
+        # the viewport's worker thread must not outlive it
+        viewport.free(self)
 
     def render(self, depsgraph):
         self.session.render(depsgraph)
+
+    def view_update(self, context, depsgraph):
+        self.viewport.view_update(context, depsgraph)
+
+    def view_draw(self, context, depsgraph):
+        self.viewport.view_draw(self, context, depsgraph)
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.session.update_render_passes(scene, renderlayer)

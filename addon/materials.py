@@ -46,6 +46,15 @@ class Notes:
         if message not in self.skipped:
             self.skipped.append(message)
 
+    def recorded(self) -> list[tuple]:
+        """Every ``warn`` call as ``(kind, name)``, to be replayed into another Notes."""
+        return [(kind, name) for kind, names in self._kinds.items()
+                for name in (names or [None])]
+
+    def replay(self, recorded: list[tuple]) -> None:
+        for kind, name in recorded:
+            self.warn(kind, name)
+
     @property
     def warnings(self) -> list[str]:
         """One line per kind of problem, then one per skipped object."""
@@ -93,10 +102,12 @@ def follow_link(socket):
 class MaterialReader:
     """Converts Blender materials to :class:`Material` (each once per export)."""
 
-    def __init__(self, scene: Scene, notes: Notes, model: str = "PRINCIPLED") -> None:
+    def __init__(self, scene: Scene | None, notes: Notes, model: str = "PRINCIPLED",
+                 textures: dict | None = None) -> None:
         self.scene = scene
         self.notes = notes
         self.model = model  # shading model of the Principled conversions
+        self.textures = textures  # image session_uid -> (generation, pixels): kept by caller
         self._ids: dict[int, int] = {}
         self._default_id: int | None = None
 
@@ -112,18 +123,23 @@ class MaterialReader:
         mid = self._ids.get(key)
         if mid is None:
             try:
-                converted = self.convert(mat)
-                if max(converted.emission) >= tol.RADIANCE_MAX:
-                    self.notes.warn(f"emission at or above the radiance limit "
-                                    f"{tol.RADIANCE_MAX:g}: samples that see it are left out "
-                                    f"(black)", mat.name)
-                mid = self.scene.add_material(converted)
+                mid = self.scene.add_material(self.read(mat))
             except SceneError as exc:  # conversion produced something invalid: say so
                 self.notes.warn(f"material unusable, rendered with the default ({exc})",
                                 mat.name)
                 mid = self.default_id()
             self._ids[key] = mid
         return mid
+
+    def read(self, mat) -> Material:
+        """:meth:`convert`, noting emission the renderer leaves out (at or above the
+        radiance limit)."""
+        converted = self.convert(mat)
+        if max(converted.emission) >= tol.RADIANCE_MAX:
+            self.notes.warn(f"emission at or above the radiance limit "
+                            f"{tol.RADIANCE_MAX:g}: samples that see it are left out "
+                            f"(black)", mat.name)
+        return converted
 
     # -- conversion --------------------------------------------------------------------
 
@@ -253,7 +269,30 @@ class MaterialReader:
                             f"supported: the render UV map is used", name)
         if node.projection != "FLAT" or node.extension not in ("REPEAT", "EXTEND", "CLIP"):
             self.notes.warn("image projections other than flat UV are not supported", name)
-        return read_image(img, self.notes)
+        if self.textures is None:
+            return read_image(img, self.notes)
+        key = img.original.session_uid
+        gen = _IMAGE_GENERATION.get(key, 0)
+        hit = self.textures.get(key)
+        if hit is not None and hit[0] == gen and hit[2] == _image_signature(img):
+            return hit[1]
+        pixels = read_image(img, self.notes)
+        self.textures[key] = (gen, pixels, _image_signature(img))
+        return pixels
+
+
+#: image session_uid -> generation, bumped by :func:`image_changed` (depsgraph updates).
+_IMAGE_GENERATION: dict[int, int] = {}
+
+
+def image_changed(key: int) -> None:
+    """Forget cached pixels of the image with session_uid ``key`` (painted, reloaded)."""
+    _IMAGE_GENERATION[key] = _IMAGE_GENERATION.get(key, 0) + 1
+
+
+def _image_signature(img) -> tuple:
+    return (tuple(img.size), img.channels, img.filepath, img.colorspace_settings.name,
+            img.is_dirty, img.source)
 
 
 def read_image(img, notes: Notes) -> np.ndarray | None:

@@ -58,6 +58,10 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", default=1, min=1, max=4096, soft_max=64,
         description="Jittered (stratified) samples per pixel, averaged with a box filter")
+    viewport_samples: IntProperty(
+        name="Viewport Samples", default=4, min=1, max=1024, soft_max=64,
+        description="Samples per pixel the rendered viewport refines to while idle (a coarse "
+                    "preview first, then one sample, then more)")
     accelerator: EnumProperty(name="Accelerator", items=ACCELERATOR_ITEMS, default="BVH",
                               description="Ray intersection structure")
     depth_cap: IntProperty(

@@ -94,21 +94,24 @@ def mark_kernels_ready() -> None:
     _state["kernels_ready"] = True
 
 
-def warm_cache(progress=None) -> dict:
+def warm_cache(progress=None, **options) -> dict:
     """Compile every render kernel into this add-on's numba cache, rendering nothing.
 
     The "warm the cache once" step of a render farm (``docs/FARM.md``), also the
     ``rstrace.warm_cache`` operator: afterwards no Blender process using the same cache
     compiles a kernel. Returns ``rstrace_engine.warm_cache.warm``'s counts (``compiled``,
     ``loaded``, ``seconds``, ``unreached``) plus ``cache_dir``. Holds :data:`RENDER_LOCK`.
+    ``options`` go to ``warm`` (``modes``, ``accelerators``, ``cancel``: the background
+    warm-up of ``kernels`` warms one mode this way).
     """
     if not _state["configured"]:
         raise RuntimeError("runtime.configure() must run before kernels are compiled")
     from rstrace_engine import warm_cache as warm
 
     with RENDER_LOCK:
-        result = warm.warm(progress=progress)
-    mark_kernels_ready()
+        result = warm.warm(progress=progress, **options)
+    if not result.get("cancelled"):
+        mark_kernels_ready()
     result["cache_dir"] = _state["cache_dir"] or "numba default (beside rstrace_engine)"
     return result
 

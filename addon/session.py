@@ -1,18 +1,26 @@
-"""The session glue: one persistent ``rstrace_engine`` session per Blender scene, and the
-F12 / animation render path of the engine (export, render, passes, progress, stats).
+"""The session glue: one persistent ``rstrace_engine`` session per Blender scene, shared by
+F12 / animation renders and the viewport, and the F12 render path of the engine.
 
-:class:`FrameRenderer` is what ``RenderEngine`` dispatches to. Per scene, a
-:class:`SceneState` keeps the core :class:`~rstrace_engine.session.Session` between frames
-and renders (so an animation or a re-render after an edit rebuilds only what changed), the
-statistics of the last render and its messages (shown by the Statistics panel). States are
-dropped when a file is loaded and when the add-on is unregistered.
+Per scene, a :class:`SceneState` keeps the core :class:`~rstrace_engine.session.Session`,
+the :class:`~.edits.SceneSync` that mirrors what it holds (and turns depsgraph changes into
+edits), the edits the viewport queued for its worker, the statistics of the last render and
+its messages. An F12 render (or an animation frame) walks the render depsgraph, diffs it
+against the mirror and applies the edits to the session (queued viewport edits first), so
+that a render after an edit re-renders incrementally when the camera did not move.
+:func:`last_render_stats` gives a script the last render's numbers.
 
-Layer: imports ``properties``, ``export`` and ``runtime``; never ``engine`` or ``ui``.
+Threads: ``state.lock`` guards the mirror, the queue and the session object; every call
+that runs kernels holds ``runtime.RENDER_LOCK`` (taken before ``state.lock``, never after).
+States are dropped when a file is loaded and when the add-on is unregistered.
+
+Layer: imports ``properties``, ``export``, ``edits`` and ``runtime``; never ``engine``,
+``viewport`` or ``ui``.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -21,9 +29,11 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_NAMES, Frame
+from rstrace_engine.geometry.edits import CameraChange
 from rstrace_engine.geometry.scene import SceneError
+from rstrace_engine.interactive import same_camera
 
-from . import export, properties, runtime
+from . import edits, kernels, properties, runtime
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +52,12 @@ class SceneState:
     reported: set = field(default_factory=set)  # warnings already reported in this job
     error: str | None = None
     frame: object = None  # the last rstrace_engine Frame, for scripts (linear radiance)
+    sync: edits.SceneSync = field(default_factory=edits.SceneSync)
+    lock: threading.RLock = field(default_factory=threading.RLock)
+    pending: list = field(default_factory=list)  # viewport edits not applied yet
+    new_snapshot: object = None  # a viewport snapshot waiting for its session
+    last_report: object = None  # EditReport of the last apply
+    dirty_mask: object = None  # (h, w) bool pixels the last F12 re-rendered; None: all
 
 
 _STATES: dict[int, SceneState] = {}
@@ -64,6 +80,65 @@ def peek_state(scene) -> SceneState | None:
 def forget_all() -> None:
     """Drop every session (file load, unregister)."""
     _STATES.clear()
+
+
+def last_render_stats(scene) -> dict:
+    """The statistics of the last F12 / animation render of ``scene`` (a copy; {} if none).
+
+    Keys include ``mode``, ``width``, ``height``, ``objects``, ``triangles``, ``lights``;
+    times in seconds: ``sync_seconds`` (depsgraph walk and diff), ``apply_seconds`` (edits
+    into the session), ``render_seconds``, ``total_seconds``; ``edits`` and ``edit_kinds``
+    (what changed since the previous render), ``meshes_read``; ``incremental`` (only dirty
+    pixels re-rendered), ``dirty_fraction`` (of the pixels), ``interpolated_fraction``
+    (INTERPOLANT mode), ``invalidated_interpolants``; ``memory_mb``; ``renders`` (count).
+    """
+    state = peek_state(scene)
+    return dict(state.stats) if state is not None else {}
+
+
+def drop_session(state: SceneState) -> None:
+    """Forget the core session of ``state`` (after an error, or to start afresh)."""
+    with state.lock:
+        state.session = None
+        state.sync.reset()
+        state.pending = []
+        state.new_snapshot = None
+
+
+def render_sync(state: SceneState, depsgraph, settings, camera_object=None):
+    """Bring the scene's session up to date with a render depsgraph (F12, animation).
+
+    Caller holds ``runtime.RENDER_LOCK``. Returns ``(session, report, snapshot,
+    sync_seconds, sync_stats)``; report is None for a new session. On any error the session
+    is dropped (the next render starts afresh) and the error propagates.
+    """
+    from rstrace_engine.session import Session
+
+    with state.lock:
+        if state.session is None:
+            drop_session(state)
+        t0 = time.perf_counter()
+        snap = state.sync.read(depsgraph, None, "RENDER", camera_object=camera_object)
+        result = state.sync.diff(snap, exists=edits.existing_objects)
+        t_sync = time.perf_counter() - t0
+        try:
+            if state.session is None:
+                state.session = Session(state.sync.scene(snap), settings)
+                report = None
+            else:
+                batch = state.pending + result.edits
+                if not same_camera(state.session.scene.camera, snap.camera):
+                    batch.append(CameraChange(snap.camera))
+                state.session.update_settings(settings)
+                report = state.session.apply(batch)
+        except BaseException:
+            drop_session(state)
+            raise
+        state.pending = []
+        state.new_snapshot = None
+        state.sync.commit(result)
+        state.last_report = report
+        return state.session, report, snap, t_sync, result.stats
 
 
 @persistent
@@ -106,7 +181,10 @@ class FrameRenderer:
             # Ctrl+C (SIGINT) in a background render: a cancel. Escaping into Blender, it
             # crashed writing a result never started (EXR) or wrote a blank image (PNG); an
             # error report makes Blender stop the job and write nothing.
+            # The session may have stopped between any two steps: the next render starts
+            # afresh.
             log.warning("RSTrace render interrupted")
+            drop_session(state)
             self._error(state, INTERRUPTED)
         except Exception as exc:  # never let an exception escape into Blender's render job
             log.exception("RSTrace render failed")
@@ -117,22 +195,21 @@ class FrameRenderer:
         t0 = time.perf_counter()
         settings = properties.render_settings(scene.rstrace)
         check_available(settings)
-        engine.update_stats("", "RSTrace | exporting scene")
-        exported = export.export_scene(depsgraph, camera_object=engine.camera_override)
-        for message in exported.warnings:
-            self._warn(state, message)
-        if engine.test_break():
-            return
-        t_export = time.perf_counter() - t0
-
-        status = runtime.kernel_status()
+        engine.update_stats("", "RSTrace | syncing scene")
+        status = kernels.progress_text() or runtime.kernel_status()
         if status:
             engine.update_stats("", f"RSTrace | {status}")
         with runtime.RENDER_LOCK:
             threads = runtime.set_threads(scene.render)
             t1 = time.perf_counter()
-            session = self._session(state, exported.scene, settings)
-            t_update = time.perf_counter() - t1
+            session, report, snap, t_sync, sync_stats = render_sync(
+                state, depsgraph, settings, engine.camera_override)
+            t_apply = time.perf_counter() - t1 - t_sync
+            for message in snap.warnings + list(session.scene.warnings):
+                self._warn(state, message)
+            if engine.test_break():
+                return
+            state.dirty_mask = getattr(session, "dirty_mask", None)
             t2 = time.perf_counter()
             frame = session.render(progress=self._progress, cancel=engine.test_break)
             t_render = time.perf_counter() - t2
@@ -142,14 +219,25 @@ class FrameRenderer:
         self._write_result(depsgraph, scene, frame)
         state.frame = frame
         state.renders += 1
-        stats = dict(exported.stats)
-        stats.update(session_stats)
+        core = session.scene
+        # the frame's own numbers; from the session only what is not per frame
+        stats = {k: session_stats[k] for k in ("accel_build_s", "accel_update_s",
+                                               "accelerator") if k in session_stats}
         stats.update(frame.stats or {})
-        stats.update(export_seconds=t_export, update_seconds=t_update, render_seconds=t_render,
-                     total_seconds=time.perf_counter() - t0, threads=threads,
-                     width=exported.width, height=exported.height, mode=settings.mode,
-                     accelerator=settings.accelerator, renders=state.renders,
-                     pixel_classes=_class_counts(frame), export_warnings=exported.warnings)
+        stats.update(
+            objects=len(snap.objects), lights=len(snap.lights), meshes=len(core.meshes),
+            materials=len(core.materials), triangles=core.triangle_count,
+            sync_seconds=t_sync, export_seconds=t_sync, apply_seconds=t_apply,
+            meshes_read=sync_stats.get("meshes_read", 0), edits=sync_stats.get("edits", 0),
+            edit_kinds=sync_stats.get("edit_kinds", {}), render_seconds=t_render,
+            total_seconds=time.perf_counter() - t0, threads=threads, width=snap.width,
+            height=snap.height, mode=settings.mode, accelerator=settings.accelerator,
+            renders=state.renders, pixel_classes=_class_counts(frame),
+            export_warnings=snap.warnings + list(core.warnings),
+            invalidated_interpolants=report.invalidated_interpolants if report else 0,
+            new_session=report is None)
+        stats.setdefault("interpolated_fraction", 0.0)
+        stats["memory_mb"] = _memory_mb(stats, core)
         state.stats = stats
         dropped = int(stats.get("nonfinite_samples") or 0)
         if dropped:
@@ -158,25 +246,10 @@ class FrameRenderer:
         for note in stats.get("bound_notes") or []:  # INTERPOLANT: what is only tested
             state.messages.append(("INFO", note))
             engine.report({"INFO"}, f"RSTrace: {note}")
-        mem = _memory_mb(stats, exported.scene)
-        engine.update_memory_stats(memory_used=mem, memory_peak=mem)
+        engine.update_memory_stats(memory_used=stats["memory_mb"],
+                                   memory_peak=stats["memory_mb"])
         engine.update_stats("", status_line(stats))
         engine.update_progress(1.0)
-
-    def _session(self, state: SceneState, scene, settings):
-        """The scene's persistent core session, created or updated for this render."""
-        from rstrace_engine.session import Session
-
-        if state.session is None:
-            state.session = Session(scene, settings)
-            return state.session
-        try:
-            state.session.update_settings(settings)
-            state.session.update_scene(scene)
-        except BaseException:
-            state.session = None  # half-updated: start afresh next time
-            raise
-        return state.session
 
     def _progress(self, fraction: float, message: str = "") -> None:
         self.engine.update_progress(float(min(max(fraction, 0.0), 1.0)))
@@ -264,17 +337,13 @@ def _class_counts(frame: Frame) -> dict:
 
 
 def _memory_mb(stats: dict, scene) -> float:
-    """Memory in MiB: the session's own count when it gives one, else the scene arrays."""
-    for key in ("memory_bytes", "memory"):
-        if isinstance(stats.get(key), (int, float)):
-            return float(stats[key]) / 2**20
-    if isinstance(stats.get("memory_mb"), (int, float)):
-        return float(stats["memory_mb"])
+    """Memory of the session in MB: scene arrays + interpolant cache + per-pixel records."""
     try:
-        arrays = scene.arrays()
+        arrays = sum(getattr(a, "nbytes", 0) for a in scene.arrays()) / 1e6
     except SceneError:
-        return 0.0
-    return sum(getattr(a, "nbytes", 0) for a in arrays) / 2**20
+        arrays = 0.0
+    cache = stats.get("memory_mb", 0.0) if stats.get("mode") == "INTERPOLANT" else 0.0
+    return float(arrays + (cache or 0.0) + (stats.get("records_mb") or 0.0))
 
 
 def status_line(stats: dict) -> str:

@@ -59,6 +59,7 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
             sub.prop(props, "vf_tiles")
         col = layout.column(align=True)
         col.prop(props, "samples")
+        col.prop(props, "viewport_samples", text="Viewport")
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
         layout.prop(props, "shading_model")
@@ -119,8 +120,21 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                            f"{stats.get('mode')}, {stats.get('accelerator')}")
             col.label(text=f"{stats.get('triangles', 0):,} triangles, "
                            f"{stats.get('objects', 0)} objects, {stats.get('lights', 0)} lights")
-            col.label(text=f"Export {stats.get('export_seconds', 0.0):.2f} s, "
-                           f"render {stats.get('render_seconds', 0.0):.2f} s")
+            col.label(text=f"Sync {stats.get('sync_seconds', 0.0):.3f} s, apply "
+                           f"{stats.get('apply_seconds', 0.0):.3f} s, render "
+                           f"{stats.get('render_seconds', 0.0):.3f} s")
+            col.label(text=f"{stats.get('edits', 0)} edits since the last render, "
+                           f"{stats.get('meshes_read', 0)} meshes read")
+            if stats.get("incremental"):
+                col.label(text=f"Incremental: {100.0 * stats.get('dirty_fraction', 0.0):.2f}% "
+                               f"of the pixels re-rendered")
+            else:
+                col.label(text="Full frame")
+            if stats.get("mode") == "INTERPOLANT":
+                col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
+                               f", {stats.get('invalidated_interpolants', 0):,} interpolants "
+                               f"invalidated")
+            col.label(text=f"Memory {stats.get('memory_mb', 0.0):.1f} MB")
             if stats.get("accel_memory_mb") is not None:
                 col.label(text=f"{stats.get('accelerator')} memory "
                                f"{stats['accel_memory_mb']:.1f} MB")

@@ -11,6 +11,13 @@ through the same persistent session, and writes into ``--out``:
   Interpolation (per-pixel class) passes;
 * ``interpolated.png``, ``interpolated.exr`` — the edited scene again with radiance
   interpolants (epsilon 0.01); its Interpolation pass shows which pixels were interpolated;
+* ``edits/NN_<edit>.png`` and ``edits/NN_<edit>_dirty.png`` — the edit loop: a sequence
+  of edits made through ``bpy`` (move, rotate, material colour, light power, hide, show,
+  duplicate linked, delete, undo), each rendered by F12 through the scene's persistent
+  session (only the dirty pixels are re-rendered when the camera did not move); the
+  ``_dirty`` image shows the re-rendered pixels in white over the dimmed frame, and
+  ``edits/edits.txt`` lists per edit the edits the depsgraph gave, the dirty fraction and
+  the times (sync, apply, render), as ``stats.json`` does;
 * ``stats.json`` — export and render statistics of the renders, the edit, how many pixels it
   changed, and the interpolated frame's error against the base tracer's.
 
@@ -148,6 +155,77 @@ def render_interpolated(bpy, sc, out: Path, epsilon: float) -> tuple[dict, dict]
     return stats, accuracy
 
 
+def edit_loop(bpy, sc, out: Path) -> list[dict]:
+    """Edits through bpy, each followed by an incremental F12; images and numbers beside."""
+    import numpy as np
+
+    import addon
+    from rstrace_engine.image import to_display, write_png, write_render_png
+
+    red, blue = bpy.data.objects["RedSphere"], bpy.data.objects["BlueSphere"]
+    mirror = bpy.data.objects["MirrorSphere"]
+    key = bpy.data.objects["Key"]
+    bsdf = blue.active_material.node_tree.nodes["Principled BSDF"]
+    made = {}
+
+    def duplicate():
+        made["dup"] = dup = blue.copy()
+        dup.location = (-0.4, 1.9, 0.8)
+        sc.collection.objects.link(dup)
+
+    steps = [
+        ("move", "move RedSphere 0.4 m", lambda: setattr(red.location, "y", red.location.y + 0.4)),
+        ("rotate", "rotate BlueSphere 30 degrees",
+         lambda: setattr(blue.rotation_euler, "z", math.radians(30.0))),
+        ("colour", "BlueSphere's material turns green",
+         lambda: setattr(bsdf.inputs["Base Color"], "default_value", (0.1, 0.6, 0.15, 1.0))),
+        ("power", "Key light at half power", lambda: setattr(key.data, "energy", 1250.0)),
+        ("hide", "hide MirrorSphere", lambda: setattr(mirror, "hide_render", True)),
+        ("show", "show MirrorSphere", lambda: setattr(mirror, "hide_render", False)),
+        ("duplicate", "duplicate BlueSphere (linked)", duplicate),
+        ("delete", "delete the duplicate", lambda: bpy.data.objects.remove(made["dup"])),
+        ("undo", "undo the delete", lambda: bpy.ops.ed.undo()),
+    ]
+    folder = out / "edits"
+    folder.mkdir(exist_ok=True)
+    rows, lines = [], []
+    bpy.ops.render.render()  # the session holds the scene as it is now
+    bpy.ops.ed.undo_push(message="demo start")
+    for k, (name, what, change) in enumerate(steps, 1):
+        change()
+        if name != "undo":
+            bpy.ops.ed.undo_push(message=what)
+        t0 = time.perf_counter()
+        bpy.ops.render.render()
+        wall = time.perf_counter() - t0
+        state = addon.session.state_for(bpy.context.scene)
+        if state.error:
+            raise SystemExit(f"render after '{what}' failed: {state.error}")
+        st = state.stats
+        frame = state.frame.radiance
+        write_render_png(folder / f"{k:02d}_{name}.png", frame)
+        mask = state.dirty_mask
+        shown = to_display(frame) * 0.35
+        if mask is None:
+            mask = np.ones(frame.shape[:2], bool)
+        shown[mask] = 1.0
+        write_png(folder / f"{k:02d}_{name}_dirty.png", shown)
+        row = dict(edit=what, depsgraph_edits=st.get("edit_kinds", {}),
+                   incremental=bool(st.get("incremental")),
+                   dirty_fraction=float(st.get("dirty_fraction", 1.0)),
+                   sync_ms=1e3 * st.get("sync_seconds", 0.0),
+                   apply_ms=1e3 * st.get("apply_seconds", 0.0),
+                   render_ms=1e3 * st.get("render_seconds", 0.0), wall_ms=1e3 * wall)
+        rows.append(row)
+        kinds = ", ".join(f"{n} {v}" for n, v in row["depsgraph_edits"].items()) or "none"
+        lines.append(f"{k:02d} {what:34s} edits: {kinds:45s} dirty "
+                     f"{100 * row['dirty_fraction']:6.2f}%  sync {row['sync_ms']:6.1f} ms  "
+                     f"apply {row['apply_ms']:6.1f} ms  render {row['render_ms']:7.1f} ms")
+        print("demo: " + lines[-1])
+    (folder / "edits.txt").write_text("\n".join(lines) + "\n")
+    return rows
+
+
 def changed_fraction(bpy, a: Path, b: Path) -> float:
     import numpy as np
 
@@ -190,6 +268,9 @@ def main(argv=None) -> int:
         red.location.y -= 0.6
         after = render(bpy, sc, out, "after")
         print(f"demo: moved RedSphere, after.png in {after['wall_seconds']:.2f} s")
+        new_location = tuple(red.location)
+        loop = edit_loop(bpy, sc, out)
+        sc = bpy.context.scene  # (undo in the loop replaced the ID references)
         interpolated, accuracy = render_interpolated(bpy, sc, out, epsilon=0.01)
         print(f"demo: interpolated.png (radiance interpolants, epsilon 0.01) in "
               f"{interpolated['wall_seconds']:.2f} s: "
@@ -201,9 +282,9 @@ def main(argv=None) -> int:
             resolution=[args.width, args.height], samples=args.samples,
             max_ray_depth=args.depth,
             edit=dict(object="RedSphere", kind="transform", old_location=old,
-                      new_location=tuple(red.location)),
+                      new_location=new_location),
             renders=dict(before=before, after=after, interpolated=interpolated),
-            interpolated_vs_base=accuracy,
+            interpolated_vs_base=accuracy, edit_loop=loop,
             changed_pixels_fraction=changed_fraction(bpy, out / "before.png",
                                                      out / "after.png"),
             files=sorted(p.name for p in out.iterdir() if p.suffix in (".png", ".exr")),

@@ -9,8 +9,11 @@ numba compiles a kernel for the argument *types* it is called with, so the only 
 compile exactly the kernels a render uses is to call them: :func:`warm` drives the renderer
 through a tiny scene made for the purpose (64x48 pixels, just enough for interpolant cells;
 every material feature, point, sun and spot lights, perspective and orthographic cameras)
-in every available mode and accelerator, through the steps an animation takes (a first
-frame, a camera move, a moved object, an interpolant memory cap small enough to evict).
+in every available mode and accelerator, through the steps the viewport and an animation
+take (the viewport's coarse image in tiles, a first frame, a camera move, a moved object, an
+incremental frame, an interpolant memory cap small enough to evict). The add-on's background
+warm-up (``addon/kernels.py``) runs the same :func:`warm` for the chosen mode only, so there
+is one way to compile the kernels.
 No image is written; the frames are discarded. What it reports (``kernel_cache.counts``)
 says how many kernels were compiled and how many loaded, and names any render kernel it
 did not reach.
@@ -84,22 +87,35 @@ def _accelerators() -> tuple[str, ...]:
     return ("BVH", "VISIBILITY_FIELD") + (("EMBREE",) if embree.available() else ())
 
 
-def _animate(session, ortho: bool) -> None:
-    """What frames of an animation do: render, move the camera, move an object (a full
-    frame when the scene box grows, an incremental one when it does not), render."""
-    session.render()
-    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1)))
-    session.render()
-    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
-                                    glossy_at=(-0.9, 0.1, 0.9)))
-    session.render()
-    # the same camera and scene box: an incremental frame (dirty-pixel queries)
-    session.update_scene(warm_scene(ortho=ortho, eye=(0.5, -5.8, 3.1),
-                                    glossy_at=(-0.6, 0.1, 0.9)))
-    session.render()
+class Cancelled(Exception):
+    """``cancel()`` said stop (between two steps of :func:`warm`)."""
 
 
-def _warm_edited_interpolants(progress=None) -> None:
+def _check(cancel) -> None:
+    if cancel is not None and cancel():
+        raise Cancelled
+
+
+def _animate(session, ortho: bool, cancel=None) -> None:
+    """What the viewport and the frames of an animation do: a coarse view image (the
+    viewport's first image, in tiles), render, move the camera, move an object (a full frame
+    when the scene box grows, an incremental one when it does not), render."""
+    from .interactive import coarse_camera, trace_view
+
+    trace_view(session, coarse_camera(session.scene.camera, 4), session.settings,
+               cancel=cancel)
+    steps = [None, dict(eye=(0.5, -5.8, 3.1)),
+             dict(eye=(0.5, -5.8, 3.1), glossy_at=(-0.9, 0.1, 0.9)),
+             # the same camera and scene box: an incremental frame (dirty-pixel queries)
+             dict(eye=(0.5, -5.8, 3.1), glossy_at=(-0.6, 0.1, 0.9))]
+    for step in steps:
+        _check(cancel)
+        if step is not None:
+            session.update_scene(warm_scene(ortho=ortho, **step))
+        session.render(cancel=cancel)
+
+
+def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     """Interpolants that pass the error predicate (their tunnels go into the ray segment
     trees and the membership index), then an edit that queries and invalidates them. The
     warm scene is too small and too hard (textures, a spot, occluders) for any cell to pass."""
@@ -115,15 +131,18 @@ def _warm_edited_interpolants(progress=None) -> None:
         progress(message)
     settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
     session = Session(scenes.three_spheres(128, 96, subdivisions=2), settings)
-    session.render()
+    session.render(cancel=cancel)
+    _check(cancel)
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
-    session.render()
-    # the dependency indexes' compaction (after many edits; forced here: nothing changes)
-    c = session.interpolants.cache
-    c.deps.compact(c.pool, c.trees, force=True)
+    session.render(cancel=cancel)
+    # the dependency lists' compaction (a long edit session frees more entries than stay
+    # live; too many for a tiny scene to reach): forced once, with what the edit freed
+    cache = session.interpolants.cache
+    if cache is not None:
+        cache.deps.compact(cache.pool, cache.trees, force=True)
 
 
-def _warm_ri_trees(accelerators, progress=None) -> None:
+def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
     """RI-trees that are built, queried, pruned, invalidated by an edit and walked for the
     thickness view (exact and interpolated). The warm scene's objects are too small for a
     tree (``MIN_TRIANGLES``): a 40x30 glass sphere and a mirror torus, with coarse RI
@@ -154,22 +173,26 @@ def _warm_ri_trees(accelerators, progress=None) -> None:
         settings = RenderSettings(mode="RI_TREE", accelerator=accel, max_depth=3,
                                   ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05)
         session = Session(s, settings)
-        session.render()
+        session.render(cancel=cancel)
         session.apply([ObjectTransform("RIGlass", shapes.transform((-0.1, -0.6, 0.9))),
                        LightDelete("Gone")])
-        session.render()
+        session.render(cancel=cancel)
         for mode in ("RI_TREE", "BASE"):
             session.update_settings(replace(settings, mode=mode, thickness_view=True))
-            session.render()
+            session.render(cancel=cancel)
 
 
-def warm(modes=None, accelerators=None, progress=None) -> dict:
+def warm(modes=None, accelerators=None, progress=None, cancel=None,
+         report_unreached: bool = True) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
-    ``progress(message)`` is called before each step. Returns ``kernel_cache.counts()``
-    plus ``seconds``, ``modes``, ``accelerators`` and ``unreached``: render kernels with
-    nothing in the disk cache afterwards (kernels inlined into their callers never have
-    their own code and are not listed).
+    ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
+    between steps and inside each frame (the add-on's background warm-up stops when Blender
+    unregisters it); a cancelled warm-up returns ``cancelled=True``. Returns
+    ``kernel_cache.counts()`` plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
+    and ``unreached``: render kernels with nothing in the disk cache afterwards (kernels
+    inlined into their callers never have their own code and are not listed; empty when
+    ``report_unreached`` is False, as for a warm-up of one mode).
     """
     from .frame import RenderSettings
     from .session import Session
@@ -178,22 +201,31 @@ def warm(modes=None, accelerators=None, progress=None) -> dict:
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
     steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)]
-    for i, (mode, accel, ortho) in enumerate(steps):
-        message = f"warming kernels {i + 1}/{len(steps)}: {mode}, {accel}" + (
-            ", orthographic" if ortho else "")
-        log.info(message)
-        if progress is not None:
-            progress(message)
-        settings = RenderSettings(mode=mode, accelerator=accel, samples=2, max_depth=3,
-                                  epsilon=0.02, depth_cap=3)
-        if ortho:
-            settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
-        session = Session(warm_scene(ortho=ortho), settings)
-        _animate(session, ortho)
-    if "INTERPOLANT" in modes:
-        _warm_edited_interpolants(progress)
-    if "RI_TREE" in modes:
-        _warm_ri_trees(accelerators[:1], progress)
+    cancelled = False
+    try:
+        for i, (mode, accel, ortho) in enumerate(steps):
+            _check(cancel)
+            message = f"warming kernels {i + 1}/{len(steps)}: {mode}, {accel}" + (
+                ", orthographic" if ortho else "")
+            log.info(message)
+            if progress is not None:
+                progress(message)
+            settings = RenderSettings(mode=mode, accelerator=accel, samples=2, max_depth=3,
+                                      epsilon=0.02, depth_cap=3)
+            if ortho:
+                settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
+            session = Session(warm_scene(ortho=ortho), settings)
+            _animate(session, ortho, cancel)
+        if "INTERPOLANT" in modes:
+            _check(cancel)
+            _warm_edited_interpolants(progress, cancel)
+        if "RI_TREE" in modes:
+            _check(cancel)
+            _warm_ri_trees(accelerators[:1], progress, cancel)
+        _check(cancel)
+    except Cancelled:
+        cancelled = True
+        log.info("kernel warm-up cancelled")
     import importlib
 
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
@@ -207,9 +239,9 @@ def warm(modes=None, accelerators=None, progress=None) -> dict:
                  for d in kernel_cache.dispatchers()
                  if d.targetoptions.get("inline") != "always"
                  and not d.py_func.__module__.startswith(NOT_RENDER_KERNELS)
-                 and not kernel_cache.cached_signatures(d)]
+                 and not kernel_cache.cached_signatures(d)] if report_unreached else []
     result.update(seconds=time.perf_counter() - t0, modes=list(modes),
-                  accelerators=list(accelerators), unreached=unreached)
+                  accelerators=list(accelerators), unreached=unreached, cancelled=cancelled)
     log.info("kernel cache warm in %.1f s: %d compiled, %d loaded, %d unreached",
              result["seconds"], result["compiled"], result["loaded"], len(unreached))
     return result

@@ -31,6 +31,7 @@ Kinds, and what each may invalidate:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 
@@ -326,15 +327,20 @@ def _same_mesh(a: dict, b: dict) -> bool:
     return all(np.array_equal(a[k], b[k]) for k in ("verts", "tris", "normals", "uvs", "slots"))
 
 
-def _same_material(a: Material, b: Material) -> bool:
+def same_material(a: Material | None, b: Material) -> bool:
+    """True when two materials shade alike: every field but the name (the shading model,
+    the Principled layers' weights and colours included), textures by content."""
+    if a is None:
+        return False
     if a is b:
         return True
-    fields = ("diffuse", "specular", "roughness", "mirror", "transmission", "ior", "emission")
-    if any(getattr(a, f) != getattr(b, f) for f in fields):
+    if any(getattr(a, f.name) != getattr(b, f.name) for f in dataclasses.fields(Material)
+           if f.name not in ("name", "texture")):
         return False
-    if (a.texture is None) != (b.texture is None):
-        return False
-    return a.texture is None or np.array_equal(a.texture, b.texture)
+    if a.texture is None or b.texture is None:
+        return a.texture is b.texture
+    return a.texture is b.texture or (a.texture.shape == b.texture.shape
+                                      and np.array_equal(a.texture, b.texture))
 
 
 def _same_camera(a: Camera, b: Camera) -> bool:
@@ -367,7 +373,7 @@ def diff_scenes(old: Scene, new: Scene) -> list:
             edits.append(MeshSet(key, _as_mesh(new.meshes[mid])))
     for key, mid in new.material_keys.slot.items():
         o = old.material_keys.slot.get(key)
-        if o is None or not _same_material(old.materials[o], new.materials[mid]):
+        if o is None or not same_material(old.materials[o], new.materials[mid]):
             edits.append(MaterialSet(key, new.materials[mid]))
     for key in old.light_keys.slot:
         if key not in new.light_keys.slot:

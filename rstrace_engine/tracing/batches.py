@@ -16,7 +16,11 @@ import numpy as np
 from ..geometry.cameras import pixel_jitter
 
 #: Rays per batch in :func:`~.whitted.render` (primary rays of one tile of rows, all samples).
-TILE_RAYS = 1 << 16
+#: 32k rays: cancel() is polled about every 30 ms on 2 cores (the viewport's interrupt
+#: latency) and full tiles stay above SERIAL_BELOW (every thread). Museum 640x480 BASE
+#: frame, best of 3 in one run on a heavily loaded 2-core machine (noise dominates):
+#: 64k tiles 3.37 s, 32k 4.13 s, 16k (then single-threaded) 2.41 s.
+TILE_RAYS = 1 << 15
 #: Batches of fewer rays (the dirty pixels of an incremental frame) run their kernels on
 #: one thread: measured on a busy 2-core machine, every parallel region then costs a
 #: scheduler time slice, and 5,500 dirty pixels of museum took 0.2 s on two threads and

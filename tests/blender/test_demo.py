@@ -26,3 +26,14 @@ def test_demo_renders_edits_and_reports(tmp_path):
     acc = stats["interpolated_vs_base"]
     # the bound holds for every pixel (epsilon 0.01, float32 slack 1e-6)
     assert acc["n_over"] == 0 and acc["max_error"] <= 0.01 + 1e-6, acc
+    # the edit loop: each edit rendered incrementally, with its dirty pixels beside it
+    loop = stats["edit_loop"]
+    assert [r["edit"].split()[0] for r in loop][:4] == ["move", "rotate", "BlueSphere's",
+                                                        "Key"]
+    assert all(sum(r["depsgraph_edits"].values()) >= 1 for r in loop)
+    colour = loop[2]
+    assert colour["depsgraph_edits"] == {"MaterialSet": 1}
+    assert colour["incremental"] and colour["dirty_fraction"] < 0.2
+    assert (out / "edits" / "edits.txt").read_text().count("\n") == len(loop)
+    for k in range(1, len(loop) + 1):
+        assert len(list((out / "edits").glob(f"{k:02d}_*.png"))) == 2

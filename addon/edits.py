@@ -1,0 +1,227 @@
+"""``depsgraph.updates`` -> :mod:`rstrace_engine.geometry.edits` edits.
+
+:class:`SceneSync` mirrors what the scene's core session holds (per key: objects, meshes,
+materials, lights, world, camera). A sync walks the depsgraph into a snapshot
+(:func:`export.read_scene`, which re-reads only the datablocks the updates name) and diffs
+it against the mirror:
+
+* a moved, rotated or scaled object -> ``ObjectTransform``; new mesh data -> ``MeshSet``
+  (that mesh only, read with ``foreach_get``); another mesh -> ``ObjectGeometry``; other
+  material slots -> ``ObjectMaterials``; a changed material -> ``MaterialSet``; a light's
+  data or transform -> ``LightSet``; the world -> ``WorldColor``; the camera ->
+  ``CameraChange``;
+* an object, instance or light that appears -> ``ObjectAdd`` / ``LightSet`` (collection
+  links, instancers, geometry-node instances, duplicates, undo of a delete);
+* one that vanishes -> ``ObjectVisibility(False)`` while the object still exists (hidden,
+  excluded, unlinked: it may come back cheaply), else ``ObjectDelete`` / ``LightDelete``.
+  Deleted objects never appear in ``depsgraph.updates``: the mirror's key set is diffed
+  against ``depsgraph.object_instances``.
+
+Updates that cannot change the image are not edits: :func:`dirty_from_updates` returns None
+for a batch holding only flag-less Scene updates (selection, colour management, frame and
+other scene-only settings), so nothing is walked and nothing re-renders; anything else is
+walked and yields edits only where the snapshot really differs (a shading flag from a
+viewport display setting diffs to nothing).
+
+Keys are ``session_uid``s (see :mod:`.export`), which survive undo and redo; no Blender ID is
+held between syncs. The mirror changes only when the caller commits a sync (after the
+session applied it); :meth:`SceneSync.reset` forgets everything (the session was dropped).
+
+Layer: imports ``export`` and ``materials`` (no session, engine or ui).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rstrace_engine.geometry import edits as E
+from rstrace_engine.geometry.scene import Camera, Material
+
+from . import export
+from .cameras import same_camera
+from .materials import image_changed
+
+log = logging.getLogger(__name__)
+
+#: ID types whose updates mean "re-read every material" (node groups, images, textures).
+_ALL_MATERIALS = {"ShaderNodeTree", "GeometryNodeTree", "NodeTree", "Image", "Texture"}
+#: ID types that never change what is rendered.
+_IGNORED = {"WindowManager", "Screen", "WorkSpace", "Brush", "Palette", "Text", "Sound",
+            "Library", "Workspace", "PaintCurve", "Mask", "MovieClip", "Speaker"}
+
+
+def dirty_from_updates(updates) -> export.Dirty | None:
+    """What a batch of ``depsgraph.updates`` may have changed; None when nothing.
+
+    Objects with a geometry flag, mesh datablocks and materials are listed so that only
+    those are re-read; node groups and images mark every material; Scene updates count only
+    with a transform or geometry flag (deletions and collection changes come as such);
+    selection, colour management and other scene-only settings come flag-less.
+    """
+    dirty = export.Dirty()
+    walk = False
+    for u in updates:
+        idb = u.id
+        kind = type(idb).__name__
+        if kind == "Scene":
+            walk |= bool(u.is_updated_transform or u.is_updated_geometry)
+            continue
+        if kind in _IGNORED:
+            continue
+        uid = idb.original.session_uid
+        walk = True
+        if kind == "Object":
+            if u.is_updated_geometry:
+                dirty.objects.add(uid)
+        elif kind == "Material":
+            dirty.materials.add(uid)
+        elif kind in _ALL_MATERIALS or kind.endswith("NodeTree"):
+            dirty.all_materials = True
+            if kind == "Image":
+                image_changed(uid)
+        elif u.is_updated_geometry:
+            dirty.data.add(uid)  # Mesh, Curve, ...
+    return dirty if walk else None
+
+
+@dataclass
+class SyncResult:
+    """The edits of one sync and what the mirror becomes once they are applied."""
+
+    edits: list
+    snapshot: export.Snapshot | None
+    stats: dict = field(default_factory=dict)
+    _mirror: dict | None = None
+
+
+class SceneSync:
+    """The add-on side of one scene's session: caches, mirror, and the diff into edits."""
+
+    def __init__(self) -> None:
+        self.cache = export.ExportCache()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget what the session holds (it was dropped); the caches stay valid."""
+        self.objects: dict[Hashable, export.ObjectRecord] = {}
+        self.invisible: dict[Hashable, export.ObjectRecord] = {}
+        self.meshes: dict[Hashable, object] = {}  # key -> the Mesh object last sent
+        self.materials: dict[Hashable, Material] = {}
+        self.lights: dict = {}
+        self.world: tuple | None = None
+        self.camera: Camera | None = None
+        self.synced = False
+
+    # -- syncing ---------------------------------------------------------------------
+
+    def read(self, depsgraph, dirty: export.Dirty | None, source: str, **kwargs
+             ) -> export.Snapshot:
+        """Walk ``depsgraph`` (see :func:`export.read_scene`); on a never-synced mirror
+        ``dirty`` is ignored (everything unknown is read)."""
+        return export.read_scene(depsgraph, self.cache, dirty if self.synced else None,
+                                 source=source, **kwargs)
+
+    def diff(self, snap: export.Snapshot, camera: Camera | None = None,
+             exists=None) -> SyncResult:
+        """Edits turning the mirror into ``snap`` (camera: the camera to render through).
+
+        exists() -> set of session_uids of objects still in the file (asked only when some
+        object vanished), to tell hidden from deleted.
+        """
+        t0 = time.perf_counter()
+        out: list = []
+        cache = self.cache
+        meshes, materials = dict(self.meshes), dict(self.materials)
+        for rec in snap.objects.values():
+            mesh = cache.mesh(rec.mesh_key)
+            if meshes.get(rec.mesh_key) is not mesh:
+                meshes[rec.mesh_key] = mesh
+                out.append(E.MeshSet(rec.mesh_key, mesh))
+            for mk in rec.material_keys:
+                mat = cache.material(mk)
+                if materials.get(mk) is not mat:
+                    if not E.same_material(materials.get(mk), mat):
+                        out.append(E.MaterialSet(mk, mat))
+                    materials[mk] = mat
+        objects = dict(snap.objects)
+        invisible = dict(self.invisible)
+        for key, rec in objects.items():
+            old = self.objects.get(key)
+            if old is None and key in invisible:
+                old = invisible.pop(key)
+                out.append(E.ObjectVisibility(key, True))
+            if old is None:
+                out.append(E.ObjectAdd(key, rec.mesh_key, rec.matrix, rec.material_keys,
+                                       name=rec.name))
+                continue
+            if old.mesh_key != rec.mesh_key:
+                out.append(E.ObjectGeometry(key, rec.mesh_key))
+            if old.material_keys != rec.material_keys:
+                out.append(E.ObjectMaterials(key, rec.material_keys))
+            if not np.array_equal(old.matrix, rec.matrix):
+                out.append(E.ObjectTransform(key, rec.matrix))
+        gone = [k for k in self.objects if k not in objects]
+        alive = None
+        if gone or invisible:
+            alive = exists() if exists is not None else set()
+        for key in gone:
+            if key in snap.hidden or (not isinstance(key, tuple) and key in alive):
+                invisible[key] = self.objects[key]
+                out.append(E.ObjectVisibility(key, False))
+            else:
+                out.append(E.ObjectDelete(key))
+        for key in [k for k in invisible if k not in snap.hidden and not (
+                not isinstance(k, tuple) and k in alive)]:
+            del invisible[key]
+            out.append(E.ObjectDelete(key))
+        for key, light in snap.lights.items():
+            if self.lights.get(key) != light:
+                out.append(E.LightSet(key, light))
+        out += [E.LightDelete(k) for k in self.lights if k not in snap.lights]
+        if snap.world != self.world:
+            out.append(E.WorldColor(snap.world))
+        cam = camera if camera is not None else snap.camera
+        if cam is not None and not same_camera(cam, self.camera):
+            out.append(E.CameraChange(cam))
+        mirror = dict(objects=objects, invisible=invisible, meshes=meshes,
+                      materials=materials, lights=dict(snap.lights), world=snap.world,
+                      camera=cam if cam is not None else self.camera)
+        kinds: dict = {}
+        for e in out:
+            kinds[type(e).__name__] = kinds.get(type(e).__name__, 0) + 1
+        stats = dict(snap.stats, edits=len(out), edit_kinds=kinds,
+                     diff_seconds=time.perf_counter() - t0)
+        return SyncResult(out, snap, stats, mirror)
+
+    def commit(self, result: SyncResult) -> None:
+        """The session now holds ``result``: the mirror follows."""
+        m = result._mirror
+        if m is None:
+            return
+        self.objects, self.invisible = m["objects"], m["invisible"]
+        self.meshes, self.materials = m["meshes"], m["materials"]
+        self.lights, self.world, self.camera = m["lights"], m["world"], m["camera"]
+        self.synced = True
+
+    def camera_edit(self, camera: Camera) -> list:
+        """The edit for a new camera alone (viewport navigation), committed at once."""
+        if same_camera(camera, self.camera):
+            return []
+        self.camera = camera
+        return [E.CameraChange(camera)]
+
+    def scene(self, snap: export.Snapshot, camera: Camera | None = None):
+        """A whole :class:`Scene` for ``snap`` (a new session, or update_scene)."""
+        return export.build_scene(snap, self.cache, camera)
+
+
+def existing_objects() -> set:
+    """session_uids of every object in the file (to tell hidden from deleted)."""
+    import bpy
+
+    return {ob.session_uid for ob in bpy.data.objects}

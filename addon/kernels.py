@@ -1,0 +1,155 @@
+"""First use: compile (or load from numba's cache) the kernels in the background.
+
+On a fresh install the first render compiles every kernel it touches, which takes a minute
+or more on two cores. :func:`start_warmup` starts that work on a background thread as soon
+as the add-on is enabled with RSTrace as a scene's engine, the engine is selected, or a
+viewport starts: it renders a tiny built-in scene in the chosen mode only (BASE touches the
+tracer's kernels; INTERPOLANT adds the interpolant kernels) through
+``runtime.warm_cache`` (``rstrace_engine.warm_cache.warm``, the same warm-up as the
+``rstrace.warm_cache`` operator and ``python -m rstrace_engine warm-cache``, restricted to
+that mode and the BVH), with the render lock held, so the kernels are compiled (or loaded)
+once and a real render afterwards only runs them.
+:func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
+bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signature.
+
+The thread never touches ``bpy``; :func:`stop` asks it to stop between kernels and joins it
+(unregister).
+
+Layer: imports ``runtime`` (and ``rstrace_engine``); imported by ``viewport``, ``engine``
+and the package ``__init__``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import threading
+import time
+
+from . import runtime
+
+log = logging.getLogger(__name__)
+
+#: The kernels a mode's frames call (each compiles the njit helpers it inlines): what a
+#: viewport session of that mode runs on its first image, its first full frame and its
+#: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
+#: that every name exists); the progress counts these.
+_BASE = ("accel.bvh.build_flat", "accel.bvh.collapse4", "accel.bvh.trace_kernel",
+         "geometry.cameras.generate_rays", "tracing.whitted._surface_kernel",
+         "tracing.whitted._shadow_kernel", "tracing.whitted._shade_kernel",
+         "tracing.whitted._light_masks", "tracing.whitted._scatter_add",
+         "tracing.whitted._accumulate", "tracing.pixel_records._encode_nodes",
+         "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
+         "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays")
+_INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
+                "interpolants.cache._group_active", "interpolants.cache._pixel_lines",
+                "interpolants.cache._settle", "interpolants.cache._walk",
+                "interpolants.linetree._assign_roots", "interpolants.linetree._collapse_pass",
+                "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
+                "interpolants.membership._valid", "interpolants.ray_segment_tree.live_tunnels",
+                "interpolants.ray_segment_tree.query_list", "interpolants.render._finish",
+                "interpolants.render._to_trace")
+MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
+
+_state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
+          "started_at": None, "seconds": {}, "error": None}
+_lock = threading.Lock()
+
+
+def dispatchers(mode: str) -> list:
+    """The numba dispatchers of :data:`MODE_KERNELS` for ``mode`` (missing names skipped)."""
+    found = []
+    for name in MODE_KERNELS.get(mode, MODE_KERNELS["INTERPOLANT"]):
+        module, _, attr = name.rpartition(".")
+        try:
+            mod = importlib.import_module(f"rstrace_engine.{module}")
+        except ImportError:
+            continue
+        d = getattr(mod, attr, None)
+        if d is not None and hasattr(d, "signatures"):
+            found.append(d)
+    return found
+
+
+def counts(mode: str = "BASE") -> tuple[int, int]:
+    """(kernels compiled or loaded in this process, kernels ``mode`` uses)."""
+    ds = dispatchers(mode)
+    return sum(1 for d in ds if d.signatures), len(ds)
+
+
+def ready(mode: str = "BASE") -> bool:
+    return mode in _state["modes_done"]
+
+
+def progress_text() -> str | None:
+    """"compiling kernels 12/40" while a warm-up runs; None when none is running."""
+    t = _state["thread"]
+    if t is None or not t.is_alive():
+        return None
+    done, total = counts(_state["mode"])
+    if done >= total:
+        return None  # all in memory: only the tiny warm-up frame itself is left
+    verb = "compiling" if runtime.kernel_status() and "compiling" in runtime.kernel_status() \
+        else "loading"
+    return f"{verb} kernels {done}/{total}"
+
+
+def _warm(mode: str) -> None:
+    """Compile (or load) every kernel ``mode`` uses: ``rstrace_engine.warm_cache.warm`` for
+    that mode and the BVH (the viewport's coarse image, frames, a camera move, an edit and
+    the incremental frame after it), the farm's warm-up restricted to one mode."""
+    stop = lambda: _state["stop"]  # noqa: E731
+    if stop():
+        return
+    result = runtime.warm_cache(modes=(mode,), accelerators=("BVH",), cancel=stop,
+                                report_unreached=False)
+    if not result.get("cancelled") and not stop():
+        _state["modes_done"].add(mode)
+        _state["seconds"][mode] = result["seconds"]
+        log.info("RSTrace: %s kernels ready in %.1f s (%d compiled, %d loaded)", mode,
+                 result["seconds"], result["compiled"], result["loaded"])
+
+
+def _run(modes: list[str]) -> None:
+    for mode in modes:
+        if _state["stop"]:
+            return
+        _state["mode"] = mode
+        try:
+            _warm(mode)
+        except Exception as exc:  # the real render will report it properly
+            _state["error"] = f"{type(exc).__name__}: {exc}"
+            log.exception("RSTrace kernel warm-up failed")
+            return
+
+
+def start_warmup(mode: str = "BASE") -> bool:
+    """Start compiling/loading the kernels ``mode`` uses (BASE first), unless done or
+    running. Returns True when a thread was started."""
+    modes = ["BASE"] + (["INTERPOLANT"] if mode == "INTERPOLANT" else [])
+    todo = [m for m in modes if m not in _state["modes_done"]]
+    with _lock:
+        t = _state["thread"]
+        if not todo or (t is not None and t.is_alive()):
+            return False
+        _state["stop"] = False
+        _state["started_at"] = time.perf_counter()
+        t = threading.Thread(target=_run, args=(todo,), name="rstrace-kernels", daemon=True)
+        _state["thread"] = t
+        t.start()
+    return True
+
+
+def wait(timeout: float | None = None) -> bool:
+    """Block until the warm-up thread is done; True when it is."""
+    t = _state["thread"]
+    if t is not None:
+        t.join(timeout)
+        return not t.is_alive()
+    return True
+
+
+def stop(timeout: float = 60.0) -> bool:
+    """Ask the warm-up to stop (it finishes the kernel being compiled) and join it."""
+    _state["stop"] = True
+    return wait(timeout)

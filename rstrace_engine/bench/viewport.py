@@ -1,0 +1,255 @@
+"""The viewport session without Blender: edit -> first coarse image -> full image.
+
+``python -m rstrace_engine.bench viewport [--json] [--width W] [--height H] [--threads N]
+[--modes BASE,INTERPOLANT] [--repeat R] [--no-cold]``
+
+On *museum* (640x480, 2 threads by default) a :class:`~rstrace_engine.interactive.
+ViewportWorker` renders the view; after it has refined its frame, one edit is submitted
+and the benchmark records the time from the submission to the first coarse image and to
+the first full-resolution image (best of ``--repeat``), for "move one small object",
+"change a material colour" and "orbit the camera 2 degrees". The interrupt latency is the
+time from a submission made while a full frame is being rendered to the worker abandoning
+that frame. ``cold_start_s`` / ``warm_start_s``: a fresh Python process from import to the
+first viewport image, with an empty numba cache directory (everything compiled) and with
+the cache this run filled.
+
+``--json`` prints ``{"rows": [{"scene", "edit", "mode", "first_image_ms",
+"full_image_ms", "interrupt_ms"}], "cold_start_s": ..., "warm_start_s": ...}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from .. import scenes
+from ..frame import RenderSettings
+from ..geometry import edits as E
+from ..interactive import ViewportWorker
+from ..session import Session
+
+#: museum keys (the core's default keys are the names): a sculpture near the camera, the
+#: bronze of every other sculpture
+SMALL_OBJECT, MATERIAL = "Sculpture0462", "bronze"
+EDITS = ("move one small object", "change a material colour", "orbit the camera 2°")
+
+
+def _orbit(camera, degrees: float, target=(2.0, 4.0, 1.0)):
+    a = math.radians(degrees)
+    rot = np.eye(4)
+    rot[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+    t = np.eye(4)
+    t[:3, 3] = target
+    ti = np.eye(4)
+    ti[:3, 3] = -np.asarray(target)
+    return replace(camera, matrix=t @ rot @ ti @ camera.matrix)
+
+
+def _edit(session, name: str, step: int):
+    """The edits (or the new camera) of benchmark edit ``name``, step ``step``."""
+    scene = session.scene
+    if name == EDITS[0]:
+        m = scene.instances[scene.instance_slot(SMALL_OBJECT)]["matrix"].copy()
+        m[0, 3] += 0.05 if step % 2 == 0 else -0.05
+        return [E.ObjectTransform(SMALL_OBJECT, m)], None
+    if name == EDITS[1]:
+        old = scene.materials[scene.material_id(MATERIAL)]
+        colour = (0.35, 0.22, 0.1) if step % 2 else (0.2, 0.3, 0.5)
+        return [E.MaterialSet(MATERIAL, replace(old, diffuse=colour))], None
+    return None, _orbit(scene.camera, 2.0 * (step + 1))
+
+
+def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) -> list[dict]:
+    scene = scenes.build(scene_name, width, height)
+    settings = RenderSettings(mode=mode)
+    session = Session(scene, settings)
+    lock = threading.Lock()
+    worker = ViewportWorker(lock, samples=4)
+    camera = scene.camera
+    try:
+        worker.submit(prepare=lambda: session, camera=camera, settings=settings)
+        worker.wait_idle(600)  # warm: compile/load, build interpolants
+        rows = []
+        for name in EDITS:
+            firsts, fulls, interrupts = [], [], []
+            for step in range(repeat):
+                worker.wait_idle(600)
+                edits, new_cam = _edit(session, name, step)
+                prepare = (lambda ed=edits: (session.apply(ed), session)[1]) if edits \
+                    else None
+                worker.stats["stages"].clear()
+                job = worker.submit(prepare=prepare, camera=new_cam)
+                if new_cam is not None:
+                    camera = new_cam
+                worker.wait_idle(600)
+                # the worker's own clock: from this submission to each stage's image
+                st = worker.stats["stages"]
+                if worker.latest().job == job and "full_ms" in st:
+                    firsts.append(st.get("coarse_ms", math.nan))
+                    fulls.append(st["full_ms"])
+                # interrupt: re-submit while the next full frame is being rendered
+                worker.wait_idle(600)
+                n_before = len(worker.stats["interrupts"])
+                job = worker.submit(camera=_orbit(camera, 0.5))
+                worker.wait_for(lambda im, j=job: im.job == j, 60)
+                time.sleep(0.5 * max(worker.stats["stages"].get("full_ms", 20.0)
+                                     - worker.stats["stages"].get("coarse_ms", 0.0), 2.0)
+                           / 1e3)
+                worker.submit(camera=camera)
+                worker.wait_idle(600)
+                if len(worker.stats["interrupts"]) > n_before:
+                    interrupts.append(1e3 * worker.stats["interrupts"][-1])
+            rows.append(dict(scene=scene_name, edit=name, mode=mode,
+                             first_image_ms=_best(firsts), full_image_ms=_best(fulls),
+                             interrupt_ms=_worst(interrupts)))
+        return rows
+    finally:
+        worker.stop()
+
+
+def picture(path, scene_name: str = "museum", width: int = 320, height: int = 240) -> dict:
+    """A strip for the README: the coarse first image (1/8 resolution, stretched), the full
+    image, and the frame after moving one sculpture with its dirty pixels in white."""
+    from ..image import to_display, write_png
+
+    scene = scenes.build(scene_name, width, height)
+    session = Session(scene, RenderSettings())
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        job = worker.submit(prepare=lambda: session, camera=scene.camera,
+                            settings=session.settings)
+        coarse = worker.wait_for(lambda im: im.job == job, 600)
+        worker.wait_idle(600)
+        full = worker.latest()
+        near = "Sculpture0126"  # a sculpture near the camera, where the change shows
+        m = session.scene.instances[session.scene.instance_slot(near)]["matrix"].copy()
+        m[0, 3] += 0.4
+        moved = [E.ObjectTransform(near, m)]
+        seen = {}
+
+        def prepare():
+            seen["report"] = session.apply(moved)
+            seen["mask"] = session.dirty_mask
+            return session
+
+        worker.submit(prepare=prepare)
+        worker.wait_idle(600)
+        after = worker.latest()
+    finally:
+        worker.stop()
+    f = max(1, width // coarse.rgba.shape[1])
+    big = np.repeat(np.repeat(coarse.rgba[..., :3], f, axis=0), f, axis=1)
+    panels = [to_display(big[:height, :width]), to_display(full.rgba[..., :3])]
+    shown = to_display(after.rgba[..., :3]) * 0.4
+    if seen.get("mask") is not None:
+        shown[seen["mask"]] = 1.0
+    panels.append(shown)
+    gap = np.ones((height, 4, 3))
+    strip = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], axis=1)
+    write_png(path, strip)
+    rep = seen.get("report")
+    return dict(coarse_stretch=f,
+                dirty_fraction=None if rep is None else rep.dirty_fraction)
+
+
+def _best(values):
+    v = [x for x in values if not math.isnan(x)]
+    return round(min(v), 1) if v else None
+
+
+def _worst(values):
+    return round(max(values), 1) if values else None
+
+
+_START = """
+import time, sys
+t0 = time.perf_counter()
+import numba
+numba.set_num_threads({threads})
+from rstrace_engine import scenes
+from rstrace_engine.session import Session
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.interactive import ViewportWorker
+s = scenes.build("{scene}", {w}, {h})
+ses = Session(s, RenderSettings(mode="{mode}"))
+wk = ViewportWorker(samples=1)
+wk.submit(prepare=lambda: ses, camera=s.camera, settings=ses.settings)
+img = wk.wait_for(lambda im: True, 900)
+wk.stop()
+print(time.perf_counter() - t0 if img is not None else -1.0)
+"""
+
+
+def start_time(scene: str, mode: str, w: int, h: int, threads: int,
+               cache_dir: str | None) -> float:
+    """Seconds from a fresh interpreter's import to its first viewport image."""
+    env = dict(os.environ)
+    if cache_dir is not None:
+        env["NUMBA_CACHE_DIR"] = cache_dir
+    code = _START.format(threads=threads, scene=scene, w=w, h=h, mode=mode)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=1800)
+    try:
+        return round(float(out.stdout.strip().splitlines()[-1]), 2)
+    except (ValueError, IndexError):
+        return -1.0
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m rstrace_engine.bench viewport")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--scene", default="museum")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--modes", default="BASE,INTERPOLANT")
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--no-cold", action="store_true", help="skip the cold-start measurement")
+    p.add_argument("--picture", default=None,
+                   help="also write the README's strip (coarse | full | dirty after a move)")
+    args = p.parse_args(argv)
+    import numba
+
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    rows = []
+    for mode in args.modes.split(","):
+        rows += measure(args.scene, mode, args.width, args.height, args.repeat)
+    result: dict = dict(rows=rows, threads=args.threads, width=args.width,
+                        height=args.height)
+    first_mode = args.modes.split(",")[0]
+    if not args.no_cold:
+        with tempfile.TemporaryDirectory() as cold:
+            result["cold_start_s"] = start_time(args.scene, first_mode, args.width,
+                                                args.height, args.threads, cold)
+            result["warm_start_s"] = start_time(args.scene, first_mode, args.width,
+                                                args.height, args.threads, cold)
+    else:
+        result["warm_start_s"] = start_time(args.scene, first_mode, args.width, args.height,
+                                            args.threads, None)
+    if args.picture:
+        result["picture"] = picture(args.picture, args.scene)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    print(f"viewport on {args.scene} {args.width}x{args.height}, {args.threads} threads")
+    print(f"{'edit':28s} {'mode':12s} {'first ms':>9s} {'full ms':>9s} {'interrupt ms':>13s}")
+    for r in rows:
+        print(f"{r['edit']:28s} {r['mode']:12s} {r['first_image_ms']!s:>9s} "
+              f"{r['full_image_ms']!s:>9s} {r['interrupt_ms']!s:>13s}")
+    for k in ("cold_start_s", "warm_start_s"):
+        if k in result:
+            print(f"{k}: {result[k]}")
+    return 0
+
+
+__all__ = ["main", "measure", "start_time"]

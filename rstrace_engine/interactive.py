@@ -1,0 +1,362 @@
+"""Interactive (viewport) rendering of a :class:`~rstrace_engine.session.Session` on a
+worker thread: progressive refinement, interruption, and the newest image for the host.
+
+A host (the Blender add-on's viewport, or ``python -m rstrace_engine.bench viewport``)
+owns a :class:`ViewportWorker` and calls :meth:`ViewportWorker.submit` whenever something
+changed: new edits (a ``prepare`` callable that applies them to the session and returns the
+session, run on the worker under the render lock), a new view camera, new settings or a new
+size. Each submission interrupts the frame in progress (the renderers poll ``cancel``
+between tiles of :data:`VIEW_TILE_RAYS` rays) and starts over with
+
+1. a *coarse* frame at 1/:data:`COARSE_FACTOR` resolution (the base tracer; a few thousand
+   rays), so something appears within tens of milliseconds of any edit;
+2. the *full*-resolution frame in the session's mode (BASE: the base tracer in tiles;
+   INTERPOLANT: radiance interpolants, which are view-independent and survive camera
+   moves);
+3. *refinement* while idle: further jittered samples per pixel (stratified, the base
+   tracer) averaged in, up to ``samples`` in all.
+
+After each stage the newest :class:`ViewImage` replaces the previous one and ``notify()``
+is called (on the worker thread: the host must only set a flag or schedule a redraw).
+Kernels are numba ``nogil``: the worker runs while the host's main thread keeps going. The
+worker never touches the host's data; :meth:`ViewportWorker.stop` interrupts and joins it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .frame import CLASS_BACKGROUND, RenderSettings
+from .geometry.cameras import camera_params, camera_rays, pixel_jitter
+from .geometry.edits import CameraChange
+from .geometry.scene import Camera, SceneError
+from .tracing.batches import SERIAL_BELOW, threads_for
+from .tracing.whitted import _accumulate, trace
+
+log = logging.getLogger(__name__)
+
+#: Primary rays per tile of an interactive frame: the cancel poll granularity (about 15 ms
+#: of tracing on 2 idle cores for a depth-5 scene); at least ``batches.SERIAL_BELOW`` so
+#: that full-resolution tiles run on every thread (smaller batches, like the coarse frame's,
+#: run on one: on a busy machine each parallel region costs a scheduler time slice).
+VIEW_TILE_RAYS = SERIAL_BELOW
+#: The coarse first frame's resolution divisor.
+COARSE_FACTOR = 8
+
+STAGE_COARSE, STAGE_FULL, STAGE_REFINE = "coarse", "full", "refine"
+
+
+@dataclass
+class ViewImage:
+    """One displayable image of the view (rows bottom-up, scene-linear RGBA float32).
+
+    ``rgba`` may be smaller than the view (the coarse stage): the host stretches it over
+    the view. ``border`` is the rendered region (x, y, w, h) in view pixels (None: all);
+    pixels outside it have alpha 0.
+    """
+
+    rgba: np.ndarray  # (h, w, 4) float32
+    stage: str
+    samples: int  # samples per pixel averaged in (0 for the coarse stage)
+    generation: int  # increases with every image the worker publishes
+    job: int  # the submission this image belongs to
+    view_size: tuple  # (width, height) of the view
+    border: tuple | None = None
+    stats: dict = field(default_factory=dict)
+
+
+def _rect_pixels(w: int, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+    rows = np.arange(y0, y1, dtype=np.int64)[:, None] * w
+    return (rows + np.arange(x0, x1, dtype=np.int64)[None, :]).reshape(-1)
+
+
+def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
+               border: tuple | None = None, sample: int = 0, samples: int = 1,
+               tile_rays: int = VIEW_TILE_RAYS):
+    """The base tracer's image of ``camera`` over the session's scene, in tiles.
+
+    sample, samples : which stratified sample of ``samples`` per pixel to take (0 of 1: the
+    pixel centre, exactly the base tracer's 1-sample frame). Returns ``(rgb (h, w, 3)
+    float32, pclass (h, w) uint8, done)``; ``done`` is False when ``cancel()`` stopped it
+    (the image then holds the tiles done so far).
+    """
+    sa = session.scene.arrays()
+    accel = session.accel
+    cp = camera_params(camera)
+    w, h = cp.width, cp.height
+    x0, y0, bw, bh = border if border is not None else (0, 0, w, h)
+    rgb = np.zeros((h * w, 3), np.float32)
+    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    rows = max(1, tile_rays // max(1, bw))
+    depth = int(settings.max_depth)
+    for ya in range(y0, y0 + bh, rows):
+        if cancel is not None and cancel():
+            return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
+        yb = min(y0 + bh, ya + rows)
+        pix = _rect_pixels(w, ya, yb, x0, x0 + bw)
+        if samples > 1:
+            jitter = pixel_jitter(len(pix), samples,
+                                  seed=int(settings.seed) * 1000003 + ya)[sample % samples]
+        else:
+            jitter = None
+        with threads_for(len(pix)):
+            o, d, tmin, tmax = camera_rays(cp, pix, jitter)
+            hits = session.accel.closest_hit(o, d, tmin, tmax)
+            rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits)
+            out = np.empty((len(pix), 3), np.float32)
+            cls = np.empty(len(pix), np.uint8)
+            _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
+        rgb[pix] = out
+        pclass[pix] = cls
+    return rgb.reshape(h, w, 3), pclass.reshape(h, w), True
+
+
+def coarse_camera(camera: Camera, factor: int = COARSE_FACTOR) -> Camera:
+    """``camera`` at 1/``factor`` resolution (same view: the sensor fit is made explicit,
+    since AUTO depends on the aspect that rounding may change)."""
+    w = max(1, camera.width // factor)
+    h = max(1, camera.height // factor)
+    fit = camera.sensor_fit
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if camera.width >= camera.height else "VERTICAL"
+        sensor = camera.sensor_width
+        camera = replace(camera, sensor_width=sensor, sensor_height=sensor)
+    return replace(camera, width=w, height=h, sensor_fit=fit)
+
+
+def _coarse_border(border, factor: int, w: int, h: int):
+    if border is None:
+        return None
+    x0, y0, bw, bh = border
+    cx0, cy0 = min(x0 // factor, w - 1), min(y0 // factor, h - 1)
+    cx1 = min(max(cx0 + 1, -(-(x0 + bw) // factor)), w)
+    cy1 = min(max(cy0 + 1, -(-(y0 + bh) // factor)), h)
+    return (cx0, cy0, cx1 - cx0, cy1 - cy0)
+
+
+def _rgba(rgb: np.ndarray, border, w: int, h: int) -> np.ndarray:
+    out = np.zeros((h, w, 4), np.float32)
+    out[..., :3] = rgb
+    if border is None:
+        out[..., 3] = 1.0
+    else:
+        x0, y0, bw, bh = border
+        out[y0:y0 + bh, x0:x0 + bw, 3] = 1.0
+    return out
+
+
+def same_camera(a: Camera | None, b: Camera | None) -> bool:
+    """True when two cameras give the same rays (matrices compared exactly)."""
+    if a is None or b is None:
+        return a is b
+    return (np.array_equal(a.matrix, b.matrix) and a.kind == b.kind and a.lens == b.lens
+            and a.sensor_width == b.sensor_width and a.sensor_height == b.sensor_height
+            and a.sensor_fit == b.sensor_fit and a.shift_x == b.shift_x
+            and a.shift_y == b.shift_y and a.clip_start == b.clip_start
+            and a.clip_end == b.clip_end and a.ortho_scale == b.ortho_scale
+            and a.width == b.width and a.height == b.height)
+
+
+def _mask_border(rgb: np.ndarray, border) -> np.ndarray:
+    if border is None:
+        return rgb
+    x0, y0, bw, bh = border
+    out = np.zeros_like(rgb)
+    out[y0:y0 + bh, x0:x0 + bw] = rgb[y0:y0 + bh, x0:x0 + bw]
+    return out
+
+
+class ViewportWorker:
+    """A render thread for one view (see the module docstring).
+
+    lock : held around every call that runs kernels (the host's render lock: the worker
+    never runs kernels concurrently with another render); notify() : called on the worker
+    thread when a new image is ready; samples : refinement target (samples per pixel).
+    """
+
+    def __init__(self, lock: threading.Lock | None = None, notify=None, samples: int = 4,
+                 coarse_factor: int = COARSE_FACTOR, tile_rays: int = VIEW_TILE_RAYS,
+                 name: str = "rstrace-viewport") -> None:
+        self.lock = lock if lock is not None else threading.Lock()
+        self.notify = notify
+        self.samples = max(1, int(samples))
+        self.coarse_factor = max(1, int(coarse_factor))
+        self.tile_rays = int(tile_rays)
+        self._cond = threading.Condition()
+        self._job: dict = dict(prepare=None, camera=None, settings=None, border=None)
+        self._pending_prepare: list = []
+        self._submitted = 0  # job counter
+        self._started = 0  # the job the worker is on
+        self._t_submit = 0.0
+        self._stop = False
+        self._image: ViewImage | None = None
+        self._generation = 0
+        self.error: str | None = None
+        self.last_frame = None  # the last full-resolution Frame (for scripts and tests)
+        self.stats: dict = dict(interrupts=[], stages={})
+        self._idle = threading.Event()
+        self._idle.set()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    # -- host side -------------------------------------------------------------------
+
+    def submit(self, prepare=None, camera: Camera | None = None,
+               settings: RenderSettings | None = None, border=False) -> int:
+        """Restart with what changed (None/False: unchanged). ``prepare()`` -> session runs
+        on the worker, under the lock, before the next frame (every prepare submitted is
+        run, in order). Returns the job number."""
+        with self._cond:
+            if prepare is not None:
+                self._pending_prepare.append(prepare)
+                self._job["prepare"] = prepare
+            if camera is not None:
+                self._job["camera"] = camera
+            if settings is not None:
+                self._job["settings"] = settings
+            if border is not False:
+                self._job["border"] = border
+            self._submitted += 1
+            self._t_submit = time.perf_counter()
+            self._idle.clear()
+            self._cond.notify_all()
+            return self._submitted
+
+    def latest(self) -> ViewImage | None:
+        """The newest image (never blocks)."""
+        return self._image
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Block until every submitted job has rendered all its stages (tests, benches)."""
+        return self._idle.wait(timeout)
+
+    def wait_for(self, predicate, timeout: float = 10.0) -> ViewImage | None:
+        """Block until ``predicate(latest image)`` holds; the image, or None on timeout."""
+        end = time.perf_counter() + timeout
+        while time.perf_counter() < end:
+            img = self._image
+            if img is not None and predicate(img):
+                return img
+            time.sleep(0.002)
+        return None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self, timeout: float = 10.0) -> bool:
+        """Interrupt the frame in progress and join the thread; True when it ended."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    # -- worker side -----------------------------------------------------------------
+
+    def _cancelled(self) -> bool:
+        return self._stop or self._submitted != self._started
+
+    def _publish(self, rgba, stage, samples, job, view_size, border, stats) -> None:
+        self._generation += 1
+        self._image = ViewImage(rgba, stage, samples, self._generation, job, view_size,
+                                border, stats)
+        if self.notify is not None:
+            try:
+                self.notify()
+            except Exception:  # a host callback must not kill the worker
+                log.exception("viewport notify failed")
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._stop and self._started == self._submitted:
+                    self._idle.set()
+                    self._cond.wait()
+                if self._stop:
+                    self._idle.set()
+                    return
+                self._started = job = self._submitted
+                t_job = self._t_submit
+                spec = dict(self._job)
+                prepares, self._pending_prepare = self._pending_prepare, []
+            try:
+                self._render_job(job, t_job, spec, prepares)
+            except SceneError as exc:
+                self.error = str(exc)
+                log.warning("viewport: %s", exc)
+            except Exception as exc:  # keep the thread alive; the host shows the error
+                self.error = f"internal error: {type(exc).__name__}: {exc}"
+                log.exception("viewport render failed")
+
+    def _interrupted(self) -> None:
+        """Record how long after the newest submission this job gave up."""
+        self.stats["interrupts"].append(max(0.0, time.perf_counter() - self._t_submit))
+
+    def _render_job(self, job: int, t_job: float, spec: dict, prepares: list) -> None:
+        camera, settings, border = spec["camera"], spec["settings"], spec["border"]
+        if camera is None or settings is None:
+            return
+        session = None
+        report = None
+        with self.lock:
+            for prepare in prepares or [spec["prepare"]]:
+                if prepare is not None:
+                    session = prepare()
+            if session is None:
+                return
+            # the session renders the view: its camera and settings follow the view
+            settings = replace(settings, samples=1)
+            if settings != session.settings:
+                session.update_settings(settings)
+            if not same_camera(session.scene.camera, camera):
+                report = session.apply([CameraChange(camera)])
+        self.error = None
+        w, h = camera.width, camera.height
+        times = self.stats["stages"]
+        # 1. coarse: the base tracer at 1/coarse_factor resolution
+        cam = coarse_camera(camera, self.coarse_factor)
+        cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
+        with self.lock:
+            rgb, _, done = trace_view(session, cam, settings, self._cancelled, cb,
+                                      tile_rays=self.tile_rays)
+        if not done:
+            return self._interrupted()
+        times["coarse_ms"] = 1e3 * (time.perf_counter() - t_job)
+        self._publish(_rgba(rgb, cb, cam.width, cam.height), STAGE_COARSE, 0, job, (w, h),
+                      border, dict(ms_since_edit=times["coarse_ms"]))
+        # 2. full resolution in the session's mode (incremental when only edits happened)
+        with self.lock:
+            frame = session.render(cancel=self._cancelled)
+        if frame.stats.get("cancelled"):
+            return self._interrupted()
+        times["full_ms"] = 1e3 * (time.perf_counter() - t_job)
+        fs = frame.stats
+        fstats = dict(ms_since_edit=times["full_ms"], mode=fs.get("mode"),
+                      incremental=fs.get("incremental"), dirty_fraction=fs.get("dirty_fraction"),
+                      interpolated_fraction=fs.get("interpolated_fraction"),
+                      render_ms=1e3 * fs.get("time_s", 0.0))
+        if report is not None:
+            fstats["camera_changed"] = True
+        rgb = _mask_border(frame.radiance, border)
+        acc = rgb.astype(np.float64)
+        self.last_frame = frame
+        self._publish(_rgba(rgb, border, w, h), STAGE_FULL, 1, job, (w, h), border, fstats)
+        # 3. refinement: further stratified samples (the pixel centre was sample 0 of 1)
+        n = self.samples
+        for k in range(1, n):
+            with self.lock:
+                rgb, _, done = trace_view(session, camera, settings, self._cancelled, border,
+                                          sample=k, samples=n, tile_rays=self.tile_rays)
+            if not done:
+                return self._interrupted()
+            acc += rgb
+            img = (acc / (k + 1)).astype(np.float32)
+            self._publish(_rgba(img, border, w, h), STAGE_REFINE, k + 1, job, (w, h), border,
+                          dict(fstats, ms_since_edit=1e3 * (time.perf_counter() - t_job)))

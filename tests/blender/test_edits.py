@@ -1,0 +1,278 @@
+"""Depsgraph updates -> edits, driven by real depsgraphs: each change is made with the data
+API, ``depsgraph_update_post`` hands the updates to :class:`addon.edits.SceneSync`, and the
+edits it produces are checked; then the F12 path applies them to the scene's persistent
+session and the frame must equal a fresh render (BASE bit for bit, INTERPOLANT within
+epsilon)."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+
+from . import builders as b
+from .test_glue import FakeEngine
+
+
+def _scene(width=32, height=24):
+    sc = b.three_spheres_scene(width, height)
+    sc.rstrace.samples = 1
+    return sc
+
+
+class Collector:
+    """Turns every depsgraph update batch into edits (as view_update does)."""
+
+    def __init__(self):
+        import addon
+
+        self.sync = addon.edits.SceneSync()
+        self.batches = []
+        dg = bpy.context.evaluated_depsgraph_get()
+        self._sync(dg, None)  # the first sync reads everything
+        bpy.app.handlers.depsgraph_update_post.append(self.handler)
+
+    def _sync(self, dg, dirty):
+        import addon
+
+        snap = self.sync.read(dg, dirty, "VIEWPORT", with_camera=False)
+        result = self.sync.diff(snap, exists=addon.edits.existing_objects)
+        self.sync.commit(result)
+        return result.edits
+
+    def handler(self, scene, dg):
+        import addon
+
+        dirty = addon.edits.dirty_from_updates(dg.updates)
+        self.batches.append([] if dirty is None else self._sync(dg, dirty))
+
+    def step(self, change):
+        """Make a change, update the depsgraph; the kinds of the edits it produced."""
+        n = len(self.batches)
+        change()
+        bpy.context.view_layer.update()
+        out = [e for batch in self.batches[n:] for e in batch]
+        return sorted(type(e).__name__ for e in out), out
+
+
+def test_each_change_gives_its_edits():
+    _scene()
+    red = bpy.data.objects["RedSphere"]
+    c = Collector()
+    uid = red.session_uid
+    kinds, out = c.step(lambda: setattr(red.location, "x", red.location.x + 0.3))
+    assert kinds == ["ObjectTransform"] and out[0].key == uid
+    assert np.allclose(out[0].matrix, np.array(red.matrix_world))
+    assert c.step(lambda: setattr(red.rotation_euler, "z", 0.4))[0] == ["ObjectTransform"]
+    assert c.step(lambda: setattr(red, "scale", (1.2, 1.2, 1.2)))[0] == ["ObjectTransform"]
+    # not edits: selection, colour management, a viewport display setting
+    assert c.step(lambda: red.select_set(True))[0] == []
+    sc = bpy.context.scene
+    assert c.step(lambda: setattr(sc.view_settings, "exposure", 1.0))[0] == []
+    assert c.step(lambda: setattr(red, "display_type", "WIRE"))[0] == []
+    # material colour: one MaterialSet, the mesh is not re-read
+    mat = red.active_material
+    kinds, out = c.step(lambda: setattr(mat.node_tree.nodes["Principled BSDF"].inputs[
+        "Base Color"], "default_value", (0.1, 0.9, 0.1, 1.0)))
+    assert kinds == ["MaterialSet"] and out[0].key == mat.session_uid
+    assert abs(out[0].material.diffuse[1] - out[0].material.diffuse[0]) > 0.3
+    lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+    kinds, out = c.step(lambda: setattr(lamp.data, "energy", lamp.data.energy * 2))
+    assert kinds == ["LightSet"] and out[0].key == lamp.session_uid
+    # vertices edited: that mesh only (shared by two spheres: one MeshSet)
+    me = red.data
+    users = [o for o in bpy.data.objects if o.data == me]
+    kinds, out = c.step(lambda: me.vertices[0].co.__setitem__(2, me.vertices[0].co.z + 0.2))
+    assert kinds == ["MeshSet"] and len(users) >= 1
+    # duplicate linked: the mesh is shared, nothing re-read
+    dup = red.copy()
+    kinds, out = c.step(lambda: sc.collection.objects.link(dup))
+    assert kinds == ["ObjectAdd"] and out[0].mesh_key == ("data", me.session_uid)
+    # hide from renders, show again; hide in the viewport; delete
+    assert c.step(lambda: setattr(dup, "hide_render", True))[0] == ["ObjectVisibility"]
+    kinds, out = c.step(lambda: setattr(dup, "hide_render", False))
+    assert kinds == ["ObjectVisibility"] and out[0].visible
+    kinds, out = c.step(lambda: setattr(dup, "hide_viewport", True))
+    assert kinds == ["ObjectVisibility"] and not out[0].visible
+    dup_uid = dup.session_uid
+    kinds, out = c.step(lambda: bpy.data.objects.remove(dup))
+    assert kinds == ["ObjectDelete"] and out[0].key == dup_uid
+    blue = bpy.data.objects["BlueSphere"]
+    kinds, out = c.step(lambda: bpy.data.objects.remove(blue))
+    assert kinds == ["ObjectDelete"]
+    # a new object with a new mesh; the world colour
+    kinds, out = c.step(lambda: b.add_object("Box", b.grid("BoxMesh", 1.0), (0, 0, 2.0)))
+    # (without a material it uses the default one, sent the first time it is needed)
+    assert kinds == ["MaterialSet", "MeshSet", "ObjectAdd"]
+    assert next(e for e in out if type(e).__name__ == "MaterialSet").key == "default"
+    kinds, _ = c.step(lambda: b.set_world((0.2, 0.1, 0.05)))
+    assert kinds == ["WorldColor"]
+
+
+def test_collection_instances_and_unlink():
+    _scene()
+    red = bpy.data.objects["RedSphere"]
+    coll = bpy.data.collections.new("Props")
+    c = Collector()
+    c.step(lambda: coll.objects.link(red))
+    empty = bpy.data.objects.new("Inst", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = coll
+    empty.location = (3.0, 0.0, 0.0)
+    kinds, out = c.step(lambda: bpy.context.scene.collection.objects.link(empty))
+    assert kinds == ["ObjectAdd"] and isinstance(out[0].key, tuple)
+    assert out[0].key[0] == empty.session_uid
+    kinds, out = c.step(lambda: setattr(empty.location, "y", 1.0))
+    assert kinds == ["ObjectTransform"] and out[0].key[0] == empty.session_uid
+    kinds, _ = c.step(lambda: bpy.context.scene.collection.objects.unlink(empty))
+    assert kinds == ["ObjectDelete"]  # the instance vanished (its instancer still exists)
+
+
+def test_undo_and_redo_keep_keys():
+    _scene()
+    red = bpy.data.objects["RedSphere"]
+    uid = red.session_uid
+    c = Collector()
+    bpy.ops.ed.undo_push(message="before")
+    c.step(lambda: setattr(red.location, "x", red.location.x + 1.0))
+    bpy.ops.ed.undo_push(message="moved")
+    kinds, out = c.step(lambda: bpy.ops.ed.undo())
+    # undo re-evaluates everything; only what really differs comes out as edits
+    assert "ObjectTransform" in kinds and all(k in ("ObjectTransform", "MeshSet")
+                                              for k in kinds)
+    assert {e.key for e in out if type(e).__name__ == "ObjectTransform"} == {uid}
+    assert "MeshSet" not in kinds
+    kinds, _ = c.step(lambda: bpy.ops.ed.redo())
+    assert kinds == ["ObjectTransform"]
+    assert bpy.data.objects["RedSphere"].session_uid == uid
+
+
+def _f12(fresh=False):
+    import addon
+
+    sc = bpy.context.scene
+    if fresh:
+        addon.session.drop_session(addon.session.state_for(sc))
+    engine = FakeEngine()
+    addon.session.FrameRenderer(engine).render(bpy.context.evaluated_depsgraph_get())
+    state = addon.session.state_for(sc)
+    assert not engine.errors, engine.errors
+    return state.frame.radiance.copy(), dict(state.stats)
+
+
+@pytest.mark.parametrize("mode", ["BASE", "INTERPOLANT"])
+def test_f12_after_edits_equals_a_fresh_render(mode):
+    sc = _scene(32, 24)
+    sc.rstrace.mode = mode
+    red = bpy.data.objects["RedSphere"]
+    lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+    mat = red.active_material
+    _f12()
+    changes = [
+        ("move", lambda: setattr(red.location, "x", red.location.x + 0.4)),
+        ("colour", lambda: setattr(mat.node_tree.nodes["Principled BSDF"].inputs[
+            "Base Color"], "default_value", (0.2, 0.6, 0.9, 1.0))),
+        ("power", lambda: setattr(lamp.data, "energy", lamp.data.energy * 0.5)),
+        ("hide", lambda: setattr(bpy.data.objects["BlueSphere"], "hide_render", True)),
+        ("delete", lambda: bpy.data.objects.remove(bpy.data.objects["MirrorSphere"])),
+    ]
+    eps = sc.rstrace.epsilon
+    for name, change in changes:
+        change()
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["edits"] >= 1 and not stats["new_session"], name
+        assert stats["meshes_read"] == 0, name  # nothing re-read but what changed
+        if mode == "BASE":
+            assert stats["incremental"] and stats["dirty_fraction"] < 1.0, name
+        ref, _ = _f12(fresh=True)
+        if mode == "BASE":
+            np.testing.assert_array_equal(inc, ref, err_msg=name)
+        else:
+            from rstrace_engine.image import to_display
+
+            err = np.abs(to_display(inc) - to_display(ref)).max()
+            assert err <= 2 * eps + 1e-6, (name, err)
+
+
+def test_shading_model_switch_rereads_the_cached_materials():
+    """The per-datablock material cache is per shading model: switching it between two F12
+    renders of one session converts every material again (MaterialSet edits), and the frame
+    equals a fresh render of the new model."""
+    sc = _scene(32, 24)
+    principled, _ = _f12()
+    sc.rstrace.shading_model = "WARD"
+    bpy.context.view_layer.update()
+    ward, stats = _f12()
+    assert not stats["new_session"] and stats["edit_kinds"].get("MaterialSet", 0) >= 3
+    ref, _ = _f12(fresh=True)
+    np.testing.assert_array_equal(ward, ref)
+    assert np.abs(ward - principled).max() > 1e-3  # the models shade differently
+
+
+def test_last_render_stats_is_documented_and_filled():
+    import addon
+
+    _scene(16, 12)
+    _f12()
+    stats = addon.last_render_stats(bpy.context.scene)
+    for key in ("sync_seconds", "apply_seconds", "render_seconds", "dirty_fraction",
+                "interpolated_fraction", "invalidated_interpolants", "memory_mb", "edits"):
+        assert key in stats and key in addon.last_render_stats.__doc__, key
+    assert stats["memory_mb"] > 0.0
+
+
+def test_animation_frames_pass_what_moved_as_edits():
+    sc = _scene(24, 18)
+    red = bpy.data.objects["RedSphere"]
+    red.keyframe_insert("location", frame=1)
+    red.location.x += 0.5
+    red.keyframe_insert("location", frame=2)
+    sc.frame_set(1)
+    _f12()
+    sc.frame_set(2)
+    inc, stats = _f12()
+    assert stats["edit_kinds"] == {"ObjectTransform": 1} and stats["meshes_read"] == 0
+    assert stats["incremental"] and stats["dirty_fraction"] < 1.0
+    ref, _ = _f12(fresh=True)
+    np.testing.assert_array_equal(inc, ref)
+
+
+def _instancer(target, count: int):
+    """An object whose geometry nodes put ``count`` instances of ``target`` on a line."""
+    ng = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = ng.nodes, ng.links
+    out = nodes.new("NodeGroupOutput")
+    line = nodes.new("GeometryNodeMeshLine")
+    line.inputs["Count"].default_value = count
+    line.inputs["Offset"].default_value = (0.0, 1.5, 0.0)
+    info = nodes.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = target
+    inst = nodes.new("GeometryNodeInstanceOnPoints")
+    links.new(line.outputs["Mesh"], inst.inputs["Points"])
+    links.new(info.outputs["Geometry"], inst.inputs["Instance"])
+    links.new(inst.outputs["Instances"], out.inputs["Geometry"])
+    holder = bpy.data.objects.new("Scatter", bpy.data.meshes.new("ScatterMesh"))
+    holder.modifiers.new("GN", "NODES").node_group = ng
+    holder.location = (-3.0, -2.0, 0.5)
+    return holder, line
+
+
+def test_geometry_node_instances_appear_and_vanish():
+    _scene()
+    red = bpy.data.objects["RedSphere"]
+    c = Collector()
+    holder, line = _instancer(red, 3)
+    kinds, out = c.step(lambda: bpy.context.scene.collection.objects.link(holder))
+    adds = [e for e in out if type(e).__name__ == "ObjectAdd"]
+    assert len(adds) == 3 and all(e.key[0] == holder.session_uid for e in adds)
+    assert kinds.count("MeshSet") == 1  # the instanced geometry, read once, shared by all
+    assert len({e.mesh_key for e in adds}) == 1
+    kinds, out = c.step(lambda: setattr(line.inputs["Count"], "default_value", 5))
+    assert kinds == ["ObjectAdd", "ObjectAdd"]  # same geometry: no MeshSet
+    kinds, out = c.step(lambda: setattr(line.inputs["Count"], "default_value", 1))
+    assert kinds.count("ObjectDelete") == 4 and "ObjectAdd" not in kinds
+    kinds, out = c.step(lambda: setattr(holder.location, "x", -2.0))
+    assert kinds == ["ObjectTransform"]

@@ -1,0 +1,121 @@
+"""The viewport session without Blender (rstrace_engine.interactive): progressive stages,
+edits through a prepare callable, interruption, stop, and images equal to the base
+tracer's."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rstrace_engine import scenes
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry import edits as E
+from rstrace_engine.geometry.scene import SceneError
+from rstrace_engine.interactive import (
+    STAGE_COARSE,
+    STAGE_FULL,
+    STAGE_REFINE,
+    ViewportWorker,
+    coarse_camera,
+    same_camera,
+    trace_view,
+)
+from rstrace_engine.session import Session
+from rstrace_engine.tracing.whitted import render
+
+
+@pytest.fixture
+def session():
+    scene = scenes.three_spheres(48, 36, subdivisions=2)
+    return Session(scene, RenderSettings(max_depth=2))
+
+
+def test_trace_view_is_the_base_tracer(session):
+    cam = session.scene.camera
+    rgb, cls, done = trace_view(session, cam, session.settings, tile_rays=500)
+    ref = render(session.scene, replace(session.settings, samples=1), accel=session.accel)
+    assert done
+    np.testing.assert_array_equal(rgb, ref.radiance)
+    np.testing.assert_array_equal(cls, ref.pixel_class)
+    # a border renders only its rectangle; cancel stops between tiles
+    rgb_b, _, _ = trace_view(session, cam, session.settings, border=(5, 6, 10, 7))
+    np.testing.assert_array_equal(rgb_b[6:13, 5:15], ref.radiance[6:13, 5:15])
+    assert rgb_b.sum() == rgb_b[6:13, 5:15].sum()
+    calls = []
+    _, _, done = trace_view(session, cam, session.settings, tile_rays=48 * 4,
+                            cancel=lambda: len(calls) > 2 or calls.append(1))
+    assert not done
+
+
+def test_coarse_camera_keeps_the_view():
+    cam = scenes.three_spheres(64, 40).camera
+    c = coarse_camera(cam, 8)
+    assert (c.width, c.height) == (8, 5) and c.sensor_fit == "HORIZONTAL"
+    tall = replace(cam, width=40, height=64)
+    assert coarse_camera(tall, 8).sensor_fit == "VERTICAL"
+    assert same_camera(cam, replace(cam)) and not same_camera(cam, c)
+
+
+def test_worker_stages_edits_interrupt_and_stop(session):
+    lock = threading.Lock()
+    ready = []
+    worker = ViewportWorker(lock, notify=lambda: ready.append(1), samples=3)
+    try:
+        cam = session.scene.camera
+        job = worker.submit(prepare=lambda: session, camera=cam, settings=session.settings)
+        assert worker.wait_idle(300)
+        img = worker.latest()
+        assert img.job == job and img.stage == STAGE_REFINE and img.samples == 3
+        assert img.rgba.shape == (36, 48, 4) and len(ready) == 4  # coarse, full, 2 refines
+        ref = render(session.scene, replace(session.settings, samples=1), accel=session.accel)
+        np.testing.assert_array_equal(worker.last_frame.radiance, ref.radiance)
+        # an edit: applied on the worker, then coarse -> full (incremental: camera unchanged)
+        key = session.scene.instances[1]["key"]
+        m = session.scene.instances[1]["matrix"].copy()
+        m[0, 3] += 0.2
+        stages = []
+        worker.notify = lambda: stages.append(worker.latest().stage)
+        job = worker.submit(prepare=lambda: (session.apply([E.ObjectTransform(key, m)]),
+                                             session)[1])
+        assert worker.wait_idle(300)
+        assert stages[:2] == [STAGE_COARSE, STAGE_FULL]
+        full = worker.last_frame
+        assert full.stats["incremental"] and full.stats["dirty_fraction"] < 1.0
+        fresh = Session(session.scene, session.settings).render()
+        np.testing.assert_array_equal(full.radiance, fresh.radiance)
+        # interrupt: many refinement samples, then a camera move
+        worker.samples = 200
+        moved = replace(cam, matrix=cam.matrix.copy())
+        moved.matrix[0, 3] += 0.05
+        job = worker.submit(camera=moved)
+        assert worker.wait_for(lambda im: im.job == job and im.stage == STAGE_REFINE, 60)
+        n = len(worker.stats["interrupts"])
+        worker.samples = 2
+        job = worker.submit(camera=cam)
+        assert worker.wait_idle(300) and worker.latest().job == job
+        assert len(worker.stats["interrupts"]) == n + 1
+        # resize: same session, new size
+        small = replace(cam, width=24, height=18)
+        job = worker.submit(camera=small)
+        assert worker.wait_idle(300)
+        assert worker.latest().rgba.shape == (18, 24, 4) and worker.latest().job == job
+    finally:
+        assert worker.stop() and not worker.alive
+
+
+def test_worker_reports_errors_and_keeps_running(session):
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        def bad():
+            raise SceneError("object 'X': broken")
+
+        worker.submit(prepare=bad, camera=session.scene.camera, settings=session.settings)
+        assert worker.wait_idle(60) and "broken" in worker.error
+        worker.submit(prepare=lambda: session)
+        assert worker.wait_idle(300) and worker.error is None
+        assert worker.latest().stage == STAGE_FULL
+    finally:
+        worker.stop()

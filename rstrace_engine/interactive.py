@@ -35,8 +35,8 @@ from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
 from .geometry.edits import CameraChange
 from .geometry.scene import Camera, SceneError
-from .tracing.batches import SERIAL_BELOW, threads_for
-from .tracing.whitted import _accumulate, trace
+from .tracing.batches import SERIAL_BELOW, accumulate, threads_for
+from .tracing.whitted import trace
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
             rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits)
             out = np.empty((len(pix), 3), np.float32)
             cls = np.empty(len(pix), np.uint8)
-            _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
+            accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
         rgb[pix] = out
         pclass[pix] = cls
     return rgb.reshape(h, w, 3), pclass.reshape(h, w), True

@@ -150,7 +150,7 @@ class Session:
         (transform, geometry, deletion, visibility, materials assigned) and the objects
         using a material whose optical properties changed (a colour alone keeps them:
         trees hold geometry and exit paths only). The next RI_TREE frame also compares
-        per-slot fingerprints (:func:`~.ri_tree.render.instance_fingerprints`)."""
+        per-slot fingerprints (:func:`~.ri_tree.eligibility.instance_fingerprints`)."""
         if not self.ri_tree.caches or not (fx.objects or fx.materials):
             return
         slots = set(int(k) for k in fx.objects)

@@ -2,9 +2,9 @@
 
 Which objects get an RI-tree ("model only what a scene requires", seed 004 section 3.1):
 objects with a mirror or transmissive material (their exit rays are where tracing is
-expensive), at least :data:`MIN_TRIANGLES` triangles and no texture; in the thickness view
-every object of at least that size. Everything else is traced by a second accelerator over
-the other objects only.
+expensive), at least :data:`~.eligibility.MIN_TRIANGLES` triangles and no texture; in the
+thickness view every object of at least that size. Everything else is traced by a second
+accelerator over the other objects only.
 
 The wavefront is the base tracer's (:mod:`..tracing.whitted`): per level, every ray is
 intersected with the traced objects (``closest_hit``) and with the boxes of the RI-tree
@@ -25,7 +25,6 @@ usable corners), ``fail_nonlinear`` when the angular threshold failed.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import time
 
@@ -47,12 +46,11 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
 from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes
+from ..tracing.batches import accumulate, scatter_add
 from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import (
     _SH_TRACE,
     TILE_RAYS,
-    _accumulate,
-    _scatter_add,
     _shade_kernel,
     _shadow_kernel,
     _surface_kernel,
@@ -60,75 +58,13 @@ from ..tracing.whitted import (
 )
 from . import thickness as thick
 from .cache import RITreeCache
+from .eligibility import eligible, instance_fingerprints, subset
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS
 
 log = logging.getLogger(__name__)
 
-#: objects with fewer triangles are traced (cheaper than any tree)
-MIN_TRIANGLES = 200
-
 # candidate kinds
 _QUERY, _TRACE = 0, 1
-
-
-def eligible(sa, thickness_view: bool, min_triangles: int = MIN_TRIANGLES) -> np.ndarray:
-    """Which instances get an RI-tree: (I,) bool (module doc)."""
-    n_tri = np.diff(sa.mesh_tri_start)[sa.inst_mesh]
-    out = (n_tri >= int(min_triangles)) & sa.inst_alive  # a dead slot (tombstone): no tree
-    for k in np.flatnonzero(out):
-        mats = sa.inst_mat[sa.inst_mat_start[k]:sa.inst_mat_start[k + 1]]
-        if np.any(sa.mat_tex[mats] >= 0):
-            out[k] = False
-        elif not thickness_view and not np.any(
-                (sa.mat_mirror[mats] > 0).any(axis=1) | (sa.mat_transmission[mats] > 0).any(
-                    axis=1)):
-            out[k] = False
-    return out
-
-
-def subset(sa, keep: np.ndarray):
-    """The scene packing restricted to instances ``keep`` (ids renumbered)."""
-    keep = np.asarray(keep, np.int64)
-    starts = sa.inst_mat_start
-    mats = [sa.inst_mat[starts[k]:starts[k + 1]] for k in keep]
-    lens = np.array([len(m) for m in mats], np.int64)
-    return sa._replace(
-        inst_mesh=np.ascontiguousarray(sa.inst_mesh[keep]),
-        inst_xform=np.ascontiguousarray(sa.inst_xform[keep]),
-        inst_inv=np.ascontiguousarray(sa.inst_inv[keep]),
-        inst_nmat=np.ascontiguousarray(sa.inst_nmat[keep]),
-        inst_aabb=np.ascontiguousarray(sa.inst_aabb[keep]),
-        inst_alive=np.ascontiguousarray(sa.inst_alive[keep]),
-        inst_mat_start=np.concatenate([[0], np.cumsum(lens)]).astype(np.int32),
-        inst_mat=(np.concatenate(mats).astype(np.int32) if len(mats)
-                  else np.zeros(0, np.int32)))
-
-
-def instance_fingerprints(sa) -> list[bytes]:
-    """Per instance: a hash of what its RI-tree depends on (mesh, transform, materials'
-    mirror / transmission / IOR). Lights and colours do not matter to geometry."""
-    out = []
-    tstart = sa.mesh_tri_start
-    mesh_keys = {}
-    for k in range(len(sa.inst_mesh)):
-        m = int(sa.inst_mesh[k])
-        if m not in mesh_keys:
-            h = hashlib.blake2b(digest_size=16)
-            tris = sa.tris[tstart[m]:tstart[m + 1]]
-            rng = slice(tstart[m], tstart[m + 1])
-            for a in (tris, sa.verts[tris.min():tris.max() + 1], sa.tri_normals[rng],
-                      sa.tri_slot[rng]):
-                h.update(np.ascontiguousarray(a).view(np.uint8))
-            mesh_keys[m] = h.digest()
-        h = hashlib.blake2b(mesh_keys[m], digest_size=16)
-        mats = sa.inst_mat[sa.inst_mat_start[k]:sa.inst_mat_start[k + 1]]
-        for a in (sa.inst_xform[k], sa.mat_mirror[mats], sa.mat_transmission[mats],
-                  sa.mat_ior[mats], sa.mat_model[mats], sa.mat_specular[mats],
-                  sa.mat_specular_ior[mats], sa.mat_metallic[mats], sa.mat_metal[mats],
-                  sa.inst_alive[k:k + 1]):
-            h.update(np.ascontiguousarray(a).view(np.uint8))
-        out.append(h.digest())
-    return out
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -523,7 +459,7 @@ class RITreeRenderer:
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
             _shade_kernel(sa, prim_safe, H["u"], H["v"], P, NG, NS, VD, enter, mat, vis, weight,
                           True, contrib, c_o, c_d, c_w, c_ok)
-            _scatter_add(radiance, src, contrib)
+            scatter_add(radiance, src, contrib)
             stop = level >= max_depth
             c_ok[0::2] &= ~stop
             c_ok[1::2] &= ~stop
@@ -593,7 +529,7 @@ class RITreeRenderer:
                 rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
                                                    int(settings.max_depth), counters)
             tile_cls = np.empty(len(pix), np.uint8)
-            bad_total += _accumulate(rad, pinst, spp, image[y0 * w:y1 * w], tile_cls)
+            bad_total += accumulate(rad, pinst, spp, image[y0 * w:y1 * w], tile_cls)
             # a pixel's class: that of its first sample that hit something
             c = cls.reshape(spp, len(pix))
             firsthit = np.argmax(c != CLASS_BACKGROUND, axis=0)
@@ -726,7 +662,7 @@ def render_thickness_exact(scene, settings: RenderSettings, accel, progress=None
         o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
         length = thick.walk(sa, through, o, dr, tmin, tmax)
         inst = np.where(length > 0, 0, -1).astype(np.int32)
-        _accumulate(thick.display(length, dist), inst, spp, image[y0 * w:y1 * w],
+        accumulate(thick.display(length, dist), inst, spp, image[y0 * w:y1 * w],
                     pclass[y0 * w:y1 * w])
         if progress is not None:
             progress(y1 / h, f"thickness {y1}/{h} rows")

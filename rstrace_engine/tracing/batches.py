@@ -12,7 +12,10 @@ from contextlib import contextmanager
 
 import numba
 import numpy as np
+from numba import njit, prange
 
+from .. import tolerances as tol
+from ..frame import CLASS_BACKGROUND, CLASS_TRACED
 from ..geometry.cameras import pixel_jitter
 
 #: Rays per batch in :func:`~.whitted.render` (primary rays of one tile of rows, all samples).
@@ -69,3 +72,58 @@ def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
             yield (np.concatenate(pend_pix), np.ascontiguousarray(np.concatenate(pend_jit, 1)),
                    y1)
             pend_pix, pend_jit, n_pend = [], [], 0
+
+
+# ----------------------------------------------------------------------------- samples
+
+
+@njit(cache=True, nogil=True)
+def scatter_add(dst, idx, src):
+    """``dst[idx[i]] += src[i]`` for (n, 3) rows (serial: indices may repeat)."""
+    for i in range(idx.shape[0]):
+        k = idx[i]
+        dst[k, 0] += src[i, 0]
+        dst[k, 1] += src[i, 1]
+        dst[k, 2] += src[i, 2]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def accumulate(rad, inst, spp, out, pclass):
+    """Average ``spp`` samples per pixel into ``out``, leaving out broken samples.
+
+    rad : (spp * m, 3) float64 sample radiance, sample-major (sample s of pixel p at row
+    ``s * m + p``); inst : (spp * m,) int32 primary hit instance. Outputs: out (m, 3)
+    float32 mean of the finite samples not above ``RADIANCE_MAX`` (0 if none), pclass (m,)
+    uint8 ``CLASS_TRACED`` when some sample hit, else ``CLASS_BACKGROUND``. Returns the
+    number of samples left out.
+    """
+    m = out.shape[0]
+    bad = np.zeros(m, np.int64)
+    for p in prange(m):
+        r = 0.0
+        g = 0.0
+        b = 0.0
+        good = 0
+        hit = False
+        for s in range(spp):
+            k = s * m + p
+            hit = hit or inst[k] >= 0
+            x, y, z = rad[k, 0], rad[k, 1], rad[k, 2]
+            # written so that NaN fails the test
+            if (abs(x) <= tol.RADIANCE_MAX and abs(y) <= tol.RADIANCE_MAX
+                    and abs(z) <= tol.RADIANCE_MAX):
+                r += x
+                g += y
+                b += z
+                good += 1
+            else:
+                bad[p] += 1
+        if good > 0:
+            r /= good
+            g /= good
+            b /= good
+        out[p, 0] = r
+        out[p, 1] = g
+        out[p, 2] = b
+        pclass[p] = CLASS_TRACED if hit else CLASS_BACKGROUND
+    return bad.sum()

@@ -45,10 +45,10 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator
-from ..frame import CLASS_BACKGROUND, CLASS_TRACED, Frame, RenderSettings
+from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
-from .batches import TILE_RAYS, frame_batches, threads_for  # noqa: F401 - TILE_RAYS re-exported
+from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for  # noqa: F401 - TILE_RAYS re-exported
 from .shading import (
     dot3,
     fresnel_dielectric,
@@ -407,58 +407,6 @@ def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spaw
             c_w[k, 2] = cb
 
 
-@njit(cache=True, nogil=True)
-def _scatter_add(dst, idx, src):
-    """``dst[idx[i]] += src[i]`` for (n, 3) rows (serial: indices may repeat)."""
-    for i in range(idx.shape[0]):
-        k = idx[i]
-        dst[k, 0] += src[i, 0]
-        dst[k, 1] += src[i, 1]
-        dst[k, 2] += src[i, 2]
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _accumulate(rad, inst, spp, out, pclass):
-    """Average ``spp`` samples per pixel into ``out``, leaving out broken samples.
-
-    rad : (spp * m, 3) float64 sample radiance, sample-major (sample s of pixel p at row
-    ``s * m + p``); inst : (spp * m,) int32 primary hit instance. Outputs: out (m, 3)
-    float32 mean of the finite samples not above ``RADIANCE_MAX`` (0 if none), pclass (m,)
-    uint8 ``CLASS_TRACED`` when some sample hit, else ``CLASS_BACKGROUND``. Returns the
-    number of samples left out.
-    """
-    m = out.shape[0]
-    bad = np.zeros(m, np.int64)
-    for p in prange(m):
-        r = 0.0
-        g = 0.0
-        b = 0.0
-        good = 0
-        hit = False
-        for s in range(spp):
-            k = s * m + p
-            hit = hit or inst[k] >= 0
-            x, y, z = rad[k, 0], rad[k, 1], rad[k, 2]
-            # written so that NaN fails the test
-            if (abs(x) <= tol.RADIANCE_MAX and abs(y) <= tol.RADIANCE_MAX
-                    and abs(z) <= tol.RADIANCE_MAX):
-                r += x
-                g += y
-                b += z
-                good += 1
-            else:
-                bad[p] += 1
-        if good > 0:
-            r /= good
-            g /= good
-            b /= good
-        out[p, 0] = r
-        out[p, 1] = g
-        out[p, 2] = b
-        pclass[p] = CLASS_TRACED if hit else CLASS_BACKGROUND
-    return bad.sum()
-
-
 # ----------------------------------------------------------------------------- driver
 
 
@@ -578,7 +526,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         c_ok = np.empty(2 * nb, np.bool_)
         _shade_kernel(sa, hits.prim, hits.u, hits.v, P, NG, NS, VD, enter, mat, vis, weight,
                       spawn, contrib, c_o, c_d, c_w, c_ok)
-        _scatter_add(radiance, src, contrib)
+        scatter_add(radiance, src, contrib)
         if segments is not None:
             traced = np.empty(nb, np.uint64)
             lit = np.empty(nb, np.uint64)
@@ -699,7 +647,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
                 records.add(gids, segs)
             out = np.empty((npx, 3), np.float32)
             pc = np.empty(npx, np.uint8)
-            bad_total += _accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp, out,
+            bad_total += accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp, out,
                                      pc)
         image[pix] = out
         pclass[pix] = pc

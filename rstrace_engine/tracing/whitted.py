@@ -48,7 +48,7 @@ from ..accel.accelerators import Hits, create_accelerator
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
-from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for  # noqa: F401 - TILE_RAYS re-exported
+from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .shading import (
     dot3,
     fresnel_dielectric,

@@ -220,6 +220,9 @@ class InterpolantCache:
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
+        #: what the last full frame leaves for reprojected visibility (:mod:`.reproject`);
+        #: dropped by edits
+        self.view = None
         self.setup_s = time.perf_counter() - t0
 
     # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
@@ -318,11 +321,13 @@ class InterpolantCache:
     def invalidate(self, regions, objects=(), lights=(), materials=(), world: bool = False,
                    light_shading=()) -> Invalidation:
         """Invalidate what an edit may change (:func:`.invalidation.invalidate`)."""
+        self.view = None
         return invalidate(self, regions, objects, lights, materials, world, light_shading)
 
     def set_scene(self, sa, accel):
         """Go on with the edited scene, keeping every valid interpolant; invalidates what
         changed that :meth:`invalidate` was not told of (:func:`.invalidation.set_scene`)."""
+        self.view = None
         return set_scene(self, sa, accel)
 
     def rst_memory_bytes(self) -> int:

@@ -35,6 +35,7 @@ from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .cache import InterpolantCache
+from .reproject import remember, reproject
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,41 @@ def _finish(rad, radmax, ray_class, good, counts):
             bad += 1
         counts[ray_class[r]] += 1
     return bad
+
+
+def _merge_hits(cache, rep, o, d, tmin, tmax, exact: bool):
+    """Visible hits of a frame's rays when some were reprojected: closest-hit rays for the
+    others. Returns ``(hits, walk_hits)``: in ``hits`` a reprojected ray has its object and
+    the middle of its slab (its exact hit on the object alone when ``exact``: pixel records
+    keep it), in ``walk_hits`` it is a miss (the walk leaves it alone)."""
+    n = len(o)
+    got = rep.interp >= 0
+    rest = np.flatnonzero(~got)
+    accel_hits = cache.accel.closest_hit(o[rest], d[rest], tmin[rest], tmax[rest])
+    t = rep.tmid.copy()
+    inst = np.full(n, -1, np.int32)
+    prim = np.full(n, -1, np.int32)
+    u = np.zeros(n)
+    v = np.zeros(n)
+    t[rest], inst[rest], prim[rest], u[rest], v[rest] = accel_hits
+    walk = Hits(t, inst.copy(), prim, u, v)  # the reprojected rays' other fields unused
+    g = np.flatnonzero(got)
+    inst[g] = cache.trees.arrays.tree[cache.pool.node[rep.interp[g]]] // 6
+    if exact and len(g):
+        h = cache.accel.intersect_object(inst[g], o[g], d[g], tmin[g], tmax[g])
+        t[g], prim[g], u[g], v[g] = h.t, h.prim, h.u, h.v
+    return Hits(t, inst, prim, u, v), walk
+
+
+def _merge_result(res, rep):
+    """A resolve result with the reprojected rays' interpolation put in."""
+    g = rep.interp >= 0
+    rad, done, pcls, pint = res.radiance, res.interpolated, res.pixel_class, res.interpolant
+    rad[g] = rep.radiance[g]
+    done[g] = True
+    pcls[g] = rep.pixel_class[g]
+    pint[g] = rep.interp[g]
+    return res
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
@@ -125,12 +161,25 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     counters: dict = {}
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        hits = accel.closest_hit(o, d, tmin, tmax)
+        # a full frame after a full frame of this cache: the rays whose interpolant is
+        # found by reprojection (reproject.py) need no visibility ray; an incremental frame
+        # keeps its camera
+        view = cache.view if pixels is None else None
+        cache.view = None
+        rep = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
+        if rep is None:
+            hits = accel.closest_hit(o, d, tmin, tmax)
+            walk_hits = hits
+        else:
+            hits, walk_hits = _merge_hits(cache, rep, o, d, tmin, tmax, records is not None)
         t_vis = time.perf_counter()
         if progress is not None:
             progress(0.2, "visibility")
-        face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-        res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits)
+        face, abcd, zp, clsp = cache.pixel_lines(walk_hits, o, d)
+        res = cache.resolve(walk_hits.inst, face, abcd, zp, clsp, cancel=cancel,
+                            hits=walk_hits)
+        if rep is not None:  # the reprojected rays, interpolated already
+            res = _merge_result(res, rep)
         t_res = time.perf_counter()
         if progress is not None:
             progress(0.7, "interpolants")
@@ -157,6 +206,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 if records is not None:
                     records.add(gids[part], segs)
     t_trace = time.perf_counter()
+    if pixels is None and not cancelled:
+        cache.view = remember(pix, res.interpolant, o, d, hits.t, w, h)
     good = np.empty(n, np.bool_)
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
@@ -187,6 +238,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,
         build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
         trace_s=t_trace - t_res,
+        # samples whose visible hit came from reprojection instead of a closest-hit ray
+        reprojected_fraction=0.0 if rep is None else float(np.count_nonzero(rep.interp >= 0))
+        / max(n, 1),
         # of the whole frame (kept pixels included)
         interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
         / max(len(pclass), 1),

@@ -1,0 +1,301 @@
+"""Reprojected visibility (seed 000, section 2, and its reference [2]): after a camera move,
+the pixels that the previous frame interpolated find their interpolant from that frame,
+with neither a closest-hit ray nor a walk down the linetrees -- conservatively: a ray is
+reprojected only where its visible surface is proven to be the interpolant's.
+
+Per frame that follows a full frame of the same cache (no edit between, perspective camera):
+
+1. **Candidates.** Each pixel of the previous frame that was interpolated leaves its
+   interpolant at its pixel, and its hit point is projected into the new camera (forward
+   reprojection; the previous value stays where nothing lands: the gaps). One candidate
+   interpolant per pixel, for all its samples.
+2. **Cells, once per frame and candidate** (``_cells_ok``), from the new eye ``E``:
+   (a) the Haines-Wallace shaft from ``E`` to the world box of the interpolant's slab
+   hexahedron (the lines of its cell between its certified depths ``z_lo, z_hi``) meets no
+   triangle of any other object; (b) the eye lies in front of the slab (depth below
+   ``z_lo``), and the object has no triangle in the hexahedron of the cell's lines between
+   the eye's depth (at least 0, the front face) and ``z_lo``; (c) the slab box is within the
+   camera's clipping range; (d) the interpolant's corner samples carry no texture term (a
+   textured pixel needs its own hit for its texel).
+3. **Rays** (``_reproject_rays``): the ray's face pair is the cell's and its line
+   coordinates (unclamped) lie in the cell; then it is interpolated at once.
+
+Why that is the ray's visible surface: every line of a valid cell crosses the object
+exactly once between ``z_lo`` and ``z_hi`` (the slab guarantee, INTERPOLANTS.md); along the
+ray, depth grows (the face pair is the ray's dominant direction), so before that crossing
+the ray runs first through the near hexahedron, where (b) leaves no triangle of the object,
+then through the slab, where the crossing is the only one. The segment from ``E`` to the
+crossing lies in the shaft of (a), so no other object is crossed before it, and (c) keeps
+it inside the ray's ``[tmin, tmax]``. So the crossing is the ray's closest hit, the leaf
+its walk would reach is the candidate's, and the interpolated radiance is the one a
+closest-hit ray and a walk would give. Tests with slack move every plane outward.
+
+Every other ray (no candidate, another cell, a failed test -- disocclusions, silhouettes,
+cells that an object now hides) gets its closest-hit ray and walk as before. A reprojected
+ray has no hit record; where one is needed (incremental records) its hit on the object
+alone is computed.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT
+from ..geometry.cameras import CameraParams
+from .linetree import corner_weight, dominant_face, face_frame
+from .shafts import MAX_PLANES, hexa_planes, hw_shaft, mesh_any, other_geometry, to_object
+
+
+class View(NamedTuple):
+    """What a full frame leaves for the next one's reprojection."""
+
+    width: int
+    height: int
+    same_pixel: np.ndarray  # (h * w,) int32 interpolant of the pixel's first interpolated
+    # sample, else -1
+    points: np.ndarray  # (m, 3) float32 hit point of each such sample
+    interp: np.ndarray  # (m,) int32 its interpolant
+
+
+@njit(cache=True, nogil=True)
+def _remember(pix, pinterp, o, d, t, same_pixel, points, pq):
+    """Fill a :class:`View` from a frame's rays (sample-major over ``pix``): per pixel, its
+    first interpolated sample; returns their number."""
+    k = pix.shape[0]
+    m = 0
+    for r in range(pinterp.shape[0]):
+        q = pinterp[r]
+        if q < 0 or same_pixel[pix[r % k]] >= 0 or not math.isfinite(t[r]):
+            continue
+        same_pixel[pix[r % k]] = q
+        for c in range(3):
+            points[m, c] = o[r, c] + d[r, c] * t[r]
+        pq[m] = q
+        m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _splat(cp, points, interp, cand):
+    """Forward reprojection: each point's interpolant at the pixel it projects to
+    (perspective camera)."""
+    m = cp.xform
+    w = cp.width
+    h = cp.height
+    for p in range(points.shape[0]):
+        x = points[p, 0] - m[0, 3]
+        y = points[p, 1] - m[1, 3]
+        z = points[p, 2] - m[2, 3]
+        cx = x * m[0, 0] + y * m[1, 0] + z * m[2, 0]
+        cy = x * m[0, 1] + y * m[1, 1] + z * m[2, 1]
+        cz = -(x * m[0, 2] + y * m[1, 2] + z * m[2, 2])
+        if not cz > 0.0:
+            continue
+        px = np.floor((cx / cz - cp.x0) / cp.pixsize)
+        py = np.floor((cy / cz - cp.y0) / cp.pixsize)
+        if not (0 <= px < w and 0 <= py < h):
+            continue
+        cand[int(py) * w + int(px)] = interp[p]
+
+
+@njit(cache=True, nogil=True)
+def _cell_hexa(box, inst, face, depth, coord, z0, z1, V):
+    """The 8 vertices of the hexahedron of a cell's lines between depths z0 and z1 (the
+    vertex order of :func:`.shafts.hexa_planes`)."""
+    k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+    s = 1.0 / (1 << depth)
+    for v in range(8):
+        z = z1 if v & 4 else z0
+        f = z / L
+        bi = v & 1
+        bj = (v >> 1) & 1
+        V[v, k] = front - z if neg else front + z
+        V[v, i] = (1 - f) * (li + (coord[0] + bi) * s * wi) + f * (li + (coord[2] + bi) * s * wi)
+        V[v, j] = (1 - f) * (lj + (coord[1] + bj) * s * wj) + f * (lj + (coord[3] + bj) * s * wj)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, qlist, ok):
+    """Step 2 of the module doc: ``ok[u]`` when interpolant ``qlist[u]`` may be reprojected
+    from ``eye``. ``tnear``: the largest clip-start distance of any ray, ``tfar`` the
+    smallest clip-end distance."""
+    for u in prange(qlist.shape[0]):
+        q = qlist[u]
+        ok[u] = False
+        # (d) no texture term in the corner samples
+        textured = False
+        for c in range(16):
+            sid = isamples[q, c]
+            if dif[sid, 0] != 0.0 or dif[sid, 1] != 0.0 or dif[sid, 2] != 0.0:
+                textured = True
+        if textured:
+            continue
+        nd = inode[q]
+        tree = lt.tree[nd]
+        inst = tree // 6
+        face = tree % 6
+        k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+        ze = front - eye[k] if neg else eye[k] - front  # the eye's depth
+        zlo = izlo[q]
+        if not ze < zlo:
+            continue
+        V = np.empty((8, 3))
+        _cell_hexa(box, inst, face, lt.depth[nd], lt.coord[nd], zlo, izhi[q], V)
+        lo = np.empty(3)
+        hi = np.empty(3)
+        for m in range(3):
+            lo[m] = V[0, m]
+            hi[m] = V[0, m]
+            for v in range(1, 8):
+                lo[m] = min(lo[m], V[v, m])
+                hi[m] = max(hi[m], V[v, m])
+        # (c) the slab box within every ray's clipping range
+        dn = 0.0
+        df = 0.0
+        for m in range(3):
+            g = max(lo[m] - eye[m], 0.0, eye[m] - hi[m])
+            dn += g * g
+            gf = max(abs(lo[m] - eye[m]), abs(hi[m] - eye[m]))
+            df += gf * gf
+        if not (math.sqrt(dn) > tnear and math.sqrt(df) < tfar):
+            continue
+        plo = np.empty((MAX_PLANES, 4))
+        bbo = np.empty(6)
+        P = np.empty((MAX_PLANES + 8, 3))
+        Q = np.empty((MAX_PLANES + 8, 3))
+        # (a) nothing else between the eye and the slab
+        pl = np.empty((MAX_PLANES, 4))
+        bb = np.empty(6)
+        npl = hw_shaft(eye, eye, lo, hi, qs.slack, pl, bb)
+        named = np.empty(1, np.int32)
+        named[0] = inst
+        if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+            continue
+        # (b) nothing of the object itself between the eye (or the front face) and the slab
+        z0 = max(ze, 0.0)
+        if zlo - z0 > 1e-12 * L:
+            _cell_hexa(box, inst, face, lt.depth[nd], lt.coord[nd], z0, zlo, V)
+            hexa_planes(V, qs.slack, pl)
+            for m in range(3):
+                bb[m] = V[0, m]
+                bb[3 + m] = V[0, m]
+                for v in range(1, 8):
+                    bb[m] = min(bb[m], V[v, m])
+                    bb[3 + m] = max(bb[3 + m], V[v, m])
+                bb[m] -= qs.slack
+                bb[3 + m] += qs.slack
+            to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, 6, bb, plo, bbo)
+            if mesh_any(qs, qs.inst_mesh[inst], plo, 6, bbo, P, Q):
+                continue
+        ok[u] = True
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _reproject_rays(box, lt, inode, izlo, izhi, rad16, irebuilt, stamp, clock, cand, okq, o, d,
+                    rad, pinterp, pcls, tmid):
+    """Step 3: rays whose candidate ``cand[r]`` passed (``okq[cand[r]]``) and whose line lies
+    in its cell are interpolated (``pinterp[r]`` set, ``tmid[r]`` the ray parameter at the
+    middle of the slab, for the next frame's reprojection); the others keep
+    ``pinterp[r] = -1``."""
+    for r in prange(cand.shape[0]):
+        pinterp[r] = -1
+        q = cand[r]
+        if q < 0 or not okq[q]:
+            continue
+        nd = inode[q]
+        tree = lt.tree[nd]
+        inst = tree // 6
+        face = tree % 6
+        if dominant_face(d[r, 0], d[r, 1], d[r, 2]) != face:
+            continue
+        k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+        back = front - L if neg else front + L
+        tf = (front - o[r, k]) / d[r, k]
+        tb = (back - o[r, k]) / d[r, k]
+        s = float(1 << lt.depth[nd])
+        x0 = ((o[r, i] + tf * d[r, i] - li) / wi) * s - lt.coord[nd, 0]
+        x1 = ((o[r, j] + tf * d[r, j] - lj) / wj) * s - lt.coord[nd, 1]
+        x2 = ((o[r, i] + tb * d[r, i] - li) / wi) * s - lt.coord[nd, 2]
+        x3 = ((o[r, j] + tb * d[r, j] - lj) / wj) * s - lt.coord[nd, 3]
+        if not (0.0 <= x0 <= 1.0 and 0.0 <= x1 <= 1.0 and 0.0 <= x2 <= 1.0
+                and 0.0 <= x3 <= 1.0):
+            continue
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        for c in range(16):
+            w = corner_weight(c, x0, x1, x2, x3)
+            x += w * rad16[q, c, 0]
+            y += w * rad16[q, c, 1]
+            z += w * rad16[q, c, 2]
+        rad[r, 0] = x
+        rad[r, 1] = y
+        rad[r, 2] = z
+        pinterp[r] = q
+        pcls[r] = CLASS_REBUILT if irebuilt[q] else CLASS_INTERPOLATED
+        stamp[q] = clock
+        tmid[r] = tf + (tb - tf) * 0.5 * (izlo[q] + izhi[q]) / L
+
+
+def remember(pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
+             t: np.ndarray, width: int, height: int) -> View:
+    """The :class:`View` a full frame leaves (its interpolated samples; ``t`` their hit
+    distances)."""
+    same = np.full(width * height, -1, np.int32)
+    m = min(int(np.count_nonzero(pinterp >= 0)), len(pix))
+    points = np.empty((m, 3), np.float32)
+    pq = np.empty(m, np.int32)
+    m = _remember(np.ascontiguousarray(pix, np.int64), pinterp, o, d, t, same, points, pq)
+    return View(width, height, same, points[:m], pq[:m])
+
+
+class Reprojected(NamedTuple):
+    """Rays a frame interpolated by reprojection (``interp[r] >= 0``)."""
+
+    interp: np.ndarray  # (n,) int32 interpolant, -1 where not reprojected
+    radiance: np.ndarray  # (n, 3) float64 their radiance
+    pixel_class: np.ndarray  # (n,) uint8 their class
+    tmid: np.ndarray  # (n,) float64 ray parameter in the middle of their slab
+
+
+def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: int,
+              o, d, tmin, tmax) -> Reprojected | None:
+    """The rays of a frame (sample-major over ``pix``) whose interpolant is found by
+    reprojection (module doc); None when nothing can be reprojected."""
+    n = len(o)
+    if view is None or cp.ortho or view.width != cp.width or view.height != cp.height or n == 0:
+        return None
+    p = cache.pool
+    cand_pix = view.same_pixel.copy()
+    _splat(cp, view.points, view.interp, cand_pix)
+    # interpolants evicted or invalidated since (ids may have been reused: then the cell
+    # tests below run on the new one, which is as valid)
+    live = np.zeros(len(p.live) + 1, bool)
+    live[:len(p.live)] = p.live
+    cand_pix[~live[cand_pix]] = -1
+    uq = np.unique(cand_pix[cand_pix >= 0]).astype(np.int32)
+    if len(uq) == 0:
+        return None
+    ok = np.empty(len(uq), np.bool_)
+    eye = np.ascontiguousarray(cp.xform[:3, 3], np.float64)
+    # the rays' clipping distances (measured along the view axis, so they vary per ray)
+    tnear = float(np.max(tmin)) if len(tmin) else 0.0
+    tfar = float(np.min(tmax)) if len(tmax) else np.inf
+    dif = cache.samples.texture_terms()[0]
+    _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, dif, p.samples,
+              eye, tnear, tfar, uq, ok)
+    okq = np.zeros(len(p.live), np.bool_)
+    okq[uq[ok]] = True
+    cand = cand_pix[np.tile(np.asarray(pix, np.int64), spp)]
+    interp = np.empty(n, np.int32)
+    rad = np.zeros((n, 3))
+    pcls = np.zeros(n, np.uint8)
+    tmid = np.full(n, np.inf)
+    cache.clock += 1
+    _reproject_rays(cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, p.rad, p.rebuilt, p.stamp,
+                    cache.clock, cand, okq, o, d, rad, interp, pcls, tmid)
+    return Reprojected(interp, rad, pcls, tmid)

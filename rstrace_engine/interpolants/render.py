@@ -80,39 +80,76 @@ def _finish(rad, radmax, ray_class, good, counts):
     return bad
 
 
+def _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax, exact, cancel):
+    """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
+    :meth:`~.cache.InterpolantCache.resolve` of rays sample-major over ``pix``. Returns
+    ``(hits, resolve result, rays reprojected)``; ``cache.frame_stats`` gets
+    ``visibility_s``."""
+    tv = time.perf_counter()
+    rep = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
+    if rep is None:
+        hits = walk_hits = cache.accel.closest_hit(o, d, tmin, tmax)
+    else:
+        hits, walk_hits = _merge_hits(cache, rep, o, d, tmin, tmax, exact)
+    tv = time.perf_counter() - tv
+    face, abcd, zp, clsp = cache.pixel_lines(walk_hits, o, d)
+    res = cache.resolve(walk_hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=walk_hits)
+    cache.frame_stats["visibility_s"] = tv
+    if rep is None:
+        return hits, res, 0
+    _merge_result(rep.interp, rep.radiance, rep.pixel_class, res.radiance, res.interpolated,
+                  res.pixel_class, res.interpolant)
+    return hits, res, int(np.count_nonzero(rep.interp >= 0))
+
+
+def _add_stats(a: dict, b: dict) -> dict:
+    """Frame statistics of two resolves together."""
+    out = dict(a)
+    for key, val in b.items():
+        if key == "reasons":
+            r = dict(a.get("reasons", {}))
+            for x, c in val.items():
+                r[x] = r.get(x, 0) + c
+            out["reasons"] = r
+        elif isinstance(val, (int, float)):
+            out[key] = a.get(key, 0) + val
+    return out
+
+
 def _merge_hits(cache, rep, o, d, tmin, tmax, exact: bool):
     """Visible hits of a frame's rays when some were reprojected: closest-hit rays for the
-    others. Returns ``(hits, walk_hits)``: in ``hits`` a reprojected ray has its object and
-    the middle of its slab (its exact hit on the object alone when ``exact``: pixel records
+    others (a reprojected ray gets an empty clipping range: it leaves the BVH at once).
+    Returns ``(hits, walk_hits)``: in ``hits`` a reprojected ray has its object and the
+    middle of its slab (its exact hit on the object alone when ``exact``: pixel records
     keep it), in ``walk_hits`` it is a miss (the walk leaves it alone)."""
-    n = len(o)
-    got = rep.interp >= 0
-    rest = np.flatnonzero(~got)
-    accel_hits = cache.accel.closest_hit(o[rest], d[rest], tmin[rest], tmax[rest])
-    t = rep.tmid.copy()
-    inst = np.full(n, -1, np.int32)
-    prim = np.full(n, -1, np.int32)
-    u = np.zeros(n)
-    v = np.zeros(n)
-    t[rest], inst[rest], prim[rest], u[rest], v[rest] = accel_hits
-    walk = Hits(t, inst.copy(), prim, u, v)  # the reprojected rays' other fields unused
-    g = np.flatnonzero(got)
+    g = np.flatnonzero(rep.interp >= 0)
+    hi = np.array(np.broadcast_to(tmax, (len(o),)), np.float64)
+    hi[g] = -1.0
+    walk = cache.accel.closest_hit(o, d, tmin, hi)
+    t, inst, prim, u, v = (a.copy() for a in walk)
     inst[g] = cache.trees.arrays.tree[cache.pool.node[rep.interp[g]]] // 6
+    t[g] = rep.tmid[g]
     if exact and len(g):
-        h = cache.accel.intersect_object(inst[g], o[g], d[g], tmin[g], tmax[g])
+        lo = np.broadcast_to(tmin, (len(o),))
+        h = cache.accel.intersect_object(inst[g], o[g], d[g], lo[g], tmax[g] if np.ndim(tmax)
+                                         else tmax)
         t[g], prim[g], u[g], v[g] = h.t, h.prim, h.u, h.v
     return Hits(t, inst, prim, u, v), walk
 
 
-def _merge_result(res, rep):
-    """A resolve result with the reprojected rays' interpolation put in."""
-    g = rep.interp >= 0
-    rad, done, pcls, pint = res.radiance, res.interpolated, res.pixel_class, res.interpolant
-    rad[g] = rep.radiance[g]
-    done[g] = True
-    pcls[g] = rep.pixel_class[g]
-    pint[g] = rep.interp[g]
-    return res
+@njit(cache=True, nogil=True)
+def _merge_result(interp, rrad, rcls, rad, done, pcls, pinterp):
+    """Puts the reprojected rays' interpolation (``interp[r] >= 0``) into a resolve result."""
+    for r in range(interp.shape[0]):
+        q = interp[r]
+        if q < 0:
+            continue
+        rad[r, 0] = rrad[r, 0]
+        rad[r, 1] = rrad[r, 1]
+        rad[r, 2] = rrad[r, 2]
+        done[r] = True
+        pcls[r] = rcls[r]
+        pinterp[r] = q
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
@@ -162,24 +199,29 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
         # a full frame after a full frame of this cache: the rays whose interpolant is
-        # found by reprojection (reproject.py) need no visibility ray; an incremental frame
-        # keeps its camera
+        # found by reprojection (reproject.py) need neither a visibility ray nor a walk; an
+        # incremental frame keeps its camera
         view = cache.view if pixels is None else None
         cache.view = None
-        rep = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
-        if rep is None:
-            hits = accel.closest_hit(o, d, tmin, tmax)
-            walk_hits = hits
+        exact = records is not None
+        if spp == 1 or pixels is not None:
+            hits, res, n_rep = _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax,
+                                             exact, cancel)
+            fs = cache.frame_stats
         else:
-            hits, walk_hits = _merge_hits(cache, rep, o, d, tmin, tmax, records is not None)
-        t_vis = time.perf_counter()
-        if progress is not None:
-            progress(0.2, "visibility")
-        face, abcd, zp, clsp = cache.pixel_lines(walk_hits, o, d)
-        res = cache.resolve(walk_hits.inst, face, abcd, zp, clsp, cancel=cancel,
-                            hits=walk_hits)
-        if rep is not None:  # the reprojected rays, interpolated already
-            res = _merge_result(res, rep)
+            # several samples per pixel: the first sample of every pixel first; the others
+            # then reproject from it (same eye: a sample whose line lies in the cell its
+            # pixel's first sample was interpolated from costs a look-up, not a ray)
+            hits, res, n_rep = _resolve_part(cache, view, cp, pix, 1, o[:k], d[:k],
+                                             tmin[:k], tmax[:k], exact, cancel)
+            fs = dict(cache.frame_stats)
+            here = remember(pix, res.interpolant, o[:k], d[:k], hits.t, w, h)
+            hits2, res2, n_rep2 = _resolve_part(cache, here, cp, pix, spp - 1, o[k:], d[k:],
+                                                tmin[k:], tmax[k:], exact, cancel)
+            hits = Hits(*(np.concatenate([x, y]) for x, y in zip(hits, hits2, strict=True)))
+            res = type(res)(*(np.concatenate([x, y]) for x, y in zip(res, res2, strict=True)))
+            n_rep += n_rep2
+            fs = _add_stats(fs, cache.frame_stats)
         t_res = time.perf_counter()
         if progress is not None:
             progress(0.7, "interpolants")
@@ -233,14 +275,13 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
-    fs = cache.frame_stats
     stats = dict(
-        mode="INTERPOLANT", time_s=elapsed, visibility_s=t_vis - t0, resolve_s=t_res - t_vis,
+        mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
+        resolve_s=t_res - t0 - fs.get("visibility_s", 0.0),
         build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
         trace_s=t_trace - t_res,
         # samples whose visible hit came from reprojection instead of a closest-hit ray
-        reprojected_fraction=0.0 if rep is None else float(np.count_nonzero(rep.interp >= 0))
-        / max(n, 1),
+        reprojected_fraction=n_rep / max(n, 1),
         # of the whole frame (kept pixels included)
         interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
         / max(len(pclass), 1),

@@ -49,6 +49,9 @@ from ..geometry.cameras import CameraParams
 from .linetree import corner_weight, dominant_face, face_frame
 from .shafts import MAX_PLANES, hexa_planes, hw_shaft, mesh_any, other_geometry, to_object
 
+#: Reprojection on or off (benchmarks and tests compare; frames are the same either way).
+ENABLED = True
+
 
 class View(NamedTuple):
     """What a full frame leaves for the next one's reprojection."""
@@ -69,11 +72,15 @@ def _remember(pix, pinterp, o, d, t, same_pixel, points, pq):
     m = 0
     for r in range(pinterp.shape[0]):
         q = pinterp[r]
-        if q < 0 or same_pixel[pix[r % k]] >= 0 or not math.isfinite(t[r]):
+        if q < 0:
             continue
-        same_pixel[pix[r % k]] = q
-        for c in range(3):
-            points[m, c] = o[r, c] + d[r, c] * t[r]
+        i = pix[r - (r // k) * k]
+        if same_pixel[i] >= 0 or not math.isfinite(t[r]):
+            continue
+        same_pixel[i] = q
+        points[m, 0] = o[r, 0] + d[r, 0] * t[r]
+        points[m, 1] = o[r, 1] + d[r, 1] * t[r]
+        points[m, 2] = o[r, 2] + d[r, 2] * t[r]
         pq[m] = q
         m += 1
     return m
@@ -100,6 +107,25 @@ def _splat(cp, points, interp, cand):
         if not (0 <= px < w and 0 <= py < h):
             continue
         cand[int(py) * w + int(px)] = interp[p]
+
+
+@njit(cache=True, nogil=True)
+def _candidates(cand, live, seen, uq):
+    """Drops candidates no longer live (evicted or invalidated; a reused id is tested as
+    the new interpolant it is) and lists the others once in ``uq``; returns how many."""
+    m = 0
+    for i in range(cand.shape[0]):
+        q = cand[i]
+        if q < 0:
+            continue
+        if q >= live.shape[0] or not live[q]:
+            cand[i] = -1
+            continue
+        if not seen[q]:
+            seen[q] = True
+            uq[m] = q
+            m += 1
+    return m
 
 
 @njit(cache=True, nogil=True)
@@ -267,17 +293,17 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     """The rays of a frame (sample-major over ``pix``) whose interpolant is found by
     reprojection (module doc); None when nothing can be reprojected."""
     n = len(o)
-    if view is None or cp.ortho or view.width != cp.width or view.height != cp.height or n == 0:
+    if (not ENABLED or view is None or cp.ortho or view.width != cp.width
+            or view.height != cp.height or n == 0):
         return None
     p = cache.pool
     cand_pix = view.same_pixel.copy()
     _splat(cp, view.points, view.interp, cand_pix)
     # interpolants evicted or invalidated since (ids may have been reused: then the cell
     # tests below run on the new one, which is as valid)
-    live = np.zeros(len(p.live) + 1, bool)
-    live[:len(p.live)] = p.live
-    cand_pix[~live[cand_pix]] = -1
-    uq = np.unique(cand_pix[cand_pix >= 0]).astype(np.int32)
+    seen = np.zeros(len(p.live), np.bool_)
+    uq = np.empty(len(p.live), np.int32)
+    uq = uq[:_candidates(cand_pix, p.live, seen, uq)]
     if len(uq) == 0:
         return None
     ok = np.empty(len(uq), np.bool_)
@@ -288,8 +314,8 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     dif = cache.samples.texture_terms()[0]
     _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, dif, p.samples,
               eye, tnear, tfar, uq, ok)
-    okq = np.zeros(len(p.live), np.bool_)
-    okq[uq[ok]] = True
+    okq = seen  # reused: False where a cell is not proven
+    okq[uq[~ok]] = False
     cand = cand_pix[np.tile(np.asarray(pix, np.int64), spp)]
     interp = np.empty(n, np.int32)
     rad = np.zeros((n, 3))

@@ -348,19 +348,26 @@ class InterpolantCache:
                      directions, face, abcd, zp, clsp)
         return face, abcd, zp, clsp
 
-    def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None) -> ResolveResult:
+    def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None,
+                pre=None) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
         inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
         clsp from :meth:`pixel_lines`. hits: the rays' visible hits, needed when the scene
-        has textures (applied per ray, :func:`.samples.apply_textures`).
+        has textures (applied per ray, :func:`.samples.apply_textures`). pre: the arrays
+        ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
+        already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
-        rad = np.zeros((n, 3))
-        done = np.zeros(n, bool)
-        pinterp = np.full(n, -1, np.int32)
-        pcls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+        if pre is None:
+            rad = np.zeros((n, 3))
+            done = np.zeros(n, bool)
+            pinterp = np.full(n, -1, np.int32)
+            pcls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+        else:
+            rad, done, pcls, pinterp = pre
+            pcls[~done] = np.where(inst[~done] >= 0, CLASS_TRACED, CLASS_BACKGROUND)
         st = dict(cells_built=0, cells_valid=0, samples_traced=0, build_s=0.0, deps_s=0.0,
                   levels=0, reasons={})
         self.frame_stats = st

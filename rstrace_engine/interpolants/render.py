@@ -35,7 +35,7 @@ from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .cache import InterpolantCache
-from .reproject import remember, reproject
+from .reproject import mid_points, remember, reproject
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +50,13 @@ def _to_trace(inst, interp, world, rad, todo):
     not interpolated go to ``todo``. Returns their number."""
     k = 0
     for r in range(inst.shape[0]):
+        if interp[r]:  # reprojected rays are interpolated without a hit
+            continue
         if inst[r] < 0:
             rad[r, 0] = world[0]
             rad[r, 1] = world[1]
             rad[r, 2] = world[2]
-        elif not interp[r]:
+        else:
             todo[k] = r
             k += 1
     return k
@@ -83,23 +85,32 @@ def _finish(rad, radmax, ray_class, good, counts):
 def _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax, exact, cancel):
     """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
     :meth:`~.cache.InterpolantCache.resolve` of rays sample-major over ``pix``. Returns
-    ``(hits, resolve result, rays reprojected)``; ``cache.frame_stats`` gets
-    ``visibility_s``."""
+    ``(hits, resolve result, reprojected (n,) bool or None)``; ``cache.frame_stats`` gets
+    ``visibility_s``. A reprojected ray's hit is left a miss (its exact hit on its object
+    when ``exact``: pixel records keep it)."""
     tv = time.perf_counter()
-    rep = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
-    if rep is None:
-        hits = walk_hits = cache.accel.closest_hit(o, d, tmin, tmax)
+    rp = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
+    pre = None
+    if rp is None:
+        hits = cache.accel.closest_hit(o, d, tmin, tmax)
     else:
-        hits, walk_hits = _merge_hits(cache, rep, o, d, tmin, tmax, exact)
+        pre, hi, _ = rp
+        hits = cache.accel.closest_hit(o, d, tmin, hi)
     tv = time.perf_counter() - tv
-    face, abcd, zp, clsp = cache.pixel_lines(walk_hits, o, d)
-    res = cache.resolve(walk_hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=walk_hits)
+    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=pre)
     cache.frame_stats["visibility_s"] = tv
-    if rep is None:
-        return hits, res, 0
-    _merge_result(rep.interp, rep.radiance, rep.pixel_class, res.radiance, res.interpolated,
-                  res.pixel_class, res.interpolant)
-    return hits, res, int(np.count_nonzero(rep.interp >= 0))
+    if rp is None:
+        return hits, res, None
+    reprojected = hi < 0.0
+    if exact and np.any(reprojected):
+        g = np.flatnonzero(reprojected)
+        inst = cache.trees.arrays.tree[cache.pool.node[res.interpolant[g]]] // 6
+        lo = np.broadcast_to(tmin, (len(o),))
+        h = cache.accel.intersect_object(inst, o[g], d[g], lo[g], np.asarray(tmax)[g])
+        for full, part in zip(hits, h, strict=True):
+            full[g] = part
+    return hits, res, reprojected
 
 
 def _add_stats(a: dict, b: dict) -> dict:
@@ -114,42 +125,6 @@ def _add_stats(a: dict, b: dict) -> dict:
         elif isinstance(val, (int, float)):
             out[key] = a.get(key, 0) + val
     return out
-
-
-def _merge_hits(cache, rep, o, d, tmin, tmax, exact: bool):
-    """Visible hits of a frame's rays when some were reprojected: closest-hit rays for the
-    others (a reprojected ray gets an empty clipping range: it leaves the BVH at once).
-    Returns ``(hits, walk_hits)``: in ``hits`` a reprojected ray has its object and the
-    middle of its slab (its exact hit on the object alone when ``exact``: pixel records
-    keep it), in ``walk_hits`` it is a miss (the walk leaves it alone)."""
-    g = np.flatnonzero(rep.interp >= 0)
-    hi = np.array(np.broadcast_to(tmax, (len(o),)), np.float64)
-    hi[g] = -1.0
-    walk = cache.accel.closest_hit(o, d, tmin, hi)
-    t, inst, prim, u, v = (a.copy() for a in walk)
-    inst[g] = cache.trees.arrays.tree[cache.pool.node[rep.interp[g]]] // 6
-    t[g] = rep.tmid[g]
-    if exact and len(g):
-        lo = np.broadcast_to(tmin, (len(o),))
-        h = cache.accel.intersect_object(inst[g], o[g], d[g], lo[g], tmax[g] if np.ndim(tmax)
-                                         else tmax)
-        t[g], prim[g], u[g], v[g] = h.t, h.prim, h.u, h.v
-    return Hits(t, inst, prim, u, v), walk
-
-
-@njit(cache=True, nogil=True)
-def _merge_result(interp, rrad, rcls, rad, done, pcls, pinterp):
-    """Puts the reprojected rays' interpolation (``interp[r] >= 0``) into a resolve result."""
-    for r in range(interp.shape[0]):
-        q = interp[r]
-        if q < 0:
-            continue
-        rad[r, 0] = rrad[r, 0]
-        rad[r, 1] = rrad[r, 1]
-        rad[r, 2] = rrad[r, 2]
-        done[r] = True
-        pcls[r] = rcls[r]
-        pinterp[r] = q
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
@@ -205,22 +180,27 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         cache.view = None
         exact = records is not None
         if spp == 1 or pixels is not None:
-            hits, res, n_rep = _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax,
-                                             exact, cancel)
+            hits, res, rep = _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax,
+                                           exact, cancel)
             fs = cache.frame_stats
         else:
             # several samples per pixel: the first sample of every pixel first; the others
             # then reproject from it (same eye: a sample whose line lies in the cell its
             # pixel's first sample was interpolated from costs a look-up, not a ray)
-            hits, res, n_rep = _resolve_part(cache, view, cp, pix, 1, o[:k], d[:k],
-                                             tmin[:k], tmax[:k], exact, cancel)
+            hits, res, rep = _resolve_part(cache, view, cp, pix, 1, o[:k], d[:k], tmin[:k],
+                                           tmax[:k], exact, cancel)
             fs = dict(cache.frame_stats)
-            here = remember(pix, res.interpolant, o[:k], d[:k], hits.t, w, h)
-            hits2, res2, n_rep2 = _resolve_part(cache, here, cp, pix, spp - 1, o[k:], d[k:],
-                                                tmin[k:], tmax[k:], exact, cancel)
+            t1 = hits.t.copy()
+            if rep is not None:
+                mid_points(cache, res.interpolant, o[:k], d[:k], t1, rep)
+            here = remember(pix, res.interpolant, o[:k], d[:k], t1, w, h)
+            hits2, res2, rep2 = _resolve_part(cache, here, cp, pix, spp - 1, o[k:], d[k:],
+                                              tmin[k:], tmax[k:], exact, cancel)
             hits = Hits(*(np.concatenate([x, y]) for x, y in zip(hits, hits2, strict=True)))
             res = type(res)(*(np.concatenate([x, y]) for x, y in zip(res, res2, strict=True)))
-            n_rep += n_rep2
+            if rep is not None or rep2 is not None:
+                rep = np.concatenate([np.zeros(k, bool) if rep is None else rep,
+                                      np.zeros(n - k, bool) if rep2 is None else rep2])
             fs = _add_stats(fs, cache.frame_stats)
         t_res = time.perf_counter()
         if progress is not None:
@@ -249,7 +229,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     records.add(gids[part], segs)
     t_trace = time.perf_counter()
     if pixels is None and not cancelled:
-        cache.view = remember(pix, res.interpolant, o, d, hits.t, w, h)
+        t = hits.t
+        if rep is not None:
+            t = t.copy()
+            mid_points(cache, res.interpolant, o, d, t, rep)
+        cache.view = remember(pix, res.interpolant, o, d, t, w, h)
     good = np.empty(n, np.bool_)
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
@@ -281,7 +265,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
         trace_s=t_trace - t_res,
         # samples whose visible hit came from reprojection instead of a closest-hit ray
-        reprojected_fraction=n_rep / max(n, 1),
+        reprojected_fraction=0.0 if rep is None else float(np.count_nonzero(rep)) / max(n, 1),
         # of the whole frame (kept pixels included)
         interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
         / max(len(pclass), 1),

@@ -221,15 +221,17 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _reproject_rays(box, lt, inode, izlo, izhi, rad16, irebuilt, stamp, clock, cand, okq, o, d,
-                    rad, pinterp, pcls, tmid):
-    """Step 3: rays whose candidate ``cand[r]`` passed (``okq[cand[r]]``) and whose line lies
-    in its cell are interpolated (``pinterp[r]`` set, ``tmid[r]`` the ray parameter at the
-    middle of the slab, for the next frame's reprojection); the others keep
-    ``pinterp[r] = -1``."""
-    for r in prange(cand.shape[0]):
-        pinterp[r] = -1
-        q = cand[r]
+def _reproject_rays(box, lt, inode, rad16, irebuilt, stamp, clock, cand_pix, pix, okq, o, d,
+                    rad, done, pcls, pinterp, tmax):
+    """Step 3: a ray whose pixel's candidate ``cand_pix[pix[r % k]]`` passed (``okq``) and
+    whose line lies in its cell is interpolated (``rad, done, pcls, pinterp`` as
+    :meth:`~.cache.InterpolantCache.resolve` fills them) and gets ``tmax[r] = -1`` (an empty
+    clipping range: no closest hit). Returns how many."""
+    k = pix.shape[0]
+    n = o.shape[0]
+    got = 0
+    for r in prange(n):
+        q = cand_pix[pix[r % k]]
         if q < 0 or not okq[q]:
             continue
         nd = inode[q]
@@ -238,10 +240,10 @@ def _reproject_rays(box, lt, inode, izlo, izhi, rad16, irebuilt, stamp, clock, c
         face = tree % 6
         if dominant_face(d[r, 0], d[r, 1], d[r, 2]) != face:
             continue
-        k, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+        kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
         back = front - L if neg else front + L
-        tf = (front - o[r, k]) / d[r, k]
-        tb = (back - o[r, k]) / d[r, k]
+        tf = (front - o[r, kk]) / d[r, kk]
+        tb = (back - o[r, kk]) / d[r, kk]
         s = float(1 << lt.depth[nd])
         x0 = ((o[r, i] + tf * d[r, i] - li) / wi) * s - lt.coord[nd, 0]
         x1 = ((o[r, j] + tf * d[r, j] - lj) / wj) * s - lt.coord[nd, 1]
@@ -261,10 +263,30 @@ def _reproject_rays(box, lt, inode, izlo, izhi, rad16, irebuilt, stamp, clock, c
         rad[r, 0] = x
         rad[r, 1] = y
         rad[r, 2] = z
+        done[r] = True
         pinterp[r] = q
         pcls[r] = CLASS_REBUILT if irebuilt[q] else CLASS_INTERPOLATED
         stamp[q] = clock
-        tmid[r] = tf + (tb - tf) * 0.5 * (izlo[q] + izhi[q]) / L
+        tmax[r] = -1.0
+        got += 1
+    return got
+
+
+@njit(cache=True, nogil=True)
+def _mid_points(box, lt, inode, izlo, izhi, pinterp, o, d, t, reprojected):
+    """Ray parameter in the middle of the slab of a reprojected ray's interpolant (they
+    have no hit: the next frame's reprojection needs a point)."""
+    for r in range(t.shape[0]):
+        q = pinterp[r]
+        if q < 0 or not reprojected[r]:
+            continue
+        nd = inode[q]
+        tree = lt.tree[nd]
+        inst = tree // 6
+        face = tree % 6
+        kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+        zm = 0.5 * (izlo[q] + izhi[q])
+        t[r] = ((front - zm if neg else front + zm) - o[r, kk]) / d[r, kk]
 
 
 def remember(pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
@@ -279,19 +301,20 @@ def remember(pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
     return View(width, height, same, points[:m], pq[:m])
 
 
-class Reprojected(NamedTuple):
-    """Rays a frame interpolated by reprojection (``interp[r] >= 0``)."""
-
-    interp: np.ndarray  # (n,) int32 interpolant, -1 where not reprojected
-    radiance: np.ndarray  # (n, 3) float64 their radiance
-    pixel_class: np.ndarray  # (n,) uint8 their class
-    tmid: np.ndarray  # (n,) float64 ray parameter in the middle of their slab
+def mid_points(cache, pinterp, o, d, t, reprojected) -> None:
+    """``t`` of reprojected rays: the middle of their interpolant's slab."""
+    p = cache.pool
+    _mid_points(cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, pinterp, o, d, t,
+                reprojected)
 
 
 def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: int,
-              o, d, tmin, tmax) -> Reprojected | None:
+              o, d, tmin, tmax):
     """The rays of a frame (sample-major over ``pix``) whose interpolant is found by
-    reprojection (module doc); None when nothing can be reprojected."""
+    reprojection (module doc). Returns None when nothing can be, else ``(pre, tmax, m)``:
+    ``pre`` the arrays ``(radiance, interpolated, pixel_class, interpolant)`` for
+    :meth:`~.cache.InterpolantCache.resolve` with the reprojected rays filled in, ``tmax``
+    a copy with an empty range for them, ``m`` their number."""
     n = len(o)
     if (not ENABLED or view is None or cp.ortho or view.width != cp.width
             or view.height != cp.height or n == 0):
@@ -309,19 +332,20 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     ok = np.empty(len(uq), np.bool_)
     eye = np.ascontiguousarray(cp.xform[:3, 3], np.float64)
     # the rays' clipping distances (measured along the view axis, so they vary per ray)
-    tnear = float(np.max(tmin)) if len(tmin) else 0.0
-    tfar = float(np.min(tmax)) if len(tmax) else np.inf
+    tnear = float(np.max(tmin))
+    tfar = float(np.min(tmax))
     dif = cache.samples.texture_terms()[0]
     _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, dif, p.samples,
               eye, tnear, tfar, uq, ok)
     okq = seen  # reused: False where a cell is not proven
     okq[uq[~ok]] = False
-    cand = cand_pix[np.tile(np.asarray(pix, np.int64), spp)]
-    interp = np.empty(n, np.int32)
     rad = np.zeros((n, 3))
+    done = np.zeros(n, np.bool_)
     pcls = np.zeros(n, np.uint8)
-    tmid = np.full(n, np.inf)
+    pinterp = np.full(n, -1, np.int32)
+    hi = np.array(np.broadcast_to(tmax, (n,)), np.float64)
     cache.clock += 1
-    _reproject_rays(cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, p.rad, p.rebuilt, p.stamp,
-                    cache.clock, cand, okq, o, d, rad, interp, pcls, tmid)
-    return Reprojected(interp, rad, pcls, tmid)
+    m = _reproject_rays(cache.box, cache.trees.arrays, p.node, p.rad, p.rebuilt, p.stamp,
+                        cache.clock, cand_pix, np.ascontiguousarray(pix, np.int64), okq, o, d,
+                        rad, done, pcls, pinterp, hi)
+    return (rad, done, pcls, pinterp), hi, int(m)

@@ -46,7 +46,7 @@ from numba import njit, prange
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT
 from ..geometry.cameras import CameraParams
-from .linetree import corner_weight, dominant_face, face_frame
+from .linetree import EMPTY, corner_weight, descend_one, dominant_face, face_frame
 from .shafts import MAX_PLANES, hexa_planes, hw_shaft, mesh_any, other_geometry, to_object
 
 #: Reprojection on or off (benchmarks and tests compare; frames are the same either way).
@@ -221,25 +221,74 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _reproject_rays(box, lt, inode, rad16, irebuilt, stamp, clock, cand_pix, pix, okq, o, d,
-                    rad, done, pcls, pinterp, tmax):
-    """Step 3: a ray whose pixel's candidate ``cand_pix[pix[r % k]]`` passed (``okq``) and
-    whose line lies in its cell is interpolated (``rad, done, pcls, pinterp`` as
-    :meth:`~.cache.InterpolantCache.resolve` fills them) and gets ``tmax[r] = -1`` (an empty
-    clipping range: no closest hit). Returns how many."""
+def _descend(box, lt, roots, inode, cand_pix, pix, o, d, qout):
+    """Step 3a: each ray's line in the object of its pixel's candidate, down that object's
+    linetree: ``qout[r]`` the interpolant of the leaf it reaches (-1: none, or the line
+    misses the face pair: its unclamped coordinates leave [0, 1]). Rays in blocks, each
+    reusing the leaf of the ray before it where the line lies in it (as the walk does)."""
     k = pix.shape[0]
+    n = o.shape[0]
+    nb = (n + 4095) // 4096
+    for b in prange(nb):
+        abcd = np.empty(4)
+        lo = np.zeros(4)
+        hi = np.zeros(4)
+        pinst = -1
+        pface = -1
+        pleaf = -1
+        for r in range(b * 4096, min(n, (b + 1) * 4096)):
+            qout[r] = -1
+            q0 = cand_pix[pix[r % k]]
+            if q0 < 0:
+                continue
+            inst = lt.tree[inode[q0]] // 6
+            face = dominant_face(d[r, 0], d[r, 1], d[r, 2])
+            kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
+            back = front - L if neg else front + L
+            tf = (front - o[r, kk]) / d[r, kk]
+            tb = (back - o[r, kk]) / d[r, kk]
+            abcd[0] = (o[r, i] + tf * d[r, i] - li) / wi
+            abcd[1] = (o[r, j] + tf * d[r, j] - lj) / wj
+            abcd[2] = (o[r, i] + tb * d[r, i] - li) / wi
+            abcd[3] = (o[r, j] + tb * d[r, j] - lj) / wj
+            if not (0.0 <= abcd[0] <= 1.0 and 0.0 <= abcd[1] <= 1.0 and 0.0 <= abcd[2] <= 1.0
+                    and 0.0 <= abcd[3] <= 1.0):
+                continue
+            if (inst == pinst and face == pface and lo[0] <= abcd[0] < hi[0]
+                    and lo[1] <= abcd[1] < hi[1] and lo[2] <= abcd[2] < hi[2]
+                    and lo[3] <= abcd[3] < hi[3]):
+                nd = pleaf
+            else:
+                root = roots[inst, face]
+                if root < 0:
+                    continue
+                nd, _ = descend_one(lt, root, abcd, EMPTY)
+                pinst = inst
+                pface = face
+                pleaf = nd
+                sc = 1.0 / float(1 << lt.depth[nd])
+                for m in range(4):
+                    lo[m] = lt.coord[nd, m] * sc
+                    hi[m] = (lt.coord[nd, m] + 1) * sc
+            qout[r] = lt.leaf[nd]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _reproject_rays(box, lt, inode, rad16, irebuilt, stamp, clock, qray, okq, o, d, rad, done,
+                    pcls, pinterp, tmax):
+    """Step 3b: a ray whose leaf's interpolant ``qray[r]`` passed (``okq``) is interpolated
+    (``rad, done, pcls, pinterp`` as :meth:`~.cache.InterpolantCache.resolve` fills them)
+    and gets ``tmax[r] = -1`` (an empty clipping range: no closest hit). Returns how many."""
     n = o.shape[0]
     got = 0
     for r in prange(n):
-        q = cand_pix[pix[r % k]]
+        q = qray[r]
         if q < 0 or not okq[q]:
             continue
         nd = inode[q]
         tree = lt.tree[nd]
         inst = tree // 6
         face = tree % 6
-        if dominant_face(d[r, 0], d[r, 1], d[r, 2]) != face:
-            continue
         kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
         back = front - L if neg else front + L
         tf = (front - o[r, kk]) / d[r, kk]
@@ -251,7 +300,7 @@ def _reproject_rays(box, lt, inode, rad16, irebuilt, stamp, clock, cand_pix, pix
         x3 = ((o[r, j] + tb * d[r, j] - lj) / wj) * s - lt.coord[nd, 3]
         if not (0.0 <= x0 <= 1.0 and 0.0 <= x1 <= 1.0 and 0.0 <= x2 <= 1.0
                 and 0.0 <= x3 <= 1.0):
-            continue
+            continue  # (rounding at a cell's edge)
         x = 0.0
         y = 0.0
         z = 0.0
@@ -322,14 +371,22 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     p = cache.pool
     cand_pix = view.same_pixel.copy()
     _splat(cp, view.points, view.interp, cand_pix)
-    # interpolants evicted or invalidated since (ids may have been reused: then the cell
-    # tests below run on the new one, which is as valid)
+    # candidates evicted or invalidated since are dropped (a reused id names an object
+    # like any other: only the object is taken from it)
     seen = np.zeros(len(p.live), np.bool_)
     uq = np.empty(len(p.live), np.int32)
-    uq = uq[:_candidates(cand_pix, p.live, seen, uq)]
-    if len(uq) == 0:
+    if _candidates(cand_pix, p.live, seen, uq) == 0:
         return None
-    ok = np.empty(len(uq), np.bool_)
+    pix = np.ascontiguousarray(pix, np.int64)
+    qray = np.empty(n, np.int32)
+    _descend(cache.box, cache.trees.arrays, cache.trees.roots, p.node, cand_pix, pix, o, d,
+             qray)
+    seen[:] = False
+    nq = _candidates(qray, p.live, seen, uq)
+    if nq == 0:
+        return None
+    uq = uq[:nq]
+    ok = np.empty(nq, np.bool_)
     eye = np.ascontiguousarray(cp.xform[:3, 3], np.float64)
     # the rays' clipping distances (measured along the view axis, so they vary per ray)
     tnear = float(np.max(tmin))
@@ -346,6 +403,5 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     hi = np.array(np.broadcast_to(tmax, (n,)), np.float64)
     cache.clock += 1
     m = _reproject_rays(cache.box, cache.trees.arrays, p.node, p.rad, p.rebuilt, p.stamp,
-                        cache.clock, cand_pix, np.ascontiguousarray(pix, np.int64), okq, o, d,
-                        rad, done, pcls, pinterp, hi)
+                        cache.clock, qray, okq, o, d, rad, done, pcls, pinterp, hi)
     return (rad, done, pcls, pinterp), hi, int(m)

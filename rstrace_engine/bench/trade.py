@@ -21,8 +21,11 @@ curve per scene; DIR defaults to ``docs``). ``--json`` prints ``{"rows": [{"scen
 "epsilon", "depth_cap", "memory_cap_mb", "spp", "first_frame_speedup",
 "camera_step_speedup", "pan_speedup", "mean_error", "max_error", "frac_over_epsilon",
 "n_over_epsilon" (pixels over epsilon + 1e-6), "psnr", "interpolated_fraction",
-"reprojected_fraction" (pixels whose visibility came from reprojection: 0, not implemented),
-"memory_mb"}, ...]}``.
+"reprojected_fraction" (share of the camera step's samples whose interpolant was found by
+reprojection instead of a closest-hit ray and a walk; ``reprojected_pan_fraction`` the pan's,
+``reprojected_first_fraction`` the first frame's: with several samples per pixel, the samples
+after each pixel's first), "memory_mb"}, ...]}``. ``--no-reproject`` turns reprojection off
+(for comparison: the frames are the same).
 """
 
 from __future__ import annotations
@@ -53,7 +56,8 @@ PAN_DEGREES = 2.5
 JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "spp", "first_frame_speedup",
              "camera_step_speedup", "pan_speedup", "mean_error", "max_error",
              "frac_over_epsilon", "n_over_epsilon", "psnr", "interpolated_fraction",
-             "reprojected_fraction", "memory_mb")
+             "reprojected_fraction", "reprojected_pan_fraction", "reprojected_first_fraction",
+             "memory_mb")
 #: display-space slack of ``n_over_epsilon`` (float32 frames)
 FLOAT_TOL = 1e-6
 
@@ -134,6 +138,7 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
         # interpolant frame is timed right after a base frame of the same camera (the
         # machine's load drifts), and each keeps its best time
         times = dict.fromkeys(cams, math.inf)
+        rep = dict.fromkeys(cams, 0.0)
         btimes = dict.fromkeys(cams, math.inf)
         for _ in range(max(repeat, 1)):
             r = InterpolantRenderer()
@@ -148,6 +153,7 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                 if key == "first":
                     f_first = frame
                     memory = r.cache.memory_bytes / 1e6
+                rep[key] = frame.stats.get("reprojected_fraction", 0.0)
         t_first = times["first"]
         m = image.compare(f_first.radiance, base_frame.radiance, eps)
         err = np.abs(image.to_display(f_first.radiance)
@@ -155,7 +161,9 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
         row = dict(
             scene=name, epsilon=eps, depth_cap=cap, memory_cap_mb=mem, spp=spp,
             n_over_epsilon=int(np.count_nonzero(err > eps + FLOAT_TOL)),
-            reprojected_fraction=float(f_first.stats.get("reprojected_fraction", 0.0)),
+            reprojected_fraction=float(rep["step"]),
+            reprojected_pan_fraction=float(rep["pan"]),
+            reprojected_first_fraction=float(rep["first"]),
             first_frame_speedup=btimes["first"] / t_first,
             camera_step_speedup=btimes["step"] / times["step"],
             pan_speedup=btimes["pan"] / times["pan"],
@@ -172,6 +180,7 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                 f"first {row['first_frame_speedup']:.2f}x "
                 f"step {row['camera_step_speedup']:.2f}x pan {row['pan_speedup']:.2f}x "
                 f"interp {100 * row['interpolated_fraction']:.1f}% "
+                f"reprojected {100 * row['reprojected_fraction']:.1f}% "
                 f"over-eps {100 * row['frac_over_epsilon']:.3f}%")
     sc.set_camera(cams["first"])
     return rows
@@ -187,7 +196,8 @@ def _fmt(x, nd=3):
 
 def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
     head = ("| scene | eps | depth cap | mem cap MB | spp | first frame | camera step | pan | "
-            "mean err | max err | >eps px | PSNR dB | interp % | reprojected % | memory MB | "
+            "mean err | max err | >eps px | PSNR dB | interp % | "
+            "reprojected % (first / step / pan) | memory MB | "
             "base s | first s | step s | pan s | base / primary rays |")
     lines = [f"Interpolant speed/accuracy trade at {width}x{height}, ray depth 5 "
              f"(`python -m rstrace_engine.bench trade`). Speedups are base tracer time / "
@@ -204,7 +214,9 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
             f"{r['pan_speedup']:.2f}x", f"{r['mean_error']:.5f}", f"{r['max_error']:.4f}",
             str(r["n_over_epsilon"]), _fmt(r["psnr"], 1),
             f"{100 * r['interpolated_fraction']:.1f}",
-            f"{100 * r['reprojected_fraction']:.1f}", f"{r['memory_mb']:.1f}",
+            f"{100 * r['reprojected_first_fraction']:.1f} / "
+            f"{100 * r['reprojected_fraction']:.1f} / {100 * r['reprojected_pan_fraction']:.1f}",
+            f"{r['memory_mb']:.1f}",
             f"{r['base_s']:.3f}", f"{r['first_s']:.3f}", f"{r['step_s']:.3f}",
             f"{r['pan_s']:.3f}", f"{r['visibility_bound']:.1f}x"]) + " |")
     return "\n".join(lines) + "\n"
@@ -261,6 +273,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--spp", default="1", help="samples per pixel, comma separated (counts "
                                               "other than 1: one row each at epsilon 0.01)")
     p.add_argument("--threads", type=int, default=0, help="numba threads (0: all)")
+    p.add_argument("--no-reproject", action="store_true",
+                   help="find every sample's visible surface with a closest-hit ray")
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                    help="wall time, or this process's CPU time (with --threads 1 on a "
                         "shared machine)")
@@ -271,6 +285,10 @@ def main(argv: list[str]) -> int:
         import numba
 
         numba.set_num_threads(args.threads)
+    if args.no_reproject:
+        from ..interpolants import reproject
+
+        reproject.ENABLED = False
     grid = settings_grid(args.quick, [int(k) for k in args.spp.split(",")])
     rows = []
 

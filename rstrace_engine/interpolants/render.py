@@ -82,6 +82,46 @@ def _finish(rad, radmax, ray_class, good, counts):
     return bad
 
 
+@njit(cache=True, nogil=True)
+def _assemble(rad, good, ray_class, interp, pix, image, pclass, pinterp):
+    """Pixels from their samples (rays sample-major over ``pix``): the mean radiance of the
+    samples (bad ones count as 0 in the sum, not in the count), the class of the first
+    sample that is not background, the interpolant all its interpolated samples used (-1:
+    none, -2: several)."""
+    k = pix.shape[0]
+    spp = rad.shape[0] // max(k, 1)
+    for i in range(k):
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        ng = 0
+        c = ray_class[i]
+        lo = -1
+        hi = -1
+        for s in range(spp):
+            r = s * k + i
+            x += rad[r, 0]
+            y += rad[r, 1]
+            z += rad[r, 2]
+            if good[r]:
+                ng += 1
+            if c == CLASS_BACKGROUND:
+                c = ray_class[r]
+            q = interp[r]
+            if q >= 0:
+                if lo < 0 or q < lo:
+                    lo = q
+                if q > hi:
+                    hi = q
+        ng = max(ng, 1)
+        p = pix[i]
+        image[p, 0] = x / ng
+        image[p, 1] = y / ng
+        image[p, 2] = z / ng
+        pclass[p] = c
+        pinterp[p] = -1 if hi < 0 else (hi if lo == hi else -2)
+
+
 def _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax, exact, cancel):
     """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
     :meth:`~.cache.InterpolantCache.resolve` of rays sample-major over ``pix``. Returns
@@ -245,17 +285,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         pinterp = np.full(h * w, -1, np.int32)
-    r = rad.reshape(spp, k, 3)
-    ngood = good.reshape(spp, k).sum(axis=0)
-    image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
-    c = ray_class.reshape(spp, k)
-    # a pixel's class: its first sample that is not background
-    pclass[pix] = c[np.argmax(c != CLASS_BACKGROUND, axis=0), np.arange(k)]
-    # the interpolant the pixel's samples used: -2 where they used several
-    qi = res.interpolant.reshape(spp, k)
-    hi = qi.max(axis=0)
-    lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
-    pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
+    _assemble(rad, good, ray_class, res.interpolant, pix, image, pclass, pinterp)
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0

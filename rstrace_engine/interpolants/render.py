@@ -83,42 +83,40 @@ def _finish(rad, radmax, ray_class, good, counts):
 
 
 @njit(cache=True, nogil=True)
-def _assemble(rad, good, ray_class, interp, pix, image, pclass, pinterp):
-    """Pixels from their samples (rays sample-major over ``pix``): the mean radiance of the
-    samples (bad ones count as 0 in the sum, not in the count), the class of the first
-    sample that is not background, the interpolant all its interpolated samples used (-1:
-    none, -2: several)."""
-    k = pix.shape[0]
-    spp = rad.shape[0] // max(k, 1)
-    for i in range(k):
-        x = 0.0
-        y = 0.0
-        z = 0.0
-        ng = 0
-        c = ray_class[i]
-        lo = -1
-        hi = -1
-        for s in range(spp):
-            r = s * k + i
-            x += rad[r, 0]
-            y += rad[r, 1]
-            z += rad[r, 2]
-            if good[r]:
-                ng += 1
-            if c == CLASS_BACKGROUND:
-                c = ray_class[r]
-            q = interp[r]
-            if q >= 0:
-                if lo < 0 or q < lo:
-                    lo = q
-                if q > hi:
-                    hi = q
-        ng = max(ng, 1)
+def _accumulate(rad, good, ray_class, interp, acc_rad, acc_good, acc_cls, acc_lo, acc_hi):
+    """Adds one sample of every pixel (``rad`` etc. (k, ...)) to the pixels' sums: radiance
+    (bad samples are 0 in the sum, not counted), good samples, the class of the first
+    sample that is not background, the least and largest interpolant used."""
+    for i in range(rad.shape[0]):
+        acc_rad[i, 0] += rad[i, 0]
+        acc_rad[i, 1] += rad[i, 1]
+        acc_rad[i, 2] += rad[i, 2]
+        if good[i]:
+            acc_good[i] += 1
+        if acc_cls[i] == CLASS_BACKGROUND:
+            acc_cls[i] = ray_class[i]
+        q = interp[i]
+        if q >= 0:
+            if acc_lo[i] < 0 or q < acc_lo[i]:
+                acc_lo[i] = q
+            if q > acc_hi[i]:
+                acc_hi[i] = q
+
+
+@njit(cache=True, nogil=True)
+def _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp):
+    """Pixels from their sums (:func:`_accumulate`): mean radiance of the good samples'
+    count, class, the interpolant all its interpolated samples used (-1: none, -2:
+    several)."""
+    for i in range(pix.shape[0]):
+        ng = max(acc_good[i], 1)
         p = pix[i]
-        image[p, 0] = x / ng
-        image[p, 1] = y / ng
-        image[p, 2] = z / ng
-        pclass[p] = c
+        image[p, 0] = acc_rad[i, 0] / ng
+        image[p, 1] = acc_rad[i, 1] / ng
+        image[p, 2] = acc_rad[i, 2] / ng
+        pclass[p] = acc_cls[i]
+        lo = acc_lo[i]
+        hi = acc_hi[i]
         pinterp[p] = -1 if hi < 0 else (hi if lo == hi else -2)
 
 
@@ -209,74 +207,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         pix, jitter = np.zeros(0, np.int64), np.zeros((spp, 0, 2))
     k = len(pix)
     n = k * spp
-    # rays sample-major over the pixels: ray s * k + i is sample s of pixel pix[i]
     counters: dict = {}
-    with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
-        o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        # a full frame after a full frame of this cache: the rays whose interpolant is
-        # found by reprojection (reproject.py) need neither a visibility ray nor a walk; an
-        # incremental frame keeps its camera
-        view = cache.view if pixels is None else None
-        cache.view = None
-        exact = records is not None
-        if spp == 1 or pixels is not None:
-            hits, res, rep = _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax,
-                                           exact, cancel)
-            fs = cache.frame_stats
-        else:
-            # several samples per pixel: the first sample of every pixel first; the others
-            # then reproject from it (same eye: a sample whose line lies in the cell its
-            # pixel's first sample was interpolated from costs a look-up, not a ray)
-            hits, res, rep = _resolve_part(cache, view, cp, pix, 1, o[:k], d[:k], tmin[:k],
-                                           tmax[:k], exact, cancel)
-            fs = dict(cache.frame_stats)
-            t1 = hits.t.copy()
-            if rep is not None:
-                mid_points(cache, res.interpolant, o[:k], d[:k], t1, rep)
-            here = remember(pix, res.interpolant, o[:k], d[:k], t1, w, h)
-            hits2, res2, rep2 = _resolve_part(cache, here, cp, pix, spp - 1, o[k:], d[k:],
-                                              tmin[k:], tmax[k:], exact, cancel)
-            hits = Hits(*(np.concatenate([x, y]) for x, y in zip(hits, hits2, strict=True)))
-            res = type(res)(*(np.concatenate([x, y]) for x, y in zip(res, res2, strict=True)))
-            if rep is not None or rep2 is not None:
-                rep = np.concatenate([np.zeros(k, bool) if rep is None else rep,
-                                      np.zeros(n - k, bool) if rep2 is None else rep2])
-            fs = _add_stats(fs, cache.frame_stats)
-        t_res = time.perf_counter()
-        if progress is not None:
-            progress(0.7, "interpolants")
-        # a miss is the world colour (exactly what the tracer gives it)
-        rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
-        todo = np.empty(n, np.int64)
-        todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
-                               rad, todo)]
-        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
-        if records is not None:
-            records.add_primary(gids, hits.inst, o, d, hits.t)
-        cancelled = cancel is not None and cancel()
-        if not cancelled:
-            # in tiles of about the base tracer's size (its per-level arrays stay
-            # cache-sized), split evenly: a small last tile would cost the tracer's per-level
-            # overhead alone
-            n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-            for q in range(n_tiles):
-                part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
-                segs: list | None = [] if records is not None else None
-                rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                     int(settings.max_depth), primary=_take(hits, part),
-                                     counters=counters, segments=segs)
-                if records is not None:
-                    records.add(gids[part], segs)
-    t_trace = time.perf_counter()
-    if pixels is None and not cancelled:
-        t = hits.t
-        if rep is not None:
-            t = t.copy()
-            mid_points(cache, res.interpolant, o, d, t, rep)
-        cache.view = remember(pix, res.interpolant, o, d, t, w, h)
-    good = np.empty(n, np.bool_)
-    counts = np.zeros(len(CLASS_NAMES), np.int64)
-    bad_total = int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
     if base is not None and pixels is not None:
         image = base.radiance.reshape(h * w, 3).copy()
         pclass = base.pixel_class.reshape(h * w).copy()
@@ -285,21 +216,97 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         pinterp = np.full(h * w, -1, np.int32)
-    _assemble(rad, good, ray_class, res.interpolant, pix, image, pclass, pinterp)
+    # per pixel over its samples: radiance sum, good samples, class, interpolants used
+    acc_rad = np.zeros((k, 3))
+    acc_good = np.zeros(k, np.int64)
+    acc_cls = np.zeros(k, np.uint8)
+    acc_lo = np.full(k, -1, np.int32)
+    acc_hi = np.full(k, -1, np.int32)
+    counts = np.zeros(len(CLASS_NAMES), np.int64)
+    bad_total = 0
+    n_rep = 0
+    n_todo = 0
+    used: list = []
+    fs: dict = {}
+    t_res = t_trace = 0.0
+    # a full frame after a full frame of this cache: samples whose interpolant is found by
+    # reprojection (reproject.py) need neither a visibility ray nor a walk; an incremental
+    # frame keeps its camera. One sample of every pixel at a time (arrays of a 1-sample
+    # frame, reused); the samples after the first reproject from it too (same eye: a sample
+    # whose line lies in a proven cell costs a look-up, not a ray and a walk).
+    view = cache.view if pixels is None else None
+    cache.view = None
+    here = None
+    cancelled = False
+    with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
+        for s in range(spp):
+            if cancel is not None and cancel():
+                cancelled = True
+                break
+            tr = time.perf_counter()
+            o, d, tmin, tmax = camera_rays(cp, pix, jitter[s])
+            hits, res, rep = _resolve_part(cache, view if s == 0 else here, cp, pix, 1, o, d,
+                                           tmin, tmax, records is not None, cancel)
+            fs = _add_stats(fs, cache.frame_stats)
+            if rep is not None:
+                n_rep += int(np.count_nonzero(rep))
+            if s == 0 and pixels is None:
+                t = hits.t
+                if rep is not None:
+                    t = t.copy()
+                    mid_points(cache, res.interpolant, o, d, t, rep)
+                here = remember(pix, res.interpolant, o, d, t, w, h)
+            used.append(np.unique(res.interpolant))
+            # a miss is the world colour (exactly what the tracer gives it)
+            rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
+            todo = np.empty(k, np.int64)
+            todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
+                                   rad, todo)]
+            n_todo += len(todo)
+            gids = s * (w * h) + pix
+            if records is not None:
+                records.add_primary(gids, hits.inst, o, d, hits.t)
+            tt = time.perf_counter()
+            t_res += tt - tr
+            if cancel is not None and cancel():
+                cancelled = True
+            else:
+                # in tiles of about the base tracer's size (its per-level arrays stay
+                # cache-sized), split evenly: a small last tile would cost the tracer's
+                # per-level overhead alone
+                n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+                for q in range(n_tiles):
+                    part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+                    segs: list | None = [] if records is not None else None
+                    rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                         int(settings.max_depth), primary=_take(hits, part),
+                                         counters=counters, segments=segs)
+                    if records is not None:
+                        records.add(gids[part], segs)
+            t_trace += time.perf_counter() - tt
+            good = np.empty(k, np.bool_)
+            bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
+            _accumulate(rad, good, ray_class, res.interpolant, acc_rad, acc_good, acc_cls,
+                        acc_lo, acc_hi)
+            if cancelled:
+                break
+    if pixels is None and not cancelled:
+        cache.view = here
+    _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
     stats = dict(
         mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
-        resolve_s=t_res - t0 - fs.get("visibility_s", 0.0),
+        resolve_s=t_res - fs.get("visibility_s", 0.0),
         build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
-        trace_s=t_trace - t_res,
+        trace_s=t_trace,
         # samples whose visible hit came from reprojection instead of a closest-hit ray
-        reprojected_fraction=0.0 if rep is None else float(np.count_nonzero(rep)) / max(n, 1),
+        reprojected_fraction=n_rep / max(n, 1),
         # of the whole frame (kept pixels included)
         interpolated_fraction=float(np.count_nonzero(pclass == CLASS_INTERPOLATED))
         / max(len(pclass), 1),
-        traced_pixels=k, traced_rays=len(todo), shadow_rays=counters.get("shadow", 0),
+        traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
         secondary_rays=counters.get("secondary", 0),
         cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
         samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
@@ -313,7 +320,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=bound_notes(cache, res.interpolant),
+        bound_notes=bound_notes(cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
     )
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])

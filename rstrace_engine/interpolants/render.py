@@ -288,6 +288,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
             _accumulate(rad, good, ray_class, res.interpolant, acc_rad, acc_good, acc_cls,
                         acc_lo, acc_hi)
+            if progress is not None:
+                progress(0.05 + 0.9 * (s + 1) / spp, "interpolants")
             if cancelled:
                 break
     if pixels is None and not cancelled:

@@ -35,7 +35,7 @@ from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .cache import InterpolantCache
-from .reproject import mid_points, remember, reproject
+from .reproject import FrameCells, mid_points, remember, reproject
 
 log = logging.getLogger(__name__)
 
@@ -120,14 +120,14 @@ def _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pi
         pinterp[p] = -1 if hi < 0 else (hi if lo == hi else -2)
 
 
-def _resolve_part(cache, view, cp, pix, spp, o, d, tmin, tmax, exact, cancel):
+def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, cancel):
     """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
-    :meth:`~.cache.InterpolantCache.resolve` of rays sample-major over ``pix``. Returns
+    :meth:`~.cache.InterpolantCache.resolve` of one ray per pixel ``pix``. Returns
     ``(hits, resolve result, reprojected (n,) bool or None)``; ``cache.frame_stats`` gets
     ``visibility_s``. A reprojected ray's hit is left a miss (its exact hit on its object
     when ``exact``: pixel records keep it)."""
     tv = time.perf_counter()
-    rp = reproject(cache, view, cp, pix, spp, o, d, tmin, tmax)
+    rp = reproject(cache, view, cells, cp, pix, o, d, tmax, splat)
     pre = None
     if rp is None:
         hits = cache.accel.closest_hit(o, d, tmin, tmax)
@@ -237,6 +237,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     view = cache.view if pixels is None else None
     cache.view = None
     here = None
+    cells = FrameCells(cp)
     cancelled = False
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
@@ -245,8 +246,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 break
             tr = time.perf_counter()
             o, d, tmin, tmax = camera_rays(cp, pix, jitter[s])
-            hits, res, rep = _resolve_part(cache, view if s == 0 else here, cp, pix, 1, o, d,
-                                           tmin, tmax, records is not None, cancel)
+            hits, res, rep = _resolve_part(cache, view if s == 0 else here, cells, s == 0,
+                                           cp, pix, o, d, tmin, tmax, records is not None,
+                                           cancel)
             fs = _add_stats(fs, cache.frame_stats)
             if rep is not None:
                 n_rep += int(np.count_nonzero(rep))

@@ -357,11 +357,46 @@ def mid_points(cache, pinterp, o, d, t, reprojected) -> None:
                 reprojected)
 
 
-def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: int,
-              o, d, tmin, tmax):
-    """The rays of a frame (sample-major over ``pix``) whose interpolant is found by
-    reprojection (module doc). Returns None when nothing can be, else ``(pre, tmax, m)``:
-    ``pre`` the arrays ``(radiance, interpolated, pixel_class, interpolant)`` for
+class FrameCells:
+    """Step 2's outcomes for one frame's eye, kept across its samples (per pool id, with the
+    serial it was found for: an id freed and reused within the frame is tested again)."""
+
+    def __init__(self, cp: CameraParams) -> None:
+        self.eye = np.ascontiguousarray(cp.xform[:3, 3], np.float64)
+        # every ray's clipping range (distances along the ray: the clip planes are measured
+        # along the view axis, so a ray's distances grow with its slope, at least 1)
+        u = (cp.x0, cp.x0 + cp.width * cp.pixsize)
+        v = (cp.y0, cp.y0 + cp.height * cp.pixsize)
+        slope = max(math.sqrt(1.0 + a * a + b * b) for a in u for b in v)
+        self.tnear = float(cp.clip_start) * slope
+        self.tfar = float(cp.clip_end)
+        self.serial = np.zeros(0, np.int64)
+        self.ok = np.zeros(0, np.bool_)
+
+    def lookup(self, cache, uq: np.ndarray) -> np.ndarray:
+        """Whether interpolants ``uq`` may be reprojected from this eye."""
+        p = cache.pool
+        if len(self.serial) < len(p.serial):
+            grow = len(p.serial) - len(self.serial)
+            self.serial = np.concatenate([self.serial, np.zeros(grow, np.int64)])
+            self.ok = np.concatenate([self.ok, np.zeros(grow, np.bool_)])
+        new = uq[self.serial[uq] != p.serial[uq]]
+        if len(new):
+            ok = np.empty(len(new), np.bool_)
+            _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi,
+                      cache.samples.texture_terms()[0], p.samples, self.eye, self.tnear,
+                      self.tfar, new, ok)
+            self.ok[new] = ok
+            self.serial[new] = p.serial[new]
+        return self.ok[uq]
+
+
+def reproject(cache, view: View | None, cells: FrameCells, cp: CameraParams, pix: np.ndarray,
+              o, d, tmax, splat: bool = True):
+    """The rays of a frame (one per pixel ``pix``) whose interpolant is found by
+    reprojection from ``view`` (module doc; ``splat``: the view is another camera's, its
+    points are projected into this one). Returns None when nothing can be, else ``(pre,
+    tmax, m)``: ``pre`` the arrays ``(radiance, interpolated, pixel_class, interpolant)`` for
     :meth:`~.cache.InterpolantCache.resolve` with the reprojected rays filled in, ``tmax``
     a copy with an empty range for them, ``m`` their number."""
     n = len(o)
@@ -370,7 +405,8 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
         return None
     p = cache.pool
     cand_pix = view.same_pixel.copy()
-    _splat(cp, view.points, view.interp, cand_pix)
+    if splat:
+        _splat(cp, view.points, view.interp, cand_pix)
     # candidates evicted or invalidated since are dropped (a reused id names an object
     # like any other: only the object is taken from it)
     seen = np.zeros(len(p.live), np.bool_)
@@ -386,16 +422,8 @@ def reproject(cache, view: View | None, cp: CameraParams, pix: np.ndarray, spp: 
     if nq == 0:
         return None
     uq = uq[:nq]
-    ok = np.empty(nq, np.bool_)
-    eye = np.ascontiguousarray(cp.xform[:3, 3], np.float64)
-    # the rays' clipping distances (measured along the view axis, so they vary per ray)
-    tnear = float(np.max(tmin))
-    tfar = float(np.min(tmax))
-    dif = cache.samples.texture_terms()[0]
-    _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, dif, p.samples,
-              eye, tnear, tfar, uq, ok)
     okq = seen  # reused: False where a cell is not proven
-    okq[uq[~ok]] = False
+    okq[uq[~cells.lookup(cache, uq)]] = False
     rad = np.zeros((n, 3))
     done = np.zeros(n, np.bool_)
     pcls = np.zeros(n, np.uint8)

@@ -94,7 +94,8 @@ log = logging.getLogger(__name__)
 #: the face pair that they essentially never pass).
 MIN_BUILD_DEPTH = 2
 #: A leaf is built (or a failed leaf split) only when at least this many of the rays of a
-#: resolve (a frame's pass: one sample of every pixel) fall in it; fewer are cheaper to trace. A build costs about 60-100 traced pixels and about
+#: resolve (a frame's pass: one sample of every pixel) fall in it; fewer are cheaper to
+#: trace. A build costs about 60-100 traced pixels and about
 #: a third of the cells built pass, so a cell of 48 rays pays back in a few frames of reuse.
 MIN_PIXELS = 48
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.

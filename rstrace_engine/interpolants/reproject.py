@@ -42,7 +42,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT
 from ..geometry.cameras import CameraParams
@@ -110,25 +110,6 @@ def _splat(cp, points, interp, cand):
 
 
 @njit(cache=True, nogil=True)
-def _candidates(cand, live, seen, uq):
-    """Drops candidates no longer live (evicted or invalidated; a reused id is tested as
-    the new interpolant it is) and lists the others once in ``uq``; returns how many."""
-    m = 0
-    for i in range(cand.shape[0]):
-        q = cand[i]
-        if q < 0:
-            continue
-        if q >= live.shape[0] or not live[q]:
-            cand[i] = -1
-            continue
-        if not seen[q]:
-            seen[q] = True
-            uq[m] = q
-            m += 1
-    return m
-
-
-@njit(cache=True, nogil=True)
 def _cell_hexa(box, inst, face, depth, coord, z0, z1, V):
     """The 8 vertices of the hexahedron of a cell's lines between depths z0 and z1 (the
     vertex order of :func:`.shafts.hexa_planes`)."""
@@ -144,14 +125,12 @@ def _cell_hexa(box, inst, face, depth, coord, z0, z1, V):
         V[v, j] = (1 - f) * (lj + (coord[1] + bj) * s * wj) + f * (lj + (coord[3] + bj) * s * wj)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, qlist, ok):
-    """Step 2 of the module doc: ``ok[u]`` when interpolant ``qlist[u]`` may be reprojected
-    from ``eye``. ``tnear``: the largest clip-start distance of any ray, ``tfar`` the
-    smallest clip-end distance."""
-    for u in prange(qlist.shape[0]):
-        q = qlist[u]
-        ok[u] = False
+@njit(cache=True, nogil=True)
+def _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q):
+    """Step 2 of the module doc: whether interpolant ``q`` may be reprojected from ``eye``.
+    ``tnear``: the largest clip-start distance of any ray, ``tfar`` the smallest clip-end
+    distance."""
+    if True:
         # (d) no texture term in the corner samples
         textured = False
         for c in range(16):
@@ -159,7 +138,7 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
             if dif[sid, 0] != 0.0 or dif[sid, 1] != 0.0 or dif[sid, 2] != 0.0:
                 textured = True
         if textured:
-            continue
+            return False
         nd = inode[q]
         tree = lt.tree[nd]
         inst = tree // 6
@@ -168,7 +147,7 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
         ze = front - eye[k] if neg else eye[k] - front  # the eye's depth
         zlo = izlo[q]
         if not ze < zlo:
-            continue
+            return False
         V = np.empty((8, 3))
         _cell_hexa(box, inst, face, lt.depth[nd], lt.coord[nd], zlo, izhi[q], V)
         lo = np.empty(3)
@@ -188,7 +167,7 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
             gf = max(abs(lo[m] - eye[m]), abs(hi[m] - eye[m]))
             df += gf * gf
         if not (math.sqrt(dn) > tnear and math.sqrt(df) < tfar):
-            continue
+            return False
         plo = np.empty((MAX_PLANES, 4))
         bbo = np.empty(6)
         P = np.empty((MAX_PLANES + 8, 3))
@@ -200,7 +179,7 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
         named = np.empty(1, np.int32)
         named[0] = inst
         if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
-            continue
+            return False
         # (b) nothing of the object itself between the eye (or the front face) and the slab
         z0 = max(ze, 0.0)
         if zlo - z0 > 1e-12 * L:
@@ -216,88 +195,79 @@ def _cells_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q
                 bb[3 + m] += qs.slack
             to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, 6, bb, plo, bbo)
             if mesh_any(qs, qs.inst_mesh[inst], plo, 6, bbo, P, Q):
-                continue
-        ok[u] = True
+                return False
+        return True
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _descend(box, lt, roots, inode, cand_pix, pix, o, d, qout):
-    """Step 3a: each ray's line in the object of its pixel's candidate, down that object's
-    linetree: ``qout[r]`` the interpolant of the leaf it reaches (-1: none, or the line
-    misses the face pair: its unclamped coordinates leave [0, 1]). Rays in blocks, each
-    reusing the leaf of the ray before it where the line lies in it (as the walk does)."""
-    k = pix.shape[0]
+@njit(cache=True, nogil=True)
+def _reproject_rays(qs, box, lt, roots, inode, izlo, izhi, dif, isamples, live, serial, rad16,
+                    irebuilt, stamp, clock, eye, tnear, tfar, cell_serial, cell_ok, cand_pix,
+                    pix, o, d, rad, done, pcls, pinterp, tmax):
+    """Step 3 of the module doc, with step 2 run for each interpolant the first time a ray
+    reaches it in this frame (``cell_ok[q]`` holds for pool serial ``cell_serial[q]``).
+
+    Each ray (one per pixel ``pix``): its line in the object of its pixel's candidate
+    ``cand_pix[pix[r]]`` down that object's linetree (reusing the leaf of the ray before it
+    where the line lies in it, as the walk does); if the leaf's interpolant is proven, the
+    ray is interpolated (``rad, done, pcls, pinterp`` as
+    :meth:`~.cache.InterpolantCache.resolve` fills them) and gets ``tmax[r] = -1`` (an empty
+    clipping range: no closest hit). Serial: the proofs are written as they are found.
+    Returns the number of rays interpolated."""
     n = o.shape[0]
-    nb = (n + 4095) // 4096
-    for b in prange(nb):
-        abcd = np.empty(4)
-        lo = np.zeros(4)
-        hi = np.zeros(4)
-        pinst = -1
-        pface = -1
-        pleaf = -1
-        for r in range(b * 4096, min(n, (b + 1) * 4096)):
-            qout[r] = -1
-            q0 = cand_pix[pix[r % k]]
-            if q0 < 0:
-                continue
-            inst = lt.tree[inode[q0]] // 6
-            face = dominant_face(d[r, 0], d[r, 1], d[r, 2])
-            kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
-            back = front - L if neg else front + L
-            tf = (front - o[r, kk]) / d[r, kk]
-            tb = (back - o[r, kk]) / d[r, kk]
-            abcd[0] = (o[r, i] + tf * d[r, i] - li) / wi
-            abcd[1] = (o[r, j] + tf * d[r, j] - lj) / wj
-            abcd[2] = (o[r, i] + tb * d[r, i] - li) / wi
-            abcd[3] = (o[r, j] + tb * d[r, j] - lj) / wj
-            if not (0.0 <= abcd[0] <= 1.0 and 0.0 <= abcd[1] <= 1.0 and 0.0 <= abcd[2] <= 1.0
-                    and 0.0 <= abcd[3] <= 1.0):
-                continue
-            if (inst == pinst and face == pface and lo[0] <= abcd[0] < hi[0]
-                    and lo[1] <= abcd[1] < hi[1] and lo[2] <= abcd[2] < hi[2]
-                    and lo[3] <= abcd[3] < hi[3]):
-                nd = pleaf
-            else:
-                root = roots[inst, face]
-                if root < 0:
-                    continue
-                nd, _ = descend_one(lt, root, abcd, EMPTY)
-                pinst = inst
-                pface = face
-                pleaf = nd
-                sc = 1.0 / float(1 << lt.depth[nd])
-                for m in range(4):
-                    lo[m] = lt.coord[nd, m] * sc
-                    hi[m] = (lt.coord[nd, m] + 1) * sc
-            qout[r] = lt.leaf[nd]
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _reproject_rays(box, lt, inode, rad16, irebuilt, stamp, clock, qray, okq, o, d, rad, done,
-                    pcls, pinterp, tmax):
-    """Step 3b: a ray whose leaf's interpolant ``qray[r]`` passed (``okq``) is interpolated
-    (``rad, done, pcls, pinterp`` as :meth:`~.cache.InterpolantCache.resolve` fills them)
-    and gets ``tmax[r] = -1`` (an empty clipping range: no closest hit). Returns how many."""
-    n = o.shape[0]
+    abcd = np.empty(4)
+    lo = np.zeros(4)
+    hi = np.zeros(4)
+    pinst = -1
+    pface = -1
+    pleaf = -1
     got = 0
-    for r in prange(n):
-        q = qray[r]
-        if q < 0 or not okq[q]:
+    for r in range(n):
+        q0 = cand_pix[pix[r]]
+        if q0 < 0 or q0 >= live.shape[0] or not live[q0]:
             continue
-        nd = inode[q]
-        tree = lt.tree[nd]
-        inst = tree // 6
-        face = tree % 6
+        inst = lt.tree[inode[q0]] // 6
+        face = dominant_face(d[r, 0], d[r, 1], d[r, 2])
         kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
         back = front - L if neg else front + L
         tf = (front - o[r, kk]) / d[r, kk]
         tb = (back - o[r, kk]) / d[r, kk]
+        abcd[0] = (o[r, i] + tf * d[r, i] - li) / wi
+        abcd[1] = (o[r, j] + tf * d[r, j] - lj) / wj
+        abcd[2] = (o[r, i] + tb * d[r, i] - li) / wi
+        abcd[3] = (o[r, j] + tb * d[r, j] - lj) / wj
+        if not (0.0 <= abcd[0] <= 1.0 and 0.0 <= abcd[1] <= 1.0 and 0.0 <= abcd[2] <= 1.0
+                and 0.0 <= abcd[3] <= 1.0):
+            continue  # the line misses the face pair (no crossing in any cell)
+        if (inst == pinst and face == pface and lo[0] <= abcd[0] < hi[0]
+                and lo[1] <= abcd[1] < hi[1] and lo[2] <= abcd[2] < hi[2]
+                and lo[3] <= abcd[3] < hi[3]):
+            nd = pleaf
+        else:
+            root = roots[inst, face]
+            if root < 0:
+                continue
+            nd, _ = descend_one(lt, root, abcd, EMPTY)
+            pinst = inst
+            pface = face
+            pleaf = nd
+            sc = 1.0 / float(1 << lt.depth[nd])
+            for m in range(4):
+                lo[m] = lt.coord[nd, m] * sc
+                hi[m] = (lt.coord[nd, m] + 1) * sc
+        q = lt.leaf[nd]
+        if q < 0:
+            continue
+        if cell_serial[q] != serial[q]:
+            cell_ok[q] = _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear,
+                                  tfar, q)
+            cell_serial[q] = serial[q]
+        if not cell_ok[q]:
+            continue
         s = float(1 << lt.depth[nd])
-        x0 = ((o[r, i] + tf * d[r, i] - li) / wi) * s - lt.coord[nd, 0]
-        x1 = ((o[r, j] + tf * d[r, j] - lj) / wj) * s - lt.coord[nd, 1]
-        x2 = ((o[r, i] + tb * d[r, i] - li) / wi) * s - lt.coord[nd, 2]
-        x3 = ((o[r, j] + tb * d[r, j] - lj) / wj) * s - lt.coord[nd, 3]
+        x0 = abcd[0] * s - lt.coord[nd, 0]
+        x1 = abcd[1] * s - lt.coord[nd, 1]
+        x2 = abcd[2] * s - lt.coord[nd, 2]
+        x3 = abcd[3] * s - lt.coord[nd, 3]
         if not (0.0 <= x0 <= 1.0 and 0.0 <= x1 <= 1.0 and 0.0 <= x2 <= 1.0
                 and 0.0 <= x3 <= 1.0):
             continue  # (rounding at a cell's edge)
@@ -373,22 +343,12 @@ class FrameCells:
         self.serial = np.zeros(0, np.int64)
         self.ok = np.zeros(0, np.bool_)
 
-    def lookup(self, cache, uq: np.ndarray) -> np.ndarray:
-        """Whether interpolants ``uq`` may be reprojected from this eye."""
-        p = cache.pool
-        if len(self.serial) < len(p.serial):
-            grow = len(p.serial) - len(self.serial)
+    def grow(self, n: int) -> None:
+        """Room for pool ids below ``n``."""
+        if len(self.serial) < n:
+            grow = n - len(self.serial)
             self.serial = np.concatenate([self.serial, np.zeros(grow, np.int64)])
             self.ok = np.concatenate([self.ok, np.zeros(grow, np.bool_)])
-        new = uq[self.serial[uq] != p.serial[uq]]
-        if len(new):
-            ok = np.empty(len(new), np.bool_)
-            _cells_ok(cache.qs, cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi,
-                      cache.samples.texture_terms()[0], p.samples, self.eye, self.tnear,
-                      self.tfar, new, ok)
-            self.ok[new] = ok
-            self.serial[new] = p.serial[new]
-        return self.ok[uq]
 
 
 def reproject(cache, view: View | None, cells: FrameCells, cp: CameraParams, pix: np.ndarray,
@@ -404,32 +364,22 @@ def reproject(cache, view: View | None, cells: FrameCells, cp: CameraParams, pix
             or view.height != cp.height or n == 0):
         return None
     p = cache.pool
-    cand_pix = view.same_pixel.copy()
+    cand_pix = view.same_pixel
     if splat:
+        cand_pix = cand_pix.copy()
         _splat(cp, view.points, view.interp, cand_pix)
-    # candidates evicted or invalidated since are dropped (a reused id names an object
-    # like any other: only the object is taken from it)
-    seen = np.zeros(len(p.live), np.bool_)
-    uq = np.empty(len(p.live), np.int32)
-    if _candidates(cand_pix, p.live, seen, uq) == 0:
-        return None
-    pix = np.ascontiguousarray(pix, np.int64)
-    qray = np.empty(n, np.int32)
-    _descend(cache.box, cache.trees.arrays, cache.trees.roots, p.node, cand_pix, pix, o, d,
-             qray)
-    seen[:] = False
-    nq = _candidates(qray, p.live, seen, uq)
-    if nq == 0:
-        return None
-    uq = uq[:nq]
-    okq = seen  # reused: False where a cell is not proven
-    okq[uq[~cells.lookup(cache, uq)]] = False
+    cells.grow(len(p.serial))
     rad = np.zeros((n, 3))
     done = np.zeros(n, np.bool_)
     pcls = np.zeros(n, np.uint8)
     pinterp = np.full(n, -1, np.int32)
     hi = np.array(np.broadcast_to(tmax, (n,)), np.float64)
     cache.clock += 1
-    m = _reproject_rays(cache.box, cache.trees.arrays, p.node, p.rad, p.rebuilt, p.stamp,
-                        cache.clock, qray, okq, o, d, rad, done, pcls, pinterp, hi)
+    m = _reproject_rays(cache.qs, cache.box, cache.trees.arrays, cache.trees.roots, p.node,
+                        p.zlo, p.zhi, cache.samples.texture_terms()[0], p.samples, p.live,
+                        p.serial, p.rad, p.rebuilt, p.stamp, cache.clock, cells.eye,
+                        cells.tnear, cells.tfar, cells.serial, cells.ok, cand_pix,
+                        np.ascontiguousarray(pix, np.int64), o, d, rad, done, pcls, pinterp, hi)
+    if m == 0:
+        return None
     return (rad, done, pcls, pinterp), hi, int(m)

@@ -253,10 +253,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             if rep is not None:
                 n_rep += int(np.count_nonzero(rep))
             if s == 0 and pixels is None:
-                t = hits.t
-                if rep is not None:
-                    t = t.copy()
-                    mid_points(cache, res.interpolant, o, d, t, rep)
+                t = hits.t.copy()
+                mid_points(cache, res.interpolant, o, d, t,
+                           np.zeros(k, np.bool_) if rep is None else rep)
                 here = remember(pix, res.interpolant, o, d, t, w, h)
             used.append(np.unique(res.interpolant))
             # a miss is the world colour (exactly what the tracer gives it)

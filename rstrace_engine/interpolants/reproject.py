@@ -180,11 +180,13 @@ def _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q)
         named[0] = inst
         if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
             return False
-        # (b) nothing of the object itself between the eye (or the front face) and the slab
+        # (b) nothing of the object itself between the eye (or the front face) and the slab.
+        # The side planes of a cell's lines do not depend on the depths: taken from the
+        # whole depth (well conditioned however thin the near region), the depth planes
+        # set apart
         z0 = max(ze, 0.0)
-        if zlo - z0 > 1e-12 * L:
+        if zlo > z0:
             _cell_hexa(box, inst, face, lt.depth[nd], lt.coord[nd], z0, zlo, V)
-            hexa_planes(V, qs.slack, pl)
             for m in range(3):
                 bb[m] = V[0, m]
                 bb[3 + m] = V[0, m]
@@ -193,6 +195,18 @@ def _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q)
                     bb[3 + m] = max(bb[3 + m], V[v, m])
                 bb[m] -= qs.slack
                 bb[3 + m] += qs.slack
+            _cell_hexa(box, inst, face, lt.depth[nd], lt.coord[nd], 0.0, L, V)
+            hexa_planes(V, qs.slack, pl)
+            for f in range(4, 6):
+                pl[f, 0] = 0.0
+                pl[f, 1] = 0.0
+                pl[f, 2] = 0.0
+            # inside: z0 <= depth <= zlo, depth = x_k - front (front - x_k when neg)
+            sgn = -1.0 if neg else 1.0
+            pl[4, k] = sgn
+            pl[4, 3] = -sgn * front - z0 + qs.slack
+            pl[5, k] = -sgn
+            pl[5, 3] = sgn * front + zlo + qs.slack
             to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, 6, bb, plo, bbo)
             if mesh_any(qs, qs.inst_mesh[inst], plo, 6, bbo, P, Q):
                 return False

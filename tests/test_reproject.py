@@ -132,3 +132,26 @@ def test_orthographic_cameras_and_edits_do_not_reproject(monkeypatch):
     assert r.cache.view is not None
     r.cache.invalidate(np.zeros((0, 2, 3)), objects=[1])
     assert r.cache.view is None
+
+
+@pytest.mark.parametrize("name", ["spot_floor", "gallery", "tori"])
+def test_random_camera_moves_reproject_exactly(monkeypatch, name):
+    """Random small moves and turns on a spot light with a hard cone edge, a gallery with
+    a torus occluder, glass and a polished floor, and smooth non-convex tori."""
+    import bound_scenes
+
+    sc = scenes.tori(96, 72) if name == "tori" else getattr(bound_scenes, name)("PERSP")
+    rng = np.random.default_rng(3)
+    cams = [sc.camera]
+    m = sc.camera.matrix.copy()
+    for _ in range(3):
+        m = m.copy()
+        m[:3, 3] += rng.normal(size=3) * 0.01 * sc.arrays().scene_extent
+        a = np.radians(rng.normal() * 3.0)
+        m[:3, :3] = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0],
+                              [0.0, 0.0, 1.0]]) @ m[:3, :3]
+        cams.append(replace(sc.camera, matrix=m))
+    on, _ = _sequence(sc, cams, 2, True, monkeypatch)
+    off, _ = _sequence(sc, cams, 2, False, monkeypatch)
+    _assert_same(on, off)
+    assert max(f.stats["reprojected_fraction"] for f in on) > 0.0

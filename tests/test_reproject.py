@@ -155,3 +155,37 @@ def test_random_camera_moves_reproject_exactly(monkeypatch, name):
     off, _ = _sequence(sc, cams, 2, False, monkeypatch)
     _assert_same(on, off)
     assert max(f.stats["reprojected_fraction"] for f in on) > 0.0
+
+
+def test_a_session_reprojects_after_a_camera_move_and_edits_stay_exact(monkeypatch):
+    """Session frames keep pixel records: reprojected samples record a view segment to the
+    far end of their slab (longer than to their hit: it can only make more pixels dirty).
+    An edit after a reprojected frame gives the frame a fresh session gives, within the
+    bound of the base frame."""
+    from rstrace_engine.geometry.edits import CameraChange, ObjectTransform
+    from rstrace_engine.session import Session
+
+    def run(enabled):
+        monkeypatch.setattr(reproject, "ENABLED", enabled)
+        sc = scenes.three_spheres(120, 90, subdivisions=2)
+        st = RenderSettings(mode="INTERPOLANT", epsilon=EPS)
+        sess = Session(sc, st)
+        sess.render()
+        cam = _moves(sc.camera, 0.1)[1]
+        sc.set_camera(cam)
+        sess.apply([CameraChange(cam)])
+        moved = sess.render()
+        edit = ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))
+        sess.apply([edit])
+        edited = sess.render()
+        return moved, edited, sess
+
+    moved, edited, sess = run(True)
+    moved_off, edited_off, _ = run(False)
+    assert moved.stats["reprojected_fraction"] > 0.02
+    assert np.array_equal(moved.radiance, moved_off.radiance)
+    assert not np.array_equal(edited.radiance, moved.radiance)  # the edit is seen
+    base = whitted.render(sess.scene, RenderSettings(), accel=sess.accel)
+    for f in (edited, edited_off):
+        err = np.abs(image.to_display(f.radiance) - image.to_display(base.radiance)).max()
+        assert err <= EPS + FLOAT_TOL

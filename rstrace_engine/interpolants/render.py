@@ -39,7 +39,7 @@ from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .cache import InterpolantCache
-from .reproject import FrameCells, mid_points, remember, reproject
+from .reproject import FrameCells, remember, reproject, slab_points
 
 log = logging.getLogger(__name__)
 
@@ -128,30 +128,36 @@ def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, c
     """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
     :meth:`~.cache.InterpolantCache.resolve` of one ray per pixel ``pix``. Returns
     ``(hits, resolve result, reprojected (n,) bool or None)``; ``cache.frame_stats`` gets
-    ``visibility_s``. A reprojected ray's hit is left a miss (its exact hit on its object
-    when ``exact``: pixel records keep it)."""
+    ``visibility_s``. A reprojected ray's hit is left a miss (with ``exact``, for pixel
+    records: its object, at the far end of its slab)."""
     tv = time.perf_counter()
     rp = reproject(cache, view, cells, cp, pix, o, d, tmax, splat)
-    pre = None
+    pre = exact_hits = None
     if rp is None:
         hits = cache.accel.closest_hit(o, d, tmin, tmax)
     else:
         pre, hi, _ = rp
         hits = cache.accel.closest_hit(o, d, tmin, hi)
+        reprojected = hi < 0.0
+        if exact:
+            # pixel records keep a view segment per sample: the reprojected ones reach the
+            # far end of their slab, past their hit (a longer segment can only make more
+            # pixels dirty after an edit). Before resolve, which may evict (and reuse) the
+            # interpolants used.
+            g = np.flatnonzero(reprojected)
+            t = np.full(len(o), np.inf)
+            slab_points(cache, pre[3], o, d, t, reprojected, 1.0)
+            exact_hits = g, cache.trees.arrays.tree[cache.pool.node[pre[3][g]]] // 6, t[g]
     tv = time.perf_counter() - tv
     face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
     res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=pre)
     cache.frame_stats["visibility_s"] = tv
     if rp is None:
         return hits, res, None
-    reprojected = hi < 0.0
-    if exact and np.any(reprojected):
-        g = np.flatnonzero(reprojected)
-        inst = cache.trees.arrays.tree[cache.pool.node[res.interpolant[g]]] // 6
-        lo = np.broadcast_to(tmin, (len(o),))
-        h = cache.accel.intersect_object(inst, o[g], d[g], lo[g], np.asarray(tmax)[g])
-        for full, part in zip(hits, h, strict=True):
-            full[g] = part
+    if exact_hits is not None:
+        g, inst, t = exact_hits
+        hits.inst[g] = inst
+        hits.t[g] = t
     return hits, res, reprojected
 
 
@@ -258,8 +264,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 n_rep += int(np.count_nonzero(rep))
             if s == 0 and pixels is None:
                 t = hits.t.copy()
-                mid_points(cache, res.interpolant, o, d, t,
-                           np.zeros(k, np.bool_) if rep is None else rep)
+                slab_points(cache, res.interpolant, o, d, t,
+                            np.zeros(k, np.bool_) if rep is None else rep)
                 here = remember(pix, res.interpolant, o, d, t, w, h)
             used.append(np.unique(res.interpolant))
             # a miss is the world colour (exactly what the tracer gives it)

@@ -306,9 +306,10 @@ def _reproject_rays(qs, box, lt, roots, inode, izlo, izhi, dif, isamples, live, 
 
 
 @njit(cache=True, nogil=True)
-def _mid_points(box, lt, inode, izlo, izhi, pinterp, o, d, t, reprojected):
-    """Ray parameter in the middle of the slab of a reprojected ray's interpolant (they
-    have no hit: the next frame's reprojection needs a point)."""
+def _slab_points(box, lt, inode, izlo, izhi, pinterp, o, d, t, reprojected, frac):
+    """``t[r]`` of reprojected rays (they have no hit): the ray parameter at depth ``z_lo +
+    frac (z_hi - z_lo)`` of their interpolant's slab (the middle: a point for the next
+    frame's reprojection; the far end: a view segment that reaches past the hit)."""
     for r in range(t.shape[0]):
         q = pinterp[r]
         if q < 0 or not reprojected[r]:
@@ -318,7 +319,7 @@ def _mid_points(box, lt, inode, izlo, izhi, pinterp, o, d, t, reprojected):
         inst = tree // 6
         face = tree % 6
         kk, i, j, neg, front, L, li, wi, lj, wj = face_frame(box, inst, face)
-        zm = 0.5 * (izlo[q] + izhi[q])
+        zm = izlo[q] + frac * (izhi[q] - izlo[q])
         t[r] = ((front - zm if neg else front + zm) - o[r, kk]) / d[r, kk]
 
 
@@ -334,11 +335,12 @@ def remember(pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
     return View(width, height, same, points[:m], pq[:m])
 
 
-def mid_points(cache, pinterp, o, d, t, reprojected) -> None:
-    """``t`` of reprojected rays: the middle of their interpolant's slab."""
+def slab_points(cache, pinterp, o, d, t, reprojected, frac: float = 0.5) -> None:
+    """``t`` of reprojected rays at ``frac`` of their interpolant's slab
+    (:func:`_slab_points`)."""
     p = cache.pool
-    _mid_points(cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, pinterp, o, d, t,
-                reprojected)
+    _slab_points(cache.box, cache.trees.arrays, p.node, p.zlo, p.zhi, pinterp, o, d, t,
+                 reprojected, float(frac))
 
 
 class FrameCells:

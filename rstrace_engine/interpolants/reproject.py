@@ -32,8 +32,8 @@ closest-hit ray and a walk would give. Tests with slack move every plane outward
 
 Every other ray (no candidate, another cell, a failed test -- disocclusions, silhouettes,
 cells that an object now hides) gets its closest-hit ray and walk as before. A reprojected
-ray has no hit record; where one is needed (incremental records) its hit on the object
-alone is computed.
+ray has no hit: the pixel records of a session get its object and a view segment to the far
+end of its slab (past the hit: it can only make more pixels dirty after an edit).
 """
 
 from __future__ import annotations

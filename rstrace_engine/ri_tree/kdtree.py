@@ -52,6 +52,7 @@ class Nodes(NamedTuple):
     nclass: np.ndarray  # (N,) int8 patch classes among the corners of a FINAL leaf (1, 2, 3+)
     cls: np.ndarray  # (N, 2) int32 the (first) two classes
     ang_ok: np.ndarray  # (N,) uint8 bit k: class k passes the angular threshold
+    visits: np.ndarray  # (N,) int32 queries that reached the node while it was an OPEN leaf
 
 
 def _alloc_nodes(cap: int) -> Nodes:
@@ -60,11 +61,12 @@ def _alloc_nodes(cap: int) -> Nodes:
                  np.zeros(cap, np.int8), np.zeros(cap, np.int16),
                  np.full(cap, DEAD, np.int8), np.zeros(cap, np.int64),
                  np.full(cap, -1, np.int32), np.zeros(cap, np.int8),
-                 np.full((cap, 2), -1, np.int32), np.zeros(cap, np.uint8))
+                 np.full((cap, 2), -1, np.int32), np.zeros(cap, np.uint8),
+                 np.zeros(cap, np.int32))
 
 
 #: bytes of one node (the fields of :class:`Nodes`)
-NODE_BYTES = 32 + 32 + 64 + 4 + 4 + 1 + 2 + 1 + 8 + 4 + 1 + 8 + 1
+NODE_BYTES = 32 + 32 + 64 + 4 + 4 + 1 + 2 + 1 + 8 + 4 + 1 + 8 + 1 + 4
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -121,6 +123,7 @@ def split_leaves(nd, parents, first, new_ids, wscale, lines):
             nd.tree[c] = nd.tree[p]
             nd.nclass[c] = 0
             nd.ang_ok[c] = 0
+            nd.visits[c] = 0
             for a in range(4):
                 nd.lo[c, a] = nd.lo[p, a]
                 nd.hi[c, a] = nd.hi[p, a]
@@ -280,6 +283,7 @@ class KdForest:
         nd.stamp[ids] = self.stamp
         nd.tree[ids] = keys
         nd.nclass[ids] = 0
+        nd.visits[ids] = 0
         self.roots.reshape(-1)[keys] = ids
         return ids
 

@@ -33,8 +33,12 @@ MIN_USABLE = 6
 #: ... and when their quadrilinear weights at the query sum to at least this
 MIN_WEIGHT = 1e-3
 
-# query outcomes
-ST_HIT, ST_MISS, ST_TEST, ST_FAIL_CLASS, ST_FAIL_ANGLE = 0, 1, 2, 3, 4
+# query outcomes (ST_SPARSE: the ray's leaf is not final and the cost rule does not refine
+# it (too few queries to pay for its samples, or no room in the cache): trace it)
+ST_HIT, ST_MISS, ST_TEST, ST_FAIL_CLASS, ST_FAIL_ANGLE, ST_SPARSE = 0, 1, 2, 3, 4, 5
+
+# corner kinds of a cell (:func:`corner_kinds`)
+K_ALL_MISS, K_ONE, K_TWO, K_MIXED = 0, 1, 2, 3
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -90,6 +94,37 @@ def finalize(nd, leaves, S, cosmin):
             bits |= 2
         nd.ang_ok[x] = bits
         nd.state[x] = FINAL
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def corner_kinds(nd, leaves, S, out):
+    """Kind of each cell ``leaves[q]`` by its 16 corners' class keys: ``K_ALL_MISS`` (every
+    corner misses), ``K_ONE`` (one class), ``K_TWO`` (exactly two, a miss included),
+    ``K_MIXED`` (three or more)."""
+    for q in prange(leaves.shape[0]):
+        x = leaves[q]
+        nc = 0
+        c0 = MISS
+        c1 = MISS
+        for k in range(16):
+            key = S.cls[nd.corner[x, k]]
+            if nc == 0:
+                c0 = key
+                nc = 1
+            elif key != c0:
+                if nc == 1:
+                    c1 = key
+                    nc = 2
+                elif key != c1:
+                    nc = 3
+        if nc >= 3:
+            out[q] = K_MIXED
+        elif nc == 2:
+            out[q] = K_TWO
+        elif c0 == MISS:
+            out[q] = K_ALL_MISS
+        else:
+            out[q] = K_ONE
 
 
 @njit(cache=True, nogil=True)

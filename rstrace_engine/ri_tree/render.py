@@ -59,7 +59,7 @@ from ..tracing.whitted import (
 from . import thickness as thick
 from .cache import RITreeCache
 from .eligibility import eligible, instance_fingerprints, subset
-from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS
+from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 
 log = logging.getLogger(__name__)
 
@@ -323,8 +323,8 @@ class RITreeRenderer:
             cand_rows.append(qr[okt])
             cand_t.append(q.test_t[okt])
             cand_id.append(-2 - (len(qi) + okt).astype(np.int64))
-            fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
-                                  & (q.test_prim < 0))
+            fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
+                                   | (q.status == ST_SPARSE)) & (q.test_prim < 0))
             trace_pairs.append(qi[fail])
             # the class of a primary pixel: the status of its nearest query
             st = out["status"]
@@ -608,10 +608,13 @@ class RITreeRenderer:
             np.add.at(length, qr[okq], q.thick[okq])
             cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
             hit_any[qr[okq]] = 0
-            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
-            fc = np.where(q.status[fail] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
+            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
+                                  | (q.status == ST_SPARSE))
+            # a failed test marks the pixel; a sparse leaf's ray is simply traced
+            ff = fail[q.status[fail] != ST_SPARSE]
+            fc = np.where(q.status[ff] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
                           CLASS_FAIL_NONLINEAR).astype(np.uint8)
-            cls[qr[fail]] = np.where(cls[qr[fail]] == CLASS_INTERPOLATED, cls[qr[fail]], fc)
+            cls[qr[ff]] = np.where(cls[qr[ff]] == CLASS_INTERPOLATED, cls[qr[ff]], fc)
             walk_pairs.append(qi[fail])
         wp = np.concatenate(walk_pairs)
         if len(wp):

@@ -39,6 +39,7 @@ from .patches import (
     corner_kinds,
     finalize,
     interpolate,
+    interpolate_reflection,
     midpoint_distances,
     patch_of,
 )
@@ -76,10 +77,14 @@ class QueryResult(NamedTuple):
     test_prim: np.ndarray  # (n,) int32 its triangle (-1: not tested or a miss)
     test_u: np.ndarray  # (n,) float64
     test_v: np.ndarray  # (n,) float64
+    RP: np.ndarray  # (n, 3) internal reflection at the exit: origin (inside the object)
+    RD: np.ndarray  # (n, 3) its direction
+    rgain: np.ndarray  # (n, 3) its weight past the entry (0: none)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, mat):
+def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, mat, RP, RD,
+             rgain):
     for r in prange(leaf.shape[0]):
         x = leaf[r]
         if x < 0 or nd.state[x] != FINAL:
@@ -97,13 +102,14 @@ def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, ma
         elif interpolate(nd, x, S, abcd[r], nd.cls[x, 0], r, P, NS, NG, OP, OD, gain, thick,
                          nint, mat) >= MIN_USABLE:
             status[r] = ST_HIT
+            interpolate_reflection(nd, x, S, abcd[r], nd.cls[x, 0], r, RP, RD, rgain)
         else:
             status[r] = ST_FAIL_CLASS
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim, u, v,
-                    status, P, NS, NG, OP, OD, gain, thick, nint, mat):
+                    status, P, NS, NG, OP, OD, gain, thick, nint, mat, RP, RD, rgain):
     """Rays ``rows`` of two-class leaves, with their exact first hits ``t, prim, u, v``."""
     for q in prange(rows.shape[0]):
         r = rows[q]
@@ -126,6 +132,7 @@ def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim,
             status[r] = ST_FAIL_CLASS
             continue
         status[r] = ST_HIT
+        interpolate_reflection(nd, x, S, abcd[r], key, r, RP, RD, rgain)
         # the entry is known exactly: use it
         k = inst[r]
         nm = sa.inst_nmat[k]
@@ -392,10 +399,10 @@ class RITreeCache:
         res = QueryResult(np.empty(n, np.int8), np.full(n, np.inf), *(np.zeros((n, 3))
                           for _ in range(6)), np.full(n, -1, np.int16), np.full(n, -1, np.int32),
                           np.zeros(n), np.full(n, np.inf), np.full(n, -1, np.int32),
-                          np.zeros(n), np.zeros(n))
+                          np.zeros(n), np.zeros(n), *(np.zeros((n, 3)) for _ in range(3)))
         nd = f.nodes
         _resolve(nd, self.samples, leaf, abcd, res.status, res.P, res.NS, res.NG, res.OP,
-                 res.OD, res.gain, res.thick, res.nint, res.mat)
+                 res.OD, res.gain, res.thick, res.nint, res.mat, res.RP, res.RD, res.rgain)
         rows = np.flatnonzero(res.status == ST_TEST)
         if len(rows):
             h = self.accel.intersect_object(inst[rows], o[rows], d[rows], 0.0, np.inf)
@@ -407,7 +414,8 @@ class RITreeCache:
                             rows.astype(np.int64), o, d, np.ascontiguousarray(h.t),
                             np.ascontiguousarray(h.prim, np.int32), np.ascontiguousarray(h.u),
                             np.ascontiguousarray(h.v), res.status, res.P, res.NS, res.NG,
-                            res.OP, res.OD, res.gain, res.thick, res.nint, res.mat)
+                            res.OP, res.OD, res.gain, res.thick, res.nint, res.mat,
+                            res.RP, res.RD, res.rgain)
         _ray_param(o, d, res.status, res.P, res.t)
         self._note_peak()
         self._enforce_cap()

@@ -182,6 +182,52 @@ def interpolate(nd, x, S, abcd, key, r, P, NS, NG, OP, OD, gain, thick, nint, ma
     return cnt
 
 
+@njit(cache=True, nogil=True)
+def interpolate_reflection(nd, x, S, abcd, key, r, RP, RD, rgain):
+    """The internal reflection at the exit (:mod:`.sampling`) of class ``key``'s corners of
+    node ``x`` at line ``abcd`` into row ``r``, with :func:`interpolate`'s weights."""
+    wsum = 0.0
+    for c in range(3):
+        RP[r, c] = 0.0
+        RD[r, c] = 0.0
+        rgain[r, c] = 0.0
+    u0 = _unit(nd, x, abcd, 0)
+    u1 = _unit(nd, x, abcd, 1)
+    u2 = _unit(nd, x, abcd, 2)
+    u3 = _unit(nd, x, abcd, 3)
+    for q in range(16):
+        s = nd.corner[x, q]
+        if S.cls[s] != key:
+            continue
+        w = corner_weight(q, u0, u1, u2, u3)
+        if w <= 0.0:
+            continue
+        wsum += w
+        for c in range(3):
+            RP[r, c] += w * S.RP[s, c]
+            RD[r, c] += w * S.RD[s, c]
+            rgain[r, c] += w * S.rgain[s, c]
+    if wsum < MIN_WEIGHT:
+        for c in range(3):
+            rgain[r, c] = 0.0
+        return
+    ln = math.sqrt(RD[r, 0] ** 2 + RD[r, 1] ** 2 + RD[r, 2] ** 2)
+    for c in range(3):
+        RP[r, c] /= wsum
+        rgain[r, c] /= wsum
+        RD[r, c] = RD[r, c] / ln if ln > 0.0 else 0.0
+    if ln == 0.0:
+        for c in range(3):
+            rgain[r, c] = 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unit(nd, x, abcd, m):
+    w = nd.hi[x, m] - nd.lo[x, m]
+    t = (abcd[m] - nd.lo[x, m]) / w if w > 0.0 else 0.5
+    return min(max(t, 0.0), 1.0)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _line4(box, inst, face, px, py, pz, dx, dy, dz, out):
     """Unclamped line coordinates of the ray (p, d) in face pair ``face``, in units of the

@@ -476,22 +476,34 @@ class RITreeRenderer:
                 drop = np.setdiff1d(has_tr, keep)
                 c_ok[tr[drop]] = False
                 kt = tr[keep]
-                c_o[kt] = q.OP[qi[keep]]
-                c_d[kt] = q.OD[qi[keep]]
-                c_w[kt] *= q.gain[qi[keep]]
+                qk = qi[keep]
+                w_in = c_w[kt].copy()  # the weight of the path past the entry
+                c_o[kt] = q.OP[qk]
+                c_d[kt] = q.OD[qk]
+                c_w[kt] *= q.gain[qk]
                 child_level[kt] = level[interp[keep]] + ni[keep] + 1
                 child_self[kt] = H["inst"][interp[keep]]
                 c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
+                # the internal reflection where the path refracts out: traced from there
+                # (from inside, so the object itself is traced), as the base tracer splits
+                rw = w_in * q.rgain[qk]
+                rsel = np.flatnonzero(rw.max(axis=1) > tol.PATH_WEIGHT_MIN)
+                x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
+                x_src = interp[keep[rsel]]
+                x_level = level[x_src] + ni[keep[rsel]] + 1
+            else:
+                x_o = x_d = x_w = np.empty((0, 3))
+                x_src = x_level = np.empty(0, np.int64)
             kids = np.flatnonzero(c_ok)
             which = kids // 2
-            o = c_o[kids]
-            d = c_d[kids]
-            weight = c_w[kids]
-            src = src[which]
-            level = child_level[kids]
-            self_inst = child_self[kids]
-            t0 = np.zeros(len(kids))
-            t1 = np.full(len(kids), np.inf)
+            o = np.concatenate([c_o[kids], x_o])
+            d = np.concatenate([c_d[kids], x_d])
+            weight = np.concatenate([c_w[kids], x_w])
+            src = np.concatenate([src[which], src[x_src]])
+            level = np.concatenate([child_level[kids], x_level])
+            self_inst = np.concatenate([child_self[kids], np.full(len(x_src), -1, np.int32)])
+            t0 = np.zeros(len(o))
+            t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst
 
     def render(self, scene, settings: RenderSettings, accel, progress=None,

@@ -72,6 +72,11 @@ _QUERY, _TRACE = 0, 1
 #: engine costs less than a query with its traced fallbacks and leaves no error
 SHADOW_QUERIES = False
 
+#: rays per batch of an RI_TREE frame: larger than the base tracer's tiles, so that a batch
+#: brings more queries to each leaf (the cost rule counts them) and the per-batch work of
+#: the queries is spread over more rays
+RI_TILE_RAYS = 4 * TILE_RAYS
+
 
 # ----------------------------------------------------------------------------- kernels
 
@@ -527,7 +532,7 @@ class RITreeRenderer:
         cp = camera_params(scene.camera)
         w, h = cp.width, cp.height
         spp = int(settings.samples)
-        rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+        rows_per_tile = max(1, RI_TILE_RAYS // max(1, w * spp))
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         counters: dict = {}

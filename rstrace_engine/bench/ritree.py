@@ -244,12 +244,14 @@ def plot(rows: list[dict], path: Path) -> bool:
                and r["depth"] == 28 and r["cache_mb"] == DEFAULT_CACHE] or \
               [r for r in rows if (r["scene"], r["view"]) == key]
         sel.sort(key=lambda r: r["dist_thresh"])
-        ax.plot([r["mean_error"] for r in sel], [r["speedup"] for r in sel], marker="o",
-                label=f"{key[0]} ({key[1].lower()})")
+        (line,) = ax.plot([r["mean_error"] for r in sel], [r["speedup"] for r in sel],
+                          marker="o", label=f"{key[0]} ({key[1].lower()})")
+        if sel and "ceiling_speedup" in sel[0]:  # a perfect tree, free: dotted
+            ax.axhline(sel[0]["ceiling_speedup"], color=line.get_color(), lw=1.0, ls=":")
     ax.axhline(1.0, color="grey", lw=0.8, ls="--")
     ax.axvspan(0.004, 0.019, color="green", alpha=0.08, label="paper's error range")
     ax.set_xlabel("mean RGB error vs base frame (distance threshold sweep)")
-    ax.set_ylabel("CPU-time speedup over the base tracer")
+    ax.set_ylabel("CPU-time speedup over the base tracer\n(dotted: with a perfect, free tree)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

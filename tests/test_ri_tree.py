@@ -354,3 +354,41 @@ def test_exact_attributes_give_the_base_frame(monkeypatch):
     assert (f.pixel_class == CLASS_INTERPOLATED).mean() > 0.05
     base = render(sc, replace(st, mode="BASE"), accel=accel)
     np.testing.assert_allclose(f.radiance, base.radiance, rtol=1e-5, atol=1e-5)
+
+
+def test_tiny_cap_within_a_batch_keeps_the_pools_consistent():
+    """One large query batch per call under a cap far below what the batch wants: the cache
+    never holds more than the cap (pruning older batches' nodes mid-batch, tracing what does
+    not fit), and no sample a live node or a held midpoint uses is ever freed twice or
+    handed out while in use."""
+    from rstrace_engine.ri_tree.kdtree import DEAD
+    from rstrace_engine.ri_tree.patches import ST_SPARSE
+
+    sc = _scene(glass=True)
+    cap = 0.5
+    cache, _ = _cache(sc, dist=0.05, cache_mb=cap, plain=False)
+    big, _ = _cache(sc, dist=0.05, cache_mb=1000.0, plain=False)
+    c = np.array([0.0, 0.0, 1.2])
+    rng = np.random.default_rng(4)
+    for k in range(4):
+        # bundles from four eyes around the sphere (dense in line space)
+        a = 0.5 * np.pi * k
+        eye = c + 6.0 * np.array([np.cos(a), np.sin(a), 0.3])
+        tgt = c + rng.uniform(-0.8, 0.8, (20000, 3))
+        d = (tgt - eye) / np.linalg.norm(tgt - eye, axis=1, keepdims=True)
+        o = np.repeat(eye[None], len(d), axis=0)
+        q = cache.query(np.ones(len(o), np.int32), o, d)
+        assert cache.peak_bytes <= cap * 1e6
+        f = cache.forest
+        free = np.asarray(f._free_samples, np.int64)
+        assert len(np.unique(free)) == len(free)
+        live = f.nodes.state[:f.n_nodes] != DEAD
+        used = f.nodes.corner[:f.n_nodes][live].reshape(-1)
+        assert not np.isin(used[used >= 0], free).any()
+        qb = big.query(np.ones(len(o), np.int32), o, d)
+        # what fitted is interpolated as with room to spare; the rest is traced
+        both = (q.status == ST_HIT) & (qb.status == ST_HIT)
+        assert (q.status == ST_SPARSE).sum() > (qb.status == ST_SPARSE).sum()
+        assert both.sum() > 100
+        np.testing.assert_allclose(q.NS[both], qb.NS[both], atol=0.2)
+    assert cache.counters["prunes"] > 0

@@ -238,11 +238,11 @@ class RITreeCache:
         self.counters["samples_traced"] += len(inst)
         return ids
 
-    def _room(self) -> float:
+    def _room(self, held=None) -> float:
         """Bytes that may still be allocated in this query batch without passing the cache
         size. When there is too little, least recently used nodes of *earlier* batches are
         pruned first (nothing the current batch's rays stand on: their paths carry its
-        stamp), once per batch."""
+        stamp), once per batch. ``held``: sample ids in use that no node references."""
         free = self.cache_bytes - self.memory_bytes
         f = self.forest
         if free >= PRUNE_MIN_ROOM * self.cache_bytes or self._pruned_in == f.stamp:
@@ -251,7 +251,7 @@ class RITreeCache:
         live = max(f.live_nodes, 1)
         per_node = self.memory_bytes / live
         cut = min(f.cutoff_for(int(PRUNE_KEEP * self.cache_bytes / per_node)), f.stamp)
-        f.prune(cut)
+        f.prune(cut, held)
         self.counters["prunes"] += 1
         return self.cache_bytes - self.memory_bytes
 
@@ -309,7 +309,7 @@ class RITreeCache:
                 fin = lv[capped]
                 ev = lv[~capped & (nd.visits[lv] >= need)]
                 if len(ev):
-                    fit = int(max(self._room(), 0.0) // per_split)
+                    fit = int(max(self._room(mid_id), 0.0) // per_split)
                     if fit < len(ev):  # the most wanted first
                         ev = ev[np.argsort(-nd.visits[ev], kind="stable")[:fit]]
                 split = ev[:0]

@@ -310,10 +310,13 @@ class KdForest:
             flat[nd.tree[x]] = -1
             self._free_roots.append(x)
 
-    def collect_samples(self) -> np.ndarray:
-        """Free every sample no live node references; returns the freed ids."""
+    def collect_samples(self, held=None) -> np.ndarray:
+        """Free every sample no live node references (nor ``held``: ids the caller still
+        uses, such as midpoints traced ahead); returns the freed ids."""
         used = np.zeros(max(self.n_samples, 1), np.bool_)
         mark_samples(self.nodes, self.n_nodes, used)
+        if held is not None and len(held):
+            used[np.asarray(held, np.int64)] = True
         free = np.zeros(max(self.n_samples, 1), np.bool_)
         if self._free_samples:
             free[np.asarray(self._free_samples)] = True
@@ -321,8 +324,9 @@ class KdForest:
         self._free_samples.extend(int(s) for s in dead)
         return dead
 
-    def prune(self, cutoff: int) -> None:
-        """Cut everything last used before stamp ``cutoff`` (module doc); free samples."""
+    def prune(self, cutoff: int, held=None) -> None:
+        """Cut everything last used before stamp ``cutoff`` (module doc); free samples
+        (except ``held``, see :meth:`collect_samples`)."""
         nd = self.nodes
         flat = self.roots.reshape(-1)
         live = flat[flat >= 0]
@@ -332,7 +336,7 @@ class KdForest:
         freed = np.empty(max(self.n_nodes, 1), np.int32)
         nf = prune_pass(nd, self.n_nodes, cutoff, freed)
         self._free_pairs.extend(int(c) for c in freed[:nf])
-        self.collect_samples()
+        self.collect_samples(held)
 
     def invalidate(self, instances) -> int:
         """Drop every tree of the given instance slots; returns the number of trees."""

@@ -392,3 +392,38 @@ def test_tiny_cap_within_a_batch_keeps_the_pools_consistent():
         assert both.sum() > 100
         np.testing.assert_allclose(q.NS[both], qb.NS[both], atol=0.2)
     assert cache.counters["prunes"] > 0
+
+
+def test_error_falls_with_the_distance_threshold_under_the_cost_rule():
+    """The cost rule decides which leaves are worth refining, not how far: with dense
+    demand (one eye's bundle) a lower distance threshold still gives a finer tree and a
+    smaller exit-ray error against the traced exit rays of the same lines."""
+    from rstrace_engine.interpolants.linetree import parameterize
+    from rstrace_engine.ri_tree.sampling import trace_samples
+
+    sc = _scene(glass=True)
+    c = np.array([0.0, 0.0, 1.2])
+    rng = np.random.default_rng(12)
+    eye = c + np.array([0.5, -6.0, 1.5])
+    tgt = c + rng.uniform(-0.9, 0.9, (30000, 3))
+    d = (tgt - eye) / np.linalg.norm(tgt - eye, axis=1, keepdims=True)
+    o = np.repeat(eye[None], len(d), axis=0)
+    inst = np.ones(len(d), np.int32)
+    errs, samples = [], []
+    for dist in (0.25, 0.02):
+        cache, _ = _cache(sc, dist=dist, plain=False)
+        cache.query(inst, o, d)  # the first batch builds; the second reads the tree
+        q = cache.query(inst, o, d)
+        hit = np.flatnonzero((q.status == ST_HIT) & (q.nint >= 0))
+        assert len(hit) > 1000
+        face = np.empty(len(hit), np.int8)
+        abcd = np.empty((len(hit), 4))
+        parameterize(cache.box, inst[hit], o[hit], d[hit], face, abcd)
+        s = trace_samples(cache.sa, cache.accel, cache.tri_class, cache.box, inst[hit], face,
+                          abcd, False)
+        ok = s.nint == q.nint[hit]
+        cosang = np.clip(np.einsum("ij,ij->i", q.OD[hit][ok], s.OD[ok]), -1.0, 1.0)
+        errs.append(np.degrees(np.arccos(cosang)).mean())
+        samples.append(cache.counters["samples_traced"])
+    assert errs[1] < errs[0], errs
+    assert samples[1] > samples[0], samples

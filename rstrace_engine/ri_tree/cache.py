@@ -25,16 +25,21 @@ from numba import njit, prange
 from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes, parameterize
 from ..tracing.shading import geometric_normal, shading_normal
-from .kdtree import NODE_BYTES, OPEN, KdForest, descend, split_leaves
+from .kdtree import FINAL, NODE_BYTES, OPEN, KdForest, descend, split_leaves
 from .patches import (
+    K_ONE,
+    K_TWO,
     MIN_USABLE,
     ST_FAIL_ANGLE,
     ST_FAIL_CLASS,
     ST_HIT,
     ST_MISS,
+    ST_SPARSE,
     ST_TEST,
+    corner_kinds,
     finalize,
     interpolate,
+    interpolate_reflection,
     midpoint_distances,
     patch_of,
 )
@@ -44,6 +49,14 @@ log = logging.getLogger(__name__)
 
 #: pruning keeps this fraction of the cache size (the paper prunes 70%)
 PRUNE_KEEP = 0.3
+#: within a query batch, pruning starts when less than this fraction of the cache is free
+PRUNE_MIN_ROOM = 0.05
+#: the cost rule: a leaf is evaluated (and split when its midpoint fails) once this many
+#: queries have reached it; its 9 new samples then pay for themselves
+SPLIT_QUERIES = 8
+#: ... this many when its corners do not allow interpolation (all miss, three or more
+#: classes): splitting only pays where it separates large interpolable regions
+SPLIT_QUERIES_MIXED = 32
 
 
 class QueryResult(NamedTuple):
@@ -64,12 +77,19 @@ class QueryResult(NamedTuple):
     test_prim: np.ndarray  # (n,) int32 its triangle (-1: not tested or a miss)
     test_u: np.ndarray  # (n,) float64
     test_v: np.ndarray  # (n,) float64
+    RP: np.ndarray  # (n, 3) internal reflection at the exit: origin (inside the object)
+    RD: np.ndarray  # (n, 3) its direction
+    rgain: np.ndarray  # (n, 3) its weight past the entry (0: none)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, mat):
+def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, mat, RP, RD,
+             rgain):
     for r in prange(leaf.shape[0]):
         x = leaf[r]
+        if x < 0 or nd.state[x] != FINAL:
+            status[r] = ST_SPARSE
+            continue
         nc = nd.nclass[x]
         if nc >= 3:
             status[r] = ST_FAIL_CLASS
@@ -82,13 +102,14 @@ def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, ma
         elif interpolate(nd, x, S, abcd[r], nd.cls[x, 0], r, P, NS, NG, OP, OD, gain, thick,
                          nint, mat) >= MIN_USABLE:
             status[r] = ST_HIT
+            interpolate_reflection(nd, x, S, abcd[r], nd.cls[x, 0], r, RP, RD, rgain)
         else:
             status[r] = ST_FAIL_CLASS
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim, u, v,
-                    status, P, NS, NG, OP, OD, gain, thick, nint, mat):
+                    status, P, NS, NG, OP, OD, gain, thick, nint, mat, RP, RD, rgain):
     """Rays ``rows`` of two-class leaves, with their exact first hits ``t, prim, u, v``."""
     for q in prange(rows.shape[0]):
         r = rows[q]
@@ -111,6 +132,7 @@ def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim,
             status[r] = ST_FAIL_CLASS
             continue
         status[r] = ST_HIT
+        interpolate_reflection(nd, x, S, abcd[r], key, r, RP, RD, rgain)
         # the entry is known exactly: use it
         k = inst[r]
         nm = sa.inst_nmat[k]
@@ -143,11 +165,14 @@ class RITreeCache:
     sa, accel: the scene and an accelerator over all of it (``intersect_object`` samples one
     object). dist_thresh: distance threshold; ang_thresh_deg: angular threshold (degrees);
     depth: depth constraint; cache_mb: cache size (MB); thickness: the trees hold lengths
-    (thickness view) instead of exit rays.
+    (thickness view) instead of exit rays; split_queries, split_queries_mixed: the cost
+    rule's query counts (default :data:`SPLIT_QUERIES`, :data:`SPLIT_QUERIES_MIXED`; 1 and 1
+    give the paper's plain lazy subdivision, every leaf a query reaches refined to FINAL).
     """
 
     def __init__(self, sa, accel, dist_thresh: float, ang_thresh_deg: float, depth: int,
-                 cache_mb: float, thickness: bool = False, extent: float | None = None
+                 cache_mb: float, thickness: bool = False, extent: float | None = None,
+                 split_queries: int | None = None, split_queries_mixed: int | None = None
                  ) -> None:
         t0 = time.perf_counter()
         self.sa = sa
@@ -167,6 +192,10 @@ class RITreeCache:
         self.forest = KdForest(len(sa.inst_mesh))
         self.samples = alloc_samples(1024)
         self.peak_bytes = 0
+        self.split_queries = int(SPLIT_QUERIES if split_queries is None else split_queries)
+        self.split_queries_mixed = int(SPLIT_QUERIES_MIXED if split_queries_mixed is None
+                                       else split_queries_mixed)
+        self._pruned_in = -1
         self.counters = dict(samples_traced=0, cells_split=0, leaves_final=0, prunes=0)
         self.setup_s = time.perf_counter() - t0
 
@@ -209,9 +238,35 @@ class RITreeCache:
         self.counters["samples_traced"] += len(inst)
         return ids
 
+    def _room(self, held=None) -> float:
+        """Bytes that may still be allocated in this query batch without passing the cache
+        size. When there is too little, least recently used nodes of *earlier* batches are
+        pruned first (nothing the current batch's rays stand on: their paths carry its
+        stamp), once per batch. ``held``: sample ids in use that no node references."""
+        free = self.cache_bytes - self.memory_bytes
+        f = self.forest
+        if free >= PRUNE_MIN_ROOM * self.cache_bytes or self._pruned_in == f.stamp:
+            return free
+        self._pruned_in = f.stamp
+        live = max(f.live_nodes, 1)
+        per_node = self.memory_bytes / live
+        cut = min(f.cutoff_for(int(PRUNE_KEEP * self.cache_bytes / per_node)), f.stamp)
+        f.prune(cut, held)
+        self.counters["prunes"] += 1
+        return self.cache_bytes - self.memory_bytes
+
+    def _note_peak(self, extra: int = 0) -> None:
+        self.peak_bytes = max(self.peak_bytes, self.memory_bytes + int(extra))
+
     def _roots(self, keys: np.ndarray) -> np.ndarray:
+        """Root node of each tree ``keys`` (inst * 6 + face), created (16 samples each) when
+        missing and when the cache has room; -1 where it has none."""
         flat = self.forest.roots.reshape(-1)
         missing = np.unique(keys[flat[keys] < 0])
+        if len(missing):
+            each = 16 * SAMPLE_BYTES + NODE_BYTES
+            fit = int(max(self._room(), 0.0) // each)
+            missing = missing[:fit]
         if len(missing):
             bits = (np.arange(16)[:, None] >> np.arange(4)[None, :]) & 1  # (16, 4)
             k = len(missing)
@@ -220,62 +275,106 @@ class RITreeCache:
             abcd = np.tile(bits.astype(np.float64), (k, 1))
             ids = self._trace(inst, face, abcd).reshape(k, 16)
             self.forest.new_roots(missing.astype(np.int32), ids)
+            self._note_peak()
         return np.ascontiguousarray(flat[keys], np.int32)
 
     # -- queries -------------------------------------------------------------------------
 
     def _subdivide(self, leaf: np.ndarray, abcd: np.ndarray) -> None:
-        """Evaluate and split OPEN leaves until every ray's leaf is FINAL (in place)."""
+        """Demand-driven subdivision under the cost rule (module doc), in place: rays whose
+        leaf is evaluated go down to FINAL leaves; the others stay in OPEN leaves (traced).
+
+        One batch of samples per level: the 8 new corners of the cells split at a level are
+        traced together with the midpoints of those of their children that enough of the
+        batch's rays reach to be evaluated at the next level."""
         f = self.forest
-        while True:
-            nd = f.nodes
-            open_ = np.unique(leaf[nd.state[leaf] == OPEN])
-            if len(open_) == 0:
-                return
-            log.debug("ri-tree level: %d open leaves, depths %s..%s, %d samples", len(open_),
-                      nd.depth[open_].min(), nd.depth[open_].max(), f.n_samples)
-            keys = nd.tree[open_].astype(np.int64)
-            inst = (keys // 6).astype(np.int32)
-            face = (keys % 6).astype(np.int8)
-            cap = nd.depth[open_] >= self.depth
-            fin = [open_[cap]]
-            rest = open_[~cap]
-            split = rest[:0]
-            if len(rest):
-                ri, rf = inst[~cap], face[~cap]
-                mid_abcd = 0.5 * (nd.lo[rest] + nd.hi[rest])
-                mids = self._trace(ri, rf, mid_abcd)
-                dist = np.empty(len(rest))
-                midpoint_distances(nd, rest, self.samples, mids, self.box, self.sa.inst_aabb,
-                                   ri, rf, self.thickness, self.diag[ri], self.cosmin, dist)
-                f._free_samples.extend(int(s) for s in mids)  # midpoints are not kept
-                over = dist > self.dist_thresh
-                split = rest[over]
-                fin.append(rest[~over])
-                si, sf = ri[over], rf[over]
-            fin = np.concatenate(fin)
-            if len(fin):
-                finalize(nd, fin, self.samples, self.cosmin)
-                self.counters["leaves_final"] += len(fin)
-            if len(split) == 0:
-                continue
-            k = len(split)
-            first = f.alloc_pairs(k)
-            new_ids = f.alloc_samples(8 * k).reshape(k, 8)
-            nd = f.nodes  # may have grown
-            lines = np.empty((k, 8, 4))
-            split_leaves(nd, split, first, new_ids, self._frame(si, sf), lines)
-            self.samples = grow_samples(self.samples, f.n_samples)
-            batch = trace_samples(self.sa, self.accel, self.tri_class, self.box,
-                                  np.repeat(si, 8), np.repeat(sf, 8), lines.reshape(-1, 4),
-                                  self.thickness)
-            store(self.samples, new_ids.reshape(-1), batch)
-            self.counters["samples_traced"] += 8 * k
-            self.counters["cells_split"] += k
-            moved = np.flatnonzero(np.isin(leaf, split))
-            out = np.empty(len(moved), np.int32)
-            descend(nd, leaf[moved], abcd[moved], f.stamp, out)
-            leaf[moved] = out
+        act = np.flatnonzero(leaf >= 0)
+        act = act[f.nodes.state[leaf[act]] == OPEN]
+        # the midpoint is freed after the test, the 8 corners and two children's midpoints
+        # are held until the next level
+        per_split = 2 * NODE_BYTES + 10 * SAMPLE_BYTES
+        mid_node = np.empty(0, np.int32)  # cells whose midpoint was traced ahead ...
+        mid_id = np.empty(0, np.int32)  # ... and its sample id
+        try:
+            while len(act):
+                nd = f.nodes
+                lv, cnt = np.unique(leaf[act], return_counts=True)
+                nd.visits[lv] = np.minimum(nd.visits[lv].astype(np.int64) + cnt,
+                                           2 ** 30).astype(np.int32)
+                kind = np.empty(len(lv), np.int8)
+                corner_kinds(nd, lv, self.samples, kind)
+                capped = nd.depth[lv] >= self.depth
+                need = np.where((kind == K_ONE) | (kind == K_TWO), self.split_queries,
+                                self.split_queries_mixed)
+                fin = lv[capped]
+                ev = lv[~capped & (nd.visits[lv] >= need)]
+                if len(ev):
+                    fit = int(max(self._room(mid_id), 0.0) // per_split)
+                    if fit < len(ev):  # the most wanted first
+                        ev = ev[np.argsort(-nd.visits[ev], kind="stable")[:fit]]
+                split = ev[:0]
+                if len(ev):
+                    keys = nd.tree[ev].astype(np.int64)
+                    ri = (keys // 6).astype(np.int32)
+                    rf = (keys % 6).astype(np.int8)
+                    mids = np.full(len(ev), -1, np.int32)
+                    have = np.zeros(len(ev), np.bool_)
+                    if len(mid_node):  # sorted
+                        pos = np.minimum(np.searchsorted(mid_node, ev), len(mid_node) - 1)
+                        have = mid_node[pos] == ev
+                        mids[have] = mid_id[pos[have]]
+                    todo = np.flatnonzero(~have)
+                    if len(todo):
+                        mids[todo] = self._trace(ri[todo], rf[todo],
+                                                 0.5 * (nd.lo[ev[todo]] + nd.hi[ev[todo]]))
+                        self._note_peak()
+                    dist = np.empty(len(ev))
+                    midpoint_distances(nd, ev, self.samples, mids, self.box,
+                                       self.sa.inst_aabb, ri, rf, self.thickness,
+                                       self.diag[ri], self.cosmin, dist)
+                    over = dist > self.dist_thresh
+                    split = ev[over]
+                    fin = np.concatenate([fin, ev[~over]])
+                    si, sf = ri[over], rf[over]
+                # midpoints traced ahead and not used: freed (midpoints are never kept)
+                f._free_samples.extend(mid_id.tolist())
+                mid_node = mid_id = np.empty(0, np.int32)
+                if len(fin):
+                    finalize(nd, fin, self.samples, self.cosmin)
+                    self.counters["leaves_final"] += len(fin)
+                if len(split) == 0:
+                    return
+                k = len(split)
+                first = f.alloc_pairs(k)
+                new_ids = f.alloc_samples(8 * k).reshape(k, 8)
+                nd = f.nodes  # may have grown
+                lines = np.empty((k, 8, 4))
+                split_leaves(nd, split, first, new_ids, self._frame(si, sf), lines)
+                moved = act[np.isin(leaf[act], split)]
+                out = np.empty(len(moved), np.int32)
+                descend(nd, leaf[moved], abcd[moved], f.stamp, out)
+                leaf[moved] = out
+                act = moved
+                # children reached by enough rays to be evaluated next: midpoints now
+                ch, ccnt = np.unique(out, return_counts=True)
+                ahead = ch[(nd.depth[ch] < self.depth)
+                           & (nd.visits[ch] + ccnt >= self.split_queries)]
+                ak = nd.tree[ahead].astype(np.int64)
+                ai = np.concatenate([np.repeat(si, 8), (ak // 6).astype(np.int32)])
+                af = np.concatenate([np.repeat(sf, 8), (ak % 6).astype(np.int8)])
+                al = np.concatenate([lines.reshape(-1, 4), 0.5 * (nd.lo[ahead] + nd.hi[ahead])])
+                aid = f.alloc_samples(len(ahead))
+                self.samples = grow_samples(self.samples, f.n_samples)
+                batch = trace_samples(self.sa, self.accel, self.tri_class, self.box, ai, af,
+                                      al, self.thickness)
+                store(self.samples, np.concatenate([new_ids.reshape(-1), aid]), batch)
+                mid_node, mid_id = ahead.astype(np.int32), aid
+                self._note_peak()
+                self.counters["samples_traced"] += 8 * k + len(ahead)
+                self.counters["cells_split"] += k
+        finally:
+            if len(mid_id):
+                f._free_samples.extend(mid_id.tolist())
 
     def query(self, inst, origins, directions) -> QueryResult:
         """Attributes of ``n`` rays on instances ``inst`` (n,) int32 whose origins lie
@@ -290,16 +389,20 @@ class RITreeCache:
         abcd = np.empty((n, 4))
         parameterize(self.box, inst, o, d, face, abcd)
         roots = self._roots(inst.astype(np.int64) * 6 + face)
-        leaf = np.empty(n, np.int32)
-        descend(f.nodes, roots, abcd, f.stamp, leaf)
+        leaf = np.full(n, -1, np.int32)
+        ok = np.flatnonzero(roots >= 0)
+        if len(ok):
+            out = np.empty(len(ok), np.int32)
+            descend(f.nodes, roots[ok], abcd[ok], f.stamp, out)
+            leaf[ok] = out
         self._subdivide(leaf, abcd)
         res = QueryResult(np.empty(n, np.int8), np.full(n, np.inf), *(np.zeros((n, 3))
                           for _ in range(6)), np.full(n, -1, np.int16), np.full(n, -1, np.int32),
                           np.zeros(n), np.full(n, np.inf), np.full(n, -1, np.int32),
-                          np.zeros(n), np.zeros(n))
+                          np.zeros(n), np.zeros(n), *(np.zeros((n, 3)) for _ in range(3)))
         nd = f.nodes
         _resolve(nd, self.samples, leaf, abcd, res.status, res.P, res.NS, res.NG, res.OP,
-                 res.OD, res.gain, res.thick, res.nint, res.mat)
+                 res.OD, res.gain, res.thick, res.nint, res.mat, res.RP, res.RD, res.rgain)
         rows = np.flatnonzero(res.status == ST_TEST)
         if len(rows):
             h = self.accel.intersect_object(inst[rows], o[rows], d[rows], 0.0, np.inf)
@@ -311,9 +414,10 @@ class RITreeCache:
                             rows.astype(np.int64), o, d, np.ascontiguousarray(h.t),
                             np.ascontiguousarray(h.prim, np.int32), np.ascontiguousarray(h.u),
                             np.ascontiguousarray(h.v), res.status, res.P, res.NS, res.NG,
-                            res.OP, res.OD, res.gain, res.thick, res.nint, res.mat)
+                            res.OP, res.OD, res.gain, res.thick, res.nint, res.mat,
+                            res.RP, res.RD, res.rgain)
         _ray_param(o, d, res.status, res.P, res.t)
-        self.peak_bytes = max(self.peak_bytes, self.memory_bytes)
+        self._note_peak()
         self._enforce_cap()
         return res
 

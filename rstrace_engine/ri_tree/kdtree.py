@@ -52,6 +52,7 @@ class Nodes(NamedTuple):
     nclass: np.ndarray  # (N,) int8 patch classes among the corners of a FINAL leaf (1, 2, 3+)
     cls: np.ndarray  # (N, 2) int32 the (first) two classes
     ang_ok: np.ndarray  # (N,) uint8 bit k: class k passes the angular threshold
+    visits: np.ndarray  # (N,) int32 queries that reached the node while it was an OPEN leaf
 
 
 def _alloc_nodes(cap: int) -> Nodes:
@@ -60,11 +61,12 @@ def _alloc_nodes(cap: int) -> Nodes:
                  np.zeros(cap, np.int8), np.zeros(cap, np.int16),
                  np.full(cap, DEAD, np.int8), np.zeros(cap, np.int64),
                  np.full(cap, -1, np.int32), np.zeros(cap, np.int8),
-                 np.full((cap, 2), -1, np.int32), np.zeros(cap, np.uint8))
+                 np.full((cap, 2), -1, np.int32), np.zeros(cap, np.uint8),
+                 np.zeros(cap, np.int32))
 
 
 #: bytes of one node (the fields of :class:`Nodes`)
-NODE_BYTES = 32 + 32 + 64 + 4 + 4 + 1 + 2 + 1 + 8 + 4 + 1 + 8 + 1
+NODE_BYTES = 32 + 32 + 64 + 4 + 4 + 1 + 2 + 1 + 8 + 4 + 1 + 8 + 1 + 4
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -121,6 +123,7 @@ def split_leaves(nd, parents, first, new_ids, wscale, lines):
             nd.tree[c] = nd.tree[p]
             nd.nclass[c] = 0
             nd.ang_ok[c] = 0
+            nd.visits[c] = 0
             for a in range(4):
                 nd.lo[c, a] = nd.lo[p, a]
                 nd.hi[c, a] = nd.hi[p, a]
@@ -280,6 +283,7 @@ class KdForest:
         nd.stamp[ids] = self.stamp
         nd.tree[ids] = keys
         nd.nclass[ids] = 0
+        nd.visits[ids] = 0
         self.roots.reshape(-1)[keys] = ids
         return ids
 
@@ -306,10 +310,13 @@ class KdForest:
             flat[nd.tree[x]] = -1
             self._free_roots.append(x)
 
-    def collect_samples(self) -> np.ndarray:
-        """Free every sample no live node references; returns the freed ids."""
+    def collect_samples(self, held=None) -> np.ndarray:
+        """Free every sample no live node references (nor ``held``: ids the caller still
+        uses, such as midpoints traced ahead); returns the freed ids."""
         used = np.zeros(max(self.n_samples, 1), np.bool_)
         mark_samples(self.nodes, self.n_nodes, used)
+        if held is not None and len(held):
+            used[np.asarray(held, np.int64)] = True
         free = np.zeros(max(self.n_samples, 1), np.bool_)
         if self._free_samples:
             free[np.asarray(self._free_samples)] = True
@@ -317,8 +324,9 @@ class KdForest:
         self._free_samples.extend(int(s) for s in dead)
         return dead
 
-    def prune(self, cutoff: int) -> None:
-        """Cut everything last used before stamp ``cutoff`` (module doc); free samples."""
+    def prune(self, cutoff: int, held=None) -> None:
+        """Cut everything last used before stamp ``cutoff`` (module doc); free samples
+        (except ``held``, see :meth:`collect_samples`)."""
         nd = self.nodes
         flat = self.roots.reshape(-1)
         live = flat[flat >= 0]
@@ -328,7 +336,7 @@ class KdForest:
         freed = np.empty(max(self.n_nodes, 1), np.int32)
         nf = prune_pass(nd, self.n_nodes, cutoff, freed)
         self._free_pairs.extend(int(c) for c in freed[:nf])
-        self.collect_samples()
+        self.collect_samples(held)
 
     def invalidate(self, instances) -> int:
         """Drop every tree of the given instance slots; returns the number of trees."""

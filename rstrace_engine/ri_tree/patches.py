@@ -33,8 +33,12 @@ MIN_USABLE = 6
 #: ... and when their quadrilinear weights at the query sum to at least this
 MIN_WEIGHT = 1e-3
 
-# query outcomes
-ST_HIT, ST_MISS, ST_TEST, ST_FAIL_CLASS, ST_FAIL_ANGLE = 0, 1, 2, 3, 4
+# query outcomes (ST_SPARSE: the ray's leaf is not final and the cost rule does not refine
+# it (too few queries to pay for its samples, or no room in the cache): trace it)
+ST_HIT, ST_MISS, ST_TEST, ST_FAIL_CLASS, ST_FAIL_ANGLE, ST_SPARSE = 0, 1, 2, 3, 4, 5
+
+# corner kinds of a cell (:func:`corner_kinds`)
+K_ALL_MISS, K_ONE, K_TWO, K_MIXED = 0, 1, 2, 3
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -92,6 +96,37 @@ def finalize(nd, leaves, S, cosmin):
         nd.state[x] = FINAL
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def corner_kinds(nd, leaves, S, out):
+    """Kind of each cell ``leaves[q]`` by its 16 corners' class keys: ``K_ALL_MISS`` (every
+    corner misses), ``K_ONE`` (one class), ``K_TWO`` (exactly two, a miss included),
+    ``K_MIXED`` (three or more)."""
+    for q in prange(leaves.shape[0]):
+        x = leaves[q]
+        nc = 0
+        c0 = MISS
+        c1 = MISS
+        for k in range(16):
+            key = S.cls[nd.corner[x, k]]
+            if nc == 0:
+                c0 = key
+                nc = 1
+            elif key != c0:
+                if nc == 1:
+                    c1 = key
+                    nc = 2
+                elif key != c1:
+                    nc = 3
+        if nc >= 3:
+            out[q] = K_MIXED
+        elif nc == 2:
+            out[q] = K_TWO
+        elif c0 == MISS:
+            out[q] = K_ALL_MISS
+        else:
+            out[q] = K_ONE
+
+
 @njit(cache=True, nogil=True)
 def interpolate(nd, x, S, abcd, key, r, P, NS, NG, OP, OD, gain, thick, nint, mat):
     """Interpolate class ``key``'s corners of node ``x`` at line ``abcd`` into row ``r``.
@@ -145,6 +180,52 @@ def interpolate(nd, x, S, abcd, key, r, P, NS, NG, OP, OD, gain, thick, nint, ma
             for c in range(3):
                 A[r, c] /= ln
     return cnt
+
+
+@njit(cache=True, nogil=True)
+def interpolate_reflection(nd, x, S, abcd, key, r, RP, RD, rgain):
+    """The internal reflection at the exit (:mod:`.sampling`) of class ``key``'s corners of
+    node ``x`` at line ``abcd`` into row ``r``, with :func:`interpolate`'s weights."""
+    wsum = 0.0
+    for c in range(3):
+        RP[r, c] = 0.0
+        RD[r, c] = 0.0
+        rgain[r, c] = 0.0
+    u0 = _unit(nd, x, abcd, 0)
+    u1 = _unit(nd, x, abcd, 1)
+    u2 = _unit(nd, x, abcd, 2)
+    u3 = _unit(nd, x, abcd, 3)
+    for q in range(16):
+        s = nd.corner[x, q]
+        if S.cls[s] != key:
+            continue
+        w = corner_weight(q, u0, u1, u2, u3)
+        if w <= 0.0:
+            continue
+        wsum += w
+        for c in range(3):
+            RP[r, c] += w * S.RP[s, c]
+            RD[r, c] += w * S.RD[s, c]
+            rgain[r, c] += w * S.rgain[s, c]
+    if wsum < MIN_WEIGHT:
+        for c in range(3):
+            rgain[r, c] = 0.0
+        return
+    ln = math.sqrt(RD[r, 0] ** 2 + RD[r, 1] ** 2 + RD[r, 2] ** 2)
+    for c in range(3):
+        RP[r, c] /= wsum
+        rgain[r, c] /= wsum
+        RD[r, c] = RD[r, c] / ln if ln > 0.0 else 0.0
+    if ln == 0.0:
+        for c in range(3):
+            rgain[r, c] = 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unit(nd, x, abcd, m):
+    w = nd.hi[x, m] - nd.lo[x, m]
+    t = (abcd[m] - nd.lo[x, m]) / w if w > 0.0 else 0.5
+    return min(max(t, 0.0), 1.0)
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -59,12 +59,23 @@ from ..tracing.whitted import (
 from . import thickness as thick
 from .cache import RITreeCache
 from .eligibility import eligible, instance_fingerprints, subset
-from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS
+from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 
 log = logging.getLogger(__name__)
 
 # candidate kinds
 _QUERY, _TRACE = 0, 1
+
+#: whether shadow rays query the trees (the paper's visibility queries). Off: a shadow ray
+#: is tested exactly against an RI-tree object (one any-hit-like trace of that object,
+#: ignoring the object of an interpolated origin nearer than the self-offset), which in this
+#: engine costs less than a query with its traced fallbacks and leaves no error
+SHADOW_QUERIES = False
+
+#: rays per batch of an RI_TREE frame: larger than the base tracer's tiles, so that a batch
+#: brings more queries to each leaf (the cost rule counts them) and the per-batch work of
+#: the queries is spread over more rays
+RI_TILE_RAYS = 4 * TILE_RAYS
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -303,6 +314,8 @@ class RITreeRenderer:
         _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
                     False, starts, objs, kind, tlo)
         rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
+        if anyhit and not SHADOW_QUERIES:
+            kind[:] = _TRACE  # shadow rays: one exact test against the object (doc above)
         qi = np.flatnonzero(kind == _QUERY)
         trace_pairs = [np.flatnonzero(kind == _TRACE)]
         q = None
@@ -323,8 +336,8 @@ class RITreeRenderer:
             cand_rows.append(qr[okt])
             cand_t.append(q.test_t[okt])
             cand_id.append(-2 - (len(qi) + okt).astype(np.int64))
-            fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
-                                  & (q.test_prim < 0))
+            fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
+                                   | (q.status == ST_SPARSE)) & (q.test_prim < 0))
             trace_pairs.append(qi[fail])
             # the class of a primary pixel: the status of its nearest query
             st = out["status"]
@@ -476,22 +489,34 @@ class RITreeRenderer:
                 drop = np.setdiff1d(has_tr, keep)
                 c_ok[tr[drop]] = False
                 kt = tr[keep]
-                c_o[kt] = q.OP[qi[keep]]
-                c_d[kt] = q.OD[qi[keep]]
-                c_w[kt] *= q.gain[qi[keep]]
+                qk = qi[keep]
+                w_in = c_w[kt].copy()  # the weight of the path past the entry
+                c_o[kt] = q.OP[qk]
+                c_d[kt] = q.OD[qk]
+                c_w[kt] *= q.gain[qk]
                 child_level[kt] = level[interp[keep]] + ni[keep] + 1
                 child_self[kt] = H["inst"][interp[keep]]
                 c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
+                # the internal reflection where the path refracts out: traced from there
+                # (from inside, so the object itself is traced), as the base tracer splits
+                rw = w_in * q.rgain[qk]
+                rsel = np.flatnonzero(rw.max(axis=1) > tol.PATH_WEIGHT_MIN)
+                x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
+                x_src = interp[keep[rsel]]
+                x_level = level[x_src] + ni[keep[rsel]] + 1
+            else:
+                x_o = x_d = x_w = np.empty((0, 3))
+                x_src = x_level = np.empty(0, np.int64)
             kids = np.flatnonzero(c_ok)
             which = kids // 2
-            o = c_o[kids]
-            d = c_d[kids]
-            weight = c_w[kids]
-            src = src[which]
-            level = child_level[kids]
-            self_inst = child_self[kids]
-            t0 = np.zeros(len(kids))
-            t1 = np.full(len(kids), np.inf)
+            o = np.concatenate([c_o[kids], x_o])
+            d = np.concatenate([c_d[kids], x_d])
+            weight = np.concatenate([c_w[kids], x_w])
+            src = np.concatenate([src[which], src[x_src]])
+            level = np.concatenate([child_level[kids], x_level])
+            self_inst = np.concatenate([child_self[kids], np.full(len(x_src), -1, np.int32)])
+            t0 = np.zeros(len(o))
+            t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst
 
     def render(self, scene, settings: RenderSettings, accel, progress=None,
@@ -507,7 +532,7 @@ class RITreeRenderer:
         cp = camera_params(scene.camera)
         w, h = cp.width, cp.height
         spp = int(settings.samples)
-        rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+        rows_per_tile = max(1, RI_TILE_RAYS // max(1, w * spp))
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         counters: dict = {}
@@ -608,10 +633,13 @@ class RITreeRenderer:
             np.add.at(length, qr[okq], q.thick[okq])
             cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
             hit_any[qr[okq]] = 0
-            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE))
-            fc = np.where(q.status[fail] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
+            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
+                                  | (q.status == ST_SPARSE))
+            # a failed test marks the pixel; a sparse leaf's ray is simply traced
+            ff = fail[q.status[fail] != ST_SPARSE]
+            fc = np.where(q.status[ff] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
                           CLASS_FAIL_NONLINEAR).astype(np.uint8)
-            cls[qr[fail]] = np.where(cls[qr[fail]] == CLASS_INTERPOLATED, cls[qr[fail]], fc)
+            cls[qr[ff]] = np.where(cls[qr[ff]] == CLASS_INTERPOLATED, cls[qr[ff]], fc)
             walk_pairs.append(qi[fail])
         wp = np.concatenate(walk_pairs)
         if len(wp):

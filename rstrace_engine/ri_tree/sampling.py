@@ -14,8 +14,11 @@ attributes (:class:`Samples`):
   ``nint`` interfaces inside (TIRs plus the exit; 0 for an open sheet the refracted ray
   leaves without meeting again; -1 when there is no exit ray) and ``gain`` (RGB) the weight
   the base tracer gives that path past the entry: ``M + T`` per TIR, ``(1 - F) T`` at the
-  exit (:mod:`..tracing.whitted`). The partial internal reflections at the exit are not
-  followed: a sample has one exit ray, as in the paper.
+  exit (:mod:`..tracing.whitted`).
+* the *internal reflection* at the exit ``RP``, ``RD``, ``rgain``: the base tracer splits the
+  path where it refracts out (a total internal reflection does not split it); the part
+  reflected back inside, ``M + F T`` of it, is the one ray a single exit ray leaves out. The
+  renderer traces it from the interpolated origin and direction (weight 0: no such ray).
 * ``thick``: the length of the line inside the object (thickness view).
 """
 
@@ -62,16 +65,19 @@ class Samples(NamedTuple):
     gain: np.ndarray  # (S, 3) float64 exit path weight past the entry
     nint: np.ndarray  # (S,) int16 interfaces inside before the exit, -1: no exit ray
     thick: np.ndarray  # (S,) float64 length inside the object
+    RP: np.ndarray  # (S, 3) float64 the internal reflection at the exit: origin (inside)
+    RD: np.ndarray  # (S, 3) float64 its direction (unit)
+    rgain: np.ndarray  # (S, 3) float64 its weight past the entry (0: none)
 
 
 #: bytes of one sample
-SAMPLE_BYTES = 4 + 4 + 5 * 24 + 24 + 2 + 8
+SAMPLE_BYTES = 4 + 4 + 5 * 24 + 24 + 2 + 8 + 3 * 24
 
 
 def alloc_samples(cap: int) -> Samples:
     return Samples(np.full(cap, MISS, np.int32), np.full(cap, -1, np.int32),
                    *(np.zeros((cap, 3)) for _ in range(6)), np.full(cap, -1, np.int16),
-                   np.zeros(cap))
+                   np.zeros(cap), *(np.zeros((cap, 3)) for _ in range(3)))
 
 
 def grow_samples(s: Samples, cap: int) -> Samples:
@@ -187,7 +193,8 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls, alive):
+def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls, alive,
+              RP, RD, rgain):
     """One internal interface of the glass paths ``rows`` (their rays po/pd, hits t/prim/u/v).
 
     A path whose ray leaves without a hit exits as it is; one that refracts out exits there
@@ -223,16 +230,6 @@ def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls
         mr = sa.mat_mirror[m]
         off = spawn_offset(px, py, pz, ext)
         ok, tx, ty, tz, f = transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta)
-        if ok and (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
-            for c in range(3):
-                gain[r, c] *= (1.0 - f) * tr[c]
-            OP[r, 0] = px - gx * off
-            OP[r, 1] = py - gy * off
-            OP[r, 2] = pz - gz * off
-            OD[r, 0], OD[r, 1], OD[r, 2] = tx, ty, tz
-            nint[r] = it + 1
-            cls[r] += it + 2
-            continue
         mx, my, mz = mr[0], mr[1], mr[2]
         if sa.mat_model[m] == MODEL_PRINCIPLED and (mx > 0.0 or my > 0.0 or mz > 0.0):
             # the base tracer's mirror share: times the Principled layer's Fresnel
@@ -242,6 +239,25 @@ def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls
                                             sa.mat_specular_ior[m], sa.mat_metallic[m],
                                             mt[0], mt[1], mt[2])
             mx, my, mz = mx * fx, my * fy, mz * fz
+        if ok and (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
+            # the internal reflection the base tracer splits off here (as its shade kernel)
+            qx, qy, qz = mirror_dir(dx, dy, dz, sx, sy, sz, gx, gy, gz)
+            RP[r, 0] = px + gx * off
+            RP[r, 1] = py + gy * off
+            RP[r, 2] = pz + gz * off
+            RD[r, 0], RD[r, 1], RD[r, 2] = qx, qy, qz
+            rgain[r, 0] = gain[r, 0] * (mx + f * tr[0])
+            rgain[r, 1] = gain[r, 1] * (my + f * tr[1])
+            rgain[r, 2] = gain[r, 2] * (mz + f * tr[2])
+            for c in range(3):
+                gain[r, c] *= (1.0 - f) * tr[c]
+            OP[r, 0] = px - gx * off
+            OP[r, 1] = py - gy * off
+            OP[r, 2] = pz - gz * off
+            OD[r, 0], OD[r, 1], OD[r, 2] = tx, ty, tz
+            nint[r] = it + 1
+            cls[r] += it + 2
+            continue
         gain[r, 0] *= mx + (tr[0] if not ok else f * tr[0])
         gain[r, 1] *= my + (tr[1] if not ok else f * tr[1])
         gain[r, 2] *= mz + (tr[2] if not ok else f * tr[2])
@@ -299,10 +315,12 @@ def trace_samples(sa, accel, tri_class, box, inst, face, abcd, thickness: bool) 
         alive = np.empty(len(rows), np.bool_)
         path_step(sa, inst, rows.astype(np.int64), po, pd, np.ascontiguousarray(hh.t),
                   np.ascontiguousarray(hh.prim, np.int32), np.ascontiguousarray(hh.u),
-                  np.ascontiguousarray(hh.v), it, s.OP, s.OD, s.gain, s.nint, s.cls, alive)
+                  np.ascontiguousarray(hh.v), it, s.OP, s.OD, s.gain, s.nint, s.cls, alive,
+                  s.RP, s.RD, s.rgain)
         rows, po, pd = rows[alive], po[alive], pd[alive]
     if len(rows):  # trapped: no exit ray (the class key says so: nint -1)
         s.gain[rows] = 0.0
+        s.rgain[rows] = 0.0
         s.OD[rows] = s.NS[rows]
         s.OP[rows] = s.P[rows]
     return s

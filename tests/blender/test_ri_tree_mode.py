@@ -18,7 +18,9 @@ def _stats():
 
 
 def test_f12_ri_tree_mode_and_thickness_view(tmp_path):
-    sc = b.three_spheres_scene(64, 48)
+    # large enough for the mirror sphere's leaves to see the rays that pay for refining them
+    # (the cost rule: at 96x72 a leaf that passes the angular test holds two or three)
+    sc = b.three_spheres_scene(320, 240)
     sc.rstrace.samples = 1
     sc.rstrace.max_ray_depth = 2
     base = b.render_exr(tmp_path / "base.exr")["Combined"][..., :3]
@@ -29,6 +31,12 @@ def test_f12_ri_tree_mode_and_thickness_view(tmp_path):
     st = _stats()
     assert not st.get("error") and st["mode"] == "RI_TREE", st
     assert st["ri_objects"] >= 1 and st["samples_traced"] > 0
+    first = st["interpolated_fraction"]
+    # the scene's session keeps the trees: renders of the same view refine the leaves their
+    # rays now visit often enough to pay for (the cost rule)
+    out = b.render_exr(tmp_path / "ri2.exr")
+    st = _stats()
+    assert st["interpolated_fraction"] > first, (first, st["interpolated_fraction"])
     # the Interpolation pass marks the mirror sphere's interpolated pixels green
     classes = out["Interpolation"].reshape(-1, 1, 3)
     match = np.all(np.isclose(classes, CLASS_COLORS[None]), axis=-1)

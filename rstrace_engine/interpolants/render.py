@@ -86,7 +86,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
     are the cache's. progress(fraction, message); cancel() -> bool is polled between stages
-    (a cancelled frame keeps its interpolated pixels, ``stats["cancelled"]``).
+    and between the tracing tiles (a cancelled frame is incomplete, ``stats["cancelled"]``);
+    a :class:`~rstrace_engine.cancel.CancelFlag` also stops the visibility and tracing
+    queries within a few dozen rays (never the building of interpolants).
 
     Incremental frames (the session's, with a fixed camera): ``pixels`` (h * w,) bool renders
     only those pixels (all their samples, with the jitter of a full frame) over a copy of
@@ -125,7 +127,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     counters: dict = {}
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        hits = accel.closest_hit(o, d, tmin, tmax)
+        with accel.cancellable(cancel):  # incomplete when cancelled: resolve polls first
+            hits = accel.closest_hit(o, d, tmin, tmax)
         t_vis = time.perf_counter()
         if progress is not None:
             progress(0.2, "visibility")
@@ -151,9 +154,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             for q in range(n_tiles):
                 part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
                 segs: list | None = [] if records is not None else None
-                rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                     int(settings.max_depth), primary=_take(hits, part),
-                                     counters=counters, segments=segs)
+                with accel.cancellable(cancel):
+                    rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part],
+                                         tmax[part], int(settings.max_depth),
+                                         primary=_take(hits, part), counters=counters,
+                                         segments=segs, cancel=cancel)
+                cancelled = cancel is not None and cancel()
+                if cancelled:  # an incomplete tile (and frame): the session drops it
+                    break
                 if records is not None:
                     records.add(gids[part], segs)
     t_trace = time.perf_counter()

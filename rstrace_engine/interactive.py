@@ -332,13 +332,13 @@ class ViewportWorker:
                 session.update_settings(settings)
             if not same_camera(session.scene.camera, camera):
                 report = session.apply([CameraChange(camera)])
-        self.error = None
-        w, h = camera.width, camera.height
-        times = self.stats["stages"]
-        # 1. coarse: the base tracer at 1/coarse_factor resolution
-        cam = coarse_camera(camera, self.coarse_factor)
-        cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-        with self.lock:
+            self.error = None
+            w, h = camera.width, camera.height
+            times = self.stats["stages"]
+            # 1. coarse: the base tracer at 1/coarse_factor resolution, without letting go
+            # of the lock after the edits (a background warm-up would take it in between)
+            cam = coarse_camera(camera, self.coarse_factor)
+            cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
             rgb, _, done = trace_view(session, cam, settings, self._flag, cb,
                                       tile_rays=self.tile_rays)
         if not done:

@@ -116,6 +116,13 @@ def _kernel(name: str):
     return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
 
 
+def first_image_cached() -> bool:
+    """True when every kernel of the first image is in memory or in the disk cache (a
+    viewport then loads them as fast as a warm-up would: no need to go first)."""
+    return all(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
+               for k in FIRST_IMAGE_KERNELS)
+
+
 def _helper_needed() -> bool:
     """True when the traversal kernel is neither in memory nor in the disk cache."""
     return not any(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
@@ -175,20 +182,27 @@ def first_image(processes: int = 2, cancel=None) -> dict:
     scene = warm_scene()
     try:
         _compile_tracer(scene)
+        t_own = time.perf_counter() - t0
     finally:
         ok = helper is not None and _wait_helper(helper, cancel)
         if helper is not None and helper.stderr:
             helper.stderr.close()
+    t_helper = time.perf_counter() - t0
     cancelled = cancel is not None and cancel()
     if not cancelled:  # the real thing: loads the traversal the helper cached
         session = Session(scene)
         trace_view(session, coarse_camera(scene.camera, 4), session.settings, cancel=cancel)
-    return dict(seconds=time.perf_counter() - t0, helper=bool(ok), cancelled=bool(cancelled))
+    seconds = time.perf_counter() - t0
+    log.info("first image's kernels in %.1f s (this process's part %.1f s, the helper's "
+             "%s)", seconds, t_own, f"{t_helper:.1f} s" if helper is not None else "none")
+    return dict(seconds=seconds, helper=bool(ok), cancelled=bool(cancelled), own_s=t_own,
+                helper_s=t_helper if helper is not None else None)
 
 
 def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
                   processes: int = 2, on_first_image=None) -> dict:
-    """The warm-up a viewport waits on: :func:`first_image` under ``lock``, then a pause
+    """The warm-up a viewport waits on: :func:`first_image` under ``lock`` (unless its
+    kernels are all cached already), then a pause
     without it (a viewport waiting for the lock renders its first image), then the rest of
     ``mode``'s kernels (:func:`~.warm_cache.warm` for that mode and the BVH), one step at a
     time under ``lock``. ``on_first_image()`` is called between the two. Returns
@@ -197,10 +211,13 @@ def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
 
     lock = lock if lock is not None else contextlib.nullcontext()
     t0 = time.perf_counter()
-    if progress is not None:
-        progress("compiling the first image's kernels")
-    with lock:
-        first = first_image(processes, cancel)
+    if first_image_cached():
+        first = dict(seconds=0.0, helper=False, cancelled=False)
+    else:
+        if progress is not None:
+            progress("compiling the first image's kernels")
+        with lock:
+            first = first_image(processes, cancel)
     if first["cancelled"]:
         return dict(kernel_cache.counts(), cancelled=True, first_image_s=first["seconds"],
                     seconds=time.perf_counter() - t0)

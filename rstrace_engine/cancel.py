@@ -20,6 +20,8 @@ Any other callable still works as ``cancel`` (polled between tiles only).
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 
@@ -49,3 +51,13 @@ def kernel_flag(cancel) -> np.ndarray | None:
 def cancelled(cancel) -> bool:
     """``cancel()``, False for None."""
     return cancel is not None and bool(cancel())
+
+
+def bound(accel, cancel):
+    """``accel.cancellable(cancel)``: a context in which ``accel``'s kernels poll ``cancel``;
+    a null context for an accelerator without that method (any object with the query
+    methods serves as one) or a ``cancel`` that is not a :class:`CancelFlag`."""
+    method = getattr(accel, "cancellable", None)
+    if method is None or kernel_flag(cancel) is None:
+        return contextlib.nullcontext(accel)
+    return method(cancel)

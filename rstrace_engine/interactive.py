@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .cancel import CancelFlag, cancelled
+from .cancel import CancelFlag, bound, cancelled
 from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
 from .geometry.edits import CameraChange
@@ -109,7 +109,7 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
                                   seed=int(settings.seed) * 1000003 + ya)[sample % samples]
         else:
             jitter = None
-        with threads_for(len(pix)), accel.cancellable(cancel):
+        with threads_for(len(pix)), bound(accel, cancel):
             o, d, tmin, tmax = camera_rays(cp, pix, jitter)
             hits = accel.closest_hit(o, d, tmin, tmax)
             rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits, cancel=cancel)

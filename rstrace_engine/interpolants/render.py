@@ -29,6 +29,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
+from ..cancel import bound
 from ..frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
@@ -127,7 +128,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     counters: dict = {}
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        with accel.cancellable(cancel):  # incomplete when cancelled: resolve polls first
+        with bound(accel, cancel):  # incomplete when cancelled: resolve polls first
             hits = accel.closest_hit(o, d, tmin, tmax)
         t_vis = time.perf_counter()
         if progress is not None:
@@ -154,7 +155,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             for q in range(n_tiles):
                 part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
                 segs: list | None = [] if records is not None else None
-                with accel.cancellable(cancel):
+                with bound(accel, cancel):
                     rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part],
                                          tmax[part], int(settings.max_depth),
                                          primary=_take(hits, part), counters=counters,

@@ -45,7 +45,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator, per_ray
-from ..cancel import cancelled
+from ..cancel import bound, cancelled
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
@@ -643,7 +643,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         if npx == 0:
             rows_done = y1
             continue
-        with threads_for(npx * spp), accel.cancellable(cancel):
+        with threads_for(npx * spp), bound(accel, cancel):
             o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
             hits = accel.closest_hit(o, dr, tmin, tmax)
             segs = [] if records is not None else None

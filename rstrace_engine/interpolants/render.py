@@ -144,9 +144,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
                                rad, todo)]
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
-        if records is not None:
-            records.add_primary(gids, hits.inst, o, d, hits.t)
         cancelled = cancel is not None and cancel()
+        if records is not None and not cancelled:  # (a cancelled frame's are dropped)
+            records.add_primary(gids, hits.inst, o, d, hits.t)
         if not cancelled:
             # in tiles of about the base tracer's size (its per-level arrays stay
             # cache-sized), split evenly: a small last tile would cost the tracer's per-level
@@ -177,17 +177,18 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
         pinterp = np.full(h * w, -1, np.int32)
-    r = rad.reshape(spp, k, 3)
-    ngood = good.reshape(spp, k).sum(axis=0)
-    image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
-    c = ray_class.reshape(spp, k)
-    # a pixel's class: its first sample that is not background
-    pclass[pix] = c[np.argmax(c != CLASS_BACKGROUND, axis=0), np.arange(k)]
-    # the interpolant the pixel's samples used: -2 where they used several
-    qi = res.interpolant.reshape(spp, k)
-    hi = qi.max(axis=0)
-    lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
-    pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
+    if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
+        r = rad.reshape(spp, k, 3)
+        ngood = good.reshape(spp, k).sum(axis=0)
+        image[pix] = (r.sum(axis=0) / np.maximum(ngood, 1)[:, None]).astype(np.float32)
+        c = ray_class.reshape(spp, k)
+        # a pixel's class: its first sample that is not background
+        pclass[pix] = c[np.argmax(c != CLASS_BACKGROUND, axis=0), np.arange(k)]
+        # the interpolant the pixel's samples used: -2 where they used several
+        qi = res.interpolant.reshape(spp, k)
+        hi = qi.max(axis=0)
+        lo = np.where(qi >= 0, qi, np.iinfo(np.int32).max).min(axis=0)
+        pinterp[pix] = np.where(hi < 0, -1, np.where(lo == hi, hi, -2))
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
@@ -213,7 +214,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=bound_notes(cache, res.interpolant),
+        bound_notes=[] if cancelled else bound_notes(cache, res.interpolant),
     )
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])

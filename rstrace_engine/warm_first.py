@@ -96,17 +96,20 @@ class _FixedHits:
         return np.zeros(len(check_rays(origins, directions, tmin, tmax)[0]), bool)
 
 
-def _compile_tracer(scene) -> None:
+def _compile_tracer(scene, cancel=None) -> None:
     """This process's part: the BVH build (a real one, of ``scene``), the camera rays and
-    the tracer's stages of a coarse view image (against :class:`_FixedHits`)."""
+    the tracer's stages of a coarse view image (against :class:`_FixedHits`); ``cancel()``
+    is polled between the two (and between the tracer's stages)."""
     from .accel.accelerators import create_accelerator
     from .frame import RenderSettings
     from .interactive import trace_view
 
     sa = scene.arrays()
     create_accelerator("BVH", sa)
+    if cancel is not None and cancel():
+        return
     stand_in = SimpleNamespace(scene=scene, accel=_FixedHits(sa))
-    trace_view(stand_in, scene.camera, RenderSettings(max_depth=2))
+    trace_view(stand_in, scene.camera, RenderSettings(max_depth=2), cancel=cancel)
 
 
 def _kernel(name: str):
@@ -181,7 +184,7 @@ def first_image(processes: int = 2, cancel=None) -> dict:
     helper = start_helper() if processes > 1 and _helper_needed() else None
     scene = warm_scene()
     try:
-        _compile_tracer(scene)
+        _compile_tracer(scene, cancel)
         t_own = time.perf_counter() - t0
     finally:
         ok = helper is not None and _wait_helper(helper, cancel)

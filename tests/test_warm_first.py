@@ -83,3 +83,10 @@ def test_viewport_gets_the_lock_after_the_first_image(monkeypatch):
         t.join(600)
     assert still_warming  # the viewport did not wait for the whole warm-up
     assert not result["cancelled"] and "first_image_s" in result
+
+
+def test_cancelled_warmup_stops_between_steps():
+    first = warm_first.first_image(processes=1, cancel=lambda: True)
+    assert first["cancelled"] and not first["helper"]
+    result = warm_first.warm_viewport("BASE", processes=1, cancel=lambda: True)
+    assert result["cancelled"]

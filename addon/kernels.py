@@ -7,8 +7,11 @@ viewport starts: it renders a tiny built-in scene in the chosen mode only (BASE 
 tracer's kernels; INTERPOLANT adds the interpolant kernels) through
 ``runtime.warm_cache`` (``rstrace_engine.warm_cache.warm``, the same warm-up as the
 ``rstrace.warm_cache`` operator and ``python -m rstrace_engine warm-cache``, restricted to
-that mode and the BVH), with the render lock held, so the kernels are compiled (or loaded)
-once and a real render afterwards only runs them.
+that mode and the BVH), so the kernels are compiled (or loaded) once and a real render
+afterwards only runs them. The kernels of the viewport's first (coarse) image come first
+(``rstrace_engine.warm_first``: the BVH traversal compiles in a helper process, Blender's
+Python, while this one compiles the rest); then the render lock is let go so a waiting
+viewport shows its first image, and the rest is warmed a step at a time under the lock.
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
 bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signature.
 
@@ -95,14 +98,14 @@ def progress_text() -> str | None:
 
 
 def _warm(mode: str) -> None:
-    """Compile (or load) every kernel ``mode`` uses: ``rstrace_engine.warm_cache.warm`` for
-    that mode and the BVH (the viewport's coarse image, frames, a camera move, an edit and
-    the incremental frame after it), the farm's warm-up restricted to one mode."""
+    """Compile (or load) every kernel ``mode`` uses, the viewport's first image's first
+    (``rstrace_engine.warm_first.warm_viewport``: the traversal kernel in a helper process
+    meanwhile; then ``rstrace_engine.warm_cache.warm`` for that mode and the BVH, the
+    farm's warm-up restricted to one mode, a step at a time under the render lock)."""
     stop = lambda: _state["stop"]  # noqa: E731
     if stop():
         return
-    result = runtime.warm_cache(modes=(mode,), accelerators=("BVH",), cancel=stop,
-                                report_unreached=False)
+    result = runtime.warm_viewport(mode, cancel=stop)
     if not result.get("cancelled") and not stop():
         _state["modes_done"].add(mode)
         _state["seconds"][mode] = result["seconds"]

@@ -116,6 +116,22 @@ def warm_cache(progress=None, **options) -> dict:
     return result
 
 
+def warm_viewport(mode: str, cancel=None, progress=None) -> dict:
+    """The background warm-up for ``mode`` (``rstrace_engine.warm_first.warm_viewport``):
+    the kernels of the viewport's first image first (the BVH traversal in a helper process
+    meanwhile), then the rest of the mode's, holding :data:`RENDER_LOCK` one step at a time
+    so a viewport renders in between."""
+    if not _state["configured"]:
+        raise RuntimeError("runtime.configure() must run before kernels are compiled")
+    from rstrace_engine import warm_first
+
+    result = warm_first.warm_viewport(mode, lock=RENDER_LOCK, cancel=cancel,
+                                      progress=progress)
+    if not result.get("cancelled"):
+        mark_kernels_ready()
+    return result
+
+
 def set_threads(render) -> int:
     """Use Blender's render thread setting (Fixed) for numba's parallel loops."""
     import numba

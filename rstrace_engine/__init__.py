@@ -2,7 +2,8 @@
 
 Subpackages, in import order (a module imports only from its own layer or lower ones):
 
-1. ``tolerances``, ``frame`` (settings, modes, pixel classes), ``image``: shared leaves;
+1. ``tolerances``, ``frame`` (settings, modes, pixel classes), ``image``, ``cancel`` (a
+   cancel flag the kernels poll): shared leaves;
    ``kernel_cache`` (numba's disk cache made safe to share between processes, counted).
 2. ``geometry``: the scene model, cameras, shapes, mesh topology.
 3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force).
@@ -11,6 +12,7 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    interpolated frames).
 6. ``session``: the persistent render session a host (the Blender add-on) holds per scene.
 7. ``scenes`` (benchmark scenes), ``warm_cache`` (compile every kernel, render nothing),
+   ``warm_first`` (the viewport's first image's kernels first, in two processes),
    ``bench``, ``__main__``: tools on top.
 """
 

@@ -5,8 +5,10 @@ A host (the Blender add-on's viewport, or ``python -m rstrace_engine.bench viewp
 owns a :class:`ViewportWorker` and calls :meth:`ViewportWorker.submit` whenever something
 changed: new edits (a ``prepare`` callable that applies them to the session and returns the
 session, run on the worker under the render lock), a new view camera, new settings or a new
-size. Each submission interrupts the frame in progress (the renderers poll ``cancel``
-between tiles of :data:`VIEW_TILE_RAYS` rays) and starts over with
+size. Each submission interrupts the frame in progress (a
+:class:`~rstrace_engine.cancel.CancelFlag`: the renderers poll it between tiles of
+:data:`VIEW_TILE_RAYS` rays and between the queries of a tile, the BVH kernels every few
+dozen rays) and starts over with
 
 1. a *coarse* frame at 1/:data:`COARSE_FACTOR` resolution (the base tracer; a few thousand
    rays), so something appears within tens of milliseconds of any edit;
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .cancel import CancelFlag, bound, cancelled
 from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
 from .geometry.edits import CameraChange
@@ -83,7 +86,9 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
     sample, samples : which stratified sample of ``samples`` per pixel to take (0 of 1: the
     pixel centre, exactly the base tracer's 1-sample frame). Returns ``(rgb (h, w, 3)
     float32, pclass (h, w) uint8, done)``; ``done`` is False when ``cancel()`` stopped it
-    (the image then holds the tiles done so far).
+    (the image then holds the tiles completed before it). With a
+    :class:`~rstrace_engine.cancel.CancelFlag` the queries of a tile stop within a few
+    dozen rays of it being set.
     """
     sa = session.scene.arrays()
     accel = session.accel
@@ -95,7 +100,7 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
     rows = max(1, tile_rays // max(1, bw))
     depth = int(settings.max_depth)
     for ya in range(y0, y0 + bh, rows):
-        if cancel is not None and cancel():
+        if cancelled(cancel):
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         yb = min(y0 + bh, ya + rows)
         pix = _rect_pixels(w, ya, yb, x0, x0 + bw)
@@ -104,10 +109,13 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
                                   seed=int(settings.seed) * 1000003 + ya)[sample % samples]
         else:
             jitter = None
-        with threads_for(len(pix)):
+        with threads_for(len(pix)), bound(accel, cancel):
             o, d, tmin, tmax = camera_rays(cp, pix, jitter)
-            hits = session.accel.closest_hit(o, d, tmin, tmax)
-            rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits)
+            hits = accel.closest_hit(o, d, tmin, tmax)
+            rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits, cancel=cancel)
+        if cancelled(cancel):  # the tile is incomplete: keep nothing of it
+            return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
+        with threads_for(len(pix)):
             out = np.empty((len(pix), 3), np.float32)
             cls = np.empty(len(pix), np.uint8)
             accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
@@ -194,6 +202,9 @@ class ViewportWorker:
         self._started = 0  # the job the worker is on
         self._t_submit = 0.0
         self._stop = False
+        # set by every submission and by stop(); cleared when the worker takes a job: the
+        # renderers poll it between tiles and the BVH kernels inside their loops
+        self._flag = CancelFlag()
         self._image: ViewImage | None = None
         self._generation = 0
         self.error: str | None = None
@@ -223,6 +234,7 @@ class ViewportWorker:
                 self._job["border"] = border
             self._submitted += 1
             self._t_submit = time.perf_counter()
+            self._flag.set()
             self._idle.clear()
             self._cond.notify_all()
             return self._submitted
@@ -253,6 +265,7 @@ class ViewportWorker:
         """Interrupt the frame in progress and join the thread; True when it ended."""
         with self._cond:
             self._stop = True
+            self._flag.set()
             self._cond.notify_all()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
@@ -261,7 +274,8 @@ class ViewportWorker:
     # -- worker side -----------------------------------------------------------------
 
     def _cancelled(self) -> bool:
-        return self._stop or self._submitted != self._started
+        """A newer submission or stop() came (what ``self._flag`` says, as a method)."""
+        return self._flag()
 
     def _publish(self, rgba, stage, samples, job, view_size, border, stats) -> None:
         self._generation += 1
@@ -282,6 +296,7 @@ class ViewportWorker:
                 if self._stop:
                     self._idle.set()
                     return
+                self._flag.clear()  # under the condition: a later submit sets it again
                 self._started = job = self._submitted
                 t_job = self._t_submit
                 spec = dict(self._job)
@@ -317,14 +332,14 @@ class ViewportWorker:
                 session.update_settings(settings)
             if not same_camera(session.scene.camera, camera):
                 report = session.apply([CameraChange(camera)])
-        self.error = None
-        w, h = camera.width, camera.height
-        times = self.stats["stages"]
-        # 1. coarse: the base tracer at 1/coarse_factor resolution
-        cam = coarse_camera(camera, self.coarse_factor)
-        cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-        with self.lock:
-            rgb, _, done = trace_view(session, cam, settings, self._cancelled, cb,
+            self.error = None
+            w, h = camera.width, camera.height
+            times = self.stats["stages"]
+            # 1. coarse: the base tracer at 1/coarse_factor resolution, without letting go
+            # of the lock after the edits (a background warm-up would take it in between)
+            cam = coarse_camera(camera, self.coarse_factor)
+            cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
+            rgb, _, done = trace_view(session, cam, settings, self._flag, cb,
                                       tile_rays=self.tile_rays)
         if not done:
             return self._interrupted()
@@ -333,7 +348,7 @@ class ViewportWorker:
                       border, dict(ms_since_edit=times["coarse_ms"]))
         # 2. full resolution in the session's mode (incremental when only edits happened)
         with self.lock:
-            frame = session.render(cancel=self._cancelled)
+            frame = session.render(cancel=self._flag)
         if frame.stats.get("cancelled"):
             return self._interrupted()
         times["full_ms"] = 1e3 * (time.perf_counter() - t_job)
@@ -352,7 +367,7 @@ class ViewportWorker:
         n = self.samples
         for k in range(1, n):
             with self.lock:
-                rgb, _, done = trace_view(session, camera, settings, self._cancelled, border,
+                rgb, _, done = trace_view(session, camera, settings, self._flag, border,
                                           sample=k, samples=n, tile_rays=self.tile_rays)
             if not done:
                 return self._interrupted()

@@ -21,6 +21,7 @@ did not reach.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 
@@ -85,6 +86,13 @@ def _accelerators() -> tuple[str, ...]:
     from .accel import embree
 
     return ("BVH", "VISIBILITY_FIELD") + (("EMBREE",) if embree.available() else ())
+
+
+def _yield(lock) -> None:
+    """Between two steps: a thread waiting for ``lock`` gets it (Python's locks are not
+    fair; without a pause the warm-up would take it straight back)."""
+    if lock is not None:
+        time.sleep(0.005)
 
 
 class Cancelled(Exception):
@@ -183,7 +191,7 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
 
 
 def warm(modes=None, accelerators=None, progress=None, cancel=None,
-         report_unreached: bool = True) -> dict:
+         report_unreached: bool = True, lock=None) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
     ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
@@ -192,7 +200,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     ``kernel_cache.counts()`` plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
     and ``unreached``: render kernels with nothing in the disk cache afterwards (kernels
     inlined into their callers never have their own code and are not listed; empty when
-    ``report_unreached`` is False, as for a warm-up of one mode).
+    ``report_unreached`` is False, as for a warm-up of one mode). ``lock``: held around each
+    step (not the whole warm-up), so that a viewport sharing it renders between steps.
     """
     from .frame import RenderSettings
     from .session import Session
@@ -202,6 +211,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     accelerators = tuple(accelerators or _accelerators())
     steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)]
     cancelled = False
+    held = lock if lock is not None else contextlib.nullcontext()
     try:
         for i, (mode, accel, ortho) in enumerate(steps):
             _check(cancel)
@@ -214,14 +224,19 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                                       epsilon=0.02, depth_cap=3)
             if ortho:
                 settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
-            session = Session(warm_scene(ortho=ortho), settings)
-            _animate(session, ortho, cancel)
+            with held:
+                session = Session(warm_scene(ortho=ortho), settings)
+                _animate(session, ortho, cancel)
+            _yield(lock)
         if "INTERPOLANT" in modes:
             _check(cancel)
-            _warm_edited_interpolants(progress, cancel)
+            with held:
+                _warm_edited_interpolants(progress, cancel)
+            _yield(lock)
         if "RI_TREE" in modes:
             _check(cancel)
-            _warm_ri_trees(accelerators[:1], progress, cancel)
+            with held:
+                _warm_ri_trees(accelerators[:1], progress, cancel)
         _check(cancel)
     except Cancelled:
         cancelled = True

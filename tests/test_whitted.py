@@ -434,9 +434,10 @@ def test_progress_and_cancel(monkeypatch):
                           progress=lambda f, msg: seen.append(f))
     assert seen == pytest.approx([0.25, 0.5, 0.75, 1.0])
     assert not full.stats["cancelled"]
-    calls = []
+    tiles = []  # cancel() is polled before and within every tile: stop after two tiles
     part = whitted.render(sc, RenderSettings(max_depth=0), accel=acc,
-                          cancel=lambda: calls.append(1) or len(calls) > 2)
+                          progress=lambda f, msg: tiles.append(f),
+                          cancel=lambda: len(tiles) >= 2)
     assert part.stats["cancelled"] and part.stats["rows_done"] == 12
     np.testing.assert_array_equal(part.radiance[:12], full.radiance[:12])
     assert np.all(part.radiance[12:] == 0.0)

@@ -19,6 +19,7 @@ needs ``embreex``), ``"BRUTE_FORCE"`` (every triangle of every instance: the tes
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from typing import NamedTuple
@@ -26,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from ..cancel import kernel_flag
 from ..frame import ACCELERATORS
 from ..geometry.scene import SceneArrays, SceneError
 from . import bvh
@@ -57,6 +59,17 @@ def empty_hits(n: int) -> Hits:
                 np.zeros(n), np.zeros(n))
 
 
+def per_ray(x, n: int, dtype) -> np.ndarray:
+    """A scalar or (n,) array as a contiguous, *writeable* (n,) array of ``dtype``.
+
+    ``np.broadcast_to`` gives read-only views, and a read-only array is another numba type:
+    every kernel it reaches would be compiled once more (the BVH traversal had four
+    signatures, 20 s of cold compile each on two cores, from read-only ``tmin``, ``tmax``
+    and ``only`` arrays)."""
+    a = np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=dtype), (n,)))
+    return a if a.flags.writeable else a.copy()
+
+
 def check_rays(origins, directions, tmin, tmax):
     """Validate and convert a ray batch to contiguous float64 arrays.
 
@@ -69,8 +82,8 @@ def check_rays(origins, directions, tmin, tmax):
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"rays: origins {o.shape} and directions {d.shape} must both be (n, 3)")
     n = o.shape[0]
-    lo = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, dtype=np.float64), (n,)))
-    hi = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,)))
+    lo = per_ray(tmin, n, np.float64)
+    hi = per_ray(tmax, n, np.float64)
     if not (np.isfinite(o).all() and np.isfinite(d).all()):
         raise ValueError("rays: NaN or infinite origin or direction")
     if np.isnan(lo).any() or np.isnan(hi).any():
@@ -80,7 +93,7 @@ def check_rays(origins, directions, tmin, tmax):
 
 def instance_array(inst, n: int, n_instances: int) -> np.ndarray:
     """``inst`` (an int or (n,) ints) as a contiguous (n,) int32 array, range-checked."""
-    a = np.ascontiguousarray(np.broadcast_to(np.asarray(inst, dtype=np.int32), (n,)))
+    a = per_ray(inst, n, np.int32)
     if n and (a.min() < 0 or a.max() >= n_instances):
         raise ValueError(f"intersect_object: instance id out of range [0, {n_instances})")
     return a
@@ -91,12 +104,34 @@ class Accelerator:
 
     name = "?"
 
+    #: The stop flag the kernels poll (:mod:`rstrace_engine.cancel`); bound by
+    #: :meth:`cancellable`, never set otherwise.
+    _stop = bvh.NEVER_STOP
+
     def __init__(self, scene_arrays: SceneArrays) -> None:
         self.sa = scene_arrays
         self.stats: dict = {}
 
     def update(self, scene_arrays: SceneArrays) -> None:
         self.sa = scene_arrays
+
+    @contextlib.contextmanager
+    def cancellable(self, cancel):
+        """Within the block, this accelerator's kernels stop early once ``cancel`` (a
+        :class:`~rstrace_engine.cancel.CancelFlag`) is set: their results are then
+        incomplete, and the caller must poll ``cancel()`` after each query and discard
+        what it returned. Other callables (or None) bind nothing. Kernels that poll: the
+        BVH's; the others finish their query."""
+        flag = kernel_flag(cancel)
+        if flag is None:
+            yield self
+            return
+        previous = self._stop
+        self._stop = flag
+        try:
+            yield self
+        finally:
+            self._stop = previous
 
     def _trace(self, o, d, tmin, tmax, only, anyhit: bool) -> Hits:
         raise NotImplementedError
@@ -257,7 +292,7 @@ class BVHAccelerator(Accelerator):
         if only is None:
             only = np.full(n, -1, np.int32)
         t0 = time.perf_counter()
-        bvh.trace(self.sb, o, d, tmin, tmax, only, anyhit, hits)
+        bvh.trace(self.sb, o, d, tmin, tmax, only, anyhit, hits, self._stop)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits

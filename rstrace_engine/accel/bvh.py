@@ -609,7 +609,8 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, out_u, out_v):
+def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, out_u, out_v,
+                 stop):
     """Closest (``anyhit=False``) or any hit of each ray through a :class:`SceneBVH`.
 
     o, d : (n, 3) float64; tmin, tmax : (n,) float64; only : (n,) int32, ``>= 0`` restricts
@@ -618,9 +619,15 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
     them). Work items are :data:`CHUNK` consecutive rays; call it under
     ``numba.parallel_chunksize(PARALLEL_CHUNKSIZE)`` (:func:`trace`) so threads take work
     items dynamically (cost per ray varies a lot across an image).
+
+    stop : (1,) int32, read before every work item: once it is non-zero the remaining
+    work items are skipped (their rows left as misses) and the result is incomplete, for
+    the caller to discard (:mod:`rstrace_engine.cancel`); zero, every ray is traced.
     """
     n = o.shape[0]
     for c in prange((n + CHUNK - 1) // CHUNK):
+        if stop[0] != 0:
+            continue
         st_node = np.empty(STACK_SIZE, np.int32)
         st_t = np.empty(STACK_SIZE)
         st2_node = np.empty(STACK_SIZE, np.int32)
@@ -639,7 +646,13 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
                 out_v[r] = v
 
 
-def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits) -> None:
-    """Run :func:`trace_kernel` with dynamic scheduling into ``hits`` (t, inst, prim, u, v)."""
+#: The stop flag of queries nobody cancels.
+NEVER_STOP = np.zeros(1, np.int32)
+
+
+def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits,
+          stop: np.ndarray = NEVER_STOP) -> None:
+    """Run :func:`trace_kernel` with dynamic scheduling into ``hits`` (t, inst, prim, u, v);
+    ``stop``: its stop flag (a :class:`~rstrace_engine.cancel.CancelFlag`'s ``array``)."""
     with numba.parallel_chunksize(PARALLEL_CHUNKSIZE):
-        trace_kernel(sb, o, d, tmin, tmax, only, anyhit, *hits)
+        trace_kernel(sb, o, d, tmin, tmax, only, anyhit, *hits, stop)

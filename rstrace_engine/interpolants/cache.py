@@ -44,6 +44,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..accel.accelerators import Hits
+from ..cancel import kernel_flag
 from ..frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
@@ -98,6 +99,10 @@ MIN_BUILD_DEPTH = 2
 #: trace. A build costs about 60-100 traced pixels and about
 #: a third of the cells built pass, so a cell of 48 rays pays back in a few frames of reuse.
 MIN_PIXELS = 48
+#: Cells built per batch when ``resolve`` is given a :class:`~rstrace_engine.cancel.
+#: CancelFlag` (the viewport), polled between batches: a few tens of milliseconds of
+#: building (otherwise one batch per level). A cell is never interrupted half built.
+BUILD_STEP_CANCELLABLE = 32
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.
 MAX_BACKFACE_SKIPS = 8
 
@@ -421,7 +426,11 @@ class InterpolantCache:
             if np.any(build):
                 tb = time.perf_counter()
                 cells = uniq[build]
-                self._build(cells, st)
+                step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
+                for lo in range(0, len(cells), step):
+                    if lo and cancel():  # the cells left EMPTY are built by a later frame
+                        break
+                    self._build(cells[lo:lo + step], st)
                 # failed cells with room below go one level down right away
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])

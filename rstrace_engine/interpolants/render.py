@@ -33,6 +33,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
+from ..cancel import bound
 from ..frame import CLASS_BACKGROUND, CLASS_INTERPOLATED, CLASS_NAMES, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
@@ -134,10 +135,12 @@ def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, c
     rp = reproject(cache, view, cells, cp, pix, o, d, tmax, splat)
     pre = exact_hits = None
     if rp is None:
-        hits = cache.accel.closest_hit(o, d, tmin, tmax)
+        with bound(cache.accel, cancel):  # incomplete when cancelled: resolve polls first
+            hits = cache.accel.closest_hit(o, d, tmin, tmax)
     else:
         pre, hi, _ = rp
-        hits = cache.accel.closest_hit(o, d, tmin, hi)
+        with bound(cache.accel, cancel):
+            hits = cache.accel.closest_hit(o, d, tmin, hi)
         reprojected = hi < 0.0
         if exact:
             # pixel records keep a view segment per sample: the reprojected ones reach the
@@ -182,7 +185,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
     are the cache's. progress(fraction, message); cancel() -> bool is polled between stages
-    (a cancelled frame keeps its interpolated pixels, ``stats["cancelled"]``).
+    and between the tracing tiles (a cancelled frame is incomplete, ``stats["cancelled"]``);
+    a :class:`~rstrace_engine.cancel.CancelFlag` also stops the visibility and tracing
+    queries within a few dozen rays (never the building of interpolants).
 
     Incremental frames (the session's, with a fixed camera): ``pixels`` (h * w,) bool renders
     only those pixels (all their samples, with the jitter of a full frame) over a copy of
@@ -275,13 +280,13 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                    rad, todo)]
             n_todo += len(todo)
             gids = s * (w * h) + pix
-            if records is not None:
-                records.add_primary(gids, hits.inst, o, d, hits.t)
             tt = time.perf_counter()
             t_res += tt - tr
             if cancel is not None and cancel():
-                cancelled = True
+                cancelled = True  # (a cancelled frame's records are dropped)
             else:
+                if records is not None:
+                    records.add_primary(gids, hits.inst, o, d, hits.t)
                 # in tiles of about the base tracer's size (its per-level arrays stay
                 # cache-sized), split evenly: a small last tile would cost the tracer's
                 # per-level overhead alone
@@ -289,9 +294,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 for q in range(n_tiles):
                     part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
                     segs: list | None = [] if records is not None else None
-                    rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                         int(settings.max_depth), primary=_take(hits, part),
-                                         counters=counters, segments=segs)
+                    with bound(accel, cancel):
+                        rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part],
+                                             tmax[part], int(settings.max_depth),
+                                             primary=_take(hits, part), counters=counters,
+                                             segments=segs, cancel=cancel)
+                    cancelled = cancel is not None and cancel()
+                    if cancelled:  # an incomplete tile (and frame): the session drops it
+                        break
                     if records is not None:
                         records.add(gids[part], segs)
             t_trace += time.perf_counter() - tt
@@ -305,7 +315,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 break
     if pixels is None and not cancelled:
         cache.view = here
-    _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)
+    if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
+        _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
@@ -333,7 +344,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=bound_notes(cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
+        bound_notes=[] if cancelled else bound_notes(
+            cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
     )
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])

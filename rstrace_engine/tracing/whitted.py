@@ -44,7 +44,8 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..accel.accelerators import Hits, create_accelerator
+from ..accel.accelerators import Hits, create_accelerator, per_ray
+from ..cancel import bound, cancelled
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
@@ -440,7 +441,7 @@ def _light_masks(sh_state, vis, L, traced, lit):
 
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
-          segments: list | None = None):
+          segments: list | None = None, cancel=None):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -457,6 +458,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     ``inst`` (-1: a miss), ``point`` (hit point), ``dir`` (unit ray direction), ``traced``
     and ``lit`` (uint64 light bits: shadow ray traced / light visible). Cheaper than
     ``record`` (shadow rays stay any-hit queries).
+    cancel : optional ``cancel() -> bool``, polled between the queries of every depth level:
+    once it says stop, the rest is skipped and the result is incomplete (the caller polls
+    ``cancel()`` itself and discards it; see :mod:`rstrace_engine.cancel`).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -465,8 +469,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     n = o.shape[0]
     if d.shape != o.shape:
         raise ValueError(f"trace: origins {o.shape} and directions {d.shape} differ")
-    t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, np.float64), (n,)))
-    t1 = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    t0 = per_ray(tmin, n, np.float64)  # writeable: one numba type for every caller
+    t1 = per_ray(tmax, n, np.float64)
     if primary is not None and len(primary.t) != n:
         raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
     max_depth = int(max_depth)
@@ -482,7 +486,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     n_nodes = 0
     for level in range(max_depth + 1):
         nb = len(src)
-        if nb == 0:
+        if nb == 0 or cancelled(cancel):
             break
         if level == 0 and primary is not None:
             hits = _as_hits(primary)
@@ -514,6 +518,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             else:
                 vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st), np.bool_)
             _count(counters, "shadow", len(todo))
+            if cancelled(cancel):
+                break
         if record:
             occ = np.full(nb * L, OCC_NOT_FACING, np.int32)
             if len(todo):
@@ -584,8 +590,11 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     ``seed``, ``accelerator`` are used; the mode is not looked at). accel : an accelerator
     over ``scene.arrays()``; built from ``settings.accelerator`` when omitted.
     progress(fraction, message) is called after every tile; cancel() -> bool is polled
-    before every tile, and a cancelled frame keeps the tiles done so far (``stats
-    ["cancelled"]``). Returns a :class:`~rstrace_engine.frame.Frame`: radiance (h, w, 3)
+    before every tile and between the queries within one, and a cancelled frame keeps the
+    tiles completed before it (``stats["cancelled"]``; the tile in progress is dropped,
+    and its records too). With a :class:`~rstrace_engine.cancel.CancelFlag` the BVH's
+    traversal stops within a few dozen rays of it being set. Returns a
+    :class:`~rstrace_engine.frame.Frame`: radiance (h, w, 3)
     float32, rows bottom-up; pixel_class ``CLASS_TRACED`` where a primary ray hit,
     ``CLASS_BACKGROUND`` elsewhere. Samples whose radiance is NaN, infinite or above
     ``tolerances.RADIANCE_MAX`` are left out of the pixel average and counted in
@@ -623,24 +632,28 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
     counters: dict = {}
     bad_total = 0
-    cancelled = False
+    cancelled_ = False
     rows_done = 0
     traced_pixels = 0
     for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels):
-        if cancel is not None and cancel():
-            cancelled = True
+        if cancelled(cancel):
+            cancelled_ = True
             break
         npx = len(pix)
-        rows_done = y1
         if npx == 0:
+            rows_done = y1
             continue
-        traced_pixels += npx
-        with threads_for(npx * spp):
+        with threads_for(npx * spp), bound(accel, cancel):
             o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
             hits = accel.closest_hit(o, dr, tmin, tmax)
             segs = [] if records is not None else None
             rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits,
-                           counters=counters, segments=segs)
+                           counters=counters, segments=segs, cancel=cancel)
+        if cancelled(cancel):  # the tile is incomplete: keep nothing of it
+            cancelled_ = True
+            break
+        traced_pixels += npx
+        with threads_for(npx * spp):
             if records is not None:
                 gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h)
                         + pix[None, :]).ravel()
@@ -651,6 +664,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
                                      pc)
         image[pix] = out
         pclass[pix] = pc
+        rows_done = y1
         if progress is not None:
             progress(y1 / h, f"traced {y1}/{h} rows")
     elapsed = time.perf_counter() - t_start
@@ -663,7 +677,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         secondary_rays=counters.get("secondary", 0), shadow_rays=counters.get("shadow", 0),
         rays_per_s=rays / elapsed if elapsed > 0 else 0.0,
         width=w, height=h, samples=spp, max_depth=depth, rows_done=rows_done,
-        cancelled=cancelled, nonfinite_samples=bad_total,
+        cancelled=cancelled_, nonfinite_samples=bad_total,
         triangles=scene.triangle_count, instances=scene.n_instances,
         degenerate_triangles=int(scene.stats.get("degenerate_triangles", 0)),
         warnings=list(scene.warnings), incremental=pixels is not None,

@@ -1,0 +1,234 @@
+"""First use: the viewport's first image as soon as its own kernels are ready.
+
+A cold start (a fresh install, or a numba cache of other sources) compiles every kernel a
+session touches. The viewport's first image is the base tracer's *coarse* frame
+(:func:`~rstrace_engine.interactive.trace_view`, in every mode), which needs only
+:data:`FIRST_IMAGE_KERNELS`: the BVH build, the camera rays, the BVH traversal and the
+tracer's surface, shadow and shade stages. :func:`warm_viewport` compiles those first, then
+lets a waiting viewport render, then compiles (or loads) the rest of the mode's kernels
+through :func:`~rstrace_engine.warm_cache.warm`, one step at a time under the render lock,
+so the viewport's own frames interleave with it.
+
+Two processes: the traversal kernel alone is about as long to compile as all the other
+first-image kernels together (numba compiles one kernel at a time, on one core), so
+:func:`first_image` starts a helper process (``sys.executable``, Blender's own Python in
+the add-on) that compiles it into the shared numba cache (:mod:`.kernel_cache` makes that
+safe across processes) while this process compiles the rest, then loads it. The helper's
+kernel is compiled from zero-length calls whose argument types are exactly those of a
+render's (a test checks that a render afterwards compiles no new signature), and this
+process compiles the tracer's stages against a stand-in for the traversal
+(:class:`_FixedHits`), so neither waits for the other. Without a helper (``processes=1``,
+or it cannot start) this process compiles everything itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import subprocess
+import sys
+import time
+from types import SimpleNamespace
+
+import numpy as np
+
+from . import kernel_cache
+
+log = logging.getLogger(__name__)
+
+#: The kernels of the viewport's first (coarse) image, as ``module.function`` under
+#: rstrace_engine; the traversal's compiles in the helper process.
+FIRST_IMAGE_KERNELS = ("accel.bvh.build_flat", "accel.bvh.collapse4",
+                       "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
+                       "tracing.whitted._surface_kernel", "tracing.whitted._shadow_kernel",
+                       "tracing.whitted._shade_kernel", "tracing.batches.scatter_add",
+                       "tracing.batches.accumulate")
+HELPER_KERNELS = ("accel.bvh.trace_kernel",)
+_HELPER_CODE = "from rstrace_engine.warm_first import compile_traversal; compile_traversal()"
+
+
+def compile_traversal() -> None:
+    """Compile (or load) the BVH traversal kernel for the argument types of every query
+    (closest and any hit, all rays or one instance), with zero rays: the helper's part."""
+    from .accel import bvh
+    from .accel.accelerators import BVHAccelerator
+
+    f8, i4 = np.float64, np.int32
+    sb = bvh.SceneBVH(np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros(0, i4),
+                      np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros((0, 9), f8),
+                      np.zeros(0, i4), np.zeros(0, i4), np.zeros(0, i4),
+                      np.zeros((0, 4, 4), f8))
+    acc = BVHAccelerator.__new__(BVHAccelerator)  # no scene: only its query path is used
+    acc.stats, acc.sb = {}, sb
+    none = np.zeros((0, 3))
+    acc.closest_hit(none, none, 0.0, np.inf)
+    acc.any_hit(none, none, np.zeros(0), np.full(0, np.inf))
+
+
+class _FixedHits:
+    """Stands in for the BVH while its traversal compiles elsewhere: every ray hits the
+    first triangle of instance 0 at ``t = 1`` and nothing occludes a shadow ray. The hits
+    have the types of the BVH's (:func:`~.accel.accelerators.empty_hits`), so the tracer's
+    kernels compile exactly the signatures a render uses."""
+
+    name = "fixed"
+
+    def __init__(self, sa) -> None:
+        self.sa = sa
+        self.tri = int(sa.mesh_tri_start[sa.inst_mesh[0]])
+
+    @contextlib.contextmanager
+    def cancellable(self, cancel):
+        yield self
+
+    def closest_hit(self, origins, directions, tmin, tmax):
+        from .accel.accelerators import check_rays, empty_hits
+
+        o, _, _, _ = check_rays(origins, directions, tmin, tmax)
+        h = empty_hits(len(o))
+        h.t[:], h.inst[:], h.prim[:], h.u[:], h.v[:] = 1.0, 0, self.tri, 0.25, 0.25
+        return h
+
+    def any_hit(self, origins, directions, tmin, tmax):
+        from .accel.accelerators import check_rays
+
+        return np.zeros(len(check_rays(origins, directions, tmin, tmax)[0]), bool)
+
+
+def _compile_tracer(scene, cancel=None) -> None:
+    """This process's part: the BVH build (a real one, of ``scene``), the camera rays and
+    the tracer's stages of a coarse view image (against :class:`_FixedHits`); ``cancel()``
+    is polled between the two (and between the tracer's stages)."""
+    from .accel.accelerators import create_accelerator
+    from .frame import RenderSettings
+    from .interactive import trace_view
+
+    sa = scene.arrays()
+    create_accelerator("BVH", sa)
+    if cancel is not None and cancel():
+        return
+    stand_in = SimpleNamespace(scene=scene, accel=_FixedHits(sa))
+    trace_view(stand_in, scene.camera, RenderSettings(max_depth=2), cancel=cancel)
+
+
+def _kernel(name: str):
+    import importlib
+
+    module, _, attr = name.rpartition(".")
+    return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+
+
+def first_image_cached() -> bool:
+    """True when every kernel of the first image is in memory or in the disk cache (a
+    viewport then loads them as fast as a warm-up would: no need to go first)."""
+    return all(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
+               for k in FIRST_IMAGE_KERNELS)
+
+
+def _helper_needed() -> bool:
+    """True when the traversal kernel is neither in memory nor in the disk cache."""
+    return not any(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
+                   for k in HELPER_KERNELS)
+
+
+def start_helper() -> subprocess.Popen | None:
+    """Start the helper process compiling :data:`HELPER_KERNELS` into this process's numba
+    cache (None when no Python interpreter can be started)."""
+    import numba
+
+    exe = sys.executable
+    if not exe or not os.path.basename(exe).lower().startswith("python"):
+        return None  # e.g. an embedding host whose executable is not a Python
+    env = dict(os.environ)
+    if numba.config.CACHE_DIR:
+        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
+    package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env["PYTHONPATH"] = os.pathsep.join([package_root] + [p for p in sys.path if p])
+    try:
+        return subprocess.Popen([exe, "-c", _HELPER_CODE], env=env,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE)
+    except OSError as exc:
+        log.info("kernel warm-up: no helper process (%s)", exc)
+        return None
+
+
+def _wait_helper(helper, cancel) -> bool:
+    """Wait for the helper; True when it compiled its kernels. Cancel: stop it."""
+    while helper.poll() is None:
+        if cancel is not None and cancel():
+            helper.terminate()
+            helper.wait()
+            return False
+        time.sleep(0.05)
+    if helper.returncode != 0:
+        err = helper.stderr.read().decode(errors="replace")[-400:] if helper.stderr else ""
+        log.warning("kernel warm-up helper failed (rc %s): %s", helper.returncode, err)
+        return False
+    return True
+
+
+def first_image(processes: int = 2, cancel=None) -> dict:
+    """Compile (or load) :data:`FIRST_IMAGE_KERNELS`, the traversal in a helper process when
+    ``processes`` > 1 and it is not cached; then render a tiny coarse view for real.
+
+    Returns ``seconds``, ``helper`` (whether a helper compiled the traversal) and
+    ``cancelled``.
+    """
+    from .interactive import coarse_camera, trace_view
+    from .session import Session
+    from .warm_cache import warm_scene
+
+    t0 = time.perf_counter()
+    helper = start_helper() if processes > 1 and _helper_needed() else None
+    scene = warm_scene()
+    try:
+        _compile_tracer(scene, cancel)
+        t_own = time.perf_counter() - t0
+    finally:
+        ok = helper is not None and _wait_helper(helper, cancel)
+        if helper is not None and helper.stderr:
+            helper.stderr.close()
+    t_helper = time.perf_counter() - t0
+    cancelled = cancel is not None and cancel()
+    if not cancelled:  # the real thing: loads the traversal the helper cached
+        session = Session(scene)
+        trace_view(session, coarse_camera(scene.camera, 4), session.settings, cancel=cancel)
+    seconds = time.perf_counter() - t0
+    log.info("first image's kernels in %.1f s (this process's part %.1f s, the helper's "
+             "%s)", seconds, t_own, f"{t_helper:.1f} s" if helper is not None else "none")
+    return dict(seconds=seconds, helper=bool(ok), cancelled=bool(cancelled), own_s=t_own,
+                helper_s=t_helper if helper is not None else None)
+
+
+def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
+                  processes: int = 2, on_first_image=None) -> dict:
+    """The warm-up a viewport waits on: :func:`first_image` under ``lock`` (unless its
+    kernels are all cached already), then a pause
+    without it (a viewport waiting for the lock renders its first image), then the rest of
+    ``mode``'s kernels (:func:`~.warm_cache.warm` for that mode and the BVH), one step at a
+    time under ``lock``. ``on_first_image()`` is called between the two. Returns
+    :func:`~.warm_cache.warm`'s counts plus ``first_image_s``."""
+    from .warm_cache import warm
+
+    lock = lock if lock is not None else contextlib.nullcontext()
+    t0 = time.perf_counter()
+    if first_image_cached():
+        first = dict(seconds=0.0, helper=False, cancelled=False)
+    else:
+        if progress is not None:
+            progress("compiling the first image's kernels")
+        with lock:
+            first = first_image(processes, cancel)
+    if first["cancelled"]:
+        return dict(kernel_cache.counts(), cancelled=True, first_image_s=first["seconds"],
+                    seconds=time.perf_counter() - t0)
+    if on_first_image is not None:
+        on_first_image()
+    time.sleep(0.05)  # a viewport waiting on the lock takes it now
+    result = warm(modes=(mode,), accelerators=("BVH",), progress=progress, cancel=cancel,
+                  report_unreached=False, lock=lock)
+    result.update(first_image_s=first["seconds"], helper=first["helper"],
+                  seconds=time.perf_counter() - t0)
+    return result

@@ -1,0 +1,92 @@
+"""First use (rstrace_engine.warm_first): the first image's kernels compiled first, the BVH
+traversal in a helper process, with exactly the argument types a render uses, and the rest
+of the warm-up leaving the render lock to a waiting viewport between steps."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import numpy as np
+
+from rstrace_engine import warm_first
+from rstrace_engine.accel import bvh
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.interactive import coarse_camera, trace_view
+from rstrace_engine.session import Session
+from rstrace_engine.tracing import batches, whitted
+from rstrace_engine.warm_cache import warm_scene
+
+
+def test_first_image_kernels_exist():
+    for name in warm_first.FIRST_IMAGE_KERNELS:
+        assert hasattr(warm_first._kernel(name), "signatures"), name
+    assert set(warm_first.HELPER_KERNELS) <= set(warm_first.FIRST_IMAGE_KERNELS)
+
+
+def test_stand_ins_compile_the_signatures_a_render_uses():
+    """The helper's zero-ray queries and the tracer's stand-in hits give the kernels the
+    argument types of real queries and frames: a render afterwards compiles nothing new
+    (each of these kernels has one signature, whatever the query: closest or any hit,
+    scalar or per-ray bounds, one instance)."""
+    warm_first.compile_traversal()
+    scene = warm_scene()
+    warm_first._compile_tracer(scene)
+    session = Session(scene, RenderSettings(max_depth=2))
+    trace_view(session, coarse_camera(scene.camera, 4), session.settings)
+    session.render()
+    a = session.accel
+    o = np.array([[0.0, -6.0, 1.0]])
+    d = np.array([[0.0, 1.0, 0.0]])
+    a.closest_hit(o, d, 0.0, np.inf)
+    a.any_hit(o, d, np.zeros(1), 10.0)
+    a.intersect_object(0, o, d, 0.0, np.inf)
+    for k in (bvh.trace_kernel, whitted._surface_kernel, whitted._shadow_kernel,
+              whitted._shade_kernel, batches.accumulate, batches.scatter_add):
+        assert len(k.signatures) == 1, (k.py_func.__name__, k.signatures)
+
+
+def test_helper_process_fills_the_cache(tmp_path, monkeypatch):
+    """The helper (sys.executable, the package on its path) compiles the traversal into
+    the cache folder this process uses."""
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    helper = warm_first.start_helper()
+    assert helper is not None
+    assert warm_first._wait_helper(helper, None)
+    helper.stderr.close()
+    assert list(tmp_path.rglob("bvh.trace_kernel-*.nbi"))
+    assert list(tmp_path.rglob("bvh.trace_kernel-*.nbc"))
+
+
+def test_viewport_gets_the_lock_after_the_first_image(monkeypatch):
+    """After the first image's kernels, a viewport waiting on the render lock gets it while
+    the rest of the warm-up is still to come (the warm-up takes it a step at a time)."""
+    monkeypatch.setattr(warm_first, "first_image",
+                        lambda processes, cancel: dict(seconds=0.0, helper=False,
+                                                       cancelled=False))
+    lock = threading.Lock()
+    first = threading.Event()
+    result = {}
+
+    def run():
+        result.update(warm_first.warm_viewport("BASE", lock=lock, processes=1,
+                                               on_first_image=first.set))
+
+    t = threading.Thread(target=run)
+    t.start()
+    try:
+        assert first.wait(300)
+        assert lock.acquire(timeout=300)
+        still_warming = t.is_alive()
+        lock.release()
+    finally:
+        t.join(600)
+    assert still_warming  # the viewport did not wait for the whole warm-up
+    assert not result["cancelled"] and "first_image_s" in result
+
+
+def test_cancelled_warmup_stops_between_steps():
+    first = warm_first.first_image(processes=1, cancel=lambda: True)
+    assert first["cancelled"] and not first["helper"]
+    result = warm_first.warm_viewport("BASE", processes=1, cancel=lambda: True)
+    assert result["cancelled"]

@@ -201,6 +201,23 @@ def corner_weight(corner, u0, u1, u2, u3):
     return w
 
 
+@njit(cache=True, nogil=True)
+def interpolate16(rad16, q, rad, r, u0, u1, u2, u3):
+    """``rad[r]`` = the quadrilinear interpolation of interpolant ``q``'s 16 corner
+    radiances ``rad16[q]`` at local coordinates ``u`` in [0, 1]."""
+    x = 0.0
+    y = 0.0
+    z = 0.0
+    for c in range(16):
+        w = corner_weight(c, u0, u1, u2, u3)
+        x += w * rad16[q, c, 0]
+        y += w * rad16[q, c, 1]
+        z += w * rad16[q, c, 2]
+    rad[r, 0] = x
+    rad[r, 1] = y
+    rad[r, 2] = z
+
+
 def corner_weights(u: np.ndarray) -> np.ndarray:
     """Quadrilinear weights of local coordinates ``u`` (n, 4) in [0, 1]: (n, 16) float64."""
     u = np.asarray(u, np.float64).reshape(-1, 4)

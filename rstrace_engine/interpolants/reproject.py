@@ -46,7 +46,7 @@ from numba import njit
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT
 from ..geometry.cameras import CameraParams
-from .linetree import EMPTY, corner_weight, descend_one, dominant_face, face_frame
+from .linetree import EMPTY, descend_one, dominant_face, face_frame, interpolate16
 from .shafts import MAX_PLANES, hexa_planes, hw_shaft, mesh_any, other_geometry, to_object
 
 #: Reprojection on or off (benchmarks and tests compare; frames are the same either way).
@@ -285,17 +285,7 @@ def _reproject_rays(qs, box, lt, roots, inode, izlo, izhi, dif, isamples, live, 
         if not (0.0 <= x0 <= 1.0 and 0.0 <= x1 <= 1.0 and 0.0 <= x2 <= 1.0
                 and 0.0 <= x3 <= 1.0):
             continue  # (rounding at a cell's edge)
-        x = 0.0
-        y = 0.0
-        z = 0.0
-        for c in range(16):
-            w = corner_weight(c, x0, x1, x2, x3)
-            x += w * rad16[q, c, 0]
-            y += w * rad16[q, c, 1]
-            z += w * rad16[q, c, 2]
-        rad[r, 0] = x
-        rad[r, 1] = y
-        rad[r, 2] = z
+        interpolate16(rad16, q, rad, r, x0, x1, x2, x3)
         done[r] = True
         pinterp[r] = q
         pcls[r] = CLASS_REBUILT if irebuilt[q] else CLASS_INTERPOLATED

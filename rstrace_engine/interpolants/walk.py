@@ -17,8 +17,8 @@ from ..frame import (
 )
 from .linetree import (
     EMPTY,
-    corner_weight,
     descend_one,
+    interpolate16,
 )
 
 #: Rays per block of the frame kernels (each block walks its rays in order, so that a ray can
@@ -86,17 +86,7 @@ def walk_level(lt, rad16, izlo, izhi, icls, istamp, irebuilt, clock, nodes, inhe
             u1 = min(max(a1 * s - lt.coord[nd, 1], 0.0), 1.0)
             u2 = min(max(a2 * s - lt.coord[nd, 2], 0.0), 1.0)
             u3 = min(max(a3 * s - lt.coord[nd, 3], 0.0), 1.0)
-            x = 0.0
-            y = 0.0
-            z = 0.0
-            for k in range(16):
-                w = corner_weight(k, u0, u1, u2, u3)
-                x += w * rad16[q, k, 0]
-                y += w * rad16[q, k, 1]
-                z += w * rad16[q, k, 2]
-            rad[r, 0] = x
-            rad[r, 1] = y
-            rad[r, 2] = z
+            interpolate16(rad16, q, rad, r, u0, u1, u2, u3)
             done[r] = True
             pinterp[r] = q
             pcls[r] = CLASS_REBUILT if irebuilt[q] else CLASS_INTERPOLATED

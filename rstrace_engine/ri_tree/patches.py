@@ -65,25 +65,33 @@ def _angle_ok(S, ids, key, cosmin):
 
 
 @njit(cache=True, nogil=True)
+def corner_classes(nd, x, S):
+    """``(n, c0, c1)``: how many distinct class keys cell ``x``'s 16 corners carry (3 means
+    three or more) and the first two of them (``MISS`` where absent)."""
+    nc = 0
+    c0 = MISS
+    c1 = MISS
+    for k in range(16):
+        key = S.cls[nd.corner[x, k]]
+        if nc == 0:
+            c0 = key
+            nc = 1
+        elif key != c0:
+            if nc == 1:
+                c1 = key
+                nc = 2
+            elif key != c1:
+                nc = 3
+    return nc, c0, c1
+
+
+@njit(cache=True, nogil=True)
 def finalize(nd, leaves, S, cosmin):
     """Mark ``leaves`` FINAL with their classes and angular test results (serial: writes
     through the node tuple are lost from a parallel loop)."""
     for q in range(leaves.shape[0]):
         x = leaves[q]
-        nc = 0
-        c0 = MISS
-        c1 = MISS
-        for k in range(16):
-            key = S.cls[nd.corner[x, k]]
-            if nc == 0:
-                c0 = key
-                nc = 1
-            elif key != c0:
-                if nc == 1:
-                    c1 = key
-                    nc = 2
-                elif key != c1:
-                    nc = 3
+        nc, c0, c1 = corner_classes(nd, x, S)
         nd.nclass[x] = nc
         nd.cls[x, 0] = c0
         nd.cls[x, 1] = c1
@@ -103,20 +111,7 @@ def corner_kinds(nd, leaves, S, out):
     ``K_MIXED`` (three or more)."""
     for q in prange(leaves.shape[0]):
         x = leaves[q]
-        nc = 0
-        c0 = MISS
-        c1 = MISS
-        for k in range(16):
-            key = S.cls[nd.corner[x, k]]
-            if nc == 0:
-                c0 = key
-                nc = 1
-            elif key != c0:
-                if nc == 1:
-                    c1 = key
-                    nc = 2
-                elif key != c1:
-                    nc = 3
+        nc, c0, c1 = corner_classes(nd, x, S)
         if nc >= 3:
             out[q] = K_MIXED
         elif nc == 2:
@@ -290,20 +285,7 @@ def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, di
         abcd = np.empty(4)
         for a in range(4):
             abcd[a] = 0.5 * (nd.lo[x, a] + nd.hi[x, a])
-        nc = 0
-        c0 = MISS
-        c1 = MISS
-        for k in range(16):
-            kk = S.cls[nd.corner[x, k]]
-            if nc == 0:
-                c0 = kk
-                nc = 1
-            elif kk != c0:
-                if nc == 1:
-                    c1 = kk
-                    nc = 2
-                elif kk != c1:
-                    nc = 3
+        nc, c0, c1 = corner_classes(nd, x, S)
         if nc >= 3 or (key != c0 and key != c1):
             dist[q] = np.inf
             continue

@@ -161,7 +161,6 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
     from .geometry import shapes
     from .geometry.edits import LightDelete, ObjectTransform
     from .geometry.scene import Light, Material
-    from .ri_tree import cache as ri_cache
     from .session import Session
 
     s = warm_scene(40, 30)
@@ -181,17 +180,14 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
             progress(message)
         settings = RenderSettings(mode="RI_TREE", accelerator=accel, max_depth=3,
                                   ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05)
-        session = Session(s, settings)
-        # the cost rule evaluates a leaf only once enough queries reached it; at this size
-        # whether any leaf does depends on the steps before (a fresh warm-cache reached no
-        # final leaf): here every leaf is evaluated, as the paper's plain scheme, so that
-        # finalize, the two-class test and surface interpolation are compiled too
-        saved = ri_cache.SPLIT_QUERIES, ri_cache.SPLIT_QUERIES_MIXED
-        ri_cache.SPLIT_QUERIES = ri_cache.SPLIT_QUERIES_MIXED = 1
-        try:
-            session.render(cancel=cancel)
-        finally:
-            ri_cache.SPLIT_QUERIES, ri_cache.SPLIT_QUERIES_MIXED = saved
+        # a first frame under a roomy cache (leaves become final: finalize, the two-class
+        # test and surface interpolation), then the tiny one (mid-batch pruning, traced
+        # overflow); under a 0.05 MB cap alone the budget can run out before any leaf is
+        # final (a fresh warm-cache then left those kernels uncompiled)
+        session = Session(s, replace(settings, ri_cache_mb=8.0))
+        session.render(cancel=cancel)
+        session.update_settings(settings)
+        session.render(cancel=cancel)
         session.apply([ObjectTransform("RIGlass", shapes.transform((-0.1, -0.6, 0.9))),
                        LightDelete("Gone")])
         session.render(cancel=cancel)

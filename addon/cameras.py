@@ -93,15 +93,3 @@ def camera_from_view(view_matrix, window_matrix, width: int, height: int) -> Cam
                   shift_y=cy / (2.0 * half_w), clip_start=max(float(near), 0.0),
                   clip_end=max(float(far), float(near) + 1e-6), ortho_scale=2.0 * half_w,
                   width=int(width), height=int(height))
-
-
-def same_camera(a: Camera | None, b: Camera | None) -> bool:
-    """True when two cameras give the same rays (matrices compared exactly)."""
-    if a is None or b is None:
-        return a is b
-    return (np.array_equal(a.matrix, b.matrix) and a.kind == b.kind and a.lens == b.lens
-            and a.sensor_width == b.sensor_width and a.sensor_height == b.sensor_height
-            and a.sensor_fit == b.sensor_fit and a.shift_x == b.shift_x
-            and a.shift_y == b.shift_y and a.clip_start == b.clip_start
-            and a.clip_end == b.clip_end and a.ortho_scale == b.ortho_scale
-            and a.width == b.width and a.height == b.height)

@@ -40,10 +40,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rstrace_engine.geometry import edits as E
+from rstrace_engine.geometry.edits import same_camera
 from rstrace_engine.geometry.scene import Camera, Material
 
 from . import export
-from .cameras import same_camera
 from .materials import image_changed
 
 log = logging.getLogger(__name__)

@@ -36,7 +36,7 @@ import numpy as np
 from .cancel import CancelFlag, bound, cancelled
 from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
-from .geometry.edits import CameraChange
+from .geometry.edits import CameraChange, same_camera
 from .geometry.scene import Camera, SceneError
 from .tracing.batches import SERIAL_BELOW, accumulate, threads_for
 from .tracing.whitted import trace
@@ -156,18 +156,6 @@ def _rgba(rgb: np.ndarray, border, w: int, h: int) -> np.ndarray:
         x0, y0, bw, bh = border
         out[y0:y0 + bh, x0:x0 + bw, 3] = 1.0
     return out
-
-
-def same_camera(a: Camera | None, b: Camera | None) -> bool:
-    """True when two cameras give the same rays (matrices compared exactly)."""
-    if a is None or b is None:
-        return a is b
-    return (np.array_equal(a.matrix, b.matrix) and a.kind == b.kind and a.lens == b.lens
-            and a.sensor_width == b.sensor_width and a.sensor_height == b.sensor_height
-            and a.sensor_fit == b.sensor_fit and a.shift_x == b.shift_x
-            and a.shift_y == b.shift_y and a.clip_start == b.clip_start
-            and a.clip_end == b.clip_end and a.ortho_scale == b.ortho_scale
-            and a.width == b.width and a.height == b.height)
 
 
 def _mask_border(rgb: np.ndarray, border) -> np.ndarray:

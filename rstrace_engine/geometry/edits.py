@@ -343,7 +343,10 @@ def same_material(a: Material | None, b: Material) -> bool:
                                       and np.array_equal(a.texture, b.texture))
 
 
-def _same_camera(a: Camera, b: Camera) -> bool:
+def same_camera(a: Camera | None, b: Camera | None) -> bool:
+    """True when two cameras give the same rays (matrices compared exactly)."""
+    if a is None or b is None:
+        return a is b
     if not np.array_equal(a.matrix, b.matrix):
         return False
     return all(getattr(a, f) == getattr(b, f) for f in (
@@ -404,6 +407,6 @@ def diff_scenes(old: Scene, new: Scene) -> list:
             edits.append(LightSet(key, new.lights[j]))
     if not np.array_equal(old.world_color, new.world_color):
         edits.append(WorldColor(tuple(float(x) for x in new.world_color)))
-    if not _same_camera(old.camera, new.camera):
+    if not same_camera(old.camera, new.camera):
         edits.append(CameraChange(new.camera))
     return edits

@@ -13,7 +13,10 @@ it against the mirror:
 * an object, instance or light that appears -> ``ObjectAdd`` / ``LightSet`` (collection
   links, instancers, geometry-node instances, duplicates, undo of a delete);
 * one that vanishes -> ``ObjectVisibility(False)`` while the object still exists (hidden,
-  excluded, unlinked: it may come back cheaply), else ``ObjectDelete`` / ``LightDelete``.
+  excluded, unlinked: it may come back cheaply), else ``ObjectDelete`` / ``LightDelete``;
+* a mesh no object (shown or hidden) uses any more -> ``MeshDelete``, after the object edits
+  (its last user deleted, or re-meshed): the session frees it and the export cache drops
+  it once the sync is committed (an undo reads it again).
   Deleted objects never appear in ``depsgraph.updates``: the mirror's key set is diffed
   against ``depsgraph.object_instances``.
 
@@ -179,6 +182,14 @@ class SceneSync:
                 not isinstance(k, tuple) and k in alive)]:
             del invisible[key]
             out.append(E.ObjectDelete(key))
+        # meshes no object (shown or hidden) uses any more leave the session, and the
+        # export cache (deleting the last user, a geometry swap; undo re-reads them)
+        used = {r.mesh_key for r in objects.values()} | {
+            r.mesh_key for r in invisible.values()}
+        freed = [k for k in meshes if k not in used]
+        for key in freed:
+            del meshes[key]
+            out.append(E.MeshDelete(key))
         for key, light in snap.lights.items():
             if self.lights.get(key) != light:
                 out.append(E.LightSet(key, light))
@@ -188,7 +199,7 @@ class SceneSync:
         cam = camera if camera is not None else snap.camera
         if cam is not None and not same_camera(cam, self.camera):
             out.append(E.CameraChange(cam))
-        mirror = dict(objects=objects, invisible=invisible, meshes=meshes,
+        mirror = dict(objects=objects, invisible=invisible, meshes=meshes, freed=freed,
                       materials=materials, lights=dict(snap.lights), world=snap.world,
                       camera=cam if cam is not None else self.camera)
         kinds: dict = {}
@@ -205,6 +216,8 @@ class SceneSync:
             return
         self.objects, self.invisible = m["objects"], m["invisible"]
         self.meshes, self.materials = m["meshes"], m["materials"]
+        for key in m["freed"]:
+            self.cache.meshes.pop(key, None)
         self.lights, self.world, self.camera = m["lights"], m["world"], m["camera"]
         self.synced = True
 

@@ -259,7 +259,8 @@ def soak(steps: int, log=print) -> dict:
     worst, fractions, done = 0.0, [], 0
     per_scene = max(1, steps // len(SOAK_SCENES))
     for k, (name, build) in enumerate(sorted(SOAK_SCENES.items())):
-        gen = EditGenerator(build(64, 48), seed=1000 + k)
+        gen = EditGenerator(build(64, 48), seed=1000 + k,
+                            extra=EditGenerator.EXTRA_KINDS)
         sess = Session(gen.scene.copy(), settings)
         prev = sess.render()
         for _ in range(per_scene):

@@ -22,6 +22,7 @@ from ..geometry.edits import (
     LightDelete,
     LightSet,
     MaterialSet,
+    MeshDelete,
     MeshSet,
     ObjectAdd,
     ObjectDelete,
@@ -91,8 +92,16 @@ class EditGenerator:
     KINDS = ("move", "add", "delete", "visibility", "geometry", "materials", "material_set",
              "mesh_set", "light_power", "light_move", "light_add", "light_delete", "world",
              "camera")
+    #: kinds a generator adds on request (``extra=``), so that the seeded sequences of
+    #: :attr:`KINDS` stay as they were: removing a mesh no object uses any more
+    EXTRA_KINDS = ("mesh_delete",)
 
-    def __init__(self, scene: Scene, seed: int = 0, camera: bool = True) -> None:
+    def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
+                 extra: tuple = ()) -> None:
+        unknown = set(extra) - set(self.EXTRA_KINDS)
+        if unknown:
+            raise ValueError(f"unknown extra edit kinds {sorted(unknown)}")
+        self.kinds = self.KINDS + tuple(extra)
         self.scene = scene.copy()
         self.rng = np.random.default_rng(seed)
         self.camera = camera
@@ -186,6 +195,23 @@ class EditGenerator:
             if objects:
                 edits.append(ObjectGeometry(self._pick(objects), key))
             return edits
+        if kind == "mesh_delete":
+            # a mesh no object uses any more (after a delete or a geometry swap); else
+            # re-mesh one object so that its old mesh is left unused, and remove that
+            used = {i["mesh"] for _, i in s.live_instances()}
+            unused = [k for k in mesh_keys[1:] if s.mesh_id(k) not in used]
+            if unused:
+                return [MeshDelete(self._pick(unused))]
+            if not objects:
+                return None
+            key = self._pick(objects)
+            old = s.instances[s.instance_slot(key)]["mesh"]
+            users = s.mesh_users(old)
+            old_key = next(k for k, v in s.mesh_keys.slot.items() if v == old)
+            others = [k for k in mesh_keys if k != old_key]
+            if len(users) != 1 or old_key == mesh_keys[0] or not others:
+                return None
+            return [ObjectGeometry(key, self._pick(others)), MeshDelete(old_key)]
         if kind == "light_power" and light_keys:
             key = self._pick(light_keys)
             li = s.lights[s.light_slot(key)]
@@ -217,12 +243,12 @@ class EditGenerator:
         :attr:`scene`."""
         batch = []
         if not self._order:  # every kind once in a shuffled round, then the next round
-            self._order = [k for k in self.KINDS if self.camera or k != "camera"]
+            self._order = [k for k in self.kinds if self.camera or k != "camera"]
             self.rng.shuffle(self._order)
         first = self._order.pop()
         for n in range(1 + int(self.rng.random() < 0.2)):
             for _try in range(20):
-                kind = first if n == 0 and _try == 0 else self._pick(self.KINDS)
+                kind = first if n == 0 and _try == 0 else self._pick(self.kinds)
                 edits = self._edit(kind)
                 if edits:
                     self.scene, _ = apply_edits(self.scene, edits)

@@ -21,6 +21,11 @@ Kinds, and what each may invalidate:
 ``ObjectAdd``          a new object (mesh key, matrix, material keys)
 ``ObjectDelete``       an object removed (its slot is tombstoned and may be reused)
 ``MeshSet``            a mesh added or its data replaced (every object using it changes)
+``MeshDelete``         a mesh no object uses any more removed (its slot is tombstoned and
+                       reused): invalidates nothing, since no ray can have met it; the
+                       packing, the accelerator's per-mesh structures and the interpolants'
+                       surface classes follow (refused while an object, hidden or not,
+                       still uses it: delete or re-mesh the users first, in the same batch)
 ``MaterialSet``        a material added or its parameters changed
 ``LightSet``           a light added or changed (position, power, colour, cone, kind)
 ``LightDelete``        a light removed
@@ -86,6 +91,11 @@ class MeshSet:
 
 
 @dataclass(frozen=True)
+class MeshDelete:
+    key: Hashable
+
+
+@dataclass(frozen=True)
 class MaterialSet:
     key: Hashable
     material: Material
@@ -113,7 +123,7 @@ class CameraChange:
 
 
 Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | ObjectAdd
-        | ObjectDelete | MeshSet | MaterialSet | LightSet | LightDelete | WorldColor
+        | ObjectDelete | MeshSet | MeshDelete | MaterialSet | LightSet | LightDelete | WorldColor
         | CameraChange)
 
 
@@ -241,6 +251,8 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
                 fx.objects.add(k)
         else:
             s.add_mesh(e.mesh, key=e.key)
+    elif isinstance(e, MeshDelete):
+        s.delete_mesh(s.mesh_id(e.key))  # no live object uses it: nothing to invalidate
     elif isinstance(e, MaterialSet):
         if e.key in s.material_keys.slot:
             mid = s.material_id(e.key)
@@ -363,7 +375,8 @@ def diff_scenes(old: Scene, new: Scene) -> list:
     """The edits that turn ``old`` into ``new``, matching items by their keys.
 
     Meshes and materials first (objects refer to them), then deletions (their slots are
-    reused by additions), then additions and changes, then the world and the camera.
+    reused by additions), then additions and changes, then the meshes no object uses any
+    more, then the world and the camera.
     """
     edits: list = []
     mesh_key = {v: k for k, v in new.mesh_keys.slot.items()}
@@ -405,6 +418,9 @@ def diff_scenes(old: Scene, new: Scene) -> list:
         o = old.light_keys.slot.get(key)
         if o is None or old.lights[o] != new.lights[j]:
             edits.append(LightSet(key, new.lights[j]))
+    for key in old.mesh_keys.slot:
+        if key not in new.mesh_keys.slot:
+            edits.append(MeshDelete(key))
     if not np.array_equal(old.world_color, new.world_color):
         edits.append(WorldColor(tuple(float(x) for x in new.world_color)))
     if not same_camera(old.camera, new.camera):

@@ -134,7 +134,7 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
     for m in range(n_mesh):
         s, e = sa.mesh_tri_start[m], sa.mesh_tri_start[m + 1]
         closed[m] = not np.any(boundary[s:e])
-        if closed[m] and (e - s) * (e - s) <= CONVEXITY_TEST_MAX:
+        if closed[m] and 0 < e - s and (e - s) * (e - s) <= CONVEXITY_TEST_MAX:
             vids = np.unique(sa.tris[s:e])
             v = sa.verts[vids.min():vids.max() + 1]
             diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))

@@ -160,6 +160,19 @@ class _Keys:
             k += 1
         return f"{name or self.kind}#{k}"
 
+    def place(self, items: list, item, key) -> int:
+        """Put ``item`` in the lowest tombstoned slot of ``items`` (else a new one) under
+        ``key``; returns the slot."""
+        if self.free:
+            self.free.sort()
+            slot = self.free.pop(0)
+            items[slot] = item
+        else:
+            slot = len(items)
+            items.append(item)
+        self.slot[key] = slot
+        return slot
+
     def lookup(self, key) -> int:
         try:
             return self.slot[key]
@@ -177,15 +190,17 @@ class Scene:
     light_slot(key)`` look a key up. Instance and light slots never move: a deleted one is a
     tombstone (``None`` in :attr:`instances` / :attr:`lights`) reused by a later addition,
     because instance ids are baked into interpolant keys, linetree roots and ray trees.
-    Meshes and materials are never removed; ``set_mesh`` / ``set_material`` replace one in
-    place.
+    ``set_mesh`` / ``set_material`` replace one in place. A mesh no object uses any more is
+    removed with ``delete_mesh``: its slot becomes a tombstone (``None`` in :attr:`meshes`,
+    no triangles in the packing) reused by a later ``add_mesh``, so mesh ids never move.
+    Materials are never removed (a few parameters each).
 
     ``stats`` collects counts of tolerated problems (dropped degenerate triangles, ...);
     ``warnings`` collects one message per distinct problem, for the host to report once.
     """
 
     def __init__(self) -> None:
-        self.meshes: list[dict] = []
+        self.meshes: list[dict | None] = []  # None: a tombstoned (deleted) mesh slot
         self.materials: list[Material] = []
         self.instances: list[dict | None] = []  # None: a tombstoned slot
         self.lights: list[Light | None] = []  # None: a tombstoned slot
@@ -280,17 +295,46 @@ class Scene:
         self._arrays = None
 
     def add_mesh(self, mesh: Mesh, key=None) -> int:
-        """Validate and store a mesh; degenerate triangles are dropped and counted."""
+        """Validate and store a mesh; degenerate triangles are dropped and counted.
+
+        Returns its id: the lowest tombstoned mesh slot, else a new one.
+        """
+        checked = self._checked_mesh(mesh)
         key = self.mesh_keys.new_key(key, mesh.name, len(self.meshes))
-        self.meshes.append(self._checked_mesh(mesh))
-        self.mesh_keys.slot[key] = len(self.meshes) - 1
+        mid = self.mesh_keys.place(self.meshes, checked, key)
         self._arrays = None
         self._mesh_arrays = None
-        return len(self.meshes) - 1
+        return mid
+
+    def _live_mesh(self, mesh_id: int) -> bool:
+        return 0 <= mesh_id < len(self.meshes) and self.meshes[mesh_id] is not None
+
+    def mesh_users(self, mesh_id: int) -> list[int]:
+        """Slots of the objects (hidden ones included) that use mesh ``mesh_id``."""
+        return [k for k, i in self.live_instances() if i["mesh"] == mesh_id]
+
+    def delete_mesh(self, mesh_id: int) -> None:
+        """Remove a mesh no object uses: its slot becomes a tombstone (no triangles),
+        reused by a later :meth:`add_mesh`. Raises :class:`SceneError` while an object
+        (hidden or not) still uses it."""
+        if not self._live_mesh(mesh_id):
+            raise SceneError(f"mesh id {mesh_id}: no such mesh (deleted or never added)")
+        name = self.meshes[mesh_id]["name"]
+        users = self.mesh_users(mesh_id)
+        if users:
+            raise SceneError(f"mesh '{name}': still used by object "
+                             f"'{self.instances[users[0]]['name']}' (delete or re-mesh "
+                             f"its {len(users)} user(s) first)")
+        self.meshes[mesh_id] = None
+        key = next(k for k, v in self.mesh_keys.slot.items() if v == mesh_id)
+        del self.mesh_keys.slot[key]
+        self.mesh_keys.free.append(mesh_id)
+        self._arrays = None
+        self._mesh_arrays = None
 
     def set_mesh(self, mesh_id: int, mesh: Mesh) -> None:
         """Replace mesh ``mesh_id``'s data; every object using it follows."""
-        if not 0 <= mesh_id < len(self.meshes):
+        if not self._live_mesh(mesh_id):
             raise SceneError(f"mesh '{mesh.name}': unknown mesh id {mesh_id}")
         self.meshes[mesh_id] = self._checked_mesh(mesh)
         for i in self.instances:
@@ -366,7 +410,7 @@ class Scene:
         Returns the object's slot: the lowest tombstoned slot, else a new one.
         """
         name = name or f"instance{len(self.instances)}"
-        if not 0 <= mesh_id < len(self.meshes):
+        if not self._live_mesh(mesh_id):
             raise SceneError(f"object '{name}': unknown mesh id {mesh_id}")
         mats = self._checked_materials(name, materials)
         m = check_matrix(name, matrix)
@@ -374,15 +418,7 @@ class Scene:
         inst = dict(name=name, key=key, mesh=mesh_id, matrix=m, materials=mats,
                     visible=bool(visible))
         self._place(inst)
-        keys = self.instance_keys
-        if keys.free:
-            keys.free.sort()
-            slot = keys.free.pop(0)
-            self.instances[slot] = inst
-        else:
-            slot = len(self.instances)
-            self.instances.append(inst)
-        keys.slot[key] = slot
+        slot = self.instance_keys.place(self.instances, inst, key)
         self._arrays = None
         return slot
 
@@ -418,7 +454,7 @@ class Scene:
 
     def set_instance_mesh(self, index: int, mesh_id: int) -> None:
         inst = self._live(index)
-        if not 0 <= mesh_id < len(self.meshes):
+        if not self._live_mesh(mesh_id):
             raise SceneError(f"object '{inst['name']}': unknown mesh id {mesh_id}")
         inst["mesh"] = int(mesh_id)
         self._place(inst)
@@ -475,14 +511,7 @@ class Scene:
         if not keys.free and len(self.lights) >= MAX_LIGHTS:
             raise SceneError(f"light '{light.name}': at most {MAX_LIGHTS} lights are supported")
         key = keys.new_key(key, light.name, len(self.lights))
-        if keys.free:
-            keys.free.sort()
-            slot = keys.free.pop(0)
-            self.lights[slot] = li
-        else:
-            slot = len(self.lights)
-            self.lights.append(li)
-        keys.slot[key] = slot
+        slot = keys.place(self.lights, li, key)
         self._arrays = None
         return slot
 
@@ -546,20 +575,25 @@ class Scene:
     # -- packing ---------------------------------------------------------------------
 
     def _pack_meshes(self):
+        """Every mesh concatenated; a tombstoned slot owns no vertices and no triangles
+        (``mesh_tri_start[k] == mesh_tri_start[k + 1]``)."""
         if self._mesh_arrays is None:
-            if not self.meshes:
+            live = [m for m in self.meshes if m is not None]
+            if not live:
                 raise SceneError("scene has no meshes")
-            vstart = np.cumsum([0] + [len(m["verts"]) for m in self.meshes])
-            tstart = np.cumsum([0] + [len(m["tris"]) for m in self.meshes]).astype(np.int32)
+            nv = [0 if m is None else len(m["verts"]) for m in self.meshes]
+            vstart = np.cumsum([0] + nv)
+            tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
+                                      for m in self.meshes]).astype(np.int32)
             self._mesh_arrays = dict(
-                verts=np.ascontiguousarray(np.concatenate([m["verts"] for m in self.meshes])),
+                verts=np.ascontiguousarray(np.concatenate([m["verts"] for m in live])),
                 tris=np.ascontiguousarray(np.concatenate(
                     [m["tris"] + np.int32(vs)
-                     for m, vs in zip(self.meshes, vstart[:-1], strict=True)]).astype(np.int32)),
-                tri_normals=np.ascontiguousarray(np.concatenate(
-                    [m["normals"] for m in self.meshes])),
-                tri_uvs=np.ascontiguousarray(np.concatenate([m["uvs"] for m in self.meshes])),
-                tri_slot=np.ascontiguousarray(np.concatenate([m["slots"] for m in self.meshes])),
+                     for m, vs in zip(self.meshes, vstart[:-1], strict=True)
+                     if m is not None]).astype(np.int32)),
+                tri_normals=np.ascontiguousarray(np.concatenate([m["normals"] for m in live])),
+                tri_uvs=np.ascontiguousarray(np.concatenate([m["uvs"] for m in live])),
+                tri_slot=np.ascontiguousarray(np.concatenate([m["slots"] for m in live])),
                 mesh_tri_start=tstart,
             )
         return self._mesh_arrays

@@ -98,8 +98,10 @@ def test_each_change_gives_its_edits():
     kinds, out = c.step(lambda: bpy.data.objects.remove(dup))
     assert kinds == ["ObjectDelete"] and out[0].key == dup_uid
     blue = bpy.data.objects["BlueSphere"]
+    blue_mesh = ("data", blue.data.session_uid)  # its own mesh: freed with it
     kinds, out = c.step(lambda: bpy.data.objects.remove(blue))
-    assert kinds == ["ObjectDelete"]
+    assert kinds == ["MeshDelete", "ObjectDelete"] and out[-1].key == blue_mesh
+    assert blue_mesh not in c.sync.cache.meshes and blue_mesh not in c.sync.meshes
     # a new object with a new mesh; the world colour
     kinds, out = c.step(lambda: b.add_object("Box", b.grid("BoxMesh", 1.0), (0, 0, 2.0)))
     # (without a material it uses the default one, sent the first time it is needed)
@@ -276,3 +278,50 @@ def test_geometry_node_instances_appear_and_vanish():
     assert kinds.count("ObjectDelete") == 4 and "ObjectAdd" not in kinds
     kinds, out = c.step(lambda: setattr(holder.location, "x", -2.0))
     assert kinds == ["ObjectTransform"]
+
+
+def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
+    """Deleting the only user of a mesh frees the mesh in the session and the export cache;
+    re-meshing an object frees its old mesh; undo of the delete re-exports the mesh. Every
+    F12 frame equals a fresh render (BASE)."""
+    import addon
+
+    sc = _scene(32, 24)
+    state = addon.session.state_for(sc)
+    _f12()
+    blue = bpy.data.objects["BlueSphere"]
+    key = ("data", blue.data.session_uid)
+    assert key in state.sync.cache.meshes and key in state.session.scene.mesh_keys.slot
+    n_meshes = sum(m is not None for m in state.session.scene.meshes)
+    bpy.ops.ed.undo_push(message="before delete")
+    bpy.data.objects.remove(blue)
+    bpy.ops.ed.undo_push(message="deleted")
+    bpy.context.view_layer.update()
+    inc, stats = _f12()
+    assert stats["edit_kinds"] == {"ObjectDelete": 1, "MeshDelete": 1}, stats["edit_kinds"]
+    assert stats["incremental"]
+    core = state.session.scene
+    assert key not in core.mesh_keys.slot and key not in state.sync.cache.meshes
+    assert sum(m is not None for m in core.meshes) == n_meshes - 1
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
+    # a geometry swap leaving the red sphere's own mesh unused
+    red, mirror = bpy.data.objects["RedSphere"], bpy.data.objects["MirrorSphere"]
+    red_key = ("data", red.data.session_uid)
+    red.data = mirror.data
+    bpy.context.view_layer.update()
+    inc, stats = _f12()
+    kinds = stats["edit_kinds"]  # (the red material was the old mesh's: slots change too)
+    assert kinds == {"ObjectGeometry": 1, "ObjectMaterials": 1, "MeshDelete": 1}, kinds
+    assert red_key not in state.session.scene.mesh_keys.slot
+    assert red_key not in state.sync.cache.meshes
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
+    # undo to before the delete (the swap was never pushed): the sphere and its mesh return
+    bpy.ops.ed.undo()
+    bpy.context.view_layer.update()
+    assert "BlueSphere" in bpy.data.objects
+    inc, stats = _f12()
+    kinds = stats["edit_kinds"]
+    assert kinds.get("ObjectAdd") == 1 and kinds.get("MeshSet", 0) >= 1, kinds
+    assert stats["meshes_read"] >= 1  # re-exported: the cache had dropped it
+    assert key in state.sync.cache.meshes and key in state.session.scene.mesh_keys.slot
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])

@@ -49,12 +49,20 @@ class MaterialEntry:
 @dataclass
 class Dirty:
     """What ``depsgraph.updates`` said changed: session_uids of objects with new geometry,
-    mesh datablocks, and materials; ``all_materials`` after node-group or image updates."""
+    mesh datablocks, and materials; ``all_materials`` after node-group or image updates.
+
+    ``walk``: the updates may have changed the set of instances (an object added or
+    deleted, a collection or visibility change, undo, ...): the whole depsgraph is walked.
+    ``updated``: session_uid -> the evaluated ``Object`` of every object the updates name,
+    valid only while the updates are being handled (no reference is kept beyond that).
+    """
 
     objects: set = field(default_factory=set)
     data: set = field(default_factory=set)
     materials: set = field(default_factory=set)
     all_materials: bool = False
+    walk: bool = False
+    updated: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -70,6 +78,12 @@ class Snapshot:
     width: int
     height: int
     stats: dict = field(default_factory=dict)
+    #: None: a walk of every instance; else the keys of the objects and lights re-read
+    #: (the others are the mirror's, unchanged)
+    changed: set | None = None
+    instancers: set = field(default_factory=set)  # uids of objects that make instances
+    instanced: set = field(default_factory=set)  # uids of objects that appear as instances
+    hidden_in_view: frozenset | None = None  # viewport walks: edits.visibility_signature
 
     @property
     def warnings(self) -> list[str]:

@@ -62,34 +62,65 @@ def dirty_from_updates(updates) -> export.Dirty | None:
     """What a batch of ``depsgraph.updates`` may have changed; None when nothing.
 
     Objects with a geometry flag, mesh datablocks and materials are listed so that only
-    those are re-read; node groups and images mark every material; Scene updates count only
-    with a transform or geometry flag (deletions and collection changes come as such);
-    selection, colour management and other scene-only settings come flag-less.
+    those are re-read; node groups and images mark every material; the objects named are
+    kept (``updated``) so that a batch that cannot have changed the set of instances reads
+    just them. ``walk`` (the whole depsgraph is read) is set by what Blender sends for a
+    change of the instance set, checked in bpy (``tests/blender/test_sync_cost.py``): a
+    deletion comes as a Scene (and Collection) update with transform and geometry flags;
+    an addition, a duplicate, (un)linking, hiding from renders or in the viewport and undo
+    as a Collection update; excluding a collection or swapping an object's data as a
+    flag-less Scene update *together with* object updates. A flag-less Scene update alone
+    is a selection, colour management or another scene-only setting (or the eye icon's
+    hide, which :meth:`SceneSync.dirty` tells apart), and is no edit. Node groups and
+    images (every material re-read) walk too. A material's, world's or light's own node
+    tree (embedded data) comes with its owner and adds nothing.
     """
     dirty = export.Dirty()
-    walk = False
+    seen = scene_flagless = False
+    data_of_objects: set = set()
     for u in updates:
         idb = u.id
         kind = type(idb).__name__
         if kind == "Scene":
-            walk |= bool(u.is_updated_transform or u.is_updated_geometry)
+            if u.is_updated_transform or u.is_updated_geometry:
+                dirty.walk = seen = True
+            else:
+                scene_flagless = True
             continue
-        if kind in _IGNORED:
+        if kind in _IGNORED or getattr(idb, "is_embedded_data", False):
             continue
-        uid = idb.original.session_uid
-        walk = True
+        orig = idb.original
+        uid = orig.session_uid
+        seen = True
         if kind == "Object":
+            dirty.updated[uid] = idb
             if u.is_updated_geometry:
                 dirty.objects.add(uid)
+            if orig.data is not None:
+                data_of_objects.add(orig.data.session_uid)
+        elif kind == "Collection":
+            dirty.walk = True
         elif kind == "Material":
             dirty.materials.add(uid)
         elif kind in _ALL_MATERIALS or kind.endswith("NodeTree"):
-            dirty.all_materials = True
+            dirty.all_materials = dirty.walk = True
             if kind == "Image":
                 image_changed(uid)
         elif u.is_updated_geometry:
-            dirty.data.add(uid)  # Mesh, Curve, ...
-    return dirty if walk else None
+            dirty.data.add(uid)  # Mesh, Curve, light data, ...
+    if not seen:
+        return None
+    if scene_flagless or dirty.data - data_of_objects:
+        dirty.walk = True  # (data whose users are not named: read them all)
+    return dirty
+
+
+def visibility_signature(depsgraph) -> frozenset:
+    """session_uids of the view layer's objects hidden in the viewport (the eye icon, local
+    view, hidden collections): a hide or unhide (H / Alt+H) sends only a flag-less Scene
+    update, like a selection."""
+    vl = depsgraph.view_layer
+    return frozenset(ob.session_uid for ob in vl.objects if not ob.visible_get(view_layer=vl))
 
 
 @dataclass
@@ -107,6 +138,9 @@ class SceneSync:
 
     def __init__(self) -> None:
         self.cache = export.ExportCache()
+        #: False: walk every instance on every update (the cost before read_updated; for
+        #: scripts/sync_bench.py's comparison)
+        self.partial = True
         self.reset()
 
     def reset(self) -> None:
@@ -118,16 +152,63 @@ class SceneSync:
         self.lights: dict = {}
         self.world: tuple | None = None
         self.camera: Camera | None = None
+        self.instancers: set = set()  # uids of objects making instances (last walk)
+        self.instanced: set = set()  # uids of objects appearing as instances (last walk)
+        self.hidden_in_view: frozenset | None = None  # visibility_signature (last walk)
         self.synced = False
 
     # -- syncing ---------------------------------------------------------------------
 
+    def dirty(self, depsgraph) -> export.Dirty | None:
+        """What ``depsgraph.updates`` may have changed (:func:`dirty_from_updates`); a batch
+        that says nothing is still checked for a viewport hide (the eye icon), which
+        Blender sends as a flag-less Scene update alone, like a selection."""
+        dirty = dirty_from_updates(depsgraph.updates)
+        if dirty is None and self.synced and self.hidden_in_view is not None:
+            sig = visibility_signature(depsgraph)
+            if sig != self.hidden_in_view:
+                dirty = export.Dirty(walk=True)
+        return dirty
+
     def read(self, depsgraph, dirty: export.Dirty | None, source: str, **kwargs
              ) -> export.Snapshot:
-        """Walk ``depsgraph`` (see :func:`export.read_scene`); on a never-synced mirror
-        ``dirty`` is ignored (everything unknown is read)."""
-        return export.read_scene(depsgraph, self.cache, dirty if self.synced else None,
+        """Read what ``dirty`` names (:func:`export.read_updated`) where the updates cannot
+        have changed the set of instances, else walk ``depsgraph`` (see
+        :func:`export.read_scene`); on a never-synced mirror ``dirty`` is ignored
+        (everything unknown is read)."""
+        if self._partial_ok(dirty, kwargs):
+            snap = export.read_updated(depsgraph, self.cache, dirty, self.objects,
+                                       self.lights, source)
+            if snap is not None:
+                return snap
+        snap = export.read_scene(depsgraph, self.cache, dirty if self.synced else None,
                                  source=source, **kwargs)
+        if source == "VIEWPORT":
+            snap.hidden_in_view = visibility_signature(depsgraph)
+        return snap
+
+    def _partial_ok(self, dirty: export.Dirty | None, kwargs) -> bool:
+        """True when the updates cannot have changed the set of instances: every object
+        they name is a plain mesh object or light the session holds (or an object with
+        nothing to render, whose children the updates name themselves), none makes
+        instances or appears as one."""
+        if (not self.partial or not self.synced or dirty is None or dirty.walk
+                or kwargs.get("with_camera", True)):
+            return False
+        for uid, ob in dirty.updated.items():
+            if uid in self.instancers or uid in self.instanced or ob.is_instancer:
+                return False
+            kind = ob.type
+            if kind == "MESH":
+                if uid not in self.objects or any(
+                        m.type in ("NODES", "PARTICLE_SYSTEM") for m in ob.modifiers):
+                    return False
+            elif kind == "LIGHT":
+                if uid not in self.lights:
+                    return False
+            elif kind not in ("EMPTY", "CAMERA"):
+                return False
+        return True
 
     def diff(self, snap: export.Snapshot, camera: Camera | None = None,
              exists=None) -> SyncResult:
@@ -140,7 +221,10 @@ class SceneSync:
         out: list = []
         cache = self.cache
         meshes, materials = dict(self.meshes), dict(self.materials)
-        for rec in snap.objects.values():
+        partial = snap.changed is not None  # (read_updated: only these keys were read)
+        read = snap.objects if not partial else {
+            k: snap.objects[k] for k in snap.changed if k in snap.objects}
+        for rec in read.values():
             mesh = cache.mesh(rec.mesh_key)
             if meshes.get(rec.mesh_key) is not mesh:
                 meshes[rec.mesh_key] = mesh
@@ -153,7 +237,7 @@ class SceneSync:
                     materials[mk] = mat
         objects = dict(snap.objects)
         invisible = dict(self.invisible)
-        for key, rec in objects.items():
+        for key, rec in read.items():
             old = self.objects.get(key)
             if old is None and key in invisible:
                 old = invisible.pop(key)
@@ -168,9 +252,9 @@ class SceneSync:
                 out.append(E.ObjectMaterials(key, rec.material_keys))
             if not np.array_equal(old.matrix, rec.matrix):
                 out.append(E.ObjectTransform(key, rec.matrix))
-        gone = [k for k in self.objects if k not in objects]
+        gone = [] if partial else [k for k in self.objects if k not in objects]
         alive = None
-        if gone or invisible:
+        if gone or (invisible and not partial):
             alive = exists() if exists is not None else set()
         for key in gone:
             if key in snap.hidden or (not isinstance(key, tuple) and key in alive):
@@ -178,15 +262,18 @@ class SceneSync:
                 out.append(E.ObjectVisibility(key, False))
             else:
                 out.append(E.ObjectDelete(key))
-        for key in [k for k in invisible if k not in snap.hidden and not (
+        for key in [] if partial else [k for k in invisible if k not in snap.hidden and not (
                 not isinstance(k, tuple) and k in alive)]:
             del invisible[key]
             out.append(E.ObjectDelete(key))
         # meshes no object (shown or hidden) uses any more leave the session, and the
         # export cache (deleting the last user, a geometry swap; undo re-reads them)
-        used = {r.mesh_key for r in objects.values()} | {
-            r.mesh_key for r in invisible.values()}
-        freed = [k for k in meshes if k not in used]
+        freed = []
+        if not partial or any(self.objects[k].mesh_key != r.mesh_key for k, r in read.items()
+                              if k in self.objects):
+            used = {r.mesh_key for r in objects.values()} | {
+                r.mesh_key for r in invisible.values()}
+            freed = [k for k in meshes if k not in used]
         for key in freed:
             del meshes[key]
             out.append(E.MeshDelete(key))
@@ -200,6 +287,8 @@ class SceneSync:
         if cam is not None and not same_camera(cam, self.camera):
             out.append(E.CameraChange(cam))
         mirror = dict(objects=objects, invisible=invisible, meshes=meshes, freed=freed,
+                      walk=None if partial else (snap.instancers, snap.instanced,
+                                                 snap.hidden_in_view),
                       materials=materials, lights=dict(snap.lights), world=snap.world,
                       camera=cam if cam is not None else self.camera)
         kinds: dict = {}
@@ -218,6 +307,10 @@ class SceneSync:
         self.meshes, self.materials = m["meshes"], m["materials"]
         for key in m["freed"]:
             self.cache.meshes.pop(key, None)
+        if m["walk"] is not None:
+            self.instancers, self.instanced, sig = m["walk"]
+            if sig is not None:  # (a viewport walk; F12's render depsgraph has none)
+                self.hidden_in_view = sig
         self.lights, self.world, self.camera = m["lights"], m["world"], m["camera"]
         self.synced = True
 

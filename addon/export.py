@@ -1,11 +1,14 @@
 """Evaluated depsgraph -> a :class:`Snapshot` of the scene, with per-datablock caches.
 
-One pass over ``depsgraph.object_instances`` reads every object's key, world matrix and
-material keys (cheap), and reads a mesh (``meshes.mesh_arrays``) or a material
+One pass over ``depsgraph.object_instances`` (:func:`read_scene`) reads every object's key,
+world matrix and material keys, and reads a mesh (``meshes.mesh_arrays``) or a material
 (``materials.MaterialReader``) only when its cache entry is missing or stale: the caller
 says which datablocks changed (:class:`Dirty`, from ``depsgraph.updates``), or, where no
 updates are known (F12, animation frames), a mesh is re-read only when its raw-attribute
 fingerprint changed. Lights and the world colour are re-read every time (a few values).
+Where the updates cannot have changed the set of instances (an object moved, a material or
+a light changed), :func:`read_updated` re-reads only the objects they name, so that a small
+edit in a big scene costs what it touched (the caller, :class:`.edits.SceneSync`, decides).
 
 Keys are stable across updates and undo: ``id.original.session_uid`` for objects and
 materials; ``(instancer uid, persistent_id)`` for instances; meshes by the key of the data
@@ -234,9 +237,14 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     objects: dict = {}
     hidden: set = set()
     lights: dict = {}
+    instancers: set = set()
+    instanced: set = set()
     for inst in depsgraph.object_instances:
         ob = inst.object
         kind = ob.type
+        if inst.is_instance and inst.parent is not None:
+            instancers.add(inst.parent.original.session_uid)
+            instanced.add(ob.original.session_uid)
         if kind == "MESH":
             key = object_key(inst)
             if not inst.show_self:
@@ -244,42 +252,18 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
             if not inst.is_instance and ob.original.hide_render:
                 hidden.add(key)
                 continue
-            name = instance_name(inst)
-            matrix = _matrix(inst.matrix_world)
-            try:
-                check_matrix(name, matrix)
-            except SceneError as exc:
-                notes.skip(f"skipped {exc}")
-                continue
-            me = ob.data
-            mesh_key = r.mesh_key(inst, ob, me)
-            entry = cache.meshes[mesh_key]
-            if entry.mesh is None:
-                notes.skip(f"skipped object '{name}': {entry.reason}")
-                continue
-            slots = ob.material_slots
-            mats = [r.material_key(s.material) for s in slots] if len(slots) else \
-                [r.material_key(m) for m in me.materials]
-            nslots = max(len(me.materials), 1)
-            mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
-            _check_visibility(ob, name, notes)
-            if any(max(cache.material(k).emission) > 0.0 for k in mats):
-                notes.warn(NOT_MODELLED_EMISSION, name)
-            if len(me.uv_layers) == 0 and any(
-                    cache.material(k).texture is not None for k in mats):
-                notes.warn("textured objects without a UV map sample their texture at (0, 0)",
-                           name)
-            objects[key] = ObjectRecord(name, mesh_key, matrix, tuple(mats))
+            rec = _mesh_object(r, inst)
+            if rec is not None:
+                objects[key] = rec
         elif kind == "LIGHT":
             if not inst.is_instance and ob.original.hide_render:
                 continue
-            name = instance_name(inst)
-            light = read_light(ob, name, _matrix(inst.matrix_world), notes)
+            light = read_light(ob, instance_name(inst), _matrix(inst.matrix_world), notes)
             if light is None:
                 continue
             if len(lights) >= MAX_LIGHTS:
-                notes.skip(f"light '{name}' skipped: at most {MAX_LIGHTS} lights are "
-                           f"supported")
+                notes.skip(f"light '{instance_name(inst)}' skipped: at most {MAX_LIGHTS} "
+                           f"lights are supported")
                 continue
             lights[object_key(inst)] = light
         elif kind in _MESH_VIA_INSTANCES or kind in _NOTHING_TO_RENDER:
@@ -291,8 +275,93 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         notes.warn("the scene has no lights: only emission and the world colour are visible")
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
-                 export_seconds=time.perf_counter() - t0)
-    return Snapshot(objects, hidden, lights, world, camera, notes, width, height, stats)
+                 export_seconds=time.perf_counter() - t0, walked=True,
+                 objects_read=len(objects) + len(hidden) + len(lights))
+    return Snapshot(objects, hidden, lights, world, camera, notes, width, height, stats,
+                    None, instancers, instanced)
+
+
+def _mesh_object(r: _Reader, inst) -> ObjectRecord | None:
+    """The record of a shown mesh object (or instance); None when it is skipped (noted)."""
+    ob = inst.object
+    cache, notes = r.cache, r.notes
+    name = instance_name(inst)
+    matrix = _matrix(inst.matrix_world)
+    try:
+        check_matrix(name, matrix)
+    except SceneError as exc:
+        notes.skip(f"skipped {exc}")
+        return None
+    me = ob.data
+    mesh_key = r.mesh_key(inst, ob, me)
+    entry = cache.meshes[mesh_key]
+    if entry.mesh is None:
+        notes.skip(f"skipped object '{name}': {entry.reason}")
+        return None
+    slots = ob.material_slots
+    mats = [r.material_key(s.material) for s in slots] if len(slots) else \
+        [r.material_key(m) for m in me.materials]
+    nslots = max(len(me.materials), 1)
+    mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
+    _check_visibility(ob, name, notes)
+    if any(max(cache.material(k).emission) > 0.0 for k in mats):
+        notes.warn(NOT_MODELLED_EMISSION, name)
+    if len(me.uv_layers) == 0 and any(cache.material(k).texture is not None for k in mats):
+        notes.warn("textured objects without a UV map sample their texture at (0, 0)", name)
+    return ObjectRecord(name, mesh_key, matrix, tuple(mats))
+
+
+class _Own:
+    """An object standing for its own (non-instance) entry of ``object_instances``."""
+
+    is_instance = False
+    parent = None
+    show_self = True
+    persistent_id = ()
+
+    def __init__(self, ob) -> None:
+        self.object = ob
+        self.matrix_world = ob.matrix_world
+
+
+def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lights: dict,
+                 source: str = "VIEWPORT") -> Snapshot | None:
+    """Re-read only the objects ``dirty.updated`` names, without walking
+    ``depsgraph.object_instances``: the others are taken from ``objects`` / ``lights`` (what
+    the session holds). For updates that cannot have changed the set of instances (the
+    caller checks: every named object a plain, shown mesh or light the session holds, no
+    instancer, not instanced). Returns None when one of them cannot be read this way (now
+    hidden from renders, skipped, or no longer a light): the caller walks everything.
+    """
+    t0 = time.perf_counter()
+    r = _Reader(cache, dirty, source)
+    objects, lights = dict(objects), dict(lights)
+    changed = set()
+    for uid, ob in dirty.updated.items():
+        if ob.original.hide_render:
+            return None
+        if ob.type == "MESH":
+            rec = _mesh_object(r, _Own(ob))
+            if rec is None:
+                return None
+            objects[uid] = rec
+        elif ob.type == "LIGHT":
+            light = read_light(ob, ob.name, _matrix(ob.matrix_world), r.notes)
+            if light is None:
+                return None
+            lights[uid] = light
+        else:
+            return None
+        changed.add(uid)
+    bscene = depsgraph.scene_eval
+    world = tuple(float(c) for c in world_colour(bscene.world, r.notes))
+    width, height = render_size(bscene.render)
+    stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
+                 materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
+                 export_seconds=time.perf_counter() - t0, walked=False,
+                 objects_read=len(changed))
+    return Snapshot(objects, set(), lights, world, None, r.notes, width, height, stats,
+                    changed)
 
 
 def _check_visibility(ob, name: str, notes: Notes) -> None:
@@ -320,4 +389,4 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
 
 __all__ = ["Dirty", "ExportCache", "Exported", "Light", "MeshEntry", "ObjectRecord",
            "Snapshot", "build_scene", "export_scene", "object_key", "read_scene",
-           "render_size"]
+           "read_updated", "render_size"]

@@ -89,7 +89,7 @@ class ViewportRenderer:
         first = self.worker is None or key != self.scene_key
         if first:
             self._start(key, scene)
-        dirty = None if first else edits.dirty_from_updates(depsgraph.updates)
+        dirty = None if first else state.sync.dirty(depsgraph)
         self.updates_seen += 1
         settings = viewport_settings(scene)
         samples = max(1, int(scene.rstrace.viewport_samples))

@@ -41,9 +41,7 @@ class Collector:
         return result.edits
 
     def handler(self, scene, dg):
-        import addon
-
-        dirty = addon.edits.dirty_from_updates(dg.updates)
+        dirty = self.sync.dirty(dg)
         self.batches.append([] if dirty is None else self._sync(dg, dirty))
 
     def step(self, change):

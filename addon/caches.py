@@ -55,6 +55,9 @@ class Dirty:
     deleted, a collection or visibility change, undo, ...): the whole depsgraph is walked.
     ``updated``: session_uid -> the evaluated ``Object`` of every object the updates name,
     valid only while the updates are being handled (no reference is kept beyond that).
+    ``shading_only``: those with only the shading flag (the users of a changed material:
+    a material *assignment* comes with a Scene update, and walks); ``material_ids``: the
+    changed materials themselves (evaluated, same lifetime).
     """
 
     objects: set = field(default_factory=set)
@@ -63,6 +66,8 @@ class Dirty:
     all_materials: bool = False
     walk: bool = False
     updated: dict = field(default_factory=dict)
+    shading_only: set = field(default_factory=set)  # of updated: only the shading flag
+    material_ids: dict = field(default_factory=dict)  # uid -> evaluated Material (same)
 
 
 @dataclass
@@ -81,6 +86,7 @@ class Snapshot:
     #: None: a walk of every instance; else the keys of the objects and lights re-read
     #: (the others are the mirror's, unchanged)
     changed: set | None = None
+    changed_materials: set = field(default_factory=set)  # (with changed) materials re-read
     instancers: set = field(default_factory=set)  # uids of objects that make instances
     instanced: set = field(default_factory=set)  # uids of objects that appear as instances
     hidden_in_view: frozenset | None = None  # viewport walks: edits.visibility_signature

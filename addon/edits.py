@@ -96,12 +96,15 @@ def dirty_from_updates(updates) -> export.Dirty | None:
             dirty.updated[uid] = idb
             if u.is_updated_geometry:
                 dirty.objects.add(uid)
+            elif not u.is_updated_transform:
+                dirty.shading_only.add(uid)
             if orig.data is not None:
                 data_of_objects.add(orig.data.session_uid)
         elif kind == "Collection":
             dirty.walk = True
         elif kind == "Material":
             dirty.materials.add(uid)
+            dirty.material_ids[uid] = idb
         elif kind in _ALL_MATERIALS or kind.endswith("NodeTree"):
             dirty.all_materials = dirty.walk = True
             if kind == "Image":
@@ -224,6 +227,12 @@ class SceneSync:
         partial = snap.changed is not None  # (read_updated: only these keys were read)
         read = snap.objects if not partial else {
             k: snap.objects[k] for k in snap.changed if k in snap.objects}
+        for mk in snap.changed_materials:  # (partial: re-read without their users)
+            mat = cache.material(mk)
+            if mk in materials and materials[mk] is not mat:
+                if not E.same_material(materials[mk], mat):
+                    out.append(E.MaterialSet(mk, mat))
+                materials[mk] = mat
         for rec in read.values():
             mesh = cache.mesh(rec.mesh_key)
             if meshes.get(rec.mesh_key) is not mesh:

@@ -278,7 +278,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
                  export_seconds=time.perf_counter() - t0, walked=True,
                  objects_read=len(objects) + len(hidden) + len(lights))
     return Snapshot(objects, hidden, lights, world, camera, notes, width, height, stats,
-                    None, instancers, instanced)
+                    instancers=instancers, instanced=instanced)
 
 
 def _mesh_object(r: _Reader, inst) -> ObjectRecord | None:
@@ -337,7 +337,11 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
     r = _Reader(cache, dirty, source)
     objects, lights = dict(objects), dict(lights)
     changed = set()
+    for mat in dirty.material_ids.values():
+        r.material_key(mat)  # re-read (named in dirty.materials)
     for uid, ob in dirty.updated.items():
+        if uid in dirty.shading_only and uid in objects:
+            continue  # a user of a changed material: its assignment did not change
         if ob.original.hide_render:
             return None
         if ob.type == "MESH":
@@ -361,7 +365,7 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
                  export_seconds=time.perf_counter() - t0, walked=False,
                  objects_read=len(changed))
     return Snapshot(objects, set(), lights, world, None, r.notes, width, height, stats,
-                    changed)
+                    changed=changed, changed_materials=set(dirty.material_ids))
 
 
 def _check_visibility(ob, name: str, notes: Notes) -> None:

@@ -124,6 +124,11 @@ def test_collection_instances_and_unlink():
     assert out[0].key[0] == empty.session_uid
     kinds, out = c.step(lambda: setattr(empty.location, "y", 1.0))
     assert kinds == ["ObjectTransform"] and out[0].key[0] == empty.session_uid
+    # moving the instanced object moves its instance too (it is read by a walk)
+    kinds, out = c.step(lambda: setattr(red.location, "z", red.location.z + 0.2))
+    assert kinds == ["ObjectTransform", "ObjectTransform"]
+    assert {e.key if isinstance(e.key, int) else e.key[0] for e in out} == {
+        red.session_uid, empty.session_uid}
     kinds, _ = c.step(lambda: bpy.context.scene.collection.objects.unlink(empty))
     assert kinds == ["ObjectDelete"]  # the instance vanished (its instancer still exists)
 

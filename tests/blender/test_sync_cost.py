@@ -94,10 +94,17 @@ def test_a_move_in_a_big_scene_reads_one_object(big):
     lamp = bpy.data.objects["Key"]
     kinds, out, walks, read = s.step(lambda: setattr(lamp.data, "energy", 400.0))
     assert kinds == ["LightSet"] and walks == 0 and read == 1
-    # a colour: one MaterialSet; Blender names every user of the material, and only those
+    # a colour: one MaterialSet; Blender names every user of the material (shading flag
+    # only), whose assignments cannot have changed: the material alone is re-read
     bsdf = mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"]
-    kinds, _, walks, read = s.step(lambda: setattr(bsdf, "default_value", (0.9, 0.2, 0.1, 1)))
-    assert kinds == ["MaterialSet"] and walks == 0 and read == N_OBJECTS
+    kinds, out, walks, read = s.step(lambda: setattr(bsdf, "default_value",
+                                                     (0.9, 0.2, 0.1, 1)))
+    assert kinds == ["MaterialSet"] and walks == 0 and read == 0
+    assert out[0].key == mat.session_uid and out[0].material.diffuse[0] > 0.5
+    # a material assignment comes with a Scene update: a walk, and ObjectMaterials
+    other = b.principled("Other", (0.1, 0.1, 0.9))
+    kinds, _, walks, _ = s.step(lambda: setattr(ob, "active_material", other))
+    assert "MaterialSet" in kinds and walks == 1
     # a selection: nothing at all
     assert s.step(lambda: ob.select_set(True))[::2] == ([], 0)
 

@@ -167,29 +167,49 @@ def _f12(fresh=False):
 
 @pytest.mark.parametrize("mode", ["BASE", "INTERPOLANT"])
 def test_f12_after_edits_equals_a_fresh_render(mode):
+    """Each change of the issue's list through a real depsgraph, then F12 on the persistent
+    session: equal to a fresh render (BASE bit for bit, INTERPOLANT within epsilon)."""
     sc = _scene(32, 24)
     sc.rstrace.mode = mode
     red = bpy.data.objects["RedSphere"]
     lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
     mat = red.active_material
     _f12()
-    changes = [
-        ("move", lambda: setattr(red.location, "x", red.location.x + 0.4)),
+    bpy.ops.ed.undo_push(message="start")
+
+    def duplicate_linked():
+        dup = red.copy()  # shares red's mesh
+        dup.location = (0.4, 0.9, 1.0)
+        sc.collection.objects.link(dup)
+
+    changes = [  # (name, change, meshes it reads: 0 = nothing re-read but what changed)
+        ("move", lambda: setattr(red.location, "x", red.location.x + 0.4), 0),
+        ("rotate", lambda: setattr(red.rotation_euler, "z", 0.7), 0),
+        # (in x and y only: the scene box, set by the spheres' tops, stays, so frames after
+        # this stay incremental; a changed scene box renders a full frame)
+        ("scale", lambda: setattr(red, "scale", (0.8, 0.8, 1.0)), 0),
         ("colour", lambda: setattr(mat.node_tree.nodes["Principled BSDF"].inputs[
-            "Base Color"], "default_value", (0.2, 0.6, 0.9, 1.0))),
-        ("power", lambda: setattr(lamp.data, "energy", lamp.data.energy * 0.5)),
-        ("hide", lambda: setattr(bpy.data.objects["BlueSphere"], "hide_render", True)),
-        ("delete", lambda: bpy.data.objects.remove(bpy.data.objects["MirrorSphere"])),
+            "Base Color"], "default_value", (0.2, 0.6, 0.9, 1.0)), 0),
+        ("power", lambda: setattr(lamp.data, "energy", lamp.data.energy * 0.5), 0),
+        ("hide", lambda: setattr(bpy.data.objects["BlueSphere"], "hide_render", True), 0),
+        ("delete", lambda: bpy.data.objects.remove(bpy.data.objects["MirrorSphere"]), 0),
+        ("add", lambda: b.add_object("Box", b.uv_sphere("Small", 0.3, 8, 4),
+                                     (-0.5, -0.5, 0.6)), 1),
+        ("duplicate-linked", duplicate_linked, 0),
+        ("undo", lambda: bpy.ops.ed.undo(), None),  # back to "start": everything at once
     ]
     eps = sc.rstrace.epsilon
-    for name, change in changes:
+    for name, change, reads in changes:
+        if name == "undo":
+            bpy.ops.ed.undo_push(message="before undo")
         change()
         bpy.context.view_layer.update()
         inc, stats = _f12()
         assert stats["edits"] >= 1 and not stats["new_session"], name
-        assert stats["meshes_read"] == 0, name  # nothing re-read but what changed
+        if reads is not None:
+            assert stats["meshes_read"] == reads, (name, stats["meshes_read"])
         if mode == "BASE":
-            assert stats["incremental"] and stats["dirty_fraction"] < 1.0, name
+            assert stats["incremental"] and stats["dirty_fraction"] < 1.0, (name, {k: stats.get(k) for k in ("incremental", "dirty_fraction", "edit_kinds", "cancelled", "dirty_pixels")})
         ref, _ = _f12(fresh=True)
         if mode == "BASE":
             np.testing.assert_array_equal(inc, ref, err_msg=name)
@@ -198,6 +218,8 @@ def test_f12_after_edits_equals_a_fresh_render(mode):
 
             err = np.abs(to_display(inc) - to_display(ref)).max()
             assert err <= 2 * eps + 1e-6, (name, err)
+    # the undo brought back the deleted sphere and dropped the added objects
+    assert "MirrorSphere" in bpy.data.objects and "Box" not in bpy.data.objects
 
 
 def test_shading_model_switch_rereads_the_cached_materials():
@@ -225,6 +247,39 @@ def test_last_render_stats_is_documented_and_filled():
                 "interpolated_fraction", "invalidated_interpolants", "memory_mb", "edits"):
         assert key in stats and key in addon.last_render_stats.__doc__, key
     assert stats["memory_mb"] > 0.0
+
+
+def test_last_render_panel_shows_the_stats():
+    """Render Properties > RSTrace > Last Render draws the last F12's numbers."""
+    from types import SimpleNamespace
+
+    import addon
+
+    class Layout:
+        def __init__(self):
+            self.lines = []
+
+        def column(self, align=False):
+            return self
+
+        def label(self, text="", icon="NONE"):
+            self.lines.append(text)
+
+    sc = _scene(16, 12)
+    panel = SimpleNamespace(layout=Layout())
+    addon.ui.RSTRACE_PT_statistics.draw(panel, SimpleNamespace(scene=sc))
+    assert panel.layout.lines == ["Not rendered yet"]
+    _f12()
+    bpy.data.objects["RedSphere"].location.x += 0.2
+    bpy.context.view_layer.update()
+    _f12()
+    panel = SimpleNamespace(layout=Layout())
+    addon.ui.RSTRACE_PT_statistics.draw(panel, SimpleNamespace(scene=sc))
+    text = "\n".join(panel.layout.lines)
+    stats = addon.last_render_stats(sc)
+    assert "16 x 12 px, BASE" in text and "1 edits since the last render" in text
+    assert f"{100.0 * stats['dirty_fraction']:.2f}% of the pixels re-rendered" in text
+    assert f"Memory {stats['memory_mb']:.1f} MB" in text
 
 
 def test_animation_frames_pass_what_moved_as_edits():

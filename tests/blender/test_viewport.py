@@ -304,3 +304,112 @@ def test_orthographic_view_with_clipping_behind_the_eye():
     assert np.allclose(d, [0.0, 0.0, -1.0])
     assert np.allclose(o[:, 2], 60.0)  # 10 + 50: the near plane behind the eye
     assert np.isclose(o[:, 0].min(), -4.0 + 0.1) and np.isclose(o[:, 0].max(), 4.0 - 0.1)
+
+
+def _orbit(cam, degrees: float, centre=(0.0, 0.0, 0.5)):
+    """``cam`` turned about the vertical axis through ``centre``."""
+    from dataclasses import replace
+
+    a = np.radians(degrees)
+    rot = np.eye(4)
+    rot[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    shift = np.eye(4)
+    shift[:3, 3] = centre
+    back = np.eye(4)
+    back[:3, 3] = -np.asarray(centre)
+    return replace(cam, matrix=shift @ rot @ back @ np.asarray(cam.matrix))
+
+
+def test_orbit_reuses_the_interpolants():
+    """INTERPOLANT mode: interpolants are view-independent; orbiting the view invalidates
+    none (the same cache, every interpolant of the first view still live) and the frames
+    stay within epsilon of the base tracer's."""
+    from dataclasses import replace
+
+    import addon
+    from rstrace_engine.image import compare
+    from rstrace_engine.session import Session
+
+    sc, vr = _start("INTERPOLANT")
+    sc.rstrace.max_ray_depth = 2
+    try:
+        cam = _camera(_view(160, 120))  # (big enough to interpolate)
+        vr.draw_view(cam, None)
+        _settled(vr)
+        state = addon.session.state_for(sc)
+        cache = state.session.interpolants.cache
+        live = np.flatnonzero(cache.pool.live)
+        serial = cache.pool.serial[live].copy()
+        assert len(live) > 0
+        for deg in (2.0, 4.0):
+            vr.draw_view(_orbit(cam, deg), None)
+            img = _settled(vr)
+            assert img.stats.get("camera_changed")
+        session = state.session
+        assert session.interpolants.cache is cache and session.last_report.camera_changed
+        assert session.last_report.invalidated_interpolants == 0
+        assert cache.pool.live[live].all() and np.array_equal(cache.pool.serial[live], serial)
+        base = Session(session.scene, replace(session.settings, mode="BASE")).render()
+        eps = session.settings.epsilon
+        m = compare(vr.worker.last_frame.radiance, base.radiance, eps)
+        assert m["max_error"] <= eps + 1e-6, m
+    finally:
+        vr.free()
+
+
+def test_scene_switch_replaces_the_worker():
+    """The viewport showing another scene: the first scene's worker is stopped and joined,
+    the other scene gets its own session."""
+    import addon
+
+    sc, vr = _start()
+    try:
+        vr.draw_view(_camera(_view()), None)
+        _settled(vr)
+        first = vr.worker
+        # (a viewport gets view_update from its own depsgraph only: the test's forwarding of
+        # every depsgraph_update_post stops here)
+        bpy.app.handlers.depsgraph_update_post.pop()
+        other = bpy.data.scenes.new("Other")
+        other.render.engine = "RSTRACE"
+        for ob in bpy.data.objects:
+            other.collection.objects.link(ob)
+        other.camera = sc.camera
+        dg = other.view_layers[0].depsgraph
+        dg.update()  # (evaluated: Blender does this before view_update)
+        vr.view_update(None, dg)
+        assert not first.alive and vr.worker is not first
+        vr.draw_view(_camera(_view()), None)
+        _settled(vr)
+        assert vr.scene_key == other.session_uid
+        assert addon.session.state_for(other).session is not None
+        assert addon.session.state_for(other).session is not addon.session.state_for(sc).session
+    finally:
+        vr.free()
+
+
+def test_status_shows_kernel_progress_and_new_images_ask_for_a_redraw(monkeypatch):
+    """First use: the viewport's status text and Blender's status bar say how far the
+    kernel warm-up is; a new image sets the flag the main-thread timer turns into redraws."""
+    import addon
+
+    sc, vr = _start()
+    try:
+        monkeypatch.setattr(addon.kernels, "progress_text", lambda: "compiling kernels 3/15")
+        assert vr.status(None) == "RSTrace | compiling kernels 3/15"
+        said = []
+        ctx = SimpleNamespace(workspace=SimpleNamespace(status_text_set=said.append))
+        vr._status_bar(ctx)
+        assert said == ["RSTrace: compiling kernels 3/15"]
+        monkeypatch.setattr(addon.kernels, "progress_text", lambda: None)
+        vr._status_bar(ctx)
+        assert said[-1] is None  # cleared once the warm-up is done
+        vr.new_image.clear()
+        vr.draw_view(_camera(_view()), None)
+        img = _settled(vr)
+        assert vr.new_image.is_set()  # the worker's notify()
+        assert addon.viewport._tick() == addon.viewport._TIMER_INTERVAL
+        assert not vr.new_image.is_set()  # redraws were asked for, the flag cleared
+        assert vr.status(img).startswith("RSTrace | 2 samples")
+    finally:
+        vr.free()

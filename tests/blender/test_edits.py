@@ -250,6 +250,42 @@ def test_last_render_stats_is_documented_and_filled():
     assert stats["memory_mb"] > 0.0
 
 
+def test_f12_after_a_camera_edit_and_file_load():
+    """The camera object moved or its lens changed: a CameraChange (a full frame, equal to
+    a fresh render); loading a file drops every session (no stale ID or key survives)."""
+    import addon
+
+    sc = _scene(32, 24)
+    _f12()
+    cam = sc.camera
+    for change in (lambda: setattr(cam.location, "x", cam.location.x + 0.3),
+                   lambda: setattr(cam.data, "lens", cam.data.lens * 1.2)):
+        change()
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["edit_kinds"] == {"CameraChange": 1} and not stats["incremental"]
+        assert stats["meshes_read"] == 0 and not stats["new_session"]
+        np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
+    assert addon.session.peek_state(sc) is not None
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert addon.session._STATES == {}
+
+
+def test_selecting_the_engine_starts_the_kernel_warmup(monkeypatch):
+    import addon
+
+    started = []
+    monkeypatch.setattr(addon.kernels, "start_warmup", started.append)
+    sc = bpy.context.scene
+    sc.render.engine = "CYCLES"
+    bpy.context.view_layer.update()
+    assert started == []
+    sc.rstrace.mode = "INTERPOLANT"
+    sc.render.engine = "RSTRACE"
+    bpy.context.view_layer.update()
+    assert started and started[-1] == "INTERPOLANT"
+
+
 def test_last_render_panel_shows_the_stats():
     """Render Properties > RSTrace > Last Render draws the last F12's numbers."""
     from types import SimpleNamespace

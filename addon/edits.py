@@ -14,9 +14,10 @@ it against the mirror:
   links, instancers, geometry-node instances, duplicates, undo of a delete);
 * one that vanishes -> ``ObjectVisibility(False)`` while the object still exists (hidden,
   excluded, unlinked: it may come back cheaply), else ``ObjectDelete`` / ``LightDelete``;
-* a mesh no object (shown or hidden) uses any more -> ``MeshDelete``, after the object edits
-  (its last user deleted, or re-meshed): the session frees it and the export cache drops
-  it once the sync is committed (an undo reads it again).
+* a mesh or material no object (shown or hidden) uses any more -> ``MeshDelete`` /
+  ``MaterialDelete``, after the object edits (its last user deleted, re-meshed or given
+  other materials): the session frees it and the export cache drops it once the sync is
+  committed (an undo reads it again).
   Deleted objects never appear in ``depsgraph.updates``: the mirror's key set is diffed
   against ``depsgraph.object_instances``.
 
@@ -275,17 +276,25 @@ class SceneSync:
                 not isinstance(k, tuple) and k in alive)]:
             del invisible[key]
             out.append(E.ObjectDelete(key))
-        # meshes no object (shown or hidden) uses any more leave the session, and the
-        # export cache (deleting the last user, a geometry swap; undo re-reads them)
-        freed = []
+        # meshes and materials no object (shown or hidden) uses any more leave the session
+        # and the export cache (the last user deleted, re-meshed or given other materials;
+        # an undo reads them again)
+        freed, freed_mats = [], []
+        kept = [r for r in (*objects.values(), *invisible.values())]
         if not partial or any(self.objects[k].mesh_key != r.mesh_key for k, r in read.items()
                               if k in self.objects):
-            used = {r.mesh_key for r in objects.values()} | {
-                r.mesh_key for r in invisible.values()}
+            used = {r.mesh_key for r in kept}
             freed = [k for k in meshes if k not in used]
+        if not partial or any(self.objects[k].material_keys != r.material_keys
+                              for k, r in read.items() if k in self.objects):
+            used = {mk for r in kept for mk in r.material_keys}
+            freed_mats = [k for k in materials if k not in used]
         for key in freed:
             del meshes[key]
             out.append(E.MeshDelete(key))
+        for key in freed_mats:
+            del materials[key]
+            out.append(E.MaterialDelete(key))
         for key, light in snap.lights.items():
             if self.lights.get(key) != light:
                 out.append(E.LightSet(key, light))
@@ -296,6 +305,7 @@ class SceneSync:
         if cam is not None and not same_camera(cam, self.camera):
             out.append(E.CameraChange(cam))
         mirror = dict(objects=objects, invisible=invisible, meshes=meshes, freed=freed,
+                      freed_materials=freed_mats,
                       walk=None if partial else (snap.instancers, snap.instanced,
                                                  snap.hidden_in_view),
                       materials=materials, lights=dict(snap.lights), world=snap.world,
@@ -316,6 +326,9 @@ class SceneSync:
         self.meshes, self.materials = m["meshes"], m["materials"]
         for key in m["freed"]:
             self.cache.meshes.pop(key, None)
+        for key in m["freed_materials"]:
+            if key != export.DEFAULT_MATERIAL_KEY:  # (made once, never read from Blender)
+                self.cache.materials.pop(key, None)
         if m["walk"] is not None:
             self.instancers, self.instanced, sig = m["walk"]
             if sig is not None:  # (a viewport walk; F12's render depsgraph has none)

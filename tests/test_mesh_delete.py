@@ -1,4 +1,5 @@
-"""MeshDelete: a mesh no object uses any more leaves the session (slot, packing, accelerator).
+"""MeshDelete / MaterialDelete: a mesh or material no object uses any more leaves the session
+(slot, packing, accelerator).
 
 The incremental frame after the delete equals a fresh session's (BASE exactly, INTERPOLANT
 within epsilon of the BASE frame); the slot is a tombstone reused by the next mesh; a delete
@@ -17,15 +18,18 @@ from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import (
+    MaterialDelete,
+    MaterialSet,
     MeshDelete,
     MeshSet,
     ObjectAdd,
     ObjectDelete,
     ObjectGeometry,
+    ObjectMaterials,
     ObjectVisibility,
     diff_scenes,
 )
-from rstrace_engine.geometry.scene import SceneError
+from rstrace_engine.geometry.scene import Material, SceneError
 from rstrace_engine.session import Session
 from tests.test_edits import row_scene
 from tests.test_incremental import check_base_step
@@ -167,3 +171,34 @@ def test_random_edits_with_mesh_deletes_base_exact(scene_name):
         sess.apply(gen.step())
         prev, _ = check_base_step(sess, prev, settings)
     assert gen.kinds_done.get("mesh_delete", 0) >= 1, gen.kinds_done
+
+
+def test_material_delete_tombstones_and_reuses_the_slot():
+    settings = RenderSettings(mode="BASE", max_depth=3)
+    sess = Session(_with_ball(), settings)
+    sess.render()
+    with pytest.raises(SceneError, match="red.*still used by object 'Cube1'"):
+        sess.apply([ObjectMaterials("Cube1", ("red",)), MaterialDelete("red")])
+    sess.apply([ObjectMaterials("Cube1", ("red",))])
+    sess.render()
+    rep = sess.apply([ObjectMaterials("Cube1", ("grey",)), MaterialDelete("red")])
+    assert rep.kinds == {"ObjectMaterials": 1, "MaterialDelete": 1}
+    sc = sess.scene
+    mid = 1  # "red"'s slot
+    assert sc.materials[mid] is None and "red" not in sc.material_keys.slot
+    frame = sess.render()
+    assert frame.stats["incremental"]
+    np.testing.assert_array_equal(frame.radiance,
+                                  Session(sc.copy(), settings).render().radiance)
+    with pytest.raises(SceneError, match="unknown material id"):
+        sc.copy().add_instance(0, np.eye(4), [mid], name="Orphan")
+    sess.apply([MaterialSet("blue", Material("blue", diffuse=(0.1, 0.1, 0.8))),
+                ObjectMaterials("Cube2", ("blue",))])
+    assert sess.scene.material_id("blue") == mid  # the free slot, reused
+    np.testing.assert_array_equal(sess.render().radiance,
+                                  Session(sess.scene.copy(), settings).render().radiance)
+    old, new = sess.scene, sess.scene.copy()
+    new.set_instance_materials(new.instance_slot("Cube2"), [0])
+    new.delete_material(mid)
+    assert [type(e).__name__ for e in diff_scenes(old, new)] == ["ObjectMaterials",
+                                                                  "MaterialDelete"]

@@ -27,6 +27,8 @@ Kinds, and what each may invalidate:
                        surface classes follow (refused while an object, hidden or not,
                        still uses it: delete or re-mesh the users first, in the same batch)
 ``MaterialSet``        a material added or its parameters changed
+``MaterialDelete``     a material no object uses any more removed (slot tombstoned and
+                       reused; invalidates nothing; refused while an object uses it)
 ``LightSet``           a light added or changed (position, power, colour, cone, kind)
 ``LightDelete``        a light removed
 ``WorldColor``         the world (background) colour
@@ -102,6 +104,11 @@ class MaterialSet:
 
 
 @dataclass(frozen=True)
+class MaterialDelete:
+    key: Hashable
+
+
+@dataclass(frozen=True)
 class LightSet:
     key: Hashable
     light: Light
@@ -123,8 +130,8 @@ class CameraChange:
 
 
 Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | ObjectAdd
-        | ObjectDelete | MeshSet | MeshDelete | MaterialSet | LightSet | LightDelete | WorldColor
-        | CameraChange)
+        | ObjectDelete | MeshSet | MeshDelete | MaterialSet | MaterialDelete | LightSet
+        | LightDelete | WorldColor | CameraChange)
 
 
 @dataclass
@@ -260,6 +267,8 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
             fx.materials.add(mid)
         else:
             s.add_material(e.material, key=e.key)
+    elif isinstance(e, MaterialDelete):
+        s.delete_material(s.material_id(e.key))  # no live object uses it
     elif isinstance(e, ObjectAdd):
         try:
             mesh = s.mesh_id(e.mesh_key)
@@ -375,8 +384,8 @@ def diff_scenes(old: Scene, new: Scene) -> list:
     """The edits that turn ``old`` into ``new``, matching items by their keys.
 
     Meshes and materials first (objects refer to them), then deletions (their slots are
-    reused by additions), then additions and changes, then the meshes no object uses any
-    more, then the world and the camera.
+    reused by additions), then additions and changes, then the meshes and materials no
+    object uses any more, then the world and the camera.
     """
     edits: list = []
     mesh_key = {v: k for k, v in new.mesh_keys.slot.items()}
@@ -421,6 +430,9 @@ def diff_scenes(old: Scene, new: Scene) -> list:
     for key in old.mesh_keys.slot:
         if key not in new.mesh_keys.slot:
             edits.append(MeshDelete(key))
+    for key in old.material_keys.slot:
+        if key not in new.material_keys.slot:
+            edits.append(MaterialDelete(key))
     if not np.array_equal(old.world_color, new.world_color):
         edits.append(WorldColor(tuple(float(x) for x in new.world_color)))
     if not same_camera(old.camera, new.camera):

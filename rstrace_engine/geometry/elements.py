@@ -226,4 +226,40 @@ class Camera:
     height: int = 480
 
 
-# ----------------------------------------------------------------------------- packed
+# ----------------------------------------------------------------------------- validation
+
+
+def checked_camera(camera: Camera) -> Camera:
+    """A validated copy of ``camera`` (float64 matrix, plain floats); raises
+    :class:`SceneError` naming the bad setting."""
+    c = camera
+    m = np.array(c.matrix, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise SceneError("camera: matrix must be a finite 4x4")
+    check_matrix("camera", m)
+    if c.kind not in ("PERSP", "ORTHO"):
+        raise SceneError(f"camera: unsupported type {c.kind!r} (PERSP or ORTHO)")
+    if c.sensor_fit not in ("AUTO", "HORIZONTAL", "VERTICAL"):
+        raise SceneError(f"camera: unknown sensor fit {c.sensor_fit!r}")
+    for label, v, lo, hi in (("lens", c.lens, 1e-3, 1e6),
+                             ("sensor width", c.sensor_width, 1e-3, 1e6),
+                             ("sensor height", c.sensor_height, 1e-3, 1e6),
+                             ("ortho scale", c.ortho_scale, 1e-9, 1e12),
+                             ("clip start", c.clip_start, 0.0, 1e12),
+                             ("shift x", c.shift_x, -100, 100),
+                             ("shift y", c.shift_y, -100, 100)):
+        # Blender stores these as float32: a limit typed in Blender arrives rounded
+        # (1e-9 as 9.99999997e-10), so the limits allow for that rounding
+        slack = tol.FLOAT32_INPUT_REL
+        if not (math.isfinite(v) and lo - slack * abs(lo) <= v <= hi + slack * abs(hi)):
+            side = (f"is below the minimum {lo:g}" if v < lo else
+                    f"is above the maximum {hi:g}" if v > hi else "is not a number")
+            raise SceneError(f"camera: {label} {v:.9g} {side}")
+    if not (math.isfinite(c.clip_end) and c.clip_end > c.clip_start):
+        raise SceneError(f"camera: clip end {c.clip_end} must exceed clip start "
+                         f"{c.clip_start}")
+    if not (1 <= int(c.width) <= 65536 and 1 <= int(c.height) <= 65536):
+        raise SceneError(f"camera: resolution {c.width}x{c.height} outside 1..65536")
+    return Camera(m, c.kind, float(c.lens), float(c.sensor_width), float(c.sensor_height),
+                  c.sensor_fit, float(c.shift_x), float(c.shift_y), float(c.clip_start),
+                  float(c.clip_end), float(c.ortho_scale), int(c.width), int(c.height))

@@ -47,6 +47,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     _colour,
     _finite_array,
     check_matrix,
+    checked_camera,
 )
 
 log = logging.getLogger(__name__)
@@ -101,6 +102,8 @@ class SceneArrays(NamedTuple):
     inst_alive: np.ndarray  # (I,) bool: the slot holds a visible object
 
 
+#: What a tombstoned material slot packs as (no object uses it: never shaded).
+_DEAD_MATERIAL = Material("<deleted>").validated()
 #: The box of a dead instance slot: empty (lo > hi), finite, so no overlap test passes.
 DEAD_AABB = np.array([[tol.COORD_MAX * 10] * 3, [-tol.COORD_MAX * 10] * 3])
 
@@ -192,8 +195,8 @@ class Scene:
     because instance ids are baked into interpolant keys, linetree roots and ray trees.
     ``set_mesh`` / ``set_material`` replace one in place. A mesh no object uses any more is
     removed with ``delete_mesh``: its slot becomes a tombstone (``None`` in :attr:`meshes`,
-    no triangles in the packing) reused by a later ``add_mesh``, so mesh ids never move.
-    Materials are never removed (a few parameters each).
+    no triangles in the packing) reused by a later ``add_mesh``, so mesh ids never move;
+    likewise ``delete_material`` for a material no object uses.
 
     ``stats`` collects counts of tolerated problems (dropped degenerate triangles, ...);
     ``warnings`` collects one message per distinct problem, for the host to report once.
@@ -201,7 +204,7 @@ class Scene:
 
     def __init__(self) -> None:
         self.meshes: list[dict | None] = []  # None: a tombstoned (deleted) mesh slot
-        self.materials: list[Material] = []
+        self.materials: list[Material | None] = []  # None: a tombstoned (deleted) slot
         self.instances: list[dict | None] = []  # None: a tombstoned slot
         self.lights: list[Light | None] = []  # None: a tombstoned slot
         self.camera: Camera = Camera()
@@ -281,17 +284,37 @@ class Scene:
             log.warning(message)
 
     def add_material(self, material: Material, key=None) -> int:
+        """Add a material; returns its id (the lowest tombstoned slot, else a new one)."""
+        checked = material.validated()
         key = self.material_keys.new_key(key, material.name, len(self.materials))
-        self.materials.append(material.validated())
-        self.material_keys.slot[key] = len(self.materials) - 1
+        mid = self.material_keys.place(self.materials, checked, key)
         self._arrays = None
-        return len(self.materials) - 1
+        return mid
 
     def set_material(self, material_id: int, material: Material) -> None:
         """Replace material ``material_id``'s parameters (validated first)."""
-        if not 0 <= material_id < len(self.materials):
+        if not self._live_material(material_id):
             raise SceneError(f"material '{material.name}': unknown material id {material_id}")
         self.materials[material_id] = material.validated()
+        self._arrays = None
+
+    def _live_material(self, mid: int) -> bool:
+        return 0 <= mid < len(self.materials) and self.materials[mid] is not None
+
+    def delete_material(self, material_id: int) -> None:
+        """Remove a material no object uses (hidden ones included): its slot becomes a
+        tombstone (packed as a plain grey no ray can meet), reused by :meth:`add_material`."""
+        if not self._live_material(material_id):
+            raise SceneError(f"material id {material_id}: no such material (deleted or never "
+                             f"added)")
+        users = [i["name"] for _, i in self.live_instances() if material_id in i["materials"]]
+        if users:
+            raise SceneError(f"material '{self.materials[material_id].name}': still used by "
+                             f"object '{users[0]}' ({len(users)} user(s))")
+        self.materials[material_id] = None
+        key = next(k for k, v in self.material_keys.slot.items() if v == material_id)
+        del self.material_keys.slot[key]
+        self.material_keys.free.append(material_id)
         self._arrays = None
 
     def add_mesh(self, mesh: Mesh, key=None) -> int:
@@ -425,7 +448,7 @@ class Scene:
     def _checked_materials(self, name: str, materials) -> list[int]:
         mats = [int(x) for x in materials] or [0]
         for mid in mats:
-            if not 0 <= mid < len(self.materials):
+            if not self._live_material(mid):
                 raise SceneError(f"object '{name}': unknown material id {mid} (add "
                                  f"materials first)")
         return mats
@@ -535,38 +558,8 @@ class Scene:
         return next(k for k, v in self.light_keys.slot.items() if v == slot)
 
     def set_camera(self, camera: Camera) -> None:
-        c = camera
-        m = np.array(c.matrix, dtype=np.float64)
-        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-            raise SceneError("camera: matrix must be a finite 4x4")
-        check_matrix("camera", m)
-        if c.kind not in ("PERSP", "ORTHO"):
-            raise SceneError(f"camera: unsupported type {c.kind!r} (PERSP or ORTHO)")
-        if c.sensor_fit not in ("AUTO", "HORIZONTAL", "VERTICAL"):
-            raise SceneError(f"camera: unknown sensor fit {c.sensor_fit!r}")
-        for label, v, lo, hi in (("lens", c.lens, 1e-3, 1e6),
-                                 ("sensor width", c.sensor_width, 1e-3, 1e6),
-                                 ("sensor height", c.sensor_height, 1e-3, 1e6),
-                                 ("ortho scale", c.ortho_scale, 1e-9, 1e12),
-                                 ("clip start", c.clip_start, 0.0, 1e12),
-                                 ("shift x", c.shift_x, -100, 100),
-                                 ("shift y", c.shift_y, -100, 100)):
-            # Blender stores these as float32: a limit typed in Blender arrives rounded
-            # (1e-9 as 9.99999997e-10), so the limits allow for that rounding
-            slack = tol.FLOAT32_INPUT_REL
-            if not (math.isfinite(v) and lo - slack * abs(lo) <= v <= hi + slack * abs(hi)):
-                side = (f"is below the minimum {lo:g}" if v < lo else
-                        f"is above the maximum {hi:g}" if v > hi else "is not a number")
-                raise SceneError(f"camera: {label} {v:.9g} {side}")
-        if not (math.isfinite(c.clip_end) and c.clip_end > c.clip_start):
-            raise SceneError(f"camera: clip end {c.clip_end} must exceed clip start "
-                             f"{c.clip_start}")
-        if not (1 <= int(c.width) <= 65536 and 1 <= int(c.height) <= 65536):
-            raise SceneError(f"camera: resolution {c.width}x{c.height} outside 1..65536")
-        self.camera = Camera(m, c.kind, float(c.lens), float(c.sensor_width),
-                             float(c.sensor_height), c.sensor_fit, float(c.shift_x),
-                             float(c.shift_y), float(c.clip_start), float(c.clip_end),
-                             float(c.ortho_scale), int(c.width), int(c.height))
+        """Validate (:func:`~.elements.checked_camera`) and set the camera."""
+        self.camera = checked_camera(camera)
 
     def set_world_color(self, color) -> None:
         self.world_color = _colour("world", "world colour", color, hi=None)
@@ -621,7 +614,7 @@ class Scene:
                          for i, ok in zip(self.instances, live, strict=True)])
         inst_mats = [[0] if i is None else i["materials"] for i in self.instances]
         mat_start = np.cumsum([0] + [len(m) for m in inst_mats])
-        mats = self.materials
+        mats = [_DEAD_MATERIAL if m is None else m for m in self.materials]
         tex_list = [m.texture for m in mats if m.texture is not None]
         tex_ids, k = [], 0
         for m in mats:

@@ -96,10 +96,13 @@ def test_each_change_gives_its_edits():
     kinds, out = c.step(lambda: bpy.data.objects.remove(dup))
     assert kinds == ["ObjectDelete"] and out[0].key == dup_uid
     blue = bpy.data.objects["BlueSphere"]
-    blue_mesh = ("data", blue.data.session_uid)  # its own mesh: freed with it
+    blue_mesh = ("data", blue.data.session_uid)  # its own mesh and material: freed with it
+    blue_mat = blue.active_material.session_uid
     kinds, out = c.step(lambda: bpy.data.objects.remove(blue))
-    assert kinds == ["MeshDelete", "ObjectDelete"] and out[-1].key == blue_mesh
+    assert kinds == ["MaterialDelete", "MeshDelete", "ObjectDelete"]
+    assert {e.key for e in out[1:]} == {blue_mesh, blue_mat}
     assert blue_mesh not in c.sync.cache.meshes and blue_mesh not in c.sync.meshes
+    assert blue_mat not in c.sync.cache.materials and blue_mat not in c.sync.materials
     # a new object with a new mesh; the world colour
     kinds, out = c.step(lambda: b.add_object("Box", b.grid("BoxMesh", 1.0), (0, 0, 2.0)))
     # (without a material it uses the default one, sent the first time it is needed)
@@ -392,11 +395,13 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     bpy.data.objects.remove(blue)
     bpy.ops.ed.undo_push(message="deleted")
     bpy.context.view_layer.update()
+    blue_mat = bpy.data.materials["Blue"].session_uid  # (the object is gone: by name)
     inc, stats = _f12()
-    assert stats["edit_kinds"] == {"ObjectDelete": 1, "MeshDelete": 1}, stats["edit_kinds"]
+    assert stats["edit_kinds"] == {"ObjectDelete": 1, "MeshDelete": 1, "MaterialDelete": 1}
     assert stats["incremental"]
     core = state.session.scene
     assert key not in core.mesh_keys.slot and key not in state.sync.cache.meshes
+    assert blue_mat not in core.material_keys.slot and blue_mat not in state.sync.cache.materials
     assert sum(m is not None for m in core.meshes) == n_meshes - 1
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
     # a geometry swap leaving the red sphere's own mesh unused
@@ -405,8 +410,10 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     red.data = mirror.data
     bpy.context.view_layer.update()
     inc, stats = _f12()
-    kinds = stats["edit_kinds"]  # (the red material was the old mesh's: slots change too)
-    assert kinds == {"ObjectGeometry": 1, "ObjectMaterials": 1, "MeshDelete": 1}, kinds
+    kinds = stats["edit_kinds"]  # (the red material was the old mesh's: slots change too,
+    # and the red material, used by nothing else, is freed)
+    assert kinds == {"ObjectGeometry": 1, "ObjectMaterials": 1, "MeshDelete": 1,
+                     "MaterialDelete": 1}, kinds
     assert red_key not in state.session.scene.mesh_keys.slot
     assert red_key not in state.sync.cache.meshes
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
@@ -417,6 +424,7 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     inc, stats = _f12()
     kinds = stats["edit_kinds"]
     assert kinds.get("ObjectAdd") == 1 and kinds.get("MeshSet", 0) >= 1, kinds
+    assert kinds.get("MaterialSet", 0) >= 2, kinds  # the blue and red materials are back
     assert stats["meshes_read"] >= 1  # re-exported: the cache had dropped it
     assert key in state.sync.cache.meshes and key in state.session.scene.mesh_keys.slot
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])

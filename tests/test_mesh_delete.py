@@ -161,7 +161,8 @@ def test_delete_add_loop_does_not_grow():
 
 @pytest.mark.parametrize("scene_name", ["room", "tori"])
 def test_random_edits_with_mesh_deletes_base_exact(scene_name):
-    """The seeded random edit sequences (every kind) with mesh deletes mixed in."""
+    """The seeded random edit sequences (every kind) with mesh and material deletes mixed
+    in."""
     settings = RenderSettings(mode="BASE", max_depth=3)
     gen = EditGenerator(SOAK_SCENES[scene_name](24, 18), seed=7,
                         extra=EditGenerator.EXTRA_KINDS)
@@ -171,6 +172,7 @@ def test_random_edits_with_mesh_deletes_base_exact(scene_name):
         sess.apply(gen.step())
         prev, _ = check_base_step(sess, prev, settings)
     assert gen.kinds_done.get("mesh_delete", 0) >= 1, gen.kinds_done
+    assert gen.kinds_done.get("material_delete", 0) >= 1, gen.kinds_done
 
 
 def test_material_delete_tombstones_and_reuses_the_slot():
@@ -202,3 +204,20 @@ def test_material_delete_tombstones_and_reuses_the_slot():
     new.delete_material(mid)
     assert [type(e).__name__ for e in diff_scenes(old, new)] == ["ObjectMaterials",
                                                                   "MaterialDelete"]
+
+
+def test_random_edits_with_deletes_interpolant_within_epsilon():
+    eps = 0.05
+    settings = RenderSettings(mode="INTERPOLANT", epsilon=eps, max_depth=3)
+    base = RenderSettings(mode="BASE", max_depth=3)
+    gen = EditGenerator(SOAK_SCENES["spheres"](96, 72), seed=3, camera=False,
+                        extra=EditGenerator.EXTRA_KINDS)
+    sess = Session(gen.scene.copy(), settings)
+    sess.render()
+    for _ in range(16):
+        sess.apply(gen.step())
+        frame = sess.render()
+        ref = Session(sess.scene.copy(), base).render()
+        m = image.compare(frame.radiance, ref.radiance, eps)
+        assert m["max_error"] <= eps + 1e-6, (gen.kinds_done, m)
+    assert gen.kinds_done.get("mesh_delete", 0) + gen.kinds_done.get("material_delete", 0)

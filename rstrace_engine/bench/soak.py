@@ -21,6 +21,7 @@ from ..geometry.edits import (
     CameraChange,
     LightDelete,
     LightSet,
+    MaterialDelete,
     MaterialSet,
     MeshDelete,
     MeshSet,
@@ -93,8 +94,8 @@ class EditGenerator:
              "mesh_set", "light_power", "light_move", "light_add", "light_delete", "world",
              "camera")
     #: kinds a generator adds on request (``extra=``), so that the seeded sequences of
-    #: :attr:`KINDS` stay as they were: removing a mesh no object uses any more
-    EXTRA_KINDS = ("mesh_delete",)
+    #: :attr:`KINDS` stay as they were: removing a mesh or a material no object uses any more
+    EXTRA_KINDS = ("mesh_delete", "material_delete")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
                  extra: tuple = ()) -> None:
@@ -212,6 +213,10 @@ class EditGenerator:
             if len(users) != 1 or old_key == mesh_keys[0] or not others:
                 return None
             return [ObjectGeometry(key, self._pick(others)), MeshDelete(old_key)]
+        if kind == "material_delete":
+            used = {m for _, i in s.live_instances() for m in i["materials"]}
+            unused = [k for k in mat_keys[1:] if s.material_id(k) not in used]
+            return [MaterialDelete(self._pick(unused))] if unused else None
         if kind == "light_power" and light_keys:
             key = self._pick(light_keys)
             li = s.lights[s.light_slot(key)]

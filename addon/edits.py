@@ -329,12 +329,23 @@ class SceneSync:
         for key in m["freed_materials"]:
             if key != export.DEFAULT_MATERIAL_KEY:  # (made once, never read from Blender)
                 self.cache.materials.pop(key, None)
+        if m["freed_materials"]:
+            self._drop_unused_textures()
         if m["walk"] is not None:
             self.instancers, self.instanced, sig = m["walk"]
             if sig is not None:  # (a viewport walk; F12's render depsgraph has none)
                 self.hidden_in_view = sig
         self.lights, self.world, self.camera = m["lights"], m["world"], m["camera"]
         self.synced = True
+
+    def _drop_unused_textures(self) -> None:
+        """Forget the cached pixels of images no cached material holds any more."""
+        held = [e.material.texture for e in self.cache.materials.values()
+                if e.material.texture is not None]
+        ids = {id(t) for t in held} | {id(t.base) for t in held if t.base is not None}
+        textures = self.cache.textures
+        for key in [k for k, v in textures.items() if id(v[1]) not in ids]:
+            del textures[key]
 
     def camera_edit(self, camera: Camera) -> list:
         """The edit for a new camera alone (viewport navigation), committed at once."""

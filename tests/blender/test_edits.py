@@ -112,6 +112,28 @@ def test_each_change_gives_its_edits():
     assert kinds == ["WorldColor"]
 
 
+def test_deleting_a_textured_material_s_last_user_frees_its_pixels():
+    _scene()
+    img = bpy.data.images.new("Checker", 8, 8)
+    img.pixels.foreach_set(np.tile([0.9, 0.1, 0.1, 1.0], 64).astype(np.float32))
+    mat = b.principled("Textured")
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes[
+        "Principled BSDF"].inputs["Base Color"])
+    ob = b.add_object("Board", b.grid("BoardMesh", 1.0), (0.0, 0.0, 0.3), mat)
+    c = Collector()
+    assert img.session_uid in c.sync.cache.textures and mat.session_uid in c.sync.materials
+    mat_uid = mat.session_uid
+    # another material freed: the pixels a live material holds stay cached
+    kinds, _ = c.step(lambda: bpy.data.objects.remove(bpy.data.objects["BlueSphere"]))
+    assert "MaterialDelete" in kinds and img.session_uid in c.sync.cache.textures
+    kinds, _ = c.step(lambda: bpy.data.objects.remove(ob))
+    assert kinds == ["MaterialDelete", "MeshDelete", "ObjectDelete"]
+    assert mat_uid not in c.sync.cache.materials and img.session_uid not in c.sync.cache.textures
+    assert "default" in c.sync.cache.materials  # (the default material is never dropped)
+
+
 def test_collection_instances_and_unlink():
     _scene()
     red = bpy.data.objects["RedSphere"]

@@ -44,6 +44,7 @@ class MeshEntry:
 class MaterialEntry:
     material: Material
     notes: list  # (kind, name) warnings its conversion produced, re-reported every export
+    images: frozenset = frozenset()  # keys of the textures (ExportCache.textures) it uses
 
 
 @dataclass

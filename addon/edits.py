@@ -340,11 +340,9 @@ class SceneSync:
 
     def _drop_unused_textures(self) -> None:
         """Forget the cached pixels of images no cached material holds any more."""
-        held = [e.material.texture for e in self.cache.materials.values()
-                if e.material.texture is not None]
-        ids = {id(t) for t in held} | {id(t.base) for t in held if t.base is not None}
+        held = {k for e in self.cache.materials.values() for k in e.images}
         textures = self.cache.textures
-        for key in [k for k, v in textures.items() if id(v[1]) not in ids]:
+        for key in [k for k in textures if k not in held]:
             del textures[key]
 
     def camera_edit(self, camera: Camera) -> list:

@@ -157,7 +157,7 @@ class _Reader:
             except SceneError as exc:  # conversion produced something invalid: say so
                 notes.warn(f"material unusable, rendered with the default ({exc})", mat.name)
                 material = DEFAULT_MATERIAL.validated()
-            entry = MaterialEntry(material, notes.recorded())
+            entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images))
             self.cache.materials[key] = entry
             self.materials_read += 1
         self.notes.replay(entry.notes)

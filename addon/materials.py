@@ -108,6 +108,7 @@ class MaterialReader:
         self.notes = notes
         self.model = model  # shading model of the Principled conversions
         self.textures = textures  # image session_uid -> (generation, pixels): kept by caller
+        self.images: set = set()  # session_uids of the images read (textures cache keys)
         self._ids: dict[int, int] = {}
         self._default_id: int | None = None
 
@@ -272,6 +273,7 @@ class MaterialReader:
         if self.textures is None:
             return read_image(img, self.notes)
         key = img.original.session_uid
+        self.images.add(key)
         gen = _IMAGE_GENERATION.get(key, 0)
         hit = self.textures.get(key)
         if hit is not None and hit[0] == gen and hit[2] == _image_signature(img):

@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 #: Modules whose kernels a render never calls (benchmark helpers).
 NOT_RENDER_KERNELS = ("rstrace_engine.bench",)
 
+#: At most this many identical first frames in the RI-tree step (:func:`_warm_ri_trees`).
+RI_WARM_FRAMES = 8
+
 
 def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
                eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8)):
@@ -127,6 +130,8 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     """Interpolants that pass the error predicate (their tunnels go into the ray segment
     trees and the membership index), then an edit that queries and invalidates them. The
     warm scene is too small and too hard (textures, a spot, occluders) for any cell to pass."""
+    from dataclasses import replace
+
     from . import scenes
     from .frame import RenderSettings
     from .geometry import shapes
@@ -138,7 +143,15 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     if progress is not None:
         progress(message)
     settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
-    session = Session(scenes.three_spheres(128, 96, subdivisions=2), settings)
+    scene = scenes.three_spheres(128, 96, subdivisions=2)
+    # a textured floor: samples of cells whose root hit is textured split their radiance
+    # into R + texel * D (the warm scene's floor is textured too, but its cells' samples
+    # never reached texture_split: a fresh warm-cache left _root_texels uncompiled)
+    floor = [m.name for m in scene.materials].index("floor")
+    checker = np.indices((8, 8)).sum(axis=0) % 2
+    texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.5 + 0.3
+    scene.materials[floor] = replace(scene.materials[floor], texture=texture).validated()
+    session = Session(scene, settings)
     session.render(cancel=cancel)
     _check(cancel)
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])
@@ -163,7 +176,7 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
     from .geometry.scene import Light, Material
     from .session import Session
 
-    s = warm_scene(40, 30)
+    s = warm_scene(40, 30, eye=(0.3, -2.2, 1.2))  # close: the RI objects fill the view
     glass = s.add_material(Material("ri_glass", diffuse=(0.0,) * 3, mirror=(1.0,) * 3,
                                     specular=(0.1,) * 3, transmission=(0.9,) * 3, ior=1.5,
                                     roughness=0.05, model="PRINCIPLED"))
@@ -180,12 +193,19 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
             progress(message)
         settings = RenderSettings(mode="RI_TREE", accelerator=accel, max_depth=3,
                                   ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05)
-        # a first frame under a roomy cache (leaves become final: finalize, the two-class
-        # test and surface interpolation), then the tiny one (mid-batch pruning, traced
-        # overflow); under a 0.05 MB cap alone the budget can run out before any leaf is
-        # final (a fresh warm-cache then left those kernels uncompiled)
+        # first frames under a roomy cache, until a ray was interpolated: the kernels that
+        # run only on final leaves (finalize, the two-class test, surface interpolation)
+        # are reached only once enough queries reached a leaf (the cost rule). Seen from
+        # the warm scene's own camera the two objects cover too few of the 40x30 pixels
+        # for any leaf to become final, and a fresh warm-cache left those kernels
+        # uncompiled (hence the close camera); a repeated frame adds its queries to the
+        # same leaves' visit counts
         session = Session(s, replace(settings, ri_cache_mb=8.0))
-        session.render(cancel=cancel)
+        for _ in range(RI_WARM_FRAMES):
+            frame = session.render(cancel=cancel)
+            if frame.stats.get("interpolated_fraction", 0.0) > 0.0:
+                break
+        # then the tiny cap (mid-batch pruning, overflow traced)
         session.update_settings(settings)
         session.render(cancel=cancel)
         session.apply([ObjectTransform("RIGlass", shapes.transform((-0.1, -0.6, 0.9))),

@@ -81,17 +81,21 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 # ----------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, count, rows, objs,
+@njit(cache=True, nogil=True)
+def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, rows, objs,
                 kind, tlo):
-    """Ray/object pairs to resolve: each RI-tree object ``ri[k]`` whose box ray ``r`` meets
-    before ``best[r]``. With ``count`` True only counts per ray (into ``rows[r]``);
-    otherwise fills pairs from offsets ``rows`` (rows, objs, kind, tlo written at
-    ``rows[r] + j``)."""
+    """Ray/object pairs to resolve, in one pass: each RI-tree object ``ri[k]`` whose box ray
+    ``r`` meets before ``best[r]`` (a ray with ``best[r] < t0[r]``, already blocked, has
+    none). Fills rows, objs, kind, tlo (capacity ``n * len(ri)``) ray after ray and returns
+    the number of pairs."""
     n = o.shape[0]
-    for r in prange(n):
-        c = 0
-        base = 0 if count else rows[r]
+    c = 0
+    inv = np.empty(3)
+    for r in range(n):
+        if best[r] < t0[r]:
+            continue
+        for a in range(3):
+            inv[a] = 1.0 / d[r, a] if d[r, a] != 0.0 else 0.0
         for q in range(ri.shape[0]):
             k = ri[q]
             if self_inst[r] == k and convex[k]:
@@ -105,9 +109,8 @@ def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, count
                 if o[r, a] < lo or o[r, a] > hi:
                     inside = False
                 if d[r, a] != 0.0:
-                    inv = 1.0 / d[r, a]
-                    ta = (lo - o[r, a]) * inv
-                    tb = (hi - o[r, a]) * inv
+                    ta = (lo - o[r, a]) * inv[a]
+                    tb = (hi - o[r, a]) * inv[a]
                     if ta > tb:
                         ta, tb = tb, ta
                     tn = max(tn, ta)
@@ -116,18 +119,28 @@ def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, count
                     tf = -1.0
             if tn > tf:
                 continue
-            if not count:
-                j = base + c
-                objs[j] = k
-                if inside or self_inst[r] == k:
-                    kind[j] = _TRACE
-                    tlo[j] = max(t0[r], self_tmin[r]) if self_inst[r] == k else t0[r]
-                else:
-                    kind[j] = _QUERY
-                    tlo[j] = t0[r]
+            rows[c] = r
+            objs[c] = k
+            if inside or self_inst[r] == k:
+                kind[c] = _TRACE
+                tlo[c] = max(t0[r], self_tmin[r]) if self_inst[r] == k else t0[r]
+            else:
+                kind[c] = _QUERY
+                tlo[c] = t0[r]
             c += 1
-        if count:
-            rows[r] = c
+    return c
+
+
+def candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin):
+    """(rows, objs, kind, tlo) of :func:`_candidates`, trimmed to the pairs found."""
+    cap = len(o) * len(ri)
+    rows = np.empty(cap, np.int64)
+    objs = np.empty(cap, np.int32)
+    kind = np.empty(cap, np.int8)
+    tlo = np.empty(cap)
+    c = _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, rows, objs,
+                    kind, tlo)
+    return rows[:c], objs[:c], kind[:c], tlo[:c]
 
 
 @njit(cache=True, nogil=True)
@@ -263,11 +276,12 @@ class RITreeRenderer:
 
     # -- intersection --------------------------------------------------------------------
 
-    def _intersect(self, view, o, d, t0, t1, self_inst, anyhit=False):
+    def _intersect(self, view, o, d, t0, t1, self_inst, primary=False):
         """Nearest hits of a batch through traced objects and RI-trees (module doc).
 
         Returns dict(t, inst, prim, u, v, interp (index into the query result or -1),
-        status (per ray, of the winning RI query), q (QueryResult or None)).
+        status (per ray, of the winning RI query; only for ``primary`` batches, else -1),
+        q (QueryResult or None)).
         """
         n = len(o)
         sub, ids = self._sub[view]
@@ -278,44 +292,21 @@ class RITreeRenderer:
         u = np.zeros(n)
         v = np.zeros(n)
         if sub is not None and n:
-            if anyhit:
-                hit = np.asarray(sub.any_hit(o, d, t0, t1), np.bool_)
-                best[hit] = -np.inf
-            else:
-                h = sub.closest_hit(o, d, t0, t1)
-                ok = h.inst >= 0
-                best[ok] = h.t[ok]
-                inst[ok] = ids[h.inst[ok]]
-                prim[ok] = h.prim[ok]
-                u[ok] = h.u[ok]
-                v[ok] = h.v[ok]
+            h = sub.closest_hit(o, d, t0, t1)
+            ok = h.inst >= 0
+            best = np.where(ok, h.t, np.inf)
+            inst = np.where(ok, ids[np.maximum(h.inst, 0)], -1).astype(np.int32)
+            prim, u, v = h.prim, h.u, h.v
         out = dict(t=best, inst=inst, prim=prim, u=u, v=v, interp=np.full(n, -1, np.int64),
-                   status=np.full(n, -1, np.int8), q=None, qrows=None)
+                   status=np.full(n, -1, np.int8), q=None)
         ri = self.ri[view]
         if len(ri) == 0 or n == 0:
             return out
-        diag = cache.diag
-        self_tmin = np.where(self_inst >= 0, tol.RI_SELF_OFFSET_REL
-                             * diag[np.maximum(self_inst, 0)]
-                             / np.maximum(np.linalg.norm(d, axis=1), 1e-300), 0.0)
-        cnt = np.empty(n, np.int64)
-        dummy_i = np.empty(0, np.int32)
-        dummy_f = np.empty(0)
-        e8 = np.empty(0, np.int8)
-        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
-                    True, cnt, dummy_i, e8, dummy_f)
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        total = int(cnt.sum())
+        rows, objs, kind, tlo = candidates(o, d, t0, t1, best, ri, cache.box, self.convex,
+                                           self_inst, self._self_tmin(cache.diag, d, self_inst))
+        total = len(rows)
         if total == 0:
             return out
-        objs = np.empty(total, np.int32)
-        kind = np.empty(total, np.int8)
-        tlo = np.empty(total)
-        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
-                    False, starts, objs, kind, tlo)
-        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
-        if anyhit and not SHADOW_QUERIES:
-            kind[:] = _TRACE  # shadow rays: one exact test against the object (doc above)
         qi = np.flatnonzero(kind == _QUERY)
         trace_pairs = [np.flatnonzero(kind == _TRACE)]
         q = None
@@ -339,10 +330,11 @@ class RITreeRenderer:
             fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
                                    | (q.status == ST_SPARSE)) & (q.test_prim < 0))
             trace_pairs.append(qi[fail])
-            # the class of a primary pixel: the status of its nearest query
-            st = out["status"]
-            order = np.argsort(-q.t)
-            st[qr[order]] = q.status[order]
+            if primary:
+                # the class of a primary pixel: the status of its nearest query
+                st = out["status"]
+                order = np.argsort(-q.t)
+                st[qr[order]] = q.status[order]
         tp = np.concatenate(trace_pairs)
         th = None
         if len(tp):
@@ -352,14 +344,11 @@ class RITreeRenderer:
             cand_rows.append(tr[ok])
             cand_t.append(th.t[ok])
             cand_id.append(-2 - (2 * total + ok).astype(np.int64))
-        if not cand_rows:
-            return out
         cr = np.concatenate(cand_rows)
+        if not len(cr):
+            return out
         ct = np.concatenate(cand_t)
         cid = np.concatenate(cand_id)
-        if anyhit:
-            best[cr] = -np.inf
-            return out
         win = np.full(n, -1, np.int64)
         _pick(cr, ct, cid, best, win)
         interp = win >= 0
@@ -383,14 +372,60 @@ class RITreeRenderer:
             prim[traced] = th.prim[k]
             u[traced] = th.u[k]
             v[traced] = th.v[k]
-        # a ray whose nearest hit is traced after a query attempt keeps the failure class;
-        # one decided by a traced object keeps "traced"
-        st = out["status"]
-        st[(win == -1)] = -1
-        st[interp] = ST_HIT
+        if primary:
+            # a ray whose nearest hit is traced after a query attempt keeps the failure
+            # class; one decided by a traced object keeps "traced"
+            st = out["status"]
+            st[(win == -1)] = -1
+            st[interp] = ST_HIT
         out["q"] = q
-        out["qrows"] = None
         return out
+
+    @staticmethod
+    def _self_tmin(diag, d, self_inst):
+        """Per ray: the parameter below which its origin's own object is ignored (rays
+        leaving an interpolated hit; 0 elsewhere). diag: (I,) the trees' box diagonals."""
+        out = np.zeros(len(d))
+        k = np.flatnonzero(self_inst >= 0)
+        if len(k):
+            out[k] = (tol.RI_SELF_OFFSET_REL * diag[self_inst[k]]
+                      / np.maximum(np.linalg.norm(d[k], axis=1), 1e-300))
+        return out
+
+    def _occluded(self, o, d, t1, self_inst):
+        """Shadow rays: (n,) bool, blocked before ``t1``. A ray leaving a traced point is one
+        any-hit query of the whole scene, as in the base tracer; one leaving an interpolated
+        point ignores its own object nearer than the self-offset (module doc), so it is
+        tested against the traced objects and, exactly, against each RI-tree object whose
+        box it meets."""
+        n = len(o)
+        zero = np.zeros(n)
+        vis = np.zeros(n, np.bool_)
+        plain = self_inst < 0
+        if plain.all():
+            return np.asarray(self._accel.any_hit(o, d, zero, t1), np.bool_)
+        if SHADOW_QUERIES:
+            return self._intersect(False, o, d, zero, t1, self_inst)["t"] < np.inf
+        k = np.flatnonzero(plain)
+        if len(k):
+            vis[k] = self._accel.any_hit(o[k], d[k], zero[k], t1[k])
+        k = np.flatnonzero(~plain)
+        ok, dk, t1k, sk = o[k], d[k], t1[k], self_inst[k]
+        blocked = np.zeros(len(k), np.bool_)
+        sub, _ = self._sub[False]
+        if sub is not None:
+            blocked = np.asarray(sub.any_hit(ok, dk, zero[k], t1k), np.bool_)
+        ri = self.ri[False]
+        if len(ri):
+            best = np.where(blocked, -np.inf, np.inf)
+            rows, objs, _, tlo = candidates(ok, dk, zero[k], t1k, best, ri,
+                                            self.caches[False].box, self.convex, sk,
+                                            self._self_tmin(self.caches[False].diag, dk, sk))
+            if len(rows):
+                hit = self._accel.occludes_object(objs, ok[rows], dk[rows], tlo, t1k[rows])
+                blocked[rows[hit]] = True
+        vis[k] = blocked
+        return vis
 
     # -- shaded frames -------------------------------------------------------------------
 
@@ -410,10 +445,9 @@ class RITreeRenderer:
         first = True
         while len(src):
             nb = len(src)
-            H = self._intersect(view, o, d, t0, t1, self_inst)
+            H = self._intersect(view, o, d, t0, t1, self_inst, primary=first)
             counters["rays"] = counters.get("rays", 0) + nb
             interp = np.flatnonzero(H["interp"] >= 0)
-            rest = np.flatnonzero(H["interp"] < 0)
             if first:
                 prim_inst[:] = H["inst"]
                 st = H["status"]
@@ -432,18 +466,14 @@ class RITreeRenderer:
             mat = np.empty(nb, np.int32)
             Q = np.empty((nb, 3))
             sh_state = np.empty(nb * L, np.int8)
-            if len(rest):
-                rP, rNG, rNS, rVD = (np.empty((len(rest), 3)) for _ in range(4))
-                ren = np.empty(len(rest), np.bool_)
-                rmat = np.empty(len(rest), np.int32)
-                rQ = np.empty((len(rest), 3))
-                rsh = np.empty(len(rest) * L, np.int8)
-                _surface_kernel(sa, o[rest], d[rest], H["t"][rest], t1[rest], H["inst"][rest],
-                                H["prim"][rest], H["u"][rest], H["v"][rest], rP, rNG, rNS, rVD,
-                                ren, rmat, rQ, rsh)
-                P[rest], NG[rest], NS[rest], VD[rest] = rP, rNG, rNS, rVD
-                enter[rest], mat[rest], Q[rest] = ren, rmat, rQ
-                sh_state.reshape(nb, L)[rest] = rsh.reshape(len(rest), L)
+            # every ray through the base tracer's surface kernel (interpolated ones as
+            # misses: their arrays are written next, from the query results)
+            s_inst = H["inst"]
+            if len(interp):
+                s_inst = s_inst.copy()
+                s_inst[interp] = -1
+            _surface_kernel(sa, o, d, H["t"], t1, s_inst, H["prim"], H["u"], H["v"], P, NG,
+                            NS, VD, enter, mat, Q, sh_state)
             q = H["q"]
             qi = H["interp"][interp]
             if len(interp):
@@ -460,9 +490,7 @@ class RITreeRenderer:
                 _shadow_kernel(sa, Q, todo, so, sd, stm)
                 hit_self = np.full(nb, -1, np.int32)
                 hit_self[interp] = H["inst"][interp]
-                ss = hit_self[todo // L]
-                Hs = self._intersect(view, so, sd, np.zeros(len(todo)), stm, ss, anyhit=True)
-                vis[todo] = ~(Hs["t"] < np.inf)
+                vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
             contrib = np.empty((nb, 3))
             c_o = np.empty((2 * nb, 3))
@@ -609,21 +637,10 @@ class RITreeRenderer:
         ri = self.ri[view]
         if len(ri) == 0:
             return length, cls, hit_any
-        cnt = np.empty(n, np.int64)
-        e32 = np.empty(0, np.int32)
-        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
-                    np.full(n, -1, np.int32), np.zeros(n), True, cnt, e32, np.empty(0, np.int8),
-                    np.empty(0))
-        total = int(cnt.sum())
-        if total == 0:
+        rows, objs, kind, _ = candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box,
+                                         self.convex, np.full(n, -1, np.int32), np.zeros(n))
+        if len(rows) == 0:
             return length, cls, hit_any
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        objs = np.empty(total, np.int32)
-        kind = np.empty(total, np.int8)
-        tlo = np.empty(total)
-        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
-                    np.full(n, -1, np.int32), np.zeros(n), False, starts, objs, kind, tlo)
-        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
         qi = np.flatnonzero(kind == _QUERY)
         walk_pairs = [np.flatnonzero(kind == _TRACE)]
         if len(qi):

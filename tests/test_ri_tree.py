@@ -21,6 +21,14 @@ from rstrace_engine.session import Session
 from rstrace_engine.tracing.whitted import render
 
 
+@pytest.fixture(autouse=True)
+def _keep_trees(monkeypatch):
+    """These tests follow the trees over frames: the measured fallback (which may decide, on
+    this machine's timings, that a small test tree does not pay) is tested on its own in
+    tests/test_ri_fallback.py."""
+    monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
+
+
 def _scene(glass=True, w=64, h=48, obj="sphere") -> Scene:
     s = Scene()
     floor = s.add_material(Material("floor", diffuse=(0.5, 0.5, 0.5)))

@@ -58,13 +58,13 @@ from ..tracing.whitted import (
 )
 from . import thickness as thick
 from .cache import RITreeCache
+from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, instance_fingerprints, subset
+from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
+from .thickness import render_thickness_exact  # noqa: F401 - its home before
 
 log = logging.getLogger(__name__)
-
-# candidate kinds
-_QUERY, _TRACE = 0, 1
 
 #: whether shadow rays query the trees (the paper's visibility queries). Off: a shadow ray
 #: is tested exactly against an RI-tree object (one any-hit-like trace of that object,
@@ -79,78 +79,6 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 
 
 # ----------------------------------------------------------------------------- kernels
-
-
-@njit(cache=True, nogil=True)
-def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, rows, objs,
-                kind, tlo):
-    """Ray/object pairs to resolve, in one pass: each RI-tree object ``ri[k]`` whose box ray
-    ``r`` meets before ``best[r]`` (a ray with ``best[r] < t0[r]``, already blocked, has
-    none). Fills rows, objs, kind, tlo (capacity ``n * len(ri)``) ray after ray and returns
-    the number of pairs."""
-    n = o.shape[0]
-    c = 0
-    inv = np.empty(3)
-    for r in range(n):
-        if best[r] < t0[r]:
-            continue
-        for a in range(3):
-            inv[a] = 1.0 / d[r, a] if d[r, a] != 0.0 else 0.0
-        for q in range(ri.shape[0]):
-            k = ri[q]
-            if self_inst[r] == k and convex[k]:
-                continue
-            tn = t0[r]
-            tf = min(t1[r], best[r])
-            inside = True
-            for a in range(3):
-                lo = box[k, 0, a]
-                hi = box[k, 1, a]
-                if o[r, a] < lo or o[r, a] > hi:
-                    inside = False
-                if d[r, a] != 0.0:
-                    ta = (lo - o[r, a]) * inv[a]
-                    tb = (hi - o[r, a]) * inv[a]
-                    if ta > tb:
-                        ta, tb = tb, ta
-                    tn = max(tn, ta)
-                    tf = min(tf, tb * tol.BOX_TFAR_SCALE)
-                elif o[r, a] < lo or o[r, a] > hi:
-                    tf = -1.0
-            if tn > tf:
-                continue
-            rows[c] = r
-            objs[c] = k
-            if inside or self_inst[r] == k:
-                kind[c] = _TRACE
-                tlo[c] = max(t0[r], self_tmin[r]) if self_inst[r] == k else t0[r]
-            else:
-                kind[c] = _QUERY
-                tlo[c] = t0[r]
-            c += 1
-    return c
-
-
-def candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin):
-    """(rows, objs, kind, tlo) of :func:`_candidates`, trimmed to the pairs found."""
-    cap = len(o) * len(ri)
-    rows = np.empty(cap, np.int64)
-    objs = np.empty(cap, np.int32)
-    kind = np.empty(cap, np.int8)
-    tlo = np.empty(cap)
-    c = _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, rows, objs,
-                    kind, tlo)
-    return rows[:c], objs[:c], kind[:c], tlo[:c]
-
-
-@njit(cache=True, nogil=True)
-def _pick(rows, t, ci, best, win):
-    """win[r] = candidate with the smallest t below best[r] (best updated)."""
-    for q in range(rows.shape[0]):
-        r = rows[q]
-        if t[q] < best[r]:
-            best[r] = t[q]
-            win[r] = ci[q]
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -198,6 +126,9 @@ class RITreeRenderer:
     trees of given instance slots (for the edits machinery: moved or edited objects).
     """
 
+    #: after every frame, objects whose tree did not pay are traced (:mod:`.fallback`)
+    auto_fallback = True
+
     def __init__(self) -> None:
         self.caches: dict[bool, RITreeCache] = {}
         self._fp: list[bytes] | None = None
@@ -210,6 +141,10 @@ class RITreeRenderer:
         self._tri_class = None
         self._topo = None
         self._extent = None  # scene extent the trees' boxes were padded with
+        #: per view: instance slots traced because their tree did not pay (:mod:`.fallback`)
+        self.fallback: dict[bool, set[int]] = {False: set(), True: set()}
+        self._ledger: Ledger | None = None  # the frame's, while it renders
+        self._settings = None
 
     def reset(self) -> None:
         self.__init__()
@@ -217,7 +152,13 @@ class RITreeRenderer:
     def invalidate(self, slots) -> int:
         """Drop the RI-trees of instance slots ``slots`` (an edit moved or changed them).
 
-        Returns the number of trees dropped. The next frame rebuilds them on demand."""
+        Returns the number of trees dropped. The next frame rebuilds them on demand (an
+        object traced because its tree did not pay gets a tree again)."""
+        slots = [int(k) for k in slots]
+        for view, fb in self.fallback.items():
+            if fb.intersection(slots):
+                fb.difference_update(slots)
+                self.ri.pop(view, None)
         return sum(c.invalidate(slots) for c in self.caches.values())
 
     # -- state ---------------------------------------------------------------------------
@@ -265,14 +206,61 @@ class RITreeRenderer:
             self.caches[view] = RITreeCache(sa, accel, settings.ri_dist_thresh,
                                             settings.ri_ang_thresh, settings.ri_depth,
                                             settings.ri_cache_mb, view, self._extent)
+            self.fallback[view] = set()  # new settings: every tree is given a new chance
+            self.ri.pop(view, None)
         self.caches[view].cache_bytes = float(settings.ri_cache_mb) * 1e6
+        self._settings = settings
         if view not in self.ri:
-            ri = eligible(sa, view)
-            self.ri[view] = np.flatnonzero(ri).astype(np.int32)
-            keep = np.flatnonzero(~ri)
-            sub = create_accelerator(settings.accelerator, subset(sa, keep),
-                                     **settings.accelerator_options()) if len(keep) else None
-            self._sub[view] = (sub, keep.astype(np.int32))
+            self._split_objects(view)
+
+    def _split_objects(self, view) -> None:
+        """Which objects of ``view`` query a tree (``self.ri[view]``) and the accelerator
+        over the others (eligible objects that fell back included: :mod:`.fallback`)."""
+        sa, settings = self._sa, self._settings
+        ri = eligible(sa, view)
+        ri[sorted(self.fallback[view])] = False
+        self.ri[view] = np.flatnonzero(ri).astype(np.int32)
+        if not ri.any():  # every object traced: the scene's own accelerator
+            self._sub[view] = (self._accel, np.arange(len(ri), dtype=np.int32))
+            return
+        keep = np.flatnonzero(~ri)
+        sub = create_accelerator(settings.accelerator, subset(sa, keep),
+                                 **settings.accelerator_options()) if len(keep) else None
+        self._sub[view] = (sub, keep.astype(np.int32))
+
+    # -- the fallback's ledger (:mod:`.fallback`) ----------------------------------------
+
+    def _timed(self, key, n, fn, *args):
+        return self._ledger.timed(key, n, fn, *args) if self._ledger else fn(*args)
+
+    def _count(self, queried, failed, skipping, skipped) -> None:
+        if self._ledger:
+            self._ledger.count(queried, failed, skipping, skipped)
+
+    def fall_back(self, view, objects, scene=None, costs: FrameCosts | None = None
+                  ) -> list[str]:
+        """Trace ``objects`` (instance slots) of ``view`` from the next frame on, freeing
+        their trees; returns one message per object (with the costs that decided it)."""
+        objects = [int(k) for k in objects if int(k) not in self.fallback[view]]
+        if not objects:
+            return []
+        notes = []
+        tree = traced = None
+        if costs is not None:
+            tree, traced = object_costs(costs)
+        for k in objects:
+            name = (scene.instances[k] or {}).get("name") if scene is not None else None
+            note = f"RI-tree: '{name or k}' is traced (its tree does not pay"
+            if tree is not None and costs.queries[k]:
+                q = float(costs.queries[k])
+                note += (f": {1e6 * tree[k] / q:.2f} us per query with the tree, "
+                         f"{1e6 * traced[k] / q:.2f} us traced")
+            notes.append(note + ")")
+            log.info(notes[-1])
+        self.fallback[view].update(objects)
+        self.caches[view].invalidate(objects)
+        self._split_objects(view)
+        return notes
 
     # -- intersection --------------------------------------------------------------------
 
@@ -292,7 +280,7 @@ class RITreeRenderer:
         u = np.zeros(n)
         v = np.zeros(n)
         if sub is not None and n:
-            h = sub.closest_hit(o, d, t0, t1)
+            h = self._timed("ray", n, sub.closest_hit, o, d, t0, t1)
             ok = h.inst >= 0
             best = np.where(ok, h.t, np.inf)
             inst = np.where(ok, ids[np.maximum(h.inst, 0)], -1).astype(np.int32)
@@ -313,7 +301,7 @@ class RITreeRenderer:
         cand_rows, cand_t, cand_id = [], [], []
         if len(qi):
             qr = rows[qi]
-            q = cache.query(objs[qi], o[qr], d[qr])
+            q = self._timed("query", 0, cache.query, objs[qi], o[qr], d[qr])
             hit = (q.status == ST_HIT) & (q.t > t0[qr]) & (q.t <= t1[qr])
             sel = np.flatnonzero(hit)
             cand_rows.append(qr[sel])
@@ -330,6 +318,8 @@ class RITreeRenderer:
             fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
                                    | (q.status == ST_SPARSE)) & (q.test_prim < 0))
             trace_pairs.append(qi[fail])
+            glass = (q.status == ST_HIT) & (q.nint > 0)
+            self._count(objs[qi], objs[qi[fail]], objs[qi[glass]], q.nint[glass])
             if primary:
                 # the class of a primary pixel: the status of its nearest query
                 st = out["status"]
@@ -339,7 +329,8 @@ class RITreeRenderer:
         th = None
         if len(tp):
             tr = rows[tp]
-            th = self._accel.intersect_object(objs[tp], o[tr], d[tr], tlo[tp], t1[tr])
+            th = self._timed("obj", len(tp), self._accel.intersect_object, objs[tp], o[tr],
+                             d[tr], tlo[tp], t1[tr])
             ok = np.flatnonzero(th.inst >= 0)
             cand_rows.append(tr[ok])
             cand_t.append(th.t[ok])
@@ -350,7 +341,7 @@ class RITreeRenderer:
         ct = np.concatenate(cand_t)
         cid = np.concatenate(cand_id)
         win = np.full(n, -1, np.int64)
-        _pick(cr, ct, cid, best, win)
+        pick(cr, ct, cid, best, win)
         interp = win >= 0
         out["interp"][interp] = win[interp]
         inst[interp] = objs[qi[win[interp]]]
@@ -557,6 +548,8 @@ class RITreeRenderer:
         view = bool(settings.thickness_view)
         cache = self.caches[view]
         c0 = dict(cache.counters)
+        ri_objects = int(len(self.ri[view]))
+        self._ledger = Ledger(cache)
         cp = camera_params(scene.camera)
         w, h = cp.width, cp.height
         spp = int(settings.samples)
@@ -589,6 +582,13 @@ class RITreeRenderer:
             pclass[y0 * w:y1 * w] = c[firsthit, np.arange(len(pix))]
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
+        notes = []
+        if self.auto_fallback and not cancelled and len(self.ri[view]):
+            costs = self._ledger.costs()
+            if costs is not None:
+                pays = tree_pays(costs)
+                notes = self.fall_back(view, self.ri[view][~pays[self.ri[view]]], scene, costs)
+        self._ledger = None
         elapsed = time.perf_counter() - t_start
         counts = np.bincount(pclass, minlength=len(CLASS_NAMES))
         hit_px = max(int(np.count_nonzero(pclass != CLASS_BACKGROUND)), 1)
@@ -598,7 +598,7 @@ class RITreeRenderer:
             width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
             interpolated_fraction=float(counts[CLASS_INTERPOLATED]) / (w * h),
             traced_fraction=float(hit_px - counts[CLASS_INTERPOLATED]) / (w * h),
-            ri_objects=int(len(self.ri[view])),
+            ri_objects=ri_objects, ri_traced_objects=len(self.fallback[view]), ri_notes=notes,
             samples_traced=cc["samples_traced"] - c0["samples_traced"],
             cells_split=cc["cells_split"] - c0["cells_split"],
             prunes=cc["prunes"] - c0["prunes"],
@@ -626,7 +626,7 @@ class RITreeRenderer:
         hit_any = np.full(n, -1, np.int32)
         if sub is not None:
             def through_sub(oo, dd, lo, hi, rows):
-                hh = sub.closest_hit(oo, dd, lo, hi)
+                hh = self._timed("ray", len(oo), sub.closest_hit, oo, dd, lo, hi)
                 ok = hh.inst >= 0
                 inst = np.where(ok, ids[np.maximum(hh.inst, 0)], -1).astype(np.int32)
                 return hh._replace(inst=inst)
@@ -645,7 +645,7 @@ class RITreeRenderer:
         walk_pairs = [np.flatnonzero(kind == _TRACE)]
         if len(qi):
             qr = rows[qi]
-            q = cache.query(objs[qi], o[qr], d[qr])
+            q = self._timed("query", 0, cache.query, objs[qi], o[qr], d[qr])
             okq = np.flatnonzero(q.status == ST_HIT)
             np.add.at(length, qr[okq], q.thick[okq])
             cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
@@ -658,13 +658,18 @@ class RITreeRenderer:
                           CLASS_FAIL_NONLINEAR).astype(np.uint8)
             cls[qr[ff]] = np.where(cls[qr[ff]] == CLASS_INTERPOLATED, cls[qr[ff]], fc)
             walk_pairs.append(qi[fail])
+            # an interpolated length saves the walk past the entry: the exit crossing
+            crossed = okq[q.thick[okq] > 0]
+            self._count(objs[qi], objs[qi[fail]], objs[qi[crossed]],
+                        np.ones(len(crossed), np.int64))
         wp = np.concatenate(walk_pairs)
         if len(wp):
             wr = rows[wp]
             wobj = objs[wp]
 
             def one(oo, dd, lo, hi, rr):
-                return self._accel.intersect_object(wobj[rr], oo, dd, lo, hi)
+                return self._timed("obj", len(oo), self._accel.intersect_object, wobj[rr],
+                                   oo, dd, lo, hi)
 
             ln = thick.walk(sa, one, o[wr], d[wr], t0[wr], t1[wr])
             np.add.at(length, wr, ln)
@@ -677,41 +682,3 @@ class RITreeRenderer:
 
 def _is_transmissive(sa, mats) -> np.ndarray:
     return (sa.mat_transmission[np.maximum(mats, 0)] > 0).any(axis=1) & (mats >= 0)
-
-
-def render_thickness_exact(scene, settings: RenderSettings, accel, progress=None,
-                           cancel=None) -> Frame:
-    """The thickness view traced exactly (BASE mode): every crossing walked."""
-    settings = settings.validated()
-    t_start = time.perf_counter()
-    sa = scene.arrays()
-    cp = camera_params(scene.camera)
-    w, h = cp.width, cp.height
-    spp = int(settings.samples)
-    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
-    image = np.zeros((h * w, 3), np.float32)
-    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
-    dist = thick.auto_distance(sa, settings.thickness_distance)
-    cancelled = False
-
-    def through(oo, dd, lo, hi, rows):
-        return accel.closest_hit(oo, dd, lo, hi)
-
-    for y0 in range(0, h, rows_per_tile):
-        if cancel is not None and cancel():
-            cancelled = True
-            break
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
-        o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        length = thick.walk(sa, through, o, dr, tmin, tmax)
-        inst = np.where(length > 0, 0, -1).astype(np.int32)
-        accumulate(thick.display(length, dist), inst, spp, image[y0 * w:y1 * w],
-                    pclass[y0 * w:y1 * w])
-        if progress is not None:
-            progress(y1 / h, f"thickness {y1}/{h} rows")
-    stats = dict(mode=settings.mode, view="THICKNESS", time_s=time.perf_counter() - t_start,
-                 width=w, height=h, samples=spp, cancelled=cancelled,
-                 thickness_distance=dist)
-    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)

@@ -185,6 +185,9 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
         # overflow); under a 0.05 MB cap alone the budget can run out before any leaf is
         # final (a fresh warm-cache then left those kernels uncompiled)
         session = Session(s, replace(settings, ri_cache_mb=8.0))
+        # keep the trees whatever this machine's timings say (ri_tree.fallback): the
+        # warm-up must reach the tree kernels of every frame
+        session.ri_tree.auto_fallback = False
         session.render(cancel=cancel)
         session.update_settings(settings)
         session.render(cancel=cancel)
@@ -252,7 +255,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
                  "tracing.shading", "interpolants.render", "interpolants.cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
-                 "ri_tree.cache", "ri_tree.sampling", "ri_tree.patches", "ri_tree.kdtree",
+                 "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches", "ri_tree.kdtree",
                  "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")
     result = kernel_cache.counts()

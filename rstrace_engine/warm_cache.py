@@ -255,7 +255,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
                  "tracing.shading", "interpolants.render", "interpolants.cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
-                 "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches", "ri_tree.kdtree",
+                 "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
+                 "ri_tree.kdtree",
                  "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")
     result = kernel_cache.counts()

@@ -144,6 +144,8 @@ class RITreeRenderer:
         #: per view: instance slots traced because their tree did not pay (:mod:`.fallback`)
         self.fallback: dict[bool, set[int]] = {False: set(), True: set()}
         self._ledger: Ledger | None = None  # the frame's, while it renders
+        #: what the last complete frame measured (:class:`.fallback.FrameCosts` or None)
+        self.last_costs: FrameCosts | None = None
         self._settings = None
 
     def reset(self) -> None:
@@ -583,8 +585,8 @@ class RITreeRenderer:
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
         notes = []
-        if self.auto_fallback and not cancelled and len(self.ri[view]):
-            costs = self._ledger.costs()
+        costs = self.last_costs = None if cancelled else self._ledger.costs()
+        if self.auto_fallback and len(self.ri[view]):
             if costs is not None:
                 pays = tree_pays(costs)
                 notes = self.fall_back(view, self.ri[view][~pays[self.ri[view]]], scene, costs)

@@ -11,6 +11,7 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
+from rstrace_engine.ri_tree import cache as ri_cache
 from rstrace_engine.ri_tree import fallback
 from rstrace_engine.ri_tree.fallback import FrameCosts, object_costs, tree_pays
 from rstrace_engine.ri_tree.render import RITreeRenderer
@@ -65,6 +66,8 @@ def _frames(costs_for, monkeypatch, n=2):
         return None if m is None else costs_for(m)
 
     monkeypatch.setattr(fallback.Ledger, "costs", given)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES", 8)  # a small frame's leaves evaluated
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 32)
     sc = _scene(48, 36)
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.25)

@@ -53,10 +53,10 @@ PRUNE_KEEP = 0.3
 PRUNE_MIN_ROOM = 0.05
 #: the cost rule: a leaf is evaluated (and split when its midpoint fails) once this many
 #: queries have reached it; its 9 new samples then pay for themselves
-SPLIT_QUERIES = 8
+SPLIT_QUERIES = 32
 #: ... this many when its corners do not allow interpolation (all miss, three or more
 #: classes): splitting only pays where it separates large interpolable regions
-SPLIT_QUERIES_MIXED = 32
+SPLIT_QUERIES_MIXED = 128
 
 
 class QueryResult(NamedTuple):

@@ -18,10 +18,15 @@ def _stats():
 
 
 def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
+    from rstrace_engine.ri_tree import cache as ri_cache
     from rstrace_engine.ri_tree.render import RITreeRenderer
 
     # the trees are followed over frames here; the fallback has its own test below
     monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
+    # the cost rule's counts this test was sized for (the defaults are tuned on the paper's
+    # 600x600 frames)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES", 8)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 32)
     # large enough for the mirror sphere's leaves to see the rays that pay for refining them
     # (the cost rule: at 96x72 a leaf that passes the angular test holds two or three)
     sc = b.three_spheres_scene(320, 240)

@@ -189,6 +189,11 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
         # warm-up must reach the tree kernels of every frame
         session.ri_tree.auto_fallback = False
         session.render(cancel=cancel)
+        # ... and every leaf a query reaches evaluated (the cost rule's counts are tuned for
+        # the paper's frame sizes: a 40x30 frame alone may leave every leaf open)
+        for c in session.ri_tree.caches.values():
+            c.split_queries = c.split_queries_mixed = 1
+        session.render(cancel=cancel)
         session.update_settings(settings)
         session.render(cancel=cancel)
         session.apply([ObjectTransform("RIGlass", shapes.transform((-0.1, -0.6, 0.9))),

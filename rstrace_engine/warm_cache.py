@@ -261,6 +261,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                  "tracing.shading", "interpolants.render", "interpolants.cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
                  "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
+                 "ri_tree.surfaces",
                  "ri_tree.kdtree",
                  "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")

@@ -187,7 +187,7 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         # RI_TREE frame may compile these three
         "rstrace_engine.ri_tree.cache._resolve_tested",
         "rstrace_engine.ri_tree.patches.finalize",
-        "rstrace_engine.ri_tree.render._interp_surface"}
+        "rstrace_engine.ri_tree.surfaces.interp_surface"}
 
 
 SAVER = textwrap.dedent('''

@@ -29,7 +29,6 @@ import logging
 import time
 
 import numpy as np
-from numba import njit, prange
 
 from .. import tolerances as tol
 from ..accel.accelerators import create_accelerator
@@ -47,14 +46,12 @@ from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
 from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import accumulate, scatter_add
-from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import (
     _SH_TRACE,
     TILE_RAYS,
     _shade_kernel,
     _shadow_kernel,
     _surface_kernel,
-    light_states,
 )
 from . import thickness as thick
 from .cache import RITreeCache
@@ -62,6 +59,7 @@ from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, instance_fingerprints, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
+from .surfaces import interp_surface
 from .thickness import render_thickness_exact  # noqa: F401 - its home before
 
 log = logging.getLogger(__name__)
@@ -79,39 +77,6 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 
 
 # ----------------------------------------------------------------------------- kernels
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _interp_surface(sa, rows, o, d, P, NS, NG, mat,
-                    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state):
-    """Surface arrays (as the base tracer's surface kernel makes them) of interpolated hits
-    ``rows`` (into the level's arrays); shadow origins are moved off the surface by the
-    normal spawn offset (the self-offset is applied by the shadow test)."""
-    ext = sa.scene_extent
-    for q in prange(rows.shape[0]):
-        i = rows[q]
-        ux, uy, uz, _ = normalize3(d[i, 0], d[i, 1], d[i, 2])
-        VD[i, 0], VD[i, 1], VD[i, 2] = ux, uy, uz
-        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
-        gx, gy, gz = NG[q, 0], NG[q, 1], NG[q, 2]
-        sx, sy, sz = NS[q, 0], NS[q, 1], NS[q, 2]
-        enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
-        if not enter:
-            gx, gy, gz = -gx, -gy, -gz
-            sx, sy, sz = -sx, -sy, -sz
-        if dot3(ux, uy, uz, sx, sy, sz) > 0.0:
-            # an interpolated normal may lean past the view ray: bend it back to the view
-            a = dot3(ux, uy, uz, sx, sy, sz) + 1e-6
-            sx, sy, sz, _ = normalize3(sx - a * ux, sy - a * uy, sz - a * uz)
-        ENTER[i] = enter
-        Pw[i, 0], Pw[i, 1], Pw[i, 2] = px, py, pz
-        NGw[i, 0], NGw[i, 1], NGw[i, 2] = gx, gy, gz
-        NSw[i, 0], NSw[i, 1], NSw[i, 2] = sx, sy, sz
-        MAT[i] = mat[q]
-        off = spawn_offset(px, py, pz, ext)
-        qx, qy, qz = px + gx * off, py + gy * off, pz + gz * off
-        Q[i, 0], Q[i, 1], Q[i, 2] = qx, qy, qz
-        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
 
 
 # ----------------------------------------------------------------------------- renderer
@@ -272,7 +237,45 @@ class RITreeRenderer:
         Returns dict(t, inst, prim, u, v, interp (index into the query result or -1),
         status (per ray, of the winning RI query; only for ``primary`` batches, else -1),
         q (QueryResult or None)).
+
+        A ray that would query no tree and does not leave an interpolated point (it meets
+        no RI-tree object's box from outside: e.g. one inside a wrap's box) is one closest-
+        hit query of the whole scene, as in the base tracer (the same hit as the traced
+        objects' and each met object's, in one traversal instead of several).
         """
+        n = len(o)
+        ri = self.ri[view]
+        if n == 0 or len(ri) == 0 or self._sub[view][0] is self._accel:
+            return self._intersect_ri(view, o, d, t0, t1, self_inst, primary)
+        rows, _, kind, _ = candidates(o, d, t0, t1, np.full(n, np.inf), ri,
+                                      self.caches[view].box, self.convex, self_inst,
+                                      np.zeros(n))
+        direct = self_inst < 0
+        direct[rows[kind == _QUERY]] = False
+        if not direct.any():
+            return self._intersect_ri(view, o, d, t0, t1, self_inst, primary)
+        k = np.flatnonzero(direct)
+        if len(k) == n:
+            h = self._timed("ray", n, self._accel.closest_hit, o, d, t0, t1)
+            return dict(t=h.t, inst=h.inst, prim=h.prim, u=h.u, v=h.v,
+                        interp=np.full(n, -1, np.int64), status=np.full(n, -1, np.int8),
+                        q=None)
+        h = self._timed("ray", len(k), self._accel.closest_hit, o[k], d[k], t0[k], t1[k])
+        r = np.flatnonzero(~direct)
+        out = self._intersect_ri(view, o[r], d[r], t0[r], t1[r], self_inst[r], primary)
+        for key, fill, part in (("t", np.inf, h.t), ("inst", -1, h.inst),
+                                ("prim", -1, h.prim), ("u", 0.0, h.u), ("v", 0.0, h.v),
+                                ("interp", -1, None), ("status", -1, None)):
+            a = np.full(n, fill, out[key].dtype)
+            a[r] = out[key]
+            if part is not None:
+                a[k] = part
+            out[key] = a
+        return out
+
+    def _intersect_ri(self, view, o, d, t0, t1, self_inst, primary=False):
+        """:meth:`_intersect` through the traced objects' accelerator, the RI-tree
+        objects' queries and their exact tests."""
         n = len(o)
         sub, ids = self._sub[view]
         cache = self.caches[view]
@@ -470,7 +473,7 @@ class RITreeRenderer:
             q = H["q"]
             qi = H["interp"][interp]
             if len(interp):
-                _interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
+                interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
                                 q.mat[qi], P, NG, NS, VD, enter, mat,
                                 Q, sh_state)
             # shadow rays (their origin's own object ignored near an interpolated point)

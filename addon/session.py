@@ -243,7 +243,9 @@ class FrameRenderer:
         if dropped:
             self._warn(state, f"{dropped} sample(s) with NaN, infinite or too large radiance "
                               f"(>= 1e30, e.g. emission) were left out of the image")
-        for note in stats.get("bound_notes") or []:  # INTERPOLANT: what is only tested
+        # INTERPOLANT: what is only tested; RI_TREE: objects traced because their tree
+        # did not pay
+        for note in (stats.get("bound_notes") or []) + (stats.get("ri_notes") or []):
             state.messages.append(("INFO", note))
             engine.report({"INFO"}, f"RSTrace: {note}")
         engine.update_memory_stats(memory_used=stats["memory_mb"],

@@ -134,6 +134,10 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                 col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
                                f", {stats.get('invalidated_interpolants', 0):,} interpolants "
                                f"invalidated")
+            if stats.get("mode") == "RI_TREE":
+                col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
+                               f", {stats.get('ri_objects', 0)} object(s) with an RI-tree, "
+                               f"{stats.get('ri_traced_objects', 0)} traced (tree did not pay)")
             col.label(text=f"Memory {stats.get('memory_mb', 0.0):.1f} MB")
             if stats.get("accel_memory_mb") is not None:
                 col.label(text=f"{stats.get('accelerator')} memory "

@@ -201,6 +201,9 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
         # uncompiled (hence the close camera); a repeated frame adds its queries to the
         # same leaves' visit counts
         session = Session(s, replace(settings, ri_cache_mb=8.0))
+        # keep the trees whatever this machine's timings say (ri_tree.fallback): the
+        # warm-up must reach the tree kernels of every frame
+        session.ri_tree.auto_fallback = False
         for _ in range(RI_WARM_FRAMES):
             frame = session.render(cancel=cancel)
             if frame.stats.get("interpolated_fraction", 0.0) > 0.0:
@@ -272,7 +275,9 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
                  "tracing.shading", "interpolants.render", "interpolants.cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
-                 "ri_tree.cache", "ri_tree.sampling", "ri_tree.patches", "ri_tree.kdtree",
+                 "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
+                 "ri_tree.surfaces",
+                 "ri_tree.kdtree",
                  "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")
     result = kernel_cache.counts()

@@ -14,11 +14,24 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
+from rstrace_engine.ri_tree import cache as ri_cache
 from rstrace_engine.ri_tree.cache import RITreeCache
 from rstrace_engine.ri_tree.patches import ST_HIT
 from rstrace_engine.ri_tree.render import RITreeRenderer, render_thickness_exact
 from rstrace_engine.session import Session
 from rstrace_engine.tracing.whitted import render
+
+
+@pytest.fixture(autouse=True)
+def _keep_trees(monkeypatch):
+    """These tests follow the trees over frames: the measured fallback (which may decide, on
+    this machine's timings, that a small test tree does not pay) is tested on its own in
+    tests/test_ri_fallback.py."""
+    monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
+    # the cost rule's counts for these small frames (the defaults, tuned on the paper's
+    # sizes, would leave a 64x48 frame's leaves unevaluated)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES", 8)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 32)
 
 
 def _scene(glass=True, w=64, h=48, obj="sphere") -> Scene:

@@ -145,6 +145,14 @@ class Accelerator:
         return self._trace(o, d, lo, hi, None, True).inst >= 0
 
     def intersect_object(self, inst, origins, directions, tmin, tmax) -> Hits:
+        return self._object(inst, origins, directions, tmin, tmax, False)
+
+    def occludes_object(self, inst, origins, directions, tmin, tmax) -> np.ndarray:
+        """(n,) bool: ray ``r`` hits object ``inst[r]`` between its bounds (any hit, as
+        :meth:`any_hit` restricted to one object per ray)."""
+        return self._object(inst, origins, directions, tmin, tmax, True).inst >= 0
+
+    def _object(self, inst, origins, directions, tmin, tmax, anyhit: bool) -> Hits:
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         only = instance_array(inst, len(o), len(self.sa.inst_mesh))
         dead = ~self.sa.inst_alive[only]
@@ -152,11 +160,11 @@ class Accelerator:
             keep = np.flatnonzero(~dead)
             hits = empty_hits(len(o))
             if len(keep):
-                part = self._trace(o[keep], d[keep], lo[keep], hi[keep], only[keep], False)
+                part = self._trace(o[keep], d[keep], lo[keep], hi[keep], only[keep], anyhit)
                 for full, p in zip(hits, part, strict=True):
                     full[keep] = p
             return hits
-        return self._trace(o, d, lo, hi, only, False)
+        return self._trace(o, d, lo, hi, only, anyhit)
 
 
 # ----------------------------------------------------------------------------- brute force

@@ -15,7 +15,10 @@ settings of Table 1. Every RI-tree frame starts from empty trees (sampling inclu
 the paper). ``speedup``: base tracer time / RI-tree time of the same frame, measured in the
 same run (process CPU time by default, the paper's metric; ``--clock wall`` for wall time).
 ``warm_speedup``: the same against a second frame of the same camera with the trees kept (as
-a session reuses them). ``ceiling_speedup``: the same against a frame whose queries a
+a session reuses them). ``fallback_speedup``: the same against a frame after the fallback
+(:mod:`rstrace_engine.ri_tree.fallback`) decided from the first frame's measured costs, the
+objects whose trees did not pay traced (``traced_objects`` of ``ri_objects``).
+``ceiling_speedup``: the same against a frame whose queries a
 :class:`PerfectCache` answers exactly at no cost (per scene and view): what any tree, however
 good, could give in this engine. ``mean_error``: the paper's metric, the mean L2 distance of
 the pixels' RGB (display values in [0, 1]) to the base frame; ``max_error``: our largest
@@ -45,13 +48,15 @@ from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
 from ..interpolants.linetree import parameterize
 from ..ri_tree.cache import QueryResult, RITreeCache
+from ..ri_tree.fallback import tree_pays
 from ..ri_tree.patches import ST_HIT, ST_MISS
 from ..ri_tree.render import RITreeRenderer, render_thickness_exact
 from ..ri_tree.sampling import trace_samples
 from ..tracing.whitted import render
 
 JSON_KEYS = ("scene", "view", "dist_thresh", "ang_thresh", "depth", "cache_mb", "speedup",
-             "warm_speedup", "ceiling_speedup", "mean_error", "max_error", "traced_fraction",
+             "warm_speedup", "fallback_speedup", "ri_objects", "traced_objects",
+             "ceiling_speedup", "mean_error", "max_error", "traced_fraction",
              "memory_mb", "peak_memory_mb", "samples_traced", "width", "height", "spp")
 #: the paper's image sizes and rays per pixel, per (scene, view): the random volumes are
 #: ray traced at 300x300 with 9 rays per pixel and visualised at 600x600 with one
@@ -117,6 +122,7 @@ def perfect_tree_time(sc, st: RenderSettings, accel, repeat: int = 2) -> float:
     """Best time of an RI_TREE frame answered by a :class:`PerfectCache` (its own tracing
     left out)."""
     r = RITreeRenderer()
+    r.auto_fallback = False
     r.render(sc, st, accel)
     cache = r.caches[bool(st.thickness_view)]
     cache.__class__ = PerfectCache
@@ -181,16 +187,30 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
             _base_frame(sc, st0, accel)
             tb = min(CLOCK() - t0, t_base)
             r = RITreeRenderer()
+            r.auto_fallback = False  # decided below, after the warm frame
             t0 = CLOCK()
             f = r.render(sc, st, accel)
             t_ri = CLOCK() - t0
+            costs = r.last_costs
             # a second frame of the same camera with the trees kept (what a session reuses)
             t0 = CLOCK()
             r.render(sc, st, accel)
             t_warm = CLOCK() - t0
+            # the fallback (ri_tree.fallback) as decided from the first frame's costs, and
+            # a frame with the objects whose trees did not pay traced
+            ri = r.ri[thick]
+            n_ri = len(ri)
+            out = ri[~tree_pays(costs)[ri]] if costs is not None and n_ri else ri[:0]
+            t_fb = t_warm
+            if len(out):
+                r.fall_back(thick, out, sc, costs)
+                t0 = CLOCK()
+                r.render(sc, st, accel)
+                t_fb = CLOCK() - t0
             m = image.compare(f.radiance, base.radiance, 0.02)
             row = dict(scene=name, view=view, dist_thresh=dist, ang_thresh=ang, depth=dep,
                        cache_mb=cache, speedup=tb / t_ri, warm_speedup=tb / t_warm,
+                       fallback_speedup=tb / t_fb, ri_objects=n_ri, traced_objects=len(out),
                        ceiling_speedup=ceiling,
                        mean_error=rgb_error(f.radiance, base.radiance),
                        max_error=m["max_error"], traced_fraction=f.stats["traced_fraction"],
@@ -202,7 +222,8 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
                        spp=spp)
             rows.append(row)
             log(f"{name} {view} d={dist:g} a={ang:g} depth={dep} cache={cache:g}: "
-                f"{row['speedup']:.2f}x (warm {row['warm_speedup']:.2f}x) "
+                f"{row['speedup']:.2f}x (warm {row['warm_speedup']:.2f}x, fallback "
+                f"{row['fallback_speedup']:.2f}x, {len(out)}/{n_ri} traced) "
                 f"err {row['mean_error']:.5f} max {row['max_error']:.3f} "
                 f"traced {100 * row['traced_fraction']:.1f}% mem {row['memory_mb']:.2f} MB "
                 f"(peak {row['peak_memory_mb']:.2f}) samples {row['samples_traced']}")
@@ -211,10 +232,11 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
 
 def markdown(rows: list[dict], note: str) -> str:
     head = ("| scene | view | size | dist | ang | depth | cache MB | speedup | warm | "
-            "ceiling | mean RGB err | max err | PSNR dB | traced % | memory MB | peak MB | "
+            "fallback (traced objects) | ceiling | mean RGB err | max err | PSNR dB | "
+            "traced % | memory MB | peak MB | "
             "base s | RI-tree s |")
     lines = [f"RI-tree against the base tracer (`python -m rstrace_engine.bench ritree`). "
-             f"{note}", "", head, "|" + "---|" * 18]
+             f"{note}", "", head, "|" + "---|" * 19]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], r["view"].lower(),
@@ -222,6 +244,7 @@ def markdown(rows: list[dict], note: str) -> str:
             f"{r['dist_thresh']:g}",
             f"{r['ang_thresh']:g}", str(r["depth"]), f"{r['cache_mb']:g}",
             f"{r['speedup']:.2f}x", f"{r['warm_speedup']:.2f}x",
+            f"{r['fallback_speedup']:.2f}x ({r['traced_objects']}/{r['ri_objects']})",
             f"{r['ceiling_speedup']:.2f}x", f"{r['mean_error']:.5f}",
             f"{r['max_error']:.3f}",
             f"{r['psnr']:.1f}" if math.isfinite(r["psnr"]) else "inf",
@@ -292,7 +315,9 @@ def main(argv: list[str]) -> int:
     note = (f"Timing: {'process CPU time' if args.clock == 'cpu' else 'wall time'}"
             f"{f', {args.threads} numba thread(s)' if args.threads > 0 else ''}; scale "
             f"{args.scale:g} of the paper's sizes; ray depth {args.depth}; each RI-tree frame "
-            f"from empty trees; *warm*: a second frame with the trees kept; *ceiling*: a frame "
+            f"from empty trees; *warm*: a second frame with the trees kept; *fallback*: a frame "
+            f"after the first frame's fallback decision (objects whose tree did not pay "
+            f"traced / objects with a tree); *ceiling*: a frame "
             f"with a perfect tree, free to build and to query.")
     (out / "ritree.md").write_text(markdown(rows, note))
     if not plot(rows, out / "ritree.png"):

@@ -53,10 +53,10 @@ PRUNE_KEEP = 0.3
 PRUNE_MIN_ROOM = 0.05
 #: the cost rule: a leaf is evaluated (and split when its midpoint fails) once this many
 #: queries have reached it; its 9 new samples then pay for themselves
-SPLIT_QUERIES = 8
+SPLIT_QUERIES = 32
 #: ... this many when its corners do not allow interpolation (all miss, three or more
 #: classes): splitting only pays where it separates large interpolable regions
-SPLIT_QUERIES_MIXED = 32
+SPLIT_QUERIES_MIXED = 128
 
 
 class QueryResult(NamedTuple):
@@ -196,7 +196,10 @@ class RITreeCache:
         self.split_queries_mixed = int(SPLIT_QUERIES_MIXED if split_queries_mixed is None
                                        else split_queries_mixed)
         self._pruned_in = -1
-        self.counters = dict(samples_traced=0, cells_split=0, leaves_final=0, prunes=0)
+        self.counters = dict(samples_traced=0, cells_split=0, leaves_final=0, prunes=0,
+                             sample_s=0.0)
+        #: samples traced per instance slot (the fallback's ledger), and CPU seconds
+        self.inst_samples = np.zeros(len(sa.inst_mesh), np.int64)
         self.setup_s = time.perf_counter() - t0
 
     # -- accounting ----------------------------------------------------------------------
@@ -230,12 +233,15 @@ class RITreeCache:
 
     def _trace(self, inst, face, abcd) -> np.ndarray:
         """Trace sample lines into the pool; returns their ids."""
+        t0 = time.process_time()
         ids = self.forest.alloc_samples(len(inst))
         self.samples = grow_samples(self.samples, self.forest.n_samples)
         batch = trace_samples(self.sa, self.accel, self.tri_class, self.box, inst, face,
                               abcd, self.thickness)
         store(self.samples, ids, batch)
         self.counters["samples_traced"] += len(inst)
+        self.inst_samples += np.bincount(inst, minlength=len(self.inst_samples))
+        self.counters["sample_s"] += time.process_time() - t0
         return ids
 
     def _room(self, held=None) -> float:

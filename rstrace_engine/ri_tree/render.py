@@ -29,7 +29,6 @@ import logging
 import time
 
 import numpy as np
-from numba import njit, prange
 
 from .. import tolerances as tol
 from ..accel.accelerators import create_accelerator
@@ -47,24 +46,23 @@ from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
 from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import accumulate, scatter_add
-from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import (
     _SH_TRACE,
     TILE_RAYS,
     _shade_kernel,
     _shadow_kernel,
     _surface_kernel,
-    light_states,
 )
 from . import thickness as thick
 from .cache import RITreeCache
+from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, instance_fingerprints, subset
+from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
+from .surfaces import interp_surface
+from .thickness import render_thickness_exact  # noqa: F401 - its home before
 
 log = logging.getLogger(__name__)
-
-# candidate kinds
-_QUERY, _TRACE = 0, 1
 
 #: whether shadow rays query the trees (the paper's visibility queries). Off: a shadow ray
 #: is tested exactly against an RI-tree object (one any-hit-like trace of that object,
@@ -81,98 +79,6 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 # ----------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _candidates(o, d, t0, t1, best, ri, box, convex, self_inst, self_tmin, count, rows, objs,
-                kind, tlo):
-    """Ray/object pairs to resolve: each RI-tree object ``ri[k]`` whose box ray ``r`` meets
-    before ``best[r]``. With ``count`` True only counts per ray (into ``rows[r]``);
-    otherwise fills pairs from offsets ``rows`` (rows, objs, kind, tlo written at
-    ``rows[r] + j``)."""
-    n = o.shape[0]
-    for r in prange(n):
-        c = 0
-        base = 0 if count else rows[r]
-        for q in range(ri.shape[0]):
-            k = ri[q]
-            if self_inst[r] == k and convex[k]:
-                continue
-            tn = t0[r]
-            tf = min(t1[r], best[r])
-            inside = True
-            for a in range(3):
-                lo = box[k, 0, a]
-                hi = box[k, 1, a]
-                if o[r, a] < lo or o[r, a] > hi:
-                    inside = False
-                if d[r, a] != 0.0:
-                    inv = 1.0 / d[r, a]
-                    ta = (lo - o[r, a]) * inv
-                    tb = (hi - o[r, a]) * inv
-                    if ta > tb:
-                        ta, tb = tb, ta
-                    tn = max(tn, ta)
-                    tf = min(tf, tb * tol.BOX_TFAR_SCALE)
-                elif o[r, a] < lo or o[r, a] > hi:
-                    tf = -1.0
-            if tn > tf:
-                continue
-            if not count:
-                j = base + c
-                objs[j] = k
-                if inside or self_inst[r] == k:
-                    kind[j] = _TRACE
-                    tlo[j] = max(t0[r], self_tmin[r]) if self_inst[r] == k else t0[r]
-                else:
-                    kind[j] = _QUERY
-                    tlo[j] = t0[r]
-            c += 1
-        if count:
-            rows[r] = c
-
-
-@njit(cache=True, nogil=True)
-def _pick(rows, t, ci, best, win):
-    """win[r] = candidate with the smallest t below best[r] (best updated)."""
-    for q in range(rows.shape[0]):
-        r = rows[q]
-        if t[q] < best[r]:
-            best[r] = t[q]
-            win[r] = ci[q]
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _interp_surface(sa, rows, o, d, P, NS, NG, mat,
-                    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state):
-    """Surface arrays (as the base tracer's surface kernel makes them) of interpolated hits
-    ``rows`` (into the level's arrays); shadow origins are moved off the surface by the
-    normal spawn offset (the self-offset is applied by the shadow test)."""
-    ext = sa.scene_extent
-    for q in prange(rows.shape[0]):
-        i = rows[q]
-        ux, uy, uz, _ = normalize3(d[i, 0], d[i, 1], d[i, 2])
-        VD[i, 0], VD[i, 1], VD[i, 2] = ux, uy, uz
-        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
-        gx, gy, gz = NG[q, 0], NG[q, 1], NG[q, 2]
-        sx, sy, sz = NS[q, 0], NS[q, 1], NS[q, 2]
-        enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
-        if not enter:
-            gx, gy, gz = -gx, -gy, -gz
-            sx, sy, sz = -sx, -sy, -sz
-        if dot3(ux, uy, uz, sx, sy, sz) > 0.0:
-            # an interpolated normal may lean past the view ray: bend it back to the view
-            a = dot3(ux, uy, uz, sx, sy, sz) + 1e-6
-            sx, sy, sz, _ = normalize3(sx - a * ux, sy - a * uy, sz - a * uz)
-        ENTER[i] = enter
-        Pw[i, 0], Pw[i, 1], Pw[i, 2] = px, py, pz
-        NGw[i, 0], NGw[i, 1], NGw[i, 2] = gx, gy, gz
-        NSw[i, 0], NSw[i, 1], NSw[i, 2] = sx, sy, sz
-        MAT[i] = mat[q]
-        off = spawn_offset(px, py, pz, ext)
-        qx, qy, qz = px + gx * off, py + gy * off, pz + gz * off
-        Q[i, 0], Q[i, 1], Q[i, 2] = qx, qy, qz
-        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
-
-
 # ----------------------------------------------------------------------------- renderer
 
 
@@ -184,6 +90,9 @@ class RITreeRenderer:
     materials are unchanged (:func:`instance_fingerprints`); :meth:`invalidate` drops the
     trees of given instance slots (for the edits machinery: moved or edited objects).
     """
+
+    #: after every frame, objects whose tree did not pay are traced (:mod:`.fallback`)
+    auto_fallback = True
 
     def __init__(self) -> None:
         self.caches: dict[bool, RITreeCache] = {}
@@ -197,6 +106,12 @@ class RITreeRenderer:
         self._tri_class = None
         self._topo = None
         self._extent = None  # scene extent the trees' boxes were padded with
+        #: per view: instance slots traced because their tree did not pay (:mod:`.fallback`)
+        self.fallback: dict[bool, set[int]] = {False: set(), True: set()}
+        self._ledger: Ledger | None = None  # the frame's, while it renders
+        #: what the last complete frame measured (:class:`.fallback.FrameCosts` or None)
+        self.last_costs: FrameCosts | None = None
+        self._settings = None
 
     def reset(self) -> None:
         self.__init__()
@@ -204,7 +119,13 @@ class RITreeRenderer:
     def invalidate(self, slots) -> int:
         """Drop the RI-trees of instance slots ``slots`` (an edit moved or changed them).
 
-        Returns the number of trees dropped. The next frame rebuilds them on demand."""
+        Returns the number of trees dropped. The next frame rebuilds them on demand (an
+        object traced because its tree did not pay gets a tree again)."""
+        slots = [int(k) for k in slots]
+        for view, fb in self.fallback.items():
+            if fb.intersection(slots):
+                fb.difference_update(slots)
+                self.ri.pop(view, None)
         return sum(c.invalidate(slots) for c in self.caches.values())
 
     # -- state ---------------------------------------------------------------------------
@@ -252,23 +173,109 @@ class RITreeRenderer:
             self.caches[view] = RITreeCache(sa, accel, settings.ri_dist_thresh,
                                             settings.ri_ang_thresh, settings.ri_depth,
                                             settings.ri_cache_mb, view, self._extent)
+            self.fallback[view] = set()  # new settings: every tree is given a new chance
+            self.ri.pop(view, None)
         self.caches[view].cache_bytes = float(settings.ri_cache_mb) * 1e6
+        self._settings = settings
         if view not in self.ri:
-            ri = eligible(sa, view)
-            self.ri[view] = np.flatnonzero(ri).astype(np.int32)
-            keep = np.flatnonzero(~ri)
-            sub = create_accelerator(settings.accelerator, subset(sa, keep),
-                                     **settings.accelerator_options()) if len(keep) else None
-            self._sub[view] = (sub, keep.astype(np.int32))
+            self._split_objects(view)
+
+    def _split_objects(self, view) -> None:
+        """Which objects of ``view`` query a tree (``self.ri[view]``) and the accelerator
+        over the others (eligible objects that fell back included: :mod:`.fallback`)."""
+        sa, settings = self._sa, self._settings
+        ri = eligible(sa, view)
+        ri[sorted(self.fallback[view])] = False
+        self.ri[view] = np.flatnonzero(ri).astype(np.int32)
+        if not ri.any():  # every object traced: the scene's own accelerator
+            self._sub[view] = (self._accel, np.arange(len(ri), dtype=np.int32))
+            return
+        keep = np.flatnonzero(~ri)
+        sub = create_accelerator(settings.accelerator, subset(sa, keep),
+                                 **settings.accelerator_options()) if len(keep) else None
+        self._sub[view] = (sub, keep.astype(np.int32))
+
+    # -- the fallback's ledger (:mod:`.fallback`) ----------------------------------------
+
+    def _timed(self, key, n, fn, *args):
+        return self._ledger.timed(key, n, fn, *args) if self._ledger else fn(*args)
+
+    def _count(self, queried, failed, skipping, skipped) -> None:
+        if self._ledger:
+            self._ledger.count(queried, failed, skipping, skipped)
+
+    def fall_back(self, view, objects, scene=None, costs: FrameCosts | None = None
+                  ) -> list[str]:
+        """Trace ``objects`` (instance slots) of ``view`` from the next frame on, freeing
+        their trees; returns one message per object (with the costs that decided it)."""
+        objects = [int(k) for k in objects if int(k) not in self.fallback[view]]
+        if not objects:
+            return []
+        notes = []
+        tree = traced = None
+        if costs is not None:
+            tree, traced = object_costs(costs)
+        for k in objects:
+            name = (scene.instances[k] or {}).get("name") if scene is not None else None
+            note = f"RI-tree: '{name or k}' is traced (its tree does not pay"
+            if tree is not None and costs.queries[k]:
+                q = float(costs.queries[k])
+                note += (f": {1e6 * tree[k] / q:.2f} us per query with the tree, "
+                         f"{1e6 * traced[k] / q:.2f} us traced")
+            notes.append(note + ")")
+            log.info(notes[-1])
+        self.fallback[view].update(objects)
+        self.caches[view].invalidate(objects)
+        self._split_objects(view)
+        return notes
 
     # -- intersection --------------------------------------------------------------------
 
-    def _intersect(self, view, o, d, t0, t1, self_inst, anyhit=False):
+    def _intersect(self, view, o, d, t0, t1, self_inst, primary=False):
         """Nearest hits of a batch through traced objects and RI-trees (module doc).
 
         Returns dict(t, inst, prim, u, v, interp (index into the query result or -1),
-        status (per ray, of the winning RI query), q (QueryResult or None)).
+        status (per ray, of the winning RI query; only for ``primary`` batches, else -1),
+        q (QueryResult or None)).
+
+        A ray that would query no tree and does not leave an interpolated point (it meets
+        no RI-tree object's box from outside: e.g. one inside a wrap's box) is one closest-
+        hit query of the whole scene, as in the base tracer (the same hit as the traced
+        objects' and each met object's, in one traversal instead of several).
         """
+        n = len(o)
+        ri = self.ri[view]
+        if n == 0 or len(ri) == 0 or self._sub[view][0] is self._accel:
+            return self._intersect_ri(view, o, d, t0, t1, self_inst, primary)
+        rows, _, kind, _ = candidates(o, d, t0, t1, np.full(n, np.inf), ri,
+                                      self.caches[view].box, self.convex, self_inst,
+                                      np.zeros(n))
+        direct = self_inst < 0
+        direct[rows[kind == _QUERY]] = False
+        if not direct.any():
+            return self._intersect_ri(view, o, d, t0, t1, self_inst, primary)
+        k = np.flatnonzero(direct)
+        if len(k) == n:
+            h = self._timed("ray", n, self._accel.closest_hit, o, d, t0, t1)
+            return dict(t=h.t, inst=h.inst, prim=h.prim, u=h.u, v=h.v,
+                        interp=np.full(n, -1, np.int64), status=np.full(n, -1, np.int8),
+                        q=None)
+        h = self._timed("ray", len(k), self._accel.closest_hit, o[k], d[k], t0[k], t1[k])
+        r = np.flatnonzero(~direct)
+        out = self._intersect_ri(view, o[r], d[r], t0[r], t1[r], self_inst[r], primary)
+        for key, fill, part in (("t", np.inf, h.t), ("inst", -1, h.inst),
+                                ("prim", -1, h.prim), ("u", 0.0, h.u), ("v", 0.0, h.v),
+                                ("interp", -1, None), ("status", -1, None)):
+            a = np.full(n, fill, out[key].dtype)
+            a[r] = out[key]
+            if part is not None:
+                a[k] = part
+            out[key] = a
+        return out
+
+    def _intersect_ri(self, view, o, d, t0, t1, self_inst, primary=False):
+        """:meth:`_intersect` through the traced objects' accelerator, the RI-tree
+        objects' queries and their exact tests."""
         n = len(o)
         sub, ids = self._sub[view]
         cache = self.caches[view]
@@ -278,51 +285,28 @@ class RITreeRenderer:
         u = np.zeros(n)
         v = np.zeros(n)
         if sub is not None and n:
-            if anyhit:
-                hit = np.asarray(sub.any_hit(o, d, t0, t1), np.bool_)
-                best[hit] = -np.inf
-            else:
-                h = sub.closest_hit(o, d, t0, t1)
-                ok = h.inst >= 0
-                best[ok] = h.t[ok]
-                inst[ok] = ids[h.inst[ok]]
-                prim[ok] = h.prim[ok]
-                u[ok] = h.u[ok]
-                v[ok] = h.v[ok]
+            h = self._timed("ray", n, sub.closest_hit, o, d, t0, t1)
+            ok = h.inst >= 0
+            best = np.where(ok, h.t, np.inf)
+            inst = np.where(ok, ids[np.maximum(h.inst, 0)], -1).astype(np.int32)
+            prim, u, v = h.prim, h.u, h.v
         out = dict(t=best, inst=inst, prim=prim, u=u, v=v, interp=np.full(n, -1, np.int64),
-                   status=np.full(n, -1, np.int8), q=None, qrows=None)
+                   status=np.full(n, -1, np.int8), q=None)
         ri = self.ri[view]
         if len(ri) == 0 or n == 0:
             return out
-        diag = cache.diag
-        self_tmin = np.where(self_inst >= 0, tol.RI_SELF_OFFSET_REL
-                             * diag[np.maximum(self_inst, 0)]
-                             / np.maximum(np.linalg.norm(d, axis=1), 1e-300), 0.0)
-        cnt = np.empty(n, np.int64)
-        dummy_i = np.empty(0, np.int32)
-        dummy_f = np.empty(0)
-        e8 = np.empty(0, np.int8)
-        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
-                    True, cnt, dummy_i, e8, dummy_f)
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        total = int(cnt.sum())
+        rows, objs, kind, tlo = candidates(o, d, t0, t1, best, ri, cache.box, self.convex,
+                                           self_inst, self._self_tmin(cache.diag, d, self_inst))
+        total = len(rows)
         if total == 0:
             return out
-        objs = np.empty(total, np.int32)
-        kind = np.empty(total, np.int8)
-        tlo = np.empty(total)
-        _candidates(o, d, t0, t1, best, ri, cache.box, self.convex, self_inst, self_tmin,
-                    False, starts, objs, kind, tlo)
-        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
-        if anyhit and not SHADOW_QUERIES:
-            kind[:] = _TRACE  # shadow rays: one exact test against the object (doc above)
         qi = np.flatnonzero(kind == _QUERY)
         trace_pairs = [np.flatnonzero(kind == _TRACE)]
         q = None
         cand_rows, cand_t, cand_id = [], [], []
         if len(qi):
             qr = rows[qi]
-            q = cache.query(objs[qi], o[qr], d[qr])
+            q = self._timed("query", 0, cache.query, objs[qi], o[qr], d[qr])
             hit = (q.status == ST_HIT) & (q.t > t0[qr]) & (q.t <= t1[qr])
             sel = np.flatnonzero(hit)
             cand_rows.append(qr[sel])
@@ -339,29 +323,30 @@ class RITreeRenderer:
             fail = np.flatnonzero(((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
                                    | (q.status == ST_SPARSE)) & (q.test_prim < 0))
             trace_pairs.append(qi[fail])
-            # the class of a primary pixel: the status of its nearest query
-            st = out["status"]
-            order = np.argsort(-q.t)
-            st[qr[order]] = q.status[order]
+            glass = (q.status == ST_HIT) & (q.nint > 0)
+            self._count(objs[qi], objs[qi[fail]], objs[qi[glass]], q.nint[glass])
+            if primary:
+                # the class of a primary pixel: the status of its nearest query
+                st = out["status"]
+                order = np.argsort(-q.t)
+                st[qr[order]] = q.status[order]
         tp = np.concatenate(trace_pairs)
         th = None
         if len(tp):
             tr = rows[tp]
-            th = self._accel.intersect_object(objs[tp], o[tr], d[tr], tlo[tp], t1[tr])
+            th = self._timed("obj", len(tp), self._accel.intersect_object, objs[tp], o[tr],
+                             d[tr], tlo[tp], t1[tr])
             ok = np.flatnonzero(th.inst >= 0)
             cand_rows.append(tr[ok])
             cand_t.append(th.t[ok])
             cand_id.append(-2 - (2 * total + ok).astype(np.int64))
-        if not cand_rows:
-            return out
         cr = np.concatenate(cand_rows)
+        if not len(cr):
+            return out
         ct = np.concatenate(cand_t)
         cid = np.concatenate(cand_id)
-        if anyhit:
-            best[cr] = -np.inf
-            return out
         win = np.full(n, -1, np.int64)
-        _pick(cr, ct, cid, best, win)
+        pick(cr, ct, cid, best, win)
         interp = win >= 0
         out["interp"][interp] = win[interp]
         inst[interp] = objs[qi[win[interp]]]
@@ -383,14 +368,60 @@ class RITreeRenderer:
             prim[traced] = th.prim[k]
             u[traced] = th.u[k]
             v[traced] = th.v[k]
-        # a ray whose nearest hit is traced after a query attempt keeps the failure class;
-        # one decided by a traced object keeps "traced"
-        st = out["status"]
-        st[(win == -1)] = -1
-        st[interp] = ST_HIT
+        if primary:
+            # a ray whose nearest hit is traced after a query attempt keeps the failure
+            # class; one decided by a traced object keeps "traced"
+            st = out["status"]
+            st[(win == -1)] = -1
+            st[interp] = ST_HIT
         out["q"] = q
-        out["qrows"] = None
         return out
+
+    @staticmethod
+    def _self_tmin(diag, d, self_inst):
+        """Per ray: the parameter below which its origin's own object is ignored (rays
+        leaving an interpolated hit; 0 elsewhere). diag: (I,) the trees' box diagonals."""
+        out = np.zeros(len(d))
+        k = np.flatnonzero(self_inst >= 0)
+        if len(k):
+            out[k] = (tol.RI_SELF_OFFSET_REL * diag[self_inst[k]]
+                      / np.maximum(np.linalg.norm(d[k], axis=1), 1e-300))
+        return out
+
+    def _occluded(self, o, d, t1, self_inst):
+        """Shadow rays: (n,) bool, blocked before ``t1``. A ray leaving a traced point is one
+        any-hit query of the whole scene, as in the base tracer; one leaving an interpolated
+        point ignores its own object nearer than the self-offset (module doc), so it is
+        tested against the traced objects and, exactly, against each RI-tree object whose
+        box it meets."""
+        n = len(o)
+        zero = np.zeros(n)
+        vis = np.zeros(n, np.bool_)
+        plain = self_inst < 0
+        if plain.all():
+            return np.asarray(self._accel.any_hit(o, d, zero, t1), np.bool_)
+        if SHADOW_QUERIES:
+            return self._intersect(False, o, d, zero, t1, self_inst)["t"] < np.inf
+        k = np.flatnonzero(plain)
+        if len(k):
+            vis[k] = self._accel.any_hit(o[k], d[k], zero[k], t1[k])
+        k = np.flatnonzero(~plain)
+        ok, dk, t1k, sk = o[k], d[k], t1[k], self_inst[k]
+        blocked = np.zeros(len(k), np.bool_)
+        sub, _ = self._sub[False]
+        if sub is not None:
+            blocked = np.asarray(sub.any_hit(ok, dk, zero[k], t1k), np.bool_)
+        ri = self.ri[False]
+        if len(ri):
+            best = np.where(blocked, -np.inf, np.inf)
+            rows, objs, _, tlo = candidates(ok, dk, zero[k], t1k, best, ri,
+                                            self.caches[False].box, self.convex, sk,
+                                            self._self_tmin(self.caches[False].diag, dk, sk))
+            if len(rows):
+                hit = self._accel.occludes_object(objs, ok[rows], dk[rows], tlo, t1k[rows])
+                blocked[rows[hit]] = True
+        vis[k] = blocked
+        return vis
 
     # -- shaded frames -------------------------------------------------------------------
 
@@ -410,10 +441,9 @@ class RITreeRenderer:
         first = True
         while len(src):
             nb = len(src)
-            H = self._intersect(view, o, d, t0, t1, self_inst)
+            H = self._intersect(view, o, d, t0, t1, self_inst, primary=first)
             counters["rays"] = counters.get("rays", 0) + nb
             interp = np.flatnonzero(H["interp"] >= 0)
-            rest = np.flatnonzero(H["interp"] < 0)
             if first:
                 prim_inst[:] = H["inst"]
                 st = H["status"]
@@ -432,22 +462,18 @@ class RITreeRenderer:
             mat = np.empty(nb, np.int32)
             Q = np.empty((nb, 3))
             sh_state = np.empty(nb * L, np.int8)
-            if len(rest):
-                rP, rNG, rNS, rVD = (np.empty((len(rest), 3)) for _ in range(4))
-                ren = np.empty(len(rest), np.bool_)
-                rmat = np.empty(len(rest), np.int32)
-                rQ = np.empty((len(rest), 3))
-                rsh = np.empty(len(rest) * L, np.int8)
-                _surface_kernel(sa, o[rest], d[rest], H["t"][rest], t1[rest], H["inst"][rest],
-                                H["prim"][rest], H["u"][rest], H["v"][rest], rP, rNG, rNS, rVD,
-                                ren, rmat, rQ, rsh)
-                P[rest], NG[rest], NS[rest], VD[rest] = rP, rNG, rNS, rVD
-                enter[rest], mat[rest], Q[rest] = ren, rmat, rQ
-                sh_state.reshape(nb, L)[rest] = rsh.reshape(len(rest), L)
+            # every ray through the base tracer's surface kernel (interpolated ones as
+            # misses: their arrays are written next, from the query results)
+            s_inst = H["inst"]
+            if len(interp):
+                s_inst = s_inst.copy()
+                s_inst[interp] = -1
+            _surface_kernel(sa, o, d, H["t"], t1, s_inst, H["prim"], H["u"], H["v"], P, NG,
+                            NS, VD, enter, mat, Q, sh_state)
             q = H["q"]
             qi = H["interp"][interp]
             if len(interp):
-                _interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
+                interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
                                 q.mat[qi], P, NG, NS, VD, enter, mat,
                                 Q, sh_state)
             # shadow rays (their origin's own object ignored near an interpolated point)
@@ -460,9 +486,7 @@ class RITreeRenderer:
                 _shadow_kernel(sa, Q, todo, so, sd, stm)
                 hit_self = np.full(nb, -1, np.int32)
                 hit_self[interp] = H["inst"][interp]
-                ss = hit_self[todo // L]
-                Hs = self._intersect(view, so, sd, np.zeros(len(todo)), stm, ss, anyhit=True)
-                vis[todo] = ~(Hs["t"] < np.inf)
+                vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
             contrib = np.empty((nb, 3))
             c_o = np.empty((2 * nb, 3))
@@ -529,6 +553,8 @@ class RITreeRenderer:
         view = bool(settings.thickness_view)
         cache = self.caches[view]
         c0 = dict(cache.counters)
+        ri_objects = int(len(self.ri[view]))
+        self._ledger = Ledger(cache)
         cp = camera_params(scene.camera)
         w, h = cp.width, cp.height
         spp = int(settings.samples)
@@ -561,6 +587,13 @@ class RITreeRenderer:
             pclass[y0 * w:y1 * w] = c[firsthit, np.arange(len(pix))]
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
+        notes = []
+        costs = self.last_costs = None if cancelled else self._ledger.costs()
+        if self.auto_fallback and len(self.ri[view]):
+            if costs is not None:
+                pays = tree_pays(costs)
+                notes = self.fall_back(view, self.ri[view][~pays[self.ri[view]]], scene, costs)
+        self._ledger = None
         elapsed = time.perf_counter() - t_start
         counts = np.bincount(pclass, minlength=len(CLASS_NAMES))
         hit_px = max(int(np.count_nonzero(pclass != CLASS_BACKGROUND)), 1)
@@ -570,7 +603,7 @@ class RITreeRenderer:
             width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
             interpolated_fraction=float(counts[CLASS_INTERPOLATED]) / (w * h),
             traced_fraction=float(hit_px - counts[CLASS_INTERPOLATED]) / (w * h),
-            ri_objects=int(len(self.ri[view])),
+            ri_objects=ri_objects, ri_traced_objects=len(self.fallback[view]), ri_notes=notes,
             samples_traced=cc["samples_traced"] - c0["samples_traced"],
             cells_split=cc["cells_split"] - c0["cells_split"],
             prunes=cc["prunes"] - c0["prunes"],
@@ -598,7 +631,7 @@ class RITreeRenderer:
         hit_any = np.full(n, -1, np.int32)
         if sub is not None:
             def through_sub(oo, dd, lo, hi, rows):
-                hh = sub.closest_hit(oo, dd, lo, hi)
+                hh = self._timed("ray", len(oo), sub.closest_hit, oo, dd, lo, hi)
                 ok = hh.inst >= 0
                 inst = np.where(ok, ids[np.maximum(hh.inst, 0)], -1).astype(np.int32)
                 return hh._replace(inst=inst)
@@ -609,26 +642,15 @@ class RITreeRenderer:
         ri = self.ri[view]
         if len(ri) == 0:
             return length, cls, hit_any
-        cnt = np.empty(n, np.int64)
-        e32 = np.empty(0, np.int32)
-        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
-                    np.full(n, -1, np.int32), np.zeros(n), True, cnt, e32, np.empty(0, np.int8),
-                    np.empty(0))
-        total = int(cnt.sum())
-        if total == 0:
+        rows, objs, kind, _ = candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box,
+                                         self.convex, np.full(n, -1, np.int32), np.zeros(n))
+        if len(rows) == 0:
             return length, cls, hit_any
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
-        objs = np.empty(total, np.int32)
-        kind = np.empty(total, np.int8)
-        tlo = np.empty(total)
-        _candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box, self.convex,
-                    np.full(n, -1, np.int32), np.zeros(n), False, starts, objs, kind, tlo)
-        rows = np.repeat(np.arange(n, dtype=np.int64), cnt)
         qi = np.flatnonzero(kind == _QUERY)
         walk_pairs = [np.flatnonzero(kind == _TRACE)]
         if len(qi):
             qr = rows[qi]
-            q = cache.query(objs[qi], o[qr], d[qr])
+            q = self._timed("query", 0, cache.query, objs[qi], o[qr], d[qr])
             okq = np.flatnonzero(q.status == ST_HIT)
             np.add.at(length, qr[okq], q.thick[okq])
             cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
@@ -641,13 +663,18 @@ class RITreeRenderer:
                           CLASS_FAIL_NONLINEAR).astype(np.uint8)
             cls[qr[ff]] = np.where(cls[qr[ff]] == CLASS_INTERPOLATED, cls[qr[ff]], fc)
             walk_pairs.append(qi[fail])
+            # an interpolated length saves the walk past the entry: the exit crossing
+            crossed = okq[q.thick[okq] > 0]
+            self._count(objs[qi], objs[qi[fail]], objs[qi[crossed]],
+                        np.ones(len(crossed), np.int64))
         wp = np.concatenate(walk_pairs)
         if len(wp):
             wr = rows[wp]
             wobj = objs[wp]
 
             def one(oo, dd, lo, hi, rr):
-                return self._accel.intersect_object(wobj[rr], oo, dd, lo, hi)
+                return self._timed("obj", len(oo), self._accel.intersect_object, wobj[rr],
+                                   oo, dd, lo, hi)
 
             ln = thick.walk(sa, one, o[wr], d[wr], t0[wr], t1[wr])
             np.add.at(length, wr, ln)
@@ -660,41 +687,3 @@ class RITreeRenderer:
 
 def _is_transmissive(sa, mats) -> np.ndarray:
     return (sa.mat_transmission[np.maximum(mats, 0)] > 0).any(axis=1) & (mats >= 0)
-
-
-def render_thickness_exact(scene, settings: RenderSettings, accel, progress=None,
-                           cancel=None) -> Frame:
-    """The thickness view traced exactly (BASE mode): every crossing walked."""
-    settings = settings.validated()
-    t_start = time.perf_counter()
-    sa = scene.arrays()
-    cp = camera_params(scene.camera)
-    w, h = cp.width, cp.height
-    spp = int(settings.samples)
-    rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
-    image = np.zeros((h * w, 3), np.float32)
-    pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
-    dist = thick.auto_distance(sa, settings.thickness_distance)
-    cancelled = False
-
-    def through(oo, dd, lo, hi, rows):
-        return accel.closest_hit(oo, dd, lo, hi)
-
-    for y0 in range(0, h, rows_per_tile):
-        if cancel is not None and cancel():
-            cancelled = True
-            break
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
-        o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-        length = thick.walk(sa, through, o, dr, tmin, tmax)
-        inst = np.where(length > 0, 0, -1).astype(np.int32)
-        accumulate(thick.display(length, dist), inst, spp, image[y0 * w:y1 * w],
-                    pclass[y0 * w:y1 * w])
-        if progress is not None:
-            progress(y1 / h, f"thickness {y1}/{h} rows")
-    stats = dict(mode=settings.mode, view="THICKNESS", time_s=time.perf_counter() - t_start,
-                 width=w, height=h, samples=spp, cancelled=cancelled,
-                 thickness_distance=dist)
-    return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)

@@ -17,7 +17,16 @@ def _stats():
     return addon.session.state_for(bpy.context.scene).stats
 
 
-def test_f12_ri_tree_mode_and_thickness_view(tmp_path):
+def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
+    from rstrace_engine.ri_tree import cache as ri_cache
+    from rstrace_engine.ri_tree.render import RITreeRenderer
+
+    # the trees are followed over frames here; the fallback has its own test below
+    monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
+    # the cost rule's counts this test was sized for (the defaults are tuned on the paper's
+    # 600x600 frames)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES", 8)
+    monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 32)
     # large enough for the mirror sphere's leaves to see the rays that pay for refining them
     # (the cost rule: at 96x72 a leaf that passes the angular test holds two or three)
     sc = b.three_spheres_scene(320, 240)
@@ -57,3 +66,32 @@ def test_f12_ri_tree_mode_and_thickness_view(tmp_path):
     assert thick.min() < 0.5 < thick.max()  # objects darken, the background stays light
     diff = np.abs(to_display(thick_ri) - to_display(thick)).max(axis=-1)
     assert diff.mean() < 0.02, f"thickness mean error {diff.mean():.4f}"
+
+
+def test_f12_ri_tree_fallback_is_reported_and_traced(tmp_path, monkeypatch):
+    """A tree that does not pay (given costs: lookups dearer than any ray) is dropped after
+    the first frame, the render messages say so, and the next frame is the base frame."""
+    import addon
+    from rstrace_engine.ri_tree import fallback
+
+    orig = fallback.Ledger.costs
+
+    def dear(self):
+        m = orig(self)
+        return None if m is None else m._replace(lookup_s=float(m.queries.sum()))
+
+    monkeypatch.setattr(fallback.Ledger, "costs", dear)
+    sc = b.three_spheres_scene(96, 72)
+    sc.rstrace.samples = 1
+    sc.rstrace.max_ray_depth = 2
+    base = b.render_exr(tmp_path / "base.exr")["Combined"][..., :3]
+    sc.rstrace.mode = "RI_TREE"
+    b.render_exr(tmp_path / "ri.exr")
+    st = _stats()
+    assert st["ri_objects"] >= 1 and st["ri_traced_objects"] == st["ri_objects"], st
+    texts = [t for _, t in addon.session.state_for(sc).messages]
+    assert any("MirrorSphere' is traced" in t for t in texts), texts
+    out = b.render_exr(tmp_path / "ri2.exr")
+    st = _stats()
+    assert st["ri_objects"] == 0 and st["interpolated_fraction"] == 0.0
+    np.testing.assert_allclose(out["Combined"][..., :3], base, atol=1e-6)

@@ -15,6 +15,14 @@ SPAWN_OFFSET_REL = 1e-9
 #: vertices and origins, so a ray spawned off a surface never hits that surface again.
 FLOAT32_TNEAR_REL = 2e-6
 
+#: Float32 accelerators (Embree) cannot order hits on different objects closer than this
+#: fraction of the scene's (and the ray origin's) coordinate magnitude (coplanar or touching
+#: faces: an object resting on a floor): which one Embree reports then depends on its BVH,
+#: i.e. on every other object in the scene. Objects whose box holds the reported hit point
+#: (padded by twice this) are re-tested in a window of this half-width around the hit and
+#: the closest float64 hit wins (ties: the highest instance id, as the brute-force oracle).
+FLOAT32_TIE_REL = 2e-6
+
 #: The Principled-like GGX lobe lights nothing below this alpha (roughness 0.05): a point
 #: light's highlight on a near mirror is a sub-pixel spike (Cycles shows none at roughness 0);
 #: such surfaces reflect through mirror rays.

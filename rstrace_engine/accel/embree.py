@@ -16,9 +16,22 @@ differed from the BVH's). Two things make an Embree frame the BVH's frame:
 * every ray starts at least ``tolerances.FLOAT32_TNEAR_REL`` times the magnitude of the scene
   and of its origin along itself (Embree cannot tell hits closer than that from its own
   rounding), and
-* the distance of every closest hit is recomputed in float64 against the float64 plane of the
-  triangle Embree reports, so hit points (and every ray spawned from them) are where the
-  BVH puts them, not float32-t away.
+* the distance and barycentrics of every closest hit are recomputed in float64 on the float64
+  triangle Embree reports, with the BVH's own arithmetic (:func:`.triangle.solve_sheared`),
+  so hit points (and every ray spawned from them) are where the BVH puts them, not
+  float32-t away.
+
+Hits that Embree cannot order (``tolerances.FLOAT32_TIE_REL``): two objects whose faces are
+within float32 rounding of each other along a ray (a box resting on a floor, coplanar
+panels) give equal float32 distances, and which one Embree reports depends on its BVH, so
+on every *other* object of the scene: hiding, moving or adding an object elsewhere changed
+pixels its rays never came near (an incremental frame then differed from a fresh one in
+pixels nobody marked dirty). Every object other than the reported one whose box holds the
+hit point (a point query in a top-level BVH over the live objects' boxes) is re-tested alone
+(its own Embree scene, as ``intersect_object``) in a window of that half-width around the
+hit, refined in float64 the same way, and the closest float64 hit wins, equal distances
+going to the highest instance id (the brute-force oracle's rule). The result depends only on
+the objects near the hit, never on the BVH.
 
 ``embreex``'s ``run`` releases the GIL, so batches are split into chunks run from a small
 thread pool (one chunk per numba thread, ``numba.get_num_threads()``).
@@ -27,7 +40,7 @@ thread pool (one chunk per numba thread, ``numba.get_num_threads()``).
 from __future__ import annotations
 
 import logging
-import math
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -38,7 +51,8 @@ from numba import njit
 from .. import tolerances as tol
 from ..geometry.scene import SceneArrays
 from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
-from .bvh import ray_to_object
+from .bvh import build_top, ray_to_object
+from .triangle import ray_shear, solve_sheared
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +93,7 @@ class EmbreeAccelerator(Accelerator):
                                          "(pip install embreex); use 'BVH'")
         super().__init__(scene_arrays)
         self._pool: ThreadPoolExecutor | None = None
+        self._lock = threading.Lock()  # per-object scenes are built lazily from the workers
         self._build(scene_arrays)
 
     def update(self, scene_arrays: SceneArrays) -> None:
@@ -98,16 +113,22 @@ class EmbreeAccelerator(Accelerator):
         self._prim_offset = np.ascontiguousarray(sa.mesh_tri_start[sa.inst_mesh], np.int32)
         self._magnitude = float(np.max(np.abs(sa.scene_aabb)))
         self._objects: dict[int, object] = {}
+        self._top = None  # live objects' boxes, for the hits Embree cannot order
+        if len(self._geom_slot) > 1:
+            top = build_top(sa.inst_aabb[self._geom_slot])
+            self._top = (top.bounds, top.child,
+                         np.ascontiguousarray(self._geom_slot[top.perm], np.int32))
         self.stats["build_s"] = time.perf_counter() - t0
 
     def _object_scene(self, i: int):
-        sc = self._objects.get(i)
-        if sc is None:
-            sc = _rs.EmbreeScene(robust=True)
-            v, f = _instance_geometry(self.sa, i)
-            self._objects[i] = sc
-            self._keep.append(_mc.TriangleMesh(sc, v, f))
-        return sc
+        with self._lock:
+            sc = self._objects.get(i)
+            if sc is None:
+                sc = _rs.EmbreeScene(robust=True)
+                v, f = _instance_geometry(self.sa, i)
+                self._keep.append(_mc.TriangleMesh(sc, v, f))
+                self._objects[i] = sc
+            return sc
 
     # -- running -----------------------------------------------------------------------
 
@@ -159,8 +180,11 @@ class EmbreeAccelerator(Accelerator):
                             t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
                             hits.inst[s],
                             hits.prim[s], hits.u[s], hits.v[s])
-                _refine_t(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
-                          hits.inst[s], hits.prim[s], hits.t[s])
+                _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
+                        hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s])
+                if inst < 0 and self._top is not None:
+                    self._resolve_ties(o[s], d[s], t0, tmax[s], hits.t[s], hits.inst[s],
+                                       hits.prim[s], hits.u[s], hits.v[s])
 
         if threads == 1:
             job(parts[0])
@@ -168,6 +192,44 @@ class EmbreeAccelerator(Accelerator):
         if self._pool is None or self._pool._max_workers < threads:
             self._pool = ThreadPoolExecutor(max_workers=threads)
         list(self._pool.map(job, parts))
+
+    def _resolve_ties(self, o, d, t0, tmax, t, inst, prim, u, v):
+        """Closest hits (refined, rows of one chunk, updated in place) made independent of
+        Embree's BVH: every other live object whose box holds a hit point is re-tested alone
+        in the window where float32 cannot order it against that hit (module docstring).
+        ``t0``: where each ray's Embree query started (its effective ``tmin``)."""
+        bounds, child, top_inst = self._top
+        mag = self._magnitude
+        rows = np.empty(len(t), np.int32)
+        objs = np.empty(len(t), np.int32)
+        k = _tie_candidates(bounds, child, top_inst, o, d, t, inst, mag, rows, objs)
+        if k > len(rows):  # more candidates than rays: count known, run again
+            rows = np.empty(k, np.int32)
+            objs = np.empty(k, np.int32)
+            k = _tie_candidates(bounds, child, top_inst, o, d, t, inst, mag, rows, objs)
+        if k == 0:
+            return
+        rows, objs = rows[:k], objs[:k]
+        sa = self.sa
+        offset = self._prim_offset
+        for j in np.unique(objs):
+            r = rows[objs == j]
+            m = len(r)
+            lo = np.empty(m)
+            hi = np.empty(m)
+            _tie_window(o[r], d[r], t[r], t0[r], tmax[r], mag, lo, hi)
+            org = np.empty((m, 3), np.float32)
+            dirs = np.empty((m, 3), np.float32)
+            dist = np.empty(m, np.float32)
+            s0 = np.empty(m, np.float64)
+            _to_embree(o[r], d[r], lo, hi, mag, org, dirs, dist, s0)
+            res = self._object_scene(int(j)).run(org, dirs, dists=dist, output=1)
+            c = empty_hits(m)
+            _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"], s0,
+                        lo, hi, int(j), self._geom_slot, offset, *c)
+            _refine(sa.verts, sa.tris, sa.inst_inv, o[r], d[r], t0[r], tmax[r], c.inst,
+                    c.prim, c.t, c.u, c.v)
+            _merge(r, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 
 @njit(cache=True, nogil=True)
@@ -204,33 +266,100 @@ def _store_hits(geom, prim, tfar, u, v, t0, tmin, tmax, inst, geom_slot, prim_of
 
 
 @njit(cache=True, nogil=True)
-def _refine_t(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t):
-    """Hit distances recomputed in float64 against the plane of the float64 triangle (in
-    its instance's object space, where ``t`` is the world ``t``); kept as Embree gave them
-    when the plane is (near) parallel to the ray or the result leaves ``[tmin, tmax]``."""
+def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v):
+    """Hit distances and barycentrics recomputed in float64 on the float64 triangle (in its
+    instance's object space, where ``t`` is the world ``t``) with the BVH's arithmetic
+    (:func:`.triangle.solve_sheared`); kept as Embree gave them when the plane is parallel
+    to the ray or the distance leaves ``[tmin, tmax]``."""
     for r in range(inst.shape[0]):
         i = inst[r]
         if i < 0:
             continue
         ox, oy, oz, dx, dy, dz = ray_to_object(inst_inv, i, o[r, 0], o[r, 1], o[r, 2],
                                                d[r, 0], d[r, 1], d[r, 2])
+        kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
         p = prim[r]
         a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
-        e1x = verts[b, 0] - verts[a, 0]
-        e1y = verts[b, 1] - verts[a, 1]
-        e1z = verts[b, 2] - verts[a, 2]
-        e2x = verts[c, 0] - verts[a, 0]
-        e2y = verts[c, 1] - verts[a, 1]
-        e2z = verts[c, 2] - verts[a, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        dn = nx * dx + ny * dy + nz * dz
-        if dn == 0.0:
+        ok, s, su, sv = solve_sheared(verts[a, kx], verts[a, ky], verts[a, kz],
+                                      verts[b, kx], verts[b, ky], verts[b, kz],
+                                      verts[c, kx], verts[c, ky], verts[c, kz],
+                                      ox if kx == 0 else (oy if kx == 1 else oz),
+                                      ox if ky == 0 else (oy if ky == 1 else oz),
+                                      ox if kz == 0 else (oy if kz == 1 else oz), sx, sy, sz)
+        if ok and tmin[r] <= s <= tmax[r]:
+            t[r], u[r], v[r] = s, su, sv
+
+
+@njit(cache=True, nogil=True)
+def _tie_reach(o, d, r, magnitude):
+    """Half-width (in ``t``) of the window where float32 cannot order hits of ray ``r``."""
+    dl = max(abs(d[r, 0]), abs(d[r, 1]), abs(d[r, 2]))
+    om = max(abs(o[r, 0]), abs(o[r, 1]), abs(o[r, 2]))
+    return tol.FLOAT32_TIE_REL * (magnitude + om) / dl if dl > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _tie_candidates(bounds, child, top_inst, o, d, t, inst, magnitude, rows, objs):
+    """(ray, object) pairs to re-test: every live object other than the hit one whose box
+    (padded by twice the tie window) holds the hit point, from a point query in the top-level
+    BVH ``bounds, child, top_inst`` (:func:`.bvh.build_top`). Writes up to ``len(rows)``
+    pairs into ``rows, objs`` and returns how many there are (possibly more)."""
+    stack = np.empty(256, np.int32)
+    k = 0
+    for r in range(inst.shape[0]):
+        i = inst[r]
+        if i < 0:
             continue
-        s = (nx * (verts[a, 0] - ox) + ny * (verts[a, 1] - oy) + nz * (verts[a, 2] - oz)) / dn
-        if math.isfinite(s) and tmin[r] <= s <= tmax[r]:
-            t[r] = s
+        pad = 2.0 * _tie_reach(o, d, r, magnitude) * max(abs(d[r, 0]), abs(d[r, 1]),
+                                                           abs(d[r, 2]))
+        px = o[r, 0] + t[r] * d[r, 0]
+        py = o[r, 1] + t[r] * d[r, 1]
+        pz = o[r, 2] + t[r] * d[r, 2]
+        stack[0] = 0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            for j in range(4):
+                c = child[node, j]
+                if c == -1:
+                    continue
+                if not (bounds[node, j] - pad <= px <= bounds[node, 12 + j] + pad
+                        and bounds[node, 4 + j] - pad <= py <= bounds[node, 16 + j] + pad
+                        and bounds[node, 8 + j] - pad <= pz <= bounds[node, 20 + j] + pad):
+                    continue
+                if c >= 0:
+                    stack[sp] = c
+                    sp += 1
+                    continue
+                code = ~c
+                for q in range(code >> 3, (code >> 3) + (code & 7)):
+                    if top_inst[q] != i:
+                        if k < rows.shape[0]:
+                            rows[k] = r
+                            objs[k] = top_inst[q]
+                        k += 1
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _tie_window(o, d, t, t0, tmax, magnitude, lo, hi):
+    """The re-test window of each hit: ``t`` +- the tie reach, within ``[t0, tmax]``."""
+    for r in range(t.shape[0]):
+        w = _tie_reach(o, d, r, magnitude)
+        lo[r] = max(t[r] - w, t0[r])
+        hi[r] = min(t[r] + w, tmax[r])
+
+
+@njit(cache=True, nogil=True)
+def _merge(rows, ct, ci, cp, cu, cv, t, inst, prim, u, v):
+    """Keep the closer hit of each row (equal distances: the higher instance id)."""
+    for k in range(rows.shape[0]):
+        if ci[k] < 0:
+            continue
+        r = rows[k]
+        if ct[k] < t[r] or (ct[k] == t[r] and ci[k] > inst[r]):
+            t[r], inst[r], prim[r], u[r], v[r] = ct[k], ci[k], cp[k], cu[k], cv[k]
 
 
 @njit(cache=True, nogil=True)

@@ -65,6 +65,12 @@ PATH_WEIGHT_MIN = 1e-8
 #: (pbrt-v4, section 6.8.2) so rounding never makes a ray miss a box it touches.
 BOX_TFAR_SCALE = 1.0 + 2.0 * (3.0 * 2.0**-53) / (1.0 - 3.0 * 2.0**-53)
 
+#: BVH nodes are culled only when entered beyond the best hit so far by more than this
+#: fraction of its distance (64 float64 ulps): a box entry and a triangle distance round
+#: differently, and culling a node by an ulp lost a hit that ties the best within an ulp
+#: (two objects' coplanar faces), so which one was reported depended on the traversal order.
+BVH_CULL_REL = 64.0 * 2.0**-53
+
 #: Instance world boxes in the top-level BVH are padded by this fraction of their magnitude
 #: (the world -> object transform of a ray and of the box corners both round).
 INSTANCE_BOX_PAD_REL = 1e-9

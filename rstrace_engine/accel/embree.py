@@ -27,7 +27,7 @@ panels) give equal float32 distances, and which one Embree reports depends on it
 on every *other* object of the scene: hiding, moving or adding an object elsewhere changed
 pixels its rays never came near (an incremental frame then differed from a fresh one in
 pixels nobody marked dirty). Every object other than the reported one whose box holds the
-hit point (a point query in a top-level BVH over the live objects' boxes) is re-tested alone
+hit point (:mod:`.embree_ties`: few box tests for most hits) is re-tested alone
 (its own Embree scene, as ``intersect_object``) in a window of that half-width around the
 hit, refined in float64 the same way, and the closest float64 hit wins, equal distances
 going to the highest instance id (the brute-force oracle's rule). The result depends only on
@@ -51,7 +51,8 @@ from numba import njit
 from .. import tolerances as tol
 from ..geometry.scene import SceneArrays
 from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
-from .bvh import build_top, ray_to_object
+from .bvh import ray_to_object
+from .embree_ties import build_tie_index, merge_closer, tie_candidates, tie_window
 from .triangle import ray_shear, solve_sheared
 
 log = logging.getLogger(__name__)
@@ -113,11 +114,8 @@ class EmbreeAccelerator(Accelerator):
         self._prim_offset = np.ascontiguousarray(sa.mesh_tri_start[sa.inst_mesh], np.int32)
         self._magnitude = float(np.max(np.abs(sa.scene_aabb)))
         self._objects: dict[int, object] = {}
-        self._top = None  # live objects' boxes, for the hits Embree cannot order
-        if len(self._geom_slot) > 1:
-            top = build_top(sa.inst_aabb[self._geom_slot])
-            self._top = (top.bounds, top.child,
-                         np.ascontiguousarray(self._geom_slot[top.perm], np.int32))
+        # the objects a hit may tie with (None: fewer than two objects)
+        self._ties = build_tie_index(sa.inst_aabb, self._geom_slot, self._magnitude)
         self.stats["build_s"] = time.perf_counter() - t0
 
     def _object_scene(self, i: int):
@@ -182,7 +180,7 @@ class EmbreeAccelerator(Accelerator):
                             hits.prim[s], hits.u[s], hits.v[s])
                 _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
                         hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s])
-                if inst < 0 and self._top is not None:
+                if inst < 0 and self._ties is not None:
                     self._resolve_ties(o[s], d[s], t0, tmax[s], hits.t[s], hits.inst[s],
                                        hits.prim[s], hits.u[s], hits.v[s])
 
@@ -198,15 +196,14 @@ class EmbreeAccelerator(Accelerator):
         Embree's BVH: every other live object whose box holds a hit point is re-tested alone
         in the window where float32 cannot order it against that hit (module docstring).
         ``t0``: where each ray's Embree query started (its effective ``tmin``)."""
-        bounds, child, top_inst = self._top
         mag = self._magnitude
         rows = np.empty(len(t), np.int32)
         objs = np.empty(len(t), np.int32)
-        k = _tie_candidates(bounds, child, top_inst, o, d, t, inst, mag, rows, objs)
+        k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
         if k > len(rows):  # more candidates than rays: count known, run again
             rows = np.empty(k, np.int32)
             objs = np.empty(k, np.int32)
-            k = _tie_candidates(bounds, child, top_inst, o, d, t, inst, mag, rows, objs)
+            k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
         if k == 0:
             return
         rows, objs = rows[:k], objs[:k]
@@ -217,7 +214,7 @@ class EmbreeAccelerator(Accelerator):
             m = len(r)
             lo = np.empty(m)
             hi = np.empty(m)
-            _tie_window(o[r], d[r], t[r], t0[r], tmax[r], mag, lo, hi)
+            tie_window(o[r], d[r], t[r], t0[r], tmax[r], mag, lo, hi)
             org = np.empty((m, 3), np.float32)
             dirs = np.empty((m, 3), np.float32)
             dist = np.empty(m, np.float32)
@@ -229,7 +226,7 @@ class EmbreeAccelerator(Accelerator):
                         lo, hi, int(j), self._geom_slot, offset, *c)
             _refine(sa.verts, sa.tris, sa.inst_inv, o[r], d[r], t0[r], tmax[r], c.inst,
                     c.prim, c.t, c.u, c.v)
-            _merge(r, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
+            merge_closer(r, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 
 @njit(cache=True, nogil=True)
@@ -288,78 +285,6 @@ def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v):
                                       ox if kz == 0 else (oy if kz == 1 else oz), sx, sy, sz)
         if ok and tmin[r] <= s <= tmax[r]:
             t[r], u[r], v[r] = s, su, sv
-
-
-@njit(cache=True, nogil=True)
-def _tie_reach(o, d, r, magnitude):
-    """Half-width (in ``t``) of the window where float32 cannot order hits of ray ``r``."""
-    dl = max(abs(d[r, 0]), abs(d[r, 1]), abs(d[r, 2]))
-    om = max(abs(o[r, 0]), abs(o[r, 1]), abs(o[r, 2]))
-    return tol.FLOAT32_TIE_REL * (magnitude + om) / dl if dl > 0.0 else 0.0
-
-
-@njit(cache=True, nogil=True)
-def _tie_candidates(bounds, child, top_inst, o, d, t, inst, magnitude, rows, objs):
-    """(ray, object) pairs to re-test: every live object other than the hit one whose box
-    (padded by twice the tie window) holds the hit point, from a point query in the top-level
-    BVH ``bounds, child, top_inst`` (:func:`.bvh.build_top`). Writes up to ``len(rows)``
-    pairs into ``rows, objs`` and returns how many there are (possibly more)."""
-    stack = np.empty(256, np.int32)
-    k = 0
-    for r in range(inst.shape[0]):
-        i = inst[r]
-        if i < 0:
-            continue
-        pad = 2.0 * _tie_reach(o, d, r, magnitude) * max(abs(d[r, 0]), abs(d[r, 1]),
-                                                           abs(d[r, 2]))
-        px = o[r, 0] + t[r] * d[r, 0]
-        py = o[r, 1] + t[r] * d[r, 1]
-        pz = o[r, 2] + t[r] * d[r, 2]
-        stack[0] = 0
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            node = stack[sp]
-            for j in range(4):
-                c = child[node, j]
-                if c == -1:
-                    continue
-                if not (bounds[node, j] - pad <= px <= bounds[node, 12 + j] + pad
-                        and bounds[node, 4 + j] - pad <= py <= bounds[node, 16 + j] + pad
-                        and bounds[node, 8 + j] - pad <= pz <= bounds[node, 20 + j] + pad):
-                    continue
-                if c >= 0:
-                    stack[sp] = c
-                    sp += 1
-                    continue
-                code = ~c
-                for q in range(code >> 3, (code >> 3) + (code & 7)):
-                    if top_inst[q] != i:
-                        if k < rows.shape[0]:
-                            rows[k] = r
-                            objs[k] = top_inst[q]
-                        k += 1
-    return k
-
-
-@njit(cache=True, nogil=True)
-def _tie_window(o, d, t, t0, tmax, magnitude, lo, hi):
-    """The re-test window of each hit: ``t`` +- the tie reach, within ``[t0, tmax]``."""
-    for r in range(t.shape[0]):
-        w = _tie_reach(o, d, r, magnitude)
-        lo[r] = max(t[r] - w, t0[r])
-        hi[r] = min(t[r] + w, tmax[r])
-
-
-@njit(cache=True, nogil=True)
-def _merge(rows, ct, ci, cp, cu, cv, t, inst, prim, u, v):
-    """Keep the closer hit of each row (equal distances: the higher instance id)."""
-    for k in range(rows.shape[0]):
-        if ci[k] < 0:
-            continue
-        r = rows[k]
-        if ct[k] < t[r] or (ct[k] == t[r] and ci[k] > inst[r]):
-            t[r], inst[r], prim[r], u[r], v[r] = ct[k], ci[k], cp[k], cu[k], cv[k]
 
 
 @njit(cache=True, nogil=True)

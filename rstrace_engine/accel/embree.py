@@ -206,27 +206,29 @@ class EmbreeAccelerator(Accelerator):
             k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
         if k == 0:
             return
-        rows, objs = rows[:k], objs[:k]
+        order = np.argsort(objs[:k], kind="stable")
+        rows, objs = rows[:k][order], objs[:k][order]
+        oc, dc, tmax_c, t0_c = o[rows], d[rows], tmax[rows], t0[rows]
+        lo = np.empty(k)
+        hi = np.empty(k)
+        tie_window(oc, dc, t[rows], t0_c, tmax_c, mag, lo, hi)
+        org = np.empty((k, 3), np.float32)
+        dirs = np.empty((k, 3), np.float32)
+        dist = np.empty(k, np.float32)
+        s0 = np.empty(k, np.float64)
+        _to_embree(oc, dc, lo, hi, mag, org, dirs, dist, s0)
+        c = empty_hits(k)
+        edges = np.flatnonzero(np.diff(objs)) + 1
+        for a, b in zip(np.r_[0, edges], np.r_[edges, k], strict=True):
+            j = int(objs[a])
+            res = self._object_scene(j).run(org[a:b], dirs[a:b], dists=dist[a:b], output=1)
+            _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
+                        s0[a:b], lo[a:b], hi[a:b], j, self._geom_slot, self._prim_offset,
+                        *(x[a:b] for x in c))
         sa = self.sa
-        offset = self._prim_offset
-        for j in np.unique(objs):
-            r = rows[objs == j]
-            m = len(r)
-            lo = np.empty(m)
-            hi = np.empty(m)
-            tie_window(o[r], d[r], t[r], t0[r], tmax[r], mag, lo, hi)
-            org = np.empty((m, 3), np.float32)
-            dirs = np.empty((m, 3), np.float32)
-            dist = np.empty(m, np.float32)
-            s0 = np.empty(m, np.float64)
-            _to_embree(o[r], d[r], lo, hi, mag, org, dirs, dist, s0)
-            res = self._object_scene(int(j)).run(org, dirs, dists=dist, output=1)
-            c = empty_hits(m)
-            _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"], s0,
-                        lo, hi, int(j), self._geom_slot, offset, *c)
-            _refine(sa.verts, sa.tris, sa.inst_inv, o[r], d[r], t0[r], tmax[r], c.inst,
-                    c.prim, c.t, c.u, c.v)
-            merge_closer(r, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
+        _refine(sa.verts, sa.tris, sa.inst_inv, oc, dc, t0_c, tmax_c, c.inst, c.prim, c.t,
+                c.u, c.v)
+        merge_closer(rows, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 
 @njit(cache=True, nogil=True)

@@ -9,8 +9,9 @@ float64 hit. This module finds those objects cheaply:
 
 * **pairs**: the live objects whose boxes overlap, each pair with the overlap of its two
   boxes padded by :data:`PAIR_ORIGIN_MAGNITUDES` times the scene magnitude's reach, in a
-  small BVH (:func:`.bvh.build_top`). A hit point on object ``i`` outside every region of a
-  pair holding ``i`` has nothing to re-test: most hits cost a few box tests at the root.
+  small BVH (:func:`.bvh.build_top`), and per object the bounds of its pairs' regions. A
+  hit point on object ``i`` outside those bounds has nothing to re-test (one box test: most
+  hits); inside, the regions holding it name the objects to re-test.
 * **objects**: for rays starting farther out than the pairs were padded for, the live
   objects' boxes themselves, padded per ray.
 """
@@ -41,6 +42,8 @@ class TieIndex(NamedTuple):
     pair_a: np.ndarray  # (K,) int32 first instance of each pair, in leaf order
     pair_b: np.ndarray  # (K,) int32 second instance
     pair_pad: float  # world padding the regions were built with
+    near_lo: np.ndarray  # (I, 3) float64 per instance id: bounds of its pairs' regions
+    near_hi: np.ndarray  # (I, 3) (empty, lo > hi, for an object overlapping none)
 
 
 def tie_reach_pad(magnitude: float, origin_magnitude) -> float:
@@ -88,8 +91,13 @@ def build_tie_index(inst_aabb: np.ndarray, live: np.ndarray, magnitude: float) -
         b = np.empty(k, np.int64)
         _overlaps(lo, hi, order, a, b)
     a, b = a[:k], b[:k]
+    near_lo = np.full((len(inst_aabb), 3), np.inf)
+    near_hi = np.full((len(inst_aabb), 3), -np.inf)
     if k:
         region = np.stack([np.maximum(lo[a], lo[b]), np.minimum(hi[a], hi[b])], axis=1)
+        for side in (a, b):
+            np.minimum.at(near_lo, live[side], region[:, 0])
+            np.maximum.at(near_hi, live[side], region[:, 1])
         pt = build_top(region)
         pair_bounds, pair_child = pt.bounds, pt.child
         pa = np.ascontiguousarray(live[a[pt.perm]], np.int32)
@@ -98,7 +106,7 @@ def build_tie_index(inst_aabb: np.ndarray, live: np.ndarray, magnitude: float) -
         pair_bounds, pair_child = np.zeros((0, 24)), np.zeros((0, 4), np.int32)
         pa = pb = np.zeros(0, np.int32)
     return TieIndex(top.bounds, top.child, np.ascontiguousarray(live[top.perm], np.int32),
-                    pair_bounds, pair_child, pa, pb, float(pad))
+                    pair_bounds, pair_child, pa, pb, float(pad), near_lo, near_hi)
 
 
 @njit(cache=True, nogil=True)
@@ -151,7 +159,9 @@ def tie_candidates(ix: TieIndex, o, d, t, inst, magnitude, rows, objs):
         py = o[r, 1] + t[r] * d[r, 1]
         pz = o[r, 2] + t[r] * d[r, 2]
         by_pairs = pad <= ix.pair_pad
-        if by_pairs and not has_pairs:
+        if by_pairs and not (has_pairs and ix.near_lo[i, 0] <= px <= ix.near_hi[i, 0]
+                             and ix.near_lo[i, 1] <= py <= ix.near_hi[i, 1]
+                             and ix.near_lo[i, 2] <= pz <= ix.near_hi[i, 2]):
             continue
         while True:
             if by_pairs:

@@ -346,7 +346,7 @@ def rays_onto_the_box_bottom(n: int, seed: int):
     return o, d, np.zeros(n), np.full(n, np.inf)
 
 
-@pytest.mark.parametrize("name", ["EMBREE", "BVH"])
+@pytest.mark.parametrize("name", ["EMBREE", "BVH", "VISIBILITY_FIELD"])
 def test_coplanar_faces_of_two_objects_hit_as_the_oracle(name):
     """Where two objects' faces coincide, the hit is the closest float64 one, equal distances
     going to the highest instance id (the oracle's rule), whatever the accelerator's own
@@ -363,7 +363,7 @@ def test_coplanar_faces_of_two_objects_hit_as_the_oracle(name):
         sc = s.copy()
         if hidden is not None:
             sc.set_instance_visible(sc.instance_slot(hidden), False)
-        got = create_accelerator(name, sc.arrays()).closest_hit(*rays)
+        got = create_accelerator(name, sc.arrays(), **VF_OPTIONS).closest_hit(*rays)
         np.testing.assert_array_equal(got.inst, want.inst)
         np.testing.assert_array_equal(got.prim, want.prim)
         np.testing.assert_array_equal(got.t, want.t)

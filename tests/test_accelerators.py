@@ -371,6 +371,26 @@ def test_coplanar_faces_of_two_objects_hit_as_the_oracle(name):
         np.testing.assert_array_equal(got.v, want.v)
 
 
+@pytest.mark.parametrize("name", ["EMBREE", "BVH"])
+def test_duplicate_objects_and_far_origins_tie_as_the_oracle(name):
+    """An exact duplicate of the resting box (every distance equal: the highest instance id
+    wins), and rays starting 40 scene sizes away (Embree's tie window grows with the origin:
+    the objects' own boxes are queried instead of the precomputed overlaps)."""
+    if name == "EMBREE":
+        pytest.importorskip("embreex")
+    s = resting_box_scene(3)
+    s.add_instance(s.instances[s.instance_slot("Box")]["mesh"],
+                   shapes.transform((0.0, 0.0, 0.5)), [0], "Duplicate")
+    o, d, tmin, tmax = rays_onto_the_box_bottom(2000, seed=2)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for rays in ((o, d, tmin, tmax), (o - 200.0 * d, d, tmin, tmax)):
+        want = create_accelerator("BRUTE_FORCE", s.arrays()).closest_hit(*rays)
+        got = create_accelerator(name, s.arrays()).closest_hit(*rays)
+        assert np.count_nonzero(want.inst == s.instance_slot("Duplicate")) > 1000
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_array_equal(g, w)
+
+
 def test_embree_update_follows_moves(embree):
     s = mixed_scene()
     s.set_instance_matrix(1, shapes.transform((3.0, 3.0, 1.0)))

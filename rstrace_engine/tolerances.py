@@ -15,6 +15,14 @@ SPAWN_OFFSET_REL = 1e-9
 #: vertices and origins, so a ray spawned off a surface never hits that surface again.
 FLOAT32_TNEAR_REL = 2e-6
 
+#: Float32 accelerators (Embree) cannot order hits on different objects closer than this
+#: fraction of the scene's (and the ray origin's) coordinate magnitude (coplanar or touching
+#: faces: an object resting on a floor): which one Embree reports then depends on its BVH,
+#: i.e. on every other object in the scene. Objects whose box holds the reported hit point
+#: (padded by twice this) are re-tested in a window of this half-width around the hit and
+#: the closest float64 hit wins (ties: the highest instance id, as the brute-force oracle).
+FLOAT32_TIE_REL = 2e-6
+
 #: The Principled-like GGX lobe lights nothing below this alpha (roughness 0.05): a point
 #: light's highlight on a near mirror is a sub-pixel spike (Cycles shows none at roughness 0);
 #: such surfaces reflect through mirror rays.
@@ -56,6 +64,12 @@ PATH_WEIGHT_MIN = 1e-8
 #: Ray/box slab test: the exit distance is scaled by ``1 + 2 * gamma(3)`` for float64
 #: (pbrt-v4, section 6.8.2) so rounding never makes a ray miss a box it touches.
 BOX_TFAR_SCALE = 1.0 + 2.0 * (3.0 * 2.0**-53) / (1.0 - 3.0 * 2.0**-53)
+
+#: BVH nodes are culled only when entered beyond the best hit so far by more than this
+#: fraction of its distance (64 float64 ulps): a box entry and a triangle distance round
+#: differently, and culling a node by an ulp lost a hit that ties the best within an ulp
+#: (two objects' coplanar faces), so which one was reported depended on the traversal order.
+BVH_CULL_REL = 64.0 * 2.0**-53
 
 #: Instance world boxes in the top-level BVH are padded by this fraction of their magnitude
 #: (the world -> object transform of a ray and of the box corners both round).

@@ -521,6 +521,15 @@ def _near(ix, iy, iz):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _cull(best):
+    """Nodes entered beyond this are skipped: ``best`` plus
+    :data:`~.tolerances.BVH_CULL_REL` of it (a box entry and a triangle distance round
+    differently; a node culled by an ulp lost a hit tying within an ulp, and which of the two
+    won then depended on the traversal order, i.e. on the other objects)."""
+    return best + abs(best) * tol.BVH_CULL_REL
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
                 st_node, st_t):
     """Closest (or any) hit in one mesh BVH; the ray is in object space.
@@ -539,11 +548,11 @@ def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhi
     sp = 1
     while sp > 0:
         sp -= 1
-        if st_t[sp] > best:
+        if st_t[sp] > _cull(best):
             continue
         c = st_node[sp]
         if c >= 0:
-            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best,
+            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, _cull(best),
                         st_node, st_t, sp)
             continue
         code = ~c
@@ -588,7 +597,9 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
             found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.tv,
                                             sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
                                             ex, ey, ez, t0, best, anyhit, st2_node, st2_t)
-            if found:
+            # t <= best; an equal distance goes to the highest instance id (the oracle's
+            # rule), not to whichever instance the top level happened to visit last
+            if found and (t < best or i > bi):
                 bi, best, bp, bu, bv = i, t, p, u, v
                 if anyhit:
                     break
@@ -596,11 +607,11 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
         if sp == 0:
             break
         sp -= 1
-        if st_t[sp] > best:
+        if st_t[sp] > _cull(best):
             continue
         c = st_node[sp]
         if c >= 0:
-            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, best,
+            sp = _visit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, _cull(best),
                         st_node, st_t, sp)
         else:
             q = (~c) >> 3

@@ -16,9 +16,22 @@ differed from the BVH's). Two things make an Embree frame the BVH's frame:
 * every ray starts at least ``tolerances.FLOAT32_TNEAR_REL`` times the magnitude of the scene
   and of its origin along itself (Embree cannot tell hits closer than that from its own
   rounding), and
-* the distance of every closest hit is recomputed in float64 against the float64 plane of the
-  triangle Embree reports, so hit points (and every ray spawned from them) are where the
-  BVH puts them, not float32-t away.
+* the distance and barycentrics of every closest hit are recomputed in float64 on the float64
+  triangle Embree reports, with the BVH's own arithmetic (:func:`.triangle.solve_sheared`),
+  so hit points (and every ray spawned from them) are where the BVH puts them, not
+  float32-t away.
+
+Hits that Embree cannot order (``tolerances.FLOAT32_TIE_REL``): two objects whose faces are
+within float32 rounding of each other along a ray (a box resting on a floor, coplanar
+panels) give equal float32 distances, and which one Embree reports depends on its BVH, so
+on every *other* object of the scene: hiding, moving or adding an object elsewhere changed
+pixels its rays never came near (an incremental frame then differed from a fresh one in
+pixels nobody marked dirty). Every object other than the reported one whose box holds the
+hit point (:mod:`.embree_ties`: few box tests for most hits) is re-tested alone
+(its own Embree scene, as ``intersect_object``) in a window of that half-width around the
+hit, refined in float64 the same way, and the closest float64 hit wins, equal distances
+going to the highest instance id (the brute-force oracle's rule). The result depends only on
+the objects near the hit, never on the BVH.
 
 ``embreex``'s ``run`` releases the GIL, so batches are split into chunks run from a small
 thread pool (one chunk per numba thread, ``numba.get_num_threads()``).
@@ -27,7 +40,7 @@ thread pool (one chunk per numba thread, ``numba.get_num_threads()``).
 from __future__ import annotations
 
 import logging
-import math
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -39,6 +52,8 @@ from .. import tolerances as tol
 from ..geometry.scene import SceneArrays
 from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .bvh import ray_to_object
+from .embree_ties import build_tie_index, merge_closer, tie_candidates, tie_window
+from .triangle import ray_shear, solve_sheared
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +94,7 @@ class EmbreeAccelerator(Accelerator):
                                          "(pip install embreex); use 'BVH'")
         super().__init__(scene_arrays)
         self._pool: ThreadPoolExecutor | None = None
+        self._lock = threading.Lock()  # per-object scenes are built lazily from the workers
         self._build(scene_arrays)
 
     def update(self, scene_arrays: SceneArrays) -> None:
@@ -98,16 +114,19 @@ class EmbreeAccelerator(Accelerator):
         self._prim_offset = np.ascontiguousarray(sa.mesh_tri_start[sa.inst_mesh], np.int32)
         self._magnitude = float(np.max(np.abs(sa.scene_aabb)))
         self._objects: dict[int, object] = {}
+        # the objects a hit may tie with (None: fewer than two objects)
+        self._ties = build_tie_index(sa.inst_aabb, self._geom_slot, self._magnitude)
         self.stats["build_s"] = time.perf_counter() - t0
 
     def _object_scene(self, i: int):
-        sc = self._objects.get(i)
-        if sc is None:
-            sc = _rs.EmbreeScene(robust=True)
-            v, f = _instance_geometry(self.sa, i)
-            self._objects[i] = sc
-            self._keep.append(_mc.TriangleMesh(sc, v, f))
-        return sc
+        with self._lock:
+            sc = self._objects.get(i)
+            if sc is None:
+                sc = _rs.EmbreeScene(robust=True)
+                v, f = _instance_geometry(self.sa, i)
+                self._keep.append(_mc.TriangleMesh(sc, v, f))
+                self._objects[i] = sc
+            return sc
 
     # -- running -----------------------------------------------------------------------
 
@@ -159,8 +178,11 @@ class EmbreeAccelerator(Accelerator):
                             t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
                             hits.inst[s],
                             hits.prim[s], hits.u[s], hits.v[s])
-                _refine_t(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
-                          hits.inst[s], hits.prim[s], hits.t[s])
+                _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
+                        hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s])
+                if inst < 0 and self._ties is not None:
+                    self._resolve_ties(o[s], d[s], t0, tmax[s], hits.t[s], hits.inst[s],
+                                       hits.prim[s], hits.u[s], hits.v[s])
 
         if threads == 1:
             job(parts[0])
@@ -168,6 +190,45 @@ class EmbreeAccelerator(Accelerator):
         if self._pool is None or self._pool._max_workers < threads:
             self._pool = ThreadPoolExecutor(max_workers=threads)
         list(self._pool.map(job, parts))
+
+    def _resolve_ties(self, o, d, t0, tmax, t, inst, prim, u, v):
+        """Closest hits (refined, rows of one chunk, updated in place) made independent of
+        Embree's BVH: every other live object whose box holds a hit point is re-tested alone
+        in the window where float32 cannot order it against that hit (module docstring).
+        ``t0``: where each ray's Embree query started (its effective ``tmin``)."""
+        mag = self._magnitude
+        rows = np.empty(len(t), np.int32)
+        objs = np.empty(len(t), np.int32)
+        k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
+        if k > len(rows):  # more candidates than rays: count known, run again
+            rows = np.empty(k, np.int32)
+            objs = np.empty(k, np.int32)
+            k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
+        if k == 0:
+            return
+        order = np.argsort(objs[:k], kind="stable")
+        rows, objs = rows[:k][order], objs[:k][order]
+        oc, dc, tmax_c, t0_c = o[rows], d[rows], tmax[rows], t0[rows]
+        lo = np.empty(k)
+        hi = np.empty(k)
+        tie_window(oc, dc, t[rows], t0_c, tmax_c, mag, lo, hi)
+        org = np.empty((k, 3), np.float32)
+        dirs = np.empty((k, 3), np.float32)
+        dist = np.empty(k, np.float32)
+        s0 = np.empty(k, np.float64)
+        _to_embree(oc, dc, lo, hi, mag, org, dirs, dist, s0)
+        c = empty_hits(k)
+        edges = np.flatnonzero(np.diff(objs)) + 1
+        for a, b in zip(np.r_[0, edges], np.r_[edges, k], strict=True):
+            j = int(objs[a])
+            res = self._object_scene(j).run(org[a:b], dirs[a:b], dists=dist[a:b], output=1)
+            _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
+                        s0[a:b], lo[a:b], hi[a:b], j, self._geom_slot, self._prim_offset,
+                        *(x[a:b] for x in c))
+        sa = self.sa
+        _refine(sa.verts, sa.tris, sa.inst_inv, oc, dc, t0_c, tmax_c, c.inst, c.prim, c.t,
+                c.u, c.v)
+        merge_closer(rows, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 
 @njit(cache=True, nogil=True)
@@ -204,33 +265,28 @@ def _store_hits(geom, prim, tfar, u, v, t0, tmin, tmax, inst, geom_slot, prim_of
 
 
 @njit(cache=True, nogil=True)
-def _refine_t(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t):
-    """Hit distances recomputed in float64 against the plane of the float64 triangle (in
-    its instance's object space, where ``t`` is the world ``t``); kept as Embree gave them
-    when the plane is (near) parallel to the ray or the result leaves ``[tmin, tmax]``."""
+def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v):
+    """Hit distances and barycentrics recomputed in float64 on the float64 triangle (in its
+    instance's object space, where ``t`` is the world ``t``) with the BVH's arithmetic
+    (:func:`.triangle.solve_sheared`); kept as Embree gave them when the plane is parallel
+    to the ray or the distance leaves ``[tmin, tmax]``."""
     for r in range(inst.shape[0]):
         i = inst[r]
         if i < 0:
             continue
         ox, oy, oz, dx, dy, dz = ray_to_object(inst_inv, i, o[r, 0], o[r, 1], o[r, 2],
                                                d[r, 0], d[r, 1], d[r, 2])
+        kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
         p = prim[r]
         a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
-        e1x = verts[b, 0] - verts[a, 0]
-        e1y = verts[b, 1] - verts[a, 1]
-        e1z = verts[b, 2] - verts[a, 2]
-        e2x = verts[c, 0] - verts[a, 0]
-        e2y = verts[c, 1] - verts[a, 1]
-        e2z = verts[c, 2] - verts[a, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        dn = nx * dx + ny * dy + nz * dz
-        if dn == 0.0:
-            continue
-        s = (nx * (verts[a, 0] - ox) + ny * (verts[a, 1] - oy) + nz * (verts[a, 2] - oz)) / dn
-        if math.isfinite(s) and tmin[r] <= s <= tmax[r]:
-            t[r] = s
+        ok, s, su, sv = solve_sheared(verts[a, kx], verts[a, ky], verts[a, kz],
+                                      verts[b, kx], verts[b, ky], verts[b, kz],
+                                      verts[c, kx], verts[c, ky], verts[c, kz],
+                                      ox if kx == 0 else (oy if kx == 1 else oz),
+                                      ox if ky == 0 else (oy if ky == 1 else oz),
+                                      ox if kz == 0 else (oy if kz == 1 else oz), sx, sy, sz)
+        if ok and tmin[r] <= s <= tmax[r]:
+            t[r], u[r], v[r] = s, su, sv
 
 
 @njit(cache=True, nogil=True)

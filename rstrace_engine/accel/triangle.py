@@ -23,6 +23,7 @@ modules' ``__pycache__/*.nbi`` / ``*.nbc`` files (or run with a fresh ``NUMBA_CA
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 
@@ -110,3 +111,34 @@ def intersect(ox, oy, oz, kx, ky, kz, sx, sy, sz,
                              _pick(kx, cx, cy, cz), _pick(ky, cx, cy, cz), _pick(kz, cx, cy, cz),
                              _pick(kx, ox, oy, oz), _pick(ky, ox, oy, oz), _pick(kz, ox, oy, oz),
                              sx, sy, sz, tmin, tmax)
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def solve_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz, sx, sy, sz):
+    """:func:`intersect_sheared`'s distance and barycentrics *without* its inside test and
+    bounds (the same arithmetic, so an inside hit gets the very same bits).
+
+    For refining a hit another (float32) test found on this triangle: a ray through a shared
+    edge may lie a float64 hair outside it. Returns ``(ok, t, u, v)``; ``ok`` is False when
+    the ray is parallel to the triangle's plane (or the distance is not finite).
+    """
+    a2 = akz - okz
+    b2 = bkz - okz
+    c2 = ckz - okz
+    Ax = (akx - okx) - sx * a2
+    Ay = (aky - oky) - sy * a2
+    Bx = (bkx - okx) - sx * b2
+    By = (bky - oky) - sy * b2
+    Cx = (ckx - okx) - sx * c2
+    Cy = (cky - oky) - sy * c2
+    U = Cx * By - Cy * Bx
+    V = Ax * Cy - Ay * Cx
+    W = Bx * Ay - By * Ax
+    det = U + V + W
+    if det == 0.0:
+        return False, 0.0, 0.0, 0.0
+    t = (U * a2 + V * b2 + W * c2) * sz / det
+    if not (t > -np.inf and t < np.inf):  # also rejects NaN
+        return False, 0.0, 0.0, 0.0
+    inv = 1.0 / det
+    return True, t, V * inv, W * inv

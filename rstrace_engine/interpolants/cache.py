@@ -48,6 +48,7 @@ from ..cancel import kernel_flag
 from ..frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
+    CLASS_FAIL_SHADOW,
     CLASS_FAIL_SILHOUETTE,
     CLASS_TRACED,
 )
@@ -71,10 +72,13 @@ from .pool import INTERP_BYTES, InterpolantPool
 from .predicate import (
     N_TEST_ALL,
     N_TEST_BASE,
+    R_CLASS,
+    R_VALID,
     REASONS,
     TEST_POINTS,
     VALID,
     check_cells,
+    corner_trees,
     radiance_ok,
 )
 from .samples import (
@@ -592,6 +596,27 @@ class InterpolantCache:
             outcome[go[miss]] = REASONS.index("corner_miss")
             outcome[go[jump]] = REASONS.index("class_change")
             go = go[~miss & ~jump]
+        if len(go):
+            # the corners first: a cell whose corners' ray trees differ fails whatever its
+            # test lines (check_cells compares the corners first), so their lines are not
+            # shaded (they would be the children's corners: a split shades them if needed)
+            k1 = np.repeat(kc[go], 16)
+            corner_ids = self._shade(k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
+            early = np.empty(len(go), np.int8)
+            corner_trees(self.samples.view(), corner_ids, early)
+            off = early != R_VALID
+            if np.any(off):
+                bad_go = go[off]
+                outcome[bad_go] = early[off]
+                status[bad_go] = np.where(early[off] == R_CLASS, CLASS_FAIL_SILHOUETTE,
+                                          CLASS_FAIL_SHADOW)
+                for r, k in zip(*np.unique(early[off], return_counts=True), strict=True):
+                    why[REASONS[r]] = why.get(REASONS[r], 0) + int(k)
+                td = time.perf_counter()
+                self.deps.add_failed(self, cells[bad_go], corner_ids[off],
+                                     np.full(len(bad_go), 16, np.int32))
+                st["deps_s"] += time.perf_counter() - td
+                go = go[~off]
         if len(go):
             nsamp = (16 + ntest[go]).astype(np.int32)
             used = np.arange(ns)[None, :] < nsamp[:, None]

@@ -37,3 +37,32 @@ def test_pixel_outcomes_agree_with_the_frame_and_its_cell_counts():
     # pixels unless its hit left the certified slab
     failed = [n for n in OUTCOMES if n != "valid" and share[names.index(n)] > 0]
     assert failed and all(outcomes.get(n, 0) > 0 for n in failed)
+
+
+def test_corners_first_gives_the_same_frames_with_fewer_samples(monkeypatch):
+    from rstrace_engine import scenes
+    from rstrace_engine.accel.accelerators import create_accelerator
+    from rstrace_engine.bench.trade import moved_cameras
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.interpolants import cache as cache_mod
+    from rstrace_engine.interpolants.render import InterpolantRenderer
+
+    sc = scenes.build("museum_1999", 96, 72)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=0.01)
+    runs = {}
+    for on in (True, False):
+        monkeypatch.setattr(cache_mod, "CORNERS_FIRST", on)
+        r = InterpolantRenderer()
+        frames = []
+        for cam in moved_cameras(sc).values():
+            sc.set_camera(cam)
+            frames.append(r.render(sc, st, accel))
+        runs[on] = frames
+    traced = {on: sum(f.stats["samples_traced"] for f in fr) for on, fr in runs.items()}
+    assert traced[True] < traced[False]  # the path is taken: cells fail at their corners
+    for a, b in zip(runs[True], runs[False], strict=True):
+        assert np.array_equal(a.radiance, b.radiance)
+        assert np.array_equal(a.pixel_class, b.pixel_class)
+        assert a.stats["cell_outcomes"] == b.stats["cell_outcomes"]
+        assert a.stats["cells_valid"] == b.stats["cells_valid"]

@@ -114,6 +114,10 @@ MAX_BACKFACE_SKIPS = 8
 OUTCOMES = (*REASONS, "radiance", "box_miss")
 O_RADIANCE = len(REASONS)
 O_BOX_MISS = len(REASONS) + 1
+#: Shade a cell's 16 corners before its test lines and fail the cell at once when their
+#: ray trees differ (``predicate.corner_trees``: the outcome ``check_cells`` would give).
+#: Off only to compare (the frames are the same; more samples are shaded).
+CORNERS_FIRST = True
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -596,7 +600,7 @@ class InterpolantCache:
             outcome[go[miss]] = REASONS.index("corner_miss")
             outcome[go[jump]] = REASONS.index("class_change")
             go = go[~miss & ~jump]
-        if len(go):
+        if len(go) and CORNERS_FIRST:
             # the corners first: a cell whose corners' ray trees differ fails whatever its
             # test lines (check_cells compares the corners first), so their lines are not
             # shaded (they would be the children's corners: a split shades them if needed)

@@ -50,12 +50,13 @@ def test_corners_first_gives_the_same_frames_with_fewer_samples(monkeypatch):
     sc = scenes.build("museum_1999", 96, 72)
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=0.01)
+    cams = list(moved_cameras(sc).values())
     runs = {}
     for on in (True, False):
         monkeypatch.setattr(cache_mod, "CORNERS_FIRST", on)
         r = InterpolantRenderer()
         frames = []
-        for cam in moved_cameras(sc).values():
+        for cam in cams:
             sc.set_camera(cam)
             frames.append(r.render(sc, st, accel))
         runs[on] = frames

@@ -48,6 +48,7 @@ from ..cancel import kernel_flag
 from ..frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
+    CLASS_FAIL_SHADOW,
     CLASS_FAIL_SILHOUETTE,
     CLASS_TRACED,
 )
@@ -71,10 +72,13 @@ from .pool import INTERP_BYTES, InterpolantPool
 from .predicate import (
     N_TEST_ALL,
     N_TEST_BASE,
+    R_CLASS,
+    R_VALID,
     REASONS,
     TEST_POINTS,
     VALID,
     check_cells,
+    corner_trees,
     radiance_ok,
 )
 from .samples import (
@@ -105,6 +109,15 @@ MIN_PIXELS = 48
 BUILD_STEP_CANCELLABLE = 32
 #: Back-facing crossings skipped while looking for a line's front-facing crossing.
 MAX_BACKFACE_SKIPS = 8
+#: Why a built cell ended as it did (``InterpolantCache.outcome_log``): the predicate's
+#: :data:`~.predicate.REASONS`, then the radiance test and the corners' box pre-test.
+OUTCOMES = (*REASONS, "radiance", "box_miss")
+O_RADIANCE = len(REASONS)
+O_BOX_MISS = len(REASONS) + 1
+#: Shade a cell's 16 corners before its test lines and fail the cell at once when their
+#: ray trees differ (``predicate.corner_trees``: the outcome ``check_cells`` would give).
+#: Off only to compare (the frames are the same; more samples are shaded).
+CORNERS_FIRST = True
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -226,6 +239,10 @@ class InterpolantCache:
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
+        #: a list to receive, per batch of built cells, ``(tree (m,) int32 (inst * 6 +
+        #: face), depth (m,), coord (m, 4), outcome (m,) int8 index into OUTCOMES)``
+        #: (diagnostics: ``scripts/interpolant_outcomes.py``); None records nothing
+        self.outcome_log: list | None = None
         #: what the last full frame leaves for reprojected visibility (:mod:`.reproject`);
         #: dropped by edits
         self.view = None
@@ -562,6 +579,7 @@ class InterpolantCache:
         st["cells_built"] += nc
         go = np.flatnonzero(pre)
         why["box_miss"] = why.get("box_miss", 0) + nc - len(go)
+        outcome = np.full(nc, O_BOX_MISS, np.int8)
         geo = LineCrossings()
         cls0 = np.zeros(nc, np.int32)
         for lo, hi in ((0, 16), (16, ns)):
@@ -579,7 +597,30 @@ class InterpolantCache:
             jump = ~miss & np.any(used & (gc != cls0[go][:, None]), axis=1)
             why["corner_miss"] = why.get("corner_miss", 0) + int(np.count_nonzero(miss))
             why["class_change"] = why.get("class_change", 0) + int(np.count_nonzero(jump))
+            outcome[go[miss]] = REASONS.index("corner_miss")
+            outcome[go[jump]] = REASONS.index("class_change")
             go = go[~miss & ~jump]
+        if len(go) and CORNERS_FIRST:
+            # the corners first: a cell whose corners' ray trees differ fails whatever its
+            # test lines (check_cells compares the corners first), so their lines are not
+            # shaded (they would be the children's corners: a split shades them if needed)
+            k1 = np.repeat(kc[go], 16)
+            corner_ids = self._shade(k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
+            early = np.empty(len(go), np.int8)
+            corner_trees(self.samples.view(), corner_ids, early)
+            off = early != R_VALID
+            if np.any(off):
+                bad_go = go[off]
+                outcome[bad_go] = early[off]
+                status[bad_go] = np.where(early[off] == R_CLASS, CLASS_FAIL_SILHOUETTE,
+                                          CLASS_FAIL_SHADOW)
+                for r, k in zip(*np.unique(early[off], return_counts=True), strict=True):
+                    why[REASONS[r]] = why.get(REASONS[r], 0) + int(k)
+                td = time.perf_counter()
+                self.deps.add_failed(self, cells[bad_go], corner_ids[off],
+                                     np.full(len(bad_go), 16, np.int32))
+                st["deps_s"] += time.perf_counter() - td
+                go = go[~off]
         if len(go):
             nsamp = (16 + ntest[go]).astype(np.int32)
             used = np.arange(ns)[None, :] < nsamp[:, None]
@@ -598,7 +639,8 @@ class InterpolantCache:
             lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon,
                               self.samples.texture_terms(), self.tex_max)
             sub_status[ok[~lin]] = CLASS_FAIL_NONLINEAR
-            detail[ok[~lin]] = len(REASONS)
+            detail[ok[~lin]] = O_RADIANCE
+            outcome[go] = detail
             for r, k in zip(*np.unique(detail, return_counts=True), strict=True):
                 name = REASONS[r] if r < len(REASONS) else "radiance"
                 why[name] = why.get(name, 0) + int(k)
@@ -626,4 +668,6 @@ class InterpolantCache:
                 st["deps_s"] += time.perf_counter() - td
         bad = status != VALID
         a.leaf[cells[bad]] = fail_code(status[bad]).astype(np.int32)
+        if self.outcome_log is not None:
+            self.outcome_log.append((a.tree[cells].copy(), depth.copy(), coord.copy(), outcome))
         st["cells_valid"] += int(np.count_nonzero(~bad))

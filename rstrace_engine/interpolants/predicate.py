@@ -402,6 +402,21 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
     return R_VALID
 
 
+@njit(cache=True, nogil=True)
+def corner_trees(sm, corners, out):
+    """The ray-tree test of :func:`check_cells` on the 16 corners alone (corners (m, 16)
+    sample ids): ``out[c]`` is R_VALID or the reason :func:`check_cells` would give the cell
+    (it compares the corners first, in this order; the slab crossings' instance and class
+    are tested before shading). Cells that fail here need no test lines shaded."""
+    for c in range(corners.shape[0]):
+        r = R_VALID
+        for u in range(1, 16):
+            r = _same_tree(sm, corners[c, 0], corners[c, u])
+            if r != R_VALID:
+                break
+        out[c] = r
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                 cell_nsamp, status, detail, zlo_out, zhi_out, cls_out):

@@ -66,13 +66,10 @@ def _pick(k, x, y, z):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def intersect_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz,
-                      sx, sy, sz, tmin, tmax):
-    """The watertight test on coordinates already permuted by ``(kx, ky, kz)``.
-
-    ``akx = a[kx]`` etc. for the three vertices and the ray origin (float64 scalars); the
-    other arguments as :func:`intersect`. Returns ``(hit, t, u, v)``.
-    """
+def _sheared_uvw(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz, sx, sy):
+    """The sheared vertices' heights ``a2, b2, c2`` and the scaled barycentrics ``U, V, W``
+    (U weighs a, V weighs b, W weighs c) of :func:`intersect_sheared` and
+    :func:`solve_sheared`: one arithmetic, so both give a hit the very same bits."""
     a2 = akz - okz
     b2 = bkz - okz
     c2 = ckz - okz
@@ -82,10 +79,19 @@ def intersect_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz
     By = (bky - oky) - sy * b2
     Cx = (ckx - okx) - sx * c2
     Cy = (cky - oky) - sy * c2
-    # scaled barycentrics: U weighs a, V weighs b, W weighs c
-    U = Cx * By - Cy * Bx
-    V = Ax * Cy - Ay * Cx
-    W = Bx * Ay - By * Ax
+    return (a2, b2, c2, Cx * By - Cy * Bx, Ax * Cy - Ay * Cx, Bx * Ay - By * Ax)
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def intersect_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz,
+                      sx, sy, sz, tmin, tmax):
+    """The watertight test on coordinates already permuted by ``(kx, ky, kz)``.
+
+    ``akx = a[kx]`` etc. for the three vertices and the ray origin (float64 scalars); the
+    other arguments as :func:`intersect`. Returns ``(hit, t, u, v)``.
+    """
+    a2, b2, c2, U, V, W = _sheared_uvw(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz,
+                                       okx, oky, okz, sx, sy)
     if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
         return False, 0.0, 0.0, 0.0
     det = U + V + W
@@ -122,18 +128,8 @@ def solve_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz, sx
     edge may lie a float64 hair outside it. Returns ``(ok, t, u, v)``; ``ok`` is False when
     the ray is parallel to the triangle's plane (or the distance is not finite).
     """
-    a2 = akz - okz
-    b2 = bkz - okz
-    c2 = ckz - okz
-    Ax = (akx - okx) - sx * a2
-    Ay = (aky - oky) - sy * a2
-    Bx = (bkx - okx) - sx * b2
-    By = (bky - oky) - sy * b2
-    Cx = (ckx - okx) - sx * c2
-    Cy = (cky - oky) - sy * c2
-    U = Cx * By - Cy * Bx
-    V = Ax * Cy - Ay * Cx
-    W = Bx * Ay - By * Ax
+    a2, b2, c2, U, V, W = _sheared_uvw(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz,
+                                       okx, oky, okz, sx, sy)
     det = U + V + W
     if det == 0.0:
         return False, 0.0, 0.0, 0.0

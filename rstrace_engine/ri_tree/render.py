@@ -42,10 +42,10 @@ from ..frame import (
     Frame,
     RenderSettings,
 )
-from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
+from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.mesh_topology import mesh_topology
 from ..interpolants.linetree import expanded_boxes
-from ..tracing.batches import accumulate, scatter_add
+from ..tracing.batches import accumulate, frame_batches, scatter_add
 from ..tracing.whitted import (
     _SH_TRACE,
     TILE_RAYS,
@@ -565,13 +565,12 @@ class RITreeRenderer:
         cancelled = False
         bad_total = 0
         dist = thick.auto_distance(sa, settings.thickness_distance)
-        for y0 in range(0, h, rows_per_tile):
+        for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile,
+                                             None):
             if cancel is not None and cancel():
                 cancelled = True
                 break
-            y1 = min(h, y0 + rows_per_tile)
-            pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-            jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
+            rows = slice(int(pix[0]), int(pix[-1]) + 1)
             o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
             if view:
                 length, cls, pinst = self._thickness_tile(sa, o, dr, tmin, tmax, counters)
@@ -580,11 +579,11 @@ class RITreeRenderer:
                 rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
                                                    int(settings.max_depth), counters)
             tile_cls = np.empty(len(pix), np.uint8)
-            bad_total += accumulate(rad, pinst, spp, image[y0 * w:y1 * w], tile_cls)
+            bad_total += accumulate(rad, pinst, spp, image[rows], tile_cls)
             # a pixel's class: that of its first sample that hit something
             c = cls.reshape(spp, len(pix))
             firsthit = np.argmax(c != CLASS_BACKGROUND, axis=0)
-            pclass[y0 * w:y1 * w] = c[firsthit, np.arange(len(pix))]
+            pclass[rows] = c[firsthit, np.arange(len(pix))]
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
         notes = []

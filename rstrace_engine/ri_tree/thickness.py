@@ -24,8 +24,8 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
-from ..geometry.cameras import camera_params, camera_rays, pixel_jitter
-from ..tracing.batches import TILE_RAYS, accumulate
+from ..geometry.cameras import camera_params, camera_rays
+from ..tracing.batches import TILE_RAYS, accumulate, frame_batches
 from ..tracing.shading import geometric_normal
 
 #: At most this many crossings are followed along one ray.
@@ -124,18 +124,16 @@ def render_thickness_exact(scene, settings: RenderSettings, accel, progress=None
     def through(oo, dd, lo, hi, rows):
         return accel.closest_hit(oo, dd, lo, hi)
 
-    for y0 in range(0, h, rows_per_tile):
+    for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile,
+                                         None):
         if cancel is not None and cancel():
             cancelled = True
             break
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=int(settings.seed) * 1000003 + y0)
+        rows = slice(int(pix[0]), int(pix[-1]) + 1)
         o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
         length = walk(sa, through, o, dr, tmin, tmax)
         inst = np.where(length > 0, 0, -1).astype(np.int32)
-        accumulate(display(length, dist), inst, spp, image[y0 * w:y1 * w],
-                    pclass[y0 * w:y1 * w])
+        accumulate(display(length, dist), inst, spp, image[rows], pclass[rows])
         if progress is not None:
             progress(y1 / h, f"thickness {y1}/{h} rows")
     stats = dict(mode=settings.mode, view="THICKNESS", time_s=time.perf_counter() - t_start,

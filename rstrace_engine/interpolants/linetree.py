@@ -169,6 +169,15 @@ def point_depth(box, inst, face, px, py, pz):
     return front - pk if neg else pk - front
 
 
+@njit(cache=True, nogil=True, inline="always")
+def cell_bounds(lt, nd, lo, hi):
+    """The 4D box of linetree node ``nd`` in unit face coordinates, into ``lo``, ``hi`` (4,)."""
+    sc = 1.0 / float(1 << lt.depth[nd])
+    for m in range(4):
+        lo[m] = lt.coord[nd, m] * sc
+        hi[m] = (lt.coord[nd, m] + 1) * sc
+
+
 @njit(cache=True, nogil=True)
 def lattice_lines(box, inst, face, lattice, origins, directions):
     """Lines of lattice points: origin on the front face, direction to the back face.

@@ -46,7 +46,14 @@ from numba import njit
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT
 from ..geometry.cameras import CameraParams
-from .linetree import EMPTY, descend_one, dominant_face, face_frame, interpolate16
+from .linetree import (
+    EMPTY,
+    cell_bounds,
+    descend_one,
+    dominant_face,
+    face_frame,
+    interpolate16,
+)
 from .shafts import MAX_PLANES, hexa_planes, hw_shaft, mesh_any, other_geometry, to_object
 
 #: Reprojection on or off (benchmarks and tests compare; frames are the same either way).
@@ -264,10 +271,7 @@ def _reproject_rays(qs, box, lt, roots, inode, izlo, izhi, dif, isamples, live, 
             pinst = inst
             pface = face
             pleaf = nd
-            sc = 1.0 / float(1 << lt.depth[nd])
-            for m in range(4):
-                lo[m] = lt.coord[nd, m] * sc
-                hi[m] = (lt.coord[nd, m] + 1) * sc
+            cell_bounds(lt, nd, lo, hi)
         q = lt.leaf[nd]
         if q < 0:
             continue

@@ -17,6 +17,7 @@ from ..frame import (
 )
 from .linetree import (
     EMPTY,
+    cell_bounds,
     descend_one,
     interpolate16,
 )
@@ -67,10 +68,7 @@ def walk_level(lt, rad16, izlo, izhi, icls, istamp, irebuilt, clock, nodes, inhe
                 nd, inh = descend_one(lt, pstart, abcd[r], pinh)
                 pleaf = nd
                 pout = inh
-                sc = 1.0 / float(1 << lt.depth[nd])
-                for m in range(4):
-                    lo[m] = lt.coord[nd, m] * sc
-                    hi[m] = (lt.coord[nd, m] + 1) * sc
+                cell_bounds(lt, nd, lo, hi)
             nodes[r] = nd
             inherited[r] = inh
             q = lt.leaf[nd]

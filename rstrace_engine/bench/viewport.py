@@ -35,6 +35,7 @@ import numpy as np
 from .. import scenes
 from ..frame import RenderSettings
 from ..geometry import edits as E
+from ..geometry import shapes
 from ..interactive import ViewportWorker
 from ..session import Session
 
@@ -45,14 +46,7 @@ EDITS = ("move one small object", "change a material colour", "orbit the camera 
 
 
 def _orbit(camera, degrees: float, target=(2.0, 4.0, 1.0)):
-    a = math.radians(degrees)
-    rot = np.eye(4)
-    rot[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
-    t = np.eye(4)
-    t[:3, 3] = target
-    ti = np.eye(4)
-    ti[:3, 3] = -np.asarray(target)
-    return replace(camera, matrix=t @ rot @ ti @ camera.matrix)
+    return replace(camera, matrix=shapes.orbit_z(degrees, target) @ camera.matrix)
 
 
 def _edit(session, name: str, step: int):

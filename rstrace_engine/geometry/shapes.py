@@ -134,6 +134,13 @@ def transform(translate=(0.0, 0.0, 0.0), scale=1.0, rotate_z_deg: float = 0.0,
     return m
 
 
+def orbit_z(degrees: float, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """A 4x4 rotation by ``degrees`` about the vertical axis through ``centre`` (an orbit:
+    ``orbit_z(a, c) @ camera.matrix`` turns a camera about ``c``)."""
+    c = np.asarray(centre, dtype=np.float64)
+    return transform(c) @ transform(rotate_z_deg=degrees) @ transform(-c)
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Camera-to-world matrix of a camera at ``eye`` looking at ``target`` (Blender axes)."""
     eye = np.asarray(eye, dtype=np.float64)

@@ -310,14 +310,9 @@ def _orbit(cam, degrees: float, centre=(0.0, 0.0, 0.5)):
     """``cam`` turned about the vertical axis through ``centre``."""
     from dataclasses import replace
 
-    a = np.radians(degrees)
-    rot = np.eye(4)
-    rot[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-    shift = np.eye(4)
-    shift[:3, 3] = centre
-    back = np.eye(4)
-    back[:3, 3] = -np.asarray(centre)
-    return replace(cam, matrix=shift @ rot @ back @ np.asarray(cam.matrix))
+    from rstrace_engine.geometry import shapes
+
+    return replace(cam, matrix=shapes.orbit_z(degrees, centre) @ np.asarray(cam.matrix))
 
 
 def test_orbit_reuses_the_interpolants():

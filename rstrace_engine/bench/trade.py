@@ -1,7 +1,7 @@
 """The speed/accuracy trade of radiance interpolants, measured against the base tracer.
 
 ``python -m rstrace_engine.bench trade [--json] [--width W] [--height H]
-[--scenes three_spheres,museum,tori] [--out DIR] [--quick] [--spp 1,4,16]``
+[--scenes three_spheres,museum,tori] [--out DIR] [--quick] [--spp 1,4,16] [--caps 6,7,8]``
 
 For each scene (default *three_spheres*, *museum* and the smooth non-convex *tori*, at
 640x480, ray depth 5) the base tracer renders three cameras: the scene's camera, a step
@@ -24,7 +24,10 @@ curve per scene; DIR defaults to ``docs``). ``--json`` prints ``{"rows": [{"scen
 "reprojected_fraction" (share of the camera step's samples whose interpolant was found by
 reprojection instead of a closest-hit ray and a walk; ``reprojected_pan_fraction`` the pan's,
 ``reprojected_first_fraction`` the first frame's: with several samples per pixel, the samples
-after each pixel's first), "memory_mb"}, ...]}``. ``--no-reproject`` turns reprojection off
+after each pixel's first), "memory_mb", "first_ceiling", "step_ceiling", "pan_ceiling" (the
+ceilings: the base frame's time over the time the base tracer takes for the pixels that
+frame did not interpolate alone -- the speedup if every interpolated pixel were free)},
+...]}``. ``--no-reproject`` turns reprojection off
 (for comparison: the frames are the same).
 """
 
@@ -42,7 +45,7 @@ import numpy as np
 
 from .. import image, scenes
 from ..accel.accelerators import create_accelerator
-from ..frame import RenderSettings
+from ..frame import CLASS_INTERPOLATED, RenderSettings
 from ..geometry.cameras import camera_rays
 from ..geometry.scene import Camera
 from ..interpolants.render import InterpolantRenderer
@@ -57,7 +60,7 @@ JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "spp", "first_fra
              "camera_step_speedup", "pan_speedup", "mean_error", "max_error",
              "frac_over_epsilon", "n_over_epsilon", "psnr", "interpolated_fraction",
              "reprojected_fraction", "reprojected_pan_fraction", "reprojected_first_fraction",
-             "memory_mb")
+             "memory_mb", "first_ceiling", "step_ceiling", "pan_ceiling")
 #: display-space slack of ``n_over_epsilon`` (float32 frames)
 FLOAT_TOL = 1e-6
 
@@ -90,9 +93,10 @@ def _timed(fn, repeat: int):
     return best, out
 
 
-def settings_grid(quick: bool = False, spps=(1,)) -> list[tuple[float, int, float, int]]:
+def settings_grid(quick: bool = False, spps=(1,), caps=()) -> list[tuple[float, int, float, int]]:
     """(epsilon, depth cap, memory cap MB, samples per pixel) of every row: the sweeps at 1
     sample per pixel, and epsilon 0.01 at the default caps for every other count of
+    ``spps``; ``caps``: epsilon 0.01 at each of these depth caps, for every count of
     ``spps``."""
     d = RenderSettings()
     eps = (0.0, 0.01, 0.1) if quick else EPSILONS
@@ -101,6 +105,8 @@ def settings_grid(quick: bool = False, spps=(1,)) -> list[tuple[float, int, floa
         rows += [(0.01, c, d.memory_cap_mb, 1) for c in DEPTH_CAPS]
         rows += [(0.01, d.depth_cap, m, 1) for m in MEMORY_CAPS]
     rows += [(0.01, d.depth_cap, d.memory_cap_mb, int(k)) for k in spps if int(k) != 1]
+    rows += [(0.01, int(c), d.memory_cap_mb, int(k)) for c in caps for k in spps
+             if (0.01, int(c), d.memory_cap_mb, int(k)) not in rows]
     return rows
 
 
@@ -140,12 +146,13 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
         times = dict.fromkeys(cams, math.inf)
         rep = dict.fromkeys(cams, 0.0)
         btimes = dict.fromkeys(cams, math.inf)
+        rest = dict.fromkeys(cams, math.inf)
         for _ in range(max(repeat, 1)):
             r = InterpolantRenderer()
             for key, cam in cams.items():
                 sc.set_camera(cam)
                 t0 = CLOCK()
-                render(sc, base_settings, accel=accel)
+                bframe = render(sc, base_settings, accel=accel)
                 btimes[key] = min(btimes[key], CLOCK() - t0)
                 t0 = CLOCK()
                 frame = r.render(sc, st, accel)
@@ -154,6 +161,7 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                     f_first = frame
                     memory = r.cache.memory_bytes / 1e6
                 rep[key] = frame.stats.get("reprojected_fraction", 0.0)
+                rest[key] = min(rest[key], _rest_time(sc, base_settings, accel, bframe, frame))
         t_first = times["first"]
         m = image.compare(f_first.radiance, base_frame.radiance, eps)
         err = np.abs(image.to_display(f_first.radiance)
@@ -173,6 +181,9 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
             base_s=btimes["first"], first_s=t_first, step_s=times["step"],
             pan_s=times["pan"], cells_built=f_first.stats["cells_built"],
             visibility_bound=t_base / (t_vis * spp),
+            first_ceiling=btimes["first"] / rest["first"],
+            step_ceiling=btimes["step"] / rest["step"],
+            pan_ceiling=btimes["pan"] / rest["pan"],
         )
         rows.append(row)
         if log is not None:
@@ -181,9 +192,23 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                 f"step {row['camera_step_speedup']:.2f}x pan {row['pan_speedup']:.2f}x "
                 f"interp {100 * row['interpolated_fraction']:.1f}% "
                 f"reprojected {100 * row['reprojected_fraction']:.1f}% "
+                f"ceiling {row['first_ceiling']:.2f}/{row['step_ceiling']:.2f}/"
+                f"{row['pan_ceiling']:.2f}x "
                 f"over-eps {100 * row['frac_over_epsilon']:.3f}%")
     sc.set_camera(cams["first"])
     return rows
+
+
+def _rest_time(sc, settings: RenderSettings, accel, base_frame, frame) -> float:
+    """The time the base tracer takes for the pixels ``frame`` did not interpolate alone
+    (every sample of a pixel any of whose samples was traced, its primary rays included),
+    copied over ``base_frame`` (that camera's base frame): what a frame would still cost if
+    its interpolated pixels were free -- no visibility ray, walk, look-up or cell build. The
+    base frame's time over it is the most the interpolants' coverage of that frame allows."""
+    todo = (frame.pixel_class != CLASS_INTERPOLATED).reshape(-1)
+    t0 = CLOCK()
+    render(sc, settings, accel=accel, pixels=todo, base=base_frame)
+    return max(CLOCK() - t0, 1e-9)
 
 
 def _fmt(x, nd=3):
@@ -198,14 +223,17 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
     head = ("| scene | eps | depth cap | mem cap MB | spp | first frame | camera step | pan | "
             "mean err | max err | >eps px | PSNR dB | interp % | "
             "reprojected % (first / step / pan) | memory MB | "
-            "base s | first s | step s | pan s | base / primary rays |")
+            "base s | first s | step s | pan s | base / primary rays | "
+            "ceiling (first / step / pan) |")
     lines = [f"Interpolant speed/accuracy trade at {width}x{height}, ray depth 5 "
              f"(`python -m rstrace_engine.bench trade`). Speedups are base tracer time / "
              f"interpolant time of the same frame in the same run; errors compare the "
              f"first frame with the base frame in display space. The last column is the "
              f"base frame time over the time of its primary rays alone: the most any frame "
-             f"that casts one visibility ray per pixel could gain. {note}", "", head,
-             "|" + "---|" * 20]
+             f"that casts one visibility ray per pixel could gain; the *ceiling* is the base "
+             f"frame time over the time of tracing only the pixels that frame did not "
+             f"interpolate: the speedup if every interpolated pixel were free. {note}", "",
+             head, "|" + "---|" * 21]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], f"{r['epsilon']:g}", str(r["depth_cap"]), f"{r['memory_cap_mb']:g}",
@@ -218,7 +246,9 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
             f"{100 * r['reprojected_fraction']:.1f} / {100 * r['reprojected_pan_fraction']:.1f}",
             f"{r['memory_mb']:.1f}",
             f"{r['base_s']:.3f}", f"{r['first_s']:.3f}", f"{r['step_s']:.3f}",
-            f"{r['pan_s']:.3f}", f"{r['visibility_bound']:.1f}x"]) + " |")
+            f"{r['pan_s']:.3f}", f"{r['visibility_bound']:.1f}x",
+            f"{r['first_ceiling']:.2f} / {r['step_ceiling']:.2f} / {r['pan_ceiling']:.2f}x"])
+            + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -272,6 +302,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--quick", action="store_true", help="three epsilons, no cap sweep")
     p.add_argument("--spp", default="1", help="samples per pixel, comma separated (counts "
                                               "other than 1: one row each at epsilon 0.01)")
+    p.add_argument("--caps", default="", help="depth caps, comma separated: one row each at "
+                                             "epsilon 0.01 per count of --spp")
     p.add_argument("--threads", type=int, default=0, help="numba threads (0: all)")
     p.add_argument("--no-reproject", action="store_true",
                    help="find every sample's visible surface with a closest-hit ray")
@@ -289,7 +321,8 @@ def main(argv: list[str]) -> int:
         from ..interpolants import reproject
 
         reproject.ENABLED = False
-    grid = settings_grid(args.quick, [int(k) for k in args.spp.split(",")])
+    grid = settings_grid(args.quick, [int(k) for k in args.spp.split(",")],
+                         [int(c) for c in args.caps.split(",") if c.strip()])
     rows = []
 
     def log(msg):

@@ -1,0 +1,30 @@
+"""``python -m rstrace_engine.bench trade``'s measurement (a smoke test on a small view: the
+rows, their keys and the bound; no times are asserted)."""
+
+from __future__ import annotations
+
+import math
+
+from rstrace_engine.bench import trade
+from rstrace_engine.frame import RenderSettings
+
+
+def test_rows_carry_speedups_ceilings_and_the_bound():
+    d = RenderSettings()
+    grid = trade.settings_grid(quick=True, spps=(1,), caps=(d.depth_cap, 5))
+    # the quick sweep, and the cap rows other than the default's (which it already has)
+    assert grid == [(0.0, d.depth_cap, d.memory_cap_mb, 1), (0.01, d.depth_cap,
+                    d.memory_cap_mb, 1), (0.1, d.depth_cap, d.memory_cap_mb, 1),
+                    (0.01, 5, d.memory_cap_mb, 1)]
+    rows = trade.run_scene("museum_1999", 64, 48, 5, grid[:2], repeat=1)
+    assert len(rows) == 2
+    for r in rows:
+        assert set(trade.JSON_KEYS) <= set(r)
+        for key in ("first_frame_speedup", "camera_step_speedup", "pan_speedup",
+                    "first_ceiling", "step_ceiling", "pan_ceiling"):
+            assert math.isfinite(r[key]) and r[key] > 0, key
+        assert r["n_over_epsilon"] == 0
+    # epsilon 0 interpolates nothing: its frames are base frames
+    assert rows[0]["interpolated_fraction"] == 0.0 and rows[0]["max_error"] == 0.0
+    assert rows[1]["interpolated_fraction"] > 0.0
+    assert "ceiling (first / step / pan)" in trade.markdown(rows, 64, 48)

@@ -15,10 +15,12 @@ _MODE_UI = {
     "BASE": ("Base Tracer", "Classical Whitted ray tracing of every pixel"),
     "INTERPOLANT": ("Radiance Interpolants",
                     "Interpolate radiance from per-object 4D linetrees within the error bound "
-                    "epsilon; edits invalidate only what they affect (ray segment trees)"),
+                    "epsilon; edits invalidate only what they affect (ray segment trees). Not "
+                    "faster than the Base Tracer in this version (README, Measured)"),
     "RI_TREE": ("RI-Tree",
                 "Interpolate ray-surface intersections (hit point, normal, exit ray, "
-                "thickness) from per-object 4D kd-trees"),
+                "thickness) from per-object 4D kd-trees. Not faster than the Base Tracer in "
+                "this version: objects whose tree does not pay are traced"),
 }
 _ACCELERATOR_UI = {
     "BVH": ("BVH", "Two-level bounding volume hierarchy (numba); moving an object rebuilds "

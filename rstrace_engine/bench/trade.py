@@ -263,23 +263,27 @@ def plot(rows: list[dict], path: Path) -> bool:
         return False
     d = RenderSettings()
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), sharey=False)
-    keys = (("first_frame_speedup", "first frame"), ("camera_step_speedup", "camera step"),
-            ("pan_speedup", "pan 2.5 deg"))
-    for ax, (key, title) in zip(axes, keys, strict=True):
+    keys = (("first_frame_speedup", "first_ceiling", "first frame"),
+            ("camera_step_speedup", "step_ceiling", "camera step"),
+            ("pan_speedup", "pan_ceiling", "pan 2.5 deg"))
+    for ax, (key, ceil_key, title) in zip(axes, keys, strict=True):
         for name in dict.fromkeys(r["scene"] for r in rows):
             sel = [r for r in rows if r["scene"] == name and r["depth_cap"] == d.depth_cap
                    and r["memory_cap_mb"] == d.memory_cap_mb and r["spp"] == 1]
             sel.sort(key=lambda r: r["epsilon"])
             x = [max(r["mean_error"], 1e-6) for r in sel]
             y = [r[key] for r in sel]
-            ax.plot(x, y, marker="o", label=name)
+            line, = ax.plot(x, y, marker="o", label=name)
+            if sel and ceil_key in sel[0]:  # the frame if its interpolated pixels were free
+                ax.plot(x, [r[ceil_key] for r in sel], color=line.get_color(), lw=1.0, ls=":",
+                        label=f"{name}: ceiling")
             for r, xi, yi in zip(sel, x, y, strict=True):
                 ax.annotate(f"{r['epsilon']:g}", (xi, yi), fontsize=7, xytext=(3, 3),
                             textcoords="offset points")
         ax.set_xscale("log")
         ax.axhline(1.0, color="grey", lw=0.8, ls="--")
         ax.set_xlabel("mean display error vs base frame (labels: epsilon)")
-        ax.set_ylabel(f"{title} speedup over the base tracer")
+        ax.set_ylabel(f"{title} speedup over the base tracer\n(dotted: interpolated pixels free)")
         ax.set_title(title)
         ax.grid(alpha=0.3)
     axes[0].legend()

@@ -1,7 +1,9 @@
 """Embree backend through ``embreex`` (the yardstick the numba BVH is measured against).
 
 The scene is flattened: one Embree triangle geometry per instance, its mesh's vertices taken
-to world space in float32 (Embree's precision), so ``geomID`` is the instance id and
+to world space less the centre of the scene's box, in float32 (Embree's precision; rays are
+re-centred alike, so a scene far from the origin keeps its float32 resolution: at 1e6 world
+float32 is good to 6 cm), so ``geomID`` is the instance id and
 ``primID`` the triangle within the instance's mesh (reported as the GLOBAL triangle index).
 Closest hits use Embree's intersect query, ``any_hit`` its occlusion query, and
 ``intersect_object`` a per-instance Embree scene built lazily on first use. The scene is
@@ -19,7 +21,13 @@ differed from the BVH's). Two things make an Embree frame the BVH's frame:
 * the distance and barycentrics of every closest hit are recomputed in float64 on the float64
   triangle Embree reports, with the BVH's own arithmetic (:func:`.triangle.solve_sheared`),
   so hit points (and every ray spawned from them) are where the BVH puts them, not
-  float32-t away.
+  float32-t away; a hit whose float64 plane lies before the ray's start (its own surface
+  found again) is queried again past it, and an any-hit ray Embree calls occluded is
+  checked by such a closest-hit query (shadow acne on small, finely tessellated objects
+  otherwise; it costs Embree frames 10-25%).
+
+Every scene is made on one Embree device (:func:`_new_scene`): a device per scene crashed
+the process at about the 1,017th per-object scene.
 
 Hits that Embree cannot order (``tolerances.FLOAT32_TIE_REL``): two objects whose faces are
 within float32 rounding of each other along a ray (a box resting on a floor, coplanar
@@ -59,12 +67,29 @@ log = logging.getLogger(__name__)
 
 try:  # optional dependency
     from embreex import mesh_construction as _mc
+    from embreex import rtcore as _rc
     from embreex import rtcore_scene as _rs
 except ImportError:  # pragma: no cover - depends on the machine
-    _mc = _rs = None
+    _mc = _rc = _rs = None
+
+_device = None
+_device_lock = threading.Lock()
+
+
+def _new_scene():
+    """A robust (watertight) Embree scene on the process's one Embree device. A scene made
+    without a device gets a device of its own, and the process crashed at about the
+    1,017th (a museum's per-object scenes reach that)."""
+    global _device
+    with _device_lock:
+        if _device is None:
+            _device = _rc.EmbreeDevice()
+        return _rs.EmbreeScene(_device, robust=True)
 
 #: Fewest rays per thread worth splitting a batch for.
 MIN_RAYS_PER_THREAD = 4096
+#: How often a ray whose float32 hit the float64 scene does not have is queried again past it.
+REQUERY_ROUNDS = 4
 
 
 def available() -> bool:
@@ -72,13 +97,14 @@ def available() -> bool:
     return _rs is not None
 
 
-def _instance_geometry(sa: SceneArrays, i: int):
-    """World-space float32 vertices (V, 3) and int32 triangles (m, 3) of instance ``i``."""
+def _instance_geometry(sa: SceneArrays, i: int, centre: np.ndarray):
+    """Float32 vertices (V, 3) of instance ``i`` in world space less ``centre`` (re-centred
+    before the rounding to float32), and its int32 triangles (m, 3)."""
     m = sa.inst_mesh[i]
     tris = sa.tris[sa.mesh_tri_start[m]:sa.mesh_tri_start[m + 1]]
     v0, v1 = int(tris.min()), int(tris.max()) + 1
     x = sa.inst_xform[i]
-    world = sa.verts[v0:v1] @ x[:3, :3].T + x[:3, 3]
+    world = sa.verts[v0:v1] @ x[:3, :3].T + (x[:3, 3] - centre)
     return (np.ascontiguousarray(world, dtype=np.float32),
             np.ascontiguousarray(tris - v0, dtype=np.int32))
 
@@ -102,28 +128,36 @@ class EmbreeAccelerator(Accelerator):
 
     def _build(self, sa: SceneArrays) -> None:
         t0 = time.perf_counter()
-        scene = _rs.EmbreeScene(robust=True)
+        scene = _new_scene()
         self._keep = []  # embreex geometries must outlive the scene's use of them
+        # Embree works in float32 around the centre of the scene's box: translated by 1e6
+        # a float32 world coordinate is only good to 6 cm (at 1e7 every primary ray missed)
+        box = np.asarray(sa.scene_aabb, np.float64)
+        centre = 0.5 * (box[0] + box[1])
+        self._centre = centre if np.all(np.isfinite(centre)) else np.zeros(3)
         # geometry ids are given in order: geom_slot maps them back to instance slots
         self._geom_slot = np.ascontiguousarray(np.flatnonzero(sa.inst_alive), np.int32)
         for i in self._geom_slot:
-            v, f = _instance_geometry(sa, int(i))
+            v, f = _instance_geometry(sa, int(i), self._centre)
             self._keep.append(_mc.TriangleMesh(scene, v, f))
         self.scene = scene
         self.sa = sa
         self._prim_offset = np.ascontiguousarray(sa.mesh_tri_start[sa.inst_mesh], np.int32)
-        self._magnitude = float(np.max(np.abs(sa.scene_aabb)))
+        # the largest re-centred coordinate: the scale of Embree's float32 rounding
+        self._magnitude = float(np.max(np.abs(box - self._centre))) if len(
+            self._geom_slot) else 0.0
         self._objects: dict[int, object] = {}
-        # the objects a hit may tie with (None: fewer than two objects)
-        self._ties = build_tie_index(sa.inst_aabb, self._geom_slot, self._magnitude)
+        # the objects a hit may tie with (None: fewer than two objects), re-centred too
+        self._ties = build_tie_index(sa.inst_aabb - self._centre, self._geom_slot,
+                                     self._magnitude)
         self.stats["build_s"] = time.perf_counter() - t0
 
     def _object_scene(self, i: int):
         with self._lock:
             sc = self._objects.get(i)
             if sc is None:
-                sc = _rs.EmbreeScene(robust=True)
-                v, f = _instance_geometry(self.sa, i)
+                sc = _new_scene()
+                v, f = _instance_geometry(self.sa, i, self._centre)
                 self._keep.append(_mc.TriangleMesh(sc, v, f))
                 self._objects[i] = sc
             return sc
@@ -150,16 +184,30 @@ class EmbreeAccelerator(Accelerator):
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits
 
-    def _fill(self, hits: Hits, scene, o, d, tmin, tmax, anyhit, inst):
+    def _fill(self, hits: Hits, scene, o, d, tmin, tmax, anyhit, inst, rounds=0,
+              ties=True):
         """Trace rays with ``scene`` into ``hits`` (pre-filled as misses), in chunks on the
-        thread pool; conversion to and from Embree's float32 runs in the workers too."""
+        thread pool; conversion to and from Embree's float32 runs in the workers too.
+
+        Float32 hits the float64 scene does not have (:func:`_refine`'s ``behind``: the
+        surface a ray was spawned from, found again) are queried again past that hit, and
+        any-hit queries Embree answers "occluded" are checked so, by a closest-hit query of
+        those rays: a ray spawned off a small, finely tessellated object otherwise found that
+        object as its own occluder (shadow acne on ``museum``). ``ties``: resolve hits
+        Embree cannot order (:meth:`_resolve_ties`; not needed to learn *whether* a ray is
+        occluded)."""
         n = len(o)
+        if anyhit:
+            self._fill_occluded(hits, scene, o, d, tmin, tmax, inst)
+            return
+        behind = np.zeros(n, np.bool_)
         threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
         edges = np.linspace(0, n, threads + 1).astype(int)
         parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
         offset = self._prim_offset
         sa = self.sa
         mag = self._magnitude
+        centre = self._centre
 
         def job(s):
             m = s.stop - s.start
@@ -167,56 +215,101 @@ class EmbreeAccelerator(Accelerator):
             dirs = np.empty((m, 3), np.float32)
             dist = np.empty(m, np.float32)
             t0 = np.empty(m, np.float64)
-            _to_embree(o[s], d[s], tmin[s], tmax[s], mag, org, dirs, dist, t0)
-            if anyhit:
-                res = scene.run(org, dirs, dists=dist, query="OCCLUDED")
-                _store_occluded(np.asarray(res, np.int32), tmin[s], tmax[s], max(inst, 0),
-                                hits.inst[s])
-            else:
-                res = scene.run(org, dirs, dists=dist, output=1)
-                _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
-                            t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
-                            hits.inst[s],
-                            hits.prim[s], hits.u[s], hits.v[s])
-                _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
-                        hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s])
-                if inst < 0 and self._ties is not None:
-                    self._resolve_ties(o[s], d[s], t0, tmax[s], hits.t[s], hits.inst[s],
-                                       hits.prim[s], hits.u[s], hits.v[s])
+            oc = o[s] - centre  # float64, re-centred as Embree's geometry
+            _to_embree(oc, d[s], tmin[s], tmax[s], mag, org, dirs, dist, t0)
+            res = scene.run(org, dirs, dists=dist, output=1)
+            _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
+                        t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
+                        hits.inst[s], hits.prim[s], hits.u[s], hits.v[s])
+            _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
+                    hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s], behind[s])
+            if ties and inst < 0 and self._ties is not None:
+                was_inst, was_prim = hits.inst[s].copy(), hits.prim[s].copy()
+                self._resolve_ties(o[s], oc, d[s], t0, tmax[s], hits.t[s], hits.inst[s],
+                                   hits.prim[s], hits.u[s], hits.v[s])
+                # a closer hit of another object replaced the one to query past
+                behind[s] &= (hits.inst[s] == was_inst) & (hits.prim[s] == was_prim)
 
-        if threads == 1:
+        self._run(job, parts)
+        again = np.flatnonzero(behind)
+        if len(again) == 0:
+            return
+        if rounds >= REQUERY_ROUNDS:  # (not seen) the rounds are spent: leave the hits
+            log.debug("embree: %d rays still behind after %d rounds", len(again), rounds)
+            return
+        start = np.empty(len(again))
+        _past(o[again] - centre, d[again], hits.t[again], mag, start)
+        sub = empty_hits(len(again))
+        self._fill(sub, scene, o[again], d[again], start, tmax[again], False, inst, rounds + 1,
+                   ties)
+        for full, part in zip(hits, sub, strict=True):
+            full[again] = part
+
+    def _fill_occluded(self, hits: Hits, scene, o, d, tmin, tmax, inst):
+        """Any-hit queries: Embree's occlusion query, then a closest-hit query (with its
+        float64 checks) of the rays it says are occluded; occluded where that finds a hit."""
+        n = len(o)
+        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
+        edges = np.linspace(0, n, threads + 1).astype(int)
+        parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        mag = self._magnitude
+        centre = self._centre
+        occluded = np.zeros(n, np.int32)
+
+        def job(s):
+            m = s.stop - s.start
+            org = np.empty((m, 3), np.float32)
+            dirs = np.empty((m, 3), np.float32)
+            dist = np.empty(m, np.float32)
+            t0 = np.empty(m, np.float64)
+            _to_embree(o[s] - centre, d[s], tmin[s], tmax[s], mag, org, dirs, dist, t0)
+            res = scene.run(org, dirs, dists=dist, query="OCCLUDED")
+            _store_occluded(np.asarray(res, np.int32), tmin[s], tmax[s], 1, occluded[s])
+
+        self._run(job, parts)
+        check = np.flatnonzero(occluded)
+        if len(check) == 0:
+            return
+        sub = empty_hits(len(check))
+        self._fill(sub, scene, o[check], d[check], tmin[check], tmax[check], False, inst,
+                   ties=False)
+        hits.inst[check[sub.inst >= 0]] = max(inst, 0)
+
+    def _run(self, job, parts) -> None:
+        if len(parts) == 1:
             job(parts[0])
             return
-        if self._pool is None or self._pool._max_workers < threads:
-            self._pool = ThreadPoolExecutor(max_workers=threads)
+        if self._pool is None or self._pool._max_workers < len(parts):
+            self._pool = ThreadPoolExecutor(max_workers=len(parts))
         list(self._pool.map(job, parts))
 
-    def _resolve_ties(self, o, d, t0, tmax, t, inst, prim, u, v):
+    def _resolve_ties(self, o, oc, d, t0, tmax, t, inst, prim, u, v):
         """Closest hits (refined, rows of one chunk, updated in place) made independent of
         Embree's BVH: every other live object whose box holds a hit point is re-tested alone
         in the window where float32 cannot order it against that hit (module docstring).
-        ``t0``: where each ray's Embree query started (its effective ``tmin``)."""
+        ``o`` world origins, ``oc`` the same re-centred; ``t0``: where each ray's Embree
+        query started (its effective ``tmin``)."""
         mag = self._magnitude
         rows = np.empty(len(t), np.int32)
         objs = np.empty(len(t), np.int32)
-        k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
+        k = tie_candidates(self._ties, oc, d, t, inst, mag, rows, objs)
         if k > len(rows):  # more candidates than rays: count known, run again
             rows = np.empty(k, np.int32)
             objs = np.empty(k, np.int32)
-            k = tie_candidates(self._ties, o, d, t, inst, mag, rows, objs)
+            k = tie_candidates(self._ties, oc, d, t, inst, mag, rows, objs)
         if k == 0:
             return
         order = np.argsort(objs[:k], kind="stable")
         rows, objs = rows[:k][order], objs[:k][order]
-        oc, dc, tmax_c, t0_c = o[rows], d[rows], tmax[rows], t0[rows]
+        ow, occ, dc, tmax_c, t0_c = o[rows], oc[rows], d[rows], tmax[rows], t0[rows]
         lo = np.empty(k)
         hi = np.empty(k)
-        tie_window(oc, dc, t[rows], t0_c, tmax_c, mag, lo, hi)
+        tie_window(occ, dc, t[rows], t0_c, tmax_c, mag, lo, hi)
         org = np.empty((k, 3), np.float32)
         dirs = np.empty((k, 3), np.float32)
         dist = np.empty(k, np.float32)
         s0 = np.empty(k, np.float64)
-        _to_embree(oc, dc, lo, hi, mag, org, dirs, dist, s0)
+        _to_embree(occ, dc, lo, hi, mag, org, dirs, dist, s0)
         c = empty_hits(k)
         edges = np.flatnonzero(np.diff(objs)) + 1
         for a, b in zip(np.r_[0, edges], np.r_[edges, k], strict=True):
@@ -226,8 +319,8 @@ class EmbreeAccelerator(Accelerator):
                         s0[a:b], lo[a:b], hi[a:b], j, self._geom_slot, self._prim_offset,
                         *(x[a:b] for x in c))
         sa = self.sa
-        _refine(sa.verts, sa.tris, sa.inst_inv, oc, dc, t0_c, tmax_c, c.inst, c.prim, c.t,
-                c.u, c.v)
+        _refine(sa.verts, sa.tris, sa.inst_inv, ow, dc, t0_c, tmax_c, c.inst, c.prim, c.t,
+                c.u, c.v, np.zeros(k, np.bool_))
         merge_closer(rows, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 
@@ -265,11 +358,13 @@ def _store_hits(geom, prim, tfar, u, v, t0, tmin, tmax, inst, geom_slot, prim_of
 
 
 @njit(cache=True, nogil=True)
-def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v):
+def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v, behind):
     """Hit distances and barycentrics recomputed in float64 on the float64 triangle (in its
     instance's object space, where ``t`` is the world ``t``) with the BVH's arithmetic
     (:func:`.triangle.solve_sheared`); kept as Embree gave them when the plane is parallel
-    to the ray or the distance leaves ``[tmin, tmax]``."""
+    to the ray or the distance leaves ``[tmin, tmax]``. ``behind[r]`` is set where the
+    float64 plane lies before ``tmin``: Embree's float32 rounding put the surface a ray was
+    spawned from (or one it grazes) in front of it -- not a hit of the float64 scene."""
     for r in range(inst.shape[0]):
         i = inst[r]
         if i < 0:
@@ -287,6 +382,19 @@ def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v):
                                       ox if kz == 0 else (oy if kz == 1 else oz), sx, sy, sz)
         if ok and tmin[r] <= s <= tmax[r]:
             t[r], u[r], v[r] = s, su, sv
+        elif ok and s < tmin[r]:
+            behind[r] = True
+
+
+@njit(cache=True, nogil=True)
+def _past(oc, d, t, magnitude, out):
+    """Where a ray queried again after a rejected float32 hit at ``t`` starts: one float32
+    resolution (``FLOAT32_TNEAR_REL``, as :func:`_to_embree`) beyond it."""
+    for r in range(oc.shape[0]):
+        dl = max(abs(d[r, 0]), abs(d[r, 1]), abs(d[r, 2]))
+        p = max(abs(oc[r, 0] + t[r] * d[r, 0]), abs(oc[r, 1] + t[r] * d[r, 1]),
+                abs(oc[r, 2] + t[r] * d[r, 2]))
+        out[r] = t[r] + (tol.FLOAT32_TNEAR_REL * (magnitude + p) / dl if dl > 0.0 else 0.0)
 
 
 @njit(cache=True, nogil=True)

@@ -37,6 +37,7 @@ from rstrace_engine.geometry.scene import (
     Light,
     SceneError,
     check_matrix,
+    proper_triangles,
 )
 
 from .caches import (
@@ -123,6 +124,9 @@ def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if float(np.max(np.abs(v))) > tol.COORD_MAX:
         return MeshEntry(None, f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}",
                          fingerprint, source)
+    if not np.any(proper_triangles(v, mesh.triangles)):
+        return MeshEntry(None, f"mesh '{name}': all {len(mesh.triangles)} triangles are "
+                         f"degenerate (zero area)", fingerprint, source)
     return MeshEntry(mesh, None, fingerprint, source)
 
 

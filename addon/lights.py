@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from rstrace_engine.geometry.scene import Light
+from rstrace_engine.geometry.scene import MAX_LIGHT_POWER, Light
 
 from .materials import Notes, follow_link, rgb, uses_nodes
 
@@ -34,7 +34,12 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     colour = rgb(data.color)
     if getattr(data, "use_temperature", False):
         colour = colour * rgb(data.temperature_color)
-    power = float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
+    exposure = float(getattr(data, "exposure", 0.0))
+    power = float(data.energy) * 2.0 ** exposure if math.isfinite(exposure) else math.nan
+    why = _unusable(data, colour, power, exposure)
+    if why:
+        notes.skip(f"light '{name}' skipped: {why}")
+        return None
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
     if uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
@@ -63,6 +68,26 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
         return Light(name, "SPOT", tuple(colour), 4.0 * power, tuple(m[:3, 3]), direction,
                      spot_size=math.pi, spot_blend=1.0)
     notes.warn(f"{kind.lower()} lights are not supported (skipped)", name)
+    return None
+
+
+def _unusable(data, colour, power: float, exposure: float) -> str | None:
+    """Why a light's values cannot be rendered (naming the setting), or None. A light with
+    a NaN or negative power, colour or spot shape is skipped, like one with a NaN
+    transform, instead of refusing the whole render."""
+    what = "Power" if exposure == 0.0 else f"Power x 2^Exposure ({exposure:g})"
+    if not math.isfinite(power):
+        return f"its {what} is NaN or infinite"
+    if power < 0.0:
+        return (f"its {what} is negative ({power:g} W): negative lights are not supported "
+                f"(Cycles subtracts their light)")
+    if power > MAX_LIGHT_POWER:
+        return f"its {what} ({power:g} W) is above {MAX_LIGHT_POWER:g} W"
+    if not np.all(np.isfinite(colour)):
+        return "its Color is NaN or infinite"
+    if data.type == "SPOT" and not (math.isfinite(data.spot_size)
+                                    and math.isfinite(data.spot_blend)):
+        return "its spot Size or Blend is NaN"
     return None
 
 

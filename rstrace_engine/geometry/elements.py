@@ -19,6 +19,7 @@ LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
 LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
 
 MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
+MAX_LIGHT_POWER = 1e12  # W (W/m2 for a sun): above it a value is taken as broken input
 
 
 class SceneError(ValueError):

@@ -81,7 +81,11 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     colour is needed: metals, transmission).
     """
     notes: list[str] = []
-    base = np.clip(_rgb(name, "Base Color", base), 0.0, 1.0)
+    raw = _rgb(name, "Base Color", base)
+    if np.any(raw > 1.0):
+        notes.append(f"Base Color above 1 ({', '.join(f'{c:g}' for c in raw)}) is clipped to "
+                     f"1 (energy conservation; Cycles reflects more light than it receives)")
+    base = np.clip(raw, 0.0, 1.0)
     metallic = _scalar(name, "Metallic", metallic)
     roughness = _scalar(name, "Roughness", roughness)
     ior = _scalar(name, "IOR", ior)
@@ -112,6 +116,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         notes.append("rough transmission is rendered as smooth refraction")
     # Cycles' specular IOR level: F0 scaled by 2 level, the IOR of the reflection adjusted
     level = float(np.clip(specular_level, 0.0, 1.0))
+    if specular_level > 1.0:
+        notes.append(f"Specular IOR Level {specular_level:g} is clipped to 1")
     f0 = f0_from_ior(ior) * 2.0 * level
     sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
                           0.0, 1.0))

@@ -35,6 +35,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     LIGHT_POINT,
     LIGHT_SPOT,
     LIGHT_SUN,
+    MAX_LIGHT_POWER,
     MAX_LIGHTS,
     MODEL_PRINCIPLED,
     MODEL_WARD,
@@ -52,6 +53,17 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
 
 log = logging.getLogger(__name__)
 
+
+
+def proper_triangles(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m,) bool: the triangles of positive area (doubled area above
+    ``DEGENERATE_AREA_REL`` times the longest edge squared); the others are dropped at scene
+    build, and a mesh with none is refused."""
+    v = np.asarray(verts, np.float64)[tris]
+    e0, e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], v[:, 2] - v[:, 1]
+    area2 = np.linalg.norm(np.cross(e0, e1), axis=1)
+    longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e0, e1, e2)]), axis=0)
+    return (area2 > tol.DEGENERATE_AREA_REL * longest) & (longest > 0)
 
 class SceneArrays(NamedTuple):
     """The scene as flat arrays, for numba kernels. ``T`` triangles, ``I`` instance slots.
@@ -396,11 +408,7 @@ class Scene:
             if len(slots) != m or (m and slots.min() < 0):
                 raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
 
-        v = verts[tris]
-        e0, e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], v[:, 2] - v[:, 1]
-        area2 = np.linalg.norm(np.cross(e0, e1), axis=1)
-        longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e0, e1, e2)]), axis=0)
-        keep = (area2 > tol.DEGENERATE_AREA_REL * longest) & (longest > 0)
+        keep = proper_triangles(verts, tris)
         dropped = int(m - np.count_nonzero(keep))
         if dropped:
             self.stats["degenerate_triangles"] += dropped
@@ -513,8 +521,8 @@ class Scene:
             p = float(light.power)
         except (TypeError, ValueError):
             raise SceneError(f"light '{n}': power {light.power!r} is not a number") from None
-        if not (math.isfinite(p) and 0.0 <= p <= 1e12):
-            raise SceneError(f"light '{n}': power {p} outside [0, 1e12]")
+        if not (math.isfinite(p) and 0.0 <= p <= MAX_LIGHT_POWER):
+            raise SceneError(f"light '{n}': power {p} outside [0, {MAX_LIGHT_POWER:g}]")
         pos = _colour(n, f"light '{n}' position", light.position, lo=-tol.COORD_MAX,
                       hi=tol.COORD_MAX)
         d = np.asarray(light.direction, dtype=np.float64).reshape(3)

@@ -42,7 +42,8 @@ def _warned(state, *words) -> bool:
                if level == "WARNING")
 
 
-@pytest.mark.parametrize("case", ["zero_scale", "nan_location", "empty_mesh", "no_faces"])
+@pytest.mark.parametrize("case", ["zero_scale", "nan_location", "empty_mesh", "no_faces",
+                                  "degenerate_faces"])
 def test_bad_object_is_skipped_reported_and_the_frame_rendered(case, tmp_path, capfd):
     _scene()
     good, _, _ = _render_and_messages(tmp_path, capfd)
@@ -53,12 +54,17 @@ def test_bad_object_is_skipped_reported_and_the_frame_rendered(case, tmp_path, c
         b.add_object("Lost", b.uv_sphere("Lost", 1.0, 8, 4), (float("nan"), 0.0, 1.0))
     elif case == "empty_mesh":
         b.add_object("Nothing", bpy.data.meshes.new("Nothing"))
-    else:  # vertices and edges but no faces
+    elif case == "no_faces":  # vertices and edges but no faces
         me = bpy.data.meshes.new("Wire")
         me.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1), (1, 2)], [])
         b.add_object("Wire", me)
+    else:  # faces of zero area only (collinear vertices): stopped the whole render before
+        me = bpy.data.meshes.new("Degen")
+        me.from_pydata([(0, 0, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1)], [],
+                       [(0, 1, 2), (1, 2, 3)])
+        b.add_object("Degen", me)
     name = {"zero_scale": "Flat", "nan_location": "Lost", "empty_mesh": "Nothing",
-            "no_faces": "Wire"}[case]
+            "no_faces": "Wire", "degenerate_faces": "Degen"}[case]
     out, state, printed = _render_and_messages(tmp_path, capfd)
     assert state.error is None
     assert _warned(state, f"'{name}'", "skipped"), state.messages
@@ -74,6 +80,46 @@ def test_nan_light_is_skipped(tmp_path, capfd):
     out, state, _ = _render_and_messages(tmp_path, capfd)
     assert state.error is None and _warned(state, "'Broken'")
     assert state.stats["lights"] == 1 and np.isfinite(out["Combined"]).all()
+
+
+@pytest.mark.parametrize("case", ["negative", "nan", "huge", "nan_colour", "nan_spot"])
+def test_light_with_unusable_values_is_skipped(case, tmp_path, capfd):
+    """A light whose power, colour or spot shape cannot be rendered is skipped with a
+    message naming it and the setting (a negative power is legal in Blender): it used to
+    refuse the whole render."""
+    _scene()
+    good, _, _ = _render_and_messages(tmp_path, capfd)
+    if case == "nan_spot":
+        ob = b.point_light("Broken", (0.0, 0.0, 4.0), 100.0, kind="SPOT")
+        ob.data.spot_blend = float("nan")
+    else:
+        ob = b.point_light("Broken", (0.0, 0.0, 4.0), 100.0)
+    if case == "negative":
+        ob.data.energy = -10.0
+    elif case == "nan":
+        ob.data.energy = float("nan")
+    elif case == "huge":
+        ob.data.energy = 1e6
+        ob.data.exposure = 30.0
+    elif case == "nan_colour":
+        ob.data.color = (float("nan"), 1.0, 1.0)
+    out, state, printed = _render_and_messages(tmp_path, capfd)
+    word = {"negative": "negative", "nan": "NaN", "huge": "Exposure", "nan_colour": "Color",
+            "nan_spot": "Blend"}[case]
+    assert state.error is None
+    assert _warned(state, "'Broken'", "skipped", word), state.messages
+    assert "'Broken'" in printed
+    assert state.stats["lights"] == 1
+    np.testing.assert_allclose(out["Combined"], good["Combined"], atol=1e-6)
+
+
+def test_base_colour_above_one_is_reported(tmp_path, capfd):
+    _scene()
+    bpy.data.materials["Ball"].node_tree.nodes["Principled BSDF"].inputs[
+        "Base Color"].default_value = (2.0, 0.4, 0.4, 1.0)
+    _, state, _ = _render_and_messages(tmp_path, capfd)
+    assert state.error is None
+    assert _warned(state, "'Ball'", "Base Color above 1"), state.messages
 
 
 def test_no_camera_is_a_clean_error(tmp_path):

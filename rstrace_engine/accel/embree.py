@@ -201,22 +201,13 @@ class EmbreeAccelerator(Accelerator):
             self._fill_occluded(hits, scene, o, d, tmin, tmax, inst)
             return
         behind = np.zeros(n, np.bool_)
-        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
-        edges = np.linspace(0, n, threads + 1).astype(int)
-        parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
         offset = self._prim_offset
         sa = self.sa
         mag = self._magnitude
         centre = self._centre
 
         def job(s):
-            m = s.stop - s.start
-            org = np.empty((m, 3), np.float32)
-            dirs = np.empty((m, 3), np.float32)
-            dist = np.empty(m, np.float32)
-            t0 = np.empty(m, np.float64)
-            oc = o[s] - centre  # float64, re-centred as Embree's geometry
-            _to_embree(oc, d[s], tmin[s], tmax[s], mag, org, dirs, dist, t0)
+            oc, org, dirs, dist, t0 = self._rays(o[s], d[s], tmin[s], tmax[s])
             res = scene.run(org, dirs, dists=dist, output=1)
             _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
                         t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
@@ -230,7 +221,7 @@ class EmbreeAccelerator(Accelerator):
                 # a closer hit of another object replaced the one to query past
                 behind[s] &= (hits.inst[s] == was_inst) & (hits.prim[s] == was_prim)
 
-        self._run(job, parts)
+        self._run(job, n)
         again = np.flatnonzero(behind)
         if len(again) == 0:
             return
@@ -249,24 +240,14 @@ class EmbreeAccelerator(Accelerator):
         """Any-hit queries: Embree's occlusion query, then a closest-hit query (with its
         float64 checks) of the rays it says are occluded; occluded where that finds a hit."""
         n = len(o)
-        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
-        edges = np.linspace(0, n, threads + 1).astype(int)
-        parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-        mag = self._magnitude
-        centre = self._centre
         occluded = np.zeros(n, np.int32)
 
         def job(s):
-            m = s.stop - s.start
-            org = np.empty((m, 3), np.float32)
-            dirs = np.empty((m, 3), np.float32)
-            dist = np.empty(m, np.float32)
-            t0 = np.empty(m, np.float64)
-            _to_embree(o[s] - centre, d[s], tmin[s], tmax[s], mag, org, dirs, dist, t0)
+            _, org, dirs, dist, _ = self._rays(o[s], d[s], tmin[s], tmax[s])
             res = scene.run(org, dirs, dists=dist, query="OCCLUDED")
             _store_occluded(np.asarray(res, np.int32), tmin[s], tmax[s], 1, occluded[s])
 
-        self._run(job, parts)
+        self._run(job, n)
         check = np.flatnonzero(occluded)
         if len(check) == 0:
             return
@@ -275,7 +256,23 @@ class EmbreeAccelerator(Accelerator):
                    ties=False)
         hits.inst[check[sub.inst >= 0]] = max(inst, 0)
 
-    def _run(self, job, parts) -> None:
+    def _rays(self, o, d, tmin, tmax):
+        """Rays in Embree's terms: the re-centred float64 origins, then float32 origins,
+        directions and ranges, and where each query starts (see :func:`_to_embree`)."""
+        m = len(o)
+        oc = o - self._centre  # float64, re-centred as Embree's geometry
+        org = np.empty((m, 3), np.float32)
+        dirs = np.empty((m, 3), np.float32)
+        dist = np.empty(m, np.float32)
+        t0 = np.empty(m, np.float64)
+        _to_embree(oc, d, tmin, tmax, self._magnitude, org, dirs, dist, t0)
+        return oc, org, dirs, dist, t0
+
+    def _run(self, job, n: int) -> None:
+        """``job(slice)`` over ``n`` rays in chunks, one per numba thread, on the pool."""
+        threads = max(1, min(numba.get_num_threads(), n // MIN_RAYS_PER_THREAD))
+        edges = np.linspace(0, n, threads + 1).astype(int)
+        parts = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
         if len(parts) == 1:
             job(parts[0])
             return

@@ -64,6 +64,7 @@ class ViewportRenderer:
         self.last_edits = 0  # edits queued by the last view_update (tests, stats)
         self.updates_seen = 0
         self.error: str | None = None
+        self.view_error: str | None = None  # the view's camera or border cannot be rendered
         self.freed = False
         self._status_set = False
         _LIVE.add(self)
@@ -110,10 +111,30 @@ class ViewportRenderer:
                 n = len(result.edits)
         self.last_edits = n
         if first or n or settings != self.settings or samples != self.samples:
-            self.settings, self.samples = settings, samples
-            self.worker.samples = samples
-            self.error = None
-            self.worker.submit(prepare=self._prepare, settings=settings)
+            self._submit_settings(settings, samples)
+
+    def _submit_settings(self, settings, samples: int) -> None:
+        self.settings, self.samples = settings, samples
+        self.worker.samples = samples
+        self.error = None
+        self.worker.submit(prepare=self._prepare, settings=settings)
+
+    def draw_settings(self, scene) -> None:
+        """Restart the worker when the scene's RSTrace settings changed with no depsgraph
+        update: a setting set from Python (a script, the console) sends none, and the
+        viewport went on in the old mode or epsilon until some unrelated edit came; Blender
+        redraws the view after any property change, so ``view_draw`` looks."""
+        if self.settings is None or self.freed:
+            return
+        try:
+            settings = viewport_settings(scene)
+        except SceneError as exc:
+            self.error = str(exc)
+            return
+        samples = max(1, int(scene.rstrace.viewport_samples))
+        if settings != self.settings or samples != self.samples:
+            kernels.start_warmup(scene.rstrace.mode)
+            self._submit_settings(settings, samples)
 
     def _start(self, key: int, scene) -> None:
         """A worker for the scene ``key`` (a scene switch replaces the previous one)."""
@@ -162,8 +183,13 @@ class ViewportRenderer:
             camera = cameras.camera_from_view(rv3d.view_matrix, rv3d.window_matrix, w, h)
             border = view_border(context, depsgraph.scene, w, h)
         except SceneError as exc:
-            self.error = str(exc)
+            # said until a view that can be rendered comes (navigation alone clears it)
+            self.view_error = str(exc)
+            engine.update_stats("", self.status(None))
             return
+        self.view_error = None
+        self.draw_settings(depsgraph.scene.original)  # (the evaluated copy lags until
+        # the next depsgraph update, which is when view_update reads it)
         self.draw_view(camera, border)
         img = self.worker.latest()
         if img is not None and img.view_size == (w, h):
@@ -216,7 +242,8 @@ class ViewportRenderer:
 
     def status(self, img: ViewImage | None) -> str:
         """The viewport's status text (kernel progress, stage, samples, errors)."""
-        err = self.error or (self.worker.error if self.worker is not None else None)
+        err = self.view_error or self.error or (self.worker.error if self.worker is not None
+                                                else None)
         if err:
             return f"RSTrace | error: {err}"
         progress = kernels.progress_text()

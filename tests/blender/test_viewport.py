@@ -408,3 +408,41 @@ def test_status_shows_kernel_progress_and_new_images_ask_for_a_redraw(monkeypatc
         assert vr.status(img).startswith("RSTrace | 2 samples")
     finally:
         vr.free()
+
+
+def test_a_bad_view_is_said_until_a_good_one_and_settings_set_from_python_restart(
+        gpu_context):
+    """(1) A view whose camera cannot be rendered (a NaN view matrix) is said in the status
+    line, and navigating to a good view clears it (the error used to stay until some edit
+    came). (2) A setting set from Python sends no depsgraph update: the next draw sees it
+    and the viewport renders in the new mode (it went on in the old one)."""
+    from mathutils import Matrix
+
+    import addon
+
+    sc, vr = _start()
+    try:
+        engine = FakeEngine()
+        dg = bpy.context.evaluated_depsgraph_get()
+        good = _view()
+        vr.view_draw(engine, good, dg)
+        _settled(vr)
+        bad = _view()
+        bad.region_data.view_matrix = Matrix([[float("nan")] * 4] * 4)
+        vr.view_draw(engine, bad, dg)
+        assert engine.info[-1].startswith("RSTrace | error:") and "view" in engine.info[-1]
+        vr.view_draw(engine, good, dg)
+        assert vr.view_error is None and not engine.info[-1].startswith("RSTrace | error")
+        # a mode set from Python: no depsgraph update, the next draw restarts the worker
+        jobs = vr.worker._submitted
+        sc.rstrace.mode = "INTERPOLANT"
+        vr.view_draw(engine, good, dg)
+        assert vr.worker._submitted == jobs + 1 and vr.settings.mode == "INTERPOLANT"
+        img = _settled(vr)
+        state = addon.session.state_for(sc)
+        assert state.session.settings.mode == "INTERPOLANT"
+        assert img.stats["mode"] == "INTERPOLANT"
+        vr.view_draw(engine, good, dg)  # nothing changed: nothing restarts
+        assert vr.worker._submitted == jobs + 1
+    finally:
+        vr.free()

@@ -217,6 +217,10 @@ class InterpolantCache:
     def __init__(self, sa, accel, epsilon: float, depth_cap: int, memory_cap_mb: float,
                  max_depth: int) -> None:
         t0 = time.perf_counter()
+        # (a cache started over by an edit batch that changed the number of lights had kept
+        # the old scene's topology and query structures: an IndexError, or a predicate
+        # tested against the old geometry -- 0.81 display error at epsilon 0.1)
+        self.drop_scene_structures()
         self.sa = sa
         self.accel = accel
         self.epsilon = float(epsilon)
@@ -249,6 +253,11 @@ class InterpolantCache:
         self.setup_s = time.perf_counter() - t0
 
     # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
+
+    def drop_scene_structures(self) -> None:
+        """Forget the structures built from ``self.sa`` (rebuilt for the next scene)."""
+        for name in ("topo", "qs", "n_test"):
+            self.__dict__.pop(name, None)
 
     @cached_property
     def topo(self):

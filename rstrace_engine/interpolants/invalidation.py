@@ -449,8 +449,7 @@ def set_scene(cache, sa, accel) -> Invalidation | None:
     _remap_classes(cache, old, sa, mesh_changed)
     cache.sa = sa
     cache.accel = accel
-    for name in ("topo", "qs", "n_test"):
-        cache.__dict__.pop(name, None)
+    cache.drop_scene_structures()
     trees.collapse()
     cache.deps.compact(cache.pool, trees)
     cache.deps.follow_scene(sa, cache.pool)

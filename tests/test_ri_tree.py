@@ -325,7 +325,9 @@ def test_cost_rule_refines_dense_demand_and_traces_scattered_rays():
     plain, _ = _cache(sc, dist=0.05, plain=True)
     qp = plain.query(np.ones(n, np.int32), o, d)
     assert (qs.status == ST_SPARSE).mean() > 0.5
-    assert (qp.status == ST_SPARSE).sum() == 0
+    # the plain scheme answers every ray but those in cells at the depth constraint whose
+    # corners all miss while their lines can meet the box (traced: the corners cannot say)
+    assert (qp.status == ST_SPARSE).mean() < 0.15
     assert cost.counters["samples_traced"] < 0.25 * plain.counters["samples_traced"]
     # a sparse answer is never an interpolated one
     assert np.isinf(qs.t[qs.status == ST_SPARSE]).all()
@@ -440,3 +442,18 @@ def test_error_falls_with_the_distance_threshold_under_the_cost_rule():
         samples.append(cache.counters["samples_traced"])
     assert errs[1] < errs[0], errs
     assert samples[1] > samples[0], samples
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3])
+def test_cells_whose_corners_all_miss_are_traced_at_a_shallow_depth_constraint(depth):
+    """At the depth constraint a cell whose 16 corners all miss was final and declared
+    every ray through it a miss: at depth 1-2 the chrome torus between the corners vanished
+    (432 of 3,072 pixels off, up to 0.73 display error, none marked interpolated). Such a
+    cell is traced unless none of its lines can meet the object's box."""
+    sc = _scene(glass=False, obj="torus")
+    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_depth=depth).validated()
+    sess = Session(sc, st)
+    frame = sess.render()
+    base = render(sc, replace(st, mode="BASE"), accel=sess.accel)
+    err = np.abs(image.to_display(frame.radiance) - image.to_display(base.radiance)).max()
+    assert err < 1e-3

@@ -36,6 +36,7 @@ from .patches import (
     ST_MISS,
     ST_SPARSE,
     ST_TEST,
+    blind_at_cap,
     corner_kinds,
     finalize,
     interpolate,
@@ -313,6 +314,12 @@ class RITreeCache:
                 need = np.where((kind == K_ONE) | (kind == K_TWO), self.split_queries,
                                 self.split_queries_mixed)
                 fin = lv[capped]
+                if len(fin):  # blind cells stay OPEN at the cap: their rays are traced
+                    fk = nd.tree[fin].astype(np.int64)
+                    blind = np.empty(len(fin), np.bool_)
+                    blind_at_cap(nd, fin, self.samples, self.box, self.sa.inst_aabb,
+                                 (fk // 6).astype(np.int32), (fk % 6).astype(np.int8), blind)
+                    fin = fin[~blind]
                 ev = lv[~capped & (nd.visits[lv] >= need)]
                 if len(ev):
                     fit = int(max(self._room(mid_id), 0.0) // per_split)

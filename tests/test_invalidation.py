@@ -404,3 +404,28 @@ def test_an_edit_batch_that_adds_a_light_starts_the_cache_over_on_the_new_scene(
     err = np.abs(image.to_display(frame.radiance) - image.to_display(base.radiance)).max()
     assert err <= eps + 1e-6
     assert frame.stats["interpolated_fraction"] > 0.5
+
+
+@pytest.mark.parametrize("light", ["Lamp", "Spot", "Sun"])
+def test_a_deleted_light_is_no_light_to_the_predicate(light):
+    """A deleted light keeps its slot (a tombstone, LIGHT_NONE) and its old position: the
+    predicate once ran its facing and shaft tests on it, and after deleting the room's lamp
+    not one pixel was interpolated again, in the session or a fresh one (0% from 9%).
+    (Not "at least as many": a darker image has a steeper display transform, so the radiance
+    test may refuse a few more cells.)"""
+    from rstrace_engine.bench.soak import SOAK_SCENES
+    from rstrace_engine.geometry.edits import LightDelete
+    from rstrace_engine.session import Session
+
+    st = RenderSettings(mode="INTERPOLANT", epsilon=0.01, max_depth=3)
+    sess = Session(SOAK_SCENES["room"](96, 72), st)
+    before = sess.render().stats["interpolated_fraction"]
+    assert before > 0.05
+    sess.apply([LightDelete(light)])
+    sess.render()
+    fresh = Session(sess.scene.copy(), st).render()
+    assert fresh.stats["interpolated_fraction"] >= 0.5 * before
+    base = whitted.render(sess.scene, RenderSettings(max_depth=3),
+                          accel=create_accelerator("BVH", sess.scene.arrays()))
+    err = np.abs(image.to_display(fresh.radiance) - image.to_display(base.radiance)).max()
+    assert err <= 0.01 + 1e-6

@@ -368,6 +368,11 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
     blo = np.empty(3)
     bhi = np.empty(3)
     for j in range(L):
+        if qs.light_kind[j] < 0:
+            # a deleted light's slot (LIGHT_NONE): no light. Its stale position once made
+            # the facing and shaft tests fail cells everywhere (no pixel of a room was
+            # interpolated after a light was deleted)
+            continue
         occ = sm.node_occ[sm.node_start[s0] + row, j]
         lit = occ == -1
         # the spot cone over the points' box: a step inside the cell fails it; a cell the

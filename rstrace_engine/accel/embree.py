@@ -359,7 +359,7 @@ def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v, behind
     """Hit distances and barycentrics recomputed in float64 on the float64 triangle (in its
     instance's object space, where ``t`` is the world ``t``) with the BVH's arithmetic
     (:func:`.triangle.solve_sheared`); kept as Embree gave them when the plane is parallel
-    to the ray or the distance leaves ``[tmin, tmax]``. ``behind[r]`` is set where the
+    to the ray, and a miss where the plane lies past ``tmax``. ``behind[r]`` is set where the
     float64 plane lies before ``tmin``: Embree's float32 rounding put the surface a ray was
     spawned from (or one it grazes) in front of it -- not a hit of the float64 scene."""
     for r in range(inst.shape[0]):
@@ -381,6 +381,10 @@ def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v, behind
             t[r], u[r], v[r] = s, su, sv
         elif ok and s < tmin[r]:
             behind[r] = True
+        elif ok and s > tmax[r]:
+            # past the ray's end (float32 cannot resolve a shadow ray's end 1e-9 short of a
+            # light on a surface: that surface darkened the light): no hit in range
+            t[r], inst[r], prim[r], u[r], v[r] = np.inf, -1, -1, 0.0, 0.0
 
 
 @njit(cache=True, nogil=True)

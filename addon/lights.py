@@ -35,7 +35,10 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     if getattr(data, "use_temperature", False):
         colour = colour * rgb(data.temperature_color)
     exposure = float(getattr(data, "exposure", 0.0))
-    power = float(data.energy) * 2.0 ** exposure if math.isfinite(exposure) else math.nan
+    try:
+        power = float(data.energy) * 2.0 ** exposure if math.isfinite(exposure) else math.nan
+    except OverflowError:  # an exposure above ~1024
+        power = math.inf
     why = _unusable(data, colour, power, exposure)
     if why:
         notes.skip(f"light '{name}' skipped: {why}")
@@ -75,16 +78,18 @@ def _unusable(data, colour, power: float, exposure: float) -> str | None:
     """Why a light's values cannot be rendered (naming the setting), or None. A light with
     a NaN or negative power, colour or spot shape is skipped, like one with a NaN
     transform, instead of refusing the whole render."""
-    what = "Power" if exposure == 0.0 else f"Power x 2^Exposure ({exposure:g})"
+    name, unit = ("Strength", "W/m2") if data.type == "SUN" else ("Power", "W")
+    what = name if exposure == 0.0 else f"{name} x 2^Exposure ({exposure:g})"
     if not math.isfinite(power):
         return f"its {what} is NaN or infinite"
     if power < 0.0:
-        return (f"its {what} is negative ({power:g} W): negative lights are not supported "
-                f"(Cycles subtracts their light)")
+        return (f"its {what} is negative ({power:g} {unit}): negative lights are not "
+                f"supported (Cycles subtracts their light)")
     if power > MAX_LIGHT_POWER:
-        return f"its {what} ({power:g} W) is above {MAX_LIGHT_POWER:g} W"
+        return f"its {what} ({power:g} {unit}) is above {MAX_LIGHT_POWER:g} {unit}"
     if not np.all(np.isfinite(colour)):
-        return "its Color is NaN or infinite"
+        return ("its Color or Temperature gives NaN or infinite values"
+                if getattr(data, "use_temperature", False) else "its Color is NaN or infinite")
     if data.type == "SPOT" and not (math.isfinite(data.spot_size)
                                     and math.isfinite(data.spot_blend)):
         return "its spot Size or Blend is NaN"

@@ -65,6 +65,7 @@ class ViewportRenderer:
         self.updates_seen = 0
         self.error: str | None = None
         self.view_error: str | None = None  # the view's camera or border cannot be rendered
+        self._settings_error: str | None = None  # the last invalid setting draw_settings saw
         self.freed = False
         self._status_set = False
         _LIVE.add(self)
@@ -111,12 +112,12 @@ class ViewportRenderer:
                 n = len(result.edits)
         self.last_edits = n
         if first or n or settings != self.settings or samples != self.samples:
+            self.error = None
             self._submit_settings(settings, samples)
 
     def _submit_settings(self, settings, samples: int) -> None:
         self.settings, self.samples = settings, samples
         self.worker.samples = samples
-        self.error = None
         self.worker.submit(prepare=self._prepare, settings=settings)
 
     def draw_settings(self, scene) -> None:
@@ -129,10 +130,12 @@ class ViewportRenderer:
         try:
             settings = viewport_settings(scene)
         except SceneError as exc:
-            self.error = str(exc)
+            self.error = self._settings_error = str(exc)
             return
         samples = max(1, int(scene.rstrace.viewport_samples))
         if settings != self.settings or samples != self.samples:
+            if self.error is not None and self.error == self._settings_error:
+                self.error = None  # the setting was fixed (other errors stay said)
             kernels.start_warmup(scene.rstrace.mode)
             self._submit_settings(settings, samples)
 

@@ -185,7 +185,7 @@ class EmbreeAccelerator(Accelerator):
         return hits
 
     def _fill(self, hits: Hits, scene, o, d, tmin, tmax, anyhit, inst, rounds=0,
-              ties=True):
+              ties=True, valid_tmin=None):
         """Trace rays with ``scene`` into ``hits`` (pre-filled as misses), in chunks on the
         thread pool; conversion to and from Embree's float32 runs in the workers too.
 
@@ -195,11 +195,14 @@ class EmbreeAccelerator(Accelerator):
         those rays: a ray spawned off a small, finely tessellated object otherwise found that
         object as its own occluder (shadow acne on ``museum``). ``ties``: resolve hits
         Embree cannot order (:meth:`_resolve_ties`; not needed to learn *whether* a ray is
-        occluded)."""
+        occluded). ``valid_tmin``: where hits count from when the query starts later
+        (``tmin``: past a rejected hit), so a float64 hit just before that start still
+        counts."""
         n = len(o)
         if anyhit:
             self._fill_occluded(hits, scene, o, d, tmin, tmax, inst)
             return
+        vmin = tmin if valid_tmin is None else valid_tmin
         behind = np.zeros(n, np.bool_)
         offset = self._prim_offset
         sa = self.sa
@@ -210,9 +213,9 @@ class EmbreeAccelerator(Accelerator):
             oc, org, dirs, dist, t0 = self._rays(o[s], d[s], tmin[s], tmax[s])
             res = scene.run(org, dirs, dists=dist, output=1)
             _store_hits(res["geomID"], res["primID"], res["tfar"], res["u"], res["v"],
-                        t0, tmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
+                        t0, vmin[s], tmax[s], inst, self._geom_slot, offset, hits.t[s],
                         hits.inst[s], hits.prim[s], hits.u[s], hits.v[s])
-            _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], tmin[s], tmax[s],
+            _refine(sa.verts, sa.tris, sa.inst_inv, o[s], d[s], vmin[s], tmax[s],
                     hits.inst[s], hits.prim[s], hits.t[s], hits.u[s], hits.v[s], behind[s])
             if ties and inst < 0 and self._ties is not None:
                 was_inst, was_prim = hits.inst[s].copy(), hits.prim[s].copy()
@@ -232,7 +235,7 @@ class EmbreeAccelerator(Accelerator):
         _past(o[again] - centre, d[again], hits.t[again], mag, start)
         sub = empty_hits(len(again))
         self._fill(sub, scene, o[again], d[again], start, tmax[again], False, inst, rounds + 1,
-                   ties)
+                   ties, vmin[again])
         for full, part in zip(hits, sub, strict=True):
             full[again] = part
 
@@ -316,8 +319,11 @@ class EmbreeAccelerator(Accelerator):
                         s0[a:b], lo[a:b], hi[a:b], j, self._geom_slot, self._prim_offset,
                         *(x[a:b] for x in c))
         sa = self.sa
+        behind = np.zeros(k, np.bool_)
         _refine(sa.verts, sa.tris, sa.inst_inv, ow, dc, t0_c, tmax_c, c.inst, c.prim, c.t,
-                c.u, c.v, np.zeros(k, np.bool_))
+                c.u, c.v, behind)
+        # a candidate's own surface found again (float64 plane before the start) is no hit
+        c.inst[behind], c.prim[behind], c.t[behind] = -1, -1, np.inf
         merge_closer(rows, c.t, c.inst, c.prim, c.u, c.v, t, inst, prim, u, v)
 
 

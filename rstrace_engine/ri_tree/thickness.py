@@ -4,10 +4,14 @@ inside the objects it crosses.
 Objects are treated as semi-transparent and non-refracting (an x-ray): a pixel's value is
 ``exp(-length / distance)`` grey, ``length`` the summed length of its camera ray inside
 objects and ``distance`` the setting ``thickness_distance`` (0: a tenth of the scene
-diagonal). Inside is decided by the winding of the crossings (a ray entering through a
-front face goes in, one leaving through a back face goes out; a ray that starts inside an
-object counts from its origin), so closed meshes give exact chords and overlapping objects
-count once where they overlap.
+diagonal). Only closed meshes have an inside (an open one -- a ground plane -- adds
+nothing). Inside is decided by the winding of the crossings: a ray entering through a
+front face goes in, one leaving through a back face goes out, one that starts inside an
+object counts from its origin; the length is ``sum(exits t) - sum(entries t)`` over the
+crossings, so every closed object adds its own chords and overlapping objects add up (the
+RI-tree's per-object lengths add up alike). (One in/out counter over all objects once made
+an open ground plane's "entry" swallow the chord of a sphere sunk into it, and counted
+overlaps once where the RI-tree counted them twice: the two modes disagreed by up to 0.37.)
 
 :func:`walk` computes lengths exactly by stepping from crossing to crossing (BASE mode, the
 RI-tree's samples, and rays the RI-tree traces); :mod:`.render` interpolates them from the
@@ -25,6 +29,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
+from ..geometry.mesh_topology import mesh_topology
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches
 from ..tracing.shading import geometric_normal
 
@@ -32,9 +37,25 @@ from ..tracing.shading import geometric_normal
 MAX_CROSSINGS = 64
 
 
+_CLOSED: list = [None]  # (tris, inst_mesh, closed per instance) of the last scene
+
+
+def closed_instances(sa) -> np.ndarray:
+    """(I,) bool: instances whose mesh is closed (no boundary edge), memoised per packing
+    (the packed arrays are immutable)."""
+    memo = _CLOSED[0]
+    if memo is None or memo[0] is not sa.tris or memo[1] is not sa.inst_mesh:
+        closed = np.ascontiguousarray(mesh_topology(sa).mesh_closed[sa.inst_mesh], np.bool_)
+        memo = (sa.tris, sa.inst_mesh, closed)
+        _CLOSED[0] = memo
+    return memo[2]
+
+
 @njit(cache=True, nogil=True)
-def _step(sa, o, d, idx, t, inst, prim, depth, t_in, tstart, length, tcur, step):
-    """Account the crossings ``(t, inst, prim)`` of the still-walking rays ``idx``.
+def _step(sa, closed, o, d, idx, t, inst, prim, depth, length, tlast, tcur, step):
+    """Account the crossings ``(t, inst, prim)`` of the still-walking rays ``idx``:
+    ``length`` gains ``t`` at an exit and loses it at an entry of a closed mesh, ``depth``
+    counts entries less exits.
 
     Returns how many rays keep walking (moved to the front of ``idx``)."""
     k = 0
@@ -42,19 +63,16 @@ def _step(sa, o, d, idx, t, inst, prim, depth, t_in, tstart, length, tcur, step)
         r = idx[q]
         if inst[q] < 0:
             continue
-        gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[inst[q]], prim[q])
-        enter = d[r, 0] * gx + d[r, 1] * gy + d[r, 2] * gz < 0.0
         th = t[q]
-        if enter:
-            if depth[r] == 0:
-                t_in[r] = th
-            depth[r] += 1
-        elif depth[r] > 0:
-            depth[r] -= 1
-            if depth[r] == 0:
-                length[r] += th - t_in[r]
-        else:  # the ray started inside
-            length[r] += th - tstart[r]
+        if closed[inst[q]]:
+            gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[inst[q]], prim[q])
+            if d[r, 0] * gx + d[r, 1] * gy + d[r, 2] * gz < 0.0:  # entering
+                depth[r] += 1
+                length[r] -= th
+            else:
+                depth[r] -= 1
+                length[r] += th
+            tlast[r] = th
         tcur[r] = th + step[r]
         idx[k] = r
         k += 1
@@ -79,19 +97,23 @@ def walk(sa, trace_fn, origins, directions, tmin, tmax) -> np.ndarray:
     step = (tol.THICKNESS_STEP_REL * np.maximum(mag, sa.scene_extent)
             / np.maximum(dl, 1e-300))
     depth = np.zeros(n, np.int32)
-    t_in = np.zeros(n)
     length = np.zeros(n)
+    tlast = t0.copy()
     tcur = t0.copy()
+    closed = closed_instances(sa)
     idx = np.arange(n, dtype=np.int64)
     for _ in range(MAX_CROSSINGS):
         if len(idx) == 0:
             break
         h = trace_fn(o[idx], d[idx], tcur[idx], t1[idx], idx)
-        k = _step(sa, o, d, idx, np.ascontiguousarray(h.t, np.float64),
+        k = _step(sa, closed, o, d, idx, np.ascontiguousarray(h.t, np.float64),
                   np.ascontiguousarray(h.inst, np.int32), np.ascontiguousarray(h.prim, np.int32),
-                  depth, t_in, t0, length, tcur, step)
+                  depth, length, tlast, tcur, step)
         idx = idx[:k].copy()
-    return length * dl
+    # more exits than entries: the ray started inside (counts from its origin); more
+    # entries: it was cut short inside (by MAX_CROSSINGS or tmax: counts to the last crossing)
+    length += np.where(depth < 0, t0, tlast) * depth
+    return np.maximum(length, 0.0) * dl
 
 
 def display(length: np.ndarray, distance: float) -> np.ndarray:

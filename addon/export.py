@@ -32,12 +32,12 @@ from collections.abc import Hashable
 import numpy as np
 
 from rstrace_engine import tolerances as tol
+from rstrace_engine.geometry.mesh_math import proper_triangles
 from rstrace_engine.geometry.scene import (
     MAX_LIGHTS,
     Light,
     SceneError,
     check_matrix,
-    proper_triangles,
 )
 
 from .caches import (

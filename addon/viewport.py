@@ -191,8 +191,9 @@ class ViewportRenderer:
             engine.update_stats("", self.status(None))
             return
         self.view_error = None
-        self.draw_settings(depsgraph.scene.original)  # (the evaluated copy lags until
-        # the next depsgraph update, which is when view_update reads it)
+        # the original: the evaluated copy lags until the next depsgraph update (which is
+        # when view_update reads it)
+        self.draw_settings(depsgraph.scene.original)
         self.draw_view(camera, border)
         img = self.worker.latest()
         if img is not None and img.view_size == (w, h):

@@ -348,13 +348,6 @@ class Session:
             stored = Frame(frame.radiance, pc.copy().reshape(frame.pixel_class.shape),
                            frame.stats, frame.pixel_interpolant)
             pc[rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
-        if mode == "INTERPOLANT":
-            # rebuilt pixels are interpolated too (the stat once left them out: 0% with
-            # 959 magenta pixels after an edit)
-            pc = frame.pixel_class
-            share = np.count_nonzero((pc == CLASS_INTERPOLATED) | (pc == CLASS_REBUILT))
-            frame.stats["interpolated_fraction"] = share / max(pc.size, 1)
-            frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         if frame.stats.get("cancelled"):
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self._dirty = None

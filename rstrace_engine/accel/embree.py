@@ -305,11 +305,7 @@ class EmbreeAccelerator(Accelerator):
         lo = np.empty(k)
         hi = np.empty(k)
         tie_window(occ, dc, t[rows], t0_c, tmax_c, mag, lo, hi)
-        org = np.empty((k, 3), np.float32)
-        dirs = np.empty((k, 3), np.float32)
-        dist = np.empty(k, np.float32)
-        s0 = np.empty(k, np.float64)
-        _to_embree(occ, dc, lo, hi, mag, org, dirs, dist, s0)
+        _, org, dirs, dist, s0 = self._rays(ow, dc, lo, hi)
         c = empty_hits(k)
         edges = np.flatnonzero(np.diff(objs)) + 1
         for a, b in zip(np.r_[0, edges], np.r_[edges, k], strict=True):

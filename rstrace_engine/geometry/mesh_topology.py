@@ -141,3 +141,16 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
             convex[m] = _is_convex(sa.verts, sa.tris[s:e], int(vids.min()), int(vids.max()) + 1,
                                    tol.CONVEX_TOL_REL * diag)
     return MeshTopology(parent.astype(np.int32), boundary, closed, convex)
+
+
+_LAST: list = [None]  # (tris, verts, MeshTopology) of the last packing asked for
+
+
+def mesh_topology_cached(sa: SceneArrays) -> MeshTopology:
+    """:func:`mesh_topology` of ``sa``, kept for the last packing asked for (its arrays are
+    immutable, so the same ``tris`` and ``verts`` objects are the same meshes)."""
+    memo = _LAST[0]
+    if memo is None or memo[0] is not sa.tris or memo[1] is not sa.verts:
+        memo = (sa.tris, sa.verts, mesh_topology(sa))
+        _LAST[0] = memo
+    return memo[2]

@@ -50,20 +50,11 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     check_matrix,
     checked_camera,
 )
+from .mesh_math import proper_triangles, transform_aabb, vertex_normals
 
 log = logging.getLogger(__name__)
 
 
-
-def proper_triangles(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """(m,) bool: the triangles of positive area (doubled area above
-    ``DEGENERATE_AREA_REL`` times the longest edge squared); the others are dropped at scene
-    build, and a mesh with none is refused."""
-    v = np.asarray(verts, np.float64)[tris]
-    e0, e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], v[:, 2] - v[:, 1]
-    area2 = np.linalg.norm(np.cross(e0, e1), axis=1)
-    longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e0, e1, e2)]), axis=0)
-    return (area2 > tol.DEGENERATE_AREA_REL * longest) & (longest > 0)
 
 class SceneArrays(NamedTuple):
     """The scene as flat arrays, for numba kernels. ``T`` triangles, ``I`` instance slots.
@@ -118,29 +109,6 @@ class SceneArrays(NamedTuple):
 _DEAD_MATERIAL = Material("<deleted>").validated()
 #: The box of a dead instance slot: empty (lo > hi), finite, so no overlap test passes.
 DEAD_AABB = np.array([[tol.COORD_MAX * 10] * 3, [-tol.COORD_MAX * 10] * 3])
-
-
-def transform_aabb(lo: np.ndarray, hi: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """World box (2, 3) of the object box ``lo, hi`` under the affine matrix ``m``."""
-    c = 0.5 * (lo + hi)
-    e = 0.5 * (hi - lo)
-    wc = m[:3, :3] @ c + m[:3, 3]
-    we = np.abs(m[:3, :3]) @ e
-    return np.stack([wc - we, wc + we])
-
-
-_transform_aabb = transform_aabb
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted smooth vertex normals, (n, 3) float64, unit (or zero where isolated)."""
-    v = vertices[triangles]
-    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    acc = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(acc, triangles[:, k], fn)
-    ln = np.linalg.norm(acc, axis=1, keepdims=True)
-    return np.divide(acc, ln, out=np.zeros_like(acc), where=ln > 0)
 
 
 class _Keys:

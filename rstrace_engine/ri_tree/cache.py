@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ..geometry.mesh_topology import mesh_topology
+from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes, parameterize
 from ..tracing.shading import geometric_normal, shading_normal
 from .kdtree import FINAL, NODE_BYTES, OPEN, KdForest, descend, split_leaves
@@ -81,6 +81,13 @@ class QueryResult(NamedTuple):
     RP: np.ndarray  # (n, 3) internal reflection at the exit: origin (inside the object)
     RD: np.ndarray  # (n, 3) its direction
     rgain: np.ndarray  # (n, 3) its weight past the entry (0: none)
+
+
+def tree_of(nd, nodes) -> tuple[np.ndarray, np.ndarray]:
+    """The instance (int32) and face pair (int8) of the trees holding ``nodes``
+    (``nd.tree`` keys are ``6 * instance + face``)."""
+    keys = nd.tree[nodes].astype(np.int64)
+    return (keys // 6).astype(np.int32), (keys % 6).astype(np.int8)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -189,7 +196,7 @@ class RITreeCache:
         self.extent = float(sa.scene_extent if extent is None else extent)
         self.box = expanded_boxes(sa, self.extent)
         self.diag = np.linalg.norm(self.box[:, 1] - self.box[:, 0], axis=1)
-        self.tri_class = np.ascontiguousarray(mesh_topology(sa).tri_class, np.int32)
+        self.tri_class = np.ascontiguousarray(mesh_topology_cached(sa).tri_class, np.int32)
         self.forest = KdForest(len(sa.inst_mesh))
         self.samples = alloc_samples(1024)
         self.peak_bytes = 0
@@ -315,10 +322,9 @@ class RITreeCache:
                                 self.split_queries_mixed)
                 fin = lv[capped]
                 if len(fin):  # blind cells stay OPEN at the cap: their rays are traced
-                    fk = nd.tree[fin].astype(np.int64)
                     blind = np.empty(len(fin), np.bool_)
                     blind_at_cap(nd, fin, self.samples, self.box, self.sa.inst_aabb,
-                                 (fk // 6).astype(np.int32), (fk % 6).astype(np.int8), blind)
+                                 *tree_of(nd, fin), blind)
                     fin = fin[~blind]
                 ev = lv[~capped & (nd.visits[lv] >= need)]
                 if len(ev):
@@ -327,9 +333,7 @@ class RITreeCache:
                         ev = ev[np.argsort(-nd.visits[ev], kind="stable")[:fit]]
                 split = ev[:0]
                 if len(ev):
-                    keys = nd.tree[ev].astype(np.int64)
-                    ri = (keys // 6).astype(np.int32)
-                    rf = (keys % 6).astype(np.int8)
+                    ri, rf = tree_of(nd, ev)
                     mids = np.full(len(ev), -1, np.int32)
                     have = np.zeros(len(ev), np.bool_)
                     if len(mid_node):  # sorted
@@ -372,9 +376,9 @@ class RITreeCache:
                 ch, ccnt = np.unique(out, return_counts=True)
                 ahead = ch[(nd.depth[ch] < self.depth)
                            & (nd.visits[ch] + ccnt >= self.split_queries)]
-                ak = nd.tree[ahead].astype(np.int64)
-                ai = np.concatenate([np.repeat(si, 8), (ak // 6).astype(np.int32)])
-                af = np.concatenate([np.repeat(sf, 8), (ak % 6).astype(np.int8)])
+                ahead_i, ahead_f = tree_of(nd, ahead)
+                ai = np.concatenate([np.repeat(si, 8), ahead_i])
+                af = np.concatenate([np.repeat(sf, 8), ahead_f])
                 al = np.concatenate([lines.reshape(-1, 4), 0.5 * (nd.lo[ahead] + nd.hi[ahead])])
                 aid = f.alloc_samples(len(ahead))
                 self.samples = grow_samples(self.samples, f.n_samples)

@@ -43,7 +43,7 @@ from ..frame import (
     RenderSettings,
 )
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.mesh_topology import mesh_topology
+from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import accumulate, frame_batches, scatter_add
 from ..tracing.whitted import (
@@ -104,7 +104,6 @@ class RITreeRenderer:
         self.convex = None
         self._box = None
         self._tri_class = None
-        self._topo = None
         self._extent = None  # scene extent the trees' boxes were padded with
         #: per view: instance slots traced because their tree did not pay (:mod:`.fallback`)
         self.fallback: dict[bool, set[int]] = {False: set(), True: set()}
@@ -132,9 +131,7 @@ class RITreeRenderer:
 
     def _sync(self, sa, accel, settings: RenderSettings) -> None:
         fp = instance_fingerprints(sa)
-        if self._topo is None or self._topo[0] is not sa.tris or self._topo[1] is not sa.verts:
-            self._topo = (sa.tris, sa.verts, mesh_topology(sa))  # packed arrays: immutable
-        topo = self._topo[2]
+        topo = mesh_topology_cached(sa)
         same_meshes = (self._sa is not None and self._sa.tris.shape == sa.tris.shape
                        and self._tri_class is not None
                        and np.array_equal(self._tri_class, topo.tri_class))

@@ -29,26 +29,12 @@ from numba import njit
 from .. import tolerances as tol
 from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.mesh_topology import mesh_topology
+from ..geometry.mesh_topology import mesh_topology_cached
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches
 from ..tracing.shading import geometric_normal
 
 #: At most this many crossings are followed along one ray.
 MAX_CROSSINGS = 64
-
-
-_CLOSED: list = [None]  # (tris, inst_mesh, closed per instance) of the last scene
-
-
-def closed_instances(sa) -> np.ndarray:
-    """(I,) bool: instances whose mesh is closed (no boundary edge), memoised per packing
-    (the packed arrays are immutable)."""
-    memo = _CLOSED[0]
-    if memo is None or memo[0] is not sa.tris or memo[1] is not sa.inst_mesh:
-        closed = np.ascontiguousarray(mesh_topology(sa).mesh_closed[sa.inst_mesh], np.bool_)
-        memo = (sa.tris, sa.inst_mesh, closed)
-        _CLOSED[0] = memo
-    return memo[2]
 
 
 @njit(cache=True, nogil=True)
@@ -100,7 +86,7 @@ def walk(sa, trace_fn, origins, directions, tmin, tmax) -> np.ndarray:
     length = np.zeros(n)
     tlast = t0.copy()
     tcur = t0.copy()
-    closed = closed_instances(sa)
+    closed = np.ascontiguousarray(mesh_topology_cached(sa).mesh_closed[sa.inst_mesh])
     idx = np.arange(n, dtype=np.int64)
     for _ in range(MAX_CROSSINGS):
         if len(idx) == 0:

@@ -1,10 +1,11 @@
 """Selective invalidation of interpolants after edits, against brute force (seed 000, 5).
 
-A cache builds interpolants for a small scene; an edit is applied through
-``InterpolantCache.invalidate`` and ``set_scene``; then every interpolant that existed before
-is re-evaluated from scratch in the edited scene (its 16 corner lines and its centre line
-traced again): any whose radiance changed must be among those invalidated, and the survivors
-must still be exact.
+A cache builds interpolants for a small scene; an edit (the edited scene diffed into edits
+by ``diff_scenes``, applied by ``apply_edits``) hands its effects to
+``InterpolantCache.take_edits``; then every interpolant that existed before is re-evaluated
+from scratch in the edited scene (its 16 corner lines and its centre line traced again): any
+whose radiance changed must be among those invalidated, and the survivors must still be
+exact.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from rstrace_engine import image
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.edits import apply_edits, diff_scenes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
 from rstrace_engine.interpolants import cache as interpolant_cache
 from rstrace_engine.interpolants import membership as membership_mod
@@ -150,6 +152,15 @@ def box_of(scene, slot):
     return scene.arrays().inst_aabb[slot]
 
 
+def edit(cache, s0, s1):
+    """Edit ``s0`` into ``s1`` through the edits machinery and hand the effects to ``cache``:
+    ``(invalidation, effects, the edited scene, an accelerator over it)``."""
+    new, fx = apply_edits(s0, diff_scenes(s0, s1))
+    sa1 = new.arrays()
+    accel1 = create_accelerator("BVH", sa1)
+    return cache.take_edits(fx, sa1, accel1), fx, new, accel1
+
+
 EDITS = {
     # name: (edited scene kwargs, invalidate kwargs builder)
     "move_small": (dict(blue=(1.8, 1.3, 0.8)), lambda s0, s1: dict(
@@ -191,11 +202,14 @@ def test_invalidation_has_no_false_negatives(name):
     snap = snapshot(cache)
     assert len(snap["ids"]) > 50
     s1 = spheres(**kw)
-    inv = cache.invalidate(**inv_kw(s0, s1))
-    sa1 = s1.arrays()
-    extra = cache.set_scene(sa1, create_accelerator("BVH", sa1))
-    # set_scene's own diff of the two packings finds nothing the edits did not name
-    assert extra is None or extra.count == 0, extra.count
+    named = inv_kw(s0, s1)
+    inv, fx, s1, _ = edit(cache, s0, s1)
+    # the effects name at least what the edit is known to touch
+    assert set(named.get("objects", ())) <= fx.objects
+    assert set(named.get("materials", ())) <= fx.materials
+    assert set(named.get("lights", ())) <= fx.lights_moved
+    assert set(named.get("light_shading", ())) <= fx.lights_shading
+    assert fx.world == named.get("world", False)
     changed = changed_after(cache, snap)
     hit = np.isin(snap["ids"], inv.ids)
     assert changed.any(), "the edit changed no interpolant: the test proves nothing"
@@ -221,13 +235,9 @@ def test_frames_after_an_edit_rebuild_and_stay_within_epsilon():
     interp = f0.pixel_class == CLASS_INTERPOLATED
     assert interp.any() and np.all(used[interp] >= 0) and np.all(used[~interp] == -1)
     assert np.all(cache.pool.live[used[interp]])
-    s1 = spheres(blue=(1.8, 1.3, 0.8))
-    inv = cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
-    sa1 = s1.arrays()
-    accel1 = create_accelerator("BVH", sa1)
-    cache.set_scene(sa1, accel1)
+    inv, _, s1, accel1 = edit(cache, s0, spheres(blue=(1.8, 1.3, 0.8)))
     f1 = r.render(s1, settings(), accel1)
-    assert r.cache is cache, "the renderer dropped the cache after set_scene"
+    assert r.cache is cache, "the renderer dropped the cache after take_edits"
     rebuilt = f1.pixel_class == CLASS_REBUILT
     assert rebuilt.any()
     assert np.all(cache.pool.rebuilt[f1.pixel_interpolant[rebuilt]])
@@ -249,9 +259,8 @@ def test_moving_an_object_keeps_the_other_objects_boxes_and_trees():
     on = cache.trees.arrays.tree[cache.pool.node[cache.pool.live]] // 6
     s1 = spheres(blue=(30.0, 25.0, 0.8))  # the scene's extent changes a lot
     assert s1.arrays().scene_extent > 2 * s0.arrays().scene_extent
-    cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
+    _, _, s1, _ = edit(cache, s0, s1)
     sa1 = s1.arrays()
-    cache.set_scene(sa1, create_accelerator("BVH", sa1))
     others = np.arange(len(box0)) != 3
     np.testing.assert_array_equal(cache.box[others], box0[others])
     np.testing.assert_array_equal(cache.trees.roots[others], roots0[others])
@@ -277,12 +286,7 @@ def test_memory_is_freed_and_caps_hold_over_many_edits(monkeypatch):
     rst_mem = []
     for k in range(14):
         pos = (1.5 + 0.3 * (k % 2), 1.6 - 0.2 * (k % 3), 0.8)
-        old = s.arrays().inst_aabb[3]
-        s = spheres(blue=pos, key_power=1500.0 + 10.0 * (k % 2))
-        sa = s.arrays()
-        cache.invalidate(np.stack([old, sa.inst_aabb[3]]), {3}, light_shading={0})
-        accel = create_accelerator("BVH", sa)
-        cache.set_scene(sa, accel)
+        _, _, s, accel = edit(cache, s, spheres(blue=pos, key_power=1500.0 + 10.0 * (k % 2)))
         r.render(s, st, accel)
         assert r.cache is cache
         assert cache.interpolant_bytes <= cap_mb * 1e6
@@ -300,11 +304,7 @@ def _after_moving_blue_away(retry: bool):
     r.render(s0, settings(), accel)
     if not retry:
         cache.deps.failed.query = lambda *a, **k: 0
-    s1 = spheres(blue=(30.0, 25.0, 0.8))
-    inv = cache.invalidate(np.stack([box_of(s0, 3), box_of(s1, 3)]), {3})
-    sa1 = s1.arrays()
-    accel1 = create_accelerator("BVH", sa1)
-    cache.set_scene(sa1, accel1)
+    inv, _, s1, accel1 = edit(cache, s0, spheres(blue=(30.0, 25.0, 0.8)))
     return inv, cache, r.render(s1, settings(), accel1), s1, accel1
 
 
@@ -330,12 +330,10 @@ def test_interpolants_kept_across_a_remesh_are_used_again():
     cache = r.cache
     s1 = spheres(sphere_subdiv=2)
     assert len(s1.arrays().tris) < len(s0.arrays().tris)
-    inv = cache.invalidate(np.stack([box_of(s0, k) for k in (1, 2, 3)]), {1, 2, 3})
+    inv, fx, s1, accel1 = edit(cache, s0, s1)
+    assert fx.geometry == {1, 2, 3}
     kept = np.flatnonzero(cache.pool.live)
     assert len(kept) > 0
-    sa1 = s1.arrays()
-    accel1 = create_accelerator("BVH", sa1)
-    cache.set_scene(sa1, accel1)
     f1 = r.render(s1, settings(), accel1)
     reused = np.isin(f1.pixel_interpolant, kept) & (f1.pixel_class == CLASS_INTERPOLATED)
     assert reused.sum() > 0.5 * (f1.pixel_class == CLASS_INTERPOLATED).sum(), inv.count
@@ -345,22 +343,19 @@ def test_interpolants_kept_across_a_remesh_are_used_again():
 
 
 @pytest.mark.parametrize("name", ["move_small", "recolor", "light_power", "delete", "world"])
-def test_set_scene_alone_diffs_the_packings(name):
-    """A host that only hands over a new export (no invalidate call): set_scene diffs the
-    two packings and invalidates what changed, with no false negatives, selectively."""
+def test_a_new_export_is_diffed_into_edits(name):
+    """A host that only hands over a new export (``Session.update_scene``): the one core
+    diff turns it into edits, whose effects invalidate what changed, with no false
+    negatives, selectively."""
+    from rstrace_engine.session import Session
+
     kw, _ = EDITS[name]
-    s0 = spheres()
-    sa0 = s0.arrays()
-    accel0 = create_accelerator("BVH", sa0)
-    r = InterpolantRenderer()
-    r.render(s0, settings(), accel0)
-    cache = r.cache
+    sess = Session(spheres(), settings())
+    sess.render()
+    cache = sess.interpolants.cache
     snap = snapshot(cache)
-    s1 = spheres(**kw)
-    sa1 = s1.arrays()
-    accel1 = create_accelerator("BVH", sa1)
-    r.render(s1, settings(), accel1)  # the renderer moves its cache: set_scene
-    assert r.cache is cache
+    sess.update_scene(spheres(**kw))
+    assert sess.interpolants.cache is cache
     p = cache.pool
     hit = ~(p.live[snap["ids"]] & (p.serial[snap["ids"]] == snap["serial"]))
     changed = changed_after(cache, snap)

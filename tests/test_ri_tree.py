@@ -13,6 +13,7 @@ from rstrace_engine import image
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.edits import ObjectTransform, apply_edits
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
 from rstrace_engine.ri_tree import cache as ri_cache
 from rstrace_engine.ri_tree.cache import RITreeCache
@@ -204,8 +205,11 @@ def test_edit_invalidates_only_the_edited_objects_tree():
     r.render(sc, st, accel)
     cache = r.caches[False]
     assert (cache.forest.roots[1] >= 0).any() and (cache.forest.roots[2] >= 0).any()
-    sc.set_instance_matrix(2, shapes.transform((1.8, 1.2, 1.0), 0.6))
-    accel.update(sc.arrays())
+    new, fx = apply_edits(sc, [ObjectTransform("Second",
+                                               shapes.transform((1.8, 1.2, 1.0), 0.6))])
+    accel.update(new.arrays())
+    assert r.take_edits(fx, sa, new.arrays()) > 0  # the edits machinery's call
+    sc = new
     f = r.render(sc, st, accel)
     fresh = RITreeRenderer().render(sc, st, accel)
     base = render(sc, replace(st, mode="BASE"), accel=accel)

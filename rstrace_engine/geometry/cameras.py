@@ -6,12 +6,24 @@ index ``i = y * width + x``. Ray math is float64.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
 from .scene import Camera
+
+
+def same_camera(a: Camera | None, b: Camera | None) -> bool:
+    """True when two cameras give the same rays: the one camera comparison of rstrace
+    (matrices compared exactly, every other field of :class:`Camera` by value)."""
+    if a is None or b is None:
+        return a is b
+    if not np.array_equal(a.matrix, b.matrix):
+        return False
+    return all(getattr(a, f.name) == getattr(b, f.name) for f in dataclasses.fields(Camera)
+               if f.name != "matrix")
 
 
 class CameraParams(NamedTuple):

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .cameras import same_camera
 from .scene import Camera, Light, Material, Mesh, Scene, SceneError
 
 
@@ -136,23 +137,35 @@ Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | 
 
 @dataclass
 class EditEffects:
-    """What a batch of edits touched, in the terms invalidation works in.
+    """What a batch of edits touched, in the terms every structure works in: computed once
+    by :func:`apply_edits` and handed down (interpolants, RI-trees, per-pixel records), so
+    that no structure diffs the scene again.
 
     ``regions`` are world boxes (old and new box of every geometry-type edit, as two rows
-    each, see :meth:`region_array`); ``objects`` the instance slots named, ``lights`` the
-    light slots whose contribution changed, ``lights_moved`` the subset whose position,
-    direction, cone or kind changed (or that were added: they may now light any surface),
-    ``materials`` the material ids whose parameters changed.
+    each, see :meth:`region_array`); ``objects`` the instance slots named, ``geometry`` the
+    subset whose mesh, transform, box or visibility changed (or that were added or
+    deleted); ``meshes`` the mesh ids whose triangles changed (set, added into a slot, or
+    deleted); ``lights`` the light slots whose contribution changed, ``lights_moved`` the
+    subset whose position, direction, cone or kind changed (or that were added: they may now
+    light any surface), ``materials`` the material ids whose parameters changed.
     """
 
     regions: list = field(default_factory=list)  # (2, 3) float64 world boxes
     objects: set = field(default_factory=set)
+    geometry: set = field(default_factory=set)
+    meshes: set = field(default_factory=set)
     lights: set = field(default_factory=set)
     lights_moved: set = field(default_factory=set)
     materials: set = field(default_factory=set)
     world: bool = False
     camera: bool = False
     kinds: dict = field(default_factory=dict)
+
+    @property
+    def lights_shading(self) -> set:
+        """Lights whose power or colour alone changed, or that were deleted: only what they
+        shaded changes."""
+        return self.lights - self.lights_moved
 
     def region_array(self) -> np.ndarray:
         """(k, 2, 3) float64: one box per geometry-type edit (old box union new box)."""
@@ -234,10 +247,13 @@ def apply_edits(scene: Scene, edits) -> tuple[Scene, EditEffects]:
     return new, fx
 
 
-def _object_region(fx: EditEffects, old_box, new_box) -> None:
+def _object_changed(fx: EditEffects, slot: int, old_box, new_box) -> None:
+    """Instance ``slot``'s geometry changed (mesh, transform, box, visibility, presence)."""
     box = _union(old_box, new_box)
     if box is not None:
         fx.regions.append(box)
+    fx.objects.add(slot)
+    fx.geometry.add(slot)
 
 
 def _apply_one(s: Scene, e, fx: EditEffects) -> None:
@@ -253,13 +269,15 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
             users = [k for k, i in s.live_instances() if i["mesh"] == mid]
             before = {k: _visible_box(s, k) for k in users}
             s.set_mesh(mid, e.mesh)
+            fx.meshes.add(mid)
             for k in users:
-                _object_region(fx, before[k], _visible_box(s, k))
-                fx.objects.add(k)
+                _object_changed(fx, k, before[k], _visible_box(s, k))
         else:
-            s.add_mesh(e.mesh, key=e.key)
+            fx.meshes.add(s.add_mesh(e.mesh, key=e.key))
     elif isinstance(e, MeshDelete):
-        s.delete_mesh(s.mesh_id(e.key))  # no live object uses it: nothing to invalidate
+        mid = s.mesh_id(e.key)
+        s.delete_mesh(mid)  # no live object uses it: no interpolant to invalidate
+        fx.meshes.add(mid)
     elif isinstance(e, MaterialSet):
         if e.key in s.material_keys.slot:
             mid = s.material_id(e.key)
@@ -278,13 +296,12 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
         mats = _material_ids(s, e.name or str(e.key), e.material_keys)
         slot = s.add_instance(mesh, e.matrix, mats, name=e.name or str(e.key), key=e.key,
                               visible=e.visible)
-        _object_region(fx, None, _visible_box(s, slot))
-        fx.objects.add(slot)
+        _object_changed(fx, slot, None, _visible_box(s, slot))
     elif isinstance(e, ObjectDelete):
         slot = s.instance_slot(e.key)
-        _object_region(fx, _visible_box(s, slot), None)
+        before = _visible_box(s, slot)
         s.delete_instance(slot)
-        fx.objects.add(slot)
+        _object_changed(fx, slot, before, None)
     elif isinstance(e, ObjectTransform):
         slot = s.instance_slot(e.key)
         before = _visible_box(s, slot)
@@ -292,8 +309,7 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
         s.set_instance_matrix(slot, e.matrix)
         if np.array_equal(old_matrix, s.instances[slot]["matrix"]):
             return  # not moved: nothing to invalidate
-        _object_region(fx, before, _visible_box(s, slot))
-        fx.objects.add(slot)
+        _object_changed(fx, slot, before, _visible_box(s, slot))
     elif isinstance(e, ObjectGeometry):
         slot = s.instance_slot(e.key)
         inst = s.instances[slot]
@@ -304,8 +320,7 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
                              f"{e.mesh_key!r}") from None
         before = _visible_box(s, slot)
         s.set_instance_mesh(slot, mesh)
-        _object_region(fx, before, _visible_box(s, slot))
-        fx.objects.add(slot)
+        _object_changed(fx, slot, before, _visible_box(s, slot))
     elif isinstance(e, ObjectMaterials):
         slot = s.instance_slot(e.key)
         inst = s.instances[slot]
@@ -317,8 +332,7 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
             return
         before = _visible_box(s, slot)
         s.set_instance_visible(slot, e.visible)
-        _object_region(fx, before, _visible_box(s, slot))
-        fx.objects.add(slot)
+        _object_changed(fx, slot, before, _visible_box(s, slot))
     elif isinstance(e, LightSet):
         if e.key in s.light_keys.slot:
             j = s.light_slot(e.key)
@@ -362,17 +376,6 @@ def same_material(a: Material | None, b: Material) -> bool:
         return a.texture is b.texture
     return a.texture is b.texture or (a.texture.shape == b.texture.shape
                                       and np.array_equal(a.texture, b.texture))
-
-
-def same_camera(a: Camera | None, b: Camera | None) -> bool:
-    """True when two cameras give the same rays (matrices compared exactly)."""
-    if a is None or b is None:
-        return a is b
-    if not np.array_equal(a.matrix, b.matrix):
-        return False
-    return all(getattr(a, f) == getattr(b, f) for f in (
-        "kind", "lens", "sensor_width", "sensor_height", "sensor_fit", "shift_x", "shift_y",
-        "clip_start", "clip_end", "ortho_scale", "width", "height"))
 
 
 def _as_mesh(d: dict) -> Mesh:

@@ -54,7 +54,7 @@ from ..frame import (
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
-from .invalidation import Dependencies, Invalidation, invalidate, set_scene
+from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
@@ -239,7 +239,6 @@ class InterpolantCache:
         self.pool = InterpolantPool()
         self.clock = 0
         self.samples_stale = False  # an edit may have made unreferenced samples stale
-        self.edit_pending = False  # invalidate() was called, set_scene() not yet
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
@@ -292,7 +291,7 @@ class InterpolantCache:
 
     def compatible_settings(self, epsilon: float, depth_cap: int, max_depth: int) -> bool:
         """Whether this cache's interpolants hold for these settings (any scene:
-        :meth:`set_scene` moves them to another)."""
+        :meth:`take_edits` moves them to another)."""
         return (float(epsilon) == self.epsilon
                 and min(int(depth_cap), MAX_DEPTH) == self.depth_cap
                 and int(max_depth) == self.max_depth)
@@ -356,11 +355,12 @@ class InterpolantCache:
         self.view = None
         return invalidate(self, regions, objects, lights, materials, world, light_shading)
 
-    def set_scene(self, sa, accel):
-        """Go on with the edited scene, keeping every valid interpolant; invalidates what
-        changed that :meth:`invalidate` was not told of (:func:`.invalidation.set_scene`)."""
+    def take_edits(self, fx, sa, accel) -> Invalidation:
+        """An edit batch's effects ``fx``: invalidate what they may change and go on with
+        the edited scene ``sa``, keeping every valid interpolant
+        (:func:`.invalidation.take_edits`)."""
         self.view = None
-        return set_scene(self, sa, accel)
+        return take_edits(self, fx, sa, accel)
 
     def rst_memory_bytes(self) -> int:
         """Bytes of the ray segment trees and the membership index."""
@@ -404,7 +404,7 @@ class InterpolantCache:
                   levels=0, reasons={})
         self.frame_stats = st
         active = inst >= 0
-        if self.samples_stale:  # an edit invalidated interpolants (set_scene not called)
+        if self.samples_stale:  # invalidate() was called alone (take_edits compacts)
             self.compact_samples()
         if not np.any(active) or self.epsilon <= 0.0:
             return ResolveResult(rad, done, pcls, pinterp)

@@ -13,9 +13,12 @@ Seed 000, section 5. Every valid interpolant, when it is built, leaves
 then the position-independent ray trees) and frees those interpolants: their linetree leaves
 become empty (rebuilt lazily by the next frame that needs them, shown as ``CLASS_REBUILT``),
 the samples only they kept are dropped, and the trees and lists are compacted once dead
-entries outnumber live ones. :func:`set_scene` then moves the cache to the edited scene:
-objects whose geometry or box changed get new, empty linetrees (their expanded box, the
-parameterisation of their lines, is made anew; every other object keeps its box and trees).
+entries outnumber live ones. :func:`take_edits` is the one entry point for an edit batch:
+it takes the batch's :class:`~..geometry.edits.EditEffects` (computed once, by
+:func:`~..geometry.edits.apply_edits`), invalidates what they name and moves the cache to
+the edited scene: objects whose geometry or box changed get new, empty linetrees (their
+expanded box, the parameterisation of their lines, is made anew; every other object keeps
+its box and trees).
 """
 
 from __future__ import annotations
@@ -44,16 +47,18 @@ log = logging.getLogger(__name__)
 
 
 class Invalidation(NamedTuple):
-    """What :func:`invalidate` did."""
+    """What :func:`invalidate` did (or, ``restarted``, that the cache started over: every
+    interpolant of the previous one is gone)."""
 
     count: int  # interpolants invalidated
     ids: np.ndarray  # (count,) int32 their ids (pool slots, free again now)
     query_ms: float  # RST traversal + membership + invalidation (leaves emptied, ids freed;
-    # the memory they held is compacted by set_scene or the next frame)
+    # the memory they held is compacted by take_edits or the next frame)
     rst_visits: int  # RST nodes visited
     tunnel_tests: int  # tunnel sections tested against a region
     live_before: int  # live interpolants before the edit
     failed_retried: int  # failed cells naming an edited object, emptied to be tried again
+    restarted: bool = False
 
 
 def rst_domain(sa) -> np.ndarray:
@@ -243,7 +248,7 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-               light_shading=(), new_edit: bool = True) -> Invalidation:
+               light_shading=()) -> Invalidation:
     """Invalidate every interpolant an edit may change, and free it.
 
     regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
@@ -254,14 +259,13 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     (every interpolant whose ray trees hit an object using them); world : the world colour
     changed (every interpolant with a ray-tree node that misses); light_shading : lights
     whose power or colour alone changed (only interpolants they shade). Camera edits
-    invalidate nothing (call nothing). ``new_edit`` False: part of the same edit as the
-    last call (the cells it emptied stay marked as rebuilt after an edit).
+    invalidate nothing (call nothing).
 
     Invalidated interpolants are freed at once (their pool ids are free, their tree and
     list entries dead); their cells are rebuilt by the next frame that needs them. Failed
-    cells whose ray trees named an edited object are emptied too (tried again). Call
-    :func:`set_scene` with the edited scene before the next frame: it compacts the memory
-    (samples only freed interpolants kept, emptied linetree blocks, dead entries).
+    cells whose ray trees named an edited object are emptied too (tried again). The memory
+    (samples only freed interpolants kept, emptied linetree blocks, dead entries) is
+    compacted by :func:`take_edits`, or by the next frame.
     """
     t0 = time.perf_counter()
     pool = cache.pool
@@ -269,16 +273,14 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     a = affected(cache, regions, objects, lights, materials, world, light_shading)
     ids, retry = a.ids, a.retry
     lt = cache.trees
-    if new_edit:
-        lt.clear_dirty()
-        pool.rebuilt[:] = False
-    cache.edit_pending = True
+    lt.clear_dirty()
+    pool.rebuilt[:] = False
     lt.mark_dirty(pool.node[ids])
     lt.mark_dirty(retry)
     lt.arrays.leaf[retry] = EMPTY
     cache.evict(ids, invalidated=True)
     # samples no live interpolant keeps may be stale now: dropped before anything is built
-    # again (set_scene, or the next frame), with the linetree and list compaction
+    # again (take_edits, or the next frame), with the linetree and list compaction
     cache.samples_stale = True
     t1 = time.perf_counter()
     log.debug("invalidate: %d of %d interpolants, %.3f ms", len(ids), live_before,
@@ -287,110 +289,19 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
                         live_before, len(retry))
 
 
-_TRI_DATA = ("tri_normals", "tri_uvs", "tri_slot")
-
-
-def _mesh_changed(old, new) -> np.ndarray:
-    """Per mesh of ``new``: its triangles (positions, normals, uvs, slots) differ from
-    ``old``'s mesh of the same id."""
-    nm = len(new.mesh_tri_start) - 1
-    om = len(old.mesh_tri_start) - 1
-    if (om == nm and np.array_equal(old.mesh_tri_start, new.mesh_tri_start)
-            and np.array_equal(old.tris, new.tris) and np.array_equal(old.verts, new.verts)
-            and all(np.array_equal(getattr(old, k), getattr(new, k)) for k in _TRI_DATA)):
-        return np.zeros(nm, bool)
-    out = np.ones(nm, bool)
-    for m in range(min(nm, om)):
-        a0, a1 = old.mesh_tri_start[m], old.mesh_tri_start[m + 1]
-        b0, b1 = new.mesh_tri_start[m], new.mesh_tri_start[m + 1]
-        if a1 - a0 == b1 - b0:
-            out[m] = not (np.array_equal(old.verts[old.tris[a0:a1]], new.verts[new.tris[b0:b1]])
-                          and all(np.array_equal(getattr(old, k)[a0:a1], getattr(new, k)[b0:b1])
-                                  for k in _TRI_DATA))
-    return out
-
-
-class SceneDiff(NamedTuple):
-    """What changed between two packings of a scene, as :func:`invalidate` takes it."""
-
-    regions: np.ndarray  # (k, 2, 3)
-    objects: set
-    lights: set
-    light_shading: set
-    materials: set
-    world: bool
-    geometry: np.ndarray  # (max(I_old, I_new),) bool slots whose mesh, transform or box changed
-
-
-_MAT = ("mat_diffuse", "mat_specular", "mat_roughness", "mat_mirror", "mat_transmission",
-        "mat_ior", "mat_emission", "mat_tex")
-_LIGHT_GEOMETRY = ("light_kind", "light_pos", "light_dir", "light_cos_outer", "light_cos_inner")
-
-
-def _rows_differ(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: row i of a and b differ (NaN equal to NaN)."""
-    a = np.asarray(a).reshape(len(a), -1)[:n]
-    b = np.asarray(b).reshape(len(b), -1)[:n]
-    return ~np.all((a == b) | ((a != a) & (b != b)), axis=1)
-
-
-def scene_diff(old, new, mesh_changed: np.ndarray | None = None) -> SceneDiff:
-    """Diff two packings of one scene with stable instance and light slots (same number
-    of light slots): the edits that lead from ``old`` to ``new``."""
-    if mesh_changed is None:
-        mesh_changed = _mesh_changed(old, new)
-    n_old, n_new = len(old.inst_mesh), len(new.inst_mesh)
-    m = min(n_old, n_new)
-    geo = np.ones(max(n_old, n_new), bool)
-    same = ((old.inst_mesh[:m] == new.inst_mesh[:m])
-            & ~_rows_differ(old.inst_xform, new.inst_xform, m)
-            & ~_rows_differ(old.inst_aabb, new.inst_aabb, m))
-    if len(mesh_changed):
-        same &= ~mesh_changed[np.clip(new.inst_mesh[:m], 0, len(mesh_changed) - 1)]
-    geo[:m] = ~same
-    objects = set(np.flatnonzero(geo).tolist())
-    if not (np.array_equal(old.inst_mat_start[:m + 1], new.inst_mat_start[:m + 1])
-            and np.array_equal(old.inst_mat[:old.inst_mat_start[m]],
-                               new.inst_mat[:new.inst_mat_start[m]])):
-        for k in range(m):
-            if not np.array_equal(old.inst_mat[old.inst_mat_start[k]:old.inst_mat_start[k + 1]],
-                                  new.inst_mat[new.inst_mat_start[k]:new.inst_mat_start[k + 1]]):
-                objects.add(k)
-    boxes = [sa_.inst_aabb[k] for k in np.flatnonzero(geo)
-             for sa_ in (old, new) if k < len(sa_.inst_aabb)]
-    boxes = [b for b in boxes if np.all(b[0] <= b[1]) and np.all(np.isfinite(b))]
-    regions = np.stack(boxes) if boxes else np.zeros((0, 2, 3))
-    nm = min(len(old.mat_diffuse), len(new.mat_diffuse))
-    mat = np.zeros(nm, bool)
-    for k in _MAT:
-        mat |= _rows_differ(getattr(old, k), getattr(new, k), nm)
-    if not (np.array_equal(old.tex_start, new.tex_start) and np.array_equal(
-            old.tex_size, new.tex_size) and np.array_equal(old.tex_data, new.tex_data)):
-        mat |= new.mat_tex[:nm] >= 0  # a texture changed: every textured material
-    L = min(len(old.light_kind), len(new.light_kind))
-    moved = np.zeros(L, bool)
-    for k in _LIGHT_GEOMETRY:
-        moved |= _rows_differ(getattr(old, k), getattr(new, k), L)
-    shade = _rows_differ(old.light_intensity, new.light_intensity, L) & ~moved
-    world = not np.array_equal(old.world_color, new.world_color)
-    return SceneDiff(regions, objects, set(np.flatnonzero(moved).tolist()),
-                     set(np.flatnonzero(shade).tolist()), set(np.flatnonzero(mat).tolist()),
-                     world, geo)
-
-
-def _remap_classes(cache, old, new, mesh_changed) -> None:
+def _remap_classes(cache, old, new, meshes_changed) -> None:
     """Surface class ids are global triangle indices (the least of the class,
     :func:`.mesh_topology.mesh_topology`): when a mesh changes size, the triangles of the
     meshes after it move. Move the class ids the kept interpolants and samples hold
-    (unchanged meshes keep their classes; ids on changed meshes become -2, matching
-    nothing a fresh sample has)."""
+    (unchanged meshes keep their classes; ids on changed meshes, ``meshes_changed``,
+    become -2, matching nothing a fresh sample has)."""
     if np.array_equal(old.mesh_tri_start, new.mesh_tri_start):
         return
     f = np.full(len(old.tris) + 1, -2, np.int64)
     for m in range(min(len(old.mesh_tri_start), len(new.mesh_tri_start)) - 1):
         a0, a1 = int(old.mesh_tri_start[m]), int(old.mesh_tri_start[m + 1])
         b0, b1 = int(new.mesh_tri_start[m]), int(new.mesh_tri_start[m + 1])
-        if a1 - a0 == b1 - b0 and not mesh_changed[m]:
+        if a1 - a0 == b1 - b0 and m not in meshes_changed:
             f[a0:a1] = np.arange(b0, b1)
 
     def remap(c):
@@ -403,37 +314,30 @@ def _remap_classes(cache, old, new, mesh_changed) -> None:
     sm._ncls[:sm.n_nodes] = remap(sm._ncls[:sm.n_nodes])
 
 
-def set_scene(cache, sa, accel) -> Invalidation | None:
-    """Move ``cache`` to the edited scene ``sa`` (accelerator ``accel`` over it), keeping
-    every interpolant still valid.
-
-    Call :func:`invalidate` with the edits first (that is the fast, timed path); whatever
-    changed that it was not told of is found here by diffing the two packings
-    (:func:`scene_diff`) and invalidated too, so a host that only hands over a new export
-    loses only what the changes affect. Returns that second invalidation, if any.
+def take_edits(cache, fx, sa, accel) -> Invalidation:
+    """Hand the effects ``fx`` of an edit batch (:class:`~..geometry.edits.EditEffects`,
+    computed once by :func:`~..geometry.edits.apply_edits`) to ``cache`` and move it to the
+    edited scene ``sa`` (accelerator ``accel`` over it), keeping every interpolant still
+    valid. Returns what :func:`invalidate` did.
 
     Instance slots are stable (a deleted object's slot is a tombstone, an added object
-    takes a new or a freed slot). An object whose mesh, transform or box changed gets new
-    empty linetrees over its new expanded box; the other objects keep theirs. A change in
-    the number of light slots starts over (the ray trees record a state per light).
+    takes a new or a freed slot). An object whose mesh, transform, box or visibility changed
+    (``fx.geometry``) gets new empty linetrees over its new expanded box; the other objects
+    keep theirs. The number of light slots must not change (the ray trees record a state
+    per light): :class:`~.render.InterpolantRenderer` starts a new cache then.
     """
     old = cache.sa
     if len(sa.light_kind) != len(old.light_kind):
-        cache.__init__(sa, accel, cache.epsilon, cache.depth_cap,
-                       cache.memory_cap_bytes / 1e6, cache.max_depth)
-        return None
+        raise ValueError("take_edits: the number of light slots changed (start a new cache)")
+    if fx.scene_content_changed:
+        inv = invalidate(cache, fx.region_array(), fx.objects, fx.lights_moved, fx.materials,
+                         fx.world, fx.lights_shading)
+    else:
+        inv = Invalidation(0, np.zeros(0, np.int32), 0.0, 0, 0, cache.pool.n_live, 0)
     n_new = len(sa.inst_mesh)
-    mesh_changed = _mesh_changed(old, sa)
-    d = scene_diff(old, sa, mesh_changed)
-    extra = None
-    if len(d.regions) or d.objects or d.lights or d.light_shading or d.materials or d.world:
-        extra = invalidate(cache, d.regions, d.objects, d.lights, d.materials, d.world,
-                           d.light_shading, new_edit=not cache.edit_pending)
-    cache.edit_pending = False
-    changed = d.geometry
     trees = cache.trees
     trees.grow_instances(n_new)
-    reset = np.flatnonzero(changed)
+    reset = np.asarray(sorted(k for k in fx.geometry if k < n_new), np.int64)
     held = trees.reset_trees(reset)
     held = held[cache.pool.live[held]]
     if len(held):
@@ -441,18 +345,17 @@ def set_scene(cache, sa, accel) -> Invalidation | None:
     trees.fresh_dirty[reset[reset < len(trees.fresh_dirty)]] = True
     box = np.empty((n_new, 2, 3))
     box[:min(len(cache.box), n_new)] = cache.box[:n_new]
-    fresh = expanded_boxes(sa, cache.box_extent)
-    ch = changed[:n_new]
-    box[ch] = fresh[ch]
+    if len(reset):
+        box[reset] = expanded_boxes(sa, cache.box_extent)[reset]
     cache.box = np.ascontiguousarray(box)
     cache.compact_samples()
-    _remap_classes(cache, old, sa, mesh_changed)
+    _remap_classes(cache, old, sa, fx.meshes)
     cache.sa = sa
     cache.accel = accel
     cache.drop_scene_structures()
     trees.collapse()
     cache.deps.compact(cache.pool, trees)
     cache.deps.follow_scene(sa, cache.pool)
-    log.debug("set_scene: %d objects with new linetrees, %d interpolants kept", len(reset),
+    log.debug("take_edits: %d objects with new linetrees, %d interpolants kept", len(reset),
               cache.pool.n_live)
-    return extra
+    return inv

@@ -13,10 +13,9 @@ pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0 nothing can be
 interpolated, and the frame is the base tracer's.
 
 Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
-frames and camera moves; it starts a new cache when epsilon, the depth cap, the ray depth or
-the accelerator change, or when the scene's content changed without the cache being told
-(:meth:`~.cache.InterpolantCache.invalidate` then
-:meth:`~.cache.InterpolantCache.set_scene` keep every interpolant an edit leaves valid).
+frames and camera moves; it starts a new cache when epsilon, the depth cap or the ray depth
+change, or when it is handed a scene packing it was not told of
+(:meth:`InterpolantRenderer.take_edits` keeps every interpolant an edit leaves valid).
 
 ``frame.pixel_interpolant`` (h, w) int32 holds the interpolant each pixel used (-1: traced or
 background; with several samples per pixel, -2 where its samples used different ones).
@@ -24,7 +23,6 @@ background; with several samples per pixel, -2 where its samples used different 
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import time
 
@@ -47,6 +45,7 @@ from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .cache import InterpolantCache
+from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
 
 log = logging.getLogger(__name__)
@@ -362,64 +361,53 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                  pixel_interpolant=pinterp.reshape(h, w))
 
 
-def scene_fingerprint(sa) -> bytes:
-    """Content hash of a scene packing (geometry, instances, materials, lights, world)."""
-    h = hashlib.blake2b(digest_size=16)
-    for a in sa:
-        h.update(np.ascontiguousarray(a).view(np.uint8) if isinstance(a, np.ndarray)
-                 else repr(a).encode())
-    return h.digest()
-
-
 class InterpolantRenderer:
     """The INTERPOLANT mode's state in a session: one cache, kept while it stays valid.
 
-    A change of epsilon, depth cap or ray depth starts a new cache. A new packing of the
-    scene or a new accelerator moves the cache to it
-    (:meth:`~.cache.InterpolantCache.set_scene`): an unchanged export keeps everything, and
-    an edited one loses only the interpolants its changes may affect (a session calls
-    :meth:`~.cache.InterpolantCache.invalidate` with its edits first, the fast path).
+    A change of epsilon, depth cap or ray depth starts a new cache. Edits reach the cache
+    through :meth:`take_edits` (their effects, computed once by the session), which keeps
+    every interpolant they leave valid; a scene packing the cache was not told of starts a
+    new cache (the renderer never diffs scenes), and so does an edit batch that changes the
+    number of light slots (the ray trees record a state per light).
     """
 
     def __init__(self) -> None:
         self.cache: InterpolantCache | None = None
-        self._fingerprint: bytes | None = None
-        self._fingerprint_of = None  # the packing the fingerprint is of
 
     def reset(self) -> None:
         """Forget every interpolant."""
         self.cache = None
-        self._fingerprint = None
-        self._fingerprint_of = None
 
-    def _same_scene(self, sa) -> bool:
+    def take_edits(self, fx, sa, accel) -> Invalidation | None:
+        """Hand an edit batch's effects ``fx`` (:class:`~..geometry.edits.EditEffects`) to
+        the cache and move it to the edited packing ``sa``; None when there is no cache.
+        ``restarted`` in the result says every interpolant is gone."""
         c = self.cache
-        if sa is c.sa:
-            return True
-        if self._fingerprint_of is not c.sa:  # moved to an edited scene (set_scene)
-            self._fingerprint = scene_fingerprint(c.sa)
-            self._fingerprint_of = c.sa
-        fp = scene_fingerprint(sa)
-        if fp != self._fingerprint:
-            return False
-        c.sa = sa  # same content, new packing
-        self._fingerprint_of = sa
-        return True
+        if c is None:
+            return None
+        if sa is c.sa and not fx.scene_content_changed:
+            c.accel = accel
+            return Invalidation(0, np.zeros(0, np.int32), 0.0, 0, 0, c.pool.n_live, 0)
+        if len(sa.light_kind) != len(c.sa.light_kind):
+            live = c.pool.n_live
+            self.cache = InterpolantCache(sa, accel, c.epsilon, c.depth_cap,
+                                          c.memory_cap_bytes / 1e6, c.max_depth)
+            return Invalidation(live, np.zeros(0, np.int32), 0.0, 0, 0, live, 0,
+                                restarted=True)
+        return c.take_edits(fx, sa, accel)
 
     def prepare(self, sa, settings: RenderSettings, accel):
         """The cache for scene packing ``sa``, ``settings`` and ``accel`` (see the class
         doc); returns ``(cache, new)``."""
         c = self.cache
         new = False
-        if c is None or not c.compatible_settings(settings.epsilon, settings.depth_cap,
-                                                  settings.max_depth):
+        if (c is None or sa is not c.sa
+                or not c.compatible_settings(settings.epsilon, settings.depth_cap,
+                                             settings.max_depth)):
             self.cache = c = InterpolantCache(sa, accel, settings.epsilon, settings.depth_cap,
                                               settings.memory_cap_mb, settings.max_depth)
-            self._fingerprint = None
-            self._fingerprint_of = None
             new = True
-        elif sa is not c.sa or accel is not c.accel:
-            c.set_scene(sa, accel)  # diffs the packings: invalidates what changed
+        c.accel = accel  # (interpolants hold radiance, not the accelerator's structures)
         if c.memory_cap_bytes != settings.memory_cap_mb * 1e6:
             c.set_memory_cap(settings.memory_cap_mb)
         return c, new
@@ -427,7 +415,8 @@ class InterpolantRenderer:
     def render(self, scene, settings: RenderSettings, accel, progress=None, cancel=None,
                **incremental) -> Frame:
         """Render ``scene``'s camera in INTERPOLANT mode with accelerator ``accel``
-        (``incremental``: ``records``, ``pixels``, ``base`` of :func:`render_frame`)."""
+        (``incremental``: ``records``, ``pixels``, ``base`` of :func:`render_frame`; a caller
+        that keeps pixels calls :meth:`prepare` first to learn whether the cache is new)."""
         settings = settings.validated()
         c, _ = self.prepare(scene.arrays(), settings, accel)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel,

@@ -8,8 +8,6 @@ smaller, or diffuse, with one BVH ray, and nothing is left for a tree to save.
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
 #: objects with fewer triangles are traced (cheaper than any tree)
@@ -46,30 +44,3 @@ def subset(sa, keep: np.ndarray):
         inst_mat_start=np.concatenate([[0], np.cumsum(lens)]).astype(np.int32),
         inst_mat=(np.concatenate(mats).astype(np.int32) if len(mats)
                   else np.zeros(0, np.int32)))
-
-
-def instance_fingerprints(sa) -> list[bytes]:
-    """Per instance: a hash of what its RI-tree depends on (mesh, transform, materials'
-    mirror / transmission / IOR). Lights and colours do not matter to geometry."""
-    out = []
-    tstart = sa.mesh_tri_start
-    mesh_keys = {}
-    for k in range(len(sa.inst_mesh)):
-        m = int(sa.inst_mesh[k])
-        if m not in mesh_keys:
-            h = hashlib.blake2b(digest_size=16)
-            tris = sa.tris[tstart[m]:tstart[m + 1]]
-            rng = slice(tstart[m], tstart[m + 1])
-            for a in (tris, sa.verts[tris.min():tris.max() + 1], sa.tri_normals[rng],
-                      sa.tri_slot[rng]):
-                h.update(np.ascontiguousarray(a).view(np.uint8))
-            mesh_keys[m] = h.digest()
-        h = hashlib.blake2b(mesh_keys[m], digest_size=16)
-        mats = sa.inst_mat[sa.inst_mat_start[k]:sa.inst_mat_start[k + 1]]
-        for a in (sa.inst_xform[k], sa.mat_mirror[mats], sa.mat_transmission[mats],
-                  sa.mat_ior[mats], sa.mat_model[mats], sa.mat_specular[mats],
-                  sa.mat_specular_ior[mats], sa.mat_metallic[mats], sa.mat_metal[mats],
-                  sa.inst_alive[k:k + 1]):
-            h.update(np.ascontiguousarray(a).view(np.uint8))
-        out.append(h.digest())
-    return out

@@ -56,7 +56,7 @@ from ..tracing.whitted import (
 from . import thickness as thick
 from .cache import RITreeCache
 from .candidates import _QUERY, _TRACE, candidates, pick
-from .eligibility import eligible, instance_fingerprints, subset
+from .eligibility import eligible, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 from .surfaces import interp_surface
@@ -82,13 +82,19 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 # ----------------------------------------------------------------------------- renderer
 
 
+#: material properties an RI-tree depends on (its exit paths and their gains, eligibility)
+_OPTICAL = ("mat_mirror", "mat_transmission", "mat_ior", "mat_tex", "mat_model",
+            "mat_specular", "mat_specular_ior", "mat_metallic", "mat_metal")
+
+
 class RITreeRenderer:
     """The RI_TREE mode's state in a session: the RI-tree caches (shaded and thickness
     view) and the accelerator over the traced objects, kept while they stay valid.
 
-    A new export keeps the trees of every instance whose geometry, transform and optical
-    materials are unchanged (:func:`instance_fingerprints`); :meth:`invalidate` drops the
-    trees of given instance slots (for the edits machinery: moved or edited objects).
+    Edits reach it through :meth:`take_edits` (their effects, computed once by the
+    session): the trees of the objects they touch are dropped, the others kept. A scene
+    packing it was not told of starts over (the renderer never diffs scenes), and so does
+    a change in the number of instance slots or in the meshes' surface classes.
     """
 
     #: after every frame, objects whose tree did not pay are traced (:mod:`.fallback`)
@@ -96,8 +102,8 @@ class RITreeRenderer:
 
     def __init__(self) -> None:
         self.caches: dict[bool, RITreeCache] = {}
-        self._fp: list[bytes] | None = None
         self._sa = None
+        self._edited = None  # the packing take_edits moved to (the next frame's)
         self._accel = None
         self._sub = None  # (accelerator over traced objects, their ids) per view
         self.ri: dict[bool, np.ndarray] = {}
@@ -127,16 +133,39 @@ class RITreeRenderer:
                 self.ri.pop(view, None)
         return sum(c.invalidate(slots) for c in self.caches.values())
 
+    def take_edits(self, fx, old_sa, sa) -> int:
+        """An edit batch's effects ``fx`` (:class:`~..geometry.edits.EditEffects`) from
+        packing ``old_sa`` to ``sa``: drop the trees of the instance slots it touched (the
+        objects named: transform, geometry, deletion, visibility, materials assigned) and of
+        the objects using a material whose optical properties changed (a colour alone keeps
+        them: trees hold geometry and exit paths only). Returns the trees dropped."""
+        if not self.caches:
+            return 0
+        if (self._edited or self._sa) is not old_sa:
+            self.reset()  # (not following this scene: nothing of it can be trusted)
+            return 0
+        self._edited = sa
+        slots = set(int(k) for k in fx.objects)
+        optical = [int(m) for m in fx.materials
+                   if int(m) >= len(old_sa.mat_ior) or int(m) >= len(sa.mat_ior)
+                   or any(not np.array_equal(getattr(old_sa, f)[int(m)], getattr(sa, f)[int(m)])
+                          for f in _OPTICAL)]
+        if optical:
+            uses = np.isin(sa.inst_mat, optical)
+            slot_of = np.repeat(np.arange(len(sa.inst_mesh)), np.diff(sa.inst_mat_start))
+            slots.update(int(k) for k in np.unique(slot_of[uses]))
+        return self.invalidate(sorted(slots)) if slots else 0
+
     # -- state ---------------------------------------------------------------------------
 
     def _sync(self, sa, accel, settings: RenderSettings) -> None:
-        fp = instance_fingerprints(sa)
         topo = mesh_topology_cached(sa)
         same_meshes = (self._sa is not None and self._sa.tris.shape == sa.tris.shape
                        and self._tri_class is not None
                        and np.array_equal(self._tri_class, topo.tri_class))
-        reset = (self._fp is None or len(fp) != len(self._fp) or accel is not self._accel
-                 or not same_meshes)
+        told = sa is self._sa or sa is self._edited
+        reset = (not told or accel is not self._accel or not same_meshes
+                 or len(sa.inst_mesh) != len(self._sa.inst_mesh))
         if reset:
             # the boxes' padding scales with the extent of the scene the trees started in:
             # an edit that grows the scene box keeps the other objects' trees valid
@@ -147,18 +176,14 @@ class RITreeRenderer:
             self._sub = {}
             self.ri = {}
         elif sa is not self._sa:
-            changed = [k for k, (a, b) in enumerate(zip(fp, self._fp, strict=True))
-                       if a != b or not np.array_equal(box[k], self._box[k])]
-            if changed:
-                self.invalidate(changed)
             for c in self.caches.values():
                 c.sa = sa
                 c.box = box
                 c.diag = np.linalg.norm(box[:, 1] - box[:, 0], axis=1)
             self._sub = {}
             self.ri = {}
-        self._fp = fp
         self._sa = sa
+        self._edited = None
         self._box = box
         self._tri_class = topo.tri_class
         self._accel = accel

@@ -1,0 +1,183 @@
+"""Frame reuse: what a session keeps of its last frame to render the next one incrementally.
+
+With the camera and the settings unchanged, a frame after an edit re-renders only its
+*dirty* pixels -- pixels whose per-pixel records (:mod:`.pixel_records`) touch what the edit
+changed, and pixels that used an interpolant the edit invalidated -- over a copy of the last
+frame. :class:`FrameReuse` is the one home of that state: the last frame, its records, the
+settings key and camera it was rendered with, the dirty and rebuilt pixels accumulated since,
+and (INTERPOLANT) which kept pixels' interpolants the ray segment trees no longer track.
+
+The session drives it: :meth:`FrameReuse.take_edits` after every applied batch (with the
+batch's :class:`~..geometry.edits.EditEffects` and what the interpolant cache invalidated),
+:meth:`FrameReuse.plan` before a frame, :meth:`FrameReuse.finish` after it.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
+from ..geometry.cameras import camera_params, same_camera
+from .pixel_records import PixelRecords
+
+
+class FrameReuse:
+    """The last frame and what the next one may keep of it (see the module doc)."""
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        """Keep nothing: the next frame is a full one."""
+        self.frame: Frame | None = None  # the last complete frame
+        self.records: PixelRecords | None = None  # its per-pixel records
+        self.key = None  # the settings the frame was rendered with (Session.settings_key)
+        self.camera = None  # and its camera
+        self.dirty: np.ndarray | None = None  # (h * w,) bool pixels the next frame redoes
+        self.rebuilt: np.ndarray | None = None  # dirty through an invalidated interpolant
+        # INTERPOLANT: the serial of every interpolant id when the last frame ended, and the
+        # kept pixels whose interpolant was evicted since (no longer tracked by the RSTs)
+        self.snap: np.ndarray | None = None
+        self.untracked: np.ndarray | None = None
+
+    def keep_only(self, frame: Frame | None) -> None:
+        """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
+        next frame is a full one."""
+        self.clear()
+        self.frame = frame
+
+    @property
+    def dirty_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
+        if self.dirty is None or self.frame is None:
+            return None
+        return self.dirty.reshape(self.frame.pixel_class.shape).copy()
+
+    @property
+    def records_bytes(self) -> int:
+        return self.records.nbytes if self.records is not None else 0
+
+    def matches(self, key, camera) -> bool:
+        """The last frame was rendered with these settings and this camera."""
+        return self.key is not None and key == self.key and same_camera(camera, self.camera)
+
+    # -- edits -------------------------------------------------------------------------
+
+    def take_edits(self, fx, old_sa, new_sa, camera, ids, interpolants_lost: bool,
+                   report) -> None:
+        """Mark the pixels an applied edit batch makes dirty.
+
+        fx : the batch's :class:`~..geometry.edits.EditEffects`; old_sa, new_sa : the
+        packings before and after it; camera : the scene's camera after it; ids : the
+        interpolants the cache invalidated (None: none invalidated, or no cache);
+        interpolants_lost : the frame's interpolants are all gone (the cache started over).
+        Fills ``report``'s ``full_frame``, ``dirty_pixels``, ``dirty_fraction`` and
+        ``records_query_ms``.
+        """
+        f, rec = self.frame, self.records
+        rebuilt = None
+        if f is not None and f.pixel_interpolant is not None and ids is not None and len(ids):
+            # pixels of invalidated interpolants (with several samples per pixel, -2: the
+            # samples used different interpolants, any of which may be gone)
+            pi = f.pixel_interpolant.reshape(-1)
+            rebuilt = np.isin(pi, ids) | (pi == -2)
+            if not fx.camera:
+                self.rebuilt = rebuilt if self.rebuilt is None else self.rebuilt | rebuilt
+        if (f is None or rec is None or self.dirty is None or fx.camera or interpolants_lost
+                or not np.array_equal(old_sa.scene_aabb, new_sa.scene_aabb)):
+            # no previous frame to keep, the camera moved, every interpolant is gone, or
+            # the scene box changed (spawn offsets scale with it, so every pixel may change
+            # in the last bits)
+            self.dirty = None
+            report.full_frame = True
+            report.dirty_pixels = -1
+            report.dirty_fraction = 1.0
+            if not fx.camera and not interpolants_lost and f is not None and rec is not None:
+                report.messages.append("full frame: the scene's bounding box changed")
+            return
+        t0 = time.perf_counter()
+        dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
+        if rebuilt is not None:
+            dirty |= rebuilt
+        if f.pixel_interpolant is not None and fx.scene_content_changed:
+            # pixels whose interpolant the RSTs no longer track (evicted by the memory cap
+            # after the pixel was rendered), and pixels whose samples used several
+            dirty |= f.pixel_interpolant.reshape(-1) == -2
+            if self.untracked is not None:
+                dirty |= self.untracked
+        report.records_query_ms = 1e3 * (time.perf_counter() - t0)
+        self.dirty |= dirty
+        report.full_frame = False
+        report.dirty_pixels = int(np.count_nonzero(self.dirty))
+        report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
+
+    # -- frames ------------------------------------------------------------------------
+
+    def plan(self, key, camera, samples: int, scene_aabb, keep: bool = True):
+        """What the next frame renders: ``(records, pixels, base)`` -- pixels (h * w,) bool
+        and the base frame to render them over, or ``None, None`` for a full frame; records
+        to fill (the kept ones for an incremental frame). ``keep`` False: a full frame
+        whatever changed (e.g. a new interpolant cache)."""
+        if (keep and self.frame is not None and self.records is not None
+                and self.dirty is not None and self.matches(key, camera)):
+            return self.records, self.dirty, self.frame
+        return PixelRecords(camera.width, camera.height, samples, scene_aabb), None, None
+
+    def finish(self, frame: Frame, records: PixelRecords, pixels, key, camera, samples: int,
+               cache=None, pool0=None) -> Frame:
+        """Keep ``frame`` (rendered from :meth:`plan`'s ``records``, ``pixels``) for the
+        next one; returns the frame to show, whose pixels rebuilt from invalidated
+        interpolants are marked ``CLASS_REBUILT`` (the kept frame says "interpolated").
+        cache, pool0 : the interpolant cache and ``(cache, next_serial, n_live)`` of its pool
+        before the frame (INTERPOLANT), for :meth:`_track_interpolants`."""
+        rebuilt = self.rebuilt if self.matches(key, camera) else None
+        stored = frame
+        if frame.pixel_interpolant is not None and rebuilt is not None and rebuilt.any():
+            pc = frame.pixel_class.reshape(-1)
+            stored = Frame(frame.radiance, pc.copy().reshape(frame.pixel_class.shape),
+                           frame.stats, frame.pixel_interpolant)
+            pc[rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
+        if frame.stats.get("cancelled"):
+            # a part-done frame: its records are incomplete, the next frame is a full one
+            self.frame = self.records = self.dirty = None
+            return frame
+        records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
+        self._track_interpolants(stored, pixels, cache, pool0)
+        n = camera.width * camera.height
+        self.frame, self.records, self.key, self.camera = stored, records, key, camera
+        self.dirty = np.zeros(n, bool)
+        self.rebuilt = np.zeros(n, bool)
+        return frame
+
+    def _track_interpolants(self, frame: Frame, pixels, cache, pool0) -> None:
+        """After an INTERPOLANT frame: note the pixels whose interpolant the RSTs no longer
+        track -- kept pixels whose interpolant was evicted since it was used, and, when the
+        memory cap evicted anything during the frame, every pixel it interpolated (an id
+        may have been freed and reused within the frame) -- so that the next content edit
+        re-renders them; snapshot the serials."""
+        pi = frame.pixel_interpolant
+        if cache is None or pi is None:
+            self.snap = self.untracked = None
+            return
+        pi = pi.reshape(-1)
+        pool = cache.pool
+        untracked = np.zeros(len(pi), bool)
+        # a cache made during the frame started with serial 1 and nothing live
+        s0, live0 = (pool0[1], pool0[2]) if pool0 is not None and pool0[0] is cache else (1, 0)
+        evicted = (pool.next_serial - s0) - (pool.n_live - live0) > 0
+        if evicted:
+            rendered = np.ones(len(pi), bool) if pixels is None else pixels
+            untracked |= rendered & (pi != -1)
+        if pixels is not None and self.snap is not None and self.untracked is not None:
+            kept = ~pixels & (pi >= 0)
+            idx = pi[kept]
+            n = min(len(pool.serial), len(self.snap))
+            inside = idx < n
+            safe = np.where(inside, idx, 0)
+            gone = ~inside | ~pool.live[safe] | (pool.serial[safe] != self.snap[safe])
+            untracked[np.flatnonzero(kept)[gone]] = True
+            untracked |= self.untracked & ~pixels
+        self.untracked = untracked
+        self.snap = pool.serial.copy()

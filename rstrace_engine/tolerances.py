@@ -104,6 +104,22 @@ TUNNEL_MARGIN_REL = 0.05
 #: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
 SHAFT_SLACK_REL = 1e-9
 
+#: Ray segment trees: their domain (the scene box with its point and spot lights) is padded
+#: by this fraction of its diagonal ...
+RST_DOMAIN_PAD_REL = 0.01
+#: ... plus this fraction of ``1 + `` its largest coordinate magnitude (a flat or tiny scene
+#: still gets a domain of positive size).
+RST_DOMAIN_PAD_MAG = 1e-6
+
+# ----------------------------------------------------------------------------- per-pixel records
+
+#: Angular error bound (radians) of the records' octahedral direction encoding (16 + 16 bits):
+#: a miss's stored direction is widened into a cone this wide.
+RECORD_DIR_ERROR = 2e-4
+#: Edited regions are grown by this fraction of the scene's coordinate magnitude (plus half
+#: the points' quantisation step) to cover spawn offsets and rounding.
+RECORD_SLACK_REL = 1e-6
+
 # ----------------------------------------------------------------------------- visibility field
 
 #: Visibility field: triangles are scan-converted into tiles with their projection grown by

@@ -13,7 +13,7 @@ interpolate (when the pixel's hit is the slab crossing the interpolant certifies
 leaf with enough pixels is built (all of them in one batch: their missing samples are traced
 together, against the object alone with :meth:`intersect_object`, then shaded through the
 whole scene with :func:`~.whitted.trace` and ray trees recorded; then the error predicate of
-:mod:`.interpolant_predicate` and the radiance test run on the batch); failed leaves above
+:mod:`.predicate` and the radiance test run on the batch); failed leaves above
 the depth cap split. Whatever is left is returned to be traced, with its pixel class.
 
 The radiance test: at the cell's test lines (its centre, the 8 centres of its boundary

@@ -62,8 +62,8 @@ class Invalidation(NamedTuple):
 
 
 def rst_domain(sa) -> np.ndarray:
-    """The ray segment trees' domain: the scene box with its point and spot lights, padded
-    by 1% of its diagonal (2, 3)."""
+    """The ray segment trees' domain (2, 3): the scene box with its point and spot lights,
+    padded (:data:`~..tolerances.RST_DOMAIN_PAD_REL`)."""
     lo = np.array(sa.scene_aabb[0], np.float64)
     hi = np.array(sa.scene_aabb[1], np.float64)
     pos = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
@@ -72,7 +72,8 @@ def rst_domain(sa) -> np.ndarray:
     if len(pts):
         lo = np.minimum(lo, pts.min(axis=0))
         hi = np.maximum(hi, pts.max(axis=0))
-    pad = 0.01 * float(np.linalg.norm(hi - lo)) + 1e-6 * (1.0 + float(np.abs([lo, hi]).max()))
+    pad = (tol.RST_DOMAIN_PAD_REL * float(np.linalg.norm(hi - lo))
+           + tol.RST_DOMAIN_PAD_MAG * (1.0 + float(np.abs([lo, hi]).max())))
     return np.stack([lo - pad, hi + pad])
 
 

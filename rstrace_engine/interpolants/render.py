@@ -184,6 +184,78 @@ def _add_stats(a: dict, b: dict) -> dict:
     return out
 
 
+def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base) -> Frame:
+    """Nothing can be interpolated within a zero error bound: the base tracer's frame, with
+    the INTERPOLANT mode's statistics."""
+    frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel,
+                   records=records, pixels=pixels, base=base)
+    frame.pixel_interpolant = (np.full(frame.pixel_class.shape, -1, np.int32)
+                               if base is None else base.pixel_interpolant.copy())
+    frame.stats.update(mode="INTERPOLANT", interpolated_fraction=0.0, cells_built=0,
+                       cells_valid=0, samples_traced=0, interpolants=cache.pool.n_live,
+                       memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
+                       depth_cap=cache.depth_cap)
+    return frame
+
+
+def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
+                cancel) -> bool:
+    """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
+    found, into ``rad``; their ray trees go to ``records``. Returns whether ``cancel`` stopped
+    it (the frame is then incomplete)."""
+    sa, accel = cache.sa, cache.accel
+    # in tiles of about the base tracer's size (its per-level arrays stay cache-sized),
+    # split evenly: a small last tile would cost the tracer's per-level overhead alone
+    n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
+    for q in range(n_tiles):
+        part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+        segs: list | None = [] if records is not None else None
+        with bound(accel, cancel):
+            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                 max_depth, primary=_take(hits, part), counters=counters,
+                                 segments=segs, cancel=cancel)
+        if cancel is not None and cancel():
+            return True
+        if records is not None:
+            records.add(gids[part], segs)
+    return False
+
+
+def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, reprojected,
+                 k, n_todo, counters, w, h, spp, max_depth, cancelled, bad_total) -> dict:
+    """The statistics of an INTERPOLANT frame."""
+    accel = cache.accel
+    return dict(
+        mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
+        resolve_s=t_res - fs.get("visibility_s", 0.0),
+        build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
+        trace_s=t_trace,
+        # samples whose visible hit came from reprojection instead of a closest-hit ray
+        reprojected_fraction=reprojected,
+        # of the whole frame (kept pixels included; a kept pixel "rebuilt after an edit" is
+        # interpolated too: the stat once said 0% with 959 magenta pixels)
+        interpolated_fraction=float(np.count_nonzero((pclass == CLASS_INTERPOLATED)
+                                                     | (pclass == CLASS_REBUILT)))
+        / max(len(pclass), 1),
+        traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
+        secondary_rays=counters.get("secondary", 0),
+        cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
+        samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
+        cell_outcomes=dict(fs.get("reasons", {})),
+        interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
+        memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,
+        interpolant_memory_mb=cache.interpolant_bytes / 1e6,
+        epsilon=cache.epsilon, depth_cap=cache.depth_cap,
+        memory_cap_mb=cache.memory_cap_bytes / 1e6,
+        class_counts={CLASS_NAMES[q]: int(counts[q]) for q in range(len(CLASS_NAMES))},
+        width=w, height=h, samples=spp, max_depth=max_depth,
+        cancelled=bool(cancelled), nonfinite_samples=bad_total,
+        accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
+        bound_notes=[] if cancelled else bound_notes(
+            cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
+    )
+
+
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
                  base: Frame | None = None) -> Frame:
@@ -204,18 +276,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     """
     settings = settings.validated()
     if cache.epsilon <= 0.0:
-        # nothing can be interpolated within a zero error bound: this is a base frame
-        frame = render(scene, settings, accel=cache.accel, progress=progress, cancel=cancel,
-                       records=records, pixels=pixels, base=base)
-        frame.pixel_interpolant = (np.full(frame.pixel_class.shape, -1, np.int32)
-                                   if base is None else base.pixel_interpolant.copy())
-        frame.stats.update(mode="INTERPOLANT", interpolated_fraction=0.0, cells_built=0,
-                           cells_valid=0, samples_traced=0, interpolants=cache.pool.n_live,
-                           memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
-                           depth_cap=cache.depth_cap)
-        return frame
+        return _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     t0 = time.perf_counter()
-    sa, accel = cache.sa, cache.accel
+    sa = cache.sa
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height
     spp = int(settings.samples)
@@ -293,23 +356,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             else:
                 if records is not None:
                     records.add_primary(gids, hits.inst, o, d, hits.t)
-                # in tiles of about the base tracer's size (its per-level arrays stay
-                # cache-sized), split evenly: a small last tile would cost the tracer's
-                # per-level overhead alone
-                n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-                for q in range(n_tiles):
-                    part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
-                    segs: list | None = [] if records is not None else None
-                    with bound(accel, cancel):
-                        rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part],
-                                             tmax[part], int(settings.max_depth),
-                                             primary=_take(hits, part), counters=counters,
-                                             segments=segs, cancel=cancel)
-                    cancelled = cancel is not None and cancel()
-                    if cancelled:  # an incomplete tile (and frame): the session drops it
-                        break
-                    if records is not None:
-                        records.add(gids[part], segs)
+                cancelled = _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad,
+                                        int(settings.max_depth), counters, records, gids,
+                                        cancel)
             t_trace += time.perf_counter() - tt
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
@@ -326,35 +375,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if progress is not None:
         progress(1.0, "done")
     elapsed = time.perf_counter() - t0
-    stats = dict(
-        mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
-        resolve_s=t_res - fs.get("visibility_s", 0.0),
-        build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
-        trace_s=t_trace,
-        # samples whose visible hit came from reprojection instead of a closest-hit ray
-        reprojected_fraction=n_rep / max(n, 1),
-        # of the whole frame (kept pixels included; a kept pixel "rebuilt after an edit" is
-        # interpolated too: the stat once said 0% with 959 magenta pixels)
-        interpolated_fraction=float(np.count_nonzero((pclass == CLASS_INTERPOLATED)
-                                                     | (pclass == CLASS_REBUILT)))
-        / max(len(pclass), 1),
-        traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
-        secondary_rays=counters.get("secondary", 0),
-        cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
-        samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
-        cell_outcomes=dict(fs.get("reasons", {})),
-        interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
-        memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,
-        interpolant_memory_mb=cache.interpolant_bytes / 1e6,
-        epsilon=cache.epsilon, depth_cap=cache.depth_cap,
-        memory_cap_mb=cache.memory_cap_bytes / 1e6,
-        class_counts={CLASS_NAMES[q]: int(counts[q]) for q in range(len(CLASS_NAMES))},
-        width=w, height=h, samples=spp, max_depth=int(settings.max_depth),
-        cancelled=bool(cancelled), nonfinite_samples=bad_total,
-        accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=[] if cancelled else bound_notes(
-            cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
-    )
+    stats = _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace,
+                         n_rep / max(n, 1), k, n_todo, counters, w, h, spp,
+                         int(settings.max_depth), cancelled, bad_total)
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,

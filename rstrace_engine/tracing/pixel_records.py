@@ -50,16 +50,13 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
 
 #: bits of the quantised point on the longest, middle and shortest axis of the box
 POINT_BITS = (11, 11, 10)
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
-#: angular error bound of the octahedral direction encoding (16 + 16 bits), radians
-DIR_ERROR = 2e-4
-#: slack relative to the scene size for spawn offsets and rounding
-SLACK_REL = 1e-6
 
 
 # ----------------------------------------------------------------------------- encoding
@@ -174,7 +171,7 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
         dx, dy, dz = _oct_decode(code)
         for q in range(k_reg):
             if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, reg_c[q, 0],
-                            reg_c[q, 1], reg_c[q, 2], reg_r[q], DIR_ERROR):
+                            reg_c[q, 1], reg_c[q, 2], reg_r[q], tol.RECORD_DIR_ERROR):
                 return True
         return False
     px, py, pz = _decode_point(code, lo, step, levels, shift)
@@ -555,7 +552,7 @@ class PixelRecords:
         regions = fx.region_array()
         scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
                       + np.abs(sa.scene_aabb).max())
-        margin = 0.5 * self.step + SLACK_REL * scale
+        margin = 0.5 * self.step + tol.RECORD_SLACK_REL * scale
         if cp.ortho:
             margin = margin + cp.pixsize
             gx = np.arange(self.n_rays) % self.n_pixels

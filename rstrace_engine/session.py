@@ -2,9 +2,11 @@
 
 The session owns the :class:`~rstrace_engine.geometry.scene.Scene`, its accelerator, the
 interpolant cache and the last frame with its per-pixel records. Scene changes arrive as
-:mod:`~rstrace_engine.geometry.edits` through :meth:`Session.apply`, or as a whole new export
-through :meth:`Session.update_scene`, which diffs it against the current scene by key into
-the same edits: both paths share one implementation. An edit
+:mod:`~rstrace_engine.geometry.edits` through :meth:`Session.apply`, or queued from any thread
+by :meth:`Session.submit` for the next :meth:`~Session.apply` or :meth:`~Session.render` (a
+host's UI thread hands edits to a render thread this way), or as a whole new export through
+:meth:`Session.update_scene`, which diffs it against the current scene by key into the same
+edits: all paths share one implementation. An edit
 
 * is applied all or nothing (a bad edit raises :class:`SceneError` naming the object and the
   session keeps its previous state);
@@ -27,6 +29,7 @@ view exactly (full frames too) and RI_TREE interpolates it.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 
 import numpy as np
@@ -34,7 +37,14 @@ import numpy as np
 from .accel.accelerators import create_accelerator
 from .frame import AVAILABLE_MODES, CLASS_INTERPOLATED, CLASS_REBUILT, Frame, RenderSettings
 from .geometry.cameras import camera_params
-from .geometry.edits import EditEffects, EditReport, apply_edits, diff_scenes
+from .geometry.edits import (
+    CameraChange,
+    EditEffects,
+    EditReport,
+    apply_edits,
+    diff_scenes,
+    same_camera,
+)
 from .geometry.scene import Scene, SceneError
 from .interpolants.render import InterpolantRenderer, render_frame
 from .ri_tree.render import RITreeRenderer, render_thickness_exact
@@ -55,12 +65,18 @@ class Session:
 
     ``stats`` (a dict) holds the numbers for the status line: the last frame's statistics
     plus accelerator build/update times and the scene's counts and warnings.
-    ``last_report`` is the :class:`EditReport` of the last :meth:`apply`.
+    ``last_report`` is the :class:`EditReport` of the last :meth:`apply` (or :meth:`render`)
+    that applied edits. ``failed`` is None, or the message of a queued batch that could not
+    be applied (sticky: the host, which counted those edits as held, drops the session).
+
+    With ``build=False`` the constructor only keeps a copy of ``scene`` and ``settings``
+    (cheap, for a UI thread); the first :meth:`apply` or :meth:`render` validates them and
+    builds the accelerator, raising :class:`SceneError` there.
     """
 
-    def __init__(self, scene: Scene, settings: RenderSettings | None = None) -> None:
-        self.settings = (settings or RenderSettings()).validated()
-        scene.arrays()  # validated before anything is built
+    def __init__(self, scene: Scene, settings: RenderSettings | None = None,
+                 build: bool = True) -> None:
+        self.settings = settings or RenderSettings()
         self.scene = scene.copy()  # the host may go on changing its own scene object
         self.accel = None
         self.stats: dict = {}
@@ -76,7 +92,18 @@ class Session:
         self._snap: np.ndarray | None = None
         self._untracked: np.ndarray | None = None
         self.ri_tree = RITreeRenderer()  # invalidate(slots) drops edited objects' RI-trees
-        self._build_accelerator()
+        self.failed: str | None = None
+        self._queued: list = []  # edits submitted, not applied yet
+        self._queue_lock = threading.Lock()
+        if build:
+            self._build()
+
+    def _build(self) -> None:
+        """Validate the settings and the scene, build the accelerator (once)."""
+        if self.accel is None:
+            self.settings = self.settings.validated()
+            self.scene.arrays()  # validated before anything is built
+            self._build_accelerator()
 
     # -- state -------------------------------------------------------------------------
 
@@ -101,16 +128,43 @@ class Session:
             self.stats["accel_memory_mb"] = float(mb)
 
 
-    def apply(self, edits) -> EditReport:
-        """Apply a batch of :mod:`~rstrace_engine.geometry.edits`, all or nothing.
+    def submit(self, edits) -> None:
+        """Queue ``edits`` for the next :meth:`apply` or :meth:`render`, which applies every
+        queued edit, in order, before anything else. Thread-safe and cheap: runs no kernels
+        (a UI thread calls it while a render thread applies and renders)."""
+        edits = list(edits)
+        with self._queue_lock:
+            self._queued += edits
+
+    def apply(self, edits=()) -> EditReport:
+        """Apply the queued edits (:meth:`submit`) and then ``edits`` as one batch of
+        :mod:`~rstrace_engine.geometry.edits`, all or nothing.
 
         Raises :class:`SceneError` (naming the object) for a bad edit; the session then
-        keeps its previous state. Returns an :class:`EditReport`.
+        keeps its previous state. When the batch held queued edits (or the session could
+        not be built), ``failed`` is set first: the host already counts those edits as held,
+        so it must drop the session; a failed session refuses every later apply and render
+        (:class:`SceneError` with the same message). Returns an :class:`EditReport` (empty,
+        and ``last_report`` left as it is, when there was nothing to apply).
         """
-        t0 = time.perf_counter()
-        edits = list(edits)
-        new_scene, fx = apply_edits(self.scene, edits)
-        return self._commit(new_scene, fx, len(edits), t0)
+        if self.failed is not None:
+            raise SceneError(self.failed)
+        with self._queue_lock:
+            queued, self._queued = self._queued, []
+        edits = queued + list(edits)
+        built = self.accel is not None
+        try:
+            self._build()
+            if not edits:
+                return EditReport()
+            t0 = time.perf_counter()
+            new_scene, fx = apply_edits(self.scene, edits)
+            return self._commit(new_scene, fx, len(edits), t0)
+        except BaseException as exc:
+            if queued or not built:
+                self.failed = str(exc) if isinstance(exc, SceneError) else (
+                    f"internal error: {type(exc).__name__}: {exc}")
+            raise
 
     def update_scene(self, scene: Scene) -> EditReport:
         """Take a new export of the whole scene: it is diffed against the current one by
@@ -238,6 +292,9 @@ class Session:
         """New settings; the accelerator is rebuilt only when its kind (or the visibility
         field's directions / tiles) changes."""
         settings = settings.validated()
+        if self.accel is None:  # (not built yet: the first apply or render builds it)
+            self.settings = settings
+            return
         if (settings.accelerator != self.settings.accelerator
                 or settings.accelerator_options() != self.settings.accelerator_options()
                 and settings.accelerator == "VISIBILITY_FIELD"):
@@ -300,14 +357,21 @@ class Session:
                 cam.sensor_height, cam.sensor_fit, cam.shift_x, cam.shift_y, cam.clip_start,
                 cam.clip_end, cam.ortho_scale, cam.width, cam.height)
 
-    def render(self, progress=None, cancel=None) -> Frame:
-        """Render the scene's camera. progress(fraction, message); cancel() -> bool.
+    def render(self, camera=None, progress=None, cancel=None) -> Frame:
+        """Render through ``camera`` (default: the scene's). progress(fraction, message);
+        cancel() -> bool.
 
-        With the camera and settings unchanged since the last frame, only the pixels the
-        edits since then made dirty are re-rendered (BASE and INTERPOLANT; RI_TREE frames
-        and thickness views are always full frames). Raises
+        The queued edits are applied first (:meth:`apply`); then a ``camera`` other than
+        the scene's (:func:`~rstrace_engine.geometry.edits.same_camera`) is applied as a
+        :class:`~rstrace_engine.geometry.edits.CameraChange` (``last_report`` says
+        ``camera_changed``). With the camera and settings unchanged since the last frame,
+        only the pixels the edits since then made dirty are re-rendered (BASE and
+        INTERPOLANT; RI_TREE frames and thickness views are always full frames). Raises
         :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
         """
+        self.apply()
+        if camera is not None and not same_camera(camera, self.scene.camera):
+            self.apply([CameraChange(camera)])
         mode = self.settings.mode
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "

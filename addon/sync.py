@@ -56,15 +56,15 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
     updates : read only what ``depsgraph.updates`` name (``view_update``); else walk the
         whole depsgraph
 
-    Raises :class:`SceneError` (a broken camera, nothing to render); the mirror and the
-    session are then as they were.
+    Raises :class:`SceneError` (a broken camera, nothing to render); a live session and its
+    mirror are then as they were.
     """
     from rstrace_engine.session import Session
 
     with state.lock:
         session = state.session
         if session is not None and session.failed is not None:
-            session = None  # (its queue is lost: what the mirror says it holds is not true)
+            session = None  # (the mirror counts edits it never applied)
         if session is None:
             drop_session(state)
         mirror = state.mirror

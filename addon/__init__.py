@@ -5,9 +5,10 @@ package turns Blender data into its calls and its frames back into render passes
 
 Module layers, lower never importing higher:
 ``runtime`` (numba set-up) < ``kernels`` (background compile) < ``properties`` <
-``materials`` < ``meshes`` / ``lights`` / ``cameras`` < ``export`` < ``edits`` < ``session``
-< ``viewport`` < ``engine`` < ``ui``; ``operators`` (the kernel-cache warm-up) imports
-``runtime`` only.
+``materials`` < ``meshes`` / ``lights`` / ``cameras`` < ``export`` < ``depsgraph_diff``
+(depsgraph -> edits) < ``sync`` (the one path from Blender to a scene's core session) <
+``session`` (per-scene state, F12) < ``viewport`` < ``engine`` < ``ui``; ``operators`` (the
+kernel-cache warm-up) imports ``runtime`` only.
 
 :func:`last_render_stats` (``session.last_render_stats``) gives a script the statistics of
 a scene's last F12 / animation render.
@@ -24,20 +25,22 @@ from . import runtime
 runtime.configure(__package__)
 
 from . import (  # noqa: E402  (after numba set-up)
-    edits,
+    depsgraph_diff,
     engine,
     export,
     kernels,
     operators,
     properties,
     session,
+    sync,
     ui,
     viewport,
 )
 from .session import last_render_stats  # noqa: E402
 
-__all__ = ["edits", "engine", "export", "kernels", "last_render_stats", "operators",
-           "properties", "register", "runtime", "session", "ui", "unregister", "viewport"]
+__all__ = ["depsgraph_diff", "engine", "export", "kernels", "last_render_stats", "operators",
+           "properties", "register", "runtime", "session", "sync", "ui", "unregister",
+           "viewport"]
 
 #: Registered in this order, unregistered in reverse.
 _MODULES = (properties, session, viewport, engine, operators, ui)

@@ -4,7 +4,7 @@ whole :class:`Scene` from them.
 
 No Blender reference is ever stored here (keys are ``session_uid`` values, see ``export``).
 
-Layer: imported by ``export`` and ``edits`` (imports ``materials`` only).
+Layer: imported by ``export`` and ``depsgraph_diff`` (imports ``materials`` only).
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ class Snapshot:
     changed_materials: set = field(default_factory=set)  # (with changed) materials re-read
     instancers: set = field(default_factory=set)  # uids of objects that make instances
     instanced: set = field(default_factory=set)  # uids of objects that appear as instances
-    hidden_in_view: frozenset | None = None  # viewport walks: edits.visibility_signature
+    hidden_in_view: frozenset | None = None  # viewport walks: depsgraph_diff.visibility_signature
 
     @property
     def warnings(self) -> list[str]:

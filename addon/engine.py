@@ -1,4 +1,5 @@
-"""The ``RenderEngine``: a dispatcher. Every method is one line into a session object.
+"""The ``RenderEngine``: a dispatcher. Every method is one line into ``final`` (F12 and
+animation: :class:`.session.FrameRenderer`) or ``viewport`` (:class:`.viewport.ViewportRenderer`).
 
 Layer: imports ``session`` and ``viewport`` (and through them everything below); nothing
 imports this but the package ``__init__`` and ``ui``.
@@ -26,7 +27,7 @@ class RSTraceRenderEngine(bpy.types.RenderEngine):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.session = session.FrameRenderer(self)
+        self.final = session.FrameRenderer(self)
         self.viewport = viewport.ViewportRenderer()
 
     def __del__(self):
@@ -35,7 +36,7 @@ class RSTraceRenderEngine(bpy.types.RenderEngine):
         viewport.free(self)
 
     def render(self, depsgraph):
-        self.session.render(depsgraph)
+        self.final.render(depsgraph)
 
     def view_update(self, context, depsgraph):
         self.viewport.view_update(context, depsgraph)
@@ -44,7 +45,7 @@ class RSTraceRenderEngine(bpy.types.RenderEngine):
         self.viewport.view_draw(self, context, depsgraph)
 
     def update_render_passes(self, scene=None, renderlayer=None):
-        self.session.update_render_passes(scene, renderlayer)
+        self.final.update_render_passes(scene, renderlayer)
 
 
 classes = (RSTraceRenderEngine,)

@@ -8,7 +8,8 @@ updates are known (F12, animation frames), a mesh is re-read only when its raw-a
 fingerprint changed. Lights and the world colour are re-read every time (a few values).
 Where the updates cannot have changed the set of instances (an object moved, a material or
 a light changed), :func:`read_updated` re-reads only the objects they name, so that a small
-edit in a big scene costs what it touched (the caller, :class:`.edits.SceneSync`, decides).
+edit in a big scene costs what it touched (the caller, :class:`.depsgraph_diff.SceneMirror`,
+decides).
 
 Keys are stable across updates and undo: ``id.original.session_uid`` for objects and
 materials; ``(instancer uid, persistent_id)`` for instances; meshes by the key of the data

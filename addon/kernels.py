@@ -18,7 +18,7 @@ bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signatur
 The thread never touches ``bpy``; :func:`stop` asks it to stop between kernels and joins it
 (unregister).
 
-Layer: imports ``runtime`` (and ``rstrace_engine``); imported by ``viewport``, ``engine``
+Layer: imports ``runtime`` (and ``rstrace_engine``); imported by ``session``, ``viewport``
 and the package ``__init__``.
 """
 

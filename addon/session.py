@@ -1,20 +1,19 @@
-"""The session glue: one persistent ``rstrace_engine`` session per Blender scene, shared by
-F12 / animation renders and the viewport, and the F12 render path of the engine.
+"""One persistent ``rstrace_engine`` session per Blender scene, shared by F12 / animation
+renders and the viewport, and the F12 render path of the engine (:class:`FrameRenderer`).
 
 Per scene, a :class:`SceneState` keeps the core :class:`~rstrace_engine.session.Session`,
-the :class:`~.edits.SceneSync` that mirrors what it holds (and turns depsgraph changes into
-edits), the edits the viewport queued for its worker, the statistics of the last render and
-its messages. An F12 render (or an animation frame) walks the render depsgraph, diffs it
-against the mirror and applies the edits to the session (queued viewport edits first), so
-that a render after an edit re-renders incrementally when the camera did not move.
-:func:`last_render_stats` gives a script the last render's numbers.
+the :class:`~.depsgraph_diff.SceneMirror` of what it holds, the statistics of the last
+render and its messages. An F12 render (or an animation frame) brings the session up to
+date through :func:`.sync.sync` (the viewport's path too), applies the edits and renders
+through the scene's camera, so that a render after an edit re-renders incrementally when
+the camera did not move. :func:`last_render_stats` gives a script the last render's numbers.
 
-Threads: ``state.lock`` guards the mirror, the queue and the session object; every call
-that runs kernels holds ``runtime.RENDER_LOCK`` (taken before ``state.lock``, never after).
-States are dropped when a file is loaded and when the add-on is unregistered.
+Threads: ``state.lock`` guards the mirror and the session object; every call that runs
+kernels holds ``runtime.RENDER_LOCK`` (taken before ``state.lock``, never after). States are
+dropped when a file is loaded and when the add-on is unregistered.
 
-Layer: imports ``properties``, ``export``, ``edits`` and ``runtime``; never ``engine``,
-``viewport`` or ``ui``.
+Layer: imports ``properties``, ``depsgraph_diff``, ``sync``, ``kernels`` and ``runtime``;
+never ``viewport``, ``engine`` or ``ui``.
 """
 
 from __future__ import annotations
@@ -29,11 +28,10 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_NAMES, Frame
-from rstrace_engine.geometry.edits import CameraChange
 from rstrace_engine.geometry.scene import SceneError
-from rstrace_engine.interactive import same_camera
 
-from . import edits, kernels, properties, runtime
+from . import kernels, properties, runtime, sync
+from .depsgraph_diff import SceneMirror
 
 log = logging.getLogger(__name__)
 
@@ -52,11 +50,8 @@ class SceneState:
     reported: set = field(default_factory=set)  # warnings already reported in this job
     error: str | None = None
     frame: object = None  # the last rstrace_engine Frame, for scripts (linear radiance)
-    sync: edits.SceneSync = field(default_factory=edits.SceneSync)
+    mirror: SceneMirror = field(default_factory=SceneMirror)
     lock: threading.RLock = field(default_factory=threading.RLock)
-    pending: list = field(default_factory=list)  # viewport edits not applied yet
-    new_snapshot: object = None  # a viewport snapshot waiting for its session
-    last_report: object = None  # EditReport of the last apply
     dirty_mask: object = None  # (h, w) bool pixels the last F12 re-rendered; None: all
 
 
@@ -94,51 +89,6 @@ def last_render_stats(scene) -> dict:
     """
     state = peek_state(scene)
     return dict(state.stats) if state is not None else {}
-
-
-def drop_session(state: SceneState) -> None:
-    """Forget the core session of ``state`` (after an error, or to start afresh)."""
-    with state.lock:
-        state.session = None
-        state.sync.reset()
-        state.pending = []
-        state.new_snapshot = None
-
-
-def render_sync(state: SceneState, depsgraph, settings, camera_object=None):
-    """Bring the scene's session up to date with a render depsgraph (F12, animation).
-
-    Caller holds ``runtime.RENDER_LOCK``. Returns ``(session, report, snapshot,
-    sync_seconds, sync_stats)``; report is None for a new session. On any error the session
-    is dropped (the next render starts afresh) and the error propagates.
-    """
-    from rstrace_engine.session import Session
-
-    with state.lock:
-        if state.session is None:
-            drop_session(state)
-        t0 = time.perf_counter()
-        snap = state.sync.read(depsgraph, None, "RENDER", camera_object=camera_object)
-        result = state.sync.diff(snap, exists=edits.existing_objects)
-        t_sync = time.perf_counter() - t0
-        try:
-            if state.session is None:
-                state.session = Session(state.sync.scene(snap), settings)
-                report = None
-            else:
-                batch = state.pending + result.edits
-                if not same_camera(state.session.scene.camera, snap.camera):
-                    batch.append(CameraChange(snap.camera))
-                state.session.update_settings(settings)
-                report = state.session.apply(batch)
-        except BaseException:
-            drop_session(state)
-            raise
-        state.pending = []
-        state.new_snapshot = None
-        state.sync.commit(result)
-        state.last_report = report
-        return state.session, report, snap, t_sync, result.stats
 
 
 @persistent
@@ -184,7 +134,7 @@ class FrameRenderer:
             # The session may have stopped between any two steps: the next render starts
             # afresh.
             log.warning("RSTrace render interrupted")
-            drop_session(state)
+            sync.drop_session(state)
             self._error(state, INTERRUPTED)
         except Exception as exc:  # never let an exception escape into Blender's render job
             log.exception("RSTrace render failed")
@@ -202,19 +152,31 @@ class FrameRenderer:
         with runtime.RENDER_LOCK:
             threads = runtime.set_threads(scene.render)
             t1 = time.perf_counter()
-            session, report, snap, t_sync, sync_stats = render_sync(
-                state, depsgraph, settings, engine.camera_override)
-            t_apply = time.perf_counter() - t1 - t_sync
+            synced = sync.sync(state, depsgraph, "RENDER", settings,
+                               camera_object=engine.camera_override)
+            session, snap = synced.session, synced.snapshot
+            try:
+                session.update_settings(settings)
+                report = session.apply()
+            except BaseException:
+                sync.drop_session(state)  # the next render starts afresh
+                raise
+            t_apply = time.perf_counter() - t1 - synced.seconds
             for message in snap.warnings + list(session.scene.warnings):
                 self._warn(state, message)
             if engine.test_break():
                 return
-            state.dirty_mask = getattr(session, "dirty_mask", None)
+            mask, before = session.dirty_mask, session.last_report
             t2 = time.perf_counter()
-            frame = session.render(progress=self._progress, cancel=engine.test_break)
+            frame = session.render(camera=snap.camera, progress=self._progress,
+                                   cancel=engine.test_break)
             t_render = time.perf_counter() - t2
+            # what the session applied for this frame: the edits, and a new camera (render)
+            reports = [report] + ([session.last_report] if session.last_report is not before
+                                  else [])
             runtime.mark_kernels_ready()
             session_stats = dict(getattr(session, "stats", {}) or {})
+        state.dirty_mask = mask if frame.stats.get("incremental") else None
 
         self._write_result(depsgraph, scene, frame)
         state.frame = frame
@@ -227,15 +189,16 @@ class FrameRenderer:
         stats.update(
             objects=len(snap.objects), lights=len(snap.lights), meshes=len(core.meshes),
             materials=len(core.materials), triangles=core.triangle_count,
-            sync_seconds=t_sync, export_seconds=t_sync, apply_seconds=t_apply,
-            meshes_read=sync_stats.get("meshes_read", 0), edits=sync_stats.get("edits", 0),
-            edit_kinds=sync_stats.get("edit_kinds", {}), render_seconds=t_render,
+            sync_seconds=synced.seconds, export_seconds=synced.seconds,
+            apply_seconds=t_apply, meshes_read=synced.stats.get("meshes_read", 0),
+            edits=sum(r.edits for r in reports), edit_kinds=_kinds(reports),
+            render_seconds=t_render,
             total_seconds=time.perf_counter() - t0, threads=threads, width=snap.width,
             height=snap.height, mode=settings.mode, accelerator=settings.accelerator,
             renders=state.renders, pixel_classes=_class_counts(frame),
             export_warnings=snap.warnings + list(core.warnings),
-            invalidated_interpolants=report.invalidated_interpolants if report else 0,
-            new_session=report is None)
+            invalidated_interpolants=sum(r.invalidated_interpolants for r in reports),
+            new_session=synced.new_session)
         stats.setdefault("interpolated_fraction", 0.0)
         stats["memory_mb"] = _memory_mb(stats, core)
         state.stats = stats
@@ -330,6 +293,15 @@ def _region(render, w: int, h: int) -> tuple[int, int, int, int]:
     y0 = min(max(int(render.border_min_y * h), 0), h - 1)
     y1 = min(max(int(render.border_max_y * h), y0 + 1), h)
     return x0, y0, x1 - x0, y1 - y0
+
+
+def _kinds(reports) -> dict:
+    """Edit class name -> count over several ``EditReport``s."""
+    kinds: dict = {}
+    for r in reports:
+        for name, n in r.kinds.items():
+            kinds[name] = kinds.get(name, 0) + n
+    return kinds
 
 
 def _class_counts(frame: Frame) -> dict:

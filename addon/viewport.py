@@ -1,24 +1,25 @@
 """The rendered viewport: ``view_update`` and ``view_draw`` of the engine.
 
-* ``view_update`` (main thread) turns ``depsgraph.updates`` into edits
-  (:class:`~.edits.SceneSync`, queued on the scene's state) and wakes the render worker;
-  updates that cannot change the image (selection, colour management, frame and other
-  scene-only settings) queue nothing and restart nothing.
+* ``view_update`` (main thread) hands ``depsgraph.updates`` to :func:`.sync.sync`, which
+  queues their edits on the scene's core session (a new session is made, not built, here),
+  and wakes the render worker; updates that cannot change the image (selection, colour
+  management, frame and other scene-only settings) queue nothing and restart nothing.
 * ``view_draw`` (main thread) builds the camera from ``region_data`` (view and window
   matrices: perspective, orthographic and camera views, lens shift, zoom) and the render
   border, restarts the worker when they changed (navigation calls only ``view_draw``), and
   draws the newest image with the ``gpu`` module: a float ``GPUTexture`` of scene-linear
   pixels through Blender's display-space shader, so colour management is Blender's and
   never restarts anything.
-* The worker (:class:`rstrace_engine.interactive.ViewportWorker`) applies the queued edits
-  and renders off the main thread under ``runtime.RENDER_LOCK`` (never concurrently with an
-  F12 render, which shares the scene's session); it never touches ``bpy``. It only sets a
-  flag when an image is ready; a main-thread timer turns that into a redraw.
+* The worker (:class:`rstrace_engine.interactive.ViewportWorker`) is handed the session and
+  has it apply its queued edits and render, off the main thread under
+  ``runtime.RENDER_LOCK`` (never concurrently with an F12 render, which shares the scene's
+  session); it never touches ``bpy`` and calls no add-on code. It only sets a flag when an
+  image is ready; a main-thread timer turns that into a redraw.
 * :meth:`ViewportRenderer.free` stops and joins the worker: called when Blender frees the
   engine (leaving rendered shading, closing the file, switching engine), and for every
   viewport on file load, add-on unregister, and when the scene's engine is switched.
 
-Layer: imports ``session``, ``edits``, ``cameras``, ``properties``, ``runtime``, ``kernels``;
+Layer: imports ``session``, ``sync``, ``cameras``, ``properties``, ``runtime``, ``kernels``;
 imported by ``engine`` only.
 """
 
@@ -32,10 +33,11 @@ from dataclasses import replace
 import bpy
 import numpy as np
 
+from rstrace_engine.geometry.cameras import same_camera
 from rstrace_engine.geometry.scene import SceneError
-from rstrace_engine.interactive import ViewImage, ViewportWorker, same_camera
+from rstrace_engine.interactive import ViewImage, ViewportWorker
 
-from . import cameras, edits, kernels, properties, runtime, session
+from . import cameras, kernels, properties, runtime, session, sync
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +57,7 @@ class ViewportRenderer:
     def __init__(self) -> None:
         self.worker: ViewportWorker | None = None
         self.scene_key: int | None = None
+        self.session = None  # the core session the worker was handed
         self.camera = None
         self.border = None
         self.settings = None
@@ -87,38 +90,24 @@ class ViewportRenderer:
     def _update(self, scene, depsgraph) -> None:
         kernels.start_warmup(scene.rstrace.mode)
         key = scene.original.session_uid
-        state = session.state_for(scene)
         first = self.worker is None or key != self.scene_key
         if first:
             self._start(key, scene)
-        dirty = None if first else state.sync.dirty(depsgraph)
         self.updates_seen += 1
         settings = viewport_settings(scene)
         samples = max(1, int(scene.rstrace.viewport_samples))
-        n = 0
-        if first or dirty is not None:
-            with state.lock:
-                if state.session is None and state.new_snapshot is None:
-                    state.sync.reset()
-                    dirty = None
-                snap = state.sync.read(depsgraph, dirty, "VIEWPORT", with_camera=False)
-                result = state.sync.diff(snap, exists=edits.existing_objects)
-                state.sync.commit(result)
-                if state.session is None:
-                    state.new_snapshot = snap
-                    state.pending = []
-                else:
-                    state.pending += result.edits
-                n = len(result.edits)
-        self.last_edits = n
-        if first or n or settings != self.settings or samples != self.samples:
+        synced = sync.sync(self.state, depsgraph, "VIEWPORT", settings, updates=not first)
+        self.last_edits = synced.edits
+        new = synced.session is not self.session
+        if new or synced.edits or settings != self.settings or samples != self.samples:
             self.error = None
+            self.session = synced.session
             self._submit_settings(settings, samples)
 
     def _submit_settings(self, settings, samples: int) -> None:
         self.settings, self.samples = settings, samples
         self.worker.samples = samples
-        self.worker.submit(prepare=self._prepare, settings=settings)
+        self.worker.submit(session=self.session, settings=settings)
 
     def draw_settings(self, scene) -> None:
         """Restart the worker when the scene's RSTrace settings changed with no depsgraph
@@ -145,33 +134,11 @@ class ViewportRenderer:
             self.worker.stop()
         self.scene_key = key
         self.state = session.state_for(scene)
-        self.camera = self.border = self.settings = None
+        self.camera = self.border = self.settings = self.session = None
         self._drawn = None
         self.worker = ViewportWorker(runtime.RENDER_LOCK, notify=self.new_image.set,
                                      name="rstrace-viewport")
         _ensure_timer()
-
-    def _prepare(self):
-        """On the worker, under the render lock: the scene's session with every queued
-        edit applied (a new session from the first snapshot). Never touches bpy."""
-        from rstrace_engine.session import Session
-
-        state = self.state
-        with state.lock:
-            if state.session is None:
-                snap = state.new_snapshot
-                if snap is None:
-                    return None
-                state.session = Session(state.sync.scene(snap), self.settings)
-                state.new_snapshot = None
-            if state.pending:
-                batch, state.pending = state.pending, []
-                try:
-                    state.last_report = state.session.apply(batch)
-                except BaseException:
-                    session.drop_session(state)  # the next view_update starts afresh
-                    raise
-            return state.session
 
     # -- view_draw -------------------------------------------------------------------
 
@@ -194,6 +161,7 @@ class ViewportRenderer:
         # the original: the evaluated copy lags until the next depsgraph update (which is
         # when view_update reads it)
         self.draw_settings(depsgraph.scene.original)
+        self.follow_session()
         self.draw_view(camera, border)
         img = self.worker.latest()
         if img is not None and img.view_size == (w, h):
@@ -216,6 +184,14 @@ class ViewportRenderer:
             return
         workspace.status_text_set(f"RSTrace: {progress}" if progress else None)
         self._status_set = progress is not None
+
+    def follow_session(self) -> None:
+        """Hand the worker the scene's session when an F12 render started it afresh (after
+        an error) since the last ``view_update``: the old one is no longer synced."""
+        current = self.state.session
+        if current is not None and current is not self.session and self.worker is not None:
+            self.session = current
+            self.worker.submit(session=current)
 
     def draw_view(self, camera, border) -> None:
         """Restart the worker when the view's camera or border changed."""

@@ -3,9 +3,10 @@ worker thread: progressive refinement, interruption, and the newest image for th
 
 A host (the Blender add-on's viewport, or ``python -m rstrace_engine.bench viewport``)
 owns a :class:`ViewportWorker` and calls :meth:`ViewportWorker.submit` whenever something
-changed: new edits (a ``prepare`` callable that applies them to the session and returns the
-session, run on the worker under the render lock), a new view camera, new settings or a new
-size. Each submission interrupts the frame in progress (a
+changed: new edits (queued on the session with :meth:`Session.submit
+<rstrace_engine.session.Session.submit>`, applied by the session on the worker under the
+render lock), another session, a new view camera, new settings or a new size. Each
+submission interrupts the frame in progress (a
 :class:`~rstrace_engine.cancel.CancelFlag`: the renderers poll it between tiles of
 :data:`VIEW_TILE_RAYS` rays and between the queries of a tile, the BVH kernels every few
 dozen rays) and starts over with
@@ -21,7 +22,8 @@ dozen rays) and starts over with
 After each stage the newest :class:`ViewImage` replaces the previous one and ``notify()``
 is called (on the worker thread: the host must only set a flag or schedule a redraw).
 Kernels are numba ``nogil``: the worker runs while the host's main thread keeps going. The
-worker never touches the host's data; :meth:`ViewportWorker.stop` interrupts and joins it.
+worker never touches the host's data and calls no host code but ``notify``;
+:meth:`ViewportWorker.stop` interrupts and joins it.
 """
 
 from __future__ import annotations
@@ -36,7 +38,6 @@ import numpy as np
 from .cancel import CancelFlag, bound, cancelled
 from .frame import CLASS_BACKGROUND, RenderSettings
 from .geometry.cameras import camera_params, camera_rays, pixel_jitter
-from .geometry.edits import CameraChange, same_camera
 from .geometry.scene import Camera, SceneError
 from .tracing.batches import SERIAL_BELOW, accumulate, threads_for
 from .tracing.whitted import trace
@@ -184,8 +185,7 @@ class ViewportWorker:
         self.coarse_factor = max(1, int(coarse_factor))
         self.tile_rays = int(tile_rays)
         self._cond = threading.Condition()
-        self._job: dict = dict(prepare=None, camera=None, settings=None, border=None)
-        self._pending_prepare: list = []
+        self._job: dict = dict(session=None, camera=None, settings=None, border=None)
         self._submitted = 0  # job counter
         self._started = 0  # the job the worker is on
         self._t_submit = 0.0
@@ -205,15 +205,15 @@ class ViewportWorker:
 
     # -- host side -------------------------------------------------------------------
 
-    def submit(self, prepare=None, camera: Camera | None = None,
+    def submit(self, session=None, camera: Camera | None = None,
                settings: RenderSettings | None = None, border=False) -> int:
-        """Restart with what changed (None/False: unchanged). ``prepare()`` -> session runs
-        on the worker, under the lock, before the next frame (every prepare submitted is
-        run, in order). Returns the job number."""
+        """Restart with what changed (None/False: unchanged): the
+        :class:`~rstrace_engine.session.Session` to render (edits queued on it are applied
+        on the worker, under the lock, before the next frame), the view's camera, settings
+        and border. Returns the job number."""
         with self._cond:
-            if prepare is not None:
-                self._pending_prepare.append(prepare)
-                self._job["prepare"] = prepare
+            if session is not None:
+                self._job["session"] = session
             if camera is not None:
                 self._job["camera"] = camera
             if settings is not None:
@@ -288,9 +288,8 @@ class ViewportWorker:
                 self._started = job = self._submitted
                 t_job = self._t_submit
                 spec = dict(self._job)
-                prepares, self._pending_prepare = self._pending_prepare, []
             try:
-                self._render_job(job, t_job, spec, prepares)
+                self._render_job(job, t_job, spec)
             except SceneError as exc:
                 self.error = str(exc)
                 log.warning("viewport: %s", exc)
@@ -302,24 +301,17 @@ class ViewportWorker:
         """Record how long after the newest submission this job gave up."""
         self.stats["interrupts"].append(max(0.0, time.perf_counter() - self._t_submit))
 
-    def _render_job(self, job: int, t_job: float, spec: dict, prepares: list) -> None:
-        camera, settings, border = spec["camera"], spec["settings"], spec["border"]
-        if camera is None or settings is None:
+    def _render_job(self, job: int, t_job: float, spec: dict) -> None:
+        session, camera = spec["session"], spec["camera"]
+        settings, border = spec["settings"], spec["border"]
+        if session is None or camera is None or settings is None:
             return
-        session = None
-        report = None
         with self.lock:
-            for prepare in prepares or [spec["prepare"]]:
-                if prepare is not None:
-                    session = prepare()
-            if session is None:
-                return
-            # the session renders the view: its camera and settings follow the view
+            session.apply()  # the queued edits (a new session is built here)
+            # the session renders the view: its settings follow the view's
             settings = replace(settings, samples=1)
             if settings != session.settings:
                 session.update_settings(settings)
-            if not same_camera(session.scene.camera, camera):
-                report = session.apply([CameraChange(camera)])
             self.error = None
             w, h = camera.width, camera.height
             times = self.stats["stages"]
@@ -334,9 +326,12 @@ class ViewportWorker:
         times["coarse_ms"] = 1e3 * (time.perf_counter() - t_job)
         self._publish(_rgba(rgb, cb, cam.width, cam.height), STAGE_COARSE, 0, job, (w, h),
                       border, dict(ms_since_edit=times["coarse_ms"]))
-        # 2. full resolution in the session's mode (incremental when only edits happened)
+        # 2. full resolution in the session's mode (incremental when only edits happened),
+        # through the view's camera (a CameraChange when the view moved)
         with self.lock:
-            frame = session.render(cancel=self._flag)
+            report = session.last_report
+            frame = session.render(camera=camera, cancel=self._flag)
+            moved = session.last_report is not report and session.last_report.camera_changed
         if frame.stats.get("cancelled"):
             return self._interrupted()
         times["full_ms"] = 1e3 * (time.perf_counter() - t_job)
@@ -345,7 +340,7 @@ class ViewportWorker:
                       incremental=fs.get("incremental"), dirty_fraction=fs.get("dirty_fraction"),
                       interpolated_fraction=fs.get("interpolated_fraction"),
                       render_ms=1e3 * fs.get("time_s", 0.0))
-        if report is not None:
+        if moved:
             fstats["camera_changed"] = True
         rgb = _mask_border(frame.radiance, border)
         acc = rgb.astype(np.float64)

@@ -52,9 +52,9 @@ class Session:
 
     ``stats`` (a dict) holds the numbers for the status line: the last frame's statistics
     plus accelerator build/update times and the scene's counts and warnings.
-    ``last_report`` is the :class:`EditReport` of the last :meth:`apply`. ``failed`` is set
-    (sticky) when applying *queued* edits failed: the host that queued them already counts
-    them as applied, so it must drop this session and start afresh.
+    ``last_report`` is the :class:`EditReport` of the last :meth:`apply` (or :meth:`render`)
+    that applied edits. ``failed`` is None, or the message of a queued batch that could not
+    be applied (sticky: the host, which counted those edits as held, drops the session).
 
     build : False defers validating, packing and the accelerator to the first
     :meth:`apply` or :meth:`render` (a host's main thread makes the session, its render
@@ -63,9 +63,7 @@ class Session:
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None,
                  build: bool = True) -> None:
-        self.settings = (settings or RenderSettings()).validated()
-        if build:
-            scene.arrays()  # validated before anything is built
+        self.settings = settings or RenderSettings()
         self.scene = scene.copy()  # the host may go on changing its own scene object
         self.accel = None
         self.stats: dict = {}
@@ -77,7 +75,7 @@ class Session:
         self._queue: list = []
         self._queue_lock = threading.Lock()
         if build:
-            self._build_accelerator()
+            self._build()
 
     # -- state -------------------------------------------------------------------------
 
@@ -113,8 +111,11 @@ class Session:
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
                  len(sa.inst_mesh), self.stats["accel_build_s"])
 
-    def _ensure_built(self) -> None:
+    def _build(self) -> None:
+        """Validate the settings and the scene, build the accelerator (once)."""
         if self.accel is None:
+            self.settings = self.settings.validated()
+            self.scene.arrays()  # validated before anything is built
             self._build_accelerator()
 
     def _accel_memory(self) -> None:
@@ -128,12 +129,12 @@ class Session:
     # -- edits -------------------------------------------------------------------------
 
     def submit(self, edits) -> None:
-        """Queue ``edits`` (any thread; runs no kernels): the next :meth:`apply` or
-        :meth:`render` applies every queued edit, in order, before anything else."""
+        """Queue ``edits`` for the next :meth:`apply` or :meth:`render`, which applies every
+        queued edit, in order, before anything else. Thread-safe and cheap: runs no kernels
+        (a UI thread calls it while a render thread applies and renders)."""
         edits = list(edits)
-        if edits:
-            with self._queue_lock:
-                self._queue.extend(edits)
+        with self._queue_lock:
+            self._queue += edits
 
     @property
     def pending(self) -> int:
@@ -141,32 +142,41 @@ class Session:
         return len(self._queue)
 
     def apply(self, edits=()) -> EditReport:
-        """Apply the queued edits, then ``edits`` (:mod:`~rstrace_engine.geometry.edits`),
-        as one batch, all or nothing.
+        """Apply the queued edits (:meth:`submit`) and then ``edits`` as one batch of
+        :mod:`~rstrace_engine.geometry.edits`, all or nothing.
 
         Raises :class:`SceneError` (naming the object) for a bad edit; the session then
-        keeps its previous state (and, when queued edits were in the batch, is marked
-        ``failed``). Returns an :class:`EditReport`.
+        keeps its previous state. When the batch held queued edits (or the session could
+        not be built), ``failed`` is set first: the host already counts those edits as held,
+        so it must drop the session; a failed session refuses every later apply and render
+        (:class:`SceneError` with the same message). Returns an :class:`EditReport` (empty,
+        and ``last_report`` left as it is, when there was nothing to apply).
         """
-        t0 = time.perf_counter()
+        if self.failed is not None:
+            raise SceneError(self.failed)
         with self._queue_lock:
             queued, self._queue = self._queue, []
-        batch = queued + list(edits)
+        edits = queued + list(edits)
+        built = self.accel is not None
         try:
-            self._ensure_built()
-            new_scene, fx = apply_edits(self.scene, batch)
+            self._build()
+            if not edits:
+                return EditReport()
+            t0 = time.perf_counter()
+            new_scene, fx = apply_edits(self.scene, edits)
+            return self._commit(new_scene, fx, len(edits), t0)
         except BaseException as exc:
-            if queued or self.accel is None:
-                self.failed = f"{type(exc).__name__}: {exc}"
+            if queued or not built:
+                self.failed = str(exc) if isinstance(exc, SceneError) else (
+                    f"internal error: {type(exc).__name__}: {exc}")
             raise
-        return self._commit(new_scene, fx, len(batch), t0)
 
     def update_scene(self, scene: Scene) -> EditReport:
         """Take a new export of the whole scene: it is diffed against the current one by
         key (:func:`~rstrace_engine.geometry.edits.diff_scenes`) and applied as edits."""
         t0 = time.perf_counter()
         scene.arrays()  # a bad export is refused before anything is compared
-        self._ensure_built()
+        self._build()
         edits = diff_scenes(self.scene, scene)
         new_scene, fx = apply_edits(self.scene, edits)
         new_scene.warnings = list(scene.warnings)
@@ -212,8 +222,10 @@ class Session:
         """New settings; the accelerator is rebuilt only when its kind (or the visibility
         field's directions / tiles) changes."""
         settings = settings.validated()
-        if self.accel is not None and (
-                settings.accelerator != self.settings.accelerator
+        if self.accel is None:  # (not built yet: the first apply or render builds it)
+            self.settings = settings
+            return
+        if (settings.accelerator != self.settings.accelerator
                 or settings.accelerator_options() != self.settings.accelerator_options()
                 and settings.accelerator == "VISIBILITY_FIELD"):
             # raises before anything changes
@@ -234,21 +246,22 @@ class Session:
         """Render through ``camera`` (default: the scene's). progress(fraction, message);
         cancel() -> bool.
 
-        Queued edits are applied first, and a ``camera`` other than the scene's
-        (:func:`~rstrace_engine.geometry.cameras.same_camera`) as a ``CameraChange``. With
+        The queued edits are applied first (:meth:`apply`); then a ``camera`` other than
+        the scene's (:func:`~rstrace_engine.geometry.cameras.same_camera`) is applied as a
+        :class:`~rstrace_engine.geometry.edits.CameraChange` (``last_report`` says
+        ``camera_changed``). With
         the camera and settings unchanged since the last frame, only the pixels the edits
         since then made dirty are re-rendered (BASE and INTERPOLANT; RI_TREE frames and
         thickness views are always full frames). Raises
         :class:`~rstrace_engine.geometry.scene.SceneError` for a mode that is not available.
         """
+        self.apply()
+        if camera is not None and not same_camera(camera, self.scene.camera):
+            self.apply([CameraChange(camera)])
         mode = self.settings.mode
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
-        if camera is not None and not same_camera(self.scene.camera, camera):
-            self.apply([CameraChange(camera)])
-        elif self._queue or self.accel is None:
-            self.apply()
         if mode == "RI_TREE" or self.settings.thickness_view:
             return self._render_full(mode, progress, cancel)
         key = self.settings_key()

@@ -4,8 +4,9 @@
 
 A scene of ``--objects`` linked duplicates of a small mesh (one mesh datablock, one material),
 a light and a camera. Each change is made with the data API, the depsgraph is updated, and
-``depsgraph_update_post`` hands the updates to :class:`addon.edits.SceneSync` exactly as
-``view_update`` does (updates -> dirty -> read -> diff -> commit). Timed: that whole sync,
+``depsgraph_update_post`` hands the updates to :class:`addon.depsgraph_diff.SceneMirror`
+as ``view_update``'s ``addon.sync.sync`` does (updates -> dirty -> read -> diff -> commit; no
+session). Timed: that whole sync,
 in ms per update, for
 
 * ``move``: one object moved (one ``ObjectTransform``),
@@ -14,7 +15,7 @@ in ms per update, for
 * ``light``: the light's power (one ``LightSet``),
 * ``select``: a selection change (no edit),
 
-once with every update walking ``depsgraph.object_instances`` (``SceneSync.partial =
+once with every update walking ``depsgraph.object_instances`` (``SceneMirror.partial =
 False``, the behaviour before reading only the updated objects) and once reading only what
 the updates name where they cannot have changed the set of instances. Both in one run:
 the ratio is what to compare (the machine is shared and noisy).
@@ -54,14 +55,14 @@ def build(n: int):
 
 
 class Syncer:
-    """depsgraph_update_post -> SceneSync, as view_update does; times each sync."""
+    """depsgraph_update_post -> SceneMirror, as view_update does; times each sync."""
 
     def __init__(self, partial: bool) -> None:
         import bpy
 
         import addon
 
-        self.sync = addon.edits.SceneSync()
+        self.sync = addon.depsgraph_diff.SceneMirror()
         self.sync.partial = partial
         self.times: list[float] = []
         self.edits: list = []
@@ -74,7 +75,7 @@ class Syncer:
         import addon
 
         snap = self.sync.read(dg, dirty, "VIEWPORT", with_camera=False)
-        result = self.sync.diff(snap, exists=addon.edits.existing_objects)
+        result = self.sync.diff(snap, exists=addon.depsgraph_diff.existing_objects)
         self.sync.commit(result)
         self.walks += bool(snap.stats.get("walked", True))
         return result.edits

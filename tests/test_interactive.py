@@ -1,6 +1,5 @@
 """The viewport session without Blender (rstrace_engine.interactive): progressive stages,
-edits through a prepare callable, interruption, stop, and images equal to the base
-tracer's."""
+edits queued on the session, interruption, stop, and images equal to the base tracer's."""
 
 from __future__ import annotations
 
@@ -13,14 +12,13 @@ import pytest
 from rstrace_engine import scenes
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import edits as E
-from rstrace_engine.geometry.scene import SceneError
+from rstrace_engine.geometry.cameras import same_camera
 from rstrace_engine.interactive import (
     STAGE_COARSE,
     STAGE_FULL,
     STAGE_REFINE,
     ViewportWorker,
     coarse_camera,
-    same_camera,
     trace_view,
 )
 from rstrace_engine.session import Session
@@ -65,7 +63,7 @@ def test_worker_stages_edits_interrupt_and_stop(session):
     worker = ViewportWorker(lock, notify=lambda: ready.append(1), samples=3)
     try:
         cam = session.scene.camera
-        job = worker.submit(prepare=lambda: session, camera=cam, settings=session.settings)
+        job = worker.submit(session=session, camera=cam, settings=session.settings)
         assert worker.wait_idle(300)
         img = worker.latest()
         assert img.job == job and img.stage == STAGE_REFINE and img.samples == 3
@@ -78,8 +76,8 @@ def test_worker_stages_edits_interrupt_and_stop(session):
         m[0, 3] += 0.2
         stages = []
         worker.notify = lambda: stages.append(worker.latest().stage)
-        job = worker.submit(prepare=lambda: (session.apply([E.ObjectTransform(key, m)]),
-                                             session)[1])
+        session.submit([E.ObjectTransform(key, m)])
+        job = worker.submit()
         assert worker.wait_idle(300)
         assert stages[:2] == [STAGE_COARSE, STAGE_FULL]
         full = worker.last_frame
@@ -109,12 +107,10 @@ def test_worker_stages_edits_interrupt_and_stop(session):
 def test_worker_reports_errors_and_keeps_running(session):
     worker = ViewportWorker(threading.Lock(), samples=1)
     try:
-        def bad():
-            raise SceneError("object 'X': broken")
-
-        worker.submit(prepare=bad, camera=session.scene.camera, settings=session.settings)
+        session.submit([E.ObjectDelete("broken")])  # (no such object)
+        worker.submit(session=session, camera=session.scene.camera, settings=session.settings)
         assert worker.wait_idle(60) and "broken" in worker.error
-        worker.submit(prepare=lambda: session)
+        worker.submit(session=Session(session.scene, session.settings))
         assert worker.wait_idle(300) and worker.error is None
         assert worker.latest().stage == STAGE_FULL
     finally:

@@ -71,7 +71,7 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
     worker = ViewportWorker(lock, samples=4)
     camera = scene.camera
     try:
-        worker.submit(prepare=lambda: session, camera=camera, settings=settings)
+        worker.submit(session=session, camera=camera, settings=settings)
         worker.wait_idle(600)  # warm: compile/load, build interpolants
         rows = []
         for name in EDITS:
@@ -79,10 +79,9 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
             for step in range(repeat):
                 worker.wait_idle(600)
                 edits, new_cam = _edit(session, name, step)
-                prepare = (lambda ed=edits: (session.apply(ed), session)[1]) if edits \
-                    else None
                 worker.stats["stages"].clear()
-                job = worker.submit(prepare=prepare, camera=new_cam)
+                session.submit(edits or ())  # (applied on the worker)
+                job = worker.submit(camera=new_cam)
                 if new_cam is not None:
                     camera = new_cam
                 worker.wait_idle(600)
@@ -120,23 +119,19 @@ def picture(path, scene_name: str = "museum", width: int = 320, height: int = 24
     session = Session(scene, RenderSettings())
     worker = ViewportWorker(threading.Lock(), samples=1)
     try:
-        job = worker.submit(prepare=lambda: session, camera=scene.camera,
-                            settings=session.settings)
+        job = worker.submit(session=session, camera=scene.camera, settings=session.settings)
         coarse = worker.wait_for(lambda im: im.job == job, 600)
         worker.wait_idle(600)
         full = worker.latest()
         near = "Sculpture0126"  # a sculpture near the camera, where the change shows
         m = session.scene.instances[session.scene.instance_slot(near)]["matrix"].copy()
         m[0, 3] += 0.4
-        moved = [E.ObjectTransform(near, m)]
         seen = {}
-
-        def prepare():
-            seen["report"] = session.apply(moved)
+        # applied here, the worker idle, to read the dirty pixels before they are rendered
+        with worker.lock:
+            seen["report"] = session.apply([E.ObjectTransform(near, m)])
             seen["mask"] = session.dirty_mask
-            return session
-
-        worker.submit(prepare=prepare)
+        worker.submit()
         worker.wait_idle(600)
         after = worker.latest()
     finally:
@@ -185,7 +180,7 @@ warm = threading.Thread(target=warm_viewport, args=("{mode}",), daemon=True,
 warm.start()
 s = scenes.build("{scene}", {w}, {h})
 wk = ViewportWorker(lock, samples=1)
-wk.submit(prepare=lambda: Session(s, RenderSettings(mode="{mode}")), camera=s.camera,
+wk.submit(session=Session(s, RenderSettings(mode="{mode}"), build=False), camera=s.camera,
           settings=RenderSettings(mode="{mode}"))
 img = wk.wait_for(lambda im: True, 900)
 t1 = time.perf_counter()

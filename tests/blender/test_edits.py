@@ -1,8 +1,8 @@
 """Depsgraph updates -> edits, driven by real depsgraphs: each change is made with the data
-API, ``depsgraph_update_post`` hands the updates to :class:`addon.edits.SceneSync`, and the
-edits it produces are checked; then the F12 path applies them to the scene's persistent
-session and the frame must equal a fresh render (BASE bit for bit, INTERPOLANT within
-epsilon)."""
+API, ``depsgraph_update_post`` hands the updates to
+:class:`addon.depsgraph_diff.SceneMirror`, and the edits it produces are checked; then the
+F12 path applies them to the scene's persistent session and the frame must equal a fresh
+render (BASE bit for bit, INTERPOLANT within epsilon)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ class Collector:
     def __init__(self):
         import addon
 
-        self.sync = addon.edits.SceneSync()
+        self.sync = addon.depsgraph_diff.SceneMirror()
         self.batches = []
         dg = bpy.context.evaluated_depsgraph_get()
         self._sync(dg, None)  # the first sync reads everything
@@ -36,7 +36,7 @@ class Collector:
         import addon
 
         snap = self.sync.read(dg, dirty, "VIEWPORT", with_camera=False)
-        result = self.sync.diff(snap, exists=addon.edits.existing_objects)
+        result = self.sync.diff(snap, exists=addon.depsgraph_diff.existing_objects)
         self.sync.commit(result)
         return result.edits
 
@@ -182,7 +182,7 @@ def _f12(fresh=False):
 
     sc = bpy.context.scene
     if fresh:
-        addon.session.drop_session(addon.session.state_for(sc))
+        addon.sync.drop_session(addon.session.state_for(sc))
     engine = FakeEngine()
     addon.session.FrameRenderer(engine).render(bpy.context.evaluated_depsgraph_get())
     state = addon.session.state_for(sc)
@@ -411,7 +411,7 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     _f12()
     blue = bpy.data.objects["BlueSphere"]
     key = ("data", blue.data.session_uid)
-    assert key in state.sync.cache.meshes and key in state.session.scene.mesh_keys.slot
+    assert key in state.mirror.cache.meshes and key in state.session.scene.mesh_keys.slot
     n_meshes = sum(m is not None for m in state.session.scene.meshes)
     bpy.ops.ed.undo_push(message="before delete")
     bpy.data.objects.remove(blue)
@@ -422,8 +422,8 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     assert stats["edit_kinds"] == {"ObjectDelete": 1, "MeshDelete": 1, "MaterialDelete": 1}
     assert stats["incremental"]
     core = state.session.scene
-    assert key not in core.mesh_keys.slot and key not in state.sync.cache.meshes
-    assert blue_mat not in core.material_keys.slot and blue_mat not in state.sync.cache.materials
+    assert key not in core.mesh_keys.slot and key not in state.mirror.cache.meshes
+    assert blue_mat not in core.material_keys.slot and blue_mat not in state.mirror.cache.materials
     assert sum(m is not None for m in core.meshes) == n_meshes - 1
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
     # a geometry swap leaving the red sphere's own mesh unused
@@ -437,7 +437,7 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     assert kinds == {"ObjectGeometry": 1, "ObjectMaterials": 1, "MeshDelete": 1,
                      "MaterialDelete": 1}, kinds
     assert red_key not in state.session.scene.mesh_keys.slot
-    assert red_key not in state.sync.cache.meshes
+    assert red_key not in state.mirror.cache.meshes
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
     # undo to before the delete (the swap was never pushed): the sphere and its mesh return
     bpy.ops.ed.undo()
@@ -448,5 +448,5 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     assert kinds.get("ObjectAdd") == 1 and kinds.get("MeshSet", 0) >= 1, kinds
     assert kinds.get("MaterialSet", 0) >= 2, kinds  # the blue and red materials are back
     assert stats["meshes_read"] >= 1  # re-exported: the cache had dropped it
-    assert key in state.sync.cache.meshes and key in state.session.scene.mesh_keys.slot
+    assert key in state.mirror.cache.meshes and key in state.session.scene.mesh_keys.slot
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])

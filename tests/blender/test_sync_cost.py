@@ -23,7 +23,7 @@ N_OBJECTS = 300
 @pytest.fixture
 def big():
     """N_OBJECTS linked duplicates of one small sphere (one material), a light, a camera;
-    a SceneSync fed by depsgraph_update_post as view_update feeds it; walks counted."""
+    a SceneMirror fed by depsgraph_update_post as view_update feeds it; walks counted."""
     import addon
 
     b.setup_render(32, 24)
@@ -44,7 +44,7 @@ def big():
             return walks[0]
 
         def __init__(self):
-            self.sync = addon.edits.SceneSync()
+            self.sync = addon.depsgraph_diff.SceneMirror()
             self.batches = []
             self.stats = []
             self._sync(bpy.context.evaluated_depsgraph_get(), None)
@@ -52,7 +52,7 @@ def big():
 
         def _sync(self, dg, dirty):
             snap = self.sync.read(dg, dirty, "VIEWPORT", with_camera=False)
-            result = self.sync.diff(snap, exists=addon.edits.existing_objects)
+            result = self.sync.diff(snap, exists=addon.depsgraph_diff.existing_objects)
             self.sync.commit(result)
             self.stats.append(result.stats)
             return result.edits

@@ -1,15 +1,15 @@
-"""``depsgraph.updates`` -> :mod:`rstrace_engine.geometry.edits` edits.
+"""Depsgraph -> edits: what changed in Blender since the scene's core session was last
+told, as :mod:`rstrace_engine.geometry.edits` edits (used by :mod:`.sync`).
 
-:class:`SceneSync` mirrors what the scene's core session holds (per key: objects, meshes,
-materials, lights, world, camera). A sync walks the depsgraph into a snapshot
-(:func:`export.read_scene`, which re-reads only the datablocks the updates name) and diffs
-it against the mirror:
+:class:`SceneMirror` mirrors what the scene's core session holds (per key: objects, meshes,
+materials, lights, world; not the camera, which each render names). A sync walks the
+depsgraph into a snapshot (:func:`export.read_scene`, which re-reads only the datablocks the
+updates name) and diffs it against the mirror:
 
 * a moved, rotated or scaled object -> ``ObjectTransform``; new mesh data -> ``MeshSet``
   (that mesh only, read with ``foreach_get``); another mesh -> ``ObjectGeometry``; other
   material slots -> ``ObjectMaterials``; a changed material -> ``MaterialSet``; a light's
-  data or transform -> ``LightSet``; the world -> ``WorldColor``; the camera ->
-  ``CameraChange``;
+  data or transform -> ``LightSet``; the world -> ``WorldColor``;
 * an object, instance or light that appears -> ``ObjectAdd`` / ``LightSet`` (collection
   links, instancers, geometry-node instances, duplicates, undo of a delete);
 * one that vanishes -> ``ObjectVisibility(False)`` while the object still exists (hidden,
@@ -28,10 +28,11 @@ walked and yields edits only where the snapshot really differs (a shading flag f
 viewport display setting diffs to nothing).
 
 Keys are ``session_uid``s (see :mod:`.export`), which survive undo and redo; no Blender ID is
-held between syncs. The mirror changes only when the caller commits a sync (after the
-session applied it); :meth:`SceneSync.reset` forgets everything (the session was dropped).
+held between syncs. The mirror changes only when :func:`.sync.sync` commits a diff (once
+the session holds its edits); :meth:`SceneMirror.reset` forgets everything (the session was
+dropped).
 
-Layer: imports ``export`` and ``materials`` (no session, engine or ui).
+Layer: imports ``export`` and ``materials`` (no sync, session, viewport, engine or ui).
 """
 
 from __future__ import annotations
@@ -44,8 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rstrace_engine.geometry import edits as E
-from rstrace_engine.geometry.edits import same_camera
-from rstrace_engine.geometry.scene import Camera, Material
+from rstrace_engine.geometry.scene import Material
 
 from . import export
 from .materials import image_changed
@@ -72,7 +72,7 @@ def dirty_from_updates(updates) -> export.Dirty | None:
     as a Collection update; excluding a collection or swapping an object's data as a
     flag-less Scene update *together with* object updates. A flag-less Scene update alone
     is a selection, colour management or another scene-only setting (or the eye icon's
-    hide, which :meth:`SceneSync.dirty` tells apart), and is no edit. Node groups and
+    hide, which :meth:`SceneMirror.dirty` tells apart), and is no edit. Node groups and
     images (every material re-read) walk too. A material's, world's or light's own node
     tree (embedded data) comes with its owner and adds nothing.
     """
@@ -128,8 +128,8 @@ def visibility_signature(depsgraph) -> frozenset:
 
 
 @dataclass
-class SyncResult:
-    """The edits of one sync and what the mirror becomes once they are applied."""
+class MirrorDiff:
+    """The edits of one sync and what the mirror becomes once the session holds them."""
 
     edits: list
     snapshot: export.Snapshot | None
@@ -137,8 +137,9 @@ class SyncResult:
     _mirror: dict | None = None
 
 
-class SceneSync:
-    """The add-on side of one scene's session: caches, mirror, and the diff into edits."""
+class SceneMirror:
+    """The add-on side of one scene's session: export caches, the mirror of what the
+    session holds, and the diff of a snapshot against it into edits."""
 
     def __init__(self) -> None:
         self.cache = export.ExportCache()
@@ -155,7 +156,6 @@ class SceneSync:
         self.materials: dict[Hashable, Material] = {}
         self.lights: dict = {}
         self.world: tuple | None = None
-        self.camera: Camera | None = None
         self.instancers: set = set()  # uids of objects making instances (last walk)
         self.instanced: set = set()  # uids of objects appearing as instances (last walk)
         self.hidden_in_view: frozenset | None = None  # visibility_signature (last walk)
@@ -214,9 +214,8 @@ class SceneSync:
                 return False
         return True
 
-    def diff(self, snap: export.Snapshot, camera: Camera | None = None,
-             exists=None) -> SyncResult:
-        """Edits turning the mirror into ``snap`` (camera: the camera to render through).
+    def diff(self, snap: export.Snapshot, exists=None) -> MirrorDiff:
+        """Edits turning the mirror into ``snap`` (its camera aside).
 
         exists() -> set of session_uids of objects still in the file (asked only when some
         object vanished), to tell hidden from deleted.
@@ -301,24 +300,20 @@ class SceneSync:
         out += [E.LightDelete(k) for k in self.lights if k not in snap.lights]
         if snap.world != self.world:
             out.append(E.WorldColor(snap.world))
-        cam = camera if camera is not None else snap.camera
-        if cam is not None and not same_camera(cam, self.camera):
-            out.append(E.CameraChange(cam))
         mirror = dict(objects=objects, invisible=invisible, meshes=meshes, freed=freed,
                       freed_materials=freed_mats,
                       walk=None if partial else (snap.instancers, snap.instanced,
                                                  snap.hidden_in_view),
-                      materials=materials, lights=dict(snap.lights), world=snap.world,
-                      camera=cam if cam is not None else self.camera)
+                      materials=materials, lights=dict(snap.lights), world=snap.world)
         kinds: dict = {}
         for e in out:
             kinds[type(e).__name__] = kinds.get(type(e).__name__, 0) + 1
         stats = dict(snap.stats, edits=len(out), edit_kinds=kinds,
                      diff_seconds=time.perf_counter() - t0)
-        return SyncResult(out, snap, stats, mirror)
+        return MirrorDiff(out, snap, stats, mirror)
 
-    def commit(self, result: SyncResult) -> None:
-        """The session now holds ``result``: the mirror follows."""
+    def commit(self, result: MirrorDiff) -> None:
+        """The session now holds ``result`` (applied or queued): the mirror follows."""
         m = result._mirror
         if m is None:
             return
@@ -335,7 +330,7 @@ class SceneSync:
             self.instancers, self.instanced, sig = m["walk"]
             if sig is not None:  # (a viewport walk; F12's render depsgraph has none)
                 self.hidden_in_view = sig
-        self.lights, self.world, self.camera = m["lights"], m["world"], m["camera"]
+        self.lights, self.world = m["lights"], m["world"]
         self.synced = True
 
     def _drop_unused_textures(self) -> None:
@@ -345,16 +340,9 @@ class SceneSync:
         for key in [k for k in textures if k not in held]:
             del textures[key]
 
-    def camera_edit(self, camera: Camera) -> list:
-        """The edit for a new camera alone (viewport navigation), committed at once."""
-        if same_camera(camera, self.camera):
-            return []
-        self.camera = camera
-        return [E.CameraChange(camera)]
-
-    def scene(self, snap: export.Snapshot, camera: Camera | None = None):
-        """A whole :class:`Scene` for ``snap`` (a new session, or update_scene)."""
-        return export.build_scene(snap, self.cache, camera)
+    def scene(self, snap: export.Snapshot):
+        """A whole :class:`Scene` for ``snap`` (a new session)."""
+        return export.build_scene(snap, self.cache)
 
 
 def existing_objects() -> set:

@@ -1,0 +1,96 @@
+"""The one sync path from Blender to a scene's core session, for F12, animation frames and
+the viewport alike: :func:`sync`.
+
+One edit (an object moved), for F12 and for the viewport:
+1. F12 / animation: ``FrameRenderer.render`` with the render depsgraph; viewport:
+   ``view_update`` with ``depsgraph.updates``. Both call :func:`sync`, under ``state.lock``:
+2. ``SceneMirror.dirty`` -> what the updates name (viewport; F12 walks everything) ->
+   ``SceneMirror.read`` -> an ``export.Snapshot`` (re-reading only what changed);
+3. ``SceneMirror.diff`` -> ``[ObjectTransform]`` against the mirror (which has no camera);
+4. ``session.submit(edits)`` (or a new ``Session`` from the snapshot); ``SceneMirror.commit``.
+5. F12, under ``RENDER_LOCK``: ``session.apply()``, ``session.render(camera=scene camera)``.
+   Viewport: ``worker.submit(session=...)``; the worker: ``session.apply()``, a coarse image,
+   ``session.render(camera=view camera)``.
+6. Core: ``apply_edits`` -> ``EditEffects`` -> accelerator, interpolants, RI-trees, dirty
+   pixels; ``render`` adds a ``CameraChange`` when its camera differs (``same_camera``).
+7. A queued batch that fails marks the session ``failed``; the next sync starts afresh.
+
+Threads: ``state.lock`` guards the mirror and ``state.session`` (the viewport syncs on the
+main thread, F12 on its render thread); :func:`sync` runs no kernels, except building a new
+F12 session, for which the caller holds ``runtime.RENDER_LOCK`` (taken before
+``state.lock``, never after).
+
+Layer: imports ``export`` and ``depsgraph_diff``; imported by ``session`` and ``viewport``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from . import export
+from .depsgraph_diff import existing_objects
+
+
+@dataclass
+class SyncOutcome:
+    """What one :func:`sync` did."""
+
+    session: object  # the scene's rstrace_engine Session, holding the edits (queued)
+    snapshot: export.Snapshot | None  # None: the updates changed nothing, nothing was read
+    edits: int = 0  # edits queued (a new session: what the diff from nothing gave)
+    new_session: bool = False
+    seconds: float = 0.0  # reading and diffing
+    stats: dict = field(default_factory=dict)  # the snapshot's and the diff's
+
+
+def sync(state, depsgraph, source: str, settings, camera_object=None,
+         updates: bool = False) -> SyncOutcome:
+    """Bring ``state.session`` up to date with ``depsgraph``; see the module docstring.
+
+    state : the scene's ``session.SceneState`` (``session``, ``mirror``, ``lock``)
+    source : ``"RENDER"`` (F12, animation: the render depsgraph, through ``camera_object``
+        or the scene's camera) or ``"VIEWPORT"`` (no camera: the view's comes per render)
+    settings : the ``RenderSettings`` of a new session (an F12 session is built at once;
+        a viewport one on the worker, by its first ``apply``)
+    updates : read only what ``depsgraph.updates`` name (``view_update``); else walk the
+        whole depsgraph
+
+    Raises :class:`SceneError` (a broken camera, nothing to render); a live session and its
+    mirror are then as they were.
+    """
+    from rstrace_engine.session import Session
+
+    with state.lock:
+        session = state.session
+        if session is not None and session.failed is not None:
+            session = None  # (the mirror counts edits it never applied)
+        if session is None:
+            drop_session(state)
+        mirror = state.mirror
+        t0 = time.perf_counter()
+        dirty = None
+        if updates and session is not None:
+            dirty = mirror.dirty(depsgraph)
+            if dirty is None:
+                return SyncOutcome(session, None)
+        snap = mirror.read(depsgraph, dirty, source, camera_object=camera_object,
+                           with_camera=source == "RENDER")
+        diff = mirror.diff(snap, exists=existing_objects)
+        seconds = time.perf_counter() - t0
+        new = session is None
+        if new:
+            session = Session(mirror.scene(snap), settings, build=source == "RENDER")
+            state.session = session
+        else:
+            session.submit(diff.edits)
+        mirror.commit(diff)
+        return SyncOutcome(session, snap, len(diff.edits), new, seconds, diff.stats)
+
+
+def drop_session(state) -> None:
+    """Forget the core session of ``state`` and the mirror of it (after an error, or to
+    start afresh: the next :func:`sync` walks everything into a new session)."""
+    with state.lock:
+        state.session = None
+        state.mirror.reset()

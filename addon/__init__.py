@@ -5,7 +5,8 @@ package turns Blender data into its calls and its frames back into render passes
 
 Module layers, lower never importing higher:
 ``runtime`` (numba set-up) < ``kernels`` (background compile) < ``properties`` <
-``materials`` < ``meshes`` / ``lights`` / ``cameras`` < ``export`` < ``depsgraph_diff``
+``materials`` < ``meshes`` / ``lights`` / ``cameras`` / ``snapshot`` (per-datablock caches,
+the snapshot of one walk) < ``export`` < ``depsgraph_diff``
 (depsgraph -> edits) < ``sync`` (the one path from Blender to a scene's core session) <
 ``session`` (per-scene state, F12) < ``viewport`` < ``engine`` < ``ui``; ``operators`` (the
 kernel-cache warm-up) imports ``runtime`` only.

@@ -41,7 +41,11 @@ from rstrace_engine.geometry.scene import (
     check_matrix,
 )
 
-from .caches import (
+from .cameras import camera_from_object
+from .lights import read_light, world_colour
+from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
+from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
+from .snapshot import (
     DEFAULT_MATERIAL_KEY,
     Dirty,
     ExportCache,
@@ -52,10 +56,6 @@ from .caches import (
     Snapshot,
     build_scene,
 )
-from .cameras import camera_from_object
-from .lights import read_light, world_colour
-from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
-from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
 
 #: Object types whose evaluated geometry arrives as MESH instances in ``object_instances``
 #: (so the object itself is skipped), and types with nothing to render.

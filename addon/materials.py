@@ -4,7 +4,7 @@ Reads the Principled BSDF (or a Diffuse, Emission, Glossy or Glass BSDF) feeding
 output, with an Image Texture on Base Color read into a numpy texture; anything else falls
 back to the material's viewport colour. Problems go to the export's :class:`Notes`.
 
-Layer: imports no add-on module; imported by ``export`` and the readers it uses (``caches``,
+Layer: imports no add-on module; imported by ``export`` and the readers it uses (``snapshot``,
 ``cameras``, ``lights``) and by ``depsgraph_diff`` (``image_changed``).
 """
 

@@ -58,9 +58,9 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import SceneArrays
-from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .bvh import ray_to_object
 from .embree_ties import build_tie_index, merge_closer, tie_candidates, tie_window
+from .interface import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .triangle import ray_shear, solve_sheared
 
 log = logging.getLogger(__name__)

@@ -37,7 +37,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-#: Deepest subdivision level (2050 directions).
+#: Deepest subdivision level: 2050 directions, the most the settings accept
+#: (:data:`~rstrace_engine.frame.VF_MAX_DIRECTIONS`).
 MAX_LEVEL = 5
 #: Extra angle (radians) added to each look-up cell's radius: rounding of the corners,
 #: centres and of the query's barycentric coordinates never drops the true nearest.

@@ -1,8 +1,9 @@
 """Scene elements as a host authors them: materials, meshes, lights, cameras.
 
 Small Python objects validated when they are added to a :class:`~.scene.Scene` (every error
-names the object); also the checks shared with the scene (:func:`check_matrix`) and
-:class:`SceneError`. Conventions (units, light power, materials) are in :mod:`.scene`.
+names the object, raising :class:`~rstrace_engine.errors.SceneError`); also the checks
+shared with the scene (:func:`check_matrix`). Conventions (units, light power, materials)
+are in :mod:`.scene`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import tolerances as tol
+from ..errors import SceneError
 
 LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT = 0, 1, 2
 LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
@@ -20,10 +22,6 @@ LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
 
 MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
 MAX_LIGHT_POWER = 1e12  # W (W/m2 for a sun): above it a value is taken as broken input
-
-
-class SceneError(ValueError):
-    """Invalid scene input. The message names the offending object or setting."""
 
 
 # ----------------------------------------------------------------------------- checks

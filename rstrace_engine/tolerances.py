@@ -6,10 +6,10 @@ at 1e-4 and at 1e5 scale, or translated by 1e6.
 """
 
 #: Relative size of the self-intersection offset: a ray spawned at point p starts at
-#: ``p + n * offset`` with ``offset = SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)``.
-#: Float64 keeps ~16 digits; 1e-11 leaves ~5 digits of headroom for the hit-point error.
-#: (1e-9 was 1 cm at 1e7 from the origin: shadow rays started past the 4 cm gaps between
-#: stacked objects and light leaked; at 1e-11 that scene renders as at the origin.)
+#: ``p + n * offset`` with ``offset = SPAWN_OFFSET_REL * max(|p|_inf, scene_extent *
+#: SPAWN_OFFSET_EXTENT_FRAC)``. Float64 keeps ~16 digits; 1e-11 leaves ~5 digits of headroom
+#: for the hit-point error. Not larger: 1e-9 is 1 cm at 1e7 from the origin, where shadow
+#: rays would start past the 4 cm gaps between stacked objects and light would leak.
 SPAWN_OFFSET_REL = 1e-11
 
 #: Float32 accelerators (Embree) skip hits closer than this fraction of the scene's (and the

@@ -9,7 +9,7 @@ Per frame that follows a full frame of the same cache (no edit between, perspect
    interpolant at its pixel, and its hit point is projected into the new camera (forward
    reprojection; the previous value stays where nothing lands: the gaps). One candidate
    interpolant per pixel, for all its samples.
-2. **Cells, once per frame and candidate** (``_cells_ok``), from the new eye ``E``:
+2. **Cells, once per frame and candidate** (``_cell_ok``), from the new eye ``E``:
    (a) the Haines-Wallace shaft from ``E`` to the world box of the interpolant's slab
    hexahedron (the lines of its cell between its certified depths ``z_lo, z_hi``) meets no
    triangle of any other object; (b) the eye lies in front of the slab (depth below

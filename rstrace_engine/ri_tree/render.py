@@ -60,7 +60,7 @@ from .eligibility import eligible, instance_fingerprints, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 from .surfaces import interp_surface
-from .thickness import render_thickness_exact  # noqa: F401 - its home before
+from .thickness import render_thickness_exact  # noqa: F401 - re-exported (session, bench)
 
 log = logging.getLogger(__name__)
 

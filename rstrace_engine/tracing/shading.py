@@ -395,7 +395,8 @@ def texture_lookup(tex_data, tex_start, tex_size, tex, u, v):
 def spawn_offset(px, py, pz, scene_extent):
     """Self-intersection offset at point ``p``: scales with the coordinate magnitude.
 
-    ``SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)`` (see :mod:`.tolerances`).
+    ``SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * SPAWN_OFFSET_EXTENT_FRAC)`` (see
+    :mod:`.tolerances`).
     """
     m = max(abs(px), abs(py), abs(pz), scene_extent * tol.SPAWN_OFFSET_EXTENT_FRAC)
     return tol.SPAWN_OFFSET_REL * m

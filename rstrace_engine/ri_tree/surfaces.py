@@ -10,11 +10,13 @@ from ..tracing.whitted import light_states
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def interp_surface(sa, rows, o, d, P, NS, NG, mat,
-                    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state):
-    """Surface arrays (as the base tracer's surface kernel makes them) of interpolated hits
-    ``rows`` (into the level's arrays); shadow origins are moved off the surface by the
-    normal spawn offset (the self-offset is applied by the shadow test)."""
+def interp_surface(sa, rows, o, d, P, NS, NG, mat, surf):
+    """The rows ``rows`` of ``surf`` (the level's :class:`~..tracing.whitted.Surfaces`, as
+    the base tracer's surface stage makes them) for interpolated hits: points ``P``,
+    shading and geometric normals ``NS``, ``NG`` and materials ``mat``, one row per
+    interpolated hit. Shadow origins are moved off the surface by the normal spawn offset
+    (the self-offset is applied by the shadow test)."""
+    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state = surf
     ext = sa.scene_extent
     for q in prange(rows.shape[0]):
         i = rows[q]

@@ -669,6 +669,22 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     return radiance, (_ray_tree(levels, L) if record else None)
 
 
+def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,
+                 max_depth: int, cancel=None, counters: dict | None = None,
+                 segments: list | None = None):
+    """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
+    (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
+    frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
+    (:func:`trace` for ``counters``, ``segments`` and ``cancel``). Returns ``(radiance
+    (k, 3) float64, primary instance (k,) int32)``."""
+    with threads_for(len(pixels)), bound(accel, cancel):
+        o, d, tmin, tmax = camera_rays(cp, pixels, jitter)
+        hits = accel.closest_hit(o, d, tmin, tmax)
+        rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
+                       counters=counters, segments=segments, cancel=cancel)
+    return rad, np.ascontiguousarray(hits.inst, np.int32)
+
+
 def render(scene: Scene, settings: RenderSettings | None = None, accel=None, progress=None,
            cancel=None, records=None, pixels: np.ndarray | None = None,
            base: Frame | None = None) -> Frame:
@@ -731,12 +747,9 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         if npx == 0:
             rows_done = y1
             continue
-        with threads_for(npx * spp), bound(accel, cancel):
-            o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-            hits = accel.closest_hit(o, dr, tmin, tmax)
-            segs = [] if records is not None else None
-            rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits,
-                           counters=counters, segments=segs, cancel=cancel)
+        segs = [] if records is not None else None
+        rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
+                                 depth, cancel, counters, segs)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break
@@ -748,8 +761,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
                 records.add(gids, segs)
             out = np.empty((npx, 3), np.float32)
             pc = np.empty(npx, np.uint8)
-            bad_total += accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp, out,
-                                     pc)
+            bad_total += accumulate(rad, inst, spp, out, pc)
         image[pix] = out
         pclass[pix] = pc
         rows_done = y1

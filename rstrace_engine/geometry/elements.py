@@ -64,7 +64,7 @@ def check_matrix(name: str, matrix) -> np.ndarray:
         raise SceneError(f"object '{name}': world matrix must be 4x4, got {m.shape}")
     if not np.all(np.isfinite(m)):
         raise SceneError(f"object '{name}': world matrix has NaN or infinite entries")
-    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), rtol=0, atol=1e-9):
+    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), rtol=0, atol=tol.MATRIX_AFFINE_ATOL):
         raise SceneError(f"object '{name}': world matrix is projective (bottom row "
                          f"{m[3].tolist()}), only affine transforms are supported")
     lin = m[:3, :3]
@@ -137,10 +137,11 @@ class Material:
         if not (math.isfinite(mw) and 0.0 <= mw <= 1.0):
             raise SceneError(f"material '{n}': metallic {mw} outside [0, 1]")
         if self.model == "WARD":
-            if np.any(d + s + m + t > 1.0 + 1e-6):
+            if np.any(d + s + m + t > 1.0 + tol.MATERIAL_SUM_SLACK):
                 raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
                                  f"exceeds 1 in some channel (energy would be created)")
-        elif np.any(d + t + mw > 1.0 + 1e-6) or np.any(s + t + mw > 1.0 + 1e-6):
+        elif (np.any(d + t + mw > 1.0 + tol.MATERIAL_SUM_SLACK)
+              or np.any(s + t + mw > 1.0 + tol.MATERIAL_SUM_SLACK)):
             raise SceneError(f"material '{n}': diffuse (or specular) + transmission + "
                              f"metallic exceeds 1 in some channel (energy would be created)")
         r = float(self.roughness)

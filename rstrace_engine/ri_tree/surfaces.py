@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from numba import njit, prange
 
+from .. import tolerances as tol
 from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import light_states
 
@@ -31,7 +32,7 @@ def interp_surface(sa, rows, o, d, P, NS, NG, mat, surf):
             sx, sy, sz = -sx, -sy, -sz
         if dot3(ux, uy, uz, sx, sy, sz) > 0.0:
             # an interpolated normal may lean past the view ray: bend it back to the view
-            a = dot3(ux, uy, uz, sx, sy, sz) + 1e-6
+            a = dot3(ux, uy, uz, sx, sy, sz) + tol.INTERP_NORMAL_BEND
             sx, sy, sz, _ = normalize3(sx - a * ux, sy - a * uy, sz - a * uz)
         ENTER[i] = enter
         Pw[i, 0], Pw[i, 1], Pw[i, 2] = px, py, pz

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import SceneError
+
 #: Every render mode, and the ones this version implements (the only lists: the session,
 #: the command line and the Blender add-on all read these).
 MODES = ("BASE", "INTERPOLANT", "RI_TREE")
@@ -19,6 +21,17 @@ AVAILABLE_ACCELERATORS = ("BVH", "EMBREE", "BRUTE_FORCE", "VISIBILITY_FIELD")
 INTERNAL_ACCELERATORS = ("BRUTE_FORCE",)
 #: deepest RI-tree depth constraint accepted (cells of 2^-16 of a face per axis)
 RI_MAX_DEPTH = 64
+
+# The structures' own limits live here, below them in the import order: the structures read
+# them from here and :meth:`RenderSettings.validated` checks the settings against them.
+#: Deepest linetree cell a ``depth_cap`` may ask for (:data:`.interpolants.linetree.MAX_DEPTH`;
+#: the linetree's sample lattice lies two levels further down).
+LINETREE_MAX_DEPTH = 12
+#: Visibility field: most directions (the tetrahedron subdivided to
+#: :data:`.accel.directions.MAX_LEVEL`), most tiles per side, memory cap of one field (MB).
+VF_MAX_DIRECTIONS = 2050
+VF_MAX_TILES = 1024
+VF_MEMORY_CAP_MB = 2048.0
 
 # Per-pixel classes (the paper's Plate B), stored in Frame.pixel_class.
 CLASS_BACKGROUND = 0
@@ -41,6 +54,17 @@ CLASS_COLORS = np.array([
     [0.9, 0.8, 0.1],  # non-linearity at the depth cap: yellow
     [0.9, 0.2, 0.9],  # rebuilt after an edit: magenta
 ], dtype=np.float32)
+
+
+def check_vf_settings(directions: int, tiles: int, memory_cap_mb: float) -> None:
+    """Raise :class:`SceneError` naming a visibility field setting outside its range."""
+    if not 1 <= int(directions) <= VF_MAX_DIRECTIONS:
+        raise SceneError(f"setting 'vf_directions': {directions} outside "
+                         f"[1, {VF_MAX_DIRECTIONS}]")
+    if not 1 <= int(tiles) <= VF_MAX_TILES:
+        raise SceneError(f"setting 'vf_tiles': {tiles} outside [1, {VF_MAX_TILES}]")
+    if not (np.isfinite(memory_cap_mb) and memory_cap_mb > 0):
+        raise SceneError(f"visibility field: memory cap {memory_cap_mb} MB must be > 0")
 
 
 @dataclass
@@ -71,8 +95,6 @@ class RenderSettings:
         return {"directions": int(self.vf_directions), "tiles": int(self.vf_tiles)}
 
     def validated(self) -> RenderSettings:
-        from .geometry.scene import SceneError
-
         if self.mode not in MODES:
             raise SceneError(f"setting 'mode': {self.mode!r} not one of {MODES}")
         if self.accelerator not in ACCELERATORS:
@@ -84,15 +106,12 @@ class RenderSettings:
             raise SceneError(f"setting 'max_ray_depth': {self.max_depth} outside [0, 32]")
         if not 1 <= int(self.samples) <= 4096:
             raise SceneError(f"setting 'samples': {self.samples} outside [1, 4096]")
-        from .interpolants.linetree import MAX_DEPTH
-
-        if not 0 <= int(self.depth_cap) <= MAX_DEPTH:
-            raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside [0, {MAX_DEPTH}]")
+        if not 0 <= int(self.depth_cap) <= LINETREE_MAX_DEPTH:
+            raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside "
+                             f"[0, {LINETREE_MAX_DEPTH}]")
         if not (np.isfinite(self.memory_cap_mb) and self.memory_cap_mb >= 0.0):
             raise SceneError(f"setting 'memory_cap_mb': {self.memory_cap_mb} must be >= 0")
-        from .accel.visibility_field import MEMORY_CAP_MB, check_settings
-
-        check_settings(self.vf_directions, self.vf_tiles, MEMORY_CAP_MB)
+        check_vf_settings(self.vf_directions, self.vf_tiles, VF_MEMORY_CAP_MB)
         for name, lo, hi in (("ri_dist_thresh", 0.0, 10.0), ("ri_ang_thresh", 0.0, 180.0)):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and lo < v <= hi):

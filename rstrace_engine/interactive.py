@@ -35,12 +35,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .cancel import CancelFlag, bound, cancelled
+from .cancel import CancelFlag, cancelled
 from .frame import CLASS_BACKGROUND, RenderSettings
-from .geometry.cameras import camera_params, camera_rays, pixel_jitter
+from .geometry.cameras import camera_params
 from .geometry.scene import Camera, SceneError
-from .tracing.batches import SERIAL_BELOW, accumulate, threads_for
-from .tracing.whitted import trace
+from .tracing.batches import SERIAL_BELOW, accumulate, row_tiles, threads_for
+from .tracing.whitted import trace_pixels
 
 log = logging.getLogger(__name__)
 
@@ -74,11 +74,6 @@ class ViewImage:
     stats: dict = field(default_factory=dict)
 
 
-def _rect_pixels(w: int, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
-    rows = np.arange(y0, y1, dtype=np.int64)[:, None] * w
-    return (rows + np.arange(x0, x1, dtype=np.int64)[None, :]).reshape(-1)
-
-
 def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
                border: tuple | None = None, sample: int = 0, samples: int = 1,
                tile_rays: int = VIEW_TILE_RAYS):
@@ -95,31 +90,21 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
     accel = session.accel
     cp = camera_params(camera)
     w, h = cp.width, cp.height
-    x0, y0, bw, bh = border if border is not None else (0, 0, w, h)
     rgb = np.zeros((h * w, 3), np.float32)
     pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    bw = border[2] if border is not None else w
     rows = max(1, tile_rays // max(1, bw))
-    depth = int(settings.max_depth)
-    for ya in range(y0, y0 + bh, rows):
+    for pix, jitter, _ in row_tiles(w, h, samples, int(settings.seed), rows, border):
         if cancelled(cancel):
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
-        yb = min(y0 + bh, ya + rows)
-        pix = _rect_pixels(w, ya, yb, x0, x0 + bw)
-        if samples > 1:
-            jitter = pixel_jitter(len(pix), samples,
-                                  seed=int(settings.seed) * 1000003 + ya)[sample % samples]
-        else:
-            jitter = None
-        with threads_for(len(pix)), bound(accel, cancel):
-            o, d, tmin, tmax = camera_rays(cp, pix, jitter)
-            hits = accel.closest_hit(o, d, tmin, tmax)
-            rad, _ = trace(sa, accel, o, d, tmin, tmax, depth, primary=hits, cancel=cancel)
+        k = sample % samples if samples > 1 else 0  # one sample: the pixel centres
+        rad, inst = trace_pixels(sa, accel, cp, pix, jitter[k], int(settings.max_depth), cancel)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         with threads_for(len(pix)):
             out = np.empty((len(pix), 3), np.float32)
             cls = np.empty(len(pix), np.uint8)
-            accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), 1, out, cls)
+            accumulate(rad, inst, 1, out, cls)
         rgb[pix] = out
         pclass[pix] = cls
     return rgb.reshape(h, w, 3), pclass.reshape(h, w), True

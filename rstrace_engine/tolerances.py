@@ -6,10 +6,10 @@ at 1e-4 and at 1e5 scale, or translated by 1e6.
 """
 
 #: Relative size of the self-intersection offset: a ray spawned at point p starts at
-#: ``p + n * offset`` with ``offset = SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)``.
-#: Float64 keeps ~16 digits; 1e-11 leaves ~5 digits of headroom for the hit-point error.
-#: (1e-9 was 1 cm at 1e7 from the origin: shadow rays started past the 4 cm gaps between
-#: stacked objects and light leaked; at 1e-11 that scene renders as at the origin.)
+#: ``p + n * offset`` with ``offset = SPAWN_OFFSET_REL * max(|p|_inf, scene_extent *
+#: SPAWN_OFFSET_EXTENT_FRAC)``. Float64 keeps ~16 digits; 1e-11 leaves ~5 digits of headroom
+#: for the hit-point error. Not larger: 1e-9 is 1 cm at 1e7 from the origin, where shadow
+#: rays would start past the 4 cm gaps between stacked objects and light would leak.
 SPAWN_OFFSET_REL = 1e-11
 
 #: Float32 accelerators (Embree) skip hits closer than this fraction of the scene's (and the
@@ -77,6 +77,21 @@ BVH_CULL_REL = 64.0 * 2.0**-53
 #: (the world -> object transform of a ray and of the box corners both round).
 INSTANCE_BOX_PAD_REL = 1e-9
 
+#: Input checks: a world matrix's bottom row may differ from (0, 0, 0, 1) by this much (the
+#: host's float32 matrices) ...
+MATRIX_AFFINE_ATOL = 1e-9
+#: ... and a material's energy shares (diffuse + specular + mirror + transmission, per
+#: channel) may sum past 1 by this much.
+MATERIAL_SUM_SLACK = 1e-6
+#: ``shapes.look_at``: an up vector this nearly along the view direction (the length of
+#: their cross product) is replaced by the y axis.
+LOOK_AT_PARALLEL = 1e-12
+
+#: GGX: the directional albedo is computed at no more grazing a cosine than this ...
+GGX_COS_MIN = 1e-4
+#: ... and the multiple-scattering compensation ``(1 - E) / E`` divides by at least this.
+GGX_ALBEDO_MIN = 1e-3
+
 # ----------------------------------------------------------------------------- interpolants
 
 #: Linetree boxes: every object's world box is padded on each side by this fraction of the
@@ -103,6 +118,34 @@ TUNNEL_MARGIN_REL = 0.05
 #: Shaft planes are moved outward by this fraction of the scene's coordinate magnitude
 #: (extent + largest |coordinate|), so rounding never lets a touching triangle escape.
 SHAFT_SLACK_REL = 1e-9
+#: Boxes computed in float64 (a shaft's box taken to object space, a slab's box) grow by
+#: this fraction of their coordinates' magnitude, past the rounding of the computation.
+BOX_ROUND_REL = 1e-12
+#: Spot cones: the range of cosines a box spans is widened by this much (acos, asin and cos
+#: round).
+CONE_COS_SLACK = 1e-12
+#: A slab's certified depth range is padded by this fraction of its face pair's depth, past
+#: its width margin (rounding never leaves a crossing just outside it).
+SLAB_DEPTH_PAD_REL = 1e-9
+#: Ray segment trees: slack of the 5D interval tests, relative to the coordinates (rounding
+#: never hides an overlap).
+RST_SLACK = 1e-9
+#: Textured samples: relative tolerance of the affine check ``|R + texel D - L|``.
+TEX_SPLIT_REL = 1e-9
+
+#: Occluder coverage (:mod:`.interpolants.occluders`): a plane separates the cell from the
+#: light only beyond this fraction of the coordinates' magnitude (plus the shaft slack), and
+#: a sun lies in the plane below it ...
+COVER_PLANE_REL = 1e-9
+#: ... triangles count as facing the plane's way, and their clipped areas as summing to the
+#: projection's area (no overlap), within this fraction.
+COVER_AREA_REL = 1e3 * COVER_PLANE_REL
+#: A convex occluder's corner segment tests count a crossing only this far inside a
+#: triangle (barycentric) and inside the segment (parameter, at both ends).
+COVER_BARY_MARGIN = 1e-9
+COVER_T_MARGIN = 1e-6
+#: The convex hull of the projected corners sorts them by x, ties by y through this weight.
+HULL_ORDER_TIE = 1e-12
 
 #: Ray segment trees: their domain (the scene box with its point and spot lights) is padded
 #: by this fraction of its diagonal ...
@@ -128,6 +171,9 @@ RECORD_SLACK_REL = 1e-6
 #: beam are widened by it: the world -> object transform of a ray and the object -> world
 #: transform of a triangle both round, so a hit may lie a few ulps off the world triangle.
 VF_PAD_REL = 1e-9
+#: Nearest-direction look-up: extra angle (radians) added to each look-up cell's radius, so
+#: rounding of the corners, centres and the query's barycentrics never drops the nearest.
+DIRECTION_LOOKUP_MARGIN = 1e-9
 
 # ----------------------------------------------------------------------------- RI-tree
 
@@ -138,3 +184,6 @@ VF_PAD_REL = 1e-9
 RI_SELF_OFFSET_REL = 2e-3
 #: Thickness walks step past each crossing by this fraction of the object's diagonal.
 THICKNESS_STEP_REL = 1e-9
+#: An interpolated shading normal that leans past the view ray is bent back until it faces
+#: the viewer by this much (cosine).
+INTERP_NORMAL_BEND = 1e-6

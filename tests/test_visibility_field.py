@@ -19,6 +19,7 @@ from test_accelerators import (
 from rstrace_engine.accel import directions as dirs_mod
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.accel.visibility_field import DYNAMIC, STATIC, VisibilityField
+from rstrace_engine.frame import VF_MAX_DIRECTIONS
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import SceneError
 
@@ -38,6 +39,11 @@ def test_direction_counts():
     assert [dirs_mod.direction_count(k) for k in range(6)] == [4, 10, 34, 130, 514, 2050]
     assert dirs_mod.level_for(130) == 3 and dirs_mod.level_for(131) == 4
     assert dirs_mod.level_for(1) == 0
+
+
+
+def test_direction_limit_is_the_settings_limit():
+    assert dirs_mod.direction_count(dirs_mod.MAX_LEVEL) == VF_MAX_DIRECTIONS
 
 
 @pytest.mark.parametrize("level", range(dirs_mod.MAX_LEVEL + 1))

@@ -114,6 +114,116 @@ def _range_box(lo, hi, perm, start, end, box):
             box[3 + k] = max(box[3 + k], hi[p, k])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _centroid_bounds(cen, perm, start, end, cmin, cmax):
+    """Bounds ``cmin``, ``cmax`` (3,) of the centroids of primitives ``perm[start:end]``."""
+    for k in range(3):
+        cmin[k] = np.inf
+        cmax[k] = -np.inf
+    for j in range(start, end):
+        p = perm[j]
+        for k in range(3):
+            cmin[k] = min(cmin[k], cen[p, k])
+            cmax[k] = max(cmax[k], cen[p, k])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sah_split(lo, hi, cen, perm, start, end, cmin, cmax, nbins, bin_n, bin_b, right_a,
+               right_n):
+    """The best binned-SAH split of primitives ``perm[start:end]`` over their centroid
+    bounds, on all three axes: ``(cost, axis, bin)``, the split between bins ``bin`` and
+    ``bin + 1`` (axis -1: no split; ``cost`` unnormalised). ``bin_n .. right_n``: the
+    bins' scratch arrays."""
+    best_cost = np.inf
+    best_axis = -1
+    best_bin = -1
+    bin_n[:, :] = 0
+    for k in range(3):
+        for b in range(nbins):
+            bin_b[k, b, 0:3] = np.inf
+            bin_b[k, b, 3:6] = -np.inf
+    for j in range(start, end):
+        p = perm[j]
+        for k in range(3):
+            ext = cmax[k] - cmin[k]
+            if ext <= 0.0:
+                continue
+            b = int((cen[p, k] - cmin[k]) * (nbins / ext))
+            b = min(max(b, 0), nbins - 1)
+            bin_n[k, b] += 1
+            for q in range(3):
+                bin_b[k, b, q] = min(bin_b[k, b, q], lo[p, q])
+                bin_b[k, b, 3 + q] = max(bin_b[k, b, 3 + q], hi[p, q])
+    rb = np.empty(6)
+    lb = np.empty(6)
+    for k in range(3):
+        if cmax[k] - cmin[k] <= 0.0:
+            continue
+        # sweep from the right: area and count of bins b.. nbins-1
+        rb[0:3] = np.inf
+        rb[3:6] = -np.inf
+        cnt = 0
+        for b in range(nbins - 1, 0, -1):
+            cnt += bin_n[k, b]
+            for q in range(3):
+                rb[q] = min(rb[q], bin_b[k, b, q])
+                rb[3 + q] = max(rb[3 + q], bin_b[k, b, 3 + q])
+            right_n[b] = cnt
+            right_a[b] = _half_area(rb[0], rb[1], rb[2], rb[3], rb[4], rb[5])
+        lb[0:3] = np.inf
+        lb[3:6] = -np.inf
+        cnt = 0
+        for b in range(nbins - 1):  # split between bin b and b + 1
+            cnt += bin_n[k, b]
+            for q in range(3):
+                lb[q] = min(lb[q], bin_b[k, b, q])
+                lb[3 + q] = max(lb[3 + q], bin_b[k, b, 3 + q])
+            nr = right_n[b + 1]
+            if cnt == 0 or nr == 0:
+                continue
+            la = _half_area(lb[0], lb[1], lb[2], lb[3], lb[4], lb[5])
+            cost = la * cnt + right_a[b + 1] * nr
+            if cost < best_cost:
+                best_cost, best_axis, best_bin = cost, k, b
+    return best_cost, best_axis, best_bin
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _partition(cen, perm, start, end, k, cmin_k, ext, nbins, split_bin):
+    """Reorder ``perm[start:end]``: primitives whose centroid falls in bins up to
+    ``split_bin`` on axis ``k`` first. Returns where the others start."""
+    i, j = start, end - 1
+    while i <= j:
+        b = int((cen[perm[i], k] - cmin_k) * (nbins / ext))
+        b = min(max(b, 0), nbins - 1)
+        if b <= split_bin:
+            i += 1
+        else:
+            perm[i], perm[j] = perm[j], perm[i]
+            j -= 1
+    return i
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _median_split(cen, perm, start, end, cmin, cmax):
+    """Object median along the widest centroid axis: sorts ``perm[start:end]`` along it and
+    returns the middle."""
+    k = 0
+    for q in range(1, 3):
+        if cmax[q] - cmin[q] > cmax[k] - cmin[k]:
+            k = q
+    count = end - start
+    if count > 1:
+        keys = np.empty(count)
+        for j in range(count):
+            keys[j] = cen[perm[start + j], k]
+        order = np.argsort(keys, kind="mergesort")
+        seg = perm[start:end].copy()
+        for j in range(count):
+            perm[start + j] = seg[order[j]]
+    return (start + end) // 2
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def build_flat(lo, hi, max_leaf, nbins, trav_cost):
     """Binned-SAH BVH over primitive boxes.
@@ -121,6 +231,8 @@ def build_flat(lo, hi, max_leaf, nbins, trav_cost):
     lo, hi : (n, 3) float64 primitive bounds (n >= 1)
     Returns ``bounds (N, 12) float64, child (N, 2) int32, perm (n,) int32, sah_cost``
     (``sah_cost`` is the SAH estimate of the whole tree in units of one primitive test).
+    Depth first from an explicit stack of tasks (a node's primitive range): each becomes a
+    leaf, or is split (:func:`_sah_split`, else :func:`_median_split`) into two tasks.
     """
     n = lo.shape[0]
     perm = np.arange(n).astype(np.int32)
@@ -138,6 +250,8 @@ def build_flat(lo, hi, max_leaf, nbins, trav_cost):
     box = np.empty(6)
     lbox = np.empty(6)
     rbox = np.empty(6)
+    cmin = np.empty(3)
+    cmax = np.empty(3)
     # node 0 is the root; its own box is implicit (the instance / scene box)
     _range_box(lo, hi, perm, 0, n, box)
     root_area = max(_half_area(box[0], box[1], box[2], box[3], box[4], box[5]), 1e-300)
@@ -153,69 +267,12 @@ def build_flat(lo, hi, max_leaf, nbins, trav_cost):
         sp -= 1
         count = end - start
         area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
-        # --- choose a split: binned SAH over centroid bounds, all three axes
-        cmin = np.empty(3)
-        cmax = np.empty(3)
-        for k in range(3):
-            cmin[k] = np.inf
-            cmax[k] = -np.inf
-        for j in range(start, end):
-            p = perm[j]
-            for k in range(3):
-                cmin[k] = min(cmin[k], cen[p, k])
-                cmax[k] = max(cmax[k], cen[p, k])
-        best_cost = np.inf
-        best_axis = -1
-        best_bin = -1
+        _centroid_bounds(cen, perm, start, end, cmin, cmax)
+        best_cost, best_axis, best_bin = np.inf, -1, -1
         if count > 1 and depth < DEPTH_CAP:
-            bin_n[:, :] = 0
-            for k in range(3):
-                for b in range(nbins):
-                    bin_b[k, b, 0:3] = np.inf
-                    bin_b[k, b, 3:6] = -np.inf
-            for j in range(start, end):
-                p = perm[j]
-                for k in range(3):
-                    ext = cmax[k] - cmin[k]
-                    if ext <= 0.0:
-                        continue
-                    b = int((cen[p, k] - cmin[k]) * (nbins / ext))
-                    b = min(max(b, 0), nbins - 1)
-                    bin_n[k, b] += 1
-                    for q in range(3):
-                        bin_b[k, b, q] = min(bin_b[k, b, q], lo[p, q])
-                        bin_b[k, b, 3 + q] = max(bin_b[k, b, 3 + q], hi[p, q])
-            for k in range(3):
-                if cmax[k] - cmin[k] <= 0.0:
-                    continue
-                # sweep from the right: area and count of bins b.. nbins-1
-                rb = np.empty(6)
-                rb[0:3] = np.inf
-                rb[3:6] = -np.inf
-                cnt = 0
-                for b in range(nbins - 1, 0, -1):
-                    cnt += bin_n[k, b]
-                    for q in range(3):
-                        rb[q] = min(rb[q], bin_b[k, b, q])
-                        rb[3 + q] = max(rb[3 + q], bin_b[k, b, 3 + q])
-                    right_n[b] = cnt
-                    right_a[b] = _half_area(rb[0], rb[1], rb[2], rb[3], rb[4], rb[5])
-                lb = np.empty(6)
-                lb[0:3] = np.inf
-                lb[3:6] = -np.inf
-                cnt = 0
-                for b in range(nbins - 1):  # split between bin b and b + 1
-                    cnt += bin_n[k, b]
-                    for q in range(3):
-                        lb[q] = min(lb[q], bin_b[k, b, q])
-                        lb[3 + q] = max(lb[3 + q], bin_b[k, b, 3 + q])
-                    nr = right_n[b + 1]
-                    if cnt == 0 or nr == 0:
-                        continue
-                    la = _half_area(lb[0], lb[1], lb[2], lb[3], lb[4], lb[5])
-                    cost = la * cnt + right_a[b + 1] * nr
-                    if cost < best_cost:
-                        best_cost, best_axis, best_bin = cost, k, b
+            best_cost, best_axis, best_bin = _sah_split(lo, hi, cen, perm, start, end, cmin,
+                                                        cmax, nbins, bin_n, bin_b, right_a,
+                                                        right_n)
         split_cost = trav_cost + best_cost / max(area, 1e-300)
         make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
         if make_leaf and parent >= 0:
@@ -223,36 +280,13 @@ def build_flat(lo, hi, max_leaf, nbins, trav_cost):
             child[parent, slot] = ~((start << 3) | count)
             sah += count * area / root_area
             continue
-        # --- partition perm[start:end]
         if best_axis >= 0 and not make_leaf:
-            k = best_axis
-            ext = cmax[k] - cmin[k]
-            i, j = start, end - 1
-            while i <= j:
-                b = int((cen[perm[i], k] - cmin[k]) * (nbins / ext))
-                b = min(max(b, 0), nbins - 1)
-                if b <= best_bin:
-                    i += 1
-                else:
-                    perm[i], perm[j] = perm[j], perm[i]
-                    j -= 1
-            mid = i
+            mid = _partition(cen, perm, start, end, best_axis, cmin[best_axis],
+                             cmax[best_axis] - cmin[best_axis], nbins, best_bin)
         else:
             # no usable SAH split (coincident centroids, depth cap, or a root that is one
-            # leaf): object median along the widest centroid axis
-            k = 0
-            for q in range(1, 3):
-                if cmax[q] - cmin[q] > cmax[k] - cmin[k]:
-                    k = q
-            mid = (start + end) // 2
-            if count > 1:
-                keys = np.empty(count)
-                for j in range(count):
-                    keys[j] = cen[perm[start + j], k]
-                order = np.argsort(keys, kind="mergesort")
-                seg = perm[start:end].copy()
-                for j in range(count):
-                    perm[start + j] = seg[order[j]]
+            # leaf)
+            mid = _median_split(cen, perm, start, end, cmin, cmax)
         # --- allocate the inner node (the root is node 0, already allocated)
         if parent >= 0:
             node = nn

@@ -37,11 +37,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-#: Deepest subdivision level (2050 directions).
+from .. import tolerances as tol
+
+#: Deepest subdivision level: 2050 directions, the most the settings accept
+#: (:data:`~rstrace_engine.frame.VF_MAX_DIRECTIONS`).
 MAX_LEVEL = 5
-#: Extra angle (radians) added to each look-up cell's radius: rounding of the corners,
-#: centres and of the query's barycentric coordinates never drops the true nearest.
-LOOKUP_MARGIN = 1e-9
 
 _CORNERS = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0],
                      [-1.0, -1.0, 1.0]]) / np.sqrt(3.0)
@@ -131,7 +131,7 @@ def direction_table(level: int) -> DirectionTable:
     chunk = 4096
     for s in range(0, len(center), chunk):
         ang = np.arccos(np.clip(center[s:s + chunk] @ dirs.T, -1.0, 1.0))
-        bound = ang.min(axis=1) + 2.0 * rho[s:s + chunk] + LOOKUP_MARGIN
+        bound = ang.min(axis=1) + 2.0 * rho[s:s + chunk] + tol.DIRECTION_LOOKUP_MARGIN
         for c in range(len(ang)):
             cand = (np.flatnonzero(ang[c] <= bound[c]) if valid[s + c]
                     else np.zeros(0, np.int64))

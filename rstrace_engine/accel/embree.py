@@ -11,9 +11,9 @@ built in robust mode (watertight). Embree has no per-ray ``tnear`` in ``embreex`
 ``tmin > 0`` is started at ``o + tmin d`` and its distances shifted back.
 
 Float32 and spawned rays: Embree's geometry and rays are float32, so a ray spawned a float64
-offset (``tolerances.SPAWN_OFFSET_REL``, 1e-9 relative) off a surface starts *inside* that
-surface's float32 rounding and hits it again (shadow acne: 29% of the pixels of a small scene
-differed from the BVH's). Two things make an Embree frame the BVH's frame:
+offset (``tolerances.SPAWN_OFFSET_REL``, far below a float32 ulp) off a surface starts
+*inside* that surface's float32 rounding and hits it again (shadow acne: 29% of the pixels
+of a small scene differed from the BVH's). Two things make an Embree frame the BVH's frame:
 
 * every ray starts at least ``tolerances.FLOAT32_TNEAR_REL`` times the magnitude of the scene
   and of its origin along itself (Embree cannot tell hits closer than that from its own
@@ -58,9 +58,9 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import SceneArrays
-from .accelerators import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .bvh import ray_to_object
 from .embree_ties import build_tie_index, merge_closer, tie_candidates, tie_window
+from .interface import Accelerator, AcceleratorUnavailable, Hits, empty_hits
 from .triangle import ray_shear, solve_sheared
 
 log = logging.getLogger(__name__)
@@ -384,8 +384,9 @@ def _refine(verts, tris, inst_inv, o, d, tmin, tmax, inst, prim, t, u, v, behind
         elif ok and s < tmin[r]:
             behind[r] = True
         elif ok and s > tmax[r]:
-            # past the ray's end (float32 cannot resolve a shadow ray's end 1e-9 short of a
-            # light on a surface: that surface darkened the light): no hit in range
+            # past the ray's end (float32 cannot resolve a shadow ray's end
+            # ``tolerances.SHADOW_END_REL`` short of a light on a surface: that surface
+            # darkened the light): no hit in range
             t[r], inst[r], prim[r], u[r], v[r] = np.inf, -1, -1, 0.0, 0.0
 
 

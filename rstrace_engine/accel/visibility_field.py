@@ -62,16 +62,11 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..frame import VF_MEMORY_CAP_MB, check_vf_settings
 from ..geometry.scene import SceneArrays, SceneError
-from .accelerators import Accelerator, empty_hits
 from .bvh import ray_to_object
-from .directions import (
-    MAX_LEVEL,
-    direction_count,
-    direction_table,
-    level_for,
-    nearest_direction,
-)
+from .directions import direction_table, level_for, nearest_direction
+from .interface import Accelerator, empty_hits
 from .tiles import (
     COUNT,
     DYN_COUNT,
@@ -92,13 +87,9 @@ log = logging.getLogger(__name__)
 #: fastest queries per MB in the benchmark's sweep (README, *Measured*).
 DEFAULT_DIRECTIONS = 34
 DEFAULT_TILES = 64
-#: Largest ``n`` accepted.
-MAX_TILES = 1024
 #: The field box is the scene box grown by this fraction of its diagonal on every side, so
 #: objects can move a little beyond the scene's first extent without a rebuild.
 BOX_MARGIN_REL = 0.1
-#: Default memory cap of one field (MB).
-MEMORY_CAP_MB = 2048.0
 #: Bytes per tile (static offset int64, dynamic version int64, offset int64, count int32).
 TILE_BYTES = 28
 #: Bytes per entry (reference int32, zmin float32, pmax or zmax float32, sub-tile mask int64).
@@ -369,17 +360,6 @@ def trace_kernel(sf_frame, sf_grid, box, pad, n, tab, st, dyn, refs_inst, refs_p
 # ----------------------------------------------------------------------------- accelerator
 
 
-def check_settings(directions: int, tiles: int, memory_cap_mb: float) -> None:
-    """Raise :class:`SceneError` naming a setting outside its range."""
-    lmax = direction_count(MAX_LEVEL)
-    if not 1 <= int(directions) <= lmax:
-        raise SceneError(f"setting 'vf_directions': {directions} outside [1, {lmax}]")
-    if not 1 <= int(tiles) <= MAX_TILES:
-        raise SceneError(f"setting 'vf_tiles': {tiles} outside [1, {MAX_TILES}]")
-    if not (np.isfinite(memory_cap_mb) and memory_cap_mb > 0):
-        raise SceneError(f"visibility field: memory cap {memory_cap_mb} MB must be > 0")
-
-
 class VisibilityField(Accelerator):
     """The visibility field behind the common batch interface (see the module docstring).
 
@@ -393,9 +373,9 @@ class VisibilityField(Accelerator):
     ordered = True
 
     def __init__(self, scene_arrays: SceneArrays, directions: int = DEFAULT_DIRECTIONS,
-                 tiles: int = DEFAULT_TILES, memory_cap_mb: float = MEMORY_CAP_MB) -> None:
+                 tiles: int = DEFAULT_TILES, memory_cap_mb: float = VF_MEMORY_CAP_MB) -> None:
         super().__init__(scene_arrays)
-        check_settings(directions, tiles, memory_cap_mb)
+        check_vf_settings(directions, tiles, memory_cap_mb)
         self.level = level_for(int(directions))
         self.n = int(tiles)
         self.cap_mb = float(memory_cap_mb)

@@ -1,8 +1,9 @@
 """Scene elements as a host authors them: materials, meshes, lights, cameras.
 
 Small Python objects validated when they are added to a :class:`~.scene.Scene` (every error
-names the object); also the checks shared with the scene (:func:`check_matrix`) and
-:class:`SceneError`. Conventions (units, light power, materials) are in :mod:`.scene`.
+names the object, raising :class:`~rstrace_engine.errors.SceneError`); also the checks
+shared with the scene (:func:`check_matrix`). Conventions (units, light power, materials)
+are in :mod:`.scene`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import tolerances as tol
+from ..errors import SceneError
 
 LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT = 0, 1, 2
 LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
@@ -20,10 +22,6 @@ LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
 
 MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
 MAX_LIGHT_POWER = 1e12  # W (W/m2 for a sun): above it a value is taken as broken input
-
-
-class SceneError(ValueError):
-    """Invalid scene input. The message names the offending object or setting."""
 
 
 # ----------------------------------------------------------------------------- checks
@@ -66,7 +64,7 @@ def check_matrix(name: str, matrix) -> np.ndarray:
         raise SceneError(f"object '{name}': world matrix must be 4x4, got {m.shape}")
     if not np.all(np.isfinite(m)):
         raise SceneError(f"object '{name}': world matrix has NaN or infinite entries")
-    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), rtol=0, atol=1e-9):
+    if not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0), rtol=0, atol=tol.MATRIX_AFFINE_ATOL):
         raise SceneError(f"object '{name}': world matrix is projective (bottom row "
                          f"{m[3].tolist()}), only affine transforms are supported")
     lin = m[:3, :3]
@@ -139,10 +137,11 @@ class Material:
         if not (math.isfinite(mw) and 0.0 <= mw <= 1.0):
             raise SceneError(f"material '{n}': metallic {mw} outside [0, 1]")
         if self.model == "WARD":
-            if np.any(d + s + m + t > 1.0 + 1e-6):
+            if np.any(d + s + m + t > 1.0 + tol.MATERIAL_SUM_SLACK):
                 raise SceneError(f"material '{n}': diffuse + specular + mirror + transmission "
                                  f"exceeds 1 in some channel (energy would be created)")
-        elif np.any(d + t + mw > 1.0 + 1e-6) or np.any(s + t + mw > 1.0 + 1e-6):
+        elif (np.any(d + t + mw > 1.0 + tol.MATERIAL_SUM_SLACK)
+              or np.any(s + t + mw > 1.0 + tol.MATERIAL_SUM_SLACK)):
             raise SceneError(f"material '{n}': diffuse (or specular) + transmission + "
                              f"metallic exceeds 1 in some channel (energy would be created)")
         r = float(self.roughness)

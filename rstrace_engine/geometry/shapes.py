@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import tolerances as tol
 from .scene import Mesh
 
 
@@ -147,7 +148,7 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     fwd = np.asarray(target, dtype=np.float64) - eye
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, np.asarray(up, dtype=np.float64))
-    if np.linalg.norm(right) < 1e-12:
+    if np.linalg.norm(right) < tol.LOOK_AT_PARALLEL:
         right = np.cross(fwd, (0.0, 1.0, 0.0))
     right /= np.linalg.norm(right)
     cam_up = np.cross(right, fwd)

@@ -38,14 +38,16 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..frame import LINETREE_MAX_DEPTH
 
 log = logging.getLogger(__name__)
 
 N_FACES = 6
-#: Sample keys quantise line coordinates on the lattice of this depth (15 bits each).
-LATTICE_DEPTH = 14
-#: The deepest cell: its test lines sit on the lattice two levels further down.
-MAX_DEPTH = LATTICE_DEPTH - 2
+#: The deepest cell (the settings' limit on ``depth_cap``).
+MAX_DEPTH = LINETREE_MAX_DEPTH
+#: Sample keys quantise line coordinates on the lattice of this depth (15 bits each): the
+#: deepest cell's test lines sit on it, two levels further down.
+LATTICE_DEPTH = MAX_DEPTH + 2
 #: Leaf state of a node that holds nothing (yet).
 EMPTY = -1
 #: Node state of a freed node (in a recycled block).

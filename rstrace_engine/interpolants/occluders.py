@@ -27,16 +27,12 @@ import math
 import numpy as np
 from numba import njit
 
+from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
 from .shafts import MAX_PLANES, mesh_candidates, to_object, tri_normal
 
 #: Seeds tried (triangles whose plane may hold the projection) before giving up.
 MAX_SEEDS = 48
-#: Relative slack of the plane tests and the area comparison.
-COVER_EPS = 1e-9
-#: Margins of the corner segment tests (barycentric, and segment parameter at both ends).
-COVER_BARY = 1e-9
-COVER_T = 1e-6
 
 
 @njit(cache=True, nogil=True)
@@ -72,7 +68,7 @@ def _area2(px, py, n):
 @njit(cache=True, nogil=True)
 def _hull(ux, uy, n, hx, hy):
     """Convex hull (counter-clockwise) of n points (monotone chain); returns its size."""
-    order = np.argsort(ux[:n] + 1e-12 * uy[:n])
+    order = np.argsort(ux[:n] + tol.HULL_ORDER_TIE * uy[:n])
     xs = ux[:n][order]
     ys = uy[:n][order]
     k = 0
@@ -96,9 +92,9 @@ def _hull(ux, uy, n, hx, hy):
 
 @njit(cache=True, nogil=True)
 def _segment_hits(qs, cand, nc, ox, oy, oz, dx, dy, dz, tmax):
-    """Does the segment o + t d, t in (COVER_T, tmax - COVER_T), cross a triangle of
-    ``cand`` strictly inside (a margin on the barycentrics: a crossing on an edge does not
-    count, which only makes the proof more conservative)?"""
+    """Does the segment o + t d, t in (COVER_T_MARGIN, tmax - COVER_T_MARGIN), cross a
+    triangle of ``cand`` strictly inside (a margin on the barycentrics: a crossing on an edge
+    does not count, which only makes the proof more conservative)?"""
     for q in range(nc):
         t = cand[q]
         v0x, v0y, v0z = qs.tv[t, 0], qs.tv[t, 1], qs.tv[t, 2]
@@ -113,16 +109,16 @@ def _segment_hits(qs, cand, nc, ox, oy, oz, dx, dy, dz, tmax):
         inv = 1.0 / det
         sx, sy, sz = ox - v0x, oy - v0y, oz - v0z
         u = (sx * px + sy * py + sz * pz) * inv
-        if not (COVER_BARY < u < 1.0 - COVER_BARY):
+        if not (tol.COVER_BARY_MARGIN < u < 1.0 - tol.COVER_BARY_MARGIN):
             continue
         qx = sy * e1z - sz * e1y
         qy = sz * e1x - sx * e1z
         qz = sx * e1y - sy * e1x
         v = (dx * qx + dy * qy + dz * qz) * inv
-        if not (COVER_BARY < v and u + v < 1.0 - COVER_BARY):
+        if not (tol.COVER_BARY_MARGIN < v and u + v < 1.0 - tol.COVER_BARY_MARGIN):
             continue
         tt = (e2x * qx + e2y * qy + e2z * qz) * inv
-        if COVER_T < tt < tmax - COVER_T:
+        if tol.COVER_T_MARGIN < tt < tmax - tol.COVER_T_MARGIN:
             return True
     return False
 
@@ -132,7 +128,11 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
     """Does instance ``b`` block light ``j`` for every point of the convex hull of world
     points ``pts[:npts]`` (the cell's surface: the vertices of its slab polygons, or the
     corners of its box)? ``pl``/``npl``/``bb``: the light shaft from there (world). See the
-    module doc."""
+    module doc.
+
+    One function on purpose: split into its parts (object space, the convex test, each seed
+    plane's projection and covered area), it measured 3-8% slower in numba (calls with many
+    array arguments, in a loop over up to MAX_SEEDS seeds)."""
     if b < 0:
         return False
     xf = qs.inst_xform[b]
@@ -210,10 +210,10 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
         ny /= ln
         nz /= ln
         d0 = nx * qs.tv[t, 0] + ny * qs.tv[t, 1] + nz * qs.tv[t, 2]
-        tolp = COVER_EPS * (scale + abs(d0)) + qs.slack
+        tolp = tol.COVER_PLANE_REL * (scale + abs(d0)) + qs.slack
         if sun:
             sl = nx * L[0] + ny * L[1] + nz * L[2]
-            if abs(sl) <= COVER_EPS:
+            if abs(sl) <= tol.COVER_PLANE_REL:
                 continue
         else:
             sl = nx * L[0] + ny * L[1] + nz * L[2] - d0
@@ -224,10 +224,7 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
         sx = np.empty(n)
         for c in range(n):
             sx[c] = nx * X[c, 0] + ny * X[c, 1] + nz * X[c, 2] - d0
-            if sun:
-                if not (sx[c] * sl < 0.0 and abs(sx[c]) > tolp):
-                    ok = False
-            elif not (sx[c] * sl < 0.0 and abs(sx[c]) > tolp):
+            if not (sx[c] * sl < 0.0 and abs(sx[c]) > tolp):
                 ok = False
         if not ok:
             continue
@@ -270,7 +267,7 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
             if lm == 0.0:
                 continue
             # same plane, same orientation (back-to-back faces would count twice)
-            if mx * nx + my * ny + mz * nz < lm * (1.0 - 1e3 * COVER_EPS):
+            if mx * nx + my * ny + mz * nz < lm * (1.0 - tol.COVER_AREA_REL):
                 continue
             off = 0.0
             for v in range(3):
@@ -305,6 +302,6 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
                 covered += _area2(ax, ay, m)
         # a partition of the hull sums to its area; more means overlapping triangles
         # (duplicated faces), which prove nothing
-        if area * (1.0 - 1e3 * COVER_EPS) <= covered <= area * (1.0 + 1e3 * COVER_EPS):
+        if area * (1.0 - tol.COVER_AREA_REL) <= covered <= area * (1.0 + tol.COVER_AREA_REL):
             return True
     return False

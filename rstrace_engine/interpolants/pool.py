@@ -2,11 +2,29 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 #: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids,
 #: serial, rebuilt and world flags)
 INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4 + 8 + 1 + 1
+
+
+class PoolArrays(NamedTuple):
+    """The pool's record arrays, as kernels take them (valid until the pool grows)."""
+
+    rad: np.ndarray  # (cap, 16, 3) float64 corner radiance
+    zlo: np.ndarray  # (cap,) float64 certified slab depths
+    zhi: np.ndarray  # (cap,) float64
+    cls: np.ndarray  # (cap,) int32
+    node: np.ndarray  # (cap,) int32 linetree leaf
+    stamp: np.ndarray  # (cap,) int64 LRU stamp
+    samples: np.ndarray  # (cap, 16) int32 corner sample ids
+    live: np.ndarray  # (cap,) bool
+    serial: np.ndarray  # (cap,) int64
+    rebuilt: np.ndarray  # (cap,) bool
+    world: np.ndarray  # (cap,) bool
 
 
 class InterpolantPool:
@@ -49,6 +67,10 @@ class InterpolantPool:
         self._free = np.concatenate([np.arange(cap - 1, old - 1, -1, dtype=np.int32),
                                      self._free])
         self.cap = cap
+
+    def arrays(self) -> PoolArrays:
+        """The record arrays (a view: valid until the pool grows)."""
+        return PoolArrays(*(getattr(self, name) for name in self._FIELDS))
 
     @property
     def n_live(self) -> int:

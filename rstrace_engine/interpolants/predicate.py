@@ -243,7 +243,7 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
     d1 = lj + (coord[3] + 1) * s * wj
     zm = 0.5 * (zmin + zmax) / L
     w = max((1 - zm) * (a1 - a0) + zm * (c1 - c0), (1 - zm) * (b1 - b0) + zm * (d1 - d0))
-    margin = 0.5 * (zmax - zmin) + SLAB_WIDTH_MARGIN * w + 1e-9 * L
+    margin = 0.5 * (zmax - zmin) + SLAB_WIDTH_MARGIN * w + tol.SLAB_DEPTH_PAD_REL * L
     zlo = max(zmin - margin, 0.0)
     zhi = min(zmax + margin, L)
     for v in range(8):

@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import tolerances as tol
 from .shafts import MAX_PLANES, hw_shaft
 from .tunnels import extend_infinite
 
@@ -61,8 +62,6 @@ SPLIT = 64
 MAX_DEPTH = 4
 #: A section meeting more children than this stays at the node.
 KEEP = 2
-#: Relative slack of the interval tests (rounding never hides an overlap).
-EPS = 1e-9
 _STACK = 4 * FANOUT * (MAX_DEPTH + 1)
 #: Dead tunnels tolerated beyond the live ones before a rebuild.
 COMPACT_SLACK = 4096
@@ -145,16 +144,16 @@ def _clip_t(tlo, thi, alpha, beta, gamma, upper):
 @njit(cache=True, nogil=True)
 def box5_meets(b, r):
     """Does the volume of the 5D box ``b`` (10,) meet the unit-coordinate box ``r`` (6,)?
-    Exact up to :data:`EPS` (the lateral bounds are affine in t)."""
-    tlo = max(b[8], r[4]) - EPS
-    thi = min(b[9], r[5]) + EPS
+    Exact up to ``tolerances.RST_SLACK`` (the lateral bounds are affine in t)."""
+    tlo = max(b[8], r[4]) - tol.RST_SLACK
+    thi = min(b[9], r[5]) + tol.RST_SLACK
     if tlo > thi:
         return False
     # lateral u: lower end a0 + (c0 - a0) t <= r1, upper end a1 + (c1 - a1) t >= r0
-    tlo, thi = _clip_t(tlo, thi, b[0], b[4] - b[0], r[1] + EPS, True)
-    tlo, thi = _clip_t(tlo, thi, b[1], b[5] - b[1], r[0] - EPS, False)
-    tlo, thi = _clip_t(tlo, thi, b[2], b[6] - b[2], r[3] + EPS, True)
-    tlo, thi = _clip_t(tlo, thi, b[3], b[7] - b[3], r[2] - EPS, False)
+    tlo, thi = _clip_t(tlo, thi, b[0], b[4] - b[0], r[1] + tol.RST_SLACK, True)
+    tlo, thi = _clip_t(tlo, thi, b[1], b[5] - b[1], r[0] - tol.RST_SLACK, False)
+    tlo, thi = _clip_t(tlo, thi, b[2], b[6] - b[2], r[3] + tol.RST_SLACK, True)
+    tlo, thi = _clip_t(tlo, thi, b[3], b[7] - b[3], r[2] - tol.RST_SLACK, False)
     return tlo <= thi
 
 
@@ -171,7 +170,7 @@ def node_box(depth, coord, out):
 @njit(cache=True, nogil=True)
 def boxes5_overlap(x, y):
     for m in range(5):
-        if x[2 * m] > y[2 * m + 1] + EPS or y[2 * m] > x[2 * m + 1] + EPS:
+        if x[2 * m] > y[2 * m + 1] + tol.RST_SLACK or y[2 * m] > x[2 * m + 1] + tol.RST_SLACK:
             return False
     return True
 
@@ -238,7 +237,7 @@ def section_box(dom, f, alo, ahi, blo, bhi, out):
                 hi_a = max(hi_a, a)
                 lo_c = min(lo_c, c)
                 hi_c = max(hi_c, c)
-            pad = EPS * (1.0 + abs(lo_a) + abs(hi_a) + abs(lo_c) + abs(hi_c))
+            pad = tol.RST_SLACK * (1.0 + abs(lo_a) + abs(hi_a) + abs(lo_c) + abs(hi_c))
             out[2 * lat] = max(out[2 * lat], lo_a - pad)
             out[2 * lat + 1] = min(out[2 * lat + 1], hi_a + pad)
             out[4 + 2 * lat] = max(out[4 + 2 * lat], lo_c - pad)

@@ -16,6 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .. import tolerances as tol
 from ..accel.accelerators import Hits
 from ..tracing.shading import (
     dot3,
@@ -327,8 +328,6 @@ def skip_tmin(o, d, t, ext, out):
 #: split did not reproduce the traced radiance.
 TEX_BELOW = 1
 TEX_MISMATCH = 2
-#: relative tolerance of the affine check ``|R + texel D - L|``
-TEX_SPLIT_REL = 1e-9
 
 
 @njit(cache=True, nogil=True)
@@ -399,7 +398,7 @@ def texture_split(sa, accel, o, d, hits: Hits, tree, rad, max_depth: int, trace)
     texel[idx] = tx
     err = np.abs(r0 + tx * (r1 - r0) - rad[idx]).max(axis=1)
     scale = np.abs(rad[idx]).max(axis=1) + np.abs(r1).max(axis=1)
-    flag[idx[~(err <= TEX_SPLIT_REL * scale + 1e-300)]] |= TEX_MISMATCH
+    flag[idx[~(err <= tol.TEX_SPLIT_REL * scale + 1e-300)]] |= TEX_MISMATCH
     return R, D, texel, flag
 
 

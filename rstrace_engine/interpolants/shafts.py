@@ -210,7 +210,7 @@ def to_object(xf, inv, pl, npl, bb, plo, bbo):
             bbo[k] = min(bbo[k], w)
             bbo[3 + k] = max(bbo[3 + k], w)
     # rounding of the transform: grow the box a little
-    pad = 1e-12 * (abs(bbo[0]) + abs(bbo[1]) + abs(bbo[2]) + abs(bbo[3]) + abs(bbo[4])
+    pad = tol.BOX_ROUND_REL * (abs(bbo[0]) + abs(bbo[1]) + abs(bbo[2]) + abs(bbo[3]) + abs(bbo[4])
                    + abs(bbo[5]) + (bbo[3] - bbo[0]) + (bbo[4] - bbo[1]) + (bbo[5] - bbo[2]))
     for k in range(3):
         bbo[k] -= pad
@@ -511,8 +511,8 @@ def cone_state(qs, j, lo, hi):
     else:
         tc = math.acos(min(1.0, max(-1.0, vd / dc)))
         al = math.asin(min(1.0, r / dc))
-        ca_max = math.cos(max(0.0, tc - al)) + 1e-12
-        ca_min = math.cos(min(math.pi, tc + al)) - 1e-12
+        ca_max = math.cos(max(0.0, tc - al)) + tol.CONE_COS_SLACK
+        ca_min = math.cos(min(math.pi, tc + al)) - tol.CONE_COS_SLACK
     if ca_max <= co:
         return CONE_OFF
     if ca_min > ci:

@@ -72,7 +72,7 @@ def slab_box(box, inst, face, depth, coord, zlo, zhi, slack, lo, hi):
             lo[m] = min(lo[m], P[m])
             hi[m] = max(hi[m], P[m])
     for m in range(3):
-        pad = slack + 1e-12 * (abs(lo[m]) + abs(hi[m]))
+        pad = slack + tol.BOX_ROUND_REL * (abs(lo[m]) + abs(hi[m]))
         lo[m] -= pad
         hi[m] += pad
 
@@ -130,7 +130,7 @@ def cell_tunnels(sm, box, aabb, light_kind, light_pos, light_dir, reach, slack, 
         nn = sm.node_count[s0]
         slab_box(box, inst[c], face[c], depth[c], coord[c], zlo[c], zhi[c], slack, rlo, rhi)
         for m in range(3):
-            pad = slack + 1e-12 * (abs(aabb[inst[c], 0, m]) + abs(aabb[inst[c], 1, m]))
+            pad = slack + tol.BOX_ROUND_REL * (abs(aabb[inst[c], 0, m]) + abs(aabb[inst[c], 1, m]))
             rlo[m] = max(rlo[m], aabb[inst[c], 0, m] - pad)
             rhi[m] = min(rhi[m], aabb[inst[c], 1, m] + pad)
         for q in range(nn):

@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from .. import tolerances as tol
-from ..accel.accelerators import create_accelerator
+from ..accel.accelerators import Hits, create_accelerator
 from ..frame import (
     CLASS_BACKGROUND,
     CLASS_FAIL_NONLINEAR,
@@ -45,14 +45,8 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
-from ..tracing.batches import accumulate, frame_batches, scatter_add
-from ..tracing.whitted import (
-    _SH_TRACE,
-    TILE_RAYS,
-    _shade_kernel,
-    _shadow_kernel,
-    _surface_kernel,
-)
+from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
+from ..tracing.whitted import Spawned, shade, shadow_rays, surfaces
 from . import thickness as thick
 from .cache import RITreeCache
 from .candidates import _QUERY, _TRACE, candidates, pick
@@ -60,7 +54,7 @@ from .eligibility import eligible, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 from .surfaces import interp_surface
-from .thickness import render_thickness_exact  # noqa: F401 - its home before
+from .thickness import render_thickness_exact  # noqa: F401 - re-exported (session, bench)
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +68,6 @@ SHADOW_QUERIES = False
 #: brings more queries to each leaf (the cost rule counts them) and the per-batch work of
 #: the queries is spread over more rays
 RI_TILE_RAYS = 4 * TILE_RAYS
-
-
-# ----------------------------------------------------------------------------- kernels
 
 
 # ----------------------------------------------------------------------------- renderer
@@ -449,7 +440,12 @@ class RITreeRenderer:
 
     def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters):
         """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
-        primary instance (n,))."""
+        primary instance (n,)).
+
+        Level by level, the base tracer's stages (:func:`~..tracing.whitted.surfaces`,
+        :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade`) on the
+        hits found through the trees (:meth:`_intersect`); every ray carries its own depth
+        (an exit ray skips the levels inside its object: :func:`_next_rays`)."""
         view = False
         n = len(o)
         L = len(sa.light_kind)
@@ -468,99 +464,35 @@ class RITreeRenderer:
             interp = np.flatnonzero(H["interp"] >= 0)
             if first:
                 prim_inst[:] = H["inst"]
-                st = H["status"]
-                cls = np.where(H["inst"] >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
-                cls[(st == ST_FAIL_CLASS) & (H["inst"] >= 0)] = CLASS_FAIL_SILHOUETTE
-                cls[(st == ST_FAIL_ANGLE) & (H["inst"] >= 0)] = CLASS_FAIL_NONLINEAR
-                cls[interp] = CLASS_INTERPOLATED
-                pclass[:] = cls
+                pclass[:] = _primary_class(H, interp)
                 counters["interpolated"] = counters.get("interpolated", 0) + len(interp)
                 first = False
-            P = np.empty((nb, 3))
-            NG = np.empty((nb, 3))
-            NS = np.empty((nb, 3))
-            VD = np.empty((nb, 3))
-            enter = np.empty(nb, np.bool_)
-            mat = np.empty(nb, np.int32)
-            Q = np.empty((nb, 3))
-            sh_state = np.empty(nb * L, np.int8)
-            # every ray through the base tracer's surface kernel (interpolated ones as
+            q = H["q"]
+            qi = H["interp"][interp]
+            # every ray through the base tracer's surface stage (interpolated ones as
             # misses: their arrays are written next, from the query results)
             s_inst = H["inst"]
             if len(interp):
                 s_inst = s_inst.copy()
                 s_inst[interp] = -1
-            _surface_kernel(sa, o, d, H["t"], t1, s_inst, H["prim"], H["u"], H["v"], P, NG,
-                            NS, VD, enter, mat, Q, sh_state)
-            q = H["q"]
-            qi = H["interp"][interp]
+            surf = surfaces(sa, o, d, t1, Hits(H["t"], s_inst, H["prim"], H["u"], H["v"]))
             if len(interp):
                 interp_surface(sa, interp.astype(np.int64), o, d, q.P[qi], q.NS[qi], q.NG[qi],
-                                q.mat[qi], P, NG, NS, VD, enter, mat,
-                                Q, sh_state)
+                               q.mat[qi], surf)
             # shadow rays (their origin's own object ignored near an interpolated point)
-            todo = np.flatnonzero(sh_state == _SH_TRACE)
+            todo, so, sd, stm = shadow_rays(sa, surf)
             vis = np.zeros(nb * L, np.bool_)
             if len(todo):
-                so = np.empty((len(todo), 3))
-                sd = np.empty((len(todo), 3))
-                stm = np.empty(len(todo))
-                _shadow_kernel(sa, Q, todo, so, sd, stm)
                 hit_self = np.full(nb, -1, np.int32)
                 hit_self[interp] = H["inst"][interp]
                 vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
-            contrib = np.empty((nb, 3))
-            c_o = np.empty((2 * nb, 3))
-            c_d = np.empty((2 * nb, 3))
-            c_w = np.empty((2 * nb, 3))
-            c_ok = np.empty(2 * nb, np.bool_)
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
-            _shade_kernel(sa, prim_safe, H["u"], H["v"], P, NG, NS, VD, enter, mat, vis, weight,
-                          True, contrib, c_o, c_d, c_w, c_ok)
+            contrib, kids = shade(sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]),
+                                  surf, vis, weight, True)
             scatter_add(radiance, src, contrib)
-            stop = level >= max_depth
-            c_ok[0::2] &= ~stop
-            c_ok[1::2] &= ~stop
-            child_level = np.repeat(level + 1, 2)
-            child_self = np.full(2 * nb, -1, np.int32)
-            if len(interp):
-                child_self[2 * interp] = H["inst"][interp]
-                # glass: the refracted ray becomes the interpolated exit ray
-                ni = q.nint[qi].astype(np.int64)
-                glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
-                tr = 2 * interp + 1
-                has_tr = np.flatnonzero(c_ok[tr] & _is_transmissive(sa, q.mat[qi]))
-                keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
-                drop = np.setdiff1d(has_tr, keep)
-                c_ok[tr[drop]] = False
-                kt = tr[keep]
-                qk = qi[keep]
-                w_in = c_w[kt].copy()  # the weight of the path past the entry
-                c_o[kt] = q.OP[qk]
-                c_d[kt] = q.OD[qk]
-                c_w[kt] *= q.gain[qk]
-                child_level[kt] = level[interp[keep]] + ni[keep] + 1
-                child_self[kt] = H["inst"][interp[keep]]
-                c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
-                # the internal reflection where the path refracts out: traced from there
-                # (from inside, so the object itself is traced), as the base tracer splits
-                rw = w_in * q.rgain[qk]
-                rsel = np.flatnonzero(rw.max(axis=1) > tol.PATH_WEIGHT_MIN)
-                x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
-                x_src = interp[keep[rsel]]
-                x_level = level[x_src] + ni[keep[rsel]] + 1
-            else:
-                x_o = x_d = x_w = np.empty((0, 3))
-                x_src = x_level = np.empty(0, np.int64)
-            kids = np.flatnonzero(c_ok)
-            which = kids // 2
-            o = np.concatenate([c_o[kids], x_o])
-            d = np.concatenate([c_d[kids], x_d])
-            weight = np.concatenate([c_w[kids], x_w])
-            src = np.concatenate([src[which], src[x_src]])
-            level = np.concatenate([child_level[kids], x_level])
-            self_inst = np.concatenate([child_self[kids], np.full(len(x_src), -1, np.int32)])
+            o, d, weight, src, level, self_inst = _next_rays(sa, kids, H["inst"], q, interp,
+                                                             qi, src, level, max_depth)
             t0 = np.zeros(len(o))
             t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst
@@ -704,6 +636,70 @@ class RITreeRenderer:
             hit_any[pos] = 0
         counters["rays"] = counters.get("rays", 0) + n
         return length, cls, hit_any
+
+
+def _primary_class(H: dict, interp: np.ndarray) -> np.ndarray:
+    """Pixel classes of a tile's primary rays from their hits ``H`` (:meth:`_intersect`)
+    and the rows ``interp`` that were interpolated."""
+    st = H["status"]
+    hit = H["inst"] >= 0
+    cls = np.where(hit, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+    cls[(st == ST_FAIL_CLASS) & hit] = CLASS_FAIL_SILHOUETTE
+    cls[(st == ST_FAIL_ANGLE) & hit] = CLASS_FAIL_NONLINEAR
+    cls[interp] = CLASS_INTERPOLATED
+    return cls
+
+
+def _next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth):
+    """The next level's rays from a level's spawned rays ``kids``.
+
+    Rays past ``max_depth`` are dropped (``level`` (nb,): each ray's depth). Rays leaving an
+    interpolated hit (rows ``interp``, query rows ``qi`` of ``q``, on instances ``inst``)
+    ignore their own object near the hit; at an interpolated glass hit the refracted ray
+    becomes the interpolated exit ray, ``nint`` levels further down, and the internal
+    reflection where the path refracts out is traced from there. Returns ``(o, d, weight,
+    src, level, self_inst)``."""
+    c_o, c_d, c_w, c_ok = kids
+    stop = level >= max_depth
+    c_ok[0::2] &= ~stop
+    c_ok[1::2] &= ~stop
+    child_level = np.repeat(level + 1, 2)
+    child_self = np.full(len(c_ok), -1, np.int32)
+    if len(interp):
+        child_self[2 * interp] = inst[interp]
+        # glass: the refracted ray becomes the interpolated exit ray
+        ni = q.nint[qi].astype(np.int64)
+        glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
+        tr = 2 * interp + 1
+        has_tr = np.flatnonzero(c_ok[tr] & _is_transmissive(sa, q.mat[qi]))
+        keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
+        drop = np.setdiff1d(has_tr, keep)
+        c_ok[tr[drop]] = False
+        kt = tr[keep]
+        qk = qi[keep]
+        w_in = c_w[kt].copy()  # the weight of the path past the entry
+        c_o[kt] = q.OP[qk]
+        c_d[kt] = q.OD[qk]
+        c_w[kt] *= q.gain[qk]
+        child_level[kt] = level[interp[keep]] + ni[keep] + 1
+        child_self[kt] = inst[interp[keep]]
+        c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
+        # the internal reflection where the path refracts out: traced from there (from
+        # inside, so the object itself is traced), as the base tracer splits
+        rw = w_in * q.rgain[qk]
+        rsel = np.flatnonzero(rw.max(axis=1) > tol.PATH_WEIGHT_MIN)
+        x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
+        x_src = interp[keep[rsel]]
+        x_level = level[x_src] + ni[keep[rsel]] + 1
+    else:
+        x_o = x_d = x_w = np.empty((0, 3))
+        x_src = x_level = np.empty(0, np.int64)
+    slots = np.flatnonzero(c_ok)
+    which = slots // 2
+    return (np.concatenate([c_o[slots], x_o]), np.concatenate([c_d[slots], x_d]),
+            np.concatenate([c_w[slots], x_w]), np.concatenate([src[which], src[x_src]]),
+            np.concatenate([child_level[slots], x_level]),
+            np.concatenate([child_self[slots], np.full(len(x_src), -1, np.int32)]))
 
 
 def _is_transmissive(sa, mats) -> np.ndarray:

@@ -5,16 +5,19 @@ from __future__ import annotations
 
 from numba import njit, prange
 
+from .. import tolerances as tol
 from ..tracing.shading import dot3, normalize3, spawn_offset
 from ..tracing.whitted import light_states
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def interp_surface(sa, rows, o, d, P, NS, NG, mat,
-                    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state):
-    """Surface arrays (as the base tracer's surface kernel makes them) of interpolated hits
-    ``rows`` (into the level's arrays); shadow origins are moved off the surface by the
-    normal spawn offset (the self-offset is applied by the shadow test)."""
+def interp_surface(sa, rows, o, d, P, NS, NG, mat, surf):
+    """The rows ``rows`` of ``surf`` (the level's :class:`~..tracing.whitted.Surfaces`, as
+    the base tracer's surface stage makes them) for interpolated hits: points ``P``,
+    shading and geometric normals ``NS``, ``NG`` and materials ``mat``, one row per
+    interpolated hit. Shadow origins are moved off the surface by the normal spawn offset
+    (the self-offset is applied by the shadow test)."""
+    Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state = surf
     ext = sa.scene_extent
     for q in prange(rows.shape[0]):
         i = rows[q]
@@ -29,7 +32,7 @@ def interp_surface(sa, rows, o, d, P, NS, NG, mat,
             sx, sy, sz = -sx, -sy, -sz
         if dot3(ux, uy, uz, sx, sy, sz) > 0.0:
             # an interpolated normal may lean past the view ray: bend it back to the view
-            a = dot3(ux, uy, uz, sx, sy, sz) + 1e-6
+            a = dot3(ux, uy, uz, sx, sy, sz) + tol.INTERP_NORMAL_BEND
             sx, sy, sz, _ = normalize3(sx - a * ux, sy - a * uy, sz - a * uz)
         ENTER[i] = enter
         Pw[i, 0], Pw[i, 1], Pw[i, 2] = px, py, pz

@@ -45,10 +45,24 @@ def threads_for(n_rays: int):
         numba.set_num_threads(old)
 
 
+def row_tiles(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
+              border: tuple | None = None):
+    """The pixels of a ``w`` x ``h`` frame, or of its ``border`` region (x, y, width,
+    height), in tiles of ``rows_per_tile`` rows with their jitter: ``(pix (k,) int64
+    row-major, jitter (spp, k, 2), end row)``. A tile's jitter is drawn from ``seed`` and
+    its first row (one sample, ``spp = 1``: the pixel centres)."""
+    x0, y0, bw, bh = border if border is not None else (0, 0, w, h)
+    for ya in range(y0, y0 + bh, rows_per_tile):
+        yb = min(y0 + bh, ya + rows_per_tile)
+        rows = np.arange(ya, yb, dtype=np.int64)[:, None] * w
+        pix = (rows + np.arange(x0, x0 + bw, dtype=np.int64)[None, :]).reshape(-1)
+        yield pix, pixel_jitter(len(pix), spp, seed=seed * 1000003 + ya), yb
+
+
 def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
                   pixels: np.ndarray | None):
     """The pixels of a frame in batches, with their jitter: ``(pix (k,) int64, jitter
-    (spp, k, 2), last row done)``. A full frame goes tile by tile (``rows_per_tile`` rows);
+    (spp, k, 2), last row done)``. A full frame goes tile by tile (:func:`row_tiles`);
     an incremental one (``pixels`` (h * w,) bool) gathers the selected pixels of all tiles
     into batches of about a tile's size. Jitter is always drawn per tile as in a full frame,
     so a pixel's samples are the same either way."""
@@ -56,10 +70,7 @@ def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
     pend_pix: list = []
     pend_jit: list = []
     n_pend = 0
-    for y0 in range(0, h, rows_per_tile):
-        y1 = min(h, y0 + rows_per_tile)
-        pix = np.arange(y0 * w, y1 * w, dtype=np.int64)
-        jitter = pixel_jitter(len(pix), spp, seed=seed * 1000003 + y0)
+    for pix, jitter, y1 in row_tiles(w, h, spp, seed, rows_per_tile):
         if pixels is None:
             yield pix, jitter, y1
             continue

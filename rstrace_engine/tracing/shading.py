@@ -140,7 +140,7 @@ def ggx_albedo(cos_o, alpha, eta_s):
     ``ALBEDO_SAMPLES_*``): the estimator ``G2 (wo . h) / (cos_h cos_o)`` is smooth, so few
     samples do.
     """
-    co = min(max(cos_o, 1e-4), 1.0)
+    co = min(max(cos_o, tol.GGX_COS_MIN), 1.0)
     a2 = alpha * alpha
     so = math.sqrt(max(0.0, 1.0 - co * co))
     lo = ggx_lambda(co, a2)
@@ -210,7 +210,7 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     if lobe <= 0.0:
         return r, g, bl
     fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
-    e = max(e_white, 1e-3)
+    e = max(e_white, tol.GGX_ALBEDO_MIN)
     k = (1.0 - e) / e
     f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
     return (r + lobe * fr * (1.0 + f0r * k), g + lobe * fg * (1.0 + f0g * k),
@@ -395,7 +395,8 @@ def texture_lookup(tex_data, tex_start, tex_size, tex, u, v):
 def spawn_offset(px, py, pz, scene_extent):
     """Self-intersection offset at point ``p``: scales with the coordinate magnitude.
 
-    ``SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * 1e-3)`` (see :mod:`.tolerances`).
+    ``SPAWN_OFFSET_REL * max(|p|_inf, scene_extent * SPAWN_OFFSET_EXTENT_FRAC)`` (see
+    :mod:`.tolerances`).
     """
     m = max(abs(px), abs(py), abs(pz), scene_extent * tol.SPAWN_OFFSET_EXTENT_FRAC)
     return tol.SPAWN_OFFSET_REL * m

@@ -27,7 +27,9 @@ kernel (direct light, reflection/refraction rays into preallocated slots), compa
 spawned rays and goes on with them. Each spawned ray carries the index of the input ray it
 contributes to and its path weight; it is not spawned when that weight is below
 ``tolerances.PATH_WEIGHT_MIN``. ``max_depth`` counts reflection/refraction bounces (0: primary
-rays and direct light only).
+rays and direct light only). The three stages are public (:func:`surfaces`,
+:func:`shadow_rays`, :func:`shade`) for the RI-tree renderer, whose levels find their hits
+and shadow visibility otherwise but are shaded alike.
 
 With ``record=True`` the ray tree of every input ray is returned as a :class:`RayTree`; its
 shadow rays then use ``closest_hit`` so that each occluder's instance id is known.
@@ -95,6 +97,30 @@ class RayTree(NamedTuple):
     node_occluder: np.ndarray  # (Nn, L) int32
 
 
+class Surfaces(NamedTuple):
+    """Surface points of a batch of ``n`` rays (:func:`surfaces`), normals turned toward
+    the incoming ray."""
+
+    P: np.ndarray  # (n, 3) float64 hit point; on a miss a point far beyond the scene
+    NG: np.ndarray  # (n, 3) float64 geometric normal
+    NS: np.ndarray  # (n, 3) float64 shading normal
+    VD: np.ndarray  # (n, 3) float64 unit ray direction
+    enter: np.ndarray  # (n,) bool: the ray enters the surface's inside
+    mat: np.ndarray  # (n,) int32 material, -1 on a miss
+    Q: np.ndarray  # (n, 3) float64 shadow-ray origin (P moved off the surface, lit side)
+    sh_state: np.ndarray  # (n L,) int8 at row i * L + j: _SH_TRACE or OCC_NOT_FACING
+
+
+class Spawned(NamedTuple):
+    """Reflection (slot ``2 i``) and refraction (slot ``2 i + 1``) rays of ``n`` surface
+    points (:func:`shade`); a slot holds a ray where ``ok``."""
+
+    o: np.ndarray  # (2n, 3) float64 origin
+    d: np.ndarray  # (2n, 3) float64 direction
+    w: np.ndarray  # (2n, 3) float64 path weight
+    ok: np.ndarray  # (2n,) bool
+
+
 # ----------------------------------------------------------------------------- kernels
 
 
@@ -145,18 +171,16 @@ def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _surface_kernel(sa, o, d, t, tmax, inst, prim, bu, bv,
-                    P, NG, NS, VD, ENTER, MAT, Q, sh_state):
+def _surface_kernel(sa, o, d, tmax, hits, surf):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
 
-    Inputs: o, d (n, 3) float64; t, tmax, bu, bv (n,) float64; inst, prim (n,) int32.
-    Outputs: P, NG, NS, VD (n, 3) float64 hit point, geometric and shading normal turned
-    toward the incoming ray, unit ray direction; ENTER (n,) bool (the ray enters the
-    surface's inside); MAT (n,) int32 material or -1 on a miss (then P is a point far
-    beyond the scene); Q (n, 3) float64 the shadow-ray origin (P moved off the surface on
-    the lit side). sh_state (n L,) int8 at row ``i * L + j``: 1 trace a shadow ray from
-    point i to light j (:func:`_shadow_kernel` makes it), -2 light not facing / outside cone.
+    Inputs: o, d (n, 3) float64; tmax (n,) float64; hits : :class:`Hits` of the rays.
+    Output: surf, a :class:`Surfaces`. Its sh_state at row ``i * L + j``: 1 trace a shadow
+    ray from point i to light j (:func:`_shadow_kernel` makes it), -2 light not facing /
+    outside cone.
     """
+    t, inst, prim, bu, bv = hits.t, hits.inst, hits.prim, hits.u, hits.v
+    P, NG, NS, VD, ENTER, MAT, Q, sh_state = surf
     n = o.shape[0]
     L = sa.light_kind.shape[0]
     ext = sa.scene_extent
@@ -247,18 +271,23 @@ def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spawn,
-                  contrib, c_o, c_d, c_w, c_ok):
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, contrib, out):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
-    prim (n,) int32, bu, bv (n,) float64: the hits (for texture coordinates); the surface
-    arrays come from :func:`_surface_kernel`. vis : (n L,) bool light j visible from point
-    i (row ``i * L + j``); weight : (n, 3) float64 path weights; spawn : whether
+    One loop body on purpose: the material's twenty-odd values are read once per point and
+    used by both the light loop and the spawned rays (split into functions, they would be
+    passed on in long argument lists or read twice).
+
+    hits : the :class:`Hits` (prim, u, v for texture coordinates); surf : the
+    :class:`Surfaces` of :func:`_surface_kernel`. vis : (n L,) bool light j visible from
+    point i (row ``i * L + j``); weight : (n, 3) float64 path weights; spawn : whether
     reflection/refraction rays may be spawned.
-    Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; spawned rays
-    in slots ``2 i`` (reflection) and ``2 i + 1`` (refraction): c_o, c_d, c_w (2n, 3),
-    c_ok (2n,) bool.
+    Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; out, the
+    :class:`Spawned` rays.
     """
+    prim, bu, bv = hits.prim, hits.u, hits.v
+    P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
+    c_o, c_d, c_w, c_ok = out
     n = P.shape[0]
     L = sa.light_kind.shape[0]
     ext = sa.scene_extent
@@ -408,7 +437,7 @@ def _shade_kernel(sa, prim, bu, bv, P, NG, NS, VD, ENTER, MAT, vis, weight, spaw
             c_w[k, 2] = cb
 
 
-# ----------------------------------------------------------------------------- driver
+# ----------------------------------------------------------------------------- stages
 
 
 def _as_hits(h: Hits) -> Hits:
@@ -417,9 +446,113 @@ def _as_hits(h: Hits) -> Hits:
                 np.ascontiguousarray(h.v, np.float64))
 
 
+def surfaces(sa: SceneArrays, o: np.ndarray, d: np.ndarray, tmax: np.ndarray,
+             hits: Hits) -> Surfaces:
+    """The surface points of ``n`` rays ``o, d`` (n, 3) float64 with bounds ``tmax`` (n,)
+    and their ``hits``: :class:`Surfaces` (the shadow-ray states of every light
+    included)."""
+    n = len(o)
+    surf = Surfaces(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+                    np.empty(n, np.bool_), np.empty(n, np.int32), np.empty((n, 3)),
+                    np.empty(n * len(sa.light_kind), np.int8))
+    _surface_kernel(sa, o, d, tmax, _as_hits(hits), surf)
+    return surf
+
+
+def shadow_rays(sa: SceneArrays, surf: Surfaces):
+    """The shadow rays of ``surf``: ``(todo (k,) int64, origins (k, 3), directions (k, 3),
+    tmax (k,))``, ``todo`` their (point, light) rows ``i * L + j``."""
+    todo = np.flatnonzero(surf.sh_state == _SH_TRACE)
+    k = len(todo)
+    so, sd, st = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    if k:
+        _shadow_kernel(sa, surf.Q, todo, so, sd, st)
+    return todo, so, sd, st
+
+
+def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: np.ndarray,
+          spawn: bool):
+    """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i) times
+    the path ``weight`` (n, 3), and the reflection and refraction rays when ``spawn``:
+    ``(contrib (n, 3) float64, Spawned)``."""
+    n = len(surf.P)
+    contrib = np.empty((n, 3))
+    out = Spawned(np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3)),
+                  np.empty(2 * n, np.bool_))
+    _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn, contrib, out)
+    return contrib, out
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+class _Front(NamedTuple):
+    """The rays of one depth level and where they come from."""
+
+    o: np.ndarray  # (nb, 3) float64
+    d: np.ndarray  # (nb, 3) float64
+    t0: np.ndarray  # (nb,) float64
+    t1: np.ndarray  # (nb,) float64
+    src: np.ndarray  # (nb,) int32 input ray
+    weight: np.ndarray  # (nb, 3) float64 path weight
+    parent: np.ndarray  # (nb,) int32 parent node row (-1: roots)
+    path: np.ndarray  # (nb,) int64 root 1, reflect child 2p, refract child 2p + 1
+
+
 def _count(counters: dict | None, key: str, n: int) -> None:
     if counters is not None:
         counters[key] = counters.get(key, 0) + int(n)
+
+
+def _input_front(origins, directions, tmin, tmax, primary: Hits | None) -> _Front:
+    o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    n = o.shape[0]
+    if d.shape != o.shape:
+        raise ValueError(f"trace: origins {o.shape} and directions {d.shape} differ")
+    t0 = per_ray(tmin, n, np.float64)  # writeable: one numba type for every caller
+    t1 = per_ray(tmax, n, np.float64)
+    if primary is not None and len(primary.t) != n:
+        raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
+    return _Front(o, d, t0, t1, np.arange(n, dtype=np.int32), np.ones((n, 3)),
+                  np.full(n, -1, np.int32), np.ones(n, np.int64))
+
+
+def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None) -> _Front:
+    """The spawned rays, compacted; ``rows``: the level's node rows (None: no ray trees
+    kept, parents and paths are not followed)."""
+    k = np.flatnonzero(kids.ok)
+    which = k // 2
+    parent, path = front.parent, front.path
+    if rows is not None:
+        parent = rows[which]
+        path = path[which] * 2 + (k & 1)
+    return _Front(kids.o[k], kids.d[k], np.zeros(len(k)), np.full(len(k), np.inf),
+                  front.src[which], kids.w[k], parent, path)
+
+
+def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
+    """Light visibility of the level's points, ``(vis (nb L,) bool, occ (nb L,) int32 or
+    None, traced)``: ``occ`` (with ``occluders``, closest-hit shadow rays) names each
+    light's occluder (``OCC_NONE``, ``OCC_NOT_FACING``); ``traced``: shadow rays were
+    traced."""
+    todo, so, sd, st = shadow_rays(sa, surf)
+    vis = np.zeros(len(surf.sh_state), np.bool_)
+    occ_inst = None
+    if len(todo):
+        zero = np.zeros(len(todo))
+        if occluders:
+            occ_inst = accel.closest_hit(so, sd, zero, st).inst
+            vis[todo] = occ_inst < 0
+        else:
+            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st), np.bool_)
+        _count(counters, "shadow", len(todo))
+    occ = None
+    if occluders:
+        occ = np.full(len(vis), OCC_NOT_FACING, np.int32)
+        if len(todo):
+            occ[todo] = np.where(occ_inst < 0, OCC_NONE, occ_inst).astype(np.int32)
+    return vis, occ, len(todo) > 0
 
 
 @njit(cache=True, nogil=True)
@@ -437,6 +570,41 @@ def _light_masks(sh_state, vis, L, traced, lit):
                 b |= bit
         traced[i] = a
         lit[i] = b
+
+
+def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int) -> dict:
+    """The level's compact ray-tree nodes for the pixel records (see :func:`trace`)."""
+    nb = len(front.src)
+    traced = np.empty(nb, np.uint64)
+    lit = np.empty(nb, np.uint64)
+    _light_masks(surf.sh_state, vis, L, traced, lit)
+    return dict(ray=front.src, parent=front.parent, inst=hits.inst, point=surf.P,
+                dir=surf.VD, traced=traced, lit=lit)
+
+
+def _tree_level(front: _Front, hits: Hits, surf: Surfaces, vis, occ, L: int) -> dict:
+    nb = len(front.src)
+    bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
+    mask = (vis.reshape(nb, L).astype(np.uint64) * bits).sum(axis=1, dtype=np.uint64)
+    return dict(ray=front.src, parent=front.parent, path=front.path, inst=hits.inst,
+                tri=hits.prim, origin=front.o, point=surf.P, mask=mask,
+                occ=occ.reshape(nb, L))
+
+
+def _ray_tree(levels: list[dict], L: int) -> RayTree:
+    cat = np.concatenate
+    total = sum(len(lv["ray"]) for lv in levels)
+    return RayTree(
+        node_ray=cat([lv["ray"] for lv in levels]).astype(np.int32),
+        node_parent=cat([lv["parent"] for lv in levels]).astype(np.int32),
+        node_path=cat([lv["path"] for lv in levels]).astype(np.int64),
+        node_inst=cat([lv["inst"] for lv in levels]).astype(np.int32),
+        node_tri=cat([lv["tri"] for lv in levels]).astype(np.int32),
+        node_origin=cat([lv["origin"] for lv in levels]).reshape(total, 3),
+        node_point=cat([lv["point"] for lv in levels]).reshape(total, 3),
+        node_light_mask=cat([lv["mask"] for lv in levels]).astype(np.uint64),
+        node_occluder=cat([lv["occ"] for lv in levels]).reshape(total, L).astype(np.int32),
+    )
 
 
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
@@ -464,121 +632,57 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
-    o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-    n = o.shape[0]
-    if d.shape != o.shape:
-        raise ValueError(f"trace: origins {o.shape} and directions {d.shape} differ")
-    t0 = per_ray(tmin, n, np.float64)  # writeable: one numba type for every caller
-    t1 = per_ray(tmax, n, np.float64)
-    if primary is not None and len(primary.t) != n:
-        raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
+    front = _input_front(origins, directions, tmin, tmax, primary)
     max_depth = int(max_depth)
     if max_depth < 0:
         raise ValueError(f"trace: max_depth {max_depth} < 0")
     L = len(sa.light_kind)
-    radiance = np.zeros((n, 3))
-    src = np.arange(n, dtype=np.int32)
-    weight = np.ones((n, 3))
-    parent = np.full(n, -1, np.int32)
-    path = np.ones(n, np.int64)
+    radiance = np.zeros((len(front.src), 3))
+    nodes = record or segments is not None  # ray-tree node rows are followed
     levels: list[dict] = []
     n_nodes = 0
     for level in range(max_depth + 1):
-        nb = len(src)
+        nb = len(front.src)
         if nb == 0 or cancelled(cancel):
             break
         if level == 0 and primary is not None:
             hits = _as_hits(primary)
         else:
-            hits = _as_hits(accel.closest_hit(o, d, t0, t1))
+            hits = _as_hits(accel.closest_hit(front.o, front.d, front.t0, front.t1))
         _count(counters, "primary" if level == 0 else "secondary", nb)
-        P = np.empty((nb, 3))
-        NG = np.empty((nb, 3))
-        NS = np.empty((nb, 3))
-        VD = np.empty((nb, 3))
-        enter = np.empty(nb, np.bool_)
-        mat = np.empty(nb, np.int32)
-        Q = np.empty((nb, 3))
-        sh_state = np.empty(nb * L, np.int8)
-        _surface_kernel(sa, o, d, hits.t, t1, hits.inst, hits.prim, hits.u, hits.v,
-                        P, NG, NS, VD, enter, mat, Q, sh_state)
-        todo = np.flatnonzero(sh_state == _SH_TRACE)
-        vis = np.zeros(nb * L, np.bool_)
-        occ = None
-        if len(todo):
-            so = np.empty((len(todo), 3))
-            sd = np.empty((len(todo), 3))
-            st = np.empty(len(todo))
-            _shadow_kernel(sa, Q, todo, so, sd, st)
-            zero = np.zeros(len(todo))
-            if record:
-                occ_inst = accel.closest_hit(so, sd, zero, st).inst
-                vis[todo] = occ_inst < 0
-            else:
-                vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st), np.bool_)
-            _count(counters, "shadow", len(todo))
-            if cancelled(cancel):
-                break
-        if record:
-            occ = np.full(nb * L, OCC_NOT_FACING, np.int32)
-            if len(todo):
-                occ[todo] = np.where(occ_inst < 0, OCC_NONE, occ_inst).astype(np.int32)
+        surf = surfaces(sa, front.o, front.d, front.t1, hits)
+        vis, occ, traced = _visibility(sa, accel, surf, record, counters)
+        if traced and cancelled(cancel):
+            break
         spawn = level < max_depth
-        contrib = np.empty((nb, 3))
-        c_o = np.empty((2 * nb, 3))
-        c_d = np.empty((2 * nb, 3))
-        c_w = np.empty((2 * nb, 3))
-        c_ok = np.empty(2 * nb, np.bool_)
-        _shade_kernel(sa, hits.prim, hits.u, hits.v, P, NG, NS, VD, enter, mat, vis, weight,
-                      spawn, contrib, c_o, c_d, c_w, c_ok)
-        scatter_add(radiance, src, contrib)
+        contrib, kids = shade(sa, hits, surf, vis, front.weight, spawn)
+        scatter_add(radiance, front.src, contrib)
         if segments is not None:
-            traced = np.empty(nb, np.uint64)
-            lit = np.empty(nb, np.uint64)
-            _light_masks(sh_state, vis, L, traced, lit)
-            segments.append(dict(ray=src, parent=parent, inst=hits.inst, point=P, dir=VD,
-                                 traced=traced, lit=lit))
-        if record or segments is not None:
-            rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32)
+            segments.append(_segments(front, hits, surf, vis, L))
         if record:
-            bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
-            mask = (vis.reshape(nb, L).astype(np.uint64) * bits).sum(axis=1, dtype=np.uint64)
-            levels.append(dict(ray=src, parent=parent, path=path, inst=hits.inst,
-                               tri=hits.prim, origin=o, point=P, mask=mask,
-                               occ=occ.reshape(nb, L)))
-        elif segments is None:
-            rows = None
+            levels.append(_tree_level(front, hits, surf, vis, occ, L))
         if not spawn:
             break
-        kids = np.flatnonzero(c_ok)
-        which = kids // 2
-        o = c_o[kids]
-        d = c_d[kids]
-        weight = c_w[kids]
-        src = src[which]
-        t0 = np.zeros(len(kids))
-        t1 = np.full(len(kids), np.inf)
-        if record or segments is not None:
-            parent = rows[which]
-            path = path[which] * 2 + (kids & 1)
+        rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32) if nodes else None
+        front = _next_front(front, kids, rows)
         n_nodes += nb
-    tree = None
-    if record:
-        cat = np.concatenate
-        total = sum(len(lv["ray"]) for lv in levels)
-        tree = RayTree(
-            node_ray=cat([lv["ray"] for lv in levels]).astype(np.int32),
-            node_parent=cat([lv["parent"] for lv in levels]).astype(np.int32),
-            node_path=cat([lv["path"] for lv in levels]).astype(np.int64),
-            node_inst=cat([lv["inst"] for lv in levels]).astype(np.int32),
-            node_tri=cat([lv["tri"] for lv in levels]).astype(np.int32),
-            node_origin=cat([lv["origin"] for lv in levels]).reshape(total, 3),
-            node_point=cat([lv["point"] for lv in levels]).reshape(total, 3),
-            node_light_mask=cat([lv["mask"] for lv in levels]).astype(np.uint64),
-            node_occluder=cat([lv["occ"] for lv in levels]).reshape(total, L).astype(np.int32),
-        )
-    return radiance, tree
+    return radiance, (_ray_tree(levels, L) if record else None)
+
+
+def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,
+                 max_depth: int, cancel=None, counters: dict | None = None,
+                 segments: list | None = None):
+    """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
+    (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
+    frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
+    (:func:`trace` for ``counters``, ``segments`` and ``cancel``). Returns ``(radiance
+    (k, 3) float64, primary instance (k,) int32)``."""
+    with threads_for(len(pixels)), bound(accel, cancel):
+        o, d, tmin, tmax = camera_rays(cp, pixels, jitter)
+        hits = accel.closest_hit(o, d, tmin, tmax)
+        rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
+                       counters=counters, segments=segments, cancel=cancel)
+    return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
 def render(scene: Scene, settings: RenderSettings | None = None, accel=None, progress=None,
@@ -643,12 +747,9 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         if npx == 0:
             rows_done = y1
             continue
-        with threads_for(npx * spp), bound(accel, cancel):
-            o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
-            hits = accel.closest_hit(o, dr, tmin, tmax)
-            segs = [] if records is not None else None
-            rad, _ = trace(sa, accel, o, dr, tmin, tmax, depth, primary=hits,
-                           counters=counters, segments=segs, cancel=cancel)
+        segs = [] if records is not None else None
+        rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
+                                 depth, cancel, counters, segs)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break
@@ -660,8 +761,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
                 records.add(gids, segs)
             out = np.empty((npx, 3), np.float32)
             pc = np.empty(npx, np.uint8)
-            bad_total += accumulate(rad, np.ascontiguousarray(hits.inst, np.int32), spp, out,
-                                     pc)
+            bad_total += accumulate(rad, inst, spp, out, pc)
         image[pix] = out
         pclass[pix] = pc
         rows_done = y1

@@ -5,7 +5,7 @@ or more on two cores. :func:`start_warmup` starts that work on a background thre
 as the add-on is enabled with RSTrace as a scene's engine, the engine is selected, or a
 viewport starts: it renders a tiny built-in scene in the chosen mode only (BASE touches the
 tracer's kernels; INTERPOLANT adds the interpolant kernels) through
-``runtime.warm_cache`` (``rstrace_engine.warm_cache.warm``, the same warm-up as the
+``runtime.warm_cache`` (``rstrace_engine.warm_kernels.warm``, the same warm-up as the
 ``rstrace.warm_cache`` operator and ``python -m rstrace_engine warm-cache``, restricted to
 that mode and the BVH), so the kernels are compiled (or loaded) once and a real render
 afterwards only runs them. The kernels of the viewport's first (coarse) image come first
@@ -45,7 +45,7 @@ _BASE = ("accel.bvh.build_flat", "accel.bvh.collapse4", "accel.bvh.trace_kernel"
          "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
          "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
-                "interpolants.walk.group_active", "interpolants.cache._pixel_lines",
+                "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",
                 "interpolants.linetree._assign_roots", "interpolants.linetree._collapse_pass",
                 "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
@@ -100,7 +100,7 @@ def progress_text() -> str | None:
 def _warm(mode: str) -> None:
     """Compile (or load) every kernel ``mode`` uses, the viewport's first image's first
     (``rstrace_engine.warm_first.warm_viewport``: the traversal kernel in a helper process
-    meanwhile; then ``rstrace_engine.warm_cache.warm`` for that mode and the BVH, the
+    meanwhile; then ``rstrace_engine.warm_kernels.warm`` for that mode and the BVH, the
     farm's warm-up restricted to one mode, a step at a time under the render lock)."""
     stop = lambda: _state["stop"]  # noqa: E731
     if stop():

@@ -99,14 +99,14 @@ def warm_cache(progress=None, **options) -> dict:
 
     The "warm the cache once" step of a render farm (``docs/FARM.md``), also the
     ``rstrace.warm_cache`` operator: afterwards no Blender process using the same cache
-    compiles a kernel. Returns ``rstrace_engine.warm_cache.warm``'s counts (``compiled``,
+    compiles a kernel. Returns ``rstrace_engine.warm_kernels.warm``'s counts (``compiled``,
     ``loaded``, ``seconds``, ``unreached``) plus ``cache_dir``. Holds :data:`RENDER_LOCK`.
     ``options`` go to ``warm`` (``modes``, ``accelerators``, ``cancel``: the background
     warm-up of ``kernels`` warms one mode this way).
     """
     if not _state["configured"]:
         raise RuntimeError("runtime.configure() must run before kernels are compiled")
-    from rstrace_engine import warm_cache as warm
+    from rstrace_engine import warm_kernels as warm
 
     with RENDER_LOCK:
         result = warm.warm(progress=progress, **options)

@@ -14,7 +14,7 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    interpolated frames); ``ri_tree``: the RI-tree mode (on the linetrees' face pairs);
    ``interactive``: the viewport's progressive tracing.
 6. ``session``: the persistent render session a host (the Blender add-on) holds per scene.
-7. ``scenes`` (benchmark scenes), ``warm_cache`` (compile every kernel, render nothing),
+7. ``scenes`` (benchmark scenes), ``warm_kernels`` (compile every kernel, render nothing),
    ``warm_first`` (the viewport's first image's kernels first, in two processes),
    ``bench``, ``__main__``: tools on top.
 

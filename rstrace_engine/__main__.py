@@ -5,7 +5,7 @@ Renders a built-in scene (:mod:`rstrace_engine.scenes`) with the base tracer (or
 statistics next to it (``x.json``).
 
 ``python -m rstrace_engine warm-cache [--json]`` compiles every render kernel into numba's
-cache (``NUMBA_CACHE_DIR`` if set) without rendering anything (:mod:`.warm_cache`).
+cache (``NUMBA_CACHE_DIR`` if set) without rendering anything (:mod:`.warm_kernels`).
 """
 
 from __future__ import annotations
@@ -69,9 +69,9 @@ def render_command(args) -> int:
 def warm_cache_command(args) -> int:
     import numba
 
-    from . import warm_cache
+    from . import warm_kernels
 
-    result = warm_cache.warm(progress=None if args.json else print)
+    result = warm_kernels.warm(progress=None if args.json else print)
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:
         print(json.dumps(result, indent=2))

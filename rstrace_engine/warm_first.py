@@ -6,7 +6,7 @@ session touches. The viewport's first image is the base tracer's *coarse* frame
 :data:`FIRST_IMAGE_KERNELS`: the BVH build, the camera rays, the BVH traversal and the
 tracer's surface, shadow and shade stages. :func:`warm_viewport` compiles those first, then
 lets a waiting viewport render, then compiles (or loads) the rest of the mode's kernels
-through :func:`~rstrace_engine.warm_cache.warm`, one step at a time under the render lock,
+through :func:`~rstrace_engine.warm_kernels.warm`, one step at a time under the render lock,
 so the viewport's own frames interleave with it.
 
 Two processes: the traversal kernel alone is about as long to compile as all the other
@@ -178,7 +178,7 @@ def first_image(processes: int = 2, cancel=None) -> dict:
     """
     from .interactive import coarse_camera, trace_view
     from .session import Session
-    from .warm_cache import warm_scene
+    from .warm_kernels import warm_scene
 
     t0 = time.perf_counter()
     helper = start_helper() if processes > 1 and _helper_needed() else None
@@ -207,10 +207,10 @@ def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
     """The warm-up a viewport waits on: :func:`first_image` under ``lock`` (unless its
     kernels are all cached already), then a pause
     without it (a viewport waiting for the lock renders its first image), then the rest of
-    ``mode``'s kernels (:func:`~.warm_cache.warm` for that mode and the BVH), one step at a
+    ``mode``'s kernels (:func:`~.warm_kernels.warm` for that mode and the BVH), one step at a
     time under ``lock``. ``on_first_image()`` is called between the two. Returns
-    :func:`~.warm_cache.warm`'s counts plus ``first_image_s``."""
-    from .warm_cache import warm
+    :func:`~.warm_kernels.warm`'s counts plus ``first_image_s``."""
+    from .warm_kernels import warm
 
     lock = lock if lock is not None else contextlib.nullcontext()
     t0 = time.perf_counter()

@@ -6,7 +6,8 @@
         --out docs/outcomes_museum_1999.png
 
 Renders the scene's camera in INTERPOLANT mode (one sample per pixel, from an empty cache)
-with :attr:`~rstrace_engine.interpolants.cache.InterpolantCache.outcome_log` on, then finds
+with :attr:`~rstrace_engine.interpolants.interpolant_cache.InterpolantCache.outcome_log`
+on, then finds
 each pixel's linetree leaf again (the frame's own rays) and names the outcome of the deepest
 cell built above it: a predicate reason (:data:`~rstrace_engine.interpolants.predicate.
 REASONS`: ``light_change`` = the corners disagree on a light's state (lit, occluded by which
@@ -38,7 +39,7 @@ from rstrace_engine.frame import (  # noqa: E402
     RenderSettings,
 )
 from rstrace_engine.geometry.cameras import camera_params, camera_rays  # noqa: E402
-from rstrace_engine.interpolants.cache import OUTCOMES  # noqa: E402
+from rstrace_engine.interpolants.interpolant_cache import OUTCOMES  # noqa: E402
 from rstrace_engine.interpolants.linetree import EMPTY, descend  # noqa: E402
 from rstrace_engine.interpolants.render import InterpolantRenderer  # noqa: E402
 from rstrace_engine.tracing.batches import TILE_RAYS, frame_batches  # noqa: E402

@@ -23,7 +23,7 @@ LAYERS = {
     "tracing": 4,
     "interpolants": 5, "ri_tree": 5, "interactive": 5,
     "session": 6,
-    "scenes": 7, "warm_cache": 7, "warm_first": 7, "bench": 7, "__main__": 7,
+    "scenes": 7, "warm_kernels": 7, "warm_first": 7, "bench": 7, "__main__": 7,
 }
 
 

@@ -19,9 +19,9 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
-from rstrace_engine.interpolants import cache as interpolant_cache
+from rstrace_engine.interpolants import interpolant_cache
 from rstrace_engine.interpolants.bound import NOTE_SECONDARY
-from rstrace_engine.interpolants.cache import InterpolantCache
+from rstrace_engine.interpolants.interpolant_cache import InterpolantCache
 from rstrace_engine.interpolants.occluders import occluder_covers
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.interpolants.shafts import MAX_PLANES, hw_shaft, light_box

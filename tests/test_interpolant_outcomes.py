@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rstrace_engine.interpolants.cache import OUTCOMES
+from rstrace_engine.interpolants.interpolant_cache import OUTCOMES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +44,7 @@ def test_corners_first_gives_the_same_frames_with_fewer_samples(monkeypatch):
     from rstrace_engine.accel.accelerators import create_accelerator
     from rstrace_engine.bench.trade import moved_cameras
     from rstrace_engine.frame import RenderSettings
-    from rstrace_engine.interpolants import cache as cache_mod
+    from rstrace_engine.interpolants import interpolant_cache as cache_mod
     from rstrace_engine.interpolants.render import InterpolantRenderer
 
     sc = scenes.build("museum_1999", 96, 72)

@@ -23,8 +23,8 @@ from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.cameras import camera_rays
 from rstrace_engine.geometry.edits import CameraChange
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
-from rstrace_engine.interpolants import cache as interpolant_cache
-from rstrace_engine.interpolants.cache import INTERP_BYTES, InterpolantCache
+from rstrace_engine.interpolants import interpolant_cache
+from rstrace_engine.interpolants.interpolant_cache import INTERP_BYTES, InterpolantCache
 from rstrace_engine.interpolants.linetree import (
     LATTICE_DEPTH,
     corner_weights,

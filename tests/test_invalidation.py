@@ -19,7 +19,7 @@ from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettin
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import apply_edits, diff_scenes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
-from rstrace_engine.interpolants import cache as interpolant_cache
+from rstrace_engine.interpolants import interpolant_cache
 from rstrace_engine.interpolants import membership as membership_mod
 from rstrace_engine.interpolants import ray_segment_tree as rst_mod
 from rstrace_engine.interpolants.linetree import LATTICE_DEPTH, lattice_lines, line_points

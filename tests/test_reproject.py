@@ -18,8 +18,7 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
-from rstrace_engine.interpolants import cache as interpolant_cache
-from rstrace_engine.interpolants import reproject
+from rstrace_engine.interpolants import interpolant_cache, reproject
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.tracing import whitted
 

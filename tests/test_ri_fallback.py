@@ -11,8 +11,8 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
-from rstrace_engine.ri_tree import cache as ri_cache
 from rstrace_engine.ri_tree import fallback
+from rstrace_engine.ri_tree import tree_cache as ri_cache
 from rstrace_engine.ri_tree.fallback import FrameCosts, object_costs, tree_pays
 from rstrace_engine.ri_tree.render import RITreeRenderer
 from rstrace_engine.tracing.whitted import render

@@ -15,10 +15,10 @@ from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import ObjectTransform, apply_edits
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
-from rstrace_engine.ri_tree import cache as ri_cache
-from rstrace_engine.ri_tree.cache import RITreeCache
+from rstrace_engine.ri_tree import tree_cache as ri_cache
 from rstrace_engine.ri_tree.patches import ST_HIT
 from rstrace_engine.ri_tree.render import RITreeRenderer, render_thickness_exact
+from rstrace_engine.ri_tree.tree_cache import RITreeCache
 from rstrace_engine.session import Session
 from rstrace_engine.tracing.whitted import render
 
@@ -289,7 +289,7 @@ def test_session_edit_matches_a_fresh_session_of_the_edited_scene():
 def test_cost_rule_without_demand_traces_every_ray_exactly(monkeypatch):
     """With no leaf ever worth refining, every query is traced: the frame is the base
     tracer's (the traced fallback of sparse leaves adds nothing of its own)."""
-    import rstrace_engine.ri_tree.cache as ri_cache
+    import rstrace_engine.ri_tree.tree_cache as ri_cache
 
     monkeypatch.setattr(ri_cache, "SPLIT_QUERIES", 10 ** 9)
     monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 10 ** 9)
@@ -344,7 +344,7 @@ def test_exact_attributes_give_the_base_frame(monkeypatch):
     single exit ray leaves out) are all the renderer needs (measured without that
     reflection: mean display error 0.09 on the interpolated pixels of the random volumes)."""
     from rstrace_engine.interpolants.linetree import parameterize
-    from rstrace_engine.ri_tree import cache as ri_cache
+    from rstrace_engine.ri_tree import tree_cache as ri_cache
     from rstrace_engine.ri_tree.sampling import trace_samples
 
     orig = ri_cache.RITreeCache.query

@@ -15,7 +15,7 @@ from rstrace_engine.frame import RenderSettings
 from rstrace_engine.interactive import coarse_camera, trace_view
 from rstrace_engine.session import Session
 from rstrace_engine.tracing import batches, whitted
-from rstrace_engine.warm_cache import warm_scene
+from rstrace_engine.warm_kernels import warm_scene
 
 
 def test_first_image_kernels_exist():

@@ -47,11 +47,11 @@ from .. import image, scenes
 from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
 from ..interpolants.linetree import parameterize
-from ..ri_tree.cache import QueryResult, RITreeCache
 from ..ri_tree.fallback import tree_pays
 from ..ri_tree.patches import ST_HIT, ST_MISS
 from ..ri_tree.render import RITreeRenderer, render_thickness_exact
 from ..ri_tree.sampling import trace_samples
+from ..ri_tree.tree_cache import QueryResult, RITreeCache
 from ..tracing.whitted import render
 
 JSON_KEYS = ("scene", "view", "dist_thresh", "ang_thresh", "depth", "cache_mb", "speedup",

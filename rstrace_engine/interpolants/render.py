@@ -44,7 +44,7 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
-from .cache import InterpolantCache
+from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
 

@@ -48,13 +48,13 @@ from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.whitted import Spawned, shade, shadow_rays, surfaces
 from . import thickness as thick
-from .cache import RITreeCache
 from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 from .surfaces import interp_surface
 from .thickness import render_thickness_exact  # noqa: F401 - re-exported (session, bench)
+from .tree_cache import RITreeCache
 
 log = logging.getLogger(__name__)
 

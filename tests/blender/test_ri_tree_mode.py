@@ -18,7 +18,7 @@ def _stats():
 
 
 def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
-    from rstrace_engine.ri_tree import cache as ri_cache
+    from rstrace_engine.ri_tree import tree_cache as ri_cache
     from rstrace_engine.ri_tree.render import RITreeRenderer
 
     # the trees are followed over frames here; the fallback has its own test below

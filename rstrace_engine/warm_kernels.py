@@ -273,9 +273,9 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     import importlib
 
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
-                 "tracing.shading", "interpolants.render", "interpolants.cache",
+                 "tracing.shading", "interpolants.render", "interpolants.interpolant_cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
-                 "ri_tree.cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
+                 "ri_tree.tree_cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
                  "ri_tree.surfaces",
                  "ri_tree.kdtree",
                  "ri_tree.thickness"):

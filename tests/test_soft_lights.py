@@ -1,0 +1,231 @@
+"""Soft light in the base tracer: closed forms on a Lambertian floor, convergence with the
+light samples, determinism, hard lights unchanged, and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from tracer_scenes import ortho_down, plane_scene
+
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.errors import SceneError
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Light, Material, Scene
+from rstrace_engine.tracing import whitted
+from rstrace_engine.tracing.soft_lights import sample_seeds
+
+RHO = 0.5
+
+
+def _floor(lights, world=(0.0, 0.0, 0.0)):
+    return plane_scene(Material("lambert", diffuse=(RHO, RHO, RHO)), lights,
+                       camera=ortho_down(scale=6.0, width=16, rows=12), world=world)
+
+
+def _radiance_at(scene, xy, n, seed=0):
+    """Radiance leaving the floor at points ``xy`` (m, 2), seen from straight above."""
+    sa = scene.arrays()
+    accel = create_accelerator("BRUTE_FORCE", sa)
+    m = len(xy)
+    o = np.column_stack([xy, np.full(m, 5.0)])
+    d = np.tile([0.0, 0.0, -1.0], (m, 1))
+    rad, _ = whitted.trace(sa, accel, o, d, 0.0, np.inf, 0,
+                           seeds=sample_seeds(np.arange(m), seed), light_samples=n)
+    return rad[:, 0]
+
+
+def _grid(half=1.5, k=7):
+    g = np.linspace(-half, half, k)
+    x, y = np.meshgrid(g, g)
+    return np.column_stack([x.ravel(), y.ravel()])
+
+
+def _lambert_polygon(p, verts):
+    """Irradiance factor of a polygon (vertices (k, 3)) above the +Z floor at ``p`` (3,):
+    ``E / L`` by Lambert's formula."""
+    tot = 0.0
+    k = len(verts)
+    for i in range(k):
+        a = verts[i] - p
+        b = verts[(i + 1) % k] - p
+        a = a / np.linalg.norm(a)
+        b = b / np.linalg.norm(b)
+        beta = math.acos(min(1.0, max(-1.0, float(a @ b))))
+        g = np.cross(a, b)
+        tot += beta * g[2] / np.linalg.norm(g)
+    return 0.5 * abs(tot)
+
+
+def _rel_err(got, want):
+    return float(np.max(np.abs(got - want) / np.max(want)))
+
+
+# ----------------------------------------------------------------------------- closed forms
+
+
+@pytest.mark.parametrize("shape,size", [("SQUARE", (1.2, 1.2)), ("RECTANGLE", (1.6, 0.6))])
+def test_area_polygon_lambert_formula(shape, size):
+    h, power = 1.5, 200.0
+    light = Light("Area", "AREA", power=power, position=(0.2, -0.1, h),
+                  direction=(0.0, 0.0, -1.0), shape=shape, size=size, axis=(1.0, 0.0, 0.0))
+    sc = _floor([light])
+    xy = _grid()
+    su, sv = size
+    c = np.array([0.2, -0.1, h])
+    u = np.array([1.0, 0.0, 0.0])
+    v = np.cross(-np.array([0.0, 0.0, -1.0]), u)
+    verts = np.array([c + sx * su / 2 * u + sy * sv / 2 * v
+                      for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    radiance = power / (4.0 * su * sv)  # Cycles: P / (4 A)
+    want = np.array([RHO / math.pi * radiance * _lambert_polygon(np.array([x, y, 0.0]), verts)
+                     for x, y in xy])
+    assert _rel_err(_radiance_at(sc, xy, 16), want) < 0.05
+    assert _rel_err(_radiance_at(sc, xy, 256), want) < 0.006
+
+
+def test_disk_on_axis():
+    h, power, dia = 1.0, 150.0, 1.0
+    light = Light("Disk", "AREA", power=power, position=(0.0, 0.0, h),
+                  direction=(0.0, 0.0, -1.0), shape="DISK", size=(dia, dia))
+    sc = _floor([light])
+    radiance = power / (4.0 * math.pi * dia * dia / 4.0)
+    r = dia / 2
+    want = RHO / math.pi * radiance * math.pi * r * r / (r * r + h * h)
+    got = _radiance_at(sc, np.zeros((1, 2)), 256)
+    assert abs(got[0] - want) / want < 0.003
+
+
+@pytest.mark.parametrize("soft", [True, False])
+def test_sphere_light_form_factor(soft):
+    """Far enough for the sphere to stay above the horizon: with soft falloff the far
+    field is ``P cos / (4 pi (d^2 + r^2))`` (Cycles), without it the point light's law."""
+    r, h, power = 0.4, 1.5, 300.0
+    light = Light("Sphere", "POINT", power=power, position=(0.0, 0.0, h), radius=r,
+                  soft_falloff=soft)
+    sc = _floor([light])
+    xy = _grid(1.0, 5)
+    p = np.column_stack([xy, np.zeros(len(xy))])
+    dv = np.array([0.0, 0.0, h]) - p
+    d2 = (dv ** 2).sum(axis=1)
+    cos = dv[:, 2] / np.sqrt(d2)
+    want = RHO / math.pi * power * cos / (4 * math.pi * (d2 + (r * r if soft else 0.0)))
+    assert _rel_err(_radiance_at(sc, xy, 256), want) < 0.003
+
+
+def test_spot_with_radius_keeps_the_cone():
+    spot = Light("Spot", "SPOT", power=300.0, position=(0.0, 0.0, 2.0), radius=0.05,
+                 direction=(0.0, 0.0, -1.0), spot_size=math.radians(60.0), spot_blend=0.0)
+    sc = _floor([spot])
+    got = _radiance_at(sc, np.array([[0.0, 0.0], [1.9, 0.0]]), 64)
+    want0 = RHO / math.pi * 300.0 / (4 * math.pi * (4.0 + 0.05 ** 2))
+    assert abs(got[0] - want0) / want0 < 0.002
+    assert got[1] == 0.0  # well outside the cone
+
+
+def test_sun_cone():
+    d = np.array([0.3, -0.2, -1.0])
+    sun = Light("Sun", "SUN", power=3.0, direction=tuple(d), angle=math.radians(10.0))
+    sc = _floor([sun])
+    cos = -d[2] / np.linalg.norm(d)
+    got = _radiance_at(sc, _grid(), 64)
+    want = RHO / math.pi * 3.0 * cos  # a cone fully above the horizon: S cos
+    assert _rel_err(got, np.full(len(got), want)) < 2e-3
+
+
+def test_uniform_world_lights_an_open_plane():
+    world = (0.3, 0.4, 0.5)
+    sc = _floor([], world=world)
+    got = _radiance_at(sc, _grid(), 16)
+    np.testing.assert_allclose(got, RHO * world[0], rtol=1e-12)  # rho L, no occluder
+
+
+def test_black_world_costs_nothing():
+    light = Light("Lamp", "POINT", power=100.0, position=(0.0, 0.0, 2.0))
+    frame = whitted.render(_floor([light]), RenderSettings(max_depth=0))
+    assert frame.stats["shadow_rays"] == 16 * 12  # one per pixel and point light
+
+
+# ----------------------------------------------------------------------------- determinism
+
+
+def _penumbra_scene():
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6)))
+    grey = s.add_material(Material("box", diffuse=(0.4, 0.5, 0.6)))
+    s.add_instance(s.add_mesh(shapes.plane(20.0, name="floor")), np.eye(4), [floor],
+                   name="Floor")
+    bm = s.add_mesh(shapes.box((0.5, 0.5, 0.5), name="cube"))
+    s.add_instance(bm, shapes.transform((0.0, 0.0, 0.6)), [grey], name="Blocker")
+    s.add_instance(bm, shapes.transform((2.5, 2.0, 0.25)), [grey], name="Far")
+    s.add_light(Light("Area", "AREA", power=400.0, position=(0.3, 0.2, 2.5),
+                      direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(1.0, 0.6)))
+    s.add_light(Light("Lamp", "POINT", power=200.0, position=(-2.0, 1.0, 3.0), radius=0.3))
+    s.set_world_color((0.05, 0.05, 0.06))
+    s.set_camera(ortho_down(scale=7.0, width=40, rows=30))
+    return s
+
+
+def test_same_seed_same_image_and_seeds_matter():
+    sc = _penumbra_scene()
+    st = RenderSettings(max_depth=1, samples=2, light_samples=8, seed=5)
+    a = whitted.render(sc, st).radiance
+    b = whitted.render(sc, st).radiance
+    assert np.array_equal(a, b)
+    c = whitted.render(sc, RenderSettings(max_depth=1, samples=2, light_samples=8,
+                                          seed=6)).radiance
+    assert not np.array_equal(a, c)
+
+
+def test_samples_do_not_depend_on_the_batch():
+    """A pixel's samples are seeded by its global sample id: traced alone or with the
+    whole frame, it comes out the same."""
+    sc = _penumbra_scene()
+    st = RenderSettings(max_depth=1, samples=2, light_samples=8, seed=1)
+    full = whitted.render(sc, st)
+    pixels = np.zeros(40 * 30, bool)
+    pixels[[37, 410, 411, 900]] = True
+    base = full.__class__(np.zeros_like(full.radiance), full.pixel_class.copy(), {})
+    part = whitted.render(sc, st, pixels=pixels, base=base)
+    got = part.radiance.reshape(-1, 3)[pixels]
+    assert np.array_equal(got, full.radiance.reshape(-1, 3)[pixels])
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize("kw,needle", [
+    (dict(kind="AREA", size=(0.0, 1.0), shape="RECTANGLE"), "size"),
+    (dict(kind="AREA", size=(1.0, 0.0), shape="ELLIPSE"), "axis of the ellipse"),
+    (dict(kind="AREA", size=(float("nan"), 1.0), shape="RECTANGLE"), "NaN"),
+    (dict(kind="AREA", size=(float("inf"), 1.0), shape="RECTANGLE"), "NaN or infinite"),
+    (dict(kind="AREA", shape="TRIANGLE"), "shape"),
+    (dict(kind="AREA", spread=0.0), "spread 0"),
+    (dict(kind="AREA", spread=4.0), "spread"),
+    (dict(kind="AREA", axis=(0.0, 0.0, 1.0)), "orthogonal"),
+    (dict(kind="AREA", axis=(0.0, 0.0, 0.0)), "axis"),
+    (dict(kind="POINT", radius=-1.0), "radius"),
+    (dict(kind="POINT", radius=float("nan")), "radius"),
+    (dict(kind="SUN", angle=4.0), "angle"),
+    (dict(kind="SUN", angle=float("inf")), "angle"),
+])
+def test_bad_soft_light_input_names_light_and_setting(kw, needle):
+    s = Scene()
+    with pytest.raises(SceneError) as exc:
+        s.add_light(Light("Bad", direction=(0.0, 0.0, -1.0), **kw))
+    assert "'Bad'" in str(exc.value) and needle in str(exc.value)
+
+
+def test_light_samples_setting_is_validated():
+    with pytest.raises(SceneError, match="light_samples"):
+        RenderSettings(light_samples=0).validated()
+
+
+def test_sun_at_its_maximum_angle_and_point_inside_a_sphere_are_finite():
+    sun = Light("Sun", "SUN", power=2.0, direction=(0.0, 0.0, -1.0), angle=math.pi)
+    lamp = Light("Lamp", "POINT", power=50.0, position=(0.0, 0.0, 0.2), radius=0.5,
+                 soft_falloff=False)
+    got = _radiance_at(_floor([sun, lamp]), _grid(0.3, 3), 16)
+    assert np.all(np.isfinite(got)) and np.all(got > 0.0)

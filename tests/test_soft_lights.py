@@ -22,7 +22,8 @@ RHO = 0.5
 
 def _floor(lights, world=(0.0, 0.0, 0.0)):
     return plane_scene(Material("lambert", diffuse=(RHO, RHO, RHO)), lights,
-                       camera=ortho_down(scale=6.0, width=16, rows=12), world=world)
+                       camera=ortho_down(scale=6.0, width=16, rows=12), world=world,
+                       world_lights=True)
 
 
 def _radiance_at(scene, xy, n, seed=0):
@@ -229,3 +230,124 @@ def test_sun_at_its_maximum_angle_and_point_inside_a_sphere_are_finite():
                  soft_falloff=False)
     got = _radiance_at(_floor([sun, lamp]), _grid(0.3, 3), 16)
     assert np.all(np.isfinite(got)) and np.all(got > 0.0)
+
+
+# ----------------------------------------------------------------------------- other modes
+
+
+def test_incremental_equals_fresh_next_to_a_soft_shadow():
+    """BASE: an edit next to a soft shadow re-renders the dirty pixels only, and the
+    frame equals a fresh one bit for bit; the sphere light's shaft dirties the pixels
+    whose penumbra the moved object reaches."""
+    from rstrace_engine.geometry.edits import LightSet, ObjectTransform
+    from rstrace_engine.session import Session
+
+    sc = _penumbra_scene()
+    sc.set_world_color((0.0, 0.0, 0.0))  # the world's light dirties every hit: kept apart
+    st = RenderSettings(mode="BASE", max_depth=1, light_samples=8, seed=2)
+    sess = Session(sc.copy(), st)
+    prev = sess.render()
+    for edits in ([ObjectTransform("Far", shapes.transform((2.4, 1.8, 0.25)))],
+                  [ObjectTransform("Blocker", shapes.transform((0.1, 0.0, 0.6)))],
+                  [LightSet("Lamp", Light("Lamp", "POINT", power=200.0,
+                                          position=(-2.0, 1.0, 3.0), radius=0.45))]):
+        sess.apply(edits)
+        dirty = sess.dirty_mask
+        frame = sess.render()
+        fresh = Session(sess.scene.copy(), st).render()
+        assert np.array_equal(frame.radiance, fresh.radiance)
+        if dirty is not None:
+            changed = np.any(prev.radiance != fresh.radiance, axis=2)
+            assert not (changed & ~dirty).any()
+            assert dirty.mean() < 1.0 or isinstance(edits[0], LightSet)
+        prev = frame
+
+
+def test_world_light_edit_is_exact():
+    from rstrace_engine.geometry.edits import ObjectTransform, WorldColor
+    from rstrace_engine.session import Session
+
+    sc = _penumbra_scene()
+    st = RenderSettings(mode="BASE", max_depth=1, light_samples=4, seed=2)
+    sess = Session(sc.copy(), st)
+    sess.render()
+    for edits in ([WorldColor((0.2, 0.1, 0.0))], [WorldColor((0.0, 0.0, 0.0))],
+                  [WorldColor((0.1, 0.1, 0.1))],
+                  [ObjectTransform("Far", shapes.transform((2.0, 1.8, 0.25)))]):
+        sess.apply(edits)
+        frame = sess.render()
+        fresh = Session(sess.scene.copy(), st).render()
+        assert np.array_equal(frame.radiance, fresh.radiance)
+
+
+@pytest.mark.parametrize("world", [(0.0, 0.0, 0.0), (0.2, 0.2, 0.25)])
+def test_interpolants_keep_the_bound_under_soft_light(world, monkeypatch):
+    """A penumbra across cells, a sphere light close to the floor, a sun's soft edge and a
+    world-lit corner: the INTERPOLANT frame is within epsilon of BASE everywhere (soft-lit
+    cells are traced), and epsilon 0 gives the BASE frame."""
+    from rstrace_engine import image
+    from rstrace_engine.frame import CLASS_INTERPOLATED
+    from rstrace_engine.interpolants import cache as interpolant_cache
+    from rstrace_engine.interpolants.render import InterpolantRenderer
+
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6)))
+    grey = s.add_material(Material("box", diffuse=(0.4, 0.5, 0.6)))
+    s.add_instance(s.add_mesh(shapes.plane(20.0, name="floor")), np.eye(4), [floor],
+                   name="Floor")
+    wall = s.add_mesh(shapes.plane(6.0, name="wall"))
+    s.add_instance(wall, shapes.transform((-3.0, 0.0, 3.0), 1.0, 90, 90), [floor],
+                   name="Wall")
+    s.add_instance(s.add_mesh(shapes.box((0.5, 0.5, 0.5), name="cube")),
+                   shapes.transform((-1.0, 0.0, 0.6)), [grey], name="Blocker")
+    s.add_light(Light("Area", "AREA", power=300.0, position=(-0.8, 0.2, 2.0),
+                      direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(0.8, 0.5)))
+    s.add_light(Light("Near", "POINT", power=20.0, position=(1.5, -1.0, 0.3), radius=0.2))
+    s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.5, 0.2, -1.0), angle=0.2))
+    s.add_light(Light("Hard", "POINT", power=200.0, position=(4.0, 3.0, 3.0)))
+    s.set_world_color(world)
+    s.set_camera(ortho_down(scale=8.0, width=64, rows=48))
+    accel = create_accelerator("BVH", s.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=0.02, depth_cap=8, light_samples=8)
+    frame = InterpolantRenderer().render(s, st, accel)
+    base = whitted.render(s, st, accel=accel)
+    err = np.abs(image.to_display(frame.radiance)
+                 - image.to_display(base.radiance)).max(axis=-1)
+    interp = frame.pixel_class == CLASS_INTERPOLATED
+    assert np.all(err[~interp] == 0.0)  # traced pixels are the base tracer's, bit for bit
+    assert err.max() <= 0.02 + 1e-6
+    if not any(world):
+        assert frame.stats["bound_notes"]  # says why soft-lit pixels are traced
+    zero = InterpolantRenderer().render(s, RenderSettings(
+        mode="INTERPOLANT", epsilon=0.0, light_samples=8), accel)
+    assert np.array_equal(zero.radiance, base.radiance)  # epsilon 0 is BASE
+
+
+def test_ri_tree_mode_gets_the_soft_lights():
+    """RI_TREE shades through the base tracer's stages: soft shadows there too, close to
+    BASE (its geometry is interpolated, so not bit for bit)."""
+    from rstrace_engine.session import Session
+
+    sc = _penumbra_scene()
+    base = Session(sc.copy(), RenderSettings(mode="BASE", max_depth=1,
+                                             light_samples=8)).render()
+    ri = Session(sc.copy(), RenderSettings(mode="RI_TREE", max_depth=1,
+                                           light_samples=8)).render()
+    assert ri.stats["shadow_rays"] > 8 * 40 * 30  # sampled, not one ray per light
+    diff = np.abs(ri.radiance - base.radiance).mean() / base.radiance.mean()
+    assert diff < 0.05
+
+
+def test_world_as_background_only():
+    """``set_world_color(c, lights=False)``: misses see it, surfaces are not lit by it (and
+    no shadow rays are spent); a WorldColor edit keeps the setting unless it names one."""
+    from rstrace_engine.geometry.edits import WorldColor, apply_edits
+
+    sc = _floor([], world=(0.3, 0.3, 0.3))
+    sc.set_world_color((0.3, 0.3, 0.3), lights=False)
+    assert np.all(_radiance_at(sc, _grid(), 16) == 0.0)
+    new, _ = apply_edits(sc, [WorldColor((0.1, 0.2, 0.3))])
+    assert not new.world_lights
+    new, fx = apply_edits(new, [WorldColor((0.1, 0.2, 0.3), lights=True)])
+    assert new.world_lights and fx.world_lights

@@ -206,6 +206,7 @@ class SceneArrays(NamedTuple):
     light_cos_outer: np.ndarray  # (L,) spot cone cosines (1.0 / -1.0 otherwise)
     light_cos_inner: np.ndarray  # (L,)
     world_color: np.ndarray  # (3,) float64
+    world_light: np.ndarray  # (3,) float64 the world's light: its colour, or 0 (background only)
     scene_aabb: np.ndarray  # (2, 3) float64 bounds of all live instances
     scene_extent: float  # length of the scene box diagonal (> 0)
     inst_alive: np.ndarray  # (I,) bool: the slot holds a visible object
@@ -308,6 +309,7 @@ class Scene:
         self.lights: list[Light | None] = []  # None: a tombstoned slot
         self.camera: Camera = Camera()
         self.world_color = np.zeros(3)
+        self.world_lights = True  # the world colour also lights surfaces (as in Cycles)
         self.stats: dict[str, int] = {"degenerate_triangles": 0}
         self.warnings: list[str] = []
         self.mesh_keys = _Keys("mesh")
@@ -327,6 +329,7 @@ class Scene:
         c.lights = list(self.lights)
         c.camera = self.camera
         c.world_color = self.world_color.copy()
+        c.world_lights = self.world_lights
         c.stats = dict(self.stats)
         c.warnings = list(self.warnings)
         c.mesh_keys = self.mesh_keys.copy()
@@ -672,8 +675,15 @@ class Scene:
         """Validate (:func:`~.elements.checked_camera`) and set the camera."""
         self.camera = checked_camera(camera)
 
-    def set_world_color(self, color) -> None:
+    def set_world_color(self, color, lights: bool | None = None) -> None:
+        """The world's uniform colour: what a ray that misses sees and, with ``lights``
+        (the default for a new scene; None keeps the current setting), the radiance that
+        lights every surface from its hemisphere, with occlusion (Cycles' world light with
+        no bounces). ``lights=False`` is a background only, as Blender's world with its
+        diffuse and glossy ray visibility off."""
         self.world_color = _colour("world", "world colour", color, hi=None)
+        if lights is not None:
+            self.world_lights = bool(lights)
         self._arrays = None
 
     # -- packing ---------------------------------------------------------------------
@@ -792,6 +802,8 @@ class Scene:
             light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,
             world_color=np.asarray(self.world_color, f64),
+            world_light=(np.asarray(self.world_color, f64) if self.world_lights
+                         else np.zeros(3)),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
             **ext.arrays(),
         )

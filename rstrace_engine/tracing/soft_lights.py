@@ -68,7 +68,8 @@ def has_soft_light(sa: SceneArrays) -> bool:
 
 
 def world_lights(sa: SceneArrays) -> bool:
-    return bool(np.any(np.asarray(sa.world_color) > 0.0))
+    """Whether the world lights surfaces (a colour that lights, not black)."""
+    return bool(np.any(np.asarray(sa.world_light) > 0.0))
 
 
 # ----------------------------------------------------------------------------- seeds

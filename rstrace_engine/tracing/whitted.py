@@ -396,9 +396,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
                 lg += fg * e * sa.light_radiance[j, 1]
                 lb += fb * e * sa.light_radiance[j, 2]
             else:
-                lr += fr * e * sa.world_color[0]
-                lg += fg * e * sa.world_color[1]
-                lb += fb * e * sa.world_color[2]
+                lr += fr * e * sa.world_light[0]
+                lg += fg * e * sa.world_light[1]
+                lb += fb * e * sa.world_light[2]
         contrib[i, 0] = w0 * lr
         contrib[i, 1] = w1 * lg
         contrib[i, 2] = w2 * lb

@@ -80,7 +80,7 @@ def test_area_polygon_lambert_formula(shape, size):
     v = np.cross(-np.array([0.0, 0.0, -1.0]), u)
     verts = np.array([c + sx * su / 2 * u + sy * sv / 2 * v
                       for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-    radiance = power / (4.0 * su * sv)  # Cycles: P / (4 A)
+    radiance = power / (math.pi * su * sv)  # Cycles: P / (pi A)
     want = np.array([RHO / math.pi * radiance * _lambert_polygon(np.array([x, y, 0.0]), verts)
                      for x, y in xy])
     assert _rel_err(_radiance_at(sc, xy, 16), want) < 0.05
@@ -92,11 +92,54 @@ def test_disk_on_axis():
     light = Light("Disk", "AREA", power=power, position=(0.0, 0.0, h),
                   direction=(0.0, 0.0, -1.0), shape="DISK", size=(dia, dia))
     sc = _floor([light])
-    radiance = power / (4.0 * math.pi * dia * dia / 4.0)
+    radiance = power / (math.pi * math.pi * dia * dia / 4.0)
     r = dia / 2
     want = RHO / math.pi * radiance * math.pi * r * r / (r * r + h * h)
     got = _radiance_at(sc, np.zeros((1, 2)), 256)
     assert abs(got[0] - want) / want < 0.003
+
+
+def _area_quadrature(p, centre, u, v, su, sv, ellipse, radiance, spread=math.pi, n=400):
+    """E at p (on the +Z floor) from an area light facing -Z: midpoint quadrature over its
+    area, with Cycles' spread attenuation."""
+    g = (np.arange(n) + 0.5) / n - 0.5
+    x, y = np.meshgrid(g, g)
+    x, y = x.ravel(), y.ravel()
+    if ellipse:
+        keep = (2 * x) ** 2 + (2 * y) ** 2 <= 1.0
+        x, y = x[keep], y[keep]
+    pts = centre + (x * su)[:, None] * u + (y * sv)[:, None] * v
+    w = pts - p
+    d2 = (w ** 2).sum(axis=1)
+    wn = w / np.sqrt(d2)[:, None]
+    cos_s = np.clip(wn[:, 2], 0.0, None)
+    cos_l = np.clip(wn[:, 2], 0.0, None)  # the light faces -Z
+    att = np.ones_like(cos_l)
+    if spread < math.pi:
+        h = spread / 2
+        tan_a = np.sqrt(np.clip(1 - cos_l ** 2, 0, None)) / np.maximum(cos_l, 1e-300)
+        att = np.clip((math.tan(h) - tan_a) / (math.tan(h) - h), 0.0, None)
+    da = su * sv / n / n
+    return float((radiance * att * cos_s * cos_l / d2).sum() * da)
+
+
+@pytest.mark.parametrize("shape,spread", [("ELLIPSE", math.pi), ("SQUARE", math.radians(60)),
+                                          ("DISK", math.radians(100))])
+def test_area_ellipse_and_spread_by_quadrature(shape, spread):
+    su, sv = (1.2, 0.6) if shape == "ELLIPSE" else (1.0, 1.0)
+    power, h = 100.0, 1.0
+    light = Light("A", "AREA", power=power, position=(0.0, 0.0, h),
+                  direction=(0.0, 0.0, -1.0), shape=shape, size=(su, sv), spread=spread)
+    sc = _floor([light])
+    ellipse = shape in ("DISK", "ELLIPSE")
+    area = su * sv * (math.pi / 4 if ellipse else 1.0)
+    xy = np.array([[0.0, 0.0], [0.3, 0.2], [0.8, -0.4]])
+    u, v = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    want = np.array([RHO / math.pi * _area_quadrature(
+        np.array([x, y, 0.0]), np.array([0.0, 0.0, h]), u, v, su, sv, ellipse,
+        power / (math.pi * area), spread) for x, y in xy])
+    got = _radiance_at(sc, xy, 1024)
+    assert _rel_err(got, want) < 0.01, (got, want)
 
 
 @pytest.mark.parametrize("soft", [True, False])

@@ -111,9 +111,12 @@ class _ExtendedLights:
       instead (the far field then equals the point light's ``P / (4 pi (d^2 + r^2))``);
     * SUN with angular diameter a: ``c S / (pi sin^2(a / 2))`` over its cone (a surface
       facing it gets irradiance ``c S``);
-    * AREA: ``c P / (4 A)`` on its emitting side (A its area; Cycles' ``0.25 / area``),
-      times the spread attenuation ``max(0, (tan(s/2) - tan(theta)) / (tan(s/2) - s/2))``
-      when the spread s is below pi (Cycles' soft-box model).
+    * AREA: ``c P / (pi A)`` on its emitting side (A its area: a Lambertian emitter of
+      exitance P / A), times the spread attenuation ``max(0, (tan(s/2) - tan(theta)) /
+      (tan(s/2) - s/2))`` when the spread s is below pi (Cycles' soft-box model, which
+      keeps the power; ``3 / (s/2)^3`` for the normaliser when s/2 <= 0.05, as Cycles).
+
+    (Checked against Cycles 4.2-5.0 renders: /work/research/cycles_lights.md, sections 1-5.)
     """
 
     def __init__(self, nl: int) -> None:
@@ -146,11 +149,12 @@ class _ExtendedLights:
             a["light_v"][j] = v / np.linalg.norm(v)
             a["light_size"][j] = (su, sv)
             a["light_ellipse"][j] = ellipse
-            a["light_radiance"][j] = c * li.power / (4.0 * area)
+            a["light_radiance"][j] = c * li.power / (math.pi * area)
             a["light_bound"][j] = 0.5 * math.hypot(su, sv)
             if li.spread < math.pi:
                 half = 0.5 * max(li.spread, tol.AREA_SPREAD_MIN)
-                a["light_spread"][j] = (math.tan(half), 1.0 / (math.tan(half) - half))
+                norm = 3.0 / half ** 3 if half <= 0.05 else 1.0 / (math.tan(half) - half)
+                a["light_spread"][j] = (math.tan(half), norm)
         else:
             r = li.radius
             a["light_radius"][j] = r

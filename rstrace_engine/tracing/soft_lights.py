@@ -9,10 +9,12 @@ BRDF (``w``: cosine, spot and spread factors over the density and ``n``) so that
 tracer's shade kernel (:func:`~.whitted.shade`) evaluates the BRDF with the material it has
 read anyway. Densities:
 
-* sphere (POINT or SPOT with a radius): uniform in the cone of directions that holds the
-  sphere (sine ``r / d``; ``r / sqrt(r^2 + d^2)`` with Blender's soft falloff), so that a
-  sample below the horizon is simply zero (the sphere clipped by the surface); a point
-  inside a sphere without soft falloff sees it over its whole hemisphere (cosine-weighted);
+* sphere (POINT or SPOT with a radius, soft falloff off): uniform in the cone of directions
+  that holds the sphere (sine ``r / d``), so that a sample below the horizon is simply zero
+  (the sphere clipped by the surface); a point inside the sphere sees it over its whole
+  hemisphere (cosine-weighted); with Blender's soft falloff (its default) Cycles' light is a
+  disk of radius r through the centre facing the point: the cone of sine
+  ``r / sqrt(r^2 + d^2)``, shadow rays ending on that disk;
 * sun with an angle: uniform in its cone;
 * area light: uniform over its area (rectangle or ellipse, concentric map for the latter);
 * world: cosine-weighted about the shading normal (``f L pi / n``).
@@ -236,7 +238,11 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
         s2 = 1.0  # inside the sphere: its whole hemisphere (see _soft_kernel)
     omc = s2 / (1.0 + math.sqrt(max(0.0, 1.0 - s2)))
     dx, dy, dz = _cone_dir(ax, ay, az, omc, u, v)
-    t = _sphere_exit(qx, qy, qz, dx, dy, dz, cx, cy, cz, r)
+    if sa.light_soft[j]:
+        # Cycles' soft falloff: a disk of radius r through the centre, facing the point
+        t = dist / max(dot3(dx, dy, dz, ax, ay, az), 1e-300)
+    else:
+        t = _sphere_exit(qx, qy, qz, dx, dy, dz, cx, cy, cz, r)
     wgt = 2.0 * math.pi * omc
     if kind == LIGHT_SPOT:
         ca = -dot3(dx, dy, dz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])

@@ -3,9 +3,9 @@
 1. cost: museum_1999 with its lights hard (radius 0) and as Blender's defaults make them
    (point and spot radius 0.1 m), BASE frame time and shadow rays per light-sample count;
 2. noise: a penumbra scene (an area light, a sphere light, a sun with an angle and a grey
-   world over boxes on a floor) against a converged reference (1024 light samples), RMSE
-   relative to the mean and the 98th percentile of 8x8-block relative errors, with the
-   frame time, per light-sample count.
+   world over boxes on a floor), at half the resolution, against a converged reference
+   (512 light samples): RMSE relative to the mean and the 98th percentile of 8x8-block
+   relative errors, with the frame time, per light-sample count, ratio estimator on / off.
 """
 
 from __future__ import annotations
@@ -20,7 +20,10 @@ from rstrace_engine import scenes
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
+from rstrace_engine.tracing import soft_lights
 from rstrace_engine.tracing.whitted import render
+
+REF_SAMPLES = 512
 
 
 def out(line: str) -> None:
@@ -84,14 +87,21 @@ def main(w=320, h=240):
         ts, fs = timed(soft, RenderSettings(light_samples=n))
         out(f"radius 0.1, light_samples {n:3d}: {ts:.3f} s ({ts / th:.2f}x hard), "
               f"{fs.stats['shadow_rays'] / (w * h):.1f} shadow rays/px")
-    out(f"\n## noise: studio {w}x{h}, 1 spp, max depth 1, against 1024 light samples")
+    w, h = w // 2, h // 2
+    out(f"\n## noise: studio {w}x{h}, 1 spp, max depth 1, against {REF_SAMPLES} light "
+        f"samples (ratio estimator on / off)")
     sc = studio(w, h)
-    ref = render(sc, RenderSettings(max_depth=1, light_samples=1024, seed=99)).radiance
-    for n in (1, 4, 8, 16, 32, 64):
-        t, f = timed(sc, RenderSettings(max_depth=1, light_samples=n), reps=2)
-        rmse = float(np.sqrt(np.mean((f.radiance - ref) ** 2)) / ref.mean())
-        out(f"light_samples {n:3d}: {t:.3f} s, relative RMSE {rmse:.4f}, "
-              f"98th pct 8x8-block error {block_p98(f.radiance, ref):.4f}")
+    ref = render(sc, RenderSettings(max_depth=1, light_samples=REF_SAMPLES,
+                                    seed=99)).radiance
+    for ratio in (True, False):
+        soft_lights.RATIO_ESTIMATOR = ratio
+        for n in (1, 4, 8, 16, 32, 64):
+            t, f = timed(sc, RenderSettings(max_depth=1, light_samples=n), reps=2)
+            rmse = float(np.sqrt(np.mean((f.radiance - ref) ** 2)) / ref.mean())
+            out(f"ratio {'on ' if ratio else 'off'} light_samples {n:3d}: {t:.3f} s, "
+                f"relative RMSE {rmse:.4f}, 98th pct 8x8-block error "
+                f"{block_p98(f.radiance, ref):.4f}")
+    soft_lights.RATIO_ESTIMATOR = True
 
 
 if __name__ == "__main__":

@@ -394,3 +394,19 @@ def test_world_as_background_only():
     assert not new.world_lights
     new, fx = apply_edits(new, [WorldColor((0.1, 0.2, 0.3), lights=True)])
     assert new.world_lights and fx.world_lights
+
+
+def test_ratio_estimator_is_exact_where_the_light_is_fully_visible():
+    """Heitz, Hill and McGuire's ratio estimator: on a diffuse floor with nothing in the
+    way, a rectangle light, a sphere light and a sun's cone above the horizon give the
+    closed form itself, whatever the number of samples (no noise at all)."""
+    h = 1.5
+    rect = Light("Area", "AREA", power=200.0, position=(0.2, -0.1, h),
+                 direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(1.6, 0.6))
+    sphere = Light("Sphere", "POINT", power=300.0, position=(0.0, 0.0, h), radius=0.4)
+    sun = Light("Sun", "SUN", power=3.0, direction=(0.3, -0.2, -1.0), angle=0.2)
+    xy = _grid()
+    for light in (rect, sphere, sun):
+        one = _radiance_at(_floor([light]), xy, 1)
+        many = _radiance_at(_floor([light]), xy, 64, seed=3)
+        np.testing.assert_allclose(one, many, rtol=1e-9)

@@ -19,6 +19,14 @@ read anyway. Densities:
 * area light: uniform over its area (rectangle or ellipse, concentric map for the latter);
 * world: cosine-weighted about the shading normal (``f L pi / n``).
 
+Less noise per ray (Heitz, Hill and McGuire 2018, the ratio estimator): where the
+unshadowed light has a closed form -- a sphere's or a sun's cone above the horizon
+(``pi sin^2(alpha) cos(theta)``), a rectangle above it (Lambert's formula) -- the diffuse
+part of the BRDF gets that closed form times the samples' visibility ratio
+``sum V w / sum w`` (exact and noise-free wherever the light is fully visible or fully
+hidden); the glossy remainder keeps the plain estimator. Ellipses, spreads, spot cones and
+lights crossing the horizon use the plain estimator throughout.
+
 Sample points are a Fibonacci lattice of ``n`` points in the unit square, rotated
 (Cranley-Patterson) by a hash of the node's seed and the light: stratified within a pixel,
 decorrelated between pixels. A node's seed comes from its *global sample id* (pixel sample
@@ -39,6 +47,10 @@ from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, SceneArrays
 from .shading import dot3, normalize3, spot_falloff
 
+#: The ratio estimator (Heitz, Hill and McGuire 2018) for the diffuse part where a closed
+#: form exists: measured in docs/SOFT_LIGHT.md (a module switch for that measurement).
+RATIO_ESTIMATOR = True
+
 #: shadow-ray state of a (point, light) row whose light is sampled (see whitted's states)
 SH_SOFT = 2
 #: ``RayTree.node_occluder`` of a sampled light: its visibility is a fraction, no occluder
@@ -56,12 +68,15 @@ class SoftSamples(NamedTuple):
     d: np.ndarray  # (k, 3) float64 unit direction toward the light
     w: np.ndarray  # (k,) float64 estimator weight without BRDF and radiance; 0: no ray
     vis: np.ndarray  # (k,) bool the shadow ray reached the light
+    exact: np.ndarray  # (k // n,) float64 per (point, light) row: the closed form of the
+    # unshadowed sum of w (irradiance over radiance), -1 where there is none
+    n: np.ndarray  # (1,) int64 samples per row
 
 
 def no_samples(n: int) -> SoftSamples:
     """No soft samples for ``n`` points."""
     return SoftSamples(np.zeros(n + 1, np.int64), np.zeros(0, np.int32), np.zeros((0, 3)),
-                       np.zeros(0), np.zeros(0, np.bool_))
+                       np.zeros(0), np.zeros(0, np.bool_), np.zeros(0), np.ones(1, np.int64))
 
 
 def has_soft_light(sa: SceneArrays) -> bool:
@@ -250,10 +265,87 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
     return dx, dy, dz, t * (1.0 - tol.SHADOW_END_REL), wgt
 
 
+@njit(cache=True, nogil=True)
+def _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz):
+    """``pi sin^2(alpha) cos(theta)``: the projected solid angle of a cone (axis a, sine
+    squared s2) above both normals' horizons; -1 when it crosses one."""
+    sin_a = math.sqrt(s2)
+    cs = dot3(sx, sy, sz, ax, ay, az)
+    if cs < sin_a or dot3(gx, gy, gz, ax, ay, az) < sin_a:
+        return -1.0
+    return math.pi * s2 * cs
+
+
+@njit(cache=True, nogil=True)
+def _polygon_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
+    """Lambert's formula for a rectangle light seen from q: its projected solid angle
+    ``1/2 |sum_i beta_i gamma_i . n|`` when it lies above both normals' horizons, else -1."""
+    cx, cy, cz = sa.light_pos[j, 0], sa.light_pos[j, 1], sa.light_pos[j, 2]
+    hu = 0.5 * sa.light_size[j, 0]
+    hv = 0.5 * sa.light_size[j, 1]
+    vx = np.empty(4)
+    vy = np.empty(4)
+    vz = np.empty(4)
+    for k in range(4):
+        a = -hu if k == 0 or k == 3 else hu
+        b = -hv if k < 2 else hv
+        px = cx + a * sa.light_u[j, 0] + b * sa.light_v[j, 0] - qx
+        py = cy + a * sa.light_u[j, 1] + b * sa.light_v[j, 1] - qy
+        pz = cz + a * sa.light_u[j, 2] + b * sa.light_v[j, 2] - qz
+        if dot3(px, py, pz, sx, sy, sz) <= 0.0 or dot3(px, py, pz, gx, gy, gz) <= 0.0:
+            return -1.0
+        vx[k], vy[k], vz[k], _ = normalize3(px, py, pz)
+    tot = 0.0
+    for k in range(4):
+        m = (k + 1) % 4
+        c = min(1.0, max(-1.0, dot3(vx[k], vy[k], vz[k], vx[m], vy[m], vz[m])))
+        gxx = vy[k] * vz[m] - vz[k] * vy[m]
+        gyy = vz[k] * vx[m] - vx[k] * vz[m]
+        gzz = vx[k] * vy[m] - vy[k] * vx[m]
+        gxx, gyy, gzz, gl = normalize3(gxx, gyy, gzz)
+        if gl > 0.0:
+            tot += math.acos(c) * dot3(gxx, gyy, gzz, sx, sy, sz)
+    return 0.5 * abs(tot)
+
+
+@njit(cache=True, nogil=True)
+def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
+    """The closed form of the unshadowed light j at q over its radiance (the sum the
+    samples' weights estimate), for the ratio estimator; -1 where there is none here (a
+    spot's cone, an ellipse, a spread, a light crossing the horizon, the inside of a
+    sphere)."""
+    kind = sa.light_kind[j]
+    if kind == LIGHT_SPOT:
+        return -1.0
+    if kind == LIGHT_SUN:
+        ch = sa.light_cos_half[j]
+        return _cap_exact(-sa.light_dir[j, 0], -sa.light_dir[j, 1], -sa.light_dir[j, 2],
+                          max(0.0, 1.0 - ch * ch), gx, gy, gz, sx, sy, sz)
+    cx, cy, cz = sa.light_pos[j, 0], sa.light_pos[j, 1], sa.light_pos[j, 2]
+    if kind == LIGHT_AREA:
+        if sa.light_ellipse[j] or sa.light_spread[j, 0] < np.inf:
+            return -1.0
+        if dot3(qx - cx, qy - cy, qz - cz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                sa.light_dir[j, 2]) <= 0.0:
+            return -1.0  # behind the emitter: every sample is 0 anyway
+        return _polygon_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz)
+    r = sa.light_radius[j]
+    ax, ay, az, dist = normalize3(cx - qx, cy - qy, cz - qz)
+    if sa.light_soft[j]:
+        s2 = r * r / (r * r + dist * dist)
+    elif dist > r:
+        s2 = (r / dist) ** 2
+    else:
+        return -1.0
+    return _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz)
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, o, d, tmax, w):
+def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, ratio, o, d, tmax, w, exact):
     """The ``n`` samples of every (point, light) row: origins o, unit directions d (k, 3),
-    tmax (k,) and weights w (k,) (0: the sample carries no light, no ray is traced)."""
+    tmax (k,) and weights w (k,) (0: the sample carries no light, no ray is traced); with
+    ``ratio``, ``exact`` (m,) the closed form of each row's unshadowed weight sum (-1:
+    none, :func:`_row_exact`)."""
     L = sa.light_kind.shape[0]
     inv_n = 1.0 / n
     for r in prange(row_pt.shape[0]):
@@ -265,6 +357,10 @@ def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, o, d, tmax, w):
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
         gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
         sx, sy, sz = NS[i, 0], NS[i, 1], NS[i, 2]
+        exact[r] = -1.0
+        if ratio and j < L:
+            exact[r] = _row_exact(sa, j, qx, qy, qz, NG[i, 0], NG[i, 1], NG[i, 2],
+                                  NS[i, 0], NS[i, 1], NS[i, 2])
         inside = False
         if j < L and sa.light_kind[j] != LIGHT_SUN and sa.light_kind[j] != LIGHT_AREA:
             rr = sa.light_radius[j]
@@ -332,11 +428,14 @@ def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.nda
     start = np.zeros(nb + 1, np.int64)
     np.cumsum(np.bincount(pt, minlength=nb) * n, out=start[1:])
     o, d, tmax, w = np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty(k)
+    exact = np.empty(m)
     if m:
         _soft_kernel(sa, surf.Q, surf.NG, surf.NS, np.ascontiguousarray(seeds, np.uint64),
-                     pt.astype(np.int64), lj.astype(np.int32), int(n), o, d, tmax, w)
+                     pt.astype(np.int64), lj.astype(np.int32), int(n), bool(RATIO_ESTIMATOR),
+                     o, d, tmax, w, exact)
     return (SoftSamples(start, np.repeat(lj, n).astype(np.int32), d, w,
-                        np.zeros(k, np.bool_)), o, tmax, rows)
+                        np.zeros(k, np.bool_), exact, np.array([n], np.int64)),
+            o, tmax, rows)
 
 
 def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None):

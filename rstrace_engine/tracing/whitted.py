@@ -53,6 +53,7 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .shading import (
+    INV_PI,
     dot3,
     fresnel_dielectric,
     geometric_normal,
@@ -378,27 +379,58 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
-        for k in range(soft.start[i], soft.start[i + 1]):
-            if not soft.vis[k]:
-                continue
-            lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
-            if principled:
-                fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                             dr, dg, db, sr, sg, sb, eta_s, metallic,
-                                             mr, mg, mb, alpha, e_white, e_diel)
-            else:
-                fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                       dr, dg, db, sr, sg, sb, alpha)
-            j = soft.light[k]
-            e = soft.w[k]
+        # lights with an extent and the world, n samples per (point, light) row: the plain
+        # estimator, or the ratio estimator for the diffuse part where the row has a
+        # closed form (soft_lights.RATIO_ESTIMATOR)
+        ns = soft.n[0]
+        kdf = (1.0 - e_diel) * INV_PI if principled else INV_PI
+        kr = dr * kdf
+        kg = dg * kdf
+        kb = db * kdf
+        k0 = soft.start[i]
+        while k0 < soft.start[i + 1]:
+            ex = soft.exact[k0 // ns]
+            ar = 0.0
+            ag = 0.0
+            ab = 0.0
+            sum_w = 0.0
+            sum_vw = 0.0
+            for k in range(k0, k0 + ns):
+                sum_w += soft.w[k]
+                if not soft.vis[k]:
+                    continue
+                lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
+                if principled:
+                    fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                                 dr, dg, db, sr, sg, sb, eta_s, metallic,
+                                                 mr, mg, mb, alpha, e_white, e_diel)
+                else:
+                    fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                           dr, dg, db, sr, sg, sb, alpha)
+                e = soft.w[k]
+                if ex >= 0.0:
+                    sum_vw += e
+                    fr -= kr
+                    fg -= kg
+                    fb -= kb
+                ar += fr * e
+                ag += fg * e
+                ab += fb * e
+            if ex >= 0.0 and sum_w > 0.0:
+                t = ex * sum_vw / sum_w
+                ar += kr * t
+                ag += kg * t
+                ab += kb * t
+            j = soft.light[k0]
             if j < L:
-                lr += fr * e * sa.light_radiance[j, 0]
-                lg += fg * e * sa.light_radiance[j, 1]
-                lb += fb * e * sa.light_radiance[j, 2]
+                lr += ar * sa.light_radiance[j, 0]
+                lg += ag * sa.light_radiance[j, 1]
+                lb += ab * sa.light_radiance[j, 2]
             else:
-                lr += fr * e * sa.world_light[0]
-                lg += fg * e * sa.world_light[1]
-                lb += fb * e * sa.world_light[2]
+                lr += ar * sa.world_light[0]
+                lg += ag * sa.world_light[1]
+                lb += ab * sa.world_light[2]
+            k0 += ns
         contrib[i, 0] = w0 * lr
         contrib[i, 1] = w1 * lg
         contrib[i, 2] = w2 * lb

@@ -204,7 +204,7 @@ def _sphere_exit(ox, oy, oz, wx, wy, wz, cx, cy, cz, r):
 # ----------------------------------------------------------------------------- samples
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sample_one(sa, j, qx, qy, qz, u, v):
     """One sample of light ``j`` seen from ``q``: ``(dx, dy, dz, tmax, weight)`` with the
     weight before the cosine at the surface and the 1 / n factor (0: no light)."""
@@ -265,7 +265,7 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
     return dx, dy, dz, t * (1.0 - tol.SHADOW_END_REL), wgt
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz):
     """``pi sin^2(alpha) cos(theta)``: the projected solid angle of a cone (axis a, sine
     squared s2) above both normals' horizons; -1 when it crosses one."""
@@ -276,39 +276,38 @@ def _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz):
     return math.pi * s2 * cs
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
+def _corner(sa, j, k, qx, qy, qz):
+    """Corner k (0..3, in order around it) of rectangle light j, from q."""
+    a = -0.5 * sa.light_size[j, 0] if k == 0 or k == 3 else 0.5 * sa.light_size[j, 0]
+    b = -0.5 * sa.light_size[j, 1] if k < 2 else 0.5 * sa.light_size[j, 1]
+    return (sa.light_pos[j, 0] + a * sa.light_u[j, 0] + b * sa.light_v[j, 0] - qx,
+            sa.light_pos[j, 1] + a * sa.light_u[j, 1] + b * sa.light_v[j, 1] - qy,
+            sa.light_pos[j, 2] + a * sa.light_u[j, 2] + b * sa.light_v[j, 2] - qz)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _polygon_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
     """Lambert's formula for a rectangle light seen from q: its projected solid angle
-    ``1/2 |sum_i beta_i gamma_i . n|`` when it lies above both normals' horizons, else -1."""
-    cx, cy, cz = sa.light_pos[j, 0], sa.light_pos[j, 1], sa.light_pos[j, 2]
-    hu = 0.5 * sa.light_size[j, 0]
-    hv = 0.5 * sa.light_size[j, 1]
-    vx = np.empty(4)
-    vy = np.empty(4)
-    vz = np.empty(4)
-    for k in range(4):
-        a = -hu if k == 0 or k == 3 else hu
-        b = -hv if k < 2 else hv
-        px = cx + a * sa.light_u[j, 0] + b * sa.light_v[j, 0] - qx
-        py = cy + a * sa.light_u[j, 1] + b * sa.light_v[j, 1] - qy
-        pz = cz + a * sa.light_u[j, 2] + b * sa.light_v[j, 2] - qz
-        if dot3(px, py, pz, sx, sy, sz) <= 0.0 or dot3(px, py, pz, gx, gy, gz) <= 0.0:
-            return -1.0
-        vx[k], vy[k], vz[k], _ = normalize3(px, py, pz)
+    ``1/2 |sum_i beta_i gamma_i . n|`` when it lies above both normals' horizons, else -1.
+    (Scalars only: this runs per shading point and light inside a parallel loop.)"""
     tot = 0.0
     for k in range(4):
-        m = (k + 1) % 4
-        c = min(1.0, max(-1.0, dot3(vx[k], vy[k], vz[k], vx[m], vy[m], vz[m])))
-        gxx = vy[k] * vz[m] - vz[k] * vy[m]
-        gyy = vz[k] * vx[m] - vx[k] * vz[m]
-        gzz = vx[k] * vy[m] - vy[k] * vx[m]
-        gxx, gyy, gzz, gl = normalize3(gxx, gyy, gzz)
+        ax, ay, az = _corner(sa, j, k, qx, qy, qz)
+        if dot3(ax, ay, az, sx, sy, sz) <= 0.0 or dot3(ax, ay, az, gx, gy, gz) <= 0.0:
+            return -1.0
+        bx, by, bz = _corner(sa, j, (k + 1) % 4, qx, qy, qz)
+        ax, ay, az, _ = normalize3(ax, ay, az)
+        bx, by, bz, _ = normalize3(bx, by, bz)
+        c = min(1.0, max(-1.0, dot3(ax, ay, az, bx, by, bz)))
+        gxx, gyy, gzz, gl = normalize3(ay * bz - az * by, az * bx - ax * bz,
+                                       ax * by - ay * bx)
         if gl > 0.0:
             tot += math.acos(c) * dot3(gxx, gyy, gzz, sx, sy, sz)
     return 0.5 * abs(tot)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
     """The closed form of the unshadowed light j at q over its radiance (the sum the
     samples' weights estimate), for the ratio estimator; -1 where there is none here (a

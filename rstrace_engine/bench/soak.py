@@ -110,14 +110,16 @@ class EditGenerator:
              "camera")
     #: kinds a generator adds on request (``extra=``), so that the seeded sequences of
     #: :attr:`KINDS` stay as they were: removing a mesh or a material no object uses any
-    #: more; a light's extent: a point or spot light's radius and soft falloff, a sun's
-    #: angle, an area light's size, shape and spread (added when there is none)
-    EXTRA_KINDS = ("mesh_delete", "material_delete", "light_radius", "sun_angle",
-                   "area_light")
+    #: more
+    EXTRA_KINDS = ("mesh_delete", "material_delete")
+    #: a light's extent (issue 20), extra kinds too: a point or spot light's radius and
+    #: soft falloff, a sun's angle, an area light's size, shape and spread (one is added
+    #: when there is none)
+    SOFT_KINDS = ("light_radius", "sun_angle", "area_light")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
                  extra: tuple = ()) -> None:
-        unknown = set(extra) - set(self.EXTRA_KINDS)
+        unknown = set(extra) - set(self.EXTRA_KINDS) - set(self.SOFT_KINDS)
         if unknown:
             raise ValueError(f"unknown extra edit kinds {sorted(unknown)}")
         self.kinds = self.KINDS + tuple(extra)

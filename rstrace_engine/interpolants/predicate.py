@@ -379,9 +379,10 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             # interpolated after a light was deleted)
             continue
         occ = sm.node_occ[sm.node_start[s0] + row, j]
-        if occ == OCC_SOFT:
-            # a light with an extent: its visibility over the cell is not proven (the
-            # conservative step: the cell is traced)
+        if occ == OCC_SOFT or qs.light_ext[j]:
+            # a light with an extent: its visibility over the cell is not proven, nor that
+            # it stays behind the surface all over the cell (the conservative step: the
+            # cell is traced)
             return R_SHAFT
         lit = occ == -1
         # the spot cone over the points' box: a step inside the cell fails it; a cell the

@@ -57,6 +57,7 @@ SH_SOFT = 2
 OCC_SOFT = -3
 
 _GOLDEN = 0.6180339887498949
+_FACING_SLACK = 1e-9  # relative: extent_faces errs on the side of sampling
 _INV_2_53 = 1.0 / 9007199254740992.0
 
 
@@ -202,6 +203,29 @@ def _sphere_exit(ox, oy, oz, wx, wy, wz, cx, cy, cz, r):
 
 
 # ----------------------------------------------------------------------------- samples
+
+
+@njit(cache=True, nogil=True, inline="always")
+def extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
+    """False when no point of light j can light the side of geometric normal g at q: its
+    bounding sphere (or a sun's cone) lies wholly below the tangent plane, or q is behind
+    the area light's emitting side. (Every sample would have weight 0; skipping them
+    changes no pixel, and the ray trees then record the light as not facing.)"""
+    if sa.light_kind[j] == LIGHT_SUN:
+        ch = sa.light_cos_half[j]
+        sin_h = math.sqrt(max(0.0, 1.0 - ch * ch))
+        return -dot3(gx, gy, gz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                     sa.light_dir[j, 2]) > -sin_h - _FACING_SLACK
+    vx = sa.light_pos[j, 0] - qx
+    vy = sa.light_pos[j, 1] - qy
+    vz = sa.light_pos[j, 2] - qz
+    bound = sa.light_bound[j] * (1.0 + _FACING_SLACK)
+    if sa.light_kind[j] == LIGHT_AREA and dot3(vx, vy, vz, sa.light_dir[j, 0],
+                                               sa.light_dir[j, 1], sa.light_dir[j, 2]) > 0.0:
+        return False  # on the back of the one-sided emitter (or in its plane)
+    return dot3(vx, vy, vz, gx, gy, gz) > -bound - _FACING_SLACK * math.sqrt(
+        vx * vx + vy * vy + vz * vz)
+
 
 
 @njit(cache=True, nogil=True, inline="always")

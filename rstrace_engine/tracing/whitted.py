@@ -74,6 +74,7 @@ from .soft_lights import (
     OCC_SOFT,
     SH_SOFT,
     SoftSamples,
+    extent_faces,
     has_soft_light,
     no_samples,
     node_seeds,
@@ -158,7 +159,10 @@ def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state
         if sa.light_kind[j] < 0:
             continue  # a deleted light's slot (LIGHT_NONE)
         if sa.light_ext[j]:
-            sh_state[r] = SH_SOFT  # sampled: each sample checks its own facing
+            # sampled (each sample checks its own facing), unless the whole light is below
+            # the surface's horizon or behind an area light: then every sample would be 0
+            if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
+                sh_state[r] = SH_SOFT
             continue
         if sa.light_kind[j] == LIGHT_SUN:
             lx = -sa.light_dir[j, 0]

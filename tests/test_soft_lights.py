@@ -4,6 +4,7 @@ light samples, determinism, hard lights unchanged, and bad input."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -435,3 +436,16 @@ def test_random_extent_edits_base_exact():
             assert not (changed & ~dirty).any()
         prev = frame
     assert set(gen.kinds_done) >= set(EditGenerator.SOFT_KINDS), gen.kinds_done
+
+
+def test_tiny_extents_are_points_or_a_parallel_sun():
+    """A radius or angle below float64's reach is the point light or the parallel sun (no
+    overflow, no NaN); a small but real sun angle is still the sun's full irradiance."""
+    lamp = Light("Lamp", "POINT", power=100.0, position=(0.0, 0.0, 2.0))
+    xy = _grid()
+    hard = _radiance_at(_floor([lamp]), xy, 4)
+    tiny = _radiance_at(_floor([replace(lamp, radius=1e-200)]), xy, 4)
+    assert np.array_equal(hard, tiny)
+    sun = Light("Sun", "SUN", power=3.0, direction=(0.0, 0.0, -1.0), angle=1e-8)
+    got = _radiance_at(_floor([sun]), xy, 4)
+    np.testing.assert_allclose(got, RHO / math.pi * 3.0, rtol=1e-9)

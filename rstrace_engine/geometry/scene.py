@@ -123,7 +123,7 @@ class _ExtendedLights:
         self.a = dict(
             light_ext=np.zeros(nl, np.bool_), light_radiance=np.zeros((nl, 3)),
             light_radius=np.zeros(nl), light_soft=np.zeros(nl, np.bool_),
-            light_cos_half=np.ones(nl), light_u=np.zeros((nl, 3)),
+            light_half=np.zeros(nl), light_u=np.zeros((nl, 3)),
             light_v=np.zeros((nl, 3)), light_size=np.zeros((nl, 2)),
             light_ellipse=np.zeros(nl, np.bool_), light_spread=np.zeros((nl, 2)),
             light_bound=np.zeros(nl))
@@ -137,7 +137,7 @@ class _ExtendedLights:
         a["light_ext"][j] = True
         if li.kind == "SUN":
             half = 0.5 * li.angle
-            a["light_cos_half"][j] = math.cos(half)
+            a["light_half"][j] = half
             a["light_radiance"][j] = c * li.power / (math.pi * math.sin(half) ** 2)
         elif li.kind == "AREA":
             su, sv = li.size
@@ -220,7 +220,7 @@ class SceneArrays(NamedTuple):
     light_radiance: np.ndarray  # (L, 3) emitted radiance of an extended light, W/(m^2 sr)
     light_radius: np.ndarray  # (L,) sphere radius (POINT, SPOT), 0 otherwise
     light_soft: np.ndarray  # (L,) bool Blender's use_soft_falloff (spheres)
-    light_cos_half: np.ndarray  # (L,) SUN: cosine of half the angular diameter (1: none)
+    light_half: np.ndarray  # (L,) SUN: half the angular diameter (0: none), radians
     light_u: np.ndarray  # (L, 3) AREA: unit +X of the emitter
     light_v: np.ndarray  # (L, 3) AREA: unit cross(-direction, +X)
     light_size: np.ndarray  # (L, 2) AREA: full extents along u and v
@@ -630,6 +630,10 @@ class Scene:
         d = d / ln
         radius = _light_number(n, "radius", light.radius, 0.0, tol.COORD_MAX)
         angle = _light_number(n, "angle", light.angle, 0.0, math.pi)
+        # below these a sphere or a sun's cone is a point or a direction to float64 (its
+        # radiance over its size would overflow): the light is one
+        radius = 0.0 if radius < tol.LIGHT_EXTENT_MIN else radius
+        angle = 0.0 if angle < tol.LIGHT_EXTENT_MIN else angle
         spread = _light_number(n, "spread", light.spread, 0.0, math.pi)
         shape = light.shape
         axis, ext = (1.0, 0.0, 0.0), (1.0, 1.0)

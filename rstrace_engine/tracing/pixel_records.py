@@ -131,8 +131,7 @@ def light_geometry(sa) -> np.ndarray:
     out = np.zeros((len(sa.light_kind), 5))
     out[:, :3] = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
     out[:, 3] = sa.light_bound
-    ch = np.clip(sa.light_cos_half, -1.0, 1.0)
-    out[:, 4] = np.where(sa.light_ext & (sa.light_kind == LIGHT_SUN), np.arccos(ch), 0.0)
+    out[:, 4] = np.where(sa.light_ext & (sa.light_kind == LIGHT_SUN), sa.light_half, 0.0)
     # a margin on both for the shadow rays' origins being off the recorded points
     out[:, 3] = np.where(out[:, 3] > 0.0, out[:, 3] * (1.0 + tol.RECORD_SLACK_REL), 0.0)
     out[:, 4] = np.where(out[:, 4] > 0.0, out[:, 4] + tol.RECORD_DIR_ERROR, 0.0)

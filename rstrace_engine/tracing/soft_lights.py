@@ -212,8 +212,7 @@ def extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
     the area light's emitting side. (Every sample would have weight 0; skipping them
     changes no pixel, and the ray trees then record the light as not facing.)"""
     if sa.light_kind[j] == LIGHT_SUN:
-        ch = sa.light_cos_half[j]
-        sin_h = math.sqrt(max(0.0, 1.0 - ch * ch))
+        sin_h = math.sin(sa.light_half[j])
         return -dot3(gx, gy, gz, sa.light_dir[j, 0], sa.light_dir[j, 1],
                      sa.light_dir[j, 2]) > -sin_h - _FACING_SLACK
     vx = sa.light_pos[j, 0] - qx
@@ -234,7 +233,7 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
     weight before the cosine at the surface and the 1 / n factor (0: no light)."""
     kind = sa.light_kind[j]
     if kind == LIGHT_SUN:
-        omc = 1.0 - sa.light_cos_half[j]
+        omc = 2.0 * math.sin(0.5 * sa.light_half[j]) ** 2  # 1 - cos, without cancelling
         dx, dy, dz = _cone_dir(-sa.light_dir[j, 0], -sa.light_dir[j, 1], -sa.light_dir[j, 2],
                                omc, u, v)
         return dx, dy, dz, np.inf, 2.0 * math.pi * omc
@@ -341,9 +340,8 @@ def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
     if kind == LIGHT_SPOT:
         return -1.0
     if kind == LIGHT_SUN:
-        ch = sa.light_cos_half[j]
         return _cap_exact(-sa.light_dir[j, 0], -sa.light_dir[j, 1], -sa.light_dir[j, 2],
-                          max(0.0, 1.0 - ch * ch), gx, gy, gz, sx, sy, sz)
+                          math.sin(sa.light_half[j]) ** 2, gx, gy, gz, sx, sy, sz)
     cx, cy, cz = sa.light_pos[j, 0], sa.light_pos[j, 1], sa.light_pos[j, 2]
     if kind == LIGHT_AREA:
         if sa.light_ellipse[j] or sa.light_spread[j, 0] < np.inf:

@@ -27,6 +27,9 @@ RI_MAX_DEPTH = 64
 #: Deepest linetree cell a ``depth_cap`` may ask for (:data:`.interpolants.linetree.MAX_DEPTH`;
 #: the linetree's sample lattice lies two levels further down).
 LINETREE_MAX_DEPTH = 12
+#: Shadow rays per light with an extent and per shading point (RenderSettings.light_samples)
+LIGHT_SAMPLES_DEFAULT = 16
+LIGHT_SAMPLES_MAX = 4096
 #: Visibility field: most directions (the tetrahedron subdivided to
 #: :data:`.accel.directions.MAX_LEVEL`), most tiles per side, memory cap of one field (MB).
 VF_MAX_DIRECTIONS = 2050
@@ -75,6 +78,9 @@ class RenderSettings:
     epsilon: float = 0.01  # display-space error bound for interpolants
     max_depth: int = 5  # Whitted ray depth (0: primary rays and direct light only)
     samples: int = 1  # jittered samples per pixel
+    # shadow rays per light with an extent (area, sphere, sun with an angle) and for the
+    # world's light, per shading point (docs/SOFT_LIGHT.md: the default by measurement)
+    light_samples: int = LIGHT_SAMPLES_DEFAULT
     accelerator: str = "BVH"
     depth_cap: int = 6  # linetree depth cap
     memory_cap_mb: float = 256.0  # interpolant memory cap
@@ -106,6 +112,10 @@ class RenderSettings:
             raise SceneError(f"setting 'max_ray_depth': {self.max_depth} outside [0, 32]")
         if not 1 <= int(self.samples) <= 4096:
             raise SceneError(f"setting 'samples': {self.samples} outside [1, 4096]")
+        if not 1 <= int(self.light_samples) <= LIGHT_SAMPLES_MAX:
+            raise SceneError(f"setting 'light_samples': {self.light_samples} outside "
+                             f"[1, {LIGHT_SAMPLES_MAX}] (shadow rays per light with an "
+                             f"extent, per shading point)")
         if not 0 <= int(self.depth_cap) <= LINETREE_MAX_DEPTH:
             raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside "
                              f"[0, {LINETREE_MAX_DEPTH}]")

@@ -98,7 +98,9 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
         if cancelled(cancel):
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         k = sample % samples if samples > 1 else 0  # one sample: the pixel centres
-        rad, inst = trace_pixels(sa, accel, cp, pix, jitter[k], int(settings.max_depth), cancel)
+        rad, inst = trace_pixels(sa, accel, cp, pix, jitter[k], int(settings.max_depth), cancel,
+                                 gids=k * (w * h) + pix, seed=int(settings.seed),
+                                 light_samples=int(settings.light_samples))
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         with threads_for(len(pix)):

@@ -41,7 +41,7 @@ def three_spheres(width: int = 640, height: int = 480, subdivisions: int = 4) ->
     s.add_light(Light("Key", "POINT", power=1500.0, position=(-3.0, -4.0, 6.0)))
     s.add_light(Light("Fill", "POINT", color=(0.9, 0.95, 1.0), power=500.0,
                       position=(4.0, -2.0, 3.5)))
-    s.set_world_color((0.05, 0.06, 0.08))
+    s.set_world_color((0.05, 0.06, 0.08), lights=False)  # a background only
     s.set_camera(_camera((0.0, -8.5, 3.6), (0.0, 0.3, 0.8), width, height))
     return s
 
@@ -60,7 +60,7 @@ def grid(width: int = 640, height: int = 480, subdivisions: int = 4) -> Scene:
                        [mat], name=f"Ico{k:02d}")
     s.add_light(Light("Sun", "SUN", power=3.0, direction=(-0.3, 0.4, -1.0)))
     s.add_light(Light("Lamp", "POINT", power=3000.0, position=(0.0, -6.0, 8.0)))
-    s.set_world_color((0.1, 0.1, 0.12))
+    s.set_world_color((0.1, 0.1, 0.12), lights=False)  # a background only
     s.set_camera(_camera((0.0, -16.0, 9.0), (0.0, 0.0, 0.5), width, height))
     return s
 
@@ -202,7 +202,7 @@ def tori(width: int = 640, height: int = 480) -> Scene:
     s.add_instance(tor, shapes.transform((2.2, 1.8, 0.35), 0.8), [green], name="GreenTorus")
     s.add_light(Light("Key", "POINT", power=2500.0, position=(-3.0, -4.0, 6.0)))
     s.add_light(Light("Sun", "SUN", power=1.5, direction=(0.5, 0.3, -1.0)))
-    s.set_world_color((0.05, 0.06, 0.08))
+    s.set_world_color((0.05, 0.06, 0.08), lights=False)  # a background only
     s.set_camera(_camera((0.0, -8.5, 4.0), (0.0, 0.3, 0.6), width, height))
     return s
 

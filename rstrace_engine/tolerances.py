@@ -187,3 +187,16 @@ THICKNESS_STEP_REL = 1e-9
 #: An interpolated shading normal that leans past the view ray is bent back until it faces
 #: the viewer by this much (cosine).
 INTERP_NORMAL_BEND = 1e-6
+
+
+# ----------------------------------------------------------------------------- soft lights
+
+#: An area light's axis may deviate this much (cosine) from orthogonal to its direction
+#: before it is refused; within it the axis is made exactly orthogonal.
+AREA_AXIS_COS_MAX = 1e-3
+#: Spreads below 0.1 degrees are taken as 0.1 degrees (Cycles clamps alike: a smaller
+#: angle's attenuation vanishes in float precision).
+AREA_SPREAD_MIN = 0.1 * 3.141592653589793 / 180.0
+#: A light radius (m) or a sun angle (radians) below this is taken as 0: a point light or a
+#: parallel sun (the radiance over so small an extent, ~ power / radius^2, would overflow).
+LIGHT_EXTENT_MIN = 1e-12

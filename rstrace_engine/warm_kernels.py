@@ -65,11 +65,19 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     s.add_instance(box, shapes.transform((0.0, 1.2, 0.4), 1.0, 30.0), [glass], name="Glass")
     s.add_instance(torus, shapes.transform((1.6, 1.4, 0.3), 1.0, 20.0, 70.0), [glow],
                    name="Glow")
-    s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0)))
-    s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.2, -1.0)))
+    # the orthographic variant has soft light (a sphere light, a sun with an angle, a
+    # spot with a radius, an area light, a world that lights): its kernels warm too; the
+    # perspective one keeps hard light, whose cells reach the predicate's light tests
+    soft = 0.1 if ortho else 0.0
+    s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0),
+                      radius=soft))
+    s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.2, -1.0), angle=soft))
     s.add_light(Light("Spot", "SPOT", power=900.0, position=(2.0, -2.0, 3.0),
-                      direction=(-0.4, 0.4, -1.0)))
-    s.set_world_color((0.05, 0.06, 0.08))
+                      direction=(-0.4, 0.4, -1.0), radius=soft))
+    if ortho:
+        s.add_light(Light("Area", "AREA", power=300.0, position=(0.0, 0.0, 3.0),
+                          direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(1.0, 0.5)))
+    s.set_world_color((0.05, 0.06, 0.08), lights=ortho)
     matrix = shapes.look_at(eye, (0.0, 0.3, 0.5))
     if ortho:
         s.set_camera(Camera(matrix=matrix, kind="ORTHO", ortho_scale=6.0, width=width,

@@ -38,7 +38,7 @@ def textured_floor(kind: str) -> Scene:
     s.add_instance(s.add_mesh(shapes.icosphere(2, name="ball")),
                    shapes.transform((0.8, 0.5, 0.7), 0.7), [red], "Ball")
     s.add_light(Light("Lamp", "POINT", power=900.0, position=(-2.0, -1.5, 4.0)))
-    s.set_world_color((0.05, 0.05, 0.06))
+    s.set_world_color((0.05, 0.05, 0.06), lights=False)
     s.set_camera(_camera(kind, (0.0, -5.5, 4.5), (0.0, 0.3, 0.0), 7.0))
     return s
 
@@ -79,7 +79,7 @@ def gallery(kind: str) -> Scene:
     s.add_instance(cube, shapes.transform((0.4, -1.6, 0.4), 0.8), [bronze], "Box")
     s.add_light(Light("Key", "POINT", power=1500.0, position=(-2.0, -0.5, 6.0)))
     s.add_light(Light("Sun", "SUN", power=1.5, direction=(0.3, 0.5, -1.0)))
-    s.set_world_color((0.3, 0.35, 0.45))
+    s.set_world_color((0.3, 0.35, 0.45), lights=False)
     s.set_camera(_camera(kind, (0.5, -7.0, 2.5), (0.0, 0.4, 1.2), 8.0))
     return s
 

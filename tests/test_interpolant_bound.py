@@ -169,7 +169,8 @@ def test_refraction_into_a_non_convex_object_is_refused():
                                     ior=1.45))
     s.add_instance(s.add_mesh(shapes.torus(1.6, 0.6, 48, 24)),
                    shapes.transform((0.0, 0.0, 1.0), rotate_x_deg=70.0), [glass], "Ring")
-    s.set_world_color((0.3, 0.35, 0.45))  # no lights, only the sky: the trees agree widely
+    # no lights, only the sky (a background): the trees agree widely
+    s.set_world_color((0.3, 0.35, 0.45), lights=False)
     s.set_camera(Camera(matrix=shapes.look_at((0.0, -6.0, 2.0), (0.0, 0.0, 1.0)), width=64,
                         height=48))
     frame, base, r = frames(s, epsilon=1.0)

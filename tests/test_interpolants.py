@@ -294,7 +294,7 @@ def _sun_spheres() -> Scene:
     s.add_instance(ball, shapes.transform((1.2, -0.5, 0.8), 0.8), [red])
     s.add_light(Light("Sun", "SUN", power=2.0, direction=(-0.4, 0.5, -1.0)))
     s.add_light(Light("Sun2", "SUN", power=0.8, direction=(0.6, 0.2, -1.0)))
-    s.set_world_color((0.05, 0.06, 0.08))
+    s.set_world_color((0.05, 0.06, 0.08), lights=False)
     s.set_camera(Camera(matrix=shapes.look_at((0.0, -8.5, 3.6), (0.0, 0.3, 0.8)), lens=35.0,
                         width=W, height=H))
     return s

@@ -69,7 +69,7 @@ def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0
         s.delete_instance(k)
     for k in hide:
         s.set_instance_visible(k, False)
-    s.set_world_color(world)
+    s.set_world_color(world, lights=False)
     s.set_camera(Camera(matrix=shapes.look_at(*camera), lens=35.0, width=W, height=H))
     return s
 
@@ -382,7 +382,7 @@ def test_an_edit_batch_that_adds_a_light_starts_the_cache_over_on_the_new_scene(
     s.add_instance(s.add_mesh(shapes.plane(8.0)), np.eye(4), [fl], "Floor", key="Floor")
     s.add_instance(cube, shapes.transform((30.0, 30.0, 0.5), size), [fl], "Occ", key="Occ")
     s.add_light(Light("Lamp", "POINT", power=800.0, position=(0.0, 0.0, 4.0)), key="Lamp")
-    s.set_world_color((0.02, 0.02, 0.02))
+    s.set_world_color((0.02, 0.02, 0.02), lights=False)
     s.set_camera(Camera(matrix=shapes.look_at((0.0, -5.0, 5.0), (0.0, 0.0, 0.0)), width=96,
                         height=72))
     eps = 0.1

@@ -161,7 +161,7 @@ def _cube_scene(material=None, world=(0.0, 0.0, 0.0)):
     s.add_instance(cube, np.eye(4), [mat], name="Cube")
     s.add_light(Light("Sun", "SUN", power=2.0, direction=(0.0, 0.0, -1.0)))  # along an axis
     s.add_light(Light("Diag", "SUN", power=1.0, direction=(-1.0, -1.0, -1.0)))
-    s.set_world_color(world)
+    s.set_world_color(world, lights=False)
     s.set_camera(ortho_down())
     return s
 

@@ -29,7 +29,7 @@ def _slab(material: Material, floor: bool = True, world=(0.0, 0.0, 0.0)) -> Scen
         s.add_instance(s.add_mesh(shapes.plane(100.0, name="floor")), np.eye(4), [glow])
     s.add_instance(s.add_mesh(shapes.box((40.0, 40.0, 0.5), name="slab")),
                    shapes.transform((0.0, 0.0, 2.0)), [glass])
-    s.set_world_color(world)
+    s.set_world_color(world, lights=False)
     s.set_camera(ortho_down())
     return s
 

@@ -28,7 +28,7 @@ def _scene(w, h) -> Scene:
     s.add_instance(s.add_mesh(shapes.icosphere(4)),
                    shapes.transform((0.0, 0.0, 1.2), 1.0, 0.0, 20.0), [m], name="Obj")
     s.add_light(Light("Key", "POINT", power=1500.0, position=(-3.0, -4.0, 6.0)))
-    s.set_world_color((0.3, 0.35, 0.4))
+    s.set_world_color((0.3, 0.35, 0.4), lights=False)
     s.set_camera(Camera(matrix=shapes.look_at((0.0, -6.0, 2.5), (0.0, 0.0, 1.0)), lens=40.0,
                         width=w, height=h))
     return s

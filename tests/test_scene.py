@@ -194,7 +194,7 @@ def test_bad_texture_rejected():
 
 
 @pytest.mark.parametrize("light,msg", [
-    (Light("Lamp", "AREA"), "unknown kind"),
+    (Light("Lamp", "TUBE"), "unknown kind"),
     (Light("Lamp", power=-1.0), "power"),
     (Light("Lamp", power=np.nan), "power"),
     (Light("Lamp", position=(0.0, np.nan, 0.0)), "position"),

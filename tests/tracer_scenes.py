@@ -21,7 +21,8 @@ def ortho_down(height: float = 10.0, scale: float = 4.0, width: int = 32, rows: 
 
 
 def plane_scene(material: Material, lights=(), camera: Camera | None = None,
-                size: float = 20.0, world=(0.0, 0.0, 0.0)) -> Scene:
+                size: float = 20.0, world=(0.0, 0.0, 0.0),
+                world_lights: bool = False) -> Scene:
     """A single plane (z = 0, normal +Z) under the given lights."""
     s = Scene()
     mid = s.add_material(material)
@@ -29,7 +30,7 @@ def plane_scene(material: Material, lights=(), camera: Camera | None = None,
     s.add_instance(pm, np.eye(4), [mid], name="Floor")
     for li in lights:
         s.add_light(li)
-    s.set_world_color(world)
+    s.set_world_color(world, lights=world_lights)
     s.set_camera(camera or ortho_down())
     return s
 
@@ -68,5 +69,5 @@ def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0),
     out.set_camera(Camera(g @ c.matrix, c.kind, c.lens, c.sensor_width, c.sensor_height,
                           c.sensor_fit, c.shift_x, c.shift_y, c.clip_start * scale,
                           c.clip_end * scale, c.ortho_scale * scale, c.width, c.height))
-    out.set_world_color(np.asarray(scene.world_color) * gain)
+    out.set_world_color(np.asarray(scene.world_color) * gain, scene.world_lights)
     return out

@@ -260,7 +260,7 @@ def soak(steps: int, log=print) -> dict:
     per_scene = max(1, steps // len(SOAK_SCENES))
     for k, (name, build) in enumerate(sorted(SOAK_SCENES.items())):
         gen = EditGenerator(build(64, 48), seed=1000 + k,
-                            extra=EditGenerator.EXTRA_KINDS)
+                            extra=EditGenerator.EXTRA_KINDS + EditGenerator.SOFT_KINDS)
         sess = Session(gen.scene.copy(), settings)
         prev = sess.render()
         for _ in range(per_scene):

@@ -3,7 +3,7 @@
 :class:`EditGenerator` turns a seed into a sequence of edit batches of every kind
 (:mod:`~rstrace_engine.geometry.edits`): moving, adding, deleting, hiding and re-meshing
 objects, changing their materials, material parameters, mesh data, lights (power, colour,
-position, cone, added, deleted), the world colour and the camera. It keeps its own copy of
+position, cone, extent, added, deleted), the world colour and the camera. It keeps its own copy of
 the scene in step so every edit is valid, and keeps the number of objects, lights and meshes
 bounded (slots are reused). :data:`SOAK_SCENES` are small scenes with mirrors and glass
 whose boxes the edits stay inside (so most frames are incremental).
@@ -12,6 +12,7 @@ whose boxes the edits stay inside (so most frames are incremental).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -68,7 +69,7 @@ def room(width: int = 64, height: int = 48) -> Scene:
     s.add_light(Light("Spot", "SPOT", power=1500.0, position=(3.0, -3.0, 3.0),
                       direction=(-0.5, 0.6, -0.6), spot_size=math.radians(60)))
     s.add_light(Light("Sun", "SUN", power=0.8, direction=(0.3, 0.5, -1.0)))
-    s.set_world_color((0.05, 0.05, 0.08))
+    s.set_world_color((0.05, 0.05, 0.08), lights=False)  # a background only
     s.set_camera(Camera(matrix=shapes.look_at((0.5, -7.0, 3.0), (0.0, 0.5, 0.8)), lens=28.0,
                         width=width, height=height))
     return s
@@ -84,7 +85,21 @@ def tori(width: int = 64, height: int = 48) -> Scene:
     return scenes.tori(width, height)
 
 
-SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori}
+def soft_room(width: int = 64, height: int = 48) -> Scene:
+    """The room lit as a Blender user lights it: an area light, a sphere light, a sun
+    with an angle and a world that lights."""
+    s = room(width, height)
+    s.set_light(s.light_slot("Lamp"), Light("Lamp", "POINT", power=900.0,
+                                            position=(-2.0, -2.0, 3.5), radius=0.3))
+    s.set_light(s.light_slot("Sun"), Light("Sun", "SUN", power=0.8,
+                                           direction=(0.3, 0.5, -1.0), angle=0.1))
+    s.add_light(Light("Area", "AREA", power=600.0, position=(0.5, 0.0, 3.8),
+                      direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(1.5, 0.8)))
+    s.set_world_color((0.05, 0.05, 0.08), lights=True)
+    return s
+
+
+SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori, "soft_room": soft_room}
 
 
 class EditGenerator:
@@ -94,12 +109,17 @@ class EditGenerator:
              "mesh_set", "light_power", "light_move", "light_add", "light_delete", "world",
              "camera")
     #: kinds a generator adds on request (``extra=``), so that the seeded sequences of
-    #: :attr:`KINDS` stay as they were: removing a mesh or a material no object uses any more
+    #: :attr:`KINDS` stay as they were: removing a mesh or a material no object uses any
+    #: more
     EXTRA_KINDS = ("mesh_delete", "material_delete")
+    #: a light's extent (issue 20), extra kinds too: a point or spot light's radius and
+    #: soft falloff, a sun's angle, an area light's size, shape and spread (one is added
+    #: when there is none)
+    SOFT_KINDS = ("light_radius", "sun_angle", "area_light")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
                  extra: tuple = ()) -> None:
-        unknown = set(extra) - set(self.EXTRA_KINDS)
+        unknown = set(extra) - set(self.EXTRA_KINDS) - set(self.SOFT_KINDS)
         if unknown:
             raise ValueError(f"unknown extra edit kinds {sorted(unknown)}")
         self.kinds = self.KINDS + tuple(extra)
@@ -220,9 +240,8 @@ class EditGenerator:
         if kind == "light_power" and light_keys:
             key = self._pick(light_keys)
             li = s.lights[s.light_slot(key)]
-            return [LightSet(key, Light(li.name, li.kind, tuple(rng.uniform(0.5, 1.0, 3)),
-                                        li.power * float(rng.uniform(0.3, 2.0)), li.position,
-                                        li.direction, li.spot_size, li.spot_blend))]
+            return [LightSet(key, replace(li, color=tuple(rng.uniform(0.5, 1.0, 3)),
+                                          power=li.power * float(rng.uniform(0.3, 2.0))))]
         if kind == "light_move" and light_keys:
             key = self._pick(light_keys)
             return [LightSet(key, self._light(str(key)))]
@@ -231,6 +250,8 @@ class EditGenerator:
             return [LightSet(f"light{self._serial}", self._light(f"light{self._serial}"))]
         if kind == "light_delete" and len(light_keys) > 1:
             return [LightDelete(self._pick(light_keys))]
+        if kind in ("light_radius", "sun_angle", "area_light"):
+            return self._extent(kind, light_keys)
         if kind == "world":
             return [WorldColor(tuple(rng.uniform(0.0, 0.2, 3)))]
         if kind == "camera" and self.camera:
@@ -242,6 +263,43 @@ class EditGenerator:
                                         cam.shift_y, cam.clip_start, cam.clip_end,
                                         cam.ortho_scale, cam.width, cam.height))]
         return None
+
+    def _extent(self, kind: str, light_keys: list):
+        """A light's extent edited (see :attr:`EXTRA_KINDS`)."""
+        s, rng = self.scene, self.rng
+        lights = {k: s.lights[s.light_slot(k)] for k in light_keys}
+        if kind == "light_radius":
+            keys = [k for k, li in lights.items() if li.kind in ("POINT", "SPOT")]
+            if not keys:
+                return None
+            key = self._pick(keys)
+            radius = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.05, 0.6))
+            return [LightSet(key, replace(lights[key], radius=radius,
+                                          soft_falloff=bool(rng.integers(2))))]
+        if kind == "sun_angle":
+            keys = [k for k, li in lights.items() if li.kind == "SUN"]
+            if not keys:
+                return None
+            key = self._pick(keys)
+            angle = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.01, 0.5))
+            return [LightSet(key, replace(lights[key], angle=angle))]
+        keys = [k for k, li in lights.items() if li.kind == "AREA"]
+        shape = self._pick(("SQUARE", "RECTANGLE", "DISK", "ELLIPSE"))
+        size = tuple(float(x) for x in rng.uniform(0.2, 2.0, 2))
+        spread = math.pi if rng.random() < 0.5 else float(rng.uniform(0.3, math.pi))
+        if keys:
+            key = self._pick(keys)
+            return [LightSet(key, replace(lights[key], shape=shape, size=size,
+                                          spread=spread))]
+        if s.n_lights >= self.max_lights or len(s.lights) >= 64:
+            return None
+        self._serial += 1
+        pos = self.rng.uniform(self.lo, self.hi)
+        pos[2] = self.hi[2] + self.rng.uniform(1.0, 3.0)
+        key = f"light{self._serial}"
+        return [LightSet(key, Light(key, "AREA", power=float(rng.uniform(200, 1200)),
+                                    position=tuple(pos), direction=(0.0, 0.0, -1.0),
+                                    shape=shape, size=size, spread=spread))]
 
     def step(self) -> list:
         """One batch of edits (one kind, sometimes two kinds at once), already applied to

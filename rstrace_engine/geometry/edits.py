@@ -123,6 +123,7 @@ class LightDelete:
 @dataclass(frozen=True)
 class WorldColor:
     color: tuple  # linear RGB
+    lights: bool | None = None  # whether it lights surfaces (None: as before)
 
 
 @dataclass(frozen=True)
@@ -146,8 +147,8 @@ class EditEffects:
     subset whose mesh, transform, box or visibility changed (or that were added or
     deleted); ``meshes`` the mesh ids whose triangles changed (set, added into a slot, or
     deleted); ``lights`` the light slots whose contribution changed, ``lights_moved`` the
-    subset whose position, direction, cone or kind changed (or that were added: they may now
-    light any surface), ``materials`` the material ids whose parameters changed.
+    subset whose position, direction, cone, kind or extent changed (or that were added: they
+    may now light any surface), ``materials`` the material ids whose parameters changed.
     """
 
     regions: list = field(default_factory=list)  # (2, 3) float64 world boxes
@@ -158,6 +159,7 @@ class EditEffects:
     lights_moved: set = field(default_factory=set)
     materials: set = field(default_factory=set)
     world: bool = False
+    world_lights: bool = False  # the edited world colour is not black (it lights surfaces)
     camera: bool = False
     kinds: dict = field(default_factory=dict)
 
@@ -216,9 +218,11 @@ def _visible_box(scene: Scene, slot: int) -> np.ndarray | None:
 
 
 def _light_geometry(li: Light) -> tuple:
-    """What decides where a light's shadow rays go and which surfaces face it."""
+    """What decides where a light's shadow rays go and which surfaces face it: also its
+    extent (radius, soft falloff, sun angle, area shape, axis, size, spread)."""
     return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
-            float(li.spot_blend))
+            float(li.spot_blend), float(li.radius), bool(li.soft_falloff), float(li.angle),
+            li.shape, tuple(li.axis), tuple(li.size), float(li.spread))
 
 
 def _material_ids(scene: Scene, name: str, keys) -> list[int]:
@@ -261,8 +265,9 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
         s.set_camera(e.camera)
         fx.camera = True
     elif isinstance(e, WorldColor):
-        s.set_world_color(e.color)
+        s.set_world_color(e.color, e.lights)
         fx.world = True
+        fx.world_lights = bool(s.world_lights and np.any(s.world_color > 0.0))
     elif isinstance(e, MeshSet):
         if e.key in s.mesh_keys.slot:
             mid = s.mesh_id(e.key)

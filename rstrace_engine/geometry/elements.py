@@ -16,9 +16,12 @@ import numpy as np
 from .. import tolerances as tol
 from ..errors import SceneError
 
-LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT = 0, 1, 2
+LIGHT_POINT, LIGHT_SUN, LIGHT_SPOT, LIGHT_AREA = 0, 1, 2, 3
 LIGHT_NONE = -1  # a deleted light's slot (tombstone): skipped by every tracer
-LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT}
+LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT,
+               "AREA": LIGHT_AREA}
+#: Area light shapes; SQUARE and RECTANGLE pack as a rectangle, DISK and ELLIPSE as an ellipse.
+AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
 
 MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
 MAX_LIGHT_POWER = 1e12  # W (W/m2 for a sun): above it a value is taken as broken input
@@ -186,10 +189,23 @@ class Mesh:
 
 @dataclass
 class Light:
-    """A point, sun or spot light. ``power`` is watts (point, spot) or W/m^2 (sun).
+    """A point, sun, spot or area light, as Blender and Cycles define them. ``power`` is
+    watts (point, spot, area) or W/m^2 (sun).
 
-    ``direction`` is the direction the light points (sun, spot), world space.
-    ``spot_size`` is the full cone angle in radians, ``spot_blend`` Blender's blend in [0, 1].
+    ``direction`` is the direction the light points (sun, spot) or emits (area: one-sided,
+    toward ``direction``), world space. ``spot_size`` is the full cone angle in radians,
+    ``spot_blend`` Blender's blend in [0, 1].
+
+    Extent (0 everywhere: a point or a parallel sun, one shadow ray, as before):
+
+    * ``radius`` (POINT, SPOT): Blender's ``shadow_soft_size``, a sphere light of that
+      radius; ``soft_falloff`` Blender's ``use_soft_falloff``.
+    * ``angle`` (SUN): the full angular diameter of the sun's cone of directions (radians,
+      below pi).
+    * ``shape``, ``axis``, ``size``, ``spread`` (AREA): ``"SQUARE"``, ``"RECTANGLE"``,
+      ``"DISK"`` or ``"ELLIPSE"``; ``axis`` the world unit vector of the emitter's local +X
+      (orthogonal to ``direction``); ``size`` the full world extents along ``axis`` and along
+      ``cross(-direction, axis)``; ``spread`` Blender's spread angle in (0, pi].
     """
 
     name: str = "light"
@@ -200,6 +216,22 @@ class Light:
     direction: tuple = (0.0, 0.0, -1.0)
     spot_size: float = math.radians(45.0)
     spot_blend: float = 0.15
+    radius: float = 0.0
+    soft_falloff: bool = True
+    angle: float = 0.0
+    shape: str = "SQUARE"
+    axis: tuple = (1.0, 0.0, 0.0)
+    size: tuple = (1.0, 1.0)
+    spread: float = math.pi
+
+    @property
+    def extended(self) -> bool:
+        """Whether the light has an extent (it is then sampled, not one shadow ray)."""
+        if self.kind == "AREA":
+            return True
+        if self.kind == "SUN":
+            return self.angle > 0.0
+        return self.radius > 0.0
 
 
 @dataclass

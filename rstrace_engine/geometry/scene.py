@@ -30,6 +30,8 @@ import numpy as np
 
 from .. import tolerances as tol
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
+    AREA_SHAPES,
+    LIGHT_AREA,
     LIGHT_KINDS,
     LIGHT_NONE,
     LIGHT_POINT,
@@ -54,6 +56,114 @@ from .mesh_math import proper_triangles, transform_aabb, vertex_normals
 
 log = logging.getLogger(__name__)
 
+
+
+def _light_number(name: str, label: str, value, lo: float, hi: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise SceneError(f"light '{name}': {label} {value!r} is not a number") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise SceneError(f"light '{name}': {label} {v} outside [{lo:g}, {hi:g}]")
+    return v
+
+
+def _area_size(name: str, shape: str, size) -> tuple:
+    """The full extents of an area light (a square or disk has one)."""
+    try:
+        sz = np.asarray(size, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise SceneError(f"light '{name}': size {size!r} is not numbers") from None
+    if sz.size == 1 or shape in ("SQUARE", "DISK"):
+        sz = np.array([sz[0], sz[0]])
+    if sz.size != 2:
+        raise SceneError(f"light '{name}': size needs 1 or 2 values, got {sz.size}")
+    if not np.all(np.isfinite(sz)):
+        raise SceneError(f"light '{name}': size {sz.tolist()} has NaN or infinite values")
+    if np.any(sz <= 0.0) or np.any(sz > tol.COORD_MAX):
+        what = "an axis of the ellipse" if shape == "ELLIPSE" else "a side"
+        raise SceneError(f"light '{name}': size {sz.tolist()}: {what} is zero, negative or "
+                         f"too large (a zero-size area light is a point)")
+    return (float(sz[0]), float(sz[1]))
+
+
+def _area_axis(name: str, axis, direction: np.ndarray) -> tuple:
+    """The emitter's unit +X, made exactly orthogonal to ``direction``."""
+    a = np.asarray(axis, dtype=np.float64).reshape(-1)
+    ln = float(np.linalg.norm(a)) if a.size == 3 and np.all(np.isfinite(a)) else 0.0
+    if ln == 0.0:
+        raise SceneError(f"light '{name}': axis is zero, NaN, infinite or not 3 values")
+    a = a / ln
+    c = float(a @ direction)
+    if abs(c) > tol.AREA_AXIS_COS_MAX:
+        raise SceneError(f"light '{name}': axis is not orthogonal to the direction "
+                         f"(cosine {c:.3g})")
+    a = a - c * direction
+    return tuple(a / np.linalg.norm(a))
+
+
+class _ExtendedLights:
+    """The packing of lights with an extent, as Cycles defines them (the radiance a
+    sampled direction carries):
+
+    * sphere (POINT, SPOT with a radius r): ``c P / (4 pi^2 r^2)`` over the sphere seen
+      from the point; with soft falloff over the cap of sine ``r / sqrt(r^2 + d^2)``
+      instead (the far field then equals the point light's ``P / (4 pi (d^2 + r^2))``);
+    * SUN with angular diameter a: ``c S / (pi sin^2(a / 2))`` over its cone (a surface
+      facing it gets irradiance ``c S``);
+    * AREA: ``c P / (pi A)`` on its emitting side (A its area: a Lambertian emitter of
+      exitance P / A), times the spread attenuation ``max(0, (tan(s/2) - tan(theta)) /
+      (tan(s/2) - s/2))`` when the spread s is below pi (Cycles' soft-box model, which
+      keeps the power; ``3 / (s/2)^3`` for the normaliser when s/2 <= 0.05, as Cycles).
+
+    (Checked against Cycles 4.2-5.0 renders: /work/research/cycles_lights.md, sections 1-5.)
+    """
+
+    def __init__(self, nl: int) -> None:
+        self.a = dict(
+            light_ext=np.zeros(nl, np.bool_), light_radiance=np.zeros((nl, 3)),
+            light_radius=np.zeros(nl), light_soft=np.zeros(nl, np.bool_),
+            light_half=np.zeros(nl), light_u=np.zeros((nl, 3)),
+            light_v=np.zeros((nl, 3)), light_size=np.zeros((nl, 2)),
+            light_ellipse=np.zeros(nl, np.bool_), light_spread=np.zeros((nl, 2)),
+            light_bound=np.zeros(nl))
+        self.a["light_spread"][:, 0] = np.inf
+
+    def pack(self, j: int, li: Light) -> None:
+        a = self.a
+        c = np.asarray(li.color, np.float64)
+        if not li.extended:
+            return
+        a["light_ext"][j] = True
+        if li.kind == "SUN":
+            half = 0.5 * li.angle
+            a["light_half"][j] = half
+            a["light_radiance"][j] = c * li.power / (math.pi * math.sin(half) ** 2)
+        elif li.kind == "AREA":
+            su, sv = li.size
+            u = np.asarray(li.axis, np.float64)
+            v = np.cross(-np.asarray(li.direction, np.float64), u)
+            ellipse = li.shape in ("DISK", "ELLIPSE")
+            area = su * sv * (math.pi / 4.0 if ellipse else 1.0)
+            a["light_u"][j] = u
+            a["light_v"][j] = v / np.linalg.norm(v)
+            a["light_size"][j] = (su, sv)
+            a["light_ellipse"][j] = ellipse
+            a["light_radiance"][j] = c * li.power / (math.pi * area)
+            a["light_bound"][j] = 0.5 * math.hypot(su, sv)
+            if li.spread < math.pi:
+                half = 0.5 * max(li.spread, tol.AREA_SPREAD_MIN)
+                norm = 3.0 / half ** 3 if half <= 0.05 else 1.0 / (math.tan(half) - half)
+                a["light_spread"][j] = (math.tan(half), norm)
+        else:
+            r = li.radius
+            a["light_radius"][j] = r
+            a["light_soft"][j] = bool(li.soft_falloff)
+            a["light_radiance"][j] = c * li.power / (4.0 * math.pi ** 2 * r * r)
+            a["light_bound"][j] = r
+
+    def arrays(self) -> dict:
+        return self.a
 
 
 class SceneArrays(NamedTuple):
@@ -100,9 +210,23 @@ class SceneArrays(NamedTuple):
     light_cos_outer: np.ndarray  # (L,) spot cone cosines (1.0 / -1.0 otherwise)
     light_cos_inner: np.ndarray  # (L,)
     world_color: np.ndarray  # (3,) float64
+    world_light: np.ndarray  # (3,) float64 the world's light: its colour, or 0 (background only)
     scene_aabb: np.ndarray  # (2, 3) float64 bounds of all live instances
     scene_extent: float  # length of the scene box diagonal (> 0)
     inst_alive: np.ndarray  # (I,) bool: the slot holds a visible object
+    # lights with an extent (:mod:`~rstrace_engine.tracing.soft_lights`); a light whose
+    # light_ext is False is a point or a parallel sun (one shadow ray)
+    light_ext: np.ndarray  # (L,) bool: sampled (sphere, sun with an angle, area)
+    light_radiance: np.ndarray  # (L, 3) emitted radiance of an extended light, W/(m^2 sr)
+    light_radius: np.ndarray  # (L,) sphere radius (POINT, SPOT), 0 otherwise
+    light_soft: np.ndarray  # (L,) bool Blender's use_soft_falloff (spheres)
+    light_half: np.ndarray  # (L,) SUN: half the angular diameter (0: none), radians
+    light_u: np.ndarray  # (L, 3) AREA: unit +X of the emitter
+    light_v: np.ndarray  # (L, 3) AREA: unit cross(-direction, +X)
+    light_size: np.ndarray  # (L, 2) AREA: full extents along u and v
+    light_ellipse: np.ndarray  # (L,) bool AREA: disk or ellipse
+    light_spread: np.ndarray  # (L, 2) AREA: tan(spread / 2) (inf: pi), its normaliser
+    light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
 
 
 #: What a tombstoned material slot packs as (no object uses it: never shaded).
@@ -189,6 +313,7 @@ class Scene:
         self.lights: list[Light | None] = []  # None: a tombstoned slot
         self.camera: Camera = Camera()
         self.world_color = np.zeros(3)
+        self.world_lights = True  # the world colour also lights surfaces (as in Cycles)
         self.stats: dict[str, int] = {"degenerate_triangles": 0}
         self.warnings: list[str] = []
         self.mesh_keys = _Keys("mesh")
@@ -208,6 +333,7 @@ class Scene:
         c.lights = list(self.lights)
         c.camera = self.camera
         c.world_color = self.world_color.copy()
+        c.world_lights = self.world_lights
         c.stats = dict(self.stats)
         c.warnings = list(self.warnings)
         c.mesh_keys = self.mesh_keys.copy()
@@ -501,7 +627,27 @@ class Scene:
         blend = float(light.spot_blend)
         if light.kind == "SPOT" and not (0.0 < size <= math.pi and 0.0 <= blend <= 1.0):
             raise SceneError(f"light '{n}': spot size {size} / blend {blend} out of range")
-        return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d / ln), size, blend)
+        d = d / ln
+        radius = _light_number(n, "radius", light.radius, 0.0, tol.COORD_MAX)
+        angle = _light_number(n, "angle", light.angle, 0.0, math.pi)
+        # below these a sphere or a sun's cone is a point or a direction to float64 (its
+        # radiance over its size would overflow): the light is one
+        radius = 0.0 if radius < tol.LIGHT_EXTENT_MIN else radius
+        angle = 0.0 if angle < tol.LIGHT_EXTENT_MIN else angle
+        spread = _light_number(n, "spread", light.spread, 0.0, math.pi)
+        shape = light.shape
+        axis, ext = (1.0, 0.0, 0.0), (1.0, 1.0)
+        if light.kind == "AREA":
+            if shape not in AREA_SHAPES:
+                raise SceneError(f"light '{n}': unknown area shape {shape!r} (expected one "
+                                 f"of {list(AREA_SHAPES)})")
+            ext = _area_size(n, shape, light.size)
+            axis = _area_axis(n, light.axis, d)
+            if spread <= 0.0:
+                raise SceneError(f"light '{n}': spread 0 (a collimated beam) is not "
+                                 f"modelled")
+        return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d), size, blend,
+                     radius, bool(light.soft_falloff), angle, shape, axis, ext, spread)
 
     def add_light(self, light: Light, key=None) -> int:
         """Add a light; returns its slot (the lowest tombstoned one, else a new one)."""
@@ -537,8 +683,15 @@ class Scene:
         """Validate (:func:`~.elements.checked_camera`) and set the camera."""
         self.camera = checked_camera(camera)
 
-    def set_world_color(self, color) -> None:
+    def set_world_color(self, color, lights: bool | None = None) -> None:
+        """The world's uniform colour: what a ray that misses sees and, with ``lights``
+        (the default for a new scene; None keeps the current setting), the radiance that
+        lights every surface from its hemisphere, with occlusion (Cycles' world light with
+        no bounces). ``lights=False`` is a background only, as Blender's world with its
+        diffuse and glossy ray visibility off."""
         self.world_color = _colour("world", "world colour", color, hi=None)
+        if lights is not None:
+            self.world_lights = bool(lights)
         self._arrays = None
 
     # -- packing ---------------------------------------------------------------------
@@ -609,9 +762,11 @@ class Scene:
         intensity = np.zeros((nl, 3))
         cos_outer = np.full(nl, -1.0)
         cos_inner = np.full(nl, -1.0)
+        ext = _ExtendedLights(nl)
         for j, li in enumerate(lights):
             if li is None:
                 continue
+            ext.pack(j, li)
             kind[j] = LIGHT_KINDS[li.kind]
             pos[j] = li.position
             ldir[j] = li.direction
@@ -655,7 +810,10 @@ class Scene:
             light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,
             world_color=np.asarray(self.world_color, f64),
+            world_light=(np.asarray(self.world_color, f64) if self.world_lights
+                         else np.zeros(3)),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
+            **ext.arrays(),
         )
         self._counts = (sum(i is not None for i in self.instances),
                         sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))

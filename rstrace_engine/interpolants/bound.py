@@ -13,21 +13,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tracing.soft_lights import has_soft_light
+
 #: The notes, one per scene class whose bound is tested rather than proven.
 NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose radiance "
                   "includes reflections or refractions (secondary hit points are bounded "
                   "only up to the tunnel padding)")
 
 
+#: Soft light is never interpolated yet: the note says why those pixels are traced.
+NOTE_SOFT = ("surfaces lit by lights with an extent (area, sphere, sun with an angle) or by "
+             "the world are traced, not interpolated (their shafts are not proven yet): "
+             "the bound holds there exactly as for the base tracer")
+
+
 def bound_notes(cache, used: np.ndarray) -> list[str]:
     """The notes that apply to interpolants ``used`` (ids, -1 for none) of ``cache``."""
+    soft = [NOTE_SOFT] if has_soft_light(cache.sa) else []
     q = np.unique(used[used >= 0])
     if len(q) == 0:
-        return []
+        return soft
     sm = cache.samples.view()
     s0 = cache.pool.samples[q, 0]
     s0 = s0[(s0 >= 0) & (s0 < len(sm.node_count))]
-    notes = []
+    notes = soft
     if len(s0) == 0:
         return notes
     if np.any(sm.node_count[s0] > 1):

@@ -249,7 +249,7 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-               light_shading=()) -> Invalidation:
+               light_shading=(), everything: bool = False) -> Invalidation:
     """Invalidate every interpolant an edit may change, and free it.
 
     regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
@@ -259,8 +259,9 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     shaded by or occluded from them); materials : material ids whose parameters changed
     (every interpolant whose ray trees hit an object using them); world : the world colour
     changed (every interpolant with a ray-tree node that misses); light_shading : lights
-    whose power or colour alone changed (only interpolants they shade). Camera edits
-    invalidate nothing (call nothing).
+    whose power or colour alone changed (only interpolants they shade); everything: every
+    interpolant (a world colour change where the world lights). Camera edits invalidate
+    nothing (call nothing).
 
     Invalidated interpolants are freed at once (their pool ids are free, their tree and
     list entries dead); their cells are rebuilt by the next frame that needs them. Failed
@@ -273,6 +274,8 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     live_before = pool.n_live
     a = affected(cache, regions, objects, lights, materials, world, light_shading)
     ids, retry = a.ids, a.retry
+    if everything:
+        ids = np.flatnonzero(pool.live).astype(np.int32)
     lt = cache.trees
     lt.clear_dirty()
     pool.rebuilt[:] = False
@@ -331,8 +334,10 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     if len(sa.light_kind) != len(old.light_kind):
         raise ValueError("take_edits: the number of light slots changed (start a new cache)")
     if fx.scene_content_changed:
+        # a world that lights (before or after) shades every surface: all interpolants
+        everything = fx.world and (fx.world_lights or bool(np.any(old.world_light > 0.0)))
         inv = invalidate(cache, fx.region_array(), fx.objects, fx.lights_moved, fx.materials,
-                         fx.world, fx.lights_shading)
+                         fx.world, fx.lights_shading, everything)
     else:
         inv = Invalidation(0, np.zeros(0, np.int32), 0.0, 0, 0, cache.pool.n_live, 0)
     n_new = len(sa.inst_mesh)

@@ -22,6 +22,10 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   triangle, or outside its spot cone over the whole slab (or, if in front of all of them,
   its shaft must be empty as for a lit light). A spot cone edge with blend 0 (a step) may not
   cross the slab (:func:`.shafts.cone_state`).
+* **Soft light** (a light with an extent, or a world colour that lights): not proven yet, so
+  a cell whose ray trees name a sampled light (``OCC_SOFT``), or any cell while the world
+  lights, fails (``light_shaft``) and its pixels are traced; the bound holds as for hard
+  light. Proving the shaft from the slab to the light's extent empty is the next step.
 * **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
   (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the
@@ -46,6 +50,7 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
+from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
 from .occluders import occluder_covers
 from .shafts import (
@@ -374,6 +379,11 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             # interpolated after a light was deleted)
             continue
         occ = sm.node_occ[sm.node_start[s0] + row, j]
+        if occ == OCC_SOFT or qs.light_ext[j]:
+            # a light with an extent: its visibility over the cell is not proven, nor that
+            # it stays behind the surface all over the cell (the conservative step: the
+            # cell is traced)
+            return R_SHAFT
         lit = occ == -1
         # the spot cone over the points' box: a step inside the cell fails it; a cell the
         # cone leaves entirely dark is off for every line
@@ -452,6 +462,10 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
             return R_MISS
         if sm.cls[s] != cls:
             return R_CLASS
+    if qs.world_light:
+        # the world's light reaches the surface through its whole hemisphere: its
+        # occlusion over the cell is not proven (the conservative step: traced)
+        return R_SHAFT
     for u in range(1, ns):
         r = _same_tree(sm, s0, ids[u])
         if r != R_VALID:

@@ -42,6 +42,7 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
+from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import render, trace
 from .bound import bound_notes
 from .interpolant_cache import InterpolantCache
@@ -199,10 +200,11 @@ def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
 
 
 def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
-                cancel) -> bool:
+                cancel, settings) -> bool:
     """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
-    found, into ``rad``; their ray trees go to ``records``. Returns whether ``cancel`` stopped
-    it (the frame is then incomplete)."""
+    found, into ``rad``; their ray trees go to ``records``; soft lights are sampled as the
+    base tracer samples these pixel samples (``gids``, ``settings``' seed and light
+    samples). Returns whether ``cancel`` stopped it (the frame is then incomplete)."""
     sa, accel = cache.sa, cache.accel
     # in tiles of about the base tracer's size (its per-level arrays stay cache-sized),
     # split evenly: a small last tile would cost the tracer's per-level overhead alone
@@ -213,7 +215,9 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
         with bound(accel, cancel):
             rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
                                  max_depth, primary=_take(hits, part), counters=counters,
-                                 segments=segs, cancel=cancel)
+                                 segments=segs, cancel=cancel,
+                                 seeds=sample_seeds(gids[part], int(settings.seed)),
+                                 light_samples=int(settings.light_samples))
         if cancel is not None and cancel():
             return True
         if records is not None:
@@ -358,7 +362,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     records.add_primary(gids, hits.inst, o, d, hits.t)
                 cancelled = _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad,
                                         int(settings.max_depth), counters, records, gids,
-                                        cancel)
+                                        cancel, settings)
             t_trace += time.perf_counter() - tt
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))

@@ -60,6 +60,8 @@ class QueryScene(NamedTuple):
     light_cos_outer: np.ndarray  # (L,) spot cone cosines (1 / -1 for other lights)
     light_cos_inner: np.ndarray  # (L,)
     mesh_convex: np.ndarray  # (M,) bool closed and convex
+    world_light: bool  # the world's colour lights surfaces (not black)
+    light_ext: np.ndarray  # (L,) bool the light has an extent (sampled)
 
 
 def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
@@ -100,7 +102,9 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag,
                       np.ascontiguousarray(sa.light_cos_outer, np.float64),
                       np.ascontiguousarray(sa.light_cos_inner, np.float64),
-                      np.ascontiguousarray(topo.mesh_convex, np.bool_))
+                      np.ascontiguousarray(topo.mesh_convex, np.bool_),
+                      bool(np.any(np.asarray(sa.world_light) > 0.0)),
+                      np.ascontiguousarray(sa.light_ext, np.bool_))
 
 
 @njit(cache=True, nogil=True)

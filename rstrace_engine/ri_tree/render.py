@@ -39,6 +39,7 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_NAMES,
     CLASS_TRACED,
+    LIGHT_SAMPLES_DEFAULT,
     Frame,
     RenderSettings,
 )
@@ -46,7 +47,8 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
-from ..tracing.whitted import Spawned, shade, shadow_rays, surfaces
+from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
+from ..tracing.whitted import Spawned, shade, shadow_rays, soft_direct, surfaces
 from . import thickness as thick
 from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, subset
@@ -438,14 +440,18 @@ class RITreeRenderer:
 
     # -- shaded frames -------------------------------------------------------------------
 
-    def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters):
+    def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds=None,
+                    light_samples=LIGHT_SAMPLES_DEFAULT):
         """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
         primary instance (n,)).
 
         Level by level, the base tracer's stages (:func:`~..tracing.whitted.surfaces`,
         :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade`) on the
         hits found through the trees (:meth:`_intersect`); every ray carries its own depth
-        (an exit ray skips the levels inside its object: :func:`_next_rays`)."""
+        (an exit ray skips the levels inside its object: :func:`_next_rays`). Lights with an
+        extent and the world are sampled as the base tracer samples them (``seeds`` (n,)
+        uint64 of the camera rays, :func:`~..tracing.soft_lights.sample_seeds`, and each
+        node's path)."""
         view = False
         n = len(o)
         L = len(sa.light_kind)
@@ -456,6 +462,10 @@ class RITreeRenderer:
         weight = np.ones((n, 3))
         level = np.zeros(n, np.int64)
         self_inst = np.full(n, -1, np.int32)
+        path = np.ones(n, np.int64)
+        soft_on = has_soft_light(sa)
+        if soft_on and seeds is None:
+            seeds = sample_seeds(np.arange(n), 0)
         first = True
         while len(src):
             nb = len(src)
@@ -487,12 +497,23 @@ class RITreeRenderer:
                 hit_self[interp] = H["inst"][interp]
                 vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
+            soft = None
+            if soft_on:
+                hs = np.full(nb, -1, np.int32)
+                hs[interp] = H["inst"][interp]
+
+                def occluded(so_, sd_, st_, rows_, hs=hs):
+                    pt = np.where(rows_ >= 0, rows_ // max(L, 1), -1 - rows_)
+                    return self._occluded(so_, sd_, st_, hs[pt])
+
+                soft = soft_direct(sa, surf, node_seeds(seeds, src, path), light_samples,
+                                   vis, occluded, counters)
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
             contrib, kids = shade(sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]),
-                                  surf, vis, weight, True)
+                                  surf, vis, weight, True, soft)
             scatter_add(radiance, src, contrib)
-            o, d, weight, src, level, self_inst = _next_rays(sa, kids, H["inst"], q, interp,
-                                                             qi, src, level, max_depth)
+            o, d, weight, src, level, self_inst, path = _next_rays(
+                sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path)
             t0 = np.zeros(len(o))
             t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst
@@ -530,8 +551,12 @@ class RITreeRenderer:
                 length, cls, pinst = self._thickness_tile(sa, o, dr, tmin, tmax, counters)
                 rad = thick.display(length, dist)
             else:
+                gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h)
+                        + pix[None, :]).ravel()
                 rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
-                                                   int(settings.max_depth), counters)
+                                                   int(settings.max_depth), counters,
+                                                   sample_seeds(gids, int(settings.seed)),
+                                                   int(settings.light_samples))
             tile_cls = np.empty(len(pix), np.uint8)
             bad_total += accumulate(rad, pinst, spp, image[rows], tile_cls)
             # a pixel's class: that of its first sample that hit something
@@ -650,15 +675,17 @@ def _primary_class(H: dict, interp: np.ndarray) -> np.ndarray:
     return cls
 
 
-def _next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth):
+def _next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, path):
     """The next level's rays from a level's spawned rays ``kids``.
 
     Rays past ``max_depth`` are dropped (``level`` (nb,): each ray's depth). Rays leaving an
     interpolated hit (rows ``interp``, query rows ``qi`` of ``q``, on instances ``inst``)
     ignore their own object near the hit; at an interpolated glass hit the refracted ray
     becomes the interpolated exit ray, ``nint`` levels further down, and the internal
-    reflection where the path refracts out is traced from there. Returns ``(o, d, weight,
-    src, level, self_inst)``."""
+    reflection where the path refracts out is traced from there. ``path`` (nb,) int64: the
+    rays' ray-tree paths (root 1, reflect child 2p, refract child 2p + 1; the internal
+    reflection at an exit 4p + 2), which seed the soft lights' samples. Returns ``(o, d,
+    weight, src, level, self_inst, path)``."""
     c_o, c_d, c_w, c_ok = kids
     stop = level >= max_depth
     c_ok[0::2] &= ~stop
@@ -699,7 +726,8 @@ def _next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth):
     return (np.concatenate([c_o[slots], x_o]), np.concatenate([c_d[slots], x_d]),
             np.concatenate([c_w[slots], x_w]), np.concatenate([src[which], src[x_src]]),
             np.concatenate([child_level[slots], x_level]),
-            np.concatenate([child_self[slots], np.full(len(x_src), -1, np.int32)]))
+            np.concatenate([child_self[slots], np.full(len(x_src), -1, np.int32)]),
+            np.concatenate([path[which] * 2 + (slots & 1), path[x_src] * 4 + 2]))
 
 
 def _is_transmissive(sa, mats) -> np.ndarray:

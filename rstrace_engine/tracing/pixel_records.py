@@ -53,6 +53,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
+from .soft_lights import world_lights
 
 #: bits of the quantised point on the longest, middle and shortest axis of the box
 POINT_BITS = (11, 11, 10)
@@ -123,6 +124,20 @@ def _decode_point(code, lo, step, levels, shift):
 # ----------------------------------------------------------------------------- tests
 
 
+def light_geometry(sa) -> np.ndarray:
+    """(L, 5) float64 per light: position, bounding radius of its emitting points about
+    that position (sphere radius, half the area light's diagonal; 0 for a point) and a
+    sun's cone half angle (0: parallel); see :func:`_light_hit`."""
+    out = np.zeros((len(sa.light_kind), 5))
+    out[:, :3] = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
+    out[:, 3] = sa.light_bound
+    out[:, 4] = np.where(sa.light_ext & (sa.light_kind == LIGHT_SUN), sa.light_half, 0.0)
+    # a margin on both for the shadow rays' origins being off the recorded points
+    out[:, 3] = np.where(out[:, 3] > 0.0, out[:, 3] * (1.0 + tol.RECORD_SLACK_REL), 0.0)
+    out[:, 4] = np.where(out[:, 4] > 0.0, out[:, 4] + tol.RECORD_DIR_ERROR, 0.0)
+    return out
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _segment_box(ax, ay, az, bx, by, bz, lo, hi, ray):
     """Does the segment a -> b (the ray from a through b when ``ray``) meet the box?"""
@@ -184,15 +199,37 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
         if not (traced >> np.uint64(j)) & np.uint64(1):
             continue
         for q in range(k_reg):
-            if light_kind[j] == LIGHT_SUN:
-                hit = _segment_box(px, py, pz, px - light_dir[j, 0], py - light_dir[j, 1],
-                                   pz - light_dir[j, 2], reg_lo[q], reg_hi[q], True)
-            else:
-                hit = _segment_box(px, py, pz, light_pos[j, 0], light_pos[j, 1],
-                                   light_pos[j, 2], reg_lo[q], reg_hi[q], False)
-            if hit:
+            if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], light_kind, light_pos,
+                          light_dir):
                 return True
     return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _light_hit(px, py, pz, j, lo, hi, light_kind, lgeo, light_dir):
+    """Can a shadow ray from p to light j cross the box (lo, hi)? ``lgeo`` (L, 5): the
+    light's position, its bounding radius and (a sun) its cone's half angle. A point light
+    is one segment; a light with an extent a shaft, tested conservatively: every segment
+    from p to a point within radius r of the light's centre stays within r of the segment
+    to the centre, so the box grown by r is tested against that one segment; a sun with an
+    angle is a cone of directions, tested against the box's bounding sphere."""
+    if light_kind[j] == LIGHT_SUN:
+        if lgeo[j, 4] > 0.0:
+            cx = 0.5 * (lo[0] + hi[0])
+            cy = 0.5 * (lo[1] + hi[1])
+            cz = 0.5 * (lo[2] + hi[2])
+            r = 0.5 * math.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2
+                                + (hi[2] - lo[2]) ** 2)
+            return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
+                                -light_dir[j, 2], cx, cy, cz, r, lgeo[j, 4])
+        return _segment_box(px, py, pz, px - light_dir[j, 0], py - light_dir[j, 1],
+                            pz - light_dir[j, 2], lo, hi, True)
+    g = lgeo[j, 3]
+    if g > 0.0:
+        glo = (lo[0] - g, lo[1] - g, lo[2] - g)
+        ghi = (hi[0] + g, hi[1] + g, hi[2] + g)
+        return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], glo, ghi, False)
+    return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], lo, hi, False)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -279,14 +316,7 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                 for j in range(light_kind.shape[0]):
                     if not (traced >> np.uint64(j)) & np.uint64(1):
                         continue
-                    if light_kind[j] == LIGHT_SUN:
-                        hit = _segment_box(cx, cy, cz, cx - light_dir[j, 0],
-                                           cy - light_dir[j, 1], cz - light_dir[j, 2], glo,
-                                           ghi, True)
-                    else:
-                        hit = _segment_box(cx, cy, cz, light_pos[j, 0], light_pos[j, 1],
-                                           light_pos[j, 2], glo, ghi, False)
-                    if hit:
+                    if _light_hit(cx, cy, cz, j, glo, ghi, light_kind, light_pos, light_dir):
                         check = True
                         break
                 if check:
@@ -549,6 +579,12 @@ class PixelRecords:
             dirty |= is_hit
         if fx.world:
             dirty |= ~is_hit
+            if world_lights(sa) or fx.world_lights:
+                dirty |= is_hit  # the world lit (or lights now) every surface
+        if world_lights(sa) and len(fx.regions):
+            # the world's shadow rays leave every surface point over its hemisphere; the
+            # records keep no normals to cull by, so any edited box may shade any hit
+            dirty |= is_hit
         regions = fx.region_array()
         scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
                       + np.abs(sa.scene_aabb).max())
@@ -569,7 +605,7 @@ class PixelRecords:
         combo_dirty = np.ascontiguousarray(dirty)
         inst64 = np.ascontiguousarray(combo_inst)
         kind = np.ascontiguousarray(sa.light_kind, np.int32)
-        pos = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
+        pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up

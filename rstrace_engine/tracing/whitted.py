@@ -48,11 +48,12 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
-from ..frame import CLASS_BACKGROUND, Frame, RenderSettings
+from ..frame import CLASS_BACKGROUND, LIGHT_SAMPLES_DEFAULT, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .shading import (
+    INV_PI,
     dot3,
     fresnel_dielectric,
     geometric_normal,
@@ -68,6 +69,17 @@ from .shading import (
     surface_uv,
     texture_lookup,
     ward_brdf,
+)
+from .soft_lights import (
+    OCC_SOFT,
+    SH_SOFT,
+    SoftSamples,
+    extent_faces,
+    has_soft_light,
+    no_samples,
+    node_seeds,
+    sample_seeds,
+    soft_visibility,
 )
 
 log = logging.getLogger(__name__)
@@ -146,6 +158,12 @@ def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state
         sh_state[r] = -2
         if sa.light_kind[j] < 0:
             continue  # a deleted light's slot (LIGHT_NONE)
+        if sa.light_ext[j]:
+            # sampled (each sample checks its own facing), unless the whole light is below
+            # the surface's horizon or behind an area light: then every sample would be 0
+            if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
+                sh_state[r] = SH_SOFT
+            continue
         if sa.light_kind[j] == LIGHT_SUN:
             lx = -sa.light_dir[j, 0]
             ly = -sa.light_dir[j, 1]
@@ -271,7 +289,7 @@ def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, contrib, out):
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -280,8 +298,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, contrib, out):
 
     hits : the :class:`Hits` (prim, u, v for texture coordinates); surf : the
     :class:`Surfaces` of :func:`_surface_kernel`. vis : (n L,) bool light j visible from
-    point i (row ``i * L + j``); weight : (n, 3) float64 path weights; spawn : whether
-    reflection/refraction rays may be spawned.
+    point i (row ``i * L + j``; lights with an extent are skipped there); weight : (n, 3)
+    float64 path weights; spawn : whether reflection/refraction rays may be spawned; soft :
+    the :class:`~.soft_lights.SoftSamples` of the points (their lights and the world's).
     Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; out, the
     :class:`Spawned` rays.
     """
@@ -336,7 +355,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, contrib, out):
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
         for j in range(L):
-            if not vis[i * L + j]:
+            if not vis[i * L + j] or sa.light_ext[j]:
                 continue
             if sa.light_kind[j] == LIGHT_SUN:
                 lx = -sa.light_dir[j, 0]
@@ -364,6 +383,58 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, contrib, out):
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
+        # lights with an extent and the world, n samples per (point, light) row: the plain
+        # estimator, or the ratio estimator for the diffuse part where the row has a
+        # closed form (soft_lights.RATIO_ESTIMATOR)
+        ns = soft.n[0]
+        kdf = (1.0 - e_diel) * INV_PI if principled else INV_PI
+        kr = dr * kdf
+        kg = dg * kdf
+        kb = db * kdf
+        k0 = soft.start[i]
+        while k0 < soft.start[i + 1]:
+            ex = soft.exact[k0 // ns]
+            ar = 0.0
+            ag = 0.0
+            ab = 0.0
+            sum_w = 0.0
+            sum_vw = 0.0
+            for k in range(k0, k0 + ns):
+                sum_w += soft.w[k]
+                if not soft.vis[k]:
+                    continue
+                lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
+                if principled:
+                    fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                                 dr, dg, db, sr, sg, sb, eta_s, metallic,
+                                                 mr, mg, mb, alpha, e_white, e_diel)
+                else:
+                    fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                           dr, dg, db, sr, sg, sb, alpha)
+                e = soft.w[k]
+                if ex >= 0.0:
+                    sum_vw += e
+                    fr -= kr
+                    fg -= kg
+                    fb -= kb
+                ar += fr * e
+                ag += fg * e
+                ab += fb * e
+            if ex >= 0.0 and sum_w > 0.0:
+                t = ex * sum_vw / sum_w
+                ar += kr * t
+                ag += kg * t
+                ab += kb * t
+            j = soft.light[k0]
+            if j < L:
+                lr += ar * sa.light_radiance[j, 0]
+                lg += ag * sa.light_radiance[j, 1]
+                lb += ab * sa.light_radiance[j, 2]
+            else:
+                lr += ar * sa.world_light[0]
+                lg += ag * sa.world_light[1]
+                lb += ab * sa.world_light[2]
+            k0 += ns
         contrib[i, 0] = w0 * lr
         contrib[i, 1] = w1 * lg
         contrib[i, 2] = w2 * lb
@@ -471,16 +542,36 @@ def shadow_rays(sa: SceneArrays, surf: Surfaces):
 
 
 def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: np.ndarray,
-          spawn: bool):
-    """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i) times
+          spawn: bool, soft: SoftSamples | None = None):
+    """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i; ``soft``
+    the samples of the lights with an extent and of the world, :func:`soft_direct`) times
     the path ``weight`` (n, 3), and the reflection and refraction rays when ``spawn``:
     ``(contrib (n, 3) float64, Spawned)``."""
     n = len(surf.P)
     contrib = np.empty((n, 3))
     out = Spawned(np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3)),
                   np.empty(2 * n, np.bool_))
-    _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn, contrib, out)
+    _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn,
+                  no_samples(n) if soft is None else soft, contrib, out)
     return contrib, out
+
+
+def soft_direct(sa: SceneArrays, surf: Surfaces, seeds: np.ndarray, light_samples: int,
+                vis: np.ndarray, occluded, counters: dict | None = None,
+                occ: np.ndarray | None = None) -> SoftSamples:
+    """The shadow samples of the lights with an extent and of the world at ``surf``
+    (:mod:`.soft_lights`), traced with ``occluded(origins, directions, tmax, rows) -> (k,)
+    bool``; ``seeds`` (n,) uint64 the points' node seeds. Sets ``vis`` (n L,) of a sampled
+    light's row when one of its samples reached it, and ``occ`` (when given) to
+    ``OCC_SOFT`` there (its visibility is a fraction). Returns the samples for
+    :func:`shade`."""
+    soft, rows, any_vis = soft_visibility(sa, surf, seeds, light_samples, surf.sh_state,
+                                          occluded, counters)
+    lit = rows >= 0
+    vis[rows[lit]] = any_vis[lit]
+    if occ is not None:
+        occ[rows[lit]] = OCC_SOFT
+    return soft
 
 
 # ----------------------------------------------------------------------------- driver
@@ -520,13 +611,13 @@ def _input_front(origins, directions, tmin, tmax, primary: Hits | None) -> _Fron
 
 def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None) -> _Front:
     """The spawned rays, compacted; ``rows``: the level's node rows (None: no ray trees
-    kept, parents and paths are not followed)."""
+    kept, parents are not followed)."""
     k = np.flatnonzero(kids.ok)
     which = k // 2
-    parent, path = front.parent, front.path
+    parent = front.parent
     if rows is not None:
         parent = rows[which]
-        path = path[which] * 2 + (k & 1)
+    path = front.path[which] * 2 + (k & 1)  # also seeds the soft lights' samples
     return _Front(kids.o[k], kids.d[k], np.zeros(len(k)), np.full(len(k), np.inf),
                   front.src[which], kids.w[k], parent, path)
 
@@ -555,6 +646,13 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
     return vis, occ, len(todo) > 0
 
 
+def _occluded_by(accel):
+    """``occluded(origins, directions, tmax, rows)`` of :func:`soft_direct` by any hit."""
+    def occluded(o, d, tmax, rows):
+        return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+    return occluded
+
+
 @njit(cache=True, nogil=True)
 def _light_masks(sh_state, vis, L, traced, lit):
     """Per point: bit j of ``traced`` when a shadow ray to light j was traced, of ``lit``
@@ -564,7 +662,7 @@ def _light_masks(sh_state, vis, L, traced, lit):
         b = np.uint64(0)
         for j in range(L):
             bit = np.uint64(1) << np.uint64(j)
-            if sh_state[i * L + j] == _SH_TRACE:
+            if sh_state[i * L + j] == _SH_TRACE or sh_state[i * L + j] == SH_SOFT:
                 a |= bit
             if vis[i * L + j]:
                 b |= bit
@@ -609,7 +707,8 @@ def _ray_tree(levels: list[dict], L: int) -> RayTree:
 
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
-          segments: list | None = None, cancel=None):
+          segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
+          light_samples: int = LIGHT_SAMPLES_DEFAULT):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -629,6 +728,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     cancel : optional ``cancel() -> bool``, polled between the queries of every depth level:
     once it says stop, the rest is skipped and the result is incomplete (the caller polls
     ``cancel()`` itself and discards it; see :mod:`rstrace_engine.cancel`).
+    seeds : (n,) uint64 seeds of the input rays for the samples of lights with an extent
+    and of the world (:func:`~.soft_lights.sample_seeds` of their global sample ids; by
+    default the rays' indices, which makes the samples depend on the batch);
+    light_samples : shadow samples per such light and point.
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -639,6 +742,12 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     L = len(sa.light_kind)
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
+    soft_on = has_soft_light(sa)
+    if soft_on:
+        root = (sample_seeds(np.arange(len(front.src)), 0) if seeds is None
+                else np.ascontiguousarray(seeds, np.uint64))
+        if len(root) != len(front.src):
+            raise ValueError(f"trace: {len(root)} seeds for {len(front.src)} rays")
     levels: list[dict] = []
     n_nodes = 0
     for level in range(max_depth + 1):
@@ -652,10 +761,15 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         _count(counters, "primary" if level == 0 else "secondary", nb)
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         vis, occ, traced = _visibility(sa, accel, surf, record, counters)
+        soft = None
+        if soft_on:
+            soft = soft_direct(sa, surf, node_seeds(root, front.src, front.path),
+                               int(light_samples), vis, _occluded_by(accel), counters, occ)
+            traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break
         spawn = level < max_depth
-        contrib, kids = shade(sa, hits, surf, vis, front.weight, spawn)
+        contrib, kids = shade(sa, hits, surf, vis, front.weight, spawn, soft)
         scatter_add(radiance, front.src, contrib)
         if segments is not None:
             segments.append(_segments(front, hits, surf, vis, L))
@@ -671,17 +785,23 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
 
 def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,
                  max_depth: int, cancel=None, counters: dict | None = None,
-                 segments: list | None = None):
+                 segments: list | None = None, gids: np.ndarray | None = None,
+                 seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT):
     """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
     (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
     frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
     (:func:`trace` for ``counters``, ``segments`` and ``cancel``). Returns ``(radiance
-    (k, 3) float64, primary instance (k,) int32)``."""
+    (k, 3) float64, primary instance (k,) int32)``. ``gids`` (k,) int64: the samples'
+    global ids (``sample * width * height + pixel``; default: sample 0 of each pixel),
+    which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`)."""
+    if gids is None:
+        gids = pixels
     with threads_for(len(pixels)), bound(accel, cancel):
         o, d, tmin, tmax = camera_rays(cp, pixels, jitter)
         hits = accel.closest_hit(o, d, tmin, tmax)
         rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
-                       counters=counters, segments=segments, cancel=cancel)
+                       counters=counters, segments=segments, cancel=cancel,
+                       seeds=sample_seeds(gids, seed), light_samples=light_samples)
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -748,16 +868,16 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
             rows_done = y1
             continue
         segs = [] if records is not None else None
+        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
-                                 depth, cancel, counters, segs)
+                                 depth, cancel, counters, segs, gids, int(settings.seed),
+                                 int(settings.light_samples))
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break
         traced_pixels += npx
         with threads_for(npx * spp):
             if records is not None:
-                gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h)
-                        + pix[None, :]).ravel()
                 records.add(gids, segs)
             out = np.empty((npx, 3), np.float32)
             pc = np.empty(npx, np.uint8)

@@ -116,7 +116,7 @@ class _ExtendedLights:
       (tan(s/2) - s/2))`` when the spread s is below pi (Cycles' soft-box model, which
       keeps the power; ``3 / (s/2)^3`` for the normaliser when s/2 <= 0.05, as Cycles).
 
-    (Checked against Cycles 4.2-5.0 renders: /work/research/cycles_lights.md, sections 1-5.)
+    (Checked against Cycles 4.2-5.0 renders: docs/cycles-lights.md, sections 1-5.)
     """
 
     def __init__(self, nl: int) -> None:

@@ -331,7 +331,7 @@ def test_interpolants_keep_the_bound_under_soft_light(world, monkeypatch):
     cells are traced), and epsilon 0 gives the BASE frame."""
     from rstrace_engine import image
     from rstrace_engine.frame import CLASS_INTERPOLATED
-    from rstrace_engine.interpolants import cache as interpolant_cache
+    from rstrace_engine.interpolants import interpolant_cache
     from rstrace_engine.interpolants.render import InterpolantRenderer
 
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)

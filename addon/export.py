@@ -62,14 +62,10 @@ from .snapshot import (
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
 
-#: What a Whitted tracer does not model, said once per render where the scene has it. Neither
-#: is modelled on purpose: an emissive mesh as an area light needs sampled (noisy) soft
-#: shadows, and occluded world light needs sampled ambient occlusion; the radiance
-#: interpolants, their error predicate (point-light shadows only) and the RI-tree assume a
-#: deterministic, point-lit shading, and an unoccluded ambient term would be a silently wrong
-#: image against Cycles instead of a reported gap.
-NOT_MODELLED_WORLD = ("the world colour is seen as background and in mirrors but lights no "
-                      "surface (world lighting is not modelled by the Whitted tracer)")
+#: What the tracer does not model, said once per render where the scene has it: an emissive
+#: mesh is not a light source (its light would have to be sampled like an area light's over
+#: its triangles, and the interpolants' predicate bounds only lights it knows the extent of).
+#: The world's uniform colour does light surfaces (sampled with occlusion, as Cycles' world).
 NOT_MODELLED_EMISSION = ("emissive objects are seen directly and in mirrors but light no "
                          "other surface (emissive meshes are not light sources)")
 
@@ -236,8 +232,6 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
         camera = camera_from_object(cam_eval, width, height, render, notes)
     world = tuple(float(c) for c in world_colour(bscene.world, notes))
-    if max(world) > 0.0:
-        notes.warn(NOT_MODELLED_WORLD)
 
     objects: dict = {}
     hidden: set = set()

@@ -68,7 +68,7 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     if why:
         notes.skip(f"light '{name}' skipped: {why}")
         return None
-    _warn_unmodelled(data, name, m, notes)
+    _warn_unmodelled(ob, name, m, notes)
     common = (name, kind, tuple(colour), power, tuple(m[:3, 3]), tuple(direction))
     if kind == "SPOT":
         return Light(*common, spot_size=float(np.clip(data.spot_size, 1e-4, math.pi)),
@@ -153,8 +153,9 @@ def _cycles_area(kind: str, shape: dict) -> float:
     return u * v * (math.pi / 4.0 if shape["shape"] in ("DISK", "ELLIPSE") else 1.0)
 
 
-def _warn_unmodelled(data, name: str, m: np.ndarray, notes: Notes) -> None:
+def _warn_unmodelled(ob, name: str, m: np.ndarray, notes: Notes) -> None:
     """Light settings Cycles renders and RSTrace does not, named."""
+    data = ob.data
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
     if uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
@@ -166,11 +167,24 @@ def _warn_unmodelled(data, name: str, m: np.ndarray, notes: Notes) -> None:
                if getattr(data, attr, 1.0) != 1.0]
     if factors:
         notes.warn(f"light {'/'.join(factors)} factors are ignored", name)
+    off = _off(ob, (("Diffuse", "visible_diffuse"), ("Glossy", "visible_glossy"),
+                    ("Transmission", "visible_transmission")))
+    if off:
+        notes.warn(f"light ray visibility ({off} off) is not modelled", name)
+    linking = getattr(ob, "light_linking", None)
+    if linking is not None and (linking.receiver_collection is not None
+                                or linking.blocker_collection is not None):
+        notes.warn("light and shadow linking are not modelled", name)
     if data.type == "SPOT":
         sx, sy = (float(np.linalg.norm(m[:3, i])) for i in (0, 1))
         if abs(sx - sy) > 1e-6 * max(sx, sy):
             notes.warn("non-uniformly scaled spot lights (an elliptical cone in Cycles) are "
                        "rendered with a round cone", name)
+
+
+def _off(holder, flags) -> str:
+    """The labels of the ray-visibility ``flags`` (label, attribute) turned off."""
+    return "/".join(label for label, attr in flags if not getattr(holder, attr, True))
 
 
 def _unusable(data, colour, power: float, exposure: float) -> str | None:
@@ -206,6 +220,12 @@ def world_colour(world, notes: Notes) -> np.ndarray:
     does."""
     if world is None:
         return np.zeros(3)
+    off = _off(getattr(world, "cycles_visibility", None),
+               (("Camera", "camera"), ("Diffuse", "diffuse"), ("Glossy", "glossy"),
+                ("Transmission", "transmission")))
+    if off:
+        notes.warn(f"world ray visibility ({off} off) is not modelled: the world is seen "
+                   f"and lights surfaces", world.name)
     tree = world.node_tree if uses_nodes(world) else None
     if tree is None:
         return _finite_world(rgb(world.color), world.name, "Color", notes)

@@ -244,6 +244,20 @@ def test_light_settings_not_modelled_are_reported_by_name():
     assert any("non-uniformly scaled spot" in w and "'Spot'" in w for w in warnings)
 
 
+def test_light_and_world_ray_visibility_and_linking_are_reported():
+    _basic_scene()
+    lamp = bpy.data.objects["Lamp"]
+    lamp.visible_glossy = False
+    lamp.light_linking.receiver_collection = bpy.data.collections.new("Lit")
+    world = b.set_world((0.1, 0.1, 0.1))
+    world.cycles_visibility.diffuse = False
+    warnings = _export().warnings
+    assert any("ray visibility (Glossy off)" in w and "'Lamp'" in w for w in warnings)
+    assert any("linking" in w and "'Lamp'" in w for w in warnings), warnings
+    assert any("world ray visibility (Diffuse off)" in w and "'World'" in w
+               for w in warnings), warnings
+
+
 def test_camera_and_resolution():
     _basic_scene()
     sc = bpy.context.scene

@@ -418,7 +418,7 @@ def test_odd_light_values_render_as_cycles_renders_them(case, tmp_path, capfd):
     X (unchanged) or in Z (emits upwards: nothing lit here); an area light of 0.1 mm (a
     Lambertian point); a world strength of NaN (a black world, said)."""
     sc = _scene(48, 36)
-    sc.rstrace.samples, sc.rstrace.light_samples = 16, 16
+    sc.rstrace.samples, sc.rstrace.light_samples, sc.rstrace.max_ray_depth = 16, 16, 0
     b.set_world((0.0, 0.0, 0.0))
     lamp = bpy.data.objects["Lamp"]
     words = None
@@ -446,7 +446,7 @@ def test_odd_light_values_render_as_cycles_renders_them(case, tmp_path, capfd):
     else:
         world = b.set_world((0.5, 0.5, 0.5))
         world.node_tree.nodes["Background"].inputs["Strength"].default_value = float("nan")
-        words = ("'World'", "Strength")
+        words = (f"'{world.name}'", "Strength")
     cycles = _cycles(samples=256)
     capfd.readouterr()
     ours = _ours()

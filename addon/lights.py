@@ -56,6 +56,9 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
         power = float(data.energy) * 2.0 ** exposure if math.isfinite(exposure) else math.nan
     except OverflowError:  # an exposure above ~1024
         power = math.inf
+    node_colour, node_strength = _emission_node(data, name, notes)
+    colour = colour * node_colour
+    power *= node_strength
     shape = _shape(data, name, m, direction, notes)
     if isinstance(shape, str):
         notes.skip(f"light '{name}' skipped: {shape}")
@@ -131,6 +134,23 @@ def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) 
                 size=(ext_u, ext_v), spread=spread)
 
 
+def _emission_node(data, name: str, notes: Notes) -> tuple[np.ndarray, float]:
+    """The colour and strength of the light's Emission node, which Cycles multiplies into
+    its colour and power ((1, 1, 1), 1 without a node tree); any other tree is reported and
+    ignored."""
+    tree = data.node_tree if uses_nodes(data) else None
+    if tree is None:
+        return np.ones(3), 1.0
+    out = tree.get_output_node("CYCLES")
+    node, _ = follow_link(out.inputs["Surface"]) if out is not None else (None, None)
+    if node is None or node.bl_idname != "ShaderNodeEmission" or \
+            node.inputs["Color"].is_linked or node.inputs["Strength"].is_linked:
+        notes.warn("light node trees other than an Emission node's colour and strength are "
+                   "ignored", name)
+        return np.ones(3), 1.0
+    return rgb(node.inputs["Color"].default_value), float(node.inputs["Strength"].default_value)
+
+
 def _skewed(*axes) -> bool:
     """Whether some two of the matrix columns ``axes`` are not orthogonal."""
     for i, a in enumerate(axes):
@@ -158,15 +178,14 @@ def _warn_unmodelled(ob, name: str, m: np.ndarray, notes: Notes) -> None:
     data = ob.data
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
-    if uses_nodes(data) and data.node_tree is not None and len(data.node_tree.nodes) > 2:
-        notes.warn("light node trees are ignored", name)
     factors = [label for label, attr in (("Diffuse", "diffuse_factor"),
                                          ("Specular", "specular_factor"),
                                          ("Transmission", "transmission_factor"),
                                          ("Volume Scatter", "volume_factor"))
                if getattr(data, attr, 1.0) != 1.0]
-    if factors:
-        notes.warn(f"light {'/'.join(factors)} factors are ignored", name)
+    if factors:  # EEVEE's settings: Cycles ignores them too (a Diffuse factor 0 changes nothing)
+        notes.warn(f"light {'/'.join(factors)} factors are ignored, as Cycles ignores them",
+                   name)
     off = _off(ob, (("Diffuse", "visible_diffuse"), ("Glossy", "visible_glossy"),
                     ("Transmission", "visible_transmission")))
     if off:
@@ -176,10 +195,12 @@ def _warn_unmodelled(ob, name: str, m: np.ndarray, notes: Notes) -> None:
                                 or linking.blocker_collection is not None):
         notes.warn("light and shadow linking are not modelled", name)
     if data.type == "SPOT":
-        sx, sy = (float(np.linalg.norm(m[:3, i])) for i in (0, 1))
-        if abs(sx - sy) > 1e-6 * max(sx, sy):
-            notes.warn("non-uniformly scaled spot lights (an elliptical cone in Cycles) are "
-                       "rendered with a round cone", name)
+        # Cycles takes the cone in the light's local frame: a scale that differs between
+        # axes (Z included) or a shear reshapes it
+        norms = [float(np.linalg.norm(m[:3, i])) for i in range(3)]
+        if max(norms) - min(norms) > 1e-6 * max(norms) or _skewed(*(m[:3, i] for i in range(3))):
+            notes.warn("non-uniformly scaled spot lights (a reshaped, elliptical cone in "
+                       "Cycles) are rendered with the cone unscaled", name)
 
 
 def _off(holder, flags) -> str:

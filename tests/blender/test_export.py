@@ -238,10 +238,35 @@ def test_light_settings_not_modelled_are_reported_by_name():
     lamp.diffuse_factor = 0.5
     spot = bpy.data.lights.new("Spot", "SPOT")
     b.add_object("Spot", spot, (0.0, 0.0, 4.0)).scale = (1.0, 2.0, 1.0)
+    b.add_object("Spot2", spot, (1.0, 0.0, 4.0)).scale = (1.0, 1.0, 3.0)  # a narrower cone
+    b.add_object("Spot3", spot, (2.0, 0.0, 4.0)).scale = (2.0, 2.0, 2.0)  # unchanged
     warnings = _export().warnings
     assert any("shadows turned off" in w and "'Lamp'" in w for w in warnings), warnings
     assert any("Diffuse" in w and "factors" in w and "'Lamp'" in w for w in warnings)
-    assert any("non-uniformly scaled spot" in w and "'Spot'" in w for w in warnings)
+    spots = [w for w in warnings if "non-uniformly scaled spot" in w]
+    assert len(spots) == 1 and "'Spot'" in spots[0] and "'Spot2'" in spots[0]
+    assert "'Spot3'" not in spots[0]
+
+
+def test_light_emission_node_multiplies_colour_and_power():
+    """Cycles multiplies a light's Emission node colour x strength into its own; any other
+    node tree is reported."""
+    _basic_scene()
+    lamp = bpy.data.lights["Lamp"]
+    lamp.use_nodes = True
+    emission = lamp.node_tree.nodes["Emission"]
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    emission.inputs["Strength"].default_value = 2.0
+    ex = _export()
+    light = ex.scene.lights[0]
+    assert light.power == pytest.approx(2000.0)
+    np.testing.assert_allclose(light.color, (1.0, 0.5, 0.25), atol=1e-6)
+    assert not ex.warnings
+    noise = lamp.node_tree.nodes.new("ShaderNodeTexNoise")
+    lamp.node_tree.links.new(noise.outputs["Color"], emission.inputs["Color"])
+    ex = _export()
+    assert ex.scene.lights[0].power == pytest.approx(1000.0)
+    assert any("node trees" in w and "'Lamp'" in w for w in ex.warnings), ex.warnings
 
 
 def test_light_and_world_ray_visibility_and_linking_are_reported():

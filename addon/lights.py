@@ -126,10 +126,9 @@ def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) 
     if xn <= 1e-9 * float(np.linalg.norm(x)):
         return "its transform is singular (its X axis along its Z axis)"
     spread = float(data.spread)  # Blender keeps it in [0, pi]
-    if math.isnan(spread):
-        notes.warn("a NaN area light Spread is rendered as 0 (a collimated beam), as Cycles "
-                   "does", name)
-        spread = 0.0
+    if not spread > 0.0:  # Cycles: 0 (and NaN, taken as 0) is a collimated beam
+        return (f"its Spread is {spread:g} (Cycles renders a collimated beam, which is not "
+                f"modelled)")
     return dict(shape=shape if shape in AREA_SHAPES else "SQUARE", axis=tuple(xu / xn),
                 size=(ext_u, ext_v), spread=spread)
 

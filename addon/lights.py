@@ -240,12 +240,6 @@ def world_colour(world, notes: Notes) -> np.ndarray:
     does."""
     if world is None:
         return np.zeros(3)
-    off = _off(getattr(world, "cycles_visibility", None),
-               (("Camera", "camera"), ("Diffuse", "diffuse"), ("Glossy", "glossy"),
-                ("Transmission", "transmission")))
-    if off:
-        notes.warn(f"world ray visibility ({off} off) is not modelled: the world is seen "
-                   f"and lights surfaces", world.name)
     tree = world.node_tree if uses_nodes(world) else None
     if tree is None:
         return _finite_world(rgb(world.color), world.name, "Color", notes)
@@ -279,6 +273,22 @@ def world_colour(world, notes: Notes) -> np.ndarray:
                    f"world is black (no background, no world light)")
         return np.zeros(3)
     return colour * max(strength, 0.0)
+
+
+def world_lights(world, notes: Notes) -> bool:
+    """Whether the world lights surfaces: not where its Diffuse and Glossy ray visibility
+    are both off (Cycles then excludes it from both closures: a background only). One of
+    the two off, or Camera off, is reported (the world is then seen, or lights, anyway)."""
+    vis = getattr(world, "cycles_visibility", None)
+    if vis is None:
+        return True
+    lights = vis.diffuse or vis.glossy
+    off = _off(vis, (("Camera", "camera"),) + ((("Diffuse", "diffuse"), ("Glossy", "glossy"))
+                                               if lights else ()))
+    if off:
+        notes.warn(f"world ray visibility ({off} off) is not modelled: the world is seen "
+                   f"and lights surfaces", world.name)
+    return bool(lights)
 
 
 def _finite_world(colour: np.ndarray, name: str, setting: str, notes: Notes) -> np.ndarray:

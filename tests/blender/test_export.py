@@ -276,11 +276,19 @@ def test_light_and_world_ray_visibility_and_linking_are_reported():
     lamp.light_linking.receiver_collection = bpy.data.collections.new("Lit")
     world = b.set_world((0.1, 0.1, 0.1))
     world.cycles_visibility.diffuse = False
-    warnings = _export().warnings
+    ex = _export()
+    warnings = ex.warnings
     assert any("ray visibility (Glossy off)" in w and "'Lamp'" in w for w in warnings)
     assert any("linking" in w and "'Lamp'" in w for w in warnings), warnings
     assert any("world ray visibility (Diffuse off)" in w and "'World'" in w
                for w in warnings), warnings
+    assert ex.scene.world_lights
+    # Diffuse and Glossy both off: a background only (Cycles excludes it from both)
+    world.cycles_visibility.glossy = False
+    ex = _export()
+    assert not ex.scene.world_lights
+    np.testing.assert_allclose(ex.scene.world_color, (0.1, 0.1, 0.1), atol=1e-6)
+    assert not any("world ray visibility" in w for w in ex.warnings), ex.warnings
 
 
 def test_camera_and_resolution():

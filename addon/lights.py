@@ -90,7 +90,8 @@ def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) 
             return f"its Radius ({radius:g} m) is above {tol.COORD_MAX:g} m"
         return dict(radius=radius, soft_falloff=bool(data.use_soft_falloff))
     if kind == "SUN":
-        angle = float(data.angle)  # Blender keeps it in [0, pi]
+        # Blender keeps it in [0, pi] in float32, whose pi is 9e-8 above float64's
+        angle = min(float(data.angle), math.pi)
         if math.isnan(angle):
             notes.warn("a NaN sun Angle is rendered as 0 (a hard sun), as Cycles does",
                        name)
@@ -125,7 +126,7 @@ def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) 
     xn = float(np.linalg.norm(xu))
     if xn <= 1e-9 * float(np.linalg.norm(x)):
         return "its transform is singular (its X axis along its Z axis)"
-    spread = float(data.spread)  # Blender keeps it in [0, pi]
+    spread = min(float(data.spread), math.pi)  # as the sun's angle
     if not spread > 0.0:  # Cycles: 0 (and NaN, taken as 0) is a collimated beam
         return (f"its Spread is {spread:g} (Cycles renders a collimated beam, which is not "
                 f"modelled)")

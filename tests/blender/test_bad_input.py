@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from . import builders as b
-from .test_render import _cycles, _lum, _ours, needs_cycles
+from .test_render import _cycles, _ours, needs_cycles
 
 
 def _state():
@@ -399,12 +399,20 @@ def test_light_cycles_renders_dark_is_skipped(case, word, tmp_path, capfd):
     np.testing.assert_allclose(out["Combined"], good["Combined"], atol=1e-6)
 
 
+def _block_error(a: np.ndarray, ref: np.ndarray) -> float:
+    """Mean relative error of the 8x8-block means (luminance) of ``a`` against ``ref``,
+    printed and returned: per-pixel differences would measure the sampling noise of soft
+    lights (16 samples x 16 light samples: 4% per pixel between two seeds here)."""
+    from .test_cycles_agreement import _block_errors
+
+    err = float(_block_errors(a, ref).mean())
+    print(f"mean 8x8-block error {err:.4f}")
+    return err
+
+
 def _close_to_cycles(ours: list, cycles: list) -> float:
-    """Relative L1 difference of the two-seed means (luminance), printed and returned."""
-    o, c = _lum((ours[0] + ours[1]) / 2), _lum((cycles[0] + cycles[1]) / 2)
-    rel = float(np.abs(o - c).sum() / max(c.sum(), 1e-9))
-    print(f"relative L1 against Cycles {rel:.4f}")
-    return rel
+    """:func:`_block_error` of the two-seed means."""
+    return _block_error((ours[0] + ours[1]) / 2, (cycles[0] + cycles[1]) / 2)
 
 
 @needs_cycles
@@ -459,21 +467,25 @@ def test_odd_light_values_render_as_cycles_renders_them(case, tmp_path, capfd):
 
 
 def test_area_light_scale_is_the_size_cycles_gives_it(tmp_path, capfd):
-    """A square area light scaled 2 x 1 renders as a 2 x 1 rectangle (Cycles: the world
-    matrix's X and Y columns times the sizes), and mirrored in X as itself."""
-    _scene()
+    """An area light of 1 x 1 scaled 2 x 1 renders as one of 2 x 1 (Cycles: the world
+    matrix's X and Y columns times the sizes): the same light, so the same samples (up to
+    float32 rounding of the matrix). Mirrored in X it is the same emitter, sampled from the
+    other end: the same image up to sampling noise."""
+    sc = _scene()
+    sc.rstrace.samples = 16
     bpy.data.objects.remove(bpy.data.objects["Lamp"])
     panel = _area_light("Panel", shape="RECTANGLE", size=2.0, size_y=1.0)
     panel.rotation_euler = (math.radians(20.0), 0.0, math.radians(30.0))
     rect, _, _ = _render_and_messages(tmp_path, capfd)
-    panel.data.shape, panel.data.size = "SQUARE", 1.0
+    panel.data.size = 1.0
     panel.scale = (2.0, 1.0, 1.0)
     scaled, state, _ = _render_and_messages(tmp_path, capfd)
     assert not _warned(state, "'Panel'"), state.messages
-    np.testing.assert_allclose(scaled["Combined"], rect["Combined"], rtol=1e-5, atol=1e-6)
+    diff = np.abs(scaled["Combined"] - rect["Combined"]).max(axis=-1)
+    assert np.count_nonzero(diff > 1e-4) <= 3, diff.max()
     panel.scale = (-2.0, 1.0, 1.0)
     mirrored, _, _ = _render_and_messages(tmp_path, capfd)
-    np.testing.assert_allclose(mirrored["Combined"], rect["Combined"], rtol=1e-5, atol=1e-6)
+    assert _block_error(mirrored["Combined"], rect["Combined"]) < 0.02
 
 
 def test_sheared_area_light_is_rendered_as_a_rectangle_and_said(tmp_path, capfd):

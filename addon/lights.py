@@ -22,8 +22,6 @@ from rstrace_engine.geometry.scene import MAX_LIGHT_POWER, Light
 
 from .materials import Notes, follow_link, rgb, uses_nodes
 
-AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
-
 
 def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     """A :class:`Light` from an evaluated light object with world matrix ``m`` (4, 4), or
@@ -130,8 +128,7 @@ def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) 
     if not spread > 0.0:  # Cycles: 0 (and NaN, taken as 0) is a collimated beam
         return (f"its Spread is {spread:g} (Cycles renders a collimated beam, which is not "
                 f"modelled)")
-    return dict(shape=shape if shape in AREA_SHAPES else "SQUARE", axis=tuple(xu / xn),
-                size=(ext_u, ext_v), spread=spread)
+    return dict(shape=shape, axis=tuple(xu / xn), size=(ext_u, ext_v), spread=spread)
 
 
 def _emission_node(data, name: str, notes: Notes) -> tuple[np.ndarray, float]:

@@ -1,10 +1,10 @@
 """The main job (`make demo`): render a Blender scene through RSTrace, edit it, render again.
 
 In background ``bpy`` this builds the paper's Plate A scene with Blender's own data API (a
-floor, a red sphere, a mirror sphere and a blue sphere, a sphere light and a point light),
-selects the RSTrace engine (the add-on is imported from the repository root as the package
-``addon`` and registered, as any script may do), renders it, moves the red sphere, renders
-again through the same persistent session, and writes into ``--out``:
+floor, a red sphere, a mirror sphere and a blue sphere, two point lights), selects the
+RSTrace engine (the add-on is imported from the repository root as the package ``addon``
+and registered, as any script may do), renders it, moves the red sphere, renders again
+through the same persistent session, and writes into ``--out``:
 
 * ``before.png``, ``after.png`` — the two frames (Blender's colour management applied);
 * ``before.exr``, ``after.exr`` — multilayer EXRs with the linear Combined and the
@@ -42,9 +42,7 @@ BOUND_FLOAT_TOL = 1e-6
 
 
 def build_scene(bpy, width: int, height: int, samples: int, depth: int):
-    """Plate A: three spheres (one a mirror) on a plane, two lights, a dim world. The key
-    light has a radius (soft shadows, as most Blender scenes have: Blender's default point
-    light is a sphere of 0.1 m); the fill stays a point."""
+    """Plate A: three spheres (one a mirror) on a plane, two lights, a dim world."""
     import bmesh
     from mathutils import Vector
 
@@ -93,11 +91,10 @@ def build_scene(bpy, width: int, height: int, samples: int, depth: int):
         material("Mirror", (0.92, 0.92, 0.92), 1.0, 0.0))
     obj("BlueSphere", sphere("Blue"), (1.5, 1.6, 0.8),
         material("Blue", (0.1, 0.2, 0.65), 0.0, 0.45), scale=0.8)
-    for name, loc, power, colour, radius in (
-            ("Key", (-3.0, -4.0, 6.0), 2500.0, (1.0, 1.0, 1.0), 0.5),
-            ("Fill", (4.0, -2.0, 3.5), 900.0, (0.9, 0.95, 1.0), 0.0)):
+    for name, loc, power, colour in (("Key", (-3.0, -4.0, 6.0), 2500.0, (1.0, 1.0, 1.0)),
+                                     ("Fill", (4.0, -2.0, 3.5), 900.0, (0.9, 0.95, 1.0))):
         light = bpy.data.lights.new(name, "POINT")
-        light.energy, light.color, light.shadow_soft_size = power, colour, radius
+        light.energy, light.color, light.shadow_soft_size = power, colour, 0.0
         obj(name, light, loc)
     cam = obj("Camera", bpy.data.cameras.new("Camera"), (0.0, -8.5, 3.6))
     cam.data.lens = 35.0
@@ -285,8 +282,7 @@ def main(argv=None) -> int:
               f"max display error {accuracy['max_error']:.4f}, "
               f"{accuracy['frac_over']:.3%} of pixels over epsilon")
         report = dict(
-            scene="Plate A: three spheres (one a mirror) on a plane, a sphere light (radius "
-                  "0.5 m) and a point light",
+            scene="Plate A: three spheres (one a mirror) on a plane, two point lights",
             resolution=[args.width, args.height], samples=args.samples,
             max_ray_depth=args.depth,
             edit=dict(object="RedSphere", kind="transform", old_location=old,

@@ -155,7 +155,7 @@ class SceneMirror:
         self.meshes: dict[Hashable, object] = {}  # key -> the Mesh object last sent
         self.materials: dict[Hashable, Material] = {}
         self.lights: dict = {}
-        self.world: tuple | None = None
+        self.world: tuple | None = None  # (colour, whether it lights surfaces)
         self.instancers: set = set()  # uids of objects making instances (last walk)
         self.instanced: set = set()  # uids of objects appearing as instances (last walk)
         self.hidden_in_view: frozenset | None = None  # visibility_signature (last walk)
@@ -298,13 +298,14 @@ class SceneMirror:
             if self.lights.get(key) != light:
                 out.append(E.LightSet(key, light))
         out += [E.LightDelete(k) for k in self.lights if k not in snap.lights]
-        if snap.world != self.world:
-            out.append(E.WorldColor(snap.world))
+        world = (snap.world, snap.world_lights)
+        if world != self.world:
+            out.append(E.WorldColor(snap.world, lights=snap.world_lights))
         mirror = dict(objects=objects, invisible=invisible, meshes=meshes, freed=freed,
                       freed_materials=freed_mats,
                       walk=None if partial else (snap.instancers, snap.instanced,
                                                  snap.hidden_in_view),
-                      materials=materials, lights=dict(snap.lights), world=snap.world)
+                      materials=materials, lights=dict(snap.lights), world=world)
         kinds: dict = {}
         for e in out:
             kinds[type(e).__name__] = kinds.get(type(e).__name__, 0) + 1

@@ -42,7 +42,7 @@ from rstrace_engine.geometry.scene import (
 )
 
 from .cameras import camera_from_object
-from .lights import read_light, world_colour
+from .lights import read_light, world_colour, world_lights
 from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
 from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
 from .snapshot import (
@@ -62,14 +62,10 @@ from .snapshot import (
 _MESH_VIA_INSTANCES = {"CURVE", "SURFACE", "FONT", "META"}
 _NOTHING_TO_RENDER = {"EMPTY", "CAMERA", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}
 
-#: What a Whitted tracer does not model, said once per render where the scene has it. Neither
-#: is modelled on purpose: an emissive mesh as an area light needs sampled (noisy) soft
-#: shadows, and occluded world light needs sampled ambient occlusion; the radiance
-#: interpolants, their error predicate (point-light shadows only) and the RI-tree assume a
-#: deterministic, point-lit shading, and an unoccluded ambient term would be a silently wrong
-#: image against Cycles instead of a reported gap.
-NOT_MODELLED_WORLD = ("the world colour is seen as background and in mirrors but lights no "
-                      "surface (world lighting is not modelled by the Whitted tracer)")
+#: What the tracer does not model, said once per render where the scene has it: an emissive
+#: mesh is not a light source (its light would have to be sampled like an area light's over
+#: its triangles, and the interpolants' predicate bounds only lights it knows the extent of).
+#: The world's uniform colour does light surfaces (sampled with occlusion, as Cycles' world).
 NOT_MODELLED_EMISSION = ("emissive objects are seen directly and in mirrors but light no "
                          "other surface (emissive meshes are not light sources)")
 
@@ -236,8 +232,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
         camera = camera_from_object(cam_eval, width, height, render, notes)
     world = tuple(float(c) for c in world_colour(bscene.world, notes))
-    if max(world) > 0.0:
-        notes.warn(NOT_MODELLED_WORLD)
+    lights_from_world = world_lights(bscene.world, notes)
 
     objects: dict = {}
     hidden: set = set()
@@ -277,13 +272,13 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
             notes.warn(f"{kind.lower().replace('_', ' ')} objects are not supported (skipped)",
                        instance_name(inst))
     if not lights:
-        notes.warn("the scene has no lights: only emission and the world colour are visible")
+        notes.warn("the scene has no lights: only the world's light and emission are seen")
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
                  export_seconds=time.perf_counter() - t0, walked=True,
                  objects_read=len(objects) + len(hidden) + len(lights))
     return Snapshot(objects, hidden, lights, world, camera, notes, width, height, stats,
-                    instancers=instancers, instanced=instanced)
+                    instancers=instancers, instanced=instanced, world_lights=lights_from_world)
 
 
 def _mesh_object(r: _Reader, inst) -> ObjectRecord | None:
@@ -364,13 +359,15 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
         changed.add(uid)
     bscene = depsgraph.scene_eval
     world = tuple(float(c) for c in world_colour(bscene.world, r.notes))
+    lights_from_world = world_lights(bscene.world, r.notes)
     width, height = render_size(bscene.render)
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
                  export_seconds=time.perf_counter() - t0, walked=False,
                  objects_read=len(changed))
     return Snapshot(objects, set(), lights, world, None, r.notes, width, height, stats,
-                    changed=changed, changed_materials=set(dirty.material_ids))
+                    changed=changed, changed_materials=set(dirty.material_ids),
+                    world_lights=lights_from_world)
 
 
 def _check_visibility(ob, name: str, notes: Notes) -> None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
-from rstrace_engine.frame import ACCELERATORS, INTERNAL_ACCELERATORS, MODES
+from rstrace_engine.frame import ACCELERATORS, INTERNAL_ACCELERATORS, MODES, RenderSettings
 
 _MODE_UI = {
     "BASE": ("Base Tracer", "Classical Whitted ray tracing of every pixel"),
@@ -60,6 +60,12 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", default=1, min=1, max=4096, soft_max=64,
         description="Jittered (stratified) samples per pixel, averaged with a box filter")
+    light_samples: IntProperty(
+        name="Light Samples", default=RenderSettings.light_samples, min=1, max=4096,
+        soft_max=64,
+        description="Shadow rays per soft light (area lights, lights with a radius, a sun "
+                    "with an angle, the world's light) at each shading point and pixel "
+                    "sample, stratified; a light without extent takes one")
     viewport_samples: IntProperty(
         name="Viewport Samples", default=4, min=1, max=1024, soft_max=64,
         description="Samples per pixel the rendered viewport refines to while idle (a coarse "
@@ -119,11 +125,10 @@ class RSTraceSettings(bpy.types.PropertyGroup):
 
 def render_settings(props: RSTraceSettings):
     """The scene's settings as a (validated) :class:`rstrace_engine.frame.RenderSettings`."""
-    from rstrace_engine.frame import RenderSettings
-
     return RenderSettings(
         mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
-        samples=int(props.samples), accelerator=props.accelerator,
+        samples=int(props.samples), light_samples=int(props.light_samples),
+        accelerator=props.accelerator,
         depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
         seed=int(props.seed), vf_directions=int(props.vf_directions),
         vf_tiles=int(props.vf_tiles), ri_dist_thresh=float(props.ri_dist_thresh),

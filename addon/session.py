@@ -320,12 +320,31 @@ def _memory_mb(stats: dict, scene) -> float:
     return float(arrays + (cache or 0.0) + (stats.get("records_mb") or 0.0))
 
 
+def shadow_rays_per_pixel(stats: dict) -> float | None:
+    """Shadow rays of the last frame per pixel of the image (a soft light takes Light
+    Samples of them per shading point), or None where the frame does not count them."""
+    rays = stats.get("shadow_rays")
+    pixels = int(stats.get("width") or 0) * int(stats.get("height") or 0)
+    return None if rays is None or not pixels else rays / pixels
+
+
+def shadow_rays_text(stats: dict) -> str | None:
+    """The Last Render panel's line for :func:`shadow_rays_per_pixel`."""
+    per_pixel = shadow_rays_per_pixel(stats)
+    if per_pixel is None:
+        return None
+    return f"{int(stats['shadow_rays']):,} shadow rays, {per_pixel:.1f} per pixel"
+
+
 def status_line(stats: dict) -> str:
     """The status-line summary of a finished render."""
     parts = [f"RSTrace | {stats.get('mode', '?')} | {stats.get('width')}x{stats.get('height')}",
              f"{stats.get('triangles', 0):,} tris, {stats.get('objects', 0)} objects",
              f"export {stats.get('export_seconds', 0.0):.2f}s",
              f"render {stats.get('render_seconds', 0.0):.2f}s"]
+    per_pixel = shadow_rays_per_pixel(stats)
+    if per_pixel is not None:
+        parts.append(f"{per_pixel:.1f} shadow rays/px")
     classes = stats.get("pixel_classes") or {}
     total = sum(classes.values())
     if total and classes.get("interpolated"):

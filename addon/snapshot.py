@@ -91,6 +91,7 @@ class Snapshot:
     instancers: set = field(default_factory=set)  # uids of objects that make instances
     instanced: set = field(default_factory=set)  # uids of objects that appear as instances
     hidden_in_view: frozenset | None = None  # viewport walks: depsgraph_diff.visibility_signature
+    world_lights: bool = True  # False: the world is a background only (its ray visibility)
 
     @property
     def warnings(self) -> list[str]:
@@ -159,7 +160,7 @@ def build_scene(snap: Snapshot, cache: ExportCache, camera: Camera | None = None
             scene.add_instance(mesh_ids[rec.mesh_key], rec.matrix, ids, name=rec.name)
     for key, light in snap.lights.items():
         add(scene.add_light, light, key)
-    scene.set_world_color(snap.world)
+    scene.set_world_color(snap.world, lights=snap.world_lights)
     cam = camera if camera is not None else snap.camera
     if cam is not None:
         scene.set_camera(cam)

@@ -60,6 +60,7 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(props, "samples")
         col.prop(props, "viewport_samples", text="Viewport")
+        col.prop(props, "light_samples")
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
         layout.prop(props, "shading_model")
@@ -138,6 +139,9 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                 col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
                                f", {stats.get('ri_objects', 0)} object(s) with an RI-tree, "
                                f"{stats.get('ri_traced_objects', 0)} traced (tree did not pay)")
+            rays = session.shadow_rays_text(stats)
+            if rays:
+                col.label(text=rays)
             col.label(text=f"Memory {stats.get('memory_mb', 0.0):.1f} MB")
             if stats.get("accel_memory_mb") is not None:
                 col.label(text=f"{stats.get('accelerator')} memory "

@@ -47,7 +47,14 @@ _TIMER_INTERVAL = 0.03  # seconds between checks for new images (main thread)
 
 
 def viewport_settings(scene):
-    """The scene's settings for the viewport: one sample per pass (refinement adds more)."""
+    """The scene's settings for the viewport: one sample per pass (refinement adds more).
+
+    Light Samples stay the scene's for the first full image and every refinement pass:
+    each pass takes them anew, so n passes give what F12 gives at n samples (n x Light
+    Samples shadow rays per soft light and pixel); a count that changed between passes
+    would change the session's settings, whose interpolants and incremental records are
+    built for one setting (a full re-render each time). Only the coarse preview, shown
+    once and never averaged in, takes one (``ViewportWorker``)."""
     return replace(properties.render_settings(scene.rstrace), samples=1)
 
 

@@ -104,6 +104,10 @@ def build_scene(bpy, width: int, height: int, samples: int, depth: int):
     world = bpy.data.worlds.new("World")
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.05, 0.06, 0.08, 1)
     world.color = (0.05, 0.06, 0.08)
+    # a background only (Diffuse and Glossy ray visibility off, in Cycles too): the world's
+    # light would leave every interpolant cell traced and make every edit re-render each
+    # surface it reaches (measured: 0% interpolated, 62% of the pixels per edit)
+    world.cycles_visibility.diffuse = world.cycles_visibility.glossy = False
     sc.world = world
 
     r = sc.render

@@ -11,8 +11,9 @@ submission interrupts the frame in progress (a
 :data:`VIEW_TILE_RAYS` rays and between the queries of a tile, the BVH kernels every few
 dozen rays) and starts over with
 
-1. a *coarse* frame at 1/:data:`COARSE_FACTOR` resolution (the base tracer; a few thousand
-   rays), so something appears within tens of milliseconds of any edit;
+1. a *coarse* frame at 1/:data:`COARSE_FACTOR` resolution (the base tracer with one light
+   sample; a few thousand rays), so something appears within tens of milliseconds of any
+   edit;
 2. the *full*-resolution frame in the session's mode (BASE: the base tracer in tiles;
    INTERPOLANT: radiance interpolants, which are view-independent and survive camera
    moves);
@@ -306,8 +307,11 @@ class ViewportWorker:
             # of the lock after the edits (a background warm-up would take it in between)
             cam = coarse_camera(camera, self.coarse_factor)
             cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-            rgb, _, done = trace_view(session, cam, settings, self._flag, cb,
-                                      tile_rays=self.tile_rays)
+            # one light sample: the preview is shown once, never averaged in, and soft
+            # lights would multiply its cost by Light Samples (the full image and the
+            # refinement take the scene's count: n passes give F12's n samples)
+            rgb, _, done = trace_view(session, cam, replace(settings, light_samples=1),
+                                      self._flag, cb, tile_rays=self.tile_rays)
         if not done:
             return self._interrupted()
         times["coarse_ms"] = 1e3 * (time.perf_counter() - t_job)

@@ -104,6 +104,30 @@ def test_worker_stages_edits_interrupt_and_stop(session):
         assert worker.stop() and not worker.alive
 
 
+def test_coarse_preview_takes_one_light_sample(session, monkeypatch):
+    """The coarse preview traces one light sample (it is shown once and never averaged
+    in); the refinement passes take the settings' Light Samples, as F12 does."""
+    import rstrace_engine.interactive as interactive
+
+    seen = []
+    real = interactive.trace_view
+
+    def recording(session, camera, settings, *args, **kwargs):
+        seen.append((camera.width, int(settings.light_samples)))
+        return real(session, camera, settings, *args, **kwargs)
+
+    monkeypatch.setattr(interactive, "trace_view", recording)
+    settings = replace(session.settings, light_samples=8)
+    worker = ViewportWorker(threading.Lock(), samples=2)
+    try:
+        worker.submit(session=session, camera=session.scene.camera, settings=settings)
+        assert worker.wait_idle(300)
+    finally:
+        assert worker.stop()
+    coarse = coarse_camera(session.scene.camera, worker.coarse_factor).width
+    assert seen == [(coarse, 1), (48, 8)]  # the coarse preview, then one refinement pass
+
+
 def test_worker_reports_errors_and_keeps_running(session):
     worker = ViewportWorker(threading.Lock(), samples=1)
     try:

@@ -101,7 +101,9 @@ def camera(location=(0.0, -8.0, 3.0), target=(0.0, 0.0, 0.5), lens: float = 35.0
     return ob
 
 
-def set_world(colour=(0.0, 0.0, 0.0)):
+def set_world(colour=(0.0, 0.0, 0.0), lights: bool = True):
+    """A world of a uniform colour; ``lights=False``: a background only (its Diffuse and
+    Glossy ray visibility off, in Cycles as in RSTrace)."""
     world = bpy.data.worlds.new("World")
     bpy.context.scene.world = world
     bg = world.node_tree.nodes.get("Background")
@@ -109,6 +111,7 @@ def set_world(colour=(0.0, 0.0, 0.0)):
         bg.inputs["Color"].default_value = (*colour, 1.0)
         bg.inputs["Strength"].default_value = 1.0
     world.color = colour
+    world.cycles_visibility.diffuse = world.cycles_visibility.glossy = lights
     return world
 
 
@@ -130,9 +133,11 @@ def setup_render(width: int = 48, height: int = 36, engine: str = "RSTRACE", sam
 
 
 def three_spheres_scene(width=48, height=36):
-    """Diffuse floor, a red diffuse sphere, a mirror sphere, a blue sphere; two lamps."""
+    """Diffuse floor, a red diffuse sphere, a mirror sphere, a blue sphere; two lamps; a
+    dim background that lights nothing (the paper's Plate A is lit by its lamps only, and
+    the interpolants' tests need a point-lit scene: a world's light fails every cell)."""
     setup_render(width, height)
-    set_world((0.02, 0.02, 0.03))
+    set_world((0.02, 0.02, 0.03), lights=False)
     floor = principled("Floor", (0.55, 0.55, 0.5), roughness=0.8)
     red = principled("Red", (0.7, 0.12, 0.1), roughness=0.4)
     blue = principled("Blue", (0.1, 0.2, 0.65), roughness=0.5)

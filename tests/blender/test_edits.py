@@ -112,6 +112,21 @@ def test_each_change_gives_its_edits():
     assert kinds == ["WorldColor"]
 
 
+def test_world_ray_visibility_gives_a_world_edit():
+    """The world's Diffuse and Glossy ray visibility both off: a background only (Cycles
+    excludes it from both closures), sent as a WorldColor edit that says so."""
+    _scene()
+    world = b.set_world((0.2, 0.2, 0.2))
+    c = Collector()
+    kinds, _ = c.step(lambda: setattr(world.cycles_visibility, "diffuse", False))
+    assert kinds == []  # Glossy still on: the world still lights (the mismatch is reported)
+
+    kinds, out = c.step(lambda: setattr(world.cycles_visibility, "glossy", False))
+    assert kinds == ["WorldColor"] and out[0].lights is False
+    kinds, out = c.step(lambda: setattr(world.cycles_visibility, "glossy", True))
+    assert kinds == ["WorldColor"] and out[0].lights is True
+
+
 def test_deleting_a_textured_material_s_last_user_frees_its_pixels():
     _scene()
     img = bpy.data.images.new("Checker", 8, 8)

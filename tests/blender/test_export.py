@@ -165,20 +165,130 @@ def test_lights_are_exported_in_blender_units():
     assert not ex.warnings
 
 
-def test_area_lights_and_radius_are_approximated_and_reported_once():
+def test_soft_lights_are_read_as_cycles_reads_them():
+    """Radius and soft falloff, sun angle, area shape and size with the object's scale
+    (Cycles: the world matrix's X and Y columns times Size and Size Y; the object's scale
+    does not change a radius), spread; nothing approximated, nothing to report."""
     _basic_scene()
-    bpy.data.lights["Lamp"].shadow_soft_size = 0.25
-    for k in range(2):
-        area = bpy.data.lights.new(f"Area{k}", "AREA")
-        area.energy = 100.0
-        b.add_object(f"Area{k}", area, (k, 0.0, 4.0))
+    lamp = bpy.data.lights["Lamp"]
+    lamp.shadow_soft_size, lamp.use_soft_falloff = 0.25, True
+    b.add_object("Lamp2", lamp.copy(), (1.0, 0.0, 5.0)).scale = (3.0, 3.0, 3.0)
+    bpy.data.objects["Lamp2"].data.use_soft_falloff = False
+    spot = bpy.data.lights.new("Spot", "SPOT")
+    spot.energy, spot.shadow_soft_size, spot.use_soft_falloff = 300.0, 0.4, False
+    b.add_object("Spot", spot, (0.0, 0.0, 4.0))
+    sun = bpy.data.lights.new("Sun", "SUN")
+    sun.energy, sun.angle = 2.0, math.radians(12.0)
+    b.add_object("Sun", sun)
+    panel = bpy.data.lights.new("Panel", "AREA")
+    panel.energy, panel.shape, panel.size, panel.size_y = 100.0, "RECTANGLE", 2.0, 0.5
+    panel.spread = math.radians(60.0)
+    po = b.add_object("Panel", panel, (0.0, 1.0, 4.0))
+    po.rotation_euler = (0.0, 0.0, math.radians(90.0))  # local X along world +Y
+    po.scale = (1.5, -2.0, 1.0)  # mirrored in Y: the same rectangle, emitting down
+    disk = bpy.data.lights.new("Disk", "AREA")
+    disk.shape, disk.size, disk.size_y = "DISK", 0.8, 5.0  # a disk ignores Size Y
+    b.add_object("Disk", disk, (2.0, 0.0, 3.0))
     ex = _export()
-    areas = [li for li in ex.scene.lights if li.name.startswith("Area")]
-    assert len(areas) == 2 and all(li.kind == "SPOT" for li in areas)
-    assert all(li.power == pytest.approx(400.0) for li in areas)  # on-axis intensity P/pi
-    area_msgs = [w for w in ex.warnings if "area lights" in w]
-    assert len(area_msgs) == 1 and "'Area0'" in area_msgs[0] and "'Area1'" in area_msgs[0]
-    assert any("radius" in w and "'Lamp'" in w for w in ex.warnings)
+    lights = {li.name: li for li in ex.scene.lights}
+    assert (lights["Lamp"].radius, lights["Lamp"].soft_falloff) == (pytest.approx(0.25), True)
+    assert (lights["Lamp2"].radius, lights["Lamp2"].soft_falloff) == (pytest.approx(0.25),
+                                                                      False)
+    s = lights["Spot"]
+    assert (s.kind, s.radius, s.soft_falloff) == ("SPOT", pytest.approx(0.4), False)
+    assert lights["Sun"].angle == pytest.approx(math.radians(12.0))
+    p = lights["Panel"]
+    assert (p.kind, p.shape, p.power) == ("AREA", "RECTANGLE", pytest.approx(100.0))
+    assert p.size == pytest.approx((3.0, 1.0))
+    assert p.spread == pytest.approx(math.radians(60.0))
+    np.testing.assert_allclose(p.axis, (0.0, 1.0, 0.0), atol=1e-6)
+    np.testing.assert_allclose(p.direction, (0.0, 0.0, -1.0), atol=1e-6)
+    np.testing.assert_allclose(p.position, (0.0, 1.0, 4.0), atol=1e-6)
+    d = lights["Disk"]
+    assert (d.shape, d.size) == ("DISK", pytest.approx((0.8, 0.8)))
+    assert not ex.warnings
+
+
+def test_normalize_off_multiplies_the_power_by_cycles_area():
+    """Normalize off: Cycles does not divide the power by the emitter's area (measured:
+    an area light of 2 x 2 m renders 4x brighter, a point light of radius 0 4x, radius 0.5
+    pi x, a sun of angle 10 degrees pi sin^2(5 degrees) x)."""
+    _basic_scene()
+    bpy.data.lights["Lamp"].normalize = False
+    panel = bpy.data.lights.new("Panel", "AREA")
+    panel.energy, panel.size, panel.normalize = 100.0, 2.0, False
+    b.add_object("Panel", panel, (0.0, 1.0, 4.0)).scale = (1.0, 1.5, 1.0)
+    bulb = bpy.data.lights.new("Bulb", "POINT")
+    bulb.energy, bulb.shadow_soft_size, bulb.normalize = 10.0, 0.5, False
+    b.add_object("Bulb", bulb, (1.0, 1.0, 4.0))
+    sun = bpy.data.lights.new("Sun", "SUN")
+    sun.energy, sun.angle, sun.normalize = 2.0, math.radians(10.0), False
+    b.add_object("Sun", sun)
+    lights = {li.name: li for li in _export().scene.lights}
+    assert lights["Lamp"].power == pytest.approx(4000.0)
+    assert lights["Panel"].power == pytest.approx(100.0 * 2.0 * 3.0)
+    assert lights["Bulb"].power == pytest.approx(10.0 * math.pi)
+    assert lights["Sun"].power == pytest.approx(2.0 * math.pi * math.sin(math.radians(5.0)) ** 2)
+
+
+def test_light_settings_not_modelled_are_reported_by_name():
+    _basic_scene()
+    lamp = bpy.data.lights["Lamp"]
+    lamp.use_shadow = False
+    lamp.diffuse_factor = 0.5
+    spot = bpy.data.lights.new("Spot", "SPOT")
+    b.add_object("Spot", spot, (0.0, 0.0, 4.0)).scale = (1.0, 2.0, 1.0)
+    b.add_object("Spot2", spot, (1.0, 0.0, 4.0)).scale = (1.0, 1.0, 3.0)  # a narrower cone
+    b.add_object("Spot3", spot, (2.0, 0.0, 4.0)).scale = (2.0, 2.0, 2.0)  # unchanged
+    warnings = _export().warnings
+    assert any("shadows turned off" in w and "'Lamp'" in w for w in warnings), warnings
+    assert any("Diffuse" in w and "factors" in w and "'Lamp'" in w for w in warnings)
+    spots = [w for w in warnings if "non-uniformly scaled spot" in w]
+    assert len(spots) == 1 and "'Spot'" in spots[0] and "'Spot2'" in spots[0]
+    assert "'Spot3'" not in spots[0]
+
+
+def test_light_emission_node_multiplies_colour_and_power():
+    """Cycles multiplies a light's Emission node colour x strength into its own; any other
+    node tree is reported."""
+    _basic_scene()
+    lamp = bpy.data.lights["Lamp"]
+    lamp.use_nodes = True
+    emission = lamp.node_tree.nodes["Emission"]
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    emission.inputs["Strength"].default_value = 2.0
+    ex = _export()
+    light = ex.scene.lights[0]
+    assert light.power == pytest.approx(2000.0)
+    np.testing.assert_allclose(light.color, (1.0, 0.5, 0.25), atol=1e-6)
+    assert not ex.warnings
+    noise = lamp.node_tree.nodes.new("ShaderNodeTexNoise")
+    lamp.node_tree.links.new(noise.outputs["Color"], emission.inputs["Color"])
+    ex = _export()
+    assert ex.scene.lights[0].power == pytest.approx(1000.0)
+    assert any("node trees" in w and "'Lamp'" in w for w in ex.warnings), ex.warnings
+
+
+def test_light_and_world_ray_visibility_and_linking_are_reported():
+    _basic_scene()
+    lamp = bpy.data.objects["Lamp"]
+    lamp.visible_glossy = False
+    lamp.light_linking.receiver_collection = bpy.data.collections.new("Lit")
+    world = b.set_world((0.1, 0.1, 0.1))
+    world.cycles_visibility.diffuse = False
+    ex = _export()
+    warnings = ex.warnings
+    assert any("ray visibility (Glossy off)" in w and "'Lamp'" in w for w in warnings)
+    assert any("linking" in w and "'Lamp'" in w for w in warnings), warnings
+    assert any("world ray visibility (Diffuse off)" in w and "'World'" in w
+               for w in warnings), warnings
+    assert ex.scene.world_lights
+    # Diffuse and Glossy both off: a background only (Cycles excludes it from both)
+    world.cycles_visibility.glossy = False
+    ex = _export()
+    assert not ex.scene.world_lights
+    np.testing.assert_allclose(ex.scene.world_color, (0.1, 0.1, 0.1), atol=1e-6)
+    assert not any("world ray visibility" in w for w in ex.warnings), ex.warnings
 
 
 def test_camera_and_resolution():

@@ -84,7 +84,7 @@ def _render(engine):
 
 def test_progress_stats_memory_and_passes():
     b.three_spheres_scene(40, 30)
-    b.set_world((0.0, 0.0, 0.0))  # a lit world is reported (world lighting not modelled)
+    b.set_world((0.0, 0.0, 0.0))
     engine = FakeEngine()
     state = _render(engine)
     assert not engine.errors and state.error is None
@@ -114,14 +114,32 @@ def test_cancel_between_batches_keeps_a_partial_frame():
 
 def test_status_line_counts_warnings():
     b.three_spheres_scene(16, 12)
-    b.set_world((0.0, 0.0, 0.0))  # a lit world would be a second warning
-    area = bpy.data.lights.new("Panel", "AREA")
-    b.add_object("Panel", area, (0.0, -3.0, 4.0))
+    b.set_world((0.0, 0.0, 0.0))
+    bpy.data.lights["Fill"].use_shadow = False  # not modelled: said by name
     engine = FakeEngine()
     state = _render(engine)
     assert "1 warning" in engine.info[-1]
-    assert any("area lights" in w for w in state.stats["export_warnings"])
-    assert [k for k, m in engine.reports] == [{"WARNING"}] and "'Panel'" in engine.reports[0][1]
+    assert any("shadows turned off" in w for w in state.stats["export_warnings"])
+    assert [k for k, m in engine.reports] == [{"WARNING"}] and "'Fill'" in engine.reports[0][1]
+
+
+def test_status_line_and_panel_give_shadow_rays_per_pixel():
+    """Soft lights cost Light Samples shadow rays each: the status line and the Last Render
+    panel say how many the frame traced per pixel."""
+    from addon import session
+
+    sc = b.three_spheres_scene(16, 12)
+    bpy.data.lights["Key"].shadow_soft_size = 0.5
+    sc.rstrace.light_samples = 4
+    engine = FakeEngine()
+    state = _render(engine)
+    rays = state.stats["shadow_rays"]
+    assert rays > 16 * 12  # the key light takes 4 per shading point, the fill 1
+    per_pixel = f"{rays / (16 * 12):.1f} shadow rays/px"
+    assert per_pixel in engine.info[-1]
+    assert session.shadow_rays_text(state.stats) == (f"{rays:,} shadow rays, "
+                                                     f"{rays / (16 * 12):.1f} per pixel")
+    assert session.shadow_rays_per_pixel({"width": 4, "height": 2}) is None
 
 
 def test_first_render_says_compiling_kernels(tmp_path, monkeypatch):

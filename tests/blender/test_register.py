@@ -48,6 +48,18 @@ def test_settings_map_to_render_settings():
     assert accel_ids == {"BVH", "EMBREE", "VISIBILITY_FIELD"}
 
 
+def test_light_samples_map_to_render_settings():
+    """Light Samples: the core's default, and the scene's value in the render settings and
+    in the viewport's (every viewport pass takes them: refinement adds passes)."""
+    from addon import properties, viewport
+
+    props = bpy.context.scene.rstrace
+    assert props.light_samples == RenderSettings().light_samples
+    props.light_samples = 7
+    assert properties.render_settings(props).light_samples == 7
+    assert viewport.viewport_settings(bpy.context.scene).light_samples == 7
+
+
 def test_stock_panels_enabled_and_settings_panel_polls():
     from addon import ui
 

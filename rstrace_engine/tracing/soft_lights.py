@@ -268,11 +268,8 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
     # a sphere (POINT or SPOT with a radius)
     r = sa.light_radius[j]
     ax, ay, az, dist = normalize3(cx - qx, cy - qy, cz - qz)
-    if sa.light_soft[j]:
-        s2 = r * r / (r * r + dist * dist)
-    elif dist > r:
-        s2 = (r / dist) ** 2
-    else:
+    s2 = _sphere_sin2(r, dist, sa.light_soft[j])
+    if s2 < 0.0:
         s2 = 1.0  # inside the sphere: its whole hemisphere (see _soft_kernel)
     omc = s2 / (1.0 + math.sqrt(max(0.0, 1.0 - s2)))
     dx, dy, dz = _cone_dir(ax, ay, az, omc, u, v)
@@ -286,6 +283,17 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
         ca = -dot3(dx, dy, dz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])
         wgt *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
     return dx, dy, dz, t * (1.0 - tol.SHADOW_END_REL), wgt
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sphere_sin2(r, dist, soft):
+    """Squared sine of the cone a sphere light of radius ``r`` at distance ``dist`` subtends
+    (with ``soft`` falloff: Cycles' disk of radius r facing the point); -1 inside the sphere."""
+    if soft:
+        return r * r / (r * r + dist * dist)
+    if dist > r:
+        return (r / dist) ** 2
+    return -1.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -352,11 +360,8 @@ def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
         return _polygon_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz)
     r = sa.light_radius[j]
     ax, ay, az, dist = normalize3(cx - qx, cy - qy, cz - qz)
-    if sa.light_soft[j]:
-        s2 = r * r / (r * r + dist * dist)
-    elif dist > r:
-        s2 = (r / dist) ** 2
-    else:
+    s2 = _sphere_sin2(r, dist, sa.light_soft[j])
+    if s2 < 0.0:
         return -1.0
     return _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz)
 

@@ -136,6 +136,18 @@ class Spawned(NamedTuple):
 # ----------------------------------------------------------------------------- kernels
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _brdf(principled, sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
+          metallic, mr, mg, mb, alpha, e_white, e_diel):
+    """The material's BRDF (Principled-like or Ward) for light direction ``l`` and view
+    direction ``o`` about shading normal ``s``: the hard lights' and the soft samples' one
+    evaluation."""
+    if principled:
+        return principled_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
+                               eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel)
+    return ward_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
+
+
 @njit(cache=True, nogil=True)
 def _material_of(sa, inst, tri):
     """Material id of triangle ``tri`` on instance ``inst`` (slot clamped to the list)."""
@@ -373,13 +385,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
                     e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
             if e <= 0.0:
                 continue
-            if principled:
-                fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                             dr, dg, db, sr, sg, sb, eta_s, metallic,
-                                             mr, mg, mb, alpha, e_white, e_diel)
-            else:
-                fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                       dr, dg, db, sr, sg, sb, alpha)
+            fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
+                               sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
+                               e_diel)
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -404,13 +412,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
                 if not soft.vis[k]:
                     continue
                 lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
-                if principled:
-                    fr, fg, fb = principled_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                                 dr, dg, db, sr, sg, sb, eta_s, metallic,
-                                                 mr, mg, mb, alpha, e_white, e_diel)
-                else:
-                    fr, fg, fb = ward_brdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                           dr, dg, db, sr, sg, sb, alpha)
+                fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
+                                   sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
+                                   e_diel)
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e

@@ -200,3 +200,16 @@ def test_ortho_scale_limit_allows_float32_rounding_and_is_quoted():
     s.set_camera(Camera(kind="ORTHO", ortho_scale=float(np.float32(1e-9))))
     with pytest.raises(SceneError, match=r"ortho scale 5e-10 is below the minimum 1e-09"):
         s.set_camera(Camera(kind="ORTHO", ortho_scale=5e-10))
+
+
+@pytest.mark.parametrize("model", ["PRINCIPLED", "WARD"])
+def test_coloured_glass_is_tinted_once_through_an_object(model):
+    """Cycles' Principled BSDF tints each crossing by sqrt(Base Color): in and out of a closed
+    object the light is tinted by the colour once (issue 23: the full colour at each crossing
+    tinted it twice). Cycles' Glass BSDF node tints every crossing by its Color."""
+    base = (0.04, 0.64, 0.25)
+    mat, _ = principled_material("green", base, roughness=0.0, transmission=1.0, model=model)
+    np.testing.assert_allclose(mat.transmission, np.sqrt(base))
+    node, _ = principled_material("green", base, roughness=0.0, transmission=1.0,
+                                  model=model, tint_per_crossing=True)
+    np.testing.assert_allclose(node.transmission, base)

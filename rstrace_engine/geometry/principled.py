@@ -73,8 +73,15 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                         ior: float = 1.5, transmission: float = 0.0,
                         specular_level: float = 0.5, specular_tint=(1.0, 1.0, 1.0),
                         emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
-                        model: str = "PRINCIPLED") -> tuple[Material, list[str]]:
+                        model: str = "PRINCIPLED",
+                        tint_per_crossing: bool = False) -> tuple[Material, list[str]]:
     """A material from Principled BSDF inputs, and messages about what was approximated.
+
+    The transmitted light is tinted per interface crossing by ``sqrt(base)``, as Cycles'
+    Principled BSDF does (``transmission_tint = sqrt(base_color)``), so that light through a
+    closed object (in and out: two crossings) is tinted by the base colour once; the tracer
+    multiplies ``transmission`` in at every crossing. ``tint_per_crossing`` instead tints
+    every crossing by the full colour: Cycles' Glass BSDF node.
 
     Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
     ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
@@ -109,7 +116,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     m = float(np.clip(metallic, 0.0, 1.0))
     t = float(np.clip(transmission, 0.0, 1.0))
     r = float(np.clip(roughness, 0.0, 1.0))
-    refract = (1 - m) * t * (tex_mean if texture is not None else base)
+    colour = tex_mean if texture is not None else base
+    refract = (1 - m) * t * (colour if tint_per_crossing else np.sqrt(colour))
     if texture is not None and t > 0.0:
         notes.append("textured transmission is approximated by the texture's average")
     if t > 0.0 and r > MIRROR_ROUGHNESS:

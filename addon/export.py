@@ -110,10 +110,13 @@ def render_size(render) -> tuple[int, int]:
     return (max(1, render.resolution_x * pct // 100), max(1, render.resolution_y * pct // 100))
 
 
+NO_FACES = "has no faces"
+
+
 def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     mesh = mesh_arrays(me, name)
     if mesh is None:
-        return MeshEntry(None, f"its mesh '{name}' has no faces", fingerprint, source)
+        return MeshEntry(None, f"its mesh '{name}' {NO_FACES}", fingerprint, source)
     v = mesh.vertices
     if not np.all(np.isfinite(v)):
         return MeshEntry(None, f"mesh '{name}': NaN or infinite vertex coordinates",
@@ -239,6 +242,11 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     lights: dict = {}
     instancers: set = set()
     instanced: set = set()
+    # objects whose own mesh has no faces, reported after the walk unless they instance
+    # something (a vertex-instancing parent, a geometry-nodes instancer): their instances
+    # are what renders, as in Cycles, so "no faces" would be a false alarm
+    faceless: list = []
+    _check_view_layer(depsgraph, notes)
     for inst in depsgraph.object_instances:
         ob = inst.object
         kind = ob.type
@@ -252,7 +260,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
             if not inst.is_instance and ob.original.hide_render:
                 hidden.add(key)
                 continue
-            rec = _mesh_object(r, inst)
+            rec = _mesh_object(r, inst, faceless)
             if rec is not None:
                 objects[key] = rec
         elif kind == "LIGHT":
@@ -271,6 +279,9 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         else:
             notes.warn(f"{kind.lower().replace('_', ' ')} objects are not supported (skipped)",
                        instance_name(inst))
+    for uid, message in faceless:
+        if uid not in instancers:
+            notes.skip(message)
     if not lights:
         notes.warn("the scene has no lights: only the world's light and emission are seen")
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
@@ -281,8 +292,10 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
                     instancers=instancers, instanced=instanced, world_lights=lights_from_world)
 
 
-def _mesh_object(r: _Reader, inst) -> ObjectRecord | None:
-    """The record of a shown mesh object (or instance); None when it is skipped (noted)."""
+def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord | None:
+    """The record of a shown mesh object (or instance); None when it is skipped (noted).
+    A mesh without faces goes to ``faceless`` as ``(object uid, message)`` when given (the
+    caller reports it unless the object turns out to be an instancer), else is noted."""
     ob = inst.object
     cache, notes = r.cache, r.notes
     name = instance_name(inst)
@@ -296,7 +309,11 @@ def _mesh_object(r: _Reader, inst) -> ObjectRecord | None:
     mesh_key = r.mesh_key(inst, ob, me)
     entry = cache.meshes[mesh_key]
     if entry.mesh is None:
-        notes.skip(f"skipped object '{name}': {entry.reason}")
+        message = f"skipped object '{name}': {entry.reason}"
+        if faceless is not None and entry.reason.endswith(NO_FACES):
+            faceless.append((ob.original.session_uid, message))
+        else:
+            notes.skip(message)
         return None
     slots = ob.material_slots
     mats = [r.material_key(s.material) for s in slots] if len(slots) else \
@@ -375,6 +392,40 @@ def _check_visibility(ob, name: str, notes: Notes) -> None:
             and ob.visible_transmission):
         notes.warn("per-object ray visibility is not supported (objects are visible to all "
                    "rays)", name)
+    # Cycles renders these differently; rstrace renders the object as an ordinary one, so
+    # say so rather than render it silently wrong (issue 23)
+    orig = getattr(ob, "original", ob)
+    if getattr(orig, "is_holdout", False):
+        notes.warn("holdout objects are not supported (rendered as ordinary objects)", name)
+    if getattr(orig, "is_shadow_catcher", False):
+        notes.warn("shadow catchers are not supported (rendered as ordinary objects)", name)
+
+
+def _check_view_layer(depsgraph, notes: Notes) -> None:
+    """What the view layer asks for that is not modelled: a material override, collections
+    set to holdout or indirect only (reported by collection name)."""
+    layer = getattr(depsgraph, "view_layer", None)
+    if layer is None:
+        return
+    if getattr(layer, "material_override", None) is not None:
+        notes.warn("the view layer's material override is not supported (ignored)",
+                   layer.material_override.name)
+
+    def walk(lc):
+        for child in lc.children:
+            if child.exclude:
+                continue
+            if child.holdout:
+                notes.warn("holdout collections are not supported (rendered as ordinary "
+                           "objects)", child.name)
+            if child.indirect_only:
+                notes.warn("indirect only collections are not supported (rendered as "
+                           "ordinary objects)", child.name)
+            walk(child)
+
+    root = getattr(layer, "layer_collection", None)
+    if root is not None:
+        walk(root)
 
 
 def export_scene(depsgraph, camera_object=None, width: int | None = None,

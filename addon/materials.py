@@ -155,6 +155,9 @@ class MaterialReader:
             self.notes.warn("materials without an active Material Output node use their "
                             "viewport colour", name)
             return self._viewport(mat)
+        disp = out.inputs.get("Displacement")
+        if disp is not None and disp.is_linked:
+            self.notes.warn("material displacement is not supported (ignored)", name)
         node, _ = follow_link(out.inputs["Surface"])
         if node is None:
             self.notes.warn("materials with nothing connected to Surface use their viewport "
@@ -165,6 +168,7 @@ class MaterialReader:
             return self._principled(name, node)
         if kind == "ShaderNodeBsdfDiffuse":
             colour, tex = self._colour(name, node.inputs["Color"])
+            self._diffuse_roughness(name, node.inputs.get("Roughness"))
             return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=tex)
         if kind == "ShaderNodeEmission":
             colour, _ = self._colour(name, node.inputs["Color"])
@@ -180,10 +184,19 @@ class MaterialReader:
             colour, _ = self._colour(name, node.inputs["Color"])
             rough = self._value(name, node.inputs["Roughness"])
             ior = self._value(name, node.inputs["IOR"])
-            return self._mix(name, base=colour, roughness=rough, ior=ior, transmission=1.0)
+            # Cycles' Glass BSDF tints every crossing by its Color (no square root)
+            return self._mix(name, base=colour, roughness=rough, ior=ior, transmission=1.0,
+                             tint_per_crossing=True)
         self.notes.warn(f"'{node.bl_label}' shaders are not supported; the material's "
                         f"viewport colour is used", name)
         return self._viewport(mat)
+
+    def _diffuse_roughness(self, name: str, sock) -> None:
+        """Cycles' Oren-Nayar diffuse (roughness above 0) flattens and darkens the shading;
+        the diffuse here is Lambertian, so a rough one is reported."""
+        if sock is not None and (sock.is_linked or float(sock.default_value) > 0.0):
+            self.notes.warn("diffuse roughness is not supported (rendered as Lambertian)",
+                            name)
 
     def _viewport(self, mat) -> Material:
         return self._mix(mat.name, base=rgb(mat.diffuse_color), metallic=mat.metallic,
@@ -206,6 +219,7 @@ class MaterialReader:
             s = inp.get(sock)
             if s is not None and (s.is_linked or float(s.default_value) > 0.0):
                 self.notes.warn(f"Principled {label} is not supported (ignored)", name)
+        self._diffuse_roughness(name, inp.get("Diffuse Roughness"))
         alpha = inp.get("Alpha")
         if alpha is not None and (alpha.is_linked or alpha.default_value < 1.0):
             self.notes.warn("transparency (Principled alpha) is not supported: rendered "
@@ -220,14 +234,15 @@ class MaterialReader:
     def _mix(self, name: str, base, metallic: float = 0.0, roughness: float = 0.5,
              ior: float = 1.5, transmission: float = 0.0, specular_level: float = 0.5,
              specular_tint=(1.0, 1.0, 1.0), emission=(0.0, 0.0, 0.0),
-             texture: np.ndarray | None = None) -> Material:
+             texture: np.ndarray | None = None, tint_per_crossing: bool = False) -> Material:
         """Principled parameters -> a material of the render's shading model (see
         :func:`rstrace_engine.geometry.principled.principled_material`); what had to be
         approximated goes to the notes."""
         material, messages = principled_material(
             name, base, metallic=metallic, roughness=roughness, ior=ior,
             transmission=transmission, specular_level=specular_level,
-            specular_tint=specular_tint, emission=emission, texture=texture, model=self.model)
+            specular_tint=specular_tint, emission=emission, texture=texture, model=self.model,
+            tint_per_crossing=tint_per_crossing)
         for message in messages:
             self.notes.warn(message, name)
         return material

@@ -1,0 +1,165 @@
+"""Features rstrace does not model are named in the render's messages, never rendered
+silently wrong (issue 23); and objects that render through their instances are not reported
+as faceless. One small scene per feature, checked on the export's warnings (what the render
+reports)."""
+
+from __future__ import annotations
+
+import bpy
+import pytest
+
+from . import builders as b
+
+
+def _warnings():
+    import addon
+
+    return addon.export.export_scene(bpy.context.evaluated_depsgraph_get()).warnings
+
+
+def _scene(material=None):
+    b.setup_render(32, 24)
+    ball = b.add_object("Ball", b.uv_sphere("Ball", 1.0, 16, 8), (0.0, 0.0, 1.0), material)
+    b.point_light("Lamp", (0.0, -3.0, 5.0), 1000.0)
+    b.camera()
+    return ball
+
+
+def _reported(warnings, *words) -> bool:
+    return any(all(w in text for w in words) for text in warnings)
+
+
+# ----------------------------------------------------------------------------- materials
+
+
+def test_displacement_is_reported():
+    mat = b.principled("Bumpy")
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    disp = nodes.new("ShaderNodeDisplacement")
+    links.new(disp.outputs["Displacement"], nodes["Material Output"].inputs["Displacement"])
+    _scene(mat)
+    w = _warnings()
+    assert _reported(w, "displacement", "'Bumpy'"), w
+
+
+@pytest.mark.parametrize("shader", ["principled", "diffuse"])
+def test_diffuse_roughness_is_reported(shader):
+    if shader == "principled":
+        mat = b.principled("Rough", **{"Diffuse Roughness": 0.5})
+    else:
+        mat = b.diffuse("Rough")
+        mat.node_tree.nodes["Diffuse BSDF"].inputs["Roughness"].default_value = 0.5
+    _scene(mat)
+    w = _warnings()
+    assert _reported(w, "diffuse roughness", "'Rough'"), w
+
+
+def test_lambertian_diffuse_is_not_reported():
+    _scene(b.diffuse("Smooth"))
+    assert not _reported(_warnings(), "diffuse roughness")
+
+
+def test_holdout_shader_is_reported():
+    mat = bpy.data.materials.new("Hole")
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    hold = nodes.new("ShaderNodeHoldout")
+    mat.node_tree.links.new(hold.outputs[0], nodes["Material Output"].inputs["Surface"])
+    _scene(mat)
+    w = _warnings()
+    assert _reported(w, "Holdout", "not supported", "'Hole'"), w
+
+
+def test_material_override_is_reported():
+    _scene(b.principled("Own"))
+    bpy.context.view_layer.material_override = b.principled("Clay")
+    w = _warnings()
+    assert _reported(w, "material override", "'Clay'"), w
+
+
+# ----------------------------------------------------------------------------- objects
+
+
+def test_holdout_object_is_reported():
+    _scene().is_holdout = True
+    w = _warnings()
+    assert _reported(w, "holdout", "'Ball'"), w
+
+
+def test_shadow_catcher_is_reported():
+    _scene().is_shadow_catcher = True
+    w = _warnings()
+    assert _reported(w, "shadow catcher", "'Ball'"), w
+
+
+def _in_collection(name: str):
+    _scene()
+    col = bpy.data.collections.new(name)
+    bpy.context.scene.collection.children.link(col)
+    b.add_object("Box", b.grid("Box", 1.0), (2.0, 0.0, 0.5), collection=col)
+    return bpy.context.view_layer.layer_collection.children[name]
+
+
+def test_holdout_collection_is_reported():
+    _in_collection("Cutout").holdout = True
+    w = _warnings()
+    assert _reported(w, "holdout collections", "'Cutout'"), w
+
+
+def test_indirect_only_collection_is_reported():
+    _in_collection("Bounce").indirect_only = True
+    w = _warnings()
+    assert _reported(w, "indirect only", "'Bounce'"), w
+
+
+def test_plain_scene_reports_none_of_these():
+    _in_collection("Plain")
+    w = _warnings()
+    for word in ("holdout", "shadow catcher", "indirect only", "override", "displacement"):
+        assert not _reported(w, word), w
+
+
+# ----------------------------------------------------------------------------- no faces
+
+
+def _faceless(name: str, points: int = 2):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([(float(i) * 2.0, 0.0, 0.5) for i in range(points)], [], [])
+    return me
+
+
+def test_vertex_instancing_parent_is_not_faceless():
+    b.setup_render(32, 24)
+    parent = b.add_object("Dots", _faceless("Dots"))
+    parent.instance_type = "VERTS"
+    child = b.add_object("Pebble", b.uv_sphere("Pebble", 0.3, 8, 4))
+    child.parent = parent
+    b.add_object("Lonely", _faceless("Lonely"))  # a real faceless mesh: still reported
+    b.point_light("Lamp", (0.0, -3.0, 5.0), 1000.0)
+    b.camera()
+    w = _warnings()
+    assert not _reported(w, "'Dots'", "no faces"), w
+    assert _reported(w, "'Lonely'", "no faces"), w
+
+
+def test_geometry_nodes_instancer_is_not_faceless():
+    b.setup_render(32, 24)
+    ob = b.add_object("Scatter", _faceless("Scatter", 0))
+    tree = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = tree.nodes, tree.links
+    out = nodes.new("NodeGroupOutput")
+    line = nodes.new("GeometryNodeMeshLine")
+    line.inputs["Count"].default_value = 3
+    cube = nodes.new("GeometryNodeMeshCube")
+    inst = nodes.new("GeometryNodeInstanceOnPoints")
+    links.new(line.outputs["Mesh"], inst.inputs["Points"])
+    links.new(cube.outputs["Mesh"], inst.inputs["Instance"])
+    links.new(inst.outputs["Instances"], out.inputs[0])
+    ob.modifiers.new("GN", "NODES").node_group = tree
+    b.add_object("Lonely", _faceless("Lonely"))
+    b.point_light("Lamp", (0.0, -3.0, 5.0), 1000.0)
+    b.camera()
+    w = _warnings()
+    assert not _reported(w, "'Scatter'", "no faces"), w
+    assert _reported(w, "'Lonely'", "no faces"), w

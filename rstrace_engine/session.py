@@ -136,11 +136,6 @@ class Session:
         with self._queue_lock:
             self._queue += edits
 
-    @property
-    def pending(self) -> int:
-        """Edits queued and not applied yet."""
-        return len(self._queue)
-
     def apply(self, edits=()) -> EditReport:
         """Apply the queued edits (:meth:`submit`) and then ``edits`` as one batch of
         :mod:`~rstrace_engine.geometry.edits`, all or nothing.

@@ -60,6 +60,13 @@ class Invalidation(NamedTuple):
     failed_retried: int  # failed cells naming an edited object, emptied to be tried again
     restarted: bool = False
 
+    @classmethod
+    def nothing(cls, live: int, restarted: bool = False) -> Invalidation:
+        """Nothing was queried (no content changed), or, ``restarted``, the cache started
+        over and all ``live`` interpolants are gone."""
+        return cls(live if restarted else 0, np.zeros(0, np.int32), 0.0, 0, 0, live, 0,
+                   restarted)
+
 
 def rst_domain(sa) -> np.ndarray:
     """The ray segment trees' domain (2, 3): the scene box with its point and spot lights,
@@ -339,7 +346,7 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         inv = invalidate(cache, fx.region_array(), fx.objects, fx.lights_moved, fx.materials,
                          fx.world, fx.lights_shading, everything)
     else:
-        inv = Invalidation(0, np.zeros(0, np.int32), 0.0, 0, 0, cache.pool.n_live, 0)
+        inv = Invalidation.nothing(cache.pool.n_live)
     n_new = len(sa.inst_mesh)
     trees = cache.trees
     trees.grow_instances(n_new)

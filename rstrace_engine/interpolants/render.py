@@ -414,13 +414,12 @@ class InterpolantRenderer:
             return None
         if sa is c.sa and not fx.scene_content_changed:
             c.accel = accel
-            return Invalidation(0, np.zeros(0, np.int32), 0.0, 0, 0, c.pool.n_live, 0)
+            return Invalidation.nothing(c.pool.n_live)
         if len(sa.light_kind) != len(c.sa.light_kind):
             live = c.pool.n_live
             self.cache = InterpolantCache(sa, accel, c.epsilon, c.depth_cap,
                                           c.memory_cap_bytes / 1e6, c.max_depth)
-            return Invalidation(live, np.zeros(0, np.int32), 0.0, 0, 0, live, 0,
-                                restarted=True)
+            return Invalidation.nothing(live, restarted=True)
         return c.take_edits(fx, sa, accel)
 
     def prepare(self, sa, settings: RenderSettings, accel):

@@ -41,6 +41,7 @@ from rstrace_engine.geometry.scene import (
     check_matrix,
 )
 
+from . import journal
 from .cameras import camera_from_object
 from .lights import read_light, world_colour, world_lights
 from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
@@ -113,8 +114,22 @@ def render_size(render) -> tuple[int, int]:
 NO_FACES = "has no faces"
 
 
-def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
-    mesh = mesh_arrays(me, name)
+class Cancelled(Exception):  # noqa: N818 (a request, not an error)
+    """The user cancelled (Esc) while meshes were being read: nothing was committed."""
+
+
+def _read_mesh(me, name: str, source: str, fingerprint: bytes | None = None) -> MeshEntry:
+    """Read ``me`` once (its fingerprint from the same arrays, unless given)."""
+    raw: dict = {}
+    mesh = mesh_arrays(me, name, raw)
+    if fingerprint is None:
+        fingerprint = mesh_fingerprint(me, raw)
+    entry = _checked(mesh, name, fingerprint, source)
+    entry.vertex_count = len(me.vertices)
+    return entry
+
+
+def _checked(mesh, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if mesh is None:
         return MeshEntry(None, f"its mesh '{name}' {NO_FACES}", fingerprint, source)
     v = mesh.vertices
@@ -133,10 +148,27 @@ def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
 class _Reader:
     """One pass over a depsgraph, filling a :class:`Snapshot` from the caches."""
 
-    def __init__(self, cache: ExportCache, dirty: Dirty | None, source: str) -> None:
+    def __init__(self, cache: ExportCache, dirty: Dirty | None, source: str,
+                 depsgraph=None, cancel=None, progress=None) -> None:
         self.cache = cache
         self.dirty = dirty
         self.source = source
+        self.cancel = cancel  # () -> bool: stop between meshes (Cancelled)
+        self.progress = progress  # (message) -> None: what is being read
+        # what journal.Journal.unchanged compares: the stamp reads get, the render's view
+        # and frame
+        self.stamp = journal.JOURNAL.stamp()
+        self.view = self.frame = None
+        if depsgraph is not None:
+            sc = depsgraph.scene
+            self.view = (sc.original.session_uid, depsgraph.view_layer.name)
+            self.frame = (int(sc.frame_current), float(sc.frame_subframe))
+        # (on the main thread, a render of the window's own view layer only: another
+        # scene's or layer's depsgraph may hold updates not yet reported)
+        ctx = journal.context_view()
+        self.journal = (dirty is None and self.view is not None and journal.listening()
+                        and (ctx is None or ctx == self.view))
+        self.meshes_trusted = 0
         self.notes = Notes()
         self.mesh_by_pointer: dict[int, Hashable] = {}
         self.materials_seen: set = set()
@@ -188,24 +220,56 @@ class _Reader:
                      inst.parent.original.session_uid in d.objects))
         t0 = time.perf_counter()
         if not stale and d is None:
-            fingerprint = mesh_fingerprint(me)
-            stale = fingerprint != entry.fingerprint
-        if stale:
-            if fingerprint is None:
+            said = self._journal(entry, key, inst, ob, me) if self.journal else None
+            if said is None:  # the journal cannot vouch for it: the exact check
                 fingerprint = mesh_fingerprint(me)
-            new = _read_mesh(me, me.name, fingerprint, self.source)
+                stale = fingerprint != entry.fingerprint
+            elif said:
+                stale = True  # updated since it was read
+            else:
+                self.meshes_trusted += 1
+            if not stale:
+                entry.stamp, entry.frame = self.stamp, self.frame
+        if stale:
+            if self.cancel is not None and self.cancel():
+                raise Cancelled
+            if self.progress is not None:
+                self.progress(f"reading mesh '{me.name}' ({len(me.polygons):,} faces)")
+            new = _read_mesh(me, me.name, self.source, fingerprint)
             if entry is not None and entry.mesh is not None and same_mesh(entry.mesh,
                                                                           new.mesh):
                 new.mesh = entry.mesh  # unchanged content: the session needs no MeshSet
+            new.stamp, new.frame = self.stamp, self.frame
             self.cache.meshes[key] = new
             self.meshes_read += 1
         self.t_mesh += time.perf_counter() - t0
         return key
 
+    def _journal(self, entry: MeshEntry, key, inst, ob, me) -> bool | None:
+        """The journal's word on the mesh of ``entry`` (see :mod:`.journal` for what it
+        relies on): False, unchanged since it was read; True, updated since; None, it
+        cannot say."""
+        orig = ob.original
+        uids = [orig.session_uid]
+        static = False
+        if key[0] == "data":
+            data = orig.data
+            uids.append(data.session_uid)
+            static = data.shape_keys is None and data.animation_data is None
+        if inst.parent is not None:
+            uids.append(inst.parent.original.session_uid)
+        j = journal.JOURNAL
+        if not j.trusted(entry.stamp, entry.frame, self.view, static, self.frame):
+            return None
+        if j.touched(entry.stamp, uids):
+            return True
+        return None if len(me.vertices) != entry.vertex_count else False
+
 
 def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
                camera_object=None, width: int | None = None, height: int | None = None,
-               source: str = "RENDER", with_camera: bool = True) -> Snapshot:
+               source: str = "RENDER", with_camera: bool = True, cancel=None,
+               progress=None) -> Snapshot:
     """Walk the evaluated ``depsgraph`` into a :class:`Snapshot`, refreshing ``cache``.
 
     dirty : what changed since the last walk with this cache (None: unknown, meshes are
@@ -213,6 +277,12 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     camera_object : the camera to render through (default: the scene's active camera)
     width, height : output size in pixels (default: resolution x percentage)
     with_camera : False for the viewport, whose camera comes from the view
+    cancel : () -> bool, asked before each mesh read (True: :class:`Cancelled` is raised;
+        what was read stays in ``cache``, valid)
+    progress : (message) -> None, told which mesh is being read
+
+    Without ``dirty`` (F12, animation), a cached mesh is taken as it is where the journal
+    says it cannot have changed (:mod:`.journal`), else checked by fingerprint.
 
     Raises :class:`SceneError` for a camera that leaves nothing sensible to render.
     """
@@ -227,7 +297,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     model = getattr(props, "shading_model", "PRINCIPLED")
     if cache.model != model:  # every material converts differently: re-read them all
         cache.set_model(model)
-    r = _Reader(cache, dirty, source)
+    r = _Reader(cache, dirty, source, depsgraph, cancel, progress)
     notes = r.notes
     camera = None
     if with_camera:
@@ -285,6 +355,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     if not lights:
         notes.warn("the scene has no lights: only the world's light and emission are seen")
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
+                 meshes_trusted=r.meshes_trusted,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
                  export_seconds=time.perf_counter() - t0, walked=True,
                  objects_read=len(objects) + len(hidden) + len(lights))
@@ -351,7 +422,7 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
     hidden from renders, skipped, or no longer a light): the caller walks everything.
     """
     t0 = time.perf_counter()
-    r = _Reader(cache, dirty, source)
+    r = _Reader(cache, dirty, source, depsgraph)
     objects, lights = dict(objects), dict(lights)
     changed = set()
     for mat in dirty.material_ids.values():
@@ -444,6 +515,6 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
     return Exported(scene, snap.notes, snap.width, snap.height, stats)
 
 
-__all__ = ["Dirty", "ExportCache", "Exported", "Light", "MeshEntry", "ObjectRecord",
+__all__ = ["Cancelled", "Dirty", "ExportCache", "Exported", "Light", "MeshEntry", "ObjectRecord",
            "Snapshot", "build_scene", "export_scene", "object_key", "read_scene",
            "read_updated", "render_size"]

@@ -38,6 +38,11 @@ class MeshEntry:
     reason: str | None
     fingerprint: bytes
     source: str  # "VIEWPORT" or "RENDER": which depsgraph it was read from
+    #: journal.JOURNAL's number when read or last found unchanged; the frame then
+    #: (frame_current, subframe); the evaluated mesh's vertex count (journal.py)
+    stamp: int = -1
+    frame: tuple | None = None
+    vertex_count: int = -1
 
 
 @dataclass

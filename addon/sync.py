@@ -45,7 +45,7 @@ class SyncOutcome:
 
 
 def sync(state, depsgraph, source: str, settings, camera_object=None,
-         updates: bool = False) -> SyncOutcome:
+         updates: bool = False, cancel=None, progress=None, lock=None) -> SyncOutcome:
     """Bring ``state.session`` up to date with ``depsgraph``; see the module docstring.
 
     state : the scene's ``session.SceneState`` (``session``, ``mirror``, ``lock``)
@@ -55,9 +55,14 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
         a viewport one on the worker, by its first ``apply``)
     updates : read only what ``depsgraph.updates`` name (``view_update``); else walk the
         whole depsgraph
+    cancel : () -> bool (F12: ``engine.test_break``), asked before each mesh read and every
+        0.1 s while a new F12 session builds; True raises :class:`export.Cancelled`
+    progress : (message) -> None, told what is being read or built (the status line)
+    lock : the :class:`HeldLock` of ``runtime.RENDER_LOCK`` an F12 holds, handed to a
+        build cancelled before it finished (which releases it once done)
 
-    Raises :class:`SceneError` (a broken camera, nothing to render); a live session and its
-    mirror are then as they were.
+    Raises :class:`SceneError` (a broken camera, nothing to render) or
+    :class:`export.Cancelled`; a live session and its mirror are then as they were.
     """
     from rstrace_engine.session import Session
 
@@ -75,17 +80,92 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
             if dirty is None:
                 return SyncOutcome(session, None)
         snap = mirror.read(depsgraph, dirty, source, camera_object=camera_object,
-                           with_camera=source == "RENDER")
+                           with_camera=source == "RENDER", cancel=cancel, progress=progress)
         diff = mirror.diff(snap, exists=existing_objects)
         seconds = time.perf_counter() - t0
         new = session is None
         if new:
-            session = Session(mirror.scene(snap), settings, build=source == "RENDER")
+            session = Session(mirror.scene(snap), settings, build=False)
+            if source == "RENDER":
+                build(session, cancel, progress, lock)
             state.session = session
         else:
             session.submit(diff.edits)
         mirror.commit(diff)
         return SyncOutcome(session, snap, len(diff.edits), new, seconds, diff.stats)
+
+
+class HeldLock:
+    """``with HeldLock(lock):`` holds ``lock`` (a ``threading.Lock``) and releases it at
+    the end, unless :meth:`hand_over` gave it to another thread, which then releases it."""
+
+    def __init__(self, lock) -> None:
+        self.lock = lock
+        self.handed = False
+
+    def __enter__(self) -> HeldLock:
+        self.lock.acquire()
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        if not self.handed:
+            self.lock.release()
+
+    def hand_over(self) -> None:
+        self.handed = True
+
+
+#: How often a build is checked for a cancel (s): Esc stops an F12 within this.
+CANCEL_POLL_S = 0.1
+
+
+def build(session, cancel=None, progress=None, lock: HeldLock | None = None) -> None:
+    """Build ``session``'s structures (its accelerator), saying so through ``progress``
+    and stopping when ``cancel()`` turns True (polled every :data:`CANCEL_POLL_S`).
+
+    The build runs on a thread of its own; a cancelled one is left to finish there (its
+    kernels cannot be stopped halfway) and is thrown away: :class:`export.Cancelled` is
+    raised at once. The kernels it still runs hold ``lock`` (``runtime.RENDER_LOCK``,
+    handed over: the thread releases it when done), so nothing else runs kernels beside it.
+    """
+    import threading
+
+    if cancel is None:
+        session.apply()
+        return
+    done = threading.Event()
+    guard = threading.Lock()
+    failed: list = []
+    abandoned = [False]
+
+    def run() -> None:
+        try:
+            session.apply()  # (builds the accelerator; no edits are queued)
+        except BaseException as exc:  # handed to the caller
+            failed.append(exc)
+        finally:
+            with guard:
+                done.set()
+                if abandoned[0] and lock is not None:
+                    lock.lock.release()
+
+    triangles = session.scene.triangle_count
+    t0 = time.perf_counter()
+    worker = threading.Thread(target=run, name="rstrace-build", daemon=True)
+    worker.start()
+    while not done.wait(CANCEL_POLL_S):
+        if progress is not None:
+            progress(f"building the BVH over {triangles:,} triangles "
+                     f"({time.perf_counter() - t0:.0f} s)")
+        if cancel():
+            with guard:
+                if not done.is_set():
+                    abandoned[0] = True
+                    if lock is not None:
+                        lock.hand_over()
+                    raise export.Cancelled
+    if failed:
+        raise failed[0]
 
 
 def drop_session(state) -> None:

@@ -118,9 +118,11 @@ class Cancelled(Exception):  # noqa: N818 (a request, not an error)
     """The user cancelled (Esc) while meshes were being read: nothing was committed."""
 
 
-def _read_mesh(me, name: str, source: str, fingerprint: bytes | None = None) -> MeshEntry:
-    """Read ``me`` once (its fingerprint from the same arrays, unless given)."""
-    raw: dict = {}
+def _read_mesh(me, name: str, source: str, fingerprint: bytes | None = None,
+               raw: dict | None = None) -> MeshEntry:
+    """Read ``me`` once (its fingerprint from the same arrays, unless given; ``raw``: the
+    raw arrays already read for it)."""
+    raw = {} if raw is None else raw
     mesh = mesh_arrays(me, name, raw)
     if fingerprint is None:
         fingerprint = mesh_fingerprint(me, raw)
@@ -210,6 +212,7 @@ class _Reader:
         entry = self.cache.meshes.get(key)
         d = self.dirty
         fingerprint = None
+        raw: dict = {}  # raw arrays the fingerprint read, not read again by the mesh read
         stale = entry is None
         if not stale and key[0] != "data" and entry.source != self.source:
             stale = True  # modifiers may evaluate differently for viewport and render
@@ -220,14 +223,12 @@ class _Reader:
                      inst.parent.original.session_uid in d.objects))
         t0 = time.perf_counter()
         if not stale and d is None:
-            said = self._journal(entry, key, inst, ob, me) if self.journal else None
-            if said is None:  # the journal cannot vouch for it: the exact check
-                fingerprint = mesh_fingerprint(me)
-                stale = fingerprint != entry.fingerprint
-            elif said:
-                stale = True  # updated since it was read
-            else:
+            if self.journal and self._unchanged(entry, key, inst, ob, me):
                 self.meshes_trusted += 1
+            else:  # updated since it was read, or the journal cannot say: the exact check
+                # (an update need not change it: a linked duplicate added tags the mesh)
+                fingerprint = mesh_fingerprint(me, raw)
+                stale = fingerprint != entry.fingerprint
             if not stale:
                 entry.stamp, entry.frame = self.stamp, self.frame
         if stale:
@@ -235,7 +236,7 @@ class _Reader:
                 raise Cancelled
             if self.progress is not None:
                 self.progress(f"reading mesh '{me.name}' ({len(me.polygons):,} faces)")
-            new = _read_mesh(me, me.name, self.source, fingerprint)
+            new = _read_mesh(me, me.name, self.source, fingerprint, raw)
             if entry is not None and entry.mesh is not None and same_mesh(entry.mesh,
                                                                           new.mesh):
                 new.mesh = entry.mesh  # unchanged content: the session needs no MeshSet
@@ -245,10 +246,9 @@ class _Reader:
         self.t_mesh += time.perf_counter() - t0
         return key
 
-    def _journal(self, entry: MeshEntry, key, inst, ob, me) -> bool | None:
-        """The journal's word on the mesh of ``entry`` (see :mod:`.journal` for what it
-        relies on): False, unchanged since it was read; True, updated since; None, it
-        cannot say."""
+    def _unchanged(self, entry: MeshEntry, key, inst, ob, me) -> bool:
+        """The journal's word that the mesh of ``entry`` is unchanged since it was read
+        (see :mod:`.journal` for what it relies on)."""
         orig = ob.original
         uids = [orig.session_uid]
         static = False
@@ -259,11 +259,9 @@ class _Reader:
         if inst.parent is not None:
             uids.append(inst.parent.original.session_uid)
         j = journal.JOURNAL
-        if not j.trusted(entry.stamp, entry.frame, self.view, static, self.frame):
-            return None
-        if j.touched(entry.stamp, uids):
-            return True
-        return None if len(me.vertices) != entry.vertex_count else False
+        return (j.trusted(entry.stamp, entry.frame, self.view, static, self.frame)
+                and not j.touched(entry.stamp, uids)
+                and len(me.vertices) == entry.vertex_count)
 
 
 def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,

@@ -89,7 +89,8 @@ class Journal:
                     self.changed[idb.original.session_uid] = seq
             elif kind in _MODIFIER_INPUTS or kind.endswith("NodeTree"):
                 self.modifier_inputs = seq
-            else:  # mesh, shape keys, curve, ...: whatever changed in it
+            elif u.is_updated_geometry:  # mesh, shape keys, curve, ... (as the viewport's
+                # dirty_from_updates: a material's users come with the shading flag only)
                 self.changed[idb.original.session_uid] = seq
 
     # -- asking ----------------------------------------------------------------------------

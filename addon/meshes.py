@@ -42,6 +42,14 @@ def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
     return out
 
 
+def _raw(me, raw: dict, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
+    """:func:`_attribute`, kept in ``raw`` (read once for the fingerprint and the mesh)."""
+    values = raw.get(name)
+    if values is None and name not in raw:
+        values = raw[name] = _attribute(me, name, prop, size, dtype)
+    return values
+
+
 def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     """Triangles of an evaluated mesh datablock as a :class:`Mesh`, or None if it has none.
 
@@ -50,8 +58,8 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     ``loop_triangles.loops`` (the corners of Blender's own triangulation). The per-triangle
     arrays are gathered (``np.take(..., out=)``) straight into the arrays the Mesh keeps.
     Normals come from the mesh's normals domain (vertex, face or corner), uvs from the
-    active render UV map. ``raw`` (when given) receives the raw arrays read
-    (attribute name -> values) for :func:`mesh_fingerprint`, which then reads only the rest.
+    active render UV map. ``raw`` (attribute name -> values) holds the raw arrays
+    :func:`mesh_fingerprint` already read, and receives those read here (for it).
     """
     tris_rna = me.loop_triangles
     nt = len(tris_rna)
@@ -59,28 +67,23 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         return None
     raw = {} if raw is None else raw
     nv, nl, nf = len(me.vertices), len(me.loops), len(me.polygons)
-    verts = _attribute(me, "position", "vector", nv * 3, np.float32)
+    verts = _raw(me, raw, "position", "vector", nv * 3, np.float32)
     if verts is None:
         verts = np.empty(nv * 3, np.float32)
         me.vertices.foreach_get("co", verts)
-    else:
-        raw["position"] = verts
-    corner_vert = _attribute(me, ".corner_vert", "value", nl, np.int32)
+    corner_vert = _raw(me, raw, ".corner_vert", "value", nl, np.int32)
     if corner_vert is None:
         corner_vert = np.empty(nl, np.int32)
         me.loops.foreach_get("vertex_index", corner_vert)
-    else:
-        raw[".corner_vert"] = corner_vert
     loops = np.empty((nt, 3), np.int32)
     tris_rna.foreach_get("loops", loops.reshape(-1))
     tris = np.empty((nt, 3), np.int32)
     np.take(corner_vert, loops, out=tris)
     poly = np.empty(nt, np.int32)
     me.loop_triangle_polygons.foreach_get("value", poly)
-    face_mat = _attribute(me, "material_index", "value", nf, np.int32)
+    face_mat = _raw(me, raw, "material_index", "value", nf, np.int32)
     slots = np.zeros(nt, np.int32)
     if face_mat is not None:
-        raw["material_index"] = face_mat
         np.take(face_mat, poly, out=slots)
 
     normals = np.empty((nt, 3, 3), np.float32)
@@ -94,17 +97,23 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         me.polygon_normals.foreach_get("vector", pn.reshape(-1))
         normals[:] = np.take(pn, poly, axis=0)[:, None, :]
     else:  # CORNER: custom or split normals
-        cn = np.empty((nl, 3), np.float32)
-        me.corner_normals.foreach_get("vector", cn.reshape(-1))
-        raw["corner_normals"] = cn
-        np.take(cn, loops, axis=0, out=normals)
+        cn = raw.get("corner_normals")
+        if cn is None:
+            cn = raw["corner_normals"] = np.empty(nl * 3, np.float32)
+            me.corner_normals.foreach_get("vector", cn)
+        np.take(cn.reshape(nl, 3), loops, axis=0, out=normals)
 
     uvs = None
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        uv = np.empty((nl, 2), np.float32)
-        layer.uv.foreach_get("vector", uv.reshape(-1))
-        raw["uv"] = (layer.name, uv)
+        named = raw.get("uv")
+        if named is not None and named[0] == layer.name:
+            uv = named[1]
+        else:
+            uv = np.empty(nl * 2, np.float32)
+            layer.uv.foreach_get("vector", uv)
+            raw["uv"] = (layer.name, uv)
+        uv = uv.reshape(nl, 2)
         uvs = np.empty((nt, 3, 2), np.float32)
         np.take(uv, loops, axis=0, out=uvs)
     nslots = max(len(me.materials), 1)
@@ -118,9 +127,9 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
 
     Two reads of an unchanged mesh give the same digest; any change of positions, topology,
     material indices, sharpness, custom normals or the render UV map changes it. ``raw``:
-    arrays :func:`mesh_arrays` already read (the same values: not read again).
+    arrays :func:`mesh_arrays` already read (not read again), and receives those read here.
     """
-    raw = raw or {}
+    raw = {} if raw is None else raw
     h = hashlib.blake2b(digest_size=16)
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
@@ -132,16 +141,13 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
         attr = me.attributes.get(name)
         if attr is None:
             continue
-        values = raw.get(name)
-        if values is None:
-            values = _attribute(me, name, prop, domain_size.get(attr.domain, 0) * width,
-                                dtype)
+        values = _raw(me, raw, name, prop, domain_size.get(attr.domain, 0) * width, dtype)
         h.update(name.encode())
         h.update(values.tobytes())
     if me.normals_domain == "CORNER":  # custom or split normals
         cn = raw.get("corner_normals")
         if cn is None:
-            cn = np.empty(counts[2] * 3, np.float32)
+            cn = raw["corner_normals"] = np.empty(counts[2] * 3, np.float32)
             me.corner_normals.foreach_get("vector", cn)
         h.update(cn.tobytes())
     layer = next((u for u in me.uv_layers if u.active_render), None)
@@ -152,6 +158,7 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
         else:
             uv = np.empty(counts[2] * 2, np.float32)
             layer.uv.foreach_get("vector", uv)
+            raw["uv"] = (layer.name, uv)
         h.update(layer.name.encode())
         h.update(uv.tobytes())
     return h.digest()

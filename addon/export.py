@@ -4,8 +4,11 @@ One pass over ``depsgraph.object_instances`` (:func:`read_scene`) reads every ob
 world matrix and material keys, and reads a mesh (``meshes.mesh_arrays``) or a material
 (``materials.MaterialReader``) only when its cache entry is missing or stale: the caller
 says which datablocks changed (:class:`Dirty`, from ``depsgraph.updates``), or, where no
-updates are known (F12, animation frames), a mesh is re-read only when its raw-attribute
-fingerprint changed. Lights and the world colour are re-read every time (a few values).
+updates are known (F12, animation frames), a mesh is taken from the cache where the
+journal (:mod:`.journal`) says nothing can have changed it since it was read, and else
+re-read only when its raw-attribute fingerprint changed (the fingerprint and the read
+share the arrays: each is read once). Lights and the world colour are re-read every time
+(a few values).
 Where the updates cannot have changed the set of instances (an object moved, a material or
 a light changed), :func:`read_updated` re-reads only the objects they name, so that a small
 edit in a big scene costs what it touched (the caller, :class:`.depsgraph_diff.SceneMirror`,
@@ -114,6 +117,19 @@ def render_size(render) -> tuple[int, int]:
 NO_FACES = "has no faces"
 
 
+#: Triangles tested first for an area: a mesh with one is accepted without testing the rest
+#: (the core drops its degenerate triangles, and says how many, when it builds the scene).
+_AREA_PROBE = 4096
+
+
+def _has_area(v: np.ndarray, tris: np.ndarray) -> bool:
+    """Whether any triangle has an area (the core's test, ``proper_triangles``), testing
+    the first :data:`_AREA_PROBE` triangles before the rest."""
+    if np.any(proper_triangles(v, tris[:_AREA_PROBE])):
+        return True
+    return len(tris) > _AREA_PROBE and bool(np.any(proper_triangles(v, tris[_AREA_PROBE:])))
+
+
 class Cancelled(Exception):  # noqa: N818 (a request, not an error)
     """The user cancelled (Esc) while meshes were being read: nothing was committed."""
 
@@ -141,7 +157,7 @@ def _checked(mesh, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if float(np.max(np.abs(v))) > tol.COORD_MAX:
         return MeshEntry(None, f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}",
                          fingerprint, source)
-    if not np.any(proper_triangles(v, mesh.triangles)):
+    if not _has_area(v, mesh.triangles):
         return MeshEntry(None, f"mesh '{name}': all {len(mesh.triangles)} triangles are "
                          f"degenerate (zero area)", fingerprint, source)
     return MeshEntry(mesh, None, fingerprint, source)
@@ -369,11 +385,15 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
     cache, notes = r.cache, r.notes
     name = instance_name(inst)
     matrix = _matrix(inst.matrix_world)
-    try:
-        check_matrix(name, matrix)
-    except SceneError as exc:
-        notes.skip(f"skipped {exc}")
-        return None
+    key = object_key(inst)
+    raw = matrix.tobytes()
+    if cache.matrices.get(key) != raw:
+        try:
+            check_matrix(name, matrix)
+        except SceneError as exc:
+            notes.skip(f"skipped {exc}")
+            return None
+        cache.matrices[key] = raw
     me = ob.data
     mesh_key = r.mesh_key(inst, ob, me)
     entry = cache.meshes[mesh_key]

@@ -111,6 +111,9 @@ class ExportCache:
         self.materials: dict[Hashable, MaterialEntry] = {
             DEFAULT_MATERIAL_KEY: MaterialEntry(DEFAULT_MATERIAL.validated(), [])}
         self.textures: dict = {}
+        #: object key -> the bytes of its world matrix last found valid (check_matrix is
+        #: not run again on a matrix that did not change: most of a walk's cost per object)
+        self.matrices: dict[Hashable, bytes] = {}
         self.model = "PRINCIPLED"  # the shading model the cached materials were converted to
 
     def set_model(self, model: str) -> None:

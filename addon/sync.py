@@ -5,9 +5,13 @@ One edit (an object moved), for F12 and for the viewport:
 1. F12 / animation: ``FrameRenderer.render`` with the render depsgraph; viewport:
    ``view_update`` with ``depsgraph.updates``. Both call :func:`sync`, under ``state.lock``:
 2. ``SceneMirror.dirty`` -> what the updates name (viewport; F12 walks everything) ->
-   ``SceneMirror.read`` -> an ``export.Snapshot`` (re-reading only what changed);
+   ``SceneMirror.read`` -> an ``export.Snapshot`` (re-reading only what changed; an F12,
+   whose render depsgraph's updates say nothing, asks :mod:`.journal` -- the record of the
+   viewport's updates since each mesh was read -- and checks by fingerprint only the meshes
+   it cannot vouch for); Esc (``cancel``) stops it between meshes;
 3. ``SceneMirror.diff`` -> ``[ObjectTransform]`` against the mirror (which has no camera);
-4. ``session.submit(edits)`` (or a new ``Session`` from the snapshot); ``SceneMirror.commit``.
+4. ``session.submit(edits)`` (or a new ``Session`` from the snapshot, built for F12 on a
+   thread of its own, :func:`build`, which Esc abandons); ``SceneMirror.commit``.
 5. F12, under ``RENDER_LOCK``: ``session.apply()``, ``session.render(camera=scene camera)``.
    Viewport: ``worker.submit(session=...)``; the worker: ``session.apply()``, a coarse image,
    ``session.render(camera=view camera)``.
@@ -19,6 +23,9 @@ Threads: ``state.lock`` guards the mirror and ``state.session`` (the viewport sy
 main thread, F12 on its render thread); :func:`sync` runs no kernels, except building a new
 F12 session, for which the caller holds ``runtime.RENDER_LOCK`` (taken before
 ``state.lock``, never after).
+
+A cancelled sync (:class:`export.Cancelled`) commits nothing: the session and the mirror
+are as they were (the export cache keeps what it read, which is what Blender holds).
 
 Layer: imports ``export`` and ``depsgraph_diff``; imported by ``session`` and ``viewport``.
 """

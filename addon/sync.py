@@ -92,9 +92,15 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
         seconds = time.perf_counter() - t0
         new = session is None
         if new:
-            session = Session(mirror.scene(snap), settings, build=False)
+            def make():
+                return Session(mirror.scene(snap), settings, build=False)
+
             if source == "RENDER":
-                build(session, cancel, progress, lock)
+                triangles = sum(len(mirror.cache.mesh(r.mesh_key).triangles)
+                                for r in snap.objects.values())
+                session = build(make, triangles, cancel, progress, lock)
+            else:
+                session = make()
             state.session = session
         else:
             session.submit(diff.edits)
@@ -126,9 +132,11 @@ class HeldLock:
 CANCEL_POLL_S = 0.1
 
 
-def build(session, cancel=None, progress=None, lock: HeldLock | None = None) -> None:
-    """Build ``session``'s structures (its accelerator), saying so through ``progress``
-    and stopping when ``cancel()`` turns True (polled every :data:`CANCEL_POLL_S`).
+def build(make, triangles: int = 0, cancel=None, progress=None,
+          lock: HeldLock | None = None):
+    """``make()`` a new session and build its structures (the scene's arrays, its
+    accelerator), saying so through ``progress`` and stopping when ``cancel()`` turns True
+    (polled every :data:`CANCEL_POLL_S`); returns the built session.
 
     The build runs on a thread of its own; a cancelled one is left to finish there (its
     kernels cannot be stopped halfway) and is thrown away: :class:`export.Cancelled` is
@@ -138,16 +146,20 @@ def build(session, cancel=None, progress=None, lock: HeldLock | None = None) -> 
     import threading
 
     if cancel is None:
-        session.apply()
-        return
+        session = make()
+        session.apply()  # (builds the accelerator; no edits are queued)
+        return session
     done = threading.Event()
     guard = threading.Lock()
+    out: list = []
     failed: list = []
     abandoned = [False]
 
     def run() -> None:
         try:
-            session.apply()  # (builds the accelerator; no edits are queued)
+            session = make()
+            session.apply()
+            out.append(session)
         except BaseException as exc:  # handed to the caller
             failed.append(exc)
         finally:
@@ -156,14 +168,13 @@ def build(session, cancel=None, progress=None, lock: HeldLock | None = None) -> 
                 if abandoned[0] and lock is not None:
                     lock.lock.release()
 
-    triangles = session.scene.triangle_count
     t0 = time.perf_counter()
     worker = threading.Thread(target=run, name="rstrace-build", daemon=True)
     worker.start()
     while not done.wait(CANCEL_POLL_S):
         if progress is not None:
-            progress(f"building the BVH over {triangles:,} triangles "
-                     f"({time.perf_counter() - t0:.0f} s)")
+            progress(f"building the scene and its BVH over {triangles:,} triangles "
+                     f"({time.perf_counter() - t0:.0f} s, Esc cancels)")
         if cancel():
             with guard:
                 if not done.is_set():
@@ -173,6 +184,7 @@ def build(session, cancel=None, progress=None, lock: HeldLock | None = None) -> 
                     raise export.Cancelled
     if failed:
         raise failed[0]
+    return out[0]
 
 
 def drop_session(state) -> None:

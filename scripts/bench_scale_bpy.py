@@ -106,7 +106,8 @@ def _f12(addon, sc) -> dict:
     if not st:
         raise RuntimeError(f"RSTrace rendered nothing: {addon.session.peek_state(sc).error}")
     keep = ("sync_seconds", "apply_seconds", "accel_build_s", "render_seconds",
-            "total_seconds", "meshes_read", "triangles", "memory_mb", "edits", "new_session")
+            "total_seconds", "meshes_read", "meshes_trusted", "triangles", "memory_mb",
+            "edits", "new_session")
     out = {k: st.get(k) for k in keep}
     out["wall_seconds"] = wall
     return out

@@ -14,7 +14,9 @@ when :meth:`Journal.unchanged` says so, which relies on exactly this:
    (checked in bpy for edit-mode edits, operators, RNA property sets and ``foreach_set``,
    which Blender 5.0 tags itself, and shape keys; ``tests/blender/test_journal.py``), and the
    render operator flushes those updates through ``depsgraph_update_post`` before it
-   renders (checked for ``bpy.ops.render.render``);
+   renders (checked for ``bpy.ops.render.render``); a render's reads are stamped with the
+   number at ``render_pre``, before Blender builds its render depsgraph (an edit made while
+   it renders is newer than what it read);
 2. the handler has seen every batch since the entry was read: it is registered, and no
    file load, undo or redo came between (they may replace data without updates that name
    it: :meth:`gap`), and the updates came from the depsgraph of the scene and view layer
@@ -58,6 +60,10 @@ class Journal:
         self.modifier_inputs = 0  # last batch changing a node group, image or texture
         self.view: tuple | None = None  # (scene uid, view layer name) of the last batch
         self.listening = False  # the handler is registered
+        #: the number when the last render started (``render_pre``, before Blender builds
+        #: its render depsgraph): an edit made after it may be missing from what that
+        #: render reads, so its reads are stamped no later than this
+        self.render_started: int | None = None
 
     # -- recording -------------------------------------------------------------------------
 
@@ -96,8 +102,9 @@ class Journal:
     # -- asking ----------------------------------------------------------------------------
 
     def stamp(self) -> int:
-        """The number a read made now is stamped with."""
-        return self.seq
+        """The number a read made now is stamped with (during a render: when it started)."""
+        started = self.render_started
+        return self.seq if started is None else min(started, self.seq)
 
     def trusted(self, stamp: int, frame, view: tuple, static: bool, frame_now) -> bool:
         """True when the journal saw everything a mesh read at ``stamp`` (at ``frame``)
@@ -126,6 +133,14 @@ def _on_gap(*_args) -> None:
     JOURNAL.gap()
 
 
+def _on_render_pre(*_args) -> None:
+    JOURNAL.render_started = JOURNAL.seq
+
+
+def _on_render_end(*_args) -> None:
+    JOURNAL.render_started = None
+
+
 def _on_load_post(*_args) -> None:
     """A file loaded: a gap, and the window's view layer is the one the updates will come
     from (a first evaluation reports nothing)."""
@@ -149,7 +164,7 @@ def context_view() -> tuple | None:
     return (scene.session_uid, layer.name)
 
 
-_HANDLERS = (_on_update, _on_gap, _on_load_post)
+_HANDLERS = (_on_update, _on_gap, _on_load_post, _on_render_pre, _on_render_end)
 
 
 def _lists():
@@ -157,7 +172,9 @@ def _lists():
 
     h = bpy.app.handlers
     return ((h.depsgraph_update_post, _on_update), (h.load_pre, _on_gap),
-            (h.load_post, _on_load_post), (h.undo_post, _on_gap), (h.redo_post, _on_gap))
+            (h.load_post, _on_load_post), (h.undo_post, _on_gap), (h.redo_post, _on_gap),
+            (h.render_pre, _on_render_pre), (h.render_post, _on_render_end),
+            (h.render_cancel, _on_render_end))
 
 
 def register() -> None:

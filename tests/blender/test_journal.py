@@ -294,3 +294,23 @@ def test_esc_while_reading_a_new_mesh_leaves_the_session_as_it_was():
     inc, stats = _f12()
     assert stats["edit_kinds"].get("ObjectAdd") == 1 and not stats["new_session"]
     np.testing.assert_array_equal(inc, _fresh())
+
+
+def test_a_render_stamps_its_reads_when_it_started(counted):
+    """An edit made after a render started may be missing from the render depsgraph it
+    reads (GUI F12 renders on a thread): what it reads is stamped with the number at
+    ``render_pre``, so the next F12 checks that mesh again."""
+    import addon
+
+    sc, big = _scene()
+    _f12()
+    addon.journal._on_render_pre()
+    try:
+        big.data.vertices[0].co.z += 0.3
+        _check("edited after the render started", True, counted, reads=1)
+    finally:
+        addon.journal._on_render_end()
+    n = len(counted)
+    _check("the next F12 checks it again", True, counted, reads=0)
+    assert counted[n:] == [big.data.name]
+    _check("then it is trusted", False, counted, reads=0)

@@ -173,7 +173,7 @@ class _Reader:
         self.source = source
         self.cancel = cancel  # () -> bool: stop between meshes (Cancelled)
         self.progress = progress  # (message) -> None: what is being read
-        # what journal.Journal.unchanged compares: the stamp reads get, the render's view
+        # what journal.Journal.trusted compares: the stamp reads get, the render's view
         # and frame
         self.stamp = journal.JOURNAL.stamp()
         self.view = self.frame = None

@@ -301,7 +301,7 @@ def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -314,7 +314,11 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
     float64 path weights; spawn : whether reflection/refraction rays may be spawned; soft :
     the :class:`~.soft_lights.SoftSamples` of the points (their lights and the world's).
     Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; out, the
-    :class:`Spawned` rays.
+    :class:`Spawned` rays; with ``tv`` (n, L + 2, 3) float64 and ``tp`` (n, L + 2) bool
+    (empty: not kept) each point's *light terms* (:mod:`.light_records`), what it adds to
+    its radiance before the path weight without the light's intensity or radiance:
+    column j light j (present where added), L the world's light, L + 1 the emission (a
+    miss: 1, for the world colour).
     """
     prim, bu, bv = hits.prim, hits.u, hits.v
     P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
@@ -323,6 +327,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
     L = sa.light_kind.shape[0]
     ext = sa.scene_extent
     wmin = tol.PATH_WEIGHT_MIN
+    terms = tv.shape[0] > 0
     for i in prange(n):
         c_ok[2 * i] = False
         c_ok[2 * i + 1] = False
@@ -330,10 +335,18 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
         w1 = weight[i, 1]
         w2 = weight[i, 2]
         m = MAT[i]
+        if terms:
+            for j in range(L + 2):
+                tp[i, j] = False
+            tp[i, L + 1] = True
         if m < 0:
             contrib[i, 0] = w0 * sa.world_color[0]
             contrib[i, 1] = w1 * sa.world_color[1]
             contrib[i, 2] = w2 * sa.world_color[2]
+            if terms:
+                tv[i, L + 1, 0] = 1.0
+                tv[i, L + 1, 1] = 1.0
+                tv[i, L + 1, 2] = 1.0
             continue
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
@@ -352,6 +365,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
         lr = sa.mat_emission[m, 0]
         lg = sa.mat_emission[m, 1]
         lb = sa.mat_emission[m, 2]
+        if terms:
+            tv[i, L + 1, 0] = lr
+            tv[i, L + 1, 1] = lg
+            tv[i, L + 1, 2] = lb
         sr = sa.mat_specular[m, 0]
         sg = sa.mat_specular[m, 1]
         sb = sa.mat_specular[m, 2]
@@ -391,6 +408,11 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
+            if terms:
+                tp[i, j] = True
+                tv[i, j, 0] = fr * e
+                tv[i, j, 1] = fg * e
+                tv[i, j, 2] = fb * e
         # lights with an extent and the world, n samples per (point, light) row: the plain
         # estimator, or the ratio estimator for the diffuse part where the row has a
         # closed form (soft_lights.RATIO_ESTIMATOR)
@@ -430,6 +452,11 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
                 ag += kg * t
                 ab += kb * t
             j = soft.light[k0]
+            if terms:
+                tp[i, j] = True
+                tv[i, j, 0] = ar
+                tv[i, j, 1] = ag
+                tv[i, j, 2] = ab
             if j < L:
                 lr += ar * sa.light_radiance[j, 0]
                 lg += ag * sa.light_radiance[j, 1]
@@ -546,17 +573,23 @@ def shadow_rays(sa: SceneArrays, surf: Surfaces):
 
 
 def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: np.ndarray,
-          spawn: bool, soft: SoftSamples | None = None):
+          spawn: bool, soft: SoftSamples | None = None, terms: bool = False):
     """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i; ``soft``
     the samples of the lights with an extent and of the world, :func:`soft_direct`) times
     the path ``weight`` (n, 3), and the reflection and refraction rays when ``spawn``:
-    ``(contrib (n, 3) float64, Spawned)``."""
+    ``(contrib (n, 3) float64, Spawned)``; with ``terms`` also the points' light terms
+    ``(values (n, L + 2, 3) float64, present (n, L + 2) bool)`` (see :func:`_shade_kernel`)."""
     n = len(surf.P)
     contrib = np.empty((n, 3))
     out = Spawned(np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3)),
                   np.empty(2 * n, np.bool_))
+    c = len(sa.light_kind) + 2
+    tv = np.empty((n if terms else 0, c, 3))
+    tp = np.empty((n if terms else 0, c), np.bool_)
     _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn,
-                  no_samples(n) if soft is None else soft, contrib, out)
+                  no_samples(n) if soft is None else soft, contrib, out, tv, tp)
+    if terms:
+        return contrib, out, (tv, tp)
     return contrib, out
 
 
@@ -684,6 +717,15 @@ def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int) -> dict:
                 dir=surf.VD, traced=traced, lit=lit)
 
 
+def _light_terms(front: _Front, hits: Hits, surf: Surfaces, seeds, tvp) -> dict:
+    """A level's nodes for :mod:`.light_records`: the path weight and light terms
+    (:func:`shade`'s), and what shading one light again needs (the surface point, its
+    normals, the ray direction, shadow origin, material, texture coordinates, seed)."""
+    return dict(weight=front.weight, t_val=tvp[0], t_on=tvp[1], NG=surf.NG, NS=surf.NS,
+                Q=surf.Q, enter=surf.enter, mat=surf.mat, prim=hits.prim, u=hits.u, v=hits.v,
+                seed=seeds)
+
+
 def _tree_level(front: _Front, hits: Hits, surf: Surfaces, vis, occ, L: int) -> dict:
     nb = len(front.src)
     bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
@@ -712,7 +754,7 @@ def _ray_tree(levels: list[dict], L: int) -> RayTree:
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
-          light_samples: int = LIGHT_SAMPLES_DEFAULT):
+          light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -735,7 +777,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     seeds : (n,) uint64 seeds of the input rays for the samples of lights with an extent
     and of the world (:func:`~.soft_lights.sample_seeds` of their global sample ids; by
     default the rays' indices, which makes the samples depend on the batch);
-    light_samples : shadow samples per such light and point.
+    light_samples : shadow samples per such light and point. terms : with ``segments``, its
+    dicts also hold each node's light terms and what re-shading one light needs
+    (:func:`_light_terms`, for :mod:`.light_records`).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -747,7 +791,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
     soft_on = has_soft_light(sa)
-    if soft_on:
+    terms = terms and segments is not None
+    if soft_on or terms:
         root = (sample_seeds(np.arange(len(front.src)), 0) if seeds is None
                 else np.ascontiguousarray(seeds, np.uint64))
         if len(root) != len(front.src):
@@ -766,17 +811,21 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         vis, occ, traced = _visibility(sa, accel, surf, record, counters)
         soft = None
+        nseeds = node_seeds(root, front.src, front.path) if soft_on or terms else None
         if soft_on:
-            soft = soft_direct(sa, surf, node_seeds(root, front.src, front.path),
-                               int(light_samples), vis, _occluded_by(accel), counters, occ)
+            soft = soft_direct(sa, surf, nseeds, int(light_samples), vis, _occluded_by(accel),
+                               counters, occ)
             traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break
         spawn = level < max_depth
-        contrib, kids = shade(sa, hits, surf, vis, front.weight, spawn, soft)
+        shaded = shade(sa, hits, surf, vis, front.weight, spawn, soft, terms)
+        contrib, kids = shaded[0], shaded[1]
         scatter_add(radiance, front.src, contrib)
         if segments is not None:
             segments.append(_segments(front, hits, surf, vis, L))
+            if terms:
+                segments[-1].update(_light_terms(front, hits, surf, nseeds, shaded[2]))
         if record:
             levels.append(_tree_level(front, hits, surf, vis, occ, L))
         if not spawn:
@@ -790,14 +839,16 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
 def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,
                  max_depth: int, cancel=None, counters: dict | None = None,
                  segments: list | None = None, gids: np.ndarray | None = None,
-                 seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT):
+                 seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT,
+                 terms: bool = False):
     """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
     (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
     frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
     (:func:`trace` for ``counters``, ``segments`` and ``cancel``). Returns ``(radiance
     (k, 3) float64, primary instance (k,) int32)``. ``gids`` (k,) int64: the samples'
     global ids (``sample * width * height + pixel``; default: sample 0 of each pixel),
-    which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`)."""
+    which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`);
+    ``terms``: the segments keep the light terms too (:func:`trace`)."""
     if gids is None:
         gids = pixels
     with threads_for(len(pixels)), bound(accel, cancel):
@@ -805,7 +856,8 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
         hits = accel.closest_hit(o, d, tmin, tmax)
         rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
                        counters=counters, segments=segments, cancel=cancel,
-                       seeds=sample_seeds(gids, seed), light_samples=light_samples)
+                       seeds=sample_seeds(gids, seed), light_samples=light_samples,
+                       terms=terms)
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -858,6 +910,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     else:
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    terms = records is not None and records.light is not None  # per-light records kept
     counters: dict = {}
     bad_total = 0
     cancelled_ = False
@@ -875,7 +928,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
                                  depth, cancel, counters, segs, gids, int(settings.seed),
-                                 int(settings.light_samples))
+                                 int(settings.light_samples), terms)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break

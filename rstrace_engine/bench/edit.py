@@ -256,7 +256,7 @@ def soak(steps: int, log=print) -> dict:
     from .soak import SOAK_SCENES, EditGenerator
 
     settings = RenderSettings(mode="BASE", max_depth=3)
-    worst, fractions, done = 0.0, [], 0
+    worst, fractions, done, relit_steps = 0.0, [], 0, 0
     per_scene = max(1, steps // len(SOAK_SCENES))
     for k, (name, build) in enumerate(sorted(SOAK_SCENES.items())):
         gen = EditGenerator(build(64, 48), seed=1000 + k,
@@ -266,11 +266,16 @@ def soak(steps: int, log=print) -> dict:
         for _ in range(per_scene):
             sess.apply(gen.step())
             dirty = sess.dirty_mask
+            relit = sess.reuse.relight_due  # light edits: every kept pixel recombined
             frame = sess.render()
             fresh = Session(sess.scene.copy(), settings).render()
             diff = float(np.abs(frame.radiance - fresh.radiance).max())
             worst = max(worst, diff)
-            if dirty is not None:
+            relit_steps += relit
+            if not np.array_equal(frame.radiance, fresh.radiance):
+                raise AssertionError(f"soak {name}: incremental frame differs by {diff} "
+                                     f"(BASE must equal a fresh frame bit for bit)")
+            if dirty is not None and not relit:
                 changed = np.any(prev.radiance != fresh.radiance, axis=2)
                 if (changed & ~dirty).any():
                     raise AssertionError(f"soak {name}: a changed pixel was not dirty")
@@ -281,6 +286,7 @@ def soak(steps: int, log=print) -> dict:
             done += 1
         log(f"soak {name}: {per_scene} steps, kinds {gen.kinds_done}")
     return dict(steps=done, max_diff=worst, incremental_steps=len(fractions),
+                relit_steps=relit_steps,
                 mean_dirty_fraction=float(np.mean(fractions)) if fractions else 1.0)
 
 
@@ -333,7 +339,8 @@ def main(argv: list[str]) -> int:
     if args.soak:
         res = soak(args.soak, log)
         print(json.dumps(res) if args.json else
-              f"soak: {res['steps']} steps, {res['incremental_steps']} incremental, max "
+              f"soak: {res['steps']} steps, {res['incremental_steps']} incremental, "
+              f"{res['relit_steps']} relit, max "
               f"difference to fresh frames {res['max_diff']:.1e}, mean dirty fraction "
               f"{res['mean_dirty_fraction']:.3f}")
         return 0

@@ -159,6 +159,9 @@ class LightRecords:
         self.p: dict | None = None
         self.s: dict = _alloc(0, self.L)
         self._pending: list = []
+        need = self.n_rays * node_bytes(self.L)
+        if need > self.cap:
+            self._drop(need)
 
     @property
     def nbytes(self) -> int:
@@ -179,13 +182,10 @@ class LightRecords:
         with ``terms``); ``rays`` (nb,) its global sample ids."""
         if self.overflow is not None:
             return
-        if self.p is None:
-            need = self.n_rays * node_bytes(self.L)
-            if need > self.cap:
-                self._drop(need)
-                return
-            self.p = _alloc(self.n_rays, self.L)
         a = _level_arrays(levels)
+        self.widen(a["t_val"].shape[1] - 2)  # (a light slot added in a re-traced batch)
+        if self.p is None:
+            self.p = _alloc(self.n_rays, self.L)
         for key in _KEYS:
             self.p[key][rays] = a[key][:nb]
         if len(a["mat"]) > nb:

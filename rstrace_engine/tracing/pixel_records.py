@@ -483,7 +483,7 @@ class PixelRecords:
         if self.light is not None:
             if "t_val" in levels[0]:
                 self.light.add(np.asarray(rays, np.int64), levels, nb)
-            else:  # (samples recorded without their terms: relighting is off)
+            elif self.light.overflow is None:  # (recorded without their terms)
                 self.light = None
         self.p_combo[rays] = combos[:nb]
         self.p_code[rays] = codes[:nb]

@@ -910,7 +910,9 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     else:
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
-    terms = records is not None and records.light is not None  # per-light records kept
+    # per-light records kept (tracing.light_records; not when over their cap)
+    terms = (records is not None and records.light is not None
+             and records.light.overflow is None)
     counters: dict = {}
     bad_total = 0
     cancelled_ = False

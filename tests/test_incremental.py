@@ -39,7 +39,9 @@ def check_base_step(sess, prev, settings):
     fresh = fresh_frame(sess.scene, settings)
     np.testing.assert_allclose(frame.radiance, fresh.radiance, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(frame.pixel_class, fresh.pixel_class)
-    if dirty is not None and prev is not None and not relit:
+    if relit:  # recombined, only the dirty pixels traced
+        return frame, float(dirty.mean())
+    if dirty is not None and prev is not None:
         assert frame.stats["incremental"]
         changed = np.any(prev.radiance != fresh.radiance, axis=2)
         missed = changed & ~dirty

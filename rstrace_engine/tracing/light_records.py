@@ -43,8 +43,8 @@ from numba import njit, prange
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
-from .soft_lights import SH_SOFT, soft_visibility, world_lights
-from .whitted import _SH_TRACE, Surfaces, light_states, shade, shadow_rays
+from .soft_lights import soft_visibility, world_lights
+from .whitted import Surfaces, light_state, shade, shadow_rays
 
 #: the per-node arrays (their trailing shapes; ``L`` the light slots)
 _VEC = ("weight", "point", "dir", "NG", "NS", "Q")
@@ -127,20 +127,15 @@ def _recombine_secondary(w, mat, t_val, t_on, order, scale, world, s_ray, rad):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, mat, sh_state):
-    """Shadow-ray states (:func:`~.whitted.light_states`) of light ``j`` alone: every other
-    light's row is set to not facing."""
-    L = sa.light_kind.shape[0]
+def _one_light_states(sa, j, P, NG, NS, Q, mat, state):
+    """Shadow-ray state (:func:`~.whitted.light_state`) of light ``j`` at every node
+    (misses: not facing)."""
     for i in prange(P.shape[0]):
-        for jj in range(L):
-            sh_state[i * L + jj] = -2
-        if mat[i] < 0:
-            continue
-        light_states(sa, i, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1], NG[i, 2],
-                     NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1], Q[i, 2], sh_state)
-        for jj in range(L):
-            if jj != j:
-                sh_state[i * L + jj] = -2
+        state[i] = -2
+        if mat[i] >= 0:
+            state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                   NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                                   Q[i, 2])
 
 
 # ----------------------------------------------------------------------------- records
@@ -240,52 +235,59 @@ class LightRecords:
         world = np.ascontiguousarray(sa.world_color, np.float64)
         rad = np.empty((self.n_rays, 3))
         p, s = self.p, self.s
-        _recombine_primary(p["weight"], p["mat"], p["t_val"], p["t_on"], order, scale, world,
-                           rad)
-        if len(s["mat"]):
-            _recombine_secondary(s["weight"], s["mat"], s["t_val"], s["t_on"], order, scale,
-                                 world, np.ascontiguousarray(s_ray, np.int64), rad)
         out = np.empty((n_pixels, 3), np.float32)
         pc = np.empty(n_pixels, np.uint8)
         inst = np.where(p["mat"] >= 0, 0, -1).astype(np.int32)
-        accumulate(rad, inst, spp, out, pc)
+        # a few multiply-adds per node: one thread (a parallel region's wake-up on a busy
+        # machine costs more than the work, see batches.SERIAL_BELOW)
+        with threads_for(0):
+            _recombine_primary(p["weight"], p["mat"], p["t_val"], p["t_on"], order, scale,
+                               world, rad)
+            if len(s["mat"]):
+                _recombine_secondary(s["weight"], s["mat"], s["t_val"], s["t_on"], order,
+                                     scale, world, np.ascontiguousarray(s_ray, np.int64), rad)
+            accumulate(rad, inst, spp, out, pc)
         return out
 
     def relight(self, sa: SceneArrays, accel, j: int, light_samples: int,
                 counters: dict | None = None):
         """Shade light ``j`` of ``sa`` again at every node (its term replaced, nothing
-        else), with its own shadow rays through ``accel``. Returns its per-node light
-        bits for the pixel records: ``(traced, lit)`` of the primary nodes and of the
-        secondary ones, each (k,) bool."""
+        else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
+        its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
+        nodes and of the secondary ones, each (k,) bool."""
         self.widen(len(sa.light_kind))
         bits = []
         for d in (self.p, self.s):
-            tr = np.zeros(len(d["mat"]), bool)
-            lit = np.zeros(len(d["mat"]), bool)
-            for a in range(0, len(d["mat"]), 1 << 16):
-                b = min(len(d["mat"]), a + (1 << 16))
-                self._relight_chunk(sa, accel, j, light_samples, d, a, b, tr, lit, counters)
-            bits.append((tr, lit))
+            n = len(d["mat"])
+            state = np.empty(n, np.int8)
+            if n:
+                with threads_for(n):
+                    _one_light_states(sa, j, d["point"], d["NG"], d["NS"], d["Q"], d["mat"],
+                                      state)
+            d["t_on"][:, j] = False
+            d["t_val"][:, j] = 0.0
+            rows = np.flatnonzero(state != -2)  # the nodes it faces: a shadow ray each
+            lit = np.zeros(n, bool)
+            for a in range(0, len(rows), 1 << 16):
+                idx = rows[a:a + (1 << 16)]
+                lit[idx] = self._shade_one(sa, accel, j, light_samples, d, idx, state[idx],
+                                           counters)
+            bits.append((state != -2, lit))
         return bits[0], bits[1]
 
-    def _relight_chunk(self, sa, accel, j, light_samples, d, a, b, tr, lit, counters):
+    def _shade_one(self, sa, accel, j, light_samples, d, idx, state, counters):
+        """Light ``j``'s terms at nodes ``idx`` of ``d`` (their states ``state``), by the
+        tracer's own stages; returns whether it is visible from each."""
         L = len(sa.light_kind)
-        sl = slice(a, b)
-        mat = d["mat"][sl]
-        rows = np.flatnonzero(mat >= 0)  # only surface points see lights
-        d["t_on"][sl, j] = False
-        d["t_val"][sl, j] = 0.0
-        if len(rows) == 0 or sa.light_kind[j] < 0:
-            return
-        idx = rows + a
+        k = len(idx)
+        sh_state = np.full((k, L), -2, np.int8)
+        sh_state[:, j] = state
         surf = Surfaces(*(np.ascontiguousarray(d[key][idx])
                           for key in ("point", "NG", "NS", "dir", "enter", "mat", "Q")),
-                        np.empty(len(rows) * L, np.int8))
-        with threads_for(len(rows)):
-            _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
-                              surf.sh_state)
+                        sh_state.reshape(-1))
+        with threads_for(k):
             todo, so, sd, st = shadow_rays(sa, surf)
-            vis = np.zeros(len(surf.sh_state), np.bool_)
+            vis = np.zeros(k * L, np.bool_)
             if len(todo):
                 vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), st),
                                         np.bool_)
@@ -300,13 +302,9 @@ class LightRecords:
                     sa1, surf, np.ascontiguousarray(d["seed"][idx]), int(light_samples),
                     surf.sh_state, occluded, counters)
                 vis[srows[srows >= 0]] = any_vis[srows >= 0]
-            hits = Hits(np.zeros(len(rows)), np.zeros(len(rows), np.int32),
-                        np.ascontiguousarray(d["prim"][idx]), np.ascontiguousarray(d["u"][idx]),
-                        np.ascontiguousarray(d["v"][idx]))
-            _, _, (tv, tp) = shade(sa1, hits, surf, vis, np.ones((len(rows), 3)), False, soft,
-                                   True)
+            hits = Hits(np.zeros(k), np.zeros(k, np.int32), np.ascontiguousarray(d["prim"][idx]),
+                        np.ascontiguousarray(d["u"][idx]), np.ascontiguousarray(d["v"][idx]))
+            _, _, (tv, tp) = shade(sa1, hits, surf, vis, np.ones((k, 3)), False, soft, True)
         d["t_on"][idx, j] = tp[:, j]
         d["t_val"][idx, j] = tv[:, j]
-        state = surf.sh_state.reshape(len(rows), L)[:, j]
-        tr[idx] = (state == _SH_TRACE) | (state == SH_SOFT)
-        lit[idx] = vis.reshape(len(rows), L)[:, j]
+        return vis.reshape(k, L)[:, j]

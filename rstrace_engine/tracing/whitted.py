@@ -160,44 +160,50 @@ def _material_of(sa, inst, tri):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz):
+    """Shadow-ray state of light ``j`` at a surface point (see :func:`light_states`)."""
+    if sa.light_kind[j] < 0:
+        return -2  # a deleted light's slot (LIGHT_NONE)
+    if sa.light_ext[j]:
+        # sampled (each sample checks its own facing), unless the whole light is below
+        # the surface's horizon or behind an area light: then every sample would be 0
+        if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
+            return SH_SOFT
+        return -2
+    if sa.light_kind[j] == LIGHT_SUN:
+        lx = -sa.light_dir[j, 0]
+        ly = -sa.light_dir[j, 1]
+        lz = -sa.light_dir[j, 2]
+        if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
+            return _SH_TRACE
+        return -2
+    lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
+                                  sa.light_pos[j, 2] - pz)
+    if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
+            and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
+        return -2
+    if sa.light_kind[j] == LIGHT_SPOT:
+        ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])
+        if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
+            return -2
+    wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
+                                sa.light_pos[j, 2] - qz)
+    if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
+        return -2  # the light sits within the offset of the surface
+    return _SH_TRACE
+
+
+@njit(cache=True, nogil=True, inline="always")
 def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state):
     """Shadow-ray states of surface point ``i`` (rows ``i * L + j``): ``_SH_TRACE`` when
     light ``j`` faces the point (geometric and shading normal ``g``, ``s`` turned toward
-    the viewer; spot cone) and is not within the offset of shadow origin ``q``; else -2."""
+    the viewer; spot cone) and is not within the offset of shadow origin ``q``;
+    ``SH_SOFT`` for a light with an extent that is not wholly below the horizon; else
+    -2."""
     L = sa.light_kind.shape[0]
     for j in range(L):
-        r = i * L + j
-        sh_state[r] = -2
-        if sa.light_kind[j] < 0:
-            continue  # a deleted light's slot (LIGHT_NONE)
-        if sa.light_ext[j]:
-            # sampled (each sample checks its own facing), unless the whole light is below
-            # the surface's horizon or behind an area light: then every sample would be 0
-            if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
-                sh_state[r] = SH_SOFT
-            continue
-        if sa.light_kind[j] == LIGHT_SUN:
-            lx = -sa.light_dir[j, 0]
-            ly = -sa.light_dir[j, 1]
-            lz = -sa.light_dir[j, 2]
-            if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
-                sh_state[r] = _SH_TRACE
-            continue
-        lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
-                                      sa.light_pos[j, 2] - pz)
-        if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
-                and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
-            continue
-        if sa.light_kind[j] == LIGHT_SPOT:
-            ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
-                       sa.light_dir[j, 2])
-            if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
-                continue
-        wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
-                                    sa.light_pos[j, 2] - qz)
-        if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
-            continue  # the light sits within the offset of the surface
-        sh_state[r] = _SH_TRACE
+        sh_state[i * L + j] = light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy,
+                                          qz)
 
 
 @njit(cache=True, nogil=True, parallel=True)

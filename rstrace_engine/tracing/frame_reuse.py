@@ -29,6 +29,7 @@ import numpy as np
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
+from .light_records import load_kernels
 from .pixel_records import PixelRecords
 from .soft_lights import world_lights
 
@@ -228,6 +229,8 @@ class FrameReuse:
             self.frame = self.records = self.dirty = None
             return frame
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
+        if records.light is not None and records.light.p is not None:
+            load_kernels(records.light.L)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

@@ -43,8 +43,9 @@ from numba import njit, prange
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
+from .shader import Surfaces, light_state
 from .soft_lights import soft_visibility, world_lights
-from .whitted import Surfaces, light_state, shade, shadow_rays
+from .whitted import shade, shadow_rays
 
 #: the per-node arrays (their trailing shapes; ``L`` the light slots)
 _VEC = ("weight", "point", "dir", "NG", "NS", "Q")
@@ -136,6 +137,23 @@ def _one_light_states(sa, j, P, NG, NS, Q, mat, state):
             state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
                                    NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
                                    Q[i, 2])
+
+
+_loaded = [False]
+
+
+def load_kernels(n_lights: int) -> None:
+    """Load (or compile) the recombination kernels once per process, after the first
+    frame that keeps light terms, so that the first light edit does not pay it."""
+    if _loaded[0]:
+        return
+    _loaded[0] = True
+    c = n_lights + 2
+    w, tv, tp = np.zeros((0, 3)), np.zeros((0, c, 3)), np.zeros((0, c), np.bool_)
+    mat, order, scale = np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros((c, 3))
+    rad = np.zeros((0, 3))
+    _recombine_primary(w, mat, tv, tp, order, scale, np.zeros(3), rad)
+    _recombine_secondary(w, mat, tv, tp, order, scale, np.zeros(3), np.zeros(0, np.int64), rad)
 
 
 # ----------------------------------------------------------------------------- records

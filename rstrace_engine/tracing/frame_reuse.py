@@ -183,8 +183,8 @@ class FrameReuse:
                 self.records.set_light_bits(j, p_bits, s_bits)
         rec = self.records
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
-        self.relight_due = False
-        self.relight_moved = set()
+        # (relight_due stays set until the frame is finished: shading a light again and
+        # recombining are idempotent, so a frame that fails is relit again next time)
         self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
                                   relit_lights=moved,
                                   relight_shadow_rays=counters.get("shadow", 0))
@@ -229,6 +229,8 @@ class FrameReuse:
             self.frame = self.records = self.dirty = None
             return frame
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
+        self.relight_due = False
+        self.relight_moved = set()
         if records.light is not None and records.light.p is not None:
             load_kernels(records.light.L)
         self._track_interpolants(stored, pixels, cache, pool0)

@@ -183,7 +183,7 @@ class LightRecords:
         return int(sum(a.nbytes for d in (self.p, self.s) for a in d.values()))
 
     def _drop(self, need: float) -> None:
-        self.overflow = (f"per-light records need {need / 1e6:.0f} MB, over the cap "
+        self.overflow = (f"per-light records need at least {need / 1e6:.0f} MB, over the cap "
                          f"(setting 'relight_memory_mb' {self.cap / 1e6:.0f} MB): light "
                          f"edits re-trace the pixels they touch")
         self.p = None

@@ -1,27 +1,7 @@
 """The base tracer: wavefront Whitted ray tracing that also records ray trees.
 
-Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geometric normal
-``g``, both turned to the side the ray comes from, so every surface is two-sided)::
-
-    L = emission + sum_j V_j f(l_j, -d) E_j + R * L(reflect) + T * L(refract)
-
-* ``f`` is the material's BRDF: Ward (seed 000's model) or the Principled-like GGX layer
-  over a Lambertian base (:func:`~.shading.principled_brdf`).
-
-* ``E_j`` is the irradiance light ``j`` would give: ``I cos / r^2`` for point lights (times
-  the spot falloff for spots), ``strength * cos`` for suns, ``cos = n . l_j``. A light counts
-  only when it is on the lit side of the *geometric* surface and of the shading normal (it
-  never leaks through a surface via an interpolated normal). ``V_j`` is a hard shadow ray:
-  any occluder blocks.
-* Mirror reflectance ``M`` (Principled-like: the material's mirror share times the layer's
-  Fresnel reflectance toward the viewer) and transmission ``T_m`` with index of refraction
-  ``ior``: with the dielectric Fresnel factor ``F`` at the interface, ``R = M + F T_m`` and
-  ``T = (1-F) T_m`` (the tracer's Fresnel alone splits the transmissive part);
-  on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
-  (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
-* A ray that misses returns the world colour.
-
-The kernels that compute it for one depth level are :mod:`.shader`'s.
+The radiance it computes, and the kernels that compute it for one depth level, are
+:mod:`.shader`'s; this module drives them (stages, the wavefront, a frame's tiles).
 
 The wavefront: every depth level intersects its batch of rays, runs a surface kernel (hit
 point, normals, material, one shadow ray per light), intersects the shadow rays, runs a shade

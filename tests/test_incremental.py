@@ -1,11 +1,12 @@
 """Incremental frames after edits (fixed camera) against fresh sessions of the edited scene.
 
 BASE: the incremental frame equals a fresh session's frame bit for bit (to 1e-6) and every
-pixel whose radiance changed was marked dirty. INTERPOLANT: the session's frame and a fresh
-one both stay within epsilon of the BASE frame of the edited scene (a stale interpolant would
-not), and every pixel whose BASE radiance changed was marked dirty. A seeded generator runs
-random sequences of every edit kind mixed with camera moves on several small scenes; the
-bench command runs the long soak (``python -m rstrace_engine.bench edit --soak N``).
+pixel whose radiance changed was marked dirty or relit (light edits, tests/test_relight.py).
+INTERPOLANT: the session's frame and a fresh one both stay within epsilon of the BASE frame
+of the edited scene (a stale interpolant would not), and every pixel whose BASE radiance
+changed was marked dirty. A seeded generator runs random sequences of every edit kind mixed
+with camera moves on several small scenes; the bench command runs the long soak
+(``python -m rstrace_engine.bench edit --soak N``).
 """
 
 from __future__ import annotations
@@ -29,12 +30,17 @@ def fresh_frame(scene, settings):
 
 
 def check_base_step(sess, prev, settings):
-    """The session's next frame against a fresh session's; returns (frame, dirty fraction)."""
+    """The session's next frame against a fresh session's; returns (frame, dirty fraction).
+    After light edits the kept pixels are relit (every one may change; none re-traced)."""
     dirty = sess.dirty_mask
+    relit = sess.reuse.relight_due
     frame = sess.render()
+    assert bool(frame.stats.get("relit")) == relit
     fresh = fresh_frame(sess.scene, settings)
     np.testing.assert_allclose(frame.radiance, fresh.radiance, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(frame.pixel_class, fresh.pixel_class)
+    if relit:  # recombined, only the dirty pixels traced
+        return frame, float(dirty.mean())
     if dirty is not None and prev is not None:
         assert frame.stats["incremental"]
         changed = np.any(prev.radiance != fresh.radiance, axis=2)

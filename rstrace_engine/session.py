@@ -234,7 +234,8 @@ class Session:
         with :func:`~rstrace_engine.geometry.cameras.same_camera`)."""
         s = self.settings
         return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
-                s.accelerator, tuple(sorted(s.accelerator_options().items())))
+                s.light_samples, s.accelerator,
+                tuple(sorted(s.accelerator_options().items())))
 
     def render(self, camera: Camera | None = None, progress=None, cancel=None) -> Frame:
         """Render through ``camera`` (default: the scene's). progress(fraction, message);

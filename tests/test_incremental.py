@@ -241,3 +241,16 @@ def test_rebuilt_pixels_are_magenta_and_camera_moves_invalidate_nothing():
         frame = sess.render()
     base = fresh_frame(sess.scene, RenderSettings(max_depth=3))
     assert image.compare(frame.radiance, base.radiance, 0.05)["frac_over"] <= 0.01
+
+
+def test_light_samples_change_renders_a_full_frame():
+    """The kept frame depends on the soft lights' sample count: a new count is a new frame
+    (it once reused the old samples' pixels)."""
+    settings = RenderSettings(max_depth=1, light_samples=4)
+    sess = Session(SOAK_SCENES["soft_room"](W, H), settings)
+    sess.render()
+    more = RenderSettings(max_depth=1, light_samples=9)
+    sess.update_settings(more)
+    frame = sess.render()
+    assert not frame.stats["incremental"]
+    np.testing.assert_array_equal(frame.radiance, fresh_frame(sess.scene, more).radiance)

@@ -235,3 +235,16 @@ def test_rebuilt_pixels_are_magenta_and_camera_moves_invalidate_nothing():
         frame = sess.render()
     base = fresh_frame(sess.scene, RenderSettings(max_depth=3))
     assert image.compare(frame.radiance, base.radiance, 0.05)["frac_over"] <= 0.01
+
+
+def test_random_soft_edits_interpolant_within_epsilon():
+    """Issue 20 item 4: seeded random edits of every kind, light extents included (radius,
+    soft falloff, sun angle, area size, shape, spread), in an INTERPOLANT session on the
+    soft-lit room (its world a background) and the room: every frame within epsilon of a
+    fresh BASE frame, traced pixels BASE's (the bench's ``edit --soak N --soak-mode
+    INTERPOLANT`` runs it longer)."""
+    from rstrace_engine.bench.soak import interpolant_soak
+
+    res = interpolant_soak(16, epsilon=0.02, width=96, height=72, log=lambda m: None)
+    assert res["steps"] == 16 and res["max_error"] <= 0.02 + 1e-6
+    assert res["mean_interpolated_fraction"] > 0.02, res

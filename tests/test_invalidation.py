@@ -467,14 +467,16 @@ SOFT_EDITS = {
     # an object moved: found through the shafts to the lights' extents
     "move_small": (dict(blue=(1.8, 1.3, 0.8)), dict(objects={3})),
     # a small ball added under the area light, in the floor's shafts to its rectangle
-    "add_in_area_shaft": (dict(extra=(0.3, -0.6, 2.5), extra_scale=0.15), dict()),
+    "add_in_area_shaft": (dict(extra=(0.45, -1.85, 2.0), extra_scale=0.15), dict()),
     # far toward the sun, off its axis but inside its cone's shafts: an infinite tunnel
     "add_far_sunward": (dict(extra=FAR_SUNWARD, extra_scale=8.0), dict()),
     "move_area": (dict(area_pos=(0.8, -0.2, 3.6)), dict(lights={0})),
     "resize_area": (dict(area_size=(3.0, 0.6)), dict(lights={0})),
     "area_shape": (dict(area_shape="ELLIPSE"), dict(lights={0})),
     "radius": (dict(radius=0.6), dict(lights={1})),
-    "sun_angle": (dict(sun_angle=0.3), dict(lights={2})),
+    # (a fully visible sun above the horizon gives the same light at any angle: at 1 rad
+    # its cone crosses the wall's horizon)
+    "sun_angle": (dict(sun_angle=1.0), dict(lights={2})),
 }
 
 

@@ -22,10 +22,23 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   triangle, or outside its spot cone over the whole slab (or, if in front of all of them,
   its shaft must be empty as for a lit light). A spot cone edge with blend 0 (a step) may not
   cross the slab (:func:`.shafts.cone_state`).
-* **Soft light** (a light with an extent, or a world colour that lights): not proven yet, so
-  a cell whose ray trees name a sampled light (``OCC_SOFT``), or any cell while the world
-  lights, fails (``light_shaft``) and its pixels are traced; the bound holds as for hard
-  light. Proving the shaft from the slab to the light's extent empty is the next step.
+* **Soft light** (a light with an extent: a sphere, a sun with an angle, an area light;
+  :func:`_soft_light`). Sampled at the corners (``OCC_SOFT``): the light must be *fully
+  visible* over the cell -- the shaft from the slab surface's box to the light's whole
+  extent (the ball, the rectangle's box, the sun's cone as a far box grown by its chord)
+  meets no other object, and every triangle of the object in it faces every point of the
+  extent (the point-light winding argument, shadow ray by shadow ray) -- and the tracer's
+  value must then be exact: the ratio estimator's closed form, which it takes where the
+  whole extent is above the horizon of the geometric and every interpolable shading normal
+  (:func:`_soft_slab`), on a material without a glossy lobe (whose soft samples would be a
+  Monte Carlo estimate). Then every shadow sample is unoccluded, the visibility ratio is
+  exactly 1 and the pixel's value is the closed form: smooth, deterministic, interpolable.
+  Otherwise ``light_shaft`` (penumbra or umbra: not proven), ``self_shadow`` or
+  ``soft_sampled`` (a spot with a radius, a disk, an ellipse, a spread, a glossy surface, a
+  light crossing the horizon). Not facing at the corners (``-2``): off everywhere when the
+  whole extent is behind every slab triangle or the slab is behind an area light. Below the
+  root a light with an extent fails the cell (``tunnel_light``). While the world lights,
+  every cell fails (``world_light``): its hemisphere is not proven unoccluded.
 * **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
   (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the

@@ -115,7 +115,7 @@ def soft_room_unlit_world(width: int = 64, height: int = 48) -> Scene:
 INTERPOLANT_SOAK_SCENES = {"soft_room_unlit_world": soft_room_unlit_world, "room": room}
 
 
-def interpolant_soak(steps: int, epsilon: float = 0.02, width: int = 128, height: int = 96,
+def interpolant_soak(steps: int, epsilon: float = 0.02, width: int = 256, height: int = 192,
                      log=print) -> dict:
     """``steps`` random edit batches (every kind, the light extents of
     :attr:`EditGenerator.SOFT_KINDS`, camera moves) on :data:`INTERPOLANT_SOAK_SCENES` in

@@ -38,9 +38,9 @@ def studio(width: int, height: int, world: bool) -> Scene:
                    shapes.transform((0.9, 0.2, 0.5), 0.5), [blue], "Ball")
     s.add_instance(s.add_mesh(shapes.box((0.4, 0.4, 1.2), name="post")),
                    shapes.transform((0.2, 1.5, 0.6)), [clay], "Post")
-    s.add_light(Light("Softbox", "AREA", power=600.0, position=(0.0, -0.5, 3.0),
+    s.add_light(Light("Softbox", "AREA", power=120.0, position=(0.0, -0.5, 3.0),
                       direction=(0.0, 0.0, -1.0), shape="SQUARE", size=(2.0, 2.0)))
-    s.add_light(Light("Bulb", "POINT", power=200.0, position=(2.5, -2.0, 2.0), radius=0.5))
+    s.add_light(Light("Bulb", "POINT", power=50.0, position=(2.5, -2.0, 2.0), radius=0.5))
     s.set_world_color((0.2, 0.2, 0.25) if world else (0.05, 0.05, 0.06), lights=world)
     s.set_camera(Camera(matrix=shapes.look_at((0.0, -6.0, 3.5), (0.0, 0.3, 0.3)), lens=35.0,
                         width=width, height=height))

@@ -2,7 +2,7 @@
 
 ``python -m rstrace_engine.bench edit [--json] [--width W] [--height H]
 [--scenes museum,three_spheres] [--modes BASE,INTERPOLANT] [--out DIR] [--threads N]
-[--clock wall|cpu] [--soak N]``
+[--clock wall|cpu] [--soak N [--soak-mode BASE|INTERPOLANT]]``
 
 For each scene (640x480, ray depth 5) and mode (BASE, INTERPOLANT at epsilon 0.01), one
 session renders the scene's camera, then takes the edits below one after another, rendering
@@ -41,7 +41,9 @@ space, epsilon 0.01, against the fresh frame of the same mode), for INTERPOLANT 
 ``DIR/edit_<scene>_<row>.png`` per edit: the frame after the edit with its dirty pixels
 tinted magenta (BASE; INTERPOLANT rows add ``_interpolant``). ``--soak N`` instead runs N
 random edit batches (every kind, and camera moves) on the small soak scenes checking after
-each that the BASE frame equals a fresh session's, bit for bit.
+each that the BASE frame equals a fresh session's, bit for bit; with ``--soak-mode
+INTERPOLANT`` it runs them in an INTERPOLANT session on soft-lit scenes, each frame within
+epsilon of a fresh BASE frame (:func:`.soak.interpolant_soak`).
 
 ``soft_room`` (the soak's room with sphere, sun-with-angle and area lights and a world that
 lights, at the bench's size) has the light rows only, plus ``resize_area_light``. BASE light
@@ -379,6 +381,9 @@ def main(argv: list[str]) -> int:
                         "shared machine)")
     p.add_argument("--soak", type=int, default=0,
                    help="run this many random edit batches checked against fresh frames")
+    p.add_argument("--soak-mode", choices=("BASE", "INTERPOLANT"), default="BASE",
+                   help="BASE: bit for bit against fresh frames; INTERPOLANT: within epsilon "
+                        "0.02 of fresh BASE frames (soft-lit scenes)")
     args = p.parse_args(argv)
     global CLOCK
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
@@ -390,6 +395,15 @@ def main(argv: list[str]) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
+    if args.soak and args.soak_mode == "INTERPOLANT":
+        from .soak import interpolant_soak
+
+        res = interpolant_soak(args.soak, log=log)
+        print(json.dumps(res) if args.json else
+              f"interpolant soak: {res['steps']} steps, max error against fresh BASE frames "
+              f"{res['max_error']:.2e} (epsilon {res['epsilon']}), mean interpolated "
+              f"fraction {res['mean_interpolated_fraction']:.3f}")
+        return 0
     if args.soak:
         res = soak(args.soak, log)
         print(json.dumps(res) if args.json else

@@ -28,7 +28,7 @@ from numba import njit, prange
 
 from ..frame import ACCELERATORS
 from ..geometry.scene import SceneArrays
-from . import bvh
+from . import bvh, bvh_build
 from .bvh import ray_to_object
 from .interface import (  # noqa: F401 - re-exported: the interface's public names
     Accelerator,
@@ -121,7 +121,7 @@ class BVHAccelerator(Accelerator):
 
     def __init__(self, scene_arrays: SceneArrays) -> None:
         super().__init__(scene_arrays)
-        self._cache: dict[bytes, bvh.MeshBVH] = {}
+        self._cache: dict[bytes, bvh.PlacedMesh] = {}
         self._mesh_keys: list[bytes] = []
         self._geometry = None  # (verts, tris, mesh_tri_start) identity of the last packing
         self._concat = None
@@ -138,29 +138,33 @@ class BVHAccelerator(Accelerator):
                          and np.array_equal(self._geometry[2], sa.mesh_tri_start))
         if not same_geometry:
             keys, built, reused = [], 0, 0
-            cache: dict[bytes, bvh.MeshBVH] = {}
+            cache: dict[bytes, bvh.PlacedMesh] = {}
             for m in range(len(sa.mesh_tri_start) - 1):
-                tv = bvh.mesh_triangles(sa, m)
-                key = bvh.mesh_key(tv)
-                mb = cache.get(key) or self._cache.get(key)
-                if mb is None:
-                    mb = bvh.build_mesh_bvh(tv)
+                tv = bvh_build.mesh_triangles(sa, m)
+                key = bvh_build.mesh_key(tv)
+                pm = cache.get(key) or self._cache.get(key)
+                if pm is None:
+                    mb = bvh_build.build_mesh_bvh(tv)
+                    pm = bvh.PlacedMesh.built(mb)
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s
                 else:
                     reused += 1
-                cache[key] = mb
+                cache[key] = pm
                 keys.append(key)
-            self._cache = cache  # meshes that left the scene are dropped
+            *concat, placed = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            # meshes that left the scene are dropped; the others are kept as views of the
+            # concatenation (the arrays of the previous one are then freed)
+            self._cache = dict(zip(keys, placed, strict=True))
             self._mesh_keys = keys
-            self._concat = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            self._concat = tuple(concat)
             self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy())
             self.stats["meshes_built"] += built
             self.stats["meshes_reused"] += reused
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
-        top = bvh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
+        top = bvh_build.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)
         bounds, child, tv, tri, mesh_root = self._concat
         self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, tv, tri,

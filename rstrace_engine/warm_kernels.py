@@ -280,7 +280,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
         log.info("kernel warm-up cancelled")
     import importlib
 
-    for name in ("accel.bvh", "accel.bvh_build", "accel.triangle", "accel.accelerators",
+    for name in ("accel.bvh", "accel.bvh_build", "accel.bvh_mesh", "accel.triangle",
+                 "accel.accelerators",
                  "tracing.whitted", "tracing.shading", "interpolants.render",
                  "interpolants.interpolant_cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",

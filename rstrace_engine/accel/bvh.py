@@ -2,21 +2,24 @@
 
 * **Bottom level**: one binned-SAH BVH per *mesh*, in object space, built once and shared by
   every instance of the mesh. Meshes are keyed by a content hash of their triangles, so a new
-  packing of the scene reuses every mesh whose geometry did not change.
+  packing of the scene reuses every mesh whose geometry did not change; the trees are held
+  once, as views of the concatenation the traversal reads (:class:`PlacedMesh`).
 * **Top level**: a BVH over the instances' world bounds, rebuilt on every update (cheap: one
   primitive per instance). At an instance leaf the ray is taken to object space (direction not
   normalised, so distances stay world distances) and the mesh BVH is traversed.
 
-Build and layout (flattened, pbrt/pynndescent style): a binary binned-SAH tree is built
-(:func:`build_flat`) and collapsed into a 4-wide tree (:func:`collapse4`) whose nodes hold
-the boxes of their four children, so one visit tests four boxes and pushes those hit
-farthest first (front-to-back traversal with a small fixed stack).
+This module holds the layout and the traversal; the build (in parallel, the same tree on
+any thread count) is :mod:`.bvh_build` and :mod:`.bvh_mesh`. Layout (flattened,
+pbrt/pynndescent style): a binary binned-SAH tree is built (:func:`.bvh_build.build_flat`)
+and collapsed into a 4-wide tree (:func:`.bvh_mesh.collapse4`) whose nodes hold the boxes of
+their four children, so one visit tests four boxes and pushes those hit farthest first
+(front-to-back traversal with a small fixed stack).
 
 * ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
   lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
-  ulp (:func:`pad_outward`; float64 measured ~5% faster than float32 boxes here: no
-  conversions in the slab test). An unused lane has an inverted box (``lo = +inf``) and is
-  never entered.
+  ulp (:func:`.bvh_mesh.pad_outward`; float64 measured ~5% faster than float32 boxes
+  here: no conversions in the slab test). An unused lane has an inverted box
+  (``lo = +inf``) and is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
 
@@ -35,7 +38,8 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from .bvh_build import DEPTH_CAP, MeshBVH
+from .bvh_build import DEPTH_CAP, NEVER_STOP
+from .bvh_mesh import MeshBVH
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -329,10 +333,6 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
                 out_prim[r] = sb.tri[p]
                 out_u[r] = u
                 out_v[r] = v
-
-
-#: The stop flag of queries nobody cancels.
-NEVER_STOP = np.zeros(1, np.int32)
 
 
 def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits,

@@ -1,7 +1,7 @@
 """Building the BVH of :mod:`.bvh`: binned SAH, in parallel, the same tree on any thread count.
 
-A binary binned-SAH tree is built (:func:`build_flat`) and collapsed into the 4-wide
-traversal layout (:func:`collapse4`, boxes widened outward by :func:`pad_outward`).
+A binary binned-SAH tree is built here (:func:`build_flat`); :mod:`.bvh_mesh` builds one per
+mesh from its triangles and collapses it into the 4-wide traversal layout.
 
 The binary build runs in two phases over one array of primitive boxes ``pb`` (n, 6)
 (``lo x, lo y, lo z, hi x, hi y, hi z``), reordered in place together with ``perm`` so
@@ -28,15 +28,11 @@ partition), or at the object median when no bin boundary separates the centroids
 
 from __future__ import annotations
 
-import hashlib
-import time
-from typing import NamedTuple
-
 import numba
 import numpy as np
 from numba import njit, prange
 
-from .. import tolerances as tol
+from ..cancel import Cancelled
 
 #: Most primitives in a leaf (the leaf code keeps the count in 3 bits).
 MAX_LEAF = 4
@@ -50,31 +46,21 @@ DEPTH_CAP = 60
 BIN_CHUNK = 16384
 #: The kernels a build runs (for the kernel-cache lists), ``module.function`` under
 #: rstrace_engine.
-BUILD_KERNELS = tuple(f"accel.bvh_build.{f}" for f in (
-    "gather_triangles", "triangle_boxes", "split_top", "build_subtrees", "pack_nodes",
-    "pad_outward", "collapse4", "gather_rows"))
+BUILD_KERNELS = ("accel.bvh_mesh.gather_triangles", "accel.bvh_mesh.triangle_boxes",
+                 "accel.bvh_build.split_top", "accel.bvh_build.build_subtrees",
+                 "accel.bvh_build.pack_nodes", "accel.bvh_mesh.pad_outward",
+                 "accel.bvh_mesh.collapse4", "accel.bvh_mesh.gather_rows")
+#: Meshes of fewer triangles are built without parallel regions (starting one costs more
+#: than it saves there, and very much more when the cores are oversubscribed).
+PARALLEL_MIN = 1 << 16
 #: Nodes of at most this many primitives are built as one subtree by one thread ...
 SUBTREE_MIN = 4096
 #: ... or of at most ``n // SUBTREE_SPLIT`` when that is more (a few hundred subtrees).
 SUBTREE_SPLIT = 256
 
 
-class FlatBVH(NamedTuple):
-    """A flattened 4-wide BVH (layout: :mod:`.bvh`)."""
-
-    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
-    child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
-    perm: np.ndarray  # (n,) int32, primitive ids in leaf order
-
-
-class MeshBVH(NamedTuple):
-    """The bottom-level BVH of one mesh, in object space."""
-
-    bvh: FlatBVH
-    tv: np.ndarray  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
-    tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
-    sah_cost: float
-    build_s: float
+#: The stop flag of builds and queries nobody cancels (:mod:`rstrace_engine.cancel`).
+NEVER_STOP = np.zeros(1, np.int32)
 
 
 def subtree_grain(n: int) -> int:
@@ -292,9 +278,10 @@ def _split_level(pb, perm, ranges, node_c, split, nbins, out_box, out_c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def split_top(pb, perm, grain, nbins, trav_cost, bounds, child):
+def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
     """Phase 1: split nodes of more than ``grain`` primitives, a level at a time (numbered
-    from 0 in ``bounds`` (., 12) / ``child`` (., 2), breadth first).
+    from 0 in ``bounds`` (., 12) / ``child`` (., 2), breadth first). ``stop`` (1,) int32
+    is read before each level: once non-zero the phase returns unfinished.
 
     Returns ``(n_top, tasks (T, 5) int64, task_box (T, 12), sah, root_area)``: the nodes
     left for :func:`build_subtrees`, each ``parent, slot, start, end, depth`` with its box
@@ -322,7 +309,7 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child):
     right_n = np.empty(nbins, np.int64)
     bin_n = np.zeros((3, nbins), np.int64)
     bin_b = np.empty((3, nbins, 6))
-    while n_lv > 0:
+    while n_lv > 0 and stop[0] == 0:
         # the nodes small enough are subtrees; the others are split at this level
         ne = 0
         n_chunks = 0
@@ -498,13 +485,16 @@ def _build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost, root_area,
-                   bounds, child):
+                   bounds, child, stop):
     """Phase 2: task ``t`` (:func:`split_top`) built into nodes from ``region[t]``, one
-    thread per task. Returns the nodes each used (T,) and their SAH (T,)."""
+    thread per task. Returns the nodes each used (T,) and their SAH (T,). ``stop`` (1,)
+    int32 is read before each task: once non-zero the others are skipped."""
     nt = tasks.shape[0]
     used = np.zeros(nt, np.int64)
     sah = np.zeros(nt)
     for t in prange(nt):
+        if stop[0] != 0:
+            continue
         used[t], sah[t] = _build_subtree(pb, perm, tasks[t], task_box[t], region[t],
                                          max_leaf, nbins, trav_cost, root_area, bounds, child)
     return used, sah
@@ -539,23 +529,26 @@ def pack_nodes(bounds, child, n_top, region, used):
 
 
 def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
-               trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None):
+               trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
+               stop: np.ndarray = NEVER_STOP):
     """Binned-SAH BVH over primitive boxes, in parallel (see the module docstring).
 
     lo, hi : (n, 3) float64 primitive bounds (n >= 1); ``grain``: the largest node built by
     one thread (default :func:`subtree_grain`; ``>= n``: one sequential build, the same
     tree). Returns ``bounds (N, 12) float64, child (N, 2) int32, perm (n,) int32,
     sah_cost`` (the SAH estimate of the whole tree in units of one primitive test); node 0
-    is the root, whose own box is implicit.
+    is the root, whose own box is implicit. Raises :class:`~rstrace_engine.cancel.Cancelled`
+    once ``stop`` (a (1,) int32 flag, read between levels and subtrees) is set.
     """
     pb = np.empty((len(lo), 6))
     pb[:, :3] = lo
     pb[:, 3:] = hi
-    return build_flat_boxes(pb, max_leaf, nbins, trav_cost, grain)
+    return build_flat_boxes(pb, max_leaf, nbins, trav_cost, grain, stop)
 
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
-                     trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None):
+                     trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
+                     stop: np.ndarray = NEVER_STOP):
     """:func:`build_flat` over ``pb`` (n, 6) float64 (lo, hi), which it reorders (leaf
     order)."""
     n = pb.shape[0]
@@ -565,184 +558,23 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     bounds = np.empty((cap, 12))
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,
-                                                       bounds, child)
+                                                       bounds, child, stop)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
     # task t uses at most (its primitives - 1) nodes (a root task of one primitive: one);
     # with the top nodes that is at most n - 1 in all
     size = tasks[:, 3] - tasks[:, 2] - 1
     size[tasks[:, 0] < 0] = max(n - 1, 1)
     region = n_top + np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
+    if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
+        used, task_sah = _build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
+                                        nbins, trav_cost, root_area, bounds, child)
+        return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
+            sah + task_sah)
     with numba.parallel_chunksize(1):  # subtrees differ in cost: threads take them in turn
         used, task_sah = build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins,
-                                        trav_cost, root_area, bounds, child)
+                                        trav_cost, root_area, bounds, child, stop)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
     b, c = pack_nodes(bounds, child, n_top, region, used)
     return b, c, perm, float(sah + task_sah.sum())
-
-
-# ----------------------------------------------------------------------------- 4-wide
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2):
-    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
-
-    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
-    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
-    The nodes are numbered depth first, whatever the binary numbering.
-    """
-    n2 = c2.shape[0]
-    b4 = np.empty((n2, 24))
-    c4 = np.empty((n2, 4), np.int32)
-    todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
-    cb = np.empty((4, 6))
-    cc = np.empty(4, np.int64)
-    sp = 0
-    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
-    sp = 1
-    m = 0
-    while sp > 0:
-        sp -= 1
-        bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
-        k = m
-        m += 1
-        if parent >= 0:
-            c4[parent, lane] = k
-        cnt = 0
-        for j in range(2):
-            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-                cb[cnt, :] = b2[bn, 6 * j:6 * j + 6]
-                cc[cnt] = c2[bn, j]
-                cnt += 1
-        while cnt < 4:
-            pick = -1
-            best = -1.0
-            for j in range(cnt):
-                if cc[j] >= 0:
-                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
-                                      cb[j, 5])
-                    if area > best:
-                        best, pick = area, j
-            if pick < 0:
-                break
-            inner = cc[pick]
-            cb[pick, :] = b2[inner, 0:6]
-            cc[pick] = c2[inner, 0]
-            cb[cnt, :] = b2[inner, 6:12]
-            cc[cnt] = c2[inner, 1]
-            cnt += 1
-        for j in range(4):
-            if j < cnt:
-                for q in range(6):
-                    b4[k, 4 * q + j] = cb[j, q]
-                c4[k, j] = cc[j]
-            else:
-                for q in range(3):
-                    b4[k, 4 * q + j] = np.inf
-                    b4[k, 12 + 4 * q + j] = -np.inf
-                c4[k, j] = -1  # ~0: a leaf of no triangles
-        for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
-            if cc[j] >= 0:
-                todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
-                sp += 1
-    return b4[:m].copy(), c4[:m].copy()
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def pad_outward(b64):
-    """Child boxes (N, 12) float64 widened by one ulp on every side.
-
-    A ray with a zero direction component has a huge finite reciprocal (``bvh._inv_dir``);
-    if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
-    +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
-    geometry, an origin on a face is outside the geometry, so culling it is right. The
-    inverted (+inf, -inf) box of an empty child stays as is.
-    """
-    out = np.empty_like(b64)
-    for i in prange(b64.shape[0]):
-        for s in range(2):
-            for q in range(3):
-                lo = b64[i, 6 * s + q]
-                hi = b64[i, 6 * s + 3 + q]
-                out[i, 6 * s + q] = np.nextafter(lo, -np.inf) if np.isfinite(lo) else lo
-                out[i, 6 * s + 3 + q] = np.nextafter(hi, np.inf) if np.isfinite(hi) else hi
-    return out
-
-
-def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide)."""
-    b4, c4 = collapse4(pad_outward(b64), child)
-    return FlatBVH(b4, c4, perm)
-
-
-# ----------------------------------------------------------------------------- meshes
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def gather_triangles(verts, tris, order):
-    """Vertices of triangles ``tris[order]`` in that order: (len(order), 9) float64."""
-    m = order.shape[0]
-    out = np.empty((m, 9))
-    for i in prange(m):
-        t = order[i]
-        for c in range(3):
-            for q in range(3):
-                out[i, 3 * c + q] = verts[tris[t, c], q]
-    return out
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def triangle_boxes(tv):
-    """Boxes (m, 6) float64 (lo, hi) of triangles ``tv`` (m, 9) float64."""
-    m = tv.shape[0]
-    pb = np.empty((m, 6))
-    for i in prange(m):
-        for q in range(3):
-            a, b, c = tv[i, q], tv[i, 3 + q], tv[i, 6 + q]
-            pb[i, q] = min(a, min(b, c))
-            pb[i, 3 + q] = max(a, max(b, c))
-    return pb
-
-
-def mesh_triangles(sa, mesh: int) -> np.ndarray:
-    """Object-space vertices of mesh ``mesh``'s triangles: (m, 3, 3) float64."""
-    s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
-    return gather_triangles(sa.verts, sa.tris, np.arange(s, e, dtype=np.int32)).reshape(-1, 3, 3)
-
-
-def mesh_key(tv: np.ndarray) -> bytes:
-    """Content hash of a mesh's triangle vertices (m, 3, 3) float64."""
-    return hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
-
-
-def build_mesh_bvh(tv: np.ndarray, grain: int | None = None) -> MeshBVH:
-    """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64."""
-    t0 = time.perf_counter()
-    flat9 = np.ascontiguousarray(tv, dtype=np.float64).reshape(-1, 9)
-    b64, child, perm, sah = build_flat_boxes(triangle_boxes(flat9), grain=grain)
-    flat = flatten(b64, child, perm)
-    tv_leaf = gather_rows(flat9, perm)
-    return MeshBVH(flat, tv_leaf, perm, float(sah), time.perf_counter() - t0)
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def gather_rows(a, order):
-    """``a[order]`` for a (m, k) float64 array, in parallel."""
-    m, k = order.shape[0], a.shape[1]
-    out = np.empty((m, k))
-    for i in prange(m):
-        for q in range(k):
-            out[i, q] = a[order[i], q]
-    return out
-
-
-def build_top(inst_aabb: np.ndarray) -> FlatBVH:
-    """Top-level BVH over instance world boxes (I, 2, 3) float64, padded by
-    :data:`~.tolerances.INSTANCE_BOX_PAD_REL` of their magnitude (the world->object transform
-    of a ray rounds)."""
-    lo = inst_aabb[:, 0]
-    hi = inst_aabb[:, 1]
-    mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
-    pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
-    b64, child, perm, _ = build_flat(lo - pad, hi + pad, 1)
-    return flatten(b64, child, perm)

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from ..accel import bvh_build
+from ..accel import bvh_build, bvh_mesh
 from ..geometry.mesh_topology import MeshTopology
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, SceneArrays
 
@@ -75,7 +75,7 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
     bounds, childs, tvs, tris, roots = [], [], [], [], []
     n_nodes = n_tris = 0
     for m in range(len(sa.mesh_tri_start) - 1):
-        tv = bvh_build.mesh_triangles(sa, m)
+        tv = bvh_mesh.mesh_triangles(sa, m)
         b, c, perm = binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
         c = c.astype(np.int64)
         code = ~c

@@ -215,13 +215,13 @@ def test_mesh_too_large_for_the_memory_is_refused_before_it_is_copied():
 
 
 def test_bench_scale_runs_small():
-    res = scale.run(sizes=(3_000,), duplicates=(6, 800), repeats=1)
+    res = scale.run(sizes=(3_000,), duplicates=(6, 800), repeats=1, warm=False)
     dense, dup = res["rows"]
     assert dense["unique_triangles"] >= 3_000 and dup["objects"] == 6 + 1
     assert dup["instanced_triangles"] > 5 * dup["unique_triangles"]
     for row in res["rows"]:
         assert row["numba_build_s"] > 0 and row["numba_mrays"] > 0
         mem = row["bytes_per_triangle"]
-        assert 0 < mem["bvh"] < mem["total"] <= mem["model"] + mem["packed"] + mem["bvh"]
+        assert 0 < mem["bvh"] < mem["total"] <= mem["model"] + mem["packed"] + mem["bvh"] + 0.2
     # the BVH holds each mesh's tree once: well under twice its leaf-ordered triangles
     assert dense["bytes_per_triangle"]["bvh"] < 160

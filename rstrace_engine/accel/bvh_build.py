@@ -44,14 +44,19 @@ SAH_TRAVERSAL_COST = 1.0
 DEPTH_CAP = 60
 #: Primitives per chunk of the parallel binning of the top levels.
 BIN_CHUNK = 16384
-#: The kernels a build runs (for the kernel-cache lists), ``module.function`` under
-#: rstrace_engine.
-BUILD_KERNELS = ("accel.bvh_mesh.gather_triangles", "accel.bvh_mesh.triangle_boxes",
-                 "accel.bvh_build.split_top", "accel.bvh_build.build_subtrees",
-                 "accel.bvh_build.pack_nodes", "accel.bvh_mesh.pad_outward",
-                 "accel.bvh_mesh.collapse4", "accel.bvh_mesh.gather_rows")
-#: Meshes of fewer triangles are built without parallel regions (starting one costs more
-#: than it saves there, and very much more when the cores are oversubscribed).
+#: The kernels every build runs (``module.function`` under rstrace_engine, for the
+#: kernel-cache lists) ...
+BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
+                 "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4")
+#: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
+#: runs, compiled by the first such build.
+LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
+                       "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
+                       "accel.bvh_mesh.gather_triangles", "accel.bvh_mesh.triangle_boxes",
+                       "accel.bvh_mesh.gather_rows")
+#: Meshes of fewer triangles are built by one thread, without parallel regions (starting
+#: one costs more than it saves there, and very much more when the cores are
+#: oversubscribed).
 PARALLEL_MIN = 1 << 16
 #: Nodes of at most this many primitives are built as one subtree by one thread ...
 SUBTREE_MIN = 4096
@@ -64,8 +69,9 @@ NEVER_STOP = np.zeros(1, np.int32)
 
 
 def subtree_grain(n: int) -> int:
-    """Primitives of the largest node built by one thread (depends on ``n`` only)."""
-    return max(SUBTREE_MIN, n // SUBTREE_SPLIT)
+    """Primitives of the largest node built by one thread (depends on ``n`` only; all of
+    them below :data:`PARALLEL_MIN`)."""
+    return n if n < PARALLEL_MIN else max(SUBTREE_MIN, n // SUBTREE_SPLIT)
 
 
 # ----------------------------------------------------------------------------- SAH
@@ -395,7 +401,7 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
+def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
                    bounds, child):
     """One subtree, depth first, its inner nodes numbered from ``node0`` (a root task's
     root is node ``node0`` itself). Returns ``(nodes used, sah)``."""
@@ -495,7 +501,7 @@ def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost
     for t in prange(nt):
         if stop[0] != 0:
             continue
-        used[t], sah[t] = _build_subtree(pb, perm, tasks[t], task_box[t], region[t],
+        used[t], sah[t] = build_subtree(pb, perm, tasks[t], task_box[t], region[t],
                                          max_leaf, nbins, trav_cost, root_area, bounds, child)
     return used, sah
 
@@ -567,7 +573,7 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     size[tasks[:, 0] < 0] = max(n - 1, 1)
     region = n_top + np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
     if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
-        used, task_sah = _build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
+        used, task_sah = build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
                                         nbins, trav_cost, root_area, bounds, child)
         return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
             sah + task_sah)

@@ -34,6 +34,7 @@ import numba
 import numpy as np
 
 from ..accel.accelerators import AcceleratorUnavailable, create_accelerator
+from ..accel.bvh_build import PARALLEL_MIN
 from ..geometry import shapes
 from ..geometry.cameras import camera_rays
 from ..geometry.scene import Camera, Light, Material, Scene
@@ -156,6 +157,17 @@ def measure(name: str, scene: Scene, repeats: int = 3) -> dict:
     return row
 
 
+def _warm() -> None:
+    """Compile (or load) the kernels first: a mesh past
+    :data:`~rstrace_engine.accel.bvh_build.PARALLEL_MIN` takes the parallel ones, a small
+    one the others, so no row's times include a compilation."""
+    for n in (2_000, PARALLEL_MIN + 1_000):
+        s = big_scene(n)
+        acc = create_accelerator("BVH", s.arrays())
+        o, d = camera_rays(s.camera)[:2]
+        acc.closest_hit(o[:64], d[:64], 0.0, np.inf)
+
+
 def _count(text: str) -> int:
     t = text.strip().lower()
     scale = {"k": 1_000, "m": 1_000_000}.get(t[-1:], 1)
@@ -163,13 +175,16 @@ def _count(text: str) -> int:
 
 
 def run(sizes=SIZES, duplicates=DUPLICATES, repeats: int = 3, threads: int | None = None,
-        progress=None) -> dict:
-    """Measure every scene; returns ``{"rows": [...], "threads": n}``."""
+        progress=None, warm: bool = True) -> dict:
+    """Measure every scene (after :func:`_warm` with ``warm``); returns
+    ``{"rows": [...], "threads": n}``."""
     saved = numba.get_num_threads()
     if threads:
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     rows = []
     try:
+        if warm:
+            _warm()
         for n in sizes:
             rows.append(measure(f"dense {n:,}", big_scene(n), repeats))
             if progress:

@@ -37,7 +37,8 @@ log = logging.getLogger(__name__)
 #: viewport session of that mode runs on its first image, its first full frame and its
 #: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
 #: that every name exists); the progress counts these.
-_BASE = ("accel.bvh.build_flat", "accel.bvh.collapse4", "accel.bvh.trace_kernel",
+_BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
+         "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4", "accel.bvh.trace_kernel",
          "geometry.cameras.generate_rays", "tracing.shader._surface_kernel",
          "tracing.shader._shadow_kernel", "tracing.shader._shade_kernel",
          "tracing.whitted._light_masks", "tracing.batches.scatter_add",

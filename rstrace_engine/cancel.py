@@ -12,8 +12,11 @@ A kernel that sees the flag leaves its output incomplete; whoever bound the flag
 ``cancel()`` after the query and throws that output away (a renderer never stores a tile,
 a record or an image part computed after the flag was set). Only the renderers' own
 per-frame queries are bound (:meth:`~rstrace_engine.accel.accelerators.Accelerator.
-cancellable`); work whose result persists across frames (interpolant cells, RI-trees,
-accelerator builds) never sees the flag, so a cancel can never corrupt a cache.
+cancellable`); work whose result persists across frames (interpolant cells, RI-trees)
+never sees the flag, so a cancel can never corrupt a cache. The BVH build polls it too
+(between levels and subtrees of a mesh's tree, and between meshes) but stores nothing
+until it is complete: a stopped build raises :class:`Cancelled` and the accelerator, and
+the session that asked for it, stay as they were.
 
 Any other callable still works as ``cancel`` (polled between tiles only).
 """
@@ -23,6 +26,10 @@ from __future__ import annotations
 import contextlib
 
 import numpy as np
+
+
+class Cancelled(Exception):
+    """A cancellable build stopped at the flag; nothing it would have stored was stored."""
 
 
 class CancelFlag:

@@ -33,6 +33,7 @@ import threading
 import time
 
 from .accel.accelerators import create_accelerator
+from .cancel import Cancelled, bound
 from .frame import AVAILABLE_MODES, Frame, RenderSettings
 from .geometry.cameras import same_camera
 from .geometry.edits import CameraChange, EditEffects, EditReport, apply_edits, diff_scenes
@@ -100,10 +101,10 @@ class Session:
         return self.reuse.records_bytes
 
     def _build_accelerator(self, kind: str | None = None,
-                           settings: RenderSettings | None = None) -> None:
+                           settings: RenderSettings | None = None, cancel=None) -> None:
         sa = self.scene.arrays()
         t0 = time.perf_counter()
-        self.accel = create_accelerator(kind or self.settings.accelerator, sa,
+        self.accel = create_accelerator(kind or self.settings.accelerator, sa, cancel,
                                         **(settings or self.settings).accelerator_options())
         self.stats["accel_build_s"] = time.perf_counter() - t0
         self.stats["accelerator"] = self.accel.name
@@ -111,12 +112,13 @@ class Session:
         log.info("session: built %s over %d instances in %.3f s", self.accel.name,
                  len(sa.inst_mesh), self.stats["accel_build_s"])
 
-    def _build(self) -> None:
-        """Validate the settings and the scene, build the accelerator (once)."""
+    def _build(self, cancel=None) -> None:
+        """Validate the settings and the scene, build the accelerator (once; ``cancel``:
+        :meth:`apply`)."""
         if self.accel is None:
             self.settings = self.settings.validated()
             self.scene.arrays()  # validated before anything is built
-            self._build_accelerator()
+            self._build_accelerator(cancel=cancel)
 
     def _accel_memory(self) -> None:
         """The accelerator's own memory count (MB), where it keeps one."""
@@ -136,9 +138,14 @@ class Session:
         with self._queue_lock:
             self._queue += edits
 
-    def apply(self, edits=()) -> EditReport:
+    def apply(self, edits=(), cancel=None) -> EditReport:
         """Apply the queued edits (:meth:`submit`) and then ``edits`` as one batch of
         :mod:`~rstrace_engine.geometry.edits`, all or nothing.
+
+        ``cancel``: a :class:`~rstrace_engine.cancel.CancelFlag` that the accelerator's
+        build (the first, or its update for the batch) polls; set, the build stops and
+        :class:`~rstrace_engine.cancel.Cancelled` is raised with the session as it was (the
+        queued edits queued again, not failed).
 
         Raises :class:`SceneError` (naming the object) for a bad edit; the session then
         keeps its previous state. When the batch held queued edits (or the session could
@@ -154,12 +161,16 @@ class Session:
         edits = queued + list(edits)
         built = self.accel is not None
         try:
-            self._build()
+            self._build(cancel)
             if not edits:
                 return EditReport()
             t0 = time.perf_counter()
             new_scene, fx = apply_edits(self.scene, edits)
-            return self._commit(new_scene, fx, len(edits), t0)
+            return self._commit(new_scene, fx, len(edits), t0, cancel)
+        except Cancelled:
+            with self._queue_lock:
+                self._queue[:0] = queued
+            raise
         except BaseException as exc:
             if queued or not built:
                 self.failed = str(exc) if isinstance(exc, SceneError) else (
@@ -178,8 +189,8 @@ class Session:
         new_scene.stats = dict(scene.stats)
         return self._commit(new_scene, fx, len(edits), t0)
 
-    def _commit(self, new_scene: Scene, fx: EditEffects, n_edits: int, t0: float
-                ) -> EditReport:
+    def _commit(self, new_scene: Scene, fx: EditEffects, n_edits: int, t0: float,
+                cancel=None) -> EditReport:
         """The new scene and the batch's effects, handed down once to each structure."""
         old_sa = self.scene.arrays()
         new_sa = new_scene.arrays()
@@ -187,7 +198,8 @@ class Session:
                             regions=len(fx.regions))
         if new_sa is not old_sa:
             t1 = time.perf_counter()
-            self.accel.update(new_sa)  # (the BVH reuses unchanged mesh structures)
+            with bound(self.accel, cancel):  # (a cancelled update changes nothing)
+                self.accel.update(new_sa)  # (the BVH reuses unchanged mesh structures)
             self.stats["accel_update_s"] = time.perf_counter() - t1
             self._accel_memory()
         self.scene = new_scene

@@ -291,9 +291,10 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
         log.info("kernel warm-up cancelled")
     import importlib
 
-    for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
-                 "tracing.shader", "tracing.shading", "tracing.light_records",
-                 "interpolants.render", "interpolants.interpolant_cache",
+    for name in ("accel.bvh", "accel.bvh_build", "accel.bvh_mesh", "accel.triangle",
+                 "accel.accelerators", "tracing.whitted", "tracing.shader",
+                 "tracing.shading", "tracing.light_records", "interpolants.render",
+                 "interpolants.interpolant_cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
                  "ri_tree.tree_cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
                  "ri_tree.surfaces",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rstrace_engine.accel import bvh
+from rstrace_engine.accel import bvh, bvh_build, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Material, Mesh, Scene
@@ -44,7 +44,7 @@ def sphere_points(n: int, radius: float, seed: int) -> np.ndarray:
                                   shapes.box(), shapes.plane(2.0)], ids=lambda m: m.name)
 def test_mesh_bvh_structure(mesh):
     tv = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.triangles)]
-    mb = bvh.build_mesh_bvh(tv)
+    mb = bvh_mesh.build_mesh_bvh(tv)
     b, child = mb.bvh.bounds, mb.bvh.child
     assert b.dtype == np.float64 and child.dtype == np.int32
     assert b.shape[1] == 24 and child.shape[1] == 4
@@ -67,7 +67,7 @@ def test_mesh_bvh_structure(mesh):
                 stack.append((c, path))
                 continue
             start, count = (~c) >> 3, (~c) & 7
-            assert 1 <= count <= bvh.MAX_LEAF
+            assert 1 <= count <= bvh_build.MAX_LEAF
             for p in range(start, start + count):
                 seen[p] += 1
                 tri = mb.tv[p].reshape(3, 3)
@@ -83,14 +83,14 @@ def test_mesh_bvh_structure(mesh):
 def test_build_degenerate_centroids_and_depth():
     # 200 copies of one triangle: no SAH split exists, the builder must still terminate
     tv = np.tile(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float64), (200, 1, 1))
-    mb = bvh.build_mesh_bvh(tv)
+    mb = bvh_mesh.build_mesh_bvh(tv)
     assert sorted(mb.tri.tolist()) == list(range(200))
     # a very skewed size distribution (geometric), which tends to give deep SAH trees
     k = np.arange(300, dtype=np.float64)
     s = 2.0 ** (-k / 4)
     tv = np.stack([np.stack([s, s, s], 1), np.stack([2 * s, s, s], 1),
                    np.stack([s, 2 * s, s], 1)], 1)
-    mb = bvh.build_mesh_bvh(tv)
+    mb = bvh_mesh.build_mesh_bvh(tv)
     assert sorted(mb.tri.tolist()) == list(range(300))
 
 

@@ -26,9 +26,10 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from ..cancel import Cancelled
 from ..frame import ACCELERATORS
 from ..geometry.scene import SceneArrays
-from . import bvh
+from . import bvh, bvh_mesh
 from .bvh import ray_to_object
 from .interface import (  # noqa: F401 - re-exported: the interface's public names
     Accelerator,
@@ -119,48 +120,59 @@ class BVHAccelerator(Accelerator):
 
     name = "BVH"
 
-    def __init__(self, scene_arrays: SceneArrays) -> None:
+    def __init__(self, scene_arrays: SceneArrays, cancel=None) -> None:
         super().__init__(scene_arrays)
-        self._cache: dict[bytes, bvh.MeshBVH] = {}
+        self._cache: dict[bytes, bvh.PlacedMesh] = {}
         self._mesh_keys: list[bytes] = []
         self._geometry = None  # (verts, tris, mesh_tri_start) identity of the last packing
         self._concat = None
         self.stats.update(meshes_built=0, meshes_reused=0, mesh_build_s=0.0, top_build_s=0.0)
-        self._build(scene_arrays)
+        with self.cancellable(cancel):
+            self._build(scene_arrays)
 
     def update(self, scene_arrays: SceneArrays) -> None:
         self._build(scene_arrays)
 
     def _build(self, sa: SceneArrays) -> None:
+        """Build what changed; the bound stop flag (:meth:`cancellable`) is polled within
+        and between mesh builds, and nothing is kept unless all of it completes
+        (:class:`~rstrace_engine.cancel.Cancelled` otherwise)."""
         t0 = time.perf_counter()
+        stop = self._stop
         same_geometry = (self._geometry is not None and self._geometry[0] is sa.verts
                          and self._geometry[1] is sa.tris
                          and np.array_equal(self._geometry[2], sa.mesh_tri_start))
         if not same_geometry:
             keys, built, reused = [], 0, 0
-            cache: dict[bytes, bvh.MeshBVH] = {}
+            cache: dict[bytes, bvh.PlacedMesh] = {}
             for m in range(len(sa.mesh_tri_start) - 1):
-                tv = bvh.mesh_triangles(sa, m)
-                key = bvh.mesh_key(tv)
-                mb = cache.get(key) or self._cache.get(key)
-                if mb is None:
-                    mb = bvh.build_mesh_bvh(tv)
+                tv = bvh_mesh.mesh_triangles(sa, m)
+                key = bvh_mesh.mesh_key(tv)
+                pm = cache.get(key) or self._cache.get(key)
+                if pm is None:
+                    if stop[0]:
+                        raise Cancelled("BVH build cancelled")
+                    mb = bvh_mesh.build_mesh_bvh(tv, stop=stop)
+                    pm = bvh.PlacedMesh.built(mb)
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s
                 else:
                     reused += 1
-                cache[key] = mb
+                cache[key] = pm
                 keys.append(key)
-            self._cache = cache  # meshes that left the scene are dropped
+            *concat, placed = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            # meshes that left the scene are dropped; the others are kept as views of the
+            # concatenation (the arrays of the previous one are then freed)
+            self._cache = dict(zip(keys, placed, strict=True))
             self._mesh_keys = keys
-            self._concat = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            self._concat = tuple(concat)
             self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy())
             self.stats["meshes_built"] += built
             self.stats["meshes_reused"] += reused
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
-        top = bvh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
+        top = bvh_mesh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)
         bounds, child, tv, tri, mesh_root = self._concat
         self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, tv, tri,
@@ -170,6 +182,7 @@ class BVHAccelerator(Accelerator):
         self.stats["top_build_s"] = time.perf_counter() - t1
         self.stats["build_s"] = time.perf_counter() - t0
         self.stats["nodes"] = int(len(child) + len(top.child))
+        self.stats["memory_mb"] = sum(a.nbytes for a in self.sb) / 2 ** 20
         self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
                                   for k in self._mesh_keys}
 
@@ -188,11 +201,14 @@ class BVHAccelerator(Accelerator):
 # ----------------------------------------------------------------------------- factory
 
 
-def create_accelerator(name: str, scene_arrays: SceneArrays, **options) -> Accelerator:
+def create_accelerator(name: str, scene_arrays: SceneArrays, cancel=None,
+                       **options) -> Accelerator:
     """Build the accelerator called ``name`` (one of :data:`NAMES`) over ``scene_arrays``.
 
     ``options`` go to accelerators that take them (``"VISIBILITY_FIELD"``: ``directions``,
-    ``tiles``, ``memory_cap_mb``) and are ignored by the others. Raises
+    ``tiles``, ``memory_cap_mb``) and are ignored by the others. ``cancel``: a
+    :class:`~rstrace_engine.cancel.CancelFlag` the BVH's build polls (it then raises
+    :class:`~rstrace_engine.cancel.Cancelled`); the others finish their build. Raises
     :class:`AcceleratorUnavailable` for unknown names and for ``"EMBREE"`` when ``embreex``
     is not installed.
     """
@@ -200,7 +216,7 @@ def create_accelerator(name: str, scene_arrays: SceneArrays, **options) -> Accel
     if key == "BRUTE_FORCE":
         return BruteForce(scene_arrays)
     if key == "BVH":
-        return BVHAccelerator(scene_arrays)
+        return BVHAccelerator(scene_arrays, cancel)
     if key == "EMBREE":
         from .embree import EmbreeAccelerator
 

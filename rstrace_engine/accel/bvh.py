@@ -2,21 +2,24 @@
 
 * **Bottom level**: one binned-SAH BVH per *mesh*, in object space, built once and shared by
   every instance of the mesh. Meshes are keyed by a content hash of their triangles, so a new
-  packing of the scene reuses every mesh whose geometry did not change.
+  packing of the scene reuses every mesh whose geometry did not change; the trees are held
+  once, as views of the concatenation the traversal reads (:class:`PlacedMesh`).
 * **Top level**: a BVH over the instances' world bounds, rebuilt on every update (cheap: one
   primitive per instance). At an instance leaf the ray is taken to object space (direction not
   normalised, so distances stay world distances) and the mesh BVH is traversed.
 
-Build and layout (flattened, pbrt/pynndescent style): a binary binned-SAH tree is built
-(:func:`build_flat`) and collapsed into a 4-wide tree (:func:`collapse4`) whose nodes hold
-the boxes of their four children, so one visit tests four boxes and pushes those hit
-farthest first (front-to-back traversal with a small fixed stack).
+This module holds the layout and the traversal; the build (in parallel, the same tree on
+any thread count) is :mod:`.bvh_build` and :mod:`.bvh_mesh`. Layout (flattened,
+pbrt/pynndescent style): a binary binned-SAH tree is built (:func:`.bvh_build.build_flat`)
+and collapsed into a 4-wide tree (:func:`.bvh_mesh.collapse4`) whose nodes hold the boxes of
+their four children, so one visit tests four boxes and pushes those hit farthest first
+(front-to-back traversal with a small fixed stack).
 
 * ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
   lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
-  ulp (:func:`pad_outward`; float64 measured ~5% faster than float32 boxes here: no
-  conversions in the slab test). An unused lane has an inverted box (``lo = +inf``) and is
-  never entered.
+  ulp (:func:`.bvh_mesh.pad_outward`; float64 measured ~5% faster than float32 boxes
+  here: no conversions in the slab test). An unused lane has an inverted box
+  (``lo = +inf``) and is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
 
@@ -27,9 +30,7 @@ so no ray slips through a shared edge or vertex.
 
 from __future__ import annotations
 
-import hashlib
 import logging
-import time
 from typing import NamedTuple
 
 import numba
@@ -37,18 +38,12 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from .bvh_build import DEPTH_CAP, NEVER_STOP
+from .bvh_mesh import MeshBVH
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
 
-#: Most primitives in a leaf (the leaf code keeps the count in 3 bits).
-MAX_LEAF = 4
-#: SAH bins per axis.
-SAH_BINS = 24
-#: SAH cost of one node traversal relative to one primitive test.
-SAH_TRAVERSAL_COST = 1.0
-#: Past this depth the builder splits at the object median (bounds the traversal stack).
-DEPTH_CAP = 60
 #: Traversal stack entries: a 4-wide visit pushes <= 4 and pops 1, the depth is <= DEPTH_CAP
 #: + 31 (median splits below the cap add <= 31 levels).
 STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
@@ -56,24 +51,6 @@ STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
 CHUNK = 64
 #: Work items a thread takes at a time (dynamic scheduling).
 PARALLEL_CHUNKSIZE = 16
-
-
-class FlatBVH(NamedTuple):
-    """A flattened 4-wide BVH (see the module docstring)."""
-
-    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
-    child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
-    perm: np.ndarray  # (n,) int32, primitive ids in leaf order
-
-
-class MeshBVH(NamedTuple):
-    """The bottom-level BVH of one mesh, in object space."""
-
-    bvh: FlatBVH
-    tv: np.ndarray  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
-    tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
-    sah_cost: float
-    build_s: float
 
 
 class SceneBVH(NamedTuple):
@@ -91,380 +68,55 @@ class SceneBVH(NamedTuple):
     inst_inv: np.ndarray  # (I, 4, 4) float64 world -> object
 
 
-# ----------------------------------------------------------------------------- build
+class PlacedMesh(NamedTuple):
+    """A mesh's bottom-level BVH as placed in a :class:`SceneBVH`'s concatenated arrays:
+    views of them, whose child codes and triangle ids carry the offsets of that placement
+    (all zero for a BVH just built), so the scene holds each mesh's tree once."""
+
+    bounds: np.ndarray  # (N, 24) float64
+    child: np.ndarray  # (N, 4) int32, node indices + node_base, leaf starts + leaf_base
+    tv: np.ndarray  # (m, 9) float64, triangle vertices in leaf order
+    tri: np.ndarray  # (m,) int32, mesh triangle index + tri_base, leaf order
+    node_base: int
+    leaf_base: int
+    tri_base: int
+    sah_cost: float
+
+    @classmethod
+    def built(cls, mb: MeshBVH) -> PlacedMesh:
+        return cls(mb.bvh.bounds, mb.bvh.child, mb.tv, mb.tri, 0, 0, 0, mb.sah_cost)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _half_area(b0, b1, b2, b3, b4, b5):
-    dx, dy, dz = b3 - b0, b4 - b1, b5 - b2
-    if dx < 0.0:
-        return 0.0
-    return dx * dy + dy * dz + dz * dx
+def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
+    """Concatenate mesh BVHs (mesh ``k`` owns global triangles from ``mesh_tri_start[k]``).
 
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _range_box(lo, hi, perm, start, end, box):
-    for k in range(3):
-        box[k] = np.inf
-        box[3 + k] = -np.inf
-    for j in range(start, end):
-        p = perm[j]
-        for k in range(3):
-            box[k] = min(box[k], lo[p, k])
-            box[3 + k] = max(box[3 + k], hi[p, k])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _centroid_bounds(cen, perm, start, end, cmin, cmax):
-    """Bounds ``cmin``, ``cmax`` (3,) of the centroids of primitives ``perm[start:end]``."""
-    for k in range(3):
-        cmin[k] = np.inf
-        cmax[k] = -np.inf
-    for j in range(start, end):
-        p = perm[j]
-        for k in range(3):
-            cmin[k] = min(cmin[k], cen[p, k])
-            cmax[k] = max(cmax[k], cen[p, k])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _sah_split(lo, hi, cen, perm, start, end, cmin, cmax, nbins, bin_n, bin_b, right_a,
-               right_n):
-    """The best binned-SAH split of primitives ``perm[start:end]`` over their centroid
-    bounds, on all three axes: ``(cost, axis, bin)``, the split between bins ``bin`` and
-    ``bin + 1`` (axis -1: no split; ``cost`` unnormalised). ``bin_n .. right_n``: the
-    bins' scratch arrays."""
-    best_cost = np.inf
-    best_axis = -1
-    best_bin = -1
-    bin_n[:, :] = 0
-    for k in range(3):
-        for b in range(nbins):
-            bin_b[k, b, 0:3] = np.inf
-            bin_b[k, b, 3:6] = -np.inf
-    for j in range(start, end):
-        p = perm[j]
-        for k in range(3):
-            ext = cmax[k] - cmin[k]
-            if ext <= 0.0:
-                continue
-            b = int((cen[p, k] - cmin[k]) * (nbins / ext))
-            b = min(max(b, 0), nbins - 1)
-            bin_n[k, b] += 1
-            for q in range(3):
-                bin_b[k, b, q] = min(bin_b[k, b, q], lo[p, q])
-                bin_b[k, b, 3 + q] = max(bin_b[k, b, 3 + q], hi[p, q])
-    rb = np.empty(6)
-    lb = np.empty(6)
-    for k in range(3):
-        if cmax[k] - cmin[k] <= 0.0:
-            continue
-        # sweep from the right: area and count of bins b.. nbins-1
-        rb[0:3] = np.inf
-        rb[3:6] = -np.inf
-        cnt = 0
-        for b in range(nbins - 1, 0, -1):
-            cnt += bin_n[k, b]
-            for q in range(3):
-                rb[q] = min(rb[q], bin_b[k, b, q])
-                rb[3 + q] = max(rb[3 + q], bin_b[k, b, 3 + q])
-            right_n[b] = cnt
-            right_a[b] = _half_area(rb[0], rb[1], rb[2], rb[3], rb[4], rb[5])
-        lb[0:3] = np.inf
-        lb[3:6] = -np.inf
-        cnt = 0
-        for b in range(nbins - 1):  # split between bin b and b + 1
-            cnt += bin_n[k, b]
-            for q in range(3):
-                lb[q] = min(lb[q], bin_b[k, b, q])
-                lb[3 + q] = max(lb[3 + q], bin_b[k, b, 3 + q])
-            nr = right_n[b + 1]
-            if cnt == 0 or nr == 0:
-                continue
-            la = _half_area(lb[0], lb[1], lb[2], lb[3], lb[4], lb[5])
-            cost = la * cnt + right_a[b + 1] * nr
-            if cost < best_cost:
-                best_cost, best_axis, best_bin = cost, k, b
-    return best_cost, best_axis, best_bin
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _partition(cen, perm, start, end, k, cmin_k, ext, nbins, split_bin):
-    """Reorder ``perm[start:end]``: primitives whose centroid falls in bins up to
-    ``split_bin`` on axis ``k`` first. Returns where the others start."""
-    i, j = start, end - 1
-    while i <= j:
-        b = int((cen[perm[i], k] - cmin_k) * (nbins / ext))
-        b = min(max(b, 0), nbins - 1)
-        if b <= split_bin:
-            i += 1
-        else:
-            perm[i], perm[j] = perm[j], perm[i]
-            j -= 1
-    return i
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _median_split(cen, perm, start, end, cmin, cmax):
-    """Object median along the widest centroid axis: sorts ``perm[start:end]`` along it and
-    returns the middle."""
-    k = 0
-    for q in range(1, 3):
-        if cmax[q] - cmin[q] > cmax[k] - cmin[k]:
-            k = q
-    count = end - start
-    if count > 1:
-        keys = np.empty(count)
-        for j in range(count):
-            keys[j] = cen[perm[start + j], k]
-        order = np.argsort(keys, kind="mergesort")
-        seg = perm[start:end].copy()
-        for j in range(count):
-            perm[start + j] = seg[order[j]]
-    return (start + end) // 2
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def build_flat(lo, hi, max_leaf, nbins, trav_cost):
-    """Binned-SAH BVH over primitive boxes.
-
-    lo, hi : (n, 3) float64 primitive bounds (n >= 1)
-    Returns ``bounds (N, 12) float64, child (N, 2) int32, perm (n,) int32, sah_cost``
-    (``sah_cost`` is the SAH estimate of the whole tree in units of one primitive test).
-    Depth first from an explicit stack of tasks (a node's primitive range): each becomes a
-    leaf, or is split (:func:`_sah_split`, else :func:`_median_split`) into two tasks.
+    Returns ``bounds, child, tv, tri (global), mesh_root`` and the meshes placed there
+    (views: keep those, not the arguments, so nothing is held twice).
     """
-    n = lo.shape[0]
-    perm = np.arange(n).astype(np.int32)
-    cen = 0.5 * (lo + hi)
-    cap = max(n, 2)
-    bounds = np.empty((cap, 12))
-    child = np.empty((cap, 2), np.int32)
-    # pending tasks (DFS): parent node, slot, start, end, depth; plus the task's box
-    t_int = np.empty((2 * STACK_SIZE, 5), np.int64)
-    t_box = np.empty((2 * STACK_SIZE, 6))
-    bin_n = np.zeros((3, nbins), np.int64)
-    bin_b = np.empty((3, nbins, 6))
-    right_a = np.empty(nbins)
-    right_n = np.empty(nbins, np.int64)
-    box = np.empty(6)
-    lbox = np.empty(6)
-    rbox = np.empty(6)
-    cmin = np.empty(3)
-    cmax = np.empty(3)
-    # node 0 is the root; its own box is implicit (the instance / scene box)
-    _range_box(lo, hi, perm, 0, n, box)
-    root_area = max(_half_area(box[0], box[1], box[2], box[3], box[4], box[5]), 1e-300)
-    sah = 0.0
-    nn = 1
-    sp = 0
-    t_int[0, 0], t_int[0, 1], t_int[0, 2], t_int[0, 3], t_int[0, 4] = -1, 0, 0, n, 0
-    t_box[0, :] = box
-    while sp >= 0:
-        parent, slot, start, end, depth = (t_int[sp, 0], t_int[sp, 1], t_int[sp, 2],
-                                           t_int[sp, 3], t_int[sp, 4])
-        box[:] = t_box[sp]
-        sp -= 1
-        count = end - start
-        area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
-        _centroid_bounds(cen, perm, start, end, cmin, cmax)
-        best_cost, best_axis, best_bin = np.inf, -1, -1
-        if count > 1 and depth < DEPTH_CAP:
-            best_cost, best_axis, best_bin = _sah_split(lo, hi, cen, perm, start, end, cmin,
-                                                        cmax, nbins, bin_n, bin_b, right_a,
-                                                        right_n)
-        split_cost = trav_cost + best_cost / max(area, 1e-300)
-        make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
-        if make_leaf and parent >= 0:
-            bounds[parent, 6 * slot:6 * slot + 6] = box
-            child[parent, slot] = ~((start << 3) | count)
-            sah += count * area / root_area
-            continue
-        if best_axis >= 0 and not make_leaf:
-            mid = _partition(cen, perm, start, end, best_axis, cmin[best_axis],
-                             cmax[best_axis] - cmin[best_axis], nbins, best_bin)
-        else:
-            # no usable SAH split (coincident centroids, depth cap, or a root that is one
-            # leaf)
-            mid = _median_split(cen, perm, start, end, cmin, cmax)
-        # --- allocate the inner node (the root is node 0, already allocated)
-        if parent >= 0:
-            node = nn
-            nn += 1
-            bounds[parent, 6 * slot:6 * slot + 6] = box
-            child[parent, slot] = node
-            sah += trav_cost * area / root_area
-        else:
-            node = 0
-            sah += trav_cost
-            if count == 1 or make_leaf:  # the whole mesh is one leaf: child 1 is empty
-                bounds[0, 0:6] = box
-                child[0, 0] = ~((start << 3) | count)
-                bounds[0, 6:9] = np.inf
-                bounds[0, 9:12] = -np.inf
-                child[0, 1] = ~((start << 3) | 1)
-                sah += count * area / root_area
-                continue
-        _range_box(lo, hi, perm, start, mid, lbox)
-        _range_box(lo, hi, perm, mid, end, rbox)
-        # push right then left so the left child is processed (and numbered) first
-        sp += 1
-        t_int[sp, 0], t_int[sp, 1], t_int[sp, 2], t_int[sp, 3], t_int[sp, 4] = (
-            node, 1, mid, end, depth + 1)
-        t_box[sp, :] = rbox
-        sp += 1
-        t_int[sp, 0], t_int[sp, 1], t_int[sp, 2], t_int[sp, 3], t_int[sp, 4] = (
-            node, 0, start, mid, depth + 1)
-        t_box[sp, :] = lbox
-    return bounds[:nn].copy(), child[:nn].copy(), perm, sah
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2):
-    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
-
-    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
-    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
-    """
-    n2 = c2.shape[0]
-    b4 = np.empty((n2, 24))
-    c4 = np.empty((n2, 4), np.int32)
-    todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
-    cb = np.empty((4, 6))
-    cc = np.empty(4, np.int64)
-    sp = 0
-    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
-    sp = 1
-    m = 0
-    while sp > 0:
-        sp -= 1
-        bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
-        k = m
-        m += 1
-        if parent >= 0:
-            c4[parent, lane] = k
-        cnt = 0
-        for j in range(2):
-            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-                cb[cnt, :] = b2[bn, 6 * j:6 * j + 6]
-                cc[cnt] = c2[bn, j]
-                cnt += 1
-        while cnt < 4:
-            pick = -1
-            best = -1.0
-            for j in range(cnt):
-                if cc[j] >= 0:
-                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
-                                      cb[j, 5])
-                    if area > best:
-                        best, pick = area, j
-            if pick < 0:
-                break
-            inner = cc[pick]
-            cb[pick, :] = b2[inner, 0:6]
-            cc[pick] = c2[inner, 0]
-            cb[cnt, :] = b2[inner, 6:12]
-            cc[cnt] = c2[inner, 1]
-            cnt += 1
-        for j in range(4):
-            if j < cnt:
-                for q in range(6):
-                    b4[k, 4 * q + j] = cb[j, q]
-                c4[k, j] = cc[j]
-            else:
-                for q in range(3):
-                    b4[k, 4 * q + j] = np.inf
-                    b4[k, 12 + 4 * q + j] = -np.inf
-                c4[k, j] = -1  # ~0: a leaf of no triangles
-        for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
-            if cc[j] >= 0:
-                todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
-                sp += 1
-    return b4[:m].copy(), c4[:m].copy()
-
-
-def pad_outward(b64: np.ndarray) -> np.ndarray:
-    """Child boxes (N, 12) float64 widened by one ulp on every side.
-
-    A ray with a zero direction component has a huge finite reciprocal (:func:`_inv_dir`);
-    if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
-    +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
-    geometry, an origin on a face is outside the geometry, so culling it is right.
-    """
-    b = b64.reshape(-1, 2, 2, 3)
-    out = np.empty_like(b)
-    out[:, :, 0] = np.nextafter(b[:, :, 0], -np.inf)
-    out[:, :, 1] = np.nextafter(b[:, :, 1], np.inf)
-    bad = ~np.isfinite(b)  # the inverted (+inf, -inf) box of an empty child stays as is
-    out[bad] = b[bad]
-    return np.ascontiguousarray(out.reshape(-1, 12))
-
-
-def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide)."""
-    b4, c4 = collapse4(pad_outward(b64), child)
-    return FlatBVH(b4, c4, perm)
-
-
-def mesh_triangles(sa, mesh: int) -> np.ndarray:
-    """Object-space vertices of mesh ``mesh``'s triangles: (m, 3, 3) float64."""
-    s, e = sa.mesh_tri_start[mesh], sa.mesh_tri_start[mesh + 1]
-    return sa.verts[sa.tris[s:e]]
-
-
-def mesh_key(tv: np.ndarray) -> bytes:
-    """Content hash of a mesh's triangle vertices (m, 3, 3) float64."""
-    return hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
-
-
-def build_mesh_bvh(tv: np.ndarray) -> MeshBVH:
-    """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64."""
-    t0 = time.perf_counter()
-    lo = np.ascontiguousarray(tv.min(axis=1))
-    hi = np.ascontiguousarray(tv.max(axis=1))
-    b64, child, perm, sah = build_flat(lo, hi, MAX_LEAF, SAH_BINS, SAH_TRAVERSAL_COST)
-    flat = flatten(b64, child, perm)
-    return MeshBVH(flat, np.ascontiguousarray(tv[perm].reshape(-1, 9)), perm, float(sah),
-                   time.perf_counter() - t0)
-
-
-def build_top(inst_aabb: np.ndarray) -> FlatBVH:
-    """Top-level BVH over instance world boxes (I, 2, 3) float64, padded by
-    :data:`~.tolerances.INSTANCE_BOX_PAD_REL` of their magnitude (the world->object transform
-    of a ray rounds)."""
-    lo = inst_aabb[:, 0]
-    hi = inst_aabb[:, 1]
-    mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
-    pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
-    b64, child, perm, _ = build_flat(np.ascontiguousarray(lo - pad),
-                                     np.ascontiguousarray(hi + pad), 1, SAH_BINS,
-                                     SAH_TRAVERSAL_COST)
-    return flatten(b64, child, perm)
-
-
-def concat_meshes(meshes: list[MeshBVH], mesh_tri_start: np.ndarray):
-    """Concatenate mesh BVHs: returns ``bounds, child, tv, tri (global), mesh_root``."""
-    node_base = np.cumsum([0] + [len(m.bvh.child) for m in meshes])
-    tri_base = np.cumsum([0] + [len(m.tri) for m in meshes])
-    childs = []
-    for m, nb, tb in zip(meshes, node_base[:-1], tri_base[:-1], strict=True):
-        c = m.bvh.child.astype(np.int64)
-        leaf = c < 0
-        code = ~c
-        moved = ~(((code >> 3) + tb) << 3 | (code & 7))
-        childs.append(np.where(leaf & (c != -1), moved, np.where(leaf, c, c + nb)))
-    child = np.concatenate(childs)
-    if child.min() < np.iinfo(np.int32).min:
+    node_base = np.cumsum([0] + [len(m.child) for m in meshes])
+    leaf_base = np.cumsum([0] + [len(m.tri) for m in meshes])
+    if leaf_base[-1] >= 1 << 28:
         raise OverflowError("BVH: too many triangles for 32-bit leaf codes")
-    tri = np.concatenate([m.tri.astype(np.int64) + mesh_tri_start[k]
-                          for k, m in enumerate(meshes)])
-    return (np.ascontiguousarray(np.concatenate([m.bvh.bounds for m in meshes])),
-            np.ascontiguousarray(child.astype(np.int32)),
-            np.ascontiguousarray(np.concatenate([m.tv for m in meshes])),
-            np.ascontiguousarray(tri.astype(np.int32)),
-            node_base[:-1].astype(np.int32))
+    childs, tris = [], []
+    for k, (m, nb, lb) in enumerate(zip(meshes, node_base[:-1], leaf_base[:-1], strict=True)):
+        c = m.child
+        dn, dl = int(nb) - m.node_base, int(lb) - m.leaf_base
+        if dn or dl:
+            c = c.astype(np.int64)
+            c = np.where(c >= 0, c + dn, np.where(c == -1, c, ~((~c) + (dl << 3))))
+        childs.append(c.astype(np.int32, copy=False))
+        dt = int(mesh_tri_start[k]) - m.tri_base
+        tris.append(m.tri + np.int32(dt) if dt else m.tri)
+    bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]))
+    child = np.ascontiguousarray(np.concatenate(childs))
+    tv = np.ascontiguousarray(np.concatenate([m.tv for m in meshes]))
+    tri = np.ascontiguousarray(np.concatenate(tris).astype(np.int32, copy=False))
+    placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tv[lb:le], tri[lb:le], int(nb), int(lb),
+                         int(mesh_tri_start[k]), m.sah_cost)
+              for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],
+                                                          node_base[1:], leaf_base[:-1],
+                                                          leaf_base[1:], strict=True))]
+    return bounds, child, tv, tri, node_base[:-1].astype(np.int32), placed
 
 
 # ----------------------------------------------------------------------------- traversal
@@ -484,14 +136,6 @@ def ray_to_object(inv, i, ox, oy, oz, dx, dy, dz):
             inv[i, 0, 0] * dx + inv[i, 0, 1] * dy + inv[i, 0, 2] * dz,
             inv[i, 1, 0] * dx + inv[i, 1, 1] * dy + inv[i, 1, 2] * dz,
             inv[i, 2, 0] * dx + inv[i, 2, 1] * dy + inv[i, 2, 2] * dz)
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _inv_dir(x):
-    # a zero component gets a huge finite reciprocal: (b - o) * inv stays NaN-free
-    if x == 0.0:
-        return 1e300
-    return 1.0 / x
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -689,10 +333,6 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
                 out_prim[r] = sb.tri[p]
                 out_u[r] = u
                 out_v[r] = v
-
-
-#: The stop flag of queries nobody cancels.
-NEVER_STOP = np.zeros(1, np.int32)
 
 
 def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits,

@@ -9,7 +9,7 @@ float64 hit. This module finds those objects cheaply:
 
 * **pairs**: the live objects whose boxes overlap, each pair with the overlap of its two
   boxes padded by :data:`PAIR_ORIGIN_MAGNITUDES` times the scene magnitude's reach, in a
-  small BVH (:func:`.bvh.build_top`), and per object the bounds of its pairs' regions. A
+  small BVH (:func:`.bvh_mesh.build_top`), and per object the bounds of its pairs' regions. A
   hit point on object ``i`` outside those bounds has nothing to re-test (one box test: most
   hits); inside, the regions holding it name the objects to re-test.
 * **objects**: for rays starting farther out than the pairs were padded for, the live
@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from .bvh import build_top
+from .bvh_mesh import build_top
 
 #: The pair regions are padded for ray origins up to this many scene magnitudes from the
 #: world origin (rays starting farther out take the per-object query).
@@ -111,7 +111,7 @@ def build_tie_index(inst_aabb: np.ndarray, live: np.ndarray, magnitude: float) -
 
 @njit(cache=True, nogil=True)
 def _holding(bounds, child, px, py, pz, pad, stack, out):
-    """Leaf positions of the boxes of a flat BVH (:func:`.bvh.build_top`) that hold the
+    """Leaf positions of the boxes of a flat BVH (:func:`.bvh_mesh.build_top`) that hold the
     point padded by ``pad``; writes up to ``len(out)`` and returns how many there are."""
     k = 0
     stack[0] = 0

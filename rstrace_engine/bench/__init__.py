@@ -4,4 +4,4 @@ Each benchmark is a module of this package with a ``main(argv) -> int`` function
 reported as ratios measured in the same run, never as absolute thresholds.
 """
 
-BENCHMARKS = ("raycast", "frame", "trade", "edit", "accel", "viewport", "ritree")
+BENCHMARKS = ("raycast", "frame", "trade", "edit", "accel", "viewport", "ritree", "scale")

@@ -52,6 +52,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     check_matrix,
     checked_camera,
 )
+from .footprint import check_fits, estimate
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
 
 log = logging.getLogger(__name__)
@@ -238,6 +239,11 @@ class SceneArrays(NamedTuple):
     light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
 
 
+def _footprint(mesh: dict) -> int:
+    """Estimated peak bytes of a validated mesh (:func:`~.footprint.estimate`)."""
+    return estimate(len(mesh["tris"]), len(mesh["verts"]))
+
+
 #: What a tombstoned material slot packs as (no object uses it: never shaded).
 _DEAD_MATERIAL = Material("<deleted>").validated()
 #: The box of a dead instance slot: empty (lo > hi), finite, so no overlap test passes.
@@ -332,6 +338,10 @@ class Scene:
         self._arrays: SceneArrays | None = None
         self._counts = None  # (objects, triangles) of the packing in _arrays
         self._mesh_arrays = None  # packed geometry, reused while meshes are unchanged
+        #: Bytes the meshes may need in all (:mod:`.footprint`); None: the memory available
+        #: when a mesh is added.
+        self.memory_limit: int | None = None
+        self._mesh_bytes = 0  # the meshes' estimated footprint, in all
 
     def copy(self) -> Scene:
         """An independent copy (item data are shared: they are replaced, never mutated)."""
@@ -352,6 +362,8 @@ class Scene:
         c._arrays = self._arrays
         c._counts = self._counts
         c._mesh_arrays = self._mesh_arrays
+        c.memory_limit = self.memory_limit
+        c._mesh_bytes = self._mesh_bytes
         return c
 
     # -- lookups -----------------------------------------------------------------------
@@ -437,7 +449,9 @@ class Scene:
 
         Returns its id: the lowest tombstoned mesh slot, else a new one.
         """
+        self._check_footprint(mesh, None)
         checked = self._checked_mesh(mesh)
+        self._mesh_bytes += _footprint(checked)
         key = self.mesh_keys.new_key(key, mesh.name, len(self.meshes))
         mid = self.mesh_keys.place(self.meshes, checked, key)
         self._arrays = None
@@ -463,6 +477,7 @@ class Scene:
             raise SceneError(f"mesh '{name}': still used by object "
                              f"'{self.instances[users[0]]['name']}' (delete or re-mesh "
                              f"its {len(users)} user(s) first)")
+        self._mesh_bytes -= _footprint(self.meshes[mesh_id])
         self.meshes[mesh_id] = None
         key = next(k for k, v in self.mesh_keys.slot.items() if v == mesh_id)
         del self.mesh_keys.slot[key]
@@ -474,12 +489,27 @@ class Scene:
         """Replace mesh ``mesh_id``'s data; every object using it follows."""
         if not self._live_mesh(mesh_id):
             raise SceneError(f"mesh '{mesh.name}': unknown mesh id {mesh_id}")
-        self.meshes[mesh_id] = self._checked_mesh(mesh)
+        self._check_footprint(mesh, mesh_id)
+        checked = self._checked_mesh(mesh)
+        self._mesh_bytes += _footprint(checked) - _footprint(self.meshes[mesh_id])
+        self.meshes[mesh_id] = checked
         for i in self.instances:
             if i is not None and i["mesh"] == mesh_id:
                 self._place(i)
         self._arrays = None
         self._mesh_arrays = None
+
+    def _check_footprint(self, mesh: Mesh, replaced: int | None) -> None:
+        """Refuse (before anything is copied) a mesh the memory cannot hold
+        (:func:`~.footprint.check_fits`, counting the other meshes but ``replaced``)."""
+        try:
+            m, v = int(np.shape(mesh.triangles)[0]), int(np.shape(mesh.vertices)[0])
+        except (TypeError, ValueError, IndexError):
+            return  # not arrays of rows: validation says what is wrong
+        others = self._mesh_bytes
+        if replaced is not None:
+            others -= _footprint(self.meshes[replaced])
+        check_fits(mesh.name, m, v, others, self.memory_limit)
 
     def _checked_mesh(self, mesh: Mesh) -> dict:
         n = mesh.name

@@ -42,6 +42,26 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0, name: str = "icosphere
                 corner_uvs=uv[f].astype(np.float32))
 
 
+def lumpy_sphere(triangles: int, radius: float = 1.0, name: str = "lumpy") -> Mesh:
+    """A latitude-longitude sphere of about ``triangles`` triangles (rings x 2 rings quads),
+    its radius displaced by a few sine waves (5% and 2%): a stand-in for a dense scanned or
+    subdivided surface. The rings stop half a ring short of the poles (no degenerate
+    triangles: two tiny holes there)."""
+    rings = max(int(round((triangles / 4) ** 0.5)), 2)
+    segs = 2 * rings
+    th = (np.arange(rings + 1) + 0.5) / (rings + 1) * np.pi
+    ph = np.arange(segs) * (2 * np.pi / segs)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    r = radius * (1 + 0.05 * np.sin(7 * T) * np.sin(9 * P) + 0.02 * np.sin(23 * T + 3 * P))
+    v = np.stack([r * np.sin(T) * np.cos(P), r * np.sin(T) * np.sin(P), r * np.cos(T)],
+                 -1).reshape(-1, 3)
+    idx = np.arange((rings + 1) * segs).reshape(rings + 1, segs)
+    a, b = idx[:-1], np.roll(idx[:-1], -1, 1)
+    c, d = idx[1:], np.roll(idx[1:], -1, 1)
+    f = np.stack([np.stack([a, c, d], -1), np.stack([a, d, b], -1)], 2).reshape(-1, 3)
+    return Mesh(name, v, f.astype(np.int32))
+
+
 def uv_sphere(segments: int = 32, rings: int = 16, radius: float = 1.0,
               name: str = "uv_sphere") -> Mesh:
     """A latitude/longitude sphere with smooth normals."""

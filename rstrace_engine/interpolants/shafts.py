@@ -6,7 +6,7 @@ and a world box ``bb (6,)`` containing it: the Haines-Wallace shaft between two 
 outward by an absolute slack (:data:`~.tolerances.SHAFT_SLACK_REL` of the scene's coordinate
 magnitude) so rounding never lets a touching triangle escape.
 
-Queries walk per-mesh binary BVHs built with :func:`.bvh.build_flat` (object space: a shaft's
+Queries walk per-mesh binary BVHs built with :func:`.bvh_build.build_flat` (object space: a shaft's
 planes are taken to object space exactly, :func:`to_object`) under a BVH over the instances'
 world boxes (:class:`QueryScene`). Triangles are clipped against the planes
 (Sutherland-Hodgman, :func:`clip_polygon`), so "meets the shaft" is exact up to the slack.
@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from ..accel import bvh
+from ..accel import bvh_build, bvh_mesh
 from ..geometry.mesh_topology import MeshTopology
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, SceneArrays
 
@@ -33,7 +33,7 @@ _STACK = 128
 class QueryScene(NamedTuple):
     """What the predicate kernels read: instance and triangle BVHs, topology, lights.
 
-    The BVHs are binary (:func:`.bvh.build_flat`): ``bounds (N, 12)`` float64 holds the boxes
+    The BVHs are binary (:func:`.bvh_build.build_flat`): ``bounds (N, 12)`` float64 holds the boxes
     of both children (``lo xyz, hi xyz`` each), ``child (N, 2)`` an inner node or a leaf
     ``~(start << 3 | count)`` over consecutive primitives in leaf order.
     """
@@ -120,18 +120,18 @@ def glossy_materials(sa: SceneArrays) -> np.ndarray:
 
 
 def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
-    b, c, perm, _ = bvh.build_flat(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
-                                   max_leaf, bvh.SAH_BINS, bvh.SAH_TRAVERSAL_COST)
+    b, c, perm, _ = bvh_build.build_flat(np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                                         max_leaf)
     return b, c, perm
 
 
 def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
-    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh`)."""
+    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh_build`)."""
     bounds, childs, tvs, tris, roots = [], [], [], [], []
     n_nodes = n_tris = 0
     for m in range(len(sa.mesh_tri_start) - 1):
-        tv = bvh.mesh_triangles(sa, m)
-        b, c, perm = binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh.MAX_LEAF)
+        tv = bvh_mesh.mesh_triangles(sa, m)
+        b, c, perm = binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
         c = c.astype(np.int64)
         code = ~c
         c = np.where(c < 0, ~(((code >> 3) + n_tris) << 3 | (code & 7)), c + n_nodes)

@@ -1,0 +1,217 @@
+"""Mesh BVHs: a mesh's triangles to the 4-wide layout the traversal reads (:mod:`.bvh`).
+
+The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
+(:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`), and the
+triangles' vertices are stored in leaf order. Meshes of fewer than
+:data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
+region to start; larger ones through parallel kernels.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from .. import tolerances as tol
+from .bvh_build import NEVER_STOP, PARALLEL_MIN, _half_area, build_flat, build_flat_boxes
+
+
+class FlatBVH(NamedTuple):
+    """A flattened 4-wide BVH (layout: :mod:`.bvh`)."""
+
+    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
+    child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
+    perm: np.ndarray  # (n,) int32, primitive ids in leaf order
+
+
+class MeshBVH(NamedTuple):
+    """The bottom-level BVH of one mesh, in object space."""
+
+    bvh: FlatBVH
+    tv: np.ndarray  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
+    tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
+    sah_cost: float
+    build_s: float
+
+
+
+# ----------------------------------------------------------------------------- 4-wide
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def collapse4(b2, c2):
+    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
+
+    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
+    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
+    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
+    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
+    The nodes are numbered depth first, whatever the binary numbering.
+    """
+    n2 = c2.shape[0]
+    b4 = np.empty((n2, 24))
+    c4 = np.empty((n2, 4), np.int32)
+    todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
+    cb = np.empty((4, 6))
+    cc = np.empty(4, np.int64)
+    sp = 0
+    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
+    sp = 1
+    m = 0
+    while sp > 0:
+        sp -= 1
+        bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
+        k = m
+        m += 1
+        if parent >= 0:
+            c4[parent, lane] = k
+        cnt = 0
+        for j in range(2):
+            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
+                cb[cnt, :] = b2[bn, 6 * j:6 * j + 6]
+                cc[cnt] = c2[bn, j]
+                cnt += 1
+        while cnt < 4:
+            pick = -1
+            best = -1.0
+            for j in range(cnt):
+                if cc[j] >= 0:
+                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
+                                      cb[j, 5])
+                    if area > best:
+                        best, pick = area, j
+            if pick < 0:
+                break
+            inner = cc[pick]
+            cb[pick, :] = b2[inner, 0:6]
+            cc[pick] = c2[inner, 0]
+            cb[cnt, :] = b2[inner, 6:12]
+            cc[cnt] = c2[inner, 1]
+            cnt += 1
+        for j in range(4):
+            if j < cnt:
+                for q in range(6):
+                    b4[k, 4 * q + j] = cb[j, q]
+                c4[k, j] = cc[j]
+            else:
+                for q in range(3):
+                    b4[k, 4 * q + j] = np.inf
+                    b4[k, 12 + 4 * q + j] = -np.inf
+                c4[k, j] = -1  # ~0: a leaf of no triangles
+        for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
+            if cc[j] >= 0:
+                todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
+                sp += 1
+    return b4[:m].copy(), c4[:m].copy()
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pad_outward(b64):
+    """Child boxes (N, 12) float64 widened by one ulp on every side.
+
+    A ray with a zero direction component has a huge finite reciprocal (``bvh._inv_dir``);
+    if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
+    +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
+    geometry, an origin on a face is outside the geometry, so culling it is right. The
+    inverted (+inf, -inf) box of an empty child stays as is.
+    """
+    out = np.empty_like(b64)
+    for i in range(b64.shape[0]):
+        for s in range(2):
+            for q in range(3):
+                lo = b64[i, 6 * s + q]
+                hi = b64[i, 6 * s + 3 + q]
+                out[i, 6 * s + q] = np.nextafter(lo, -np.inf) if np.isfinite(lo) else lo
+                out[i, 6 * s + 3 + q] = np.nextafter(hi, np.inf) if np.isfinite(hi) else hi
+    return out
+
+
+def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
+    """Binary build output -> the traversal layout (4-wide)."""
+    b4, c4 = collapse4(pad_outward(b64), child)
+    return FlatBVH(b4, c4, perm)
+
+
+# ----------------------------------------------------------------------------- meshes
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def gather_triangles(verts, tris, order):
+    """Vertices of triangles ``tris[order]`` in that order: (len(order), 9) float64."""
+    m = order.shape[0]
+    out = np.empty((m, 9))
+    for i in prange(m):
+        t = order[i]
+        for c in range(3):
+            for q in range(3):
+                out[i, 3 * c + q] = verts[tris[t, c], q]
+    return out
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def triangle_boxes(tv):
+    """Boxes (m, 6) float64 (lo, hi) of triangles ``tv`` (m, 9) float64."""
+    m = tv.shape[0]
+    pb = np.empty((m, 6))
+    for i in prange(m):
+        for q in range(3):
+            a, b, c = tv[i, q], tv[i, 3 + q], tv[i, 6 + q]
+            pb[i, q] = min(a, min(b, c))
+            pb[i, 3 + q] = max(a, max(b, c))
+    return pb
+
+
+def mesh_triangles(sa, mesh: int) -> np.ndarray:
+    """Object-space vertices of mesh ``mesh``'s triangles: (m, 3, 3) float64."""
+    s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
+    if e - s < PARALLEL_MIN:
+        return sa.verts[sa.tris[s:e]]
+    return gather_triangles(sa.verts, sa.tris, np.arange(s, e, dtype=np.int32)).reshape(-1, 3, 3)
+
+
+def mesh_key(tv: np.ndarray) -> bytes:
+    """Content hash of a mesh's triangle vertices (m, 3, 3) float64."""
+    return hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
+
+
+def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
+                   stop: np.ndarray = NEVER_STOP) -> MeshBVH:
+    """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64
+    (``grain``, ``stop``: :func:`build_flat`)."""
+    t0 = time.perf_counter()
+    flat9 = np.ascontiguousarray(tv, dtype=np.float64).reshape(-1, 9)
+    small = len(flat9) < PARALLEL_MIN  # (numpy then: no parallel region to start)
+    t3 = flat9.reshape(-1, 3, 3)
+    pb = (np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1) if small
+          else triangle_boxes(flat9))
+    b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
+    flat = flatten(b64, child, perm)
+    tv_leaf = flat9[perm] if small else gather_rows(flat9, perm)
+    return MeshBVH(flat, tv_leaf, perm, float(sah), time.perf_counter() - t0)
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def gather_rows(a, order):
+    """``a[order]`` for a (m, k) float64 array, in parallel."""
+    m, k = order.shape[0], a.shape[1]
+    out = np.empty((m, k))
+    for i in prange(m):
+        for q in range(k):
+            out[i, q] = a[order[i], q]
+    return out
+
+
+def build_top(inst_aabb: np.ndarray) -> FlatBVH:
+    """Top-level BVH over instance world boxes (I, 2, 3) float64, padded by
+    :data:`~.tolerances.INSTANCE_BOX_PAD_REL` of their magnitude (the world->object transform
+    of a ray rounds)."""
+    lo = inst_aabb[:, 0]
+    hi = inst_aabb[:, 1]
+    mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
+    pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
+    b64, child, perm, _ = build_flat(lo - pad, hi + pad, 1)
+    return flatten(b64, child, perm)

@@ -1,0 +1,227 @@
+"""The parallel BVH build (:mod:`rstrace_engine.accel.bvh_build`): the same tree on any
+thread count and as one sequential build, mesh BVHs reused through edits and held once,
+cancelled builds, meshes too large for the memory, and ``bench scale`` at a small size."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from rstrace_engine import warm_first
+from rstrace_engine.accel import bvh_build, bvh_mesh
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.bench import scale
+from rstrace_engine.cancel import CancelFlag, Cancelled
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.edits import MeshSet, ObjectTransform
+from rstrace_engine.geometry.scene import Material, Scene, SceneError
+from rstrace_engine.session import Session
+
+
+def _tv(mesh) -> np.ndarray:
+    return np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.triangles)]
+
+
+def _same_tree(a: bvh_mesh.MeshBVH, b: bvh_mesh.MeshBVH) -> None:
+    assert np.array_equal(a.bvh.bounds, b.bvh.bounds)
+    assert np.array_equal(a.bvh.child, b.bvh.child)
+    assert np.array_equal(a.tri, b.tri)
+    assert np.array_equal(a.tv, b.tv)
+
+
+def _skewed(n: int) -> np.ndarray:
+    """Triangles of geometrically shrinking sizes (deep, lopsided SAH trees)."""
+    s = 2.0 ** (-np.arange(n, dtype=np.float64) / 40)
+    return np.stack([np.stack([s, s, s], 1), np.stack([2 * s, s, s], 1),
+                     np.stack([s, 2 * s, s], 1)], 1)
+
+
+@pytest.mark.parametrize("tv", [
+    _tv(shapes.lumpy_sphere(30_000)),
+    np.tile(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float64), (3000, 1, 1)),
+    _skewed(4000),
+], ids=["lumpy", "coincident", "skewed"])
+def test_parallel_build_is_the_sequential_tree(tv):
+    """Top levels split in parallel (a small grain: many levels, many subtrees) give
+    exactly the tree of one sequential build, on one thread or all of them."""
+    seq = bvh_mesh.build_mesh_bvh(tv, grain=len(tv))
+    saved = numba.get_num_threads()
+    try:
+        for threads in sorted({1, saved}):
+            numba.set_num_threads(threads)
+            for grain in (64, None):
+                _same_tree(bvh_mesh.build_mesh_bvh(tv, grain=grain), seq)
+    finally:
+        numba.set_num_threads(saved)
+    assert sorted(seq.tri.tolist()) == list(range(len(tv)))
+
+
+def test_binary_nodes_are_packed():
+    """The binary build's nodes are all reachable from the root (none left unused by the
+    subtrees' stretches) and every primitive is in one leaf."""
+    tv = _tv(shapes.lumpy_sphere(20_000))
+    lo, hi = tv.min(axis=1), tv.max(axis=1)
+    b, c, perm, sah = bvh_build.build_flat(lo, hi, grain=256)
+    seen_nodes, seen_prims = set(), np.zeros(len(tv), int)
+    stack = [0]
+    while stack:
+        node = stack.pop()
+        seen_nodes.add(node)
+        for s in range(2):
+            ch = int(c[node, s])
+            if ch >= 0:
+                stack.append(ch)
+            else:
+                start, count = (~ch) >> 3, (~ch) & 7
+                seen_prims[start:start + count] += 1
+    assert seen_nodes == set(range(len(c)))
+    assert np.all(seen_prims == 1) and sah > 0
+    assert sorted(perm.tolist()) == list(range(len(tv)))
+
+
+def test_build_kernels_are_in_the_first_image_list():
+    assert set(bvh_build.BUILD_KERNELS) <= set(warm_first.FIRST_IMAGE_KERNELS)
+
+
+# ----------------------------------------------------------------------------- reuse
+
+
+def _big_and_small(big: int = 20_000) -> Scene:
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_instance(s.add_mesh(shapes.lumpy_sphere(big, name="big"), key="big"), np.eye(4),
+                   key="Big")
+    s.add_instance(s.add_mesh(shapes.icosphere(1, 0.2, name="small"), key="small"),
+                   shapes.transform((1.5, 0.0, 0.0)), key="Small")
+    return s
+
+
+def _rays(n: int = 4000, seed: int = 3):
+    rng = np.random.default_rng(seed)
+    o = rng.uniform(-3, 3, (n, 3))
+    d = rng.normal(size=(n, 3))
+    return o, d
+
+
+def _same_hits(acc, sa) -> None:
+    o, d = _rays()
+    h, ref = acc.closest_hit(o, d, 0.0, np.inf), create_accelerator("BVH", sa).closest_hit(
+        o, d, 0.0, np.inf)
+    for a, b in zip(h, ref, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_mesh_bvh_reused_through_edits_and_held_once():
+    """Moving the small object rebuilds no mesh BVH; re-meshing it rebuilds its BVH
+    alone, the big mesh's is reused (moved to its new place in the concatenation, which
+    holds every mesh's tree once), and the hits equal a fresh build's."""
+    session = Session(_big_and_small())
+    acc = session.accel
+    assert acc.stats["meshes_built"] == 2
+    session.apply([ObjectTransform("Small", shapes.transform((1.2, 0.3, 0.0)))])
+    assert acc.stats["meshes_built"] == 2 and acc.stats["meshes_reused"] == 0
+    _same_hits(acc, session.scene.arrays())
+    session.apply([MeshSet("small", shapes.icosphere(2, 0.25, name="small"))])
+    assert acc.stats["meshes_built"] == 3 and acc.stats["meshes_reused"] == 1
+    _same_hits(acc, session.scene.arrays())
+    # the scene's BVH arrays are the only copy: every cached mesh is a view of them
+    for placed in acc._cache.values():
+        for part, whole in ((placed.bounds, acc.sb.bounds), (placed.child, acc.sb.child),
+                            (placed.tv, acc.sb.tv), (placed.tri, acc.sb.tri)):
+            assert part.base is whole
+    # the big mesh grows: the small one's tree moves, and is still reused
+    session.apply([MeshSet("big", shapes.lumpy_sphere(30_000, name="big"))])
+    assert acc.stats["meshes_built"] == 4 and acc.stats["meshes_reused"] == 2
+    _same_hits(acc, session.scene.arrays())
+    assert acc.stats["memory_mb"] > 0 and session.stats["accel_memory_mb"] > 0
+
+
+# ----------------------------------------------------------------------------- cancel
+
+
+def test_cancelled_build_raises_and_keeps_nothing():
+    tv = _tv(shapes.lumpy_sphere(20_000))
+    flag = CancelFlag()
+    flag.set()
+    with pytest.raises(Cancelled):
+        bvh_mesh.build_mesh_bvh(tv, stop=flag.array)
+    with pytest.raises(Cancelled):
+        bvh_mesh.build_mesh_bvh(tv, grain=tv.shape[0], stop=flag.array)
+    with pytest.raises(Cancelled):
+        create_accelerator("BVH", _big_and_small().arrays(), cancel=flag)
+
+
+def test_cancelled_update_leaves_the_session_as_it_was():
+    session = Session(_big_and_small())
+    acc, sb, scene = session.accel, session.accel.sb, session.scene
+    before = scene.arrays()
+    session.submit([MeshSet("small", shapes.icosphere(2, 0.3, name="small"))])
+    flag = CancelFlag()
+    flag.set()
+    with pytest.raises(Cancelled):
+        session.apply([ObjectTransform("Big", shapes.transform((0.0, 0.0, 0.5)))], cancel=flag)
+    assert session.failed is None
+    assert session.scene is scene and session.scene.arrays() is before
+    assert session.accel is acc and acc.sb is sb
+    assert acc.stats["meshes_built"] == 2
+    _same_hits(acc, before)
+    # the queued edit is still queued: the next apply (not cancelled) makes it
+    flag.clear()
+    report = session.apply(cancel=flag)
+    assert report.edits == 1 and acc.stats["meshes_built"] == 3
+    _same_hits(acc, session.scene.arrays())
+
+
+def test_cancelled_first_build_builds_on_the_next_apply():
+    session = Session(_big_and_small(), build=False)
+    flag = CancelFlag()
+    flag.set()
+    with pytest.raises(Cancelled):
+        session.apply(cancel=flag)
+    assert session.accel is None and session.failed is None
+    session.apply()
+    assert session.accel.stats["meshes_built"] == 2
+
+
+# ----------------------------------------------------------------------------- memory
+
+
+def test_mesh_too_large_for_the_memory_is_refused_before_it_is_copied():
+    s = Scene()
+    s.add_material(Material("m"))
+    small = shapes.icosphere(2, name="pebble")
+    s.memory_limit = 2_000_000  # bytes: a few thousand triangles
+    mid = s.add_mesh(small)
+    big = shapes.lumpy_sphere(10_000, name="Boulder")
+    with pytest.raises(SceneError, match=r"mesh 'Boulder': 10,\d{3} triangles need about "
+                                         r".* more than the 1.9 MiB"):
+        s.add_mesh(big)
+    assert len(s.meshes) == 1
+    with pytest.raises(SceneError, match="mesh 'Boulder'"):
+        s.set_mesh(mid, big)
+    assert s.meshes[mid]["name"] == "pebble"
+    s.set_mesh(mid, shapes.icosphere(3, name="pebble"))  # 1,280 triangles fit
+    s.copy().add_mesh(shapes.icosphere(1, name="grain"))  # the limit is copied
+    c = s.copy()
+    with pytest.raises(SceneError, match="mesh 'Boulder'"):
+        c.add_mesh(big)
+    # without a limit, the memory available decides: an ordinary mesh fits
+    s.memory_limit = None
+    s.add_mesh(big)
+
+
+# ----------------------------------------------------------------------------- bench
+
+
+def test_bench_scale_runs_small():
+    res = scale.run(sizes=(3_000,), duplicates=(6, 800), repeats=1, warm=False)
+    dense, dup = res["rows"]
+    assert dense["unique_triangles"] >= 3_000 and dup["objects"] == 6 + 1
+    assert dup["instanced_triangles"] > 5 * dup["unique_triangles"]
+    for row in res["rows"]:
+        assert row["numba_build_s"] > 0 and row["numba_mrays"] > 0
+        mem = row["bytes_per_triangle"]
+        assert 0 < mem["bvh"] < mem["total"] <= mem["model"] + mem["packed"] + mem["bvh"] + 0.2
+    # the BVH holds each mesh's tree once: well under twice its leaf-ordered triangles
+    assert dense["bytes_per_triangle"]["bvh"] < 160

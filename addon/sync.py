@@ -130,6 +130,9 @@ class HeldLock:
 
 #: How often a build is checked for a cancel (s): Esc stops an F12 within this.
 CANCEL_POLL_S = 0.1
+#: How long a cancelled build is given to stop at the core's flag before it is left to
+#: finish on its own (s).
+CANCEL_JOIN_S = 0.3
 
 
 def build(make, triangles: int = 0, cancel=None, progress=None,
@@ -138,12 +141,17 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
     accelerator), saying so through ``progress`` and stopping when ``cancel()`` turns True
     (polled every :data:`CANCEL_POLL_S`); returns the built session.
 
-    The build runs on a thread of its own; a cancelled one is left to finish there (its
-    kernels cannot be stopped halfway) and is thrown away: :class:`export.Cancelled` is
-    raised at once. The kernels it still runs hold ``lock`` (``runtime.RENDER_LOCK``,
-    handed over: the thread releases it when done), so nothing else runs kernels beside it.
+    The build runs on a thread of its own. A cancel sets the core's
+    :class:`~rstrace_engine.cancel.CancelFlag`, which the BVH build polls between levels,
+    subtrees and meshes (the session stays as it was); the thread is joined when it stops
+    within :data:`CANCEL_JOIN_S`. One still busy (making the scene's arrays polls nothing) is
+    left to finish there and is thrown away: :class:`export.Cancelled` is raised at once, and
+    the kernels it still runs hold ``lock`` (``runtime.RENDER_LOCK``, handed over: the thread
+    releases it when done), so nothing else runs kernels beside it.
     """
     import threading
+
+    from rstrace_engine.cancel import CancelFlag, Cancelled
 
     if cancel is None:
         session = make()
@@ -155,10 +163,14 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
     failed: list = []
     abandoned = [False]
 
+    flag = CancelFlag()
+
     def run() -> None:
         try:
             session = make()
-            session.apply()
+            if flag():
+                raise Cancelled
+            session.apply(cancel=flag)
             out.append(session)
         except BaseException as exc:  # handed to the caller
             failed.append(exc)
@@ -176,13 +188,22 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
             progress(f"building the scene and its BVH over {triangles:,} triangles "
                      f"({time.perf_counter() - t0:.0f} s, Esc cancels)")
         if cancel():
+            flag.set()
+            if done.wait(CANCEL_JOIN_S):
+                worker.join()
+                raise export.Cancelled
             with guard:
                 if not done.is_set():
                     abandoned[0] = True
                     if lock is not None:
                         lock.hand_over()
                     raise export.Cancelled
+            worker.join()
+            raise export.Cancelled
+    worker.join()
     if failed:
+        if isinstance(failed[0], Cancelled):
+            raise export.Cancelled
         raise failed[0]
     return out[0]
 

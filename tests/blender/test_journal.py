@@ -245,14 +245,14 @@ def test_esc_stops_a_long_first_build_and_leaves_no_session(monkeypatch):
     real = Session.apply
     finished = threading.Event()
 
-    def slow_apply(self, edits=()):
+    def slow_apply(self, edits=(), cancel=None):
         if self.accel is None:
-            time.sleep(2.0)  # a long build
+            time.sleep(2.0)  # a long build that polls no flag
             try:
                 return real(self, edits)
             finally:
                 finished.set()
-        return real(self, edits)
+        return real(self, edits, cancel=cancel)
 
     monkeypatch.setattr(Session, "apply", slow_apply)
     engine = _Esc(0.3)
@@ -270,6 +270,40 @@ def test_esc_stops_a_long_first_build_and_leaves_no_session(monkeypatch):
     deadline = time.perf_counter() + 10
     while addon.runtime.RENDER_LOCK.locked() and time.perf_counter() < deadline:
         time.sleep(0.01)
+    assert not addon.runtime.RENDER_LOCK.locked()
+    monkeypatch.setattr(Session, "apply", real)
+    inc, stats = _f12()
+    assert stats["new_session"]
+    np.testing.assert_array_equal(inc, _fresh())
+
+
+def test_esc_stops_a_build_at_the_core_flag_and_joins_it(monkeypatch):
+    """A build that polls the core's CancelFlag (the BVH build does) stops there: the
+    thread is joined and the render lock is free when the render returns."""
+    import addon
+    from rstrace_engine.cancel import Cancelled
+    from rstrace_engine.session import Session
+
+    sc, _ = _scene()
+    real = Session.apply
+    threads = set()
+
+    def polling_apply(self, edits=(), cancel=None):
+        if self.accel is None:
+            threads.add(threading.current_thread())
+            deadline = time.perf_counter() + 30.0
+            while not cancel() and time.perf_counter() < deadline:
+                time.sleep(0.01)
+            raise Cancelled
+        return real(self, edits, cancel=cancel)
+
+    monkeypatch.setattr(Session, "apply", polling_apply)
+    engine = _Esc(0.3)
+    addon.session.FrameRenderer(engine).render(bpy.context.evaluated_depsgraph_get())
+    assert engine.pressed is not None and time.perf_counter() - engine.pressed <= 0.5
+    assert not engine.errors and not engine.results
+    assert addon.session.state_for(sc).stats.get("cancelled")
+    assert threads and not any(t.is_alive() for t in threads)
     assert not addon.runtime.RENDER_LOCK.locked()
     monkeypatch.setattr(Session, "apply", real)
     inc, stats = _f12()

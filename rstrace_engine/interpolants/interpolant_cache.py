@@ -54,6 +54,7 @@ from ..frame import (
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
+from .fallback import BUDGET_STEP, Fallback
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .linetree import (
     EMPTY,
@@ -242,6 +243,10 @@ class InterpolantCache:
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
+        #: cells built per instance slot since the frame reset it (:mod:`.fallback`)
+        self.cells_by_inst = np.zeros(len(sa.inst_mesh), np.int64)
+        #: what the mode learned of where cells do not pay (:mod:`.fallback`)
+        self.fallback = Fallback(len(sa.inst_mesh))
         #: a list to receive, per batch of built cells, ``(tree (m,) int32 (inst * 6 +
         #: face), depth (m,), coord (m, 4), outcome (m,) int8 index into OUTCOMES)``
         #: (diagnostics: ``scripts/interpolant_outcomes.py``); None records nothing
@@ -360,7 +365,10 @@ class InterpolantCache:
         the edited scene ``sa``, keeping every valid interpolant
         (:func:`.invalidation.take_edits`)."""
         self.view = None
-        return take_edits(self, fx, sa, accel)
+        out = take_edits(self, fx, sa, accel)
+        self.fallback.resize(len(self.sa.inst_mesh))
+        self.fallback.forget(fx.objects)  # an edited object gets a new chance with cells
+        return out
 
     def rst_memory_bytes(self) -> int:
         """Bytes of the ray segment trees and the membership index."""
@@ -381,7 +389,7 @@ class InterpolantCache:
         return face, abcd, zp, clsp
 
     def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None,
-                pre=None) -> ResolveResult:
+                pre=None, budget=None) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
         inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
@@ -389,6 +397,9 @@ class InterpolantCache:
         has textures (applied per ray, :func:`.samples.apply_textures`). pre: the arrays
         ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
         already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
+        budget: a :class:`.fallback.Budget`: cells are built in batches of at most
+        :data:`.fallback.BUDGET_STEP` while it allows (the others stay empty, for a later
+        frame); its ``spent`` and ``deferred`` are updated.
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
@@ -453,10 +464,18 @@ class InterpolantCache:
                 tb = time.perf_counter()
                 cells = uniq[build]
                 step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
+                if budget is not None:
+                    step = min(step, BUDGET_STEP)
                 for lo in range(0, len(cells), step):
-                    if lo and cancel():  # the cells left EMPTY are built by a later frame
-                        break
+                    if lo and cancel is not None and cancel():
+                        break  # the cells left EMPTY are built by a later frame
+                    if budget is not None and not budget.may_build(int(np.count_nonzero(done))):
+                        budget.defer(lt.arrays.tree[cells[lo:]] // 6)
+                        break  # as cancelled: the cells left EMPTY are traced now
+                    t1 = time.perf_counter()
                     self._build(cells[lo:lo + step], st)
+                    if budget is not None:
+                        budget.spent += time.perf_counter() - t1
                 # failed cells with room below go one level down right away
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])
@@ -576,6 +595,9 @@ class InterpolantCache:
         depth = a.depth[cells].astype(np.int64)
         coord = a.coord[cells].astype(np.int64)
         nc = len(cells)
+        if len(self.cells_by_inst) < len(self.sa.inst_mesh):
+            self.cells_by_inst = np.zeros(len(self.sa.inst_mesh), np.int64)
+        np.add.at(self.cells_by_inst, inst, 1)
         ntest = self.n_test[inst]
         ns = 16 + N_TEST_ALL
         k2 = np.full((nc, ns), -1, np.int64)

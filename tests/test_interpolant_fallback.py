@@ -56,11 +56,13 @@ def test_decision_from_given_costs():
 
 
 def test_learning_is_deterministic_reprobes_and_wins_back():
-    # object 0: 200 cells, nothing interpolated; object 1: 4900 of 5000 rays interpolated
-    dear = _costs([5000, 5000], [5000, 5000], [0, 4900], [200, 0], 0.001, 1.0, 1e-6)
+    # object 0: 200 cells, nothing interpolated; object 1: 49000 of 50000 rays interpolated
+    # (the frame as a whole pays)
+    dear = _costs([5000, 50000], [5000, 50000], [0, 49000], [200, 0], 0.001, 1.0, 1e-5)
+    assert fallback.frame_pays(dear)
     fb = Fallback(2)
     fb.learn(dear, fb.frame_traced())
-    assert fb.traced.tolist() == [True, False] and fb.ray_s == 1e-6
+    assert fb.traced.tolist() == [True, False] and fb.ray_s == 1e-5 and not fb.all_traced
     again = Fallback(2)
     again.learn(dear, again.frame_traced())
     assert again.traced.tolist() == fb.traced.tolist()  # the same costs, the same decision
@@ -71,7 +73,7 @@ def test_learning_is_deterministic_reprobes_and_wins_back():
         fb.learn(dear, now)
     now = fb.frame_traced()
     assert now.tolist() == [False, False]  # the re-probe
-    cheap = _costs([5000, 5000], [5000, 5000], [4900, 4900], [10, 10], 0.0, 0.0, 1e-6)
+    cheap = _costs([5000, 50000], [5000, 50000], [4900, 49000], [10, 10], 0.0, 0.0, 1e-5)
     fb.learn(cheap, now)  # its cells pay now: back to cells
     assert fb.traced.tolist() == [False, False]
     # an object whose cells the budget deferred is not judged (it had no chance yet)
@@ -186,3 +188,23 @@ def test_a_first_frame_probes_the_price_of_a_ray():
     base = _base(sc, accel, st)
     err = np.abs(image.to_display(f0.radiance) - image.to_display(base.radiance)).max()
     assert err <= EPS + FLOAT_TOL
+
+
+def test_a_frame_whose_cells_do_not_pay_traces_every_object():
+    # no object judged alone (too few rays each), but together their walk costs more than
+    # the rays they interpolated saved
+    n = fallback.MIN_RAYS // 4
+    small = _costs([n] * 5, [n] * 5, [n // 10] * 5, [0] * 5, 1.0, 0.0, 1e-6)
+    assert cells_pay(small).all() and not fallback.frame_pays(small)
+    fb = Fallback(5)
+    fb.learn(small, fb.frame_traced())
+    assert fb.all_traced and not fb.traced.any()
+    for _ in range(fallback.REPROBE_FRAMES):
+        now = fb.frame_traced()
+        assert now.all()
+        fb.learn(small, now)
+    now = fb.frame_traced()
+    assert not now.any()  # the re-probe: every object with cells again
+    cheap = small._replace(walk_s=0.0)
+    fb.learn(cheap, now)
+    assert not fb.all_traced and not fb.frame_traced().any()

@@ -14,6 +14,10 @@ Two mechanisms, both priced by the frame's own timings:
   traced ray is learned from every frame's tracing; a renderer's first frame prices it with
   a *probe*: every :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is
   built, timed (those rays are then done: exactly the base tracer's).
+* **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
+  tracing all its rays, every object is traced from the next frame on (objects too small to
+  be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
+  costs more than their pixels), re-probed every :data:`REPROBE_FRAMES` frames.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -78,6 +82,14 @@ def object_costs(c: FrameCosts) -> tuple[np.ndarray, np.ndarray]:
     return cells, traced
 
 
+def frame_pays(c: FrameCosts) -> bool:
+    """False when the frame's cells together cost more than tracing all its rays over at
+    least :data:`MIN_RAYS` rays (every object is traced then: small objects that are never
+    judged alone included)."""
+    cells, traced = object_costs(c)
+    return not (c.rays.sum() >= MIN_RAYS and cells.sum() > traced.sum())
+
+
 def cells_pay(c: FrameCosts) -> np.ndarray:
     """(I,) bool: False where an object's cells cost more than tracing its rays, over at
     least :data:`MIN_RAYS` rays (those objects are traced)."""
@@ -126,6 +138,8 @@ class Fallback:
         self.traced = np.zeros(n_inst, np.bool_)  # objects traced instead of cells
         self.frames_traced = np.zeros(n_inst, np.int64)  # frames since last judged
         self.ray_s: float | None = None  # price of one traced ray, learned
+        self.all_traced = False  # the whole frame did not pay: every object traced
+        self.frames_all = 0  # frames since the whole frame was last judged
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -136,14 +150,19 @@ class Fallback:
             self.frames_traced = np.concatenate([self.frames_traced,
                                                  np.zeros(n_inst - m, np.int64)])
 
-    def forget(self, objects) -> None:
-        """Edited objects get a new chance with cells."""
+    def forget(self, objects, n_inst: int = 0) -> None:
+        """Edited objects get a new chance with cells (``n_inst``: the edited scene's
+        instance slots, :meth:`resize`)."""
+        self.resize(n_inst)
         idx = np.asarray([int(k) for k in objects if 0 <= int(k) < len(self.traced)], np.int64)
         self.traced[idx] = False
         self.frames_traced[idx] = 0
 
     def frame_traced(self) -> np.ndarray:
-        """(I,) bool: the objects this frame traces (traced ones not due for a re-probe)."""
+        """(I,) bool: the objects this frame traces (traced ones not due for a re-probe;
+        every object while the whole frame does not pay, until its re-probe)."""
+        if self.all_traced and self.frames_all < REPROBE_FRAMES:
+            return np.ones(len(self.traced), np.bool_)
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
@@ -161,16 +180,31 @@ class Fallback:
         pays = cells_pay(c)
         self.traced[judged] = ~pays[judged]
         self.frames_traced[judged] = 0
-        self.frames_traced[traced_now] += 1
+        self.frames_traced[traced_now & self.traced] += 1
+        if traced_now.all() and self.all_traced:
+            self.frames_all += 1
+        else:  # (deferred cells or not: a frame of cheap pixels must not wait for them)
+            self.all_traced = not frame_pays(c)
+            self.frames_all = 0
 
     def stats(self, budget: Budget | None, probe_rays: int) -> dict:
         """The frame's ``stats["fallback"]``."""
         return dict(traced_objects=int(np.count_nonzero(self.traced)),
+                    all_traced=bool(self.all_traced),
                     deferred_cells=0 if budget is None else int(budget.deferred),
                     build_budget_s=(None if budget is None or budget.ray_s is None
                                     else budget.limit),
                     probe_rays=int(probe_rays),
                     ray_us=None if self.ray_s is None else 1e6 * self.ray_s)
+
+
+def count_cells(counts: np.ndarray, inst: np.ndarray, n_inst: int) -> np.ndarray:
+    """``counts`` (cells built per instance slot) plus the cells of objects ``inst`` (grown
+    to ``n_inst`` slots)."""
+    if len(counts) < n_inst:
+        counts = np.concatenate([counts, np.zeros(n_inst - len(counts), np.int64)])
+    np.add.at(counts, inst, 1)
+    return counts
 
 
 class FrameLedger:

@@ -54,7 +54,7 @@ from ..frame import (
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
-from .fallback import BUDGET_STEP, Fallback
+from .fallback import BUDGET_STEP, Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .linetree import (
     EMPTY,
@@ -366,8 +366,7 @@ class InterpolantCache:
         (:func:`.invalidation.take_edits`)."""
         self.view = None
         out = take_edits(self, fx, sa, accel)
-        self.fallback.resize(len(self.sa.inst_mesh))
-        self.fallback.forget(fx.objects)  # an edited object gets a new chance with cells
+        self.fallback.forget(fx.objects, len(self.sa.inst_mesh))  # edited: a new chance
         return out
 
     def rst_memory_bytes(self) -> int:
@@ -398,8 +397,7 @@ class InterpolantCache:
         ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
         already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
         budget: a :class:`.fallback.Budget`: cells are built in batches of at most
-        :data:`.fallback.BUDGET_STEP` while it allows (the others stay empty, for a later
-        frame); its ``spent`` and ``deferred`` are updated.
+        :data:`.fallback.BUDGET_STEP` while it allows (the others stay empty, for later).
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
@@ -595,9 +593,7 @@ class InterpolantCache:
         depth = a.depth[cells].astype(np.int64)
         coord = a.coord[cells].astype(np.int64)
         nc = len(cells)
-        if len(self.cells_by_inst) < len(self.sa.inst_mesh):
-            self.cells_by_inst = np.zeros(len(self.sa.inst_mesh), np.int64)
-        np.add.at(self.cells_by_inst, inst, 1)
+        self.cells_by_inst = count_cells(self.cells_by_inst, inst, len(self.sa.inst_mesh))
         ntest = self.n_test[inst]
         ns = 16 + N_TEST_ALL
         k2 = np.full((nc, ns), -1, np.int64)

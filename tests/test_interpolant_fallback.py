@@ -199,12 +199,30 @@ def test_a_frame_whose_cells_do_not_pay_traces_every_object():
     fb = Fallback(5)
     fb.learn(small, fb.frame_traced())
     assert fb.all_traced and not fb.traced.any()
-    for _ in range(fallback.REPROBE_FRAMES):
-        now = fb.frame_traced()
-        assert now.all()
-        fb.learn(small, now)
-    now = fb.frame_traced()
-    assert not now.any()  # the re-probe: every object with cells again
+    for _ in range(fallback.REPROBE_FRAMES):  # (the renderer counts its base frames)
+        assert fb.whole_frame_traced()
+        fb.frames_all += 1
+    assert not fb.whole_frame_traced()  # the re-probe: every object with cells again
     cheap = small._replace(walk_s=0.0)
-    fb.learn(cheap, now)
-    assert not fb.all_traced and not fb.frame_traced().any()
+    fb.learn(cheap, fb.frame_traced())
+    assert not fb.all_traced and not fb.whole_frame_traced()
+
+
+def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
+    measured = FrameLedger.costs
+    monkeypatch.setattr(FrameLedger, "costs",
+                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
+    monkeypatch.setattr(fallback, "REPROBE_FRAMES", 2)
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    frames = [r.render(sc, st, accel) for _ in range(4)]
+    base = _base(sc, accel, st)
+    assert [f.stats["fallback"]["all_traced"] for f in frames] == [True] * 4
+    for f in frames[1:3]:  # base frames, then the re-probe (with cells)
+        np.testing.assert_array_equal(f.radiance, base.radiance)
+        assert f.stats["cells_built"] == 0 and f.stats["epsilon"] == EPS
+    assert "deferred_cells" in frames[3].stats["fallback"]
+    assert frames[3].stats["fallback"]["build_budget_s"] is not None

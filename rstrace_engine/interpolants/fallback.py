@@ -15,9 +15,9 @@ Two mechanisms, both priced by the frame's own timings:
   a *probe*: every :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is
   built, timed (those rays are then done: exactly the base tracer's).
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
-  tracing all its rays, every object is traced from the next frame on (objects too small to
+  tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
-  costs more than their pixels), re-probed every :data:`REPROBE_FRAMES` frames.
+  costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -158,11 +158,14 @@ class Fallback:
         self.traced[idx] = False
         self.frames_traced[idx] = 0
 
+    def whole_frame_traced(self) -> bool:
+        """Whether this frame is the base tracer's (the whole frame did not pay; not due
+        for a re-probe)."""
+        return self.all_traced and self.frames_all < REPROBE_FRAMES
+
     def frame_traced(self) -> np.ndarray:
-        """(I,) bool: the objects this frame traces (traced ones not due for a re-probe;
-        every object while the whole frame does not pay, until its re-probe)."""
-        if self.all_traced and self.frames_all < REPROBE_FRAMES:
-            return np.ones(len(self.traced), np.bool_)
+        """(I,) bool: the objects a frame with cells traces (traced ones not due for a
+        re-probe)."""
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
@@ -180,12 +183,10 @@ class Fallback:
         pays = cells_pay(c)
         self.traced[judged] = ~pays[judged]
         self.frames_traced[judged] = 0
-        self.frames_traced[traced_now & self.traced] += 1
-        if traced_now.all() and self.all_traced:
-            self.frames_all += 1
-        else:  # (deferred cells or not: a frame of cheap pixels must not wait for them)
-            self.all_traced = not frame_pays(c)
-            self.frames_all = 0
+        self.frames_traced[traced_now] += 1
+        # the whole frame (deferred cells or not: cheap pixels must not wait for them)
+        self.all_traced = not frame_pays(c)
+        self.frames_all = 0
 
     def stats(self, budget: Budget | None, probe_rays: int) -> dict:
         """The frame's ``stats["fallback"]``."""

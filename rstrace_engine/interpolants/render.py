@@ -314,6 +314,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     settings = settings.validated()
     if cache.epsilon <= 0.0:
         return _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+    fb = cache.fallback if fallback else None
+    if fb is not None and fb.whole_frame_traced():
+        # the frame's cells did not pay (fallback.py): the base tracer's frame, as fast
+        cache.view = None
+        frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+        if pixels is None and not frame.stats.get("cancelled"):
+            fb.frames_all += 1
+        frame.stats.update(epsilon=cache.epsilon, fallback=fb.stats(None, 0))
+        return frame
     t0 = time.perf_counter()
     sa = cache.sa
     cp = camera_params(scene.camera)
@@ -361,7 +370,6 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     cells = FrameCells(cp)
     cancelled = False
     # where cells do not pay (fallback.py): objects traced, the build budget, the probe
-    fb = cache.fallback if fallback else None
     n_inst = len(sa.inst_mesh)
     ledger = traced_now = budget = None
     probe = dict(rays=0, s=0.0)

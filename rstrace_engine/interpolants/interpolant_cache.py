@@ -396,8 +396,7 @@ class InterpolantCache:
         has textures (applied per ray, :func:`.samples.apply_textures`). pre: the arrays
         ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
         already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
-        budget: a :class:`.fallback.Budget`: cells are built in batches of at most
-        :data:`.fallback.BUDGET_STEP` while it allows (the others stay empty, for later).
+        budget: a :class:`.fallback.Budget`, cells are built while it allows (in batches).
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
@@ -452,6 +451,9 @@ class InterpolantCache:
             empty = ustate == EMPTY
             split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
             build = enough & empty & (udepth >= first)
+            if budget is not None and not budget.may_build(int(np.count_nonzero(done))):
+                budget.defer(lt.arrays.tree[uniq[build]] // 6)  # their rays are traced
+                build[:] = False
             node_cls[uniq[~empty]] = fail_class(ustate[~empty])
             node_cls[uniq[split | build]] = 255
             settle(node_cls, nodes, inherited, active, idx, pcls)
@@ -462,14 +464,12 @@ class InterpolantCache:
                 tb = time.perf_counter()
                 cells = uniq[build]
                 step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
-                if budget is not None:
-                    step = min(step, BUDGET_STEP)
+                step = step if budget is None else min(step, BUDGET_STEP)
                 for lo in range(0, len(cells), step):
                     if lo and cancel is not None and cancel():
                         break  # the cells left EMPTY are built by a later frame
                     if budget is not None and not budget.may_build(int(np.count_nonzero(done))):
-                        budget.defer(lt.arrays.tree[cells[lo:]] // 6)
-                        break  # as cancelled: the cells left EMPTY are traced now
+                        break  # spent: the cells left EMPTY are traced (deferred next level)
                     t1 = time.perf_counter()
                     self._build(cells[lo:lo + step], st)
                     if budget is not None:

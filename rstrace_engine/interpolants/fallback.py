@@ -165,7 +165,9 @@ class Fallback:
 
     def frame_traced(self) -> np.ndarray:
         """(I,) bool: the objects a frame with cells traces (traced ones not due for a
-        re-probe)."""
+        re-probe; none in the re-probe of a whole frame)."""
+        if self.all_traced:
+            return np.zeros(len(self.traced), np.bool_)
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,

@@ -321,7 +321,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
         if pixels is None and not frame.stats.get("cancelled"):
             fb.frames_all += 1
-        frame.stats.update(epsilon=cache.epsilon, fallback=fb.stats(None, 0))
+        frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
+                           fallback=fb.stats(None, 0))
         return frame
     t0 = time.perf_counter()
     sa = cache.sa

@@ -96,6 +96,16 @@ def test_budget():
     assert b.may_build(10)  # ten interpolated rays saved 10 ms
     b.saved = 10
     assert b.may_build(0)
+    # batches: BUDGET_STEP cells first, then what is left at the measured cost per cell
+    c = Budget(rays=1000, ray_s=1e-3)
+    assert c.batch(10000, 0) == fallback.BUDGET_STEP and c.batch(5, 0) == 5
+    c.charge(0.01, 100)  # 0.1 ms a cell, 0.04 s left of 0.05
+    assert 399 <= c.batch(10000, 0) <= 400 and 499 <= c.batch(10000, 10) <= 500
+    c.charge(0.04, 400)
+    assert c.batch(10000, 0) == fallback.BUDGET_STEP  # (at least, while it may build)
+    c.charge(0.001, 1)
+    assert c.batch(10000, 0) == 0
+    assert Budget(rays=1000).batch(777, 0) == 777  # not priced: the whole step
 
 
 def _scene(w=96, h=72):
@@ -162,7 +172,7 @@ def test_the_build_budget_defers_cells_and_traces_them(monkeypatch):
     free.auto_fallback = False
     f_free = free.render(sc, st, accel)
     # a ray priced at nothing: the budget allows one batch of one cell per frame
-    monkeypatch.setattr(interpolant_cache, "BUDGET_STEP", 1)
+    monkeypatch.setattr(fallback, "BUDGET_STEP", 1)
     r = InterpolantRenderer()
     r.prepare(sc.arrays(), st, accel)
     r.cache.fallback.ray_s = 1e-30

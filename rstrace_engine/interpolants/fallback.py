@@ -8,12 +8,13 @@ Two mechanisms, both priced by the frame's own timings:
 * **A build budget per frame** (:class:`Budget`). Building cells (tracing their samples, the
   predicate, the radiance test) may spend at most :data:`ALLOWANCE` of what tracing the
   frame's rays would cost, plus what the rays interpolated so far in the frame saved (each
-  at the cost of one traced ray). It is checked between batches of at most
-  :data:`BUDGET_STEP` cells; a cell not built stays empty: its rays are traced now and a
-  later frame builds it. This bounds the first frame, which has no history. The cost of a
-  traced ray is learned from every frame's tracing; a renderer's first frame prices it with
-  a *probe*: every :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is
-  built, timed (those rays are then done: exactly the base tracer's).
+  at the cost of one traced ray). It is checked between batches sized by what it has left
+  (at the cost per cell measured so far; at least :data:`BUDGET_STEP` cells); a cell not
+  built stays empty: its rays are traced now and a later frame builds it. This bounds the
+  first frame, which has no history. The cost of a traced ray is learned from every frame's
+  tracing; a renderer's first frame prices it with a *probe*: every
+  :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is built, timed (those
+  rays are then done: exactly the base tracer's).
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
@@ -107,6 +108,7 @@ class Budget:
         self.ray_s: float | None = None
         self.limit = float("inf")
         self.spent = 0.0  # seconds of building so far
+        self.built = 0  # cells built so far
         self.saved = 0  # rays interpolated in the passes before the current one
         self.deferred = 0  # cells left unbuilt
         if ray_s is not None:
@@ -122,6 +124,24 @@ class Budget:
         self.deferred += len(inst)
         inst = inst[inst < len(self.deferred_inst)]
         np.add.at(self.deferred_inst, inst, 1)
+
+    def charge(self, seconds: float, cells: int) -> None:
+        """A batch of ``cells`` cells took ``seconds`` to build."""
+        self.spent += seconds
+        self.built += int(cells)
+
+    def batch(self, step: int, interpolated_now: int) -> int:
+        """How many cells the next batch may build (0: none), at most ``step``: what the
+        budget left affords at the cost per cell measured so far, at least
+        :data:`BUDGET_STEP` (small batches cost more per cell)."""
+        if self.ray_s is None:
+            return step
+        if not self.may_build(interpolated_now):
+            return 0
+        if self.built == 0:
+            return min(step, BUDGET_STEP)
+        left = self.limit + (self.saved + interpolated_now) * self.ray_s - self.spent
+        return min(step, max(BUDGET_STEP, int(left / (self.spent / self.built))))
 
     def may_build(self, interpolated_now: int) -> bool:
         """Whether the next batch may be built (``interpolated_now``: rays interpolated in

@@ -54,7 +54,7 @@ from ..frame import (
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
-from .fallback import BUDGET_STEP, Fallback, count_cells
+from .fallback import Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .linetree import (
     EMPTY,
@@ -464,16 +464,16 @@ class InterpolantCache:
                 tb = time.perf_counter()
                 cells = uniq[build]
                 step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
-                step = step if budget is None else min(step, BUDGET_STEP)
-                for lo in range(0, len(cells), step):
-                    if lo and cancel is not None and cancel():
-                        break  # the cells left EMPTY are built by a later frame
-                    if budget is not None and not budget.may_build(int(np.count_nonzero(done))):
-                        break  # spent: the cells left EMPTY are traced (deferred next level)
+                lo = 0  # (cells left EMPTY: built by a later frame, or traced when spent)
+                while lo < len(cells) and not (lo and cancel is not None and cancel()):
+                    nb = step if budget is None else budget.batch(step, np.count_nonzero(done))
+                    if nb == 0:
+                        break
                     t1 = time.perf_counter()
-                    self._build(cells[lo:lo + step], st)
+                    self._build(cells[lo:lo + nb], st)
                     if budget is not None:
-                        budget.spent += time.perf_counter() - t1
+                        budget.charge(time.perf_counter() - t1, nb)
+                    lo += nb
                 # failed cells with room below go one level down right away
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])

@@ -6,7 +6,8 @@ package turns Blender data into its calls and its frames back into render passes
 Module layers, lower never importing higher:
 ``runtime`` (numba set-up) < ``kernels`` (background compile) < ``properties`` <
 ``materials`` < ``meshes`` / ``lights`` / ``cameras`` / ``snapshot`` (per-datablock caches,
-the snapshot of one walk) < ``export`` < ``depsgraph_diff``
+the snapshot of one walk) / ``journal`` (what the depsgraph said changed between renders)
+< ``export`` < ``depsgraph_diff``
 (depsgraph -> edits) < ``sync`` (the one path from Blender to a scene's core session) <
 ``session`` (per-scene state, F12) < ``viewport`` < ``engine`` < ``ui``; ``operators`` (the
 kernel-cache warm-up) imports ``runtime`` only.
@@ -29,6 +30,7 @@ from . import (  # noqa: E402  (after numba set-up)
     depsgraph_diff,
     engine,
     export,
+    journal,
     kernels,
     operators,
     properties,
@@ -39,12 +41,12 @@ from . import (  # noqa: E402  (after numba set-up)
 )
 from .session import last_render_stats  # noqa: E402
 
-__all__ = ["depsgraph_diff", "engine", "export", "kernels", "last_render_stats", "operators",
-           "properties", "register", "runtime", "session", "sync", "ui", "unregister",
+__all__ = ["depsgraph_diff", "engine", "export", "journal", "kernels", "last_render_stats",
+           "operators", "properties", "register", "runtime", "session", "sync", "ui", "unregister",
            "viewport"]
 
 #: Registered in this order, unregistered in reverse.
-_MODULES = (properties, session, viewport, engine, operators, ui)
+_MODULES = (properties, journal, session, viewport, engine, operators, ui)
 
 
 def register() -> None:

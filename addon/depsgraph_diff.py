@@ -180,13 +180,14 @@ class SceneMirror:
         have changed the set of instances, else walk ``depsgraph`` (see
         :func:`export.read_scene`); on a never-synced mirror ``dirty`` is ignored
         (everything unknown is read)."""
+        cancel, progress = kwargs.pop("cancel", None), kwargs.pop("progress", None)
         if self._partial_ok(dirty, kwargs):
             snap = export.read_updated(depsgraph, self.cache, dirty, self.objects,
                                        self.lights, source)
             if snap is not None:
                 return snap
         snap = export.read_scene(depsgraph, self.cache, dirty if self.synced else None,
-                                 source=source, **kwargs)
+                                 source=source, cancel=cancel, progress=progress, **kwargs)
         if source == "VIEWPORT":
             snap.hidden_in_view = visibility_signature(depsgraph)
         return snap

@@ -4,8 +4,11 @@ One pass over ``depsgraph.object_instances`` (:func:`read_scene`) reads every ob
 world matrix and material keys, and reads a mesh (``meshes.mesh_arrays``) or a material
 (``materials.MaterialReader``) only when its cache entry is missing or stale: the caller
 says which datablocks changed (:class:`Dirty`, from ``depsgraph.updates``), or, where no
-updates are known (F12, animation frames), a mesh is re-read only when its raw-attribute
-fingerprint changed. Lights and the world colour are re-read every time (a few values).
+updates are known (F12, animation frames), a mesh is taken from the cache where the
+journal (:mod:`.journal`) says nothing can have changed it since it was read, and else
+re-read only when its raw-attribute fingerprint changed (the fingerprint and the read
+share the arrays: each is read once). Lights and the world colour are re-read every time
+(a few values).
 Where the updates cannot have changed the set of instances (an object moved, a material or
 a light changed), :func:`read_updated` re-reads only the objects they name, so that a small
 edit in a big scene costs what it touched (the caller, :class:`.depsgraph_diff.SceneMirror`,
@@ -41,6 +44,7 @@ from rstrace_engine.geometry.scene import (
     check_matrix,
 )
 
+from . import journal
 from .cameras import camera_from_object
 from .lights import read_light, world_colour, world_lights
 from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
@@ -113,8 +117,37 @@ def render_size(render) -> tuple[int, int]:
 NO_FACES = "has no faces"
 
 
-def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
-    mesh = mesh_arrays(me, name)
+#: Triangles tested first for an area: a mesh with one is accepted without testing the rest
+#: (the core drops its degenerate triangles, and says how many, when it builds the scene).
+_AREA_PROBE = 4096
+
+
+def _has_area(v: np.ndarray, tris: np.ndarray) -> bool:
+    """Whether any triangle has an area (the core's test, ``proper_triangles``), testing
+    the first :data:`_AREA_PROBE` triangles before the rest."""
+    if np.any(proper_triangles(v, tris[:_AREA_PROBE])):
+        return True
+    return len(tris) > _AREA_PROBE and bool(np.any(proper_triangles(v, tris[_AREA_PROBE:])))
+
+
+class Cancelled(Exception):  # noqa: N818 (a request, not an error)
+    """The user cancelled (Esc) while meshes were being read: nothing was committed."""
+
+
+def _read_mesh(me, name: str, source: str, fingerprint: bytes | None = None,
+               raw: dict | None = None) -> MeshEntry:
+    """Read ``me`` once (its fingerprint from the same arrays, unless given; ``raw``: the
+    raw arrays already read for it)."""
+    raw = {} if raw is None else raw
+    mesh = mesh_arrays(me, name, raw)
+    if fingerprint is None:
+        fingerprint = mesh_fingerprint(me, raw)
+    entry = _checked(mesh, name, fingerprint, source)
+    entry.vertex_count = len(me.vertices)
+    return entry
+
+
+def _checked(mesh, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if mesh is None:
         return MeshEntry(None, f"its mesh '{name}' {NO_FACES}", fingerprint, source)
     v = mesh.vertices
@@ -124,7 +157,7 @@ def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if float(np.max(np.abs(v))) > tol.COORD_MAX:
         return MeshEntry(None, f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}",
                          fingerprint, source)
-    if not np.any(proper_triangles(v, mesh.triangles)):
+    if not _has_area(v, mesh.triangles):
         return MeshEntry(None, f"mesh '{name}': all {len(mesh.triangles)} triangles are "
                          f"degenerate (zero area)", fingerprint, source)
     return MeshEntry(mesh, None, fingerprint, source)
@@ -133,10 +166,27 @@ def _read_mesh(me, name: str, fingerprint: bytes, source: str) -> MeshEntry:
 class _Reader:
     """One pass over a depsgraph, filling a :class:`Snapshot` from the caches."""
 
-    def __init__(self, cache: ExportCache, dirty: Dirty | None, source: str) -> None:
+    def __init__(self, cache: ExportCache, dirty: Dirty | None, source: str,
+                 depsgraph=None, cancel=None, progress=None) -> None:
         self.cache = cache
         self.dirty = dirty
         self.source = source
+        self.cancel = cancel  # () -> bool: stop between meshes (Cancelled)
+        self.progress = progress  # (message) -> None: what is being read
+        # what journal.Journal.trusted compares: the stamp reads get, the render's view
+        # and frame
+        self.stamp = journal.JOURNAL.stamp()
+        self.view = self.frame = None
+        if depsgraph is not None:
+            sc = depsgraph.scene
+            self.view = (sc.original.session_uid, depsgraph.view_layer.name)
+            self.frame = (int(sc.frame_current), float(sc.frame_subframe))
+        # (on the main thread, a render of the window's own view layer only: another
+        # scene's or layer's depsgraph may hold updates not yet reported)
+        ctx = journal.context_view()
+        self.journal = (dirty is None and self.view is not None and journal.listening()
+                        and (ctx is None or ctx == self.view))
+        self.meshes_trusted = 0
         self.notes = Notes()
         self.mesh_by_pointer: dict[int, Hashable] = {}
         self.materials_seen: set = set()
@@ -178,6 +228,7 @@ class _Reader:
         entry = self.cache.meshes.get(key)
         d = self.dirty
         fingerprint = None
+        raw: dict = {}  # raw arrays the fingerprint read, not read again by the mesh read
         stale = entry is None
         if not stale and key[0] != "data" and entry.source != self.source:
             stale = True  # modifiers may evaluate differently for viewport and render
@@ -188,24 +239,51 @@ class _Reader:
                      inst.parent.original.session_uid in d.objects))
         t0 = time.perf_counter()
         if not stale and d is None:
-            fingerprint = mesh_fingerprint(me)
-            stale = fingerprint != entry.fingerprint
+            if self.journal and self._unchanged(entry, key, inst, ob, me):
+                self.meshes_trusted += 1
+            else:  # updated since it was read, or the journal cannot say: the exact check
+                # (an update need not change it: a linked duplicate added tags the mesh)
+                fingerprint = mesh_fingerprint(me, raw)
+                stale = fingerprint != entry.fingerprint
+            if not stale:
+                entry.stamp, entry.frame = self.stamp, self.frame
         if stale:
-            if fingerprint is None:
-                fingerprint = mesh_fingerprint(me)
-            new = _read_mesh(me, me.name, fingerprint, self.source)
+            if self.cancel is not None and self.cancel():
+                raise Cancelled
+            if self.progress is not None:
+                self.progress(f"reading mesh '{me.name}' ({len(me.polygons):,} faces)")
+            new = _read_mesh(me, me.name, self.source, fingerprint, raw)
             if entry is not None and entry.mesh is not None and same_mesh(entry.mesh,
                                                                           new.mesh):
                 new.mesh = entry.mesh  # unchanged content: the session needs no MeshSet
+            new.stamp, new.frame = self.stamp, self.frame
             self.cache.meshes[key] = new
             self.meshes_read += 1
         self.t_mesh += time.perf_counter() - t0
         return key
 
+    def _unchanged(self, entry: MeshEntry, key, inst, ob, me) -> bool:
+        """The journal's word that the mesh of ``entry`` is unchanged since it was read
+        (see :mod:`.journal` for what it relies on)."""
+        orig = ob.original
+        uids = [orig.session_uid]
+        static = False
+        if key[0] == "data":
+            data = orig.data
+            uids.append(data.session_uid)
+            static = data.shape_keys is None and data.animation_data is None
+        if inst.parent is not None:
+            uids.append(inst.parent.original.session_uid)
+        j = journal.JOURNAL
+        return (j.trusted(entry.stamp, entry.frame, self.view, static, self.frame)
+                and not j.touched(entry.stamp, uids)
+                and len(me.vertices) == entry.vertex_count)
+
 
 def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
                camera_object=None, width: int | None = None, height: int | None = None,
-               source: str = "RENDER", with_camera: bool = True) -> Snapshot:
+               source: str = "RENDER", with_camera: bool = True, cancel=None,
+               progress=None) -> Snapshot:
     """Walk the evaluated ``depsgraph`` into a :class:`Snapshot`, refreshing ``cache``.
 
     dirty : what changed since the last walk with this cache (None: unknown, meshes are
@@ -213,6 +291,12 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     camera_object : the camera to render through (default: the scene's active camera)
     width, height : output size in pixels (default: resolution x percentage)
     with_camera : False for the viewport, whose camera comes from the view
+    cancel : () -> bool, asked before each mesh read (True: :class:`Cancelled` is raised;
+        what was read stays in ``cache``, valid)
+    progress : (message) -> None, told which mesh is being read
+
+    Without ``dirty`` (F12, animation), a cached mesh is taken as it is where the journal
+    says it cannot have changed (:mod:`.journal`), else checked by fingerprint.
 
     Raises :class:`SceneError` for a camera that leaves nothing sensible to render.
     """
@@ -227,7 +311,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     model = getattr(props, "shading_model", "PRINCIPLED")
     if cache.model != model:  # every material converts differently: re-read them all
         cache.set_model(model)
-    r = _Reader(cache, dirty, source)
+    r = _Reader(cache, dirty, source, depsgraph, cancel, progress)
     notes = r.notes
     camera = None
     if with_camera:
@@ -285,6 +369,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
     if not lights:
         notes.warn("the scene has no lights: only the world's light and emission are seen")
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
+                 meshes_trusted=r.meshes_trusted,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
                  export_seconds=time.perf_counter() - t0, walked=True,
                  objects_read=len(objects) + len(hidden) + len(lights))
@@ -300,11 +385,15 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
     cache, notes = r.cache, r.notes
     name = instance_name(inst)
     matrix = _matrix(inst.matrix_world)
-    try:
-        check_matrix(name, matrix)
-    except SceneError as exc:
-        notes.skip(f"skipped {exc}")
-        return None
+    key = object_key(inst)
+    raw = matrix.tobytes()
+    if cache.matrices.get(key) != raw:
+        try:
+            check_matrix(name, matrix)
+        except SceneError as exc:
+            notes.skip(f"skipped {exc}")
+            return None
+        cache.matrices[key] = raw
     me = ob.data
     mesh_key = r.mesh_key(inst, ob, me)
     entry = cache.meshes[mesh_key]
@@ -351,7 +440,7 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
     hidden from renders, skipped, or no longer a light): the caller walks everything.
     """
     t0 = time.perf_counter()
-    r = _Reader(cache, dirty, source)
+    r = _Reader(cache, dirty, source, depsgraph)
     objects, lights = dict(objects), dict(lights)
     changed = set()
     for mat in dirty.material_ids.values():
@@ -444,6 +533,6 @@ def export_scene(depsgraph, camera_object=None, width: int | None = None,
     return Exported(scene, snap.notes, snap.width, snap.height, stats)
 
 
-__all__ = ["Dirty", "ExportCache", "Exported", "Light", "MeshEntry", "ObjectRecord",
+__all__ = ["Cancelled", "Dirty", "ExportCache", "Exported", "Light", "MeshEntry", "ObjectRecord",
            "Snapshot", "build_scene", "export_scene", "object_key", "read_scene",
            "read_updated", "render_size"]

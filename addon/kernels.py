@@ -38,12 +38,15 @@ log = logging.getLogger(__name__)
 #: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
 #: that every name exists); the progress counts these.
 _BASE = ("accel.bvh.build_flat", "accel.bvh.collapse4", "accel.bvh.trace_kernel",
-         "geometry.cameras.generate_rays", "tracing.whitted._surface_kernel",
-         "tracing.whitted._shadow_kernel", "tracing.whitted._shade_kernel",
+         "geometry.cameras.generate_rays", "tracing.shader._surface_kernel",
+         "tracing.shader._shadow_kernel", "tracing.shader._shade_kernel",
          "tracing.whitted._light_masks", "tracing.batches.scatter_add",
          "tracing.batches.accumulate", "tracing.pixel_records._encode_nodes",
          "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
-         "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays")
+         "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays",
+         "tracing.light_records._recombine_primary",
+         "tracing.light_records._recombine_secondary",
+         "tracing.light_records._one_light_states")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",

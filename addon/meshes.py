@@ -4,8 +4,9 @@ time, and a cheap fingerprint that tells whether a mesh changed since it was las
 Everything is read with ``foreach_get`` into numpy (no per-vertex Python). Reading a whole
 mesh is dominated by Blender's triangulation (``loop_triangles``, about 100 ms per million
 triangles); :func:`mesh_fingerprint` reads only raw attribute arrays (about 1 ms per million
-values), so an unchanged mesh is recognised without re-reading it (F12 and animation frames,
-where no ``depsgraph.updates`` say what changed).
+values; those :func:`mesh_arrays` just read are not read again), so an unchanged mesh is
+recognised without re-reading it where the journal (:mod:`.journal`) cannot vouch for it
+(F12 and animation frames, where no ``depsgraph.updates`` say what changed).
 
 Layer: imported by ``export`` only.
 """
@@ -41,67 +42,94 @@ def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
     return out
 
 
-def mesh_arrays(me, name: str) -> Mesh | None:
+def _raw(me, raw: dict, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
+    """:func:`_attribute`, kept in ``raw`` (read once for the fingerprint and the mesh)."""
+    values = raw.get(name)
+    if values is None and name not in raw:
+        values = raw[name] = _attribute(me, name, prop, size, dtype)
+    return values
+
+
+def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     """Triangles of an evaluated mesh datablock as a :class:`Mesh`, or None if it has none.
 
-    Everything is read with ``foreach_get`` into numpy, from raw attribute arrays where
-    Blender has them; the one per-item read is ``loop_triangles.loops`` (the corners of
-    Blender's own triangulation). Normals come from the mesh's normals domain (vertex, face
-    or corner), uvs from the active render UV map.
+    Everything is read once with ``foreach_get`` into numpy arrays allocated for it, from
+    raw attribute arrays where Blender has them; the one per-item read is
+    ``loop_triangles.loops`` (the corners of Blender's own triangulation). The per-triangle
+    arrays are gathered (``np.take(..., out=)``) straight into the arrays the Mesh keeps.
+    Normals come from the mesh's normals domain (vertex, face or corner), uvs from the
+    active render UV map. ``raw`` (attribute name -> values) holds the raw arrays
+    :func:`mesh_fingerprint` already read, and receives those read here (for it).
     """
     tris_rna = me.loop_triangles
     nt = len(tris_rna)
     if nt == 0:
         return None
-    nv, nl = len(me.vertices), len(me.loops)
-    verts = _attribute(me, "position", "vector", nv * 3, np.float32)
+    raw = {} if raw is None else raw
+    nv, nl, nf = len(me.vertices), len(me.loops), len(me.polygons)
+    verts = _raw(me, raw, "position", "vector", nv * 3, np.float32)
     if verts is None:
         verts = np.empty(nv * 3, np.float32)
         me.vertices.foreach_get("co", verts)
-    corner_vert = _attribute(me, ".corner_vert", "value", nl, np.int32)
+    corner_vert = _raw(me, raw, ".corner_vert", "value", nl, np.int32)
     if corner_vert is None:
         corner_vert = np.empty(nl, np.int32)
         me.loops.foreach_get("vertex_index", corner_vert)
-    loops = np.empty(nt * 3, np.int32)
-    tris_rna.foreach_get("loops", loops)
-    tris = np.take(corner_vert, loops)
+    loops = np.empty((nt, 3), np.int32)
+    tris_rna.foreach_get("loops", loops.reshape(-1))
+    tris = np.empty((nt, 3), np.int32)
+    np.take(corner_vert, loops, out=tris)
     poly = np.empty(nt, np.int32)
     me.loop_triangle_polygons.foreach_get("value", poly)
-    face_mat = _attribute(me, "material_index", "value", len(me.polygons), np.int32)
-    slots = np.zeros(nt, np.int32) if face_mat is None else np.take(face_mat, poly)
+    face_mat = _raw(me, raw, "material_index", "value", nf, np.int32)
+    slots = np.zeros(nt, np.int32)
+    if face_mat is not None:
+        np.take(face_mat, poly, out=slots)
 
+    normals = np.empty((nt, 3, 3), np.float32)
     domain = me.normals_domain
     if domain == "POINT":
-        vn = np.empty(nv * 3, np.float32)
-        me.vertex_normals.foreach_get("vector", vn)
-        normals = np.take(vn.reshape(-1, 3), tris, axis=0)
+        vn = np.empty((nv, 3), np.float32)
+        me.vertex_normals.foreach_get("vector", vn.reshape(-1))
+        np.take(vn, tris, axis=0, out=normals)
     elif domain == "FACE":
-        pn = np.empty(len(me.polygons) * 3, np.float32)
-        me.polygon_normals.foreach_get("vector", pn)
-        normals = np.repeat(np.take(pn.reshape(-1, 3), poly, axis=0), 3, axis=0)
+        pn = np.empty((nf, 3), np.float32)
+        me.polygon_normals.foreach_get("vector", pn.reshape(-1))
+        normals[:] = np.take(pn, poly, axis=0)[:, None, :]
     else:  # CORNER: custom or split normals
-        cn = np.empty(nl * 3, np.float32)
-        me.corner_normals.foreach_get("vector", cn)
-        normals = np.take(cn.reshape(-1, 3), loops, axis=0)
+        cn = raw.get("corner_normals")
+        if cn is None:
+            cn = raw["corner_normals"] = np.empty(nl * 3, np.float32)
+            me.corner_normals.foreach_get("vector", cn)
+        np.take(cn.reshape(nl, 3), loops, axis=0, out=normals)
 
     uvs = None
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        uv = np.empty(nl * 2, np.float32)
-        layer.uv.foreach_get("vector", uv)
-        uvs = np.take(uv.reshape(-1, 2), loops, axis=0).reshape(nt, 3, 2)
+        named = raw.get("uv")
+        if named is not None and named[0] == layer.name:
+            uv = named[1]
+        else:
+            uv = np.empty(nl * 2, np.float32)
+            layer.uv.foreach_get("vector", uv)
+            raw["uv"] = (layer.name, uv)
+        uv = uv.reshape(nl, 2)
+        uvs = np.empty((nt, 3, 2), np.float32)
+        np.take(uv, loops, axis=0, out=uvs)
     nslots = max(len(me.materials), 1)
     np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices
-    return Mesh(name, verts.reshape(nv, 3), tris.reshape(nt, 3),
-                corner_normals=normals.reshape(nt, 3, 3), corner_uvs=uvs, slots=slots)
+    return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
+                slots=slots)
 
 
-def mesh_fingerprint(me) -> bytes:
+def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only.
 
     Two reads of an unchanged mesh give the same digest; any change of positions, topology,
-    material indices, sharpness, custom normals or the render UV map changes it.
+    material indices, sharpness, custom normals or the render UV map changes it. ``raw``:
+    arrays :func:`mesh_arrays` already read (not read again), and receives those read here.
     """
+    raw = {} if raw is None else raw
     h = hashlib.blake2b(digest_size=16)
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
@@ -113,17 +141,24 @@ def mesh_fingerprint(me) -> bytes:
         attr = me.attributes.get(name)
         if attr is None:
             continue
-        values = _attribute(me, name, prop, domain_size.get(attr.domain, 0) * width, dtype)
+        values = _raw(me, raw, name, prop, domain_size.get(attr.domain, 0) * width, dtype)
         h.update(name.encode())
         h.update(values.tobytes())
     if me.normals_domain == "CORNER":  # custom or split normals
-        cn = np.empty(counts[2] * 3, np.float32)
-        me.corner_normals.foreach_get("vector", cn)
+        cn = raw.get("corner_normals")
+        if cn is None:
+            cn = raw["corner_normals"] = np.empty(counts[2] * 3, np.float32)
+            me.corner_normals.foreach_get("vector", cn)
         h.update(cn.tobytes())
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        uv = np.empty(counts[2] * 2, np.float32)
-        layer.uv.foreach_get("vector", uv)
+        named = raw.get("uv")
+        if named is not None and named[0] == layer.name:
+            uv = named[1]
+        else:
+            uv = np.empty(counts[2] * 2, np.float32)
+            layer.uv.foreach_get("vector", uv)
+            raw["uv"] = (layer.name, uv)
         h.update(layer.name.encode())
         h.update(uv.tobytes())
     return h.digest()

@@ -12,7 +12,8 @@ Threads: ``state.lock`` guards the mirror and the session object; every call tha
 kernels holds ``runtime.RENDER_LOCK`` (taken before ``state.lock``, never after). States are
 dropped when a file is loaded and when the add-on is unregistered.
 
-Layer: imports ``properties``, ``depsgraph_diff``, ``sync``, ``kernels`` and ``runtime``;
+Layer: imports ``properties``, ``export``, ``depsgraph_diff``, ``sync``, ``kernels`` and
+``runtime``;
 never ``viewport``, ``engine`` or ``ui``.
 """
 
@@ -30,7 +31,7 @@ from bpy.app.handlers import persistent
 from rstrace_engine.frame import CLASS_BACKGROUND, CLASS_NAMES, Frame
 from rstrace_engine.geometry.scene import SceneError
 
-from . import kernels, properties, runtime, sync
+from . import export, kernels, properties, runtime, sync
 from .depsgraph_diff import SceneMirror
 
 log = logging.getLogger(__name__)
@@ -83,8 +84,9 @@ def last_render_stats(scene) -> dict:
     Keys include ``mode``, ``width``, ``height``, ``objects``, ``triangles``, ``lights``;
     times in seconds: ``sync_seconds`` (depsgraph walk and diff), ``apply_seconds`` (edits
     into the session), ``render_seconds``, ``total_seconds``; ``edits`` and ``edit_kinds``
-    (what changed since the previous render), ``meshes_read``; ``incremental`` (only dirty
-    pixels re-rendered), ``dirty_fraction`` (of the pixels), ``interpolated_fraction``
+    (what changed since the previous render), ``meshes_read``, ``meshes_trusted`` (taken
+    from the cache on the journal's word, neither read nor fingerprinted); ``incremental``
+    (only dirty pixels re-rendered), ``dirty_fraction`` (of the pixels), ``interpolated_fraction``
     (INTERPOLANT mode), ``invalidated_interpolants``; ``memory_mb``; ``renders`` (count).
     """
     state = peek_state(scene)
@@ -149,11 +151,20 @@ class FrameRenderer:
         status = kernels.progress_text() or runtime.kernel_status()
         if status:
             engine.update_stats("", f"RSTrace | {status}")
-        with runtime.RENDER_LOCK:
+        with sync.HeldLock(runtime.RENDER_LOCK) as held:
             threads = runtime.set_threads(scene.render)
             t1 = time.perf_counter()
-            synced = sync.sync(state, depsgraph, "RENDER", settings,
-                               camera_object=engine.camera_override)
+            try:
+                synced = sync.sync(state, depsgraph, "RENDER", settings,
+                                   camera_object=engine.camera_override,
+                                   cancel=engine.test_break, progress=self._status,
+                                   lock=held)
+            except export.Cancelled:
+                # Esc while meshes were read or the structures built: the session and
+                # its mirror are as they were; nothing is written
+                state.stats = dict(cancelled=True, total_seconds=time.perf_counter() - t0)
+                engine.update_stats("", "RSTrace | cancelled")
+                return
             session, snap = synced.session, synced.snapshot
             try:
                 session.update_settings(settings)
@@ -191,6 +202,7 @@ class FrameRenderer:
             materials=len(core.materials), triangles=core.triangle_count,
             sync_seconds=synced.seconds, export_seconds=synced.seconds,
             apply_seconds=t_apply, meshes_read=synced.stats.get("meshes_read", 0),
+            meshes_trusted=synced.stats.get("meshes_trusted", 0),
             edits=sum(r.edits for r in reports), edit_kinds=_kinds(reports),
             render_seconds=t_render,
             total_seconds=time.perf_counter() - t0, threads=threads, width=snap.width,
@@ -215,6 +227,9 @@ class FrameRenderer:
                                    memory_peak=stats["memory_mb"])
         engine.update_stats("", status_line(stats))
         engine.update_progress(1.0)
+
+    def _status(self, message: str) -> None:
+        self.engine.update_stats("", f"RSTrace | {message}")
 
     def _progress(self, fraction: float, message: str = "") -> None:
         self.engine.update_progress(float(min(max(fraction, 0.0), 1.0)))

@@ -38,6 +38,11 @@ class MeshEntry:
     reason: str | None
     fingerprint: bytes
     source: str  # "VIEWPORT" or "RENDER": which depsgraph it was read from
+    #: journal.JOURNAL's number when read or last found unchanged; the frame then
+    #: (frame_current, subframe); the evaluated mesh's vertex count (journal.py)
+    stamp: int = -1
+    frame: tuple | None = None
+    vertex_count: int = -1
 
 
 @dataclass
@@ -106,6 +111,9 @@ class ExportCache:
         self.materials: dict[Hashable, MaterialEntry] = {
             DEFAULT_MATERIAL_KEY: MaterialEntry(DEFAULT_MATERIAL.validated(), [])}
         self.textures: dict = {}
+        #: object key -> the bytes of its world matrix last found valid (check_matrix is
+        #: not run again on a matrix that did not change: most of a walk's cost per object)
+        self.matrices: dict[Hashable, bytes] = {}
         self.model = "PRINCIPLED"  # the shading model the cached materials were converted to
 
     def set_model(self, model: str) -> None:

@@ -5,9 +5,13 @@ One edit (an object moved), for F12 and for the viewport:
 1. F12 / animation: ``FrameRenderer.render`` with the render depsgraph; viewport:
    ``view_update`` with ``depsgraph.updates``. Both call :func:`sync`, under ``state.lock``:
 2. ``SceneMirror.dirty`` -> what the updates name (viewport; F12 walks everything) ->
-   ``SceneMirror.read`` -> an ``export.Snapshot`` (re-reading only what changed);
+   ``SceneMirror.read`` -> an ``export.Snapshot`` (re-reading only what changed; an F12,
+   whose render depsgraph's updates say nothing, asks :mod:`.journal` -- the record of the
+   viewport's updates since each mesh was read -- and checks by fingerprint only the meshes
+   it cannot vouch for); Esc (``cancel``) stops it between meshes;
 3. ``SceneMirror.diff`` -> ``[ObjectTransform]`` against the mirror (which has no camera);
-4. ``session.submit(edits)`` (or a new ``Session`` from the snapshot); ``SceneMirror.commit``.
+4. ``session.submit(edits)`` (or a new ``Session`` from the snapshot, built for F12 on a
+   thread of its own, :func:`build`, which Esc abandons); ``SceneMirror.commit``.
 5. F12, under ``RENDER_LOCK``: ``session.apply()``, ``session.render(camera=scene camera)``.
    Viewport: ``worker.submit(session=...)``; the worker: ``session.apply()``, a coarse image,
    ``session.render(camera=view camera)``.
@@ -19,6 +23,9 @@ Threads: ``state.lock`` guards the mirror and ``state.session`` (the viewport sy
 main thread, F12 on its render thread); :func:`sync` runs no kernels, except building a new
 F12 session, for which the caller holds ``runtime.RENDER_LOCK`` (taken before
 ``state.lock``, never after).
+
+A cancelled sync (:class:`export.Cancelled`) commits nothing: the session and the mirror
+are as they were (the export cache keeps what it read, which is what Blender holds).
 
 Layer: imports ``export`` and ``depsgraph_diff``; imported by ``session`` and ``viewport``.
 """
@@ -45,7 +52,7 @@ class SyncOutcome:
 
 
 def sync(state, depsgraph, source: str, settings, camera_object=None,
-         updates: bool = False) -> SyncOutcome:
+         updates: bool = False, cancel=None, progress=None, lock=None) -> SyncOutcome:
     """Bring ``state.session`` up to date with ``depsgraph``; see the module docstring.
 
     state : the scene's ``session.SceneState`` (``session``, ``mirror``, ``lock``)
@@ -55,9 +62,14 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
         a viewport one on the worker, by its first ``apply``)
     updates : read only what ``depsgraph.updates`` name (``view_update``); else walk the
         whole depsgraph
+    cancel : () -> bool (F12: ``engine.test_break``), asked before each mesh read and every
+        0.1 s while a new F12 session builds; True raises :class:`export.Cancelled`
+    progress : (message) -> None, told what is being read or built (the status line)
+    lock : the :class:`HeldLock` of ``runtime.RENDER_LOCK`` an F12 holds, handed to a
+        build cancelled before it finished (which releases it once done)
 
-    Raises :class:`SceneError` (a broken camera, nothing to render); a live session and its
-    mirror are then as they were.
+    Raises :class:`SceneError` (a broken camera, nothing to render) or
+    :class:`export.Cancelled`; a live session and its mirror are then as they were.
     """
     from rstrace_engine.session import Session
 
@@ -75,17 +87,104 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
             if dirty is None:
                 return SyncOutcome(session, None)
         snap = mirror.read(depsgraph, dirty, source, camera_object=camera_object,
-                           with_camera=source == "RENDER")
+                           with_camera=source == "RENDER", cancel=cancel, progress=progress)
         diff = mirror.diff(snap, exists=existing_objects)
         seconds = time.perf_counter() - t0
         new = session is None
         if new:
-            session = Session(mirror.scene(snap), settings, build=source == "RENDER")
+            def make():
+                return Session(mirror.scene(snap), settings, build=False)
+
+            if source == "RENDER":
+                triangles = sum(len(mirror.cache.mesh(r.mesh_key).triangles)
+                                for r in snap.objects.values())
+                session = build(make, triangles, cancel, progress, lock)
+            else:
+                session = make()
             state.session = session
         else:
             session.submit(diff.edits)
         mirror.commit(diff)
         return SyncOutcome(session, snap, len(diff.edits), new, seconds, diff.stats)
+
+
+class HeldLock:
+    """``with HeldLock(lock):`` holds ``lock`` (a ``threading.Lock``) and releases it at
+    the end, unless :meth:`hand_over` gave it to another thread, which then releases it."""
+
+    def __init__(self, lock) -> None:
+        self.lock = lock
+        self.handed = False
+
+    def __enter__(self) -> HeldLock:
+        self.lock.acquire()
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        if not self.handed:
+            self.lock.release()
+
+    def hand_over(self) -> None:
+        self.handed = True
+
+
+#: How often a build is checked for a cancel (s): Esc stops an F12 within this.
+CANCEL_POLL_S = 0.1
+
+
+def build(make, triangles: int = 0, cancel=None, progress=None,
+          lock: HeldLock | None = None):
+    """``make()`` a new session and build its structures (the scene's arrays, its
+    accelerator), saying so through ``progress`` and stopping when ``cancel()`` turns True
+    (polled every :data:`CANCEL_POLL_S`); returns the built session.
+
+    The build runs on a thread of its own; a cancelled one is left to finish there (its
+    kernels cannot be stopped halfway) and is thrown away: :class:`export.Cancelled` is
+    raised at once. The kernels it still runs hold ``lock`` (``runtime.RENDER_LOCK``,
+    handed over: the thread releases it when done), so nothing else runs kernels beside it.
+    """
+    import threading
+
+    if cancel is None:
+        session = make()
+        session.apply()  # (builds the accelerator; no edits are queued)
+        return session
+    done = threading.Event()
+    guard = threading.Lock()
+    out: list = []
+    failed: list = []
+    abandoned = [False]
+
+    def run() -> None:
+        try:
+            session = make()
+            session.apply()
+            out.append(session)
+        except BaseException as exc:  # handed to the caller
+            failed.append(exc)
+        finally:
+            with guard:
+                done.set()
+                if abandoned[0] and lock is not None:
+                    lock.lock.release()
+
+    t0 = time.perf_counter()
+    worker = threading.Thread(target=run, name="rstrace-build", daemon=True)
+    worker.start()
+    while not done.wait(CANCEL_POLL_S):
+        if progress is not None:
+            progress(f"building the scene and its BVH over {triangles:,} triangles "
+                     f"({time.perf_counter() - t0:.0f} s, Esc cancels)")
+        if cancel():
+            with guard:
+                if not done.is_set():
+                    abandoned[0] = True
+                    if lock is not None:
+                        lock.hand_over()
+                    raise export.Cancelled
+    if failed:
+        raise failed[0]
+    return out[0]
 
 
 def drop_session(state) -> None:

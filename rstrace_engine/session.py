@@ -234,7 +234,8 @@ class Session:
         with :func:`~rstrace_engine.geometry.cameras.same_camera`)."""
         s = self.settings
         return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
-                s.accelerator, tuple(sorted(s.accelerator_options().items())))
+                s.light_samples, s.accelerator,
+                tuple(sorted(s.accelerator_options().items())))
 
     def render(self, camera: Camera | None = None, progress=None, cancel=None) -> Frame:
         """Render through ``camera`` (default: the scene's). progress(fraction, message);
@@ -264,8 +265,12 @@ class Session:
         new_cache = False
         if mode == "INTERPOLANT":
             _, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
+        terms = None
+        if mode == "BASE":  # per-light records: light edits relight (tracing.light_records)
+            terms = (len(sa.light_kind), 1e6 * float(self.settings.relight_memory_mb))
         records, pixels, base = self.reuse.plan(key, cam, self.settings.samples,
-                                                sa.scene_aabb, keep=not new_cache)
+                                                sa.scene_aabb, keep=not new_cache,
+                                                light_terms=terms)
         c0 = self.interpolants.cache
         pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
@@ -273,9 +278,13 @@ class Session:
                                              progress=progress, cancel=cancel,
                                              records=records, pixels=pixels, base=base)
         else:
+            if pixels is not None:
+                base = self.reuse.relight(sa, self.accel, self.settings, base)
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
                                    pixels=pixels, base=base)
+        if mode == "BASE" and pixels is not None:
+            frame.stats.update(self.reuse.relight_stats)
         frame = self.reuse.finish(frame, records, pixels, key, cam, self.settings.samples,
                                   self.interpolants.cache, pool0)
         n = cam.width * cam.height
@@ -302,6 +311,10 @@ class Session:
         n = frame.pixel_class.size
         frame.stats["dirty_fraction"] = frame.stats["dirty_pixels"] / max(n, 1)
         frame.stats["records_mb"] = self.records_bytes / 1e6
+        frame.stats["light_records_mb"] = self.reuse.light_records_bytes / 1e6
+        lr = self.records.light if self.records is not None else None
+        if lr is not None and lr.overflow is not None:
+            frame.stats["relight_off"] = lr.overflow
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]

@@ -132,6 +132,17 @@ def _animate(session, ortho: bool, cancel=None) -> None:
         if step is not None:
             session.update_scene(warm_scene(ortho=ortho, **step))
         session.render(cancel=cancel)
+    # light edits: BASE relights (a power change recombines, a moved light is shaded again)
+    from dataclasses import replace
+
+    from .geometry.edits import LightSet
+
+    spot = session.scene.lights[session.scene.light_slot("Spot")]
+    for light in (replace(spot, power=spot.power * 0.8),
+                  replace(spot, position=(1.8, -2.0, 3.2))):
+        _check(cancel)
+        session.apply([LightSet("Spot", light)])
+        session.render(cancel=cancel)
 
 
 def _warm_edited_interpolants(progress=None, cancel=None) -> None:
@@ -281,7 +292,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     import importlib
 
     for name in ("accel.bvh", "accel.triangle", "accel.accelerators", "tracing.whitted",
-                 "tracing.shading", "interpolants.render", "interpolants.interpolant_cache",
+                 "tracing.shader", "tracing.shading", "tracing.light_records",
+                 "interpolants.render", "interpolants.interpolant_cache",
                  "geometry.mesh_topology", "geometry.cameras", "ri_tree.render",
                  "ri_tree.tree_cache", "ri_tree.candidates", "ri_tree.sampling", "ri_tree.patches",
                  "ri_tree.surfaces",

@@ -85,3 +85,67 @@ def gallery(kind: str) -> Scene:
 
 
 SCENES = dict(texture=textured_floor, spot=spot_floor, gallery=gallery)
+
+
+# ----------------------------------------------------------------------------- soft light
+# (issue 20 item 3: lights with an extent are interpolated where a cell proves them fully
+# visible and their value is the closed form; all Lambertian unless said otherwise)
+
+
+def soft_penumbra(kind: str) -> Scene:
+    """A box floating under a small rectangle light: its penumbra on the floor spans many
+    cells (umbra, penumbra and lit floor side by side), and a sphere light just above the
+    floor (its light changes fast close to it)."""
+    s = Scene()
+    grey = s.add_material(Material("grey", diffuse=(0.6, 0.6, 0.6)))
+    box = s.add_material(Material("box", diffuse=(0.4, 0.5, 0.6)))
+    s.add_instance(s.add_mesh(shapes.plane(12.0, name="floor")), np.eye(4), [grey], "Floor")
+    s.add_instance(s.add_mesh(shapes.box((0.6, 0.6, 0.6), name="cube")),
+                   shapes.transform((-0.8, 0.3, 0.9)), [box], "Blocker")
+    s.add_light(Light("Area", "AREA", power=350.0, position=(-0.6, 0.4, 2.2),
+                      direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(0.9, 0.5)))
+    s.add_light(Light("Near", "POINT", power=25.0, position=(1.6, -0.8, 0.3), radius=0.2,
+                      soft_falloff=False))
+    s.set_camera(_camera(kind, (0.0, -4.5, 5.0), (0.0, 0.0, 0.0), 6.0))
+    return s
+
+
+def soft_sun(kind: str) -> Scene:
+    """A sun with a wide angle behind a post: its soft shadow edge across the floor, a
+    glossy ball (its highlight is sampled: traced) and a sphere light with Blender's soft
+    falloff."""
+    s = Scene()
+    grey = s.add_material(Material("grey", diffuse=(0.55, 0.55, 0.5)))
+    gloss = s.add_material(Material("gloss", diffuse=(0.5, 0.1, 0.1), specular=(0.3,) * 3,
+                                    roughness=0.3))
+    s.add_instance(s.add_mesh(shapes.plane(12.0, name="floor")), np.eye(4), [grey], "Floor")
+    s.add_instance(s.add_mesh(shapes.box((0.3, 0.3, 2.0), name="post")),
+                   shapes.transform((-0.5, 0.5, 1.0)), [grey], "Post")
+    s.add_instance(s.add_mesh(shapes.icosphere(2, name="ball")),
+                   shapes.transform((1.2, 0.8, 0.5), 0.5), [gloss], "Ball")
+    s.add_light(Light("Sun", "SUN", power=2.0, direction=(0.6, -0.3, -0.7), angle=0.25))
+    s.add_light(Light("Soft", "POINT", power=120.0, position=(-2.0, -1.5, 1.5),
+                      radius=0.4))
+    s.set_camera(_camera(kind, (0.0, -5.0, 5.0), (0.0, 0.2, 0.0), 7.0))
+    return s
+
+
+def soft_studio(kind: str) -> Scene:
+    """Objects on a floor under one large area light and a sphere light (a studio): soft
+    contact shadows."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.7, 0.7, 0.68)))
+    clay = s.add_material(Material("clay", diffuse=(0.65, 0.45, 0.3)))
+    s.add_instance(s.add_mesh(shapes.plane(12.0, name="floor")), np.eye(4), [floor], "Floor")
+    s.add_instance(s.add_mesh(shapes.box((0.8, 0.8, 0.8), name="cube")),
+                   shapes.transform((-1.0, 0.4, 0.4), rotate_z_deg=25.0), [clay], "Cube")
+    s.add_instance(s.add_mesh(shapes.icosphere(2, name="ball")),
+                   shapes.transform((0.9, 0.2, 0.5), 0.5), [clay], "Ball")
+    s.add_light(Light("Softbox", "AREA", power=600.0, position=(0.0, -0.5, 3.0),
+                      direction=(0.0, 0.2, -1.0), shape="SQUARE", size=(2.0, 2.0)))
+    s.add_light(Light("Bulb", "POINT", power=200.0, position=(2.5, -2.0, 2.0), radius=0.5))
+    s.set_camera(_camera(kind, (0.0, -5.5, 3.5), (0.0, 0.3, 0.3), 6.0))
+    return s
+
+
+SOFT_SCENES = dict(soft_penumbra=soft_penumbra, soft_sun=soft_sun, soft_studio=soft_studio)

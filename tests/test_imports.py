@@ -124,7 +124,7 @@ def test_reader_sees_every_kind_of_import():
     assert got == {"numpy", f"{PACKAGE}.tolerances", f"{PACKAGE}.frame", f"{PACKAGE}.accel.bvh",
                    "bpy", f"{PACKAGE}.accel.visibility_field", "addon.engine"}
     graph = import_graph()
-    assert f"{PACKAGE}.tolerances" in graph[f"{PACKAGE}.tracing.whitted"]
+    assert f"{PACKAGE}.tolerances" in graph[f"{PACKAGE}.tracing.shader"]
     assert graph[PACKAGE] == {f"{PACKAGE}.kernel_cache"}
 
 

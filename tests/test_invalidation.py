@@ -427,3 +427,83 @@ def test_a_deleted_light_is_no_light_to_the_predicate(light):
                           accel=create_accelerator("BVH", sess.scene.arrays()))
     err = np.abs(image.to_display(fresh.radiance) - image.to_display(base.radiance)).max()
     assert err <= 0.01 + 1e-6
+
+
+# ----------------------------------------------------------------------------- soft light
+
+
+def soft_spheres(blue=(1.5, 1.6, 0.8), area_pos=(0.3, -0.6, 4.0), area_size=(2.0, 1.2),
+                 area_shape="RECTANGLE", radius=0.3, sun_angle=0.1, extra=None,
+                 extra_scale=0.3) -> Scene:
+    """Lambertian spheres on a floor before a wall under an area light, a sphere light and
+    a sun with an angle (no world light): interpolated where each light is proven fully
+    visible. Instance slots: 0 ground, 1 red, 2 white, 3 blue, 4 wall, 5 the extra sphere;
+    lights 0 area, 1 ball, 2 sun."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.55, 0.55, 0.5)))
+    red = s.add_material(Material("red", diffuse=(0.7, 0.12, 0.1)))
+    white = s.add_material(Material("white", diffuse=(0.7, 0.7, 0.7)))
+    blue_m = s.add_material(Material("blue", diffuse=(0.1, 0.2, 0.65)))
+    wall = s.add_material(Material("wall", diffuse=(0.6, 0.5, 0.4)))
+    sphere = s.add_mesh(shapes.icosphere(3, name="sphere"))
+    ground = s.add_mesh(shapes.plane(12.0, name="ground"))
+    s.add_instance(ground, np.eye(4), [floor], name="Ground")
+    s.add_instance(sphere, shapes.transform((-1.6, 0.4, 1.0)), [red], name="Red")
+    s.add_instance(sphere, shapes.transform((0.6, -0.9, 1.0)), [white], name="White")
+    s.add_instance(sphere, shapes.transform(blue, 0.8), [blue_m], name="Blue")
+    s.add_instance(ground, shapes.transform((0.0, 4.0, 2.0), (1.0, 0.4, 1.0), 0.0, 90.0),
+                   [wall], name="Wall")
+    if extra is not None:
+        s.add_instance(sphere, shapes.transform(extra, extra_scale), [red], name="Extra")
+    s.add_light(Light("Area", "AREA", power=900.0, position=area_pos,
+                      direction=(0.0, 0.0, -1.0), shape=area_shape, size=area_size))
+    s.add_light(Light("Ball", "POINT", power=500.0, position=(4.0, -2.0, 3.5),
+                      radius=radius))
+    s.add_light(Light("Sun", "SUN", power=1.5, direction=SUN_DIR, angle=sun_angle))
+    s.set_world_color((0.05, 0.06, 0.08), lights=False)
+    s.set_camera(Camera(matrix=shapes.look_at((0.0, -8.5, 3.6), (0.0, 0.3, 0.8)), lens=35.0,
+                        width=W, height=H))
+    return s
+
+
+SOFT_EDITS = {
+    # an object moved: found through the shafts to the lights' extents
+    "move_small": (dict(blue=(1.8, 1.3, 0.8)), dict(objects={3})),
+    # a small ball added under the area light, in the floor's shafts to its rectangle
+    "add_in_area_shaft": (dict(extra=(0.45, -1.85, 2.0), extra_scale=0.15), dict()),
+    # far toward the sun, off its axis but inside its cone's shafts: an infinite tunnel
+    "add_far_sunward": (dict(extra=FAR_SUNWARD, extra_scale=8.0), dict()),
+    "move_area": (dict(area_pos=(0.8, -0.2, 3.6)), dict(lights={0})),
+    "resize_area": (dict(area_size=(3.0, 0.6)), dict(lights={0})),
+    "area_shape": (dict(area_shape="ELLIPSE"), dict(lights={0})),
+    "radius": (dict(radius=0.6), dict(lights={1})),
+    # (a fully visible sun above the horizon gives the same light at any angle: at 1 rad
+    # its cone crosses the wall's horizon)
+    "sun_angle": (dict(sun_angle=1.0), dict(lights={2})),
+}
+
+
+@pytest.mark.parametrize("name", list(SOFT_EDITS))
+def test_soft_light_invalidation_has_no_false_negatives(name):
+    """Issue 20 item 4: interpolants under lights with an extent (valid where the shaft to
+    the whole extent is empty) leave tunnels to the extent's box (an infinite one for a
+    sun's cone); an object entering such a shaft, or an edit of the light's position, size,
+    shape, radius or angle, invalidates every interpolant whose radiance it changes."""
+    kw, named = SOFT_EDITS[name]
+    s0 = soft_spheres()
+    r, _ = warm_cache(s0)
+    cache = r.cache
+    snap = snapshot(cache)
+    assert len(snap["ids"]) > 50
+    inv, fx, s1, _ = edit(cache, s0, soft_spheres(**kw))
+    assert set(named.get("objects", ())) <= fx.objects
+    assert set(named.get("lights", ())) <= fx.lights_moved  # an extent is light geometry
+    changed = changed_after(cache, snap)
+    hit = np.isin(snap["ids"], inv.ids)
+    assert changed.any(), "the edit changed no interpolant: the test proves nothing"
+    missed = np.flatnonzero(changed & ~hit)
+    assert len(missed) == 0, f"{name}: {len(missed)} changed interpolants not invalidated"
+    alive = cache.pool.live[snap["ids"]] & (cache.pool.serial[snap["ids"]] == snap["serial"])
+    np.testing.assert_array_equal(alive, ~hit)
+    if name in ("move_small", "add_in_area_shaft"):
+        assert hit.mean() < 0.5, f"{name}: {hit.mean():.0%} invalidated"

@@ -12,7 +12,7 @@ from tracer_scenes import ortho_down, plane_scene, point_intensity
 
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.geometry import shapes
-from rstrace_engine.geometry.principled import principled_material
+from rstrace_engine.geometry.principled import ROUGH_REFLECTION_NOTE, principled_material
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
 from rstrace_engine.tracing import shading as sh
 from rstrace_engine.tracing import whitted
@@ -213,3 +213,22 @@ def test_coloured_glass_is_tinted_once_through_an_object(model):
     node, _ = principled_material("green", base, roughness=0.0, transmission=1.0,
                                   model=model, tint_per_crossing=True)
     np.testing.assert_allclose(node.transmission, base)
+
+
+@pytest.mark.parametrize("metallic, roughness, transmission, reported", [
+    (1.0, 0.05, 0.0, False),   # a mirror: traced exactly
+    (1.0, 0.2, 0.0, True),     # blended toward a sharp mirror
+    (0.0, 0.5, 0.0, True),     # Blender's default plastic: its reflection of objects dropped
+    (0.0, 0.5, 1.0, False),    # rough glass: reported as rough transmission instead
+])
+def test_rough_reflection_is_reported(metallic, roughness, transmission, reported):
+    """Until glossy rays are traced, a reflecting material rougher than a mirror says so."""
+    _, notes = principled_material("M", (0.8, 0.8, 0.8), metallic=metallic,
+                                   roughness=roughness, transmission=transmission)
+    assert (ROUGH_REFLECTION_NOTE in notes) == reported, notes
+
+
+def test_rough_surface_without_specular_is_not_reported():
+    _, notes = principled_material("Matte", (0.8, 0.8, 0.8), roughness=0.5,
+                                   specular_level=0.0)
+    assert ROUGH_REFLECTION_NOTE not in notes

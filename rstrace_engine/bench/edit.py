@@ -2,7 +2,7 @@
 
 ``python -m rstrace_engine.bench edit [--json] [--width W] [--height H]
 [--scenes museum,three_spheres] [--modes BASE,INTERPOLANT] [--out DIR] [--threads N]
-[--clock wall|cpu] [--soak N]``
+[--clock wall|cpu] [--soak N [--soak-mode BASE|INTERPOLANT]]``
 
 For each scene (640x480, ray depth 5) and mode (BASE, INTERPOLANT at epsilon 0.01), one
 session renders the scene's camera, then takes the edits below one after another, rendering
@@ -21,15 +21,19 @@ row                museum                                       three_spheres
 ``recolor``        recolour a material one sculpture uses       recolour the red material
 ``recolor_shared`` recolour marble (500 sculptures)             recolour the floor
 ``light_power``    halve a ceiling light's power                halve the key light
+``light_colour``   warm that light's colour                     the same
+``world_colour``   the world's colour (a background only)       the same
 ``move_light``     move a ceiling light 1 m                     move the fill light 1 m
+``add_light``      add a point light (a new light slot)         the same
+``delete_light``   delete a ceiling light                       delete the key light
 ``add_object``     add a ball on a plinth                       add a small sphere
 ``camera_step``    camera steps forward (0.5% of the scene)     the same
 =================  ===========================================  ===========================
 
 ``studio`` (soft light: an area light, a sphere light, a world that lights; issue 20) has
 the same rows: delete the torus / the vase, move the mirror ball 0.1 m, recolour the red
-material / the floor, halve the soft box, move the sphere light 1 m, add a small ball. Its
-goal: moving a small object >= 20x faster than a fresh frame in BASE, exact.
+material / the floor, the light rows on the soft box and the sphere light, add a small
+ball. Its goal: moving a small object >= 20x faster than a fresh frame in BASE, exact.
 
 Columns: ``rst_query_ms`` (RST traversal + membership + invalidation, INTERPOLANT),
 ``records_query_ms`` (finding the dirty pixels in the per-pixel records), ``apply_ms``
@@ -42,7 +46,14 @@ space, epsilon 0.01, against the fresh frame of the same mode), for INTERPOLANT 
 ``DIR/edit_<scene>_<row>.png`` per edit: the frame after the edit with its dirty pixels
 tinted magenta (BASE; INTERPOLANT rows add ``_interpolant``). ``--soak N`` instead runs N
 random edit batches (every kind, and camera moves) on the small soak scenes checking after
-each that the BASE frame equals a fresh session's.
+each that the BASE frame equals a fresh session's, bit for bit; with ``--soak-mode
+INTERPOLANT`` it runs them in an INTERPOLANT session on soft-lit scenes, each frame within
+epsilon of a fresh BASE frame (:func:`.soak.interpolant_soak`).
+
+``soft_room`` (the soak's room with sphere, sun-with-angle and area lights and a world that
+lights, at the bench's size) has the light rows only, plus ``resize_area_light``. BASE light
+rows relight the frame from its per-light records (``tracing.light_records``): the
+``relight_s`` and ``light_records_mb`` columns.
 """
 
 from __future__ import annotations
@@ -62,24 +73,30 @@ from ..frame import RenderSettings
 from ..geometry import shapes
 from ..geometry.edits import (
     CameraChange,
+    LightDelete,
     LightSet,
     MaterialSet,
     ObjectAdd,
     ObjectDelete,
     ObjectTransform,
+    WorldColor,
 )
-from ..geometry.scene import Material, Scene
+from ..geometry.scene import Light, Material, Scene
 from ..session import Session
 from .trade import moved_cameras
 
 EPSILON = 0.01
 ROWS = ("delete_top", "delete_bottom", "move_cube_in", "move_small", "recolor",
-        "recolor_shared", "light_power", "move_light", "add_object", "camera_step")
+        "recolor_shared", "light_power", "light_colour", "world_colour", "move_light",
+        "resize_area_light", "add_light", "delete_light", "add_object", "camera_step")
+#: the rows that edit lights or the world only (BASE relights them)
+LIGHT_ROWS = ("light_power", "light_colour", "world_colour", "move_light",
+              "resize_area_light", "add_light", "delete_light")
 JSON_KEYS = ("scene", "edit", "mode", "rst_query_ms", "records_query_ms", "apply_ms",
              "invalidated_interpolants", "dirty_fraction", "full_frame_s",
              "incremental_frame_s", "speedup", "max_error_vs_fresh", "frac_over_epsilon",
              "max_error_vs_base", "frac_over_epsilon_vs_base", "rst_memory_mb", "records_mb",
-             "goal")
+             "light_records_mb", "relight_s", "goal")
 CLOCK = time.perf_counter
 
 # --------------------------------------------------------------------------- the scenes
@@ -152,6 +169,11 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
         light_key, moved_light = "SoftBox", "Bulb"
         add = ObjectAdd("NewBall", "sphere", shapes.transform((1.9, -0.4, 0.3), 0.3),
                         ("blue",))
+    elif name == "soft_room":
+        from .soak import soft_room
+
+        s = soft_room(width, height)
+        return s, _light_edits(s, "Lamp", "Lamp", "Sun")
     else:
         raise ValueError(f"edit bench: unknown scene {name!r}")
     s.add_material(Material("green", diffuse=(0.1, 0.6, 0.15)), key="green")
@@ -160,10 +182,6 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
                    name="GreenCube")
     small = s.instances[s.instance_slot(small_key)]["matrix"].copy()
     small[0, 3] += small_step
-    li = s.lights[s.light_slot(light_key)]
-    ml = s.lights[s.light_slot(moved_light)]
-    half = replace(li, power=li.power * 0.5)  # (its extent kept: radius, size, shape)
-    moved = replace(ml, position=tuple(np.asarray(ml.position) + (1.0, 0.0, 0.0)))
     step = moved_cameras(s)["step"]
     edits = {
         "delete_top": [ObjectDelete(top)],
@@ -172,12 +190,40 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
         "move_small": [ObjectTransform(small_key, small)],
         "recolor": [MaterialSet(*recolor)],
         "recolor_shared": [MaterialSet(*shared)],
-        "light_power": [LightSet(light_key, half)],
-        "move_light": [LightSet(moved_light, moved)],
         "add_object": [add],
         "camera_step": [CameraChange(step)],
     }
+    edits.update(_light_edits(s, light_key, moved_light, light_key))
     return s, edits
+
+
+def _light_edits(s: Scene, light_key: str, moved_light: str, deleted: str) -> dict:
+    """The light rows' edits (see the module doc)."""
+    li = s.lights[s.light_slot(light_key)]
+    ml = s.lights[s.light_slot(moved_light)]
+    box = s.arrays().scene_aabb
+    centre = 0.5 * (box[0] + box[1])
+    top = (centre[0] + 0.2 * (box[1][0] - box[0][0]), centre[1],
+           box[0][2] + 0.8 * (box[1][2] - box[0][2]))
+    edits = {
+        "light_power": [LightSet(light_key, replace(li, power=li.power * 0.5))],
+        "light_colour": [LightSet(light_key, replace(li, power=li.power * 0.5,
+                                                     color=(1.0, 0.75, 0.5)))],
+        # the world's colour as a background (a world that lights keeps lighting)
+        "world_colour": [WorldColor((0.1, 0.12, 0.2), lights=None if s.world_lights
+                                    and np.any(s.world_color > 0) else False)],
+        "move_light": [LightSet(moved_light, replace(
+            ml, position=tuple(np.asarray(ml.position) + (1.0, 0.0, 0.0))))],
+        "add_light": [LightSet("BenchLight", Light("BenchLight", "POINT",
+                                                   power=2.0 * li.power, position=top))],
+        "delete_light": [LightDelete(deleted)],
+    }
+    areas = [k for k, j in s.light_keys.slot.items() if s.lights[j].kind == "AREA"]
+    if areas:
+        a = s.lights[s.light_slot(areas[0])]
+        edits["resize_area_light"] = [LightSet(areas[0], replace(
+            a, size=(1.5 * a.size[0], 1.2 * a.size[1])))]
+    return edits
 
 
 # --------------------------------------------------------------------------- running
@@ -204,6 +250,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
         sess.render()
         log(f"{name} {mode}: first frame {CLOCK() - t0:.2f} s")
         for row in ROWS:
+            if row not in edits:
+                continue
             rep = sess.apply(edits[row])
             dirty = sess.dirty_mask
             t0 = CLOCK()
@@ -223,6 +271,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
                      max_error_vs_fresh=cmp["max_error"], frac_over_epsilon=cmp["frac_over"],
                      max_linear_diff=float(np.abs(frame.radiance - fresh.radiance).max()),
                      rst_memory_mb=_rst_mb(sess), records_mb=sess.records_bytes / 1e6,
+                     light_records_mb=frame.stats.get("light_records_mb", 0.0),
+                     relight_s=frame.stats.get("relight_s", 0.0),
                      incremental=bool(frame.stats.get("incremental")))
             if mode == "BASE":
                 base_frames[row] = fresh.radiance
@@ -239,7 +289,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
                 f"{full_s:.2f} s x{r['speedup']:.1f} err {r['max_error_vs_fresh']:.2e} "
                 f"rst {r['rst_query_ms']:.2f} ms rec {r['records_query_ms']:.1f} ms "
                 f"inval {r['invalidated_interpolants']} rec {r['records_mb']:.2f} MB "
-                f"rst {r['rst_memory_mb']:.2f} MB")
+                f"rst {r['rst_memory_mb']:.2f} MB light rec {r['light_records_mb']:.1f} MB "
+                f"relight {r['relight_s']:.3f} s")
     return rows
 
 
@@ -255,6 +306,12 @@ def goal(r: dict) -> str:
     if r["scene"] == "studio" and r["mode"] == "BASE" and r["edit"] == "move_small":
         ok = r["speedup"] >= 20.0 and r["max_linear_diff"] <= 1e-6
         notes.append(f"soft light: speedup >= 20x exact: {'met' if ok else 'MISSED'}")
+    if r["mode"] == "BASE" and r["edit"] in ("light_power", "light_colour", "world_colour"):
+        ok = r["speedup"] >= 50.0 and r["max_linear_diff"] == 0.0
+        notes.append(f"speedup >= 50x exact: {'met' if ok else 'MISSED'}")
+    if r["mode"] == "BASE" and r["edit"] in ("move_light", "resize_area_light"):
+        ok = r["speedup"] >= 3.0 and r["max_linear_diff"] == 0.0
+        notes.append(f"speedup >= 3x exact: {'met' if ok else 'MISSED'}")
     if r["scene"] == "museum":
         if r["mode"] == "BASE" and r["edit"] in ("move_small", "recolor"):
             ok = r["speedup"] >= 20.0 and r["max_linear_diff"] <= 1e-6
@@ -275,7 +332,7 @@ def soak(steps: int, log=print) -> dict:
     from .soak import SOAK_SCENES, EditGenerator
 
     settings = RenderSettings(mode="BASE", max_depth=3)
-    worst, fractions, done = 0.0, [], 0
+    worst, fractions, done, relit_steps = 0.0, [], 0, 0
     per_scene = max(1, steps // len(SOAK_SCENES))
     for k, (name, build) in enumerate(sorted(SOAK_SCENES.items())):
         gen = EditGenerator(build(64, 48), seed=1000 + k,
@@ -285,11 +342,16 @@ def soak(steps: int, log=print) -> dict:
         for _ in range(per_scene):
             sess.apply(gen.step())
             dirty = sess.dirty_mask
+            relit = sess.reuse.relight_due  # light edits: every kept pixel recombined
             frame = sess.render()
             fresh = Session(sess.scene.copy(), settings).render()
             diff = float(np.abs(frame.radiance - fresh.radiance).max())
             worst = max(worst, diff)
-            if dirty is not None:
+            relit_steps += relit
+            if not np.array_equal(frame.radiance, fresh.radiance):
+                raise AssertionError(f"soak {name}: incremental frame differs by {diff} "
+                                     f"(BASE must equal a fresh frame bit for bit)")
+            if dirty is not None and not relit:
                 changed = np.any(prev.radiance != fresh.radiance, axis=2)
                 if (changed & ~dirty).any():
                     raise AssertionError(f"soak {name}: a changed pixel was not dirty")
@@ -300,6 +362,7 @@ def soak(steps: int, log=print) -> dict:
             done += 1
         log(f"soak {name}: {per_scene} steps, kinds {gen.kinds_done}")
     return dict(steps=done, max_diff=worst, incremental_steps=len(fractions),
+                relit_steps=relit_steps,
                 mean_dirty_fraction=float(np.mean(fractions)) if fractions else 1.0)
 
 
@@ -309,9 +372,9 @@ def soak(steps: int, log=print) -> dict:
 def markdown(rows: list[dict], width: int, height: int, note: str) -> str:
     head = ("| scene | edit | mode | RST query ms | records query ms | invalidated | dirty % "
             "| full s | incremental s | speedup | max err vs fresh | over eps | RST MB "
-            "| records MB | goal |")
+            "| records MB | light records MB | goal |")
     lines = [f"Edits at {width}x{height}, epsilon {EPSILON} ({note})", "", head,
-             "|" + "---|" * 15]
+             "|" + "---|" * 16]
     for r in rows:
         lines.append(
             f"| {r['scene']} | {r['edit']} | {r['mode']} | {r['rst_query_ms']:.2f} | "
@@ -319,7 +382,8 @@ def markdown(rows: list[dict], width: int, height: int, note: str) -> str:
             f"{100 * r['dirty_fraction']:.2f} | {r['full_frame_s']:.2f} | "
             f"{r['incremental_frame_s']:.3f} | {r['speedup']:.1f} | "
             f"{r['max_error_vs_fresh']:.1e} | {100 * r['frac_over_epsilon']:.2f}% | "
-            f"{r['rst_memory_mb']:.2f} | {r['records_mb']:.2f} | {r['goal']} |")
+            f"{r['rst_memory_mb']:.2f} | {r['records_mb']:.2f} | "
+            f"{r.get('light_records_mb', 0.0):.1f} | {r['goal']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -338,6 +402,9 @@ def main(argv: list[str]) -> int:
                         "shared machine)")
     p.add_argument("--soak", type=int, default=0,
                    help="run this many random edit batches checked against fresh frames")
+    p.add_argument("--soak-mode", choices=("BASE", "INTERPOLANT"), default="BASE",
+                   help="BASE: bit for bit against fresh frames; INTERPOLANT: within epsilon "
+                        "0.02 of fresh BASE frames (soft-lit scenes)")
     args = p.parse_args(argv)
     global CLOCK
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
@@ -349,10 +416,20 @@ def main(argv: list[str]) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
+    if args.soak and args.soak_mode == "INTERPOLANT":
+        from .soak import interpolant_soak
+
+        res = interpolant_soak(args.soak, log=log)
+        print(json.dumps(res) if args.json else
+              f"interpolant soak: {res['steps']} steps, max error against fresh BASE frames "
+              f"{res['max_error']:.2e} (epsilon {res['epsilon']}), mean interpolated "
+              f"fraction {res['mean_interpolated_fraction']:.3f}")
+        return 0
     if args.soak:
         res = soak(args.soak, log)
         print(json.dumps(res) if args.json else
-              f"soak: {res['steps']} steps, {res['incremental_steps']} incremental, max "
+              f"soak: {res['steps']} steps, {res['incremental_steps']} incremental, "
+              f"{res['relit_steps']} relit, max "
               f"difference to fresh frames {res['max_diff']:.1e}, mean dirty fraction "
               f"{res['mean_dirty_fraction']:.3f}")
         return 0

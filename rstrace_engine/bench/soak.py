@@ -102,6 +102,62 @@ def soft_room(width: int = 64, height: int = 48) -> Scene:
 SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori, "soft_room": soft_room}
 
 
+def soft_room_unlit_world(width: int = 64, height: int = 48) -> Scene:
+    """:func:`soft_room` with the world a background only: its area light, sphere light
+    and sun with an angle are what the interpolants can prove (the world's light is not
+    proven over any cell: docs/INTERPOLANTS.md, "Soft light")."""
+    s = soft_room(width, height)
+    s.set_world_color((0.05, 0.05, 0.08), lights=False)
+    return s
+
+
+#: Scenes of the INTERPOLANT soak (:func:`interpolant_soak`): interpolated under soft light.
+INTERPOLANT_SOAK_SCENES = {"soft_room_unlit_world": soft_room_unlit_world, "room": room}
+
+
+def interpolant_soak(steps: int, epsilon: float = 0.02, width: int = 256, height: int = 192,
+                     log=print) -> dict:
+    """``steps`` random edit batches (every kind, the light extents of
+    :attr:`EditGenerator.SOFT_KINDS`, camera moves) on :data:`INTERPOLANT_SOAK_SCENES` in
+    an INTERPOLANT session, each incremental frame checked against a fresh BASE frame of
+    the edited scene: the maximum display error within ``epsilon`` (float32 frames: plus
+    1e-6) and every traced pixel BASE's. Raises AssertionError on the first failure."""
+    from .. import image
+    from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
+    from ..session import Session
+
+    st = RenderSettings(mode="INTERPOLANT", epsilon=epsilon, max_depth=3, light_samples=4)
+    base_st = RenderSettings(mode="BASE", max_depth=3, light_samples=4)
+    worst, interpolated, done = 0.0, [], 0
+    per_scene = max(1, steps // len(INTERPOLANT_SOAK_SCENES))
+    for k, (name, build) in enumerate(sorted(INTERPOLANT_SOAK_SCENES.items())):
+        gen = EditGenerator(build(width, height), seed=2000 + k,
+                            extra=EditGenerator.EXTRA_KINDS + EditGenerator.SOFT_KINDS)
+        sess = Session(gen.scene.copy(), st)
+        sess.render()
+        for _ in range(per_scene):
+            sess.apply(gen.step())
+            frame = sess.render()
+            base = Session(sess.scene.copy(), base_st).render()
+            err = float(image.compare(frame.radiance, base.radiance, epsilon)["max_error"])
+            worst = max(worst, err)
+            if err > epsilon + 1e-6:
+                raise AssertionError(f"interpolant soak {name}: error {err} over epsilon")
+            cls = frame.pixel_class
+            traced = (cls != CLASS_INTERPOLATED) & (cls != CLASS_REBUILT)
+            diff = float(np.abs(frame.radiance[traced] - base.radiance[traced]).max(
+                initial=0.0))
+            if diff > 1e-6:
+                raise AssertionError(f"interpolant soak {name}: a traced pixel differs by "
+                                     f"{diff}")
+            interpolated.append(float(np.mean(~traced)))
+            done += 1
+        log(f"interpolant soak {name}: {per_scene} steps, kinds {gen.kinds_done}")
+    return dict(steps=done, max_error=worst, epsilon=epsilon,
+                mean_interpolated_fraction=float(np.mean(interpolated)) if interpolated
+                else 0.0)
+
+
 class EditGenerator:
     """Seeded random edit batches of every kind on a scene (a copy is kept in step)."""
 

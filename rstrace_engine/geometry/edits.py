@@ -197,6 +197,7 @@ class EditReport:
     messages: list = field(default_factory=list)
     regions: int = 0  # world boxes the geometry-type edits touched
     full_frame: bool = True  # the next frame renders every pixel (camera moved, no records)
+    relight: bool = False  # light / world edits only: the next frame relights, no pixel dirty
 
 
 # ----------------------------------------------------------------------------- applying

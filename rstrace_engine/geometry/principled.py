@@ -36,6 +36,14 @@ from .scene import Material, SceneError
 MIRROR_ROUGHNESS = 0.1
 GLOSSY_ROUGHNESS = 0.3
 
+#: Reported for a reflecting material rougher than a mirror: no glossy rays are traced, so
+#: what it reflects of other objects (not the lights' highlights, which are shaded exactly)
+#: is blended toward a sharp mirror or left out.
+ROUGH_REFLECTION_NOTE = (
+    f"rough reflections are not traced: other objects are reflected as in a sharp mirror "
+    f"at roughness {MIRROR_ROUGHNESS:g}-{GLOSSY_ROUGHNESS:g} and not at all above (the "
+    f"lights' highlights are shaded)")
+
 #: IORs the tracer handles; others are clamped into it, with a message.
 IOR_RANGE = (1.0, 10.0)
 
@@ -129,6 +137,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     f0 = f0_from_ior(ior) * 2.0 * level
     sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
                           0.0, 1.0))
+    if r > MIRROR_ROUGHNESS and (m > 0.0 or (f0 > 0.0 and m < 1.0 and t < 1.0)):
+        notes.append(ROUGH_REFLECTION_NOTE)
     alpha = float(np.clip(r * r, 1e-4, 1.0))
     emission_t = tuple(emission)
     if model == "PRINCIPLED":

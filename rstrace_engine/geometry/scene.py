@@ -87,17 +87,26 @@ def _area_size(name: str, shape: str, size) -> tuple:
     return (float(sz[0]), float(sz[1]))
 
 
+#: a light's direction or area axis this close to unit length (and the axis to orthogonal)
+#: is kept as given: normalising again would change its last bits, so a light given back
+#: with only its power changed would count as moved (and be shaded again)
+_UNIT_SLACK = 4e-16
+
+
 def _area_axis(name: str, axis, direction: np.ndarray) -> tuple:
     """The emitter's unit +X, made exactly orthogonal to ``direction``."""
     a = np.asarray(axis, dtype=np.float64).reshape(-1)
     ln = float(np.linalg.norm(a)) if a.size == 3 and np.all(np.isfinite(a)) else 0.0
     if ln == 0.0:
         raise SceneError(f"light '{name}': axis is zero, NaN, infinite or not 3 values")
-    a = a / ln
+    if abs(ln - 1.0) > _UNIT_SLACK:
+        a = a / ln
     c = float(a @ direction)
     if abs(c) > tol.AREA_AXIS_COS_MAX:
         raise SceneError(f"light '{name}': axis is not orthogonal to the direction "
                          f"(cosine {c:.3g})")
+    if abs(c) <= _UNIT_SLACK and abs(float(np.linalg.norm(a)) - 1.0) <= _UNIT_SLACK:
+        return tuple(a)  # already a unit axis orthogonal to the direction: kept as given
     a = a - c * direction
     return tuple(a / np.linalg.norm(a))
 
@@ -627,7 +636,8 @@ class Scene:
         blend = float(light.spot_blend)
         if light.kind == "SPOT" and not (0.0 < size <= math.pi and 0.0 <= blend <= 1.0):
             raise SceneError(f"light '{n}': spot size {size} / blend {blend} out of range")
-        d = d / ln
+        if abs(ln - 1.0) > _UNIT_SLACK:  # (idempotent: a light given back is unchanged)
+            d = d / ln
         radius = _light_number(n, "radius", light.radius, 0.0, tol.COORD_MAX)
         angle = _light_number(n, "angle", light.angle, 0.0, math.pi)
         # below these a sphere or a sun's cone is a point or a direction to float64 (its

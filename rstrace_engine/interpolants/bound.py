@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..tracing.soft_lights import has_soft_light
+from ..tracing.soft_lights import has_soft_light, world_lights
 
 #: The notes, one per scene class whose bound is tested rather than proven.
 NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose radiance "
@@ -21,15 +21,25 @@ NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose 
                   "only up to the tunnel padding)")
 
 
-#: Soft light is never interpolated yet: the note says why those pixels are traced.
-NOTE_SOFT = ("surfaces lit by lights with an extent (area, sphere, sun with an angle) or by "
-             "the world are traced, not interpolated (their shafts are not proven yet): "
-             "the bound holds there exactly as for the base tracer")
+#: Lights with an extent: what is interpolated under them, and what is traced.
+NOTE_SOFT = ("lights with an extent (area, sphere, sun with an angle) are interpolated only "
+             "where a cell proves them fully visible (an empty shaft to the whole extent) "
+             "or off, and the tracer's value is their closed form there (a Lambertian "
+             "surface under a sphere, a sun or a rectangle); penumbrae, spot lights with a "
+             "radius, disks, ellipses, spreads and glossy surfaces are traced, exactly as "
+             "the base tracer")
+#: The world's light: not proven over any cell, every surface is traced while it lights.
+NOTE_WORLD = ("the world lights every surface through its whole hemisphere, which no cell "
+              "proves unoccluded: while the world lights, every surface is traced (the "
+              "bound holds there exactly as for the base tracer)")
 
 
 def bound_notes(cache, used: np.ndarray) -> list[str]:
     """The notes that apply to interpolants ``used`` (ids, -1 for none) of ``cache``."""
-    soft = [NOTE_SOFT] if has_soft_light(cache.sa) else []
+    if world_lights(cache.sa):
+        soft = [NOTE_WORLD]
+    else:
+        soft = [NOTE_SOFT] if has_soft_light(cache.sa) else []
     q = np.unique(used[used >= 0])
     if len(q) == 0:
         return soft

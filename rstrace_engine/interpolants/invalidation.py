@@ -34,6 +34,7 @@ from ..geometry.scene import LIGHT_SUN
 from .linetree import EMPTY, expanded_boxes
 from .membership import Membership
 from .ray_segment_tree import RaySegmentTrees
+from .shafts import light_extents
 from .tunnels import (
     LIGHT_OCCLUDED,
     LIGHT_SHADES,
@@ -69,16 +70,18 @@ class Invalidation(NamedTuple):
 
 
 def rst_domain(sa) -> np.ndarray:
-    """The ray segment trees' domain (2, 3): the scene box with its point and spot lights,
+    """The ray segment trees' domain (2, 3): the scene box with its lights (a point or spot
+    light's position, the box of a sphere light's ball or an area light's rectangle),
     padded (:data:`~..tolerances.RST_DOMAIN_PAD_REL`)."""
     lo = np.array(sa.scene_aabb[0], np.float64)
     hi = np.array(sa.scene_aabb[1], np.float64)
-    pos = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
+    elo, ehi, _ = light_extents(sa)
     kind = np.asarray(sa.light_kind)
-    pts = pos[(kind != LIGHT_SUN) & (kind >= 0) & np.all(np.isfinite(pos), axis=1)]
-    if len(pts):
-        lo = np.minimum(lo, pts.min(axis=0))
-        hi = np.maximum(hi, pts.max(axis=0))
+    keep = (kind != LIGHT_SUN) & (kind >= 0) & np.all(np.isfinite(elo), axis=1) & np.all(
+        np.isfinite(ehi), axis=1)
+    if np.any(keep):
+        lo = np.minimum(lo, elo[keep].min(axis=0))
+        hi = np.maximum(hi, ehi[keep].max(axis=0))
     pad = (tol.RST_DOMAIN_PAD_REL * float(np.linalg.norm(hi - lo))
            + tol.RST_DOMAIN_PAD_MAG * (1.0 + float(np.abs([lo, hi]).max())))
     return np.stack([lo - pad, hi + pad])
@@ -129,22 +132,23 @@ class Dependencies:
         ids = np.ascontiguousarray(cell_samples, np.int32)
         ns = np.ascontiguousarray(nsamp, np.int32)
         lk = np.ascontiguousarray(sa.light_kind, np.int32)
-        lp = np.ascontiguousarray(sa.light_pos, np.float64).reshape(-1, 3)
+        elo, ehi, chord = light_extents(sa)
         ld = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         args = (inst.astype(np.int32), face.astype(np.int8), depth.astype(np.int64),
                 np.ascontiguousarray(coord, np.int64), np.ascontiguousarray(zlo),
                 np.ascontiguousarray(zhi), ids, ns)
         counts = np.zeros(nc, np.int64)
         none = np.empty((0, 6))
-        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, lp, ld, self.reach, self.slack, *args,
-                     False, counts, counts, none, none, np.empty(0, np.bool_))
+        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, elo, ehi, chord, ld, self.reach,
+                     self.slack, *args, False, counts, counts, none, none,
+                     np.empty(0, np.bool_))
         start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         m = int(counts.sum())
         ta = np.empty((m, 6))
         tb = np.empty((m, 6))
         tinf = np.empty(m, np.bool_)
-        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, lp, ld, self.reach, self.slack, *args,
-                     True, start, counts, ta, tb, tinf)
+        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, elo, ehi, chord, ld, self.reach,
+                     self.slack, *args, True, start, counts, ta, tb, tinf)
         pool = cache.pool
         q = np.repeat(pids, counts).astype(np.int32)
         self.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])

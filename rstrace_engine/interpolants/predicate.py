@@ -22,10 +22,23 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   triangle, or outside its spot cone over the whole slab (or, if in front of all of them,
   its shaft must be empty as for a lit light). A spot cone edge with blend 0 (a step) may not
   cross the slab (:func:`.shafts.cone_state`).
-* **Soft light** (a light with an extent, or a world colour that lights): not proven yet, so
-  a cell whose ray trees name a sampled light (``OCC_SOFT``), or any cell while the world
-  lights, fails (``light_shaft``) and its pixels are traced; the bound holds as for hard
-  light. Proving the shaft from the slab to the light's extent empty is the next step.
+* **Soft light** (a light with an extent: a sphere, a sun with an angle, an area light;
+  :func:`_soft_light`). Sampled at the corners (``OCC_SOFT``): the light must be *fully
+  visible* over the cell -- the shaft from the slab surface's box to the light's whole
+  extent (the ball, the rectangle's box, the sun's cone as a far box grown by its chord)
+  meets no other object, and every triangle of the object in it faces every point of the
+  extent (the point-light winding argument, shadow ray by shadow ray) -- and the tracer's
+  value must then be exact: the ratio estimator's closed form, which it takes where the
+  whole extent is above the horizon of the geometric and every interpolable shading normal
+  (:func:`.soft_slab.soft_slab`), on a material without a glossy lobe (whose soft samples
+  would be a Monte Carlo estimate). Then every shadow sample is unoccluded, the visibility ratio is
+  exactly 1 and the pixel's value is the closed form: smooth, deterministic, interpolable.
+  Otherwise ``light_shaft`` (penumbra or umbra: not proven), ``self_shadow`` or
+  ``soft_sampled`` (a spot with a radius, a disk, an ellipse, a spread, a glossy surface, a
+  light crossing the horizon). Not facing at the corners (``-2``): off everywhere when the
+  whole extent is behind every slab triangle or the slab is behind an area light. Below the
+  root a light with an extent fails the cell (``tunnel_light``). While the world lights,
+  every cell fails (``world_light``): its hemisphere is not proven unoccluded.
 * **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
   (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the
@@ -50,6 +63,7 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
+from ..geometry.scene import LIGHT_AREA
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
 from .occluders import occluder_covers
@@ -60,16 +74,17 @@ from .shafts import (
     boundary_edge_in,
     clip_polygon,
     cone_state,
+    extent_side,
     hexa_planes,
     hw_shaft,
     light_box,
-    light_side,
     load_tri,
     mesh_candidates,
     other_geometry,
     to_object,
     tri_normal,
 )
+from .soft_slab import soft_slab
 
 log = logging.getLogger(__name__)
 
@@ -80,9 +95,9 @@ _SHD = CLASS_FAIL_SHADOW
 #: Why a cell failed, finer than its pixel class (``check_cells``'s ``detail`` output).
 REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change", "slab",
            "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light", "spot_cone",
-           "self_tunnel", "partial_occluder")
+           "self_tunnel", "partial_occluder", "soft_sampled", "world_light")
 (R_VALID, R_MISS, R_CLASS, R_LIGHT, R_TREE, R_SLAB, R_FACING, R_SHAFT, R_SELF, R_TUNNEL,
- R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL) = range(len(REASONS))
+ R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL, R_SOFT, R_WORLD) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
 #: Triangles a self query may collect before the cell fails (conservatively).
@@ -263,13 +278,18 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
 
 
 @njit(cache=True, nogil=True)
-def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
+def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind, hb, hv,
+               nhv):
     """Geometry test of the slab shaft ``pl`` (6 planes, world) against the object itself.
 
     dirs (16, 3) world corner directions. Sets per light ``fac[j]`` / ``bfac[j]`` when some
-    slab triangle faces / faces away from light j, and ``hb`` (6,) to the world box of the
+    slab triangle faces / faces away from light j (for a light with an extent: from some
+    point of it, :func:`.shafts.extent_side`), and ``hb`` (6,) to the world box of the
     object's surface inside the slab (which holds every slab crossing), and ``hv[:nhv[0]]``
     to the vertices of those clipped polygons (``nhv[0] = -1`` when more than ``hv`` holds).
+    Lights with an extent (:func:`.soft_slab.soft_slab`): clears ``quiet[j]`` unless the
+    tracer's value of light j is its closed form wherever the light is fully visible on the
+    slab, and ``behind[j]`` unless the whole slab is behind area light j's emitting side.
     Returns True when the cell passes.
     """
     xf = qs.inst_xform[inst]
@@ -281,6 +301,10 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
     nc = mesh_candidates(qs, m, plo, 6, bbo, cand, P, Q)
     if nc < 0:
         return False
+    if nc == 0:
+        for j in range(quiet.shape[0]):
+            quiet[j] = False  # nothing to prove the soft lights' flags on
+            behind[j] = False
     do = np.empty((16, 3))
     for c in range(16):
         for k in range(3):
@@ -289,10 +313,17 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
     for k in range(3):
         hb[k] = np.inf
         hb[3 + k] = -np.inf
+    W = np.empty((P.shape[0], 3))
+    s0 = qs.inst_mat_start[inst]
+    nslot = qs.inst_mat_start[inst + 1] - s0
     for q in range(nc):
         t = cand[q]
-        if qs.tri_class[qs.tri[t]] != cls:
+        gt = qs.tri[t]
+        if qs.tri_class[gt] != cls:
             return False
+        if nslot > 0 and qs.mat_glossy[qs.inst_mat[s0 + min(qs.tri_slot[gt], nslot - 1)]]:
+            for j in range(L):
+                quiet[j] = False  # a glossy lobe: the soft samples estimate it (noise)
         load_tri(qs.tv, t, P)
         nv = clip_polygon(plo, 0, 6, P, 3, Q)
         for v in range(nv):
@@ -301,6 +332,7 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
                 nhv[0] = -1
             for k in range(3):
                 w = xf[k, 0] * P[v, 0] + xf[k, 1] * P[v, 1] + xf[k, 2] * P[v, 2] + xf[k, 3]
+                W[v, k] = w
                 hb[k] = min(hb[k], w)
                 hb[3 + k] = max(hb[3 + k], w)
                 if 0 <= m_ < hv.shape[0]:
@@ -331,18 +363,21 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
             if n > 0 and lo_s <= qs.slack and hi_s >= -qs.slack:
                 return False
         for j in range(L):
-            side = light_side(qs, inv, t, j, nx, ny, nz)
+            side = extent_side(qs, xf, inv, t, j, nx, ny, nz)
             if side >= 0:
                 fac[j] = True
             if side <= 0:
                 bfac[j] = True
+            if qs.light_ext[j] and qs.light_kind[j] >= 0:
+                soft_slab(qs, inst, gt, nx, ny, nz, j, W, nv, quiet, behind)
     return True
 
 
 @njit(cache=True, nogil=True)
 def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
-    """Every triangle of the object inside light j's shaft faces the light, and no boundary
-    edge of it is inside the shaft."""
+    """Every triangle of the object inside light j's shaft faces the light (every point of
+    its extent, :func:`.shafts.extent_side`), and no boundary edge of it is inside the
+    shaft."""
     xf = qs.inst_xform[inst]
     inv = qs.inst_inv[inst]
     plo = np.empty((MAX_PLANES, 4))
@@ -354,7 +389,7 @@ def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
     for q in range(nc):
         t = cand[q]
         nx, ny, nz = tri_normal(qs.tv, t)
-        if light_side(qs, inv, t, j, nx, ny, nz) != 1:
+        if extent_side(qs, xf, inv, t, j, nx, ny, nz) != 1:
             return False
         if boundary_edge_in(qs, t, plo, npl):
             return False
@@ -362,13 +397,14 @@ def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
 
 
 @njit(cache=True, nogil=True)
-def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q, pl, bb,
-                  plo, bbo, named, pts, npts):
+def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behind, cand, P,
+                  Q, pl, bb, plo, bbo, named, pts, npts):
     """Light tests of one ray-tree node (row offset ``row`` in sample ``s0``) whose points
     lie in box (lo, hi) on instance ``inst``. ``self_ok``: run the self-shadow test (root
-    level, where the slab facing flags ``fac``/``bfac`` are known). Returns R_VALID or the
-    reason (R_FACING, R_SHAFT, R_SELF; the caller maps these below the root). ``pts[:npts]``:
-    world points whose convex hull holds the node's points (for the occluder proof)."""
+    level, where the slab facing flags ``fac``/``bfac`` and the soft-light flags ``quiet``,
+    ``behind`` of :func:`_self_slab` are known). Returns R_VALID or the reason (R_FACING,
+    R_SHAFT, R_SELF, R_SOFT; the caller maps these below the root). ``pts[:npts]``: world
+    points whose convex hull holds the node's points (for the occluder proof)."""
     L = qs.light_kind.shape[0]
     blo = np.empty(3)
     bhi = np.empty(3)
@@ -379,11 +415,12 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
             # interpolated after a light was deleted)
             continue
         occ = sm.node_occ[sm.node_start[s0] + row, j]
-        if occ == OCC_SOFT or qs.light_ext[j]:
-            # a light with an extent: its visibility over the cell is not proven, nor that
-            # it stays behind the surface all over the cell (the conservative step: the
-            # cell is traced)
-            return R_SHAFT
+        if qs.light_ext[j]:
+            r = _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand,
+                            P, Q, pl, bb, plo, bbo, named)
+            if r != R_VALID:
+                return r
+            continue
         lit = occ == -1
         # the spot cone over the points' box: a step inside the cell fails it; a cell the
         # cone leaves entirely dark is off for every line
@@ -414,6 +451,48 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, cand, P, Q,
         if lit and self_ok:
             if bfac[j] or not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
                 return R_SELF
+    return R_VALID
+
+
+@njit(cache=True, nogil=True)
+def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand, P, Q, pl,
+                bb, plo, bbo, named):
+    """Light ``j`` with an extent at a ray-tree node whose points lie in box (lo, hi) on
+    instance ``inst`` (see the module doc, "Soft light"). At the root:
+
+    * not facing at the corners (``-2``): every sample of every line is 0 when the whole
+      extent is behind every slab triangle's plane, or the slab is behind an area light's
+      emitting side; else ``R_FACING``;
+    * sampled (``OCC_SOFT``): the tracer's value must be its closed form wherever the light
+      is fully visible (``quiet``, else ``R_SOFT``), and the light fully visible over the
+      cell: the Haines-Wallace shaft from the slab surface's box to the light's extent
+      (:func:`.shafts.light_box`) holds no other object's triangle (``R_SHAFT``), and every
+      triangle of the object in it faces every point of the extent, with no boundary edge
+      in it (``R_SELF``).
+
+    Below the root a light with an extent is not proven: ``R_SHAFT`` (the caller's
+    ``tunnel_light``)."""
+    if not self_ok:
+        return R_SHAFT
+    if occ == -2:
+        if (bfac[j] and not fac[j]) or behind[j]:
+            return R_VALID
+        return R_FACING
+    if occ != OCC_SOFT:
+        return R_LIGHT  # (a sampled light never names an occluder)
+    if not quiet[j]:
+        return R_SOFT
+    if bfac[j]:
+        return R_SELF
+    blo = np.empty(3)
+    bhi = np.empty(3)
+    light_box(qs, j, lo, hi, blo, bhi)
+    npl = hw_shaft(lo, hi, blo, bhi, qs.slack, pl, bb)
+    named[0] = inst
+    if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+        return R_SHAFT
+    if not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
+        return R_SELF
     return R_VALID
 
 
@@ -464,8 +543,8 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
             return R_CLASS
     if qs.world_light:
         # the world's light reaches the surface through its whole hemisphere: its
-        # occlusion over the cell is not proven (the conservative step: traced)
-        return R_SHAFT
+        # occlusion over the cell is not proven (docs/INTERPOLANTS.md, "Soft light")
+        return R_WORLD
     for u in range(1, ns):
         r = _same_tree(sm, s0, ids[u])
         if r != R_VALID:
@@ -502,10 +581,16 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     Q = np.empty((MAX_PLANES + 8, 3))
     fac = np.zeros(max(L, 1), np.bool_)
     bfac = np.zeros(max(L, 1), np.bool_)
+    quiet = np.zeros(max(L, 1), np.bool_)
+    behind = np.zeros(max(L, 1), np.bool_)
+    for j in range(L):
+        quiet[j] = qs.light_closed[j]
+        behind[j] = qs.light_kind[j] == LIGHT_AREA
     hb = np.empty(6)
     hv = np.empty((MAX_HULL_POINTS, 3))
     nhv = np.zeros(1, np.int64)
-    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, hb, hv, nhv):
+    if not _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind, hb,
+                      hv, nhv):
         return R_SLAB
     # the light shafts and the first tunnels start from the surface inside the slab
     if hb[0] > hb[3]:
@@ -525,8 +610,8 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     if nhv[0] <= 0:  # too many polygon vertices: the box's corners
         _box_corners(lo, hi, hv)
         nhv[0] = 8
-    r = _light_shafts(qs, sm, s0, 0, inst, lo, hi, True, fac, bfac, cand, P, Q, spl, sbb,
-                      plo, bbo, named, hv, nhv[0])
+    r = _light_shafts(qs, sm, s0, 0, inst, lo, hi, True, fac, bfac, quiet, behind, cand, P,
+                      Q, spl, sbb, plo, bbo, named, hv, nhv[0])
     if r != R_VALID:
         return r
     # reflection / refraction tunnels and their lights
@@ -560,7 +645,7 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
         if sm.node_inst[base + q] >= 0:
             _box_corners(lo, hi, hv)
             r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
-                              cand, P, Q, spl, sbb, plo, bbo, named, hv, 8)
+                              quiet, behind, cand, P, Q, spl, sbb, plo, bbo, named, hv, 8)
             if r == R_CONE or r == R_PARTIAL:
                 return r
             if r != R_VALID:

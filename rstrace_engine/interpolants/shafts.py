@@ -23,7 +23,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..accel import bvh
 from ..geometry.mesh_topology import MeshTopology
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, SceneArrays
+from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, SceneArrays
 
 #: Most planes a shaft has (6 box planes and 12 edge planes).
 MAX_PLANES = 18
@@ -62,6 +62,61 @@ class QueryScene(NamedTuple):
     mesh_convex: np.ndarray  # (M,) bool closed and convex
     world_light: bool  # the world's colour lights surfaces (not black)
     light_ext: np.ndarray  # (L,) bool the light has an extent (sampled)
+    # lights with an extent (:func:`light_extents`): the box of a sphere's ball or an area
+    # light's rectangle (a point for the others), and for a sun the chord ``2 sin(h / 2)``
+    # of its cone of half angle h (0 for the others)
+    light_lo: np.ndarray  # (L, 3) float64
+    light_hi: np.ndarray  # (L, 3) float64
+    light_chord: np.ndarray  # (L,) float64
+    light_radius: np.ndarray  # (L,) sphere radius (POINT, SPOT), 0 otherwise
+    light_half: np.ndarray  # (L,) SUN: half its angle
+    light_u: np.ndarray  # (L, 3) AREA: unit +X of the emitter
+    light_v: np.ndarray  # (L, 3) AREA: unit +Y
+    light_size: np.ndarray  # (L, 2) AREA: full extents along u and v
+    light_closed: np.ndarray  # (L,) bool the tracer has a closed form for the light's
+    # unshadowed diffuse term where it is above the horizon (a sphere that is not a spot,
+    # a sun, a rectangle without spread: soft_lights._row_exact)
+    tri_normals: np.ndarray  # (T, 3, 3) float32 per-corner shading normals, object space
+    inst_nmat: np.ndarray  # (I, 3, 3) float64 normal matrices
+    inst_mat_start: np.ndarray  # (I + 1,) int32
+    inst_mat: np.ndarray  # (K,) int32
+    tri_slot: np.ndarray  # (T,) int32
+    mat_glossy: np.ndarray  # (NM,) bool the BRDF has a glossy lobe that soft samples estimate
+
+
+def light_extents(sa: SceneArrays):
+    """``(lo (L, 3), hi (L, 3), chord (L,))``: the world box of every light's extent -- a
+    sphere light's ball (the disk of Blender's soft falloff lies in it), an area light's
+    rectangle (an ellipse's bounding rectangle), a point light's position -- and for a sun
+    with an angle the chord ``2 sin(h / 2)`` of its cone (every direction of the cone is
+    within it of the axis); 0 for the others."""
+    pos = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
+    nl = len(pos)
+    half = np.zeros((nl, 3))
+    chord = np.zeros(nl)
+    for j in range(nl):
+        if not sa.light_ext[j] or sa.light_kind[j] < 0:
+            continue
+        if sa.light_kind[j] == LIGHT_SUN:
+            chord[j] = 2.0 * math.sin(0.5 * float(sa.light_half[j]))
+        elif sa.light_kind[j] == LIGHT_AREA:
+            half[j] = (0.5 * sa.light_size[j, 0] * np.abs(sa.light_u[j])
+                       + 0.5 * sa.light_size[j, 1] * np.abs(sa.light_v[j]))
+        else:
+            half[j] = sa.light_radius[j]
+    return pos - half, pos + half, chord
+
+
+def glossy_materials(sa: SceneArrays) -> np.ndarray:
+    """(NM,) bool: the material's BRDF has a glossy lobe (Ward's specular, the Principled
+    GGX layer above ``GLOSSY_ALPHA_MIN``), which the tracer estimates from a soft light's
+    samples (noise); without one the BRDF is Lambertian and a fully visible light with a
+    closed form gives its closed form exactly (:mod:`..tracing.soft_lights`)."""
+    spec = np.any(np.asarray(sa.mat_specular) > 0.0, axis=1)
+    principled = np.asarray(sa.mat_model) == MODEL_PRINCIPLED
+    lobe = (np.asarray(sa.mat_roughness) >= tol.GLOSSY_ALPHA_MIN) & (
+        spec | (np.asarray(sa.mat_metallic) > 0.0))
+    return np.ascontiguousarray(np.where(principled, lobe, spec), np.bool_)
 
 
 def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
@@ -104,7 +159,30 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.light_cos_inner, np.float64),
                       np.ascontiguousarray(topo.mesh_convex, np.bool_),
                       bool(np.any(np.asarray(sa.world_light) > 0.0)),
-                      np.ascontiguousarray(sa.light_ext, np.bool_))
+                      np.ascontiguousarray(sa.light_ext, np.bool_),
+                      *light_extents(sa),
+                      np.ascontiguousarray(sa.light_radius, np.float64),
+                      np.ascontiguousarray(sa.light_half, np.float64),
+                      np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
+                      np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
+                      np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
+                      _closed_forms(sa), sa.tri_normals,
+                      np.ascontiguousarray(sa.inst_nmat, np.float64),
+                      np.ascontiguousarray(sa.inst_mat_start, np.int32),
+                      np.ascontiguousarray(sa.inst_mat, np.int32),
+                      np.ascontiguousarray(sa.tri_slot, np.int32), glossy_materials(sa))
+
+
+def _closed_forms(sa: SceneArrays) -> np.ndarray:
+    """(L,) bool: lights whose unshadowed diffuse term the tracer takes from a closed form
+    above the horizon (``soft_lights._row_exact``): a sphere that is not a spot, a sun with
+    an angle, a rectangle (or square) without spread."""
+    kind = np.asarray(sa.light_kind)
+    ext = np.asarray(sa.light_ext, np.bool_)
+    area = (kind == LIGHT_AREA) & ~np.asarray(sa.light_ellipse, np.bool_) & ~(
+        np.asarray(sa.light_spread)[:, 0] < np.inf)
+    other = (kind >= 0) & (kind != LIGHT_AREA) & (kind != LIGHT_SPOT)
+    return np.ascontiguousarray(ext & (area | other), np.bool_)
 
 
 @njit(cache=True, nogil=True)
@@ -460,8 +538,11 @@ def light_side(qs, inv, t, j, nx, ny, nz):
 
 @njit(cache=True, nogil=True)
 def light_box(qs, j, lo, hi, blo, bhi):
-    """The far end of light ``j``'s shaft from box (lo, hi): the light's point, or for a
-    sun the box moved far beyond the scene toward the sun."""
+    """The far end of light ``j``'s shaft from box (lo, hi): the light's extent (its point,
+    a sphere light's ball, an area light's rectangle: :func:`light_extents`), or for a sun
+    the box moved far beyond the scene toward the sun, grown by the chord of its cone at
+    that distance (every shadow ray from the box, to as far as the scene reaches, then lies
+    in the Haines-Wallace shaft between the two boxes)."""
     if qs.light_kind[j] == LIGHT_SUN:
         far = 0.0
         for k in range(3):
@@ -469,13 +550,71 @@ def light_box(qs, j, lo, hi, blo, bhi):
             far += c * c
         far = 4.0 * (math.sqrt(far) + qs.extent + (hi[0] - lo[0]) + (hi[1] - lo[1])
                      + (hi[2] - lo[2]))
+        grow = far * qs.light_chord[j]
         for k in range(3):
-            blo[k] = lo[k] - qs.light_dir[j, k] * far
-            bhi[k] = hi[k] - qs.light_dir[j, k] * far
+            blo[k] = lo[k] - qs.light_dir[j, k] * far - grow
+            bhi[k] = hi[k] - qs.light_dir[j, k] * far + grow
     else:
         for k in range(3):
-            blo[k] = qs.light_pos[j, k]
-            bhi[k] = qs.light_pos[j, k]
+            blo[k] = qs.light_lo[j, k]
+            bhi[k] = qs.light_hi[j, k]
+
+
+@njit(cache=True, nogil=True)
+def extent_side(qs, xf, inv, t, j, nx, ny, nz):
+    """Side of leaf-order triangle ``t`` (object-space normal n) of an instance with
+    transform ``xf`` (inverse ``inv``) facing every point of light ``j``'s extent: 1 the
+    whole extent is in front of its plane (a sphere's ball, an area light's four corners, a
+    sun's whole cone of directions), -1 wholly behind, 0 otherwise (within the tolerance).
+    A light without an extent: :func:`light_side`."""
+    if not qs.light_ext[j]:
+        return light_side(qs, inv, t, j, nx, ny, nz)
+    # the world normal (the normal matrix is inv's transpose)
+    wx = inv[0, 0] * nx + inv[1, 0] * ny + inv[2, 0] * nz
+    wy = inv[0, 1] * nx + inv[1, 1] * ny + inv[2, 1] * nz
+    wz = inv[0, 2] * nx + inv[1, 2] * ny + inv[2, 2] * nz
+    ln = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if not ln > 0.0:
+        return 0
+    wx /= ln
+    wy /= ln
+    wz /= ln
+    if qs.light_kind[j] == LIGHT_SUN:
+        s = -(wx * qs.light_dir[j, 0] + wy * qs.light_dir[j, 1] + wz * qs.light_dir[j, 2])
+        lim = math.sin(qs.light_half[j]) + tol.FACING_EPS_REL
+        return 1 if s > lim else (-1 if s < -lim else 0)
+    v = np.empty(3)
+    for k in range(3):
+        v[k] = (xf[k, 0] * qs.tv[t, 0] + xf[k, 1] * qs.tv[t, 1] + xf[k, 2] * qs.tv[t, 2]
+                + xf[k, 3])
+    return extent_plane_side(qs, j, wx, wy, wz, v[0], v[1], v[2], qs.slack)
+
+
+@njit(cache=True, nogil=True)
+def extent_plane_side(qs, j, wx, wy, wz, px, py, pz, margin):
+    """Side of the world plane through ``p`` with unit normal ``w`` on which light ``j``'s
+    extent lies (a sphere's ball, an area light's four corners; the light's point for
+    other lights): 1 wholly in front by more than ``margin``, -1 wholly behind, else 0."""
+    cx = qs.light_pos[j, 0] - px
+    cy = qs.light_pos[j, 1] - py
+    cz = qs.light_pos[j, 2] - pz
+    d = wx * cx + wy * cy + wz * cz
+    m = margin + tol.FACING_EPS_REL * math.sqrt(cx * cx + cy * cy + cz * cz)
+    if qs.light_kind[j] == LIGHT_AREA and qs.light_ext[j]:
+        hu = 0.5 * qs.light_size[j, 0] * abs(wx * qs.light_u[j, 0] + wy * qs.light_u[j, 1]
+                                             + wz * qs.light_u[j, 2])
+        hv = 0.5 * qs.light_size[j, 1] * abs(wx * qs.light_v[j, 0] + wy * qs.light_v[j, 1]
+                                             + wz * qs.light_v[j, 2])
+        r = hu + hv  # the corners' largest distance from the centre along w
+    elif qs.light_ext[j]:
+        r = qs.light_radius[j]
+    else:
+        r = 0.0
+    if d - r > m:
+        return 1
+    if d + r < -m:
+        return -1
+    return 0
 
 
 #: :func:`cone_state` outcomes: the spot falloff over a box is 1 everywhere, 0 everywhere,

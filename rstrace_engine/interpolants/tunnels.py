@@ -13,7 +13,10 @@ they end):
 * a reflected / refracted node's points: the box of the node's points over the corner *and*
   test samples, padded by :data:`~.tolerances.TUNNEL_MARGIN_REL` exactly as the predicate's
   tunnel test pads it (the same samples, at build time);
-* a light: its position, or for a sun the start box moved far against its direction.
+* a light: its extent's box (its position; a sphere light's ball; an area light's
+  rectangle, :func:`.shafts.light_extents`), or for a sun the start box moved far against
+  its direction, grown by the chord of its cone of directions when it has an angle (the
+  segments of every shadow ray from ``A`` then run from ``A`` through ``B``).
 
 Sections are made for every reflection / refraction arc and, at every node that hits a
 surface, for every light that contributes *or* is off at the corners (off by the shading
@@ -100,18 +103,20 @@ def _emit(row, write, ta, tb, tinf, alo, ahi, blo, bhi, inf):
 
 
 @njit(cache=True, nogil=True)
-def cell_tunnels(sm, box, aabb, light_kind, light_pos, light_dir, reach, slack, inst, face,
-                 depth, coord, zlo, zhi, ids, ns, write, start, counts, ta, tb, tinf):
+def cell_tunnels(sm, box, aabb, light_kind, light_lo, light_hi, light_chord, light_dir, reach,
+                 slack, inst, face, depth, coord, zlo, zhi, ids, ns, write, start, counts, ta,
+                 tb, tinf):
     """Tunnel sections of ``nc`` valid cells (see the module doc).
 
     sm : :class:`~.predicate.SampleArrays`; box : (I, 2, 3) the objects' expanded boxes;
     aabb : (I, 2, 3) their world boxes (the root points are on the object, in the slab);
-    reach : a length beyond which every point of the scene lies from any scene point (sun
-    shafts end that far); slack : absolute outward padding. Per cell: inst, face, depth,
-    coord (nc, 4), slab zlo, zhi, sample ids (nc, S) (corners then test lines) and their
-    number ns. With ``write`` False only ``counts`` (nc,) is filled; else cell c's sections
-    go to rows ``start[c]..``: ``ta, tb (R, 6)`` boxes ``A`` and ``B`` (lo xyz, hi xyz),
-    ``tinf (R,)`` infinite flags.
+    light_lo, light_hi (L, 3), light_chord (L,): the lights' extents
+    (:func:`.shafts.light_extents`); reach : a length beyond which every point of the scene
+    lies from any scene point (sun shafts end that far); slack : absolute outward padding.
+    Per cell: inst, face, depth, coord (nc, 4), slab zlo, zhi, sample ids (nc, S) (corners
+    then test lines) and their number ns. With ``write`` False only ``counts`` (nc,) is
+    filled; else cell c's sections go to rows ``start[c]..``: ``ta, tb (R, 6)`` boxes ``A``
+    and ``B`` (lo xyz, hi xyz), ``tinf (R,)`` infinite flags.
     """
     L = light_kind.shape[0]
     rlo = np.empty(3)
@@ -158,14 +163,15 @@ def cell_tunnels(sm, box, aabb, light_kind, light_pos, light_dir, reach, slack, 
                     continue  # occluded: depends on the occluder alone (membership); or a
                     # deleted light's slot (membership again, should a light come back)
                 if light_kind[j] == LIGHT_SUN:
+                    grow = reach * light_chord[j]
                     for m in range(3):
-                        llo[m] = nlo[m] - light_dir[j, m] * reach
-                        lhi[m] = nhi[m] - light_dir[j, m] * reach
+                        llo[m] = nlo[m] - light_dir[j, m] * reach - grow
+                        lhi[m] = nhi[m] - light_dir[j, m] * reach + grow
                     inf = True
                 else:
                     for m in range(3):
-                        llo[m] = light_pos[j, m]
-                        lhi[m] = light_pos[j, m]
+                        llo[m] = light_lo[j, m]
+                        lhi[m] = light_hi[j, m]
                     inf = False
                 _emit(row + k, write, ta, tb, tinf, nlo, nhi, llo, lhi, inf)
                 k += 1

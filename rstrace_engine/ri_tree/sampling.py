@@ -31,6 +31,7 @@ from numba import njit, prange
 
 from ..geometry.scene import MODEL_PRINCIPLED
 from ..interpolants.linetree import line_points
+from ..tracing.shader import _material_of
 from ..tracing.shading import (
     dot3,
     fresnel_dielectric,
@@ -42,7 +43,6 @@ from ..tracing.shading import (
     shading_normal,
     spawn_offset,
 )
-from ..tracing.whitted import _material_of
 from .thickness import walk
 
 MISS = -1

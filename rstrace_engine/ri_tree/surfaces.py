@@ -6,8 +6,8 @@ from __future__ import annotations
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..tracing.shader import light_states
 from ..tracing.shading import dot3, normalize3, spawn_offset
-from ..tracing.whitted import light_states
 
 
 @njit(cache=True, nogil=True, parallel=True)

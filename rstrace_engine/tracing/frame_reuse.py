@@ -7,9 +7,18 @@ frame. :class:`FrameReuse` is the one home of that state: the last frame, its re
 settings key and camera it was rendered with, the dirty and rebuilt pixels accumulated since,
 and (INTERPOLANT) which kept pixels' interpolants the ray segment trees no longer track.
 
+BASE frames also keep every node's light terms (:mod:`.light_records`): a batch that only
+edits lights and the world (power, colour, position, extent, cone, adding or deleting a
+light, the world's colour) dirties no pixel; the next frame first *relights* the kept
+pixels (:meth:`FrameReuse.relight`: the moved lights shaded again with their own shadow
+rays, then the frame recombined from the terms, bit for bit a fresh frame's) and re-traces
+only what other edits made dirty. Batches that mix in other edits, a world that starts to
+light, or records over their memory cap take the per-pixel records' path as before.
+
 The session drives it: :meth:`FrameReuse.take_edits` after every applied batch (with the
 batch's :class:`~..geometry.edits.EditEffects` and what the interpolant cache invalidated),
-:meth:`FrameReuse.plan` before a frame, :meth:`FrameReuse.finish` after it.
+:meth:`FrameReuse.plan` before a frame, :meth:`FrameReuse.relight` over its base frame (BASE)
+and :meth:`FrameReuse.finish` after it.
 """
 
 from __future__ import annotations
@@ -20,7 +29,9 @@ import numpy as np
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
+from .light_records import load_kernels
 from .pixel_records import PixelRecords
+from .soft_lights import world_lights
 
 
 class FrameReuse:
@@ -41,6 +52,11 @@ class FrameReuse:
         # kept pixels whose interpolant was evicted since (no longer tracked by the RSTs)
         self.snap: np.ndarray | None = None
         self.untracked: np.ndarray | None = None
+        # BASE: the next frame recombines the kept pixels from their light terms, after
+        # shading these light slots again
+        self.relight_due = False
+        self.relight_moved: set = set()
+        self.relight_stats: dict = {}  # of the last relight (relit, relight_s, ...)
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -58,6 +74,20 @@ class FrameReuse:
     @property
     def records_bytes(self) -> int:
         return self.records.nbytes if self.records is not None else 0
+
+    @property
+    def light_records(self):
+        """The last frame's :class:`~.light_records.LightRecords`, when it has them."""
+        rec = self.records
+        lr = rec.light if rec is not None else None
+        if lr is None or lr.overflow is not None or lr.p is None:
+            return None
+        return lr
+
+    @property
+    def light_records_bytes(self) -> int:
+        lr = self.light_records
+        return lr.nbytes if lr is not None else 0
 
     def matches(self, key, camera) -> bool:
         """The last frame was rendered with these settings and this camera."""
@@ -97,6 +127,15 @@ class FrameReuse:
             if not fx.camera and not interpolants_lost and f is not None and rec is not None:
                 report.messages.append("full frame: the scene's bounding box changed")
             return
+        if self._relights(fx, old_sa, new_sa):
+            # light / world edits only: no pixel is dirty, the next frame relights
+            self.relight_due = True
+            self.relight_moved |= set(fx.lights_moved)
+            report.relight = True
+            report.full_frame = False
+            report.dirty_pixels = int(np.count_nonzero(self.dirty))
+            report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
+            return
         t0 = time.perf_counter()
         dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
         if rebuilt is not None:
@@ -113,17 +152,63 @@ class FrameReuse:
         report.dirty_pixels = int(np.count_nonzero(self.dirty))
         report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
 
+    def _relights(self, fx, old_sa, new_sa) -> bool:
+        """The batch ``fx`` edits only lights and the world, and the light terms can
+        follow it: kept, and the world's samples unchanged where it lights (they are
+        seeded by the number of light slots, and never taken while it did not light)."""
+        if self.light_records is None or not (fx.lights or fx.world):
+            return False
+        if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
+            return False
+        if world_lights(new_sa) and (not world_lights(old_sa)
+                                     or len(new_sa.light_kind) != len(old_sa.light_kind)):
+            return False
+        return True
+
+    def relight(self, sa, accel, settings, base: Frame) -> Frame:
+        """The base frame of an incremental BASE frame: ``base`` itself, or, after light
+        edits (:meth:`take_edits`), recombined from the light terms (the moved lights
+        shaded again first, with ``accel`` over ``sa``) -- bit for bit a fresh frame's."""
+        lr = self.light_records
+        self.relight_stats = {}
+        if not self.relight_due or lr is None:
+            return base
+        t0 = time.perf_counter()
+        counters: dict = {}
+        moved = sorted(self.relight_moved)
+        for j in moved:
+            if j < len(sa.light_kind):
+                p_bits, s_bits = lr.relight(sa, accel, j, int(settings.light_samples),
+                                            counters)
+                self.records.set_light_bits(j, p_bits, s_bits)
+        rec = self.records
+        rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
+        # (relight_due stays set until the frame is finished: shading a light again and
+        # recombining are idempotent, so a frame that fails is relit again next time)
+        self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
+                                  relit_lights=moved,
+                                  relight_shadow_rays=counters.get("shadow", 0))
+        return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
+                     dict(base.stats), base.pixel_interpolant)
+
     # -- frames ------------------------------------------------------------------------
 
-    def plan(self, key, camera, samples: int, scene_aabb, keep: bool = True):
+    def plan(self, key, camera, samples: int, scene_aabb, keep: bool = True,
+             light_terms: tuple | None = None):
         """What the next frame renders: ``(records, pixels, base)`` -- pixels (h * w,) bool
         and the base frame to render them over, or ``None, None`` for a full frame; records
         to fill (the kept ones for an incremental frame). ``keep`` False: a full frame
-        whatever changed (e.g. a new interpolant cache)."""
+        whatever changed (e.g. a new interpolant cache). ``light_terms``: ``(light slots,
+        cap bytes)`` to keep the light terms of a full frame too (BASE)."""
         if (keep and self.frame is not None and self.records is not None
                 and self.dirty is not None and self.matches(key, camera)):
             return self.records, self.dirty, self.frame
-        return PixelRecords(camera.width, camera.height, samples, scene_aabb), None, None
+        self.relight_due = False
+        self.relight_moved = set()
+        rec = PixelRecords(camera.width, camera.height, samples, scene_aabb)
+        if light_terms is not None:
+            rec.keep_light_terms(*light_terms)
+        return rec, None, None
 
     def finish(self, frame: Frame, records: PixelRecords, pixels, key, camera, samples: int,
                cache=None, pool0=None) -> Frame:
@@ -144,6 +229,10 @@ class FrameReuse:
             self.frame = self.records = self.dirty = None
             return frame
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
+        self.relight_due = False
+        self.relight_moved = set()
+        if records.light is not None and records.light.p is not None:
+            load_kernels(records.light.L)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

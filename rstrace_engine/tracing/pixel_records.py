@@ -53,6 +53,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
+from .light_records import LightRecords
 from .soft_lights import world_lights
 
 #: bits of the quantised point on the longest, middle and shortest axis of the box
@@ -412,6 +413,13 @@ class PixelRecords:
         self.s_combo = np.zeros(0, np.uint32)
         self.s_code = np.zeros(0, np.uint32)
         self._pending: list = []
+        #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
+        self.light: LightRecords | None = None
+
+    def keep_light_terms(self, n_lights: int, cap_bytes: float) -> None:
+        """Also keep every node's light terms (:class:`~.light_records.LightRecords`) for
+        ``n_lights`` light slots, up to ``cap_bytes``."""
+        self.light = LightRecords(self.n_rays, n_lights, cap_bytes)
 
     # -- building ------------------------------------------------------------------------
 
@@ -472,6 +480,11 @@ class PixelRecords:
             self.p_combo = self.p_combo.astype(np.uint32)
             self.s_combo = self.s_combo.astype(np.uint32)
         nb = len(levels[0]["inst"])
+        if self.light is not None:
+            if "t_val" in levels[0]:
+                self.light.add(np.asarray(rays, np.int64), levels, nb)
+            elif self.light.overflow is None:  # (recorded without their terms)
+                self.light = None
         self.p_combo[rays] = combos[:nb]
         self.p_code[rays] = codes[:nb]
         if len(inst) > nb:
@@ -500,10 +513,9 @@ class PixelRecords:
         """Fold the batches added since the last call into the secondary arrays, first
         dropping the secondary nodes of the samples in ``drop_rays`` ((n_rays,) bool)."""
         base = len(self.s_parent)
+        keep = None
         if drop_rays is not None and base:
-            s_ray = np.empty(base, np.int32)
-            _secondary_rays(self.s_parent, self.n_rays, s_ray)
-            keep = ~drop_rays[s_ray]
+            keep = ~drop_rays[self.secondary_rays()]
             if not keep.all():
                 new_index = np.cumsum(keep) - 1
                 par = self.s_parent[keep].astype(np.int64)
@@ -523,6 +535,8 @@ class PixelRecords:
             codes.append(code)
             base += len(parent)
         self._pending = []
+        if self.light is not None:
+            self.light.finish(keep)
         self.s_parent = np.concatenate(parents).astype(np.int32)
         self.s_combo = np.concatenate(combos).astype(np.uint32)
         self.s_code = np.concatenate(codes).astype(np.uint32)
@@ -543,9 +557,40 @@ class PixelRecords:
         self.p_combo = self.p_combo.astype(dt, copy=False)
         self.s_combo = self.s_combo.astype(dt, copy=False)
 
+    def secondary_rays(self) -> np.ndarray:
+        """(m,) int32: the sample of every secondary node."""
+        s_ray = np.empty(len(self.s_parent), np.int32)
+        if len(s_ray):
+            _secondary_rays(self.s_parent, self.n_rays, s_ray)
+        return s_ray
+
+    def set_light_bits(self, j: int, primary, secondary) -> None:
+        """Light ``j``'s bits of every node after it was shaded again
+        (:meth:`~.light_records.LightRecords.relight`): ``primary`` and ``secondary`` are
+        ``(traced, lit)`` (k,) bool pairs for the primary and the secondary nodes."""
+        bit = np.uint64(1) << np.uint64(j)
+        for name, (tr, lit) in (("p_combo", primary), ("s_combo", secondary)):
+            combo = getattr(self, name).astype(np.int64)
+            if len(combo) == 0:
+                continue
+            old_t = self.t_traced.astype(np.uint64)[combo]
+            old_l = self.t_lit.astype(np.uint64)[combo]
+            new_t = np.where(tr, old_t | bit, old_t & ~bit)
+            new_l = np.where(lit, old_l | bit, old_l & ~bit)
+            ch = np.flatnonzero((new_t != old_t) | (new_l != old_l))
+            if len(ch) == 0:
+                continue
+            c = combo[ch]
+            ids = self._intern(self.t_inst[c], new_t[ch], new_l[ch], self.t_flags[c])
+            arr = getattr(self, name).astype(np.uint32)
+            arr[ch] = ids
+            setattr(self, name, arr)
+        self._compact()
+
     @property
     def nbytes(self) -> int:
-        """Memory of the records (arrays and the shared table), bytes."""
+        """Memory of the records (arrays and the shared table), bytes; the light terms
+        apart (:attr:`light`)."""
         return int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                            self.t_flags, self.p_combo, self.p_code,
                                            self.s_parent, self.s_combo, self.s_code)))

@@ -1,25 +1,7 @@
 """The base tracer: wavefront Whitted ray tracing that also records ray trees.
 
-Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geometric normal
-``g``, both turned to the side the ray comes from, so every surface is two-sided)::
-
-    L = emission + sum_j V_j f(l_j, -d) E_j + R * L(reflect) + T * L(refract)
-
-* ``f`` is the material's BRDF: Ward (seed 000's model) or the Principled-like GGX layer
-  over a Lambertian base (:func:`~.shading.principled_brdf`).
-
-* ``E_j`` is the irradiance light ``j`` would give: ``I cos / r^2`` for point lights (times
-  the spot falloff for spots), ``strength * cos`` for suns, ``cos = n . l_j``. A light counts
-  only when it is on the lit side of the *geometric* surface and of the shading normal (it
-  never leaks through a surface via an interpolated normal). ``V_j`` is a hard shadow ray:
-  any occluder blocks.
-* Mirror reflectance ``M`` (Principled-like: the material's mirror share times the layer's
-  Fresnel reflectance toward the viewer) and transmission ``T_m`` with index of refraction
-  ``ior``: with the dielectric Fresnel factor ``F`` at the interface, ``R = M + F T_m`` and
-  ``T = (1-F) T_m`` (the tracer's Fresnel alone splits the transmissive part);
-  on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
-  (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
-* A ray that misses returns the world colour.
+The radiance it computes, and the kernels that compute it for one depth level, are
+:mod:`.shader`'s; this module drives them (stages, the wavefront, a frame's tiles).
 
 The wavefront: every depth level intersects its batch of rays, runs a surface kernel (hit
 point, normals, material, one shadow ray per light), intersects the shadow rays, runs a shade
@@ -38,43 +20,34 @@ shadow rays then use ``closest_hit`` so that each occluder's instance id is know
 from __future__ import annotations
 
 import logging
-import math
 import time
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
 from ..frame import CLASS_BACKGROUND, LIGHT_SAMPLES_DEFAULT, Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, Scene, SceneArrays
+from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
-from .shading import (
-    INV_PI,
-    dot3,
-    fresnel_dielectric,
-    geometric_normal,
-    ggx_albedo,
-    normalize3,
-    principled_brdf,
-    principled_fresnel,
-    reflect,
-    refract,
-    shading_normal,
-    spawn_offset,
-    spot_falloff,
-    surface_uv,
-    texture_lookup,
-    ward_brdf,
+from .shader import (  # (re-exported: the stages' kernels and types)
+    _SH_TRACE,
+    OCC_NONE,
+    OCC_NOT_FACING,
+    Spawned,
+    Surfaces,
+    _shade_kernel,
+    _shadow_kernel,
+    _surface_kernel,
+    light_state,
+    light_states,
 )
 from .soft_lights import (
     OCC_SOFT,
     SH_SOFT,
     SoftSamples,
-    extent_faces,
     has_soft_light,
     no_samples,
     node_seeds,
@@ -84,10 +57,9 @@ from .soft_lights import (
 
 log = logging.getLogger(__name__)
 
-# shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
-_SH_TRACE = 1
-OCC_NONE = -1  # light unoccluded
-OCC_NOT_FACING = -2  # light behind the surface, outside its cone, or the ray missed
+__all__ = ["OCC_NONE", "OCC_NOT_FACING", "RayTree", "Spawned", "Surfaces", "light_state",
+           "light_states", "render", "shade", "shadow_rays", "soft_direct", "surfaces",
+           "trace", "trace_pixels"]
 
 
 class RayTree(NamedTuple):
@@ -107,409 +79,6 @@ class RayTree(NamedTuple):
     node_point: np.ndarray  # (Nn, 3) float64 hit point; far beyond the scene on a miss
     node_light_mask: np.ndarray  # (Nn,) uint64 bit j: light j contributes
     node_occluder: np.ndarray  # (Nn, L) int32
-
-
-class Surfaces(NamedTuple):
-    """Surface points of a batch of ``n`` rays (:func:`surfaces`), normals turned toward
-    the incoming ray."""
-
-    P: np.ndarray  # (n, 3) float64 hit point; on a miss a point far beyond the scene
-    NG: np.ndarray  # (n, 3) float64 geometric normal
-    NS: np.ndarray  # (n, 3) float64 shading normal
-    VD: np.ndarray  # (n, 3) float64 unit ray direction
-    enter: np.ndarray  # (n,) bool: the ray enters the surface's inside
-    mat: np.ndarray  # (n,) int32 material, -1 on a miss
-    Q: np.ndarray  # (n, 3) float64 shadow-ray origin (P moved off the surface, lit side)
-    sh_state: np.ndarray  # (n L,) int8 at row i * L + j: _SH_TRACE or OCC_NOT_FACING
-
-
-class Spawned(NamedTuple):
-    """Reflection (slot ``2 i``) and refraction (slot ``2 i + 1``) rays of ``n`` surface
-    points (:func:`shade`); a slot holds a ray where ``ok``."""
-
-    o: np.ndarray  # (2n, 3) float64 origin
-    d: np.ndarray  # (2n, 3) float64 direction
-    w: np.ndarray  # (2n, 3) float64 path weight
-    ok: np.ndarray  # (2n,) bool
-
-
-# ----------------------------------------------------------------------------- kernels
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _brdf(principled, sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
-          metallic, mr, mg, mb, alpha, e_white, e_diel):
-    """The material's BRDF (Principled-like or Ward) for light direction ``l`` and view
-    direction ``o`` about shading normal ``s``: the hard lights' and the soft samples' one
-    evaluation."""
-    if principled:
-        return principled_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
-                               eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel)
-    return ward_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
-
-
-@njit(cache=True, nogil=True)
-def _material_of(sa, inst, tri):
-    """Material id of triangle ``tri`` on instance ``inst`` (slot clamped to the list)."""
-    s0 = sa.inst_mat_start[inst]
-    cnt = sa.inst_mat_start[inst + 1] - s0
-    slot = sa.tri_slot[tri]
-    if slot >= cnt:
-        slot = cnt - 1
-    return sa.inst_mat[s0 + slot]
-
-
-@njit(cache=True, nogil=True, inline="always")
-def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state):
-    """Shadow-ray states of surface point ``i`` (rows ``i * L + j``): ``_SH_TRACE`` when
-    light ``j`` faces the point (geometric and shading normal ``g``, ``s`` turned toward
-    the viewer; spot cone) and is not within the offset of shadow origin ``q``; else -2."""
-    L = sa.light_kind.shape[0]
-    for j in range(L):
-        r = i * L + j
-        sh_state[r] = -2
-        if sa.light_kind[j] < 0:
-            continue  # a deleted light's slot (LIGHT_NONE)
-        if sa.light_ext[j]:
-            # sampled (each sample checks its own facing), unless the whole light is below
-            # the surface's horizon or behind an area light: then every sample would be 0
-            if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
-                sh_state[r] = SH_SOFT
-            continue
-        if sa.light_kind[j] == LIGHT_SUN:
-            lx = -sa.light_dir[j, 0]
-            ly = -sa.light_dir[j, 1]
-            lz = -sa.light_dir[j, 2]
-            if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
-                sh_state[r] = _SH_TRACE
-            continue
-        lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
-                                      sa.light_pos[j, 2] - pz)
-        if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
-                and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
-            continue
-        if sa.light_kind[j] == LIGHT_SPOT:
-            ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
-                       sa.light_dir[j, 2])
-            if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
-                continue
-        wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
-                                    sa.light_pos[j, 2] - qz)
-        if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
-            continue  # the light sits within the offset of the surface
-        sh_state[r] = _SH_TRACE
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _surface_kernel(sa, o, d, tmax, hits, surf):
-    """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
-
-    Inputs: o, d (n, 3) float64; tmax (n,) float64; hits : :class:`Hits` of the rays.
-    Output: surf, a :class:`Surfaces`. Its sh_state at row ``i * L + j``: 1 trace a shadow
-    ray from point i to light j (:func:`_shadow_kernel` makes it), -2 light not facing /
-    outside cone.
-    """
-    t, inst, prim, bu, bv = hits.t, hits.inst, hits.prim, hits.u, hits.v
-    P, NG, NS, VD, ENTER, MAT, Q, sh_state = surf
-    n = o.shape[0]
-    L = sa.light_kind.shape[0]
-    ext = sa.scene_extent
-    cx = 0.5 * (sa.scene_aabb[0, 0] + sa.scene_aabb[1, 0])
-    cy = 0.5 * (sa.scene_aabb[0, 1] + sa.scene_aabb[1, 1])
-    cz = 0.5 * (sa.scene_aabb[0, 2] + sa.scene_aabb[1, 2])
-    for i in prange(n):
-        ux, uy, uz, dl = normalize3(d[i, 0], d[i, 1], d[i, 2])
-        VD[i, 0] = ux
-        VD[i, 1] = uy
-        VD[i, 2] = uz
-        k = inst[i]
-        if k < 0:
-            # a point past the scene box along the ray (segment end for shafts)
-            far = 2.0 * (math.sqrt((o[i, 0] - cx) ** 2 + (o[i, 1] - cy) ** 2
-                                   + (o[i, 2] - cz) ** 2) + ext)
-            s = far / dl if dl > 0.0 else 0.0
-            if tmax[i] < s:
-                s = tmax[i]
-            P[i, 0] = o[i, 0] + d[i, 0] * s
-            P[i, 1] = o[i, 1] + d[i, 1] * s
-            P[i, 2] = o[i, 2] + d[i, 2] * s
-            MAT[i] = -1
-            ENTER[i] = False
-            for j in range(L):
-                sh_state[i * L + j] = -2
-            continue
-        tri = prim[i]
-        px = o[i, 0] + d[i, 0] * t[i]
-        py = o[i, 1] + d[i, 1] * t[i]
-        pz = o[i, 2] + d[i, 2] * t[i]
-        P[i, 0] = px
-        P[i, 1] = py
-        P[i, 2] = pz
-        nm = sa.inst_nmat[k]
-        gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, tri)
-        sx, sy, sz = shading_normal(sa.tri_normals, nm, tri, bu[i], bv[i], gx, gy, gz)
-        enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
-        if not enter:
-            gx, gy, gz = -gx, -gy, -gz
-            sx, sy, sz = -sx, -sy, -sz
-        ENTER[i] = enter
-        NG[i, 0] = gx
-        NG[i, 1] = gy
-        NG[i, 2] = gz
-        NS[i, 0] = sx
-        NS[i, 1] = sy
-        NS[i, 2] = sz
-        MAT[i] = _material_of(sa, k, tri)
-        off = spawn_offset(px, py, pz, ext)
-        qx = px + gx * off
-        qy = py + gy * off
-        qz = pz + gz * off
-        Q[i, 0] = qx
-        Q[i, 1] = qy
-        Q[i, 2] = qz
-        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
-    """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
-
-    Q : (n, 3) float64 origins from :func:`_surface_kernel`. Outputs sh_o, sh_d (k, 3)
-    float64 (unit directions), sh_tmax (k,) float64: just short of a point or spot light,
-    infinite for a sun.
-    """
-    L = sa.light_kind.shape[0]
-    for k in prange(todo.shape[0]):
-        i = todo[k] // L
-        j = todo[k] - i * L
-        sh_o[k, 0] = Q[i, 0]
-        sh_o[k, 1] = Q[i, 1]
-        sh_o[k, 2] = Q[i, 2]
-        if sa.light_kind[j] == LIGHT_SUN:
-            sh_d[k, 0] = -sa.light_dir[j, 0]
-            sh_d[k, 1] = -sa.light_dir[j, 1]
-            sh_d[k, 2] = -sa.light_dir[j, 2]
-            sh_tmax[k] = np.inf
-        else:
-            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - Q[i, 0],
-                                        sa.light_pos[j, 1] - Q[i, 1],
-                                        sa.light_pos[j, 2] - Q[i, 2])
-            sh_d[k, 0] = wx
-            sh_d[k, 1] = wy
-            sh_d[k, 2] = wz
-            sh_tmax[k] = wl * (1.0 - tol.SHADOW_END_REL)
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out):
-    """Direct light and secondary rays of a batch of ``n`` surface points.
-
-    One loop body on purpose: the material's twenty-odd values are read once per point and
-    used by both the light loop and the spawned rays (split into functions, they would be
-    passed on in long argument lists or read twice).
-
-    hits : the :class:`Hits` (prim, u, v for texture coordinates); surf : the
-    :class:`Surfaces` of :func:`_surface_kernel`. vis : (n L,) bool light j visible from
-    point i (row ``i * L + j``; lights with an extent are skipped there); weight : (n, 3)
-    float64 path weights; spawn : whether reflection/refraction rays may be spawned; soft :
-    the :class:`~.soft_lights.SoftSamples` of the points (their lights and the world's).
-    Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; out, the
-    :class:`Spawned` rays.
-    """
-    prim, bu, bv = hits.prim, hits.u, hits.v
-    P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
-    c_o, c_d, c_w, c_ok = out
-    n = P.shape[0]
-    L = sa.light_kind.shape[0]
-    ext = sa.scene_extent
-    wmin = tol.PATH_WEIGHT_MIN
-    for i in prange(n):
-        c_ok[2 * i] = False
-        c_ok[2 * i + 1] = False
-        w0 = weight[i, 0]
-        w1 = weight[i, 1]
-        w2 = weight[i, 2]
-        m = MAT[i]
-        if m < 0:
-            contrib[i, 0] = w0 * sa.world_color[0]
-            contrib[i, 1] = w1 * sa.world_color[1]
-            contrib[i, 2] = w2 * sa.world_color[2]
-            continue
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
-        sx, sy, sz = NS[i, 0], NS[i, 1], NS[i, 2]
-        dx, dy, dz = VD[i, 0], VD[i, 1], VD[i, 2]
-        dr = sa.mat_diffuse[m, 0]
-        dg = sa.mat_diffuse[m, 1]
-        db = sa.mat_diffuse[m, 2]
-        tex = sa.mat_tex[m]
-        if tex >= 0:
-            u, v = surface_uv(sa.tri_uvs, prim[i], bu[i], bv[i])
-            xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
-            dr *= xr
-            dg *= xg
-            db *= xb
-        lr = sa.mat_emission[m, 0]
-        lg = sa.mat_emission[m, 1]
-        lb = sa.mat_emission[m, 2]
-        sr = sa.mat_specular[m, 0]
-        sg = sa.mat_specular[m, 1]
-        sb = sa.mat_specular[m, 2]
-        alpha = sa.mat_roughness[m]
-        principled = sa.mat_model[m] == MODEL_PRINCIPLED
-        eta_s = sa.mat_specular_ior[m]
-        metallic = sa.mat_metallic[m]
-        mr = sa.mat_metal[m, 0]
-        mg = sa.mat_metal[m, 1]
-        mb = sa.mat_metal[m, 2]
-        e_white = 1.0
-        e_diel = 0.0
-        if principled:
-            e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
-        for j in range(L):
-            if not vis[i * L + j] or sa.light_ext[j]:
-                continue
-            if sa.light_kind[j] == LIGHT_SUN:
-                lx = -sa.light_dir[j, 0]
-                ly = -sa.light_dir[j, 1]
-                lz = -sa.light_dir[j, 2]
-                e = dot3(sx, sy, sz, lx, ly, lz)
-            else:
-                lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px,
-                                              sa.light_pos[j, 1] - py,
-                                              sa.light_pos[j, 2] - pz)
-                e = dot3(sx, sy, sz, lx, ly, lz) / (dist * dist)
-                if sa.light_kind[j] == LIGHT_SPOT:
-                    ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
-                               sa.light_dir[j, 2])
-                    e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
-            if e <= 0.0:
-                continue
-            fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
-                               sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
-                               e_diel)
-            lr += fr * e * sa.light_intensity[j, 0]
-            lg += fg * e * sa.light_intensity[j, 1]
-            lb += fb * e * sa.light_intensity[j, 2]
-        # lights with an extent and the world, n samples per (point, light) row: the plain
-        # estimator, or the ratio estimator for the diffuse part where the row has a
-        # closed form (soft_lights.RATIO_ESTIMATOR)
-        ns = soft.n[0]
-        kdf = (1.0 - e_diel) * INV_PI if principled else INV_PI
-        kr = dr * kdf
-        kg = dg * kdf
-        kb = db * kdf
-        k0 = soft.start[i]
-        while k0 < soft.start[i + 1]:
-            ex = soft.exact[k0 // ns]
-            ar = 0.0
-            ag = 0.0
-            ab = 0.0
-            sum_w = 0.0
-            sum_vw = 0.0
-            for k in range(k0, k0 + ns):
-                sum_w += soft.w[k]
-                if not soft.vis[k]:
-                    continue
-                lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
-                fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
-                                   sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
-                                   e_diel)
-                e = soft.w[k]
-                if ex >= 0.0:
-                    sum_vw += e
-                    fr -= kr
-                    fg -= kg
-                    fb -= kb
-                ar += fr * e
-                ag += fg * e
-                ab += fb * e
-            if ex >= 0.0 and sum_w > 0.0:
-                t = ex * sum_vw / sum_w
-                ar += kr * t
-                ag += kg * t
-                ab += kb * t
-            j = soft.light[k0]
-            if j < L:
-                lr += ar * sa.light_radiance[j, 0]
-                lg += ag * sa.light_radiance[j, 1]
-                lb += ab * sa.light_radiance[j, 2]
-            else:
-                lr += ar * sa.world_light[0]
-                lg += ag * sa.world_light[1]
-                lb += ab * sa.world_light[2]
-            k0 += ns
-        contrib[i, 0] = w0 * lr
-        contrib[i, 1] = w1 * lg
-        contrib[i, 2] = w2 * lb
-        if not spawn:
-            continue
-        rr = sa.mat_mirror[m, 0]
-        rg = sa.mat_mirror[m, 1]
-        rb = sa.mat_mirror[m, 2]
-        if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
-            fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
-                                            metallic, mr, mg, mb)
-            rr *= fr
-            rg *= fg
-            rb *= fb
-        tr = sa.mat_transmission[m, 0]
-        tg = sa.mat_transmission[m, 1]
-        tb = sa.mat_transmission[m, 2]
-        off = spawn_offset(px, py, pz, ext)
-        if tr > 0.0 or tg > 0.0 or tb > 0.0:
-            ior = sa.mat_ior[m]
-            eta = 1.0 / ior if ENTER[i] else ior
-            nx, ny, nz = sx, sy, sz
-            if dot3(dx, dy, dz, nx, ny, nz) >= 0.0:
-                nx, ny, nz = gx, gy, gz
-            ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
-            if ok and dot3(tx, ty, tz, gx, gy, gz) >= 0.0:
-                # the shading normal would send the ray back out: refract about g instead
-                nx, ny, nz = gx, gy, gz
-                ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
-            if ok:
-                f = fresnel_dielectric(-dot3(dx, dy, dz, nx, ny, nz), eta)
-                rr += f * tr
-                rg += f * tg
-                rb += f * tb
-                cr = w0 * (1.0 - f) * tr
-                cg = w1 * (1.0 - f) * tg
-                cb = w2 * (1.0 - f) * tb
-                if max(cr, cg, cb) > wmin:
-                    k = 2 * i + 1
-                    c_ok[k] = True
-                    c_o[k, 0] = px - gx * off
-                    c_o[k, 1] = py - gy * off
-                    c_o[k, 2] = pz - gz * off
-                    c_d[k, 0] = tx
-                    c_d[k, 1] = ty
-                    c_d[k, 2] = tz
-                    c_w[k, 0] = cr
-                    c_w[k, 1] = cg
-                    c_w[k, 2] = cb
-            else:  # total internal reflection
-                rr += tr
-                rg += tg
-                rb += tb
-        cr = w0 * rr
-        cg = w1 * rg
-        cb = w2 * rb
-        if max(cr, cg, cb) > wmin:
-            qx, qy, qz = reflect(dx, dy, dz, sx, sy, sz)
-            if dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
-                qx, qy, qz = reflect(dx, dy, dz, gx, gy, gz)
-            k = 2 * i
-            c_ok[k] = True
-            c_o[k, 0] = px + gx * off
-            c_o[k, 1] = py + gy * off
-            c_o[k, 2] = pz + gz * off
-            c_d[k, 0] = qx
-            c_d[k, 1] = qy
-            c_d[k, 2] = qz
-            c_w[k, 0] = cr
-            c_w[k, 1] = cg
-            c_w[k, 2] = cb
 
 
 # ----------------------------------------------------------------------------- stages
@@ -546,17 +115,23 @@ def shadow_rays(sa: SceneArrays, surf: Surfaces):
 
 
 def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: np.ndarray,
-          spawn: bool, soft: SoftSamples | None = None):
+          spawn: bool, soft: SoftSamples | None = None, terms: bool = False):
     """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i; ``soft``
     the samples of the lights with an extent and of the world, :func:`soft_direct`) times
     the path ``weight`` (n, 3), and the reflection and refraction rays when ``spawn``:
-    ``(contrib (n, 3) float64, Spawned)``."""
+    ``(contrib (n, 3) float64, Spawned)``; with ``terms`` also the points' light terms
+    ``(values (n, L + 2, 3) float64, present (n, L + 2) bool)`` (see :func:`_shade_kernel`)."""
     n = len(surf.P)
     contrib = np.empty((n, 3))
     out = Spawned(np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3)),
                   np.empty(2 * n, np.bool_))
+    c = len(sa.light_kind) + 2
+    tv = np.empty((n if terms else 0, c, 3))
+    tp = np.empty((n if terms else 0, c), np.bool_)
     _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn,
-                  no_samples(n) if soft is None else soft, contrib, out)
+                  no_samples(n) if soft is None else soft, contrib, out, tv, tp)
+    if terms:
+        return contrib, out, (tv, tp)
     return contrib, out
 
 
@@ -684,6 +259,15 @@ def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int) -> dict:
                 dir=surf.VD, traced=traced, lit=lit)
 
 
+def _light_terms(front: _Front, hits: Hits, surf: Surfaces, seeds, tvp) -> dict:
+    """A level's nodes for :mod:`.light_records`: the path weight and light terms
+    (:func:`shade`'s), and what shading one light again needs (the surface point, its
+    normals, the ray direction, shadow origin, material, texture coordinates, seed)."""
+    return dict(weight=front.weight, t_val=tvp[0], t_on=tvp[1], NG=surf.NG, NS=surf.NS,
+                Q=surf.Q, enter=surf.enter, mat=surf.mat, prim=hits.prim, u=hits.u, v=hits.v,
+                seed=seeds)
+
+
 def _tree_level(front: _Front, hits: Hits, surf: Surfaces, vis, occ, L: int) -> dict:
     nb = len(front.src)
     bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
@@ -712,7 +296,7 @@ def _ray_tree(levels: list[dict], L: int) -> RayTree:
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
-          light_samples: int = LIGHT_SAMPLES_DEFAULT):
+          light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -735,7 +319,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     seeds : (n,) uint64 seeds of the input rays for the samples of lights with an extent
     and of the world (:func:`~.soft_lights.sample_seeds` of their global sample ids; by
     default the rays' indices, which makes the samples depend on the batch);
-    light_samples : shadow samples per such light and point.
+    light_samples : shadow samples per such light and point. terms : with ``segments``, its
+    dicts also hold each node's light terms and what re-shading one light needs
+    (:func:`_light_terms`, for :mod:`.light_records`).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -747,7 +333,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
     soft_on = has_soft_light(sa)
-    if soft_on:
+    terms = terms and segments is not None
+    if soft_on or terms:
         root = (sample_seeds(np.arange(len(front.src)), 0) if seeds is None
                 else np.ascontiguousarray(seeds, np.uint64))
         if len(root) != len(front.src):
@@ -766,17 +353,21 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         vis, occ, traced = _visibility(sa, accel, surf, record, counters)
         soft = None
+        nseeds = node_seeds(root, front.src, front.path) if soft_on or terms else None
         if soft_on:
-            soft = soft_direct(sa, surf, node_seeds(root, front.src, front.path),
-                               int(light_samples), vis, _occluded_by(accel), counters, occ)
+            soft = soft_direct(sa, surf, nseeds, int(light_samples), vis, _occluded_by(accel),
+                               counters, occ)
             traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break
         spawn = level < max_depth
-        contrib, kids = shade(sa, hits, surf, vis, front.weight, spawn, soft)
+        shaded = shade(sa, hits, surf, vis, front.weight, spawn, soft, terms)
+        contrib, kids = shaded[0], shaded[1]
         scatter_add(radiance, front.src, contrib)
         if segments is not None:
             segments.append(_segments(front, hits, surf, vis, L))
+            if terms:
+                segments[-1].update(_light_terms(front, hits, surf, nseeds, shaded[2]))
         if record:
             levels.append(_tree_level(front, hits, surf, vis, occ, L))
         if not spawn:
@@ -790,14 +381,16 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
 def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,
                  max_depth: int, cancel=None, counters: dict | None = None,
                  segments: list | None = None, gids: np.ndarray | None = None,
-                 seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT):
+                 seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT,
+                 terms: bool = False):
     """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
     (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
     frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
     (:func:`trace` for ``counters``, ``segments`` and ``cancel``). Returns ``(radiance
     (k, 3) float64, primary instance (k,) int32)``. ``gids`` (k,) int64: the samples'
     global ids (``sample * width * height + pixel``; default: sample 0 of each pixel),
-    which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`)."""
+    which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`);
+    ``terms``: the segments keep the light terms too (:func:`trace`)."""
     if gids is None:
         gids = pixels
     with threads_for(len(pixels)), bound(accel, cancel):
@@ -805,7 +398,8 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
         hits = accel.closest_hit(o, d, tmin, tmax)
         rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
                        counters=counters, segments=segments, cancel=cancel,
-                       seeds=sample_seeds(gids, seed), light_samples=light_samples)
+                       seeds=sample_seeds(gids, seed), light_samples=light_samples,
+                       terms=terms)
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -858,12 +452,19 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     else:
         image = np.zeros((h * w, 3), np.float32)
         pclass = np.full(h * w, CLASS_BACKGROUND, np.uint8)
+    # per-light records kept (tracing.light_records; not when over their cap)
+    terms = (records is not None and records.light is not None
+             and records.light.overflow is None)
     counters: dict = {}
     bad_total = 0
     cancelled_ = False
     rows_done = 0
     traced_pixels = 0
-    for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels):
+    batches = frame_batches(w, h, spp, int(settings.seed), rows_per_tile, pixels)
+    if pixels is not None and not pixels.any():  # nothing dirty (e.g. a relit frame)
+        batches = iter(())
+        rows_done = h
+    for pix, jitter, y1 in batches:
         if cancelled(cancel):
             cancelled_ = True
             break
@@ -875,7 +476,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
                                  depth, cancel, counters, segs, gids, int(settings.seed),
-                                 int(settings.light_samples))
+                                 int(settings.light_samples), terms)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break

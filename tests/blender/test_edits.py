@@ -465,3 +465,26 @@ def test_deleting_the_last_user_frees_its_mesh_and_undo_brings_it_back():
     assert stats["meshes_read"] >= 1  # re-exported: the cache had dropped it
     assert key in state.mirror.cache.meshes and key in state.session.scene.mesh_keys.slot
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
+
+
+def test_f12_light_edits_relight_and_equal_a_fresh_render():
+    """Issue 21: a light's power, colour and position changed through the depsgraph after a
+    first F12 (BASE) relight the kept frame from its per-light records -- no pixel
+    re-traced -- and equal a fresh render bit for bit."""
+    sc = _scene(32, 24)
+    sc.rstrace.mode = "BASE"
+    lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+    _f12()
+    changes = [
+        ("power", lambda: setattr(lamp.data, "energy", lamp.data.energy * 0.4)),
+        ("colour", lambda: setattr(lamp.data, "color", (1.0, 0.7, 0.4))),
+        ("move", lambda: setattr(lamp.location, "x", lamp.location.x + 0.5)),
+    ]
+    for name, change in changes:
+        change()
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["edit_kinds"] == {"LightSet": 1}, (name, stats["edit_kinds"])
+        assert stats.get("relit") and stats["traced_pixels"] == 0, (name, stats)
+        ref, _ = _f12(fresh=True)
+        np.testing.assert_array_equal(inc, ref, err_msg=name)

@@ -163,3 +163,12 @@ def test_geometry_nodes_instancer_is_not_faceless():
     w = _warnings()
     assert not _reported(w, "'Scatter'", "no faces"), w
     assert _reported(w, "'Lonely'", "no faces"), w
+
+
+@pytest.mark.parametrize("metallic, roughness, reported", [
+    (1.0, 0.0, False), (1.0, 0.25, True), (0.0, 0.5, True)])
+def test_rough_reflection_is_reported(metallic, roughness, reported):
+    """No glossy rays yet (issue 24): a reflecting material rougher than a mirror is named."""
+    _scene(b.principled("Satin", metallic=metallic, roughness=roughness))
+    w = _warnings()
+    assert _reported(w, "rough reflections", "'Satin'") == reported, w

@@ -1,0 +1,186 @@
+"""Light edits without re-tracing (BASE, issue 21): the per-light records
+(:mod:`rstrace_engine.tracing.light_records`).
+
+A light's power or colour and the world's colour recombine the frame from its light terms
+(no ray traced); a moved, resized, added or deleted light is shaded again alone. Every
+relit frame equals a fresh session's frame of the edited scene bit for bit; batches the
+terms cannot follow, and records over their cap, take the per-pixel records' path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.edits import LightDelete, LightSet, ObjectTransform, WorldColor
+from rstrace_engine.geometry.scene import Light, SceneError
+from rstrace_engine.session import Session
+from rstrace_engine.tracing.light_records import node_bytes
+
+W, H = 32, 24
+SETTINGS = RenderSettings(mode="BASE", max_depth=3, samples=2)
+
+
+def fresh(sess):
+    return Session(sess.scene.copy(), sess.settings).render()
+
+
+def step(sess, edits, relit=True, frame_relit=None):
+    """Apply ``edits``, render; the frame must equal a fresh one bit for bit. ``relit``:
+    the batch relights; ``frame_relit``: the frame does (default: ``relit``)."""
+    rep = sess.apply(edits)
+    assert rep.relight == relit
+    frame = sess.render()
+    assert bool(frame.stats.get("relit")) == (relit if frame_relit is None else frame_relit)
+    ref = fresh(sess)
+    np.testing.assert_array_equal(frame.radiance, ref.radiance)
+    np.testing.assert_array_equal(frame.pixel_class, ref.pixel_class)
+    return frame
+
+
+def light(sess, key):
+    return sess.scene.lights[sess.scene.light_slot(key)]
+
+
+@pytest.mark.parametrize("scene_name", ["room", "soft_room"])
+def test_power_colour_and_world_recombine_without_rays(scene_name):
+    sess = Session(SOAK_SCENES[scene_name](W, H), SETTINGS)
+    first = sess.render()
+    assert sess.reuse.light_records_bytes > 0
+    for key in list(sess.scene.light_keys.slot):
+        li = light(sess, key)
+        frame = step(sess, [LightSet(key, replace(li, power=li.power * 0.4,
+                                                  color=(1.0, 0.6, 0.3)))])
+        # recombined: no pixel traced, no shadow ray
+        assert frame.stats["traced_pixels"] == 0 and frame.stats["rays_traced"] == 0
+        assert frame.stats["relight_shadow_rays"] == 0
+        assert not np.array_equal(frame.radiance, first.radiance)
+    frame = step(sess, [WorldColor((0.12, 0.2, 0.05))])
+    assert frame.stats["rays_traced"] == 0
+
+
+@pytest.mark.parametrize("scene_name", ["room", "soft_room"])
+def test_moved_lights_are_shaded_again_alone(scene_name):
+    sess = Session(SOAK_SCENES[scene_name](W, H), SETTINGS)
+    sess.render()
+    for key in list(sess.scene.light_keys.slot):
+        li = light(sess, key)
+        if li.kind == "SUN":
+            moved = replace(li, direction=(0.1, -0.4, -1.0), angle=li.angle * 1.5)
+        else:
+            moved = replace(li, position=tuple(np.asarray(li.position) + (0.7, -0.3, 0.2)))
+        frame = step(sess, [LightSet(key, moved)])
+        assert frame.stats["relit_lights"] == [sess.scene.light_slot(key)]
+        assert frame.stats["primary_rays"] == 0 and frame.stats["relight_shadow_rays"] > 0
+    if scene_name == "soft_room":  # an area light resized, reshaped and spread
+        area = light(sess, "Area")
+        step(sess, [LightSet("Area", replace(area, shape="ELLIPSE", size=(1.2, 0.6),
+                                             spread=1.2))])
+        lamp = light(sess, "Lamp")
+        step(sess, [LightSet("Lamp", replace(lamp, radius=0.0))])  # soft to hard
+        step(sess, [LightSet("Lamp", replace(lamp, radius=0.4))])  # and back
+
+
+def test_added_and_deleted_lights():
+    scene = SOAK_SCENES["room"](W, H)
+    scene.set_world_color((0.05, 0.05, 0.06), lights=False)
+    sess = Session(scene, SETTINGS)
+    sess.render()
+    step(sess, [LightDelete("Lamp")])
+    step(sess, [LightSet("New", Light("New", "POINT", power=700.0,
+                                      position=(0.5, -1.0, 3.0)))])  # the freed slot
+    step(sess, [LightSet("Newer", Light("Newer", "SPOT", power=900.0,
+                                        position=(-1.0, 1.0, 3.0), radius=0.2,
+                                        direction=(0.2, -0.2, -1.0)))])  # a new slot
+    step(sess, [LightDelete("Spot"), LightDelete("New")])
+
+
+def test_world_light_needs_its_samples():
+    """A world that starts to light, or a light slot added while it lights, changes the
+    world's samples: those batches re-trace (exactly)."""
+    scene = SOAK_SCENES["room"](W, H)
+    scene.set_world_color((0.05, 0.05, 0.06), lights=False)
+    sess = Session(scene, SETTINGS)
+    sess.render()
+    step(sess, [WorldColor((0.1, 0.1, 0.12), lights=True)], relit=False)
+    step(sess, [WorldColor((0.2, 0.1, 0.12))])  # now it lights: its terms are kept
+    step(sess, [LightSet("Extra", Light("Extra", "POINT", power=300.0,
+                                        position=(1.0, 1.0, 3.0)))], relit=False)
+
+
+def test_mixed_batches_and_later_object_edits():
+    """Light edits with object edits, a relit moved light followed by an object moving into
+    its new shadow shafts: the pixel records' light bits follow the relit light."""
+    sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    sess.render()
+    lamp = light(sess, "Lamp")
+    key = next(k for k, i in sess.scene.live_instances() if i["name"] != "Floor")
+    name_key = sess.scene.instance_keys
+    obj = next(k for k, v in name_key.slot.items() if v == key)
+    m = sess.scene.instances[key]["matrix"].copy()
+    m[0, 3] += 0.2
+    step(sess, [LightSet("Lamp", replace(lamp, power=lamp.power * 2.0)),
+                ObjectTransform(obj, m)], relit=False)
+    step(sess, [LightSet("Lamp", replace(lamp, position=(1.5, 1.5, 3.0)))])
+    # two batches before one frame: a light moved, then an object
+    sess.apply([LightSet("Lamp", replace(lamp, position=(-1.0, 2.0, 2.5)))])
+    m[1, 3] -= 0.3
+    frame = step(sess, [ObjectTransform(obj, m)], relit=False, frame_relit=True)
+    assert 0 < frame.stats["traced_pixels"] < W * H
+    m[:3, 3] = (-0.5, 1.2, 1.0)  # into the lamp's new shafts
+    step(sess, [ObjectTransform(obj, shapes.transform(m[:3, 3], 0.5))], relit=False)
+
+
+def test_random_light_edit_sequences_stay_exact():
+    """Seeded random sequences of every edit kind (light power, colour, moves, adds,
+    deletes, extents and the world among them): bit for bit a fresh frame."""
+    gen = EditGenerator(SOAK_SCENES["soft_room"](24, 18), seed=21, camera=False,
+                        extra=EditGenerator.SOFT_KINDS)
+    sess = Session(gen.scene.copy(), RenderSettings(mode="BASE", max_depth=3))
+    sess.render()
+    relit = 0
+    for _ in range(30):
+        sess.apply(gen.step())
+        due = sess.reuse.relight_due
+        frame = sess.render()
+        relit += due
+        np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
+    assert relit >= 5, gen.kinds_done
+
+
+def test_record_cap():
+    """Over the cap the records are dropped (said in the frame's stats) and light edits
+    re-trace; a cap of zero is refused, naming the setting."""
+    n = W * H * SETTINGS.samples
+    cap_mb = 0.5 * n * node_bytes(3) / 1e6
+    sess = Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, relight_memory_mb=cap_mb))
+    first = sess.render()
+    assert "relight_memory_mb" in first.stats["relight_off"]
+    assert sess.reuse.light_records_bytes == 0
+    li = light(sess, "Lamp")
+    step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.5))], relit=False)
+    with pytest.raises(SceneError, match="relight_memory_mb"):
+        Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, relight_memory_mb=0.0))
+    with pytest.raises(SceneError, match="relight_memory_mb"):
+        sess.update_settings(replace(SETTINGS, relight_memory_mb=float("nan")))
+
+
+@pytest.mark.parametrize("bad", [dict(power=float("nan")), dict(power=-5.0),
+                                 dict(power=float("inf")), dict(color=(1.0, float("nan"), 0.0)),
+                                 dict(position=(0.0, float("inf"), 1.0))])
+def test_bad_light_edits_keep_the_frame(bad):
+    sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    first = sess.render()
+    li = light(sess, "Lamp")
+    with pytest.raises(SceneError, match="Lamp"):
+        sess.apply([LightSet("Spot", replace(light(sess, "Spot"), power=10.0)),
+                    LightSet("Lamp", replace(li, **bad))])
+    assert not sess.reuse.relight_due
+    assert light(sess, "Spot").power != 10.0  # nothing half-applied
+    again = sess.render()
+    np.testing.assert_array_equal(again.radiance, first.radiance)

@@ -7,6 +7,11 @@
   mirror, two lights and a spot (most pixels large smooth surfaces, as in the paper).
 * ``grid`` — 20 icospheres on a plane, ~100k triangles (the ray-cast benchmark).
 * ``torus_knot`` — smooth non-convex objects (tori) on a plane, for interpolant tests.
+* ``museum_soft`` — ``museum_1999`` lit as a Blender user lights it (issue 20): two
+  rectangular area lights at the ceiling, a sun with a 3 degree angle through a skylight, a
+  spot with a radius and a grey world that lights (through the skylight).
+* ``studio`` — objects on a floor under one large area light, a sphere light and a grey
+  world that lights: the studio set-up of product shots.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import math
 import numpy as np
 
 from .geometry import shapes
+from .geometry.elements import Mesh
 from .geometry.scene import Camera, Light, Material, Scene
 
 
@@ -112,12 +118,41 @@ def museum(width: int = 640, height: int = 480, rows: int = 25, cols: int = 40) 
 
 
 def museum_1999(width: int = 640, height: int = 480) -> Scene:
-    """A scene like seed 000's museum (Plate B): a 45 x 30 ft room (13.7 x 9.1 m, 4.5 m
-    high), a mirror on a wall, a green cube, and four sculptures on plinths made of about
-    1,100 primitives: a twisted tower of 60 boxes under a sphere (Edit-(a)/(b): its top and
-    bottom), a spiral of 600 small spheres, a stepped pyramid of 204 boxes and a ring of 200
-    small tori. Two ceiling lights and a spot, as in Plates A-C. Unlike ``museum`` (2,000
-    small objects, the hard case) most pixels are large smooth surfaces, as in the paper.
+    """A scene like seed 000's museum (Plate B), lit by two ceiling lights and a spot
+    (:func:`_museum_1999_objects`)."""
+    s = _museum_1999_objects(skylight=False)
+    H = MUSEUM_1999_SIZE[2]
+    s.add_light(Light("Ceiling0", "POINT", power=300.0, position=(-3.0, 0.0, H - 0.4)))
+    s.add_light(Light("Ceiling1", "POINT", power=300.0, position=(3.0, 0.0, H - 0.4)))
+    s.add_light(Light("Spot", "SPOT", power=600.0, position=(0.0, -3.5, H - 0.3),
+                      direction=(0.0, 0.55, -0.6), spot_size=math.radians(40)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(_camera((1.5, -4.3, 1.7), (-0.3, 1.5, 1.2), width, height, lens=22.0))
+    return s
+
+
+#: ``museum_1999``'s room: width, depth, height (m)
+MUSEUM_1999_SIZE = (13.7, 9.1, 4.5)
+#: ``museum_soft``'s skylight: centre (x, y) and size (x, y) of the opening in the ceiling
+SKYLIGHT = ((1.8, 0.6), (2.0, 1.2))
+
+
+def _room_without_ceiling(size) -> Mesh:
+    """An inward box (a room) whose two ceiling triangles are left out."""
+    m = shapes.box(size, name="room_open", inward=True)
+    top = np.all(m.vertices[m.triangles][:, :, 2] > 0.0, axis=1)
+    return Mesh("room_open", m.vertices, m.triangles[~top], smooth=False)
+
+
+def _museum_1999_objects(skylight: bool) -> Scene:
+    """The objects of a scene like seed 000's museum (Plate B): a 45 x 30 ft room
+    (13.7 x 9.1 m, 4.5 m high), a mirror on a wall, a green cube, and four sculptures on
+    plinths made of about 1,100 primitives: a twisted tower of 60 boxes under a sphere
+    (Edit-(a)/(b): its top and bottom), a spiral of 600 small spheres, a stepped pyramid of
+    204 boxes and a ring of 200 small tori. Unlike ``museum`` (2,000 small objects, the hard
+    case) most pixels are large smooth surfaces, as in the paper. No lights, no world, no
+    camera. ``skylight``: the ceiling is a slab with an opening (:data:`SKYLIGHT`) instead
+    of the room's top.
     """
     s = Scene()
     wall = s.add_material(Material("wall", diffuse=(0.72, 0.7, 0.64)))
@@ -130,14 +165,27 @@ def museum_1999(width: int = 640, height: int = 480) -> Scene:
                                      specular=(0.3, 0.25, 0.18), roughness=0.25))
     green = s.add_material(Material("green", diffuse=(0.12, 0.5, 0.15)))
     mirror = s.add_material(Material("mirror", diffuse=(0.02,) * 3, mirror=(0.9,) * 3))
-    W, D, H = 13.7, 9.1, 4.5
-    room = s.add_mesh(shapes.box((W, D, H), name="room", inward=True))
+    W, D, H = MUSEUM_1999_SIZE
+    if skylight:
+        room = s.add_mesh(_room_without_ceiling((W, D, H)))
+    else:
+        room = s.add_mesh(shapes.box((W, D, H), name="room", inward=True))
     box = s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="unit_box"))
     ball = s.add_mesh(shapes.icosphere(3, 1.0, name="ball"))
     pebble = s.add_mesh(shapes.icosphere(1, 1.0, name="pebble"))
     ring = s.add_mesh(shapes.torus(1.0, 0.3, 16, 8, name="ring"))
     panel = s.add_mesh(shapes.plane(1.0, name="mirror_panel"))
     s.add_instance(room, shapes.transform((0, 0, H / 2)), [wall, floor], name="Room")
+    if skylight:  # four slabs 0.2 m thick around the opening
+        (cx, cy), (sx, sy) = SKYLIGHT
+        slab = s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="ceiling_slab"))
+        x0, x1, y0, y1 = cx - sx / 2, cx + sx / 2, cy - sy / 2, cy + sy / 2
+        for j, (a, b, c, d) in enumerate([(-W / 2, x0, -D / 2, D / 2),
+                                          (x1, W / 2, -D / 2, D / 2),
+                                          (x0, x1, -D / 2, y0), (x0, x1, y1, D / 2)]):
+            s.add_instance(slab, shapes.transform(((a + b) / 2, (c + d) / 2, H + 0.1),
+                                                  (b - a, d - c, 0.2)),
+                           [wall], name=f"CeilingSlab{j}")
     s.add_instance(panel, shapes.transform((-W / 2 + 0.02, 0.5, 1.9), (4.0, 2.6, 1.0), 90, 90),
                    [mirror], name="Mirror")
     s.add_instance(box, shapes.transform((4.3, -2.6, 0.4), 0.8, 20.0), [green], name="GreenCube")
@@ -176,12 +224,61 @@ def museum_1999(width: int = 640, height: int = 480) -> Scene:
         add(ring, shapes.transform((-2.2 + 0.4 * math.cos(a), -2.0 + 0.4 * math.sin(a),
                                     1.05 + 0.35 * math.sin(3 * a)), 0.05, math.degrees(a),
                                    60.0), bronze)
-    s.add_light(Light("Ceiling0", "POINT", power=300.0, position=(-3.0, 0.0, H - 0.4)))
-    s.add_light(Light("Ceiling1", "POINT", power=300.0, position=(3.0, 0.0, H - 0.4)))
+    return s
+
+
+def museum_soft(width: int = 640, height: int = 480) -> Scene:
+    """``museum_1999`` lit as a Blender user lights it: two 1.2 x 0.6 m area lights at the
+    ceiling (where its point lights were), a sun of 3 degrees' angular diameter through a
+    2 x 1.2 m skylight (onto the floor by the pyramid), its spot with a 5 cm radius, and a
+    grey world that lights what sees the sky. Same camera."""
+    s = _museum_1999_objects(skylight=True)
+    H = MUSEUM_1999_SIZE[2]
+    for j, x in enumerate((-3.0, 3.0)):
+        s.add_light(Light(f"Ceiling{j}", "AREA", power=120.0, position=(x, 0.0, H - 0.01),
+                          direction=(0.0, 0.0, -1.0), shape="RECTANGLE", size=(1.2, 0.6)))
     s.add_light(Light("Spot", "SPOT", power=600.0, position=(0.0, -3.5, H - 0.3),
-                      direction=(0.0, 0.55, -0.6), spot_size=math.radians(40)))
-    s.set_world_color((0.0, 0.0, 0.0))
+                      direction=(0.0, 0.55, -0.6), spot_size=math.radians(40), radius=0.05))
+    s.add_light(Light("Sun", "SUN", power=3.0, direction=(0.3, 0.35, -1.0),
+                      angle=math.radians(3.0)))
+    s.set_world_color((0.05, 0.05, 0.05), lights=True)
     s.set_camera(_camera((1.5, -4.3, 1.7), (-0.3, 1.5, 1.2), width, height, lens=22.0))
+    return s
+
+
+def studio(width: int = 640, height: int = 480) -> Scene:
+    """Objects on a floor under one large area light (a 2.5 x 2.5 m soft box above, tilted
+    toward the camera's side), a sphere light of 0.4 m radius to the left and a grey world
+    that lights: a sphere, a glossy torus, a box, a small mirror ball and a vase."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.58), specular=(0.05,) * 3,
+                                    roughness=0.4))
+    red = s.add_material(Material("red", diffuse=(0.7, 0.12, 0.1), specular=(0.2,) * 3,
+                                  roughness=0.2))
+    gold = s.add_material(Material("gold", diffuse=(0.45, 0.3, 0.08), specular=(0.4,) * 3,
+                                   roughness=0.2))
+    white = s.add_material(Material("white", diffuse=(0.75, 0.75, 0.75)))
+    blue = s.add_material(Material("blue", diffuse=(0.1, 0.2, 0.6), specular=(0.1,) * 3,
+                                   roughness=0.3))
+    chrome = s.add_material(Material("chrome", diffuse=(0.03,) * 3, mirror=(0.85,) * 3))
+    s.add_instance(s.add_mesh(shapes.plane(14.0, name="ground")), np.eye(4), [floor],
+                   name="Floor")
+    sphere = s.add_mesh(shapes.icosphere(4, name="sphere"))
+    s.add_instance(sphere, shapes.transform((-1.3, 0.3, 0.7), 0.7), [red], name="Sphere")
+    s.add_instance(s.add_mesh(shapes.torus(0.6, 0.22, 64, 32, name="torus")),
+                   shapes.transform((0.9, 0.8, 0.5), 1.0, 30.0, 60.0), [gold], name="Torus")
+    s.add_instance(s.add_mesh(shapes.box((0.9, 0.9, 0.9), name="cube")),
+                   shapes.transform((0.6, -1.0, 0.45), 1.0, 25.0), [white], name="Cube")
+    s.add_instance(sphere, shapes.transform((-0.2, -1.5, 0.25), 0.25), [chrome],
+                   name="MirrorBall")
+    vase = shapes.revolve([0.0, 0.25, 0.4, 0.3, 0.15, 0.2, 0.0],
+                          [0.0, 0.02, 0.3, 0.7, 1.0, 1.2, 1.2], 48, name="vase")
+    s.add_instance(s.add_mesh(vase), shapes.transform((-2.6, 1.6, 0.0)), [blue], name="Vase")
+    s.add_light(Light("SoftBox", "AREA", power=300.0, position=(0.0, -1.0, 4.0),
+                      direction=(0.0, 0.3, -1.0), shape="SQUARE", size=2.5))
+    s.add_light(Light("Bulb", "POINT", power=150.0, position=(-3.5, -1.5, 2.0), radius=0.4))
+    s.set_world_color((0.08, 0.08, 0.1), lights=True)
+    s.set_camera(_camera((0.0, -7.0, 3.0), (0.0, 0.2, 0.6), width, height, lens=40.0))
     return s
 
 
@@ -331,7 +428,7 @@ def tomatoes(width: int = 1200, height: int = 900) -> Scene:
 SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
           "grid": grid, "tori": tori,
           "bezier_surface": bezier_surface, "random_volumes": random_volumes,
-          "tomatoes": tomatoes}
+          "tomatoes": tomatoes, "museum_soft": museum_soft, "studio": studio}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

@@ -20,9 +20,17 @@ from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettin
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import ObjectTransform, ObjectVisibility
 from rstrace_engine.geometry.scene import Material
+from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.session import Session
 
 W, H = 32, 24
+
+
+@pytest.fixture(autouse=True)
+def cells_always(monkeypatch):
+    """The INTERPOLANT sessions here count interpolated and rebuilt pixels: the measured
+    fallback (decided from timings, tests/test_interpolant_fallback.py) is off."""
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
 
 
 def fresh_frame(scene, settings):

@@ -44,8 +44,11 @@ FLOAT_TOL = 1e-6
 
 @pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
-    """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 48)."""
+    """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 48). The
+    measured fallback (tests/test_interpolant_fallback.py) is off: these tests count what
+    the cells do, which timings would make vary."""
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
 
 
 def settings(**kw) -> RenderSettings:

@@ -32,6 +32,9 @@ W, H = 112, 84
 @pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    # these tests count the interpolants edits invalidate and keep: the measured fallback
+    # (decided from timings, tests/test_interpolant_fallback.py) would trace them instead
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
 
 
 def spheres(blue=(1.5, 1.6, 0.8), wall_diffuse=(0.6, 0.5, 0.4), key_power=1500.0,

@@ -29,6 +29,9 @@ FLOAT_TOL = 1e-6
 @pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 12)
+    # frames with and without reprojection are compared: the measured fallback (decided
+    # from timings, tests/test_interpolant_fallback.py) would make them differ
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
 
 
 def _sequence(scene, cams, spp=1, enabled=True, monkeypatch=None):

@@ -30,6 +30,11 @@ row                museum                                       three_spheres
 ``camera_step``    camera steps forward (0.5% of the scene)     the same
 =================  ===========================================  ===========================
 
+``studio`` (soft light: an area light, a sphere light, a world that lights; issue 20) has
+the same rows: delete the torus / the vase, move the mirror ball 0.1 m, recolour the red
+material / the floor, the light rows on the soft box and the sphere light, add a small
+ball. Its goal: moving a small object >= 20x faster than a fresh frame in BASE, exact.
+
 Columns: ``rst_query_ms`` (RST traversal + membership + invalidation, INTERPOLANT),
 ``records_query_ms`` (finding the dirty pixels in the per-pixel records), ``apply_ms``
 (everything ``Session.apply`` did), ``invalidated_interpolants``, ``dirty_fraction``,
@@ -150,6 +155,19 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
                                     roughness=0.25))
         light_key, moved_light = "Key", "Fill"
         add = ObjectAdd("NewBall", "sphere", shapes.transform((-0.6, 1.2, 0.3), 0.3),
+                        ("blue",))
+    elif name == "studio":  # soft light: an area light, a sphere light, a world (issue 20)
+        s = scenes.studio(width, height)
+        pin, pout = _cube_positions(s, 6.0, 1.6, 5.5, 0.25)
+        pout = np.clip(pout, (-6.5, -6.5, 0.0), (6.5, 6.5, 2.0))
+        size, small_key, small_step = 0.5, "MirrorBall", 0.1
+        top, bottom = "Torus", "Vase"
+        recolor = ("red", Material("red", diffuse=(0.2, 0.6, 0.15), specular=(0.2,) * 3,
+                                   roughness=0.2))
+        shared = ("floor", Material("floor", diffuse=(0.45, 0.5, 0.55), specular=(0.05,) * 3,
+                                    roughness=0.4))
+        light_key, moved_light = "SoftBox", "Bulb"
+        add = ObjectAdd("NewBall", "sphere", shapes.transform((1.9, -0.4, 0.3), 0.3),
                         ("blue",))
     elif name == "soft_room":
         from .soak import soft_room
@@ -285,6 +303,9 @@ def _rst_mb(sess: Session) -> float:
 def goal(r: dict) -> str:
     """The issue's goal this row measures, and whether it was met ('' when none)."""
     notes = []
+    if r["scene"] == "studio" and r["mode"] == "BASE" and r["edit"] == "move_small":
+        ok = r["speedup"] >= 20.0 and r["max_linear_diff"] <= 1e-6
+        notes.append(f"soft light: speedup >= 20x exact: {'met' if ok else 'MISSED'}")
     if r["mode"] == "BASE" and r["edit"] in ("light_power", "light_colour", "world_colour"):
         ok = r["speedup"] >= 50.0 and r["max_linear_diff"] == 0.0
         notes.append(f"speedup >= 50x exact: {'met' if ok else 'MISSED'}")

@@ -28,7 +28,12 @@ after each pixel's first), "memory_mb", "first_ceiling", "step_ceiling", "pan_ce
 ceilings: the base frame's time over the time the base tracer takes for the pixels that
 frame did not interpolate alone -- the speedup if every interpolated pixel were free)},
 ...]}``. ``--no-reproject`` turns reprojection off
-(for comparison: the frames are the same).
+(for comparison: the frames are the same). ``--light-samples N``: shadow rays per soft
+light in both frames; ``--compare-fallback`` also times each camera without the measured
+fallback (``first/step/pan_speedup_no_fallback``: the mode as it was before it learned where
+cells do not pay); ``worst_speedup`` is the slowest of the three frames (the goal: at least
+:data:`NEVER_LOSES`), ``traced_objects`` / ``deferred_cells`` what the fallback decided.
+The soft-lit scenes: ``--scenes museum_soft,studio``.
 """
 
 from __future__ import annotations
@@ -56,11 +61,16 @@ DEPTH_CAPS = (4, 8)
 MEMORY_CAPS = (4.0, 0.5)
 STEP_FRACTION = 0.005
 PAN_DEGREES = 2.5
-JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "spp", "first_frame_speedup",
+JSON_KEYS = ("scene", "epsilon", "depth_cap", "memory_cap_mb", "spp", "light_samples",
+             "first_frame_speedup",
              "camera_step_speedup", "pan_speedup", "mean_error", "max_error",
              "frac_over_epsilon", "n_over_epsilon", "psnr", "interpolated_fraction",
              "reprojected_fraction", "reprojected_pan_fraction", "reprojected_first_fraction",
-             "memory_mb", "first_ceiling", "step_ceiling", "pan_ceiling")
+             "memory_mb", "first_ceiling", "step_ceiling", "pan_ceiling",
+             "worst_speedup", "traced_objects", "deferred_cells", "first_speedup_no_fallback",
+             "step_speedup_no_fallback", "pan_speedup_no_fallback")
+#: the slowest an INTERPOLANT frame may be against the base frame ("never loses", issue 20)
+NEVER_LOSES = 0.9
 #: display-space slack of ``n_over_epsilon`` (float32 frames)
 FLOAT_TOL = 1e-6
 
@@ -93,15 +103,17 @@ def _timed(fn, repeat: int):
     return best, out
 
 
-def settings_grid(quick: bool = False, spps=(1,), caps=()) -> list[tuple[float, int, float, int]]:
+def settings_grid(quick: bool = False, spps=(1,), caps=(),
+                  epsilons=None) -> list[tuple[float, int, float, int]]:
     """(epsilon, depth cap, memory cap MB, samples per pixel) of every row: the sweeps at 1
     sample per pixel, and epsilon 0.01 at the default caps for every other count of
     ``spps``; ``caps``: epsilon 0.01 at each of these depth caps, for every count of
-    ``spps``."""
+    ``spps``; ``epsilons``: the sweep's epsilons (default: all, or three with ``quick``;
+    given, no cap sweep)."""
     d = RenderSettings()
-    eps = (0.0, 0.01, 0.1) if quick else EPSILONS
+    eps = ((0.0, 0.01, 0.1) if quick else EPSILONS) if epsilons is None else tuple(epsilons)
     rows = [(e, d.depth_cap, d.memory_cap_mb, 1) for e in eps]
-    if not quick:
+    if not quick and epsilons is None:
         rows += [(0.01, c, d.memory_cap_mb, 1) for c in DEPTH_CAPS]
         rows += [(0.01, d.depth_cap, m, 1) for m in MEMORY_CAPS]
     rows += [(0.01, d.depth_cap, d.memory_cap_mb, int(k)) for k in spps if int(k) != 1]
@@ -111,12 +123,17 @@ def settings_grid(quick: bool = False, spps=(1,), caps=()) -> list[tuple[float, 
 
 
 def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int = 3,
-              log=None) -> list[dict]:
-    """Measure every setting of ``grid`` on scene ``name``; returns the rows."""
+              log=None, light_samples: int | None = None,
+              compare_fallback: bool = False) -> list[dict]:
+    """Measure every setting of ``grid`` on scene ``name``; returns the rows.
+    ``light_samples``: shadow rays per soft light (base and interpolant frames alike; None:
+    the default); ``compare_fallback``: each camera also gets a frame of an interpolant
+    renderer without the measured fallback (``*_no_fallback``: the mode as it was)."""
+    ls = RenderSettings().light_samples if light_samples is None else int(light_samples)
     sc = scenes.build(name, width, height)
     accel = create_accelerator("BVH", sc.arrays())
     cams = moved_cameras(sc)
-    base_settings = RenderSettings(max_depth=depth)
+    base_settings = RenderSettings(max_depth=depth, light_samples=ls)
     # numba compile / cache load is not timed: a small frame of every kind first
     warm = scenes.build(name, 48, 36)
     wacc = create_accelerator("BVH", warm.arrays())
@@ -132,14 +149,14 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
     rows = []
     base_frames: dict = {}
     for eps, cap, mem, spp in grid:
-        base_settings = RenderSettings(max_depth=depth, samples=spp)
+        base_settings = RenderSettings(max_depth=depth, samples=spp, light_samples=ls)
         if spp not in base_frames:
             sc.set_camera(cams["first"])
             base_frames[spp] = _timed(lambda bs=base_settings: render(sc, bs, accel=accel),
                                       repeat + 1 if spp == 1 else 1)
         t_base, base_frame = base_frames[spp]
         st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=cap, memory_cap_mb=mem,
-                            max_depth=depth, samples=spp)
+                            max_depth=depth, samples=spp, light_samples=ls)
         # the whole sequence (first frame from an empty cache, step, pan) is repeated; each
         # interpolant frame is timed right after a base frame of the same camera (the
         # machine's load drifts), and each keeps its best time
@@ -147,8 +164,11 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
         rep = dict.fromkeys(cams, 0.0)
         btimes = dict.fromkeys(cams, math.inf)
         rest = dict.fromkeys(cams, math.inf)
+        off = dict.fromkeys(cams, math.inf)
         for _ in range(max(repeat, 1)):
             r = InterpolantRenderer()
+            r_off = InterpolantRenderer()
+            r_off.auto_fallback = False
             for key, cam in cams.items():
                 sc.set_camera(cam)
                 t0 = CLOCK()
@@ -157,9 +177,16 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                 t0 = CLOCK()
                 frame = r.render(sc, st, accel)
                 times[key] = min(times[key], CLOCK() - t0)
+                if compare_fallback:
+                    t0 = CLOCK()
+                    r_off.render(sc, st, accel)
+                    off[key] = min(off[key], CLOCK() - t0)
+                fbs = frame.stats.get("fallback", {})
                 if key == "first":
                     f_first = frame
                     memory = r.cache.memory_bytes / 1e6
+                    deferred = fbs.get("deferred_cells", 0)
+                traced_objects = fbs.get("traced_objects", 0)
                 rep[key] = frame.stats.get("reprojected_fraction", 0.0)
                 rest[key] = min(rest[key], _rest_time(sc, base_settings, accel, bframe, frame))
         t_first = times["first"]
@@ -168,6 +195,13 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                      - image.to_display(base_frame.radiance)).max(axis=-1)
         row = dict(
             scene=name, epsilon=eps, depth_cap=cap, memory_cap_mb=mem, spp=spp,
+            light_samples=ls, traced_objects=traced_objects, deferred_cells=deferred,
+            first_speedup_no_fallback=(btimes["first"] / off["first"] if compare_fallback
+                                   else math.nan),
+            step_speedup_no_fallback=(btimes["step"] / off["step"] if compare_fallback
+                                   else math.nan),
+            pan_speedup_no_fallback=(btimes["pan"] / off["pan"] if compare_fallback
+                                   else math.nan),
             n_over_epsilon=int(np.count_nonzero(err > eps + FLOAT_TOL)),
             reprojected_fraction=float(rep["step"]),
             reprojected_pan_fraction=float(rep["pan"]),
@@ -185,6 +219,8 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
             step_ceiling=btimes["step"] / rest["step"],
             pan_ceiling=btimes["pan"] / rest["pan"],
         )
+        row["worst_speedup"] = min(row["first_frame_speedup"], row["camera_step_speedup"],
+                                   row["pan_speedup"])
         rows.append(row)
         if log is not None:
             log(f"{name} eps={eps:g} cap={cap} mem={mem:g} spp={spp}: "
@@ -194,7 +230,11 @@ def run_scene(name: str, width: int, height: int, depth: int, grid, repeat: int 
                 f"reprojected {100 * row['reprojected_fraction']:.1f}% "
                 f"ceiling {row['first_ceiling']:.2f}/{row['step_ceiling']:.2f}/"
                 f"{row['pan_ceiling']:.2f}x "
-                f"over-eps {100 * row['frac_over_epsilon']:.3f}%")
+                f"over-eps {100 * row['frac_over_epsilon']:.3f}% "
+                f"traced objects {traced_objects} deferred {deferred} "
+                f"without fallback {row['first_speedup_no_fallback']:.2f}/"
+                f"{row['step_speedup_no_fallback']:.2f}/{row['pan_speedup_no_fallback']:.2f}x "
+                f"base {row['base_s']:.2f} s memory {memory:.1f} MB")
     sc.set_camera(cams["first"])
     return rows
 
@@ -224,7 +264,8 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
             "mean err | max err | >eps px | PSNR dB | interp % | "
             "reprojected % (first / step / pan) | memory MB | "
             "base s | first s | step s | pan s | base / primary rays | "
-            "ceiling (first / step / pan) |")
+            "ceiling (first / step / pan) | light samples | traced objects / deferred cells "
+            "| no fallback (first / step / pan) |")
     lines = [f"Interpolant speed/accuracy trade at {width}x{height}, ray depth 5 "
              f"(`python -m rstrace_engine.bench trade`). Speedups are base tracer time / "
              f"interpolant time of the same frame in the same run; errors compare the "
@@ -233,7 +274,7 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
              f"that casts one visibility ray per pixel could gain; the *ceiling* is the base "
              f"frame time over the time of tracing only the pixels that frame did not "
              f"interpolate: the speedup if every interpolated pixel were free. {note}", "",
-             head, "|" + "---|" * 21]
+             head, "|" + "---|" * 24]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], f"{r['epsilon']:g}", str(r["depth_cap"]), f"{r['memory_cap_mb']:g}",
@@ -247,7 +288,11 @@ def markdown(rows: list[dict], width: int, height: int, note: str = "") -> str:
             f"{r['memory_mb']:.1f}",
             f"{r['base_s']:.3f}", f"{r['first_s']:.3f}", f"{r['step_s']:.3f}",
             f"{r['pan_s']:.3f}", f"{r['visibility_bound']:.1f}x",
-            f"{r['first_ceiling']:.2f} / {r['step_ceiling']:.2f} / {r['pan_ceiling']:.2f}x"])
+            f"{r['first_ceiling']:.2f} / {r['step_ceiling']:.2f} / {r['pan_ceiling']:.2f}x",
+            str(r["light_samples"]), f"{r['traced_objects']} / {r['deferred_cells']}",
+            (f"{r['first_speedup_no_fallback']:.2f} / {r['step_speedup_no_fallback']:.2f} / "
+             f"{r['pan_speedup_no_fallback']:.2f}x"
+             if math.isfinite(r["pan_speedup_no_fallback"]) else "-")])
             + " |")
     return "\n".join(lines) + "\n"
 
@@ -304,11 +349,18 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", default="docs", help="directory for trade.md and trade.png")
     p.add_argument("--repeat", type=int, default=3, help="timing runs per frame (best)")
     p.add_argument("--quick", action="store_true", help="three epsilons, no cap sweep")
+    p.add_argument("--epsilons", default="", help="the sweep's epsilons, comma separated "
+                                                 "(no cap sweep; e.g. 0.01)")
     p.add_argument("--spp", default="1", help="samples per pixel, comma separated (counts "
                                               "other than 1: one row each at epsilon 0.01)")
     p.add_argument("--caps", default="", help="depth caps, comma separated: one row each at "
                                              "epsilon 0.01 per count of --spp")
     p.add_argument("--threads", type=int, default=0, help="numba threads (0: all)")
+    p.add_argument("--light-samples", type=int, default=None,
+                   help="shadow rays per soft light, base and interpolant frames alike "
+                        "(default: RenderSettings')")
+    p.add_argument("--compare-fallback", action="store_true",
+                   help="also time each camera without the measured fallback")
     p.add_argument("--no-reproject", action="store_true",
                    help="find every sample's visible surface with a closest-hit ray")
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
@@ -326,7 +378,9 @@ def main(argv: list[str]) -> int:
 
         reproject.ENABLED = False
     grid = settings_grid(args.quick, [int(k) for k in args.spp.split(",")],
-                         [int(c) for c in args.caps.split(",") if c.strip()])
+                         [int(c) for c in args.caps.split(",") if c.strip()],
+                         [float(e) for e in args.epsilons.split(",")] if args.epsilons
+                         else None)
     rows = []
 
     def log(msg):
@@ -334,7 +388,8 @@ def main(argv: list[str]) -> int:
 
     for name in args.scenes.split(","):
         rows += run_scene(name.strip(), args.width, args.height, args.depth, grid,
-                          repeat=args.repeat, log=log)
+                          repeat=args.repeat, log=log, light_samples=args.light_samples,
+                          compare_fallback=args.compare_fallback)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     note = (f"Timing: {'process CPU time' if args.clock == 'cpu' else 'wall time'}, "

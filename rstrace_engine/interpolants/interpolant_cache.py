@@ -54,6 +54,7 @@ from ..frame import (
 )
 from ..geometry.mesh_topology import mesh_topology
 from ..tracing.whitted import trace
+from .fallback import Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .linetree import (
     EMPTY,
@@ -242,6 +243,10 @@ class InterpolantCache:
         self.totals = dict(cells_built=0, cells_valid=0, samples_traced=0, evicted=0,
                            invalidated=0)
         self.frame_stats: dict = {}
+        #: cells built per instance slot since the frame reset it (:mod:`.fallback`)
+        self.cells_by_inst = np.zeros(len(sa.inst_mesh), np.int64)
+        #: what the mode learned of where cells do not pay (:mod:`.fallback`)
+        self.fallback = Fallback(len(sa.inst_mesh))
         #: a list to receive, per batch of built cells, ``(tree (m,) int32 (inst * 6 +
         #: face), depth (m,), coord (m, 4), outcome (m,) int8 index into OUTCOMES)``
         #: (diagnostics: ``scripts/interpolant_outcomes.py``); None records nothing
@@ -360,7 +365,9 @@ class InterpolantCache:
         the edited scene ``sa``, keeping every valid interpolant
         (:func:`.invalidation.take_edits`)."""
         self.view = None
-        return take_edits(self, fx, sa, accel)
+        out = take_edits(self, fx, sa, accel)
+        self.fallback.forget(fx.objects, len(self.sa.inst_mesh))  # edited: a new chance
+        return out
 
     def rst_memory_bytes(self) -> int:
         """Bytes of the ray segment trees and the membership index."""
@@ -381,7 +388,7 @@ class InterpolantCache:
         return face, abcd, zp, clsp
 
     def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None,
-                pre=None) -> ResolveResult:
+                pre=None, budget=None) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
         inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
@@ -389,6 +396,7 @@ class InterpolantCache:
         has textures (applied per ray, :func:`.samples.apply_textures`). pre: the arrays
         ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
         already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
+        budget: a :class:`.fallback.Budget`, cells are built while it allows (in batches).
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
@@ -443,6 +451,9 @@ class InterpolantCache:
             empty = ustate == EMPTY
             split = enough & (udepth < self.depth_cap) & ((empty & (udepth < first)) | ~empty)
             build = enough & empty & (udepth >= first)
+            if budget is not None and not budget.may_build(int(np.count_nonzero(done))):
+                budget.defer(lt.arrays.tree[uniq[build]] // 6)  # their rays are traced
+                build[:] = False
             node_cls[uniq[~empty]] = fail_class(ustate[~empty])
             node_cls[uniq[split | build]] = 255
             settle(node_cls, nodes, inherited, active, idx, pcls)
@@ -453,10 +464,16 @@ class InterpolantCache:
                 tb = time.perf_counter()
                 cells = uniq[build]
                 step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
-                for lo in range(0, len(cells), step):
-                    if lo and cancel():  # the cells left EMPTY are built by a later frame
+                lo = 0  # (cells left EMPTY: built by a later frame, or traced when spent)
+                while lo < len(cells) and not (lo and cancel is not None and cancel()):
+                    nb = step if budget is None else budget.batch(step, np.count_nonzero(done))
+                    if nb == 0:
                         break
-                    self._build(cells[lo:lo + step], st)
+                    t1 = time.perf_counter()
+                    self._build(cells[lo:lo + nb], st)
+                    if budget is not None:
+                        budget.charge(time.perf_counter() - t1, nb)
+                    lo += nb
                 # failed cells with room below go one level down right away
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])
@@ -576,6 +593,7 @@ class InterpolantCache:
         depth = a.depth[cells].astype(np.int64)
         coord = a.coord[cells].astype(np.int64)
         nc = len(cells)
+        self.cells_by_inst = count_cells(self.cells_by_inst, inst, len(self.sa.inst_mesh))
         ntest = self.n_test[inst]
         ns = 16 + N_TEST_ALL
         k2 = np.full((nc, ns), -1, np.int64)

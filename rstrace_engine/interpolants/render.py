@@ -37,6 +37,7 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_NAMES,
     CLASS_REBUILT,
+    CLASS_TRACED,
     Frame,
     RenderSettings,
 )
@@ -44,6 +45,7 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
 from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import render, trace
+from . import fallback as fb_mod
 from .bound import bound_notes
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
@@ -132,12 +134,15 @@ def _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pi
         pinterp[p] = -1 if hi < 0 else (hi if lo == hi else -2)
 
 
-def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, cancel):
+def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, cancel,
+                  skip=None, budget=None):
     """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
     :meth:`~.cache.InterpolantCache.resolve` of one ray per pixel ``pix``. Returns
-    ``(hits, resolve result, reprojected (n,) bool or None)``; ``cache.frame_stats`` gets
-    ``visibility_s``. A reprojected ray's hit is left a miss (with ``exact``, for pixel
-    records: its object, at the far end of its slab)."""
+    ``(hits, resolve result, reprojected (n,) bool or None, skipped (n,) bool or None)``;
+    ``cache.frame_stats`` gets ``visibility_s``. A reprojected ray's hit is left a miss
+    (with ``exact``, for pixel records: its object, at the far end of its slab).
+    ``skip(hits)``: (n,) bool of the rays left to the tracer (not walked), or None;
+    ``budget``: the frame's build budget (:mod:`.fallback`)."""
     tv = time.perf_counter()
     rp = reproject(cache, view, cells, cp, pix, o, d, tmax, splat)
     pre = exact_hits = None
@@ -159,16 +164,21 @@ def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, c
             slab_points(cache, pre[3], o, d, t, reprojected, 1.0)
             exact_hits = g, cache.trees.arrays.tree[cache.pool.node[pre[3][g]]] // 6, t[g]
     tv = time.perf_counter() - tv
+    skipped = None if skip is None else skip(hits)
+    walk_inst = hits.inst if skipped is None else np.where(skipped, -1, hits.inst)
     face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(hits.inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=pre)
+    res = cache.resolve(walk_inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=pre,
+                        budget=budget)
+    if skipped is not None:  # traced, not background
+        res.pixel_class[skipped] = CLASS_TRACED
     cache.frame_stats["visibility_s"] = tv
     if rp is None:
-        return hits, res, None
+        return hits, res, None, skipped
     if exact_hits is not None:
         g, inst, t = exact_hits
         hits.inst[g] = inst
         hits.t[g] = t
-    return hits, res, reprojected
+    return hits, res, reprojected, skipped
 
 
 def _add_stats(a: dict, b: dict) -> dict:
@@ -197,6 +207,26 @@ def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
                        memory_mb=cache.memory_bytes / 1e6, epsilon=0.0,
                        depth_cap=cache.depth_cap)
     return frame
+
+
+def _count(cache, ledger, hits, res, rep, skipped) -> None:
+    """A pass's rays per visible object for the fallback's ledger: walked, interpolated
+    of those, reprojected (interpolated without a walk)."""
+    walked = hits.inst >= 0
+    if skipped is not None:
+        walked &= ~skipped
+    if rep is not None:
+        walked &= ~rep
+    wi = hits.inst[walked]
+    ii = hits.inst[walked & res.interpolated]
+    ri = np.zeros(0, np.int64)
+    if rep is not None and rep.any():
+        ids = res.interpolant[rep]
+        ids = ids[(ids >= 0) & (ids < len(cache.pool.node))]
+        node = cache.pool.node[ids]
+        node = node[(node >= 0) & (node < len(cache.trees.arrays.tree))]
+        ri = cache.trees.arrays.tree[node] // 6
+    ledger.count(wi, ii, ri)
 
 
 def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
@@ -262,7 +292,7 @@ def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, repro
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
-                 base: Frame | None = None) -> Frame:
+                 base: Frame | None = None, fallback: bool = True) -> Frame:
     """Render ``scene``'s camera with the interpolants of ``cache`` (building what it needs).
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
@@ -277,10 +307,23 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     receives every rendered sample's view segment and the compact ray tree of every traced
     one; what an interpolated sample depends on beyond its view segment is its interpolant's,
     which the ray segment trees track.
+
+    ``fallback``: trace where cells do not pay, learned from measured costs
+    (:mod:`.fallback`: a build budget per frame, objects traced; ``stats["fallback"]``).
     """
     settings = settings.validated()
     if cache.epsilon <= 0.0:
         return _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+    fb = cache.fallback if fallback else None
+    if fb is not None and fb.whole_frame_traced():
+        # the frame's cells did not pay (fallback.py): the base tracer's frame, as fast
+        cache.view = None
+        frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+        if pixels is None and not frame.stats.get("cancelled"):
+            fb.frames_all += 1
+        frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
+                           fallback=fb.stats(None, 0))
+        return frame
     t0 = time.perf_counter()
     sa = cache.sa
     cp = camera_params(scene.camera)
@@ -327,6 +370,40 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     here = None
     cells = FrameCells(cp)
     cancelled = False
+    # where cells do not pay (fallback.py): objects traced, the build budget, the probe
+    n_inst = len(sa.inst_mesh)
+    ledger = traced_now = budget = None
+    probe = dict(rays=0, s=0.0)
+    cache.cells_by_inst = np.zeros(n_inst, np.int64)
+    if fb is not None:
+        fb.resize(n_inst)
+        ledger = fb_mod.FrameLedger(n_inst)
+        traced_now = fb.frame_traced()
+        budget = fb_mod.Budget(n, fb.ray_s, n_inst)
+
+    def skip(hits, o, d, tmin, tmax, gids, rad_probe):
+        """The rays left to the tracer: those of objects traced, and on a first frame the
+        probe's (traced here, timed: the price of a ray for the build budget)."""
+        if fb is None:
+            return None
+        hit = hits.inst >= 0
+        out = hit & traced_now[np.maximum(hits.inst, 0)]
+        if fb.ray_s is None and records is None:
+            cand = np.flatnonzero(hit & ~out)
+            if len(cand) >= fb_mod.PROBE_MIN * fb_mod.PROBE_STRIDE:
+                pr = cand[::fb_mod.PROBE_STRIDE]
+                t = fb_mod.CLOCK()
+                _trace_rest(cache, pr, o, d, tmin, tmax, hits, rad_probe,
+                            int(settings.max_depth), counters, None, gids, None, settings)
+                dt = fb_mod.CLOCK() - t
+                probe["rays"] += len(pr)
+                probe["s"] += dt
+                probe["idx"] = pr
+                fb.ray_s = max(dt, 1e-9) / len(pr)
+                budget.price(fb.ray_s)
+                out[pr] = True
+        return out if out.any() else None
+
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
             if cancel is not None and cancel():
@@ -334,12 +411,25 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 break
             tr = time.perf_counter()
             o, d, tmin, tmax = camera_rays(cp, pix, jitter[s])
-            hits, res, rep = _resolve_part(cache, view if s == 0 else here, cells, s == 0,
-                                           cp, pix, o, d, tmin, tmax, records is not None,
-                                           cancel)
+            gids = s * (w * h) + pix
+            rad_probe = np.zeros((k, 3))
+            probe.pop("idx", None)
+            hits, res, rep, skipped = _resolve_part(
+                cache, view if s == 0 else here, cells, s == 0, cp, pix, o, d, tmin, tmax,
+                records is not None, cancel,
+                lambda hh, a=(o, d, tmin, tmax, gids, rad_probe): skip(hh, *a), budget)
             fs = _add_stats(fs, cache.frame_stats)
             if rep is not None:
                 n_rep += int(np.count_nonzero(rep))
+            if "idx" in probe:  # traced already: done
+                pr = probe["idx"]
+                res.radiance[pr] = rad_probe[pr]
+                res.interpolated[pr] = True
+            if ledger is not None:
+                _count(cache, ledger, hits, res, rep, skipped)
+            if budget is not None:
+                budget.saved += int(np.count_nonzero(res.interpolated)) - len(
+                    probe.get("idx", ()))
             if s == 0 and pixels is None:
                 t = hits.t.copy()
                 slab_points(cache, res.interpolant, o, d, t,
@@ -352,7 +442,6 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
                                    rad, todo)]
             n_todo += len(todo)
-            gids = s * (w * h) + pix
             tt = time.perf_counter()
             t_res += tt - tr
             if cancel is not None and cancel():
@@ -374,6 +463,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 break
     if pixels is None and not cancelled:
         cache.view = here
+    if ledger is not None:
+        ledger.cells = cache.cells_by_inst.copy()
+        ledger.build_s = fs.get("build_s", 0.0)
+        ledger.walk_s = t_res - fs.get("visibility_s", 0.0) - ledger.build_s - probe["s"]
+        ledger.trace_s = t_trace + probe["s"]
+        ledger.traced_rays = n_todo + probe["rays"]
+        costs = ledger.costs(fb) if (pixels is None and not cancelled) else None
+        if costs is not None:
+            fb.learn(costs, traced_now, budget.deferred_inst)
     if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
         _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)
     if progress is not None:
@@ -382,6 +480,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     stats = _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace,
                          n_rep / max(n, 1), k, n_todo, counters, w, h, spp,
                          int(settings.max_depth), cancelled, bad_total)
+    if fb is not None:
+        stats["fallback"] = fb.stats(budget, probe["rays"])
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
@@ -397,6 +497,9 @@ class InterpolantRenderer:
     new cache (the renderer never diffs scenes), and so does an edit batch that changes the
     number of light slots (the ray trees record a state per light).
     """
+
+    #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`)
+    auto_fallback = True
 
     def __init__(self) -> None:
         self.cache: InterpolantCache | None = None
@@ -446,6 +549,6 @@ class InterpolantRenderer:
         settings = settings.validated()
         c, _ = self.prepare(scene.arrays(), settings, accel)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel,
-                             **incremental)
+                             fallback=self.auto_fallback, **incremental)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame

@@ -1,0 +1,240 @@
+"""INTERPOLANT mode's fallback (issue 20): where cells do not pay, it learns it from measured
+costs and traces. The decisions are tested with given costs, not with timings; wherever it
+traces, the frame is the base tracer's."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rstrace_engine import image, scenes
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_TRACED, RenderSettings
+from rstrace_engine.interpolants import fallback, interpolant_cache
+from rstrace_engine.interpolants.fallback import (
+    Budget,
+    Fallback,
+    FrameCosts,
+    FrameLedger,
+    cells_pay,
+    object_costs,
+)
+from rstrace_engine.interpolants.render import InterpolantRenderer
+from rstrace_engine.tracing.whitted import render
+
+EPS = 0.05
+FLOAT_TOL = 1e-6
+
+
+@pytest.fixture(autouse=True)
+def small_cells(monkeypatch):
+    """A small frame's cells are built from 6 rays on (default 48)."""
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+
+
+def _costs(rays, walked, interpolated, cells, walk_s, build_s, ray_s) -> FrameCosts:
+    a = lambda x: np.asarray(x, np.int64)  # noqa: E731
+    return FrameCosts(a(rays), a(walked), a(interpolated), a(cells), walk_s, build_s, ray_s)
+
+
+def test_decision_from_given_costs():
+    # object 0: cheap walk, most rays interpolated (pays); object 1: builds dear, few rays
+    # interpolated (does not pay); object 2: too few rays to judge; object 3: traced, no rays
+    c = _costs(rays=[10000, 10000, 100, 0], walked=[8000, 10000, 100, 0],
+               interpolated=[9000, 500, 0, 0], cells=[100, 300, 10, 0], walk_s=0.02,
+               build_s=0.41, ray_s=5e-6)
+    with_cells, traced = object_costs(c)
+    share = 0.02 / 18100
+    assert np.isclose(with_cells[0], 8000 * share + 0.41 * 100 / 410 / fallback.BUILD_FRAMES
+                      + 1000 * 5e-6)
+    assert np.isclose(traced[0], 10000 * 5e-6)
+    assert np.isclose(with_cells[1], 10000 * share + 0.41 * 300 / 410 / fallback.BUILD_FRAMES
+                      + 9500 * 5e-6)
+    assert cells_pay(c).tolist() == [True, False, True, True]
+
+
+def test_learning_is_deterministic_reprobes_and_wins_back():
+    # object 0: 200 cells, nothing interpolated; object 1: 49000 of 50000 rays interpolated
+    # (the frame as a whole pays)
+    dear = _costs([5000, 50000], [5000, 50000], [0, 49000], [200, 0], 0.001, 1.0, 1e-5)
+    assert fallback.frame_pays(dear)
+    fb = Fallback(2)
+    fb.learn(dear, fb.frame_traced())
+    assert fb.traced.tolist() == [True, False] and fb.ray_s == 1e-5 and not fb.all_traced
+    again = Fallback(2)
+    again.learn(dear, again.frame_traced())
+    assert again.traced.tolist() == fb.traced.tolist()  # the same costs, the same decision
+    # traced for REPROBE_FRAMES frames, then tried with cells again
+    for _ in range(fallback.REPROBE_FRAMES):
+        now = fb.frame_traced()
+        assert now.tolist() == [True, False]
+        fb.learn(dear, now)
+    now = fb.frame_traced()
+    assert now.tolist() == [False, False]  # the re-probe
+    cheap = _costs([5000, 50000], [5000, 50000], [4900, 49000], [10, 10], 0.0, 0.0, 1e-5)
+    fb.learn(cheap, now)  # its cells pay now: back to cells
+    assert fb.traced.tolist() == [False, False]
+    # an object whose cells the budget deferred is not judged (it had no chance yet)
+    fb.learn(dear, fb.frame_traced(), deferred=np.array([3, 0]))
+    assert fb.traced.tolist() == [False, False]
+    # an edit gives a traced object a new chance; new slots start with cells
+    fb.learn(dear, fb.frame_traced())
+    fb.forget([0])
+    fb.resize(3)
+    assert fb.traced.tolist() == [False, False, False]
+
+
+def test_budget():
+    b = Budget(rays=1000, ray_s=None)
+    assert b.may_build(0)  # not priced yet: no limit
+    b.price(1e-3)  # limit: ALLOWANCE of tracing 1000 rays
+    assert np.isclose(b.limit, fallback.ALLOWANCE * 1.0)
+    b.spent = b.limit + 0.01
+    assert not b.may_build(0)
+    assert b.may_build(10)  # ten interpolated rays saved 10 ms
+    b.saved = 10
+    assert b.may_build(0)
+    # batches: BUDGET_STEP cells first, then what is left at the measured cost per cell
+    c = Budget(rays=1000, ray_s=1e-3)
+    assert c.batch(10000, 0) == fallback.BUDGET_STEP and c.batch(5, 0) == 5
+    c.charge(0.01, 100)  # 0.1 ms a cell, 0.04 s left of 0.05
+    assert 399 <= c.batch(10000, 0) <= 400 and 499 <= c.batch(10000, 10) <= 500
+    c.charge(0.04, 400)
+    assert c.batch(10000, 0) == fallback.BUDGET_STEP  # (at least, while it may build)
+    c.charge(0.001, 1)
+    assert c.batch(10000, 0) == 0
+    assert Budget(rays=1000).batch(777, 0) == 777  # not priced: the whole step
+
+
+def _scene(w=96, h=72):
+    return scenes.three_spheres(w, h, subdivisions=3)
+
+
+def _base(sc, accel, st):
+    return render(sc, replace(st, mode="BASE"), accel=accel)
+
+
+def test_objects_whose_cells_do_not_pay_are_traced_exactly(monkeypatch):
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+
+    measured = FrameLedger.costs
+
+    def dear(self, fb):  # walking costs a second: no object's cells pay
+        m = measured(self, fb)
+        return None if m is None else m._replace(walk_s=1.0, ray_s=1e-6)
+
+    monkeypatch.setattr(FrameLedger, "costs", dear)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    r.cache.fallback.ray_s = 1.0  # a dear ray: the first frame's budget builds every cell
+    f0 = r.render(sc, st, accel)
+    assert (f0.pixel_class == CLASS_INTERPOLATED).any()
+    fb0 = f0.stats["fallback"]
+    assert fb0["traced_objects"] >= 1
+    # a frame that reprojects nothing (reprojection is free and proven: it stays on)
+    r.cache.view = None
+    f1 = r.render(sc, st, accel)
+    base = _base(sc, accel, st)
+    # every visible object traced: no cell walked or built, and the base frame exactly
+    assert f1.stats["fallback"]["traced_objects"] == fb0["traced_objects"]
+    assert not (f1.pixel_class == CLASS_INTERPOLATED).any()
+    assert f1.stats["cells_built"] == 0
+    np.testing.assert_array_equal(f1.radiance, base.radiance)
+    # traced pixels are classed as traced
+    assert (f1.pixel_class == CLASS_TRACED).sum() == (base.pixel_class == CLASS_TRACED).sum()
+
+
+def test_objects_whose_cells_pay_keep_them(monkeypatch):
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    orig = FrameLedger.costs
+    monkeypatch.setattr(FrameLedger, "costs",
+                        lambda self, fb: orig(self, fb)._replace(walk_s=0.0, build_s=0.0,
+                                                                 ray_s=1.0))
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    frames = [r.render(sc, st, accel) for _ in range(3)]
+    assert all(f.stats["fallback"]["traced_objects"] == 0 for f in frames)
+    assert (frames[-1].pixel_class == CLASS_INTERPOLATED).any()
+
+
+def test_the_build_budget_defers_cells_and_traces_them(monkeypatch):
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    free = InterpolantRenderer()
+    free.auto_fallback = False
+    f_free = free.render(sc, st, accel)
+    # a ray priced at nothing: the budget allows one batch of one cell per frame
+    monkeypatch.setattr(fallback, "BUDGET_STEP", 1)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    r.cache.fallback.ray_s = 1e-30
+    f = r.render(sc, st, accel)
+    s = f.stats["fallback"]
+    assert f.stats["cells_built"] == 1 < f_free.stats["cells_built"]
+    assert s["deferred_cells"] > 0 and s["probe_rays"] == 0
+    base = _base(sc, accel, st)
+    traced = f.pixel_class != CLASS_INTERPOLATED
+    np.testing.assert_array_equal(f.radiance[traced], base.radiance[traced])
+    err = np.abs(image.to_display(f.radiance) - image.to_display(base.radiance)).max()
+    assert err <= EPS + FLOAT_TOL
+
+
+def test_a_first_frame_probes_the_price_of_a_ray():
+    sc = _scene(128, 96)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    f0 = r.render(sc, st, accel)
+    hits = int(np.count_nonzero(render(sc, replace(st, mode="BASE"), accel=accel).pixel_class))
+    s = f0.stats["fallback"]
+    assert s["probe_rays"] == -(-hits // fallback.PROBE_STRIDE) and s["ray_us"] > 0
+    assert r.render(sc, st, accel).stats["fallback"]["probe_rays"] == 0  # priced: no probe
+    base = _base(sc, accel, st)
+    err = np.abs(image.to_display(f0.radiance) - image.to_display(base.radiance)).max()
+    assert err <= EPS + FLOAT_TOL
+
+
+def test_a_frame_whose_cells_do_not_pay_traces_every_object():
+    # no object judged alone (too few rays each), but together their walk costs more than
+    # the rays they interpolated saved
+    n = fallback.MIN_RAYS // 4
+    small = _costs([n] * 5, [n] * 5, [n // 10] * 5, [0] * 5, 1.0, 0.0, 1e-6)
+    assert cells_pay(small).all() and not fallback.frame_pays(small)
+    fb = Fallback(5)
+    fb.learn(small, fb.frame_traced())
+    assert fb.all_traced and not fb.traced.any()
+    for _ in range(fallback.REPROBE_FRAMES):  # (the renderer counts its base frames)
+        assert fb.whole_frame_traced()
+        fb.frames_all += 1
+    assert not fb.whole_frame_traced()  # the re-probe: every object with cells again
+    cheap = small._replace(walk_s=0.0)
+    fb.learn(cheap, fb.frame_traced())
+    assert not fb.all_traced and not fb.whole_frame_traced()
+
+
+def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
+    measured = FrameLedger.costs
+    monkeypatch.setattr(FrameLedger, "costs",
+                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
+    monkeypatch.setattr(fallback, "REPROBE_FRAMES", 2)
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    frames = [r.render(sc, st, accel) for _ in range(4)]
+    base = _base(sc, accel, st)
+    assert [f.stats["fallback"]["all_traced"] for f in frames] == [True] * 4
+    for f in frames[1:3]:  # base frames, then the re-probe (with cells)
+        np.testing.assert_array_equal(f.radiance, base.radiance)
+        assert f.stats["cells_built"] == 0 and f.stats["epsilon"] == EPS
+    assert "deferred_cells" in frames[3].stats["fallback"]
+    assert frames[3].stats["fallback"]["build_budget_s"] is not None

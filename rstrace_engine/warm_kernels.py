@@ -171,6 +171,9 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.5 + 0.3
     scene.materials[floor] = replace(scene.materials[floor], texture=texture).validated()
     session = Session(scene, settings)
+    # every cell built and checked (the measured fallback could defer them all in a frame
+    # this small: the predicate's kernels would stay cold; _animate runs the fallback)
+    session.interpolants.auto_fallback = False
     session.render(cancel=cancel)
     _check(cancel)
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])

@@ -12,6 +12,13 @@ add-on's ``__init__`` calls it first thing.
   or numba's per-user cache where that is not writable. This shares the cache with plain
   Python use of ``rstrace_engine``.
 * ``NUMBA_CACHE_DIR`` in the environment always wins.
+* Compiled kernels shipped in the extension (``kernel_cache/`` beside this file, written by
+  ``scripts/build_extension.py`` for numba's portable ``generic`` CPU) are copied into that
+  cache on first use (``rstrace_engine.kernel_cache.seed``: only the kernels whose content
+  key matches the installed sources, of this numba version), and this process then compiles
+  and loads for the generic CPU. When they cannot be used (another platform, another numba,
+  numba already initialised by another add-on) :func:`shipped_status` says why, and the
+  kernels compile on first use.
 
 Threads: Blender may render the viewport and an F12 render at the same time, from different
 threads. Numba's ``workqueue`` threading layer (the fallback where neither TBB nor OpenMP is
@@ -32,7 +39,11 @@ log = logging.getLogger(__name__)
 #: Held around every call into rstrace_engine that may run numba kernels.
 RENDER_LOCK = threading.Lock()
 
-_state = {"cache_dir": None, "configured": False, "kernels_ready": False}
+_state = {"cache_dir": None, "configured": False, "kernels_ready": False,
+          "shipped": "not looked for", "seeded": None}
+
+#: The compiled kernels the extension zip ships (absent in a checkout).
+SHIPPED_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kernel_cache")
 
 
 def configure(package: str) -> str | None:
@@ -53,8 +64,49 @@ def configure(package: str) -> str | None:
     else:
         path = None  # numba's default: beside the sources
     _state.update(cache_dir=path, configured=True)
+    if path:
+        _state["shipped"] = _use_shipped(SHIPPED_DIR, path)
     log.debug("numba cache directory: %s", path or "numba default")
     return path
+
+
+def _use_shipped(shipped: str, path: str) -> str:
+    """Seed the cache ``path`` from the shipped kernels; returns "" when they are used, or
+    why not. Never raises: without them the kernels compile on first use."""
+    import json
+
+    if not os.path.isdir(shipped):
+        return "no compiled kernels ship with this build"
+    try:
+        from rstrace_engine import kernel_cache
+
+        manifest, why = kernel_cache.shipped_status(shipped)
+        if not why and not kernel_cache.use_portable_target():
+            why = "numba was initialised by another add-on before RSTrace"
+        if why:
+            log.info("RSTrace: %s; kernels compile on first use", why)
+            return why
+        marker = os.path.join(path, ".rstrace-seeded")
+        stamp = json.dumps(manifest, sort_keys=True)
+        try:
+            with open(marker) as f:
+                if f.read() == stamp:
+                    return ""
+        except OSError:
+            pass
+        _state["seeded"] = kernel_cache.seed(shipped, path)
+        with open(marker, "w") as f:
+            f.write(stamp)
+        return ""
+    except Exception as exc:  # a broken shipped cache must not stop the add-on
+        log.warning("RSTrace: the shipped kernels cannot be used (%s: %s); kernels compile "
+                    "on first use", type(exc).__name__, exc)
+        return f"{type(exc).__name__}: {exc}"
+
+
+def shipped_status() -> str:
+    """"" when the extension's shipped kernels are in use, else why not."""
+    return _state["shipped"]
 
 
 def cache_dir() -> str | None:

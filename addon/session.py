@@ -178,6 +178,7 @@ class FrameRenderer:
             reports = [report] + ([session.last_report] if session.last_report is not before
                                   else [])
             runtime.mark_kernels_ready()
+            runtime.start_host_compile()  # shipped portable kernels: this CPU's, for later
             session_stats = dict(getattr(session, "stats", {}) or {})
         state.dirty_mask = mask if frame.stats.get("incremental") else None
 

@@ -78,6 +78,7 @@ def warm_cache_command(args) -> int:
     from . import warm_kernels
 
     progress = None if args.json else print
+    everything = args.modes is None and args.accelerators is None  # else: unreached is moot
     if args.part:
         from . import warm_first
 
@@ -89,10 +90,11 @@ def warm_cache_command(args) -> int:
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
                                    report_unreached=False)
     elif args.jobs == 1:
-        result = warm_kernels.warm(args.modes, args.accelerators, progress=progress)
+        result = warm_kernels.warm(args.modes, args.accelerators, progress=progress,
+                                   report_unreached=everything)
     else:
         result = warm_kernels.warm_parallel(args.jobs or None, args.modes, args.accelerators,
-                                            progress=progress)
+                                            progress=progress, report_unreached=everything)
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:
         print(json.dumps(result, indent=2))

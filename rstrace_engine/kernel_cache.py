@@ -461,22 +461,33 @@ def cached_signatures(dispatcher) -> int:
         return 0
 
 
-def counts(prefix: str = "rstrace_engine") -> dict:
-    """Kernels of ``prefix`` compiled and loaded from the disk cache in this process.
+def mark(prefix: str = "rstrace_engine") -> dict:
+    """This process's compile and cache-load counts so far, for ``counts(since=...)``."""
+    return {"compiled": Counter(_COMPILED),
+            "signatures": {k: len(v) for k, v in _SIGNATURES.items()},
+            "hits": {id(d): sum(d.stats.cache_hits.values()) for d in dispatchers(prefix)}}
+
+
+def counts(prefix: str = "rstrace_engine", since: dict | None = None) -> dict:
+    """Kernels of ``prefix`` compiled and loaded from the disk cache in this process (since
+    :func:`mark` returned ``since``: what one warm-up did, whatever ran before it in the
+    process; without it a test's earlier compiles on a partly warm cache counted too).
 
     ``compiled`` counts compilations (signatures), ``loaded`` signatures read from the
     cache; ``kernels`` is the number of dispatchers, ``used`` those with any signature;
     ``compiled_kernels`` maps each compiled kernel to the argument types it was compiled for.
     """
     ds = dispatchers(prefix)
-    compiled = sum(n for (mod, _), n in _COMPILED.items()
-                   if mod == prefix or mod.startswith(prefix + "."))
-    loaded = sum(sum(d.stats.cache_hits.values()) for d in ds)
+    before = since or {"compiled": Counter(), "signatures": {}, "hits": {}}
+    new = {k: n - before["compiled"].get(k, 0) for k, n in _COMPILED.items()
+           if k[0] == prefix or k[0].startswith(prefix + ".")}
+    loaded = sum(sum(d.stats.cache_hits.values()) - before["hits"].get(id(d), 0) for d in ds)
     used = sum(1 for d in ds if d.signatures)
-    return {"kernels": len(ds), "used": used, "compiled": compiled, "loaded": loaded,
-            "compiled_kernels": {f"{m}.{q}": _SIGNATURES.get((m, q), [])
-                                 for (m, q), n in sorted(_COMPILED.items())
-                                 if n and (m == prefix or m.startswith(prefix + "."))}}
+    return {"kernels": len(ds), "used": used, "compiled": sum(new.values()),
+            "loaded": loaded,
+            "compiled_kernels": {f"{m}.{q}": _SIGNATURES.get((m, q), [])[
+                before["signatures"].get((m, q), 0):]
+                for (m, q), n in sorted(new.items()) if n}}
 
 
 # --- portable builds and shipped caches -------------------------------------------------

@@ -249,7 +249,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
     between steps and inside each frame (the add-on's background warm-up stops when Blender
     unregisters it); a cancelled warm-up returns ``cancelled=True``. Returns
-    ``kernel_cache.counts()`` plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
+    ``kernel_cache.counts()`` of this warm-up only (compiles earlier in the process are not
+    counted) plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
     and ``unreached``: render kernels with nothing in the disk cache afterwards (kernels
     inlined into their callers never have their own code and are not listed; empty when
     ``report_unreached`` is False, as for a warm-up of one mode). ``lock``: held around each
@@ -263,6 +264,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     from .session import Session
 
     t0 = time.perf_counter()
+    since = kernel_cache.mark()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
     mine = units(modes, accelerators)
@@ -301,7 +303,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     except Cancelled:
         cancelled = True
         log.info("kernel warm-up cancelled")
-    result = kernel_cache.counts()
+    render_kernels()  # every kernel module imported: counted (and listed when unreached)
+    result = kernel_cache.counts(since=since)
     unreached = [kernel_name(d) for d in render_kernels()
                  if not kernel_cache.cached_signatures(d)] if report_unreached else []
     result.update(seconds=time.perf_counter() - t0, modes=list(modes),
@@ -355,7 +358,8 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     """:func:`warm` in ``jobs`` processes (default: one per core) sharing this process's
     cache (``kernel_cache`` keeps concurrent writers safe), each warming its part of the
     units; this process waits and reports ``progress("kernels 57/180")`` whenever the
-    number of render kernels in the cache grows. It compiles nothing itself. Falls back to
+    number of render kernels in the cache grows (of all render kernels: a warm-up of some
+    modes stops short of the total). It compiles nothing itself. Falls back to
     :func:`warm` here when no Python can be started. Returns :func:`warm`'s keys, the parts'
     ``compiled`` and ``loaded`` summed, plus ``jobs``."""
     import json
@@ -397,7 +401,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
             done, total = cache_progress(kernels)
             if progress is not None and (done, total) != shown:
                 shown = (done, total)
-                progress(f"kernels {done}/{total}")
+                progress(f"kernels {done}/{total} in the cache")
             time.sleep(poll_s)
     finally:
         for k, p in enumerate(procs):
@@ -420,7 +424,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
         raise RuntimeError("kernel warm-up failed in " + "; ".join(failed))
     done, total = cache_progress(kernels)
     if progress is not None and (done, total) != shown:
-        progress(f"kernels {done}/{total}")
+        progress(f"kernels {done}/{total} in the cache")
     unreached = [kernel_name(d) for d in kernels if not kernel_cache.cached_signatures(d)
                  ] if report_unreached else []
     result.update(seconds=time.perf_counter() - t0, modes=list(modes),

@@ -512,3 +512,30 @@ def test_kernel_keys_cover_imported_modules():
                                           str(ROOT / "rstrace_engine/accel/bvh.py"))
     assert "rstrace_engine.tolerances" in sources and "rstrace_engine" in sources
     assert "rstrace_engine.kernel_cache" not in sources
+
+
+def test_counts_since_a_mark_leave_out_earlier_compiles(tmp_path, monkeypatch):
+    """test_farm's warm-cache operator test flaked on a partly warm cache: counts() were the
+    whole process's, so kernels compiled by earlier tests in that bpy process counted as the
+    operator's. A warm-up now counts from its own start (kernel_cache.mark)."""
+    import importlib
+
+    import numba
+    import numpy as np
+
+    from rstrace_engine import kernel_cache
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.syspath_prepend(str(_package(tmp_path / "a")))
+    try:
+        kern = importlib.import_module("tinypkg.kern")
+        kern.scaled(1.0)  # an earlier test compiled this
+        since = kernel_cache.mark("tinypkg")
+        kern.scaled(2.0)
+        assert kern.total(np.arange(3.0)) == 6.0
+        c = kernel_cache.counts("tinypkg", since=since)
+        assert c["compiled"] == 1 and list(c["compiled_kernels"]) == ["tinypkg.kern.total"]
+        assert kernel_cache.counts("tinypkg")["compiled"] == 2
+    finally:
+        for name in [n for n in sys.modules if n.split(".")[0] == "tinypkg"]:
+            del sys.modules[name]

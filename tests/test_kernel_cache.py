@@ -539,3 +539,24 @@ def test_counts_since_a_mark_leave_out_earlier_compiles(tmp_path, monkeypatch):
     finally:
         for name in [n for n in sys.modules if n.split(".")[0] == "tinypkg"]:
             del sys.modules[name]
+
+
+def test_two_processes_seeding_at_once(tmp_path):
+    """Two Blender processes starting together seed the same cache: both finish, the
+    index is whole, and a third process loads every kernel."""
+    shipped = _shipped(tmp_path)
+    installed = _package(tmp_path / "installed")
+    cache = tmp_path / "user_cache"
+    (installed / "seeder.py").write_text(SEEDER)
+    procs = [subprocess.Popen([sys.executable, str(installed / "seeder.py"), str(installed),
+                               str(shipped), str(cache)], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT))) for _ in range(2)]
+    counts = []
+    for p in procs:
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err[-3000:]
+        counts.append(json.loads(out.splitlines()[-1][len("RESULT "):]))
+    assert sorted(c["kernels"] + c["current"] for c in counts) == [2, 2]
+    r = _run_pkg(installed, cache, NUMBA_CPU_NAME="generic")
+    assert (r["compiled"], r["loaded"]) == (0, 2) and r["values"] == [3.0, 12.0]

@@ -229,7 +229,9 @@ def kernel_status() -> str | None:
     if _state["kernels_ready"]:
         return None
     if _cache_is_cold():
-        return "compiling kernels (first render after install, this takes a minute)"
+        why = _state["shipped"]
+        detail = f"{why}: " if why and why != "not looked for" else ""
+        return f"compiling kernels ({detail}first render after install, a few minutes)"
     return "loading compiled kernels"
 
 

@@ -623,9 +623,9 @@ def seed(shipped: str, cache_dir: str, package: str = "rstrace_engine") -> dict:
                 out["bad"] += 1
                 continue
             version, stamp, overloads = src
-            module = ".".join(p for p in rel.split(os.sep) if p not in (".", "")) + \
-                "." + index_name.split(".", 1)[0]
-            module = module.removesuffix(".__init__")
+            parts = [p for p in rel.split(os.sep) if p not in (".", "")]
+            parts.append(index_name.split(".", 1)[0])
+            module = ".".join(parts).removesuffix(".__init__")
             py_file = _module_file(base, module) if base else None
             if (version != numba.__version__ or py_file is None
                     or stamp != source_stamp(module_key(module, py_file))):

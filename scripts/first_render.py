@@ -52,6 +52,13 @@ SCRIPT = textwrap.dedent('''
         bpy.ops.wm.save_userpref()
         out["install_s"], out["install_cpu_s"] = time.perf_counter() - t0, cpu() - c0
     mod = sys.modules.get("bl_ext.user_default.rstrace")
+    if mod is None:  # bpy as a module does not enable the saved add-ons as Blender does
+        import addon_utils
+
+        t0, c0 = time.perf_counter(), cpu()
+        addon_utils.enable("bl_ext.user_default.rstrace", default_set=True)
+        out["enable_s"], out["enable_cpu_s"] = time.perf_counter() - t0, cpu() - c0
+        mod = sys.modules.get("bl_ext.user_default.rstrace")
     out["enabled"] = mod is not None
     runtime = mod.runtime
     out["shipped"] = runtime.shipped_status() or "used"
@@ -133,6 +140,7 @@ def run_phase(script: Path, zip_path: Path, user: Path, phase: str, w: int, h: i
         raise SystemExit(f"{phase} process failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     result = json.loads(lines[-1][len("RESULT "):])
     result["wall_with_start_s"] = time.perf_counter() - t0
+    sys.stderr.write(json.dumps(result) + "\n")  # each phase as soon as it is done
     return result
 
 

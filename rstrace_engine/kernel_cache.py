@@ -517,18 +517,20 @@ def cpu_name() -> str:
 def use_portable_target() -> bool:
     """Compile for (and load kernels compiled for) numba's generic CPU from now on, as a
     shipped cache was built. Only possible before numba's CPU target is initialised (another
-    add-on may have compiled first): returns whether this process now uses it. Sets
-    ``NUMBA_CPU_NAME`` too (numba re-reads its environment before each compile, and helper
-    processes inherit it)."""
+    add-on may have compiled first): returns whether this process now uses it.
+
+    Only numba's config is set, not the environment: ``config.reload_config()`` (which numba
+    runs before each compile) re-reads every setting from the environment when a
+    ``NUMBA_*`` variable changed, which would also drop a ``config.CACHE_DIR`` set in code
+    (the add-on's): the first measured install compiled every kernel into
+    ``site-packages`` that way. Helper processes get ``NUMBA_CPU_NAME`` from
+    ``config.CPU_NAME`` (``warm_first``, ``warm_kernels.warm_parallel``)."""
     if config.CPU_NAME == PORTABLE_CPU:
         return True
     if target_initialised():
         log.info("numba's CPU target is initialised already (%s): shipped kernels for the "
                  "generic CPU are not used", cpu_name())
         return False
-    os.environ["NUMBA_CPU_NAME"] = PORTABLE_CPU
-    os.environ.setdefault("NUMBA_CPU_FEATURES", "")
-    config.reload_config()
     config.CPU_NAME, config.CPU_FEATURES = PORTABLE_CPU, ""
     return True
 

@@ -143,6 +143,9 @@ def start_helper() -> subprocess.Popen | None:
     env = dict(os.environ)
     if numba.config.CACHE_DIR:
         env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
+    if numba.config.CPU_NAME:  # the portable target of shipped kernels (kernel_cache)
+        env["NUMBA_CPU_NAME"] = numba.config.CPU_NAME
+        env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join([package_root] + [p for p in sys.path if p])
     try:

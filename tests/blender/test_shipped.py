@@ -23,10 +23,13 @@ CHECK = textwrap.dedent('''
     runtime = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(runtime)
     import numba
+    numba.config.CACHE_DIR = sys.argv[2]  # as runtime.configure does
     why = runtime._use_shipped(sys.argv[1], sys.argv[2])
+    numba.core.config.reload_config()  # as numba does before each compile
     print("RESULT " + json.dumps(dict(why=why, target=runtime.kernel_target(),
                                       cpu=numba.config.CPU_NAME,
                                       env=os.environ.get("NUMBA_CPU_NAME"),
+                                      cache_dir=numba.config.CACHE_DIR,
                                       stamp=runtime._state["manifest_stamp"])))
 ''')
 
@@ -83,7 +86,8 @@ def test_usable_shipped_kernels_then_this_cpus_after_a_background_compile(tmp_pa
     cache.mkdir()
     r = _check(shipped, cache)
     assert r["why"] == "" and r["target"] == "generic"
-    assert r["cpu"] == "generic" and r["env"] == "generic"
+    assert r["cpu"] == "generic" and r["env"] is None  # config only (see use_portable_target)
+    assert r["cache_dir"] == str(cache)  # not dropped by numba re-reading its environment
     # what the background compile writes when it has compiled every kernel for this CPU
     import llvmlite.binding as ll
 

@@ -74,5 +74,6 @@ def unregister() -> None:
     if bpy.app.timers.is_registered(_warm_if_selected):
         bpy.app.timers.unregister(_warm_if_selected)
     kernels.stop()
+    runtime.stop_host_compile()
     for module in reversed(_MODULES):
         module.unregister()

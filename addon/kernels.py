@@ -11,9 +11,13 @@ that mode and the BVH), so the kernels are compiled (or loaded) once and a real 
 afterwards only runs them. The kernels of the viewport's first (coarse) image come first
 (``rstrace_engine.warm_first``: the BVH traversal compiles in a helper process, Blender's
 Python, while this one compiles the rest); then the render lock is let go so a waiting
-viewport shows its first image, and the rest is warmed a step at a time under the lock.
+viewport shows its first image, and the rest is warmed a step at a time under the lock;
+on a cold cache the rest first compiles in one process per core
+(``rstrace_engine.warm_kernels.warm_parallel``) and is then loaded here. With the compiled
+kernels the extension ships (``runtime``), all of this only loads.
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
-bar; it counts the kernels of :data:`MODE_KERNELS` that have a compiled signature.
+bar; it counts the kernels of :data:`MODE_KERNELS` compiled in this process or in the disk
+cache; the console shows the same progress (``RSTrace: kernels 57/173 in the cache``).
 
 The thread never touches ``bpy``; :func:`stop` asks it to stop between kernels and joins it
 (unregister).
@@ -79,9 +83,13 @@ def dispatchers(mode: str) -> list:
 
 
 def counts(mode: str = "BASE") -> tuple[int, int]:
-    """(kernels compiled or loaded in this process, kernels ``mode`` uses)."""
+    """(kernels compiled or loaded in this process or in the disk cache, kernels ``mode``
+    uses): on a cold cache the warm-up compiles in other processes
+    (``warm_kernels.warm_parallel``), whose kernels land in the cache."""
+    from rstrace_engine import kernel_cache
+
     ds = dispatchers(mode)
-    return sum(1 for d in ds if d.signatures), len(ds)
+    return sum(1 for d in ds if d.signatures or kernel_cache.cached_signatures(d)), len(ds)
 
 
 def ready(mode: str = "BASE") -> bool:
@@ -95,7 +103,7 @@ def progress_text() -> str | None:
         return None
     done, total = counts(_state["mode"])
     if done >= total:
-        return None  # all in memory: only the tiny warm-up frame itself is left
+        return None  # all compiled: only loading and the tiny warm-up frames are left
     verb = "compiling" if runtime.kernel_status() and "compiling" in runtime.kernel_status() \
         else "loading"
     return f"{verb} kernels {done}/{total}"
@@ -109,12 +117,19 @@ def _warm(mode: str) -> None:
     stop = lambda: _state["stop"]  # noqa: E731
     if stop():
         return
-    result = runtime.warm_viewport(mode, cancel=stop)
+    result = runtime.warm_viewport(mode, cancel=stop, progress=_console)
     if not result.get("cancelled") and not stop():
         _state["modes_done"].add(mode)
         _state["seconds"][mode] = result["seconds"]
         log.info("RSTrace: %s kernels ready in %.1f s (%d compiled, %d loaded)", mode,
                  result["seconds"], result["compiled"], result["loaded"])
+
+
+def _console(message: str) -> None:
+    """The warm-up's progress on the console (``kernels 57/173`` as they land)."""
+    if message != _state.get("last_message"):
+        _state["last_message"] = message
+        print(f"RSTrace: {message}", flush=True)  # noqa: T201
 
 
 def _run(modes: list[str]) -> None:

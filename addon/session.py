@@ -48,7 +48,12 @@ class SceneState:
     renders: int = 0
     stats: dict = field(default_factory=dict)  # of the last render (export + frame)
     messages: list = field(default_factory=list)  # (level, text) of the last render
-    reported: set = field(default_factory=set)  # warnings already reported in this job
+    # messages reported by this render / the scene's previous one: a message is reported
+    # when it is new against the previous render (once per scene and change, not at every
+    # frame of an animation or F12 of an edit loop); state.messages and the statistics
+    # still list every one of every render
+    reported: set = field(default_factory=set)
+    reported_before: set = field(default_factory=set)
     error: str | None = None
     frame: object = None  # the last rstrace_engine Frame, for scripts (linear radiance)
     mirror: SceneMirror = field(default_factory=SceneMirror)
@@ -117,11 +122,9 @@ class FrameRenderer:
     # -- render ----------------------------------------------------------------------------
 
     def render(self, depsgraph) -> None:
-        engine = self.engine
         scene = depsgraph.scene
         state = state_for(scene)
-        if not engine.is_animation or scene.frame_current == scene.frame_start:
-            state.reported.clear()  # a new render job reports its warnings again
+        state.reported_before, state.reported = state.reported, set()
         state.messages = []
         state.error = None
         state.stats = {}
@@ -186,6 +189,7 @@ class FrameRenderer:
             reports = [report] + ([session.last_report] if session.last_report is not before
                                   else [])
             runtime.mark_kernels_ready()
+            runtime.start_host_compile()  # shipped portable kernels: this CPU's, for later
             session_stats = dict(getattr(session, "stats", {}) or {})
         state.dirty_mask = mask if frame.stats.get("incremental") else None
 
@@ -221,8 +225,7 @@ class FrameRenderer:
         # INTERPOLANT: what is only tested; RI_TREE: objects traced because their tree
         # did not pay
         for note in (stats.get("bound_notes") or []) + (stats.get("ri_notes") or []):
-            state.messages.append(("INFO", note))
-            engine.report({"INFO"}, f"RSTrace: {note}")
+            self._report(state, "INFO", note)
         engine.update_memory_stats(memory_used=stats["memory_mb"],
                                    memory_peak=stats["memory_mb"])
         engine.update_stats("", status_line(stats))
@@ -269,10 +272,16 @@ class FrameRenderer:
     # -- messages -----------------------------------------------------------------------------
 
     def _warn(self, state: SceneState, message: str) -> None:
-        state.messages.append(("WARNING", message))
-        if message not in state.reported:
-            state.reported.add(message)
-            self.engine.report({"WARNING"}, f"RSTrace: {message}")
+        self._report(state, "WARNING", message)
+
+    def _report(self, state: SceneState, level: str, message: str) -> None:
+        """Listed in ``state.messages`` always; reported to Blender (the info editor, the
+        console) only when the scene's previous render did not report it too."""
+        state.messages.append((level, message))
+        if (level, message) not in state.reported:
+            state.reported.add((level, message))
+            if (level, message) not in state.reported_before:
+                self.engine.report({level}, f"RSTrace: {message}")
 
     def _error(self, state: SceneState, message: str) -> None:
         log.error("RSTrace: %s", message)

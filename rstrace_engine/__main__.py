@@ -4,8 +4,9 @@ Renders a built-in scene (:mod:`rstrace_engine.scenes`) with the base tracer (or
 ``--mode INTERPOLANT``) and writes the image as PNG plus a JSON file of the frame's
 statistics next to it (``x.json``).
 
-``python -m rstrace_engine warm-cache [--json]`` compiles every render kernel into numba's
-cache (``NUMBA_CACHE_DIR`` if set) without rendering anything (:mod:`.warm_kernels`).
+``python -m rstrace_engine warm-cache [--json] [--jobs N]`` compiles every render kernel into
+numba's cache (``NUMBA_CACHE_DIR`` if set) without rendering anything (:mod:`.warm_kernels`),
+in ``N`` processes (default: one per core), printing ``kernels done/total`` as they land.
 """
 
 from __future__ import annotations
@@ -41,6 +42,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("-v", "--verbose", action="store_true")
     w = sub.add_parser("warm-cache", help="compile every kernel into numba's cache, no render")
     w.add_argument("--json", action="store_true", help="print the counts as JSON")
+    w.add_argument("--jobs", type=int, default=0,
+                   help="processes compiling at once (default: one per core)")
+    w.add_argument("--modes", nargs="+", choices=AVAILABLE_MODES, default=None)
+    w.add_argument("--accelerators", nargs="+", choices=AVAILABLE_ACCELERATORS, default=None)
+    w.add_argument("--part", default=None, help=argparse.SUPPRESS)  # k/n: one of n workers
     w.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -71,12 +77,30 @@ def warm_cache_command(args) -> int:
 
     from . import warm_kernels
 
-    result = warm_kernels.warm(progress=None if args.json else print)
+    progress = None if args.json else print
+    everything = args.modes is None and args.accelerators is None  # else: unreached is moot
+    if args.part:
+        from . import warm_first
+
+        k, n = (int(x) for x in args.part.split("/"))
+        if n > 1 and k == 0:  # the two halves of the viewport's first image first
+            warm_first._compile_tracer(warm_kernels.warm_scene())
+        elif n > 1 and k == 1:
+            warm_first.compile_traversal()
+        result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
+                                   report_unreached=False)
+    elif args.jobs == 1:
+        result = warm_kernels.warm(args.modes, args.accelerators, progress=progress,
+                                   report_unreached=everything)
+    else:
+        result = warm_kernels.warm_parallel(args.jobs or None, args.modes, args.accelerators,
+                                            progress=progress, report_unreached=everything)
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
-    print(f"kernel cache ({result['cache_dir']}) warm in {result['seconds']:.1f} s: "
+    print(f"kernel cache ({result['cache_dir']}) warm in {result['seconds']:.1f} s "
+          f"({result.get('jobs', 1)} processes): "
           f"{result['compiled']} compiled, {result['loaded']} loaded from the cache")
     if result["unreached"]:
         print("kernels no render step uses (not cached): " + ", ".join(result["unreached"]))

@@ -24,18 +24,58 @@ The same listener counts compilations; loads from the cache are numba's own per-
 ``cache_hits`` counter. :func:`counts` reports both, which is how the tests and the farm
 benchmark check that a warm cache compiles nothing and a cold shared cache compiles each
 kernel a bounded number of times.
+
+Content keys (:class:`ContentKeyedLocator`). numba names a kernel's cache folder after the
+*absolute* path of its source folder (``UserProvidedCacheLocator``: ``<dir>_<sha1 of the
+path>``) and stamps its index with a hash of the kernel's *own* source file only. So a cache
+compiled on one machine is never found after installing on another (other paths), and a
+kernel that inlines a constant or an ``@njit`` helper from another module (``tolerances``)
+is loaded stale after that module changes. Our locator keys every kernel of a module on
+:func:`module_key`: the contents of that module and of every module of the package it
+imports, transitively (deferred imports too), of the package ``__init__`` files on the way
+and the package's version; the index stamp adds numba's and llvmlite's versions. The cache
+folder is the module's path *relative to the package* under ``NUMBA_CACHE_DIR`` (or
+``__pycache__`` beside the source, numba's in-tree default). The key is also in the file
+names (numba's "disambiguator"), so two checkouts sharing one cache folder keep apart.
+
+numba internals this module relies on (numba 0.59-0.68; ``tests/test_kernel_cache.py``
+``test_numba_internals_we_rely_on`` fails loudly when one of them changes):
+
+* ``numba.core.caching._CacheLocator`` (methods ``get_cache_path``, ``get_source_stamp``,
+  ``get_disambiguator``, ``from_function``, ``ensure_cache_path``) and the list
+  ``CacheImpl._locator_classes`` (``_CacheImpl`` before 0.60), tried in order: the
+  extension point numba documents for cache locators (``NUMBA_CACHE_LOCATOR_CLASSES``
+  replaces the whole list; when a user sets it, their locators win and ours is unused);
+* ``IndexDataCacheFile`` (``_load_index``, ``_save_index``, ``_load_data``, ``_save_data``,
+  ``_data_name``, ``_index_path``, ``_cache_path``, ``_source_stamp``) and its index file
+  format: a pickled ``numba.__version__``, then a pickled ``(stamp, {key: data name})``;
+* a dispatcher's ``_cache._cache_file``; the events ``numba:compile`` (data:
+  ``dispatcher``, ``args``) and ``numba:compiler_lock`` (entered before a dispatcher looks
+  in its disk cache);
+* the index key's second item is ``codegen.magic_tuple()`` = (triple, CPU name, CPU
+  features): a portable build (``NUMBA_CPU_NAME=generic``) and a host build of the same
+  kernel are two entries of one index.
+
+Bad files: a truncated or corrupt index or data file is treated as missing (logged once per
+file), so the kernel is compiled again and the file rewritten; a cache folder that cannot
+be written is numba's own case (the locator declines, numba's next locator is tried).
 """
 
 from __future__ import annotations
 
+import ast
 import contextlib
+import functools
+import hashlib
 import logging
 import os
 import sys
 import threading
+import weakref
 from collections import Counter
 
-from numba.core import caching, event
+import numba
+from numba.core import caching, config, event
 from numba.core.registry import CPUDispatcher
 
 log = logging.getLogger(__name__)
@@ -48,12 +88,186 @@ _COMPILED: Counter = Counter()  # (module, qualname) -> compilations in this pro
 _SIGNATURES: dict = {}  # (module, qualname) -> argument types of those compilations
 _STATE = {"installed": False, "warned": False}
 _THREAD_LOCK = threading.Lock()
+_BAD_FILES: set[str] = set()  # corrupt cache files reported (once each)
+#: py_funcs our locator placed whose dispatcher is not yet guarded (see _protect_pending)
+_PENDING: dict = {}  # module name -> {id(py_func): weakref}
+
+#: The stamp's first item: an index written by another locator never matches ours.
+STAMP_TAG = "rstrace-content-1"
+
+#: Modules left out of every content key: this one (the cache machinery, no kernel code;
+#: a change of its file format bumps :data:`STAMP_TAG`).
+NOT_KEYED = frozenset({__name__})
+
+#: numba's locator list (``_CacheImpl`` before numba 0.60).
+_CACHE_IMPL = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+
+
+# --- content keys -------------------------------------------------------------------
+
+def _top_packages() -> set[str]:
+    return {p.split(".")[0] for p in _PREFIXES}
+
+
+@functools.cache
+def _file_bytes(path: str) -> bytes:
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _module_file(base: str, name: str) -> str | None:
+    """The source file of module ``name`` below folder ``base`` (a package: its
+    ``__init__.py``), or None."""
+    parts = name.split(".")
+    stem = os.path.join(base, *parts)
+    for candidate in (stem + ".py", os.path.join(stem, "__init__.py")):
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+@functools.cache
+def _imports(path: str, name: str, tops: frozenset) -> tuple[str, ...]:
+    """Names of the modules of ``tops`` that module ``name`` (file ``path``) imports, at
+    module level or inside a function, absolute or relative (``from p import x``: ``p.x``
+    and ``p``), plus its parent packages."""
+    tree = ast.parse(_file_bytes(path), filename=path)
+    is_package = os.path.basename(path) == "__init__.py"
+    package = name if is_package else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                prefix = ".".join(base + ([node.module] if node.module else []))
+            else:
+                prefix = node.module or ""
+            out.add(prefix)
+            out.update(f"{prefix}.{alias.name}" for alias in node.names)
+    parts = name.split(".")
+    out.update(".".join(parts[:i]) for i in range(1, len(parts)))
+    return tuple(sorted(n for n in out if n and n.split(".")[0] in tops))
+
+
+def _base_folder(name: str, path: str) -> str:
+    """The folder that holds module ``name``'s top-level package (or the module itself)."""
+    depth = name.count(".") + (1 if os.path.basename(path) == "__init__.py" else 0)
+    base = os.path.dirname(os.path.abspath(path))
+    for _ in range(depth):
+        base = os.path.dirname(base)
+    return base
+
+
+def module_sources(name: str, path: str) -> dict[str, str]:
+    """Module name -> source file of ``name`` and every module of our packages it imports,
+    transitively (the files :func:`module_key` hashes)."""
+    base, tops = _base_folder(name, path), frozenset(_top_packages())
+    found, todo = {}, [(name, os.path.abspath(path))]
+    while todo:
+        mod, file = todo.pop()
+        if mod in found:
+            continue
+        found[mod] = file
+        for other in _imports(file, mod, tops):
+            if other not in found:
+                other_file = None if other in NOT_KEYED else _module_file(base, other)
+                if other_file is not None:  # a name imported from a module, not a module
+                    todo.append((other, other_file))
+    return found
+
+
+def _version(name: str) -> str:
+    top = sys.modules.get(name.split(".")[0])
+    return str(getattr(top, "__version__", ""))
+
+
+@functools.cache
+def module_key(name: str, path: str) -> str:
+    """The content key of every kernel of module ``name`` (source file ``path``): a hash of
+    the package version and of the module's and its in-package imports' sources (read
+    once per process)."""
+    h = hashlib.sha256(f"{STAMP_TAG}\0{_version(name)}\0".encode())
+    for mod, file in sorted(module_sources(name, path).items()):
+        h.update(mod.encode() + b"\0" + hashlib.sha256(_file_bytes(file)).digest())
+    return h.hexdigest()
+
+
+def source_stamp(key: str) -> tuple:
+    """The stamp numba writes into (and compares with) an index of our kernels."""
+    import llvmlite
+
+    return (STAMP_TAG, key, numba.__version__, llvmlite.__version__)
+
+
+class ContentKeyedLocator(caching._CacheLocator):
+    """Caches our kernels under a folder relative to their package, keyed on content."""
+
+    def __init__(self, py_func, py_file, name: str):
+        self._py_file = py_file
+        self._lineno = py_func.__code__.co_firstlineno
+        self._key = module_key(name, py_file)
+        rel = os.path.relpath(os.path.dirname(os.path.abspath(py_file)),
+                              _base_folder(name, py_file))
+        if config.CACHE_DIR:
+            self._cache_path = os.path.join(config.CACHE_DIR, rel)
+        else:  # numba's in-tree default
+            self._cache_path = os.path.join(os.path.dirname(py_file), "__pycache__")
+
+    def get_cache_path(self):
+        return self._cache_path
+
+    def get_source_stamp(self):
+        return source_stamp(self._key)
+
+    def get_disambiguator(self):
+        return f"{self._lineno}-{self._key[:12]}"
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        name = getattr(py_func, "__module__", "") or ""
+        if not _ours_by_name(name) or not os.path.isfile(py_file):
+            return None
+        try:
+            self = cls(py_func, py_file, name)
+            self.ensure_cache_path()
+        except (OSError, SyntaxError, ValueError):
+            return None  # numba's own locators are tried next
+        _PENDING.setdefault(name, {})[id(py_func)] = weakref.ref(py_func)
+        return self
+
+
+def _ours_by_name(module: str) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in _PREFIXES)
 
 
 class _LockedCacheFile(caching.IndexDataCacheFile):
-    """numba's index/data cache file with an inter-process lock around ``save``."""
+    """numba's index/data cache file with an inter-process lock around ``save``; a corrupt
+    or truncated file reads as missing, a save that cannot write is logged, not raised."""
+
+    def _load_index(self):
+        try:
+            return super()._load_index()
+        except Exception as exc:  # noqa: BLE001  (any unpickling error: a bad file)
+            _bad_file(self._index_path, exc)
+            return {}
+
+    def load(self, key):
+        try:
+            return super().load(key)
+        except Exception as exc:  # noqa: BLE001
+            _bad_file(os.path.join(self._cache_path, self._load_index().get(key, "?")), exc)
+            return None
 
     def save(self, key, data):
+        try:
+            self._save_locked(key, data)
+        except OSError as exc:  # a read-only or full cache folder: the kernel stays in memory
+            _warn_once(f"cannot write the kernel cache in {self._cache_path}: {exc}")
+
+    def _save_locked(self, key, data):
         with _file_lock(self._cache_path):
             overloads = self._load_index()
             data_name = overloads.get(key)
@@ -124,6 +338,18 @@ def _unlock(fh) -> None:
         fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
+def _bad_file(path: str, exc: Exception) -> None:
+    if path not in _BAD_FILES:
+        _BAD_FILES.add(path)
+        log.warning("kernel cache file %s is unreadable (%s: %s): compiling again", path,
+                    type(exc).__name__, exc)
+
+
+def bad_files() -> list[str]:
+    """The cache files found corrupt or truncated in this process."""
+    return sorted(_BAD_FILES)
+
+
 def _warn_once(message: str) -> None:
     if not _STATE["warned"]:
         _STATE["warned"] = True
@@ -156,6 +382,37 @@ class _CompileListener(event.Listener):
         pass
 
 
+class _LockListener(event.Listener):
+    """Guards our dispatchers' cache files before they first read the disk cache."""
+
+    def on_start(self, ev):
+        if _PENDING:
+            _protect_pending()
+
+    def on_end(self, ev):
+        pass
+
+
+def _protect_pending() -> None:
+    """Swap in :class:`_LockedCacheFile` for the dispatchers our locator placed since the
+    last call (module-level kernels; a kernel made inside a function is guarded when it
+    first compiles, by the compile listener)."""
+    for name in list(_PENDING):
+        module = sys.modules.get(name)
+        funcs = _PENDING.get(name)
+        if module is None or not funcs:
+            continue
+        for value in list(vars(module).values()):
+            if isinstance(value, CPUDispatcher) and id(value.py_func) in funcs:
+                protect(value)
+                funcs.pop(id(value.py_func), None)
+        for key, ref in list(funcs.items()):
+            if ref() is None:
+                funcs.pop(key, None)
+        if not funcs:
+            _PENDING.pop(name, None)
+
+
 def install(prefix: str | None = None) -> None:
     """Register the compile listener (once per process); also guard modules ``prefix``.
 
@@ -165,6 +422,12 @@ def install(prefix: str | None = None) -> None:
         _PREFIXES.add(prefix)
     if not _STATE["installed"]:
         event.register("numba:compile", _CompileListener())
+        event.register("numba:compiler_lock", _LockListener())
+        if ContentKeyedLocator not in _CACHE_IMPL._locator_classes:
+            _CACHE_IMPL._locator_classes.insert(0, ContentKeyedLocator)
+        if config.CACHE_LOCATOR_CLASSES if hasattr(config, "CACHE_LOCATOR_CLASSES") else None:
+            log.info("NUMBA_CACHE_LOCATOR_CLASSES is set: rstrace's content-keyed kernel "
+                     "cache is not used")
         _STATE["installed"] = True
 
 
@@ -194,23 +457,208 @@ def cached_signatures(dispatcher) -> int:
         return 0
     try:
         return len(cache_file._load_index())
-    except (OSError, EOFError, ValueError, TypeError):
+    except Exception:  # noqa: BLE001  (a corrupt index holds nothing)
         return 0
 
 
-def counts(prefix: str = "rstrace_engine") -> dict:
-    """Kernels of ``prefix`` compiled and loaded from the disk cache in this process.
+def mark(prefix: str = "rstrace_engine") -> dict:
+    """This process's compile and cache-load counts so far, for ``counts(since=...)``."""
+    return {"compiled": Counter(_COMPILED),
+            "signatures": {k: len(v) for k, v in _SIGNATURES.items()},
+            "hits": {id(d): sum(d.stats.cache_hits.values()) for d in dispatchers(prefix)}}
+
+
+def counts(prefix: str = "rstrace_engine", since: dict | None = None) -> dict:
+    """Kernels of ``prefix`` compiled and loaded from the disk cache in this process (since
+    :func:`mark` returned ``since``: what one warm-up did, whatever ran before it in the
+    process; without it a test's earlier compiles on a partly warm cache counted too).
 
     ``compiled`` counts compilations (signatures), ``loaded`` signatures read from the
     cache; ``kernels`` is the number of dispatchers, ``used`` those with any signature;
     ``compiled_kernels`` maps each compiled kernel to the argument types it was compiled for.
     """
     ds = dispatchers(prefix)
-    compiled = sum(n for (mod, _), n in _COMPILED.items()
-                   if mod == prefix or mod.startswith(prefix + "."))
-    loaded = sum(sum(d.stats.cache_hits.values()) for d in ds)
+    before = since or {"compiled": Counter(), "signatures": {}, "hits": {}}
+    new = {k: n - before["compiled"].get(k, 0) for k, n in _COMPILED.items()
+           if k[0] == prefix or k[0].startswith(prefix + ".")}
+    loaded = sum(sum(d.stats.cache_hits.values()) - before["hits"].get(id(d), 0) for d in ds)
     used = sum(1 for d in ds if d.signatures)
-    return {"kernels": len(ds), "used": used, "compiled": compiled, "loaded": loaded,
-            "compiled_kernels": {f"{m}.{q}": _SIGNATURES.get((m, q), [])
-                                 for (m, q), n in sorted(_COMPILED.items())
-                                 if n and (m == prefix or m.startswith(prefix + "."))}}
+    return {"kernels": len(ds), "used": used, "compiled": sum(new.values()),
+            "loaded": loaded,
+            "compiled_kernels": {f"{m}.{q}": _SIGNATURES.get((m, q), [])[
+                before["signatures"].get((m, q), 0):]
+                for (m, q), n in sorted(new.items()) if n}}
+
+
+# --- portable builds and shipped caches -------------------------------------------------
+
+#: The file that describes a shipped cache (``scripts/build_extension.py`` writes it).
+MANIFEST = "rstrace-kernels.json"
+#: numba's portable CPU: code every x86-64 (or arm64) machine runs.
+PORTABLE_CPU = "generic"
+
+
+def target_initialised() -> bool:
+    """True once numba's CPU target (and its code generator) exists in this process: its CPU
+    name and features are fixed from then on."""
+    from numba.core.registry import cpu_target
+
+    return "_toplevel_target_context" in vars(cpu_target)
+
+
+def cpu_name() -> str:
+    """The CPU this process compiles for and looks up in the cache (``generic`` or the
+    host's name)."""
+    import llvmlite.binding as ll
+
+    return config.CPU_NAME or ll.get_host_cpu_name()
+
+
+def use_portable_target() -> bool:
+    """Compile for (and load kernels compiled for) numba's generic CPU from now on, as a
+    shipped cache was built. Only possible before numba's CPU target is initialised (another
+    add-on may have compiled first): returns whether this process now uses it.
+
+    Only numba's config is set, not the environment: ``config.reload_config()`` (which numba
+    runs before each compile) re-reads every setting from the environment when a
+    ``NUMBA_*`` variable changed, which would also drop a ``config.CACHE_DIR`` set in code
+    (the add-on's): the first measured install compiled every kernel into
+    ``site-packages`` that way. Helper processes get ``NUMBA_CPU_NAME`` from
+    ``config.CPU_NAME`` (``warm_first``, ``warm_kernels.warm_parallel``)."""
+    if config.CPU_NAME == PORTABLE_CPU:
+        return True
+    if target_initialised():
+        log.info("numba's CPU target is initialised already (%s): shipped kernels for the "
+                 "generic CPU are not used", cpu_name())
+        return False
+    config.CPU_NAME, config.CPU_FEATURES = PORTABLE_CPU, ""
+    return True
+
+
+def build_manifest(platform: str, shipped: bool, reason: str = "") -> dict:
+    """What a shipped cache was built with (checked by :func:`shipped_status`)."""
+    import platform as _platform
+
+    import llvmlite
+
+    return {"platform": platform, "shipped": shipped, "reason": reason,
+            "cpu": cpu_name() if shipped else None, "version": _version("rstrace_engine"),
+            "numba": numba.__version__, "llvmlite": llvmlite.__version__,
+            "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
+            "machine": _platform.machine() if shipped else None}
+
+
+def shipped_status(folder: str) -> tuple[dict | None, str]:
+    """(manifest, why not) for the shipped cache in ``folder``: why not is "" when this
+    process can load it (same numba, llvmlite, Python and package version)."""
+    import json
+
+    import llvmlite
+
+    try:
+        with open(os.path.join(folder, MANIFEST)) as f:
+            m = json.load(f)
+    except FileNotFoundError:
+        return None, "no compiled kernels ship with this build"
+    except (OSError, ValueError) as exc:
+        return None, f"the shipped kernels' manifest is unreadable ({exc})"
+    if not m.get("shipped"):
+        return m, m.get("reason") or "no compiled kernels ship for this platform"
+    want = {"numba": numba.__version__, "llvmlite": llvmlite.__version__,
+            "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
+            "version": _version("rstrace_engine")}
+    other = [f"{k} {m.get(k)} (this is {v})" for k, v in want.items() if m.get(k) != v]
+    if other:
+        return m, "the shipped kernels were built for another " + ", ".join(other)
+    return m, ""
+
+
+def _read_index(path: str):
+    """(numba version, stamp, overloads) of an index file; None when unreadable."""
+    import pickle
+
+    try:
+        with open(path, "rb") as f:
+            version = pickle.load(f)
+            stamp, overloads = pickle.loads(f.read())
+        return version, stamp, dict(overloads)
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # noqa: BLE001  (truncated or corrupt)
+        _bad_file(path, exc)
+        return None
+
+
+def _copy_atomic(src: str, dst: str) -> None:
+    import shutil
+    import uuid
+
+    tmp = f"{dst}.tmp.{uuid.uuid4().hex[:16]}"
+    try:
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def seed(shipped: str, cache_dir: str, package: str = "rstrace_engine") -> dict:
+    """Copy the compiled kernels shipped in ``shipped`` into numba's cache ``cache_dir``.
+
+    An index is taken only when it is readable, of this numba version and current: its
+    stamp names the content key this checkout's module has (:func:`module_key`), so a cache
+    of other sources is never loaded. Its entries go into ``cache_dir``'s index of the same
+    kernel (added to the entries there when those are current too, under the cache lock,
+    data files before the index). Returns counts: ``copied`` (signatures), ``kernels``,
+    ``current`` (already there), ``stale``, ``bad``."""
+    import pickle
+
+    top = sys.modules.get(package)
+    base = _base_folder(package, top.__file__) if top is not None else None
+    out = Counter(copied=0, kernels=0, current=0, stale=0, bad=0)
+    for folder, _, files in os.walk(shipped):
+        for index_name in sorted(f for f in files if f.endswith(".nbi")):
+            rel = os.path.relpath(folder, shipped)
+            src = _read_index(os.path.join(folder, index_name))
+            if src is None:
+                out["bad"] += 1
+                continue
+            version, stamp, overloads = src
+            parts = [p for p in rel.split(os.sep) if p not in (".", "")]
+            parts.append(index_name.split(".", 1)[0])
+            module = ".".join(parts).removesuffix(".__init__")
+            py_file = _module_file(base, module) if base else None
+            if (version != numba.__version__ or py_file is None
+                    or stamp != source_stamp(module_key(module, py_file))):
+                out["stale"] += 1
+                continue
+            dest = os.path.join(cache_dir, rel)
+            os.makedirs(dest, exist_ok=True)
+            dest_index = os.path.join(dest, index_name)
+            with _file_lock(dest):
+                there = _read_index(dest_index)
+                have = there[2] if there is not None and there[:2] == (version, stamp) else {}
+                todo = {k: v for k, v in overloads.items() if k not in have}
+                if not todo:
+                    out["current"] += 1
+                    continue
+                used, merged = set(have.values()), dict(have)
+                pattern = index_name[:-len(".nbi")] + ".{}.nbc"
+                number = 1
+                for key, data_name in todo.items():
+                    while pattern.format(number) in used:
+                        number += 1
+                    new_name = pattern.format(number)
+                    used.add(new_name)
+                    _copy_atomic(os.path.join(folder, data_name), os.path.join(dest, new_name))
+                    merged[key] = new_name
+                    out["copied"] += 1
+                tmp = f"{dest_index}.tmp.{os.getpid()}"
+                with open(tmp, "wb") as f:
+                    pickle.dump(version, f, protocol=-1)
+                    f.write(caching.dumps((stamp, merged)))
+                os.replace(tmp, dest_index)
+                out["kernels"] += 1
+    log.info("shipped kernels from %s: %s", shipped, dict(out))
+    return dict(out)

@@ -144,6 +144,9 @@ def start_helper() -> subprocess.Popen | None:
     env = dict(os.environ)
     if numba.config.CACHE_DIR:
         env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
+    if numba.config.CPU_NAME:  # the portable target of shipped kernels (kernel_cache)
+        env["NUMBA_CPU_NAME"] = numba.config.CPU_NAME
+        env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join([package_root] + [p for p in sys.path if p])
     try:
@@ -209,13 +212,17 @@ def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
     kernels are all cached already), then a pause
     without it (a viewport waiting for the lock renders its first image), then the rest of
     ``mode``'s kernels (:func:`~.warm_kernels.warm` for that mode and the BVH), one step at a
-    time under ``lock``. ``on_first_image()`` is called between the two. Returns
+    time under ``lock``. ``on_first_image()`` is called between the two. On a cold cache
+    (the first image's kernels were not cached) and with ``processes`` > 1, the rest is
+    first compiled by :func:`~.warm_kernels.warm_parallel`, one process per core (none of
+    them holds the lock; this one then only loads). Returns
     :func:`~.warm_kernels.warm`'s counts plus ``first_image_s``."""
     from .warm_kernels import warm
 
     lock = lock if lock is not None else contextlib.nullcontext()
     t0 = time.perf_counter()
-    if first_image_cached():
+    cold = not first_image_cached()
+    if not cold:
         first = dict(seconds=0.0, helper=False, cancelled=False)
     else:
         if progress is not None:
@@ -228,6 +235,12 @@ def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
     if on_first_image is not None:
         on_first_image()
     time.sleep(0.05)  # a viewport waiting on the lock takes it now
+    if cold and processes > 1:  # the rest compiles in other processes, then loads here
+        from .warm_kernels import warm_parallel
+
+        warm_parallel(max(processes, os.cpu_count() or 1), modes=(mode,),
+                      accelerators=("BVH",), progress=progress, cancel=cancel,
+                      report_unreached=False)
     result = warm(modes=(mode,), accelerators=("BVH",), progress=progress, cancel=cancel,
                   report_unreached=False, lock=lock)
     result.update(first_image_s=first["seconds"], helper=first["helper"],

@@ -241,26 +241,51 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
             session.render(cancel=cancel)
 
 
+def units(modes, accelerators) -> list[tuple]:
+    """The warm-up's steps in the order :func:`warm_parallel` deals them out to its
+    processes: ``("step", mode, accelerator, orthographic)`` accelerator by accelerator,
+    camera by camera, every mode in turn (so that the processes start on different modes,
+    i.e. different kernels), then ``("interpolants",)`` (an edit of interpolants that pass)
+    and ``("ri_trees",)`` (RI-trees on the first accelerator) when their mode is warmed."""
+    out = [("step", m, a, o) for a in accelerators for o in (False, True) for m in modes]
+    if "INTERPOLANT" in modes:
+        out.append(("interpolants",))
+    if "RI_TREE" in modes:
+        out.append(("ri_trees",))
+    return out
+
+
 def warm(modes=None, accelerators=None, progress=None, cancel=None,
-         report_unreached: bool = True, lock=None) -> dict:
+         report_unreached: bool = True, lock=None, part: tuple[int, int] | None = None
+         ) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
     ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
     between steps and inside each frame (the add-on's background warm-up stops when Blender
     unregisters it); a cancelled warm-up returns ``cancelled=True``. Returns
-    ``kernel_cache.counts()`` plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
+    ``kernel_cache.counts()`` of this warm-up only (compiles earlier in the process are not
+    counted) plus ``seconds``, ``modes``, ``accelerators``, ``cancelled``
     and ``unreached``: render kernels with nothing in the disk cache afterwards (kernels
     inlined into their callers never have their own code and are not listed; empty when
     ``report_unreached`` is False, as for a warm-up of one mode). ``lock``: held around each
     step (not the whole warm-up), so that a viewport sharing it renders between steps.
+    ``part=(k, n)``: only the units (:func:`units`) ``k``, ``k + n``, ... (one of ``n``
+    processes of :func:`warm_parallel`; ``python -m
+    rstrace_engine warm-cache --part k/n`` first compiles one half of the viewport's first
+    image, ``warm_first``: the tracer's stages in part 0, the BVH traversal in part 1).
     """
     from .frame import RenderSettings
     from .session import Session
 
     t0 = time.perf_counter()
+    since = kernel_cache.mark()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)]
+    mine = units(modes, accelerators)
+    if part is not None:
+        mine = mine[part[0]::part[1]]
+    steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)
+             if ("step", m, a, o) in mine]
     cancelled = False
     held = lock if lock is not None else contextlib.nullcontext()
     try:
@@ -279,12 +304,12 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                 session = Session(warm_scene(ortho=ortho), settings)
                 _animate(session, ortho, cancel)
             _yield(lock)
-        if "INTERPOLANT" in modes:
+        if ("interpolants",) in mine:
             _check(cancel)
             with held:
                 _warm_edited_interpolants(progress, cancel)
             _yield(lock)
-        if "RI_TREE" in modes:
+        if ("ri_trees",) in mine:
             _check(cancel)
             with held:
                 _warm_ri_trees(accelerators[:1], progress, cancel)
@@ -292,6 +317,24 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     except Cancelled:
         cancelled = True
         log.info("kernel warm-up cancelled")
+    render_kernels()  # every kernel module imported: counted (and listed when unreached)
+    result = kernel_cache.counts(since=since)
+    unreached = [kernel_name(d) for d in render_kernels()
+                 if not kernel_cache.cached_signatures(d)] if report_unreached else []
+    result.update(seconds=time.perf_counter() - t0, modes=list(modes),
+                  accelerators=list(accelerators), unreached=unreached, cancelled=cancelled)
+    log.info("kernel cache warm in %.1f s: %d compiled, %d loaded, %d unreached",
+             result["seconds"], result["compiled"], result["loaded"], len(unreached))
+    return result
+
+
+def kernel_name(d) -> str:
+    return f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+
+
+def render_kernels() -> list:
+    """Every render kernel with its own compiled code (kernels inlined into their callers
+    and benchmark helpers left out), its module imported."""
     import importlib
 
     for name in ("accel.bvh", "accel.bvh_build", "accel.bvh_mesh", "accel.triangle",
@@ -304,14 +347,105 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                  "ri_tree.kdtree",
                  "ri_tree.thickness"):
         importlib.import_module(f"{__package__}.{name}")
-    result = kernel_cache.counts()
-    unreached = [f"{d.py_func.__module__}.{d.py_func.__qualname__}"
-                 for d in kernel_cache.dispatchers()
-                 if d.targetoptions.get("inline") != "always"
-                 and not d.py_func.__module__.startswith(NOT_RENDER_KERNELS)
-                 and not kernel_cache.cached_signatures(d)] if report_unreached else []
+    return [d for d in kernel_cache.dispatchers()
+            if d.targetoptions.get("inline") != "always"
+            and not d.py_func.__module__.startswith(NOT_RENDER_KERNELS)]
+
+
+def cache_progress(kernels=None) -> tuple[int, int]:
+    """(render kernels in memory or in the disk cache, render kernels)."""
+    kernels = render_kernels() if kernels is None else kernels
+    done = sum(1 for d in kernels if d.signatures or kernel_cache.cached_signatures(d))
+    return done, len(kernels)
+
+
+def _python() -> str | None:
+    import os
+    import sys
+
+    exe = sys.executable
+    if not exe or not os.path.basename(exe).lower().startswith("python"):
+        return None  # an embedding host whose executable is not a Python
+    return exe
+
+
+def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progress=None,
+                  cancel=None, report_unreached: bool = True, poll_s: float = 1.0) -> dict:
+    """:func:`warm` in ``jobs`` processes (default: one per core) sharing this process's
+    cache (``kernel_cache`` keeps concurrent writers safe), each warming its part of the
+    units; this process waits and reports ``progress("kernels 57/180")`` whenever the
+    number of render kernels in the cache grows (of all render kernels: a warm-up of some
+    modes stops short of the total). It compiles nothing itself. Falls back to
+    :func:`warm` here when no Python can be started. Returns :func:`warm`'s keys, the parts'
+    ``compiled`` and ``loaded`` summed, plus ``jobs``."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    import numba
+
+    t0 = time.perf_counter()
+    modes = tuple(modes or _modes())
+    accelerators = tuple(accelerators or _accelerators())
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(units(modes, accelerators))))
+    exe = _python()
+    if exe is None:
+        return dict(warm(modes, accelerators, progress, cancel, report_unreached), jobs=1)
+    env = dict(os.environ)
+    if numba.config.CACHE_DIR:
+        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
+    if numba.config.CPU_NAME:
+        env["NUMBA_CPU_NAME"] = numba.config.CPU_NAME
+        env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in sys.path if p])
+    procs = [subprocess.Popen(
+        [exe, "-m", f"{__package__}", "warm-cache", "--json", "--jobs", "1",
+         "--part", f"{k}/{jobs}", "--modes", *modes, "--accelerators", *accelerators],
+        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True) for k in range(jobs)]
+    kernels, shown, cancelled = render_kernels(), None, False
+    outputs = {}
+    try:
+        while any(p.poll() is None for p in procs):
+            if cancel is not None and cancel():
+                cancelled = True
+                for p in procs:
+                    p.terminate()
+                break
+            done, total = cache_progress(kernels)
+            if progress is not None and (done, total) != shown:
+                shown = (done, total)
+                progress(f"kernels {done}/{total} in the cache")
+            time.sleep(poll_s)
+    finally:
+        for k, p in enumerate(procs):
+            outputs[k] = p.communicate()
+    result = dict(kernel_cache.counts(), compiled=0, loaded=0, compiled_kernels={})
+    failed = []
+    for k, p in enumerate(procs):
+        out, err = outputs[k]
+        try:
+            part = json.loads(out)
+        except ValueError:
+            if not cancelled:
+                failed.append(f"part {k}/{jobs} (rc {p.returncode}): {err[-400:]}")
+            continue
+        result["compiled"] += part["compiled"]
+        result["loaded"] += part["loaded"]
+        for name, sigs in part["compiled_kernels"].items():
+            result["compiled_kernels"].setdefault(name, []).extend(sigs)
+    if failed:
+        raise RuntimeError("kernel warm-up failed in " + "; ".join(failed))
+    done, total = cache_progress(kernels)
+    if progress is not None and (done, total) != shown:
+        progress(f"kernels {done}/{total} in the cache")
+    unreached = [kernel_name(d) for d in kernels if not kernel_cache.cached_signatures(d)
+                 ] if report_unreached else []
     result.update(seconds=time.perf_counter() - t0, modes=list(modes),
-                  accelerators=list(accelerators), unreached=unreached, cancelled=cancelled)
-    log.info("kernel cache warm in %.1f s: %d compiled, %d loaded, %d unreached",
-             result["seconds"], result["compiled"], result["loaded"], len(unreached))
+                  accelerators=list(accelerators), unreached=unreached, cancelled=cancelled,
+                  jobs=jobs)
+    log.info("kernel cache warm in %.1f s in %d processes: %d compiled, %d loaded",
+             result["seconds"], jobs, result["compiled"], result["loaded"])
     return result

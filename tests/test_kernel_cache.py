@@ -257,3 +257,311 @@ def test_column_major_host_matrices_reach_the_kernels_c_ordered():
            if isinstance(a, np.ndarray) and not a.flags.c_contiguous]
     assert bad == []
     assert camera_params(scene.camera).xform.flags.c_contiguous
+
+
+# --- content-keyed cache (issue 25) -----------------------------------------------------
+
+PACKAGE = {
+    "__init__.py": '__version__ = "1.0"\nfrom rstrace_engine import kernel_cache\n'
+                   'kernel_cache.install(__name__)\n',
+    "consts.py": "SCALE = 2.0\n",
+    "kern.py": textwrap.dedent('''
+        import numpy as np
+        from numba import njit
+
+        from .consts import SCALE
+
+
+        @njit(cache=True, nogil=True)
+        def scaled(x):
+            return x * SCALE
+
+
+        @njit(cache=True, nogil=True)
+        def total(x):
+            t = 0.0
+            for v in x:
+                t += scaled(v)
+            return t
+    '''),
+}
+
+PKG_WORKER = textwrap.dedent('''
+    import json, sys
+    import numpy as np
+
+    sys.path.insert(0, sys.argv[1])
+    from tinypkg import kern
+    from rstrace_engine import kernel_cache
+
+    values = [kern.scaled(1.5), kern.total(np.arange(4.0))]
+    c = kernel_cache.counts("tinypkg")
+    guarded = all(type(d._cache._cache_file).__name__ == "_LockedCacheFile"
+                  for d in kernel_cache.dispatchers("tinypkg"))
+    print("RESULT " + json.dumps(dict(values=values, compiled=c["compiled"],
+                                      loaded=c["loaded"], guarded=guarded,
+                                      bad=kernel_cache.bad_files())))
+''')
+
+
+def _package(folder: Path, **changes) -> Path:
+    pkg = folder / "tinypkg"
+    pkg.mkdir(parents=True, exist_ok=True)
+    for name, text in {**PACKAGE, **changes}.items():
+        (pkg / name).write_text(text)
+    return folder
+
+
+def _run_pkg(folder: Path, cache: Path, **env) -> dict:
+    (folder / "worker.py").write_text(PKG_WORKER)
+    full = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    full.update(NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT), **env)
+    proc = subprocess.run([sys.executable, str(folder / "worker.py"), str(folder)], cwd=ROOT,
+                          env=full, capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-3000:]
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def test_cache_follows_the_package_anywhere_and_the_constants_it_imports(tmp_path):
+    """The key is the sources' contents, not their path or time stamps: a copy of the
+    package elsewhere (an install from a zip) loads what the first compiled; a change of an
+    imported module's constant (tolerances.py's case) compiles again, never loads stale code;
+    the cache files sit under the package-relative path."""
+    cache = tmp_path / "cache"
+    first = _run_pkg(_package(tmp_path / "a"), cache)
+    assert first["values"] == [3.0, 12.0] and first["compiled"] == 2 and first["guarded"]
+    assert sorted(p.parent.name for p in cache.rglob("*.nbi")) == ["tinypkg", "tinypkg"]
+
+    moved = _run_pkg(_package(tmp_path / "b"), cache)  # other path, new time stamps
+    assert moved["values"] == [3.0, 12.0]
+    assert (moved["compiled"], moved["loaded"]) == (0, 2) and moved["guarded"]
+
+    changed = _run_pkg(_package(tmp_path / "b", **{"consts.py": "SCALE = 3.0\n"}), cache)
+    assert changed["values"] == [4.5, 18.0] and changed["compiled"] == 2
+    back = _run_pkg(_package(tmp_path / "b"), cache)  # the first contents' entries remain
+    assert back["values"] == [3.0, 12.0] and back["compiled"] == 0
+
+    version = _run_pkg(_package(tmp_path / "b", **{"__init__.py": PACKAGE["__init__.py"].replace(
+        "1.0", "1.1")}), cache)
+    assert version["compiled"] == 2  # another version of the package compiles its own
+
+
+@pytest.mark.parametrize("damage", ["truncated_data", "garbage_index", "truncated_index",
+                                    "missing_data"])
+def test_corrupt_cache_files_compile_again(tmp_path, damage):
+    cache = tmp_path / "cache"
+    folder = _package(tmp_path / "a")
+    assert _run_pkg(folder, cache)["compiled"] == 2
+    index = sorted(cache.rglob("kern.scaled-*.nbi"))[0]
+    data = sorted(cache.rglob("kern.scaled-*.nbc"))[0]
+    if damage == "truncated_data":
+        data.write_bytes(data.read_bytes()[:100])
+    elif damage == "garbage_index":
+        index.write_bytes(b"\x80\x04not a pickle at all")
+    elif damage == "truncated_index":
+        index.write_bytes(index.read_bytes()[:40])
+    else:
+        data.unlink()
+    r = _run_pkg(folder, cache)
+    assert r["values"] == [3.0, 12.0]
+    # scaled compiles again (total, which inlines nothing of it, still loads) ...
+    assert r["compiled"] >= 1
+    assert damage == "missing_data" or r["bad"], r
+    again = _run_pkg(folder, cache)  # ... and is written back whole
+    assert again["compiled"] == 0 and again["bad"] == [] and again["values"] == [3.0, 12.0]
+
+
+def test_unwritable_cache_still_renders(tmp_path):
+    """A cache folder that cannot be created (a file in its way; root ignores chmod):
+    numba's next locator is used, the kernels are correct."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    r = _run_pkg(_package(tmp_path / "a"), blocker / "cache")
+    assert r["values"] == [3.0, 12.0]
+
+
+def test_a_save_that_cannot_write_is_logged_not_raised(tmp_path, caplog):
+    from numba.core import caching
+
+    from rstrace_engine import kernel_cache
+
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    f = caching.IndexDataCacheFile(cache_path=str(blocker), filename_base="k",
+                                   source_stamp=(1, 2))
+    f.__class__ = kernel_cache._LockedCacheFile
+    monkey = kernel_cache._STATE["warned"]
+    kernel_cache._STATE["warned"] = False
+    try:
+        f.save("sig", b"code")  # no exception: the kernel stays in memory
+    finally:
+        kernel_cache._STATE["warned"] = monkey
+    assert f._load_index() == {}
+
+
+def _shipped(tmp_path) -> Path:
+    """A shipped cache of the tiny package, built as build_extension does it."""
+    build = tmp_path / "build_cache"
+    folder = _package(tmp_path / "src")
+    assert _run_pkg(folder, build, NUMBA_CPU_NAME="generic")["compiled"] == 2
+    return build
+
+
+SEEDER = textwrap.dedent('''
+    import json, sys
+    sys.path.insert(0, sys.argv[1])
+    import tinypkg
+    from rstrace_engine import kernel_cache
+    print("RESULT " + json.dumps(kernel_cache.seed(sys.argv[2], sys.argv[3], "tinypkg")))
+''')
+
+
+def _seed(folder: Path, shipped: Path, cache: Path) -> dict:
+    (folder / "seeder.py").write_text(SEEDER)
+    proc = subprocess.run([sys.executable, str(folder / "seeder.py"), str(folder),
+                           str(shipped), str(cache)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.splitlines()[-1][len("RESULT "):])
+
+
+def test_shipped_portable_cache_seeds_a_fresh_one(tmp_path):
+    """The installed package (elsewhere, other time stamps) seeds its cache from the shipped
+    one, read-only, and then loads every kernel for the generic CPU, compiling nothing; a
+    host process compiles its own (another CPU, another entry of the same index)."""
+    shipped = _shipped(tmp_path)
+    for p in shipped.rglob("*"):
+        p.chmod(0o444 if p.is_file() else 0o555)
+    installed = _package(tmp_path / "installed")
+    cache = tmp_path / "user_cache"
+    counts = _seed(installed, shipped, cache)
+    assert counts["kernels"] == 2 and counts["copied"] == 2 and counts["stale"] == 0
+    r = _run_pkg(installed, cache, NUMBA_CPU_NAME="generic")
+    assert (r["compiled"], r["loaded"]) == (0, 2) and r["values"] == [3.0, 12.0]
+    assert _seed(installed, shipped, cache)["current"] == 2  # seeding again: nothing to do
+    host = _run_pkg(installed, cache)
+    assert host["compiled"] == 2 and host["values"] == [3.0, 12.0]
+    assert _seed(installed, shipped, cache)["current"] == 2  # merged, the host's kept
+    assert _run_pkg(installed, cache)["compiled"] == 0
+
+
+def test_shipped_cache_of_other_sources_or_numba_is_not_used(tmp_path):
+    import pickle
+
+    shipped = _shipped(tmp_path)
+    other = _package(tmp_path / "other", **{"consts.py": "SCALE = 5.0\n"})
+    cache = tmp_path / "user_cache"
+    assert _seed(other, shipped, cache)["stale"] == 2
+    r = _run_pkg(other, cache, NUMBA_CPU_NAME="generic")
+    assert r["compiled"] == 2 and r["values"] == [7.5, 30.0]  # never the shipped SCALE 2
+
+    for index in shipped.rglob("*.nbi"):  # another numba version wrote it
+        raw = index.read_bytes()
+        with open(index, "rb") as f:
+            pickle.load(f)
+            rest = f.read()
+        index.write_bytes(pickle.dumps("0.0.1") + rest)
+        assert raw != index.read_bytes()
+    same = _package(tmp_path / "same")
+    assert _seed(same, shipped, tmp_path / "cache2")["stale"] == 2
+
+
+def test_numba_internals_we_rely_on(tmp_path):
+    """What kernel_cache relies on of numba (listed in its docstring): fails loudly when a
+    numba upgrade changes one of them."""
+    import pickle
+
+    import numba
+    from numba.core import caching, config, event
+    from numba.core.registry import cpu_target
+
+    from rstrace_engine import kernel_cache
+
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+    assert impl._locator_classes[0] is kernel_cache.ContentKeyedLocator
+    for name in ("get_cache_path", "get_source_stamp", "get_disambiguator", "from_function",
+                 "ensure_cache_path"):
+        assert callable(getattr(caching._CacheLocator, name)), name
+    assert hasattr(config, "CACHE_DIR") and hasattr(config, "CPU_NAME")
+    assert hasattr(config, "CPU_FEATURES")
+    assert callable(caching.dumps)
+    f = caching.IndexDataCacheFile(cache_path=str(tmp_path), filename_base="k",
+                                   source_stamp=("s", 1))
+    for name in ("_load_index", "_save_index", "_load_data", "_save_data", "_data_name",
+                 "save", "load"):
+        assert callable(getattr(f, name)), name
+    assert f._index_path == str(tmp_path / "k.nbi") and f._cache_path == str(tmp_path)
+    f.save("key", b"data")
+    with open(f._index_path, "rb") as fh:  # the index format seed() reads and writes
+        assert pickle.load(fh) == numba.__version__
+        assert pickle.loads(fh.read()) == (("s", 1), {"key": "k.1.nbc"})
+    kinds = getattr(event, "_builtin_kinds", None)
+    assert kinds is None or {"numba:compile", "numba:compiler_lock"} <= set(kinds)
+    assert "_toplevel_target_context" in type(cpu_target).__dict__  # target_initialised
+    codegen = cpu_target.target_context.codegen()
+    magic = codegen.magic_tuple()
+    assert len(magic) == 3 and magic[1] == kernel_cache.cpu_name()
+    from rstrace_engine.accel import bvh
+
+    d = bvh.build_flat
+    assert isinstance(d._cache._cache_file, caching.IndexDataCacheFile)
+    assert isinstance(d._cache._impl.locator, kernel_cache.ContentKeyedLocator)
+    assert d._cache._cache_file._source_stamp[0] == kernel_cache.STAMP_TAG
+
+
+def test_kernel_keys_cover_imported_modules():
+    from rstrace_engine import kernel_cache
+
+    sources = kernel_cache.module_sources("rstrace_engine.accel.bvh",
+                                          str(ROOT / "rstrace_engine/accel/bvh.py"))
+    assert "rstrace_engine.tolerances" in sources and "rstrace_engine" in sources
+    assert "rstrace_engine.kernel_cache" not in sources
+
+
+def test_counts_since_a_mark_leave_out_earlier_compiles(tmp_path, monkeypatch):
+    """test_farm's warm-cache operator test flaked on a partly warm cache: counts() were the
+    whole process's, so kernels compiled by earlier tests in that bpy process counted as the
+    operator's. A warm-up now counts from its own start (kernel_cache.mark)."""
+    import importlib
+
+    import numba
+    import numpy as np
+
+    from rstrace_engine import kernel_cache
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.syspath_prepend(str(_package(tmp_path / "a")))
+    try:
+        kern = importlib.import_module("tinypkg.kern")
+        kern.scaled(1.0)  # an earlier test compiled this
+        since = kernel_cache.mark("tinypkg")
+        kern.scaled(2.0)
+        assert kern.total(np.arange(3.0)) == 6.0
+        c = kernel_cache.counts("tinypkg", since=since)
+        assert c["compiled"] == 1 and list(c["compiled_kernels"]) == ["tinypkg.kern.total"]
+        assert kernel_cache.counts("tinypkg")["compiled"] == 2
+    finally:
+        for name in [n for n in sys.modules if n.split(".")[0] == "tinypkg"]:
+            del sys.modules[name]
+
+
+def test_two_processes_seeding_at_once(tmp_path):
+    """Two Blender processes starting together seed the same cache: both finish, the
+    index is whole, and a third process loads every kernel."""
+    shipped = _shipped(tmp_path)
+    installed = _package(tmp_path / "installed")
+    cache = tmp_path / "user_cache"
+    (installed / "seeder.py").write_text(SEEDER)
+    procs = [subprocess.Popen([sys.executable, str(installed / "seeder.py"), str(installed),
+                               str(shipped), str(cache)], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT))) for _ in range(2)]
+    counts = []
+    for p in procs:
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err[-3000:]
+        counts.append(json.loads(out.splitlines()[-1][len("RESULT "):]))
+    assert sorted(c["kernels"] + c["current"] for c in counts) == [2, 2]
+    r = _run_pkg(installed, cache, NUMBA_CPU_NAME="generic")
+    assert (r["compiled"], r["loaded"]) == (0, 2) and r["values"] == [3.0, 12.0]

@@ -149,4 +149,7 @@ def test_warm_cache_operator_compiles_nothing_on_a_warm_cache(warm_cache):
     assert result["compiled"] == 0, result["compiled_kernels"]  # the cache is warm
     assert set(result["modes"]) >= {"BASE", "INTERPOLANT"}
     assert addon.runtime.kernel_status() is None  # kernels are in memory now
-    assert warm_cache["loaded"] + warm_cache["compiled"] >= result["loaded"] > 0
+    # counts are the warm-up's own (kernel_cache.mark): this second warm-up finds every
+    # kernel in memory and loads nothing; kernels compiled by earlier tests in this process
+    # (a partly warm cache: the old flake) are not counted as the operator's
+    assert result["loaded"] == 0 and result["used"] > 20 and warm_cache["loaded"] > 0

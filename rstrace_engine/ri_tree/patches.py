@@ -403,10 +403,11 @@ def class_probes(nd, leaves, S, mids, abcd, want):
     """Where the exit-ray test probes leaf ``leaves[q]`` besides its midpoint ``mids[q]``:
     ``abcd[q]``, a line of class ``want[q]`` (``MISS``: no probe).
 
-    * two classes: the class the midpoint does not carry (the midpoint probes its own),
-      half-way from the cell's centre to the mean of that class's corners;
-    * one class: half-way from the centre to the corner whose output ray turns farthest from
-      the midpoint's (where the midpoint says least about the interpolation)."""
+    * two classes, neither a miss: the class the midpoint does not carry (the midpoint
+      probes its own), half-way from the cell's centre to the mean of that class's corners;
+    * one class, or a class and misses (a silhouette): half-way from the centre to the
+      corner of the midpoint's class whose output ray turns farthest from the midpoint's
+      (where the midpoint says least about the interpolation)."""
     for q in prange(leaves.shape[0]):
         x = leaves[q]
         m = mids[q]
@@ -415,10 +416,8 @@ def class_probes(nd, leaves, S, mids, abcd, want):
         nc, c0, c1 = corner_classes(nd, x, S)
         if nc >= 3 or (key != c0 and key != c1):
             continue
-        if nc == 2:
-            other = c1 if key == c0 else c0
-            if other == MISS:
-                continue
+        other = c1 if key == c0 else c0
+        if nc == 2 and other != MISS:
             cnt = 0
             acc = np.zeros(4)
             for k in range(16):
@@ -437,6 +436,8 @@ def class_probes(nd, leaves, S, mids, abcd, want):
         cmin = 2.0
         for k in range(16):
             s = nd.corner[x, k]
+            if S.cls[s] != key:
+                continue
             c = S.OD[s, 0] * S.OD[m, 0] + S.OD[s, 1] * S.OD[m, 1] + S.OD[s, 2] * S.OD[m, 2]
             if c < cmin:
                 cmin = c

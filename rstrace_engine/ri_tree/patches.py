@@ -294,15 +294,18 @@ def _angle(ax, ay, az, bx, by, bz):
 
 
 @njit(cache=True, nogil=True)
-def probe_error(S, m, P, NS, OP, OD, diag):
-    """How far the interpolation (row 0 of P, NS, OP, OD) of sample ``m`` is off, as the
+def probe_error(S, m, P, NS, OP, OD, RD, diag):
+    """How far the interpolation (row 0 of P, NS, OP, OD, RD) of sample ``m`` is off, as the
     angle (radians) under which a viewer at the output ray sees the error: the angle between
     the traced and the interpolated output ray (exit ray through glass, reflected ray,
-    normal) or shading normals, whichever is larger, plus the displacement of the output ray's
-    origin and of the hit point over the object's box diagonal ``diag`` (an origin off by 1%
-    of it, seen from one diagonal away, is 0.01 rad off)."""
+    normal) or shading normals, or of the internal reflection at the exit times its weight,
+    whichever is larger, plus the displacement of the output ray's origin and of the hit
+    point over the object's box diagonal ``diag`` (an origin off by 1% of it, seen from one
+    diagonal away, is 0.01 rad off)."""
     a = _angle(S.OD[m, 0], S.OD[m, 1], S.OD[m, 2], OD[0, 0], OD[0, 1], OD[0, 2])
-    b = _angle(S.NS[m, 0], S.NS[m, 1], S.NS[m, 2], NS[0, 0], NS[0, 1], NS[0, 2])
+    b = max(_angle(S.NS[m, 0], S.NS[m, 1], S.NS[m, 2], NS[0, 0], NS[0, 1], NS[0, 2]),
+            min(max(S.rgain[m, 0], S.rgain[m, 1], S.rgain[m, 2]), 1.0)
+            * _angle(S.RD[m, 0], S.RD[m, 1], S.RD[m, 2], RD[0, 0], RD[0, 1], RD[0, 2]))
     dp = math.sqrt((S.P[m, 0] - P[0, 0]) ** 2 + (S.P[m, 1] - P[0, 1]) ** 2
                    + (S.P[m, 2] - P[0, 2]) ** 2)
     do = math.sqrt((S.OP[m, 0] - OP[0, 0]) ** 2 + (S.OP[m, 1] - OP[0, 1]) ** 2
@@ -375,7 +378,11 @@ def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, di
             dist[q] = abs(th[0] - S.thick[m]) / diag[q]
             probe[q] = 0.0
             continue
-        probe[q] = probe_error(S, m, P, NS, OP, OD, diag[q])
+        RP = np.empty((1, 3))
+        RD = np.empty((1, 3))
+        rg = np.empty((1, 3))
+        interpolate_reflection(nd, x, S, abcd, key, 0, RP, RD, rg)
+        probe[q] = probe_error(S, m, P, NS, OP, OD, RD, diag[q])
         ox, oy, oz = S.OD[m, 0], S.OD[m, 1], S.OD[m, 2]
         ax, ay, az = abs(ox), abs(oy), abs(oz)
         if ax >= ay and ax >= az:
@@ -472,4 +479,8 @@ def probe_errors(nd, leaves, S, pids, abcd, want, diag, err):
                        mt) < MIN_USABLE:
             err[q] = np.inf
             continue
-        err[q] = probe_error(S, s, P, NS, OP, OD, diag[q])
+        RP = np.empty((1, 3))
+        RD = np.empty((1, 3))
+        rg = np.empty((1, 3))
+        interpolate_reflection(nd, leaves[q], S, abcd[q], want[q], 0, RP, RD, rg)
+        err[q] = probe_error(S, s, P, NS, OP, OD, RD, diag[q])

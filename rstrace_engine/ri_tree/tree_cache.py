@@ -435,16 +435,14 @@ class RITreeCache:
         ``probe`` takes the larger error."""
         nd = self.forest.nodes
         live = np.flatnonzero(probe <= self.probe_rad)
-        if len(live) == 0:
-            return
+        # (the kernels run on empty batches too: a warm-up reaches them whatever it probes)
         abcd = np.empty((len(live), 4))
         want = np.empty(len(live), np.int32)
         class_probes(nd, ev[live], self.samples, mids[live], abcd, want)
         on = np.flatnonzero(want != MISS)
-        if len(on) == 0:
-            return
         rows = live[on]
-        pids = self._trace(ri[rows], rf[rows], abcd[on])
+        pids = (self._trace(ri[rows], rf[rows], abcd[on]) if len(on)
+                else np.empty(0, np.int32))
         err = np.empty(len(on))
         probe_errors(nd, ev[rows], self.samples, pids, abcd[on], want[on],
                      self.diag[ri[rows]], err)

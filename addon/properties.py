@@ -108,6 +108,13 @@ class RSTraceSettings(bpy.types.PropertyGroup):
     ri_depth: IntProperty(
         name="Depth Constraint", default=28, min=1, max=64, soft_min=22, soft_max=30,
         description="Deepest level of the RI-tree's binary 4D kd-trees")
+    ri_probe_angle: FloatProperty(
+        name="Exit-Ray Test", default=0.25, min=0.0, max=180.0, soft_min=0.0, soft_max=5.0,
+        precision=2,
+        description="RI-tree cells also split while the traced and the interpolated output "
+                    "ray (the exit ray through glass, the reflection off a mirror) at their "
+                    "midpoint differ by more than this many degrees; cells still over it at "
+                    "the depth constraint are traced. 0: off (the paper's tests alone)")
     ri_cache_mb: FloatProperty(
         name="Cache Size", default=100.0, min=0.001, max=1e6, soft_min=0.128,
         soft_max=4096.0, precision=3,
@@ -133,7 +140,8 @@ def render_settings(props: RSTraceSettings):
         seed=int(props.seed), vf_directions=int(props.vf_directions),
         vf_tiles=int(props.vf_tiles), ri_dist_thresh=float(props.ri_dist_thresh),
         ri_ang_thresh=float(props.ri_ang_thresh), ri_depth=int(props.ri_depth),
-        ri_cache_mb=float(props.ri_cache_mb), thickness_view=bool(props.thickness_view),
+        ri_cache_mb=float(props.ri_cache_mb), ri_probe_angle=float(props.ri_probe_angle),
+        thickness_view=bool(props.thickness_view),
         thickness_distance=float(props.thickness_distance),
     ).validated()
 

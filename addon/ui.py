@@ -95,6 +95,7 @@ class RSTRACE_PT_ri_tree(RSTracePanel, bpy.types.Panel):
         col.prop(props, "ri_dist_thresh")
         col.prop(props, "ri_ang_thresh")
         col.prop(props, "ri_depth")
+        col.prop(props, "ri_probe_angle")
         col.prop(props, "ri_cache_mb", text="Cache Size (MB)")
         col = layout.column()
         col.prop(props, "thickness_view")

@@ -93,6 +93,9 @@ class RenderSettings:
     ri_ang_thresh: float = 30.0  # angular threshold, degrees, 5-30
     ri_depth: int = 28  # depth constraint of the binary 4D kd-trees, 22-30
     ri_cache_mb: float = 100.0  # RI-tree cache size, MB
+    # exit-ray test (an addition to seed 004): largest angle, degrees, between a cell's
+    # traced and interpolated output ray at its midpoint; 0: off (the paper's tests alone)
+    ri_probe_angle: float = 0.25
     thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
     thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
     relight_memory_mb: float = 512.0  # BASE: per-light records cap (relighting off above it)
@@ -127,6 +130,9 @@ class RenderSettings:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and lo < v <= hi):
                 raise SceneError(f"setting '{name}': {v} outside ({lo:g}, {hi:g}]")
+        if not (np.isfinite(self.ri_probe_angle) and 0.0 <= self.ri_probe_angle <= 180.0):
+            raise SceneError(f"setting 'ri_probe_angle': {self.ri_probe_angle} outside "
+                             f"[0, 180] degrees (0: off)")
         if not 1 <= int(self.ri_depth) <= RI_MAX_DEPTH:
             raise SceneError(f"setting 'ri_depth': {self.ri_depth} outside [1, {RI_MAX_DEPTH}]")
         if not (np.isfinite(self.ri_cache_mb) and 0.0 < self.ri_cache_mb <= 1e6):

@@ -12,6 +12,8 @@
   spot with a radius and a grey world that lights (through the skylight).
 * ``studio`` — objects on a floor under one large area light, a sphere light and a grey
   world that lights: the studio set-up of product shots.
+* ``glass_horizon`` — a glass sphere, a glass torus and a chrome ball before a horizon (the
+  RI-tree's exit rays, issue 22).
 """
 
 from __future__ import annotations
@@ -425,10 +427,35 @@ def tomatoes(width: int = 1200, height: int = 900) -> Scene:
     return s
 
 
+def glass_horizon(width: int = 240, height: int = 180) -> Scene:
+    """A glass sphere, a glass torus and a chrome ball on a floor before a horizon, two point
+    lights (issue 22: the floor's horizon seen through the glass shows an exit ray's error
+    as a shifted edge)."""
+    s = Scene()
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6)))
+    glass = s.add_material(Material("glass", diffuse=(0.0,) * 3, transmission=(0.95,) * 3,
+                                    ior=1.5))
+    chrome = s.add_material(Material("chrome", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
+    s.add_instance(s.add_mesh(shapes.plane(20.0)), np.eye(4), [floor], name="Floor")
+    ball = s.add_mesh(shapes.icosphere(4, name="ball"))
+    s.add_instance(ball, shapes.transform((-1.3, 0.0, 1.0)), [glass], name="GlassSphere")
+    s.add_instance(s.add_mesh(shapes.torus(0.7, 0.25, 96, 48, name="ring")),
+                   shapes.transform((1.3, 0.8, 0.6), 1.0, 60.0, 20.0), [glass],
+                   name="GlassTorus")
+    s.add_instance(ball, shapes.transform((0.9, -1.2, 0.5), 0.5), [chrome], name="ChromeBall")
+    s.add_light(Light("Key", "POINT", power=1500.0, position=(-3.0, -4.0, 6.0)))
+    s.add_light(Light("Fill", "POINT", power=600.0, position=(4.0, -2.0, 3.0)))
+    s.set_world_color((0.3, 0.35, 0.45), lights=False)
+    s.set_camera(Camera(matrix=shapes.look_at((0.0, -5.0, 1.5), (0.0, 0.0, 0.8)), lens=30.0,
+                        width=width, height=height))
+    return s
+
+
 SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
           "grid": grid, "tori": tori,
           "bezier_surface": bezier_surface, "random_volumes": random_volumes,
-          "tomatoes": tomatoes, "museum_soft": museum_soft, "studio": studio}
+          "tomatoes": tomatoes, "museum_soft": museum_soft, "studio": studio,
+          "glass_horizon": glass_horizon}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

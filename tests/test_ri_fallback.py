@@ -70,7 +70,8 @@ def _frames(costs_for, monkeypatch, n=2):
     monkeypatch.setattr(ri_cache, "SPLIT_QUERIES_MIXED", 32)
     sc = _scene(48, 36)
     accel = create_accelerator("BVH", sc.arrays())
-    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.25)
+    # coarse, the paper's tests alone: a 48x36 frame's tree interpolates some pixels
+    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.25, ri_probe_angle=0.0)
     r = RITreeRenderer()
     frames = [r.render(sc, st, accel) for _ in range(n)]
     return r, sc, frames, render(sc, replace(st, mode="BASE"), accel=accel)

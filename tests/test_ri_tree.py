@@ -158,7 +158,10 @@ def test_patch_classes_never_cross_sharp_edges_or_material_borders():
 
 def test_frame_close_to_base_and_cache_reused():
     sc = _scene(glass=True, w=64, h=48)
-    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.05)
+    # the paper's tests (this is about the trees kept across frames; at 64x48 the
+    # exit-ray test leaves too few queries per leaf for the growth asserted below: its
+    # bound is tests/test_ri_tree_bounds.py's)
+    st = RenderSettings(mode="RI_TREE", max_depth=4, ri_dist_thresh=0.05, ri_probe_angle=0.0)
     sess = Session(sc, st)
     base = render(sc, replace(st, mode="BASE"), accel=sess.accel)
     frames = [sess.render() for _ in range(4)]
@@ -366,7 +369,8 @@ def test_exact_attributes_give_the_base_frame(monkeypatch):
     monkeypatch.setattr(ri_cache.RITreeCache, "query", exact)
     sc = _scene(glass=True, w=64, h=48)
     accel = create_accelerator("BVH", sc.arrays())
-    st = RenderSettings(mode="RI_TREE", max_depth=5, ri_dist_thresh=0.25)
+    # coarse, the paper's tests alone: as many interpolated pixels as a 64x48 frame allows
+    st = RenderSettings(mode="RI_TREE", max_depth=5, ri_dist_thresh=0.25, ri_probe_angle=0.0)
     r = RITreeRenderer()
     for _ in range(3):  # later frames interpolate more
         f = r.render(sc, st, accel)

@@ -11,9 +11,13 @@ and visualised (thickness view) at 600x600 with one; ray depth 5. Sweeps of Tabl
 Figures 5-8: distance threshold 0.01-0.25 (angular 30, depth 28), depth constraint 22-30
 (distance 0.05), angular threshold 5-30 degrees (distance 0.05), cache size 0.128-2.048 MB
 (Bezier surface); the thickness view at three distance thresholds; the tomatoes at the two
-settings of Table 1. Every RI-tree frame starts from empty trees (sampling included, as in
-the paper). ``speedup``: base tracer time / RI-tree time of the same frame, measured in the
-same run (process CPU time by default, the paper's metric; ``--clock wall`` for wall time).
+settings of Table 1. These rows are the paper's: the exit-ray test (``ri_probe_angle``, an
+addition, :mod:`rstrace_engine.ri_tree.tree_cache`) off. Beside them, rows with the exit-ray
+test at :data:`PROBES` degrees (the default settings among them), and the ``glass_horizon``
+scene (issue 22: glass and a mirror before a horizon, 240x180). Every RI-tree frame starts
+from empty trees (sampling included, as in the paper). ``speedup``: base tracer time /
+RI-tree time of the same frame, measured in the same run (process CPU time by default, the
+paper's metric; ``--clock wall`` for wall time).
 ``warm_speedup``: the same against a second frame of the same camera with the trees kept (as
 a session reuses them). ``fallback_speedup``: the same against a frame after the fallback
 (:mod:`rstrace_engine.ri_tree.fallback`) decided from the first frame's measured costs, the
@@ -22,8 +26,10 @@ objects whose trees did not pay traced (``traced_objects`` of ``ri_objects``).
 :class:`PerfectCache` answers exactly at no cost (per scene and view): what any tree, however
 good, could give in this engine. ``mean_error``: the paper's metric, the mean L2 distance of
 the pixels' RGB (display values in [0, 1]) to the base frame; ``max_error``: our largest
-per-channel display error. ``traced_fraction``: pixels whose primary ray was traced (not
-interpolated) over all pixels. ``memory_mb``: RI-tree memory held after the frame;
+per-channel display error; ``p999_error``: the 99.9th percentile of the pixels' largest
+channel error; ``over_01``, ``over_03``: pixels whose largest channel error passes 0.1,
+0.3. ``traced_fraction``: pixels whose primary ray was traced (not interpolated) over all
+pixels. ``memory_mb``: RI-tree memory held after the frame;
 ``peak_memory_mb`` the most it held at any time (within the cache size).
 
 Writes ``DIR/ritree.md`` and ``DIR/ritree.png`` (speedup against error); ``--json`` prints
@@ -54,36 +60,52 @@ from ..ri_tree.sampling import trace_samples
 from ..ri_tree.tree_cache import QueryResult, RITreeCache
 from ..tracing.whitted import render
 
-JSON_KEYS = ("scene", "view", "dist_thresh", "ang_thresh", "depth", "cache_mb", "speedup",
-             "warm_speedup", "fallback_speedup", "ri_objects", "traced_objects",
-             "ceiling_speedup", "mean_error", "max_error", "traced_fraction",
+JSON_KEYS = ("scene", "view", "dist_thresh", "ang_thresh", "depth", "cache_mb",
+             "probe_angle", "speedup", "warm_speedup", "fallback_speedup", "ri_objects",
+             "traced_objects", "ceiling_speedup", "mean_error", "max_error", "p999_error",
+             "over_01", "over_03", "traced_fraction",
              "memory_mb", "peak_memory_mb", "samples_traced", "width", "height", "spp")
 #: the paper's image sizes and rays per pixel, per (scene, view): the random volumes are
 #: ray traced at 300x300 with 9 rays per pixel and visualised at 600x600 with one
 SIZES = {("bezier_surface", "SHADED"): (600, 600, 1), ("random_volumes", "SHADED"): (300, 300, 9),
-         ("random_volumes", "THICKNESS"): (600, 600, 1), ("tomatoes", "SHADED"): (1200, 900, 1)}
+         ("random_volumes", "THICKNESS"): (600, 600, 1), ("tomatoes", "SHADED"): (1200, 900, 1),
+         ("glass_horizon", "SHADED"): (240, 180, 1)}
 DISTS = (0.01, 0.025, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.225, 0.25)
 DEPTHS = tuple(range(22, 31))
 ANGLES = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
 CACHES = (0.128, 0.256, 0.512, 1.024, 2.048)
 DEFAULT_CACHE = 100.0
+#: the exit-ray test's thresholds (degrees) swept at the default distance, angle and depth
+PROBES = (4.0, 2.0, 1.0, 0.5)
+DEFAULT = RenderSettings()
 CLOCK = time.process_time
 
 
-def grid(scene: str, quick: bool) -> list[tuple]:
-    """(view, dist, ang, depth, cache MB) of the rows of ``scene``."""
+def grid(scene: str, quick: bool, probes=None) -> list[tuple]:
+    """(view, dist, ang, depth, cache MB, exit-ray test degrees) of the rows of ``scene``:
+    the paper's (test off, 0) and the exit-ray test's sweep (``probes``, default
+    :data:`PROBES` and the default setting; ``quick``: the default alone), the defaults
+    among it."""
     if scene == "tomatoes":
-        return [("SHADED", 0.25, 30.0, 28, DEFAULT_CACHE), ("SHADED", 0.05, 10.0, 28,
-                                                            DEFAULT_CACHE)]
-    dists = (0.01, 0.05, 0.25) if quick else DISTS
-    rows = [("SHADED", x, 30.0, 28, DEFAULT_CACHE) for x in dists]
-    if not quick:
-        rows += [("SHADED", 0.05, 30.0, k, DEFAULT_CACHE) for k in DEPTHS if k != 28]
-        rows += [("SHADED", 0.05, a, 28, DEFAULT_CACHE) for a in ANGLES if a != 30.0]
-    if scene == "bezier_surface":
-        rows += [("SHADED", 0.05, 30.0, 28, c) for c in (CACHES[::2] if quick else CACHES)]
+        rows = [("SHADED", 0.25, 30.0, 28, DEFAULT_CACHE, 0.0),
+                ("SHADED", 0.05, 10.0, 28, DEFAULT_CACHE, 0.0)]
+    else:
+        dists = (0.01, 0.05, 0.25) if quick else DISTS
+        rows = [("SHADED", x, 30.0, 28, DEFAULT_CACHE, 0.0) for x in dists]
+        if not quick:
+            rows += [("SHADED", 0.05, 30.0, k, DEFAULT_CACHE, 0.0) for k in DEPTHS if k != 28]
+            rows += [("SHADED", 0.05, a, 28, DEFAULT_CACHE, 0.0) for a in ANGLES if a != 30.0]
+        if scene == "bezier_surface":
+            rows += [("SHADED", 0.05, 30.0, 28, c, 0.0) for c in (CACHES[::2] if quick
+                                                                 else CACHES)]
+    d = DEFAULT
+    if probes is None:
+        probes = (d.ri_probe_angle,) if quick else (*PROBES, d.ri_probe_angle)
+    probes = sorted({float(p) for p in probes if p > 0}, reverse=True)
+    rows += [("SHADED", d.ri_dist_thresh, d.ri_ang_thresh, d.ri_depth, d.ri_cache_mb, p)
+             for p in probes]
     if scene == "random_volumes":
-        rows += [("THICKNESS", x, 30.0, 28, DEFAULT_CACHE) for x in (0.05, 0.15, 0.25)]
+        rows += [("THICKNESS", x, 30.0, 28, DEFAULT_CACHE, 0.0) for x in (0.05, 0.15, 0.25)]
     return rows
 
 
@@ -148,7 +170,8 @@ def _base_frame(sc, st: RenderSettings, accel):
     return render(sc, replace(st, mode="BASE"), accel=accel)
 
 
-def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dict]:
+def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
+              ) -> list[dict]:
     base_st = RenderSettings(max_depth=depth)
     # compile / cache load first (not timed)
     warm = scenes.build(name, 32, 24)
@@ -160,7 +183,7 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
     render(warm, base_st, accel=wacc)
     render_thickness_exact(warm, replace(base_st, thickness_view=True), wacc)
     rows = []
-    grid_rows = grid(name, quick)
+    grid_rows = grid(name, quick, probes)
     for view in dict.fromkeys(g[0] for g in grid_rows):
         thick = view == "THICKNESS"
         w0, h0, spp = SIZES.get((name, view), (600, 600, 1))
@@ -179,9 +202,9 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
         ceiling = t_base / t_perfect
         log(f"{name} {view.lower()} {w}x{h} spp {spp}: base {t_base:.2f} s, perfect tree "
             f"{t_perfect:.2f} s (ceiling {ceiling:.2f}x)")
-        for _, dist, ang, dep, cache in (g for g in grid_rows if g[0] == view):
+        for _, dist, ang, dep, cache, probe in (g for g in grid_rows if g[0] == view):
             st = replace(st0, mode="RI_TREE", ri_dist_thresh=dist, ri_ang_thresh=ang,
-                         ri_depth=dep, ri_cache_mb=cache)
+                         ri_depth=dep, ri_cache_mb=cache, ri_probe_angle=probe)
             # the base frame is re-timed next to each row (the machine's load drifts)
             t0 = CLOCK()
             _base_frame(sc, st0, accel)
@@ -208,12 +231,18 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
                 r.render(sc, st, accel)
                 t_fb = CLOCK() - t0
             m = image.compare(f.radiance, base.radiance, 0.02)
+            px = np.abs(image.to_display(f.radiance)
+                        - image.to_display(base.radiance)).max(axis=-1)
             row = dict(scene=name, view=view, dist_thresh=dist, ang_thresh=ang, depth=dep,
-                       cache_mb=cache, speedup=tb / t_ri, warm_speedup=tb / t_warm,
+                       cache_mb=cache, probe_angle=probe,
+                       speedup=tb / t_ri, warm_speedup=tb / t_warm,
                        fallback_speedup=tb / t_fb, ri_objects=n_ri, traced_objects=len(out),
                        ceiling_speedup=ceiling,
                        mean_error=rgb_error(f.radiance, base.radiance),
-                       max_error=m["max_error"], traced_fraction=f.stats["traced_fraction"],
+                       max_error=m["max_error"], p999_error=float(np.quantile(px, 0.999)),
+                       over_01=int(np.count_nonzero(px > 0.1)),
+                       over_03=int(np.count_nonzero(px > 0.3)),
+                       traced_fraction=f.stats["traced_fraction"],
                        interpolated_fraction=f.stats["interpolated_fraction"],
                        memory_mb=f.stats["memory_mb"],
                        peak_memory_mb=f.stats["peak_memory_mb"],
@@ -221,32 +250,36 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log) -> list[dic
                        ri_s=t_ri, samples_traced=f.stats["samples_traced"], width=w, height=h,
                        spp=spp)
             rows.append(row)
-            log(f"{name} {view} d={dist:g} a={ang:g} depth={dep} cache={cache:g}: "
+            log(f"{name} {view} d={dist:g} a={ang:g} depth={dep} cache={cache:g} "
+                f"probe={probe:g}: "
                 f"{row['speedup']:.2f}x (warm {row['warm_speedup']:.2f}x, fallback "
                 f"{row['fallback_speedup']:.2f}x, {len(out)}/{n_ri} traced) "
                 f"err {row['mean_error']:.5f} max {row['max_error']:.3f} "
+                f"p99.9 {row['p999_error']:.3f} >0.1 {row['over_01']} "
                 f"traced {100 * row['traced_fraction']:.1f}% mem {row['memory_mb']:.2f} MB "
                 f"(peak {row['peak_memory_mb']:.2f}) samples {row['samples_traced']}")
     return rows
 
 
 def markdown(rows: list[dict], note: str) -> str:
-    head = ("| scene | view | size | dist | ang | depth | cache MB | speedup | warm | "
-            "fallback (traced objects) | ceiling | mean RGB err | max err | PSNR dB | "
-            "traced % | memory MB | peak MB | "
+    head = ("| scene | view | size | dist | ang | depth | cache MB | exit-ray test | speedup | "
+            "warm | fallback (traced objects) | ceiling | mean RGB err | max err | "
+            "99.9% err | px > 0.1 | px > 0.3 | PSNR dB | traced % | memory MB | peak MB | "
             "base s | RI-tree s |")
     lines = [f"RI-tree against the base tracer (`python -m rstrace_engine.bench ritree`). "
-             f"{note}", "", head, "|" + "---|" * 19]
+             f"{note}", "", head, "|" + "---|" * 23]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], r["view"].lower(),
             f"{r['width']}x{r['height']}" + (f" x{r['spp']}" if r["spp"] > 1 else ""),
             f"{r['dist_thresh']:g}",
             f"{r['ang_thresh']:g}", str(r["depth"]), f"{r['cache_mb']:g}",
+            f"{r['probe_angle']:g}°" if r["probe_angle"] > 0 else "off (paper)",
             f"{r['speedup']:.2f}x", f"{r['warm_speedup']:.2f}x",
             f"{r['fallback_speedup']:.2f}x ({r['traced_objects']}/{r['ri_objects']})",
             f"{r['ceiling_speedup']:.2f}x", f"{r['mean_error']:.5f}",
-            f"{r['max_error']:.3f}",
+            f"{r['max_error']:.3f}", f"{r['p999_error']:.3f}", str(r["over_01"]),
+            str(r["over_03"]),
             f"{r['psnr']:.1f}" if math.isfinite(r["psnr"]) else "inf",
             f"{100 * r['traced_fraction']:.1f}", f"{r['memory_mb']:.3f}",
             f"{r['peak_memory_mb']:.3f}", f"{r['base_s']:.2f}", f"{r['ri_s']:.2f}"]) + " |")
@@ -264,7 +297,8 @@ def plot(rows: list[dict], path: Path) -> bool:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for key in dict.fromkeys((r["scene"], r["view"]) for r in rows):
         sel = [r for r in rows if (r["scene"], r["view"]) == key and r["ang_thresh"] == 30.0
-               and r["depth"] == 28 and r["cache_mb"] == DEFAULT_CACHE] or \
+               and r["depth"] == 28 and r["cache_mb"] == DEFAULT_CACHE
+               and r["probe_angle"] == 0.0] or \
               [r for r in rows if (r["scene"], r["view"]) == key]
         sel.sort(key=lambda r: r["dist_thresh"])
         (line,) = ax.plot([r["mean_error"] for r in sel], [r["speedup"] for r in sel],
@@ -287,10 +321,13 @@ def plot(rows: list[dict], path: Path) -> bool:
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m rstrace_engine.bench ritree")
     p.add_argument("--json", action="store_true")
-    p.add_argument("--scenes", default="bezier_surface,random_volumes,tomatoes")
+    p.add_argument("--scenes", default="bezier_surface,random_volumes,tomatoes,glass_horizon")
     p.add_argument("--scale", type=float, default=1.0, help="resolution factor")
     p.add_argument("--depth", type=int, default=5, help="ray depth of both tracers")
     p.add_argument("--quick", action="store_true", help="three distance thresholds only")
+    p.add_argument("--probes", default="",
+                   help="exit-ray test thresholds (degrees, comma separated) of the rows at "
+                        "the default settings; default: the sweep (--quick: the default)")
     p.add_argument("--out", default="docs")
     p.add_argument("--clock", choices=("cpu", "wall"), default="cpu")
     p.add_argument("--threads", type=int, default=0,
@@ -309,7 +346,8 @@ def main(argv: list[str]) -> int:
 
     rows = []
     for name in args.scenes.split(","):
-        rows += run_scene(name.strip(), args.scale, args.depth, args.quick, log)
+        rows += run_scene(name.strip(), args.scale, args.depth, args.quick, log,
+                          [float(x) for x in args.probes.split(",")] if args.probes else None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     note = (f"Timing: {'process CPU time' if args.clock == 'cpu' else 'wall time'}"

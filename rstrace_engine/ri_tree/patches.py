@@ -86,9 +86,11 @@ def corner_classes(nd, x, S):
 
 
 @njit(cache=True, nogil=True)
-def finalize(nd, leaves, S, cosmin):
+def finalize(nd, leaves, S, cosmin, coarse):
     """Mark ``leaves`` FINAL with their classes and angular test results (serial: writes
-    through the node tuple are lost from a parallel loop)."""
+    through the node tuple are lost from a parallel loop). ``coarse[q]``: leaf ``q`` (at the
+    depth constraint) failed the exit-ray test: its classes fail the angular test, its rays
+    are traced."""
     for q in range(leaves.shape[0]):
         x = leaves[q]
         nc, c0, c1 = corner_classes(nd, x, S)
@@ -100,7 +102,7 @@ def finalize(nd, leaves, S, cosmin):
             bits |= 1
         if nc >= 2 and (c1 == MISS or _angle_ok(S, nd.corner[x], c1, cosmin)):
             bits |= 2
-        nd.ang_ok[x] = bits
+        nd.ang_ok[x] = 0 if coarse[q] else bits
         nd.state[x] = FINAL
 
 
@@ -282,20 +284,53 @@ def blind_at_cap(nd, leaves, S, box, aabb, inst, face, out):
                   and not _misses_box(nd, x, box, aabb, inst[q], face[q]))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _angle(ax, ay, az, bx, by, bz):
+    """Angle (radians) between unit vectors a and b (accurate for small angles)."""
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ax * bx + ay * by + az * bz)
+
+
+@njit(cache=True, nogil=True)
+def probe_error(S, m, P, NS, OP, OD, RD, diag):
+    """How far the interpolation (row 0 of P, NS, OP, OD, RD) of sample ``m`` is off, as the
+    angle (radians) under which a viewer at the output ray sees the error: the angle between
+    the traced and the interpolated output ray (exit ray through glass, reflected ray,
+    normal) or shading normals, or of the internal reflection at the exit times its weight,
+    whichever is larger, plus the displacement of the output ray's origin and of the hit
+    point over the object's box diagonal ``diag`` (an origin off by 1% of it, seen from one
+    diagonal away, is 0.01 rad off)."""
+    a = _angle(S.OD[m, 0], S.OD[m, 1], S.OD[m, 2], OD[0, 0], OD[0, 1], OD[0, 2])
+    b = max(_angle(S.NS[m, 0], S.NS[m, 1], S.NS[m, 2], NS[0, 0], NS[0, 1], NS[0, 2]),
+            min(max(S.rgain[m, 0], S.rgain[m, 1], S.rgain[m, 2]), 1.0)
+            * _angle(S.RD[m, 0], S.RD[m, 1], S.RD[m, 2], RD[0, 0], RD[0, 1], RD[0, 2]))
+    dp = math.sqrt((S.P[m, 0] - P[0, 0]) ** 2 + (S.P[m, 1] - P[0, 1]) ** 2
+                   + (S.P[m, 2] - P[0, 2]) ** 2)
+    do = math.sqrt((S.OP[m, 0] - OP[0, 0]) ** 2 + (S.OP[m, 1] - OP[0, 1]) ** 2
+                   + (S.OP[m, 2] - OP[0, 2]) ** 2)
+    return max(a, b) + max(dp, do) / diag
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, diag, cosmin,
-                       dist):
+                       dist, probe):
     """Distance between each leaf's traced midpoint sample ``mids[q]`` (ids into ``S``) and
     its interpolation from the corners (inf when the midpoint's class cannot be
     interpolated there): the L2 distance of the output rays in 4D line space (the face pair
     of the traced output direction), or for the thickness view the length difference over
     the object's diagonal. A cell whose corners of that class fail the angular threshold
     counts as inf too: it splits while it may, and only cells at the depth constraint are
-    left to the query-time angular test."""
+    left to the query-time angular test.
+
+    ``probe[q]``: the exit-ray test's error at the midpoint (:func:`probe_error`, radians;
+    inf where ``dist`` is inf, 0 for a miss and in the thickness view)."""
     for q in prange(leaves.shape[0]):
         x = leaves[q]
         m = mids[q]
         key = S.cls[m]
+        probe[q] = np.inf
         abcd = np.empty(4)
         for a in range(4):
             abcd[a] = 0.5 * (nd.lo[x, a] + nd.hi[x, a])
@@ -324,6 +359,7 @@ def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, di
                 dist[q] = np.inf
             else:
                 dist[q] = 0.0
+                probe[q] = 0.0
             continue
         P = np.empty((1, 3))
         NS = np.empty((1, 3))
@@ -340,7 +376,13 @@ def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, di
             continue
         if thickness:
             dist[q] = abs(th[0] - S.thick[m]) / diag[q]
+            probe[q] = 0.0
             continue
+        RP = np.empty((1, 3))
+        RD = np.empty((1, 3))
+        rg = np.empty((1, 3))
+        interpolate_reflection(nd, x, S, abcd, key, 0, RP, RD, rg)
+        probe[q] = probe_error(S, m, P, NS, OP, OD, RD, diag[q])
         ox, oy, oz = S.OD[m, 0], S.OD[m, 1], S.OD[m, 2]
         ax, ay, az = abs(ox), abs(oy), abs(oz)
         if ax >= ay and ax >= az:
@@ -361,3 +403,84 @@ def midpoint_distances(nd, leaves, S, mids, box, aabb, inst, face, thickness, di
         for a in range(4):
             s2 += (a4[a] - b4[a]) ** 2
         dist[q] = math.sqrt(s2)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def class_probes(nd, leaves, S, mids, abcd, want):
+    """Where the exit-ray test probes leaf ``leaves[q]`` besides its midpoint ``mids[q]``:
+    ``abcd[q]``, a line of class ``want[q]`` (``MISS``: no probe).
+
+    * two classes, neither a miss: the class the midpoint does not carry (the midpoint
+      probes its own), half-way from the cell's centre to the mean of that class's corners;
+    * one class, or a class and misses (a silhouette): half-way from the centre to the
+      corner of the midpoint's class whose output ray turns farthest from the midpoint's
+      (where the midpoint says least about the interpolation)."""
+    for q in prange(leaves.shape[0]):
+        x = leaves[q]
+        m = mids[q]
+        key = S.cls[m]
+        want[q] = MISS
+        nc, c0, c1 = corner_classes(nd, x, S)
+        if nc >= 3 or (key != c0 and key != c1):
+            continue
+        other = c1 if key == c0 else c0
+        if nc == 2 and other != MISS:
+            cnt = 0
+            acc = np.zeros(4)
+            for k in range(16):
+                if S.cls[nd.corner[x, k]] != other:
+                    continue
+                cnt += 1
+                for a in range(4):
+                    acc[a] += nd.hi[x, a] if (k >> a) & 1 else nd.lo[x, a]
+            for a in range(4):
+                abcd[q, a] = 0.25 * (nd.lo[x, a] + nd.hi[x, a]) + 0.5 * acc[a] / cnt
+            want[q] = other
+            continue
+        if key == MISS:
+            continue
+        worst = -1
+        cmin = 2.0
+        for k in range(16):
+            s = nd.corner[x, k]
+            if S.cls[s] != key:
+                continue
+            c = S.OD[s, 0] * S.OD[m, 0] + S.OD[s, 1] * S.OD[m, 1] + S.OD[s, 2] * S.OD[m, 2]
+            if c < cmin:
+                cmin = c
+                worst = k
+        for a in range(4):
+            end = nd.hi[x, a] if (worst >> a) & 1 else nd.lo[x, a]
+            abcd[q, a] = 0.25 * (nd.lo[x, a] + nd.hi[x, a]) + 0.5 * end
+        want[q] = key
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def probe_errors(nd, leaves, S, pids, abcd, want, diag, err):
+    """The exit-ray test's error (:func:`probe_error`) of each leaf's traced probe ``pids[q]``
+    at line ``abcd[q]`` against the interpolation of class ``want[q]``: inf when the probe
+    is not of that class (the class reaches less far than its corners say) or cannot be
+    interpolated there."""
+    for q in prange(leaves.shape[0]):
+        s = pids[q]
+        if S.cls[s] != want[q]:
+            err[q] = np.inf
+            continue
+        P = np.empty((1, 3))
+        NS = np.empty((1, 3))
+        NG = np.empty((1, 3))
+        OP = np.empty((1, 3))
+        OD = np.empty((1, 3))
+        gn = np.empty((1, 3))
+        th = np.empty(1)
+        ni = np.empty(1, np.int16)
+        mt = np.empty(1, np.int32)
+        if interpolate(nd, leaves[q], S, abcd[q], want[q], 0, P, NS, NG, OP, OD, gn, th, ni,
+                       mt) < MIN_USABLE:
+            err[q] = np.inf
+            continue
+        RP = np.empty((1, 3))
+        RD = np.empty((1, 3))
+        rg = np.empty((1, 3))
+        interpolate_reflection(nd, leaves[q], S, abcd[q], want[q], 0, RP, RD, rg)
+        err[q] = probe_error(S, s, P, NS, OP, OD, RD, diag[q])

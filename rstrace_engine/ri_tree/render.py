@@ -184,10 +184,11 @@ class RITreeRenderer:
         view = bool(settings.thickness_view)
         c = self.caches.get(view)
         if c is None or not c.compatible(settings.ri_dist_thresh, settings.ri_ang_thresh,
-                                         settings.ri_depth, view):
+                                         settings.ri_depth, view, settings.ri_probe_angle):
             self.caches[view] = RITreeCache(sa, accel, settings.ri_dist_thresh,
                                             settings.ri_ang_thresh, settings.ri_depth,
-                                            settings.ri_cache_mb, view, self._extent)
+                                            settings.ri_cache_mb, view, self._extent,
+                                            probe_deg=settings.ri_probe_angle)
             self.fallback[view] = set()  # new settings: every tree is given a new chance
             self.ri.pop(view, None)
         self.caches[view].cache_bytes = float(settings.ri_cache_mb) * 1e6

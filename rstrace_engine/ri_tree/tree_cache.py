@@ -8,8 +8,22 @@ level's at once: below the depth constraint its midpoint line is traced and comp
 the interpolation from its corners (:func:`.patches.midpoint_distances`); over the distance
 threshold it splits (8 new shared samples traced in one batch) and its rays go on down,
 otherwise (or at the depth constraint) it becomes ``FINAL``. Leaves no query reaches stay
-``OPEN``. After each query batch the cache is pruned to :data:`PRUNE_KEEP` of the cache size
-when it is over it (LRU by the stamps of :mod:`.kdtree`).
+``OPEN``.
+
+After each query batch the cache is pruned to :data:`PRUNE_KEEP` of the cache size when it
+is over it (LRU by the stamps of :mod:`.kdtree`).
+
+The exit-ray test (an addition to seed 004's distance and angular tests, ``probe_deg``; 0
+turns it off): the distance in 4D line space admits an exit ray several degrees off, and the
+corners' 30 degree angular threshold does not see it, while through a glass ball such an
+error moves the horizon seen through it by many pixels. So a cell also splits while, at its
+midpoint and at one more probe line (:func:`.patches.class_probes`: the other class of a
+two-class cell, else toward the corner whose output ray turns farthest), the traced output
+ray and its interpolation differ by more than ``probe_deg`` (:func:`.patches.probe_error`:
+the angle between the rays or normals plus the origin's displacement as seen from a box
+diagonal away; a probe of another class fails). A cell that still fails at the depth
+constraint is final with its classes failing the angular test: its rays are traced, never
+interpolated from corners known to be wrong there.
 """
 
 from __future__ import annotations
@@ -37,12 +51,14 @@ from .patches import (
     ST_SPARSE,
     ST_TEST,
     blind_at_cap,
+    class_probes,
     corner_kinds,
     finalize,
     interpolate,
     interpolate_reflection,
     midpoint_distances,
     patch_of,
+    probe_errors,
 )
 from .sampling import MISS, SAMPLE_BYTES, alloc_samples, grow_samples, store, trace_samples
 
@@ -172,7 +188,9 @@ class RITreeCache:
 
     sa, accel: the scene and an accelerator over all of it (``intersect_object`` samples one
     object). dist_thresh: distance threshold; ang_thresh_deg: angular threshold (degrees);
-    depth: depth constraint; cache_mb: cache size (MB); thickness: the trees hold lengths
+    depth: depth constraint; cache_mb: cache size (MB); probe_deg: the exit-ray test's
+    threshold (degrees, module doc; 0: off, seed 004's tests alone); thickness: the trees
+    hold lengths
     (thickness view) instead of exit rays; split_queries, split_queries_mixed: the cost
     rule's query counts (default :data:`SPLIT_QUERIES`, :data:`SPLIT_QUERIES_MIXED`; 1 and 1
     give the paper's plain lazy subdivision, every leaf a query reaches refined to FINAL).
@@ -180,8 +198,8 @@ class RITreeCache:
 
     def __init__(self, sa, accel, dist_thresh: float, ang_thresh_deg: float, depth: int,
                  cache_mb: float, thickness: bool = False, extent: float | None = None,
-                 split_queries: int | None = None, split_queries_mixed: int | None = None
-                 ) -> None:
+                 split_queries: int | None = None, split_queries_mixed: int | None = None,
+                 probe_deg: float = 0.0) -> None:
         t0 = time.perf_counter()
         self.sa = sa
         self.accel = accel
@@ -189,6 +207,8 @@ class RITreeCache:
         self.ang_thresh_deg = float(ang_thresh_deg)
         self.cosmin = math.cos(math.radians(self.ang_thresh_deg))
         self.depth = int(depth)
+        self.probe_deg = float(probe_deg)
+        self.probe_rad = math.radians(self.probe_deg) if self.probe_deg > 0.0 else np.inf
         self.cache_bytes = float(cache_mb) * 1e6
         self.thickness = bool(thickness)
         # the scene extent the boxes' padding scales with, frozen (default: sa's) so that a
@@ -216,9 +236,11 @@ class RITreeCache:
     def memory_bytes(self) -> int:
         return self.forest.live_nodes * NODE_BYTES + self.forest.live_samples * SAMPLE_BYTES
 
-    def compatible(self, dist_thresh, ang_thresh_deg, depth, thickness) -> bool:
+    def compatible(self, dist_thresh, ang_thresh_deg, depth, thickness,
+                   probe_deg: float = 0.0) -> bool:
         return (self.dist_thresh == float(dist_thresh)
                 and self.ang_thresh_deg == float(ang_thresh_deg)
+                and self.probe_deg == float(probe_deg)
                 and self.depth == int(depth) and self.thickness == bool(thickness))
 
     def invalidate(self, instances) -> int:
@@ -326,11 +348,17 @@ class RITreeCache:
                     blind_at_cap(nd, fin, self.samples, self.box, self.sa.inst_aabb,
                                  *tree_of(nd, fin), blind)
                     fin = fin[~blind]
+                coarse = np.zeros(len(fin), np.bool_)
                 ev = lv[~capped & (nd.visits[lv] >= need)]
                 if len(ev):
                     fit = int(max(self._room(mid_id), 0.0) // per_split)
                     if fit < len(ev):  # the most wanted first
                         ev = ev[np.argsort(-nd.visits[ev], kind="stable")[:fit]]
+                # with the exit-ray test, cells at the cap are tested too (module doc)
+                n_ev = len(ev)
+                if np.isfinite(self.probe_rad) and len(fin):
+                    ev = np.concatenate([ev, fin])
+                    fin = fin[:0]
                 split = ev[:0]
                 if len(ev):
                     ri, rf = tree_of(nd, ev)
@@ -346,18 +374,26 @@ class RITreeCache:
                                                  0.5 * (nd.lo[ev[todo]] + nd.hi[ev[todo]]))
                         self._note_peak()
                     dist = np.empty(len(ev))
+                    probe = np.empty(len(ev))
                     midpoint_distances(nd, ev, self.samples, mids, self.box,
                                        self.sa.inst_aabb, ri, rf, self.thickness,
-                                       self.diag[ri], self.cosmin, dist)
-                    over = dist > self.dist_thresh
+                                       self.diag[ri], self.cosmin, dist, probe)
+                    # (midpoints are never kept: those traced here are freed now)
+                    f._free_samples.extend(mids[todo].tolist())
+                    if np.isfinite(self.probe_rad) and not self.thickness:
+                        self._probe_classes(ev, mids, ri, rf, probe)
+                    at_cap = np.arange(len(ev)) >= n_ev
+                    fails = ~(probe <= self.probe_rad)  # inf fails (when the test is on)
+                    over = ~at_cap & ((dist > self.dist_thresh) | fails)
                     split = ev[over]
                     fin = np.concatenate([fin, ev[~over]])
+                    coarse = np.concatenate([coarse, (at_cap & fails)[~over]])
                     si, sf = ri[over], rf[over]
                 # midpoints traced ahead and not used: freed (midpoints are never kept)
                 f._free_samples.extend(mid_id.tolist())
                 mid_node = mid_id = np.empty(0, np.int32)
                 if len(fin):
-                    finalize(nd, fin, self.samples, self.cosmin)
+                    finalize(nd, fin, self.samples, self.cosmin, coarse)
                     self.counters["leaves_final"] += len(fin)
                 if len(split) == 0:
                     return
@@ -392,6 +428,26 @@ class RITreeCache:
         finally:
             if len(mid_id):
                 f._free_samples.extend(mid_id.tolist())
+
+    def _probe_classes(self, ev, mids, ri, rf, probe) -> None:
+        """The exit-ray test's second probe of the cells ``ev`` that pass at their midpoints
+        ``mids`` (:func:`.patches.class_probes`): one line each, traced, compared, freed;
+        ``probe`` takes the larger error."""
+        nd = self.forest.nodes
+        live = np.flatnonzero(probe <= self.probe_rad)
+        # (the kernels run on empty batches too: a warm-up reaches them whatever it probes)
+        abcd = np.empty((len(live), 4))
+        want = np.empty(len(live), np.int32)
+        class_probes(nd, ev[live], self.samples, mids[live], abcd, want)
+        on = np.flatnonzero(want != MISS)
+        rows = live[on]
+        pids = (self._trace(ri[rows], rf[rows], abcd[on]) if len(on)
+                else np.empty(0, np.int32))
+        err = np.empty(len(on))
+        probe_errors(nd, ev[rows], self.samples, pids, abcd[on], want[on],
+                     self.diag[ri[rows]], err)
+        self.forest._free_samples.extend(pids.tolist())
+        probe[rows] = np.maximum(probe[rows], err)
 
     def query(self, inst, origins, directions) -> QueryResult:
         """Attributes of ``n`` rays on instances ``inst`` (n,) int32 whose origins lie

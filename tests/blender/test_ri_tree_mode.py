@@ -95,3 +95,30 @@ def test_f12_ri_tree_fallback_is_reported_and_traced(tmp_path, monkeypatch):
     st = _stats()
     assert st["ri_objects"] == 0 and st["interpolated_fraction"] == 0.0
     np.testing.assert_allclose(out["Combined"][..., :3], base, atol=1e-6)
+
+
+def test_exit_ray_test_setting_reaches_the_trees(tmp_path, monkeypatch):
+    """The exit-ray test (issue 22) is a setting of the RI-Tree panel, on by default with the
+    engine's default; 0 (the paper's tests alone) reaches the trees of the next F12."""
+    import addon
+    from addon import properties
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.ri_tree.render import RITreeRenderer
+
+    monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
+    sc = b.three_spheres_scene(48, 36)
+    props = sc.rstrace
+    assert props.ri_probe_angle == RenderSettings().ri_probe_angle > 0.0
+    assert properties.render_settings(props).ri_probe_angle == RenderSettings().ri_probe_angle
+    sc.rstrace.samples = 1
+    sc.rstrace.max_ray_depth = 2
+    sc.rstrace.mode = "RI_TREE"
+    for angle in (0.0, 2.5):
+        props.ri_probe_angle = angle
+        assert properties.render_settings(props).ri_probe_angle == angle
+        b.render_exr(tmp_path / f"ri{angle}.exr")
+        st = _stats()
+        assert not st.get("error") and st["mode"] == "RI_TREE", st
+        # the F12 session's trees were built with it
+        caches = addon.session.state_for(sc).session.ri_tree.caches
+        assert caches[False].probe_deg == angle

@@ -62,6 +62,13 @@ class Session:
     thread builds it; a bad scene then raises there).
     """
 
+    #: Keep every BASE frame's per-light terms (:mod:`.tracing.light_records`), so that
+    #: light and world edits relight instead of tracing: ``None`` (auto) from the session's
+    #: first light or world edit on (the terms cost a full frame about 20% more time and 25
+    #: bytes per ray-tree node and light: a session that never edits a light does not pay;
+    #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
+    light_terms: bool | None = None
+
     def __init__(self, scene: Scene, settings: RenderSettings | None = None,
                  build: bool = True) -> None:
         self.settings = settings or RenderSettings()
@@ -73,6 +80,8 @@ class Session:
         self.reuse = FrameReuse()
         self.last_report: EditReport | None = None
         self.failed: str | None = None
+        self._lights_edited = False
+        self._terms_kept = False  # whether the kept frame was asked for its light terms
         self._queue: list = []
         self._queue_lock = threading.Lock()
         if build:
@@ -203,6 +212,8 @@ class Session:
             self.stats["accel_update_s"] = time.perf_counter() - t1
             self._accel_memory()
         self.scene = new_scene
+        if fx.lights or fx.world:
+            self._lights_edited = True
         dropped = self.ri_tree.take_edits(fx, old_sa, new_sa)
         if dropped:
             self.stats["ri_trees_invalidated"] = int(dropped)
@@ -278,11 +289,17 @@ class Session:
         if mode == "INTERPOLANT":
             _, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
         terms = None
-        if mode == "BASE":  # per-light records: light edits relight (tracing.light_records)
+        keep = not new_cache
+        if mode == "BASE" and self._keeps_light_terms():
+            # per-light records: light edits relight (tracing.light_records); a kept frame
+            # without them cannot be relit: this one is a full frame
             terms = (len(sa.light_kind), 1e6 * float(self.settings.relight_memory_mb))
+            keep = keep and self._terms_kept
         records, pixels, base = self.reuse.plan(key, cam, self.settings.samples,
-                                                sa.scene_aabb, keep=not new_cache,
+                                                sa.scene_aabb, keep=keep,
                                                 light_terms=terms)
+        if pixels is None:
+            self._terms_kept = terms is not None
         c0 = self.interpolants.cache
         pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
         if mode == "INTERPOLANT":
@@ -303,6 +320,16 @@ class Session:
         frame.stats["incremental"] = pixels is not None
         frame.stats["dirty_pixels"] = int(pixels.sum()) if pixels is not None else n
         return self._finish_stats(frame, mode)
+
+    def _keeps_light_terms(self) -> bool:
+        return self._lights_edited if self.light_terms is None else bool(self.light_terms)
+
+    @property
+    def starts_light_terms(self) -> bool:
+        """Whether the next BASE frame is a full one because it starts keeping the per-light
+        terms (:attr:`light_terms`; the kept frame has none)."""
+        return (self.settings.mode == "BASE" and self._keeps_light_terms()
+                and not self._terms_kept and self.reuse.frame is not None)
 
     def _render_full(self, mode: str, progress, cancel) -> Frame:
         """An RI_TREE frame or a thickness view: always a full frame, without per-pixel

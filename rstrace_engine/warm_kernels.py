@@ -132,14 +132,16 @@ def _animate(session, ortho: bool, cancel=None) -> None:
         if step is not None:
             session.update_scene(warm_scene(ortho=ortho, **step))
         session.render(cancel=cancel)
-    # light edits: BASE relights (a power change recombines, a moved light is shaded again)
+    # light edits: the first makes BASE keep its per-light terms (a full frame), then it
+    # relights (a moved light is shaded again, a power change recombines)
     from dataclasses import replace
 
     from .geometry.edits import LightSet
 
     spot = session.scene.lights[session.scene.light_slot("Spot")]
     for light in (replace(spot, power=spot.power * 0.8),
-                  replace(spot, position=(1.8, -2.0, 3.2))):
+                  replace(spot, position=(1.8, -2.0, 3.2)),
+                  replace(spot, position=(1.8, -2.0, 3.2), power=spot.power * 0.9)):
         _check(cancel)
         session.apply([LightSet("Spot", light)])
         session.render(cancel=cancel)

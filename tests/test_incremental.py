@@ -42,6 +42,7 @@ def check_base_step(sess, prev, settings):
     After light edits the kept pixels are relit (every one may change; none re-traced)."""
     dirty = sess.dirty_mask
     relit = sess.reuse.relight_due
+    starts = sess.starts_light_terms  # the first light edit: a full frame keeping them
     frame = sess.render()
     assert bool(frame.stats.get("relit")) == relit
     fresh = fresh_frame(sess.scene, settings)
@@ -49,7 +50,7 @@ def check_base_step(sess, prev, settings):
     np.testing.assert_array_equal(frame.pixel_class, fresh.pixel_class)
     if relit:  # recombined, only the dirty pixels traced
         return frame, float(dirty.mean())
-    if dirty is not None and prev is not None:
+    if dirty is not None and prev is not None and not starts:
         assert frame.stats["incremental"]
         changed = np.any(prev.radiance != fresh.radiance, axis=2)
         missed = changed & ~dirty

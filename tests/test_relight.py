@@ -26,6 +26,13 @@ W, H = 32, 24
 SETTINGS = RenderSettings(mode="BASE", max_depth=3, samples=2)
 
 
+@pytest.fixture(autouse=True)
+def _light_terms_from_the_first_frame(monkeypatch):
+    """These tests edit lights from the first frame on: the sessions keep the light terms
+    at once (by default they start at the first light edit, tested below)."""
+    monkeypatch.setattr(Session, "light_terms", True)
+
+
 def fresh(sess):
     return Session(sess.scene.copy(), sess.settings).render()
 
@@ -184,3 +191,27 @@ def test_bad_light_edits_keep_the_frame(bad):
     assert light(sess, "Spot").power != 10.0  # nothing half-applied
     again = sess.render()
     np.testing.assert_array_equal(again.radiance, first.radiance)
+
+
+def test_light_terms_start_at_the_first_light_edit(monkeypatch):
+    """By default a session keeps no light terms until a light or the world is edited (they
+    cost every full frame): the frame after the first light edit is a full one that keeps
+    them, and the next light edit relights; each frame equals a fresh one."""
+    monkeypatch.setattr(Session, "light_terms", None)
+    sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    first = sess.render()
+    assert first.stats["light_records_mb"] == 0.0
+    lamp = next(li for li in sess.scene.lights if li.kind == "POINT")
+    rep = sess.apply([LightSet(lamp.name, replace(lamp, power=lamp.power * 0.7))])
+    assert not rep.relight
+    frame = sess.render()
+    assert not frame.stats["incremental"] and frame.stats["light_records_mb"] > 0.0
+    np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
+    step(sess, [LightSet(lamp.name, replace(lamp, power=lamp.power * 0.5))])
+    # an object edit alone does not start them
+    other = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    other.render()
+    m = other.scene.instances[other.scene.instance_slot("Small")]["matrix"].copy()
+    m[1, 3] += 0.2
+    other.apply([ObjectTransform("Small", m)])
+    assert other.render().stats["light_records_mb"] == 0.0

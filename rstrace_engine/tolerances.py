@@ -200,3 +200,9 @@ AREA_SPREAD_MIN = 0.1 * 3.141592653589793 / 180.0
 #: A light radius (m) or a sun angle (radians) below this is taken as 0: a point light or a
 #: parallel sun (the radiance over so small an extent, ~ power / radius^2, would overflow).
 LIGHT_EXTENT_MIN = 1e-12
+
+#: A light's direction or area axis this close to unit length (and the axis to orthogonal)
+#: is kept as given (:func:`~.geometry.lights.checked_light`): normalising again would
+#: change its last bits, so a light given back with only its power changed would count as
+#: moved (and be shaded again).
+UNIT_SLACK = 4e-16

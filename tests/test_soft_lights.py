@@ -290,6 +290,7 @@ def test_incremental_equals_fresh_next_to_a_soft_shadow():
     sc.set_world_color((0.0, 0.0, 0.0))  # the world's light dirties every hit: kept apart
     st = RenderSettings(mode="BASE", max_depth=1, light_samples=8, seed=2)
     sess = Session(sc.copy(), st)
+    sess.light_terms = True  # the light edit relights (by default from the second one)
     prev = sess.render()
     for edits in ([ObjectTransform("Far", shapes.transform((2.4, 1.8, 0.25)))],
                   [ObjectTransform("Blocker", shapes.transform((0.1, 0.0, 0.6)))],

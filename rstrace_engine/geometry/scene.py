@@ -53,127 +53,12 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     checked_camera,
 )
 from .footprint import check_fits, estimate
+from .lights import ExtendedLights, checked_light
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
+from .slot_keys import SlotKeys
 
 log = logging.getLogger(__name__)
 
-
-
-def _light_number(name: str, label: str, value, lo: float, hi: float) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"light '{name}': {label} {value!r} is not a number") from None
-    if not (math.isfinite(v) and lo <= v <= hi):
-        raise SceneError(f"light '{name}': {label} {v} outside [{lo:g}, {hi:g}]")
-    return v
-
-
-def _area_size(name: str, shape: str, size) -> tuple:
-    """The full extents of an area light (a square or disk has one)."""
-    try:
-        sz = np.asarray(size, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise SceneError(f"light '{name}': size {size!r} is not numbers") from None
-    if sz.size == 1 or shape in ("SQUARE", "DISK"):
-        sz = np.array([sz[0], sz[0]])
-    if sz.size != 2:
-        raise SceneError(f"light '{name}': size needs 1 or 2 values, got {sz.size}")
-    if not np.all(np.isfinite(sz)):
-        raise SceneError(f"light '{name}': size {sz.tolist()} has NaN or infinite values")
-    if np.any(sz <= 0.0) or np.any(sz > tol.COORD_MAX):
-        what = "an axis of the ellipse" if shape == "ELLIPSE" else "a side"
-        raise SceneError(f"light '{name}': size {sz.tolist()}: {what} is zero, negative or "
-                         f"too large (a zero-size area light is a point)")
-    return (float(sz[0]), float(sz[1]))
-
-
-#: a light's direction or area axis this close to unit length (and the axis to orthogonal)
-#: is kept as given: normalising again would change its last bits, so a light given back
-#: with only its power changed would count as moved (and be shaded again)
-_UNIT_SLACK = 4e-16
-
-
-def _area_axis(name: str, axis, direction: np.ndarray) -> tuple:
-    """The emitter's unit +X, made exactly orthogonal to ``direction``."""
-    a = np.asarray(axis, dtype=np.float64).reshape(-1)
-    ln = float(np.linalg.norm(a)) if a.size == 3 and np.all(np.isfinite(a)) else 0.0
-    if ln == 0.0:
-        raise SceneError(f"light '{name}': axis is zero, NaN, infinite or not 3 values")
-    if abs(ln - 1.0) > _UNIT_SLACK:
-        a = a / ln
-    c = float(a @ direction)
-    if abs(c) > tol.AREA_AXIS_COS_MAX:
-        raise SceneError(f"light '{name}': axis is not orthogonal to the direction "
-                         f"(cosine {c:.3g})")
-    if abs(c) <= _UNIT_SLACK and abs(float(np.linalg.norm(a)) - 1.0) <= _UNIT_SLACK:
-        return tuple(a)  # already a unit axis orthogonal to the direction: kept as given
-    a = a - c * direction
-    return tuple(a / np.linalg.norm(a))
-
-
-class _ExtendedLights:
-    """The packing of lights with an extent, as Cycles defines them (the radiance a
-    sampled direction carries):
-
-    * sphere (POINT, SPOT with a radius r): ``c P / (4 pi^2 r^2)`` over the sphere seen
-      from the point; with soft falloff over the cap of sine ``r / sqrt(r^2 + d^2)``
-      instead (the far field then equals the point light's ``P / (4 pi (d^2 + r^2))``);
-    * SUN with angular diameter a: ``c S / (pi sin^2(a / 2))`` over its cone (a surface
-      facing it gets irradiance ``c S``);
-    * AREA: ``c P / (pi A)`` on its emitting side (A its area: a Lambertian emitter of
-      exitance P / A), times the spread attenuation ``max(0, (tan(s/2) - tan(theta)) /
-      (tan(s/2) - s/2))`` when the spread s is below pi (Cycles' soft-box model, which
-      keeps the power; ``3 / (s/2)^3`` for the normaliser when s/2 <= 0.05, as Cycles).
-
-    (Checked against Cycles 4.2-5.0 renders: docs/cycles-lights.md, sections 1-5.)
-    """
-
-    def __init__(self, nl: int) -> None:
-        self.a = dict(
-            light_ext=np.zeros(nl, np.bool_), light_radiance=np.zeros((nl, 3)),
-            light_radius=np.zeros(nl), light_soft=np.zeros(nl, np.bool_),
-            light_half=np.zeros(nl), light_u=np.zeros((nl, 3)),
-            light_v=np.zeros((nl, 3)), light_size=np.zeros((nl, 2)),
-            light_ellipse=np.zeros(nl, np.bool_), light_spread=np.zeros((nl, 2)),
-            light_bound=np.zeros(nl))
-        self.a["light_spread"][:, 0] = np.inf
-
-    def pack(self, j: int, li: Light) -> None:
-        a = self.a
-        c = np.asarray(li.color, np.float64)
-        if not li.extended:
-            return
-        a["light_ext"][j] = True
-        if li.kind == "SUN":
-            half = 0.5 * li.angle
-            a["light_half"][j] = half
-            a["light_radiance"][j] = c * li.power / (math.pi * math.sin(half) ** 2)
-        elif li.kind == "AREA":
-            su, sv = li.size
-            u = np.asarray(li.axis, np.float64)
-            v = np.cross(-np.asarray(li.direction, np.float64), u)
-            ellipse = li.shape in ("DISK", "ELLIPSE")
-            area = su * sv * (math.pi / 4.0 if ellipse else 1.0)
-            a["light_u"][j] = u
-            a["light_v"][j] = v / np.linalg.norm(v)
-            a["light_size"][j] = (su, sv)
-            a["light_ellipse"][j] = ellipse
-            a["light_radiance"][j] = c * li.power / (math.pi * area)
-            a["light_bound"][j] = 0.5 * math.hypot(su, sv)
-            if li.spread < math.pi:
-                half = 0.5 * max(li.spread, tol.AREA_SPREAD_MIN)
-                norm = 3.0 / half ** 3 if half <= 0.05 else 1.0 / (math.tan(half) - half)
-                a["light_spread"][j] = (math.tan(half), norm)
-        else:
-            r = li.radius
-            a["light_radius"][j] = r
-            a["light_soft"][j] = bool(li.soft_falloff)
-            a["light_radiance"][j] = c * li.power / (4.0 * math.pi ** 2 * r * r)
-            a["light_bound"][j] = r
-
-    def arrays(self) -> dict:
-        return self.a
 
 
 class SceneArrays(NamedTuple):
@@ -250,59 +135,6 @@ _DEAD_MATERIAL = Material("<deleted>").validated()
 DEAD_AABB = np.array([[tol.COORD_MAX * 10] * 3, [-tol.COORD_MAX * 10] * 3])
 
 
-class _Keys:
-    """Stable host keys of one kind of item (key -> slot), with a free list of slots."""
-
-    def __init__(self, kind: str) -> None:
-        self.kind = kind
-        self.slot: dict = {}
-        self.free: list[int] = []  # tombstoned slots, reused lowest first
-
-    def copy(self) -> _Keys:
-        k = _Keys(self.kind)
-        k.slot = dict(self.slot)
-        k.free = list(self.free)
-        return k
-
-    def new_key(self, key, name: str | None, n: int):
-        """The key for a new item: ``key`` if given (must be unused), else the name when it
-        is unused, else a generated one."""
-        if key is not None:
-            try:
-                hash(key)
-            except TypeError:
-                raise SceneError(f"{self.kind} '{name}': key {key!r} is not hashable") from None
-            if key in self.slot:
-                raise SceneError(f"{self.kind} '{name}': key {key!r} is already in use")
-            return key
-        if name is not None and name not in self.slot:
-            return name
-        k = n
-        while f"{name or self.kind}#{k}" in self.slot:
-            k += 1
-        return f"{name or self.kind}#{k}"
-
-    def place(self, items: list, item, key) -> int:
-        """Put ``item`` in the lowest tombstoned slot of ``items`` (else a new one) under
-        ``key``; returns the slot."""
-        if self.free:
-            self.free.sort()
-            slot = self.free.pop(0)
-            items[slot] = item
-        else:
-            slot = len(items)
-            items.append(item)
-        self.slot[key] = slot
-        return slot
-
-    def lookup(self, key) -> int:
-        try:
-            return self.slot[key]
-        except (KeyError, TypeError):
-            raise SceneError(f"{self.kind} '{key}': unknown key (no such {self.kind} in the "
-                             f"scene)") from None
-
-
 class Scene:
     """A mutable scene that validates on input and packs to :class:`SceneArrays`.
 
@@ -331,10 +163,10 @@ class Scene:
         self.world_lights = True  # the world colour also lights surfaces (as in Cycles)
         self.stats: dict[str, int] = {"degenerate_triangles": 0}
         self.warnings: list[str] = []
-        self.mesh_keys = _Keys("mesh")
-        self.material_keys = _Keys("material")
-        self.instance_keys = _Keys("object")
-        self.light_keys = _Keys("light")
+        self.mesh_keys = SlotKeys("mesh")
+        self.material_keys = SlotKeys("material")
+        self.instance_keys = SlotKeys("object")
+        self.light_keys = SlotKeys("light")
         self._arrays: SceneArrays | None = None
         self._counts = None  # (objects, triangles) of the packing in _arrays
         self._mesh_arrays = None  # packed geometry, reused while meshes are unchanged
@@ -644,54 +476,9 @@ class Scene:
 
     # lights
 
-    def _checked_light(self, light: Light) -> Light:
-        n = light.name
-        if light.kind not in LIGHT_KINDS:
-            raise SceneError(f"light '{n}': unknown kind {light.kind!r} "
-                             f"(expected one of {sorted(LIGHT_KINDS)})")
-        col = _colour(n, f"light '{n}' colour", light.color, hi=None)
-        try:
-            p = float(light.power)
-        except (TypeError, ValueError):
-            raise SceneError(f"light '{n}': power {light.power!r} is not a number") from None
-        if not (math.isfinite(p) and 0.0 <= p <= MAX_LIGHT_POWER):
-            raise SceneError(f"light '{n}': power {p} outside [0, {MAX_LIGHT_POWER:g}]")
-        pos = _colour(n, f"light '{n}' position", light.position, lo=-tol.COORD_MAX,
-                      hi=tol.COORD_MAX)
-        d = np.asarray(light.direction, dtype=np.float64).reshape(3)
-        ln = float(np.linalg.norm(d)) if np.all(np.isfinite(d)) else 0.0
-        if ln == 0.0:
-            raise SceneError(f"light '{n}': direction is zero, NaN or infinite")
-        size = float(light.spot_size)
-        blend = float(light.spot_blend)
-        if light.kind == "SPOT" and not (0.0 < size <= math.pi and 0.0 <= blend <= 1.0):
-            raise SceneError(f"light '{n}': spot size {size} / blend {blend} out of range")
-        if abs(ln - 1.0) > _UNIT_SLACK:  # (idempotent: a light given back is unchanged)
-            d = d / ln
-        radius = _light_number(n, "radius", light.radius, 0.0, tol.COORD_MAX)
-        angle = _light_number(n, "angle", light.angle, 0.0, math.pi)
-        # below these a sphere or a sun's cone is a point or a direction to float64 (its
-        # radiance over its size would overflow): the light is one
-        radius = 0.0 if radius < tol.LIGHT_EXTENT_MIN else radius
-        angle = 0.0 if angle < tol.LIGHT_EXTENT_MIN else angle
-        spread = _light_number(n, "spread", light.spread, 0.0, math.pi)
-        shape = light.shape
-        axis, ext = (1.0, 0.0, 0.0), (1.0, 1.0)
-        if light.kind == "AREA":
-            if shape not in AREA_SHAPES:
-                raise SceneError(f"light '{n}': unknown area shape {shape!r} (expected one "
-                                 f"of {list(AREA_SHAPES)})")
-            ext = _area_size(n, shape, light.size)
-            axis = _area_axis(n, light.axis, d)
-            if spread <= 0.0:
-                raise SceneError(f"light '{n}': spread 0 (a collimated beam) is not "
-                                 f"modelled")
-        return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d), size, blend,
-                     radius, bool(light.soft_falloff), angle, shape, axis, ext, spread)
-
     def add_light(self, light: Light, key=None) -> int:
         """Add a light; returns its slot (the lowest tombstoned one, else a new one)."""
-        li = self._checked_light(light)
+        li = checked_light(light)
         keys = self.light_keys
         if not keys.free and len(self.lights) >= MAX_LIGHTS:
             raise SceneError(f"light '{light.name}': at most {MAX_LIGHTS} lights are supported")
@@ -704,7 +491,7 @@ class Scene:
         """Replace the light in ``slot`` (validated first)."""
         if not 0 <= slot < len(self.lights) or self.lights[slot] is None:
             raise SceneError(f"light '{light.name}': no light in slot {slot}")
-        self.lights[slot] = self._checked_light(light)
+        self.lights[slot] = checked_light(light)
         self._arrays = None
 
     def delete_light(self, slot: int) -> None:
@@ -802,7 +589,7 @@ class Scene:
         intensity = np.zeros((nl, 3))
         cos_outer = np.full(nl, -1.0)
         cos_inner = np.full(nl, -1.0)
-        ext = _ExtendedLights(nl)
+        ext = ExtendedLights(nl)
         for j, li in enumerate(lights):
             if li is None:
                 continue

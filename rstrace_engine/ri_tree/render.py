@@ -48,12 +48,13 @@ from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
-from ..tracing.whitted import Spawned, shade, shadow_rays, soft_direct, surfaces
+from ..tracing.whitted import shade, shadow_rays, soft_direct, surfaces
 from . import thickness as thick
 from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
+from .ray_tree import next_rays, primary_class
 from .surfaces import interp_surface
 from .thickness import render_thickness_exact  # noqa: F401 - re-exported (session, bench)
 from .tree_cache import RITreeCache
@@ -449,10 +450,10 @@ class RITreeRenderer:
         Level by level, the base tracer's stages (:func:`~..tracing.whitted.surfaces`,
         :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade`) on the
         hits found through the trees (:meth:`_intersect`); every ray carries its own depth
-        (an exit ray skips the levels inside its object: :func:`_next_rays`). Lights with an
-        extent and the world are sampled as the base tracer samples them (``seeds`` (n,)
-        uint64 of the camera rays, :func:`~..tracing.soft_lights.sample_seeds`, and each
-        node's path)."""
+        (an exit ray skips the levels inside its object: :func:`.ray_tree.next_rays`).
+        Lights with an extent and the world are sampled as the base tracer samples them
+        (``seeds`` (n,) uint64 of the camera rays,
+        :func:`~..tracing.soft_lights.sample_seeds`, and each node's path)."""
         view = False
         n = len(o)
         L = len(sa.light_kind)
@@ -475,7 +476,7 @@ class RITreeRenderer:
             interp = np.flatnonzero(H["interp"] >= 0)
             if first:
                 prim_inst[:] = H["inst"]
-                pclass[:] = _primary_class(H, interp)
+                pclass[:] = primary_class(H, interp)
                 counters["interpolated"] = counters.get("interpolated", 0) + len(interp)
                 first = False
             q = H["q"]
@@ -513,7 +514,7 @@ class RITreeRenderer:
             contrib, kids = shade(sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]),
                                   surf, vis, weight, True, soft)
             scatter_add(radiance, src, contrib)
-            o, d, weight, src, level, self_inst, path = _next_rays(
+            o, d, weight, src, level, self_inst, path = next_rays(
                 sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path)
             t0 = np.zeros(len(o))
             t1 = np.full(len(o), np.inf)
@@ -662,74 +663,3 @@ class RITreeRenderer:
             hit_any[pos] = 0
         counters["rays"] = counters.get("rays", 0) + n
         return length, cls, hit_any
-
-
-def _primary_class(H: dict, interp: np.ndarray) -> np.ndarray:
-    """Pixel classes of a tile's primary rays from their hits ``H`` (:meth:`_intersect`)
-    and the rows ``interp`` that were interpolated."""
-    st = H["status"]
-    hit = H["inst"] >= 0
-    cls = np.where(hit, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
-    cls[(st == ST_FAIL_CLASS) & hit] = CLASS_FAIL_SILHOUETTE
-    cls[(st == ST_FAIL_ANGLE) & hit] = CLASS_FAIL_NONLINEAR
-    cls[interp] = CLASS_INTERPOLATED
-    return cls
-
-
-def _next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, path):
-    """The next level's rays from a level's spawned rays ``kids``.
-
-    Rays past ``max_depth`` are dropped (``level`` (nb,): each ray's depth). Rays leaving an
-    interpolated hit (rows ``interp``, query rows ``qi`` of ``q``, on instances ``inst``)
-    ignore their own object near the hit; at an interpolated glass hit the refracted ray
-    becomes the interpolated exit ray, ``nint`` levels further down, and the internal
-    reflection where the path refracts out is traced from there. ``path`` (nb,) int64: the
-    rays' ray-tree paths (root 1, reflect child 2p, refract child 2p + 1; the internal
-    reflection at an exit 4p + 2), which seed the soft lights' samples. Returns ``(o, d,
-    weight, src, level, self_inst, path)``."""
-    c_o, c_d, c_w, c_ok = kids
-    stop = level >= max_depth
-    c_ok[0::2] &= ~stop
-    c_ok[1::2] &= ~stop
-    child_level = np.repeat(level + 1, 2)
-    child_self = np.full(len(c_ok), -1, np.int32)
-    if len(interp):
-        child_self[2 * interp] = inst[interp]
-        # glass: the refracted ray becomes the interpolated exit ray
-        ni = q.nint[qi].astype(np.int64)
-        glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
-        tr = 2 * interp + 1
-        has_tr = np.flatnonzero(c_ok[tr] & _is_transmissive(sa, q.mat[qi]))
-        keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
-        drop = np.setdiff1d(has_tr, keep)
-        c_ok[tr[drop]] = False
-        kt = tr[keep]
-        qk = qi[keep]
-        w_in = c_w[kt].copy()  # the weight of the path past the entry
-        c_o[kt] = q.OP[qk]
-        c_d[kt] = q.OD[qk]
-        c_w[kt] *= q.gain[qk]
-        child_level[kt] = level[interp[keep]] + ni[keep] + 1
-        child_self[kt] = inst[interp[keep]]
-        c_ok[kt] &= (c_w[kt].max(axis=1) > tol.PATH_WEIGHT_MIN)
-        # the internal reflection where the path refracts out: traced from there (from
-        # inside, so the object itself is traced), as the base tracer splits
-        rw = w_in * q.rgain[qk]
-        rsel = np.flatnonzero(rw.max(axis=1) > tol.PATH_WEIGHT_MIN)
-        x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
-        x_src = interp[keep[rsel]]
-        x_level = level[x_src] + ni[keep[rsel]] + 1
-    else:
-        x_o = x_d = x_w = np.empty((0, 3))
-        x_src = x_level = np.empty(0, np.int64)
-    slots = np.flatnonzero(c_ok)
-    which = slots // 2
-    return (np.concatenate([c_o[slots], x_o]), np.concatenate([c_d[slots], x_d]),
-            np.concatenate([c_w[slots], x_w]), np.concatenate([src[which], src[x_src]]),
-            np.concatenate([child_level[slots], x_level]),
-            np.concatenate([child_self[slots], np.full(len(x_src), -1, np.int32)]),
-            np.concatenate([path[which] * 2 + (slots & 1), path[x_src] * 4 + 2]))
-
-
-def _is_transmissive(sa, mats) -> np.ndarray:
-    return (sa.mat_transmission[np.maximum(mats, 0)] > 0).any(axis=1) & (mats >= 0)

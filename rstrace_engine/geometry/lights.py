@@ -1,0 +1,172 @@
+"""Lights of the scene model: validation (:func:`checked_light`) and the packing of lights
+with an extent into the scene's arrays (:class:`ExtendedLights`), as Cycles defines them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import tolerances as tol
+from .elements import AREA_SHAPES, LIGHT_KINDS, MAX_LIGHT_POWER, Light, SceneError, _colour
+
+
+def _light_number(name: str, label: str, value, lo: float, hi: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise SceneError(f"light '{name}': {label} {value!r} is not a number") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise SceneError(f"light '{name}': {label} {v} outside [{lo:g}, {hi:g}]")
+    return v
+
+
+def _area_size(name: str, shape: str, size) -> tuple:
+    """The full extents of an area light (a square or disk has one)."""
+    try:
+        sz = np.asarray(size, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise SceneError(f"light '{name}': size {size!r} is not numbers") from None
+    if sz.size == 1 or shape in ("SQUARE", "DISK"):
+        sz = np.array([sz[0], sz[0]])
+    if sz.size != 2:
+        raise SceneError(f"light '{name}': size needs 1 or 2 values, got {sz.size}")
+    if not np.all(np.isfinite(sz)):
+        raise SceneError(f"light '{name}': size {sz.tolist()} has NaN or infinite values")
+    if np.any(sz <= 0.0) or np.any(sz > tol.COORD_MAX):
+        what = "an axis of the ellipse" if shape == "ELLIPSE" else "a side"
+        raise SceneError(f"light '{name}': size {sz.tolist()}: {what} is zero, negative or "
+                         f"too large (a zero-size area light is a point)")
+    return (float(sz[0]), float(sz[1]))
+
+
+
+
+def _area_axis(name: str, axis, direction: np.ndarray) -> tuple:
+    """The emitter's unit +X, made exactly orthogonal to ``direction``."""
+    a = np.asarray(axis, dtype=np.float64).reshape(-1)
+    ln = float(np.linalg.norm(a)) if a.size == 3 and np.all(np.isfinite(a)) else 0.0
+    if ln == 0.0:
+        raise SceneError(f"light '{name}': axis is zero, NaN, infinite or not 3 values")
+    if abs(ln - 1.0) > tol.UNIT_SLACK:
+        a = a / ln
+    c = float(a @ direction)
+    if abs(c) > tol.AREA_AXIS_COS_MAX:
+        raise SceneError(f"light '{name}': axis is not orthogonal to the direction "
+                         f"(cosine {c:.3g})")
+    if abs(c) <= tol.UNIT_SLACK and abs(float(np.linalg.norm(a)) - 1.0) <= tol.UNIT_SLACK:
+        return tuple(a)  # already a unit axis orthogonal to the direction: kept as given
+    a = a - c * direction
+    return tuple(a / np.linalg.norm(a))
+
+
+class ExtendedLights:
+    """The packing of lights with an extent, as Cycles defines them (the radiance a
+    sampled direction carries):
+
+    * sphere (POINT, SPOT with a radius r): ``c P / (4 pi^2 r^2)`` over the sphere seen
+      from the point; with soft falloff over the cap of sine ``r / sqrt(r^2 + d^2)``
+      instead (the far field then equals the point light's ``P / (4 pi (d^2 + r^2))``);
+    * SUN with angular diameter a: ``c S / (pi sin^2(a / 2))`` over its cone (a surface
+      facing it gets irradiance ``c S``);
+    * AREA: ``c P / (pi A)`` on its emitting side (A its area: a Lambertian emitter of
+      exitance P / A), times the spread attenuation ``max(0, (tan(s/2) - tan(theta)) /
+      (tan(s/2) - s/2))`` when the spread s is below pi (Cycles' soft-box model, which
+      keeps the power; ``3 / (s/2)^3`` for the normaliser when s/2 <= 0.05, as Cycles).
+
+    (Checked against Cycles 4.2-5.0 renders: docs/cycles-lights.md, sections 1-5.)
+    """
+
+    def __init__(self, nl: int) -> None:
+        self.a = dict(
+            light_ext=np.zeros(nl, np.bool_), light_radiance=np.zeros((nl, 3)),
+            light_radius=np.zeros(nl), light_soft=np.zeros(nl, np.bool_),
+            light_half=np.zeros(nl), light_u=np.zeros((nl, 3)),
+            light_v=np.zeros((nl, 3)), light_size=np.zeros((nl, 2)),
+            light_ellipse=np.zeros(nl, np.bool_), light_spread=np.zeros((nl, 2)),
+            light_bound=np.zeros(nl))
+        self.a["light_spread"][:, 0] = np.inf
+
+    def pack(self, j: int, li: Light) -> None:
+        a = self.a
+        c = np.asarray(li.color, np.float64)
+        if not li.extended:
+            return
+        a["light_ext"][j] = True
+        if li.kind == "SUN":
+            half = 0.5 * li.angle
+            a["light_half"][j] = half
+            a["light_radiance"][j] = c * li.power / (math.pi * math.sin(half) ** 2)
+        elif li.kind == "AREA":
+            su, sv = li.size
+            u = np.asarray(li.axis, np.float64)
+            v = np.cross(-np.asarray(li.direction, np.float64), u)
+            ellipse = li.shape in ("DISK", "ELLIPSE")
+            area = su * sv * (math.pi / 4.0 if ellipse else 1.0)
+            a["light_u"][j] = u
+            a["light_v"][j] = v / np.linalg.norm(v)
+            a["light_size"][j] = (su, sv)
+            a["light_ellipse"][j] = ellipse
+            a["light_radiance"][j] = c * li.power / (math.pi * area)
+            a["light_bound"][j] = 0.5 * math.hypot(su, sv)
+            if li.spread < math.pi:
+                half = 0.5 * max(li.spread, tol.AREA_SPREAD_MIN)
+                norm = 3.0 / half ** 3 if half <= 0.05 else 1.0 / (math.tan(half) - half)
+                a["light_spread"][j] = (math.tan(half), norm)
+        else:
+            r = li.radius
+            a["light_radius"][j] = r
+            a["light_soft"][j] = bool(li.soft_falloff)
+            a["light_radiance"][j] = c * li.power / (4.0 * math.pi ** 2 * r * r)
+            a["light_bound"][j] = r
+
+    def arrays(self) -> dict:
+        return self.a
+
+
+def checked_light(light: Light) -> Light:
+    """``light`` validated (errors name the light and setting) and normalised: a unit
+    direction and area axis, extents below ``LIGHT_EXTENT_MIN`` made a point."""
+    n = light.name
+    if light.kind not in LIGHT_KINDS:
+        raise SceneError(f"light '{n}': unknown kind {light.kind!r} "
+                         f"(expected one of {sorted(LIGHT_KINDS)})")
+    col = _colour(n, f"light '{n}' colour", light.color, hi=None)
+    try:
+        p = float(light.power)
+    except (TypeError, ValueError):
+        raise SceneError(f"light '{n}': power {light.power!r} is not a number") from None
+    if not (math.isfinite(p) and 0.0 <= p <= MAX_LIGHT_POWER):
+        raise SceneError(f"light '{n}': power {p} outside [0, {MAX_LIGHT_POWER:g}]")
+    pos = _colour(n, f"light '{n}' position", light.position, lo=-tol.COORD_MAX,
+                  hi=tol.COORD_MAX)
+    d = np.asarray(light.direction, dtype=np.float64).reshape(3)
+    ln = float(np.linalg.norm(d)) if np.all(np.isfinite(d)) else 0.0
+    if ln == 0.0:
+        raise SceneError(f"light '{n}': direction is zero, NaN or infinite")
+    size = float(light.spot_size)
+    blend = float(light.spot_blend)
+    if light.kind == "SPOT" and not (0.0 < size <= math.pi and 0.0 <= blend <= 1.0):
+        raise SceneError(f"light '{n}': spot size {size} / blend {blend} out of range")
+    if abs(ln - 1.0) > tol.UNIT_SLACK:  # (idempotent: a light given back is unchanged)
+        d = d / ln
+    radius = _light_number(n, "radius", light.radius, 0.0, tol.COORD_MAX)
+    angle = _light_number(n, "angle", light.angle, 0.0, math.pi)
+    # below these a sphere or a sun's cone is a point or a direction to float64 (its
+    # radiance over its size would overflow): the light is one
+    radius = 0.0 if radius < tol.LIGHT_EXTENT_MIN else radius
+    angle = 0.0 if angle < tol.LIGHT_EXTENT_MIN else angle
+    spread = _light_number(n, "spread", light.spread, 0.0, math.pi)
+    shape = light.shape
+    axis, ext = (1.0, 0.0, 0.0), (1.0, 1.0)
+    if light.kind == "AREA":
+        if shape not in AREA_SHAPES:
+            raise SceneError(f"light '{n}': unknown area shape {shape!r} (expected one "
+                             f"of {list(AREA_SHAPES)})")
+        ext = _area_size(n, shape, light.size)
+        axis = _area_axis(n, light.axis, d)
+        if spread <= 0.0:
+            raise SceneError(f"light '{n}': spread 0 (a collimated beam) is not "
+                             f"modelled")
+    return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d), size, blend,
+                 radius, bool(light.soft_falloff), angle, shape, axis, ext, spread)

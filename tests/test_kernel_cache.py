@@ -504,7 +504,7 @@ def test_numba_internals_we_rely_on(tmp_path):
     assert len(magic) == 3 and magic[1] == kernel_cache.cpu_name()
     from rstrace_engine.accel import bvh
 
-    d = bvh.build_flat
+    d = bvh.trace_kernel
     assert isinstance(d._cache._cache_file, caching.IndexDataCacheFile)
     assert isinstance(d._cache._impl.locator, kernel_cache.ContentKeyedLocator)
     assert d._cache._cache_file._source_stamp[0] == kernel_cache.STAMP_TAG

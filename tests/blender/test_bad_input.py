@@ -231,8 +231,14 @@ def test_ctrl_c_during_a_render_is_a_cancel(media, tmp_path, monkeypatch):
         return real(self, fraction, message)
 
     monkeypatch.setattr(addon.session.FrameRenderer, "_progress", interrupted)
-    with pytest.raises(RuntimeError, match="interrupted"):
-        bpy.ops.render.render(write_still=True)
+    # Python's own SIGINT handler, as in a terminal (a shell starting the tests in the
+    # background without job control ignores SIGINT: the signal would be lost)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(RuntimeError, match="interrupted"):
+            bpy.ops.render.render(write_still=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert not path.exists()
     assert "interrupted" in (_state().error or "")
     monkeypatch.setattr(addon.session.FrameRenderer, "_progress", real)

@@ -47,7 +47,7 @@ from rstrace_engine.geometry.scene import (
 from . import journal
 from .cameras import camera_from_object
 from .lights import read_light, world_colour, world_lights
-from .materials import DEFAULT_MATERIAL, MaterialReader, Notes
+from .materials import MaterialReader, Notes, default_material
 from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
 from .snapshot import (
     DEFAULT_MATERIAL_KEY,
@@ -193,6 +193,9 @@ class _Reader:
         self.meshes_read = 0
         self.materials_read = 0
         self.t_mesh = 0.0
+        # the view layer's material override: every slot of every mesh uses it (Cycles)
+        layer = getattr(depsgraph, "view_layer", None)
+        self.override = getattr(layer, "material_override", None)
 
     def material_key(self, mat) -> Hashable:
         if mat is None:
@@ -210,8 +213,9 @@ class _Reader:
                 material = reader.read(mat).validated()
             except SceneError as exc:  # conversion produced something invalid: say so
                 notes.warn(f"material unusable, rendered with the default ({exc})", mat.name)
-                material = DEFAULT_MATERIAL.validated()
-            entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images))
+                material = default_material(self.cache.model).validated()
+            entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images),
+                                  frozenset(reader.uv_maps))
             self.cache.materials[key] = entry
             self.materials_read += 1
         self.notes.replay(entry.notes)
@@ -313,6 +317,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cache.set_model(model)
     r = _Reader(cache, dirty, source, depsgraph, cancel, progress)
     notes = r.notes
+    cache.override = None if r.override is None else r.material_key(r.override)
     camera = None
     if with_camera:
         cam = camera_object if camera_object is not None else bscene.camera
@@ -405,16 +410,32 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
             notes.skip(message)
         return None
     slots = ob.material_slots
-    mats = [r.material_key(s.material) for s in slots] if len(slots) else \
-        [r.material_key(m) for m in me.materials]
     nslots = max(len(me.materials), 1)
+    if r.override is not None:
+        mats = [r.material_key(r.override)] * max(nslots, len(slots))
+    else:
+        mats = [r.material_key(s.material) for s in slots] if len(slots) else \
+            [r.material_key(m) for m in me.materials]
     mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
     _check_visibility(ob, name, notes)
     if any(max(cache.material(k).emission) > 0.0 for k in mats):
         notes.warn(NOT_MODELLED_EMISSION, name)
     if len(me.uv_layers) == 0 and any(cache.material(k).texture is not None for k in mats):
         notes.warn("textured objects without a UV map sample their texture at (0, 0)", name)
+    _check_uv_maps(me, name, [cache.materials[k] for k in mats], notes)
     return ObjectRecord(name, mesh_key, matrix, tuple(mats))
+
+
+def _check_uv_maps(me, name: str, entries: list, notes: Notes) -> None:
+    """Report UV Map nodes naming a map other than the mesh's render UV map (the one
+    exported): the texture would be sampled with the wrong coordinates."""
+    active = next((u.name for u in me.uv_layers if u.active_render), None)
+    for entry in entries:
+        for uv in sorted(entry.uv_maps):
+            if uv != active:
+                notes.warn(f"UV Map nodes naming a UV map other than the render UV map "
+                           f"are not supported (material '{entry.material.name}' names "
+                           f"'{uv}'): the render UV map is used", name)
 
 
 class _Own:
@@ -441,6 +462,8 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
     """
     t0 = time.perf_counter()
     r = _Reader(cache, dirty, source, depsgraph)
+    if (None if r.override is None else r.override.original.session_uid) != cache.override:
+        return None  # the material override changed: every object's materials did
     objects, lights = dict(objects), dict(lights)
     changed = set()
     for mat in dirty.material_ids.values():
@@ -491,14 +514,11 @@ def _check_visibility(ob, name: str, notes: Notes) -> None:
 
 
 def _check_view_layer(depsgraph, notes: Notes) -> None:
-    """What the view layer asks for that is not modelled: a material override, collections
-    set to holdout or indirect only (reported by collection name)."""
+    """What the view layer asks for that is not modelled: collections set to holdout or
+    indirect only (reported by collection name)."""
     layer = getattr(depsgraph, "view_layer", None)
     if layer is None:
         return
-    if getattr(layer, "material_override", None) is not None:
-        notes.warn("the view layer's material override is not supported (ignored)",
-                   layer.material_override.name)
 
     def walk(lc):
         for child in lc.children:

@@ -17,12 +17,31 @@ import numpy as np
 
 from rstrace_engine import tolerances as tol
 from rstrace_engine.geometry.principled import principled_material
-from rstrace_engine.geometry.scene import Material, Scene, SceneError
+from rstrace_engine.geometry.scene import (
+    TEX_CLIP,
+    TEX_CLOSEST,
+    TEX_EXTEND,
+    TEX_SRGB,
+    Material,
+    Scene,
+    SceneError,
+)
 
 log = logging.getLogger(__name__)
 
-#: Used for empty material slots and objects without materials (Cycles' default surface).
-DEFAULT_MATERIAL = Material("default", diffuse=(0.8, 0.8, 0.8))
+def default_material(model: str = "PRINCIPLED") -> Material:
+    """Cycles' default surface, for empty material slots and objects without materials: a
+    Principled BSDF with every input at its default (Base Color 0.8 grey, Roughness 0.5,
+    IOR 1.5, Specular IOR Level 0.5: ``ShaderManager::add_default``), in the render's
+    shading ``model``."""
+    material, _ = principled_material("default", (0.8, 0.8, 0.8), metallic=0.0,
+                                      roughness=0.5, ior=1.5, specular_level=0.5,
+                                      model=model)
+    return material
+
+
+#: The default surface of the default (Principled-like) shading model.
+DEFAULT_MATERIAL = default_material()
 
 
 
@@ -71,12 +90,6 @@ class Notes:
 
 
 
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function inverted (IEC 61966-2-1)."""
-    c = np.clip(c, 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
 def rgb(value) -> np.ndarray:
     return np.clip(np.array(value[:3], dtype=np.float64), 0.0, None)
 
@@ -110,12 +123,13 @@ class MaterialReader:
         self.model = model  # shading model of the Principled conversions
         self.textures = textures  # image session_uid -> (generation, pixels): kept by caller
         self.images: set = set()  # session_uids of the images read (textures cache keys)
+        self.uv_maps: set = set()  # UV maps named by UV Map nodes (checked per mesh)
         self._ids: dict[int, int] = {}
         self._default_id: int | None = None
 
     def default_id(self) -> int:
         if self._default_id is None:
-            self._default_id = self.scene.add_material(DEFAULT_MATERIAL)
+            self._default_id = self.scene.add_material(default_material(self.model))
         return self._default_id
 
     def material_id(self, mat) -> int:
@@ -169,19 +183,21 @@ class MaterialReader:
         if kind == "ShaderNodeBsdfDiffuse":
             colour, tex = self._colour(name, node.inputs["Color"])
             self._diffuse_roughness(name, node.inputs.get("Roughness"))
-            return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=tex)
+            pixels, flags = tex if tex is not None else (None, 0)
+            return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=pixels,
+                            texture_flags=flags)
         if kind == "ShaderNodeEmission":
-            colour, _ = self._colour(name, node.inputs["Color"])
+            colour, _ = self._colour(name, node.inputs["Color"], "Emission Color")
             strength = self._value(name, node.inputs["Strength"])
             return Material(name, diffuse=(0.0,) * 3, emission=tuple(colour * strength))
         if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
                     "ShaderNodeBsdfMetallic"):
             sock = node.inputs.get("Color") or node.inputs.get("Base Color")
-            colour, _ = self._colour(name, sock)
+            colour, _ = self._colour(name, sock, f"{node.bl_label} colour")
             rough = self._value(name, node.inputs["Roughness"])
             return self._mix(name, base=colour, metallic=1.0, roughness=rough)
         if kind == "ShaderNodeBsdfGlass":
-            colour, _ = self._colour(name, node.inputs["Color"])
+            colour, _ = self._colour(name, node.inputs["Color"], "Glass BSDF colour")
             rough = self._value(name, node.inputs["Roughness"])
             ior = self._value(name, node.inputs["IOR"])
             # Cycles' Glass BSDF tints every crossing by its Color (no square root)
@@ -210,8 +226,8 @@ class MaterialReader:
         ior = self._value(name, inp["IOR"])
         trans = self._value(name, inp["Transmission Weight"])
         level = self._value(name, inp["Specular IOR Level"])
-        tint, _ = self._colour(name, inp["Specular Tint"])
-        emit, _ = self._colour(name, inp["Emission Color"])
+        tint, _ = self._colour(name, inp["Specular Tint"], "Specular Tint")
+        emit, _ = self._colour(name, inp["Emission Color"], "Emission Color")
         strength = self._value(name, inp["Emission Strength"])
         for label, sock in (("subsurface", "Subsurface Weight"), ("coat", "Coat Weight"),
                             ("sheen", "Sheen Weight"), ("thin film", "Thin Film Thickness"),
@@ -234,15 +250,16 @@ class MaterialReader:
     def _mix(self, name: str, base, metallic: float = 0.0, roughness: float = 0.5,
              ior: float = 1.5, transmission: float = 0.0, specular_level: float = 0.5,
              specular_tint=(1.0, 1.0, 1.0), emission=(0.0, 0.0, 0.0),
-             texture: np.ndarray | None = None, tint_per_crossing: bool = False) -> Material:
+             texture: tuple | None = None, tint_per_crossing: bool = False) -> Material:
         """Principled parameters -> a material of the render's shading model (see
         :func:`rstrace_engine.geometry.principled.principled_material`); what had to be
-        approximated goes to the notes."""
+        approximated goes to the notes. ``texture``: ``(pixels, TEX_* flags)`` or None."""
+        pixels, flags = texture if texture is not None else (None, 0)
         material, messages = principled_material(
             name, base, metallic=metallic, roughness=roughness, ior=ior,
             transmission=transmission, specular_level=specular_level,
-            specular_tint=specular_tint, emission=emission, texture=texture, model=self.model,
-            tint_per_crossing=tint_per_crossing)
+            specular_tint=specular_tint, emission=emission, texture=pixels, model=self.model,
+            tint_per_crossing=tint_per_crossing, texture_flags=flags)
         for message in messages:
             self.notes.warn(message, name)
         return material
@@ -259,14 +276,22 @@ class MaterialReader:
                         name)
         return float(socket.default_value)
 
-    def _colour(self, name: str, socket) -> tuple[np.ndarray, np.ndarray | None]:
-        """(linear RGB, optional (h, w, 3) texture) for a colour socket."""
+    def _colour(self, name: str, socket, untextured: str | None = None
+                ) -> tuple[np.ndarray, tuple | None]:
+        """(linear RGB, optional ``(pixels, TEX_* flags)`` texture) for a colour socket.
+
+        ``untextured``: the input's label where only the Base Color (or a Diffuse BSDF's
+        Color) is textured; an image there is reported and the socket's value used."""
         node, out = follow_link(socket)
         if node is None:
             return rgb(socket.default_value), None
         if node.bl_idname == "ShaderNodeRGB":
             return rgb(out.default_value), None
         if node.bl_idname == "ShaderNodeTexImage" and out.name == "Color":
+            if untextured is not None:
+                self.notes.warn(f"an Image Texture into the {untextured} is not supported "
+                                f"(node '{node.name}'): the socket's own value is used", name)
+                return rgb(socket.default_value), None
             tex = self._image(name, node)
             if tex is not None:
                 return np.ones(3), tex
@@ -275,28 +300,68 @@ class MaterialReader:
                         f"value", name)
         return rgb(socket.default_value), None
 
-    def _image(self, name: str, node) -> np.ndarray | None:
+    def _coordinates(self, name: str, node) -> None:
+        """Check what feeds an Image Texture's Vector: nothing (the render UV map), the UV
+        output of a Texture Coordinate node, or a UV Map node (its map, checked per mesh by
+        the export: ``uv_maps``); anything else is reported naming the nodes."""
+        vec, out = follow_link(node.inputs["Vector"])
+        if vec is None:
+            return
+        if vec.bl_idname == "ShaderNodeTexCoord":
+            if out.name != "UV":
+                self.notes.warn(f"texture coordinates from the Texture Coordinate node's "
+                                f"'{out.name}' output are not supported (Image Texture "
+                                f"'{node.name}'): the render UV map is used", name)
+            elif vec.from_instancer:
+                self.notes.warn(f"texture coordinates from the instancer are not supported "
+                                f"(node '{vec.name}'): the render UV map is used", name)
+            return
+        if vec.bl_idname == "ShaderNodeUVMap":
+            if vec.from_instancer:
+                self.notes.warn(f"texture coordinates from the instancer are not supported "
+                                f"(node '{vec.name}'): the render UV map is used", name)
+            if vec.uv_map:
+                self.uv_maps.add(vec.uv_map)
+            return
+        self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not supported "
+                        f"(node '{vec.name}' into Image Texture '{node.name}'): the render "
+                        f"UV map is used", name)
+
+    def _image(self, name: str, node) -> tuple | None:
+        """``(pixels, TEX_* flags)`` of an Image Texture node, or None (reported)."""
         img = node.image
         if img is None:
             self.notes.warn("image texture nodes without an image are ignored", name)
             return None
-        vec, _ = follow_link(node.inputs["Vector"])
-        if vec is not None and vec.bl_idname not in ("ShaderNodeUVMap", "ShaderNodeTexCoord"):
-            self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not "
-                            f"supported: the render UV map is used", name)
-        if node.projection != "FLAT" or node.extension not in ("REPEAT", "EXTEND", "CLIP"):
-            self.notes.warn("image projections other than flat UV are not supported", name)
+        self._coordinates(name, node)
+        if node.projection != "FLAT":
+            self.notes.warn(f"image projection '{node.projection.title()}' is not supported "
+                            f"(node '{node.name}'): flat is used", name)
+        flags = {"EXTEND": TEX_EXTEND, "CLIP": TEX_CLIP}.get(node.extension, 0)
+        if node.extension not in ("REPEAT", "EXTEND", "CLIP"):
+            self.notes.warn(f"image extension '{node.extension.title()}' is not supported "
+                            f"(node '{node.name}'): Repeat is used", name)
+        if node.interpolation == "Closest":
+            flags |= TEX_CLOSEST
+        elif node.interpolation != "Linear":
+            self.notes.warn(f"image interpolation '{node.interpolation}' is not supported "
+                            f"(node '{node.name}'): Linear is used", name)
         if self.textures is None:
-            return read_image(img, self.notes)
-        key = img.original.session_uid
-        self.images.add(key)
-        gen = _IMAGE_GENERATION.get(key, 0)
-        hit = self.textures.get(key)
-        if hit is not None and hit[0] == gen and hit[2] == _image_signature(img):
-            return hit[1]
-        pixels = read_image(img, self.notes)
-        self.textures[key] = (gen, pixels, _image_signature(img))
-        return pixels
+            read = read_image(img, self.notes)
+        else:
+            key = img.original.session_uid
+            self.images.add(key)
+            gen = _IMAGE_GENERATION.get(key, 0)
+            hit = self.textures.get(key)
+            if hit is not None and hit[0] == gen and hit[2] == _image_signature(img):
+                read = hit[1]
+            else:
+                read = read_image(img, self.notes)
+                self.textures[key] = (gen, read, _image_signature(img))
+        if read is None:
+            return None
+        pixels, srgb = read
+        return pixels, flags | (TEX_SRGB if srgb else 0)
 
 
 #: image session_uid -> generation, bumped by :func:`image_changed` (depsgraph updates).
@@ -313,8 +378,10 @@ def _image_signature(img) -> tuple:
             img.is_dirty, img.source)
 
 
-def read_image(img, notes: Notes) -> np.ndarray | None:
-    """An image's pixels as a (h, w, 3) float32 linear RGB array, bottom row first."""
+def read_image(img, notes: Notes) -> tuple[np.ndarray, bool] | None:
+    """An image's pixels as a (h, w, 3) float32 array, bottom row first, and whether they are
+    sRGB-encoded (a byte image in an sRGB colour space: kept encoded, to be decoded after
+    interpolation as Cycles does, :data:`TEX_SRGB`); else linear RGB. None: not loadable."""
     w, h = img.size
     if w == 0 or h == 0 or not img.has_data and not _try_load(img):
         notes.warn("images that could not be loaded are ignored", img.name)
@@ -326,18 +393,19 @@ def read_image(img, notes: Notes) -> np.ndarray | None:
     px = px.reshape(h, w, ch)
     rgb = np.repeat(px[:, :, :1], 3, axis=2) if ch < 3 else px[:, :, :3]
     space = img.colorspace_settings.name
+    srgb = False
     if not img.is_float:
         if space == "sRGB":
-            rgb = srgb_to_linear(rgb)
+            srgb = True
         elif space not in ("Non-Color", "Linear Rec.709", "Linear", "Raw"):
             notes.warn(f"image colour space '{space}' is read as sRGB", img.name)
-            rgb = srgb_to_linear(rgb)
+            srgb = True
     if not np.all(np.isfinite(rgb)):
         notes.warn("images with NaN or infinite pixels have them replaced by 0", img.name)
         rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)
     if float(rgb.max(initial=0.0)) > 1.0:
         notes.warn("texture values above 1 are clipped (energy conservation)", img.name)
-    return np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32)
+    return np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32), srgb
 
 
 def _try_load(img) -> bool:

@@ -17,7 +17,7 @@ import numpy as np
 
 from rstrace_engine.geometry.scene import Camera, Material, Mesh, Scene, SceneError
 
-from .materials import DEFAULT_MATERIAL, Notes
+from .materials import DEFAULT_MATERIAL, Notes, default_material
 
 DEFAULT_MATERIAL_KEY = "default"
 
@@ -50,6 +50,7 @@ class MaterialEntry:
     material: Material
     notes: list  # (kind, name) warnings its conversion produced, re-reported every export
     images: frozenset = frozenset()  # keys of the textures (ExportCache.textures) it uses
+    uv_maps: frozenset = frozenset()  # UV maps its UV Map nodes name (checked per mesh)
 
 
 @dataclass
@@ -115,11 +116,15 @@ class ExportCache:
         #: not run again on a matrix that did not change: most of a walk's cost per object)
         self.matrices: dict[Hashable, bytes] = {}
         self.model = "PRINCIPLED"  # the shading model the cached materials were converted to
+        #: the material key of the view layer's material override the last walk used (None:
+        #: no override); an update-only export under another one walks everything instead
+        self.override: Hashable | None = None
 
     def set_model(self, model: str) -> None:
         """Another shading model: the cached materials are stale (textures are not)."""
         self.model = model
-        self.materials = {k: v for k, v in self.materials.items() if k == DEFAULT_MATERIAL_KEY}
+        self.materials = {DEFAULT_MATERIAL_KEY: MaterialEntry(
+            default_material(model).validated(), [])}
 
     def mesh(self, key: Hashable) -> Mesh:
         return self.meshes[key].mesh

@@ -8,6 +8,13 @@ import numpy as np
 import pytest
 
 from rstrace_engine import tolerances
+from rstrace_engine.geometry.elements import (
+    TEX_CLIP,
+    TEX_CLOSEST,
+    TEX_EXTEND,
+    TEX_SRGB,
+    srgb_decode,
+)
 from rstrace_engine.tracing import shading
 
 RNG = np.random.default_rng(7)
@@ -188,10 +195,10 @@ def test_spot_falloff_smoothstep():
 # ----------------------------------------------------------------------------- textures, normals
 
 
-def _texture(w=4, h=3):
+def _texture(w=4, h=3, flags=0):
     img = RNG.random((h, w, 3)).astype(np.float32)
     data = img.reshape(-1, 3)
-    return img, data, np.array([0, w * h], np.int64), np.array([[w, h]], np.int32)
+    return img, data, np.array([0, w * h], np.int64), np.array([[w, h, flags]], np.int32)
 
 
 def test_texture_bilinear_and_repeat():
@@ -214,6 +221,46 @@ def test_texture_bilinear_and_repeat():
     # the seam wraps: u = 0 is half-way between the last and first column
     got = shading.texture_lookup(data, start, size, 0, 0.0, 0.5 / h)
     assert got == pytest.approx(tuple(0.5 * (img[0, 0] + img[0, w - 1])), abs=1e-7)
+
+
+def test_texture_closest_takes_the_texel_holding_the_point():
+    img, data, start, size = _texture(flags=TEX_CLOSEST)
+    h, w = img.shape[:2]
+    for u, v in ((0.01, 0.01), (0.49, 0.7), (0.99, 0.34), (0.251, 0.999)):
+        got = shading.texture_lookup(data, start, size, 0, u, v)
+        assert got == pytest.approx(tuple(img[int(v * h), int(u * w)]), abs=1e-7)
+    # repeats: u = -0.01 is in the last column
+    got = shading.texture_lookup(data, start, size, 0, -0.01, 0.5)
+    assert got == pytest.approx(tuple(img[1, w - 1]), abs=1e-7)
+
+
+def test_texture_extend_and_clip():
+    img, data, start, size = _texture(flags=TEX_EXTEND)
+    h, w = img.shape[:2]
+    # extend: beyond the border the edge texel, and the seam does not wrap
+    assert shading.texture_lookup(data, start, size, 0, 3.0, 0.5 / h) == pytest.approx(
+        tuple(img[0, w - 1]), abs=1e-7)
+    assert shading.texture_lookup(data, start, size, 0, 0.0, 0.5 / h) == pytest.approx(
+        tuple(img[0, 0]), abs=1e-7)
+    size[0, 2] = TEX_CLIP
+    assert shading.texture_lookup(data, start, size, 0, 1.5, 0.5) == (0.0, 0.0, 0.0)
+    assert shading.texture_lookup(data, start, size, 0, 0.5, -0.2) == (0.0, 0.0, 0.0)
+    # clip: the border texel blends toward black half a texel out
+    got = shading.texture_lookup(data, start, size, 0, 0.0, 0.5 / h)
+    assert got == pytest.approx(tuple(0.5 * img[0, 0]), abs=1e-7)
+    size[0, 2] = TEX_CLIP | TEX_CLOSEST
+    assert shading.texture_lookup(data, start, size, 0, 1.01, 0.5) == (0.0, 0.0, 0.0)
+
+
+def test_texture_srgb_interpolates_before_decoding():
+    """Cycles interpolates a byte sRGB image's encoded values, then decodes: half-way
+    between a black and a white texel is decode(0.5) = 0.214, not 0.5."""
+    data = np.array([[0.0] * 3, [1.0] * 3], np.float32)
+    start = np.array([0, 2], np.int64)
+    size = np.array([[2, 1, TEX_SRGB]], np.int32)
+    got = shading.texture_lookup(data, start, size, 0, 0.5, 0.5)
+    assert got[0] == pytest.approx(float(srgb_decode(0.5)), abs=1e-9)
+    assert shading.texture_lookup(data, start, size, 0, 0.75, 0.5)[0] == pytest.approx(1.0)
 
 
 def test_surface_uv_interpolates_corners():

@@ -86,6 +86,24 @@ def check_matrix(name: str, matrix) -> np.ndarray:
 
 #: Shading models of :class:`Material` (their codes in ``SceneArrays.mat_model``).
 MODEL_WARD, MODEL_PRINCIPLED = 0, 1
+
+#: :attr:`Material.texture_flags` bits, how a texture is sampled (Cycles' Image Texture):
+#: nearest texel instead of bilinear (Interpolation *Closest*); texels stored sRGB-encoded
+#: and decoded after interpolation (a byte sRGB image, as Cycles interpolates its bytes);
+#: extension *Extend* (edge texels repeat) or *Clip* (black outside [0, 1]); neither: *Repeat*.
+TEX_CLOSEST, TEX_SRGB, TEX_EXTEND, TEX_CLIP = 1, 2, 4, 8
+TEX_FLAGS_ALL = TEX_CLOSEST | TEX_SRGB | TEX_EXTEND | TEX_CLIP
+
+
+def srgb_decode(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function inverted (IEC 61966-2-1): encoded [0, 1] -> linear."""
+    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def texture_linear(texture: np.ndarray, flags: int) -> np.ndarray:
+    """A texture's texels as linear RGB (decoded where ``flags`` has :data:`TEX_SRGB`)."""
+    return srgb_decode(texture) if flags & TEX_SRGB else np.asarray(texture, np.float64)
 SHADING_MODELS = {"WARD": MODEL_WARD, "PRINCIPLED": MODEL_PRINCIPLED}
 
 
@@ -108,7 +126,8 @@ class Material:
 
     Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
     splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
-    optional ``(h, w, 3)`` linear RGB image that multiplies ``diffuse`` through the mesh uvs.
+    optional ``(h, w, 3)`` RGB image that multiplies ``diffuse`` through the mesh uvs, linear
+    unless ``texture_flags`` (``TEX_*`` bits: interpolation, extension, encoding) says sRGB.
     """
 
     name: str = "material"
@@ -124,6 +143,7 @@ class Material:
     metallic: float = 0.0
     metal: tuple = (0.0, 0.0, 0.0)
     specular_ior: float = 1.5
+    texture_flags: int = 0
 
     def validated(self) -> Material:
         n = self.name
@@ -162,8 +182,12 @@ class Material:
             if tex.ndim != 3 or tex.shape[2] < 3 or tex.shape[0] < 1 or tex.shape[1] < 1:
                 raise SceneError(f"material '{n}': texture must be (h, w, 3), got {tex.shape}")
             tex = np.ascontiguousarray(tex[:, :, :3])
+        flags = int(self.texture_flags)
+        if flags & ~TEX_FLAGS_ALL or (flags & TEX_EXTEND and flags & TEX_CLIP):
+            raise SceneError(f"material '{n}': texture flags {flags} are not a valid "
+                             f"combination of TEX_* bits")
         return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
-                        self.model, mw, tuple(mc), sior)
+                        self.model, mw, tuple(mc), sior, flags)
 
 
 @dataclass

@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from .elements import texture_linear
 from .scene import Material, SceneError
 
 #: Roughness below which reflection is a Whitted mirror, above which a glossy lobe; linear
@@ -81,8 +82,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                         ior: float = 1.5, transmission: float = 0.0,
                         specular_level: float = 0.5, specular_tint=(1.0, 1.0, 1.0),
                         emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
-                        model: str = "PRINCIPLED",
-                        tint_per_crossing: bool = False) -> tuple[Material, list[str]]:
+                        model: str = "PRINCIPLED", tint_per_crossing: bool = False,
+                        texture_flags: int = 0) -> tuple[Material, list[str]]:
     """A material from Principled BSDF inputs, and messages about what was approximated.
 
     The transmitted light is tinted per interface crossing by ``sqrt(base)``, as Cycles'
@@ -93,7 +94,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
 
     Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
     ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
-    colour is needed: metals, transmission).
+    colour is needed: metals, transmission); ``texture_flags``: how it is sampled
+    (:attr:`~.elements.Material.texture_flags`).
     """
     notes: list[str] = []
     raw = _rgb(name, "Base Color", base)
@@ -115,7 +117,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                      f"{clamped:g}")
         ior = clamped
     if texture is not None:
-        tex_mean = np.clip(texture.reshape(-1, 3).mean(axis=0), 0.0, 1.0)
+        tex_mean = np.clip(texture_linear(texture, texture_flags).reshape(-1, 3).mean(axis=0),
+                           0.0, 1.0)
         if metallic > 0.0:
             notes.append("a textured metallic colour is approximated by the texture's average")
         metal_colour, base_factor = tex_mean, np.ones(3)
@@ -149,7 +152,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
             name, diffuse=tuple(layer * base_factor), specular=tuple(np.clip(spec, 0, 1)),
             roughness=alpha, mirror=(sharp,) * 3, transmission=tuple(refract), ior=ior,
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
-            metal=tuple(metal_colour), specular_ior=spec_ior), notes
+            metal=tuple(metal_colour), specular_ior=spec_ior,
+            texture_flags=texture_flags), notes
     if model != "WARD":
         raise SceneError(f"material '{name}': unknown shading model {model!r}")
     f0c = np.clip(f0 * tint, 0.0, 1.0)
@@ -161,4 +165,4 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         name, diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
         roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
         transmission=tuple(refract * scale), ior=ior, emission=emission_t, texture=texture,
-        model="WARD"), notes
+        model="WARD", texture_flags=texture_flags), notes

@@ -42,6 +42,10 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     MODEL_PRINCIPLED,
     MODEL_WARD,
     SHADING_MODELS,
+    TEX_CLIP,
+    TEX_CLOSEST,
+    TEX_EXTEND,
+    TEX_SRGB,
     Camera,
     Light,
     Material,
@@ -97,7 +101,7 @@ class SceneArrays(NamedTuple):
     mat_specular_ior: np.ndarray  # (NM,) float64
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
-    tex_size: np.ndarray  # (NT, 2) int32 (width, height)
+    tex_size: np.ndarray  # (NT, 3) int32 (width, height, TEX_* flags)
     light_kind: np.ndarray  # (L,) int32, LIGHT_NONE for a deleted light's slot
     light_pos: np.ndarray  # (L, 3) float64
     light_dir: np.ndarray  # (L, 3) float64 unit, the way the light points
@@ -571,12 +575,14 @@ class Scene:
         inst_mats = [[0] if i is None else i["materials"] for i in self.instances]
         mat_start = np.cumsum([0] + [len(m) for m in inst_mats])
         mats = [_DEAD_MATERIAL if m is None else m for m in self.materials]
-        tex_list = [m.texture for m in mats if m.texture is not None]
+        tex_mats = [m for m in mats if m.texture is not None]
+        tex_list = [m.texture for m in tex_mats]
         tex_ids, k = [], 0
         for m in mats:
             tex_ids.append(k if m.texture is not None else -1)
             k += m.texture is not None
-        tex_size = np.array([[t.shape[1], t.shape[0]] for t in tex_list], np.int32).reshape(-1, 2)
+        tex_size = np.array([[m.texture.shape[1], m.texture.shape[0], m.texture_flags]
+                             for m in tex_mats], np.int32).reshape(-1, 3)
         tex_start = np.cumsum([0] + [t.shape[0] * t.shape[1] for t in tex_list]).astype(np.int64)
         tex_data = (np.concatenate([t.reshape(-1, 3) for t in tex_list]).astype(np.float32)
                     if tex_list else np.zeros((1, 3), np.float32))

@@ -30,6 +30,7 @@ import math
 from numba import njit
 
 from .. import tolerances as tol
+from ..geometry.elements import TEX_CLIP, TEX_CLOSEST, TEX_EXTEND, TEX_SRGB
 
 INV_PI = 1.0 / math.pi
 
@@ -349,45 +350,78 @@ def surface_uv(tri_uvs, tri, b1, b2):
 
 
 @njit(cache=True, nogil=True)
+def _texel_index(x, n, flags):
+    """Texel index along an axis of ``n`` texels for the float index ``x`` (floored), by
+    the texture's extension: Repeat wraps, Extend clamps, Clip gives -1 outside."""
+    if flags & TEX_CLIP:
+        if x < 0.0 or x >= n:
+            return -1
+        return int(x)
+    if flags & TEX_EXTEND:
+        return int(min(max(x, 0.0), n - 1.0))
+    i = int(x - n * math.floor(x / n))  # wrapped in float: no overflow for huge x
+    return min(max(i, 0), n - 1)
+
+
+@njit(cache=True, nogil=True)
+def _srgb_decode(c):
+    """One sRGB-encoded value in [0, 1] -> linear (IEC 61966-2-1)."""
+    c = min(max(c, 0.0), 1.0)
+    if c <= 0.04045:
+        return c / 12.92
+    return ((c + 0.055) / 1.055) ** 2.4
+
+
+@njit(cache=True, nogil=True)
 def texture_lookup(tex_data, tex_start, tex_size, tex, u, v):
-    """Bilinear, repeating lookup of texture ``tex`` at ``(u, v)``; returns ``(r, g, b)``.
+    """Lookup of texture ``tex`` at ``(u, v)`` as Cycles' Image Texture does; ``(r, g, b)``.
 
     tex_data : (X, 3) float32 texels, textures concatenated row-major, row 0 at ``v = 0``
-    (bottom, as Blender stores images); tex_start : (NT + 1,) int64; tex_size : (NT, 2)
-    int32 (width, height). Texel centres sit at ``((i + 0.5) / w, (j + 0.5) / h)``.
+    (bottom, as Blender stores images); tex_start : (NT + 1,) int64; tex_size : (NT, 3)
+    int32 (width, height, ``TEX_*`` flags of :mod:`~rstrace_engine.geometry.elements`).
+    Texel centres sit at ``((i + 0.5) / w, (j + 0.5) / h)``. Bilinear, or the texel holding
+    ``(u, v)`` (``TEX_CLOSEST``); repeating, clamped (``TEX_EXTEND``) or black outside the
+    unit square (``TEX_CLIP``, bilinear blends the border toward black); sRGB-encoded texels
+    (``TEX_SRGB``) are decoded after interpolation, as Cycles does for byte images.
     """
     w = tex_size[tex, 0]
     h = tex_size[tex, 1]
+    flags = tex_size[tex, 2]
     base = tex_start[tex]
     if not (math.isfinite(u) and math.isfinite(v)):
         u = 0.0
         v = 0.0
-    x = u * w - 0.5
-    y = v * h - 0.5
-    fx0 = math.floor(x)
-    fy0 = math.floor(y)
-    fx = x - fx0
-    fy = y - fy0
-    x0 = int(fx0 - w * math.floor(fx0 / w))
-    y0 = int(fy0 - h * math.floor(fy0 / h))
-    x0 = min(max(x0, 0), w - 1)
-    y0 = min(max(y0, 0), h - 1)
-    x1 = x0 + 1 if x0 + 1 < w else 0
-    y1 = y0 + 1 if y0 + 1 < h else 0
-    i00 = base + y0 * w + x0
-    i10 = base + y0 * w + x1
-    i01 = base + y1 * w + x0
-    i11 = base + y1 * w + x1
-    w00 = (1.0 - fx) * (1.0 - fy)
-    w10 = fx * (1.0 - fy)
-    w01 = (1.0 - fx) * fy
-    w11 = fx * fy
-    r = (w00 * tex_data[i00, 0] + w10 * tex_data[i10, 0] + w01 * tex_data[i01, 0]
-         + w11 * tex_data[i11, 0])
-    g = (w00 * tex_data[i00, 1] + w10 * tex_data[i10, 1] + w01 * tex_data[i01, 1]
-         + w11 * tex_data[i11, 1])
-    b = (w00 * tex_data[i00, 2] + w10 * tex_data[i10, 2] + w01 * tex_data[i01, 2]
-         + w11 * tex_data[i11, 2])
+    if flags & TEX_CLOSEST:
+        x0 = _texel_index(math.floor(u * w), w, flags)
+        y0 = _texel_index(math.floor(v * h), h, flags)
+        x1 = y1 = -1
+        fx = fy = 0.0
+    else:
+        x = u * w - 0.5
+        y = v * h - 0.5
+        fx0 = math.floor(x)
+        fy0 = math.floor(y)
+        fx = x - fx0
+        fy = y - fy0
+        x0 = _texel_index(fx0, w, flags)
+        y0 = _texel_index(fy0, h, flags)
+        x1 = _texel_index(fx0 + 1.0, w, flags)
+        y1 = _texel_index(fy0 + 1.0, h, flags)
+    r = 0.0
+    g = 0.0
+    b = 0.0
+    for k in range(4):
+        xi = x0 if k % 2 == 0 else x1
+        yi = y0 if k < 2 else y1
+        wk = (1.0 - fx if k % 2 == 0 else fx) * (1.0 - fy if k < 2 else fy)
+        if xi < 0 or yi < 0 or wk == 0.0:
+            continue
+        i = base + yi * w + xi
+        r += wk * tex_data[i, 0]
+        g += wk * tex_data[i, 1]
+        b += wk * tex_data[i, 2]
+    if flags & TEX_SRGB:
+        return _srgb_decode(r), _srgb_decode(g), _srgb_decode(b)
     return r, g, b
 
 

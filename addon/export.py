@@ -39,6 +39,7 @@ from rstrace_engine import tolerances as tol
 from rstrace_engine.geometry.mesh_math import proper_triangles
 from rstrace_engine.geometry.scene import (
     MAX_LIGHTS,
+    TEX_GENERATED,
     Light,
     SceneError,
     check_matrix,
@@ -422,13 +423,31 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
         notes.warn(NOT_MODELLED_EMISSION, name)
     if len(me.uv_layers) == 0 and any(cache.material(k).texture is not None for k in mats):
         notes.warn("textured objects without a UV map sample their texture at (0, 0)", name)
-    _check_uv_maps(me, name, [cache.materials[k] for k in mats], notes)
+    _check_texture_coordinates(ob, me, name, [cache.materials[k] for k in mats], notes)
     return ObjectRecord(name, mesh_key, matrix, tuple(mats))
 
 
-def _check_uv_maps(me, name: str, entries: list, notes: Notes) -> None:
-    """Report UV Map nodes naming a map other than the mesh's render UV map (the one
-    exported): the texture would be sampled with the wrong coordinates."""
+#: Modifiers that leave every vertex where it is (Generated coordinates of the evaluated mesh
+#: are those of the undeformed one), and subdivision (Cycles subdivides the undeformed
+#: coordinates along with the mesh).
+_GENERATED_SAFE_MODIFIERS = {"SUBSURF", "TRIANGULATE", "EDGE_SPLIT", "WEIGHTED_NORMAL"}
+
+
+def _check_texture_coordinates(ob, me, name: str, entries: list, notes: Notes) -> None:
+    """Report what the texture coordinates cannot follow: UV Map nodes naming a map other
+    than the mesh's render UV map (the one exported), and Generated coordinates of a mesh
+    deformed by modifiers or shape keys or with a manual texture space (they come from the
+    evaluated mesh's own bounding box here, from the undeformed mesh in Cycles)."""
+    if any(e.material.texture_flags & TEX_GENERATED for e in entries):
+        orig = getattr(ob, "original", ob)
+        data = getattr(orig, "data", None)
+        moved = [m.name for m in orig.modifiers if m.show_render
+                 and m.type not in _GENERATED_SAFE_MODIFIERS]
+        if moved or getattr(data, "shape_keys", None) is not None \
+                or not getattr(data, "use_auto_texspace", True):
+            notes.warn("Generated texture coordinates of a deformed mesh (modifiers, shape "
+                       "keys) or a manual texture space follow the evaluated mesh's bounding "
+                       "box, not the undeformed mesh", name)
     active = next((u.name for u in me.uv_layers if u.active_render), None)
     for entry in entries:
         for uv in sorted(entry.uv_maps):

@@ -14,13 +14,19 @@ import logging
 
 import bpy
 import numpy as np
+from mathutils import Euler
 
 from rstrace_engine import tolerances as tol
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import (
     TEX_CLIP,
     TEX_CLOSEST,
+    TEX_EMISSION,
     TEX_EXTEND,
+    TEX_GENERATED,
+    TEX_MAP_IDENTITY,
+    TEX_NO_BASE,
+    TEX_OBJECT,
     TEX_SRGB,
     Material,
     Scene,
@@ -183,13 +189,16 @@ class MaterialReader:
         if kind == "ShaderNodeBsdfDiffuse":
             colour, tex = self._colour(name, node.inputs["Color"])
             self._diffuse_roughness(name, node.inputs.get("Roughness"))
-            pixels, flags = tex if tex is not None else (None, 0)
+            pixels, flags, tmap = tex if tex is not None else (None, 0, TEX_MAP_IDENTITY)
             return Material(name, diffuse=tuple(np.clip(colour, 0, 1)), texture=pixels,
-                            texture_flags=flags)
+                            texture_flags=flags, texture_map=tmap)
         if kind == "ShaderNodeEmission":
-            colour, _ = self._colour(name, node.inputs["Color"], "Emission Color")
+            colour, tex = self._colour(name, node.inputs["Color"])
             strength = self._value(name, node.inputs["Strength"])
-            return Material(name, diffuse=(0.0,) * 3, emission=tuple(colour * strength))
+            pixels, flags, tmap = _emission_texture(tex) if tex is not None else \
+                (None, 0, TEX_MAP_IDENTITY)
+            return Material(name, diffuse=(0.0,) * 3, emission=tuple(colour * strength),
+                            texture=pixels, texture_flags=flags, texture_map=tmap)
         if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
                     "ShaderNodeBsdfMetallic"):
             sock = node.inputs.get("Color") or node.inputs.get("Base Color")
@@ -227,7 +236,9 @@ class MaterialReader:
         trans = self._value(name, inp["Transmission Weight"])
         level = self._value(name, inp["Specular IOR Level"])
         tint, _ = self._colour(name, inp["Specular Tint"], "Specular Tint")
-        emit, _ = self._colour(name, inp["Emission Color"], "Emission Color")
+        emit, etex = self._colour(name, inp["Emission Color"])
+        if etex is not None:
+            tex, emit = self._with_emission(name, tex, etex, inp["Emission Color"])
         strength = self._value(name, inp["Emission Strength"])
         for label, sock in (("subsurface", "Subsurface Weight"), ("coat", "Coat Weight"),
                             ("sheen", "Sheen Weight"), ("thin film", "Thin Film Thickness"),
@@ -253,18 +264,35 @@ class MaterialReader:
              texture: tuple | None = None, tint_per_crossing: bool = False) -> Material:
         """Principled parameters -> a material of the render's shading model (see
         :func:`rstrace_engine.geometry.principled.principled_material`); what had to be
-        approximated goes to the notes. ``texture``: ``(pixels, TEX_* flags)`` or None."""
-        pixels, flags = texture if texture is not None else (None, 0)
+        approximated goes to the notes. ``texture``: ``(pixels, TEX_* flags, texture map)``
+        (see :meth:`_image`) or None."""
+        pixels, flags, tmap = texture if texture is not None else (None, 0, TEX_MAP_IDENTITY)
         material, messages = principled_material(
             name, base, metallic=metallic, roughness=roughness, ior=ior,
             transmission=transmission, specular_level=specular_level,
             specular_tint=specular_tint, emission=emission, texture=pixels, model=self.model,
-            tint_per_crossing=tint_per_crossing, texture_flags=flags)
+            tint_per_crossing=tint_per_crossing, texture_flags=flags, texture_map=tmap)
         for message in messages:
             self.notes.warn(message, name)
         return material
 
     # -- sockets -------------------------------------------------------------------------
+
+    def _with_emission(self, name: str, tex: tuple | None, etex: tuple, socket):
+        """The material's one texture when an image feeds the Emission Color: the Base
+        Color's own (the same image, sampled alike, multiplying both), or the emission's
+        alone; ``(texture, emission colour)``. Two different images are not supported
+        (reported: the Emission Color's own value is used)."""
+        if tex is None:
+            return _emission_texture(etex), np.ones(3)
+        same = (tex[1] == etex[1] and tex[2] == etex[2]
+                and (tex[0] is etex[0] or np.array_equal(tex[0], etex[0])))
+        if same:
+            return (tex[0], tex[1] | TEX_EMISSION, tex[2]), np.ones(3)
+        self.notes.warn("an Image Texture into the Emission Color besides another into the "
+                        "Base Color is not supported: the Emission Color's own value is used",
+                        name)
+        return tex, rgb(socket.default_value)
 
     def _value(self, name: str, socket) -> float:
         node, out = follow_link(socket)
@@ -278,7 +306,7 @@ class MaterialReader:
 
     def _colour(self, name: str, socket, untextured: str | None = None
                 ) -> tuple[np.ndarray, tuple | None]:
-        """(linear RGB, optional ``(pixels, TEX_* flags)`` texture) for a colour socket.
+        """(linear RGB, optional texture of :meth:`_image`) for a colour socket.
 
         ``untextured``: the input's label where only the Base Color (or a Diffuse BSDF's
         Color) is textured; an image there is reported and the socket's value used."""
@@ -300,40 +328,73 @@ class MaterialReader:
                         f"value", name)
         return rgb(socket.default_value), None
 
-    def _coordinates(self, name: str, node) -> None:
-        """Check what feeds an Image Texture's Vector: nothing (the render UV map), the UV
-        output of a Texture Coordinate node, or a UV Map node (its map, checked per mesh by
-        the export: ``uv_maps``); anything else is reported naming the nodes."""
-        vec, out = follow_link(node.inputs["Vector"])
+    def _coordinates(self, name: str, node) -> tuple[int, tuple]:
+        """``(TEX_* coordinate flag, 2 x 4 texture map)`` of what feeds an Image Texture's
+        Vector: nothing, a Texture Coordinate node's UV, Object or Generated output, or a
+        UV Map node (its map is checked per mesh by the export: ``uv_maps``), through any
+        chain of Mapping nodes (Point, Texture, Vector: affine, composed here). Anything
+        else is reported naming the nodes, and the render UV map is used."""
+        affine = np.eye(4)
+        sock = node.inputs["Vector"]
+        mapped = False
+        for _ in range(64):
+            vec, out = follow_link(sock)
+            if vec is None or vec.bl_idname != "ShaderNodeMapping":
+                break
+            step = _mapping_affine(vec)
+            if step is None:
+                self.notes.warn(f"Mapping nodes of type '{vec.vector_type.title()}' or with "
+                                f"linked inputs are not supported (node '{vec.name}' into "
+                                f"Image Texture '{node.name}'): the render UV map is used",
+                                name)
+                return 0, TEX_MAP_IDENTITY
+            affine = affine @ step
+            sock = vec.inputs["Vector"]
+            mapped = True
+        flag = 0
         if vec is None:
-            return
-        if vec.bl_idname == "ShaderNodeTexCoord":
-            if out.name != "UV":
+            if mapped:  # a Mapping node's own (unlinked) Vector
+                self.notes.warn(f"a Mapping node with nothing linked into its Vector is not "
+                                f"supported (Image Texture '{node.name}'): the render UV map "
+                                f"is used", name)
+                return 0, TEX_MAP_IDENTITY
+        elif vec.bl_idname == "ShaderNodeTexCoord":
+            if vec.from_instancer:
+                self.notes.warn(f"texture coordinates from the instancer are not supported "
+                                f"(node '{vec.name}'): the render UV map is used", name)
+                return 0, TEX_MAP_IDENTITY
+            if out.name == "Object" and vec.object is not None:
+                self.notes.warn(f"Object texture coordinates in another object's space are "
+                                f"not supported (node '{vec.name}' names '{vec.object.name}'"
+                                f"): the render UV map is used", name)
+                return 0, TEX_MAP_IDENTITY
+            flag = {"UV": 0, "Object": TEX_OBJECT, "Generated": TEX_GENERATED}.get(out.name)
+            if flag is None:
                 self.notes.warn(f"texture coordinates from the Texture Coordinate node's "
                                 f"'{out.name}' output are not supported (Image Texture "
                                 f"'{node.name}'): the render UV map is used", name)
-            elif vec.from_instancer:
-                self.notes.warn(f"texture coordinates from the instancer are not supported "
-                                f"(node '{vec.name}'): the render UV map is used", name)
-            return
-        if vec.bl_idname == "ShaderNodeUVMap":
+                return 0, TEX_MAP_IDENTITY
+        elif vec.bl_idname == "ShaderNodeUVMap":
             if vec.from_instancer:
                 self.notes.warn(f"texture coordinates from the instancer are not supported "
                                 f"(node '{vec.name}'): the render UV map is used", name)
             if vec.uv_map:
                 self.uv_maps.add(vec.uv_map)
-            return
-        self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not supported "
-                        f"(node '{vec.name}' into Image Texture '{node.name}'): the render "
-                        f"UV map is used", name)
+        else:
+            self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not "
+                            f"supported (node '{vec.name}' into Image Texture '{node.name}'"
+                            f"): the render UV map is used", name)
+            return 0, TEX_MAP_IDENTITY
+        return flag, tuple(tuple(float(x) for x in row) for row in affine[:2])
 
     def _image(self, name: str, node) -> tuple | None:
-        """``(pixels, TEX_* flags)`` of an Image Texture node, or None (reported)."""
+        """``(pixels, TEX_* flags, 2 x 4 texture map)`` of an Image Texture node (see
+        :class:`~rstrace_engine.geometry.elements.Material`), or None (reported)."""
         img = node.image
         if img is None:
             self.notes.warn("image texture nodes without an image are ignored", name)
             return None
-        self._coordinates(name, node)
+        coords, texture_map = self._coordinates(name, node)
         if node.projection != "FLAT":
             self.notes.warn(f"image projection '{node.projection.title()}' is not supported "
                             f"(node '{node.name}'): flat is used", name)
@@ -361,7 +422,7 @@ class MaterialReader:
         if read is None:
             return None
         pixels, srgb = read
-        return pixels, flags | (TEX_SRGB if srgb else 0)
+        return pixels, flags | coords | (TEX_SRGB if srgb else 0), texture_map
 
 
 #: image session_uid -> generation, bumped by :func:`image_changed` (depsgraph updates).
@@ -415,6 +476,41 @@ def _try_load(img) -> bool:
     except (RuntimeError, IndexError, ReferenceError):
         return False
     return img.size[0] > 0 and img.size[1] > 0
+
+
+def _emission_texture(tex: tuple) -> tuple:
+    """A texture (:meth:`MaterialReader._image`) multiplying the emission only."""
+    return tex[0], tex[1] | TEX_EMISSION | TEX_NO_BASE, tex[2]
+
+
+def _mapping_affine(node) -> np.ndarray | None:
+    """A Mapping node as a 4 x 4 affine matrix (Blender's ``mapping`` of its vector type:
+    Point ``R (S v) + L``, Texture ``R^-1 (v - L) / S``, Vector ``R (S v)``), or None
+    where it is not affine (Normal) or an input other than Vector is linked."""
+    kind = node.vector_type
+    if kind not in ("POINT", "TEXTURE", "VECTOR"):
+        return None
+    values = {}
+    for key in ("Location", "Rotation", "Scale"):
+        sock = node.inputs.get(key)
+        if sock is None:  # (Vector type has no Location)
+            values[key] = np.zeros(3) if key != "Scale" else np.ones(3)
+            continue
+        if sock.is_linked:
+            return None
+        values[key] = np.array(sock.default_value[:3], np.float64)
+    rot = np.array(Euler(values["Rotation"], "XYZ").to_matrix(), np.float64)
+    out = np.eye(4)
+    if kind == "TEXTURE":
+        scale = values["Scale"]
+        inv_s = np.where(scale != 0.0, 1.0 / np.where(scale != 0.0, scale, 1.0), 0.0)
+        out[:3, :3] = inv_s[:, None] * rot.T
+        out[:3, 3] = -out[:3, :3] @ values["Location"]
+        return out
+    out[:3, :3] = rot * values["Scale"][None, :]
+    if kind == "POINT":
+        out[:3, 3] = values["Location"]
+    return out
 
 
 def uses_nodes(idblock) -> bool:

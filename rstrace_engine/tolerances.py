@@ -206,3 +206,8 @@ LIGHT_EXTENT_MIN = 1e-12
 #: change its last bits, so a light given back with only its power changed would count as
 #: moved (and be shaded again).
 UNIT_SLACK = 4e-16
+
+#: The smallest half-size of an automatic texture space along an axis (Blender's
+#: ``BKE_mesh_texspace_calc``: a thinner non-zero extent is widened to it; a zero one is 1),
+#: so Generated texture coordinates never divide by (nearly) zero.
+TEXSPACE_HALF_MIN = 1e-5

@@ -11,6 +11,10 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import (
+    TEX_CLIP,
+    TEX_EXTEND,
+    TEX_GENERATED,
+    TEX_OBJECT,
     Camera,
     Light,
     Material,
@@ -19,7 +23,7 @@ from rstrace_engine.geometry.scene import (
     SceneError,
     check_matrix,
 )
-from rstrace_engine.tracing import whitted
+from rstrace_engine.tracing import shading, whitted
 
 TRI = np.array([[0, 1, 2]], np.int32)
 VERTS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -188,6 +192,51 @@ def test_bad_texture_rejected():
         Scene().add_material(Material("Checker", texture=tex))
     with pytest.raises(SceneError, match="Stripe.*texture"):
         Scene().add_material(Material("Stripe", texture=np.zeros((4, 4))))
+
+
+def test_bad_texture_flags_and_map_rejected():
+    tex = np.zeros((4, 4, 3), np.float32)
+    with pytest.raises(SceneError, match="Flags.*texture flags"):
+        Scene().add_material(Material("Flags", texture=tex, texture_flags=TEX_EXTEND | TEX_CLIP))
+    with pytest.raises(SceneError, match="Flags.*texture flags"):
+        Scene().add_material(Material("Flags", texture=tex, texture_flags=1 << 10))
+    with pytest.raises(SceneError, match="Map.*texture map"):
+        Scene().add_material(Material("Map", texture=tex, texture_map=((1.0, 0.0), (0.0, 1.0))))
+    with pytest.raises(SceneError, match="Map.*texture map"):
+        Scene().add_material(Material("Map", texture=tex,
+                                      texture_map=((np.nan, 0, 0, 0), (0, 1, 0, 0))))
+
+
+@pytest.mark.parametrize("flags", [0, TEX_OBJECT, TEX_GENERATED])
+def test_texture_coordinates_of_a_hit(flags):
+    """UV, Object and Generated texture coordinates through the texture map, against the
+    same computed in numpy (Generated: Blender's automatic texture space, the bounding box
+    of the mesh, a flat axis given half-size 1)."""
+    verts = np.array([[1.0, 2.0, 0.5], [3.0, 2.5, 0.5], [1.5, 4.0, 0.5], [2.0, 3.0, 0.5]])
+    tris = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
+    uvs = np.array([[[0.1, 0.2], [0.9, 0.3], [0.4, 0.8]]] * 2, np.float32)
+    tmap = ((0.5, -0.25, 0.1, 0.3), (0.2, 0.7, 0.0, -0.1))
+    s = Scene()
+    s.add_material(Material("Tex", texture=np.ones((2, 2, 3), np.float32),
+                            texture_flags=flags, texture_map=tmap))
+    s.add_mesh(Mesh("other", VERTS, TRI))  # a first mesh: the hit is on the second
+    mid = s.add_mesh(Mesh("quad", verts, tris, corner_uvs=uvs))
+    s.add_instance(mid, np.eye(4))
+    sa = s.arrays()
+    tri, b1, b2 = 2, 0.3, 0.25  # the second mesh's second triangle
+    w = np.array([1.0 - b1 - b2, b1, b2])
+    if flags == 0:
+        x = np.append(w @ uvs[1], 0.0)
+    else:
+        x = w @ verts[tris[1]]
+        if flags == TEX_GENERATED:
+            lo, hi = verts.min(axis=0), verts.max(axis=0)
+            half = np.where(hi == lo, 1.0, (hi - lo) / 2)
+            x = (x - ((lo + hi) / 2 - half)) / (2 * half)
+            assert x[2] == pytest.approx(0.5)
+    want = np.array(tmap) @ np.append(x, 1.0)
+    got = shading.texture_uv(sa, 0, tri, b1, b2)
+    assert got == pytest.approx(tuple(want), abs=1e-6)
 
 
 # ----------------------------------------------------------------------------- lights, camera

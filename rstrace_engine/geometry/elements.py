@@ -92,7 +92,17 @@ MODEL_WARD, MODEL_PRINCIPLED = 0, 1
 #: and decoded after interpolation (a byte sRGB image, as Cycles interpolates its bytes);
 #: extension *Extend* (edge texels repeat) or *Clip* (black outside [0, 1]); neither: *Repeat*.
 TEX_CLOSEST, TEX_SRGB, TEX_EXTEND, TEX_CLIP = 1, 2, 4, 8
-TEX_FLAGS_ALL = TEX_CLOSEST | TEX_SRGB | TEX_EXTEND | TEX_CLIP
+#: Where the texture coordinates come from (Cycles' Texture Coordinate node): neither bit,
+#: the mesh uvs (UV); the object-space position (Object); the object-space position
+#: normalised to the mesh's bounding box, Blender's automatic texture space (Generated).
+TEX_OBJECT, TEX_GENERATED = 16, 32
+#: What the texel multiplies: the base colour (unless ``TEX_NO_BASE``), and the emission
+#: with ``TEX_EMISSION`` (an image into Emission Color, or an Emission shader's Color).
+TEX_EMISSION, TEX_NO_BASE = 64, 128
+TEX_FLAGS_ALL = (TEX_CLOSEST | TEX_SRGB | TEX_EXTEND | TEX_CLIP | TEX_OBJECT | TEX_GENERATED
+                 | TEX_EMISSION | TEX_NO_BASE)
+#: :attr:`Material.texture_map` of no mapping: ``(u, v)`` are the coordinates' x and y.
+TEX_MAP_IDENTITY = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0))
 
 
 def srgb_decode(c: np.ndarray) -> np.ndarray:
@@ -127,7 +137,9 @@ class Material:
     Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
     splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
     optional ``(h, w, 3)`` RGB image that multiplies ``diffuse`` through the mesh uvs, linear
-    unless ``texture_flags`` (``TEX_*`` bits: interpolation, extension, encoding) says sRGB.
+    unless ``texture_flags`` (``TEX_*`` bits: interpolation, extension, encoding, coordinate
+    source) says sRGB; ``texture_map`` (2 x 4, affine) takes the coordinates ``(x, y, z)``
+    (uvs as ``(u, v, 0)``) to the image's ``(u, v)`` (Mapping nodes, a flat projection).
     """
 
     name: str = "material"
@@ -144,6 +156,7 @@ class Material:
     metal: tuple = (0.0, 0.0, 0.0)
     specular_ior: float = 1.5
     texture_flags: int = 0
+    texture_map: tuple = TEX_MAP_IDENTITY
 
     def validated(self) -> Material:
         n = self.name
@@ -183,11 +196,16 @@ class Material:
                 raise SceneError(f"material '{n}': texture must be (h, w, 3), got {tex.shape}")
             tex = np.ascontiguousarray(tex[:, :, :3])
         flags = int(self.texture_flags)
-        if flags & ~TEX_FLAGS_ALL or (flags & TEX_EXTEND and flags & TEX_CLIP):
+        if (flags & ~TEX_FLAGS_ALL or (flags & TEX_EXTEND and flags & TEX_CLIP)
+                or (flags & TEX_OBJECT and flags & TEX_GENERATED)):
             raise SceneError(f"material '{n}': texture flags {flags} are not a valid "
                              f"combination of TEX_* bits")
+        tmap = np.asarray(self.texture_map, np.float64)
+        if tmap.shape != (2, 4) or not np.all(np.isfinite(tmap)):
+            raise SceneError(f"material '{n}': texture map must be 2 x 4 finite numbers")
         return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
-                        self.model, mw, tuple(mc), sior, flags)
+                        self.model, mw, tuple(mc), sior, flags,
+                        tuple(tuple(float(x) for x in row) for row in tmap))
 
 
 @dataclass

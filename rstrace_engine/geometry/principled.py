@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from .elements import texture_linear
+from .elements import TEX_MAP_IDENTITY, TEX_NO_BASE, texture_linear
 from .scene import Material, SceneError
 
 #: Roughness below which reflection is a Whitted mirror, above which a glossy lobe; linear
@@ -83,7 +83,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                         specular_level: float = 0.5, specular_tint=(1.0, 1.0, 1.0),
                         emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
                         model: str = "PRINCIPLED", tint_per_crossing: bool = False,
-                        texture_flags: int = 0) -> tuple[Material, list[str]]:
+                        texture_flags: int = 0,
+                        texture_map: tuple = TEX_MAP_IDENTITY) -> tuple[Material, list[str]]:
     """A material from Principled BSDF inputs, and messages about what was approximated.
 
     The transmitted light is tinted per interface crossing by ``sqrt(base)``, as Cycles'
@@ -94,8 +95,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
 
     Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
     ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
-    colour is needed: metals, transmission); ``texture_flags``: how it is sampled
-    (:attr:`~.elements.Material.texture_flags`).
+    colour is needed: metals, transmission); ``texture_flags``, ``texture_map``: how it is
+    sampled (:class:`~.elements.Material`).
     """
     notes: list[str] = []
     raw = _rgb(name, "Base Color", base)
@@ -116,7 +117,7 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         notes.append(f"IOR {ior:g} is outside [{lo:g}, {hi:g}]: rendered with IOR "
                      f"{clamped:g}")
         ior = clamped
-    if texture is not None:
+    if texture is not None and not texture_flags & TEX_NO_BASE:
         tex_mean = np.clip(texture_linear(texture, texture_flags).reshape(-1, 3).mean(axis=0),
                            0.0, 1.0)
         if metallic > 0.0:
@@ -127,9 +128,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     m = float(np.clip(metallic, 0.0, 1.0))
     t = float(np.clip(transmission, 0.0, 1.0))
     r = float(np.clip(roughness, 0.0, 1.0))
-    colour = tex_mean if texture is not None else base
-    refract = (1 - m) * t * (colour if tint_per_crossing else np.sqrt(colour))
-    if texture is not None and t > 0.0:
+    refract = (1 - m) * t * (tex_mean if tint_per_crossing else np.sqrt(tex_mean))
+    if texture is not None and not texture_flags & TEX_NO_BASE and t > 0.0:
         notes.append("textured transmission is approximated by the texture's average")
     if t > 0.0 and r > MIRROR_ROUGHNESS:
         notes.append("rough transmission is rendered as smooth refraction")
@@ -153,7 +153,7 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
             roughness=alpha, mirror=(sharp,) * 3, transmission=tuple(refract), ior=ior,
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
             metal=tuple(metal_colour), specular_ior=spec_ior,
-            texture_flags=texture_flags), notes
+            texture_flags=texture_flags, texture_map=texture_map), notes
     if model != "WARD":
         raise SceneError(f"material '{name}': unknown shading model {model!r}")
     f0c = np.clip(f0 * tint, 0.0, 1.0)
@@ -165,4 +165,4 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         name, diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
         roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
         transmission=tuple(refract * scale), ior=ior, emission=emission_t, texture=texture,
-        model="WARD", texture_flags=texture_flags), notes
+        model="WARD", texture_flags=texture_flags, texture_map=texture_map), notes

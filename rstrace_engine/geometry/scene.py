@@ -44,7 +44,12 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     SHADING_MODELS,
     TEX_CLIP,
     TEX_CLOSEST,
+    TEX_EMISSION,
     TEX_EXTEND,
+    TEX_GENERATED,
+    TEX_MAP_IDENTITY,
+    TEX_NO_BASE,
+    TEX_OBJECT,
     TEX_SRGB,
     Camera,
     Light,
@@ -102,6 +107,8 @@ class SceneArrays(NamedTuple):
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
     tex_size: np.ndarray  # (NT, 3) int32 (width, height, TEX_* flags)
+    tex_map: np.ndarray  # (NT, 2, 4) float64 affine: texture coordinates (x, y, z) -> (u, v)
+    mesh_gen: np.ndarray  # (M, 2, 3) float64 Generated = (p - mesh_gen[k, 0]) / mesh_gen[k, 1]
     light_kind: np.ndarray  # (L,) int32, LIGHT_NONE for a deleted light's slot
     light_pos: np.ndarray  # (L, 3) float64
     light_dir: np.ndarray  # (L, 3) float64 unit, the way the light points
@@ -126,6 +133,18 @@ class SceneArrays(NamedTuple):
     light_ellipse: np.ndarray  # (L,) bool AREA: disk or ellipse
     light_spread: np.ndarray  # (L, 2) AREA: tan(spread / 2) (inf: pi), its normaliser
     light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
+
+
+def _texture_space(mesh: dict | None) -> np.ndarray:
+    """``(lo, extent)`` of a mesh's automatic texture space, as Blender computes it (its
+    bounding box; a flat axis gets half-size 1, a tiny one 1e-5), for Generated texture
+    coordinates ``(p - lo) / extent`` in [0, 1]. A tombstone: the unit box."""
+    if mesh is None:
+        return np.array([[0.0] * 3, [1.0] * 3])
+    lo, hi = np.asarray(mesh["lo"], np.float64), np.asarray(mesh["hi"], np.float64)
+    mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+    half = np.where(half == 0.0, 1.0, np.maximum(half, tol.TEXSPACE_HALF_MIN))
+    return np.stack([mid - half, 2.0 * half])
 
 
 def _footprint(mesh: dict) -> int:
@@ -548,6 +567,7 @@ class Scene:
                 tri_uvs=np.ascontiguousarray(np.concatenate([m["uvs"] for m in live])),
                 tri_slot=np.ascontiguousarray(np.concatenate([m["slots"] for m in live])),
                 mesh_tri_start=tstart,
+                mesh_gen=np.stack([_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3),
             )
         return self._mesh_arrays
 
@@ -621,7 +641,7 @@ class Scene:
         self._arrays = SceneArrays(
             verts=geo["verts"], tris=geo["tris"], tri_normals=geo["tri_normals"],
             tri_uvs=geo["tri_uvs"], tri_slot=geo["tri_slot"],
-            mesh_tri_start=geo["mesh_tri_start"],
+            mesh_tri_start=geo["mesh_tri_start"], mesh_gen=geo["mesh_gen"],
             inst_mesh=np.array([0 if i is None else i["mesh"] for i in self.instances],
                                np.int32).reshape(ni),
             inst_xform=xf, inst_inv=inv, inst_nmat=nmat, inst_aabb=aabb,
@@ -640,6 +660,7 @@ class Scene:
             mat_metal=np.array([m.metal for m in mats], f64).reshape(-1, 3),
             mat_specular_ior=np.array([m.specular_ior for m in mats], f64),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
+            tex_map=np.array([m.texture_map for m in tex_mats], f64).reshape(-1, 2, 4),
             light_kind=kind, light_pos=pos, light_dir=ldir,
             light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,
             world_color=np.asarray(self.world_color, f64),

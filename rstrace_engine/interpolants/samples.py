@@ -22,8 +22,8 @@ from ..tracing.shading import (
     dot3,
     geometric_normal,
     spawn_offset,
-    surface_uv,
     texture_lookup,
+    texture_uv,
 )
 from .linetree import corner_weight
 from .predicate import SampleArrays
@@ -354,7 +354,7 @@ def _textured(sa, inst, prim, out):
 def _root_texels(sa, inst, prim, u, v, out):
     for r in range(inst.shape[0]):
         m = hit_material(sa, inst[r], prim[r])
-        uu, vv = surface_uv(sa.tri_uvs, prim[r], u[r], v[r])
+        uu, vv = texture_uv(sa, sa.mat_tex[m], prim[r], u[r], v[r])
         out[r, 0], out[r, 1], out[r, 2] = texture_lookup(sa.tex_data, sa.tex_start,
                                                          sa.tex_size, sa.mat_tex[m], uu, vv)
 
@@ -454,7 +454,7 @@ def apply_textures(sa, lt_depth, lt_coord, pool_node, pool_samples, dif, pinterp
             x += w * dif[sid, 0]
             y += w * dif[sid, 1]
             z += w * dif[sid, 2]
-        uu, vv = surface_uv(sa.tri_uvs, prim[r], u[r], v[r])
+        uu, vv = texture_uv(sa, sa.mat_tex[m], prim[r], u[r], v[r])
         tr, tg, tb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, sa.mat_tex[m],
                                     uu, vv)
         rad[r, 0] += tr * x

@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED
+from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, TEX_EMISSION, TEX_NO_BASE
 from .shading import (
     INV_PI,
     dot3,
@@ -49,8 +49,8 @@ from .shading import (
     shading_normal,
     spawn_offset,
     spot_falloff,
-    surface_uv,
     texture_lookup,
+    texture_uv,
     ward_brdf,
 )
 from .soft_lights import SH_SOFT, extent_faces
@@ -313,16 +313,21 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
         dr = sa.mat_diffuse[m, 0]
         dg = sa.mat_diffuse[m, 1]
         db = sa.mat_diffuse[m, 2]
-        tex = sa.mat_tex[m]
-        if tex >= 0:
-            u, v = surface_uv(sa.tri_uvs, prim[i], bu[i], bv[i])
-            xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
-            dr *= xr
-            dg *= xg
-            db *= xb
         lr = sa.mat_emission[m, 0]
         lg = sa.mat_emission[m, 1]
         lb = sa.mat_emission[m, 2]
+        tex = sa.mat_tex[m]
+        if tex >= 0:  # the texel multiplies the base colour, the emission, or both
+            u, v = texture_uv(sa, tex, prim[i], bu[i], bv[i])
+            xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
+            if not sa.tex_size[tex, 2] & TEX_NO_BASE:
+                dr *= xr
+                dg *= xg
+                db *= xb
+            if sa.tex_size[tex, 2] & TEX_EMISSION:
+                lr *= xr
+                lg *= xg
+                lb *= xb
         if terms:
             tv[i, L + 1, 0] = lr
             tv[i, L + 1, 1] = lg

@@ -27,10 +27,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from ..geometry.elements import TEX_CLIP, TEX_CLOSEST, TEX_EXTEND, TEX_SRGB
+from ..geometry.elements import (
+    TEX_CLIP,
+    TEX_CLOSEST,
+    TEX_EXTEND,
+    TEX_GENERATED,
+    TEX_OBJECT,
+    TEX_SRGB,
+)
 
 INV_PI = 1.0 / math.pi
 
@@ -347,6 +355,35 @@ def surface_uv(tri_uvs, tri, b1, b2):
     u = b0 * tri_uvs[tri, 0, 0] + b1 * tri_uvs[tri, 1, 0] + b2 * tri_uvs[tri, 2, 0]
     v = b0 * tri_uvs[tri, 0, 1] + b1 * tri_uvs[tri, 1, 1] + b2 * tri_uvs[tri, 2, 1]
     return u, v
+
+
+@njit(cache=True, nogil=True)
+def texture_uv(sa, tex, tri, b1, b2):
+    """The image coordinates ``(u, v)`` of texture ``tex`` at barycentrics ``(b1, b2)`` of
+    global triangle ``tri``: the coordinates its ``TEX_*`` flags name (the mesh uvs as
+    ``(u, v, 0)``; the object-space position, interpolated from the triangle's vertices,
+    exact on a flat triangle; or that position in the mesh's automatic texture space,
+    ``sa.mesh_gen``), through the affine ``sa.tex_map[tex]`` (Mapping nodes)."""
+    flags = sa.tex_size[tex, 2]
+    if flags & (TEX_OBJECT | TEX_GENERATED):
+        b0 = 1.0 - b1 - b2
+        a = sa.tris[tri, 0]
+        b = sa.tris[tri, 1]
+        c = sa.tris[tri, 2]
+        x = b0 * sa.verts[a, 0] + b1 * sa.verts[b, 0] + b2 * sa.verts[c, 0]
+        y = b0 * sa.verts[a, 1] + b1 * sa.verts[b, 1] + b2 * sa.verts[c, 1]
+        z = b0 * sa.verts[a, 2] + b1 * sa.verts[b, 2] + b2 * sa.verts[c, 2]
+        if flags & TEX_GENERATED:
+            k = np.searchsorted(sa.mesh_tri_start, tri, side="right") - 1
+            x = (x - sa.mesh_gen[k, 0, 0]) / sa.mesh_gen[k, 1, 0]
+            y = (y - sa.mesh_gen[k, 0, 1]) / sa.mesh_gen[k, 1, 1]
+            z = (z - sa.mesh_gen[k, 0, 2]) / sa.mesh_gen[k, 1, 2]
+    else:
+        x, y = surface_uv(sa.tri_uvs, tri, b1, b2)
+        z = 0.0
+    m = sa.tex_map[tex]
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3])
 
 
 @njit(cache=True, nogil=True)

@@ -70,13 +70,6 @@ def test_holdout_shader_is_reported():
     assert _reported(w, "Holdout", "not supported", "'Hole'"), w
 
 
-def test_material_override_is_reported():
-    _scene(b.principled("Own"))
-    bpy.context.view_layer.material_override = b.principled("Clay")
-    w = _warnings()
-    assert _reported(w, "material override", "'Clay'"), w
-
-
 # ----------------------------------------------------------------------------- objects
 
 

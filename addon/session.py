@@ -345,24 +345,24 @@ def _camera_passes(session, snap, cache, view_layer, frame: Frame, cancel):
 
 def unwritten_passes(view_layer) -> list[str]:
     """A message naming the render passes ``view_layer`` enables that the engine does
-    not write (Mist, Ambient Occlusion, Diffuse Direct, ..., Cycles' own, AOVs, light
-    groups); [] when there are none."""
+    not write (Mist, Ambient Occlusion, Diffuse Direct, ..., Cycles' own: volume, shadow
+    catcher, denoising data, debug; AOVs, light groups); [] when there are none."""
     if view_layer is None:
         return []
     written = {"use_pass_combined", "use_pass_cryptomatte_accurate"} | {
         flag for flag, *_ in DATA_PASSES}
     names = []
-    for holder in (view_layer, getattr(view_layer, "cycles", None),
-                   getattr(view_layer, "eevee", None)):
+    # the view layer's own passes and Cycles' (EEVEE's are EEVEE's settings, as Cycles
+    # ignores them)
+    for holder in (view_layer, getattr(view_layer, "cycles", None)):
         if holder is None:
             continue
         for prop in holder.bl_rna.properties:
             ident = prop.identifier
-            if (ident.startswith("use_pass_") and ident not in written
-                    and prop.type == "BOOLEAN" and getattr(holder, ident, False)):
+            if (ident.startswith(("use_pass_", "pass_")) or ident == "denoising_store_passes") \
+                    and ident not in written and prop.type == "BOOLEAN" \
+                    and getattr(holder, ident, False):
                 names.append(prop.name)
-    if getattr(getattr(view_layer, "cycles", None), "denoising_store_passes", False):
-        names.append("Denoising Data")
     for label, items in (("AOV", getattr(view_layer, "aovs", ())),
                          ("light group", getattr(view_layer, "lightgroups", ()))):
         names += [f"{label} '{item.name}'" for item in items]

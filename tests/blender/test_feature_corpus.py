@@ -394,3 +394,42 @@ def test_compatibility_page_lists_the_corpus():
         assert f.name in rows, f"docs/compatibility.md has no row for {f.name!r}"
         want = "modelled" if f.modelled else "reported"
         assert re.match(want, rows[f.name]), (f.name, rows[f.name])
+
+
+@pytest.mark.parametrize("mode", ["INTERPOLANT", "RI_TREE"])
+def test_holdout_and_passes_in_every_mode(mode):
+    """The holes, Depth and Normal do not depend on the mode that rendered the colours:
+    each mode's alpha, Depth and Normal are BASE's, bit for bit."""
+    _holdout_object()
+    layer = bpy.context.view_layer
+    layer.use_pass_z = layer.use_pass_normal = True
+    sc = b.setup_render(W, H, samples=2, max_depth=1)
+    base = b.render_exr()
+    sc.rstrace.mode = mode
+    other = b.render_exr()
+    assert other, _state().messages
+    assert np.array_equal(base["Combined"][..., 3], other["Combined"][..., 3])
+    holes = base["Combined"][..., 3] == 0.0
+    assert holes.sum() > 100 and np.all(other["Combined"][holes] == 0.0)
+    for name in ("Depth", "Normal"):
+        assert np.array_equal(base[name], other[name]), name
+
+
+def test_holdout_with_a_render_region_and_transparent_film():
+    _holdout_object()
+    sc = b.setup_render(W, H, samples=2, max_depth=1)
+    full = b.render_exr()["Combined"]
+    sc.render.film_transparent = True
+    sc.render.use_border = True
+    sc.render.use_crop_to_border = False
+    sc.render.border_min_x, sc.render.border_max_x = 0.0, 0.5
+    sc.render.border_min_y, sc.render.border_max_y = 0.25, 1.0
+    part = b.render_exr()["Combined"]
+    y0, x1 = int(0.25 * H), int(0.5 * W)
+    region = part[y0:, :x1]
+    # the holes as in the full frame; the sky transparent too; colours premultiplied
+    held = full[y0:, :x1, 3] == 0.0
+    assert held.sum() > 50 and np.all(region[held] == 0.0)
+    sky = region[..., 3] == 0.0
+    assert sky.sum() > held.sum()
+    np.testing.assert_array_equal(region[~sky], full[y0:, :x1][~sky])

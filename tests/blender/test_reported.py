@@ -150,6 +150,12 @@ def test_unwritten_passes_are_named():
     for name in ("Mist", "Ambient Occlusion", "Diffuse Direct", f"'{layer.name}'"):
         assert name in message, message
     assert "Normal" not in message and " Z" not in message
+    if hasattr(layer, "cycles"):  # Cycles' own passes, and AOVs
+        layer.cycles.use_pass_shadow_catcher = layer.cycles.denoising_store_passes = True
+        layer.aovs.add().name = "Dirt"
+        (message,) = unwritten_passes(layer)
+        for name in ("Shadow Catcher", "Denoising", "AOV 'Dirt'"):
+            assert name in message, message
 
 
 def test_material_override_is_reported():

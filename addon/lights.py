@@ -46,6 +46,12 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
         notes.skip(f"light '{name}' skipped: it is a portal (Cycles: it guides world "
                    f"sampling and emits no light)")
         return None
+    if not (getattr(ob, "visible_diffuse", True) or getattr(ob, "visible_glossy", True)):
+        # Cycles leaves such a light out of both closures: it lights no surface (RSTrace
+        # shades surfaces with those two only)
+        notes.warn("lights with Diffuse and Glossy ray visibility off light no surface, as "
+                   "in Cycles (left out)", name)
+        return None
     colour = rgb(data.color)
     if getattr(data, "use_temperature", False):
         colour = colour * rgb(data.temperature_color)

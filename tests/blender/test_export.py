@@ -270,6 +270,18 @@ def test_light_emission_node_multiplies_colour_and_power():
     assert any("node trees" in w and "'Lamp'" in w for w in ex.warnings), ex.warnings
 
 
+def test_light_with_diffuse_and_glossy_visibility_off_lights_nothing():
+    """Cycles leaves it out of both closures: RSTrace leaves it out, and says so."""
+    _basic_scene()
+    lamp = bpy.data.objects["Lamp"]
+    lamp.visible_diffuse = lamp.visible_glossy = False
+    ex = _export()
+    assert "Lamp" not in {li.name for li in ex.scene.lights}
+    assert any("Diffuse and Glossy ray visibility off" in w and "'Lamp'" in w
+               for w in ex.warnings), ex.warnings
+    assert not any("is not modelled" in w and "'Lamp'" in w for w in ex.warnings)
+
+
 def test_light_and_world_ray_visibility_and_linking_are_reported():
     _basic_scene()
     lamp = bpy.data.objects["Lamp"]

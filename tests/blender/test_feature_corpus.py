@@ -85,6 +85,12 @@ def _light_node_strength():
     ob.data.node_tree.nodes["Emission"].inputs["Strength"].default_value = 3.0
 
 
+def _light_unseen():
+    _stage()
+    fill = b.point_light("Fill", (3.0, -2.0, 4.0), 2000.0, (0.5, 0.7, 1.0))
+    fill.visible_diffuse = fill.visible_glossy = False
+
+
 def _emission():
     mat = b.principled("Glow", (0.0, 0.0, 0.0), specular_level=0.0)
     node = mat.node_tree.nodes["Principled BSDF"]
@@ -237,6 +243,8 @@ FEATURES = [
     Feature("area light (soft shadows)", _light("AREA", energy=400.0, size=1.5), tol=0.08,
             cycles_samples=128, samples=8),
     Feature("light node Emission Strength", _light_node_strength, tol=0.05),
+    Feature("light with Diffuse and Glossy visibility off", _light_unseen, tol=0.05,
+            glossy=1),
     Feature("emission (seen directly and in a mirror)", _emission, tol=0.05, glossy=1),
     Feature("mirror metal (one glossy bounce)", _stage, tol=0.05, glossy=1),
     Feature("tinted Principled glass", _tinted_glass, tol=0.1, glossy=8, transmission=8),

@@ -90,3 +90,12 @@ def test_nothing_asked_nothing_traced(spheres):
     scene, accel = spheres
     p = camera_passes(scene, accel, RenderSettings())
     assert p.depth is None and p.normal is None and p.alpha is None
+
+
+def test_a_cancelled_pass_returns_nothing(spheres):
+    scene, accel = spheres
+    settings = RenderSettings(samples=2)
+    frame = render(scene, settings, accel=accel)
+    p = camera_passes(scene, accel, settings, frame=frame, depth=True,
+                      holdout_mats=[scene.material_id("red")], cancel=lambda: True)
+    assert p.depth is None and p.alpha is None and p.radiance is None

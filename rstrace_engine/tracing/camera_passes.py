@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import tolerances as tol
-from ..cancel import bound
+from ..cancel import bound, cancelled
 from ..frame import Frame, RenderSettings
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene
@@ -57,7 +57,9 @@ def camera_passes(scene: Scene, accel, settings: RenderSettings, frame: Frame | 
     """The Depth and Normal passes (when asked) and, when ``holdout_mats`` (material ids)
     or ``holdout_insts`` (instance slots: holdout objects) is not empty, the frame's colours
     and alpha with those held out (``frame``: the rendered frame of the same camera and
-    settings). ``accel``: an accelerator over ``scene.arrays()`` (the session's)."""
+    settings). ``accel``: an accelerator over ``scene.arrays()`` (the session's).
+    ``cancel() -> bool`` is polled between tiles: once it says stop, nothing is returned
+    (every field None: the caller writes the frame as it is)."""
     settings = settings.validated()
     sa = scene.arrays()
     cp = camera_params(scene.camera)
@@ -78,12 +80,15 @@ def camera_passes(scene: Scene, accel, settings: RenderSettings, frame: Frame | 
     nsum = np.zeros((h * w, 3)) if normal else None
     held = np.zeros(h * w, np.int32) if holdouts else None
     if not (depth or normal or holdouts):
-        return CameraPasses(None, None, None, None, 0, 0)
+        return CameraPasses(None, None, None, None, 0, 0)  # (nothing asked)
     m = np.asarray(scene.camera.matrix, np.float64)
     eye, forward = m[:3, 3], -m[:3, 2] / np.linalg.norm(m[:3, 2])
     held_mask = []  # per tile: (pix, (spp, k) bool holdout samples)
     rows_per_tile = max(1, TILE_RAYS // max(1, w * spp))
+    nothing = CameraPasses(None, None, None, None, 0, 0)
     for pix, jitter, _ in frame_batches(w, h, spp, seed, rows_per_tile, None):
+        if cancelled(cancel):
+            return nothing
         k = len(pix)
         with threads_for(k * spp), bound(accel, cancel):
             o, d, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
@@ -128,6 +133,8 @@ def camera_passes(scene: Scene, accel, settings: RenderSettings, frame: Frame | 
             rad, _ = trace_pixels(sa, accel, cp, ppix, np.ascontiguousarray(jit),
                                   int(settings.max_depth), cancel, gids=gids, seed=seed,
                                   light_samples=int(settings.light_samples))
+            if cancelled(cancel):
+                return nothing
             good = np.all(np.abs(rad) <= tol.RADIANCE_MAX, axis=1)
             acc = np.zeros((int(part.sum()), 3))
             np.add.at(acc, p_idx[good], rad[good])

@@ -414,7 +414,8 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
     _check_visibility(ob, name, notes)
     _check_hair(ob, name, notes)
     holdout = _is_holdout(inst, r.view_layer)
-    if r.source == "VIEWPORT" and (holdout or any(cache.materials[k].holdout for k in mats)):
+    held = holdout or any(getattr(cache.materials[k], "holdout", False) for k in mats)
+    if r.source == "VIEWPORT" and held:
         notes.warn("holdouts are drawn as ordinary objects in the viewport (final renders "
                    "cut them out: alpha 0)", name)
     if any(max(cache.material(k).emission) > 0.0 for k in mats):

@@ -334,7 +334,7 @@ def _camera_passes(session, snap, cache, view_layer, frame: Frame, cancel):
             insts.append(core.instance_slot(key))
         for mk in rec.material_keys:
             entry = cache.materials.get(mk)
-            if entry is not None and entry.holdout:
+            if entry is not None and getattr(entry, "holdout", False):
                 mats.add(core.material_id(mk))
     if not (depth or normal or insts or mats) or frame.stats.get("cancelled"):
         return None

@@ -177,6 +177,7 @@ class _Reader:
         # and frame
         self.stamp = journal.JOURNAL.stamp()
         self.view = self.frame = None
+        self.view_layer = getattr(depsgraph, "view_layer", None)
         if depsgraph is not None:
             sc = depsgraph.scene
             self.view = (sc.original.session_uid, depsgraph.view_layer.name)
@@ -211,7 +212,8 @@ class _Reader:
             except SceneError as exc:  # conversion produced something invalid: say so
                 notes.warn(f"material unusable, rendered with the default ({exc})", mat.name)
                 material = DEFAULT_MATERIAL.validated()
-            entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images))
+            entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images),
+                                  holdout=reader.holdout)
             self.cache.materials[key] = entry
             self.materials_read += 1
         self.notes.replay(entry.notes)
@@ -319,7 +321,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
         camera = camera_from_object(cam_eval, width, height, render, notes)
     world = tuple(float(c) for c in world_colour(bscene.world, notes))
-    lights_from_world = world_lights(bscene.world, notes)
+    lights_from_world = world_lights(bscene.world, notes, world)
 
     objects: dict = {}
     hidden: set = set()
@@ -410,11 +412,39 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
     nslots = max(len(me.materials), 1)
     mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
     _check_visibility(ob, name, notes)
+    _check_hair(ob, name, notes)
+    holdout = _is_holdout(inst, r.view_layer)
+    held = holdout or any(getattr(cache.materials[k], "holdout", False) for k in mats)
+    if r.source == "VIEWPORT" and held:
+        notes.warn("holdouts are drawn as ordinary objects in the viewport (final renders "
+                   "cut them out: alpha 0)", name)
     if any(max(cache.material(k).emission) > 0.0 for k in mats):
         notes.warn(NOT_MODELLED_EMISSION, name)
     if len(me.uv_layers) == 0 and any(cache.material(k).texture is not None for k in mats):
         notes.warn("textured objects without a UV map sample their texture at (0, 0)", name)
-    return ObjectRecord(name, mesh_key, matrix, tuple(mats))
+    return ObjectRecord(name, mesh_key, matrix, tuple(mats), holdout=holdout)
+
+
+def _check_hair(ob, name: str, notes: Notes) -> None:
+    """Particle hair (rendered by Cycles as curves from the emitter) is not modelled."""
+    for ps in getattr(ob, "particle_systems", ()):
+        part = ps.settings
+        if part is not None and part.type == "HAIR" and part.render_type == "PATH":
+            notes.warn("particle hair is not supported (not rendered)", name)
+            return
+
+
+def _is_holdout(inst, view_layer) -> bool:
+    """Whether the object is a holdout in the view layer (its own Holdout setting or a
+    holdout collection), as Cycles asks it: of the instancer for an instance."""
+    ob = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    orig = getattr(ob, "original", ob)
+    if view_layer is None:
+        return bool(getattr(orig, "is_holdout", False))
+    try:
+        return bool(orig.holdout_get(view_layer=view_layer))
+    except (AttributeError, TypeError, RuntimeError, ReferenceError):
+        return bool(getattr(orig, "is_holdout", False))
 
 
 class _Own:
@@ -465,7 +495,7 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
         changed.add(uid)
     bscene = depsgraph.scene_eval
     world = tuple(float(c) for c in world_colour(bscene.world, r.notes))
-    lights_from_world = world_lights(bscene.world, r.notes)
+    lights_from_world = world_lights(bscene.world, r.notes, world)
     width, height = render_size(bscene.render)
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
@@ -484,15 +514,14 @@ def _check_visibility(ob, name: str, notes: Notes) -> None:
     # Cycles renders these differently; rstrace renders the object as an ordinary one, so
     # say so rather than render it silently wrong (issue 23)
     orig = getattr(ob, "original", ob)
-    if getattr(orig, "is_holdout", False):
-        notes.warn("holdout objects are not supported (rendered as ordinary objects)", name)
     if getattr(orig, "is_shadow_catcher", False):
         notes.warn("shadow catchers are not supported (rendered as ordinary objects)", name)
 
 
 def _check_view_layer(depsgraph, notes: Notes) -> None:
     """What the view layer asks for that is not modelled: a material override, collections
-    set to holdout or indirect only (reported by collection name)."""
+    set to indirect only (reported by collection name). Holdout collections are modelled
+    (:func:`_is_holdout`)."""
     layer = getattr(depsgraph, "view_layer", None)
     if layer is None:
         return
@@ -504,9 +533,6 @@ def _check_view_layer(depsgraph, notes: Notes) -> None:
         for child in lc.children:
             if child.exclude:
                 continue
-            if child.holdout:
-                notes.warn("holdout collections are not supported (rendered as ordinary "
-                           "objects)", child.name)
             if child.indirect_only:
                 notes.warn("indirect only collections are not supported (rendered as "
                            "ordinary objects)", child.name)

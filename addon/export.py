@@ -178,6 +178,7 @@ class _Reader:
         # and frame
         self.stamp = journal.JOURNAL.stamp()
         self.view = self.frame = None
+        self.view_layer = getattr(depsgraph, "view_layer", None)
         if depsgraph is not None:
             sc = depsgraph.scene
             self.view = (sc.original.session_uid, depsgraph.view_layer.name)
@@ -216,7 +217,7 @@ class _Reader:
                 notes.warn(f"material unusable, rendered with the default ({exc})", mat.name)
                 material = default_material(self.cache.model).validated()
             entry = MaterialEntry(material, notes.recorded(), frozenset(reader.images),
-                                  frozenset(reader.uv_maps))
+                                  frozenset(reader.uv_maps), holdout=reader.holdout)
             self.cache.materials[key] = entry
             self.materials_read += 1
         self.notes.replay(entry.notes)
@@ -325,7 +326,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
         cam_eval = cam.evaluated_get(depsgraph) if cam is not None else None
         camera = camera_from_object(cam_eval, width, height, render, notes)
     world = tuple(float(c) for c in world_colour(bscene.world, notes))
-    lights_from_world = world_lights(bscene.world, notes)
+    lights_from_world = world_lights(bscene.world, notes, world)
 
     objects: dict = {}
     hidden: set = set()
@@ -419,12 +420,40 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
             [r.material_key(m) for m in me.materials]
     mats += [DEFAULT_MATERIAL_KEY] * (nslots - len(mats))
     _check_visibility(ob, name, notes)
+    _check_hair(ob, name, notes)
+    holdout = _is_holdout(inst, r.view_layer)
+    held = holdout or any(getattr(cache.materials[k], "holdout", False) for k in mats)
+    if r.source == "VIEWPORT" and held:
+        notes.warn("holdouts are drawn as ordinary objects in the viewport (final renders "
+                   "cut them out: alpha 0)", name)
     if any(max(cache.material(k).emission) > 0.0 for k in mats):
         notes.warn(NOT_MODELLED_EMISSION, name)
     if len(me.uv_layers) == 0 and any(cache.material(k).texture is not None for k in mats):
         notes.warn("textured objects without a UV map sample their texture at (0, 0)", name)
     _check_texture_coordinates(ob, me, name, [cache.materials[k] for k in mats], notes)
-    return ObjectRecord(name, mesh_key, matrix, tuple(mats))
+    return ObjectRecord(name, mesh_key, matrix, tuple(mats), holdout=holdout)
+
+
+def _check_hair(ob, name: str, notes: Notes) -> None:
+    """Particle hair (rendered by Cycles as curves from the emitter) is not modelled."""
+    for ps in getattr(ob, "particle_systems", ()):
+        part = ps.settings
+        if part is not None and part.type == "HAIR" and part.render_type == "PATH":
+            notes.warn("particle hair is not supported (not rendered)", name)
+            return
+
+
+def _is_holdout(inst, view_layer) -> bool:
+    """Whether the object is a holdout in the view layer (its own Holdout setting or a
+    holdout collection), as Cycles asks it: of the instancer for an instance."""
+    ob = inst.parent if inst.is_instance and inst.parent is not None else inst.object
+    orig = getattr(ob, "original", ob)
+    if view_layer is None:
+        return bool(getattr(orig, "is_holdout", False))
+    try:
+        return bool(orig.holdout_get(view_layer=view_layer))
+    except (AttributeError, TypeError, RuntimeError, ReferenceError):
+        return bool(getattr(orig, "is_holdout", False))
 
 
 #: Modifiers that leave every vertex where it is (Generated coordinates of the evaluated mesh
@@ -507,7 +536,7 @@ def read_updated(depsgraph, cache: ExportCache, dirty: Dirty, objects: dict, lig
         changed.add(uid)
     bscene = depsgraph.scene_eval
     world = tuple(float(c) for c in world_colour(bscene.world, r.notes))
-    lights_from_world = world_lights(bscene.world, r.notes)
+    lights_from_world = world_lights(bscene.world, r.notes, world)
     width, height = render_size(bscene.render)
     stats = dict(objects=len(objects), lights=len(lights), meshes_read=r.meshes_read,
                  materials_read=r.materials_read, mesh_read_seconds=r.t_mesh,
@@ -526,15 +555,14 @@ def _check_visibility(ob, name: str, notes: Notes) -> None:
     # Cycles renders these differently; rstrace renders the object as an ordinary one, so
     # say so rather than render it silently wrong (issue 23)
     orig = getattr(ob, "original", ob)
-    if getattr(orig, "is_holdout", False):
-        notes.warn("holdout objects are not supported (rendered as ordinary objects)", name)
     if getattr(orig, "is_shadow_catcher", False):
         notes.warn("shadow catchers are not supported (rendered as ordinary objects)", name)
 
 
 def _check_view_layer(depsgraph, notes: Notes) -> None:
-    """What the view layer asks for that is not modelled: collections set to holdout or
-    indirect only (reported by collection name)."""
+    """What the view layer asks for that is not modelled: collections set to indirect only
+    (reported by collection name). Holdout collections are modelled (:func:`_is_holdout`);
+    the material override is honoured (:class:`_Reader`)."""
     layer = getattr(depsgraph, "view_layer", None)
     if layer is None:
         return
@@ -543,9 +571,6 @@ def _check_view_layer(depsgraph, notes: Notes) -> None:
         for child in lc.children:
             if child.exclude:
                 continue
-            if child.holdout:
-                notes.warn("holdout collections are not supported (rendered as ordinary "
-                           "objects)", child.name)
             if child.indirect_only:
                 notes.warn("indirect only collections are not supported (rendered as "
                            "ordinary objects)", child.name)

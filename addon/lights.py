@@ -46,6 +46,12 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
         notes.skip(f"light '{name}' skipped: it is a portal (Cycles: it guides world "
                    f"sampling and emits no light)")
         return None
+    if not (getattr(ob, "visible_diffuse", True) or getattr(ob, "visible_glossy", True)):
+        # Cycles leaves such a light out of both closures: it lights no surface (RSTrace
+        # shades surfaces with those two only)
+        notes.warn("lights with Diffuse and Glossy ray visibility off light no surface, as "
+                   "in Cycles (left out)", name)
+        return None
     colour = rgb(data.color)
     if getattr(data, "use_temperature", False):
         colour = colour * rgb(data.temperature_color)
@@ -175,14 +181,8 @@ def _warn_unmodelled(ob, name: str, m: np.ndarray, notes: Notes) -> None:
     data = ob.data
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
-    factors = [label for label, attr in (("Diffuse", "diffuse_factor"),
-                                         ("Specular", "specular_factor"),
-                                         ("Transmission", "transmission_factor"),
-                                         ("Volume Scatter", "volume_factor"))
-               if getattr(data, attr, 1.0) != 1.0]
-    if factors:  # EEVEE's settings: Cycles ignores them too (a Diffuse factor 0 changes nothing)
-        notes.warn(f"light {'/'.join(factors)} factors are ignored, as Cycles ignores them",
-                   name)
+    # (the Diffuse/Specular/Transmission/Volume Scatter factors are EEVEE's: Cycles ignores
+    # them, as RSTrace does, so they are not reported)
     off = _off(ob, (("Diffuse", "visible_diffuse"), ("Glossy", "visible_glossy"),
                     ("Transmission", "visible_transmission")))
     if off:
@@ -242,6 +242,10 @@ def world_colour(world, notes: Notes) -> np.ndarray:
     if tree is None:
         return _finite_world(rgb(world.color), world.name, "Color", notes)
     out = tree.get_output_node("CYCLES")
+    volume = out.inputs.get("Volume") if out is not None else None
+    if volume is not None and volume.is_linked:
+        notes.warn("world volumes (fog, Volume Scatter/Absorption on the World Output) are "
+                   "not supported (ignored)", world.name)
     node, _ = follow_link(out.inputs["Surface"]) if out is not None else (None, None)
     if node is None:
         return np.zeros(3)
@@ -273,10 +277,11 @@ def world_colour(world, notes: Notes) -> np.ndarray:
     return colour * max(strength, 0.0)
 
 
-def world_lights(world, notes: Notes) -> bool:
+def world_lights(world, notes: Notes, colour=None) -> bool:
     """Whether the world lights surfaces: not where its Diffuse and Glossy ray visibility
     are both off (Cycles then excludes it from both closures: a background only). One of
-    the two off, or Camera off, is reported (the world is then seen, or lights, anyway)."""
+    the two off, or Camera off, is reported (the world is then seen, or lights, anyway);
+    both off, that mirrors still show it (``colour``: the world's, when not black)."""
     vis = getattr(world, "cycles_visibility", None)
     if vis is None:
         return True

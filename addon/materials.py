@@ -132,6 +132,9 @@ class MaterialReader:
         self.uv_maps: set = set()  # UV maps named by UV Map nodes (checked per mesh)
         self._ids: dict[int, int] = {}
         self._default_id: int | None = None
+        #: the last material converted is a Holdout shader (a hole for camera rays, black
+        #: elsewhere): the export holds it out (tracing.camera_passes)
+        self.holdout = False
 
     def default_id(self) -> int:
         if self._default_id is None:
@@ -178,12 +181,23 @@ class MaterialReader:
         disp = out.inputs.get("Displacement")
         if disp is not None and disp.is_linked:
             self.notes.warn("material displacement is not supported (ignored)", name)
+        vol = out.inputs.get("Volume")
+        if vol is not None and vol.is_linked:
+            self.notes.warn("volume shaders (Volume Absorption, Volume Scatter, Principled "
+                            "Volume) are not supported (ignored: the surface alone renders)",
+                            name)
+        self.holdout = False
         node, _ = follow_link(out.inputs["Surface"])
         if node is None:
             self.notes.warn("materials with nothing connected to Surface use their viewport "
                             "colour", name)
             return self._viewport(mat)
         kind = node.bl_idname
+        if kind == "ShaderNodeHoldout":
+            # Cycles: a transparent hole for camera rays; seen in reflections or refractions
+            # it has no closure (black), and it casts shadows
+            self.holdout = True
+            return self._mix(name, base=(0.0, 0.0, 0.0), specular_level=0.0)
         if kind == "ShaderNodeBsdfPrincipled":
             return self._principled(name, node)
         if kind == "ShaderNodeBsdfDiffuse":

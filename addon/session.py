@@ -37,6 +37,10 @@ from .depsgraph_diff import SceneMirror
 log = logging.getLogger(__name__)
 
 INTERPOLATION_PASS = "Interpolation"
+#: The view layer's passes the engine writes besides Combined: (flag, pass name, channels,
+#: channel ids, type), as Cycles registers them (tracing.camera_passes computes them)
+DATA_PASSES = (("use_pass_z", "Depth", 1, "Z", "VALUE"),
+               ("use_pass_normal", "Normal", 3, "XYZ", "VECTOR"))
 INTERRUPTED = "render interrupted (Ctrl+C): cancelled, nothing written"
 
 
@@ -115,9 +119,14 @@ class FrameRenderer:
     # -- passes ----------------------------------------------------------------------------
 
     def update_render_passes(self, scene, render_layer) -> None:
-        """Declare our passes to Blender (compositor sockets, EXR layers)."""
+        """Declare our passes to Blender (compositor sockets, EXR layers): Combined, the
+        Interpolation false colours, and Depth and Normal where the view layer asks for
+        them (as Cycles names them)."""
         self.engine.register_pass(scene, render_layer, "Combined", 4, "RGBA", "COLOR")
         self.engine.register_pass(scene, render_layer, INTERPOLATION_PASS, 3, "RGB", "COLOR")
+        for flag, name, channels, chan_id, kind in DATA_PASSES:
+            if getattr(render_layer, flag, False):
+                self.engine.register_pass(scene, render_layer, name, channels, chan_id, kind)
 
     # -- render ----------------------------------------------------------------------------
 
@@ -188,12 +197,16 @@ class FrameRenderer:
             # what the session applied for this frame: the edits, and a new camera (render)
             reports = [report] + ([session.last_report] if session.last_report is not before
                                   else [])
+            passes = _camera_passes(session, snap, state.mirror.cache, depsgraph.view_layer,
+                                    frame, engine.test_break)
             runtime.mark_kernels_ready()
             runtime.start_host_compile()  # shipped portable kernels: this CPU's, for later
             session_stats = dict(getattr(session, "stats", {}) or {})
         state.dirty_mask = mask if frame.stats.get("incremental") else None
 
-        self._write_result(depsgraph, scene, frame)
+        for message in unwritten_passes(depsgraph.view_layer):
+            self._warn(state, message)
+        self._write_result(depsgraph, scene, frame, passes)
         state.frame = frame
         state.renders += 1
         core = session.scene
@@ -239,8 +252,10 @@ class FrameRenderer:
         if message:
             self.engine.update_stats("", f"RSTrace | {message}")
 
-    def _write_result(self, depsgraph, scene, frame: Frame) -> None:
-        """Combined (linear radiance, alpha) and the Interpolation false-colour pass.
+    def _write_result(self, depsgraph, scene, frame: Frame, passes=None) -> None:
+        """Combined (linear radiance, alpha: holdouts cut out), the Interpolation
+        false-colour pass, Depth and Normal where asked (``passes``: a
+        :class:`~rstrace_engine.tracing.camera_passes.CameraPasses` or None).
 
         With a render region (border) Blender's result covers only that region, addressed
         from its own corner; the frame is rendered whole and the region copied out.
@@ -251,6 +266,13 @@ class FrameRenderer:
         rgba[..., 3] = 1.0
         if scene.render.film_transparent:
             rgba[frame.pixel_class == CLASS_BACKGROUND] = 0.0
+        if passes is not None and passes.alpha is not None:
+            # holdouts: premultiplied colour of the other samples, alpha their share
+            rgba[..., :3] = passes.radiance
+            rgba[..., 3] *= passes.alpha
+        data = {}
+        if passes is not None:
+            data = {"Depth": passes.depth, "Normal": passes.normal}
         classes = frame.class_image()
         x0, y0, bw, bh = _region(scene.render, w, h)
         engine = self.engine
@@ -266,6 +288,11 @@ class FrameRenderer:
             if ipass is not None:
                 ipass.rect.foreach_set(
                     np.ascontiguousarray(classes[y0:y0 + bh, x0:x0 + bw]).ravel())
+            for name, values in data.items():
+                dpass = layer.passes.get(name)
+                if dpass is not None and values is not None:
+                    dpass.rect.foreach_set(np.ascontiguousarray(
+                        values[y0:y0 + bh, x0:x0 + bw], np.float32).ravel())
         finally:
             engine.end_result(result)
 
@@ -290,6 +317,59 @@ class FrameRenderer:
         self.engine.report({"ERROR"}, f"RSTrace: {message}")
         self.engine.error_set(f"RSTrace: {message}")
         self.engine.update_stats("", f"RSTrace | error: {message}")
+
+
+def _camera_passes(session, snap, cache, view_layer, frame: Frame, cancel):
+    """Depth and Normal (where the view layer asks for them) and the holdouts of an F12
+    frame (:func:`rstrace_engine.tracing.camera_passes.camera_passes`), or None when there
+    is nothing to do."""
+    from rstrace_engine.tracing.camera_passes import camera_passes
+
+    depth = bool(getattr(view_layer, "use_pass_z", False))
+    normal = bool(getattr(view_layer, "use_pass_normal", False))
+    core = session.scene
+    insts, mats = [], set()
+    for key, rec in snap.objects.items():
+        if rec.holdout:
+            insts.append(core.instance_slot(key))
+        for mk in rec.material_keys:
+            entry = cache.materials.get(mk)
+            if entry is not None and getattr(entry, "holdout", False):
+                mats.add(core.material_id(mk))
+    if not (depth or normal or insts or mats) or frame.stats.get("cancelled"):
+        return None
+    return camera_passes(core, session.accel, session.settings, frame=frame,
+                         holdout_mats=sorted(mats), holdout_insts=insts, depth=depth,
+                         normal=normal, cancel=cancel)
+
+
+def unwritten_passes(view_layer) -> list[str]:
+    """A message naming the render passes ``view_layer`` enables that the engine does
+    not write (Mist, Ambient Occlusion, Diffuse Direct, ..., Cycles' own: volume, shadow
+    catcher, denoising data, debug; AOVs, light groups); [] when there are none."""
+    if view_layer is None:
+        return []
+    written = {"use_pass_combined", "use_pass_cryptomatte_accurate"} | {
+        flag for flag, *_ in DATA_PASSES}
+    names = []
+    # the view layer's own passes and Cycles' (EEVEE's are EEVEE's settings, as Cycles
+    # ignores them)
+    for holder in (view_layer, getattr(view_layer, "cycles", None)):
+        if holder is None:
+            continue
+        for prop in holder.bl_rna.properties:
+            ident = prop.identifier
+            if (ident.startswith(("use_pass_", "pass_")) or ident == "denoising_store_passes") \
+                    and ident not in written and prop.type == "BOOLEAN" \
+                    and getattr(holder, ident, False):
+                names.append(prop.name)
+    for label, items in (("AOV", getattr(view_layer, "aovs", ())),
+                         ("light group", getattr(view_layer, "lightgroups", ()))):
+        names += [f"{label} '{item.name}'" for item in items]
+    if not names:
+        return []
+    return [f"render passes not written by RSTrace (left empty): {', '.join(names)}: "
+            f"'{view_layer.name}'"]
 
 
 def check_available(settings) -> None:

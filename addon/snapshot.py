@@ -30,6 +30,7 @@ class ObjectRecord:
     mesh_key: Hashable
     matrix: np.ndarray  # (4, 4) float64
     material_keys: tuple
+    holdout: bool = False  # the object (or its collection) is a holdout in the view layer
 
 
 @dataclass
@@ -51,6 +52,7 @@ class MaterialEntry:
     notes: list  # (kind, name) warnings its conversion produced, re-reported every export
     images: frozenset = frozenset()  # keys of the textures (ExportCache.textures) it uses
     uv_maps: frozenset = frozenset()  # UV maps its UV Map nodes name (checked per mesh)
+    holdout: bool = False  # a Holdout shader (tracing.camera_passes holds it out)
 
 
 @dataclass

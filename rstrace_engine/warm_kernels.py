@@ -243,17 +243,45 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
             session.render(cancel=cancel)
 
 
+def _warm_large_bvh(progress=None, cancel=None) -> None:
+    """A first frame of a mesh just past ``bvh_build.PARALLEL_MIN`` triangles: the BVH
+    builder's parallel kernels (``LARGE_BUILD_KERNELS``) run only for such meshes, so
+    without this step a user's first heavy scene compiled them (and the shipped cache
+    lacked them). A 182x182 grid: 66,248 triangles, a fraction of a second to build."""
+    from .accel.bvh_build import PARALLEL_MIN
+    from .frame import RenderSettings
+    from .geometry import shapes
+    from .geometry.scene import Material
+    from .session import Session
+
+    message = "warming kernels: a large mesh's BVH build"
+    log.info(message)
+    if progress is not None:
+        progress(message)
+    s = warm_scene(16, 12)
+    grid = shapes.plane(6.0, divisions=182, name="large_grid")
+    assert len(grid.triangles) >= PARALLEL_MIN
+    grey = s.add_material(Material("large", diffuse=(0.5,) * 3))
+    s.add_instance(s.add_mesh(grid), shapes.transform((0.0, 0.0, -0.5)), [grey],
+                   name="LargeGrid")
+    Session(s, RenderSettings(mode="BASE", accelerator="BVH", samples=1,
+                              max_depth=1)).render(cancel=cancel)
+
+
 def units(modes, accelerators) -> list[tuple]:
     """The warm-up's steps in the order :func:`warm_parallel` deals them out to its
     processes: ``("step", mode, accelerator, orthographic)`` accelerator by accelerator,
     camera by camera, every mode in turn (so that the processes start on different modes,
     i.e. different kernels), then ``("interpolants",)`` (an edit of interpolants that pass)
-    and ``("ri_trees",)`` (RI-trees on the first accelerator) when their mode is warmed."""
+    and ``("ri_trees",)`` (RI-trees on the first accelerator) when their mode is warmed,
+    and ``("large_bvh",)`` (a large mesh's parallel BVH build) with the BVH."""
     out = [("step", m, a, o) for a in accelerators for o in (False, True) for m in modes]
     if "INTERPOLANT" in modes:
         out.append(("interpolants",))
     if "RI_TREE" in modes:
         out.append(("ri_trees",))
+    if "BVH" in accelerators:
+        out.append(("large_bvh",))
     return out
 
 
@@ -315,6 +343,10 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
             _check(cancel)
             with held:
                 _warm_ri_trees(accelerators[:1], progress, cancel)
+        if ("large_bvh",) in mine:
+            _check(cancel)
+            with held:
+                _warm_large_bvh(progress, cancel)
         _check(cancel)
     except Cancelled:
         cancelled = True

@@ -184,7 +184,8 @@ def animated_three_spheres(width=64, height=48, frame_end=4):
 def render_exr(path=None, layer: str = "ViewLayer") -> dict[str, np.ndarray]:
     """F12 (write_still) to a multilayer EXR and read its passes back.
 
-    Returns {"Combined": (h, w, 4), "Interpolation": (h, w, 3) if present}.
+    Returns {"Combined": (h, w, 4), "Interpolation": (h, w, 3), "Depth": (h, w, 1),
+    "Normal": (h, w, 3)}, each but Combined where present.
     """
     sc = bpy.context.scene
     if path is None:
@@ -199,8 +200,9 @@ def render_exr(path=None, layer: str = "ViewLayer") -> dict[str, np.ndarray]:
     channels = read_exr(path)
     os.remove(path)
     out = {"Combined": read_pass(channels, "Combined", layer, "RGBA")}
-    if f"{layer}.Interpolation.R" in channels:
-        out["Interpolation"] = read_pass(channels, "Interpolation", layer, "RGB")
+    for name, components in (("Interpolation", "RGB"), ("Depth", "Z"), ("Normal", "XYZ")):
+        if f"{layer}.{name}.{components[0]}" in channels:
+            out[name] = read_pass(channels, name, layer, components)
     return out
 
 

@@ -242,7 +242,8 @@ def test_light_settings_not_modelled_are_reported_by_name():
     b.add_object("Spot3", spot, (2.0, 0.0, 4.0)).scale = (2.0, 2.0, 2.0)  # unchanged
     warnings = _export().warnings
     assert any("shadows turned off" in w and "'Lamp'" in w for w in warnings), warnings
-    assert any("Diffuse" in w and "factors" in w and "'Lamp'" in w for w in warnings)
+    # EEVEE's light factors: Cycles ignores them too, so nothing to report
+    assert not any("factors" in w for w in warnings), warnings
     spots = [w for w in warnings if "non-uniformly scaled spot" in w]
     assert len(spots) == 1 and "'Spot'" in spots[0] and "'Spot2'" in spots[0]
     assert "'Spot3'" not in spots[0]
@@ -267,6 +268,18 @@ def test_light_emission_node_multiplies_colour_and_power():
     ex = _export()
     assert ex.scene.lights[0].power == pytest.approx(1000.0)
     assert any("node trees" in w and "'Lamp'" in w for w in ex.warnings), ex.warnings
+
+
+def test_light_with_diffuse_and_glossy_visibility_off_lights_nothing():
+    """Cycles leaves it out of both closures: RSTrace leaves it out, and says so."""
+    _basic_scene()
+    lamp = bpy.data.objects["Lamp"]
+    lamp.visible_diffuse = lamp.visible_glossy = False
+    ex = _export()
+    assert "Lamp" not in {li.name for li in ex.scene.lights}
+    assert any("Diffuse and Glossy ray visibility off" in w and "'Lamp'" in w
+               for w in ex.warnings), ex.warnings
+    assert not any("is not modelled" in w and "'Lamp'" in w for w in ex.warnings)
 
 
 def test_light_and_world_ray_visibility_and_linking_are_reported():

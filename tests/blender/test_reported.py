@@ -59,24 +59,106 @@ def test_lambertian_diffuse_is_not_reported():
     assert not _reported(_warnings(), "diffuse roughness")
 
 
-def test_holdout_shader_is_reported():
-    mat = bpy.data.materials.new("Hole")
+def _holdout_material(name: str):
+    mat = bpy.data.materials.new(name)
     nodes = mat.node_tree.nodes
     nodes.remove(nodes["Principled BSDF"])
     hold = nodes.new("ShaderNodeHoldout")
     mat.node_tree.links.new(hold.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return mat
+
+
+def _viewport_warnings():
+    import addon
+
+    cache = addon.export.ExportCache()
+    snap = addon.export.read_scene(bpy.context.evaluated_depsgraph_get(), cache,
+                                   source="VIEWPORT")
+    return snap.warnings
+
+
+def test_holdout_shader_is_modelled_in_renders_and_reported_in_the_viewport():
+    import addon
+
+    _scene(_holdout_material("Hole"))
+    cache = addon.export.ExportCache()
+    snap = addon.export.read_scene(bpy.context.evaluated_depsgraph_get(), cache)
+    (rec,) = snap.objects.values()
+    entry = cache.materials[rec.material_keys[0]]
+    # a hole for camera rays (the render cuts it out), black in reflections
+    assert entry.holdout and max(entry.material.diffuse) == 0.0
+    assert not _reported(snap.warnings, "Holdout"), snap.warnings
+    assert _reported(_viewport_warnings(), "holdouts", "viewport", "'Ball'")
+
+
+@pytest.mark.parametrize("where", ["object", "collection"])
+def test_holdout_objects_are_flagged(where):
+    import addon
+
+    if where == "object":
+        _scene().is_holdout = True
+    else:
+        _in_collection("Cutout").holdout = True
+    snap = addon.export.read_scene(bpy.context.evaluated_depsgraph_get(),
+                                   addon.export.ExportCache())
+    held = {rec.name for rec in snap.objects.values() if rec.holdout}
+    assert held == ({"Ball"} if where == "object" else {"Box"})
+    assert not _reported(snap.warnings, "holdout"), snap.warnings
+
+
+def test_volume_under_a_surface_is_reported():
+    mat = b.principled("Smoky")
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    vol = nodes.new("ShaderNodeVolumeAbsorption")
+    links.new(vol.outputs[0], nodes["Material Output"].inputs["Volume"])
     _scene(mat)
     w = _warnings()
-    assert _reported(w, "Holdout", "not supported", "'Hole'"), w
+    assert _reported(w, "volume shaders", "'Smoky'"), w
+
+
+def test_world_volume_is_reported():
+    _scene()
+    world = bpy.data.worlds.new("Foggy")
+    bpy.context.scene.world = world
+    nodes = world.node_tree.nodes
+    vol = nodes.new("ShaderNodeVolumeScatter")
+    world.node_tree.links.new(vol.outputs[0], nodes["World Output"].inputs["Volume"])
+    w = _warnings()
+    assert _reported(w, "world volumes", "'Foggy'"), w
+
+
+def test_particle_hair_is_reported():
+    ball = _scene()
+    bpy.context.view_layer.objects.active = ball
+    ball.modifiers.new("Hair", "PARTICLE_SYSTEM")
+    ball.particle_systems[0].settings.type = "HAIR"
+    w = _warnings()
+    assert _reported(w, "particle hair", "'Ball'"), w
+
+
+def test_unwritten_passes_are_named():
+    from addon.session import unwritten_passes
+
+    _scene()
+    layer = bpy.context.view_layer
+    assert unwritten_passes(layer) == []
+    layer.use_pass_z = layer.use_pass_normal = True  # written
+    assert unwritten_passes(layer) == []
+    layer.use_pass_mist = layer.use_pass_ambient_occlusion = True
+    layer.use_pass_diffuse_direct = True
+    (message,) = unwritten_passes(layer)
+    for name in ("Mist", "Ambient Occlusion", "Diffuse Direct", f"'{layer.name}'"):
+        assert name in message, message
+    assert "Normal" not in message and " Z" not in message
+    if hasattr(layer, "cycles"):  # Cycles' own passes, and AOVs
+        layer.cycles.use_pass_shadow_catcher = layer.cycles.denoising_store_passes = True
+        layer.aovs.add().name = "Dirt"
+        (message,) = unwritten_passes(layer)
+        for name in ("Shadow Catcher", "Denoising", "AOV 'Dirt'"):
+            assert name in message, message
 
 
 # ----------------------------------------------------------------------------- objects
-
-
-def test_holdout_object_is_reported():
-    _scene().is_holdout = True
-    w = _warnings()
-    assert _reported(w, "holdout", "'Ball'"), w
 
 
 def test_shadow_catcher_is_reported():
@@ -91,12 +173,6 @@ def _in_collection(name: str):
     bpy.context.scene.collection.children.link(col)
     b.add_object("Box", b.grid("Box", 1.0), (2.0, 0.0, 0.5), collection=col)
     return bpy.context.view_layer.layer_collection.children[name]
-
-
-def test_holdout_collection_is_reported():
-    _in_collection("Cutout").holdout = True
-    w = _warnings()
-    assert _reported(w, "holdout collections", "'Cutout'"), w
 
 
 def test_indirect_only_collection_is_reported():

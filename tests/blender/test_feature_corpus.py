@@ -234,6 +234,66 @@ def _mist_pass(ball, sc):
     bpy.context.view_layer.use_pass_diffuse_direct = True
 
 
+def _textured_ball(**args):
+    """The ball with an 8 x 8 checker image (test_material_features.textured) fed as
+    ``args`` say."""
+    from .test_material_features import checker, textured
+
+    def build():
+        mat = textured("Checker ball", checker(), **args)
+        if args.get("into") == "Emission Color":
+            mat.cycles.emission_sampling = "NONE"  # (RSTrace: emissive meshes light nothing)
+        ball = _stage(mat)
+        if args.get("into") == "Emission Color":
+            ball.visible_diffuse = False  # Cycles: the floor's BSDF rays would see it
+    return build
+
+
+def _glossy_image():
+    from .test_material_features import checker
+
+    mat = bpy.data.materials.new("Checker metal")
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    glossy, tex = nodes.new("ShaderNodeBsdfGlossy"), nodes.new("ShaderNodeTexImage")
+    tex.image = checker()
+    _link(mat, tex, "Color", glossy.inputs["Color"])
+    _link(mat, glossy, 0, nodes["Material Output"].inputs["Surface"])
+    _stage(mat)
+
+
+def _other_uv_map():
+    from .test_material_features import checker, textured
+
+    mat = textured("Checker ball", checker())
+    uvmap = mat.node_tree.nodes.new("ShaderNodeUVMap")
+    uvmap.uv_map = "Second"
+    _link(mat, uvmap, "UV", mat.node_tree.nodes["Image"].inputs["Vector"])
+    ball = _stage(mat)
+    ball.data.uv_layers.new(name="Second")
+
+
+def _bent_quads():
+    from .test_material_features import _bent_quads as bent
+
+    _stage(chrome=False)
+    ob = b.add_object("Bent", bent(), (1.2, -0.5, 1.2), b.diffuse("Grey", (0.7, 0.7, 0.7)))
+    ob.rotation_euler = (math.radians(60.0), 0.0, math.radians(20.0))
+
+
+def _no_material():
+    ball = _stage(chrome=False)
+    ball.data.materials.clear()
+    ball.data.materials.append(None)  # an empty slot
+    b.add_object("Bare", b.uv_sphere("Bare", 0.8, 32, 16), (1.2, -0.2, 0.8))  # none at all
+
+
+def _override():
+    _stage(chrome=False)
+    bpy.context.view_layer.material_override = b.principled("Clay", (0.3, 0.35, 0.7),
+                                                            roughness=0.6)
+
+
 FEATURES = [
     # modelled: against Cycles
     Feature("point light", _light("POINT"), tol=0.05),
@@ -254,6 +314,21 @@ FEATURES = [
     Feature("Holdout shader", _holdout_shader, tol=0.05, compare="holdout", glossy=1),
     Feature("Depth pass", _passes, tol=0.03, compare="depth"),
     Feature("Normal pass", _passes, tol=0.02, compare="normal"),
+    Feature("image texture, byte sRGB, Linear", _textured_ball(), tol=0.05),
+    Feature("image texture, Closest", _textured_ball(interpolation="Closest"), tol=0.05),
+    Feature("image texture, Generated coordinates", _textured_ball(coords="Generated"),
+            tol=0.05),
+    Feature("image texture, Object coordinates through Mapping",
+            _textured_ball(coords="Object", mapping={"Scale": (2.0, 2.0, 2.0),
+                                                     "Rotation": (0.0, 0.0, 0.5)}), tol=0.05),
+    Feature("image texture, Clip extension",
+            _textured_ball(coords="Generated", extension="CLIP",
+                           mapping={"Scale": (1.5, 1.5, 1.0)}), tol=0.05),
+    Feature("image into Emission Color", _textured_ball(into="Emission Color"), tol=0.05,
+            glossy=1),
+    Feature("flat-shaded non-planar quads", _bent_quads, tol=0.05),
+    Feature("no material, empty slot (default surface)", _no_material, tol=0.05),
+    Feature("view layer material override", _override, tol=0.05),
     # reported: named in the render's messages
     Feature("depth of field", _scene_change(_dof), words=("depth of field",)),
     Feature("motion blur", _scene_change(_motion_blur), words=("motion blur",)),
@@ -281,6 +356,14 @@ FEATURES = [
             words=("non-uniformly scaled spot", "'Spot'")),
     Feature("passes not written (Mist, Diffuse Direct)", _scene_change(_mist_pass),
             words=("passes not written", "Mist", "Diffuse Direct")),
+    Feature("image into Glossy BSDF colour", _glossy_image,
+            words=("Image Texture into the Glossy BSDF colour", "'Checker metal'")),
+    Feature("image into Specular Tint", _textured_ball(into="Specular Tint"),
+            words=("Image Texture into the Specular Tint", "'Checker ball'")),
+    Feature("Texture Coordinate Normal output", _textured_ball(coords="Normal"),
+            words=("'Normal' output", "'Image'", "'Checker ball'")),
+    Feature("UV Map node naming another UV map", _other_uv_map,
+            words=("UV Map nodes", "'Second'", "'Ball'")),
 ]
 
 

@@ -96,16 +96,15 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         pn = np.empty((nf, 3), np.float32)
         me.polygon_normals.foreach_get("vector", pn.reshape(-1))
         normals[:] = np.take(pn, poly, axis=0)[:, None, :]
-        _flat_triangle_normals(verts.reshape(nv, 3), tris, normals, None)
+        _flat_triangle_normals(verts.reshape(nv, 3), tris, normals)
     else:  # CORNER: custom or split normals
         cn = raw.get("corner_normals")
         if cn is None:
             cn = raw["corner_normals"] = np.empty(nl * 3, np.float32)
             me.corner_normals.foreach_get("vector", cn)
+        # (Cycles too shades every triangle with the corner normals here, flat faces with
+        # their polygon's normal: no per-triangle normals)
         np.take(cn.reshape(nl, 3), loops, axis=0, out=normals)
-        sharp = _raw(me, raw, "sharp_face", "value", nf, np.bool_)
-        if sharp is not None and sharp.any():
-            _flat_triangle_normals(verts.reshape(nv, 3), tris, normals, np.take(sharp, poly))
 
     uvs = None
     layer = next((u for u in me.uv_layers if u.active_render), None)
@@ -126,23 +125,16 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
                 slots=slots)
 
 
-def _flat_triangle_normals(verts: np.ndarray, tris: np.ndarray, normals: np.ndarray,
-                           flat: np.ndarray | None) -> None:
-    """Give each flat-shaded triangle (``flat``: (T,) bool, None: all) its own face normal
-    at its three corners, as Cycles shades a flat triangle with its geometric normal: the
+def _flat_triangle_normals(verts: np.ndarray, tris: np.ndarray, normals: np.ndarray) -> None:
+    """Give each triangle of an all-flat mesh (the FACE normals domain) its own face normal
+    at its three corners, as Cycles shades such triangles with their geometric normal: the
     triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
-    normal is one for them all. A (near) degenerate triangle keeps the polygon's normal."""
-    idx = None if flat is None else np.flatnonzero(flat)
-    t = tris if idx is None else tris[idx]
-    a = verts[t[:, 0]].astype(np.float64)
-    n = np.cross(verts[t[:, 1]] - a, verts[t[:, 2]] - a)
+    normal is one for them all. A degenerate triangle keeps the polygon's normal."""
+    a = verts[tris[:, 0]].astype(np.float64)
+    n = np.cross(verts[tris[:, 1]] - a, verts[tris[:, 2]] - a)
     length = np.linalg.norm(n, axis=1)
     ok = length > 0.0
-    n[ok] /= length[ok, None]
-    target = normals if idx is None else normals[idx]
-    target[ok] = n[ok, None, :].astype(np.float32)
-    if idx is not None:
-        normals[idx] = target
+    normals[ok] = (n[ok] / length[ok, None])[:, None, :].astype(np.float32)
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:

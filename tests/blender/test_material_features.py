@@ -294,3 +294,33 @@ def test_other_objects_space_is_reported():
     _top_camera()
     w = _warnings()
     assert _reported(w, "another object's space", "'Coords'", "'Sun'", "'Tex'"), w
+
+
+# ----------------------------------------------------------------------------- other modes
+
+
+@pytest.mark.parametrize("case", ["emission", "object_mapping", "byte_srgb_linear"])
+def test_interpolant_mode_keeps_its_bound_on_new_textures(case):
+    """The interpolants apply a texture per pixel as ``R + texel * D`` (the texel at the
+    pixel's own hit): with a texture into the emission, Object coordinates through a Mapping
+    node, or sRGB bytes decoded after interpolation, INTERPOLANT mode stays within epsilon
+    of BASE (display space)."""
+    from rstrace_engine.image import to_display
+
+    args = dict(TEXTURE_CASES[case][0])
+    _setup()
+    b.add_object("Plane", _plane(), material=textured("Tex", checker(), **args))
+    b.add_object("Ball", b.uv_sphere("Ball", 0.4, 24, 12), (0.3, 0.2, 0.4),
+                 b.diffuse("Red", (0.7, 0.15, 0.1)))
+    b.point_light("Lamp", (-1.0, -1.5, 2.0), 300.0)
+    b.camera((0.0, -3.0, 2.5), (0.0, 0.0, 0.0))
+    sc = b.setup_render(W, H, samples=1, max_depth=1)
+    base = b.render_exr()["Combined"][..., :3]
+    sc.rstrace.mode = "INTERPOLANT"
+    sc.rstrace.epsilon = eps = 0.02
+    out = b.render_exr()["Combined"][..., :3]
+    stats = _state().stats
+    assert stats["mode"] == "INTERPOLANT" and stats["cells_built"] > 0, stats
+    err = np.abs(to_display(out) - to_display(base)).max(axis=-1)
+    print(f"{case}: max display error {err.max():.5f}, cells {stats['cells_built']}")
+    assert err.max() <= eps + 1e-6

@@ -98,7 +98,7 @@ class RenderSettings:
     ri_probe_angle: float = 0.25
     thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
     thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
-    relight_memory_mb: float = 512.0  # BASE: per-light records cap (relighting off above it; 0: off)
+    relight_memory_mb: float = 512.0  # BASE: per-light records cap (MB; 0: none kept)
 
     def accelerator_options(self) -> dict:
         """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""

@@ -2,7 +2,8 @@
 HEIGHT with N lights (N <= 6: the first N of museum's own; more: museum's six and point
 lights on a ceiling grid), the light terms kept under an unlimited cap; prints nodes,
 terms, the parts' bytes, the dense layout's ``177 + 25 (L + 2)`` bytes per node it
-replaced (``L`` the light slots) and what the default cap (``RenderSettings.relight_memory_mb``) does.
+replaced (``L`` the light slots) and what the default cap
+(``RenderSettings.relight_memory_mb``) does.
 ``python scripts/relight_memory.py WIDTH HEIGHT N [N ...]``."""
 
 import sys

@@ -108,6 +108,15 @@ class Session:
         """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
         return self.reuse.dirty_mask
 
+    def relights_only(self, camera: Camera | None = None) -> bool:
+        """Whether the next frame (through ``camera``, default the scene's) only relights
+        the kept one from its per-light records (BASE light edits, no dirty pixel): a
+        viewport shows it without a coarse preview first."""
+        r = self.reuse
+        return (self.settings.mode == "BASE" and not self._queue and r.relight_due
+                and r.dirty is not None and not r.dirty.any() and r.frame is not None
+                and r.matches(self.settings_key(), camera or self.scene.camera))
+
     @property
     def records_bytes(self) -> int:
         """Memory of the per-pixel records of the last frame (bytes)."""

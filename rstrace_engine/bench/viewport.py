@@ -17,7 +17,8 @@ first viewport image, with an empty numba cache directory (everything compiled) 
 the cache this run filled.
 
 ``--json`` prints ``{"rows": [{"scene", "edit", "mode", "first_image_ms",
-"full_image_ms", "full_image_median_ms", "interrupt_ms", "relit"}], "cold_start_s": ..., "warm_start_s": ...}``.
+"full_image_ms", "full_image_median_ms", "interrupt_ms", "relit"}], "cold_start_s": ...,
+"warm_start_s": ...}``.
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
                 # the worker's own clock: from this submission to each stage's image
                 st = worker.stats["stages"]
                 if worker.latest().job == job and "full_ms" in st:
-                    firsts.append(st.get("coarse_ms", math.nan))
+                    firsts.append(st.get("coarse_ms", st["full_ms"]))  # (relit: no preview)
                     fulls.append(st["full_ms"])
                     fs = worker.last_frame.stats if worker.last_frame is not None else {}
                     relights.append(bool(fs.get("relit")))

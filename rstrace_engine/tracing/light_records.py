@@ -55,6 +55,7 @@ from numba import njit, prange
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
+from .shader import Surfaces, light_state
 from .soft_lights import soft_visibility, world_lights
 from .whitted import shade, shadow_rays, surfaces
 
@@ -69,6 +70,7 @@ GEO_BYTES = 88
 ENTRY_BYTES = 25
 NODE_BYTES = 9  # hit flag and CSR start
 WEIGHT_BYTES = 24  # secondary nodes
+_SURF_BYTES = 5 * 24 + 1 + 4  # a rebuilt surface (kept while a light is dragged)
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -126,10 +128,14 @@ def _node_light(k, start, slot, val, use, scale):
         lr = val[s1, 0]
         lg = val[s1, 1]
         lb = val[s1, 2]
-    for group in range(1, 4):
+    # entries are in slot order: the hard lights', the sampled lights' (slot order too),
+    # then the world's (slot WORLD): two passes put the sampled lights after the hard ones
+    # (one when no sampled light is alive: use 2 unused)
+    for group in range(1, 3 if use[WORLD + 1] else 2):
         for e in range(s0, s1):
             c = slot[e]
-            if use[c] == group:
+            u = use[c]
+            if u == group or (group == 2 and u == 3) or (u == 3 and not use[WORLD + 1]):
                 lr += val[e, 0] * scale[c, 0]
                 lg += val[e, 1] * scale[c, 1]
                 lb += val[e, 2] * scale[c, 2]
@@ -205,6 +211,15 @@ def _replace_slot(start, slot, val, j, on, nval, new_start, new_slot, new_val):
             new_val[o, 2] = nval[i, 2]
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _one_light_states(sa, j, P, NG, NS, Q, state):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points."""
+    for i in prange(P.shape[0]):
+        state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                               NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                               Q[i, 2])
+
+
 _loaded = [False]
 
 
@@ -247,6 +262,9 @@ class _Part:
         self.hit, self.start, self.slot, self.val = hit, start, slot, val
         self.weight = weight  # (k, 3) or None (primary nodes: 1)
         self.geo = geo  # dict of _GEO arrays over the hit nodes, or None
+        #: the hit nodes' Surfaces rebuilt from ``geo`` (kept while the nodes are: a light
+        #: dragged is shaded again at every step), or None
+        self.surf: Surfaces | None = None
 
     @classmethod
     def empty(cls, primary: bool, geometry: bool) -> _Part:
@@ -284,6 +302,8 @@ class _Part:
             arrays.append(self.weight)
         if self.geo is not None:
             arrays += list(self.geo.values())
+        if self.surf is not None:
+            arrays += list(self.surf)
         return int(sum(x.nbytes for x in arrays))
 
     @property
@@ -291,7 +311,23 @@ class _Part:
         return 0 if self.geo is None else int(sum(x.nbytes for x in self.geo.values()))
 
     def drop_geometry(self) -> None:
-        self.geo = None
+        self.geo = self.surf = None
+
+    def surfaces(self, sa: SceneArrays, keep: bool) -> Surfaces:
+        """The hit nodes' surfaces (points, normals, shadow origins, materials), rebuilt by
+        the tracer's own surface stage from the rays and hits (bit for bit the traced
+        ones); cached when ``keep``. Their ``sh_state`` is empty."""
+        if self.surf is not None:
+            return self.surf
+        g = self.geo
+        k = len(g["t"])
+        hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
+        no_lights = sa._replace(light_kind=np.empty(0, sa.light_kind.dtype))
+        with threads_for(k):
+            surf = surfaces(no_lights, g["o"], g["d"], np.full(k, np.inf), hits)
+        if keep:
+            self.surf = surf
+        return surf
 
     def take(self, rows: np.ndarray) -> _Part:
         """The nodes ``rows`` (int64) in that order."""
@@ -392,6 +428,11 @@ class LightRecords:
         total = sum(q.nbytes for q in parts)
         if total <= self.cap:
             return
+        for q in parts:  # the rebuilt surfaces first (a cache)
+            q.surf = None
+        total = sum(q.nbytes for q in parts)
+        if total <= self.cap:
+            return
         if self.no_geometry is None:
             self.no_geometry = self._message(
                 total, "moved or added lights re-trace the pixels they touch "
@@ -467,6 +508,7 @@ class LightRecords:
         use[:L] = np.where(alive, np.where(ext, 2, 1), 0)
         if world_lights(sa):
             use[WORLD] = 3
+        use[EMIT] = 1 if (alive & ext).any() else 0  # (read as use[WORLD + 1]: two passes)
         scale = np.zeros((256, 3))
         scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
         scale[WORLD] = sa.world_light
@@ -499,34 +541,44 @@ class LightRecords:
         for part in (self.p, self.s):
             n = len(part)
             rows = np.flatnonzero(part.hit)
+            # the rebuilt surfaces are kept while they fit under the cap
+            keep = self.nbytes + len(rows) * _SURF_BYTES <= self.cap
+            surf = part.surfaces(sa, keep)
+            state = np.empty(len(rows), np.int8)
+            if len(rows):
+                with threads_for(len(rows)):
+                    _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, state)
             faced = np.zeros(n, bool)
+            faced[rows] = state != -2
             lit = np.zeros(n, bool)
             on = np.zeros(n, bool)
             nval = np.zeros((n, 3))
-            for a in range(0, len(rows), 1 << 16):
-                sl = slice(a, a + (1 << 16))
-                f, li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, sl,
-                                                counters)
-                idx = rows[sl]
-                faced[idx], lit[idx], on[idx], nval[idx] = f, li, tp, tv
+            face = np.flatnonzero(state != -2)  # (surface rows) a shadow ray each
+            # batches as large as the shade kernel's dense terms (k, L + 2, 3) allow
+            step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
+            for a in range(0, len(face), step):
+                sub = face[a:a + step]
+                li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
+                                             state[sub], counters)
+                idx = rows[sub]
+                lit[idx], on[idx], nval[idx] = li, tp, tv
             part.replace_slot(j, on, nval)
             bits.append((faced, lit))
         return bits[0], bits[1]
 
-    def _shade_one(self, sa, accel, j, light_samples, geo, sl, counters):
-        """Light ``j``'s terms at the surface nodes ``sl`` (a slice of ``geo``'s rows), by
-        the tracer's own stages: ``(faced, visible, present, value)``."""
+    def _shade_one(self, sa, accel, j, light_samples, geo, surf, sub, state, counters):
+        """Light ``j``'s terms at the surface rows ``sub`` of ``geo`` / ``surf`` (its states
+        ``state`` there), by the tracer's own stages: ``(visible, present, value)``."""
         L = len(sa.light_kind)
-        g = {key: np.ascontiguousarray(x[sl]) for key, x in geo.items()}
-        k = len(g["t"])
+        k = len(sub)
+        g = {key: np.ascontiguousarray(geo[key][sub]) for key in ("t", "inst", "prim", "u",
+                                                                   "v", "seed")}
+        sh_state = np.full((k, L), -2, np.int8)
+        sh_state[:, j] = state
+        sf = Surfaces(*(np.ascontiguousarray(x[sub]) for x in surf[:7]), sh_state.reshape(-1))
         hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
         with threads_for(k):
-            surf = surfaces(sa, g["o"], g["d"], np.full(k, np.inf), hits)
-            st = surf.sh_state.reshape(k, L)
-            state = st[:, j].copy()
-            st[:, :j] = -2
-            st[:, j + 1:] = -2
-            todo, so, sd, stmax = shadow_rays(sa, surf)
+            todo, so, sd, stmax = shadow_rays(sa, sf)
             vis = np.zeros(k * L, np.bool_)
             if len(todo):
                 vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
@@ -539,8 +591,7 @@ class LightRecords:
                 def occluded(o, dd, tmax, r):
                     return accel.any_hit(o, dd, np.zeros(len(o)), tmax)
                 soft, srows, any_vis = soft_visibility(
-                    sa1, surf, g["seed"], int(light_samples), surf.sh_state, occluded,
-                    counters)
+                    sa1, sf, g["seed"], int(light_samples), sf.sh_state, occluded, counters)
                 vis[srows[srows >= 0]] = any_vis[srows >= 0]
-            _, _, (tv, tp) = shade(sa1, hits, surf, vis, np.ones((k, 3)), False, soft, True)
-        return state != -2, vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]
+            _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
+        return vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]

@@ -1,7 +1,7 @@
 """The viewport session without Blender: edit -> first coarse image -> full image.
 
 ``python -m rstrace_engine.bench viewport [--json] [--width W] [--height H] [--threads N]
-[--modes BASE,INTERPOLANT] [--repeat R] [--no-cold]``
+[--modes BASE,INTERPOLANT] [--repeat R] [--no-cold] [--edits light]``
 
 On *museum* (640x480, 2 threads by default) a :class:`~rstrace_engine.interactive.
 ViewportWorker` renders the view; after it has refined its frame, one edit is submitted
@@ -75,7 +75,8 @@ def _edit(session, name: str, step: int):
     return None, _orbit(scene.camera, 2.0 * (step + 1))
 
 
-def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) -> list[dict]:
+def measure(scene_name: str, mode: str, width: int, height: int, repeat: int,
+            edits: tuple = EDITS) -> list[dict]:
     scene = scenes.build(scene_name, width, height)
     settings = RenderSettings(mode=mode)
     session = Session(scene, settings)
@@ -86,7 +87,7 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
         worker.submit(session=session, camera=camera, settings=settings)
         worker.wait_idle(600)  # warm: compile/load, build interpolants
         rows = []
-        for name in EDITS:
+        for name in edits:
             firsts, fulls, interrupts, relights = [], [], [], []
             drag = name == EDITS[3]
             if drag:
@@ -253,6 +254,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--modes", default="BASE,INTERPOLANT")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--no-cold", action="store_true", help="skip the cold-start measurement")
+    p.add_argument("--edits", default=None,
+                   help="only the edits whose names contain one of these (comma-separated), "
+                        "e.g. 'light'")
     p.add_argument("--picture", default=None,
                    help="also write the README's strip (coarse | full | dirty after a move)")
     args = p.parse_args(argv)
@@ -260,8 +264,10 @@ def main(argv: list[str]) -> int:
 
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     rows = []
+    edits = EDITS if args.edits is None else tuple(
+        e for e in EDITS if any(w.strip() in e for w in args.edits.split(",")))
     for mode in args.modes.split(","):
-        rows += measure(args.scene, mode, args.width, args.height, args.repeat)
+        rows += measure(args.scene, mode, args.width, args.height, args.repeat, edits)
     result: dict = dict(rows=rows, threads=args.threads, width=args.width,
                         height=args.height)
     first_mode = args.modes.split(",")[0]

@@ -18,6 +18,7 @@ from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import LightDelete, LightSet, ObjectTransform, WorldColor
+from rstrace_engine.geometry.elements import MAX_LIGHT_POWER
 from rstrace_engine.geometry.scene import Light, SceneError
 from rstrace_engine.session import RELIGHT_OFF, Session
 from rstrace_engine.tracing import light_records
@@ -233,7 +234,10 @@ def test_records_are_sparse():
 
 @pytest.mark.parametrize("bad", [dict(power=float("nan")), dict(power=-5.0),
                                  dict(power=float("inf")), dict(color=(1.0, float("nan"), 0.0)),
-                                 dict(position=(0.0, float("inf"), 1.0))])
+                                 dict(position=(0.0, float("inf"), 1.0)),
+                                 dict(power=10.0 * MAX_LIGHT_POWER), dict(color=(1.0, -0.5, 0.0)),
+                                 dict(radius=-0.1), dict(radius=float("nan")),
+                                 dict(kind="LASER")])
 def test_bad_light_edits_keep_the_frame(bad):
     sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
     first = sess.render()
@@ -269,3 +273,39 @@ def test_light_terms_start_at_the_first_light_edit(monkeypatch):
     m[1, 3] += 0.2
     other.apply([ObjectTransform("Small", m)])
     assert other.render().stats["light_records_mb"] == 0.0
+
+
+def test_light_deleted_while_a_relit_frame_is_in_flight():
+    """A viewport worker relighting a moved light while the light is deleted: the deletion
+    waits for its turn (the session applies queued edits between frames), the next frame
+    drops the light's term, and the image equals a fresh render without it; deleting it
+    again is refused naming the light, the frame kept."""
+    import threading
+
+    from rstrace_engine.interactive import ViewportWorker
+
+    sess = Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, samples=1))
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        worker.submit(session=sess, camera=sess.scene.camera, settings=sess.settings)
+        assert worker.wait_idle(300)
+        li = light(sess, "Lamp")
+        sess.submit([LightSet("Lamp", replace(li, position=(-1.8, -2.0, 3.5)))])
+        worker.submit()
+        sess.submit([LightDelete("Lamp")])  # while that frame may be in flight
+        worker.submit()
+        assert worker.wait_idle(300)
+        assert "Lamp" not in sess.scene.light_keys.slot
+        frame = worker.last_frame
+        np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
+        with pytest.raises(SceneError, match="Lamp"):
+            sess.apply([LightDelete("Lamp")])
+        sess.submit([LightSet("Spot", replace(light(sess, "Spot"), power=700.0)),
+                     LightDelete("Lamp")])
+        worker.submit()
+        assert worker.wait_idle(300)
+        assert worker.error is not None and "Lamp" in worker.error, worker.error
+        assert light(sess, "Spot").power != 700.0  # nothing half-applied
+        np.testing.assert_array_equal(worker.last_frame.radiance, frame.radiance)
+    finally:
+        worker.stop()

@@ -553,11 +553,14 @@ class LightRecords:
             lit = np.zeros(n, bool)
             on = np.zeros(n, bool)
             nval = np.zeros((n, 3))
-            face = np.flatnonzero(state != -2)  # (surface rows) a shadow ray each
-            # batches as large as the shade kernel's dense terms (k, L + 2, 3) allow
+            # contiguous batches of the surface rows (views, no copies) as large as the
+            # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
+            # face trace no shadow ray and get no term
             step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
-            for a in range(0, len(face), step):
-                sub = face[a:a + step]
+            for a in range(0, len(rows), step):
+                sub = slice(a, min(a + step, len(rows)))
+                if not (state[sub] != -2).any():
+                    continue
                 li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
                                              state[sub], counters)
                 idx = rows[sub]
@@ -567,15 +570,15 @@ class LightRecords:
         return bits[0], bits[1]
 
     def _shade_one(self, sa, accel, j, light_samples, geo, surf, sub, state, counters):
-        """Light ``j``'s terms at the surface rows ``sub`` of ``geo`` / ``surf`` (its states
-        ``state`` there), by the tracer's own stages: ``(visible, present, value)``."""
+        """Light ``j``'s terms at the surface rows ``sub`` (a slice) of ``geo`` / ``surf``
+        (its states ``state`` there), by the tracer's own stages: ``(visible, present,
+        value)``."""
         L = len(sa.light_kind)
-        k = len(sub)
-        g = {key: np.ascontiguousarray(geo[key][sub]) for key in ("t", "inst", "prim", "u",
-                                                                   "v", "seed")}
+        k = len(state)
+        g = {key: geo[key][sub] for key in ("t", "inst", "prim", "u", "v", "seed")}
         sh_state = np.full((k, L), -2, np.int8)
         sh_state[:, j] = state
-        sf = Surfaces(*(np.ascontiguousarray(x[sub]) for x in surf[:7]), sh_state.reshape(-1))
+        sf = Surfaces(*(x[sub] for x in surf[:7]), sh_state.reshape(-1))
         hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
         with threads_for(k):
             todo, so, sd, stmax = shadow_rays(sa, sf)

@@ -456,7 +456,10 @@ class LightRecords:
         if len(a["mat"]) > nb:
             rest = {key: x[nb:] for key, x in a.items()}
             self._pending_s.append(_Part.from_levels(rest, False, self.has_geometry))
-        self._check_cap()
+        if self.p is None:
+            # a full frame: checked as it grows (an incremental frame's batches replace
+            # kept nodes: checked once merged, in finish)
+            self._check_cap()
 
     def finish(self, keep: np.ndarray | None) -> None:
         """Drop the secondary nodes not in ``keep`` (None: keep all), then append the

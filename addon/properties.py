@@ -80,6 +80,13 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         name="Memory Cap", default=256.0, min=0.0, soft_max=8192.0, precision=0,
         description="Memory for interpolants and RI-tree samples, in MB; the least "
                     "recently used are evicted beyond it")
+    relight_memory: FloatProperty(
+        name="Relight Memory", default=RenderSettings.relight_memory_mb, min=0.0, max=1e6,
+        soft_max=8192.0, precision=0,
+        description="Base mode: memory for the per-light records that let light edits "
+                    "(power, colour, moving a light) relight the last frame instead of "
+                    "re-tracing it, in MB. Over it, moved lights re-trace, then every light "
+                    "edit does; 0: no records")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
     shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,
@@ -143,6 +150,7 @@ def render_settings(props: RSTraceSettings):
         ri_cache_mb=float(props.ri_cache_mb), ri_probe_angle=float(props.ri_probe_angle),
         thickness_view=bool(props.thickness_view),
         thickness_distance=float(props.thickness_distance),
+        relight_memory_mb=float(props.relight_memory),
     ).validated()
 
 

@@ -239,6 +239,10 @@ class FrameRenderer:
         # did not pay
         for note in (stats.get("bound_notes") or []) + (stats.get("ri_notes") or []):
             self._report(state, "INFO", note)
+        # BASE: per-light records off or cut by their cap (light edits re-trace)
+        for key in ("relight_off", "relight_moves_off"):
+            if stats.get(key):
+                self._report(state, "INFO", stats[key])
         engine.update_memory_stats(memory_used=stats["memory_mb"],
                                    memory_peak=stats["memory_mb"])
         engine.update_stats("", status_line(stats))

@@ -64,6 +64,9 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
         layout.prop(props, "shading_model")
+        row = layout.row()
+        row.active = props.mode == "BASE"
+        row.prop(props, "relight_memory", text="Relight Memory (MB)")
 
 
 class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):

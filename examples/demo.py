@@ -183,7 +183,13 @@ def edit_loop(bpy, sc, out: Path) -> list[dict]:
          lambda: setattr(blue.rotation_euler, "z", math.radians(30.0))),
         ("colour", "BlueSphere's material turns green",
          lambda: setattr(bsdf.inputs["Base Color"], "default_value", (0.1, 0.6, 0.15, 1.0))),
+        # the session's first light edit: a full frame that starts keeping the per-light
+        # records; the next light edits relight the frame from them (no ray traced for a
+        # colour, only the moved light's shadow rays for a move)
         ("power", "Key light at half power", lambda: setattr(key.data, "energy", 1250.0)),
+        ("warm", "Key light warmer", lambda: setattr(key.data, "color", (1.0, 0.8, 0.6))),
+        ("drag", "Key light moved 0.3 m", lambda: setattr(key.location, "x",
+                                                          key.location.x + 0.3)),
         ("hide", "hide MirrorSphere", lambda: setattr(mirror, "hide_render", True)),
         ("show", "show MirrorSphere", lambda: setattr(mirror, "hide_render", False)),
         ("duplicate", "duplicate BlueSphere (linked)", duplicate),
@@ -215,7 +221,7 @@ def edit_loop(bpy, sc, out: Path) -> list[dict]:
         shown[mask] = 1.0
         write_png(folder / f"{k:02d}_{name}_dirty.png", shown)
         row = dict(edit=what, depsgraph_edits=st.get("edit_kinds", {}),
-                   incremental=bool(st.get("incremental")),
+                   incremental=bool(st.get("incremental")), relit=bool(st.get("relit")),
                    dirty_fraction=float(st.get("dirty_fraction", 1.0)),
                    sync_ms=1e3 * st.get("sync_seconds", 0.0),
                    apply_ms=1e3 * st.get("apply_seconds", 0.0),
@@ -224,7 +230,8 @@ def edit_loop(bpy, sc, out: Path) -> list[dict]:
         kinds = ", ".join(f"{n} {v}" for n, v in row["depsgraph_edits"].items()) or "none"
         lines.append(f"{k:02d} {what:34s} edits: {kinds:45s} dirty "
                      f"{100 * row['dirty_fraction']:6.2f}%  sync {row['sync_ms']:6.1f} ms  "
-                     f"apply {row['apply_ms']:6.1f} ms  render {row['render_ms']:7.1f} ms")
+                     f"apply {row['apply_ms']:6.1f} ms  render {row['render_ms']:7.1f} ms"
+                     + ("  relit" if row["relit"] else ""))
         print("demo: " + lines[-1])
     (folder / "edits.txt").write_text("\n".join(lines) + "\n")
     return rows

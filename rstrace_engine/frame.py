@@ -98,7 +98,7 @@ class RenderSettings:
     ri_probe_angle: float = 0.25
     thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
     thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
-    relight_memory_mb: float = 512.0  # BASE: per-light records cap (relighting off above it)
+    relight_memory_mb: float = 512.0  # BASE: per-light records cap (MB; 0: none kept)
 
     def accelerator_options(self) -> dict:
         """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""
@@ -137,10 +137,10 @@ class RenderSettings:
             raise SceneError(f"setting 'ri_depth': {self.ri_depth} outside [1, {RI_MAX_DEPTH}]")
         if not (np.isfinite(self.ri_cache_mb) and 0.0 < self.ri_cache_mb <= 1e6):
             raise SceneError(f"setting 'ri_cache_mb': {self.ri_cache_mb} outside (0, 1e6] MB")
-        if not (np.isfinite(self.relight_memory_mb) and 0.0 < self.relight_memory_mb <= 1e6):
+        if not (np.isfinite(self.relight_memory_mb) and 0.0 <= self.relight_memory_mb <= 1e6):
             raise SceneError(f"setting 'relight_memory_mb': {self.relight_memory_mb} outside "
-                             f"(0, 1e6] MB (the per-light records' cap; light edits re-trace "
-                             f"pixels above it)")
+                             f"[0, 1e6] MB (the per-light records' cap; light edits re-trace "
+                             f"pixels above it; 0: no records)")
         if not (np.isfinite(self.thickness_distance) and self.thickness_distance >= 0.0):
             raise SceneError(f"setting 'thickness_distance': {self.thickness_distance} must "
                              f"be >= 0 (0: automatic)")

@@ -13,7 +13,9 @@ dozen rays) and starts over with
 
 1. a *coarse* frame at 1/:data:`COARSE_FACTOR` resolution (the base tracer with one light
    sample; a few thousand rays), so something appears within tens of milliseconds of any
-   edit;
+   edit -- not when the session only relights its kept frame (BASE light edits,
+   :meth:`Session.relights_only <rstrace_engine.session.Session.relights_only>`): then the
+   full image comes as soon;
 2. the *full*-resolution frame in the session's mode (BASE: the base tracer in tiles;
    INTERPOLANT: radiance interpolants, which are view-independent and survive camera
    moves);
@@ -303,20 +305,26 @@ class ViewportWorker:
             self.error = None
             w, h = camera.width, camera.height
             times = self.stats["stages"]
-            # 1. coarse: the base tracer at 1/coarse_factor resolution, without letting go
-            # of the lock after the edits (a background warm-up would take it in between)
-            cam = coarse_camera(camera, self.coarse_factor)
-            cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-            # one light sample: the preview is shown once, never averaged in, and soft
-            # lights would multiply its cost by Light Samples (the full image and the
-            # refinement take the scene's count: n passes give F12's n samples)
-            rgb, _, done = trace_view(session, cam, replace(settings, light_samples=1),
-                                      self._flag, cb, tile_rays=self.tile_rays)
-        if not done:
-            return self._interrupted()
-        times["coarse_ms"] = 1e3 * (time.perf_counter() - t_job)
-        self._publish(_rgba(rgb, cb, cam.width, cam.height), STAGE_COARSE, 0, job, (w, h),
-                      border, dict(ms_since_edit=times["coarse_ms"]))
+            # light edits the kept frame is relit for (BASE, per-light records): the full
+            # image comes as soon as a preview would, so none is traced (a light drag)
+            relight = session.relights_only(camera)
+            if not relight:
+                # 1. coarse: the base tracer at 1/coarse_factor resolution, without letting
+                # go of the lock after the edits (a background warm-up would take it in
+                # between)
+                cam = coarse_camera(camera, self.coarse_factor)
+                cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
+                # one light sample: the preview is shown once, never averaged in, and soft
+                # lights would multiply its cost by Light Samples (the full image and the
+                # refinement take the scene's count: n passes give F12's n samples)
+                rgb, _, done = trace_view(session, cam, replace(settings, light_samples=1),
+                                          self._flag, cb, tile_rays=self.tile_rays)
+        if not relight:
+            if not done:
+                return self._interrupted()
+            times["coarse_ms"] = 1e3 * (time.perf_counter() - t_job)
+            self._publish(_rgba(rgb, cb, cam.width, cam.height), STAGE_COARSE, 0, job,
+                          (w, h), border, dict(ms_since_edit=times["coarse_ms"]))
         # 2. full resolution in the session's mode (incremental when only edits happened),
         # through the view's camera (a CameraChange when the view moved)
         with self.lock:

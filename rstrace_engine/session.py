@@ -47,6 +47,10 @@ log = logging.getLogger(__name__)
 
 __all__ = ["AVAILABLE_MODES", "Session"]  # AVAILABLE_MODES: frame.py's, re-exported
 
+#: a frame's ``relight_off`` with the records' cap at 0
+RELIGHT_OFF = ("setting 'relight_memory_mb' is 0: no per-light records, light edits re-trace "
+               "the pixels they touch")
+
 
 class Session:
     """Scene + accelerator + settings + caches, reused from frame to frame.
@@ -103,6 +107,15 @@ class Session:
     def dirty_mask(self):
         """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
         return self.reuse.dirty_mask
+
+    def relights_only(self, camera: Camera | None = None) -> bool:
+        """Whether the next frame (through ``camera``, default the scene's) only relights
+        the kept one from its per-light records (BASE light edits, no dirty pixel): a
+        viewport shows it without a coarse preview first."""
+        r = self.reuse
+        return (self.settings.mode == "BASE" and not self._queue and r.relight_due
+                and r.dirty is not None and not r.dirty.any() and r.frame is not None
+                and r.matches(self.settings_key(), camera or self.scene.camera))
 
     @property
     def records_bytes(self) -> int:
@@ -290,7 +303,8 @@ class Session:
             _, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
         terms = None
         keep = not new_cache
-        if mode == "BASE" and self._keeps_light_terms():
+        relight_off = self.settings.relight_memory_mb == 0.0
+        if mode == "BASE" and self._keeps_light_terms() and not relight_off:
             # per-light records: light edits relight (tracing.light_records); a kept frame
             # without them cannot be relit: this one is a full frame
             terms = (len(sa.light_kind), 1e6 * float(self.settings.relight_memory_mb))
@@ -314,6 +328,8 @@ class Session:
                                    pixels=pixels, base=base)
         if mode == "BASE" and pixels is not None:
             frame.stats.update(self.reuse.relight_stats)
+        if mode == "BASE" and self._keeps_light_terms() and relight_off:
+            frame.stats["relight_off"] = RELIGHT_OFF
         frame = self.reuse.finish(frame, records, pixels, key, cam, self.settings.samples,
                                   self.interpolants.cache, pool0)
         n = cam.width * cam.height
@@ -354,6 +370,8 @@ class Session:
         lr = self.records.light if self.records is not None else None
         if lr is not None and lr.overflow is not None:
             frame.stats["relight_off"] = lr.overflow
+        elif lr is not None and lr.no_geometry is not None:
+            frame.stats["relight_moves_off"] = lr.no_geometry
         frame.stats["accel_build_s"] = self.stats.get("accel_build_s", 0.0)
         if "accel_update_s" in self.stats:
             frame.stats["accel_update_s"] = self.stats["accel_update_s"]

@@ -139,3 +139,35 @@ def test_worker_reports_errors_and_keeps_running(session):
         assert worker.latest().stage == STAGE_FULL
     finally:
         worker.stop()
+
+
+def test_light_drag_relights_without_a_coarse_preview():
+    """A BASE session keeping per-light records: each small move of a light is relit from
+    them (no pixel traced), shown at once as the full image (no coarse preview), equal to a
+    fresh render bit for bit."""
+    from rstrace_engine.bench.soak import SOAK_SCENES
+
+    scene = SOAK_SCENES["room"](32, 24)
+    settings = RenderSettings(mode="BASE", max_depth=3)
+    session = Session(scene, settings)
+    session.light_terms = True
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        worker.submit(session=session, camera=scene.camera, settings=settings)
+        assert worker.wait_idle(300)
+        for _ in range(3):
+            li = session.scene.lights[session.scene.light_slot("Lamp")]
+            x, y, z = li.position
+            session.submit([E.LightSet("Lamp", replace(li, position=(x + 0.05, y, z)))])
+            worker.stats["stages"].clear()
+            job = worker.submit()
+            assert worker.wait_idle(300)
+            img = worker.latest()
+            assert img.job == job and img.stage == "full"
+            assert "coarse_ms" not in worker.stats["stages"]
+            stats = worker.last_frame.stats
+            assert stats["relit"] and stats["traced_pixels"] == 0, stats
+            ref = Session(session.scene.copy(), settings).render().radiance
+            np.testing.assert_array_equal(worker.last_frame.radiance, ref)
+    finally:
+        worker.stop()

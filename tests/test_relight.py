@@ -18,9 +18,10 @@ from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import LightDelete, LightSet, ObjectTransform, WorldColor
+from rstrace_engine.geometry.elements import MAX_LIGHT_POWER
 from rstrace_engine.geometry.scene import Light, SceneError
-from rstrace_engine.session import Session
-from rstrace_engine.tracing.light_records import node_bytes
+from rstrace_engine.session import RELIGHT_OFF, Session
+from rstrace_engine.tracing import light_records
 
 W, H = 32, 24
 SETTINGS = RenderSettings(mode="BASE", max_depth=3, samples=2)
@@ -160,26 +161,83 @@ def test_random_light_edit_sequences_stay_exact():
     assert relit >= 5, gen.kinds_done
 
 
-def test_record_cap():
-    """Over the cap the records are dropped (said in the frame's stats) and light edits
-    re-trace; a cap of zero is refused, naming the setting."""
-    n = W * H * SETTINGS.samples
-    cap_mb = 0.5 * n * node_bytes(3) / 1e6
+def _records(cap_mb=1e6):
+    """A rendered room session with the light records under ``cap_mb``, and their parts."""
     sess = Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, relight_memory_mb=cap_mb))
-    first = sess.render()
+    return sess, sess.render()
+
+
+def test_record_cap():
+    """Over the cap the geometry goes first (moved lights re-trace, said in the frame's
+    stats and the edit's messages; power still relights); then everything (light edits
+    re-trace); a cap of zero is refused, naming the setting."""
+    sess, _ = _records()
+    lr = sess.reuse.light_records
+    full = lr.nbytes
+    geo = lr.p.geo_bytes + lr.s.geo_bytes
+    assert 0 < geo < full
+    # between the terms alone and everything: no geometry
+    sess, first = _records((full - geo / 2) / 1e6)
+    assert "relight_memory_mb" in first.stats["relight_moves_off"]
+    assert "relight_off" not in first.stats
+    assert 0 < sess.reuse.light_records_bytes <= full - geo
+    li = light(sess, "Lamp")
+    step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.5))])
+    rep = sess.apply([LightSet("Lamp", replace(light(sess, "Lamp"),
+                                               position=(-1.7, -2.1, 3.4)))])
+    assert not rep.relight and any("re-traced, not relit" in m for m in rep.messages)
+    frame = sess.render()
+    assert not frame.stats.get("relit") and frame.stats["traced_pixels"] > 0
+    np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
+    # under the terms alone: nothing kept
+    sess, first = _records((full - geo) / 2e6)
     assert "relight_memory_mb" in first.stats["relight_off"]
     assert sess.reuse.light_records_bytes == 0
     li = light(sess, "Lamp")
     step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.5))], relit=False)
-    with pytest.raises(SceneError, match="relight_memory_mb"):
-        Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, relight_memory_mb=0.0))
-    with pytest.raises(SceneError, match="relight_memory_mb"):
-        sess.update_settings(replace(SETTINGS, relight_memory_mb=float("nan")))
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(SceneError, match="relight_memory_mb"):
+            sess.update_settings(replace(SETTINGS, relight_memory_mb=bad))
+    assert sess.settings.relight_memory_mb == (full - geo) / 2e6  # nothing half-applied
+
+
+def test_record_cap_zero_keeps_no_records():
+    """A cap of 0: no records, said in the frame's stats; light edits re-trace (equal to a
+    fresh frame) and the frames cost nothing for the terms."""
+    sess, first = _records(0.0)
+    assert first.stats["relight_off"] == RELIGHT_OFF and "relight_memory_mb" in RELIGHT_OFF
+    assert sess.reuse.light_records_bytes == 0 and sess.records.light is None
+    li = light(sess, "Lamp")
+    frame = step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.5))], relit=False)
+    assert frame.stats["incremental"] and frame.stats["relight_off"] == RELIGHT_OFF
+    # raised again: the next full frame keeps them
+    sess.update_settings(replace(SETTINGS, relight_memory_mb=100.0))
+    frame = sess.render()
+    assert "relight_off" not in frame.stats and sess.reuse.light_records_bytes > 0
+    step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.3))])
+
+
+def test_records_are_sparse():
+    """A node keeps only the terms the shader added: fewer entries than nodes times slots,
+    and 9 bytes + 88 per surface node + 24 per secondary node + 25 per term."""
+    sess, _ = _records()
+    lr = sess.reuse.light_records
+    p, s = lr.p, lr.s
+    n_nodes = len(p) + len(s)
+    entries = len(p.slot) + len(s.slot)
+    assert entries < n_nodes * (lr.L + 2)
+    hits = int(p.hit.sum() + s.hit.sum())
+    expect = (n_nodes * light_records.NODE_BYTES + 8 * 2 + hits * light_records.GEO_BYTES
+              + len(s) * light_records.WEIGHT_BYTES + entries * light_records.ENTRY_BYTES)
+    assert lr.nbytes == expect
 
 
 @pytest.mark.parametrize("bad", [dict(power=float("nan")), dict(power=-5.0),
                                  dict(power=float("inf")), dict(color=(1.0, float("nan"), 0.0)),
-                                 dict(position=(0.0, float("inf"), 1.0))])
+                                 dict(position=(0.0, float("inf"), 1.0)),
+                                 dict(power=10.0 * MAX_LIGHT_POWER), dict(color=(1.0, -0.5, 0.0)),
+                                 dict(radius=-0.1), dict(radius=float("nan")),
+                                 dict(kind="LASER")])
 def test_bad_light_edits_keep_the_frame(bad):
     sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
     first = sess.render()
@@ -215,3 +273,39 @@ def test_light_terms_start_at_the_first_light_edit(monkeypatch):
     m[1, 3] += 0.2
     other.apply([ObjectTransform("Small", m)])
     assert other.render().stats["light_records_mb"] == 0.0
+
+
+def test_light_deleted_while_a_relit_frame_is_in_flight():
+    """A viewport worker relighting a moved light while the light is deleted: the deletion
+    waits for its turn (the session applies queued edits between frames), the next frame
+    drops the light's term, and the image equals a fresh render without it; deleting it
+    again is refused naming the light, the frame kept."""
+    import threading
+
+    from rstrace_engine.interactive import ViewportWorker
+
+    sess = Session(SOAK_SCENES["room"](W, H), replace(SETTINGS, samples=1))
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        worker.submit(session=sess, camera=sess.scene.camera, settings=sess.settings)
+        assert worker.wait_idle(300)
+        li = light(sess, "Lamp")
+        sess.submit([LightSet("Lamp", replace(li, position=(-1.8, -2.0, 3.5)))])
+        worker.submit()
+        sess.submit([LightDelete("Lamp")])  # while that frame may be in flight
+        worker.submit()
+        assert worker.wait_idle(300)
+        assert "Lamp" not in sess.scene.light_keys.slot
+        frame = worker.last_frame
+        np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
+        with pytest.raises(SceneError, match="Lamp"):
+            sess.apply([LightDelete("Lamp")])
+        sess.submit([LightSet("Spot", replace(light(sess, "Spot"), power=700.0)),
+                     LightDelete("Lamp")])
+        worker.submit()
+        assert worker.wait_idle(300)
+        assert worker.error is not None and "Lamp" in worker.error, worker.error
+        assert light(sess, "Spot").power != 700.0  # nothing half-applied
+        np.testing.assert_array_equal(worker.last_frame.radiance, frame.radiance)
+    finally:
+        worker.stop()

@@ -1,20 +1,24 @@
 """The viewport session without Blender: edit -> first coarse image -> full image.
 
 ``python -m rstrace_engine.bench viewport [--json] [--width W] [--height H] [--threads N]
-[--modes BASE,INTERPOLANT] [--repeat R] [--no-cold]``
+[--modes BASE,INTERPOLANT] [--repeat R] [--no-cold] [--edits light]``
 
 On *museum* (640x480, 2 threads by default) a :class:`~rstrace_engine.interactive.
 ViewportWorker` renders the view; after it has refined its frame, one edit is submitted
 and the benchmark records the time from the submission to the first coarse image and to
-the first full-resolution image (best of ``--repeat``), for "move one small object",
-"change a material colour" and "orbit the camera 2 degrees". The interrupt latency is the
+the first full-resolution image (best of ``--repeat``, and the median), for "move one small
+object", "change a material colour", "orbit the camera 2 degrees" and "drag a light"
+(2 x ``--repeat`` consecutive 5 cm moves of one of museum's six lights after a first light
+edit, each step's full image relit from the per-light records in BASE: ``relit`` counts
+them; no interrupt measured). The interrupt latency is the
 time from a submission made while a full frame is being rendered to the worker abandoning
 that frame. ``cold_start_s`` / ``warm_start_s``: a fresh Python process from import to the
 first viewport image, with an empty numba cache directory (everything compiled) and with
 the cache this run filled.
 
 ``--json`` prints ``{"rows": [{"scene", "edit", "mode", "first_image_ms",
-"full_image_ms", "interrupt_ms"}], "cold_start_s": ..., "warm_start_s": ...}``.
+"full_image_ms", "full_image_median_ms", "interrupt_ms", "relit"}], "cold_start_s": ...,
+"warm_start_s": ...}``.
 """
 
 from __future__ import annotations
@@ -42,7 +46,10 @@ from ..session import Session
 #: museum keys (the core's default keys are the names): a sculpture near the camera, the
 #: bronze of every other sculpture
 SMALL_OBJECT, MATERIAL = "Sculpture0462", "bronze"
-EDITS = ("move one small object", "change a material colour", "orbit the camera 2°")
+#: the light the drag row moves (museum's ceiling light over the middle of the hall)
+DRAG_LIGHT = "Ceiling4"
+EDITS = ("move one small object", "change a material colour", "orbit the camera 2°",
+         "drag a light")
 
 
 def _orbit(camera, degrees: float, target=(2.0, 4.0, 1.0)):
@@ -60,10 +67,16 @@ def _edit(session, name: str, step: int):
         old = scene.materials[scene.material_id(MATERIAL)]
         colour = (0.35, 0.22, 0.1) if step % 2 else (0.2, 0.3, 0.5)
         return [E.MaterialSet(MATERIAL, replace(old, diffuse=colour))], None
+    if name == EDITS[3]:
+        # consecutive small moves (a drag: 5 cm per step, one way)
+        li = scene.lights[scene.light_slot(DRAG_LIGHT)]
+        x, y, z = li.position
+        return [E.LightSet(DRAG_LIGHT, replace(li, position=(x + 0.05, y, z)))], None
     return None, _orbit(scene.camera, 2.0 * (step + 1))
 
 
-def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) -> list[dict]:
+def measure(scene_name: str, mode: str, width: int, height: int, repeat: int,
+            edits: tuple = EDITS) -> list[dict]:
     scene = scenes.build(scene_name, width, height)
     settings = RenderSettings(mode=mode)
     session = Session(scene, settings)
@@ -74,9 +87,17 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
         worker.submit(session=session, camera=camera, settings=settings)
         worker.wait_idle(600)  # warm: compile/load, build interpolants
         rows = []
-        for name in EDITS:
-            firsts, fulls, interrupts = [], [], []
-            for step in range(repeat):
+        for name in edits:
+            firsts, fulls, interrupts, relights = [], [], [], []
+            drag = name == EDITS[3]
+            if drag:
+                # the session's first light edit: a full frame that starts keeping the
+                # per-light records (Session.light_terms); the drag's steps relight
+                worker.wait_idle(600)
+                session.submit(_edit(session, name, 0)[0])
+                worker.submit()
+                worker.wait_idle(600)
+            for step in range(2 * repeat if drag else repeat):
                 worker.wait_idle(600)
                 edits, new_cam = _edit(session, name, step)
                 worker.stats["stages"].clear()
@@ -88,8 +109,12 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
                 # the worker's own clock: from this submission to each stage's image
                 st = worker.stats["stages"]
                 if worker.latest().job == job and "full_ms" in st:
-                    firsts.append(st.get("coarse_ms", math.nan))
+                    firsts.append(st.get("coarse_ms", st["full_ms"]))  # (relit: no preview)
                     fulls.append(st["full_ms"])
+                    fs = worker.last_frame.stats if worker.last_frame is not None else {}
+                    relights.append(bool(fs.get("relit")))
+                if drag:
+                    continue  # (consecutive moves: no interrupt between them)
                 # interrupt: re-submit while the next full frame is being rendered
                 worker.wait_idle(600)
                 n_before = len(worker.stats["interrupts"])
@@ -104,7 +129,9 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int) ->
                     interrupts.append(1e3 * worker.stats["interrupts"][-1])
             rows.append(dict(scene=scene_name, edit=name, mode=mode,
                              first_image_ms=_best(firsts), full_image_ms=_best(fulls),
-                             interrupt_ms=_worst(interrupts)))
+                             interrupt_ms=_worst(interrupts),
+                             full_image_median_ms=_median(fulls),
+                             relit=f"{sum(relights)}/{len(relights)}"))
         return rows
     finally:
         worker.stop()
@@ -154,6 +181,11 @@ def picture(path, scene_name: str = "museum", width: int = 320, height: int = 24
 def _best(values):
     v = [x for x in values if not math.isnan(x)]
     return round(min(v), 1) if v else None
+
+
+def _median(values):
+    v = [x for x in values if not math.isnan(x)]
+    return round(float(np.median(v)), 1) if v else None
 
 
 def _worst(values):
@@ -222,6 +254,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--modes", default="BASE,INTERPOLANT")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--no-cold", action="store_true", help="skip the cold-start measurement")
+    p.add_argument("--edits", default=None,
+                   help="only the edits whose names contain one of these (comma-separated), "
+                        "e.g. 'light'")
     p.add_argument("--picture", default=None,
                    help="also write the README's strip (coarse | full | dirty after a move)")
     args = p.parse_args(argv)
@@ -229,8 +264,10 @@ def main(argv: list[str]) -> int:
 
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     rows = []
+    edits = EDITS if args.edits is None else tuple(
+        e for e in EDITS if any(w.strip() in e for w in args.edits.split(",")))
     for mode in args.modes.split(","):
-        rows += measure(args.scene, mode, args.width, args.height, args.repeat)
+        rows += measure(args.scene, mode, args.width, args.height, args.repeat, edits)
     result: dict = dict(rows=rows, threads=args.threads, width=args.width,
                         height=args.height)
     first_mode = args.modes.split(",")[0]
@@ -250,10 +287,12 @@ def main(argv: list[str]) -> int:
         print(json.dumps(result, indent=1))
         return 0
     print(f"viewport on {args.scene} {args.width}x{args.height}, {args.threads} threads")
-    print(f"{'edit':28s} {'mode':12s} {'first ms':>9s} {'full ms':>9s} {'interrupt ms':>13s}")
+    print(f"{'edit':28s} {'mode':12s} {'first ms':>9s} {'full ms':>9s} {'median':>9s} "
+          f"{'interrupt ms':>13s} {'relit':>6s}")
     for r in rows:
         print(f"{r['edit']:28s} {r['mode']:12s} {r['first_image_ms']!s:>9s} "
-              f"{r['full_image_ms']!s:>9s} {r['interrupt_ms']!s:>13s}")
+              f"{r['full_image_ms']!s:>9s} {r['full_image_median_ms']!s:>9s} "
+              f"{r['interrupt_ms']!s:>13s} {r['relit']:>6s}")
     for k in ("cold_start_s", "warm_start_s"):
         if k in result:
             print(f"{k}: {result[k]}")

@@ -136,6 +136,11 @@ class FrameReuse:
             report.dirty_pixels = int(np.count_nonzero(self.dirty))
             report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
             return
+        lr = self.light_records
+        if lr is not None and lr.no_geometry is not None and fx.lights_moved:
+            names = ", ".join(str(j) for j in sorted(fx.lights_moved))
+            report.messages.append(f"light slot(s) {names} re-traced, not relit: "
+                                   f"{lr.no_geometry}")
         t0 = time.perf_counter()
         dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
         if rebuilt is not None:
@@ -163,6 +168,8 @@ class FrameReuse:
         if world_lights(new_sa) and (not world_lights(old_sa)
                                      or len(new_sa.light_kind) != len(old_sa.light_kind)):
             return False
+        if fx.lights_moved and not self.light_records.has_geometry:
+            return False  # (over the memory cap: moved lights re-trace, see take_edits)
         return True
 
     def relight(self, sa, accel, settings, base: Frame) -> Frame:
@@ -232,7 +239,7 @@ class FrameReuse:
         self.relight_due = False
         self.relight_moved = set()
         if records.light is not None and records.light.p is not None:
-            load_kernels(records.light.L)
+            load_kernels()
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

@@ -8,8 +8,8 @@ The base tracer's radiance of a ray-tree node with path weight ``w`` is (:mod:`.
 irradiance over its intensity ``I_j``, ``b_j`` the sampled light j's estimate over its
 radiance ``R_j`` and ``c`` the world light's over its colour ``W`` (hard lights in slot
 order, then the sampled lights, then the world: the shader's order). For every sample a
-frame keeps and every node of its ray tree these records keep ``w``, ``E`` and each light's
-term (float64, with whether the shader added it), so that:
+frame keeps and every node of its ray tree these records keep ``w`` and the terms the
+shader added (float64), so that:
 
 * a light's power or colour, the world's colour or strength: the frame is *recombined* --
   every term times the light's new intensity, summed in the shader's order, the nodes'
@@ -19,16 +19,28 @@ term (float64, with whether the shader added it), so that:
 * a light moved, rotated, resized, its kind, radius, angle, shape, spread or cone changed,
   a light added into a slot or deleted: only that light's term is shaded again, at every
   node that hit a surface, with its own shadow rays (or samples) alone, by the tracer's own
-  stages (:func:`~.whitted.surfaces`' light states, :func:`~.whitted.shadow_rays`,
-  :func:`~.soft_lights.soft_visibility`, :func:`~.whitted.shade`); for that the records keep
-  per node what re-shading needs: hit point, normals, ray direction, shadow origin,
-  material, texture coordinates and the soft samples' seed.
+  stages (:func:`~.whitted.surfaces`, :func:`~.whitted.shadow_rays`,
+  :func:`~.soft_lights.soft_visibility`, :func:`~.whitted.shade`).
 
-Terms are float64 because recombination is then exact: float32 terms would differ from a
-fresh frame in the last bits of about half the pixels. The cost is memory (about
-``177 + 25 (L + 2)`` bytes per node for ``L`` light slots); a cap
-(``RenderSettings.relight_memory_mb``) drops the records when a frame's would be larger,
-and light edits then take the per-pixel records' path (re-tracing what they touched).
+Compact, and still exact:
+
+* **sparse terms** -- a node keeps only the terms the shader added (the lights that reach
+  it, the world's where it lights, the emission where not zero), as ``(slot, value)``
+  entries in slot order (CSR: ``start`` per node); a miss keeps none (its radiance is the
+  world colour);
+* **no stored geometry** -- what re-shading needs is rebuilt by the tracer's own surface
+  stage from the node's ray (origin, direction), its hit (``t``, instance, triangle,
+  barycentrics) and its sample seed: 88 bytes per surface node instead of the surface
+  point, two normals, direction and shadow origin;
+* primary nodes keep no path weight (it is 1, and ``1 * x == x``).
+
+Terms stay float64: float32 terms would differ from a fresh frame in the last bits of about
+half the pixels. Memory (:meth:`LightRecords.nbytes`): 9 bytes per node, 88 more per node
+that hit a surface, 24 more per secondary node, 25 per term. A cap
+(``RenderSettings.relight_memory_mb``) bounds it: over the cap the geometry goes first
+(moved and added lights then re-trace the pixels they touch; power, colour and the world
+still recombine), then, if the terms alone are still over it, everything (every light edit
+re-traces). :attr:`LightRecords.overflow` and :attr:`LightRecords.no_geometry` say why.
 
 Nodes are laid out as :class:`~.pixel_records.PixelRecords` lays out its nodes (primary
 nodes by global sample id, secondary nodes in its order), which owns and fills these
@@ -45,115 +57,322 @@ from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
 from .shader import Surfaces, light_state
 from .soft_lights import soft_visibility, world_lights
-from .whitted import shade, shadow_rays
+from .whitted import shade, shadow_rays, surfaces
 
-#: the per-node arrays (their trailing shapes; ``L`` the light slots)
-_VEC = ("weight", "point", "dir", "NG", "NS", "Q")
-_KEYS = _VEC + ("u", "v", "seed", "mat", "prim", "enter", "t_val", "t_on")
-_DTYPES = dict(u=np.float64, v=np.float64, seed=np.uint64, mat=np.int32, prim=np.int32,
-               enter=np.bool_, t_val=np.float64, t_on=np.bool_)
-
-
-def node_bytes(n_lights: int) -> int:
-    """Bytes per ray-tree node of the records with ``n_lights`` light slots."""
-    return 6 * 24 + 8 + 8 + 8 + 4 + 4 + 1 + (n_lights + 2) * 25
-
-
-def _alloc(k: int, n_lights: int) -> dict:
-    c = n_lights + 2
-    out = {key: np.zeros((k, 3)) for key in _VEC}
-    for key in ("u", "v", "seed", "mat", "prim", "enter"):
-        out[key] = np.zeros(k, _DTYPES[key])
-    out["t_val"] = np.zeros((k, c, 3))
-    out["t_on"] = np.zeros((k, c), np.bool_)
-    return out
-
-
-def _level_arrays(levels: list) -> dict:
-    cat = np.concatenate
-    return dict(weight=cat([lv["weight"] for lv in levels]),
-                point=cat([lv["point"] for lv in levels]),
-                dir=cat([lv["dir"] for lv in levels]),
-                NG=cat([lv["NG"] for lv in levels]), NS=cat([lv["NS"] for lv in levels]),
-                Q=cat([lv["Q"] for lv in levels]), u=cat([lv["u"] for lv in levels]),
-                v=cat([lv["v"] for lv in levels]), seed=cat([lv["seed"] for lv in levels]),
-                mat=cat([lv["mat"] for lv in levels]), prim=cat([lv["prim"] for lv in levels]),
-                enter=cat([lv["enter"] for lv in levels]),
-                t_val=cat([lv["t_val"] for lv in levels]),
-                t_on=cat([lv["t_on"] for lv in levels]))
+#: slot codes of the world light's and the emission's entries (light slots are < 64)
+WORLD = 254
+EMIT = 255
+#: what shading a light again needs, per node that hit a surface
+_GEO = dict(o=((3,), np.float64), d=((3,), np.float64), t=((), np.float64),
+            inst=((), np.int32), prim=((), np.int32), u=((), np.float64),
+            v=((), np.float64), seed=((), np.uint64))
+GEO_BYTES = 88
+ENTRY_BYTES = 25
+NODE_BYTES = 9  # hit flag and CSR start
+WEIGHT_BYTES = 24  # secondary nodes
+_SURF_BYTES = 5 * 24 + 1 + 4  # a rebuilt surface (kept while a light is dragged)
 
 
 # ----------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _node_radiance(k, w, mat, t_val, t_on, order, scale, world, E):
-    """One node's contribution, in the shader's order of operations."""
-    if mat[k] < 0:
-        return (w[k, 0] * (t_val[k, E, 0] * world[0]), w[k, 1] * (t_val[k, E, 1] * world[1]),
-                w[k, 2] * (t_val[k, E, 2] * world[2]))
-    lr = t_val[k, E, 0]
-    lg = t_val[k, E, 1]
-    lb = t_val[k, E, 2]
-    for t in range(order.shape[0]):
-        c = order[t]
-        if t_on[k, c]:
-            lr += t_val[k, c, 0] * scale[c, 0]
-            lg += t_val[k, c, 1] * scale[c, 1]
-            lb += t_val[k, c, 2] * scale[c, 2]
-    return w[k, 0] * lr, w[k, 1] * lg, w[k, 2] * lb
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _recombine_primary(w, mat, t_val, t_on, order, scale, world, rad):
-    E = t_val.shape[1] - 1
-    for g in prange(w.shape[0]):
-        r, gg, b = _node_radiance(g, w, mat, t_val, t_on, order, scale, world, E)
-        rad[g, 0] = 0.0 + r
-        rad[g, 1] = 0.0 + gg
-        rad[g, 2] = 0.0 + b
+@njit(cache=True, nogil=True)
+def _count_terms(t_on, t_val, hit, count):
+    """Entries per node of a batch's dense terms (the shade kernel's ``tp``, ``tv``)."""
+    L = t_on.shape[1] - 2
+    for i in range(t_on.shape[0]):
+        c = 0
+        if hit[i]:
+            for j in range(L + 1):
+                if t_on[i, j]:
+                    c += 1
+            if t_val[i, L + 1, 0] != 0.0 or t_val[i, L + 1, 1] != 0.0 or \
+                    t_val[i, L + 1, 2] != 0.0:
+                c += 1
+        count[i] = c
 
 
 @njit(cache=True, nogil=True)
-def _recombine_secondary(w, mat, t_val, t_on, order, scale, world, s_ray, rad):
-    """Secondary nodes in the records' order (per sample, the tracer's level order),
-    serially: samples repeat."""
-    E = t_val.shape[1] - 1
-    for k in range(w.shape[0]):
-        r, gg, b = _node_radiance(k, w, mat, t_val, t_on, order, scale, world, E)
-        g = s_ray[k]
-        rad[g, 0] += r
-        rad[g, 1] += gg
-        rad[g, 2] += b
+def _fill_terms(t_on, t_val, hit, start, slot, val):
+    L = t_on.shape[1] - 2
+    for i in range(t_on.shape[0]):
+        if not hit[i]:
+            continue
+        e = start[i]
+        for j in range(L + 1):
+            if t_on[i, j]:
+                slot[e] = j if j < L else WORLD
+                val[e, 0] = t_val[i, j, 0]
+                val[e, 1] = t_val[i, j, 1]
+                val[e, 2] = t_val[i, j, 2]
+                e += 1
+        if t_val[i, L + 1, 0] != 0.0 or t_val[i, L + 1, 1] != 0.0 or \
+                t_val[i, L + 1, 2] != 0.0:
+            slot[e] = EMIT
+            val[e, 0] = t_val[i, L + 1, 0]
+            val[e, 1] = t_val[i, L + 1, 1]
+            val[e, 2] = t_val[i, L + 1, 2]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _node_light(k, start, slot, val, use, scale):
+    """A surface node's radiance before its path weight, in the shader's order: the
+    emission, the hard lights in slot order, the sampled lights, the world."""
+    s0 = start[k]
+    s1 = start[k + 1]
+    lr = 0.0
+    lg = 0.0
+    lb = 0.0
+    if s1 > s0 and slot[s1 - 1] == EMIT:
+        s1 -= 1
+        lr = val[s1, 0]
+        lg = val[s1, 1]
+        lb = val[s1, 2]
+    # entries are in slot order: the hard lights', the sampled lights' (slot order too),
+    # then the world's (slot WORLD): two passes put the sampled lights after the hard ones
+    # (one when no sampled light is alive: use 2 unused)
+    for group in range(1, 3 if use[WORLD + 1] else 2):
+        for e in range(s0, s1):
+            c = slot[e]
+            u = use[c]
+            if u == group or (group == 2 and u == 3) or (u == 3 and not use[WORLD + 1]):
+                lr += val[e, 0] * scale[c, 0]
+                lg += val[e, 1] * scale[c, 1]
+                lb += val[e, 2] * scale[c, 2]
+    return lr, lg, lb
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, mat, state):
-    """Shadow-ray state (:func:`~.whitted.light_state`) of light ``j`` at every node
-    (misses: not facing)."""
+def _recombine_primary(hit, start, slot, val, use, scale, world, rad):
+    for g in prange(hit.shape[0]):
+        if hit[g]:
+            r, gg, b = _node_light(g, start, slot, val, use, scale)
+            rad[g, 0] = 0.0 + 1.0 * r
+            rad[g, 1] = 0.0 + 1.0 * gg
+            rad[g, 2] = 0.0 + 1.0 * b
+        else:
+            rad[g, 0] = 0.0 + 1.0 * (1.0 * world[0])
+            rad[g, 1] = 0.0 + 1.0 * (1.0 * world[1])
+            rad[g, 2] = 0.0 + 1.0 * (1.0 * world[2])
+
+
+@njit(cache=True, nogil=True)
+def _recombine_secondary(hit, start, slot, val, w, use, scale, world, s_ray, rad):
+    """Secondary nodes in the records' order (per sample, the tracer's level order),
+    serially: samples repeat."""
+    for k in range(hit.shape[0]):
+        if hit[k]:
+            r, gg, b = _node_light(k, start, slot, val, use, scale)
+        else:
+            r, gg, b = 1.0 * world[0], 1.0 * world[1], 1.0 * world[2]
+        g = s_ray[k]
+        rad[g, 0] += w[k, 0] * r
+        rad[g, 1] += w[k, 1] * gg
+        rad[g, 2] += w[k, 2] * b
+
+
+@njit(cache=True, nogil=True)
+def _replace_slot(start, slot, val, j, on, nval, new_start, new_slot, new_val):
+    """Node entries with slot ``j``'s replaced: present where ``on`` (k,), value ``nval``
+    (k, 3); entries stay in slot order. ``new_start`` (k + 1,) is filled first (counts)."""
+    k = start.shape[0] - 1
+    new_start[0] = 0
+    for i in range(k):
+        c = 0
+        for e in range(start[i], start[i + 1]):
+            if slot[e] != j:
+                c += 1
+        new_start[i + 1] = new_start[i] + c + (1 if on[i] else 0)
+    if new_slot.shape[0] == 0:
+        return
+    for i in range(k):
+        o = new_start[i]
+        placed = not on[i]
+        for e in range(start[i], start[i + 1]):
+            c = slot[e]
+            if c == j:
+                continue
+            if not placed and c > j:
+                new_slot[o] = j
+                new_val[o, 0] = nval[i, 0]
+                new_val[o, 1] = nval[i, 1]
+                new_val[o, 2] = nval[i, 2]
+                o += 1
+                placed = True
+            new_slot[o] = c
+            new_val[o, 0] = val[e, 0]
+            new_val[o, 1] = val[e, 1]
+            new_val[o, 2] = val[e, 2]
+            o += 1
+        if not placed:
+            new_slot[o] = j
+            new_val[o, 0] = nval[i, 0]
+            new_val[o, 1] = nval[i, 1]
+            new_val[o, 2] = nval[i, 2]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _one_light_states(sa, j, P, NG, NS, Q, state):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points."""
     for i in prange(P.shape[0]):
-        state[i] = -2
-        if mat[i] >= 0:
-            state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
-                                   NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
-                                   Q[i, 2])
+        state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                               NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                               Q[i, 2])
 
 
 _loaded = [False]
 
 
-def load_kernels(n_lights: int) -> None:
+def load_kernels() -> None:
     """Load (or compile) the recombination kernels once per process, after the first
     frame that keeps light terms, so that the first light edit does not pay it."""
     if _loaded[0]:
         return
     _loaded[0] = True
-    c = n_lights + 2
-    w, tv, tp = np.zeros((0, 3)), np.zeros((0, c, 3)), np.zeros((0, c), np.bool_)
-    mat, order, scale = np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros((c, 3))
+    p = _Part.empty(True, False)
+    s = _Part.empty(False, False)
+    use, scale = np.zeros(256, np.int8), np.zeros((256, 3))
     rad = np.zeros((0, 3))
-    _recombine_primary(w, mat, tv, tp, order, scale, np.zeros(3), rad)
-    _recombine_secondary(w, mat, tv, tp, order, scale, np.zeros(3), np.zeros(0, np.int64), rad)
+    _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, np.zeros(3), rad)
+    _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale, np.zeros(3),
+                         np.zeros(0, np.int64), rad)
+    s.replace_slot(0, np.zeros(0, bool), np.zeros((0, 3)))
+
+
+# ----------------------------------------------------------------------------- parts
+
+
+def _ranges(start: np.ndarray, rows: np.ndarray):
+    """Entry indices of nodes ``rows`` (concatenated) and their counts."""
+    a = start[rows]
+    n = start[rows + 1] - a
+    total = int(n.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), n
+    off = np.cumsum(n) - n
+    return np.repeat(a - off, n) + np.arange(total), n
+
+
+class _Part:
+    """The records of some nodes: hit flag, CSR terms, path weight (secondary nodes) and,
+    for the nodes that hit a surface (in node order), what re-shading needs (``geo``;
+    None when dropped by the cap)."""
+
+    def __init__(self, hit, start, slot, val, weight, geo) -> None:
+        self.hit, self.start, self.slot, self.val = hit, start, slot, val
+        self.weight = weight  # (k, 3) or None (primary nodes: 1)
+        self.geo = geo  # dict of _GEO arrays over the hit nodes, or None
+        #: the hit nodes' Surfaces rebuilt from ``geo`` (kept while the nodes are: a light
+        #: dragged is shaded again at every step), or None
+        self.surf: Surfaces | None = None
+
+    @classmethod
+    def empty(cls, primary: bool, geometry: bool) -> _Part:
+        geo = ({key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}
+               if geometry else None)
+        return cls(np.zeros(0, np.bool_), np.zeros(1, np.int64), np.zeros(0, np.uint8),
+                   np.zeros((0, 3)), None if primary else np.zeros((0, 3)), geo)
+
+    @classmethod
+    def from_levels(cls, a: dict, primary: bool, geometry: bool) -> _Part:
+        hit = np.ascontiguousarray(a["mat"] >= 0)
+        n = len(hit)
+        count = np.empty(n, np.int64)
+        t_on, t_val = np.ascontiguousarray(a["t_on"]), np.ascontiguousarray(a["t_val"])
+        _count_terms(t_on, t_val, hit, count)
+        start = np.zeros(n + 1, np.int64)
+        np.cumsum(count, out=start[1:])
+        slot = np.empty(int(start[-1]), np.uint8)
+        val = np.empty((int(start[-1]), 3))
+        _fill_terms(t_on, t_val, hit, start, slot, val)
+        geo = None
+        if geometry:
+            geo = {key: np.ascontiguousarray(a[key][hit], dt)
+                   for key, (_, dt) in _GEO.items()}
+        return cls(hit, start, slot, val,
+                   None if primary else np.ascontiguousarray(a["weight"]), geo)
+
+    def __len__(self) -> int:
+        return len(self.hit)
+
+    @property
+    def nbytes(self) -> int:
+        arrays = [self.hit, self.start, self.slot, self.val]
+        if self.weight is not None:
+            arrays.append(self.weight)
+        if self.geo is not None:
+            arrays += list(self.geo.values())
+        if self.surf is not None:
+            arrays += list(self.surf)
+        return int(sum(x.nbytes for x in arrays))
+
+    @property
+    def geo_bytes(self) -> int:
+        return 0 if self.geo is None else int(sum(x.nbytes for x in self.geo.values()))
+
+    def drop_geometry(self) -> None:
+        self.geo = self.surf = None
+
+    def surfaces(self, sa: SceneArrays, keep: bool) -> Surfaces:
+        """The hit nodes' surfaces (points, normals, shadow origins, materials), rebuilt by
+        the tracer's own surface stage from the rays and hits (bit for bit the traced
+        ones); cached when ``keep``. Their ``sh_state`` is empty."""
+        if self.surf is not None:
+            return self.surf
+        g = self.geo
+        k = len(g["t"])
+        hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
+        no_lights = sa._replace(light_kind=np.empty(0, sa.light_kind.dtype))
+        with threads_for(k):
+            surf = surfaces(no_lights, g["o"], g["d"], np.full(k, np.inf), hits)
+        if keep:
+            self.surf = surf
+        return surf
+
+    def take(self, rows: np.ndarray) -> _Part:
+        """The nodes ``rows`` (int64) in that order."""
+        hit = self.hit[rows]
+        idx, n = _ranges(self.start, rows)
+        start = np.zeros(len(rows) + 1, np.int64)
+        np.cumsum(n, out=start[1:])
+        geo = None
+        if self.geo is not None:
+            grow = (np.cumsum(self.hit) - 1)[rows[hit]]
+            geo = {key: x[grow] for key, x in self.geo.items()}
+        return _Part(hit, start, self.slot[idx], self.val[idx],
+                     None if self.weight is None else self.weight[rows], geo)
+
+    @staticmethod
+    def concat(parts: list) -> _Part:
+        starts, off = [np.zeros(1, np.int64)], 0
+        for p in parts:
+            starts.append(p.start[1:] + off)
+            off += int(p.start[-1])
+        geo = None
+        if all(p.geo is not None for p in parts):
+            geo = {key: np.concatenate([p.geo[key] for p in parts]) for key in _GEO}
+        weight = None
+        if parts[0].weight is not None:
+            weight = np.concatenate([p.weight for p in parts])
+        return _Part(np.concatenate([p.hit for p in parts]), np.concatenate(starts),
+                     np.concatenate([p.slot for p in parts]),
+                     np.concatenate([p.val for p in parts]), weight, geo)
+
+    def replace_slot(self, j: int, on: np.ndarray, nval: np.ndarray) -> None:
+        """Light slot ``j``'s entries replaced (present where ``on`` (k,), ``nval`` (k, 3))."""
+        new_start = np.empty_like(self.start)
+        empty = np.zeros(0, np.uint8), np.zeros((0, 3))
+        _replace_slot(self.start, self.slot, self.val, j, on, nval, new_start, *empty)
+        slot = np.empty(int(new_start[-1]), np.uint8)
+        val = np.empty((len(slot), 3))
+        if len(slot):
+            _replace_slot(self.start, self.slot, self.val, j, on, nval, new_start, slot, val)
+        self.start, self.slot, self.val = new_start, slot, val
+
+
+def _level_arrays(levels: list, geometry: bool) -> dict:
+    keys = ["weight", "t_val", "t_on", "mat"] + (list(_GEO) if geometry else [])
+    return {key: np.concatenate([lv[key] for lv in levels]) for key in keys}
 
 
 # ----------------------------------------------------------------------------- records
@@ -162,76 +381,122 @@ def load_kernels(n_lights: int) -> None:
 class LightRecords:
     """Light terms of every node of a frame's samples (see the module doc), laid out as
     the owning :class:`~.pixel_records.PixelRecords`' nodes. ``overflow``: None, or why the
-    records were dropped (the cap); then nothing else is kept."""
+    records were dropped (the cap); then nothing else is kept. ``no_geometry``: None, or
+    why the geometry was dropped (moved lights then re-trace)."""
 
     def __init__(self, n_rays: int, n_lights: int, cap_bytes: float) -> None:
         self.n_rays = int(n_rays)
         self.L = int(n_lights)
         self.cap = float(cap_bytes)
         self.overflow: str | None = None
-        self.p: dict | None = None
-        self.s: dict = _alloc(0, self.L)
-        self._pending: list = []
-        need = self.n_rays * node_bytes(self.L)
-        if need > self.cap:
-            self._drop(need)
+        self.no_geometry: str | None = None
+        self.p: _Part | None = None  # primary nodes by sample id (None: no frame yet)
+        self.s: _Part = _Part.empty(False, True)
+        self._pending_p: list = []  # (rays, _Part) of the batches traced since finish
+        self._pending_s: list = []
+        self._pending_bytes = 0
+        if self.cap <= 0.0:
+            self._drop(0)
+
+    @property
+    def has_geometry(self) -> bool:
+        return self.no_geometry is None
 
     @property
     def nbytes(self) -> int:
         if self.p is None:
             return 0
-        return int(sum(a.nbytes for d in (self.p, self.s) for a in d.values()))
+        return self.p.nbytes + self.s.nbytes
+
+    def _parts(self) -> list:
+        return ([self.p] if self.p is not None else []) + [self.s] + \
+            [q for _, q in self._pending_p] + self._pending_s
+
+    def _message(self, need: float, what: str) -> str:
+        return (f"per-light records need {need / 1e6:.1f} MB, over the cap (setting "
+                f"'relight_memory_mb' {self.cap / 1e6:.1f} MB): {what}")
 
     def _drop(self, need: float) -> None:
-        self.overflow = (f"per-light records need at least {need / 1e6:.0f} MB, over the cap "
-                         f"(setting 'relight_memory_mb' {self.cap / 1e6:.0f} MB): light "
-                         f"edits re-trace the pixels they touch")
+        self.overflow = self._message(need, "light edits re-trace the pixels they touch")
         self.p = None
-        self.s = _alloc(0, self.L)
-        self._pending = []
+        self.s = _Part.empty(False, False)
+        self._pending_p, self._pending_s = [], []
+
+    def _check_cap(self) -> None:
+        """Over the cap: drop the geometry, then everything."""
+        parts = self._parts()
+        total = sum(q.nbytes for q in parts)
+        if total <= self.cap:
+            return
+        for q in parts:  # the rebuilt surfaces first (a cache)
+            q.surf = None
+        total = sum(q.nbytes for q in parts)
+        if total <= self.cap:
+            return
+        if self.no_geometry is None:
+            self.no_geometry = self._message(
+                total, "moved or added lights re-trace the pixels they touch "
+                "(power and colour still relight)")
+            for q in parts:
+                q.drop_geometry()
+            total = sum(q.nbytes for q in parts)
+        if total > self.cap:
+            self._drop(total)
 
     def add(self, rays: np.ndarray, levels: list, nb: int) -> None:
         """A traced batch (the per-level dicts of :func:`~.whitted.trace`'s ``segments``
         with ``terms``); ``rays`` (nb,) its global sample ids."""
         if self.overflow is not None:
             return
-        a = _level_arrays(levels)
-        self.widen(a["t_val"].shape[1] - 2)  # (a light slot added in a re-traced batch)
-        if self.p is None:
-            self.p = _alloc(self.n_rays, self.L)
-        for key in _KEYS:
-            self.p[key][rays] = a[key][:nb]
+        self.widen(levels[0]["t_val"].shape[1] - 2)  # (a light slot added: re-traced)
+        a = _level_arrays(levels, self.has_geometry)
+        first = {key: x[:nb] for key, x in a.items()}
+        self._pending_p.append((np.asarray(rays, np.int64),
+                                _Part.from_levels(first, True, self.has_geometry)))
         if len(a["mat"]) > nb:
-            self._pending.append({key: a[key][nb:] for key in _KEYS})
+            rest = {key: x[nb:] for key, x in a.items()}
+            self._pending_s.append(_Part.from_levels(rest, False, self.has_geometry))
+        if self.p is None:
+            # a full frame: checked as it grows (an incremental frame's batches replace
+            # kept nodes: checked once merged, in finish)
+            self._check_cap()
 
     def finish(self, keep: np.ndarray | None) -> None:
         """Drop the secondary nodes not in ``keep`` (None: keep all), then append the
         batches added since (as :meth:`~.pixel_records.PixelRecords.finish` does)."""
         if self.overflow is not None:
             return
+        if self._pending_p:
+            old = self.p if self.p is not None else _Part.empty(True, self.has_geometry)
+            parts = [old] + [q for _, q in self._pending_p]
+            row = np.full(self.n_rays, -1, np.int64)
+            if len(old):
+                row[:] = np.arange(self.n_rays)
+            base = len(old)
+            for rays, q in self._pending_p:  # later batches win
+                row[rays] = base + np.arange(len(q))
+                base += len(q)
+            if (row < 0).any():  # (samples never traced: empty misses; not in a BASE frame)
+                filler = _Part.from_levels(dict(
+                    t_val=np.zeros((1, self.L + 2, 3)), t_on=np.zeros((1, self.L + 2), bool),
+                    mat=np.full(1, -1, np.int32), weight=np.ones((1, 3))), True, False)
+                if self.has_geometry:
+                    filler.geo = {key: np.zeros((0,) + sh, dt)
+                                  for key, (sh, dt) in _GEO.items()}
+                parts.append(filler)
+                row[row < 0] = base
+            self.p = _Part.concat(parts).take(row)
+            self._pending_p = []
         if keep is not None and not keep.all():
-            self.s = {key: a[keep] for key, a in self.s.items()}
-        if self._pending:
-            parts = [self.s] + self._pending
-            self.s = {key: np.concatenate([d[key] for d in parts]) for key in _KEYS}
-            self._pending = []
-        need = (self.n_rays + len(self.s["mat"])) * node_bytes(self.L)
-        if need > self.cap:
-            self._drop(need)
+            self.s = self.s.take(np.flatnonzero(keep))
+        if self._pending_s:
+            self.s = _Part.concat([self.s] + self._pending_s)
+            self._pending_s = []
+        self._check_cap()
 
     def widen(self, n_lights: int) -> None:
-        """Light slots were added: their columns (nothing present yet) go before the
-        world's and the emission's."""
-        if n_lights <= self.L or self.overflow is not None:
-            return
-        for d in ((self.p,) if self.p is not None else ()) + (self.s,):
-            for key in ("t_val", "t_on"):
-                old = d[key]
-                new = np.zeros((old.shape[0], n_lights + 2) + old.shape[2:], old.dtype)
-                new[:, :self.L] = old[:, :self.L]
-                new[:, n_lights:] = old[:, self.L:]
-                d[key] = new
-        self.L = int(n_lights)
+        """Light slots were added (the entries name their slots: nothing to move)."""
+        self.L = max(self.L, int(n_lights))
 
     # -- relighting ----------------------------------------------------------------------
 
@@ -240,30 +505,29 @@ class LightRecords:
         """The frame's radiance (n_pixels, 3) float32 from the terms and the lights of
         ``sa``: the tracer's sums in its order (bit for bit a fresh frame's)."""
         L = len(sa.light_kind)
-        self.widen(L)
         alive = np.asarray(sa.light_kind) >= 0
         ext = np.asarray(sa.light_ext, bool)
-        order = list(np.flatnonzero(alive & ~ext)) + list(np.flatnonzero(alive & ext))
+        use = np.zeros(256, np.int8)
+        use[:L] = np.where(alive, np.where(ext, 2, 1), 0)
         if world_lights(sa):
-            order.append(L)
-        scale = np.zeros((L + 2, 3))
+            use[WORLD] = 3
+        use[EMIT] = 1 if (alive & ext).any() else 0  # (read as use[WORLD + 1]: two passes)
+        scale = np.zeros((256, 3))
         scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
-        scale[L] = sa.world_light
-        order = np.asarray(order, np.int64)
+        scale[WORLD] = sa.world_light
         world = np.ascontiguousarray(sa.world_color, np.float64)
         rad = np.empty((self.n_rays, 3))
         p, s = self.p, self.s
         out = np.empty((n_pixels, 3), np.float32)
         pc = np.empty(n_pixels, np.uint8)
-        inst = np.where(p["mat"] >= 0, 0, -1).astype(np.int32)
+        inst = np.where(p.hit, 0, -1).astype(np.int32)
         # a few multiply-adds per node: one thread (a parallel region's wake-up on a busy
         # machine costs more than the work, see batches.SERIAL_BELOW)
         with threads_for(0):
-            _recombine_primary(p["weight"], p["mat"], p["t_val"], p["t_on"], order, scale,
-                               world, rad)
-            if len(s["mat"]):
-                _recombine_secondary(s["weight"], s["mat"], s["t_val"], s["t_on"], order,
-                                     scale, world, np.ascontiguousarray(s_ray, np.int64), rad)
+            _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, world, rad)
+            if len(s):
+                _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale,
+                                     world, np.ascontiguousarray(s_ray, np.int64), rad)
             accumulate(rad, inst, spp, out, pc)
         return out
 
@@ -273,41 +537,57 @@ class LightRecords:
         else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
         its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
         nodes and of the secondary ones, each (k,) bool."""
+        if not self.has_geometry:
+            raise RuntimeError("light records without geometry cannot shade a light again")
         self.widen(len(sa.light_kind))
         bits = []
-        for d in (self.p, self.s):
-            n = len(d["mat"])
-            state = np.empty(n, np.int8)
-            if n:
-                with threads_for(n):
-                    _one_light_states(sa, j, d["point"], d["NG"], d["NS"], d["Q"], d["mat"],
-                                      state)
-            d["t_on"][:, j] = False
-            d["t_val"][:, j] = 0.0
-            rows = np.flatnonzero(state != -2)  # the nodes it faces: a shadow ray each
+        for part in (self.p, self.s):
+            n = len(part)
+            rows = np.flatnonzero(part.hit)
+            # the rebuilt surfaces are kept while they fit under the cap
+            keep = self.nbytes + len(rows) * _SURF_BYTES <= self.cap
+            surf = part.surfaces(sa, keep)
+            state = np.empty(len(rows), np.int8)
+            if len(rows):
+                with threads_for(len(rows)):
+                    _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, state)
+            faced = np.zeros(n, bool)
+            faced[rows] = state != -2
             lit = np.zeros(n, bool)
-            for a in range(0, len(rows), 1 << 16):
-                idx = rows[a:a + (1 << 16)]
-                lit[idx] = self._shade_one(sa, accel, j, light_samples, d, idx, state[idx],
-                                           counters)
-            bits.append((state != -2, lit))
+            on = np.zeros(n, bool)
+            nval = np.zeros((n, 3))
+            # contiguous batches of the surface rows (views, no copies) as large as the
+            # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
+            # face trace no shadow ray and get no term
+            step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
+            for a in range(0, len(rows), step):
+                sub = slice(a, min(a + step, len(rows)))
+                if not (state[sub] != -2).any():
+                    continue
+                li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
+                                             state[sub], counters)
+                idx = rows[sub]
+                lit[idx], on[idx], nval[idx] = li, tp, tv
+            part.replace_slot(j, on, nval)
+            bits.append((faced, lit))
         return bits[0], bits[1]
 
-    def _shade_one(self, sa, accel, j, light_samples, d, idx, state, counters):
-        """Light ``j``'s terms at nodes ``idx`` of ``d`` (their states ``state``), by the
-        tracer's own stages; returns whether it is visible from each."""
+    def _shade_one(self, sa, accel, j, light_samples, geo, surf, sub, state, counters):
+        """Light ``j``'s terms at the surface rows ``sub`` (a slice) of ``geo`` / ``surf``
+        (its states ``state`` there), by the tracer's own stages: ``(visible, present,
+        value)``."""
         L = len(sa.light_kind)
-        k = len(idx)
+        k = len(state)
+        g = {key: geo[key][sub] for key in ("t", "inst", "prim", "u", "v", "seed")}
         sh_state = np.full((k, L), -2, np.int8)
         sh_state[:, j] = state
-        surf = Surfaces(*(np.ascontiguousarray(d[key][idx])
-                          for key in ("point", "NG", "NS", "dir", "enter", "mat", "Q")),
-                        sh_state.reshape(-1))
+        sf = Surfaces(*(x[sub] for x in surf[:7]), sh_state.reshape(-1))
+        hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
         with threads_for(k):
-            todo, so, sd, st = shadow_rays(sa, surf)
+            todo, so, sd, stmax = shadow_rays(sa, sf)
             vis = np.zeros(k * L, np.bool_)
             if len(todo):
-                vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), st),
+                vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
                                         np.bool_)
                 if counters is not None:
                     counters["shadow"] = counters.get("shadow", 0) + len(todo)
@@ -317,12 +597,7 @@ class LightRecords:
                 def occluded(o, dd, tmax, r):
                     return accel.any_hit(o, dd, np.zeros(len(o)), tmax)
                 soft, srows, any_vis = soft_visibility(
-                    sa1, surf, np.ascontiguousarray(d["seed"][idx]), int(light_samples),
-                    surf.sh_state, occluded, counters)
+                    sa1, sf, g["seed"], int(light_samples), sf.sh_state, occluded, counters)
                 vis[srows[srows >= 0]] = any_vis[srows >= 0]
-            hits = Hits(np.zeros(k), np.zeros(k, np.int32), np.ascontiguousarray(d["prim"][idx]),
-                        np.ascontiguousarray(d["u"][idx]), np.ascontiguousarray(d["v"][idx]))
-            _, _, (tv, tp) = shade(sa1, hits, surf, vis, np.ones((k, 3)), False, soft, True)
-        d["t_on"][idx, j] = tp[:, j]
-        d["t_val"][idx, j] = tv[:, j]
-        return vis.reshape(k, L)[:, j]
+            _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
+        return vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]

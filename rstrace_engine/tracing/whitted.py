@@ -261,10 +261,10 @@ def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int) -> dict:
 
 def _light_terms(front: _Front, hits: Hits, surf: Surfaces, seeds, tvp) -> dict:
     """A level's nodes for :mod:`.light_records`: the path weight and light terms
-    (:func:`shade`'s), and what shading one light again needs (the surface point, its
-    normals, the ray direction, shadow origin, material, texture coordinates, seed)."""
-    return dict(weight=front.weight, t_val=tvp[0], t_on=tvp[1], NG=surf.NG, NS=surf.NS,
-                Q=surf.Q, enter=surf.enter, mat=surf.mat, prim=hits.prim, u=hits.u, v=hits.v,
+    (:func:`shade`'s), the material (-1: a miss), and what shading one light again needs:
+    the ray, its hit and the node's seed (:func:`surfaces` rebuilds the rest)."""
+    return dict(weight=front.weight, t_val=tvp[0], t_on=tvp[1], mat=surf.mat, o=front.o,
+                d=front.d, t=hits.t, inst=hits.inst, prim=hits.prim, u=hits.u, v=hits.v,
                 seed=seeds)
 
 

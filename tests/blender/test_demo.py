@@ -34,6 +34,8 @@ def test_demo_renders_edits_and_reports(tmp_path):
     colour = loop[2]
     assert colour["depsgraph_edits"] == {"MaterialSet": 1}
     assert colour["incremental"] and colour["dirty_fraction"] < 0.2
+    # the Key light's colour and move after its first light edit: relit (issue 21)
+    assert [r["relit"] for r in loop[3:6]] == [False, True, True], loop[3:6]
     assert (out / "edits" / "edits.txt").read_text().count("\n") == len(loop)
     for k in range(1, len(loop) + 1):
         assert len(list((out / "edits").glob(f"{k:02d}_*.png"))) == 2

@@ -504,3 +504,40 @@ def test_f12_light_edits_relight_and_equal_a_fresh_render():
         ref = Session(core.scene.copy(), core.settings).render().radiance
         np.testing.assert_array_equal(inc, ref, err_msg=name)
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])  # and a fresh export
+
+
+def test_relight_memory_property_caps_the_records():
+    """Relight Memory (the add-on's cap of the per-light records) reaches the core: at 0
+    an F12 after a light edit keeps no records and says so (a message naming the setting),
+    re-traces and equals a fresh render; a negative cap is refused by the property itself;
+    raised again, the next light edit relights."""
+    import addon
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.session import RELIGHT_OFF
+
+    sc = _scene(32, 24)
+    sc.rstrace.mode = "BASE"
+    props = sc.rstrace
+    assert props.relight_memory == RenderSettings().relight_memory_mb
+    props.relight_memory = -5.0  # clamped by the property (min 0)
+    assert props.relight_memory == 0.0
+    assert addon.properties.render_settings(props).relight_memory_mb == 0.0
+    lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+    _f12()
+    for k in range(2):
+        lamp.data.energy *= 0.8
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["light_records_mb"] == 0.0 and not stats.get("relit"), stats
+        assert stats["relight_off"] == RELIGHT_OFF
+        state = addon.session.state_for(sc)
+        assert ("INFO", RELIGHT_OFF) in state.messages
+        assert k == 0 or stats["incremental"]
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])
+    props.relight_memory = 64.0
+    for _ in range(2):  # a full frame that starts keeping them, then a relit one
+        lamp.data.energy *= 0.8
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert "relight_off" not in stats
+    assert stats.get("relit") and stats["light_records_mb"] > 0.0, stats

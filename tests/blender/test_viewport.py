@@ -446,3 +446,28 @@ def test_a_bad_view_is_said_until_a_good_one_and_settings_set_from_python_restar
         assert vr.worker._submitted == jobs + 1
     finally:
         vr.free()
+
+
+def test_light_drag_relights_the_viewport():
+    """Issue 21: dragging a light in the viewport (depsgraph light moves, one after the
+    other) relights the kept frame from the per-light records: after the session's first
+    light edit (a full frame that starts them), every step's full image is relit, no pixel
+    traced."""
+    sc, vr = _start()
+    try:
+        ctx = _view()
+        vr.draw_view(_camera(ctx), None)
+        _settled(vr)
+        lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+        lamp.data.energy *= 0.9
+        bpy.context.view_layer.update()
+        _settled(vr)
+        for _ in range(3):
+            lamp.location.x += 0.05
+            bpy.context.view_layer.update()
+            assert vr.last_edits == 1
+            _settled(vr)
+            stats = vr.worker.last_frame.stats
+            assert stats.get("relit") and stats["traced_pixels"] == 0, stats
+    finally:
+        vr.free()

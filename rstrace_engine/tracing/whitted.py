@@ -144,16 +144,18 @@ def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: 
     return res[:-1]
 
 
-def has_glossy(sa: SceneArrays) -> bool:
-    """Whether any material of ``sa`` draws glossy rays (:func:`~.shader.is_glossy`)."""
-    if len(sa.mat_model) == 0:
-        return False
+def glossy_materials(sa: SceneArrays) -> np.ndarray:
+    """(NM,) bool: the materials of ``sa`` that draw glossy rays
+    (:func:`~.shader.is_glossy`)."""
     refl = (sa.mat_mirror > 0).any(axis=1) & (
         (sa.mat_metallic > 0) | (sa.mat_specular > 0).any(axis=1))
-    return bool(np.any((sa.mat_model == MODEL_PRINCIPLED)
-                       & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
-                       & (refl | ((sa.mat_transmission > 0).any(axis=1)
-                                  & (sa.mat_ior != 1.0)))))
+    return ((sa.mat_model == MODEL_PRINCIPLED) & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
+            & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
+
+
+def has_glossy(sa: SceneArrays) -> bool:
+    """Whether any material of ``sa`` draws glossy rays (:func:`~.shader.is_glossy`)."""
+    return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
 
 
 class _Plan(NamedTuple):

@@ -204,12 +204,32 @@ def test_rough_glass_ball_from_inside_is_finite():
 
 
 def _rough_unlit_world(w=96, h=72):
-    sc = scenes.glossy(w, h, roughness=0.3)
-    sc.set_world_color((0.15, 0.16, 0.2), lights=False)  # cells are not failed by the world
-    return sc
+    """A rough metal ball and a rough glass ball on one matte floor under a point light;
+    the world a background only (its light would fail every cell)."""
+    from rstrace_engine.geometry.scene import Light
+
+    s = Scene()
+    floor, _ = principled_material("floor", (0.6, 0.6, 0.55), specular_level=0.0)
+    metal, _ = principled_material("metal", (0.9, 0.7, 0.4), metallic=1.0, roughness=0.3)
+    glass, _ = principled_material("glass", (1.0, 1.0, 1.0), transmission=1.0,
+                                   roughness=0.3)
+    red, _ = principled_material("red", (0.8, 0.1, 0.1), specular_level=0.0)
+    ball = s.add_mesh(shapes.icosphere(3))
+    s.add_instance(s.add_mesh(shapes.plane(14.0)), np.eye(4), [s.add_material(floor)],
+                   name="Floor")
+    s.add_instance(ball, shapes.transform((-0.8, 0.5, 0.7), 0.7), [s.add_material(metal)],
+                   name="Metal")
+    s.add_instance(ball, shapes.transform((1.0, 0.0, 0.5), 0.5), [s.add_material(glass)],
+                   name="Glass")
+    s.add_instance(ball, shapes.transform((0.3, 2.0, 0.5), 0.5), [s.add_material(red)],
+                   name="Red")
+    s.add_light(Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0)))
+    s.set_world_color((0.15, 0.16, 0.2), lights=False)
+    s.set_camera(_camera((0.0, -6.0, 2.5), (0.0, 0.5, 0.5), w, h, lens=40.0))
+    return s
 
 
-def test_interpolant_mode_traces_rough_surfaces_within_epsilon():
+def test_interpolant_mode_traces_rough_surfaces_within_epsilon(monkeypatch):
     """INTERPOLANT mode: cells whose samples' ray trees hold a rough surface fail
     ("glossy") and are traced per pixel as BASE traces them; the frame stays within
     epsilon of BASE's everywhere."""
@@ -217,6 +237,7 @@ def test_interpolant_mode_traces_rough_surfaces_within_epsilon():
     from rstrace_engine.frame import CLASS_INTERPOLATED
     from rstrace_engine.interpolants.render import InterpolantRenderer
 
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)  # cells always
     sc = _rough_unlit_world()
     accel = create_accelerator("BVH", sc.arrays())
     eps = 0.02

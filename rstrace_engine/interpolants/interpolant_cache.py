@@ -640,12 +640,16 @@ class InterpolantCache:
             corner_ids = self._shade(k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
             early = np.empty(len(go), np.int8)
             corner_trees(self.samples.view(), corner_ids, early)
+            # a rough surface in a corner's tree: the reason is that (glossy rays)
+            cflag = self.samples.texture_terms()[2][corner_ids]
+            early[((cflag & GLOSSY) > 0).any(axis=1)] = R_GLOSSY
             off = early != R_VALID
             if np.any(off):
                 bad_go = go[off]
                 outcome[bad_go] = early[off]
                 status[bad_go] = np.where(early[off] == R_CLASS, CLASS_FAIL_SILHOUETTE,
-                                          CLASS_FAIL_SHADOW)
+                                          np.where(early[off] == R_GLOSSY,
+                                                   CLASS_FAIL_NONLINEAR, CLASS_FAIL_SHADOW))
                 for r, k in zip(*np.unique(early[off], return_counts=True), strict=True):
                     why[REASONS[r]] = why.get(REASONS[r], 0) + int(k)
                 td = time.perf_counter()
@@ -671,8 +675,7 @@ class InterpolantCache:
             # the cell is traced per pixel (docs/INTERPOLANTS.md, "Rough surfaces")
             sflag = self.samples.texture_terms()[2][np.maximum(cell_samples, 0)]
             rough = ((sflag & GLOSSY) > 0) & (cell_samples >= 0)
-            rough = rough.any(axis=1)
-            rough &= sub_status == VALID
+            rough = rough.any(axis=1)  # whatever else the predicate found
             sub_status[rough] = CLASS_FAIL_NONLINEAR
             detail[rough] = R_GLOSSY
             ok = np.flatnonzero(sub_status == VALID)

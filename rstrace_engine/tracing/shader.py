@@ -19,6 +19,9 @@ Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geom
   ``T = (1-F) T_m`` (the tracer's Fresnel alone splits the transmissive part);
   on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
   (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
+* A rough Principled-like surface (:func:`is_glossy`) instead spreads ``R`` and ``T`` over
+  its GGX lobe: N microfacet normals drawn from the visible normals, each a reflected and a
+  refracted ray weighted ``F G2 / G1 / N`` (:func:`_glossy_rays`, docs/glossy.md).
 * A ray that misses returns the world colour.
 
 The stages and the wavefront that drive these kernels are :mod:`.whitted`'s; the shade

@@ -364,7 +364,14 @@ def _glossy_scene(kind: str, roughness: float):
 
 #: Measured (docs/glossy.md): the cases whose measured error misses the issue's goal keep
 #: the goal as their threshold and are marked xfail with the measured value, not loosened.
-GLOSSY_MISSES: dict = {}
+GLOSSY_MISSES = {
+    ("metal", 1.0): "measured mean 1.2%, p98 10.9% (goal 2% / 8%): the multiple-scattering "
+                    "factor at roughness 1 (docs/glossy.md)",
+    ("glass", 0.2): "measured mean 1.8%, p98 21.8% (goal 2% / 8%): rough glass has no "
+                    "point-light highlight and single-scattering GGX (docs/glossy.md)",
+    ("glass", 0.5): "measured mean 4.8%, p98 43.6% (goal 2% / 8%): as at 0.2, worse",
+    ("glass", 1.0): "not measured (the run ended at the deadline); glass 0.5 missed by far",
+}
 
 
 @pytest.mark.parametrize("roughness", GLOSSY_ROUGHNESS)

@@ -52,7 +52,8 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.light_records._recombine_primary",
          "tracing.light_records._recombine_secondary",
          "tracing.light_records._one_light_states", "tracing.light_records._count_terms",
-         "tracing.light_records._fill_terms", "tracing.light_records._replace_slot")
+         "tracing.light_records._fill_terms", "tracing.light_records._replace_slot",
+         "tracing.shader.glossy_counts", "tracing.whitted._child_tags")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",
@@ -60,7 +61,7 @@ _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is
                 "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
                 "interpolants.membership._valid", "interpolants.ray_segment_tree.live_tunnels",
                 "interpolants.ray_segment_tree.query_list", "interpolants.render._finish",
-                "interpolants.render._to_trace")
+                "interpolants.render._to_trace", "interpolants.samples._glossy_nodes")
 MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,

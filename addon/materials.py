@@ -218,6 +218,10 @@ class MaterialReader:
             sock = node.inputs.get("Color") or node.inputs.get("Base Color")
             colour, _ = self._colour(name, sock, f"{node.bl_label} colour")
             rough = self._value(name, node.inputs["Roughness"])
+            aniso = node.inputs.get("Anisotropy")
+            if aniso is not None and (aniso.is_linked or float(aniso.default_value) != 0.0):
+                self.notes.warn("glossy anisotropy is not supported: rendered isotropic",
+                                name)
             return self._mix(name, base=colour, metallic=1.0, roughness=rough)
         if kind == "ShaderNodeBsdfGlass":
             colour, _ = self._colour(name, node.inputs["Color"], "Glass BSDF colour")

@@ -66,6 +66,12 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         description="Shadow rays per soft light (area lights, lights with a radius, a sun "
                     "with an angle, the world's light) at each shading point and pixel "
                     "sample, stratified; a light without extent takes one")
+    glossy_samples: IntProperty(
+        name="Glossy Samples", default=RenderSettings.glossy_samples, min=1, max=1024,
+        soft_max=64,
+        description="Reflected and refracted rays a rough surface (Principled above "
+                    "roughness 0.05, Glossy and Glass nodes) spreads over its lobe at a "
+                    "path's first rough bounce; deeper rough bounces take one, a mirror one")
     viewport_samples: IntProperty(
         name="Viewport Samples", default=4, min=1, max=1024, soft_max=64,
         description="Samples per pixel the rendered viewport refines to while idle (a coarse "
@@ -142,6 +148,7 @@ def render_settings(props: RSTraceSettings):
     return RenderSettings(
         mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
         samples=int(props.samples), light_samples=int(props.light_samples),
+        glossy_samples=int(props.glossy_samples),
         accelerator=props.accelerator,
         depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
         seed=int(props.seed), vf_directions=int(props.vf_directions),

@@ -61,6 +61,7 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         col.prop(props, "samples")
         col.prop(props, "viewport_samples", text="Viewport")
         col.prop(props, "light_samples")
+        col.prop(props, "glossy_samples")
         col.prop(props, "seed")
         layout.prop(props, "max_ray_depth")
         layout.prop(props, "shading_model")

@@ -30,6 +30,10 @@ LINETREE_MAX_DEPTH = 12
 #: Shadow rays per light with an extent and per shading point (RenderSettings.light_samples)
 LIGHT_SAMPLES_DEFAULT = 16
 LIGHT_SAMPLES_MAX = 4096
+#: Glossy rays a path draws at its first rough (glossy) bounce (RenderSettings.glossy_samples;
+#: deeper rough bounces draw one), docs/glossy.md
+GLOSSY_SAMPLES_DEFAULT = 16
+GLOSSY_SAMPLES_MAX = 1024
 #: Visibility field: most directions (the tetrahedron subdivided to
 #: :data:`.accel.directions.MAX_LEVEL`), most tiles per side, memory cap of one field (MB).
 VF_MAX_DIRECTIONS = 2050
@@ -81,6 +85,8 @@ class RenderSettings:
     # shadow rays per light with an extent (area, sphere, sun with an angle) and for the
     # world's light, per shading point (docs/SOFT_LIGHT.md: the default by measurement)
     light_samples: int = LIGHT_SAMPLES_DEFAULT
+    # rays at a path's first rough reflection/refraction (deeper ones: 1; docs/glossy.md)
+    glossy_samples: int = GLOSSY_SAMPLES_DEFAULT
     accelerator: str = "BVH"
     depth_cap: int = 6  # linetree depth cap
     memory_cap_mb: float = 256.0  # interpolant memory cap
@@ -120,6 +126,10 @@ class RenderSettings:
             raise SceneError(f"setting 'light_samples': {self.light_samples} outside "
                              f"[1, {LIGHT_SAMPLES_MAX}] (shadow rays per light with an "
                              f"extent, per shading point)")
+        if not 1 <= int(self.glossy_samples) <= GLOSSY_SAMPLES_MAX:
+            raise SceneError(f"setting 'glossy_samples': {self.glossy_samples} outside "
+                             f"[1, {GLOSSY_SAMPLES_MAX}] (rays at a path's first rough "
+                             f"reflection or refraction)")
         if not 0 <= int(self.depth_cap) <= LINETREE_MAX_DEPTH:
             raise SceneError(f"setting 'depth_cap': {self.depth_cap} outside "
                              f"[0, {LINETREE_MAX_DEPTH}]")

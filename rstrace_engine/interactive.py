@@ -103,7 +103,8 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
         k = sample % samples if samples > 1 else 0  # one sample: the pixel centres
         rad, inst = trace_pixels(sa, accel, cp, pix, jitter[k], int(settings.max_depth), cancel,
                                  gids=k * (w * h) + pix, seed=int(settings.seed),
-                                 light_samples=int(settings.light_samples))
+                                 light_samples=int(settings.light_samples),
+                                 glossy_samples=int(settings.glossy_samples))
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         with threads_for(len(pix)):
@@ -314,11 +315,13 @@ class ViewportWorker:
                 # between)
                 cam = coarse_camera(camera, self.coarse_factor)
                 cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-                # one light sample: the preview is shown once, never averaged in, and soft
-                # lights would multiply its cost by Light Samples (the full image and the
-                # refinement take the scene's count: n passes give F12's n samples)
-                rgb, _, done = trace_view(session, cam, replace(settings, light_samples=1),
-                                          self._flag, cb, tile_rays=self.tile_rays)
+                # one light and one glossy sample: the preview is shown once, never
+                # averaged in, and soft lights and rough surfaces would multiply its cost by
+                # their samples (the full image and the refinement take the scene's counts:
+                # n passes give F12's n samples)
+                rgb, _, done = trace_view(
+                    session, cam, replace(settings, light_samples=1, glossy_samples=1),
+                    self._flag, cb, tile_rays=self.tile_rays)
         if not relight:
             if not done:
                 return self._interrupted()

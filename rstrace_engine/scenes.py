@@ -24,6 +24,7 @@ import numpy as np
 
 from .geometry import shapes
 from .geometry.elements import Mesh
+from .geometry.principled import principled_material
 from .geometry.scene import Camera, Light, Material, Scene
 
 
@@ -451,11 +452,49 @@ def glass_horizon(width: int = 240, height: int = 180) -> Scene:
     return s
 
 
+def glossy(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene:
+    """Rough materials (issue 24): a rough metal sphere, a default plastic (Principled's
+    defaults: roughness 0.5) and a rough glass sphere on a chequered floor, between
+    coloured diffuse objects they reflect, under a point light, a sphere light and a grey
+    world that lights. ``roughness``: the metal's and the glass's."""
+    s = Scene()
+
+    def principled(name, base, **kw):
+        mat, _ = principled_material(name, base, **kw)
+        return s.add_material(mat)
+
+    light = principled("floor_light", (0.7, 0.7, 0.68), specular_level=0.0)
+    dark = principled("floor_dark", (0.15, 0.15, 0.17), specular_level=0.0)
+    metal = principled("metal", (0.9, 0.72, 0.45), metallic=1.0, roughness=roughness)
+    plastic = principled("plastic", (0.2, 0.35, 0.8))
+    glass = principled("glass", (1.0, 1.0, 1.0), roughness=roughness, transmission=1.0)
+    red = principled("red", (0.8, 0.1, 0.08), specular_level=0.0)
+    green = principled("green", (0.1, 0.6, 0.15), specular_level=0.0)
+    tile = s.add_mesh(shapes.plane(1.0, name="tile"))
+    for i in range(-5, 5):
+        for j in range(-3, 5):
+            s.add_instance(tile, shapes.transform((i + 0.5, j + 0.5, 0.0)),
+                           [light if (i + j) % 2 else dark], name=f"Tile{i}_{j}")
+    sphere = s.add_mesh(shapes.icosphere(4, name="sphere"))
+    s.add_instance(sphere, shapes.transform((0.0, 0.3, 0.8), 0.8), [metal], name="Metal")
+    s.add_instance(sphere, shapes.transform((-2.0, 0.2, 0.6), 0.6), [plastic],
+                   name="Plastic")
+    s.add_instance(sphere, shapes.transform((1.9, -0.4, 0.6), 0.6), [glass], name="Glass")
+    s.add_instance(s.add_mesh(shapes.box((0.8, 0.8, 1.6), name="cube")),
+                   shapes.transform((-0.8, 2.3, 0.8), 1.0, 20.0), [red], name="RedBox")
+    s.add_instance(sphere, shapes.transform((1.3, 2.0, 0.5), 0.5), [green], name="Green")
+    s.add_light(Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0)))
+    s.add_light(Light("Bulb", "POINT", power=200.0, position=(3.0, -1.0, 2.5), radius=0.3))
+    s.set_world_color((0.15, 0.16, 0.2), lights=True)
+    s.set_camera(_camera((0.0, -6.5, 2.6), (0.0, 0.4, 0.6), width, height, lens=40.0))
+    return s
+
+
 SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
           "grid": grid, "tori": tori,
           "bezier_surface": bezier_surface, "random_volumes": random_volumes,
           "tomatoes": tomatoes, "museum_soft": museum_soft, "studio": studio,
-          "glass_horizon": glass_horizon}
+          "glass_horizon": glass_horizon, "glossy": glossy}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

@@ -270,7 +270,7 @@ class Session:
         with :func:`~rstrace_engine.geometry.cameras.same_camera`)."""
         s = self.settings
         return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
-                s.light_samples, s.accelerator,
+                s.light_samples, s.glossy_samples, s.accelerator,
                 tuple(sorted(s.accelerator_options().items())))
 
     def render(self, camera: Camera | None = None, progress=None, cancel=None) -> Frame:

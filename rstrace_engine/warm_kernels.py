@@ -69,6 +69,12 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     # spot with a radius, an area light, a world that lights): its kernels warm too; the
     # perspective one keeps hard light, whose cells reach the predicate's light tests
     soft = 0.1 if ortho else 0.0
+    if ortho:  # and a rough metal: glossy rays (issue 24)
+        from .geometry.principled import principled_material
+
+        rough, _ = principled_material("rough", (0.8, 0.6, 0.4), metallic=1.0, roughness=0.4)
+        s.add_instance(ico, shapes.transform((-0.4, -1.4, 0.3), 0.3), [s.add_material(rough)],
+                       name="Rough")
     s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0),
                       radius=soft))
     s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.2, -1.0), angle=soft))

@@ -215,20 +215,25 @@ def test_coloured_glass_is_tinted_once_through_an_object(model):
     np.testing.assert_allclose(node.transmission, base)
 
 
-@pytest.mark.parametrize("metallic, roughness, transmission, reported", [
-    (1.0, 0.05, 0.0, False),   # a mirror: traced exactly
-    (1.0, 0.2, 0.0, True),     # blended toward a sharp mirror
-    (0.0, 0.5, 0.0, True),     # Blender's default plastic: its reflection of objects dropped
-    (0.0, 0.5, 1.0, False),    # rough glass: reported as rough transmission instead
+@pytest.mark.parametrize("metallic, roughness, transmission, model, reported", [
+    (1.0, 0.05, 0.0, "PRINCIPLED", False),  # a (near) mirror
+    (1.0, 0.2, 0.0, "PRINCIPLED", False),   # glossy rays (docs/glossy.md)
+    (0.0, 0.5, 0.0, "PRINCIPLED", False),   # Blender's default plastic: glossy rays
+    (0.0, 0.5, 1.0, "PRINCIPLED", False),   # rough glass: glossy refraction
+    (1.0, 0.2, 0.0, "WARD", True),          # the WARD model draws no glossy rays
+    (0.0, 0.5, 0.0, "WARD", True),
 ])
-def test_rough_reflection_is_reported(metallic, roughness, transmission, reported):
-    """Until glossy rays are traced, a reflecting material rougher than a mirror says so."""
+def test_rough_reflection_is_reported_where_not_traced(metallic, roughness, transmission,
+                                                       model, reported):
+    """PRINCIPLED materials reflect and refract rough surfaces through glossy rays; only the
+    WARD model (seed 000's) still blends toward a sharp mirror and says so."""
     _, notes = principled_material("M", (0.8, 0.8, 0.8), metallic=metallic,
-                                   roughness=roughness, transmission=transmission)
+                                   roughness=roughness, transmission=transmission, model=model)
     assert (ROUGH_REFLECTION_NOTE in notes) == reported, notes
+    assert not any("rough transmission" in n for n in notes) or model == "WARD", notes
 
 
 def test_rough_surface_without_specular_is_not_reported():
     _, notes = principled_material("Matte", (0.8, 0.8, 0.8), roughness=0.5,
-                                   specular_level=0.0)
+                                   specular_level=0.0, model="WARD")
     assert ROUGH_REFLECTION_NOTE not in notes

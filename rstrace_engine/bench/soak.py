@@ -35,7 +35,9 @@ from ..geometry.edits import (
     WorldColor,
     apply_edits,
 )
+from ..geometry.principled import principled_material
 from ..geometry.scene import Camera, Light, Material, Scene
+from ..tracing.whitted import has_glossy
 
 
 def room(width: int = 64, height: int = 48) -> Scene:
@@ -99,7 +101,21 @@ def soft_room(width: int = 64, height: int = 48) -> Scene:
     return s
 
 
-SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori, "soft_room": soft_room}
+def rough_room(width: int = 64, height: int = 48) -> Scene:
+    """The room with rough Principled materials (issue 24): the mirror wall a rough metal,
+    the glass ball rough glass, the red box Blender's default plastic; its edits draw
+    rough materials too (:class:`EditGenerator`)."""
+    s = room(width, height)
+    for key, kw in (("mirror", dict(base=(0.9, 0.9, 0.9), metallic=1.0, roughness=0.3)),
+                    ("glass", dict(base=(1.0, 1.0, 1.0), transmission=1.0, roughness=0.25)),
+                    ("red", dict(base=(0.7, 0.15, 0.1), roughness=0.5))):
+        mat, _ = principled_material(key, **kw)
+        s.set_material(s.material_id(key), mat)
+    return s
+
+
+SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori, "soft_room": soft_room,
+               "rough_room": rough_room}
 
 
 def soft_room_unlit_world(width: int = 64, height: int = 48) -> Scene:
@@ -174,7 +190,7 @@ class EditGenerator:
     SOFT_KINDS = ("light_radius", "sun_angle", "area_light")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
-                 extra: tuple = ()) -> None:
+                 extra: tuple = (), rough: bool | None = None) -> None:
         unknown = set(extra) - set(self.EXTRA_KINDS) - set(self.SOFT_KINDS)
         if unknown:
             raise ValueError(f"unknown extra edit kinds {sorted(unknown)}")
@@ -192,6 +208,9 @@ class EditGenerator:
         self.hi[2] = box[0][2] + 0.6 * (box[1][2] - box[0][2])
         self._serial = 0
         self._order: list[str] = []
+        # new materials may be rough Principled ones (glossy rays); by default where the
+        # scene has such a material (other scenes keep their seeded sequences)
+        self.rough = has_glossy(scene.arrays()) if rough is None else bool(rough)
 
     # -- helpers -------------------------------------------------------------------------
 
@@ -228,6 +247,12 @@ class EditGenerator:
             return Material(name, diffuse=(0.03,) * 3, mirror=(0.85,) * 3)
         if kind == 1:
             return Material(name, diffuse=(0.0,) * 3, transmission=(0.85,) * 3, ior=1.4)
+        if self.rough and kind == 2:  # rough metal, glass or plastic
+            mat, _ = principled_material(
+                name, col, metallic=float(self.rng.integers(2)),
+                transmission=float(self.rng.integers(2)) * 0.9,
+                roughness=float(self.rng.uniform(0.05, 0.8)))
+            return mat
         return Material(name, diffuse=col, specular=(0.1,) * 3,
                         roughness=float(self.rng.uniform(0.05, 0.5)))
 

@@ -9,13 +9,14 @@ messages (the add-on reports them once per render):
     a Lambertian base ``(1 - metallic)(1 - transmission) base`` under a GGX layer: the
     dielectric part reflects with the exact Fresnel of the IOR (adjusted by the specular IOR
     level as Cycles does: ``F0 = F0(IOR) 2 level``), tinted; the metallic part reflects its
-    base colour with Schlick's curve to white. Lights light the whole layer (no energy lost
-    to the mirror term); mirror rays carry the layer's reflectance on smooth surfaces
-    (roughness <= ``MIRROR_ROUGHNESS``), fading out by ``GLOSSY_ROUGHNESS``.
+    base colour with Schlick's curve to white. Lights light the whole layer; the layer
+    reflects the scene through one mirror ray below roughness 0.05 (GGX alpha
+    ``tolerances.GLOSSY_ALPHA_MIN``) and through glossy rays drawn from its GGX lobe above
+    (``tracing.shader.is_glossy``, docs/glossy.md); so does rough transmission.
 
 ``"WARD"`` (seed 000's model)
     a constant F0 split between a Whitted mirror (smooth) and Ward's lobe (rough) with a
-    linear blend between the two roughnesses.
+    linear blend between the two roughnesses (no glossy rays: ``ROUGH_REFLECTION_NOTE``).
 
 Both models give the transmissive part to refraction *undivided*: the tracer's dielectric
 Fresnel splits it into reflection and refraction at each interface. (Giving it a mirror
@@ -32,14 +33,14 @@ import numpy as np
 from .elements import TEX_MAP_IDENTITY, TEX_NO_BASE, texture_linear
 from .scene import Material, SceneError
 
-#: Roughness below which reflection is a Whitted mirror, above which a glossy lobe; linear
-#: blend in between (the glossy lobe of the PRINCIPLED model lights at every roughness).
+#: WARD model: roughness below which reflection is a Whitted mirror, above which Ward's
+#: lobe; linear blend in between.
 MIRROR_ROUGHNESS = 0.1
 GLOSSY_ROUGHNESS = 0.3
 
-#: Reported for a reflecting material rougher than a mirror: no glossy rays are traced, so
+#: Reported for a WARD-model material rougher than a mirror: it draws no glossy rays, so
 #: what it reflects of other objects (not the lights' highlights, which are shaded exactly)
-#: is blended toward a sharp mirror or left out.
+#: is blended toward a sharp mirror or left out. (PRINCIPLED materials draw glossy rays.)
 ROUGH_REFLECTION_NOTE = (
     f"rough reflections are not traced: other objects are reflected as in a sharp mirror "
     f"at roughness {MIRROR_ROUGHNESS:g}-{GLOSSY_ROUGHNESS:g} and not at all above (the "
@@ -83,8 +84,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                         specular_level: float = 0.5, specular_tint=(1.0, 1.0, 1.0),
                         emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
                         model: str = "PRINCIPLED", tint_per_crossing: bool = False,
-                        texture_flags: int = 0,
-                        texture_map: tuple = TEX_MAP_IDENTITY) -> tuple[Material, list[str]]:
+                        texture_flags: int = 0, texture_map: tuple = TEX_MAP_IDENTITY,
+                        anisotropic: float = 0.0) -> tuple[Material, list[str]]:
     """A material from Principled BSDF inputs, and messages about what was approximated.
 
     The transmitted light is tinted per interface crossing by ``sqrt(base)``, as Cycles'
@@ -94,6 +95,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     every crossing by the full colour: Cycles' Glass BSDF node.
 
     Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
+    Roughness outside [0, 1] is clamped into it and an ``anisotropic`` value other than 0
+    is rendered isotropic, each with a message.
     ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
     colour is needed: metals, transmission); ``texture_flags``, ``texture_map``: how it is
     sampled (:class:`~.elements.Material`).
@@ -106,6 +109,13 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     base = np.clip(raw, 0.0, 1.0)
     metallic = _scalar(name, "Metallic", metallic)
     roughness = _scalar(name, "Roughness", roughness)
+    if not 0.0 <= roughness <= 1.0:
+        notes.append(f"Roughness {roughness:g} is outside [0, 1]: rendered with "
+                     f"{min(max(roughness, 0.0), 1.0):g}")
+    anisotropic = _scalar(name, "Anisotropic", anisotropic)
+    if anisotropic != 0.0:
+        notes.append(f"Anisotropic {anisotropic:g} is not modelled: the glossy lobe is "
+                     f"rendered isotropic")
     ior = _scalar(name, "IOR", ior)
     transmission = _scalar(name, "Transmission Weight", transmission)
     specular_level = _scalar(name, "Specular IOR Level", specular_level)
@@ -131,7 +141,7 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     refract = (1 - m) * t * (tex_mean if tint_per_crossing else np.sqrt(tex_mean))
     if texture is not None and not texture_flags & TEX_NO_BASE and t > 0.0:
         notes.append("textured transmission is approximated by the texture's average")
-    if t > 0.0 and r > MIRROR_ROUGHNESS:
+    if model == "WARD" and t > 0.0 and r > MIRROR_ROUGHNESS:
         notes.append("rough transmission is rendered as smooth refraction")
     # Cycles' specular IOR level: F0 scaled by 2 level, the IOR of the reflection adjusted
     level = float(np.clip(specular_level, 0.0, 1.0))
@@ -140,7 +150,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     f0 = f0_from_ior(ior) * 2.0 * level
     sharp = float(np.clip((GLOSSY_ROUGHNESS - r) / (GLOSSY_ROUGHNESS - MIRROR_ROUGHNESS),
                           0.0, 1.0))
-    if r > MIRROR_ROUGHNESS and (m > 0.0 or (f0 > 0.0 and m < 1.0 and t < 1.0)):
+    if model == "WARD" and r > MIRROR_ROUGHNESS and (
+            m > 0.0 or (f0 > 0.0 and m < 1.0 and t < 1.0)):
         notes.append(ROUGH_REFLECTION_NOTE)
     alpha = float(np.clip(r * r, 1e-4, 1.0))
     emission_t = tuple(emission)
@@ -150,7 +161,7 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         spec = layer * tint if spec_ior > 1.0 else np.zeros(3)
         return Material(
             name, diffuse=tuple(layer * base_factor), specular=tuple(np.clip(spec, 0, 1)),
-            roughness=alpha, mirror=(sharp,) * 3, transmission=tuple(refract), ior=ior,
+            roughness=alpha, mirror=(1.0,) * 3, transmission=tuple(refract), ior=ior,
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
             metal=tuple(metal_colour), specular_ior=spec_ior,
             texture_flags=texture_flags, texture_map=texture_map), notes

@@ -74,6 +74,7 @@ from .predicate import (
     N_TEST_ALL,
     N_TEST_BASE,
     R_CLASS,
+    R_GLOSSY,
     R_VALID,
     REASONS,
     TEST_POINTS,
@@ -83,10 +84,12 @@ from .predicate import (
     radiance_ok,
 )
 from .samples import (
+    GLOSSY,
     LineCrossings,
     SampleStore,
     TextureApplier,
     facing,
+    glossy_flags,
     skip_tmin,
     texture_split,
     unique_keys,
@@ -562,8 +565,9 @@ class InterpolantCache:
         firsts, uinv = unique_keys(gid.astype(np.int64), np.zeros(len(gid), np.int64))
         ug = gid[firsts]
         hits = geo.hits(ug)
+        # one glossy sample: a line with a rough surface in its tree fails (R_GLOSSY)
         rad, tree = trace(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
-                          record=True, primary=hits)
+                          record=True, primary=hits, glossy_samples=1)
         li = hits.inst
         k = (geo.keys.k1[ug] & 7) >> 1
         inst_box = (geo.keys.k1[ug] >> 3)
@@ -573,6 +577,7 @@ class InterpolantCache:
                             self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
         rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
                                               tree, rad, self.max_depth, trace)
+        flag |= glossy_flags(self.sa, tree, len(ug))
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                                tree, node_cls.astype(np.int32), dif, texel, flag)
         self.frame_stats["samples_traced"] += len(ug)
@@ -635,12 +640,16 @@ class InterpolantCache:
             corner_ids = self._shade(k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
             early = np.empty(len(go), np.int8)
             corner_trees(self.samples.view(), corner_ids, early)
+            # a rough surface in a corner's tree: the reason is that (glossy rays)
+            cflag = self.samples.texture_terms()[2][corner_ids]
+            early[((cflag & GLOSSY) > 0).any(axis=1)] = R_GLOSSY
             off = early != R_VALID
             if np.any(off):
                 bad_go = go[off]
                 outcome[bad_go] = early[off]
                 status[bad_go] = np.where(early[off] == R_CLASS, CLASS_FAIL_SILHOUETTE,
-                                          CLASS_FAIL_SHADOW)
+                                          np.where(early[off] == R_GLOSSY,
+                                                   CLASS_FAIL_NONLINEAR, CLASS_FAIL_SHADOW))
                 for r, k in zip(*np.unique(early[off], return_counts=True), strict=True):
                     why[REASONS[r]] = why.get(REASONS[r], 0) + int(k)
                 td = time.perf_counter()
@@ -662,6 +671,13 @@ class InterpolantCache:
             check_cells(self.qs, self.box, self.samples.view(), inst[go], face[go],
                         depth[go], coord[go], cell_samples, nsamp, sub_status, detail, zlo,
                         zhi, cls)
+            # rough surfaces in the samples' trees: their radiance is sampled (glossy rays),
+            # the cell is traced per pixel (docs/INTERPOLANTS.md, "Rough surfaces")
+            sflag = self.samples.texture_terms()[2][np.maximum(cell_samples, 0)]
+            rough = ((sflag & GLOSSY) > 0) & (cell_samples >= 0)
+            rough = rough.any(axis=1)  # whatever else the predicate found
+            sub_status[rough] = CLASS_FAIL_NONLINEAR
+            detail[rough] = R_GLOSSY
             ok = np.flatnonzero(sub_status == VALID)
             lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon,
                               self.samples.texture_terms(), self.tex_max)

@@ -95,9 +95,10 @@ _SHD = CLASS_FAIL_SHADOW
 #: Why a cell failed, finer than its pixel class (``check_cells``'s ``detail`` output).
 REASONS = ("valid", "corner_miss", "class_change", "light_change", "tree_change", "slab",
            "light_facing", "light_shaft", "self_shadow", "tunnel", "tunnel_light", "spot_cone",
-           "self_tunnel", "partial_occluder", "soft_sampled", "world_light")
+           "self_tunnel", "partial_occluder", "soft_sampled", "world_light", "glossy")
 (R_VALID, R_MISS, R_CLASS, R_LIGHT, R_TREE, R_SLAB, R_FACING, R_SHAFT, R_SELF, R_TUNNEL,
- R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL, R_SOFT, R_WORLD) = range(len(REASONS))
+ R_TUNNEL_LIGHT, R_CONE, R_SELF_TUNNEL, R_PARTIAL, R_SOFT, R_WORLD,
+ R_GLOSSY) = range(len(REASONS))
 #: Slab depth margin: half the corners' depth range plus this fraction of the cell's width.
 SLAB_WIDTH_MARGIN = 0.25
 #: Triangles a self query may collect before the cell fails (conservatively).

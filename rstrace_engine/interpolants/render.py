@@ -247,7 +247,8 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
                                  max_depth, primary=_take(hits, part), counters=counters,
                                  segments=segs, cancel=cancel,
                                  seeds=sample_seeds(gids[part], int(settings.seed)),
-                                 light_samples=int(settings.light_samples))
+                                 light_samples=int(settings.light_samples),
+                                 glossy_samples=int(settings.glossy_samples))
         if cancel is not None and cancel():
             return True
         if records is not None:

@@ -18,6 +18,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
+from ..tracing.shader import _material_of, is_glossy
 from ..tracing.shading import (
     dot3,
     geometric_normal,
@@ -325,9 +326,29 @@ def skip_tmin(o, d, t, ext, out):
 # tree (a textured floor in a mirror) is baked into R: cells whose samples have one fail.
 
 #: flag bits of a sample: a textured material below the root of its ray tree; the affine
-#: split did not reproduce the traced radiance.
+#: split did not reproduce the traced radiance; a rough (glossy) surface in its ray tree
+#: (:func:`glossy_flags`).
 TEX_BELOW = 1
 TEX_MISMATCH = 2
+GLOSSY = 4
+
+
+@njit(cache=True, nogil=True)
+def _glossy_nodes(sa, node_inst, node_tri, out):
+    for k in range(node_inst.shape[0]):
+        out[k] = node_inst[k] >= 0 and is_glossy(sa, _material_of(sa, node_inst[k],
+                                                                    node_tri[k]))
+
+
+def glossy_flags(sa, tree, n: int) -> np.ndarray:
+    """(n,) uint8 :data:`GLOSSY` where a line's ray tree hits a rough surface: its radiance
+    is a sampled estimate (glossy rays), not a function of the line that cells may
+    interpolate (docs/INTERPOLANTS.md, "Rough surfaces")."""
+    g = np.empty(len(tree.node_inst), np.bool_)
+    _glossy_nodes(sa, np.ascontiguousarray(tree.node_inst, np.int32),
+                  np.ascontiguousarray(np.maximum(tree.node_tri, 0), np.int32), g)
+    hit = np.bincount(tree.node_ray[g], minlength=n)[:n] > 0
+    return np.where(hit, GLOSSY, 0).astype(np.uint8)
 
 
 @njit(cache=True, nogil=True)

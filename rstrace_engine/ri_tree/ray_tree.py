@@ -15,7 +15,7 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_TRACED,
 )
-from ..tracing.whitted import Spawned
+from ..tracing.whitted import Spawned, glossy_materials
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS
 
 
@@ -54,7 +54,10 @@ def next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, pat
         ni = q.nint[qi].astype(np.int64)
         glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
         tr = 2 * interp + 1
-        has_tr = np.flatnonzero(c_ok[tr] & is_transmissive(sa, q.mat[qi]))
+        # rough glass: its sampled refracted ray is traced as it is (an exit ray would be
+        # a sharp one)
+        rough = glossy_materials(sa)[np.maximum(q.mat[qi], 0)]
+        has_tr = np.flatnonzero(c_ok[tr] & is_transmissive(sa, q.mat[qi]) & ~rough)
         keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
         drop = np.setdiff1d(has_tr, keep)
         c_ok[tr[drop]] = False

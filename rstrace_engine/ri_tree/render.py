@@ -48,7 +48,7 @@ from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
-from ..tracing.whitted import shade, shadow_rays, soft_direct, surfaces
+from ..tracing.whitted import has_glossy, shade, shadow_rays, soft_direct, surfaces
 from . import thickness as thick
 from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, subset
@@ -466,7 +466,8 @@ class RITreeRenderer:
         self_inst = np.full(n, -1, np.int32)
         path = np.ones(n, np.int64)
         soft_on = has_soft_light(sa)
-        if soft_on and seeds is None:
+        glossy_on = has_glossy(sa)
+        if (soft_on or glossy_on) and seeds is None:
             seeds = sample_seeds(np.arange(n), 0)
         first = True
         while len(src):
@@ -500,6 +501,7 @@ class RITreeRenderer:
                 vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
             soft = None
+            nseeds = node_seeds(seeds, src, path) if soft_on or glossy_on else None
             if soft_on:
                 hs = np.full(nb, -1, np.int32)
                 hs[interp] = H["inst"][interp]
@@ -508,11 +510,11 @@ class RITreeRenderer:
                     pt = np.where(rows_ >= 0, rows_ // max(L, 1), -1 - rows_)
                     return self._occluded(so_, sd_, st_, hs[pt])
 
-                soft = soft_direct(sa, surf, node_seeds(seeds, src, path), light_samples,
-                                   vis, occluded, counters)
+                soft = soft_direct(sa, surf, nseeds, light_samples, vis, occluded, counters)
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
+            # rough surfaces draw one glossy ray pair per point (shade's seeds)
             contrib, kids = shade(sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]),
-                                  surf, vis, weight, True, soft)
+                                  surf, vis, weight, True, soft, seeds=nseeds)
             scatter_add(radiance, src, contrib)
             o, d, weight, src, level, self_inst, path = next_rays(
                 sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path)

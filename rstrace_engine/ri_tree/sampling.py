@@ -34,14 +34,13 @@ from ..interpolants.linetree import line_points
 from ..tracing.shader import _material_of
 from ..tracing.shading import (
     dot3,
-    fresnel_dielectric,
     geometric_normal,
+    mirror_dir,
     normalize3,
     principled_fresnel,
-    reflect,
-    refract,
     shading_normal,
     spawn_offset,
+    transmit,
 )
 from .thickness import walk
 
@@ -105,30 +104,6 @@ def line_rays(box, inst, face, abcd, o, d):
         for m in range(3):
             o[r, m] = F[m]
             d[r, m] = B[m] - F[m]
-
-
-@njit(cache=True, nogil=True, inline="always")
-def transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta):
-    """Refraction of unit ``d`` at normals ``s``, ``g`` turned toward it, exactly as the
-    base tracer's shade kernel does it: returns ``ok, tx, ty, tz, fresnel``."""
-    nx, ny, nz = sx, sy, sz
-    if dot3(dx, dy, dz, nx, ny, nz) >= 0.0:
-        nx, ny, nz = gx, gy, gz
-    ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
-    if ok and dot3(tx, ty, tz, gx, gy, gz) >= 0.0:
-        nx, ny, nz = gx, gy, gz
-        ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
-    f = fresnel_dielectric(-dot3(dx, dy, dz, nx, ny, nz), eta) if ok else 1.0
-    return ok, tx, ty, tz, f
-
-
-@njit(cache=True, nogil=True, inline="always")
-def mirror_dir(dx, dy, dz, sx, sy, sz, gx, gy, gz):
-    """Reflection of ``d`` as the base tracer makes it (about ``s``, else about ``g``)."""
-    qx, qy, qz = reflect(dx, dy, dz, sx, sy, sz)
-    if dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
-        qx, qy, qz = reflect(dx, dy, dz, gx, gy, gz)
-    return qx, qy, qz
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -19,6 +19,9 @@ Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geom
   ``T = (1-F) T_m`` (the tracer's Fresnel alone splits the transmissive part);
   on total internal reflection ``R = M + T_m`` and nothing is refracted. Whether the ray enters
   (``eta = 1 / ior``) or leaves (``eta = ior``) is decided by the geometric normal's winding.
+* A rough Principled-like surface (:func:`is_glossy`) instead spreads ``R`` and ``T`` over
+  its GGX lobe: N microfacet normals drawn from the visible normals, each a reflected and a
+  refracted ray weighted ``F G2 / G1 / N`` (:func:`_glossy_rays`, docs/glossy.md).
 * A ray that misses returns the world colour.
 
 The stages and the wavefront that drive these kernels are :mod:`.whitted`'s; the shade
@@ -41,6 +44,9 @@ from .shading import (
     fresnel_dielectric,
     geometric_normal,
     ggx_albedo,
+    ggx_sample_normal,
+    ggx_weight,
+    mirror_dir,
     normalize3,
     principled_brdf,
     principled_fresnel,
@@ -51,9 +57,15 @@ from .shading import (
     spot_falloff,
     texture_lookup,
     texture_uv,
+    transmit,
     ward_brdf,
 )
-from .soft_lights import SH_SOFT, extent_faces
+from .soft_lights import SH_SOFT, extent_faces, mix64
+
+#: hashed into a node's seed for its glossy samples (the soft lights hash in their light)
+GLOSSY_SALT = np.uint64(0xD1B54A32D192ED03)
+GOLDEN = 0.6180339887498949
+INV_2_53 = 1.0 / 9007199254740992.0
 
 # shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
 _SH_TRACE = 1
@@ -258,8 +270,155 @@ def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
             sh_tmax[k] = wl * (1.0 - tol.SHADOW_END_REL)
 
 
+# ----------------------------------------------------------------------------- glossy rays
+
+
+@njit(cache=True, nogil=True)
+def is_glossy(sa, m):
+    """Whether material ``m`` reflects or refracts the scene through sampled glossy rays: a
+    Principled-like material at GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` (roughness
+    0.05; below it a mirror, one ray) with a reflecting layer or transmission."""
+    if m < 0 or sa.mat_model[m] != MODEL_PRINCIPLED or sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN:
+        return False
+    refl = (sa.mat_mirror[m, 0] > 0.0 or sa.mat_mirror[m, 1] > 0.0
+            or sa.mat_mirror[m, 2] > 0.0) and (
+        sa.mat_metallic[m] > 0.0 or sa.mat_specular[m, 0] > 0.0
+        or sa.mat_specular[m, 1] > 0.0 or sa.mat_specular[m, 2] > 0.0)
+    # IOR 1 is no interface: such a transmission passes straight on (as through a mirror's
+    # one refracted ray), whatever the roughness
+    return refl or (sa.mat_ior[m] != 1.0 and (
+        sa.mat_transmission[m, 0] > 0.0 or sa.mat_transmission[m, 1] > 0.0
+        or sa.mat_transmission[m, 2] > 0.0))
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp):
+def glossy_counts(sa, mat, fresh, samples, counts, glossy):
+    """Ray pairs per point of a level (see :func:`_shade_kernel`'s ``gstart``): ``samples``
+    at a glossy point whose path has not been split yet (``fresh``), 1 elsewhere (a deeper
+    glossy bounce draws one direction). Outputs counts (n,) int64, glossy (n,) bool."""
+    for i in prange(mat.shape[0]):
+        g = is_glossy(sa, mat[i])
+        glossy[i] = g
+        counts[i] = samples if g and fresh[i] else 1
+
+
+@njit(cache=True, nogil=True)
+def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
+    """Spawned ray slot ``k`` (of the :class:`Spawned` arrays)."""
+    c_ok[k] = True
+    c_o[k, 0] = ox
+    c_o[k, 1] = oy
+    c_o[k, 2] = oz
+    c_d[k, 0] = dx
+    c_d[k, 1] = dy
+    c_d[k, 2] = dz
+    c_w[k, 0] = wr
+    c_w[k, 1] = wg
+    c_w[k, 2] = wb
+
+
+@njit(cache=True, nogil=True)
+def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
+                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s, metallic, mr,
+                 mg, mb, alpha, e_white, enter, c_o, c_d, c_w, c_ok):
+    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission
+    ``t*``): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn from GGX's visible
+    normals about the shading normal (the geometric one where the shading normal faces away
+    from the viewer), stratified (a Fibonacci lattice rotated by a hash of the node's seed,
+    as the soft lights' samples), each a reflected and a refracted ray. A sample's
+    reflection carries the layer's Fresnel at ``i . h`` with the direct light's
+    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part,
+    its refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
+    (:func:`~.shading.ggx_weight`); a direction below the geometric surface (reflection) or
+    above it (refraction) is dropped, a microfacet with total internal reflection reflects
+    all of the transmissive part."""
+    k0 = gstart[i]
+    ns = gstart[i + 1] - k0
+    wmin = tol.PATH_WEIGHT_MIN
+    ox, oy, oz = -dx, -dy, -dz
+    nx, ny, nz = sx, sy, sz
+    co = dot3(ox, oy, oz, nx, ny, nz)
+    if co <= 0.0:
+        nx, ny, nz = gx, gy, gz
+        co = dot3(ox, oy, oz, nx, ny, nz)
+    co = max(co, tol.GGX_COS_MIN)
+    refl = rr > 0.0 or rg > 0.0 or rb > 0.0
+    trans = tr > 0.0 or tg > 0.0 or tb > 0.0
+    eta = 1.0
+    if trans:
+        ior = sa.mat_ior[m]
+        eta = 1.0 / ior if enter else ior
+    msr = msg = msb = 1.0
+    if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
+        e = max(e_white, tol.GGX_ALBEDO_MIN)
+        kk = (1.0 - e) / e
+        f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+        msr = 1.0 + f0r * kk
+        msg = 1.0 + f0g * kk
+        msb = 1.0 + f0b * kk
+    h = mix64(seeds[i] ^ GLOSSY_SALT)
+    r1 = float(h >> np.uint64(11)) * INV_2_53
+    r2 = float(mix64(h) >> np.uint64(11)) * INV_2_53
+    inv = 1.0 / ns
+    for s in range(ns):
+        slot = 2 * (k0 + s)
+        u = (s + 0.5) * inv + r1
+        u -= math.floor(u)
+        v = (s + 0.5) * GOLDEN + r2
+        v -= math.floor(v)
+        hx, hy, hz = ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u, v)
+        ch = dot3(ox, oy, oz, hx, hy, hz)
+        if ch <= 0.0:
+            continue
+        ar = ag = ab = 0.0
+        if refl:
+            fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+            ar = rr * fr * msr
+            ag = rg * fg * msg
+            ab = rb * fb * msb
+        if trans and eta == 1.0:  # no interface: straight on
+            cr = w0 * tr * inv
+            cg = w1 * tg * inv
+            cb = w2 * tb * inv
+            if max(cr, cg, cb) * ns > wmin:
+                _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
+                     pz - gz * off, dx, dy, dz, cr, cg, cb)
+        elif trans:
+            ok, tx, ty, tz = refract(dx, dy, dz, hx, hy, hz, eta)
+            if ok:
+                f = fresnel_dielectric(ch, eta)
+                ar += f * tr
+                ag += f * tg
+                ab += f * tb
+                ci = dot3(tx, ty, tz, nx, ny, nz)
+                if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
+                    q = (1.0 - f) * ggx_weight(co, ci, alpha) * inv
+                    cr = w0 * tr * q
+                    cg = w1 * tg * q
+                    cb = w2 * tb * q
+                    if max(cr, cg, cb) * ns > wmin:
+                        _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
+                             pz - gz * off, tx, ty, tz, cr, cg, cb)
+            else:  # total internal reflection at this microfacet
+                ar += tr
+                ag += tg
+                ab += tb
+        qx, qy, qz = reflect(dx, dy, dz, hx, hy, hz)
+        ci = dot3(qx, qy, qz, nx, ny, nz)
+        if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
+            continue
+        q = ggx_weight(co, ci, alpha) * inv
+        cr = w0 * ar * q
+        cg = w1 * ag * q
+        cb = w2 * ab * q
+        if max(cr, cg, cb) * ns > wmin:
+            _put(c_o, c_d, c_w, c_ok, slot, px + gx * off, py + gy * off, pz + gz * off,
+                 qx, qy, qz, cr, cg, cb)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contrib, out, tv,
+                  tp):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -270,13 +429,17 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
     :class:`Surfaces` of :func:`_surface_kernel`. vis : (n L,) bool light j visible from
     point i (row ``i * L + j``; lights with an extent are skipped there); weight : (n, 3)
     float64 path weights; spawn : whether reflection/refraction rays may be spawned; soft :
-    the :class:`~.soft_lights.SoftSamples` of the points (their lights and the world's).
-    Outputs: contrib (n, 3) weighted radiance to add to each ray's input ray; out, the
-    :class:`Spawned` rays; with ``tv`` (n, L + 2, 3) float64 and ``tp`` (n, L + 2) bool
-    (empty: not kept) each point's *light terms* (:mod:`.light_records`), what it adds to
-    its radiance before the path weight without the light's intensity or radiance:
-    column j light j (present where added), L the world's light, L + 1 the emission (a
-    miss: 1, for the world colour).
+    the :class:`~.soft_lights.SoftSamples` of the points (their lights and the world's);
+    gstart : (n + 1,) int64, point i's rays are the slot pairs ``gstart[i]:gstart[i + 1]``
+    (its reflection at ``2 s``, its refraction at ``2 s + 1``): one pair for a mirror,
+    glass or a matte surface, one per glossy sample where the point is glossy
+    (:func:`glossy_counts`); seeds : (n,) uint64 the points' node seeds (the glossy
+    samples'; empty: no glossy rays). Outputs: contrib (n, 3) weighted radiance to add to
+    each ray's input ray; out, the :class:`Spawned` rays; with ``tv`` (n, L + 2, 3)
+    float64 and ``tp`` (n, L + 2) bool (empty: not kept) each point's *light terms*
+    (:mod:`.light_records`), what it adds to its radiance before the path weight without
+    the light's intensity or radiance: column j light j (present where added), L the
+    world's light, L + 1 the emission (a miss: 1, for the world colour).
     """
     prim, bu, bv = hits.prim, hits.u, hits.v
     P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
@@ -287,8 +450,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
     wmin = tol.PATH_WEIGHT_MIN
     terms = tv.shape[0] > 0
     for i in prange(n):
-        c_ok[2 * i] = False
-        c_ok[2 * i + 1] = False
+        slot = 2 * gstart[i]
+        for k in range(slot, 2 * gstart[i + 1]):
+            c_ok[k] = False
         w0 = weight[i, 0]
         w1 = weight[i, 1]
         w2 = weight[i, 2]
@@ -344,6 +508,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
         mb = sa.mat_metal[m, 2]
         e_white = 1.0
         e_diel = 0.0
+        # a glossy point's rays carry the world's glossy reflection: its samples of the
+        # world light the diffuse part only (no light counted twice)
+        glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
         for j in range(L):
@@ -397,9 +564,12 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
                 if not soft.vis[k]:
                     continue
                 lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
-                fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
-                                   sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
-                                   e_diel)
+                if glossy and soft.light[k] >= L:
+                    fr, fg, fb = kr, kg, kb
+                else:
+                    fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                       dr, dg, db, sr, sg, sb, eta_s, metallic, mr, mg, mb,
+                                       alpha, e_white, e_diel)
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e
@@ -437,29 +607,26 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
         rr = sa.mat_mirror[m, 0]
         rg = sa.mat_mirror[m, 1]
         rb = sa.mat_mirror[m, 2]
+        tr = sa.mat_transmission[m, 0]
+        tg = sa.mat_transmission[m, 1]
+        tb = sa.mat_transmission[m, 2]
+        off = spawn_offset(px, py, pz, ext)
+        if glossy:
+            _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
+                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s,
+                         metallic, mr, mg, mb, alpha, e_white, ENTER[i], c_o, c_d, c_w, c_ok)
+            continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
                                             metallic, mr, mg, mb)
             rr *= fr
             rg *= fg
             rb *= fb
-        tr = sa.mat_transmission[m, 0]
-        tg = sa.mat_transmission[m, 1]
-        tb = sa.mat_transmission[m, 2]
-        off = spawn_offset(px, py, pz, ext)
         if tr > 0.0 or tg > 0.0 or tb > 0.0:
             ior = sa.mat_ior[m]
             eta = 1.0 / ior if ENTER[i] else ior
-            nx, ny, nz = sx, sy, sz
-            if dot3(dx, dy, dz, nx, ny, nz) >= 0.0:
-                nx, ny, nz = gx, gy, gz
-            ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
-            if ok and dot3(tx, ty, tz, gx, gy, gz) >= 0.0:
-                # the shading normal would send the ray back out: refract about g instead
-                nx, ny, nz = gx, gy, gz
-                ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
+            ok, tx, ty, tz, f = transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta)
             if ok:
-                f = fresnel_dielectric(-dot3(dx, dy, dz, nx, ny, nz), eta)
                 rr += f * tr
                 rg += f * tg
                 rb += f * tb
@@ -467,17 +634,8 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
                 cg = w1 * (1.0 - f) * tg
                 cb = w2 * (1.0 - f) * tb
                 if max(cr, cg, cb) > wmin:
-                    k = 2 * i + 1
-                    c_ok[k] = True
-                    c_o[k, 0] = px - gx * off
-                    c_o[k, 1] = py - gy * off
-                    c_o[k, 2] = pz - gz * off
-                    c_d[k, 0] = tx
-                    c_d[k, 1] = ty
-                    c_d[k, 2] = tz
-                    c_w[k, 0] = cr
-                    c_w[k, 1] = cg
-                    c_w[k, 2] = cb
+                    _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
+                         pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection
                 rr += tr
                 rg += tg
@@ -486,17 +644,6 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, contrib, out, tv, tp
         cg = w1 * rg
         cb = w2 * rb
         if max(cr, cg, cb) > wmin:
-            qx, qy, qz = reflect(dx, dy, dz, sx, sy, sz)
-            if dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
-                qx, qy, qz = reflect(dx, dy, dz, gx, gy, gz)
-            k = 2 * i
-            c_ok[k] = True
-            c_o[k, 0] = px + gx * off
-            c_o[k, 1] = py + gy * off
-            c_o[k, 2] = pz + gz * off
-            c_d[k, 0] = qx
-            c_d[k, 1] = qy
-            c_d[k, 2] = qz
-            c_w[k, 0] = cr
-            c_w[k, 1] = cg
-            c_w[k, 2] = cb
+            qx, qy, qz = mirror_dir(dx, dy, dz, sx, sy, sz, gx, gy, gz)
+            _put(c_o, c_d, c_w, c_ok, slot, px + gx * off, py + gy * off, pz + gz * off,
+                 qx, qy, qz, cr, cg, cb)

@@ -26,11 +26,18 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
-from ..frame import CLASS_BACKGROUND, LIGHT_SAMPLES_DEFAULT, Frame, RenderSettings
+from ..frame import (
+    CLASS_BACKGROUND,
+    GLOSSY_SAMPLES_DEFAULT,
+    LIGHT_SAMPLES_DEFAULT,
+    Frame,
+    RenderSettings,
+)
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.scene import Scene, SceneArrays
+from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
@@ -41,6 +48,7 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     _shade_kernel,
     _shadow_kernel,
     _surface_kernel,
+    glossy_counts,
     light_state,
     light_states,
 )
@@ -49,6 +57,7 @@ from .soft_lights import (
     SH_SOFT,
     SoftSamples,
     has_soft_light,
+    mix64,
     no_samples,
     node_seeds,
     sample_seeds,
@@ -115,24 +124,79 @@ def shadow_rays(sa: SceneArrays, surf: Surfaces):
 
 
 def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: np.ndarray,
-          spawn: bool, soft: SoftSamples | None = None, terms: bool = False):
+          spawn: bool, soft: SoftSamples | None = None, terms: bool = False,
+          seeds: np.ndarray | None = None):
     """Direct light of ``surf`` (``vis`` (n L,) bool: light j visible from point i; ``soft``
     the samples of the lights with an extent and of the world, :func:`soft_direct`) times
     the path ``weight`` (n, 3), and the reflection and refraction rays when ``spawn``:
-    ``(contrib (n, 3) float64, Spawned)``; with ``terms`` also the points' light terms
-    ``(values (n, L + 2, 3) float64, present (n, L + 2) bool)`` (see :func:`_shade_kernel`)."""
+    ``(contrib (n, 3) float64, Spawned)``, point i's rays in slots ``2 i`` (reflection) and
+    ``2 i + 1`` (refraction); with ``terms`` also the points' light terms ``(values (n, L +
+    2, 3) float64, present (n, L + 2) bool)`` (see :func:`_shade_kernel`). Rough surfaces
+    (:func:`~.shader.is_glossy`) draw their one reflected and refracted ray from the GGX
+    lobe, seeded by ``seeds`` (n,) uint64, the points' node seeds (:func:`node_seeds`;
+    required then). (The wavefront of :func:`trace` draws several at a path's first rough
+    bounce.)"""
+    if spawn and seeds is None and has_glossy(sa):
+        raise ValueError("shade: rough materials draw glossy rays from the points' seeds: "
+                         "give seeds")
+    fresh = np.zeros(len(surf.P), np.bool_)
+    res = _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 1)
+    return res[:-1]
+
+
+def glossy_materials(sa: SceneArrays) -> np.ndarray:
+    """(NM,) bool: the materials of ``sa`` that draw glossy rays
+    (:func:`~.shader.is_glossy`)."""
+    refl = (sa.mat_mirror > 0).any(axis=1) & (
+        (sa.mat_metallic > 0) | (sa.mat_specular > 0).any(axis=1))
+    return ((sa.mat_model == MODEL_PRINCIPLED) & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
+            & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
+
+
+def has_glossy(sa: SceneArrays) -> bool:
+    """Whether any material of ``sa`` draws glossy rays (:func:`~.shader.is_glossy`)."""
+    return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
+
+
+class _Plan(NamedTuple):
+    """Where a level's spawned rays lie: point i's ray pairs ``gstart[i]:gstart[i + 1]``
+    (None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool its rays are
+    drawn from its lobe."""
+
+    gstart: np.ndarray | None
+    glossy: np.ndarray | None
+
+
+def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, samples):
+    """:func:`shade` for the wavefront: ``fresh`` (n,) bool the rays whose paths have not
+    drawn glossy samples yet (they draw ``samples``, the others one). Returns ``(contrib,
+    Spawned[, terms], _Plan)``."""
     n = len(surf.P)
+    plan = _Plan(None, None)
+    gseeds = np.zeros(0, np.uint64)
+    gstart = np.arange(n + 1, dtype=np.int64)
+    if spawn and seeds is not None and has_glossy(sa):
+        counts = np.empty(n, np.int64)
+        glossy = np.empty(n, np.bool_)
+        glossy_counts(sa, surf.mat, np.ascontiguousarray(fresh, np.bool_), int(samples),
+                      counts, glossy)
+        gseeds = np.ascontiguousarray(seeds, np.uint64)
+        if glossy.any():
+            gstart = np.zeros(n + 1, np.int64)
+            np.cumsum(counts, out=gstart[1:])
+            plan = _Plan(gstart, glossy)
+    m = 2 * int(gstart[-1])
     contrib = np.empty((n, 3))
-    out = Spawned(np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3)),
-                  np.empty(2 * n, np.bool_))
+    out = Spawned(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.bool_))
     c = len(sa.light_kind) + 2
     tv = np.empty((n if terms else 0, c, 3))
     tp = np.empty((n if terms else 0, c), np.bool_)
     _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn,
-                  no_samples(n) if soft is None else soft, contrib, out, tv, tp)
+                  no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out, tv,
+                  tp)
     if terms:
-        return contrib, out, (tv, tp)
-    return contrib, out
+        return contrib, out, (tv, tp), plan
+    return contrib, out, plan
 
 
 def soft_direct(sa: SceneArrays, surf: Surfaces, seeds: np.ndarray, light_samples: int,
@@ -167,6 +231,8 @@ class _Front(NamedTuple):
     weight: np.ndarray  # (nb, 3) float64 path weight
     parent: np.ndarray  # (nb,) int32 parent node row (-1: roots)
     path: np.ndarray  # (nb,) int64 root 1, reflect child 2p, refract child 2p + 1
+    fresh: np.ndarray  # (nb,) bool the path has drawn no glossy samples yet
+    tag: np.ndarray  # (nb,) uint64 hashed into the node seed below a glossy sample (else 0)
 
 
 def _count(counters: dict | None, key: str, n: int) -> None:
@@ -185,20 +251,45 @@ def _input_front(origins, directions, tmin, tmax, primary: Hits | None) -> _Fron
     if primary is not None and len(primary.t) != n:
         raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
     return _Front(o, d, t0, t1, np.arange(n, dtype=np.int32), np.ones((n, 3)),
-                  np.full(n, -1, np.int32), np.ones(n, np.int64))
+                  np.full(n, -1, np.int32), np.ones(n, np.int64), np.ones(n, np.bool_),
+                  np.zeros(n, np.uint64))
 
 
-def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None) -> _Front:
+@njit(cache=True, nogil=True)
+def _child_tags(nseeds, which, sample, glossy, tag, out):
+    """Tags of spawned rays: a glossy sample's hashes its parent's seed and its sample index
+    (its children's seeds differ from its siblings'), any other keeps its parent's."""
+    for k in range(which.shape[0]):
+        p = which[k]
+        if glossy[p]:
+            out[k] = mix64(nseeds[p] ^ mix64(np.uint64(sample[k] + 1)))
+        else:
+            out[k] = tag[p]
+
+
+def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Plan,
+                nseeds: np.ndarray | None) -> _Front:
     """The spawned rays, compacted; ``rows``: the level's node rows (None: no ray trees
-    kept, parents are not followed)."""
+    kept, parents are not followed); ``plan``: the slots' layout (:func:`_shade_level`),
+    ``nseeds`` the level's node seeds (needed with glossy samples)."""
     k = np.flatnonzero(kids.ok)
-    which = k // 2
+    pair = k // 2
+    fresh, tag = front.fresh, front.tag
+    if plan.gstart is None:
+        which = pair
+        fresh = fresh[which]
+        tag = tag[which]
+    else:
+        which = np.searchsorted(plan.gstart, pair, side="right") - 1
+        fresh = fresh[which] & ~plan.glossy[which]
+        tag = np.empty(len(k), np.uint64)
+        _child_tags(nseeds, which, pair - plan.gstart[which], plan.glossy, front.tag, tag)
     parent = front.parent
     if rows is not None:
         parent = rows[which]
     path = front.path[which] * 2 + (k & 1)  # also seeds the soft lights' samples
     return _Front(kids.o[k], kids.d[k], np.zeros(len(k)), np.full(len(k), np.inf),
-                  front.src[which], kids.w[k], parent, path)
+                  front.src[which], kids.w[k], parent, path, fresh, tag)
 
 
 def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
@@ -296,7 +387,8 @@ def _ray_tree(levels: list[dict], L: int) -> RayTree:
 def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: int,
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
-          light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False):
+          light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False,
+          glossy_samples: int = GLOSSY_SAMPLES_DEFAULT):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -321,7 +413,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     default the rays' indices, which makes the samples depend on the batch);
     light_samples : shadow samples per such light and point. terms : with ``segments``, its
     dicts also hold each node's light terms and what re-shading one light needs
-    (:func:`_light_terms`, for :mod:`.light_records`).
+    (:func:`_light_terms`, for :mod:`.light_records`). glossy_samples : rays a path draws
+    at its first rough reflection or refraction (deeper ones draw one; docs/glossy.md),
+    seeded like the soft lights' samples.
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -333,8 +427,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
     soft_on = has_soft_light(sa)
+    glossy_on = has_glossy(sa) and max_depth > 0
     terms = terms and segments is not None
-    if soft_on or terms:
+    need_seeds = soft_on or terms or glossy_on
+    if need_seeds:
         root = (sample_seeds(np.arange(len(front.src)), 0) if seeds is None
                 else np.ascontiguousarray(seeds, np.uint64))
         if len(root) != len(front.src):
@@ -353,7 +449,11 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         vis, occ, traced = _visibility(sa, accel, surf, record, counters)
         soft = None
-        nseeds = node_seeds(root, front.src, front.path) if soft_on or terms else None
+        nseeds = None
+        if need_seeds:
+            nseeds = node_seeds(root, front.src, front.path)
+            if glossy_on and level > 0:
+                nseeds ^= front.tag
         if soft_on:
             soft = soft_direct(sa, surf, nseeds, int(light_samples), vis, _occluded_by(accel),
                                counters, occ)
@@ -361,7 +461,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         if traced and cancelled(cancel):
             break
         spawn = level < max_depth
-        shaded = shade(sa, hits, surf, vis, front.weight, spawn, soft, terms)
+        shaded = _shade_level(sa, hits, surf, vis, front.weight, spawn, soft, terms, nseeds,
+                              front.fresh, int(glossy_samples))
         contrib, kids = shaded[0], shaded[1]
         scatter_add(radiance, front.src, contrib)
         if segments is not None:
@@ -373,7 +474,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         if not spawn:
             break
         rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32) if nodes else None
-        front = _next_front(front, kids, rows)
+        front = _next_front(front, kids, rows, shaded[-1], nseeds)
         n_nodes += nb
     return radiance, (_ray_tree(levels, L) if record else None)
 
@@ -382,7 +483,7 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
                  max_depth: int, cancel=None, counters: dict | None = None,
                  segments: list | None = None, gids: np.ndarray | None = None,
                  seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT,
-                 terms: bool = False):
+                 terms: bool = False, glossy_samples: int = GLOSSY_SAMPLES_DEFAULT):
     """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
     (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
     frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
@@ -399,7 +500,7 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
         rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
                        counters=counters, segments=segments, cancel=cancel,
                        seeds=sample_seeds(gids, seed), light_samples=light_samples,
-                       terms=terms)
+                       terms=terms, glossy_samples=glossy_samples)
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -476,7 +577,8 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
                                  depth, cancel, counters, segs, gids, int(settings.seed),
-                                 int(settings.light_samples), terms)
+                                 int(settings.light_samples), terms,
+                                 int(settings.glossy_samples))
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break

@@ -60,6 +60,16 @@ def test_light_samples_map_to_render_settings():
     assert viewport.viewport_settings(bpy.context.scene).light_samples == 7
 
 
+def test_glossy_samples_map_to_render_settings():
+    from addon import properties, viewport
+
+    props = bpy.context.scene.rstrace
+    assert props.glossy_samples == RenderSettings().glossy_samples
+    props.glossy_samples = 5
+    assert properties.render_settings(props).glossy_samples == 5
+    assert viewport.viewport_settings(bpy.context.scene).glossy_samples == 5
+
+
 def test_stock_panels_enabled_and_settings_panel_polls():
     from addon import ui
 

@@ -174,6 +174,13 @@ def start_warmup(mode: str = "BASE") -> bool:
     return True
 
 
+def skip_warmup(modes=("BASE", "INTERPOLANT")) -> None:
+    """No background warm-up for ``modes``: the caller warmed the cache itself (``make
+    demo`` runs ``warm-cache`` for the kernels of its scene first); a render compiles or
+    loads what it uses."""
+    _state["modes_done"].update(modes)
+
+
 def wait(timeout: float | None = None) -> bool:
     """Block until the warm-up thread is done; True when it is."""
     t = _state["thread"]

@@ -13,8 +13,9 @@ afterwards only runs them. The kernels of the viewport's first (coarse) image co
 Python, while this one compiles the rest); then the render lock is let go so a waiting
 viewport shows its first image, and the rest is warmed a step at a time under the lock;
 on a cold cache the rest first compiles in one process per core
-(``rstrace_engine.warm_kernels.warm_parallel``) and is then loaded here. With the compiled
-kernels the extension ships (``runtime``), all of this only loads.
+(``rstrace_engine.warm_kernels.warm_parallel``) and is then loaded here. With every kernel
+of the mode in the cache (the compiled kernels the extension ships, ``runtime``; a second
+process) no warm-up runs: the render loads what it uses.
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
 bar; it counts the kernels of :data:`MODE_KERNELS` compiled in this process or in the disk
 cache; the console shows the same progress (``RSTrace: kernels 57/173 in the cache``).

@@ -257,6 +257,10 @@ def main(argv=None) -> int:
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--samples", type=int, default=4)
     ap.add_argument("--depth", type=int, default=4)
+    ap.add_argument("--no-warmup", action="store_true",
+                    help="no background kernel warm-up in the add-on (make demo warmed the "
+                         "kernels of this scene with warm-cache first; the add-on's warm-up "
+                         "would add those of soft light and orthographic cameras)")
     args = ap.parse_args(argv)
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -267,6 +271,8 @@ def main(argv=None) -> int:
     import addon
 
     addon.register()
+    if args.no_warmup:
+        addon.kernels.skip_warmup()
     try:
         sc = build_scene(bpy, args.width, args.height, args.samples, args.depth)
         print(f"demo: rendering {args.width}x{args.height}, {args.samples} samples, depth "

@@ -46,6 +46,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="processes compiling at once (default: one per core)")
     w.add_argument("--modes", nargs="+", choices=AVAILABLE_MODES, default=None)
     w.add_argument("--accelerators", nargs="+", choices=AVAILABLE_ACCELERATORS, default=None)
+    w.add_argument("--no-soft-light", dest="soft", action="store_false",
+                   help="leave out the orthographic steps with soft light, an area light and "
+                        "a lighting world (for scenes of hard lights only, as make demo's)")
     w.add_argument("--part", default=None, help=argparse.SUPPRESS)  # k/n: one of n workers
     w.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -88,13 +91,14 @@ def warm_cache_command(args) -> int:
         elif n > 1 and k == 1:
             warm_first.compile_traversal()
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
-                                   report_unreached=False)
+                                   report_unreached=False, soft=args.soft)
     elif args.jobs == 1:
         result = warm_kernels.warm(args.modes, args.accelerators, progress=progress,
-                                   report_unreached=everything)
+                                   report_unreached=everything and args.soft, soft=args.soft)
     else:
         result = warm_kernels.warm_parallel(args.jobs or None, args.modes, args.accelerators,
-                                            progress=progress, report_unreached=everything)
+                                            progress=progress, soft=args.soft,
+                                            report_unreached=everything and args.soft)
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:
         print(json.dumps(result, indent=2))

@@ -47,14 +47,24 @@ numba internals this module relies on (numba 0.59-0.68; ``tests/test_kernel_cach
   extension point numba documents for cache locators (``NUMBA_CACHE_LOCATOR_CLASSES``
   replaces the whole list; when a user sets it, their locators win and ours is unused);
 * ``IndexDataCacheFile`` (``_load_index``, ``_save_index``, ``_load_data``, ``_save_data``,
-  ``_data_name``, ``_index_path``, ``_cache_path``, ``_source_stamp``) and its index file
-  format: a pickled ``numba.__version__``, then a pickled ``(stamp, {key: data name})``;
+  ``_data_name``, ``_index_path``, ``_index_name``, ``_cache_path``, ``_source_stamp``;
+  ``load(key)``, the dispatcher's one look into the disk cache before it compiles, and
+  ``save(key, data)`` after a compile: the compile claims hang on these two) and its index
+  file format: a pickled ``numba.__version__``, then a pickled ``(stamp, {key: data name})``;
 * a dispatcher's ``_cache._cache_file``; the events ``numba:compile`` (data:
-  ``dispatcher``, ``args``) and ``numba:compiler_lock`` (entered before a dispatcher looks
-  in its disk cache);
+  ``dispatcher``, ``args``; ``Event._exc_details`` at its end) and ``numba:compiler_lock``
+  (entered before a dispatcher looks in its disk cache);
 * the index key's second item is ``codegen.magic_tuple()`` = (triple, CPU name, CPU
   features): a portable build (``NUMBA_CPU_NAME=generic``) and a host build of the same
   kernel are two entries of one index.
+
+Compile claims: before a process compiles a signature that is not in the cache, it takes a
+file lock named after the kernel and the signature (``<index>.<digest>.claim`` beside the
+index) and holds it until the kernel is saved. A process that finds the claim taken waits
+for it (``CLAIMS["wait_s"]`` at most) and then loads what the other saved, instead of
+compiling the same kernel at the same time (the warm-up's processes, the first image's
+helper, two Blender processes starting at once, ``make demo``). A failed compile or a
+process that ends lets the claim go (the OS drops the lock): the waiting process compiles.
 
 Bad files: a truncated or corrupt index or data file is treated as missing (logged once per
 file), so the kernel is compiled again and the file rewritten; a cache folder that cannot
@@ -63,14 +73,15 @@ be written is numba's own case (the locator declines, numba's next locator is tr
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import functools
 import hashlib
 import logging
 import os
+import re
 import sys
 import threading
+import time
 import weakref
 from collections import Counter
 
@@ -126,27 +137,45 @@ def _module_file(base: str, name: str) -> str | None:
     return None
 
 
+#: ``import a.b, c as d`` and ``from .p import (x, y)`` statements, found by a scan of the
+#: source text (not a parse: :func:`_imports` runs for every module a kernel module imports,
+#: in every process that imports a kernel; ``ast.parse`` of them all took 0.6 s of CPU, more
+#: than half of a warm process's first render). The scan may find more than the statements
+#: (an import in a string or a comment): a superset only makes a key depend on one more file.
+_IMPORT_RE = re.compile(r"^[ \t]*import[ \t]+([^\n#;]+)", re.M)
+_FROM_RE = re.compile(
+    r"^[ \t]*from[ \t]+(\.*)[ \t]*([\w.]*)[ \t]+import[ \t]*(\([^)]*\)|[^\n#;]*)", re.M)
+_NAME_RE = re.compile(r"[A-Za-z_][\w.]*")
+
+
 @functools.cache
 def _imports(path: str, name: str, tops: frozenset) -> tuple[str, ...]:
     """Names of the modules of ``tops`` that module ``name`` (file ``path``) imports, at
     module level or inside a function, absolute or relative (``from p import x``: ``p.x``
     and ``p``), plus its parent packages."""
-    tree = ast.parse(_file_bytes(path), filename=path)
+    text = re.sub(r"#[^\n]*", "", _file_bytes(path).decode("utf-8", errors="replace"))
+    text = text.replace("\\\n", " ")
     is_package = os.path.basename(path) == "__init__.py"
     package = name if is_package else name.rpartition(".")[0]
     out = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            out.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[:len(base) - (node.level - 1)]
-                prefix = ".".join(base + ([node.module] if node.module else []))
-            else:
-                prefix = node.module or ""
-            out.add(prefix)
-            out.update(f"{prefix}.{alias.name}" for alias in node.names)
+    for m in _IMPORT_RE.finditer(text):
+        for alias in m.group(1).split(","):
+            words = alias.split()
+            if words and _NAME_RE.fullmatch(words[0]):
+                out.add(words[0])
+    for m in _FROM_RE.finditer(text):
+        dots, module, names = m.group(1), m.group(2), m.group(3)
+        if dots:
+            base = package.split(".")
+            base = base[:len(base) - (len(dots) - 1)]
+            prefix = ".".join(base + ([module] if module else []))
+        else:
+            prefix = module
+        out.add(prefix)
+        for alias in names.strip("()").split(","):
+            words = alias.split()
+            if words and _NAME_RE.fullmatch(words[0]):
+                out.add(f"{prefix}.{words[0]}")
     parts = name.split(".")
     out.update(".".join(parts[:i]) for i in range(1, len(parts)))
     return tuple(sorted(n for n in out if n and n.split(".")[0] in tops))
@@ -254,18 +283,35 @@ class _LockedCacheFile(caching.IndexDataCacheFile):
             _bad_file(self._index_path, exc)
             return {}
 
-    def load(self, key):
+    def _load_unclaimed(self, key):
         try:
             return super().load(key)
         except Exception as exc:  # noqa: BLE001
             _bad_file(os.path.join(self._cache_path, self._load_index().get(key, "?")), exc)
             return None
 
+    def load(self, key):
+        """The cached kernel, or None: then this process compiles it, under a claim (see
+        :func:`_claim`): while another process compiles the same signature, wait for it and
+        load what it saved."""
+        data = self._load_unclaimed(key)
+        if data is not None or not CLAIMS["on"]:
+            return data
+        _claim(self._cache_path, self._index_name, key)
+        # again: another process saved it meanwhile (it waited for us, or finished between
+        # our first look and our claim)
+        data = self._load_unclaimed(key)
+        if data is not None:
+            _release(self._cache_path, self._index_name, key)
+        return data
+
     def save(self, key, data):
         try:
             self._save_locked(key, data)
         except OSError as exc:  # a read-only or full cache folder: the kernel stays in memory
             _warn_once(f"cannot write the kernel cache in {self._cache_path}: {exc}")
+        finally:
+            _release(self._cache_path, self._index_name, key)
 
     def _save_locked(self, key, data):
         with _file_lock(self._cache_path):
@@ -281,6 +327,109 @@ class _LockedCacheFile(caching.IndexDataCacheFile):
             if overloads.get(key) != data_name:
                 overloads[key] = data_name
                 self._save_index(overloads)
+
+
+# --- compile claims: one process compiles a signature, the others wait and load it -------
+
+#: ``on``: claims are taken (``RSTRACE_COMPILE_CLAIMS=0`` turns them off); ``wait_s``: the
+#: longest wait for another process's compile before compiling here anyway.
+CLAIMS = {"on": os.environ.get("RSTRACE_COMPILE_CLAIMS", "1") != "0", "wait_s": 900.0,
+          "poll_s": 0.05}
+_CLAIMED: dict = {}  # (cache folder, index name, key digest) -> open claim file
+_CLAIM_STATS = Counter()  # "claimed", "waited", "wait_s" (this process)
+
+
+def _claim_path(folder: str, index_name: str, key) -> tuple[tuple, str]:
+    digest = hashlib.sha256(repr(key).encode()).hexdigest()[:20]
+    stem = index_name[:-len(".nbi")] if index_name.endswith(".nbi") else index_name
+    return (folder, index_name, digest), os.path.join(folder, f"{stem}.{digest}.claim")
+
+
+def _try_lock(fh) -> bool:
+    """Lock ``fh`` without waiting: True when this process now holds it."""
+    if sys.platform == "win32":
+        import msvcrt
+
+        fh.seek(0)
+        try:
+            msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)
+            return True
+        except OSError:
+            return False
+    import fcntl
+
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+
+
+def _claim(folder: str, index_name: str, key) -> bool:
+    """Claim the compile of ``key`` (a signature of the kernel whose index is
+    ``index_name``) for this process: a file lock beside the index, held until the kernel is
+    saved (:func:`_release`; or the compile failed, or the process ended: the OS lets the
+    lock go). While another process holds it, wait (at most ``CLAIMS["wait_s"]``) and take
+    it. Returns True when this process waited (the caller loads again: the other process
+    saved it, or failed and this one compiles). Without a claim file (a read-only cache)
+    nothing is claimed: compiling here is what happened before claims."""
+    name, path = _claim_path(folder, index_name, key)
+    if name in _CLAIMED:  # this process is compiling it already (another thread, nested)
+        return False
+    try:
+        fh = open(path, "a+b")  # noqa: SIM115  (kept open while claimed)
+    except OSError:
+        return False
+    waited, t0, told = False, time.perf_counter(), False
+    try:
+        while not _try_lock(fh):
+            waited = True
+            if not told:
+                told = True
+                log.info("kernel %s: another process is compiling it, waiting", index_name)
+            if time.perf_counter() - t0 > CLAIMS["wait_s"]:
+                log.warning("kernel %s: waited %.0f s for another process's compile; "
+                            "compiling here", index_name, CLAIMS["wait_s"])
+                fh.close()
+                return True
+            time.sleep(CLAIMS["poll_s"])
+    except OSError as exc:  # no locks on this file system: compile, unclaimed
+        _warn_once(f"cannot lock {path} ({exc}); processes may compile a kernel twice")
+        fh.close()
+        return waited
+    _CLAIMED[name] = fh
+    _CLAIM_STATS["claimed"] += 1
+    if waited:
+        _CLAIM_STATS["waited"] += 1
+        _CLAIM_STATS["wait_s"] += time.perf_counter() - t0
+    return waited
+
+
+def _release(folder: str, index_name: str, key) -> None:
+    """Let a claim go (the kernel was saved, or found in the cache after waiting)."""
+    name, path = _claim_path(folder, index_name, key)
+    fh = _CLAIMED.pop(name, None)
+    if fh is None:
+        return
+    try:  # remove the file first: a process that opened it meanwhile takes a lock on a
+        os.remove(path)  # file gone, finds the kernel saved and loads it
+    except OSError:
+        pass
+    fh.close()  # closing unlocks
+
+
+def _release_all(folder: str) -> None:
+    """Let go every claim on the kernels of index files in ``folder`` (a compile failed)."""
+    for name in [n for n in _CLAIMED if n[0] == folder]:
+        fh = _CLAIMED.pop(name)
+        fh.close()
+
+
+def claim_stats() -> dict:
+    """This process's compile claims: ``claimed``, ``waited`` (for another process's
+    compile, then loaded or compiled here), ``wait_s``."""
+    return {"claimed": _CLAIM_STATS["claimed"], "waited": _CLAIM_STATS["waited"],
+            "wait_s": round(_CLAIM_STATS["wait_s"], 3)}
 
 
 @contextlib.contextmanager
@@ -379,7 +528,14 @@ class _CompileListener(event.Listener):
                 ", ".join(str(a) for a in ev.data.get("args") or ()))
 
     def on_end(self, ev):
-        pass
+        # the compile raised: nothing will be saved, let the waiting processes compile it
+        # (``Event.is_failed`` says the opposite in numba 0.68: ``_exc_details`` is read)
+        if _CLAIMED and getattr(ev, "_exc_details", None) is not None:
+            dispatcher = (ev.data or {}).get("dispatcher")
+            cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+            folder = getattr(cache_file, "_cache_path", None)
+            if folder is not None:
+                _release_all(folder)
 
 
 class _LockListener(event.Listener):

@@ -274,26 +274,30 @@ def _warm_large_bvh(progress=None, cancel=None) -> None:
                               max_depth=1)).render(cancel=cancel)
 
 
-def units(modes, accelerators) -> list[tuple]:
+def units(modes, accelerators, soft: bool = True) -> list[tuple]:
     """The warm-up's steps in the order :func:`warm_parallel` deals them out to its
     processes: ``("step", mode, accelerator, orthographic)`` accelerator by accelerator,
     camera by camera, every mode in turn (so that the processes start on different modes,
     i.e. different kernels), then ``("interpolants",)`` (an edit of interpolants that pass)
     and ``("ri_trees",)`` (RI-trees on the first accelerator) when their mode is warmed,
-    and ``("large_bvh",)`` (a large mesh's parallel BVH build) with the BVH."""
-    out = [("step", m, a, o) for a in accelerators for o in (False, True) for m in modes]
+    and ``("large_bvh",)`` (a large mesh's parallel BVH build) with the BVH.
+    ``soft=False`` leaves out the orthographic steps (the warm scene's variant with soft
+    light, an area light and a world that lights: kernels a scene of hard lights never
+    calls; ``make demo``) and the large BVH."""
+    cameras = (False, True) if soft else (False,)
+    out = [("step", m, a, o) for a in accelerators for o in cameras for m in modes]
     if "INTERPOLANT" in modes:
         out.append(("interpolants",))
     if "RI_TREE" in modes:
         out.append(("ri_trees",))
-    if "BVH" in accelerators:
+    if soft and "BVH" in accelerators:  # (not for make demo: its meshes are small)
         out.append(("large_bvh",))
     return out
 
 
 def warm(modes=None, accelerators=None, progress=None, cancel=None,
-         report_unreached: bool = True, lock=None, part: tuple[int, int] | None = None
-         ) -> dict:
+         report_unreached: bool = True, lock=None, part: tuple[int, int] | None = None,
+         soft: bool = True) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
     ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
@@ -309,6 +313,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     processes of :func:`warm_parallel`; ``python -m
     rstrace_engine warm-cache --part k/n`` first compiles one half of the viewport's first
     image, ``warm_first``: the tracer's stages in part 0, the BVH traversal in part 1).
+    ``soft=False``: no orthographic, soft-light steps (:func:`units`).
     """
     from .frame import RenderSettings
     from .session import Session
@@ -317,7 +322,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     since = kernel_cache.mark()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    mine = units(modes, accelerators)
+    mine = units(modes, accelerators, soft)
     if part is not None:
         mine = mine[part[0]::part[1]]
     steps = [(m, a, o) for m in modes for a in accelerators for o in (False, True)
@@ -410,7 +415,8 @@ def _python() -> str | None:
 
 
 def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progress=None,
-                  cancel=None, report_unreached: bool = True, poll_s: float = 1.0) -> dict:
+                  cancel=None, report_unreached: bool = True, poll_s: float = 1.0,
+                  soft: bool = True) -> dict:
     """:func:`warm` in ``jobs`` processes (default: one per core) sharing this process's
     cache (``kernel_cache`` keeps concurrent writers safe), each warming its part of the
     units; this process waits and reports ``progress("kernels 57/180")`` whenever the
@@ -428,10 +434,11 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    jobs = max(1, min(jobs or os.cpu_count() or 1, len(units(modes, accelerators))))
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(units(modes, accelerators, soft))))
     exe = _python()
     if exe is None:
-        return dict(warm(modes, accelerators, progress, cancel, report_unreached), jobs=1)
+        return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft),
+                    jobs=1)
     env = dict(os.environ)
     if numba.config.CACHE_DIR:
         env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
@@ -442,7 +449,8 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in sys.path if p])
     procs = [subprocess.Popen(
         [exe, "-m", f"{__package__}", "warm-cache", "--json", "--jobs", "1",
-         "--part", f"{k}/{jobs}", "--modes", *modes, "--accelerators", *accelerators],
+         "--part", f"{k}/{jobs}", "--modes", *modes, "--accelerators", *accelerators]
+        + ([] if soft else ["--no-soft-light"]),
         env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True) for k in range(jobs)]
     kernels, shown, cancelled = render_kernels(), None, False

@@ -89,7 +89,8 @@ WORKER = textwrap.dedent('''
             wrong.append(f"{label}: {got!r} != {expected!r}")
     c = kernel_cache.counts("tinykernels")
     print("RESULT " + json.dumps(dict(name=name, wrong=wrong, compiled=c["compiled"],
-                                      loaded=c["loaded"], signatures=len(calls))))
+                                      loaded=c["loaded"], signatures=len(calls),
+                                      which=c["compiled_kernels"])))
 ''')
 
 
@@ -138,9 +139,12 @@ def test_cold_cache_compiled_by_concurrent_workers_in_opposite_orders(kernel_fol
         assert r["compiled"] + r["loaded"] >= r["signatures"]
         assert r["compiled"] <= r["signatures"] + 1  # +1: inner, compiled inside total
     total_compiled = sum(r["compiled"] for r in results)
-    print("compiled per worker:", [r["compiled"] for r in results],
+    print("compiled per worker:", [(r["compiled"], r["which"]) for r in results],
           "loaded:", [r["loaded"] for r in results])
     assert total_compiled <= len(workers) * (results[0]["signatures"] + 1)
+    # compile claims: each signature compiled by one worker (inner for two of them), the
+    # others waited for it and loaded it
+    assert total_compiled == results[0]["signatures"] + 2
 
     # nothing half-written is left, and a new worker finds every signature, correct
     leftovers = [p.name for p in cache.rglob("*") if ".tmp." in p.name]
@@ -148,6 +152,61 @@ def test_cold_cache_compiled_by_concurrent_workers_in_opposite_orders(kernel_fol
     (after,) = _run_together(kernel_folder, cache, [("after", "reverse")])
     assert after["wrong"] == [] and after["compiled"] == 0
     assert after["loaded"] == after["signatures"]
+
+
+CLAIMANT = textwrap.dedent('''
+    import os, sys, time
+    folder = sys.argv[1]
+    sys.path.insert(0, folder)
+    import tinykernels as k
+    from rstrace_engine import kernel_cache
+
+    def die(self, key, data):  # compiled, then killed before saving: the claim goes with it
+        open(os.path.join(folder, "claimed"), "w").close()
+        while not os.path.exists(os.path.join(folder, "waiting")):
+            time.sleep(0.01)
+        time.sleep(float(sys.argv[2]))  # the other process waits for the claim meanwhile
+        os._exit(3)
+
+    kernel_cache._LockedCacheFile.save = die
+    k.axpy(1.5, 2.0, 0.25)
+''')
+
+WAITER = textwrap.dedent('''
+    import json, os, sys
+    folder = sys.argv[1]
+    sys.path.insert(0, folder)
+    import tinykernels as k
+    from rstrace_engine import kernel_cache
+
+    k.inner(1)  # numba's first-compile set-up (seconds on a busy machine) done here
+    open(os.path.join(folder, "waiting"), "w").close()
+    got = k.axpy(1.5, 2.0, 0.25)
+    print("RESULT " + json.dumps(dict(got=got, compiled=kernel_cache.counts("tinykernels")[
+        "compiled"], **kernel_cache.claim_stats())))
+''')
+
+
+def test_a_process_killed_while_claiming_a_compile_lets_the_waiting_one_compile(
+        kernel_folder, tmp_path):
+    """Compile claims: a process waits for another's compile of the same signature; when
+    that one dies before saving (the OS drops its lock) the waiting one compiles it."""
+    (kernel_folder / "claimant.py").write_text(CLAIMANT)
+    (kernel_folder / "waiter.py").write_text(WAITER)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(ROOT))
+    run = dict(cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    claimant = subprocess.Popen([sys.executable, str(kernel_folder / "claimant.py"),
+                                 str(kernel_folder), "3"], **run)
+    deadline = time.monotonic() + 240
+    while not (kernel_folder / "claimed").exists():
+        assert claimant.poll() is None and time.monotonic() < deadline, claimant.stderr.read()
+        time.sleep(0.01)
+    waiter = subprocess.Popen([sys.executable, str(kernel_folder / "waiter.py"),
+                               str(kernel_folder)], **run)
+    assert claimant.wait(timeout=240) == 3
+    r = _result(waiter)
+    assert r["got"] == 3.25 and r["compiled"] == 2  # inner, then axpy after the wait
+    assert r["claimed"] == 2 and r["waited"] == 1 and r["wait_s"] > 0.3
 
 
 def test_warm_cache_command_reports_compiled_and_loaded_kernels():
@@ -488,6 +547,10 @@ def test_numba_internals_we_rely_on(tmp_path):
                  "save", "load"):
         assert callable(getattr(f, name)), name
     assert f._index_path == str(tmp_path / "k.nbi") and f._cache_path == str(tmp_path)
+    assert f._index_name == "k.nbi"
+    ok, failed = event.Event("x", event.EventStatus.END), event.Event(
+        "x", event.EventStatus.END, exc_details=(ValueError, ValueError(), None))
+    assert ok._exc_details is None and failed._exc_details is not None  # compile claims
     f.save("key", b"data")
     with open(f._index_path, "rb") as fh:  # the index format seed() reads and writes
         assert pickle.load(fh) == numba.__version__

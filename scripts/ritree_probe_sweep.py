@@ -6,8 +6,9 @@ channel, display values) against the base frame (``max``, ``p999``, pixels over 
 ``wmax``, ``wover01`` of the warm frame), speed as base CPU time / RI-tree CPU time in the
 same process (the base frame re-timed before each setting, best kept), samples traced.
 
-``PYTHONPATH=. python scripts/ritree_probe_sweep.py SCENE WIDTH HEIGHT SPP DIST:ANG:PROBE[,...]``, e.g.
-``python scripts/ritree_probe_sweep.py random_volumes 150 150 9 0.05:30:0,0.05:30:0.1``."""
+``PYTHONPATH=. python scripts/ritree_probe_sweep.py SCENE WIDTH HEIGHT SPP
+DIST:ANG:PROBE[,...]`` (the checkout's package), e.g. ``random_volumes 150 150 9
+0.05:30:0,0.05:30:0.1``."""
 
 import json
 import sys

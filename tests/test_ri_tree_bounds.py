@@ -54,6 +54,7 @@ def test_defaults_show_no_artifact_on_glass_and_a_mirror_before_a_horizon(horizo
     # much of the glass and the mirror is interpolated: the bound is about interpolation
     assert interp.mean() > 0.05, interp.mean()
     assert px.max() <= 0.1, f"max display error {px.max():.3f}"
+    assert np.count_nonzero(px > 0.1) == 0
     assert np.count_nonzero(px > 0.05) <= 5, np.count_nonzero(px > 0.05)
     assert np.quantile(px, 0.999) <= 0.03
 

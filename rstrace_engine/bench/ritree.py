@@ -76,7 +76,7 @@ ANGLES = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
 CACHES = (0.128, 0.256, 0.512, 1.024, 2.048)
 DEFAULT_CACHE = 100.0
 #: the exit-ray test's thresholds (degrees) swept at the default distance, angle and depth
-PROBES = (4.0, 2.0, 1.0, 0.5)
+PROBES = (4.0, 2.0, 1.0, 0.5, 0.25)
 DEFAULT = RenderSettings()
 CLOCK = time.process_time
 

@@ -122,13 +122,31 @@ def camera_rays(cam: Camera | CameraParams, pixels: np.ndarray | None = None,
     return origins, directions, tmin, tmax
 
 
-def pixel_jitter(n_pixels: int, samples: int, seed: int = 0) -> np.ndarray:
-    """Stratified jitter offsets for ``samples`` per pixel: (samples, n_pixels, 2) in [0,1)."""
+def _mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser over a uint64 array (wrapping arithmetic): a bijective hash."""
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def pixel_jitter(pixels: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
+    """Stratified jitter offsets for ``samples`` per pixel of the pixel indices ``pixels``
+    (k,): (samples, k, 2) in [0, 1). One sample: the pixel centres. A pixel's offsets are a
+    hash of the frame's ``seed``, the pixel and the sample, never of the batch it is traced
+    in, so every mode and every tiling (a full frame, the dirty pixels of an incremental one,
+    the RI-tree's larger tiles, the viewport's) traces the same rays through a pixel."""
+    pixels = np.asarray(pixels, np.int64)
+    k = len(pixels)
     if samples <= 1:
-        return np.full((1, n_pixels, 2), 0.5)
+        return np.full((1, k, 2), 0.5)
     g = int(np.ceil(np.sqrt(samples)))
-    rng = np.random.default_rng(seed)
     cells = np.arange(samples)
-    sx = (cells % g)[:, None] + rng.random((samples, n_pixels))
-    sy = (cells // g % g)[:, None] + rng.random((samples, n_pixels))
+    s = _mix64(np.array([int(seed) & 0xFFFFFFFFFFFFFFFF], np.uint64)
+               + np.uint64(0x3C6EF372FE94F82A))
+    key = _mix64((pixels.astype(np.uint64)[None, :] * np.uint64(samples)
+                  + cells.astype(np.uint64)[:, None]) ^ s)
+    ux = (key >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    uy = (_mix64(key) >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    sx = (cells % g)[:, None] + ux
+    sy = (cells // g % g)[:, None] + uy
     return np.stack([sx / g, sy / g], axis=-1)

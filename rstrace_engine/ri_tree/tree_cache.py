@@ -169,8 +169,12 @@ def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim,
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _ray_param(o, d, status, P, t):
-    """Hits move onto their rays: ``t`` = projection of P, P = o + t d."""
+def _ray_param(o, d, inst, straight, status, P, t, nint, OP, OD):
+    """Hits move onto their rays: ``t`` = projection of P, P = o + t d. Through an object
+    that does not refract (``straight`` per instance: every material's IOR 1) the exit ray
+    *is* the ray: its direction the ray's own and its origin on it (interpolating the
+    corners' directions only adds their error, which a silhouette far behind the object
+    turns into a flipped pixel)."""
     for r in prange(o.shape[0]):
         if status[r] != ST_HIT:
             t[r] = np.inf
@@ -181,6 +185,24 @@ def _ray_param(o, d, status, P, t):
         t[r] = tt
         for c in range(3):
             P[r, c] = o[r, c] + d[r, c] * tt
+        if straight[inst[r]] and nint[r] >= 0:
+            to = ((OP[r, 0] - o[r, 0]) * d[r, 0] + (OP[r, 1] - o[r, 1]) * d[r, 1]
+                  + (OP[r, 2] - o[r, 2]) * d[r, 2]) / dd
+            inv = 1.0 / math.sqrt(dd)
+            for c in range(3):
+                OP[r, c] = o[r, c] + d[r, c] * to
+                OD[r, c] = d[r, c] * inv
+
+
+def straight_instances(sa) -> np.ndarray:
+    """(I,) bool: instances whose every material has IOR 1 (no ray bends inside them: a
+    wrap, a window pane modelled as a sheet), so an exit ray continues its entering ray."""
+    out = np.zeros(len(sa.inst_mesh), np.bool_)
+    bent = (np.asarray(sa.mat_ior) != 1.0)[sa.inst_mat].astype(np.int64)
+    start = np.asarray(sa.inst_mat_start, np.int64)
+    cum = np.concatenate([[0], np.cumsum(bent)])
+    out[:] = (start[1:] > start[:-1]) & (cum[start[1:]] == cum[start[:-1]])
+    return out
 
 
 class RITreeCache:
@@ -217,6 +239,7 @@ class RITreeCache:
         self.box = expanded_boxes(sa, self.extent)
         self.diag = np.linalg.norm(self.box[:, 1] - self.box[:, 0], axis=1)
         self.tri_class = np.ascontiguousarray(mesh_topology_cached(sa).tri_class, np.int32)
+        self._straight = (None, None)
         self.forest = KdForest(len(sa.inst_mesh))
         self.samples = alloc_samples(1024)
         self.peak_bytes = 0
@@ -229,6 +252,13 @@ class RITreeCache:
         #: samples traced per instance slot (the fallback's ledger), and CPU seconds
         self.inst_samples = np.zeros(len(sa.inst_mesh), np.int64)
         self.setup_s = time.perf_counter() - t0
+
+    @property
+    def straight(self) -> np.ndarray:
+        """:func:`straight_instances` of the current scene (``sa`` follows edits)."""
+        if self._straight[0] is not self.sa:
+            self._straight = (self.sa, straight_instances(self.sa))
+        return self._straight[1]
 
     # -- accounting ----------------------------------------------------------------------
 
@@ -489,7 +519,8 @@ class RITreeCache:
                             np.ascontiguousarray(h.v), res.status, res.P, res.NS, res.NG,
                             res.OP, res.OD, res.gain, res.thick, res.nint, res.mat,
                             res.RP, res.RD, res.rgain)
-        _ray_param(o, d, res.status, res.P, res.t)
+        _ray_param(o, d, inst, self.straight, res.status, res.P, res.t, res.nint, res.OP,
+                   res.OD)
         self._note_peak()
         self._enforce_cap()
         return res

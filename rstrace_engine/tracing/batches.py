@@ -49,14 +49,15 @@ def row_tiles(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
               border: tuple | None = None):
     """The pixels of a ``w`` x ``h`` frame, or of its ``border`` region (x, y, width,
     height), in tiles of ``rows_per_tile`` rows with their jitter: ``(pix (k,) int64
-    row-major, jitter (spp, k, 2), end row)``. A tile's jitter is drawn from ``seed`` and
-    its first row (one sample, ``spp = 1``: the pixel centres)."""
+    row-major, jitter (spp, k, 2), end row)``. The jitter is the pixels' own
+    (:func:`~rstrace_engine.geometry.cameras.pixel_jitter` of ``seed``, one sample: the pixel
+    centres), the same whatever the tiling."""
     x0, y0, bw, bh = border if border is not None else (0, 0, w, h)
     for ya in range(y0, y0 + bh, rows_per_tile):
         yb = min(y0 + bh, ya + rows_per_tile)
         rows = np.arange(ya, yb, dtype=np.int64)[:, None] * w
         pix = (rows + np.arange(x0, x0 + bw, dtype=np.int64)[None, :]).reshape(-1)
-        yield pix, pixel_jitter(len(pix), spp, seed=seed * 1000003 + ya), yb
+        yield pix, pixel_jitter(pix, spp, seed=seed), yb
 
 
 def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
@@ -64,25 +65,24 @@ def frame_batches(w: int, h: int, spp: int, seed: int, rows_per_tile: int,
     """The pixels of a frame in batches, with their jitter: ``(pix (k,) int64, jitter
     (spp, k, 2), last row done)``. A full frame goes tile by tile (:func:`row_tiles`);
     an incremental one (``pixels`` (h * w,) bool) gathers the selected pixels of all tiles
-    into batches of about a tile's size. Jitter is always drawn per tile as in a full frame,
-    so a pixel's samples are the same either way."""
+    into batches of about a tile's size. A pixel's jitter is its own (not its tile's), so its
+    samples are the same either way and in every mode, whatever its tile size."""
+    if pixels is None:
+        yield from row_tiles(w, h, spp, seed, rows_per_tile)
+        return
     chunk = rows_per_tile * w
-    pend_pix: list = []
-    pend_jit: list = []
+    pend: list = []
     n_pend = 0
-    for pix, jitter, y1 in row_tiles(w, h, spp, seed, rows_per_tile):
-        if pixels is None:
-            yield pix, jitter, y1
-            continue
-        sel = np.flatnonzero(pixels[pix])
+    for ya in range(0, h, rows_per_tile):
+        y1 = min(h, ya + rows_per_tile)
+        sel = np.flatnonzero(pixels[ya * w:y1 * w]) + ya * w
         if len(sel):
-            pend_pix.append(pix[sel])
-            pend_jit.append(jitter[:, sel])
+            pend.append(sel.astype(np.int64))
             n_pend += len(sel)
         if n_pend >= chunk or (y1 == h and n_pend):
-            yield (np.concatenate(pend_pix), np.ascontiguousarray(np.concatenate(pend_jit, 1)),
-                   y1)
-            pend_pix, pend_jit, n_pend = [], [], 0
+            pix = np.concatenate(pend)
+            yield pix, pixel_jitter(pix, spp, seed=seed), y1
+            pend, n_pend = [], 0
 
 
 # ----------------------------------------------------------------------------- samples

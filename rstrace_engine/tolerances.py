@@ -206,3 +206,9 @@ LIGHT_EXTENT_MIN = 1e-12
 #: change its last bits, so a light given back with only its power changed would count as
 #: moved (and be shaded again).
 UNIT_SLACK = 4e-16
+
+#: Shadow linking (:mod:`~.tracing.light_linking`): a shadow ray that meets an object that
+#: does not cast the light's shadow goes on from just past that hit, ``t (1 + LINK_SKIP_REL)
+#: + LINK_SKIP_REL`` (unit directions), for at most ``LINK_MAX_SKIPS`` such objects.
+LINK_SKIP_REL = 1e-9
+LINK_MAX_SKIPS = 64

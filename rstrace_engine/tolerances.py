@@ -212,3 +212,8 @@ UNIT_SLACK = 4e-16
 #: + LINK_SKIP_REL`` (unit directions), for at most ``LINK_MAX_SKIPS`` such objects.
 LINK_SKIP_REL = 1e-9
 LINK_MAX_SKIPS = 64
+
+#: A spot's world frame whose axes agree in length and are orthogonal to this relative
+#: slack is a round cone (:func:`~.geometry.lights.checked_light`): Blender's float32
+#: matrices of a rotated, uniformly scaled spot differ by ~1e-7.
+SPOT_FRAME_SLACK = 1e-6

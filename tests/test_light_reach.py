@@ -126,6 +126,8 @@ def test_link_mask_follows_blender():
     assert link_mask((("A", True),), names).tolist() == [True, False, False]
     assert link_mask((("A", False),), names).tolist() == [False, True, True]
     assert link_mask((("A", True), ("B", False)), names).tolist() == [True, False, False]
+    # instances go with their instancer
+    assert link_mask((("A", True),), ["A/x", "B/A", None]).tolist() == [True, False, False]
 
 
 def test_no_linking_carries_no_tables():

@@ -189,7 +189,8 @@ def _spot_frame(name: str, frame) -> tuple:
         raise SceneError(f"light '{name}': spot frame has a zero axis")
     u = m / lens
     skew = np.abs(u.T @ u - np.eye(3)).max()
-    if lens.max() - lens.min() <= tol.UNIT_SLACK * lens.max() and skew <= tol.UNIT_SLACK:
+    if lens.max() - lens.min() <= tol.SPOT_FRAME_SLACK * lens.max() and \
+            skew <= tol.SPOT_FRAME_SLACK:
         return ()
     return tuple(float(x) for x in m.reshape(-1))
 
@@ -210,12 +211,17 @@ def _links(name: str, what: str, links) -> tuple:
 def link_mask(links: tuple, names: list) -> np.ndarray | None:
     """Which of the objects ``names`` a light's linking entries ``links`` take in (as
     Blender's light linking: with some objects included, only those; excluded objects
-    never), or None when ``links`` is empty (every object)."""
+    never), or None when ``links`` is empty (every object). An instance named
+    ``"instancer/object"`` (the add-on's names) goes with its instancer, as in Blender."""
     if not links:
         return None
     inc = {n for n, i in links if i}
     exc = {n for n, i in links if not i}
-    return np.array([(n in inc if inc else True) and n not in exc for n in names], np.bool_)
+
+    def member(n, group):
+        return n is not None and (n in group or n.split("/", 1)[0] in group)
+    return np.array([(member(n, inc) if inc else n is not None) and not member(n, exc)
+                     for n in names], np.bool_)
 
 
 class LightReach:

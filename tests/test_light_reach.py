@@ -170,3 +170,26 @@ def test_blockers(light):
     # the ball among the blockers: its shadow as before
     got, _ = _radiance(_scene([replace(light, blockers=(("Ball", True),))]), o, d)
     np.testing.assert_array_equal(got, full)
+
+
+def test_interpolant_cone_bound_holds_the_elliptical_cone():
+    """The shafts' round cone of a reshaped spot holds every lit direction, and its inner
+    cosine is NaN (never fully lit, never smooth)."""
+    from rstrace_engine.interpolants.shafts import cone_bounds
+
+    a = math.radians(25.0)
+    frame = np.diag([1.0, 2.5, 0.8])
+    spot = Light("Spot", "SPOT", power=500.0, position=(0.0, 0.0, 1.0),
+                 direction=(0.0, 0.0, -1.0), spot_size=2 * a, spot_blend=0.3,
+                 spot_frame=tuple(frame.ravel()))
+    sa = _scene([spot, POINT], ball=False).arrays()
+    co, ci = cone_bounds(sa)
+    assert np.isnan(ci[0]) and ci[1] == sa.light_cos_inner[1] and co[1] == sa.light_cos_outer[1]
+    rng = np.random.default_rng(1)
+    ray = rng.normal(size=(20000, 3))
+    ray /= np.linalg.norm(ray, axis=1)[:, None]
+    f = sa.light_spot_frame[0]
+    local = ray @ f.T
+    lit = local[:, 2] / np.linalg.norm(local, axis=1) > math.cos(a)
+    assert lit.sum() > 100
+    assert np.all(ray[lit] @ sa.light_dir[0] > co[0])

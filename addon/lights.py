@@ -75,12 +75,38 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     if why:
         notes.skip(f"light '{name}' skipped: {why}")
         return None
-    _warn_unmodelled(ob, name, m, notes)
+    _warn_unmodelled(ob, name, notes)
     common = (name, kind, tuple(colour), power, tuple(m[:3, 3]), tuple(direction))
+    linking = getattr(ob, "light_linking", None)
+    reach = dict(diffuse=bool(getattr(ob, "visible_diffuse", True)),
+                 glossy=bool(getattr(ob, "visible_glossy", True)),
+                 receivers=_linked(getattr(linking, "receiver_collection", None)),
+                 blockers=_linked(getattr(linking, "blocker_collection", None)))
     if kind == "SPOT":
+        # Cycles takes the cone in the light's scaled frame: a scale that differs between
+        # axes (Z included) or a shear makes it elliptical (the frame is kept where so)
         return Light(*common, spot_size=float(np.clip(data.spot_size, 1e-4, math.pi)),
-                     spot_blend=float(np.clip(data.spot_blend, 0.0, 1.0)), **shape)
-    return Light(*common, **shape)
+                     spot_blend=float(np.clip(data.spot_blend, 0.0, 1.0)),
+                     spot_frame=tuple(float(x) for x in m[:3, :3].reshape(-1)), **reach,
+                     **shape)
+    return Light(*common, **reach, **shape)
+
+
+def _linked(collection) -> tuple:
+    """A light-linking collection as ``((object name, include), ...)``: its objects and
+    those of its child collections (Blender's link state of the object, or of the child
+    collection that holds it); ``()`` without a collection (every object)."""
+    out: list = []
+
+    def walk(col, state):
+        for ob, co in zip(col.objects, col.collection_objects, strict=True):
+            out.append((ob.name, (state or co.light_linking.link_state) == "INCLUDE"))
+        for child, cc in zip(col.children, col.collection_children, strict=True):
+            walk(child, state or cc.light_linking.link_state)
+
+    if collection is not None:
+        walk(collection, None)
+    return tuple(out)
 
 
 def _shape(data, name: str, m: np.ndarray, direction: np.ndarray, notes: Notes) -> dict | str:
@@ -176,28 +202,15 @@ def _cycles_area(kind: str, shape: dict) -> float:
     return u * v * (math.pi / 4.0 if shape["shape"] in ("DISK", "ELLIPSE") else 1.0)
 
 
-def _warn_unmodelled(ob, name: str, m: np.ndarray, notes: Notes) -> None:
+def _warn_unmodelled(ob, name: str, notes: Notes) -> None:
     """Light settings Cycles renders and RSTrace does not, named."""
     data = ob.data
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
     # (the Diffuse/Specular/Transmission/Volume Scatter factors are EEVEE's: Cycles ignores
-    # them, as RSTrace does, so they are not reported)
-    off = _off(ob, (("Diffuse", "visible_diffuse"), ("Glossy", "visible_glossy"),
-                    ("Transmission", "visible_transmission")))
-    if off:
-        notes.warn(f"light ray visibility ({off} off) is not modelled", name)
-    linking = getattr(ob, "light_linking", None)
-    if linking is not None and (linking.receiver_collection is not None
-                                or linking.blocker_collection is not None):
-        notes.warn("light and shadow linking are not modelled", name)
-    if data.type == "SPOT":
-        # Cycles takes the cone in the light's local frame: a scale that differs between
-        # axes (Z included) or a shear reshapes it
-        norms = [float(np.linalg.norm(m[:3, i])) for i in range(3)]
-        if max(norms) - min(norms) > 1e-6 * max(norms) or _skewed(*(m[:3, i] for i in range(3))):
-            notes.warn("non-uniformly scaled spot lights (a reshaped, elliptical cone in "
-                       "Cycles) are rendered with the cone unscaled", name)
+    # them, as RSTrace does, so they are not reported. Diffuse and Glossy visibility and
+    # light and shadow linking are modelled; Transmission visibility would only matter
+    # for light through rough glass, which RSTrace does not light)
 
 
 def _off(holder, flags) -> str:

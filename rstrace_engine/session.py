@@ -41,6 +41,7 @@ from .geometry.scene import Camera, Scene, SceneError
 from .interpolants.render import InterpolantRenderer
 from .ri_tree.render import RITreeRenderer, render_thickness_exact
 from .tracing.frame_reuse import FrameReuse
+from .tracing.light_linking import links_shadows
 from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
@@ -293,6 +294,9 @@ class Session:
         if mode not in AVAILABLE_MODES:
             raise SceneError(f"setting 'mode': {mode!r} is not available yet (available: "
                              f"{', '.join(AVAILABLE_MODES)})")
+        if mode != "BASE" and links_shadows(self.scene.arrays()):
+            self.scene.warn(f"shadow linking (blocker collections) is modelled in BASE mode "
+                            f"only: in {mode} mode every object casts every light's shadow")
         if mode == "RI_TREE" or self.settings.thickness_view:
             return self._render_full(mode, progress, cancel)
         key = self.settings_key()

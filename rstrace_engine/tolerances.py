@@ -211,3 +211,14 @@ UNIT_SLACK = 4e-16
 #: ``BKE_mesh_texspace_calc``: a thinner non-zero extent is widened to it; a zero one is 1),
 #: so Generated texture coordinates never divide by (nearly) zero.
 TEXSPACE_HALF_MIN = 1e-5
+
+#: Shadow linking (:mod:`~.tracing.light_linking`): a shadow ray that meets an object that
+#: does not cast the light's shadow goes on from just past that hit, ``t (1 + LINK_SKIP_REL)
+#: + LINK_SKIP_REL`` (unit directions), for at most ``LINK_MAX_SKIPS`` such objects.
+LINK_SKIP_REL = 1e-9
+LINK_MAX_SKIPS = 64
+
+#: A spot's world frame whose axes agree in length and are orthogonal to this relative
+#: slack is a round cone (:func:`~.geometry.lights.checked_light`): Blender's float32
+#: matrices of a rotated, uniformly scaled spot differ by ~1e-7.
+SPOT_FRAME_SLACK = 1e-6

@@ -248,6 +248,18 @@ class Light:
       ``"DISK"`` or ``"ELLIPSE"``; ``axis`` the world unit vector of the emitter's local +X
       (orthogonal to ``direction``); ``size`` the full world extents along ``axis`` and along
       ``cross(-direction, axis)``; ``spread`` Blender's spread angle in (0, pi].
+
+    What the light reaches, as Cycles' ray visibility and light linking say:
+
+    * ``diffuse``, ``glossy``: whether the light's direct light reaches the diffuse base
+      and the glossy (specular and metallic) lobe of surfaces (Blender's ``visible_diffuse``
+      and ``visible_glossy``).
+    * ``spot_frame`` (SPOT): ``()`` for a round cone, else the 9 values of the light's world
+      matrix's 3 x 3 part (row-major, scale included), whose scale reshapes the cone as
+      Cycles reshapes it (elliptical for a non-uniform scale).
+    * ``receivers``, ``blockers``: light and shadow linking, ``((object name, include),
+      ...)``: ``()`` every object; with some included, only those; excluded never. Objects
+      the light lights (receivers) and objects that cast its shadows (blockers).
     """
 
     name: str = "light"
@@ -265,6 +277,11 @@ class Light:
     axis: tuple = (1.0, 0.0, 0.0)
     size: tuple = (1.0, 1.0)
     spread: float = math.pi
+    diffuse: bool = True
+    glossy: bool = True
+    spot_frame: tuple = ()
+    receivers: tuple = ()
+    blockers: tuple = ()
 
     @property
     def extended(self) -> bool:

@@ -168,5 +168,105 @@ def checked_light(light: Light) -> Light:
         if spread <= 0.0:
             raise SceneError(f"light '{n}': spread 0 (a collimated beam) is not "
                              f"modelled")
+    frame = _spot_frame(n, light.spot_frame) if light.kind == "SPOT" else ()
     return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d), size, blend,
-                 radius, bool(light.soft_falloff), angle, shape, axis, ext, spread)
+                 radius, bool(light.soft_falloff), angle, shape, axis, ext, spread,
+                 bool(light.diffuse), bool(light.glossy), frame,
+                 _links(n, "receiver", light.receivers), _links(n, "blocker", light.blockers))
+
+
+def _spot_frame(name: str, frame) -> tuple:
+    """A spot's world 3 x 3 matrix (9 values, row-major), or ``()`` for a round cone: also
+    where its columns are orthogonal and of one length (the cone is then not reshaped)."""
+    if frame is None or len(frame) == 0:
+        return ()
+    m = np.asarray(frame, dtype=np.float64).reshape(-1)
+    if m.size != 9 or not np.all(np.isfinite(m)):
+        raise SceneError(f"light '{name}': spot frame needs 9 finite values")
+    m = m.reshape(3, 3)
+    lens = np.linalg.norm(m, axis=0)
+    if not np.all(lens > 0.0):
+        raise SceneError(f"light '{name}': spot frame has a zero axis")
+    u = m / lens
+    skew = np.abs(u.T @ u - np.eye(3)).max()
+    if lens.max() - lens.min() <= tol.SPOT_FRAME_SLACK * lens.max() and \
+            skew <= tol.SPOT_FRAME_SLACK:
+        return ()
+    return tuple(float(x) for x in m.reshape(-1))
+
+
+def _links(name: str, what: str, links) -> tuple:
+    """Light-linking entries ``((object name, include), ...)``, checked."""
+    out = []
+    for entry in links or ():
+        try:
+            obj, inc = entry
+        except (TypeError, ValueError):
+            raise SceneError(f"light '{name}': {what} entry {entry!r} is not (object name, "
+                             f"include)") from None
+        out.append((str(obj), bool(inc)))
+    return tuple(out)
+
+
+def link_mask(links: tuple, names: list) -> np.ndarray | None:
+    """Which of the objects ``names`` a light's linking entries ``links`` take in (as
+    Blender's light linking: with some objects included, only those; excluded objects
+    never), or None when ``links`` is empty (every object). An instance named
+    ``"instancer/object"`` (the add-on's names) goes with its instancer, as in Blender."""
+    if not links:
+        return None
+    inc = {n for n, i in links if i}
+    exc = {n for n, i in links if not i}
+
+    def member(n, group):
+        return n is not None and (n in group or n.split("/", 1)[0] in group)
+    return np.array([(member(n, inc) if inc else n is not None) and not member(n, exc)
+                     for n in names], np.bool_)
+
+
+class LightReach:
+    """The per-light arrays of what a light reaches: ``light_vis`` (L, 2) its diffuse and
+    glossy factors (1 or 0), ``light_spot_scaled`` (L,) and ``light_spot_frame`` (L, 3, 3)
+    the rows that take a direction from the light into the spot's scaled frame (Cycles'
+    ``scaled_axis_u``, ``scaled_axis_v`` and the direction over its length), and the
+    linking tables ``light_recv`` and ``light_block`` (L, I) uint8, (0, 0) where no light
+    links (a scene without linking carries nothing)."""
+
+    def __init__(self, lights: list, names: list) -> None:
+        nl = len(lights)
+        vis = np.ones((nl, 2))
+        scaled = np.zeros(nl, np.bool_)
+        frame = np.zeros((nl, 3, 3))
+        recv = [None] * nl
+        block = [None] * nl
+        for j, li in enumerate(lights):
+            if li is None:
+                continue
+            vis[j] = (float(li.diffuse), float(li.glossy))
+            if li.spot_frame:
+                m = np.asarray(li.spot_frame, np.float64).reshape(3, 3)
+                lens = np.linalg.norm(m, axis=0)
+                # columns X, Y and -Z (the way the spot points), each over its length
+                # twice: unit axis / scale
+                frame[j] = np.stack([m[:, 0] / lens[0] ** 2, m[:, 1] / lens[1] ** 2,
+                                     -m[:, 2] / lens[2] ** 2])
+                scaled[j] = True
+            recv[j] = link_mask(li.receivers, names)
+            block[j] = link_mask(li.blockers, names)
+        self.a = dict(light_vis=vis, light_spot_scaled=scaled, light_spot_frame=frame,
+                      light_recv=_table(recv, len(names)),
+                      light_block=_table(block, len(names)))
+
+    def arrays(self) -> dict:
+        return self.a
+
+
+def _table(masks: list, ni: int) -> np.ndarray:
+    """(L, I) uint8 of the masks (None: every object), or (0, 0) when all are None."""
+    if all(m is None for m in masks):
+        return np.zeros((0, 0), np.uint8)
+    t = np.ones((len(masks), ni), np.uint8)
+    for j, m in enumerate(masks):
+        if m is not None:
+            t[j] = m
+    return t

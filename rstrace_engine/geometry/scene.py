@@ -62,7 +62,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     checked_camera,
 )
 from .footprint import check_fits, estimate
-from .lights import ExtendedLights, checked_light
+from .lights import ExtendedLights, LightReach, checked_light
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
 from .slot_keys import SlotKeys
 
@@ -133,6 +133,12 @@ class SceneArrays(NamedTuple):
     light_ellipse: np.ndarray  # (L,) bool AREA: disk or ellipse
     light_spread: np.ndarray  # (L, 2) AREA: tan(spread / 2) (inf: pi), its normaliser
     light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
+    # what each light reaches (:class:`~.lights.LightReach`)
+    light_vis: np.ndarray  # (L, 2) float64 diffuse and glossy factors (1 or 0)
+    light_spot_scaled: np.ndarray  # (L,) bool SPOT: a reshaped (elliptical) cone
+    light_spot_frame: np.ndarray  # (L, 3, 3) rows taking a direction into its scaled frame
+    light_recv: np.ndarray  # (L, I) uint8 light linking: lights object; (0, 0) no linking
+    light_block: np.ndarray  # (L, I) uint8 shadow linking: casts its shadow; (0, 0) none
 
 
 def _texture_space(mesh: dict | None) -> np.ndarray:
@@ -668,6 +674,8 @@ class Scene:
                          else np.zeros(3)),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
             **ext.arrays(),
+            **LightReach(lights, [None if i is None else i["name"]
+                                  for i in self.instances]).arrays(),
         )
         self._counts = (sum(i is not None for i in self.instances),
                         sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))

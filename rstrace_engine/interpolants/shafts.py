@@ -57,7 +57,9 @@ class QueryScene(NamedTuple):
     scene_center: np.ndarray  # (3,) float64
     extent: float
     slack: float  # absolute outward slack of shaft planes
-    light_cos_outer: np.ndarray  # (L,) spot cone cosines (1 / -1 for other lights)
+    # spot cone cosines (1 / -1 for other lights); a reshaped (elliptical) spot: the round
+    # cone that holds it and NaN inner (:func:`cone_bounds`: never on, never smooth)
+    light_cos_outer: np.ndarray  # (L,)
     light_cos_inner: np.ndarray  # (L,)
     mesh_convex: np.ndarray  # (M,) bool closed and convex
     world_light: bool  # the world's colour lights surfaces (not black)
@@ -155,8 +157,7 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       topo.tri_class, topo.tri_boundary, sa.light_kind,
                       sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
                       0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag,
-                      np.ascontiguousarray(sa.light_cos_outer, np.float64),
-                      np.ascontiguousarray(sa.light_cos_inner, np.float64),
+                      *cone_bounds(sa),
                       np.ascontiguousarray(topo.mesh_convex, np.bool_),
                       bool(np.any(np.asarray(sa.world_light) > 0.0)),
                       np.ascontiguousarray(sa.light_ext, np.bool_),
@@ -621,6 +622,27 @@ def extent_plane_side(qs, j, wx, wy, wz, px, py, pz, margin):
 #: a smooth part of the blend region, or it may jump (a step: blend 0, or a cell wider than
 #: the blend region).
 CONE_ON, CONE_OFF, CONE_SMOOTH, CONE_STEP = 1, -1, 0, 2
+
+
+def cone_bounds(sa) -> tuple:
+    """The spots' cone cosines for the shafts' cone test: a reshaped (elliptical, Cycles'
+    non-uniformly scaled) spot gets the round cone that holds its outer cone (tangent
+    times the largest ratio of its cross scales to its length scale) and a NaN inner
+    cosine, so that a box is off outside that cone and otherwise traced (never taken as
+    fully lit or smooth)."""
+    co = np.array(sa.light_cos_outer, np.float64)
+    ci = np.array(sa.light_cos_inner, np.float64)
+    for j in np.flatnonzero(sa.light_spot_scaled):
+        f = sa.light_spot_frame[j]
+        # rows are axis / scale: the scale along each axis is 1 / |row|
+        su, sv, sw = (1.0 / float(np.linalg.norm(f[r])) for r in range(3))
+        t = math.sqrt(max(0.0, 1.0 - co[j] * co[j])) / max(co[j], 1e-300)
+        big = t * max(su, sv) / sw
+        u = f / np.linalg.norm(f, axis=1)[:, None]
+        sheared = np.abs(u @ u.T - np.eye(3)).max() > 1e-9  # then no round bound is taken
+        co[j] = -1.0 if co[j] <= 0.0 or sheared else 1.0 / math.sqrt(1.0 + big * big)
+        ci[j] = np.nan
+    return co, ci
 
 
 @njit(cache=True, nogil=True)

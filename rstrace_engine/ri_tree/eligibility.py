@@ -35,6 +35,10 @@ def subset(sa, keep: np.ndarray):
     mats = [sa.inst_mat[starts[k]:starts[k + 1]] for k in keep]
     lens = np.array([len(m) for m in mats], np.int64)
     return sa._replace(
+        light_recv=(np.ascontiguousarray(sa.light_recv[:, keep]) if sa.light_recv.shape[0]
+                    else sa.light_recv),
+        light_block=(np.ascontiguousarray(sa.light_block[:, keep]) if sa.light_block.shape[0]
+                     else sa.light_block),
         inst_mesh=np.ascontiguousarray(sa.inst_mesh[keep]),
         inst_xform=np.ascontiguousarray(sa.inst_xform[keep]),
         inst_inv=np.ascontiguousarray(sa.inst_inv[keep]),

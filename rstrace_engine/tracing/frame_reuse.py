@@ -165,6 +165,8 @@ class FrameReuse:
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
             return False
+        if any(a.shape[0] for sa in (old_sa, new_sa) for a in (sa.light_recv, sa.light_block)):
+            return False  # the light terms carry no instance: linked lights are traced again
         if world_lights(new_sa) and (not world_lights(old_sa)
                                      or len(new_sa.light_kind) != len(old_sa.light_kind)):
             return False

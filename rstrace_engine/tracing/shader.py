@@ -60,7 +60,7 @@ from .shading import (
     transmit,
     ward_brdf,
 )
-from .soft_lights import SH_SOFT, extent_faces, mix64
+from .soft_lights import SH_SOFT, extent_faces, mix64, spot_cosine
 
 #: hashed into a node's seed for its glossy samples (the soft lights hash in their light)
 GLOSSY_SALT = np.uint64(0xD1B54A32D192ED03)
@@ -147,7 +147,7 @@ def light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz):
             and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
         return -2
     if sa.light_kind[j] == LIGHT_SPOT:
-        ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])
+        ca = spot_cosine(sa, j, lx, ly, lz)
         if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
             return -2
     wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
@@ -238,6 +238,18 @@ def _surface_kernel(sa, o, d, tmax, hits, surf):
         Q[i, 1] = qy
         Q[i, 2] = qz
         light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
+        if sa.light_recv.shape[0] > 0:
+            unlinked_lights(sa, i, k, sh_state)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def unlinked_lights(sa, i, k, sh_state):
+    """Light linking: the lights that do not light instance ``k`` get state -2 at point
+    ``i`` (no shadow ray, no light)."""
+    L = sa.light_kind.shape[0]
+    for j in range(L):
+        if sa.light_recv[j, k] == 0:
+            sh_state[i * L + j] = -2
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -441,8 +453,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     the light's intensity or radiance: column j light j (present where added), L the
     world's light, L + 1 the emission (a miss: 1, for the world colour).
     """
-    prim, bu, bv = hits.prim, hits.u, hits.v
+    prim, bu, bv, hinst = hits.prim, hits.u, hits.v, hits.inst
     P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
+    linked = sa.light_recv.shape[0] > 0
     c_o, c_d, c_w, c_ok = out
     n = P.shape[0]
     L = sa.light_kind.shape[0]
@@ -513,9 +526,14 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
+        ki = hinst[i]
         for j in range(L):
             if not vis[i * L + j] or sa.light_ext[j]:
                 continue
+            if linked and sa.light_recv[j, ki] == 0:
+                continue
+            vd = sa.light_vis[j, 0]  # the light's diffuse and glossy ray visibility
+            vg = sa.light_vis[j, 1]
             if sa.light_kind[j] == LIGHT_SUN:
                 lx = -sa.light_dir[j, 0]
                 ly = -sa.light_dir[j, 1]
@@ -527,14 +545,13 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                               sa.light_pos[j, 2] - pz)
                 e = dot3(sx, sy, sz, lx, ly, lz) / (dist * dist)
                 if sa.light_kind[j] == LIGHT_SPOT:
-                    ca = -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1],
-                               sa.light_dir[j, 2])
+                    ca = spot_cosine(sa, j, lx, ly, lz)
                     e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
             if e <= 0.0:
                 continue
-            fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr, dg, db,
-                               sr, sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white,
-                               e_diel)
+            fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr * vd,
+                               dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
+                               metallic * vg, mr, mg, mb, alpha, e_white, e_diel)
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -553,6 +570,15 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         kb = db * kdf
         k0 = soft.start[i]
         while k0 < soft.start[i + 1]:
+            j = soft.light[k0]
+            vd = 1.0
+            vg = 1.0
+            if j < L:
+                if linked and sa.light_recv[j, ki] == 0:
+                    k0 += ns
+                    continue
+                vd = sa.light_vis[j, 0]
+                vg = sa.light_vis[j, 1]
             ex = soft.exact[k0 // ns]
             ar = 0.0
             ag = 0.0
@@ -568,23 +594,23 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                     fr, fg, fb = kr, kg, kb
                 else:
                     fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
-                                       dr, dg, db, sr, sg, sb, eta_s, metallic, mr, mg, mb,
-                                       alpha, e_white, e_diel)
+                                       dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
+                                       eta_s, metallic * vg, mr, mg, mb, alpha, e_white,
+                                       e_diel)
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e
-                    fr -= kr
-                    fg -= kg
-                    fb -= kb
+                    fr -= kr * vd
+                    fg -= kg * vd
+                    fb -= kb * vd
                 ar += fr * e
                 ag += fg * e
                 ab += fb * e
             if ex >= 0.0 and sum_w > 0.0:
-                t = ex * sum_vw / sum_w
+                t = ex * sum_vw / sum_w * vd
                 ar += kr * t
                 ag += kg * t
                 ab += kb * t
-            j = soft.light[k0]
             if terms:
                 tp[i, j] = True
                 tv[i, j, 0] = ar

@@ -57,6 +57,23 @@ SH_SOFT = 2
 OCC_SOFT = -3
 
 _GOLDEN = 0.6180339887498949
+
+
+@njit(cache=True, nogil=True, inline="always")
+def spot_cosine(sa, j, lx, ly, lz):
+    """The cosine spot ``j``'s cone falloff is taken at for unit direction ``l`` from a
+    point toward the light: the angle from the spot's axis, or for a reshaped cone
+    (``light_spot_scaled``) the z of the direction taken into the spot's scaled frame and
+    normalised, as Cycles' ``spot_light_attenuation`` (elliptical for a non-uniform
+    scale)."""
+    if not sa.light_spot_scaled[j]:
+        return -dot3(lx, ly, lz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])
+    f = sa.light_spot_frame[j]
+    a = -(f[0, 0] * lx + f[0, 1] * ly + f[0, 2] * lz)
+    b = -(f[1, 0] * lx + f[1, 1] * ly + f[1, 2] * lz)
+    c = -(f[2, 0] * lx + f[2, 1] * ly + f[2, 2] * lz)
+    ln = math.sqrt(a * a + b * b + c * c)
+    return c / ln if ln > 0.0 else -1.0
 _FACING_SLACK = 1e-9  # relative: extent_faces errs on the side of sampling
 _INV_2_53 = 1.0 / 9007199254740992.0
 
@@ -280,8 +297,8 @@ def _sample_one(sa, j, qx, qy, qz, u, v):
         t = _sphere_exit(qx, qy, qz, dx, dy, dz, cx, cy, cz, r)
     wgt = 2.0 * math.pi * omc
     if kind == LIGHT_SPOT:
-        ca = -dot3(dx, dy, dz, sa.light_dir[j, 0], sa.light_dir[j, 1], sa.light_dir[j, 2])
-        wgt *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
+        wgt *= spot_falloff(spot_cosine(sa, j, dx, dy, dz), sa.light_cos_outer[j],
+                            sa.light_cos_inner[j])
     return dx, dy, dz, t * (1.0 - tol.SHADOW_END_REL), wgt
 
 

@@ -39,6 +39,8 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
+from .light_linking import first_blocker, links_shadows
+from .light_linking import occluded as linked_occluded
 from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
     OCC_NONE,
@@ -302,7 +304,10 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
     occ_inst = None
     if len(todo):
         zero = np.zeros(len(todo))
-        if occluders:
+        if links_shadows(sa):
+            occ_inst = first_blocker(sa, accel, so, sd, st, todo % len(sa.light_kind))
+            vis[todo] = occ_inst < 0
+        elif occluders:
             occ_inst = accel.closest_hit(so, sd, zero, st).inst
             vis[todo] = occ_inst < 0
         else:
@@ -316,10 +321,16 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
     return vis, occ, len(todo) > 0
 
 
-def _occluded_by(accel):
-    """``occluded(origins, directions, tmax, rows)`` of :func:`soft_direct` by any hit."""
+def _occluded_by(sa, accel):
+    """``occluded(origins, directions, tmax, rows)`` of :func:`soft_direct`: by any hit,
+    or with shadow linking by the light's blockers (:mod:`.light_linking`)."""
+    L = len(sa.light_kind)
+
     def occluded(o, d, tmax, rows):
-        return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+        if not links_shadows(sa):
+            return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+        return linked_occluded(sa, accel, o, d, tmax, np.where(rows >= 0, rows % max(L, 1),
+                                                                 -1))
     return occluded
 
 
@@ -455,8 +466,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if glossy_on and level > 0:
                 nseeds ^= front.tag
         if soft_on:
-            soft = soft_direct(sa, surf, nseeds, int(light_samples), vis, _occluded_by(accel),
-                               counters, occ)
+            soft = soft_direct(sa, surf, nseeds, int(light_samples), vis,
+                               _occluded_by(sa, accel), counters, occ)
             traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break

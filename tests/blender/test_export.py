@@ -244,9 +244,11 @@ def test_light_settings_not_modelled_are_reported_by_name():
     assert any("shadows turned off" in w and "'Lamp'" in w for w in warnings), warnings
     # EEVEE's light factors: Cycles ignores them too, so nothing to report
     assert not any("factors" in w for w in warnings), warnings
-    spots = [w for w in warnings if "non-uniformly scaled spot" in w]
-    assert len(spots) == 1 and "'Spot'" in spots[0] and "'Spot2'" in spots[0]
-    assert "'Spot3'" not in spots[0]
+    # non-uniformly scaled spots are modelled (an elliptical cone): their frame is kept
+    assert not any("spot" in w for w in warnings), warnings
+    frames = {li.name: li.spot_frame for li in _export().scene.lights}
+    assert len(frames["Spot"]) == 9 and len(frames["Spot2"]) == 9
+    assert frames["Spot3"] == ()  # a uniform scale: the round cone
 
 
 def test_light_emission_node_multiplies_colour_and_power():
@@ -282,17 +284,27 @@ def test_light_with_diffuse_and_glossy_visibility_off_lights_nothing():
     assert not any("is not modelled" in w and "'Lamp'" in w for w in ex.warnings)
 
 
-def test_light_and_world_ray_visibility_and_linking_are_reported():
+def test_light_ray_visibility_and_linking_are_read_and_world_visibility_reported():
     _basic_scene()
     lamp = bpy.data.objects["Lamp"]
     lamp.visible_glossy = False
-    lamp.light_linking.receiver_collection = bpy.data.collections.new("Lit")
+    lit = bpy.data.collections.new("Lit")
+    sub = bpy.data.collections.new("Sub")
+    lit.children.link(sub)
+    for name, col in (("A", lit), ("B", sub)):
+        col.objects.link(bpy.data.objects.new(name, None))
+    lit.collection_objects[0].light_linking.link_state = "EXCLUDE"
+    lamp.light_linking.receiver_collection = lit
+    lamp.light_linking.blocker_collection = sub
     world = b.set_world((0.1, 0.1, 0.1))
     world.cycles_visibility.diffuse = False
     ex = _export()
     warnings = ex.warnings
-    assert any("ray visibility (Glossy off)" in w and "'Lamp'" in w for w in warnings)
-    assert any("linking" in w and "'Lamp'" in w for w in warnings), warnings
+    light = next(li for li in ex.scene.lights if li.name == "Lamp")
+    assert (light.diffuse, light.glossy) == (True, False)
+    assert light.receivers == (("A", False), ("B", True))
+    assert light.blockers == (("B", True),)
+    assert not any("'Lamp'" in w for w in warnings), warnings
     assert any("world ray visibility (Diffuse off)" in w and "'World'" in w
                for w in warnings), warnings
     assert ex.scene.world_lights

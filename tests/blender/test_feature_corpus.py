@@ -91,6 +91,42 @@ def _light_unseen():
     fill.visible_diffuse = fill.visible_glossy = False
 
 
+def _glossy_stage():
+    """The stage with a glossy red ball (roughness 0.3: a highlight lights draw) and a
+    fill light; returns the fill."""
+    _stage(b.principled("Glossy red", (0.7, 0.15, 0.1), roughness=0.3))
+    return b.point_light("Fill", (3.0, -2.0, 4.0), 2000.0, (0.5, 0.7, 1.0))
+
+
+def _fill_without(part: str):
+    def build():
+        setattr(_glossy_stage(), f"visible_{part}", False)
+    return build
+
+
+def _linking(which: str, state: str):
+    """The Key's receiver or blocker collection holding the red ball, linked ``state``
+    (INCLUDE: the Key lights only the ball / only the ball casts its shadows; EXCLUDE:
+    every object but the ball)."""
+    def build():
+        _glossy_stage()
+        ball = bpy.data.objects["Ball"]
+        col = bpy.data.collections.new(f"Key {which}s")
+        col.objects.link(ball)
+        col.collection_objects[0].light_linking.link_state = state
+        setattr(bpy.data.objects["Key"].light_linking, f"{which}_collection", col)
+    return build
+
+
+def _scaled_spot():
+    _stage(key=False, chrome=False)
+    ob = b.point_light("Spot", (-2.0, -3.0, 5.0), 1500.0, kind="SPOT")
+    b.look_at(ob, (0.0, 0.0, 0.5))
+    ob.data.spot_size = math.radians(40.0)
+    ob.data.spot_blend = 0.2
+    ob.scale = (1.0, 2.5, 1.0)
+
+
 def _emission():
     mat = b.principled("Glow", (0.0, 0.0, 0.0), specular_level=0.0)
     node = mat.node_tree.nodes["Principled BSDF"]
@@ -213,22 +249,6 @@ def _indirect_only(ball, sc):
     bpy.context.view_layer.layer_collection.children["Bounce"].indirect_only = True
 
 
-def _light_visibility(ball, sc):
-    bpy.data.objects["Key"].visible_diffuse = False
-
-
-def _light_linking(ball, sc):
-    col = bpy.data.collections.new("Lit")
-    col.objects.link(ball)
-    bpy.data.objects["Key"].light_linking.receiver_collection = col
-
-
-def _elliptical_spot(ball, sc):
-    ob = b.point_light("Spot", (2.0, -3.0, 5.0), 800.0, kind="SPOT")
-    b.look_at(ob, (0.0, 0.0, 0.5))
-    ob.scale = (1.0, 2.0, 1.0)
-
-
 def _mist_pass(ball, sc):
     bpy.context.view_layer.use_pass_mist = True
     bpy.context.view_layer.use_pass_diffuse_direct = True
@@ -305,6 +325,13 @@ FEATURES = [
     Feature("light node Emission Strength", _light_node_strength, tol=0.05),
     Feature("light with Diffuse and Glossy visibility off", _light_unseen, tol=0.05,
             glossy=1),
+    # (direct light only: rough reflections of the glossy ball are the glossy issue's)
+    Feature("light with Diffuse visibility off", _fill_without("diffuse"), tol=0.05),
+    Feature("light with Glossy visibility off", _fill_without("glossy"), tol=0.05),
+    Feature("light linking (receivers)", _linking("receiver", "INCLUDE"), tol=0.05),
+    Feature("shadow linking (blockers, one excluded)", _linking("blocker", "EXCLUDE"),
+            tol=0.05),
+    Feature("non-uniformly scaled spot", _scaled_spot, tol=0.05),
     Feature("emission (seen directly and in a mirror)", _emission, tol=0.05, glossy=1),
     Feature("mirror metal (one glossy bounce)", _stage, tol=0.05, glossy=1),
     Feature("tinted Principled glass", _tinted_glass, tol=0.1, glossy=8, transmission=8),
@@ -349,11 +376,6 @@ FEATURES = [
             words=("shadow catcher", "'Ball'")),
     Feature("indirect only collection", _scene_change(_indirect_only),
             words=("indirect only", "'Bounce'")),
-    Feature("light ray visibility", _scene_change(_light_visibility),
-            words=("ray visibility", "Diffuse", "'Key'")),
-    Feature("light linking", _scene_change(_light_linking), words=("linking", "'Key'")),
-    Feature("non-uniformly scaled spot", _scene_change(_elliptical_spot),
-            words=("non-uniformly scaled spot", "'Spot'")),
     Feature("passes not written (Mist, Diffuse Direct)", _scene_change(_mist_pass),
             words=("passes not written", "Mist", "Diffuse Direct")),
     Feature("image into Glossy BSDF colour", _glossy_image,

@@ -93,6 +93,7 @@ from .samples import (
 )
 from .shafts import query_scene
 from .walk import group_active, settle, walk_level
+from .world_term import without_world
 
 log = logging.getLogger(__name__)
 
@@ -573,6 +574,9 @@ class InterpolantCache:
                             self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
         rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
                                               tree, rad, self.max_depth, trace)
+        if self.qs.world_light:  # interpolated without the world's term (world_term.py)
+            rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
+                                      dif, flag)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                                tree, node_cls.astype(np.int32), dif, texel, flag)
         self.frame_stats["samples_traced"] += len(ug)

@@ -54,72 +54,11 @@ from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
 from .light_records import LightRecords
+from .record_codes import POINT_BITS, _decode_point, _encode_nodes, _oct_decode
 from .soft_lights import world_lights
+from .world_rays import query_world, row_hashes
 
-#: bits of the quantised point on the longest, middle and shortest axis of the box
-POINT_BITS = (11, 11, 10)
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
-
-
-# ----------------------------------------------------------------------------- encoding
-
-
-@njit(cache=True, nogil=True)
-def _oct_encode(x, y, z):
-    s = abs(x) + abs(y) + abs(z)
-    if s == 0.0:
-        return np.uint32(0)
-    u = x / s
-    v = y / s
-    if z < 0.0:
-        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
-        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
-        u, v = uu, vv
-    a = int(round((u * 0.5 + 0.5) * 65535.0))
-    b = int(round((v * 0.5 + 0.5) * 65535.0))
-    return np.uint32((a << 16) | b)
-
-
-@njit(cache=True, nogil=True)
-def _oct_decode(code):
-    a = (code >> 16) & 0xFFFF
-    b = code & 0xFFFF
-    u = a / 65535.0 * 2.0 - 1.0
-    v = b / 65535.0 * 2.0 - 1.0
-    z = 1.0 - abs(u) - abs(v)
-    if z < 0.0:
-        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
-        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
-        u, v = uu, vv
-    n = math.sqrt(u * u + v * v + z * z)
-    return u / n, v / n, z / n
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _encode_nodes(inst, point, dirn, lo, step, levels, shift, codes, outside):
-    """Quantised points (hits) or octahedral directions (misses) of n nodes."""
-    for i in prange(inst.shape[0]):
-        outside[i] = False
-        if inst[i] < 0:
-            codes[i] = _oct_encode(dirn[i, 0], dirn[i, 1], dirn[i, 2])
-            continue
-        c = np.uint32(0)
-        for k in range(3):
-            q = (point[i, k] - lo[k]) / step[k]
-            r = int(round(q)) if q == q else 0
-            if r < 0 or r > levels[k]:
-                outside[i] = True
-                r = 0 if r < 0 else levels[k]
-            c |= np.uint32(r) << np.uint32(shift[k])
-        codes[i] = c
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _decode_point(code, lo, step, levels, shift):
-    x = lo[0] + ((code >> shift[0]) & levels[0]) * step[0]
-    y = lo[1] + ((code >> shift[1]) & levels[1]) * step[1]
-    z = lo[2] + ((code >> shift[2]) & levels[2]) * step[2]
-    return x, y, z
 
 
 # ----------------------------------------------------------------------------- tests
@@ -413,6 +352,12 @@ class PixelRecords:
         self.s_combo = np.zeros(0, np.uint32)
         self.s_code = np.zeros(0, np.uint32)
         self._pending: list = []
+        #: the world's rays of primary hits (while the world lights): the shading normal
+        #: (NaN: not recorded, any edited region dirties the hit), the world row's sample
+        #: hash (:func:`~.soft_lights.world_row_hash`) and the samples per point
+        self.p_wnorm: np.ndarray | None = None
+        self.p_whash: np.ndarray | None = None
+        self.w_samples = 0
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
@@ -487,10 +432,32 @@ class PixelRecords:
                 self.light = None
         self.p_combo[rays] = combos[:nb]
         self.p_code[rays] = codes[:nb]
+        self._add_world(np.asarray(rays, np.int64), levels[0])
         if len(inst) > nb:
             parent = np.concatenate([lv["parent"] for lv in levels[1:]]).astype(np.int64)
             self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
                                   nb))
+
+    def _add_world(self, rays: np.ndarray, level: dict) -> None:
+        """Record the primary nodes' world rays (normal and row hash) where the tracer gave
+        them (``normal``, ``seed``, ``n_soft``, ``n_lights`` in its level dict); else mark
+        them unknown."""
+        if "normal" not in level:
+            if self.p_wnorm is not None:
+                self.p_wnorm[rays] = np.nan
+            return
+        n = int(level["n_soft"])
+        if self.p_wnorm is None:
+            self.p_wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
+            self.p_whash = np.zeros(self.n_rays, np.uint64)
+            self.w_samples = n
+        elif n != self.w_samples:  # other light samples: the old rays are unknown now
+            self.p_wnorm[:] = np.nan
+            self.w_samples = n
+        h = np.empty(len(rays), np.uint64)
+        row_hashes(np.ascontiguousarray(level["seed"], np.uint64), int(level["n_lights"]), h)
+        self.p_wnorm[rays] = level["normal"]
+        self.p_whash[rays] = h
 
     def add_primary(self, rays: np.ndarray, inst: np.ndarray, origins: np.ndarray,
                     directions: np.ndarray, t: np.ndarray) -> None:
@@ -591,9 +558,10 @@ class PixelRecords:
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
-        return int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
-                                           self.t_flags, self.p_combo, self.p_code,
-                                           self.s_parent, self.s_combo, self.s_code)))
+        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_whash.nbytes
+        return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
+                                                   self.t_flags, self.p_combo, self.p_code,
+                                                   self.s_parent, self.s_combo, self.s_code)))
 
     # -- querying ------------------------------------------------------------------------
 
@@ -626,10 +594,11 @@ class PixelRecords:
             dirty |= ~is_hit
             if world_lights(sa) or fx.world_lights:
                 dirty |= is_hit  # the world lit (or lights now) every surface
-        if world_lights(sa) and len(fx.regions):
-            # the world's shadow rays leave every surface point over its hemisphere; the
-            # records keep no normals to cull by, so any edited box may shade any hit
-            dirty |= is_hit
+        # the world's shadow rays leave every surface point over its hemisphere: primary
+        # hits test their own rays (regenerated from the recorded normal and hash, below);
+        # secondary hits keep no normal, so any edited box may shade them
+        world_rays = world_lights(sa) and len(fx.regions) > 0
+        sec_dirty = dirty | is_hit if world_rays else dirty
         regions = fx.region_array()
         scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
                       + np.abs(sa.scene_aabb).max())
@@ -648,18 +617,27 @@ class PixelRecords:
         reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         combo_dirty = np.ascontiguousarray(dirty)
+        sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
         kind = np.ascontiguousarray(sa.light_kind, np.int32)
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
-            self._query(cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
-                        reg_r, kind, pos, ldir, out)
+            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced, origins, reg_lo,
+                        reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+            if world_rays:
+                if self.p_wnorm is None:
+                    hit = is_hit[self.p_combo.astype(np.int64)]
+                    out |= hit
+                else:
+                    query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
+                                 self.p_whash, self.w_samples, self.lo, self.step,
+                                 self.levels, self.shift, reg_c, reg_r, out)
         return out
 
-    def _query(self, cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
-               reg_r, kind, pos, ldir, out) -> None:
+    def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, origins, reg_lo,
+               reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
         if cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
@@ -674,7 +652,7 @@ class PixelRecords:
         if m:
             s_dirty = np.zeros(m, np.bool_)
             _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
-                             self.p_code, self.n_rays, combo_dirty, inst64, combo_traced,
+                             self.p_code, self.n_rays, sec_dirty, inst64, combo_traced,
                              self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
                              reg_c, reg_r, kind, pos, ldir, s_dirty)
             s_ray = np.empty(m, np.int32)

@@ -45,74 +45,29 @@ records keep the per-sample precision and use tiles only to cull the query (8x8 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
 from .light_records import LightRecords
-from .record_codes import POINT_BITS, _decode_point, _encode_nodes, _oct_decode
+from .record_codes import (
+    POINT_BITS,
+    _cone_sphere,
+    _decode_point,
+    _encode_nodes,
+    _light_hit,
+    _oct_decode,
+    _segment_box,
+    light_geometry,
+)
+from .sample_rays import query_samples, query_world, sampled_lights
 from .soft_lights import world_lights
-from .world_rays import query_world, row_hashes
 
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
 
 
 # ----------------------------------------------------------------------------- tests
-
-
-def light_geometry(sa) -> np.ndarray:
-    """(L, 5) float64 per light: position, bounding radius of its emitting points about
-    that position (sphere radius, half the area light's diagonal; 0 for a point) and a
-    sun's cone half angle (0: parallel); see :func:`_light_hit`."""
-    out = np.zeros((len(sa.light_kind), 5))
-    out[:, :3] = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
-    out[:, 3] = sa.light_bound
-    out[:, 4] = np.where(sa.light_ext & (sa.light_kind == LIGHT_SUN), sa.light_half, 0.0)
-    # a margin on both for the shadow rays' origins being off the recorded points
-    out[:, 3] = np.where(out[:, 3] > 0.0, out[:, 3] * (1.0 + tol.RECORD_SLACK_REL), 0.0)
-    out[:, 4] = np.where(out[:, 4] > 0.0, out[:, 4] + tol.RECORD_DIR_ERROR, 0.0)
-    return out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _segment_box(ax, ay, az, bx, by, bz, lo, hi, ray):
-    """Does the segment a -> b (the ray from a through b when ``ray``) meet the box?"""
-    t0 = 0.0
-    t1 = 1e300 if ray else 1.0
-    a = (ax, ay, az)
-    d = (bx - ax, by - ay, bz - az)
-    for k in range(3):
-        if d[k] == 0.0:
-            if a[k] < lo[k] or a[k] > hi[k]:
-                return False
-            continue
-        ta = (lo[k] - a[k]) / d[k]
-        tb = (hi[k] - a[k]) / d[k]
-        if ta > tb:
-            ta, tb = tb, ta
-        if ta > t0:
-            t0 = ta
-        if tb < t1:
-            t1 = tb
-        if t0 > t1:
-            return False
-    return True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _cone_sphere(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, err):
-    """Can the ray from o along unit d, give or take ``err`` radians, meet the sphere?"""
-    vx, vy, vz = cx - ox, cy - oy, cz - oz
-    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if dist <= r:
-        return True
-    c = (vx * dx + vy * dy + vz * dz) / dist
-    c = min(1.0, max(-1.0, c))
-    return math.acos(c) <= math.asin(r / dist) + err
 
 
 @njit(cache=True, nogil=True)
@@ -143,33 +98,6 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
                           light_dir):
                 return True
     return False
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _light_hit(px, py, pz, j, lo, hi, light_kind, lgeo, light_dir):
-    """Can a shadow ray from p to light j cross the box (lo, hi)? ``lgeo`` (L, 5): the
-    light's position, its bounding radius and (a sun) its cone's half angle. A point light
-    is one segment; a light with an extent a shaft, tested conservatively: every segment
-    from p to a point within radius r of the light's centre stays within r of the segment
-    to the centre, so the box grown by r is tested against that one segment; a sun with an
-    angle is a cone of directions, tested against the box's bounding sphere."""
-    if light_kind[j] == LIGHT_SUN:
-        if lgeo[j, 4] > 0.0:
-            cx = 0.5 * (lo[0] + hi[0])
-            cy = 0.5 * (lo[1] + hi[1])
-            cz = 0.5 * (lo[2] + hi[2])
-            r = 0.5 * math.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2
-                                + (hi[2] - lo[2]) ** 2)
-            return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
-                                -light_dir[j, 2], cx, cy, cz, r, lgeo[j, 4])
-        return _segment_box(px, py, pz, px - light_dir[j, 0], py - light_dir[j, 1],
-                            pz - light_dir[j, 2], lo, hi, True)
-    g = lgeo[j, 3]
-    if g > 0.0:
-        glo = (lo[0] - g, lo[1] - g, lo[2] - g)
-        ghi = (hi[0] + g, hi[1] + g, hi[2] + g)
-        return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], glo, ghi, False)
-    return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], lo, hi, False)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -352,12 +280,13 @@ class PixelRecords:
         self.s_combo = np.zeros(0, np.uint32)
         self.s_code = np.zeros(0, np.uint32)
         self._pending: list = []
-        #: the world's rays of primary hits (while the world lights): the shading normal
-        #: (NaN: not recorded, any edited region dirties the hit), the world row's sample
-        #: hash (:func:`~.soft_lights.world_row_hash`) and the samples per point
+        #: the sampled shadow rays of primary hits (:mod:`.sample_rays`): the shading
+        #: normal (NaN: not recorded, the shaft tests apply), the node seed, the samples per
+        #: light and the light slots when recorded (the world's row is the last)
         self.p_wnorm: np.ndarray | None = None
-        self.p_whash: np.ndarray | None = None
+        self.p_seed: np.ndarray | None = None
         self.w_samples = 0
+        self.w_lights = 0
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
@@ -439,25 +368,24 @@ class PixelRecords:
                                   nb))
 
     def _add_world(self, rays: np.ndarray, level: dict) -> None:
-        """Record the primary nodes' world rays (normal and row hash) where the tracer gave
-        them (``normal``, ``seed``, ``n_soft``, ``n_lights`` in its level dict); else mark
-        them unknown."""
+        """Record the primary nodes' sampled rays (normal and node seed) where the tracer
+        gave them (``normal``, ``seed``, ``n_soft``, ``n_lights`` in its level dict); else
+        mark them unknown."""
         if "normal" not in level:
             if self.p_wnorm is not None:
                 self.p_wnorm[rays] = np.nan
             return
-        n = int(level["n_soft"])
+        n, L = int(level["n_soft"]), int(level["n_lights"])
         if self.p_wnorm is None:
             self.p_wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
-            self.p_whash = np.zeros(self.n_rays, np.uint64)
-            self.w_samples = n
-        elif n != self.w_samples:  # other light samples: the old rays are unknown now
+            self.p_seed = np.zeros(self.n_rays, np.uint64)
+        elif (n, L) != (self.w_samples, self.w_lights):  # the old rays are unknown now
             self.p_wnorm[:] = np.nan
-            self.w_samples = n
-        h = np.empty(len(rays), np.uint64)
-        row_hashes(np.ascontiguousarray(level["seed"], np.uint64), int(level["n_lights"]), h)
-        self.p_wnorm[rays] = level["normal"]
-        self.p_whash[rays] = h
+        self.w_samples, self.w_lights = n, L
+        hit = np.asarray(level["inst"]) >= 0
+        self.p_wnorm[rays[hit]] = level["normal"][hit]
+        self.p_wnorm[rays[~hit]] = np.nan
+        self.p_seed[rays] = level["seed"]
 
     def add_primary(self, rays: np.ndarray, inst: np.ndarray, origins: np.ndarray,
                     directions: np.ndarray, t: np.ndarray) -> None:
@@ -558,7 +486,7 @@ class PixelRecords:
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
-        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_whash.nbytes
+        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
         return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                                    self.t_flags, self.p_combo, self.p_code,
                                                    self.s_parent, self.s_combo, self.s_code)))
@@ -624,20 +552,31 @@ class PixelRecords:
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
-            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced, origins, reg_lo,
-                        reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+            # area lights and suns with an angle: the primary hits' own samples (after)
+            sampled = np.uint64(0)
+            if self.p_wnorm is not None and len(regions):
+                for j in np.flatnonzero(sampled_lights(sa)):
+                    sampled |= np.uint64(1) << np.uint64(j)
+            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~sampled,
+                        combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
+                        out)
+            if sampled:
+                query_samples(sa, self.p_combo, self.p_code, inst64, combo_traced,
+                              self.p_wnorm, self.p_seed, self.w_samples, sampled, self.lo,
+                              self.step, self.levels, self.shift, reg_lo, reg_hi, pos, out)
             if world_rays:
                 if self.p_wnorm is None:
-                    hit = is_hit[self.p_combo.astype(np.int64)]
-                    out |= hit
+                    out |= is_hit[self.p_combo.astype(np.int64)]
                 else:
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
-                                 self.p_whash, self.w_samples, self.lo, self.step,
-                                 self.levels, self.shift, reg_c, reg_r, out)
+                                self.p_seed, self.w_samples, self.w_lights, self.lo,
+                                self.step, self.levels, self.shift, reg_c, reg_r, out)
         return out
 
-    def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, origins, reg_lo,
-               reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
+    def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
+               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
+        """The records' segments against the regions: primary nodes with ``combo_traced``
+        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`)."""
         if cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
@@ -652,7 +591,7 @@ class PixelRecords:
         if m:
             s_dirty = np.zeros(m, np.bool_)
             _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
-                             self.p_code, self.n_rays, sec_dirty, inst64, combo_traced,
+                             self.p_code, self.n_rays, sec_dirty, inst64, sec_traced,
                              self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
                              reg_c, reg_r, kind, pos, ldir, s_dirty)
             s_ray = np.empty(m, np.int32)

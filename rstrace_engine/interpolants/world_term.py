@@ -39,7 +39,8 @@ def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
         return out
     o = np.ascontiguousarray(o, np.float64)
     d = np.ascontiguousarray(d, np.float64)
-    t1 = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    # a writeable copy: a read-only view would compile the surface kernel a second time
+    t1 = np.array(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
     surf = surfaces(sa, o, d, t1, hits)
     L = len(sa.light_kind)
     root = node_seeds(np.ascontiguousarray(seeds, np.uint64), np.arange(n, dtype=np.int32),

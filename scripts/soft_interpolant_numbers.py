@@ -1,5 +1,6 @@
 """Interpolants under soft light (docs/INTERPOLANTS.md, "Soft light"):
-``python scripts/soft_interpolant_numbers.py [W H]`` (default 320 240).
+``python scripts/soft_interpolant_numbers.py [W H] [--no-fallback]`` (default 320 240;
+``--no-fallback``: cells are built wherever they may be, the measured fallback is off).
 
 Per scene -- a *studio* (a box, a post and a ball on a Lambertian floor under a 2 m square
 light and a sphere light, no world light), the soak's ``soft_room`` with its world a
@@ -61,7 +62,7 @@ def stepped(cam: Camera, dx: float) -> Camera:
                   cam.width, cam.height)
 
 
-def main(width: int, height: int) -> None:
+def main(width: int, height: int, fallback: bool = True) -> None:
     st = RenderSettings(mode="INTERPOLANT", epsilon=0.01, max_depth=3)
     bst = RenderSettings(mode="BASE", max_depth=3)
     for name, build in (("studio", studio), ("soft_room", room)):
@@ -70,6 +71,7 @@ def main(width: int, height: int) -> None:
             accel = create_accelerator("BVH", s.arrays())
             cam0 = s.camera
             r = InterpolantRenderer()
+            r.auto_fallback = fallback
             for step in ("first frame", "camera step"):
                 if step == "camera step":
                     s.set_camera(stepped(cam0, 0.05))
@@ -80,6 +82,7 @@ def main(width: int, height: int) -> None:
                     tb.append(time.perf_counter() - t0)
                     if step == "first frame" and rep == 1:
                         r = InterpolantRenderer()  # a first frame again
+                        r.auto_fallback = fallback
                     t0 = time.perf_counter()
                     f = r.render(s, st, accel)
                     ti.append(time.perf_counter() - t0)
@@ -94,4 +97,5 @@ def main(width: int, height: int) -> None:
 
 
 if __name__ == "__main__":
-    main(*(int(a) for a in sys.argv[1:3])) if len(sys.argv) >= 3 else main(320, 240)
+    size = (int(a) for a in sys.argv[1:3]) if len(sys.argv) >= 3 else (320, 240)
+    main(*size, fallback="--no-fallback" not in sys.argv)

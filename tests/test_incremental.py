@@ -139,6 +139,28 @@ def test_moving_a_small_object_dirties_little():
     assert frame.stats["traced_pixels"] == rep.dirty_pixels
 
 
+def test_moving_a_small_object_under_a_world_that_lights():
+    """Issue 20: the world's rays of every primary hit are regenerated from the records
+    (tracing/world_rays.py), so moving a small object in a world-lit room dirties the
+    pixels whose world rays, shadow rays or view may meet its old or new box -- not every
+    hit (before; measured 20% of the pixels against 83% hits) -- and the frame equals a
+    fresh one bit for bit."""
+    settings = RenderSettings(max_depth=3, light_samples=8)
+    scene = SOAK_SCENES["soft_room"](64, 48)
+    assert scene.world_lights
+    sess = Session(scene, settings)
+    prev = sess.render()
+    hits = float(np.mean(prev.pixel_class != 0))
+    slot = scene.instance_slot("Small")
+    m = scene.instances[slot]["matrix"].copy()
+    for dx in (0.2, -0.1):
+        m[0, 3] += dx
+        rep = sess.apply([ObjectTransform("Small", m.copy())])
+        assert not rep.full_frame and 0 < rep.dirty_fraction < 0.5 * hits, (
+            rep.dirty_fraction, hits)
+        prev, _ = check_base_step(sess, prev, settings)
+
+
 @pytest.mark.parametrize("accelerator", ["EMBREE", "BVH", "BRUTE_FORCE", "VISIBILITY_FIELD"])
 def test_hiding_an_object_keeps_every_other_hit(accelerator):
     """Hiding an object changes no hit its box does not hold, whatever the accelerator.

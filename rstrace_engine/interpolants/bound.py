@@ -28,10 +28,12 @@ NOTE_SOFT = ("lights with an extent (area, sphere, sun with an angle) are interp
              "surface under a sphere, a sun or a rectangle); penumbrae, spot lights with a "
              "radius, disks, ellipses, spreads and glossy surfaces are traced, exactly as "
              "the base tracer")
-#: The world's light: not proven over any cell, every surface is traced while it lights.
-NOTE_WORLD = ("the world lights every surface through its whole hemisphere, which no cell "
-              "proves unoccluded: while the world lights, every surface is traced (the "
-              "bound holds there exactly as for the base tracer)")
+#: The world's light: traced per pixel, the other lights interpolated.
+NOTE_WORLD = ("the world's light is traced per pixel: every interpolated pixel adds the "
+              "world's term at its own hit, from the base tracer's own samples (occlusion "
+              "included), to the interpolated rest; cells whose reflections or refractions "
+              "hit a surface are traced while the world lights. " + NOTE_SOFT[0].upper()
+              + NOTE_SOFT[1:])
 
 
 def bound_notes(cache, used: np.ndarray) -> list[str]:

@@ -96,6 +96,7 @@ from .samples import (
 )
 from .shafts import query_scene
 from .walk import group_active, settle, walk_level
+from .world_term import without_world
 
 log = logging.getLogger(__name__)
 
@@ -578,6 +579,9 @@ class InterpolantCache:
         rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
                                               tree, rad, self.max_depth, trace)
         flag |= glossy_flags(self.sa, tree, len(ug))
+        if self.qs.world_light:  # interpolated without the world's term (world_term.py)
+            rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
+                                      dif, flag)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                                tree, node_cls.astype(np.int32), dif, texel, flag)
         self.frame_stats["samples_traced"] += len(ug)

@@ -37,8 +37,12 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   ``soft_sampled`` (a spot with a radius, a disk, an ellipse, a spread, a glossy surface, a
   light crossing the horizon). Not facing at the corners (``-2``): off everywhere when the
   whole extent is behind every slab triangle or the slab is behind an area light. Below the
-  root a light with an extent fails the cell (``tunnel_light``). While the world lights,
-  every cell fails (``world_light``): its hemisphere is not proven unoccluded.
+  root a light with an extent fails the cell (``tunnel_light``).
+* **The world's light** is not interpolated: samples store their radiance without the
+  world's term at the root, and every interpolated pixel traces its own
+  (:mod:`.world_term`, the base tracer's samples). A cell whose ray trees hit a surface
+  below the root fails while the world lights (``world_light``): the world's term there
+  would be sampled noise in what is interpolated.
 * **Textures** are applied per pixel: samples keep ``R + texel * D`` apart
   (:func:`.samples.texture_split`) and the radiance test checks the texel range.
 * **Reflection / refraction tunnels** (ray-tree nodes below the root): the shaft between the
@@ -542,14 +546,17 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
             return R_MISS
         if sm.cls[s] != cls:
             return R_CLASS
-    if qs.world_light:
-        # the world's light reaches the surface through its whole hemisphere: its
-        # occlusion over the cell is not proven (docs/INTERPOLANTS.md, "Soft light")
-        return R_WORLD
     for u in range(1, ns):
         r = _same_tree(sm, s0, ids[u])
         if r != R_VALID:
             return r
+    if qs.world_light:
+        # the world's term at the root is left out of the samples and traced per pixel
+        # (world_term.py); below the root it would be sampled noise in what is
+        # interpolated: a reflection or refraction that hits a surface fails the cell
+        for q in range(1, sm.node_count[s0]):
+            if sm.node_inst[sm.node_start[s0] + q] >= 0:
+                return R_WORLD
     zmin = np.inf
     zmax = -np.inf
     for u in range(ns):

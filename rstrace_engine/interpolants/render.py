@@ -43,13 +43,14 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
-from ..tracing.soft_lights import sample_seeds
+from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
 from .bound import bound_notes
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
+from .world_term import world_term
 
 log = logging.getLogger(__name__)
 
@@ -366,8 +367,12 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # frame keeps its camera. One sample of every pixel at a time (arrays of a 1-sample
     # frame, reused); the samples after the first reproject from it too (same eye: a sample
     # whose line lies in a proven cell costs a look-up, not a ray and a walk).
-    view = cache.view if pixels is None else None
+    # while the world lights, an interpolated pixel traces the world's term at its own hit
+    # (world_term.py): it needs the hit, which a reprojected ray does not find
+    world = world_lights(sa)
+    view = cache.view if pixels is None and not world else None
     cache.view = None
+    t_world = 0.0
     here = None
     cells = FrameCells(cp)
     cancelled = False
@@ -416,12 +421,23 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             rad_probe = np.zeros((k, 3))
             probe.pop("idx", None)
             hits, res, rep, skipped = _resolve_part(
-                cache, view if s == 0 else here, cells, s == 0, cp, pix, o, d, tmin, tmax,
+                cache, None if world else (view if s == 0 else here), cells, s == 0, cp,
+                pix, o, d, tmin, tmax,
                 records is not None, cancel,
                 lambda hh, a=(o, d, tmin, tmax, gids, rad_probe): skip(hh, *a), budget)
             fs = _add_stats(fs, cache.frame_stats)
             if rep is not None:
                 n_rep += int(np.count_nonzero(rep))
+            if world:  # the world's term, per pixel, where cells interpolated
+                tw = time.perf_counter()
+                wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
+                if "idx" in probe:
+                    wi = np.setdiff1d(wi, probe["idx"])
+                res.radiance[wi] += world_term(
+                    sa, cache.accel, o[wi], d[wi], tmax[wi], _take(hits, wi),
+                    sample_seeds(gids[wi], int(settings.seed)), int(settings.light_samples),
+                    counters)
+                t_world += time.perf_counter() - tw
             if "idx" in probe:  # traced already: done
                 pr = probe["idx"]
                 res.radiance[pr] = rad_probe[pr]
@@ -481,6 +497,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     stats = _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace,
                          n_rep / max(n, 1), k, n_todo, counters, w, h, spp,
                          int(settings.max_depth), cancelled, bad_total)
+    stats["world_s"] = t_world  # the interpolated pixels' world terms (in resolve_s)
     if fb is not None:
         stats["fallback"] = fb.stats(budget, probe["rays"])
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",

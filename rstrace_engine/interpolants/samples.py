@@ -365,7 +365,8 @@ def hit_material(sa, inst, prim):
 
 
 @njit(cache=True, nogil=True)
-def _textured(sa, inst, prim, out):
+def textured_roots(sa, inst, prim, out):
+    """out[r]: hit r (instance, triangle) is on a textured material."""
     for r in range(inst.shape[0]):
         m = hit_material(sa, inst[r], prim[r])
         out[r] = m >= 0 and sa.mat_tex[m] >= 0
@@ -397,11 +398,11 @@ def texture_split(sa, accel, o, d, hits: Hits, tree, rad, max_depth: int, trace)
         return R, D, texel, flag
     below = tree.node_path > 1
     tex_node = np.empty(len(tree.node_inst), np.bool_)
-    _textured(sa, tree.node_inst, np.maximum(tree.node_tri, 0), tex_node)
+    textured_roots(sa, tree.node_inst, np.maximum(tree.node_tri, 0), tex_node)
     bad = np.bincount(tree.node_ray[below & tex_node], minlength=n)[:n] > 0
     flag[bad] = TEX_BELOW
     root = np.empty(n, np.bool_)
-    _textured(sa, np.ascontiguousarray(hits.inst, np.int32),
+    textured_roots(sa, np.ascontiguousarray(hits.inst, np.int32),
               np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), root)
     idx = np.flatnonzero(root & ~bad)
     if len(idx) == 0:

@@ -45,135 +45,29 @@ records keep the per-sample precision and use tiles only to cull the query (8x8 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SUN
 from .batches import threads_for
 from .light_records import LightRecords
+from .record_codes import (
+    POINT_BITS,
+    _cone_sphere,
+    _decode_point,
+    _encode_nodes,
+    _light_hit,
+    _oct_decode,
+    _segment_box,
+    light_geometry,
+)
+from .sample_rays import query_samples, query_world, sampled_lights
 from .soft_lights import world_lights
 
-#: bits of the quantised point on the longest, middle and shortest axis of the box
-POINT_BITS = (11, 11, 10)
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
 
 
-# ----------------------------------------------------------------------------- encoding
-
-
-@njit(cache=True, nogil=True)
-def _oct_encode(x, y, z):
-    s = abs(x) + abs(y) + abs(z)
-    if s == 0.0:
-        return np.uint32(0)
-    u = x / s
-    v = y / s
-    if z < 0.0:
-        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
-        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
-        u, v = uu, vv
-    a = int(round((u * 0.5 + 0.5) * 65535.0))
-    b = int(round((v * 0.5 + 0.5) * 65535.0))
-    return np.uint32((a << 16) | b)
-
-
-@njit(cache=True, nogil=True)
-def _oct_decode(code):
-    a = (code >> 16) & 0xFFFF
-    b = code & 0xFFFF
-    u = a / 65535.0 * 2.0 - 1.0
-    v = b / 65535.0 * 2.0 - 1.0
-    z = 1.0 - abs(u) - abs(v)
-    if z < 0.0:
-        uu = (1.0 - abs(v)) * (1.0 if u >= 0.0 else -1.0)
-        vv = (1.0 - abs(u)) * (1.0 if v >= 0.0 else -1.0)
-        u, v = uu, vv
-    n = math.sqrt(u * u + v * v + z * z)
-    return u / n, v / n, z / n
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _encode_nodes(inst, point, dirn, lo, step, levels, shift, codes, outside):
-    """Quantised points (hits) or octahedral directions (misses) of n nodes."""
-    for i in prange(inst.shape[0]):
-        outside[i] = False
-        if inst[i] < 0:
-            codes[i] = _oct_encode(dirn[i, 0], dirn[i, 1], dirn[i, 2])
-            continue
-        c = np.uint32(0)
-        for k in range(3):
-            q = (point[i, k] - lo[k]) / step[k]
-            r = int(round(q)) if q == q else 0
-            if r < 0 or r > levels[k]:
-                outside[i] = True
-                r = 0 if r < 0 else levels[k]
-            c |= np.uint32(r) << np.uint32(shift[k])
-        codes[i] = c
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _decode_point(code, lo, step, levels, shift):
-    x = lo[0] + ((code >> shift[0]) & levels[0]) * step[0]
-    y = lo[1] + ((code >> shift[1]) & levels[1]) * step[1]
-    z = lo[2] + ((code >> shift[2]) & levels[2]) * step[2]
-    return x, y, z
-
-
 # ----------------------------------------------------------------------------- tests
-
-
-def light_geometry(sa) -> np.ndarray:
-    """(L, 5) float64 per light: position, bounding radius of its emitting points about
-    that position (sphere radius, half the area light's diagonal; 0 for a point) and a
-    sun's cone half angle (0: parallel); see :func:`_light_hit`."""
-    out = np.zeros((len(sa.light_kind), 5))
-    out[:, :3] = np.asarray(sa.light_pos, np.float64).reshape(-1, 3)
-    out[:, 3] = sa.light_bound
-    out[:, 4] = np.where(sa.light_ext & (sa.light_kind == LIGHT_SUN), sa.light_half, 0.0)
-    # a margin on both for the shadow rays' origins being off the recorded points
-    out[:, 3] = np.where(out[:, 3] > 0.0, out[:, 3] * (1.0 + tol.RECORD_SLACK_REL), 0.0)
-    out[:, 4] = np.where(out[:, 4] > 0.0, out[:, 4] + tol.RECORD_DIR_ERROR, 0.0)
-    return out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _segment_box(ax, ay, az, bx, by, bz, lo, hi, ray):
-    """Does the segment a -> b (the ray from a through b when ``ray``) meet the box?"""
-    t0 = 0.0
-    t1 = 1e300 if ray else 1.0
-    a = (ax, ay, az)
-    d = (bx - ax, by - ay, bz - az)
-    for k in range(3):
-        if d[k] == 0.0:
-            if a[k] < lo[k] or a[k] > hi[k]:
-                return False
-            continue
-        ta = (lo[k] - a[k]) / d[k]
-        tb = (hi[k] - a[k]) / d[k]
-        if ta > tb:
-            ta, tb = tb, ta
-        if ta > t0:
-            t0 = ta
-        if tb < t1:
-            t1 = tb
-        if t0 > t1:
-            return False
-    return True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _cone_sphere(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, err):
-    """Can the ray from o along unit d, give or take ``err`` radians, meet the sphere?"""
-    vx, vy, vz = cx - ox, cy - oy, cz - oz
-    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if dist <= r:
-        return True
-    c = (vx * dx + vy * dy + vz * dz) / dist
-    c = min(1.0, max(-1.0, c))
-    return math.acos(c) <= math.asin(r / dist) + err
 
 
 @njit(cache=True, nogil=True)
@@ -204,33 +98,6 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
                           light_dir):
                 return True
     return False
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _light_hit(px, py, pz, j, lo, hi, light_kind, lgeo, light_dir):
-    """Can a shadow ray from p to light j cross the box (lo, hi)? ``lgeo`` (L, 5): the
-    light's position, its bounding radius and (a sun) its cone's half angle. A point light
-    is one segment; a light with an extent a shaft, tested conservatively: every segment
-    from p to a point within radius r of the light's centre stays within r of the segment
-    to the centre, so the box grown by r is tested against that one segment; a sun with an
-    angle is a cone of directions, tested against the box's bounding sphere."""
-    if light_kind[j] == LIGHT_SUN:
-        if lgeo[j, 4] > 0.0:
-            cx = 0.5 * (lo[0] + hi[0])
-            cy = 0.5 * (lo[1] + hi[1])
-            cz = 0.5 * (lo[2] + hi[2])
-            r = 0.5 * math.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2
-                                + (hi[2] - lo[2]) ** 2)
-            return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
-                                -light_dir[j, 2], cx, cy, cz, r, lgeo[j, 4])
-        return _segment_box(px, py, pz, px - light_dir[j, 0], py - light_dir[j, 1],
-                            pz - light_dir[j, 2], lo, hi, True)
-    g = lgeo[j, 3]
-    if g > 0.0:
-        glo = (lo[0] - g, lo[1] - g, lo[2] - g)
-        ghi = (hi[0] + g, hi[1] + g, hi[2] + g)
-        return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], glo, ghi, False)
-    return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], lo, hi, False)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -413,6 +280,13 @@ class PixelRecords:
         self.s_combo = np.zeros(0, np.uint32)
         self.s_code = np.zeros(0, np.uint32)
         self._pending: list = []
+        #: the sampled shadow rays of primary hits (:mod:`.sample_rays`): the shading
+        #: normal (NaN: not recorded, the shaft tests apply), the node seed, the samples per
+        #: light and the light slots when recorded (the world's row is the last)
+        self.p_wnorm: np.ndarray | None = None
+        self.p_seed: np.ndarray | None = None
+        self.w_samples = 0
+        self.w_lights = 0
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
@@ -487,10 +361,31 @@ class PixelRecords:
                 self.light = None
         self.p_combo[rays] = combos[:nb]
         self.p_code[rays] = codes[:nb]
+        self._add_world(np.asarray(rays, np.int64), levels[0])
         if len(inst) > nb:
             parent = np.concatenate([lv["parent"] for lv in levels[1:]]).astype(np.int64)
             self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
                                   nb))
+
+    def _add_world(self, rays: np.ndarray, level: dict) -> None:
+        """Record the primary nodes' sampled rays (normal and node seed) where the tracer
+        gave them (``normal``, ``seed``, ``n_soft``, ``n_lights`` in its level dict); else
+        mark them unknown."""
+        if "normal" not in level:
+            if self.p_wnorm is not None:
+                self.p_wnorm[rays] = np.nan
+            return
+        n, L = int(level["n_soft"]), int(level["n_lights"])
+        if self.p_wnorm is None:
+            self.p_wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
+            self.p_seed = np.zeros(self.n_rays, np.uint64)
+        elif (n, L) != (self.w_samples, self.w_lights):  # the old rays are unknown now
+            self.p_wnorm[:] = np.nan
+        self.w_samples, self.w_lights = n, L
+        hit = np.asarray(level["inst"]) >= 0
+        self.p_wnorm[rays[hit]] = level["normal"][hit]
+        self.p_wnorm[rays[~hit]] = np.nan
+        self.p_seed[rays] = level["seed"]
 
     def add_primary(self, rays: np.ndarray, inst: np.ndarray, origins: np.ndarray,
                     directions: np.ndarray, t: np.ndarray) -> None:
@@ -591,9 +486,10 @@ class PixelRecords:
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
-        return int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
-                                           self.t_flags, self.p_combo, self.p_code,
-                                           self.s_parent, self.s_combo, self.s_code)))
+        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
+        return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
+                                                   self.t_flags, self.p_combo, self.p_code,
+                                                   self.s_parent, self.s_combo, self.s_code)))
 
     # -- querying ------------------------------------------------------------------------
 
@@ -626,10 +522,11 @@ class PixelRecords:
             dirty |= ~is_hit
             if world_lights(sa) or fx.world_lights:
                 dirty |= is_hit  # the world lit (or lights now) every surface
-        if world_lights(sa) and len(fx.regions):
-            # the world's shadow rays leave every surface point over its hemisphere; the
-            # records keep no normals to cull by, so any edited box may shade any hit
-            dirty |= is_hit
+        # the world's shadow rays leave every surface point over its hemisphere: primary
+        # hits test their own rays (regenerated from the recorded normal and hash, below);
+        # secondary hits keep no normal, so any edited box may shade them
+        world_rays = world_lights(sa) and len(fx.regions) > 0
+        sec_dirty = dirty | is_hit if world_rays else dirty
         regions = fx.region_array()
         scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
                       + np.abs(sa.scene_aabb).max())
@@ -648,18 +545,38 @@ class PixelRecords:
         reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         combo_dirty = np.ascontiguousarray(dirty)
+        sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
         kind = np.ascontiguousarray(sa.light_kind, np.int32)
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
-            self._query(cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
-                        reg_r, kind, pos, ldir, out)
+            # area lights and suns with an angle: the primary hits' own samples (after)
+            sampled = np.uint64(0)
+            if self.p_wnorm is not None and len(regions):
+                for j in np.flatnonzero(sampled_lights(sa)):
+                    sampled |= np.uint64(1) << np.uint64(j)
+            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~sampled,
+                        combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
+                        out)
+            if sampled:
+                query_samples(sa, self.p_combo, self.p_code, inst64, combo_traced,
+                              self.p_wnorm, self.p_seed, self.w_samples, sampled, self.lo,
+                              self.step, self.levels, self.shift, reg_lo, reg_hi, pos, out)
+            if world_rays:
+                if self.p_wnorm is None:
+                    out |= is_hit[self.p_combo.astype(np.int64)]
+                else:
+                    query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
+                                self.p_seed, self.w_samples, self.w_lights, self.lo,
+                                self.step, self.levels, self.shift, reg_c, reg_r, out)
         return out
 
-    def _query(self, cp, combo_dirty, inst64, combo_traced, origins, reg_lo, reg_hi, reg_c,
-               reg_r, kind, pos, ldir, out) -> None:
+    def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
+               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
+        """The records' segments against the regions: primary nodes with ``combo_traced``
+        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`)."""
         if cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
@@ -674,7 +591,7 @@ class PixelRecords:
         if m:
             s_dirty = np.zeros(m, np.bool_)
             _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
-                             self.p_code, self.n_rays, combo_dirty, inst64, combo_traced,
+                             self.p_code, self.n_rays, sec_dirty, inst64, sec_traced,
                              self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
                              reg_c, reg_r, kind, pos, ldir, s_dirty)
             s_ray = np.empty(m, np.int32)

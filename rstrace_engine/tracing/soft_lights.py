@@ -445,6 +445,35 @@ def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, ratio, o, d, tmax, 
             w[k] = wgt * cs * inv_n
 
 
+@njit(cache=True, nogil=True, inline="always")
+def row_hash(seed, j):
+    """The hash the row of light ``j`` (``L``, the number of light slots, for the world) of
+    a point with node ``seed`` rotates its samples by, as :func:`_soft_kernel` draws it."""
+    return mix64(seed + np.uint64(j + 1) * np.uint64(0x9E3779B97F4A7C15))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def row_uv(h, n, s):
+    """Sample ``s`` of ``n`` in the unit square of a row with hash ``h`` (:func:`row_hash`):
+    :func:`_soft_kernel`'s rotated Fibonacci lattice, for the pixel records to regenerate
+    a point's shadow rays."""
+    r1 = float(h >> np.uint64(11)) * _INV_2_53
+    r2 = float(mix64(h) >> np.uint64(11)) * _INV_2_53
+    u = (s + 0.5) * (1.0 / n) + r1
+    u -= math.floor(u)
+    v = (s + 0.5) * _GOLDEN + r2
+    v -= math.floor(v)
+    return u, v
+
+
+@njit(cache=True, nogil=True, inline="always")
+def world_sample_dir(h, n, s, sx, sy, sz):
+    """Direction of the world's sample ``s`` of ``n`` at a point with shading normal ``s*``
+    whose row hash is ``h``."""
+    u, v = row_uv(h, n, s)
+    return _cosine_dir(sx, sy, sz, u, v)
+
+
 def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.ndarray):
     """The soft shadow samples of the surface points ``surf`` (:class:`~.whitted.Surfaces`)
     with node ``seeds`` (nb,) uint64, ``n`` per sampled light (rows of ``sh_state`` that

@@ -478,6 +478,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         scatter_add(radiance, front.src, contrib)
         if segments is not None:
             segments.append(_segments(front, hits, surf, vis, L))
+            if soft_on:  # the world's rays, for the pixel records to regenerate
+                segments[-1].update(normal=surf.NS, seed=nseeds, n_soft=int(light_samples),
+                                    n_lights=L)
             if terms:
                 segments[-1].update(_light_terms(front, hits, surf, nseeds, shaded[2]))
         if record:

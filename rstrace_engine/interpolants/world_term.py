@@ -1,0 +1,83 @@
+"""The world's light at the root of a line, traced per pixel (issue 20, the decomposition).
+
+While the world lights, a point receives it through its whole hemisphere, so no cell can
+prove it unoccluded on a floor that objects stand on. Interpolants therefore leave it out:
+a sample stores its radiance *without* the world's term at its root, ``R' = L - W``, the
+interpolated part; every interpolated pixel adds its own ``W``, computed here at its own hit
+with the base tracer's own stages and seeds (its cosine-weighted samples, the same shadow
+rays, the same BRDF evaluation). So ``W`` is exactly the base tracer's term for that pixel
+sample, occlusion and noise included, and the pixel's error is that of ``R'`` alone
+(docs/INTERPOLANTS.md, "The world's light").
+
+``W`` is the shade kernel's light term of the world's row (:func:`~..tracing.whitted.shade`
+with ``terms``), times the world's radiance: the value the tracer adds to the point's
+radiance, last of its direct terms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..accel.accelerators import Hits
+from ..frame import LIGHT_SAMPLES_DEFAULT
+from ..tracing.soft_lights import node_seeds, sample_seeds, soft_visibility
+from ..tracing.whitted import shade, surfaces
+from .samples import TEX_MISMATCH, textured_roots
+
+
+def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
+               seeds: np.ndarray, light_samples: int, counters: dict | None = None
+               ) -> np.ndarray:
+    """(n, 3) float64: the world's light term at the root hits ``hits`` of rays ``o, d``
+    ((n, 3), bounds ``tmax`` (n,) or a scalar, as the tracer was given them) with input-ray
+    seeds ``seeds`` (n,) uint64 (:func:`~..tracing.soft_lights.sample_seeds`) and
+    ``light_samples`` per point: what :func:`~..tracing.whitted.trace` adds for the world
+    at the root, bit for bit. Misses get 0. ``counters["shadow"]`` counts its rays."""
+    n = len(o)
+    out = np.zeros((n, 3))
+    if n == 0:
+        return out
+    o = np.ascontiguousarray(o, np.float64)
+    d = np.ascontiguousarray(d, np.float64)
+    # a writeable copy: a read-only view would compile the surface kernel a second time
+    t1 = np.array(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    surf = surfaces(sa, o, d, t1, hits)
+    L = len(sa.light_kind)
+    root = node_seeds(np.ascontiguousarray(seeds, np.uint64), np.arange(n, dtype=np.int32),
+                      np.ones(n, np.int64))
+    # no light row is sampled, only the world's (its samples' hash names the world alone)
+    none = np.zeros(len(surf.sh_state), np.int8)
+    soft, _, _ = soft_visibility(sa, surf, root, int(light_samples), none,
+                                 _any_hit(accel), counters)
+    vis = np.zeros(n * L, np.bool_)
+    _, _, (tv, tp) = shade(sa, hits, surf, vis, np.ones((n, 3)), False, soft, True)
+    on = tp[:, L]
+    out[on] = tv[on, L] * np.asarray(sa.world_light, np.float64)[None, :]
+    return out
+
+
+def _any_hit(accel):
+    """The tracer's occlusion query of soft samples (any hit up to each sample's end)."""
+    def occluded(o, d, tmax, rows):
+        return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+    return occluded
+
+
+def without_world(sa, accel, o: np.ndarray, d: np.ndarray, hits: Hits, rad: np.ndarray,
+                  dif: np.ndarray, flag: np.ndarray):
+    """Samples' radiance without the world's term at their root: ``(R' (n, 3), flag
+    (n,) uint8)``, for lines ``o, d`` traced by :func:`~..tracing.whitted.trace` with its
+    default seeds and light samples from ``tmin 0, tmax 1`` with root ``hits`` (the
+    interpolant builder's call). ``rad``, ``dif``, ``flag``: :func:`.samples.texture_split`'s.
+    A textured root is flagged :data:`~.samples.TEX_MISMATCH` (its cell fails): the world's
+    term there is affine in the texel, but the split's extra traces draw other samples."""
+    n = len(rad)
+    w = world_term(sa, accel, o, d, 1.0, hits,
+                   sample_seeds(np.arange(n, dtype=np.int64), 0), LIGHT_SAMPLES_DEFAULT)
+    flag = flag.copy()
+    flag[np.any(dif != 0.0, axis=1)] |= TEX_MISMATCH
+    tex_root = np.zeros(n, np.bool_)
+    textured_roots(sa, np.ascontiguousarray(hits.inst, np.int32),
+                   np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
+    flag[tex_root] |= TEX_MISMATCH
+    return np.asarray(rad, np.float64) - w, flag

@@ -51,7 +51,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.pixel_records._query_tiles", "tracing.pixel_records._secondary_rays",
          "tracing.light_records._recombine_primary",
          "tracing.light_records._recombine_secondary",
-         "tracing.light_records._one_light_states")
+         "tracing.light_records._one_light_states", "geometry.mesh_math._proper_kernel")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",

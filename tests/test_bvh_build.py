@@ -225,6 +225,11 @@ def test_bench_scale_runs_small():
         assert 0 < mem["bvh"] < mem["total"] <= mem["model"] + mem["packed"] + mem["bvh"] + 0.2
     # the BVH holds each mesh's tree once: well under twice its leaf-ordered triangles
     assert dense["bytes_per_triangle"]["bvh"] < 160
+    # the scene holds each mesh once: the model's arrays are views of the packed ones but
+    # its triangles (12 bytes, the mesh's own vertex indices)
+    mem = dense["bytes_per_triangle"]
+    assert mem["total"] <= mem["packed"] + mem["bvh"] + 12.5
+    assert dense["scene_s"] > 0 and dense["numba_kept_s"] > 0
 
 
 # ----------------------------------------------------------------------------- kept BVHs

@@ -371,3 +371,6 @@ def test_a_new_session_over_unchanged_meshes_builds_no_mesh_bvh():
     assert second["meshes_built"] == 0 and second["meshes_kept"] == first["meshes_built"]
     KEPT.clear()
     np.testing.assert_array_equal(inc, _fresh())
+    assert len(KEPT) > 0
+    addon.session.forget_all()  # a file load (load_pre) lets them go with the sessions
+    assert len(KEPT) == 0

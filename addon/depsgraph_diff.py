@@ -342,9 +342,10 @@ class SceneMirror:
         for key in [k for k in textures if k not in held]:
             del textures[key]
 
-    def scene(self, snap: export.Snapshot):
-        """A whole :class:`Scene` for ``snap`` (a new session)."""
-        return export.build_scene(snap, self.cache)
+    def scene(self, snap: export.Snapshot, cancel=None):
+        """A whole :class:`Scene` for ``snap`` (a new session; ``cancel``: a
+        :class:`~rstrace_engine.cancel.CancelFlag` its meshes' checks poll)."""
+        return export.build_scene(snap, self.cache, cancel=cancel)
 
 
 def existing_objects() -> set:

@@ -20,6 +20,7 @@ never ``viewport``, ``engine`` or ``ui``.
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -83,8 +84,11 @@ def peek_state(scene) -> SceneState | None:
 
 
 def forget_all() -> None:
-    """Drop every session (file load, unregister)."""
+    """Drop every session and the mesh BVHs kept for the next one (file load, unregister)."""
     _STATES.clear()
+    accelerators = sys.modules.get("rstrace_engine.accel.accelerators")
+    if accelerators is not None:  # (not imported: nothing kept, and no numba to import)
+        accelerators.KEPT.clear()
 
 
 def last_render_stats(scene) -> dict:

@@ -142,10 +142,13 @@ def _takes_key(method) -> bool:
         return False
 
 
-def build_scene(snap: Snapshot, cache: ExportCache, camera: Camera | None = None) -> Scene:
+def build_scene(snap: Snapshot, cache: ExportCache, camera: Camera | None = None,
+                cancel=None) -> Scene:
     """A :class:`Scene` holding everything ``snap`` renders (keys given where supported).
 
-    Raises :class:`SceneError` when nothing is left to render.
+    ``cancel``: a ``() -> bool`` the meshes' checks poll (``Scene.add_mesh``), raising
+    :class:`~rstrace_engine.cancel.Cancelled`. Raises :class:`SceneError` when nothing is
+    left to render.
     """
     if not snap.objects:
         raise SceneError("nothing to render: the scene has no visible mesh objects"
@@ -161,8 +164,9 @@ def build_scene(snap: Snapshot, cache: ExportCache, camera: Camera | None = None
     mat_ids: dict = {}
     for key, rec in snap.objects.items():
         if rec.mesh_key not in mesh_ids:
-            mesh_ids[rec.mesh_key] = add(scene.add_mesh, cache.mesh(rec.mesh_key),
-                                         rec.mesh_key)
+            mesh_ids[rec.mesh_key] = (
+                scene.add_mesh(cache.mesh(rec.mesh_key), key=rec.mesh_key, cancel=cancel)
+                if keyed else scene.add_mesh(cache.mesh(rec.mesh_key)))
         ids = []
         for mk in rec.material_keys:
             if mk not in mat_ids:

@@ -71,6 +71,7 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
     Raises :class:`SceneError` (a broken camera, nothing to render) or
     :class:`export.Cancelled`; a live session and its mirror are then as they were.
     """
+    from rstrace_engine.accel.accelerators import KEPT
     from rstrace_engine.session import Session
 
     with state.lock:
@@ -92,8 +93,10 @@ def sync(state, depsgraph, source: str, settings, camera_object=None,
         seconds = time.perf_counter() - t0
         new = session is None
         if new:
-            def make():
-                return Session(mirror.scene(snap), settings, build=False)
+            def make(cancel=None):
+                made = Session(mirror.scene(snap, cancel), settings, build=False)
+                made.kept_bvhs = KEPT  # unchanged meshes take the last session's trees
+                return made
 
             if source == "RENDER":
                 triangles = sum(len(mirror.cache.mesh(r.mesh_key).triangles)
@@ -137,24 +140,28 @@ CANCEL_JOIN_S = 0.3
 
 def build(make, triangles: int = 0, cancel=None, progress=None,
           lock: HeldLock | None = None):
-    """``make()`` a new session and build its structures (the scene's arrays, its
+    """``make(flag)`` a new session and build its structures (the scene's arrays, its
     accelerator), saying so through ``progress`` and stopping when ``cancel()`` turns True
     (polled every :data:`CANCEL_POLL_S`); returns the built session.
 
     The build runs on a thread of its own. A cancel sets the core's
-    :class:`~rstrace_engine.cancel.CancelFlag`, which the BVH build polls between levels,
-    subtrees and meshes (the session stays as it was); the thread is joined when it stops
-    within :data:`CANCEL_JOIN_S`. One still busy (making the scene's arrays polls nothing) is
-    left to finish there and is thrown away: :class:`export.Cancelled` is raised at once, and
-    the kernels it still runs hold ``lock`` (``runtime.RENDER_LOCK``, handed over: the thread
-    releases it when done), so nothing else runs kernels beside it.
+    :class:`~rstrace_engine.cancel.CancelFlag` (``flag``), which the scene's construction
+    polls every 262,144 triangles of its area test (``Scene.add_mesh``) and the BVH build
+    between levels, subtrees, hash chunks and meshes (the session stays as it was); the
+    thread is joined when it stops within :data:`CANCEL_JOIN_S` (the usual case). What
+    polls nothing is a single kernel between two polls (collapsing a mesh's tree to the
+    4-wide layout, concatenating the scene's arrays: a few tenths of a second per million
+    triangles on a loaded machine); a build caught in one is left to finish there and is
+    thrown away: :class:`export.Cancelled` is raised at once, and the kernels it still runs
+    hold ``lock`` (``runtime.RENDER_LOCK``, handed over: the thread releases it when done),
+    so nothing else runs kernels beside it.
     """
     import threading
 
     from rstrace_engine.cancel import CancelFlag, Cancelled
 
     if cancel is None:
-        session = make()
+        session = make(None)
         session.apply()  # (builds the accelerator; no edits are queued)
         return session
     done = threading.Event()
@@ -167,7 +174,7 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
 
     def run() -> None:
         try:
-            session = make()
+            session = make(flag)
             if flag():
                 raise Cancelled
             session.apply(cancel=flag)

@@ -73,6 +73,10 @@ class Session:
     #: bytes per ray-tree node and light: a session that never edits a light does not pay;
     #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
     light_terms: bool | None = None
+    #: Where the BVH takes unchanged meshes' trees from and leaves its own
+    #: (:class:`~.accel.accelerators.KeptBVHs`; the add-on gives its sessions the process's
+    #: ``KEPT``, so a new session over unchanged meshes builds no mesh BVH); None: none.
+    kept_bvhs = None
 
     def __init__(self, scene: Scene, settings: RenderSettings | None = None,
                  build: bool = True) -> None:
@@ -128,6 +132,7 @@ class Session:
         sa = self.scene.arrays()
         t0 = time.perf_counter()
         self.accel = create_accelerator(kind or self.settings.accelerator, sa, cancel,
+                                        self.kept_bvhs,
                                         **(settings or self.settings).accelerator_options())
         self.stats["accel_build_s"] = time.perf_counter() - t0
         self.stats["accelerator"] = self.accel.name

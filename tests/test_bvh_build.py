@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine import warm_first
-from rstrace_engine.accel import bvh_build, bvh_mesh
+from rstrace_engine.accel import accelerators, bvh_build, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
@@ -225,3 +225,117 @@ def test_bench_scale_runs_small():
         assert 0 < mem["bvh"] < mem["total"] <= mem["model"] + mem["packed"] + mem["bvh"] + 0.2
     # the BVH holds each mesh's tree once: well under twice its leaf-ordered triangles
     assert dense["bytes_per_triangle"]["bvh"] < 160
+    # the scene holds each mesh once: the model's arrays are views of the packed ones but
+    # its triangles (12 bytes, the mesh's own vertex indices)
+    mem = dense["bytes_per_triangle"]
+    assert mem["total"] <= mem["packed"] + mem["bvh"] + 12.5
+    assert dense["scene_s"] > 0 and dense["numba_kept_s"] > 0
+
+
+# ----------------------------------------------------------------------------- kept BVHs
+
+
+def test_a_new_session_takes_the_kept_mesh_bvhs_and_hits_the_same():
+    """A session given the process's kept BVHs (as the add-on's are) builds no mesh BVH
+    over meshes the last session built; a changed mesh is built, and the hits equal a
+    session's built from nothing."""
+    kept = accelerators.KeptBVHs()
+    first = Session(_big_and_small(), build=False)
+    first.kept_bvhs = kept
+    first.apply()
+    assert first.accel.stats["meshes_built"] == 2 and len(kept) == 2
+    second = Session(_big_and_small(), build=False)  # new arrays, the same meshes
+    second.kept_bvhs = kept
+    second.apply()
+    assert second.accel.stats["meshes_built"] == 0
+    assert second.accel.stats["meshes_kept"] == 2
+    _same_hits(second.accel, second.scene.arrays())
+    # the kept trees are now views of the second session's arrays (the first's can go)
+    for placed in kept._meshes.values():
+        assert placed.tv.base is second.accel.sb.tv
+    changed = _big_and_small()
+    changed.set_mesh(changed.mesh_id("small"), shapes.icosphere(2, 0.3, name="small"))
+    third = Session(changed, build=False)
+    third.kept_bvhs = kept
+    third.apply()
+    assert third.accel.stats["meshes_built"] == 1 and third.accel.stats["meshes_kept"] == 1
+    _same_hits(third.accel, third.scene.arrays())
+    # without kept BVHs (the default) every session builds its own
+    assert Session(_big_and_small()).accel.stats["meshes_built"] == 2
+
+
+def test_kept_bvhs_are_bounded(monkeypatch):
+    kept = accelerators.KeptBVHs()
+    monkeypatch.setattr(accelerators, "KEPT_BVH_MAX_BYTES", 1000)
+    create_accelerator("BVH", _big_and_small().arrays(), kept=kept)
+    assert len(kept) == 0 and kept.nbytes == 0
+    monkeypatch.setattr(accelerators, "KEPT_BVH_MAX_BYTES", 1 << 40)
+    acc = create_accelerator("BVH", _big_and_small().arrays(), kept=kept)
+    assert len(kept) == 2 and kept.nbytes == sum(a.nbytes for a in acc._concat[:4])
+    kept.clear()
+    assert len(kept) == 0
+
+
+def test_mesh_key_in_chunks_is_the_one_shot_hash(monkeypatch):
+    import hashlib
+
+    tv = _tv(shapes.lumpy_sphere(5_000))
+    whole = hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
+    monkeypatch.setattr(bvh_mesh, "KEY_CHUNK", 4096 + 8)
+    assert bvh_mesh.mesh_key(tv) == whole
+    flag = CancelFlag()
+    flag.set()
+    with pytest.raises(Cancelled):
+        bvh_mesh.mesh_key(tv, flag.array)
+
+
+# ----------------------------------------------------------------------------- scene arrays
+
+
+def test_scene_construction_stops_at_the_flag_and_leaves_the_scene_as_it_was(monkeypatch):
+    from rstrace_engine.geometry import mesh_math
+
+    monkeypatch.setattr(mesh_math, "PROPER_CHUNK", 1000)
+    s = _big_and_small()
+    before = (list(s.meshes), s._mesh_bytes, s.arrays())
+    calls = []
+
+    def cancel():  # turns True after two chunks
+        calls.append(1)
+        return len(calls) > 2
+
+    with pytest.raises(Cancelled):
+        s.add_mesh(shapes.lumpy_sphere(20_000, name="late"), cancel=cancel)
+    assert len(calls) == 3
+    assert s.meshes == before[0] and s._mesh_bytes == before[1] and s.arrays() is before[2]
+    flag = CancelFlag()
+    flag.set()
+    with pytest.raises(Cancelled):
+        s.set_mesh(s.mesh_id("small"), shapes.icosphere(3, name="small"), cancel=flag)
+    assert s.meshes == before[0] and s.arrays() is before[2]
+    flag.clear()  # not set: the same mesh as without a flag
+    mid = s.add_mesh(shapes.lumpy_sphere(20_000, name="late"), cancel=flag)
+    plain = Scene()
+    ref = plain.meshes[plain.add_mesh(shapes.lumpy_sphere(20_000, name="late"))]
+    for k in ("verts", "tris", "normals", "uvs", "slots"):
+        assert np.array_equal(s.meshes[mid][k], ref[k])
+
+
+def test_packed_scene_holds_each_mesh_once():
+    """After packing, a mesh's vertices, normals, uvs and slots are views of the packed
+    arrays (its triangles, whose indices are its own, are not); repacking after another
+    mesh changes moves them to the new arrays, with the same values."""
+    s = _big_and_small()
+    sa = s.arrays()
+    big = s.meshes[s.mesh_id("big")]
+    copy = {k: big[k].copy() for k in ("verts", "tris", "normals", "uvs", "slots")}
+    for k, whole in (("verts", sa.verts), ("normals", sa.tri_normals), ("uvs", sa.tri_uvs),
+                     ("slots", sa.tri_slot)):
+        assert big[k].base is whole
+    s.set_mesh(s.mesh_id("small"), shapes.icosphere(3, 0.3, name="small"))
+    sa2 = s.arrays()
+    assert big["verts"].base is sa2.verts and big["normals"].base is sa2.tri_normals
+    for k, v in copy.items():
+        assert np.array_equal(big[k], v)
+    start = int(sa2.mesh_tri_start[s.mesh_id("big")])
+    assert np.array_equal(sa2.tri_normals[start:start + len(copy["tris"])], copy["normals"])

@@ -294,3 +294,28 @@ def test_spot_cone_cosines_packed():
     assert sa.light_cos_outer[0] == pytest.approx(math.cos(math.radians(30.0)))
     assert sa.light_cos_outer[0] < sa.light_cos_inner[0] < 1.0
     assert sa.light_intensity[1] == pytest.approx([1000.0 / (4 * math.pi)] * 3)
+
+
+def test_area_test_kernel_matches_the_numpy_formula():
+    """``proper_triangles`` (a kernel over chunks) keeps exactly the triangles the numpy
+    formula keeps, near-degenerate slivers and repeated vertices included."""
+    from rstrace_engine import tolerances as tol
+    from rstrace_engine.geometry import mesh_math
+
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(400, 3)) * 10.0 ** rng.integers(-3, 4, (400, 1))
+    v[300:] = v[:100] + 1e-13 * rng.normal(size=(100, 3))  # near-copies
+    t = rng.integers(0, 400, (20_000, 3)).astype(np.int32)
+    t[::7, 2] = t[::7, 1]  # repeated vertex: zero area
+    line = rng.integers(0, 400, 3000)
+    v2 = np.concatenate([v, v[line[:1000]] * 0.5 + v[line[1000:2000]] * 0.5])  # midpoints
+    t2 = np.concatenate([t, np.stack([line[:1000], line[1000:2000],
+                                      400 + np.arange(1000)], 1).astype(np.int32)])
+    tv = v2[t2]
+    e0, e1, e2 = tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0], tv[:, 2] - tv[:, 1]
+    area2 = np.linalg.norm(np.cross(e0, e1), axis=1)
+    longest = np.max(np.stack([(e * e).sum(axis=1) for e in (e0, e1, e2)]), axis=0)
+    want = (area2 > tol.DEGENERATE_AREA_REL * longest) & (longest > 0)
+    got = mesh_math.proper_triangles(v2, t2)
+    assert np.array_equal(got, want)
+    assert 0 < got.sum() < len(got)

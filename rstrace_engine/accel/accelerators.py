@@ -21,6 +21,7 @@ in :mod:`.interface` and re-exported here.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 
 import numpy as np
@@ -107,6 +108,53 @@ class BruteForce(Accelerator):
 
 # ----------------------------------------------------------------------------- BVH
 
+#: At most this many bytes of mesh BVHs are kept for later accelerators (:class:`KeptBVHs`);
+#: a build whose mesh BVHs take more keeps none.
+KEPT_BVH_MAX_BYTES = 2 << 30
+
+
+class KeptBVHs:
+    """The mesh BVHs of the last BVH built in this process, for the next accelerator.
+
+    A new session (an F12 after a render setting changed, a viewport session after an F12)
+    builds a new :class:`BVHAccelerator`; a mesh whose content hash (:func:`~.bvh_mesh.
+    mesh_key`: its triangles' vertices, exactly) matches a kept one takes that tree instead
+    of building it (the same tree: the build is deterministic). What is kept is the
+    placement (:class:`~.bvh.PlacedMesh` views) of the accelerator built or updated last:
+    at most one scene's meshes, and none past :data:`KEPT_BVH_MAX_BYTES` (while that
+    accelerator lives, keeping them costs nothing; after it, the memory of its trees).
+    :meth:`clear` lets them go.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._meshes: dict[bytes, bvh.PlacedMesh] = {}
+        self.nbytes = 0
+
+    def get(self, key: bytes) -> bvh.PlacedMesh | None:
+        with self._lock:
+            return self._meshes.get(key)
+
+    def keep(self, meshes: dict, nbytes: int) -> None:
+        """Keep ``meshes`` (key -> PlacedMesh, views of arrays of ``nbytes`` in all) in place
+        of the previous ones."""
+        with self._lock:
+            if nbytes > KEPT_BVH_MAX_BYTES:
+                self._meshes, self.nbytes = {}, 0
+            else:
+                self._meshes, self.nbytes = dict(meshes), nbytes
+
+    def clear(self) -> None:
+        with self._lock:
+            self._meshes, self.nbytes = {}, 0
+
+    def __len__(self) -> int:
+        return len(self._meshes)
+
+
+#: The process's kept mesh BVHs (:class:`KeptBVHs`): what the add-on's sessions share.
+KEPT = KeptBVHs()
+
 
 class BVHAccelerator(Accelerator):
     """The two-level numba BVH (:mod:`.bvh`).
@@ -115,18 +163,24 @@ class BVHAccelerator(Accelerator):
     and rebuilds only the top level (and the concatenation the kernel reads). When the new
     packing shares the previous one's ``verts`` / ``tris`` arrays (a :class:`~.scene.Scene`
     repacked after moving objects), even the hashing is skipped: packed arrays are treated
-    as immutable.
+    as immutable. Given ``kept`` (a :class:`KeptBVHs`, e.g. the process's :data:`KEPT`:
+    what a host's sessions pass), a mesh is first looked up there (the trees of the last
+    accelerator built with it: a new session over unchanged meshes builds none), and the
+    accelerator's own trees are kept there after each build.
     """
 
     name = "BVH"
 
-    def __init__(self, scene_arrays: SceneArrays, cancel=None) -> None:
+    def __init__(self, scene_arrays: SceneArrays, cancel=None,
+                 kept: KeptBVHs | None = None) -> None:
         super().__init__(scene_arrays)
+        self._kept = kept
         self._cache: dict[bytes, bvh.PlacedMesh] = {}
         self._mesh_keys: list[bytes] = []
         self._geometry = None  # (verts, tris, mesh_tri_start) identity of the last packing
         self._concat = None
-        self.stats.update(meshes_built=0, meshes_reused=0, mesh_build_s=0.0, top_build_s=0.0)
+        self.stats.update(meshes_built=0, meshes_reused=0, meshes_kept=0, mesh_build_s=0.0,
+                          top_build_s=0.0)
         with self.cancellable(cancel):
             self._build(scene_arrays)
 
@@ -143,12 +197,17 @@ class BVHAccelerator(Accelerator):
                          and self._geometry[1] is sa.tris
                          and np.array_equal(self._geometry[2], sa.mesh_tri_start))
         if not same_geometry:
-            keys, built, reused = [], 0, 0
+            keys, built, reused, kept = [], 0, 0, 0
             cache: dict[bytes, bvh.PlacedMesh] = {}
             for m in range(len(sa.mesh_tri_start) - 1):
+                if stop[0]:
+                    raise Cancelled("BVH build cancelled")
                 tv = bvh_mesh.mesh_triangles(sa, m)
-                key = bvh_mesh.mesh_key(tv)
+                key = bvh_mesh.mesh_key(tv, stop)
                 pm = cache.get(key) or self._cache.get(key)
+                if pm is None and self._kept is not None:
+                    pm = self._kept.get(key)
+                    kept += pm is not None
                 if pm is None:
                     if stop[0]:
                         raise Cancelled("BVH build cancelled")
@@ -160,6 +219,8 @@ class BVHAccelerator(Accelerator):
                     reused += 1
                 cache[key] = pm
                 keys.append(key)
+            if stop[0]:
+                raise Cancelled("BVH build cancelled")
             *concat, placed = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
             # meshes that left the scene are dropped; the others are kept as views of the
             # concatenation (the arrays of the previous one are then freed)
@@ -168,7 +229,10 @@ class BVHAccelerator(Accelerator):
             self._concat = tuple(concat)
             self._geometry = (sa.verts, sa.tris, sa.mesh_tri_start.copy())
             self.stats["meshes_built"] += built
-            self.stats["meshes_reused"] += reused
+            self.stats["meshes_reused"] += reused - kept
+            self.stats["meshes_kept"] += kept
+            if self._kept is not None:
+                self._kept.keep(self._cache, sum(a.nbytes for a in concat[:4]))
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
@@ -202,7 +266,7 @@ class BVHAccelerator(Accelerator):
 
 
 def create_accelerator(name: str, scene_arrays: SceneArrays, cancel=None,
-                       **options) -> Accelerator:
+                       kept: KeptBVHs | None = None, **options) -> Accelerator:
     """Build the accelerator called ``name`` (one of :data:`NAMES`) over ``scene_arrays``.
 
     ``options`` go to accelerators that take them (``"VISIBILITY_FIELD"``: ``directions``,
@@ -210,13 +274,14 @@ def create_accelerator(name: str, scene_arrays: SceneArrays, cancel=None,
     :class:`~rstrace_engine.cancel.CancelFlag` the BVH's build polls (it then raises
     :class:`~rstrace_engine.cancel.Cancelled`); the others finish their build. Raises
     :class:`AcceleratorUnavailable` for unknown names and for ``"EMBREE"`` when ``embreex``
-    is not installed.
+    is not installed. ``kept``: the :class:`KeptBVHs` a BVH takes unchanged meshes' trees
+    from and leaves its own in (the others ignore it).
     """
     key = str(name).upper()
     if key == "BRUTE_FORCE":
         return BruteForce(scene_arrays)
     if key == "BVH":
-        return BVHAccelerator(scene_arrays, cancel)
+        return BVHAccelerator(scene_arrays, cancel, kept)
     if key == "EMBREE":
         from .embree import EmbreeAccelerator
 

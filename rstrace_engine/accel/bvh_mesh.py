@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..cancel import Cancelled
 from .bvh_build import NEVER_STOP, PARALLEL_MIN, _half_area, build_flat, build_flat_boxes
 
 
@@ -173,9 +174,20 @@ def mesh_triangles(sa, mesh: int) -> np.ndarray:
     return gather_triangles(sa.verts, sa.tris, np.arange(s, e, dtype=np.int32)).reshape(-1, 3, 3)
 
 
-def mesh_key(tv: np.ndarray) -> bytes:
-    """Content hash of a mesh's triangle vertices (m, 3, 3) float64."""
-    return hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
+#: Bytes hashed between two looks at the stop flag (:func:`mesh_key`).
+KEY_CHUNK = 1 << 24
+
+
+def mesh_key(tv: np.ndarray, stop: np.ndarray = NEVER_STOP) -> bytes:
+    """Content hash of a mesh's triangle vertices (m, 3, 3) float64 (the stop flag is
+    looked at every :data:`KEY_CHUNK` bytes: :class:`~rstrace_engine.cancel.Cancelled`)."""
+    raw = np.ascontiguousarray(tv).reshape(-1).view(np.uint8)
+    h = hashlib.blake2b(digest_size=16)
+    for start in range(0, len(raw), KEY_CHUNK):
+        if stop[0]:
+            raise Cancelled("BVH build cancelled")
+        h.update(raw[start:start + KEY_CHUNK])
+    return h.digest()
 
 
 def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
@@ -189,7 +201,11 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     pb = (np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1) if small
           else triangle_boxes(flat9))
     b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
     flat = flatten(b64, child, perm)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
     tv_leaf = flat9[perm] if small else gather_rows(flat9, perm)
     return MeshBVH(flat, tv_leaf, perm, float(sah), time.perf_counter() - t0)
 

@@ -8,12 +8,16 @@ Scenes (:func:`big_scene`, :func:`duplicates_scene`): a dense lumpy sphere of ea
 and ``count`` linked duplicates (one mesh, many objects) of a lumpy sphere. Per scene, in
 one run and with the thread count stated:
 
+* **scene** (``scene_s``, the scene model: validating the meshes) and **pack** (the
+  packed arrays);
 * **build** (wall seconds, and CPU seconds of all threads: on a shared machine the CPU time
   is the steadier measure of the work): the numba BVH
   (:class:`~rstrace_engine.accel.accelerators.BVHAccelerator`, all of it: mesh hashing, the
   mesh BVHs, the top level) and Embree's (``embreex``: its
   float32 copy of every instance in world space, and the commit that its first ray
   forces); Embree is left out past :data:`EMBREE_MAX_TRIANGLES` instanced triangles;
+  ``numba_kept_s``: a second numba BVH over the same meshes given the first one's kept
+  trees (:class:`~rstrace_engine.accel.accelerators.KeptBVHs`: a new session's build);
 * **trace**: closest hits of the camera's primary rays (best of ``--repeats``, alternating
   the two accelerators), in million rays per second;
 * **memory**: bytes per *unique* triangle (the meshes' own, not counting duplicates) of the
@@ -33,7 +37,7 @@ import time
 import numba
 import numpy as np
 
-from ..accel.accelerators import AcceleratorUnavailable, create_accelerator
+from ..accel.accelerators import AcceleratorUnavailable, KeptBVHs, create_accelerator
 from ..accel.bvh_build import PARALLEL_MIN
 from ..geometry import shapes
 from ..geometry.cameras import camera_rays
@@ -61,10 +65,12 @@ def _base(name: str) -> Scene:
     return s
 
 
-def big_scene(triangles: int) -> Scene:
-    """A lumpy sphere of ``triangles`` triangles, a small icosphere (320) and a floor (2)."""
+def big_scene(triangles: int, dense=None) -> Scene:
+    """A lumpy sphere of ``triangles`` triangles (or the mesh ``dense``), a small icosphere
+    (320) and a floor (2)."""
     s = _base("big")
-    big = s.add_mesh(shapes.lumpy_sphere(triangles, name="dense"))
+    big = s.add_mesh(dense if dense is not None else shapes.lumpy_sphere(triangles,
+                                                                          name="dense"))
     s.add_instance(big, np.eye(4), [0], name="Dense")
     small = s.add_mesh(shapes.icosphere(2, 0.25, name="small"))
     s.add_instance(small, shapes.transform((1.5, -0.8, -0.85)), [0], name="Small")
@@ -120,18 +126,28 @@ def _best(fn, repeats: int) -> float:
     return best
 
 
-def measure(name: str, scene: Scene, repeats: int = 3) -> dict:
-    """One row: counts, build seconds, primary-ray Mray/s and bytes per unique triangle."""
+def measure(name: str, scene: Scene, repeats: int = 3, scene_s: float | None = None) -> dict:
+    """One row: counts, build seconds, primary-ray Mray/s and bytes per unique triangle
+    (``scene_s``: the seconds the scene model took, validating its meshes)."""
     t0 = time.perf_counter()
     sa = scene.arrays()
     row = {"scene": name, "unique_triangles": int(sa.mesh_tri_start[-1]),
            "instanced_triangles": scene.triangle_count, "objects": scene.n_instances,
-           "threads": numba.get_num_threads(), "pack_s": round(time.perf_counter() - t0, 3)}
+           "threads": numba.get_num_threads(), "pack_s": round(time.perf_counter() - t0, 3),
+           "scene_s": None if scene_s is None else round(scene_s, 3)}
+    kept = KeptBVHs()
     t0, c0 = time.perf_counter(), time.process_time()
-    accs = {"numba": create_accelerator("BVH", sa)}
+    accs = {"numba": create_accelerator("BVH", sa, kept=kept)}
     row["numba_build_s"] = round(time.perf_counter() - t0, 3)
     row["numba_build_cpu_s"] = round(time.process_time() - c0, 3)
     row["numba_mesh_build_s"] = round(accs["numba"].stats["mesh_build_s"], 3)
+    # a new session's accelerator over the same meshes: the kept trees (hashing, the copy)
+    t0, c0 = time.perf_counter(), time.process_time()
+    again = create_accelerator("BVH", sa, kept=kept)
+    row["numba_kept_s"] = round(time.perf_counter() - t0, 3)
+    row["numba_kept_cpu_s"] = round(time.process_time() - c0, 3)
+    assert again.stats["meshes_built"] == 0
+    del again
     row["embree_build_s"] = row["embree_build_cpu_s"] = None
     rays = camera_rays(scene.camera)
     if scene.triangle_count <= EMBREE_MAX_TRIANGLES:
@@ -186,7 +202,10 @@ def run(sizes=SIZES, duplicates=DUPLICATES, repeats: int = 3, threads: int | Non
         if warm:
             _warm()
         for n in sizes:
-            rows.append(measure(f"dense {n:,}", big_scene(n), repeats))
+            dense = shapes.lumpy_sphere(n, name="dense")
+            t0 = time.perf_counter()
+            scene = big_scene(n, dense)
+            rows.append(measure(f"dense {n:,}", scene, repeats, time.perf_counter() - t0))
             if progress:
                 progress(rows[-1])
         if duplicates:
@@ -205,8 +224,10 @@ def _print_row(r: dict) -> None:
     emb_t = "n/a" if r["embree_mrays"] is None else f"{r['embree_mrays']:.2f}"
     m = r["bytes_per_triangle"]
     emb_c = "n/a" if r["embree_build_cpu_s"] is None else f"{r['embree_build_cpu_s']:.2f}"
+    scene_s = "n/a" if r["scene_s"] is None else f"{r['scene_s']:.2f}"
     print(f"{r['scene']:<20}{r['unique_triangles']:>11,}{r['instanced_triangles']:>12,}"
-          f"{r['numba_build_s']:>9.2f}{emb_b:>9}{r['numba_build_cpu_s']:>9.2f}{emb_c:>9}"
+          f"{scene_s:>9}{r['pack_s']:>9.2f}{r['numba_build_s']:>9.2f}{emb_b:>9}"
+          f"{r['numba_build_cpu_s']:>9.2f}{emb_c:>9}{r['numba_kept_cpu_s']:>9.2f}"
           f"{r['numba_mrays']:>9.2f}{emb_t:>9}"
           f"{m['model']:>8.0f}{m['packed']:>8.0f}{m['bvh']:>8.0f}{m['total']:>8.0f}",
           flush=True)
@@ -230,8 +251,9 @@ def main(argv: list[str]) -> int:
         dup = None if args.duplicates == "0" else tuple(
             _count(x) for x in args.duplicates.lower().split("x"))
     if not args.json:
-        print(f"{'scene':<20}{'unique':>11}{'instanced':>12}{'build s':>9}{'embree':>9}"
-              f"{'cpu s':>9}{'embree':>9}{'Mray/s':>9}{'embree':>9}{'B/tri: model':>14}"
+        print(f"{'scene':<20}{'unique':>11}{'instanced':>12}{'scene s':>9}{'pack s':>9}"
+              f"{'build s':>9}{'embree':>9}"
+              f"{'cpu s':>9}{'embree':>9}{'kept':>9}{'Mray/s':>9}{'embree':>9}{'B/tri: model':>14}"
               f"{'packed':>8}{'bvh':>8}{'total':>8}")
     res = run(sizes, dup, args.repeats, args.threads,
               progress=None if args.json else _print_row)

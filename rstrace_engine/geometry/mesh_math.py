@@ -1,22 +1,56 @@
 """Per-mesh geometry the scene model needs: which triangles have an area, smooth vertex
-normals, the world box of a transformed object box (numpy, float64)."""
+normals, the world box of a transformed object box (float64; the area test a kernel)."""
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .. import tolerances as tol
+from ..cancel import Cancelled
+
+#: Triangles tested per kernel call by :func:`proper_triangles`: ``cancel`` is polled
+#: between chunks (a chunk takes a few milliseconds).
+PROPER_CHUNK = 1 << 18
 
 
-def proper_triangles(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
+def proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None) -> np.ndarray:
     """(m,) bool: the triangles of positive area (doubled area above
     ``DEGENERATE_AREA_REL`` times the longest edge squared); the others are dropped at scene
-    build, and a mesh with none is refused."""
-    v = np.asarray(verts, np.float64)[tris]
-    e0, e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], v[:, 2] - v[:, 1]
-    area2 = np.linalg.norm(np.cross(e0, e1), axis=1)
-    longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e0, e1, e2)]), axis=0)
-    return (area2 > tol.DEGENERATE_AREA_REL * longest) & (longest > 0)
+    build, and a mesh with none is refused.
+
+    ``tris`` must index ``verts`` (checked by the caller). One pass of a kernel over chunks
+    of :data:`PROPER_CHUNK` triangles, no temporaries; ``cancel`` (a ``() -> bool``) is
+    polled between chunks and raises :class:`~rstrace_engine.cancel.Cancelled`.
+    """
+    v = np.ascontiguousarray(verts, np.float64)
+    t = np.ascontiguousarray(tris, np.int32)
+    keep = np.empty(len(t), np.bool_)
+    for start in range(0, len(t), PROPER_CHUNK):
+        if cancel is not None and cancel():
+            raise Cancelled
+        _proper_kernel(v, t, start, min(start + PROPER_CHUNK, len(t)),
+                       tol.DEGENERATE_AREA_REL, keep)
+    return keep
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _proper_kernel(v, tris, start, stop, rel, keep):
+    """``keep[start:stop]`` of :func:`proper_triangles`: the same float64 operations, in
+    the same order, as ``|cross(b - a, c - a)| > rel * max(|b - a|^2, |c - a|^2,
+    |c - b|^2)`` with a longest edge above zero."""
+    for k in range(start, stop):
+        a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
+        e0x, e0y, e0z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e1x, e1y, e1z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        e2x, e2y, e2z = v[c, 0] - v[b, 0], v[c, 1] - v[b, 1], v[c, 2] - v[b, 2]
+        cx = e0y * e1z - e0z * e1y
+        cy = e0z * e1x - e0x * e1z
+        cz = e0x * e1y - e0y * e1x
+        area2 = np.sqrt(cx * cx + cy * cy + cz * cz)
+        longest = max(e0x * e0x + e0y * e0y + e0z * e0z, e1x * e1x + e1y * e1y + e1z * e1z,
+                      e2x * e2x + e2y * e2y + e2z * e2z)
+        keep[k] = area2 > rel * longest and longest > 0.0
 
 
 def transform_aabb(lo: np.ndarray, hi: np.ndarray, m: np.ndarray) -> np.ndarray:

@@ -305,13 +305,16 @@ class Scene:
         self.material_keys.free.append(material_id)
         self._arrays = None
 
-    def add_mesh(self, mesh: Mesh, key=None) -> int:
+    def add_mesh(self, mesh: Mesh, key=None, cancel=None) -> int:
         """Validate and store a mesh; degenerate triangles are dropped and counted.
 
-        Returns its id: the lowest tombstoned mesh slot, else a new one.
+        Returns its id: the lowest tombstoned mesh slot, else a new one. ``cancel`` (a
+        ``() -> bool``, e.g. a :class:`~rstrace_engine.cancel.CancelFlag`) is polled every
+        :data:`~.mesh_math.PROPER_CHUNK` triangles of the area test; when it turns True,
+        :class:`~rstrace_engine.cancel.Cancelled` is raised and the scene is unchanged.
         """
         self._check_footprint(mesh, None)
-        checked = self._checked_mesh(mesh)
+        checked = self._checked_mesh(mesh, cancel)
         self._mesh_bytes += _footprint(checked)
         key = self.mesh_keys.new_key(key, mesh.name, len(self.meshes))
         mid = self.mesh_keys.place(self.meshes, checked, key)
@@ -346,12 +349,13 @@ class Scene:
         self._arrays = None
         self._mesh_arrays = None
 
-    def set_mesh(self, mesh_id: int, mesh: Mesh) -> None:
-        """Replace mesh ``mesh_id``'s data; every object using it follows."""
+    def set_mesh(self, mesh_id: int, mesh: Mesh, cancel=None) -> None:
+        """Replace mesh ``mesh_id``'s data; every object using it follows (``cancel``: as
+        for :meth:`add_mesh`)."""
         if not self._live_mesh(mesh_id):
             raise SceneError(f"mesh '{mesh.name}': unknown mesh id {mesh_id}")
         self._check_footprint(mesh, mesh_id)
-        checked = self._checked_mesh(mesh)
+        checked = self._checked_mesh(mesh, cancel)
         self._mesh_bytes += _footprint(checked) - _footprint(self.meshes[mesh_id])
         self.meshes[mesh_id] = checked
         for i in self.instances:
@@ -372,7 +376,7 @@ class Scene:
             others -= _footprint(self.meshes[replaced])
         check_fits(mesh.name, m, v, others, self.memory_limit)
 
-    def _checked_mesh(self, mesh: Mesh) -> dict:
+    def _checked_mesh(self, mesh: Mesh, cancel=None) -> dict:
         n = mesh.name
         verts = _finite_array(n, "mesh", mesh.vertices, (3,))
         tris = np.asarray(mesh.triangles)
@@ -385,7 +389,7 @@ class Scene:
             raise SceneError(f"mesh '{n}': triangle index out of range [0, {len(verts)})")
         if np.max(np.abs(verts)) > tol.COORD_MAX:
             raise SceneError(f"mesh '{n}': vertex coordinates exceed {tol.COORD_MAX:g}")
-        tris = tris.astype(np.int32)
+        tris = np.array(tris, np.int32)  # a copy: the caller may change its array later
         m = len(tris)
         normals = uvs = slots = None
         if mesh.corner_normals is not None:
@@ -402,13 +406,15 @@ class Scene:
             if len(slots) != m or (m and slots.min() < 0):
                 raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
 
-        keep = proper_triangles(verts, tris)
+        keep = proper_triangles(verts, tris, cancel)
         dropped = int(m - np.count_nonzero(keep))
         if dropped:
             self.stats["degenerate_triangles"] += dropped
             self.warn(f"mesh '{n}': dropped {dropped} degenerate triangle(s)")
-        if not np.any(keep):
+        if dropped == m:
             raise SceneError(f"mesh '{n}': all {m} triangles are degenerate (zero area)")
+        if not dropped:  # (the usual case: no copy)
+            keep = slice(None)
         tris = tris[keep]
         if normals is None:
             if mesh.smooth:
@@ -554,27 +560,39 @@ class Scene:
 
     def _pack_meshes(self):
         """Every mesh concatenated; a tombstoned slot owns no vertices and no triangles
-        (``mesh_tri_start[k] == mesh_tri_start[k + 1]``)."""
+        (``mesh_tri_start[k] == mesh_tri_start[k + 1]``).
+
+        The meshes are then held once: each live mesh's vertices, corner normals, uvs and
+        slots become views of the concatenation (the same values: mesh data are replaced,
+        never mutated, so scenes sharing a mesh dict see no change); only its triangles,
+        whose indices are its own, stay a separate array.
+        """
         if self._mesh_arrays is None:
             live = [m for m in self.meshes if m is not None]
             if not live:
                 raise SceneError("scene has no meshes")
-            nv = [0 if m is None else len(m["verts"]) for m in self.meshes]
-            vstart = np.cumsum([0] + nv)
+            nv = np.cumsum([0] + [len(m["verts"]) for m in live])
+            nt = np.cumsum([0] + [len(m["tris"]) for m in live])
             tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
                                       for m in self.meshes]).astype(np.int32)
-            self._mesh_arrays = dict(
-                verts=np.ascontiguousarray(np.concatenate([m["verts"] for m in live])),
-                tris=np.ascontiguousarray(np.concatenate(
-                    [m["tris"] + np.int32(vs)
-                     for m, vs in zip(self.meshes, vstart[:-1], strict=True)
-                     if m is not None]).astype(np.int32)),
-                tri_normals=np.ascontiguousarray(np.concatenate([m["normals"] for m in live])),
-                tri_uvs=np.ascontiguousarray(np.concatenate([m["uvs"] for m in live])),
-                tri_slot=np.ascontiguousarray(np.concatenate([m["slots"] for m in live])),
-                mesh_tri_start=tstart,
-                mesh_gen=np.stack([_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3),
-            )
+            packed = dict(
+                verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
+                tri_normals=np.empty((nt[-1], 3, 3), np.float32),
+                tri_uvs=np.empty((nt[-1], 3, 2), np.float32),
+                tri_slot=np.empty(nt[-1], np.int32))
+            for k, m in enumerate(live):
+                v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+                packed["verts"][v] = m["verts"]
+                np.add(m["tris"], np.int32(nv[k]), out=packed["tris"][t])
+                packed["tri_normals"][t] = m["normals"]
+                packed["tri_uvs"][t] = m["uvs"]
+                packed["tri_slot"][t] = m["slots"]
+                m.update(verts=packed["verts"][v], normals=packed["tri_normals"][t],
+                         uvs=packed["tri_uvs"][t], slots=packed["tri_slot"][t])
+            packed["mesh_tri_start"] = tstart
+            packed["mesh_gen"] = np.stack(
+                [_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3)
+            self._mesh_arrays = packed
         return self._mesh_arrays
 
     def arrays(self) -> SceneArrays:

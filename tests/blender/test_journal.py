@@ -348,3 +348,29 @@ def test_a_render_stamps_its_reads_when_it_started(counted):
     _check("the next F12 checks it again", True, counted, reads=0)
     assert counted[n:] == [big.data.name]
     _check("then it is trusted", False, counted, reads=0)
+
+
+def test_a_new_session_over_unchanged_meshes_builds_no_mesh_bvh():
+    """The mesh BVHs outlive their session (``accelerators.KEPT``): after the session is
+    dropped (a render setting that restarts it, an error), the next F12 builds a new
+    session whose unchanged meshes take the kept trees, and renders what a render from
+    nothing renders."""
+    import addon
+    from rstrace_engine.accel.accelerators import KEPT
+
+    sc, _ = _scene()
+    KEPT.clear()
+    _f12()
+    state = addon.session.state_for(sc)
+    first = state.session.accel.stats
+    assert first["meshes_built"] > 0 and len(KEPT) == first["meshes_built"]
+    addon.sync.drop_session(state)
+    inc, stats = _f12()
+    assert stats["new_session"]
+    second = state.session.accel.stats
+    assert second["meshes_built"] == 0 and second["meshes_kept"] == first["meshes_built"]
+    KEPT.clear()
+    np.testing.assert_array_equal(inc, _fresh())
+    assert len(KEPT) > 0
+    addon.session.forget_all()  # a file load (load_pre) lets them go with the sessions
+    assert len(KEPT) == 0

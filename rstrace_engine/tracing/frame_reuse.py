@@ -137,6 +137,12 @@ class FrameReuse:
             report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
             return
         lr = self.light_records
+        if (lr is not None and lr.has_geometry
+                and not np.array_equal(old_sa.mesh_tri_start, new_sa.mesh_tri_start)):
+            # the kept nodes' triangle numbers would point at other triangles
+            lr.forget_geometry("the scene's triangles were renumbered (a mesh added, "
+                               "deleted or re-meshed): moved lights re-trace the pixels "
+                               "they touch until the next full frame")
         if lr is not None and lr.no_geometry is not None and fx.lights_moved:
             names = ", ".join(str(j) for j in sorted(fx.lights_moved))
             report.messages.append(f"light slot(s) {names} re-traced, not relit: "

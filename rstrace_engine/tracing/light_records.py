@@ -434,14 +434,21 @@ class LightRecords:
         if total <= self.cap:
             return
         if self.no_geometry is None:
-            self.no_geometry = self._message(
+            self.forget_geometry(self._message(
                 total, "moved or added lights re-trace the pixels they touch "
-                "(power and colour still relight)")
-            for q in parts:
-                q.drop_geometry()
+                "(power and colour still relight)"))
             total = sum(q.nbytes for q in parts)
         if total > self.cap:
             self._drop(total)
+
+    def forget_geometry(self, why: str) -> None:
+        """Drop what re-shading a light needs (power and colour still relight); ``why``
+        becomes :attr:`no_geometry`. Also when the nodes' triangle numbers go stale: a
+        mesh added, deleted or re-meshed renumbers the packed triangles after it."""
+        self.no_geometry = why
+        for q in self._parts():
+            q.surf = None
+            q.drop_geometry()
 
     def add(self, rays: np.ndarray, levels: list, nb: int) -> None:
         """A traced batch (the per-level dicts of :func:`~.whitted.trace`'s ``segments``

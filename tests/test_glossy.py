@@ -71,6 +71,62 @@ def test_white_furnace_rough_metal(roughness):
     assert np.abs(ball - 1.0).max() <= 0.16
 
 
+def _glass_albedo_dcos(co, alpha, eta, n=400):
+    """Independent estimate of the rough dielectric's albedo: microfacet normals drawn from
+    ``D cos_h`` (not the visible normals), weight ``|o.h| G2 / (cos_h cos_o)`` for the
+    reflected and the refracted direction alike (Walter et al. 2007, eq. 41)."""
+    u, p = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n)
+    a2 = alpha * alpha
+    ct = np.sqrt((1.0 - u) / (1.0 + (a2 - 1.0) * u))
+    st = np.sqrt(np.maximum(0.0, 1.0 - ct * ct))
+    h = np.stack([st * np.cos(2 * np.pi * p), st * np.sin(2 * np.pi * p), ct], -1)
+    o = np.array([math.sqrt(1.0 - co * co), 0.0, co])
+    ch = h @ o
+    keep = ch > 0.0
+    sin2t = eta * eta * (1.0 - ch * ch)
+    tir = sin2t >= 1.0
+    cost = np.sqrt(np.maximum(0.0, 1.0 - sin2t))
+    rs = (eta * ch - cost) / (eta * ch + cost)
+    rp = (ch - eta * cost) / (ch + eta * cost)
+    f = np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
+    lam = np.vectorize(lambda c: sh.ggx_lambda(abs(c), a2))
+    lo = sh.ggx_lambda(co, a2)
+    base = np.where(keep, ch / (ct * co), 0.0)
+    rz = 2.0 * ch * ct - co  # reflected cosine
+    t = -eta * o[None, None, :] + (eta * ch - cost)[..., None] * h  # refracted direction
+    tz = t[..., 2]
+    acc = np.where(keep & (rz > 0.0), f * base / (1.0 + lo + lam(rz)), 0.0)
+    acc += np.where(keep & ~tir & (tz < 0.0), (1.0 - f) * base / (1.0 + lo + lam(tz)), 0.0)
+    return acc.mean()
+
+
+@pytest.mark.parametrize("alpha", [0.04, 0.25, 1.0])
+@pytest.mark.parametrize("co", [0.95, 0.5, 0.2])
+@pytest.mark.parametrize("eta", [1.0 / 1.5, 1.5])
+def test_glass_albedo_quadrature(alpha, co, eta):
+    """The rough dielectric's single-scattering albedo E (whose inverse scales the glass
+    lobe, as Cycles' multiscatter GGX glass) agrees with an independent estimate (normals
+    drawn from D cos_h) within 3%: from outside (eta 1/1.5) and inside (1.5)."""
+    ref = _glass_albedo_dcos(co, alpha, eta)
+    e = sh.ggx_glass_albedo(co, alpha, eta)
+    assert 0.0 < e <= 1.0 + 1e-9
+    assert abs(e - ref) <= 0.03 * ref, (e, ref)
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.2, 0.5, 1.0])
+def test_white_furnace_rough_glass(roughness):
+    """A clear rough glass ball (IOR 1.5) in a white world, no lights: with the glass lobe
+    scaled by 1 / E (Cycles' multiscatter GGX glass) its rays carry back what they take,
+    so the ball nearly disappears. Measured (16 glossy samples, depth 8) mean 0.997 /
+    0.957 / 0.963 / 0.992 at roughness 0.05 / 0.2 / 0.5 / 1.0; single-scattering GGX
+    gave 0.997 / 0.953 / 0.766 / 0.333 (docs/glossy.md). Asserted within 5%."""
+    mat, _ = principled_material("clear", (1.0, 1.0, 1.0), roughness=roughness, ior=1.5,
+                                 transmission=1.0)
+    f = whitted.render(_ball(mat), RenderSettings(max_depth=8, glossy_samples=16))
+    ball = f.radiance[f.pixel_class > 0]
+    assert ball.size and abs(ball.mean() - 1.0) <= 0.05, ball.mean()
+
+
 def test_same_seed_same_image_other_seed_other_noise():
     sc = scenes.glossy(48, 36)
     a = whitted.render(sc, RenderSettings(glossy_samples=4, light_samples=2))

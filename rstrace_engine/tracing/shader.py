@@ -44,6 +44,8 @@ from .shading import (
     fresnel_dielectric,
     geometric_normal,
     ggx_albedo,
+    ggx_glass_albedo,
+    ggx_lobe,
     ggx_sample_normal,
     ggx_weight,
     mirror_dir,
@@ -110,6 +112,20 @@ def _brdf(principled, sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb
         return principled_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
                                eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel)
     return ward_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _glass_lobe(sx, sy, sz, lx, ly, lz, ox, oy, oz, alpha, eta, ke):
+    """The rough dielectric's reflection lobe (Cycles' GGX glass seen from the light's side)
+    for light direction ``l`` and view ``o``: ``F(l . h) D G2 / (4 cos_l cos_o) / E``
+    (``ke = 1 / E``, :func:`~.shading.ggx_glass_albedo`), to be tinted by the
+    transmission; 0 where ``eta`` is 1 (not a rough interface)."""
+    if eta == 1.0:
+        return 0.0
+    lobe, ch = ggx_lobe(sx, sy, sz, lx, ly, lz, ox, oy, oz, alpha)
+    if lobe <= 0.0:
+        return 0.0
+    return lobe * fresnel_dielectric(ch, eta) * ke
 
 
 @njit(cache=True, nogil=True)
@@ -332,7 +348,7 @@ def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
 @njit(cache=True, nogil=True)
 def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
                  off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s, metallic, mr,
-                 mg, mb, alpha, e_white, enter, c_o, c_d, c_w, c_ok):
+                 mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
     """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission
     ``t*``): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn from GGX's visible
     normals about the shading normal (the geometric one where the shading normal faces away
@@ -356,10 +372,6 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
     co = max(co, tol.GGX_COS_MIN)
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
     trans = tr > 0.0 or tg > 0.0 or tb > 0.0
-    eta = 1.0
-    if trans:
-        ior = sa.mat_ior[m]
-        eta = 1.0 / ior if enter else ior
     msr = msg = msb = 1.0
     if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
         e = max(e_white, tol.GGX_ALBEDO_MIN)
@@ -398,13 +410,13 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
         elif trans:
             ok, tx, ty, tz = refract(dx, dy, dz, hx, hy, hz, eta)
             if ok:
-                f = fresnel_dielectric(ch, eta)
+                f = fresnel_dielectric(ch, eta) * ke
                 ar += f * tr
                 ag += f * tg
                 ab += f * tb
                 ci = dot3(tx, ty, tz, nx, ny, nz)
                 if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
-                    q = (1.0 - f) * ggx_weight(co, ci, alpha) * inv
+                    q = (ke - f) * ggx_weight(co, ci, alpha) * inv
                     cr = w0 * tr * q
                     cg = w1 * tg * q
                     cb = w2 * tb * q
@@ -412,9 +424,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
                         _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
                              pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection at this microfacet
-                ar += tr
-                ag += tg
-                ab += tb
+                ar += tr * ke
+                ag += tg * ke
+                ab += tb * ke
         qx, qy, qz = reflect(dx, dy, dz, hx, hy, hz)
         ci = dot3(qx, qy, qz, nx, ny, nz)
         if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
@@ -527,6 +539,23 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
         ki = hinst[i]
+        tr = sa.mat_transmission[m, 0]
+        tg = sa.mat_transmission[m, 1]
+        tb = sa.mat_transmission[m, 2]
+        # a rough interface (Cycles' multiscatter GGX glass): its lobe, reflected and
+        # refracted, scaled by 1 / E, E its single-scattering albedo toward the viewer
+        eta = 1.0
+        ke = 1.0
+        eta_g = 1.0  # the rough interface's (its lights' highlight); 1: none
+        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+            ior = sa.mat_ior[m]
+            eta = 1.0 / ior if ENTER[i] else ior
+            if principled and alpha >= tol.GLOSSY_ALPHA_MIN and eta != 1.0:
+                cv = -dot3(dx, dy, dz, sx, sy, sz)
+                if cv <= 0.0:
+                    cv = -dot3(dx, dy, dz, gx, gy, gz)
+                ke = 1.0 / max(ggx_glass_albedo(cv, alpha, eta), tol.GGX_ALBEDO_MIN)
+                eta_g = eta
         for j in range(L):
             if not vis[i * L + j] or sa.light_ext[j]:
                 continue
@@ -552,6 +581,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr * vd,
                                dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
                                metallic * vg, mr, mg, mb, alpha, e_white, e_diel)
+            q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vg
+            fr += q * tr
+            fg += q * tg
+            fb += q * tb
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -597,6 +630,11 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                        dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
                                        eta_s, metallic * vg, mr, mg, mb, alpha, e_white,
                                        e_diel)
+                    q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
+                                    ke) * vg
+                    fr += q * tr
+                    fg += q * tg
+                    fb += q * tb
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e
@@ -633,14 +671,11 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         rr = sa.mat_mirror[m, 0]
         rg = sa.mat_mirror[m, 1]
         rb = sa.mat_mirror[m, 2]
-        tr = sa.mat_transmission[m, 0]
-        tg = sa.mat_transmission[m, 1]
-        tb = sa.mat_transmission[m, 2]
         off = spawn_offset(px, py, pz, ext)
         if glossy:
             _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
                          dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s,
-                         metallic, mr, mg, mb, alpha, e_white, ENTER[i], c_o, c_d, c_w, c_ok)
+                         metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
@@ -649,8 +684,6 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             rg *= fg
             rb *= fb
         if tr > 0.0 or tg > 0.0 or tb > 0.0:
-            ior = sa.mat_ior[m]
-            eta = 1.0 / ior if ENTER[i] else ior
             ok, tx, ty, tz, f = transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta)
             if ok:
                 rr += f * tr

@@ -14,7 +14,7 @@ add-on's ``__init__`` calls it first thing.
 * ``NUMBA_CACHE_DIR`` in the environment always wins.
 * Compiled kernels shipped in the extension (``kernel_cache/`` beside this file, written by
   ``scripts/build_extension.py`` for numba's portable ``generic`` CPU) are copied into that
-  cache on first use (``rstrace_engine.kernel_cache.seed``: only the kernels whose content
+  cache on first use (``rstrace_engine.shipped_kernels.seed``: only the kernels whose content
   key matches the installed sources, of this numba version), and this process then compiles
   and loads for the generic CPU. When they cannot be used (another platform, another numba,
   numba already initialised by another add-on) :func:`shipped_status` says why, and the
@@ -84,16 +84,16 @@ def _use_shipped(shipped: str, path: str) -> str:
     if not os.path.isdir(shipped):
         return "no compiled kernels ship with this build"
     try:
-        from rstrace_engine import kernel_cache
+        from rstrace_engine import shipped_kernels
 
-        manifest, why = kernel_cache.shipped_status(shipped)
+        manifest, why = shipped_kernels.shipped_status(shipped)
         stamp = json.dumps(manifest, sort_keys=True)
         _state["manifest_stamp"] = stamp
         if not why and host_kernels_ready(path, stamp):
             _state["target"] = "host"
             log.info("RSTrace: kernels compiled for this CPU (%s) are used", _host_cpu())
             return "kernels compiled for this CPU are used"
-        if not why and not kernel_cache.use_portable_target():
+        if not why and not shipped_kernels.use_portable_target():
             why = "numba was initialised by another add-on before RSTrace"
         if why:
             log.info("RSTrace: %s; kernels compile on first use", why)
@@ -106,7 +106,7 @@ def _use_shipped(shipped: str, path: str) -> str:
                     return ""
         except OSError:
             pass
-        _state["seeded"] = kernel_cache.seed(shipped, path)
+        _state["seeded"] = shipped_kernels.seed(shipped, path)
         with open(marker, "w") as f:
             f.write(stamp)
         return ""

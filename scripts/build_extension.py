@@ -174,21 +174,21 @@ def compile_kernels(cache: Path) -> dict:
 def pack_kernels(stage: Path, platform: str, cache: Path | None, why: str) -> dict:
     """``stage/kernel_cache``: the current entries of ``cache`` and the manifest."""
     sys.path.insert(0, str(ROOT))
-    from rstrace_engine import kernel_cache
+    from rstrace_engine import kernel_cache, shipped_kernels
 
     folder = stage / "kernel_cache"
     folder.mkdir()
     counts = {}
     if cache is not None:
-        counts = kernel_cache.seed(str(cache), str(folder))
+        counts = shipped_kernels.seed(str(cache), str(folder))
         for lock in folder.rglob(kernel_cache.LOCK_NAME):
             lock.unlink()
-    manifest = kernel_cache.build_manifest(platform, cache is not None, why)
+    manifest = shipped_kernels.build_manifest(platform, cache is not None, why)
     if cache is not None:
         manifest["cpu"] = "generic"
     manifest["kernels"] = counts.get("kernels", 0)
     manifest["signatures"] = counts.get("copied", 0)
-    (folder / kernel_cache.MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    (folder / shipped_kernels.MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
     if cache is None:
         (folder / "README.txt").write_text(
             f"No compiled kernels ship for {platform}: {why}.\nRSTrace compiles its kernels "

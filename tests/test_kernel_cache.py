@@ -467,8 +467,8 @@ SEEDER = textwrap.dedent('''
     import json, sys
     sys.path.insert(0, sys.argv[1])
     import tinypkg
-    from rstrace_engine import kernel_cache
-    print("RESULT " + json.dumps(kernel_cache.seed(sys.argv[2], sys.argv[3], "tinypkg")))
+    from rstrace_engine import shipped_kernels
+    print("RESULT " + json.dumps(shipped_kernels.seed(sys.argv[2], sys.argv[3], "tinypkg")))
 ''')
 
 
@@ -531,7 +531,7 @@ def test_numba_internals_we_rely_on(tmp_path):
     from numba.core import caching, config, event
     from numba.core.registry import cpu_target
 
-    from rstrace_engine import kernel_cache
+    from rstrace_engine import kernel_cache, shipped_kernels
 
     impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
     assert impl._locator_classes[0] is kernel_cache.ContentKeyedLocator
@@ -560,7 +560,7 @@ def test_numba_internals_we_rely_on(tmp_path):
     assert "_toplevel_target_context" in type(cpu_target).__dict__  # target_initialised
     codegen = cpu_target.target_context.codegen()
     magic = codegen.magic_tuple()
-    assert len(magic) == 3 and magic[1] == kernel_cache.cpu_name()
+    assert len(magic) == 3 and magic[1] == shipped_kernels.cpu_name()
     from rstrace_engine.accel import bvh
 
     d = bvh.trace_kernel

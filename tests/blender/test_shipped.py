@@ -46,12 +46,12 @@ def _check(shipped: Path, cache: Path) -> dict:
 
 
 def _manifest(folder: Path, **changes) -> Path:
-    from rstrace_engine import kernel_cache
+    from rstrace_engine import shipped_kernels
 
     folder.mkdir(parents=True, exist_ok=True)
-    m = kernel_cache.build_manifest("linux-x64", True)
+    m = shipped_kernels.build_manifest("linux-x64", True)
     m.update(cpu="generic", **changes)
-    (folder / kernel_cache.MANIFEST).write_text(json.dumps(m))
+    (folder / shipped_kernels.MANIFEST).write_text(json.dumps(m))
     return folder
 
 

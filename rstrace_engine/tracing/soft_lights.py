@@ -45,7 +45,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, SceneArrays
-from .shading import dot3, normalize3, spot_falloff
+from .shading import dot3, normalize3, onb, spot_falloff
 
 #: The ratio estimator (Heitz, Hill and McGuire 2018) for the diffuse part where a closed
 #: form exists: measured in docs/SOFT_LIGHT.md (a module switch for that measurement).
@@ -153,23 +153,13 @@ def node_seeds(root: np.ndarray, src: np.ndarray, path: np.ndarray) -> np.ndarra
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _basis(ax, ay, az):
-    """Two unit vectors completing unit ``a`` to an orthonormal basis (Duff et al. 2017)."""
-    sign = 1.0 if az >= 0.0 else -1.0
-    a = -1.0 / (sign + az)
-    b = ax * ay * a
-    return (1.0 + sign * ax * ax * a, sign * b, -sign * ax,
-            b, sign + ay * ay * a, -ay)
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _cone_dir(ax, ay, az, omc, u, v):
     """Direction uniform in the cone about unit ``a`` with ``1 - cos(half angle) = omc``."""
     t = u * omc
     ct = 1.0 - t
     st = math.sqrt(max(0.0, t * (2.0 - t)))
     phi = 2.0 * math.pi * v
-    tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
+    tx, ty, tz, bx, by, bz = onb(ax, ay, az)
     cp = st * math.cos(phi)
     sp = st * math.sin(phi)
     return (ax * ct + tx * cp + bx * sp, ay * ct + ty * cp + by * sp,
@@ -181,7 +171,7 @@ def _cosine_dir(nx, ny, nz, u, v):
     """Cosine-weighted direction about unit ``n``."""
     r = math.sqrt(u)
     phi = 2.0 * math.pi * v
-    tx, ty, tz, bx, by, bz = _basis(nx, ny, nz)
+    tx, ty, tz, bx, by, bz = onb(nx, ny, nz)
     x = r * math.cos(phi)
     y = r * math.sin(phi)
     z = math.sqrt(max(0.0, 1.0 - u))

@@ -7,6 +7,7 @@ onto :class:`rstrace_engine.frame.RenderSettings` through :func:`render_settings
 from __future__ import annotations
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 from rstrace_engine.frame import ACCELERATORS, INTERNAL_ACCELERATORS, MODES, RenderSettings
@@ -143,21 +144,28 @@ class RSTraceSettings(bpy.types.PropertyGroup):
                     "scene size)")
 
 
+def _typed(value: float) -> float:
+    """A float property's value as the decimal the user typed: Blender stores it in float32,
+    so 0.1 reads back as 0.10000000149; the shortest decimal that float32 rounds to the same
+    value is what was meant (and equals the engine's own default of 0.1)."""
+    return float(str(np.float32(value)))
+
+
 def render_settings(props: RSTraceSettings):
     """The scene's settings as a (validated) :class:`rstrace_engine.frame.RenderSettings`."""
     return RenderSettings(
-        mode=props.mode, epsilon=float(props.epsilon), max_depth=int(props.max_ray_depth),
+        mode=props.mode, epsilon=_typed(props.epsilon), max_depth=int(props.max_ray_depth),
         samples=int(props.samples), light_samples=int(props.light_samples),
         glossy_samples=int(props.glossy_samples),
         accelerator=props.accelerator,
-        depth_cap=int(props.depth_cap), memory_cap_mb=float(props.memory_cap),
+        depth_cap=int(props.depth_cap), memory_cap_mb=_typed(props.memory_cap),
         seed=int(props.seed), vf_directions=int(props.vf_directions),
-        vf_tiles=int(props.vf_tiles), ri_dist_thresh=float(props.ri_dist_thresh),
-        ri_ang_thresh=float(props.ri_ang_thresh), ri_depth=int(props.ri_depth),
-        ri_cache_mb=float(props.ri_cache_mb), ri_probe_angle=float(props.ri_probe_angle),
+        vf_tiles=int(props.vf_tiles), ri_dist_thresh=_typed(props.ri_dist_thresh),
+        ri_ang_thresh=_typed(props.ri_ang_thresh), ri_depth=int(props.ri_depth),
+        ri_cache_mb=_typed(props.ri_cache_mb), ri_probe_angle=_typed(props.ri_probe_angle),
         thickness_view=bool(props.thickness_view),
-        thickness_distance=float(props.thickness_distance),
-        relight_memory_mb=float(props.relight_memory),
+        thickness_distance=_typed(props.thickness_distance),
+        relight_memory_mb=_typed(props.relight_memory),
     ).validated()
 
 

@@ -39,6 +39,7 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_NAMES,
     CLASS_TRACED,
+    GLOSSY_SAMPLES_DEFAULT,
     LIGHT_SAMPLES_DEFAULT,
     Frame,
     RenderSettings,
@@ -48,7 +49,14 @@ from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
-from ..tracing.whitted import has_glossy, shade, shadow_rays, soft_direct, surfaces
+from ..tracing.whitted import (
+    has_glossy,
+    shade,
+    shadow_rays,
+    soft_direct,
+    surfaces,
+    trace,
+)
 from . import thickness as thick
 from .candidates import _QUERY, _TRACE, candidates, pick
 from .eligibility import eligible, subset
@@ -443,7 +451,8 @@ class RITreeRenderer:
     # -- shaded frames -------------------------------------------------------------------
 
     def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds=None,
-                    light_samples=LIGHT_SAMPLES_DEFAULT):
+                    light_samples=LIGHT_SAMPLES_DEFAULT,
+                    glossy_samples=GLOSSY_SAMPLES_DEFAULT):
         """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
         primary instance (n,)).
 
@@ -453,9 +462,15 @@ class RITreeRenderer:
         (an exit ray skips the levels inside its object: :func:`.ray_tree.next_rays`).
         Lights with an extent and the world are sampled as the base tracer samples them
         (``seeds`` (n,) uint64 of the camera rays,
-        :func:`~..tracing.soft_lights.sample_seeds`, and each node's path)."""
+        :func:`~..tracing.soft_lights.sample_seeds`, and each node's path). With every
+        object traced (no tree: all fell back) the tile is the base tracer's own, glossy
+        samples included (``glossy_samples``: in a tile with trees, every rough bounce draws
+        one ray pair)."""
         view = False
         n = len(o)
+        if not len(self.ri[view]):
+            return self._base_tile(sa, o, d, t0, t1, max_depth, counters, seeds,
+                                   light_samples, glossy_samples)
         L = len(sa.light_kind)
         radiance = np.zeros((n, 3))
         pclass = np.full(n, CLASS_BACKGROUND, np.uint8)
@@ -522,6 +537,23 @@ class RITreeRenderer:
             t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst
 
+    def _base_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds, light_samples,
+                   glossy_samples):
+        """:meth:`_trace_tile` with no tree: the base tracer's :func:`trace`, its pixels
+        bit for bit."""
+        accel = self._sub[False][0]
+        hits = accel.closest_hit(o, d, t0, t1)
+        cc: dict = {}
+        rad, _ = trace(sa, accel, o, d, t0, t1, max_depth, primary=hits, counters=cc,
+                       seeds=seeds, light_samples=light_samples,
+                       glossy_samples=glossy_samples)
+        for key in ("primary", "secondary"):
+            counters["rays"] = counters.get("rays", 0) + cc.get(key, 0)
+        counters["shadow"] = counters.get("shadow", 0) + cc.get("shadow", 0)
+        inst = np.ascontiguousarray(hits.inst, np.int32)
+        cls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+        return rad, cls, inst
+
     def render(self, scene, settings: RenderSettings, accel, progress=None,
                cancel=None) -> Frame:
         """Render ``scene``'s camera in RI_TREE mode (or its thickness view)."""
@@ -560,7 +592,8 @@ class RITreeRenderer:
                 rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
                                                    int(settings.max_depth), counters,
                                                    sample_seeds(gids, int(settings.seed)),
-                                                   int(settings.light_samples))
+                                                   int(settings.light_samples),
+                                                   int(settings.glossy_samples))
             tile_cls = np.empty(len(pix), np.uint8)
             bad_total += accumulate(rad, pinst, spp, image[rows], tile_cls)
             # a pixel's class: that of its first sample that hit something

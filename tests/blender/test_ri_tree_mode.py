@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bpy
 import numpy as np
+import pytest
 
 from rstrace_engine.frame import CLASS_COLORS, CLASS_INTERPOLATED
 from rstrace_engine.image import to_display
@@ -108,7 +109,8 @@ def test_exit_ray_test_setting_reaches_the_trees(tmp_path, monkeypatch):
     monkeypatch.setattr(RITreeRenderer, "auto_fallback", False)
     sc = b.three_spheres_scene(48, 36)
     props = sc.rstrace
-    assert props.ri_probe_angle == RenderSettings().ri_probe_angle > 0.0
+    assert RenderSettings().ri_probe_angle > 0.0
+    assert props.ri_probe_angle == pytest.approx(RenderSettings().ri_probe_angle)  # float32
     assert properties.render_settings(props).ri_probe_angle == RenderSettings().ri_probe_angle
     sc.rstrace.samples = 1
     sc.rstrace.max_ray_depth = 2

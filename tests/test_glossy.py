@@ -307,20 +307,95 @@ def test_interpolant_mode_traces_rough_surfaces_within_epsilon(monkeypatch):
     # light tests -- so the "glossy" reason itself is checked on the samples below)
 
 
-def test_samples_hitting_rough_surfaces_are_flagged_glossy():
-    """The interpolants' samples: a line whose ray tree hits a rough surface is flagged
-    GLOSSY (its cells fail with the reason "glossy"); a line on the matte floor that sees
-    no rough surface is not."""
+def test_samples_hitting_rough_surfaces_below_their_root_are_flagged_glossy():
+    """The interpolants' samples: a line whose ray tree hits a rough surface below its root
+    (the rough metal ball in a mirror) is flagged GLOSSY (its cells fail with the reason
+    "glossy"); a line on the rough ball itself is not (its own light is the sample, its
+    glossy rays are traced per pixel: ``roots="own"`` spawns none there); a line on the
+    matte floor is not."""
     from rstrace_engine.interpolants.samples import GLOSSY, glossy_flags
 
     sc = _rough_unlit_world(16, 12)
+    mirror, _ = principled_material("mirror", (0.95, 0.95, 0.95), metallic=1.0,
+                                    roughness=0.0)
+    sc.add_instance(sc.add_mesh(shapes.plane(3.0)),
+                    shapes.transform((-0.8, 3.0, 1.0), 1.0, rotate_x_deg=90.0),
+                    [sc.add_material(mirror)], name="Mirror")
     sa = sc.arrays()
     accel = create_accelerator("BVH", sa)
-    o = np.array([[-0.8, -3.0, 0.7], [4.0, -3.0, 3.0]])
-    d = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])  # at the metal ball; at the floor
-    _, tree = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, record=True, glossy_samples=1)
-    flags = glossy_flags(sa, tree, 2)
-    assert flags[0] == GLOSSY and flags[1] == 0
+    # at the metal ball; at the floor; at the mirror, which shows the metal ball
+    o = np.array([[-0.8, -3.0, 0.7], [4.0, -3.0, 3.0], [-0.8, 1.5, 0.7]])
+    d = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    rad, tree = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, record=True, glossy_samples=1,
+                              roots="own")
+    assert np.count_nonzero(tree.node_ray == 0) == 1  # the rough root spawned nothing
+    assert np.count_nonzero(tree.node_ray == 2) > 1
+    assert list(glossy_flags(sa, tree, 3)) == [0, 0, GLOSSY]
+
+
+def test_rough_roots_own_light_plus_below_is_the_whole_radiance():
+    """``trace(roots="own")`` + ``trace(roots="below")`` is ``trace()``: the same rays,
+    seeds and weights (to float rounding), with a world that lights (its glossy part
+    carried by the glossy rays) and soft samples."""
+    from rstrace_engine.tracing.soft_lights import sample_seeds
+
+    sc = _rough_unlit_world(16, 12)
+    sc.set_world_color((0.15, 0.16, 0.2), lights=True)
+    sa = sc.arrays()
+    accel = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(3)
+    n = 400
+    o = np.tile([0.0, -6.0, 2.5], (n, 1))
+    d = np.column_stack([rng.uniform(-0.5, 0.5, n), np.ones(n), rng.uniform(-0.6, -0.1, n)])
+    seeds = sample_seeds(np.arange(n), 7)
+    kw = dict(seeds=seeds, light_samples=4, glossy_samples=4)
+    whole, _ = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, **kw)
+    own, _ = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, roots="own", **kw)
+    below, _ = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, roots="below", **kw)
+    np.testing.assert_allclose(own + below, whole, rtol=1e-12, atol=1e-12)
+    assert (np.abs(below).sum(axis=1) > 0).mean() > 0.05  # the balls: a glossy part
+    assert (np.abs(own - whole).sum(axis=1) > 0).any()
+
+
+def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch):
+    """INTERPOLANT with Blender's default plastic floor (Principled, roughness 0.5) under a
+    rough metal ball and rough glass: the floor is interpolated (its own light from cells,
+    its glossy rays per pixel), every frame -- the first and after moves of the balls into
+    and out of the floor's reflection -- within epsilon of the BASE frame of the edited
+    scene, every traced pixel BASE's."""
+    from rstrace_engine import image
+    from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT
+    from rstrace_engine.geometry.edits import ObjectTransform
+    from rstrace_engine.interpolants.render import InterpolantRenderer
+    from rstrace_engine.session import Session
+
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)  # cells always
+    eps = 0.05
+    kw = dict(max_depth=3, light_samples=4, glossy_samples=4)
+    settings = RenderSettings(mode="INTERPOLANT", epsilon=eps, **kw)
+    sc = _rough_unlit_world(160, 120)
+    plastic, _ = principled_material("floor", (0.6, 0.6, 0.55))  # Blender's default lobe
+    sc.set_material(sc.material_id("floor"), plastic)
+    sess = Session(sc, settings)
+    moves = [None, ("Metal", (-0.2, 0.9, 0.7), 0.7), ("Glass", (1.4, -0.6, 0.5), 0.5),
+             ("Metal", (-1.2, 0.2, 0.7), 0.7)]
+    for step, move in enumerate(moves):
+        if move is not None:
+            name, at, size = move
+            sess.apply([ObjectTransform(name, shapes.transform(at, size))])
+        frame = sess.render()
+        rough = frame.stats["rough_interpolated"]
+        interpolated = np.count_nonzero(frame.pixel_class == CLASS_INTERPOLATED)
+        base = Session(sess.scene.copy(), RenderSettings(**kw)).render()
+        m = image.compare(frame.radiance, base.radiance, eps)
+        print(f"step {step}: {interpolated} interpolated, {rough} on rough surfaces, "
+              f"max error {m['max_error']:.4f}")
+        assert m["max_error"] <= eps + 1e-6, (step, m)
+        traced = (frame.pixel_class != CLASS_INTERPOLATED) & (frame.pixel_class
+                                                              != CLASS_REBUILT)
+        np.testing.assert_allclose(frame.radiance[traced], base.radiance[traced], atol=1e-6)
+        if step == 0:
+            assert rough > 0.1 * frame.radiance.shape[0] * frame.radiance.shape[1], rough
 
 
 def test_ri_tree_mode_samples_rough_surfaces():

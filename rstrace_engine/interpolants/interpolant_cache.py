@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from functools import cached_property
+from functools import cached_property, partial
 from typing import NamedTuple
 
 import numpy as np
@@ -566,9 +566,11 @@ class InterpolantCache:
         firsts, uinv = unique_keys(gid.astype(np.int64), np.zeros(len(gid), np.int64))
         ug = gid[firsts]
         hits = geo.hits(ug)
-        # one glossy sample: a line with a rough surface in its tree fails (R_GLOSSY)
-        rad, tree = trace(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
-                          record=True, primary=hits, glossy_samples=1)
+        # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
+        # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
+        own = partial(trace, glossy_samples=1, roots="own")
+        rad, tree = own(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
+                        record=True, primary=hits)
         li = hits.inst
         k = (geo.keys.k1[ug] & 7) >> 1
         inst_box = (geo.keys.k1[ug] >> 3)
@@ -577,11 +579,11 @@ class InterpolantCache:
         node_cls = np.where(tree.node_tri >= 0,
                             self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
         rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
-                                              tree, rad, self.max_depth, trace)
+                                              tree, rad, self.max_depth, own)
         flag |= glossy_flags(self.sa, tree, len(ug))
         if self.qs.world_light:  # interpolated without the world's term (world_term.py)
             rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
-                                      dif, flag)
+                                      dif, flag, self.max_depth)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                                tree, node_cls.astype(np.int32), dif, texel, flag)
         self.frame_stats["samples_traced"] += len(ug)

@@ -47,6 +47,7 @@ from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
 from .bound import bound_notes
+from .glossy_term import glossy_term, rough_roots, rough_roots_possible
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
@@ -257,6 +258,33 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
     return False
 
 
+def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rad, counters, records,
+                 gids, cancel, settings) -> bool:
+    """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
+    bool, but the rows ``skip_rows`` traced whole) whose hit is on a rough surface
+    (:mod:`.glossy_term`); their segments go to ``records``. Returns whether ``cancel``
+    stopped it."""
+    sa, accel = cache.sa, cache.accel
+    rows = np.flatnonzero(interp)
+    rows = np.setdiff1d(rows, skip_rows)
+    rows = rows[rough_roots(sa, _take(hits, rows), int(settings.max_depth))]
+    counters["rough_interpolated"] = counters.get("rough_interpolated", 0) + len(rows)
+    n_tiles = max(1, round(len(rows) / TILE_RAYS)) if len(rows) else 0
+    for q in range(n_tiles):
+        part = rows[q * len(rows) // n_tiles:(q + 1) * len(rows) // n_tiles]
+        segs: list | None = [] if records is not None else None
+        with bound(accel, cancel):
+            rad[part] += glossy_term(sa, accel, o[part], d[part], tmin[part], tmax[part],
+                                     _take(hits, part), gids[part], int(settings.seed),
+                                     int(settings.max_depth), int(settings.light_samples),
+                                     int(settings.glossy_samples), counters, segs, cancel)
+        if cancel is not None and cancel():
+            return True
+        if records is not None:
+            records.add(gids[part], segs)
+    return False
+
+
 def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, reprojected,
                  k, n_todo, counters, w, h, spp, max_depth, cancelled, bad_total) -> dict:
     """The statistics of an INTERPOLANT frame."""
@@ -275,6 +303,8 @@ def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, repro
         / max(len(pclass), 1),
         traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
         secondary_rays=counters.get("secondary", 0),
+        # interpolated samples on rough surfaces, their glossy rays traced (glossy_term.py)
+        rough_interpolated=counters.get("rough_interpolated", 0),
         cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
         samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
         cell_outcomes=dict(fs.get("reasons", {})),
@@ -370,7 +400,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # while the world lights, an interpolated pixel traces the world's term at its own hit
     # (world_term.py): it needs the hit, which a reprojected ray does not find
     world = world_lights(sa)
-    view = cache.view if pixels is None and not world else None
+    # so does one on a rough surface, its glossy rays (glossy_term.py)
+    rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
+    view = cache.view if pixels is None and not world and not rough_on else None
     cache.view = None
     t_world = 0.0
     here = None
@@ -469,6 +501,10 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 cancelled = _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad,
                                         int(settings.max_depth), counters, records, gids,
                                         cancel, settings)
+                if rough_on and not cancelled:  # rough surfaces' glossy rays, per pixel
+                    skip_rows = probe.get("idx", np.zeros(0, np.int64))
+                    cancelled = _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits,
+                                             rad, counters, records, gids, cancel, settings)
             t_trace += time.perf_counter() - tt
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))

@@ -341,12 +341,15 @@ def _glossy_nodes(sa, node_inst, node_tri, out):
 
 
 def glossy_flags(sa, tree, n: int) -> np.ndarray:
-    """(n,) uint8 :data:`GLOSSY` where a line's ray tree hits a rough surface: its radiance
-    is a sampled estimate (glossy rays), not a function of the line that cells may
-    interpolate (docs/INTERPOLANTS.md, "Rough surfaces")."""
+    """(n,) uint8 :data:`GLOSSY` where a line's ray tree hits a rough surface below its
+    root: its radiance is a sampled estimate (glossy rays), not a function of the line that
+    cells may interpolate (docs/INTERPOLANTS.md, "Rough surfaces"). A rough root is not
+    flagged: its own light is the sample (traced with ``roots="own"``), its glossy rays are
+    traced per pixel (:mod:`.glossy_term`)."""
     g = np.empty(len(tree.node_inst), np.bool_)
     _glossy_nodes(sa, np.ascontiguousarray(tree.node_inst, np.int32),
                   np.ascontiguousarray(np.maximum(tree.node_tri, 0), np.int32), g)
+    g[:n] = False  # the roots (the first n rows)
     hit = np.bincount(tree.node_ray[g], minlength=n)[:n] > 0
     return np.where(hit, GLOSSY, 0).astype(np.uint8)
 

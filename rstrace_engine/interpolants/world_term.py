@@ -26,13 +26,15 @@ from .samples import TEX_MISMATCH, textured_roots
 
 
 def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
-               seeds: np.ndarray, light_samples: int, counters: dict | None = None
-               ) -> np.ndarray:
+               seeds: np.ndarray, light_samples: int, counters: dict | None = None,
+               max_depth: int = 0) -> np.ndarray:
     """(n, 3) float64: the world's light term at the root hits ``hits`` of rays ``o, d``
     ((n, 3), bounds ``tmax`` (n,) or a scalar, as the tracer was given them) with input-ray
     seeds ``seeds`` (n,) uint64 (:func:`~..tracing.soft_lights.sample_seeds`) and
     ``light_samples`` per point: what :func:`~..tracing.whitted.trace` adds for the world
-    at the root, bit for bit. Misses get 0. ``counters["shadow"]`` counts its rays."""
+    at the root, bit for bit. Misses get 0. ``counters["shadow"]`` counts its rays. With
+    ``max_depth`` above 0 a rough root's glossy rays carry the world's glossy reflection and
+    its world samples light its diffuse part only, as in the tracer."""
     n = len(o)
     out = np.zeros((n, 3))
     if n == 0:
@@ -50,7 +52,8 @@ def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     soft, _, _ = soft_visibility(sa, surf, root, int(light_samples), none,
                                  _any_hit(accel), counters)
     vis = np.zeros(n * L, np.bool_)
-    _, _, (tv, tp) = shade(sa, hits, surf, vis, np.ones((n, 3)), False, soft, True)
+    _, _, (tv, tp) = shade(sa, hits, surf, vis, np.ones((n, 3)), max_depth > 0, soft, True,
+                           seeds=root)
     on = tp[:, L]
     out[on] = tv[on, L] * np.asarray(sa.world_light, np.float64)[None, :]
     return out
@@ -64,16 +67,18 @@ def _any_hit(accel):
 
 
 def without_world(sa, accel, o: np.ndarray, d: np.ndarray, hits: Hits, rad: np.ndarray,
-                  dif: np.ndarray, flag: np.ndarray):
+                  dif: np.ndarray, flag: np.ndarray, max_depth: int):
     """Samples' radiance without the world's term at their root: ``(R' (n, 3), flag
     (n,) uint8)``, for lines ``o, d`` traced by :func:`~..tracing.whitted.trace` with its
     default seeds and light samples from ``tmin 0, tmax 1`` with root ``hits`` (the
-    interpolant builder's call). ``rad``, ``dif``, ``flag``: :func:`.samples.texture_split`'s.
+    interpolant builder's call, to ``max_depth``). ``rad``, ``dif``, ``flag``:
+    :func:`.samples.texture_split`'s.
     A textured root is flagged :data:`~.samples.TEX_MISMATCH` (its cell fails): the world's
     term there is affine in the texel, but the split's extra traces draw other samples."""
     n = len(rad)
     w = world_term(sa, accel, o, d, 1.0, hits,
-                   sample_seeds(np.arange(n, dtype=np.int64), 0), LIGHT_SAMPLES_DEFAULT)
+                   sample_seeds(np.arange(n, dtype=np.int64), 0), LIGHT_SAMPLES_DEFAULT,
+                   max_depth=max_depth)
     flag = flag.copy()
     flag[np.any(dif != 0.0, axis=1)] |= TEX_MISMATCH
     tex_root = np.zeros(n, np.bool_)

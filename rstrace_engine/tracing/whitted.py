@@ -399,7 +399,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
           light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False,
-          glossy_samples: int = GLOSSY_SAMPLES_DEFAULT):
+          glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, roots: str = "all"):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -427,6 +427,13 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     (:func:`_light_terms`, for :mod:`.light_records`). glossy_samples : rays a path draws
     at its first rough reflection or refraction (deeper ones draw one; docs/glossy.md),
     seeded like the soft lights' samples.
+    roots : which part of the radiance: ``"all"``; ``"own"``, a root on a rough surface
+    spawns no rays (the root's own light, and what its mirror and refraction rays bring
+    where it is not rough: the part radiance interpolants hold); ``"below"``, the roots'
+    own light (emission, direct and world light) left out and their shadow rays not
+    traced (what the rays they spawn bring: the rest, traced per pixel,
+    :mod:`~..interpolants.glossy_term`). ``"own"`` plus ``"below"`` of a rough root is
+    ``"all"``: the same rays, seeds and weights.
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -434,6 +441,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     max_depth = int(max_depth)
     if max_depth < 0:
         raise ValueError(f"trace: max_depth {max_depth} < 0")
+    if roots not in ("all", "own", "below"):
+        raise ValueError(f"trace: roots {roots!r} is not 'all', 'own' or 'below'")
+    if roots == "below" and record:
+        raise ValueError("trace: no ray trees of the part below the roots")
     L = len(sa.light_kind)
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
@@ -458,14 +469,18 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             hits = _as_hits(accel.closest_hit(front.o, front.d, front.t0, front.t1))
         _count(counters, "primary" if level == 0 else "secondary", nb)
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
-        vis, occ, traced = _visibility(sa, accel, surf, record, counters)
+        own = level > 0 or roots != "below"  # the roots' own light is wanted
+        if own:
+            vis, occ, traced = _visibility(sa, accel, surf, record, counters)
+        else:
+            vis, occ, traced = np.zeros(nb * L, np.bool_), None, False
         soft = None
         nseeds = None
         if need_seeds:
             nseeds = node_seeds(root, front.src, front.path)
             if glossy_on and level > 0:
                 nseeds ^= front.tag
-        if soft_on:
+        if soft_on and own:
             soft = soft_direct(sa, surf, nseeds, int(light_samples), vis,
                                _occluded_by(sa, accel), counters, occ)
             traced = traced or len(soft.w) > 0
@@ -475,7 +490,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         shaded = _shade_level(sa, hits, surf, vis, front.weight, spawn, soft, terms, nseeds,
                               front.fresh, int(glossy_samples))
         contrib, kids = shaded[0], shaded[1]
-        scatter_add(radiance, front.src, contrib)
+        if own:
+            scatter_add(radiance, front.src, contrib)
+        if level == 0 and roots == "own" and glossy_on:
+            _drop_rough_roots(kids, shaded[-1])
         if segments is not None:
             segments.append(_segments(front, hits, surf, vis, L))
             if soft_on:  # the world's rays, for the pixel records to regenerate
@@ -491,6 +509,13 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         front = _next_front(front, kids, rows, shaded[-1], nseeds)
         n_nodes += nb
     return radiance, (_ray_tree(levels, L) if record else None)
+
+
+def _drop_rough_roots(kids: Spawned, plan: _Plan) -> None:
+    """The rays spawned by rough root points dropped (``trace(roots="own")``)."""
+    if plan.gstart is None:
+        return
+    kids.ok[np.repeat(plan.glossy, 2 * np.diff(plan.gstart))] = False
 
 
 def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndarray,

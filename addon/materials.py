@@ -352,6 +352,10 @@ class MaterialReader:
         UV Map node (its map is checked per mesh by the export: ``uv_maps``), through any
         chain of Mapping nodes (Point, Texture, Vector: affine, composed here). Anything
         else is reported naming the nodes, and the render UV map is used."""
+        def render_uv(what: str) -> tuple[int, tuple]:
+            self.notes.warn(f"{what}: the render UV map is used", name)
+            return 0, TEX_MAP_IDENTITY
+
         affine = np.eye(4)
         sock = node.inputs["Vector"]
         mapped = False
@@ -361,37 +365,30 @@ class MaterialReader:
                 break
             step = _mapping_affine(vec)
             if step is None:
-                self.notes.warn(f"Mapping nodes of type '{vec.vector_type.title()}' or with "
-                                f"linked inputs are not supported (node '{vec.name}' into "
-                                f"Image Texture '{node.name}'): the render UV map is used",
-                                name)
-                return 0, TEX_MAP_IDENTITY
+                return render_uv(f"Mapping nodes of type '{vec.vector_type.title()}' or with "
+                                 f"linked inputs are not supported (node '{vec.name}' into "
+                                 f"Image Texture '{node.name}')")
             affine = affine @ step
             sock = vec.inputs["Vector"]
             mapped = True
         flag = 0
         if vec is None:
             if mapped:  # a Mapping node's own (unlinked) Vector
-                self.notes.warn(f"a Mapping node with nothing linked into its Vector is not "
-                                f"supported (Image Texture '{node.name}'): the render UV map "
-                                f"is used", name)
-                return 0, TEX_MAP_IDENTITY
+                return render_uv(f"a Mapping node with nothing linked into its Vector is "
+                                 f"not supported (Image Texture '{node.name}')")
         elif vec.bl_idname == "ShaderNodeTexCoord":
             if vec.from_instancer:
-                self.notes.warn(f"texture coordinates from the instancer are not supported "
-                                f"(node '{vec.name}'): the render UV map is used", name)
-                return 0, TEX_MAP_IDENTITY
+                return render_uv(f"texture coordinates from the instancer are not supported "
+                                 f"(node '{vec.name}')")
             if out.name == "Object" and vec.object is not None:
-                self.notes.warn(f"Object texture coordinates in another object's space are "
-                                f"not supported (node '{vec.name}' names '{vec.object.name}'"
-                                f"): the render UV map is used", name)
-                return 0, TEX_MAP_IDENTITY
+                return render_uv(f"Object texture coordinates in another object's space are "
+                                 f"not supported (node '{vec.name}' names "
+                                 f"'{vec.object.name}')")
             flag = {"UV": 0, "Object": TEX_OBJECT, "Generated": TEX_GENERATED}.get(out.name)
             if flag is None:
-                self.notes.warn(f"texture coordinates from the Texture Coordinate node's "
-                                f"'{out.name}' output are not supported (Image Texture "
-                                f"'{node.name}'): the render UV map is used", name)
-                return 0, TEX_MAP_IDENTITY
+                return render_uv(f"texture coordinates from the Texture Coordinate node's "
+                                 f"'{out.name}' output are not supported (Image Texture "
+                                 f"'{node.name}')")
         elif vec.bl_idname == "ShaderNodeUVMap":
             if vec.from_instancer:
                 self.notes.warn(f"texture coordinates from the instancer are not supported "
@@ -399,10 +396,9 @@ class MaterialReader:
             if vec.uv_map:
                 self.uv_maps.add(vec.uv_map)
         else:
-            self.notes.warn(f"texture coordinates from '{vec.bl_label}' nodes are not "
-                            f"supported (node '{vec.name}' into Image Texture '{node.name}'"
-                            f"): the render UV map is used", name)
-            return 0, TEX_MAP_IDENTITY
+            return render_uv(f"texture coordinates from '{vec.bl_label}' nodes are not "
+                             f"supported (node '{vec.name}' into Image Texture "
+                             f"'{node.name}')")
         return flag, tuple(tuple(float(x) for x in row) for row in affine[:2])
 
     def _image(self, name: str, node) -> tuple | None:

@@ -362,10 +362,14 @@ def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch)
     rough metal ball and rough glass: the floor is interpolated (its own light from cells,
     its glossy rays per pixel), every frame -- the first and after moves of the balls into
     and out of the floor's reflection -- within epsilon of the BASE frame of the edited
-    scene, every traced pixel BASE's."""
+    scene, every traced pixel BASE's; then the light's power, the light moved, the floor's
+    roughness changed."""
+    from dataclasses import replace
+
     from rstrace_engine import image
     from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT
-    from rstrace_engine.geometry.edits import ObjectTransform
+    from rstrace_engine.geometry.edits import LightSet, MaterialSet, ObjectTransform
+    from rstrace_engine.geometry.scene import Light
     from rstrace_engine.interpolants.render import InterpolantRenderer
     from rstrace_engine.session import Session
 
@@ -377,10 +381,23 @@ def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch)
     plastic, _ = principled_material("floor", (0.6, 0.6, 0.55))  # Blender's default lobe
     sc.set_material(sc.material_id("floor"), plastic)
     sess = Session(sc, settings)
+    key = Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0))
     moves = [None, ("Metal", (-0.2, 0.9, 0.7), 0.7), ("Glass", (1.4, -0.6, 0.5), 0.5),
-             ("Metal", (-1.2, 0.2, 0.7), 0.7)]
+             ("Metal", (-1.2, 0.2, 0.7), 0.7), ("Key", 2.0), ("Key", (-2.0, -3.0, 4.0)),
+             ("floor", 0.2)]
     for step, move in enumerate(moves):
-        if move is not None:
+        if move is None:
+            pass
+        elif move[0] == "Key" and isinstance(move[1], float):  # the light's power
+            key = replace(key, power=key.power * move[1])
+            sess.apply([LightSet("Key", key)])
+        elif move[0] == "Key":  # moved
+            key = replace(key, position=move[1])
+            sess.apply([LightSet("Key", key)])
+        elif move[0] == "floor":  # rougher or smoother
+            mat, _ = principled_material("floor", (0.6, 0.6, 0.55), roughness=move[1])
+            sess.apply([MaterialSet("floor", mat)])
+        else:
             name, at, size = move
             sess.apply([ObjectTransform(name, shapes.transform(at, size))])
         frame = sess.render()

@@ -15,6 +15,11 @@ follow mirrors, so it does less work than our Whitted frame; the ratio (ours / M
 render times without the acceleration-structure builds, which are reported apart) is
 therefore conservative for us.
 ``--json`` prints ``{"frames": [{...}, ...]}``.
+
+``--scenes rough_materials`` (issue 24) adds the rough-materials row: rstrace at its default
+settings against Mitsuba 3 at equal time, each one's error against a converged Mitsuba
+reference (``--ref-spp``), and rstrace's converged frame (``--ref-samples``) against it, the
+models' bias (:mod:`.frame_rough`; docs/bench-frame.md).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene
 from ..tracing.whitted import render
+from .frame_rough import ROUGH, run_rough
 
 
 def world_triangles(scene: Scene):
@@ -61,8 +67,21 @@ def world_triangles(scene: Scene):
             for k, v in groups.items()}
 
 
-def mitsuba_scene_dict(scene: Scene, mi, width: int, height: int) -> dict:
-    """The Mitsuba 3 scene dict for ``scene`` (see the module docstring for the mapping)."""
+def _plain_bsdf(sa, mid: int) -> dict:
+    """The direct integrator's material: a perfect conductor where the mirror dominates,
+    else Lambertian."""
+    mirror = sa.mat_mirror[mid]
+    if mirror.max() > sa.mat_diffuse[mid].max():
+        return {"type": "conductor", "material": "none",
+                "specular_reflectance": {"type": "rgb", "value": mirror.tolist()}}
+    return {"type": "diffuse",
+            "reflectance": {"type": "rgb", "value": sa.mat_diffuse[mid].tolist()}}
+
+
+def mitsuba_scene_dict(scene: Scene, mi, width: int, height: int, bsdf=None,
+                       spp: int = 1) -> dict:
+    """The Mitsuba 3 scene dict for ``scene`` (see the module docstring for the mapping).
+    ``bsdf(material_id) -> dict`` maps materials (default: :func:`_plain_bsdf`)."""
     sa = scene.arrays()
     cam = scene.camera
     m = np.asarray(cam.matrix, np.float64)
@@ -83,7 +102,7 @@ def mitsuba_scene_dict(scene: Scene, mi, width: int, height: int) -> dict:
             "near_clip": float(cam.clip_start), "far_clip": float(cam.clip_end),
             "to_world": T().look_at(origin=eye.tolist(), target=(eye + fwd).tolist(),
                                     up=up.tolist()),
-            "sampler": {"type": "independent", "sample_count": 1},
+            "sampler": {"type": "independent", "sample_count": int(spp)},
             "film": {"type": "hdrfilm", "width": width, "height": height,
                      "rfilter": {"type": "box"}, "pixel_format": "rgb"},
         },
@@ -97,14 +116,7 @@ def mitsuba_scene_dict(scene: Scene, mi, width: int, height: int) -> dict:
         params["vertex_normals"] = nrm.astype(np.float32).ravel()
         params["faces"] = np.arange(nv, dtype=np.uint32)
         params.update()
-        mirror = sa.mat_mirror[mid]
-        if mirror.max() > sa.mat_diffuse[mid].max():
-            bsdf = {"type": "conductor", "material": "none",
-                    "specular_reflectance": {"type": "rgb", "value": mirror.tolist()}}
-        else:
-            bsdf = {"type": "diffuse",
-                    "reflectance": {"type": "rgb", "value": sa.mat_diffuse[mid].tolist()}}
-        mesh.set_bsdf(mi.load_dict(bsdf))
+        mesh.set_bsdf(mi.load_dict(_plain_bsdf(sa, mid) if bsdf is None else bsdf(mid)))
         d[f"mesh{mid}"] = mesh
     for j in range(len(sa.light_kind)):
         rgb = {"type": "rgb", "value": sa.light_intensity[j].tolist()}
@@ -145,9 +157,17 @@ def run_mitsuba(scene: Scene, width: int, height: int):
 
 
 def run(scene_names, width=640, height=480, depth=5, accelerator="BVH", mitsuba=True,
-        out: Path | None = None) -> dict:
-    """Measure each scene; returns ``{"frames": [...]}``."""
+        out: Path | None = None, ref_spp: int = 4096, ref_samples: int = 64) -> dict:
+    """Measure each scene; returns ``{"frames": [...]}``. ``rough_materials`` is measured by
+    :func:`.frame_rough.run_rough` (``ref_spp``, ``ref_samples``: its references)."""
     frames = []
+    if ROUGH in scene_names:
+        frames.append(run_rough(width, height, depth, accelerator, ref_spp=ref_spp,
+                                ref_samples=ref_samples if mitsuba else 0, out=out,
+                                mitsuba=mitsuba))
+        scene_names = [n for n in scene_names if n != ROUGH]
+        if not scene_names:
+            return {"frames": frames}
     settings = RenderSettings(max_depth=depth, accelerator=accelerator)
     # warm-up on a different, tiny scene: compiles (or loads) every kernel without putting
     # the benchmark scenes' meshes into the accelerator's per-mesh cache
@@ -181,6 +201,29 @@ def run(scene_names, width=640, height=480, depth=5, accelerator="BVH", mitsuba=
     return {"frames": frames}
 
 
+def rough_lines(r: dict) -> str:
+    """The ``rough_materials`` row as text."""
+    lines = [f"{r['scene']:>14} {r['width']}x{r['height']} depth {r['depth']}, "
+             f"{r['samples']} spp, {r['glossy_samples']} glossy, {r['light_samples']} light "
+             f"samples: frame {r['time_s']:.2f} s, {r['rays']:,} rays ({r['threads']} "
+             f"threads)"]
+    if "mitsuba_unavailable" in r:
+        return lines[0] + f" | mitsuba: {r['mitsuba_unavailable']}"
+    lines[0] += (f" | mitsuba llvm_ad_rgb glossy_whitted: {r['mitsuba_spp']} spp in "
+                 f"{r['mitsuba_s']:.2f} s ({r['mitsuba_threads']} threads); reference "
+                 f"{r['ref_spp']} spp ({r['ref_s']:.1f} s)")
+    for key, label in (("rstrace_error", "rstrace, equal time"),
+                       ("mitsuba_error", "mitsuba, equal time"),
+                       ("bias_error", f"rstrace {r.get('bias_samples')} spp (bias)"),
+                       ("rstrace_noise", "rstrace vs its own")):
+        if key in r:
+            e = r[key]
+            lines.append(f"{'':>16}{label:<24} rel {e['rel_mean']:.4f}  rmse {e['rmse']:.4f}"
+                         f"  psnr {e['psnr']:.2f} dB  blocks p50 {e['block_p50']:.4f} p98 "
+                         f"{e['block_p98']:.4f} max {e['block_max']:.4f}")
+    return "\n".join(lines)
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m rstrace_engine.bench frame",
                                 description=__doc__.split("\n")[0])
@@ -192,13 +235,21 @@ def main(argv: list[str]) -> int:
     p.add_argument("--accelerator", default="BVH")
     p.add_argument("--no-mitsuba", action="store_true")
     p.add_argument("--out", type=Path, default=None, help="write both images as PNG here")
+    p.add_argument("--ref-spp", type=int, default=4096,
+                   help=f"{ROUGH}: samples per pixel of Mitsuba's converged reference")
+    p.add_argument("--ref-samples", type=int, default=64,
+                   help=f"{ROUGH}: pixel samples of rstrace's converged frame (the models' "
+                        f"bias; 0: none)")
     a = p.parse_args(argv)
     res = run([s for s in a.scenes.split(",") if s], a.width, a.height, a.depth,
-              a.accelerator, not a.no_mitsuba, a.out)
+              a.accelerator, not a.no_mitsuba, a.out, a.ref_spp, a.ref_samples)
     if a.json:
         print(json.dumps(res))
         return 0
     for r in res["frames"]:
+        if r["scene"] == ROUGH:
+            print(rough_lines(r))
+            continue
         line = (f"{r['scene']:>14} {r['width']}x{r['height']} depth {r['depth']}: "
                 f"{r['triangles']:,} tris, build {r['build_s']:.2f} s, frame "
                 f"{r['time_s']:.2f} s, {r['rays']:,} rays, {r['mrays_per_s']:.2f} Mrays/s")

@@ -49,10 +49,11 @@ import numpy as np
 from .. import image, scenes
 from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
-from ..geometry.scene import LIGHT_POINT, Scene
+from ..geometry.scene import LIGHT_POINT, Material, Scene
 from ..tolerances import GLOSSY_ALPHA_MIN
 from ..tracing.shading import ggx_albedo
 from ..tracing.whitted import render
+from .mitsuba_scene import mitsuba_scene_dict
 
 #: the scene's name in ``bench frame --scenes``
 ROUGH = "rough_materials"
@@ -304,8 +305,6 @@ def mitsuba_bsdf(sa, mid: int, name: str = "") -> dict:
 def rough_scene_dict(scene: Scene, mi, width: int, height: int, depth: int, spp: int) -> dict:
     """The Mitsuba scene of ``scene`` for :class:`GlossyWhitted`: its triangles, BSDFs by
     :func:`mitsuba_bsdf`, point lights only."""
-    from .frame import mitsuba_scene_dict
-
     sa = scene.arrays()
     if np.any(sa.light_kind != LIGHT_POINT):
         raise ValueError("the rough-materials comparison takes point lights only")
@@ -326,34 +325,55 @@ def _luminance(img: np.ndarray) -> np.ndarray:
     return img[..., 0] * 0.2126 + img[..., 1] * 0.7152 + img[..., 2] * 0.0722
 
 
-def block_errors(img: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """Relative errors of the 8x8-block mean luminances of ``img`` against ``ref`` over the
-    blocks holding at least ``BLOCK_FLOOR`` of the reference's brightest block's light."""
-    def blocks(a):
-        lum = _luminance(a)
-        h, w = (lum.shape[0] // BLOCK) * BLOCK, (lum.shape[1] // BLOCK) * BLOCK
-        return lum[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK).mean(axis=(1, 3))
+def _blocks(a: np.ndarray) -> np.ndarray:
+    h, w = (a.shape[0] // BLOCK) * BLOCK, (a.shape[1] // BLOCK) * BLOCK
+    return a[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK).mean(axis=(1, 3))
 
-    o, c = blocks(img), blocks(ref)
+
+def block_errors(img: np.ndarray, ref: np.ndarray, skip: np.ndarray | None = None
+                 ) -> np.ndarray:
+    """Relative errors of the 8x8-block mean luminances of ``img`` against ``ref`` over the
+    blocks holding at least ``BLOCK_FLOOR`` of the reference's brightest block's light (and
+    none of the pixels ``skip``, (h, w) bool, marks)."""
+    o, c = _blocks(_luminance(img)), _blocks(_luminance(ref))
     keep = c > BLOCK_FLOOR * c.max()
+    if skip is not None:
+        keep &= _blocks(skip.astype(np.float64)) == 0.0
     return np.abs(o[keep] - c[keep]) / c[keep]
 
 
-def error_stats(img: np.ndarray, ref: np.ndarray) -> dict:
+def error_stats(img: np.ndarray, ref: np.ndarray, skip: np.ndarray | None = None) -> dict:
     """Error of a linear image against a converged linear reference: ``rel_mean`` (mean over
     pixels of ``|L - L_ref| / (L_ref + REL_EPS)`` on luminance), ``rmse`` (linear RGB),
     ``psnr`` and ``display_mean`` (display space, :func:`rstrace_engine.image.compare`) and
-    the 8x8-block relative errors' median, 98th percentile and largest."""
+    the 8x8-block relative errors' median, 98th percentile and largest. ``skip`` (h, w)
+    bool: leave out these pixels and the blocks holding any."""
     img = np.asarray(img, np.float64)
     ref = np.asarray(ref, np.float64)
-    la, lr = _luminance(img), _luminance(ref)
-    disp = image.compare(img, ref)
-    be = block_errors(img, ref)
+    keep = np.ones(img.shape[:2], bool) if skip is None else ~skip
+    la, lr = _luminance(img)[keep], _luminance(ref)[keep]
+    disp = image.compare(img[keep][None], ref[keep][None])
+    be = block_errors(img, ref, skip)
     return dict(rel_mean=float(np.mean(np.abs(la - lr) / (lr + REL_EPS))),
-                rmse=float(np.sqrt(np.mean((img - ref) ** 2))), psnr=disp["psnr"],
-                display_mean=disp["mean_error"], block_p50=float(np.percentile(be, 50)),
-                block_p98=float(np.percentile(be, 98)), block_max=float(be.max()),
-                blocks=int(be.size))
+                rmse=float(np.sqrt(np.mean((img[keep] - ref[keep]) ** 2))),
+                psnr=disp["psnr"], display_mean=disp["mean_error"],
+                block_p50=float(np.percentile(be, 50)), block_p98=float(np.percentile(be, 98)),
+                block_max=float(be.max()), blocks=int(be.size))
+
+
+def material_pixels(scene: Scene, material: str, settings: RenderSettings, accel
+                    ) -> np.ndarray:
+    """(h, w) bool: the pixels whose camera ray (the frame's jitter) sees ``material`` (a
+    copy of the scene with that material white-emissive, every other black, no world,
+    depth 0)."""
+    sc = scene.copy()
+    for mid, m in enumerate(sc.materials):
+        if m is not None:
+            sc.set_material(mid, Material(m.name, diffuse=(0.0,) * 3, emission=(
+                (1.0,) * 3 if m.name == material else (0.0,) * 3)))
+    sc.set_world_color((0.0, 0.0, 0.0), lights=False)
+    frame = render(sc, replace(settings, max_depth=0), accel=accel)
+    return frame.radiance.max(axis=-1) > 0.5
 
 
 def _mitsuba_render(mi, ms, spp: int, seed: int):
@@ -420,14 +440,18 @@ def run_rough(width: int = 160, height: int = 120, depth: int = 5, accelerator: 
     _mitsuba_render(mi, ms, 1, seed=3)  # compiles the kernels (not timed)
     img, spp, secs = mitsuba_equal_time(mi, ms, stats["time_s"])
     ref, ref_s = _mitsuba_render(mi, ms, ref_spp, seed=1)
+    glass = material_pixels(scene, "glass", st, acc)
     row.update(mitsuba_spp=spp, mitsuba_s=secs, ratio=stats["time_s"] / secs,
-               ref_spp=ref_spp, ref_s=ref_s,
+               ref_spp=ref_spp, ref_s=ref_s, glass_pixels=int(glass.sum()),
                rstrace_error=error_stats(frame.radiance, ref),
-               mitsuba_error=error_stats(img, ref))
+               mitsuba_error=error_stats(img, ref),
+               rstrace_error_no_glass=error_stats(frame.radiance, ref, glass),
+               mitsuba_error_no_glass=error_stats(img, ref, glass))
     if ref_samples > 0:
         conv = render(scene, replace(st, samples=ref_samples), accel=acc)
         row.update(bias_samples=ref_samples, bias_s=conv.stats["time_s"],
                    bias_error=error_stats(conv.radiance, ref),
+                   bias_error_no_glass=error_stats(conv.radiance, ref, glass),
                    rstrace_noise=error_stats(frame.radiance, conv.radiance))
     if out is not None:
         image.write_render_png(Path(out) / "rough_materials_mitsuba.png", img)

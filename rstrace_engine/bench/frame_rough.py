@@ -4,8 +4,9 @@ issue 24).
 The scene (:func:`rstrace_engine.scenes.rough_materials`) holds only what both renderers
 model alike: a Lambertian floor, a Principled rough metal (Mitsuba: ``roughconductor``,
 GGX, alpha = roughness^2, its colour as a constant Fresnel), a rough glass (Mitsuba:
-``roughdielectric``, GGX, the same IOR), a default Principled plastic (Mitsuba:
-``roughplastic``, GGX, the IOR of its F0), one point light (Mitsuba ``point`` with
+``roughdielectric``, GGX, the same IOR), a default Principled plastic (Mitsuba: rstrace's
+Principled layer written as a Mitsuba BSDF, ``principled_layer``: neither ``roughplastic``
+nor ``principled`` is that model), one point light (Mitsuba ``point`` with
 intensity = P / (4 pi) W/sr, what rstrace's point light of P W radiates) and a world seen
 as a background only. Mitsuba renders it with :class:`GlossyWhitted`, a Mitsuba integrator
 (written here, in Python, compiled by Mitsuba's LLVM back end) that computes what rstrace's
@@ -18,18 +19,18 @@ computes the same image.
 
 Known differences in the models (what the bias row measures, see :func:`run_rough`): rstrace's
 metal uses Schlick's curve to white at grazing angles (Mitsuba's ``none`` conductor a
-constant), rstrace's diffuse under the plastic's layer is scaled by one minus the layer's
-albedo toward the viewer (Mitsuba's ``roughplastic`` by the transmittances both ways and its
-internal reflections), rstrace's GGX carries Cycles' multiple-scattering factors (Mitsuba's is
+constant), rstrace's GGX carries Cycles' multiple-scattering factors (Mitsuba's is
 single scattering: at alpha 0.09 about 1%), and rstrace does not light a rough interface's far
 side (light refracted to the viewer through the glass: docs/glossy.md, "Not done").
 
 Equal time: rstrace renders the frame at its default settings (1 pixel sample, 16 glossy
 samples, depth 5), timed after a warm-up; Mitsuba then renders the same frame with the spp
-that takes that wall time (measured in the same run: a timed probe at a few spp, a linear
-fit, one more try). Both are compared with a converged Mitsuba reference (``ref_spp``
-samples per pixel), and rstrace's converged frame (``ref_samples`` pixel samples) with the
-same reference gives the models' bias, the floor under rstrace's error.
+that takes that wall time (measured in the same run: a render at 4 spp, then the spp
+rescaled by the time until within 10%, at most 3 more renders). Both are compared with a
+converged Mitsuba reference (``ref_spp`` samples per pixel), and rstrace's converged frame
+(``ref_samples`` pixel samples) with the same reference gives the models' bias, the floor
+under rstrace's error; every measure is also given without the pixels that see the glass
+ball (``*_no_glass``: the far-side light above).
 
 Mitsuba's ``llvm_ad_rgb`` variant needs an LLVM that compiles for this CPU: LLVM 14 and 15
 abort the process ("Cannot select: fminimum") on this project's machine, LLVM 22 works.

@@ -14,6 +14,9 @@
   world that lights: the studio set-up of product shots.
 * ``glass_horizon`` — a glass sphere, a glass torus and a chrome ball before a horizon (the
   RI-tree's exit rays, issue 22).
+* ``rough_materials`` — a rough metal, a rough glass and a default plastic sphere on a floor
+  under one point light, the world a background only: what ``bench frame`` renders with
+  Mitsuba 3 too (issue 24).
 """
 
 from __future__ import annotations
@@ -490,11 +493,46 @@ def glossy(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene
     return s
 
 
+def rough_materials(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene:
+    """Rough materials that Mitsuba 3 models the same way (``bench frame``, issue 24): a
+    rough metal sphere (Principled, metallic, a light gold whose Schlick curve stays near
+    its colour), a rough clear glass sphere (IOR 1.5) and a default plastic (Principled's
+    defaults: roughness 0.5, specular 0.5) beside a red box, on a Lambertian floor
+    (specular 0), under one point light; the world is a background only (it lights nothing).
+    So every pixel is direct light plus glossy and refracted bounces, no diffuse
+    interreflection. ``roughness``: the metal's and the glass's."""
+    s = Scene()
+
+    def principled(name, base, **kw):
+        mat, _ = principled_material(name, base, **kw)
+        return s.add_material(mat)
+
+    floor = principled("floor", (0.6, 0.6, 0.58), specular_level=0.0)
+    metal = principled("metal", (0.95, 0.85, 0.7), metallic=1.0, roughness=roughness)
+    glass = principled("glass", (1.0, 1.0, 1.0), roughness=roughness, transmission=1.0)
+    plastic = principled("plastic", (0.15, 0.3, 0.75))
+    red = principled("red", (0.75, 0.1, 0.08), specular_level=0.0)
+    s.add_instance(s.add_mesh(shapes.plane(12.0, name="ground")), np.eye(4), [floor],
+                   name="Floor")
+    sphere = s.add_mesh(shapes.icosphere(4, name="sphere"))
+    s.add_instance(sphere, shapes.transform((0.0, 0.3, 0.8), 0.8), [metal], name="Metal")
+    s.add_instance(sphere, shapes.transform((-2.0, 0.2, 0.6), 0.6), [plastic],
+                   name="Plastic")
+    s.add_instance(sphere, shapes.transform((1.9, -0.4, 0.6), 0.6), [glass], name="Glass")
+    s.add_instance(s.add_mesh(shapes.box((0.8, 0.8, 1.6), name="cube")),
+                   shapes.transform((-0.8, 2.3, 0.8), 1.0, 20.0), [red], name="RedBox")
+    s.add_light(Light("Key", "POINT", power=1000.0, position=(-3.0, -3.5, 5.0)))
+    s.set_world_color((0.12, 0.13, 0.16), lights=False)  # a background only
+    s.set_camera(_camera((0.0, -6.5, 2.6), (0.0, 0.4, 0.6), width, height, lens=40.0))
+    return s
+
+
 SCENES = {"three_spheres": three_spheres, "museum": museum, "museum_1999": museum_1999,
           "grid": grid, "tori": tori,
           "bezier_surface": bezier_surface, "random_volumes": random_volumes,
           "tomatoes": tomatoes, "museum_soft": museum_soft, "studio": studio,
-          "glass_horizon": glass_horizon, "glossy": glossy}
+          "glass_horizon": glass_horizon, "glossy": glossy,
+          "rough_materials": rough_materials}
 
 
 def build(name: str, width: int = 640, height: int = 480) -> Scene:

@@ -26,9 +26,11 @@ import textwrap
 import time
 from pathlib import Path
 
+from small_scene import SOURCE as SCENE_SOURCE  # (scripts/ is the script's sys.path[0])
+
 ROOT = Path(__file__).resolve().parents[1]
 
-SCRIPT = textwrap.dedent('''
+SCRIPT = SCENE_SOURCE + textwrap.dedent('''
     import json, os, resource, sys, time
 
     zip_path, repo, phase, width, height = (sys.argv[1], os.path.realpath(sys.argv[2]),
@@ -67,44 +69,7 @@ SCRIPT = textwrap.dedent('''
     out["numba_cpu"] = numba.config.CPU_NAME or "host"
     from rstrace_engine import kernel_cache
 
-    sc = bpy.context.scene
-    for ob in list(bpy.data.objects):
-        bpy.data.objects.remove(ob)
-    sc.render.engine = "RSTRACE"
-    sc.render.resolution_x, sc.render.resolution_y = width, height
-    sc.render.resolution_percentage = 100
-
-    def material(name, color, metallic=0.0, roughness=0.5):
-        m = bpy.data.materials.new(name)
-        bsdf = m.node_tree.nodes["Principled BSDF"]
-        bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-        bsdf.inputs["Metallic"].default_value = metallic
-        bsdf.inputs["Roughness"].default_value = roughness
-        return m
-
-    def add(ob, mat):
-        ob.data.materials.append(mat)
-        return ob
-
-    bpy.ops.mesh.primitive_plane_add(size=12.0)
-    add(bpy.context.object, material("Floor", (0.6, 0.6, 0.6)))
-    for name, x, mat in (("Red", -1.6, material("RedM", (0.8, 0.1, 0.1))),
-                         ("Mirror", 0.0, material("MirrorM", (0.9, 0.9, 0.9), 1.0, 0.0)),
-                         ("Blue", 1.6, material("BlueM", (0.1, 0.2, 0.8)))):
-        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.7, location=(x, 0.0, 0.7),
-                                             segments=32, ring_count=16)
-        bpy.context.object.name = name
-        add(bpy.context.object, mat)
-    light = bpy.data.lights.new("Lamp", "POINT")
-    light.energy = 1000.0
-    lo = bpy.data.objects.new("Lamp", light)
-    lo.location = (2.0, -3.0, 5.0)
-    sc.collection.objects.link(lo)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location = (0.0, -7.0, 3.0)
-    cam.rotation_euler = (1.2, 0.0, 0.0)
-    sc.collection.objects.link(cam)
-    sc.camera = cam
+    sc = build_small_scene(bpy, width, height)
 
     modes = ["BASE", "INTERPOLANT", "RI_TREE"] if phase == "first" else ["BASE"]
     renders = []

@@ -24,9 +24,11 @@ import tempfile
 import textwrap
 from pathlib import Path
 
+from small_scene import SOURCE as SCENE_SOURCE  # (scripts/ is the script's sys.path[0])
+
 ROOT = Path(__file__).resolve().parents[1]
 
-SCRIPT = textwrap.dedent('''
+SCRIPT = SCENE_SOURCE + textwrap.dedent('''
     import json, os, resource, sys, time
     t_start = time.perf_counter()
     sys.path.insert(0, os.path.realpath(sys.argv[1]))
@@ -42,39 +44,7 @@ SCRIPT = textwrap.dedent('''
     import addon
     addon.register()
     out["enable_s"], out["enable_cpu_s"] = time.perf_counter() - t0, cpu() - c0
-    sc = bpy.context.scene
-    for ob in list(bpy.data.objects):
-        bpy.data.objects.remove(ob)
-    sc.render.engine = "RSTRACE"
-    sc.render.resolution_x, sc.render.resolution_y = 96, 72
-    sc.render.resolution_percentage = 100
-
-    def material(name, color, metallic=0.0, roughness=0.5):
-        m = bpy.data.materials.new(name)
-        bsdf = m.node_tree.nodes["Principled BSDF"]
-        bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-        bsdf.inputs["Metallic"].default_value = metallic
-        bsdf.inputs["Roughness"].default_value = roughness
-        return m
-
-    bpy.ops.mesh.primitive_plane_add(size=12.0)
-    bpy.context.object.data.materials.append(material("Floor", (0.6, 0.6, 0.6)))
-    for name, x, mat in (("Red", -1.6, material("RedM", (0.8, 0.1, 0.1))),
-                         ("Mirror", 0.0, material("MirrorM", (0.9, 0.9, 0.9), 1.0, 0.0)),
-                         ("Blue", 1.6, material("BlueM", (0.1, 0.2, 0.8)))):
-        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.7, location=(x, 0.0, 0.7),
-                                             segments=32, ring_count=16)
-        bpy.context.object.name = name
-        bpy.context.object.data.materials.append(mat)
-    light = bpy.data.lights.new("Lamp", "POINT")
-    light.energy = 1000.0
-    lo = bpy.data.objects.new("Lamp", light)
-    lo.location = (2.0, -3.0, 5.0)
-    sc.collection.objects.link(lo)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location, cam.rotation_euler = (0.0, -7.0, 3.0), (1.2, 0.0, 0.0)
-    sc.collection.objects.link(cam)
-    sc.camera = cam
+    sc = build_small_scene(bpy, 96, 72)
     from rstrace_engine import kernel_cache
     sc.rstrace.mode = "BASE"
     since = kernel_cache.mark()

@@ -478,6 +478,18 @@ def glossy(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene
         for j in range(-3, 5):
             s.add_instance(tile, shapes.transform((i + 0.5, j + 0.5, 0.0)),
                            [light if (i + j) % 2 else dark], name=f"Tile{i}_{j}")
+    sphere = _rough_set(s, metal, plastic, glass, red)
+    s.add_instance(sphere, shapes.transform((1.3, 2.0, 0.5), 0.5), [green], name="Green")
+    s.add_light(Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0)))
+    s.add_light(Light("Bulb", "POINT", power=200.0, position=(3.0, -1.0, 2.5), radius=0.3))
+    s.set_world_color((0.15, 0.16, 0.2), lights=True)
+    s.set_camera(_camera((0.0, -6.5, 2.6), (0.0, 0.4, 0.6), width, height, lens=40.0))
+    return s
+
+
+def _rough_set(s: Scene, metal: int, plastic: int, glass: int, red: int) -> int:
+    """The metal, plastic and glass spheres and the red box of the rough scenes; returns
+    the sphere mesh."""
     sphere = s.add_mesh(shapes.icosphere(4, name="sphere"))
     s.add_instance(sphere, shapes.transform((0.0, 0.3, 0.8), 0.8), [metal], name="Metal")
     s.add_instance(sphere, shapes.transform((-2.0, 0.2, 0.6), 0.6), [plastic],
@@ -485,12 +497,7 @@ def glossy(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene
     s.add_instance(sphere, shapes.transform((1.9, -0.4, 0.6), 0.6), [glass], name="Glass")
     s.add_instance(s.add_mesh(shapes.box((0.8, 0.8, 1.6), name="cube")),
                    shapes.transform((-0.8, 2.3, 0.8), 1.0, 20.0), [red], name="RedBox")
-    s.add_instance(sphere, shapes.transform((1.3, 2.0, 0.5), 0.5), [green], name="Green")
-    s.add_light(Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0)))
-    s.add_light(Light("Bulb", "POINT", power=200.0, position=(3.0, -1.0, 2.5), radius=0.3))
-    s.set_world_color((0.15, 0.16, 0.2), lights=True)
-    s.set_camera(_camera((0.0, -6.5, 2.6), (0.0, 0.4, 0.6), width, height, lens=40.0))
-    return s
+    return sphere
 
 
 def rough_materials(width: int = 640, height: int = 480, roughness: float = 0.3) -> Scene:
@@ -514,13 +521,7 @@ def rough_materials(width: int = 640, height: int = 480, roughness: float = 0.3)
     red = principled("red", (0.75, 0.1, 0.08), specular_level=0.0)
     s.add_instance(s.add_mesh(shapes.plane(12.0, name="ground")), np.eye(4), [floor],
                    name="Floor")
-    sphere = s.add_mesh(shapes.icosphere(4, name="sphere"))
-    s.add_instance(sphere, shapes.transform((0.0, 0.3, 0.8), 0.8), [metal], name="Metal")
-    s.add_instance(sphere, shapes.transform((-2.0, 0.2, 0.6), 0.6), [plastic],
-                   name="Plastic")
-    s.add_instance(sphere, shapes.transform((1.9, -0.4, 0.6), 0.6), [glass], name="Glass")
-    s.add_instance(s.add_mesh(shapes.box((0.8, 0.8, 1.6), name="cube")),
-                   shapes.transform((-0.8, 2.3, 0.8), 1.0, 20.0), [red], name="RedBox")
+    _rough_set(s, metal, plastic, glass, red)
     s.add_light(Light("Key", "POINT", power=1000.0, position=(-3.0, -3.5, 5.0)))
     s.set_world_color((0.12, 0.13, 0.16), lights=False)  # a background only
     s.set_camera(_camera((0.0, -6.5, 2.6), (0.0, 0.4, 0.6), width, height, lens=40.0))

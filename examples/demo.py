@@ -107,8 +107,8 @@ def build_scene(bpy, width: int, height: int, samples: int, depth: int):
     # a background only (Diffuse and Glossy ray visibility off, in Cycles too): the world's
     # light would leave every interpolant cell traced and make every edit re-render each
     # surface it reaches (measured: 0% interpolated, 62% of the pixels per edit)
+    sc.world = world  # first: Cycles' update of these flags tags the scene's world
     world.cycles_visibility.diffuse = world.cycles_visibility.glossy = False
-    sc.world = world
 
     r = sc.render
     r.engine = "RSTRACE"

@@ -83,6 +83,7 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
+from .relight import light_shares
 from .samples import (
     GLOSSY,
     LineCrossings,
@@ -92,6 +93,7 @@ from .samples import (
     glossy_flags,
     skip_tmin,
     texture_split,
+    textured_roots,
     unique_keys,
 )
 from .shafts import query_scene
@@ -258,6 +260,13 @@ class InterpolantCache:
         #: what the last full frame leaves for reprojected visibility (:mod:`.reproject`);
         #: dropped by edits
         self.view = None
+        #: samples keep their per-light shares, so a light's power or colour change
+        #: rescales interpolants (:mod:`.relight`; :meth:`keep_light_terms`)
+        self.light_terms = False
+        #: the cap (bytes) on the shares; over it new samples keep none (their cells are
+        #: invalidated by light edits), and ``shares_overflow`` says so
+        self.shares_cap_bytes = math.inf
+        self.shares_overflow: str | None = None
         self.setup_s = time.perf_counter() - t0
 
     # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
@@ -305,6 +314,29 @@ class InterpolantCache:
                 and min(int(depth_cap), MAX_DEPTH) == self.depth_cap
                 and int(max_depth) == self.max_depth)
 
+    def keep_light_terms(self, on: bool, cap_mb: float) -> None:
+        """Whether cells built from now on keep per-light shares in their samples and
+        their test lines' samples (:mod:`.relight`), under a cap of ``cap_mb`` MB on the
+        shares (``RenderSettings.relight_memory_mb``). Turning it off keeps what is kept."""
+        self.light_terms = bool(on) and cap_mb > 0.0 and len(self.sa.light_kind) > 0
+        self.shares_cap_bytes = float(cap_mb) * 1e6
+        if self.light_terms:
+            self.samples.keep_shares()
+
+    def _keeps_shares(self, n_new: int) -> bool:
+        """Whether ``n_new`` samples about to be shaded keep their shares (the cap)."""
+        if not self.light_terms:
+            return False
+        need = self.samples.share_bytes + 24 * len(self.sa.light_kind) * int(n_new)
+        if need > self.shares_cap_bytes:
+            self.shares_overflow = (
+                f"per-light shares of the interpolants' samples need {need / 1e6:.1f} MB, "
+                f"over the cap of {self.shares_cap_bytes / 1e6:.1f} MB (setting "
+                f"'relight_memory_mb'): light power or colour edits invalidate the cells "
+                f"built without them")
+            return False
+        return True
+
     def set_memory_cap(self, memory_cap_mb: float) -> None:
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6
         self.enforce_cap()
@@ -329,8 +361,11 @@ class InterpolantCache:
         live = np.flatnonzero(self.pool.live)
         keep = np.zeros(self.samples.n, bool)
         keep[self.pool.samples[live].reshape(-1)] = True
+        tests = self.pool.tests[live]
+        keep[tests[tests >= 0]] = True
         remap = self.samples.compact(keep)
         self.pool.samples[live] = remap[self.pool.samples[live]]
+        self.pool.tests[live] = np.where(tests >= 0, remap[np.maximum(tests, 0)], -1)
 
     def evict(self, ids: np.ndarray, invalidated: bool = False) -> None:
         """Drop interpolants ``ids``: their leaves become empty (rebuilt on demand). Their
@@ -569,8 +604,11 @@ class InterpolantCache:
         # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
         # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
         own = partial(trace, glossy_samples=1, roots="own")
+        L = len(self.sa.light_kind)
+        keep = self._keeps_shares(len(ug))
+        segs: list | None = [] if keep else None
         rad, tree = own(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
-                        record=True, primary=hits)
+                        record=True, primary=hits, segments=segs, terms=keep)
         li = hits.inst
         k = (geo.keys.k1[ug] & 7) >> 1
         inst_box = (geo.keys.k1[ug] >> 3)
@@ -584,8 +622,16 @@ class InterpolantCache:
         if self.qs.world_light:  # interpolated without the world's term (world_term.py)
             rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
                                       dif, flag, self.max_depth)
+        share = shared = None
+        if keep:  # per-light shares (relight.py): not of a textured root (R + texel D)
+            share = light_shares(segs, len(ug), L)
+            tex_root = np.empty(len(ug), np.bool_)
+            textured_roots(self.sa, np.ascontiguousarray(li, np.int32),
+                           np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
+            shared = ~tex_root & (flag == 0)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
-                               tree, node_cls.astype(np.int32), dif, texel, flag)
+                               tree, node_cls.astype(np.int32), dif, texel, flag, share,
+                               shared)
         self.frame_stats["samples_traced"] += len(ug)
         sid[miss] = new[uinv.reshape(-1)]
         return sid
@@ -708,6 +754,8 @@ class InterpolantCache:
                 p.node[pids] = cells[go[good]]
                 p.stamp[pids] = self.clock
                 p.samples[pids] = cell_samples[good, :16]
+                if self.samples.shares_on:  # what re-running its radiance test needs
+                    p.tests[pids] = cell_samples[good, 16:]
                 p.rebuilt[pids] = a.dirty[cells[go[good]]]
                 a.leaf[cells[go[good]]] = pids
                 g = go[good]

@@ -243,6 +243,7 @@ class Session:
             report.invalidated_interpolants = int(inv.count)
             if inv.rescaled is not None:
                 report.rescaled_interpolants = len(inv.rescaled)
+                report.rescale_invalidated = int(inv.rescale_broken)
             if inv.restarted:
                 report.messages.append("interpolant cache started over: full frame")
             else:

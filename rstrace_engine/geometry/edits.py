@@ -190,6 +190,8 @@ class EditReport:
     invalidated_interpolants: int = 0
     #: interpolants kept, rescaled by a light's power or colour change (interpolants/relight)
     rescaled_interpolants: int = 0
+    #: of the invalidated ones: their radiance test failed after the rescale
+    rescale_invalidated: int = 0
     dirty_pixels: int = 0  # pixels the next frame re-renders (fixed camera), else -1
     dirty_fraction: float = 0.0
     camera_changed: bool = False

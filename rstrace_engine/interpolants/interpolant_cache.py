@@ -83,7 +83,7 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
-from .relight import light_shares
+from .relight import sample_shares
 from .samples import (
     GLOSSY,
     LineCrossings,
@@ -93,7 +93,6 @@ from .samples import (
     glossy_flags,
     skip_tmin,
     texture_split,
-    textured_roots,
     unique_keys,
 )
 from .shafts import query_scene
@@ -604,7 +603,6 @@ class InterpolantCache:
         # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
         # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
         own = partial(trace, glossy_samples=1, roots="own")
-        L = len(self.sa.light_kind)
         keep = self._keeps_shares(len(ug))
         segs: list | None = [] if keep else None
         rad, tree = own(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
@@ -622,13 +620,7 @@ class InterpolantCache:
         if self.qs.world_light:  # interpolated without the world's term (world_term.py)
             rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
                                       dif, flag, self.max_depth)
-        share = shared = None
-        if keep:  # per-light shares (relight.py): not of a textured root (R + texel D)
-            share = light_shares(segs, len(ug), L)
-            tex_root = np.empty(len(ug), np.bool_)
-            textured_roots(self.sa, np.ascontiguousarray(li, np.int32),
-                           np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
-            shared = ~tex_root & (flag == 0)
+        share, shared = sample_shares(self.sa, segs, hits, flag) if keep else (None, None)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                                tree, node_cls.astype(np.int32), dif, texel, flag, share,
                                shared)

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .predicate import radiance_ok
+from .samples import textured_roots
 from .tunnels import LIGHT_SHADES
 
 #: per-light arrays of the scene packing that must be equal for a light's change to be a
@@ -61,6 +62,19 @@ def light_shares(segments: list, n: int, L: int) -> np.ndarray:
         np.add.at(share, np.asarray(lv["ray"], np.int64),
                   val * np.asarray(lv["weight"])[:, None, :])
     return share
+
+
+def sample_shares(sa, segments: list, hits, flag: np.ndarray):
+    """``(share (n, L, 3), shared (n,) bool)`` of ``n`` lines traced with ``segments``
+    and light terms (:func:`light_shares`), their root ``hits`` and sample ``flag``: a line
+    whose root is textured keeps none (its ``R`` is traced with every texel 0 and its
+    texture's term apart, ``R + texel D``), nor one whose flags fail its cells anyway."""
+    n = len(flag)
+    share = light_shares(segments, n, len(sa.light_kind))
+    tex_root = np.empty(n, np.bool_)
+    textured_roots(sa, np.ascontiguousarray(hits.inst, np.int32),
+                   np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
+    return share, ~tex_root & (np.asarray(flag) == 0)
 
 
 def _row_equal(a, b, j: int) -> bool:

@@ -351,6 +351,8 @@ class Session:
             frame.stats["interpolant_shares_mb"] = c.samples.share_bytes / 1e6
             if c.shares_overflow is not None:
                 frame.stats["relight_off"] = c.shares_overflow
+            elif self._keeps_light_terms() and relight_off:
+                frame.stats["relight_off"] = RELIGHT_OFF
         frame = self.reuse.finish(frame, records, pixels, key, cam, self.settings.samples,
                                   self.interpolants.cache, pool0)
         n = cam.width * cam.height

@@ -177,11 +177,15 @@ def test_shares_are_the_radiance_of_each_light():
     np.testing.assert_allclose(lit, rad, rtol=1e-12, atol=1e-14)
 
 
-def test_shares_over_the_cap_fall_back_to_invalidation():
+@pytest.mark.parametrize("cap_mb", [0.001, 0.0])
+def test_shares_over_the_cap_fall_back_to_invalidation(cap_mb):
+    """Over the cap (``relight_memory_mb``) cells are built without the shares, and said
+    so; at 0 none are kept. A light's power then invalidates as before."""
     scene = _spheres()
-    sess = session(scene, True, relight_memory_mb=0.001)
+    sess = session(scene, True, relight_memory_mb=cap_mb)
     f0 = sess.render()
-    assert "over the cap" in f0.stats["relight_off"]
+    assert ("over the cap" if cap_mb else "is 0") in f0.stats["relight_off"]
+    assert f0.stats["interpolant_shares_mb"] <= cap_mb
     rep = sess.apply(edit(sess, "Key", power=0.5))
     assert rep.rescaled_interpolants == 0 and rep.invalidated_interpolants > 0
     check_bound(sess.render(), sess.scene)

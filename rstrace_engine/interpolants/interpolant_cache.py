@@ -266,6 +266,7 @@ class InterpolantCache:
         #: invalidated by light edits), and ``shares_overflow`` says so
         self.shares_cap_bytes = math.inf
         self.shares_overflow: str | None = None
+        self._shares_need = 0.0
         self.setup_s = time.perf_counter() - t0
 
     # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
@@ -316,25 +317,34 @@ class InterpolantCache:
     def keep_light_terms(self, on: bool, cap_mb: float) -> None:
         """Whether cells built from now on keep per-light shares in their samples and
         their test lines' samples (:mod:`.relight`), under a cap of ``cap_mb`` MB on the
-        shares (``RenderSettings.relight_memory_mb``). Turning it off keeps what is kept."""
-        self.light_terms = bool(on) and cap_mb > 0.0 and len(self.sa.light_kind) > 0
+        shares (``RenderSettings.relight_memory_mb``). Once over it the shares are dropped
+        (light power and colour edits invalidate, as without them) until the cap is raised
+        above what they needed. Turning it off keeps what is kept."""
         self.shares_cap_bytes = float(cap_mb) * 1e6
+        if self.shares_overflow is not None and self.shares_cap_bytes > self._shares_need:
+            self.shares_overflow = None  # the cap was raised: try again
+        self.light_terms = (bool(on) and cap_mb > 0.0 and len(self.sa.light_kind) > 0
+                            and self.shares_overflow is None)
         if self.light_terms:
             self.samples.keep_shares()
 
     def _keeps_shares(self, n_new: int) -> bool:
-        """Whether ``n_new`` samples about to be shaded keep their shares (the cap)."""
+        """Whether ``n_new`` samples about to be shaded keep their shares: over the cap,
+        every share is dropped (the test lines' samples no longer kept) and it is said."""
         if not self.light_terms:
             return False
         need = self.samples.share_bytes + 24 * len(self.sa.light_kind) * int(n_new)
-        if need > self.shares_cap_bytes:
-            self.shares_overflow = (
-                f"per-light shares of the interpolants' samples need {need / 1e6:.1f} MB, "
-                f"over the cap of {self.shares_cap_bytes / 1e6:.1f} MB (setting "
-                f"'relight_memory_mb'): light power or colour edits invalidate the cells "
-                f"built without them")
-            return False
-        return True
+        if need <= self.shares_cap_bytes:
+            return True
+        self._shares_need = need
+        self.shares_overflow = (
+            f"per-light shares of the interpolants' samples need {need / 1e6:.1f} MB, over "
+            f"the cap of {self.shares_cap_bytes / 1e6:.1f} MB (setting 'relight_memory_mb'): "
+            f"dropped, light power or colour edits invalidate the interpolants they shade")
+        self.light_terms = False
+        self.samples.drop_shares()
+        self.pool.tests[:] = -1
+        return False
 
     def set_memory_cap(self, memory_cap_mb: float) -> None:
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6

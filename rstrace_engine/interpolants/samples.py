@@ -213,6 +213,12 @@ class SampleStore:
         share = np.zeros((len(self._rad), self.L, 3))
         self._share = share
 
+    def drop_shares(self) -> None:
+        """Forget every share (over the cap); :meth:`keep_shares` starts again."""
+        self.shares_on = False
+        self._share = np.empty((len(self._rad), 0, 3))
+        self._shared[:] = False
+
     def shares(self):
         """``(share (n, L, 3), shared (n,) bool)``: light j's part of a sample's radiance
         ``R`` per unit of its intensity (radiance for a light with an extent), and whether

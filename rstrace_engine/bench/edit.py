@@ -411,7 +411,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--soak-mode", choices=("BASE", "INTERPOLANT"), default="BASE",
                    help="BASE: bit for bit against fresh frames; INTERPOLANT: within epsilon "
                         "0.02 of fresh BASE frames (soft-lit scenes)")
+    p.add_argument("--no-fallback", action="store_true",
+                   help="INTERPOLANT: build cells wherever the predicate allows (the "
+                        "measured fallback, which traces frames where cells did not pay, "
+                        "off): the rows then compare the same interpolated frames")
     args = p.parse_args(argv)
+    if args.no_fallback:
+        from ..interpolants.render import InterpolantRenderer
+
+        InterpolantRenderer.auto_fallback = False
     global CLOCK
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     if args.threads > 0:

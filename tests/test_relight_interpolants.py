@@ -110,9 +110,11 @@ def test_power_and_colour_rescale_interpolants(name):
         assert rep.invalidated_interpolants < rep_old.invalidated_interpolants
         frame = new.render()
         frame_old = old.render()
+        if rep.invalidated_interpolants == 0:  # rescaled pixels are not shown as rebuilt
+            assert not (frame.pixel_class == CLASS_REBUILT).any()
+        assert (frame_old.pixel_class == CLASS_REBUILT).any()
         assert frame.stats["cells_built"] < frame_old.stats["cells_built"]
         check_bound(frame, new.scene)
-        np.testing.assert_array_equal(frame_old.radiance.shape, frame.radiance.shape)
         # a rescaled cell's corners are what a fresh build of the edited scene samples
         fresh = session(new.scene, True)
         fresh.render()

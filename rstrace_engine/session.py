@@ -72,6 +72,8 @@ class Session:
     #: first light or world edit on (the terms cost a full frame about 20% more time and 25
     #: bytes per ray-tree node and light: a session that never edits a light does not pay;
     #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
+    #: In INTERPOLANT mode the same switch makes the interpolants' samples keep per-light
+    #: shares, so a light's power or colour rescales them (:mod:`.interpolants.relight`).
     light_terms: bool | None = None
     #: Where the BVH takes unchanged meshes' trees from and leaves its own
     #: (:class:`~.accel.accelerators.KeptBVHs`; the add-on gives its sessions the process's

@@ -93,7 +93,9 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         description="Base mode: memory for the per-light records that let light edits "
                     "(power, colour, moving a light) relight the last frame instead of "
                     "re-tracing it, in MB. Over it, moved lights re-trace, then every light "
-                    "edit does; 0: no records")
+                    "edit does; 0: no records. Interpolant mode: the cap on the "
+                    "interpolants' per-light shares, which let a light's power or colour "
+                    "rescale them instead of rebuilding them")
     seed: IntProperty(name="Seed", default=0, min=0,
                       description="Seed of the pixel jitter pattern")
     shading_model: EnumProperty(name="Shading Model", items=SHADING_MODEL_ITEMS,

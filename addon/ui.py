@@ -66,7 +66,7 @@ class RSTRACE_PT_render(RSTracePanel, bpy.types.Panel):
         layout.prop(props, "max_ray_depth")
         layout.prop(props, "shading_model")
         row = layout.row()
-        row.active = props.mode == "BASE"
+        row.active = props.mode in ("BASE", "INTERPOLANT")
         row.prop(props, "relight_memory", text="Relight Memory (MB)")
 
 

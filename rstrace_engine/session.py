@@ -72,6 +72,8 @@ class Session:
     #: first light or world edit on (the terms cost a full frame about 20% more time and 25
     #: bytes per ray-tree node and light: a session that never edits a light does not pay;
     #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
+    #: In INTERPOLANT mode the same switch makes the interpolants' samples keep per-light
+    #: shares, so a light's power or colour rescales them (:mod:`.interpolants.relight`).
     light_terms: bool | None = None
     #: Where the BVH takes unchanged meshes' trees from and leaves its own
     #: (:class:`~.accel.accelerators.KeptBVHs`; the add-on gives its sessions the process's
@@ -241,12 +243,16 @@ class Session:
         if inv is not None and fx.scene_content_changed:
             report.rst_query_ms = inv.query_ms  # (the query; moving the cache is apply_ms's)
             report.invalidated_interpolants = int(inv.count)
+            if inv.rescaled is not None:
+                report.rescaled_interpolants = len(inv.rescaled)
+                report.rescale_invalidated = int(inv.rescale_broken)
             if inv.restarted:
                 report.messages.append("interpolant cache started over: full frame")
             else:
                 ids = inv.ids
         lost = (inv is not None and inv.restarted and self.settings.mode == "INTERPOLANT")
-        self.reuse.take_edits(fx, old_sa, new_sa, self.scene.camera, ids, lost, report)
+        self.reuse.take_edits(fx, old_sa, new_sa, self.scene.camera, ids, lost, report,
+                              rescaled=None if inv is None else inv.rescaled)
         report.apply_ms = 1e3 * (time.perf_counter() - t0)
         self.last_report = report
         log.info("session: %d edit(s) %s, %d interpolants invalidated, %s dirty pixels, "
@@ -309,7 +315,10 @@ class Session:
         cam = self.scene.camera
         new_cache = False
         if mode == "INTERPOLANT":
-            _, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
+            cache, new_cache = self.interpolants.prepare(sa, self.settings, self.accel)
+            # samples keep per-light shares: light power / colour edits rescale interpolants
+            cache.keep_light_terms(self._keeps_light_terms(),
+                                   float(self.settings.relight_memory_mb))
         terms = None
         keep = not new_cache
         relight_off = self.settings.relight_memory_mb == 0.0
@@ -339,6 +348,13 @@ class Session:
             frame.stats.update(self.reuse.relight_stats)
         if mode == "BASE" and self._keeps_light_terms() and relight_off:
             frame.stats["relight_off"] = RELIGHT_OFF
+        if mode == "INTERPOLANT":
+            c = self.interpolants.cache
+            frame.stats["interpolant_shares_mb"] = c.samples.share_bytes / 1e6
+            if c.shares_overflow is not None:
+                frame.stats["relight_off"] = c.shares_overflow
+            elif self._keeps_light_terms() and relight_off:
+                frame.stats["relight_off"] = RELIGHT_OFF
         frame = self.reuse.finish(frame, records, pixels, key, cam, self.settings.samples,
                                   self.interpolants.cache, pool0)
         n = cam.width * cam.height

@@ -268,6 +268,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
             r = dict(scene=name, edit=row, mode=mode, rst_query_ms=rep.rst_query_ms,
                      records_query_ms=rep.records_query_ms, apply_ms=rep.apply_ms,
                      invalidated_interpolants=rep.invalidated_interpolants,
+                     rescaled_interpolants=rep.rescaled_interpolants,
+                     interpolated_pct=100.0 * frame.stats.get("interpolated_fraction", 0.0),
                      dirty_fraction=(frame.stats["dirty_fraction"]),
                      full_frame_s=full_s, incremental_frame_s=inc_s,
                      speedup=full_s / inc_s if inc_s > 0 else math.inf,
@@ -291,7 +293,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
             log(f"  {row:15s} dirty {r['dirty_fraction']:.4f} incr {inc_s:.3f} s full "
                 f"{full_s:.2f} s x{r['speedup']:.1f} err {r['max_error_vs_fresh']:.2e} "
                 f"rst {r['rst_query_ms']:.2f} ms rec {r['records_query_ms']:.1f} ms "
-                f"inval {r['invalidated_interpolants']} rec {r['records_mb']:.2f} MB "
+                f"inval {r['invalidated_interpolants']} resc {r['rescaled_interpolants']} "
+                f"interp {r['interpolated_pct']:.1f}% rec {r['records_mb']:.2f} MB "
                 f"rst {r['rst_memory_mb']:.2f} MB light rec {r['light_records_mb']:.1f} MB "
                 f"relight {r['relight_s']:.3f} s")
     return rows
@@ -408,7 +411,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--soak-mode", choices=("BASE", "INTERPOLANT"), default="BASE",
                    help="BASE: bit for bit against fresh frames; INTERPOLANT: within epsilon "
                         "0.02 of fresh BASE frames (soft-lit scenes)")
+    p.add_argument("--no-fallback", action="store_true",
+                   help="INTERPOLANT: build cells wherever the predicate allows (the "
+                        "measured fallback, which traces frames where cells did not pay, "
+                        "off): the rows then compare the same interpolated frames")
     args = p.parse_args(argv)
+    if args.no_fallback:
+        from ..interpolants.render import InterpolantRenderer
+
+        InterpolantRenderer.auto_fallback = False
     global CLOCK
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     if args.threads > 0:

@@ -188,6 +188,10 @@ class EditReport:
     edits: int = 0  # edits applied
     kinds: dict = field(default_factory=dict)  # edit class name -> count
     invalidated_interpolants: int = 0
+    #: interpolants kept, rescaled by a light's power or colour change (interpolants/relight)
+    rescaled_interpolants: int = 0
+    #: of the invalidated ones: their radiance test failed after the rescale
+    rescale_invalidated: int = 0
     dirty_pixels: int = 0  # pixels the next frame re-renders (fixed camera), else -1
     dirty_fraction: float = 0.0
     camera_changed: bool = False

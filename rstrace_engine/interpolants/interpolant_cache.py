@@ -83,6 +83,7 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
+from .relight import sample_shares
 from .samples import (
     GLOSSY,
     LineCrossings,
@@ -258,6 +259,14 @@ class InterpolantCache:
         #: what the last full frame leaves for reprojected visibility (:mod:`.reproject`);
         #: dropped by edits
         self.view = None
+        #: samples keep their per-light shares, so a light's power or colour change
+        #: rescales interpolants (:mod:`.relight`; :meth:`keep_light_terms`)
+        self.light_terms = False
+        #: the cap (bytes) on the shares; over it new samples keep none (their cells are
+        #: invalidated by light edits), and ``shares_overflow`` says so
+        self.shares_cap_bytes = math.inf
+        self.shares_overflow: str | None = None
+        self._shares_need = 0.0
         self.setup_s = time.perf_counter() - t0
 
     # -- scene structures (built on first use: a frame at epsilon 0 needs none) ---------
@@ -305,6 +314,38 @@ class InterpolantCache:
                 and min(int(depth_cap), MAX_DEPTH) == self.depth_cap
                 and int(max_depth) == self.max_depth)
 
+    def keep_light_terms(self, on: bool, cap_mb: float) -> None:
+        """Whether cells built from now on keep per-light shares in their samples and
+        their test lines' samples (:mod:`.relight`), under a cap of ``cap_mb`` MB on the
+        shares (``RenderSettings.relight_memory_mb``). Once over it the shares are dropped
+        (light power and colour edits invalidate, as without them) until the cap is raised
+        above what they needed. Turning it off keeps what is kept."""
+        self.shares_cap_bytes = float(cap_mb) * 1e6
+        if self.shares_overflow is not None and self.shares_cap_bytes > self._shares_need:
+            self.shares_overflow = None  # the cap was raised: try again
+        self.light_terms = (bool(on) and cap_mb > 0.0 and len(self.sa.light_kind) > 0
+                            and self.shares_overflow is None)
+        if self.light_terms:
+            self.samples.keep_shares()
+
+    def _keeps_shares(self, n_new: int) -> bool:
+        """Whether ``n_new`` samples about to be shaded keep their shares: over the cap,
+        every share is dropped (the test lines' samples no longer kept) and it is said."""
+        if not self.light_terms:
+            return False
+        need = self.samples.share_bytes + 24 * len(self.sa.light_kind) * int(n_new)
+        if need <= self.shares_cap_bytes:
+            return True
+        self._shares_need = need
+        self.shares_overflow = (
+            f"per-light shares of the interpolants' samples need {need / 1e6:.1f} MB, over "
+            f"the cap of {self.shares_cap_bytes / 1e6:.1f} MB (setting 'relight_memory_mb'): "
+            f"dropped, light power or colour edits invalidate the interpolants they shade")
+        self.light_terms = False
+        self.samples.drop_shares()
+        self.pool.tests[:] = -1
+        return False
+
     def set_memory_cap(self, memory_cap_mb: float) -> None:
         self.memory_cap_bytes = float(memory_cap_mb) * 1e6
         self.enforce_cap()
@@ -329,8 +370,11 @@ class InterpolantCache:
         live = np.flatnonzero(self.pool.live)
         keep = np.zeros(self.samples.n, bool)
         keep[self.pool.samples[live].reshape(-1)] = True
+        tests = self.pool.tests[live]
+        keep[tests[tests >= 0]] = True
         remap = self.samples.compact(keep)
         self.pool.samples[live] = remap[self.pool.samples[live]]
+        self.pool.tests[live] = np.where(tests >= 0, remap[np.maximum(tests, 0)], -1)
 
     def evict(self, ids: np.ndarray, invalidated: bool = False) -> None:
         """Drop interpolants ``ids``: their leaves become empty (rebuilt on demand). Their
@@ -569,8 +613,10 @@ class InterpolantCache:
         # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
         # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
         own = partial(trace, glossy_samples=1, roots="own")
+        keep = self._keeps_shares(len(ug))
+        segs: list | None = [] if keep else None
         rad, tree = own(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
-                        record=True, primary=hits)
+                        record=True, primary=hits, segments=segs, terms=keep)
         li = hits.inst
         k = (geo.keys.k1[ug] & 7) >> 1
         inst_box = (geo.keys.k1[ug] >> 3)
@@ -584,8 +630,10 @@ class InterpolantCache:
         if self.qs.world_light:  # interpolated without the world's term (world_term.py)
             rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
                                       dif, flag, self.max_depth)
+        share, shared = sample_shares(self.sa, segs, hits, flag) if keep else (None, None)
         new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
-                               tree, node_cls.astype(np.int32), dif, texel, flag)
+                               tree, node_cls.astype(np.int32), dif, texel, flag, share,
+                               shared)
         self.frame_stats["samples_traced"] += len(ug)
         sid[miss] = new[uinv.reshape(-1)]
         return sid
@@ -708,6 +756,8 @@ class InterpolantCache:
                 p.node[pids] = cells[go[good]]
                 p.stamp[pids] = self.clock
                 p.samples[pids] = cell_samples[good, :16]
+                if self.samples.shares_on:  # what re-running its radiance test needs
+                    p.tests[pids] = cell_samples[good, 16:]
                 p.rebuilt[pids] = a.dirty[cells[go[good]]]
                 a.leaf[cells[go[good]]] = pids
                 g = go[good]

@@ -34,6 +34,7 @@ from ..geometry.scene import LIGHT_SUN
 from .linetree import EMPTY, expanded_boxes
 from .membership import Membership
 from .ray_segment_tree import RaySegmentTrees
+from .relight import rescalable_lights, rescale
 from .shafts import light_extents
 from .tunnels import (
     LIGHT_OCCLUDED,
@@ -60,6 +61,11 @@ class Invalidation(NamedTuple):
     live_before: int  # live interpolants before the edit
     failed_retried: int  # failed cells naming an edited object, emptied to be tried again
     restarted: bool = False
+    #: interpolants kept with their radiance rescaled by a light's power or colour change
+    #: (:mod:`.relight`): their pixels change, their cells are not rebuilt
+    rescaled: np.ndarray | None = None
+    rescale_broken: int = 0  # invalidated: the radiance test failed after the rescale
+    rescale_no_terms: int = 0  # invalidated: their samples keep no per-light shares
 
     @classmethod
     def nothing(cls, live: int, restarted: bool = False) -> Invalidation:
@@ -260,7 +266,7 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-               light_shading=(), everything: bool = False) -> Invalidation:
+               light_shading=(), everything: bool = False, extra=None) -> Invalidation:
     """Invalidate every interpolant an edit may change, and free it.
 
     regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
@@ -271,8 +277,9 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     (every interpolant whose ray trees hit an object using them); world : the world colour
     changed (every interpolant with a ray-tree node that misses); light_shading : lights
     whose power or colour alone changed (only interpolants they shade); everything: every
-    interpolant (a world colour change where the world lights). Camera edits invalidate
-    nothing (call nothing).
+    interpolant (a world colour change where the world lights); extra: interpolant ids
+    to invalidate as well (a rescale broke their bound, :mod:`.relight`). Camera edits
+    invalidate nothing (call nothing).
 
     Invalidated interpolants are freed at once (their pool ids are free, their tree and
     list entries dead); their cells are rebuilt by the next frame that needs them. Failed
@@ -287,6 +294,8 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     ids, retry = a.ids, a.retry
     if everything:
         ids = np.flatnonzero(pool.live).astype(np.int32)
+    elif extra is not None and len(extra):
+        ids = np.union1d(ids, np.asarray(extra, np.int32)).astype(np.int32)
     lt = cache.trees
     lt.clear_dirty()
     pool.rebuilt[:] = False
@@ -347,8 +356,16 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     if fx.scene_content_changed:
         # a world that lights (before or after) shades every surface: all interpolants
         everything = fx.world and (fx.world_lights or bool(np.any(old.world_light > 0.0)))
+        # a light whose power or colour alone changed rescales what it shades (relight.py)
+        resc = rescalable_lights(old, sa, fx.lights_shading) if cache.light_terms else []
+        r = rescale(cache, old, sa, resc)
         inv = invalidate(cache, fx.region_array(), fx.objects, fx.lights_moved, fx.materials,
-                         fx.world, fx.lights_shading, everything)
+                         fx.world, set(fx.lights_shading) - set(resc), everything,
+                         np.concatenate([r.broken, r.no_terms]))
+        kept = r.rescaled[cache.pool.live[r.rescaled]]
+        inv = inv._replace(rescaled=kept, rescale_broken=len(r.broken),
+                           rescale_no_terms=len(r.no_terms))
+        cache.totals["rescaled"] = cache.totals.get("rescaled", 0) + len(kept)
     else:
         inv = Invalidation.nothing(cache.pool.n_live)
     n_new = len(sa.inst_mesh)

@@ -6,6 +6,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .predicate import N_TEST_ALL
+
 #: bytes of one interpolant record (16 RGB float64, slab, class, node, stamp, 16 sample ids,
 #: serial, rebuilt and world flags)
 INTERP_BYTES = 16 * 3 * 8 + 8 + 8 + 4 + 4 + 8 + 16 * 4 + 8 + 1 + 1
@@ -53,6 +55,10 @@ class InterpolantPool:
         self.serial = np.empty(0, np.int64)
         self.rebuilt = np.empty(0, bool)
         self.world = np.empty(0, bool)
+        #: (cap, N_TEST_ALL) int32 the test lines' sample ids of an interpolant whose
+        #: samples keep per-light shares (-1: none kept): what re-running its radiance test
+        #: after a light's power or colour change needs (:mod:`.relight`); not a kernel input
+        self.tests = np.empty((0, N_TEST_ALL), np.int32)
         self.next_serial = 1
         self._free = np.empty(0, np.int32)
         self._grow(capacity)
@@ -64,6 +70,9 @@ class InterpolantPool:
             new = np.zeros((cap,) + a.shape[1:], a.dtype)
             new[:old] = a
             setattr(self, name, new)
+        tests = np.full((cap, N_TEST_ALL), -1, np.int32)
+        tests[:old] = self.tests
+        self.tests = tests
         self._free = np.concatenate([np.arange(cap - 1, old - 1, -1, dtype=np.int32),
                                      self._free])
         self.cap = cap
@@ -87,6 +96,7 @@ class InterpolantPool:
         self.next_serial += n
         self.rebuilt[ids] = False
         self.world[ids] = False
+        self.tests[ids] = -1
         return ids
 
     def release(self, ids: np.ndarray) -> None:

@@ -159,11 +159,13 @@ class SampleStore:
     """Traced lines keyed by lattice point, with their ray trees (growth owned here)."""
 
     _SAMPLE = ("_rad", "_inst", "_cls", "_depth", "_nstart", "_ncount", "_dif", "_tex",
-               "_flag")
+               "_flag", "_share", "_shared")
     _NODE = ("_npath", "_ninst", "_ncls", "_nocc", "_npoint")
 
     def __init__(self, n_lights: int) -> None:
         self.L = max(int(n_lights), 0)
+        #: per-light shares are kept (:meth:`keep_shares`): ``_share`` (n, L, 3)
+        self.shares_on = False
         self.clear()
 
     def clear(self) -> None:
@@ -178,6 +180,8 @@ class SampleStore:
         self._dif = np.empty((0, 3))
         self._tex = np.empty((0, 3))
         self._flag = np.empty(0, np.uint8)
+        self._share = np.empty((0, self.L if self.shares_on else 0, 3))
+        self._shared = np.empty(0, np.bool_)
         self._npath = np.empty(0, np.int64)
         self._ninst = np.empty(0, np.int32)
         self._ncls = np.empty(0, np.int32)
@@ -191,9 +195,35 @@ class SampleStore:
     @property
     def memory_bytes(self) -> int:
         """Bytes of the samples, their ray-tree nodes and keys (not the hash table)."""
-        per_sample = 24 + 4 + 4 + 8 + 8 + 4 + 16 + 24 + 24 + 1
+        per_sample = 24 + 4 + 4 + 8 + 8 + 4 + 16 + 24 + 24 + 1 + 1
         per_node = 8 + 4 + 4 + 4 * self.L + 24
-        return self.n * per_sample + self.n_nodes * per_node
+        return self.n * per_sample + self.n_nodes * per_node + self.share_bytes
+
+    @property
+    def share_bytes(self) -> int:
+        """Bytes of the per-light shares (:meth:`keep_shares`): ``24 L`` per sample."""
+        return self.n * self._share.shape[1] * 24
+
+    def keep_shares(self) -> None:
+        """From now on samples may keep their per-light shares (``(n, L, 3)``, see
+        :mod:`.relight`); the samples stored so far have none (``shared`` False)."""
+        if self.shares_on:
+            return
+        self.shares_on = True
+        share = np.zeros((len(self._rad), self.L, 3))
+        self._share = share
+
+    def drop_shares(self) -> None:
+        """Forget every share (over the cap); :meth:`keep_shares` starts again."""
+        self.shares_on = False
+        self._share = np.empty((len(self._rad), 0, 3))
+        self._shared[:] = False
+
+    def shares(self):
+        """``(share (n, L, 3), shared (n,) bool)``: light j's part of a sample's radiance
+        ``R`` per unit of its intensity (radiance for a light with an extent), and whether
+        the sample has them (:mod:`.relight`)."""
+        return self._share[:self.n], self._shared[:self.n]
 
     def view(self) -> SampleArrays:
         n, m = self.n, self.n_nodes
@@ -216,9 +246,10 @@ class SampleStore:
         return self.keys.lookup(k1, k2)
 
     def add(self, k1, k2, rad, inst, cls, depth, tree, node_cls, dif=None, tex=None,
-            flag=None) -> np.ndarray:
+            flag=None, share=None, shared=None) -> np.ndarray:
         """Append samples (keys unique and absent) and their ray-tree nodes; returns ids.
-        ``rad`` is R, ``dif``/``tex``/``flag`` the texture terms (default: untextured)."""
+        ``rad`` is R, ``dif``/``tex``/``flag`` the texture terms (default: untextured),
+        ``share`` (n, L, 3) / ``shared`` (n,) bool the per-light shares (default: none)."""
         n = len(k1)
         s0, s1 = self.n, self.n + n
         for name in self._SAMPLE:
@@ -236,6 +267,9 @@ class SampleStore:
         self._dif[s0:s1] = 0.0 if dif is None else dif
         self._tex[s0:s1] = 1.0 if tex is None else tex
         self._flag[s0:s1] = 0 if flag is None else flag
+        self._shared[s0:s1] = False if shared is None or not self.shares_on else shared
+        if self.shares_on:
+            self._share[s0:s1] = 0.0 if share is None else share
         self._nstart[s0:s1] = m0 + np.concatenate([[0], np.cumsum(count)[:-1]])
         self._npath[m0:m1] = tree.node_path[order]
         self._ninst[m0:m1] = tree.node_inst[order]

@@ -96,13 +96,15 @@ class FrameReuse:
     # -- edits -------------------------------------------------------------------------
 
     def take_edits(self, fx, old_sa, new_sa, camera, ids, interpolants_lost: bool,
-                   report) -> None:
+                   report, rescaled=None) -> None:
         """Mark the pixels an applied edit batch makes dirty.
 
         fx : the batch's :class:`~..geometry.edits.EditEffects`; old_sa, new_sa : the
         packings before and after it; camera : the scene's camera after it; ids : the
         interpolants the cache invalidated (None: none invalidated, or no cache);
-        interpolants_lost : the frame's interpolants are all gone (the cache started over).
+        interpolants_lost : the frame's interpolants are all gone (the cache started over);
+        rescaled : interpolants kept with their radiance rescaled (a light's power or
+        colour, :mod:`~..interpolants.relight`): their pixels are dirty, not rebuilt.
         Fills ``report``'s ``full_frame``, ``dirty_pixels``, ``dirty_fraction`` and
         ``records_query_ms``.
         """
@@ -151,6 +153,8 @@ class FrameReuse:
         dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
         if rebuilt is not None:
             dirty |= rebuilt
+        if f.pixel_interpolant is not None and rescaled is not None and len(rescaled):
+            dirty |= np.isin(f.pixel_interpolant.reshape(-1), rescaled)
         if f.pixel_interpolant is not None and fx.scene_content_changed:
             # pixels whose interpolant the RSTs no longer track (evicted by the memory cap
             # after the pixel was rendered), and pixels whose samples used several

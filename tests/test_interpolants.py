@@ -25,6 +25,7 @@ from rstrace_engine.geometry.edits import CameraChange
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
 from rstrace_engine.interpolants import interpolant_cache
 from rstrace_engine.interpolants.interpolant_cache import INTERP_BYTES, InterpolantCache
+from rstrace_engine.interpolants.line_samples import front_hits
 from rstrace_engine.interpolants.linetree import (
     LATTICE_DEPTH,
     corner_weights,
@@ -236,7 +237,7 @@ def test_lines_on_cell_boundaries(spheres):
     o = np.empty((len(q), 3))
     d = np.empty((len(q), 3))
     lattice_lines(cache.box, inst, face, lat, o, d)
-    hits = cache._front_hits(inst, o, d)
+    hits = front_hits(cache.sa, cache.accel, inst, o, d)
     _, _, zp, clsp = cache.pixel_lines(hits, o, d)
     # the exact lattice coordinates (a parameterised ray may round to either side)
     abcd = lat / 2.0 ** LATTICE_DEPTH

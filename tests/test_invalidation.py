@@ -22,6 +22,7 @@ from rstrace_engine.geometry.scene import Camera, Light, Material, Scene
 from rstrace_engine.interpolants import interpolant_cache
 from rstrace_engine.interpolants import membership as membership_mod
 from rstrace_engine.interpolants import ray_segment_tree as rst_mod
+from rstrace_engine.interpolants.line_samples import front_hits
 from rstrace_engine.interpolants.linetree import LATTICE_DEPTH, lattice_lines, line_points
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.tracing import whitted
@@ -102,7 +103,7 @@ def warm_cache(scene):
 
 def line_radiance(cache, inst, o, d):
     """Radiance of lines on their objects' front-facing crossings, traced from scratch."""
-    hits = cache._front_hits(inst, o, d)
+    hits = front_hits(cache.sa, cache.accel, inst, o, d)
     rad, _ = whitted.trace(cache.sa, cache.accel, o, d, 0.0, 1.0, cache.max_depth,
                            primary=hits)
     return rad

@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from functools import cached_property, partial
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -53,9 +53,9 @@ from ..frame import (
     CLASS_TRACED,
 )
 from ..geometry.mesh_topology import mesh_topology
-from ..tracing.whitted import trace
 from .fallback import Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
+from .line_samples import line_geometry, shade_lines
 from .linetree import (
     EMPTY,
     LATTICE_DEPTH,
@@ -64,7 +64,6 @@ from .linetree import (
     expanded_boxes,
     fail_class,
     fail_code,
-    lattice_lines,
     line_points,
     point_depth,
     ray_line,
@@ -83,21 +82,14 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
-from .relight import sample_shares
 from .samples import (
     GLOSSY,
     LineCrossings,
     SampleStore,
     TextureApplier,
-    facing,
-    glossy_flags,
-    skip_tmin,
-    texture_split,
-    unique_keys,
 )
 from .shafts import query_scene
 from .walk import group_active, settle, walk_level
-from .world_term import without_world
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +105,6 @@ MIN_PIXELS = 48
 #: CancelFlag` (the viewport), polled between batches: a few tens of milliseconds of
 #: building (otherwise one batch per level). A cell is never interrupted half built.
 BUILD_STEP_CANCELLABLE = 32
-#: Back-facing crossings skipped while looking for a line's front-facing crossing.
-MAX_BACKFACE_SKIPS = 8
 #: Why a built cell ended as it did (``InterpolantCache.outcome_log``): the predicate's
 #: :data:`~.predicate.REASONS`, then the radiance test and the corners' box pre-test.
 OUTCOMES = (*REASONS, "radiance", "box_miss")
@@ -171,13 +161,6 @@ def _cell_keys(box, inst, face, depth, coord, tests, ntest, aabb, k2, ok):
             if t0 > t1 * (1.0 + 1e-9) + 1e-12:
                 ok[c] = False
                 break
-
-
-@njit(cache=True, nogil=True)
-def _unpack(k2, lattice):
-    for r in range(k2.shape[0]):
-        for m in range(4):
-            lattice[r, m] = (k2[r] >> (15 * (3 - m))) & 0x7FFF
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -536,108 +519,6 @@ class InterpolantCache:
 
     # -- building ---------------------------------------------------------------------
 
-    def _front_hits(self, inst, o, d) -> Hits:
-        """Each line's first crossing of its object that faces the line (back faces are
-        skipped: from inside a room, its far walls are what is seen)."""
-        n = len(inst)
-        t = np.full(n, np.inf)
-        hi = np.full(n, -1, np.int32)
-        pr = np.full(n, -1, np.int32)
-        u = np.zeros(n)
-        v = np.zeros(n)
-        tmin = np.zeros(n)
-        todo = np.arange(n)
-        for _ in range(MAX_BACKFACE_SKIPS):
-            if len(todo) == 0:
-                break
-            h = self.accel.intersect_object(inst[todo], o[todo], d[todo], tmin[todo],
-                                            np.ones(len(todo)))
-            front = np.empty(len(todo), bool)
-            facing(self.sa, h.inst, h.prim, d[todo], front)
-            fin = todo[front]
-            t[fin], hi[fin], pr[fin] = h.t[front], h.inst[front], h.prim[front]
-            u[fin], v[fin] = h.u[front], h.v[front]
-            back = ~front
-            todo = todo[back]
-            nxt = np.empty(len(todo))
-            skip_tmin(o[todo], d[todo], h.t[back], float(self.sa.scene_extent), nxt)
-            tmin[todo] = nxt
-        return Hits(t, hi, pr, u, v)
-
-    def _geometry(self, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings):
-        """Slab-crossing instance and class of lattice lines (m keys, repeats allowed):
-        from stored samples, else from ``geo``, else computed now (``intersect_object``
-        only, no shading) and added to ``geo``. Returns ``inst (m,), cls (m,)``."""
-        m = len(k1)
-        inst = np.empty(m, np.int32)
-        cls = np.empty(m, np.int32)
-        sid = self.samples.lookup(k1, k2)
-        have = sid >= 0
-        inst[have] = self.samples._inst[sid[have]]
-        cls[have] = self.samples._cls[sid[have]]
-        rest = np.flatnonzero(~have)
-        if len(rest):
-            gid = geo.keys.lookup(k1[rest], k2[rest])
-            new = gid < 0
-            if np.any(new):
-                c1, c2 = k1[rest[new]], k2[rest[new]]
-                firsts, _ = unique_keys(c1, c2)
-                n1, n2 = c1[firsts], c2[firsts]
-                li = (n1 >> 3).astype(np.int32)
-                lf = (n1 & 7).astype(np.int8)
-                lattice = np.empty((len(n1), 4), np.int64)
-                _unpack(n2, lattice)
-                o = np.empty((len(n1), 3))
-                d = np.empty((len(n1), 3))
-                lattice_lines(self.box, li, lf, lattice, o, d)
-                hits = self._front_hits(li, o, d)
-                hcls = np.where(hits.inst >= 0, self.topo.tri_class[np.maximum(hits.prim, 0)],
-                                -1).astype(np.int32)
-                geo.add(n1, n2, o, d, hits, hcls)
-                gid[new] = geo.keys.lookup(k1[rest[new]], k2[rest[new]])
-            inst[rest] = geo.inst[gid]
-            cls[rest] = geo.cls[gid]
-        return inst, cls
-
-    def _shade(self, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings) -> np.ndarray:
-        """Sample ids of lattice lines (m keys, repeats allowed); lines not stored yet are
-        shaded through the whole scene from their ``geo`` crossings, with ray trees."""
-        sid = self.samples.lookup(k1, k2)
-        miss = np.flatnonzero(sid < 0)
-        if len(miss) == 0:
-            return sid
-        gid = geo.keys.lookup(k1[miss], k2[miss])
-        firsts, uinv = unique_keys(gid.astype(np.int64), np.zeros(len(gid), np.int64))
-        ug = gid[firsts]
-        hits = geo.hits(ug)
-        # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
-        # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
-        own = partial(trace, glossy_samples=1, roots="own")
-        keep = self._keeps_shares(len(ug))
-        segs: list | None = [] if keep else None
-        rad, tree = own(self.sa, self.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, self.max_depth,
-                        record=True, primary=hits, segments=segs, terms=keep)
-        li = hits.inst
-        k = (geo.keys.k1[ug] & 7) >> 1
-        inst_box = (geo.keys.k1[ug] >> 3)
-        depth = np.where(li >= 0, hits.t, 0.0) * (self.box[inst_box, 1, k]
-                                                  - self.box[inst_box, 0, k])
-        node_cls = np.where(tree.node_tri >= 0,
-                            self.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
-        rad, dif, texel, flag = texture_split(self.sa, self.accel, geo.o[ug], geo.d[ug], hits,
-                                              tree, rad, self.max_depth, own)
-        flag |= glossy_flags(self.sa, tree, len(ug))
-        if self.qs.world_light:  # interpolated without the world's term (world_term.py)
-            rad, flag = without_world(self.sa, self.accel, geo.o[ug], geo.d[ug], hits, rad,
-                                      dif, flag, self.max_depth)
-        share, shared = sample_shares(self.sa, segs, hits, flag) if keep else (None, None)
-        new = self.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
-                               tree, node_cls.astype(np.int32), dif, texel, flag, share,
-                               shared)
-        self.frame_stats["samples_traced"] += len(ug)
-        sid[miss] = new[uinv.reshape(-1)]
-        return sid
-
     def _build(self, cells: np.ndarray, st: dict) -> None:
         """Build the cells (unique EMPTY leaves) in one batch and store the outcome.
 
@@ -673,7 +554,7 @@ class InterpolantCache:
                 break
             used = np.arange(lo, hi)[None, :] < (16 + ntest[go])[:, None]
             k1 = np.broadcast_to(kc[go][:, None], used.shape)[used]
-            g_inst, g_cls = self._geometry(k1, k2[go, lo:hi][used], geo)
+            g_inst, g_cls = line_geometry(self, k1, k2[go, lo:hi][used], geo)
             gi = np.full(used.shape, -1, np.int32)
             gc = np.full(used.shape, -1, np.int32)
             gi[used], gc[used] = g_inst, g_cls
@@ -691,7 +572,7 @@ class InterpolantCache:
             # test lines (check_cells compares the corners first), so their lines are not
             # shaded (they would be the children's corners: a split shades them if needed)
             k1 = np.repeat(kc[go], 16)
-            corner_ids = self._shade(k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
+            corner_ids = shade_lines(self, k1, k2[go, :16].reshape(-1), geo).reshape(len(go), 16)
             early = np.empty(len(go), np.int8)
             corner_trees(self.samples.view(), corner_ids, early)
             # a rough surface in a corner's tree: the reason is that (glossy rays)
@@ -716,7 +597,7 @@ class InterpolantCache:
             used = np.arange(ns)[None, :] < nsamp[:, None]
             k1 = np.broadcast_to(kc[go][:, None], used.shape)[used]
             cell_samples = np.full((len(go), ns), -1, np.int32)
-            cell_samples[used] = self._shade(k1, k2[go][used], geo)
+            cell_samples[used] = shade_lines(self, k1, k2[go][used], geo)
             sub_status = np.empty(len(go), np.int32)
             detail = np.empty(len(go), np.int8)
             zlo = np.zeros(len(go))

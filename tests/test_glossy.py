@@ -363,12 +363,13 @@ def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch)
     its glossy rays per pixel), every frame -- the first and after moves of the balls into
     and out of the floor's reflection -- within epsilon of the BASE frame of the edited
     scene, every traced pixel BASE's; then the light's power, the light moved, the floor's
-    roughness changed."""
+    roughness changed, and a camera step (reprojected pixels on the rough floor trace their
+    visibility ray for their glossy rays)."""
     from dataclasses import replace
 
     from rstrace_engine import image
     from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT
-    from rstrace_engine.geometry.edits import LightSet, MaterialSet, ObjectTransform
+    from rstrace_engine.geometry.edits import CameraChange, LightSet, MaterialSet, ObjectTransform
     from rstrace_engine.geometry.scene import Light
     from rstrace_engine.interpolants.render import InterpolantRenderer
     from rstrace_engine.session import Session
@@ -382,12 +383,16 @@ def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch)
     sc.set_material(sc.material_id("floor"), plastic)
     sess = Session(sc, settings)
     key = Light("Key", "POINT", power=1200.0, position=(-3.0, -3.5, 5.0))
-    moves = [None, ("Metal", (-0.2, 0.9, 0.7), 0.7), ("Glass", (1.4, -0.6, 0.5), 0.5),
-             ("Metal", (-1.2, 0.2, 0.7), 0.7), ("Key", 2.0), ("Key", (-2.0, -3.0, 4.0)),
-             ("floor", 0.2)]
+    moves = [None, ("camera", 0.05), ("Metal", (-0.2, 0.9, 0.7), 0.7),
+             ("Glass", (1.4, -0.6, 0.5), 0.5), ("Metal", (-1.2, 0.2, 0.7), 0.7), ("Key", 2.0),
+             ("Key", (-2.0, -3.0, 4.0)), ("floor", 0.2)]
     for step, move in enumerate(moves):
         if move is None:
             pass
+        elif move[0] == "camera":  # a step aside: reprojected pixels on the rough floor
+            m = sess.scene.camera.matrix.copy()
+            m[0, 3] += move[1]
+            sess.apply([CameraChange(replace(sess.scene.camera, matrix=m))])
         elif move[0] == "Key" and isinstance(move[1], float):  # the light's power
             key = replace(key, power=key.power * move[1])
             sess.apply([LightSet("Key", key)])
@@ -411,8 +416,10 @@ def test_interpolant_mode_interpolates_rough_surfaces_through_edits(monkeypatch)
         traced = (frame.pixel_class != CLASS_INTERPOLATED) & (frame.pixel_class
                                                               != CLASS_REBUILT)
         np.testing.assert_allclose(frame.radiance[traced], base.radiance[traced], atol=1e-6)
-        if step == 0:
+        if step <= 1:
             assert rough > 0.1 * frame.radiance.shape[0] * frame.radiance.shape[1], rough
+        if step == 1:
+            assert frame.stats["reprojected_fraction"] > 0.02, frame.stats
 
 
 def test_ri_tree_mode_samples_rough_surfaces():

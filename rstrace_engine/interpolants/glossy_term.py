@@ -47,6 +47,17 @@ def rough_roots(sa, hits: Hits, max_depth: int) -> np.ndarray:
     return out
 
 
+def rough_objects(sa) -> np.ndarray:
+    """(n_instances,) bool: the objects with a rough material in one of their slots."""
+    rough = glossy_materials(sa)[sa.inst_mat]
+    starts = np.asarray(sa.inst_mat_start, np.int64)
+    counts = np.add.reduceat(rough.astype(np.int64), starts[:-1]) if len(rough) else None
+    out = np.zeros(len(starts) - 1, np.bool_)
+    if counts is not None:
+        out[:] = (counts > 0) & (np.diff(starts) > 0)
+    return out
+
+
 def glossy_term(sa, accel, o, d, tmin, tmax, hits: Hits, gids: np.ndarray, seed: int,
                 max_depth: int, light_samples: int, glossy_samples: int,
                 counters: dict | None = None, segments: list | None = None,

@@ -47,7 +47,7 @@ from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
 from .bound import bound_notes
-from .glossy_term import glossy_term, rough_roots, rough_roots_possible
+from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_possible
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
@@ -258,24 +258,40 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
     return False
 
 
-def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rad, counters, records,
-                 gids, cancel, settings) -> bool:
+def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rep, interpolant, rad,
+                 counters, records, gids, cancel, settings) -> bool:
     """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
     bool, but the rows ``skip_rows`` traced whole) whose hit is on a rough surface
     (:mod:`.glossy_term`); their segments go to ``records``. Returns whether ``cancel``
-    stopped it."""
+    stopped it. A reprojected sample (``rep`` (k,) bool or None) has no hit: where its
+    interpolant (``interpolant`` (k,) pool ids) lies on an object with a rough material,
+    its visibility ray is traced here."""
     sa, accel = cache.sa, cache.accel
     rows = np.flatnonzero(interp)
     rows = np.setdiff1d(rows, skip_rows)
-    rows = rows[rough_roots(sa, _take(hits, rows), int(settings.max_depth))]
+    h = _take(hits, rows)
+    if rep is not None and rep[rows].any():
+        r = np.flatnonzero(rep[rows])
+        obj = cache.trees.arrays.tree[cache.pool.node[interpolant[rows[r]]]] // 6
+        r = r[rough_objects(sa)[obj]]
+        h.inst[rep[rows]] = -1
+        if len(r):
+            c = rows[r]
+            with bound(accel, cancel):
+                found = accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
+            for dst, src in zip(h, found, strict=True):
+                dst[r] = src
+    rough = rough_roots(sa, h, int(settings.max_depth))
+    rows, h = rows[rough], _take(h, np.flatnonzero(rough))
     counters["rough_interpolated"] = counters.get("rough_interpolated", 0) + len(rows)
     n_tiles = max(1, round(len(rows) / TILE_RAYS)) if len(rows) else 0
     for q in range(n_tiles):
-        part = rows[q * len(rows) // n_tiles:(q + 1) * len(rows) // n_tiles]
+        sel = np.arange(q * len(rows) // n_tiles, (q + 1) * len(rows) // n_tiles)
+        part = rows[sel]
         segs: list | None = [] if records is not None else None
         with bound(accel, cancel):
             rad[part] += glossy_term(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                     _take(hits, part), gids[part], int(settings.seed),
+                                     _take(h, sel), gids[part], int(settings.seed),
                                      int(settings.max_depth), int(settings.light_samples),
                                      int(settings.glossy_samples), counters, segs, cancel)
         if cancel is not None and cancel():
@@ -400,9 +416,10 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # while the world lights, an interpolated pixel traces the world's term at its own hit
     # (world_term.py): it needs the hit, which a reprojected ray does not find
     world = world_lights(sa)
-    # so does one on a rough surface, its glossy rays (glossy_term.py)
+    # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
+    # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
     rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
-    view = cache.view if pixels is None and not world and not rough_on else None
+    view = cache.view if pixels is None and not world else None
     cache.view = None
     t_world = 0.0
     here = None
@@ -504,7 +521,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 if rough_on and not cancelled:  # rough surfaces' glossy rays, per pixel
                     skip_rows = probe.get("idx", np.zeros(0, np.int64))
                     cancelled = _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits,
-                                             rad, counters, records, gids, cancel, settings)
+                                             rep, res.interpolant, rad, counters, records,
+                                             gids, cancel, settings)
             t_trace += time.perf_counter() - tt
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))

@@ -37,7 +37,17 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, TEX_EMISSION, TEX_NO_BASE
+from ..geometry.scene import (
+    LIGHT_SPOT,
+    LIGHT_SUN,
+    MODEL_PRINCIPLED,
+    TEX_EMISSION,
+    TEX_METAL,
+    TEX_NO_BASE,
+    TEX_SPECULAR,
+    TEX_TRANSMISSION,
+    TEX_TRANSMISSION_SQRT,
+)
 from .shading import (
     INV_PI,
     dot3,
@@ -57,6 +67,7 @@ from .shading import (
     shading_normal,
     spawn_offset,
     spot_falloff,
+    texel_weight,
     texture_lookup,
     texture_uv,
     transmit,
@@ -506,14 +517,17 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         lg = sa.mat_emission[m, 1]
         lb = sa.mat_emission[m, 2]
         tex = sa.mat_tex[m]
-        if tex >= 0:  # the texel multiplies the base colour, the emission, or both
+        tf = 0  # the texture's TEX_* bits: what its texel x* multiplies (here the base
+        xr = xg = xb = 1.0  # colour and the emission; the other weights as they are read)
+        if tex >= 0:
+            tf = sa.tex_size[tex, 2]
             u, v = texture_uv(sa, tex, prim[i], bu[i], bv[i])
             xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
-            if not sa.tex_size[tex, 2] & TEX_NO_BASE:
+            if not tf & TEX_NO_BASE:
                 dr *= xr
                 dg *= xg
                 db *= xb
-            if sa.tex_size[tex, 2] & TEX_EMISSION:
+            if tf & TEX_EMISSION:
                 lr *= xr
                 lg *= xg
                 lb *= xb
@@ -521,16 +535,14 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             tv[i, L + 1, 0] = lr
             tv[i, L + 1, 1] = lg
             tv[i, L + 1, 2] = lb
-        sr = sa.mat_specular[m, 0]
-        sg = sa.mat_specular[m, 1]
-        sb = sa.mat_specular[m, 2]
+        sr, sg, sb = texel_weight(tf, TEX_SPECULAR, sa.mat_specular[m, 0],
+                                  sa.mat_specular[m, 1], sa.mat_specular[m, 2], xr, xg, xb)
         alpha = sa.mat_roughness[m]
         principled = sa.mat_model[m] == MODEL_PRINCIPLED
         eta_s = sa.mat_specular_ior[m]
         metallic = sa.mat_metallic[m]
-        mr = sa.mat_metal[m, 0]
-        mg = sa.mat_metal[m, 1]
-        mb = sa.mat_metal[m, 2]
+        mr, mg, mb = texel_weight(tf, TEX_METAL, sa.mat_metal[m, 0], sa.mat_metal[m, 1],
+                                  sa.mat_metal[m, 2], xr, xg, xb)
         e_white = 1.0
         e_diel = 0.0
         # a glossy point's rays carry the world's glossy reflection: its samples of the
@@ -539,9 +551,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
         ki = hinst[i]
-        tr = sa.mat_transmission[m, 0]
-        tg = sa.mat_transmission[m, 1]
-        tb = sa.mat_transmission[m, 2]
+        tr, tg, tb = texel_weight(tf, TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT,
+                                  sa.mat_transmission[m, 0], sa.mat_transmission[m, 1],
+                                  sa.mat_transmission[m, 2], xr, xg, xb)
         # a rough interface (Cycles' multiscatter GGX glass): its lobe, reflected and
         # refracted, scaled by 1 / E, E its single-scattering albedo toward the viewer
         eta = 1.0

@@ -82,8 +82,9 @@ CASES = {
     "mirror metal": (_lit_plane, dict(metallic=1.0, roughness=0.0), "base", TEX_METAL, 1),
     "rough metal": (_lit_plane, dict(metallic=1.0, roughness=0.5), "base", TEX_METAL, 1),
     "half metal": (_lit_plane, dict(metallic=0.5, roughness=0.3), "base", TEX_METAL, 1),
-    "specular tint": (_lit_plane, dict(roughness=0.3, specular_level=1.0), "tint",
-                      TEX_SPECULAR, 1),
+    # (a black base: the base under a tinted layer, test_tinted_layer_lets_the_base_through)
+    "specular tint": (_lit_plane, dict(roughness=0.3, specular_level=1.0, base=(0, 0, 0)),
+                      "tint", TEX_SPECULAR, 1),
     "Glass BSDF": (_glass_over_glow, dict(roughness=0.0, transmission=1.0,
                                           tint_per_crossing=True), "base", TEX_TRANSMISSION,
                    2),
@@ -97,7 +98,7 @@ CASES = {
 def _material(args: dict, into: str, colour=None) -> Material:
     """The case's material: textured (``colour`` None) or of one ``colour``."""
     args = dict(args)
-    base = np.array([0.2, 0.3, 0.25])
+    base = np.array(args.pop("base", (0.2, 0.3, 0.25)), np.float64)
     if colour is None:
         if into == "base":
             base = np.ones(3)
@@ -131,6 +132,24 @@ def test_texel_weights_what_its_input_weights(case):
         np.testing.assert_array_equal(got[:, cols], want[:, cols], err_msg=case)
     # the two halves differ: the texel is the hit's own, not an average
     assert np.abs(got[:, left].mean(axis=(0, 1)) - got[:, right].mean(axis=(0, 1))).max() > 0.01
+
+
+def test_tinted_layer_lets_the_base_through():
+    """Cycles attenuates the base under the specular layer by that layer's albedo, tint
+    included (its largest channel): where the Specular Tint's texel is black the base is
+    lit as under no layer at all, where it is white as under the untinted layer."""
+    black_white = np.array([[(0.0, 0.0, 0.0), (1.0, 1.0, 1.0)]], np.float32)
+    base = (0.5, 0.4, 0.3)
+    args = dict(roughness=0.3, specular_level=1.0)
+    mat, _ = principled_material("Sheet", base, texture=black_white,
+                                 texture_flags=TEX_CLOSEST | TEX_SPECULAR | TEX_NO_BASE,
+                                 **args)
+    got = _render(_lit_plane(mat), 1)
+    w = got.shape[1]
+    for cols, level in ((slice(0, w // 2 - 1), 0.0), (slice(w // 2 + 1, w), 1.0)):
+        plain, _ = principled_material("Sheet", base, roughness=0.3, specular_level=level)
+        want = _render(_lit_plane(plain), 1)
+        np.testing.assert_allclose(got[:, cols], want[:, cols], rtol=1e-12, atol=1e-15)
 
 
 def test_ward_model_keeps_the_average_and_says_so():
@@ -177,8 +196,7 @@ def _tiles(metallic: float, roughness: float, **args) -> Scene:
     (dict(metallic=0.0, roughness=0.0, transmission=1.0, tint_per_crossing=True), True),
     (dict(metallic=0.5, roughness=0.5), False),  # the lobe's multiple scattering: not
     (dict(metallic=0.0, roughness=0.0, transmission=1.0), False),  # sqrt(texel)
-    (dict(roughness=0.0, texture_flags=TEX_SPECULAR), True),  # a mirror's tint
-    (dict(roughness=0.5, texture_flags=TEX_SPECULAR), False),  # a lobe's tint
+    (dict(metallic=0.0, roughness=0.0, texture_flags=TEX_SPECULAR), False),  # max(texel)
 ])
 def test_nonlinear_roots(case, affine):
     scene = _tiles(**case)

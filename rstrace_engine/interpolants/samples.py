@@ -391,16 +391,17 @@ def _root_texels(sa, inst, prim, u, v, out):
 def nonlinear_roots(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
     """(n,) bool: hits (instance, triangle; instance -1 a miss) on a material whose
     radiance is not affine in its texel: the texel's square root tints its transmission
-    (``TEX_TRANSMISSION_SQRT``), or it multiplies the metal colour or the specular tint of a
-    GGX lobe (``TEX_METAL``, ``TEX_SPECULAR`` at GGX alpha ``>= GLOSSY_ALPHA_MIN``: the
-    lobe's multiple-scattering factor ``1 + F0 (1 - E) / E`` holds it once more). A mirror's
-    Fresnel ``F0 + (1 - F0) (1 - cos)^5`` and a transmission tint are affine in it."""
+    (``TEX_TRANSMISSION_SQRT``), its largest channel scales the base under a tinted layer
+    (``TEX_SPECULAR``), or it multiplies the metal colour of a GGX lobe (``TEX_METAL`` at GGX
+    alpha ``>= GLOSSY_ALPHA_MIN``: the lobe's multiple-scattering factor
+    ``1 + F0 (1 - E) / E`` holds it once more). A mirror's Fresnel
+    ``F0 + (1 - F0) (1 - cos)^5`` and a transmission tint are affine in it."""
     mats = np.zeros(len(sa.mat_tex), np.bool_)
     has = sa.mat_tex >= 0
     flags = sa.tex_size[sa.mat_tex[has], 2]
     lobe = sa.mat_roughness[has] >= tol.GLOSSY_ALPHA_MIN
-    mats[has] = ((flags & TEX_TRANSMISSION_SQRT) != 0) | (
-        ((flags & (TEX_METAL | TEX_SPECULAR)) != 0) & lobe)
+    mats[has] = ((flags & (TEX_TRANSMISSION_SQRT | TEX_SPECULAR)) != 0) | (
+        ((flags & TEX_METAL) != 0) & lobe)
     out = np.zeros(len(inst), np.bool_)
     if not mats.any():
         return out

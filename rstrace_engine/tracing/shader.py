@@ -550,6 +550,8 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
+            if tf & TEX_SPECULAR:  # Cycles: the base under the layer's tinted albedo
+                e_diel *= max(xr, xg, xb, 0.0)  # (its largest channel)
         ki = hinst[i]
         tr, tg, tb = texel_weight(tf, TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT,
                                   sa.mat_transmission[m, 0], sa.mat_transmission[m, 1],

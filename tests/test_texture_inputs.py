@@ -42,6 +42,7 @@ from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.interpolants.samples import nonlinear_roots
 from rstrace_engine.session import Session
 from rstrace_engine.tracing import whitted
+from rstrace_engine.tracing.shading import fresnel_dielectric
 
 #: the two texels (float32, as textures are stored): left and right half of the view
 C1 = np.array([0.9, 0.5, 0.2], np.float32)
@@ -150,6 +151,27 @@ def test_tinted_layer_lets_the_base_through():
         plain, _ = principled_material("Sheet", base, roughness=0.3, specular_level=level)
         want = _render(_lit_plane(plain), 1)
         np.testing.assert_allclose(got[:, cols], want[:, cols], rtol=1e-12, atol=1e-15)
+
+
+def test_principled_glass_reflects_untinted():
+    """Cycles tints a Principled BSDF's refraction by the square root of its Base Color
+    and its reflection by the Specular Tint alone: where the image is black the glass is
+    still a (white) reflector, where it is white it is clear glass."""
+    black_white = np.array([[(0.0, 0.0, 0.0), (1.0, 1.0, 1.0)]], np.float32)
+    world = np.array([0.5, 0.6, 0.7])
+    mat, _ = principled_material("Sheet", np.ones(3), roughness=0.0, transmission=1.0,
+                                 texture=black_white, texture_flags=TEX_CLOSEST)
+    scene = _glass_over_glow(mat)
+    scene.set_world_color(world, lights=False)
+    got = _render(scene, 2)
+    w = got.shape[1]
+    f = fresnel_dielectric(1.0, 1.0 / 1.5)  # straight down onto the sheet
+    np.testing.assert_allclose(got[:, :w // 2 - 1], np.broadcast_to(f * world, (got.shape[0],
+                               w // 2 - 1, 3)), rtol=1e-6)  # (a float32 frame)
+    clear, _ = principled_material("Sheet", np.ones(3), roughness=0.0, transmission=1.0)
+    scene = _glass_over_glow(clear)
+    scene.set_world_color(world, lights=False)
+    np.testing.assert_array_equal(got[:, w // 2 + 1:], _render(scene, 2)[:, w // 2 + 1:])
 
 
 def test_ward_model_keeps_the_average_and_says_so():

@@ -358,19 +358,19 @@ def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
 
 @njit(cache=True, nogil=True)
 def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
-                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s, metallic, mr,
-                 mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
-    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission
-    ``t*``): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn from GGX's visible
-    normals about the shading normal (the geometric one where the shading normal faces away
-    from the viewer), stratified (a Fibonacci lattice rotated by a hash of the node's seed,
-    as the soft lights' samples), each a reflected and a refracted ray. A sample's
+                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s,
+                 metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
+    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission ``t*``
+    refracted and ``u*`` reflected): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn
+    from GGX's visible normals about the shading normal (the geometric one where the shading
+    normal faces away from the viewer), stratified (a Fibonacci lattice rotated by a hash of the
+    node's seed, as the soft lights' samples), each a reflected and a refracted ray. A sample's
     reflection carries the layer's Fresnel at ``i . h`` with the direct light's
-    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part,
-    its refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
+    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part, its
+    refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
     (:func:`~.shading.ggx_weight`); a direction below the geometric surface (reflection) or
-    above it (refraction) is dropped, a microfacet with total internal reflection reflects
-    all of the transmissive part."""
+    above it (refraction) is dropped, a microfacet with total internal reflection reflects all
+    of the transmissive part."""
     k0 = gstart[i]
     ns = gstart[i + 1] - k0
     wmin = tol.PATH_WEIGHT_MIN
@@ -382,7 +382,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
         co = dot3(ox, oy, oz, nx, ny, nz)
     co = max(co, tol.GGX_COS_MIN)
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
-    trans = tr > 0.0 or tg > 0.0 or tb > 0.0
+    trans = ur > 0.0 or ug > 0.0 or ub > 0.0
     msr = msg = msb = 1.0
     if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
         e = max(e_white, tol.GGX_ALBEDO_MIN)
@@ -422,9 +422,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
             ok, tx, ty, tz = refract(dx, dy, dz, hx, hy, hz, eta)
             if ok:
                 f = fresnel_dielectric(ch, eta) * ke
-                ar += f * tr
-                ag += f * tg
-                ab += f * tb
+                ar += f * ur
+                ag += f * ug
+                ab += f * ub
                 ci = dot3(tx, ty, tz, nx, ny, nz)
                 if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
                     q = (ke - f) * ggx_weight(co, ci, alpha) * inv
@@ -435,9 +435,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
                         _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
                              pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection at this microfacet
-                ar += tr * ke
-                ag += tg * ke
-                ab += tb * ke
+                ar += ur * ke
+                ag += ug * ke
+                ab += ub * ke
         qx, qy, qz = reflect(dx, dy, dz, hx, hy, hz)
         ci = dot3(qx, qy, qz, nx, ny, nz)
         if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
@@ -553,15 +553,22 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             if tf & TEX_SPECULAR:  # Cycles: the base under the layer's tinted albedo
                 e_diel *= max(xr, xg, xb, 0.0)  # (its largest channel)
         ki = hinst[i]
-        tr, tg, tb = texel_weight(tf, TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT,
-                                  sa.mat_transmission[m, 0], sa.mat_transmission[m, 1],
-                                  sa.mat_transmission[m, 2], xr, xg, xb)
+        # the transmissive part refracted (t*) and reflected (u*): an image into a Glass
+        # BSDF's colour tints both, a Principled's Base Color (its square root) the refracted
+        # part alone (Cycles: the reflection takes the Specular Tint)
+        ur = sa.mat_transmission[m, 0]
+        ug = sa.mat_transmission[m, 1]
+        ub = sa.mat_transmission[m, 2]
+        tr, tg, tb = texel_weight(tf, TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT, ur, ug, ub,
+                                  xr, xg, xb)
+        if not tf & TEX_TRANSMISSION_SQRT:
+            ur, ug, ub = tr, tg, tb
         # a rough interface (Cycles' multiscatter GGX glass): its lobe, reflected and
         # refracted, scaled by 1 / E, E its single-scattering albedo toward the viewer
         eta = 1.0
         ke = 1.0
         eta_g = 1.0  # the rough interface's (its lights' highlight); 1: none
-        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+        if ur > 0.0 or ug > 0.0 or ub > 0.0:
             ior = sa.mat_ior[m]
             eta = 1.0 / ior if ENTER[i] else ior
             if principled and alpha >= tol.GLOSSY_ALPHA_MIN and eta != 1.0:
@@ -596,9 +603,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
                                metallic * vg, mr, mg, mb, alpha, e_white, e_diel)
             q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vg
-            fr += q * tr
-            fg += q * tg
-            fb += q * tb
+            fr += q * ur
+            fg += q * ug
+            fb += q * ub
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -646,9 +653,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                        e_diel)
                     q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
                                     ke) * vg
-                    fr += q * tr
-                    fg += q * tg
-                    fb += q * tb
+                    fr += q * ur
+                    fg += q * ug
+                    fb += q * ub
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e
@@ -688,8 +695,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         off = spawn_offset(px, py, pz, ext)
         if glossy:
             _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
-                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s,
-                         metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok)
+                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb,
+                         eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
+                         c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
@@ -697,12 +705,12 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             rr *= fr
             rg *= fg
             rb *= fb
-        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+        if ur > 0.0 or ug > 0.0 or ub > 0.0:
             ok, tx, ty, tz, f = transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta)
             if ok:
-                rr += f * tr
-                rg += f * tg
-                rb += f * tb
+                rr += f * ur
+                rg += f * ug
+                rb += f * ub
                 cr = w0 * (1.0 - f) * tr
                 cg = w1 * (1.0 - f) * tg
                 cb = w2 * (1.0 - f) * tb
@@ -710,9 +718,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                     _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
                          pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection
-                rr += tr
-                rg += tg
-                rb += tb
+                rr += ur
+                rg += ug
+                rb += ub
         cr = w0 * rr
         cg = w1 * rg
         cb = w2 * rb

@@ -1,8 +1,10 @@
 """Blender materials -> :class:`rstrace_engine.geometry.scene.Material` (export's material half).
 
-Reads the Principled BSDF (or a Diffuse, Emission, Glossy or Glass BSDF) feeding the material
-output, with an Image Texture on Base Color read into a numpy texture; anything else falls
-back to the material's viewport colour. Problems go to the export's :class:`Notes`.
+Reads the Principled BSDF (or a Diffuse, Emission, Glossy, Metallic or Glass BSDF) feeding
+the material output, with one Image Texture read into a numpy texture: into a colour input
+(Base Color, Emission Color, Specular Tint, a BSDF's Color), its texel multiplies that
+colour's weights at each hit as Cycles' closure weights do; anything else falls back to the
+material's viewport colour. Problems go to the export's :class:`Notes`.
 
 Layer: imports no add-on module; imported by ``export`` and the readers it uses (``snapshot``,
 ``cameras``, ``lights``) and by ``depsgraph_diff`` (``image_changed``).
@@ -27,6 +29,8 @@ from rstrace_engine.geometry.scene import (
     TEX_MAP_IDENTITY,
     TEX_NO_BASE,
     TEX_OBJECT,
+    TEX_SAMPLING,
+    TEX_SPECULAR,
     TEX_SRGB,
     Material,
     Scene,
@@ -216,20 +220,21 @@ class MaterialReader:
         if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
                     "ShaderNodeBsdfMetallic"):
             sock = node.inputs.get("Color") or node.inputs.get("Base Color")
-            colour, _ = self._colour(name, sock, f"{node.bl_label} colour")
+            colour, tex = self._colour(name, sock)  # an image: the metal colour per hit
             rough = self._value(name, node.inputs["Roughness"])
             aniso = node.inputs.get("Anisotropy")
             if aniso is not None and (aniso.is_linked or float(aniso.default_value) != 0.0):
                 self.notes.warn("glossy anisotropy is not supported: rendered isotropic",
                                 name)
-            return self._mix(name, base=colour, metallic=1.0, roughness=rough)
+            return self._mix(name, base=colour, metallic=1.0, roughness=rough, texture=tex)
         if kind == "ShaderNodeBsdfGlass":
-            colour, _ = self._colour(name, node.inputs["Color"], "Glass BSDF colour")
+            colour, tex = self._colour(name, node.inputs["Color"])
             rough = self._value(name, node.inputs["Roughness"])
             ior = self._value(name, node.inputs["IOR"])
-            # Cycles' Glass BSDF tints every crossing by its Color (no square root)
+            # Cycles' Glass BSDF tints every crossing by its Color (no square root); an
+            # image: by the texel at each crossing
             return self._mix(name, base=colour, roughness=rough, ior=ior, transmission=1.0,
-                             tint_per_crossing=True)
+                             tint_per_crossing=True, texture=tex)
         self.notes.warn(f"'{node.bl_label}' shaders are not supported; the material's "
                         f"viewport colour is used", name)
         return self._viewport(mat)
@@ -253,10 +258,15 @@ class MaterialReader:
         ior = self._value(name, inp["IOR"])
         trans = self._value(name, inp["Transmission Weight"])
         level = self._value(name, inp["Specular IOR Level"])
-        tint, _ = self._colour(name, inp["Specular Tint"], "Specular Tint")
+        owner = "Base Color" if tex is not None else None  # the input holding the image
         emit, etex = self._colour(name, inp["Emission Color"])
         if etex is not None:
-            tex, emit = self._with_emission(name, tex, etex, inp["Emission Color"])
+            tex, emit, owner = self._also(name, tex, owner, etex, inp["Emission Color"],
+                                          TEX_EMISSION)
+        tint, ttex = self._colour(name, inp["Specular Tint"])
+        if ttex is not None:
+            tex, tint, owner = self._also(name, tex, owner, ttex, inp["Specular Tint"],
+                                          TEX_SPECULAR)
         strength = self._value(name, inp["Emission Strength"])
         for label, sock in (("subsurface", "Subsurface Weight"), ("coat", "Coat Weight"),
                             ("sheen", "Sheen Weight"), ("thin film", "Thin Film Thickness"),
@@ -296,21 +306,23 @@ class MaterialReader:
 
     # -- sockets -------------------------------------------------------------------------
 
-    def _with_emission(self, name: str, tex: tuple | None, etex: tuple, socket):
-        """The material's one texture when an image feeds the Emission Color: the Base
-        Color's own (the same image, sampled alike, multiplying both), or the emission's
-        alone; ``(texture, emission colour)``. Two different images are not supported
-        (reported: the Emission Color's own value is used)."""
+    def _also(self, name: str, tex: tuple | None, owner: str | None, other: tuple, socket,
+              bits: int):
+        """The material's one texture when an image (``other``, of :meth:`_image`) feeds
+        ``socket`` too, its texel multiplying what the TEX_* ``bits`` say: the texture so far
+        (of input ``owner``) where it is the same image sampled alike, or the new one alone
+        (not the base colour) where there is none; ``(texture, the socket's colour, owner)``.
+        Two different images are not supported (reported: the socket's own value is used)."""
+        label = socket.name
         if tex is None:
-            return _emission_texture(etex), np.ones(3)
-        same = (tex[1] == etex[1] and tex[2] == etex[2]
-                and (tex[0] is etex[0] or np.array_equal(tex[0], etex[0])))
+            return (other[0], other[1] | bits | TEX_NO_BASE, other[2]), np.ones(3), label
+        same = ((tex[1] & TEX_SAMPLING) == (other[1] & TEX_SAMPLING) and tex[2] == other[2]
+                and (tex[0] is other[0] or np.array_equal(tex[0], other[0])))
         if same:
-            return (tex[0], tex[1] | TEX_EMISSION, tex[2]), np.ones(3)
-        self.notes.warn("an Image Texture into the Emission Color besides another into the "
-                        "Base Color is not supported: the Emission Color's own value is used",
-                        name)
-        return tex, rgb(socket.default_value)
+            return (tex[0], tex[1] | bits, tex[2]), np.ones(3), owner
+        self.notes.warn(f"an Image Texture into the {label} besides another into the {owner} "
+                        f"is not supported: the {label}'s own value is used", name)
+        return tex, rgb(socket.default_value), owner
 
     def _value(self, name: str, socket) -> float:
         node, out = follow_link(socket)
@@ -322,22 +334,15 @@ class MaterialReader:
                         name)
         return float(socket.default_value)
 
-    def _colour(self, name: str, socket, untextured: str | None = None
-                ) -> tuple[np.ndarray, tuple | None]:
-        """(linear RGB, optional texture of :meth:`_image`) for a colour socket.
-
-        ``untextured``: the input's label where only the Base Color (or a Diffuse BSDF's
-        Color) is textured; an image there is reported and the socket's value used."""
+    def _colour(self, name: str, socket) -> tuple[np.ndarray, tuple | None]:
+        """(linear RGB, optional texture of :meth:`_image`) for a colour socket: white and
+        the texture where an Image Texture's Color feeds it."""
         node, out = follow_link(socket)
         if node is None:
             return rgb(socket.default_value), None
         if node.bl_idname == "ShaderNodeRGB":
             return rgb(out.default_value), None
         if node.bl_idname == "ShaderNodeTexImage" and out.name == "Color":
-            if untextured is not None:
-                self.notes.warn(f"an Image Texture into the {untextured} is not supported "
-                                f"(node '{node.name}'): the socket's own value is used", name)
-                return rgb(socket.default_value), None
             tex = self._image(name, node)
             if tex is not None:
                 return np.ones(3), tex

@@ -199,7 +199,7 @@ def test_bad_texture_flags_and_map_rejected():
     with pytest.raises(SceneError, match="Flags.*texture flags"):
         Scene().add_material(Material("Flags", texture=tex, texture_flags=TEX_EXTEND | TEX_CLIP))
     with pytest.raises(SceneError, match="Flags.*texture flags"):
-        Scene().add_material(Material("Flags", texture=tex, texture_flags=1 << 10))
+        Scene().add_material(Material("Flags", texture=tex, texture_flags=1 << 12))
     with pytest.raises(SceneError, match="Map.*texture map"):
         Scene().add_material(Material("Map", texture=tex, texture_map=((1.0, 0.0), (0.0, 1.0))))
     with pytest.raises(SceneError, match="Map.*texture map"):

@@ -99,8 +99,19 @@ TEX_OBJECT, TEX_GENERATED = 16, 32
 #: What the texel multiplies: the base colour (unless ``TEX_NO_BASE``), and the emission
 #: with ``TEX_EMISSION`` (an image into Emission Color, or an Emission shader's Color).
 TEX_EMISSION, TEX_NO_BASE = 64, 128
-TEX_FLAGS_ALL = (TEX_CLOSEST | TEX_SRGB | TEX_EXTEND | TEX_CLIP | TEX_OBJECT | TEX_GENERATED
-                 | TEX_EMISSION | TEX_NO_BASE)
+#: ... and, as Cycles' closure weights take the colour at the hit: the metal colour
+#: (``TEX_METAL``: a metallic Principled's Base Color, a Glossy or Metallic BSDF's colour),
+#: the dielectric layer's tint (``TEX_SPECULAR``: Specular Tint), the transmission tint per
+#: crossing (``TEX_TRANSMISSION``: a Glass BSDF's colour; ``TEX_TRANSMISSION_SQRT``: its
+#: square root, a transmissive Principled's Base Color).
+TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION, TEX_TRANSMISSION_SQRT = 256, 512, 1024, 2048
+#: The bits that say how a texture is sampled (two textures alike in these and in their
+#: texels and map are one image read once).
+TEX_SAMPLING = TEX_CLOSEST | TEX_SRGB | TEX_EXTEND | TEX_CLIP | TEX_OBJECT | TEX_GENERATED
+#: The bits whose texel multiplies a weight other than the diffuse colour and the emission
+#: (the radiance is then not always affine in it: ``interpolants.samples.nonlinear_roots``).
+TEX_NONLINEAR = TEX_METAL | TEX_SPECULAR | TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT
+TEX_FLAGS_ALL = TEX_SAMPLING | TEX_EMISSION | TEX_NO_BASE | TEX_NONLINEAR
 #: :attr:`Material.texture_map` of no mapping: ``(u, v)`` are the coordinates' x and y.
 TEX_MAP_IDENTITY = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0))
 
@@ -136,10 +147,12 @@ class Material:
 
     Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
     splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
-    optional ``(h, w, 3)`` RGB image that multiplies ``diffuse`` through the mesh uvs, linear
-    unless ``texture_flags`` (``TEX_*`` bits: interpolation, extension, encoding, coordinate
-    source) says sRGB; ``texture_map`` (2 x 4, affine) takes the coordinates ``(x, y, z)``
-    (uvs as ``(u, v, 0)``) to the image's ``(u, v)`` (Mapping nodes, a flat projection).
+    optional ``(h, w, 3)`` RGB image that multiplies ``diffuse`` through the mesh uvs
+    (``texture_flags``, ``TEX_*`` bits: how it is sampled -- interpolation, extension, sRGB
+    encoding, coordinate source -- and what else the texel multiplies: the emission, the
+    metal colour, the specular tint, the transmission); ``texture_map`` (2 x 4, affine)
+    takes the coordinates ``(x, y, z)`` (uvs as ``(u, v, 0)``) to the image's ``(u, v)``
+    (Mapping nodes, a flat projection).
     """
 
     name: str = "material"
@@ -197,7 +210,8 @@ class Material:
             tex = np.ascontiguousarray(tex[:, :, :3])
         flags = int(self.texture_flags)
         if (flags & ~TEX_FLAGS_ALL or (flags & TEX_EXTEND and flags & TEX_CLIP)
-                or (flags & TEX_OBJECT and flags & TEX_GENERATED)):
+                or (flags & TEX_OBJECT and flags & TEX_GENERATED)
+                or (flags & TEX_TRANSMISSION and flags & TEX_TRANSMISSION_SQRT)):
             raise SceneError(f"material '{n}': texture flags {flags} are not a valid "
                              f"combination of TEX_* bits")
         tmap = np.asarray(self.texture_map, np.float64)

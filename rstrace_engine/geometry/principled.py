@@ -30,7 +30,17 @@ import math
 
 import numpy as np
 
-from .elements import TEX_MAP_IDENTITY, TEX_NO_BASE, texture_linear
+from .elements import (
+    TEX_EMISSION,
+    TEX_MAP_IDENTITY,
+    TEX_METAL,
+    TEX_NO_BASE,
+    TEX_NONLINEAR,
+    TEX_SPECULAR,
+    TEX_TRANSMISSION,
+    TEX_TRANSMISSION_SQRT,
+    texture_linear,
+)
 from .scene import Material, SceneError
 
 #: WARD model: roughness below which reflection is a Whitted mirror, above which Ward's
@@ -97,9 +107,12 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     Raises :class:`~.scene.SceneError` naming the input when one is NaN or infinite.
     Roughness outside [0, 1] is clamped into it and an ``anisotropic`` value other than 0
     is rendered isotropic, each with a message.
-    ``texture`` (h, w, 3) multiplies the base colour (its mean stands in where a single
-    colour is needed: metals, transmission); ``texture_flags``, ``texture_map``: how it is
-    sampled (:class:`~.elements.Material`).
+    ``texture`` (h, w, 3) multiplies the base colour at each hit (``TEX_NO_BASE`` in
+    ``texture_flags``: not), in the PRINCIPLED model the metal colour and the transmission
+    tint too (``TEX_METAL``, ``TEX_TRANSMISSION*`` are added), and the Specular Tint where
+    ``texture_flags`` has ``TEX_SPECULAR``; the WARD model takes the texture's mean for
+    those (with a message). ``texture_flags``, ``texture_map``: what it multiplies and how it
+    is sampled (:class:`~.elements.Material`).
     """
     notes: list[str] = []
     raw = _rgb(name, "Base Color", base)
@@ -127,20 +140,36 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         notes.append(f"IOR {ior:g} is outside [{lo:g}, {hi:g}]: rendered with IOR "
                      f"{clamped:g}")
         ior = clamped
-    if texture is not None and not texture_flags & TEX_NO_BASE:
-        tex_mean = np.clip(texture_linear(texture, texture_flags).reshape(-1, 3).mean(axis=0),
-                           0.0, 1.0)
-        if metallic > 0.0:
-            notes.append("a textured metallic colour is approximated by the texture's average")
-        metal_colour, base_factor = tex_mean, np.ones(3)
-    else:
-        tex_mean = metal_colour = base_factor = base
     m = float(np.clip(metallic, 0.0, 1.0))
     t = float(np.clip(transmission, 0.0, 1.0))
     r = float(np.clip(roughness, 0.0, 1.0))
+    tex_mean = metal_colour = base_factor = base
+    flags = int(texture_flags)
+    if texture is not None and model == "PRINCIPLED":
+        # Cycles weights each closure by its colour at the hit: the Base Color's texel
+        # multiplies the metal colour and the transmission tint (per crossing: its square
+        # root for the Principled BSDF, all of it for the Glass BSDF) as it does the diffuse
+        if not flags & TEX_NO_BASE and m > 0.0:
+            flags |= TEX_METAL
+        if not flags & TEX_NO_BASE and (1 - m) * t > 0.0:
+            flags |= TEX_TRANSMISSION if tint_per_crossing else TEX_TRANSMISSION_SQRT
+    elif texture is not None:  # WARD: one mirror and lobe weight, the metal's among them
+        mean = np.clip(texture_linear(texture, flags).reshape(-1, 3).mean(axis=0), 0.0, 1.0)
+        if not flags & TEX_NO_BASE:
+            if m > 0.0:
+                notes.append("a textured metallic colour is approximated by the texture's "
+                             "average")
+            if t > 0.0:
+                notes.append("textured transmission is approximated by the texture's average")
+            tex_mean, metal_colour, base_factor = mean, mean, np.ones(3)
+        if flags & TEX_SPECULAR:
+            notes.append("a textured Specular Tint is approximated by the texture's average")
+            tint = tint * mean
+    if model == "WARD":
+        flags &= ~TEX_NONLINEAR
+        if texture is not None and flags & TEX_NO_BASE and not flags & TEX_EMISSION:
+            texture, flags = None, 0  # (it multiplied the specular tint alone)
     refract = (1 - m) * t * (tex_mean if tint_per_crossing else np.sqrt(tex_mean))
-    if texture is not None and not texture_flags & TEX_NO_BASE and t > 0.0:
-        notes.append("textured transmission is approximated by the texture's average")
     if model == "WARD" and t > 0.0 and r > MIRROR_ROUGHNESS:
         notes.append("rough transmission is rendered as smooth refraction")
     # Cycles' specular IOR level: F0 scaled by 2 level, the IOR of the reflection adjusted
@@ -164,7 +193,7 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
             roughness=alpha, mirror=(1.0,) * 3, transmission=tuple(refract), ior=ior,
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
             metal=tuple(metal_colour), specular_ior=spec_ior,
-            texture_flags=texture_flags, texture_map=texture_map), notes
+            texture_flags=flags, texture_map=texture_map), notes
     if model != "WARD":
         raise SceneError(f"material '{name}': unknown shading model {model!r}")
     f0c = np.clip(f0 * tint, 0.0, 1.0)
@@ -176,4 +205,4 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         name, diffuse=tuple(diffuse * scale), specular=tuple(reflect * (1 - sharp) * scale),
         roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
         transmission=tuple(refract * scale), ior=ior, emission=emission_t, texture=texture,
-        model="WARD", texture_flags=texture_flags, texture_map=texture_map), notes
+        model="WARD", texture_flags=flags, texture_map=texture_map), notes

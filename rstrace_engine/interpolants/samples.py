@@ -18,6 +18,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
+from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
 from ..tracing.shader import _material_of, is_glossy
 from ..tracing.shading import (
     dot3,
@@ -358,6 +359,9 @@ def skip_tmin(o, d, t, ext, out):
 # texture per pixel, at the pixel's own hit (exactly what the base tracer does): a texture's
 # detail never enters the interpolation, however fine it is. A texture further down the ray
 # tree (a textured floor in a mirror) is baked into R: cells whose samples have one fail.
+# A texel may weight more than the diffuse colour (a metal colour, a specular tint, a
+# transmission tint): the split holds where the radiance stays affine in it (a mirror, a
+# Glass BSDF); cells whose root's radiance is not (nonlinear_roots) fail.
 
 #: flag bits of a sample: a textured material below the root of its ray tree; the affine
 #: split did not reproduce the traced radiance; a rough (glossy) surface in its ray tree
@@ -418,13 +422,40 @@ def _root_texels(sa, inst, prim, u, v, out):
                                                          sa.tex_size, sa.mat_tex[m], uu, vv)
 
 
+def nonlinear_roots(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
+    """(n,) bool: hits (instance, triangle; instance -1 a miss) on a material whose
+    radiance is not affine in its texel: the texel's square root tints its transmission
+    (``TEX_TRANSMISSION_SQRT``), its largest channel scales the base under a tinted layer
+    (``TEX_SPECULAR``), or it multiplies the metal colour of a GGX lobe (``TEX_METAL`` at GGX
+    alpha ``>= GLOSSY_ALPHA_MIN``: the lobe's multiple-scattering factor
+    ``1 + F0 (1 - E) / E`` holds it once more). A mirror's Fresnel
+    ``F0 + (1 - F0) (1 - cos)^5`` and a transmission tint are affine in it."""
+    mats = np.zeros(len(sa.mat_tex), np.bool_)
+    has = sa.mat_tex >= 0
+    flags = sa.tex_size[sa.mat_tex[has], 2]
+    lobe = sa.mat_roughness[has] >= tol.GLOSSY_ALPHA_MIN
+    mats[has] = ((flags & (TEX_TRANSMISSION_SQRT | TEX_SPECULAR)) != 0) | (
+        ((flags & TEX_METAL) != 0) & lobe)
+    out = np.zeros(len(inst), np.bool_)
+    if not mats.any():
+        return out
+    hit = np.flatnonzero(np.asarray(inst) >= 0)
+    k = np.asarray(inst, np.int64)[hit]
+    s0 = sa.inst_mat_start[k]  # the material of each hit triangle (hit_material)
+    slot = np.minimum(sa.tri_slot[np.asarray(prim, np.int64)[hit]],
+                      sa.inst_mat_start[k + 1] - s0 - 1)
+    out[hit] = mats[sa.inst_mat[s0 + slot]]
+    return out
+
+
 def texture_split(sa, accel, o, d, hits: Hits, tree, rad, max_depth: int, trace):
     """Split the radiance of traced lines into ``R + texel * D`` (module comment above).
 
     o, d, hits: the lines and their root hits; tree: their recorded ray trees; rad (n, 3)
     their radiance; trace: :func:`~.whitted.trace`. Lines whose root is textured are traced
-    again twice (no ray trees): with every texel 0 (R) and with no texture (R + D).
-    Returns ``R, D, texel, flag`` ((n, 3) x 3, (n,) uint8).
+    again twice (no ray trees): with every texel 0 (R) and with no texture (R + D); a root
+    whose texel is not affine (:func:`nonlinear_roots`) is flagged :data:`TEX_MISMATCH`
+    instead. Returns ``R, D, texel, flag`` ((n, 3) x 3, (n,) uint8).
     """
     n = len(rad)
     R = np.array(rad, np.float64)
@@ -438,6 +469,8 @@ def texture_split(sa, accel, o, d, hits: Hits, tree, rad, max_depth: int, trace)
     textured_roots(sa, tree.node_inst, np.maximum(tree.node_tri, 0), tex_node)
     bad = np.bincount(tree.node_ray[below & tex_node], minlength=n)[:n] > 0
     flag[bad] = TEX_BELOW
+    flag[nonlinear_roots(sa, hits.inst, np.maximum(hits.prim, 0))] |= TEX_MISMATCH
+    bad |= flag != 0
     root = np.empty(n, np.bool_)
     textured_roots(sa, np.ascontiguousarray(hits.inst, np.int32),
               np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), root)

@@ -37,7 +37,17 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, TEX_EMISSION, TEX_NO_BASE
+from ..geometry.scene import (
+    LIGHT_SPOT,
+    LIGHT_SUN,
+    MODEL_PRINCIPLED,
+    TEX_EMISSION,
+    TEX_METAL,
+    TEX_NO_BASE,
+    TEX_SPECULAR,
+    TEX_TRANSMISSION,
+    TEX_TRANSMISSION_SQRT,
+)
 from .shading import (
     INV_PI,
     dot3,
@@ -57,6 +67,7 @@ from .shading import (
     shading_normal,
     spawn_offset,
     spot_falloff,
+    texel_weight,
     texture_lookup,
     texture_uv,
     transmit,
@@ -347,19 +358,19 @@ def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
 
 @njit(cache=True, nogil=True)
 def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
-                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s, metallic, mr,
-                 mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
-    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission
-    ``t*``): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn from GGX's visible
-    normals about the shading normal (the geometric one where the shading normal faces away
-    from the viewer), stratified (a Fibonacci lattice rotated by a hash of the node's seed,
-    as the soft lights' samples), each a reflected and a refracted ray. A sample's
+                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s,
+                 metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
+    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission ``t*``
+    refracted and ``u*`` reflected): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn
+    from GGX's visible normals about the shading normal (the geometric one where the shading
+    normal faces away from the viewer), stratified (a Fibonacci lattice rotated by a hash of the
+    node's seed, as the soft lights' samples), each a reflected and a refracted ray. A sample's
     reflection carries the layer's Fresnel at ``i . h`` with the direct light's
-    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part,
-    its refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
+    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part, its
+    refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
     (:func:`~.shading.ggx_weight`); a direction below the geometric surface (reflection) or
-    above it (refraction) is dropped, a microfacet with total internal reflection reflects
-    all of the transmissive part."""
+    above it (refraction) is dropped, a microfacet with total internal reflection reflects all
+    of the transmissive part."""
     k0 = gstart[i]
     ns = gstart[i + 1] - k0
     wmin = tol.PATH_WEIGHT_MIN
@@ -371,7 +382,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
         co = dot3(ox, oy, oz, nx, ny, nz)
     co = max(co, tol.GGX_COS_MIN)
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
-    trans = tr > 0.0 or tg > 0.0 or tb > 0.0
+    trans = ur > 0.0 or ug > 0.0 or ub > 0.0
     msr = msg = msb = 1.0
     if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
         e = max(e_white, tol.GGX_ALBEDO_MIN)
@@ -411,9 +422,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
             ok, tx, ty, tz = refract(dx, dy, dz, hx, hy, hz, eta)
             if ok:
                 f = fresnel_dielectric(ch, eta) * ke
-                ar += f * tr
-                ag += f * tg
-                ab += f * tb
+                ar += f * ur
+                ag += f * ug
+                ab += f * ub
                 ci = dot3(tx, ty, tz, nx, ny, nz)
                 if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
                     q = (ke - f) * ggx_weight(co, ci, alpha) * inv
@@ -424,9 +435,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
                         _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
                              pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection at this microfacet
-                ar += tr * ke
-                ag += tg * ke
-                ab += tb * ke
+                ar += ur * ke
+                ag += ug * ke
+                ab += ub * ke
         qx, qy, qz = reflect(dx, dy, dz, hx, hy, hz)
         ci = dot3(qx, qy, qz, nx, ny, nz)
         if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
@@ -506,14 +517,17 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         lg = sa.mat_emission[m, 1]
         lb = sa.mat_emission[m, 2]
         tex = sa.mat_tex[m]
-        if tex >= 0:  # the texel multiplies the base colour, the emission, or both
+        tf = 0  # the texture's TEX_* bits: what its texel x* multiplies (here the base
+        xr = xg = xb = 1.0  # colour and the emission; the other weights as they are read)
+        if tex >= 0:
+            tf = sa.tex_size[tex, 2]
             u, v = texture_uv(sa, tex, prim[i], bu[i], bv[i])
             xr, xg, xb = texture_lookup(sa.tex_data, sa.tex_start, sa.tex_size, tex, u, v)
-            if not sa.tex_size[tex, 2] & TEX_NO_BASE:
+            if not tf & TEX_NO_BASE:
                 dr *= xr
                 dg *= xg
                 db *= xb
-            if sa.tex_size[tex, 2] & TEX_EMISSION:
+            if tf & TEX_EMISSION:
                 lr *= xr
                 lg *= xg
                 lb *= xb
@@ -521,16 +535,14 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             tv[i, L + 1, 0] = lr
             tv[i, L + 1, 1] = lg
             tv[i, L + 1, 2] = lb
-        sr = sa.mat_specular[m, 0]
-        sg = sa.mat_specular[m, 1]
-        sb = sa.mat_specular[m, 2]
+        sr, sg, sb = texel_weight(tf, TEX_SPECULAR, sa.mat_specular[m, 0],
+                                  sa.mat_specular[m, 1], sa.mat_specular[m, 2], xr, xg, xb)
         alpha = sa.mat_roughness[m]
         principled = sa.mat_model[m] == MODEL_PRINCIPLED
         eta_s = sa.mat_specular_ior[m]
         metallic = sa.mat_metallic[m]
-        mr = sa.mat_metal[m, 0]
-        mg = sa.mat_metal[m, 1]
-        mb = sa.mat_metal[m, 2]
+        mr, mg, mb = texel_weight(tf, TEX_METAL, sa.mat_metal[m, 0], sa.mat_metal[m, 1],
+                                  sa.mat_metal[m, 2], xr, xg, xb)
         e_white = 1.0
         e_diel = 0.0
         # a glossy point's rays carry the world's glossy reflection: its samples of the
@@ -538,16 +550,25 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
+            if tf & TEX_SPECULAR:  # Cycles: the base under the layer's tinted albedo
+                e_diel *= max(xr, xg, xb, 0.0)  # (its largest channel)
         ki = hinst[i]
-        tr = sa.mat_transmission[m, 0]
-        tg = sa.mat_transmission[m, 1]
-        tb = sa.mat_transmission[m, 2]
+        # the transmissive part refracted (t*) and reflected (u*): an image into a Glass
+        # BSDF's colour tints both, a Principled's Base Color (its square root) the refracted
+        # part alone (Cycles: the reflection takes the Specular Tint)
+        ur = sa.mat_transmission[m, 0]
+        ug = sa.mat_transmission[m, 1]
+        ub = sa.mat_transmission[m, 2]
+        tr, tg, tb = texel_weight(tf, TEX_TRANSMISSION | TEX_TRANSMISSION_SQRT, ur, ug, ub,
+                                  xr, xg, xb)
+        if not tf & TEX_TRANSMISSION_SQRT:
+            ur, ug, ub = tr, tg, tb
         # a rough interface (Cycles' multiscatter GGX glass): its lobe, reflected and
         # refracted, scaled by 1 / E, E its single-scattering albedo toward the viewer
         eta = 1.0
         ke = 1.0
         eta_g = 1.0  # the rough interface's (its lights' highlight); 1: none
-        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+        if ur > 0.0 or ug > 0.0 or ub > 0.0:
             ior = sa.mat_ior[m]
             eta = 1.0 / ior if ENTER[i] else ior
             if principled and alpha >= tol.GLOSSY_ALPHA_MIN and eta != 1.0:
@@ -582,9 +603,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
                                metallic * vg, mr, mg, mb, alpha, e_white, e_diel)
             q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vg
-            fr += q * tr
-            fg += q * tg
-            fb += q * tb
+            fr += q * ur
+            fg += q * ug
+            fb += q * ub
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -632,9 +653,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                                        e_diel)
                     q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
                                     ke) * vg
-                    fr += q * tr
-                    fg += q * tg
-                    fb += q * tb
+                    fr += q * ur
+                    fg += q * ug
+                    fb += q * ub
                 e = soft.w[k]
                 if ex >= 0.0:
                     sum_vw += e
@@ -674,8 +695,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         off = spawn_offset(px, py, pz, ext)
         if glossy:
             _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
-                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, sr, sg, sb, eta_s,
-                         metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok)
+                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb,
+                         eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
+                         c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
@@ -683,12 +705,12 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             rr *= fr
             rg *= fg
             rb *= fb
-        if tr > 0.0 or tg > 0.0 or tb > 0.0:
+        if ur > 0.0 or ug > 0.0 or ub > 0.0:
             ok, tx, ty, tz, f = transmit(dx, dy, dz, sx, sy, sz, gx, gy, gz, eta)
             if ok:
-                rr += f * tr
-                rg += f * tg
-                rb += f * tb
+                rr += f * ur
+                rg += f * ug
+                rb += f * ub
                 cr = w0 * (1.0 - f) * tr
                 cg = w1 * (1.0 - f) * tg
                 cb = w2 * (1.0 - f) * tb
@@ -696,9 +718,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                     _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
                          pz - gz * off, tx, ty, tz, cr, cg, cb)
             else:  # total internal reflection
-                rr += tr
-                rg += tg
-                rb += tb
+                rr += ur
+                rg += ug
+                rb += ub
         cr = w0 * rr
         cg = w1 * rg
         cb = w2 * rb

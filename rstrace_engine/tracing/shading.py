@@ -38,6 +38,7 @@ from ..geometry.elements import (
     TEX_GENERATED,
     TEX_OBJECT,
     TEX_SRGB,
+    TEX_TRANSMISSION_SQRT,
 )
 
 INV_PI = 1.0 / math.pi
@@ -460,6 +461,20 @@ def texture_lookup(tex_data, tex_start, tex_size, tex, u, v):
     if flags & TEX_SRGB:
         return _srgb_decode(r), _srgb_decode(g), _srgb_decode(b)
     return r, g, b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def texel_weight(flags, bits, r, g, b, xr, xg, xb):
+    """A material's weight ``(r, g, b)`` at a hit whose texel is ``(xr, xg, xb)``: times the
+    texel where the texture's ``flags`` have one of ``bits`` (``TEX_TRANSMISSION_SQRT``:
+    times its square root, the Principled BSDF's transmission tint per crossing); as it is
+    where they have none (no texture: ``flags`` 0)."""
+    if not flags & bits:
+        return r, g, b
+    if flags & bits & TEX_TRANSMISSION_SQRT:
+        return (r * math.sqrt(max(xr, 0.0)), g * math.sqrt(max(xg, 0.0)),
+                b * math.sqrt(max(xb, 0.0)))
+    return r * xr, g * xg, b * xb
 
 
 @njit(cache=True, nogil=True)

@@ -269,16 +269,31 @@ def _textured_ball(**args):
     return build
 
 
-def _glossy_image():
+def _bsdf_image(shader: str, into: str, **inputs):
+    """The ball of a ``shader`` BSDF node whose ``into`` is the 8 x 8 checker image."""
     from .test_material_features import checker
 
-    mat = bpy.data.materials.new("Checker metal")
-    nodes = mat.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
-    glossy, tex = nodes.new("ShaderNodeBsdfGlossy"), nodes.new("ShaderNodeTexImage")
-    tex.image = checker()
-    _link(mat, tex, "Color", glossy.inputs["Color"])
-    _link(mat, glossy, 0, nodes["Material Output"].inputs["Surface"])
+    def build():
+        mat = bpy.data.materials.new("Checker ball")
+        nodes = mat.node_tree.nodes
+        nodes.remove(nodes["Principled BSDF"])
+        bsdf, tex = nodes.new(shader), nodes.new("ShaderNodeTexImage")
+        tex.image = checker()
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = value
+        _link(mat, tex, "Color", bsdf.inputs[into])
+        _link(mat, bsdf, 0, nodes["Material Output"].inputs["Surface"])
+        _stage(mat)
+    return build
+
+
+def _two_images():
+    from .test_material_features import checker, textured
+
+    mat = textured("Checker ball", checker(), into="Specular Tint")
+    other = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    other.image = checker("Other", 4)
+    _link(mat, other, "Color", mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
     _stage(mat)
 
 
@@ -353,6 +368,21 @@ FEATURES = [
                            mapping={"Scale": (1.5, 1.5, 1.0)}), tol=0.05),
     Feature("image into Emission Color", _textured_ball(into="Emission Color"), tol=0.05,
             glossy=1),
+    Feature("image into Glossy BSDF colour",
+            _bsdf_image("ShaderNodeBsdfGlossy", "Color", Roughness=0.3), tol=0.05),
+    Feature("image into a metallic Base Color",
+            _textured_ball(inputs={"Metallic": 1.0, "Roughness": 0.3}), tol=0.05),
+    Feature("image into Specular Tint",
+            _textured_ball(into="Specular Tint", inputs={
+                "Base Color": (0.05, 0.05, 0.05, 1.0), "Roughness": 0.3,
+                "Specular IOR Level": 1.0}), tol=0.05),
+    Feature("image into Glass BSDF colour",
+            _bsdf_image("ShaderNodeBsdfGlass", "Color", Roughness=0.0), tol=0.05,
+            glossy=8, transmission=8),
+    Feature("image into a transmissive Principled's Base Color",
+            _textured_ball(inputs={"Roughness": 0.0, "Transmission Weight": 1.0,
+                                   "Specular IOR Level": 0.5}), tol=0.05,
+            glossy=8, transmission=8),
     Feature("flat-shaded non-planar quads", _bent_quads, tol=0.05),
     Feature("no material, empty slot (default surface)", _no_material, tol=0.05),
     Feature("view layer material override", _override, tol=0.05),
@@ -378,10 +408,8 @@ FEATURES = [
             words=("indirect only", "'Bounce'")),
     Feature("passes not written (Mist, Diffuse Direct)", _scene_change(_mist_pass),
             words=("passes not written", "Mist", "Diffuse Direct")),
-    Feature("image into Glossy BSDF colour", _glossy_image,
-            words=("Image Texture into the Glossy BSDF colour", "'Checker metal'")),
-    Feature("image into Specular Tint", _textured_ball(into="Specular Tint"),
-            words=("Image Texture into the Specular Tint", "'Checker ball'")),
+    Feature("two images into Base Color and Specular Tint", _two_images,
+            words=("Specular Tint besides another into the Base Color", "'Checker ball'")),
     Feature("Texture Coordinate Normal output", _textured_ball(coords="Normal"),
             words=("'Normal' output", "'Image'", "'Checker ball'")),
     Feature("UV Map node naming another UV map", _other_uv_map,

@@ -54,20 +54,29 @@ def checker(name: str = "Checker", n: int = 8, byte: bool = True):
 
 
 def textured(name: str, img, interpolation: str = "Linear", extension: str = "REPEAT",
-             coords: str | None = None, mapping: dict | None = None, into: str = "Base Color"):
+             coords: str | None = None, mapping: dict | None = None, into: str = "Base Color",
+             shader: str | None = None, inputs: dict | None = None):
     """A Principled material (roughness 1, no specular: a plain diffuse in both renderers)
     with ``img`` into ``into``; ``coords``: a Texture Coordinate output feeding the image,
-    through a Mapping node of ``mapping`` (vector_type and inputs) when given."""
+    through a Mapping node of ``mapping`` (vector_type and inputs) when given. ``shader``: a
+    BSDF node type in the Principled's place; ``inputs``: its inputs' values."""
     mat = b.principled(name, (0.8, 0.8, 0.8), roughness=1.0, specular_level=0.0)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    if shader is not None:
+        nodes.remove(bsdf)
+        bsdf = nodes.new(shader)
+        links.new(bsdf.outputs[0], nodes["Material Output"].inputs["Surface"])
+    for key, value in (inputs or {}).items():
+        bsdf.inputs[key].default_value = value
     tex = nodes.new("ShaderNodeTexImage")
     tex.name = "Image"
     tex.image = img
     tex.interpolation = interpolation
     tex.extension = extension
-    links.new(tex.outputs["Color"], nodes["Principled BSDF"].inputs[into])
+    links.new(tex.outputs["Color"], bsdf.inputs[into])
     if into == "Emission Color":
-        nodes["Principled BSDF"].inputs["Emission Strength"].default_value = 1.0
+        bsdf.inputs["Emission Strength"].default_value = 1.0
     vec = tex.inputs["Vector"]
     if mapping is not None:
         mp = nodes.new("ShaderNodeMapping")
@@ -133,6 +142,17 @@ TEXTURE_CASES = {
         "Scale": (1.6, 1.6, 1.0), "Location": (-0.3, -0.3, 0.0)}), 0.02),  # 0.0038
     # an image into the Emission Color (the base colour a constant grey)
     "emission": (dict(into="Emission Color"), 0.02),  # 0.0100
+    # images into the weights of the glossy lobe (roughness 0.4: the sun's highlight spread
+    # over the plane): the metal colour of a Glossy BSDF, a Metallic BSDF and a metallic
+    # Principled's Base Color; a dark dielectric's Specular Tint (and the base under it)
+    "glossy_colour": (dict(shader="ShaderNodeBsdfGlossy", into="Color",
+                           inputs={"Roughness": 0.4}), 0.03),  # 0.0179
+    "metallic_bsdf": (dict(shader="ShaderNodeBsdfMetallic", into="Base Color",
+                           inputs={"Roughness": 0.4}), 0.03),  # 0.0183
+    "metal_base_colour": (dict(inputs={"Metallic": 1.0, "Roughness": 0.4}), 0.03),  # 0.0190
+    "specular_tint": (dict(into="Specular Tint", inputs={
+        "Base Color": (0.05, 0.05, 0.05, 1.0), "Roughness": 0.4,
+        "Specular IOR Level": 1.0}), 0.02),  # 0.0110
 }
 
 
@@ -224,42 +244,43 @@ def test_material_override_agrees_with_cycles():
 # ----------------------------------------------------------------------------- reported
 
 
-def test_image_into_specular_tint_is_reported():
+@pytest.mark.parametrize("into, first", [("Emission Color", "Base Color"),
+                                         ("Specular Tint", "Base Color")])
+def test_two_images_into_one_material_are_reported(into, first):
+    """A material has one image (its texel may multiply several inputs): a second, other
+    image is reported naming both inputs, and the second input's own value used."""
     _setup()
-    b.add_object("Plane", _plane(), material=textured("Glow", checker(), into="Specular Tint"))
-    _top_camera()
-    w = _warnings()
-    assert _reported(w, "Image Texture into the Specular Tint", "'Image'", "'Glow'"), w
-
-
-def test_two_images_into_base_and_emission_are_reported():
-    _setup()
-    mat = textured("Glow", checker(), into="Emission Color")
+    mat = textured("Glow", checker(), into=into)
     nodes = mat.node_tree.nodes
     other = nodes.new("ShaderNodeTexImage")
     other.image = checker("Other", 4)
-    mat.node_tree.links.new(other.outputs["Color"], nodes["Principled BSDF"].inputs["Base Color"])
+    mat.node_tree.links.new(other.outputs["Color"], nodes["Principled BSDF"].inputs[first])
     b.add_object("Plane", _plane(), material=mat)
     _top_camera()
     w = _warnings()
-    assert _reported(w, "Emission Color besides another", "'Glow'"), w
+    assert _reported(w, f"{into} besides another into the {first}", "'Glow'"), w
 
 
-def test_image_into_glossy_colour_is_reported():
+def test_one_image_into_several_inputs_is_one_texture():
+    """The same image node into the Base Color, the Emission Color and the Specular Tint:
+    one texture whose texel multiplies all three, nothing reported."""
+    import addon
+    from rstrace_engine.geometry.scene import TEX_EMISSION, TEX_NO_BASE, TEX_SPECULAR
+
     _setup()
-    mat = bpy.data.materials.new("Shiny")
+    mat = textured("Tex", checker(), into="Base Color")
     nodes = mat.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
-    glossy = nodes.new("ShaderNodeBsdfGlossy")
-    tex = nodes.new("ShaderNodeTexImage")
-    tex.name = "Image"
-    tex.image = checker()
-    mat.node_tree.links.new(tex.outputs["Color"], glossy.inputs["Color"])
-    mat.node_tree.links.new(glossy.outputs[0], nodes["Material Output"].inputs["Surface"])
+    for into in ("Emission Color", "Specular Tint"):
+        mat.node_tree.links.new(nodes["Image"].outputs["Color"],
+                                nodes["Principled BSDF"].inputs[into])
     b.add_object("Plane", _plane(), material=mat)
     _top_camera()
-    w = _warnings()
-    assert _reported(w, "Image Texture into the", "colour", "'Image'", "'Shiny'"), w
+    out = addon.export.export_scene(bpy.context.evaluated_depsgraph_get())
+    assert not _reported(out.warnings, "'Tex'"), out.warnings
+    (m,) = [m for m in out.scene.materials if m is not None and m.name == "Tex"]
+    assert m.texture is not None
+    assert m.texture_flags & (TEX_EMISSION | TEX_SPECULAR) == TEX_EMISSION | TEX_SPECULAR
+    assert not m.texture_flags & TEX_NO_BASE
 
 
 @pytest.mark.parametrize("output", ["Normal", "Camera", "Reflection"])
@@ -302,12 +323,14 @@ def test_other_objects_space_is_reported():
 # ----------------------------------------------------------------------------- other modes
 
 
-@pytest.mark.parametrize("case", ["emission", "object_mapping", "byte_srgb_linear"])
+@pytest.mark.parametrize("case", ["emission", "object_mapping", "byte_srgb_linear",
+                                  "metal_base_colour"])
 def test_interpolant_mode_keeps_its_bound_on_new_textures(case):
     """The interpolants apply a texture per pixel as ``R + texel * D`` (the texel at the
     pixel's own hit): with a texture into the emission, Object coordinates through a Mapping
     node, or sRGB bytes decoded after interpolation, INTERPOLANT mode stays within epsilon
-    of BASE (display space)."""
+    of BASE (display space). A texel that also weights a rough metal colour is not affine:
+    those cells fail (traced per pixel), within epsilon too."""
     from rstrace_engine.image import to_display
 
     args = dict(TEXTURE_CASES[case][0])

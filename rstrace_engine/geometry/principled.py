@@ -12,7 +12,7 @@ messages (the add-on reports them once per render):
     base colour with Schlick's curve to white. Lights light the whole layer; the layer
     reflects the scene through one mirror ray below roughness 0.05 (GGX alpha
     ``tolerances.GLOSSY_ALPHA_MIN``) and through glossy rays drawn from its GGX lobe above
-    (``tracing.shader.is_glossy``, docs/glossy.md); so does rough transmission.
+    (``tracing.glossy_rays.is_glossy``, docs/glossy.md); so does rough transmission.
 
 ``"WARD"`` (seed 000's model)
     a constant F0 split between a Whitted mirror (smooth) and Ward's lobe (rough) with a

@@ -19,7 +19,8 @@ from numba import njit
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
 from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
-from ..tracing.shader import _material_of, is_glossy
+from ..tracing.glossy_rays import is_glossy
+from ..tracing.shader import _material_of
 from ..tracing.shading import (
     dot3,
     geometric_normal,

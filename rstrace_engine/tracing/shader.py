@@ -48,6 +48,7 @@ from ..geometry.scene import (
     TEX_TRANSMISSION,
     TEX_TRANSMISSION_SQRT,
 )
+from .glossy_rays import _glossy_rays, _put, is_glossy
 from .shading import (
     INV_PI,
     dot3,
@@ -56,14 +57,10 @@ from .shading import (
     ggx_albedo,
     ggx_glass_albedo,
     ggx_lobe,
-    ggx_sample_normal,
-    ggx_weight,
     mirror_dir,
     normalize3,
     principled_brdf,
     principled_fresnel,
-    reflect,
-    refract,
     shading_normal,
     spawn_offset,
     spot_falloff,
@@ -73,12 +70,7 @@ from .shading import (
     transmit,
     ward_brdf,
 )
-from .soft_lights import SH_SOFT, extent_faces, mix64, spot_cosine
-
-#: hashed into a node's seed for its glossy samples (the soft lights hash in their light)
-GLOSSY_SALT = np.uint64(0xD1B54A32D192ED03)
-GOLDEN = 0.6180339887498949
-INV_2_53 = 1.0 / 9007199254740992.0
+from .soft_lights import SH_SOFT, extent_faces, spot_cosine
 
 # shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
 _SH_TRACE = 1
@@ -307,148 +299,6 @@ def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
             sh_d[k, 1] = wy
             sh_d[k, 2] = wz
             sh_tmax[k] = wl * (1.0 - tol.SHADOW_END_REL)
-
-
-# ----------------------------------------------------------------------------- glossy rays
-
-
-@njit(cache=True, nogil=True)
-def is_glossy(sa, m):
-    """Whether material ``m`` reflects or refracts the scene through sampled glossy rays: a
-    Principled-like material at GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` (roughness
-    0.05; below it a mirror, one ray) with a reflecting layer or transmission."""
-    if m < 0 or sa.mat_model[m] != MODEL_PRINCIPLED or sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN:
-        return False
-    refl = (sa.mat_mirror[m, 0] > 0.0 or sa.mat_mirror[m, 1] > 0.0
-            or sa.mat_mirror[m, 2] > 0.0) and (
-        sa.mat_metallic[m] > 0.0 or sa.mat_specular[m, 0] > 0.0
-        or sa.mat_specular[m, 1] > 0.0 or sa.mat_specular[m, 2] > 0.0)
-    # IOR 1 is no interface: such a transmission passes straight on (as through a mirror's
-    # one refracted ray), whatever the roughness
-    return refl or (sa.mat_ior[m] != 1.0 and (
-        sa.mat_transmission[m, 0] > 0.0 or sa.mat_transmission[m, 1] > 0.0
-        or sa.mat_transmission[m, 2] > 0.0))
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def glossy_counts(sa, mat, fresh, samples, counts, glossy):
-    """Ray pairs per point of a level (see :func:`_shade_kernel`'s ``gstart``): ``samples``
-    at a glossy point whose path has not been split yet (``fresh``), 1 elsewhere (a deeper
-    glossy bounce draws one direction). Outputs counts (n,) int64, glossy (n,) bool."""
-    for i in prange(mat.shape[0]):
-        g = is_glossy(sa, mat[i])
-        glossy[i] = g
-        counts[i] = samples if g and fresh[i] else 1
-
-
-@njit(cache=True, nogil=True)
-def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
-    """Spawned ray slot ``k`` (of the :class:`Spawned` arrays)."""
-    c_ok[k] = True
-    c_o[k, 0] = ox
-    c_o[k, 1] = oy
-    c_o[k, 2] = oz
-    c_d[k, 0] = dx
-    c_d[k, 1] = dy
-    c_d[k, 2] = dz
-    c_w[k, 0] = wr
-    c_w[k, 1] = wg
-    c_w[k, 2] = wb
-
-
-@njit(cache=True, nogil=True)
-def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
-                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s,
-                 metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
-    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission ``t*``
-    refracted and ``u*`` reflected): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn
-    from GGX's visible normals about the shading normal (the geometric one where the shading
-    normal faces away from the viewer), stratified (a Fibonacci lattice rotated by a hash of the
-    node's seed, as the soft lights' samples), each a reflected and a refracted ray. A sample's
-    reflection carries the layer's Fresnel at ``i . h`` with the direct light's
-    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part, its
-    refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
-    (:func:`~.shading.ggx_weight`); a direction below the geometric surface (reflection) or
-    above it (refraction) is dropped, a microfacet with total internal reflection reflects all
-    of the transmissive part."""
-    k0 = gstart[i]
-    ns = gstart[i + 1] - k0
-    wmin = tol.PATH_WEIGHT_MIN
-    ox, oy, oz = -dx, -dy, -dz
-    nx, ny, nz = sx, sy, sz
-    co = dot3(ox, oy, oz, nx, ny, nz)
-    if co <= 0.0:
-        nx, ny, nz = gx, gy, gz
-        co = dot3(ox, oy, oz, nx, ny, nz)
-    co = max(co, tol.GGX_COS_MIN)
-    refl = rr > 0.0 or rg > 0.0 or rb > 0.0
-    trans = ur > 0.0 or ug > 0.0 or ub > 0.0
-    msr = msg = msb = 1.0
-    if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
-        e = max(e_white, tol.GGX_ALBEDO_MIN)
-        kk = (1.0 - e) / e
-        f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
-        msr = 1.0 + f0r * kk
-        msg = 1.0 + f0g * kk
-        msb = 1.0 + f0b * kk
-    h = mix64(seeds[i] ^ GLOSSY_SALT)
-    r1 = float(h >> np.uint64(11)) * INV_2_53
-    r2 = float(mix64(h) >> np.uint64(11)) * INV_2_53
-    inv = 1.0 / ns
-    for s in range(ns):
-        slot = 2 * (k0 + s)
-        u = (s + 0.5) * inv + r1
-        u -= math.floor(u)
-        v = (s + 0.5) * GOLDEN + r2
-        v -= math.floor(v)
-        hx, hy, hz = ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u, v)
-        ch = dot3(ox, oy, oz, hx, hy, hz)
-        if ch <= 0.0:
-            continue
-        ar = ag = ab = 0.0
-        if refl:
-            fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
-            ar = rr * fr * msr
-            ag = rg * fg * msg
-            ab = rb * fb * msb
-        if trans and eta == 1.0:  # no interface: straight on
-            cr = w0 * tr * inv
-            cg = w1 * tg * inv
-            cb = w2 * tb * inv
-            if max(cr, cg, cb) * ns > wmin:
-                _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
-                     pz - gz * off, dx, dy, dz, cr, cg, cb)
-        elif trans:
-            ok, tx, ty, tz = refract(dx, dy, dz, hx, hy, hz, eta)
-            if ok:
-                f = fresnel_dielectric(ch, eta) * ke
-                ar += f * ur
-                ag += f * ug
-                ab += f * ub
-                ci = dot3(tx, ty, tz, nx, ny, nz)
-                if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
-                    q = (ke - f) * ggx_weight(co, ci, alpha) * inv
-                    cr = w0 * tr * q
-                    cg = w1 * tg * q
-                    cb = w2 * tb * q
-                    if max(cr, cg, cb) * ns > wmin:
-                        _put(c_o, c_d, c_w, c_ok, slot + 1, px - gx * off, py - gy * off,
-                             pz - gz * off, tx, ty, tz, cr, cg, cb)
-            else:  # total internal reflection at this microfacet
-                ar += ur * ke
-                ag += ug * ke
-                ab += ub * ke
-        qx, qy, qz = reflect(dx, dy, dz, hx, hy, hz)
-        ci = dot3(qx, qy, qz, nx, ny, nz)
-        if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
-            continue
-        q = ggx_weight(co, ci, alpha) * inv
-        cr = w0 * ar * q
-        cg = w1 * ag * q
-        cb = w2 * ab * q
-        if max(cr, cg, cb) * ns > wmin:
-            _put(c_o, c_d, c_w, c_ok, slot, px + gx * off, py + gy * off, pz + gz * off,
-                 qx, qy, qz, cr, cg, cb)
 
 
 @njit(cache=True, nogil=True, parallel=True)

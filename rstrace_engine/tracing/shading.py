@@ -557,7 +557,7 @@ def ggx_glass_albedo(cos_o, alpha, eta):
     refraction) seen from ``cos_o``, ``eta = n1 / n2`` (the side the view is on over the
     other): the mean over visible normals of ``F G2 / G1`` (reflected) and ``(1 - F) G2 /
     G1`` (refracted), a direction on the wrong side of the macro surface counting 0 -- what
-    the glossy rays carry (:func:`~.shader._glossy_rays`). Cycles' multiscatter GGX glass
+    the glossy rays carry (:func:`~.glossy_rays._glossy_rays`). Cycles' multiscatter GGX glass
     (Principled's default) scales its lobe by ``1 / E`` (``microfacet_ggx_preserve_energy``,
     from tabulated ``E``); this is the same ``E`` by a deterministic quadrature: a
     ``GLASS_ALBEDO_SAMPLES``-square midpoint lattice over the sampler's unit square."""

@@ -39,6 +39,7 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
+from .glossy_rays import glossy_counts
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
 from .shader import (  # (re-exported: the stages' kernels and types)
@@ -50,7 +51,6 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     _shade_kernel,
     _shadow_kernel,
     _surface_kernel,
-    glossy_counts,
     light_state,
     light_states,
 )
@@ -134,7 +134,7 @@ def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: 
     ``(contrib (n, 3) float64, Spawned)``, point i's rays in slots ``2 i`` (reflection) and
     ``2 i + 1`` (refraction); with ``terms`` also the points' light terms ``(values (n, L +
     2, 3) float64, present (n, L + 2) bool)`` (see :func:`_shade_kernel`). Rough surfaces
-    (:func:`~.shader.is_glossy`) draw their one reflected and refracted ray from the GGX
+    (:func:`~.glossy_rays.is_glossy`) draw their one reflected and refracted ray from the GGX
     lobe, seeded by ``seeds`` (n,) uint64, the points' node seeds (:func:`node_seeds`;
     required then). (The wavefront of :func:`trace` draws several at a path's first rough
     bounce.)"""
@@ -148,7 +148,7 @@ def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: 
 
 def glossy_materials(sa: SceneArrays) -> np.ndarray:
     """(NM,) bool: the materials of ``sa`` that draw glossy rays
-    (:func:`~.shader.is_glossy`)."""
+    (:func:`~.glossy_rays.is_glossy`)."""
     refl = (sa.mat_mirror > 0).any(axis=1) & (
         (sa.mat_metallic > 0) | (sa.mat_specular > 0).any(axis=1))
     return ((sa.mat_model == MODEL_PRINCIPLED) & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
@@ -156,7 +156,7 @@ def glossy_materials(sa: SceneArrays) -> np.ndarray:
 
 
 def has_glossy(sa: SceneArrays) -> bool:
-    """Whether any material of ``sa`` draws glossy rays (:func:`~.shader.is_glossy`)."""
+    """Whether any material of ``sa`` draws glossy rays (:func:`~.glossy_rays.is_glossy`)."""
     return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
 
 

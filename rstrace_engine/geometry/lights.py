@@ -8,7 +8,15 @@ import math
 import numpy as np
 
 from .. import tolerances as tol
-from .elements import AREA_SHAPES, LIGHT_KINDS, MAX_LIGHT_POWER, Light, SceneError, _colour
+from .elements import (
+    AREA_SHAPES,
+    LIGHT_KINDS,
+    LIGHT_NONE,
+    MAX_LIGHT_POWER,
+    Light,
+    SceneError,
+    _colour,
+)
 
 
 def _light_number(name: str, label: str, value, lo: float, hi: float) -> float:
@@ -270,3 +278,36 @@ def _table(masks: list, ni: int) -> np.ndarray:
         if m is not None:
             t[j] = m
     return t
+
+
+def pack_lights(lights: list, names: list) -> dict:
+    """The :class:`~.scene.SceneArrays` fields of the light slots ``lights`` (``None``: a
+    deleted light's slot, kind ``LIGHT_NONE``, zero intensity) whose linking names the
+    instances ``names`` (:class:`LightReach`): kind, position, direction, intensity (a
+    point, spot or area light's W / (4 pi) per unit colour, a sun's W/m^2), spot cones
+    (Cycles: ``smoothstep((cos - cos_outer) / ((1 - cos_outer) blend))``), the extents
+    (:class:`ExtendedLights`) and the reach."""
+    nl = len(lights)
+    kind = np.full(nl, LIGHT_NONE, np.int32)
+    pos = np.zeros((nl, 3))
+    ldir = np.zeros((nl, 3))
+    ldir[:, 2] = -1.0
+    intensity = np.zeros((nl, 3))
+    cos_outer = np.full(nl, -1.0)
+    cos_inner = np.full(nl, -1.0)
+    ext = ExtendedLights(nl)
+    for j, li in enumerate(lights):
+        if li is None:
+            continue
+        ext.pack(j, li)
+        kind[j] = LIGHT_KINDS[li.kind]
+        pos[j] = li.position
+        ldir[j] = li.direction
+        c = np.asarray(li.color)
+        intensity[j] = c * li.power if li.kind == "SUN" else c * li.power / (4 * math.pi)
+        if li.kind == "SPOT":
+            cos_outer[j] = math.cos(0.5 * li.spot_size)
+            cos_inner[j] = cos_outer[j] + (1.0 - cos_outer[j]) * li.spot_blend
+    return dict(light_kind=kind, light_pos=pos, light_dir=ldir, light_intensity=intensity,
+                light_cos_outer=cos_outer, light_cos_inner=cos_inner, **ext.arrays(),
+                **LightReach(lights, names).arrays())

@@ -23,7 +23,6 @@ Conventions
 from __future__ import annotations
 
 import logging
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -68,7 +67,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     checked_camera,
 )
 from .footprint import check_fits, estimate
-from .lights import ExtendedLights, LightReach, checked_light
+from .lights import checked_light, pack_lights
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
 from .slot_keys import SlotKeys
 
@@ -636,30 +635,6 @@ class Scene:
         tex_start = np.cumsum([0] + [t.shape[0] * t.shape[1] for t in tex_list]).astype(np.int64)
         tex_data = (np.concatenate([t.reshape(-1, 3) for t in tex_list]).astype(np.float32)
                     if tex_list else np.zeros((1, 3), np.float32))
-        lights = self.lights
-        nl = len(lights)
-        kind = np.full(nl, LIGHT_NONE, np.int32)
-        pos = np.zeros((nl, 3))
-        ldir = np.zeros((nl, 3))
-        ldir[:, 2] = -1.0
-        intensity = np.zeros((nl, 3))
-        cos_outer = np.full(nl, -1.0)
-        cos_inner = np.full(nl, -1.0)
-        ext = ExtendedLights(nl)
-        for j, li in enumerate(lights):
-            if li is None:
-                continue
-            ext.pack(j, li)
-            kind[j] = LIGHT_KINDS[li.kind]
-            pos[j] = li.position
-            ldir[j] = li.direction
-            c = np.asarray(li.color)
-            intensity[j] = c * li.power if li.kind == "SUN" else c * li.power / (4 * math.pi)
-            if li.kind == "SPOT":
-                half = 0.5 * li.spot_size
-                cos_outer[j] = math.cos(half)
-                # Cycles: smoothstep((cos - cos_outer) / ((1 - cos_outer) * blend))
-                cos_inner[j] = cos_outer[j] + (1.0 - cos_outer[j]) * li.spot_blend
         if alive.any():
             lo, hi = aabb[alive, 0].min(axis=0), aabb[alive, 1].max(axis=0)
         else:  # every object hidden: an empty picture of the world colour
@@ -691,15 +666,12 @@ class Scene:
             mat_specular_ior=np.array([m.specular_ior for m in mats], f64),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
             tex_map=np.array([m.texture_map for m in tex_mats], f64).reshape(-1, 2, 4),
-            light_kind=kind, light_pos=pos, light_dir=ldir,
-            light_intensity=intensity, light_cos_outer=cos_outer, light_cos_inner=cos_inner,
             world_color=np.asarray(self.world_color, f64),
             world_light=(np.asarray(self.world_color, f64) if self.world_lights
                          else np.zeros(3)),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
-            **ext.arrays(),
-            **LightReach(lights, [None if i is None else i["name"]
-                                  for i in self.instances]).arrays(),
+            **pack_lights(self.lights, [None if i is None else i["name"]
+                                        for i in self.instances]),
         )
         self._counts = (sum(i is not None for i in self.instances),
                         sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))

@@ -143,7 +143,9 @@ class Material:
     of index ``specular_ior`` (1: no dielectric reflection), ``metallic`` the conductor's
     weight and ``metal`` its colour at normal incidence; ``roughness`` is GGX alpha. Lights
     make highlights through the GGX lobe; ``mirror`` (in [0, 1]) is the share of the layer's
-    Fresnel reflectance that mirror rays carry (1 for a smooth surface, 0 for a rough one).
+    Fresnel reflectance that mirror rays carry (1 for a smooth surface, 0 for a rough one);
+    ``specular_tint_max`` the tint's largest channel, which scales the layer's albedo that
+    the base loses (Cycles' layering: under a darker tint more of the base shows).
 
     Both: ``transmission`` refracts with index ``ior``, the tracer's dielectric Fresnel
     splitting it into reflection and refraction; ``emission`` is radiance; ``texture`` is an
@@ -170,6 +172,7 @@ class Material:
     specular_ior: float = 1.5
     texture_flags: int = 0
     texture_map: tuple = TEX_MAP_IDENTITY
+    specular_tint_max: float = 1.0
 
     def validated(self) -> Material:
         n = self.name
@@ -214,12 +217,15 @@ class Material:
                 or (flags & TEX_TRANSMISSION and flags & TEX_TRANSMISSION_SQRT)):
             raise SceneError(f"material '{n}': texture flags {flags} are not a valid "
                              f"combination of TEX_* bits")
+        stm = float(self.specular_tint_max)
+        if not (math.isfinite(stm) and 0.0 <= stm <= 1.0):
+            raise SceneError(f"material '{n}': specular tint maximum {stm} outside [0, 1]")
         tmap = np.asarray(self.texture_map, np.float64)
         if tmap.shape != (2, 4) or not np.all(np.isfinite(tmap)):
             raise SceneError(f"material '{n}': texture map must be 2 x 4 finite numbers")
         return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
                         self.model, mw, tuple(mc), sior, flags,
-                        tuple(tuple(float(x) for x in row) for row in tmap))
+                        tuple(tuple(float(x) for x in row) for row in tmap), stm)
 
 
 @dataclass

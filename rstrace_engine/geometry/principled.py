@@ -193,7 +193,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
             roughness=alpha, mirror=(1.0,) * 3, transmission=tuple(refract), ior=ior,
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
             metal=tuple(metal_colour), specular_ior=spec_ior,
-            texture_flags=flags, texture_map=texture_map), notes
+            texture_flags=flags, texture_map=texture_map,
+            specular_tint_max=float(np.max(tint)) if spec_ior > 1.0 else 1.0), notes
     if model != "WARD":
         raise SceneError(f"material '{name}': unknown shading model {model!r}")
     f0c = np.clip(f0 * tint, 0.0, 1.0)

@@ -400,8 +400,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
             e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
-            if tf & TEX_SPECULAR:  # Cycles: the base under the layer's tinted albedo
-                e_diel *= max(xr, xg, xb, 0.0)  # (its largest channel)
+            # Cycles: the base under the layer's tinted albedo (the tint's largest channel)
+            e_diel *= sa.mat_tint_max[m]
+            if tf & TEX_SPECULAR:
+                e_diel *= max(xr, xg, xb, 0.0)
         ki = hinst[i]
         # the transmissive part refracted (t*) and reflected (u*): an image into a Glass
         # BSDF's colour tints both, a Principled's Base Color (its square root) the refracted

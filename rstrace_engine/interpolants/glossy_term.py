@@ -23,6 +23,7 @@ import numpy as np
 from ..accel.accelerators import Hits
 from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import glossy_materials, has_glossy, trace
+from .samples import hit_materials
 
 
 def rough_roots_possible(sa, max_depth: int) -> bool:
@@ -36,25 +37,16 @@ def rough_roots(sa, hits: Hits, max_depth: int) -> np.ndarray:
     n = len(hits.inst)
     if not rough_roots_possible(sa, max_depth):
         return np.zeros(n, np.bool_)
-    hit = np.flatnonzero(np.asarray(hits.inst) >= 0)
-    inst = np.asarray(hits.inst, np.int64)[hit]
-    # the material of each hit triangle (samples.hit_material, over arrays)
-    s0 = sa.inst_mat_start[inst]
-    slot = np.minimum(sa.tri_slot[np.asarray(hits.prim, np.int64)[hit]],
-                      sa.inst_mat_start[inst + 1] - s0 - 1)
-    out = np.zeros(n, np.bool_)
-    out[hit] = glossy_materials(sa)[sa.inst_mat[s0 + slot]]
-    return out
+    m = hit_materials(sa, hits.inst, hits.prim)
+    return (m >= 0) & glossy_materials(sa)[np.maximum(m, 0)]
 
 
 def rough_objects(sa) -> np.ndarray:
     """(n_instances,) bool: the objects with a rough material in one of their slots."""
-    rough = glossy_materials(sa)[sa.inst_mat]
     starts = np.asarray(sa.inst_mat_start, np.int64)
-    counts = np.add.reduceat(rough.astype(np.int64), starts[:-1]) if len(rough) else None
+    owner = np.repeat(np.arange(len(starts) - 1), np.diff(starts))  # each slot's object
     out = np.zeros(len(starts) - 1, np.bool_)
-    if counts is not None:
-        out[:] = (counts > 0) & (np.diff(starts) > 0)
+    out[owner[glossy_materials(sa)[sa.inst_mat]]] = True
     return out
 
 

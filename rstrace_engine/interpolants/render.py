@@ -231,6 +231,15 @@ def _count(cache, ledger, hits, res, rep, skipped) -> None:
     ledger.count(wi, ii, ri)
 
 
+def _tiles(n: int):
+    """Slices of ``n`` rays in tiles of about the base tracer's size (its per-level arrays
+    stay cache-sized), split evenly: a small last tile would cost the tracer's per-level
+    overhead alone."""
+    n_tiles = max(1, round(n / TILE_RAYS)) if n else 0
+    for q in range(n_tiles):
+        yield slice(q * n // n_tiles, (q + 1) * n // n_tiles)
+
+
 def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
                 cancel, settings) -> bool:
     """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
@@ -238,11 +247,8 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
     base tracer samples these pixel samples (``gids``, ``settings``' seed and light
     samples). Returns whether ``cancel`` stopped it (the frame is then incomplete)."""
     sa, accel = cache.sa, cache.accel
-    # in tiles of about the base tracer's size (its per-level arrays stay cache-sized),
-    # split evenly: a small last tile would cost the tracer's per-level overhead alone
-    n_tiles = max(1, round(len(todo) / TILE_RAYS)) if len(todo) else 0
-    for q in range(n_tiles):
-        part = todo[q * len(todo) // n_tiles:(q + 1) * len(todo) // n_tiles]
+    for sel in _tiles(len(todo)):
+        part = todo[sel]
         segs: list | None = [] if records is not None else None
         with bound(accel, cancel):
             rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
@@ -284,9 +290,7 @@ def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rep, interpol
     rough = rough_roots(sa, h, int(settings.max_depth))
     rows, h = rows[rough], _take(h, np.flatnonzero(rough))
     counters["rough_interpolated"] = counters.get("rough_interpolated", 0) + len(rows)
-    n_tiles = max(1, round(len(rows) / TILE_RAYS)) if len(rows) else 0
-    for q in range(n_tiles):
-        sel = np.arange(q * len(rows) // n_tiles, (q + 1) * len(rows) // n_tiles)
+    for sel in _tiles(len(rows)):
         part = rows[sel]
         segs: list | None = [] if records is not None else None
         with bound(accel, cancel):

@@ -437,15 +437,22 @@ def nonlinear_roots(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
     lobe = sa.mat_roughness[has] >= tol.GLOSSY_ALPHA_MIN
     mats[has] = ((flags & (TEX_TRANSMISSION_SQRT | TEX_SPECULAR)) != 0) | (
         ((flags & TEX_METAL) != 0) & lobe)
-    out = np.zeros(len(inst), np.bool_)
     if not mats.any():
-        return out
+        return np.zeros(len(inst), np.bool_)
+    m = hit_materials(sa, inst, prim)
+    return (m >= 0) & mats[np.maximum(m, 0)]
+
+
+def hit_materials(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
+    """(n,) int64: the material of each hit (instance, triangle), -1 for a miss
+    (:func:`hit_material` over arrays)."""
+    out = np.full(len(inst), -1, np.int64)
     hit = np.flatnonzero(np.asarray(inst) >= 0)
     k = np.asarray(inst, np.int64)[hit]
-    s0 = sa.inst_mat_start[k]  # the material of each hit triangle (hit_material)
+    s0 = sa.inst_mat_start[k]
     slot = np.minimum(sa.tri_slot[np.asarray(prim, np.int64)[hit]],
                       sa.inst_mat_start[k + 1] - s0 - 1)
-    out[hit] = mats[sa.inst_mat[s0 + slot]]
+    out[hit] = sa.inst_mat[s0 + slot]
     return out
 
 

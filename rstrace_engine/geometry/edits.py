@@ -240,6 +240,10 @@ def _material_ids(scene: Scene, name: str, keys) -> list[int]:
     return ids
 
 
+#: edits that change the lights' and the world's part of the packing alone
+_LIGHTING = (LightSet, LightDelete, WorldColor, CameraChange)
+
+
 def apply_edits(scene: Scene, edits) -> tuple[Scene, EditEffects]:
     """Apply ``edits`` in order to a *copy* of ``scene``; return ``(new scene, effects)``.
 
@@ -252,6 +256,9 @@ def apply_edits(scene: Scene, edits) -> tuple[Scene, EditEffects]:
         name = type(e).__name__
         fx.kinds[name] = fx.kinds.get(name, 0) + 1
         _apply_one(new, e, fx)
+    if (scene._arrays is not None and new._arrays is None
+            and all(isinstance(e, _LIGHTING) for e in edits)):
+        new.repack_lights(scene._arrays)  # (a light drag: only the lights packed again)
     new.arrays()  # validates the whole packing before anyone sees it
     return new, fx
 

@@ -668,16 +668,27 @@ class Scene:
             mat_tint_max=np.array([m.specular_tint_max for m in mats], f64),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
             tex_map=np.array([m.texture_map for m in tex_mats], f64).reshape(-1, 2, 4),
-            world_color=np.asarray(self.world_color, f64),
-            world_light=(np.asarray(self.world_color, f64) if self.world_lights
-                         else np.zeros(3)),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,
-            **pack_lights(self.lights, [None if i is None else i["name"]
-                                        for i in self.instances]),
+            **self._light_fields(),
         )
         self._counts = (sum(i is not None for i in self.instances),
                         sum(len(self.meshes[i["mesh"]]["tris"]) for _, i in self.live_instances()))
         return self._arrays
+
+    def _light_fields(self) -> dict:
+        """The packing's fields that the lights and the world make."""
+        f64 = np.float64
+        return dict(world_color=np.asarray(self.world_color, f64),
+                    world_light=(np.asarray(self.world_color, f64) if self.world_lights
+                                 else np.zeros(3)),
+                    **pack_lights(self.lights, [None if i is None else i["name"]
+                                                for i in self.instances]))
+
+    def repack_lights(self, packed: SceneArrays) -> None:
+        """Pack the scene from ``packed``, the packing of a scene that differs from this
+        one in its lights and world alone (a light or world edit: the instances, meshes and
+        materials are not packed again)."""
+        self._arrays = packed._replace(**self._light_fields())
 
     @property
     def triangle_count(self) -> int:

@@ -195,18 +195,24 @@ class FrameReuse:
         t0 = time.perf_counter()
         counters: dict = {}
         moved = sorted(self.relight_moved)
+        split = counters.setdefault("split", {})
         for j in moved:
             if j < len(sa.light_kind):
                 p_bits, s_bits = lr.relight(sa, accel, j, int(settings.light_samples),
                                             counters)
+                t1 = time.perf_counter()
                 self.records.set_light_bits(j, p_bits, s_bits)
+                split["light_bits"] = split.get("light_bits", 0.0) + time.perf_counter() - t1
         rec = self.records
+        t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
+        split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and
         # recombining are idempotent, so a frame that fails is relit again next time)
         self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
                                   relit_lights=moved,
-                                  relight_shadow_rays=counters.get("shadow", 0))
+                                  relight_shadow_rays=counters.get("shadow", 0),
+                                  relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)
 

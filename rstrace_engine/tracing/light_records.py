@@ -49,6 +49,8 @@ records, so that a node's light bits there can be updated after a relit light.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from numba import njit, prange
 
@@ -115,9 +117,12 @@ def _fill_terms(t_on, t_val, hit, start, slot, val):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _node_light(k, start, slot, val, use, scale):
+def _node_light(k, start, slot, val, use, scale, dj, d_on, d_val):
     """A surface node's radiance before its path weight, in the shader's order: the
-    emission, the hard lights in slot order, the sampled lights, the world."""
+    emission, the hard lights in slot order, the sampled lights, the world. ``dj`` >= 0:
+    light slot ``dj``'s term is the detached one (``d_on[k]``, ``d_val[k]``; a dragged
+    light's, :meth:`_Part.detach`), its entries in the CSR are stale and skipped; it is
+    added where its entry would be."""
     s0 = start[k]
     s1 = start[k + 1]
     lr = 0.0
@@ -131,22 +136,38 @@ def _node_light(k, start, slot, val, use, scale):
     # entries are in slot order: the hard lights', the sampled lights' (slot order too),
     # then the world's (slot WORLD): two passes put the sampled lights after the hard ones
     # (one when no sampled light is alive: use 2 unused)
-    for group in range(1, 3 if use[WORLD + 1] else 2):
+    two = use[WORLD + 1] != 0
+    dg = -1  # the pass the detached term belongs to (-1: none at this node)
+    if dj >= 0 and d_on[k] and use[dj] != 0:
+        dg = 1 if (use[dj] == 1 or not two) else 2
+    for group in range(1, 3 if two else 2):
+        placed = dg != group
         for e in range(s0, s1):
             c = slot[e]
+            if c == dj:
+                continue
             u = use[c]
-            if u == group or (group == 2 and u == 3) or (u == 3 and not use[WORLD + 1]):
+            if u == group or (group == 2 and u == 3) or (u == 3 and not two):
+                if not placed and c > dj:
+                    lr += d_val[k, 0] * scale[dj, 0]
+                    lg += d_val[k, 1] * scale[dj, 1]
+                    lb += d_val[k, 2] * scale[dj, 2]
+                    placed = True
                 lr += val[e, 0] * scale[c, 0]
                 lg += val[e, 1] * scale[c, 1]
                 lb += val[e, 2] * scale[c, 2]
+        if not placed:
+            lr += d_val[k, 0] * scale[dj, 0]
+            lg += d_val[k, 1] * scale[dj, 1]
+            lb += d_val[k, 2] * scale[dj, 2]
     return lr, lg, lb
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _recombine_primary(hit, start, slot, val, use, scale, world, rad):
+def _recombine_primary(hit, start, slot, val, use, scale, dj, d_on, d_val, world, rad):
     for g in prange(hit.shape[0]):
         if hit[g]:
-            r, gg, b = _node_light(g, start, slot, val, use, scale)
+            r, gg, b = _node_light(g, start, slot, val, use, scale, dj, d_on, d_val)
             rad[g, 0] = 0.0 + 1.0 * r
             rad[g, 1] = 0.0 + 1.0 * gg
             rad[g, 2] = 0.0 + 1.0 * b
@@ -157,12 +178,13 @@ def _recombine_primary(hit, start, slot, val, use, scale, world, rad):
 
 
 @njit(cache=True, nogil=True)
-def _recombine_secondary(hit, start, slot, val, w, use, scale, world, s_ray, rad):
+def _recombine_secondary(hit, start, slot, val, w, use, scale, dj, d_on, d_val, world, s_ray,
+                         rad):
     """Secondary nodes in the records' order (per sample, the tracer's level order),
     serially: samples repeat."""
     for k in range(hit.shape[0]):
         if hit[k]:
-            r, gg, b = _node_light(k, start, slot, val, use, scale)
+            r, gg, b = _node_light(k, start, slot, val, use, scale, dj, d_on, d_val)
         else:
             r, gg, b = 1.0 * world[0], 1.0 * world[1], 1.0 * world[2]
         g = s_ray[k]
@@ -212,12 +234,46 @@ def _replace_slot(start, slot, val, j, on, nval, new_start, new_slot, new_val):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, state):
-    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points."""
+def _one_light_states(sa, j, P, NG, NS, Q, MAT, state, mat):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points,
+    and their materials where it faces them (-1 elsewhere: shaded as misses, no term)."""
     for i in prange(P.shape[0]):
         state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
                                NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
                                Q[i, 2])
+        mat[i] = MAT[i] if state[i] != -2 else -1
+
+
+@njit(cache=True, nogil=True)
+def _detach_terms(rows, tp, tv, c, d_on, d_val):
+    """A detached term (:meth:`_Part.detach`): present at nodes ``rows[r]`` where
+    ``tp[r, c]``, with the value ``tv[r, c]``, absent elsewhere."""
+    for i in range(d_on.shape[0]):
+        d_on[i] = False
+    for r in range(rows.shape[0]):
+        if tp[r, c]:
+            g = rows[r]
+            d_on[g] = True
+            d_val[g, 0] = tv[r, c, 0]
+            d_val[g, 1] = tv[r, c, 1]
+            d_val[g, 2] = tv[r, c, 2]
+
+
+def _one_light(sa: SceneArrays, j: int) -> SceneArrays:
+    """``sa`` with light slot ``j`` alone (as slot 0) and the world not lighting: what the
+    shader computes for slot 0 there is what it computes for ``j`` in ``sa`` (the same
+    operands), without the other lights' columns."""
+    return sa._replace(world_light=np.zeros(3), **{
+        f: getattr(sa, f)[j:j + 1] for f in sa._fields
+        if f.startswith("light_") and getattr(sa, f).shape[0] > 0})
+
+
+#: the stages of a light's re-shading (:meth:`LightRecords.relight`'s ``split``)
+SPLIT = ("surfaces", "states", "shadow_rays", "shade", "terms")
+
+
+def _tick(split: dict, name: str, t0: float) -> None:
+    split[name] = split.get(name, 0.0) + time.perf_counter() - t0
 
 
 _loaded = [False]
@@ -233,10 +289,12 @@ def load_kernels() -> None:
     s = _Part.empty(False, False)
     use, scale = np.zeros(256, np.int8), np.zeros((256, 3))
     rad = np.zeros((0, 3))
-    _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, np.zeros(3), rad)
-    _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale, np.zeros(3),
-                         np.zeros(0, np.int64), rad)
+    _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, *p.detached(), np.zeros(3),
+                       rad)
+    _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale, *s.detached(),
+                         np.zeros(3), np.zeros(0, np.int64), rad)
     s.replace_slot(0, np.zeros(0, bool), np.zeros((0, 3)))
+    s.detach(0, np.zeros(0, np.int64), np.zeros((0, 3), bool), np.zeros((0, 3, 3)))
 
 
 # ----------------------------------------------------------------------------- parts
@@ -265,6 +323,11 @@ class _Part:
         #: the hit nodes' Surfaces rebuilt from ``geo`` (kept while the nodes are: a light
         #: dragged is shaded again at every step), or None
         self.surf: Surfaces | None = None
+        #: a dragged light's term kept apart (:meth:`detach`): slot ``dj`` (-1: none), present
+        #: where ``d_on`` (k,), value ``d_val`` (k, 3); its CSR entries are stale meanwhile
+        self.dj = -1
+        self.d_on: np.ndarray | None = None
+        self.d_val: np.ndarray | None = None
 
     @classmethod
     def empty(cls, primary: bool, geometry: bool) -> _Part:
@@ -304,6 +367,8 @@ class _Part:
             arrays += list(self.geo.values())
         if self.surf is not None:
             arrays += list(self.surf)
+        if self.dj >= 0:
+            arrays += [self.d_on, self.d_val]
         return int(sum(x.nbytes for x in arrays))
 
     @property
@@ -329,8 +394,39 @@ class _Part:
             self.surf = surf
         return surf
 
+    def detached(self) -> tuple:
+        """``(dj, d_on, d_val)`` for the recombination kernels (empty arrays: none)."""
+        if self.dj < 0:
+            return -1, np.zeros(0, np.bool_), np.zeros((0, 3))
+        return self.dj, self.d_on, self.d_val
+
+    def detach(self, j: int, rows: np.ndarray, tp: np.ndarray, tv: np.ndarray,
+               c: int = 0) -> None:
+        """Light slot ``j``'s term replaced: present at nodes ``rows[r]`` where ``tp[r,
+        c]`` ((k, C) bool), with the value ``tv[r, c]`` ((k, C, 3): the shade kernel's
+        terms), absent elsewhere -- kept apart from the CSR entries (a light dragged step
+        after step replaces it in place; :meth:`fold` merges it)."""
+        n = len(self.hit)
+        if self.dj != j:
+            self.fold()
+            self.dj = int(j)
+            self.d_on = np.zeros(n, np.bool_)
+            self.d_val = np.empty((n, 3))
+        _detach_terms(np.ascontiguousarray(rows, np.int64), tp, tv, int(c), self.d_on,
+                      self.d_val)
+
+    def fold(self) -> None:
+        """The detached term back into the CSR entries (before the nodes are taken or
+        merged)."""
+        if self.dj < 0:
+            return
+        j, on, val = self.dj, self.d_on, self.d_val
+        self.dj, self.d_on, self.d_val = -1, None, None
+        self.replace_slot(j, on, val)
+
     def take(self, rows: np.ndarray) -> _Part:
         """The nodes ``rows`` (int64) in that order."""
+        self.fold()
         hit = self.hit[rows]
         idx, n = _ranges(self.start, rows)
         start = np.zeros(len(rows) + 1, np.int64)
@@ -344,6 +440,8 @@ class _Part:
 
     @staticmethod
     def concat(parts: list) -> _Part:
+        for p in parts:
+            p.fold()
         starts, off = [np.zeros(1, np.int64)], 0
         for p in parts:
             starts.append(p.start[1:] + off)
@@ -395,6 +493,7 @@ class LightRecords:
         self._pending_p: list = []  # (rays, _Part) of the batches traced since finish
         self._pending_s: list = []
         self._pending_bytes = 0
+        self._ones_k: np.ndarray | None = None
         if self.cap <= 0.0:
             self._drop(0)
 
@@ -473,6 +572,9 @@ class LightRecords:
         batches added since (as :meth:`~.pixel_records.PixelRecords.finish` does)."""
         if self.overflow is not None:
             return
+        if self._pending_p or self._pending_s or (keep is not None and not keep.all()):
+            for q in self._parts():  # (a relit frame's dragged light stays detached)
+                q.fold()
         if self._pending_p:
             old = self.p if self.p is not None else _Part.empty(True, self.has_geometry)
             parts = [old] + [q for _, q in self._pending_p]
@@ -531,10 +633,12 @@ class LightRecords:
         # a few multiply-adds per node: one thread (a parallel region's wake-up on a busy
         # machine costs more than the work, see batches.SERIAL_BELOW)
         with threads_for(0):
-            _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, world, rad)
+            _recombine_primary(p.hit, p.start, p.slot, p.val, use, scale, *p.detached(),
+                               world, rad)
             if len(s):
                 _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale,
-                                     world, np.ascontiguousarray(s_ray, np.int64), rad)
+                                     *s.detached(), world,
+                                     np.ascontiguousarray(s_ray, np.int64), rad)
             accumulate(rad, inst, spp, out, pc)
         return out
 
@@ -543,42 +647,102 @@ class LightRecords:
         """Shade light ``j`` of ``sa`` again at every node (its term replaced, nothing
         else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
         its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
-        nodes and of the secondary ones, each (k,) bool."""
+        nodes and of the secondary ones, each (k,) bool. ``counters``: adds ``shadow`` (rays
+        traced) and the stages' seconds (``split``, :data:`SPLIT`)."""
         if not self.has_geometry:
             raise RuntimeError("light records without geometry cannot shade a light again")
         self.widen(len(sa.light_kind))
+        split = {} if counters is None else counters.setdefault("split", {})
         bits = []
         for part in (self.p, self.s):
+            t0 = time.perf_counter()
             n = len(part)
             rows = np.flatnonzero(part.hit)
             # the rebuilt surfaces are kept while they fit under the cap
             keep = self.nbytes + len(rows) * _SURF_BYTES <= self.cap
             surf = part.surfaces(sa, keep)
-            state = np.empty(len(rows), np.int8)
-            if len(rows):
-                with threads_for(len(rows)):
-                    _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, state)
+            _tick(split, "surfaces", t0)
             faced = np.zeros(n, bool)
-            faced[rows] = state != -2
             lit = np.zeros(n, bool)
-            on = np.zeros(n, bool)
-            nval = np.zeros((n, 3))
-            # contiguous batches of the surface rows (views, no copies) as large as the
-            # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
-            # face trace no shadow ray and get no term
-            step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
-            for a in range(0, len(rows), step):
-                sub = slice(a, min(a + step, len(rows)))
-                if not (state[sub] != -2).any():
-                    continue
-                li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
-                                             state[sub], counters)
-                idx = rows[sub]
-                lit[idx], on[idx], nval[idx] = li, tp, tv
-            part.replace_slot(j, on, nval)
+            if len(rows) == 0:
+                part.detach(j, rows, np.zeros((0, 1), bool), np.zeros((0, 1, 3)))
+            elif sa.light_ext[j]:
+                self._relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced,
+                                      lit, counters, split)
+            else:
+                self._relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split)
             bits.append((faced, lit))
         return bits[0], bits[1]
 
+    def _relight_hard(self, sa, accel, j, part, rows, surf, faced, lit, counters, split):
+        """A point, spot or sun light: shaded as the only light of the scene (slot ``j``
+        alone, as slot 0: the shader's operations on the same operands), its shadow rays
+        only where it faces a node, one batch."""
+        t0 = time.perf_counter()
+        k = len(rows)
+        sa1 = _one_light(sa, j)
+        state = np.empty(k, np.int8)
+        mat = np.empty(k, np.int32)
+        with threads_for(k):
+            # the nodes it does not face are shaded as misses (no material read, no term)
+            _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state, mat)
+            sf = Surfaces(*surf[:5], mat, surf.Q, state)
+            todo, so, sd, stmax = shadow_rays(sa1, sf)
+            _tick(split, "states", t0)
+            t0 = time.perf_counter()
+            vis = np.zeros(k, np.bool_)
+            if len(todo):
+                vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
+                                        np.bool_)
+                if counters is not None:
+                    counters["shadow"] = counters.get("shadow", 0) + len(todo)
+            _tick(split, "shadow_rays", t0)
+            t0 = time.perf_counter()
+            g = part.geo
+            hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
+            _, _, (tv, tp) = shade(sa1, hits, sf, vis, self._ones(k), False, None, True)
+            _tick(split, "shade", t0)
+        t0 = time.perf_counter()
+        part.detach(j, rows, tp, tv)
+        faced[rows] = state != -2
+        lit[rows] = vis
+        _tick(split, "terms", t0)
+
+    def _ones(self, k: int) -> np.ndarray:
+        """(k, 3) ones: the path weights of the shade kernel's nodes (kept between steps)."""
+        if self._ones_k is None or len(self._ones_k) < k:
+            self._ones_k = np.ones((k, 3))
+        return self._ones_k[:k]
+
+    def _relight_sampled(self, sa, accel, j, light_samples, part, rows, surf, faced, lit,
+                         counters, split):
+        """A light with an extent: its samples are seeded by its slot, so it is shaded in
+        the scene's own slots, in batches of the surface rows."""
+        t0 = time.perf_counter()
+        state = np.empty(len(rows), np.int8)
+        with threads_for(len(rows)):
+            _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state,
+                              np.empty(len(rows), np.int32))
+        _tick(split, "states", t0)
+        faced[rows] = state != -2
+        on = np.zeros(len(rows), bool)
+        nval = np.zeros((len(rows), 3))
+        # contiguous batches of the surface rows (views, no copies) as large as the
+        # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
+        # face trace no shadow ray and get no term
+        step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
+        for a in range(0, len(rows), step):
+            sub = slice(a, min(a + step, len(rows)))
+            if not (state[sub] != -2).any():
+                continue
+            t0 = time.perf_counter()
+            li, tp, tv = self._shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
+                                         state[sub], counters)
+            _tick(split, "shade", t0)
+            lit[rows[sub]], on[sub], nval[sub] = li, tp, tv
+        t0 = time.perf_counter()
+        part.detach(j, rows, on.reshape(-1, 1), nval.reshape(-1, 1, 3))
+        _tick(split, "terms", t0)
     def _shade_one(self, sa, accel, j, light_samples, geo, surf, sub, state, counters):
         """Light ``j``'s terms at the surface rows ``sub`` (a slice) of ``geo`` / ``surf``
         (its states ``state`` there), by the tracer's own stages: ``(visible, present,

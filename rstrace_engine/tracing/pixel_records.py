@@ -203,6 +203,19 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
 
 
 @njit(cache=True, nogil=True)
+def _light_bit_changes(combo, t_traced, t_lit, bit, traced, lit, out):
+    """The nodes (indices into ``out``, returns how many) whose light bit ``bit`` in their
+    table row's traced / lit masks differs from ``traced`` / ``lit`` (k,) bool."""
+    m = 0
+    for i in range(combo.shape[0]):
+        c = combo[i]
+        if ((t_traced[c] & bit) != 0) != traced[i] or ((t_lit[c] & bit) != 0) != lit[i]:
+            out[m] = i
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
 def _secondary_rays(s_parent, n_rays, s_ray):
     """The sample each secondary node belongs to (parents come before their children)."""
     for k in range(s_parent.shape[0]):
@@ -462,25 +475,35 @@ class PixelRecords:
     def set_light_bits(self, j: int, primary, secondary) -> None:
         """Light ``j``'s bits of every node after it was shaded again
         (:meth:`~.light_records.LightRecords.relight`): ``primary`` and ``secondary`` are
-        ``(traced, lit)`` (k,) bool pairs for the primary and the secondary nodes."""
+        ``(traced, lit)`` (k,) bool pairs for the primary and the secondary nodes. Only the
+        nodes whose bits change are interned again (few, from one step of a drag to the
+        next)."""
         bit = np.uint64(1) << np.uint64(j)
+        t_traced = self.t_traced.astype(np.uint64)  # (the table: small)
+        t_lit = self.t_lit.astype(np.uint64)
+        changed = False
         for name, (tr, lit) in (("p_combo", primary), ("s_combo", secondary)):
-            combo = getattr(self, name).astype(np.int64)
+            combo = getattr(self, name)
             if len(combo) == 0:
                 continue
-            old_t = self.t_traced.astype(np.uint64)[combo]
-            old_l = self.t_lit.astype(np.uint64)[combo]
-            new_t = np.where(tr, old_t | bit, old_t & ~bit)
-            new_l = np.where(lit, old_l | bit, old_l & ~bit)
-            ch = np.flatnonzero((new_t != old_t) | (new_l != old_l))
-            if len(ch) == 0:
+            ch = np.empty(len(combo), np.int64)
+            with threads_for(0):
+                m = _light_bit_changes(combo, t_traced, t_lit, bit, tr, lit, ch)
+            if m == 0:
                 continue
-            c = combo[ch]
-            ids = self._intern(self.t_inst[c], new_t[ch], new_l[ch], self.t_flags[c])
-            arr = getattr(self, name).astype(np.uint32)
+            ch = ch[:m]
+            c = combo[ch].astype(np.int64)
+            new_t = np.where(tr[ch], t_traced[c] | bit, t_traced[c] & ~bit)
+            new_l = np.where(lit[ch], t_lit[c] | bit, t_lit[c] & ~bit)
+            ids = self._intern(self.t_inst[c], new_t, new_l, self.t_flags[c])
+            arr = combo.astype(np.uint32)
             arr[ch] = ids
             setattr(self, name, arr)
-        self._compact()
+            t_traced = self.t_traced.astype(np.uint64)  # (the table grew)
+            t_lit = self.t_lit.astype(np.uint64)
+            changed = True
+        if changed:
+            self._compact()
 
     @property
     def nbytes(self) -> int:

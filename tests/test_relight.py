@@ -309,3 +309,55 @@ def test_light_deleted_while_a_relit_frame_is_in_flight():
         np.testing.assert_array_equal(worker.last_frame.radiance, frame.radiance)
     finally:
         worker.stop()
+
+
+def test_a_drag_keeps_the_light_term_apart():
+    """A light moved step after step (a drag) keeps its term apart from the sparse entries
+    (replaced in place each step); another light's edit, a move of another light and an
+    object edit fold it back. Every frame equals a fresh one bit for bit."""
+    sess = Session(SOAK_SCENES["soft_room"](W, H), SETTINGS)
+    sess.render()
+    lamp, spot = light(sess, "Lamp"), light(sess, "Spot")
+    j = sess.scene.light_slot("Lamp")
+    for k in range(3):
+        step(sess, [LightSet("Lamp", replace(lamp, position=tuple(
+            np.asarray(lamp.position) + (0.05 * (k + 1), 0.0, 0.0))))])
+        lr = sess.reuse.light_records
+        assert lr.p.dj == j and lr.s.dj in (j, -1)
+    step(sess, [LightSet("Spot", replace(spot, power=spot.power * 3.0))])
+    assert sess.reuse.light_records.p.dj == j  # (recombined with the term apart)
+    step(sess, [LightSet("Spot", replace(spot, position=(0.3, 0.2, 2.8)))])
+    assert sess.reuse.light_records.p.dj == sess.scene.light_slot("Spot")
+    step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), power=lamp.power * 0.5))])
+    step(sess, [LightDelete("Spot")])
+    obj = next(k for k, v in sess.scene.instance_keys.slot.items()
+               if sess.scene.instances[v]["name"] != "Floor")
+    m = sess.scene.instances[sess.scene.instance_slot(obj)]["matrix"].copy()
+    m[0, 3] += 0.2
+    step(sess, [ObjectTransform(obj, m)], relit=False)
+    assert sess.reuse.light_records.p.dj == -1  # (folded when the records were merged)
+    step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), position=(0.4, -0.2, 2.9)))])
+
+
+def test_light_edits_repack_only_the_lights():
+    """A batch of light and world edits packs the lights and the world again and keeps
+    the rest of the packing: equal to packing the edited scene from scratch."""
+    sess = Session(SOAK_SCENES["soft_room"](W, H), SETTINGS)
+    old = sess.scene.arrays()
+    lamp = light(sess, "Lamp")
+    sess.apply([LightSet("Lamp", replace(lamp, position=(0.1, 0.2, 2.7), power=90.0)),
+                LightSet("Extra", Light("Extra", "SPOT", power=300.0, position=(1, 1, 3),
+                                        direction=(0.0, 0.0, -1.0))),
+                LightDelete("Spot"), WorldColor((0.2, 0.1, 0.05), lights=True)])
+    sa = sess.scene.arrays()
+    assert sa.verts is old.verts and sa.inst_xform is old.inst_xform  # (kept, not packed)
+    scratch = sess.scene.copy()
+    scratch._arrays = None
+    ref = scratch.arrays()
+    for name in ref._fields:
+        a, b = getattr(sa, name), getattr(ref, name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape, name
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            assert a == b, name

@@ -10,14 +10,17 @@ the first full-resolution image (best of ``--repeat``, and the median), for "mov
 object", "change a material colour", "orbit the camera 2 degrees" and "drag a light"
 (2 x ``--repeat`` consecutive 5 cm moves of one of museum's six lights after a first light
 edit, each step's full image relit from the per-light records in BASE: ``relit`` counts
-them; no interrupt measured). The interrupt latency is the
+them, ``split_ms`` gives the median of each relight stage, :data:`~rstrace_engine.tracing.
+light_records.SPLIT` with the light bits and the recombination, and of the rest of the step;
+no interrupt measured). The interrupt latency is the
 time from a submission made while a full frame is being rendered to the worker abandoning
 that frame. ``cold_start_s`` / ``warm_start_s``: a fresh Python process from import to the
 first viewport image, with an empty numba cache directory (everything compiled) and with
 the cache this run filled.
 
 ``--json`` prints ``{"rows": [{"scene", "edit", "mode", "first_image_ms",
-"full_image_ms", "full_image_median_ms", "interrupt_ms", "relit"}], "cold_start_s": ...,
+"full_image_ms", "full_image_median_ms", "interrupt_ms", "relit", "split_ms"}],
+"cold_start_s": ...,
 "warm_start_s": ...}``.
 """
 
@@ -88,7 +91,7 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int,
         worker.wait_idle(600)  # warm: compile/load, build interpolants
         rows = []
         for name in edits:
-            firsts, fulls, interrupts, relights = [], [], [], []
+            firsts, fulls, interrupts, relights, splits = [], [], [], [], []
             drag = name == EDITS[3]
             if drag:
                 # the session's first light edit: a full frame that starts keeping the
@@ -113,6 +116,13 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int,
                     fulls.append(st["full_ms"])
                     fs = worker.last_frame.stats if worker.last_frame is not None else {}
                     relights.append(bool(fs.get("relit")))
+                    if fs.get("relit"):
+                        # where a relit step's time goes: the relight's stages, and the rest
+                        # of the full image's (the edit applied, the frame finished, the
+                        # image handed to the host)
+                        sp = {k: 1e3 * v for k, v in fs.get("relight_split_s", {}).items()}
+                        sp["other"] = st["full_ms"] - 1e3 * fs.get("relight_s", 0.0)
+                        splits.append(sp)
                 if drag:
                     continue  # (consecutive moves: no interrupt between them)
                 # interrupt: re-submit while the next full frame is being rendered
@@ -131,7 +141,10 @@ def measure(scene_name: str, mode: str, width: int, height: int, repeat: int,
                              first_image_ms=_best(firsts), full_image_ms=_best(fulls),
                              interrupt_ms=_worst(interrupts),
                              full_image_median_ms=_median(fulls),
-                             relit=f"{sum(relights)}/{len(relights)}"))
+                             relit=f"{sum(relights)}/{len(relights)}",
+                             split_ms={k: _median([sp.get(k, 0.0) for sp in splits])
+                                       for k in dict.fromkeys(k for sp in splits for k in sp)}
+                             or None))
         return rows
     finally:
         worker.stop()
@@ -293,6 +306,9 @@ def main(argv: list[str]) -> int:
         print(f"{r['edit']:28s} {r['mode']:12s} {r['first_image_ms']!s:>9s} "
               f"{r['full_image_ms']!s:>9s} {r['full_image_median_ms']!s:>9s} "
               f"{r['interrupt_ms']!s:>13s} {r['relit']:>6s}")
+        if r.get("split_ms"):
+            print(f"  {r['edit']}, median ms of a relit step: "
+                  + ", ".join(f"{k} {v}" for k, v in r["split_ms"].items()))
     for k in ("cold_start_s", "warm_start_s"):
         if k in result:
             print(f"{k}: {result[k]}")

@@ -73,7 +73,9 @@ class Session:
     #: bytes per ray-tree node and light: a session that never edits a light does not pay;
     #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
     #: In INTERPOLANT mode the same switch makes the interpolants' samples keep per-light
-    #: shares, so a light's power or colour rescales them (:mod:`.interpolants.relight`).
+    #: shares, so a light's power or colour rescales them (:mod:`.interpolants.relight`),
+    #: and the frame's traced samples keep the per-light terms, so its traced pixels are
+    #: recombined as BASE's are.
     light_terms: bool | None = None
     #: Where the BVH takes unchanged meshes' trees from and leaves its own
     #: (:class:`~.accel.accelerators.KeptBVHs`; the add-on gives its sessions the process's
@@ -322,10 +324,12 @@ class Session:
         terms = None
         keep = not new_cache
         relight_off = self.settings.relight_memory_mb == 0.0
-        if mode == "BASE" and self._keeps_light_terms() and not relight_off:
-            # per-light records: light edits relight (tracing.light_records); a kept frame
-            # without them cannot be relit: this one is a full frame
-            terms = (len(sa.light_kind), 1e6 * float(self.settings.relight_memory_mb))
+        if self._keeps_light_terms() and not relight_off:
+            # per-light records: light edits relight (tracing.light_records; INTERPOLANT:
+            # its traced samples); a kept frame without them cannot be relit: this one is a
+            # full frame
+            terms = (len(sa.light_kind), 1e6 * float(self.settings.relight_memory_mb),
+                     mode == "INTERPOLANT")
             keep = keep and self._terms_kept
         records, pixels, base = self.reuse.plan(key, cam, self.settings.samples,
                                                 sa.scene_aabb, keep=keep,
@@ -334,17 +338,17 @@ class Session:
             self._terms_kept = terms is not None
         c0 = self.interpolants.cache
         pool0 = (c0, c0.pool.next_serial, c0.pool.n_live) if c0 is not None else None
+        if pixels is not None:
+            base = self.reuse.relight(sa, self.accel, self.settings, base)
         if mode == "INTERPOLANT":
             frame = self.interpolants.render(self.scene, self.settings, self.accel,
                                              progress=progress, cancel=cancel,
                                              records=records, pixels=pixels, base=base)
         else:
-            if pixels is not None:
-                base = self.reuse.relight(sa, self.accel, self.settings, base)
             frame = whitted_render(self.scene, self.settings, accel=self.accel,
                                    progress=progress, cancel=cancel, records=records,
                                    pixels=pixels, base=base)
-        if mode == "BASE" and pixels is not None:
+        if pixels is not None:
             frame.stats.update(self.reuse.relight_stats)
         if mode == "BASE" and self._keeps_light_terms() and relight_off:
             frame.stats["relight_off"] = RELIGHT_OFF

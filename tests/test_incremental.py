@@ -107,7 +107,12 @@ def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
     for _ in range(10):
         sess.apply(gen.step())
         dirty = sess.dirty_mask
+        relit = None
+        if sess.reuse.relight_due:  # light edits: the traced pixels are recombined
+            rec = sess.reuse.records
+            relit = sess.reuse.light_records.relit_pixels(rec.spp, rec.n_pixels)
         frame = sess.render()
+        assert bool(frame.stats.get("relit")) == (relit is not None)
         incremental += frame.stats["incremental"]
         interpolated += int(np.count_nonzero(frame.pixel_class == CLASS_INTERPOLATED))
         base = fresh_frame(sess.scene, base_settings)
@@ -120,6 +125,8 @@ def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
             np.testing.assert_allclose(f.radiance[traced], base.radiance[traced], atol=1e-6)
         if dirty is not None:
             changed = np.any(prev_base.radiance != base.radiance, axis=2)
+            if relit is not None:
+                changed &= ~relit.reshape(changed.shape)
             assert not (changed & ~dirty).any()
         prev_base = base
     assert incremental >= 4 and interpolated > 0

@@ -202,3 +202,31 @@ def test_a_moved_light_still_invalidates():
         li, position=tuple(np.asarray(li.position) + (0.4, 0.0, 0.0))))])
     assert rep.rescaled_interpolants == 0 and rep.invalidated_interpolants > 0
     check_bound(sess.render(), sess.scene)
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_traced_pixels_are_relit_from_the_light_records(name):
+    """A light's power or colour: the frame's traced pixels are recombined from the
+    per-light records of its traced samples (as BASE relights), not traced again; only the
+    pixels of its rescaled or invalidated interpolants and those with interpolated samples
+    are rendered again. The relit pixels equal a fresh BASE frame's bit for bit, the frame
+    keeps the bound."""
+    make, key = SCENES[name]
+    scene = make()
+    new, old = session(scene, True), session(scene, False)
+    new.render()
+    old.render()
+    for step in (dict(power=0.6), dict(power=1.3, color=(1.0, 0.7, 0.45))):
+        rep, rep_old = new.apply(edit(new, key, **step)), old.apply(edit(old, key, **step))
+        assert rep.relight and not rep_old.relight
+        assert rep.dirty_pixels < rep_old.dirty_pixels
+        frame, frame_old = new.render(), old.render()
+        assert frame.stats["relit"] and frame.stats["relight_shadow_rays"] == 0
+        assert frame.stats["traced_rays"] < frame_old.stats["traced_rays"]
+        lr = new.reuse.light_records
+        rec = new.reuse.records
+        relit = lr.relit_pixels(rec.spp, rec.n_pixels).reshape(frame.pixel_class.shape)
+        assert relit.mean() > 0.1
+        base = Session(new.scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
+        np.testing.assert_array_equal(frame.radiance[relit], base.radiance[relit])
+        check_bound(frame, new.scene)

@@ -256,7 +256,8 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
                                  segments=segs, cancel=cancel,
                                  seeds=sample_seeds(gids[part], int(settings.seed)),
                                  light_samples=int(settings.light_samples),
-                                 glossy_samples=int(settings.glossy_samples))
+                                 glossy_samples=int(settings.glossy_samples),
+                                 terms=records is not None and records.light is not None)
         if cancel is not None and cancel():
             return True
         if records is not None:

@@ -131,6 +131,24 @@ class FrameReuse:
             return
         if self._relights(fx, old_sa, new_sa):
             # light / world edits only: no pixel is dirty, the next frame relights
+            if f.pixel_interpolant is not None:
+                # INTERPOLANT: its traced pixels are relit; the pixels of rescaled or
+                # invalidated interpolants, and those with interpolated samples that the
+                # edit touches, are rendered again
+                t0 = time.perf_counter()
+                lr = self.light_records
+                dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
+                dirty &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
+                pi = f.pixel_interpolant.reshape(-1)
+                if rebuilt is not None:
+                    dirty |= rebuilt
+                if rescaled is not None and len(rescaled):
+                    dirty |= np.isin(pi, rescaled)
+                dirty |= pi == -2
+                if self.untracked is not None:
+                    dirty |= self.untracked
+                report.records_query_ms = 1e3 * (time.perf_counter() - t0)
+                self.dirty |= dirty
             self.relight_due = True
             self.relight_moved |= set(fx.lights_moved)
             report.relight = True
@@ -175,6 +193,10 @@ class FrameReuse:
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
             return False
+        if self.light_records.partial and (fx.world or fx.lights_moved):
+            # INTERPOLANT: a light's power or colour (its interpolants rescaled); the world's
+            # term and a moved light's shafts take the interpolants' path
+            return False
         if any(a.shape[0] for sa in (old_sa, new_sa) for a in (sa.light_recv, sa.light_block)):
             return False  # the light terms carry no instance: linked lights are traced again
         if world_lights(new_sa) and (not world_lights(old_sa)
@@ -206,6 +228,9 @@ class FrameReuse:
         rec = self.records
         t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
+        if lr.partial:  # (INTERPOLANT: its traced pixels; the others as they were)
+            ok = lr.relit_pixels(rec.spp, rec.n_pixels)
+            rad = np.where(ok[:, None], rad, base.radiance.reshape(-1, 3))
         split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and
         # recombining are idempotent, so a frame that fails is relit again next time)

@@ -482,10 +482,17 @@ class LightRecords:
     records were dropped (the cap); then nothing else is kept. ``no_geometry``: None, or
     why the geometry was dropped (moved lights then re-trace)."""
 
-    def __init__(self, n_rays: int, n_lights: int, cap_bytes: float) -> None:
+    def __init__(self, n_rays: int, n_lights: int, cap_bytes: float,
+                 partial: bool = False) -> None:
         self.n_rays = int(n_rays)
         self.L = int(n_lights)
         self.cap = float(cap_bytes)
+        #: an INTERPOLANT frame's records: batches recorded without their terms (samples
+        #: interpolated, their glossy rays) get empty nodes (:meth:`add_blank`) and only the
+        #: samples in :attr:`ok` can be recombined
+        self.partial = bool(partial)
+        #: (n_rays,) bool: the samples whose latest record holds its light terms
+        self.ok = np.zeros(self.n_rays, np.bool_)
         self.overflow: str | None = None
         self.no_geometry: str | None = None
         self.p: _Part | None = None  # primary nodes by sample id (None: no frame yet)
@@ -554,6 +561,7 @@ class LightRecords:
         with ``terms``); ``rays`` (nb,) its global sample ids."""
         if self.overflow is not None:
             return
+        self.ok[rays] = True
         self.widen(levels[0]["t_val"].shape[1] - 2)  # (a light slot added: re-traced)
         a = _level_arrays(levels, self.has_geometry)
         first = {key: x[:nb] for key, x in a.items()}
@@ -566,6 +574,31 @@ class LightRecords:
             # a full frame: checked as it grows (an incremental frame's batches replace
             # kept nodes: checked once merged, in finish)
             self._check_cap()
+
+    def add_blank(self, rays: np.ndarray, levels: list, nb: int) -> None:
+        """A batch recorded without its light terms (:attr:`partial` records: interpolated
+        samples, their glossy rays): empty nodes that keep the layout of the pixel records'
+        nodes; its samples leave :attr:`ok`."""
+        if self.overflow is not None:
+            return
+        rays = np.asarray(rays, np.int64)
+        self.ok[rays] = False
+        n = sum(len(lv["inst"]) for lv in levels)
+
+        def blank(k: int, primary: bool) -> _Part:
+            geo = ({key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}
+                   if self.has_geometry else None)
+            return _Part(np.zeros(k, np.bool_), np.zeros(k + 1, np.int64),
+                         np.zeros(0, np.uint8), np.zeros((0, 3)),
+                         None if primary else np.ones((k, 3)), geo)
+
+        self._pending_p.append((rays, blank(nb, True)))
+        if n > nb:
+            self._pending_s.append(blank(n - nb, False))
+
+    def relit_pixels(self, spp: int, n_pixels: int) -> np.ndarray:
+        """(n_pixels,) bool: the pixels whose every sample can be recombined."""
+        return self.ok.reshape(spp, n_pixels).all(axis=0)
 
     def finish(self, keep: np.ndarray | None) -> None:
         """Drop the secondary nodes not in ``keep`` (None: keep all), then append the

@@ -303,10 +303,12 @@ class PixelRecords:
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
-    def keep_light_terms(self, n_lights: int, cap_bytes: float) -> None:
+    def keep_light_terms(self, n_lights: int, cap_bytes: float, partial: bool = False
+                         ) -> None:
         """Also keep every node's light terms (:class:`~.light_records.LightRecords`) for
-        ``n_lights`` light slots, up to ``cap_bytes``."""
-        self.light = LightRecords(self.n_rays, n_lights, cap_bytes)
+        ``n_lights`` light slots, up to ``cap_bytes``; ``partial``: an INTERPOLANT frame's
+        (only its traced samples have terms)."""
+        self.light = LightRecords(self.n_rays, n_lights, cap_bytes, partial)
 
     # -- building ------------------------------------------------------------------------
 
@@ -370,6 +372,8 @@ class PixelRecords:
         if self.light is not None:
             if "t_val" in levels[0]:
                 self.light.add(np.asarray(rays, np.int64), levels, nb)
+            elif self.light.partial:  # (interpolated samples: not recombined)
+                self.light.add_blank(np.asarray(rays, np.int64), levels, nb)
             elif self.light.overflow is None:  # (recorded without their terms)
                 self.light = None
         self.p_combo[rays] = combos[:nb]

@@ -582,8 +582,10 @@ class LightRecords:
         if self.overflow is not None:
             return
         rays = np.asarray(rays, np.int64)
-        self.ok[rays] = False
         n = sum(len(lv["inst"]) for lv in levels)
+        if n == 0:
+            return  # (nothing: the kept nodes are not merged again)
+        self.ok[rays] = False
 
         def blank(k: int, primary: bool) -> _Part:
             geo = ({key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}

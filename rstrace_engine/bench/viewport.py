@@ -11,7 +11,7 @@ object", "change a material colour", "orbit the camera 2 degrees" and "drag a li
 (2 x ``--repeat`` consecutive 5 cm moves of one of museum's six lights after a first light
 edit, each step's full image relit from the per-light records in BASE: ``relit`` counts
 them, ``split_ms`` gives the median of each relight stage, :data:`~rstrace_engine.tracing.
-light_records.SPLIT` with the light bits and the recombination, and of the rest of the step;
+light_reshade.SPLIT` with the light bits and the recombination, and of the rest of the step;
 no interrupt measured). The interrupt latency is the
 time from a submission made while a full frame is being rendered to the worker abandoning
 that frame. ``cold_start_s`` / ``warm_start_s``: a fresh Python process from import to the

@@ -1,0 +1,147 @@
+"""A light shaded again alone at the nodes of the per-light records
+(:meth:`~.light_records.LightRecords.relight`): its states at the rebuilt surfaces, its
+shadow rays (or samples) where it faces a node, the shade kernel with it alone -- the
+tracer's own stages, so the term is the one a fresh frame computes.
+
+A point, spot or sun light is shaded as the scene's only light (:func:`_one_light`: slot
+``j`` alone as slot 0, the world not lighting, so the shade kernel performs the same
+operations on the same operands without the other lights' columns), in one batch; a light
+with an extent keeps the scene's own slots (its samples are seeded by its slot), in batches.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from ..accel.accelerators import Hits
+from ..geometry.scene import SceneArrays
+from .batches import threads_for
+from .shader import Surfaces, light_state
+from .soft_lights import soft_visibility
+from .whitted import shade, shadow_rays
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _one_light_states(sa, j, P, NG, NS, Q, MAT, state, mat):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points,
+    and their materials where it faces them (-1 elsewhere: shaded as misses, no term)."""
+    for i in prange(P.shape[0]):
+        state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                               NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                               Q[i, 2])
+        mat[i] = MAT[i] if state[i] != -2 else -1
+
+
+def _one_light(sa: SceneArrays, j: int) -> SceneArrays:
+    """``sa`` with light slot ``j`` alone (as slot 0) and the world not lighting: what the
+    shader computes for slot 0 there is what it computes for ``j`` in ``sa`` (the same
+    operands), without the other lights' columns."""
+    return sa._replace(world_light=np.zeros(3), **{
+        f: getattr(sa, f)[j:j + 1] for f in sa._fields
+        if f.startswith("light_") and getattr(sa, f).shape[0] > 0})
+
+
+#: the stages of a light's re-shading (:meth:`LightRecords.relight`'s ``split``)
+SPLIT = ("surfaces", "states", "shadow_rays", "shade", "terms")
+
+
+def tick(split: dict, name: str, t0: float) -> None:
+    split[name] = split.get(name, 0.0) + time.perf_counter() - t0
+
+
+def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, ones):
+    """A point, spot or sun light: shaded as the only light of the scene (slot ``j``
+    alone, as slot 0: the shader's operations on the same operands), its shadow rays
+    only where it faces a node, one batch."""
+    t0 = time.perf_counter()
+    k = len(rows)
+    sa1 = _one_light(sa, j)
+    state = np.empty(k, np.int8)
+    mat = np.empty(k, np.int32)
+    with threads_for(k):
+        # the nodes it does not face are shaded as misses (no material read, no term)
+        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state, mat)
+        sf = Surfaces(*surf[:5], mat, surf.Q, state)
+        todo, so, sd, stmax = shadow_rays(sa1, sf)
+        tick(split, "states", t0)
+        t0 = time.perf_counter()
+        vis = np.zeros(k, np.bool_)
+        if len(todo):
+            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
+                                    np.bool_)
+            if counters is not None:
+                counters["shadow"] = counters.get("shadow", 0) + len(todo)
+        tick(split, "shadow_rays", t0)
+        t0 = time.perf_counter()
+        g = part.geo
+        hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
+        _, _, (tv, tp) = shade(sa1, hits, sf, vis, ones, False, None, True)
+        tick(split, "shade", t0)
+    t0 = time.perf_counter()
+    part.detach(j, rows, tp, tv)
+    faced[rows] = state != -2
+    lit[rows] = vis
+    tick(split, "terms", t0)
+
+
+def relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit, counters,
+                split):
+    """A light with an extent: its samples are seeded by its slot, so it is shaded in
+    the scene's own slots, in batches of the surface rows."""
+    t0 = time.perf_counter()
+    state = np.empty(len(rows), np.int8)
+    with threads_for(len(rows)):
+        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state,
+                          np.empty(len(rows), np.int32))
+    tick(split, "states", t0)
+    faced[rows] = state != -2
+    on = np.zeros(len(rows), bool)
+    nval = np.zeros((len(rows), 3))
+    # contiguous batches of the surface rows (views, no copies) as large as the
+    # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
+    # face trace no shadow ray and get no term
+    step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
+    for a in range(0, len(rows), step):
+        sub = slice(a, min(a + step, len(rows)))
+        if not (state[sub] != -2).any():
+            continue
+        t0 = time.perf_counter()
+        li, tp, tv = shade_one(sa, accel, j, light_samples, part.geo, surf, sub,
+                                     state[sub], counters)
+        tick(split, "shade", t0)
+        lit[rows[sub]], on[sub], nval[sub] = li, tp, tv
+    t0 = time.perf_counter()
+    part.detach(j, rows, on.reshape(-1, 1), nval.reshape(-1, 1, 3))
+    tick(split, "terms", t0)
+def shade_one(sa, accel, j, light_samples, geo, surf, sub, state, counters):
+    """Light ``j``'s terms at the surface rows ``sub`` (a slice) of ``geo`` / ``surf``
+    (its states ``state`` there), by the tracer's own stages: ``(visible, present,
+    value)``."""
+    L = len(sa.light_kind)
+    k = len(state)
+    g = {key: geo[key][sub] for key in ("t", "inst", "prim", "u", "v", "seed")}
+    sh_state = np.full((k, L), -2, np.int8)
+    sh_state[:, j] = state
+    sf = Surfaces(*(x[sub] for x in surf[:7]), sh_state.reshape(-1))
+    hits = Hits(g["t"], g["inst"], g["prim"], g["u"], g["v"])
+    with threads_for(k):
+        todo, so, sd, stmax = shadow_rays(sa, sf)
+        vis = np.zeros(k * L, np.bool_)
+        if len(todo):
+            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
+                                    np.bool_)
+            if counters is not None:
+                counters["shadow"] = counters.get("shadow", 0) + len(todo)
+        sa1 = sa._replace(world_light=np.zeros(3))  # the world's samples are not redone
+        soft = None
+        if sa.light_ext[j]:
+            def occluded(o, dd, tmax, r):
+                return accel.any_hit(o, dd, np.zeros(len(o)), tmax)
+            soft, srows, any_vis = soft_visibility(
+                sa1, sf, g["seed"], int(light_samples), sf.sh_state, occluded, counters)
+            vis[srows[srows >= 0]] = any_vis[srows >= 0]
+        _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
+    return vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]

@@ -280,6 +280,10 @@ class Light:
     * ``receivers``, ``blockers``: light and shadow linking, ``((object name, include),
       ...)``: ``()`` every object; with some included, only those; excluded never. Objects
       the light lights (receivers) and objects that cast its shadows (blockers).
+    * ``camera``, ``glossy``, ``transmission``: whether camera rays, mirror reflection rays
+      and smooth refraction rays see the light's own surface (a light with an extent), as
+      Cycles (Blender's ``visible_camera``, off for a new light, ``visible_glossy``,
+      ``visible_transmission``): :mod:`~rstrace_engine.tracing.seen_lights`.
     """
 
     name: str = "light"
@@ -302,6 +306,8 @@ class Light:
     spot_frame: tuple = ()
     receivers: tuple = ()
     blockers: tuple = ()
+    camera: bool = False
+    transmission: bool = True
 
     @property
     def extended(self) -> bool:

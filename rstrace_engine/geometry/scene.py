@@ -140,7 +140,7 @@ class SceneArrays(NamedTuple):
     light_spread: np.ndarray  # (L, 2) AREA: tan(spread / 2) (inf: pi), its normaliser
     light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
     # what each light reaches (:class:`~.lights.LightReach`)
-    light_vis: np.ndarray  # (L, 2) float64 diffuse and glossy factors (1 or 0)
+    light_vis: np.ndarray  # (L, 4) float64 diffuse, glossy, camera, transmission (1 or 0)
     light_spot_scaled: np.ndarray  # (L,) bool SPOT: a reshaped (elliptical) cone
     light_spot_frame: np.ndarray  # (L, 3, 3) rows taking a direction into its scaled frame
     light_recv: np.ndarray  # (L, I) uint8 light linking: lights object; (0, 0) no linking

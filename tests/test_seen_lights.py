@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from tracer_scenes import plane_scene
 
-from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine import scenes
+from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.edits import LightSet

@@ -443,14 +443,17 @@ def nonlinear_roots(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
     (``TEX_TRANSMISSION_SQRT``), its largest channel scales the base under a tinted layer
     (``TEX_SPECULAR``), or it multiplies the metal colour of a GGX lobe (``TEX_METAL`` at GGX
     alpha ``>= GLOSSY_ALPHA_MIN``: the lobe's multiple-scattering factor
-    ``1 + F0 (1 - E) / E`` holds it once more). A mirror's Fresnel
+    ``1 + F0 (1 - E) / E`` holds it once more; or a mirror metal whose F82 tint is not
+    white: that curve is clamped). A mirror's Fresnel
     ``F0 + (1 - F0) (1 - cos)^5`` and a transmission tint are affine in it."""
     mats = np.zeros(len(sa.mat_tex), np.bool_)
     has = sa.mat_tex >= 0
     flags = sa.tex_size[sa.mat_tex[has], 2]
     lobe = sa.mat_roughness[has] >= tol.GLOSSY_ALPHA_MIN
+    # (an F82 tint other than white: its curve is clamped to [0, 1], not affine in F0)
+    tinted = (np.asarray(sa.mat_metal_tint)[has] != 1.0).any(axis=1)
     mats[has] = ((flags & (TEX_TRANSMISSION_SQRT | TEX_SPECULAR)) != 0) | (
-        ((flags & TEX_METAL) != 0) & lobe)
+        ((flags & TEX_METAL) != 0) & (lobe | tinted))
     if not mats.any():
         return np.zeros(len(inst), np.bool_)
     m = hit_materials(sa, inst, prim)

@@ -220,7 +220,8 @@ class MaterialReader:
         if kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic",
                     "ShaderNodeBsdfMetallic"):
             sock = node.inputs.get("Color") or node.inputs.get("Base Color")
-            colour, tex = self._colour(name, sock)  # an image: the metal colour per hit
+            # (an image: the metal colour per hit; a Physical Conductor has no Base Color)
+            colour, tex = self._colour(name, sock) if sock is not None else (np.ones(3), None)
             rough = self._value(name, node.inputs["Roughness"])
             aniso = node.inputs.get("Anisotropy")
             if aniso is not None and (aniso.is_linked or float(aniso.default_value) != 0.0):

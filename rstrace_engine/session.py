@@ -315,8 +315,8 @@ class Session:
             if seen:
                 self.scene.warn(f"lights seen directly ({', '.join(sorted(seen))}): their "
                                 f"own surfaces are shown to camera, mirror and refraction "
-                                f"rays in BASE and INTERPOLANT mode only; RI_TREE mode "
-                                f"does not show them")
+                                f"rays in BASE and INTERPOLANT mode; RI_TREE mode shows "
+                                f"them only in tiles it traces without RI-trees")
         if mode == "RI_TREE" or self.settings.thickness_view:
             return self._render_full(mode, progress, cancel)
         key = self.settings_key()

@@ -46,9 +46,11 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
         notes.skip(f"light '{name}' skipped: it is a portal (Cycles: it guides world "
                    f"sampling and emits no light)")
         return None
-    if not (getattr(ob, "visible_diffuse", True) or getattr(ob, "visible_glossy", True)):
+    if not (getattr(ob, "visible_diffuse", True) or getattr(ob, "visible_glossy", True)
+             or _seen_by_rays(ob)):
         # Cycles leaves such a light out of both closures: it lights no surface (RSTrace
-        # shades surfaces with those two only)
+        # shades surfaces with those two only); kept where camera or refraction rays see
+        # its own surface (tracing/seen_lights)
         notes.warn("lights with Diffuse and Glossy ray visibility off light no surface, as "
                    "in Cycles (left out)", name)
         return None
@@ -80,6 +82,8 @@ def read_light(ob, name: str, m: np.ndarray, notes: Notes) -> Light | None:
     linking = getattr(ob, "light_linking", None)
     reach = dict(diffuse=bool(getattr(ob, "visible_diffuse", True)),
                  glossy=bool(getattr(ob, "visible_glossy", True)),
+                 camera=bool(getattr(ob, "visible_camera", False)),
+                 transmission=bool(getattr(ob, "visible_transmission", True)),
                  receivers=_linked(getattr(linking, "receiver_collection", None)),
                  blockers=_linked(getattr(linking, "blocker_collection", None)))
     if kind == "SPOT":
@@ -202,15 +206,25 @@ def _cycles_area(kind: str, shape: dict) -> float:
     return u * v * (math.pi / 4.0 if shape["shape"] in ("DISK", "ELLIPSE") else 1.0)
 
 
+def _seen_by_rays(ob) -> bool:
+    """Whether camera or refraction rays see the light's own surface (it has an extent
+    and that visibility on, as Cycles shows it)."""
+    data = ob.data
+    extent = (data.type == "AREA" or (data.type == "SUN" and data.angle > 0.0)
+              or (data.type in ("POINT", "SPOT") and data.shadow_soft_size > 0.0))
+    return extent and bool(getattr(ob, "visible_camera", False)
+                           or getattr(ob, "visible_transmission", True))
+
+
 def _warn_unmodelled(ob, name: str, notes: Notes) -> None:
     """Light settings Cycles renders and RSTrace does not, named."""
     data = ob.data
     if not data.use_shadow:
         notes.warn("lights with shadows turned off still cast shadows", name)
     # (the Diffuse/Specular/Transmission/Volume Scatter factors are EEVEE's: Cycles ignores
-    # them, as RSTrace does, so they are not reported. Diffuse and Glossy visibility and
-    # light and shadow linking are modelled; Transmission visibility would only matter
-    # for light through rough glass, which RSTrace does not light)
+    # them, as RSTrace does, so they are not reported. Camera, Diffuse, Glossy and
+    # Transmission visibility and light and shadow linking are modelled: the last two
+    # visibilities also say whether mirror and smooth refraction rays see the light)
 
 
 def _off(holder, flags) -> str:

@@ -195,9 +195,13 @@ class FrameRenderer:
                 return
             mask, before = session.dirty_mask, session.last_report
             t2 = time.perf_counter()
+            known = set(session.scene.warnings)
             frame = session.render(camera=snap.camera, progress=self._progress,
                                    cancel=engine.test_break)
             t_render = time.perf_counter() - t2
+            for message in session.scene.warnings:  # (what the mode's render said)
+                if message not in known:
+                    self._warn(state, message)
             # what the session applied for this frame: the edits, and a new camera (render)
             reports = [report] + ([session.last_report] if session.last_report is not before
                                   else [])

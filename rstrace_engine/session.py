@@ -37,6 +37,7 @@ from .cancel import Cancelled, bound
 from .frame import AVAILABLE_MODES, Frame, RenderSettings
 from .geometry.cameras import same_camera
 from .geometry.edits import CameraChange, EditEffects, EditReport, apply_edits, diff_scenes
+from .geometry.lights import seen_extent
 from .geometry.scene import Camera, Scene, SceneError
 from .interpolants.render import InterpolantRenderer
 from .ri_tree.render import RITreeRenderer, render_thickness_exact
@@ -310,6 +311,14 @@ class Session:
         if mode != "BASE" and links_shadows(self.scene.arrays()):
             self.scene.warn(f"shadow linking (blocker collections) is modelled in BASE mode "
                             f"only: in {mode} mode every object casts every light's shadow")
+        if mode == "RI_TREE":
+            seen = [li.name for li in self.scene.lights
+                    if li is not None and seen_extent(li) is not None]
+            if seen:
+                self.scene.warn(f"lights seen directly ({', '.join(sorted(seen))}): their "
+                                f"own surfaces are shown to camera, mirror and refraction "
+                                f"rays in BASE and INTERPOLANT mode; RI_TREE mode shows "
+                                f"them only in tiles it traces without RI-trees")
         if mode == "RI_TREE" or self.settings.thickness_view:
             return self._render_full(mode, progress, cancel)
         key = self.settings_key()

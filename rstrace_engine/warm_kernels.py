@@ -75,8 +75,9 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
         rough, _ = principled_material("rough", (0.8, 0.6, 0.4), metallic=1.0, roughness=0.4)
         s.add_instance(ico, shapes.transform((-0.4, -1.4, 0.3), 0.3), [s.add_material(rough)],
                        name="Rough")
+    # (the sphere without soft falloff, the spot's with: both shapes the mirror sees)
     s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0),
-                      radius=soft))
+                      radius=soft, soft_falloff=not ortho))
     s.add_light(Light("Sun", "SUN", power=1.0, direction=(0.3, 0.2, -1.0), angle=soft))
     s.add_light(Light("Spot", "SPOT", power=900.0, position=(2.0, -2.0, 3.0),
                       direction=(-0.4, 0.4, -1.0), radius=soft))

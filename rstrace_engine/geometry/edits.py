@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .cameras import same_camera
+from .lights import seen_extent
 from .scene import Camera, Light, Material, Mesh, Scene, SceneError
 
 
@@ -162,6 +163,10 @@ class EditEffects:
     world_lights: bool = False  # the edited world colour is not black (it lights surfaces)
     camera: bool = False
     kinds: dict = field(default_factory=dict)
+    #: world boxes of the edited lights' own surfaces that rays see (old and new: the
+    #: camera's, mirror and refraction rays crossing them change, tracing/seen_lights)
+    seen_regions: list = field(default_factory=list)
+    seen_sky: bool = False  # a sun with an angle that rays see changed: what misses changes
 
     @property
     def lights_shading(self) -> set:
@@ -228,6 +233,17 @@ def _light_geometry(li: Light) -> tuple:
     return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
             float(li.spot_blend), float(li.radius), bool(li.soft_falloff), float(li.angle),
             li.shape, tuple(li.axis), tuple(li.size), float(li.spread))
+
+
+def _light_seen(fx: EditEffects, li: Light | None) -> None:
+    """Light ``li``'s own surface, if rays see it, changes what they gather there."""
+    box = None if li is None else seen_extent(li)
+    if box is None:
+        return
+    if box is True:
+        fx.seen_sky = True
+    else:
+        fx.seen_regions.append(box)
 
 
 def _material_ids(scene: Scene, name: str, keys) -> list[int]:
@@ -358,12 +374,17 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
             fx.lights.add(j)
             if _light_geometry(old) != _light_geometry(s.lights[j]):
                 fx.lights_moved.add(j)
+            if old != s.lights[j]:
+                _light_seen(fx, old)
+                _light_seen(fx, s.lights[j])
         else:
             j = s.add_light(e.light, key=e.key)
             fx.lights.add(j)
             fx.lights_moved.add(j)
+            _light_seen(fx, s.lights[j])
     elif isinstance(e, LightDelete):
         j = s.light_slot(e.key)
+        _light_seen(fx, s.lights[j])
         s.delete_light(j)
         fx.lights.add(j)
     else:

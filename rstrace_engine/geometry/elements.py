@@ -173,6 +173,7 @@ class Material:
     texture_flags: int = 0
     texture_map: tuple = TEX_MAP_IDENTITY
     specular_tint_max: float = 1.0
+    metal_tint: tuple = (1.0, 1.0, 1.0)
 
     def validated(self) -> Material:
         n = self.name
@@ -185,6 +186,7 @@ class Material:
         t = _colour(n, f"material '{n}' transmission", self.transmission)
         e = _colour(n, f"material '{n}' emission", self.emission, hi=None)
         mc = _colour(n, f"material '{n}' metal", self.metal)
+        mt = _colour(n, f"material '{n}' metal edge tint", self.metal_tint, hi=None)
         mw = float(self.metallic)
         if not (math.isfinite(mw) and 0.0 <= mw <= 1.0):
             raise SceneError(f"material '{n}': metallic {mw} outside [0, 1]")
@@ -225,7 +227,7 @@ class Material:
             raise SceneError(f"material '{n}': texture map must be 2 x 4 finite numbers")
         return Material(n, tuple(d), tuple(s), r, tuple(m), tuple(t), ior, tuple(e), tex,
                         self.model, mw, tuple(mc), sior, flags,
-                        tuple(tuple(float(x) for x in row) for row in tmap), stm)
+                        tuple(tuple(float(x) for x in row) for row in tmap), stm, tuple(mt))
 
 
 @dataclass
@@ -280,6 +282,10 @@ class Light:
     * ``receivers``, ``blockers``: light and shadow linking, ``((object name, include),
       ...)``: ``()`` every object; with some included, only those; excluded never. Objects
       the light lights (receivers) and objects that cast its shadows (blockers).
+    * ``camera``, ``glossy``, ``transmission``: whether camera rays, mirror reflection rays
+      and smooth refraction rays see the light's own surface (a light with an extent), as
+      Cycles (Blender's ``visible_camera``, off for a new light, ``visible_glossy``,
+      ``visible_transmission``): :mod:`~rstrace_engine.tracing.seen_lights`.
     """
 
     name: str = "light"
@@ -302,6 +308,8 @@ class Light:
     spot_frame: tuple = ()
     receivers: tuple = ()
     blockers: tuple = ()
+    camera: bool = False
+    transmission: bool = True
 
     @property
     def extended(self) -> bool:

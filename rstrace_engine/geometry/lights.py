@@ -132,6 +132,22 @@ class ExtendedLights:
         return self.a
 
 
+def seen_extent(li: Light):
+    """Where rays see light ``li``'s own surface (:mod:`~..tracing.seen_lights`): None
+    when none does (no extent, or its camera, glossy and transmission visibility off),
+    True for a sun (the sky: rays that hit nothing), else its world box (2, 3)."""
+    if not li.extended or not (li.camera or li.glossy or li.transmission):
+        return None
+    if li.kind == "SUN":
+        return True
+    if li.kind == "AREA":
+        r = 0.5 * math.hypot(*li.size)
+    else:
+        r = li.radius
+    p = np.asarray(li.position, np.float64)
+    return np.stack([p - r, p + r])
+
+
 def checked_light(light: Light) -> Light:
     """``light`` validated (errors name the light and setting) and normalised: a unit
     direction and area axis, extents below ``LIGHT_EXTENT_MIN`` made a point."""
@@ -180,7 +196,8 @@ def checked_light(light: Light) -> Light:
     return Light(n, light.kind, tuple(col), p, tuple(pos), tuple(d), size, blend,
                  radius, bool(light.soft_falloff), angle, shape, axis, ext, spread,
                  bool(light.diffuse), bool(light.glossy), frame,
-                 _links(n, "receiver", light.receivers), _links(n, "blocker", light.blockers))
+                 _links(n, "receiver", light.receivers), _links(n, "blocker", light.blockers),
+                 bool(light.camera), bool(light.transmission))
 
 
 def _spot_frame(name: str, frame) -> tuple:
@@ -233,16 +250,18 @@ def link_mask(links: tuple, names: list) -> np.ndarray | None:
 
 
 class LightReach:
-    """The per-light arrays of what a light reaches: ``light_vis`` (L, 2) its diffuse and
-    glossy factors (1 or 0), ``light_spot_scaled`` (L,) and ``light_spot_frame`` (L, 3, 3)
-    the rows that take a direction from the light into the spot's scaled frame (Cycles'
+    """The per-light arrays of what a light reaches: ``light_vis`` (L, 4) its diffuse and
+    glossy factors (1 or 0), then whether camera and smooth refraction rays see it (the
+    glossy factor says it for mirror rays: :mod:`~..tracing.seen_lights`),
+    ``light_spot_scaled`` (L,) and ``light_spot_frame`` (L, 3, 3) the rows that take a
+    direction from the light into the spot's scaled frame (Cycles'
     ``scaled_axis_u``, ``scaled_axis_v`` and the direction over its length), and the
     linking tables ``light_recv`` and ``light_block`` (L, I) uint8, (0, 0) where no light
     links (a scene without linking carries nothing)."""
 
     def __init__(self, lights: list, names: list) -> None:
         nl = len(lights)
-        vis = np.ones((nl, 2))
+        vis = np.ones((nl, 4))
         scaled = np.zeros(nl, np.bool_)
         frame = np.zeros((nl, 3, 3))
         recv = [None] * nl
@@ -250,7 +269,8 @@ class LightReach:
         for j, li in enumerate(lights):
             if li is None:
                 continue
-            vis[j] = (float(li.diffuse), float(li.glossy))
+            vis[j] = (float(li.diffuse), float(li.glossy), float(li.camera),
+                      float(li.transmission))
             if li.spot_frame:
                 m = np.asarray(li.spot_frame, np.float64).reshape(3, 3)
                 lens = np.linalg.norm(m, axis=0)

@@ -9,7 +9,9 @@ messages (the add-on reports them once per render):
     a Lambertian base ``(1 - metallic)(1 - transmission) base`` under a GGX layer: the
     dielectric part reflects with the exact Fresnel of the IOR (adjusted by the specular IOR
     level as Cycles does: ``F0 = F0(IOR) 2 level``), tinted; the metallic part reflects its
-    base colour with Schlick's curve to white. Lights light the whole layer; the layer
+    base colour with Cycles' F82-tint curve (Schlick's toward white, pulled down to the
+    Specular Tint times Schlick's value near 82 degrees:
+    :func:`~..tracing.shading.principled_fresnel`). Lights light the whole layer; the layer
     reflects the scene through one mirror ray below roughness 0.05 (GGX alpha
     ``tolerances.GLOSSY_ALPHA_MIN``) and through glossy rays drawn from its GGX lobe above
     (``tracing.glossy_rays.is_glossy``, docs/glossy.md); so does rough transmission.
@@ -95,7 +97,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
                         emission=(0.0, 0.0, 0.0), texture: np.ndarray | None = None,
                         model: str = "PRINCIPLED", tint_per_crossing: bool = False,
                         texture_flags: int = 0, texture_map: tuple = TEX_MAP_IDENTITY,
-                        anisotropic: float = 0.0) -> tuple[Material, list[str]]:
+                        anisotropic: float = 0.0, metal_tint=None
+                        ) -> tuple[Material, list[str]]:
     """A material from Principled BSDF inputs, and messages about what was approximated.
 
     The transmitted light is tinted per interface crossing by ``sqrt(base)``, as Cycles'
@@ -133,6 +136,10 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
     transmission = _scalar(name, "Transmission Weight", transmission)
     specular_level = _scalar(name, "Specular IOR Level", specular_level)
     tint = np.clip(_rgb(name, "Specular Tint", specular_tint), 0.0, 1.0)
+    # the metal's F82 tint: Cycles' min(Specular Tint, 1) (a Metallic BSDF's Edge Tint, or
+    # a conductor's F82 fit, given as metal_tint)
+    edge = tuple(float(x) for x in (tint if metal_tint is None else np.clip(
+        _rgb(name, "Edge Tint", metal_tint), 0.0, None)))
     emission = np.clip(_rgb(name, "Emission", emission), 0.0, None)
     lo, hi = IOR_RANGE
     if not lo <= ior <= hi:
@@ -194,7 +201,8 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
             emission=emission_t, texture=texture, model="PRINCIPLED", metallic=m,
             metal=tuple(metal_colour), specular_ior=spec_ior,
             texture_flags=flags, texture_map=texture_map,
-            specular_tint_max=float(np.max(tint)) if spec_ior > 1.0 else 1.0), notes
+            specular_tint_max=float(np.max(tint)) if spec_ior > 1.0 else 1.0,
+            metal_tint=edge), notes
     if model != "WARD":
         raise SceneError(f"material '{name}': unknown shading model {model!r}")
     f0c = np.clip(f0 * tint, 0.0, 1.0)
@@ -207,3 +215,35 @@ def principled_material(name: str, base, metallic: float = 0.0, roughness: float
         roughness=float(np.clip(r * r, 1e-3, 1.0)), mirror=tuple(reflect * sharp * scale),
         transmission=tuple(refract * scale), ior=ior, emission=emission_t, texture=texture,
         model="WARD", texture_flags=flags, texture_map=texture_map), notes
+
+
+def conductor_fresnel(c, n, k):
+    """The exact unpolarised Fresnel reflectance of a conductor of complex index ``n + i k``
+    (per channel, arrays) in air at cosine ``c`` (Cycles' ``fresnel_conductor_polarized``)."""
+    n = np.asarray(n, np.float64)
+    k = np.asarray(k, np.float64)
+    c = np.asarray(c, np.float64)
+    t1 = n * n - k * k - (1.0 - c * c)
+    t2 = np.sqrt(t1 * t1 + (2.0 * n * k) ** 2)
+    u2 = np.maximum(0.5 * (t2 + t1), 0.0)
+    v2 = np.maximum(0.5 * (t2 - t1), 0.0)
+    u, v = np.sqrt(u2), np.sqrt(v2)
+    rs = ((c - u) ** 2 + v2) / np.maximum((c + u) ** 2 + v2, 1e-300)
+    t3 = (n * n - k * k) * c
+    t4 = 2.0 * n * k * c
+    rp = ((t3 - u) ** 2 + (t4 - v) ** 2) / np.maximum((t3 + u) ** 2 + (t4 + v) ** 2, 1e-300)
+    return 0.5 * (rs + rp)
+
+
+def conductor_f82(n, k):
+    """A Metallic BSDF's Physical Conductor (IOR ``n``, Extinction ``k``, 3 channels) as the
+    F82-tint model: ``(F0, tint)``, the exact reflectance at normal incidence and the tint
+    that makes the model's value at cos = 1/7 the exact one (Cycles fits its conductors so
+    for their multiple-scattering energy; the curve between is the model's)."""
+    n = np.maximum(np.asarray(n, np.float64), 0.0)
+    k = np.maximum(np.asarray(k, np.float64), 0.0)
+    f0 = np.clip(conductor_fresnel(1.0, n, k), 0.0, 1.0)
+    f82 = conductor_fresnel(1.0 / 7.0, n, k)
+    schlick = f0 + (1.0 - f0) * (6.0 / 7.0) ** 5
+    return f0, np.maximum(f82 / np.maximum(schlick, 1e-12), 0.0)
+

@@ -110,6 +110,7 @@ class SceneArrays(NamedTuple):
     mat_metal: np.ndarray  # (NM, 3) float64
     mat_specular_ior: np.ndarray  # (NM,) float64
     mat_tint_max: np.ndarray  # (NM,) float64 the Principled layer's tint, largest channel
+    mat_metal_tint: np.ndarray  # (NM, 3) float64 the metal's F82 tint (1: Schlick)
     tex_data: np.ndarray  # (X, 3) float32 texels, all textures row-major concatenated
     tex_start: np.ndarray  # (NT + 1,) int64
     tex_size: np.ndarray  # (NT, 3) int32 (width, height, TEX_* flags)
@@ -140,7 +141,7 @@ class SceneArrays(NamedTuple):
     light_spread: np.ndarray  # (L, 2) AREA: tan(spread / 2) (inf: pi), its normaliser
     light_bound: np.ndarray  # (L,) largest distance of an emitting point from light_pos
     # what each light reaches (:class:`~.lights.LightReach`)
-    light_vis: np.ndarray  # (L, 2) float64 diffuse and glossy factors (1 or 0)
+    light_vis: np.ndarray  # (L, 4) float64 diffuse, glossy, camera, transmission (1 or 0)
     light_spot_scaled: np.ndarray  # (L,) bool SPOT: a reshaped (elliptical) cone
     light_spot_frame: np.ndarray  # (L, 3, 3) rows taking a direction into its scaled frame
     light_recv: np.ndarray  # (L, I) uint8 light linking: lights object; (0, 0) no linking
@@ -666,6 +667,7 @@ class Scene:
             mat_metal=np.array([m.metal for m in mats], f64).reshape(-1, 3),
             mat_specular_ior=np.array([m.specular_ior for m in mats], f64),
             mat_tint_max=np.array([m.specular_tint_max for m in mats], f64),
+            mat_metal_tint=np.array([m.metal_tint for m in mats], f64).reshape(-1, 3),
             tex_data=tex_data, tex_start=tex_start, tex_size=tex_size,
             tex_map=np.array([m.texture_map for m in tex_mats], f64).reshape(-1, 2, 4),
             scene_aabb=np.stack([lo, hi]), scene_extent=extent, inst_alive=alive,

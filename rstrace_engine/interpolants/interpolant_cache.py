@@ -74,6 +74,7 @@ from .predicate import (
     N_TEST_BASE,
     R_CLASS,
     R_GLOSSY,
+    R_TUNNEL_LIGHT,
     R_VALID,
     REASONS,
     TEST_POINTS,
@@ -84,6 +85,7 @@ from .predicate import (
 )
 from .samples import (
     GLOSSY,
+    SEES_LIGHT,
     LineCrossings,
     SampleStore,
     TextureApplier,
@@ -577,6 +579,8 @@ class InterpolantCache:
             corner_trees(self.samples.view(), corner_ids, early)
             # a rough surface in a corner's tree: the reason is that (glossy rays)
             cflag = self.samples.texture_terms()[2][corner_ids]
+            # a light mirror or refraction rays may see: the lines between may see it
+            early[((cflag & SEES_LIGHT) > 0).any(axis=1)] = R_TUNNEL_LIGHT
             early[((cflag & GLOSSY) > 0).any(axis=1)] = R_GLOSSY
             off = early != R_VALID
             if np.any(off):
@@ -613,6 +617,9 @@ class InterpolantCache:
             rough = rough.any(axis=1)  # whatever else the predicate found
             sub_status[rough] = CLASS_FAIL_NONLINEAR
             detail[rough] = R_GLOSSY
+            seen = (((sflag & SEES_LIGHT) > 0) & (cell_samples >= 0)).any(axis=1) & ~rough
+            sub_status[seen] = CLASS_FAIL_SHADOW
+            detail[seen] = R_TUNNEL_LIGHT
             ok = np.flatnonzero(sub_status == VALID)
             lin = radiance_ok(self.samples.radiance(), cell_samples[ok], nsamp[ok], self.epsilon,
                               self.samples.texture_terms(), self.tex_max)

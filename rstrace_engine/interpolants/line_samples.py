@@ -26,6 +26,7 @@ from .samples import (
     LineCrossings,
     facing,
     glossy_flags,
+    seen_flags,
     skip_tmin,
     texture_split,
     unique_keys,
@@ -121,7 +122,9 @@ def shade_lines(cache, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings) -> np
     hits = geo.hits(ug)
     # a rough root's own light: its glossy rays are traced per pixel (glossy_term.py);
     # a line with a rough surface deeper in its tree fails (R_GLOSSY): one glossy sample
-    own = partial(trace, glossy_samples=1, roots="own")
+    # (the lattice lines are not camera rays: a light they cross before the root is the
+    # pixel's to see, render.py traces those pixels)
+    own = partial(trace, glossy_samples=1, roots="own", camera_lights=False)
     keep = cache._keeps_shares(len(ug))
     segs: list | None = [] if keep else None
     rad, tree = own(cache.sa, cache.accel, geo.o[ug], geo.d[ug], 0.0, 1.0, cache.max_depth,
@@ -135,7 +138,7 @@ def shade_lines(cache, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings) -> np
                         cache.topo.tri_class[np.maximum(tree.node_tri, 0)], -1)
     rad, dif, texel, flag = texture_split(cache.sa, cache.accel, geo.o[ug], geo.d[ug], hits,
                                           tree, rad, cache.max_depth, own)
-    flag |= glossy_flags(cache.sa, tree, len(ug))
+    flag |= glossy_flags(cache.sa, tree, len(ug)) | seen_flags(cache.sa, tree, len(ug))
     if cache.qs.world_light:  # interpolated without the world's term (world_term.py)
         rad, flag = without_world(cache.sa, cache.accel, geo.o[ug], geo.d[ug], hits, rad,
                                   dif, flag, cache.max_depth)

@@ -43,6 +43,14 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
+from ..tracing.seen_lights import (
+    SEEN_CAMERA,
+    SEEN_GLOSSY,
+    SEEN_TRANSMISSION,
+    any_seen,
+    seen,
+    seen_lights,
+)
 from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
@@ -181,6 +189,40 @@ def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, c
         hits.inst[g] = inst
         hits.t[g] = t
     return hits, res, reprojected, skipped
+
+
+def _camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo) -> np.ndarray:
+    """The rays whose camera ray may cross a light the camera sees (anywhere within its
+    bounds, or a sun's cone on a miss: :mod:`~..tracing.seen_lights`) are traced, not
+    interpolated: their hits found again where they were reprojected (left a miss), and
+    added to ``todo``, which is returned."""
+    sa = cache.sa
+    miss = hits.inst < 0
+    if rep is not None:
+        miss &= ~rep
+    one = np.ones((len(o), 3))
+    sel = np.flatnonzero(seen(sa, o, d, tmin, tmax, miss, np.full(len(o), SEEN_CAMERA,
+                                                                   np.int8), one).any(axis=1))
+    if len(sel) == 0:
+        return todo
+    if rep is not None and rep[sel].any():
+        r = sel[rep[sel]]
+        found = cache.accel.closest_hit(o[r], d[r], tmin[r], tmax[r])
+        for a, b in zip(hits, found, strict=True):
+            a[r] = b
+    res.interpolated[sel] = False
+    res.pixel_class[sel] = np.where(hits.inst[sel] >= 0, CLASS_TRACED, CLASS_BACKGROUND)
+    res.interpolant[sel] = -1
+    return np.union1d(todo, sel)
+
+
+def _newly_seen(old_sa, sa) -> bool:
+    """Whether mirror or refraction rays see a light in ``sa`` they did not see in
+    ``old_sa`` (the cells' samples are flagged by what was seen when they were traced:
+    :func:`~.samples.seen_flags`)."""
+    def below(x):
+        return seen_lights(x, SEEN_GLOSSY) | seen_lights(x, SEEN_TRANSMISSION)
+    return bool(np.any(below(sa) & ~below(old_sa)))
 
 
 def _add_stats(a: dict, b: dict) -> dict:
@@ -424,6 +466,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
     # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
     rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
+    camera_seen = any_seen(sa, (SEEN_CAMERA,))
     view = cache.view if pixels is None and not world else None
     cache.view = None
     t_world = 0.0
@@ -512,6 +555,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             todo = np.empty(k, np.int64)
             todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
                                    rad, todo)]
+            if camera_seen:
+                todo = _camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo)
             n_todo += len(todo)
             tt = time.perf_counter()
             t_res += tt - tr
@@ -595,7 +640,8 @@ class InterpolantRenderer:
         if sa is c.sa and not fx.scene_content_changed:
             c.accel = accel
             return Invalidation.nothing(c.pool.n_live)
-        if len(sa.light_kind) != len(c.sa.light_kind):
+        if len(sa.light_kind) != len(c.sa.light_kind) or _newly_seen(c.sa, sa):
+            # (a light mirror or refraction rays now see: the samples were not flagged)
             live = c.pool.n_live
             self.cache = InterpolantCache(sa, accel, c.epsilon, c.depth_cap,
                                           c.memory_cap_bytes / 1e6, c.max_depth)

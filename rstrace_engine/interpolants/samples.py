@@ -20,6 +20,7 @@ from .. import tolerances as tol
 from ..accel.accelerators import Hits
 from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
 from ..tracing.glossy_rays import is_glossy
+from ..tracing.seen_lights import SEEN_GLOSSY, SEEN_TRANSMISSION, any_seen
 from ..tracing.shader import _material_of
 from ..tracing.shading import (
     dot3,
@@ -370,6 +371,7 @@ def skip_tmin(o, d, t, ext, out):
 TEX_BELOW = 1
 TEX_MISMATCH = 2
 GLOSSY = 4
+SEES_LIGHT = 8
 
 
 @njit(cache=True, nogil=True)
@@ -391,6 +393,18 @@ def glossy_flags(sa, tree, n: int) -> np.ndarray:
     g[:n] = False  # the roots (the first n rows)
     hit = np.bincount(tree.node_ray[g], minlength=n)[:n] > 0
     return np.where(hit, GLOSSY, 0).astype(np.uint8)
+
+
+def seen_flags(sa, tree, n: int) -> np.ndarray:
+    """(n,) uint8 :data:`SEES_LIGHT` where a line's ray tree goes below its root while
+    mirror or refraction rays may see a light's own surface (:mod:`~..tracing.seen_lights`):
+    the lines between the samples may see a light they miss, so the cell is traced per
+    pixel (``tunnel_light``). The roots' own rays are the camera's: a pixel whose camera ray
+    can see a light is traced (:mod:`.render`), the lattice lines see none."""
+    if not any_seen(sa, (SEEN_GLOSSY, SEEN_TRANSMISSION)):
+        return np.zeros(n, np.uint8)
+    below = np.bincount(np.asarray(tree.node_ray[n:], np.int64), minlength=n)[:n] > 0
+    return np.where(below, SEES_LIGHT, 0).astype(np.uint8)
 
 
 @njit(cache=True, nogil=True)
@@ -429,14 +443,17 @@ def nonlinear_roots(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
     (``TEX_TRANSMISSION_SQRT``), its largest channel scales the base under a tinted layer
     (``TEX_SPECULAR``), or it multiplies the metal colour of a GGX lobe (``TEX_METAL`` at GGX
     alpha ``>= GLOSSY_ALPHA_MIN``: the lobe's multiple-scattering factor
-    ``1 + F0 (1 - E) / E`` holds it once more). A mirror's Fresnel
+    ``1 + F0 (1 - E) / E`` holds it once more; or a mirror metal whose F82 tint is not
+    white: that curve is clamped). A mirror's Fresnel
     ``F0 + (1 - F0) (1 - cos)^5`` and a transmission tint are affine in it."""
     mats = np.zeros(len(sa.mat_tex), np.bool_)
     has = sa.mat_tex >= 0
     flags = sa.tex_size[sa.mat_tex[has], 2]
     lobe = sa.mat_roughness[has] >= tol.GLOSSY_ALPHA_MIN
+    # (an F82 tint other than white: its curve is clamped to [0, 1], not affine in F0)
+    tinted = (np.asarray(sa.mat_metal_tint)[has] != 1.0).any(axis=1)
     mats[has] = ((flags & (TEX_TRANSMISSION_SQRT | TEX_SPECULAR)) != 0) | (
-        ((flags & TEX_METAL) != 0) & lobe)
+        ((flags & TEX_METAL) != 0) & (lobe | tinted))
     if not mats.any():
         return np.zeros(len(inst), np.bool_)
     m = hit_materials(sa, inst, prim)

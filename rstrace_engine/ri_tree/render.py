@@ -86,7 +86,7 @@ RI_TILE_RAYS = 4 * TILE_RAYS
 
 #: material properties an RI-tree depends on (its exit paths and their gains, eligibility)
 _OPTICAL = ("mat_mirror", "mat_transmission", "mat_ior", "mat_tex", "mat_model",
-            "mat_specular", "mat_specular_ior", "mat_metallic", "mat_metal")
+            "mat_specular", "mat_specular_ior", "mat_metallic", "mat_metal", "mat_metal_tint")
 
 
 class RITreeRenderer:

@@ -210,9 +210,10 @@ def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls
             # the base tracer's mirror share: times the Principled layer's Fresnel
             sp = sa.mat_specular[m]
             mt = sa.mat_metal[m]
+            mq = sa.mat_metal_tint[m]
             fx, fy, fz = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sp[0], sp[1], sp[2],
                                             sa.mat_specular_ior[m], sa.mat_metallic[m],
-                                            mt[0], mt[1], mt[2])
+                                            mt[0], mt[1], mt[2], mq[0], mq[1], mq[2])
             mx, my, mz = mx * fx, my * fy, mz * fz
         if ok and (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
             # the internal reflection the base tracer splits off here (as its shade kernel)

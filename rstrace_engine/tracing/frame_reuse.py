@@ -29,8 +29,10 @@ import numpy as np
 
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
+from ..geometry.edits import EditEffects
 from .light_records import load_kernels
 from .pixel_records import PixelRecords
+from .seen_lights import any_seen
 from .soft_lights import world_lights
 
 
@@ -151,6 +153,10 @@ class FrameReuse:
                 self.dirty |= dirty
             self.relight_due = True
             self.relight_moved |= set(fx.lights_moved)
+            if fx.seen_regions or fx.seen_sky or any_seen(old_sa) or any_seen(new_sa):
+                # a light's own surface seen is in no light term: those samples re-trace
+                self.dirty |= rec.dirty_pixels(old_sa, camera_params(camera), EditEffects(
+                    seen_regions=fx.seen_regions, seen_sky=fx.seen_sky))
             report.relight = True
             report.full_frame = False
             report.dirty_pixels = int(np.count_nonzero(self.dirty))

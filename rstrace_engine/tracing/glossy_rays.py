@@ -102,6 +102,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
         nx, ny, nz = gx, gy, gz
         co = dot3(ox, oy, oz, nx, ny, nz)
     co = max(co, tol.GGX_COS_MIN)
+    qr, qg, qb = sa.mat_metal_tint[m, 0], sa.mat_metal_tint[m, 1], sa.mat_metal_tint[m, 2]
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
     trans = ur > 0.0 or ug > 0.0 or ub > 0.0
     msr = msg = msb = 1.0
@@ -128,7 +129,8 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
             continue
         ar = ag = ab = 0.0
         if refl:
-            fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+            fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb, qr,
+                                            qg, qb)
             ar = rr * fr * msr
             ag = rg * fg * msg
             ab = rb * fb * msb

@@ -360,11 +360,16 @@ class PixelRecords:
         dirn = np.concatenate([lv["dir"] for lv in levels])
         traced = np.concatenate([lv["traced"] for lv in levels])
         lit = np.concatenate([lv["lit"] for lv in levels])
+        # a node that saw a light's own surface: that radiance is in no light term (the
+        # light records cannot recombine it), so the sample is traced again by every
+        # incremental frame
+        saw = np.concatenate([lv.get("seen", np.zeros(len(lv["inst"]), np.bool_))
+                              for lv in levels])
         codes = np.empty(len(inst), np.uint32)
         outside = np.empty(len(inst), np.bool_)
         _encode_nodes(inst, np.ascontiguousarray(point), np.ascontiguousarray(dirn), self.lo,
                       self.step, self.levels, self.shift, codes, outside)
-        combos = self._intern(inst, traced, lit, np.where(outside, FLAG_ALWAYS, 0))
+        combos = self._intern(inst, traced, lit, np.where(outside | saw, FLAG_ALWAYS, 0))
         if self.n_table > 65535 and self.p_combo.dtype != np.uint32:
             self.p_combo = self.p_combo.astype(np.uint32)
             self.s_combo = self.s_combo.astype(np.uint32)
@@ -545,8 +550,9 @@ class PixelRecords:
         dirty |= is_hit & hot[np.where(is_hit, combo_inst, n_slots)]
         if fx.lights_moved:
             dirty |= is_hit
-        if fx.world:
+        if fx.world or fx.seen_sky:  # (a seen sun: what misses see)
             dirty |= ~is_hit
+        if fx.world:
             if world_lights(sa) or fx.world_lights:
                 dirty |= is_hit  # the world lit (or lights now) every surface
         # the world's shadow rays leave every surface point over its hemisphere: primary
@@ -591,6 +597,18 @@ class PixelRecords:
                 query_samples(sa, self.p_combo, self.p_code, inst64, combo_traced,
                               self.p_wnorm, self.p_seed, self.w_samples, sampled, self.lo,
                               self.step, self.levels, self.shift, reg_lo, reg_hi, pos, out)
+            seen = fx.seen_regions
+            if seen:  # the view and mirror segments crossing an edited light's surface
+                lo = np.ascontiguousarray(np.stack(seen)[:, 0] - margin)
+                hi = np.ascontiguousarray(np.stack(seen)[:, 1] + margin)
+                none = np.zeros(len(combo_dirty), np.bool_)
+                no_lights = np.zeros(len(combo_traced), np.uint64)
+                crossed = np.zeros(self.n_rays, np.bool_)  # (the queries assign, not or)
+                self._query(cp, none, none, inst64, no_lights, no_lights, origins, lo, hi,
+                            np.ascontiguousarray(0.5 * (lo + hi)),
+                            np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
+                            kind, pos, ldir, crossed)
+                out |= crossed
             if world_rays:
                 if self.p_wnorm is None:
                     out |= is_hit[self.p_combo.astype(np.int64)]

@@ -107,13 +107,14 @@ class Spawned(NamedTuple):
 
 @njit(cache=True, nogil=True, inline="always")
 def _brdf(principled, sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
-          metallic, mr, mg, mb, alpha, e_white, e_diel):
+          metallic, mr, mg, mb, alpha, e_white, e_diel, kr, kg, kb):
     """The material's BRDF (Principled-like or Ward) for light direction ``l`` and view
     direction ``o`` about shading normal ``s``: the hard lights' and the soft samples' one
-    evaluation."""
+    evaluation (``k*``: the metal's F82 tint)."""
     if principled:
         return principled_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
-                               eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel)
+                               eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel, kr, kg,
+                               kb)
     return ward_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
 
 
@@ -393,6 +394,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         metallic = sa.mat_metallic[m]
         mr, mg, mb = texel_weight(tf, TEX_METAL, sa.mat_metal[m, 0], sa.mat_metal[m, 1],
                                   sa.mat_metal[m, 2], xr, xg, xb)
+        qr, qg, qb = sa.mat_metal_tint[m, 0], sa.mat_metal_tint[m, 1], sa.mat_metal_tint[m, 2]
         e_white = 1.0
         e_diel = 0.0
         # a glossy point's rays carry the world's glossy reflection: its samples of the
@@ -453,7 +455,8 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                 continue
             fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr * vd,
                                dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
-                               metallic * vg, mr, mg, mb, alpha, e_white, e_diel)
+                               metallic * vg, mr, mg, mb, alpha, e_white, e_diel, qr, qg,
+                               qb)
             q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vg
             fr += q * ur
             fg += q * ug
@@ -502,7 +505,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                     fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
                                        dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
                                        eta_s, metallic * vg, mr, mg, mb, alpha, e_white,
-                                       e_diel)
+                                       e_diel, qr, qg, qb)
                     q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
                                     ke) * vg
                     fr += q * ur
@@ -553,7 +556,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,
-                                            metallic, mr, mg, mb)
+                                            metallic, mr, mg, mb, qr, qg, qb)
             rr *= fr
             rg *= fg
             rb *= fb

@@ -177,28 +177,48 @@ def ggx_albedo(cos_o, alpha, eta_s):
     return min(ew / n, 1.0), min(ed / n, 1.0)
 
 
+#: Cycles' F82-tint model: the tint is taken at cos = 1/7 (about 82 degrees); these are
+#: (1 - 1/7)^5 and 7 / (1 - 1/7)^6 (``fresnel_f82tint_B``).
+F82_S5 = (6.0 / 7.0) ** 5
+F82_SCALE = 7.0 / (6.0 / 7.0) ** 6
+
+
 @njit(cache=True, nogil=True)
-def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb):
+def f82_metal(c, f0, tint):
+    """One channel of Cycles' F82-tint conductor Fresnel at cosine ``c``: Schlick's
+    ``F0 + (1 - F0)(1 - c)^5`` less ``B c (1 - c)^6``, ``B`` chosen so that at ``c = 1/7``
+    it is Schlick's value times ``tint`` (``fresnel_f82tint_B``, ``fresnel_f82``), clamped
+    to [0, 1]. A white tint is Schlick's curve exactly."""
+    x = 1.0 - min(max(c, 0.0), 1.0)
+    x5 = x * x * x * x * x
+    f = f0 + (1.0 - f0) * x5
+    if tint == 1.0:
+        return f
+    b = (f0 + (1.0 - f0) * F82_S5) * F82_SCALE * (1.0 - tint)
+    return min(max(f - b * (1.0 - x) * x5 * x, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr=1.0, tg=1.0, tb=1.0):
     """Reflectance ``(r, g, b)`` of the Principled-like specular layer at cosine ``c``.
 
     ``s*`` the dielectric layer's weight times its tint with the exact dielectric Fresnel of
     index ``eta_s`` (none when ``eta_s`` is 1); ``metallic`` the conductor's weight and
-    ``m*`` its colour at normal incidence, with Schlick's curve to white at grazing angles
-    (Cycles' F82 with a white tint).
+    ``m*`` its colour at normal incidence, ``t*`` its F82 tint (Cycles 4+: the Principled
+    BSDF's Specular Tint, a Metallic BSDF's Edge Tint; :func:`f82_metal`: white is
+    Schlick's curve to white at grazing angles).
     """
     fd = 0.0
     if eta_s != 1.0:
         fd = fresnel_dielectric(c, 1.0 / eta_s)
-    x = 1.0 - min(max(c, 0.0), 1.0)
-    x5 = x * x * x * x * x
-    return (sr * fd + metallic * (mr + (1.0 - mr) * x5),
-            sg * fd + metallic * (mg + (1.0 - mg) * x5),
-            sb * fd + metallic * (mb + (1.0 - mb) * x5))
+    return (sr * fd + metallic * f82_metal(c, mr, tr),
+            sg * fd + metallic * f82_metal(c, mg, tg),
+            sb * fd + metallic * f82_metal(c, mb, tb))
 
 
 @njit(cache=True, nogil=True)
 def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
-                    metallic, mr, mg, mb, alpha, e_white, e_diel):
+                    metallic, mr, mg, mb, alpha, e_white, e_diel, tr=1.0, tg=1.0, tb=1.0):
     """Principled-like BRDF value ``(r, g, b)``: Lambertian diffuse under a GGX layer.
 
     ``d*`` the diffuse albedo, scaled by ``1 - e_diel``, one minus the dielectric layer's
@@ -206,7 +226,8 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     Cycles' layering); the GGX lobe (:func:`ggx_lobe`) carries the Fresnel of
     :func:`principled_fresnel` at ``wi . h`` and Turquin's multiple-scattering factor
     ``1 + F0 (1 - E) / E`` with ``E = e_white`` (Cycles' multiscatter GGX keeps the energy
-    of rough metals). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
+    of rough metals; ``F0`` the reflectance at normal incidence, where the F82 tint ``t*``
+    takes nothing). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
     lobe below ``tolerances.GLOSSY_ALPHA_MIN``: a (near) mirror reflects through mirror rays.
     """
     kd = (1.0 - e_diel) * INV_PI
@@ -219,7 +240,7 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     lobe, ch = ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
     if lobe <= 0.0:
         return r, g, bl
-    fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb)
+    fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr, tg, tb)
     e = max(e_white, tol.GGX_ALBEDO_MIN)
     k = (1.0 - e) / e
     f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)

@@ -42,6 +42,7 @@ from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_
 from .glossy_rays import glossy_counts
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
+from .seen_lights import SEEN_CAMERA, SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION, any_seen, seen
 from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
     OCC_NONE,
@@ -235,6 +236,7 @@ class _Front(NamedTuple):
     path: np.ndarray  # (nb,) int64 root 1, reflect child 2p, refract child 2p + 1
     fresh: np.ndarray  # (nb,) bool the path has drawn no glossy samples yet
     tag: np.ndarray  # (nb,) uint64 hashed into the node seed below a glossy sample (else 0)
+    sees: np.ndarray  # (nb,) int8 which lights the ray sees (seen_lights.SEEN_*)
 
 
 def _count(counters: dict | None, key: str, n: int) -> None:
@@ -242,7 +244,8 @@ def _count(counters: dict | None, key: str, n: int) -> None:
         counters[key] = counters.get(key, 0) + int(n)
 
 
-def _input_front(origins, directions, tmin, tmax, primary: Hits | None) -> _Front:
+def _input_front(origins, directions, tmin, tmax, primary: Hits | None,
+                 camera_lights: bool = True) -> _Front:
     o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
     n = o.shape[0]
@@ -254,7 +257,8 @@ def _input_front(origins, directions, tmin, tmax, primary: Hits | None) -> _Fron
         raise ValueError(f"trace: primary hits for {len(primary.t)} rays, {n} rays given")
     return _Front(o, d, t0, t1, np.arange(n, dtype=np.int32), np.ones((n, 3)),
                   np.full(n, -1, np.int32), np.ones(n, np.int64), np.ones(n, np.bool_),
-                  np.zeros(n, np.uint64))
+                  np.zeros(n, np.uint64),
+                  np.full(n, SEEN_CAMERA if camera_lights else SEEN_NONE, np.int8))
 
 
 @njit(cache=True, nogil=True)
@@ -277,6 +281,9 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
     k = np.flatnonzero(kids.ok)
     pair = k // 2
     fresh, tag = front.fresh, front.tag
+    # mirror rays see lights as glossy rays, smooth refraction rays as transmission rays;
+    # rays drawn from a rough lobe see none (the lights are that surface's direct light)
+    sees = np.where(k & 1, SEEN_TRANSMISSION, SEEN_GLOSSY).astype(np.int8)
     if plan.gstart is None:
         which = pair
         fresh = fresh[which]
@@ -286,12 +293,13 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
         fresh = fresh[which] & ~plan.glossy[which]
         tag = np.empty(len(k), np.uint64)
         _child_tags(nseeds, which, pair - plan.gstart[which], plan.glossy, front.tag, tag)
+        sees[plan.glossy[which]] = SEEN_NONE
     parent = front.parent
     if rows is not None:
         parent = rows[which]
     path = front.path[which] * 2 + (k & 1)  # also seeds the soft lights' samples
     return _Front(kids.o[k], kids.d[k], np.zeros(len(k)), np.full(len(k), np.inf),
-                  front.src[which], kids.w[k], parent, path, fresh, tag)
+                  front.src[which], kids.w[k], parent, path, fresh, tag, sees)
 
 
 def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
@@ -351,14 +359,15 @@ def _light_masks(sh_state, vis, L, traced, lit):
         lit[i] = b
 
 
-def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int) -> dict:
+def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int, saw) -> dict:
     """The level's compact ray-tree nodes for the pixel records (see :func:`trace`)."""
     nb = len(front.src)
     traced = np.empty(nb, np.uint64)
     lit = np.empty(nb, np.uint64)
     _light_masks(surf.sh_state, vis, L, traced, lit)
     return dict(ray=front.src, parent=front.parent, inst=hits.inst, point=surf.P,
-                dir=surf.VD, traced=traced, lit=lit)
+                dir=surf.VD, traced=traced, lit=lit,
+                seen=np.zeros(nb, np.bool_) if saw is None else saw)
 
 
 def _light_terms(front: _Front, hits: Hits, surf: Surfaces, seeds, tvp) -> dict:
@@ -399,7 +408,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
           record: bool = False, primary: Hits | None = None, counters: dict | None = None,
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
           light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False,
-          glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, roots: str = "all"):
+          glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, roots: str = "all",
+          camera_lights: bool = True):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -414,8 +424,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     ray-tree nodes the per-pixel records keep (:mod:`.pixel_records`): ``ray`` (input ray),
     ``parent`` (row of the parent node, rows numbered level after level, -1 for roots),
     ``inst`` (-1: a miss), ``point`` (hit point), ``dir`` (unit ray direction), ``traced``
-    and ``lit`` (uint64 light bits: shadow ray traced / light visible). Cheaper than
-    ``record`` (shadow rays stay any-hit queries).
+    and ``lit`` (uint64 light bits: shadow ray traced / light visible), ``seen`` (bool: the
+    ray saw a light's own surface). Cheaper than ``record`` (shadow rays stay any-hit
+    queries).
     cancel : optional ``cancel() -> bool``, polled between the queries of every depth level:
     once it says stop, the rest is skipped and the result is incomplete (the caller polls
     ``cancel()`` itself and discards it; see :mod:`rstrace_engine.cancel`).
@@ -434,10 +445,14 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     traced (what the rays they spawn bring: the rest, traced per pixel,
     :mod:`~..interpolants.glossy_term`). ``"own"`` plus ``"below"`` of a rough root is
     ``"all"``: the same rays, seeds and weights.
+    camera_lights : the input rays are camera rays: they see the lights visible to the
+    camera (:mod:`.seen_lights`; mirror and refraction rays below them see the lights
+    visible to glossy and transmission rays whatever this says). False for rays that are
+    not the camera's (the interpolants' lattice lines).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
-    front = _input_front(origins, directions, tmin, tmax, primary)
+    front = _input_front(origins, directions, tmin, tmax, primary, camera_lights)
     max_depth = int(max_depth)
     if max_depth < 0:
         raise ValueError(f"trace: max_depth {max_depth} < 0")
@@ -449,6 +464,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     radiance = np.zeros((len(front.src), 3))
     nodes = record or segments is not None  # ray-tree node rows are followed
     soft_on = has_soft_light(sa)
+    seen_on = any_seen(sa, (SEEN_CAMERA,) if max_depth == 0 else
+                       (SEEN_CAMERA, SEEN_GLOSSY, SEEN_TRANSMISSION))
     glossy_on = has_glossy(sa) and max_depth > 0
     terms = terms and segments is not None
     need_seeds = soft_on or terms or glossy_on
@@ -492,10 +509,18 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         contrib, kids = shaded[0], shaded[1]
         if own:
             scatter_add(radiance, front.src, contrib)
+        saw = None
+        if seen_on and own:  # the lights' own surfaces the rays cross (after the shading)
+            miss = hits.inst < 0
+            lrad = seen(sa, front.o, front.d, front.t0, np.where(miss, front.t1, hits.t),
+                        miss, front.sees, front.weight)
+            saw = lrad.any(axis=1)
+            if saw.any():
+                scatter_add(radiance, front.src[saw], lrad[saw])
         if level == 0 and roots == "own" and glossy_on:
             _drop_rough_roots(kids, shaded[-1])
         if segments is not None:
-            segments.append(_segments(front, hits, surf, vis, L))
+            segments.append(_segments(front, hits, surf, vis, L, saw))
             if soft_on:  # the world's rays, for the pixel records to regenerate
                 segments[-1].update(normal=surf.NS, seed=nseeds, n_soft=int(light_samples),
                                     n_lights=L)

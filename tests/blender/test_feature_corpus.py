@@ -51,8 +51,7 @@ class Feature:
 def _stage(ball_material=None, world=(0.0, 0.0, 0.0), key: bool = True,
            chrome: bool = True):
     """Floor, a red ball, a mirror ball, a key light, the camera; returns the red ball.
-    The light scenes have no mirror ball: Cycles shows a light's own surface (the sun's
-    disc, an area light) in a smooth mirror and RSTrace does not (docs/compatibility.md).
+    (The light scenes have no mirror ball: the lights seen in it are the seen-lights rows'.)
     The world is black: a coloured one that lights nothing (diffuse and glossy visibility
     off) is still seen in RSTrace's mirrors, not in Cycles' (reported in docs/compatibility.md)."""
     b.set_world(world, lights=False)
@@ -323,6 +322,63 @@ def _no_material():
     b.add_object("Bare", b.uv_sphere("Bare", 0.8, 32, 16), (1.2, -0.2, 0.8))  # none at all
 
 
+def _seen_lights(sun: bool = False):
+    """The stage, lit by the Key, with lights Cycles shows: a panel (an area light facing
+    the camera, camera visibility on), a sphere light (no soft falloff) and a spot with a
+    radius, both seen by the camera and in the mirror ball; with ``sun`` a sun with a 40
+    degree disc seen in the ball only (Cycles: a sun is not seen by the camera unless its
+    camera visibility is on)."""
+    def build():
+        _stage()
+        panel = b.point_light("Panel", (-2.6, -2.0, 2.2), 60.0, kind="AREA")
+        panel.data.shape = "RECTANGLE"
+        panel.data.size, panel.data.size_y = 0.8, 0.5
+        b.look_at(panel, (0.0, -8.5, 3.6))
+        bulb = b.point_light("Bulb", (2.6, -2.6, 2.6), 150.0, (1.0, 0.8, 0.6))
+        bulb.data.shadow_soft_size = 0.3
+        spot = b.point_light("Spot", (0.4, -3.0, 3.4), 150.0, (0.6, 0.8, 1.0), kind="SPOT")
+        spot.data.shadow_soft_size = 0.25
+        spot.data.spot_size = math.radians(90.0)
+        b.look_at(spot, (0.0, -8.5, 3.6))
+        for ob in (panel, bulb, spot):
+            ob.visible_camera = True
+        if sun:  # behind the camera: its disc in the middle of the ball
+            ob = b.point_light("Sun", (0.0, -12.0, 5.0), 0.5, kind="SUN")
+            ob.data.angle = math.radians(40.0)
+            b.look_at(ob, (1.2, -0.2, 1.0))
+    return build
+
+
+def _metal_ball(kind: str, **inputs):
+    """A mirror metal ball filling most of the frame inside a white emissive dome (radiance
+    1, seen in the ball only: each pixel is the metal's Fresnel at its angle, the F82 dip
+    in its outer ring): a Principled BSDF (metallic, Specular Tint the F82 tint) or a
+    Metallic BSDF node (F82 Edge Tint, or Physical Conductor)."""
+    def build():
+        b.set_world((0.0, 0.0, 0.0), lights=False)
+        mat = bpy.data.materials.new("Metal ball")
+        nodes = mat.node_tree.nodes
+        if kind == "principled":
+            bsdf = nodes["Principled BSDF"]
+            bsdf.inputs["Metallic"].default_value = 1.0
+        else:
+            nodes.remove(nodes["Principled BSDF"])
+            bsdf = nodes.new("ShaderNodeBsdfMetallic")
+            bsdf.fresnel_type = kind
+            _link(mat, bsdf, 0, nodes["Material Output"].inputs["Surface"])
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = value
+        b.add_object("Ball", b.uv_sphere("Ball", 1.0, 64, 32), (0.0, 0.0, 0.0), mat)
+        glow = b.principled("Dome", (0.0, 0.0, 0.0), specular_level=0.0)
+        node = glow.node_tree.nodes["Principled BSDF"]
+        node.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        node.inputs["Emission Strength"].default_value = 1.0
+        glow.cycles.emission_sampling = "NONE"  # (RSTrace: emissive meshes light nothing)
+        b.add_object("Dome", b.uv_sphere("Dome", 30.0, 32, 16), (0.0, 0.0, 0.0), glow)
+        b.camera((0.0, -3.6, 0.0), (0.0, 0.0, 0.0), lens=50.0)
+    return build
+
+
 def _override():
     _stage(chrome=False)
     bpy.context.view_layer.material_override = b.principled("Clay", (0.3, 0.35, 0.7),
@@ -386,6 +442,21 @@ FEATURES = [
     Feature("flat-shaded non-planar quads", _bent_quads, tol=0.05),
     Feature("no material, empty slot (default surface)", _no_material, tol=0.05),
     Feature("view layer material override", _override, tol=0.05),
+    Feature("lights seen by the camera and in a mirror (area, sphere, spot)",
+            _seen_lights(), tol=0.08, glossy=1),
+    Feature("sun disc seen in a mirror", _seen_lights(sun=True), tol=0.08, glossy=1),
+    Feature("Principled metallic Specular Tint (F82)",
+            _metal_ball("principled", **{"Base Color": (0.95, 0.64, 0.54, 1.0),
+                                         "Specular Tint": (0.2, 0.5, 1.0, 1.0),
+                                         "Roughness": 0.0}), tol=0.02, glossy=1),
+    Feature("Metallic BSDF Edge Tint (F82)",
+            _metal_ball("F82", **{"Base Color": (0.9, 0.85, 0.5, 1.0),
+                                  "Edge Tint": (1.0, 0.3, 0.2, 1.0), "Roughness": 0.0}),
+            tol=0.02, glossy=1),
+    Feature("Metallic BSDF Physical Conductor",
+            _metal_ball("PHYSICAL_CONDUCTOR", **{"IOR": (0.27, 0.68, 1.22),
+                                                 "Extinction": (3.61, 2.62, 2.29),
+                                                 "Roughness": 0.0}), tol=0.02, glossy=1),
     # reported: named in the render's messages
     Feature("depth of field", _scene_change(_dof), words=("depth of field",)),
     Feature("motion blur", _scene_change(_motion_blur), words=("motion blur",)),

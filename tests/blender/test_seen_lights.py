@@ -1,0 +1,117 @@
+"""Lights seen directly (issue 23), against Cycles 5.0: a light's own surface seen by the
+camera, its radiance as Cycles computes it (area lights with spread, disks, sphere lights
+with and without soft falloff, a spot's cone, the sun's disc), Blender's default camera
+visibility (off), and the RI_TREE mode's message. The scenes with a mirror ball are the
+feature corpus's seen-light rows (test_feature_corpus)."""
+
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from . import builders as b
+from .test_render import _lum, _state, needs_cycles
+
+W, H = 64, 48
+EYE = (0.0, -5.0, 0.0)
+
+#: Largest relative error of the 8 x 8 block means over the light's blocks (those with at
+#: least half the brightest block's light), RSTrace (16 samples) against Cycles (64
+#: samples, seed 1): each case's measured value is beside it in SEEN (0.0010-0.0041).
+TOL = 0.02
+
+
+def _facing(kind: str, target=EYE, **settings):
+    """A light at the origin (facing ``target``) that the camera at ``EYE`` sees, a dark
+    wall far behind it (RSTrace renders no scene without a mesh)."""
+    def build():
+        b.set_world((0.0, 0.0, 0.0), lights=False)
+        b.camera(EYE, (0.0, 0.0, 0.0), lens=50.0)
+        # (behind the camera for the sun: a sun is seen only by rays that hit nothing)
+        wall = b.add_object("Wall", b.grid("Wall", 40.0),
+                            (0.0, -12.0 if kind == "SUN" else 12.0, 0.0),
+                            b.diffuse("Dark", (0.05, 0.05, 0.05)))
+        wall.rotation_euler = (math.radians(90.0), 0.0, 0.0)
+        ob = b.point_light("Lamp", (0.0, 0.0, 0.0), 100.0 if kind != "SUN" else 3.0,
+                           kind=kind)
+        b.look_at(ob, target)
+        ob.visible_camera = True
+        for key, value in settings.items():
+            setattr(ob.data, key, value)
+    return build
+
+
+#: (case, scene, measured block error): the light fills several 8 x 8 blocks
+SEEN = [
+    ("rectangle", _facing("AREA", shape="RECTANGLE", size=1.2, size_y=0.8), 0.0041),
+    ("ellipse", _facing("AREA", shape="ELLIPSE", size=1.4, size_y=1.0), 0.0025),
+    ("area at 40 degrees", _facing("AREA", target=(4.2, -5.0, 0.0), size=1.4), 0.0024),
+    ("area spread 60 degrees", _facing("AREA", target=(0.6, -5.0, 0.3), size=1.4,
+                                       spread=math.radians(60.0)), 0.0031),
+    ("sphere", _facing("POINT", shadow_soft_size=0.6, use_soft_falloff=False), 0.0010),
+    ("sphere, soft falloff", _facing("POINT", shadow_soft_size=0.6), 0.0010),
+    ("spot in its blend", _facing("SPOT", target=(2.3, -5.0, 0.0), shadow_soft_size=0.6,
+                                  use_soft_falloff=False, spot_size=math.radians(60.0),
+                                  spot_blend=0.6), 0.0014),
+    ("sun disc", _facing("SUN", angle=math.radians(12.0)), 0.0016),
+]
+
+
+def _render(engine: str) -> np.ndarray:
+    sc = b.setup_render(W, H, samples=16, max_depth=0)
+    if engine == "CYCLES":
+        sc.render.engine = "CYCLES"
+        cy = sc.cycles
+        cy.device = "CPU"
+        cy.samples = 64
+        cy.use_adaptive_sampling = cy.use_denoising = False
+        cy.max_bounces = 0
+        cy.pixel_filter_type = "BOX"
+        cy.filter_width = 1.0
+        cy.seed = 1
+    out = b.render_exr()
+    assert out, f"{engine}: no image: {_state().messages}"
+    return out["Combined"][..., :3]
+
+
+def _blocks(a):
+    return a.reshape(H // 8, 8, W // 8, 8).mean(axis=(1, 3))
+
+
+def light_error(ours, ref) -> float:
+    o, c = _blocks(_lum(ours)), _blocks(_lum(ref))
+    keep = c > 0.5 * c.max()
+    return float(np.max(np.abs(o[keep] - c[keep]) / c[keep]))
+
+
+@needs_cycles
+@pytest.mark.parametrize("case", SEEN, ids=[c[0] for c in SEEN])
+def test_light_surface_as_cycles_shows_it(case):
+    name, build, _ = case
+    build()
+    ours = _render("RSTRACE")
+    ref = _render("CYCLES")
+    assert _lum(ref).max() > 1.0, "Cycles shows no light: the scene is wrong"
+    err = light_error(ours, ref)
+    print(f"{name}: {err:.4f}, lit pixels {int((_lum(ours) > 0.5).sum())} / "
+          f"{int((_lum(ref) > 0.5).sum())}")
+    assert err <= TOL, (name, err)
+
+
+def test_a_new_light_is_not_seen_by_the_camera():
+    """Blender's lights are made with camera visibility off: not seen (as Cycles)."""
+    _facing("AREA", size=1.4)()
+    bpy.data.objects["Lamp"].visible_camera = False
+    assert _lum(_render("RSTRACE")).max() == 0.0
+
+
+def test_ri_tree_mode_names_the_lights_it_does_not_show():
+    _facing("AREA", size=1.4)()
+    sc = b.setup_render(W, H, samples=1, max_depth=1)
+    sc.rstrace.mode = "RI_TREE"
+    assert b.render_exr(), _state().messages
+    texts = [text for _, text in _state().messages]
+    assert any("lights seen directly (Lamp)" in t and "RI_TREE" in t for t in texts), texts

@@ -51,7 +51,9 @@ def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
     classes = out["Interpolation"].reshape(-1, 1, 3)
     match = np.all(np.isclose(classes, CLASS_COLORS[None]), axis=-1)
     assert match.any(axis=1).all()
-    assert match[:, CLASS_INTERPOLATED].mean() > 0.02
+    # (1.3% of the frame, 1000 pixels, since issue 22: the exit-ray test at 0.05 degrees,
+    # the cells that fail it at the cap traced, REHIT)
+    assert match[:, CLASS_INTERPOLATED].mean() > 0.01
     err = np.abs(to_display(out["Combined"][..., :3]) - to_display(base)).max(axis=-1)
     assert np.isfinite(out["Combined"]).all()
     assert err.mean() < 0.02, f"mean display error {err.mean():.4f}"

@@ -125,8 +125,8 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         name="Depth Constraint", default=28, min=1, max=64, soft_min=22, soft_max=30,
         description="Deepest level of the RI-tree's binary 4D kd-trees")
     ri_probe_angle: FloatProperty(
-        name="Exit-Ray Test", default=0.1, min=0.0, max=180.0, soft_min=0.0, soft_max=5.0,
-        precision=2,
+        name="Exit-Ray Test", default=0.025, min=0.0, max=180.0, soft_min=0.0, soft_max=5.0,
+        precision=3,
         description="RI-tree cells also split while the traced and the interpolated output "
                     "ray (the exit ray through glass, the reflection off a mirror) at their "
                     "midpoint differ by more than this many degrees; cells still over it at "

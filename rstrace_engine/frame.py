@@ -101,7 +101,7 @@ class RenderSettings:
     ri_cache_mb: float = 100.0  # RI-tree cache size, MB
     # exit-ray test (an addition to seed 004): largest angle, degrees, between a cell's
     # traced and interpolated output ray at its midpoint; 0: off (the paper's tests alone)
-    ri_probe_angle: float = 0.1
+    ri_probe_angle: float = 0.025
     thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
     thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
     relight_memory_mb: float = 512.0  # BASE: per-light records cap (MB; 0: none kept)

@@ -52,7 +52,10 @@ def test_defaults_show_no_artifact_on_glass_and_a_mirror_before_a_horizon(horizo
     px, f = _errors(sc, accel, st, base)
     interp = f.pixel_class == CLASS_INTERPOLATED
     # much of the glass and the mirror is interpolated: the bound is about interpolation
-    assert interp.mean() > 0.05, interp.mean()
+    # (0.7% of the frame, 134 pixels, at the 0.025 degree default: the cells still off at
+    # the depth constraint and those where the torus's exit rays meet it again on one side
+    # are traced; 2.2% at 0.05 degrees, over 5% at 0.1 degrees before they were)
+    assert interp.mean() > 0.005, interp.mean()
     assert px.max() <= 0.1, f"max display error {px.max():.3f}"
     assert np.count_nonzero(px > 0.1) == 0
     assert np.count_nonzero(px > 0.05) <= 5, np.count_nonzero(px > 0.05)
@@ -66,3 +69,20 @@ def test_the_papers_tests_alone_miss_the_exit_rays_error(horizon):
     px, _ = _errors(sc, accel, replace(st, ri_probe_angle=0.0), base)
     assert px.max() > 0.2 and np.count_nonzero(px > 0.1) >= 5, (
         px.max(), np.count_nonzero(px > 0.1))
+
+
+def test_defaults_bound_the_tomatoes():
+    """Seed 004's tomatoes at 200x150 (a mirror bowl, seen through a wrap that does not
+    refract, reflecting the tomatoes in it and its own rim), two frames with the trees kept:
+    at the defaults no pixel over 0.1 (measured 0.015); the paper's tests alone leave
+    hundreds (measured 0.78, 269 pixels)."""
+    sc = scenes.tomatoes(200, 150)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(max_depth=5)
+    base = render(sc, st, accel=accel)
+    px, f = _errors(sc, accel, st, base)
+    assert px.max() <= 0.1, f"max display error {px.max():.3f}"
+    assert np.quantile(px, 0.999) <= 0.01
+    assert f.stats["interpolated_fraction"] > 0.0
+    px, _ = _errors(sc, accel, replace(st, ri_probe_angle=0.0), base)
+    assert px.max() > 0.3 and np.count_nonzero(px > 0.1) >= 50

@@ -15,7 +15,7 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_TRACED,
 )
-from ..tracing.whitted import Spawned, glossy_materials
+from ..tracing.whitted import Spawned, child_paths, glossy_materials
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS
 
 
@@ -31,7 +31,8 @@ def primary_class(H: dict, interp: np.ndarray) -> np.ndarray:
     return cls
 
 
-def next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, path):
+def next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, path, fresh, tag,
+              gstart=None, glossy=None, nseeds=None):
     """The next level's rays from a level's spawned rays ``kids``.
 
     Rays past ``max_depth`` are dropped (``level`` (nb,): each ray's depth). Rays leaving an
@@ -40,22 +41,34 @@ def next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, pat
     becomes the interpolated exit ray, ``nint`` levels further down, and the internal
     reflection where the path refracts out is traced from there. ``path`` (nb,) int64: the
     rays' ray-tree paths (root 1, reflect child 2p, refract child 2p + 1; the internal
-    reflection at an exit 4p + 2), which seed the soft lights' samples. Returns ``(o, d,
-    weight, src, level, self_inst, path)``."""
+    reflection at an exit and the exit ray as the base tracer's paths through the glass
+    go), which seed the soft lights' and glossy samples; ``fresh``
+    (nb,) bool, ``tag`` (nb,) uint64: whether their paths have drawn no glossy samples yet,
+    and what their node seeds hash in (:func:`~..tracing.whitted.child_paths`). Point i's
+    ray pairs are ``gstart[i]:gstart[i + 1]`` (None: one pair each), ``glossy``, ``nseeds``
+    as :func:`~..tracing.whitted.shade_paths` was given and returned them. Returns ``(o, d,
+    weight, src, level, self_inst, path, fresh, tag)``."""
     c_o, c_d, c_w, c_ok = kids
-    stop = level >= max_depth
-    c_ok[0::2] &= ~stop
-    c_ok[1::2] &= ~stop
-    child_level = np.repeat(level + 1, 2)
+    nb = len(src)
+    counts = np.ones(nb, np.int64) if gstart is None else np.diff(gstart)
+    first = np.arange(nb) if gstart is None else gstart[:-1]  # each point's first pair
+    pt = np.repeat(np.arange(nb), 2 * counts)  # the point of each slot
+    c_ok &= ~(level >= max_depth)[pt]
+    child_level = level[pt] + 1
     child_self = np.full(len(c_ok), -1, np.int32)
+    child_path = 2 * path[pt] + (np.arange(len(c_ok)) & 1)
     if len(interp):
-        child_self[2 * interp] = inst[interp]
+        # every reflected ray of an interpolated point (a rough one draws several)
+        from_interp = np.zeros(nb, np.bool_)
+        from_interp[interp] = True
+        refl = np.flatnonzero(from_interp[pt] & (np.arange(len(c_ok)) % 2 == 0))
+        child_self[refl] = inst[pt[refl]]
         # glass: the refracted ray becomes the interpolated exit ray
         ni = q.nint[qi].astype(np.int64)
-        glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[2 * interp + 1]
-        tr = 2 * interp + 1
-        # rough glass: its sampled refracted ray is traced as it is (an exit ray would be
-        # a sharp one)
+        tr = 2 * first[interp] + 1
+        glass = (q.OD[qi] != 0).any(axis=1) & (ni >= 0) & c_ok[tr]
+        # rough glass: its sampled refracted rays are traced as they are (an exit ray would
+        # be a sharp one)
         rough = glossy_materials(sa)[np.maximum(q.mat[qi], 0)]
         has_tr = np.flatnonzero(c_ok[tr] & is_transmissive(sa, q.mat[qi]) & ~rough)
         keep = has_tr[glass[has_tr] & (level[interp[has_tr]] + ni[has_tr] < max_depth)]
@@ -77,16 +90,23 @@ def next_rays(sa, kids: Spawned, inst, q, interp, qi, src, level, max_depth, pat
         x_o, x_d, x_w = q.RP[qk[rsel]], q.RD[qk[rsel]], rw[rsel]
         x_src = interp[keep[rsel]]
         x_level = level[x_src] + ni[keep[rsel]] + 1
+        # the base tracer's paths through the glass (they seed the samples below): the
+        # entry's refraction 2p + 1, a reflection 2q per total internal reflection, the
+        # exit's refraction 2q + 1 (nint - 1 reflections and the exit; nint 0: none)
+        inside = (2 * path[interp[keep]] + 1) << np.maximum(ni[keep] - 1, 0)
+        child_path[kt] = np.where(ni[keep] > 0, 2 * inside + 1, inside)
+        x_path = 2 * inside[rsel]  # the reflection split off at the exit
     else:
         x_o = x_d = x_w = np.empty((0, 3))
-        x_src = x_level = np.empty(0, np.int64)
+        x_src = x_level = x_path = np.empty(0, np.int64)
     slots = np.flatnonzero(c_ok)
-    which = slots // 2
+    which, c_fresh, c_tag = child_paths(slots, gstart, glossy, fresh, tag, nseeds)
     return (np.concatenate([c_o[slots], x_o]), np.concatenate([c_d[slots], x_d]),
             np.concatenate([c_w[slots], x_w]), np.concatenate([src[which], src[x_src]]),
             np.concatenate([child_level[slots], x_level]),
             np.concatenate([child_self[slots], np.full(len(x_src), -1, np.int32)]),
-            np.concatenate([path[which] * 2 + (slots & 1), path[x_src] * 4 + 2]))
+            np.concatenate([child_path[slots], x_path]),
+            np.concatenate([c_fresh, fresh[x_src]]), np.concatenate([c_tag, tag[x_src]]))
 
 
 def is_transmissive(sa, mats) -> np.ndarray:

@@ -51,7 +51,7 @@ from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
 from ..tracing.whitted import (
     has_glossy,
-    shade,
+    shade_paths,
     shadow_rays,
     soft_direct,
     surfaces,
@@ -457,15 +457,15 @@ class RITreeRenderer:
         primary instance (n,)).
 
         Level by level, the base tracer's stages (:func:`~..tracing.whitted.surfaces`,
-        :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade`) on the
+        :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade_paths`) on the
         hits found through the trees (:meth:`_intersect`); every ray carries its own depth
         (an exit ray skips the levels inside its object: :func:`.ray_tree.next_rays`).
         Lights with an extent and the world are sampled as the base tracer samples them
         (``seeds`` (n,) uint64 of the camera rays,
         :func:`~..tracing.soft_lights.sample_seeds`, and each node's path). With every
-        object traced (no tree: all fell back) the tile is the base tracer's own, glossy
-        samples included (``glossy_samples``: in a tile with trees, every rough bounce draws
-        one ray pair)."""
+        object traced (no tree: all fell back) the tile is the base tracer's own. Rough
+        surfaces draw ``glossy_samples`` ray pairs at a path's first rough bounce and one at
+        deeper ones, with the base tracer's seeds (:func:`~..tracing.whitted.shade_paths`)."""
         view = False
         n = len(o)
         if not len(self.ri[view]):
@@ -480,6 +480,8 @@ class RITreeRenderer:
         level = np.zeros(n, np.int64)
         self_inst = np.full(n, -1, np.int32)
         path = np.ones(n, np.int64)
+        fresh = np.ones(n, np.bool_)  # no glossy samples drawn yet on the path
+        tag = np.zeros(n, np.uint64)  # hashed into the node seeds below a glossy sample
         soft_on = has_soft_light(sa)
         glossy_on = has_glossy(sa)
         if (soft_on or glossy_on) and seeds is None:
@@ -510,29 +512,27 @@ class RITreeRenderer:
             # shadow rays (their origin's own object ignored near an interpolated point)
             todo, so, sd, stm = shadow_rays(sa, surf)
             vis = np.zeros(nb * L, np.bool_)
+            hs = np.full(nb, -1, np.int32)
+            hs[interp] = H["inst"][interp]
             if len(todo):
-                hit_self = np.full(nb, -1, np.int32)
-                hit_self[interp] = H["inst"][interp]
-                vis[todo] = ~self._occluded(so, sd, stm, hit_self[todo // L])
+                vis[todo] = ~self._occluded(so, sd, stm, hs[todo // L])
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
             soft = None
-            nseeds = node_seeds(seeds, src, path) if soft_on or glossy_on else None
+            nseeds = node_seeds(seeds, src, path) ^ tag if soft_on or glossy_on else None
             if soft_on:
-                hs = np.full(nb, -1, np.int32)
-                hs[interp] = H["inst"][interp]
-
                 def occluded(so_, sd_, st_, rows_, hs=hs):
                     pt = np.where(rows_ >= 0, rows_ // max(L, 1), -1 - rows_)
                     return self._occluded(so_, sd_, st_, hs[pt])
 
                 soft = soft_direct(sa, surf, nseeds, light_samples, vis, occluded, counters)
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
-            # rough surfaces draw one glossy ray pair per point (shade's seeds)
-            contrib, kids = shade(sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]),
-                                  surf, vis, weight, True, soft, seeds=nseeds)
+            contrib, kids, gstart, glossy = shade_paths(
+                sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]), surf, vis, weight,
+                soft, nseeds, fresh, glossy_samples)
             scatter_add(radiance, src, contrib)
-            o, d, weight, src, level, self_inst, path = next_rays(
-                sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path)
+            o, d, weight, src, level, self_inst, path, fresh, tag = next_rays(
+                sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path, fresh, tag,
+                gstart, glossy, nseeds)
             t0 = np.zeros(len(o))
             t1 = np.full(len(o), np.inf)
         return radiance, pclass, prim_inst

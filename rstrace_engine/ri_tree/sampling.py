@@ -20,6 +20,9 @@ attributes (:class:`Samples`):
   reflected back inside, ``M + F T`` of it, is the one ray a single exit ray leaves out. The
   renderer traces it from the interpolated origin and direction (weight 0: no such ray).
 * ``thick``: the length of the line inside the object (thickness view).
+
+The class key also says whether the output ray, where it is a ray (a mirror's reflection,
+a glass's exit ray), meets the object again (:data:`REHIT`).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
 from ..interpolants.linetree import line_points
 from ..tracing.shader import _material_of
@@ -47,14 +51,20 @@ from .thickness import walk
 MISS = -1
 #: internal interfaces followed along an exit path before it counts as trapped
 MAX_INTERNAL = 12
-#: bits of the class key reserved for the exit path's interface count
+#: bits of the class key reserved for the exit path's interface count and :data:`REHIT`
 PATH_BITS = 64
+#: class key bit: the output ray (reflected or exit ray) meets its own object again (past
+#: the renderer's self-offset). Where corners differ in it (a rim or another part of a
+#: concave object seen in its reflection, a torus's far side through its glass), an
+#: interpolated output ray may pass the wrong side of that silhouette: such cells are two
+#: classes of one patch, which the cheap test cannot tell apart, so their rays are traced
+REHIT = 32
 
 
 class Samples(NamedTuple):
     """The sample pool (capacity ``S``; ids from :class:`~.kdtree.KdForest`)."""
 
-    cls: np.ndarray  # (S,) int32 class key (patch * PATH_BITS + nint + 1), MISS
+    cls: np.ndarray  # (S,) int32 class key (patch * PATH_BITS + nint + 1 [+ REHIT]), MISS
     mat: np.ndarray  # (S,) int32 material, -1 on a miss
     P: np.ndarray  # (S, 3) float64 hit point
     NS: np.ndarray  # (S, 3) float64 shading normal (winding side)
@@ -299,7 +309,25 @@ def trace_samples(sa, accel, tri_class, box, inst, face, abcd, thickness: bool) 
         s.rgain[rows] = 0.0
         s.OD[rows] = s.NS[rows]
         s.OP[rows] = s.P[rows]
+    _mark_rehits(sa, accel, box, inst, glass, s)
     return s
+
+
+def _mark_rehits(sa, accel, box, inst, glass, s: Samples) -> None:
+    """Add :data:`REHIT` to the class keys of samples whose output ray meets their object
+    again beyond the self-offset the renderer gives rays leaving an interpolated point
+    (``RI_SELF_OFFSET_REL`` of the box diagonal)."""
+    m = np.maximum(s.mat, 0)
+    reflects = ((sa.mat_mirror[m] > 0).any(axis=1)
+                | (sa.mat_transmission[m] > 0).any(axis=1))
+    rows = np.flatnonzero((s.cls != MISS) & np.where(glass, s.nint >= 0, reflects))
+    if not len(rows):
+        return
+    k = inst[rows]
+    diag = np.linalg.norm(box[k, 1] - box[k, 0], axis=1)
+    again = accel.occludes_object(k, s.OP[rows], s.OD[rows], tol.RI_SELF_OFFSET_REL * diag,
+                                  np.full(len(rows), np.inf))
+    s.cls[rows[again]] += REHIT
 
 
 def store(pool: Samples, ids: np.ndarray, batch: Samples) -> None:

@@ -378,7 +378,6 @@ class RITreeCache:
                     blind_at_cap(nd, fin, self.samples, self.box, self.sa.inst_aabb,
                                  *tree_of(nd, fin), blind)
                     fin = fin[~blind]
-                coarse = np.zeros(len(fin), np.bool_)
                 ev = lv[~capped & (nd.visits[lv] >= need)]
                 if len(ev):
                     fit = int(max(self._room(mid_id), 0.0) // per_split)
@@ -389,6 +388,9 @@ class RITreeCache:
                 if np.isfinite(self.probe_rad) and len(fin):
                     ev = np.concatenate([ev, fin])
                     fin = fin[:0]
+                # per cell of ``fin``: failed the exit-ray test at the cap (made *after* the
+                # capped cells moved into ``ev``, so that it lines up with ``fin``)
+                coarse = np.zeros(len(fin), np.bool_)
                 split = ev[:0]
                 if len(ev):
                     ri, rf = tree_of(nd, ev)

@@ -69,9 +69,9 @@ from .soft_lights import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OCC_NONE", "OCC_NOT_FACING", "RayTree", "Spawned", "Surfaces", "light_state",
-           "light_states", "render", "shade", "shadow_rays", "soft_direct", "surfaces",
-           "trace", "trace_pixels"]
+__all__ = ["OCC_NONE", "OCC_NOT_FACING", "RayTree", "Spawned", "Surfaces", "child_paths",
+           "light_state", "light_states", "render", "shade", "shade_paths", "shadow_rays",
+           "soft_direct", "surfaces", "trace", "trace_pixels"]
 
 
 class RayTree(NamedTuple):
@@ -145,6 +145,38 @@ def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: 
     fresh = np.zeros(len(surf.P), np.bool_)
     res = _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 1)
     return res[:-1]
+
+
+def shade_paths(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray,
+                weight: np.ndarray, soft: SoftSamples | None, seeds: np.ndarray,
+                fresh: np.ndarray, samples: int):
+    """:func:`shade` (spawning) for a wavefront that follows paths as :func:`trace` does:
+    a rough point whose path has drawn no glossy samples yet (``fresh`` (n,) bool) draws
+    ``samples`` ray pairs, any other one (docs/glossy.md). Returns ``(contrib (n, 3),
+    Spawned, gstart, glossy)``: point i's ray pairs are ``gstart[i]:gstart[i + 1]``
+    (``gstart`` None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool
+    which points drew from their lobe (None with ``gstart``); :func:`child_paths` gives
+    the spawned rays' paths."""
+    contrib, kids, plan = _shade_level(sa, hits, surf, vis, weight, True, soft, False, seeds,
+                                       fresh, int(samples))
+    return contrib, kids, plan.gstart, plan.glossy
+
+
+def child_paths(slots: np.ndarray, gstart: np.ndarray | None, glossy: np.ndarray | None,
+                fresh: np.ndarray, tag: np.ndarray, nseeds: np.ndarray | None):
+    """Where spawned rays ``slots`` (indices into a level's :class:`Spawned`) come from and
+    how their paths go on, as :func:`trace` follows them: ``(which (k,) int64 their points,
+    fresh (k,) bool no glossy samples drawn yet on their paths, tag (k,) uint64 hashed into
+    their node seeds: a glossy sample's hashes its point's seed ``nseeds`` and its sample
+    index, any other keeps its point's)``; ``gstart``, ``glossy`` as :func:`shade_paths`
+    returns them, ``fresh``, ``tag`` the points'."""
+    pair = slots // 2
+    if gstart is None:
+        return pair, fresh[pair], tag[pair]
+    which = np.searchsorted(gstart, pair, side="right") - 1
+    out = np.empty(len(slots), np.uint64)
+    _child_tags(nseeds, which, pair - gstart[which], glossy, tag, out)
+    return which, fresh[which] & ~glossy[which], out
 
 
 def glossy_materials(sa: SceneArrays) -> np.ndarray:
@@ -279,20 +311,12 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
     kept, parents are not followed); ``plan``: the slots' layout (:func:`_shade_level`),
     ``nseeds`` the level's node seeds (needed with glossy samples)."""
     k = np.flatnonzero(kids.ok)
-    pair = k // 2
-    fresh, tag = front.fresh, front.tag
+    which, fresh, tag = child_paths(k, plan.gstart, plan.glossy, front.fresh, front.tag,
+                                    nseeds)
     # mirror rays see lights as glossy rays, smooth refraction rays as transmission rays;
     # rays drawn from a rough lobe see none (the lights are that surface's direct light)
     sees = np.where(k & 1, SEEN_TRANSMISSION, SEEN_GLOSSY).astype(np.int8)
-    if plan.gstart is None:
-        which = pair
-        fresh = fresh[which]
-        tag = tag[which]
-    else:
-        which = np.searchsorted(plan.gstart, pair, side="right") - 1
-        fresh = fresh[which] & ~plan.glossy[which]
-        tag = np.empty(len(k), np.uint64)
-        _child_tags(nseeds, which, pair - plan.gstart[which], plan.glossy, front.tag, tag)
+    if plan.gstart is not None:
         sees[plan.glossy[which]] = SEEN_NONE
     parent = front.parent
     if rows is not None:

@@ -37,6 +37,9 @@ def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
 
     sc.rstrace.mode = "RI_TREE"
     sc.rstrace.ri_dist_thresh = 0.05
+    # the F12 path is tested here, not the default's bound (tests/test_ri_tree_bounds.py):
+    # at the 0.025 degree default this mirror sphere keeps 0.2% of the frame interpolated
+    sc.rstrace.ri_probe_angle = 0.05
     out = b.render_exr(tmp_path / "ri.exr")
     st = _stats()
     assert not st.get("error") and st["mode"] == "RI_TREE", st
@@ -51,7 +54,9 @@ def test_f12_ri_tree_mode_and_thickness_view(tmp_path, monkeypatch):
     classes = out["Interpolation"].reshape(-1, 1, 3)
     match = np.all(np.isclose(classes, CLASS_COLORS[None]), axis=-1)
     assert match.any(axis=1).all()
-    assert match[:, CLASS_INTERPOLATED].mean() > 0.02
+    # (1.3% of the frame, 1000 pixels, since issue 22: the exit-ray test at 0.05 degrees,
+    # the cells that fail it at the cap traced, REHIT; 2% before)
+    assert match[:, CLASS_INTERPOLATED].mean() > 0.01
     err = np.abs(to_display(out["Combined"][..., :3]) - to_display(base)).max(axis=-1)
     assert np.isfinite(out["Combined"]).all()
     assert err.mean() < 0.02, f"mean display error {err.mean():.4f}"

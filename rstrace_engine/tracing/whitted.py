@@ -313,8 +313,7 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
     k = np.flatnonzero(kids.ok)
     which, fresh, tag = child_paths(k, plan.gstart, plan.glossy, front.fresh, front.tag,
                                     nseeds)
-    # mirror rays see lights as glossy rays, smooth refraction rays as transmission rays;
-    # rays drawn from a rough lobe see none (the lights are that surface's direct light)
+    # mirror rays see lights as glossy rays, smooth refraction as transmission, rough lobes none
     sees = np.where(k & 1, SEEN_TRANSMISSION, SEEN_GLOSSY).astype(np.int8)
     if plan.gstart is not None:
         sees[plan.glossy[which]] = SEEN_NONE

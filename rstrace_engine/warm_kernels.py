@@ -222,8 +222,12 @@ def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:
         log.info(message)
         if progress is not None:
             progress(message)
+        # (an exit-ray test of 1 deg: at the default 0.025 deg, or 0.1, no cell of these
+        # coarse trees passes in RI_WARM_FRAMES frames, and the kernels of interpolated
+        # rays would not be reached)
         settings = RenderSettings(mode="RI_TREE", accelerator=accel, max_depth=3,
-                                  ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05)
+                                  ri_dist_thresh=0.25, ri_depth=16, ri_cache_mb=0.05,
+                                  ri_probe_angle=1.0)
         # first frames under a roomy cache, until a ray was interpolated: the kernels that
         # run only on final leaves (finalize, the two-class test, surface interpolation)
         # are reached only once enough queries reached a leaf (the cost rule). Seen from

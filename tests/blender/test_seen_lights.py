@@ -82,23 +82,42 @@ def _blocks(a):
 
 
 def light_error(ours, ref) -> float:
+    """Largest relative error of the block means over the light's blocks (at least half the
+    brightest block's light)."""
     o, c = _blocks(_lum(ours)), _blocks(_lum(ref))
     keep = c > 0.5 * c.max()
     return float(np.max(np.abs(o[keep] - c[keep]) / c[keep]))
 
 
+def block_stats(ours, ref, floor: float = 0.05) -> dict:
+    """Mean and 98th percentile of the 8 x 8 block relative errors over every block holding
+    at least ``floor`` of the brightest block's light: the light's edge blocks (its shape,
+    partly covered pixels) count, not only its inside."""
+    o, c = _blocks(_lum(ours)), _blocks(_lum(ref))
+    keep = c > floor * c.max()
+    errs = np.abs(o[keep] - c[keep]) / c[keep]
+    return dict(mean=float(errs.mean()), p98=float(np.percentile(errs, 98)),
+                max=float(errs.max()), blocks=int(errs.size))
+
+
 @needs_cycles
 @pytest.mark.parametrize("case", SEEN, ids=[c[0] for c in SEEN])
 def test_light_surface_as_cycles_shows_it(case):
+    """The largest block error inside the light within TOL; over the light with its edges,
+    the mean block error within 1% and the 98th percentile within 5% (the soft-light
+    cases' goals, test_cycles_agreement), measured values in docs/compatibility.md."""
     name, build, _ = case
     build()
     ours = _render("RSTRACE")
     ref = _render("CYCLES")
     assert _lum(ref).max() > 1.0, "Cycles shows no light: the scene is wrong"
     err = light_error(ours, ref)
-    print(f"{name}: {err:.4f}, lit pixels {int((_lum(ours) > 0.5).sum())} / "
-          f"{int((_lum(ref) > 0.5).sum())}")
+    stats = block_stats(ours, ref)
+    print(f"{name}: largest inside {err:.4f}, with edges "
+          f"{ {k: round(v, 4) for k, v in stats.items()} }, lit pixels "
+          f"{int((_lum(ours) > 0.5).sum())} / {int((_lum(ref) > 0.5).sum())}")
     assert err <= TOL, (name, err)
+    assert stats["mean"] <= 0.01 and stats["p98"] <= 0.05, (name, stats)
 
 
 def test_a_new_light_is_not_seen_by_the_camera():

@@ -121,6 +121,21 @@ def test_moved_lights_are_shaded_again_alone(scene_name):
         step(sess, [LightSet("Lamp", replace(lamp, radius=0.4))])  # and back
 
 
+@pytest.mark.parametrize("scene_name", ["room", "rough_room"])
+def test_a_lights_diffuse_or_glossy_visibility_is_shaded_again(scene_name):
+    """A light's term holds both lobes: turning its diffuse or glossy visibility off or on
+    re-shades that light alone (a rescale would keep the lobe), bit for bit a fresh frame
+    (found by the seeded sequences once they toggled ray visibility)."""
+    sess = Session(SOAK_SCENES[scene_name](W, H), SETTINGS)
+    sess.render()
+    key = "Lamp"
+    li = light(sess, key)
+    for flags in (dict(glossy=False), dict(diffuse=False), dict(diffuse=True, glossy=True)):
+        li = replace(li, **flags)
+        frame = step(sess, [LightSet(key, li)])
+        assert frame.stats["relit_lights"] == [sess.scene.light_slot(key)]
+
+
 def test_added_and_deleted_lights():
     scene = SOAK_SCENES["room"](W, H)
     scene.set_world_color((0.05, 0.05, 0.06), lights=False)

@@ -186,8 +186,9 @@ class EditGenerator:
     EXTRA_KINDS = ("mesh_delete", "material_delete")
     #: a light's extent (issue 20), extra kinds too: a point or spot light's radius and
     #: soft falloff, a sun's angle, an area light's size, shape and spread (one is added
-    #: when there is none)
-    SOFT_KINDS = ("light_radius", "sun_angle", "area_light")
+    #: when there is none); and which rays see a light with an extent directly (its
+    #: camera, glossy and transmission visibility, issue 23)
+    SOFT_KINDS = ("light_radius", "sun_angle", "area_light", "light_seen")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
                  extra: tuple = (), rough: bool | None = None) -> None:
@@ -247,11 +248,13 @@ class EditGenerator:
             return Material(name, diffuse=(0.03,) * 3, mirror=(0.85,) * 3)
         if kind == 1:
             return Material(name, diffuse=(0.0,) * 3, transmission=(0.85,) * 3, ior=1.4)
-        if self.rough and kind == 2:  # rough metal, glass or plastic
+        if self.rough and kind == 2:  # rough metal (F82-tinted), glass or plastic
+            metallic = float(self.rng.integers(2))
+            tint = tuple(self.rng.uniform(0.3, 1.0, 3)) if metallic else None
             mat, _ = principled_material(
-                name, col, metallic=float(self.rng.integers(2)),
+                name, col, metallic=metallic,
                 transmission=float(self.rng.integers(2)) * 0.9,
-                roughness=float(self.rng.uniform(0.05, 0.8)))
+                roughness=float(self.rng.uniform(0.05, 0.8)), metal_tint=tint)
             return mat
         return Material(name, diffuse=col, specular=(0.1,) * 3,
                         roughness=float(self.rng.uniform(0.05, 0.5)))
@@ -333,6 +336,14 @@ class EditGenerator:
             return [LightDelete(self._pick(light_keys))]
         if kind in ("light_radius", "sun_angle", "area_light"):
             return self._extent(kind, light_keys)
+        if kind == "light_seen":
+            keys = [k for k in light_keys if s.lights[s.light_slot(k)].extended]
+            if not keys:
+                return None
+            key = self._pick(keys)
+            camera, glossy, transmission = (bool(x) for x in rng.integers(2, size=3))
+            return [LightSet(key, replace(s.lights[s.light_slot(key)], camera=camera,
+                                          glossy=glossy, transmission=transmission))]
         if kind == "world":
             return [WorldColor(tuple(rng.uniform(0.0, 0.2, 3)))]
         if kind == "camera" and self.camera:

@@ -248,7 +248,7 @@ class EditGenerator:
             return Material(name, diffuse=(0.03,) * 3, mirror=(0.85,) * 3)
         if kind == 1:
             return Material(name, diffuse=(0.0,) * 3, transmission=(0.85,) * 3, ior=1.4)
-        if self.rough and kind == 2:  # rough metal (F82-tinted), glass or plastic
+        if self.rough and kind >= 2:  # rough metal (F82-tinted), glass or plastic
             metallic = float(self.rng.integers(2))
             tint = tuple(self.rng.uniform(0.3, 1.0, 3)) if metallic else None
             mat, _ = principled_material(

@@ -136,6 +136,27 @@ def test_a_lights_diffuse_or_glossy_visibility_is_shaded_again(scene_name):
         assert frame.stats["relit_lights"] == [sess.scene.light_slot(key)]
 
 
+def test_linked_lights_relight_and_their_links_retrace():
+    """Under light and shadow linking a light's power or colour still recombines (its terms
+    were shaded with its links), bit for bit; changing whom it lights or whose shadow it
+    casts re-traces what it reaches (it once left such pixels as they were)."""
+    sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    sess.render()
+    for links in (dict(receivers=(("Ball", True), ("Floor", True))),
+                  dict(blockers=(("Box", False),))):
+        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
+                     relit=False)
+        assert frame.stats["traced_pixels"] > 0
+        li = light(sess, "Lamp")
+        frame = step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.6,
+                                                     color=(1.0, 0.7, 0.4)))])
+        assert frame.stats["rays_traced"] == 0
+    for links in (dict(receivers=()), dict(blockers=())):
+        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
+                     relit=False)
+        assert frame.stats["traced_pixels"] > 0
+
+
 def test_added_and_deleted_lights():
     scene = SOAK_SCENES["room"](W, H)
     scene.set_world_color((0.05, 0.05, 0.06), lights=False)

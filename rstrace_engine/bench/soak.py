@@ -186,9 +186,10 @@ class EditGenerator:
     EXTRA_KINDS = ("mesh_delete", "material_delete")
     #: a light's extent (issue 20), extra kinds too: a point or spot light's radius and
     #: soft falloff, a sun's angle, an area light's size, shape and spread (one is added
-    #: when there is none); and which rays see a light with an extent directly (its
-    #: camera, glossy and transmission visibility, issue 23)
-    SOFT_KINDS = ("light_radius", "sun_angle", "area_light", "light_seen")
+    #: when there is none); which rays see a light with an extent directly (its camera,
+    #: glossy and transmission visibility, issue 23); and light and shadow linking (the
+    #: objects a light lights, those that cast its shadow)
+    SOFT_KINDS = ("light_radius", "sun_angle", "area_light", "light_seen", "light_link")
 
     def __init__(self, scene: Scene, seed: int = 0, camera: bool = True,
                  extra: tuple = (), rough: bool | None = None) -> None:
@@ -336,6 +337,16 @@ class EditGenerator:
             return [LightDelete(self._pick(light_keys))]
         if kind in ("light_radius", "sun_angle", "area_light"):
             return self._extent(kind, light_keys)
+        if kind == "light_link" and light_keys:
+            key = self._pick(light_keys)
+            names = sorted({i["name"] for _, i in s.live_instances()})
+            links = []
+            for _ in range(2):  # receivers, then blockers: none, or a few objects
+                pick = rng.random(len(names)) < 0.4
+                links.append(() if rng.random() < 0.3 else tuple(
+                    (n, bool(rng.integers(2))) for n, p in zip(names, pick, strict=True) if p))
+            return [LightSet(key, replace(s.lights[s.light_slot(key)], receivers=links[0],
+                                          blockers=links[1]))]
         if kind == "light_seen":
             keys = [k for k in light_keys if s.lights[s.light_slot(k)].extended]
             if not keys:

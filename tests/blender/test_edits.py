@@ -541,3 +541,44 @@ def test_relight_memory_property_caps_the_records():
         inc, stats = _f12()
         assert "relight_off" not in stats
     assert stats.get("relit") and stats["light_records_mb"] > 0.0, stats
+
+
+def test_f12_after_light_linking_edits_equals_a_fresh_render():
+    """Light linking edited between F12s (a receiver collection set, an object added to it,
+    the collection unset) and shadow linking (a blocker collection), on one persistent
+    session: each F12 is incremental and equals a fresh render bit for bit (BASE); a power
+    edit of the linked light relights. (A link removed once left the pixels it should have
+    lit as they were.)"""
+    import addon
+    from rstrace_engine.session import Session
+
+    sc = _scene(32, 24)
+    sc.rstrace.mode = "BASE"
+    lamp = next(o for o in bpy.data.objects if o.type == "LIGHT")
+    lit = bpy.data.collections.new("Lit")
+    lit.objects.link(bpy.data.objects["RedSphere"])
+    _f12()
+    lamp.data.energy *= 0.9  # the session's first light edit: the records start
+    bpy.context.view_layer.update()
+    _f12()
+    changes = [
+        ("receivers set", lambda: setattr(lamp.light_linking, "receiver_collection", lit)),
+        ("receiver added", lambda: lit.objects.link(bpy.data.objects["BlueSphere"])),
+        ("power", lambda: setattr(lamp.data, "energy", lamp.data.energy * 0.5)),
+        ("receivers unset", lambda: setattr(lamp.light_linking, "receiver_collection", None)),
+        ("blockers set", lambda: setattr(lamp.light_linking, "blocker_collection", lit)),
+        ("blockers unset", lambda: setattr(lamp.light_linking, "blocker_collection", None)),
+    ]
+    prev = None
+    for name, change in changes:
+        change()
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["edit_kinds"] == {"LightSet": 1} and stats["incremental"], (name, stats)
+        assert bool(stats.get("relit")) == (name == "power"), (name, stats)
+        core = addon.session.state_for(sc).session
+        ref = Session(core.scene.copy(), core.settings).render().radiance
+        np.testing.assert_array_equal(inc, ref, err_msg=name)
+        assert prev is None or not np.array_equal(inc, prev), name  # each change shows
+        prev = inc
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])  # and a fresh export

@@ -52,7 +52,7 @@ from ..accel.accelerators import create_accelerator
 from ..frame import RenderSettings
 from ..geometry.scene import LIGHT_POINT, Material, Scene
 from ..tolerances import GLOSSY_ALPHA_MIN
-from ..tracing.shading import ggx_albedo
+from ..tracing.shading import dielectric_fss, ggx_albedo, ggx_e_avg
 from ..tracing.whitted import render
 from .mitsuba_scene import mitsuba_scene_dict
 
@@ -155,9 +155,10 @@ def _principled_layer_class(mi, dr):
     """rstrace's Principled dielectric layer (``tracing.shading.principled_brdf``) as a
     Mitsuba BSDF: Lambertian ``base (1 - E_d(wi)) / pi`` under a GGX lobe ``D G2 / (4 cos
     cos)`` with the exact dielectric Fresnel of ``eta`` and the multiple-scattering factor
-    ``1 + F0 (1 - E_w(wi)) / E_w(wi)``. Mitsuba's ``roughplastic`` scales its diffuse part
-    by both transmittances and its internal reflections instead (about 0.78 of rstrace's
-    Lambertian part on the default plastic), Mitsuba's ``principled`` is Disney's, so neither
+    ``1 + Fms (1 - E_w(wi)) / E_w(wi)`` (``shading.multiscatter_factors``). Mitsuba's
+    ``roughplastic`` scales its diffuse part by both transmittances and its internal
+    reflections instead (about 0.78 of rstrace's Lambertian part on the default plastic),
+    Mitsuba's ``principled`` is Disney's, so neither
     renders what a Blender Principled BSDF is. The glossy part is sampled from Mitsuba's GGX
     distribution of visible normals, the diffuse part by the cosine."""
     cls = getattr(_principled_layer_class, "cls", None)
@@ -171,7 +172,8 @@ def _principled_layer_class(mi, dr):
             self.spec = float(props["specular"])
             self.alpha = float(props["alpha"])
             self.eta = float(props["eta"])
-            self.f0 = ((self.eta - 1.0) / (self.eta + 1.0)) ** 2 * self.spec
+            fss, ea = float(dielectric_fss(self.eta)), float(ggx_e_avg(self.alpha))
+            self.fms = fss * ea / (1.0 - fss * (1.0 - ea))
             ew, ed = _albedo_table(self.alpha, self.eta)
             self.e_white = mi.Float(ew)
             self.e_diel = mi.Float(ed)
@@ -215,7 +217,7 @@ def _principled_layer_class(mi, dr):
                 ih = dr.dot(wo, h)
                 fr = mi.fresnel(dr.clip(ih, 0.0, 1.0), self.eta)[0] * self.spec
                 e = dr.maximum(self._table(self.e_white, ci), 1e-3)
-                ms = 1.0 + self.f0 * (1.0 - e) / e
+                ms = 1.0 + self.fms * (1.0 - e) / e
                 value += mi.Color3f(d * g2 / (4.0 * ci) * fr * ms)
                 pdf += p_spec * self.distr.pdf(si.wi, h) / (4.0 * dr.abs(dr.dot(si.wi, h)))
             return dr.select(ok, value, 0.0), dr.select(ok, pdf, 0.0)

@@ -21,6 +21,7 @@ from .shading import (
     fresnel_dielectric,
     ggx_sample_normal,
     ggx_weight,
+    multiscatter_factors,
     principled_fresnel,
     reflect,
     refract,
@@ -105,14 +106,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
     qr, qg, qb = sa.mat_metal_tint[m, 0], sa.mat_metal_tint[m, 1], sa.mat_metal_tint[m, 2]
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
     trans = ur > 0.0 or ug > 0.0 or ub > 0.0
-    msr = msg = msb = 1.0
-    if refl:  # the direct light's multiple-scattering factor 1 + F0 (1 - E) / E
-        e = max(e_white, tol.GGX_ALBEDO_MIN)
-        kk = (1.0 - e) / e
-        f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
-        msr = 1.0 + f0r * kk
-        msg = 1.0 + f0g * kk
-        msb = 1.0 + f0b * kk
+    zd = zr = zg = zb = 1.0
+    if refl:  # the layers' multiple-scattering factors, as the direct light's
+        zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
     h = mix64(seeds[i] ^ GLOSSY_SALT)
     r1 = float(h >> np.uint64(11)) * INV_2_53
     r2 = float(mix64(h) >> np.uint64(11)) * INV_2_53
@@ -129,11 +125,11 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
             continue
         ar = ag = ab = 0.0
         if refl:
-            fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb, qr,
-                                            qg, qb)
-            ar = rr * fr * msr
-            ag = rg * fg * msg
-            ab = rb * fb * msb
+            fr, fg, fb = principled_fresnel(ch, sr * zd, sg * zd, sb * zd, eta_s, metallic, mr,
+                                            mg, mb, qr, qg, qb, zr, zg, zb)
+            ar = rr * fr
+            ag = rg * fg
+            ab = rb * fb
         if trans and eta == 1.0:  # no interface: straight on
             cr = w0 * tr * inv
             cg = w1 * tg * inv

@@ -40,6 +40,7 @@ from ..geometry.elements import (
     TEX_SRGB,
     TEX_TRANSMISSION_SQRT,
 )
+from .ggx_tables import GGX_E, GGX_E_AVG
 
 INV_PI = 1.0 / math.pi
 
@@ -140,22 +141,83 @@ ALBEDO_SAMPLES_THETA = 8
 ALBEDO_SAMPLES_PHI = 4
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _table_at(x, n):
+    """Index and weight of ``x`` in [0, 1] on a table of ``n`` points at ``i / (n - 1)``
+    (Cycles' ``lookup_table_read``: clamped, linear)."""
+    x = min(max(x, 0.0), 1.0) * (n - 1)
+    i = min(int(x), n - 2)
+    return i, x - i
+
+
+@njit(cache=True, nogil=True)
+def ggx_e(cos_o, alpha):
+    """Single-scattering albedo of the GGX lobe (Fresnel 1) of roughness ``alpha`` seen at
+    ``cos_o``: :data:`~.ggx_tables.GGX_E` read bilinearly at ``(sqrt(alpha), cos_o)``."""
+    i, u = _table_at(math.sqrt(max(alpha, 0.0)), GGX_E.shape[0])
+    j, v = _table_at(cos_o, GGX_E.shape[1])
+    return ((1.0 - u) * ((1.0 - v) * GGX_E[i, j] + v * GGX_E[i, j + 1])
+            + u * ((1.0 - v) * GGX_E[i + 1, j] + v * GGX_E[i + 1, j + 1]))
+
+
+@njit(cache=True, nogil=True)
+def ggx_e_avg(alpha):
+    """The cosine-weighted average of :func:`ggx_e` over view directions."""
+    i, u = _table_at(math.sqrt(max(alpha, 0.0)), GGX_E_AVG.shape[0])
+    return (1.0 - u) * GGX_E_AVG[i] + u * GGX_E_AVG[i + 1]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _multiscatter(fss, k, e_avg):
+    """``1 + Fms (1 - E) / E`` for a layer whose average single-scattering Fresnel is
+    ``fss`` (``k = (1 - E) / E``): Kulla and Conty's multiple-bounce Fresnel
+    ``Fms = Fss E_avg / (1 - Fss (1 - E_avg))``, as Cycles' multiscatter GGX applies it."""
+    return 1.0 + fss * e_avg / (1.0 - fss * (1.0 - e_avg)) * k
+
+
+@njit(cache=True, nogil=True)
+def dielectric_fss(eta):
+    """Average single-scattering Fresnel of a dielectric of relative index ``eta`` (the
+    cosine-weighted mean of its reflectance): Kulla and Conty's fit, as Cycles uses it."""
+    if eta < 1.0:
+        return 0.997118 + eta * (0.1014 - eta * (0.965241 + eta * 0.130607))
+    return (eta - 1.0) / (4.08567 + 1.00071 * eta)
+
+
+@njit(cache=True, nogil=True)
+def multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, tr, tg, tb):
+    """The energy the GGX layers' single scattering loses, given back as Cycles'
+    multiscatter GGX does (``microfacet_ggx_preserve_energy``): factors ``(zd, zr, zg, zb)``
+    of the dielectric layer and of the metal's three channels, each ``1 + Fms (1 - E) / E``
+    with ``E = e_white`` the albedo toward the viewer, ``Fms`` from the layer's average
+    Fresnel (:func:`dielectric_fss` of index ``eta_s``; the metal's F82 average ``F0 + (1 -
+    F0) / 21 - B / 126``, ``m*`` its colour, ``t*`` its tint). A white metal keeps all its
+    energy (factor ``1 / E``); a coloured one less (the bounces between facets tint it)."""
+    e = max(e_white, tol.GGX_ALBEDO_MIN)
+    k = (1.0 - e) / e
+    ea = ggx_e_avg(alpha)
+    zd = _multiscatter(dielectric_fss(eta_s), k, ea) if eta_s != 1.0 else 1.0
+    return (zd, _multiscatter(_f82_fss(mr, tr), k, ea), _multiscatter(_f82_fss(mg, tg), k, ea),
+            _multiscatter(_f82_fss(mb, tb), k, ea))
+
+
 @njit(cache=True, nogil=True)
 def ggx_albedo(cos_o, alpha, eta_s):
     """Directional albedos ``(E_white, E_dielectric)`` of the GGX lobe seen from ``cos_o``.
 
-    ``E_white``: with Fresnel 1 (the energy single scattering keeps); ``E_dielectric``: with
-    the exact dielectric Fresnel of index ``eta_s`` (0 when ``eta_s`` is 1). Deterministic
-    quadrature over microfacet normals drawn from ``D cos_h`` (stratified, see
-    ``ALBEDO_SAMPLES_*``): the estimator ``G2 (wo . h) / (cos_h cos_o)`` is smooth, so few
-    samples do.
+    ``E_white``: with Fresnel 1 (the energy single scattering keeps), read from the table
+    (:func:`ggx_e`, as Cycles reads its own); ``E_dielectric``: with the exact dielectric
+    Fresnel of index ``eta_s`` (0 when ``eta_s`` is 1), a deterministic quadrature over
+    microfacet normals drawn from ``D cos_h`` (stratified, see ``ALBEDO_SAMPLES_*``): the
+    estimator ``G2 (wo . h) / (cos_h cos_o)`` is smooth, so few samples do.
     """
     co = min(max(cos_o, tol.GGX_COS_MIN), 1.0)
     a2 = alpha * alpha
     so = math.sqrt(max(0.0, 1.0 - co * co))
     lo = ggx_lambda(co, a2)
-    ew = 0.0
     ed = 0.0
+    if eta_s == 1.0:
+        return ggx_e(co, alpha), 0.0
     nu = ALBEDO_SAMPLES_THETA
     nphi = ALBEDO_SAMPLES_PHI
     for i in range(nu):
@@ -170,11 +232,9 @@ def ggx_albedo(cos_o, alpha, eta_s):
             if nol <= 0.0:
                 continue
             w = voh / ((1.0 + ggx_lambda(nol, a2) + lo) * ct * co)
-            ew += w
-            if eta_s != 1.0:
-                ed += w * fresnel_dielectric(voh, 1.0 / eta_s)
+            ed += w * fresnel_dielectric(voh, 1.0 / eta_s)
     n = nu * nphi
-    return min(ew / n, 1.0), min(ed / n, 1.0)
+    return ggx_e(co, alpha), min(ed / n, 1.0)
 
 
 #: Cycles' F82-tint model: the tint is taken at cos = 1/7 (about 82 degrees); these are
@@ -198,22 +258,32 @@ def f82_metal(c, f0, tint):
     return min(max(f - b * (1.0 - x) * x5 * x, 0.0), 1.0)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _f82_fss(f0, tint):
+    """Average single-scattering Fresnel of :func:`f82_metal` (Cycles' ``fresnel_f82_Fss``):
+    Schlick's ``F0 + (1 - F0) / 21`` less ``B / 126``."""
+    b = 0.0 if tint == 1.0 else (f0 + (1.0 - f0) * F82_S5) * F82_SCALE * (1.0 - tint)
+    return f0 + (1.0 - f0) / 21.0 - b / 126.0
+
+
 @njit(cache=True, nogil=True)
-def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr=1.0, tg=1.0, tb=1.0):
+def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr=1.0, tg=1.0, tb=1.0,
+                       zr=1.0, zg=1.0, zb=1.0):
     """Reflectance ``(r, g, b)`` of the Principled-like specular layer at cosine ``c``.
 
     ``s*`` the dielectric layer's weight times its tint with the exact dielectric Fresnel of
     index ``eta_s`` (none when ``eta_s`` is 1); ``metallic`` the conductor's weight and
     ``m*`` its colour at normal incidence, ``t*`` its F82 tint (Cycles 4+: the Principled
     BSDF's Specular Tint, a Metallic BSDF's Edge Tint; :func:`f82_metal`: white is
-    Schlick's curve to white at grazing angles).
+    Schlick's curve to white at grazing angles), ``z*`` factors of the metal's channels (its
+    multiple scattering, :func:`multiscatter_factors`).
     """
     fd = 0.0
     if eta_s != 1.0:
         fd = fresnel_dielectric(c, 1.0 / eta_s)
-    return (sr * fd + metallic * f82_metal(c, mr, tr),
-            sg * fd + metallic * f82_metal(c, mg, tg),
-            sb * fd + metallic * f82_metal(c, mb, tb))
+    return (sr * fd + metallic * zr * f82_metal(c, mr, tr),
+            sg * fd + metallic * zg * f82_metal(c, mg, tg),
+            sb * fd + metallic * zb * f82_metal(c, mb, tb))
 
 
 @njit(cache=True, nogil=True)
@@ -224,10 +294,9 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     ``d*`` the diffuse albedo, scaled by ``1 - e_diel``, one minus the dielectric layer's
     albedo toward the viewer (the energy the layer reflects never reaches the base, as in
     Cycles' layering); the GGX lobe (:func:`ggx_lobe`) carries the Fresnel of
-    :func:`principled_fresnel` at ``wi . h`` and Turquin's multiple-scattering factor
-    ``1 + F0 (1 - E) / E`` with ``E = e_white`` (Cycles' multiscatter GGX keeps the energy
-    of rough metals; ``F0`` the reflectance at normal incidence, where the F82 tint ``t*``
-    takes nothing). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
+    :func:`principled_fresnel` at ``wi . h`` and each layer's multiple-scattering factor
+    (:func:`multiscatter_factors`, Cycles' multiscatter GGX: rough metals keep their
+    energy). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
     lobe below ``tolerances.GLOSSY_ALPHA_MIN``: a (near) mirror reflects through mirror rays.
     """
     kd = (1.0 - e_diel) * INV_PI
@@ -240,12 +309,10 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     lobe, ch = ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
     if lobe <= 0.0:
         return r, g, bl
-    fr, fg, fb = principled_fresnel(ch, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr, tg, tb)
-    e = max(e_white, tol.GGX_ALBEDO_MIN)
-    k = (1.0 - e) / e
-    f0r, f0g, f0b = principled_fresnel(1.0, sr, sg, sb, eta_s, metallic, mr, mg, mb)
-    return (r + lobe * fr * (1.0 + f0r * k), g + lobe * fg * (1.0 + f0g * k),
-            bl + lobe * fb * (1.0 + f0b * k))
+    zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, tr, tg, tb)
+    fr, fg, fb = principled_fresnel(ch, sr * zd, sg * zd, sb * zd, eta_s, metallic, mr, mg, mb,
+                                    tr, tg, tb, zr, zg, zb)
+    return r + lobe * fr, g + lobe * fg, bl + lobe * fb
 
 
 # ----------------------------------------------------------------------------- mirror / glass

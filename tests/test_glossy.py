@@ -437,3 +437,48 @@ def test_ri_tree_mode_samples_rough_surfaces():
     rel = abs(float(ri.radiance.mean()) - float(base.radiance.mean())) / float(
         base.radiance.mean())
     assert rel < 0.05, rel
+
+
+def _albedo_over_directions(co, alpha, n=1500, m=600):
+    """Independent estimate of the GGX lobe's albedo (Fresnel 1): reflected directions over
+    the hemisphere on a midpoint grid in (cos, azimuth), the BRDF ``D G2 / (4 cos_o cos_i)``
+    times ``cos_i`` (not microfacet normals, as the table's own quadrature)."""
+    a2 = alpha * alpha
+    ci = ((np.arange(n) + 0.5) / n)[:, None]
+    phi = ((np.arange(m) + 0.5) / m * np.pi)[None, :]
+    si = np.sqrt(1.0 - ci * ci)
+    so = math.sqrt(1.0 - co * co)
+    hx, hy, hz = so + si * np.cos(phi), si * np.sin(phi), co + ci
+    ch = hz / np.sqrt(hx * hx + hy * hy + hz * hz)
+    d = a2 / (np.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
+    lam = np.vectorize(lambda c: sh.ggx_lambda(c, a2))
+    g2 = 1.0 / (1.0 + lam(ci) + sh.ggx_lambda(co, a2))
+    return float((d * g2 / (4.0 * co)).mean() * 2.0 * np.pi)
+
+
+@pytest.mark.parametrize("roughness", [8 / 31, 12 / 31, 16 / 31, 24 / 31, 1.0])
+@pytest.mark.parametrize("co", [3 / 31, 8 / 31, 16 / 31, 1.0])
+def test_albedo_table_against_directions(roughness, co):
+    """The tabulated albedo E (scripts/ggx_tables.py, read as Cycles reads its own) at grid
+    points, against directions drawn over the hemisphere: within 0.2% (measured: 0.02% but
+    at grazing views, 0.2%)."""
+    alpha = roughness * roughness
+    want = _albedo_over_directions(co, alpha)
+    assert sh.ggx_e(co, alpha) == pytest.approx(want, rel=2e-3)
+
+
+@pytest.mark.parametrize("roughness", [0.3, 0.6, 1.0])
+def test_coloured_rough_metal_loses_what_cycles_loses(roughness):
+    """A coloured metal's multiple-scattering factor is Cycles' ``1 + Fms (1 - E) / E``
+    (Kulla-Conty's multiple-bounce Fresnel from the F82 average), less than a white metal's
+    ``1 / E``; a white metal keeps all its energy (``E * factor == 1``)."""
+    alpha = roughness * roughness
+    for co in (0.2, 0.6, 1.0):
+        e = sh.ggx_e(co, alpha)
+        zd, zr, zg, zb = sh.multiscatter_factors(alpha, e, 1.5, 1.0, 0.6, 0.3, 1.0, 1.0, 1.0)
+        assert zr * e == pytest.approx(1.0, rel=1e-12)
+        ea = sh.ggx_e_avg(alpha)
+        for f0, z in ((0.6, zg), (0.3, zb)):
+            fss = f0 + (1.0 - f0) / 21.0
+            assert z == pytest.approx(1.0 + fss * ea / (1.0 - fss * (1.0 - ea)) * (1 - e) / e)
+            assert 1.0 <= z < 1.0 / e

@@ -369,8 +369,6 @@ def _rough_scene(kind: str, roughness: float):
 #: Measured (docs/glossy.md): the cases whose measured error misses the issue's goal keep
 #: the goal as their threshold and are marked xfail with the measured value, not loosened.
 GLOSSY_MISSES = {
-    ("metal", 1.0): "measured mean 1.2%, p98 10.9% (goal 2% / 8%): the multiple-scattering "
-                    "factor at roughness 1 (docs/glossy.md)",
     ("glass", 0.2): "measured mean 1.4%, p98 17.9% (goal 2% / 8%; single-scattering GGX "
                     "without the lights' highlight: 1.8% / 21.8%): the point light's share "
                     "through the ball is short, likely its light refracted through the "

@@ -500,14 +500,24 @@ def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.nda
             o, tmax, rows)
 
 
-def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None):
+def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
+                    proven: np.ndarray | None = None):
     """Trace the soft samples of ``surf`` (:func:`soft_rays`) with ``occluded(origins,
     directions, tmax, rows) -> (k,) bool`` (``rows`` the samples' (point, light) rows as
-    :func:`soft_rays` numbers them). Returns ``(SoftSamples, lit_rows, any_vis)``: the
-    samples with their visibility, the (point, light) rows of the sampled lights and
-    whether each has a visible sample."""
+    :func:`soft_rays` numbers them). ``proven`` (n L,) bool: the (point, light) rows whose
+    every sample is proven unoccluded (:func:`~.shaft_skip.proven_rows`): their samples
+    are visible without a ray (``counters["shadow_skipped"]`` counts them). Returns
+    ``(SoftSamples, lit_rows, any_vis)``: the samples with their visibility, the (point,
+    light) rows of the sampled lights and whether each has a visible sample."""
     soft, o, tmax, rows = soft_rays(sa, surf, seeds, n, sh_state)
-    go = np.flatnonzero(soft.w > 0.0)
+    go = soft.w > 0.0
+    if proven is not None and len(rows):
+        skip = go & np.repeat(proven[np.maximum(rows, 0)] & (rows >= 0), n)
+        soft.vis[skip] = True
+        go &= ~skip
+        if counters is not None:
+            counters["shadow_skipped"] = counters.get("shadow_skipped", 0) + int(skip.sum())
+    go = np.flatnonzero(go)
     if len(go):
         soft.vis[go] = ~np.asarray(occluded(o[go], soft.d[go], tmax[go],
                                             np.repeat(rows, n)[go]), np.bool_)

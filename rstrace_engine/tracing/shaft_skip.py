@@ -69,8 +69,10 @@ SHAFT_SKIP = True
 SKIP_TILE = 8
 
 
-def tile_keys(pixels: np.ndarray, width: int, tile: int = SKIP_TILE) -> np.ndarray:
-    """(k,) int64 the tile of each pixel index of an image ``width`` pixels wide."""
+def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.ndarray:
+    """(k,) int64 the tile (``tile`` pixels on a side, default :data:`SKIP_TILE`) of each
+    pixel index of an image ``width`` pixels wide."""
+    tile = int(SKIP_TILE if tile is None else tile)
     p = np.asarray(pixels, np.int64)
     y, x = np.divmod(p, int(width))
     return (y // tile) * ((int(width) + tile - 1) // tile) + x // tile

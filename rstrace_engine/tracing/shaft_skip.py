@@ -41,6 +41,7 @@ Measured in docs/SOFT_LIGHT.md ("Base-mode shaft skips").
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from numba import njit, prange
@@ -85,10 +86,12 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     (sampled there, ``SH_SOFT``) is proven fully visible, the points grouped by ``keys``
     (n,) int64 and instance; None where nothing is tried (the skips off, no group keys, no
     light with an extent, an accelerator whose geometry the proof does not read).
-    ``counters`` gains ``skip_rows`` (rows of lights with an extent) and
-    ``skip_rows_proven``."""
+    ``counters`` gains ``skip_rows`` (rows of lights with an extent), ``skip_rows_proven``
+    and ``skip_s`` (seconds in the proofs); :func:`~.soft_lights.soft_visibility` adds
+    ``shadow_skipped`` (samples not traced)."""
     if not SHAFT_SKIP or keys is None or not isinstance(accel, BVHAccelerator):
         return None
+    t0 = time.perf_counter()
     L = len(sa.light_kind)
     ext = np.asarray(sa.light_ext, np.bool_) & (np.asarray(sa.light_kind) >= 0)
     n = len(surf.P)
@@ -116,6 +119,7 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
         counters["skip_rows"] = counters.get("skip_rows", 0) + int(soft.sum())
         counters["skip_rows_proven"] = counters.get("skip_rows_proven", 0) + int(
             proven.sum())
+        counters["skip_s"] = counters.get("skip_s", 0.0) + time.perf_counter() - t0
     return proven
 
 

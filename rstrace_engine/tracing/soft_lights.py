@@ -525,3 +525,24 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
             counters["shadow"] = counters.get("shadow", 0) + len(go)
     any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)
     return soft, rows, any_vis
+
+
+def soft_direct(sa: SceneArrays, surf, seeds: np.ndarray, light_samples: int,
+                vis: np.ndarray, occluded, counters: dict | None = None,
+                occ: np.ndarray | None = None,
+                proven: np.ndarray | None = None) -> SoftSamples:
+    """The shadow samples of the lights with an extent and of the world at ``surf`` (the
+    base tracer's :class:`~.shader.Surfaces`), traced with ``occluded(origins,
+    directions, tmax, rows) -> (k,) bool``; ``seeds`` (n,) uint64 the points' node seeds;
+    ``proven`` (n L,) bool the rows whose samples are all proven unoccluded
+    (:func:`~.shaft_skip.proven_rows`: not traced). Sets ``vis`` (n L,) of a sampled
+    light's row when one of its samples reached it, and ``occ`` (when given) to
+    :data:`OCC_SOFT` there (its visibility is a fraction). Returns the samples for
+    :func:`~.whitted.shade`."""
+    soft, rows, any_vis = soft_visibility(sa, surf, seeds, light_samples, surf.sh_state,
+                                          occluded, counters, proven)
+    lit = rows >= 0
+    vis[rows[lit]] = any_vis[lit]
+    if occ is not None:
+        occ[rows[lit]] = OCC_SOFT
+    return soft

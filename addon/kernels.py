@@ -56,6 +56,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.light_records._fill_terms", "tracing.light_records._replace_slot",
          "tracing.light_records._detach_terms", "tracing.pixel_records._light_bit_changes",
          "tracing.glossy_rays.glossy_counts", "tracing.whitted._child_tags",
+         "tracing.shaft_skip._prove_groups",
          "geometry.mesh_math._proper_kernel")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",

@@ -445,11 +445,18 @@ def shadow_rays_per_pixel(stats: dict) -> float | None:
 
 
 def shadow_rays_text(stats: dict) -> str | None:
-    """The Last Render panel's line for :func:`shadow_rays_per_pixel`."""
+    """The Last Render panel's line for :func:`shadow_rays_per_pixel`, with the samples
+    proven unoccluded and not traced (``shadow_rays_skipped``, docs/SOFT_LIGHT.md) where
+    there were any."""
     per_pixel = shadow_rays_per_pixel(stats)
     if per_pixel is None:
         return None
-    return f"{int(stats['shadow_rays']):,} shadow rays, {per_pixel:.1f} per pixel"
+    text = f"{int(stats['shadow_rays']):,} shadow rays, {per_pixel:.1f} per pixel"
+    skipped = int(stats.get("shadow_rays_skipped") or 0)
+    if skipped:
+        pixels = int(stats["width"]) * int(stats["height"])
+        text += f" (+{skipped / pixels:.1f} proven, not traced)"
+    return text
 
 
 def status_line(stats: dict) -> str:

@@ -222,3 +222,10 @@ LINK_MAX_SKIPS = 64
 #: slack is a round cone (:func:`~.geometry.lights.checked_light`): Blender's float32
 #: matrices of a rotated, uniformly scaled spot differ by ~1e-7.
 SPOT_FRAME_SLACK = 1e-6
+
+#: Base-mode shadow-ray skips (:mod:`~.tracing.shaft_skip`): a triangle is behind a shading
+#: point's own plane when its vertices lie behind the plane through the shadow-ray origin
+#: by this fraction of the point's shadow-ray offset (``SPAWN_OFFSET_REL``): a traced sample
+#: leaves that plane, so half the offset stays between it and the triangle, ~10^4 times
+#: the rounding of the watertight ray-triangle test.
+SKIP_SELF_MARGIN_FRAC = 0.5

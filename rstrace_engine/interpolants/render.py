@@ -51,6 +51,7 @@ from ..tracing.seen_lights import (
     seen,
     seen_lights,
 )
+from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
@@ -283,11 +284,13 @@ def _tiles(n: int):
 
 
 def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
-                cancel, settings) -> bool:
+                cancel, settings, keys=None) -> bool:
     """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
     found, into ``rad``; their ray trees go to ``records``; soft lights are sampled as the
     base tracer samples these pixel samples (``gids``, ``settings``' seed and light
-    samples). Returns whether ``cancel`` stopped it (the frame is then incomplete)."""
+    samples), and their shadow rays skipped where proven per tile as the base tracer does
+    (``keys``: the rays' pixels' tiles, :func:`~..tracing.shaft_skip.tile_keys`). Returns
+    whether ``cancel`` stopped it (the frame is then incomplete)."""
     sa, accel = cache.sa, cache.accel
     for sel in _tiles(len(todo)):
         part = todo[sel]
@@ -299,7 +302,8 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
                                  seeds=sample_seeds(gids[part], int(settings.seed)),
                                  light_samples=int(settings.light_samples),
                                  glossy_samples=int(settings.glossy_samples),
-                                 terms=records is not None and records.light is not None)
+                                 terms=records is not None and records.light is not None,
+                                 skip_keys=None if keys is None else keys[part])
         if cancel is not None and cancel():
             return True
         if records is not None:
@@ -365,6 +369,7 @@ def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, repro
                                                      | (pclass == CLASS_REBUILT)))
         / max(len(pclass), 1),
         traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
+        shadow_rays_skipped=counters.get("shadow_skipped", 0),
         secondary_rays=counters.get("secondary", 0),
         # interpolated samples on rough surfaces, their glossy rays traced (glossy_term.py)
         rough_interpolated=counters.get("rough_interpolated", 0),
@@ -497,7 +502,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 pr = cand[::fb_mod.PROBE_STRIDE]
                 t = fb_mod.CLOCK()
                 _trace_rest(cache, pr, o, d, tmin, tmax, hits, rad_probe,
-                            int(settings.max_depth), counters, None, gids, None, settings)
+                            int(settings.max_depth), counters, None, gids, None, settings,
+                            keys)
                 dt = fb_mod.CLOCK() - t
                 probe["rays"] += len(pr)
                 probe["s"] += dt
@@ -507,6 +513,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 out[pr] = True
         return out if out.any() else None
 
+    keys = tile_keys(pix, w)  # the base tracer's shadow-ray skips, per tile
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
             if cancel is not None and cancel():
@@ -567,7 +574,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     records.add_primary(gids, hits.inst, o, d, hits.t)
                 cancelled = _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad,
                                         int(settings.max_depth), counters, records, gids,
-                                        cancel, settings)
+                                        cancel, settings, keys)
                 if rough_on and not cancelled:  # rough surfaces' glossy rays, per pixel
                     skip_rows = probe.get("idx", np.zeros(0, np.int64))
                     cancelled = _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits,

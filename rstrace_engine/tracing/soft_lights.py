@@ -500,14 +500,24 @@ def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.nda
             o, tmax, rows)
 
 
-def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None):
+def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
+                    proven: np.ndarray | None = None):
     """Trace the soft samples of ``surf`` (:func:`soft_rays`) with ``occluded(origins,
     directions, tmax, rows) -> (k,) bool`` (``rows`` the samples' (point, light) rows as
-    :func:`soft_rays` numbers them). Returns ``(SoftSamples, lit_rows, any_vis)``: the
-    samples with their visibility, the (point, light) rows of the sampled lights and
-    whether each has a visible sample."""
+    :func:`soft_rays` numbers them). ``proven`` (n L,) bool: the (point, light) rows whose
+    every sample is proven unoccluded (:func:`~.shaft_skip.proven_rows`): their samples
+    are visible without a ray (``counters["shadow_skipped"]`` counts them). Returns
+    ``(SoftSamples, lit_rows, any_vis)``: the samples with their visibility, the (point,
+    light) rows of the sampled lights and whether each has a visible sample."""
     soft, o, tmax, rows = soft_rays(sa, surf, seeds, n, sh_state)
-    go = np.flatnonzero(soft.w > 0.0)
+    go = soft.w > 0.0
+    if proven is not None and len(rows):
+        skip = go & np.repeat(proven[np.maximum(rows, 0)] & (rows >= 0), n)
+        soft.vis[skip] = True
+        go &= ~skip
+        if counters is not None:
+            counters["shadow_skipped"] = counters.get("shadow_skipped", 0) + int(skip.sum())
+    go = np.flatnonzero(go)
     if len(go):
         soft.vis[go] = ~np.asarray(occluded(o[go], soft.d[go], tmax[go],
                                             np.repeat(rows, n)[go]), np.bool_)
@@ -515,3 +525,24 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None):
             counters["shadow"] = counters.get("shadow", 0) + len(go)
     any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)
     return soft, rows, any_vis
+
+
+def soft_direct(sa: SceneArrays, surf, seeds: np.ndarray, light_samples: int,
+                vis: np.ndarray, occluded, counters: dict | None = None,
+                occ: np.ndarray | None = None,
+                proven: np.ndarray | None = None) -> SoftSamples:
+    """The shadow samples of the lights with an extent and of the world at ``surf`` (the
+    base tracer's :class:`~.shader.Surfaces`), traced with ``occluded(origins,
+    directions, tmax, rows) -> (k,) bool``; ``seeds`` (n,) uint64 the points' node seeds;
+    ``proven`` (n L,) bool the rows whose samples are all proven unoccluded
+    (:func:`~.shaft_skip.proven_rows`: not traced). Sets ``vis`` (n L,) of a sampled
+    light's row when one of its samples reached it, and ``occ`` (when given) to
+    :data:`OCC_SOFT` there (its visibility is a fraction). Returns the samples for
+    :func:`~.whitted.shade`."""
+    soft, rows, any_vis = soft_visibility(sa, surf, seeds, light_samples, surf.sh_state,
+                                          occluded, counters, proven)
+    lit = rows >= 0
+    vis[rows[lit]] = any_vis[lit]
+    if occ is not None:
+        occ[rows[lit]] = OCC_SOFT
+    return soft

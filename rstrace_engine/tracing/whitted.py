@@ -55,8 +55,8 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     light_state,
     light_states,
 )
+from .shaft_skip import proven_rows, tile_keys
 from .soft_lights import (
-    OCC_SOFT,
     SH_SOFT,
     SoftSamples,
     has_soft_light,
@@ -64,7 +64,7 @@ from .soft_lights import (
     no_samples,
     node_seeds,
     sample_seeds,
-    soft_visibility,
+    soft_direct,
 )
 
 log = logging.getLogger(__name__)
@@ -232,24 +232,6 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     if terms:
         return contrib, out, (tv, tp), plan
     return contrib, out, plan
-
-
-def soft_direct(sa: SceneArrays, surf: Surfaces, seeds: np.ndarray, light_samples: int,
-                vis: np.ndarray, occluded, counters: dict | None = None,
-                occ: np.ndarray | None = None) -> SoftSamples:
-    """The shadow samples of the lights with an extent and of the world at ``surf``
-    (:mod:`.soft_lights`), traced with ``occluded(origins, directions, tmax, rows) -> (k,)
-    bool``; ``seeds`` (n,) uint64 the points' node seeds. Sets ``vis`` (n L,) of a sampled
-    light's row when one of its samples reached it, and ``occ`` (when given) to
-    ``OCC_SOFT`` there (its visibility is a fraction). Returns the samples for
-    :func:`shade`."""
-    soft, rows, any_vis = soft_visibility(sa, surf, seeds, light_samples, surf.sh_state,
-                                          occluded, counters)
-    lit = rows >= 0
-    vis[rows[lit]] = any_vis[lit]
-    if occ is not None:
-        occ[rows[lit]] = OCC_SOFT
-    return soft
 
 
 # ----------------------------------------------------------------------------- driver
@@ -432,7 +414,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
           light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False,
           glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, roots: str = "all",
-          camera_lights: bool = True):
+          camera_lights: bool = True, skip_keys: np.ndarray | None = None):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -472,6 +454,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     camera (:mod:`.seen_lights`; mirror and refraction rays below them see the lights
     visible to glossy and transmission rays whatever this says). False for rays that are
     not the camera's (the interpolants' lattice lines).
+    skip_keys : (n,) int64 group keys of the input rays (their pixels' tiles): the shadow
+    rays of lights proven fully visible per key and instance are skipped, the radiance the
+    same bit for bit (:mod:`.shaft_skip`, which also says what ``counters`` gains).
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -521,8 +506,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if glossy_on and level > 0:
                 nseeds ^= front.tag
         if soft_on and own:
+            proven = (proven_rows(sa, accel, surf, hits.inst, skip_keys, counters)
+                       if level == 0 else None)
             soft = soft_direct(sa, surf, nseeds, int(light_samples), vis,
-                               _occluded_by(sa, accel), counters, occ)
+                               _occluded_by(sa, accel), counters, occ, proven)
             traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break
@@ -587,7 +574,8 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
         rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits,
                        counters=counters, segments=segments, cancel=cancel,
                        seeds=sample_seeds(gids, seed), light_samples=light_samples,
-                       terms=terms, glossy_samples=glossy_samples)
+                       terms=terms, glossy_samples=glossy_samples,
+                       skip_keys=tile_keys(pixels, cp.width))
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -682,13 +670,17 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         if progress is not None:
             progress(y1 / h, f"traced {y1}/{h} rows")
     elapsed = time.perf_counter() - t_start
-    rays = sum(counters.values())
+    shadow = counters.get("shadow", 0)
+    rays = counters.get("primary", 0) + counters.get("secondary", 0) + shadow
     if bad_total:
         log.warning("render: %d sample(s) with NaN/infinite radiance left out", bad_total)
     stats = dict(
         time_s=elapsed, accel_build_s=build_s, accelerator=getattr(accel, "name", "?"),
         rays_traced=rays, primary_rays=counters.get("primary", 0),
-        secondary_rays=counters.get("secondary", 0), shadow_rays=counters.get("shadow", 0),
+        secondary_rays=counters.get("secondary", 0), shadow_rays=shadow,
+        shadow_rays_skipped=counters.get("shadow_skipped", 0), skip_s=counters.get("skip_s", 0.0),
+        skip_rows=counters.get("skip_rows", 0),
+        skip_rows_proven=counters.get("skip_rows_proven", 0),
         rays_per_s=rays / elapsed if elapsed > 0 else 0.0,
         width=w, height=h, samples=spp, max_depth=depth, rows_done=rows_done,
         cancelled=cancelled_, nonfinite_samples=bad_total,

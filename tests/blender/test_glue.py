@@ -148,8 +148,10 @@ def test_status_line_and_panel_give_shadow_rays_per_pixel():
     assert rays > 16 * 12  # the key light takes 4 per shading point, the fill 1
     per_pixel = f"{rays / (16 * 12):.1f} shadow rays/px"
     assert per_pixel in engine.info[-1]
-    assert session.shadow_rays_text(state.stats) == (f"{rays:,} shadow rays, "
-                                                     f"{rays / (16 * 12):.1f} per pixel")
+    skipped = state.stats["shadow_rays_skipped"]  # proven unoccluded (shaft_skip.py)
+    assert session.shadow_rays_text(state.stats) == (
+        f"{rays:,} shadow rays, {rays / (16 * 12):.1f} per pixel"
+        + (f" (+{skipped / (16 * 12):.1f} proven, not traced)" if skipped else ""))
     assert session.shadow_rays_per_pixel({"width": 4, "height": 2}) is None
 
 

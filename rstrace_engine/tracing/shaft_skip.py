@@ -1,0 +1,334 @@
+"""Shadow rays the base tracer need not trace: lights proven fully visible over a tile.
+
+Fernandez, Bala and Greenberg 2002 ("Local Illumination Environments for Direct Lighting
+Acceleration") skip the shadow rays of every light proven fully visible over a region. Here
+a *group* is the primary hits of one instance in a :data:`SKIP_TILE` x :data:`SKIP_TILE`
+pixel tile, and per group and light with an extent (sphere, area, sun with an angle) the
+proof is the Haines-Wallace shaft from the box of the group's shadow-ray origins to the
+light's extent (:func:`~..geometry.shaft_geometry.hw_shaft`; a sun's cone as a box far
+toward it, :func:`~..geometry.shaft_geometry.sun_box`). Every shadow sample of a point of
+the group runs inside that shaft. Each triangle the shaft meets (clipped against its
+planes, in the accelerator's own object space) must be *harmless* for every point ``q``
+of the group that samples the light:
+
+* **behind the point's own plane**: its three vertices lie behind the plane through ``q``
+  with the point's geometric normal by at least half the point's shadow-ray offset
+  (:data:`~.tolerances.SKIP_SELF_MARGIN_FRAC`). A traced sample goes away from that plane
+  (its weight is zero, and no ray is traced, unless it points into the normal's side), so
+  the whole segment stays in front of it and never meets the triangle. This is what lets
+  the receiver's own surface through: a floor's coplanar triangles, the rest of a convex
+  object behind the tangent plane of each point;
+* **on the far side of its own plane from nothing**: the point and the light's whole
+  extent (a sphere's ball, an area light's four corners, a sun's whole cone of directions)
+  lie strictly on the same side of the triangle's plane, by the shaft's slack: no segment
+  between them crosses that plane. Walls, a ceiling behind the light, anything beside the
+  shaft.
+
+Any other triangle (an object between the points and the light, a non-convex receiver
+shadowing itself) fails the group's proof for that light, and its samples are traced as
+before. Both arguments leave a margin far above the rounding of the watertight ray-triangle
+test, so a proven sample is exactly one the tracer would have found unoccluded: the skip
+sets its visibility to true where tracing would have, and the image, the ray trees and
+the pixel and light records are bit for bit those of the frame without skips
+(``tests/test_shaft_skip.py``). The proof reads the accelerator's own trees (the numba
+:class:`~..accel.accelerators.BVHAccelerator`: the geometry the rays are traced against);
+other accelerators (float32 Embree, the visibility field's approximation, the brute-force
+oracle) trace every sample. Secondary hits (behind mirrors and glass) are not grouped and
+trace every sample; so does the world's light (its hemisphere has no extent to prove).
+Measured in docs/SOFT_LIGHT.md ("Base-mode shaft skips").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from .. import tolerances as tol
+from ..accel.accelerators import BVHAccelerator
+from ..accel.bvh import STACK_SIZE
+from ..geometry.scene import LIGHT_SUN
+from ..geometry.shaft_geometry import (
+    MAX_PLANES,
+    clip_polygon,
+    extent_plane_side,
+    hw_shaft,
+    light_extents,
+    sun_box,
+    to_object,
+)
+from .shading import spawn_offset
+from .soft_lights import SH_SOFT
+
+#: The skips on (a module switch: tests and the measurement in docs/SOFT_LIGHT.md compare
+#: frames with and without them, which are the same bit for bit).
+SHAFT_SKIP = True
+#: Pixels on a side of the tiles whose primary hits (per instance) are proven together;
+#: measured in docs/SOFT_LIGHT.md.
+SKIP_TILE = 8
+
+
+def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.ndarray:
+    """(k,) int64 the tile (``tile`` pixels on a side, default :data:`SKIP_TILE`) of each
+    pixel index of an image ``width`` pixels wide."""
+    tile = int(SKIP_TILE if tile is None else tile)
+    p = np.asarray(pixels, np.int64)
+    y, x = np.divmod(p, int(width))
+    return (y // tile) * ((int(width) + tile - 1) // tile) + x // tile
+
+
+def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
+                counters: dict | None = None) -> np.ndarray | None:
+    """(n L,) bool: the (point, light) rows ``i * L + j`` of the surface points ``surf``
+    (:class:`~.shader.Surfaces` of primary hits on instances ``inst``) whose light ``j``
+    (sampled there, ``SH_SOFT``) is proven fully visible, the points grouped by ``keys``
+    (n,) int64 and instance; None where nothing is tried (the skips off, no group keys, no
+    light with an extent, an accelerator whose geometry the proof does not read).
+    ``counters`` gains ``skip_rows`` (rows of lights with an extent), ``skip_rows_proven``
+    and ``skip_s`` (seconds in the proofs); :func:`~.soft_lights.soft_visibility` adds
+    ``shadow_skipped`` (samples not traced)."""
+    if not SHAFT_SKIP or keys is None or not isinstance(accel, BVHAccelerator):
+        return None
+    t0 = time.perf_counter()
+    L = len(sa.light_kind)
+    ext = np.asarray(sa.light_ext, np.bool_) & (np.asarray(sa.light_kind) >= 0)
+    n = len(surf.P)
+    if not ext.any() or n == 0:
+        return None
+    soft = surf.sh_state.reshape(n, L)[:, ext] == SH_SOFT
+    todo = np.flatnonzero(soft.any(axis=1))
+    proven = np.zeros(n * L, np.bool_)
+    if len(todo) == 0:
+        return proven
+    gk = np.asarray(keys, np.int64)[todo] * (len(sa.inst_mesh) + 1) + inst[todo]
+    order = np.argsort(gk, kind="stable")
+    gk = gk[order]
+    members = todo[order]
+    gstart = np.flatnonzero(np.r_[True, gk[1:] != gk[:-1], True]).astype(np.int64)
+    geo = accel.sa  # the geometry the accelerator traces against
+    lo, hi, chord = light_extents(sa)
+    mag = float(geo.scene_extent + np.max(np.abs(geo.scene_aabb)))
+    _prove_groups(accel.sb, np.ascontiguousarray(geo.inst_xform, np.float64), sa,
+                  np.ascontiguousarray(lo), np.ascontiguousarray(hi), chord,
+                  np.ascontiguousarray(0.5 * (geo.scene_aabb[0] + geo.scene_aabb[1])),
+                  float(geo.scene_extent), mag, surf.Q, surf.NG, surf.sh_state,
+                  members.astype(np.int64), gstart, proven)
+    if counters is not None:
+        counters["skip_rows"] = counters.get("skip_rows", 0) + int(soft.sum())
+        counters["skip_rows_proven"] = counters.get("skip_rows_proven", 0) + int(
+            proven.sum())
+        counters["skip_s"] = counters.get("skip_s", 0.0) + time.perf_counter() - t0
+    return proven
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_state,
+                  members, gstart, proven):
+    """Per group ``g`` (points ``members[gstart[g]:gstart[g + 1]]``) and light with an
+    extent: set ``proven`` (n L,) at the group's rows of the light when its shaft holds
+    only harmless triangles (:func:`_shaft_clear`). ``sb``: the accelerator's
+    :class:`~..accel.bvh.SceneBVH`, ``xf`` its instances' object-to-world transforms;
+    ``llo``, ``lhi``, ``chord``: :func:`~..geometry.shaft_geometry.light_extents`;
+    ``center``, ``extent``: the scene box's centre and diagonal; ``mag`` its coordinates'
+    magnitude (the shafts' slack)."""
+    L = sa.light_kind.shape[0]
+    for g in prange(gstart.shape[0] - 1):
+        pl = np.empty((MAX_PLANES, 4))
+        plo = np.empty((MAX_PLANES, 4))
+        bb = np.empty(6)
+        bbo = np.empty(6)
+        lo = np.empty(3)
+        hi = np.empty(3)
+        blo = np.empty(3)
+        bhi = np.empty(3)
+        P = np.empty((3 + MAX_PLANES, 3))
+        S = np.empty((3 + MAX_PLANES, 3))
+        stack = np.empty(STACK_SIZE, np.int32)
+        stack2 = np.empty(STACK_SIZE, np.int32)
+        for j in range(L):
+            if not sa.light_ext[j] or sa.light_kind[j] < 0:
+                continue
+            cnt = 0
+            for k in range(3):
+                lo[k] = np.inf
+                hi[k] = -np.inf
+            for a in range(gstart[g], gstart[g + 1]):
+                i = members[a]
+                if sh_state[i * L + j] != SH_SOFT:
+                    continue
+                cnt += 1
+                for k in range(3):
+                    lo[k] = min(lo[k], Q[i, k])
+                    hi[k] = max(hi[k], Q[i, k])
+            if cnt == 0:
+                continue
+            if sa.light_kind[j] == LIGHT_SUN:
+                sun_box(lo, hi, sa.light_dir[j], chord[j], center, extent, blo, bhi)
+            else:
+                for k in range(3):
+                    blo[k] = llo[j, k]
+                    bhi[k] = lhi[j, k]
+            big = mag
+            for k in range(3):
+                big = max(big, abs(lo[k]), abs(hi[k]), abs(blo[k]), abs(bhi[k]))
+            slack = tol.SHAFT_SLACK_REL * big
+            npl = hw_shaft(lo, hi, blo, bhi, slack, pl, bb)
+            if _shaft_clear(sb, xf, sa, j, pl, npl, bb, slack, lo, hi, extent, Q, NG,
+                            sh_state, members, gstart[g], gstart[g + 1], plo, bbo, P, S,
+                            stack, stack2):
+                for a in range(gstart[g], gstart[g + 1]):
+                    i = members[a]
+                    if sh_state[i * L + j] == SH_SOFT:
+                        proven[i * L + j] = True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lane_out(pl, npl, bb, bounds, node, c):
+    """Lane ``c`` of 4-wide BVH node ``node`` (:mod:`..accel.bvh`'s layout) lies outside
+    the shaft (its box or some plane); an unused lane (``lo = +inf``) always does."""
+    lx, ly, lz = bounds[node, c], bounds[node, 4 + c], bounds[node, 8 + c]
+    hx, hy, hz = bounds[node, 12 + c], bounds[node, 16 + c], bounds[node, 20 + c]
+    if not (lx <= hx and ly <= hy and lz <= hz):
+        return True
+    if hx < bb[0] or hy < bb[1] or hz < bb[2] or lx > bb[3] or ly > bb[4] or lz > bb[5]:
+        return True
+    for p in range(npl):
+        px = hx if pl[p, 0] > 0.0 else lx
+        py = hy if pl[p, 1] > 0.0 else ly
+        pz = hz if pl[p, 2] > 0.0 else lz
+        if pl[p, 0] * px + pl[p, 1] * py + pl[p, 2] * pz + pl[p, 3] < 0.0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _shaft_clear(sb, xf, sa, j, pl, npl, bb, slack, lo, hi, extent, Q, NG, sh_state,
+                 members, a0, a1, plo, bbo, P, S, stack, stack2):
+    """Is every triangle of the scene that meets the world shaft ``pl``, ``bb`` harmless
+    to light ``j``'s samples from the group's points ``members[a0:a1]`` (box lo, hi)?
+    Walks the top level of ``sb`` and, per instance it meets, the mesh's tree with the
+    shaft taken to object space."""
+    sp = 1
+    stack[0] = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(4):
+            if _lane_out(pl, npl, bb, sb.top_bounds, node, c):
+                continue
+            ch = sb.top_child[node, c]
+            if ch >= 0:
+                stack[sp] = ch
+                sp += 1
+                continue
+            code = ~ch
+            for q in range(code >> 3, (code >> 3) + (code & 7)):
+                inst = sb.top_inst[q]
+                to_object(xf[inst], sb.inst_inv[inst], pl, npl, bb, plo, bbo)
+                if not _mesh_clear(sb, xf[inst], sb.mesh_root[sb.inst_mesh[inst]], sa, j,
+                                   plo, npl, bbo, slack, lo, hi, extent, Q, NG, sh_state,
+                                   members, a0, a1, P, S, stack2):
+                    return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG, sh_state,
+                members, a0, a1, P, S, stack):
+    """:func:`_shaft_clear` within one instance: its mesh's tree from node ``root`` against
+    the object-space shaft ``plo``, ``bbo``; ``xf`` the instance's transform."""
+    stack[0] = root
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(4):
+            if _lane_out(plo, npl, bbo, sb.bounds, node, c):
+                continue
+            ch = sb.child[node, c]
+            if ch >= 0:
+                stack[sp] = ch
+                sp += 1
+                continue
+            code = ~ch
+            for t in range(code >> 3, (code >> 3) + (code & 7)):
+                for v in range(3):
+                    P[v, 0] = sb.tv[t, 3 * v]
+                    P[v, 1] = sb.tv[t, 3 * v + 1]
+                    P[v, 2] = sb.tv[t, 3 * v + 2]
+                if clip_polygon(plo, 0, npl, P, 3, S) == 0:
+                    continue
+                if not _harmless(sb.tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG,
+                                 sh_state, members, a0, a1):
+                    return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _world(xf, tv, t, v):
+    """Vertex ``v`` of leaf-order triangle ``t`` taken to world space by ``xf``."""
+    x, y, z = tv[t, 3 * v], tv[t, 3 * v + 1], tv[t, 3 * v + 2]
+    return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
+            xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
+            xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z + xf[2, 3])
+
+
+@njit(cache=True, nogil=True)
+def _harmless(tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members, a0, a1):
+    """Can no shadow sample of light ``j`` from the group's points meet leaf-order triangle
+    ``t`` (object space, transform ``xf``)? Per point: the triangle lies behind the
+    point's own plane, or the point and the light's whole extent lie on one side of the
+    triangle's plane (see the module's docstring)."""
+    L = sa.light_kind.shape[0]
+    ax, ay, az = _world(xf, tv, t, 0)
+    bx, by, bz = _world(xf, tv, t, 1)
+    cx, cy, cz = _world(xf, tv, t, 2)
+    e1x, e1y, e1z = bx - ax, by - ay, bz - az
+    e2x, e2y, e2z = cx - ax, cy - ay, cz - az
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    side = 0
+    if ln > 0.0:
+        nx /= ln
+        ny /= ln
+        nz /= ln
+        side = _extent_side(sa, j, nx, ny, nz, ax, ay, az, slack)
+        if side != 0:
+            # the whole box of the points on the light's side: so is every point
+            sx, sy, sz = side * nx, side * ny, side * nz
+            near = (sx * ((lo[0] if sx > 0.0 else hi[0]) - ax)
+                    + sy * ((lo[1] if sy > 0.0 else hi[1]) - ay)
+                    + sz * ((lo[2] if sz > 0.0 else hi[2]) - az))
+            if near > slack:
+                return True
+    for a in range(a0, a1):
+        i = members[a]
+        if sh_state[i * L + j] != SH_SOFT:
+            continue
+        qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+        if side != 0 and side * (nx * (qx - ax) + ny * (qy - ay) + nz * (qz - az)) > slack:
+            continue  # the point on the light's side of the triangle's plane
+        gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
+        m = -tol.SKIP_SELF_MARGIN_FRAC * spawn_offset(qx, qy, qz, extent)
+        if (gx * (ax - qx) + gy * (ay - qy) + gz * (az - qz) <= m
+                and gx * (bx - qx) + gy * (by - qy) + gz * (bz - qz) <= m
+                and gx * (cx - qx) + gy * (cy - qy) + gz * (cz - qz) <= m):
+            continue  # the triangle behind the point's own plane
+        return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _extent_side(sa, j, nx, ny, nz, px, py, pz, margin):
+    """Side of the plane through ``p`` with unit normal ``n`` on which light ``j``'s whole
+    extent lies: 1 in front, -1 behind (by more than ``margin``; a sun: every direction of
+    its cone), 0 neither."""
+    if sa.light_kind[j] == LIGHT_SUN:
+        s = -(nx * sa.light_dir[j, 0] + ny * sa.light_dir[j, 1] + nz * sa.light_dir[j, 2])
+        lim = math.sin(sa.light_half[j]) + tol.FACING_EPS_REL
+        return 1 if s > lim else (-1 if s < -lim else 0)
+    return extent_plane_side(sa, j, nx, ny, nz, px, py, pz, margin)

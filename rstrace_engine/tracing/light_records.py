@@ -49,18 +49,17 @@ records, so that a node's light bits there can be updated after a relit light.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from numba import njit, prange
 
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
-from .light_reshade import relight_hard, relight_sampled, tick
+from .light_reshade import relight_light
 from .shader import Surfaces
 from .soft_lights import world_lights
 from .whitted import surfaces
+from .world_samples import WorldSamples
 
 #: slot codes of the world light's and the emission's entries (light slots are < 64)
 WORLD = 254
@@ -73,7 +72,6 @@ GEO_BYTES = 88
 ENTRY_BYTES = 25
 NODE_BYTES = 9  # hit flag and CSR start
 WEIGHT_BYTES = 24  # secondary nodes
-_SURF_BYTES = 5 * 24 + 1 + 4  # a rebuilt surface (kept while a light is dragged)
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -473,7 +471,9 @@ class LightRecords:
         self._pending_p: list = []  # (rays, _Part) of the batches traced since finish
         self._pending_s: list = []
         self._pending_bytes = 0
-        self._ones_k: np.ndarray | None = None
+        #: INTERPOLANT frames while the world lights: the interpolated samples' world terms
+        #: (:meth:`set_world`; None: no such sample yet)
+        self.world: WorldSamples | None = None
         if self.cap <= 0.0:
             self._drop(0)
 
@@ -485,7 +485,12 @@ class LightRecords:
     def nbytes(self) -> int:
         if self.p is None:
             return 0
-        return self.p.nbytes + self.s.nbytes
+        return self.p.nbytes + self.s.nbytes + self.world_bytes
+
+    @property
+    def world_bytes(self) -> int:
+        """The interpolated samples' world terms (:meth:`set_world`): 49 bytes a sample."""
+        return 0 if self.world is None else self.world.nbytes
 
     def _parts(self) -> list:
         return ([self.p] if self.p is not None else []) + [self.s] + \
@@ -500,23 +505,24 @@ class LightRecords:
         self.p = None
         self.s = _Part.empty(False, False)
         self._pending_p, self._pending_s = [], []
+        self.world = None
 
     def _check_cap(self) -> None:
         """Over the cap: drop the geometry, then everything."""
         parts = self._parts()
-        total = sum(q.nbytes for q in parts)
+        total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
         for q in parts:  # the rebuilt surfaces first (a cache)
             q.surf = None
-        total = sum(q.nbytes for q in parts)
+        total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
         if self.no_geometry is None:
             self.forget_geometry(self._message(
                 total, "moved or added lights re-trace the pixels they touch "
                 "(power and colour still relight)"))
-            total = sum(q.nbytes for q in parts)
+            total = sum(q.nbytes for q in parts) + self.world_bytes
         if total > self.cap:
             self._drop(total)
 
@@ -571,9 +577,33 @@ class LightRecords:
         if n > nb:
             self._pending_s.append(blank(n - nb, False))
 
-    def relit_pixels(self, spp: int, n_pixels: int) -> np.ndarray:
-        """(n_pixels,) bool: the pixels whose every sample can be recombined."""
-        return self.ok.reshape(spp, n_pixels).all(axis=0)
+    def add_misses(self, rays: np.ndarray) -> None:
+        """Samples ``rays`` whose primary ray missed and was not traced (an INTERPOLANT
+        frame gives them the world colour): their empty node recombines to exactly that,
+        so they count as recombinable (:attr:`ok`)."""
+        if self.overflow is None:
+            self.ok[np.asarray(rays, np.int64)] = True
+
+    def set_world(self, rays: np.ndarray, on: np.ndarray, coef: np.ndarray,
+                  rest: np.ndarray) -> None:
+        """INTERPOLANT: samples ``rays`` were rendered; ``on`` of them were interpolated
+        with radiance ``rest + coef * world_light`` (:class:`~.world_samples.WorldSamples`:
+        a world colour or strength edit recombines them too)."""
+        if self.overflow is not None:
+            return
+        if self.world is None:
+            if len(on) == 0:
+                return
+            self.world = WorldSamples(self.n_rays)
+        self.world.set(rays, on, coef, rest)
+
+    def relit_pixels(self, spp: int, n_pixels: int, world: bool = False) -> np.ndarray:
+        """(n_pixels,) bool: the pixels whose every sample can be recombined (``world``:
+        or rescaled by its world term, :meth:`set_world`)."""
+        ok = self.ok
+        if world and self.world is not None:
+            ok = ok | self.world.ok
+        return ok.reshape(spp, n_pixels).all(axis=0)
 
     def finish(self, keep: np.ndarray | None) -> None:
         """Drop the secondary nodes not in ``keep`` (None: keep all), then append the
@@ -617,10 +647,12 @@ class LightRecords:
 
     # -- relighting ----------------------------------------------------------------------
 
-    def recombine(self, sa: SceneArrays, s_ray: np.ndarray, spp: int, n_pixels: int
-                  ) -> np.ndarray:
+    def recombine(self, sa: SceneArrays, s_ray: np.ndarray, spp: int, n_pixels: int,
+                  world: bool = False) -> np.ndarray:
         """The frame's radiance (n_pixels, 3) float32 from the terms and the lights of
-        ``sa``: the tracer's sums in its order (bit for bit a fresh frame's)."""
+        ``sa``: the tracer's sums in its order (bit for bit a fresh frame's). ``world``:
+        the samples kept by :meth:`set_world` are ``rest + coef * world_light`` (what the
+        INTERPOLANT frame computes for them)."""
         L = len(sa.light_kind)
         alive = np.asarray(sa.light_kind) >= 0
         ext = np.asarray(sa.light_ext, bool)
@@ -632,6 +664,7 @@ class LightRecords:
         scale = np.zeros((256, 3))
         scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
         scale[WORLD] = sa.world_light
+        rescale_world = world
         world = np.ascontiguousarray(sa.world_color, np.float64)
         rad = np.empty((self.n_rays, 3))
         p, s = self.p, self.s
@@ -647,6 +680,8 @@ class LightRecords:
                 _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale,
                                      *s.detached(), world,
                                      np.ascontiguousarray(s_ray, np.int64), rad)
+            if rescale_world and self.world is not None and world_lights(sa):
+                self.world.apply(rad, sa.world_light)
             accumulate(rad, inst, spp, out, pc)
         return out
 
@@ -656,35 +691,8 @@ class LightRecords:
         else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
         its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
         nodes and of the secondary ones, each (k,) bool. ``counters``: adds ``shadow`` (rays
-        traced) and the stages' seconds (``split``, :data:`SPLIT`)."""
+        traced) and the stages' seconds (``split``, :data:`~.light_reshade.SPLIT`)."""
         if not self.has_geometry:
             raise RuntimeError("light records without geometry cannot shade a light again")
         self.widen(len(sa.light_kind))
-        split = {} if counters is None else counters.setdefault("split", {})
-        bits = []
-        for part in (self.p, self.s):
-            t0 = time.perf_counter()
-            n = len(part)
-            rows = np.flatnonzero(part.hit)
-            # the rebuilt surfaces are kept while they fit under the cap
-            keep = self.nbytes + len(rows) * _SURF_BYTES <= self.cap
-            surf = part.surfaces(sa, keep)
-            tick(split, "surfaces", t0)
-            faced = np.zeros(n, bool)
-            lit = np.zeros(n, bool)
-            if len(rows) == 0:
-                part.detach(j, rows, np.zeros((0, 1), bool), np.zeros((0, 1, 3)))
-            elif sa.light_ext[j]:
-                relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit,
-                                counters, split)
-            else:
-                relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split,
-                             self._ones(len(rows)))
-            bits.append((faced, lit))
-        return bits[0], bits[1]
-
-    def _ones(self, k: int) -> np.ndarray:
-        """(k, 3) ones: the path weights of the shade kernel's nodes (kept between steps)."""
-        if self._ones_k is None or len(self._ones_k) < k:
-            self._ones_k = np.ones((k, 3))
-        return self._ones_k[:k]
+        return relight_light(self, sa, accel, j, light_samples, counters)

@@ -582,8 +582,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                              gids, cancel, settings)
             t_trace += time.perf_counter() - tt
             if lrec is not None and not cancelled:
-                keep_world(lrec, sa, gids, wi if world else None, res.interpolated, hits,
-                           w_coef, w_rest, rough_on, int(settings.max_depth))
+                keep_world(lrec, sa, gids, *((wi, w_coef, w_rest) if world else (None,) * 3),
+                           res.interpolated, hits, rough_on, int(settings.max_depth))
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
             _accumulate(rad, good, ray_class, res.interpolant, acc_rad, acc_good, acc_cls,

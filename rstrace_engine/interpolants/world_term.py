@@ -68,7 +68,7 @@ def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     return out
 
 
-def keep_world(lrec, sa, gids, wi, interp, hits: Hits, coef, rest, rough_on: bool,
+def keep_world(lrec, sa, gids, wi, coef, rest, interp, hits: Hits, rough_on: bool,
                max_depth: int) -> None:
     """A frame's pass of samples ``gids`` to the per-light records ``lrec``: which were
     interpolated with their world term added last (rows ``wi`` (None: the world does not

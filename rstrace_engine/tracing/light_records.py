@@ -489,7 +489,7 @@ class LightRecords:
 
     @property
     def world_bytes(self) -> int:
-        """The interpolated samples' world terms (:meth:`set_world`): 49 bytes a sample."""
+        """The interpolated samples' world terms (:meth:`set_world`)."""
         return 0 if self.world is None else self.world.nbytes
 
     def _parts(self) -> list:

@@ -12,8 +12,9 @@ recombines such a sample as ``R' + c * world_light'`` -- the float64 operations 
 performed, on the same operands -- instead of rendering it again
 (:meth:`~.light_records.LightRecords.recombine`).
 
-Kept per sample of the frame (dense, 49 bytes a sample, allocated at the first such sample),
-as part of the per-light records and under their cap.
+Kept as part of the per-light records, under their cap: 4 bytes per sample of the frame (the
+row of its kept term, -1: none) and 48 per interpolated sample (``c`` and ``R'``, float64
+RGB); rows of samples rendered again are dropped when they outnumber the live ones.
 """
 
 from __future__ import annotations
@@ -22,31 +23,55 @@ import numpy as np
 
 
 class WorldSamples:
-    """Per sample of a frame: whether it is an interpolated sample with its world term kept
-    (``ok``), the interpolated part ``rest`` and the world term's coefficient ``coef``."""
+    """Per sample of a frame: the row of its kept ``coef`` and ``rest`` (-1: not an
+    interpolated sample with its world term kept)."""
 
     def __init__(self, n_rays: int) -> None:
-        self.ok = np.zeros(int(n_rays), np.bool_)
-        self.coef = np.zeros((int(n_rays), 3))
-        self.rest = np.zeros((int(n_rays), 3))
+        self.row = np.full(int(n_rays), -1, np.int32)
+        self.coef = np.zeros((0, 3))
+        self.rest = np.zeros((0, 3))
+        self.n = 0  # rows in use (live or stale)
+        self.stale = 0  # rows whose sample was rendered again
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(n_rays,) bool: the samples with their world term kept."""
+        return self.row >= 0
 
     @property
     def nbytes(self) -> int:
-        return self.ok.nbytes + self.coef.nbytes + self.rest.nbytes
+        return self.row.nbytes + self.coef.nbytes + self.rest.nbytes
 
     def set(self, rays: np.ndarray, on: np.ndarray, coef: np.ndarray,
             rest: np.ndarray) -> None:
         """Samples ``rays`` were rendered again; of them ``on`` keep ``coef``, ``rest``
         ((k, 3) each); the others are not (or no longer) rescalable."""
-        self.ok[np.asarray(rays, np.int64)] = False
+        rays = np.asarray(rays, np.int64)
         on = np.asarray(on, np.int64)
-        self.ok[on] = True
-        self.coef[on] = coef
-        self.rest[on] = rest
+        self.stale += int(np.count_nonzero(self.row[rays] >= 0))
+        self.row[rays] = -1
+        k = len(on)
+        if self.n + k > len(self.coef):
+            cap = max(2 * len(self.coef), self.n + k, 1024)
+            self.coef = np.concatenate([self.coef[:self.n], np.zeros((cap - self.n, 3))])
+            self.rest = np.concatenate([self.rest[:self.n], np.zeros((cap - self.n, 3))])
+        self.coef[self.n:self.n + k] = coef
+        self.rest[self.n:self.n + k] = rest
+        self.row[on] = self.n + np.arange(k, dtype=np.int32)
+        self.n += k
+        if self.stale > self.n - self.stale:
+            self._compact()
+
+    def _compact(self) -> None:
+        live = np.flatnonzero(self.row >= 0)
+        r = self.row[live]
+        self.coef, self.rest = self.coef[r], self.rest[r]
+        self.row[live] = np.arange(len(live), dtype=np.int32)
+        self.n, self.stale = len(live), 0
 
     def apply(self, rad: np.ndarray, world_light: np.ndarray) -> None:
         """The kept samples' radiance in ``rad`` (n_rays, 3) for the world's radiance
         ``world_light`` (3,): ``rest + coef * world_light``, as the frame summed it."""
-        on = self.ok
-        rad[on] = self.rest[on] + self.coef[on] * np.asarray(world_light,
-                                                             np.float64)[None, :]
+        g = np.flatnonzero(self.row >= 0)
+        r = self.row[g]
+        rad[g] = self.rest[r] + self.coef[r] * np.asarray(world_light, np.float64)[None, :]

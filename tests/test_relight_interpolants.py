@@ -292,6 +292,10 @@ def test_world_colour_and_strength_recombine(name):
         fresh = Session(new.scene.copy(), settings()).render()
         m = image.compare(frame.radiance, fresh.radiance, EPS)
         assert m["max_error"] <= EPS + FLOAT_TOL, m
+        # without the records every pixel is rendered again, from the kept interpolants
+        assert frame_old.stats["cells_built"] <= shows_world
+        m = image.compare(frame_old.radiance, base.radiance, EPS)
+        assert m["max_error"] <= EPS + FLOAT_TOL, m
         # (the same cells a fresh session builds: its interpolated part differs by float
         # rounding of R' = L - W only)
         np.testing.assert_allclose(frame.radiance[world_kept], fresh.radiance[world_kept],

@@ -376,11 +376,13 @@ def test_light_deleted_while_a_relit_frame_is_in_flight():
 
 def test_a_drag_keeps_the_light_term_apart():
     """A light moved step after step (a drag) keeps its term apart from the sparse entries
-    (replaced in place each step); another light's edit, a move of another light and an
-    object edit fold it back. Every frame equals a fresh one bit for bit. The Lamp is made
-    unseen by mirror and refraction rays: the pixels that see a light are traced again at
-    every light edit (:mod:`~rstrace_engine.tracing.seen_lights`), and a frame that traces
-    pixels rebuilds the records (the term folded back)."""
+    (replaced in place each step); another light's edit keeps it apart, a move of another
+    light folds it back (and keeps that light's apart). An object edit in the middle of a
+    drag keeps it apart too: the frame that traces the dirty pixels splices their new nodes
+    into the records (:mod:`~rstrace_engine.tracing.light_nodes`), the new nodes' term of
+    the dragged light taken from their entries. Every frame equals a fresh one bit for bit.
+    The Lamp is made unseen by mirror and refraction rays: the pixels that see a light are
+    traced again at every light edit (:mod:`~rstrace_engine.tracing.seen_lights`)."""
     sess = Session(SOAK_SCENES["soft_room"](W, H), SETTINGS)
     sess.apply([LightSet("Lamp", replace(light(sess, "Lamp"), glossy=False,
                                          transmission=False))])
@@ -398,13 +400,19 @@ def test_a_drag_keeps_the_light_term_apart():
     assert sess.reuse.light_records.p.dj == sess.scene.light_slot("Spot")
     step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), power=lamp.power * 0.5))])
     step(sess, [LightDelete("Spot")])
+    step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), position=(0.35, -0.2, 2.9)))])
+    assert sess.reuse.light_records.p.dj == j
     obj = next(k for k, v in sess.scene.instance_keys.slot.items()
                if sess.scene.instances[v]["name"] != "Floor")
-    m = sess.scene.instances[sess.scene.instance_slot(obj)]["matrix"].copy()
-    m[0, 3] += 0.2
-    step(sess, [ObjectTransform(obj, m)], relit=False)
-    assert sess.reuse.light_records.p.dj == -1  # (folded when the records were merged)
-    step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), position=(0.4, -0.2, 2.9)))])
+    for k in range(2):
+        m = sess.scene.instances[sess.scene.instance_slot(obj)]["matrix"].copy()
+        m[0, 3] += 0.2
+        step(sess, [ObjectTransform(obj, m)], relit=False)
+        lr = sess.reuse.light_records
+        assert lr.p.dj == j and lr.s.dj in (j, -1)  # (spliced, not folded)
+        step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), position=(
+            0.4 + 0.05 * k, -0.2, 2.9)))])
+        assert sess.reuse.light_records.p.dj == j
 
 
 def test_light_edits_repack_only_the_lights():

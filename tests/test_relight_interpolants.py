@@ -16,14 +16,16 @@ import pytest
 from bound_scenes import soft_penumbra
 
 from rstrace_engine import image
-from rstrace_engine.bench.soak import SOAK_SCENES
+from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
-from rstrace_engine.geometry.edits import LightSet
+from rstrace_engine.geometry.edits import LightSet, WorldColor
+from rstrace_engine.geometry.scene import SceneError
 from rstrace_engine.interpolants import interpolant_cache
 from rstrace_engine.interpolants.predicate import radiance_ok
 from rstrace_engine.interpolants.relight import light_scale
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.session import Session
+from rstrace_engine.tracing.world_samples import WorldSamples
 
 EPS = 0.05
 FLOAT_TOL = 1e-6  # float32 frames (see tests/test_interpolant_bound.py)
@@ -230,3 +232,162 @@ def test_traced_pixels_are_relit_from_the_light_records(name):
         base = Session(new.scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
         np.testing.assert_array_equal(frame.radiance[relit], base.radiance[relit])
         check_bound(frame, new.scene)
+
+
+# ----------------------------------------------------------------------------- the world
+
+
+def _lit_world(make):
+    """A bound test scene with a grey world that lights (its term left out of the
+    interpolants and traced per interpolated pixel, docs/INTERPOLANTS.md)."""
+    def build():
+        s = make()
+        s.set_world_color((0.2, 0.22, 0.25), lights=True)
+        return s
+    return build
+
+
+WORLD_SCENES = {"spheres": _lit_world(_spheres), "soft_penumbra": _lit_world(_soft)}
+
+
+def _world_edit(sess: Session, colour=None, strength: float = 1.0, lights=None) -> list:
+    c = sess.scene.world_color if colour is None else np.asarray(colour)
+    return [WorldColor(tuple(float(x) for x in np.asarray(c) * strength), lights)]
+
+
+@pytest.mark.parametrize("name", sorted(WORLD_SCENES))
+def test_world_colour_and_strength_recombine(name):
+    """The world's colour, then its strength, changed while it lights: nothing is traced
+    and nothing rebuilt -- the traced pixels are recombined from their light records (a
+    fresh BASE frame's bit for bit), the interpolated ones from their interpolated part and
+    their own world term rescaled (``R' + c * world``, the world term kept per sample) --
+    and the frame equals a fresh INTERPOLANT frame within epsilon (maximum asserted)."""
+    scene = WORLD_SCENES[name]()
+    new, old = session(scene, True), session(scene, False)
+    first = new.render()
+    old.render()
+    assert first.stats["interpolated_fraction"] > 0.2
+    pool = new.interpolants.cache.pool
+    shows_world = int(np.count_nonzero(pool.world & pool.live))
+    for step in (dict(colour=(0.4, 0.3, 0.15)), dict(strength=2.5)):
+        rep, rep_old = new.apply(_world_edit(new, **step)), old.apply(_world_edit(old, **step))
+        assert rep.relight and not rep_old.relight
+        # only interpolants whose trees show the world (a reflection of the sky) go
+        assert rep.invalidated_interpolants == shows_world
+        assert rep.dirty_pixels < rep_old.dirty_pixels
+        frame, frame_old = new.render(), old.render()
+        assert frame.stats["relit"] and frame.stats["relight_shadow_rays"] == 0
+        if shows_world == 0:
+            assert rep.dirty_pixels == 0
+            assert frame.stats["traced_rays"] == 0 and frame.stats["shadow_rays"] == 0
+            assert frame.stats["cells_built"] == 0
+        assert frame.stats["traced_rays"] < frame_old.stats["traced_rays"]
+        lr, rec = new.reuse.light_records, new.reuse.records
+        traced = lr.relit_pixels(rec.spp, rec.n_pixels).reshape(frame.pixel_class.shape)
+        world_kept = lr.relit_pixels(rec.spp, rec.n_pixels, world=True).reshape(
+            frame.pixel_class.shape) & ~traced
+        assert traced.mean() > 0.1 and world_kept.mean() > 0.1
+        base = Session(new.scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
+        np.testing.assert_array_equal(frame.radiance[traced], base.radiance[traced])
+        fresh = Session(new.scene.copy(), settings()).render()
+        m = image.compare(frame.radiance, fresh.radiance, EPS)
+        assert m["max_error"] <= EPS + FLOAT_TOL, m
+        # without the records every pixel is rendered again, from the kept interpolants
+        assert frame_old.stats["cells_built"] <= shows_world
+        m = image.compare(frame_old.radiance, base.radiance, EPS)
+        assert m["max_error"] <= EPS + FLOAT_TOL, m
+        # (the same cells a fresh session builds: its interpolated part differs by float
+        # rounding of R' = L - W only)
+        np.testing.assert_allclose(frame.radiance[world_kept], fresh.radiance[world_kept],
+                                   rtol=1e-5, atol=1e-6)
+        check_bound(frame, new.scene)
+        pool = new.interpolants.cache.pool
+        shows_world = int(np.count_nonzero(pool.world & pool.live))
+
+
+@pytest.mark.parametrize("step", ["black", "background", "black_to_lit", "background_to_lit"])
+def test_world_that_starts_or_stops_lighting_rebuilds(step):
+    """A world edit that changes whether the world lights (black <-> a colour, or its
+    lights flag) changes what every interpolant holds (its term at the roots is left out
+    of the samples only while it lights): every interpolant is invalidated and the frame
+    rendered again (not relit), within epsilon, traced pixels exact."""
+    scene = WORLD_SCENES["soft_penumbra"]()
+    if step.endswith("_to_lit"):
+        scene.set_world_color((0.0, 0.0, 0.0) if step.startswith("black") else
+                              (0.2, 0.22, 0.25), lights=not step.startswith("background"))
+    sess = session(scene, True)
+    sess.render()
+    live = sess.interpolants.cache.pool.n_live
+    assert live > 0
+    edit = {"black": [WorldColor((0.0, 0.0, 0.0))],
+            "background": [WorldColor((0.2, 0.22, 0.25), lights=False)],
+            "black_to_lit": [WorldColor((0.3, 0.3, 0.35), lights=True)],
+            "background_to_lit": [WorldColor((0.2, 0.22, 0.25), lights=True)]}[step]
+    rep = sess.apply(edit)
+    assert not rep.relight
+    assert rep.invalidated_interpolants == live
+    frame = sess.render()
+    assert not frame.stats.get("relit")
+    check_bound(frame, sess.scene)
+    # and the next world colour edit, lighting before and after, recombines again
+    if step.endswith("_to_lit"):
+        rep = sess.apply(_world_edit(sess, strength=0.5))
+        assert rep.relight and rep.dirty_pixels == 0
+        check_bound(sess.render(), sess.scene)
+
+
+@pytest.mark.parametrize("bad", [(float("nan"), 0.2, 0.2), (0.2, float("inf"), 0.2),
+                                 (0.2, -0.1, 0.2)])
+def test_bad_world_colour_keeps_the_frame(bad):
+    """A NaN, infinite or negative world colour (or strength) is refused naming the world;
+    nothing is applied, no relight is pending and the next frame is the previous one."""
+    sess = session(WORLD_SCENES["soft_penumbra"](), True)
+    first = sess.render()
+    key = "Area"
+    with pytest.raises(SceneError, match="world"):
+        sess.apply(edit(sess, key, power=0.5) + [WorldColor(bad)])
+    assert not sess.reuse.relight_due
+    assert sess.scene.lights[sess.scene.light_slot(key)].power == 350.0  # nothing applied
+    again = sess.render()
+    np.testing.assert_array_equal(again.radiance, first.radiance)
+
+
+def test_random_edits_with_a_world_that_lights():
+    """Seeded random edit batches (every kind, the light extents) on a scene whose world
+    lights, a world colour edit after each: every frame within epsilon of a fresh BASE
+    frame (and a fresh INTERPOLANT session's), traced pixels BASE's; the world edits that
+    keep it lighting and follow a frame with records are relit."""
+    gen = EditGenerator(WORLD_SCENES["soft_penumbra"](), seed=31, camera=False,
+                        extra=EditGenerator.SOFT_KINDS)
+    sess = session(gen.scene, True)
+    sess.render()
+    rng = np.random.default_rng(7)
+    relit = 0
+    for _ in range(5):
+        for batch in (gen.step(), [WorldColor(tuple(rng.uniform(0.05, 0.4, 3)))]):
+            rep = sess.apply(batch)
+            relit += rep.relight and any(isinstance(e, WorldColor) for e in batch)
+            check_bound(sess.render(), sess.scene)
+    assert relit >= 3, relit
+
+
+def test_world_samples_follow_the_rendered_samples():
+    """The kept world terms (``tracing/world_samples.py``): samples rendered again replace
+    theirs (or drop them), stale rows are compacted away, and the recombined radiance is
+    ``rest + coef * world`` of each sample's latest entry."""
+    rng = np.random.default_rng(3)
+    ws = WorldSamples(4000)
+    want = np.full((4000, 3), np.nan)
+    for _ in range(12):
+        rays = rng.choice(4000, 1500, replace=False)
+        on = rays[rng.random(len(rays)) < 0.6]
+        coef, rest = rng.random((len(on), 3)), rng.random((len(on), 3))
+        ws.set(rays, on, coef, rest)
+        want[rays] = np.nan
+        want[on] = rest + coef * np.array([0.3, 0.2, 0.1])[None, :]
+        assert ws.stale <= ws.n - ws.stale or ws.n == 0
+    rad = np.full((4000, 3), np.nan)
+    ws.apply(rad, np.array([0.3, 0.2, 0.1]))
+    np.testing.assert_array_equal(ws.ok, ~np.isnan(want[:, 0]))
+    np.testing.assert_array_equal(rad, want)
+    assert ws.nbytes < 4000 * 4 + 2 * 48 * 4000

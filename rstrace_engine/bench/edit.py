@@ -2,7 +2,7 @@
 
 ``python -m rstrace_engine.bench edit [--json] [--width W] [--height H]
 [--scenes museum,three_spheres] [--modes BASE,INTERPOLANT] [--out DIR] [--threads N]
-[--clock wall|cpu] [--soak N [--soak-mode BASE|INTERPOLANT]]``
+[--clock wall|cpu] [--rows ROW,...] [--soak N [--soak-mode BASE|INTERPOLANT]]``
 
 For each scene (640x480, ray depth 5) and mode (BASE, INTERPOLANT at epsilon 0.01), one
 session renders the scene's camera, then takes the edits below one after another, rendering
@@ -51,7 +51,10 @@ INTERPOLANT`` it runs them in an INTERPOLANT session on soft-lit scenes, each fr
 epsilon of a fresh BASE frame (:func:`.soak.interpolant_soak`).
 
 ``soft_room`` (the soak's room with sphere, sun-with-angle and area lights and a world that
-lights, at the bench's size) has the light rows only, plus ``resize_area_light``. BASE light
+lights, at the bench's size) and ``museum_soft`` (two area lights, a spot with a radius, a
+sun with an angle through a skylight and a world that lights; the light rows on
+``Ceiling0``, the spot moved, the sun deleted) have the light rows only, plus
+``resize_area_light``. ``--rows light_power,world_colour`` runs those rows alone. BASE light
 rows relight the frame from its per-light records (``tracing.light_records``): the
 ``relight_s`` and ``light_records_mb`` columns.
 """
@@ -174,6 +177,9 @@ def setup(name: str, width: int, height: int) -> tuple[Scene, dict]:
 
         s = soft_room(width, height)
         return s, _light_edits(s, "Lamp", "Lamp", "Sun")
+    elif name == "museum_soft":
+        s = scenes.museum_soft(width, height)
+        return s, _light_edits(s, "Ceiling0", "Spot", "Sun")
     else:
         raise ValueError(f"edit bench: unknown scene {name!r}")
     s.add_material(Material("green", diffuse=(0.1, 0.6, 0.15)), key="green")
@@ -238,7 +244,7 @@ def _dirty_png(path: Path, frame, dirty) -> None:
 
 
 def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path | None,
-              log=print) -> list[dict]:
+              log=print, rows_wanted=ROWS) -> list[dict]:
     rows: list[dict] = []
     base_frames: dict[str, np.ndarray] = {}
     for mode in modes:
@@ -253,7 +259,7 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
         sess.render()
         log(f"{name} {mode}: first frame {CLOCK() - t0:.2f} s")
         for row in ROWS:
-            if row not in edits:
+            if row not in edits or row not in rows_wanted:
                 continue
             rep = sess.apply(edits[row])
             dirty = sess.dirty_mask
@@ -406,6 +412,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                    help="wall time, or this process's CPU time (with --threads 1 on a "
                         "shared machine)")
+    p.add_argument("--rows", default=",".join(ROWS),
+                   help="the rows to run, in the bench's order (default: all)")
     p.add_argument("--soak", type=int, default=0,
                    help="run this many random edit batches checked against fresh frames")
     p.add_argument("--soak-mode", choices=("BASE", "INTERPOLANT"), default="BASE",
@@ -452,7 +460,8 @@ def main(argv: list[str]) -> int:
     rows = []
     for name in args.scenes.split(","):
         rows += run_scene(name.strip(), args.width, args.height, args.depth,
-                          [m.strip() for m in args.modes.split(",")], out, log)
+                          [m.strip() for m in args.modes.split(",")], out, log,
+                          [r.strip() for r in args.rows.split(",")])
     note = (f"{'process CPU time' if args.clock == 'cpu' else 'wall time'}, "
             f"{args.threads or 'all'} numba thread(s)")
     (out / "edit.md").write_text(markdown(rows, args.width, args.height, note))

@@ -354,8 +354,14 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     if len(sa.light_kind) != len(old.light_kind):
         raise ValueError("take_edits: the number of light slots changed (start a new cache)")
     if fx.scene_content_changed:
-        # a world that lights (before or after) shades every surface: all interpolants
-        everything = fx.world and (fx.world_lights or bool(np.any(old.world_light > 0.0)))
+        # a world that starts or stops lighting shades every surface: all interpolants (its
+        # term at the roots was or was not left out of the samples; cells with a surface
+        # below the root failed while it lit). One that lights before and after changes
+        # what interpolants hold only where their ray trees show it (``fx.world``, below):
+        # the samples leave its term at the root out (world_term.py)
+        lit_old = bool(np.any(old.world_light > 0.0))
+        lit_new = bool(np.any(sa.world_light > 0.0))
+        everything = fx.world and (lit_old or lit_new) and not (lit_old and lit_new)
         # a light whose power or colour alone changed rescales what it shades (relight.py)
         resc = rescalable_lights(old, sa, fx.lights_shading) if cache.light_terms else []
         r = rescale(cache, old, sa, resc)

@@ -60,7 +60,7 @@ from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_po
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
-from .world_term import world_term
+from .world_term import keep_world, world_term
 
 log = logging.getLogger(__name__)
 
@@ -532,15 +532,22 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             fs = _add_stats(fs, cache.frame_stats)
             if rep is not None:
                 n_rep += int(np.count_nonzero(rep))
+            # the per-light records keep the interpolated samples' world terms apart
+            # (world_samples.py: a world colour edit rescales them)
+            lrec = records.light if records is not None else None
+            if lrec is not None and not lrec.partial:
+                lrec = None
             if world:  # the world's term, per pixel, where cells interpolated
                 tw = time.perf_counter()
                 wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
                 if "idx" in probe:
                     wi = np.setdiff1d(wi, probe["idx"])
+                w_coef = np.empty((len(wi), 3)) if lrec is not None else None
+                w_rest = res.radiance[wi] if lrec is not None else None
                 res.radiance[wi] += world_term(
                     sa, cache.accel, o[wi], d[wi], tmax[wi], _take(hits, wi),
                     sample_seeds(gids[wi], int(settings.seed)), int(settings.light_samples),
-                    counters)
+                    counters, coefficient=w_coef)
                 t_world += time.perf_counter() - tw
             if "idx" in probe:  # traced already: done
                 pr = probe["idx"]
@@ -581,6 +588,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                              rep, res.interpolant, rad, counters, records,
                                              gids, cancel, settings)
             t_trace += time.perf_counter() - tt
+            if lrec is not None and not cancelled:
+                keep_world(lrec, sa, gids, *((wi, w_coef, w_rest) if world else (None,) * 3),
+                           res.interpolated, hits, rough_on, int(settings.max_depth))
             good = np.empty(k, np.bool_)
             bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
             _accumulate(rad, good, ray_class, res.interpolant, acc_rad, acc_good, acc_cls,

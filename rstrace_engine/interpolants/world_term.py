@@ -22,21 +22,28 @@ from ..accel.accelerators import Hits
 from ..frame import LIGHT_SAMPLES_DEFAULT
 from ..tracing.soft_lights import node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
+from .glossy_term import rough_roots
 from .samples import TEX_MISMATCH, textured_roots
 
 
 def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
                seeds: np.ndarray, light_samples: int, counters: dict | None = None,
-               max_depth: int = 0) -> np.ndarray:
+               max_depth: int = 0, coefficient: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) float64: the world's light term at the root hits ``hits`` of rays ``o, d``
     ((n, 3), bounds ``tmax`` (n,) or a scalar, as the tracer was given them) with input-ray
     seeds ``seeds`` (n,) uint64 (:func:`~..tracing.soft_lights.sample_seeds`) and
     ``light_samples`` per point: what :func:`~..tracing.whitted.trace` adds for the world
     at the root, bit for bit. Misses get 0. ``counters["shadow"]`` counts its rays. With
     ``max_depth`` above 0 a rough root's glossy rays carry the world's glossy reflection and
-    its world samples light its diffuse part only, as in the tracer."""
+    its world samples light its diffuse part only, as in the tracer. ``coefficient`` (n, 3)
+    float64, when given, receives the term over the world's radiance (0 where it is not
+    added): the term is ``coefficient * sa.world_light`` bit for bit, so a world colour or
+    strength edit rescales it without a ray (:meth:`~..tracing.light_records.LightRecords.
+    set_world`)."""
     n = len(o)
     out = np.zeros((n, 3))
+    if coefficient is not None:
+        coefficient[:] = 0.0
     if n == 0:
         return out
     o = np.ascontiguousarray(o, np.float64)
@@ -56,7 +63,27 @@ def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
                            seeds=root)
     on = tp[:, L]
     out[on] = tv[on, L] * np.asarray(sa.world_light, np.float64)[None, :]
+    if coefficient is not None:
+        coefficient[on] = tv[on, L]
     return out
+
+
+def keep_world(lrec, sa, gids, wi, coef, rest, interp, hits: Hits, rough_on: bool,
+               max_depth: int) -> None:
+    """A frame's pass of samples ``gids`` to the per-light records ``lrec``: which were
+    interpolated with their world term added last (rows ``wi`` (None: the world does not
+    light), still ``interp``olated, not on a rough surface whose glossy rays were added
+    after it), with that term's ``coef`` (:func:`world_term`'s ``coefficient``) and the
+    radiance ``rest`` it was added to (:meth:`~..tracing.light_records.LightRecords.
+    set_world`: a world colour or strength edit rescales them)."""
+    if wi is None or len(wi) == 0:
+        lrec.set_world(gids, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        return
+    keep = interp[wi].copy()
+    if rough_on:
+        h = Hits(hits.t[wi], hits.inst[wi], hits.prim[wi], hits.u[wi], hits.v[wi])
+        keep &= ~rough_roots(sa, h, max_depth)
+    lrec.set_world(gids, gids[wi[keep]], coef[keep], rest[keep])
 
 
 def _any_hit(accel):

@@ -24,6 +24,7 @@ and :meth:`FrameReuse.finish` after it.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -136,11 +137,21 @@ class FrameReuse:
             if f.pixel_interpolant is not None:
                 # INTERPOLANT: its traced pixels are relit; the pixels of rescaled or
                 # invalidated interpolants, and those with interpolated samples that the
-                # edit touches, are rendered again
+                # edit touches, are rendered again -- but for the world's colour (lighting
+                # before and after), the interpolated samples whose world term was kept
+                # (world_samples.py): recombined too
                 t0 = time.perf_counter()
                 lr = self.light_records
-                dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
-                dirty &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
+                cp = camera_params(camera)
+                dirty = np.zeros(rec.n_pixels, bool)
+                if fx.lights:
+                    dirty |= rec.dirty_pixels(old_sa, cp, replace(fx, world=False,
+                                                                  world_lights=False))
+                    dirty &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
+                if fx.world:
+                    dirty |= rec.dirty_pixels(old_sa, cp, EditEffects(
+                        world=True, world_lights=fx.world_lights)) & ~lr.relit_pixels(
+                            rec.spp, rec.n_pixels, world=True)
                 pi = f.pixel_interpolant.reshape(-1)
                 if rebuilt is not None:
                     dirty |= rebuilt
@@ -199,9 +210,13 @@ class FrameReuse:
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
             return False
-        if self.light_records.partial and (fx.world or fx.lights_moved):
-            # INTERPOLANT: a light's power or colour (its interpolants rescaled); the world's
-            # term and a moved light's shafts take the interpolants' path
+        if self.light_records.partial and (fx.lights_moved or fx.world and not (
+                world_lights(old_sa) and world_lights(new_sa))):
+            # INTERPOLANT: a light's power or colour (its interpolants rescaled), the world's
+            # colour or strength while it lights (the interpolants leave its term out, the
+            # samples kept it apart); a moved light's shafts, a world that starts or stops
+            # lighting (every interpolant invalidated) and a background's colour (the
+            # pixels that show it) take the interpolants' path
             return False
         if fx.lights_moved and any(a.shape[0] for sa in (old_sa, new_sa)
                                    for a in (sa.light_recv, sa.light_block)):
@@ -240,9 +255,10 @@ class FrameReuse:
                 split["light_bits"] = split.get("light_bits", 0.0) + time.perf_counter() - t1
         rec = self.records
         t1 = time.perf_counter()
-        rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
+        rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
+                           world=lr.partial)
         if lr.partial:  # (INTERPOLANT: its traced pixels; the others as they were)
-            ok = lr.relit_pixels(rec.spp, rec.n_pixels)
+            ok = lr.relit_pixels(rec.spp, rec.n_pixels, world=world_lights(sa))
             rad = np.where(ok[:, None], rad, base.radiance.reshape(-1, 3))
         split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and

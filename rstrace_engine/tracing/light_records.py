@@ -49,22 +49,29 @@ records, so that a node's light bits there can be updated after a relit light.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from numba import njit, prange
 
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
-from .light_reshade import relight_hard, relight_sampled, tick
+from .light_nodes import (
+    EMIT,
+    WORLD,
+    count_terms,
+    detach_terms,
+    fill_terms,
+    node_ranges,
+    replace_entries,
+    splice,
+    term_of,
+)
+from .light_reshade import relight_light
 from .shader import Surfaces
 from .soft_lights import world_lights
 from .whitted import surfaces
+from .world_samples import WorldSamples
 
-#: slot codes of the world light's and the emission's entries (light slots are < 64)
-WORLD = 254
-EMIT = 255
 #: what shading a light again needs, per node that hit a surface
 _GEO = dict(o=((3,), np.float64), d=((3,), np.float64), t=((), np.float64),
             inst=((), np.int32), prim=((), np.int32), u=((), np.float64),
@@ -73,48 +80,9 @@ GEO_BYTES = 88
 ENTRY_BYTES = 25
 NODE_BYTES = 9  # hit flag and CSR start
 WEIGHT_BYTES = 24  # secondary nodes
-_SURF_BYTES = 5 * 24 + 1 + 4  # a rebuilt surface (kept while a light is dragged)
 
 
 # ----------------------------------------------------------------------------- kernels
-
-
-@njit(cache=True, nogil=True)
-def _count_terms(t_on, t_val, hit, count):
-    """Entries per node of a batch's dense terms (the shade kernel's ``tp``, ``tv``)."""
-    L = t_on.shape[1] - 2
-    for i in range(t_on.shape[0]):
-        c = 0
-        if hit[i]:
-            for j in range(L + 1):
-                if t_on[i, j]:
-                    c += 1
-            if t_val[i, L + 1, 0] != 0.0 or t_val[i, L + 1, 1] != 0.0 or \
-                    t_val[i, L + 1, 2] != 0.0:
-                c += 1
-        count[i] = c
-
-
-@njit(cache=True, nogil=True)
-def _fill_terms(t_on, t_val, hit, start, slot, val):
-    L = t_on.shape[1] - 2
-    for i in range(t_on.shape[0]):
-        if not hit[i]:
-            continue
-        e = start[i]
-        for j in range(L + 1):
-            if t_on[i, j]:
-                slot[e] = j if j < L else WORLD
-                val[e, 0] = t_val[i, j, 0]
-                val[e, 1] = t_val[i, j, 1]
-                val[e, 2] = t_val[i, j, 2]
-                e += 1
-        if t_val[i, L + 1, 0] != 0.0 or t_val[i, L + 1, 1] != 0.0 or \
-                t_val[i, L + 1, 2] != 0.0:
-            slot[e] = EMIT
-            val[e, 0] = t_val[i, L + 1, 0]
-            val[e, 1] = t_val[i, L + 1, 1]
-            val[e, 2] = t_val[i, L + 1, 2]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -194,61 +162,6 @@ def _recombine_secondary(hit, start, slot, val, w, use, scale, dj, d_on, d_val, 
         rad[g, 2] += w[k, 2] * b
 
 
-@njit(cache=True, nogil=True)
-def _replace_slot(start, slot, val, j, on, nval, new_start, new_slot, new_val):
-    """Node entries with slot ``j``'s replaced: present where ``on`` (k,), value ``nval``
-    (k, 3); entries stay in slot order. ``new_start`` (k + 1,) is filled first (counts)."""
-    k = start.shape[0] - 1
-    new_start[0] = 0
-    for i in range(k):
-        c = 0
-        for e in range(start[i], start[i + 1]):
-            if slot[e] != j:
-                c += 1
-        new_start[i + 1] = new_start[i] + c + (1 if on[i] else 0)
-    if new_slot.shape[0] == 0:
-        return
-    for i in range(k):
-        o = new_start[i]
-        placed = not on[i]
-        for e in range(start[i], start[i + 1]):
-            c = slot[e]
-            if c == j:
-                continue
-            if not placed and c > j:
-                new_slot[o] = j
-                new_val[o, 0] = nval[i, 0]
-                new_val[o, 1] = nval[i, 1]
-                new_val[o, 2] = nval[i, 2]
-                o += 1
-                placed = True
-            new_slot[o] = c
-            new_val[o, 0] = val[e, 0]
-            new_val[o, 1] = val[e, 1]
-            new_val[o, 2] = val[e, 2]
-            o += 1
-        if not placed:
-            new_slot[o] = j
-            new_val[o, 0] = nval[i, 0]
-            new_val[o, 1] = nval[i, 1]
-            new_val[o, 2] = nval[i, 2]
-
-
-@njit(cache=True, nogil=True)
-def _detach_terms(rows, tp, tv, c, d_on, d_val):
-    """A detached term (:meth:`_Part.detach`): present at nodes ``rows[r]`` where
-    ``tp[r, c]``, with the value ``tv[r, c]``, absent elsewhere."""
-    for i in range(d_on.shape[0]):
-        d_on[i] = False
-    for r in range(rows.shape[0]):
-        if tp[r, c]:
-            g = rows[r]
-            d_on[g] = True
-            d_val[g, 0] = tv[r, c, 0]
-            d_val[g, 1] = tv[r, c, 1]
-            d_val[g, 2] = tv[r, c, 2]
-
-
 _loaded = [False]
 
 
@@ -268,20 +181,11 @@ def load_kernels() -> None:
                          np.zeros(3), np.zeros(0, np.int64), rad)
     s.replace_slot(0, np.zeros(0, bool), np.zeros((0, 3)))
     s.detach(0, np.zeros(0, np.int64), np.zeros((0, 3), bool), np.zeros((0, 3, 3)))
+    g = _Part.empty(True, True)  # (an incremental frame's splice)
+    g.splice(np.zeros(0, np.int64), _Part.empty(True, True))
 
 
 # ----------------------------------------------------------------------------- parts
-
-
-def _ranges(start: np.ndarray, rows: np.ndarray):
-    """Entry indices of nodes ``rows`` (concatenated) and their counts."""
-    a = start[rows]
-    n = start[rows + 1] - a
-    total = int(n.sum())
-    if total == 0:
-        return np.zeros(0, np.int64), n
-    off = np.cumsum(n) - n
-    return np.repeat(a - off, n) + np.arange(total), n
 
 
 class _Part:
@@ -315,12 +219,12 @@ class _Part:
         n = len(hit)
         count = np.empty(n, np.int64)
         t_on, t_val = np.ascontiguousarray(a["t_on"]), np.ascontiguousarray(a["t_val"])
-        _count_terms(t_on, t_val, hit, count)
+        count_terms(t_on, t_val, hit, count)
         start = np.zeros(n + 1, np.int64)
         np.cumsum(count, out=start[1:])
         slot = np.empty(int(start[-1]), np.uint8)
         val = np.empty((int(start[-1]), 3))
-        _fill_terms(t_on, t_val, hit, start, slot, val)
+        fill_terms(t_on, t_val, hit, start, slot, val)
         geo = None
         if geometry:
             geo = {key: np.ascontiguousarray(a[key][hit], dt)
@@ -385,7 +289,7 @@ class _Part:
             self.dj = int(j)
             self.d_on = np.zeros(n, np.bool_)
             self.d_val = np.empty((n, 3))
-        _detach_terms(np.ascontiguousarray(rows, np.int64), tp, tv, int(c), self.d_on,
+        detach_terms(np.ascontiguousarray(rows, np.int64), tp, tv, int(c), self.d_on,
                       self.d_val)
 
     def fold(self) -> None:
@@ -398,23 +302,38 @@ class _Part:
         self.replace_slot(j, on, val)
 
     def take(self, rows: np.ndarray) -> _Part:
-        """The nodes ``rows`` (int64) in that order."""
-        self.fold()
+        """The nodes ``rows`` (int64) in that order (a detached term taken along)."""
         hit = self.hit[rows]
-        idx, n = _ranges(self.start, rows)
+        idx, n = node_ranges(self.start, rows)
         start = np.zeros(len(rows) + 1, np.int64)
         np.cumsum(n, out=start[1:])
         geo = None
         if self.geo is not None:
             grow = (np.cumsum(self.hit) - 1)[rows[hit]]
             geo = {key: x[grow] for key, x in self.geo.items()}
-        return _Part(hit, start, self.slot[idx], self.val[idx],
-                     None if self.weight is None else self.weight[rows], geo)
+        out = _Part(hit, start, self.slot[idx], self.val[idx],
+                    None if self.weight is None else self.weight[rows], geo)
+        if self.dj >= 0:
+            out.dj, out.d_on, out.d_val = self.dj, self.d_on[rows], self.d_val[rows]
+        return out
+
+    def splice(self, rows: np.ndarray, new: _Part) -> _Part:
+        """These nodes with the sorted ``rows`` replaced by ``new``'s nodes (a detached
+        term carried: :mod:`.light_splice`)."""
+        hit, start, slot, val, geo = splice(self, rows, new)
+        out = _Part(hit, start, slot, val, None, geo)
+        if self.dj >= 0:
+            out.dj, out.d_on, out.d_val = self.dj, self.d_on, self.d_val
+        return out
 
     @staticmethod
     def concat(parts: list) -> _Part:
-        for p in parts:
-            p.fold()
+        dj = {p.dj for p in parts if p.dj >= 0}
+        for p in parts:  # (two lights detached: folded; a fresh part's own entry carried)
+            if len(dj) > 1:
+                p.fold()
+            elif dj and p.dj < 0:
+                p.dj, (p.d_on, p.d_val) = min(dj), term_of(p.start, p.slot, p.val, min(dj))
         starts, off = [np.zeros(1, np.int64)], 0
         for p in parts:
             starts.append(p.start[1:] + off)
@@ -425,19 +344,24 @@ class _Part:
         weight = None
         if parts[0].weight is not None:
             weight = np.concatenate([p.weight for p in parts])
-        return _Part(np.concatenate([p.hit for p in parts]), np.concatenate(starts),
-                     np.concatenate([p.slot for p in parts]),
-                     np.concatenate([p.val for p in parts]), weight, geo)
+        out = _Part(np.concatenate([p.hit for p in parts]), np.concatenate(starts),
+                    np.concatenate([p.slot for p in parts]),
+                    np.concatenate([p.val for p in parts]), weight, geo)
+        if parts[0].dj >= 0:
+            out.dj = parts[0].dj
+            out.d_on = np.concatenate([p.d_on for p in parts])
+            out.d_val = np.concatenate([p.d_val for p in parts])
+        return out
 
     def replace_slot(self, j: int, on: np.ndarray, nval: np.ndarray) -> None:
         """Light slot ``j``'s entries replaced (present where ``on`` (k,), ``nval`` (k, 3))."""
         new_start = np.empty_like(self.start)
         empty = np.zeros(0, np.uint8), np.zeros((0, 3))
-        _replace_slot(self.start, self.slot, self.val, j, on, nval, new_start, *empty)
+        replace_entries(self.start, self.slot, self.val, j, on, nval, new_start, *empty)
         slot = np.empty(int(new_start[-1]), np.uint8)
         val = np.empty((len(slot), 3))
         if len(slot):
-            _replace_slot(self.start, self.slot, self.val, j, on, nval, new_start, slot, val)
+            replace_entries(self.start, self.slot, self.val, j, on, nval, new_start, slot, val)
         self.start, self.slot, self.val = new_start, slot, val
 
 
@@ -473,7 +397,9 @@ class LightRecords:
         self._pending_p: list = []  # (rays, _Part) of the batches traced since finish
         self._pending_s: list = []
         self._pending_bytes = 0
-        self._ones_k: np.ndarray | None = None
+        #: INTERPOLANT frames while the world lights: the interpolated samples' world terms
+        #: (:meth:`set_world`; None: no such sample yet)
+        self.world: WorldSamples | None = None
         if self.cap <= 0.0:
             self._drop(0)
 
@@ -485,7 +411,12 @@ class LightRecords:
     def nbytes(self) -> int:
         if self.p is None:
             return 0
-        return self.p.nbytes + self.s.nbytes
+        return self.p.nbytes + self.s.nbytes + self.world_bytes
+
+    @property
+    def world_bytes(self) -> int:
+        """The interpolated samples' world terms (:meth:`set_world`)."""
+        return 0 if self.world is None else self.world.nbytes
 
     def _parts(self) -> list:
         return ([self.p] if self.p is not None else []) + [self.s] + \
@@ -500,23 +431,24 @@ class LightRecords:
         self.p = None
         self.s = _Part.empty(False, False)
         self._pending_p, self._pending_s = [], []
+        self.world = None
 
     def _check_cap(self) -> None:
         """Over the cap: drop the geometry, then everything."""
         parts = self._parts()
-        total = sum(q.nbytes for q in parts)
+        total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
         for q in parts:  # the rebuilt surfaces first (a cache)
             q.surf = None
-        total = sum(q.nbytes for q in parts)
+        total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
         if self.no_geometry is None:
             self.forget_geometry(self._message(
                 total, "moved or added lights re-trace the pixels they touch "
                 "(power and colour still relight)"))
-            total = sum(q.nbytes for q in parts)
+            total = sum(q.nbytes for q in parts) + self.world_bytes
         if total > self.cap:
             self._drop(total)
 
@@ -571,18 +503,47 @@ class LightRecords:
         if n > nb:
             self._pending_s.append(blank(n - nb, False))
 
-    def relit_pixels(self, spp: int, n_pixels: int) -> np.ndarray:
-        """(n_pixels,) bool: the pixels whose every sample can be recombined."""
-        return self.ok.reshape(spp, n_pixels).all(axis=0)
+    def add_misses(self, rays: np.ndarray) -> None:
+        """Samples ``rays`` whose primary ray missed and was not traced (an INTERPOLANT
+        frame gives them the world colour): their empty node recombines to exactly that,
+        so they count as recombinable (:attr:`ok`)."""
+        if self.overflow is None:
+            self.ok[np.asarray(rays, np.int64)] = True
+
+    def set_world(self, rays: np.ndarray, on: np.ndarray, coef: np.ndarray,
+                  rest: np.ndarray) -> None:
+        """INTERPOLANT: samples ``rays`` were rendered; ``on`` of them were interpolated
+        with radiance ``rest + coef * world_light`` (:class:`~.world_samples.WorldSamples`:
+        a world colour or strength edit recombines them too)."""
+        if self.overflow is not None:
+            return
+        if self.world is None:
+            if len(on) == 0:
+                return
+            self.world = WorldSamples(self.n_rays)
+        self.world.set(rays, on, coef, rest)
+
+    def relit_pixels(self, spp: int, n_pixels: int, world: bool = False) -> np.ndarray:
+        """(n_pixels,) bool: the pixels whose every sample can be recombined (``world``:
+        or rescaled by its world term, :meth:`set_world`)."""
+        ok = self.ok
+        if world and self.world is not None:
+            ok = ok | self.world.ok
+        return ok.reshape(spp, n_pixels).all(axis=0)
 
     def finish(self, keep: np.ndarray | None) -> None:
         """Drop the secondary nodes not in ``keep`` (None: keep all), then append the
         batches added since (as :meth:`~.pixel_records.PixelRecords.finish` does)."""
         if self.overflow is not None:
             return
-        if self._pending_p or self._pending_s or (keep is not None and not keep.all()):
-            for q in self._parts():  # (a relit frame's dragged light stays detached)
-                q.fold()
+        if self._pending_p and self.p is not None and len(self.p) == self.n_rays:
+            # an incremental frame: its samples' new nodes spliced in place (later batches
+            # win), the kept ones copied, a dragged light's term kept apart (light_splice)
+            rays = np.concatenate([r for r, _ in self._pending_p])
+            last = len(rays) - 1 - np.unique(rays[::-1], return_index=True)[1]
+            new = _Part.concat([q for _, q in self._pending_p]).take(last)
+            self.p = self.p.splice(rays[last], new)
+            self._pending_p = []
         if self._pending_p:
             old = self.p if self.p is not None else _Part.empty(True, self.has_geometry)
             parts = [old] + [q for _, q in self._pending_p]
@@ -617,10 +578,12 @@ class LightRecords:
 
     # -- relighting ----------------------------------------------------------------------
 
-    def recombine(self, sa: SceneArrays, s_ray: np.ndarray, spp: int, n_pixels: int
-                  ) -> np.ndarray:
+    def recombine(self, sa: SceneArrays, s_ray: np.ndarray, spp: int, n_pixels: int,
+                  world: bool = False) -> np.ndarray:
         """The frame's radiance (n_pixels, 3) float32 from the terms and the lights of
-        ``sa``: the tracer's sums in its order (bit for bit a fresh frame's)."""
+        ``sa``: the tracer's sums in its order (bit for bit a fresh frame's). ``world``:
+        the samples kept by :meth:`set_world` are ``rest + coef * world_light`` (what the
+        INTERPOLANT frame computes for them)."""
         L = len(sa.light_kind)
         alive = np.asarray(sa.light_kind) >= 0
         ext = np.asarray(sa.light_ext, bool)
@@ -632,6 +595,7 @@ class LightRecords:
         scale = np.zeros((256, 3))
         scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
         scale[WORLD] = sa.world_light
+        rescale_world = world
         world = np.ascontiguousarray(sa.world_color, np.float64)
         rad = np.empty((self.n_rays, 3))
         p, s = self.p, self.s
@@ -647,6 +611,8 @@ class LightRecords:
                 _recombine_secondary(s.hit, s.start, s.slot, s.val, s.weight, use, scale,
                                      *s.detached(), world,
                                      np.ascontiguousarray(s_ray, np.int64), rad)
+            if rescale_world and self.world is not None and world_lights(sa):
+                self.world.apply(rad, sa.world_light)
             accumulate(rad, inst, spp, out, pc)
         return out
 
@@ -656,35 +622,8 @@ class LightRecords:
         else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
         its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
         nodes and of the secondary ones, each (k,) bool. ``counters``: adds ``shadow`` (rays
-        traced) and the stages' seconds (``split``, :data:`SPLIT`)."""
+        traced) and the stages' seconds (``split``, :data:`~.light_reshade.SPLIT`)."""
         if not self.has_geometry:
             raise RuntimeError("light records without geometry cannot shade a light again")
         self.widen(len(sa.light_kind))
-        split = {} if counters is None else counters.setdefault("split", {})
-        bits = []
-        for part in (self.p, self.s):
-            t0 = time.perf_counter()
-            n = len(part)
-            rows = np.flatnonzero(part.hit)
-            # the rebuilt surfaces are kept while they fit under the cap
-            keep = self.nbytes + len(rows) * _SURF_BYTES <= self.cap
-            surf = part.surfaces(sa, keep)
-            tick(split, "surfaces", t0)
-            faced = np.zeros(n, bool)
-            lit = np.zeros(n, bool)
-            if len(rows) == 0:
-                part.detach(j, rows, np.zeros((0, 1), bool), np.zeros((0, 1, 3)))
-            elif sa.light_ext[j]:
-                relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit,
-                                counters, split)
-            else:
-                relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split,
-                             self._ones(len(rows)))
-            bits.append((faced, lit))
-        return bits[0], bits[1]
-
-    def _ones(self, k: int) -> np.ndarray:
-        """(k, 3) ones: the path weights of the shade kernel's nodes (kept between steps)."""
-        if self._ones_k is None or len(self._ones_k) < k:
-            self._ones_k = np.ones((k, 3))
-        return self._ones_k[:k]
+        return relight_light(self, sa, accel, j, light_samples, counters)

@@ -44,6 +44,50 @@ def _one_light(sa: SceneArrays, j: int) -> SceneArrays:
         if f.startswith("light_") and getattr(sa, f).shape[0] > 0})
 
 
+#: a rebuilt surface's bytes (kept while a light is dragged)
+SURF_BYTES = 5 * 24 + 1 + 4
+
+
+def relight_light(lr, sa: SceneArrays, accel, j: int, light_samples: int,
+                  counters: dict | None = None):
+    """:meth:`~.light_records.LightRecords.relight` (the records ``lr``, with geometry):
+    light ``j`` shaded again at every node of its primary and secondary parts; returns
+    their light bits ``(traced, lit)``."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    bits = []
+    for part in (lr.p, lr.s):
+        t0 = time.perf_counter()
+        n = len(part)
+        rows = np.flatnonzero(part.hit)
+        # the rebuilt surfaces are kept while they fit under the cap
+        keep = lr.nbytes + len(rows) * SURF_BYTES <= lr.cap
+        surf = part.surfaces(sa, keep)
+        tick(split, "surfaces", t0)
+        faced = np.zeros(n, bool)
+        lit = np.zeros(n, bool)
+        if len(rows) == 0:
+            part.detach(j, rows, np.zeros((0, 1), bool), np.zeros((0, 1, 3)))
+        elif sa.light_ext[j]:
+            relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit,
+                            counters, split)
+        else:
+            relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split,
+                         _ones(len(rows)))
+        bits.append((faced, lit))
+    return bits[0], bits[1]
+
+
+_ONES = [np.ones((0, 3))]
+
+
+def _ones(k: int) -> np.ndarray:
+    """(k, 3) ones: the path weights of the shade kernel's nodes (kept between steps; the
+    shade kernel only reads them)."""
+    if len(_ONES[0]) < k:
+        _ONES[0] = np.ones((k, 3))
+    return _ONES[0][:k]
+
+
 #: the stages of a light's re-shading (:meth:`LightRecords.relight`'s ``split``)
 SPLIT = ("surfaces", "states", "shadow_rays", "shade", "terms")
 

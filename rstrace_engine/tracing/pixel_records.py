@@ -425,6 +425,9 @@ class PixelRecords:
         self.add(np.asarray(rays, np.int64),
                  [dict(ray=np.arange(len(inst)), parent=np.full(len(inst), -1), inst=inst,
                        point=point, dir=unit, traced=zero, lit=zero)])
+        if self.light is not None and self.light.partial:
+            # a miss is the world colour, which its empty node recombines to
+            self.light.add_misses(np.asarray(rays, np.int64)[inst < 0])
 
     def finish(self, drop_rays: np.ndarray | None = None) -> None:
         """Fold the batches added since the last call into the secondary arrays, first

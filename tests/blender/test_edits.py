@@ -506,6 +506,53 @@ def test_f12_light_edits_relight_and_equal_a_fresh_render():
     np.testing.assert_array_equal(inc, _f12(fresh=True)[0])  # and a fresh export
 
 
+def test_f12_world_edits_relight_in_interpolant_mode():
+    """Issue 21: the world's Background colour and strength changed through the depsgraph in
+    INTERPOLANT mode, the world lighting before and after, relight the kept frame (its
+    traced pixels from their light records, its interpolated ones by their own world term
+    rescaled; interpolants kept but where their trees show the world) and stay within
+    epsilon of a fresh render; a NaN strength makes the world black (as Cycles, reported),
+    a world that stops lighting: every interpolant rebuilt, not relit."""
+    from rstrace_engine.image import to_display
+
+    sc = _scene(48, 36)
+    sc.rstrace.mode = "INTERPOLANT"
+    world = b.set_world((0.2, 0.2, 0.24), lights=True)
+    bg = world.node_tree.nodes["Background"]
+    _f12()
+    bg.inputs["Strength"].default_value = 1.2  # the first world edit starts the records
+    bpy.context.view_layer.update()
+    _f12()
+    from dataclasses import replace
+
+    import addon
+    from rstrace_engine.session import Session
+
+    eps = sc.rstrace.epsilon
+    steps = [
+        ("colour", lambda: setattr(bg.inputs["Color"], "default_value",
+                                   (0.35, 0.25, 0.15, 1.0)), True),
+        ("strength", lambda: setattr(bg.inputs["Strength"], "default_value", 2.5), True),
+        ("nan", lambda: setattr(bg.inputs["Strength"], "default_value", float("nan")),
+         False),
+    ]
+    for name, change, relit in steps:
+        change()
+        bpy.context.view_layer.update()
+        inc, stats = _f12()
+        assert stats["edit_kinds"] == {"WorldColor": 1}, (name, stats["edit_kinds"])
+        assert bool(stats.get("relit")) == relit, (name, stats)
+        core = addon.session.state_for(sc).session
+        if relit:
+            assert stats["dirty_fraction"] < 0.5, (name, stats["dirty_fraction"])
+        else:
+            assert not core.scene.world_lights or not np.any(core.scene.world_color > 0)
+        for st in (core.settings, replace(core.settings, mode="BASE")):
+            ref = Session(core.scene.copy(), st).render().radiance
+            err = np.abs(to_display(inc) - to_display(ref)).max()
+            assert err <= eps + 1e-6, (name, st.mode, err)
+
+
 def test_relight_memory_property_caps_the_records():
     """Relight Memory (the add-on's cap of the per-light records) reaches the core: at 0
     an F12 after a light edit keeps no records and says so (a message naming the setting),

@@ -155,7 +155,7 @@ def _principled_layer_class(mi, dr):
     """rstrace's Principled dielectric layer (``tracing.shading.principled_brdf``) as a
     Mitsuba BSDF: Lambertian ``base (1 - E_d(wi)) / pi`` under a GGX lobe ``D G2 / (4 cos
     cos)`` with the exact dielectric Fresnel of ``eta`` and the multiple-scattering factor
-    ``1 + Fms (1 - E_w(wi)) / E_w(wi)`` (``shading.multiscatter_factors``). Mitsuba's
+    ``1 + Fms (1 - E_w(wi)) / E_w(wi)`` (``multiscatter.multiscatter_factors``). Mitsuba's
     ``roughplastic`` scales its diffuse part by both transmittances and its internal
     reflections instead (about 0.78 of rstrace's Lambertian part on the default plastic),
     Mitsuba's ``principled`` is Disney's, so neither

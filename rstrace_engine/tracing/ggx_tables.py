@@ -3,8 +3,8 @@
 ``GGX_E[i, j]``: the albedo of the GGX lobe (Fresnel 1) of roughness ``i / 31`` (``alpha =
 roughness ** 2``) seen at ``cos_o = j / 31``; ``GGX_E_AVG[i]``: its cosine-weighted average
 over ``cos_o``. Cycles' multiscatter GGX reads tables of the same function on the same grid
-(``microfacet_ggx_preserve_energy``); :func:`~.shading.ggx_e` and :func:`~.shading.ggx_e_avg`
-read these with linear interpolation.
+(``microfacet_ggx_preserve_energy``); :func:`~.multiscatter.ggx_e` and
+:func:`~.multiscatter.ggx_e_avg` read these with linear interpolation.
 """
 
 import numpy as np

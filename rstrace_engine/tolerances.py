@@ -222,3 +222,10 @@ LINK_MAX_SKIPS = 64
 #: slack is a round cone (:func:`~.geometry.lights.checked_light`): Blender's float32
 #: matrices of a rotated, uniformly scaled spot differ by ~1e-7.
 SPOT_FRAME_SLACK = 1e-6
+
+#: The RI_TREE continuation check (:mod:`~.ri_tree.recheck`) keys only the ray-tree nodes
+#: whose path weight (largest channel) is at least this: a deeper, dimmer node that meets
+#: something else changes its sample by at most its weight times the radiance it finds
+#: (paths bouncing inside glass scatter at sub-pixel scale and would flag nearly every
+#: pixel behind it). Chosen by measuring (docs/RI_TREE.md).
+RI_RECHECK_WEIGHT = 0.01

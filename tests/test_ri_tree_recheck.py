@@ -114,3 +114,27 @@ def test_the_papers_settings_are_not_checked(volumes):
     sc, accel, st, base = volumes
     (_, f), _ = _frames(sc, accel, replace(st, ri_probe_angle=0.0), base)
     assert f.stats["retraced_pixels"] == 0
+
+
+@pytest.mark.usefixtures("_interpolate_all")
+def test_a_cancel_during_the_check_keeps_the_frame_as_traced(volumes):
+    """``cancel`` is polled between the check's batches too: cancelled there, the frame
+    says so and keeps its pixels as the trees gave them."""
+    from rstrace_engine.ri_tree.render import RI_TILE_RAYS
+
+    sc, accel, st, _ = volumes
+    st = replace(st, mode="RI_TREE", ri_probe_angle=0.1)
+    tiles = -(-100 // max(1, RI_TILE_RAYS // (100 * 4)))
+    polls = []
+
+    def cancel():  # the tiles' polls pass, the check's first one stops it
+        polls.append(1)
+        return len(polls) > tiles
+
+    r = RITreeRenderer()
+    f = r.render(sc, st, accel, cancel=cancel)
+    assert len(polls) == tiles + 1
+    assert f.stats["cancelled"] and f.stats["retraced_pixels"] == 0
+    r0 = RITreeRenderer()
+    r0.recheck = False
+    np.testing.assert_array_equal(f.radiance, r0.render(sc, st, accel).radiance)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..cancel import cancelled
 from ..geometry.cameras import pixel_jitter
 from ..tracing.batches import TILE_RAYS, accumulate
 from ..tracing.whitted import trace_pixels
@@ -98,15 +99,19 @@ def _neighbourhood(a: np.ndarray, op) -> np.ndarray:
 
 def retrace(sa, accel, cp, pixels: np.ndarray, spp: int, seed: int, max_depth: int,
             light_samples: int, glossy_samples: int, image: np.ndarray,
-            pclass: np.ndarray, counters: dict) -> None:
+            pclass: np.ndarray, counters: dict, cancel=None) -> int:
     """Trace ``pixels`` (k,) int64 again with the base tracer (every sample, as a base
     frame traces them), writing their means into ``image`` (h * w, 3) and their classes
-    into ``pclass`` (h * w,). (The frame's count of samples left out stays its first
+    into ``pclass`` (h * w,). ``cancel()`` is polled between batches: returns the number of
+    pixels done, in order. (The frame's count of samples left out stays its first
     pass's.)"""
     chunk = max(1, TILE_RAYS // max(1, spp))
     w, h = cp.width, cp.height
     cc: dict = {}
+    done = 0
     for a in range(0, len(pixels), chunk):
+        if cancelled(cancel):
+            break
         pix = pixels[a:a + chunk]
         jitter = pixel_jitter(pix, spp, seed=seed)
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
@@ -118,5 +123,7 @@ def retrace(sa, accel, cp, pixels: np.ndarray, spp: int, seed: int, max_depth: i
         accumulate(rad, inst, spp, out, cls)
         image[pix] = out
         pclass[pix] = cls
+        done += len(pix)
     counters["rays"] = counters.get("rays", 0) + cc.get("primary", 0) + cc.get("secondary", 0)
     counters["shadow"] = counters.get("shadow", 0) + cc.get("shadow", 0)
+    return done

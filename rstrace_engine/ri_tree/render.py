@@ -621,13 +621,15 @@ class RITreeRenderer:
             pclass[rows] = c[firsthit, np.arange(len(pix))]
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
-        redo = np.zeros(0, np.int64)
+        redone = 0
         if cont is not None and not cancelled and len(self.ri[view]):
             redo = cont.flagged()
             # charged to the trees (the fallback's query time): they are why it is needed
-            self._timed("query", 0, retrace, sa, accel, cp, redo, spp, int(settings.seed),
-                        int(settings.max_depth), int(settings.light_samples),
-                        int(settings.glossy_samples), image, pclass, counters)
+            redone = self._timed("query", 0, retrace, sa, accel, cp, redo, spp,
+                                 int(settings.seed), int(settings.max_depth),
+                                 int(settings.light_samples), int(settings.glossy_samples),
+                                 image, pclass, counters, cancel)
+            cancelled = redone < len(redo)
         notes = []
         costs = self.last_costs = None if cancelled else self._ledger.costs()
         if self.auto_fallback and len(self.ri[view]):
@@ -646,7 +648,7 @@ class RITreeRenderer:
             traced_fraction=float(hit_px - counts[CLASS_INTERPOLATED]) / (w * h),
             ri_objects=ri_objects, ri_traced_objects=len(self.fallback[view]), ri_notes=notes,
             samples_traced=cc["samples_traced"] - c0["samples_traced"],
-            retraced_pixels=int(len(redo)),
+            retraced_pixels=int(redone),
             cells_split=cc["cells_split"] - c0["cells_split"],
             prunes=cc["prunes"] - c0["prunes"],
             memory_mb=cache.memory_bytes / 1e6, peak_memory_mb=cache.peak_bytes / 1e6,

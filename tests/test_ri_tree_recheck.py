@@ -20,15 +20,24 @@ from rstrace_engine.tracing.whitted import render
 
 def test_flagged_pixels_are_the_tainted_ones_near_a_change_of_key():
     c = recheck.Continuations(6, 5, 2)
-    c.taint[:, :] = True
-    c.taint[:, 0] = False  # pixel (0, 0): no interpolated sample
-    c.key[1, 3 * 6 + 4] = 7  # one sample of pixel (row 3, column 4) meets something else
+    key = np.zeros((2, 30), np.uint64)
+    taint = np.ones((2, 30), np.bool_)
+    taint[:, 0] = False  # pixel (0, 0): no interpolated sample
+    taint[0, 5] = False  # pixel (0, 5): one of its two samples
+    key[1, 3 * 6 + 4] = 7  # one sample of pixel (row 3, column 4) meets something else
+    c.store(np.arange(30), key.ravel(), taint.ravel())
     got = set(c.flagged().tolist())
     want = {y * 6 + x for y in (2, 3, 4) for x in (3, 4, 5)}
     assert got == want
-    c.key[0, 0] = 9  # a change next to an untainted pixel flags its tainted neighbours only
+    key[0, 0] = 9  # a change next to an untainted pixel flags its tainted neighbours only
+    c.store(np.arange(30), key.ravel(), taint.ravel())
     got = set(c.flagged().tolist())
     assert got == want | {1, 6, 7}
+    # the tiles arrive one by one
+    c2 = recheck.Continuations(6, 5, 2)
+    for rows in (np.arange(12), np.arange(12, 30)):
+        c2.store(rows, key[:, rows].ravel(), taint[:, rows].ravel())
+    assert set(c2.flagged().tolist()) == got
 
 
 def test_node_keys_tell_landing_objects_and_lights_apart():

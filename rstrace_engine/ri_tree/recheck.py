@@ -59,31 +59,31 @@ def node_keys(path: np.ndarray, inst: np.ndarray, vis: np.ndarray) -> np.ndarray
 
 
 class Continuations:
-    """The frame's per-sample continuation keys and taint (module doc), filled tile by tile.
-
-    ``key`` (spp, h * w) uint64: the sum of the sample's nodes' keys (the nodes of a level
-    come in any order); ``taint`` (spp, h * w) bool."""
+    """The frame's continuation keys and taint (module doc), filled tile by tile, kept per
+    pixel (17 bytes, whatever the samples): ``lo``, ``hi`` (h * w,) uint64 the least and
+    the largest key of its samples (a sample's key: the sum of its nodes' keys, the nodes
+    of a level coming in any order); ``taint`` (h * w,) bool: one of them tainted."""
 
     def __init__(self, w: int, h: int, spp: int) -> None:
         self.w, self.h, self.spp = w, h, spp
-        self.key = np.zeros((spp, h * w), np.uint64)
-        self.taint = np.zeros((spp, h * w), np.bool_)
+        self.lo = np.zeros(h * w, np.uint64)
+        self.hi = np.zeros(h * w, np.uint64)
+        self.taint = np.zeros(h * w, np.bool_)
 
     def store(self, pix: np.ndarray, key: np.ndarray, taint: np.ndarray) -> None:
         """A tile's samples (sample-major over its pixels ``pix``)."""
-        self.key[:, pix] = key.reshape(self.spp, len(pix))
-        self.taint[:, pix] = taint.reshape(self.spp, len(pix))
+        key = key.reshape(self.spp, len(pix))
+        self.lo[pix] = key.min(axis=0)
+        self.hi[pix] = key.max(axis=0)
+        self.taint[pix] = taint.reshape(self.spp, len(pix)).any(axis=0)
 
     def flagged(self) -> np.ndarray:
         """(k,) int64 pixels to re-trace: a tainted sample, and more than one key among the
         samples of its 3x3 neighbourhood (the frame's border clamps it)."""
         h, w = self.h, self.w
-        lo = self.key.min(axis=0).reshape(h, w)
-        hi = self.key.max(axis=0).reshape(h, w)
-        lo = _neighbourhood(lo, np.minimum)
-        hi = _neighbourhood(hi, np.maximum)
-        tainted = self.taint.any(axis=0).reshape(h, w)
-        return np.flatnonzero((tainted & (lo != hi)).ravel())
+        lo = _neighbourhood(self.lo.reshape(h, w), np.minimum)
+        hi = _neighbourhood(self.hi.reshape(h, w), np.maximum)
+        return np.flatnonzero((self.taint.reshape(h, w) & (lo != hi)).ravel())
 
 
 def _neighbourhood(a: np.ndarray, op) -> np.ndarray:

@@ -17,6 +17,10 @@ the path's weight, ``nint`` levels further down. Rays leaving an interpolated hi
 that object's own surface nearer than ``RI_SELF_OFFSET_REL`` of its diagonal (a convex
 object entirely). Shadow rays query the trees too.
 
+After the frame's tiles, the continuation check (:mod:`.recheck`) traces again, with the
+base tracer, the pixels whose interpolated samples met different things (objects, lights'
+visibility) across their neighbourhood; they are the base frame's pixels, class ``traced``.
+
 A pixel's class (Interpolation pass): ``interpolated`` when its primary hit came from a
 tree, ``traced`` when it was traced (no tree, or the ray starts inside the object's box),
 ``fail_silhouette`` when the patch-class test failed (three or more classes, or too few

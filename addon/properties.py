@@ -130,7 +130,9 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         description="RI-tree cells also split while the traced and the interpolated output "
                     "ray (the exit ray through glass, the reflection off a mirror) at their "
                     "midpoint differ by more than this many degrees; cells still over it at "
-                    "the depth constraint are traced. 0: off (the paper's tests alone)")
+                    "the depth constraint are traced; pixels whose interpolated rays meet "
+                    "different things behind the glass or in the mirror are traced again. "
+                    "0: both off (the paper's tests alone)")
     ri_cache_mb: FloatProperty(
         name="Cache Size", default=100.0, min=0.001, max=1e6, soft_min=0.128,
         soft_max=4096.0, precision=3,

@@ -229,3 +229,10 @@ SPOT_FRAME_SLACK = 1e-6
 #: leaves that plane, so half the offset stays between it and the triangle, ~10^4 times
 #: the rounding of the watertight ray-triangle test.
 SKIP_SELF_MARGIN_FRAC = 0.5
+
+#: The RI_TREE continuation check (:mod:`~.ri_tree.recheck`) keys only the ray-tree nodes
+#: whose path weight (largest channel) is at least this: a deeper, dimmer node that meets
+#: something else changes its sample by at most its weight times the radiance it finds
+#: (paths bouncing inside glass scatter at sub-pixel scale and would flag nearly every
+#: pixel behind it). Chosen by measuring (docs/RI_TREE.md).
+RI_RECHECK_WEIGHT = 0.01

@@ -3,12 +3,15 @@ one scene, one base frame, then per setting an RI_TREE frame from empty trees (*
 second one with the trees kept (*warm*), the fallback off (the trees are measured, not its
 decision). Prints one JSON line per setting: largest display error per pixel (largest
 channel, display values) against the base frame (``max``, ``p999``, pixels over 0.1 and 0.3;
-``wmax``, ``wover01`` of the warm frame), speed as base CPU time / RI-tree CPU time in the
-same process (the base frame re-timed before each setting, best kept), samples traced.
+``wmax``, ``wp999``, ``wover01`` of the warm frame), pixels the continuation check traced
+again (``redo``, ``wredo``: :mod:`rstrace_engine.ri_tree.recheck`), speed as base CPU
+time / RI-tree CPU time in the same process (the base frame re-timed before each setting,
+best kept), samples traced.
 
 ``PYTHONPATH=. python scripts/ritree_probe_sweep.py SCENE WIDTH HEIGHT SPP
-DIST:ANG:PROBE[,...]`` (the checkout's package), e.g. ``random_volumes 150 150 9
-0.05:30:0,0.05:30:0.1``."""
+DIST:ANG:PROBE[:RECHECK][,...]`` (the checkout's package; ``RECHECK`` 0 turns the
+continuation check off, default 1), e.g. ``random_volumes 150 150 9
+0.05:30:0,0.05:30:0.1,0.05:30:0.1:0``."""
 
 import json
 import sys
@@ -29,19 +32,20 @@ def errors(frame, base) -> np.ndarray:
                   - image.to_display(base.radiance)).max(axis=-1)
 
 
-def main(name: str, w: int, h: int, spp: int, combos: list[tuple[float, float, float]]):
+def main(name: str, w: int, h: int, spp: int, combos: list[tuple[float, ...]]):
     sc = scenes.build(name, w, h)
     accel = create_accelerator("BVH", sc.arrays())
     st0 = RenderSettings(max_depth=5, samples=spp)
     t = time.process_time()
     base = render(sc, st0, accel=accel)
     tb = time.process_time() - t
-    for dist, ang, probe in combos:
+    for dist, ang, probe, *rest in combos:
         t = time.process_time()
         render(sc, st0, accel=accel)
         tb = min(tb, time.process_time() - t)
         r = RITreeRenderer()
         r.auto_fallback = False
+        r.recheck = bool(rest[0]) if rest else True
         st = replace(st0, mode="RI_TREE", ri_probe_angle=probe, ri_dist_thresh=dist,
                      ri_ang_thresh=ang)
         t = time.process_time()
@@ -53,10 +57,13 @@ def main(name: str, w: int, h: int, spp: int, combos: list[tuple[float, float, f
         px, px2 = errors(f, base), errors(f2, base)
         sys.stdout.write(json.dumps(dict(
             scene=name, size=f"{w}x{h}" + (f" x{spp}" if spp > 1 else ""), dist=dist,
-            ang=ang, probe=probe, max=float(px.max()), p999=float(np.quantile(px, 0.999)),
+            ang=ang, probe=probe, recheck=r.recheck, max=float(px.max()),
+            p999=float(np.quantile(px, 0.999)),
             over01=int((px > 0.1).sum()), over03=int((px > 0.3).sum()),
-            wmax=float(px2.max()), wover01=int((px2 > 0.1).sum()), cold=tb / tr,
-            warm=tb / tw, samples=int(f.stats["samples_traced"]))) + "\n")
+            wmax=float(px2.max()), wp999=float(np.quantile(px2, 0.999)),
+            wover01=int((px2 > 0.1).sum()), redo=int(f.stats["retraced_pixels"]),
+            wredo=int(f2.stats["retraced_pixels"]), cold=tb / tr, warm=tb / tw,
+            samples=int(f.stats["samples_traced"]))) + "\n")
         sys.stdout.flush()
 
 

@@ -54,8 +54,11 @@ def test_defaults_show_no_artifact_on_glass_and_a_mirror_before_a_horizon(horizo
     # much of the glass and the mirror is interpolated: the bound is about interpolation
     # (0.7% of the frame, 134 pixels, at the 0.025 degree default: the cells still off at
     # the depth constraint and those where the torus's exit rays meet it again on one side
-    # are traced; 2.2% at 0.05 degrees, over 5% at 0.1 degrees before they were)
-    assert interp.mean() > 0.005, interp.mean()
+    # are traced; 2.2% at 0.05 degrees, over 5% at 0.1 degrees before they were); the
+    # continuation check (ri_tree.recheck) then traces again the 48 pixels whose
+    # neighbourhood meets different things behind the glass, 0.45% stay interpolated
+    assert interp.mean() + f.stats["retraced_pixels"] / interp.size > 0.005, interp.mean()
+    assert interp.mean() > 0.001, interp.mean()
     assert px.max() <= 0.1, f"max display error {px.max():.3f}"
     assert np.count_nonzero(px > 0.1) == 0
     assert np.count_nonzero(px > 0.05) <= 5, np.count_nonzero(px > 0.05)

@@ -28,8 +28,10 @@ good, could give in this engine. ``mean_error``: the paper's metric, the mean L2
 the pixels' RGB (display values in [0, 1]) to the base frame; ``max_error``: our largest
 per-channel display error; ``p999_error``: the 99.9th percentile of the pixels' largest
 channel error; ``over_01``, ``over_03``: pixels whose largest channel error passes 0.1,
-0.3. ``traced_fraction``: pixels whose primary ray was traced (not interpolated) over all
-pixels. ``memory_mb``: RI-tree memory held after the frame;
+0.3; ``warm_max_error``, ``warm_over_01``: the same of the warm frame; ``retraced_pixels``:
+pixels the continuation check traced again (:mod:`rstrace_engine.ri_tree.recheck`; with the
+exit-ray test only). ``traced_fraction``: pixels whose primary ray was traced (not
+interpolated) over all pixels. ``memory_mb``: RI-tree memory held after the frame;
 ``peak_memory_mb`` the most it held at any time (within the cache size).
 
 Writes ``DIR/ritree.md`` and ``DIR/ritree.png`` (speedup against error); ``--json`` prints
@@ -63,7 +65,8 @@ from ..tracing.whitted import render
 JSON_KEYS = ("scene", "view", "dist_thresh", "ang_thresh", "depth", "cache_mb",
              "probe_angle", "speedup", "warm_speedup", "fallback_speedup", "ri_objects",
              "traced_objects", "ceiling_speedup", "mean_error", "max_error", "p999_error",
-             "over_01", "over_03", "traced_fraction",
+             "over_01", "over_03", "warm_max_error", "warm_over_01", "retraced_pixels",
+             "traced_fraction",
              "memory_mb", "peak_memory_mb", "samples_traced", "width", "height", "spp")
 #: the paper's image sizes and rays per pixel, per (scene, view): the random volumes are
 #: ray traced at 300x300 with 9 rays per pixel and visualised at 600x600 with one
@@ -145,6 +148,7 @@ def perfect_tree_time(sc, st: RenderSettings, accel, repeat: int = 2) -> float:
     left out)."""
     r = RITreeRenderer()
     r.auto_fallback = False
+    r.recheck = False  # (exact answers: nothing to check)
     r.render(sc, st, accel)
     cache = r.caches[bool(st.thickness_view)]
     cache.__class__ = PerfectCache
@@ -217,7 +221,7 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
             costs = r.last_costs
             # a second frame of the same camera with the trees kept (what a session reuses)
             t0 = CLOCK()
-            r.render(sc, st, accel)
+            f2 = r.render(sc, st, accel)
             t_warm = CLOCK() - t0
             # the fallback (ri_tree.fallback) as decided from the first frame's costs, and
             # a frame with the objects whose trees did not pay traced
@@ -231,8 +235,8 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
                 r.render(sc, st, accel)
                 t_fb = CLOCK() - t0
             m = image.compare(f.radiance, base.radiance, 0.02)
-            px = np.abs(image.to_display(f.radiance)
-                        - image.to_display(base.radiance)).max(axis=-1)
+            px, px2 = (np.abs(image.to_display(g.radiance)
+                              - image.to_display(base.radiance)).max(axis=-1) for g in (f, f2))
             row = dict(scene=name, view=view, dist_thresh=dist, ang_thresh=ang, depth=dep,
                        cache_mb=cache, probe_angle=probe,
                        speedup=tb / t_ri, warm_speedup=tb / t_warm,
@@ -242,6 +246,9 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
                        max_error=m["max_error"], p999_error=float(np.quantile(px, 0.999)),
                        over_01=int(np.count_nonzero(px > 0.1)),
                        over_03=int(np.count_nonzero(px > 0.3)),
+                       warm_max_error=float(px2.max()),
+                       warm_over_01=int(np.count_nonzero(px2 > 0.1)),
+                       retraced_pixels=int(f.stats.get("retraced_pixels", 0)),
                        traced_fraction=f.stats["traced_fraction"],
                        interpolated_fraction=f.stats["interpolated_fraction"],
                        memory_mb=f.stats["memory_mb"],
@@ -256,6 +263,8 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
                 f"{row['fallback_speedup']:.2f}x, {len(out)}/{n_ri} traced) "
                 f"err {row['mean_error']:.5f} max {row['max_error']:.3f} "
                 f"p99.9 {row['p999_error']:.3f} >0.1 {row['over_01']} "
+                f"warm max {row['warm_max_error']:.3f} >0.1 {row['warm_over_01']} "
+                f"re-traced {row['retraced_pixels']} px "
                 f"traced {100 * row['traced_fraction']:.1f}% mem {row['memory_mb']:.2f} MB "
                 f"(peak {row['peak_memory_mb']:.2f}) samples {row['samples_traced']}")
     return rows
@@ -264,10 +273,10 @@ def run_scene(name: str, scale: float, depth: int, quick: bool, log, probes=None
 def markdown(rows: list[dict], note: str) -> str:
     head = ("| scene | view | size | dist | ang | depth | cache MB | exit-ray test | speedup | "
             "warm | fallback (traced objects) | ceiling | mean RGB err | max err | "
-            "99.9% err | px > 0.1 | px > 0.3 | PSNR dB | traced % | memory MB | peak MB | "
-            "base s | RI-tree s |")
+            "99.9% err | px > 0.1 | px > 0.3 | warm max err | warm px > 0.1 | re-traced px | "
+            "PSNR dB | traced % | memory MB | peak MB | base s | RI-tree s |")
     lines = [f"RI-tree against the base tracer (`python -m rstrace_engine.bench ritree`). "
-             f"{note}", "", head, "|" + "---|" * 23]
+             f"{note}", "", head, "|" + "---|" * 26]
     for r in rows:
         lines.append("| " + " | ".join([
             r["scene"], r["view"].lower(),
@@ -279,7 +288,8 @@ def markdown(rows: list[dict], note: str) -> str:
             f"{r['fallback_speedup']:.2f}x ({r['traced_objects']}/{r['ri_objects']})",
             f"{r['ceiling_speedup']:.2f}x", f"{r['mean_error']:.5f}",
             f"{r['max_error']:.3f}", f"{r['p999_error']:.3f}", str(r["over_01"]),
-            str(r["over_03"]),
+            str(r["over_03"]), f"{r['warm_max_error']:.3f}", str(r["warm_over_01"]),
+            str(r["retraced_pixels"]),
             f"{r['psnr']:.1f}" if math.isfinite(r["psnr"]) else "inf",
             f"{100 * r['traced_fraction']:.1f}", f"{r['memory_mb']:.3f}",
             f"{r['peak_memory_mb']:.3f}", f"{r['base_s']:.2f}", f"{r['ri_s']:.2f}"]) + " |")

@@ -17,6 +17,10 @@ the path's weight, ``nint`` levels further down. Rays leaving an interpolated hi
 that object's own surface nearer than ``RI_SELF_OFFSET_REL`` of its diagonal (a convex
 object entirely). Shadow rays query the trees too.
 
+After the frame's tiles, the continuation check (:mod:`.recheck`) traces again, with the
+base tracer, the pixels whose interpolated samples met different things (objects, lights'
+visibility) across their neighbourhood; they are the base frame's pixels, class ``traced``.
+
 A pixel's class (Interpolation pass): ``interpolated`` when its primary hit came from a
 tree, ``traced`` when it was traced (no tree, or the ray starts inside the object's box),
 ``fail_silhouette`` when the patch-class test failed (three or more classes, or too few
@@ -34,8 +38,6 @@ from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator
 from ..frame import (
     CLASS_BACKGROUND,
-    CLASS_FAIL_NONLINEAR,
-    CLASS_FAIL_SILHOUETTE,
     CLASS_INTERPOLATED,
     CLASS_NAMES,
     CLASS_TRACED,
@@ -63,8 +65,10 @@ from .eligibility import eligible, subset
 from .fallback import FrameCosts, Ledger, object_costs, tree_pays
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS, ST_HIT, ST_MISS, ST_SPARSE
 from .ray_tree import next_rays, primary_class
+from .recheck import Continuations, node_keys, retrace
 from .surfaces import interp_surface
 from .thickness import render_thickness_exact  # noqa: F401 - re-exported (session, bench)
+from .thickness_view import tile as thickness_tile
 from .tree_cache import RITreeCache
 
 log = logging.getLogger(__name__)
@@ -101,6 +105,10 @@ class RITreeRenderer:
 
     #: after every frame, objects whose tree did not pay are traced (:mod:`.fallback`)
     auto_fallback = True
+    #: pixels whose interpolated samples' continuations disagree are re-traced
+    #: (:mod:`.recheck`; an addition of issue 22 like the exit-ray test, so with that test
+    #: off, ``ri_probe_angle = 0``, the paper's settings, it is off too)
+    recheck = True
 
     def __init__(self) -> None:
         self.caches: dict[bool, RITreeCache] = {}
@@ -454,7 +462,8 @@ class RITreeRenderer:
                     light_samples=LIGHT_SAMPLES_DEFAULT,
                     glossy_samples=GLOSSY_SAMPLES_DEFAULT):
         """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
-        primary instance (n,)).
+        primary instance (n,), continuation key (n,) uint64, tainted (n,) bool:
+        :mod:`.recheck`).
 
         Level by level, the base tracer's stages (:func:`~..tracing.whitted.surfaces`,
         :func:`~..tracing.whitted.shadow_rays`, :func:`~..tracing.whitted.shade_paths`) on the
@@ -470,8 +479,13 @@ class RITreeRenderer:
         n = len(o)
         if not len(self.ri[view]):
             return self._base_tile(sa, o, d, t0, t1, max_depth, counters, seeds,
-                                   light_samples, glossy_samples)
+                                   light_samples, glossy_samples) + (
+                np.zeros(n, np.uint64), np.zeros(n, np.bool_))
         L = len(sa.light_kind)
+        ckey = np.zeros(n, np.uint64)
+        taint = np.zeros(n, np.bool_)
+        on_tree = np.zeros(len(sa.inst_mesh) + 1, np.bool_)  # (index -1: a miss)
+        on_tree[self.ri[view]] = True
         radiance = np.zeros((n, 3))
         pclass = np.full(n, CLASS_BACKGROUND, np.uint8)
         prim_inst = np.full(n, -1, np.int32)
@@ -525,6 +539,11 @@ class RITreeRenderer:
                     return self._occluded(so_, sd_, st_, hs[pt])
 
                 soft = soft_direct(sa, surf, nseeds, light_samples, vis, occluded, counters)
+            taint[src[interp]] = True
+            off = np.flatnonzero(~on_tree[H["inst"]]
+                                 & (weight.max(axis=1) >= tol.RI_RECHECK_WEIGHT))
+            np.add.at(ckey, src[off], node_keys(path[off], H["inst"][off],
+                                                vis.reshape(nb, L)[off]))
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
             contrib, kids, gstart, glossy = shade_paths(
                 sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]), surf, vis, weight,
@@ -535,7 +554,7 @@ class RITreeRenderer:
                 gstart, glossy, nseeds)
             t0 = np.zeros(len(o))
             t1 = np.full(len(o), np.inf)
-        return radiance, pclass, prim_inst
+        return radiance, pclass, prim_inst, ckey, taint
 
     def _base_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds, light_samples,
                    glossy_samples):
@@ -576,6 +595,8 @@ class RITreeRenderer:
         cancelled = False
         bad_total = 0
         dist = thick.auto_distance(sa, settings.thickness_distance)
+        on = self.recheck and not view and settings.ri_probe_angle > 0
+        cont = Continuations(w, h, spp) if on else None
         for pix, jitter, y1 in frame_batches(w, h, spp, int(settings.seed), rows_per_tile,
                                              None):
             if cancel is not None and cancel():
@@ -584,16 +605,18 @@ class RITreeRenderer:
             rows = slice(int(pix[0]), int(pix[-1]) + 1)
             o, dr, tmin, tmax = camera_rays(cp, np.tile(pix, spp), jitter.reshape(-1, 2))
             if view:
-                length, cls, pinst = self._thickness_tile(sa, o, dr, tmin, tmax, counters)
+                length, cls, pinst = thickness_tile(self, sa, o, dr, tmin, tmax, counters)
                 rad = thick.display(length, dist)
             else:
                 gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h)
                         + pix[None, :]).ravel()
-                rad, cls, pinst = self._trace_tile(sa, o, dr, tmin, tmax,
+                rad, cls, pinst, ckey, taint = self._trace_tile(sa, o, dr, tmin, tmax,
                                                    int(settings.max_depth), counters,
                                                    sample_seeds(gids, int(settings.seed)),
                                                    int(settings.light_samples),
                                                    int(settings.glossy_samples))
+                if cont is not None:
+                    cont.store(pix, ckey, taint)
             tile_cls = np.empty(len(pix), np.uint8)
             bad_total += accumulate(rad, pinst, spp, image[rows], tile_cls)
             # a pixel's class: that of its first sample that hit something
@@ -602,6 +625,15 @@ class RITreeRenderer:
             pclass[rows] = c[firsthit, np.arange(len(pix))]
             if progress is not None:
                 progress(y1 / h, f"RI-tree {y1}/{h} rows")
+        redone = 0
+        if cont is not None and not cancelled and len(self.ri[view]):
+            redo = cont.flagged()
+            # charged to the trees (the fallback's query time): they are why it is needed
+            redone = self._timed("query", 0, retrace, sa, accel, cp, redo, spp,
+                                 int(settings.seed), int(settings.max_depth),
+                                 int(settings.light_samples), int(settings.glossy_samples),
+                                 image, pclass, counters, cancel)
+            cancelled = redone < len(redo)
         notes = []
         costs = self.last_costs = None if cancelled else self._ledger.costs()
         if self.auto_fallback and len(self.ri[view]):
@@ -620,6 +652,7 @@ class RITreeRenderer:
             traced_fraction=float(hit_px - counts[CLASS_INTERPOLATED]) / (w * h),
             ri_objects=ri_objects, ri_traced_objects=len(self.fallback[view]), ri_notes=notes,
             samples_traced=cc["samples_traced"] - c0["samples_traced"],
+            retraced_pixels=int(redone),
             cells_split=cc["cells_split"] - c0["cells_split"],
             prunes=cc["prunes"] - c0["prunes"],
             memory_mb=cache.memory_bytes / 1e6, peak_memory_mb=cache.peak_bytes / 1e6,
@@ -631,70 +664,3 @@ class RITreeRenderer:
             accelerator=getattr(accel, "name", "?"),
         )
         return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats)
-
-    # -- thickness view ------------------------------------------------------------------
-
-    def _thickness_tile(self, sa, o, d, t0, t1, counters):
-        """Lengths inside objects of camera rays: traced objects walked exactly, RI-tree
-        objects interpolated where the ray enters their box from outside."""
-        view = True
-        n = len(o)
-        sub, ids = self._sub[view]
-        cache = self.caches[view]
-        length = np.zeros(n)
-        cls = np.full(n, CLASS_BACKGROUND, np.uint8)
-        hit_any = np.full(n, -1, np.int32)
-        if sub is not None:
-            def through_sub(oo, dd, lo, hi, rows):
-                hh = self._timed("ray", len(oo), sub.closest_hit, oo, dd, lo, hi)
-                ok = hh.inst >= 0
-                inst = np.where(ok, ids[np.maximum(hh.inst, 0)], -1).astype(np.int32)
-                return hh._replace(inst=inst)
-
-            length += thick.walk(sa, through_sub, o, d, t0, t1)
-            cls[length > 0] = CLASS_TRACED
-            hit_any[length > 0] = 0
-        ri = self.ri[view]
-        if len(ri) == 0:
-            return length, cls, hit_any
-        rows, objs, kind, _ = candidates(o, d, t0, t1, np.full(n, np.inf), ri, cache.box,
-                                         self.convex, np.full(n, -1, np.int32), np.zeros(n))
-        if len(rows) == 0:
-            return length, cls, hit_any
-        qi = np.flatnonzero(kind == _QUERY)
-        walk_pairs = [np.flatnonzero(kind == _TRACE)]
-        if len(qi):
-            qr = rows[qi]
-            q = self._timed("query", 0, cache.query, objs[qi], o[qr], d[qr])
-            okq = np.flatnonzero(q.status == ST_HIT)
-            np.add.at(length, qr[okq], q.thick[okq])
-            cls[qr[okq]] = np.maximum(cls[qr[okq]], CLASS_INTERPOLATED)
-            hit_any[qr[okq]] = 0
-            fail = np.flatnonzero((q.status == ST_FAIL_CLASS) | (q.status == ST_FAIL_ANGLE)
-                                  | (q.status == ST_SPARSE))
-            # a failed test marks the pixel; a sparse leaf's ray is simply traced
-            ff = fail[q.status[fail] != ST_SPARSE]
-            fc = np.where(q.status[ff] == ST_FAIL_CLASS, CLASS_FAIL_SILHOUETTE,
-                          CLASS_FAIL_NONLINEAR).astype(np.uint8)
-            cls[qr[ff]] = np.where(cls[qr[ff]] == CLASS_INTERPOLATED, cls[qr[ff]], fc)
-            walk_pairs.append(qi[fail])
-            # an interpolated length saves the walk past the entry: the exit crossing
-            crossed = okq[q.thick[okq] > 0]
-            self._count(objs[qi], objs[qi[fail]], objs[qi[crossed]],
-                        np.ones(len(crossed), np.int64))
-        wp = np.concatenate(walk_pairs)
-        if len(wp):
-            wr = rows[wp]
-            wobj = objs[wp]
-
-            def one(oo, dd, lo, hi, rr):
-                return self._timed("obj", len(oo), self._accel.intersect_object, wobj[rr],
-                                   oo, dd, lo, hi)
-
-            ln = thick.walk(sa, one, o[wr], d[wr], t0[wr], t1[wr])
-            np.add.at(length, wr, ln)
-            pos = wr[ln > 0]
-            cls[pos] = np.where(cls[pos] == CLASS_BACKGROUND, CLASS_TRACED, cls[pos])
-            hit_any[pos] = 0
-        counters["rays"] = counters.get("rays", 0) + n
-        return length, cls, hit_any

@@ -103,6 +103,24 @@ def hw_shaft(alo, ahi, blo, bhi, slack, pl, bb):
     return npl
 
 
+@njit(cache=True, nogil=True, inline="always")
+def box_outside(pl, npl, bb, lx, ly, lz, hx, hy, hz):
+    """The box ``lo, hi`` lies outside the shaft: empty, off its box ``bb`` (lo, hi), or
+    wholly behind one of its planes ``pl[:npl]`` (its nearest corner to the plane's
+    normal)."""
+    if not (lx <= hx and ly <= hy and lz <= hz):
+        return True
+    if hx < bb[0] or hy < bb[1] or hz < bb[2] or lx > bb[3] or ly > bb[4] or lz > bb[5]:
+        return True
+    for p in range(npl):
+        px = hx if pl[p, 0] > 0.0 else lx
+        py = hy if pl[p, 1] > 0.0 else ly
+        pz = hz if pl[p, 2] > 0.0 else lz
+        if pl[p, 0] * px + pl[p, 1] * py + pl[p, 2] * pz + pl[p, 3] < 0.0:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def to_object(xf, inv, pl, npl, bb, plo, bbo):
     """Planes and box of a world shaft in an instance's object space (exact for planes)."""

@@ -29,6 +29,7 @@ from ..geometry.mesh_topology import MeshTopology
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, MODEL_PRINCIPLED, SceneArrays
 from ..geometry.shaft_geometry import (  # noqa: F401 - re-exported: the predicate's names
     MAX_PLANES,
+    box_outside,
     clip_polygon,
     extent_plane_side,
     hw_shaft,
@@ -205,18 +206,8 @@ def hexa_planes(V, slack, pl):
 def box_out(pl, npl, bb, bounds, node, c):
     """Child ``c`` of BVH node ``node`` lies outside the shaft (box or some plane)."""
     o = 6 * c
-    lx, ly, lz = bounds[node, o], bounds[node, o + 1], bounds[node, o + 2]
-    hx, hy, hz = bounds[node, o + 3], bounds[node, o + 4], bounds[node, o + 5]
-    if lx > hx or hx < bb[0] or hy < bb[1] or hz < bb[2] or lx > bb[3] or ly > bb[4] \
-            or lz > bb[5]:
-        return True
-    for p in range(npl):
-        px = hx if pl[p, 0] > 0.0 else lx
-        py = hy if pl[p, 1] > 0.0 else ly
-        pz = hz if pl[p, 2] > 0.0 else lz
-        if pl[p, 0] * px + pl[p, 1] * py + pl[p, 2] * pz + pl[p, 3] < 0.0:
-            return True
-    return False
+    return box_outside(pl, npl, bb, bounds[node, o], bounds[node, o + 1], bounds[node, o + 2],
+                       bounds[node, o + 3], bounds[node, o + 4], bounds[node, o + 5])
 
 
 @njit(cache=True, nogil=True)

@@ -52,6 +52,7 @@ from ..accel.bvh import STACK_SIZE
 from ..geometry.scene import LIGHT_SUN
 from ..geometry.shaft_geometry import (
     MAX_PLANES,
+    box_outside,
     clip_polygon,
     extent_plane_side,
     hw_shaft,
@@ -188,19 +189,8 @@ def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_st
 def _lane_out(pl, npl, bb, bounds, node, c):
     """Lane ``c`` of 4-wide BVH node ``node`` (:mod:`..accel.bvh`'s layout) lies outside
     the shaft (its box or some plane); an unused lane (``lo = +inf``) always does."""
-    lx, ly, lz = bounds[node, c], bounds[node, 4 + c], bounds[node, 8 + c]
-    hx, hy, hz = bounds[node, 12 + c], bounds[node, 16 + c], bounds[node, 20 + c]
-    if not (lx <= hx and ly <= hy and lz <= hz):
-        return True
-    if hx < bb[0] or hy < bb[1] or hz < bb[2] or lx > bb[3] or ly > bb[4] or lz > bb[5]:
-        return True
-    for p in range(npl):
-        px = hx if pl[p, 0] > 0.0 else lx
-        py = hy if pl[p, 1] > 0.0 else ly
-        pz = hz if pl[p, 2] > 0.0 else lz
-        if pl[p, 0] * px + pl[p, 1] * py + pl[p, 2] * pz + pl[p, 3] < 0.0:
-            return True
-    return False
+    return box_outside(pl, npl, bb, bounds[node, c], bounds[node, 4 + c], bounds[node, 8 + c],
+                       bounds[node, 12 + c], bounds[node, 16 + c], bounds[node, 20 + c])
 
 
 @njit(cache=True, nogil=True)

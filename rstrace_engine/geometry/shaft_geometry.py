@@ -185,10 +185,16 @@ def clip_polygon(pl, p0, p1, P, n, Q):
 def extent_plane_side(qs, j, wx, wy, wz, px, py, pz, margin):
     """Side of the world plane through ``p`` with unit normal ``w`` on which light ``j``'s
     extent lies (a sphere's ball, an area light's four corners; the light's point for
-    other lights): 1 wholly in front by more than ``margin``, -1 wholly behind, else 0.
-    ``qs``: anything with the lights' arrays of :class:`~.scene.SceneArrays` (``light_pos``,
-    ``light_kind``, ``light_ext``, ``light_size``, ``light_u``, ``light_v``,
-    ``light_radius``)."""
+    other lights): 1 wholly in front by more than ``margin``, -1 wholly behind, else 0; a
+    sun's extent is its cone of directions (every one of them on that side, beyond the sine
+    of its half angle by ``FACING_EPS_REL``; ``margin`` plays no part). ``qs``: anything
+    with the lights' arrays of :class:`~.scene.SceneArrays` (``light_pos``, ``light_dir``,
+    ``light_half``, ``light_kind``, ``light_ext``, ``light_size``, ``light_u``,
+    ``light_v``, ``light_radius``)."""
+    if qs.light_kind[j] == LIGHT_SUN:
+        s = -(wx * qs.light_dir[j, 0] + wy * qs.light_dir[j, 1] + wz * qs.light_dir[j, 2])
+        lim = math.sin(qs.light_half[j]) + tol.FACING_EPS_REL
+        return 1 if s > lim else (-1 if s < -lim else 0)
     cx = qs.light_pos[j, 0] - px
     cy = qs.light_pos[j, 1] - py
     cz = qs.light_pos[j, 2] - pz

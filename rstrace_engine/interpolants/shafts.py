@@ -432,10 +432,6 @@ def extent_side(qs, xf, inv, t, j, nx, ny, nz):
     wx /= ln
     wy /= ln
     wz /= ln
-    if qs.light_kind[j] == LIGHT_SUN:
-        s = -(wx * qs.light_dir[j, 0] + wy * qs.light_dir[j, 1] + wz * qs.light_dir[j, 2])
-        lim = math.sin(qs.light_half[j]) + tol.FACING_EPS_REL
-        return 1 if s > lim else (-1 if s < -lim else 0)
     v = np.empty(3)
     for k in range(3):
         v[k] = (xf[k, 0] * qs.tv[t, 0] + xf[k, 1] * qs.tv[t, 1] + xf[k, 2] * qs.tv[t, 2]

@@ -221,12 +221,10 @@ class FrameReuse:
         if fx.lights_moved and any(a.shape[0] for sa in (old_sa, new_sa)
                                    for a in (sa.light_recv, sa.light_block)):
             # a moved light is shaded again without the instances its links name (the
-            # terms carry none): traced again. A power or colour edit scales terms that
-            # were shaded with the links: recombined as without them
+            # terms carry none): traced again, as a change of its links is (a light
+            # geometry change, edits._light_geometry). A power or colour edit scales terms
+            # that were shaded with the links: recombined as without them
             return False
-        if any(not np.array_equal(getattr(old_sa, a), getattr(new_sa, a))
-               for a in ("light_recv", "light_block")):
-            return False  # who a light reaches changed: traced again
         if world_lights(new_sa) and (not world_lights(old_sa)
                                      or len(new_sa.light_kind) != len(old_sa.light_kind)):
             return False

@@ -201,6 +201,20 @@ def _splice_entries(start, slot, val, hit, rows, n_start, n_slot, n_val, n_hit, 
                 h += 1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _geo_row(h, a, o, d, t, inst, prim, u, v, seed, oo, od, ot, oinst, oprim, ou, ov, oseed):
+    """Geometry row ``a`` of ``o`` ... into row ``h`` of ``oo`` ..."""
+    for k in range(3):
+        oo[h, k] = o[a, k]
+        od[h, k] = d[a, k]
+    ot[h] = t[a]
+    oinst[h] = inst[a]
+    oprim[h] = prim[a]
+    ou[h] = u[a]
+    ov[h] = v[a]
+    oseed[h] = seed[a]
+
+
 @njit(cache=True, nogil=True)
 def _splice_geo(src, o, d, t, inst, prim, u, v, seed, no, nd, nt, ninst, nprim, nu, nv,
                 nseed, oo, od, ot, oinst, oprim, ou, ov, oseed):
@@ -209,26 +223,11 @@ def _splice_geo(src, o, d, t, inst, prim, u, v, seed, no, nd, nt, ninst, nprim, 
     for h in range(src.shape[0]):
         a = src[h]
         if a >= 0:
-            for k in range(3):
-                oo[h, k] = o[a, k]
-                od[h, k] = d[a, k]
-            ot[h] = t[a]
-            oinst[h] = inst[a]
-            oprim[h] = prim[a]
-            ou[h] = u[a]
-            ov[h] = v[a]
-            oseed[h] = seed[a]
+            _geo_row(h, a, o, d, t, inst, prim, u, v, seed, oo, od, ot, oinst, oprim, ou, ov,
+                     oseed)
         else:
-            b = -1 - a
-            for k in range(3):
-                oo[h, k] = no[b, k]
-                od[h, k] = nd[b, k]
-            ot[h] = nt[b]
-            oinst[h] = ninst[b]
-            oprim[h] = nprim[b]
-            ou[h] = nu[b]
-            ov[h] = nv[b]
-            oseed[h] = nseed[b]
+            _geo_row(h, -1 - a, no, nd, nt, ninst, nprim, nu, nv, nseed, oo, od, ot, oinst,
+                     oprim, ou, ov, oseed)
 
 
 #: the geometry arrays' order in :func:`_splice_geo` (``light_records._GEO``'s keys)

@@ -286,7 +286,7 @@ def _harmless(tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
         nx /= ln
         ny /= ln
         nz /= ln
-        side = _extent_side(sa, j, nx, ny, nz, ax, ay, az, slack)
+        side = extent_plane_side(sa, j, nx, ny, nz, ax, ay, az, slack)
         if side != 0:
             # the whole box of the points on the light's side: so is every point
             sx, sy, sz = side * nx, side * ny, side * nz
@@ -310,15 +310,3 @@ def _harmless(tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
             continue  # the triangle behind the point's own plane
         return False
     return True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _extent_side(sa, j, nx, ny, nz, px, py, pz, margin):
-    """Side of the plane through ``p`` with unit normal ``n`` on which light ``j``'s whole
-    extent lies: 1 in front, -1 behind (by more than ``margin``; a sun: every direction of
-    its cone), 0 neither."""
-    if sa.light_kind[j] == LIGHT_SUN:
-        s = -(nx * sa.light_dir[j, 0] + ny * sa.light_dir[j, 1] + nz * sa.light_dir[j, 2])
-        lim = math.sin(sa.light_half[j]) + tol.FACING_EPS_REL
-        return 1 if s > lim else (-1 if s < -lim else 0)
-    return extent_plane_side(sa, j, nx, ny, nz, px, py, pz, margin)

@@ -19,7 +19,9 @@ therefore conservative for us.
 ``--scenes rough_materials`` (issue 24) adds the rough-materials row: rstrace at its default
 settings against Mitsuba 3 at equal time, each one's error against a converged Mitsuba
 reference (``--ref-spp``), and rstrace's converged frame (``--ref-samples``) against it, the
-models' bias (:mod:`.frame_rough`; docs/bench-frame.md).
+models' bias (:mod:`.frame_rough`; docs/bench-frame.md). ``--scenes studio_lights,studio_world``
+(issue 20) add the soft-light rows the same way: the studio's area and sphere lights, and its
+world, against Mitsuba's ``direct`` integrator at equal time (:mod:`.frame_soft`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from ..frame import RenderSettings
 from ..geometry.scene import Scene
 from ..tracing.whitted import render
 from .frame_rough import ROUGH, run_rough
+from .frame_soft import SOFT_ROWS, run_soft, soft_lines
 from .mitsuba_scene import mitsuba_scene_dict, world_triangles  # noqa: F401 (re-exported)
 
 
@@ -68,9 +71,12 @@ def run(scene_names, width=640, height=480, depth=5, accelerator="BVH", mitsuba=
         frames.append(run_rough(width, height, depth, accelerator, ref_spp=ref_spp,
                                 ref_samples=ref_samples if mitsuba else 0, out=out,
                                 mitsuba=mitsuba))
-        scene_names = [n for n in scene_names if n != ROUGH]
-        if not scene_names:
-            return {"frames": frames}
+    for name in [n for n in scene_names if n in SOFT_ROWS]:
+        frames.append(run_soft(name, width, height, depth, accelerator, ref_spp=ref_spp,
+                               ref_samples=ref_samples if mitsuba else 0, mitsuba=mitsuba))
+    scene_names = [n for n in scene_names if n != ROUGH and n not in SOFT_ROWS]
+    if not scene_names:
+        return {"frames": frames}
     settings = RenderSettings(max_depth=depth, accelerator=accelerator)
     # warm-up on a different, tiny scene: compiles (or loads) every kernel without putting
     # the benchmark scenes' meshes into the accelerator's per-mesh cache
@@ -155,6 +161,9 @@ def main(argv: list[str]) -> int:
     for r in res["frames"]:
         if r["scene"] == ROUGH:
             print(rough_lines(r))
+            continue
+        if r["scene"] in SOFT_ROWS:
+            print(soft_lines(r))
             continue
         line = (f"{r['scene']:>14} {r['width']}x{r['height']} depth {r['depth']}: "
                 f"{r['triangles']:,} tris, build {r['build_s']:.2f} s, frame "

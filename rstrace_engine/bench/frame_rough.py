@@ -336,12 +336,13 @@ def _blocks(a: np.ndarray) -> np.ndarray:
 def block_errors(img: np.ndarray, ref: np.ndarray, skip: np.ndarray | None = None
                  ) -> np.ndarray:
     """Relative errors of the 8x8-block mean luminances of ``img`` against ``ref`` over the
-    blocks holding at least ``BLOCK_FLOOR`` of the reference's brightest block's light (and
-    none of the pixels ``skip``, (h, w) bool, marks)."""
+    blocks holding none of the pixels ``skip``, (h, w) bool, marks and at least
+    ``BLOCK_FLOOR`` of the brightest such block's light in the reference."""
     o, c = _blocks(_luminance(img)), _blocks(_luminance(ref))
-    keep = c > BLOCK_FLOOR * c.max()
+    keep = np.ones(c.shape, bool)
     if skip is not None:
-        keep &= _blocks(skip.astype(np.float64)) == 0.0
+        keep = _blocks(skip.astype(np.float64)) == 0.0
+    keep &= c > BLOCK_FLOOR * c[keep].max(initial=0.0)
     return np.abs(o[keep] - c[keep]) / c[keep]
 
 

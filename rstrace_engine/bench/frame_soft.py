@@ -183,7 +183,8 @@ def run_soft(name: str, width: int = 160, height: int = 120, depth: int = 5,
                triangles=scene.triangle_count, lights=scene.n_lights,
                time_s=stats["time_s"], rays=stats["rays_traced"],
                shadow_rays=stats["shadow_rays"], time_4x4_s=frame4.stats["time_s"],
-               rays_4x4=frame4.stats["rays_traced"], threads=numba.get_num_threads(),
+               rays_4x4=frame4.stats["rays_traced"],
+               shadow_rays_4x4=frame4.stats["shadow_rays"], threads=numba.get_num_threads(),
                left_out=list(scene.warnings))
     mi, why = mitsuba_llvm() if mitsuba else (None, "not asked for (--no-mitsuba)")
     if mi is None:

@@ -15,6 +15,7 @@ import math
 from numba import njit
 
 from .. import tolerances as tol
+from .ggx_glass_tables import GLASS_E, Z_MAX
 from .ggx_tables import GGX_E, GGX_E_AVG
 
 #: Cycles' F82-tint model: the tint is taken at cos = 1/7 (about 82 degrees); these are
@@ -30,6 +31,30 @@ def _table_at(x, n):
     x = min(max(x, 0.0), 1.0) * (n - 1)
     i = min(int(x), n - 2)
     return i, x - i
+
+
+@njit(cache=True, nogil=True)
+def ggx_glass_albedo(cos_o, alpha, eta):
+    """Single-scattering albedo ``E`` of a rough dielectric interface (GGX, reflection plus
+    refraction) of roughness ``alpha`` seen at ``cos_o`` from the side whose index over the
+    other's is ``eta`` (``eta < 1``: from air into glass): :data:`~.ggx_glass_tables.GLASS_E`
+    read trilinearly at ``((k - 1) / (k + 1), sqrt(alpha), cos_o)``, ``k = max(eta, 1 /
+    eta)`` (clamped to the table's 9), as Cycles reads its ``ggx_glass_E`` tables. The
+    multiscatter glass lobe is the single-scattering one over ``E``
+    (:func:`~.shading.ggx_glass_albedo_quadrature` computes the tables)."""
+    side = 0 if eta <= 1.0 else 1
+    k = eta if eta >= 1.0 else 1.0 / eta
+    nz, nr, nc = GLASS_E.shape[1], GLASS_E.shape[2], GLASS_E.shape[3]
+    i, s = _table_at((k - 1.0) / (k + 1.0) / Z_MAX, nz)
+    j, u = _table_at(math.sqrt(max(alpha, 0.0)), nr)
+    c, v = _table_at(cos_o, nc)
+    e = 0.0
+    for di in range(2):
+        for dj in range(2):
+            w = (s if di else 1.0 - s) * (u if dj else 1.0 - u)
+            row = GLASS_E[side, i + di, j + dj]
+            e += w * ((1.0 - v) * row[c] + v * row[c + 1])
+    return e
 
 
 @njit(cache=True, nogil=True)

@@ -46,6 +46,7 @@ from .multiscatter import (  # noqa: F401  (re-exported: the GGX albedo's home)
     dielectric_fss,
     ggx_e,
     ggx_e_avg,
+    ggx_glass_albedo,
     multiscatter_factors,
 )
 
@@ -567,24 +568,20 @@ def ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u1, u2):
             hx * t1z + hy * t2z + hz * nz)
 
 
-#: lattice of the rough dielectric's albedo quadrature (:func:`ggx_glass_albedo`): n x n
-#: visible normals
-GLASS_ALBEDO_SAMPLES = 12
-
-
 @njit(cache=True, nogil=True)
-def ggx_glass_albedo(cos_o, alpha, eta):
+def ggx_glass_albedo_quadrature(cos_o, alpha, eta, n):
     """Single-scattering albedo ``E`` of a rough dielectric interface (GGX, reflection plus
     refraction) seen from ``cos_o``, ``eta = n1 / n2`` (the side the view is on over the
     other): the mean over visible normals of ``F G2 / G1`` (reflected) and ``(1 - F) G2 /
     G1`` (refracted), a direction on the wrong side of the macro surface counting 0 -- what
-    the glossy rays carry (:func:`~.glossy_rays._glossy_rays`). Cycles' multiscatter GGX glass
-    (Principled's default) scales its lobe by ``1 / E`` (``microfacet_ggx_preserve_energy``,
-    from tabulated ``E``); this is the same ``E`` by a deterministic quadrature: a
-    ``GLASS_ALBEDO_SAMPLES``-square midpoint lattice over the sampler's unit square."""
+    the glossy rays carry (:func:`~.glossy_rays._glossy_rays`), by a deterministic
+    quadrature: an ``n`` x ``n`` midpoint lattice over the sampler's unit square. Cycles'
+    multiscatter GGX glass (Principled's default) scales its lobe by ``1 / E``
+    (``microfacet_ggx_preserve_energy``) read from tables; so does the shader, from the
+    tables ``scripts/ggx_glass_tables.py`` computes with this
+    (:func:`~.multiscatter.ggx_glass_albedo`)."""
     co = min(max(cos_o, tol.GGX_COS_MIN), 1.0)
     so = math.sqrt(max(0.0, 1.0 - co * co))
-    n = GLASS_ALBEDO_SAMPLES
     acc = 0.0
     for a in range(n):
         for b in range(n):

@@ -136,25 +136,73 @@ def test_a_lights_diffuse_or_glossy_visibility_is_shaded_again(scene_name):
         assert frame.stats["relit_lights"] == [sess.scene.light_slot(key)]
 
 
-def test_linked_lights_relight_and_their_links_retrace():
-    """Under light and shadow linking a light's power or colour still recombines (its terms
-    were shaded with its links), bit for bit; changing whom it lights or whose shadow it
-    casts re-traces what it reaches (it once left such pixels as they were)."""
+@pytest.mark.parametrize("scene_name", ["room", "soft_room"])
+def test_linked_lights_are_relit_with_their_links(scene_name):
+    """Under light and shadow linking a light's power or colour recombines (its terms were
+    shaded with its links), and moving, resizing or relinking it shades it again alone
+    with its links -- only its receivers get its term, only its blockers stop its shadow
+    rays (or samples) -- bit for bit a fresh frame, no primary ray traced. Shadow linking
+    turned on or off (every light's shadow query changes) re-traces what it reaches."""
+    sess = Session(SOAK_SCENES[scene_name](W, H), SETTINGS)
+    sess.render()
+    slot = sess.scene.light_slot("Lamp")
+
+    def relit(li, **kw):
+        seen = seen_pixels(sess, light(sess, "Lamp"), li)
+        frame = step(sess, [LightSet("Lamp", li)], **kw)
+        if kw.get("relit", True):
+            assert frame.stats["relit_lights"] == [slot]
+            assert frame.stats["traced_pixels"] == seen
+            assert frame.stats["primary_rays"] == 0 or seen
+        return frame
+
+    def moved(li, dx):
+        return replace(li, position=tuple(np.asarray(li.position) + dx))
+
+    # light linking: the Lamp lights the ball and the floor only
+    li = replace(light(sess, "Lamp"), receivers=(("Ball", True), ("Floor", True)))
+    relit(li)
+    relit(li := moved(li, (0.5, -0.2, 0.1)))
+    frame = relit(li := replace(li, radius=li.radius * 1.5 + 0.05))
+    assert frame.stats["relight_shadow_rays"] > 0
+    relit(li := replace(li, receivers=(("Box", False),)))  # relinked: all but the box
+    # shadow linking turned on: every light's shadow rays change their query (re-traced)
+    frame = relit(li := replace(li, blockers=(("Box", False),)), relit=False)
+    assert frame.stats["traced_pixels"] > 0
+    # with blockers set: moved, resized, its blockers changed -- relit
+    relit(li := moved(li, (-0.6, 0.3, -0.1)))
+    relit(li := replace(li, radius=li.radius * 0.5))
+    relit(li := replace(li, blockers=(("Ball", False),), receivers=()))
+    brighter = replace(li, power=li.power * 0.6, color=(1.0, 0.7, 0.4))
+    seen = seen_pixels(sess, li)  # (its own surface seen: in no term)
+    frame = step(sess, [LightSet("Lamp", li := brighter)])
+    assert frame.stats["relight_shadow_rays"] == 0
+    assert frame.stats["traced_pixels"] == seen
+    frame = relit(li := replace(li, blockers=()), relit=False)  # shadow linking off
+    assert frame.stats["traced_pixels"] > 0
+
+
+def test_linked_light_terms_follow_the_links():
+    """The relit term of a linked light is its links' term: a receiver set that leaves
+    out every object relights a frame without the light, and blockers of nothing a frame
+    without its shadows (each equal to a fresh frame, asserted by ``step``)."""
     sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
     sess.render()
-    for links in (dict(receivers=(("Ball", True), ("Floor", True))),
-                  dict(blockers=(("Box", False),))):
-        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
-                     relit=False)
-        assert frame.stats["traced_pixels"] > 0
-        li = light(sess, "Lamp")
-        frame = step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.6,
-                                                     color=(1.0, 0.7, 0.4)))])
-        assert frame.stats["rays_traced"] == 0
-    for links in (dict(receivers=()), dict(blockers=())):
-        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
-                     relit=False)
-        assert frame.stats["traced_pixels"] > 0
+    li = light(sess, "Lamp")
+    names = [inst["name"] for inst in sess.scene.instances]
+    no_lamp = step(sess, [LightSet("Lamp", replace(li, power=0.0))])
+    step(sess, [LightSet("Lamp", li)])
+    off = step(sess, [LightSet("Lamp", replace(li, receivers=tuple(
+        (n, False) for n in names)))])
+    np.testing.assert_array_equal(off.radiance, no_lamp.radiance)
+    assert off.stats["relit_lights"] == [sess.scene.light_slot("Lamp")]
+    assert off.stats["relight_shadow_rays"] == 0  # (it faces no receiver: no shadow ray)
+    with_blockers = step(sess, [LightSet("Lamp", replace(li, receivers=(),
+                                                         blockers=(("Box", False),)))],
+                         relit=False)
+    unblocked = step(sess, [LightSet("Lamp", replace(li, blockers=tuple(
+        (n, False) for n in names)))])
+    assert not np.array_equal(unblocked.radiance, with_blockers.radiance)
 
 
 def test_added_and_deleted_lights():

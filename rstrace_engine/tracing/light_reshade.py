@@ -7,6 +7,11 @@ A point, spot or sun light is shaded as the scene's only light (:func:`_one_ligh
 ``j`` alone as slot 0, the world not lighting, so the shade kernel performs the same
 operations on the same operands without the other lights' columns), in one batch; a light
 with an extent keeps the scene's own slots (its samples are seeded by its slot), in batches.
+
+Light linking is honoured as the tracer does it: the light's state is -2 at the nodes on
+instances it does not light (its receivers, read from the nodes' hit instance), and its
+shadow rays (and samples) are stopped only by its blockers (:mod:`.light_linking`, the
+same query the tracer makes).
 """
 
 from __future__ import annotations
@@ -19,19 +24,26 @@ from numba import njit, prange
 from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import threads_for
+from .light_linking import occluded
 from .shader import Surfaces, light_state
 from .soft_lights import soft_visibility
 from .whitted import shade, shadow_rays
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, MAT, state, mat):
-    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points,
-    and their materials where it faces them (-1 elsewhere: shaded as misses, no term)."""
+def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points
+    on instances ``INST`` (-2 where light linking says it does not light the instance, as
+    :func:`~.shader.unlinked_lights`), and their materials where it faces them (-1
+    elsewhere: shaded as misses, no term)."""
+    linked = sa.light_recv.shape[0] > 0
     for i in prange(P.shape[0]):
-        state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
-                               NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
-                               Q[i, 2])
+        if linked and sa.light_recv[j, INST[i]] == 0:
+            state[i] = -2
+        else:
+            state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                   NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                                   Q[i, 2])
         mat[i] = MAT[i] if state[i] != -2 else -1
 
 
@@ -107,15 +119,17 @@ def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, on
     mat = np.empty(k, np.int32)
     with threads_for(k):
         # the nodes it does not face are shaded as misses (no material read, no term)
-        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state, mat)
+        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                          part.geo["inst"], state, mat)
         sf = Surfaces(*surf[:5], mat, surf.Q, state)
         todo, so, sd, stmax = shadow_rays(sa1, sf)
         tick(split, "states", t0)
         t0 = time.perf_counter()
         vis = np.zeros(k, np.bool_)
         if len(todo):
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
-                                    np.bool_)
+            # (shadow linking: only the light's blockers stop them, as the tracer's
+            # whitted._visibility; sa1's tables hold the light's row alone, as light 0)
+            vis[todo] = ~occluded(sa1, accel, so, sd, stmax, np.zeros(len(todo), np.int64))
             if counters is not None:
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
         tick(split, "shadow_rays", t0)
@@ -138,8 +152,8 @@ def relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit, c
     t0 = time.perf_counter()
     state = np.empty(len(rows), np.int8)
     with threads_for(len(rows)):
-        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state,
-                          np.empty(len(rows), np.int32))
+        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                          part.geo["inst"], state, np.empty(len(rows), np.int32))
     tick(split, "states", t0)
     faced[rows] = state != -2
     on = np.zeros(len(rows), bool)
@@ -175,17 +189,16 @@ def shade_one(sa, accel, j, light_samples, geo, surf, sub, state, counters):
         todo, so, sd, stmax = shadow_rays(sa, sf)
         vis = np.zeros(k * L, np.bool_)
         if len(todo):
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
-                                    np.bool_)
+            vis[todo] = ~occluded(sa, accel, so, sd, stmax, todo % L)
             if counters is not None:
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
         sa1 = sa._replace(world_light=np.zeros(3))  # the world's samples are not redone
         soft = None
         if sa.light_ext[j]:
-            def occluded(o, dd, tmax, r):
-                return accel.any_hit(o, dd, np.zeros(len(o)), tmax)
+            def blocked(o, dd, tmax, r):  # (as whitted._occluded_by: the light's blockers)
+                return occluded(sa, accel, o, dd, tmax, np.where(r >= 0, r % L, -1))
             soft, srows, any_vis = soft_visibility(
-                sa1, sf, g["seed"], int(light_samples), sf.sh_state, occluded, counters)
+                sa1, sf, g["seed"], int(light_samples), sf.sh_state, blocked, counters)
             vis[srows[srows >= 0]] = any_vis[srows >= 0]
         _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
     return vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]

@@ -36,6 +36,7 @@ import threading
 import time
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from .cancel import CancelFlag, cancelled
@@ -180,6 +181,9 @@ class ViewportWorker:
         self._submitted = 0  # job counter
         self._started = 0  # the job the worker is on
         self._t_submit = 0.0
+        # numba's thread count is per thread: the worker takes the host's (the thread
+        # that submits: the add-on's Blender thread setting, a benchmark's --threads)
+        self._threads = numba.get_num_threads()
         self._stop = False
         # set by every submission and by stop(); cleared when the worker takes a job: the
         # renderers poll it between tiles and the BVH kernels inside their loops
@@ -213,6 +217,7 @@ class ViewportWorker:
                 self._job["border"] = border
             self._submitted += 1
             self._t_submit = time.perf_counter()
+            self._threads = numba.get_num_threads()
             self._flag.set()
             self._idle.clear()
             self._cond.notify_all()
@@ -278,7 +283,10 @@ class ViewportWorker:
                 self._flag.clear()  # under the condition: a later submit sets it again
                 self._started = job = self._submitted
                 t_job = self._t_submit
+                threads = self._threads
                 spec = dict(self._job)
+            if numba.get_num_threads() != threads:
+                numba.set_num_threads(threads)
             try:
                 self._render_job(job, t_job, spec)
             except SceneError as exc:

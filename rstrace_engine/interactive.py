@@ -141,12 +141,13 @@ def _coarse_border(border, factor: int, w: int, h: int):
 
 
 def _rgba(rgb: np.ndarray, border, w: int, h: int) -> np.ndarray:
-    out = np.zeros((h, w, 4), np.float32)
+    out = np.empty((h, w, 4), np.float32)
     out[..., :3] = rgb
     if border is None:
         out[..., 3] = 1.0
     else:
         x0, y0, bw, bh = border
+        out[..., 3] = 0.0
         out[y0:y0 + bh, x0:x0 + bw, 3] = 1.0
     return out
 
@@ -353,11 +354,11 @@ class ViewportWorker:
         if moved:
             fstats["camera_changed"] = True
         rgb = _mask_border(frame.radiance, border)
-        acc = rgb.astype(np.float64)
         self.last_frame = frame
         self._publish(_rgba(rgb, border, w, h), STAGE_FULL, 1, job, (w, h), border, fstats)
         # 3. refinement: further stratified samples (the pixel centre was sample 0 of 1)
         n = self.samples
+        acc = rgb.astype(np.float64) if n > 1 else None
         for k in range(1, n):
             with self.lock:
                 rgb, _, done = trace_view(session, camera, settings, self._flag, border,

@@ -248,7 +248,8 @@ class FrameReuse:
         for j in moved:
             if j < len(sa.light_kind):
                 p_bits, s_bits = lr.relight(sa, accel, j, int(settings.light_samples),
-                                            counters)
+                                            counters, (self.records.n_pixels,
+                                                       self.camera.width))
                 t1 = time.perf_counter()
                 self.records.set_light_bits(j, p_bits, s_bits)
                 split["light_bits"] = split.get("light_bits", 0.0) + time.perf_counter() - t1
@@ -265,6 +266,7 @@ class FrameReuse:
         self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
                                   relit_lights=moved,
                                   relight_shadow_rays=counters.get("shadow", 0),
+                                  relight_shadow_skipped=counters.get("shadow_skipped", 0),
                                   relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)

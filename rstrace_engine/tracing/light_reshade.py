@@ -195,19 +195,25 @@ def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, on
     sa1 = _one_light(sa, j)
     state = np.empty(k, np.int8)
     mat = np.empty(k, np.int32)
-    with threads_for(k):
+    # the states and the shadow rays' set-up: a few operations per node, on one thread
+    # (on a busy machine a parallel region waits for a descheduled thread longer than
+    # this work takes: 45-90 ms against 5-15, docs/RELIGHT.md)
+    with threads_for(0):
         # the nodes it does not face are shaded as misses (no material read, no term)
         _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
                           part.geo["inst"], state, mat)
-        sf = Surfaces(*surf[:5], mat, surf.Q, state)
-        tick(split, "states", t0)
+    sf = Surfaces(*surf[:5], mat, surf.Q, state)
+    tick(split, "states", t0)
+    with threads_for(k):
         # the nodes proven to see the whole ball the dragged light is in trace no ray
         proven = _drag_proof(part, sa1, accel, j, rows, sf, state, tiles, counters, split)
-        t0 = time.perf_counter()
-        sf_rays = sf if proven is None else sf._replace(
-            sh_state=np.where(proven, np.int8(-2), state))
+    t0 = time.perf_counter()
+    sf_rays = sf if proven is None else sf._replace(
+        sh_state=np.where(proven, np.int8(-2), state))
+    with threads_for(0):
         todo, so, sd, stmax = shadow_rays(sa1, sf_rays)
-        tick(split, "states", t0)
+    tick(split, "states", t0)
+    with threads_for(k):
         t0 = time.perf_counter()
         vis = np.zeros(k, np.bool_)
         if proven is not None:

@@ -36,6 +36,7 @@ import threading
 import time
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from .cancel import CancelFlag, cancelled
@@ -140,12 +141,13 @@ def _coarse_border(border, factor: int, w: int, h: int):
 
 
 def _rgba(rgb: np.ndarray, border, w: int, h: int) -> np.ndarray:
-    out = np.zeros((h, w, 4), np.float32)
+    out = np.empty((h, w, 4), np.float32)
     out[..., :3] = rgb
     if border is None:
         out[..., 3] = 1.0
     else:
         x0, y0, bw, bh = border
+        out[..., 3] = 0.0
         out[y0:y0 + bh, x0:x0 + bw, 3] = 1.0
     return out
 
@@ -180,6 +182,9 @@ class ViewportWorker:
         self._submitted = 0  # job counter
         self._started = 0  # the job the worker is on
         self._t_submit = 0.0
+        # numba's thread count is per thread: the worker takes the host's (the thread
+        # that submits: the add-on's Blender thread setting, a benchmark's --threads)
+        self._threads = numba.get_num_threads()
         self._stop = False
         # set by every submission and by stop(); cleared when the worker takes a job: the
         # renderers poll it between tiles and the BVH kernels inside their loops
@@ -213,6 +218,7 @@ class ViewportWorker:
                 self._job["border"] = border
             self._submitted += 1
             self._t_submit = time.perf_counter()
+            self._threads = numba.get_num_threads()
             self._flag.set()
             self._idle.clear()
             self._cond.notify_all()
@@ -278,7 +284,10 @@ class ViewportWorker:
                 self._flag.clear()  # under the condition: a later submit sets it again
                 self._started = job = self._submitted
                 t_job = self._t_submit
+                threads = self._threads
                 spec = dict(self._job)
+            if numba.get_num_threads() != threads:
+                numba.set_num_threads(threads)
             try:
                 self._render_job(job, t_job, spec)
             except SceneError as exc:
@@ -345,11 +354,11 @@ class ViewportWorker:
         if moved:
             fstats["camera_changed"] = True
         rgb = _mask_border(frame.radiance, border)
-        acc = rgb.astype(np.float64)
         self.last_frame = frame
         self._publish(_rgba(rgb, border, w, h), STAGE_FULL, 1, job, (w, h), border, fstats)
         # 3. refinement: further stratified samples (the pixel centre was sample 0 of 1)
         n = self.samples
+        acc = rgb.astype(np.float64) if n > 1 else None
         for k in range(1, n):
             with self.lock:
                 rgb, _, done = trace_view(session, camera, settings, self._flag, border,

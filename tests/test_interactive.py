@@ -171,3 +171,32 @@ def test_light_drag_relights_without_a_coarse_preview():
             np.testing.assert_array_equal(worker.last_frame.radiance, ref)
     finally:
         worker.stop()
+
+
+def test_worker_takes_the_hosts_thread_count(session, monkeypatch):
+    """numba's thread count is per thread: the worker renders with the count of the thread
+    that submits (Blender's thread setting, a benchmark's ``--threads``), not numba's
+    default (it once ran every viewport frame on all threads)."""
+    import numba
+
+    seen = []
+    render = Session.render
+
+    def spy(self, *a, **kw):
+        seen.append(numba.get_num_threads())
+        return render(self, *a, **kw)
+
+    monkeypatch.setattr(Session, "render", spy)
+    saved = numba.get_num_threads()
+    worker = ViewportWorker(threading.Lock(), samples=1)
+    try:
+        numba.set_num_threads(1)
+        worker.submit(session=session, camera=session.scene.camera, settings=session.settings)
+        assert worker.wait_idle(300) and worker.error is None
+        numba.set_num_threads(saved)
+        worker.submit(camera=replace(session.scene.camera))
+        assert worker.wait_idle(300) and worker.error is None
+    finally:
+        numba.set_num_threads(saved)
+        worker.stop()
+    assert seen[0] == 1 and seen[-1] == saved

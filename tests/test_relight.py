@@ -136,25 +136,73 @@ def test_a_lights_diffuse_or_glossy_visibility_is_shaded_again(scene_name):
         assert frame.stats["relit_lights"] == [sess.scene.light_slot(key)]
 
 
-def test_linked_lights_relight_and_their_links_retrace():
-    """Under light and shadow linking a light's power or colour still recombines (its terms
-    were shaded with its links), bit for bit; changing whom it lights or whose shadow it
-    casts re-traces what it reaches (it once left such pixels as they were)."""
+@pytest.mark.parametrize("scene_name", ["room", "soft_room"])
+def test_linked_lights_are_relit_with_their_links(scene_name):
+    """Under light and shadow linking a light's power or colour recombines (its terms were
+    shaded with its links), and moving, resizing or relinking it shades it again alone
+    with its links -- only its receivers get its term, only its blockers stop its shadow
+    rays (or samples) -- bit for bit a fresh frame, no primary ray traced. Shadow linking
+    turned on or off (every light's shadow query changes) re-traces what it reaches."""
+    sess = Session(SOAK_SCENES[scene_name](W, H), SETTINGS)
+    sess.render()
+    slot = sess.scene.light_slot("Lamp")
+
+    def relit(li, **kw):
+        seen = seen_pixels(sess, light(sess, "Lamp"), li)
+        frame = step(sess, [LightSet("Lamp", li)], **kw)
+        if kw.get("relit", True):
+            assert frame.stats["relit_lights"] == [slot]
+            assert frame.stats["traced_pixels"] == seen
+            assert frame.stats["primary_rays"] == 0 or seen
+        return frame
+
+    def moved(li, dx):
+        return replace(li, position=tuple(np.asarray(li.position) + dx))
+
+    # light linking: the Lamp lights the ball and the floor only
+    li = replace(light(sess, "Lamp"), receivers=(("Ball", True), ("Floor", True)))
+    relit(li)
+    relit(li := moved(li, (0.5, -0.2, 0.1)))
+    frame = relit(li := replace(li, radius=li.radius * 1.5 + 0.05))
+    assert frame.stats["relight_shadow_rays"] > 0
+    relit(li := replace(li, receivers=(("Box", False),)))  # relinked: all but the box
+    # shadow linking turned on: every light's shadow rays change their query (re-traced)
+    frame = relit(li := replace(li, blockers=(("Box", False),)), relit=False)
+    assert frame.stats["traced_pixels"] > 0
+    # with blockers set: moved, resized, its blockers changed -- relit
+    relit(li := moved(li, (-0.6, 0.3, -0.1)))
+    relit(li := replace(li, radius=li.radius * 0.5))
+    relit(li := replace(li, blockers=(("Ball", False),), receivers=()))
+    brighter = replace(li, power=li.power * 0.6, color=(1.0, 0.7, 0.4))
+    seen = seen_pixels(sess, li)  # (its own surface seen: in no term)
+    frame = step(sess, [LightSet("Lamp", li := brighter)])
+    assert frame.stats["relight_shadow_rays"] == 0
+    assert frame.stats["traced_pixels"] == seen
+    frame = relit(li := replace(li, blockers=()), relit=False)  # shadow linking off
+    assert frame.stats["traced_pixels"] > 0
+
+
+def test_linked_light_terms_follow_the_links():
+    """The relit term of a linked light is its links' term: a receiver set that leaves
+    out every object relights a frame without the light, and blockers of nothing a frame
+    without its shadows (each equal to a fresh frame, asserted by ``step``)."""
     sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
     sess.render()
-    for links in (dict(receivers=(("Ball", True), ("Floor", True))),
-                  dict(blockers=(("Box", False),))):
-        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
-                     relit=False)
-        assert frame.stats["traced_pixels"] > 0
-        li = light(sess, "Lamp")
-        frame = step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.6,
-                                                     color=(1.0, 0.7, 0.4)))])
-        assert frame.stats["rays_traced"] == 0
-    for links in (dict(receivers=()), dict(blockers=())):
-        frame = step(sess, [LightSet("Lamp", replace(light(sess, "Lamp"), **links))],
-                     relit=False)
-        assert frame.stats["traced_pixels"] > 0
+    li = light(sess, "Lamp")
+    names = [inst["name"] for inst in sess.scene.instances]
+    no_lamp = step(sess, [LightSet("Lamp", replace(li, power=0.0))])
+    step(sess, [LightSet("Lamp", li)])
+    off = step(sess, [LightSet("Lamp", replace(li, receivers=tuple(
+        (n, False) for n in names)))])
+    np.testing.assert_array_equal(off.radiance, no_lamp.radiance)
+    assert off.stats["relit_lights"] == [sess.scene.light_slot("Lamp")]
+    assert off.stats["relight_shadow_rays"] == 0  # (it faces no receiver: no shadow ray)
+    with_blockers = step(sess, [LightSet("Lamp", replace(li, receivers=(),
+                                                         blockers=(("Box", False),)))],
+                         relit=False)
+    unblocked = step(sess, [LightSet("Lamp", replace(li, blockers=tuple(
+        (n, False) for n in names)))])
+    assert not np.array_equal(unblocked.radiance, with_blockers.radiance)
 
 
 def test_added_and_deleted_lights():
@@ -420,6 +468,8 @@ def test_light_edits_repack_only_the_lights():
     the rest of the packing: equal to packing the edited scene from scratch."""
     sess = Session(SOAK_SCENES["soft_room"](W, H), SETTINGS)
     old = sess.scene.arrays()
+    sess.render()
+    top = sess.accel.sb  # (the BVH's top level)
     lamp = light(sess, "Lamp")
     sess.apply([LightSet("Lamp", replace(lamp, position=(0.1, 0.2, 2.7), power=90.0)),
                 LightSet("Extra", Light("Extra", "SPOT", power=300.0, position=(1, 1, 3),
@@ -427,6 +477,9 @@ def test_light_edits_repack_only_the_lights():
                 LightDelete("Spot"), WorldColor((0.2, 0.1, 0.05), lights=True)])
     sa = sess.scene.arrays()
     assert sa.verts is old.verts and sa.inst_xform is old.inst_xform  # (kept, not packed)
+    # the accelerator keeps its top level (the same instances) and traces the new packing
+    assert sess.accel.sb is top and sess.accel.sa is sa
+    np.testing.assert_array_equal(sess.render().radiance, fresh(sess).radiance)
     scratch = sess.scene.copy()
     scratch._arrays = None
     ref = scratch.arrays()
@@ -437,3 +490,100 @@ def test_light_edits_repack_only_the_lights():
             np.testing.assert_array_equal(a, b, err_msg=name)
         else:
             assert a == b, name
+    m = sess.scene.instances[sess.scene.instance_slot("Small")]["matrix"].copy()
+    m[0, 3] += 0.1
+    sess.apply([ObjectTransform("Small", m)])
+    assert sess.accel.sb is not top  # (an object moved: rebuilt)
+    np.testing.assert_array_equal(sess.render().radiance, fresh(sess).radiance)
+
+
+@pytest.mark.parametrize("key", ["Lamp", "Spot"])
+def test_a_drag_skips_the_shadow_rays_its_ball_proves(monkeypatch, key):
+    """From a point or spot light's second drag step on, the primary nodes proven to see
+    every point of a ball ahead of it (light_reshade.DRAG_BALL_REL; per tile and instance,
+    the shaft skips' proof) trace no shadow ray while it stays in the ball. Every proven
+    ray, traced anyway (CHECK_PROOFS), is unoccluded, and every frame equals a fresh one
+    bit for bit. An object edit mid-drag drops the proof (new trees, new nodes)."""
+    from rstrace_engine.tracing import light_reshade
+
+    monkeypatch.setattr(light_reshade, "CHECK_PROOFS", True)
+    monkeypatch.setattr(light_reshade, "DRAG_BALL_REL", 0.02)  # (0.35 m in the room)
+    sess = Session(SOAK_SCENES["room"](W, H), SETTINGS)
+    sess.render()
+
+    def drag(n):
+        out = []
+        for _ in range(n):
+            li = light(sess, key)
+            frame = step(sess, [LightSet(key, replace(li, position=tuple(
+                np.asarray(li.position) + (0.05, 0.02, 0.0))))])
+            out.append(frame.stats["relight_shadow_skipped"])
+        return out
+
+    skipped = drag(8)
+    assert skipped[0] == 0 and all(s > 0 for s in skipped[1:]), skipped
+    lr = sess.reuse.light_records
+    assert lr.p.proof is not None and lr.p.proof.proven.any()
+    # a proof holds while the light is in its ball: a new one is made after it left
+    centers = {tuple(lr.p.proof.center)}
+    skipped = drag(12)
+    centers.add(tuple(sess.reuse.light_records.p.proof.center))
+    assert len(centers) == 2 and all(s > 0 for s in skipped)
+    m = sess.scene.instances[sess.scene.instance_slot("Box")]["matrix"].copy()
+    m[0, 3] += 0.2
+    step(sess, [ObjectTransform("Box", m)], relit=False)
+    skipped = drag(3)
+    assert skipped[0] == 0 and skipped[1] > 0
+    # a jump (longer than the ball) proves nothing; power edits keep the proof
+    li = light(sess, key)
+    frame = step(sess, [LightSet(key, replace(li, position=tuple(
+        np.asarray(li.position) + (-1.0, 0.0, 0.0))))])
+    assert frame.stats["relight_shadow_skipped"] == 0
+    step(sess, [LightSet(key, replace(light(sess, key), power=li.power * 2.0))])
+    assert drag(2)[1] > 0
+
+
+def test_a_ball_proof_holds_everywhere_in_the_ball():
+    """shaft_skip.ball_rows: from every point of the ball (random points, its surface
+    included) every proven node's shadow ray is unoccluded; the proof is not empty, and
+    a ball moved to where the Box shadows the floor proves fewer nodes."""
+    from rstrace_engine.tracing.light_linking import occluded
+    from rstrace_engine.tracing.light_reshade import _one_light, _one_light_states
+    from rstrace_engine.tracing.shaft_skip import ball_rows, tile_keys
+    from rstrace_engine.tracing.whitted import shadow_rays
+
+    w, h = 64, 48
+    sess = Session(SOAK_SCENES["room"](w, h), replace(SETTINGS, samples=1))
+    sess.render()
+    sa = sess.scene.arrays()
+    p = sess.reuse.light_records.p
+    rows = np.flatnonzero(p.hit)
+    surf = p.surfaces(sa, False)
+    inst = p.geo["inst"]
+    keys = tile_keys(rows % (w * h), w)
+    sa1 = _one_light(sa, sess.scene.light_slot("Lamp"))
+    rng = np.random.default_rng(3)
+    radius = 0.4
+    counts = []
+    for center in (np.asarray(sa1.light_pos[0]), np.asarray(sa1.light_pos[0]) + (0, 0, -1.5)):
+        state = np.empty(len(rows), np.int8)
+        mat = np.empty(len(rows), np.int32)
+        _one_light_states(sa1._replace(light_pos=center.reshape(1, 3)), 0, surf.P, surf.NG,
+                          surf.NS, surf.Q, surf.mat, inst, state, mat)
+        traced = state == 1
+        proven = ball_rows(sa1, sess.accel, 0, center, radius, surf, traced, inst, keys)
+        assert proven is not None and proven.any() and not (proven & ~traced).any()
+        counts.append(int(proven.sum()))
+        for _ in range(12):
+            u = rng.normal(size=3)
+            pos = center + radius * rng.random() ** (1 / 3) * u / np.linalg.norm(u)
+            sa_p = sa1._replace(light_pos=pos.reshape(1, 3))
+            st = np.empty(len(rows), np.int8)
+            _one_light_states(sa_p, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, inst,
+                              st, mat)
+            # the proven nodes the light faces from there: their rays are unoccluded
+            todo, so, sd, tmax = shadow_rays(sa_p, surf._replace(
+                sh_state=np.where(proven & (st == 1), st, np.int8(-2))))
+            assert len(todo) and not occluded(sa_p, sess.accel, so, sd, tmax,
+                                              np.zeros(len(todo), np.int64)).any()
+    assert counts[1] != counts[0]

@@ -156,6 +156,11 @@ class KeptBVHs:
 KEPT = KeptBVHs()
 
 
+#: what the top level of :class:`BVHAccelerator` is built from (kept while a new packing
+#: shares these arrays)
+_TOP_FIELDS = ("inst_aabb", "inst_alive", "inst_mesh", "inst_inv")
+
+
 class BVHAccelerator(Accelerator):
     """The two-level numba BVH (:mod:`.bvh`).
 
@@ -235,6 +240,14 @@ class BVHAccelerator(Accelerator):
                 self._kept.keep(self._cache, sum(a.nbytes for a in concat[:4]))
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
+        old = self.sa if same_geometry else None
+        if old is not None and all(getattr(old, f) is getattr(sa, f) for f in _TOP_FIELDS):
+            # the same instances (a light or world edit repacks the lights alone,
+            # Scene.repack_lights): the top level is kept
+            self.sa = sa
+            self.stats["top_build_s"] = 0.0
+            self.stats["build_s"] = time.perf_counter() - t0
+            return
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
         top = bvh_mesh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)

@@ -31,6 +31,7 @@ import numpy as np
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
+from .light_linking import links_shadows
 from .light_records import load_kernels
 from .pixel_records import PixelRecords
 from .seen_lights import any_seen
@@ -218,12 +219,12 @@ class FrameReuse:
             # lighting (every interpolant invalidated) and a background's colour (the
             # pixels that show it) take the interpolants' path
             return False
-        if fx.lights_moved and any(a.shape[0] for sa in (old_sa, new_sa)
-                                   for a in (sa.light_recv, sa.light_block)):
-            # a moved light is shaded again without the instances its links name (the
-            # terms carry none): traced again, as a change of its links is (a light
-            # geometry change, edits._light_geometry). A power or colour edit scales terms
-            # that were shaded with the links: recombined as without them
+        if fx.lights_moved and links_shadows(old_sa) != links_shadows(new_sa):
+            # a moved (or relinked) light is shaded again with its links (its receivers
+            # read from the nodes' hit instances, its blockers in its shadow rays:
+            # light_reshade), the other lights' terms kept. Shadow linking turned on or
+            # off changes the query every light's shadow rays make (light_linking: the
+            # first blocker's closest hit, or any hit): traced again
             return False
         if world_lights(new_sa) and (not world_lights(old_sa)
                                      or len(new_sa.light_kind) != len(old_sa.light_kind)):
@@ -247,7 +248,8 @@ class FrameReuse:
         for j in moved:
             if j < len(sa.light_kind):
                 p_bits, s_bits = lr.relight(sa, accel, j, int(settings.light_samples),
-                                            counters)
+                                            counters, (self.records.n_pixels,
+                                                       self.camera.width))
                 t1 = time.perf_counter()
                 self.records.set_light_bits(j, p_bits, s_bits)
                 split["light_bits"] = split.get("light_bits", 0.0) + time.perf_counter() - t1
@@ -264,6 +266,7 @@ class FrameReuse:
         self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
                                   relit_lights=moved,
                                   relight_shadow_rays=counters.get("shadow", 0),
+                                  relight_shadow_skipped=counters.get("shadow_skipped", 0),
                                   relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)

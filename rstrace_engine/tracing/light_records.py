@@ -205,6 +205,9 @@ class _Part:
         self.dj = -1
         self.d_on: np.ndarray | None = None
         self.d_val: np.ndarray | None = None
+        #: a dragged light's shadow-ray proof over the hit nodes (light_reshade._Proof), or
+        #: None (kept with the nodes: a part taken or spliced starts without)
+        self.proof = None
 
     @classmethod
     def empty(cls, primary: bool, geometry: bool) -> _Part:
@@ -246,14 +249,15 @@ class _Part:
             arrays += list(self.surf)
         if self.dj >= 0:
             arrays += [self.d_on, self.d_val]
-        return int(sum(x.nbytes for x in arrays))
+        proof = 0 if self.proof is None else self.proof.nbytes
+        return int(sum(x.nbytes for x in arrays)) + proof
 
     @property
     def geo_bytes(self) -> int:
         return 0 if self.geo is None else int(sum(x.nbytes for x in self.geo.values()))
 
     def drop_geometry(self) -> None:
-        self.geo = self.surf = None
+        self.geo = self.surf = self.proof = None
 
     def surfaces(self, sa: SceneArrays, keep: bool) -> Surfaces:
         """The hit nodes' surfaces (points, normals, shadow origins, materials), rebuilt by
@@ -439,8 +443,8 @@ class LightRecords:
         total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
-        for q in parts:  # the rebuilt surfaces first (a cache)
-            q.surf = None
+        for q in parts:  # the rebuilt surfaces first (a cache), a drag's proof
+            q.surf = q.proof = None
         total = sum(q.nbytes for q in parts) + self.world_bytes
         if total <= self.cap:
             return
@@ -617,13 +621,15 @@ class LightRecords:
         return out
 
     def relight(self, sa: SceneArrays, accel, j: int, light_samples: int,
-                counters: dict | None = None):
+                counters: dict | None = None, tiles: tuple | None = None):
         """Shade light ``j`` of ``sa`` again at every node (its term replaced, nothing
         else), with its own shadow rays through ``accel``, at the nodes it faces. Returns
         its per-node light bits for the pixel records: ``(traced, lit)`` of the primary
         nodes and of the secondary ones, each (k,) bool. ``counters``: adds ``shadow`` (rays
-        traced) and the stages' seconds (``split``, :data:`~.light_reshade.SPLIT`)."""
+        traced), ``shadow_skipped`` (proven, not traced) and the stages' seconds
+        (``split``, :data:`~.light_reshade.SPLIT`). ``tiles``: ``(pixels, width)`` of the
+        frame (a dragged light's proofs group the primary nodes by tile)."""
         if not self.has_geometry:
             raise RuntimeError("light records without geometry cannot shade a light again")
         self.widen(len(sa.light_kind))
-        return relight_light(self, sa, accel, j, light_samples, counters)
+        return relight_light(self, sa, accel, j, light_samples, counters, tiles)

@@ -7,6 +7,11 @@ A point, spot or sun light is shaded as the scene's only light (:func:`_one_ligh
 ``j`` alone as slot 0, the world not lighting, so the shade kernel performs the same
 operations on the same operands without the other lights' columns), in one batch; a light
 with an extent keeps the scene's own slots (its samples are seeded by its slot), in batches.
+
+Light linking is honoured as the tracer does it: the light's state is -2 at the nodes on
+instances it does not light (its receivers, read from the nodes' hit instance), and its
+shadow rays (and samples) are stopped only by its blockers (:mod:`.light_linking`, the
+same query the tracer makes).
 """
 
 from __future__ import annotations
@@ -17,21 +22,29 @@ import numpy as np
 from numba import njit, prange
 
 from ..accel.accelerators import Hits
-from ..geometry.scene import SceneArrays
+from ..geometry.scene import LIGHT_POINT, LIGHT_SPOT, SceneArrays
 from .batches import threads_for
-from .shader import Surfaces, light_state
+from .light_linking import occluded
+from .shader import _SH_TRACE, Surfaces, light_state
+from .shaft_skip import ball_rows, tile_keys
 from .soft_lights import soft_visibility
 from .whitted import shade, shadow_rays
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, MAT, state, mat):
-    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points,
-    and their materials where it faces them (-1 elsewhere: shaded as misses, no term)."""
+def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
+    """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points
+    on instances ``INST`` (-2 where light linking says it does not light the instance, as
+    :func:`~.shader.unlinked_lights`), and their materials where it faces them (-1
+    elsewhere: shaded as misses, no term)."""
+    linked = sa.light_recv.shape[0] > 0
     for i in prange(P.shape[0]):
-        state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
-                               NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
-                               Q[i, 2])
+        if linked and sa.light_recv[j, INST[i]] == 0:
+            state[i] = -2
+        else:
+            state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                   NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
+                                   Q[i, 2])
         mat[i] = MAT[i] if state[i] != -2 else -1
 
 
@@ -49,10 +62,12 @@ SURF_BYTES = 5 * 24 + 1 + 4
 
 
 def relight_light(lr, sa: SceneArrays, accel, j: int, light_samples: int,
-                  counters: dict | None = None):
+                  counters: dict | None = None, tiles: tuple | None = None):
     """:meth:`~.light_records.LightRecords.relight` (the records ``lr``, with geometry):
     light ``j`` shaded again at every node of its primary and secondary parts; returns
-    their light bits ``(traced, lit)``."""
+    their light bits ``(traced, lit)``. ``tiles``: ``(pixels, width)`` of the frame (its
+    primary nodes are sample ``s`` of pixel ``g % pixels``): a dragged point or spot light
+    skips the shadow rays of the nodes proven to see it (:func:`_drag_proof`)."""
     split = {} if counters is None else counters.setdefault("split", {})
     bits = []
     for part in (lr.p, lr.s):
@@ -72,9 +87,83 @@ def relight_light(lr, sa: SceneArrays, accel, j: int, light_samples: int,
                             counters, split)
         else:
             relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split,
-                         _ones(len(rows)))
+                         _ones(len(rows)), tiles if part is lr.p else None)
         bits.append((faced, lit))
     return bits[0], bits[1]
+
+
+#: A dragged point or spot light's *ball*: its radius over the scene's extent. From the
+#: drag's second step on, the primary nodes proven to see every point of a ball ahead of
+#: the light (:func:`~.shaft_skip.ball_rows`, per 8x8 tile and instance) trace no shadow
+#: ray while it stays in the ball; leaving it proves a new one. Larger balls are proven
+#: for fewer steps' cost but hold fewer nodes (on museum, 0.5% -- 0.25 m -- holds 86% of
+#: the rows that trace a ray; 1%, which reaches the ceiling above the light, 40%).
+DRAG_BALL_REL = 0.005
+#: tests: trace the proven nodes' shadow rays too and fail if any is occluded
+CHECK_PROOFS = False
+
+
+class _Proof:
+    """A part's proof for dragged light ``j`` (kept on the part, :attr:`_Part.proof`): the
+    accelerator's trees ``sb`` it read, the ball (``center``, ``radius``), ``proven`` (k,)
+    bool over the part's surface rows (None: no proof), the light's last position."""
+
+    def __init__(self, j, sb, center, radius, proven, last) -> None:
+        self.j, self.sb, self.center, self.radius = j, sb, center, radius
+        self.proven, self.last = proven, last
+
+    @property
+    def nbytes(self) -> int:
+        return 0 if self.proven is None else int(self.proven.nbytes)
+
+
+def _drag_proof(part, sa1, accel, j, rows, sf, state, tiles, counters, split):
+    """(k,) bool the part's surface rows whose shadow ray to light ``j`` (``sa1``: it
+    alone, as slot 0; a point or spot) is proven unoccluded, or None: the part's ball
+    proof (:data:`DRAG_BALL_REL`) while the light is in its ball; a new one when the light
+    left it by a drag-sized step (shorter than the radius); none at the first step."""
+    if tiles is None or sa1.light_kind[0] not in (LIGHT_POINT, LIGHT_SPOT):
+        part.proof = None
+        return None
+    pos = np.array(sa1.light_pos[0], np.float64)
+    sb = getattr(accel, "sb", None)
+    pf = part.proof
+    if pf is None or pf.j != j or pf.sb is not sb:
+        part.proof = _Proof(j, sb, None, 0.0, None, pos)  # (the drag's first step)
+        return None
+    traced = state == _SH_TRACE
+    if pf.proven is not None and np.linalg.norm(pos - pf.center) <= pf.radius:
+        pf.last = pos
+        proven = pf.proven & traced
+    else:
+        t0 = time.perf_counter()
+        radius = DRAG_BALL_REL * float(sa1.scene_extent)
+        step = pos - pf.last
+        length = float(np.linalg.norm(step))
+        proven = None
+        if 0.0 < length < radius:
+            center = pos + (0.9 * radius / length) * step  # ahead of the light
+            n_pixels, width = tiles
+            proven = ball_rows(sa1, accel, 0, center, radius, sf, traced,
+                               part.geo["inst"], tile_keys(rows % n_pixels, width))
+            part.proof = _Proof(j, sb, center, radius, proven, pos)
+        else:
+            part.proof = _Proof(j, sb, None, 0.0, None, pos)
+        tick(split, "proof", t0)
+    if proven is not None and counters is not None:
+        counters["shadow_skipped"] = counters.get("shadow_skipped", 0) + int(proven.sum())
+    return proven
+
+
+def _check_proof(sa1, accel, sf, proven) -> None:
+    """:data:`CHECK_PROOFS`: every proven node's shadow ray, traced, is unoccluded."""
+    todo, so, sd, stmax = shadow_rays(sa1, sf._replace(
+        sh_state=np.where(proven, sf.sh_state, np.int8(-2))))
+    if len(todo) != int(proven.sum()):
+        raise AssertionError("drag proof: a proven node traces no shadow ray")
+    hit = occluded(sa1, accel, so, sd, stmax, np.zeros(len(todo), np.int64))
+    if hit.any():
+        raise AssertionError(f"drag proof: {int(hit.sum())} proven shadow rays occluded")
 
 
 _ONES = [np.ones((0, 3))]
@@ -89,14 +178,15 @@ def _ones(k: int) -> np.ndarray:
 
 
 #: the stages of a light's re-shading (:meth:`LightRecords.relight`'s ``split``)
-SPLIT = ("surfaces", "states", "shadow_rays", "shade", "terms")
+SPLIT = ("surfaces", "states", "proof", "shadow_rays", "shade", "terms")
 
 
 def tick(split: dict, name: str, t0: float) -> None:
     split[name] = split.get(name, 0.0) + time.perf_counter() - t0
 
 
-def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, ones):
+def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, ones,
+                 tiles=None):
     """A point, spot or sun light: shaded as the only light of the scene (slot ``j``
     alone, as slot 0: the shader's operations on the same operands), its shadow rays
     only where it faces a node, one batch."""
@@ -105,17 +195,35 @@ def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, on
     sa1 = _one_light(sa, j)
     state = np.empty(k, np.int8)
     mat = np.empty(k, np.int32)
-    with threads_for(k):
+    # the states and the shadow rays' set-up: a few operations per node, on one thread
+    # (on a busy machine a parallel region waits for a descheduled thread longer than
+    # this work takes: 45-90 ms against 5-15, docs/RELIGHT.md)
+    with threads_for(0):
         # the nodes it does not face are shaded as misses (no material read, no term)
-        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state, mat)
-        sf = Surfaces(*surf[:5], mat, surf.Q, state)
-        todo, so, sd, stmax = shadow_rays(sa1, sf)
-        tick(split, "states", t0)
+        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                          part.geo["inst"], state, mat)
+    sf = Surfaces(*surf[:5], mat, surf.Q, state)
+    tick(split, "states", t0)
+    with threads_for(k):
+        # the nodes proven to see the whole ball the dragged light is in trace no ray
+        proven = _drag_proof(part, sa1, accel, j, rows, sf, state, tiles, counters, split)
+    t0 = time.perf_counter()
+    sf_rays = sf if proven is None else sf._replace(
+        sh_state=np.where(proven, np.int8(-2), state))
+    with threads_for(0):
+        todo, so, sd, stmax = shadow_rays(sa1, sf_rays)
+    tick(split, "states", t0)
+    with threads_for(k):
         t0 = time.perf_counter()
         vis = np.zeros(k, np.bool_)
+        if proven is not None:
+            vis[proven] = True  # (the proof holds the rows that trace a ray alone)
+            if CHECK_PROOFS:
+                _check_proof(sa1, accel, sf, proven)
         if len(todo):
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
-                                    np.bool_)
+            # (shadow linking: only the light's blockers stop them, as the tracer's
+            # whitted._visibility; sa1's tables hold the light's row alone, as light 0)
+            vis[todo] = ~occluded(sa1, accel, so, sd, stmax, np.zeros(len(todo), np.int64))
             if counters is not None:
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
         tick(split, "shadow_rays", t0)
@@ -138,8 +246,8 @@ def relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit, c
     t0 = time.perf_counter()
     state = np.empty(len(rows), np.int8)
     with threads_for(len(rows)):
-        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state,
-                          np.empty(len(rows), np.int32))
+        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                          part.geo["inst"], state, np.empty(len(rows), np.int32))
     tick(split, "states", t0)
     faced[rows] = state != -2
     on = np.zeros(len(rows), bool)
@@ -175,17 +283,16 @@ def shade_one(sa, accel, j, light_samples, geo, surf, sub, state, counters):
         todo, so, sd, stmax = shadow_rays(sa, sf)
         vis = np.zeros(k * L, np.bool_)
         if len(todo):
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, np.zeros(len(todo)), stmax),
-                                    np.bool_)
+            vis[todo] = ~occluded(sa, accel, so, sd, stmax, todo % L)
             if counters is not None:
                 counters["shadow"] = counters.get("shadow", 0) + len(todo)
         sa1 = sa._replace(world_light=np.zeros(3))  # the world's samples are not redone
         soft = None
         if sa.light_ext[j]:
-            def occluded(o, dd, tmax, r):
-                return accel.any_hit(o, dd, np.zeros(len(o)), tmax)
+            def blocked(o, dd, tmax, r):  # (as whitted._occluded_by: the light's blockers)
+                return occluded(sa, accel, o, dd, tmax, np.where(r >= 0, r % L, -1))
             soft, srows, any_vis = soft_visibility(
-                sa1, sf, g["seed"], int(light_samples), sf.sh_state, occluded, counters)
+                sa1, sf, g["seed"], int(light_samples), sf.sh_state, blocked, counters)
             vis[srows[srows >= 0]] = any_vis[srows >= 0]
         _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
     return vis.reshape(k, L)[:, j], tp[:, j], tv[:, j]

@@ -310,3 +310,26 @@ def _harmless(tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
             continue  # the triangle behind the point's own plane
         return False
     return True
+
+
+def ball_rows(sa, accel, j: int, center, radius: float, surf, traced: np.ndarray,
+              inst: np.ndarray, keys: np.ndarray, counters: dict | None = None):
+    """(n,) bool: the surface points ``surf`` (primary hits on instances ``inst``, grouped
+    by tile ``keys``) that see *every* point of the ball (``center``, ``radius``) -- the
+    proof above with hard light ``j`` (a point or spot: one shadow ray) taken as a sphere
+    light of that ball, over the points ``traced`` (n,) bool that trace a ray to it. A
+    light dragged within the ball needs no shadow ray from the proven points: each of its
+    segments lies in the group's shaft to the ball, and the harmless triangles' arguments
+    (behind the point's own plane, which the ray leaves since the light faces the point;
+    the point and the whole ball on one side of the triangle's plane) hold for every
+    position in it. None where nothing is tried (as :func:`proven_rows`)."""
+    n = len(traced)
+    ball = sa._replace(
+        light_ext=np.ones(1, np.bool_),
+        light_radius=np.full(1, float(radius)),
+        light_pos=np.asarray(center, np.float64).reshape(1, 3),
+        **{f: getattr(sa, f)[j:j + 1] for f in ("light_kind", "light_dir", "light_half",
+                                               "light_size", "light_u", "light_v")})
+    state = np.where(traced, SH_SOFT, -2).astype(np.int8)
+    proven = proven_rows(ball, accel, surf._replace(sh_state=state), inst, keys, counters)
+    return None if proven is None else proven.reshape(n)

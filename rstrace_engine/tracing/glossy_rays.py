@@ -1,8 +1,8 @@
 """Glossy rays: a rough surface's reflected and refracted rays drawn from its GGX lobe
 (issue 24, docs/glossy.md), for the shade kernel (:mod:`.shader`).
 
-Which materials draw them (:func:`is_glossy`), how many per point (:func:`glossy_counts`:
-Glossy Samples at a path's first rough bounce, one deeper), and the rays themselves
+Which materials draw them (:func:`is_glossy`; how many per point, Glossy Samples at a
+path's first rough bounce and one deeper, :func:`~.whitted.glossy_counts`), and the rays themselves
 (:func:`_glossy_rays`): microfacet normals from GGX's visible normals, stratified like the
 soft lights' samples, weighted as Cycles' microfacet GGX weights them.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
@@ -50,17 +50,6 @@ def is_glossy(sa, m):
     return refl or (sa.mat_ior[m] != 1.0 and (
         sa.mat_transmission[m, 0] > 0.0 or sa.mat_transmission[m, 1] > 0.0
         or sa.mat_transmission[m, 2] > 0.0))
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def glossy_counts(sa, mat, fresh, samples, counts, glossy):
-    """Ray pairs per point of a level (see :func:`_shade_kernel`'s ``gstart``): ``samples``
-    at a glossy point whose path has not been split yet (``fresh``), 1 elsewhere (a deeper
-    glossy bounce draws one direction). Outputs counts (n,) int64, glossy (n,) bool."""
-    for i in prange(mat.shape[0]):
-        g = is_glossy(sa, mat[i])
-        glossy[i] = g
-        counts[i] = samples if g and fresh[i] else 1
 
 
 @njit(cache=True, nogil=True)

@@ -519,8 +519,10 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
             counters["shadow_skipped"] = counters.get("shadow_skipped", 0) + int(skip.sum())
     go = np.flatnonzero(go)
     if len(go):
-        soft.vis[go] = ~np.asarray(occluded(o[go], soft.d[go], tmax[go],
-                                            np.repeat(rows, n)[go]), np.bool_)
+        # take, not fancy indexing: half the time for these (k, 3) rows (8% of a glossy
+        # frame before); a sample's row is its group's, go // n
+        soft.vis[go] = ~np.asarray(occluded(np.take(o, go, axis=0), np.take(soft.d, go, axis=0),
+                                            np.take(tmax, go), rows[go // n]), np.bool_)
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + len(go)
     any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)

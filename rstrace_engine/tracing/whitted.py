@@ -39,7 +39,6 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
-from .glossy_rays import glossy_counts
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
 from .seen_lights import SEEN_CAMERA, SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION, any_seen, seen
@@ -193,6 +192,17 @@ def has_glossy(sa: SceneArrays) -> bool:
     return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
 
 
+def glossy_counts(sa: SceneArrays, mat: np.ndarray, fresh: np.ndarray, samples: int):
+    """Ray pairs per point of a level (:func:`~.shader._shade_kernel`'s ``gstart``): ``samples``
+    at a glossy point (``mat`` (n,) its material, -1 a miss) whose path has not been split
+    yet (``fresh`` (n,) bool), 1 elsewhere (a deeper glossy bounce draws one direction).
+    Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
+    level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
+    on one thread, a quarter of a rough_materials frame (docs/bench-frame.md)."""
+    glossy = np.append(glossy_materials(sa), False)[mat]  # the appended False: -1, a miss
+    return np.where(glossy & fresh, np.int64(samples), np.int64(1)), glossy
+
+
 class _Plan(NamedTuple):
     """Where a level's spawned rays lie: point i's ray pairs ``gstart[i]:gstart[i + 1]``
     (None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool its rays are
@@ -211,10 +221,7 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     gseeds = np.zeros(0, np.uint64)
     gstart = np.arange(n + 1, dtype=np.int64)
     if spawn and seeds is not None and has_glossy(sa):
-        counts = np.empty(n, np.int64)
-        glossy = np.empty(n, np.bool_)
-        glossy_counts(sa, surf.mat, np.ascontiguousarray(fresh, np.bool_), int(samples),
-                      counts, glossy)
+        counts, glossy = glossy_counts(sa, surf.mat, fresh, samples)
         gseeds = np.ascontiguousarray(seeds, np.uint64)
         if glossy.any():
             gstart = np.zeros(n + 1, np.int64)

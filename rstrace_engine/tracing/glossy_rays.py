@@ -39,17 +39,22 @@ def is_glossy(sa, m):
     """Whether material ``m`` reflects or refracts the scene through sampled glossy rays: a
     Principled-like material at GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` (roughness
     0.05; below it a mirror, one ray) with a reflecting layer or transmission."""
-    if m < 0 or sa.mat_model[m] != MODEL_PRINCIPLED or sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN:
+    # branch-free past m < 0 (| and &, not or and and): short-circuits between reads of
+    # ``sa`` kept numba from pruning the reference counts of its ~60 arrays, ~350 ns a
+    # call, 18 ms per 50k points in the shade kernel (docs/bench-frame.md)
+    if m < 0:
         return False
-    refl = (sa.mat_mirror[m, 0] > 0.0 or sa.mat_mirror[m, 1] > 0.0
-            or sa.mat_mirror[m, 2] > 0.0) and (
-        sa.mat_metallic[m] > 0.0 or sa.mat_specular[m, 0] > 0.0
-        or sa.mat_specular[m, 1] > 0.0 or sa.mat_specular[m, 2] > 0.0)
+    refl = ((sa.mat_mirror[m, 0] > 0.0) | (sa.mat_mirror[m, 1] > 0.0)
+            | (sa.mat_mirror[m, 2] > 0.0)) & (
+        (sa.mat_metallic[m] > 0.0) | (sa.mat_specular[m, 0] > 0.0)
+        | (sa.mat_specular[m, 1] > 0.0) | (sa.mat_specular[m, 2] > 0.0))
     # IOR 1 is no interface: such a transmission passes straight on (as through a mirror's
     # one refracted ray), whatever the roughness
-    return refl or (sa.mat_ior[m] != 1.0 and (
-        sa.mat_transmission[m, 0] > 0.0 or sa.mat_transmission[m, 1] > 0.0
-        or sa.mat_transmission[m, 2] > 0.0))
+    trans = (sa.mat_ior[m] != 1.0) & ((sa.mat_transmission[m, 0] > 0.0)
+                                      | (sa.mat_transmission[m, 1] > 0.0)
+                                      | (sa.mat_transmission[m, 2] > 0.0))
+    return ((sa.mat_model[m] == MODEL_PRINCIPLED)
+            & (not sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN) & (refl | trans))
 
 
 @njit(cache=True, nogil=True)

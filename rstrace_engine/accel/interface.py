@@ -43,8 +43,12 @@ def per_ray(x, n: int, dtype) -> np.ndarray:
     ``np.broadcast_to`` gives read-only views, and a read-only array is another numba type:
     every kernel it reaches would be compiled once more (the BVH traversal had four
     signatures, 20 s of cold compile each on two cores, from read-only ``tmin``, ``tmax``
-    and ``only`` arrays)."""
-    a = np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=dtype), (n,)))
+    and ``only`` arrays). Such an array given is returned as it is (not copied: the copies
+    of every query's tmin and tmax were ~2% of a glossy frame, docs/bench-frame.md)."""
+    a = np.asarray(x, dtype=dtype)
+    if a.shape == (n,) and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    a = np.ascontiguousarray(np.broadcast_to(a, (n,)))
     return a if a.flags.writeable else a.copy()
 
 

@@ -57,7 +57,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.light_nodes.detach_terms", "tracing.light_nodes._splice_start",
          "tracing.light_nodes._splice_entries", "tracing.light_nodes._splice_geo",
          "tracing.pixel_records._light_bit_changes",
-         "tracing.glossy_rays.glossy_counts", "tracing.whitted._child_tags",
+         "tracing.whitted._child_tags",
          "tracing.shaft_skip._prove_groups",
          "geometry.mesh_math._proper_kernel")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",

@@ -20,6 +20,7 @@ from ..accel.accelerators import Hits
 from ..geometry.scene import SceneArrays
 from .batches import threads_for
 from .shader import Surfaces, light_state
+from .shading import rough_interface
 from .soft_lights import soft_visibility
 from .whitted import shade, shadow_rays
 
@@ -31,7 +32,7 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, state, mat):
     for i in prange(P.shape[0]):
         state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
                                NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
-                               Q[i, 2])
+                               Q[i, 2], rough_interface(sa, MAT[i]))
         mat[i] = MAT[i] if state[i] != -2 else -1
 
 

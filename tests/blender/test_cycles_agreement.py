@@ -368,16 +368,7 @@ def _rough_scene(kind: str, roughness: float):
 
 #: Measured (docs/glossy.md): the cases whose measured error misses the issue's goal keep
 #: the goal as their threshold and are marked xfail with the measured value, not loosened.
-GLOSSY_MISSES = {
-    ("glass", 0.2): "measured mean 1.4%, p98 17.9% (goal 2% / 8%; single-scattering GGX "
-                    "without the lights' highlight: 1.8% / 21.8%): the point light's share "
-                    "through the ball is short, likely its light refracted through the "
-                    "ball's far side, not modelled (docs/glossy.md)",
-    ("glass", 0.5): "measured mean 2.3%, p98 27.4% (goal 2% / 8%; before: 4.8% / 43.6%): "
-                    "as at 0.2",
-    ("glass", 1.0): "measured mean 3.2%, p98 28.1% (goal 2% / 8%; before: 9.2% / 75.2%): "
-                    "as at 0.2, the whole ball 15-35% darker than Cycles",
-}
+GLOSSY_MISSES: dict = {}
 
 
 @pytest.mark.parametrize("roughness", GLOSSY_ROUGHNESS)

@@ -131,3 +131,29 @@ def test_no_far_side_light_without_a_rough_interface():
     s.set_material(s.material_id("glass"), opaque)
     f = whitted.render(s, _ST)
     assert f.radiance.max() == 0.0 and f.stats["shadow_rays"] == 0
+
+
+def test_interpolant_lines_lit_through_the_far_side_fail_their_cells():
+    """The interpolants' samples: a line on the rough pane whose light lies behind it (its
+    root's own light holds the transmitted term) is flagged GLOSSY (its cells fail with
+    the reason "glossy", docs/INTERPOLANTS.md); with the light in front of the pane (its
+    reflection lobe only) it is not."""
+    from rstrace_engine.accel.accelerators import create_accelerator
+    from rstrace_engine.interpolants.samples import GLOSSY, glossy_flags
+
+    o = np.array([[0.0, -3.0, 0.0], [0.5, -3.0, 0.3]])
+    d = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    for y, flag in ((1.0, GLOSSY), (-1.0, 0)):
+        sc = Scene()
+        glass, _ = principled_material("glass", (1.0, 1.0, 1.0), transmission=1.0,
+                                       roughness=0.5, ior=1.5)
+        sc.add_instance(sc.add_mesh(shapes.plane(4.0)), _TURN, [sc.add_material(glass)],
+                        name="Pane")
+        sc.add_light(Light("P", "POINT", power=100.0, position=(0.3, y, 0.2)))
+        sa = sc.arrays()
+        accel = create_accelerator("BVH", sa)
+        rad, tree = whitted.trace(sa, accel, o, d, 0.0, np.inf, 3, record=True,
+                                  glossy_samples=1, roots="own", camera_lights=False)
+        assert (tree.node_occluder[:2, 0] == -1).all()  # traced, unoccluded, either side
+        assert list(glossy_flags(sa, tree, 2)) == [flag, flag]
+        assert (rad[:, 0] > 0.0).all()

@@ -157,3 +157,29 @@ def test_interpolant_lines_lit_through_the_far_side_fail_their_cells():
         assert (tree.node_occluder[:2, 0] == -1).all()  # traced, unoccluded, either side
         assert list(glossy_flags(sa, tree, 2)) == [flag, flag]
         assert (rad[:, 0] > 0.0).all()
+
+
+def test_light_edits_recombine_the_far_side_term_exactly(monkeypatch):
+    """The rough room's glass ball is lit through its far side: the per-light terms hold
+    that light, so a power or colour edit recombines it bit for bit a fresh frame; its
+    glossy and transmission visibility (rough glass takes either) are shaded again, as its
+    geometry is; moving an object between the ball and the light re-traces those pixels,
+    bit for bit (tests/test_relight.py's ``step``)."""
+    from dataclasses import replace
+
+    from rstrace_engine.bench.soak import SOAK_SCENES
+    from rstrace_engine.geometry.edits import LightSet
+    from rstrace_engine.session import Session
+    from tests import test_relight as tr
+
+    monkeypatch.setattr(Session, "light_terms", True)
+    sess = Session(SOAK_SCENES["rough_room"](tr.W, tr.H), tr.SETTINGS)
+    sess.render()
+    li = tr.light(sess, "Lamp")
+    frame = tr.step(sess, [LightSet("Lamp", replace(li, power=li.power * 0.5,
+                                                    color=(1.0, 0.8, 0.6)))])
+    assert frame.stats["rays_traced"] == 0
+    for flags in (dict(glossy=False), dict(transmission=False), dict(glossy=True)):
+        li = replace(tr.light(sess, "Lamp"), **flags)
+        frame = tr.step(sess, [LightSet("Lamp", li)])
+        assert frame.stats["relit_lights"] == [sess.scene.light_slot("Lamp")]

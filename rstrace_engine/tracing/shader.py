@@ -22,6 +22,10 @@ Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geom
 * A rough Principled-like surface (:func:`is_glossy`) instead spreads ``R`` and ``T`` over
   its GGX lobe: N microfacet normals drawn from the visible normals, each a reflected and a
   refracted ray weighted ``F G2 / G1 / N`` (:func:`_glossy_rays`, docs/glossy.md).
+* At a rough dielectric interface (:func:`~.shading.rough_interface`) a light on the far
+  side of the surface (geometric and shading normal alike) counts too, through the GGX
+  transmission lobe (:func:`~.shading.ggx_btdf`) instead of ``f``: its shadow-ray state is
+  ``SH_FAR`` and its shadow ray leaves from the far side (:func:`~.shading.far_origin`).
 * A ray that misses returns the world colour.
 
 The stages and the wavefront that drive these kernels are :mod:`.whitted`'s; the shade

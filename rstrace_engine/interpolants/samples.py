@@ -20,7 +20,7 @@ from .. import tolerances as tol
 from ..accel.accelerators import Hits
 from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
 from ..geometry.scene import LIGHT_SUN
-from ..tracing.glossy_rays import interface_materials, is_glossy
+from ..tracing.glossy_rays import is_glossy
 from ..tracing.seen_lights import SEEN_GLOSSY, SEEN_TRANSMISSION, any_seen
 from ..tracing.shader import _material_of
 from ..tracing.shading import (
@@ -428,7 +428,7 @@ def glossy_flags(sa, tree, n: int) -> np.ndarray:
     _glossy_nodes(sa, np.ascontiguousarray(tree.node_inst, np.int32),
                   np.ascontiguousarray(np.maximum(tree.node_tri, 0), np.int32), g)
     far = np.zeros(n, np.bool_)
-    if n and len(sa.light_kind) and interface_materials(sa).any():
+    if n:  # (always called: the interpolants' warm-up compiles it)
         _far_lit_roots(sa, np.ascontiguousarray(tree.node_inst[:n], np.int32),
                        np.ascontiguousarray(np.maximum(tree.node_tri[:n], 0), np.int32),
                        np.ascontiguousarray(tree.node_origin[:n], np.float64),

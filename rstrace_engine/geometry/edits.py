@@ -230,13 +230,14 @@ def _visible_box(scene: Scene, slot: int) -> np.ndarray | None:
 def _light_geometry(li: Light) -> tuple:
     """What decides where a light's shadow rays go and which surfaces face it: also its
     extent (radius, soft falloff, sun angle, area shape, axis, size, spread), which lobes
-    it lights (its diffuse and glossy visibility: a light's term holds both lobes, so a
-    change is shaded again, not rescaled) and which objects it lights and which cast its
-    shadow (light and shadow linking)."""
+    it lights (its diffuse, glossy and transmission visibility -- rough glass takes the
+    glossy or the transmission one: a light's term holds every lobe, so a change is
+    shaded again, not rescaled) and which objects it lights and which cast its shadow
+    (light and shadow linking)."""
     return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
             float(li.spot_blend), float(li.radius), bool(li.soft_falloff), float(li.angle),
             li.shape, tuple(li.axis), tuple(li.size), float(li.spread), bool(li.diffuse),
-            bool(li.glossy), tuple(li.receivers), tuple(li.blockers))
+            bool(li.glossy), bool(li.transmission), tuple(li.receivers), tuple(li.blockers))
 
 
 def _light_seen(fx: EditEffects, li: Light | None) -> None:

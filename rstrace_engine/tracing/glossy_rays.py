@@ -52,6 +52,16 @@ def is_glossy(sa, m):
         or sa.mat_transmission[m, 2] > 0.0))
 
 
+def interface_materials(sa) -> np.ndarray:
+    """(NM,) bool: the materials of ``sa`` that are rough dielectric interfaces
+    (:func:`~.shading.rough_interface`: lights on their far side reach the viewer through
+    their transmission lobe)."""
+    return ((np.asarray(sa.mat_model) == MODEL_PRINCIPLED)
+            & (np.asarray(sa.mat_roughness) >= tol.GLOSSY_ALPHA_MIN)
+            & (np.asarray(sa.mat_ior) != 1.0)
+            & (np.asarray(sa.mat_transmission) > 0).any(axis=1))
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def glossy_counts(sa, mat, fresh, samples, counts, glossy):
     """Ray pairs per point of a level (see :func:`_shade_kernel`'s ``gstart``): ``samples``

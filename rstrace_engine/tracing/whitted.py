@@ -47,6 +47,7 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
     OCC_NONE,
     OCC_NOT_FACING,
+    SH_FAR,
     Spawned,
     Surfaces,
     _shade_kernel,
@@ -118,11 +119,11 @@ def surfaces(sa: SceneArrays, o: np.ndarray, d: np.ndarray, tmax: np.ndarray,
 def shadow_rays(sa: SceneArrays, surf: Surfaces):
     """The shadow rays of ``surf``: ``(todo (k,) int64, origins (k, 3), directions (k, 3),
     tmax (k,))``, ``todo`` their (point, light) rows ``i * L + j``."""
-    todo = np.flatnonzero(surf.sh_state == _SH_TRACE)
+    todo = np.flatnonzero((surf.sh_state == _SH_TRACE) | (surf.sh_state == SH_FAR))
     k = len(todo)
     so, sd, st = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
     if k:
-        _shadow_kernel(sa, surf.Q, todo, so, sd, st)
+        _shadow_kernel(sa, surf.P, surf.NG, surf.Q, surf.sh_state, todo, so, sd, st)
     return todo, so, sd, st
 
 
@@ -356,7 +357,8 @@ def _light_masks(sh_state, vis, L, traced, lit):
         b = np.uint64(0)
         for j in range(L):
             bit = np.uint64(1) << np.uint64(j)
-            if sh_state[i * L + j] == _SH_TRACE or sh_state[i * L + j] == SH_SOFT:
+            st = sh_state[i * L + j]
+            if st == _SH_TRACE or st == SH_SOFT or st == SH_FAR:
                 a |= bit
             if vis[i * L + j]:
                 b |= bit

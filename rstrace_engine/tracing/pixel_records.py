@@ -61,7 +61,7 @@ from .record_codes import (
     _segment_box,
     light_geometry,
 )
-from .sample_rays import query_samples, query_world, sampled_lights
+from .sample_rays import query_light_bits, query_world
 from .soft_lights import world_lights
 
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
@@ -517,6 +517,24 @@ class PixelRecords:
         if changed:
             self._compact()
 
+    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray) -> None:
+        """Light ``j``'s visibility bit of the primary nodes ``rows`` after it was shaded
+        again there (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the
+        light are)."""
+        bit = np.uint64(1) << np.uint64(j)
+        c = self.p_combo[rows].astype(np.int64)
+        old = self.t_lit[c].astype(np.uint64)
+        new = np.where(lit, old | bit, old & ~bit)
+        ch = new != old
+        if not ch.any():
+            return
+        ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
+                           self.t_flags[c[ch]])
+        arr = self.p_combo.astype(np.uint32)
+        arr[rows[ch]] = ids
+        self.p_combo = arr
+        self._compact()
+
     @property
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
@@ -532,6 +550,16 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
+        full, lights, world = self.dirty_split(sa, cp, fx)
+        return full | (lights != 0) | world
+
+    def dirty_split(self, sa, cp, fx) -> tuple:
+        """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
+        world (n_rays,) bool)`` -- ``full`` the samples whose primary ray, secondary nodes,
+        hard lights' shadow rays, hit objects, materials or lights the edits may change;
+        for the others, ``lights`` the lights with an extent (bits) and ``world`` the
+        world's light whose shadow rays at the primary hit may cross an edited box (their
+        terms alone may change: :mod:`.shadow_reshade`)."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -587,19 +615,18 @@ class PixelRecords:
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
+        lights = np.zeros(self.n_rays, np.uint64)
+        world = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
-            # area lights and suns with an angle: the primary hits' own samples (after)
-            sampled = np.uint64(0)
-            if self.p_wnorm is not None and len(regions):
-                for j in np.flatnonzero(sampled_lights(sa)):
-                    sampled |= np.uint64(1) << np.uint64(j)
-            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~sampled,
+            # the lights with an extent: the primary hits' shadow rays per light (after)
+            soft = np.uint64(0)
+            if len(regions):
+                ext = np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_kind) >= 0)
+                for j in np.flatnonzero(ext):
+                    soft |= np.uint64(1) << np.uint64(j)
+            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
                         combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
                         out)
-            if sampled:
-                query_samples(sa, self.p_combo, self.p_code, inst64, combo_traced,
-                              self.p_wnorm, self.p_seed, self.w_samples, sampled, self.lo,
-                              self.step, self.levels, self.shift, reg_lo, reg_hi, pos, out)
             seen = fx.seen_regions
             if seen:  # the view and mirror segments crossing an edited light's surface
                 lo = np.ascontiguousarray(np.stack(seen)[:, 0] - margin)
@@ -612,14 +639,24 @@ class PixelRecords:
                             np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
                             kind, pos, ldir, crossed)
                 out |= crossed
+            if soft:
+                wnorm, seed = self.p_wnorm, self.p_seed
+                if wnorm is None:  # (no seeds recorded: the shaft tests)
+                    wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
+                    seed = np.zeros(self.n_rays, np.uint64)
+                query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
+                                 wnorm, seed, self.w_samples, soft, self.lo, self.step,
+                                 self.levels, self.shift, reg_lo, reg_hi, pos, out, lights)
             if world_rays:
                 if self.p_wnorm is None:
-                    out |= is_hit[self.p_combo.astype(np.int64)]
+                    world = is_hit[self.p_combo.astype(np.int64)] & ~out
                 else:
+                    w_out = out.copy()
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
                                 self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, reg_c, reg_r, out)
-        return out
+                                self.step, self.levels, self.shift, reg_c, reg_r, w_out)
+                    world = w_out & ~out
+        return out, lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
                reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:

@@ -20,6 +20,11 @@ where one of its own rays may meet an edited box:
 Sphere lights' samples depend on the point (a cone about the direction to the centre): they
 keep the shaft test of :func:`~.record_codes._light_hit`, as do nodes without a recorded
 seed (secondary nodes, interpolated samples).
+
+The primary hits' lights are found *per light* (:func:`query_light_bits`) and the world's
+rays apart (:func:`query_world`): a sample whose only dirty rays are these shadow rays keeps
+its primary ray and its other terms, and the incremental frame shades just those lights (or
+the world) again at its primary node (:mod:`.shadow_reshade`).
 """
 
 from __future__ import annotations
@@ -95,43 +100,46 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step,
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def query_samples(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask, lo,
-                  step, levels, shift, reg_lo, reg_hi, lgeo, out):
-    """The sampled shadow rays of the lights in ``mask`` (uint64 bits: area lights and
-    suns with an angle, :func:`sampled_lights`) of every primary hit whose tree traced them,
-    regenerated from the node seed (module doc) and tested against the grown regions
-    ``reg_lo, reg_hi``; a sample without a recorded seed (NaN normal) gets the shaft test
-    (``lgeo``: :func:`~.record_codes.light_geometry`). ``sa``: the packing the records
-    describe."""
+def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
+                     lo, step, levels, shift, reg_lo, reg_hi, lgeo, skip, bits):
+    """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
+    with an extent) whose shadow rays there may cross a grown region ``reg_lo, reg_hi``,
+    as bits of ``bits`` (n_rays,) uint64 (assigned). Area lights and suns with an angle
+    (:func:`sampled_lights`) regenerate the point's own samples from its node seed (module
+    doc); sphere lights, and every light of a sample without a recorded seed (NaN normal),
+    get the shaft test of :func:`~.record_codes._light_hit` (``lgeo``:
+    :func:`~.record_codes.light_geometry`). ``sa``: the packing the records describe."""
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
     for g in prange(p_combo.shape[0]):
+        bits[g] = np.uint64(0)
         c = p_combo[g]
-        if out[g] or combo_inst[c] < 0:
+        if skip[g] or combo_inst[c] < 0:
             continue
-        bits = combo_traced[c] & mask
-        if bits == 0:
+        todo = combo_traced[c] & mask
+        if todo == 0:
             continue
         px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
         known = wnorm[g, 0] == wnorm[g, 0]
-        dirty = False
+        out = np.uint64(0)
         for j in range(L):
-            if dirty:
-                break
-            if not (bits >> np.uint64(j)) & np.uint64(1):
+            bit = np.uint64(1) << np.uint64(j)
+            if not todo & bit:
                 continue
-            if not known:
+            kind = sa.light_kind[j]
+            sun = kind == LIGHT_SUN
+            if not known or not (sun or kind == LIGHT_AREA):
                 for q in range(k_reg):
                     if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], sa.light_kind, lgeo,
                                   sa.light_dir):
-                        dirty = True
+                        out |= bit
                         break
                 continue
             h = row_hash(seed[g], j)
+            hit = False
             for s in range(n):
                 u, v = row_uv(h, n, s)
                 dx, dy, dz, t, _ = _sample_one(sa, j, px, py, pz, u, v)
-                sun = sa.light_kind[j] == LIGHT_SUN
                 if not sun:
                     t = t / (1.0 - tol.SHADOW_END_REL)  # to the light point itself
                 ex = px + dx * (1.0 if sun else t)
@@ -139,8 +147,10 @@ def query_samples(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n,
                 ez = pz + dz * (1.0 if sun else t)
                 for q in range(k_reg):
                     if _segment_box(px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q], sun):
-                        dirty = True
+                        hit = True
                         break
-                if dirty:
+                if hit:
                     break
-        out[g] = dirty
+            if hit:
+                out |= bit
+        bits[g] = out

@@ -354,6 +354,8 @@ def soak(steps: int, log=print) -> dict:
         for _ in range(per_scene):
             sess.apply(gen.step())
             dirty = sess.dirty_mask
+            if dirty is not None:  # (and the kept pixels whose soft lights are shaded again)
+                dirty = dirty | sess.reshade_mask
             relit = sess.reuse.relight_due  # light edits: every kept pixel recombined
             frame = sess.render()
             fresh = Session(sess.scene.copy(), settings).render()

@@ -80,6 +80,14 @@ class FrameReuse:
         return self.dirty.reshape(self.frame.pixel_class.shape).copy()
 
     @property
+    def reshade_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the kept pixels whose soft lights the next frame shades again at
+        their primary hits (:mod:`.shadow_reshade`); None when it is a full frame."""
+        if self.dirty is None or self.frame is None:
+            return None
+        return self.reshade_pixels.reshape(self.frame.pixel_class.shape)
+
+    @property
     def records_bytes(self) -> int:
         return self.records.nbytes if self.records is not None else 0
 
@@ -339,7 +347,8 @@ class FrameReuse:
         split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and
         # recombining are idempotent, so a frame that fails is relit again next time)
-        self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
+        self.relight_stats = dict(relit=self.relight_due,
+                                  relight_s=time.perf_counter() - t0,
                                   relit_lights=moved, reshaded_pixels=reshaded,
                                   relight_shadow_rays=counters.get("shadow", 0),
                                   relight_split_s=split)

@@ -65,6 +65,7 @@ class FrameReuse:
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
         self.reshade_world: np.ndarray | None = None
+        self.reshade_regions: list = []  # the edited regions since, grown: (lo, hi) pairs
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -139,13 +140,16 @@ class FrameReuse:
             # the scene box changed (spawn offsets scale with it, so every pixel may change
             # in the last bits)
             self.dirty = None
-            self.reshade_lights = self.reshade_world = None
+            self._no_reshade()
             report.full_frame = True
             report.dirty_pixels = -1
             report.dirty_fraction = 1.0
             if not fx.camera and not interpolants_lost and f is not None and rec is not None:
                 report.messages.append("full frame: the scene's bounding box changed")
             return
+        if (fx.lights_moved or len(old_sa.light_kind) != len(new_sa.light_kind)
+                or world_lights(old_sa) != world_lights(new_sa)):
+            rec.drop_visibility()  # (the kept soft samples' visibility may change)
         if self._relights(fx, old_sa, new_sa):
             # light / world edits only: no pixel is dirty, the next frame relights
             self._flush_reshade()
@@ -205,6 +209,9 @@ class FrameReuse:
         t0 = time.perf_counter()
         if reshades:
             dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx))
+            regions, margin = fx.region_array(), rec.margin(old_sa)
+            if len(regions):
+                self.reshade_regions.append((regions[:, 0] - margin, regions[:, 1] + margin))
             report.reshade_pixels = int(np.count_nonzero(self.reshade_pixels))
         else:
             dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
@@ -271,7 +278,11 @@ class FrameReuse:
         later batch edits lights, or cannot take that path)."""
         if self.reshade_lights is not None and self.dirty is not None:
             self.dirty |= self.reshade_pixels
+        self._no_reshade()
+
+    def _no_reshade(self) -> None:
         self.reshade_lights = self.reshade_world = None
+        self.reshade_regions = []
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
         """The batch ``fx`` edits only lights and the world, and the light terms can
@@ -333,8 +344,15 @@ class FrameReuse:
             world = self.reshade_world & keep
             reshaded = int(np.count_nonzero(self.reshade_pixels))
             t1 = time.perf_counter()
+            regions = None
+            if rec.p_vis is not None and self.reshade_regions:
+                regions = tuple(np.ascontiguousarray(np.concatenate(r))
+                                for r in zip(*self.reshade_regions, strict=True))
+            elif rec.p_vis is not None:
+                rec.drop_visibility()  # (no region to test the kept samples against)
             done = reshade(lr, sa, accel, lights, world, int(settings.light_samples),
-                           int(settings.max_depth) > 0, counters)
+                           int(settings.max_depth) > 0,
+                           rec.p_vis if regions is not None else None, regions, counters)
             for j, (rows, lit) in done.items():
                 rec.set_lit_at(j, rows, lit)
             split["reshade"] = time.perf_counter() - t1
@@ -369,7 +387,7 @@ class FrameReuse:
             return self.records, self.dirty, self.frame
         self.relight_due = False
         self.relight_moved = set()
-        self.reshade_lights = self.reshade_world = None
+        self._no_reshade()
         rec = PixelRecords(camera.width, camera.height, samples, scene_aabb)
         if light_terms is not None:
             rec.keep_light_terms(*light_terms)
@@ -396,7 +414,7 @@ class FrameReuse:
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
         self.relight_due = False
         self.relight_moved = set()
-        self.reshade_lights = self.reshade_world = None
+        self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
         self._track_interpolants(stored, pixels, cache, pool0)

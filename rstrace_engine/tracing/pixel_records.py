@@ -300,6 +300,12 @@ class PixelRecords:
         self.p_seed: np.ndarray | None = None
         self.w_samples = 0
         self.w_lights = 0
+        #: the primary hits' soft samples' visibility (:func:`~.sample_rays.soft_bits`:
+        #: (n_rays, L + 1) bits, the world's column last, as narrow as the samples allow),
+        #: kept from the frame's first batch on while its lights' shadows stay put
+        #: (:meth:`drop_visibility`); None: not kept (lights re-shaded trace all samples)
+        self.p_vis: np.ndarray | None = None
+        self.vis_off = False
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
@@ -396,13 +402,26 @@ class PixelRecords:
         if "normal" not in level:
             if self.p_wnorm is not None:
                 self.p_wnorm[rays] = np.nan
+            if self.p_vis is not None:
+                self.drop_visibility()
             return
         n, L = int(level["n_soft"]), int(level["n_lights"])
         if self.p_wnorm is None:
             self.p_wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
             self.p_seed = np.zeros(self.n_rays, np.uint64)
+            if "soft_bits" in level and not self.vis_off:  # (a frame's first batch)
+                dt = (np.uint8 if n <= 8 else np.uint16 if n <= 16
+                      else np.uint32 if n <= 32 else np.uint64)
+                self.p_vis = np.zeros((self.n_rays, L + 1), dt)
         elif (n, L) != (self.w_samples, self.w_lights):  # the old rays are unknown now
             self.p_wnorm[:] = np.nan
+            self.drop_visibility()
+        if self.p_vis is not None:
+            bits = level.get("soft_bits")
+            if bits is None or bits.shape[1] != self.p_vis.shape[1]:
+                self.drop_visibility()
+            else:
+                self.p_vis[rays] = bits
         self.w_samples, self.w_lights = n, L
         hit = np.asarray(level["inst"]) >= 0
         self.p_wnorm[rays[hit]] = level["normal"][hit]
@@ -517,6 +536,12 @@ class PixelRecords:
         if changed:
             self._compact()
 
+    def drop_visibility(self) -> None:
+        """Keep no soft samples' visibility any more (a light's shadows moved): re-shaded
+        lights trace all their samples until the next full frame."""
+        self.p_vis = None
+        self.vis_off = True
+
     def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray) -> None:
         """Light ``j``'s visibility bit of the primary nodes ``rows`` after it was shaded
         again there (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the
@@ -540,6 +565,8 @@ class PixelRecords:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
         world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
+        if self.p_vis is not None:
+            world += self.p_vis.nbytes
         return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                                    self.t_flags, self.p_combo, self.p_code,
                                                    self.s_parent, self.s_combo, self.s_code)))
@@ -592,9 +619,7 @@ class PixelRecords:
         world_rays = world_lights(sa) and len(fx.regions) > 0
         sec_dirty = dirty | is_hit if world_rays else dirty
         regions = fx.region_array()
-        scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
-                      + np.abs(sa.scene_aabb).max())
-        margin = 0.5 * self.step + tol.RECORD_SLACK_REL * scale
+        margin = self.margin(sa)
         if cp.ortho:
             margin = margin + cp.pixsize
             gx = np.arange(self.n_rays) % self.n_pixels
@@ -682,6 +707,13 @@ class PixelRecords:
             s_ray = np.empty(m, np.int32)
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
             _mark_rays(s_ray, s_dirty, out)
+
+    def margin(self, sa) -> np.ndarray:
+        """(3,) what the edited regions are grown by: the quantisation and the spawn
+        offsets (``sa``: the packing the records describe)."""
+        scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
+                      + np.abs(sa.scene_aabb).max())
+        return 0.5 * self.step + tol.RECORD_SLACK_REL * scale
 
     def dirty_pixels(self, sa, cp, fx) -> np.ndarray:
         """(height * width,) bool: pixels with a dirty sample."""

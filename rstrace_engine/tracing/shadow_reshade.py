@@ -32,9 +32,13 @@ from ..accel.accelerators import Hits
 from .batches import threads_for
 from .light_nodes import WORLD, term_of
 from .light_reshade import _one_light_states, tick
+from .sample_rays import crossing, crossing_rays, crossing_rows, pack_bits, unpack_bits
 from .shader import Surfaces
-from .soft_lights import soft_visibility
+from .soft_lights import SH_SOFT, soft_rays
 from .whitted import _occluded_by, shade, surfaces
+
+#: no region: every sample's visibility from its bits
+_NO_REGIONS = (np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 def _surfaces(sa, geo: dict) -> Surfaces:
@@ -47,9 +51,85 @@ def _surfaces(sa, geo: dict) -> Surfaces:
         return surfaces(no_lights, geo["o"], geo["d"], np.full(k, np.inf), hits)
 
 
-def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, counters):
+def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, regions, counters):
+    """The soft samples of the nodes (one row each: a light's, or the world's) with their
+    visibility: traced where ``kept`` (m,) is None (no bits kept), else the kept bits
+    (:func:`~.sample_rays.soft_bits`' column) except for the samples that may cross a
+    grown region ``regions`` (lo, hi): those traced again. ``sa``: the packing the
+    samples are drawn in (the world off for a light's). Returns ``(SoftSamples, rows,
+    any_vis, bits)``: rows as :func:`~.soft_lights.soft_rays` numbers them, ``bits`` the
+    rows' new visibility bits."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    t0 = time.perf_counter()
+    soft, o, tmax, rows = soft_rays(sa, sf, geo["seed"], n, sf.sh_state)
+    tick(split, "samples", t0)
+    t0 = time.perf_counter()
+    go = soft.w > 0.0
+    L = len(sa.light_kind)
+    pt = np.where(rows >= 0, rows // max(L, 1), -1 - rows)
+    if kept is not None and len(rows):
+        unpack_bits(np.ascontiguousarray(kept[pt], np.uint64), n, soft.vis)
+        cross = np.empty(len(go), np.bool_)
+        crossing(o, soft.d, tmax, soft.w, regions[0], regions[1], cross)
+        go &= cross
+    go = np.flatnonzero(go)
+    tick(split, "crossing", t0)
+    t0 = time.perf_counter()
+    if len(go):
+        soft.vis[go] = ~np.asarray(_occluded_by(sa, accel)(
+            o[go], soft.d[go], tmax[go], np.repeat(rows, n)[go]), np.bool_)
+        if counters is not None:
+            counters["shadow"] = counters.get("shadow", 0) + len(go)
+    tick(split, "trace", t0)
+    m = len(rows)
+    any_vis = soft.vis.reshape(m, n).any(axis=1) if m else np.zeros(0, np.bool_)
+    bits = np.empty(m, np.uint64)
+    pack_bits(soft.vis, n, bits)
+    return soft, rows, any_vis, bits[np.argsort(pt, kind="stable")]
+
+
+def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
+                 counters) -> np.ndarray:
+    """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
+    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples that may cross a
+    grown region ``regions`` (lo, hi) traced again, through the edited scene, the others
+    kept."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    t0 = time.perf_counter()
+    m = len(pt)
+    mask = np.empty(m, np.uint64)
+    count = np.empty(m, np.int64)
+    pt = np.ascontiguousarray(pt, np.int64)
+    lj = np.ascontiguousarray(lj, np.int64)
+    seed = np.ascontiguousarray(seed, np.uint64)
+    with threads_for(m):
+        crossing_rows(sa, surf.Q, surf.NG, surf.NS, seed, pt, lj, n, regions[0],
+                      regions[1], mask, count)
+    start = np.zeros(m + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    k = int(start[-1])
+    o, d, tmax = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    row, bit = np.empty(k, np.int64), np.empty(k, np.uint64)
+    crossing_rays(sa, surf.Q, surf.NG, surf.NS, seed, pt, lj, n, mask, start, o, d, tmax,
+                  row, bit)
+    tick(split, "crossing", t0)
+    new = np.asarray(kept, np.uint64) & ~mask
+    if k:
+        t0 = time.perf_counter()
+        L = len(sa.light_kind)
+        prow = np.where(lj[row] < L, pt[row] * L + lj[row], -1 - pt[row])
+        vis = ~np.asarray(_occluded_by(sa, accel)(o, d, tmax, prow), np.bool_)
+        np.bitwise_or.at(new, row[vis], bit[vis])
+        if counters is not None:
+            counters["shadow"] = counters.get("shadow", 0) + k
+        tick(split, "trace", t0)
+    return new
+
+
+def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, regions,
+                counters, shading: bool = True):
     """Light ``j``'s (an extent's) terms at the nodes: ``(present (k,), value (k, 3), lit
-    (k,))``."""
+    (k,), bits (k,))``; not ``shading``: the samples' visibility bits alone."""
     k = len(geo["t"])
     L = len(sa.light_kind)
     state = np.empty(k, np.int8)
@@ -60,33 +140,45 @@ def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, counters):
         sh_state[:, j] = state
         sf = Surfaces(*surf[:7], sh_state.reshape(-1))
         sa1 = sa._replace(world_light=np.zeros(3))  # (the world's term is not this one)
-        soft, rows, any_vis = soft_visibility(sa1, sf, geo["seed"], n, sf.sh_state,
-                                              _occluded_by(sa, accel), counters)
+        soft, rows, any_vis, bits = _samples(sa1, accel, geo, sf, n, kept, regions,
+                                             counters)
+        if not shading:
+            return _by_point(k, rows // max(L, 1), bits)
         vis = np.zeros(k * L, np.bool_)
-        vis[rows[rows >= 0]] = any_vis[rows >= 0]
+        vis[rows] = any_vis
         hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
         _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
-    return tp[:, j], tv[:, j], vis.reshape(k, L)[:, j]
+    return tp[:, j], tv[:, j], vis.reshape(k, L)[:, j], _by_point(k, rows // max(L, 1), bits)
 
 
-def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, counters):
-    """The world's terms at the nodes: ``(present (k,), value (k, 3))``. ``spawn``: the
-    level spawns rays (a rough point's world samples then light its diffuse part only)."""
+def _by_point(k: int, pt: np.ndarray, bits: np.ndarray) -> np.ndarray:
+    full = np.zeros(k, np.uint64)
+    full[np.sort(pt)] = bits
+    return full
+
+
+def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept, regions,
+                counters, shading: bool = True):
+    """The world's terms at the nodes: ``(present (k,), value (k, 3), bits (k,))``.
+    ``spawn``: the level spawns rays (a rough point's world samples then light its diffuse
+    part only)."""
     k = len(geo["t"])
     L = len(sa.light_kind)
     with threads_for(k):
         sh_state = np.full(k * L, -2, np.int8)
         sf = Surfaces(*surf[:7], sh_state)
-        soft, _, _ = soft_visibility(sa, sf, geo["seed"], n, sh_state,
-                                     _occluded_by(sa, accel), counters)
+        soft, rows, _, bits = _samples(sa, accel, geo, sf, n, kept, regions, counters)
+        if not shading:
+            return _by_point(k, -1 - rows, bits)
         hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
         _, _, (tv, tp) = shade(sa, hits, sf, np.zeros(k * L, np.bool_), np.ones((k, 3)),
                                spawn, soft, True, seeds=geo["seed"])
-    return tp[:, L], tv[:, L]
+    return tp[:, L], tv[:, L], _by_point(k, -1 - rows, bits)
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
-            spawn: bool, counters: dict | None = None) -> dict:
+            spawn: bool, vis_bits: np.ndarray | None = None, regions=None,
+            counters: dict | None = None) -> dict:
     """Shade again, at the primary nodes of the per-light records ``lr`` (with geometry),
     the lights with an extent whose bits ``lights`` (n_rays,) uint64 name and the world's
     light where ``world`` (n_rays,) bool, through ``accel`` over the edited scene ``sa``;
@@ -115,17 +207,54 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
         t0 = time.perf_counter()
         g = {key: x[sel] for key, x in geo.items()}
         s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
-        on, val, lit = _light_term(sa, accel, j, n, g, s, counters)
-        changes.append((j, sel, on, val))
-        out[j] = (rows[sel], lit)
+        kept = None
+        if vis_bits is not None:
+            # the samples that may cross an edited box traced again, the others' bits
+            # kept: only the nodes where a sample's visibility changed are shaded again
+            # (the others' inputs, and so their term, are what they were)
+            old = vis_bits[rows[sel], j].astype(np.uint64)
+            state = np.empty(len(sel), np.int8)
+            with threads_for(len(sel)):
+                _one_light_states(sa, j, s.P, s.NG, s.NS, s.Q, s.mat, state,
+                                  np.empty(len(sel), np.int32))
+            pt = np.flatnonzero(state == SH_SOFT)
+            kept = old.copy()
+            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), j), n,
+                                    old[pt], regions, counters)
+            vis_bits[rows[sel], j] = kept
+            moved = np.flatnonzero(kept != old)
+            tick(split, "shadow_rays", t0)
+            t0 = time.perf_counter()
+            sel, kept = sel[moved], kept[moved]
+            g = {key: x[moved] for key, x in g.items()}
+            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
+        if len(sel):
+            on, val, lit, _ = _light_term(sa, accel, j, n, g, s, kept, _NO_REGIONS,
+                                          counters)
+            changes.append((j, sel, on, val))
+            out[j] = (rows[sel], lit)
         tick(split, "shade", t0)
     sel = np.flatnonzero(world[rows])
     if len(sel):
         t0 = time.perf_counter()
         g = {key: x[sel] for key, x in geo.items()}
         s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
-        on, val = _world_term(sa, accel, n, spawn, g, s, counters)
-        changes.append((WORLD, sel, on, val))
+        kept = None
+        if vis_bits is not None:  # (as for the lights)
+            old = vis_bits[rows[sel], L].astype(np.uint64)
+            kept = _traced_bits(sa, accel, s, g["seed"], np.arange(len(sel)),
+                                np.full(len(sel), L), n, old, regions, counters)
+            vis_bits[rows[sel], L] = kept
+            moved = np.flatnonzero(kept != old)
+            tick(split, "shadow_rays", t0)
+            t0 = time.perf_counter()
+            sel, kept = sel[moved], kept[moved]
+            g = {key: x[moved] for key, x in g.items()}
+            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
+        if len(sel):
+            on, val, _ = _world_term(sa, accel, n, spawn, g, s, kept, _NO_REGIONS,
+                                     counters)
+            changes.append((WORLD, sel, on, val))
         tick(split, "shade", t0)
     t0 = time.perf_counter()
     for c, sel, on, val in changes:

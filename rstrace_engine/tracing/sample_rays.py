@@ -196,38 +196,6 @@ def unpack_bits(bits, n, vis):
             vis[r * n + s] = (b >> np.uint64(s)) & np.uint64(1) != 0
 
 
-@njit(cache=True, nogil=True)
-def pack_bits(vis, n, bits):
-    """:func:`unpack_bits` inverted."""
-    for r in range(bits.shape[0]):
-        b = np.uint64(0)
-        for s in range(n):
-            if vis[r * n + s]:
-                b |= np.uint64(1) << np.uint64(s)
-        bits[r] = b
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def crossing(o, d, tmax, w, reg_lo, reg_hi, out):
-    """Which shadow samples (origins ``o``, unit directions ``d``, bounds ``tmax`` (inf: a
-    ray to infinity), weights ``w`` (0: not traced)) may cross a region ``reg_lo, reg_hi``
-    (grown: the records' regions): ``out`` (k,) bool."""
-    for k in prange(o.shape[0]):
-        out[k] = False
-        if not w[k] > 0.0:
-            continue
-        ray = not tmax[k] < np.inf
-        t = 1.0 if ray else tmax[k]
-        ex = o[k, 0] + d[k, 0] * t
-        ey = o[k, 1] + d[k, 1] * t
-        ez = o[k, 2] + d[k, 2] * t
-        for q in range(reg_lo.shape[0]):
-            if _segment_box(o[k, 0], o[k, 1], o[k, 2], ex, ey, ez, reg_lo[q], reg_hi[q],
-                            ray):
-                out[k] = True
-                break
-
-
 @njit(cache=True, nogil=True, inline="always")
 def _row_inside(sa, j, L, qx, qy, qz):
     """A point inside sphere light ``j`` (no soft falloff) samples it cosine-weighted

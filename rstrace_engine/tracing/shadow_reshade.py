@@ -32,13 +32,10 @@ from ..accel.accelerators import Hits
 from .batches import threads_for
 from .light_nodes import WORLD, term_of
 from .light_reshade import _one_light_states, tick
-from .sample_rays import crossing, crossing_rays, crossing_rows, pack_bits, unpack_bits
+from .sample_rays import crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
 from .soft_lights import SH_SOFT, soft_rays
 from .whitted import _occluded_by, shade, surfaces
-
-#: no region: every sample's visibility from its bits
-_NO_REGIONS = (np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 def _surfaces(sa, geo: dict) -> Surfaces:
@@ -51,41 +48,29 @@ def _surfaces(sa, geo: dict) -> Surfaces:
         return surfaces(no_lights, geo["o"], geo["d"], np.full(k, np.inf), hits)
 
 
-def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, regions, counters):
+def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
     """The soft samples of the nodes (one row each: a light's, or the world's) with their
-    visibility: traced where ``kept`` (m,) is None (no bits kept), else the kept bits
-    (:func:`~.sample_rays.soft_bits`' column) except for the samples that may cross a
-    grown region ``regions`` (lo, hi): those traced again. ``sa``: the packing the
+    visibility: the bits ``kept`` (k,) per node (:func:`~.sample_rays.soft_bits`' column,
+    :func:`_traced_bits`), or where None every sample traced. ``sa``: the packing the
     samples are drawn in (the world off for a light's). Returns ``(SoftSamples, rows,
-    any_vis, bits)``: rows as :func:`~.soft_lights.soft_rays` numbers them, ``bits`` the
-    rows' new visibility bits."""
+    any_vis)``, rows as :func:`~.soft_lights.soft_rays` numbers them."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     soft, o, tmax, rows = soft_rays(sa, sf, geo["seed"], n, sf.sh_state)
-    tick(split, "samples", t0)
-    t0 = time.perf_counter()
-    go = soft.w > 0.0
-    L = len(sa.light_kind)
-    pt = np.where(rows >= 0, rows // max(L, 1), -1 - rows)
-    if kept is not None and len(rows):
-        unpack_bits(np.ascontiguousarray(kept[pt], np.uint64), n, soft.vis)
-        cross = np.empty(len(go), np.bool_)
-        crossing(o, soft.d, tmax, soft.w, regions[0], regions[1], cross)
-        go &= cross
-    go = np.flatnonzero(go)
-    tick(split, "crossing", t0)
-    t0 = time.perf_counter()
-    if len(go):
-        soft.vis[go] = ~np.asarray(_occluded_by(sa, accel)(
-            o[go], soft.d[go], tmax[go], np.repeat(rows, n)[go]), np.bool_)
-        if counters is not None:
-            counters["shadow"] = counters.get("shadow", 0) + len(go)
-    tick(split, "trace", t0)
     m = len(rows)
+    if kept is not None:
+        pt = np.where(rows >= 0, rows // max(len(sa.light_kind), 1), -1 - rows)
+        unpack_bits(np.ascontiguousarray(kept[pt], np.uint64), n, soft.vis)
+    else:
+        go = np.flatnonzero(soft.w > 0.0)
+        if len(go):
+            soft.vis[go] = ~np.asarray(_occluded_by(sa, accel)(
+                o[go], soft.d[go], tmax[go], np.repeat(rows, n)[go]), np.bool_)
+            if counters is not None:
+                counters["shadow"] = counters.get("shadow", 0) + len(go)
     any_vis = soft.vis.reshape(m, n).any(axis=1) if m else np.zeros(0, np.bool_)
-    bits = np.empty(m, np.uint64)
-    pack_bits(soft.vis, n, bits)
-    return soft, rows, any_vis, bits[np.argsort(pt, kind="stable")]
+    tick(split, "samples", t0)
+    return soft, rows, any_vis
 
 
 def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
@@ -126,10 +111,9 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     return new
 
 
-def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, regions,
-                counters, shading: bool = True):
-    """Light ``j``'s (an extent's) terms at the nodes: ``(present (k,), value (k, 3), lit
-    (k,), bits (k,))``; not ``shading``: the samples' visibility bits alone."""
+def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, counters):
+    """Light ``j``'s (an extent's) terms at the nodes, its samples' visibility ``kept``
+    (:func:`_samples`): ``(present (k,), value (k, 3), lit (k,))``."""
     k = len(geo["t"])
     L = len(sa.light_kind)
     state = np.empty(k, np.int8)
@@ -140,40 +124,28 @@ def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, regi
         sh_state[:, j] = state
         sf = Surfaces(*surf[:7], sh_state.reshape(-1))
         sa1 = sa._replace(world_light=np.zeros(3))  # (the world's term is not this one)
-        soft, rows, any_vis, bits = _samples(sa1, accel, geo, sf, n, kept, regions,
-                                             counters)
-        if not shading:
-            return _by_point(k, rows // max(L, 1), bits)
+        soft, rows, any_vis = _samples(sa1, accel, geo, sf, n, kept, counters)
         vis = np.zeros(k * L, np.bool_)
         vis[rows] = any_vis
         hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
         _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
-    return tp[:, j], tv[:, j], vis.reshape(k, L)[:, j], _by_point(k, rows // max(L, 1), bits)
+    return tp[:, j], tv[:, j], vis.reshape(k, L)[:, j]
 
 
-def _by_point(k: int, pt: np.ndarray, bits: np.ndarray) -> np.ndarray:
-    full = np.zeros(k, np.uint64)
-    full[np.sort(pt)] = bits
-    return full
-
-
-def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept, regions,
-                counters, shading: bool = True):
-    """The world's terms at the nodes: ``(present (k,), value (k, 3), bits (k,))``.
-    ``spawn``: the level spawns rays (a rough point's world samples then light its diffuse
-    part only)."""
+def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept, counters):
+    """The world's terms at the nodes, its samples' visibility ``kept`` (:func:`_samples`):
+    ``(present (k,), value (k, 3))``. ``spawn``: the level spawns rays (a rough point's
+    world samples then light its diffuse part only)."""
     k = len(geo["t"])
     L = len(sa.light_kind)
     with threads_for(k):
         sh_state = np.full(k * L, -2, np.int8)
         sf = Surfaces(*surf[:7], sh_state)
-        soft, rows, _, bits = _samples(sa, accel, geo, sf, n, kept, regions, counters)
-        if not shading:
-            return _by_point(k, -1 - rows, bits)
+        soft, _, _ = _samples(sa, accel, geo, sf, n, kept, counters)
         hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
         _, _, (tv, tp) = shade(sa, hits, sf, np.zeros(k * L, np.bool_), np.ones((k, 3)),
                                spawn, soft, True, seeds=geo["seed"])
-    return tp[:, L], tv[:, L], _by_point(k, -1 - rows, bits)
+    return tp[:, L], tv[:, L]
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
@@ -200,8 +172,10 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
     n = int(light_samples)
     L = len(sa.light_kind)
     changes = []
-    for j in range(L):
-        sel = np.flatnonzero((lights[rows] >> np.uint64(j)) & np.uint64(1))
+    jobs = [(c, np.flatnonzero((lights[rows] >> np.uint64(c)) & np.uint64(1)))
+            for c in range(L)]
+    jobs.append((L, np.flatnonzero(world[rows])))  # (column L: the world)
+    for c, sel in jobs:
         if len(sel) == 0:
             continue
         t0 = time.perf_counter()
@@ -212,48 +186,31 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             # the samples that may cross an edited box traced again, the others' bits
             # kept: only the nodes where a sample's visibility changed are shaded again
             # (the others' inputs, and so their term, are what they were)
-            old = vis_bits[rows[sel], j].astype(np.uint64)
-            state = np.empty(len(sel), np.int8)
-            with threads_for(len(sel)):
-                _one_light_states(sa, j, s.P, s.NG, s.NS, s.Q, s.mat, state,
-                                  np.empty(len(sel), np.int32))
-            pt = np.flatnonzero(state == SH_SOFT)
+            old = vis_bits[rows[sel], c].astype(np.uint64)
+            if c < L:  # (the nodes the light samples: it faces them)
+                state = np.empty(len(sel), np.int8)
+                with threads_for(len(sel)):
+                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, state,
+                                      np.empty(len(sel), np.int32))
+                pt = np.flatnonzero(state == SH_SOFT)
+            else:
+                pt = np.arange(len(sel))
             kept = old.copy()
-            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), j), n,
+            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), c), n,
                                     old[pt], regions, counters)
-            vis_bits[rows[sel], j] = kept
+            vis_bits[rows[sel], c] = kept
             moved = np.flatnonzero(kept != old)
             tick(split, "shadow_rays", t0)
             t0 = time.perf_counter()
             sel, kept = sel[moved], kept[moved]
             g = {key: x[moved] for key, x in g.items()}
             s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
-        if len(sel):
-            on, val, lit, _ = _light_term(sa, accel, j, n, g, s, kept, _NO_REGIONS,
-                                          counters)
-            changes.append((j, sel, on, val))
-            out[j] = (rows[sel], lit)
-        tick(split, "shade", t0)
-    sel = np.flatnonzero(world[rows])
-    if len(sel):
-        t0 = time.perf_counter()
-        g = {key: x[sel] for key, x in geo.items()}
-        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
-        kept = None
-        if vis_bits is not None:  # (as for the lights)
-            old = vis_bits[rows[sel], L].astype(np.uint64)
-            kept = _traced_bits(sa, accel, s, g["seed"], np.arange(len(sel)),
-                                np.full(len(sel), L), n, old, regions, counters)
-            vis_bits[rows[sel], L] = kept
-            moved = np.flatnonzero(kept != old)
-            tick(split, "shadow_rays", t0)
-            t0 = time.perf_counter()
-            sel, kept = sel[moved], kept[moved]
-            g = {key: x[moved] for key, x in g.items()}
-            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
-        if len(sel):
-            on, val, _ = _world_term(sa, accel, n, spawn, g, s, kept, _NO_REGIONS,
-                                     counters)
+        if len(sel) and c < L:
+            on, val, lit = _light_term(sa, accel, c, n, g, s, kept, counters)
+            changes.append((c, sel, on, val))
+            out[c] = (rows[sel], lit)
+        elif len(sel):
+            on, val = _world_term(sa, accel, n, spawn, g, s, kept, counters)
             changes.append((WORLD, sel, on, val))
         tick(split, "shade", t0)
     t0 = time.perf_counter()

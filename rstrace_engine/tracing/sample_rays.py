@@ -289,13 +289,13 @@ def crossing_rows(sa, Q, NG, NS, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
         count[r] = c
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def crossing_rays(sa, Q, NG, NS, seeds, pt, lj, n, mask, start, o, d, tmax, row, bit):
     """The rays of :func:`crossing_rows`' samples (``mask``): row ``r``'s from
     ``start[r]`` on, in sample order, into ``o, d, tmax``, their row ``row`` and their
     sample's bit ``bit``."""
     L = sa.light_kind.shape[0]
-    for r in range(pt.shape[0]):
+    for r in prange(pt.shape[0]):
         if mask[r] == 0:
             continue
         i = pt[r]

@@ -152,6 +152,14 @@ def _animate(session, ortho: bool, cancel=None) -> None:
         _check(cancel)
         session.apply([LightSet("Spot", light)])
         session.render(cancel=cancel)
+    # an object moved with the per-light records kept: under soft light (orthographic
+    # variant, BASE) the lights whose shadow rays alone it crosses are shaded again
+    from .geometry import shapes
+    from .geometry.edits import ObjectTransform
+
+    _check(cancel)
+    session.apply([ObjectTransform("Glossy", shapes.transform((-0.5, 0.1, 0.9)))])
+    session.render(cancel=cancel)
 
 
 def _warm_edited_interpolants(progress=None, cancel=None) -> None:

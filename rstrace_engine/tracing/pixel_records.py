@@ -31,6 +31,11 @@ A sample is dirty when one of its nodes
   which cone, depends on normals the records do not keep);
 * missed, when the world colour changed.
 
+With soft light the cause is kept apart (:meth:`PixelRecords.dirty_split`): a sample dirty
+only through its primary hit's shadow rays to lights with an extent, or its world rays, is
+*re-shaded* rather than traced again (:mod:`.shadow_reshade`); for that the records also
+keep those samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`).
+
 Why per-pixel records rather than the traced pixels' segments in the ray segment trees
 (measured on museum, 640x480, ray depth 5): a frame's samples have 307,200 view segments,
 17,811 reflection/refraction segments and 1,178,505 shadow segments. As RST tunnels each

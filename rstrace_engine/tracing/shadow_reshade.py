@@ -20,6 +20,20 @@ as a moved light is relit (:mod:`.light_reshade`), but at those nodes only:
 Every operand is the one a fresh frame's shade kernel reads, so each term is bit for bit a
 fresh frame's, and the recombination sums them in the tracer's order. Shadow linking is
 honoured (the tracer's own occlusion test).
+
+**Per-sample visibility.** The records keep the primary hits' samples' visibility, a bit
+per sample and light (:attr:`~.pixel_records.PixelRecords.p_vis`, written by the tracer:
+:func:`~.sample_rays.soft_bits`; 2 bytes per light and sample at 16 light samples). Then
+only the samples whose exact rays (regenerated from the rebuilt surface and the node seed,
+:func:`~.sample_rays.crossing_rows`) may cross an edited box, grown as the records grow it,
+are traced again; the others keep their bits (a ray that crosses no edited box meets what
+it met). A node whose bits all stay what they were keeps its term (the shade kernel would
+read the same operands); only the nodes where a sample's visibility changed are shaded,
+from the bits, with the tracer's arithmetic in its order (the ratio estimator's ``sum V w
+/ sum w`` times the closed form, the plain estimator, the world's cosine-weighted sum). The
+bits are dropped (re-shaded lights then trace all their samples, as above) when a light's
+shadows may move: a light moved or added (or its extent, kind or links changed), the world
+starting or stopping to light.
 """
 
 from __future__ import annotations

@@ -328,7 +328,7 @@ class FrameReuse:
         shaded again first, with ``accel`` over ``sa``) -- bit for bit a fresh frame's."""
         lr = self.light_records
         self.relight_stats = {}
-        shading = self.reshade_lights is not None
+        shading = self.reshade_pixels.any()
         if not (self.relight_due or shading) or lr is None:
             return base
         t0 = time.perf_counter()

@@ -48,13 +48,6 @@ from .soft_lights import (
 )
 
 
-def sampled_lights(sa) -> np.ndarray:
-    """(L,) bool: the lights whose samples the records regenerate (area lights, suns with
-    an angle; see the module doc)."""
-    kind = np.asarray(sa.light_kind)
-    return np.asarray(sa.light_ext, bool) & ((kind == LIGHT_AREA) | (kind == LIGHT_SUN))
-
-
 @njit(cache=True, nogil=True, parallel=True)
 def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step, levels,
                 shift, reg_c, reg_r, out):
@@ -113,7 +106,7 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
     """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
     with an extent) whose shadow rays there may cross a grown region ``reg_lo, reg_hi``,
     as bits of ``bits`` (n_rays,) uint64 (assigned). Area lights and suns with an angle
-    (:func:`sampled_lights`) regenerate the point's own samples from its node seed (module
+    regenerate the point's own samples from its node seed (module
     doc); sphere lights, and every light of a sample without a recorded seed (NaN normal),
     get the shaft test of :func:`~.record_codes._light_hit` (``lgeo``:
     :func:`~.record_codes.light_geometry`). ``sa``: the packing the records describe."""

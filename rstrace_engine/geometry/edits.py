@@ -207,6 +207,9 @@ class EditReport:
     regions: int = 0  # world boxes the geometry-type edits touched
     full_frame: bool = True  # the next frame renders every pixel (camera moved, no records)
     relight: bool = False  # light / world edits only: the next frame relights, no pixel dirty
+    #: kept pixels (not in dirty_pixels) whose soft lights' shadow rays alone the edits may
+    #: cross: the next frame shades those lights again there (tracing/shadow_reshade)
+    reshade_pixels: int = 0
 
 
 # ----------------------------------------------------------------------------- applying

@@ -42,6 +42,7 @@ from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_
 from .glossy_rays import glossy_counts
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
+from .sample_rays import VIS_BITS_MAX, soft_bits
 from .seen_lights import SEEN_CAMERA, SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION, any_seen, seen
 from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
@@ -536,6 +537,11 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if soft_on:  # the world's rays, for the pixel records to regenerate
                 segments[-1].update(normal=surf.NS, seed=nseeds, n_soft=int(light_samples),
                                     n_lights=L)
+                if level == 0 and soft is not None and soft.n[0] <= VIS_BITS_MAX:
+                    # and the primary hits' soft samples' visibility (shadow_reshade.py)
+                    bits = np.empty((nb, L + 1), np.uint64)
+                    soft_bits(soft.start, soft.light, soft.vis, int(soft.n[0]), bits)
+                    segments[-1]["soft_bits"] = bits
             if terms:
                 segments[-1].update(_light_terms(front, hits, surf, nseeds, shaded[2]))
         if record:

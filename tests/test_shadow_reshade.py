@@ -116,3 +116,35 @@ def test_random_soft_edits_with_light_terms_exact():
             shaded += int(mask.sum())
         prev = frame
     assert shaded > 0
+
+
+def test_moving_an_object_behind_rough_glass_reshades_its_far_side_samples():
+    """A rough glass pane lit through its far side by an area light (its samples below the
+    surface traced from the far side, tracing/soft_lights.py): a small box moved between
+    the pane and the light changes the pane's pixels through those samples alone. The
+    re-shade must draw them as the tracer does (below the surface, from the far side),
+    else their kept visibility bits leave the pane as it was."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_rough_glass_light import _TURN, _pane
+
+    from rstrace_engine.geometry.principled import principled_material
+
+    scene = _pane(0.5, "area", n=W)
+    dark, _ = principled_material("dark", (0.1, 0.1, 0.1), specular_level=0.0)
+    m = _TURN.copy()
+    m[:3, 3] = (-0.3, 0.5, 0.0)
+    scene.add_instance(scene.add_mesh(shapes.box((0.3, 0.05, 0.3), name="chip")), m,
+                       [scene.add_material(dark)], name="Chip")
+    settings = RenderSettings(mode="BASE", max_depth=2, light_samples=8)
+    sess = Session(scene, settings)
+    sess.light_terms = True
+    prev = sess.render()
+    shaded_changed = 0
+    for x in (0.0, 0.25):
+        m[0, 3] = x
+        prev, changed = step(sess, prev, [ObjectTransform("Chip", m.copy())])
+        shaded_changed += int(changed.sum())
+    assert shaded_changed > 0

@@ -37,7 +37,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from .record_codes import _decode_point, _light_hit, _segment_box
-from .shading import dot3
+from .shading import dot3, far_origin, rough_interface
 from .soft_lights import (
     _cosine_dir,
     _sample_one,
@@ -203,9 +203,11 @@ def _row_inside(sa, j, L, qx, qy, qz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sample_ray(sa, j, L, inside, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u, v):
+def _sample_ray(sa, j, L, inside, far, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u, v):
     """One sample of a (point, light) row as :func:`~.soft_lights._soft_kernel` draws it:
-    ``(dx, dy, dz, tmax, traced)`` (``traced``: its weight is not zero)."""
+    ``(dx, dy, dz, tmax, traced, below)`` (``traced``: its weight is not zero; ``below``: a
+    light's sample below a rough interface, ``far``, which the tracer traces from the far
+    side, :func:`~.shading.far_origin`)."""
     if j >= L or inside:
         dx, dy, dz = _cosine_dir(sx, sy, sz, u, v)
         if j >= L:
@@ -219,18 +221,22 @@ def _sample_ray(sa, j, L, inside, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u, v):
     else:
         dx, dy, dz, t, wgt = _sample_one(sa, j, qx, qy, qz, u, v)
         cs = dot3(sx, sy, sz, dx, dy, dz)
+    if far and j < L and wgt > 0.0 and cs < 0.0 and dot3(gx, gy, gz, dx, dy, dz) < 0.0 \
+            and t > 0.0:
+        return dx, dy, dz, t, -wgt * cs * (1.0 / n) > 0.0, True
     ok = (wgt > 0.0 and cs > 0.0 and dot3(gx, gy, gz, dx, dy, dz) > 0.0
           and dot3(sx, sy, sz, dx, dy, dz) > 0.0 and t > 0.0)
     # (the weight the tracer keeps; a sample is traced where it is not zero)
-    return dx, dy, dz, t, ok and wgt * cs * (1.0 / n) > 0.0
+    return dx, dy, dz, t, ok and wgt * cs * (1.0 / n) > 0.0, False
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def crossing_rows(sa, Q, NG, NS, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
+def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
     """Per (point, light) row (point ``pt``, light ``lj``, ``L`` for the world): the bits of
-    its ``n`` samples (drawn as the tracer draws them from the point's seed) that carry
-    light and may cross a region ``reg_lo, reg_hi`` (``mask`` (m,) uint64), and how many
-    (``count``)."""
+    its ``n`` samples (drawn as the tracer draws them from the point's seed, from its spawn
+    point ``Q`` or, below a rough interface of material ``MAT``, from the far side of its
+    hit ``P``) that carry light and may cross a region ``reg_lo, reg_hi`` (``mask`` (m,)
+    uint64), and how many (``count``)."""
     L = sa.light_kind.shape[0]
     k_reg = reg_lo.shape[0]
     err = tol.RECORD_DIR_ERROR
@@ -258,22 +264,29 @@ def crossing_rows(sa, Q, NG, NS, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
                 half = math.asin(min(rad / dist, 1.0)) + err
                 cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
         inside = _row_inside(sa, j, L, qx, qy, qz)
+        far = rough_interface(sa, MAT[i])
+        fx, fy, fz = qx, qy, qz
+        if far:
+            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                    NG[i, 2])
         h = row_hash(seeds[i], j)
         b = np.uint64(0)
         c = 0
         for s in range(n):
             u, v = row_uv(h, n, s)
-            dx, dy, dz, t, ok = _sample_ray(sa, j, L, inside, qx, qy, qz, NG[i, 0], NG[i, 1],
-                                            NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], n, u, v)
+            dx, dy, dz, t, ok, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz,
+                                                   NG[i, 0], NG[i, 1], NG[i, 2], NS[i, 0],
+                                                   NS[i, 1], NS[i, 2], n, u, v)
             if not ok:
                 continue
             ray = not t < np.inf
             e = 1.0 if ray else t
+            ox, oy, oz = (fx, fy, fz) if below else (qx, qy, qz)
             for q in range(k_reg):
                 if cv[q, 3] != -2.0 and dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] < \
                         cv[q, 3]:
-                    continue  # outside the cone of the region's sphere
-                if _segment_box(qx, qy, qz, qx + dx * e, qy + dy * e, qz + dz * e,
+                    continue  # outside the cone of the region's sphere (seen from Q)
+                if _segment_box(ox, oy, oz, ox + dx * e, oy + dy * e, oz + dz * e,
                                 reg_lo[q], reg_hi[q], ray):
                     b |= np.uint64(1) << np.uint64(s)
                     c += 1
@@ -283,7 +296,8 @@ def crossing_rows(sa, Q, NG, NS, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def crossing_rays(sa, Q, NG, NS, seeds, pt, lj, n, mask, start, o, d, tmax, row, bit):
+def crossing_rays(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, mask, start, o, d, tmax, row,
+                  bit):
     """The rays of :func:`crossing_rows`' samples (``mask``): row ``r``'s from
     ``start[r]`` on, in sample order, into ``o, d, tmax``, their row ``row`` and their
     sample's bit ``bit``."""
@@ -295,17 +309,23 @@ def crossing_rays(sa, Q, NG, NS, seeds, pt, lj, n, mask, start, o, d, tmax, row,
         j = lj[r]
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
         inside = _row_inside(sa, j, L, qx, qy, qz)
+        far = rough_interface(sa, MAT[i])
+        fx, fy, fz = qx, qy, qz
+        if far:
+            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                    NG[i, 2])
         h = row_hash(seeds[i], j)
         k = start[r]
         for s in range(n):
             if not (mask[r] >> np.uint64(s)) & np.uint64(1):
                 continue
             u, v = row_uv(h, n, s)
-            dx, dy, dz, t, _ = _sample_ray(sa, j, L, inside, qx, qy, qz, NG[i, 0], NG[i, 1],
-                                           NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], n, u, v)
-            o[k, 0] = qx
-            o[k, 1] = qy
-            o[k, 2] = qz
+            dx, dy, dz, t, _, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz,
+                                                  NG[i, 0], NG[i, 1], NG[i, 2], NS[i, 0],
+                                                  NS[i, 1], NS[i, 2], n, u, v)
+            o[k, 0] = fx if below else qx
+            o[k, 1] = fy if below else qy
+            o[k, 2] = fz if below else qz
             d[k, 0] = dx
             d[k, 1] = dy
             d[k, 2] = dz

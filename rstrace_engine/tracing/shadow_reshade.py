@@ -102,15 +102,15 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     lj = np.ascontiguousarray(lj, np.int64)
     seed = np.ascontiguousarray(seed, np.uint64)
     with threads_for(m):
-        crossing_rows(sa, surf.Q, surf.NG, surf.NS, seed, pt, lj, n, regions[0],
-                      regions[1], mask, count)
+        crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
+                      regions[0], regions[1], mask, count)
     start = np.zeros(m + 1, np.int64)
     np.cumsum(count, out=start[1:])
     k = int(start[-1])
     o, d, tmax = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
     row, bit = np.empty(k, np.int64), np.empty(k, np.uint64)
-    crossing_rays(sa, surf.Q, surf.NG, surf.NS, seed, pt, lj, n, mask, start, o, d, tmax,
-                  row, bit)
+    crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n, mask, start,
+                  o, d, tmax, row, bit)
     tick(split, "crossing", t0)
     new = np.asarray(kept, np.uint64) & ~mask
     if k:
@@ -132,8 +132,8 @@ def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, coun
     L = len(sa.light_kind)
     state = np.empty(k, np.int8)
     with threads_for(k):
-        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, state,
-                          np.empty(k, np.int32))
+        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
+                          state, np.empty(k, np.int32))
         sh_state = np.full((k, L), -2, np.int8)
         sh_state[:, j] = state
         sf = Surfaces(*surf[:7], sh_state.reshape(-1))
@@ -204,8 +204,8 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             if c < L:  # (the nodes the light samples: it faces them)
                 state = np.empty(len(sel), np.int8)
                 with threads_for(len(sel)):
-                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, state,
-                                      np.empty(len(sel), np.int32))
+                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, g["inst"],
+                                      state, np.empty(len(sel), np.int32))
                 pt = np.flatnonzero(state == SH_SOFT)
             else:
                 pt = np.arange(len(sel))

@@ -67,7 +67,8 @@ _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is
                 "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
                 "interpolants.membership._valid", "interpolants.ray_segment_tree.live_tunnels",
                 "interpolants.ray_segment_tree.query_list", "interpolants.render._finish",
-                "interpolants.render._to_trace", "interpolants.samples._glossy_nodes")
+                "interpolants.render._to_trace", "interpolants.samples._glossy_nodes",
+                "interpolants.samples._far_lit_roots")
 MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,

@@ -118,6 +118,13 @@ class Session:
         """(h, w) bool: the pixels the next frame re-renders; None when it is a full frame."""
         return self.reuse.dirty_mask
 
+    @property
+    def reshade_mask(self):
+        """(h, w) bool: kept pixels (not in :attr:`dirty_mask`) whose soft lights' terms the
+        next frame shades again, their shadow rays alone touched by object edits; None when
+        it is a full frame."""
+        return self.reuse.reshade_mask
+
     def relights_only(self, camera: Camera | None = None) -> bool:
         """Whether the next frame (through ``camera``, default the scene's) only relights
         the kept one from its per-light records (BASE light edits, no dirty pixel): a

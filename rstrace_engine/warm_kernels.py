@@ -140,17 +140,23 @@ def _animate(session, ortho: bool, cancel=None) -> None:
             session.update_scene(warm_scene(ortho=ortho, **step))
         session.render(cancel=cancel)
     # light edits: the first makes BASE keep its per-light terms (a full frame), then it
-    # relights (a moved light is shaded again, a power change recombines)
+    # relights (a moved light is shaded again, a power change recombines); between them an
+    # object moved with those terms kept: under soft light (the orthographic variant, BASE)
+    # the lights whose shadow rays alone it crosses are shaded again, from the samples'
+    # visibility bits of that full frame (a moved light drops them)
     from dataclasses import replace
 
-    from .geometry.edits import LightSet
+    from .geometry import shapes
+    from .geometry.edits import LightSet, ObjectTransform
 
     spot = session.scene.lights[session.scene.light_slot("Spot")]
-    for light in (replace(spot, power=spot.power * 0.8),
-                  replace(spot, position=(1.8, -2.0, 3.2)),
-                  replace(spot, position=(1.8, -2.0, 3.2), power=spot.power * 0.9)):
+    for edit in ([LightSet("Spot", replace(spot, power=spot.power * 0.8))],
+                 [ObjectTransform("Glossy", shapes.transform((-0.5, 0.1, 0.9)))],
+                 [LightSet("Spot", replace(spot, position=(1.8, -2.0, 3.2)))],
+                 [LightSet("Spot", replace(spot, position=(1.8, -2.0, 3.2),
+                                           power=spot.power * 0.9))]):
         _check(cancel)
-        session.apply([LightSet("Spot", light)])
+        session.apply(edit)
         session.render(cancel=cancel)
 
 

@@ -6,7 +6,7 @@ tabulates its own (``ggx_glass_E``, ``ggx_glass_inv_E``) for its multiscatter GG
     python scripts/ggx_glass_tables.py            # writes the module (about a minute)
     python scripts/ggx_glass_tables.py --check    # compares the module with a fresh computation
 
-Each value is :func:`rstrace_engine.tracing.shading.ggx_glass_albedo_quadrature` on a
+Each value is :func:`rstrace_engine.tracing.glass_albedo.ggx_glass_albedo_quadrature` on a
 ``QUADRATURE`` x ``QUADRATURE`` lattice of visible normals (float64), at ``cos_o = k / (NC -
 1)`` (0 taken at ``tolerances.GGX_COS_MIN``, the shader's clamp), ``roughness = j / (NR - 1)``
 (``alpha = roughness ** 2``, 0 taken at ``tolerances.GLOSSY_ALPHA_MIN``, where the lobe is
@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rstrace_engine import tolerances as tol  # noqa: E402
-from rstrace_engine.tracing.shading import ggx_glass_albedo_quadrature  # noqa: E402
+from rstrace_engine.tracing.glass_albedo import ggx_glass_albedo_quadrature  # noqa: E402
 
 NZ, NR, NC = 16, 16, 32
 Z_MAX = 0.8  # k = 9

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine import tolerances as tol
+from rstrace_engine.tracing import glass_albedo as ga
 from rstrace_engine.tracing import shading as sh
 from rstrace_engine.tracing.ggx_glass_tables import GLASS_E, Z_MAX
 
@@ -22,7 +23,7 @@ def test_grid_points_are_the_quadrature(side, i, j, c):
     eta = 1.0 / k if side == 0 else k
     alpha = max((j / (NR - 1)) ** 2, tol.GLOSSY_ALPHA_MIN)
     co = max(c / (NC - 1), tol.GGX_COS_MIN)
-    q = sh.ggx_glass_albedo_quadrature(co, alpha, eta, 128)
+    q = ga.ggx_glass_albedo_quadrature(co, alpha, eta, 128)
     assert GLASS_E[side, i, j, c] == pytest.approx(q, abs=1.0 / 65535.0)
     if 0 < c and 0 < j and i < NZ - 1:  # the read at a grid point is the entry
         assert sh.ggx_glass_albedo(co, alpha, eta) == pytest.approx(q, abs=2.0 / 65535.0)
@@ -39,6 +40,6 @@ def test_between_grid_points_within_a_percent(ior):
     for _ in range(60):
         co, r = rng.uniform(0.05, 1.0), rng.uniform(0.1, 1.0)
         for eta in (1.0 / ior, ior):
-            q = sh.ggx_glass_albedo_quadrature(co, r * r, eta, 128)
+            q = ga.ggx_glass_albedo_quadrature(co, r * r, eta, 128)
             worst = max(worst, abs(sh.ggx_glass_albedo(co, r * r, eta) / q - 1.0))
     assert worst < 0.01, worst

@@ -41,6 +41,8 @@ def check_base_step(sess, prev, settings):
     """The session's next frame against a fresh session's; returns (frame, dirty fraction).
     After light edits the kept pixels are relit (every one may change; none re-traced)."""
     dirty = sess.dirty_mask
+    if dirty is not None:  # (soft lights shaded again at kept pixels: may change too)
+        dirty = dirty | sess.reshade_mask
     relit = sess.reuse.relight_due
     starts = sess.starts_light_terms  # the first light edit: a full frame keeping them
     frame = sess.render()

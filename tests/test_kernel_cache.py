@@ -240,6 +240,9 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         # the visibility field's parallel rasteriser: only for l x triangles >= 2M (a big
         # scene's build), compiled by the first such build
         "rstrace_engine.accel.tiles.raster_parallel",
+        # the rough glass albedo's quadrature: scripts/ggx_glass_tables.py and tests (the
+        # shader reads the tables it wrote)
+        "rstrace_engine.tracing.glass_albedo.ggx_glass_albedo_quadrature",
         }  # the BVH build's parallel kernels are reached: warm_kernels._warm_large_bvh
 
 

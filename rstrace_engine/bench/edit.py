@@ -37,7 +37,9 @@ ball. Its goal: moving a small object >= 20x faster than a fresh frame in BASE, 
 
 Columns: ``rst_query_ms`` (RST traversal + membership + invalidation, INTERPOLANT),
 ``records_query_ms`` (finding the dirty pixels in the per-pixel records), ``apply_ms``
-(everything ``Session.apply`` did), ``invalidated_interpolants``, ``dirty_fraction``,
+(everything ``Session.apply`` did), ``invalidated_interpolants``, ``dirty_fraction``
+(pixels traced again), ``reshaded_fraction`` (BASE under soft light: kept pixels whose soft
+lights' terms were shaded again, tracing/shadow_reshade.py),
 ``full_frame_s``, ``incremental_frame_s`` (the session's frame after the edit),
 ``speedup`` (full / incremental), ``max_error_vs_fresh`` and ``frac_over_epsilon`` (display
 space, epsilon 0.01, against the fresh frame of the same mode), for INTERPOLANT also
@@ -284,6 +286,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
                      rst_memory_mb=_rst_mb(sess), records_mb=sess.records_bytes / 1e6,
                      light_records_mb=frame.stats.get("light_records_mb", 0.0),
                      relight_s=frame.stats.get("relight_s", 0.0),
+                     reshaded_fraction=(frame.stats.get("reshaded_pixels", 0)
+                                        / max(frame.pixel_class.size, 1)),
                      incremental=bool(frame.stats.get("incremental")))
             if mode == "BASE":
                 base_frames[row] = fresh.radiance
@@ -296,7 +300,8 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
             if out is not None:
                 suffix = "" if mode == "BASE" else "_interpolant"
                 _dirty_png(out / f"edit_{name}_{row}{suffix}.png", frame, dirty)
-            log(f"  {row:15s} dirty {r['dirty_fraction']:.4f} incr {inc_s:.3f} s full "
+            log(f"  {row:15s} dirty {r['dirty_fraction']:.4f} re-shaded "
+                f"{r['reshaded_fraction']:.4f} incr {inc_s:.3f} s full "
                 f"{full_s:.2f} s x{r['speedup']:.1f} err {r['max_error_vs_fresh']:.2e} "
                 f"rst {r['rst_query_ms']:.2f} ms rec {r['records_query_ms']:.1f} ms "
                 f"inval {r['invalidated_interpolants']} resc {r['rescaled_interpolants']} "
@@ -354,6 +359,8 @@ def soak(steps: int, log=print) -> dict:
         for _ in range(per_scene):
             sess.apply(gen.step())
             dirty = sess.dirty_mask
+            if dirty is not None:  # (and the kept pixels whose soft lights are shaded again)
+                dirty = dirty | sess.reshade_mask
             relit = sess.reuse.relight_due  # light edits: every kept pixel recombined
             frame = sess.render()
             fresh = Session(sess.scene.copy(), settings).render()

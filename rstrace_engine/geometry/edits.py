@@ -207,6 +207,9 @@ class EditReport:
     regions: int = 0  # world boxes the geometry-type edits touched
     full_frame: bool = True  # the next frame renders every pixel (camera moved, no records)
     relight: bool = False  # light / world edits only: the next frame relights, no pixel dirty
+    #: kept pixels (not in dirty_pixels) whose soft lights' shadow rays alone the edits may
+    #: cross: the next frame shades those lights again there (tracing/shadow_reshade)
+    reshade_pixels: int = 0
 
 
 # ----------------------------------------------------------------------------- applying
@@ -230,13 +233,14 @@ def _visible_box(scene: Scene, slot: int) -> np.ndarray | None:
 def _light_geometry(li: Light) -> tuple:
     """What decides where a light's shadow rays go and which surfaces face it: also its
     extent (radius, soft falloff, sun angle, area shape, axis, size, spread), which lobes
-    it lights (its diffuse and glossy visibility: a light's term holds both lobes, so a
-    change is shaded again, not rescaled) and which objects it lights and which cast its
-    shadow (light and shadow linking)."""
+    it lights (its diffuse, glossy and transmission visibility -- rough glass takes the
+    glossy or the transmission one: a light's term holds every lobe, so a change is
+    shaded again, not rescaled) and which objects it lights and which cast its shadow
+    (light and shadow linking)."""
     return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
             float(li.spot_blend), float(li.radius), bool(li.soft_falloff), float(li.angle),
             li.shape, tuple(li.axis), tuple(li.size), float(li.spread), bool(li.diffuse),
-            bool(li.glossy), tuple(li.receivers), tuple(li.blockers))
+            bool(li.glossy), bool(li.transmission), tuple(li.receivers), tuple(li.blockers))
 
 
 def _light_seen(fx: EditEffects, li: Light | None) -> None:

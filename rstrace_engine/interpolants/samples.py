@@ -19,12 +19,14 @@ from numba import njit
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
 from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
+from ..geometry.scene import LIGHT_SUN
 from ..tracing.glossy_rays import is_glossy
 from ..tracing.seen_lights import SEEN_GLOSSY, SEEN_TRANSMISSION, any_seen
 from ..tracing.shader import _material_of
 from ..tracing.shading import (
     dot3,
     geometric_normal,
+    rough_interface,
     spawn_offset,
     texture_lookup,
     texture_uv,
@@ -381,16 +383,58 @@ def _glossy_nodes(sa, node_inst, node_tri, out):
                                                                     node_tri[k]))
 
 
+@njit(cache=True, nogil=True)
+def _far_lit_roots(sa, node_inst, node_tri, node_origin, node_point, node_occ, n, out):
+    """Roots on a rough interface (:func:`~..tracing.shading.rough_interface`) whose tree
+    names a light that may lie on the surface's far side (its light comes through the
+    transmission lobe): a point or spot light or a sun behind the surface, any light with
+    an extent that was sampled there (conservatively)."""
+    for k in range(n):
+        out[k] = False
+        if node_inst[k] < 0:
+            continue
+        if not rough_interface(sa, _material_of(sa, node_inst[k], node_tri[k])):
+            continue
+        gx, gy, gz = geometric_normal(sa.verts, sa.tris, sa.inst_nmat[node_inst[k]],
+                                      node_tri[k])
+        px, py, pz = node_point[k, 0], node_point[k, 1], node_point[k, 2]
+        if dot3(node_origin[k, 0] - px, node_origin[k, 1] - py, node_origin[k, 2] - pz,
+                gx, gy, gz) < 0.0:
+            gx, gy, gz = -gx, -gy, -gz
+        for j in range(node_occ.shape[1]):
+            if node_occ[k, j] == -2 or sa.light_kind[j] < 0:
+                continue
+            if sa.light_ext[j]:
+                out[k] = True
+            elif sa.light_kind[j] == LIGHT_SUN:
+                out[k] = -dot3(gx, gy, gz, sa.light_dir[j, 0], sa.light_dir[j, 1],
+                               sa.light_dir[j, 2]) <= 0.0
+            else:
+                out[k] = dot3(gx, gy, gz, sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
+                              sa.light_pos[j, 2] - pz) <= 0.0
+            if out[k]:
+                break
+
+
 def glossy_flags(sa, tree, n: int) -> np.ndarray:
     """(n,) uint8 :data:`GLOSSY` where a line's ray tree hits a rough surface below its
     root: its radiance is a sampled estimate (glossy rays), not a function of the line that
     cells may interpolate (docs/INTERPOLANTS.md, "Rough surfaces"). A rough root is not
     flagged: its own light is the sample (traced with ``roots="own"``), its glossy rays are
-    traced per pixel (:mod:`.glossy_term`)."""
+    traced per pixel (:mod:`.glossy_term`) -- unless it is a rough interface lit from its
+    far side (through its transmission lobe, :func:`_far_lit_roots`): no proof bounds that
+    term across a cell, so such a line fails its cell too."""
     g = np.empty(len(tree.node_inst), np.bool_)
     _glossy_nodes(sa, np.ascontiguousarray(tree.node_inst, np.int32),
                   np.ascontiguousarray(np.maximum(tree.node_tri, 0), np.int32), g)
-    g[:n] = False  # the roots (the first n rows)
+    far = np.zeros(n, np.bool_)
+    if n:  # (always called: the interpolants' warm-up compiles it)
+        _far_lit_roots(sa, np.ascontiguousarray(tree.node_inst[:n], np.int32),
+                       np.ascontiguousarray(np.maximum(tree.node_tri[:n], 0), np.int32),
+                       np.ascontiguousarray(tree.node_origin[:n], np.float64),
+                       np.ascontiguousarray(tree.node_point[:n], np.float64),
+                       np.ascontiguousarray(tree.node_occluder[:n], np.int32), n, far)
+    g[:n] = far  # the roots (the first n rows): only those lit through the far side
     hit = np.bincount(tree.node_ray[g], minlength=n)[:n] > 0
     return np.where(hit, GLOSSY, 0).astype(np.uint8)
 

@@ -42,4 +42,5 @@ def interp_surface(sa, rows, o, d, P, NS, NG, mat, surf):
         off = spawn_offset(px, py, pz, ext)
         qx, qy, qz = px + gx * off, py + gy * off, pz + gz * off
         Q[i, 0], Q[i, 1], Q[i, 2] = qx, qy, qz
-        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
+        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, mat[q],
+                     sh_state)

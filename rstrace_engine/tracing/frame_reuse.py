@@ -15,6 +15,14 @@ rays, then the frame recombined from the terms, bit for bit a fresh frame's) and
 only what other edits made dirty. Batches that mix in other edits, a world that starts to
 light, or records over their memory cap take the per-pixel records' path as before.
 
+Under soft light (BASE, with those terms) an object edit goes further, at the level of
+rays: a sample whose only rays the edit may cross are its primary hit's shadow rays to
+lights with an extent or the world's rays (:meth:`~.pixel_records.PixelRecords.dirty_split`)
+is not traced again; the next frame shades those lights (or the world) again at its
+primary node, through the edited scene, and recombines it (:mod:`.shadow_reshade`: of
+their samples, only those that may cross an edited box are traced, the others' visibility
+kept as bits). A later batch that edits lights turns the pending ones into dirty pixels.
+
 The session drives it: :meth:`FrameReuse.take_edits` after every applied batch (with the
 batch's :class:`~..geometry.edits.EditEffects` and what the interpolant cache invalidated),
 :meth:`FrameReuse.plan` before a frame, :meth:`FrameReuse.relight` over its base frame (BASE)
@@ -35,7 +43,8 @@ from .light_linking import links_shadows
 from .light_records import load_kernels
 from .pixel_records import PixelRecords
 from .seen_lights import any_seen
-from .soft_lights import world_lights
+from .shadow_reshade import reshade
+from .soft_lights import has_soft_light, world_lights
 
 
 class FrameReuse:
@@ -61,6 +70,11 @@ class FrameReuse:
         self.relight_due = False
         self.relight_moved: set = set()
         self.relight_stats: dict = {}  # of the last relight (relit, relight_s, ...)
+        # BASE under soft light: the samples whose primary node shades these lights (bits)
+        # and the world again (their shadow rays alone may cross an edited box), or None
+        self.reshade_lights: np.ndarray | None = None
+        self.reshade_world: np.ndarray | None = None
+        self.reshade_regions: list = []  # the edited regions since, grown: (lo, hi) pairs
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -74,6 +88,14 @@ class FrameReuse:
         if self.dirty is None or self.frame is None:
             return None
         return self.dirty.reshape(self.frame.pixel_class.shape).copy()
+
+    @property
+    def reshade_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the kept pixels whose soft lights the next frame shades again at
+        their primary hits (:mod:`.shadow_reshade`); None when it is a full frame."""
+        if self.dirty is None or self.frame is None:
+            return None
+        return self.reshade_pixels.reshape(self.frame.pixel_class.shape)
 
     @property
     def records_bytes(self) -> int:
@@ -127,14 +149,19 @@ class FrameReuse:
             # the scene box changed (spawn offsets scale with it, so every pixel may change
             # in the last bits)
             self.dirty = None
+            self._no_reshade()
             report.full_frame = True
             report.dirty_pixels = -1
             report.dirty_fraction = 1.0
             if not fx.camera and not interpolants_lost and f is not None and rec is not None:
                 report.messages.append("full frame: the scene's bounding box changed")
             return
+        if (fx.lights_moved or len(old_sa.light_kind) != len(new_sa.light_kind)
+                or world_lights(old_sa) != world_lights(new_sa)):
+            rec.drop_visibility()  # (the kept soft samples' visibility may change)
         if self._relights(fx, old_sa, new_sa):
             # light / world edits only: no pixel is dirty, the next frame relights
+            self._flush_reshade()
             if f.pixel_interpolant is not None:
                 # INTERPOLANT: its traced pixels are relit; the pixels of rescaled or
                 # invalidated interpolants, and those with interpolated samples that the
@@ -185,8 +212,18 @@ class FrameReuse:
             names = ", ".join(str(j) for j in sorted(fx.lights_moved))
             report.messages.append(f"light slot(s) {names} re-traced, not relit: "
                                    f"{lr.no_geometry}")
+        reshades = self._reshades(fx, old_sa, new_sa)
+        if not reshades:
+            self._flush_reshade()
         t0 = time.perf_counter()
-        dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
+        if reshades:
+            dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx))
+            regions, margin = fx.region_array(), rec.margin(old_sa)
+            if len(regions):
+                self.reshade_regions.append((regions[:, 0] - margin, regions[:, 1] + margin))
+            report.reshade_pixels = int(np.count_nonzero(self.reshade_pixels))
+        else:
+            dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
         if rebuilt is not None:
             dirty |= rebuilt
         if f.pixel_interpolant is not None and rescaled is not None and len(rescaled):
@@ -202,6 +239,59 @@ class FrameReuse:
         report.full_frame = False
         report.dirty_pixels = int(np.count_nonzero(self.dirty))
         report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
+
+    def _reshades(self, fx, old_sa, new_sa) -> bool:
+        """The batch ``fx`` may keep samples whose shadow rays alone it touches, shading
+        those lights (or the world) again at their primary nodes (:mod:`.shadow_reshade`):
+        a BASE frame with the per-light records' geometry, soft light, and no edit of a
+        light or the world (their terms then follow the light edits' own path)."""
+        lr = self.light_records
+        if (lr is None or lr.partial or not lr.has_geometry or self.records.p_wnorm is None
+                or self.frame.pixel_interpolant is not None):
+            return False
+        if fx.lights or fx.world or fx.lights_moved or fx.seen_regions or fx.seen_sky:
+            return False
+        if len(old_sa.light_kind) != len(new_sa.light_kind):
+            return False
+        return has_soft_light(old_sa) and has_soft_light(new_sa)
+
+    def _split(self, split) -> np.ndarray:
+        """The dirty pixels of :meth:`~.pixel_records.PixelRecords.dirty_split`'s ``(full,
+        lights, world)``: those with a sample dirty in full; the other samples' lights and
+        world to shade again are added to the pending ones."""
+        full, lights, world = split
+        rec = self.records
+        spp, n = rec.spp, rec.n_pixels
+        dirty = full.reshape(spp, n).any(axis=0)
+        keep = ~np.tile(dirty | self.dirty, spp)
+        lights = np.where(keep, lights, np.uint64(0))
+        world = world & keep
+        if self.reshade_lights is None:
+            self.reshade_lights, self.reshade_world = lights, world
+        else:
+            self.reshade_lights |= lights
+            self.reshade_world |= world
+        return dirty
+
+    @property
+    def reshade_pixels(self) -> np.ndarray:
+        """(h * w,) bool: the kept pixels whose samples shade lights again next frame."""
+        rec = self.records
+        if self.reshade_lights is None or rec is None:
+            return np.zeros(0 if rec is None else rec.n_pixels, bool)
+        due = ((self.reshade_lights != 0) | self.reshade_world).reshape(rec.spp, -1)
+        return due.any(axis=0) & ~self.dirty
+
+    def _flush_reshade(self) -> None:
+        """The pending shading of lights again (:meth:`_split`) becomes dirty pixels (a
+        later batch edits lights, or cannot take that path)."""
+        if self.reshade_lights is not None and self.dirty is not None:
+            self.dirty |= self.reshade_pixels
+        self._no_reshade()
+
+    def _no_reshade(self) -> None:
+        self.reshade_lights = self.reshade_world = None
+        self.reshade_regions = []
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
         """The batch ``fx`` edits only lights and the world, and the light terms can
@@ -239,11 +329,12 @@ class FrameReuse:
         shaded again first, with ``accel`` over ``sa``) -- bit for bit a fresh frame's."""
         lr = self.light_records
         self.relight_stats = {}
-        if not self.relight_due or lr is None:
+        shading = self.reshade_pixels.any()
+        if not (self.relight_due or shading) or lr is None:
             return base
         t0 = time.perf_counter()
         counters: dict = {}
-        moved = sorted(self.relight_moved)
+        moved = sorted(self.relight_moved) if self.relight_due else []
         split = counters.setdefault("split", {})
         for j in moved:
             if j < len(sa.light_kind):
@@ -254,6 +345,27 @@ class FrameReuse:
                 self.records.set_light_bits(j, p_bits, s_bits)
                 split["light_bits"] = split.get("light_bits", 0.0) + time.perf_counter() - t1
         rec = self.records
+        reshaded = 0
+        if shading:
+            # soft light: the lights' (and the world's) terms whose shadow rays alone an
+            # object edit may cross, at the kept samples' primary nodes
+            keep = ~np.tile(self.dirty, rec.spp)
+            lights = np.where(keep, self.reshade_lights, np.uint64(0))
+            world = self.reshade_world & keep
+            reshaded = int(np.count_nonzero(self.reshade_pixels))
+            t1 = time.perf_counter()
+            regions = None
+            if rec.p_vis is not None and self.reshade_regions:
+                regions = tuple(np.ascontiguousarray(np.concatenate(r))
+                                for r in zip(*self.reshade_regions, strict=True))
+            elif rec.p_vis is not None:
+                rec.drop_visibility()  # (no region to test the kept samples against)
+            done = reshade(lr, sa, accel, lights, world, int(settings.light_samples),
+                           int(settings.max_depth) > 0,
+                           rec.p_vis if regions is not None else None, regions, counters)
+            for j, (rows, lit) in done.items():
+                rec.set_lit_at(j, rows, lit)
+            split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
                            world=lr.partial)
@@ -263,8 +375,9 @@ class FrameReuse:
         split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and
         # recombining are idempotent, so a frame that fails is relit again next time)
-        self.relight_stats = dict(relit=True, relight_s=time.perf_counter() - t0,
-                                  relit_lights=moved,
+        self.relight_stats = dict(relit=self.relight_due,
+                                  relight_s=time.perf_counter() - t0,
+                                  relit_lights=moved, reshaded_pixels=reshaded,
                                   relight_shadow_rays=counters.get("shadow", 0),
                                   relight_shadow_skipped=counters.get("shadow_skipped", 0),
                                   relight_split_s=split)
@@ -285,6 +398,7 @@ class FrameReuse:
             return self.records, self.dirty, self.frame
         self.relight_due = False
         self.relight_moved = set()
+        self._no_reshade()
         rec = PixelRecords(camera.width, camera.height, samples, scene_aabb)
         if light_terms is not None:
             rec.keep_light_terms(*light_terms)
@@ -311,6 +425,7 @@ class FrameReuse:
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
         self.relight_due = False
         self.relight_moved = set()
+        self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
         self._track_interpolants(stored, pixels, cache, pool0)

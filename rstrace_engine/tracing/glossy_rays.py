@@ -57,6 +57,16 @@ def is_glossy(sa, m):
             & (not sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN) & (refl | trans))
 
 
+def interface_materials(sa) -> np.ndarray:
+    """(NM,) bool: the materials of ``sa`` that are rough dielectric interfaces
+    (:func:`~.shading.rough_interface`: lights on their far side reach the viewer through
+    their transmission lobe)."""
+    return ((np.asarray(sa.mat_model) == MODEL_PRINCIPLED)
+            & (np.asarray(sa.mat_roughness) >= tol.GLOSSY_ALPHA_MIN)
+            & (np.asarray(sa.mat_ior) != 1.0)
+            & (np.asarray(sa.mat_transmission) > 0).any(axis=1))
+
+
 @njit(cache=True, nogil=True)
 def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
     """Spawned ray slot ``k`` (of the :class:`Spawned` arrays)."""

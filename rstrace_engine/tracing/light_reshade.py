@@ -26,6 +26,7 @@ from ..geometry.scene import LIGHT_POINT, LIGHT_SPOT, SceneArrays
 from .batches import threads_for
 from .light_linking import occluded
 from .shader import _SH_TRACE, Surfaces, light_state
+from .shading import rough_interface
 from .shaft_skip import ball_rows, tile_keys
 from .soft_lights import soft_visibility
 from .whitted import shade, shadow_rays
@@ -44,7 +45,7 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
         else:
             state[i] = light_state(sa, j, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
                                    NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
-                                   Q[i, 2])
+                                   Q[i, 2], rough_interface(sa, MAT[i]))
         mat[i] = MAT[i] if state[i] != -2 else -1
 
 

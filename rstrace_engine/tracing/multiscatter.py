@@ -41,7 +41,7 @@ def ggx_glass_albedo(cos_o, alpha, eta):
     read trilinearly at ``((k - 1) / (k + 1), sqrt(alpha), cos_o)``, ``k = max(eta, 1 /
     eta)`` (clamped to the table's 9), as Cycles reads its ``ggx_glass_E`` tables. The
     multiscatter glass lobe is the single-scattering one over ``E``
-    (:func:`~.shading.ggx_glass_albedo_quadrature` computes the tables)."""
+    (:func:`~.glass_albedo.ggx_glass_albedo_quadrature` computes the tables)."""
     side = 0 if eta <= 1.0 else 1
     k = eta if eta >= 1.0 else 1.0 / eta
     nz, nr, nc = GLASS_E.shape[1], GLASS_E.shape[2], GLASS_E.shape[3]

@@ -31,6 +31,11 @@ A sample is dirty when one of its nodes
   which cone, depends on normals the records do not keep);
 * missed, when the world colour changed.
 
+With soft light the cause is kept apart (:meth:`PixelRecords.dirty_split`): a sample dirty
+only through its primary hit's shadow rays to lights with an extent, or its world rays, is
+*re-shaded* rather than traced again (:mod:`.shadow_reshade`); for that the records also
+keep those samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`).
+
 Why per-pixel records rather than the traced pixels' segments in the ray segment trees
 (measured on museum, 640x480, ray depth 5): a frame's samples have 307,200 view segments,
 17,811 reflection/refraction segments and 1,178,505 shadow segments. As RST tunnels each
@@ -46,160 +51,21 @@ records keep the per-sample precision and use tiles only to cull the query (8x8 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import tolerances as tol
 from .batches import threads_for
 from .light_records import LightRecords
-from .record_codes import (
-    POINT_BITS,
-    _cone_sphere,
-    _decode_point,
-    _encode_nodes,
-    _light_hit,
-    _oct_decode,
-    _segment_box,
-    light_geometry,
-)
-from .sample_rays import query_samples, query_world, sampled_lights
+from .record_codes import POINT_BITS, _encode_nodes, light_geometry
+from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
+from .sample_rays import query_light_bits, query_world
 from .soft_lights import world_lights
 
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
 
 
-# ----------------------------------------------------------------------------- tests
-
-
-@njit(cache=True, nogil=True)
-def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, levels, shift,
-                reg_lo, reg_hi, reg_c, reg_r, light_kind, light_pos, light_dir):
-    """Geometric test of one node: its segment and its shadow segments against the regions."""
-    k_reg = reg_lo.shape[0]
-    if k_reg == 0:
-        return False
-    if inst < 0:
-        dx, dy, dz = _oct_decode(code)
-        for q in range(k_reg):
-            if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, reg_c[q, 0],
-                            reg_c[q, 1], reg_c[q, 2], reg_r[q], tol.RECORD_DIR_ERROR):
-                return True
-        return False
-    px, py, pz = _decode_point(code, lo, step, levels, shift)
-    for q in range(k_reg):
-        if _segment_box(origin_x, origin_y, origin_z, px, py, pz, reg_lo[q], reg_hi[q],
-                        False):
-            return True
-    L = light_kind.shape[0]
-    for j in range(L):
-        if not (traced >> np.uint64(j)) & np.uint64(1):
-            continue
-        for q in range(k_reg):
-            if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], light_kind, light_pos,
-                          light_dir):
-                return True
-    return False
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin,
-                   ortho_origins, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                   light_kind, light_pos, light_dir, out):
-    n = p_combo.shape[0]
-    for g in prange(n):
-        c = p_combo[g]
-        if combo_dirty[c]:
-            out[g] = True
-            continue
-        if ortho_origins.shape[0] > 0:
-            ox = ortho_origins[g, 0]
-            oy = ortho_origins[g, 1]
-            oz = ortho_origins[g, 2]
-        else:
-            ox, oy, oz = cam_origin[0], cam_origin[1], cam_origin[2]
-        out[g] = _node_dirty(p_code[g], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
-                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
-                             light_pos, light_dir)
-
-
-TILE = 8  # pixels per side of the screen tiles the primary query culls with
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
-                 height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                 light_kind, light_pos, light_dir, out):
-    """The primary query, culled by screen tiles (perspective cameras).
-
-    Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
-    union of its traced lights. A segment from the camera to any point of the box lies
-    within the box's half-size of the segment to its centre (and likewise towards a
-    light), so growing the regions by that half-size makes one test per tile and light
-    conservative; only tiles that fail it (or hold a miss) test their rays one by one.
-    """
-    tw = (width + TILE - 1) // TILE
-    th = (height + TILE - 1) // TILE
-    n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
-    k_reg = reg_lo.shape[0]
-    for t in prange(n_tiles):
-        s = t // (tw * th)
-        r = t - s * tw * th
-        ty = r // tw
-        tx = r - ty * tw
-        x0, y0 = tx * TILE, ty * TILE
-        x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
-        blo = np.full(3, np.inf)
-        bhi = np.full(3, -np.inf)
-        traced = np.uint64(0)
-        check = False
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                g = s * n_pixels + y * width + x
-                c = p_combo[g]
-                if combo_inst[c] < 0:
-                    check = True  # misses are tested ray by ray
-                    continue
-                traced |= combo_traced[c]
-                px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
-                blo[0] = min(blo[0], px)
-                blo[1] = min(blo[1], py)
-                blo[2] = min(blo[2], pz)
-                bhi[0] = max(bhi[0], px)
-                bhi[1] = max(bhi[1], py)
-                bhi[2] = max(bhi[2], pz)
-        if not check and blo[0] <= bhi[0] and k_reg > 0:
-            cx = 0.5 * (blo[0] + bhi[0])
-            cy = 0.5 * (blo[1] + bhi[1])
-            cz = 0.5 * (blo[2] + bhi[2])
-            glo = np.empty(3)
-            ghi = np.empty(3)
-            for q in range(k_reg):
-                for k in range(3):
-                    half = 0.5 * (bhi[k] - blo[k])
-                    glo[k] = reg_lo[q, k] - half
-                    ghi[k] = reg_hi[q, k] + half
-                if _segment_box(cam_origin[0], cam_origin[1], cam_origin[2], cx, cy, cz,
-                                glo, ghi, False):
-                    check = True
-                    break
-                for j in range(light_kind.shape[0]):
-                    if not (traced >> np.uint64(j)) & np.uint64(1):
-                        continue
-                    if _light_hit(cx, cy, cz, j, glo, ghi, light_kind, light_pos, light_dir):
-                        check = True
-                        break
-                if check:
-                    break
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                g = s * n_pixels + y * width + x
-                c = p_combo[g]
-                if combo_dirty[c]:
-                    out[g] = True
-                elif check:
-                    out[g] = _node_dirty(p_code[g], cam_origin[0], cam_origin[1],
-                                         cam_origin[2], combo_inst[c], combo_traced[c], lo,
-                                         step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                                         light_kind, light_pos, light_dir)
+# ----------------------------------------------------------------------------- kernels
+# (the segment queries: record_queries.py)
 
 
 @njit(cache=True, nogil=True)
@@ -221,31 +87,6 @@ def _secondary_rays(s_parent, n_rays, s_ray):
     for k in range(s_parent.shape[0]):
         p = s_parent[k]
         s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _query_secondary(s_parent, s_combo, s_code, p_combo, p_code, n_rays, combo_dirty,
-                     combo_inst, combo_traced, lo, step, levels, shift, reg_lo, reg_hi,
-                     reg_c, reg_r, light_kind, light_pos, light_dir, out):
-    m = s_parent.shape[0]
-    for k in prange(m):
-        c = s_combo[k]
-        if combo_dirty[c]:
-            out[k] = True
-            continue
-        p = s_parent[k]
-        pcode = p_code[p] if p < n_rays else s_code[p - n_rays]
-        ox, oy, oz = _decode_point(pcode, lo, step, levels, shift)
-        out[k] = _node_dirty(s_code[k], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
-                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
-                             light_pos, light_dir)
-
-
-@njit(cache=True, nogil=True)
-def _mark_rays(s_ray, s_dirty, ray_dirty):
-    for k in range(s_ray.shape[0]):
-        if s_dirty[k]:
-            ray_dirty[s_ray[k]] = True
 
 
 # ----------------------------------------------------------------------------- records
@@ -300,6 +141,12 @@ class PixelRecords:
         self.p_seed: np.ndarray | None = None
         self.w_samples = 0
         self.w_lights = 0
+        #: the primary hits' soft samples' visibility (:func:`~.sample_rays.soft_bits`:
+        #: (n_rays, L + 1) bits, the world's column last, as narrow as the samples allow),
+        #: kept from the frame's first batch on while its lights' shadows stay put
+        #: (:meth:`drop_visibility`); None: not kept (lights re-shaded trace all samples)
+        self.p_vis: np.ndarray | None = None
+        self.vis_off = False
         #: BASE: the light terms of the same nodes (:mod:`.light_records`), or None
         self.light: LightRecords | None = None
 
@@ -396,13 +243,26 @@ class PixelRecords:
         if "normal" not in level:
             if self.p_wnorm is not None:
                 self.p_wnorm[rays] = np.nan
+            if self.p_vis is not None:
+                self.drop_visibility()
             return
         n, L = int(level["n_soft"]), int(level["n_lights"])
         if self.p_wnorm is None:
             self.p_wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
             self.p_seed = np.zeros(self.n_rays, np.uint64)
+            if "soft_bits" in level and not self.vis_off:  # (a frame's first batch)
+                dt = (np.uint8 if n <= 8 else np.uint16 if n <= 16
+                      else np.uint32 if n <= 32 else np.uint64)
+                self.p_vis = np.zeros((self.n_rays, L + 1), dt)
         elif (n, L) != (self.w_samples, self.w_lights):  # the old rays are unknown now
             self.p_wnorm[:] = np.nan
+            self.drop_visibility()
+        if self.p_vis is not None:
+            bits = level.get("soft_bits")
+            if bits is None or bits.shape[1] != self.p_vis.shape[1]:
+                self.drop_visibility()
+            else:
+                self.p_vis[rays] = bits
         self.w_samples, self.w_lights = n, L
         hit = np.asarray(level["inst"]) >= 0
         self.p_wnorm[rays[hit]] = level["normal"][hit]
@@ -517,11 +377,37 @@ class PixelRecords:
         if changed:
             self._compact()
 
+    def drop_visibility(self) -> None:
+        """Keep no soft samples' visibility any more (a light's shadows moved): re-shaded
+        lights trace all their samples until the next full frame."""
+        self.p_vis = None
+        self.vis_off = True
+
+    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray) -> None:
+        """Light ``j``'s visibility bit of the primary nodes ``rows`` after it was shaded
+        again there (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the
+        light are)."""
+        bit = np.uint64(1) << np.uint64(j)
+        c = self.p_combo[rows].astype(np.int64)
+        old = self.t_lit[c].astype(np.uint64)
+        new = np.where(lit, old | bit, old & ~bit)
+        ch = new != old
+        if not ch.any():
+            return
+        ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
+                           self.t_flags[c[ch]])
+        arr = self.p_combo.astype(np.uint32)
+        arr[rows[ch]] = ids
+        self.p_combo = arr
+        self._compact()
+
     @property
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
         world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
+        if self.p_vis is not None:
+            world += self.p_vis.nbytes
         return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                                    self.t_flags, self.p_combo, self.p_code,
                                                    self.s_parent, self.s_combo, self.s_code)))
@@ -532,6 +418,16 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
+        full, lights, world = self.dirty_split(sa, cp, fx)
+        return full | (lights != 0) | world
+
+    def dirty_split(self, sa, cp, fx) -> tuple:
+        """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
+        world (n_rays,) bool)`` -- ``full`` the samples whose primary ray, secondary nodes,
+        hard lights' shadow rays, hit objects, materials or lights the edits may change;
+        for the others, ``lights`` the lights with an extent (bits) and ``world`` the
+        world's light whose shadow rays at the primary hit may cross an edited box (their
+        terms alone may change: :mod:`.shadow_reshade`)."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -564,9 +460,7 @@ class PixelRecords:
         world_rays = world_lights(sa) and len(fx.regions) > 0
         sec_dirty = dirty | is_hit if world_rays else dirty
         regions = fx.region_array()
-        scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
-                      + np.abs(sa.scene_aabb).max())
-        margin = 0.5 * self.step + tol.RECORD_SLACK_REL * scale
+        margin = self.margin(sa)
         if cp.ortho:
             margin = margin + cp.pixsize
             gx = np.arange(self.n_rays) % self.n_pixels
@@ -587,19 +481,18 @@ class PixelRecords:
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
+        lights = np.zeros(self.n_rays, np.uint64)
+        world = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
-            # area lights and suns with an angle: the primary hits' own samples (after)
-            sampled = np.uint64(0)
-            if self.p_wnorm is not None and len(regions):
-                for j in np.flatnonzero(sampled_lights(sa)):
-                    sampled |= np.uint64(1) << np.uint64(j)
-            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~sampled,
+            # the lights with an extent: the primary hits' shadow rays per light (after)
+            soft = np.uint64(0)
+            if len(regions):
+                ext = np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_kind) >= 0)
+                for j in np.flatnonzero(ext):
+                    soft |= np.uint64(1) << np.uint64(j)
+            self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
                         combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
                         out)
-            if sampled:
-                query_samples(sa, self.p_combo, self.p_code, inst64, combo_traced,
-                              self.p_wnorm, self.p_seed, self.w_samples, sampled, self.lo,
-                              self.step, self.levels, self.shift, reg_lo, reg_hi, pos, out)
             seen = fx.seen_regions
             if seen:  # the view and mirror segments crossing an edited light's surface
                 lo = np.ascontiguousarray(np.stack(seen)[:, 0] - margin)
@@ -612,14 +505,24 @@ class PixelRecords:
                             np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
                             kind, pos, ldir, crossed)
                 out |= crossed
+            if soft:
+                wnorm, seed = self.p_wnorm, self.p_seed
+                if wnorm is None:  # (no seeds recorded: the shaft tests)
+                    wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
+                    seed = np.zeros(self.n_rays, np.uint64)
+                query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
+                                 wnorm, seed, self.w_samples, soft, self.lo, self.step,
+                                 self.levels, self.shift, reg_lo, reg_hi, pos, out, lights)
             if world_rays:
                 if self.p_wnorm is None:
-                    out |= is_hit[self.p_combo.astype(np.int64)]
+                    world = is_hit[self.p_combo.astype(np.int64)] & ~out
                 else:
+                    w_out = out.copy()
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
                                 self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, reg_c, reg_r, out)
-        return out
+                                self.step, self.levels, self.shift, reg_c, reg_r, w_out)
+                    world = w_out & ~out
+        return out, lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
                reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
@@ -645,6 +548,13 @@ class PixelRecords:
             s_ray = np.empty(m, np.int32)
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
             _mark_rays(s_ray, s_dirty, out)
+
+    def margin(self, sa) -> np.ndarray:
+        """(3,) what the edited regions are grown by: the quantisation and the spawn
+        offsets (``sa``: the packing the records describe)."""
+        scale = float(np.linalg.norm(sa.scene_aabb[1] - sa.scene_aabb[0])
+                      + np.abs(sa.scene_aabb).max())
+        return 0.5 * self.step + tol.RECORD_SLACK_REL * scale
 
     def dirty_pixels(self, sa, cp, fx) -> np.ndarray:
         """(height * width,) bool: pixels with a dirty sample."""

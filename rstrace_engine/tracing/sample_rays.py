@@ -20,6 +20,11 @@ where one of its own rays may meet an edited box:
 Sphere lights' samples depend on the point (a cone about the direction to the centre): they
 keep the shaft test of :func:`~.record_codes._light_hit`, as do nodes without a recorded
 seed (secondary nodes, interpolated samples).
+
+The primary hits' lights are found *per light* (:func:`query_light_bits`) and the world's
+rays apart (:func:`query_world`): a sample whose only dirty rays are these shadow rays keeps
+its primary ray and its other terms, and the incremental frame shades just those lights (or
+the world) again at its primary node (:mod:`.shadow_reshade`).
 """
 
 from __future__ import annotations
@@ -32,14 +37,15 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from .record_codes import _decode_point, _light_hit, _segment_box
-from .soft_lights import _sample_one, row_hash, row_uv, world_sample_dir
-
-
-def sampled_lights(sa) -> np.ndarray:
-    """(L,) bool: the lights whose samples the records regenerate (area lights, suns with
-    an angle; see the module doc)."""
-    kind = np.asarray(sa.light_kind)
-    return np.asarray(sa.light_ext, bool) & ((kind == LIGHT_AREA) | (kind == LIGHT_SUN))
+from .shading import dot3, far_origin, rough_interface
+from .soft_lights import (
+    _cosine_dir,
+    _sample_one,
+    _sphere_exit,
+    row_hash,
+    row_uv,
+    world_sample_dir,
+)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -95,43 +101,46 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step,
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def query_samples(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask, lo,
-                  step, levels, shift, reg_lo, reg_hi, lgeo, out):
-    """The sampled shadow rays of the lights in ``mask`` (uint64 bits: area lights and
-    suns with an angle, :func:`sampled_lights`) of every primary hit whose tree traced them,
-    regenerated from the node seed (module doc) and tested against the grown regions
-    ``reg_lo, reg_hi``; a sample without a recorded seed (NaN normal) gets the shaft test
-    (``lgeo``: :func:`~.record_codes.light_geometry`). ``sa``: the packing the records
-    describe."""
+def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
+                     lo, step, levels, shift, reg_lo, reg_hi, lgeo, skip, bits):
+    """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
+    with an extent) whose shadow rays there may cross a grown region ``reg_lo, reg_hi``,
+    as bits of ``bits`` (n_rays,) uint64 (assigned). Area lights and suns with an angle
+    regenerate the point's own samples from its node seed (module
+    doc); sphere lights, and every light of a sample without a recorded seed (NaN normal),
+    get the shaft test of :func:`~.record_codes._light_hit` (``lgeo``:
+    :func:`~.record_codes.light_geometry`). ``sa``: the packing the records describe."""
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
     for g in prange(p_combo.shape[0]):
+        bits[g] = np.uint64(0)
         c = p_combo[g]
-        if out[g] or combo_inst[c] < 0:
+        if skip[g] or combo_inst[c] < 0:
             continue
-        bits = combo_traced[c] & mask
-        if bits == 0:
+        todo = combo_traced[c] & mask
+        if todo == 0:
             continue
         px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
         known = wnorm[g, 0] == wnorm[g, 0]
-        dirty = False
+        out = np.uint64(0)
         for j in range(L):
-            if dirty:
-                break
-            if not (bits >> np.uint64(j)) & np.uint64(1):
+            bit = np.uint64(1) << np.uint64(j)
+            if not todo & bit:
                 continue
-            if not known:
+            kind = sa.light_kind[j]
+            sun = kind == LIGHT_SUN
+            if not known or not (sun or kind == LIGHT_AREA):
                 for q in range(k_reg):
                     if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], sa.light_kind, lgeo,
                                   sa.light_dir):
-                        dirty = True
+                        out |= bit
                         break
                 continue
             h = row_hash(seed[g], j)
+            hit = False
             for s in range(n):
                 u, v = row_uv(h, n, s)
                 dx, dy, dz, t, _ = _sample_one(sa, j, px, py, pz, u, v)
-                sun = sa.light_kind[j] == LIGHT_SUN
                 if not sun:
                     t = t / (1.0 - tol.SHADOW_END_REL)  # to the light point itself
                 ex = px + dx * (1.0 if sun else t)
@@ -139,8 +148,188 @@ def query_samples(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n,
                 ez = pz + dz * (1.0 if sun else t)
                 for q in range(k_reg):
                     if _segment_box(px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q], sun):
-                        dirty = True
+                        hit = True
                         break
-                if dirty:
+                if hit:
                     break
-        out[g] = dirty
+            if hit:
+                out |= bit
+        bits[g] = out
+
+
+#: the most samples per (point, light) row whose visibility the records keep as bits
+VIS_BITS_MAX = 64
+
+
+@njit(cache=True, nogil=True)
+def soft_bits(start, light, vis, n, out):
+    """The visibility of every soft sample of ``nb`` points (:class:`~.soft_lights.
+    SoftSamples`' ``start``, ``light``, ``vis``, ``n`` samples per row) as bits: ``out``
+    (nb, L + 1) uint64, bit ``s`` of column ``j`` (``L``: the world) sample ``s`` of the
+    point's row of light ``j`` (zero where it has none)."""
+    for i in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[i, c] = np.uint64(0)
+        k0 = start[i]
+        while k0 < start[i + 1]:
+            b = np.uint64(0)
+            for s in range(n):
+                if vis[k0 + s]:
+                    b |= np.uint64(1) << np.uint64(s)
+            out[i, light[k0]] = b
+            k0 += n
+
+
+@njit(cache=True, nogil=True)
+def unpack_bits(bits, n, vis):
+    """``vis`` (m n,) bool from ``bits`` (m,) (:func:`soft_bits`' columns)."""
+    for r in range(bits.shape[0]):
+        b = np.uint64(bits[r])
+        for s in range(n):
+            vis[r * n + s] = (b >> np.uint64(s)) & np.uint64(1) != 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row_inside(sa, j, L, qx, qy, qz):
+    """A point inside sphere light ``j`` (no soft falloff) samples it cosine-weighted
+    (:func:`~.soft_lights._soft_kernel`'s ``inside``)."""
+    if j >= L or sa.light_kind[j] == LIGHT_SUN or sa.light_kind[j] == LIGHT_AREA:
+        return False
+    rr = sa.light_radius[j]
+    vx = sa.light_pos[j, 0] - qx
+    vy = sa.light_pos[j, 1] - qy
+    vz = sa.light_pos[j, 2] - qz
+    return (not sa.light_soft[j]) and vx * vx + vy * vy + vz * vz <= rr * rr
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sample_ray(sa, j, L, inside, far, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u, v):
+    """One sample of a (point, light) row as :func:`~.soft_lights._soft_kernel` draws it:
+    ``(dx, dy, dz, tmax, traced, below)`` (``traced``: its weight is not zero; ``below``: a
+    light's sample below a rough interface, ``far``, which the tracer traces from the far
+    side, :func:`~.shading.far_origin`)."""
+    if j >= L or inside:
+        dx, dy, dz = _cosine_dir(sx, sy, sz, u, v)
+        if j >= L:
+            t = np.inf
+        else:
+            t = _sphere_exit(qx, qy, qz, dx, dy, dz, sa.light_pos[j, 0], sa.light_pos[j, 1],
+                             sa.light_pos[j, 2], sa.light_radius[j]) * (
+                                 1.0 - tol.SHADOW_END_REL)
+        wgt = math.pi
+        cs = 1.0
+    else:
+        dx, dy, dz, t, wgt = _sample_one(sa, j, qx, qy, qz, u, v)
+        cs = dot3(sx, sy, sz, dx, dy, dz)
+    if far and j < L and wgt > 0.0 and cs < 0.0 and dot3(gx, gy, gz, dx, dy, dz) < 0.0 \
+            and t > 0.0:
+        return dx, dy, dz, t, -wgt * cs * (1.0 / n) > 0.0, True
+    ok = (wgt > 0.0 and cs > 0.0 and dot3(gx, gy, gz, dx, dy, dz) > 0.0
+          and dot3(sx, sy, sz, dx, dy, dz) > 0.0 and t > 0.0)
+    # (the weight the tracer keeps; a sample is traced where it is not zero)
+    return dx, dy, dz, t, ok and wgt * cs * (1.0 / n) > 0.0, False
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
+    """Per (point, light) row (point ``pt``, light ``lj``, ``L`` for the world): the bits of
+    its ``n`` samples (drawn as the tracer draws them from the point's seed, from its spawn
+    point ``Q`` or, below a rough interface of material ``MAT``, from the far side of its
+    hit ``P``) that carry light and may cross a region ``reg_lo, reg_hi`` (``mask`` (m,)
+    uint64), and how many (``count``)."""
+    L = sa.light_kind.shape[0]
+    k_reg = reg_lo.shape[0]
+    err = tol.RECORD_DIR_ERROR
+    for r in prange(pt.shape[0]):
+        i = pt[r]
+        j = lj[r]
+        qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+        # each region's bounding sphere seen from the point: a cone of directions (a cheap
+        # rejection before the box test; -2: the point is inside the sphere)
+        cv = np.empty((k_reg, 4))
+        for q in range(k_reg):
+            vx = 0.5 * (reg_lo[q, 0] + reg_hi[q, 0]) - qx
+            vy = 0.5 * (reg_lo[q, 1] + reg_hi[q, 1]) - qy
+            vz = 0.5 * (reg_lo[q, 2] + reg_hi[q, 2]) - qz
+            rad = 0.5 * math.sqrt((reg_hi[q, 0] - reg_lo[q, 0]) ** 2
+                                  + (reg_hi[q, 1] - reg_lo[q, 1]) ** 2
+                                  + (reg_hi[q, 2] - reg_lo[q, 2]) ** 2)
+            dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+            cv[q, 0] = vx
+            cv[q, 1] = vy
+            cv[q, 2] = vz
+            if dist <= rad * (1.0 + err):
+                cv[q, 3] = -2.0
+            else:
+                half = math.asin(min(rad / dist, 1.0)) + err
+                cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
+        inside = _row_inside(sa, j, L, qx, qy, qz)
+        far = rough_interface(sa, MAT[i])
+        fx, fy, fz = qx, qy, qz
+        if far:
+            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                    NG[i, 2])
+        h = row_hash(seeds[i], j)
+        b = np.uint64(0)
+        c = 0
+        for s in range(n):
+            u, v = row_uv(h, n, s)
+            dx, dy, dz, t, ok, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz,
+                                                   NG[i, 0], NG[i, 1], NG[i, 2], NS[i, 0],
+                                                   NS[i, 1], NS[i, 2], n, u, v)
+            if not ok:
+                continue
+            ray = not t < np.inf
+            e = 1.0 if ray else t
+            ox, oy, oz = (fx, fy, fz) if below else (qx, qy, qz)
+            for q in range(k_reg):
+                if cv[q, 3] != -2.0 and dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] < \
+                        cv[q, 3]:
+                    continue  # outside the cone of the region's sphere (seen from Q)
+                if _segment_box(ox, oy, oz, ox + dx * e, oy + dy * e, oz + dz * e,
+                                reg_lo[q], reg_hi[q], ray):
+                    b |= np.uint64(1) << np.uint64(s)
+                    c += 1
+                    break
+        mask[r] = b
+        count[r] = c
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def crossing_rays(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, mask, start, o, d, tmax, row,
+                  bit):
+    """The rays of :func:`crossing_rows`' samples (``mask``): row ``r``'s from
+    ``start[r]`` on, in sample order, into ``o, d, tmax``, their row ``row`` and their
+    sample's bit ``bit``."""
+    L = sa.light_kind.shape[0]
+    for r in prange(pt.shape[0]):
+        if mask[r] == 0:
+            continue
+        i = pt[r]
+        j = lj[r]
+        qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+        inside = _row_inside(sa, j, L, qx, qy, qz)
+        far = rough_interface(sa, MAT[i])
+        fx, fy, fz = qx, qy, qz
+        if far:
+            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                    NG[i, 2])
+        h = row_hash(seeds[i], j)
+        k = start[r]
+        for s in range(n):
+            if not (mask[r] >> np.uint64(s)) & np.uint64(1):
+                continue
+            u, v = row_uv(h, n, s)
+            dx, dy, dz, t, _, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz,
+                                                  NG[i, 0], NG[i, 1], NG[i, 2], NS[i, 0],
+                                                  NS[i, 1], NS[i, 2], n, u, v)
+            o[k, 0] = fx if below else qx
+            o[k, 1] = fy if below else qy
+            o[k, 2] = fz if below else qz
+            d[k, 0] = dx
+            d[k, 1] = dy
+            d[k, 2] = dz
+            tmax[k] = t
+            row[k] = r
+            bit[k] = np.uint64(1) << np.uint64(s)
+            k += 1

@@ -22,6 +22,10 @@ Radiance of a ray that hits a surface point ``p`` (shading normal ``n`` and geom
 * A rough Principled-like surface (:func:`is_glossy`) instead spreads ``R`` and ``T`` over
   its GGX lobe: N microfacet normals drawn from the visible normals, each a reflected and a
   refracted ray weighted ``F G2 / G1 / N`` (:func:`_glossy_rays`, docs/glossy.md).
+* At a rough dielectric interface (:func:`~.shading.rough_interface`) a light on the far
+  side of the surface (geometric and shading normal alike) counts too, through the GGX
+  transmission lobe (:func:`~.shading.ggx_btdf`) instead of ``f``: its shadow-ray state is
+  ``SH_FAR`` and its shadow ray leaves from the far side (:func:`~.shading.far_origin`).
 * A ray that misses returns the world colour.
 
 The stages and the wavefront that drive these kernels are :mod:`.whitted`'s; the shade
@@ -52,15 +56,18 @@ from .glossy_rays import _glossy_rays, _put, is_glossy
 from .shading import (
     INV_PI,
     dot3,
+    far_origin,
     fresnel_dielectric,
     geometric_normal,
     ggx_albedo,
+    ggx_btdf,
     ggx_glass_albedo,
     ggx_lobe,
     mirror_dir,
     normalize3,
     principled_brdf,
     principled_fresnel,
+    rough_interface,
     shading_normal,
     spawn_offset,
     spot_falloff,
@@ -74,6 +81,9 @@ from .soft_lights import SH_SOFT, extent_faces, spot_cosine
 
 # shadow-ray states (per hit and light), also the codes in RayTree.node_occluder
 _SH_TRACE = 1
+#: a hard light on the far side of a rough interface (:func:`~.shading.rough_interface`):
+#: its shadow ray leaves from the far side, its light comes through the transmission lobe
+SH_FAR = 3
 OCC_NONE = -1  # light unoccluded
 OCC_NOT_FACING = -2  # light behind the surface, outside its cone, or the ray missed
 
@@ -144,50 +154,72 @@ def _material_of(sa, inst, tri):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz):
-    """Shadow-ray state of light ``j`` at a surface point (see :func:`light_states`)."""
+def light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, far):
+    """Shadow-ray state of light ``j`` at a surface point (see :func:`light_states`);
+    ``far``: the point is a rough interface (lights on its far side count)."""
     if sa.light_kind[j] < 0:
         return -2  # a deleted light's slot (LIGHT_NONE)
     if sa.light_ext[j]:
         # sampled (each sample checks its own facing), unless the whole light is below
-        # the surface's horizon or behind an area light: then every sample would be 0
+        # the surface's horizon (and, at a rough interface, above it seen from its far
+        # side) or behind an area light: then every sample would be 0
         if extent_faces(sa, j, qx, qy, qz, gx, gy, gz):
             return SH_SOFT
+        if far:
+            fx, fy, fz = far_origin(sa, px, py, pz, gx, gy, gz)
+            if extent_faces(sa, j, fx, fy, fz, -gx, -gy, -gz):
+                return SH_SOFT
         return -2
     if sa.light_kind[j] == LIGHT_SUN:
         lx = -sa.light_dir[j, 0]
         ly = -sa.light_dir[j, 1]
         lz = -sa.light_dir[j, 2]
-        if dot3(gx, gy, gz, lx, ly, lz) > 0.0 and dot3(sx, sy, sz, lx, ly, lz) > 0.0:
+        cg = dot3(gx, gy, gz, lx, ly, lz)
+        cs = dot3(sx, sy, sz, lx, ly, lz)
+        if cg > 0.0 and cs > 0.0:
             return _SH_TRACE
+        if far and cg < 0.0 and cs < 0.0:
+            return SH_FAR
         return -2
     lx, ly, lz, dist = normalize3(sa.light_pos[j, 0] - px, sa.light_pos[j, 1] - py,
                                   sa.light_pos[j, 2] - pz)
-    if not (dist > 0.0 and dot3(gx, gy, gz, lx, ly, lz) > 0.0
-            and dot3(sx, sy, sz, lx, ly, lz) > 0.0):
+    if not dist > 0.0:
         return -2
+    cg = dot3(gx, gy, gz, lx, ly, lz)
+    cs = dot3(sx, sy, sz, lx, ly, lz)
+    state = _SH_TRACE
+    if not (cg > 0.0 and cs > 0.0):
+        if not (far and cg < 0.0 and cs < 0.0):
+            return -2
+        state = SH_FAR
     if sa.light_kind[j] == LIGHT_SPOT:
         ca = spot_cosine(sa, j, lx, ly, lz)
         if spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j]) <= 0.0:
             return -2
+    if state == SH_FAR:
+        qx, qy, qz = far_origin(sa, px, py, pz, gx, gy, gz)
+        gx, gy, gz = -gx, -gy, -gz
     wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - qx, sa.light_pos[j, 1] - qy,
                                 sa.light_pos[j, 2] - qz)
     if not (wl > 0.0 and dot3(gx, gy, gz, wx, wy, wz) > 0.0):
         return -2  # the light sits within the offset of the surface
-    return _SH_TRACE
+    return state
 
 
 @njit(cache=True, nogil=True, inline="always")
-def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state):
-    """Shadow-ray states of surface point ``i`` (rows ``i * L + j``): ``_SH_TRACE`` when
-    light ``j`` faces the point (geometric and shading normal ``g``, ``s`` turned toward
-    the viewer; spot cone) and is not within the offset of shadow origin ``q``;
-    ``SH_SOFT`` for a light with an extent that is not wholly below the horizon; else
-    -2."""
+def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, m, sh_state):
+    """Shadow-ray states of surface point ``i`` (rows ``i * L + j``) of material ``m``:
+    ``_SH_TRACE`` when light ``j`` faces the point (geometric and shading normal ``g``,
+    ``s`` turned toward the viewer; spot cone) and is not within the offset of shadow
+    origin ``q``; at a rough interface (:func:`~.shading.rough_interface`) ``SH_FAR`` when
+    it faces the far side alike (its shadow ray leaves from :func:`far_origin`);
+    ``SH_SOFT`` for a light with an extent that is not wholly below the horizon (or, at a
+    rough interface, wholly above it); else -2."""
     L = sa.light_kind.shape[0]
+    far = rough_interface(sa, m)
     for j in range(L):
         sh_state[i * L + j] = light_state(sa, j, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy,
-                                          qz)
+                                          qz, far)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -257,7 +289,8 @@ def _surface_kernel(sa, o, d, tmax, hits, surf):
         Q[i, 0] = qx
         Q[i, 1] = qy
         Q[i, 2] = qz
-        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, sh_state)
+        light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, MAT[i],
+                     sh_state)
         if sa.light_recv.shape[0] > 0:
             unlinked_lights(sa, i, k, sh_state)
 
@@ -273,29 +306,34 @@ def unlinked_lights(sa, i, k, sh_state):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _shadow_kernel(sa, Q, todo, sh_o, sh_d, sh_tmax):
+def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax):
     """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
 
-    Q : (n, 3) float64 origins from :func:`_surface_kernel`. Outputs sh_o, sh_d (k, 3)
-    float64 (unit directions), sh_tmax (k,) float64: just short of a point or spot light,
-    infinite for a sun.
+    P, NG, Q : (n, 3) float64 points, geometric normals and shadow origins, sh_state (n L,)
+    the rows' states from :func:`_surface_kernel` (an ``SH_FAR`` row's ray leaves from
+    :func:`far_origin`). Outputs sh_o, sh_d (k, 3) float64 (unit directions), sh_tmax (k,)
+    float64: just short of a point or spot light, infinite for a sun.
     """
     L = sa.light_kind.shape[0]
     for k in prange(todo.shape[0]):
         i = todo[k] // L
         j = todo[k] - i * L
-        sh_o[k, 0] = Q[i, 0]
-        sh_o[k, 1] = Q[i, 1]
-        sh_o[k, 2] = Q[i, 2]
+        if sh_state[todo[k]] == SH_FAR:
+            ox, oy, oz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
+                                    NG[i, 2])
+        else:
+            ox, oy, oz = Q[i, 0], Q[i, 1], Q[i, 2]
+        sh_o[k, 0] = ox
+        sh_o[k, 1] = oy
+        sh_o[k, 2] = oz
         if sa.light_kind[j] == LIGHT_SUN:
             sh_d[k, 0] = -sa.light_dir[j, 0]
             sh_d[k, 1] = -sa.light_dir[j, 1]
             sh_d[k, 2] = -sa.light_dir[j, 2]
             sh_tmax[k] = np.inf
         else:
-            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - Q[i, 0],
-                                        sa.light_pos[j, 1] - Q[i, 1],
-                                        sa.light_pos[j, 2] - Q[i, 2])
+            wx, wy, wz, wl = normalize3(sa.light_pos[j, 0] - ox, sa.light_pos[j, 1] - oy,
+                                        sa.light_pos[j, 2] - oz)
             sh_d[k, 0] = wx
             sh_d[k, 1] = wy
             sh_d[k, 2] = wz
@@ -438,6 +476,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                 continue
             vd = sa.light_vis[j, 0]  # the light's diffuse and glossy ray visibility
             vg = sa.light_vis[j, 1]
+            vi = max(vg, sa.light_vis[j, 3])  # a glass closure's (both must be off)
             if sa.light_kind[j] == LIGHT_SUN:
                 lx = -sa.light_dir[j, 0]
                 ly = -sa.light_dir[j, 1]
@@ -451,16 +490,24 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                 if sa.light_kind[j] == LIGHT_SPOT:
                     ca = spot_cosine(sa, j, lx, ly, lz)
                     e *= spot_falloff(ca, sa.light_cos_outer[j], sa.light_cos_inner[j])
-            if e <= 0.0:
+            if e < 0.0 and dot3(gx, gy, gz, lx, ly, lz) < 0.0:
+                # an SH_FAR row: the light through the rough interface's transmission lobe
+                e = -e
+                q = ggx_btdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g) * ke * vi
+                fr = q * tr
+                fg = q * tg
+                fb = q * tb
+            elif e <= 0.0:
                 continue
-            fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, dr * vd,
-                               dg * vd, db * vd, sr * vg, sg * vg, sb * vg, eta_s,
-                               metallic * vg, mr, mg, mb, alpha, e_white, e_diel, qr, qg,
-                               qb)
-            q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vg
-            fr += q * ur
-            fg += q * ug
-            fb += q * ub
+            else:
+                fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
+                                   dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
+                                   eta_s, metallic * vg, mr, mg, mb, alpha, e_white, e_diel,
+                                   qr, qg, qb)
+                q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vi
+                fr += q * ur
+                fg += q * ug
+                fb += q * ub
             lr += fr * e * sa.light_intensity[j, 0]
             lg += fg * e * sa.light_intensity[j, 1]
             lb += fb * e * sa.light_intensity[j, 2]
@@ -482,12 +529,14 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
             j = soft.light[k0]
             vd = 1.0
             vg = 1.0
+            vi = 1.0
             if j < L:
                 if linked and sa.light_recv[j, ki] == 0:
                     k0 += ns
                     continue
                 vd = sa.light_vis[j, 0]
                 vg = sa.light_vis[j, 1]
+                vi = max(vg, sa.light_vis[j, 3])
             ex = soft.exact[k0 // ns]
             ar = 0.0
             ag = 0.0
@@ -501,13 +550,19 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
                 lx, ly, lz = soft.d[k, 0], soft.d[k, 1], soft.d[k, 2]
                 if glossy and soft.light[k] >= L:
                     fr, fg, fb = kr, kg, kb
+                elif dot3(gx, gy, gz, lx, ly, lz) < 0.0:
+                    # a sample on the rough interface's far side: its transmission lobe
+                    q = ggx_btdf(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g) * ke * vi
+                    fr = q * tr
+                    fg = q * tg
+                    fb = q * tb
                 else:
                     fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
                                        dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
                                        eta_s, metallic * vg, mr, mg, mb, alpha, e_white,
                                        e_diel, qr, qg, qb)
                     q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
-                                    ke) * vg
+                                    ke) * vi
                     fr += q * ur
                     fg += q * ug
                     fb += q * ub

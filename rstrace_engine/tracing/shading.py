@@ -32,6 +32,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.elements import (
+    MODEL_PRINCIPLED,
     TEX_CLIP,
     TEX_CLOSEST,
     TEX_EXTEND,
@@ -569,39 +570,6 @@ def ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u1, u2):
 
 
 @njit(cache=True, nogil=True)
-def ggx_glass_albedo_quadrature(cos_o, alpha, eta, n):
-    """Single-scattering albedo ``E`` of a rough dielectric interface (GGX, reflection plus
-    refraction) seen from ``cos_o``, ``eta = n1 / n2`` (the side the view is on over the
-    other): the mean over visible normals of ``F G2 / G1`` (reflected) and ``(1 - F) G2 /
-    G1`` (refracted), a direction on the wrong side of the macro surface counting 0 -- what
-    the glossy rays carry (:func:`~.glossy_rays._glossy_rays`), by a deterministic
-    quadrature: an ``n`` x ``n`` midpoint lattice over the sampler's unit square. Cycles'
-    multiscatter GGX glass (Principled's default) scales its lobe by ``1 / E``
-    (``microfacet_ggx_preserve_energy``) read from tables; so does the shader, from the
-    tables ``scripts/ggx_glass_tables.py`` computes with this
-    (:func:`~.multiscatter.ggx_glass_albedo`)."""
-    co = min(max(cos_o, tol.GGX_COS_MIN), 1.0)
-    so = math.sqrt(max(0.0, 1.0 - co * co))
-    acc = 0.0
-    for a in range(n):
-        for b in range(n):
-            hx, hy, hz = ggx_vndf(so, 0.0, co, alpha, (a + 0.5) / n, (b + 0.5) / n)
-            ch = so * hx + co * hz
-            if ch <= 0.0:
-                continue
-            ok, tx, ty, tz = refract(-so, 0.0, -co, hx, hy, hz, eta)
-            f = 1.0
-            if ok:
-                f = fresnel_dielectric(ch, eta)
-                if tz < 0.0:
-                    acc += (1.0 - f) * ggx_weight(co, tz, alpha)
-            rz = 2.0 * ch * hz - co  # the reflected direction's cosine
-            if rz > 0.0:
-                acc += f * ggx_weight(co, rz, alpha)
-    return acc / (n * n)
-
-
-@njit(cache=True, nogil=True)
 def ggx_weight(cos_o, cos_i, alpha):
     """The weight ``f cos_i / pdf`` of a direction drawn through :func:`ggx_vndf`, without
     its Fresnel factor: ``G2(o, i) / G1(o)`` with the height-correlated Smith ``G2`` (the
@@ -609,6 +577,68 @@ def ggx_weight(cos_o, cos_i, alpha):
     a2 = alpha * alpha
     lo = ggx_lambda(cos_o, a2)
     return (1.0 + lo) / (1.0 + lo + ggx_lambda(abs(cos_i), a2))
+
+
+@njit(cache=True, nogil=True)
+def rough_interface(sa, m):
+    """Whether material ``m`` is a rough dielectric interface (a Principled-like material at
+    GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` with transmission and an IOR other than 1):
+    light on the far side of its surface reaches the viewer through its transmission lobe
+    (:func:`ggx_btdf`), so its shadow rays may leave through the far side."""
+    if m < 0 or sa.mat_model[m] != MODEL_PRINCIPLED or sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN:
+        return False
+    return sa.mat_ior[m] != 1.0 and (sa.mat_transmission[m, 0] > 0.0
+                                     or sa.mat_transmission[m, 1] > 0.0
+                                     or sa.mat_transmission[m, 2] > 0.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def far_origin(sa, px, py, pz, gx, gy, gz):
+    """The shadow-ray origin on the far side of a surface point ``p`` (``g`` its geometric
+    normal turned toward the viewer): ``p`` moved off the surface by the spawn offset, as
+    the refracted rays leave it."""
+    off = spawn_offset(px, py, pz, sa.scene_extent)
+    return px - gx * off, py - gy * off, pz - gz * off
+
+
+@njit(cache=True, nogil=True)
+def ggx_btdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, alpha, eta):
+    """GGX microfacet refraction (Walter et al. 2007) from light direction ``l`` on the far
+    side of the surface to the view direction ``o`` (both unit, pointing away from the
+    surface; ``s`` the normal on the viewer's side), ``eta = n_view / n_far``::
+
+        f = |o.h| |l.h| (1 - F(o.h)) D(h) G2 / (|s.o| |s.l| |o.h + l.h / eta|^2) / eta^2
+
+    with ``h`` the normalised ``-(o + l / eta)`` turned to the viewer's side, ``F`` the
+    dielectric Fresnel seen from the viewer and the height-correlated Smith ``G2``: Cycles'
+    ``bsdf_microfacet_eval`` of a refraction (its ``bsdf->ior`` is ``1 / eta``), whose
+    ``f cos / pdf`` is the glossy rays' refraction weight ``(1 - F) G2 / G1``. No radiance
+    scaling by ``eta^2`` (Cycles has none). 0 where ``l`` is not below the surface or the
+    pair is no refraction through any microfacet."""
+    co = dot3(sx, sy, sz, ox, oy, oz)
+    cl = dot3(sx, sy, sz, lx, ly, lz)
+    if co <= 0.0 or cl >= 0.0 or eta == 1.0:
+        return 0.0
+    k = 1.0 / eta  # n_far / n_view
+    hx, hy, hz, hl = normalize3(ox + k * lx, oy + k * ly, oz + k * lz)
+    if not hl > 0.0:
+        return 0.0
+    ch = dot3(sx, sy, sz, hx, hy, hz)
+    if ch < 0.0:
+        hx, hy, hz, ch = -hx, -hy, -hz, -ch
+    if ch <= 0.0:
+        return 0.0
+    oh = dot3(ox, oy, oz, hx, hy, hz)
+    lh = dot3(lx, ly, lz, hx, hy, hz)
+    if oh <= 0.0 or lh >= 0.0:
+        return 0.0  # o and l on the same side of the microfacet: no refraction
+    a2 = alpha * alpha
+    t = ch * ch * (a2 - 1.0) + 1.0
+    dist = a2 / (math.pi * t * t)
+    g2 = 1.0 / (1.0 + ggx_lambda(co, a2) + ggx_lambda(-cl, a2))
+    den = oh + k * lh
+    f = 1.0 - fresnel_dielectric(oh, eta)
+    return oh * (-lh) * k * k * f * dist * g2 / (co * (-cl) * den * den)
 
 
 @njit(cache=True, nogil=True)

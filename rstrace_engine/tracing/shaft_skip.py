@@ -60,6 +60,7 @@ from ..geometry.shaft_geometry import (
     sun_box,
     to_object,
 )
+from .glossy_rays import interface_materials
 from .shading import spawn_offset
 from .soft_lights import SH_SOFT
 
@@ -99,6 +100,11 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     if not ext.any() or n == 0:
         return None
     soft = surf.sh_state.reshape(n, L)[:, ext] == SH_SOFT
+    # a rough interface's samples may leave through its far side: the proofs cover the
+    # shadow origins on the viewer's side alone
+    iface = interface_materials(sa)
+    if iface.any():
+        soft &= ~(iface[np.maximum(surf.mat, 0)] & (surf.mat >= 0))[:, None]
     todo = np.flatnonzero(soft.any(axis=1))
     proven = np.zeros(n * L, np.bool_)
     if len(todo) == 0:

@@ -45,7 +45,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, SceneArrays
-from .shading import dot3, normalize3, onb, spot_falloff
+from .shading import dot3, far_origin, normalize3, onb, rough_interface, spot_falloff
 
 #: The ratio estimator (Heitz, Hill and McGuire 2018) for the diffuse part where a closed
 #: form exists: measured in docs/SOFT_LIGHT.md (a module switch for that measurement).
@@ -374,11 +374,14 @@ def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, ratio, o, d, tmax, w, exact):
+def _soft_kernel(sa, P, Q, NG, NS, MAT, seeds, row_pt, row_light, n, ratio, o, d, tmax, w,
+                 exact):
     """The ``n`` samples of every (point, light) row: origins o, unit directions d (k, 3),
     tmax (k,) and weights w (k,) (0: the sample carries no light, no ray is traced); with
     ``ratio``, ``exact`` (m,) the closed form of each row's unshadowed weight sum (-1:
-    none, :func:`_row_exact`)."""
+    none, :func:`_row_exact`). At a rough interface (material ``MAT[i]``,
+    :func:`~.shading.rough_interface`) a light's sample below the surface counts too (its
+    transmission lobe): its ray leaves from the far side (:func:`~.shading.far_origin`)."""
     L = sa.light_kind.shape[0]
     inv_n = 1.0 / n
     for r in prange(row_pt.shape[0]):
@@ -394,6 +397,10 @@ def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, ratio, o, d, tmax, 
         if ratio and j < L:
             exact[r] = _row_exact(sa, j, qx, qy, qz, NG[i, 0], NG[i, 1], NG[i, 2],
                                   NS[i, 0], NS[i, 1], NS[i, 2])
+        far = j < L and rough_interface(sa, MAT[i])
+        fx, fy, fz = qx, qy, qz
+        if far:
+            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], gx, gy, gz)
         inside = False
         if j < L and sa.light_kind[j] != LIGHT_SUN and sa.light_kind[j] != LIGHT_AREA:
             rr = sa.light_radius[j]
@@ -428,6 +435,12 @@ def _soft_kernel(sa, Q, NG, NS, seeds, row_pt, row_light, n, ratio, o, d, tmax, 
             d[k, 1] = dy
             d[k, 2] = dz
             tmax[k] = t
+            if far and wgt > 0.0 and cs < 0.0 and dot3(gx, gy, gz, dx, dy, dz) < 0.0 and t > 0.0:
+                o[k, 0] = fx
+                o[k, 1] = fy
+                o[k, 2] = fz
+                w[k] = -wgt * cs * inv_n
+                continue
             if not (wgt > 0.0 and cs > 0.0 and dot3(gx, gy, gz, dx, dy, dz) > 0.0
                     and dot3(sx, sy, sz, dx, dy, dz) > 0.0 and t > 0.0):
                 w[k] = 0.0
@@ -492,7 +505,8 @@ def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.nda
     o, d, tmax, w = np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty(k)
     exact = np.empty(m)
     if m:
-        _soft_kernel(sa, surf.Q, surf.NG, surf.NS, np.ascontiguousarray(seeds, np.uint64),
+        _soft_kernel(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat,
+                     np.ascontiguousarray(seeds, np.uint64),
                      pt.astype(np.int64), lj.astype(np.int32), int(n), bool(RATIO_ESTIMATOR),
                      o, d, tmax, w, exact)
     return (SoftSamples(start, np.repeat(lj, n).astype(np.int32), d, w,

@@ -41,11 +41,13 @@ from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
+from .sample_rays import VIS_BITS_MAX, soft_bits
 from .seen_lights import SEEN_CAMERA, SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION, any_seen, seen
 from .shader import (  # (re-exported: the stages' kernels and types)
     _SH_TRACE,
     OCC_NONE,
     OCC_NOT_FACING,
+    SH_FAR,
     Spawned,
     Surfaces,
     _shade_kernel,
@@ -117,11 +119,11 @@ def surfaces(sa: SceneArrays, o: np.ndarray, d: np.ndarray, tmax: np.ndarray,
 def shadow_rays(sa: SceneArrays, surf: Surfaces):
     """The shadow rays of ``surf``: ``(todo (k,) int64, origins (k, 3), directions (k, 3),
     tmax (k,))``, ``todo`` their (point, light) rows ``i * L + j``."""
-    todo = np.flatnonzero(surf.sh_state == _SH_TRACE)
+    todo = np.flatnonzero((surf.sh_state == _SH_TRACE) | (surf.sh_state == SH_FAR))
     k = len(todo)
     so, sd, st = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
     if k:
-        _shadow_kernel(sa, surf.Q, todo, so, sd, st)
+        _shadow_kernel(sa, surf.P, surf.NG, surf.Q, surf.sh_state, todo, so, sd, st)
     return todo, so, sd, st
 
 
@@ -363,7 +365,8 @@ def _light_masks(sh_state, vis, L, traced, lit):
         b = np.uint64(0)
         for j in range(L):
             bit = np.uint64(1) << np.uint64(j)
-            if sh_state[i * L + j] == _SH_TRACE or sh_state[i * L + j] == SH_SOFT:
+            st = sh_state[i * L + j]
+            if st == _SH_TRACE or st == SH_SOFT or st == SH_FAR:
                 a |= bit
             if vis[i * L + j]:
                 b |= bit
@@ -541,6 +544,11 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if soft_on:  # the world's rays, for the pixel records to regenerate
                 segments[-1].update(normal=surf.NS, seed=nseeds, n_soft=int(light_samples),
                                     n_lights=L)
+                if level == 0 and soft is not None and soft.n[0] <= VIS_BITS_MAX:
+                    # and the primary hits' soft samples' visibility (shadow_reshade.py)
+                    bits = np.empty((nb, L + 1), np.uint64)
+                    soft_bits(soft.start, soft.light, soft.vis, int(soft.n[0]), bits)
+                    segments[-1]["soft_bits"] = bits
             if terms:
                 segments[-1].update(_light_terms(front, hits, surf, nseeds, shaded[2]))
         if record:

@@ -1,0 +1,168 @@
+"""The per-pixel records' segment queries (:mod:`.pixel_records`): every recorded node's
+segment -- the view ray, a reflection or refraction ray, the shadow rays to the lights it
+traced -- against the edited regions, primary nodes culled by screen tiles."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .. import tolerances as tol
+from .record_codes import _cone_sphere, _decode_point, _light_hit, _oct_decode, _segment_box
+
+
+@njit(cache=True, nogil=True)
+def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, levels, shift,
+                reg_lo, reg_hi, reg_c, reg_r, light_kind, light_pos, light_dir):
+    """Geometric test of one node: its segment and its shadow segments against the regions."""
+    k_reg = reg_lo.shape[0]
+    if k_reg == 0:
+        return False
+    if inst < 0:
+        dx, dy, dz = _oct_decode(code)
+        for q in range(k_reg):
+            if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, reg_c[q, 0],
+                            reg_c[q, 1], reg_c[q, 2], reg_r[q], tol.RECORD_DIR_ERROR):
+                return True
+        return False
+    px, py, pz = _decode_point(code, lo, step, levels, shift)
+    for q in range(k_reg):
+        if _segment_box(origin_x, origin_y, origin_z, px, py, pz, reg_lo[q], reg_hi[q],
+                        False):
+            return True
+    L = light_kind.shape[0]
+    for j in range(L):
+        if not (traced >> np.uint64(j)) & np.uint64(1):
+            continue
+        for q in range(k_reg):
+            if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], light_kind, light_pos,
+                          light_dir):
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin,
+                   ortho_origins, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                   light_kind, light_pos, light_dir, out):
+    n = p_combo.shape[0]
+    for g in prange(n):
+        c = p_combo[g]
+        if combo_dirty[c]:
+            out[g] = True
+            continue
+        if ortho_origins.shape[0] > 0:
+            ox = ortho_origins[g, 0]
+            oy = ortho_origins[g, 1]
+            oz = ortho_origins[g, 2]
+        else:
+            ox, oy, oz = cam_origin[0], cam_origin[1], cam_origin[2]
+        out[g] = _node_dirty(p_code[g], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
+                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
+                             light_pos, light_dir)
+
+
+TILE = 8  # pixels per side of the screen tiles the primary query culls with
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
+                 height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                 light_kind, light_pos, light_dir, out):
+    """The primary query, culled by screen tiles (perspective cameras).
+
+    Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
+    union of its traced lights. A segment from the camera to any point of the box lies
+    within the box's half-size of the segment to its centre (and likewise towards a
+    light), so growing the regions by that half-size makes one test per tile and light
+    conservative; only tiles that fail it (or hold a miss) test their rays one by one.
+    """
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
+    k_reg = reg_lo.shape[0]
+    for t in prange(n_tiles):
+        s = t // (tw * th)
+        r = t - s * tw * th
+        ty = r // tw
+        tx = r - ty * tw
+        x0, y0 = tx * TILE, ty * TILE
+        x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
+        blo = np.full(3, np.inf)
+        bhi = np.full(3, -np.inf)
+        traced = np.uint64(0)
+        check = False
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                g = s * n_pixels + y * width + x
+                c = p_combo[g]
+                if combo_inst[c] < 0:
+                    check = True  # misses are tested ray by ray
+                    continue
+                traced |= combo_traced[c]
+                px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
+                blo[0] = min(blo[0], px)
+                blo[1] = min(blo[1], py)
+                blo[2] = min(blo[2], pz)
+                bhi[0] = max(bhi[0], px)
+                bhi[1] = max(bhi[1], py)
+                bhi[2] = max(bhi[2], pz)
+        if not check and blo[0] <= bhi[0] and k_reg > 0:
+            cx = 0.5 * (blo[0] + bhi[0])
+            cy = 0.5 * (blo[1] + bhi[1])
+            cz = 0.5 * (blo[2] + bhi[2])
+            glo = np.empty(3)
+            ghi = np.empty(3)
+            for q in range(k_reg):
+                for k in range(3):
+                    half = 0.5 * (bhi[k] - blo[k])
+                    glo[k] = reg_lo[q, k] - half
+                    ghi[k] = reg_hi[q, k] + half
+                if _segment_box(cam_origin[0], cam_origin[1], cam_origin[2], cx, cy, cz,
+                                glo, ghi, False):
+                    check = True
+                    break
+                for j in range(light_kind.shape[0]):
+                    if not (traced >> np.uint64(j)) & np.uint64(1):
+                        continue
+                    if _light_hit(cx, cy, cz, j, glo, ghi, light_kind, light_pos, light_dir):
+                        check = True
+                        break
+                if check:
+                    break
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                g = s * n_pixels + y * width + x
+                c = p_combo[g]
+                if combo_dirty[c]:
+                    out[g] = True
+                elif check:
+                    out[g] = _node_dirty(p_code[g], cam_origin[0], cam_origin[1],
+                                         cam_origin[2], combo_inst[c], combo_traced[c], lo,
+                                         step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
+                                         light_kind, light_pos, light_dir)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _query_secondary(s_parent, s_combo, s_code, p_combo, p_code, n_rays, combo_dirty,
+                     combo_inst, combo_traced, lo, step, levels, shift, reg_lo, reg_hi,
+                     reg_c, reg_r, light_kind, light_pos, light_dir, out):
+    m = s_parent.shape[0]
+    for k in prange(m):
+        c = s_combo[k]
+        if combo_dirty[c]:
+            out[k] = True
+            continue
+        p = s_parent[k]
+        pcode = p_code[p] if p < n_rays else s_code[p - n_rays]
+        ox, oy, oz = _decode_point(pcode, lo, step, levels, shift)
+        out[k] = _node_dirty(s_code[k], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
+                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
+                             light_pos, light_dir)
+
+
+@njit(cache=True, nogil=True)
+def _mark_rays(s_ray, s_dirty, ray_dirty):
+    for k in range(s_ray.shape[0]):
+        if s_dirty[k]:
+            ray_dirty[s_ray[k]] = True

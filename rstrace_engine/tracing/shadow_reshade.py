@@ -1,0 +1,238 @@
+"""Object edits under soft light, at the level of rays (BASE, issue 20 item 5).
+
+A point lit by a light with an extent or by the world shoots ``n`` shadow rays per such
+light (:mod:`.soft_lights`); an object moved, added or deleted near it may cross a few of
+them. The per-pixel records find, per sample, *which* of its rays may cross an edited box
+(:meth:`~.pixel_records.PixelRecords.dirty_split`): a sample whose primary ray, secondary
+nodes and hard lights' shadow rays are untouched, and only some lights' (or the world's)
+shadow rays at its primary hit may change, is not traced again. Its primary node's terms of
+those lights are shaded again (:func:`reshade`), the others kept, and the frame is
+recombined from the per-light records (:meth:`~.light_records.LightRecords.recombine`) --
+as a moved light is relit (:mod:`.light_reshade`), but at those nodes only:
+
+* a light with an extent: its state at the rebuilt surface, its ``n`` samples from the
+  node's seed (the same rays a fresh frame traces, through the edited scene), the shade
+  kernel with it alone -- the ratio estimator's ``sum V w / sum w`` times the closed form, or
+  the plain estimator, in the kernel's own order;
+* the world: its ``n`` cosine-weighted rays and the shade kernel with no light, spawning
+  as the tracer's level does (a rough point's world term lights its diffuse part only).
+
+Every operand is the one a fresh frame's shade kernel reads, so each term is bit for bit a
+fresh frame's, and the recombination sums them in the tracer's order. Shadow linking is
+honoured (the tracer's own occlusion test).
+
+**Per-sample visibility.** The records keep the primary hits' samples' visibility, a bit
+per sample and light (:attr:`~.pixel_records.PixelRecords.p_vis`, written by the tracer:
+:func:`~.sample_rays.soft_bits`; 2 bytes per light and sample at 16 light samples). Then
+only the samples whose exact rays (regenerated from the rebuilt surface and the node seed,
+:func:`~.sample_rays.crossing_rows`) may cross an edited box, grown as the records grow it,
+are traced again; the others keep their bits (a ray that crosses no edited box meets what
+it met). A node whose bits all stay what they were keeps its term (the shade kernel would
+read the same operands); only the nodes where a sample's visibility changed are shaded,
+from the bits, with the tracer's arithmetic in its order (the ratio estimator's ``sum V w
+/ sum w`` times the closed form, the plain estimator, the world's cosine-weighted sum). The
+bits are dropped (re-shaded lights then trace all their samples, as above) when a light's
+shadows may move: a light moved or added (or its extent, kind or links changed), the world
+starting or stopping to light.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..accel.accelerators import Hits
+from .batches import threads_for
+from .light_nodes import WORLD, term_of
+from .light_reshade import _one_light_states, tick
+from .sample_rays import crossing_rays, crossing_rows, unpack_bits
+from .shader import Surfaces
+from .soft_lights import SH_SOFT, soft_rays
+from .whitted import _occluded_by, shade, surfaces
+
+
+def _surfaces(sa, geo: dict) -> Surfaces:
+    """The nodes' surfaces, rebuilt by the tracer's surface stage from their rays and hits
+    (as :meth:`~.light_records._Part.surfaces`)."""
+    k = len(geo["t"])
+    hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
+    no_lights = sa._replace(light_kind=np.empty(0, sa.light_kind.dtype))
+    with threads_for(k):
+        return surfaces(no_lights, geo["o"], geo["d"], np.full(k, np.inf), hits)
+
+
+def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
+    """The soft samples of the nodes (one row each: a light's, or the world's) with their
+    visibility: the bits ``kept`` (k,) per node (:func:`~.sample_rays.soft_bits`' column,
+    :func:`_traced_bits`), or where None every sample traced. ``sa``: the packing the
+    samples are drawn in (the world off for a light's). Returns ``(SoftSamples, rows,
+    any_vis)``, rows as :func:`~.soft_lights.soft_rays` numbers them."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    t0 = time.perf_counter()
+    soft, o, tmax, rows = soft_rays(sa, sf, geo["seed"], n, sf.sh_state)
+    m = len(rows)
+    if kept is not None:
+        pt = np.where(rows >= 0, rows // max(len(sa.light_kind), 1), -1 - rows)
+        unpack_bits(np.ascontiguousarray(kept[pt], np.uint64), n, soft.vis)
+    else:
+        go = np.flatnonzero(soft.w > 0.0)
+        if len(go):
+            soft.vis[go] = ~np.asarray(_occluded_by(sa, accel)(
+                o[go], soft.d[go], tmax[go], np.repeat(rows, n)[go]), np.bool_)
+            if counters is not None:
+                counters["shadow"] = counters.get("shadow", 0) + len(go)
+    any_vis = soft.vis.reshape(m, n).any(axis=1) if m else np.zeros(0, np.bool_)
+    tick(split, "samples", t0)
+    return soft, rows, any_vis
+
+
+def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
+                 counters) -> np.ndarray:
+    """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
+    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples that may cross a
+    grown region ``regions`` (lo, hi) traced again, through the edited scene, the others
+    kept."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    t0 = time.perf_counter()
+    m = len(pt)
+    mask = np.empty(m, np.uint64)
+    count = np.empty(m, np.int64)
+    pt = np.ascontiguousarray(pt, np.int64)
+    lj = np.ascontiguousarray(lj, np.int64)
+    seed = np.ascontiguousarray(seed, np.uint64)
+    with threads_for(m):
+        crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
+                      regions[0], regions[1], mask, count)
+    start = np.zeros(m + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    k = int(start[-1])
+    o, d, tmax = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    row, bit = np.empty(k, np.int64), np.empty(k, np.uint64)
+    crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n, mask, start,
+                  o, d, tmax, row, bit)
+    tick(split, "crossing", t0)
+    new = np.asarray(kept, np.uint64) & ~mask
+    if k:
+        t0 = time.perf_counter()
+        L = len(sa.light_kind)
+        prow = np.where(lj[row] < L, pt[row] * L + lj[row], -1 - pt[row])
+        vis = ~np.asarray(_occluded_by(sa, accel)(o, d, tmax, prow), np.bool_)
+        np.bitwise_or.at(new, row[vis], bit[vis])
+        if counters is not None:
+            counters["shadow"] = counters.get("shadow", 0) + k
+        tick(split, "trace", t0)
+    return new
+
+
+def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, counters):
+    """Light ``j``'s (an extent's) terms at the nodes, its samples' visibility ``kept``
+    (:func:`_samples`): ``(present (k,), value (k, 3), lit (k,))``."""
+    k = len(geo["t"])
+    L = len(sa.light_kind)
+    state = np.empty(k, np.int8)
+    with threads_for(k):
+        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
+                          state, np.empty(k, np.int32))
+        sh_state = np.full((k, L), -2, np.int8)
+        sh_state[:, j] = state
+        sf = Surfaces(*surf[:7], sh_state.reshape(-1))
+        sa1 = sa._replace(world_light=np.zeros(3))  # (the world's term is not this one)
+        soft, rows, any_vis = _samples(sa1, accel, geo, sf, n, kept, counters)
+        vis = np.zeros(k * L, np.bool_)
+        vis[rows] = any_vis
+        hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
+        _, _, (tv, tp) = shade(sa1, hits, sf, vis, np.ones((k, 3)), False, soft, True)
+    return tp[:, j], tv[:, j], vis.reshape(k, L)[:, j]
+
+
+def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept, counters):
+    """The world's terms at the nodes, its samples' visibility ``kept`` (:func:`_samples`):
+    ``(present (k,), value (k, 3))``. ``spawn``: the level spawns rays (a rough point's
+    world samples then light its diffuse part only)."""
+    k = len(geo["t"])
+    L = len(sa.light_kind)
+    with threads_for(k):
+        sh_state = np.full(k * L, -2, np.int8)
+        sf = Surfaces(*surf[:7], sh_state)
+        soft, _, _ = _samples(sa, accel, geo, sf, n, kept, counters)
+        hits = Hits(geo["t"], geo["inst"], geo["prim"], geo["u"], geo["v"])
+        _, _, (tv, tp) = shade(sa, hits, sf, np.zeros(k * L, np.bool_), np.ones((k, 3)),
+                               spawn, soft, True, seeds=geo["seed"])
+    return tp[:, L], tv[:, L]
+
+
+def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
+            spawn: bool, vis_bits: np.ndarray | None = None, regions=None,
+            counters: dict | None = None) -> dict:
+    """Shade again, at the primary nodes of the per-light records ``lr`` (with geometry),
+    the lights with an extent whose bits ``lights`` (n_rays,) uint64 name and the world's
+    light where ``world`` (n_rays,) bool, through ``accel`` over the edited scene ``sa``;
+    their entries replaced, every other term kept. Returns ``{j: (rows, lit)}``: each
+    light's nodes and its visibility bit there (for the pixel records). ``spawn``: primary
+    nodes spawn rays (ray depth > 0). ``counters``: adds ``shadow`` and ``split`` seconds."""
+    split = {} if counters is None else counters.setdefault("split", {})
+    t0 = time.perf_counter()
+    p = lr.p
+    rows = np.flatnonzero(((lights != 0) | world) & p.hit)  # (a miss has no shadow ray)
+    out: dict = {}
+    if len(rows) == 0:
+        return out
+    sub = p.take(rows)  # (the nodes, their terms and geometry; a dragged light's folded)
+    sub.fold()
+    geo = sub.geo
+    surf = _surfaces(sa, geo)
+    tick(split, "surfaces", t0)
+    n = int(light_samples)
+    L = len(sa.light_kind)
+    changes = []
+    jobs = [(c, np.flatnonzero((lights[rows] >> np.uint64(c)) & np.uint64(1)))
+            for c in range(L)]
+    jobs.append((L, np.flatnonzero(world[rows])))  # (column L: the world)
+    for c, sel in jobs:
+        if len(sel) == 0:
+            continue
+        t0 = time.perf_counter()
+        g = {key: x[sel] for key, x in geo.items()}
+        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
+        kept = None
+        if vis_bits is not None:
+            # the samples that may cross an edited box traced again, the others' bits
+            # kept: only the nodes where a sample's visibility changed are shaded again
+            # (the others' inputs, and so their term, are what they were)
+            old = vis_bits[rows[sel], c].astype(np.uint64)
+            if c < L:  # (the nodes the light samples: it faces them)
+                state = np.empty(len(sel), np.int8)
+                with threads_for(len(sel)):
+                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, g["inst"],
+                                      state, np.empty(len(sel), np.int32))
+                pt = np.flatnonzero(state == SH_SOFT)
+            else:
+                pt = np.arange(len(sel))
+            kept = old.copy()
+            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), c), n,
+                                    old[pt], regions, counters)
+            vis_bits[rows[sel], c] = kept
+            moved = np.flatnonzero(kept != old)
+            tick(split, "shadow_rays", t0)
+            t0 = time.perf_counter()
+            sel, kept = sel[moved], kept[moved]
+            g = {key: x[moved] for key, x in g.items()}
+            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
+        if len(sel) and c < L:
+            on, val, lit = _light_term(sa, accel, c, n, g, s, kept, counters)
+            changes.append((c, sel, on, val))
+            out[c] = (rows[sel], lit)
+        elif len(sel):
+            on, val = _world_term(sa, accel, n, spawn, g, s, kept, counters)
+            changes.append((WORLD, sel, on, val))
+        tick(split, "shade", t0)
+    t0 = time.perf_counter()
+    for c, sel, on, val in changes:
+        d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
+        d_on[sel] = on
+        d_val[sel] = val
+        sub.replace_slot(c, d_on, d_val)
+    lr.p = p.splice(rows, sub)
+    tick(split, "terms", t0)
+    return out

@@ -21,8 +21,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..accel.accelerators import Hits
+from ..tracing.glossy_rays import glossy_materials, has_glossy
 from ..tracing.soft_lights import sample_seeds
-from ..tracing.whitted import glossy_materials, has_glossy, trace
+from ..tracing.whitted import trace
 from .samples import hit_materials
 
 

@@ -15,7 +15,8 @@ from ..frame import (
     CLASS_INTERPOLATED,
     CLASS_TRACED,
 )
-from ..tracing.whitted import Spawned, child_paths, glossy_materials
+from ..tracing.glossy_rays import glossy_materials
+from ..tracing.whitted import Spawned, child_paths
 from .patches import ST_FAIL_ANGLE, ST_FAIL_CLASS
 
 

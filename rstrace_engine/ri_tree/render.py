@@ -50,9 +50,9 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
+from ..tracing.glossy_rays import has_glossy
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
 from ..tracing.whitted import (
-    has_glossy,
     shade_paths,
     shadow_rays,
     soft_direct,

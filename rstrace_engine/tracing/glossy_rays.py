@@ -2,7 +2,7 @@
 (issue 24, docs/glossy.md), for the shade kernel (:mod:`.shader`).
 
 Which materials draw them (:func:`is_glossy`; how many per point, Glossy Samples at a
-path's first rough bounce and one deeper, :func:`~.whitted.glossy_counts`), and the rays themselves
+path's first rough bounce and one deeper, :func:`glossy_counts`), and the rays themselves
 (:func:`_glossy_rays`): microfacet normals from GGX's visible normals, stratified like the
 soft lights' samples, weighted as Cycles' microfacet GGX weights them.
 """
@@ -65,6 +65,31 @@ def interface_materials(sa) -> np.ndarray:
             & (np.asarray(sa.mat_roughness) >= tol.GLOSSY_ALPHA_MIN)
             & (np.asarray(sa.mat_ior) != 1.0)
             & (np.asarray(sa.mat_transmission) > 0).any(axis=1))
+
+
+def glossy_materials(sa) -> np.ndarray:
+    """(NM,) bool: the materials of ``sa`` that draw glossy rays
+    (:func:`is_glossy`)."""
+    refl = (sa.mat_mirror > 0).any(axis=1) & (
+        (sa.mat_metallic > 0) | (sa.mat_specular > 0).any(axis=1))
+    return ((sa.mat_model == MODEL_PRINCIPLED) & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
+            & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
+
+
+def has_glossy(sa) -> bool:
+    """Whether any material of ``sa`` draws glossy rays (:func:`is_glossy`)."""
+    return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
+
+
+def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int):
+    """Ray pairs per point of a level (:func:`~.shader._shade_kernel`'s ``gstart``): ``samples``
+    at a glossy point (``mat`` (n,) its material, -1 a miss) whose path has not been split
+    yet (``fresh`` (n,) bool), 1 elsewhere (a deeper glossy bounce draws one direction).
+    Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
+    level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
+    on one thread, a quarter of a rough_materials frame (docs/bench-frame.md)."""
+    glossy = np.append(glossy_materials(sa), False)[mat]  # the appended False: -1, a miss
+    return np.where(glossy & fresh, np.int64(samples), np.int64(1)), glossy
 
 
 @njit(cache=True, nogil=True)

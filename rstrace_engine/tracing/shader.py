@@ -357,7 +357,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     gstart : (n + 1,) int64, point i's rays are the slot pairs ``gstart[i]:gstart[i + 1]``
     (its reflection at ``2 s``, its refraction at ``2 s + 1``): one pair for a mirror,
     glass or a matte surface, one per glossy sample where the point is glossy
-    (:func:`~.whitted.glossy_counts`); seeds : (n,) uint64 the points' node seeds (the glossy
+    (:func:`~.glossy_rays.glossy_counts`); seeds : (n,) uint64 the points' node seeds (the glossy
     samples'; empty: no glossy rays). Outputs: contrib (n, 3) weighted radiance to add to
     each ray's input ray; out, the :class:`Spawned` rays; with ``tv`` (n, L + 2, 3)
     float64 and ``tp`` (n, L + 2) bool (empty: not kept) each point's *light terms*

@@ -26,7 +26,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .. import tolerances as tol
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
 from ..frame import (
@@ -37,8 +36,9 @@ from ..frame import (
     RenderSettings,
 )
 from ..geometry.cameras import camera_params, camera_rays
-from ..geometry.scene import MODEL_PRINCIPLED, Scene, SceneArrays
+from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
+from .glossy_rays import glossy_counts, has_glossy
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
 from .sample_rays import VIS_BITS_MAX, soft_bits
@@ -178,31 +178,6 @@ def child_paths(slots: np.ndarray, gstart: np.ndarray | None, glossy: np.ndarray
     out = np.empty(len(slots), np.uint64)
     _child_tags(nseeds, which, pair - gstart[which], glossy, tag, out)
     return which, fresh[which] & ~glossy[which], out
-
-
-def glossy_materials(sa: SceneArrays) -> np.ndarray:
-    """(NM,) bool: the materials of ``sa`` that draw glossy rays
-    (:func:`~.glossy_rays.is_glossy`)."""
-    refl = (sa.mat_mirror > 0).any(axis=1) & (
-        (sa.mat_metallic > 0) | (sa.mat_specular > 0).any(axis=1))
-    return ((sa.mat_model == MODEL_PRINCIPLED) & (sa.mat_roughness >= tol.GLOSSY_ALPHA_MIN)
-            & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
-
-
-def has_glossy(sa: SceneArrays) -> bool:
-    """Whether any material of ``sa`` draws glossy rays (:func:`~.glossy_rays.is_glossy`)."""
-    return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
-
-
-def glossy_counts(sa: SceneArrays, mat: np.ndarray, fresh: np.ndarray, samples: int):
-    """Ray pairs per point of a level (:func:`~.shader._shade_kernel`'s ``gstart``): ``samples``
-    at a glossy point (``mat`` (n,) its material, -1 a miss) whose path has not been split
-    yet (``fresh`` (n,) bool), 1 elsewhere (a deeper glossy bounce draws one direction).
-    Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
-    level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
-    on one thread, a quarter of a rough_materials frame (docs/bench-frame.md)."""
-    glossy = np.append(glossy_materials(sa), False)[mat]  # the appended False: -1, a miss
-    return np.where(glossy & fresh, np.int64(samples), np.int64(1)), glossy
 
 
 class _Plan(NamedTuple):

@@ -203,6 +203,17 @@ def _row_inside(sa, j, L, qx, qy, qz):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _far_side(sa, P, NG, MAT, i, qx, qy, qz):
+    """``(far, fx, fy, fz)``: whether point ``i`` is on a rough interface (its lights'
+    samples below the surface traced too) and their origin there (the far side of its hit
+    ``P``, :func:`~.shading.far_origin`; else its spawn point ``q``)."""
+    if rough_interface(sa, MAT[i]):
+        fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1], NG[i, 2])
+        return True, fx, fy, fz
+    return False, qx, qy, qz
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _sample_ray(sa, j, L, inside, far, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u, v):
     """One sample of a (point, light) row as :func:`~.soft_lights._soft_kernel` draws it:
     ``(dx, dy, dz, tmax, traced, below)`` (``traced``: its weight is not zero; ``below``: a
@@ -264,11 +275,7 @@ def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, mask,
                 half = math.asin(min(rad / dist, 1.0)) + err
                 cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
         inside = _row_inside(sa, j, L, qx, qy, qz)
-        far = rough_interface(sa, MAT[i])
-        fx, fy, fz = qx, qy, qz
-        if far:
-            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
-                                    NG[i, 2])
+        far, fx, fy, fz = _far_side(sa, P, NG, MAT, i, qx, qy, qz)
         h = row_hash(seeds[i], j)
         b = np.uint64(0)
         c = 0
@@ -309,11 +316,7 @@ def crossing_rays(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, mask, start, o, d, tm
         j = lj[r]
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
         inside = _row_inside(sa, j, L, qx, qy, qz)
-        far = rough_interface(sa, MAT[i])
-        fx, fy, fz = qx, qy, qz
-        if far:
-            fx, fy, fz = far_origin(sa, P[i, 0], P[i, 1], P[i, 2], NG[i, 0], NG[i, 1],
-                                    NG[i, 2])
+        far, fx, fy, fz = _far_side(sa, P, NG, MAT, i, qx, qy, qz)
         h = row_hash(seeds[i], j)
         k = start[r]
         for s in range(n):

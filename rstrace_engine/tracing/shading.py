@@ -585,11 +585,12 @@ def rough_interface(sa, m):
     GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` with transmission and an IOR other than 1):
     light on the far side of its surface reaches the viewer through its transmission lobe
     (:func:`ggx_btdf`), so its shadow rays may leave through the far side."""
-    if m < 0 or sa.mat_model[m] != MODEL_PRINCIPLED or sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN:
+    if m < 0:  # branch-free past this, as glossy_rays.is_glossy (~350 ns a call else)
         return False
-    return sa.mat_ior[m] != 1.0 and (sa.mat_transmission[m, 0] > 0.0
-                                     or sa.mat_transmission[m, 1] > 0.0
-                                     or sa.mat_transmission[m, 2] > 0.0)
+    return ((sa.mat_model[m] == MODEL_PRINCIPLED)
+            & (not sa.mat_roughness[m] < tol.GLOSSY_ALPHA_MIN) & (sa.mat_ior[m] != 1.0)
+            & ((sa.mat_transmission[m, 0] > 0.0) | (sa.mat_transmission[m, 1] > 0.0)
+               | (sa.mat_transmission[m, 2] > 0.0)))
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -44,6 +44,7 @@ from .soft_lights import (
     _sphere_exit,
     row_hash,
     row_uv,
+    sample_weight,
     world_sample_dir,
 )
 
@@ -232,13 +233,10 @@ def _sample_ray(sa, j, L, inside, far, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u,
     else:
         dx, dy, dz, t, wgt = _sample_one(sa, j, qx, qy, qz, u, v)
         cs = dot3(sx, sy, sz, dx, dy, dz)
-    if far and j < L and wgt > 0.0 and cs < 0.0 and dot3(gx, gy, gz, dx, dy, dz) < 0.0 \
-            and t > 0.0:
-        return dx, dy, dz, t, -wgt * cs * (1.0 / n) > 0.0, True
-    ok = (wgt > 0.0 and cs > 0.0 and dot3(gx, gy, gz, dx, dy, dz) > 0.0
-          and dot3(sx, sy, sz, dx, dy, dz) > 0.0 and t > 0.0)
     # (the weight the tracer keeps; a sample is traced where it is not zero)
-    return dx, dy, dz, t, ok and wgt * cs * (1.0 / n) > 0.0, False
+    w, below = sample_weight(far and j < L, wgt, cs, dot3(gx, gy, gz, dx, dy, dz),
+                             dot3(sx, sy, sz, dx, dy, dz), t, 1.0 / n)
+    return dx, dy, dz, t, w > 0.0, below
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -435,17 +435,28 @@ def _soft_kernel(sa, P, Q, NG, NS, MAT, seeds, row_pt, row_light, n, ratio, o, d
             d[k, 1] = dy
             d[k, 2] = dz
             tmax[k] = t
-            if far and wgt > 0.0 and cs < 0.0 and dot3(gx, gy, gz, dx, dy, dz) < 0.0 and t > 0.0:
+            w[k], below = sample_weight(far, wgt, cs, dot3(gx, gy, gz, dx, dy, dz),
+                                        dot3(sx, sy, sz, dx, dy, dz), t, inv_n)
+            if below:
                 o[k, 0] = fx
                 o[k, 1] = fy
                 o[k, 2] = fz
-                w[k] = -wgt * cs * inv_n
-                continue
-            if not (wgt > 0.0 and cs > 0.0 and dot3(gx, gy, gz, dx, dy, dz) > 0.0
-                    and dot3(sx, sy, sz, dx, dy, dz) > 0.0 and t > 0.0):
-                w[k] = 0.0
-                continue
-            w[k] = wgt * cs * inv_n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sample_weight(far, wgt, cs, cg, cn, t, inv_n):
+    """``(weight, below)`` of one sample of a (point, light) row: its density-weighted
+    ``wgt``, its cosine factor ``cs`` (1 where the density holds it), the cosines ``cg``,
+    ``cn`` of its direction with the geometric and the shading normal, its ``tmax`` ``t``.
+    Above both horizons ``wgt cs / n``; at a rough interface (``far``) below both, ``-wgt
+    cs / n`` and ``below`` (its ray leaves from the far side, :func:`~.shading.far_origin`);
+    else 0 (no ray). The tracer (:func:`_soft_kernel`) and the records that regenerate its
+    samples (:mod:`.sample_rays`) both decide by this."""
+    if far and wgt > 0.0 and cs < 0.0 and cg < 0.0 and t > 0.0:
+        return -wgt * cs * inv_n, True
+    if wgt > 0.0 and cs > 0.0 and cg > 0.0 and cn > 0.0 and t > 0.0:
+        return wgt * cs * inv_n, False
+    return 0.0, False
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -279,14 +279,56 @@ def test_kept_bvhs_are_bounded(monkeypatch):
 def test_mesh_key_in_chunks_is_the_one_shot_hash(monkeypatch):
     import hashlib
 
-    tv = _tv(shapes.lumpy_sphere(5_000))
-    whole = hashlib.blake2b(np.ascontiguousarray(tv).view(np.uint8), digest_size=16).digest()
+    mesh = shapes.lumpy_sphere(5_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
+    whole = bvh_mesh.mesh_key(verts, tris)
     monkeypatch.setattr(bvh_mesh, "KEY_CHUNK", 4096 + 8)
-    assert bvh_mesh.mesh_key(tv) == whole
+    assert bvh_mesh.mesh_key(verts, tris) == whole
+    h = hashlib.blake2b(digest_size=16)
+    for part in (np.array([len(tris), len(verts)], np.int64), verts, tris):
+        h.update(np.ascontiguousarray(part).view(np.uint8))
+    assert whole == h.digest()
     flag = CancelFlag()
     flag.set()
     with pytest.raises(Cancelled):
-        bvh_mesh.mesh_key(tv, flag.array)
+        bvh_mesh.mesh_key(verts, tris, flag.array)
+
+
+def test_mesh_key_follows_the_triangles_not_their_place_in_the_scene():
+    mesh = shapes.lumpy_sphere(2_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
+    key = bvh_mesh.mesh_key(verts, tris)
+    # the same mesh after 7 vertices of another one: the same key
+    shifted = np.concatenate([np.ones((7, 3)), verts])
+    assert bvh_mesh.mesh_key(shifted, tris + 7) == key
+    moved = verts.copy()
+    moved[int(tris[5, 1])] += 1e-12
+    assert bvh_mesh.mesh_key(moved, tris) != key
+    assert bvh_mesh.mesh_key(verts, tris[:, ::-1].copy()) != key
+
+
+def test_indexed_build_is_the_build_over_the_gathered_triangles():
+    mesh = shapes.lumpy_sphere(bvh_build.PARALLEL_MIN + 3_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
+    _same_tree(bvh_mesh.build_mesh_bvh_indexed(verts, tris), bvh_mesh.build_mesh_bvh(verts[tris]))
+
+
+def test_pad_outward_is_nextafter_outward():
+    rng = np.random.default_rng(3)
+    special = [0.0, -0.0, 5e-324, -5e-324, 1e-310, -1e-310, 1.0, -1.0, np.finfo(float).max,
+               -np.finfo(float).max, np.inf, -np.inf]
+    x = np.concatenate([special, rng.normal(size=600) * 10.0 ** rng.integers(-300, 300, 600)])
+    b = np.resize(x, (len(x) // 12 + 1) * 12).reshape(-1, 12)
+    want = b.copy()
+    with np.errstate(over="ignore"):
+        for side in range(2):
+            for q in range(3):
+                lo, hi = want[:, 6 * side + q], want[:, 6 * side + 3 + q]
+                want[:, 6 * side + q] = np.where(np.isfinite(lo), np.nextafter(lo, -np.inf), lo)
+                want[:, 6 * side + 3 + q] = np.where(np.isfinite(hi), np.nextafter(hi, np.inf),
+                                                     hi)
+    got = bvh_mesh.pad_outward(b.copy())
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
 
 
 # ----------------------------------------------------------------------------- scene arrays

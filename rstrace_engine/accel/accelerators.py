@@ -207,8 +207,9 @@ class BVHAccelerator(Accelerator):
             for m in range(len(sa.mesh_tri_start) - 1):
                 if stop[0]:
                     raise Cancelled("BVH build cancelled")
-                tv = bvh_mesh.mesh_triangles(sa, m)
-                key = bvh_mesh.mesh_key(tv, stop)
+                start, end = bvh_mesh.mesh_range(sa, m)
+                tris = sa.tris[start:end]
+                key = bvh_mesh.mesh_key(sa.verts, tris, stop)
                 pm = cache.get(key) or self._cache.get(key)
                 if pm is None and self._kept is not None:
                     pm = self._kept.get(key)
@@ -216,7 +217,7 @@ class BVHAccelerator(Accelerator):
                 if pm is None:
                     if stop[0]:
                         raise Cancelled("BVH build cancelled")
-                    mb = bvh_mesh.build_mesh_bvh(tv, stop=stop)
+                    mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop)
                     pm = bvh.PlacedMesh.built(mb)
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s

@@ -52,8 +52,7 @@ BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
-                       "accel.bvh_mesh.gather_triangles", "accel.bvh_mesh.triangle_boxes",
-                       "accel.bvh_mesh.gather_rows")
+                       "accel.bvh_mesh.gather_triangles", "accel.bvh_mesh.indexed_boxes")
 #: Meshes of fewer triangles are built by one thread, without parallel regions (starting
 #: one costs more than it saves there, and very much more when the cores are
 #: oversubscribed).
@@ -86,12 +85,6 @@ def _half_area(b0, b1, b2, b3, b4, b5):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _bin_of(c, cmin_k, ext, nbins):
-    b = int((c - cmin_k) * (nbins / ext))
-    return min(max(b, 0), nbins - 1)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _clear_bins(bin_n, bin_b, nbins):
     bin_n[:, :] = 0
     for k in range(3):
@@ -101,18 +94,52 @@ def _clear_bins(bin_n, bin_b, nbins):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bin_scale(cmin_k, cmax_k, nbins):
+    """The factor a centroid's offset from ``cmin_k`` is multiplied by to give its bin
+    (:func:`_bin_at`; 0: the axis is flat, not binned)."""
+    ext = cmax_k - cmin_k
+    return nbins / ext if ext > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bin_at(c, cmin_k, scale, nbins):
+    """The bin of centroid coordinate ``c`` (``scale``: :func:`_bin_scale`), clamped."""
+    b = int((c - cmin_k) * scale)
+    return min(max(b, 0), nbins - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _grow(bin_b, k, b, x0, y0, z0, x1, y1, z1):
+    bin_b[k, b, 0] = min(bin_b[k, b, 0], x0)
+    bin_b[k, b, 1] = min(bin_b[k, b, 1], y0)
+    bin_b[k, b, 2] = min(bin_b[k, b, 2], z0)
+    bin_b[k, b, 3] = max(bin_b[k, b, 3], x1)
+    bin_b[k, b, 4] = max(bin_b[k, b, 4], y1)
+    bin_b[k, b, 5] = max(bin_b[k, b, 5], z1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _bin_range(pb, start, end, cmin, cmax, nbins, bin_n, bin_b):
-    """Add primitives ``pb[start:end]`` to the bins (counts, boxes) of all three axes."""
+    """Add primitives ``pb[start:end]`` to the bins (counts, boxes) of all three axes
+    (an axis whose centroids do not spread is left out)."""
+    s0 = _bin_scale(cmin[0], cmax[0], nbins)
+    s1 = _bin_scale(cmin[1], cmax[1], nbins)
+    s2 = _bin_scale(cmin[2], cmax[2], nbins)
+    c0, c1, c2 = cmin[0], cmin[1], cmin[2]
     for j in range(start, end):
-        for k in range(3):
-            ext = cmax[k] - cmin[k]
-            if ext <= 0.0:
-                continue
-            b = _bin_of(0.5 * (pb[j, k] + pb[j, 3 + k]), cmin[k], ext, nbins)
-            bin_n[k, b] += 1
-            for q in range(3):
-                bin_b[k, b, q] = min(bin_b[k, b, q], pb[j, q])
-                bin_b[k, b, 3 + q] = max(bin_b[k, b, 3 + q], pb[j, 3 + q])
+        x0, y0, z0, x1, y1, z1 = pb[j, 0], pb[j, 1], pb[j, 2], pb[j, 3], pb[j, 4], pb[j, 5]
+        if s0 > 0.0:
+            b = _bin_at(0.5 * (x0 + x1), c0, s0, nbins)
+            bin_n[0, b] += 1
+            _grow(bin_b, 0, b, x0, y0, z0, x1, y1, z1)
+        if s1 > 0.0:
+            b = _bin_at(0.5 * (y0 + y1), c1, s1, nbins)
+            bin_n[1, b] += 1
+            _grow(bin_b, 1, b, x0, y0, z0, x1, y1, z1)
+        if s2 > 0.0:
+            b = _bin_at(0.5 * (z0 + z1), c2, s2, nbins)
+            bin_n[2, b] += 1
+            _grow(bin_b, 2, b, x0, y0, z0, x1, y1, z1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -122,35 +149,38 @@ def _best_split(cmin, cmax, nbins, bin_n, bin_b, right_a, right_n):
     best_cost = np.inf
     best_axis = -1
     best_bin = -1
-    rb = np.empty(6)
-    lb = np.empty(6)
     for k in range(3):
         if cmax[k] - cmin[k] <= 0.0:
             continue
         # sweep from the right: area and count of bins b.. nbins-1
-        rb[0:3] = np.inf
-        rb[3:6] = -np.inf
+        r0 = r1 = r2 = np.inf
+        r3 = r4 = r5 = -np.inf
         cnt = 0
         for b in range(nbins - 1, 0, -1):
             cnt += bin_n[k, b]
-            for q in range(3):
-                rb[q] = min(rb[q], bin_b[k, b, q])
-                rb[3 + q] = max(rb[3 + q], bin_b[k, b, 3 + q])
+            r0 = min(r0, bin_b[k, b, 0])
+            r1 = min(r1, bin_b[k, b, 1])
+            r2 = min(r2, bin_b[k, b, 2])
+            r3 = max(r3, bin_b[k, b, 3])
+            r4 = max(r4, bin_b[k, b, 4])
+            r5 = max(r5, bin_b[k, b, 5])
             right_n[b] = cnt
-            right_a[b] = _half_area(rb[0], rb[1], rb[2], rb[3], rb[4], rb[5])
-        lb[0:3] = np.inf
-        lb[3:6] = -np.inf
+            right_a[b] = _half_area(r0, r1, r2, r3, r4, r5)
+        l0 = l1 = l2 = np.inf
+        l3 = l4 = l5 = -np.inf
         cnt = 0
         for b in range(nbins - 1):  # split between bin b and b + 1
             cnt += bin_n[k, b]
-            for q in range(3):
-                lb[q] = min(lb[q], bin_b[k, b, q])
-                lb[3 + q] = max(lb[3 + q], bin_b[k, b, 3 + q])
+            l0 = min(l0, bin_b[k, b, 0])
+            l1 = min(l1, bin_b[k, b, 1])
+            l2 = min(l2, bin_b[k, b, 2])
+            l3 = max(l3, bin_b[k, b, 3])
+            l4 = max(l4, bin_b[k, b, 4])
+            l5 = max(l5, bin_b[k, b, 5])
             nr = right_n[b + 1]
             if cnt == 0 or nr == 0:
                 continue
-            la = _half_area(lb[0], lb[1], lb[2], lb[3], lb[4], lb[5])
-            cost = la * cnt + right_a[b + 1] * nr
+            cost = _half_area(l0, l1, l2, l3, l4, l5) * cnt + right_a[b + 1] * nr
             if cost < best_cost:
                 best_cost, best_axis, best_bin = cost, k, b
     return best_cost, best_axis, best_bin
@@ -192,9 +222,10 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
     lcb[3:6] = -np.inf
     rcb[0:3] = np.inf
     rcb[3:6] = -np.inf
+    scale = nbins / ext
     i, j = start, end - 1
     while i <= j:
-        if _bin_of(0.5 * (pb[i, k] + pb[i, 3 + k]), cmin_k, ext, nbins) <= split_bin:
+        if _bin_at(0.5 * (pb[i, k] + pb[i, 3 + k]), cmin_k, scale, nbins) <= split_bin:
             _add_centroid(pb, i, lcb)
             i += 1
         else:
@@ -434,10 +465,11 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         count = end - start
         area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
         best_cost, best_axis, best_bin = np.inf, -1, -1
+        nb = min(nbins, max(count, 2))
         if count > 1 and depth < DEPTH_CAP:
-            _clear_bins(bin_n, bin_b, nbins)
-            _bin_range(pb, start, end, cmin, cmax, nbins, bin_n, bin_b)
-            best_cost, best_axis, best_bin = _best_split(cmin, cmax, nbins, bin_n, bin_b,
+            _clear_bins(bin_n, bin_b, nb)
+            _bin_range(pb, start, end, cmin, cmax, nb, bin_n, bin_b)
+            best_cost, best_axis, best_bin = _best_split(cmin, cmax, nb, bin_n, bin_b,
                                                          right_a, right_n)
         split_cost = trav_cost + best_cost / max(area, 1e-300)
         make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
@@ -466,9 +498,9 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
                 continue
         if best_axis >= 0 and not make_leaf:
             mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],
-                             cmax[best_axis] - cmin[best_axis], nbins, best_bin, lcb, rcb)
+                             cmax[best_axis] - cmin[best_axis], nb, best_bin, lcb, rcb)
             _bins_box(bin_b, best_axis, 0, best_bin + 1, lbox)
-            _bins_box(bin_b, best_axis, best_bin + 1, nbins, rbox)
+            _bins_box(bin_b, best_axis, best_bin + 1, nb, rbox)
         else:
             # no usable SAH split (coincident centroids, depth cap, or a root that is one
             # leaf)

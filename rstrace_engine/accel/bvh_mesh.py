@@ -18,7 +18,14 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..cancel import Cancelled
-from .bvh_build import NEVER_STOP, PARALLEL_MIN, _half_area, build_flat, build_flat_boxes
+from .bvh_build import (
+    DEPTH_CAP,
+    NEVER_STOP,
+    PARALLEL_MIN,
+    _half_area,
+    build_flat,
+    build_flat_boxes,
+)
 
 
 class FlatBVH(NamedTuple):
@@ -51,15 +58,17 @@ def collapse4(b2, c2):
     child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
     (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
     ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
-    The nodes are numbered depth first, whatever the binary numbering.
+    The nodes are numbered depth first, whatever the binary numbering. The boxes are
+    copied as they are (:func:`pad_outward` widens them first).
     """
     n2 = c2.shape[0]
+    # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
+    # stack holds at most 3 entries per level of the binary tree
+    todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
     b4 = np.empty((n2, 24))
     c4 = np.empty((n2, 4), np.int32)
-    todo = np.empty((4 * n2 + 4, 3), np.int64)  # binary node, 4-wide parent, lane
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
-    sp = 0
     todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
     sp = 1
     m = 0
@@ -107,34 +116,62 @@ def collapse4(b2, c2):
             if cc[j] >= 0:
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
-    return b4[:m].copy(), c4[:m].copy()
+    return b4, c4, m
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def pad_outward(b64):
-    """Child boxes (N, 12) float64 widened by one ulp on every side.
+    """Child boxes (N, 12) float64 widened by one ulp on every side, in place (returned).
 
     A ray with a zero direction component has a huge finite reciprocal (``bvh._inv_dir``);
     if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
     +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
     geometry, an origin on a face is outside the geometry, so culling it is right. The
-    inverted (+inf, -inf) box of an empty child stays as is.
+    inverted (+inf, -inf) box of an empty child stays as is. (``np.nextafter`` toward -inf
+    / +inf, done on the bits: a finite float's neighbour is its bit pattern +-1.)
     """
-    out = np.empty_like(b64)
+    bits = b64.reshape(-1).view(np.int64)
     for i in range(b64.shape[0]):
         for s in range(2):
             for q in range(3):
-                lo = b64[i, 6 * s + q]
-                hi = b64[i, 6 * s + 3 + q]
-                out[i, 6 * s + q] = np.nextafter(lo, -np.inf) if np.isfinite(lo) else lo
-                out[i, 6 * s + 3 + q] = np.nextafter(hi, np.inf) if np.isfinite(hi) else hi
-    return out
+                j = 12 * i + 6 * s + q
+                bits[j] = _step_down(bits[j])
+                bits[j + 3] = _step_up(bits[j + 3])
+    return b64
+
+
+#: bit patterns of IEEE doubles
+_SIGN = np.int64(-0x8000000000000000)
+_EXP_ALL = np.int64(0x7FF0000000000000)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_down(x):
+    """The bits of ``nextafter(f, -inf)`` for the double ``f`` of bits ``x`` (inf and NaN
+    as they are)."""
+    if (x & _EXP_ALL) == _EXP_ALL:  # inf, nan
+        return x
+    if x == 0 or x == _SIGN:  # +-0 -> the smallest negative subnormal
+        return _SIGN | 1
+    return x - 1 if x > 0 else x + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_up(x):
+    """The bits of ``nextafter(f, +inf)`` (inf and NaN as they are)."""
+    if (x & _EXP_ALL) == _EXP_ALL:
+        return x
+    if x == 0 or x == _SIGN:
+        return np.int64(1)
+    return x + 1 if x > 0 else x - 1
 
 
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide)."""
-    b4, c4 = collapse4(pad_outward(b64), child)
-    return FlatBVH(b4, c4, perm)
+    """Binary build output -> the traversal layout (4-wide); ``b64`` is padded in place."""
+    b4, c4, m = collapse4(pad_outward(b64), child)
+    # (one copy of the nodes in use rather than two arrays' worth held: 4-wide nodes are
+    # about half the binary ones)
+    return FlatBVH(b4[:m].copy(), c4[:m].copy(), perm)
 
 
 # ----------------------------------------------------------------------------- meshes
@@ -166,9 +203,29 @@ def triangle_boxes(tv):
     return pb
 
 
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def indexed_boxes(verts, tris):
+    """Boxes (m, 6) float64 (lo, hi) of triangles ``verts[tris]`` (what
+    :func:`triangle_boxes` gives for them), without gathering their vertices first."""
+    m = tris.shape[0]
+    pb = np.empty((m, 6))
+    for i in prange(m):
+        ia, ib, ic = tris[i, 0], tris[i, 1], tris[i, 2]
+        for q in range(3):
+            a, b, c = verts[ia, q], verts[ib, q], verts[ic, q]
+            pb[i, q] = min(a, min(b, c))
+            pb[i, 3 + q] = max(a, max(b, c))
+    return pb
+
+
+def mesh_range(sa, mesh: int) -> tuple[int, int]:
+    """Mesh ``mesh``'s triangles: ``sa.tris[start:end]``."""
+    return int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
+
+
 def mesh_triangles(sa, mesh: int) -> np.ndarray:
     """Object-space vertices of mesh ``mesh``'s triangles: (m, 3, 3) float64."""
-    s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
+    s, e = mesh_range(sa, mesh)
     if e - s < PARALLEL_MIN:
         return sa.verts[sa.tris[s:e]]
     return gather_triangles(sa.verts, sa.tris, np.arange(s, e, dtype=np.int32)).reshape(-1, 3, 3)
@@ -178,15 +235,28 @@ def mesh_triangles(sa, mesh: int) -> np.ndarray:
 KEY_CHUNK = 1 << 24
 
 
-def mesh_key(tv: np.ndarray, stop: np.ndarray = NEVER_STOP) -> bytes:
-    """Content hash of a mesh's triangle vertices (m, 3, 3) float64 (the stop flag is
-    looked at every :data:`KEY_CHUNK` bytes: :class:`~rstrace_engine.cancel.Cancelled`)."""
-    raw = np.ascontiguousarray(tv).reshape(-1).view(np.uint8)
-    h = hashlib.blake2b(digest_size=16)
+def _hash_chunks(h, a: np.ndarray, stop: np.ndarray) -> None:
+    raw = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
     for start in range(0, len(raw), KEY_CHUNK):
         if stop[0]:
             raise Cancelled("BVH build cancelled")
         h.update(raw[start:start + KEY_CHUNK])
+
+
+def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP) -> bytes:
+    """Content hash of a mesh's triangles ``verts[tris]`` (verts (V, 3) float64, tris
+    (m, 3) int32 indices into them), exactly: the vertices ``tris`` spans (the range from
+    its least to its largest index) and ``tris`` relative to that range, so the key does
+    not depend on where the mesh lies in the scene's concatenation. Equal keys mean equal
+    triangle vertices, and the same tree (the build is deterministic). The stop flag is
+    looked at every :data:`KEY_CHUNK` bytes (:class:`~rstrace_engine.cancel.Cancelled`)."""
+    h = hashlib.blake2b(digest_size=16)
+    if len(tris) == 0:
+        return h.digest()
+    lo, hi = int(tris.min()), int(tris.max())
+    h.update(np.array([len(tris), hi + 1 - lo], np.int64).tobytes())
+    _hash_chunks(h, np.ascontiguousarray(verts[lo:hi + 1], np.float64), stop)
+    _hash_chunks(h, tris - np.int32(lo) if lo else tris, stop)
     return h.digest()
 
 
@@ -200,14 +270,34 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     t3 = flat9.reshape(-1, 3, 3)
     pb = (np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1) if small
           else triangle_boxes(flat9))
+    flat, sah = _tree(pb, grain, stop)
+    tv_leaf = flat9[flat.perm] if small else gather_rows(flat9, flat.perm)
+    return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
+
+
+def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | None = None,
+                           stop: np.ndarray = NEVER_STOP) -> MeshBVH:
+    """:func:`build_mesh_bvh` of the triangles ``verts[tris]`` (verts (V, 3) float64, tris
+    (m, 3) int32), the same tree, without the (m, 9) copy of their vertices in mesh order
+    (a large mesh's boxes and leaf-ordered vertices are gathered through ``tris``)."""
+    if len(tris) < PARALLEL_MIN:
+        return build_mesh_bvh(verts[tris], grain, stop)
+    t0 = time.perf_counter()
+    flat, sah = _tree(indexed_boxes(verts, tris), grain, stop)
+    tv_leaf = gather_triangles(verts, tris, flat.perm)
+    return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
+
+
+def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
+    """The 4-wide tree over primitive boxes ``pb`` (n, 6), which it reorders, and its SAH
+    cost."""
     b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     flat = flatten(b64, child, perm)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
-    tv_leaf = flat9[perm] if small else gather_rows(flat9, perm)
-    return MeshBVH(flat, tv_leaf, perm, float(sah), time.perf_counter() - t0)
+    return flat, sah
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")

@@ -17,6 +17,7 @@ import hashlib
 
 import numpy as np
 
+from rstrace_engine.geometry.mesh_math import flat_triangle_normals
 from rstrace_engine.geometry.scene import Mesh
 
 #: Raw attributes whose values decide the exported triangles, normals, uvs and slots.
@@ -129,12 +130,9 @@ def _flat_triangle_normals(verts: np.ndarray, tris: np.ndarray, normals: np.ndar
     """Give each triangle of an all-flat mesh (the FACE normals domain) its own face normal
     at its three corners, as Cycles shades such triangles with their geometric normal: the
     triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
-    normal is one for them all. A degenerate triangle keeps the polygon's normal."""
-    a = verts[tris[:, 0]].astype(np.float64)
-    n = np.cross(verts[tris[:, 1]] - a, verts[tris[:, 2]] - a)
-    length = np.linalg.norm(n, axis=1)
-    ok = length > 0.0
-    normals[ok] = (n[ok] / length[ok, None])[:, None, :].astype(np.float32)
+    normal is one for them all. A degenerate triangle keeps the polygon's normal. (One
+    kernel pass: ``rstrace_engine.geometry.mesh_math.flat_triangle_normals``.)"""
+    flat_triangle_normals(verts, tris, normals)
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:

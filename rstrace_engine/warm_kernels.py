@@ -57,7 +57,7 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     ground = s.add_mesh(shapes.plane(8.0, divisions=2, name="ground"))
     sphere = s.add_mesh(shapes.uv_sphere(12, 6, name="sphere"))
     ico = s.add_mesh(shapes.icosphere(1, name="ico"))
-    box = s.add_mesh(shapes.box((0.8, 0.8, 0.8), name="box"))
+    box = s.add_mesh(_flat_shaded(shapes.box((0.8, 0.8, 0.8), name="box")))
     torus = s.add_mesh(shapes.torus(0.6, 0.2, 12, 6, name="torus"))
     s.add_instance(ground, np.eye(4), [floor], name="Ground")
     s.add_instance(sphere, shapes.transform(glossy_at), [glossy], name="Glossy")
@@ -92,6 +92,21 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     else:
         s.set_camera(Camera(matrix=matrix, lens=35.0, width=width, height=height))
     return s
+
+
+def _flat_shaded(mesh):
+    """``mesh`` with each triangle's own normal at its corners, computed as the add-on's
+    export of a flat-shaded Blender mesh computes them (float32 vertices, the
+    ``flat_triangle_normals`` kernel): the warm-up reaches that kernel too."""
+    from dataclasses import replace
+
+    from .geometry.mesh_math import flat_triangle_normals
+
+    verts = np.ascontiguousarray(mesh.vertices, np.float32)
+    tris = np.ascontiguousarray(mesh.triangles, np.int32)
+    normals = np.zeros((len(tris), 3, 3), np.float32)
+    flat_triangle_normals(verts, tris, normals)
+    return replace(mesh, corner_normals=normals)
 
 
 def _modes() -> tuple[str, ...]:

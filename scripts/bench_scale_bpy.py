@@ -1,9 +1,11 @@
 """Heavy scenes through real F12 in bpy (background), beside Cycles in the same run.
 
     python scripts/bench_scale_bpy.py [--sizes 60k,1M,4M,dups] [--quick] [--json out.json]
-                                      [--no-cycles] [--no-viewport]
+                                      [--no-cycles] [--no-viewport] [--max-depth N]
 
-Scenes (320x240, BASE, 1 sample, the add-on registered as an installed extension is):
+Scenes (320x240, BASE, 1 sample, ray depth ``--max-depth`` (default 0: primary rays and
+direct light, what Cycles renders with no bounces); the add-on registered as an installed
+extension is):
 
 * ``60k``, ``1M``, ``4M``: Suzanne subdivided to level 3, 5, 6 (62k, 991k, 3.96M triangles;
   the subdivision applied, as a scanned or sculpted asset is) beside a small sphere and a
@@ -14,13 +16,18 @@ Scenes (320x240, BASE, 1 sample, the add-on registered as an installed extension
 
 Per scene: the first F12 (``bpy.ops.render.render()``, wall time, and the engine's own
 split: sync = depsgraph walk, mesh export and diff; build = the session's structures (BVH);
-render); the F12 after moving the small sphere (wall, sync, meshes read); the viewport's
+render; the first F12 of the process also loads the kernels from numba's cache); the F12
+after moving the small sphere (wall, sync, meshes read); the scene's first F12 once more
+after the add-on forgot everything (``again``: no session, mirror or kept BVH, the kernels
+loaded: a new file later in the same Blender); the viewport's
 update after moving it (``view_update``'s sync on the main thread, the time until the
 worker has the first image of the edited scene, its coarse stage, and until it has all its
 stages), when ``--no-viewport`` is not given; the session's memory
 (``last_render_stats``' ``memory_mb``) and the process's peak RSS; Cycles' first render of
 the same scene (CPU, 1 sample, direct light only: no bounces, no denoising) in the same
-process. Nothing is asserted: the numbers go to ``docs/bench-scale-bpy.md``.
+process. Every F12 and Cycles' render also give the CPU seconds of the whole process (all
+threads: on a shared machine the steadier measure). Nothing is asserted: the numbers go to
+``docs/bench-scale-bpy.md``.
 """
 
 from __future__ import annotations
@@ -51,14 +58,14 @@ def _current_rss_mb() -> float:
         return float("nan")
 
 
-def build(kind: str, dups: int):
+def build(kind: str, dups: int, max_depth: int = 0):
     """A fresh file holding the scene ``kind``; returns the small sphere to move."""
     import bpy
 
     from tests.blender import builders as b
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = b.setup_render(W, H, samples=1, max_depth=1)
+    sc = b.setup_render(W, H, samples=1, max_depth=max_depth)
     sc.rstrace.mode = "BASE"
     sc.render.image_settings.media_type = "IMAGE"
     sc.render.image_settings.file_format = "PNG"
@@ -99,9 +106,9 @@ def build(kind: str, dups: int):
 def _f12(addon, sc) -> dict:
     import bpy
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     bpy.ops.render.render()
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     st = addon.last_render_stats(sc)
     if not st:
         raise RuntimeError(f"RSTrace rendered nothing: {addon.session.peek_state(sc).error}")
@@ -110,6 +117,7 @@ def _f12(addon, sc) -> dict:
             "edits", "new_session")
     out = {k: st.get(k) for k in keep}
     out["wall_seconds"] = wall
+    out["cpu_seconds"] = cpu
     return out
 
 
@@ -173,9 +181,9 @@ def _cycles(sc) -> dict:
     c.max_bounces = 0
     c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = 0
     c.transparent_max_bounces = c.volume_bounces = 0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     bpy.ops.render.render()
-    out = dict(wall_seconds=time.perf_counter() - t0)
+    out = dict(wall_seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
     sc.render.engine = "RSTRACE"
     return out
 
@@ -186,7 +194,7 @@ def run(kind: str, args) -> dict:
     import addon
 
     rss0 = _current_rss_mb()
-    small = build(kind, args.dups)
+    small = build(kind, args.dups, args.max_depth)
     sc = bpy.context.scene
     row: dict = dict(scene=kind, objects=len(sc.objects))
     row["first"] = _f12(addon, sc)
@@ -198,6 +206,13 @@ def run(kind: str, args) -> dict:
         moves.append(_f12(addon, sc))
     row["move"] = min(moves, key=lambda m: m["wall_seconds"])
     row["moves"] = moves
+    if args.again:
+        # the scene's first F12 once more, from nothing (no session, mirror or kept BVHs)
+        # but with the kernels loaded: what a new file costs later in the same Blender
+        addon.session.forget_all()
+        small.location.x += 0.2
+        bpy.context.view_layer.update()
+        row["again"] = _f12(addon, sc)
     if args.viewport:
         row["viewport"] = _viewport(addon, small)
     if args.cycles:
@@ -216,11 +231,18 @@ def _print(row: dict) -> None:
     f, m = row["first"], row["move"]
     build = f.get("accel_build_s")
     _say(f"{row['scene']:>5}: {f['triangles']:,} tris, {row['objects']} objects | first F12 "
-          f"{f['wall_seconds']:.2f} s (sync {f['sync_seconds']:.2f}, build "
+          f"{f['wall_seconds']:.2f} s, CPU {f['cpu_seconds']:.2f} s (sync "
+          f"{f['sync_seconds']:.2f}, build "
           f"{build if build is None else round(build, 2)}, apply {f['apply_seconds']:.2f}, "
           f"render {f['render_seconds']:.2f}) | move F12 {m['wall_seconds']:.3f} s "
           f"(sync {m['sync_seconds']:.3f}, engine {m['total_seconds']:.3f}, meshes read "
           f"{m['meshes_read']}) | memory {f['memory_mb']:.0f} MB")
+    a = row.get("again")
+    if a:
+        _say(f"       first F12 again, kernels loaded: {a['wall_seconds']:.2f} s, CPU "
+             f"{a['cpu_seconds']:.2f} s (sync {a['sync_seconds']:.2f}, build "
+             f"{a['accel_build_s']:.2f}, apply {a['apply_seconds']:.2f}, render "
+             f"{a['render_seconds']:.2f})")
     v = row.get("viewport")
     if v:
         first = v["new_image_seconds"]
@@ -229,7 +251,8 @@ def _print(row: dict) -> None:
              f"({v['new_image_stage']}), all stages {v['image_seconds']:.2f} s (first view "
              f"{v['first_image_seconds']:.2f} s)")
     if "cycles" in row:
-        _say(f"       Cycles first render {row['cycles']['wall_seconds']:.2f} s")
+        c = row["cycles"]
+        _say(f"       Cycles first render {c['wall_seconds']:.2f} s, CPU {c['cpu_seconds']:.2f} s")
 
 
 def main(argv=None) -> int:
@@ -240,6 +263,10 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="60k and 100 duplicates only")
     p.add_argument("--no-cycles", dest="cycles", action="store_false")
     p.add_argument("--no-viewport", dest="viewport", action="store_false")
+    p.add_argument("--no-again", dest="again", action="store_false",
+                   help="skip the second first F12 (from nothing, the kernels loaded)")
+    p.add_argument("--max-depth", type=int, default=0,
+                   help="RSTrace's ray depth (0: direct light, as Cycles' no bounces)")
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
     if args.quick:

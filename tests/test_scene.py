@@ -296,6 +296,30 @@ def test_spot_cone_cosines_packed():
     assert sa.light_intensity[1] == pytest.approx([1000.0 / (4 * math.pi)] * 3)
 
 
+def test_flat_normals_kernel_matches_the_numpy_formula():
+    """``flat_triangle_normals`` (the add-on's flat-shaded export, one kernel pass) gives
+    bit for bit what ``np.cross`` / ``np.linalg.norm`` over float64 differences give, and
+    leaves a degenerate triangle's normals as they were."""
+    from rstrace_engine.geometry import mesh_math
+
+    rng = np.random.default_rng(9)
+    v = (rng.normal(size=(3_000, 3)) * 10.0 ** rng.integers(-3, 4, (3_000, 1))).astype(
+        np.float32)
+    t = rng.integers(0, 3_000, (20_000, 3)).astype(np.int32)
+    t[::11, 2] = t[::11, 1]  # zero area: kept as given
+    start = rng.normal(size=(len(t), 3, 3)).astype(np.float32)
+    want = start.copy()
+    a = v[t[:, 0]].astype(np.float64)
+    n = np.cross(v[t[:, 1]] - a, v[t[:, 2]] - a)
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 0.0
+    want[ok] = (n[ok] / length[ok, None])[:, None, :].astype(np.float32)
+    got = start.copy()
+    mesh_math.flat_triangle_normals(v, t, got)
+    assert np.array_equal(got.view(np.int32), want.view(np.int32))
+    assert np.array_equal(got[::11], start[::11]) and 0 < ok.sum() < len(ok)
+
+
 def test_area_test_kernel_matches_the_numpy_formula():
     """``proper_triangles`` (a kernel over chunks) keeps exactly the triangles the numpy
     formula keeps, near-degenerate slivers and repeated vertices included."""

@@ -86,11 +86,22 @@ def _half_area(b0, b1, b2, b3, b4, b5):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _clear_bins(bin_n, bin_b, nbins):
-    bin_n[:, :] = 0
+    """Empty bins ``0 .. nbins - 1`` of the three axes (scalar stores: a slice per bin
+    cost more than the stores)."""
     for k in range(3):
         for b in range(nbins):
-            bin_b[k, b, 0:3] = np.inf
-            bin_b[k, b, 3:6] = -np.inf
+            bin_n[k, b] = 0
+            for q in range(3):
+                bin_b[k, b, q] = np.inf
+                bin_b[k, b, 3 + q] = -np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _empty6(a):
+    """``a`` (6,) the empty box: (+inf, +inf, +inf, -inf, -inf, -inf)."""
+    for q in range(3):
+        a[q] = np.inf
+        a[3 + q] = -np.inf
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -190,8 +201,7 @@ def _best_split(cmin, cmax, nbins, bin_n, bin_b, right_a, right_n):
 def _bins_box(bin_b, k, b0, b1, box):
     """Union of the boxes of bins ``b0 .. b1 - 1`` of axis ``k``: the box of their
     primitives."""
-    box[0:3] = np.inf
-    box[3:6] = -np.inf
+    _empty6(box)
     for b in range(b0, b1):
         for q in range(3):
             box[q] = min(box[q], bin_b[k, b, q])
@@ -218,10 +228,8 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
     """Reorder ``pb`` / ``perm[start:end]``: primitives whose centroid falls in bins up to
     ``split_bin`` on axis ``k`` first. Returns where the others start; ``lcb``, ``rcb``
     (6,) get the centroid bounds (min, max) of the two sides."""
-    lcb[0:3] = np.inf
-    lcb[3:6] = -np.inf
-    rcb[0:3] = np.inf
-    rcb[3:6] = -np.inf
+    _empty6(lcb)
+    _empty6(rcb)
     scale = nbins / ext
     i, j = start, end - 1
     while i <= j:
@@ -238,10 +246,8 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
 @njit(cache=True, nogil=True, error_model="numpy")
 def _range_bounds(pb, start, end, box, cb):
     """Box ``box`` and centroid bounds ``cb`` (6,) of primitives ``pb[start:end]``."""
-    box[0:3] = np.inf
-    box[3:6] = -np.inf
-    cb[0:3] = np.inf
-    cb[3:6] = -np.inf
+    _empty6(box)
+    _empty6(cb)
     for j in range(start, end):
         for q in range(3):
             box[q] = min(box[q], pb[j, q])
@@ -453,14 +459,18 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
     sah = 0.0
     nn = 0
     sp = 0
-    t_int[0] = task
-    t_box[0] = tbox
+    for q in range(5):
+        t_int[0, q] = task[q]
+    for q in range(12):
+        t_box[0, q] = tbox[q]
     while sp >= 0:
         parent, slot, start, end, depth = (t_int[sp, 0], t_int[sp, 1], t_int[sp, 2],
                                            t_int[sp, 3], t_int[sp, 4])
-        box[:] = t_box[sp, 0:6]
-        cmin[:] = t_box[sp, 6:9]
-        cmax[:] = t_box[sp, 9:12]
+        for q in range(3):
+            box[q] = t_box[sp, q]
+            box[3 + q] = t_box[sp, 3 + q]
+            cmin[q] = t_box[sp, 6 + q]
+            cmax[q] = t_box[sp, 9 + q]
         sp -= 1
         count = end - start
         area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
@@ -474,14 +484,16 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         split_cost = trav_cost + best_cost / max(area, 1e-300)
         make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
         if make_leaf and parent >= 0:
-            bounds[parent, 6 * slot:6 * slot + 6] = box
+            for q in range(6):
+                bounds[parent, 6 * slot + q] = box[q]
             child[parent, slot] = ~((start << 3) | count)
             sah += count * area / root_area
             continue
         if parent >= 0:
             node = node0 + nn
             nn += 1
-            bounds[parent, 6 * slot:6 * slot + 6] = box
+            for q in range(6):
+                bounds[parent, 6 * slot + q] = box[q]
             child[parent, slot] = node
             sah += trav_cost * area / root_area
         else:
@@ -504,20 +516,23 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         else:
             # no usable SAH split (coincident centroids, depth cap, or a root that is one
             # leaf)
-            cb[0:3] = cmin
-            cb[3:6] = cmax
+            for q in range(3):
+                cb[q] = cmin[q]
+                cb[3 + q] = cmax[q]
             mid = _median_split(pb, perm, start, end, cb, lbox, lcb, rbox, rcb)
         # push right then left so the left child is processed (and numbered) first
         sp += 1
         t_int[sp, 0], t_int[sp, 1], t_int[sp, 2], t_int[sp, 3], t_int[sp, 4] = (
             node, 1, mid, end, depth + 1)
-        t_box[sp, 0:6] = rbox
-        t_box[sp, 6:12] = rcb
+        for q in range(6):
+            t_box[sp, q] = rbox[q]
+            t_box[sp, 6 + q] = rcb[q]
         sp += 1
         t_int[sp, 0], t_int[sp, 1], t_int[sp, 2], t_int[sp, 3], t_int[sp, 4] = (
             node, 0, start, mid, depth + 1)
-        t_box[sp, 0:6] = lbox
-        t_box[sp, 6:12] = lcb
+        for q in range(6):
+            t_box[sp, q] = lbox[q]
+            t_box[sp, 6 + q] = lcb[q]
     return nn, sah
 
 

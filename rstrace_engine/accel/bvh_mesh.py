@@ -4,7 +4,9 @@ The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
 (:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`), and the
 triangles' vertices are stored in leaf order. Meshes of fewer than
 :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
-region to start; larger ones through parallel kernels.
+region to start; larger ones through parallel kernels that read the triangles through their
+vertex indices (:func:`build_mesh_bvh_indexed`: no copy of the mesh's triangles in mesh
+order).
 """
 
 from __future__ import annotations
@@ -191,22 +193,9 @@ def gather_triangles(verts, tris, order):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def triangle_boxes(tv):
-    """Boxes (m, 6) float64 (lo, hi) of triangles ``tv`` (m, 9) float64."""
-    m = tv.shape[0]
-    pb = np.empty((m, 6))
-    for i in prange(m):
-        for q in range(3):
-            a, b, c = tv[i, q], tv[i, 3 + q], tv[i, 6 + q]
-            pb[i, q] = min(a, min(b, c))
-            pb[i, 3 + q] = max(a, max(b, c))
-    return pb
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def indexed_boxes(verts, tris):
-    """Boxes (m, 6) float64 (lo, hi) of triangles ``verts[tris]`` (what
-    :func:`triangle_boxes` gives for them), without gathering their vertices first."""
+    """Boxes (m, 6) float64 (lo, hi) of triangles ``verts[tris]``, without gathering their
+    vertices first."""
     m = tris.shape[0]
     pb = np.empty((m, 6))
     for i in prange(m):
@@ -264,15 +253,18 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
                    stop: np.ndarray = NEVER_STOP) -> MeshBVH:
     """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64
     (``grain``, ``stop``: :func:`build_flat`)."""
-    t0 = time.perf_counter()
     flat9 = np.ascontiguousarray(tv, dtype=np.float64).reshape(-1, 9)
-    small = len(flat9) < PARALLEL_MIN  # (numpy then: no parallel region to start)
+    m = len(flat9)
+    if m >= PARALLEL_MIN:  # the parallel kernels, through indices of the rows' vertices
+        return build_mesh_bvh_indexed(flat9.reshape(-1, 3),
+                                      np.arange(3 * m, dtype=np.int32).reshape(m, 3), grain,
+                                      stop)
+    # (numpy and one thread: no parallel region to start)
+    t0 = time.perf_counter()
     t3 = flat9.reshape(-1, 3, 3)
-    pb = (np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1) if small
-          else triangle_boxes(flat9))
+    pb = np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1)
     flat, sah = _tree(pb, grain, stop)
-    tv_leaf = flat9[flat.perm] if small else gather_rows(flat9, flat.perm)
-    return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
+    return MeshBVH(flat, flat9[flat.perm], flat.perm, float(sah), time.perf_counter() - t0)
 
 
 def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | None = None,
@@ -298,17 +290,6 @@ def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return flat, sah
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def gather_rows(a, order):
-    """``a[order]`` for a (m, k) float64 array, in parallel."""
-    m, k = order.shape[0], a.shape[1]
-    out = np.empty((m, k))
-    for i in prange(m):
-        for q in range(k):
-            out[i, q] = a[order[i], q]
-    return out
 
 
 def build_top(inst_aabb: np.ndarray) -> FlatBVH:

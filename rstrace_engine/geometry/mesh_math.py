@@ -1,5 +1,6 @@
 """Per-mesh geometry the scene model needs: which triangles have an area, smooth vertex
-normals, the world box of a transformed object box (float64; the area test a kernel)."""
+normals, flat triangle normals, the world box of a transformed object box (float64; the
+area test and the flat normals kernels)."""
 
 from __future__ import annotations
 
@@ -51,6 +52,35 @@ def _proper_kernel(v, tris, start, stop, rel, keep):
         longest = max(e0x * e0x + e0y * e0y + e0z * e0z, e1x * e1x + e1y * e1y + e1z * e1z,
                       e2x * e2x + e2y * e2y + e2z * e2z)
         keep[k] = area2 > rel * longest and longest > 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def flat_triangle_normals(verts, tris, normals):
+    """Each triangle's own unit normal at its three corners: ``normals`` (m, 3, 3) float32
+    gets, where the triangle has one, ``cross(b - a, c - a) / |cross(b - a, c - a)|``
+    rounded to float32 (a degenerate triangle's rows are left as they are). ``verts``
+    (V, 3) float32 or float64, ``tris`` (m, 3) int32. The same float64 operations, in the
+    same order, as ``np.cross`` and ``np.linalg.norm`` of the differences in float64 (a
+    test compares them), in one pass instead of a dozen (m, 3) temporaries."""
+    for k in range(tris.shape[0]):
+        a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
+        ax, ay, az = np.float64(verts[a, 0]), np.float64(verts[a, 1]), np.float64(verts[a, 2])
+        ux = np.float64(verts[b, 0]) - ax
+        uy = np.float64(verts[b, 1]) - ay
+        uz = np.float64(verts[b, 2]) - az
+        vx = np.float64(verts[c, 0]) - ax
+        vy = np.float64(verts[c, 1]) - ay
+        vz = np.float64(verts[c, 2]) - az
+        nx = uy * vz - uz * vy
+        ny = uz * vx - ux * vz
+        nz = ux * vy - uy * vx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            fx, fy, fz = np.float32(nx / length), np.float32(ny / length), np.float32(nz / length)
+            for corner in range(3):
+                normals[k, corner, 0] = fx
+                normals[k, corner, 1] = fy
+                normals[k, corner, 2] = fz
 
 
 def transform_aabb(lo: np.ndarray, hi: np.ndarray, m: np.ndarray) -> np.ndarray:

@@ -59,7 +59,8 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.pixel_records._light_bit_changes",
          "tracing.whitted._child_tags",
          "tracing.shaft_skip._prove_groups",
-         "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals")
+         "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals",
+         "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",

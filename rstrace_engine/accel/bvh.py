@@ -39,7 +39,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
-from .bvh_mesh import MeshBVH
+from .bvh_mesh import MeshBVH, place_child, place_tri
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -97,20 +97,14 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
     leaf_base = np.cumsum([0] + [len(m.tri) for m in meshes])
     if leaf_base[-1] >= 1 << 28:
         raise OverflowError("BVH: too many triangles for 32-bit leaf codes")
-    childs, tris = [], []
+    child = np.empty((int(node_base[-1]), 4), np.int32)
+    tri = np.empty(int(leaf_base[-1]), np.int32)
     for k, (m, nb, lb) in enumerate(zip(meshes, node_base[:-1], leaf_base[:-1], strict=True)):
-        c = m.child
-        dn, dl = int(nb) - m.node_base, int(lb) - m.leaf_base
-        if dn or dl:
-            c = c.astype(np.int64)
-            c = np.where(c >= 0, c + dn, np.where(c == -1, c, ~((~c) + (dl << 3))))
-        childs.append(c.astype(np.int32, copy=False))
-        dt = int(mesh_tri_start[k]) - m.tri_base
-        tris.append(m.tri + np.int32(dt) if dt else m.tri)
+        # node indices and leaf starts moved to this placement, in one pass each
+        place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base)
+        place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
     bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]))
-    child = np.ascontiguousarray(np.concatenate(childs))
     tv = np.ascontiguousarray(np.concatenate([m.tv for m in meshes]))
-    tri = np.ascontiguousarray(np.concatenate(tris).astype(np.int32, copy=False))
     placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tv[lb:le], tri[lb:le], int(nb), int(lb),
                          int(mesh_tri_start[k]), m.sah_cost)
               for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],

@@ -292,6 +292,28 @@ def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
     return flat, sah
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def place_child(src, dst, row0, dn, dl):
+    """``dst[row0:row0 + len(src)]`` = child codes ``src`` (N, 4) int32 moved by ``dn``
+    nodes and ``dl`` leaf-order triangles (an inner node ``c >= 0`` becomes ``c + dn``, a
+    leaf ``~(start << 3 | count)`` starts ``dl`` later, the empty leaf ``~0`` stays)."""
+    for i in range(src.shape[0]):
+        for j in range(4):
+            c = src[i, j]
+            if c >= 0:
+                c += dn
+            elif c != -1:
+                c = ~((~c) + (dl << 3))
+            dst[row0 + i, j] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def place_tri(src, dst, row0, dt):
+    """``dst[row0:row0 + len(src)] = src + dt`` (triangle ids moved to a mesh's place)."""
+    for i in range(src.shape[0]):
+        dst[row0 + i] = src[i] + dt
+
+
 def build_top(inst_aabb: np.ndarray) -> FlatBVH:
     """Top-level BVH over instance world boxes (I, 2, 3) float64, padded by
     :data:`~.tolerances.INSTANCE_BOX_PAD_REL` of their magnitude (the world->object transform

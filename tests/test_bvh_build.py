@@ -313,6 +313,27 @@ def test_indexed_build_is_the_build_over_the_gathered_triangles():
     _same_tree(bvh_mesh.build_mesh_bvh_indexed(verts, tris), bvh_mesh.build_mesh_bvh(verts[tris]))
 
 
+def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
+    """A large mesh's leaf vertices are gathered straight into the scene's concatenation
+    (after a small mesh, so at an offset): its nodes, leaf vertices and triangle ids there
+    are those of the mesh's own build."""
+    s = Scene()
+    s.add_material(Material("m"))
+    small = shapes.icosphere(1, 0.2, name="small")
+    big = shapes.lumpy_sphere(bvh_build.PARALLEL_MIN + 5_000, name="big")
+    s.add_instance(s.add_mesh(small, key="small"), np.eye(4), key="Small")
+    s.add_instance(s.add_mesh(big, key="big"), shapes.transform((1.5, 0.0, 0.0)), key="Big")
+    sa = s.arrays()
+    acc = create_accelerator("BVH", sa)
+    lo, hi = bvh_mesh.mesh_range(sa, 1)
+    alone = bvh_mesh.build_mesh_bvh(sa.verts[sa.tris[lo:hi]])
+    placed = acc._cache[acc._mesh_keys[1]]
+    assert placed.leaf_base > 0 and placed.tri_base == lo
+    assert np.array_equal(placed.tv, alone.tv)
+    assert np.array_equal(placed.tri, alone.tri + lo)
+    assert np.array_equal(placed.bounds, alone.bvh.bounds)
+
+
 def test_pad_outward_is_nextafter_outward():
     rng = np.random.default_rng(3)
     special = [0.0, -0.0, 5e-324, -5e-324, 1e-310, -1e-310, 1.0, -1.0, np.finfo(float).max,

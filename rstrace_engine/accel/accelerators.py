@@ -217,8 +217,10 @@ class BVHAccelerator(Accelerator):
                 if pm is None:
                     if stop[0]:
                         raise Cancelled("BVH build cancelled")
-                    mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop)
-                    pm = bvh.PlacedMesh.built(mb)
+                    # (its leaf-ordered vertices are gathered by the concatenation)
+                    mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop,
+                                                         leaf_vertices=False)
+                    pm = bvh.PlacedMesh.built(mb, (sa.verts, tris))
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s
                 else:

@@ -39,7 +39,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
-from .bvh_mesh import MeshBVH, place_child, place_tri
+from .bvh_mesh import MeshBVH, gather_triangles_into, place_child, place_tri
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -75,16 +75,24 @@ class PlacedMesh(NamedTuple):
 
     bounds: np.ndarray  # (N, 24) float64
     child: np.ndarray  # (N, 4) int32, node indices + node_base, leaf starts + leaf_base
-    tv: np.ndarray  # (m, 9) float64, triangle vertices in leaf order
+    tv: np.ndarray | None  # (m, 9) float64, triangle vertices in leaf order (None: below)
     tri: np.ndarray  # (m,) int32, mesh triangle index + tri_base, leaf order
     node_base: int
     leaf_base: int
     tri_base: int
     sah_cost: float
+    # a tree just built without its leaf-ordered vertices: (verts, tris) of the mesh, for
+    # concat_meshes to gather them straight into the concatenation (no copy in between)
+    source: tuple | None = None
 
     @classmethod
-    def built(cls, mb: MeshBVH) -> PlacedMesh:
-        return cls(mb.bvh.bounds, mb.bvh.child, mb.tv, mb.tri, 0, 0, 0, mb.sah_cost)
+    def built(cls, mb: MeshBVH, source: tuple | None = None) -> PlacedMesh:
+        """``mb`` as built (``source``: the mesh's ``(verts, tris)`` when ``mb.tv`` is
+        None)."""
+        if mb.tv is None and source is None:
+            raise ValueError("a mesh BVH without its leaf vertices needs their source")
+        return cls(mb.bvh.bounds, mb.bvh.child, mb.tv, mb.tri, 0, 0, 0, mb.sah_cost,
+                   None if mb.tv is not None else source)
 
 
 def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
@@ -104,7 +112,13 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
         place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base)
         place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
     bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]))
-    tv = np.ascontiguousarray(np.concatenate([m.tv for m in meshes]))
+    tv = np.empty((int(leaf_base[-1]), 9))
+    for m, lb in zip(meshes, leaf_base[:-1], strict=True):
+        if m.tv is not None:
+            tv[int(lb):int(lb) + len(m.tv)] = m.tv
+        else:  # a tree just built: its triangles' vertices gathered here, in leaf order
+            verts, tris = m.source
+            gather_triangles_into(verts, tris, m.tri, tv, int(lb))
     placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tv[lb:le], tri[lb:le], int(nb), int(lb),
                          int(mesh_tri_start[k]), m.sah_cost)
               for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],

@@ -42,7 +42,8 @@ class MeshBVH(NamedTuple):
     """The bottom-level BVH of one mesh, in object space."""
 
     bvh: FlatBVH
-    tv: np.ndarray  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
+    tv: np.ndarray | None  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
+    # (None: not gathered yet, build_mesh_bvh_indexed(leaf_vertices=False))
     tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
     sah_cost: float
     build_s: float
@@ -169,27 +170,26 @@ def _step_up(x):
 
 
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide); ``b64`` is padded in place."""
+    """Binary build output -> the traversal layout (4-wide); ``b64`` is padded in place.
+    The nodes are views of arrays sized for the binary tree (about twice the rows used):
+    the scene's concatenation (:func:`.bvh.concat_meshes`) copies them, and the arrays go
+    with the built tree."""
     b4, c4, m = collapse4(pad_outward(b64), child)
-    # (one copy of the nodes in use rather than two arrays' worth held: 4-wide nodes are
-    # about half the binary ones)
-    return FlatBVH(b4[:m].copy(), c4[:m].copy(), perm)
+    return FlatBVH(b4[:m], c4[:m], perm)
 
 
 # ----------------------------------------------------------------------------- meshes
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def gather_triangles(verts, tris, order):
-    """Vertices of triangles ``tris[order]`` in that order: (len(order), 9) float64."""
-    m = order.shape[0]
-    out = np.empty((m, 9))
-    for i in prange(m):
+def gather_triangles_into(verts, tris, order, out, row0):
+    """``out[row0 + i] =`` the vertices of triangle ``tris[order[i]]`` (9 float64), in
+    parallel (written straight into a larger array where that is where they are kept)."""
+    for i in prange(order.shape[0]):
         t = order[i]
         for c in range(3):
             for q in range(3):
-                out[i, 3 * c + q] = verts[tris[t, c], q]
-    return out
+                out[row0 + i, 3 * c + q] = verts[tris[t, c], q]
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -218,6 +218,13 @@ def mesh_triangles(sa, mesh: int) -> np.ndarray:
     if e - s < PARALLEL_MIN:
         return sa.verts[sa.tris[s:e]]
     return gather_triangles(sa.verts, sa.tris, np.arange(s, e, dtype=np.int32)).reshape(-1, 3, 3)
+
+
+def gather_triangles(verts: np.ndarray, tris: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Vertices of triangles ``tris[order]`` in that order: (len(order), 9) float64."""
+    out = np.empty((len(order), 9))
+    gather_triangles_into(verts, tris, order, out, 0)
+    return out
 
 
 #: Bytes hashed between two looks at the stop flag (:func:`mesh_key`).
@@ -268,15 +275,18 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
 
 
 def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | None = None,
-                           stop: np.ndarray = NEVER_STOP) -> MeshBVH:
+                           stop: np.ndarray = NEVER_STOP,
+                           leaf_vertices: bool = True) -> MeshBVH:
     """:func:`build_mesh_bvh` of the triangles ``verts[tris]`` (verts (V, 3) float64, tris
     (m, 3) int32), the same tree, without the (m, 9) copy of their vertices in mesh order
-    (a large mesh's boxes and leaf-ordered vertices are gathered through ``tris``)."""
+    (a large mesh's boxes and leaf-ordered vertices are gathered through ``tris``). With
+    ``leaf_vertices=False`` a large mesh's ``tv`` is left None: the caller gathers it
+    (:func:`gather_triangles_into`, through ``perm``) where it is to be kept."""
     if len(tris) < PARALLEL_MIN:
         return build_mesh_bvh(verts[tris], grain, stop)
     t0 = time.perf_counter()
     flat, sah = _tree(indexed_boxes(verts, tris), grain, stop)
-    tv_leaf = gather_triangles(verts, tris, flat.perm)
+    tv_leaf = gather_triangles(verts, tris, flat.perm) if leaf_vertices else None
     return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
 
 

@@ -474,6 +474,12 @@ class PixelRecords:
         reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
         reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
+        # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
+        # the soft lights' and the world's rays at the primary hits are tested against them
+        p_lo, p_hi, p_c, p_r = fx.part_arrays()
+        p_lo = np.ascontiguousarray(p_lo - margin)
+        p_hi = np.ascontiguousarray(p_hi + margin)
+        p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))
         combo_dirty = np.ascontiguousarray(dirty)
         sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
@@ -512,7 +518,8 @@ class PixelRecords:
                     seed = np.zeros(self.n_rays, np.uint64)
                 query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
                                  wnorm, seed, self.w_samples, soft, self.lo, self.step,
-                                 self.levels, self.shift, reg_lo, reg_hi, pos, out, lights)
+                                 self.levels, self.shift, p_lo, p_hi, p_c, p_r, pos, out,
+                                 lights)
             if world_rays:
                 if self.p_wnorm is None:
                     world = is_hit[self.p_combo.astype(np.int64)] & ~out
@@ -520,7 +527,7 @@ class PixelRecords:
                     w_out = out.copy()
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
                                 self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, reg_c, reg_r, w_out)
+                                self.step, self.levels, self.shift, p_c, p_r, w_out)
                     world = w_out & ~out
         return out, lights, world
 

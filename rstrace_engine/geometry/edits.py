@@ -137,6 +137,11 @@ Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | 
         | LightDelete | WorldColor | CameraChange)
 
 
+#: :attr:`EditEffects.parts`' tags: where an edited object was (a shadow ray it blocked
+#: may now pass) and where it is (one that passed may now be blocked)
+PART_OLD, PART_NEW = 1, 2
+
+
 @dataclass
 class EditEffects:
     """What a batch of edits touched, in the terms every structure works in: computed once
@@ -168,8 +173,9 @@ class EditEffects:
     seen_regions: list = field(default_factory=list)
     seen_sky: bool = False  # a sun with an angle that rays see changed: what misses changes
     #: the geometry-type edits' old and new objects apart: ``(box (2, 3), centre (3,),
-    #: radius)`` per visible one, its world box and a sphere holding its vertices (a ray
-    #: whose result an edit changes meets one of them: both bounds hold its triangles)
+    #: radius, tag)`` per visible one, its world box and a sphere holding its vertices (a
+    #: ray whose result an edit changes meets one of them: both bounds hold its
+    #: triangles); ``tag`` :data:`PART_OLD` where it was, :data:`PART_NEW` where it is now
     parts: list = field(default_factory=list)
 
     @property
@@ -179,19 +185,23 @@ class EditEffects:
         return self.lights - self.lights_moved
 
     def part_arrays(self) -> tuple:
-        """:attr:`parts` as arrays ``(lo (k, 3), hi (k, 3), centre (k, 3), radius (k,))``
-        (effects made with :attr:`regions` alone: those boxes and their spheres)."""
+        """:attr:`parts` as arrays ``(lo (k, 3), hi (k, 3), centre (k, 3), radius (k,), tag
+        (k,) int8)`` (effects made with :attr:`regions` alone: those boxes and their
+        spheres, old and new both)."""
         parts = self.parts
         if not parts and self.regions:
-            parts = [(b, 0.5 * (b[0] + b[1]), 0.5 * float(np.linalg.norm(b[1] - b[0])))
+            parts = [(b, 0.5 * (b[0] + b[1]), 0.5 * float(np.linalg.norm(b[1] - b[0])),
+                      PART_OLD | PART_NEW)
                      for b in (np.asarray(r, np.float64) for r in self.regions)]
         if not parts:
-            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
-        box, c, r = zip(*parts, strict=True)
+            return (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                    np.zeros(0, np.int8))
+        box, c, r, tag = zip(*parts, strict=True)
         box = np.stack(box)
         return (np.ascontiguousarray(box[:, 0], np.float64),
                 np.ascontiguousarray(box[:, 1], np.float64),
-                np.ascontiguousarray(np.stack(c), np.float64), np.asarray(r, np.float64))
+                np.ascontiguousarray(np.stack(c), np.float64), np.asarray(r, np.float64),
+                np.asarray(tag, np.int8))
 
     def region_array(self) -> np.ndarray:
         """(k, 2, 3) float64: one box per geometry-type edit (old box union new box)."""
@@ -337,7 +347,8 @@ def _object_changed(fx: EditEffects, slot: int, old, new) -> None:
     box = _union(None if old is None else old[0], None if new is None else new[0])
     if box is not None:
         fx.regions.append(box)
-    fx.parts.extend(p for p in (old, new) if p is not None)
+    fx.parts.extend((*p, tag) for p, tag in ((old, PART_OLD), (new, PART_NEW))
+                    if p is not None)
     fx.objects.add(slot)
     fx.geometry.add(slot)
 

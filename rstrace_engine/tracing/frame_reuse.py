@@ -74,7 +74,7 @@ class FrameReuse:
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
         self.reshade_world: np.ndarray | None = None
-        self.reshade_regions: list = []  # the edited objects since, grown: (lo, hi, c, r)
+        self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -220,11 +220,11 @@ class FrameReuse:
             dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx))
             # the edited objects, old and new apart, each by its box and its sphere (grown
             # as the records grow the boxes)
-            lo, hi, c, r = fx.part_arrays()
+            lo, hi, c, r, tag = fx.part_arrays()
             margin = rec.margin(old_sa)
             if len(lo):
                 self.reshade_regions.append((lo - margin, hi + margin, c,
-                                             r + float(np.linalg.norm(margin))))
+                                             r + float(np.linalg.norm(margin)), tag))
             report.reshade_pixels = int(np.count_nonzero(self.reshade_pixels))
         else:
             dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)

@@ -476,7 +476,7 @@ class PixelRecords:
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
         # the soft lights' and the world's rays at the primary hits are tested against them
-        p_lo, p_hi, p_c, p_r = fx.part_arrays()
+        p_lo, p_hi, p_c, p_r, _ = fx.part_arrays()
         p_lo = np.ascontiguousarray(p_lo - margin)
         p_hi = np.ascontiguousarray(p_hi + margin)
         p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))

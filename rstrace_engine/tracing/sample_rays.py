@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..geometry.edits import PART_NEW, PART_OLD
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from .record_codes import _cone_sphere, _decode_point, _light_hit, _segment_box
 from .shading import dot3, far_origin, onb, rough_interface
@@ -361,7 +362,9 @@ def _in_window(win, u, v):
             continue
         if win[q, 3] < 0.0:
             return True
-        dp = abs(2.0 * math.pi * v - win[q, 2]) % (2.0 * math.pi)
+        dp = abs(2.0 * math.pi * v - win[q, 2])  # (in [0, 3 pi): v in [0, 1), phi_c in [-pi, pi])
+        if dp > 2.0 * math.pi:
+            dp -= 2.0 * math.pi
         if min(dp, 2.0 * math.pi - dp) <= win[q, 3]:
             return True
     return False
@@ -373,12 +376,17 @@ _CROSSING_CHUNK = 256
 
 @njit(cache=True, nogil=True, parallel=True)
 def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c, reg_r,
-                  windows, mask, count):
+                  reg_tag, old, windows, mask, count):
     """Per (point, light) row (point ``pt``, light ``lj``, ``L`` for the world): the bits of
     its ``n`` samples (drawn as the tracer draws them from the point's seed, from its spawn
     point ``Q`` or, below a rough interface of material ``MAT``, from the far side of its
-    hit ``P``) that carry light and may cross a region -- its box ``reg_lo, reg_hi`` and
-    its sphere ``reg_c, reg_r`` both (``mask`` (m,) uint64), and how many (``count``).
+    hit ``P``) that carry light and whose visibility an edit may change (``mask`` (m,)
+    uint64), and how many (``count``): a sample visible before (its bit in ``old`` (m,)
+    uint64 set) only where it may cross a region an object is in now (``reg_tag`` with
+    :data:`~.edits.PART_NEW`), one blocked before only where it may cross one an object
+    left (:data:`~.edits.PART_OLD`) -- a ray that met nothing meets something only where
+    geometry came, one that met something meets nothing only where geometry went -- by
+    the region's box ``reg_lo, reg_hi`` and its sphere ``reg_c, reg_r`` both.
     ``windows``: skip the samples whose ``(u, v)`` alone puts them outside every region's
     cone (:func:`_windows`; False only to test that it drops none)."""
     k_reg = reg_lo.shape[0]
@@ -388,13 +396,13 @@ def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c
         win = np.empty((k_reg, 4))
         for r in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
             mask[r], count[r] = _crossing_row(sa, P, Q, NG, NS, MAT, seeds, pt[r], lj[r], n,
-                                              reg_lo, reg_hi, reg_c, reg_r, windows, cv,
-                                              win)
+                                              reg_lo, reg_hi, reg_c, reg_r, reg_tag, old[r],
+                                              windows, cv, win)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, reg_r,
-                  windows, cv, win):
+                  reg_tag, old, windows, cv, win):
     """:func:`crossing_rows` of one row (point ``i``, light ``j``): ``(mask, count)``;
     ``cv``, ``win`` (k_reg, 4) scratch."""
     L = sa.light_kind.shape[0]
@@ -440,7 +448,10 @@ def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, 
         ray = not t < np.inf
         e = 1.0 if ray else t
         ox, oy, oz = (fx, fy, fz) if below else (qx, qy, qz)
+        need = PART_NEW if (old >> np.uint64(s)) & np.uint64(1) else PART_OLD
         for q in range(k_reg):
+            if not reg_tag[q] & need:
+                continue  # (visible: only what came may block it; blocked: only what went)
             if not below and cv[q, 3] != -2.0 and \
                     dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] < cv[q, 3]:
                 continue  # outside the cone of the region's sphere (seen from Q)

@@ -43,7 +43,9 @@ import time
 import numpy as np
 
 from ..accel.accelerators import Hits
+from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
+from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_reshade import _one_light_states, tick
 from .sample_rays import crossing_rays, crossing_rows, unpack_bits
@@ -90,9 +92,10 @@ def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
 def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
                  counters) -> np.ndarray:
     """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
-    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples that may cross a
-    grown region ``regions`` (lo, hi, centre, radius: its box and its sphere) traced again,
-    through the edited scene, the others kept."""
+    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples whose visibility
+    the edited objects ``regions`` (lo, hi, centre, radius, tag: grown boxes and spheres,
+    where objects were and are, :func:`~.sample_rays.crossing_rows`) may change traced
+    again, through the edited scene, the others kept."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     m = len(pt)
@@ -101,9 +104,15 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     pt = np.ascontiguousarray(pt, np.int64)
     lj = np.ascontiguousarray(lj, np.int64)
     seed = np.ascontiguousarray(seed, np.uint64)
+    kept = np.ascontiguousarray(kept, np.uint64)
+    tag = regions[4]
+    if links_shadows(sa):
+        # (hit by hit past the objects that are not a light's blockers: an object that
+        # came may unblock a ray, light_linking.first_blocker; one that went may block it)
+        tag = np.full(len(tag), PART_OLD | PART_NEW, np.int8)
     with threads_for(m):
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
-                      regions[0], regions[1], regions[2], regions[3], True, mask, count)
+                      *regions[:4], tag, kept, True, mask, count)
     start = np.zeros(m + 1, np.int64)
     np.cumsum(count, out=start[1:])
     k = int(start[-1])

@@ -54,7 +54,9 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
+from .light_linking import links_shadows
 from .light_records import LightRecords
 from .record_codes import POINT_BITS, _encode_nodes, light_geometry
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
@@ -476,7 +478,7 @@ class PixelRecords:
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
         # the soft lights' and the world's rays at the primary hits are tested against them
-        p_lo, p_hi, p_c, p_r, _ = fx.part_arrays()
+        p_lo, p_hi, p_c, p_r, p_tag = fx.part_arrays()
         p_lo = np.ascontiguousarray(p_lo - margin)
         p_hi = np.ascontiguousarray(p_hi + margin)
         p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))
@@ -525,9 +527,17 @@ class PixelRecords:
                     world = is_hit[self.p_combo.astype(np.int64)] & ~out
                 else:
                     w_out = out.copy()
+                    # the world's samples' visibility in the records' frame: visible ones
+                    # tested where objects came, blocked ones where they went (query_world)
+                    if self.p_vis is not None and not links_shadows(sa):
+                        w_old = np.ascontiguousarray(self.p_vis[:, self.w_lights], np.uint64)
+                    else:
+                        w_old = np.zeros(self.n_rays, np.uint64)
+                        p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
                                 self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, p_c, p_r, w_out)
+                                self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
+                                w_out)
                     world = w_out & ~out
         return out, lights, world
 

@@ -47,13 +47,12 @@ from .soft_lights import (
     row_hash,
     row_uv,
     sample_weight,
-    world_sample_dir,
 )
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step, levels,
-                shift, reg_c, reg_r, out):
+                shift, reg_c, reg_r, reg_tag, old, out):
     """The world's rays of every primary hit against the edited regions (their bounding
     spheres ``reg_c, reg_r``, grown like every region by the quantisation and the spawn
     offset): each of the point's ``n`` cosine-weighted directions, regenerated from its
@@ -61,46 +60,75 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step,
     when recorded, the world's row is the last), is a ray to infinity; a region it may meet
     dirties the sample. Samples with no recorded normal (NaN) are dirty. Regions wholly
     below the tangent plane of the shading normal are skipped (every world ray leaves above
-    it)."""
+    it); a sample whose ``(u, v)`` puts its direction outside every region's cone is not
+    drawn (:func:`_windows`). As :func:`crossing_rows`, a sample visible in the records'
+    frame (its bit in ``old`` (n_rays,) uint64: :attr:`~.pixel_records.PixelRecords.p_vis`'
+    world column) is tested against the regions tagged :data:`~.edits.PART_NEW` only, one
+    blocked against those tagged :data:`~.edits.PART_OLD`."""
+    m = p_combo.shape[0]
+    k_reg = reg_c.shape[0]
+    for ch in prange((m + _CROSSING_CHUNK - 1) // _CROSSING_CHUNK):
+        cv = np.empty((k_reg, 4))
+        win = np.empty((k_reg, 4))
+        for g in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
+            if not out[g] and combo_inst[p_combo[g]] >= 0:
+                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, n_lights, lo, step,
+                                        levels, shift, reg_c, reg_r, reg_tag, old[g], cv,
+                                        win)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _world_crosses(code, wnorm, seed, g, n, n_lights, lo, step, levels, shift, reg_c, reg_r,
+                   reg_tag, old, cv, win):
+    """:func:`query_world` of primary hit ``g``; ``cv``, ``win`` (k_reg, 4) scratch."""
     k_reg = reg_c.shape[0]
     err = tol.RECORD_DIR_ERROR
-    for g in prange(p_combo.shape[0]):
-        if out[g] or combo_inst[p_combo[g]] < 0:
+    sx = float(wnorm[g, 0])
+    sy = float(wnorm[g, 1])
+    sz = float(wnorm[g, 2])
+    if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
+        return True  # unknown, or a normal whose basis could flip side
+    nl = math.sqrt(sx * sx + sy * sy + sz * sz)
+    sx /= nl
+    sy /= nl
+    sz /= nl
+    px, py, pz = _decode_point(code, lo, step, levels, shift)
+    some = False
+    for q in range(k_reg):
+        vx = reg_c[q, 0] - px
+        vy = reg_c[q, 1] - py
+        vz = reg_c[q, 2] - pz
+        dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+        r = reg_r[q]
+        if dist <= r:
+            return True
+        cv[q, 0] = vx
+        cv[q, 1] = vy
+        cv[q, 2] = vz
+        if vx * sx + vy * sy + vz * sz < -r - err * dist:
+            cv[q, 3] = np.inf  # below the horizon
             continue
-        sx = float(wnorm[g, 0])
-        sy = float(wnorm[g, 1])
-        sz = float(wnorm[g, 2])
-        if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
-            out[g] = True  # unknown, or a normal whose basis could flip side
+        half = math.asin(r / dist) + err
+        cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
+        some = True
+    if not some:
+        return False
+    _windows(1, sx, sy, sz, 0.0, cv, win)
+    for q in range(k_reg):
+        if cv[q, 3] == np.inf:
+            win[q, 0] = 2.0  # (no sample)
+    h = row_hash(seed, n_lights)
+    for s in range(n):
+        u, v = row_uv(h, n, s)
+        if not _in_window(win, u, v):
             continue
-        nl = math.sqrt(sx * sx + sy * sy + sz * sz)
-        sx /= nl
-        sy /= nl
-        sz /= nl
-        h = row_hash(seed[g], n_lights)
-        px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
+        dx, dy, dz = _cosine_dir(sx, sy, sz, u, v)  # (world_sample_dir)
+        need = PART_NEW if (old >> np.uint64(s)) & np.uint64(1) else PART_OLD
         for q in range(k_reg):
-            vx = reg_c[q, 0] - px
-            vy = reg_c[q, 1] - py
-            vz = reg_c[q, 2] - pz
-            dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-            r = reg_r[q]
-            if dist <= r:
-                out[g] = True
-                break
-            if vx * sx + vy * sy + vz * sz < -r - err * dist:
-                continue  # below the horizon
-            half = math.asin(r / dist) + err
-            ca = math.cos(half) if half < math.pi else -1.0
-            hit = False
-            for s in range(n):
-                dx, dy, dz = world_sample_dir(h, n, s, sx, sy, sz)
-                if (dx * vx + dy * vy + dz * vz) >= ca * dist:
-                    hit = True
-                    break
-            if hit:
-                out[g] = True
-                break
+            if reg_tag[q] & need and cv[q, 3] < np.inf and \
+                    dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] >= cv[q, 3]:
+                return True
+    return False
 
 
 @njit(cache=True, nogil=True, inline="always")

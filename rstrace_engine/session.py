@@ -43,6 +43,7 @@ from .interpolants.render import InterpolantRenderer
 from .ri_tree.render import RITreeRenderer, render_thickness_exact
 from .tracing.frame_reuse import FrameReuse
 from .tracing.light_linking import links_shadows
+from .tracing.soft_lights import has_soft_light
 from .tracing.whitted import render as whitted_render
 
 log = logging.getLogger(__name__)
@@ -72,7 +73,11 @@ class Session:
     #: light and world edits relight instead of tracing: ``None`` (auto) from the session's
     #: first light or world edit on (the terms cost a full frame about 20% more time and 25
     #: bytes per ray-tree node and light: a session that never edits a light does not pay;
-    #: the frame after its first light edit is a full one), ``True`` always, ``False`` never.
+    #: the frame after its first light edit is a full one) -- and in BASE from the first
+    #: frame on where the scene has soft light (a light with an extent or a world that
+    #: lights: object edits then shade those lights again at the kept pixels instead of
+    #: tracing them, :mod:`.tracing.shadow_reshade`; on *studio* at 640x480 no measurable
+    #: first-frame time, 36 MB, docs/bench-edit.md), ``True`` always, ``False`` never.
     #: In INTERPOLANT mode the same switch makes the interpolants' samples keep per-light
     #: shares, so a light's power or colour rescales them (:mod:`.interpolants.relight`),
     #: and the frame's traced samples keep the per-light terms, so its traced pixels are
@@ -383,7 +388,10 @@ class Session:
         return self._finish_stats(frame, mode)
 
     def _keeps_light_terms(self) -> bool:
-        return self._lights_edited if self.light_terms is None else bool(self.light_terms)
+        if self.light_terms is not None:
+            return bool(self.light_terms)
+        return self._lights_edited or (self.settings.mode == "BASE"
+                                       and has_soft_light(self.scene.arrays()))
 
     @property
     def starts_light_terms(self) -> bool:

@@ -148,3 +148,135 @@ def test_moving_an_object_behind_rough_glass_reshades_its_far_side_samples():
         prev, changed = step(sess, prev, [ObjectTransform("Chip", m.copy())])
         shaded_changed += int(changed.sum())
     assert shaded_changed > 0
+
+
+def test_parts_bound_the_edited_objects_old_and_new():
+    """A moved object's effects hold its old and its new place apart (EditEffects.parts),
+    each a box and a sphere that contain every vertex of the object there."""
+    from rstrace_engine.geometry.edits import PART_NEW, PART_OLD, apply_edits
+
+    scene = SOAK_SCENES["soft_room"](W, H)
+    slot = scene.instance_slot("Small")
+    inst = scene.instances[slot]
+    verts = scene.meshes[inst["mesh"]]["verts"]
+    m0 = inst["matrix"].copy()
+    m1 = m0.copy()
+    m1[:3, :3] = m1[:3, :3] @ np.diag([1.5, 0.7, 1.0])  # (the sphere scales by the most)
+    m1[0, 3] += 0.3
+    _, fx = apply_edits(scene, [ObjectTransform("Small", m1)])
+    lo, hi, c, r, tag = fx.part_arrays()
+    assert len(lo) == 2 and len(fx.regions) == 1
+    assert list(tag) == [PART_OLD, PART_NEW]
+    for k, m in enumerate((m0, m1)):
+        w = verts @ m[:3, :3].T + m[:3, 3]
+        assert (w >= lo[k] - 1e-12).all() and (w <= hi[k] + 1e-12).all()
+        assert (np.linalg.norm(w - c[k], axis=1) <= r[k] * (1 + 1e-12)).all()
+        box_r = 0.5 * np.linalg.norm(hi[k] - lo[k])
+        assert r[k] <= box_r
+    # the union box the other structures use holds both
+    box = fx.region_array()[0]
+    assert (box[0] <= lo).all() and (box[1] >= hi).all()
+
+
+def test_crossing_windows_drop_no_sample():
+    """crossing_rows skips samples whose (u, v) puts their direction outside every
+    region's cone before drawing them: on every point of a soft_room frame, for every
+    light and the world, against regions around and between the objects, it finds
+    exactly the samples it finds drawing them all."""
+    from rstrace_engine.tracing.sample_rays import crossing_rows
+    from rstrace_engine.tracing.shadow_reshade import _surfaces
+
+    settings = RenderSettings(mode="BASE", max_depth=1, light_samples=16)
+    scene = SOAK_SCENES["soft_room"](64, 48)
+    sess = Session(scene, settings)
+    sess.light_terms = True
+    sess.render()
+    sa = sess.scene.arrays()
+    p = sess.reuse.light_records.p
+    geo = p.geo
+    surf = _surfaces(sa, geo)
+    k = len(geo["t"])
+    L = len(sa.light_kind)
+    pt = np.repeat(np.arange(k), L + 1)
+    lj = np.tile(np.arange(L + 1), k)
+    rng = np.random.default_rng(5)
+    box = sa.scene_aabb
+    found = 0
+    for _ in range(4):
+        c = rng.uniform(box[0], box[1], size=(3, 3))
+        half = rng.uniform(0.05, 0.6, size=(3, 3))
+        lo, hi = c - half, c + half
+        cen = c + rng.uniform(-0.2, 0.2, size=(3, 3)) * half
+        rad = np.linalg.norm(half, axis=1) * rng.uniform(0.4, 1.2, size=3)
+        tag = rng.integers(1, 4, size=3).astype(np.int8)
+        old = rng.integers(0, 2**63, size=len(pt), dtype=np.uint64)
+        out = []
+        for windows in (True, False):
+            mask = np.empty(len(pt), np.uint64)
+            count = np.empty(len(pt), np.int64)
+            crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat,
+                          np.ascontiguousarray(geo["seed"], np.uint64), pt, lj, 16, lo, hi,
+                          cen, rad, tag, old, windows, mask, count)
+            out.append((mask, count))
+        np.testing.assert_array_equal(out[0][0], out[1][0])
+        np.testing.assert_array_equal(out[0][1], out[1][1])
+        found += int(out[0][1].sum())
+    assert found > 0
+
+
+@pytest.mark.parametrize("form", [1, 2])
+def test_sample_windows_hold_every_direction_in_the_cone(form):
+    """The (u, v) windows (sample_rays._windows): every sample whose direction (drawn
+    cosine-weighted about an axis, form 1, or uniform in a cone about it, form 2) lies in a
+    region's cone is inside its window, and the windows leave most samples out when the
+    cone is small."""
+    from rstrace_engine.tracing.sample_rays import _in_window, _windows
+    from rstrace_engine.tracing.soft_lights import _cone_dir, _cosine_dir
+
+    rng = np.random.default_rng(11 + form)
+    skipped = total = 0
+    for _ in range(40):
+        a = rng.normal(size=3)
+        a /= np.linalg.norm(a)
+        omc = rng.uniform(0.05, 1.0) if form == 2 else 0.0
+        cv = np.empty((2, 4))
+        hs = []
+        for q in range(2):
+            w = rng.normal(size=3)
+            w /= np.linalg.norm(w)
+            if q == 0:  # (near the axis: the cone holds it)
+                w = a + 0.1 * w
+                w /= np.linalg.norm(w)
+            dist = rng.uniform(0.5, 5.0)
+            h = rng.uniform(0.01, 0.4)
+            hs.append((w, h))
+            cv[q, :3] = w * dist
+            cv[q, 3] = np.cos(h) * dist
+        win = np.empty((2, 4))
+        _windows(form, *a, omc, cv, win)
+        for u, v in rng.uniform(0.0, 1.0, size=(500, 2)):
+            d = np.array(_cosine_dir(*a, u, v) if form == 1 else _cone_dir(*a, omc, u, v))
+            inside = any(d @ w >= np.cos(h) for w, h in hs)
+            ok = _in_window(win, u, v)
+            assert ok or not inside, (u, v, win)
+            skipped += not ok
+            total += 1
+    assert skipped > total // 4
+
+
+def test_soft_lit_sessions_keep_light_terms_from_the_first_frame():
+    """By default (Session.light_terms None) a BASE session over a soft-lit scene keeps
+    the per-light terms from its first frame, so its first object edit re-shades soft
+    shadows instead of tracing those pixels; a hard-lit scene's does not pay for them."""
+    settings = RenderSettings(mode="BASE", max_depth=2, light_samples=8)
+    sess = Session(SOAK_SCENES["soft_room"](W, H), settings)
+    assert sess.light_terms is None
+    prev = sess.render()
+    assert prev.stats["light_records_mb"] > 0.0
+    slot = sess.scene.instance_slot("Small")
+    m = sess.scene.instances[slot]["matrix"].copy()
+    m[0, 3] += 0.25
+    _, changed = step(sess, prev, [ObjectTransform("Small", m)])
+    assert changed.any()
+    hard = Session(SOAK_SCENES["room"](W, H), settings)
+    assert hard.render().stats["light_records_mb"] == 0.0

@@ -137,6 +137,11 @@ Edit = (ObjectTransform | ObjectGeometry | ObjectMaterials | ObjectVisibility | 
         | LightDelete | WorldColor | CameraChange)
 
 
+#: :attr:`EditEffects.parts`' tags: where an edited object was (a shadow ray it blocked
+#: may now pass) and where it is (one that passed may now be blocked)
+PART_OLD, PART_NEW = 1, 2
+
+
 @dataclass
 class EditEffects:
     """What a batch of edits touched, in the terms every structure works in: computed once
@@ -167,12 +172,36 @@ class EditEffects:
     #: camera's, mirror and refraction rays crossing them change, tracing/seen_lights)
     seen_regions: list = field(default_factory=list)
     seen_sky: bool = False  # a sun with an angle that rays see changed: what misses changes
+    #: the geometry-type edits' old and new objects apart: ``(box (2, 3), centre (3,),
+    #: radius, tag)`` per visible one, its world box and a sphere holding its vertices (a
+    #: ray whose result an edit changes meets one of them: both bounds hold its
+    #: triangles); ``tag`` :data:`PART_OLD` where it was, :data:`PART_NEW` where it is now
+    parts: list = field(default_factory=list)
 
     @property
     def lights_shading(self) -> set:
         """Lights whose power or colour alone changed, or that were deleted: only what they
         shaded changes."""
         return self.lights - self.lights_moved
+
+    def part_arrays(self) -> tuple:
+        """:attr:`parts` as arrays ``(lo (k, 3), hi (k, 3), centre (k, 3), radius (k,), tag
+        (k,) int8)`` (effects made with :attr:`regions` alone: those boxes and their
+        spheres, old and new both)."""
+        parts = self.parts
+        if not parts and self.regions:
+            parts = [(b, 0.5 * (b[0] + b[1]), 0.5 * float(np.linalg.norm(b[1] - b[0])),
+                      PART_OLD | PART_NEW)
+                     for b in (np.asarray(r, np.float64) for r in self.regions)]
+        if not parts:
+            return (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                    np.zeros(0, np.int8))
+        box, c, r, tag = zip(*parts, strict=True)
+        box = np.stack(box)
+        return (np.ascontiguousarray(box[:, 0], np.float64),
+                np.ascontiguousarray(box[:, 1], np.float64),
+                np.ascontiguousarray(np.stack(c), np.float64), np.asarray(r, np.float64),
+                np.asarray(tag, np.int8))
 
     def region_array(self) -> np.ndarray:
         """(k, 2, 3) float64: one box per geometry-type edit (old box union new box)."""
@@ -223,11 +252,36 @@ def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
     return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
 
 
-def _visible_box(scene: Scene, slot: int) -> np.ndarray | None:
+def _visible_box(scene: Scene, slot: int) -> tuple | None:
+    """Object ``slot``'s world box, world bounding sphere (:attr:`EditEffects.parts`), or
+    None where it draws nothing."""
     inst = scene.instances[slot]
     if inst is None or not inst["visible"]:
         return None
-    return inst["aabb"].copy()
+    box = inst["aabb"].copy()
+    return box, *_bounding_sphere(scene.meshes[inst["mesh"]], inst["matrix"], box)
+
+
+#: meshes with more vertices take their box's sphere (the vertices' sphere costs O(V) per edit)
+SPHERE_MAX_VERTS = 200_000
+
+
+def _bounding_sphere(mesh: dict, matrix: np.ndarray, box: np.ndarray) -> tuple:
+    """``(centre (3,), radius)``: a world sphere holding the mesh's vertices under
+    ``matrix`` (the object-space sphere about the mesh box's centre through its farthest
+    vertex, scaled by the matrix's largest stretch), or the world box's own sphere where
+    that is smaller (or the mesh is large)."""
+    bc = 0.5 * (box[0] + box[1])
+    br = 0.5 * float(np.linalg.norm(box[1] - box[0]))
+    verts = np.asarray(mesh["verts"], np.float64)
+    if len(verts) == 0 or len(verts) > SPHERE_MAX_VERTS:
+        return bc, br
+    c = 0.5 * (np.asarray(mesh["lo"], np.float64) + np.asarray(mesh["hi"], np.float64))
+    r = float(np.sqrt(((verts - c) ** 2).sum(axis=1).max()))
+    m = np.asarray(matrix, np.float64)
+    wc = m[:3, :3] @ c + m[:3, 3]
+    wr = r * float(np.linalg.norm(m[:3, :3], 2))
+    return (wc, wr) if wr < br else (bc, br)
 
 
 def _light_geometry(li: Light) -> tuple:
@@ -287,11 +341,14 @@ def apply_edits(scene: Scene, edits) -> tuple[Scene, EditEffects]:
     return new, fx
 
 
-def _object_changed(fx: EditEffects, slot: int, old_box, new_box) -> None:
-    """Instance ``slot``'s geometry changed (mesh, transform, box, visibility, presence)."""
-    box = _union(old_box, new_box)
+def _object_changed(fx: EditEffects, slot: int, old, new) -> None:
+    """Instance ``slot``'s geometry changed (mesh, transform, box, visibility, presence):
+    ``old``, ``new`` its :func:`_visible_box` before and after."""
+    box = _union(None if old is None else old[0], None if new is None else new[0])
     if box is not None:
         fx.regions.append(box)
+    fx.parts.extend((*p, tag) for p, tag in ((old, PART_OLD), (new, PART_NEW))
+                    if p is not None)
     fx.objects.add(slot)
     fx.geometry.add(slot)
 

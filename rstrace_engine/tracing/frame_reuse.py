@@ -74,7 +74,7 @@ class FrameReuse:
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
         self.reshade_world: np.ndarray | None = None
-        self.reshade_regions: list = []  # the edited regions since, grown: (lo, hi) pairs
+        self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -218,9 +218,13 @@ class FrameReuse:
         t0 = time.perf_counter()
         if reshades:
             dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx))
-            regions, margin = fx.region_array(), rec.margin(old_sa)
-            if len(regions):
-                self.reshade_regions.append((regions[:, 0] - margin, regions[:, 1] + margin))
+            # the edited objects, old and new apart, each by its box and its sphere (grown
+            # as the records grow the boxes)
+            lo, hi, c, r, tag = fx.part_arrays()
+            margin = rec.margin(old_sa)
+            if len(lo):
+                self.reshade_regions.append((lo - margin, hi + margin, c,
+                                             r + float(np.linalg.norm(margin)), tag))
             report.reshade_pixels = int(np.count_nonzero(self.reshade_pixels))
         else:
             dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)

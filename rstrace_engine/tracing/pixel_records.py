@@ -54,7 +54,9 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
+from .light_linking import links_shadows
 from .light_records import LightRecords
 from .record_codes import POINT_BITS, _encode_nodes, light_geometry
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
@@ -474,6 +476,12 @@ class PixelRecords:
         reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
         reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
         reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
+        # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
+        # the soft lights' and the world's rays at the primary hits are tested against them
+        p_lo, p_hi, p_c, p_r, p_tag = fx.part_arrays()
+        p_lo = np.ascontiguousarray(p_lo - margin)
+        p_hi = np.ascontiguousarray(p_hi + margin)
+        p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))
         combo_dirty = np.ascontiguousarray(dirty)
         sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
@@ -512,15 +520,24 @@ class PixelRecords:
                     seed = np.zeros(self.n_rays, np.uint64)
                 query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
                                  wnorm, seed, self.w_samples, soft, self.lo, self.step,
-                                 self.levels, self.shift, reg_lo, reg_hi, pos, out, lights)
+                                 self.levels, self.shift, p_lo, p_hi, p_c, p_r, pos, out,
+                                 lights)
             if world_rays:
                 if self.p_wnorm is None:
                     world = is_hit[self.p_combo.astype(np.int64)] & ~out
                 else:
                     w_out = out.copy()
+                    # the world's samples' visibility in the records' frame: visible ones
+                    # tested where objects came, blocked ones where they went (query_world)
+                    if self.p_vis is not None and not links_shadows(sa):
+                        w_old = np.ascontiguousarray(self.p_vis[:, self.w_lights], np.uint64)
+                    else:
+                        w_old = np.zeros(self.n_rays, np.uint64)
+                        p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
                                 self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, reg_c, reg_r, w_out)
+                                self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
+                                w_out)
                     world = w_out & ~out
         return out, lights, world
 

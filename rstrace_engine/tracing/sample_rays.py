@@ -35,23 +35,24 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..geometry.edits import PART_NEW, PART_OLD
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
-from .record_codes import _decode_point, _light_hit, _segment_box
-from .shading import dot3, far_origin, rough_interface
+from .record_codes import _cone_sphere, _decode_point, _light_hit, _segment_box
+from .shading import dot3, far_origin, onb, rough_interface
 from .soft_lights import (
     _cosine_dir,
     _sample_one,
     _sphere_exit,
+    _sphere_sin2,
     row_hash,
     row_uv,
     sample_weight,
-    world_sample_dir,
 )
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step, levels,
-                shift, reg_c, reg_r, out):
+                shift, reg_c, reg_r, reg_tag, old, out):
     """The world's rays of every primary hit against the edited regions (their bounding
     spheres ``reg_c, reg_r``, grown like every region by the quantisation and the spawn
     offset): each of the point's ``n`` cosine-weighted directions, regenerated from its
@@ -59,58 +60,111 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step,
     when recorded, the world's row is the last), is a ray to infinity; a region it may meet
     dirties the sample. Samples with no recorded normal (NaN) are dirty. Regions wholly
     below the tangent plane of the shading normal are skipped (every world ray leaves above
-    it)."""
+    it); a sample whose ``(u, v)`` puts its direction outside every region's cone is not
+    drawn (:func:`_windows`). As :func:`crossing_rows`, a sample visible in the records'
+    frame (its bit in ``old`` (n_rays,) uint64: :attr:`~.pixel_records.PixelRecords.p_vis`'
+    world column) is tested against the regions tagged :data:`~.edits.PART_NEW` only, one
+    blocked against those tagged :data:`~.edits.PART_OLD`."""
+    m = p_combo.shape[0]
+    k_reg = reg_c.shape[0]
+    for ch in prange((m + _CROSSING_CHUNK - 1) // _CROSSING_CHUNK):
+        cv = np.empty((k_reg, 4))
+        win = np.empty((k_reg, 4))
+        for g in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
+            if not out[g] and combo_inst[p_combo[g]] >= 0:
+                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, n_lights, lo, step,
+                                        levels, shift, reg_c, reg_r, reg_tag, old[g], cv,
+                                        win)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _world_crosses(code, wnorm, seed, g, n, n_lights, lo, step, levels, shift, reg_c, reg_r,
+                   reg_tag, old, cv, win):
+    """:func:`query_world` of primary hit ``g``; ``cv``, ``win`` (k_reg, 4) scratch."""
     k_reg = reg_c.shape[0]
     err = tol.RECORD_DIR_ERROR
-    for g in prange(p_combo.shape[0]):
-        if out[g] or combo_inst[p_combo[g]] < 0:
+    sx = float(wnorm[g, 0])
+    sy = float(wnorm[g, 1])
+    sz = float(wnorm[g, 2])
+    if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
+        return True  # unknown, or a normal whose basis could flip side
+    nl = math.sqrt(sx * sx + sy * sy + sz * sz)
+    sx /= nl
+    sy /= nl
+    sz /= nl
+    px, py, pz = _decode_point(code, lo, step, levels, shift)
+    some = False
+    for q in range(k_reg):
+        vx = reg_c[q, 0] - px
+        vy = reg_c[q, 1] - py
+        vz = reg_c[q, 2] - pz
+        dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+        r = reg_r[q]
+        if dist <= r:
+            return True
+        cv[q, 0] = vx
+        cv[q, 1] = vy
+        cv[q, 2] = vz
+        if vx * sx + vy * sy + vz * sz < -r - err * dist:
+            cv[q, 3] = np.inf  # below the horizon
             continue
-        sx = float(wnorm[g, 0])
-        sy = float(wnorm[g, 1])
-        sz = float(wnorm[g, 2])
-        if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
-            out[g] = True  # unknown, or a normal whose basis could flip side
+        half = math.asin(r / dist) + err
+        cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
+        some = True
+    if not some:
+        return False
+    _windows(1, sx, sy, sz, 0.0, cv, win)
+    for q in range(k_reg):
+        if cv[q, 3] == np.inf:
+            win[q, 0] = 2.0  # (no sample)
+    h = row_hash(seed, n_lights)
+    for s in range(n):
+        u, v = row_uv(h, n, s)
+        if not _in_window(win, u, v):
             continue
-        nl = math.sqrt(sx * sx + sy * sy + sz * sz)
-        sx /= nl
-        sy /= nl
-        sz /= nl
-        h = row_hash(seed[g], n_lights)
-        px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
+        dx, dy, dz = _cosine_dir(sx, sy, sz, u, v)  # (world_sample_dir)
+        need = PART_NEW if (old >> np.uint64(s)) & np.uint64(1) else PART_OLD
         for q in range(k_reg):
-            vx = reg_c[q, 0] - px
-            vy = reg_c[q, 1] - py
-            vz = reg_c[q, 2] - pz
-            dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-            r = reg_r[q]
-            if dist <= r:
-                out[g] = True
-                break
-            if vx * sx + vy * sy + vz * sz < -r - err * dist:
-                continue  # below the horizon
-            half = math.asin(r / dist) + err
-            ca = math.cos(half) if half < math.pi else -1.0
-            hit = False
-            for s in range(n):
-                dx, dy, dz = world_sample_dir(h, n, s, sx, sy, sz)
-                if (dx * vx + dy * vy + dz * vz) >= ca * dist:
-                    hit = True
-                    break
-            if hit:
-                out[g] = True
-                break
+            if reg_tag[q] & need and cv[q, 3] < np.inf and \
+                    dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] >= cv[q, 3]:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
+    """Can a shadow ray from p to light j come within ``r`` of c (a region's sphere)? As
+    :func:`~.record_codes._light_hit`: every segment from p to a point within the light's
+    bounding radius g of its centre stays within g of the segment to the centre; a sun's
+    rays are a cone of directions (or one ray)."""
+    if light_kind[j] == LIGHT_SUN:
+        if lgeo[j, 4] > 0.0:
+            return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
+                                -light_dir[j, 2], cx, cy, cz, r, lgeo[j, 4])
+        return _segment_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
+                               -light_dir[j, 2], np.inf, cx, cy, cz, r)
+    dx = lgeo[j, 0] - px
+    dy = lgeo[j, 1] - py
+    dz = lgeo[j, 2] - pz
+    e = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if e == 0.0:
+        return True
+    return _segment_sphere(px, py, pz, dx / e, dy / e, dz / e, e, cx, cy, cz,
+                           r + lgeo[j, 3] + tol.RECORD_SLACK_REL * e)
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
-                     lo, step, levels, shift, reg_lo, reg_hi, lgeo, skip, bits):
+                     lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r, lgeo, skip, bits):
     """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
-    with an extent) whose shadow rays there may cross a grown region ``reg_lo, reg_hi``,
-    as bits of ``bits`` (n_rays,) uint64 (assigned). Area lights and suns with an angle
-    regenerate the point's own samples from its node seed (module
-    doc); sphere lights, and every light of a sample without a recorded seed (NaN normal),
-    get the shaft test of :func:`~.record_codes._light_hit` (``lgeo``:
-    :func:`~.record_codes.light_geometry`). ``sa``: the packing the records describe."""
+    with an extent) whose shadow rays there may cross a grown region -- its box ``reg_lo,
+    reg_hi`` and its sphere ``reg_c, reg_r`` both (the edited objects, old and new apart:
+    :attr:`~.edits.EditEffects.parts`) -- as bits of ``bits`` (n_rays,) uint64 (assigned).
+    Area lights and suns with an angle regenerate the point's own samples from its node
+    seed (module doc); sphere lights, and every light of a sample without a recorded seed
+    (NaN normal), get the shaft test of :func:`~.record_codes._light_hit` and
+    :func:`_shaft_sphere` (``lgeo``: :func:`~.record_codes.light_geometry`). ``sa``: the
+    packing the records describe."""
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
     for g in prange(p_combo.shape[0]):
@@ -133,7 +187,9 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
             if not known or not (sun or kind == LIGHT_AREA):
                 for q in range(k_reg):
                     if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], sa.light_kind, lgeo,
-                                  sa.light_dir):
+                                  sa.light_dir) and _shaft_sphere(
+                            px, py, pz, j, reg_c[q, 0], reg_c[q, 1], reg_c[q, 2], reg_r[q],
+                            sa.light_kind, lgeo, sa.light_dir):
                         out |= bit
                         break
                 continue
@@ -148,7 +204,10 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
                 ey = py + dy * (1.0 if sun else t)
                 ez = pz + dz * (1.0 if sun else t)
                 for q in range(k_reg):
-                    if _segment_box(px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q], sun):
+                    if _segment_sphere(px, py, pz, dx, dy, dz, np.inf if sun else t,
+                                       reg_c[q, 0], reg_c[q, 1], reg_c[q, 2], reg_r[q]) \
+                            and _segment_box(px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q],
+                                             sun):
                         hit = True
                         break
                 if hit:
@@ -239,65 +298,200 @@ def _sample_ray(sa, j, L, inside, far, qx, qy, qz, gx, gy, gz, sx, sy, sz, n, u,
     return dx, dy, dz, t, w > 0.0, below
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _segment_sphere(ox, oy, oz, dx, dy, dz, e, cx, cy, cz, r):
+    """Does the segment from o along unit d to length ``e`` (inf: a ray) come within ``r``
+    of c?"""
+    wx, wy, wz = cx - ox, cy - oy, cz - oz
+    s = min(max(wx * dx + wy * dy + wz * dz, 0.0), e)
+    px, py, pz = wx - s * dx, wy - s * dy, wz - s * dz
+    return px * px + py * py + pz * pz <= r * r
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row_axis(sa, j, L, inside, qx, qy, qz, sx, sy, sz):
+    """How the row of light ``j`` (``L``: the world) at spawn point q draws its samples'
+    directions from ``(u, v)``, for :func:`_windows`: ``(form, ax, ay, az, omc)`` -- form
+    1 cosine-weighted about unit a (``sin^2`` of the polar angle is u), 2 uniform in the
+    cone about unit a with ``1 - cos`` of its half angle ``omc`` (``1 - cos`` of the polar
+    angle is ``u omc``), the azimuth ``2 pi v`` about :func:`~.shading.onb` (a) in both
+    (:func:`~.soft_lights._cosine_dir`, :func:`~.soft_lights._cone_dir`); 0: neither (an
+    area light's points)."""
+    if j >= L or inside:
+        return 1, sx, sy, sz, 0.0
+    kind = sa.light_kind[j]
+    if kind == LIGHT_AREA:
+        return 0, 0.0, 0.0, 1.0, 0.0
+    if kind == LIGHT_SUN:
+        omc = 2.0 * math.sin(0.5 * sa.light_half[j]) ** 2
+        return 2, -sa.light_dir[j, 0], -sa.light_dir[j, 1], -sa.light_dir[j, 2], omc
+    vx = sa.light_pos[j, 0] - qx
+    vy = sa.light_pos[j, 1] - qy
+    vz = sa.light_pos[j, 2] - qz
+    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if not dist > 0.0:
+        return 0, 0.0, 0.0, 1.0, 0.0
+    s2 = _sphere_sin2(sa.light_radius[j], dist, sa.light_soft[j])
+    if s2 < 0.0:
+        s2 = 1.0
+    omc = s2 / (1.0 + math.sqrt(max(0.0, 1.0 - s2)))
+    return 2, vx / dist, vy / dist, vz / dist, omc
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _windows(form, ax, ay, az, omc, cv, win):
+    """Per region (its sphere's cone from the point: :func:`crossing_rows`' ``cv``) the
+    samples of a row (:func:`_row_axis`) whose direction may lie in that cone, as a window
+    of the unit square: ``win[q] = (u_lo, u_hi, phi_c, dphi)`` -- u within [u_lo, u_hi] and
+    the azimuth ``2 pi v`` within ``dphi`` of ``phi_c`` (``dphi`` < 0: any azimuth). The
+    cone of half angle h about a direction at polar angle alpha from a holds polar angles
+    within h of alpha and (alpha > h) azimuths within ``asin(sin h / sin alpha)`` of its
+    own; both widened by :data:`~.tolerances.RECORD_DIR_ERROR` (the rounding of the
+    sample's direction is far below it)."""
+    err = tol.RECORD_DIR_ERROR
+    tx, ty, tz, bx, by, bz = onb(ax, ay, az)
+    for q in range(cv.shape[0]):
+        win[q, 0] = -1.0
+        win[q, 1] = 2.0
+        win[q, 3] = -1.0
+        if form == 0 or cv[q, 3] == -2.0:
+            continue
+        vx, vy, vz = cv[q, 0], cv[q, 1], cv[q, 2]
+        dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+        h = math.acos(min(max(cv[q, 3] / dist, -1.0), 1.0)) + err  # (cv[q, 3]: cos h dist)
+        ca = (vx * ax + vy * ay + vz * az) / dist
+        alpha = math.acos(min(max(ca, -1.0), 1.0))
+        lo_a = alpha - h
+        hi_a = alpha + h
+        if form == 1:
+            if lo_a >= 0.5 * math.pi:
+                win[q, 0] = 2.0  # wholly below the horizon: no sample
+                continue
+            if lo_a > 0.0:
+                win[q, 0] = math.sin(lo_a) ** 2 * (1.0 - 1e-9)
+            if hi_a < 0.5 * math.pi:
+                win[q, 1] = math.sin(hi_a) ** 2 * (1.0 + 1e-9) + 1e-15
+        elif omc > 0.0:
+            if lo_a > 0.0:
+                win[q, 0] = 2.0 * math.sin(0.5 * lo_a) ** 2 / omc * (1.0 - 1e-9)
+            if hi_a < math.pi:
+                win[q, 1] = 2.0 * math.sin(0.5 * hi_a) ** 2 / omc * (1.0 + 1e-9) + 1e-15
+        if lo_a > 0.0 and hi_a < math.pi:
+            sa_ = math.sin(alpha)
+            win[q, 2] = math.atan2(vx * bx + vy * by + vz * bz, vx * tx + vy * ty + vz * tz)
+            win[q, 3] = math.asin(min(math.sin(h) / sa_, 1.0)) + err
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _in_window(win, u, v):
+    """Can a sample at ``(u, v)`` lie in one of the regions' cones (:func:`_windows`)?"""
+    for q in range(win.shape[0]):
+        if u < win[q, 0] or u > win[q, 1]:
+            continue
+        if win[q, 3] < 0.0:
+            return True
+        dp = abs(2.0 * math.pi * v - win[q, 2])  # (in [0, 3 pi): v in [0, 1), phi_c in [-pi, pi])
+        if dp > 2.0 * math.pi:
+            dp -= 2.0 * math.pi
+        if min(dp, 2.0 * math.pi - dp) <= win[q, 3]:
+            return True
+    return False
+
+
+#: rows per task of :func:`crossing_rows` (its scratch arrays are allocated per task)
+_CROSSING_CHUNK = 256
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, mask, count):
+def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c, reg_r,
+                  reg_tag, old, windows, mask, count):
     """Per (point, light) row (point ``pt``, light ``lj``, ``L`` for the world): the bits of
     its ``n`` samples (drawn as the tracer draws them from the point's seed, from its spawn
     point ``Q`` or, below a rough interface of material ``MAT``, from the far side of its
-    hit ``P``) that carry light and may cross a region ``reg_lo, reg_hi`` (``mask`` (m,)
-    uint64), and how many (``count``)."""
+    hit ``P``) that carry light and whose visibility an edit may change (``mask`` (m,)
+    uint64), and how many (``count``): a sample visible before (its bit in ``old`` (m,)
+    uint64 set) only where it may cross a region an object is in now (``reg_tag`` with
+    :data:`~.edits.PART_NEW`), one blocked before only where it may cross one an object
+    left (:data:`~.edits.PART_OLD`) -- a ray that met nothing meets something only where
+    geometry came, one that met something meets nothing only where geometry went -- by
+    the region's box ``reg_lo, reg_hi`` and its sphere ``reg_c, reg_r`` both.
+    ``windows``: skip the samples whose ``(u, v)`` alone puts them outside every region's
+    cone (:func:`_windows`; False only to test that it drops none)."""
+    k_reg = reg_lo.shape[0]
+    m = pt.shape[0]
+    for ch in prange((m + _CROSSING_CHUNK - 1) // _CROSSING_CHUNK):
+        cv = np.empty((k_reg, 4))
+        win = np.empty((k_reg, 4))
+        for r in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
+            mask[r], count[r] = _crossing_row(sa, P, Q, NG, NS, MAT, seeds, pt[r], lj[r], n,
+                                              reg_lo, reg_hi, reg_c, reg_r, reg_tag, old[r],
+                                              windows, cv, win)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, reg_r,
+                  reg_tag, old, windows, cv, win):
+    """:func:`crossing_rows` of one row (point ``i``, light ``j``): ``(mask, count)``;
+    ``cv``, ``win`` (k_reg, 4) scratch."""
     L = sa.light_kind.shape[0]
     k_reg = reg_lo.shape[0]
     err = tol.RECORD_DIR_ERROR
-    for r in prange(pt.shape[0]):
-        i = pt[r]
-        j = lj[r]
-        qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
-        # each region's bounding sphere seen from the point: a cone of directions (a cheap
-        # rejection before the box test; -2: the point is inside the sphere)
-        cv = np.empty((k_reg, 4))
+    qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+    # each region's sphere seen from the point: a cone of directions (a cheap rejection
+    # before the sphere and box tests; -2: the point is inside the sphere)
+    for q in range(k_reg):
+        vx = reg_c[q, 0] - qx
+        vy = reg_c[q, 1] - qy
+        vz = reg_c[q, 2] - qz
+        rad = reg_r[q]
+        dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+        cv[q, 0] = vx
+        cv[q, 1] = vy
+        cv[q, 2] = vz
+        if dist <= rad * (1.0 + err):
+            cv[q, 3] = -2.0
+        else:
+            half = math.asin(min(rad / dist, 1.0)) + err
+            cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
+    inside = _row_inside(sa, j, L, qx, qy, qz)
+    far, fx, fy, fz = _far_side(sa, P, NG, MAT, i, qx, qy, qz)
+    # the samples' (u, v) whose directions may meet a region's cone, tested before the
+    # direction is drawn (not for rows traced from the far side of a rough interface:
+    # their cones are seen from Q)
+    form, ax, ay, az, omc = _row_axis(sa, j, L, inside, qx, qy, qz, NS[i, 0], NS[i, 1],
+                                      NS[i, 2])
+    _windows(0 if far or not windows else form, ax, ay, az, omc, cv, win)
+    h = row_hash(seeds[i], j)
+    b = np.uint64(0)
+    c = 0
+    for s in range(n):
+        u, v = row_uv(h, n, s)
+        if not _in_window(win, u, v):
+            continue
+        dx, dy, dz, t, ok, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz, NG[i, 0],
+                                               NG[i, 1], NG[i, 2], NS[i, 0], NS[i, 1],
+                                               NS[i, 2], n, u, v)
+        if not ok:
+            continue
+        ray = not t < np.inf
+        e = 1.0 if ray else t
+        ox, oy, oz = (fx, fy, fz) if below else (qx, qy, qz)
+        need = PART_NEW if (old >> np.uint64(s)) & np.uint64(1) else PART_OLD
         for q in range(k_reg):
-            vx = 0.5 * (reg_lo[q, 0] + reg_hi[q, 0]) - qx
-            vy = 0.5 * (reg_lo[q, 1] + reg_hi[q, 1]) - qy
-            vz = 0.5 * (reg_lo[q, 2] + reg_hi[q, 2]) - qz
-            rad = 0.5 * math.sqrt((reg_hi[q, 0] - reg_lo[q, 0]) ** 2
-                                  + (reg_hi[q, 1] - reg_lo[q, 1]) ** 2
-                                  + (reg_hi[q, 2] - reg_lo[q, 2]) ** 2)
-            dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-            cv[q, 0] = vx
-            cv[q, 1] = vy
-            cv[q, 2] = vz
-            if dist <= rad * (1.0 + err):
-                cv[q, 3] = -2.0
-            else:
-                half = math.asin(min(rad / dist, 1.0)) + err
-                cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
-        inside = _row_inside(sa, j, L, qx, qy, qz)
-        far, fx, fy, fz = _far_side(sa, P, NG, MAT, i, qx, qy, qz)
-        h = row_hash(seeds[i], j)
-        b = np.uint64(0)
-        c = 0
-        for s in range(n):
-            u, v = row_uv(h, n, s)
-            dx, dy, dz, t, ok, below = _sample_ray(sa, j, L, inside, far, qx, qy, qz,
-                                                   NG[i, 0], NG[i, 1], NG[i, 2], NS[i, 0],
-                                                   NS[i, 1], NS[i, 2], n, u, v)
-            if not ok:
+            if not reg_tag[q] & need:
+                continue  # (visible: only what came may block it; blocked: only what went)
+            if not below and cv[q, 3] != -2.0 and \
+                    dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] < cv[q, 3]:
+                continue  # outside the cone of the region's sphere (seen from Q)
+            if not _segment_sphere(ox, oy, oz, dx, dy, dz, t, reg_c[q, 0], reg_c[q, 1],
+                                   reg_c[q, 2], reg_r[q]):
                 continue
-            ray = not t < np.inf
-            e = 1.0 if ray else t
-            ox, oy, oz = (fx, fy, fz) if below else (qx, qy, qz)
-            for q in range(k_reg):
-                if cv[q, 3] != -2.0 and dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] < \
-                        cv[q, 3]:
-                    continue  # outside the cone of the region's sphere (seen from Q)
-                if _segment_box(ox, oy, oz, ox + dx * e, oy + dy * e, oz + dz * e,
-                                reg_lo[q], reg_hi[q], ray):
-                    b |= np.uint64(1) << np.uint64(s)
-                    c += 1
-                    break
-        mask[r] = b
-        count[r] = c
+            if _segment_box(ox, oy, oz, ox + dx * e, oy + dy * e, oz + dz * e, reg_lo[q],
+                            reg_hi[q], ray):
+                b |= np.uint64(1) << np.uint64(s)
+                c += 1
+                break
+    return b, c
 
 
 @njit(cache=True, nogil=True, parallel=True)

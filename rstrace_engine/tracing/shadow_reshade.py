@@ -43,7 +43,9 @@ import time
 import numpy as np
 
 from ..accel.accelerators import Hits
+from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
+from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_reshade import _one_light_states, tick
 from .sample_rays import crossing_rays, crossing_rows, unpack_bits
@@ -90,9 +92,10 @@ def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
 def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
                  counters) -> np.ndarray:
     """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
-    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples that may cross a
-    grown region ``regions`` (lo, hi) traced again, through the edited scene, the others
-    kept."""
+    ``lj``, ``L`` for the world) whose bits were ``kept``: the samples whose visibility
+    the edited objects ``regions`` (lo, hi, centre, radius, tag: grown boxes and spheres,
+    where objects were and are, :func:`~.sample_rays.crossing_rows`) may change traced
+    again, through the edited scene, the others kept."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     m = len(pt)
@@ -101,9 +104,15 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     pt = np.ascontiguousarray(pt, np.int64)
     lj = np.ascontiguousarray(lj, np.int64)
     seed = np.ascontiguousarray(seed, np.uint64)
+    kept = np.ascontiguousarray(kept, np.uint64)
+    tag = regions[4]
+    if links_shadows(sa):
+        # (hit by hit past the objects that are not a light's blockers: an object that
+        # came may unblock a ray, light_linking.first_blocker; one that went may block it)
+        tag = np.full(len(tag), PART_OLD | PART_NEW, np.int8)
     with threads_for(m):
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
-                      regions[0], regions[1], mask, count)
+                      *regions[:4], tag, kept, True, mask, count)
     start = np.zeros(m + 1, np.int64)
     np.cumsum(count, out=start[1:])
     k = int(start[-1])
@@ -178,9 +187,9 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
     out: dict = {}
     if len(rows) == 0:
         return out
-    sub = p.take(rows)  # (the nodes, their terms and geometry; a dragged light's folded)
-    sub.fold()
-    geo = sub.geo
+    # the nodes' geometry (their terms are taken below, where one changes)
+    grow = (np.cumsum(p.hit) - 1)[rows]
+    geo = {key: x[grow] for key, x in p.geo.items()}
     surf = _surfaces(sa, geo)
     tick(split, "surfaces", t0)
     n = int(light_samples)
@@ -228,11 +237,18 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             changes.append((WORLD, sel, on, val))
         tick(split, "shade", t0)
     t0 = time.perf_counter()
-    for c, sel, on, val in changes:
-        d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
-        d_on[sel] = on
-        d_val[sel] = val
-        sub.replace_slot(c, d_on, d_val)
-    lr.p = p.splice(rows, sub)
+    if changes:
+        # only the nodes where a term changed are taken (a dragged light's term folded),
+        # their entries replaced and spliced back
+        at = np.unique(np.concatenate([sel for _, sel, _, _ in changes]))
+        sub = p.take(rows[at])
+        sub.fold()
+        for c, sel, on, val in changes:
+            d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
+            k = np.searchsorted(at, sel)
+            d_on[k] = on
+            d_val[k] = val
+            sub.replace_slot(c, d_on, d_val)
+        lr.p = p.splice(rows[at], sub)
     tick(split, "terms", t0)
     return out

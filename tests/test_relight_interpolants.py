@@ -391,3 +391,44 @@ def test_world_samples_follow_the_rendered_samples():
     np.testing.assert_array_equal(ws.ok, ~np.isnan(want[:, 0]))
     np.testing.assert_array_equal(rad, want)
     assert ws.nbytes < 4000 * 4 + 2 * 48 * 4000
+
+
+def test_world_terms_of_samples_traced_again_are_dropped(monkeypatch):
+    """A sample interpolated with its world term kept (``rest + coef * world``), then traced
+    again by the base tracer -- here the whole frame after a light's power edit, the measured
+    fallback (``fallback.py``) having judged its cells not worth building, which is what
+    studio at 640x480 did -- holds its light records from then on, not the kept world term
+    of its interpolated past. A later world colour edit recombines it from those records:
+    before, the stale world entry won and the pixels kept the light's old power (up to 0.19
+    of display error on studio). The relit pixels equal a fresh BASE frame's bit for bit,
+    the frame is within epsilon of it."""
+    scene = WORLD_SCENES["soft_penumbra"]()
+    sess = session(scene, True)
+    sess.render()
+    kept = sess.reuse.light_records.world.ok.copy()
+    assert kept.mean() > 0.1
+    # the fallback's verdict for the next frame: the base tracer's frame, no cell
+    monkeypatch.setattr(sess.interpolants, "auto_fallback", True)
+    monkeypatch.setattr(type(sess.interpolants.cache.fallback), "whole_frame_traced",
+                        lambda self: True)
+    rep = sess.apply(edit(sess, "Area", power=0.5))
+    assert rep.relight
+    frame = sess.render()
+    assert frame.stats["interpolated_fraction"] == 0.0
+    lr, rec = sess.reuse.light_records, sess.reuse.records
+    again = kept & np.tile(sess.reuse.frame.pixel_class.reshape(-1) != CLASS_INTERPOLATED,
+                           rec.spp) & lr.ok
+    assert again.sum() > 0.05 * len(again)  # interpolated before, traced (with terms) now
+    assert not (lr.world.ok & again).any()
+    check_bound(frame, sess.scene)
+    monkeypatch.undo()
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
+    rep = sess.apply(_world_edit(sess, colour=(0.4, 0.3, 0.15)))
+    assert rep.relight
+    frame = sess.render()
+    assert frame.stats["relit"]
+    relit = lr.relit_pixels(rec.spp, rec.n_pixels).reshape(frame.pixel_class.shape)
+    assert again.reshape(rec.spp, -1).all(axis=0).reshape(relit.shape)[relit].any()
+    base = Session(sess.scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
+    np.testing.assert_array_equal(frame.radiance[relit], base.radiance[relit])
+    check_bound(frame, sess.scene)

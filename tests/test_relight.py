@@ -63,10 +63,11 @@ def seen_pixels(sess, *lights) -> int:
     """Pixels of the kept frame an edit of a light from the first of ``lights`` to the last
     traces again: those whose samples saw a light's own surface, or whose view or mirror
     rays cross its boxes where rays see it (tracing/seen_lights.py: that radiance is in no
-    light term)."""
-    boxes = [seen_extent(li) for li in lights]
-    fx = EditEffects(seen_regions=[b for b in boxes if b is not None and b is not True],
-                     seen_sky=any(b is True for b in boxes))
+    light term; the view rays only where the camera sees it)."""
+    boxes = [(seen_extent(li), li.camera) for li in lights]
+    regions = [(b, c) for b, c in boxes if b is not None and b is not True]
+    fx = EditEffects(seen_regions=[b for b, _ in regions], seen_camera=[c for _, c in regions],
+                     seen_sky=any(b is True for b, _ in boxes))
     rec = sess.reuse.records
     return int(rec.dirty_pixels(sess.scene.arrays(), camera_params(sess.scene.camera),
                                 fx).sum())

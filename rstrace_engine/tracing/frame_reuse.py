@@ -195,7 +195,8 @@ class FrameReuse:
             if fx.seen_regions or fx.seen_sky or any_seen(old_sa) or any_seen(new_sa):
                 # a light's own surface seen is in no light term: those samples re-trace
                 self.dirty |= rec.dirty_pixels(old_sa, camera_params(camera), EditEffects(
-                    seen_regions=fx.seen_regions, seen_sky=fx.seen_sky))
+                    seen_regions=fx.seen_regions, seen_camera=fx.seen_camera,
+                    seen_sky=fx.seen_sky))
             report.relight = True
             report.full_frame = False
             report.dirty_pixels = int(np.count_nonzero(self.dirty))

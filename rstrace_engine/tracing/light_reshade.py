@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from ..accel.accelerators import Hits
 from ..geometry.scene import LIGHT_POINT, LIGHT_SPOT, SceneArrays
-from .batches import threads_for
+from .batches import TILE_RAYS, threads_for
 from .light_linking import occluded
 from .shader import _SH_TRACE, Surfaces, light_state
 from .shading import rough_interface
@@ -257,10 +257,11 @@ def relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit, c
     faced[rows] = state != -2
     on = np.zeros(len(rows), bool)
     nval = np.zeros((len(rows), 3))
-    # contiguous batches of the surface rows (views, no copies) as large as the
-    # shade kernel's dense terms (k, L + 2, 3) allow; the rows the light does not
-    # face trace no shadow ray and get no term
-    step = int(min(max((1 << 22) // (len(sa.light_kind) + 2), 1 << 14), 1 << 18))
+    # contiguous batches of the surface rows (views, no copies) of the tracer's tile size:
+    # their samples' arrays stay cache-sized (batches of 2^18 rows, 4 M samples, took
+    # 0.75-0.9 s of a studio move against 0.55 s); the rows the light does not face trace
+    # no shadow ray and get no term
+    step = TILE_RAYS
     keys = None if tiles is None else tile_keys(rows % tiles[0], tiles[1])
     for a in range(0, len(rows), step):
         sub = slice(a, min(a + step, len(rows)))

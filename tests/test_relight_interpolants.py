@@ -195,15 +195,40 @@ def test_shares_over_the_cap_fall_back_to_invalidation(cap_mb):
     check_bound(sess.render(), sess.scene)
 
 
-def test_a_moved_light_still_invalidates():
-    scene = _spheres()
-    sess = session(scene, True)
-    sess.render()
-    li = sess.scene.lights[sess.scene.light_slot("Key")]
-    rep = sess.apply([LightSet("Key", replace(
-        li, position=tuple(np.asarray(li.position) + (0.4, 0.0, 0.0))))])
-    assert rep.rescaled_interpolants == 0 and rep.invalidated_interpolants > 0
-    check_bound(sess.render(), sess.scene)
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_a_moved_light_invalidates_by_its_shafts_and_relights_the_traced_pixels(name):
+    """A moved (or resized) light: the interpolants its shafts reach are invalidated, as
+    before, none rescaled; the frame's traced samples shade that light again alone (as
+    BASE's, ``light_reshade``), so their pixels are relit, not traced again -- a fresh BASE
+    frame's bit for bit -- and the frame keeps the bound. A session without the records
+    re-traces them."""
+    make, key = SCENES[name]
+    scene = make()
+    new, old = session(scene, True), session(scene, False)
+    new.render()
+    old.render()
+    for offset in ((0.4, 0.0, 0.0), (-0.2, 0.3, 0.1)):
+        batch = []
+        for sess in (new, old):
+            li = sess.scene.lights[sess.scene.light_slot(key)]
+            batch.append([LightSet(key, replace(
+                li, position=tuple(np.asarray(li.position) + offset)))])
+        rep, rep_old = new.apply(batch[0]), old.apply(batch[1])
+        assert rep.relight and not rep_old.relight
+        assert rep.rescaled_interpolants == 0 and rep.invalidated_interpolants > 0
+        assert rep.dirty_pixels < rep_old.dirty_pixels
+        frame, frame_old = new.render(), old.render()
+        assert frame.stats["relit"]
+        assert frame.stats["relit_lights"] == [new.scene.light_slot(key)]
+        assert frame.stats["relight_shadow_rays"] > 0
+        assert frame.stats["traced_rays"] < frame_old.stats["traced_rays"]
+        lr, rec = new.reuse.light_records, new.reuse.records
+        relit = lr.relit_pixels(rec.spp, rec.n_pixels).reshape(frame.pixel_class.shape)
+        assert relit.mean() > 0.1
+        base = Session(new.scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
+        np.testing.assert_array_equal(frame.radiance[relit], base.radiance[relit])
+        check_bound(frame, new.scene)
+        check_bound(frame_old, old.scene)
 
 
 @pytest.mark.parametrize("name", sorted(SCENES))

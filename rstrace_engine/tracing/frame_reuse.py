@@ -302,13 +302,14 @@ class FrameReuse:
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
             return False
-        if self.light_records.partial and (fx.lights_moved or fx.world and not (
-                world_lights(old_sa) and world_lights(new_sa))):
-            # INTERPOLANT: a light's power or colour (its interpolants rescaled), the world's
-            # colour or strength while it lights (the interpolants leave its term out, the
-            # samples kept it apart); a moved light's shafts, a world that starts or stops
-            # lighting (every interpolant invalidated) and a background's colour (the
-            # pixels that show it) take the interpolants' path
+        if self.light_records.partial and fx.world and not (
+                world_lights(old_sa) and world_lights(new_sa)):
+            # INTERPOLANT: a light's power or colour (its interpolants rescaled), a moved
+            # light (its interpolants invalidated by its shafts; the traced samples shaded
+            # again, as BASE's), the world's colour or strength while it lights (the
+            # interpolants leave its term out, the samples kept it apart); a world that
+            # starts or stops lighting (every interpolant invalidated) and a background's
+            # colour (the pixels that show it) take the interpolants' path
             return False
         if fx.lights_moved and links_shadows(old_sa) != links_shadows(new_sa):
             # a moved (or relinked) light is shaded again with its links (its receivers

@@ -256,6 +256,31 @@ def test_light_edits_redraw_the_pixels_that_see_it(edit):
     print(edit, "relit", frame.stats.get("relit"), "traced pixels", frame.stats["traced_pixels"])
 
 
+def test_view_segments_dirty_only_where_the_camera_sees_the_light():
+    """BASE, a power edit of an area light: the pixels whose camera ray crosses its box are
+    re-traced only where camera rays see it (issue 21: studio's soft box, hidden from the
+    camera, re-traced every background pixel, 33% of the frame, on each power or colour
+    edit); mirror rays still see it: the ball's pixels whose mirror rays cross its box are
+    re-traced. Every frame a fresh session's, bit for bit."""
+    settings = RenderSettings(mode="BASE", max_depth=2, samples=1)
+    dirty = {}
+    for camera_seen in (True, False):
+        sess = Session(_stage(camera_seen), settings)
+        sess.light_terms = True
+        first = sess.render()
+        panel = sess.scene.lights[sess.scene.light_slot("Panel")]
+        rep = sess.apply([LightSet("Panel", replace(panel, power=120.0))])
+        assert rep.relight
+        dirty[camera_seen] = sess.dirty_mask
+        frame = sess.render()
+        np.testing.assert_array_equal(frame.radiance, _fresh(sess.scene, settings).radiance)
+        if camera_seen:  # the pixels that show the panel changed, and were re-traced
+            shown = np.abs(frame.radiance - first.radiance).max(axis=2) > 1.0
+            assert shown.sum() >= 10 and dirty[camera_seen][shown].all()
+    assert 0 < dirty[False].sum() < dirty[True].sum() / 2, (dirty[False].sum(),
+                                                            dirty[True].sum())
+
+
 def _panel_scene(glossy=True):
     """three_spheres and, between the camera and them, a panel facing the camera (it lights
     nothing the camera sees: everything is behind it)."""

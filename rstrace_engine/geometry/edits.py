@@ -171,6 +171,9 @@ class EditEffects:
     #: world boxes of the edited lights' own surfaces that rays see (old and new: the
     #: camera's, mirror and refraction rays crossing them change, tracing/seen_lights)
     seen_regions: list = field(default_factory=list)
+    #: per box of ``seen_regions``: camera rays see that light (else only mirror and
+    #: refraction rays do: the view segments cannot cross it)
+    seen_camera: list = field(default_factory=list)
     seen_sky: bool = False  # a sun with an angle that rays see changed: what misses changes
     #: the geometry-type edits' old and new objects apart: ``(box (2, 3), centre (3,),
     #: radius, tag)`` per visible one, its world box and a sphere holding its vertices (a
@@ -306,6 +309,7 @@ def _light_seen(fx: EditEffects, li: Light | None) -> None:
         fx.seen_sky = True
     else:
         fx.seen_regions.append(box)
+        fx.seen_camera.append(bool(li.camera))
 
 
 def _material_ids(scene: Scene, name: str, keys) -> list[int]:

@@ -195,7 +195,8 @@ class FrameReuse:
             if fx.seen_regions or fx.seen_sky or any_seen(old_sa) or any_seen(new_sa):
                 # a light's own surface seen is in no light term: those samples re-trace
                 self.dirty |= rec.dirty_pixels(old_sa, camera_params(camera), EditEffects(
-                    seen_regions=fx.seen_regions, seen_sky=fx.seen_sky))
+                    seen_regions=fx.seen_regions, seen_camera=fx.seen_camera,
+                    seen_sky=fx.seen_sky))
             report.relight = True
             report.full_frame = False
             report.dirty_pixels = int(np.count_nonzero(self.dirty))
@@ -305,13 +306,14 @@ class FrameReuse:
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
             return False
-        if self.light_records.partial and (fx.lights_moved or fx.world and not (
-                world_lights(old_sa) and world_lights(new_sa))):
-            # INTERPOLANT: a light's power or colour (its interpolants rescaled), the world's
-            # colour or strength while it lights (the interpolants leave its term out, the
-            # samples kept it apart); a moved light's shafts, a world that starts or stops
-            # lighting (every interpolant invalidated) and a background's colour (the
-            # pixels that show it) take the interpolants' path
+        if self.light_records.partial and fx.world and not (
+                world_lights(old_sa) and world_lights(new_sa)):
+            # INTERPOLANT: a light's power or colour (its interpolants rescaled), a moved
+            # light (its interpolants invalidated by its shafts; the traced samples shaded
+            # again, as BASE's), the world's colour or strength while it lights (the
+            # interpolants leave its term out, the samples kept it apart); a world that
+            # starts or stops lighting (every interpolant invalidated) and a background's
+            # colour (the pixels that show it) take the interpolants' path
             return False
         if fx.lights_moved and links_shadows(old_sa) != links_shadows(new_sa):
             # a moved (or relinked) light is shaded again with its links (its receivers

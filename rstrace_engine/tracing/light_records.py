@@ -471,6 +471,7 @@ class LightRecords:
         if self.overflow is not None:
             return
         self.ok[rays] = True
+        self._renewed(rays)
         self.widen(levels[0]["t_val"].shape[1] - 2)  # (a light slot added: re-traced)
         a = _level_arrays(levels, self.has_geometry)
         first = {key: x[:nb] for key, x in a.items()}
@@ -495,6 +496,7 @@ class LightRecords:
         if n == 0:
             return  # (nothing: the kept nodes are not merged again)
         self.ok[rays] = False
+        self._renewed(rays)
 
         def blank(k: int, primary: bool) -> _Part:
             geo = ({key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}
@@ -506,6 +508,15 @@ class LightRecords:
         self._pending_p.append((rays, blank(nb, True)))
         if n > nb:
             self._pending_s.append(blank(n - nb, False))
+
+    def _renewed(self, rays: np.ndarray) -> None:
+        """Samples ``rays`` are rendered again: their world terms kept by :meth:`set_world`
+        go (a sample's latest record wins). The interpolants' passes keep them again for
+        the samples they interpolate (after adding their records); any other renderer of
+        the samples -- the base tracer's frame that the measured fallback or a zero epsilon
+        chooses -- leaves them recombined from their light terms, as traced."""
+        if self.world is not None:
+            self.world.forget(rays)
 
     def add_misses(self, rays: np.ndarray) -> None:
         """Samples ``rays`` whose primary ray missed and was not traced (an INTERPOLANT

@@ -501,8 +501,13 @@ class PixelRecords:
             self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
                         combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
                         out)
-            seen = fx.seen_regions
-            if seen:  # the view and mirror segments crossing an edited light's surface
+            # the view and mirror segments crossing an edited light's surface (the view
+            # segments only where camera rays see it)
+            cam = list(fx.seen_camera) + [True] * (len(fx.seen_regions) - len(fx.seen_camera))
+            for view in (True, False):
+                seen = [b for b, c in zip(fx.seen_regions, cam, strict=True) if c == view]
+                if not seen:
+                    continue
                 lo = np.ascontiguousarray(np.stack(seen)[:, 0] - margin)
                 hi = np.ascontiguousarray(np.stack(seen)[:, 1] + margin)
                 none = np.zeros(len(combo_dirty), np.bool_)
@@ -511,7 +516,7 @@ class PixelRecords:
                 self._query(cp, none, none, inst64, no_lights, no_lights, origins, lo, hi,
                             np.ascontiguousarray(0.5 * (lo + hi)),
                             np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
-                            kind, pos, ldir, crossed)
+                            kind, pos, ldir, crossed, primary=view)
                 out |= crossed
             if soft:
                 wnorm, seed = self.p_wnorm, self.p_seed
@@ -542,15 +547,17 @@ class PixelRecords:
         return out, lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
-               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out) -> None:
+               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out, primary: bool = True
+               ) -> None:
         """The records' segments against the regions: primary nodes with ``combo_traced``
-        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`)."""
-        if cp.ortho:
+        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`); ``primary`` False:
+        the secondary nodes alone."""
+        if primary and cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
                            np.ascontiguousarray(origins), self.lo, self.step, self.levels,
                            self.shift, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out)
-        else:
+        elif primary:
             _query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                          np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
                          self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,

@@ -62,6 +62,10 @@ class WorldSamples:
         if self.stale > self.n - self.stale:
             self._compact()
 
+    def forget(self, rays: np.ndarray) -> None:
+        """Samples ``rays`` were rendered again without their world term kept."""
+        self.set(rays, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+
     def _compact(self) -> None:
         live = np.flatnonzero(self.row >= 0)
         r = self.row[live]

@@ -455,6 +455,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     import os
     import subprocess
     import sys
+    import tempfile
 
     import numba
 
@@ -474,11 +475,14 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
         env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in sys.path if p])
+    # The parts write to files, not pipes: this process reads nothing until they end, and a
+    # part whose warnings filled a pipe (64 KiB) would block on it forever.
+    logs = [(tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")) for _ in range(jobs)]
     procs = [subprocess.Popen(
         [exe, "-m", f"{__package__}", "warm-cache", "--json", "--jobs", "1",
          "--part", f"{k}/{jobs}", "--modes", *modes, "--accelerators", *accelerators]
         + ([] if soft else ["--no-soft-light"]),
-        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        env=env, stdin=subprocess.DEVNULL, stdout=logs[k][0], stderr=logs[k][1],
         text=True) for k in range(jobs)]
     kernels, shown, cancelled = render_kernels(), None, False
     outputs = {}
@@ -496,7 +500,12 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
             time.sleep(poll_s)
     finally:
         for k, p in enumerate(procs):
-            outputs[k] = p.communicate()
+            p.wait()
+            for f in logs[k]:
+                f.seek(0)
+            outputs[k] = tuple(f.read() for f in logs[k])
+            for f in logs[k]:
+                f.close()
     result = dict(kernel_cache.counts(), compiled=0, loaded=0, compiled_kernels={})
     failed = []
     for k, p in enumerate(procs):

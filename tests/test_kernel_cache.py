@@ -627,3 +627,37 @@ def test_two_processes_seeding_at_once(tmp_path):
     assert sorted(c["kernels"] + c["current"] for c in counts) == [2, 2]
     r = _run_pkg(installed, cache, NUMBA_CPU_NAME="generic")
     assert (r["compiled"], r["loaded"]) == (0, 2) and r["values"] == [3.0, 12.0]
+
+
+def test_parallel_warm_up_reads_parts_whose_report_outgrows_a_pipe(tmp_path, monkeypatch):
+    """A part's JSON report lists every signature it compiled: from a cold cache it grew past
+    a pipe's 64 KiB, and the parent, which read nothing until every part had ended, waited on
+    a part blocked writing it (the cold warm-cache test timing out). Each part here reports
+    200 KiB; the warm-up must finish and sum the parts."""
+    import signal
+
+    from rstrace_engine import warm_kernels
+
+    report = {"compiled": 3, "loaded": 2,
+              "compiled_kernels": {f"k{i}": ["x" * 200] for i in range(1000)}}
+    part = tmp_path / "part.py"
+    part.write_text(f"import json, sys\nsys.stderr.write('w' * 200000)\n"
+                    f"print(json.dumps({report!r}))\n")
+    exe = tmp_path / "python-part"  # stands for the Python that runs `-m rstrace_engine ...`
+    exe.write_text(f"#!/bin/sh\nexec {sys.executable} {part}\n")
+    exe.chmod(0o755)
+    monkeypatch.setattr(warm_kernels, "_python", lambda: str(exe))
+
+    def hang(*_):
+        raise TimeoutError("the warm-up waited on parts blocked on their output")
+
+    old = signal.signal(signal.SIGALRM, hang)
+    signal.alarm(60)
+    try:
+        out = warm_kernels.warm_parallel(jobs=2, modes=["BASE"], accelerators=["BVH"],
+                                         report_unreached=False, poll_s=0.05)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert out["jobs"] == 2 and out["compiled"] == 6 and out["loaded"] == 4
+    assert len(out["compiled_kernels"]["k0"]) == 2

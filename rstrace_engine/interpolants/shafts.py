@@ -155,14 +155,14 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-                      _closed_forms(sa), sa.tri_normals,
+                      closed_forms(sa), sa.tri_normals,
                       np.ascontiguousarray(sa.inst_nmat, np.float64),
                       np.ascontiguousarray(sa.inst_mat_start, np.int32),
                       np.ascontiguousarray(sa.inst_mat, np.int32),
                       np.ascontiguousarray(sa.tri_slot, np.int32), glossy_materials(sa))
 
 
-def _closed_forms(sa: SceneArrays) -> np.ndarray:
+def closed_forms(sa: SceneArrays) -> np.ndarray:
     """(L,) bool: lights whose unshadowed diffuse term the tracer takes from a closed form
     above the horizon (``soft_lights._row_exact``): a sphere that is not a spot, a sun with
     an angle, a rectangle (or square) without spread."""

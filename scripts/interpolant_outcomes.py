@@ -128,9 +128,15 @@ def main(argv=None) -> int:
                         "by the measured fallback)")
     p.add_argument("--no-world", action="store_true",
                    help="the world's colour as a background only (the world does not light)")
+    p.add_argument("--no-split", action="store_true",
+                   help="the lights' sampled terms not split off (interpolants.sampled_term."
+                        "PER_PIXEL off: their cells fail with soft_sampled, as before)")
     p.add_argument("--by-object", action="store_true",
                    help="also the outcomes' shares per object seen (by the object's name)")
     args = p.parse_args(argv)
+    if args.no_split:
+        from rstrace_engine.interpolants import sampled_term
+        sampled_term.PER_PIXEL = False
     res = pixel_outcomes(args.scene, args.epsilon, args.depth_cap, args.width, args.height,
                          fallback=not args.no_fallback, world=not args.no_world,
                          by_object=args.by_object)
@@ -149,14 +155,15 @@ def main(argv=None) -> int:
             objects[inst_names[i]] = {names[q]: round(float(c[q]), 4)
                                       for q in np.argsort(-c) if c[q] > 0}
     timing = {k: round(float(stats.get(k, 0.0)), 3) for k in (
-        "time_s", "visibility_s", "resolve_s", "build_s", "world_s", "trace_s")}
+        "time_s", "visibility_s", "resolve_s", "build_s", "world_s", "sampled_s", "trace_s")}
     counts = {k: int(stats.get(k, 0)) for k in (
         "traced_rays", "shadow_rays", "secondary_rays", "rough_interpolated",
         "cells_built", "cells_valid")}
     if args.json:
         sys.stdout.write(json.dumps(dict(scene=args.scene, epsilon=args.epsilon,
                                          depth_cap=args.depth_cap, world=not args.no_world,
-                                         fallback=not args.no_fallback, shares=shares,
+                                         fallback=not args.no_fallback,
+                                         split=not args.no_split, shares=shares,
                                          cell_outcomes=stats["cell_outcomes"],
                                          objects=objects, timing=timing,
                                          counts=counts)) + "\n")

@@ -83,6 +83,9 @@ def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     t1 = np.array(np.broadcast_to(np.asarray(tmax, np.float64), (n,))[rows])
     h = Hits(*(np.ascontiguousarray(np.asarray(a)[rows]) for a in hits))
     nr = len(rows)
+    # the world's rows are the world term's (world_term.py): not drawn here (every row's
+    # samples hash its own light and seed, so the others are the same without them)
+    sa = sa._replace(world_light=np.zeros_like(sa.world_light))
     surf = surfaces(sa, o, d, t1, h)
     need = (np.asarray(surf.sh_state).reshape(nr, L) == SH_SOFT) & (
         glossy_materials(sa)[m[rows]][:, None] | ~closed_forms(sa)[None, :])
@@ -93,15 +96,9 @@ def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     state = np.where(need.reshape(-1), np.int8(SH_SOFT), np.int8(0)).astype(np.int8)
 
     def occluded(oo, dd, tt, which):
-        # the world's rows (which < 0) are drawn too (soft_rays draws them while the
-        # world lights) but not used: no ray
-        res = np.ones(len(oo), np.bool_)
-        lit = np.flatnonzero(which >= 0)
-        if len(lit):
-            res[lit] = accel.any_hit(oo[lit], dd[lit], np.zeros(len(lit)), tt[lit])
-            if counters is not None:
-                counters["shadow"] = counters.get("shadow", 0) + len(lit)
-        return res
+        if counters is not None:
+            counters["shadow"] = counters.get("shadow", 0) + len(oo)
+        return accel.any_hit(oo, dd, np.zeros(len(oo)), tt)
 
     soft, srows, _ = soft_visibility(sa, surf, root, int(light_samples), state, occluded,
                                      None, np.ones(nr * L, np.bool_) if proven else None)

@@ -33,6 +33,10 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   (:func:`.soft_slab.soft_slab`), on a material without a glossy lobe (whose soft samples
   would be a Monte Carlo estimate). Then every shadow sample is unoccluded, the visibility ratio is
   exactly 1 and the pixel's value is the closed form: smooth, deterministic, interpolable.
+  While the sampled terms are traced per pixel (:mod:`.sampled_term`, the default), the
+  cache's query scene lifts the last two conditions (``light_closed`` for every light with
+  an extent, no ``mat_glossy``): what the tracer samples is added per pixel from its own
+  samples, and the horizon conditions are proven for every light with an extent.
   Otherwise ``light_shaft`` (penumbra or umbra: not proven), ``self_shadow`` or
   ``soft_sampled`` (a spot with a radius, a disk, an ellipse, a spread, a glossy surface, a
   light crossing the horizon). Not facing at the corners (``-2``): off everywhere when the

@@ -113,3 +113,36 @@ def test_no_sampled_rows_without_glossy_or_open_forms():
     sa, accel, o, d, tmin, tmax, hits, seeds = _lines(s)
     assert not sampled_possible(sa)
     assert not np.any(sampled_term(sa, accel, o, d, tmax, hits, seeds, SAMPLES, 0))
+
+
+def test_reprojected_samples_add_their_sampled_terms(monkeypatch):
+    """A camera step reprojects samples (no visibility ray) where no world lights; those on
+    an object with sampled rows trace their visibility ray for their sampled term
+    (``render._sampled_rows``), so the moved frame keeps the bound against BASE."""
+    from rstrace_engine import image
+    from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
+    from rstrace_engine.interpolants import interpolant_cache
+    from rstrace_engine.interpolants.render import InterpolantRenderer
+    from rstrace_engine.tracing import whitted
+
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    eps = 0.02
+    s = _floor(GLOSSY, [Light("L", "AREA", **RECT), SPHERE],
+               camera=Camera(matrix=shapes.look_at((0.5, -4.0, 3.0), (0.0, 0.0, 0.0)),
+                             lens=35.0, width=64, height=48))
+    accel = create_accelerator("BVH", s.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=7, light_samples=4,
+                        max_depth=2)
+    r = InterpolantRenderer()
+    r.auto_fallback = False
+    r.render(s, st, accel)
+    s.set_camera(Camera(matrix=shapes.look_at((0.55, -4.0, 3.0), (0.05, 0.0, 0.0)),
+                        lens=35.0, width=64, height=48))
+    frame = r.render(s, st, accel)
+    base = whitted.render(s, st, accel=accel)
+    err = np.abs(image.to_display(frame.radiance)
+                 - image.to_display(base.radiance)).max(axis=-1)
+    interp = frame.pixel_class == CLASS_INTERPOLATED
+    assert frame.stats["reprojected_fraction"] > 0.2, frame.stats["reprojected_fraction"]
+    assert interp.mean() > 0.3, interp.mean()
+    assert err.max() <= eps + 1e-6, err.max()

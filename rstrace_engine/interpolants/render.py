@@ -60,7 +60,7 @@ from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_po
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
-from .sampled_term import sampled_possible, sampled_term
+from .sampled_term import sampled_objects, sampled_possible, sampled_term
 from .world_term import keep_world, world_term
 
 log = logging.getLogger(__name__)
@@ -312,6 +312,33 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
     return False
 
 
+def _sampled_rows(cache, res, skip_rows, o, d, tmin, tmax, hits, rep, cancel):
+    """The interpolated samples that add their lights' sampled terms (:mod:`.sampled_term`)
+    and their hits: ``(rows, Hits)``. A reprojected sample (``rep`` (k,) bool or None) has no
+    hit: where its interpolant lies on an object that may have sampled rows (a glossy
+    material, or any object while a light without a closed form shines), its visibility ray
+    is traced here; the others keep the saving. ``skip_rows``: rows traced whole (or
+    None)."""
+    rows = np.flatnonzero(res.interpolated)
+    if skip_rows is not None:
+        rows = np.setdiff1d(rows, skip_rows)
+    h = _take(hits, rows)
+    if rep is not None and rep[rows].any():
+        back = rep[rows]
+        r = np.flatnonzero(back)
+        obj = cache.trees.arrays.tree[cache.pool.node[res.interpolant[rows[r]]]] // 6
+        r = r[sampled_objects(cache.sa)[obj]]
+        h.inst[back] = -1
+        if len(r):
+            c = rows[r]
+            with bound(cache.accel, cancel):
+                found = cache.accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
+            for dst, src in zip(h, found, strict=True):
+                dst[r] = src
+    keep = np.flatnonzero(h.inst >= 0)
+    return rows[keep], _take(h, keep)
+
+
 def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rep, interpolant, rad,
                  counters, records, gids, cancel, settings) -> bool:
     """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
@@ -470,13 +497,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # (world_term.py): it needs the hit, which a reprojected ray does not find
     world = world_lights(sa)
     # one whose lights with an extent are sampled at its root (a glossy surface, a light
-    # without a closed form) adds their sampled terms at its own hit (sampled_term.py)
+    # without a closed form) adds their sampled terms at its own hit (sampled_term.py): a
+    # reprojected one traces its visibility ray for it (_sampled_rows)
     sampled = sampled_possible(sa)
     # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
     # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
     rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
     camera_seen = any_seen(sa, (SEEN_CAMERA,))
-    view = cache.view if pixels is None and not (world or sampled) else None
+    view = cache.view if pixels is None and not world else None
     cache.view = None
     t_world = t_sampled = 0.0
     here = None
@@ -529,8 +557,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             rad_probe = np.zeros((k, 3))
             probe.pop("idx", None)
             hits, res, rep, skipped = _resolve_part(
-                cache, None if (world or sampled) else (view if s == 0 else here), cells,
-                s == 0, cp,
+                cache, None if world else (view if s == 0 else here), cells, s == 0, cp,
                 pix, o, d, tmin, tmax,
                 records is not None, cancel,
                 lambda hh, a=(o, d, tmin, tmax, gids, rad_probe): skip(hh, *a), budget)
@@ -544,11 +571,10 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 lrec = None
             if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
                 tw = time.perf_counter()
-                si = np.flatnonzero(res.interpolated & (hits.inst >= 0))
-                if "idx" in probe:
-                    si = np.setdiff1d(si, probe["idx"])
+                si, sh = _sampled_rows(cache, res, probe.get("idx"), o, d, tmin, tmax, hits,
+                                       rep, cancel)
                 res.radiance[si] += sampled_term(
-                    sa, cache.accel, o[si], d[si], tmax[si], _take(hits, si),
+                    sa, cache.accel, o[si], d[si], tmax[si], sh,
                     sample_seeds(gids[si], int(settings.seed)), int(settings.light_samples),
                     int(settings.max_depth), counters=counters)
                 t_sampled += time.perf_counter() - tw

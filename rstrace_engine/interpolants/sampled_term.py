@@ -48,10 +48,25 @@ def sampled_possible(sa) -> bool:
     light with an extent, and a glossy material or a light without a closed form)."""
     if not PER_PIXEL:
         return False
-    ext = np.asarray(sa.light_ext, np.bool_)
+    ext = np.asarray(sa.light_ext, np.bool_) & (np.asarray(sa.light_kind) >= 0)
     if not ext.any():
         return False
     return bool(glossy_materials(sa).any() or (ext & ~closed_forms(sa)).any())
+
+
+def sampled_objects(sa) -> np.ndarray:
+    """(n_instances,) bool: the objects whose hits may have sampled rows (a material with a
+    glossy lobe in one of their slots; every object while a light with an extent has no
+    closed form)."""
+    starts = np.asarray(sa.inst_mat_start, np.int64)
+    n = len(starts) - 1
+    ext = np.asarray(sa.light_ext, np.bool_) & (np.asarray(sa.light_kind) >= 0)
+    if (ext & ~closed_forms(sa)).any():
+        return np.ones(n, np.bool_)
+    owner = np.repeat(np.arange(n), np.diff(starts))  # each slot's object
+    out = np.zeros(n, np.bool_)
+    out[owner[glossy_materials(sa)[np.asarray(sa.inst_mat)]]] = True
+    return out
 
 
 def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,

@@ -71,10 +71,10 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
-from ..geometry.scene import LIGHT_AREA
+from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
-from .occluders import occluder_covers
+from .occluders import cone_umbra, occluder_covers
 from .shafts import (
     CONE_OFF,
     CONE_STEP,
@@ -89,6 +89,7 @@ from .shafts import (
     load_tri,
     mesh_candidates,
     other_geometry,
+    shaft_instances,
     to_object,
     tri_normal,
 )
@@ -426,7 +427,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behi
         occ = sm.node_occ[sm.node_start[s0] + row, j]
         if qs.light_ext[j]:
             r = _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand,
-                            P, Q, pl, bb, plo, bbo, named)
+                            P, Q, pl, bb, plo, bbo, named, pts, npts)
             if r != R_VALID:
                 return r
             continue
@@ -465,7 +466,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behi
 
 @njit(cache=True, nogil=True)
 def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand, P, Q, pl,
-                bb, plo, bbo, named):
+                bb, plo, bbo, named, pts, npts):
     """Light ``j`` with an extent at a ray-tree node whose points lie in box (lo, hi) on
     instance ``inst`` (see the module doc, "Soft light"). At the root:
 
@@ -477,7 +478,11 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
       cell: the Haines-Wallace shaft from the slab surface's box to the light's extent
       (:func:`.shafts.light_box`) holds no other object's triangle (``R_SHAFT``), and every
       triangle of the object in it faces every point of the extent, with no boundary edge
-      in it (``R_SELF``).
+      in it (``R_SELF``);
+    * or, for a sun, off over the whole cell: an umbra -- a closed convex object in the
+      shaft blocks every direction of its cone from every point of the cell's surface
+      (:func:`.occluders.cone_umbra`, from the hull ``pts[:npts]``), so every shadow sample
+      of every line is blocked and the light's value is 0.
 
     Below the root a light with an extent is not proven: ``R_SHAFT`` (the caller's
     ``tunnel_light``)."""
@@ -489,20 +494,49 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
         return R_FACING
     if occ != OCC_SOFT:
         return R_LIGHT  # (a sampled light never names an occluder)
-    if not quiet[j]:
-        return R_SOFT
-    if bfac[j]:
-        return R_SELF
+    sun = qs.light_kind[j] == LIGHT_SUN
+    if not sun:
+        if not quiet[j]:
+            return R_SOFT
+        if bfac[j]:
+            return R_SELF
     blo = np.empty(3)
     bhi = np.empty(3)
     light_box(qs, j, lo, hi, blo, bhi)
     npl = hw_shaft(lo, hi, blo, bhi, qs.slack, pl, bb)
     named[0] = inst
-    if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
-        return R_SHAFT
+    r = R_VALID
+    if not quiet[j]:
+        r = R_SOFT
+    elif bfac[j]:
+        r = R_SELF
+    elif other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+        r = R_SHAFT
+    if r != R_VALID:
+        if sun and _sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+            return R_VALID
+        return r
     if not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
         return R_SELF
     return R_VALID
+
+
+#: Objects in a sun's shaft tried as the one that hides it (:func:`_sun_umbra`).
+MAX_UMBRA_CANDIDATES = 8
+
+
+@njit(cache=True, nogil=True)
+def _sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+    """Is sun ``j`` hidden from every point of the hull ``pts[:npts]`` by one closed convex
+    object in its shaft ``pl`` (not ``named[0]``, the cell's own)?"""
+    if npts <= 0:
+        return False
+    ids = np.empty(MAX_UMBRA_CANDIDATES, np.int32)
+    n = shaft_instances(qs, pl, npl, bb, named, 1, plo, bbo, P, Q, ids)
+    for q in range(max(n, 0)):
+        if cone_umbra(qs, ids[q], j, pts, npts, pl, npl, bb, cand, P, Q):
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True)

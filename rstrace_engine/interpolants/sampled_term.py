@@ -12,6 +12,9 @@ term is (:mod:`.world_term`):
 * a *sampled row* is a (root, light) pair the tracer samples (``SH_SOFT``) where the root's
   material has a glossy lobe (:func:`.shafts.glossy_materials`) or the light has no closed
   form (:func:`.shafts.closed_forms`);
+* (a sun's rows trace their shadow rays: a valid cell proves a sun either fully visible
+  or hidden from every line -- an umbra, :func:`.occluders.cone_umbra` -- and the term
+  must follow which);
 * its *sampled term* is what the shade kernel adds for it less its closed-form diffuse
   part: with the closed form (the ratio estimator) ``sum_k V_k (f_k - k_d) w_k``, which the
   kernel computes exactly so when the row's closed form is set to 0 (the ratio term it adds
@@ -32,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..accel.accelerators import Hits
+from ..geometry.scene import LIGHT_SUN
 from ..tracing.soft_lights import SH_SOFT, node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
 from .samples import TEX_MISMATCH, hit_materials, textured_roots
@@ -77,7 +81,9 @@ def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     3), bounds ``tmax`` (n,) or a scalar, as the tracer was given them) with input-ray seeds
     ``seeds`` (n,) uint64 and ``light_samples`` per light, summed over the lights and times
     each light's radiance. ``proven``: every sample of a sampled row is visible (the
-    interpolated pixels of valid cells: no ray); else their shadow rays are traced
+    interpolated pixels of valid cells: no ray) but a sun's, which valid cells may prove
+    hidden instead (an umbra, :func:`.occluders.cone_umbra`): their rays are traced; else
+    every sampled row's shadow rays are traced
     (``counters["shadow"]``), which makes the term the tracer's wherever it is. ``max_depth``
     as the tracer's (a rough root's world samples light its diffuse part only; here it
     only keeps the shade kernel's inputs the tracer's). ``coefficient`` (n, L, 3), when
@@ -115,8 +121,12 @@ def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
             counters["shadow"] = counters.get("shadow", 0) + len(oo)
         return accel.any_hit(oo, dd, np.zeros(len(oo)), tt)
 
+    prov = None
+    if proven:  # a sun's rows are traced: a cell may prove it hidden instead (an umbra)
+        prov = np.ascontiguousarray(np.broadcast_to(
+            np.asarray(sa.light_kind) != LIGHT_SUN, (nr, L)).reshape(-1))
     soft, srows, _ = soft_visibility(sa, surf, root, int(light_samples), state, occluded,
-                                     None, np.ones(nr * L, np.bool_) if proven else None)
+                                     None, prov)
     # the closed form's share of a sampled row is left to the interpolants: 0 here, so
     # the kernel's ratio term adds k_d * 0 and the row's value is its glossy remainder
     lit = srows >= 0
@@ -142,8 +152,9 @@ def without_sampled(sa, accel, o: np.ndarray, d: np.ndarray, hits: Hits, rad: np
     :mod:`.relight`), when given, loses each light's sampled term too. The rows are taken
     as all visible (``proven``): a line with an occluded sample of a sampled row is in no
     valid cell (the shaft proof of every cell it belongs to fails), so its ``R'`` is never
-    interpolated. A textured root with a sampled term is flagged
-    :data:`~.samples.TEX_MISMATCH` (its texture split traces other samples)."""
+    interpolated; a sun's rows are traced (:func:`sampled_term`). A textured root with a
+    sampled term is flagged :data:`~.samples.TEX_MISMATCH` (its texture split traces other
+    samples)."""
     n = len(rad)
     L = len(sa.light_kind)
     coef = np.zeros((n, L, 3))

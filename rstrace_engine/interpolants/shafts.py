@@ -312,6 +312,49 @@ def other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
 
 
 @njit(cache=True, nogil=True)
+def shaft_instances(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q, out):
+    """The instances not in ``named[:n_named]`` with a triangle in the world shaft, into
+    ``out``: their number, or -1 when more than ``out`` holds (or the stack overflows)."""
+    stack = np.empty(_STACK, np.int32)
+    stack[0] = 0
+    sp = 1
+    n = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(2):
+            if box_out(pl, npl, bb, qs.top_bounds, node, c):
+                continue
+            ch = qs.top_child[node, c]
+            if ch >= 0:
+                if sp >= _STACK:
+                    return -1
+                stack[sp] = ch
+                sp += 1
+                continue
+            code = ~ch
+            start = code >> 3
+            for q in range(start, start + (code & 7)):
+                inst = qs.top_inst[q]
+                skip = False
+                for k in range(n_named):
+                    if named[k] == inst:
+                        skip = True
+                for k in range(n):
+                    if out[k] == inst:
+                        skip = True
+                if skip:
+                    continue
+                to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, npl, bb, plo, bbo)
+                if mesh_any(qs, qs.inst_mesh[inst], plo, npl, bbo, P, Q):
+                    if n >= out.shape[0]:
+                        return -1
+                    out[n] = inst
+                    n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
 def mesh_any(qs, m, plo, npl, bbo, P, Q):
     stack = np.empty(_STACK, np.int32)
     stack[0] = qs.mesh_root[m]

@@ -215,3 +215,35 @@ def test_sun_umbra_is_proven_and_keeps_the_bound(monkeypatch):
     r.auto_fallback = False
     frame = r.render(s, st, accel)
     assert (frame.pixel_class == CLASS_INTERPOLATED).mean() < 0.5 * shares[False]
+
+
+def test_moving_the_roof_invalidates_the_umbra(monkeypatch):
+    """An INTERPOLANT session over the skylight room: moving a roof slab (the gap opens,
+    sun falls where the umbra was proven) invalidates those cells through the sun's shafts;
+    the frame after the edit stays within epsilon of a fresh BASE frame."""
+    from rstrace_engine import image
+    from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
+    from rstrace_engine.geometry.edits import ObjectTransform
+    from rstrace_engine.interpolants import interpolant_cache
+    from rstrace_engine.session import Session
+    from rstrace_engine.tracing import whitted
+
+    monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    eps = 0.02
+    scene = _skylight_room(True)
+    st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=7, light_samples=4,
+                        max_depth=2)
+    sess = Session(scene, st)
+    first = sess.render()
+    assert (first.pixel_class == CLASS_INTERPOLATED).mean() > 0.2
+    slot = scene.instance_slot("RoofB")
+    m = scene.instances[slot]["matrix"].copy()
+    m[1, 3] += 1.0
+    sess.apply([ObjectTransform("RoofB", m)])
+    frame = sess.render()
+    moved = sess.scene
+    base = whitted.render(moved, st, accel=create_accelerator("BVH", moved.arrays()))
+    err = np.abs(image.to_display(frame.radiance)
+                 - image.to_display(base.radiance)).max(axis=-1)
+    assert err.max() <= eps + 1e-6, err.max()
+    assert (frame.pixel_class == CLASS_INTERPOLATED).mean() > 0.1

@@ -118,7 +118,7 @@ def test_no_sampled_rows_without_glossy_or_open_forms():
 def test_reprojected_samples_add_their_sampled_terms(monkeypatch):
     """A camera step reprojects samples (no visibility ray) where no world lights; those on
     an object with sampled rows trace their visibility ray for their sampled term
-    (``render._sampled_rows``), so the moved frame keeps the bound against BASE."""
+    (``sampled_term.add_sampled_terms``), so the moved frame keeps the bound against BASE."""
     from rstrace_engine import image
     from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
     from rstrace_engine.interpolants import interpolant_cache

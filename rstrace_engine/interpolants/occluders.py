@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
-from .shafts import MAX_PLANES, mesh_candidates, to_object, tri_normal
+from .shafts import MAX_PLANES, mesh_candidates, shaft_instances, to_object, tri_normal
 
 #: Seeds tried (triangles whose plane may hold the projection) before giving up.
 MAX_SEEDS = 48
@@ -389,3 +389,21 @@ def cone_umbra(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
                                  dz * f, 1.0):
                 return False
     return True
+
+
+#: Objects in a sun's shaft tried as the one that hides it (:func:`sun_umbra`).
+MAX_UMBRA_CANDIDATES = 8
+
+
+@njit(cache=True, nogil=True)
+def sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+    """Is sun ``j`` hidden from every point of the hull ``pts[:npts]`` by one closed convex
+    object in its shaft ``pl`` (not ``named[0]``, the cell's own)?"""
+    if npts <= 0:
+        return False
+    ids = np.empty(MAX_UMBRA_CANDIDATES, np.int32)
+    n = shaft_instances(qs, pl, npl, bb, named, 1, plo, bbo, P, Q, ids)
+    for q in range(max(n, 0)):
+        if cone_umbra(qs, ids[q], j, pts, npts, pl, npl, bb, cand, P, Q):
+            return True
+    return False

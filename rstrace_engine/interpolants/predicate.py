@@ -74,7 +74,7 @@ from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
-from .occluders import cone_umbra, occluder_covers
+from .occluders import occluder_covers, sun_umbra
 from .shafts import (
     CONE_OFF,
     CONE_STEP,
@@ -89,7 +89,6 @@ from .shafts import (
     load_tri,
     mesh_candidates,
     other_geometry,
-    shaft_instances,
     to_object,
     tri_normal,
 )
@@ -481,7 +480,7 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
       in it (``R_SELF``);
     * or, for a sun, off over the whole cell: an umbra -- a closed convex object in the
       shaft blocks every direction of its cone from every point of the cell's surface
-      (:func:`.occluders.cone_umbra`, from the hull ``pts[:npts]``), so every shadow sample
+      (:func:`.occluders.sun_umbra`, from the hull ``pts[:npts]``), so every shadow sample
       of every line is blocked and the light's value is 0.
 
     Below the root a light with an extent is not proven: ``R_SHAFT`` (the caller's
@@ -513,30 +512,12 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
     elif other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
         r = R_SHAFT
     if r != R_VALID:
-        if sun and _sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+        if sun and sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
             return R_VALID
         return r
     if not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
         return R_SELF
     return R_VALID
-
-
-#: Objects in a sun's shaft tried as the one that hides it (:func:`_sun_umbra`).
-MAX_UMBRA_CANDIDATES = 8
-
-
-@njit(cache=True, nogil=True)
-def _sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
-    """Is sun ``j`` hidden from every point of the hull ``pts[:npts]`` by one closed convex
-    object in its shaft ``pl`` (not ``named[0]``, the cell's own)?"""
-    if npts <= 0:
-        return False
-    ids = np.empty(MAX_UMBRA_CANDIDATES, np.int32)
-    n = shaft_instances(qs, pl, npl, bb, named, 1, plo, bbo, P, Q, ids)
-    for q in range(max(n, 0)):
-        if cone_umbra(qs, ids[q], j, pts, npts, pl, npl, bb, cand, P, Q):
-            return True
-    return False
 
 
 @njit(cache=True, nogil=True)

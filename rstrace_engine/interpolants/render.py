@@ -60,7 +60,7 @@ from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_po
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
-from .sampled_term import sampled_objects, sampled_possible, sampled_term
+from .sampled_term import add_sampled_terms, sampled_possible
 from .world_term import keep_world, world_term
 
 log = logging.getLogger(__name__)
@@ -312,33 +312,6 @@ def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, r
     return False
 
 
-def _sampled_rows(cache, res, skip_rows, o, d, tmin, tmax, hits, rep, cancel):
-    """The interpolated samples that add their lights' sampled terms (:mod:`.sampled_term`)
-    and their hits: ``(rows, Hits)``. A reprojected sample (``rep`` (k,) bool or None) has no
-    hit: where its interpolant lies on an object that may have sampled rows (a glossy
-    material, or any object while a light without a closed form shines), its visibility ray
-    is traced here; the others keep the saving. ``skip_rows``: rows traced whole (or
-    None)."""
-    rows = np.flatnonzero(res.interpolated)
-    if skip_rows is not None:
-        rows = np.setdiff1d(rows, skip_rows)
-    h = _take(hits, rows)
-    if rep is not None and rep[rows].any():
-        back = rep[rows]
-        r = np.flatnonzero(back)
-        obj = cache.trees.arrays.tree[cache.pool.node[res.interpolant[rows[r]]]] // 6
-        r = r[sampled_objects(cache.sa)[obj]]
-        h.inst[back] = -1
-        if len(r):
-            c = rows[r]
-            with bound(cache.accel, cancel):
-                found = cache.accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
-            for dst, src in zip(h, found, strict=True):
-                dst[r] = src
-    keep = np.flatnonzero(h.inst >= 0)
-    return rows[keep], _take(h, keep)
-
-
 def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rep, interpolant, rad,
                  counters, records, gids, cancel, settings) -> bool:
     """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
@@ -496,10 +469,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # while the world lights, an interpolated pixel traces the world's term at its own hit
     # (world_term.py): it needs the hit, which a reprojected ray does not find
     world = world_lights(sa)
-    # one whose lights with an extent are sampled at its root (a glossy surface, a light
-    # without a closed form) adds their sampled terms at its own hit (sampled_term.py): a
-    # reprojected one traces its visibility ray for it (_sampled_rows)
-    sampled = sampled_possible(sa)
+    sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
     # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
     # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
     rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
@@ -570,14 +540,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             if lrec is not None and not lrec.partial:
                 lrec = None
             if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
-                tw = time.perf_counter()
-                si, sh = _sampled_rows(cache, res, probe.get("idx"), o, d, tmin, tmax, hits,
-                                       rep, cancel)
-                res.radiance[si] += sampled_term(
-                    sa, cache.accel, o[si], d[si], tmax[si], sh,
-                    sample_seeds(gids[si], int(settings.seed)), int(settings.light_samples),
-                    int(settings.max_depth), counters=counters)
-                t_sampled += time.perf_counter() - tw
+                t_sampled += add_sampled_terms(cache, res, probe.get("idx"), o, d, tmin, tmax,
+                                               hits, rep, gids, settings, counters, cancel)
             if world:  # the world's term, per pixel, where cells interpolated
                 tw = time.perf_counter()
                 wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))

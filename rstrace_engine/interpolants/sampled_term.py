@@ -32,9 +32,12 @@ the pixel's error is that of ``R'`` alone. The closed-form diffuse part ``k_d E`
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..accel.accelerators import Hits
+from ..cancel import bound
 from ..geometry.scene import LIGHT_SUN
 from ..tracing.soft_lights import SH_SOFT, node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
@@ -170,3 +173,42 @@ def without_sampled(sa, accel, o: np.ndarray, d: np.ndarray, hits: Hits, rad: np
     if share is not None:
         share -= coef
     return np.asarray(rad, np.float64) - s, flag
+
+
+def add_sampled_terms(cache, res, skip_rows, o, d, tmin, tmax, hits: Hits, rep, gids,
+                      settings, counters: dict, cancel=None) -> float:
+    """A frame pass's interpolated samples (``res``, :mod:`.render`'s resolved part: rays
+    ``o, d`` within ``tmin, tmax``, hits ``hits``, global sample ids ``gids``) add their
+    lights' sampled terms to ``res.radiance``, with ``settings``' seed, Light Samples and ray
+    depth; ``skip_rows`` (or None): rows traced whole. A reprojected sample (``rep`` (k,)
+    bool or None) has no hit: where its interpolant lies on an object that may have sampled
+    rows (:func:`sampled_objects`) its visibility ray is traced here; the others keep the
+    saving. Returns the seconds it took."""
+    t0 = time.perf_counter()
+    rows = np.flatnonzero(res.interpolated)
+    if skip_rows is not None:
+        rows = np.setdiff1d(rows, skip_rows)
+    h = _take(hits, rows)
+    if rep is not None and rep[rows].any():
+        back = rep[rows]
+        r = np.flatnonzero(back)
+        obj = cache.trees.arrays.tree[cache.pool.node[res.interpolant[rows[r]]]] // 6
+        r = r[sampled_objects(cache.sa)[obj]]
+        h.inst[back] = -1
+        if len(r):
+            c = rows[r]
+            with bound(cache.accel, cancel):
+                found = cache.accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
+            for dst, src in zip(h, found, strict=True):
+                dst[r] = src
+    keep = np.flatnonzero(h.inst >= 0)
+    rows = rows[keep]
+    res.radiance[rows] += sampled_term(
+        cache.sa, cache.accel, o[rows], d[rows], tmax[rows], _take(h, keep),
+        sample_seeds(gids[rows], int(settings.seed)), int(settings.light_samples),
+        int(settings.max_depth), counters=counters)
+    return time.perf_counter() - t0
+
+
+def _take(h: Hits, idx: np.ndarray) -> Hits:
+    return Hits(h.t[idx], h.inst[idx], h.prim[idx], h.u[idx], h.v[idx])

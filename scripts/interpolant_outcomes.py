@@ -55,12 +55,19 @@ COLOURS = {
 }
 
 
-def pixel_outcomes(name: str, epsilon: float, depth_cap: int, width: int, height: int):
-    """(h, w) int array of indices into ``OUTCOMES + EXTRA``, the frame's stats."""
+def pixel_outcomes(name: str, epsilon: float, depth_cap: int, width: int, height: int,
+                   fallback: bool = True, world: bool = True, by_object: bool = False):
+    """(h, w) int array of indices into ``OUTCOMES + EXTRA``, the frame's stats; with
+    ``by_object`` also the (h, w) instance seen (-1: none) and the instances' names.
+    ``fallback=False`` builds cells wherever they may be (no build budget);
+    ``world=False`` keeps the world's colour as a background only (no world light)."""
     sc = scenes.build(name, width, height)
+    if not world:
+        sc.set_world_color(tuple(sc.world_color), lights=False)
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=epsilon, depth_cap=depth_cap).validated()
     r = InterpolantRenderer()
+    r.auto_fallback = fallback
     cache, _ = r.prepare(sc.arrays(), st, accel)
     cache.outcome_log = []
     frame = r.render(sc, st, accel)
@@ -98,7 +105,13 @@ def pixel_outcomes(name: str, epsilon: float, depth_cap: int, width: int, height
         out[todo[k]] = res
     grid = np.empty(cp.width * cp.height, np.int64)
     grid[pix] = out
-    return grid.reshape(cp.height, cp.width), frame.stats
+    grid = grid.reshape(cp.height, cp.width)
+    if not by_object:
+        return grid, frame.stats
+    seen = np.full(cp.width * cp.height, -1, np.int64)
+    seen[pix] = hits.inst
+    names = [(i or {}).get("name", "?") for i in sc.instances]
+    return grid, frame.stats, seen.reshape(cp.height, cp.width), names
 
 
 def main(argv=None) -> int:
@@ -110,16 +123,50 @@ def main(argv=None) -> int:
     p.add_argument("--height", type=int, default=480)
     p.add_argument("--out", default="", help="PNG of the per-pixel outcome")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--no-fallback", action="store_true",
+                   help="build cells wherever they may be (no build budget, nothing traced "
+                        "by the measured fallback)")
+    p.add_argument("--no-world", action="store_true",
+                   help="the world's colour as a background only (the world does not light)")
+    p.add_argument("--no-split", action="store_true",
+                   help="the lights' sampled terms not split off (interpolants.sampled_term."
+                        "PER_PIXEL off: their cells fail with soft_sampled, as before)")
+    p.add_argument("--by-object", action="store_true",
+                   help="also the outcomes' shares per object seen (by the object's name)")
     args = p.parse_args(argv)
-    grid, stats = pixel_outcomes(args.scene, args.epsilon, args.depth_cap, args.width,
-                                 args.height)
+    if args.no_split:
+        from rstrace_engine.interpolants import sampled_term
+        sampled_term.PER_PIXEL = False
+    res = pixel_outcomes(args.scene, args.epsilon, args.depth_cap, args.width, args.height,
+                         fallback=not args.no_fallback, world=not args.no_world,
+                         by_object=args.by_object)
+    grid, stats = res[0], res[1]
     names = (*OUTCOMES, *EXTRA)
     n = np.bincount(grid.reshape(-1), minlength=len(names)) / grid.size
     shares = {names[i]: round(float(n[i]), 4) for i in np.argsort(-n) if n[i] > 0}
+    objects = {}
+    if args.by_object:
+        seen, inst_names = res[2], res[3]
+        for i in np.unique(seen):
+            if i < 0:
+                continue
+            m = seen == i
+            c = np.bincount(grid[m], minlength=len(names)) / grid.size
+            objects[inst_names[i]] = {names[q]: round(float(c[q]), 4)
+                                      for q in np.argsort(-c) if c[q] > 0}
+    timing = {k: round(float(stats.get(k, 0.0)), 3) for k in (
+        "time_s", "visibility_s", "resolve_s", "build_s", "world_s", "sampled_s", "trace_s")}
+    counts = {k: int(stats.get(k, 0)) for k in (
+        "traced_rays", "shadow_rays", "secondary_rays", "rough_interpolated",
+        "cells_built", "cells_valid")}
     if args.json:
         sys.stdout.write(json.dumps(dict(scene=args.scene, epsilon=args.epsilon,
-                                         depth_cap=args.depth_cap, shares=shares,
-                                         cell_outcomes=stats["cell_outcomes"])) + "\n")
+                                         depth_cap=args.depth_cap, world=not args.no_world,
+                                         fallback=not args.no_fallback,
+                                         split=not args.no_split, shares=shares,
+                                         cell_outcomes=stats["cell_outcomes"],
+                                         objects=objects, timing=timing,
+                                         counts=counts)) + "\n")
     else:
         for k, v in shares.items():
             sys.stdout.write(f"{k:18s} {100 * v:5.1f}%  colour "

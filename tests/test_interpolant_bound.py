@@ -330,27 +330,64 @@ def test_world_term_is_the_tracers():
 
 
 
-@pytest.mark.parametrize("light", ["disk", "ellipse", "spread", "spot", "glossy"])
-def test_sampled_soft_light_is_traced(light):
-    """Where the tracer's value of a fully visible light is itself a Monte Carlo estimate
-    -- a disk or an ellipse, an area light with a spread, a spot with a radius (no closed
-    form), a glossy lobe under any light with an extent -- the pixels carry sampling noise
-    no interpolant reproduces: those cells fail (``soft_sampled``) and the frame is BASE's."""
+def _sampled_light_floor(light: str) -> Scene:
+    """An open floor (glossy for ``light == "glossy"``) under one light with an extent whose
+    fully visible value the tracer samples: a disk, an ellipse, a spread, a spot with a
+    radius (no closed form), or a rectangle over a glossy lobe; and a sphere light."""
     s = Scene()
     mat = Material("gloss", diffuse=(0.5, 0.5, 0.5), specular=(0.2,) * 3, roughness=0.3) \
         if light == "glossy" else Material("grey", diffuse=(0.6, 0.6, 0.6))
     s.add_instance(s.add_mesh(shapes.plane(30.0, name="floor")), np.eye(4),
                    [s.add_material(mat)], "Floor")
-    area = dict(power=300.0, position=(0.3, -0.2, 2.0), direction=(0.0, 0.0, -1.0),
+    area = dict(power=40.0, position=(0.3, -0.2, 2.0), direction=(0.0, 0.0, -1.0),
                 size=(1.5, 0.7))
     s.add_light(dict(
         disk=Light("L", "AREA", shape="DISK", **area),
         ellipse=Light("L", "AREA", shape="ELLIPSE", **area),
         spread=Light("L", "AREA", shape="RECTANGLE", spread=2.5, **area),
-        spot=Light("L", "SPOT", power=300.0, position=(0.0, 0.0, 3.0),
+        spot=Light("L", "SPOT", power=60.0, position=(0.0, 0.0, 3.0),
                    direction=(0.0, 0.0, -1.0), spot_size=2.5, radius=0.3),
         glossy=Light("L", "AREA", shape="RECTANGLE", **area))[light])
+    # and a sphere light with a closed form: what the cells interpolate
+    s.add_light(Light("K", "POINT", power=30.0, position=(-1.0, 0.6, 2.5), radius=0.2))
     s.set_camera(ortho_down(scale=3.0, width=64, rows=48))
+    return s
+
+
+@pytest.mark.parametrize("light", ["disk", "ellipse", "spread", "spot", "glossy"])
+def test_sampled_soft_light_is_interpolated_with_its_samples_per_pixel(light):
+    """Where the tracer's value of a fully visible light is itself a Monte Carlo estimate
+    -- a disk or an ellipse, an area light with a spread, a spot with a radius (no closed
+    form), a glossy lobe under any light with an extent -- the pixels carry sampling noise
+    no interpolant reproduces: that sampled term is traced per pixel
+    (``sampled_term.py``, no shadow ray: the cell proves the light fully visible) and the
+    rest interpolated. The maximum error stays within epsilon, and most of the open floor
+    is interpolated (none was before: ``soft_sampled``)."""
+    s = _sampled_light_floor(light)
+    accel = create_accelerator("BVH", s.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, depth_cap=6, light_samples=4)
+    r = InterpolantRenderer()
+    frame = r.render(s, st, accel)
+    base = whitted.render(s, st, accel=accel)
+    err = display_error(frame.radiance, base.radiance)
+    interp = frame.pixel_class == CLASS_INTERPOLATED
+    print(light, "interpolated", interp.mean(), "max error", err.max(),
+          "radiance", base.radiance.min(), base.radiance.max())
+    assert interp.mean() > 0.3, (light, interp.mean(), r.cache.frame_stats["reasons"])
+    assert np.all(err[~interp] == 0.0)
+    assert err.max() <= EPS + FLOAT_TOL, (light, err.max())
+    # the sampled term is noise that interpolation alone could not follow: without it
+    # added per pixel those pixels would be off (the test would not fail otherwise)
+    assert frame.stats["sampled_s"] > 0.0
+
+
+@pytest.mark.parametrize("light", ["spot", "glossy"])
+def test_sampled_soft_light_fails_its_cells_with_the_split_off(light, monkeypatch):
+    """With the sampled terms not split off (``sampled_term.PER_PIXEL`` off, the mode as
+    before) those cells fail (``soft_sampled``) and the frame is BASE's."""
+    from rstrace_engine.interpolants import sampled_term
+    monkeypatch.setattr(sampled_term, "PER_PIXEL", False)
+    s = _sampled_light_floor(light)
     accel = create_accelerator("BVH", s.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, depth_cap=6, light_samples=4)
     r = InterpolantRenderer()

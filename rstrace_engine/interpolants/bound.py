@@ -24,10 +24,12 @@ NOTE_SECONDARY = ("epsilon is tested, not proven, for interpolated pixels whose 
 #: Lights with an extent: what is interpolated under them, and what is traced.
 NOTE_SOFT = ("lights with an extent (area, sphere, sun with an angle) are interpolated only "
              "where a cell proves them fully visible (an empty shaft to the whole extent) "
-             "or off, and the tracer's value is their closed form there (a Lambertian "
-             "surface under a sphere, a sun or a rectangle); penumbrae, spot lights with a "
-             "radius, disks, ellipses, spreads and glossy surfaces are traced, exactly as "
-             "the base tracer")
+             "or off (facing away, or a sun hidden by one convex object); there their "
+             "closed-form diffuse part is interpolated, and what the "
+             "tracer samples -- a glossy surface's highlight, a spot with a radius, a disk, "
+             "an ellipse, a spread -- is added per pixel from the base tracer's own samples "
+             "(no shadow ray: the proof says each is visible); penumbrae are traced, exactly "
+             "as the base tracer")
 #: The world's light: traced per pixel, the other lights interpolated.
 NOTE_WORLD = ("the world's light is traced per pixel: every interpolated pixel adds the "
               "world's term at its own hit, from the base tracer's own samples (occlusion "

@@ -83,6 +83,7 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
+from .sampled_term import sampled_possible
 from .samples import (
     GLOSSY,
     SEES_LIGHT,
@@ -268,8 +269,16 @@ class InterpolantCache:
 
     @cached_property
     def qs(self):
-        """The predicate's query structures (:func:`.shafts.query_scene`)."""
-        return query_scene(self.sa, self.topo)
+        """The predicate's query structures (:func:`.shafts.query_scene`). While the
+        sampled terms of lights with an extent are traced per pixel
+        (:mod:`.sampled_term`), a fully visible light needs no closed form and no
+        Lambertian surface over a cell: only the horizon conditions of
+        :func:`.soft_slab.soft_slab` (its closed form's, when it has one)."""
+        qs = query_scene(self.sa, self.topo)
+        if sampled_possible(self.sa):
+            qs = qs._replace(light_closed=np.ascontiguousarray(qs.light_ext, np.bool_),
+                             mat_glossy=np.zeros_like(qs.mat_glossy))
+        return qs
 
     @property
     def tex_max(self) -> np.ndarray:

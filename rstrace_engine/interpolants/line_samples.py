@@ -7,7 +7,8 @@ object facing it (geometry only, ``intersect_object``), what the cheap tests of 
 need; :func:`shade_lines` traces the lines that pass them through the whole scene, with
 ray trees, into the cache's :class:`~.samples.SampleStore`: a rough root's own light only
 (its glossy rays are traced per pixel, :mod:`.glossy_term`), the world's term left out while
-the world lights (:mod:`.world_term`), textures split off (:func:`~.samples.texture_split`)
+the world lights (:mod:`.world_term`), so are the sampled terms of lights with an extent
+(:mod:`.sampled_term`), textures split off (:func:`~.samples.texture_split`)
 and, when light edits are kept, each light's share (:mod:`.relight`).
 """
 
@@ -19,9 +20,11 @@ import numpy as np
 from numba import njit
 
 from ..accel.accelerators import Hits
+from ..frame import LIGHT_SAMPLES_DEFAULT
 from ..tracing.whitted import trace
 from .linetree import lattice_lines
 from .relight import sample_shares
+from .sampled_term import sampled_possible, without_sampled
 from .samples import (
     LineCrossings,
     facing,
@@ -143,6 +146,9 @@ def shade_lines(cache, k1: np.ndarray, k2: np.ndarray, geo: LineCrossings) -> np
         rad, flag = without_world(cache.sa, cache.accel, geo.o[ug], geo.d[ug], hits, rad,
                                   dif, flag, cache.max_depth)
     share, shared = sample_shares(cache.sa, segs, hits, flag) if keep else (None, None)
+    if sampled_possible(cache.sa):  # lights' sampled terms: per pixel (sampled_term.py)
+        rad, flag = without_sampled(cache.sa, cache.accel, geo.o[ug], geo.d[ug], hits, rad,
+                                    dif, flag, cache.max_depth, LIGHT_SAMPLES_DEFAULT, share)
     new = cache.samples.add(geo.keys.k1[ug], geo.keys.k2[ug], rad, li, geo.cls[ug], depth,
                            tree, node_cls.astype(np.int32), dif, texel, flag, share,
                            shared)

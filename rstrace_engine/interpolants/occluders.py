@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
-from .shafts import MAX_PLANES, mesh_candidates, to_object, tri_normal
+from .shafts import MAX_PLANES, mesh_candidates, shaft_instances, to_object, tri_normal
 
 #: Seeds tried (triangles whose plane may hold the projection) before giving up.
 MAX_SEEDS = 48
@@ -303,5 +303,107 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
         # a partition of the hull sums to its area; more means overlapping triangles
         # (duplicated faces), which prove nothing
         if area * (1.0 - tol.COVER_AREA_REL) <= covered <= area * (1.0 + tol.COVER_AREA_REL):
+            return True
+    return False
+
+
+#: Largest sun half angle the cone umbra proof takes (its square cone's corners at tan h).
+CONE_UMBRA_MAX_HALF = 1.2
+
+
+@njit(cache=True, nogil=True)
+def cone_umbra(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
+    """Does closed convex instance ``b`` block sun ``j`` -- every direction of its cone --
+    from every point of the convex hull of world points ``pts[:npts]``? ``pl``/``npl``/
+    ``bb``: the shaft from there to the sun's cone (world).
+
+    For a point outside a convex body the directions whose rays meet it form a convex cone,
+    and for a direction the points whose rays meet it form a convex set. So the rays from
+    the hull's vertices along the four corner directions of a square cone that holds the
+    sun's circular cone (``axis + tan(h) (+-u +-v)``) all crossing ``b`` prove every ray
+    from the hull in the sun's cone crosses it: every shadow sample of the sun is blocked
+    (its value 0 in the tracer, the ratio estimator's sums both over no visible sample)."""
+    if b < 0 or qs.light_kind[j] != LIGHT_SUN or npts <= 0:
+        return False
+    if not qs.mesh_convex[qs.inst_mesh[b]]:
+        return False
+    h = qs.light_half[j]
+    if not 0.0 <= h < CONE_UMBRA_MAX_HALF:
+        return False
+    xf = qs.inst_xform[b]
+    inv = qs.inst_inv[b]
+    plo = np.empty((MAX_PLANES, 4))
+    bbo = np.empty(6)
+    to_object(xf, inv, pl, npl, bb, plo, bbo)
+    nc = mesh_candidates(qs, qs.inst_mesh[b], plo, npl, bbo, cand, P, Q)
+    if nc <= 0:
+        return False
+    n = npts
+    X = np.empty((n, 3))
+    for c in range(n):
+        for k in range(3):
+            X[c, k] = (inv[k, 0] * pts[c, 0] + inv[k, 1] * pts[c, 1] + inv[k, 2] * pts[c, 2]
+                       + inv[k, 3])
+    far = 0.0
+    for c in range(n):
+        for k in range(3):
+            far = max(far, abs(X[c, k]))
+    for q in range(nc):
+        for k in range(9):
+            far = max(far, abs(qs.tv[cand[q], k]))
+    # the axis toward the sun and a basis across it (world)
+    ax, ay, az = -qs.light_dir[j, 0], -qs.light_dir[j, 1], -qs.light_dir[j, 2]
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    if not la > 0.0:
+        return False
+    ax /= la
+    ay /= la
+    az /= la
+    if abs(ax) < 0.9:
+        ux, uy, uz = 0.0, az, -ay
+    else:
+        ux, uy, uz = -az, 0.0, ax
+    lu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux /= lu
+    uy /= lu
+    uz /= lu
+    vx = ay * uz - az * uy
+    vy = az * ux - ax * uz
+    vz = ax * uy - ay * ux
+    tn = math.tan(h) * (1.0 + tol.COVER_AREA_REL) + tol.COVER_PLANE_REL
+    for k in range(4):
+        su = tn if k & 1 else -tn
+        sv = tn if k & 2 else -tn
+        wx = ax + su * ux + sv * vx
+        wy = ay + su * uy + sv * vy
+        wz = az + su * uz + sv * vz
+        dx = inv[0, 0] * wx + inv[0, 1] * wy + inv[0, 2] * wz
+        dy = inv[1, 0] * wx + inv[1, 1] * wy + inv[1, 2] * wz
+        dz = inv[2, 0] * wx + inv[2, 1] * wy + inv[2, 2] * wz
+        ld = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not ld > 0.0:
+            return False
+        f = 4.0 * (far + 1.0) / ld
+        for c in range(n):
+            if not _segment_hits(qs, cand, nc, X[c, 0], X[c, 1], X[c, 2], dx * f, dy * f,
+                                 dz * f, 1.0):
+                return False
+    return True
+
+
+#: Objects in a sun's shaft tried as the one that hides it (:func:`sun_umbra`).
+MAX_UMBRA_CANDIDATES = 8
+
+
+@njit(cache=True, nogil=True)
+def sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+    """Is sun ``j`` hidden from every point of the hull ``pts[:npts]`` by one closed convex
+    object in its shaft ``pl`` (not ``named[0]``, the cell's own)?"""
+    if npts <= 0:
+        return False
+    ids = np.empty(MAX_UMBRA_CANDIDATES, np.int32)
+    n = shaft_instances(qs, pl, npl, bb, named, 1, plo, bbo, P, Q, ids)
+    for q in range(max(n, 0)):
+        if cone_umbra(qs, ids[q], j, pts, npts, pl, npl, bb, cand, P, Q):
             return True
     return False

@@ -33,6 +33,10 @@ What a valid cell guarantees (see docs/INTERPOLANTS.md for the argument):
   (:func:`.soft_slab.soft_slab`), on a material without a glossy lobe (whose soft samples
   would be a Monte Carlo estimate). Then every shadow sample is unoccluded, the visibility ratio is
   exactly 1 and the pixel's value is the closed form: smooth, deterministic, interpolable.
+  While the sampled terms are traced per pixel (:mod:`.sampled_term`, the default), the
+  cache's query scene lifts the last two conditions (``light_closed`` for every light with
+  an extent, no ``mat_glossy``): what the tracer samples is added per pixel from its own
+  samples, and the horizon conditions are proven for every light with an extent.
   Otherwise ``light_shaft`` (penumbra or umbra: not proven), ``self_shadow`` or
   ``soft_sampled`` (a spot with a radius, a disk, an ellipse, a spread, a glossy surface, a
   light crossing the horizon). Not facing at the corners (``-2``): off everywhere when the
@@ -67,10 +71,10 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
-from ..geometry.scene import LIGHT_AREA
+from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
-from .occluders import occluder_covers
+from .occluders import occluder_covers, sun_umbra
 from .shafts import (
     CONE_OFF,
     CONE_STEP,
@@ -422,7 +426,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behi
         occ = sm.node_occ[sm.node_start[s0] + row, j]
         if qs.light_ext[j]:
             r = _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand,
-                            P, Q, pl, bb, plo, bbo, named)
+                            P, Q, pl, bb, plo, bbo, named, pts, npts)
             if r != R_VALID:
                 return r
             continue
@@ -461,7 +465,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behi
 
 @njit(cache=True, nogil=True)
 def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand, P, Q, pl,
-                bb, plo, bbo, named):
+                bb, plo, bbo, named, pts, npts):
     """Light ``j`` with an extent at a ray-tree node whose points lie in box (lo, hi) on
     instance ``inst`` (see the module doc, "Soft light"). At the root:
 
@@ -473,7 +477,11 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
       cell: the Haines-Wallace shaft from the slab surface's box to the light's extent
       (:func:`.shafts.light_box`) holds no other object's triangle (``R_SHAFT``), and every
       triangle of the object in it faces every point of the extent, with no boundary edge
-      in it (``R_SELF``).
+      in it (``R_SELF``);
+    * or, for a sun, off over the whole cell: an umbra -- a closed convex object in the
+      shaft blocks every direction of its cone from every point of the cell's surface
+      (:func:`.occluders.sun_umbra`, from the hull ``pts[:npts]``), so every shadow sample
+      of every line is blocked and the light's value is 0.
 
     Below the root a light with an extent is not proven: ``R_SHAFT`` (the caller's
     ``tunnel_light``)."""
@@ -485,17 +493,28 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
         return R_FACING
     if occ != OCC_SOFT:
         return R_LIGHT  # (a sampled light never names an occluder)
-    if not quiet[j]:
-        return R_SOFT
-    if bfac[j]:
-        return R_SELF
+    sun = qs.light_kind[j] == LIGHT_SUN
+    if not sun:
+        if not quiet[j]:
+            return R_SOFT
+        if bfac[j]:
+            return R_SELF
     blo = np.empty(3)
     bhi = np.empty(3)
     light_box(qs, j, lo, hi, blo, bhi)
     npl = hw_shaft(lo, hi, blo, bhi, qs.slack, pl, bb)
     named[0] = inst
-    if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
-        return R_SHAFT
+    r = R_VALID
+    if not quiet[j]:
+        r = R_SOFT
+    elif bfac[j]:
+        r = R_SELF
+    elif other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+        r = R_SHAFT
+    if r != R_VALID:
+        if sun and sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
+            return R_VALID
+        return r
     if not _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
         return R_SELF
     return R_VALID

@@ -60,6 +60,7 @@ from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_po
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
+from .sampled_term import add_sampled_terms, sampled_possible
 from .world_term import keep_world, world_term
 
 log = logging.getLogger(__name__)
@@ -468,13 +469,14 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # while the world lights, an interpolated pixel traces the world's term at its own hit
     # (world_term.py): it needs the hit, which a reprojected ray does not find
     world = world_lights(sa)
+    sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
     # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
     # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
     rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
     camera_seen = any_seen(sa, (SEEN_CAMERA,))
     view = cache.view if pixels is None and not world else None
     cache.view = None
-    t_world = 0.0
+    t_world = t_sampled = 0.0
     here = None
     cells = FrameCells(cp)
     cancelled = False
@@ -537,6 +539,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             lrec = records.light if records is not None else None
             if lrec is not None and not lrec.partial:
                 lrec = None
+            if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
+                t_sampled += add_sampled_terms(cache, res, probe.get("idx"), o, d, tmin, tmax,
+                                               hits, rep, gids, settings, counters, cancel)
             if world:  # the world's term, per pixel, where cells interpolated
                 tw = time.perf_counter()
                 wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
@@ -619,6 +624,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                          n_rep / max(n, 1), k, n_todo, counters, w, h, spp,
                          int(settings.max_depth), cancelled, bad_total)
     stats["world_s"] = t_world  # the interpolated pixels' world terms (in resolve_s)
+    stats["sampled_s"] = t_sampled  # their lights' sampled terms (in resolve_s)
     if fb is not None:
         stats["fallback"] = fb.stats(budget, probe["rays"])
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",

@@ -155,14 +155,14 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-                      _closed_forms(sa), sa.tri_normals,
+                      closed_forms(sa), sa.tri_normals,
                       np.ascontiguousarray(sa.inst_nmat, np.float64),
                       np.ascontiguousarray(sa.inst_mat_start, np.int32),
                       np.ascontiguousarray(sa.inst_mat, np.int32),
                       np.ascontiguousarray(sa.tri_slot, np.int32), glossy_materials(sa))
 
 
-def _closed_forms(sa: SceneArrays) -> np.ndarray:
+def closed_forms(sa: SceneArrays) -> np.ndarray:
     """(L,) bool: lights whose unshadowed diffuse term the tracer takes from a closed form
     above the horizon (``soft_lights._row_exact``): a sphere that is not a spot, a sun with
     an angle, a rectangle (or square) without spread."""
@@ -309,6 +309,49 @@ def other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
                 if mesh_any(qs, qs.inst_mesh[inst], plo, npl, bbo, P, Q):
                     return True
     return False
+
+
+@njit(cache=True, nogil=True)
+def shaft_instances(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q, out):
+    """The instances not in ``named[:n_named]`` with a triangle in the world shaft, into
+    ``out``: their number, or -1 when more than ``out`` holds (or the stack overflows)."""
+    stack = np.empty(_STACK, np.int32)
+    stack[0] = 0
+    sp = 1
+    n = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        for c in range(2):
+            if box_out(pl, npl, bb, qs.top_bounds, node, c):
+                continue
+            ch = qs.top_child[node, c]
+            if ch >= 0:
+                if sp >= _STACK:
+                    return -1
+                stack[sp] = ch
+                sp += 1
+                continue
+            code = ~ch
+            start = code >> 3
+            for q in range(start, start + (code & 7)):
+                inst = qs.top_inst[q]
+                skip = False
+                for k in range(n_named):
+                    if named[k] == inst:
+                        skip = True
+                for k in range(n):
+                    if out[k] == inst:
+                        skip = True
+                if skip:
+                    continue
+                to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, npl, bb, plo, bbo)
+                if mesh_any(qs, qs.inst_mesh[inst], plo, npl, bbo, P, Q):
+                    if n >= out.shape[0]:
+                        return -1
+                    out[n] = inst
+                    n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)

@@ -483,7 +483,7 @@ def test_records_regenerate_the_tracers_samples():
     def regenerate(sa, seeds, ns, light, P, n, out):
         for i in range(seeds.shape[0]):
             for s in range(n):
-                h = row_hash(seeds[i], light)
+                h = row_hash(seeds[i], light, sa.light_kind.shape[0])
                 k = i * n + s
                 if light == sa.light_kind.shape[0]:
                     out[k, 0], out[k, 1], out[k, 2] = world_sample_dir(

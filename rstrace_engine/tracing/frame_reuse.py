@@ -300,8 +300,9 @@ class FrameReuse:
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
         """The batch ``fx`` edits only lights and the world, and the light terms can
-        follow it: kept, and the world's samples unchanged where it lights (they are
-        seeded by the number of light slots, and never taken while it did not light)."""
+        follow it: kept, and the world's samples unchanged where it lights (their seeds do
+        not depend on the light slots, :func:`~.soft_lights.row_hash`, so a light added or
+        deleted is one term more or less; they are never taken while it did not light)."""
         if self.light_records is None or not (fx.lights or fx.world):
             return False
         if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
@@ -322,8 +323,7 @@ class FrameReuse:
             # off changes the query every light's shadow rays make (light_linking: the
             # first blocker's closest hit, or any hit): traced again
             return False
-        if world_lights(new_sa) and (not world_lights(old_sa)
-                                     or len(new_sa.light_kind) != len(old_sa.light_kind)):
+        if world_lights(new_sa) and not world_lights(old_sa):
             return False
         if fx.lights_moved and not self.light_records.has_geometry:
             return False  # (over the memory cap: moved lights re-trace, see take_edits)

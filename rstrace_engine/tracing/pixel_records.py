@@ -256,8 +256,12 @@ class PixelRecords:
                 dt = (np.uint8 if n <= 8 else np.uint16 if n <= 16
                       else np.uint32 if n <= 32 else np.uint64)
                 self.p_vis = np.zeros((self.n_rays, L + 1), dt)
-        elif (n, L) != (self.w_samples, self.w_lights):  # the old rays are unknown now
+        elif n != self.w_samples:  # the old rays are unknown now
             self.p_wnorm[:] = np.nan
+            self.drop_visibility()
+        elif L != self.w_lights:
+            # (the world's rays do not depend on the light slots, soft_lights.row_hash; the
+            # visibility's columns do)
             self.drop_visibility()
         if self.p_vis is not None:
             bits = level.get("soft_bits")
@@ -540,9 +544,8 @@ class PixelRecords:
                         w_old = np.zeros(self.n_rays, np.uint64)
                         p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
                     query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
-                                self.p_seed, self.w_samples, self.w_lights, self.lo,
-                                self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
-                                w_out)
+                                self.p_seed, self.w_samples, self.lo, self.step,
+                                self.levels, self.shift, p_c, p_r, p_tag, w_old, w_out)
                     world = w_out & ~out
         return out, lights, world
 

@@ -47,17 +47,18 @@ from .soft_lights import (
     row_hash,
     row_uv,
     sample_weight,
+    world_row_hash,
 )
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step, levels,
-                shift, reg_c, reg_r, reg_tag, old, out):
+def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, lo, step, levels, shift,
+                reg_c, reg_r, reg_tag, old, out):
     """The world's rays of every primary hit against the edited regions (their bounding
     spheres ``reg_c, reg_r``, grown like every region by the quantisation and the spawn
     offset): each of the point's ``n`` cosine-weighted directions, regenerated from its
-    shading normal and node seed as the tracer drew them (``n_lights``: the light slots
-    when recorded, the world's row is the last), is a ray to infinity; a region it may meet
+    shading normal and node seed as the tracer drew them (:func:`~.soft_lights.
+    world_row_hash`), is a ray to infinity; a region it may meet
     dirties the sample. Samples with no recorded normal (NaN) are dirty. Regions wholly
     below the tangent plane of the shading normal are skipped (every world ray leaves above
     it); a sample whose ``(u, v)`` puts its direction outside every region's cone is not
@@ -72,14 +73,14 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, n_lights, lo, step,
         win = np.empty((k_reg, 4))
         for g in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
             if not out[g] and combo_inst[p_combo[g]] >= 0:
-                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, n_lights, lo, step,
+                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, lo, step,
                                         levels, shift, reg_c, reg_r, reg_tag, old[g], cv,
                                         win)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _world_crosses(code, wnorm, seed, g, n, n_lights, lo, step, levels, shift, reg_c, reg_r,
-                   reg_tag, old, cv, win):
+def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_r, reg_tag,
+                   old, cv, win):
     """:func:`query_world` of primary hit ``g``; ``cv``, ``win`` (k_reg, 4) scratch."""
     k_reg = reg_c.shape[0]
     err = tol.RECORD_DIR_ERROR
@@ -117,7 +118,7 @@ def _world_crosses(code, wnorm, seed, g, n, n_lights, lo, step, levels, shift, r
     for q in range(k_reg):
         if cv[q, 3] == np.inf:
             win[q, 0] = 2.0  # (no sample)
-    h = row_hash(seed, n_lights)
+    h = world_row_hash(seed)
     for s in range(n):
         u, v = row_uv(h, n, s)
         if not _in_window(win, u, v):
@@ -193,7 +194,7 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
                         out |= bit
                         break
                 continue
-            h = row_hash(seed[g], j)
+            h = row_hash(seed[g], j, L)
             hit = False
             for s in range(n):
                 u, v = row_uv(h, n, s)
@@ -461,7 +462,7 @@ def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, 
     form, ax, ay, az, omc = _row_axis(sa, j, L, inside, qx, qy, qz, NS[i, 0], NS[i, 1],
                                       NS[i, 2])
     _windows(0 if far or not windows else form, ax, ay, az, omc, cv, win)
-    h = row_hash(seeds[i], j)
+    h = row_hash(seeds[i], j, L)
     b = np.uint64(0)
     c = 0
     for s in range(n):
@@ -509,7 +510,7 @@ def crossing_rays(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, mask, start, o, d, tm
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
         inside = _row_inside(sa, j, L, qx, qy, qz)
         far, fx, fy, fz = _far_side(sa, P, NG, MAT, i, qx, qy, qz)
-        h = row_hash(seeds[i], j)
+        h = row_hash(seeds[i], j, L)
         k = start[r]
         for s in range(n):
             if not (mask[r] >> np.uint64(s)) & np.uint64(1):

@@ -55,6 +55,9 @@ RATIO_ESTIMATOR = True
 SH_SOFT = 2
 #: ``RayTree.node_occluder`` of a sampled light: its visibility is a fraction, no occluder
 OCC_SOFT = -3
+#: the id the world's row of a point hashes its samples by (:func:`row_hash`): a light's
+#: row hashes by its slot ``j >= 0``, so no light can take it, whatever the number of slots
+WORLD_ROW = -1
 
 _GOLDEN = 0.6180339887498949
 
@@ -82,7 +85,7 @@ class SoftSamples(NamedTuple):
     """The shadow samples of ``n`` shading points, point by point."""
 
     start: np.ndarray  # (n + 1,) int64: samples of point i are start[i]:start[i + 1]
-    light: np.ndarray  # (k,) int32 light j, L (the number of light slots) for the world
+    light: np.ndarray  # (k,) int32 light j, L (the number of light slots) for the world's row
     d: np.ndarray  # (k, 3) float64 unit direction toward the light
     w: np.ndarray  # (k,) float64 estimator weight without BRDF and radiance; 0: no ray
     vis: np.ndarray  # (k,) bool the shadow ray reached the light
@@ -387,7 +390,7 @@ def _soft_kernel(sa, P, Q, NG, NS, MAT, seeds, row_pt, row_light, n, ratio, o, d
     for r in prange(row_pt.shape[0]):
         i = row_pt[r]
         j = row_light[r]
-        h = mix64(seeds[i] + np.uint64(j + 1) * np.uint64(0x9E3779B97F4A7C15))
+        h = row_hash(seeds[i], j, L)
         r1 = float(h >> np.uint64(11)) * _INV_2_53
         r2 = float(mix64(h) >> np.uint64(11)) * _INV_2_53
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
@@ -460,10 +463,21 @@ def sample_weight(far, wgt, cs, cg, cn, t, inv_n):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def row_hash(seed, j):
-    """The hash the row of light ``j`` (``L``, the number of light slots, for the world) of
-    a point with node ``seed`` rotates its samples by, as :func:`_soft_kernel` draws it."""
+def row_hash(seed, j, L):
+    """The hash the row of light ``j`` of ``L`` light slots (``j == L``: the world) of a
+    point with node ``seed`` rotates its samples by, as :func:`_soft_kernel` draws it. The
+    world's row takes the fixed id :data:`WORLD_ROW`, which no light slot can take: its
+    samples do not depend on the number of light slots, so adding or deleting a light
+    keeps them (the added light is shaded alone and recombined, not the frame re-traced)."""
+    if j >= L:
+        return world_row_hash(seed)
     return mix64(seed + np.uint64(j + 1) * np.uint64(0x9E3779B97F4A7C15))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def world_row_hash(seed):
+    """:func:`row_hash` of the world's row of a point with node ``seed``."""
+    return mix64(seed + np.uint64(WORLD_ROW + 1) * np.uint64(0x9E3779B97F4A7C15))
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -6,8 +6,8 @@ own world term ``W``, traced at its hit: ``W = c * world_light`` with ``c`` the 
 kernel's world term over the world's radiance. ``R'`` does not change with the world's
 colour or strength (a cell whose ray trees show the world below the root is invalidated by
 such an edit, one whose trees hit a surface below the root never passes while the world
-lights), and ``c`` does not either (its samples and shadow rays are seeded by the sample and
-the number of light slots). So a world colour or strength edit that keeps the world lighting
+lights), and ``c`` does not either (its samples and shadow rays are seeded by the sample,
+:func:`~.soft_lights.row_hash`). So a world colour or strength edit that keeps the world lighting
 recombines such a sample as ``R' + c * world_light'`` -- the float64 operations the frame
 performed, on the same operands -- instead of rendering it again
 (:meth:`~.light_records.LightRecords.recombine`).

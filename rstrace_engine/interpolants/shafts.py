@@ -278,37 +278,11 @@ def mesh_candidates(qs, m, plo, npl, bbo, out, P, Q):
 
 @njit(cache=True, nogil=True)
 def other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
-    """Does a triangle of an instance not in ``named[:n_named]`` meet the world shaft?"""
-    stack = np.empty(_STACK, np.int32)
-    stack[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        node = stack[sp]
-        for c in range(2):
-            if box_out(pl, npl, bb, qs.top_bounds, node, c):
-                continue
-            ch = qs.top_child[node, c]
-            if ch >= 0:
-                if sp >= _STACK:
-                    return True
-                stack[sp] = ch
-                sp += 1
-                continue
-            code = ~ch
-            start = code >> 3
-            for q in range(start, start + (code & 7)):
-                inst = qs.top_inst[q]
-                skip = False
-                for k in range(n_named):
-                    if named[k] == inst:
-                        skip = True
-                if skip:
-                    continue
-                to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, npl, bb, plo, bbo)
-                if mesh_any(qs, qs.inst_mesh[inst], plo, npl, bbo, P, Q):
-                    return True
-    return False
+    """Does a triangle of an instance not in ``named[:n_named]`` meet the world shaft?
+    (:func:`shaft_instances` with room for none: it stops at the first such instance, and a
+    walk that overflows its stack answers yes.)"""
+    none = np.empty(0, np.int32)
+    return shaft_instances(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q, none) != 0
 
 
 @njit(cache=True, nogil=True)

@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
-from .shafts import MAX_PLANES, mesh_candidates, shaft_instances, to_object, tri_normal
+from .shafts import instance_candidates, shaft_instances, tri_normal
 
 #: Seeds tried (triangles whose plane may hold the projection) before giving up.
 MAX_SEEDS = 48
@@ -123,6 +123,17 @@ def _segment_hits(qs, cand, nc, ox, oy, oz, dx, dy, dz, tmax):
     return False
 
 
+@njit(cache=True, nogil=True, inline="always")
+def to_points(inv, pts, n):
+    """World points ``pts[:n]`` in the object space of the inverse matrix ``inv``."""
+    X = np.empty((n, 3))
+    for c in range(n):
+        for k in range(3):
+            X[c, k] = (inv[k, 0] * pts[c, 0] + inv[k, 1] * pts[c, 1] + inv[k, 2] * pts[c, 2]
+                       + inv[k, 3])
+    return X
+
+
 @njit(cache=True, nogil=True)
 def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
     """Does instance ``b`` block light ``j`` for every point of the convex hull of world
@@ -135,21 +146,13 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
     array arguments, in a loop over up to MAX_SEEDS seeds)."""
     if b < 0:
         return False
-    xf = qs.inst_xform[b]
     inv = qs.inst_inv[b]
-    plo = np.empty((MAX_PLANES, 4))
-    bbo = np.empty(6)
-    to_object(xf, inv, pl, npl, bb, plo, bbo)
-    nc = mesh_candidates(qs, qs.inst_mesh[b], plo, npl, bbo, cand, P, Q)
+    nc = instance_candidates(qs, b, pl, npl, bb, cand, P, Q)
     if nc <= 0:
         return False
     # the box corners and the light in object space
     n = npts
-    X = np.empty((n, 3))
-    for c in range(n):
-        for k in range(3):
-            X[c, k] = (inv[k, 0] * pts[c, 0] + inv[k, 1] * pts[c, 1] + inv[k, 2] * pts[c, 2]
-                       + inv[k, 3])
+    X = to_points(inv, pts, n)
     sun = qs.light_kind[j] == LIGHT_SUN
     L = np.empty(3)
     for k in range(3):
@@ -330,20 +333,12 @@ def cone_umbra(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
     h = qs.light_half[j]
     if not 0.0 <= h < CONE_UMBRA_MAX_HALF:
         return False
-    xf = qs.inst_xform[b]
     inv = qs.inst_inv[b]
-    plo = np.empty((MAX_PLANES, 4))
-    bbo = np.empty(6)
-    to_object(xf, inv, pl, npl, bb, plo, bbo)
-    nc = mesh_candidates(qs, qs.inst_mesh[b], plo, npl, bbo, cand, P, Q)
+    nc = instance_candidates(qs, b, pl, npl, bb, cand, P, Q)
     if nc <= 0:
         return False
     n = npts
-    X = np.empty((n, 3))
-    for c in range(n):
-        for k in range(3):
-            X[c, k] = (inv[k, 0] * pts[c, 0] + inv[k, 1] * pts[c, 1] + inv[k, 2] * pts[c, 2]
-                       + inv[k, 3])
+    X = to_points(inv, pts, n)
     far = 0.0
     for c in range(n):
         for k in range(3):

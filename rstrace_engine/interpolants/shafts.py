@@ -276,6 +276,16 @@ def mesh_candidates(qs, m, plo, npl, bbo, out, P, Q):
     return cnt
 
 
+@njit(cache=True, nogil=True, inline="always")
+def instance_candidates(qs, inst, pl, npl, bb, cand, P, Q):
+    """:func:`mesh_candidates` of instance ``inst`` for the world shaft ``pl``/``npl``/``bb``
+    (taken to its object space): their count (-1: ``cand`` too small)."""
+    plo = np.empty((MAX_PLANES, 4))
+    bbo = np.empty(6)
+    to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, npl, bb, plo, bbo)
+    return mesh_candidates(qs, qs.inst_mesh[inst], plo, npl, bbo, cand, P, Q)
+
+
 @njit(cache=True, nogil=True)
 def other_geometry(qs, pl, npl, bb, named, n_named, plo, bbo, P, Q):
     """Does a triangle of an instance not in ``named[:n_named]`` meet the world shaft?

@@ -22,10 +22,16 @@ conservative: a sample is never wrongly left clean.
 
 A sample is dirty when one of its nodes
 
-* has a segment (primary, reflection/refraction or shadow) crossing an edited region (old
-  or new world box of a moved, added, deleted, hidden or re-meshed object: whatever the edit
-  changed is inside those boxes, so a ray that crosses neither hits exactly what it hit);
-* hit an object the edits name (its material list changed) or one whose material changed;
+* has a shadow segment crossing an edited region (old or new world box of a moved, added,
+  deleted, hidden or re-meshed object: whatever the edit changed is inside those boxes, so
+  a ray that crosses neither hits exactly what it hit);
+* has its own segment (primary, reflection/refraction) crossing a place an edited object
+  came to (its new box *and* its bounding sphere, :attr:`~.edits.EditEffects.parts`): a ray
+  that hit no edited object (one that did is dirty by the next rule) meets what it met
+  unless geometry came into its way -- taking an object away changes only the rays that
+  hit it (:mod:`.record_queries`);
+* hit an object the edits name (moved, added, deleted, its material list changed) or one
+  whose material changed;
 * had a visible light whose power or colour changed or that was deleted;
 * hit anything, when a light moved or was added (which surfaces face a light, and through
   which cone, depends on normals the records do not keep);
@@ -478,14 +484,17 @@ class PixelRecords:
             origins = np.zeros((0, 3))
         reg_lo = np.ascontiguousarray(regions[:, 0] - margin)
         reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
-        reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
-        reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
-        # the soft lights' and the world's rays at the primary hits are tested against them
+        # the soft lights' and the world's rays at the primary hits are tested against them,
+        # the nodes' own segments (view, reflection, refraction) against the places objects
+        # came to (a ray that hit no edited object meets what it met unless geometry came
+        # into its way: record_queries)
         p_lo, p_hi, p_c, p_r, p_tag = fx.part_arrays()
         p_lo = np.ascontiguousarray(p_lo - margin)
         p_hi = np.ascontiguousarray(p_hi + margin)
         p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))
+        came = (p_tag & PART_NEW) != 0
+        seg = tuple(np.ascontiguousarray(x[came]) for x in (p_lo, p_hi, p_c, p_r))
         combo_dirty = np.ascontiguousarray(dirty)
         sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
@@ -503,8 +512,7 @@ class PixelRecords:
                 for j in np.flatnonzero(ext):
                     soft |= np.uint64(1) << np.uint64(j)
             self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
-                        combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
-                        out)
+                        combo_traced, origins, reg_lo, reg_hi, seg, kind, pos, ldir, out)
             # the view and mirror segments crossing an edited light's surface (the view
             # segments only where camera rays see it)
             cam = list(fx.seen_camera) + [True] * (len(fx.seen_regions) - len(fx.seen_camera))
@@ -517,10 +525,10 @@ class PixelRecords:
                 none = np.zeros(len(combo_dirty), np.bool_)
                 no_lights = np.zeros(len(combo_traced), np.uint64)
                 crossed = np.zeros(self.n_rays, np.bool_)  # (the queries assign, not or)
+                box = (lo, hi, np.ascontiguousarray(0.5 * (lo + hi)),
+                       np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)))
                 self._query(cp, none, none, inst64, no_lights, no_lights, origins, lo, hi,
-                            np.ascontiguousarray(0.5 * (lo + hi)),
-                            np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
-                            kind, pos, ldir, crossed, primary=view)
+                            box, kind, pos, ldir, crossed, primary=view)
                 out |= crossed
             if soft:
                 wnorm, seed = self.p_wnorm, self.p_seed
@@ -550,28 +558,29 @@ class PixelRecords:
         return out, lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
-               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out, primary: bool = True
-               ) -> None:
+               reg_lo, reg_hi, seg, kind, pos, ldir, out, primary: bool = True) -> None:
         """The records' segments against the regions: primary nodes with ``combo_traced``
-        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`); ``primary`` False:
-        the secondary nodes alone."""
+        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`), their shadow
+        segments against the boxes ``reg_lo, reg_hi``, their own segments against ``seg``
+        ``(lo, hi, centre, radius)`` (box and sphere both); ``primary`` False: the
+        secondary nodes alone."""
         if primary and cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
                            np.ascontiguousarray(origins), self.lo, self.step, self.levels,
-                           self.shift, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+                           self.shift, reg_lo, reg_hi, *seg, kind, pos, ldir, out)
         elif primary:
             _query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                          np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
                          self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,
-                         reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+                         reg_hi, *seg, kind, pos, ldir, out)
         m = len(self.s_parent)
         if m:
             s_dirty = np.zeros(m, np.bool_)
             _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
                              self.p_code, self.n_rays, sec_dirty, inst64, sec_traced,
                              self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
-                             reg_c, reg_r, kind, pos, ldir, s_dirty)
+                             *seg, kind, pos, ldir, s_dirty)
             s_ray = np.empty(m, np.int32)
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
             _mark_rays(s_ray, s_dirty, out)

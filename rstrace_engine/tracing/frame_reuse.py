@@ -74,6 +74,9 @@ class FrameReuse:
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
         self.reshade_world: np.ndarray | None = None
+        # the same at the kept samples' secondary nodes (their order in the records)
+        self.reshade_s_lights: np.ndarray | None = None
+        self.reshade_s_world: np.ndarray | None = None
         self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
 
     def keep_only(self, frame: Frame | None) -> None:
@@ -264,18 +267,24 @@ class FrameReuse:
         """The dirty pixels of :meth:`~.pixel_records.PixelRecords.dirty_split`'s ``(full,
         lights, world)``: those with a sample dirty in full; the other samples' lights and
         world to shade again are added to the pending ones."""
-        full, lights, world = split
+        full, lights, world, s_lights, s_world = split
         rec = self.records
         spp, n = rec.spp, rec.n_pixels
         dirty = full.reshape(spp, n).any(axis=0)
         keep = ~np.tile(dirty | self.dirty, spp)
         lights = np.where(keep, lights, np.uint64(0))
         world = world & keep
+        s_keep = keep[rec.secondary_rays()]
+        s_lights = np.where(s_keep, s_lights, np.uint64(0))
+        s_world = s_world & s_keep
         if self.reshade_lights is None:
             self.reshade_lights, self.reshade_world = lights, world
+            self.reshade_s_lights, self.reshade_s_world = s_lights, s_world
         else:
             self.reshade_lights |= lights
             self.reshade_world |= world
+            self.reshade_s_lights |= s_lights
+            self.reshade_s_world |= s_world
         return dirty
 
     @property
@@ -284,8 +293,10 @@ class FrameReuse:
         rec = self.records
         if self.reshade_lights is None or rec is None:
             return np.zeros(0 if rec is None else rec.n_pixels, bool)
-        due = ((self.reshade_lights != 0) | self.reshade_world).reshape(rec.spp, -1)
-        return due.any(axis=0) & ~self.dirty
+        due = (self.reshade_lights != 0) | self.reshade_world
+        if len(self.reshade_s_lights):
+            due[rec.secondary_rays()[(self.reshade_s_lights != 0) | self.reshade_s_world]] = True
+        return due.reshape(rec.spp, -1).any(axis=0) & ~self.dirty
 
     def _flush_reshade(self) -> None:
         """The pending shading of lights again (:meth:`_split`) becomes dirty pixels (a
@@ -296,6 +307,7 @@ class FrameReuse:
 
     def _no_reshade(self) -> None:
         self.reshade_lights = self.reshade_world = None
+        self.reshade_s_lights = self.reshade_s_world = None
         self.reshade_regions = []
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
@@ -371,6 +383,17 @@ class FrameReuse:
                            rec.p_vis if regions is not None else None, regions, counters)
             for j, (rows, lit) in done.items():
                 rec.set_lit_at(j, rows, lit)
+            # and at their secondary nodes (mirror and refraction hits)
+            s_keep = keep[rec.secondary_rays()]
+            s_lights = np.where(s_keep, self.reshade_s_lights, np.uint64(0))
+            s_world = self.reshade_s_world & s_keep
+            if s_lights.any() or s_world.any():
+                done = reshade(lr, sa, accel, s_lights, s_world, int(settings.light_samples),
+                               rec.secondary_depths() < int(settings.max_depth),
+                               rec.s_vis if regions is not None else None, regions,
+                               counters, secondary=True)
+                for j, (rows, lit) in done.items():
+                    rec.set_lit_at(j, rows, lit, secondary=True)
             split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,

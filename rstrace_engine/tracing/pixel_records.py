@@ -97,6 +97,30 @@ def _secondary_rays(s_parent, n_rays, s_ray):
         s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
 
 
+def _secondary_samples(levels: list):
+    """The secondary levels' sampled rays, for :attr:`PixelRecords.s_wnorm`: ``(normal
+    (k, 3) float32, NaN at misses, seed (k,) uint64, soft bits (k, L + 1) or None)``, or
+    None where the tracer gave none."""
+    if not levels or not all("normal" in lv for lv in levels):
+        return None
+    hit = np.concatenate([lv["inst"] for lv in levels]) >= 0
+    wn = np.concatenate([lv["normal"] for lv in levels])
+    wn = np.where(hit[:, None], wn, np.nan).astype(np.float32)  # (a miss's: undefined)
+    seed = np.concatenate([lv["seed"] for lv in levels]).astype(np.uint64)
+    bits = None
+    if all("soft_bits" in lv for lv in levels):
+        bits = np.concatenate([lv["soft_bits"] for lv in levels])
+    return wn, seed, bits
+
+
+@njit(cache=True, nogil=True)
+def _secondary_depths(s_parent, n_rays, depth):
+    """The ray depth of each secondary node (parents come before their children)."""
+    for k in range(s_parent.shape[0]):
+        p = s_parent[k]
+        depth[k] = 1 if p < n_rays else depth[p - n_rays] + 1
+
+
 # ----------------------------------------------------------------------------- records
 
 
@@ -149,6 +173,12 @@ class PixelRecords:
         self.p_seed: np.ndarray | None = None
         self.w_samples = 0
         self.w_lights = 0
+        #: the same for the secondary nodes (reflection and refraction hits), in their
+        #: order: shading normal (NaN: a miss, or not recorded), node seed and the soft
+        #: samples' visibility (None where not kept: as :attr:`p_vis`)
+        self.s_wnorm: np.ndarray | None = None
+        self.s_seed: np.ndarray | None = None
+        self.s_vis: np.ndarray | None = None
         #: the primary hits' soft samples' visibility (:func:`~.sample_rays.soft_bits`:
         #: (n_rays, L + 1) bits, the world's column last, as narrow as the samples allow),
         #: kept from the frame's first batch on while its lights' shadows stay put
@@ -242,7 +272,7 @@ class PixelRecords:
         if len(inst) > nb:
             parent = np.concatenate([lv["parent"] for lv in levels[1:]]).astype(np.int64)
             self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
-                                  nb))
+                                  nb, _secondary_samples(levels[1:])))
 
     def _add_world(self, rays: np.ndarray, level: dict) -> None:
         """Record the primary nodes' sampled rays (normal and node seed) where the tracer
@@ -317,8 +347,13 @@ class PixelRecords:
                 self.s_combo = self.s_combo[keep]
                 self.s_code = self.s_code[keep]
                 base = len(self.s_parent)
+                if self.s_wnorm is not None:
+                    self.s_wnorm, self.s_seed = self.s_wnorm[keep], self.s_seed[keep]
+                    if self.s_vis is not None:
+                        self.s_vis = self.s_vis[keep]
+        self._finish_samples(base)
         parents, combos, codes = [self.s_parent], [self.s_combo], [self.s_code]
-        for parent, comb, code, rays, nb in self._pending:
+        for parent, comb, code, rays, nb, _ in self._pending:
             # batch rows: 0..nb-1 are the input rays, then the secondary nodes in order
             glob = np.where(parent < nb, rays[np.minimum(parent, nb - 1)],
                             self.n_rays + base + (parent - nb))
@@ -333,6 +368,30 @@ class PixelRecords:
         self.s_combo = np.concatenate(combos).astype(np.uint32)
         self.s_code = np.concatenate(codes).astype(np.uint32)
         self._compact()
+
+    def _finish_samples(self, base: int) -> None:
+        """The pending batches' secondary nodes' sampled rays after the ``base`` kept ones
+        (:attr:`s_wnorm`, :attr:`s_seed`, :attr:`s_vis`; unknown where a batch gave none)."""
+        extra = [e for *_, e in self._pending]
+        if self.s_wnorm is None and all(e is None for e in extra):
+            return
+        sizes = [len(q[0]) for q in self._pending]
+        if self.s_wnorm is None:
+            self.s_wnorm = np.full((base, 3), np.nan, np.float32)
+            self.s_seed = np.zeros(base, np.uint64)
+            self.s_vis = None if base or self.p_vis is None else np.zeros(
+                (0,) + self.p_vis.shape[1:], self.p_vis.dtype)
+        wn, sd, vis = [self.s_wnorm], [self.s_seed], [self.s_vis]
+        for e, k in zip(extra, sizes, strict=True):
+            wn.append(np.full((k, 3), np.nan, np.float32) if e is None else e[0])
+            sd.append(np.zeros(k, np.uint64) if e is None else e[1])
+            vis.append(None if e is None else e[2])
+        self.s_wnorm, self.s_seed = np.concatenate(wn), np.concatenate(sd)
+        pv = self.p_vis
+        if pv is None or any(v is None or v.shape[1:] != pv.shape[1:] for v in vis):
+            self.s_vis = None
+        else:
+            self.s_vis = np.concatenate([v.astype(pv.dtype) for v in vis])
 
     def _compact(self) -> None:
         """Drop table rows no node uses any more; keep indices 16-bit where they fit."""
@@ -355,6 +414,13 @@ class PixelRecords:
         if len(s_ray):
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
         return s_ray
+
+    def secondary_depths(self) -> np.ndarray:
+        """(m,) int32: the ray depth of every secondary node (1: a primary hit's child)."""
+        depth = np.empty(len(self.s_parent), np.int32)
+        if len(depth):
+            _secondary_depths(self.s_parent, self.n_rays, depth)
+        return depth
 
     def set_light_bits(self, j: int, primary, secondary) -> None:
         """Light ``j``'s bits of every node after it was shaded again
@@ -392,15 +458,18 @@ class PixelRecords:
     def drop_visibility(self) -> None:
         """Keep no soft samples' visibility any more (a light's shadows moved): re-shaded
         lights trace all their samples until the next full frame."""
-        self.p_vis = None
+        self.p_vis = self.s_vis = None
         self.vis_off = True
 
-    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray) -> None:
-        """Light ``j``'s visibility bit of the primary nodes ``rows`` after it was shaded
-        again there (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the
-        light are)."""
+    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray,
+                   secondary: bool = False) -> None:
+        """Light ``j``'s visibility bit of the primary (``secondary``: the secondary) nodes
+        ``rows`` after it was shaded again there (:mod:`.shadow_reshade`; its traced bit is
+        unchanged: the point and the light are)."""
+        name = "s_combo" if secondary else "p_combo"
+        combo = getattr(self, name)
         bit = np.uint64(1) << np.uint64(j)
-        c = self.p_combo[rows].astype(np.int64)
+        c = combo[rows].astype(np.int64)
         old = self.t_lit[c].astype(np.uint64)
         new = np.where(lit, old | bit, old & ~bit)
         ch = new != old
@@ -408,18 +477,17 @@ class PixelRecords:
             return
         ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
                            self.t_flags[c[ch]])
-        arr = self.p_combo.astype(np.uint32)
+        arr = combo.astype(np.uint32)
         arr[rows[ch]] = ids
-        self.p_combo = arr
+        setattr(self, name, arr)
         self._compact()
 
     @property
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
-        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
-        if self.p_vis is not None:
-            world += self.p_vis.nbytes
+        world = sum(x.nbytes for x in (self.p_wnorm, self.p_seed, self.p_vis, self.s_wnorm,
+                                       self.s_seed, self.s_vis) if x is not None)
         return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                                    self.t_flags, self.p_combo, self.p_code,
                                                    self.s_parent, self.s_combo, self.s_code)))
@@ -430,16 +498,22 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
-        full, lights, world = self.dirty_split(sa, cp, fx)
-        return full | (lights != 0) | world
+        full, lights, world, s_lights, s_world = self.dirty_split(sa, cp, fx)
+        out = full | (lights != 0) | world
+        if len(s_lights):
+            _mark_rays(self.secondary_rays(), (s_lights != 0) | s_world, out)
+        return out
 
     def dirty_split(self, sa, cp, fx) -> tuple:
         """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
-        world (n_rays,) bool)`` -- ``full`` the samples whose primary ray, secondary nodes,
-        hard lights' shadow rays, hit objects, materials or lights the edits may change;
-        for the others, ``lights`` the lights with an extent (bits) and ``world`` the
-        world's light whose shadow rays at the primary hit may cross an edited box (their
-        terms alone may change: :mod:`.shadow_reshade`)."""
+        world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool)`` -- ``full`` the
+        samples whose primary ray, reflection or refraction rays, hard lights' shadow rays,
+        hit objects, materials or lights the edits may change; for the others, ``lights``
+        the lights with an extent (bits) and ``world`` the world's light whose shadow rays
+        at the primary hit may cross an edited box, ``s_lights`` and ``s_world`` the same
+        at each secondary node (recorded with its normal and seed: :attr:`s_wnorm`; else
+        those rays make the sample dirty in full) -- their terms alone may change
+        (:mod:`.shadow_reshade`)."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -470,7 +544,10 @@ class PixelRecords:
         # hits test their own rays (regenerated from the recorded normal and hash, below);
         # secondary hits keep no normal, so any edited box may shade them
         world_rays = world_lights(sa) and len(fx.regions) > 0
-        sec_dirty = dirty | is_hit if world_rays else dirty
+        # secondary hits with their normals and seeds recorded test their own world rays
+        # and soft lights' samples (below); without, any edited box may shade them
+        sec_rays = self.s_wnorm is not None and len(self.s_parent) > 0
+        sec_dirty = dirty | is_hit if world_rays and not sec_rays else dirty
         regions = fx.region_array()
         margin = self.margin(sa)
         if cp.ortho:
@@ -502,8 +579,6 @@ class PixelRecords:
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
-        lights = np.zeros(self.n_rays, np.uint64)
-        world = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
             # the lights with an extent: the primary hits' shadow rays per light (after)
             soft = np.uint64(0)
@@ -512,7 +587,8 @@ class PixelRecords:
                 for j in np.flatnonzero(ext):
                     soft |= np.uint64(1) << np.uint64(j)
             self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
-                        combo_traced, origins, reg_lo, reg_hi, seg, kind, pos, ldir, out)
+                        combo_traced & ~soft if sec_rays else combo_traced, origins,
+                        reg_lo, reg_hi, seg, kind, pos, ldir, out)
             # the view and mirror segments crossing an edited light's surface (the view
             # segments only where camera rays see it)
             cam = list(fx.seen_camera) + [True] * (len(fx.seen_regions) - len(fx.seen_camera))
@@ -530,32 +606,56 @@ class PixelRecords:
                 self._query(cp, none, none, inst64, no_lights, no_lights, origins, lo, hi,
                             box, kind, pos, ldir, crossed, primary=view)
                 out |= crossed
-            if soft:
-                wnorm, seed = self.p_wnorm, self.p_seed
-                if wnorm is None:  # (no seeds recorded: the shaft tests)
-                    wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
-                    seed = np.zeros(self.n_rays, np.uint64)
-                query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
-                                 wnorm, seed, self.w_samples, soft, self.lo, self.step,
-                                 self.levels, self.shift, p_lo, p_hi, p_c, p_r, pos, out,
-                                 lights)
-            if world_rays:
-                if self.p_wnorm is None:
-                    world = is_hit[self.p_combo.astype(np.int64)] & ~out
+            parts = (p_lo, p_hi, p_c, p_r, p_tag)
+            lights, world = self._sampled(sa, self.p_combo, self.p_code, self.p_wnorm,
+                                          self.p_seed, self.p_vis, is_hit, inst64,
+                                          combo_traced, soft, world_rays, parts, pos, out)
+            m = len(self.s_parent)
+            s_lights, s_world = np.zeros(m, np.uint64), np.zeros(m, np.bool_)
+            if sec_rays:  # the secondary hits' own rays, as the primary hits' (above)
+                s_lights, s_world = self._sampled(
+                    sa, self.s_combo, self.s_code, self.s_wnorm, self.s_seed, self.s_vis,
+                    is_hit, inst64, combo_traced, soft, world_rays, parts, pos,
+                    out[self.secondary_rays()])
+        return out, lights, world, s_lights, s_world
+
+    def _sampled(self, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_traced,
+                 soft, world_rays: bool, parts: tuple, pos, skip) -> tuple:
+        """The lights with an extent (``soft`` bits) and the world's light (where
+        ``world_rays``) whose sampled rays may cross an edited object (``parts``: grown
+        boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
+        secondary ones) with their recorded normals, seeds and soft samples' visibility
+        ``vis``, the nodes whose sample is in ``skip`` (traced again) left out: ``(lights
+        (k,) uint64, world (k,) bool)``."""
+        k = len(combo)
+        lights = np.zeros(k, np.uint64)
+        world = np.zeros(k, np.bool_)
+        p_lo, p_hi, p_c, p_r, p_tag = parts
+        skip = np.ascontiguousarray(skip)
+        if soft:
+            if wnorm is None:  # (no seeds recorded: the shaft tests)
+                wnorm = np.full((k, 3), np.nan, np.float32)
+                seed = np.zeros(k, np.uint64)
+            query_light_bits(sa, combo, code, inst64, combo_traced, wnorm, seed,
+                             self.w_samples, soft, self.lo, self.step, self.levels,
+                             self.shift, p_lo, p_hi, p_c, p_r, pos, skip, lights)
+        if world_rays:
+            if wnorm is None:
+                world = is_hit[combo.astype(np.int64)] & ~skip
+            else:
+                w_out = skip.copy()
+                # the world's samples' visibility in the records' frame: visible ones
+                # tested where objects came, blocked ones where they went (query_world)
+                if vis is not None and not links_shadows(sa):
+                    w_old = np.ascontiguousarray(vis[:, self.w_lights], np.uint64)
                 else:
-                    w_out = out.copy()
-                    # the world's samples' visibility in the records' frame: visible ones
-                    # tested where objects came, blocked ones where they went (query_world)
-                    if self.p_vis is not None and not links_shadows(sa):
-                        w_old = np.ascontiguousarray(self.p_vis[:, self.w_lights], np.uint64)
-                    else:
-                        w_old = np.zeros(self.n_rays, np.uint64)
-                        p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
-                    query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
-                                self.p_seed, self.w_samples, self.lo, self.step,
-                                self.levels, self.shift, p_c, p_r, p_tag, w_old, w_out)
-                    world = w_out & ~out
-        return out, lights, world
+                    w_old = np.zeros(k, np.uint64)
+                    p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
+                query_world(combo, code, inst64, wnorm, seed, self.w_samples, self.lo,
+                            self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
+                            w_out)
+                world = w_out & ~skip
+        return lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
                reg_lo, reg_hi, seg, kind, pos, ldir, out, primary: bool = True) -> None:

@@ -172,17 +172,19 @@ def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept,
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
-            spawn: bool, vis_bits: np.ndarray | None = None, regions=None,
-            counters: dict | None = None) -> dict:
-    """Shade again, at the primary nodes of the per-light records ``lr`` (with geometry),
-    the lights with an extent whose bits ``lights`` (n_rays,) uint64 name and the world's
-    light where ``world`` (n_rays,) bool, through ``accel`` over the edited scene ``sa``;
-    their entries replaced, every other term kept. Returns ``{j: (rows, lit)}``: each
-    light's nodes and its visibility bit there (for the pixel records). ``spawn``: primary
-    nodes spawn rays (ray depth > 0). ``counters``: adds ``shadow`` and ``split`` seconds."""
+            spawn, vis_bits: np.ndarray | None = None, regions=None,
+            counters: dict | None = None, secondary: bool = False) -> dict:
+    """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
+    records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
+    uint64 per node) name and the world's light where ``world`` (bool per node), through
+    ``accel`` over the edited scene ``sa``; their entries replaced, every other term kept.
+    Returns ``{j: (rows, lit)}``: each light's nodes and its visibility bit there (for the
+    pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
+    a bool, or one per node). ``counters``: adds ``shadow`` and ``split`` seconds."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
-    p = lr.p
+    p = lr.s if secondary else lr.p
+    spawn = np.broadcast_to(np.asarray(spawn, np.bool_), (len(p),))
     rows = np.flatnonzero(((lights != 0) | world) & p.hit)  # (a miss has no shadow ray)
     out: dict = {}
     if len(rows) == 0:
@@ -233,8 +235,17 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             changes.append((c, sel, on, val))
             out[c] = (rows[sel], lit)
         elif len(sel):
-            on, val = _world_term(sa, accel, n, spawn, g, s, kept, counters)
-            changes.append((WORLD, sel, on, val))
+            # (grouped by whether the nodes spawn rays: a rough point's world samples then
+            # light its diffuse part only)
+            for sp in (False, True):
+                i = np.flatnonzero(spawn[rows[sel]] == sp)
+                if len(i) == 0:
+                    continue
+                gi = {key: x[i] for key, x in g.items()}
+                si = Surfaces(*(x[i] for x in s[:7]), s.sh_state)
+                on, val = _world_term(sa, accel, n, sp, gi, si,
+                                      None if kept is None else kept[i], counters)
+                changes.append((WORLD, sel[i], on, val))
         tick(split, "shade", t0)
     t0 = time.perf_counter()
     if changes:
@@ -249,6 +260,9 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             d_on[k] = on
             d_val[k] = val
             sub.replace_slot(c, d_on, d_val)
-        lr.p = p.splice(rows[at], sub)
+        if secondary:
+            lr.s = p.splice(rows[at], sub)
+        else:
+            lr.p = p.splice(rows[at], sub)
     tick(split, "terms", t0)
     return out

@@ -16,10 +16,10 @@ only what other edits made dirty. Batches that mix in other edits, a world that 
 light, or records over their memory cap take the per-pixel records' path as before.
 
 Under soft light (BASE, with those terms) an object edit goes further, at the level of
-rays: a sample whose only rays the edit may cross are its primary hit's shadow rays to
-lights with an extent or the world's rays (:meth:`~.pixel_records.PixelRecords.dirty_split`)
-is not traced again; the next frame shades those lights (or the world) again at its
-primary node, through the edited scene, and recombines it (:mod:`.shadow_reshade`: of
+rays: a sample whose only rays the edit may cross are its hits' shadow rays to lights with
+an extent or the world's rays (:meth:`~.pixel_records.PixelRecords.dirty_split`) is not
+traced again; the next frame shades those lights (or the world) again at those nodes,
+primary or secondary, through the edited scene, and recombines it (:mod:`.shadow_reshade`: of
 their samples, only those that may cross an edited box are traced, the others' visibility
 kept as bits). A later batch that edits lights turns the pending ones into dirty pixels.
 

@@ -38,9 +38,11 @@ A sample is dirty when one of its nodes
 * missed, when the world colour changed.
 
 With soft light the cause is kept apart (:meth:`PixelRecords.dirty_split`): a sample dirty
-only through its primary hit's shadow rays to lights with an extent, or its world rays, is
-*re-shaded* rather than traced again (:mod:`.shadow_reshade`); for that the records also
-keep those samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`).
+only through its hits' shadow rays to lights with an extent, or their world rays (at the
+primary or at a secondary hit), is *re-shaded* rather than traced again
+(:mod:`.shadow_reshade`); for that the records also keep every hit's normal, node seed and
+soft samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`,
+:attr:`PixelRecords.s_vis`).
 
 Why per-pixel records rather than the traced pixels' segments in the ray segment trees
 (measured on museum, 640x480, ray depth 5): a frame's samples have 307,200 view segments,
@@ -562,7 +564,7 @@ class PixelRecords:
         reg_lo = np.ascontiguousarray(regions[:, 0] - margin)
         reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
         # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
-        # the soft lights' and the world's rays at the primary hits are tested against them,
+        # the soft lights' and the world's rays at the hits are tested against them,
         # the nodes' own segments (view, reflection, refraction) against the places objects
         # came to (a ray that hit no edited object meets what it met unless geometry came
         # into its way: record_queries)

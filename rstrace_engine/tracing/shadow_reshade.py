@@ -3,10 +3,11 @@
 A point lit by a light with an extent or by the world shoots ``n`` shadow rays per such
 light (:mod:`.soft_lights`); an object moved, added or deleted near it may cross a few of
 them. The per-pixel records find, per sample, *which* of its rays may cross an edited box
-(:meth:`~.pixel_records.PixelRecords.dirty_split`): a sample whose primary ray, secondary
-nodes and hard lights' shadow rays are untouched, and only some lights' (or the world's)
-shadow rays at its primary hit may change, is not traced again. Its primary node's terms of
-those lights are shaded again (:func:`reshade`), the others kept, and the frame is
+(:meth:`~.pixel_records.PixelRecords.dirty_split`): a sample whose primary ray, reflection
+and refraction rays and hard lights' shadow rays are untouched, and only some lights' (or
+the world's) shadow rays at its primary hit or at its secondary hits may change, is not
+traced again. Those nodes' terms of those lights are shaded again (:func:`reshade`, once
+for the primary nodes and once for the secondary ones), the others kept, and the frame is
 recombined from the per-light records (:meth:`~.light_records.LightRecords.recombine`) --
 as a moved light is relit (:mod:`.light_reshade`), but at those nodes only:
 
@@ -21,9 +22,10 @@ Every operand is the one a fresh frame's shade kernel reads, so each term is bit
 fresh frame's, and the recombination sums them in the tracer's order. Shadow linking is
 honoured (the tracer's own occlusion test).
 
-**Per-sample visibility.** The records keep the primary hits' samples' visibility, a bit
-per sample and light (:attr:`~.pixel_records.PixelRecords.p_vis`, written by the tracer:
-:func:`~.sample_rays.soft_bits`; 2 bytes per light and sample at 16 light samples). Then
+**Per-sample visibility.** The records keep the hits' samples' visibility, a bit per
+sample and light (:attr:`~.pixel_records.PixelRecords.p_vis` for the primary hits,
+:attr:`~.pixel_records.PixelRecords.s_vis` for the secondary ones, written by the tracer:
+:func:`~.sample_rays.soft_bits`; 2 bytes per light and node at 16 light samples). Then
 only the samples whose exact rays (regenerated from the rebuilt surface and the node seed,
 :func:`~.sample_rays.crossing_rows`) may cross an edited box, grown as the records grow it,
 are traced again; the others keep their bits (a ray that crosses no edited box meets what

@@ -43,6 +43,7 @@ from .light_linking import links_shadows
 from .light_records import load_kernels
 from .pixel_records import PixelRecords
 from .seen_lights import any_seen
+from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
 from .soft_lights import has_soft_light, world_lights
 
@@ -434,12 +435,13 @@ class FrameReuse:
         return rec, None, None
 
     def finish(self, frame: Frame, records: PixelRecords, pixels, key, camera, samples: int,
-               cache=None, pool0=None) -> Frame:
+               cache=None, pool0=None, sa=None) -> Frame:
         """Keep ``frame`` (rendered from :meth:`plan`'s ``records``, ``pixels``) for the
         next one; returns the frame to show, whose pixels rebuilt from invalidated
         interpolants are marked ``CLASS_REBUILT`` (the kept frame says "interpolated").
         cache, pool0 : the interpolant cache and ``(cache, next_serial, n_live)`` of its pool
-        before the frame (INTERPOLANT), for :meth:`_track_interpolants`."""
+        before the frame (INTERPOLANT), for :meth:`_track_interpolants`. sa : the frame's
+        scene packing (BASE under soft light: the re-shade's kernels are loaded once)."""
         rebuilt = self.rebuilt if self.matches(key, camera) else None
         stored = frame
         if frame.pixel_interpolant is not None and rebuilt is not None and rebuilt.any():
@@ -457,6 +459,8 @@ class FrameReuse:
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
+            if sa is not None and not records.light.partial and has_soft_light(sa):
+                load_reshade_kernels(sa)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

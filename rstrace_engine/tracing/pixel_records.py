@@ -66,7 +66,13 @@ from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
 from .light_linking import links_shadows
 from .light_records import LightRecords
-from .record_codes import POINT_BITS, _encode_nodes, light_geometry
+from .record_codes import (
+    POINT_BITS,
+    _encode_nodes,
+    _secondary_depths,
+    _secondary_samples,
+    light_geometry,
+)
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
 from .sample_rays import query_light_bits, query_world
 from .soft_lights import world_lights
@@ -97,30 +103,6 @@ def _secondary_rays(s_parent, n_rays, s_ray):
     for k in range(s_parent.shape[0]):
         p = s_parent[k]
         s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
-
-
-def _secondary_samples(levels: list):
-    """The secondary levels' sampled rays, for :attr:`PixelRecords.s_wnorm`: ``(normal
-    (k, 3) float32, NaN at misses, seed (k,) uint64, soft bits (k, L + 1) or None)``, or
-    None where the tracer gave none."""
-    if not levels or not all("normal" in lv for lv in levels):
-        return None
-    hit = np.concatenate([lv["inst"] for lv in levels]) >= 0
-    wn = np.concatenate([lv["normal"] for lv in levels])
-    wn = np.where(hit[:, None], wn, np.nan).astype(np.float32)  # (a miss's: undefined)
-    seed = np.concatenate([lv["seed"] for lv in levels]).astype(np.uint64)
-    bits = None
-    if all("soft_bits" in lv for lv in levels):
-        bits = np.concatenate([lv["soft_bits"] for lv in levels])
-    return wn, seed, bits
-
-
-@njit(cache=True, nogil=True)
-def _secondary_depths(s_parent, n_rays, depth):
-    """The ray depth of each secondary node (parents come before their children)."""
-    for k in range(s_parent.shape[0]):
-        p = s_parent[k]
-        depth[k] = 1 if p < n_rays else depth[p - n_rays] + 1
 
 
 # ----------------------------------------------------------------------------- records

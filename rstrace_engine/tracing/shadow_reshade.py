@@ -51,7 +51,7 @@ from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_records import _GEO
 from .light_reshade import _one_light_states, tick
-from .pixel_records import _secondary_depths as secondary_depths_kernel
+from .record_codes import _secondary_depths as secondary_depths_kernel
 from .sample_rays import crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
 from .soft_lights import SH_SOFT, soft_rays

@@ -381,7 +381,7 @@ class Session:
             elif self._keeps_light_terms() and relight_off:
                 frame.stats["relight_off"] = RELIGHT_OFF
         frame = self.reuse.finish(frame, records, pixels, key, cam, self.settings.samples,
-                                  self.interpolants.cache, pool0)
+                                  self.interpolants.cache, pool0, sa)
         n = cam.width * cam.height
         frame.stats["incremental"] = pixels is not None
         frame.stats["dirty_pixels"] = int(pixels.sum()) if pixels is not None else n

@@ -11,6 +11,8 @@ with camera moves on several small scenes; the bench command runs the long soak
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -18,7 +20,14 @@ from rstrace_engine import image
 from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_REBUILT, RenderSettings
 from rstrace_engine.geometry import shapes
-from rstrace_engine.geometry.edits import MaterialSet, ObjectTransform, ObjectVisibility
+from rstrace_engine.geometry.cameras import camera_params
+from rstrace_engine.geometry.edits import (
+    MaterialSet,
+    ObjectDelete,
+    ObjectTransform,
+    ObjectVisibility,
+    apply_edits,
+)
 from rstrace_engine.geometry.scene import Material
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.session import Session
@@ -172,6 +181,33 @@ def test_moving_a_small_object_under_a_world_that_lights():
         assert not rep.full_frame and 0 < rep.dirty_fraction < 0.5 * hits, (
             rep.dirty_fraction, hits)
         prev, _ = check_base_step(sess, prev, settings)
+
+
+@pytest.mark.parametrize("edit", ["move", "delete"])
+def test_view_rays_are_dirty_only_where_objects_came(edit):
+    """A ray that hit no edited object meets what it met unless geometry came into its way:
+    the view and mirror segments are tested against where the edited objects are now (box
+    and sphere), not the old box union new box. Moving or deleting the small box dirties
+    fewer pixels than the boxes alone (before: the same), and the frame equals a fresh
+    one bit for bit."""
+    settings = RenderSettings(max_depth=3)
+    scene = SOAK_SCENES["room"](64, 48)
+    sess = Session(scene, settings)
+    prev = sess.render()
+    m = scene.instances[scene.instance_slot("Small")]["matrix"].copy()
+    m[0, 3] += 0.3
+    edits = [ObjectTransform("Small", m) if edit == "move" else ObjectDelete("Small")]
+    rec, old_sa = sess.reuse.records, sess.scene.arrays()
+    _, fx = apply_edits(sess.scene, edits)
+    cp = camera_params(sess.scene.camera)
+    dirty = rec.dirty_pixels(old_sa, cp, fx)
+    boxes = rec.dirty_pixels(old_sa, cp, replace(fx, parts=[]))  # (every box, old and new)
+    assert (dirty <= boxes).all()
+    assert dirty.sum() < boxes.sum(), (int(dirty.sum()), int(boxes.sum()))
+    rep = sess.apply(edits)
+    assert rep.dirty_pixels == int(dirty.sum())
+    frame, _ = check_base_step(sess, prev, settings)
+    np.testing.assert_array_equal(frame.radiance, fresh_frame(sess.scene, settings).radiance)
 
 
 @pytest.mark.parametrize("accelerator", ["EMBREE", "BVH", "BRUTE_FORCE", "VISIBILITY_FIELD"])

@@ -16,10 +16,10 @@ only what other edits made dirty. Batches that mix in other edits, a world that 
 light, or records over their memory cap take the per-pixel records' path as before.
 
 Under soft light (BASE, with those terms) an object edit goes further, at the level of
-rays: a sample whose only rays the edit may cross are its primary hit's shadow rays to
-lights with an extent or the world's rays (:meth:`~.pixel_records.PixelRecords.dirty_split`)
-is not traced again; the next frame shades those lights (or the world) again at its
-primary node, through the edited scene, and recombines it (:mod:`.shadow_reshade`: of
+rays: a sample whose only rays the edit may cross are its hits' shadow rays to lights with
+an extent or the world's rays (:meth:`~.pixel_records.PixelRecords.dirty_split`) is not
+traced again; the next frame shades those lights (or the world) again at those nodes,
+primary or secondary, through the edited scene, and recombines it (:mod:`.shadow_reshade`: of
 their samples, only those that may cross an edited box are traced, the others' visibility
 kept as bits). A later batch that edits lights turns the pending ones into dirty pixels.
 
@@ -43,6 +43,7 @@ from .light_linking import links_shadows
 from .light_records import load_kernels
 from .pixel_records import PixelRecords
 from .seen_lights import any_seen
+from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
 from .soft_lights import has_soft_light, world_lights
 
@@ -74,6 +75,9 @@ class FrameReuse:
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
         self.reshade_world: np.ndarray | None = None
+        # the same at the kept samples' secondary nodes (their order in the records)
+        self.reshade_s_lights: np.ndarray | None = None
+        self.reshade_s_world: np.ndarray | None = None
         self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
 
     def keep_only(self, frame: Frame | None) -> None:
@@ -264,18 +268,24 @@ class FrameReuse:
         """The dirty pixels of :meth:`~.pixel_records.PixelRecords.dirty_split`'s ``(full,
         lights, world)``: those with a sample dirty in full; the other samples' lights and
         world to shade again are added to the pending ones."""
-        full, lights, world = split
+        full, lights, world, s_lights, s_world = split
         rec = self.records
         spp, n = rec.spp, rec.n_pixels
         dirty = full.reshape(spp, n).any(axis=0)
         keep = ~np.tile(dirty | self.dirty, spp)
         lights = np.where(keep, lights, np.uint64(0))
         world = world & keep
+        s_keep = keep[rec.secondary_rays()]
+        s_lights = np.where(s_keep, s_lights, np.uint64(0))
+        s_world = s_world & s_keep
         if self.reshade_lights is None:
             self.reshade_lights, self.reshade_world = lights, world
+            self.reshade_s_lights, self.reshade_s_world = s_lights, s_world
         else:
             self.reshade_lights |= lights
             self.reshade_world |= world
+            self.reshade_s_lights |= s_lights
+            self.reshade_s_world |= s_world
         return dirty
 
     @property
@@ -284,8 +294,10 @@ class FrameReuse:
         rec = self.records
         if self.reshade_lights is None or rec is None:
             return np.zeros(0 if rec is None else rec.n_pixels, bool)
-        due = ((self.reshade_lights != 0) | self.reshade_world).reshape(rec.spp, -1)
-        return due.any(axis=0) & ~self.dirty
+        due = (self.reshade_lights != 0) | self.reshade_world
+        if len(self.reshade_s_lights):
+            due[rec.secondary_rays()[(self.reshade_s_lights != 0) | self.reshade_s_world]] = True
+        return due.reshape(rec.spp, -1).any(axis=0) & ~self.dirty
 
     def _flush_reshade(self) -> None:
         """The pending shading of lights again (:meth:`_split`) becomes dirty pixels (a
@@ -296,6 +308,7 @@ class FrameReuse:
 
     def _no_reshade(self) -> None:
         self.reshade_lights = self.reshade_world = None
+        self.reshade_s_lights = self.reshade_s_world = None
         self.reshade_regions = []
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
@@ -371,6 +384,17 @@ class FrameReuse:
                            rec.p_vis if regions is not None else None, regions, counters)
             for j, (rows, lit) in done.items():
                 rec.set_lit_at(j, rows, lit)
+            # and at their secondary nodes (mirror and refraction hits)
+            s_keep = keep[rec.secondary_rays()]
+            s_lights = np.where(s_keep, self.reshade_s_lights, np.uint64(0))
+            s_world = self.reshade_s_world & s_keep
+            if s_lights.any() or s_world.any():
+                done = reshade(lr, sa, accel, s_lights, s_world, int(settings.light_samples),
+                               rec.secondary_depths() < int(settings.max_depth),
+                               rec.s_vis if regions is not None else None, regions,
+                               counters, secondary=True)
+                for j, (rows, lit) in done.items():
+                    rec.set_lit_at(j, rows, lit, secondary=True)
             split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
@@ -411,12 +435,13 @@ class FrameReuse:
         return rec, None, None
 
     def finish(self, frame: Frame, records: PixelRecords, pixels, key, camera, samples: int,
-               cache=None, pool0=None) -> Frame:
+               cache=None, pool0=None, sa=None) -> Frame:
         """Keep ``frame`` (rendered from :meth:`plan`'s ``records``, ``pixels``) for the
         next one; returns the frame to show, whose pixels rebuilt from invalidated
         interpolants are marked ``CLASS_REBUILT`` (the kept frame says "interpolated").
         cache, pool0 : the interpolant cache and ``(cache, next_serial, n_live)`` of its pool
-        before the frame (INTERPOLANT), for :meth:`_track_interpolants`."""
+        before the frame (INTERPOLANT), for :meth:`_track_interpolants`. sa : the frame's
+        scene packing (BASE under soft light: the re-shade's kernels are loaded once)."""
         rebuilt = self.rebuilt if self.matches(key, camera) else None
         stored = frame
         if frame.pixel_interpolant is not None and rebuilt is not None and rebuilt.any():
@@ -434,6 +459,8 @@ class FrameReuse:
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
+            if sa is not None and not records.light.partial and has_soft_light(sa):
+                load_reshade_kernels(sa)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

@@ -325,7 +325,7 @@ class _Part:
         """These nodes with the sorted ``rows`` replaced by ``new``'s nodes (a detached
         term carried: :mod:`.light_splice`)."""
         hit, start, slot, val, geo = splice(self, rows, new)
-        out = _Part(hit, start, slot, val, None, geo)
+        out = _Part(hit, start, slot, val, self.weight, geo)  # (nodes replaced in place)
         if self.dj >= 0:
             out.dj, out.d_on, out.d_val = self.dj, self.d_on, self.d_val
         return out

@@ -22,19 +22,27 @@ conservative: a sample is never wrongly left clean.
 
 A sample is dirty when one of its nodes
 
-* has a segment (primary, reflection/refraction or shadow) crossing an edited region (old
-  or new world box of a moved, added, deleted, hidden or re-meshed object: whatever the edit
-  changed is inside those boxes, so a ray that crosses neither hits exactly what it hit);
-* hit an object the edits name (its material list changed) or one whose material changed;
+* has a shadow segment crossing an edited region (old or new world box of a moved, added,
+  deleted, hidden or re-meshed object: whatever the edit changed is inside those boxes, so
+  a ray that crosses neither hits exactly what it hit);
+* has its own segment (primary, reflection/refraction) crossing a place an edited object
+  came to (its new box *and* its bounding sphere, :attr:`~.edits.EditEffects.parts`): a ray
+  that hit no edited object (one that did is dirty by the next rule) meets what it met
+  unless geometry came into its way -- taking an object away changes only the rays that
+  hit it (:mod:`.record_queries`);
+* hit an object the edits name (moved, added, deleted, its material list changed) or one
+  whose material changed;
 * had a visible light whose power or colour changed or that was deleted;
 * hit anything, when a light moved or was added (which surfaces face a light, and through
   which cone, depends on normals the records do not keep);
 * missed, when the world colour changed.
 
 With soft light the cause is kept apart (:meth:`PixelRecords.dirty_split`): a sample dirty
-only through its primary hit's shadow rays to lights with an extent, or its world rays, is
-*re-shaded* rather than traced again (:mod:`.shadow_reshade`); for that the records also
-keep those samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`).
+only through its hits' shadow rays to lights with an extent, or their world rays (at the
+primary or at a secondary hit), is *re-shaded* rather than traced again
+(:mod:`.shadow_reshade`); for that the records also keep every hit's normal, node seed and
+soft samples' visibility, a bit per sample and light (:attr:`PixelRecords.p_vis`,
+:attr:`PixelRecords.s_vis`).
 
 Why per-pixel records rather than the traced pixels' segments in the ray segment trees
 (measured on museum, 640x480, ray depth 5): a frame's samples have 307,200 view segments,
@@ -58,7 +66,13 @@ from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
 from .light_linking import links_shadows
 from .light_records import LightRecords
-from .record_codes import POINT_BITS, _encode_nodes, light_geometry
+from .record_codes import (
+    POINT_BITS,
+    _encode_nodes,
+    _secondary_depths,
+    _secondary_samples,
+    light_geometry,
+)
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
 from .sample_rays import query_light_bits, query_world
 from .soft_lights import world_lights
@@ -143,6 +157,12 @@ class PixelRecords:
         self.p_seed: np.ndarray | None = None
         self.w_samples = 0
         self.w_lights = 0
+        #: the same for the secondary nodes (reflection and refraction hits), in their
+        #: order: shading normal (NaN: a miss, or not recorded), node seed and the soft
+        #: samples' visibility (None where not kept: as :attr:`p_vis`)
+        self.s_wnorm: np.ndarray | None = None
+        self.s_seed: np.ndarray | None = None
+        self.s_vis: np.ndarray | None = None
         #: the primary hits' soft samples' visibility (:func:`~.sample_rays.soft_bits`:
         #: (n_rays, L + 1) bits, the world's column last, as narrow as the samples allow),
         #: kept from the frame's first batch on while its lights' shadows stay put
@@ -236,7 +256,7 @@ class PixelRecords:
         if len(inst) > nb:
             parent = np.concatenate([lv["parent"] for lv in levels[1:]]).astype(np.int64)
             self._pending.append((parent, combos[nb:], codes[nb:], np.asarray(rays, np.int64),
-                                  nb))
+                                  nb, _secondary_samples(levels[1:])))
 
     def _add_world(self, rays: np.ndarray, level: dict) -> None:
         """Record the primary nodes' sampled rays (normal and node seed) where the tracer
@@ -311,8 +331,13 @@ class PixelRecords:
                 self.s_combo = self.s_combo[keep]
                 self.s_code = self.s_code[keep]
                 base = len(self.s_parent)
+                if self.s_wnorm is not None:
+                    self.s_wnorm, self.s_seed = self.s_wnorm[keep], self.s_seed[keep]
+                    if self.s_vis is not None:
+                        self.s_vis = self.s_vis[keep]
+        self._finish_samples(base)
         parents, combos, codes = [self.s_parent], [self.s_combo], [self.s_code]
-        for parent, comb, code, rays, nb in self._pending:
+        for parent, comb, code, rays, nb, _ in self._pending:
             # batch rows: 0..nb-1 are the input rays, then the secondary nodes in order
             glob = np.where(parent < nb, rays[np.minimum(parent, nb - 1)],
                             self.n_rays + base + (parent - nb))
@@ -327,6 +352,30 @@ class PixelRecords:
         self.s_combo = np.concatenate(combos).astype(np.uint32)
         self.s_code = np.concatenate(codes).astype(np.uint32)
         self._compact()
+
+    def _finish_samples(self, base: int) -> None:
+        """The pending batches' secondary nodes' sampled rays after the ``base`` kept ones
+        (:attr:`s_wnorm`, :attr:`s_seed`, :attr:`s_vis`; unknown where a batch gave none)."""
+        extra = [e for *_, e in self._pending]
+        if self.s_wnorm is None and all(e is None for e in extra):
+            return
+        sizes = [len(q[0]) for q in self._pending]
+        if self.s_wnorm is None:
+            self.s_wnorm = np.full((base, 3), np.nan, np.float32)
+            self.s_seed = np.zeros(base, np.uint64)
+            self.s_vis = None if base or self.p_vis is None else np.zeros(
+                (0,) + self.p_vis.shape[1:], self.p_vis.dtype)
+        wn, sd, vis = [self.s_wnorm], [self.s_seed], [self.s_vis]
+        for e, k in zip(extra, sizes, strict=True):
+            wn.append(np.full((k, 3), np.nan, np.float32) if e is None else e[0])
+            sd.append(np.zeros(k, np.uint64) if e is None else e[1])
+            vis.append(None if e is None else e[2])
+        self.s_wnorm, self.s_seed = np.concatenate(wn), np.concatenate(sd)
+        pv = self.p_vis
+        if pv is None or any(v is None or v.shape[1:] != pv.shape[1:] for v in vis):
+            self.s_vis = None
+        else:
+            self.s_vis = np.concatenate([v.astype(pv.dtype) for v in vis])
 
     def _compact(self) -> None:
         """Drop table rows no node uses any more; keep indices 16-bit where they fit."""
@@ -349,6 +398,13 @@ class PixelRecords:
         if len(s_ray):
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
         return s_ray
+
+    def secondary_depths(self) -> np.ndarray:
+        """(m,) int32: the ray depth of every secondary node (1: a primary hit's child)."""
+        depth = np.empty(len(self.s_parent), np.int32)
+        if len(depth):
+            _secondary_depths(self.s_parent, self.n_rays, depth)
+        return depth
 
     def set_light_bits(self, j: int, primary, secondary) -> None:
         """Light ``j``'s bits of every node after it was shaded again
@@ -386,15 +442,18 @@ class PixelRecords:
     def drop_visibility(self) -> None:
         """Keep no soft samples' visibility any more (a light's shadows moved): re-shaded
         lights trace all their samples until the next full frame."""
-        self.p_vis = None
+        self.p_vis = self.s_vis = None
         self.vis_off = True
 
-    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray) -> None:
-        """Light ``j``'s visibility bit of the primary nodes ``rows`` after it was shaded
-        again there (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the
-        light are)."""
+    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray,
+                   secondary: bool = False) -> None:
+        """Light ``j``'s visibility bit of the primary (``secondary``: the secondary) nodes
+        ``rows`` after it was shaded again there (:mod:`.shadow_reshade`; its traced bit is
+        unchanged: the point and the light are)."""
+        name = "s_combo" if secondary else "p_combo"
+        combo = getattr(self, name)
         bit = np.uint64(1) << np.uint64(j)
-        c = self.p_combo[rows].astype(np.int64)
+        c = combo[rows].astype(np.int64)
         old = self.t_lit[c].astype(np.uint64)
         new = np.where(lit, old | bit, old & ~bit)
         ch = new != old
@@ -402,18 +461,17 @@ class PixelRecords:
             return
         ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
                            self.t_flags[c[ch]])
-        arr = self.p_combo.astype(np.uint32)
+        arr = combo.astype(np.uint32)
         arr[rows[ch]] = ids
-        self.p_combo = arr
+        setattr(self, name, arr)
         self._compact()
 
     @property
     def nbytes(self) -> int:
         """Memory of the records (arrays and the shared table), bytes; the light terms
         apart (:attr:`light`)."""
-        world = 0 if self.p_wnorm is None else self.p_wnorm.nbytes + self.p_seed.nbytes
-        if self.p_vis is not None:
-            world += self.p_vis.nbytes
+        world = sum(x.nbytes for x in (self.p_wnorm, self.p_seed, self.p_vis, self.s_wnorm,
+                                       self.s_seed, self.s_vis) if x is not None)
         return world + int(sum(a.nbytes for a in (self.t_inst, self.t_traced, self.t_lit,
                                                    self.t_flags, self.p_combo, self.p_code,
                                                    self.s_parent, self.s_combo, self.s_code)))
@@ -424,16 +482,22 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
-        full, lights, world = self.dirty_split(sa, cp, fx)
-        return full | (lights != 0) | world
+        full, lights, world, s_lights, s_world = self.dirty_split(sa, cp, fx)
+        out = full | (lights != 0) | world
+        if len(s_lights):
+            _mark_rays(self.secondary_rays(), (s_lights != 0) | s_world, out)
+        return out
 
     def dirty_split(self, sa, cp, fx) -> tuple:
         """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
-        world (n_rays,) bool)`` -- ``full`` the samples whose primary ray, secondary nodes,
-        hard lights' shadow rays, hit objects, materials or lights the edits may change;
-        for the others, ``lights`` the lights with an extent (bits) and ``world`` the
-        world's light whose shadow rays at the primary hit may cross an edited box (their
-        terms alone may change: :mod:`.shadow_reshade`)."""
+        world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool)`` -- ``full`` the
+        samples whose primary ray, reflection or refraction rays, hard lights' shadow rays,
+        hit objects, materials or lights the edits may change; for the others, ``lights``
+        the lights with an extent (bits) and ``world`` the world's light whose shadow rays
+        at the primary hit may cross an edited box, ``s_lights`` and ``s_world`` the same
+        at each secondary node (recorded with its normal and seed: :attr:`s_wnorm`; else
+        those rays make the sample dirty in full) -- their terms alone may change
+        (:mod:`.shadow_reshade`)."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -464,7 +528,10 @@ class PixelRecords:
         # hits test their own rays (regenerated from the recorded normal and hash, below);
         # secondary hits keep no normal, so any edited box may shade them
         world_rays = world_lights(sa) and len(fx.regions) > 0
-        sec_dirty = dirty | is_hit if world_rays else dirty
+        # secondary hits with their normals and seeds recorded test their own world rays
+        # and soft lights' samples (below); without, any edited box may shade them
+        sec_rays = self.s_wnorm is not None and len(self.s_parent) > 0
+        sec_dirty = dirty | is_hit if world_rays and not sec_rays else dirty
         regions = fx.region_array()
         margin = self.margin(sa)
         if cp.ortho:
@@ -478,14 +545,17 @@ class PixelRecords:
             origins = np.zeros((0, 3))
         reg_lo = np.ascontiguousarray(regions[:, 0] - margin)
         reg_hi = np.ascontiguousarray(regions[:, 1] + margin)
-        reg_c = np.ascontiguousarray(0.5 * (reg_lo + reg_hi))
-        reg_r = np.ascontiguousarray(0.5 * np.linalg.norm(reg_hi - reg_lo, axis=1))
         # the edited objects, old and new apart, by box and sphere (grown as the boxes are):
-        # the soft lights' and the world's rays at the primary hits are tested against them
+        # the soft lights' and the world's rays at the hits are tested against them,
+        # the nodes' own segments (view, reflection, refraction) against the places objects
+        # came to (a ray that hit no edited object meets what it met unless geometry came
+        # into its way: record_queries)
         p_lo, p_hi, p_c, p_r, p_tag = fx.part_arrays()
         p_lo = np.ascontiguousarray(p_lo - margin)
         p_hi = np.ascontiguousarray(p_hi + margin)
         p_r = np.ascontiguousarray(p_r + float(np.linalg.norm(margin)))
+        came = (p_tag & PART_NEW) != 0
+        seg = tuple(np.ascontiguousarray(x[came]) for x in (p_lo, p_hi, p_c, p_r))
         combo_dirty = np.ascontiguousarray(dirty)
         sec_dirty = np.ascontiguousarray(sec_dirty)
         inst64 = np.ascontiguousarray(combo_inst)
@@ -493,8 +563,6 @@ class PixelRecords:
         pos = light_geometry(sa)
         ldir = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
         out = np.zeros(self.n_rays, np.bool_)
-        lights = np.zeros(self.n_rays, np.uint64)
-        world = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
             # the lights with an extent: the primary hits' shadow rays per light (after)
             soft = np.uint64(0)
@@ -503,8 +571,8 @@ class PixelRecords:
                 for j in np.flatnonzero(ext):
                     soft |= np.uint64(1) << np.uint64(j)
             self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
-                        combo_traced, origins, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir,
-                        out)
+                        combo_traced & ~soft if sec_rays else combo_traced, origins,
+                        reg_lo, reg_hi, seg, kind, pos, ldir, out)
             # the view and mirror segments crossing an edited light's surface (the view
             # segments only where camera rays see it)
             cam = list(fx.seen_camera) + [True] * (len(fx.seen_regions) - len(fx.seen_camera))
@@ -517,61 +585,86 @@ class PixelRecords:
                 none = np.zeros(len(combo_dirty), np.bool_)
                 no_lights = np.zeros(len(combo_traced), np.uint64)
                 crossed = np.zeros(self.n_rays, np.bool_)  # (the queries assign, not or)
+                box = (lo, hi, np.ascontiguousarray(0.5 * (lo + hi)),
+                       np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)))
                 self._query(cp, none, none, inst64, no_lights, no_lights, origins, lo, hi,
-                            np.ascontiguousarray(0.5 * (lo + hi)),
-                            np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)),
-                            kind, pos, ldir, crossed, primary=view)
+                            box, kind, pos, ldir, crossed, primary=view)
                 out |= crossed
-            if soft:
-                wnorm, seed = self.p_wnorm, self.p_seed
-                if wnorm is None:  # (no seeds recorded: the shaft tests)
-                    wnorm = np.full((self.n_rays, 3), np.nan, np.float32)
-                    seed = np.zeros(self.n_rays, np.uint64)
-                query_light_bits(sa, self.p_combo, self.p_code, inst64, combo_traced,
-                                 wnorm, seed, self.w_samples, soft, self.lo, self.step,
-                                 self.levels, self.shift, p_lo, p_hi, p_c, p_r, pos, out,
-                                 lights)
-            if world_rays:
-                if self.p_wnorm is None:
-                    world = is_hit[self.p_combo.astype(np.int64)] & ~out
+            parts = (p_lo, p_hi, p_c, p_r, p_tag)
+            lights, world = self._sampled(sa, self.p_combo, self.p_code, self.p_wnorm,
+                                          self.p_seed, self.p_vis, is_hit, inst64,
+                                          combo_traced, soft, world_rays, parts, pos, out)
+            m = len(self.s_parent)
+            s_lights, s_world = np.zeros(m, np.uint64), np.zeros(m, np.bool_)
+            if sec_rays:  # the secondary hits' own rays, as the primary hits' (above)
+                s_lights, s_world = self._sampled(
+                    sa, self.s_combo, self.s_code, self.s_wnorm, self.s_seed, self.s_vis,
+                    is_hit, inst64, combo_traced, soft, world_rays, parts, pos,
+                    out[self.secondary_rays()])
+        return out, lights, world, s_lights, s_world
+
+    def _sampled(self, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_traced,
+                 soft, world_rays: bool, parts: tuple, pos, skip) -> tuple:
+        """The lights with an extent (``soft`` bits) and the world's light (where
+        ``world_rays``) whose sampled rays may cross an edited object (``parts``: grown
+        boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
+        secondary ones) with their recorded normals, seeds and soft samples' visibility
+        ``vis``, the nodes whose sample is in ``skip`` (traced again) left out: ``(lights
+        (k,) uint64, world (k,) bool)``."""
+        k = len(combo)
+        lights = np.zeros(k, np.uint64)
+        world = np.zeros(k, np.bool_)
+        p_lo, p_hi, p_c, p_r, p_tag = parts
+        skip = np.ascontiguousarray(skip)
+        if soft:
+            if wnorm is None:  # (no seeds recorded: the shaft tests)
+                wnorm = np.full((k, 3), np.nan, np.float32)
+                seed = np.zeros(k, np.uint64)
+            query_light_bits(sa, combo, code, inst64, combo_traced, wnorm, seed,
+                             self.w_samples, soft, self.lo, self.step, self.levels,
+                             self.shift, p_lo, p_hi, p_c, p_r, pos, skip, lights)
+        if world_rays:
+            if wnorm is None:
+                world = is_hit[combo.astype(np.int64)] & ~skip
+            else:
+                w_out = skip.copy()
+                # the world's samples' visibility in the records' frame: visible ones
+                # tested where objects came, blocked ones where they went (query_world)
+                if vis is not None and not links_shadows(sa):
+                    w_old = np.ascontiguousarray(vis[:, self.w_lights], np.uint64)
                 else:
-                    w_out = out.copy()
-                    # the world's samples' visibility in the records' frame: visible ones
-                    # tested where objects came, blocked ones where they went (query_world)
-                    if self.p_vis is not None and not links_shadows(sa):
-                        w_old = np.ascontiguousarray(self.p_vis[:, self.w_lights], np.uint64)
-                    else:
-                        w_old = np.zeros(self.n_rays, np.uint64)
-                        p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
-                    query_world(self.p_combo, self.p_code, inst64, self.p_wnorm,
-                                self.p_seed, self.w_samples, self.lo, self.step,
-                                self.levels, self.shift, p_c, p_r, p_tag, w_old, w_out)
-                    world = w_out & ~out
-        return out, lights, world
+                    w_old = np.zeros(k, np.uint64)
+                    p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
+                query_world(combo, code, inst64, wnorm, seed, self.w_samples, self.lo,
+                            self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
+                            w_out)
+                world = w_out & ~skip
+        return lights, world
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
-               reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out, primary: bool = True
-               ) -> None:
+               reg_lo, reg_hi, seg, kind, pos, ldir, out, primary: bool = True) -> None:
         """The records' segments against the regions: primary nodes with ``combo_traced``
-        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`); ``primary`` False:
-        the secondary nodes alone."""
+        lights, secondary ones with ``sec_traced`` (:meth:`dirty_rays`), their shadow
+        segments against the boxes ``reg_lo, reg_hi``, their own segments against ``seg``
+        ``(lo, hi, centre, radius)`` (box and sphere both); ``primary`` False: the
+        secondary nodes alone."""
         if primary and cp.ortho:
             _query_primary(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                            np.ascontiguousarray(cp.xform[:3, 3]),
                            np.ascontiguousarray(origins), self.lo, self.step, self.levels,
-                           self.shift, reg_lo, reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+                           self.shift, reg_lo, reg_hi, *seg, kind, pos, ldir, out)
         elif primary:
             _query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
                          np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
                          self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,
-                         reg_hi, reg_c, reg_r, kind, pos, ldir, out)
+                         reg_hi, *seg, kind, pos, ldir, out)
         m = len(self.s_parent)
         if m:
             s_dirty = np.zeros(m, np.bool_)
             _query_secondary(self.s_parent, self.s_combo, self.s_code, self.p_combo,
                              self.p_code, self.n_rays, sec_dirty, inst64, sec_traced,
                              self.lo, self.step, self.levels, self.shift, reg_lo, reg_hi,
-                             reg_c, reg_r, kind, pos, ldir, s_dirty)
+                             *seg, kind, pos, ldir, s_dirty)
             s_ray = np.empty(m, np.int32)
             _secondary_rays(self.s_parent, self.n_rays, s_ray)
             _mark_rays(s_ray, s_dirty, out)

@@ -153,3 +153,27 @@ def _light_hit(px, py, pz, j, lo, hi, light_kind, lgeo, light_dir):
         ghi = (hi[0] + g, hi[1] + g, hi[2] + g)
         return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], glo, ghi, False)
     return _segment_box(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2], lo, hi, False)
+
+
+def _secondary_samples(levels: list):
+    """The secondary levels' sampled rays (:attr:`~.pixel_records.PixelRecords.s_wnorm`):
+    ``(normal (k, 3) float32, NaN at misses, seed (k,) uint64, soft bits (k, L + 1) or
+    None)``, or None where the tracer gave none."""
+    if not levels or not all("normal" in lv for lv in levels):
+        return None
+    hit = np.concatenate([lv["inst"] for lv in levels]) >= 0
+    wn = np.concatenate([lv["normal"] for lv in levels])
+    wn = np.where(hit[:, None], wn, np.nan).astype(np.float32)  # (a miss's: undefined)
+    seed = np.concatenate([lv["seed"] for lv in levels]).astype(np.uint64)
+    bits = None
+    if all("soft_bits" in lv for lv in levels):
+        bits = np.concatenate([lv["soft_bits"] for lv in levels])
+    return wn, seed, bits
+
+
+@njit(cache=True, nogil=True)
+def _secondary_depths(s_parent, n_rays, depth):
+    """The ray depth of each secondary node (parents come before their children)."""
+    for k in range(s_parent.shape[0]):
+        p = s_parent[k]
+        depth[k] = 1 if p < n_rays else depth[p - n_rays] + 1

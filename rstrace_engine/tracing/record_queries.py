@@ -1,35 +1,54 @@
 """The per-pixel records' segment queries (:mod:`.pixel_records`): every recorded node's
 segment -- the view ray, a reflection or refraction ray, the shadow rays to the lights it
-traced -- against the edited regions, primary nodes culled by screen tiles."""
+traced -- against the edited regions, primary nodes culled by screen tiles.
+
+A node's own segment (the ray to its hit, or a miss's direction) is tested against the
+places edited objects *came to* only (``seg_*``: :data:`~.edits.PART_NEW` parts, each by its
+box and its sphere, grown): a ray that did not hit an edited object (a node that did is
+dirty by its table row) meets what it met unless geometry came into its way -- taking an
+object away changes only the rays that hit it. The shadow segments to hard lights are
+tested against the regions (``reg_*``: old box union new box), as a shadow ray may pass
+where its blocker went."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
 from .record_codes import _cone_sphere, _decode_point, _light_hit, _oct_decode, _segment_box
+from .sample_rays import _segment_sphere
 
 
 @njit(cache=True, nogil=True)
 def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, levels, shift,
-                reg_lo, reg_hi, reg_c, reg_r, light_kind, light_pos, light_dir):
-    """Geometric test of one node: its segment and its shadow segments against the regions."""
-    k_reg = reg_lo.shape[0]
-    if k_reg == 0:
-        return False
+                reg_lo, reg_hi, seg_lo, seg_hi, seg_c, seg_r, light_kind, light_pos,
+                light_dir):
+    """Geometric test of one node: its segment against the places objects came to
+    (``seg_*``: box and sphere both) and its shadow segments against the regions
+    (``reg_*``)."""
     if inst < 0:
         dx, dy, dz = _oct_decode(code)
-        for q in range(k_reg):
-            if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, reg_c[q, 0],
-                            reg_c[q, 1], reg_c[q, 2], reg_r[q], tol.RECORD_DIR_ERROR):
+        for q in range(seg_lo.shape[0]):
+            if _cone_sphere(origin_x, origin_y, origin_z, dx, dy, dz, seg_c[q, 0],
+                            seg_c[q, 1], seg_c[q, 2], seg_r[q], tol.RECORD_DIR_ERROR):
                 return True
         return False
+    k_reg = reg_lo.shape[0]
     px, py, pz = _decode_point(code, lo, step, levels, shift)
-    for q in range(k_reg):
-        if _segment_box(origin_x, origin_y, origin_z, px, py, pz, reg_lo[q], reg_hi[q],
-                        False):
-            return True
+    if seg_lo.shape[0]:
+        ex, ey, ez = px - origin_x, py - origin_y, pz - origin_z
+        e = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if e > 0.0:
+            ex, ey, ez = ex / e, ey / e, ez / e
+        for q in range(seg_lo.shape[0]):
+            if _segment_box(origin_x, origin_y, origin_z, px, py, pz, seg_lo[q], seg_hi[q],
+                            False) and _segment_sphere(origin_x, origin_y, origin_z, ex, ey,
+                                                       ez, e, seg_c[q, 0], seg_c[q, 1],
+                                                       seg_c[q, 2], seg_r[q]):
+                return True
     L = light_kind.shape[0]
     for j in range(L):
         if not (traced >> np.uint64(j)) & np.uint64(1):
@@ -43,8 +62,8 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
 
 @njit(cache=True, nogil=True, parallel=True)
 def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin,
-                   ortho_origins, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                   light_kind, light_pos, light_dir, out):
+                   ortho_origins, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
+                   seg_c, seg_r, light_kind, light_pos, light_dir, out):
     n = p_combo.shape[0]
     for g in prange(n):
         c = p_combo[g]
@@ -58,8 +77,8 @@ def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_o
         else:
             ox, oy, oz = cam_origin[0], cam_origin[1], cam_origin[2]
         out[g] = _node_dirty(p_code[g], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
-                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
-                             light_pos, light_dir)
+                             levels, shift, reg_lo, reg_hi, seg_lo, seg_hi, seg_c, seg_r,
+                             light_kind, light_pos, light_dir)
 
 
 TILE = 8  # pixels per side of the screen tiles the primary query culls with
@@ -67,20 +86,23 @@ TILE = 8  # pixels per side of the screen tiles the primary query culls with
 
 @njit(cache=True, nogil=True, parallel=True)
 def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
-                 height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                 light_kind, light_pos, light_dir, out):
+                 height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
+                 seg_c, seg_r, light_kind, light_pos, light_dir, out):
     """The primary query, culled by screen tiles (perspective cameras).
 
     Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
     union of its traced lights. A segment from the camera to any point of the box lies
     within the box's half-size of the segment to its centre (and likewise towards a
     light), so growing the regions by that half-size makes one test per tile and light
-    conservative; only tiles that fail it (or hold a miss) test their rays one by one.
+    conservative; only tiles that fail it (or hold a miss) test their rays one by one
+    (the view segments against the places objects came to, ``seg_*``; the shadow
+    segments against the regions, ``reg_*``: :func:`_node_dirty`).
     """
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
     k_reg = reg_lo.shape[0]
+    k_seg = seg_lo.shape[0]
     for t in prange(n_tiles):
         s = t // (tw * th)
         r = t - s * tw * th
@@ -107,21 +129,28 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                 bhi[0] = max(bhi[0], px)
                 bhi[1] = max(bhi[1], py)
                 bhi[2] = max(bhi[2], pz)
-        if not check and blo[0] <= bhi[0] and k_reg > 0:
+        if not check and blo[0] <= bhi[0] and k_reg + k_seg > 0:
             cx = 0.5 * (blo[0] + bhi[0])
             cy = 0.5 * (blo[1] + bhi[1])
             cz = 0.5 * (blo[2] + bhi[2])
             glo = np.empty(3)
             ghi = np.empty(3)
-            for q in range(k_reg):
+            for q in range(k_seg):
                 for k in range(3):
                     half = 0.5 * (bhi[k] - blo[k])
-                    glo[k] = reg_lo[q, k] - half
-                    ghi[k] = reg_hi[q, k] + half
+                    glo[k] = seg_lo[q, k] - half
+                    ghi[k] = seg_hi[q, k] + half
                 if _segment_box(cam_origin[0], cam_origin[1], cam_origin[2], cx, cy, cz,
                                 glo, ghi, False):
                     check = True
                     break
+            for q in range(k_reg):
+                if check:
+                    break
+                for k in range(3):
+                    half = 0.5 * (bhi[k] - blo[k])
+                    glo[k] = reg_lo[q, k] - half
+                    ghi[k] = reg_hi[q, k] + half
                 for j in range(light_kind.shape[0]):
                     if not (traced >> np.uint64(j)) & np.uint64(1):
                         continue
@@ -139,14 +168,14 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                 elif check:
                     out[g] = _node_dirty(p_code[g], cam_origin[0], cam_origin[1],
                                          cam_origin[2], combo_inst[c], combo_traced[c], lo,
-                                         step, levels, shift, reg_lo, reg_hi, reg_c, reg_r,
-                                         light_kind, light_pos, light_dir)
+                                         step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
+                                         seg_c, seg_r, light_kind, light_pos, light_dir)
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def _query_secondary(s_parent, s_combo, s_code, p_combo, p_code, n_rays, combo_dirty,
                      combo_inst, combo_traced, lo, step, levels, shift, reg_lo, reg_hi,
-                     reg_c, reg_r, light_kind, light_pos, light_dir, out):
+                     seg_lo, seg_hi, seg_c, seg_r, light_kind, light_pos, light_dir, out):
     m = s_parent.shape[0]
     for k in prange(m):
         c = s_combo[k]
@@ -157,8 +186,8 @@ def _query_secondary(s_parent, s_combo, s_code, p_combo, p_code, n_rays, combo_d
         pcode = p_code[p] if p < n_rays else s_code[p - n_rays]
         ox, oy, oz = _decode_point(pcode, lo, step, levels, shift)
         out[k] = _node_dirty(s_code[k], ox, oy, oz, combo_inst[c], combo_traced[c], lo, step,
-                             levels, shift, reg_lo, reg_hi, reg_c, reg_r, light_kind,
-                             light_pos, light_dir)
+                             levels, shift, reg_lo, reg_hi, seg_lo, seg_hi, seg_c, seg_r,
+                             light_kind, light_pos, light_dir)
 
 
 @njit(cache=True, nogil=True)

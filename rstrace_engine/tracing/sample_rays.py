@@ -2,8 +2,9 @@
 
 A point under a light with an extent or a world that lights shoots ``n`` shadow rays per
 such light, drawn from its *node seed* (:mod:`.soft_lights`: a Fibonacci lattice rotated by
-a hash of the seed and the light). The records keep, per primary hit of a frame with soft
-light, the shading normal (float32) and the node seed (20 bytes per sample), from which the
+a hash of the seed and the light). The records keep, per hit of a frame with soft light
+(primary and secondary nodes), the shading normal (float32) and the node seed (20 bytes per
+node), from which the
 rays are regenerated exactly as the tracer drew them; an edit then dirties a sample only
 where one of its own rays may meet an edited box:
 
@@ -19,12 +20,12 @@ where one of its own rays may meet an edited box:
 
 Sphere lights' samples depend on the point (a cone about the direction to the centre): they
 keep the shaft test of :func:`~.record_codes._light_hit`, as do nodes without a recorded
-seed (secondary nodes, interpolated samples).
+seed (interpolated samples).
 
-The primary hits' lights are found *per light* (:func:`query_light_bits`) and the world's
-rays apart (:func:`query_world`): a sample whose only dirty rays are these shadow rays keeps
-its primary ray and its other terms, and the incremental frame shades just those lights (or
-the world) again at its primary node (:mod:`.shadow_reshade`).
+The hits' lights are found *per light* (:func:`query_light_bits`) and the world's rays apart
+(:func:`query_world`), at the primary and at the secondary nodes: a sample whose only dirty
+rays are these shadow rays keeps its rays and its other terms, and the incremental frame
+shades just those lights (or the world) again at those nodes (:mod:`.shadow_reshade`).
 """
 
 from __future__ import annotations

@@ -3,10 +3,11 @@
 A point lit by a light with an extent or by the world shoots ``n`` shadow rays per such
 light (:mod:`.soft_lights`); an object moved, added or deleted near it may cross a few of
 them. The per-pixel records find, per sample, *which* of its rays may cross an edited box
-(:meth:`~.pixel_records.PixelRecords.dirty_split`): a sample whose primary ray, secondary
-nodes and hard lights' shadow rays are untouched, and only some lights' (or the world's)
-shadow rays at its primary hit may change, is not traced again. Its primary node's terms of
-those lights are shaded again (:func:`reshade`), the others kept, and the frame is
+(:meth:`~.pixel_records.PixelRecords.dirty_split`): a sample whose primary ray, reflection
+and refraction rays and hard lights' shadow rays are untouched, and only some lights' (or
+the world's) shadow rays at its primary hit or at its secondary hits may change, is not
+traced again. Those nodes' terms of those lights are shaded again (:func:`reshade`, once
+for the primary nodes and once for the secondary ones), the others kept, and the frame is
 recombined from the per-light records (:meth:`~.light_records.LightRecords.recombine`) --
 as a moved light is relit (:mod:`.light_reshade`), but at those nodes only:
 
@@ -21,9 +22,10 @@ Every operand is the one a fresh frame's shade kernel reads, so each term is bit
 fresh frame's, and the recombination sums them in the tracer's order. Shadow linking is
 honoured (the tracer's own occlusion test).
 
-**Per-sample visibility.** The records keep the primary hits' samples' visibility, a bit
-per sample and light (:attr:`~.pixel_records.PixelRecords.p_vis`, written by the tracer:
-:func:`~.sample_rays.soft_bits`; 2 bytes per light and sample at 16 light samples). Then
+**Per-sample visibility.** The records keep the hits' samples' visibility, a bit per
+sample and light (:attr:`~.pixel_records.PixelRecords.p_vis` for the primary hits,
+:attr:`~.pixel_records.PixelRecords.s_vis` for the secondary ones, written by the tracer:
+:func:`~.sample_rays.soft_bits`; 2 bytes per light and node at 16 light samples). Then
 only the samples whose exact rays (regenerated from the rebuilt surface and the node seed,
 :func:`~.sample_rays.crossing_rows`) may cross an edited box, grown as the records grow it,
 are traced again; the others keep their bits (a ray that crosses no edited box meets what
@@ -47,7 +49,9 @@ from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
 from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
+from .light_records import _GEO
 from .light_reshade import _one_light_states, tick
+from .record_codes import _secondary_depths as secondary_depths_kernel
 from .sample_rays import crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
 from .soft_lights import SH_SOFT, soft_rays
@@ -171,18 +175,46 @@ def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept,
     return tp[:, L], tv[:, L]
 
 
+_loaded = [False]
+
+
+def load_kernels(sa) -> None:
+    """Load (or compile) the re-shade's own kernels once per process, for scene packings
+    like ``sa``, after the first frame that keeps light terms under soft light -- so that
+    the first object edit does not pay it (as :func:`~.light_records.load_kernels`; about
+    0.04 s of CPU on the 2-core machine, studio)."""
+    if _loaded[0] or len(sa.light_kind) == 0:
+        return
+    _loaded[0] = True
+    geo = {key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}
+    surf = _surfaces(sa, geo)
+    e3, e1 = np.zeros((0, 3)), np.zeros(0)
+    i64, u64 = np.zeros(0, np.int64), np.zeros(0, np.uint64)
+    with threads_for(0):
+        _one_light_states(sa, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
+                          np.empty(0, np.int8), np.empty(0, np.int32))
+        crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, e3,
+                      e3, e3, e1, np.zeros(0, np.int8), u64, True, u64.copy(), i64.copy())
+        crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, u64,
+                      np.zeros(1, np.int64), e3, e3.copy(), e1, i64.copy(), u64.copy())
+        unpack_bits(u64, 1, np.zeros(0, np.bool_))
+        secondary_depths_kernel(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
+
+
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
-            spawn: bool, vis_bits: np.ndarray | None = None, regions=None,
-            counters: dict | None = None) -> dict:
-    """Shade again, at the primary nodes of the per-light records ``lr`` (with geometry),
-    the lights with an extent whose bits ``lights`` (n_rays,) uint64 name and the world's
-    light where ``world`` (n_rays,) bool, through ``accel`` over the edited scene ``sa``;
-    their entries replaced, every other term kept. Returns ``{j: (rows, lit)}``: each
-    light's nodes and its visibility bit there (for the pixel records). ``spawn``: primary
-    nodes spawn rays (ray depth > 0). ``counters``: adds ``shadow`` and ``split`` seconds."""
+            spawn, vis_bits: np.ndarray | None = None, regions=None,
+            counters: dict | None = None, secondary: bool = False) -> dict:
+    """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
+    records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
+    uint64 per node) name and the world's light where ``world`` (bool per node), through
+    ``accel`` over the edited scene ``sa``; their entries replaced, every other term kept.
+    Returns ``{j: (rows, lit)}``: each light's nodes and its visibility bit there (for the
+    pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
+    a bool, or one per node). ``counters``: adds ``shadow`` and ``split`` seconds."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
-    p = lr.p
+    p = lr.s if secondary else lr.p
+    spawn = np.broadcast_to(np.asarray(spawn, np.bool_), (len(p),))
     rows = np.flatnonzero(((lights != 0) | world) & p.hit)  # (a miss has no shadow ray)
     out: dict = {}
     if len(rows) == 0:
@@ -233,8 +265,17 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             changes.append((c, sel, on, val))
             out[c] = (rows[sel], lit)
         elif len(sel):
-            on, val = _world_term(sa, accel, n, spawn, g, s, kept, counters)
-            changes.append((WORLD, sel, on, val))
+            # (grouped by whether the nodes spawn rays: a rough point's world samples then
+            # light its diffuse part only)
+            for sp in (False, True):
+                i = np.flatnonzero(spawn[rows[sel]] == sp)
+                if len(i) == 0:
+                    continue
+                gi = {key: x[i] for key, x in g.items()}
+                si = Surfaces(*(x[i] for x in s[:7]), s.sh_state)
+                on, val = _world_term(sa, accel, n, sp, gi, si,
+                                      None if kept is None else kept[i], counters)
+                changes.append((WORLD, sel[i], on, val))
         tick(split, "shade", t0)
     t0 = time.perf_counter()
     if changes:
@@ -249,6 +290,9 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             d_on[k] = on
             d_val[k] = val
             sub.replace_slot(c, d_on, d_val)
-        lr.p = p.splice(rows[at], sub)
+        if secondary:
+            lr.s = p.splice(rows[at], sub)
+        else:
+            lr.p = p.splice(rows[at], sub)
     tick(split, "terms", t0)
     return out

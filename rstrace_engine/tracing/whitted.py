@@ -519,8 +519,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if soft_on:  # the world's rays, for the pixel records to regenerate
                 segments[-1].update(normal=surf.NS, seed=nseeds, n_soft=int(light_samples),
                                     n_lights=L)
-                if level == 0 and soft is not None and soft.n[0] <= VIS_BITS_MAX:
-                    # and the primary hits' soft samples' visibility (shadow_reshade.py)
+                if soft is not None and soft.n[0] <= VIS_BITS_MAX:
+                    # and the hits' soft samples' visibility (shadow_reshade.py)
                     bits = np.empty((nb, L + 1), np.uint64)
                     soft_bits(soft.start, soft.light, soft.vis, int(soft.n[0]), bits)
                     segments[-1]["soft_bits"] = bits

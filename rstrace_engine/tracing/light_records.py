@@ -183,6 +183,11 @@ def load_kernels() -> None:
     s.detach(0, np.zeros(0, np.int64), np.zeros((0, 3), bool), np.zeros((0, 3, 3)))
     g = _Part.empty(True, True)  # (an incremental frame's splice)
     g.splice(np.zeros(0, np.int64), _Part.empty(True, True))
+    # the samples of the secondary nodes, which every recombination asks for (a kernel
+    # that only runs over nodes: an empty frame's records never load it)
+    from .pixel_records import _secondary_rays  # (pixel_records imports this module)
+
+    _secondary_rays(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
 
 
 # ----------------------------------------------------------------------------- parts

@@ -149,3 +149,51 @@ def test_a_deleted_light_drops_its_term(name):
     rep = new.apply([LightDelete("Added")])
     assert rep.rescaled_interpolants > 0
     check_bound(new.render(), new.scene)
+
+
+def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
+    """While the world lights, an interpolated pixel a light edit renders again takes its
+    world term from the one the records keep (``world_term.kept_world_term``: ``coef *
+    world``, no world sample traced again) -- the frame bit for bit the one that traces
+    them (the old code) -- while a pixel an object edit makes dirty traces them again."""
+    from test_relight_interpolants import WORLD_SCENES
+
+    from rstrace_engine.geometry.edits import ObjectTransform
+    from rstrace_engine.interpolants import render, world_term
+
+    traced = []
+    orig = world_term.world_term
+
+    def counted(sa, accel, o, *a, **k):
+        traced.append(len(o))
+        return orig(sa, accel, o, *a, **k)
+
+    monkeypatch.setattr(world_term, "world_term", counted)
+    kept = render.kept_world_term
+
+    def steps(sess):
+        m = sess.scene.instances[sess.scene.instance_slot("Blocker")]["matrix"].copy()
+        m[0, 3] += 0.05  # (inside the scene's box: an incremental frame)
+        return ([LightSet("Added", _new_light(sess, "POINT"))], [ObjectTransform("Blocker", m)],
+                [LightSet("Added2", _new_light(sess, "SPOT"))])
+
+    frames, rows = [], []
+    for reuse in (True, False):
+        monkeypatch.setattr(render, "kept_world_term",
+                            kept if reuse else lambda lrec, *a: kept(None, *a))
+        sess = session(WORLD_SCENES["soft_penumbra"](), True)
+        sess.render()
+        out, n = [], []
+        for edits in steps(sess):
+            sess.apply(edits)
+            traced.clear()
+            f = sess.render()
+            assert f.stats["incremental"]
+            out.append(f.radiance)
+            n.append(sum(traced))
+        frames.append(out)
+        rows.append(n)
+    for a, b in zip(*frames, strict=True):
+        assert np.array_equal(a, b)
+    assert rows[0][0] < rows[1][0] and rows[0][2] < rows[1][2]  # kept after a light edit
+    assert rows[0][1] == rows[1][1]  # the object edit's dirty pixels traced again

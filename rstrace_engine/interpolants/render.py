@@ -62,7 +62,7 @@ from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
 from .sampled_term import add_sampled_terms, sampled_possible
-from .world_term import keep_world, world_term
+from .world_term import keep_world, kept_world_term
 
 log = logging.getLogger(__name__)
 
@@ -550,10 +550,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     wi = np.setdiff1d(wi, probe["idx"])
                 w_coef = np.empty((len(wi), 3)) if lrec is not None else None
                 w_rest = res.radiance[wi] if lrec is not None else None
-                res.radiance[wi] += world_term(
-                    sa, cache.accel, o[wi], d[wi], tmax[wi], _take(hits, wi),
-                    sample_seeds(gids[wi], int(settings.seed)), int(settings.light_samples),
-                    counters, coefficient=w_coef)
+                res.radiance[wi] += kept_world_term(  # (kept from the last frame, or traced)
+                    lrec, sa, cache.accel, o, d, tmax, hits, wi, gids, settings, counters, w_coef)
                 t_world += time.perf_counter() - tw
             if "idx" in probe:  # traced already: done
                 pr = probe["idx"]

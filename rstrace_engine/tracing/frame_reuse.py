@@ -241,6 +241,10 @@ class FrameReuse:
                 dirty |= self.untracked
         report.records_query_ms = 1e3 * (time.perf_counter() - t0)
         self.dirty |= dirty
+        if lr is not None and lr.world is not None:
+            # INTERPOLANT: the world terms kept of samples rendered again may change (an
+            # object in their world rays): traced again (world_term.kept_world_term)
+            lr.world.forget(np.flatnonzero(np.tile(self.dirty, rec.spp)))
         report.full_frame = False
         report.dirty_pixels = int(np.count_nonzero(self.dirty))
         report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)

@@ -197,3 +197,17 @@ def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
         assert np.array_equal(a, b)
     assert rows[0][0] < rows[1][0] and rows[0][2] < rows[1][2]  # kept after a light edit
     assert rows[0][1] == rows[1][1]  # the object edit's dirty pixels traced again
+
+
+def test_an_added_light_without_the_shares_invalidates():
+    """A session that keeps no light terms (its cells keep no test lines): the cache is
+    kept, every interpolant invalidated (their radiance test cannot be run again), and the
+    frame keeps the bound."""
+    make, _ = SCENES["spheres"]
+    sess = session(make(), False)
+    sess.render()
+    cache = sess.interpolants.cache
+    n = cache.pool.n_live
+    rep = sess.apply([LightSet("Added", _new_light(sess, "POINT"))])
+    assert sess.interpolants.cache is cache and rep.invalidated_interpolants == n
+    check_bound(sess.render(), sess.scene)

@@ -211,3 +211,68 @@ def test_an_added_light_without_the_shares_invalidates():
     rep = sess.apply([LightSet("Added", _new_light(sess, "POINT"))])
     assert sess.interpolants.cache is cache and rep.invalidated_interpolants == n
     check_bound(sess.render(), sess.scene)
+
+
+def _spread_penumbra():
+    """The soft penumbra with its area light given a spread: no closed form, so its
+    sampled term is traced per interpolated pixel (``sampled_term.sampled_possible``)."""
+    from dataclasses import replace
+
+    scene = SCENES["soft_penumbra"][0]()
+    j = scene.light_slot("Area")
+    scene.set_light(j, replace(scene.lights[j], spread=1.2))
+    return scene
+
+
+def test_pixels_rendered_again_keep_their_sampled_terms(monkeypatch):
+    """The sampled terms of lights with an extent, per interpolated pixel, are kept as the
+    world term is (``sampled_term.add_sampled_terms`` with the records): a pixel a hard
+    light's edit renders again takes its kept term -- the frame bit for bit the one that
+    traces them all -- while an object edit's dirty pixels and an edit of the area light
+    (its power: every kept term dropped) trace them again."""
+    from dataclasses import replace
+
+    from rstrace_engine.geometry.edits import ObjectTransform
+    from rstrace_engine.interpolants import render, sampled_term
+
+    traced = []
+    orig = sampled_term.sampled_term
+
+    def counted(sa, accel, o, *a, **k):
+        traced.append(len(o))
+        return orig(sa, accel, o, *a, **k)
+
+    monkeypatch.setattr(sampled_term, "sampled_term", counted)
+    kept = render.add_sampled_terms
+
+    def steps(sess):
+        m = sess.scene.instances[sess.scene.instance_slot("Blocker")]["matrix"].copy()
+        m[0, 3] += 0.05
+        area = sess.scene.lights[sess.scene.light_slot("Area")]
+        return ([LightSet("Added", _new_light(sess, "POINT"))], [ObjectTransform("Blocker", m)],
+                [LightSet("Added2", _new_light(sess, "SPOT"))],
+                [LightSet("Area", replace(area, power=area.power * 1.5))],
+                [LightDelete("Added")])
+
+    frames, rows = [], []
+    for reuse in (True, False):
+        monkeypatch.setattr(render, "add_sampled_terms",
+                            kept if reuse else lambda *a: kept(*a[:-1], None))
+        sess = session(_spread_penumbra(), True)
+        f0 = sess.render()
+        assert f0.stats["interpolated_fraction"] > 0.3
+        out, n = [], []
+        for edits in steps(sess):
+            sess.apply(edits)
+            traced.clear()
+            f = sess.render()
+            assert f.stats["incremental"]
+            check_bound(f, sess.scene)
+            out.append(f.radiance)
+            n.append(sum(traced))
+        frames.append(out)
+        rows.append(n)
+    for a, b in zip(*frames, strict=True):
+        assert np.array_equal(a, b)
+    assert rows[0][0] < rows[1][0] and rows[0][2] < rows[1][2] and rows[0][4] < rows[1][4]
+    assert rows[0][1] == rows[1][1] and rows[0][3] == rows[1][3]  # traced again

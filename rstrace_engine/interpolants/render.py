@@ -542,7 +542,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 lrec = None
             if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
                 t_sampled += add_sampled_terms(cache, res, probe.get("idx"), o, d, tmin, tmax,
-                                               hits, rep, gids, settings, counters, cancel)
+                                               hits, rep, gids, settings, counters, cancel, lrec)
             if world:  # the world's term, per pixel, where cells interpolated
                 tw = time.perf_counter()
                 wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))

@@ -70,7 +70,7 @@ from .light_reshade import relight_light
 from .shader import Surfaces
 from .soft_lights import world_lights
 from .whitted import surfaces
-from .world_samples import WorldSamples
+from .world_samples import TermSamples, WorldSamples
 
 #: what shading a light again needs, per node that hit a surface
 _GEO = dict(o=((3,), np.float64), d=((3,), np.float64), t=((), np.float64),
@@ -409,6 +409,9 @@ class LightRecords:
         #: INTERPOLANT frames while the world lights: the interpolated samples' world terms
         #: (:meth:`set_world`; None: no such sample yet)
         self.world: WorldSamples | None = None
+        #: and their sampled terms of lights with an extent (:class:`~.world_samples.
+        #: TermSamples`; None: none kept)
+        self.sampled: TermSamples | None = None
         if self.cap <= 0.0:
             self._drop(0)
 
@@ -424,8 +427,9 @@ class LightRecords:
 
     @property
     def world_bytes(self) -> int:
-        """The interpolated samples' world terms (:meth:`set_world`)."""
-        return 0 if self.world is None else self.world.nbytes
+        """The interpolated samples' world terms (:meth:`set_world`) and sampled terms."""
+        return (0 if self.world is None else self.world.nbytes) + (
+            0 if self.sampled is None else self.sampled.nbytes)
 
     def _parts(self) -> list:
         return ([self.p] if self.p is not None else []) + [self.s] + \
@@ -440,7 +444,7 @@ class LightRecords:
         self.p = None
         self.s = _Part.empty(False, False)
         self._pending_p, self._pending_s = [], []
-        self.world = None
+        self.world = self.sampled = None
 
     def _check_cap(self) -> None:
         """Over the cap: drop the geometry, then everything."""

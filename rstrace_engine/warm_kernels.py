@@ -184,7 +184,8 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     from . import scenes
     from .frame import RenderSettings
     from .geometry import shapes
-    from .geometry.edits import ObjectTransform
+    from .geometry.edits import LightSet, ObjectTransform
+    from .geometry.scene import Light
     from .session import Session
 
     message = "warming kernels: interpolants and an edit"
@@ -213,6 +214,18 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     cache = session.interpolants.cache
     if cache is not None:
         cache.deps.compact(cache.pool, cache.trees, force=True)
+    # a light added: the cells take its term where it is proven (added_light.py: their
+    # samples shaded with it alone, its shafts added), in a session that keeps the light
+    # terms from its first frame (its cells keep their test lines; untextured: a textured
+    # root the light reaches fails its cell)
+    _check(cancel)
+    session = Session(scenes.three_spheres(128, 96, subdivisions=2), settings)
+    session.interpolants.auto_fallback = False
+    session.light_terms = True
+    session.render(cancel=cancel)
+    session.apply([LightSet("WarmAdded", Light("WarmAdded", "POINT", power=300.0,
+                                               position=(0.5, -1.0, 4.0)))])
+    session.render(cancel=cancel)
 
 
 def _warm_ri_trees(accelerators, progress=None, cancel=None) -> None:

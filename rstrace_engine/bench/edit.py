@@ -307,7 +307,7 @@ def run_scene(name: str, width: int, height: int, depth: int, modes, out: Path |
                 f"inval {r['invalidated_interpolants']} resc {r['rescaled_interpolants']} "
                 f"interp {r['interpolated_pct']:.1f}% rec {r['records_mb']:.2f} MB "
                 f"rst {r['rst_memory_mb']:.2f} MB light rec {r['light_records_mb']:.1f} MB "
-                f"relight {r['relight_s']:.3f} s")
+                f"relight {r['relight_s']:.3f} s apply {rep.apply_ms:.1f} ms")
     return rows
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
+from .added_light import add_dependencies, add_terms, can_add
 from .linetree import EMPTY, expanded_boxes
 from .membership import Membership
 from .ray_segment_tree import RaySegmentTrees
@@ -66,6 +67,10 @@ class Invalidation(NamedTuple):
     rescaled: np.ndarray | None = None
     rescale_broken: int = 0  # invalidated: the radiance test failed after the rescale
     rescale_no_terms: int = 0  # invalidated: their samples keep no per-light shares
+    #: interpolants kept with an added light's term (:mod:`.added_light`), and those
+    #: invalidated because it could not be proven on them
+    terms_added: int = 0
+    add_failed: int = 0
 
     @classmethod
     def nothing(cls, live: int, restarted: bool = False) -> Invalidation:
@@ -347,12 +352,21 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     Instance slots are stable (a deleted object's slot is a tombstone, an added object
     takes a new or a freed slot). An object whose mesh, transform, box or visibility changed
     (``fx.geometry``) gets new empty linetrees over its new expanded box; the other objects
-    keep theirs. The number of light slots must not change (the ray trees record a state
-    per light): :class:`~.render.InterpolantRenderer` starts a new cache then.
+    keep theirs. The number of light slots may grow only by lights added in a batch of
+    light and world edits (:func:`.added_light.can_add`: their terms are added where they
+    are proven, :func:`.added_light.add_terms`); any other change of it starts a new cache
+    (:class:`~.render.InterpolantRenderer`; the ray trees record a state per light).
     """
     old = cache.sa
+    added = None
+    slots: list = []
     if len(sa.light_kind) != len(old.light_kind):
-        raise ValueError("take_edits: the number of light slots changed (start a new cache)")
+        if not can_add(old, sa, fx):
+            raise ValueError("take_edits: the number of light slots changed with other "
+                             "edits (start a new cache)")
+        # lights added into new slots: one term more where it is proven (added_light.py)
+        slots = list(range(len(old.light_kind), len(sa.light_kind)))
+        added = add_terms(cache, old, sa, accel, slots)
     if fx.scene_content_changed:
         # a world that starts or stops lighting shades every surface: all interpolants (its
         # term at the roots was or was not left out of the samples; cells with a surface
@@ -362,16 +376,26 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         lit_old = bool(np.any(old.world_light > 0.0))
         lit_new = bool(np.any(sa.world_light > 0.0))
         everything = fx.world and (lit_old or lit_new) and not (lit_old and lit_new)
-        # a light whose power or colour alone changed rescales what it shades (relight.py)
+        # a light whose power or colour alone changed, or that was deleted, rescales what
+        # it shades (relight.py)
         resc = rescalable_lights(old, sa, fx.lights_shading) if cache.light_terms else []
         r = rescale(cache, old, sa, resc)
-        inv = invalidate(cache, fx.region_array(), fx.objects, fx.lights_moved, fx.materials,
-                         fx.world, set(fx.lights_shading) - set(resc), everything,
-                         np.concatenate([r.broken, r.no_terms]))
+        extra = [r.broken, r.no_terms] + ([added.failed] if added is not None else [])
+        inv = invalidate(cache, fx.region_array(), fx.objects,
+                         set(fx.lights_moved) - set(slots), fx.materials, fx.world,
+                         set(fx.lights_shading) - set(resc) - set(slots), everything,
+                         np.concatenate(extra))
         kept = r.rescaled[cache.pool.live[r.rescaled]]
         inv = inv._replace(rescaled=kept, rescale_broken=len(r.broken),
                            rescale_no_terms=len(r.no_terms))
         cache.totals["rescaled"] = cache.totals.get("rescaled", 0) + len(kept)
+        if added is not None:
+            live = cache.pool.live
+            took = added.kept[live[added.kept]]
+            add_dependencies(cache, sa, took, slots)
+            changed = added.changed[live[added.changed]]
+            inv = inv._replace(rescaled=np.union1d(kept, changed).astype(np.int32),
+                               terms_added=len(took), add_failed=len(added.failed))
     else:
         inv = Invalidation.nothing(cache.pool.n_live)
     n_new = len(sa.inst_mesh)

@@ -21,8 +21,10 @@ invalidated as before.
 
 Which interpolants a light shades is the membership index's answer (``LIGHT_SHADES``, the same
 set the invalidation of a power change took): a cell not in it has ``S_j = 0`` at every
-sample. A light that changes anything but its intensity (moved, reshaped, linked, made
-invisible to diffuse or glossy rays, deleted) takes the invalidation path.
+sample. A deleted light is rescaled to zero (its term dropped; the other lights' proofs
+and the cell's geometry do not depend on it, the radiance test is run again). A light that
+changes anything else but its intensity (moved, reshaped, linked, made invisible to
+diffuse or glossy rays) takes the invalidation path; an added one, :mod:`.added_light`.
 """
 
 from __future__ import annotations
@@ -87,16 +89,20 @@ def _row_equal(a, b, j: int) -> bool:
 
 
 def rescalable_lights(old_sa, new_sa, lights) -> list[int]:
-    """The lights of ``lights`` (slots whose power or colour alone changed, by the edit
-    effects) whose change is an intensity change only: same kind (not deleted), the same
-    in every other per-light array (:data:`_SAME`, light and shadow linking), a finite new
-    intensity."""
+    """The lights of ``lights`` (slots whose power or colour alone changed, or that were
+    deleted, by the edit effects) whose change is an intensity change only: same kind, the
+    same in every other per-light array (:data:`_SAME`, light and shadow linking), a finite
+    new intensity -- or deleted (its term dropped: the tombstone's intensity is zero, and
+    no other light's proof depended on it)."""
     out = []
     if len(old_sa.light_kind) != len(new_sa.light_kind):
         return out
     s_new = light_scale(new_sa)
     for j in sorted(int(j) for j in lights):
         if not 0 <= j < len(new_sa.light_kind) or int(old_sa.light_kind[j]) < 0:
+            continue
+        if int(new_sa.light_kind[j]) < 0:
+            out.append(j)  # deleted: its term dropped (rescaled to its tombstone's zero)
             continue
         if not all(_row_equal(getattr(old_sa, f), getattr(new_sa, f), j) for f in _SAME):
             continue

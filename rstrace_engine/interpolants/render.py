@@ -55,13 +55,14 @@ from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import sample_seeds, world_lights
 from ..tracing.whitted import render, trace
 from . import fallback as fb_mod
+from .added_light import keeps_cache
 from .bound import bound_notes
 from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_possible
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, remember, reproject, slab_points
 from .sampled_term import add_sampled_terms, sampled_possible
-from .world_term import keep_world, world_term
+from .world_term import keep_world, kept_world_term
 
 log = logging.getLogger(__name__)
 
@@ -219,12 +220,12 @@ def _camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo) -> np.ndarray:
 
 
 def _newly_seen(old_sa, sa) -> bool:
-    """Whether mirror or refraction rays see a light in ``sa`` they did not see in
-    ``old_sa`` (the cells' samples are flagged by what was seen when they were traced:
-    :func:`~.samples.seen_flags`)."""
+    """Whether mirror or refraction rays see a light in ``sa`` they did not in ``old_sa``
+    (the cells' samples are flagged by what they saw: :func:`~.samples.seen_flags`)."""
     def below(x):
         return seen_lights(x, SEEN_GLOSSY) | seen_lights(x, SEEN_TRANSMISSION)
-    return bool(np.any(below(sa) & ~below(old_sa)))
+    new, old = below(sa), below(old_sa)  # (lights added: new slots)
+    return bool(np.any(new[:len(old)] & ~old) or np.any(new[len(old):]))
 
 
 def _add_stats(a: dict, b: dict) -> dict:
@@ -541,7 +542,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 lrec = None
             if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
                 t_sampled += add_sampled_terms(cache, res, probe.get("idx"), o, d, tmin, tmax,
-                                               hits, rep, gids, settings, counters, cancel)
+                                               hits, rep, gids, settings, counters, cancel, lrec)
             if world:  # the world's term, per pixel, where cells interpolated
                 tw = time.perf_counter()
                 wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
@@ -549,10 +550,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     wi = np.setdiff1d(wi, probe["idx"])
                 w_coef = np.empty((len(wi), 3)) if lrec is not None else None
                 w_rest = res.radiance[wi] if lrec is not None else None
-                res.radiance[wi] += world_term(
-                    sa, cache.accel, o[wi], d[wi], tmax[wi], _take(hits, wi),
-                    sample_seeds(gids[wi], int(settings.seed)), int(settings.light_samples),
-                    counters, coefficient=w_coef)
+                res.radiance[wi] += kept_world_term(  # (kept from the last frame, or traced)
+                    lrec, sa, cache.accel, o, d, tmax, hits, wi, gids, settings, counters, w_coef)
                 t_world += time.perf_counter() - tw
             if "idx" in probe:  # traced already: done
                 pr = probe["idx"]
@@ -639,8 +638,8 @@ class InterpolantRenderer:
     A change of epsilon, depth cap or ray depth starts a new cache. Edits reach the cache
     through :meth:`take_edits` (their effects, computed once by the session), which keeps
     every interpolant they leave valid; a scene packing the cache was not told of starts a
-    new cache (the renderer never diffs scenes), and so does an edit batch that changes the
-    number of light slots (the ray trees record a state per light).
+    new cache (the renderer never diffs scenes), and so does a batch that changes the number
+    of light slots but by adding lights (:mod:`.added_light`: a state per light).
     """
 
     #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`)
@@ -654,16 +653,15 @@ class InterpolantRenderer:
         self.cache = None
 
     def take_edits(self, fx, sa, accel) -> Invalidation | None:
-        """Hand an edit batch's effects ``fx`` (:class:`~..geometry.edits.EditEffects`) to
-        the cache and move it to the edited packing ``sa``; None when there is no cache.
-        ``restarted`` in the result says every interpolant is gone."""
+        """Hand an edit batch's effects ``fx`` (an ``EditEffects``) to the cache and move it
+        to ``sa``; None without a cache. ``restarted``: every interpolant is gone."""
         c = self.cache
         if c is None:
             return None
         if sa is c.sa and not fx.scene_content_changed:
             c.accel = accel
             return Invalidation.nothing(c.pool.n_live)
-        if len(sa.light_kind) != len(c.sa.light_kind) or _newly_seen(c.sa, sa):
+        if not keeps_cache(c.sa, sa, fx) or _newly_seen(c.sa, sa):
             # (a light mirror or refraction rays now see: the samples were not flagged)
             live = c.pool.n_live
             self.cache = InterpolantCache(sa, accel, c.epsilon, c.depth_cap,

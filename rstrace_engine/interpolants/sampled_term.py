@@ -41,6 +41,7 @@ from ..cancel import bound
 from ..geometry.scene import LIGHT_SUN
 from ..tracing.soft_lights import SH_SOFT, node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
+from ..tracing.world_samples import TermSamples
 from .samples import TEX_MISMATCH, hit_materials, textured_roots
 from .shafts import closed_forms, glossy_materials
 
@@ -176,14 +177,18 @@ def without_sampled(sa, accel, o: np.ndarray, d: np.ndarray, hits: Hits, rad: np
 
 
 def add_sampled_terms(cache, res, skip_rows, o, d, tmin, tmax, hits: Hits, rep, gids,
-                      settings, counters: dict, cancel=None) -> float:
+                      settings, counters: dict, cancel=None, lrec=None) -> float:
     """A frame pass's interpolated samples (``res``, :mod:`.render`'s resolved part: rays
     ``o, d`` within ``tmin, tmax``, hits ``hits``, global sample ids ``gids``) add their
     lights' sampled terms to ``res.radiance``, with ``settings``' seed, Light Samples and ray
     depth; ``skip_rows`` (or None): rows traced whole. A reprojected sample (``rep`` (k,)
     bool or None) has no hit: where its interpolant lies on an object that may have sampled
     rows (:func:`sampled_objects`) its visibility ray is traced here; the others keep the
-    saving. Returns the seconds it took."""
+    saving. ``lrec``: the frame's per-light records (INTERPOLANT), whose kept terms
+    (:class:`~..tracing.world_samples.TermSamples`: the same hit, seeds, lights with an
+    extent and geometry) a sample takes instead of tracing its samples again -- bit for bit
+    the term :func:`sampled_term` gives it -- and which keep the terms traced here. Returns
+    the seconds it took."""
     t0 = time.perf_counter()
     rows = np.flatnonzero(res.interpolated)
     if skip_rows is not None:
@@ -202,11 +207,21 @@ def add_sampled_terms(cache, res, skip_rows, o, d, tmin, tmax, hits: Hits, rep, 
             for dst, src in zip(h, found, strict=True):
                 dst[r] = src
     keep = np.flatnonzero(h.inst >= 0)
+    ok = lrec is not None and lrec.overflow is None
+    if ok and lrec.sampled is not None:
+        have, value = lrec.sampled.get(gids[rows[keep]])
+        res.radiance[rows[keep[have]]] += value[have]
+        keep = keep[~have]
     rows = rows[keep]
-    res.radiance[rows] += sampled_term(
+    term = sampled_term(
         cache.sa, cache.accel, o[rows], d[rows], tmax[rows], _take(h, keep),
         sample_seeds(gids[rows], int(settings.seed)), int(settings.light_samples),
         int(settings.max_depth), counters=counters)
+    res.radiance[rows] += term
+    if ok and len(rows):
+        if lrec.sampled is None:
+            lrec.sampled = TermSamples(lrec.n_rays)
+        lrec.sampled.set(gids[rows], term)
     return time.perf_counter() - t0
 
 

@@ -68,6 +68,39 @@ def world_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     return out
 
 
+def kept_world_term(lrec, sa, accel, o, d, tmax, hits: Hits, wi, gids, settings,
+                    counters, coefficient) -> np.ndarray:
+    """:func:`world_term` at rows ``wi`` of a frame's pass (rays ``o, d``, bounds ``tmax``,
+    hits ``hits``, sample ids ``gids``), taking it from the per-light records ``lrec`` where
+    they keep the sample's coefficient from an earlier frame (:class:`~..tracing.
+    world_samples.WorldSamples`; :meth:`~..tracing.frame_reuse.FrameReuse.take_edits` drops
+    the rows of samples an edit of anything but the lights and the world makes dirty): the
+    term is then ``coef * world_light``, bit for bit what :func:`world_term` gives (its
+    seeds, shadow rays and BRDF are the sample's and the hit's), without its rays -- the
+    pixels a light edit renders again (an interpolant rescaled, a light added) keep theirs.
+    ``coefficient`` (k, 3) receives the coefficients (as :func:`world_term`'s) or is None."""
+    k = len(wi)
+    ws = lrec.world if lrec is not None and coefficient is not None else None
+    row = ws.row[gids[wi]] if ws is not None else np.full(k, -1)
+    have = np.flatnonzero(row >= 0)
+    rest = np.flatnonzero(row < 0)
+    out = np.zeros((k, 3))
+    if len(have):
+        coefficient[have] = ws.coef[row[have]]
+        out[have] = coefficient[have] * np.asarray(sa.world_light, np.float64)[None, :]
+    if len(rest):
+        r = wi[rest]
+        c = np.empty((len(rest), 3)) if coefficient is not None else None
+        out[rest] = world_term(sa, accel, o[r], d[r], np.asarray(tmax)[r],
+                               Hits(hits.t[r], hits.inst[r], hits.prim[r], hits.u[r],
+                                    hits.v[r]),
+                               sample_seeds(gids[r], int(settings.seed)),
+                               int(settings.light_samples), counters, coefficient=c)
+        if c is not None:
+            coefficient[rest] = c
+    return out
+
+
 def keep_world(lrec, sa, gids, wi, coef, rest, interp, hits: Hits, rough_on: bool,
                max_depth: int) -> None:
     """A frame's pass of samples ``gids`` to the per-light records ``lrec``: which were

@@ -194,6 +194,7 @@ class FrameReuse:
                     dirty |= self.untracked
                 report.records_query_ms = 1e3 * (time.perf_counter() - t0)
                 self.dirty |= dirty
+            _drop_sampled(self.light_records, fx, old_sa, new_sa)
             self.relight_due = True
             self.relight_moved |= set(fx.lights_moved)
             if fx.seen_regions or fx.seen_sky or any_seen(old_sa) or any_seen(new_sa):
@@ -245,6 +246,15 @@ class FrameReuse:
                 dirty |= self.untracked
         report.records_query_ms = 1e3 * (time.perf_counter() - t0)
         self.dirty |= dirty
+        if lr is not None:
+            # INTERPOLANT: the world and sampled terms kept of samples rendered again may
+            # change (an object in their rays): traced again (world_term.kept_world_term,
+            # sampled_term.add_sampled_terms)
+            rays = np.flatnonzero(np.tile(self.dirty, rec.spp))
+            for kept in (lr.world, lr.sampled):
+                if kept is not None:
+                    kept.forget(rays)
+            _drop_sampled(lr, fx, old_sa, new_sa)
         report.full_frame = False
         report.dirty_pixels = int(np.count_nonzero(self.dirty))
         report.dirty_fraction = report.dirty_pixels / max(len(self.dirty), 1)
@@ -498,3 +508,15 @@ class FrameReuse:
             untracked |= self.untracked & ~pixels
         self.untracked = untracked
         self.snap = pool.serial.copy()
+
+
+def _drop_sampled(lr, fx, old_sa, new_sa) -> None:
+    """Forget the kept sampled terms (:class:`~.world_samples.TermSamples`) when the batch
+    ``fx`` edits a light with an extent (before or after it): its terms change."""
+    if lr is None or lr.sampled is None:
+        return
+    for sa in (old_sa, new_sa):
+        ext = np.asarray(sa.light_ext, bool)
+        if any(0 <= j < len(ext) and ext[j] for j in fx.lights):
+            lr.sampled = None
+            return

@@ -70,7 +70,7 @@ from .light_reshade import relight_light
 from .shader import Surfaces
 from .soft_lights import world_lights
 from .whitted import surfaces
-from .world_samples import WorldSamples
+from .world_samples import TermSamples, WorldSamples
 
 #: what shading a light again needs, per node that hit a surface
 _GEO = dict(o=((3,), np.float64), d=((3,), np.float64), t=((), np.float64),
@@ -183,6 +183,11 @@ def load_kernels() -> None:
     s.detach(0, np.zeros(0, np.int64), np.zeros((0, 3), bool), np.zeros((0, 3, 3)))
     g = _Part.empty(True, True)  # (an incremental frame's splice)
     g.splice(np.zeros(0, np.int64), _Part.empty(True, True))
+    # the samples of the secondary nodes, which every recombination asks for (a kernel
+    # that only runs over nodes: an empty frame's records never load it)
+    from .pixel_records import _secondary_rays  # (pixel_records imports this module)
+
+    _secondary_rays(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
 
 
 # ----------------------------------------------------------------------------- parts
@@ -404,6 +409,9 @@ class LightRecords:
         #: INTERPOLANT frames while the world lights: the interpolated samples' world terms
         #: (:meth:`set_world`; None: no such sample yet)
         self.world: WorldSamples | None = None
+        #: and their sampled terms of lights with an extent (:class:`~.world_samples.
+        #: TermSamples`; None: none kept)
+        self.sampled: TermSamples | None = None
         if self.cap <= 0.0:
             self._drop(0)
 
@@ -419,8 +427,9 @@ class LightRecords:
 
     @property
     def world_bytes(self) -> int:
-        """The interpolated samples' world terms (:meth:`set_world`)."""
-        return 0 if self.world is None else self.world.nbytes
+        """The interpolated samples' world terms (:meth:`set_world`) and sampled terms."""
+        return (0 if self.world is None else self.world.nbytes) + (
+            0 if self.sampled is None else self.sampled.nbytes)
 
     def _parts(self) -> list:
         return ([self.p] if self.p is not None else []) + [self.s] + \
@@ -435,7 +444,7 @@ class LightRecords:
         self.p = None
         self.s = _Part.empty(False, False)
         self._pending_p, self._pending_s = [], []
-        self.world = None
+        self.world = self.sampled = None
 
     def _check_cap(self) -> None:
         """Over the cap: drop the geometry, then everything."""

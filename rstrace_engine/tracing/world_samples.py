@@ -79,3 +79,49 @@ class WorldSamples:
         g = np.flatnonzero(self.row >= 0)
         r = self.row[g]
         rad[g] = self.rest[r] + self.coef[r] * np.asarray(world_light, np.float64)[None, :]
+
+
+class TermSamples:
+    """Per sample of a frame: a kept RGB term (the row of its value, -1: none) -- an
+    INTERPOLANT frame's interpolated samples' sampled terms of lights with an extent
+    (:func:`~..interpolants.sampled_term.add_sampled_terms`), which depend on the sample's
+    hit and seeds, the lights with an extent and the geometry alone: a pixel rendered
+    again after an edit of none of them (a hard light's power, colour or addition, the
+    world) takes them instead of tracing their samples again. Dropped by the edits that
+    may change them (:meth:`~.frame_reuse.FrameReuse.take_edits`)."""
+
+    def __init__(self, n_rays: int) -> None:
+        self.row = np.full(int(n_rays), -1, np.int32)
+        self.value = np.zeros((0, 3))
+        self.n = 0
+
+    @property
+    def nbytes(self) -> int:
+        return self.row.nbytes + self.value.nbytes
+
+    def get(self, rays: np.ndarray):
+        """``(have (k,) bool, value (k, 3))`` of samples ``rays`` (value 0 where not kept)."""
+        r = self.row[np.asarray(rays, np.int64)]
+        have = r >= 0
+        value = np.zeros((len(r), 3))
+        value[have] = self.value[r[have]]
+        return have, value
+
+    def set(self, rays: np.ndarray, value: np.ndarray) -> None:
+        """Keep ``value`` (k, 3) for samples ``rays`` (their earlier rows left unused; the
+        store is rebuilt when they outnumber the live ones)."""
+        rays = np.asarray(rays, np.int64)
+        k = len(rays)
+        if self.n + k > len(self.value):
+            live = np.flatnonzero(self.row >= 0)
+            old = self.value[self.row[live]]
+            self.value = np.zeros((max(2 * (len(live) + k), 1024), 3))
+            self.value[:len(live)] = old
+            self.row[live] = np.arange(len(live), dtype=np.int32)
+            self.n = len(live)
+        self.value[self.n:self.n + k] = value
+        self.row[rays] = self.n + np.arange(k, dtype=np.int32)
+        self.n += k
+
+    def forget(self, rays: np.ndarray) -> None:
+        self.row[np.asarray(rays, np.int64)] = -1

@@ -1,0 +1,366 @@
+"""A light added to the scene adds one term to the interpolants it can be proven on.
+
+Issue 21, item 3 in INTERPOLANT mode. An interpolant's 16 corner samples hold ``R``, a sum
+over their ray-tree nodes of each light's term (:mod:`.relight`); a light added into a new
+slot ``j`` adds ``S_j I_j`` to every sample, ``S_j`` its share (path weight times the shade
+kernel's term over its intensity) and ``I_j`` its intensity. So the cache is kept (it used
+to start over: every cell rebuilt, every pixel traced) and, for a *hard* light (a point,
+spot or sun without an angle):
+
+* every kept sample (corners and test lines of the live cells) is shaded again with the
+  new light alone (the scene packing with its slot only and the world dark, as
+  :func:`~..tracing.light_reshade._one_light` relights a BASE node): its ray tree is
+  traced again from its lattice line, which must give the same nodes (paths, objects), the
+  new light's state per node (occluder, or -2 not facing) and its share ``S_j``; the
+  samples' ``R`` gain ``S_j I_j``;
+* each live cell is checked for that light as a fresh build checks every light
+  (:func:`~.predicate.check_cells` with the other lights switched off: they were proven
+  when the cell was built and nothing else changed): the corners and test lines agree on
+  its state, a lit light's shaft meets only the object, an occluded one is covered by its
+  occluder, a light off at the corners is off over the whole slab, a spot's step edge does
+  not cross it; then the radiance test (:func:`~.predicate.radiance_ok`) on the new ``R``;
+* a cell that passes keeps its interpolant (its corners updated, its pixels interpolated
+  again), and gains the new light's tunnels (its shafts, into the ray segment trees) and
+  membership entries (so a later edit of the light or of what it names finds it); a cell
+  that fails is invalidated (rebuilt by the next frame that needs it, or traced), as is a
+  cell whose samples cannot take the term: a sample whose tree changed, a textured root
+  the light reaches (its ``R + texel D`` split would change), a rough interface the light
+  now lights from its far side, a cell whose test lines were not kept (built before the
+  session kept light terms).
+
+A light with an extent (its sampled term is traced per pixel, :mod:`.sampled_term`, and
+its proof needs the slab's soft-light flags) invalidates every interpolant; the cache is
+kept all the same (its failed cells, linetrees), and the frame's traced pixels are relit
+as BASE's. Only batches that edit lights and the world take this path
+(:func:`can_add`); any other edit with a new light slot starts a new cache as before.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .. import tolerances as tol
+from ..geometry.scene import LIGHT_SUN
+from ..tracing.light_reshade import _one_light
+from ..tracing.whitted import trace
+from .line_samples import _unpack, front_hits
+from .linetree import lattice_lines
+from .predicate import VALID, _points_box, check_cells, radiance_ok
+from .relight import light_scale, light_shares
+from .sampled_term import sampled_possible
+from .samples import glossy_flags
+from .shafts import closed_forms, cone_bounds, glossy_materials, light_extents
+from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, slab_box
+
+
+class AddResult(NamedTuple):
+    """What :func:`add_terms` did."""
+
+    kept: np.ndarray  # (k,) int32 live interpolants that took the new lights' terms
+    changed: np.ndarray  # (c,) int32 of those, the ones whose corners changed
+    failed: np.ndarray  # (f,) int32 interpolants to invalidate (the caller does)
+    slots: list  # the added light slots
+
+
+def can_add(old_sa, sa, fx) -> bool:
+    """Whether the edit batch ``fx`` (``old_sa`` -> ``sa``) adds light slots the cache can
+    take as terms: more slots, every new one an added light, and no edit but of lights
+    and the world (an object, material or mesh edit in the same batch starts a new cache,
+    as any change of the number of slots did before)."""
+    L0, L1 = len(old_sa.light_kind), len(sa.light_kind)
+    if L1 <= L0:
+        return False
+    if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
+        return False
+    new = set(range(L0, L1))
+    return new <= set(fx.lights_moved) and bool(np.all(np.asarray(sa.light_kind)[L0:] >= 0))
+
+
+def keeps_cache(old_sa, sa, fx) -> bool:
+    """Whether a cache over ``old_sa`` can take the batch ``fx`` to ``sa``: as many light
+    slots, or lights added (:func:`can_add`)."""
+    return len(sa.light_kind) == len(old_sa.light_kind) or can_add(old_sa, sa, fx)
+
+
+def _only(sa, slots):
+    """``sa`` with only light ``slots`` (and the world dark): :func:`_one_light` for
+    several consecutive slots."""
+    if len(slots) == 1:
+        return _one_light(sa, slots[0])
+    a, b = slots[0], slots[-1] + 1
+    return sa._replace(world_light=np.zeros(3), **{
+        f: getattr(sa, f)[a:b] for f in sa._fields
+        if f.startswith("light_") and getattr(sa, f).shape[0] > 0})
+
+
+def _query(cache, sa, slots):
+    """The cache's predicate structures with ``sa``'s lights, all but ``slots`` off (their
+    kind ``-1``, skipped by the light tests)."""
+    qs = cache.qs  # (the old packing's: the geometry is the same)
+    lo, hi, chord = light_extents(sa)
+    co, ci = cone_bounds(sa)
+    kind = np.full(len(sa.light_kind), -1, np.int32)
+    kind[slots] = np.asarray(sa.light_kind, np.int32)[slots]
+    ext = np.ascontiguousarray(sa.light_ext, np.bool_)
+    sampled = sampled_possible(sa)
+    return qs._replace(
+        light_kind=kind, light_pos=np.ascontiguousarray(sa.light_pos).reshape(-1, 3),
+        light_dir=np.ascontiguousarray(sa.light_dir).reshape(-1, 3), light_cos_outer=co,
+        light_cos_inner=ci, world_light=bool(np.any(np.asarray(sa.world_light) > 0.0)),
+        light_ext=ext, light_lo=lo, light_hi=hi, light_chord=chord,
+        light_radius=np.ascontiguousarray(sa.light_radius, np.float64),
+        light_half=np.ascontiguousarray(sa.light_half, np.float64),
+        light_u=np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
+        light_v=np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
+        light_size=np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
+        light_closed=ext.copy() if sampled else closed_forms(sa),
+        mat_glossy=np.zeros_like(qs.mat_glossy) if sampled else glossy_materials(sa))
+
+
+def _shade_samples(cache, sa, accel, slots):
+    """Shade every stored sample again with lights ``slots`` alone. Returns ``(occ (n_nodes,
+    k) int32 in the store's node order, share (n, k, 3), good (n,) bool)``: ``good`` False
+    where the tree traced now differs from the stored one or the lights make a rough root
+    lit from its far side."""
+    sm = cache.samples
+    n, k = sm.n, len(slots)
+    occ = np.full((sm.n_nodes, k), -2, np.int32)
+    if n == 0:
+        return occ, np.zeros((0, k, 3)), np.zeros(0, bool)
+    k1, k2 = sm.keys.k1[:n], sm.keys.k2[:n]
+    inst = (k1 >> 3).astype(np.int32)
+    face = (k1 & 7).astype(np.int8)
+    lattice = np.empty((n, 4), np.int64)
+    _unpack(k2, lattice)
+    o = np.empty((n, 3))
+    d = np.empty((n, 3))
+    lattice_lines(cache.box, inst, face, lattice, o, d)
+    hits = front_hits(sa, accel, inst, o, d)
+    one = _only(sa, slots)
+    segs: list = []
+    own = partial(trace, glossy_samples=1, roots="own", camera_lights=False)
+    _, tree = own(one, accel, o, d, 0.0, 1.0, cache.max_depth, record=True, primary=hits,
+                  segments=segs, terms=True)
+    share = light_shares(segs, n, k)
+    good = hits.inst == sm._inst[:n]
+    order = np.argsort(tree.node_ray, kind="stable")
+    count = np.bincount(tree.node_ray, minlength=n)[:n]
+    good &= count == sm._ncount[:n]
+    # the stored node rows of each sample (where the counts agree)
+    cnt = np.where(good, count, 0)
+    start_new = np.concatenate([[0], np.cumsum(count)[:-1]])
+    rows_new = order[np.repeat(start_new[good], cnt[good])
+                     + _ramp(cnt[good])]
+    rows_old = np.repeat(sm._nstart[:n][good], cnt[good]) + _ramp(cnt[good])
+    same = ((tree.node_path[rows_new] == sm._npath[rows_old])
+            & (tree.node_inst[rows_new] == sm._ninst[rows_old]))
+    owner = np.repeat(np.flatnonzero(good), cnt[good])
+    good[owner[~same]] = False
+    occ[rows_old] = tree.node_occluder[rows_new].reshape(-1, k)
+    good &= glossy_flags(one, tree, n) == 0  # a rough interface lit from its far side
+    return occ, share, good
+
+
+def _ramp(cnt):
+    """0..c-1 for every count c, concatenated."""
+    total = int(cnt.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    return np.arange(total) - np.repeat(start, cnt)
+
+
+def add_terms(cache, old_sa, sa, accel, slots) -> AddResult:
+    """Take the lights added in ``slots`` (new slots of ``sa``) into ``cache``'s samples
+    and interpolants (see the module doc); widens the samples to ``sa``'s light slots.
+    Returns which interpolants were kept and which to invalidate (nothing is freed here)."""
+    pool, sm = cache.pool, cache.samples
+    none = np.zeros(0, np.int32)
+    cache.compact_samples()  # (only the live cells' samples are shaded)
+    live = np.flatnonzero(pool.live).astype(np.int32)
+    L0, L1 = len(old_sa.light_kind), len(sa.light_kind)
+    k = L1 - L0
+    if (np.any(np.asarray(sa.light_ext, bool)[slots]) or len(live) == 0
+            or not np.any(pool.tests[live, 0] >= 0)):  # (no test lines kept: none passes)
+        _widen(sm, np.full((sm.n_nodes, k), -2, np.int32), np.zeros((sm.n, k, 3)))
+        return AddResult(none, none, live, list(slots))
+    occ, share, good = _shade_samples(cache, sa, accel, list(slots))
+    dif, _, flag = sm.texture_terms()
+    reach = np.any(share != 0.0, axis=(1, 2))
+    good &= (flag == 0) & ~(np.any(dif != 0.0, axis=1) & reach)
+    good &= np.all(np.isfinite(share), axis=(1, 2))
+    _widen(sm, occ, share)
+    scale = light_scale(sa)[list(slots)]  # (k, 3)
+    rad = sm.radiance()
+    new_rad = rad + np.einsum("nlc,lc->nc", share, scale)
+    cs = np.concatenate([pool.samples[live], pool.tests[live]], axis=1)
+    nsamp = (16 + np.count_nonzero(pool.tests[live] >= 0, axis=1)).astype(np.int32)
+    ok = (pool.tests[live, 0] >= 0) & np.all(good[np.maximum(cs, 0)] | (cs < 0), axis=1)
+    go = np.flatnonzero(ok)
+    if len(go):
+        a = cache.trees.arrays
+        node = pool.node[live[go]]
+        tree = a.tree[node].astype(np.int64)
+        status = np.empty(len(go), np.int32)
+        detail = np.empty(len(go), np.int8)
+        zlo = np.zeros(len(go))
+        zhi = np.zeros(len(go))
+        cls = np.zeros(len(go), np.int32)
+        check_cells(_query(cache, sa, list(slots)), cache.box, sm.view(),
+                    (tree // 6).astype(np.int32), (tree % 6).astype(np.int8),
+                    a.depth[node].astype(np.int64), a.coord[node].astype(np.int64),
+                    np.ascontiguousarray(cs[go]), nsamp[go], status, detail, zlo, zhi, cls)
+        valid = status == VALID
+        ok[go[~valid]] = False
+        go = go[valid]
+        if len(go):
+            lin = radiance_ok(new_rad, cs[go], nsamp[go], cache.epsilon, sm.texture_terms(),
+                              cache.tex_max)
+            ok[go[~lin]] = False
+    # the samples take the term (those of failed cells are dropped with them)
+    rad[:] = new_rad
+    kept = live[ok]
+    pool.rad[kept] = rad[pool.samples[kept]]
+    changed = kept[np.any(reach[pool.samples[kept]], axis=1)]
+    cache.totals["terms_added"] = cache.totals.get("terms_added", 0) + len(kept)
+    return AddResult(kept, changed, live[~ok], list(slots))
+
+
+def _widen(sm, occ, share) -> None:
+    """The sample store with ``occ.shape[1]`` more light slots: their states per node and
+    (while shares are kept) their shares per sample."""
+    k = occ.shape[1]
+    nocc = np.empty((len(sm._nocc), sm.L + k), np.int32)
+    nocc[:, :sm.L] = sm._nocc
+    nocc[:, sm.L:] = -2
+    nocc[:sm.n_nodes, sm.L:] = occ
+    sm._nocc = nocc
+    if sm.shares_on:
+        sh = np.zeros((len(sm._share), sm.L + k, 3))
+        sh[:, :sm.L] = sm._share
+        sh[:sm.n, sm.L:] = share
+        sm._share = sh
+    sm.L += k
+
+
+def add_dependencies(cache, sa, ids, slots) -> None:
+    """The new lights' tunnels and membership entries of the kept interpolants ``ids``
+    (what :meth:`~.invalidation.Dependencies.add` records for a light at a cell's build),
+    ``sa`` the packing with the new lights."""
+    ids = np.asarray(ids, np.int32)
+    if len(ids) == 0:
+        return
+    deps, pool = cache.deps, cache.pool
+    sm = cache.samples.view()
+    a = cache.trees.arrays
+    node = pool.node[ids]
+    tree = a.tree[node].astype(np.int64)
+    inst = (tree // 6).astype(np.int32)
+    face = (tree % 6).astype(np.int8)
+    depth = a.depth[node].astype(np.int64)
+    coord = np.ascontiguousarray(a.coord[node], np.int64)
+    cs = np.ascontiguousarray(np.concatenate([pool.samples[ids], pool.tests[ids]], axis=1))
+    ns = (16 + np.count_nonzero(pool.tests[ids] >= 0, axis=1)).astype(np.int32)
+    mask = np.zeros(len(sa.light_kind), np.bool_)
+    mask[list(slots)] = True
+    lk = np.ascontiguousarray(sa.light_kind, np.int32)
+    elo, ehi, chord = light_extents(sa)
+    ld = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
+    zlo = np.ascontiguousarray(pool.zlo[ids])
+    zhi = np.ascontiguousarray(pool.zhi[ids])
+    counts = np.zeros(len(ids), np.int64)
+    none = np.empty((0, 6))
+    args = (sm, cache.box, sa.inst_aabb, lk, mask, elo, ehi, chord, ld, deps.reach,
+            deps.slack, inst, face, depth, coord, zlo, zhi, cs, ns)
+    light_tunnels(*args, False, counts, counts, none, none, np.empty(0, np.bool_))
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    m = int(counts.sum())
+    ta, tb, tinf = np.empty((m, 6)), np.empty((m, 6)), np.empty(m, np.bool_)
+    light_tunnels(*args, True, start, counts, ta, tb, tinf)
+    q = np.repeat(ids, counts).astype(np.int32)
+    deps.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])
+    # membership: over the first corner's tree (a valid cell's samples share one tree)
+    s0 = pool.samples[ids, 0]
+    cnt = sm.node_count[s0].astype(np.int64)
+    rows = np.repeat(sm.node_start[s0], cnt) + _ramp(cnt)
+    cell = np.repeat(ids, cnt)
+    hit = sm.node_inst[rows] >= 0
+    okeys, oq, lkeys, lq = [], [], [], []
+    for j in slots:
+        oc = sm.node_occ[rows, j]
+        occl = hit & (oc >= 0)
+        lkeys.append(np.where(oc[hit] >= 0, 2 * j + LIGHT_OCCLUDED, 2 * j + LIGHT_SHADES))
+        lq.append(cell[hit])
+        okeys.append(2 * oc[occl].astype(np.int64) + OBJ_OCCLUDES)
+        oq.append(cell[occl])
+    for keys, qs, index in ((okeys, oq, deps.objects), (lkeys, lq, deps.lights)):
+        kk = np.concatenate(keys).astype(np.int64)
+        qq = np.concatenate(qs).astype(np.int64)
+        if len(kk) == 0:
+            continue
+        pair = np.unique(np.stack([qq, kk], axis=1), axis=0)
+        index.add(pair[:, 1], pair[:, 0].astype(np.int32), pool.serial[pair[:, 0]])
+
+
+@njit(cache=True, nogil=True)
+def light_tunnels(sm, box, aabb, light_kind, mask, light_lo, light_hi, light_chord,
+                  light_dir, reach, slack, inst, face, depth, coord, zlo, zhi, ids, ns, write,
+                  start, counts, ta, tb, tinf):
+    """The light sections of :func:`.tunnels.cell_tunnels` for the lights in ``mask``
+    alone (their reflection and refraction arcs are in the trees already): per node that
+    hits a surface, from the node's points (the slab box at the root) to each such light
+    that is not occluded there."""
+    L = light_kind.shape[0]
+    rlo = np.empty(3)
+    rhi = np.empty(3)
+    nlo = np.empty(3)
+    nhi = np.empty(3)
+    llo = np.empty(3)
+    lhi = np.empty(3)
+    for c in range(inst.shape[0]):
+        row = start[c] if write else 0
+        k = 0
+        s0 = ids[c, 0]
+        base = sm.node_start[s0]
+        slab_box(box, inst[c], face[c], depth[c], coord[c], zlo[c], zhi[c], slack, rlo, rhi)
+        for m in range(3):
+            pad = slack + tol.BOX_ROUND_REL * (abs(aabb[inst[c], 0, m])
+                                               + abs(aabb[inst[c], 1, m]))
+            rlo[m] = max(rlo[m], aabb[inst[c], 0, m] - pad)
+            rhi[m] = min(rhi[m], aabb[inst[c], 1, m] + pad)
+        for q in range(sm.node_count[s0]):
+            if sm.node_inst[base + q] < 0:
+                continue
+            if q == 0:
+                for m in range(3):
+                    nlo[m] = rlo[m]
+                    nhi[m] = rhi[m]
+            else:
+                _points_box(sm, ids[c], ns[c], q, tol.TUNNEL_MARGIN_REL, slack, nlo, nhi)
+            for j in range(L):
+                if not mask[j] or light_kind[j] < 0 or sm.node_occ[base + q, j] >= 0:
+                    continue
+                if light_kind[j] == LIGHT_SUN:
+                    grow = reach * light_chord[j]
+                    for m in range(3):
+                        llo[m] = nlo[m] - light_dir[j, m] * reach - grow
+                        lhi[m] = nhi[m] - light_dir[j, m] * reach + grow
+                    inf = True
+                else:
+                    for m in range(3):
+                        llo[m] = light_lo[j, m]
+                        lhi[m] = light_hi[j, m]
+                    inf = False
+                if write:
+                    for m in range(3):
+                        ta[row + k, m] = nlo[m]
+                        ta[row + k, 3 + m] = nhi[m]
+                        tb[row + k, m] = llo[m]
+                        tb[row + k, 3 + m] = lhi[m]
+                    tinf[row + k] = inf
+                k += 1
+        counts[c] = k

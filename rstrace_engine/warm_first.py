@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 #: rstrace_engine; the traversal's compiles in the helper process.
 FIRST_IMAGE_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
                        "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
+                       "accel.bvh_mesh.outward_float32",
                        "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
                        "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
                        "tracing.whitted._surface_kernel", "tracing.whitted._shadow_kernel",
@@ -56,11 +57,11 @@ def compile_traversal() -> None:
     from .accel import bvh
     from .accel.accelerators import BVHAccelerator
 
-    f8, i4 = np.float64, np.int32
+    f4, f8, i4 = np.float32, np.float64, np.int32
     sb = bvh.SceneBVH(np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros(0, i4),
-                      np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros((0, 9), f8),
-                      np.zeros(0, i4), np.zeros(0, i4), np.zeros(0, i4),
-                      np.zeros((0, 4, 4), f8))
+                      np.zeros((0, 24), f4), np.zeros((0, 4), i4), np.zeros((0, 3), f8),
+                      np.zeros((0, 3), i4), np.zeros(0, i4), np.zeros(0, i4),
+                      np.zeros(0, i4), np.zeros((0, 4, 4), f8))
     acc = BVHAccelerator.__new__(BVHAccelerator)  # no scene: only its query path is used
     acc.stats, acc.sb = {}, sb
     none = np.zeros((0, 3))

@@ -33,7 +33,8 @@ from .bvh_build import (
 class FlatBVH(NamedTuple):
     """A flattened 4-wide BVH (layout: :mod:`.bvh`)."""
 
-    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
+    bounds: np.ndarray  # (N, 24) child boxes (SoA over 4 lanes): float32 for a mesh's
+    # (:func:`outward_float32`), float64 for the top level's
     child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
     perm: np.ndarray  # (n,) int32, primitive ids in leaf order
 
@@ -42,8 +43,6 @@ class MeshBVH(NamedTuple):
     """The bottom-level BVH of one mesh, in object space."""
 
     bvh: FlatBVH
-    tv: np.ndarray | None  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
-    # (None: not gathered yet, build_mesh_bvh_indexed(leaf_vertices=False))
     tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
     sah_cost: float
     build_s: float
@@ -259,7 +258,9 @@ def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP)
 def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
                    stop: np.ndarray = NEVER_STOP) -> MeshBVH:
     """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64
-    (``grain``, ``stop``: :func:`build_flat`)."""
+    (``grain``, ``stop``: :func:`build_flat`). The tree holds no vertices: its leaves
+    name triangles (``tri``), whose vertices the traversal reads through the scene's
+    vertex indices (:class:`.bvh.SceneBVH`)."""
     flat9 = np.ascontiguousarray(tv, dtype=np.float64).reshape(-1, 9)
     m = len(flat9)
     if m >= PARALLEL_MIN:  # the parallel kernels, through indices of the rows' vertices
@@ -271,35 +272,77 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     t3 = flat9.reshape(-1, 3, 3)
     pb = np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1)
     flat, sah = _tree(pb, grain, stop)
-    return MeshBVH(flat, flat9[flat.perm], flat.perm, float(sah), time.perf_counter() - t0)
+    return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
 def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | None = None,
-                           stop: np.ndarray = NEVER_STOP,
-                           leaf_vertices: bool = True) -> MeshBVH:
+                           stop: np.ndarray = NEVER_STOP) -> MeshBVH:
     """:func:`build_mesh_bvh` of the triangles ``verts[tris]`` (verts (V, 3) float64, tris
     (m, 3) int32), the same tree, without the (m, 9) copy of their vertices in mesh order
-    (a large mesh's boxes and leaf-ordered vertices are gathered through ``tris``). With
-    ``leaf_vertices=False`` a large mesh's ``tv`` is left None: the caller gathers it
-    (:func:`gather_triangles_into`, through ``perm``) where it is to be kept."""
+    (a large mesh's boxes are gathered through ``tris``)."""
     if len(tris) < PARALLEL_MIN:
         return build_mesh_bvh(verts[tris], grain, stop)
     t0 = time.perf_counter()
     flat, sah = _tree(indexed_boxes(verts, tris), grain, stop)
-    tv_leaf = gather_triangles(verts, tris, flat.perm) if leaf_vertices else None
-    return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
+    return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
 def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
     """The 4-wide tree over primitive boxes ``pb`` (n, 6), which it reorders, and its SAH
-    cost."""
+    cost; its boxes in float32, rounded outward (:func:`outward_float32`)."""
     b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     flat = flatten(b64, child, perm)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
-    return flat, sah
+    return FlatBVH(outward_float32(flat.bounds), flat.child, flat.perm), sah
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def outward_float32(b64):
+    """4-wide boxes (N, 24) float64 (lo lanes 0..11, hi lanes 12..23) -> float32, each
+    bound rounded *outward*: a lo that the cast (to nearest) moved up steps one float32
+    down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the bits), so
+    every float32 box contains its float64 one and no ray that enters the float64 box
+    misses the float32 one. Infinite bounds (an unused lane) stay infinite; a finite bound
+    beyond float32's range becomes the largest finite float32 on the inner side or an
+    infinity on the outer side."""
+    n = b64.shape[0]
+    out = np.empty((n, 24), np.float32)
+    bits = out.reshape(-1).view(np.int32)
+    for i in range(n):
+        for j in range(24):
+            x = b64[i, j]
+            f = np.float32(x)
+            out[i, j] = f
+            k = 24 * i + j
+            if j < 12:
+                if f > x:
+                    bits[k] = _step_down32(bits[k])
+            elif f < x:
+                bits[k] = _step_up32(bits[k])
+    return out
+
+
+_SIGN32 = np.int32(-0x80000000)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_down32(x):
+    """The bits of ``nextafter(f, -inf)`` for the float32 ``f`` of bits ``x``, where ``f``
+    is above some double (so not -inf or NaN; +inf steps to the largest finite)."""
+    if x == 0 or x == _SIGN32:
+        return _SIGN32 | np.int32(1)
+    return x - np.int32(1) if x > 0 else x + np.int32(1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_up32(x):
+    """The bits of ``nextafter(f, +inf)``, where ``f`` is below some double."""
+    if x == 0 or x == _SIGN32:
+        return np.int32(1)
+    return x + np.int32(1) if x > 0 else x - np.int32(1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

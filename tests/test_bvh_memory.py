@@ -25,7 +25,9 @@ def _values() -> np.ndarray:
                float(F32.max) * (1 + 2.0 ** -30), -float(F32.max) * (1 + 2.0 ** -30), 1e39,
                -1e39, float(F64.max), -float(F64.max), np.inf, -np.inf]
     rand = rng.normal(size=2000) * 10.0 ** rng.integers(-50, 50, 2000)
-    return np.concatenate([special, rand, rand.astype(np.float32).astype(np.float64)])
+    with np.errstate(over="ignore"):
+        near32 = rand.astype(np.float32).astype(np.float64)
+    return np.concatenate([special, rand, near32[np.isfinite(near32)]])
 
 
 def test_float32_boxes_contain_the_float64_ones_and_are_the_nearest_that_do():
@@ -43,10 +45,11 @@ def test_float32_boxes_contain_the_float64_ones_and_are_the_nearest_that_do():
     fin_lo, fin_hi = np.isfinite(lo32), np.isfinite(hi32)
     assert np.all(up[fin_lo] > lo64[fin_lo]) and np.all(down[fin_hi] < hi64[fin_hi])
     # a float32-exact bound is kept exactly (infinite ones, unused lanes, included)
-    exact = b64.astype(np.float32).astype(np.float64) == b64
+    with np.errstate(over="ignore"):
+        exact = b64.astype(np.float32).astype(np.float64) == b64
     assert np.array_equal(b32.astype(np.float64)[exact], b64[exact])
     # a lo beyond float32's range: the largest finite float32; a hi: +inf
-    big = b64 > float(F32.max)
+    big = (b64 > float(F32.max)) & np.isfinite(b64)
     assert np.all(b32[:, :12][big[:, :12]] == F32.max)
     assert np.all(np.isposinf(b32[:, 12:][big[:, 12:]]))
 
@@ -70,15 +73,16 @@ def test_mesh_bvh_float32_boxes_contain_the_float64_tree():
 def test_bytes_per_unique_triangle_stay_bounded():
     """What ``bench scale`` reports, counted from the arrays held (a buffer shared by
     several counts once): the BVH's own arrays (4-wide float32 nodes, the leaf-order
-    triangle ids, the top level) and the total with the scene model and the packed
-    arrays. Measured 33.3 / 133.3 bytes at 1M triangles, 34.7 / 134.8 on this 20k mesh
-    (230 in all before: 130 of BVH, 72 of them a float64 copy of the leaves' vertices)."""
+    triangle ids and vertex indices, the top level) and the total with the scene model
+    and the packed arrays. (230 in all before: 130 of BVH, 72 of them a float64 copy of
+    the leaves' vertices, 54 the float64 nodes.)"""
     scene = scale.big_scene(20_000)
     sa = scene.arrays()
     acc = create_accelerator("BVH", sa)
     mem = scale.memory(scene, sa, acc)
-    assert mem["bvh"] <= 38.0, mem
-    assert mem["total"] <= 138.0, mem
-    # the leaves hold no vertices: the BVH reads the scene's own (no copy)
-    assert acc.sb.verts is sa.verts and acc.sb.tris is sa.tris
-    assert acc.stats["memory_mb"] * 2 ** 20 <= 38.0 * int(sa.mesh_tri_start[-1])
+    assert mem["bvh"] <= 48.0, mem
+    assert mem["total"] <= 150.0, mem
+    # the leaves hold no vertices: the BVH reads the scene's own (no copy), through their
+    # indices in leaf order
+    assert acc.sb.verts is sa.verts and np.array_equal(acc.sb.tris, sa.tris[acc.sb.tri])
+    assert acc.stats["memory_mb"] * 2 ** 20 <= 48.0 * int(sa.mesh_tri_start[-1])

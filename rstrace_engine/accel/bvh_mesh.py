@@ -206,6 +206,23 @@ def indexed_boxes(verts, tris):
     return pb
 
 
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _gather_rows(tris, order, out):
+    for i in prange(order.shape[0]):
+        t = order[i]
+        out[i, 0], out[i, 1], out[i, 2] = tris[t, 0], tris[t, 1], tris[t, 2]
+
+
+def leaf_tris(tris: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``tris[order]`` (a scene's vertex indices in a BVH's leaf order), (len(order), 3)
+    int32; in parallel past :data:`.bvh_build.PARALLEL_MIN` rows."""
+    if len(order) < PARALLEL_MIN:
+        return np.ascontiguousarray(tris[order], np.int32)
+    out = np.empty((len(order), 3), np.int32)
+    _gather_rows(tris, order, out)
+    return out
+
+
 def mesh_range(sa, mesh: int) -> tuple[int, int]:
     """Mesh ``mesh``'s triangles: ``sa.tris[start:end]``."""
     return int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])

@@ -111,8 +111,8 @@ def memory(scene: Scene, sa, acc) -> dict:
     model = [m[k] for m in scene.meshes if m is not None
              for k in ("verts", "tris", "normals", "uvs", "slots")]
     packed = [sa.verts, sa.tris, sa.tri_normals, sa.tri_uvs, sa.tri_slot, sa.mesh_tri_start]
-    # the BVH's own arrays (its leaves read the packed verts and tris, counted there)
-    bvh = [a for f, a in acc.sb._asdict().items() if f not in ("verts", "tris")]
+    # the BVH's own arrays (its leaves read the packed verts, counted there)
+    bvh = [a for f, a in acc.sb._asdict().items() if f != "verts"]
     parts = {"model": _nbytes(model), "packed": _nbytes(packed), "bvh": _nbytes(bvh),
              "total": _nbytes(model + packed + bvh)}
     return {k: round(v / unique, 1) for k, v in parts.items()}

@@ -250,39 +250,39 @@ def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG
                 continue
             code = ~ch
             for t in range(code >> 3, (code >> 3) + (code & 7)):
-                g = sb.tri[t]  # the scene's triangle (the leaves hold no vertices)
                 for v in range(3):
-                    P[v, 0] = sb.verts[sb.tris[g, v], 0]
-                    P[v, 1] = sb.verts[sb.tris[g, v], 1]
-                    P[v, 2] = sb.verts[sb.tris[g, v], 2]
+                    P[v, 0] = sb.verts[sb.tris[t, v], 0]
+                    P[v, 1] = sb.verts[sb.tris[t, v], 1]
+                    P[v, 2] = sb.verts[sb.tris[t, v], 2]
                 if clip_polygon(plo, 0, npl, P, 3, S) == 0:
                     continue
-                if not _harmless(sb.verts, sb.tris, g, xf, sa, j, slack, lo, hi, extent, Q,
+                if not _harmless(sb.verts, sb.tris, t, xf, sa, j, slack, lo, hi, extent, Q,
                                  NG, sh_state, members, a0, a1):
                     return False
     return True
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _world(xf, verts, tris, g, v):
-    """Vertex ``v`` of the scene's triangle ``g`` taken to world space by ``xf``."""
-    x, y, z = verts[tris[g, v], 0], verts[tris[g, v], 1], verts[tris[g, v], 2]
+def _world(xf, verts, tris, t, v):
+    """Vertex ``v`` of leaf-order triangle ``t`` (its vertex indices ``tris[t]``) taken to
+    world space by ``xf``."""
+    x, y, z = verts[tris[t, v], 0], verts[tris[t, v], 1], verts[tris[t, v], 2]
     return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
             xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
             xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z + xf[2, 3])
 
 
 @njit(cache=True, nogil=True)
-def _harmless(verts, tris, g, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
+def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
               a0, a1):
-    """Can no shadow sample of light ``j`` from the group's points meet the scene's
-    triangle ``g`` (object space, transform ``xf``)? Per point: the triangle lies behind the
+    """Can no shadow sample of light ``j`` from the group's points meet leaf-order triangle
+    ``t`` (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the triangle lies behind the
     point's own plane, or the point and the light's whole extent lie on one side of the
     triangle's plane (see the module's docstring)."""
     L = sa.light_kind.shape[0]
-    ax, ay, az = _world(xf, verts, tris, g, 0)
-    bx, by, bz = _world(xf, verts, tris, g, 1)
-    cx, cy, cz = _world(xf, verts, tris, g, 2)
+    ax, ay, az = _world(xf, verts, tris, t, 0)
+    bx, by, bz = _world(xf, verts, tris, t, 1)
+    cx, cy, cz = _world(xf, verts, tris, t, 2)
     e1x, e1y, e1z = bx - ax, by - ay, bz - az
     e2x, e2y, e2z = cx - ax, cy - ay, cz - az
     nx = e1y * e2z - e1z * e2y

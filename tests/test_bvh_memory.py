@@ -30,28 +30,44 @@ def _values() -> np.ndarray:
     return np.concatenate([special, rand, near32[np.isfinite(near32)]])
 
 
+def _lanes(b2: np.ndarray, dtype) -> np.ndarray:
+    """The 4-wide node (24 bounds) :func:`collapse4` makes of a binary root whose two
+    children are leaves with the boxes ``b2`` (12: lo, hi of each)."""
+    c2 = np.array([[~(0 << 3 | 1), ~(1 << 3 | 1)]], np.int32)
+    b4, c4, m = bvh_mesh.collapse4(b2.reshape(1, 12).copy(), c2, np.empty((1, 24), dtype))
+    assert m == 1 and np.array_equal(c4[0, :2], c2[0])
+    return b4[0]
+
+
 def test_float32_boxes_contain_the_float64_ones_and_are_the_nearest_that_do():
     x = _values()
-    b64 = np.resize(x, (len(x) // 24 + 1) * 24).reshape(-1, 24)
-    b32 = bvh_mesh.outward_float32(b64)
-    assert b32.dtype == np.float32 and b32.shape == b64.shape
-    lo64, hi64 = b64[:, :12], b64[:, 12:]
-    lo32, hi32 = b32[:, :12].astype(np.float64), b32[:, 12:].astype(np.float64)
-    assert np.all(lo32 <= lo64) and np.all(hi32 >= hi64)  # contains (inf to inf)
-    # ... and is the tightest float32 box that does: one float32 step inward leaves it
-    with np.errstate(over="ignore"):
-        up = np.nextafter(b32[:, :12], np.float32(np.inf)).astype(np.float64)
-        down = np.nextafter(b32[:, 12:], np.float32(-np.inf)).astype(np.float64)
-    fin_lo, fin_hi = np.isfinite(lo32), np.isfinite(hi32)
-    assert np.all(up[fin_lo] > lo64[fin_lo]) and np.all(down[fin_hi] < hi64[fin_hi])
-    # a float32-exact bound is kept exactly (infinite ones, unused lanes, included)
-    with np.errstate(over="ignore"):
-        exact = b64.astype(np.float32).astype(np.float64) == b64
-    assert np.array_equal(b32.astype(np.float64)[exact], b64[exact])
-    # a lo beyond float32's range: the largest finite float32; a hi: +inf
-    big = (b64 > float(F32.max)) & np.isfinite(b64)
-    assert np.all(b32[:, :12][big[:, :12]] == F32.max)
-    assert np.all(np.isposinf(b32[:, 12:][big[:, 12:]]))
+    pairs = np.sort(np.resize(x, (len(x) // 12 + 1) * 12).reshape(-1, 6, 2), axis=2)
+    lanes = [0, 4, 8, 12, 16, 20, 1, 5, 9, 13, 17, 21]  # lo xyz, hi xyz of lanes 0 and 1
+    for row in pairs:
+        b2 = np.concatenate([row[:3, 0], row[:3, 1], row[3:, 0], row[3:, 1]])
+        b64 = _lanes(b2, np.float64)[lanes]
+        assert np.array_equal(b64, b2)  # float64: the boxes as they are
+        b32 = _lanes(b2, np.float32)[lanes]
+        lo = np.array([True] * 3 + [False] * 3 + [True] * 3 + [False] * 3)
+        f = b32.astype(np.float64)
+        # contains the float64 box (inf to inf) ...
+        assert np.all(f[lo] <= b2[lo]) and np.all(f[~lo] >= b2[~lo]), (b2, b32)
+        # ... and is the tightest float32 box that does: one float32 step inward leaves it
+        with np.errstate(over="ignore"):
+            inward = np.where(lo, np.nextafter(b32, np.float32(np.inf)),
+                              np.nextafter(b32, np.float32(-np.inf))).astype(np.float64)
+        fin = np.isfinite(f)
+        assert np.all(inward[lo & fin] > b2[lo & fin]), (b2, b32)
+        assert np.all(inward[~lo & fin] < b2[~lo & fin]), (b2, b32)
+        # a float32-exact bound is kept exactly (infinities included)
+        with np.errstate(over="ignore"):
+            exact = b2.astype(np.float32).astype(np.float64) == b2
+        assert np.array_equal(f[exact], b2[exact])
+        # beyond float32's range: the largest finite float32 inside, an infinity outside
+        big = np.isfinite(b2) & (np.abs(b2) > float(F32.max))
+        inner = big & (lo == (b2 > 0))
+        assert np.all(np.abs(f[inner]) == float(F32.max))
+        assert np.all(np.isinf(f[big & ~inner]))
 
 
 def test_mesh_bvh_float32_boxes_contain_the_float64_tree():
@@ -61,7 +77,7 @@ def test_mesh_bvh_float32_boxes_contain_the_float64_tree():
     verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
     pb = bvh_mesh.indexed_boxes(verts, tris)
     b64, child, perm, _ = bvh_build.build_flat_boxes(pb.copy())
-    f64 = bvh_mesh.flatten(b64, child, perm)
+    f64 = bvh_mesh.flatten(b64, child, perm)  # the same tree, float64 boxes
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     assert np.array_equal(mb.bvh.child, f64.child) and np.array_equal(mb.tri, f64.perm)
     b32 = mb.bvh.bounds.astype(np.float64)

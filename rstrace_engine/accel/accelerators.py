@@ -256,7 +256,8 @@ class BVHAccelerator(Accelerator):
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)
         bounds, child, tri, mesh_root, ltris = self._concat
         self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, sa.verts,
-                               ltris, tri, mesh_root, np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
+                               ltris, tri, mesh_root,
+                               np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
                                np.ascontiguousarray(sa.inst_inv, dtype=np.float64))
         self.sa = sa
         self.stats["top_build_s"] = time.perf_counter() - t1

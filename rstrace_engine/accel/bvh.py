@@ -15,13 +15,18 @@ and collapsed into a 4-wide tree (:func:`.bvh_mesh.collapse4`) whose nodes hold 
 their four children, so one visit tests four boxes and pushes those hit farthest first
 (front-to-back traversal with a small fixed stack).
 
-* ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
+* ``bounds`` (N, 24), struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
   lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
-  ulp (:func:`.bvh_mesh.pad_outward`; float64 measured ~5% faster than float32 boxes
-  here: no conversions in the slab test). An unused lane has an inverted box
-  (``lo = +inf``) and is never entered.
+  ulp (:func:`.bvh_mesh.pad_outward`), then for a mesh's nodes rounded *outward* to
+  float32 (:func:`.bvh_mesh.collapse4`: each box contains its float64 one, so no
+  ray that met the float64 box misses it; the slab test itself runs in float64). Half
+  the nodes' memory, for a few percent of trace time (docs/bench-scale.md, Memory). The
+  top level's boxes stay float64. An unused lane has an inverted box (``lo = +inf``) and
+  is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
+* The leaves hold no vertices: leaf-order triangle ``p`` has the vertex indices
+  ``tris[p]`` into the scene's own vertex array (:class:`SceneBVH`).
 
 The box test is the conservative slab test of pbrt-v4 (``t_far`` scaled by
 :data:`~.tolerances.BOX_TFAR_SCALE`) and the triangle test is watertight (:mod:`.triangle`),

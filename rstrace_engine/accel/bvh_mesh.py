@@ -34,7 +34,7 @@ class FlatBVH(NamedTuple):
     """A flattened 4-wide BVH (layout: :mod:`.bvh`)."""
 
     bounds: np.ndarray  # (N, 24) child boxes (SoA over 4 lanes): float32 for a mesh's
-    # (:func:`outward_float32`), float64 for the top level's
+    # (rounded outward, :func:`collapse4`), float64 for the top level's
     child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
     perm: np.ndarray  # (n,) int32, primitive ids in leaf order
 
@@ -53,21 +53,23 @@ class MeshBVH(NamedTuple):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2):
+def collapse4(b2, c2, b4):
     """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
 
     Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
-    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
-    The nodes are numbered depth first, whatever the binary numbering. The boxes are
-    copied as they are (:func:`pad_outward` widens them first).
+    child of largest surface area until it has four. Writes ``bounds`` into ``b4`` (N, 24)
+    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each),
+    float64 as they are, or float32 rounded *outward* (:func:`_put_outward`: every float32
+    box contains its float64 one), and returns it with ``child (N, 4) int32`` and the
+    number ``M`` of nodes (rows) used; an unused lane has an inverted box and the empty
+    leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering
+    (:func:`pad_outward` widens the binary boxes first).
     """
     n2 = c2.shape[0]
     # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
     # stack holds at most 3 entries per level of the binary tree
     todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
-    b4 = np.empty((n2, 24))
+    bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
     c4 = np.empty((n2, 4), np.int32)
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
@@ -107,7 +109,7 @@ def collapse4(b2, c2):
         for j in range(4):
             if j < cnt:
                 for q in range(6):
-                    b4[k, 4 * q + j] = cb[j, q]
+                    _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
                 c4[k, j] = cc[j]
             else:
                 for q in range(3):
@@ -119,6 +121,24 @@ def collapse4(b2, c2):
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
     return b4, c4, m
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _put_outward(b4, bits, k, col, x):
+    """``b4[k, col] = x`` (a lo bound in columns 0..11, a hi one in 12..23), rounded
+    outward where ``b4`` is float32: a lo that the cast (to nearest) moved up steps one
+    float32 down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the
+    bits ``bits``, ``b4``'s int32 view). A float64 ``b4`` takes ``x`` exactly (the
+    branches never run). Infinite bounds stay infinite; a finite bound beyond float32's
+    range becomes the largest finite float32 on the inner side, an infinity outside."""
+    b4[k, col] = x
+    f = b4[k, col]
+    i = b4.shape[1] * k + col
+    if col < 12:
+        if f > x:
+            bits[i] = _step_down32(bits[i])
+    elif f < x:
+        bits[i] = _step_up32(bits[i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -168,12 +188,14 @@ def _step_up(x):
     return x + 1 if x > 0 else x - 1
 
 
-def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide); ``b64`` is padded in place.
-    The nodes are views of arrays sized for the binary tree (about twice the rows used):
-    the scene's concatenation (:func:`.bvh.concat_meshes`) copies them, and the arrays go
-    with the built tree."""
-    b4, c4, m = collapse4(pad_outward(b64), child)
+def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
+            dtype=np.float64) -> FlatBVH:
+    """Binary build output -> the traversal layout (4-wide), its boxes ``dtype`` (float32:
+    rounded outward, :func:`collapse4`); ``b64`` is padded in place. The nodes are views of
+    arrays sized for the binary tree (about twice the rows used): the scene's
+    concatenation (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the
+    built tree."""
+    b4, c4, m = collapse4(pad_outward(b64), child, np.empty((len(child), 24), dtype))
     return FlatBVH(b4[:m], c4[:m], perm)
 
 
@@ -288,7 +310,7 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     t0 = time.perf_counter()
     t3 = flat9.reshape(-1, 3, 3)
     pb = np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1)
-    flat, sah = _tree(pb, grain, stop)
+    flat, sah = _four_wide(_binary(pb, grain, stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
@@ -300,46 +322,28 @@ def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | Non
     if len(tris) < PARALLEL_MIN:
         return build_mesh_bvh(verts[tris], grain, stop)
     t0 = time.perf_counter()
-    flat, sah = _tree(indexed_boxes(verts, tris), grain, stop)
+    # (the primitive boxes are gone before the 4-wide tree is made: a lower peak)
+    flat, sah = _four_wide(_binary(indexed_boxes(verts, tris), grain, stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
-def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
-    """The 4-wide tree over primitive boxes ``pb`` (n, 6), which it reorders, and its SAH
-    cost; its boxes in float32, rounded outward (:func:`outward_float32`)."""
-    b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
+def _binary(pb: np.ndarray, grain, stop):
+    """The binary tree over primitive boxes ``pb`` (n, 6), which it reorders (the caller
+    drops them after: they are not needed for the 4-wide tree, :func:`_four_wide`)."""
+    out = build_flat_boxes(pb, grain=grain, stop=stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
-    flat = flatten(b64, child, perm)
-    if stop[0]:
-        raise Cancelled("BVH build cancelled")
-    return FlatBVH(outward_float32(flat.bounds), flat.child, flat.perm), sah
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def outward_float32(b64):
-    """4-wide boxes (N, 24) float64 (lo lanes 0..11, hi lanes 12..23) -> float32, each
-    bound rounded *outward*: a lo that the cast (to nearest) moved up steps one float32
-    down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the bits), so
-    every float32 box contains its float64 one and no ray that enters the float64 box
-    misses the float32 one. Infinite bounds (an unused lane) stay infinite; a finite bound
-    beyond float32's range becomes the largest finite float32 on the inner side or an
-    infinity on the outer side."""
-    n = b64.shape[0]
-    out = np.empty((n, 24), np.float32)
-    bits = out.reshape(-1).view(np.int32)
-    for i in range(n):
-        for j in range(24):
-            x = b64[i, j]
-            f = np.float32(x)
-            out[i, j] = f
-            k = 24 * i + j
-            if j < 12:
-                if f > x:
-                    bits[k] = _step_down32(bits[k])
-            elif f < x:
-                bits[k] = _step_up32(bits[k])
     return out
+
+
+def _four_wide(binary, stop) -> tuple[FlatBVH, float]:
+    """The 4-wide tree of :func:`_binary`'s output, its boxes in float32 rounded outward
+    (:func:`collapse4`), and its SAH cost."""
+    b64, child, perm, sah = binary
+    flat = flatten(b64, child, perm, np.float32)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
+    return flat, sah
 
 
 _SIGN32 = np.int32(-0x80000000)

@@ -276,9 +276,9 @@ def _world(xf, verts, tris, t, v):
 def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
               a0, a1):
     """Can no shadow sample of light ``j`` from the group's points meet leaf-order triangle
-    ``t`` (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the triangle lies behind the
-    point's own plane, or the point and the light's whole extent lie on one side of the
-    triangle's plane (see the module's docstring)."""
+    ``t`` (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the
+    triangle lies behind the point's own plane, or the point and the light's whole extent
+    lie on one side of the triangle's plane (see the module's docstring)."""
     L = sa.light_kind.shape[0]
     ax, ay, az = _world(xf, verts, tris, t, 0)
     bx, by, bz = _world(xf, verts, tris, t, 1)

@@ -1,8 +1,9 @@
 """Mesh BVHs: a mesh's triangles to the 4-wide layout the traversal reads (:mod:`.bvh`).
 
 The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
-(:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`), and the
-triangles' vertices are stored in leaf order. Meshes of fewer than
+(:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`) and
+stored in float32, rounded outward; the leaves name triangles, whose vertices the traversal
+reads from the scene's own arrays (:func:`leaf_tris`). Meshes of fewer than
 :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
 region to start; larger ones through parallel kernels that read the triangles through their
 vertex indices (:func:`build_mesh_bvh_indexed`: no copy of the mesh's triangles in mesh

@@ -22,7 +22,8 @@ one run and with the thread count stated:
   the two accelerators), in million rays per second;
 * **memory**: bytes per *unique* triangle (the meshes' own, not counting duplicates) of the
   scene model (the validated meshes), the packed scene arrays (geometry only) and the BVH
-  (both levels as the traversal reads them); a buffer shared by several arrays counts once.
+  (both levels as the traversal reads them, but for the packed vertices its leaves read,
+  counted with the packed arrays); a buffer shared by several arrays counts once.
 
 ``--quick`` runs small sizes (what the tests run). Results: ``docs/bench-scale.md``.
 """

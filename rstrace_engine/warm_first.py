@@ -56,11 +56,11 @@ def compile_traversal() -> None:
     from .accel import bvh
     from .accel.accelerators import BVHAccelerator
 
-    f8, i4 = np.float64, np.int32
+    f4, f8, i4 = np.float32, np.float64, np.int32
     sb = bvh.SceneBVH(np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros(0, i4),
-                      np.zeros((0, 24), f8), np.zeros((0, 4), i4), np.zeros((0, 9), f8),
-                      np.zeros(0, i4), np.zeros(0, i4), np.zeros(0, i4),
-                      np.zeros((0, 4, 4), f8))
+                      np.zeros((0, 24), f4), np.zeros((0, 4), i4), np.zeros((0, 3), f8),
+                      np.zeros((0, 3), i4), np.zeros(0, i4), np.zeros(0, i4),
+                      np.zeros(0, i4), np.zeros((0, 4, 4), f8))
     acc = BVHAccelerator.__new__(BVHAccelerator)  # no scene: only its query path is used
     acc.stats, acc.sb = {}, sb
     none = np.zeros((0, 3))

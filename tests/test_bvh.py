@@ -46,7 +46,7 @@ def test_mesh_bvh_structure(mesh):
     tv = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.triangles)]
     mb = bvh_mesh.build_mesh_bvh(tv)
     b, child = mb.bvh.bounds, mb.bvh.child
-    assert b.dtype == np.float64 and child.dtype == np.int32
+    assert b.dtype == np.float32 and child.dtype == np.int32
     assert b.shape[1] == 24 and child.shape[1] == 4
     seen = np.zeros(len(tv), np.int64)
     # walk the tree: every triangle in exactly one leaf, inside every box on its path
@@ -70,12 +70,11 @@ def test_mesh_bvh_structure(mesh):
             assert 1 <= count <= bvh_build.MAX_LEAF
             for p in range(start, start + count):
                 seen[p] += 1
-                tri = mb.tv[p].reshape(3, 3)
+                tri = tv[mb.tri[p]]
                 for bx in path:
                     assert np.all(tri >= bx[:3]) and np.all(tri <= bx[3:])
     assert np.all(seen == 1)
     assert sorted(mb.tri.tolist()) == list(range(len(tv)))
-    assert np.array_equal(mb.tv.reshape(-1, 3, 3), tv[mb.tri])
     assert depth_max <= bvh.STACK_SIZE
     assert mb.sah_cost > 0
 

@@ -27,7 +27,6 @@ def _same_tree(a: bvh_mesh.MeshBVH, b: bvh_mesh.MeshBVH) -> None:
     assert np.array_equal(a.bvh.bounds, b.bvh.bounds)
     assert np.array_equal(a.bvh.child, b.bvh.child)
     assert np.array_equal(a.tri, b.tri)
-    assert np.array_equal(a.tv, b.tv)
 
 
 def _skewed(n: int) -> np.ndarray:
@@ -128,7 +127,7 @@ def test_mesh_bvh_reused_through_edits_and_held_once():
     # the scene's BVH arrays are the only copy: every cached mesh is a view of them
     for placed in acc._cache.values():
         for part, whole in ((placed.bounds, acc.sb.bounds), (placed.child, acc.sb.child),
-                            (placed.tv, acc.sb.tv), (placed.tri, acc.sb.tri)):
+                            (placed.tri, acc.sb.tri)):
             assert part.base is whole
     # the big mesh grows: the small one's tree moves, and is still reused
     session.apply([MeshSet("big", shapes.lumpy_sphere(30_000, name="big"))])
@@ -252,7 +251,7 @@ def test_a_new_session_takes_the_kept_mesh_bvhs_and_hits_the_same():
     _same_hits(second.accel, second.scene.arrays())
     # the kept trees are now views of the second session's arrays (the first's can go)
     for placed in kept._meshes.values():
-        assert placed.tv.base is second.accel.sb.tv
+        assert placed.bounds.base is second.accel.sb.bounds
     changed = _big_and_small()
     changed.set_mesh(changed.mesh_id("small"), shapes.icosphere(2, 0.3, name="small"))
     third = Session(changed, build=False)
@@ -271,7 +270,7 @@ def test_kept_bvhs_are_bounded(monkeypatch):
     assert len(kept) == 0 and kept.nbytes == 0
     monkeypatch.setattr(accelerators, "KEPT_BVH_MAX_BYTES", 1 << 40)
     acc = create_accelerator("BVH", _big_and_small().arrays(), kept=kept)
-    assert len(kept) == 2 and kept.nbytes == sum(a.nbytes for a in acc._concat[:4])
+    assert len(kept) == 2 and kept.nbytes == sum(a.nbytes for a in acc._concat[:3])
     kept.clear()
     assert len(kept) == 0
 
@@ -314,9 +313,10 @@ def test_indexed_build_is_the_build_over_the_gathered_triangles():
 
 
 def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
-    """A large mesh's leaf vertices are gathered straight into the scene's concatenation
-    (after a small mesh, so at an offset): its nodes, leaf vertices and triangle ids there
-    are those of the mesh's own build."""
+    """A large mesh's tree placed in the scene's concatenation (after a small mesh, so at
+    an offset): its nodes and triangle ids there are those of the mesh's own build, and
+    the leaves read the scene's own vertices (no copy of them) through its vertex indices
+    in leaf order."""
     s = Scene()
     s.add_material(Material("m"))
     small = shapes.icosphere(1, 0.2, name="small")
@@ -329,9 +329,9 @@ def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
     alone = bvh_mesh.build_mesh_bvh(sa.verts[sa.tris[lo:hi]])
     placed = acc._cache[acc._mesh_keys[1]]
     assert placed.leaf_base > 0 and placed.tri_base == lo
-    assert np.array_equal(placed.tv, alone.tv)
     assert np.array_equal(placed.tri, alone.tri + lo)
     assert np.array_equal(placed.bounds, alone.bvh.bounds)
+    assert acc.sb.verts is sa.verts and np.array_equal(acc.sb.tris, sa.tris[acc.sb.tri])
 
 
 def test_pad_outward_is_nextafter_outward():

@@ -217,10 +217,8 @@ class BVHAccelerator(Accelerator):
                 if pm is None:
                     if stop[0]:
                         raise Cancelled("BVH build cancelled")
-                    # (its leaf-ordered vertices are gathered by the concatenation)
-                    mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop,
-                                                         leaf_vertices=False)
-                    pm = bvh.PlacedMesh.built(mb, (sa.verts, tris))
+                    mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop)
+                    pm = bvh.PlacedMesh.built(mb)
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s
                 else:
@@ -230,6 +228,8 @@ class BVHAccelerator(Accelerator):
             if stop[0]:
                 raise Cancelled("BVH build cancelled")
             *concat, placed = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
+            # the leaves' vertex indices, in leaf order (the traversal reads sa.verts)
+            concat.append(bvh_mesh.leaf_tris(sa.tris, concat[2]))
             # meshes that left the scene are dropped; the others are kept as views of the
             # concatenation (the arrays of the previous one are then freed)
             self._cache = dict(zip(keys, placed, strict=True))
@@ -240,7 +240,7 @@ class BVHAccelerator(Accelerator):
             self.stats["meshes_reused"] += reused - kept
             self.stats["meshes_kept"] += kept
             if self._kept is not None:
-                self._kept.keep(self._cache, sum(a.nbytes for a in concat[:4]))
+                self._kept.keep(self._cache, sum(a.nbytes for a in concat[:3]))
             log.debug("BVH: %d mesh BVHs built, %d reused", built, reused)
         t1 = time.perf_counter()
         old = self.sa if same_geometry else None
@@ -254,15 +254,18 @@ class BVHAccelerator(Accelerator):
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
         top = bvh_mesh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)
-        bounds, child, tv, tri, mesh_root = self._concat
-        self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, tv, tri,
-                               mesh_root, np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
+        bounds, child, tri, mesh_root, ltris = self._concat
+        self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, sa.verts,
+                               ltris, tri, mesh_root,
+                               np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
                                np.ascontiguousarray(sa.inst_inv, dtype=np.float64))
         self.sa = sa
         self.stats["top_build_s"] = time.perf_counter() - t1
         self.stats["build_s"] = time.perf_counter() - t0
         self.stats["nodes"] = int(len(child) + len(top.child))
-        self.stats["memory_mb"] = sum(a.nbytes for a in self.sb) / 2 ** 20
+        # (its own arrays: verts is the scene's)
+        self.stats["memory_mb"] = sum(a.nbytes for f, a in self.sb._asdict().items()
+                                      if f != "verts") / 2 ** 20
         self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
                                   for k in self._mesh_keys}
 

@@ -15,13 +15,18 @@ and collapsed into a 4-wide tree (:func:`.bvh_mesh.collapse4`) whose nodes hold 
 their four children, so one visit tests four boxes and pushes those hit farthest first
 (front-to-back traversal with a small fixed stack).
 
-* ``bounds`` (N, 24) float64, struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
+* ``bounds`` (N, 24), struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
   lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
-  ulp (:func:`.bvh_mesh.pad_outward`; float64 measured ~5% faster than float32 boxes
-  here: no conversions in the slab test). An unused lane has an inverted box
-  (``lo = +inf``) and is never entered.
+  ulp (:func:`.bvh_mesh.pad_outward`), then for a mesh's nodes rounded *outward* to
+  float32 (:func:`.bvh_mesh.collapse4`: each box contains its float64 one, so no
+  ray that met the float64 box misses it; the slab test itself runs in float64). Half
+  the nodes' memory, for a few percent of trace time (docs/bench-scale.md, Memory). The
+  top level's boxes stay float64. An unused lane has an inverted box (``lo = +inf``) and
+  is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
+* The leaves hold no vertices: leaf-order triangle ``p`` has the vertex indices
+  ``tris[p]`` into the scene's own vertex array (:class:`SceneBVH`).
 
 The box test is the conservative slab test of pbrt-v4 (``t_far`` scaled by
 :data:`~.tolerances.BOX_TFAR_SCALE`) and the triangle test is watertight (:mod:`.triangle`),
@@ -39,7 +44,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
-from .bvh_mesh import MeshBVH, gather_triangles_into, place_child, place_tri
+from .bvh_mesh import MeshBVH, place_child, place_tri
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -54,15 +59,23 @@ PARALLEL_CHUNKSIZE = 16
 
 
 class SceneBVH(NamedTuple):
-    """Everything the traversal kernel reads: both levels, concatenated (what numba takes)."""
+    """Everything the traversal kernel reads: both levels, concatenated (what numba takes).
+
+    A leaf's triangles are read through the scene's vertices (``verts``: the
+    :class:`~..geometry.scene.SceneArrays` array itself, not a copy): leaf-order entry
+    ``p`` is global triangle ``tri[p]``, whose vertices are ``verts[tris[p]]`` (``tris``:
+    the scene's vertex indices in leaf order, 12 bytes a triangle where a copy of the
+    vertices took 72; reading ``SceneArrays.tris[tri[p]]`` instead, one more indirection,
+    measured slower)."""
 
     top_bounds: np.ndarray  # (Nt, 24) float64
     top_child: np.ndarray  # (Nt, 4) int32
     top_inst: np.ndarray  # (I,) int32, instance ids in leaf order
-    bounds: np.ndarray  # (N, 24) float64, all mesh BVH nodes
+    bounds: np.ndarray  # (N, 24) float32, all mesh BVH nodes (rounded outward)
     child: np.ndarray  # (N, 4) int32, node and triangle indices already offset
-    tv: np.ndarray  # (T, 9) float64, triangle vertices in leaf order
-    tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris)
+    verts: np.ndarray  # (V, 3) float64, the scene's object-space vertices (SceneArrays')
+    tris: np.ndarray  # (T, 3) int32, vertex indices (into verts) in leaf order
+    tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris), leaf order
     mesh_root: np.ndarray  # (M,) int32, root node of each mesh
     inst_mesh: np.ndarray  # (I,) int32
     inst_inv: np.ndarray  # (I, 4, 4) float64 world -> object
@@ -73,32 +86,24 @@ class PlacedMesh(NamedTuple):
     views of them, whose child codes and triangle ids carry the offsets of that placement
     (all zero for a BVH just built), so the scene holds each mesh's tree once."""
 
-    bounds: np.ndarray  # (N, 24) float64
+    bounds: np.ndarray  # (N, 24) float32
     child: np.ndarray  # (N, 4) int32, node indices + node_base, leaf starts + leaf_base
-    tv: np.ndarray | None  # (m, 9) float64, triangle vertices in leaf order (None: below)
     tri: np.ndarray  # (m,) int32, mesh triangle index + tri_base, leaf order
     node_base: int
     leaf_base: int
     tri_base: int
     sah_cost: float
-    # a tree just built without its leaf-ordered vertices: (verts, tris) of the mesh, for
-    # concat_meshes to gather them straight into the concatenation (no copy in between)
-    source: tuple | None = None
 
     @classmethod
-    def built(cls, mb: MeshBVH, source: tuple | None = None) -> PlacedMesh:
-        """``mb`` as built (``source``: the mesh's ``(verts, tris)`` when ``mb.tv`` is
-        None)."""
-        if mb.tv is None and source is None:
-            raise ValueError("a mesh BVH without its leaf vertices needs their source")
-        return cls(mb.bvh.bounds, mb.bvh.child, mb.tv, mb.tri, 0, 0, 0, mb.sah_cost,
-                   None if mb.tv is not None else source)
+    def built(cls, mb: MeshBVH) -> PlacedMesh:
+        """``mb`` as built."""
+        return cls(mb.bvh.bounds, mb.bvh.child, mb.tri, 0, 0, 0, mb.sah_cost)
 
 
 def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
     """Concatenate mesh BVHs (mesh ``k`` owns global triangles from ``mesh_tri_start[k]``).
 
-    Returns ``bounds, child, tv, tri (global), mesh_root`` and the meshes placed there
+    Returns ``bounds, child, tri (global), mesh_root`` and the meshes placed there
     (views: keep those, not the arguments, so nothing is held twice).
     """
     node_base = np.cumsum([0] + [len(m.child) for m in meshes])
@@ -111,20 +116,13 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
         # node indices and leaf starts moved to this placement, in one pass each
         place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base)
         place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
-    bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]))
-    tv = np.empty((int(leaf_base[-1]), 9))
-    for m, lb in zip(meshes, leaf_base[:-1], strict=True):
-        if m.tv is not None:
-            tv[int(lb):int(lb) + len(m.tv)] = m.tv
-        else:  # a tree just built: its triangles' vertices gathered here, in leaf order
-            verts, tris = m.source
-            gather_triangles_into(verts, tris, m.tri, tv, int(lb))
-    placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tv[lb:le], tri[lb:le], int(nb), int(lb),
+    bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]), np.float32)
+    placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tri[lb:le], int(nb), int(lb),
                          int(mesh_tri_start[k]), m.sah_cost)
               for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],
                                                           node_base[1:], leaf_base[:-1],
                                                           leaf_base[1:], strict=True))]
-    return bounds, child, tv, tri, node_base[:-1].astype(np.int32), placed
+    return bounds, child, tri, node_base[:-1].astype(np.int32), placed
 
 
 # ----------------------------------------------------------------------------- traversal
@@ -216,7 +214,7 @@ def _cull(best):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
+def _trace_mesh(bounds, child, verts, tris, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
                 st_node, st_t):
     """Closest (or any) hit in one mesh BVH; the ray is in object space.
 
@@ -244,10 +242,11 @@ def _trace_mesh(bounds, child, tv, root, ox, oy, oz, dx, dy, dz, t0, best, anyhi
         code = ~c
         s = code >> 3
         for p in range(s, s + (code & 7)):
+            a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
             hit, t, u, v = intersect_sheared(
-                tv[p, kx], tv[p, ky], tv[p, kz], tv[p, 3 + kx], tv[p, 3 + ky], tv[p, 3 + kz],
-                tv[p, 6 + kx], tv[p, 6 + ky], tv[p, 6 + kz], okx, oky, okz, sx, sy, sz, t0,
-                best)
+                verts[a, kx], verts[a, ky], verts[a, kz], verts[b, kx], verts[b, ky],
+                verts[b, kz], verts[c, kx], verts[c, ky], verts[c, kz], okx, oky, okz, sx, sy,
+                sz, t0, best)
             if hit:
                 found, best, bp, bu, bv = True, t, p, u, v
                 if anyhit:
@@ -280,7 +279,7 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
             i = only if only >= 0 else top_inst[q]
             q += 1
             lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz, dx, dy, dz)
-            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.tv,
+            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris,
                                             sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
                                             ex, ey, ez, t0, best, anyhit, st2_node, st2_t)
             # t <= best; an equal distance goes to the highest instance id (the oracle's

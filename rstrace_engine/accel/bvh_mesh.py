@@ -1,8 +1,9 @@
 """Mesh BVHs: a mesh's triangles to the 4-wide layout the traversal reads (:mod:`.bvh`).
 
 The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
-(:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`), and the
-triangles' vertices are stored in leaf order. Meshes of fewer than
+(:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`) and
+stored in float32, rounded outward; the leaves name triangles, whose vertices the traversal
+reads from the scene's own arrays (:func:`leaf_tris`). Meshes of fewer than
 :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
 region to start; larger ones through parallel kernels that read the triangles through their
 vertex indices (:func:`build_mesh_bvh_indexed`: no copy of the mesh's triangles in mesh
@@ -33,7 +34,8 @@ from .bvh_build import (
 class FlatBVH(NamedTuple):
     """A flattened 4-wide BVH (layout: :mod:`.bvh`)."""
 
-    bounds: np.ndarray  # (N, 24) float64, child boxes (SoA over 4 lanes)
+    bounds: np.ndarray  # (N, 24) child boxes (SoA over 4 lanes): float32 for a mesh's
+    # (rounded outward, :func:`collapse4`), float64 for the top level's
     child: np.ndarray  # (N, 4) int32, inner node index or ~(start << 3 | count)
     perm: np.ndarray  # (n,) int32, primitive ids in leaf order
 
@@ -42,8 +44,6 @@ class MeshBVH(NamedTuple):
     """The bottom-level BVH of one mesh, in object space."""
 
     bvh: FlatBVH
-    tv: np.ndarray | None  # (m, 9) float64, triangle vertices (a, b, c) in leaf order
-    # (None: not gathered yet, build_mesh_bvh_indexed(leaf_vertices=False))
     tri: np.ndarray  # (m,) int32, triangle index *within the mesh*, leaf order
     sah_cost: float
     build_s: float
@@ -54,21 +54,23 @@ class MeshBVH(NamedTuple):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2):
+def collapse4(b2, c2, b4):
     """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
 
     Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Returns ``bounds (M, 24) float64``
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each) and
-    ``child (M, 4) int32``; an unused lane has an inverted box and the empty leaf ``~0``.
-    The nodes are numbered depth first, whatever the binary numbering. The boxes are
-    copied as they are (:func:`pad_outward` widens them first).
+    child of largest surface area until it has four. Writes ``bounds`` into ``b4`` (N, 24)
+    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each),
+    float64 as they are, or float32 rounded *outward* (:func:`_put_outward`: every float32
+    box contains its float64 one), and returns it with ``child (N, 4) int32`` and the
+    number ``M`` of nodes (rows) used; an unused lane has an inverted box and the empty
+    leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering
+    (:func:`pad_outward` widens the binary boxes first).
     """
     n2 = c2.shape[0]
     # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
     # stack holds at most 3 entries per level of the binary tree
     todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
-    b4 = np.empty((n2, 24))
+    bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
     c4 = np.empty((n2, 4), np.int32)
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
@@ -108,7 +110,7 @@ def collapse4(b2, c2):
         for j in range(4):
             if j < cnt:
                 for q in range(6):
-                    b4[k, 4 * q + j] = cb[j, q]
+                    _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
                 c4[k, j] = cc[j]
             else:
                 for q in range(3):
@@ -120,6 +122,24 @@ def collapse4(b2, c2):
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
     return b4, c4, m
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _put_outward(b4, bits, k, col, x):
+    """``b4[k, col] = x`` (a lo bound in columns 0..11, a hi one in 12..23), rounded
+    outward where ``b4`` is float32: a lo that the cast (to nearest) moved up steps one
+    float32 down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the
+    bits ``bits``, ``b4``'s int32 view). A float64 ``b4`` takes ``x`` exactly (the
+    branches never run). Infinite bounds stay infinite; a finite bound beyond float32's
+    range becomes the largest finite float32 on the inner side, an infinity outside."""
+    b4[k, col] = x
+    f = b4[k, col]
+    i = b4.shape[1] * k + col
+    if col < 12:
+        if f > x:
+            bits[i] = _step_down32(bits[i])
+    elif f < x:
+        bits[i] = _step_up32(bits[i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -169,12 +189,14 @@ def _step_up(x):
     return x + 1 if x > 0 else x - 1
 
 
-def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray) -> FlatBVH:
-    """Binary build output -> the traversal layout (4-wide); ``b64`` is padded in place.
-    The nodes are views of arrays sized for the binary tree (about twice the rows used):
-    the scene's concatenation (:func:`.bvh.concat_meshes`) copies them, and the arrays go
-    with the built tree."""
-    b4, c4, m = collapse4(pad_outward(b64), child)
+def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
+            dtype=np.float64) -> FlatBVH:
+    """Binary build output -> the traversal layout (4-wide), its boxes ``dtype`` (float32:
+    rounded outward, :func:`collapse4`); ``b64`` is padded in place. The nodes are views of
+    arrays sized for the binary tree (about twice the rows used): the scene's
+    concatenation (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the
+    built tree."""
+    b4, c4, m = collapse4(pad_outward(b64), child, np.empty((len(child), 24), dtype))
     return FlatBVH(b4[:m], c4[:m], perm)
 
 
@@ -205,6 +227,23 @@ def indexed_boxes(verts, tris):
             pb[i, q] = min(a, min(b, c))
             pb[i, 3 + q] = max(a, max(b, c))
     return pb
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _gather_rows(tris, order, out):
+    for i in prange(order.shape[0]):
+        t = order[i]
+        out[i, 0], out[i, 1], out[i, 2] = tris[t, 0], tris[t, 1], tris[t, 2]
+
+
+def leaf_tris(tris: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``tris[order]`` (a scene's vertex indices in a BVH's leaf order), (len(order), 3)
+    int32; in parallel past :data:`.bvh_build.PARALLEL_MIN` rows."""
+    if len(order) < PARALLEL_MIN:
+        return np.ascontiguousarray(tris[order], np.int32)
+    out = np.empty((len(order), 3), np.int32)
+    _gather_rows(tris, order, out)
+    return out
 
 
 def mesh_range(sa, mesh: int) -> tuple[int, int]:
@@ -259,7 +298,9 @@ def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP)
 def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
                    stop: np.ndarray = NEVER_STOP) -> MeshBVH:
     """Bottom-level BVH of one mesh from its triangle vertices (m, 3, 3) float64
-    (``grain``, ``stop``: :func:`build_flat`)."""
+    (``grain``, ``stop``: :func:`build_flat`). The tree holds no vertices: its leaves
+    name triangles (``tri``), whose vertices the traversal reads through the scene's
+    vertex indices (:class:`.bvh.SceneBVH`)."""
     flat9 = np.ascontiguousarray(tv, dtype=np.float64).reshape(-1, 9)
     m = len(flat9)
     if m >= PARALLEL_MIN:  # the parallel kernels, through indices of the rows' vertices
@@ -270,36 +311,60 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     t0 = time.perf_counter()
     t3 = flat9.reshape(-1, 3, 3)
     pb = np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1)
-    flat, sah = _tree(pb, grain, stop)
-    return MeshBVH(flat, flat9[flat.perm], flat.perm, float(sah), time.perf_counter() - t0)
+    flat, sah = _four_wide(_binary(pb, grain, stop), stop)
+    return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
 def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | None = None,
-                           stop: np.ndarray = NEVER_STOP,
-                           leaf_vertices: bool = True) -> MeshBVH:
+                           stop: np.ndarray = NEVER_STOP) -> MeshBVH:
     """:func:`build_mesh_bvh` of the triangles ``verts[tris]`` (verts (V, 3) float64, tris
     (m, 3) int32), the same tree, without the (m, 9) copy of their vertices in mesh order
-    (a large mesh's boxes and leaf-ordered vertices are gathered through ``tris``). With
-    ``leaf_vertices=False`` a large mesh's ``tv`` is left None: the caller gathers it
-    (:func:`gather_triangles_into`, through ``perm``) where it is to be kept."""
+    (a large mesh's boxes are gathered through ``tris``)."""
     if len(tris) < PARALLEL_MIN:
         return build_mesh_bvh(verts[tris], grain, stop)
     t0 = time.perf_counter()
-    flat, sah = _tree(indexed_boxes(verts, tris), grain, stop)
-    tv_leaf = gather_triangles(verts, tris, flat.perm) if leaf_vertices else None
-    return MeshBVH(flat, tv_leaf, flat.perm, float(sah), time.perf_counter() - t0)
+    # (the primitive boxes are gone before the 4-wide tree is made: a lower peak)
+    flat, sah = _four_wide(_binary(indexed_boxes(verts, tris), grain, stop), stop)
+    return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
-def _tree(pb: np.ndarray, grain, stop) -> tuple[FlatBVH, float]:
-    """The 4-wide tree over primitive boxes ``pb`` (n, 6), which it reorders, and its SAH
-    cost."""
-    b64, child, perm, sah = build_flat_boxes(pb, grain=grain, stop=stop)
+def _binary(pb: np.ndarray, grain, stop):
+    """The binary tree over primitive boxes ``pb`` (n, 6), which it reorders (the caller
+    drops them after: they are not needed for the 4-wide tree, :func:`_four_wide`)."""
+    out = build_flat_boxes(pb, grain=grain, stop=stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
-    flat = flatten(b64, child, perm)
+    return out
+
+
+def _four_wide(binary, stop) -> tuple[FlatBVH, float]:
+    """The 4-wide tree of :func:`_binary`'s output, its boxes in float32 rounded outward
+    (:func:`collapse4`), and its SAH cost."""
+    b64, child, perm, sah = binary
+    flat = flatten(b64, child, perm, np.float32)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return flat, sah
+
+
+_SIGN32 = np.int32(-0x80000000)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_down32(x):
+    """The bits of ``nextafter(f, -inf)`` for the float32 ``f`` of bits ``x``, where ``f``
+    is above some double (so not -inf or NaN; +inf steps to the largest finite)."""
+    if x == 0 or x == _SIGN32:
+        return _SIGN32 | np.int32(1)
+    return x - np.int32(1) if x > 0 else x + np.int32(1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_up32(x):
+    """The bits of ``nextafter(f, +inf)``, where ``f`` is below some double."""
+    if x == 0 or x == _SIGN32:
+        return np.int32(1)
+    return x + np.int32(1) if x > 0 else x - np.int32(1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

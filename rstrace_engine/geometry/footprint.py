@@ -2,10 +2,11 @@
 allocated: a mesh too large for the memory available is refused with a message that names
 it, instead of the host running out of memory half way through a build.
 
-Per unique triangle (a mesh's, however many objects use it) rstrace holds the validated
-mesh, the packed scene arrays and the BVH, about 310 bytes on a closed mesh (``bench
-scale``, docs/bench-scale.md: 88 + 88 + 132), and a BVH build needs about 300 bytes more
-while it runs (primitive boxes, the binary tree, the 4-wide tree before it is trimmed).
+Per unique triangle (a mesh's, however many objects use it) rstrace holds the packed scene
+arrays, the validated mesh's own triangles and the BVH, about 145 bytes on a closed mesh
+(``bench scale``, docs/bench-scale.md: 88 + 12 + 45), and a BVH build needs about 190
+bytes more while it runs (primitive boxes, the binary tree and its working arrays): the
+peak is what is checked.
 """
 
 from __future__ import annotations

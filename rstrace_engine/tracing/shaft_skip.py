@@ -251,36 +251,38 @@ def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG
             code = ~ch
             for t in range(code >> 3, (code >> 3) + (code & 7)):
                 for v in range(3):
-                    P[v, 0] = sb.tv[t, 3 * v]
-                    P[v, 1] = sb.tv[t, 3 * v + 1]
-                    P[v, 2] = sb.tv[t, 3 * v + 2]
+                    P[v, 0] = sb.verts[sb.tris[t, v], 0]
+                    P[v, 1] = sb.verts[sb.tris[t, v], 1]
+                    P[v, 2] = sb.verts[sb.tris[t, v], 2]
                 if clip_polygon(plo, 0, npl, P, 3, S) == 0:
                     continue
-                if not _harmless(sb.tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG,
-                                 sh_state, members, a0, a1):
+                if not _harmless(sb.verts, sb.tris, t, xf, sa, j, slack, lo, hi, extent, Q,
+                                 NG, sh_state, members, a0, a1):
                     return False
     return True
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _world(xf, tv, t, v):
-    """Vertex ``v`` of leaf-order triangle ``t`` taken to world space by ``xf``."""
-    x, y, z = tv[t, 3 * v], tv[t, 3 * v + 1], tv[t, 3 * v + 2]
+def _world(xf, verts, tris, t, v):
+    """Vertex ``v`` of leaf-order triangle ``t`` (its vertex indices ``tris[t]``) taken to
+    world space by ``xf``."""
+    x, y, z = verts[tris[t, v], 0], verts[tris[t, v], 1], verts[tris[t, v], 2]
     return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
             xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
             xf[2, 0] * x + xf[2, 1] * y + xf[2, 2] * z + xf[2, 3])
 
 
 @njit(cache=True, nogil=True)
-def _harmless(tv, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members, a0, a1):
+def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
+              a0, a1):
     """Can no shadow sample of light ``j`` from the group's points meet leaf-order triangle
-    ``t`` (object space, transform ``xf``)? Per point: the triangle lies behind the
-    point's own plane, or the point and the light's whole extent lie on one side of the
-    triangle's plane (see the module's docstring)."""
+    ``t`` (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the
+    triangle lies behind the point's own plane, or the point and the light's whole extent
+    lie on one side of the triangle's plane (see the module's docstring)."""
     L = sa.light_kind.shape[0]
-    ax, ay, az = _world(xf, tv, t, 0)
-    bx, by, bz = _world(xf, tv, t, 1)
-    cx, cy, cz = _world(xf, tv, t, 2)
+    ax, ay, az = _world(xf, verts, tris, t, 0)
+    bx, by, bz = _world(xf, verts, tris, t, 1)
+    cx, cy, cz = _world(xf, verts, tris, t, 2)
     e1x, e1y, e1z = bx - ax, by - ay, bz - az
     e2x, e2y, e2z = cx - ax, cy - ay, cz - az
     nx = e1y * e2z - e1z * e2y

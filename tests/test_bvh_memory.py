@@ -1,0 +1,104 @@
+"""Memory per triangle of the BVH (issue 26): float32 node boxes rounded outward (each
+contains its float64 box, so no hit is lost), leaves that read the scene's own vertices,
+and a bound on the bytes held per unique triangle (counted from the arrays)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rstrace_engine.accel import bvh_build, bvh_mesh
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.bench import scale
+from rstrace_engine.geometry import shapes
+
+F32 = np.finfo(np.float32)
+F64 = np.finfo(np.float64)
+
+
+def _values() -> np.ndarray:
+    """Bounds that round every way: float32-exact, halfway, subnormal in either precision,
+    signed zeros, beyond float32's range, infinities; and random magnitudes."""
+    rng = np.random.default_rng(11)
+    special = [0.0, -0.0, 1.0, -1.0, 0.1, -0.1, 1.0 + 2.0 ** -24, 1.0 + 2.0 ** -30,
+               -(1.0 + 2.0 ** -30), 1e-310, -1e-310, 5e-324, -5e-324, 1e-45, -1e-45, 2e-45,
+               float(F32.tiny), -float(F32.tiny), float(F32.max), -float(F32.max),
+               float(F32.max) * (1 + 2.0 ** -30), -float(F32.max) * (1 + 2.0 ** -30), 1e39,
+               -1e39, float(F64.max), -float(F64.max), np.inf, -np.inf]
+    rand = rng.normal(size=2000) * 10.0 ** rng.integers(-50, 50, 2000)
+    with np.errstate(over="ignore"):
+        near32 = rand.astype(np.float32).astype(np.float64)
+    return np.concatenate([special, rand, near32[np.isfinite(near32)]])
+
+
+def _lanes(b2: np.ndarray, dtype) -> np.ndarray:
+    """The 4-wide node (24 bounds) :func:`collapse4` makes of a binary root whose two
+    children are leaves with the boxes ``b2`` (12: lo, hi of each)."""
+    c2 = np.array([[~(0 << 3 | 1), ~(1 << 3 | 1)]], np.int32)
+    b4, c4, m = bvh_mesh.collapse4(b2.reshape(1, 12).copy(), c2, np.empty((1, 24), dtype))
+    assert m == 1 and np.array_equal(c4[0, :2], c2[0])
+    return b4[0]
+
+
+def test_float32_boxes_contain_the_float64_ones_and_are_the_nearest_that_do():
+    x = _values()
+    pairs = np.sort(np.resize(x, (len(x) // 12 + 1) * 12).reshape(-1, 6, 2), axis=2)
+    lanes = [0, 4, 8, 12, 16, 20, 1, 5, 9, 13, 17, 21]  # lo xyz, hi xyz of lanes 0 and 1
+    for row in pairs:
+        b2 = np.concatenate([row[:3, 0], row[:3, 1], row[3:, 0], row[3:, 1]])
+        b64 = _lanes(b2, np.float64)[lanes]
+        assert np.array_equal(b64, b2)  # float64: the boxes as they are
+        b32 = _lanes(b2, np.float32)[lanes]
+        lo = np.array([True] * 3 + [False] * 3 + [True] * 3 + [False] * 3)
+        f = b32.astype(np.float64)
+        # contains the float64 box (inf to inf) ...
+        assert np.all(f[lo] <= b2[lo]) and np.all(f[~lo] >= b2[~lo]), (b2, b32)
+        # ... and is the tightest float32 box that does: one float32 step inward leaves it
+        with np.errstate(over="ignore"):
+            inward = np.where(lo, np.nextafter(b32, np.float32(np.inf)),
+                              np.nextafter(b32, np.float32(-np.inf))).astype(np.float64)
+        fin = np.isfinite(f)
+        assert np.all(inward[lo & fin] > b2[lo & fin]), (b2, b32)
+        assert np.all(inward[~lo & fin] < b2[~lo & fin]), (b2, b32)
+        # a float32-exact bound is kept exactly (infinities included)
+        with np.errstate(over="ignore"):
+            exact = b2.astype(np.float32).astype(np.float64) == b2
+        assert np.array_equal(f[exact], b2[exact])
+        # beyond float32's range: the largest finite float32 inside, an infinity outside
+        big = np.isfinite(b2) & (np.abs(b2) > float(F32.max))
+        inner = big & (lo == (b2 > 0))
+        assert np.all(np.abs(f[inner]) == float(F32.max))
+        assert np.all(np.isinf(f[big & ~inner]))
+
+
+def test_mesh_bvh_float32_boxes_contain_the_float64_tree():
+    """The built tree's float32 boxes hold its float64 boxes lane by lane (the same
+    tree, the boxes only rounded outward) and so every triangle of their subtree."""
+    mesh = shapes.lumpy_sphere(bvh_build.PARALLEL_MIN + 2_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
+    pb = bvh_mesh.indexed_boxes(verts, tris)
+    b64, child, perm, _ = bvh_build.build_flat_boxes(pb.copy())
+    f64 = bvh_mesh.flatten(b64, child, perm)  # the same tree, float64 boxes
+    mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
+    assert np.array_equal(mb.bvh.child, f64.child) and np.array_equal(mb.tri, f64.perm)
+    b32 = mb.bvh.bounds.astype(np.float64)
+    assert mb.bvh.bounds.dtype == np.float32
+    assert np.all(b32[:, :12] <= f64.bounds[:, :12]) and np.all(b32[:, 12:] >= f64.bounds[:, 12:])
+    assert np.any(b32 != f64.bounds)  # (rounded: not the float64 values)
+
+
+def test_bytes_per_unique_triangle_stay_bounded():
+    """What ``bench scale`` reports, counted from the arrays held (a buffer shared by
+    several counts once): the BVH's own arrays (4-wide float32 nodes, the leaf-order
+    triangle ids and vertex indices, the top level) and the total with the scene model
+    and the packed arrays. (230 in all before: 130 of BVH, 72 of them a float64 copy of
+    the leaves' vertices, 54 the float64 nodes.)"""
+    scene = scale.big_scene(20_000)
+    sa = scene.arrays()
+    acc = create_accelerator("BVH", sa)
+    mem = scale.memory(scene, sa, acc)
+    assert mem["bvh"] <= 48.0, mem
+    assert mem["total"] <= 150.0, mem
+    # the leaves hold no vertices: the BVH reads the scene's own (no copy), through their
+    # indices in leaf order
+    assert acc.sb.verts is sa.verts and np.array_equal(acc.sb.tris, sa.tris[acc.sb.tri])
+    assert acc.stats["memory_mb"] * 2 ** 20 <= 48.0 * int(sa.mesh_tri_start[-1])

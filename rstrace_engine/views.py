@@ -13,13 +13,14 @@ reads, and the loop reads the view::
     _ShadowScene = view_type("_ShadowScene", SceneArrays, ("light_kind", "light_pos"))
 
     @njit(parallel=True)
-    def kernel(scene, ...):
-        sa = _ShadowScene(*fields(scene, _ShadowScene))  # the fields, shared (no copy)
+    def kernel(sa, ...):
+        sa = _ShadowScene(*fields(sa, _ShadowScene))  # the fields, shared (no copy)
         for i in prange(n):
             ... sa.light_pos[j, 0] ...
 
 The view is made by calling its class, bound at module level to a global of the class's own
-name: numba's parfor lowering rebuilds the NamedTuple inside the loop's function by that
+name (rebinding the parameter is fine: numba gives each binding its own type): numba's
+parfor lowering rebuilds the NamedTuple inside the loop's function by that
 name, from the global the call names (a view made any other way fails to compile there).
 
 The view's fields are the struct's own objects (arrays shared, not copied), in the struct's

@@ -632,9 +632,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         rb = sa.mat_mirror[m, 2]
         off = spawn_offset(px, py, pz, ext)
         if glossy:
-            _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
-                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb,
-                         eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
+            # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice)
+            _glossy_rays(sa, m, np.int64(i), gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz,
+                         dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg,
+                         sb, eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
                          c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):

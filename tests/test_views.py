@@ -81,6 +81,31 @@ def test_a_view_holds_the_struct_fields_in_its_order_shared():
     assert scale == s.scale
 
 
+def test_a_view_holds_its_own_references():
+    """The view's arrays are new references (taken in ``fields``, let go with the view):
+    a thousand calls leave every reference count and numba's allocation balance as they
+    were (without the reference the view's end freed the struct's arrays: a crash)."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    s = _struct(100)
+    out = np.empty(100)
+    _from_view(s, out)
+    refs = [sys.getrefcount(x) for x in s[:3]]
+    was = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        before = rtsys.get_allocation_stats()
+        for _ in range(1000):
+            _from_view(s, out)
+            _view_fields(s)
+        after = rtsys.get_allocation_stats()
+    finally:
+        if not was:
+            _nrt_python.memsys_disable_stats()
+    assert [sys.getrefcount(x) for x in s[:3]] == refs
+    assert after.mi_alloc - before.mi_alloc == after.mi_free - before.mi_free
+
+
 def test_a_view_of_fields_the_struct_lacks_is_refused():
     with pytest.raises(ValueError, match="_Struct has no field d"):
         view_type("_Bad", _Struct, ("a", "d"))

@@ -68,6 +68,13 @@ def compile_traversal() -> None:
     acc.any_hit(none, none, np.zeros(0), np.full(0, np.inf))
 
 
+def compile_build(scene) -> None:
+    """Compile (or load) the BVH build's kernels: build ``scene``'s BVH."""
+    from .accel.accelerators import create_accelerator
+
+    create_accelerator("BVH", scene.arrays())
+
+
 class _FixedHits:
     """Stands in for the BVH while its traversal compiles elsewhere: every ray hits the
     first triangle of instance 0 at ``t = 1`` and nothing occludes a shadow ray. The hits
@@ -98,16 +105,18 @@ class _FixedHits:
         return np.zeros(len(check_rays(origins, directions, tmin, tmax)[0]), bool)
 
 
-def _compile_tracer(scene, cancel=None) -> None:
-    """This process's part: the BVH build (a real one, of ``scene``), the camera rays and
-    the tracer's stages of a coarse view image (against :class:`_FixedHits`); ``cancel()``
-    is polled between the two (and between the tracer's stages)."""
+def _compile_tracer(scene, cancel=None, build: bool = True) -> None:
+    """This process's part: the BVH build (a real one, of ``scene``; not with
+    ``build=False``: :func:`compile_build` elsewhere), the camera rays and the tracer's
+    stages of a coarse view image (against :class:`_FixedHits`); ``cancel()`` is polled
+    between the two (and between the tracer's stages)."""
     from .accel.accelerators import create_accelerator
     from .frame import RenderSettings
     from .interactive import trace_view
 
     sa = scene.arrays()
-    create_accelerator("BVH", sa)
+    if build:
+        create_accelerator("BVH", sa)
     if cancel is not None and cancel():
         return
     stand_in = SimpleNamespace(scene=scene, accel=_FixedHits(sa))

@@ -397,7 +397,7 @@ def sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
     if npts <= 0:
         return False
     ids = np.empty(MAX_UMBRA_CANDIDATES, np.int32)
-    n = shaft_instances(qs, pl, npl, bb, named, 1, plo, bbo, P, Q, ids)
+    n = shaft_instances(qs, pl, npl, bb, named, np.int64(1), plo, bbo, P, Q, ids)
     for q in range(max(n, 0)):
         if cone_umbra(qs, ids[q], j, pts, npts, pl, npl, bb, cand, P, Q):
             return True

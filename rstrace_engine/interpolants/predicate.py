@@ -305,9 +305,10 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
     inv = qs.inst_inv[inst]
     plo = np.empty((6, 4))
     bbo = np.empty(6)
-    to_object(xf, inv, pl, 6, bb, plo, bbo)
+    six = np.int64(6)  # (not a literal 6: a constant argument compiles its callee again)
+    to_object(xf, inv, pl, six, bb, plo, bbo)
     m = qs.inst_mesh[inst]
-    nc = mesh_candidates(qs, m, plo, 6, bbo, cand, P, Q)
+    nc = mesh_candidates(qs, m, plo, six, bbo, cand, P, Q)
     if nc < 0:
         return False
     if nc == 0:
@@ -334,7 +335,7 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
             for j in range(L):
                 quiet[j] = False  # a glossy lobe: the soft samples estimate it (noise)
         load_tri(qs.tv, t, P)
-        nv = clip_polygon(plo, 0, 6, P, 3, Q)
+        nv = clip_polygon(plo, 0, six, P, 3, Q)
         for v in range(nv):
             m_ = nhv[0]
             if m_ >= hv.shape[0]:
@@ -355,12 +356,12 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
             dl = math.sqrt(do[c, 0] ** 2 + do[c, 1] ** 2 + do[c, 2] ** 2)
             if not s < -tol.FACING_EPS_REL * ln * dl:
                 return False
-        if boundary_edge_in(qs, t, plo, 6):
+        if boundary_edge_in(qs, t, plo, six):
             return False
         # the end rectangles: clip by the four side planes, then look for a crossing of the
         # z-lo / z-hi planes
         load_tri(qs.tv, t, P)
-        n = clip_polygon(plo, 0, 4, P, 3, Q)
+        n = clip_polygon(plo, 0, np.int64(4), P, 3, Q)
         for e in range(4, 6):
             lo_s = np.inf
             hi_s = -np.inf
@@ -509,7 +510,7 @@ def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, can
         r = R_SOFT
     elif bfac[j]:
         r = R_SELF
-    elif other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+    elif other_geometry(qs, pl, npl, bb, named, np.int64(1), plo, bbo, P, Q):
         r = R_SHAFT
     if r != R_VALID:
         if sun and sun_umbra(qs, j, pl, npl, bb, cand, P, Q, plo, bbo, named, pts, npts):
@@ -548,7 +549,8 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
     L = qs.light_kind.shape[0]
     for c in prange(cell_inst.shape[0]):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],
-                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out, c)
+                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out,
+                       np.int64(c))  # (c is unsigned in the loop's own function)
         detail[c] = r
         status[c] = VALID if r == R_VALID else (
             _SIL if r == R_MISS or r == R_CLASS or r == R_SLAB else _SHD)
@@ -637,7 +639,10 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     if nhv[0] <= 0:  # too many polygon vertices: the box's corners
         _box_corners(lo, hi, hv)
         nhv[0] = 8
-    r = _light_shafts(qs, sm, s0, 0, inst, lo, hi, True, fac, bfac, quiet, behind, cand, P,
+    # (the row, the flag and the count as variables: constant arguments compile the
+    # callees once more, for their literal values)
+    r = _light_shafts(qs, sm, s0, np.int64(0), inst, lo, hi, np.bool_(True), fac, bfac, quiet,
+                      behind, cand, P,
                       Q, spl, sbb, plo, bbo, named, hv, nhv[0])
     if r != R_VALID:
         return r
@@ -667,12 +672,13 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
             # reflection / refraction into the same non-convex object: its own geometry
             # could cut interior lines' segments (for a convex one it cannot)
             return R_SELF_TUNNEL
-        if other_geometry(qs, spl, npl, sbb, named, 2, plo, bbo, P, Q):
+        if other_geometry(qs, spl, npl, sbb, named, np.int64(2), plo, bbo, P, Q):
             return R_TUNNEL
         if sm.node_inst[base + q] >= 0:
             _box_corners(lo, hi, hv)
-            r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, False, fac, bfac,
-                              quiet, behind, cand, P, Q, spl, sbb, plo, bbo, named, hv, 8)
+            r = _light_shafts(qs, sm, s0, q, sm.node_inst[base + q], lo, hi, np.bool_(False),
+                              fac, bfac, quiet, behind, cand, P, Q, spl, sbb, plo, bbo, named,
+                              hv, np.int64(8))
             if r == R_CONE or r == R_PARTIAL:
                 return r
             if r != R_VALID:

@@ -208,7 +208,7 @@ def _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q)
         npl = hw_shaft(eye, eye, lo, hi, qs.slack, pl, bb)
         named = np.empty(1, np.int32)
         named[0] = inst
-        if other_geometry(qs, pl, npl, bb, named, 1, plo, bbo, P, Q):
+        if other_geometry(qs, pl, npl, bb, named, np.int64(1), plo, bbo, P, Q):
             return False
         # (b) nothing of the object itself between the eye (or the front face) and the slab.
         # The side planes of a cell's lines do not depend on the depths: taken from the
@@ -237,8 +237,8 @@ def _cell_ok(qs, box, lt, inode, izlo, izhi, dif, isamples, eye, tnear, tfar, q)
             pl[4, 3] = -sgn * front - z0 + qs.slack
             pl[5, k] = -sgn
             pl[5, 3] = sgn * front + zlo + qs.slack
-            to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, 6, bb, plo, bbo)
-            if mesh_any(qs, qs.inst_mesh[inst], plo, 6, bbo, P, Q):
+            to_object(qs.inst_xform[inst], qs.inst_inv[inst], pl, np.int64(6), bb, plo, bbo)
+            if mesh_any(qs, qs.inst_mesh[inst], plo, np.int64(6), bbo, P, Q):
                 return False
         return True
 

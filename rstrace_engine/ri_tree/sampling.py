@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
-from ..geometry.scene import MODEL_PRINCIPLED
+from ..geometry.scene import MODEL_PRINCIPLED, SceneArrays
 from ..interpolants.linetree import line_points
 from ..tracing.shader import _material_of
 from ..tracing.shading import (
@@ -46,6 +46,7 @@ from ..tracing.shading import (
     spawn_offset,
     transmit,
 )
+from ..views import fields, view_type
 from .thickness import walk
 
 MISS = -1
@@ -116,6 +117,11 @@ def line_rays(box, inst, face, abcd, o, d):
             d[r, m] = B[m] - F[m]
 
 
+_HitScene = view_type("_HitScene", SceneArrays, (
+    "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_mirror",
+    "mat_transmission", "scene_extent", "tri_normals", "tri_slot", "tris", "verts"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG, OP, OD,
                    gain, nint, path_o, path_d, glass):
@@ -125,6 +131,7 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
     mat, P, NS, NG, and OP/OD for simple and mirror surfaces (normal, reflection). For
     transmissive hits ``glass[r]`` is set and path_o/path_d hold the refracted ray.
     """
+    sa = _HitScene(*fields(sa, _HitScene))  # the fields its loop reads
     ext = sa.scene_extent
     for r in prange(inst.shape[0]):
         glass[r] = False
@@ -177,6 +184,12 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
             OD[r, 0], OD[r, 1], OD[r, 2] = sx, sy, sz
 
 
+_PathScene = view_type("_PathScene", SceneArrays, (
+    "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_metal", "mat_metal_tint",
+    "mat_metallic", "mat_mirror", "mat_model", "mat_specular", "mat_specular_ior",
+    "mat_transmission", "scene_extent", "tri_normals", "tri_slot", "tris", "verts"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls, alive,
               RP, RD, rgain):
@@ -186,6 +199,7 @@ def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls
     (``gain *= (1 - F) T``); one totally reflected continues (``gain *= M + T``).
     ``alive[q]`` tells whether path ``q`` continues (its po/pd updated).
     """
+    sa = _PathScene(*fields(sa, _PathScene))  # the fields its loop reads
     ext = sa.scene_extent
     for q in prange(rows.shape[0]):
         r = rows[q]

@@ -6,8 +6,15 @@ from __future__ import annotations
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..geometry.scene import SceneArrays
 from ..tracing.shader import light_states
 from ..tracing.shading import dot3, normalize3, spawn_offset
+from ..views import fields, view_type
+
+_InterpScene = view_type("_InterpScene", SceneArrays, (
+    "light_bound", "light_cos_inner", "light_cos_outer", "light_dir", "light_ext",
+    "light_half", "light_kind", "light_pos", "light_spot_frame", "light_spot_scaled",
+    "mat_ior", "mat_model", "mat_roughness", "mat_transmission", "scene_extent"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -17,6 +24,7 @@ def interp_surface(sa, rows, o, d, P, NS, NG, mat, surf):
     shading and geometric normals ``NS``, ``NG`` and materials ``mat``, one row per
     interpolated hit. Shadow origins are moved off the surface by the normal spawn offset
     (the self-offset is applied by the shadow test)."""
+    sa = _InterpScene(*fields(sa, _InterpScene))  # the fields its loop reads
     Pw, NGw, NSw, VD, ENTER, MAT, Q, sh_state = surf
     ext = sa.scene_extent
     for q in prange(rows.shape[0]):

@@ -37,8 +37,10 @@ import numpy as np
 from numba import njit, prange
 
 from ..geometry.mesh_topology import mesh_topology_cached
+from ..geometry.scene import SceneArrays
 from ..interpolants.linetree import expanded_boxes, parameterize
 from ..tracing.shading import geometric_normal, shading_normal
+from ..views import fields, view_type
 from .kdtree import FINAL, NODE_BYTES, OPEN, KdForest, descend, split_leaves
 from .patches import (
     K_ONE,
@@ -131,10 +133,15 @@ def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, ma
             status[r] = ST_FAIL_CLASS
 
 
+_ResolveScene = view_type("_ResolveScene", SceneArrays, (
+    "inst_nmat", "tri_normals", "tris", "verts"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim, u, v,
                     status, P, NS, NG, OP, OD, gain, thick, nint, mat, RP, RD, rgain):
     """Rays ``rows`` of two-class leaves, with their exact first hits ``t, prim, u, v``."""
+    sa = _ResolveScene(*fields(sa, _ResolveScene))  # the fields its loop reads
     for q in prange(rows.shape[0]):
         r = rows[q]
         x = leaf[r]

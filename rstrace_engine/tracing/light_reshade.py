@@ -23,6 +23,7 @@ from numba import njit, prange
 
 from ..accel.accelerators import Hits
 from ..geometry.scene import LIGHT_POINT, LIGHT_SPOT, SceneArrays
+from ..views import fields, view_type
 from .batches import TILE_RAYS, threads_for
 from .light_linking import occluded
 from .shader import _SH_TRACE, Surfaces, light_state
@@ -31,6 +32,12 @@ from .shaft_skip import ball_rows, proven_rows, tile_keys
 from .soft_lights import soft_visibility
 from .whitted import shade, shadow_rays
 
+_ReshadeScene = view_type("_ReshadeScene", SceneArrays, (
+    "light_bound", "light_cos_inner", "light_cos_outer", "light_dir", "light_ext",
+    "light_half", "light_kind", "light_pos", "light_recv", "light_spot_frame",
+    "light_spot_scaled", "mat_ior", "mat_model", "mat_roughness", "mat_transmission",
+    "scene_extent"), __name__)
+
 
 @njit(cache=True, nogil=True, parallel=True)
 def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
@@ -38,6 +45,7 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
     on instances ``INST`` (-2 where light linking says it does not light the instance, as
     :func:`~.shader.unlinked_lights`), and their materials where it faces them (-1
     elsewhere: shaded as misses, no term)."""
+    sa = _ReshadeScene(*fields(sa, _ReshadeScene))  # the fields its loop reads
     linked = sa.light_recv.shape[0] > 0
     for i in prange(P.shape[0]):
         if linked and sa.light_recv[j, INST[i]] == 0:

@@ -37,7 +37,8 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..geometry.edits import PART_NEW, PART_OLD
-from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
+from ..geometry.scene import LIGHT_AREA, LIGHT_SUN, SceneArrays
+from ..views import fields, view_type
 from .record_codes import _cone_sphere, _decode_point, _light_hit, _segment_box
 from .shading import dot3, far_origin, onb, rough_interface
 from .soft_lights import (
@@ -155,6 +156,12 @@ def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
                            r + lgeo[j, 3] + tol.RECORD_SLACK_REL * e)
 
 
+_BitsScene = view_type("_BitsScene", SceneArrays, (
+    "light_cos_inner", "light_cos_outer", "light_dir", "light_ellipse", "light_half",
+    "light_kind", "light_pos", "light_radius", "light_size", "light_soft",
+    "light_spot_frame", "light_spot_scaled", "light_spread", "light_u", "light_v"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
                      lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r, lgeo, skip, bits):
@@ -167,6 +174,7 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
     (NaN normal), get the shaft test of :func:`~.record_codes._light_hit` and
     :func:`_shaft_sphere` (``lgeo``: :func:`~.record_codes.light_geometry`). ``sa``: the
     packing the records describe."""
+    sa = _BitsScene(*fields(sa, _BitsScene))  # the fields its loop reads
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
     for g in prange(p_combo.shape[0]):
@@ -404,6 +412,13 @@ def _in_window(win, u, v):
 _CROSSING_CHUNK = 256
 
 
+_CrossingScene = view_type("_CrossingScene", SceneArrays, (
+    "light_cos_inner", "light_cos_outer", "light_dir", "light_ellipse", "light_half",
+    "light_kind", "light_pos", "light_radius", "light_size", "light_soft",
+    "light_spot_frame", "light_spot_scaled", "light_spread", "light_u", "light_v",
+    "mat_ior", "mat_model", "mat_roughness", "mat_transmission", "scene_extent"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c, reg_r,
                   reg_tag, old, windows, mask, count):
@@ -419,6 +434,7 @@ def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c
     the region's box ``reg_lo, reg_hi`` and its sphere ``reg_c, reg_r`` both.
     ``windows``: skip the samples whose ``(u, v)`` alone puts them outside every region's
     cone (:func:`_windows`; False only to test that it drops none)."""
+    sa = _CrossingScene(*fields(sa, _CrossingScene))  # the fields its loop reads
     k_reg = reg_lo.shape[0]
     m = pt.shape[0]
     for ch in prange((m + _CROSSING_CHUNK - 1) // _CROSSING_CHUNK):
@@ -502,6 +518,7 @@ def crossing_rays(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, mask, start, o, d, tm
     """The rays of :func:`crossing_rows`' samples (``mask``): row ``r``'s from
     ``start[r]`` on, in sample order, into ``o, d, tmax``, their row ``row`` and their
     sample's bit ``bit``."""
+    sa = _CrossingScene(*fields(sa, _CrossingScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     for r in prange(pt.shape[0]):
         if mask[r] == 0:

@@ -28,7 +28,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..geometry.scene import LIGHT_AREA, LIGHT_NONE, LIGHT_SPOT, LIGHT_SUN
+from ..geometry.scene import LIGHT_AREA, LIGHT_NONE, LIGHT_SPOT, LIGHT_SUN, SceneArrays
+from ..views import fields, view_type
 from .shading import dot3, spot_falloff
 from .soft_lights import spot_cosine
 
@@ -147,11 +148,19 @@ def seen_one(sa, j, ox, oy, oz, dx, dy, dz, t0, t1, miss):
     return 1.0
 
 
+_SeenScene = view_type("_SeenScene", SceneArrays, (
+    "light_cos_inner", "light_cos_outer", "light_dir", "light_ellipse", "light_ext",
+    "light_half", "light_kind", "light_pos", "light_radiance", "light_radius",
+    "light_size", "light_soft", "light_spot_frame", "light_spot_scaled", "light_spread",
+    "light_u", "light_v", "light_vis"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def seen_radiance(sa, o, d, t0, t1, miss, column, weight, out):
     """``out[i] = weight[i] * sum_j light_radiance[j] * seen_one(...)`` over the lights
     ray i's ``column[i]`` (``SEEN_*``, -1 none) sees, within (t0[i], t1[i]) (t1: its hit,
     or its bound on a miss, ``miss[i]``). o, d (n, 3) float64; out (n, 3) float64."""
+    sa = _SeenScene(*fields(sa, _SeenScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     for i in prange(o.shape[0]):
         r = 0.0

@@ -51,7 +51,9 @@ from ..geometry.scene import (
     TEX_SPECULAR,
     TEX_TRANSMISSION,
     TEX_TRANSMISSION_SQRT,
+    SceneArrays,
 )
+from ..views import fields, view_type
 from .glossy_rays import _glossy_rays, _put, is_glossy
 from .shading import (
     INV_PI,
@@ -222,6 +224,14 @@ def light_states(sa, i, px, py, pz, gx, gy, gz, sx, sy, sz, qx, qy, qz, m, sh_st
                                           qz, far)
 
 
+_SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
+    "inst_mat", "inst_mat_start", "inst_nmat", "light_bound", "light_cos_inner",
+    "light_cos_outer", "light_dir", "light_ext", "light_half", "light_kind",
+    "light_pos", "light_recv", "light_spot_frame", "light_spot_scaled", "mat_ior",
+    "mat_model", "mat_roughness", "mat_transmission", "scene_aabb", "scene_extent",
+    "tri_normals", "tri_slot", "tris", "verts"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _surface_kernel(sa, o, d, tmax, hits, surf):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
@@ -231,6 +241,7 @@ def _surface_kernel(sa, o, d, tmax, hits, surf):
     ray from point i to light j (:func:`_shadow_kernel` makes it), -2 light not facing /
     outside cone.
     """
+    sa = _SurfaceScene(*fields(sa, _SurfaceScene))  # the fields its loop reads
     t, inst, prim, bu, bv = hits.t, hits.inst, hits.prim, hits.u, hits.v
     P, NG, NS, VD, ENTER, MAT, Q, sh_state = surf
     n = o.shape[0]
@@ -305,6 +316,10 @@ def unlinked_lights(sa, i, k, sh_state):
             sh_state[i * L + j] = -2
 
 
+_ShadowScene = view_type("_ShadowScene", SceneArrays, (
+    "light_dir", "light_kind", "light_pos", "scene_extent"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax):
     """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
@@ -314,6 +329,7 @@ def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax):
     :func:`far_origin`). Outputs sh_o, sh_d (k, 3) float64 (unit directions), sh_tmax (k,)
     float64: just short of a point or spot light, infinite for a sun.
     """
+    sa = _ShadowScene(*fields(sa, _ShadowScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     for k in prange(todo.shape[0]):
         i = todo[k] // L
@@ -338,6 +354,17 @@ def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax):
             sh_d[k, 1] = wy
             sh_d[k, 2] = wz
             sh_tmax[k] = wl * (1.0 - tol.SHADOW_END_REL)
+
+
+_ShadeScene = view_type("_ShadeScene", SceneArrays, (
+    "light_cos_inner", "light_cos_outer", "light_dir", "light_ext", "light_intensity",
+    "light_kind", "light_pos", "light_radiance", "light_recv", "light_spot_frame",
+    "light_spot_scaled", "light_vis", "mat_diffuse", "mat_emission", "mat_ior",
+    "mat_metal", "mat_metal_tint", "mat_metallic", "mat_mirror", "mat_model",
+    "mat_roughness", "mat_specular", "mat_specular_ior", "mat_tex", "mat_tint_max",
+    "mat_transmission", "mesh_gen", "mesh_tri_start", "scene_extent", "tex_data",
+    "tex_map", "tex_size", "tex_start", "tri_uvs", "tris", "verts", "world_color",
+    "world_light"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -365,6 +392,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     the light's intensity or radiance: column j light j (present where added), L the
     world's light, L + 1 the emission (a miss: 1, for the world colour).
     """
+    sa = _ShadeScene(*fields(sa, _ShadeScene))  # the fields its loop reads
     prim, bu, bv, hinst = hits.prim, hits.u, hits.v, hits.inst
     P, NG, NS, VD, ENTER, MAT = surf.P, surf.NG, surf.NS, surf.VD, surf.enter, surf.mat
     linked = sa.light_recv.shape[0] > 0
@@ -604,9 +632,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         rb = sa.mat_mirror[m, 2]
         off = spawn_offset(px, py, pz, ext)
         if glossy:
-            _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy,
-                         dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb,
-                         eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
+            # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice)
+            _glossy_rays(sa, m, np.int64(i), gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz,
+                         dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg,
+                         sb, eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
                          c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):

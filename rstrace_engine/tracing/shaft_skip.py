@@ -49,7 +49,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..accel.accelerators import BVHAccelerator
 from ..accel.bvh import STACK_SIZE
-from ..geometry.scene import LIGHT_SUN
+from ..geometry.scene import LIGHT_SUN, SceneArrays
 from ..geometry.shaft_geometry import (
     MAX_PLANES,
     box_outside,
@@ -60,6 +60,7 @@ from ..geometry.shaft_geometry import (
     sun_box,
     to_object,
 )
+from ..views import fields, view_type
 from .glossy_rays import interface_materials
 from .shading import spawn_offset
 from .soft_lights import SH_SOFT
@@ -130,6 +131,11 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     return proven
 
 
+_ProofScene = view_type("_ProofScene", SceneArrays, (
+    "light_dir", "light_ext", "light_half", "light_kind", "light_pos", "light_radius",
+    "light_size", "light_u", "light_v"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_state,
                   members, gstart, proven):
@@ -140,6 +146,7 @@ def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_st
     ``llo``, ``lhi``, ``chord``: :func:`~..geometry.shaft_geometry.light_extents`;
     ``center``, ``extent``: the scene box's centre and diagonal; ``mag`` its coordinates'
     magnitude (the shafts' slack)."""
+    sa = _ProofScene(*fields(sa, _ProofScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     for g in prange(gstart.shape[0] - 1):
         pl = np.empty((MAX_PLANES, 4))

@@ -45,6 +45,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_AREA, LIGHT_SPOT, LIGHT_SUN, SceneArrays
+from ..views import fields, view_type
 from .shading import dot3, far_origin, normalize3, onb, rough_interface, spot_falloff
 
 #: The ratio estimator (Heitz, Hill and McGuire 2018) for the diffuse part where a closed
@@ -376,6 +377,13 @@ def _row_exact(sa, j, qx, qy, qz, gx, gy, gz, sx, sy, sz):
     return _cap_exact(ax, ay, az, s2, gx, gy, gz, sx, sy, sz)
 
 
+_SoftScene = view_type("_SoftScene", SceneArrays, (
+    "light_cos_inner", "light_cos_outer", "light_dir", "light_ellipse", "light_half",
+    "light_kind", "light_pos", "light_radius", "light_size", "light_soft",
+    "light_spot_frame", "light_spot_scaled", "light_spread", "light_u", "light_v",
+    "mat_ior", "mat_model", "mat_roughness", "mat_transmission", "scene_extent"), __name__)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _soft_kernel(sa, P, Q, NG, NS, MAT, seeds, row_pt, row_light, n, ratio, o, d, tmax, w,
                  exact):
@@ -385,6 +393,7 @@ def _soft_kernel(sa, P, Q, NG, NS, MAT, seeds, row_pt, row_light, n, ratio, o, d
     none, :func:`_row_exact`). At a rough interface (material ``MAT[i]``,
     :func:`~.shading.rough_interface`) a light's sample below the surface counts too (its
     transmission lobe): its ray leaves from the far side (:func:`~.shading.far_origin`)."""
+    sa = _SoftScene(*fields(sa, _SoftScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     inv_n = 1.0 / n
     for r in prange(row_pt.shape[0]):

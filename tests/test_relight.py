@@ -22,6 +22,7 @@ from rstrace_engine.geometry.edits import (
     EditEffects,
     LightDelete,
     LightSet,
+    MeshSet,
     ObjectTransform,
     WorldColor,
 )
@@ -289,6 +290,21 @@ def test_mixed_batches_and_later_object_edits():
     assert 0 < frame.stats["traced_pixels"] < W * H
     m[:3, 3] = (-0.5, 1.2, 1.0)  # into the lamp's new shafts
     step(sess, [ObjectTransform(obj, shapes.transform(m[:3, 3], 0.5))], relit=False)
+
+
+def test_a_light_moved_before_a_mesh_is_added_renders_in_full():
+    """Two batches before one frame: a light moved (to be shaded again), then a mesh added,
+    which renumbers the triangles and drops the light records' geometry: the moved light
+    cannot be relit, so the frame is traced in full, == fresh (it raised before)."""
+    sess = Session(SOAK_SCENES["soft_room"](W, H), SETTINGS)
+    sess.render()
+    spot = light(sess, "Spot")
+    assert sess.apply([LightSet("Spot", replace(spot, position=(2.5, -3.0, 3.0)))]).relight
+    rep = sess.apply([MeshSet("newmesh", shapes.box((0.5, 0.5, 0.5), name="newmesh"))])
+    assert rep.full_frame and any("could not be relit" in m for m in rep.messages)
+    frame = sess.render()
+    assert frame.stats["traced_pixels"] == W * H
+    np.testing.assert_array_equal(frame.radiance, fresh(sess).radiance)
 
 
 def test_random_light_edit_sequences_stay_exact():

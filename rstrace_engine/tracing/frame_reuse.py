@@ -152,11 +152,7 @@ class FrameReuse:
             # no previous frame to keep, the camera moved, every interpolant is gone, or
             # the scene box changed (spawn offsets scale with it, so every pixel may change
             # in the last bits)
-            self.dirty = None
-            self._no_reshade()
-            report.full_frame = True
-            report.dirty_pixels = -1
-            report.dirty_fraction = 1.0
+            self._full_frame(report)
             if not fx.camera and not interpolants_lost and f is not None and rec is not None:
                 report.messages.append("full frame: the scene's bounding box changed")
             return
@@ -214,6 +210,13 @@ class FrameReuse:
             lr.forget_geometry("the scene's triangles were renumbered (a mesh added, "
                                "deleted or re-meshed): moved lights re-trace the pixels "
                                "they touch until the next full frame")
+            if self.relight_due and self.relight_moved:
+                # a light moved by an earlier batch still waits to be shaded again, which
+                # needs the geometry just dropped; what it touches is no longer known here
+                self._full_frame(report)
+                report.messages.append("full frame: a moved light could not be relit "
+                                       "after the scene's triangles were renumbered")
+                return
         if lr is not None and lr.no_geometry is not None and fx.lights_moved:
             names = ", ".join(str(j) for j in sorted(fx.lights_moved))
             report.messages.append(f"light slot(s) {names} re-traced, not relit: "
@@ -308,6 +311,14 @@ class FrameReuse:
         if len(self.reshade_s_lights):
             due[rec.secondary_rays()[(self.reshade_s_lights != 0) | self.reshade_s_world]] = True
         return due.reshape(rec.spp, -1).any(axis=0) & ~self.dirty
+
+    def _full_frame(self, report) -> None:
+        """The next frame is traced in full (nothing kept is pending)."""
+        self.dirty = None
+        self._no_reshade()
+        report.full_frame = True
+        report.dirty_pixels = -1
+        report.dirty_fraction = 1.0
 
     def _flush_reshade(self) -> None:
         """The pending shading of lights again (:meth:`_split`) becomes dirty pixels (a

@@ -524,12 +524,11 @@ class PixelRecords:
         if fx.world:
             if world_lights(sa) or fx.world_lights:
                 dirty |= is_hit  # the world lit (or lights now) every surface
-        # the world's shadow rays leave every surface point over its hemisphere: primary
-        # hits test their own rays (regenerated from the recorded normal and hash, below);
-        # secondary hits keep no normal, so any edited box may shade them
+        # the world's shadow rays leave every surface point over its hemisphere: hits test
+        # their own rays (regenerated from the recorded normal and hash, below) -- the
+        # secondary ones where their normals and seeds are recorded; without, any edited
+        # box may shade them
         world_rays = world_lights(sa) and len(fx.regions) > 0
-        # secondary hits with their normals and seeds recorded test their own world rays
-        # and soft lights' samples (below); without, any edited box may shade them
         sec_rays = self.s_wnorm is not None and len(self.s_parent) > 0
         sec_dirty = dirty | is_hit if world_rays and not sec_rays else dirty
         regions = fx.region_array()

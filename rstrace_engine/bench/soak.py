@@ -114,8 +114,19 @@ def rough_room(width: int = 64, height: int = 48) -> Scene:
     return s
 
 
+def rough_soft_room(width: int = 64, height: int = 48) -> Scene:
+    """:func:`rough_room`'s materials under :func:`soft_room`'s lights: soft shadows seen
+    in rough reflections and through rough glass (object edits re-shade them at secondary
+    hits, :mod:`~..tracing.shadow_reshade`)."""
+    s = soft_room(width, height)
+    r = rough_room(width, height)
+    for key in ("mirror", "glass", "red"):
+        s.set_material(s.material_id(key), r.materials[r.material_id(key)])
+    return s
+
+
 SOAK_SCENES = {"room": room, "spheres": spheres, "tori": tori, "soft_room": soft_room,
-               "rough_room": rough_room}
+               "rough_room": rough_room, "rough_soft_room": rough_soft_room}
 
 
 def soft_room_unlit_world(width: int = 64, height: int = 48) -> Scene:

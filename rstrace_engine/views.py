@@ -27,6 +27,10 @@ The view's fields are the struct's own objects (arrays shared, not copied), in t
 types: the same code, the same machine arithmetic, so the same results bit for bit. A field
 the view lacks is a typing error at compile time naming the view and the field, never a
 wrong value.
+
+Views are for reading. (Seen with numba 0.68: a ``prange`` loop that *writes* into an array
+field of a NamedTuple, view or not, ``s.b[i] = x``, left the caller's array unchanged; the
+kernels unpack their output structs into plain variables before the loop.)
 """
 
 from __future__ import annotations

@@ -139,6 +139,7 @@ def test_the_scene_views_name_fields_of_the_scene():
 
 _ONE_SIGNATURE = textwrap.dedent('''
     from numba.core.caching import NullCache
+    from numba.core.dispatcher import Dispatcher
 
     from rstrace_engine.frame import RenderSettings
     from rstrace_engine.geometry import shaft_geometry
@@ -147,16 +148,20 @@ _ONE_SIGNATURE = textwrap.dedent('''
     from rstrace_engine.tracing import glossy_rays, whitted
     from rstrace_engine.warm_kernels import _warm_edited_interpolants, warm_scene
 
-    # the callers compile here (not loaded from the disk cache, which would leave their
-    # callees untyped in this process): their calls type the callees (compiled or loaded)
-    for k in (predicate.check_cells, whitted._shade_kernel):
-        k._cache = NullCache()
-    _warm_edited_interpolants()
-    Session(warm_scene(16, 12), RenderSettings(max_depth=2)).render()
     kernels = (predicate._check_one, predicate._light_shafts, occluders.occluder_covers,
                occluders.cone_umbra, shafts.other_geometry, shafts.shaft_instances,
                shafts.mesh_candidates, shafts.boundary_edge_in, shaft_geometry.to_object,
                glossy_rays._glossy_rays)
+    # these and their callers compile here (a kernel loaded from the disk cache has its
+    # callees linked in: it leaves them untyped in this process)
+    for module in (predicate, occluders, shafts, shaft_geometry):
+        for k in vars(module).values():
+            if isinstance(k, Dispatcher):
+                k._cache = NullCache()
+    for k in (glossy_rays._glossy_rays, whitted._shade_kernel):
+        k._cache = NullCache()
+    _warm_edited_interpolants()
+    Session(warm_scene(16, 12), RenderSettings(max_depth=2)).render()
     print({k.py_func.__name__: [str(s) for s in k.signatures] for k in kernels})
 ''')
 

@@ -90,3 +90,17 @@ def test_cancelled_warmup_stops_between_steps():
     assert first["cancelled"] and not first["helper"]
     result = warm_first.warm_viewport("BASE", processes=1, cancel=lambda: True)
     assert result["cancelled"]
+
+
+def test_demo_warm_up_parts_share_the_interpolant_kernels():
+    """``make demo``'s two warm-up processes: the first (the tracer's stages) renders the
+    INTERPOLANT step, then BASE; the second (the traversal, the BVH build) the interpolants
+    that pass. Before, the first had BASE and the interpolants (229 s of the 287 s of CPU)
+    and the second only the INTERPOLANT step, waiting for the first's kernels."""
+    from rstrace_engine.warm_kernels import units
+
+    u = units(("BASE", "INTERPOLANT"), ("BVH",), soft=False)
+    assert u[0::2] == [("step", "INTERPOLANT", "BVH", False), ("step", "BASE", "BVH", False)]
+    assert u[1::2] == [("interpolants",)]
+    full = units(("BASE", "INTERPOLANT", "RI_TREE"), ("BVH", "VISIBILITY_FIELD"))
+    assert sorted(full) == sorted(set(full)) and len(full) == 2 * 3 * 2 + 3  # each once

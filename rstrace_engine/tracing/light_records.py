@@ -67,6 +67,7 @@ from .light_nodes import (
     term_of,
 )
 from .light_reshade import relight_light
+from .record_codes import _secondary_rays
 from .shader import Surfaces
 from .soft_lights import world_lights
 from .whitted import surfaces
@@ -185,8 +186,6 @@ def load_kernels() -> None:
     g.splice(np.zeros(0, np.int64), _Part.empty(True, True))
     # the samples of the secondary nodes, which every recombination asks for (a kernel
     # that only runs over nodes: an empty frame's records never load it)
-    from .pixel_records import _secondary_rays  # (pixel_records imports this module)
-
     _secondary_rays(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
 
 

@@ -70,6 +70,7 @@ from .record_codes import (
     POINT_BITS,
     _encode_nodes,
     _secondary_depths,
+    _secondary_rays,
     _secondary_samples,
     light_geometry,
 )
@@ -95,14 +96,6 @@ def _light_bit_changes(combo, t_traced, t_lit, bit, traced, lit, out):
             out[m] = i
             m += 1
     return m
-
-
-@njit(cache=True, nogil=True)
-def _secondary_rays(s_parent, n_rays, s_ray):
-    """The sample each secondary node belongs to (parents come before their children)."""
-    for k in range(s_parent.shape[0]):
-        p = s_parent[k]
-        s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
 
 
 # ----------------------------------------------------------------------------- records

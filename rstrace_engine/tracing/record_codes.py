@@ -177,3 +177,11 @@ def _secondary_depths(s_parent, n_rays, depth):
     for k in range(s_parent.shape[0]):
         p = s_parent[k]
         depth[k] = 1 if p < n_rays else depth[p - n_rays] + 1
+
+
+@njit(cache=True, nogil=True)
+def _secondary_rays(s_parent, n_rays, s_ray):
+    """The sample each secondary node belongs to (parents come before their children)."""
+    for k in range(s_parent.shape[0]):
+        p = s_parent[k]
+        s_ray[k] = p if p < n_rays else s_ray[p - n_rays]

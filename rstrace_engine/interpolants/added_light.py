@@ -41,20 +41,17 @@ from functools import partial
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
-from .. import tolerances as tol
-from ..geometry.scene import LIGHT_SUN
 from ..tracing.light_reshade import _one_light
 from ..tracing.whitted import trace
 from .line_samples import _unpack, front_hits
 from .linetree import lattice_lines
-from .predicate import VALID, _points_box, check_cells, radiance_ok
+from .predicate import VALID, check_cells, radiance_ok
 from .relight import light_scale, light_shares
 from .sampled_term import sampled_possible
 from .samples import glossy_flags
 from .shafts import closed_forms, cone_bounds, glossy_materials, light_extents
-from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, slab_box
+from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, tunnel_sections
 
 
 class AddResult(NamedTuple):
@@ -272,15 +269,9 @@ def add_dependencies(cache, sa, ids, slots) -> None:
     ld = np.ascontiguousarray(sa.light_dir, np.float64).reshape(-1, 3)
     zlo = np.ascontiguousarray(pool.zlo[ids])
     zhi = np.ascontiguousarray(pool.zhi[ids])
-    counts = np.zeros(len(ids), np.int64)
-    none = np.empty((0, 6))
-    args = (sm, cache.box, sa.inst_aabb, lk, mask, elo, ehi, chord, ld, deps.reach,
-            deps.slack, inst, face, depth, coord, zlo, zhi, cs, ns)
-    light_tunnels(*args, False, counts, counts, none, none, np.empty(0, np.bool_))
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    m = int(counts.sum())
-    ta, tb, tinf = np.empty((m, 6)), np.empty((m, 6)), np.empty(m, np.bool_)
-    light_tunnels(*args, True, start, counts, ta, tb, tinf)
+    counts, ta, tb, tinf = tunnel_sections(sm, cache.box, sa.inst_aabb, lk, mask, False, elo,
+                                           ehi, chord, ld, deps.reach, deps.slack, inst,
+                                           face, depth, coord, zlo, zhi, cs, ns)
     q = np.repeat(ids, counts).astype(np.int32)
     deps.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])
     # membership: over the first corner's tree (a valid cell's samples share one tree)
@@ -304,63 +295,3 @@ def add_dependencies(cache, sa, ids, slots) -> None:
             continue
         pair = np.unique(np.stack([qq, kk], axis=1), axis=0)
         index.add(pair[:, 1], pair[:, 0].astype(np.int32), pool.serial[pair[:, 0]])
-
-
-@njit(cache=True, nogil=True)
-def light_tunnels(sm, box, aabb, light_kind, mask, light_lo, light_hi, light_chord,
-                  light_dir, reach, slack, inst, face, depth, coord, zlo, zhi, ids, ns, write,
-                  start, counts, ta, tb, tinf):
-    """The light sections of :func:`.tunnels.cell_tunnels` for the lights in ``mask``
-    alone (their reflection and refraction arcs are in the trees already): per node that
-    hits a surface, from the node's points (the slab box at the root) to each such light
-    that is not occluded there."""
-    L = light_kind.shape[0]
-    rlo = np.empty(3)
-    rhi = np.empty(3)
-    nlo = np.empty(3)
-    nhi = np.empty(3)
-    llo = np.empty(3)
-    lhi = np.empty(3)
-    for c in range(inst.shape[0]):
-        row = start[c] if write else 0
-        k = 0
-        s0 = ids[c, 0]
-        base = sm.node_start[s0]
-        slab_box(box, inst[c], face[c], depth[c], coord[c], zlo[c], zhi[c], slack, rlo, rhi)
-        for m in range(3):
-            pad = slack + tol.BOX_ROUND_REL * (abs(aabb[inst[c], 0, m])
-                                               + abs(aabb[inst[c], 1, m]))
-            rlo[m] = max(rlo[m], aabb[inst[c], 0, m] - pad)
-            rhi[m] = min(rhi[m], aabb[inst[c], 1, m] + pad)
-        for q in range(sm.node_count[s0]):
-            if sm.node_inst[base + q] < 0:
-                continue
-            if q == 0:
-                for m in range(3):
-                    nlo[m] = rlo[m]
-                    nhi[m] = rhi[m]
-            else:
-                _points_box(sm, ids[c], ns[c], q, tol.TUNNEL_MARGIN_REL, slack, nlo, nhi)
-            for j in range(L):
-                if not mask[j] or light_kind[j] < 0 or sm.node_occ[base + q, j] >= 0:
-                    continue
-                if light_kind[j] == LIGHT_SUN:
-                    grow = reach * light_chord[j]
-                    for m in range(3):
-                        llo[m] = nlo[m] - light_dir[j, m] * reach - grow
-                        lhi[m] = nhi[m] - light_dir[j, m] * reach + grow
-                    inf = True
-                else:
-                    for m in range(3):
-                        llo[m] = light_lo[j, m]
-                        lhi[m] = light_hi[j, m]
-                    inf = False
-                if write:
-                    for m in range(3):
-                        ta[row + k, m] = nlo[m]
-                        ta[row + k, 3 + m] = nhi[m]
-                        tb[row + k, m] = llo[m]
-                        tb[row + k, 3 + m] = lhi[m]
-                    tinf[row + k] = inf
-                k += 1
-        counts[c] = k

@@ -43,7 +43,7 @@ from .tunnels import (
     OBJ_HIT,
     OBJ_OCCLUDES,
     cell_members,
-    cell_tunnels,
+    tunnel_sections,
 )
 
 log = logging.getLogger(__name__)
@@ -148,18 +148,9 @@ class Dependencies:
         args = (inst.astype(np.int32), face.astype(np.int8), depth.astype(np.int64),
                 np.ascontiguousarray(coord, np.int64), np.ascontiguousarray(zlo),
                 np.ascontiguousarray(zhi), ids, ns)
-        counts = np.zeros(nc, np.int64)
-        none = np.empty((0, 6))
-        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, elo, ehi, chord, ld, self.reach,
-                     self.slack, *args, False, counts, counts, none, none,
-                     np.empty(0, np.bool_))
-        start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-        m = int(counts.sum())
-        ta = np.empty((m, 6))
-        tb = np.empty((m, 6))
-        tinf = np.empty(m, np.bool_)
-        cell_tunnels(sm, cache.box, sa.inst_aabb, lk, elo, ehi, chord, ld, self.reach,
-                     self.slack, *args, True, start, counts, ta, tb, tinf)
+        counts, ta, tb, tinf = tunnel_sections(
+            sm, cache.box, sa.inst_aabb, lk, np.ones(len(lk), np.bool_), True, elo, ehi,
+            chord, ld, self.reach, self.slack, *args)
         pool = cache.pool
         q = np.repeat(pids, counts).astype(np.int32)
         self.rst.add_tunnels(ta, tb, tinf, q, pool.serial[q])

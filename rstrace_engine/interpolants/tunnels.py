@@ -102,11 +102,29 @@ def _emit(row, write, ta, tb, tinf, alo, ahi, blo, bhi, inf):
         tinf[row] = inf
 
 
+def tunnel_sections(sm, box, aabb, light_kind, mask, arcs, light_lo, light_hi, light_chord,
+                    light_dir, reach, slack, inst, face, depth, coord, zlo, zhi, ids, ns):
+    """:func:`cell_tunnels`' sections, counted then written: ``(counts, ta, tb, tinf)``,
+    cell c's ``counts[c]`` rows in order."""
+    args = (sm, box, aabb, light_kind, mask, arcs, light_lo, light_hi, light_chord, light_dir,
+            reach, slack, inst, face, depth, coord, zlo, zhi, ids, ns)
+    counts = np.zeros(len(inst), np.int64)
+    none = np.empty((0, 6))
+    cell_tunnels(*args, False, counts, counts, none, none, np.empty(0, np.bool_))
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    m = int(counts.sum())
+    ta, tb, tinf = np.empty((m, 6)), np.empty((m, 6)), np.empty(m, np.bool_)
+    cell_tunnels(*args, True, start, counts, ta, tb, tinf)
+    return counts, ta, tb, tinf
+
+
 @njit(cache=True, nogil=True)
-def cell_tunnels(sm, box, aabb, light_kind, light_lo, light_hi, light_chord, light_dir, reach,
-                 slack, inst, face, depth, coord, zlo, zhi, ids, ns, write, start, counts, ta,
-                 tb, tinf):
-    """Tunnel sections of ``nc`` valid cells (see the module doc).
+def cell_tunnels(sm, box, aabb, light_kind, mask, arcs, light_lo, light_hi, light_chord,
+                 light_dir, reach, slack, inst, face, depth, coord, zlo, zhi, ids, ns, write,
+                 start, counts, ta, tb, tinf):
+    """Tunnel sections of ``nc`` valid cells (see the module doc): the light sections of
+    the lights in ``mask`` (L,) and, with ``arcs``, the nodes' reflection and refraction
+    arcs (False: a light added to kept cells, whose arcs are in the trees already).
 
     sm : :class:`~.predicate.SampleArrays`; box : (I, 2, 3) the objects' expanded boxes;
     aabb : (I, 2, 3) their world boxes (the root points are on the object, in the slab);
@@ -145,6 +163,7 @@ def cell_tunnels(sm, box, aabb, light_kind, light_lo, light_hi, light_chord, lig
                     nhi[m] = rhi[m]
             else:
                 _points_box(sm, ids[c], ns[c], q, tol.TUNNEL_MARGIN_REL, slack, nlo, nhi)
+            if q > 0 and arcs:
                 pq = _parent_row(sm, base, q)
                 if pq == 0:
                     for m in range(3):
@@ -159,7 +178,7 @@ def cell_tunnels(sm, box, aabb, light_kind, light_lo, light_hi, light_chord, lig
                 continue
             for j in range(L):
                 occ = sm.node_occ[base + q, j]
-                if occ >= 0 or light_kind[j] < 0:
+                if occ >= 0 or light_kind[j] < 0 or not mask[j]:
                     continue  # occluded: depends on the occluder alone (membership); or a
                     # deleted light's slot (membership again, should a light come back)
                 if light_kind[j] == LIGHT_SUN:

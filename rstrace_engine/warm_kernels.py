@@ -311,6 +311,12 @@ def _warm_large_bvh(progress=None, cancel=None) -> None:
                    name="LargeGrid")
     Session(s, RenderSettings(mode="BASE", accelerator="BVH", samples=1,
                               max_depth=1)).render(cancel=cancel)
+    # the interpolants' query scenes (interpolants/shafts.py) gather such a mesh's
+    # vertices in parallel (bvh_mesh.gather_triangles_into)
+    from .accel import bvh_mesh
+
+    sa = s.arrays()
+    bvh_mesh.mesh_triangles(sa, int(np.argmax(np.diff(sa.mesh_tri_start))))
 
 
 def units(modes, accelerators, soft: bool = True) -> list[tuple]:

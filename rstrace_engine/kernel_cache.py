@@ -116,6 +116,16 @@ _CACHE_IMPL = getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 # --- content keys -------------------------------------------------------------------
 
+def usable_cores() -> int:
+    """The CPUs this process may run on: its affinity (``taskset``, a container's cpuset),
+    which ``os.cpu_count()`` ignores; the machine's count where there is no affinity call
+    (macOS, Windows). At least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def _top_packages() -> set[str]:
     return {p.split(".")[0] for p in _PREFIXES}
 

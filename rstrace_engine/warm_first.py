@@ -248,7 +248,7 @@ def warm_viewport(mode: str = "BASE", lock=None, cancel=None, progress=None,
     if cold and processes > 1:  # the rest compiles in other processes, then loads here
         from .warm_kernels import warm_parallel
 
-        warm_parallel(max(processes, os.cpu_count() or 1), modes=(mode,),
+        warm_parallel(max(processes, kernel_cache.usable_cores()), modes=(mode,),
                       accelerators=("BVH",), progress=progress, cancel=cancel,
                       report_unreached=False)
     result = warm(modes=(mode,), accelerators=("BVH",), progress=progress, cancel=cancel,

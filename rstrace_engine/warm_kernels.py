@@ -498,7 +498,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    jobs = max(1, min(jobs or os.cpu_count() or 1, len(units(modes, accelerators, soft))))
+    jobs = max(1, min(jobs or kernel_cache.usable_cores(), len(units(modes, accelerators, soft))))
     exe = _python()
     if exe is None:
         return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft),

@@ -661,3 +661,15 @@ def test_parallel_warm_up_reads_parts_whose_report_outgrows_a_pipe(tmp_path, mon
         signal.signal(signal.SIGALRM, old)
     assert out["jobs"] == 2 and out["compiled"] == 6 and out["loaded"] == 4
     assert len(out["compiled_kernels"]["k0"]) == 2
+
+
+def test_usable_cores_follow_the_affinity(monkeypatch):
+    """warm-cache starts one process per CPU this process may run on (a container's or
+    taskset's limit), not per CPU of the machine."""
+    from rstrace_engine import kernel_cache
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 16)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    assert kernel_cache.usable_cores() == 1
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # (macOS, Windows)
+    assert kernel_cache.usable_cores() == 16

@@ -151,6 +151,46 @@ def test_a_deleted_light_drops_its_term(name):
     check_bound(new.render(), new.scene)
 
 
+def _with_and_without(monkeypatch, counted, switch, impls, make_scene, steps,
+                      first_interpolated=None, bound=False):
+    """Render ``steps(sess)``'s edit batches incrementally twice, with ``switch`` (module,
+    name) set to ``impls[0]`` (the kept terms reused) then ``impls[1]`` (traced again);
+    ``counted`` (module, name): the term kernel whose rows traced are counted. The frames
+    must be equal bit for bit (and, ``bound``, within it); returns the traced rows per
+    step, reused first."""
+    traced = []
+    module, name = counted
+    orig = getattr(module, name)
+
+    def count(sa, accel, o, *a, **k):
+        traced.append(len(o))
+        return orig(sa, accel, o, *a, **k)
+
+    monkeypatch.setattr(module, name, count)
+    frames, rows = [], []
+    for impl in impls:
+        monkeypatch.setattr(*switch, impl)
+        sess = session(make_scene(), True)
+        f0 = sess.render()
+        if first_interpolated is not None:
+            assert f0.stats["interpolated_fraction"] > first_interpolated
+        out, n = [], []
+        for edits in steps(sess):
+            sess.apply(edits)
+            traced.clear()
+            f = sess.render()
+            assert f.stats["incremental"]
+            if bound:
+                check_bound(f, sess.scene)
+            out.append(f.radiance)
+            n.append(sum(traced))
+        frames.append(out)
+        rows.append(n)
+    for a, b in zip(*frames, strict=True):
+        assert np.array_equal(a, b)
+    return rows
+
+
 def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
     """While the world lights, an interpolated pixel a light edit renders again takes its
     world term from the one the records keep (``world_term.kept_world_term``: ``coef *
@@ -161,14 +201,6 @@ def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
     from rstrace_engine.geometry.edits import ObjectTransform
     from rstrace_engine.interpolants import render, world_term
 
-    traced = []
-    orig = world_term.world_term
-
-    def counted(sa, accel, o, *a, **k):
-        traced.append(len(o))
-        return orig(sa, accel, o, *a, **k)
-
-    monkeypatch.setattr(world_term, "world_term", counted)
     kept = render.kept_world_term
 
     def steps(sess):
@@ -177,24 +209,10 @@ def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
         return ([LightSet("Added", _new_light(sess, "POINT"))], [ObjectTransform("Blocker", m)],
                 [LightSet("Added2", _new_light(sess, "SPOT"))])
 
-    frames, rows = [], []
-    for reuse in (True, False):
-        monkeypatch.setattr(render, "kept_world_term",
-                            kept if reuse else lambda lrec, *a: kept(None, *a))
-        sess = session(WORLD_SCENES["soft_penumbra"](), True)
-        sess.render()
-        out, n = [], []
-        for edits in steps(sess):
-            sess.apply(edits)
-            traced.clear()
-            f = sess.render()
-            assert f.stats["incremental"]
-            out.append(f.radiance)
-            n.append(sum(traced))
-        frames.append(out)
-        rows.append(n)
-    for a, b in zip(*frames, strict=True):
-        assert np.array_equal(a, b)
+    rows = _with_and_without(monkeypatch, (world_term, "world_term"),
+                             (render, "kept_world_term"),
+                             (kept, lambda lrec, *a: kept(None, *a)),
+                             lambda: WORLD_SCENES["soft_penumbra"](), steps)
     assert rows[0][0] < rows[1][0] and rows[0][2] < rows[1][2]  # kept after a light edit
     assert rows[0][1] == rows[1][1]  # the object edit's dirty pixels traced again
 
@@ -235,14 +253,6 @@ def test_pixels_rendered_again_keep_their_sampled_terms(monkeypatch):
     from rstrace_engine.geometry.edits import ObjectTransform
     from rstrace_engine.interpolants import render, sampled_term
 
-    traced = []
-    orig = sampled_term.sampled_term
-
-    def counted(sa, accel, o, *a, **k):
-        traced.append(len(o))
-        return orig(sa, accel, o, *a, **k)
-
-    monkeypatch.setattr(sampled_term, "sampled_term", counted)
     kept = render.add_sampled_terms
 
     def steps(sess):
@@ -254,25 +264,9 @@ def test_pixels_rendered_again_keep_their_sampled_terms(monkeypatch):
                 [LightSet("Area", replace(area, power=area.power * 1.5))],
                 [LightDelete("Added")])
 
-    frames, rows = [], []
-    for reuse in (True, False):
-        monkeypatch.setattr(render, "add_sampled_terms",
-                            kept if reuse else lambda *a: kept(*a[:-1], None))
-        sess = session(_spread_penumbra(), True)
-        f0 = sess.render()
-        assert f0.stats["interpolated_fraction"] > 0.3
-        out, n = [], []
-        for edits in steps(sess):
-            sess.apply(edits)
-            traced.clear()
-            f = sess.render()
-            assert f.stats["incremental"]
-            check_bound(f, sess.scene)
-            out.append(f.radiance)
-            n.append(sum(traced))
-        frames.append(out)
-        rows.append(n)
-    for a, b in zip(*frames, strict=True):
-        assert np.array_equal(a, b)
+    rows = _with_and_without(monkeypatch, (sampled_term, "sampled_term"),
+                             (render, "add_sampled_terms"),
+                             (kept, lambda *a: kept(*a[:-1], None)), _spread_penumbra,
+                             steps, first_interpolated=0.3, bound=True)
     assert rows[0][0] < rows[1][0] and rows[0][2] < rows[1][2] and rows[0][4] < rows[1][4]
     assert rows[0][1] == rows[1][1] and rows[0][3] == rows[1][3]  # traced again

@@ -15,7 +15,12 @@ viewport shows its first image, and the rest is warmed a step at a time under th
 on a cold cache the rest first compiles in one process per core
 (``rstrace_engine.warm_kernels.warm_parallel``) and is then loaded here. With every kernel
 of the mode in the cache (the compiled kernels the extension ships, ``runtime``; a second
-process) no warm-up runs: the render loads what it uses.
+process) nothing is compiled and no tiny scene rendered: the thread only imports the
+renderer and loads the mode's kernels from the cache (:data:`PRELOAD`, a first F12's
+first: :func:`_preload`), without the render lock, so that a first F12 that comes later
+does not pay them (about 1 s of CPU at 1M triangles, ``docs/bench-scale-bpy.md``) and one
+that comes meanwhile runs what is loaded and loads the rest itself (numba loads each
+kernel once, under its compiler lock).
 :func:`progress_text` ("compiling kernels 12/40") is shown in the viewport and the status
 bar; it counts the kernels of :data:`MODE_KERNELS` compiled in this process or in the disk
 cache; the console shows the same progress (``RSTrace: kernels 57/173 in the cache``).
@@ -72,15 +77,37 @@ _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is
                 "interpolants.samples._far_lit_roots")
 MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 
+#: What a warm process loads first, before the rest of :data:`MODE_KERNELS`: the kernels an
+#: F12 runs in the order it runs them (the export's, a large mesh's BVH build -- the
+#: parallel phases of ``accel.bvh_build``, run past ``PARALLEL_MIN`` triangles --, the
+#: render with its soft-light seeds and secondary rays); measured as the kernels a first F12
+#: of a 1M-triangle scene loaded at ray depth 0 and 5 (``tests/blender/test_kernels.py``
+#: checks that a first F12 after the preload loads none). The rest of the mode's kernels
+#: load after them, while no render runs.
+PRELOAD = ("geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",
+           "accel.bvh_mesh.indexed_boxes", "accel.bvh_build.split_top",
+           "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",
+           "accel.bvh_build.pack_nodes", "accel.bvh_mesh.collapse4",
+           "accel.bvh_mesh.pad_outward", "accel.bvh_mesh._gather_rows",
+           "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
+           "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
+           "tracing.shader._surface_kernel", "tracing.whitted._light_masks",
+           "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",
+           "tracing.shader._shade_kernel", "tracing.batches.scatter_add",
+           "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
+           "tracing.whitted._child_tags", "tracing.soft_lights._node_seeds")
+
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}
 _lock = threading.Lock()
 
 
-def dispatchers(mode: str) -> list:
-    """The numba dispatchers of :data:`MODE_KERNELS` for ``mode`` (missing names skipped)."""
+def dispatchers(mode: str, names=None) -> list:
+    """The numba dispatchers of :data:`MODE_KERNELS` for ``mode`` (or of ``names``; missing
+    names skipped)."""
     found = []
-    for name in MODE_KERNELS.get(mode, MODE_KERNELS["INTERPOLANT"]):
+    for name in names if names is not None else MODE_KERNELS.get(mode,
+                                                                  MODE_KERNELS["INTERPOLANT"]):
         module, _, attr = name.rpartition(".")
         try:
             mod = importlib.import_module(f"rstrace_engine.{module}")
@@ -131,13 +158,15 @@ def _warm(mode: str) -> None:
     done, total = counts(mode)
     if done == total:
         # every kernel of the mode is in the disk cache (a second process, a shipped cache):
-        # a warm-up would compile nothing, only load them all (those of features the scene
-        # does not use too) and render its tiny scenes, while the user's first render waits
-        # for the CPU, the import lock and the render lock (measured: a second process's
-        # F12 took 3x as long). The render loads the kernels it uses.
-        _state["modes_done"].add(mode)
-        _state["seconds"][mode] = time.perf_counter() - t0
-        log.info("RSTrace: %s kernels all cached (%d): they load on first use", mode, total)
+        # nothing to compile. The warm-up's tiny renders would hold the render lock while
+        # the user's first render waits (measured: a second process's F12 took 3x as
+        # long); loading the kernels, an F12's first, takes no lock.
+        loaded = _preload(mode, stop)
+        if not stop():
+            _state["modes_done"].add(mode)
+            _state["seconds"][mode] = time.perf_counter() - t0
+            log.info("RSTrace: %s kernels all cached (%d): %d signatures loaded in %.2f s",
+                     mode, total, loaded, time.perf_counter() - t0)
         return
     result = runtime.warm_viewport(mode, cancel=stop, progress=_console)
     if not result.get("cancelled") and not stop():
@@ -145,6 +174,30 @@ def _warm(mode: str) -> None:
         _state["seconds"][mode] = result["seconds"]
         log.info("RSTrace: %s kernels ready in %.1f s (%d compiled, %d loaded)", mode,
                  result["seconds"], result["compiled"], result["loaded"])
+
+
+def _preload(mode: str, stop) -> int:
+    """Load the cached kernels of ``mode`` into memory, :data:`PRELOAD` first (the renderer's
+    modules imported on the way), compiling and rendering nothing; ``stop()`` is asked
+    between kernels. The kernels after :data:`PRELOAD` are loaded only while no render runs
+    (once one holds the render lock the rest is left to load on first use: the CPU is the
+    render's). Returns the signatures loaded."""
+    import rstrace_engine.session  # noqa: F401  (what an F12 imports first)
+    from rstrace_engine import kernel_cache
+
+    first = dispatchers(mode, PRELOAD)
+    loaded = 0
+    seen: set = set()
+    for i, d in enumerate(first + dispatchers(mode)):
+        if stop():
+            break
+        if id(d) in seen:
+            continue
+        seen.add(id(d))
+        if i >= len(first) and runtime.RENDER_LOCK.locked():
+            break
+        loaded += kernel_cache.load_cached(d, stop)
+    return loaded
 
 
 def _console(message: str) -> None:

@@ -56,7 +56,10 @@ numba internals this module relies on (numba 0.59-0.68; ``tests/test_kernel_cach
   (entered before a dispatcher looks in its disk cache);
 * the index key's second item is ``codegen.magic_tuple()`` = (triple, CPU name, CPU
   features): a portable build (``NUMBA_CPU_NAME=generic``) and a host build of the same
-  kernel are two entries of one index.
+  kernel are two entries of one index; its first is the argument types, and the whole key
+  is ``Cache._index_key(sig, codegen)`` (:func:`load_cached` loads the entries whose key
+  is this process's; ``Dispatcher.compile(sig)`` loads a cached signature before it
+  would compile one).
 
 Compile claims: before a process compiles a signature that is not in the cache, it takes a
 file lock named after the kernel and the signature (``<index>.<digest>.claim`` beside the
@@ -625,6 +628,41 @@ def cached_signatures(dispatcher) -> int:
         return len(cache_file._load_index())
     except Exception:  # noqa: BLE001  (a corrupt index holds nothing)
         return 0
+
+
+def load_cached(dispatcher, stop=None) -> int:
+    """Load into memory every signature of ``dispatcher`` that the disk cache holds for
+    this process (this CPU or target, the kernel's current code), rendering and compiling
+    nothing: what its first call would load (a second process's first render loads each
+    kernel it runs this way, about 30 ms each). ``stop`` () -> bool is asked between
+    signatures. Returns how many were loaded (0: none cached, or all in memory already).
+
+    A signature whose data file turns out unreadable is compiled (what the first call
+    would do too; the file is rewritten)."""
+    cache = getattr(dispatcher, "_cache", None)
+    cache_file = getattr(cache, "_cache_file", None)
+    if cache_file is None or not hasattr(cache, "_index_key"):
+        return 0
+    try:
+        keys = list(cache_file._load_index())
+    except Exception:  # noqa: BLE001  (a corrupt index holds nothing)
+        return 0
+    codegen = dispatcher.targetctx.codegen()
+    loaded = 0
+    for key in keys:
+        if stop is not None and stop():
+            break
+        sig = key[0] if isinstance(key, tuple) and key else None
+        if not isinstance(sig, tuple) or tuple(sig) in dispatcher.overloads:
+            continue
+        try:
+            ours = cache._index_key(sig, codegen) == key
+        except Exception:  # noqa: BLE001  (an entry of another numba: not ours)
+            ours = False
+        if ours:
+            dispatcher.compile(sig)
+            loaded += 1
+    return loaded
 
 
 def mark(prefix: str = "rstrace_engine") -> dict:

@@ -99,6 +99,18 @@ class FrameReuse:
         return self.dirty.reshape(self.frame.pixel_class.shape).copy()
 
     @property
+    def term_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the kept pixels the next frame gives a light edit's term from their
+        cells (INTERPOLANT, :meth:`_term_samples`) unless it finds them dirty; None when
+        it is a full frame."""
+        if self.dirty is None or self.frame is None:
+            return None
+        out = np.zeros(len(self.dirty), bool)
+        for mask, _ in self.term_jobs:
+            out |= mask
+        return (out & ~self.dirty).reshape(self.frame.pixel_class.shape)
+
+    @property
     def reshade_mask(self) -> np.ndarray | None:
         """(h, w) bool: the kept pixels whose soft lights the next frame shades again at
         their primary hits (:mod:`.shadow_reshade`); None when it is a full frame."""

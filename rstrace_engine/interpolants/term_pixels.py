@@ -39,7 +39,7 @@ from numba import njit
 from ..geometry.cameras import camera_rays, pixel_jitter
 from ..tracing.glossy_rays import glossy_materials as rough_materials
 from .glossy_term import rough_roots_possible
-from .linetree import corner_weight, ray_line
+from .linetree import ray_line
 from .relight import light_scale
 from .samples import hit_materials
 from .shafts import closed_forms, glossy_materials
@@ -75,67 +75,70 @@ class TermEdit(NamedTuple):
         pool, sm = cache.pool, cache.samples
         k = len(pix)
         delta = np.zeros((spp, k, 3))
-        good = np.zeros(k, np.bool_)
         if k == 0:
-            return delta, good
-        q = np.asarray(pi, np.int32)
-        at = np.searchsorted(self.cells, q)
-        at = np.minimum(at, max(len(self.cells) - 1, 0))
-        good = ((self.cells[at] == q) & (q < len(pool.live)) & pool.live[q]
-                & (pool.serial[q] == self.serial[at]))
+            return delta, np.zeros(0, np.bool_)
+        # each cell's 16 corner terms (its samples' shares times the intensity changes)
         share, _ = sm.shares()
         on = np.flatnonzero(np.any(self.scale != 0.0, axis=1))
         on = on[on < share.shape[1]]
-        term = np.einsum("nlc,lc->nc", share[:, on], self.scale[on])  # per sample
+        term = np.einsum("nlc,lc->nc", share[:, on], self.scale[on])
+        alive = pool.live[self.cells] & (pool.serial[self.cells] == self.serial)
+        corner = np.ascontiguousarray(term[pool.samples[self.cells]])  # (c, 16, 3)
         a = cache.trees.arrays
-        node = pool.node[np.where(good, q, 0)]
+        node = pool.node[self.cells]
+        at = np.full(len(pool.live), -1, np.int64)
+        at[self.cells[alive]] = np.flatnonzero(alive)
+        q = np.asarray(pi, np.int64)
+        at = np.where((q >= 0) & (q < len(at)), at[np.clip(q, 0, len(at) - 1)], -1)
+        good = at >= 0
         jit = pixel_jitter(pix, spp, seed=seed)
         for s in range(spp):
             o, d, _, _ = camera_rays(cp, pix, jit[s])
-            _deltas(cache.box, a.tree, a.depth, a.coord, node, pool.samples, term,
-                    np.where(good, q, 0), o, d, good, delta[s])
-        good &= np.all(np.isfinite(delta), axis=(0, 2))
+            _deltas(cache.box, a.tree[node], a.depth[node].astype(np.int64),
+                    np.ascontiguousarray(a.coord[node], np.int64), corner, at, o, d, good,
+                    delta[s])
         return delta, good
 
 
 @njit(cache=True, nogil=True)
-def _deltas(box, tree, depth, coord, node, samples, term, q, o, d, good, out):
-    """``out[r]`` = the quadrilinear interpolation of the per-sample ``term`` over the 16
-    corners of interpolant ``q[r]`` at ray ``r``'s line coordinates in its cell (the walk's:
-    :func:`~.linetree.ray_line` on the object's box, local coordinates in the leaf);
-    ``good[r]`` becomes False where the ray's face pair or coordinates are not the cell's."""
+def _deltas(box, tree, depth, coord, corner, at, o, d, good, out):
+    """``out[r]`` = the quadrilinear interpolation of cell ``at[r]``'s 16 ``corner`` terms
+    at ray ``r``'s line coordinates in that cell (the walk's: :func:`~.linetree.ray_line`
+    on the object's box, local coordinates in the leaf), one coordinate at a time;
+    ``good[r]`` becomes False where the ray's face pair or coordinates are not the cell's,
+    or the result is not finite. ``tree``, ``depth``, ``coord``: the cells' leaves'."""
     abcd = np.empty(4)
     u = np.empty(4)
-    for r in range(q.shape[0]):
+    v = np.empty((16, 3))
+    for r in range(at.shape[0]):
         if not good[r]:
             continue
-        nd = node[r]
-        t = tree[nd]
+        c = at[r]
+        t = tree[c]
         f = ray_line(box, t // 6, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2], abcd)
-        if f != t % 6:
-            good[r] = False
-            continue
-        s = float(1 << depth[nd])
-        inside = True
+        inside = f == t % 6
+        s = float(1 << depth[c])
         for m in range(4):
-            u[m] = abcd[m] * s - coord[nd, m]
+            u[m] = abcd[m] * s - coord[c, m]
             if not 0.0 <= u[m] <= 1.0:
                 inside = False
         if not inside:
             good[r] = False
             continue
-        x = 0.0
-        y = 0.0
-        z = 0.0
-        for c in range(16):
-            w = corner_weight(c, u[0], u[1], u[2], u[3])
-            k = samples[q[r], c]
-            x += w * term[k, 0]
-            y += w * term[k, 1]
-            z += w * term[k, 2]
-        out[r, 0] = x
-        out[r, 1] = y
-        out[r, 2] = z
+        for k in range(16):
+            v[k, 0] = corner[c, k, 0]
+            v[k, 1] = corner[c, k, 1]
+            v[k, 2] = corner[c, k, 2]
+        size = 16
+        for m in range(4):  # (corner bit m: coordinate m)
+            size //= 2
+            for i in range(size):
+                for ch in range(3):
+                    v[i, ch] = v[2 * i, ch] * (1.0 - u[m]) + v[2 * i + 1, ch] * u[m]
+        for ch in range(3):
+            if not np.isfinite(v[0, ch]):
+                good[r] = False
+            out[r, ch] = v[0, ch]
 
 
 def _recombinable(cache, ids: np.ndarray, sa, ext_lights) -> np.ndarray:

@@ -464,8 +464,7 @@ class FrameReuse:
                 # kept apart): their value plus the mean of their samples' terms (all their
                 # samples were interpolated, :meth:`_term_samples`)
                 px = gain[0] % rec.n_pixels
-                add = np.zeros((rec.n_pixels, 3))
-                np.add.at(add, px, gain[1])
+                add = _sum_rows(px, gain[1], rec.n_pixels)
                 mine = np.zeros(rec.n_pixels, bool)
                 mine[px] = True
                 took = int(np.count_nonzero(mine))
@@ -505,10 +504,11 @@ class FrameReuse:
         r = np.concatenate(rows)
         v = np.concatenate(vals)
         keep = ~self.dirty[r % n]  # (a pixel a later batch could not take)
-        rows_u, at = np.unique(r[keep], return_inverse=True)
-        value = np.zeros((len(rows_u), 3))
-        np.add.at(value, at, v[keep])
-        self.term_rows = (rows_u, value) if len(rows_u) else None
+        r, v = r[keep], v[keep]
+        if len(self.term_jobs) > 1:  # (a sample in several batches: their terms summed)
+            r, at = np.unique(r, return_inverse=True)
+            v = _sum_rows(at, v, len(r))
+        self.term_rows = (r, v) if len(r) else None
         return self.term_rows
 
     # -- frames ------------------------------------------------------------------------
@@ -603,6 +603,12 @@ class FrameReuse:
             untracked |= self.untracked & ~pixels
         self.untracked = untracked
         self.snap = pool.serial.copy()
+
+
+def _sum_rows(at: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3): the rows of ``value`` (m, 3) summed by their index ``at`` (m,)."""
+    return np.stack([np.bincount(at, weights=value[:, c], minlength=n) for c in range(3)],
+                    axis=1)
 
 
 def _drop_sampled(lr, fx, old_sa, new_sa) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.cameras import camera_rays, pixel_jitter
+from ..tracing.edit_kernels import LOADERS
 from ..tracing.glossy_rays import glossy_materials as rough_materials
 from .glossy_term import rough_roots_possible
 from .linetree import ray_line
@@ -183,3 +184,16 @@ def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights):
         return None
     return TermEdit(cache, cells, quiet, cache.pool.serial[cells].copy(), scale,
                     frozenset(int(j) for j in slots))
+
+
+def load_kernels(records, sa) -> None:
+    """Load :func:`_deltas` with the end of a session's first INTERPOLANT frame that keeps
+    light terms (:data:`~..tracing.edit_kernels.LOADERS`), not on its first light edit."""
+    if not records.light.partial:
+        return
+    e3, i64 = np.zeros((0, 3)), np.zeros(0, np.int64)
+    _deltas(np.zeros((0, 2, 3)), np.zeros(0, np.int32), i64, np.zeros((0, 4), np.int64),
+            np.zeros((0, 16, 3)), i64, e3, e3, np.zeros(0, np.bool_), e3)
+
+
+LOADERS.append(load_kernels)

@@ -40,6 +40,7 @@ from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
 from .light_linking import links_shadows
+from .edit_kernels import load_kernels as load_edit_kernels
 from .light_records import load_kernels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .seen_lights import any_seen
@@ -564,6 +565,8 @@ class FrameReuse:
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
+            if sa is not None:
+                load_edit_kernels(records, sa, camera)
             if sa is not None and not records.light.partial and has_soft_light(sa):
                 load_reshade_kernels(sa)
         self._track_interpolants(stored, pixels, cache, pool0)

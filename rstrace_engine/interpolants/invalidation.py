@@ -393,6 +393,7 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
             quiet = np.setdiff1d(took, changed)
             inv = inv._replace(rescaled=np.union1d(kept, changed).astype(np.int32),
                                terms_added=len(took), add_failed=len(added.failed))
+        # the pixels of the kept cells take the batch's terms (term_pixels.py)
         inv = inv._replace(terms=term_edit(cache, old, sa, slots, changed, quiet, kept, resc))
     else:
         inv = Invalidation.nothing(cache.pool.n_live)

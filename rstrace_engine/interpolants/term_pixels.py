@@ -142,24 +142,29 @@ def _deltas(box, tree, depth, coord, corner, at, o, d, good, out):
             out[r, ch] = v[0, ch]
 
 
-def _recombinable(cache, ids: np.ndarray, sa, ext_lights) -> np.ndarray:
+def _recombinable(cache, ids: np.ndarray, sas, ext_lights) -> np.ndarray:
     """(k,) bool: interpolants ``ids`` whose pixels' samples are their interpolation alone
     (plus terms the edit does not change): not on a rough root (its glossy rays are traced
-    per pixel), and no light of ``ext_lights`` (with an extent) sampled at their root per
-    pixel (its term is outside the interpolant: a glossy lobe under it, or a light without
-    a closed form)."""
+    per pixel), and no light of ``ext_lights`` sampled at their root per pixel in either
+    packing of ``sas`` (before and after; its term is outside the interpolant: a glossy
+    lobe under a light with an extent, or a light with an extent without a closed
+    form)."""
     ids = np.asarray(ids, np.int32)
     if len(ids) == 0:
         return np.zeros(0, np.bool_)
+    sa = sas[0]
     inst = (cache.trees.arrays.tree[cache.pool.node[ids]] // 6).astype(np.int64)
     m = hit_materials(sa, inst, cache.pool.cls[ids])
     ok = m >= 0
     if rough_roots_possible(sa, cache.max_depth):
         ok &= ~rough_materials(sa)[np.maximum(m, 0)]
-    if len(ext_lights):
-        if not np.all(closed_forms(sa)[list(ext_lights)]):
+    for s in sas:
+        ext = [j for j in ext_lights if j < len(s.light_kind) and s.light_kind[j] >= 0
+               and bool(np.asarray(s.light_ext, bool)[j])]
+        if ext and not np.all(closed_forms(s)[ext]):
             return np.zeros(len(ids), np.bool_)
-        ok &= ~glossy_materials(sa)[np.maximum(m, 0)]
+        if ext:
+            ok &= ~glossy_materials(s)[np.maximum(m, 0)]
     return ok
 
 
@@ -175,11 +180,11 @@ def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights):
         scale[j] = new[j]
     for j in resc_lights:
         scale[j] += new[j] - old[j]
-    ext = [j for j in resc_lights if bool(np.asarray(old_sa.light_ext, bool)[j])]
+    sas = (old_sa, sa)
     cells = np.union1d(np.asarray(changed, np.int32), np.asarray(rescaled, np.int32))
-    cells = cells[_recombinable(cache, cells, old_sa, ext)].astype(np.int32)
+    cells = cells[_recombinable(cache, cells, sas, resc_lights)].astype(np.int32)
     quiet = np.setdiff1d(np.asarray(quiet, np.int32), cells)
-    quiet = quiet[_recombinable(cache, quiet, old_sa, ext)].astype(np.int32)
+    quiet = quiet[_recombinable(cache, quiet, sas, resc_lights)].astype(np.int32)
     if len(cells) == 0 and len(quiet) == 0:
         return None
     return TermEdit(cache, cells, quiet, cache.pool.serial[cells].copy(), scale,

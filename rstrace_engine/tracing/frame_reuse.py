@@ -39,8 +39,8 @@ import numpy as np
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
-from .light_linking import links_shadows
 from .edit_kernels import load_kernels as load_edit_kernels
+from .light_linking import links_shadows
 from .light_records import load_kernels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .seen_lights import any_seen
@@ -204,7 +204,7 @@ class FrameReuse:
                                                                world_lights=False))
                     lit &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
                     if take is not None and set(fx.lights_moved) <= terms.added:
-                        lit &= ~take  # (an added light: every hit; its cells tell)
+                        lit &= ~take  # (an added light dirties every hit: its cells tell)
                     dirty |= lit
                 if fx.world:
                     dirty |= rec.dirty_pixels(old_sa, cp, EditEffects(

@@ -184,11 +184,13 @@ class FrameReuse:
             # light / world edits only: no pixel is dirty, the next frame relights
             self._flush_reshade()
             if f.pixel_interpolant is not None:
-                # INTERPOLANT: its traced pixels are relit; the pixels of rescaled or
-                # invalidated interpolants, and those with interpolated samples that the
-                # edit touches, are rendered again -- but for the world's colour (lighting
-                # before and after), the interpolated samples whose world term was kept
-                # (world_samples.py): recombined too
+                # INTERPOLANT: its traced pixels are relit; the pixels of invalidated
+                # interpolants, and those with interpolated samples that the edit touches,
+                # are rendered again -- but for the world's colour (lighting before and
+                # after), the interpolated samples whose world term was kept
+                # (world_samples.py): recombined too; and the pixels of cells kept with a
+                # light's term added or rescaled take it from them (``terms``: the next
+                # relight's _term_samples), or are unchanged (an added light's dark cells)
                 t0 = time.perf_counter()
                 lr = self.light_records
                 cp = camera_params(camera)

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse fixture)
+    EPS,
+    FLOAT_TOL,
     SCENES,
     WORLD_SCENES,
     _world_edit,
@@ -24,10 +26,13 @@ from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse
 )
 from test_relight_interpolants_add import _new_light
 
+from rstrace_engine import image
+from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry.edits import LightDelete, LightSet
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Light
 from rstrace_engine.interpolants import invalidation
+from rstrace_engine.session import Session
 
 ROUNDING = 1e-6  # float32 frames: a pixel's value plus its term, against the sum re-rendered
 
@@ -35,12 +40,12 @@ ROUNDING = 1e-6  # float32 frames: a pixel's value plus its term, against the su
 TERM_EDIT = invalidation.term_edit
 
 
-def _run(monkeypatch, make, steps, old: bool):
+def _run(monkeypatch, make, steps, old: bool, **kw):
     """Render ``make()``'s scene, then each list of batches of ``steps(sess)``, applied
     before one frame; ``old``: the old code's path (the kept cells' pixels rendered again,
     ``term_edit`` switched off). Returns ``[(dirty mask before the frame, frame), ...]``."""
     monkeypatch.setattr(invalidation, "term_edit", (lambda *a: None) if old else TERM_EDIT)
-    sess = session(make(), True)
+    sess = session(make(), True, **kw)
     sess.render()
     out = []
     for frame_batches in steps(sess):
@@ -49,17 +54,22 @@ def _run(monkeypatch, make, steps, old: bool):
         dirty = sess.dirty_mask.reshape(-1)
         f = sess.render()
         assert f.stats["incremental"] and f.stats["relit"]
-        check_bound(f, sess.scene)
+        if kw:  # (against BASE with the same samples)
+            base = Session(sess.scene.copy(), RenderSettings(mode="BASE", max_depth=3, **kw))
+            err = image.compare(f.radiance, base.render().radiance, EPS)["max_error"]
+            assert err <= EPS + FLOAT_TOL, err
+        else:
+            check_bound(f, sess.scene)
         out.append((dirty, f))
     return out
 
 
-def _compare(monkeypatch, make, steps):
+def _compare(monkeypatch, make, steps, **kw):
     """Both ways: the frames equal to float32 rounding; the new one renders none of the
     pixels the old one did not and leaves out those that took a term. Returns the new
     run's ``(dirty, frame)`` list."""
-    new = _run(monkeypatch, make, steps, False)
-    old = _run(monkeypatch, make, steps, True)
+    new = _run(monkeypatch, make, steps, False, **kw)
+    old = _run(monkeypatch, make, steps, True, **kw)
     for (d_new, f_new), (d_old, f_old) in zip(new, old, strict=True):
         np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=ROUNDING,
                                    atol=ROUNDING)
@@ -88,6 +98,18 @@ def test_kept_cells_pixels_take_the_term(monkeypatch, name, step):
     pi = f.pixel_interpolant.reshape(-1)
     assert ((pi >= 0) & ~dirty).sum() >= f.stats["term_pixels"]
     if step != "add_spot":  # (the spot lights none of the kept cells: their pixels stay)
+        assert f.stats["term_pixels"] > 0
+
+
+def test_samples_of_a_pixel_take_their_own_terms(monkeypatch):
+    """Four samples per pixel (jittered lines): each sample takes the term at its own line
+    in the cell, the pixel their mean -- the old code's frame to rounding."""
+    make, key = SCENES["spheres"]
+
+    def steps(sess):
+        return [[[LightSet("Added", _new_light(sess, "POINT"))]], [[LightDelete(key)]]]
+
+    for _, f in _compare(monkeypatch, make, steps, samples=4):
         assert f.stats["term_pixels"] > 0
 
 

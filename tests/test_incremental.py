@@ -126,6 +126,8 @@ def test_random_edits_interpolant_within_epsilon(memory_cap_mb):
         if sess.reuse.relight_due:  # light edits: the traced pixels are recombined
             rec = sess.reuse.records
             relit = sess.reuse.light_records.relit_pixels(rec.spp, rec.n_pixels)
+            # and the pixels of kept cells take the edit's term from them
+            relit |= sess.reuse.term_mask.reshape(-1)
         frame = sess.render()
         assert bool(frame.stats.get("relit")) == (relit is not None)
         incremental += frame.stats["incremental"]

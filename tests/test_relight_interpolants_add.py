@@ -191,6 +191,15 @@ def _with_and_without(monkeypatch, counted, switch, impls, make_scene, steps,
     return rows
 
 
+def _render_again(monkeypatch) -> None:
+    """The pixels of the cells a light edit keeps are rendered again, as before
+    ``interpolants/term_pixels.py`` let them take the edit's term from their cells (as a
+    rough root's pixels still are): what the kept world and sampled terms are for."""
+    from rstrace_engine.interpolants import invalidation
+
+    monkeypatch.setattr(invalidation, "term_edit", lambda *a: None)
+
+
 def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
     """While the world lights, an interpolated pixel a light edit renders again takes its
     world term from the one the records keep (``world_term.kept_world_term``: ``coef *
@@ -202,6 +211,7 @@ def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):
     from rstrace_engine.interpolants import render, world_term
 
     kept = render.kept_world_term
+    _render_again(monkeypatch)
 
     def steps(sess):
         m = sess.scene.instances[sess.scene.instance_slot("Blocker")]["matrix"].copy()
@@ -254,6 +264,7 @@ def test_pixels_rendered_again_keep_their_sampled_terms(monkeypatch):
     from rstrace_engine.interpolants import render, sampled_term
 
     kept = render.add_sampled_terms
+    _render_again(monkeypatch)
 
     def steps(sess):
         m = sess.scene.instances[sess.scene.instance_slot("Blocker")]["matrix"].copy()

@@ -19,13 +19,14 @@ spot or sun without an angle):
   its state, a lit light's shaft meets only the object, an occluded one is covered by its
   occluder, a light off at the corners is off over the whole slab, a spot's step edge does
   not cross it; then the radiance test (:func:`~.predicate.radiance_ok`) on the new ``R``;
-* a cell that passes keeps its interpolant (its corners updated, its pixels interpolated
-  again), and gains the new light's tunnels (its shafts, into the ray segment trees) and
-  membership entries (so a later edit of the light or of what it names finds it); a cell
-  that fails is invalidated (rebuilt by the next frame that needs it, or traced), as is a
-  cell whose samples cannot take the term: a sample whose tree changed, a textured root
-  the light reaches (its ``R + texel D`` split would change), a rough interface the light
-  now lights from its far side, a cell whose test lines were not kept (built before the
+* a cell that passes keeps its interpolant (its corners updated; its pixels take the term
+  interpolated from them, :mod:`.term_pixels`, not rendered again), and gains the new
+  light's tunnels (its shafts, into the ray segment trees) and membership entries (so a
+  later edit of the light or of what it names finds it); a cell that fails is
+  invalidated (rebuilt by the next frame that needs it, or traced), as is a cell whose
+  samples cannot take the term: a sample whose tree changed, a textured root the light
+  reaches (its ``R + texel D`` split would change), a rough interface the light now
+  lights from its far side, a cell whose test lines were not kept (built before the
   session kept light terms).
 
 A light with an extent (its sampled term is traced per pixel, :mod:`.sampled_term`, and

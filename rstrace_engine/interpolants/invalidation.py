@@ -37,6 +37,7 @@ from .membership import Membership
 from .ray_segment_tree import RaySegmentTrees
 from .relight import rescalable_lights, rescale
 from .shafts import light_extents
+from .term_pixels import term_edit
 from .tunnels import (
     LIGHT_OCCLUDED,
     LIGHT_SHADES,
@@ -71,6 +72,9 @@ class Invalidation(NamedTuple):
     #: invalidated because it could not be proven on them
     terms_added: int = 0
     add_failed: int = 0
+    #: what the kept interpolants' pixels take instead of being rendered again
+    #: (:class:`~.term_pixels.TermEdit`, or None)
+    terms: object = None
 
     @classmethod
     def nothing(cls, live: int, restarted: bool = False) -> Invalidation:
@@ -380,13 +384,17 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         inv = inv._replace(rescaled=kept, rescale_broken=len(r.broken),
                            rescale_no_terms=len(r.no_terms))
         cache.totals["rescaled"] = cache.totals.get("rescaled", 0) + len(kept)
+        changed = quiet = np.zeros(0, np.int32)
         if added is not None:
             live = cache.pool.live
             took = added.kept[live[added.kept]]
             add_dependencies(cache, sa, took, slots)
             changed = added.changed[live[added.changed]]
+            quiet = np.setdiff1d(took, changed)
             inv = inv._replace(rescaled=np.union1d(kept, changed).astype(np.int32),
                                terms_added=len(took), add_failed=len(added.failed))
+        # the pixels of the kept cells take the batch's terms (term_pixels.py)
+        inv = inv._replace(terms=term_edit(cache, old, sa, slots, changed, quiet, kept, resc))
     else:
         inv = Invalidation.nothing(cache.pool.n_live)
     n_new = len(sa.inst_mesh)

@@ -39,9 +39,10 @@ import numpy as np
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
+from .edit_kernels import load_kernels as load_edit_kernels
 from .light_linking import links_shadows
 from .light_records import load_kernels
-from .pixel_records import PixelRecords
+from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .seen_lights import any_seen
 from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
@@ -71,6 +72,11 @@ class FrameReuse:
         self.relight_due = False
         self.relight_moved: set = set()
         self.relight_stats: dict = {}  # of the last relight (relit, relight_s, ...)
+        # INTERPOLANT: pixels of kept interpolants that take a light edit's term without
+        # being rendered again: ``(pixels (h * w,) bool, TermEdit)`` per batch
+        # (interpolants/term_pixels.py), and the sample terms the last relight added
+        self.term_jobs: list = []
+        self.term_rows: tuple | None = None
         # BASE under soft light: the samples whose primary node shades these lights (bits)
         # and the world again (their shadow rays alone may cross an edited box), or None
         self.reshade_lights: np.ndarray | None = None
@@ -92,6 +98,18 @@ class FrameReuse:
         if self.dirty is None or self.frame is None:
             return None
         return self.dirty.reshape(self.frame.pixel_class.shape).copy()
+
+    @property
+    def term_mask(self) -> np.ndarray | None:
+        """(h, w) bool: the kept pixels the next frame gives a light edit's term from their
+        cells (INTERPOLANT, :meth:`_term_samples`) unless it finds them dirty; None when
+        it is a full frame."""
+        if self.dirty is None or self.frame is None:
+            return None
+        out = np.zeros(len(self.dirty), bool)
+        for mask, _ in self.term_jobs:
+            out |= mask
+        return (out & ~self.dirty).reshape(self.frame.pixel_class.shape)
 
     @property
     def reshade_mask(self) -> np.ndarray | None:
@@ -126,7 +144,7 @@ class FrameReuse:
     # -- edits -------------------------------------------------------------------------
 
     def take_edits(self, fx, old_sa, new_sa, camera, ids, interpolants_lost: bool,
-                   report, rescaled=None) -> None:
+                   report, rescaled=None, terms=None) -> None:
         """Mark the pixels an applied edit batch makes dirty.
 
         fx : the batch's :class:`~..geometry.edits.EditEffects`; old_sa, new_sa : the
@@ -134,7 +152,10 @@ class FrameReuse:
         interpolants the cache invalidated (None: none invalidated, or no cache);
         interpolants_lost : the frame's interpolants are all gone (the cache started over);
         rescaled : interpolants kept with their radiance rescaled (a light's power or
-        colour, :mod:`~..interpolants.relight`): their pixels are dirty, not rebuilt.
+        colour, :mod:`~..interpolants.relight`): their pixels are dirty, not rebuilt;
+        terms : the batch's :class:`~..interpolants.term_pixels.TermEdit` or None -- the
+        pixels whose samples its kept cells interpolated take its term in the next frame's
+        relight instead (neither dirty nor rendered).
         Fills ``report``'s ``full_frame``, ``dirty_pixels``, ``dirty_fraction`` and
         ``records_query_ms``.
         """
@@ -163,33 +184,46 @@ class FrameReuse:
             # light / world edits only: no pixel is dirty, the next frame relights
             self._flush_reshade()
             if f.pixel_interpolant is not None:
-                # INTERPOLANT: its traced pixels are relit; the pixels of rescaled or
-                # invalidated interpolants, and those with interpolated samples that the
-                # edit touches, are rendered again -- but for the world's colour (lighting
-                # before and after), the interpolated samples whose world term was kept
-                # (world_samples.py): recombined too
+                # INTERPOLANT: its traced pixels are relit; the pixels of invalidated
+                # interpolants, and those with interpolated samples that the edit touches,
+                # are rendered again -- but for the world's colour (lighting before and
+                # after), the interpolated samples whose world term was kept
+                # (world_samples.py): recombined too; and the pixels of cells kept with a
+                # light's term added or rescaled take it from them (``terms``: the next
+                # relight's _term_samples), or are unchanged (an added light's dark cells)
                 t0 = time.perf_counter()
                 lr = self.light_records
                 cp = camera_params(camera)
                 dirty = np.zeros(rec.n_pixels, bool)
+                pi = f.pixel_interpolant.reshape(-1)
+                take = None
+                if terms is not None:
+                    # (samples traced, or re-rendered by every frame, take nothing)
+                    traced = lr.ok | ((rec.t_flags[rec.p_combo] & FLAG_ALWAYS) != 0)
+                    take, gain = terms.pixels(pi, traced, rec.spp)
                 if fx.lights:
-                    dirty |= rec.dirty_pixels(old_sa, cp, replace(fx, world=False,
-                                                                  world_lights=False))
-                    dirty &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
+                    lit = rec.dirty_pixels(old_sa, cp, replace(fx, world=False,
+                                                               world_lights=False))
+                    lit &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
+                    if take is not None and set(fx.lights_moved) <= terms.added:
+                        lit &= ~take  # (an added light dirties every hit: its cells tell)
+                    dirty |= lit
                 if fx.world:
                     dirty |= rec.dirty_pixels(old_sa, cp, EditEffects(
                         world=True, world_lights=fx.world_lights)) & ~lr.relit_pixels(
                             rec.spp, rec.n_pixels, world=True)
-                pi = f.pixel_interpolant.reshape(-1)
                 if rebuilt is not None:
                     dirty |= rebuilt
                 if rescaled is not None and len(rescaled):
-                    dirty |= np.isin(pi, rescaled)
+                    r = np.isin(pi, rescaled)
+                    dirty |= r if take is None else r & ~take
                 dirty |= pi == -2
                 if self.untracked is not None:
                     dirty |= self.untracked
                 report.records_query_ms = 1e3 * (time.perf_counter() - t0)
                 self.dirty |= dirty
+                if take is not None and gain.any():
+                    self.term_jobs.append((gain, terms))
             _drop_sampled(self.light_records, fx, old_sa, new_sa)
             self.relight_due = True
             self.relight_moved |= set(fx.lights_moved)
@@ -316,6 +350,7 @@ class FrameReuse:
         """The next frame is traced in full (nothing kept is pending)."""
         self.dirty = None
         self._no_reshade()
+        self.term_jobs, self.term_rows = [], None
         report.full_frame = True
         report.dirty_pixels = -1
         report.dirty_fraction = 1.0
@@ -418,22 +453,66 @@ class FrameReuse:
                     rec.set_lit_at(j, rows, lit, secondary=True)
             split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
+        gain = self._term_samples(settings) if self.term_jobs else None
+        split["terms"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
-                           world=lr.partial)
+                           world=lr.partial, extra=gain)
+        took = 0
         if lr.partial:  # (INTERPOLANT: its traced pixels; the others as they were)
             ok = lr.relit_pixels(rec.spp, rec.n_pixels, world=world_lights(sa))
             rad = np.where(ok[:, None], rad, base.radiance.reshape(-1, 3))
+            if gain is not None:
+                # the pixels that take a term and are not recombined (their world term not
+                # kept apart): their value plus the mean of their samples' terms (all their
+                # samples were interpolated, :meth:`_term_samples`)
+                px = gain[0] % rec.n_pixels
+                add = _sum_rows(px, gain[1], rec.n_pixels)
+                mine = np.zeros(rec.n_pixels, bool)
+                mine[px] = True
+                took = int(np.count_nonzero(mine))
+                mine &= ~ok
+                rad[mine] = rad[mine] + add[mine] / rec.spp
         split["recombine"] = time.perf_counter() - t1
         # (relight_due stays set until the frame is finished: shading a light again and
         # recombining are idempotent, so a frame that fails is relit again next time)
         self.relight_stats = dict(relit=self.relight_due,
-                                  relight_s=time.perf_counter() - t0,
+                                  relight_s=time.perf_counter() - t0, term_pixels=took,
                                   relit_lights=moved, reshaded_pixels=reshaded,
                                   relight_shadow_rays=counters.get("shadow", 0),
                                   relight_shadow_skipped=counters.get("shadow_skipped", 0),
                                   relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)
+
+    def _term_samples(self, settings):
+        """INTERPOLANT: the samples of the kept pixels that take the pending batches' terms
+        (:attr:`term_jobs`) and what each gains, ``(rows (m,) int64 sample ids, value (m,
+        3))`` or None (:meth:`~..interpolants.term_pixels.TermEdit.deltas`, with
+        ``settings``' seed). A pixel whose term cannot be taken (its cell gone, its line
+        not in it) becomes dirty -- in place: :attr:`dirty` is the array :meth:`plan`
+        returned, which the frame renders. Kept in :attr:`term_rows` for :meth:`finish`
+        (the samples whose world term is kept apart take theirs into its radiance there)."""
+        rec = self.records
+        n, spp = rec.n_pixels, rec.spp
+        pi = self.frame.pixel_interpolant.reshape(-1)
+        cp = camera_params(self.camera)
+        rows, vals = [np.zeros(0, np.int64)], [np.zeros((0, 3))]
+        for mask, te in self.term_jobs:
+            pix = np.flatnonzero(mask & ~self.dirty)
+            delta, good = te.deltas(cp, pix, pi[pix], spp, int(settings.seed))
+            self.dirty[pix[~good]] = True
+            rows.append((np.arange(spp)[:, None] * n + pix[good][None, :]).reshape(-1))
+            vals.append(delta[:, good].reshape(-1, 3))
+        r = np.concatenate(rows)
+        v = np.concatenate(vals)
+        keep = ~self.dirty[r % n]  # (a pixel a later batch could not take)
+        r, v = r[keep], v[keep]
+        if len(self.term_jobs) > 1:  # (a sample in several batches: their terms summed)
+            r, at = np.unique(r, return_inverse=True)
+            v = _sum_rows(at, v, len(r))
+        self.term_rows = (r, v) if len(r) else None
+        return self.term_rows
 
     # -- frames ------------------------------------------------------------------------
 
@@ -450,6 +529,7 @@ class FrameReuse:
         self.relight_due = False
         self.relight_moved = set()
         self._no_reshade()
+        self.term_jobs, self.term_rows = [], None
         rec = PixelRecords(camera.width, camera.height, samples, scene_aabb)
         if light_terms is not None:
             rec.keep_light_terms(*light_terms)
@@ -470,16 +550,25 @@ class FrameReuse:
             stored = Frame(frame.radiance, pc.copy().reshape(frame.pixel_class.shape),
                            frame.stats, frame.pixel_interpolant)
             pc[rebuilt & (pc == CLASS_INTERPOLATED)] = CLASS_REBUILT
+        terms, self.term_jobs, self.term_rows = self.term_rows, [], None
         if frame.stats.get("cancelled"):
             # a part-done frame: its records are incomplete, the next frame is a full one
             self.frame = self.records = self.dirty = None
             return frame
         records.finish(drop_rays=None if pixels is None else np.tile(pixels, samples))
+        lr = records.light
+        if terms is not None and lr is not None and lr.world is not None:
+            # the samples that took a term keep it in their kept radiance (a later world
+            # edit recombines them with it)
+            w = lr.world.row[terms[0]]
+            lr.world.rest[w[w >= 0]] += terms[1][w >= 0]
         self.relight_due = False
         self.relight_moved = set()
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
             load_kernels()
+            if sa is not None:
+                load_edit_kernels(records, sa, camera)
             if sa is not None and not records.light.partial and has_soft_light(sa):
                 load_reshade_kernels(sa)
         self._track_interpolants(stored, pixels, cache, pool0)
@@ -519,6 +608,12 @@ class FrameReuse:
             untracked |= self.untracked & ~pixels
         self.untracked = untracked
         self.snap = pool.serial.copy()
+
+
+def _sum_rows(at: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3): the rows of ``value`` (m, 3) summed by their index ``at`` (m,)."""
+    return np.stack([np.bincount(at, weights=value[:, c], minlength=n) for c in range(3)],
+                    axis=1)
 
 
 def _drop_sampled(lr, fx, old_sa, new_sa) -> None:

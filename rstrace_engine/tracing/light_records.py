@@ -602,11 +602,13 @@ class LightRecords:
     # -- relighting ----------------------------------------------------------------------
 
     def recombine(self, sa: SceneArrays, s_ray: np.ndarray, spp: int, n_pixels: int,
-                  world: bool = False) -> np.ndarray:
+                  world: bool = False, extra: tuple | None = None) -> np.ndarray:
         """The frame's radiance (n_pixels, 3) float32 from the terms and the lights of
         ``sa``: the tracer's sums in its order (bit for bit a fresh frame's). ``world``:
         the samples kept by :meth:`set_world` are ``rest + coef * world_light`` (what the
-        INTERPOLANT frame computes for them)."""
+        INTERPOLANT frame computes for them). ``extra``: ``(rows, value (m, 3))`` added to
+        those samples first (INTERPOLANT: a light edit's term their cells took,
+        :mod:`~..interpolants.term_pixels`)."""
         L = len(sa.light_kind)
         alive = np.asarray(sa.light_kind) >= 0
         ext = np.asarray(sa.light_ext, bool)
@@ -636,6 +638,8 @@ class LightRecords:
                                      np.ascontiguousarray(s_ray, np.int64), rad)
             if rescale_world and self.world is not None and world_lights(sa):
                 self.world.apply(rad, sa.world_light)
+            if extra is not None:
+                rad[extra[0]] += extra[1]
             accumulate(rad, inst, spp, out, pc)
         return out
 

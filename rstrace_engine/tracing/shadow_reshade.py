@@ -51,6 +51,7 @@ from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_records import _GEO
 from .light_reshade import _one_light_states, tick
+from .object_rays import meets_object, prove_rays
 from .record_codes import _secondary_depths as secondary_depths_kernel
 from .sample_rays import crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
@@ -93,13 +94,14 @@ def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
     return soft, rows, any_vis
 
 
-def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
+def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions, changed,
                  counters) -> np.ndarray:
     """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
     ``lj``, ``L`` for the world) whose bits were ``kept``: the samples whose visibility
     the edited objects ``regions`` (lo, hi, centre, radius, tag: grown boxes and spheres,
     where objects were and are, :func:`~.sample_rays.crossing_rows`) may change traced
-    again, through the edited scene, the others kept."""
+    again, through the edited scene (:func:`_blocked`; ``changed``: the edited objects),
+    the others kept."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     m = len(pt)
@@ -130,12 +132,36 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
         t0 = time.perf_counter()
         L = len(sa.light_kind)
         prow = np.where(lj[row] < L, pt[row] * L + lj[row], -1 - pt[row])
-        vis = ~np.asarray(_occluded_by(sa, accel)(o, d, tmax, prow), np.bool_)
+        was = (kept[row] & bit) != 0
+        vis = ~_blocked(sa, accel, o, d, tmax, prow, was, changed, counters)
         np.bitwise_or.at(new, row[vis], bit[vis])
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + k
         tick(split, "trace", t0)
     return new
+
+
+def _blocked(sa, accel, o, d, tmax, prow, was, changed, counters) -> np.ndarray:
+    """(k,) bool: the shadow rays ``o, d, tmax`` (of rows ``prow``, as
+    :func:`~.whitted._occluded_by` numbers them) are blocked in the edited scene, bit for
+    bit the whole scene's query. ``was``: each was unblocked in the records' frame;
+    ``changed``: the live objects the edits placed since (moved, added, re-meshed, shown),
+    or None to query the whole scene. A ray that met nothing then meets only what was
+    placed (the accelerator's :attr:`~..accel.interface.Accelerator.any_hit_by_object`;
+    most of them proven without its tree, :func:`~.object_rays.meets_object`); one that
+    was blocked stays so where a placed object blocks it, else the whole scene is asked
+    (its blocker may have been an object the edits took away)."""
+    occluded = _occluded_by(sa, accel)
+    if changed is None:
+        return np.asarray(occluded(o, d, tmax, prow), np.bool_)
+    blocked = np.zeros(len(o), np.bool_)
+    for i in changed:
+        todo = np.flatnonzero(~blocked)
+        blocked[todo] = meets_object(sa, accel, i, o, d, tmax, todo, counters)
+    rest = np.flatnonzero(~blocked & ~was)
+    if len(rest):
+        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], prow[rest])
+    return blocked
 
 
 def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, counters):
@@ -198,19 +224,24 @@ def load_kernels(sa) -> None:
         crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, u64,
                       np.zeros(1, np.int64), e3, e3.copy(), e1, i64.copy(), u64.copy())
         unpack_bits(u64, 1, np.zeros(0, np.bool_))
+        prove_rays(np.zeros((1, 4, 4)), 0, np.zeros(3), 0.0, 1.0, e3, e3.copy(), e1, i64,
+                   np.zeros(0, np.int8))
         secondary_depths_kernel(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
             spawn, vis_bits: np.ndarray | None = None, regions=None,
-            counters: dict | None = None, secondary: bool = False) -> dict:
+            counters: dict | None = None, secondary: bool = False,
+            changed=None) -> dict:
     """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
     records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
     uint64 per node) name and the world's light where ``world`` (bool per node), through
     ``accel`` over the edited scene ``sa``; their entries replaced, every other term kept.
     Returns ``{j: (rows, lit)}``: each light's nodes and its visibility bit there (for the
     pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
-    a bool, or one per node). ``counters``: adds ``shadow`` and ``split`` seconds."""
+    a bool, or one per node). ``changed``: the live objects the edits placed since the
+    records' frame, the only ones a kept visible sample may now meet (:func:`_blocked`),
+    or None. ``counters``: adds ``shadow`` and ``split`` seconds."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     p = lr.s if secondary else lr.p
@@ -252,7 +283,7 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
                 pt = np.arange(len(sel))
             kept = old.copy()
             kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), c), n,
-                                    old[pt], regions, counters)
+                                    old[pt], regions, changed, counters)
             vis_bits[rows[sel], c] = kept
             moved = np.flatnonzero(kept != old)
             tick(split, "shadow_rays", t0)

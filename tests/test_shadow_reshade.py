@@ -254,7 +254,7 @@ def test_sample_windows_hold_every_direction_in_the_cone(form):
             cv[q, :3] = w * dist
             cv[q, 3] = np.cos(h) * dist
         win = np.empty((2, 4))
-        _windows(form, *a, omc, cv, win)
+        _windows(form, *a, omc, cv, win, np.full(2, 3, np.int8), 3)
         for u, v in rng.uniform(0.0, 1.0, size=(500, 2)):
             d = np.array(_cosine_dir(*a, u, v) if form == 1 else _cone_dir(*a, omc, u, v))
             inside = any(d @ w >= np.cos(h) for w, h in hs)

@@ -96,8 +96,13 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
     sy /= nl
     sz /= nl
     px, py, pz = _decode_point(code, lo, step, levels, shift)
+    full = (np.uint64(1) << np.uint64(n)) - np.uint64(1) if n < 64 else ~np.uint64(0)
+    need = (PART_NEW if old != np.uint64(0) else 0) | (PART_OLD if old & full != full else 0)
     some = False
     for q in range(k_reg):
+        if not reg_tag[q] & need:
+            cv[q, 3] = np.inf  # (no sample tests it)
+            continue
         vx = reg_c[q, 0] - px
         vy = reg_c[q, 1] - py
         vz = reg_c[q, 2] - pz
@@ -116,7 +121,7 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
         some = True
     if not some:
         return False
-    _windows(1, sx, sy, sz, 0.0, cv, win)
+    _windows(1, sx, sy, sz, 0.0, cv, win, reg_tag, need)
     for q in range(k_reg):
         if cv[q, 3] == np.inf:
             win[q, 0] = 2.0  # (no sample)
@@ -349,7 +354,7 @@ def _row_axis(sa, j, L, inside, qx, qy, qz, sx, sy, sz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _windows(form, ax, ay, az, omc, cv, win):
+def _windows(form, ax, ay, az, omc, cv, win, reg_tag, need):
     """Per region (its sphere's cone from the point: :func:`crossing_rows`' ``cv``) the
     samples of a row (:func:`_row_axis`) whose direction may lie in that cone, as a window
     of the unit square: ``win[q] = (u_lo, u_hi, phi_c, dphi)`` -- u within [u_lo, u_hi] and
@@ -357,13 +362,17 @@ def _windows(form, ax, ay, az, omc, cv, win):
     cone of half angle h about a direction at polar angle alpha from a holds polar angles
     within h of alpha and (alpha > h) azimuths within ``asin(sin h / sin alpha)`` of its
     own; both widened by :data:`~.tolerances.RECORD_DIR_ERROR` (the rounding of the
-    sample's direction is far below it)."""
+    sample's direction is far below it). A region whose ``reg_tag`` is not in ``need`` has
+    no window (no sample tests it)."""
     err = tol.RECORD_DIR_ERROR
     tx, ty, tz, bx, by, bz = onb(ax, ay, az)
     for q in range(cv.shape[0]):
         win[q, 0] = -1.0
         win[q, 1] = 2.0
         win[q, 3] = -1.0
+        if not reg_tag[q] & need:
+            win[q, 0] = 2.0
+            continue
         if form == 0 or cv[q, 3] == -2.0:
             continue
         vx, vy, vz = cv[q, 0], cv[q, 1], cv[q, 2]
@@ -455,9 +464,15 @@ def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, 
     k_reg = reg_lo.shape[0]
     err = tol.RECORD_DIR_ERROR
     qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+    # the regions some sample may need: where objects came if one was visible, where they
+    # went if one was blocked (the others are skipped, their windows empty)
+    full = (np.uint64(1) << np.uint64(n)) - np.uint64(1) if n < 64 else ~np.uint64(0)
+    need = (PART_NEW if old != np.uint64(0) else 0) | (PART_OLD if old & full != full else 0)
     # each region's sphere seen from the point: a cone of directions (a cheap rejection
     # before the sphere and box tests; -2: the point is inside the sphere)
     for q in range(k_reg):
+        if not reg_tag[q] & need:
+            continue
         vx = reg_c[q, 0] - qx
         vy = reg_c[q, 1] - qy
         vz = reg_c[q, 2] - qz
@@ -478,7 +493,7 @@ def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, 
     # their cones are seen from Q)
     form, ax, ay, az, omc = _row_axis(sa, j, L, inside, qx, qy, qz, NS[i, 0], NS[i, 1],
                                       NS[i, 2])
-    _windows(0 if far or not windows else form, ax, ay, az, omc, cv, win)
+    _windows(0 if far or not windows else form, ax, ay, az, omc, cv, win, reg_tag, need)
     h = row_hash(seeds[i], j, L)
     b = np.uint64(0)
     c = 0

@@ -43,6 +43,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from numba import njit
 
 from ..accel.accelerators import Hits
 from ..geometry.edits import PART_NEW, PART_OLD
@@ -226,7 +227,56 @@ def load_kernels(sa) -> None:
         unpack_bits(u64, 1, np.zeros(0, np.bool_))
         prove_rays(np.zeros((1, 4, 4)), 0, np.zeros(3), 0.0, 1.0, e3, e3.copy(), e1, i64,
                    np.zeros(0, np.int8))
+        _set_entries(np.zeros(1, np.int64), np.zeros(0, np.uint8), e3.copy(), i64, 0,
+                     np.zeros(0, np.bool_), e3.copy(), np.zeros(0, np.bool_))
         secondary_depths_kernel(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
+
+
+@njit(cache=True, nogil=True)
+def _set_entries(start, slot, val, nodes, j, on, new, left):
+    """Slot ``j``'s entry of each node ``nodes[r]`` (CSR ``start``, ``slot``, ``val``) set
+    to ``new[r]`` in place where ``on[r]`` and the node has one; ``left[r]``: the entry
+    comes or goes (for a splice)."""
+    for r in range(nodes.shape[0]):
+        e = -1
+        for k in range(start[nodes[r]], start[nodes[r] + 1]):
+            if slot[k] == j:
+                e = k
+                break
+        left[r] = (e >= 0) != on[r]
+        if e >= 0 and on[r]:
+            val[e, 0] = new[r, 0]
+            val[e, 1] = new[r, 1]
+            val[e, 2] = new[r, 2]
+
+
+def _set_terms(p, nodes, c: int, on, val) -> np.ndarray:
+    """:func:`_set_entries` over the records' nodes ``p``: the positions in ``nodes``
+    whose entry comes or goes."""
+    left = np.empty(len(nodes), np.bool_)
+    _set_entries(p.start, p.slot, p.val, np.ascontiguousarray(nodes, np.int64), int(c),
+                 np.ascontiguousarray(on, np.bool_), np.ascontiguousarray(val, np.float64),
+                 left)
+    return np.flatnonzero(left)
+
+
+def _splice_terms(lr, p, rows, left, changes, secondary: bool) -> None:
+    """The nodes of ``left``'s terms (``(slot, sel, on, val)``: ``sel`` into ``rows``)
+    taken, their entries replaced, and spliced back into the records."""
+    at = np.unique(np.concatenate([sel for _, sel, _, _ in left]))
+    sub = p.take(rows[at])
+    sub.fold()
+    for c, sel, on, val in changes:
+        d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
+        k = np.searchsorted(at, sel)
+        inside = (k < len(at)) & (at[np.minimum(k, len(at) - 1)] == sel)
+        d_on[k[inside]] = on[inside]
+        d_val[k[inside]] = val[inside]
+        sub.replace_slot(c, d_on, d_val)
+    if secondary:
+        lr.s = p.splice(rows[at], sub)
+    else:
+        lr.p = p.splice(rows[at], sub)
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
@@ -265,8 +315,6 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
         if len(sel) == 0:
             continue
         t0 = time.perf_counter()
-        g = {key: x[sel] for key, x in geo.items()}
-        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
         kept = None
         if vis_bits is not None:
             # the samples that may cross an edited box traced again, the others' bits
@@ -274,23 +322,25 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             # (the others' inputs, and so their term, are what they were)
             old = vis_bits[rows[sel], c].astype(np.uint64)
             if c < L:  # (the nodes the light samples: it faces them)
-                state = np.empty(len(sel), np.int8)
-                with threads_for(len(sel)):
-                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, g["inst"],
-                                      state, np.empty(len(sel), np.int32))
-                pt = np.flatnonzero(state == SH_SOFT)
+                state = np.empty(len(rows), np.int8)
+                with threads_for(len(rows)):
+                    _one_light_states(sa, c, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                                      geo["inst"], state, np.empty(len(rows), np.int32))
+                pt = np.flatnonzero(state[sel] == SH_SOFT)
             else:
                 pt = np.arange(len(sel))
             kept = old.copy()
-            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), c), n,
-                                    old[pt], regions, changed, counters)
+            kept[pt] = _traced_bits(sa, accel, surf, geo["seed"], sel[pt],
+                                    np.full(len(pt), c), n, old[pt], regions, changed,
+                                    counters)
             vis_bits[rows[sel], c] = kept
             moved = np.flatnonzero(kept != old)
             tick(split, "shadow_rays", t0)
             t0 = time.perf_counter()
             sel, kept = sel[moved], kept[moved]
-            g = {key: x[moved] for key, x in g.items()}
-            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
+        # (the geometry of the nodes shaded again alone)
+        g = {key: x[sel] for key, x in geo.items()}
+        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
         if len(sel) and c < L:
             on, val, lit = _light_term(sa, accel, c, n, g, s, kept, counters)
             changes.append((c, sel, on, val))
@@ -310,20 +360,13 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
         tick(split, "shade", t0)
     t0 = time.perf_counter()
     if changes:
-        # only the nodes where a term changed are taken (a dragged light's term folded),
-        # their entries replaced and spliced back
-        at = np.unique(np.concatenate([sel for _, sel, _, _ in changes]))
-        sub = p.take(rows[at])
-        sub.fold()
-        for c, sel, on, val in changes:
-            d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
-            k = np.searchsorted(at, sel)
-            d_on[k] = on
-            d_val[k] = val
-            sub.replace_slot(c, d_on, d_val)
-        if secondary:
-            lr.s = p.splice(rows[at], sub)
-        else:
-            lr.p = p.splice(rows[at], sub)
+        # the changed terms written in place where the node keeps an entry for them
+        # (a soft row's term is present whatever its samples see); the nodes where one
+        # comes or goes (or a dragged light's term is apart) taken and spliced back
+        left = [(c, sel[_set_terms(p, rows[sel], c, on, val)], on, val)
+                for c, sel, on, val in changes] if p.dj < 0 else changes
+        left = [x for x in left if len(x[1])]
+        if left:
+            _splice_terms(lr, p, rows, left, changes, secondary)
     tick(split, "terms", t0)
     return out

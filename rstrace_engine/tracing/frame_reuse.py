@@ -83,6 +83,9 @@ class FrameReuse:
         self.reshade_s_world: np.ndarray | None = None
         self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
         self.reshade_changed: set = set()  # and their instance slots
+        # the samples of those nodes the records' queries found may cross them
+        # (sample_rays.SampleCandidates), or None
+        self.reshade_cand = self.reshade_s_cand = None
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -286,7 +289,7 @@ class FrameReuse:
         """The dirty pixels of :meth:`~.pixel_records.PixelRecords.dirty_split`'s ``(full,
         lights, world)``: those with a sample dirty in full; the other samples' lights and
         world to shade again are added to the pending ones."""
-        full, lights, world, s_lights, s_world = split
+        full, lights, world, s_lights, s_world, cand, s_cand = split
         rec = self.records
         spp, n = rec.spp, rec.n_pixels
         dirty = full.reshape(spp, n).any(axis=0)
@@ -299,11 +302,14 @@ class FrameReuse:
         if self.reshade_lights is None:
             self.reshade_lights, self.reshade_world = lights, world
             self.reshade_s_lights, self.reshade_s_world = s_lights, s_world
+            self.reshade_cand, self.reshade_s_cand = cand, s_cand
         else:
             self.reshade_lights |= lights
             self.reshade_world |= world
             self.reshade_s_lights |= s_lights
             self.reshade_s_world |= s_world
+            self.reshade_cand = self.reshade_cand.merged(cand)
+            self.reshade_s_cand = self.reshade_s_cand.merged(s_cand)
         return dirty
 
     @property
@@ -337,6 +343,7 @@ class FrameReuse:
         self.reshade_s_lights = self.reshade_s_world = None
         self.reshade_regions = []
         self.reshade_changed = set()
+        self.reshade_cand = self.reshade_s_cand = None
 
     def _placed(self, sa, accel) -> tuple | None:
         """The live objects (instance slots of ``sa``) the pending edits placed -- moved,
@@ -424,7 +431,7 @@ class FrameReuse:
             done = reshade(lr, sa, accel, lights, world, int(settings.light_samples),
                            int(settings.max_depth) > 0,
                            rec.p_vis if regions is not None else None, regions, counters,
-                           changed=changed)
+                           changed=changed, cand=self.reshade_cand)
             for j, (rows, lit) in done.items():
                 rec.set_lit_at(j, rows, lit)
             # and at their secondary nodes (mirror and refraction hits)
@@ -435,7 +442,8 @@ class FrameReuse:
                 done = reshade(lr, sa, accel, s_lights, s_world, int(settings.light_samples),
                                rec.secondary_depths() < int(settings.max_depth),
                                rec.s_vis if regions is not None else None, regions,
-                               counters, secondary=True, changed=changed)
+                               counters, secondary=True, changed=changed,
+                               cand=self.reshade_s_cand)
                 for j, (rows, lit) in done.items():
                     rec.set_lit_at(j, rows, lit, secondary=True)
             split["reshade"] = time.perf_counter() - t1

@@ -54,7 +54,7 @@ from .light_records import _GEO
 from .light_reshade import _one_light_states, tick
 from .object_rays import meets_object, prove_rays
 from .record_codes import _secondary_depths as secondary_depths_kernel
-from .sample_rays import crossing_rays, crossing_rows, unpack_bits
+from .sample_rays import ALL, crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
 from .soft_lights import SH_SOFT, soft_rays
 from .whitted import _occluded_by, shade, surfaces
@@ -95,14 +95,14 @@ def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
     return soft, rows, any_vis
 
 
-def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions, changed,
-                 counters) -> np.ndarray:
+def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, cand, regions,
+                 changed, counters) -> np.ndarray:
     """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
     ``lj``, ``L`` for the world) whose bits were ``kept``: the samples whose visibility
     the edited objects ``regions`` (lo, hi, centre, radius, tag: grown boxes and spheres,
-    where objects were and are, :func:`~.sample_rays.crossing_rows`) may change traced
-    again, through the edited scene (:func:`_blocked`; ``changed``: the edited objects),
-    the others kept."""
+    where objects were and are, :func:`~.sample_rays.crossing_rows`; of the samples
+    ``cand``) may change traced again, through the edited scene (:func:`_blocked`;
+    ``changed``: the edited objects), the others kept."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     m = len(pt)
@@ -119,7 +119,10 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
         tag = np.full(len(tag), PART_OLD | PART_NEW, np.int8)
     with threads_for(m):
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
-                      *regions[:4], tag, kept, True, mask, count)
+                      *regions[:4], tag, kept, np.ascontiguousarray(cand, np.uint64), True,
+                      mask, count)
+    tick(split, "crossing", t0)
+    t0 = time.perf_counter()
     start = np.zeros(m + 1, np.int64)
     np.cumsum(count, out=start[1:])
     k = int(start[-1])
@@ -127,24 +130,36 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     row, bit = np.empty(k, np.int64), np.empty(k, np.uint64)
     crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n, mask, start,
                   o, d, tmax, row, bit)
-    tick(split, "crossing", t0)
-    new = np.asarray(kept, np.uint64) & ~mask
+    tick(split, "rays", t0)
+    new = kept & ~mask
     if k:
         t0 = time.perf_counter()
         L = len(sa.light_kind)
-        prow = np.where(lj[row] < L, pt[row] * L + lj[row], -1 - pt[row])
         was = (kept[row] & bit) != 0
-        vis = ~_blocked(sa, accel, o, d, tmax, prow, was, changed, counters)
-        np.bitwise_or.at(new, row[vis], bit[vis])
+
+        def rows_of(i):  # (the rays' rows as the tracer numbers them: light linking)
+            r = row[i]
+            return np.where(lj[r] < L, pt[r] * L + lj[r], -1 - pt[r])
+
+        blocked = _blocked(sa, accel, o, d, tmax, rows_of, was, changed, counters)
+        _set_bits(new, row, bit, blocked)
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + k
         tick(split, "trace", t0)
     return new
 
 
-def _blocked(sa, accel, o, d, tmax, prow, was, changed, counters) -> np.ndarray:
-    """(k,) bool: the shadow rays ``o, d, tmax`` (of rows ``prow``, as
-    :func:`~.whitted._occluded_by` numbers them) are blocked in the edited scene, bit for
+@njit(cache=True, nogil=True)
+def _set_bits(new, row, bit, blocked):
+    """``new[row[r]] |= bit[r]`` for the rays ``r`` not ``blocked``."""
+    for r in range(row.shape[0]):
+        if not blocked[r]:
+            new[row[r]] |= bit[r]
+
+
+def _blocked(sa, accel, o, d, tmax, rows_of, was, changed, counters) -> np.ndarray:
+    """(k,) bool: the shadow rays ``o, d, tmax`` (``rows_of(i)``: the rows of rays ``i``
+    as :func:`~.whitted._occluded_by` numbers them) are blocked in the edited scene, bit for
     bit the whole scene's query. ``was``: each was unblocked in the records' frame;
     ``changed``: the live objects the edits placed since (moved, added, re-meshed, shown),
     or None to query the whole scene. A ray that met nothing then meets only what was
@@ -154,14 +169,14 @@ def _blocked(sa, accel, o, d, tmax, prow, was, changed, counters) -> np.ndarray:
     (its blocker may have been an object the edits took away)."""
     occluded = _occluded_by(sa, accel)
     if changed is None:
-        return np.asarray(occluded(o, d, tmax, prow), np.bool_)
+        return np.asarray(occluded(o, d, tmax, rows_of(slice(None))), np.bool_)
     blocked = np.zeros(len(o), np.bool_)
     for i in changed:
         todo = np.flatnonzero(~blocked)
         blocked[todo] = meets_object(sa, accel, i, o, d, tmax, todo, counters)
     rest = np.flatnonzero(~blocked & ~was)
     if len(rest):
-        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], prow[rest])
+        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], rows_of(rest))
     return blocked
 
 
@@ -221,12 +236,14 @@ def load_kernels(sa) -> None:
         _one_light_states(sa, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
                           np.empty(0, np.int8), np.empty(0, np.int32))
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, e3,
-                      e3, e3, e1, np.zeros(0, np.int8), u64, True, u64.copy(), i64.copy())
+                      e3, e3, e1, np.zeros(0, np.int8), u64, u64.copy(), True, u64.copy(),
+                      i64.copy())
         crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, u64,
                       np.zeros(1, np.int64), e3, e3.copy(), e1, i64.copy(), u64.copy())
         unpack_bits(u64, 1, np.zeros(0, np.bool_))
         prove_rays(np.zeros((1, 4, 4)), 0, np.zeros(3), 0.0, 1.0, e3, e3.copy(), e1, i64,
                    np.zeros(0, np.int8))
+        _set_bits(u64.copy(), i64, u64, np.zeros(0, np.bool_))
         _set_entries(np.zeros(1, np.int64), np.zeros(0, np.uint8), e3.copy(), i64, 0,
                      np.zeros(0, np.bool_), e3.copy(), np.zeros(0, np.bool_))
         secondary_depths_kernel(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
@@ -282,7 +299,7 @@ def _splice_terms(lr, p, rows, left, changes, secondary: bool) -> None:
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
             spawn, vis_bits: np.ndarray | None = None, regions=None,
             counters: dict | None = None, secondary: bool = False,
-            changed=None) -> dict:
+            changed=None, cand=None) -> dict:
     """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
     records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
     uint64 per node) name and the world's light where ``world`` (bool per node), through
@@ -291,7 +308,9 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
     pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
     a bool, or one per node). ``changed``: the live objects the edits placed since the
     records' frame, the only ones a kept visible sample may now meet (:func:`_blocked`),
-    or None. ``counters``: adds ``shadow`` and ``split`` seconds."""
+    or None. ``cand``: the samples of each row the records' queries found may cross an
+    edited part (:class:`~.sample_rays.SampleCandidates`: only those are tested again), or
+    None (all). ``counters``: adds ``shadow`` and ``split`` seconds."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     p = lr.s if secondary else lr.p
@@ -330,8 +349,10 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             else:
                 pt = np.arange(len(sel))
             kept = old.copy()
+            cb = (np.full(len(pt), ALL, np.uint64) if cand is None
+                  else cand.of_rows(rows[sel[pt]], c))
             kept[pt] = _traced_bits(sa, accel, surf, geo["seed"], sel[pt],
-                                    np.full(len(pt), c), n, old[pt], regions, changed,
+                                    np.full(len(pt), c), n, old[pt], cb, regions, changed,
                                     counters)
             vis_bits[rows[sel], c] = kept
             moved = np.flatnonzero(kept != old)

@@ -432,8 +432,7 @@ class FrameReuse:
                            int(settings.max_depth) > 0,
                            rec.p_vis if regions is not None else None, regions, counters,
                            changed=changed, cand=self.reshade_cand)
-            for j, (rows, lit) in done.items():
-                rec.set_lit_at(j, rows, lit)
+            rec.set_lit_at(done)
             # and at their secondary nodes (mirror and refraction hits)
             s_keep = keep[rec.secondary_rays()]
             s_lights = np.where(s_keep, self.reshade_s_lights, np.uint64(0))
@@ -444,8 +443,7 @@ class FrameReuse:
                                rec.s_vis if regions is not None else None, regions,
                                counters, secondary=True, changed=changed,
                                cand=self.reshade_s_cand)
-                for j, (rows, lit) in done.items():
-                    rec.set_lit_at(j, rows, lit, secondary=True)
+                rec.set_lit_at(done, secondary=True)
             split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,

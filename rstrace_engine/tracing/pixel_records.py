@@ -439,26 +439,30 @@ class PixelRecords:
         self.p_vis = self.s_vis = None
         self.vis_off = True
 
-    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray,
-                   secondary: bool = False) -> None:
-        """Light ``j``'s visibility bit of the primary (``secondary``: the secondary) nodes
-        ``rows`` after it was shaded again there (:mod:`.shadow_reshade`; its traced bit is
-        unchanged: the point and the light are)."""
+    def set_lit_at(self, done: dict, secondary: bool = False) -> None:
+        """Each light ``j``'s visibility bit of the primary (``secondary``: the secondary)
+        nodes ``rows`` after it was shaded again there, ``done[j] = (rows, lit)``
+        (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the light
+        are); the table compacted once."""
         name = "s_combo" if secondary else "p_combo"
-        combo = getattr(self, name)
-        bit = np.uint64(1) << np.uint64(j)
-        c = combo[rows].astype(np.int64)
-        old = self.t_lit[c].astype(np.uint64)
-        new = np.where(lit, old | bit, old & ~bit)
-        ch = new != old
-        if not ch.any():
-            return
-        ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
-                           self.t_flags[c[ch]])
-        arr = combo.astype(np.uint32)
-        arr[rows[ch]] = ids
-        setattr(self, name, arr)
-        self._compact()
+        arr = getattr(self, name)
+        wide = False
+        for j, (rows, lit) in done.items():
+            bit = np.uint64(1) << np.uint64(j)
+            c = arr[rows].astype(np.int64)
+            old = self.t_lit[c].astype(np.uint64)
+            new = np.where(lit, old | bit, old & ~bit)
+            ch = new != old
+            if not ch.any():
+                continue
+            ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
+                               self.t_flags[c[ch]])
+            if not wide:
+                arr, wide = arr.astype(np.uint32), True
+            arr[rows[ch]] = ids
+        if wide:
+            setattr(self, name, arr)
+            self._compact()
 
     @property
     def nbytes(self) -> int:

@@ -153,8 +153,11 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
 def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
     """Can a shadow ray from p to light j come within ``r`` of c (a region's sphere)? As
     :func:`~.record_codes._light_hit`: every segment from p to a point within the light's
-    bounding radius g of its centre stays within g of the segment to the centre; a sun's
-    rays are a cone of directions (or one ray)."""
+    bounding radius g of its centre stays within g of the segment to the centre, and its
+    direction within ``asin(g / e)`` of the centre's (``e`` its distance; the sphere's
+    directions within ``asin(r / |c - p|)`` of c's, both widened by
+    :data:`~.tolerances.RECORD_DIR_ERROR` for rounding); a sun's rays are a cone of
+    directions (or one ray)."""
     if light_kind[j] == LIGHT_SUN:
         if lgeo[j, 4] > 0.0:
             return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
@@ -167,8 +170,15 @@ def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
     e = math.sqrt(dx * dx + dy * dy + dz * dz)
     if e == 0.0:
         return True
-    return _segment_sphere(px, py, pz, dx / e, dy / e, dz / e, e, cx, cy, cz,
-                           r + lgeo[j, 3] + tol.RECORD_SLACK_REL * e)
+    g = lgeo[j, 3] + tol.RECORD_SLACK_REL * e
+    if not _segment_sphere(px, py, pz, dx / e, dy / e, dz / e, e, cx, cy, cz, r + g):
+        return False
+    vx, vy, vz = cx - px, cy - py, cz - pz
+    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if dist <= r or e <= g:
+        return True
+    c = min(1.0, max(-1.0, (vx * dx + vy * dy + vz * dz) / (dist * e)))
+    return math.acos(c) <= math.asin(r / dist) + math.asin(g / e) + tol.RECORD_DIR_ERROR
 
 
 _BitsScene = view_type("_BitsScene", SceneArrays, (

@@ -167,3 +167,35 @@ def test_a_ray_through_the_hole_is_not_proven():
     ball = solid_ball(mesh.vertices, mesh.triangles)
     prove_rays(sa.inst_inv, 0, *ball, o, d, tmax, np.arange(200), proof)
     assert not (proof[~truth] > 0).any()
+
+
+@pytest.mark.parametrize("accel_name", ["BVH", "BRUTE_FORCE"])
+def test_scene_query_is_its_objects(placed, accel_name):
+    """What the re-shade relies on (``Accelerator.any_hit_by_object``): a ray's any-hit
+    answer over the whole scene is, bit for bit, whether one of the live objects' own
+    tests meets it -- rays grazing the objects' boxes included."""
+    scene, sa, names = placed
+    accel = create_accelerator(accel_name, sa)
+    assert accel.any_hit_by_object
+    rng = np.random.default_rng(11)
+    o, d, tmax = [], [], []
+    for _, i in names[::3]:
+        a, b, c = _rays(sa, i, rng, 1500)
+        o.append(a)
+        d.append(b)
+        tmax.append(c)
+        lo, hi = sa.inst_aabb[i]  # (rays along the box's faces and edges)
+        corner = np.where(rng.random((300, 3)) < 0.5, lo, hi)
+        start = corner + rng.normal(size=(300, 3)) * np.linalg.norm(hi - lo)
+        o.append(start)
+        dd = corner - start
+        d.append(dd / np.linalg.norm(dd, axis=1)[:, None])
+        tmax.append(np.full(300, np.inf))
+    o, d, tmax = np.concatenate(o), np.concatenate(d), np.concatenate(tmax)
+    zero = np.zeros(len(o))
+    any_hit = accel.any_hit(o, d, zero, tmax)
+    each = np.zeros(len(o), bool)
+    for i in np.flatnonzero(sa.inst_alive):
+        each |= accel.occludes_object(np.full(len(o), i, np.int32), o, d, zero, tmax)
+    np.testing.assert_array_equal(any_hit, each)
+    assert 0.2 < any_hit.mean() < 0.95

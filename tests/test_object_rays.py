@@ -199,3 +199,22 @@ def test_scene_query_is_its_objects(placed, accel_name):
         each |= accel.occludes_object(np.full(len(o), i, np.int32), o, d, zero, tmax)
     np.testing.assert_array_equal(any_hit, each)
     assert 0.2 < any_hit.mean() < 0.95
+
+
+def test_a_large_mesh_proves_nothing(monkeypatch):
+    """Over the size examined (object_rays.SOLID_MAX_TRIS) a mesh gets no proof either
+    way: every ray goes to the accelerator."""
+    from rstrace_engine.tracing import object_rays
+
+    mesh = shapes.icosphere(2)
+    monkeypatch.setattr(object_rays, "SOLID_MAX_TRIS", len(mesh.triangles) - 1)
+    c, r_in, r_out = solid_ball(mesh.vertices, mesh.triangles)
+    assert r_in == 0.0 and r_out == np.inf
+    rng = np.random.default_rng(5)
+    o = rng.normal(size=(500, 3)) * 4.0
+    d = rng.normal(size=(500, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    proof = np.ones(500, np.int8)
+    prove_rays(np.eye(4)[None], 0, c, r_in, r_out, o, d, np.full(500, np.inf),
+               np.arange(500), proof)
+    assert (proof == 0).all()

@@ -51,16 +51,19 @@ def solid_ball(verts: np.ndarray, tris: np.ndarray) -> tuple:
     """``(c (3,), r_in, r_out)`` of a mesh (``tris`` (T, 3) into ``verts``), in its own
     space (module doc): ``r_out`` the grown radius of its vertices about ``c``, ``r_in``
     the shrunk inner radius, 0 where the mesh is not closed and oriented or ``c`` does
-    not see all of it from inside. ``c``: the centre of its vertices' box."""
+    not see all of it from inside. ``c``: the centre of its vertices' box. A mesh of more
+    than :data:`SOLID_MAX_TRIS` triangles proves nothing (``r_out`` infinite)."""
+    if len(tris) > SOLID_MAX_TRIS:
+        return np.zeros(3), 0.0, np.inf
     used = np.unique(tris)
     v = np.asarray(verts[used], np.float64)
     if len(v) == 0:
-        return np.zeros(3), 0.0, -1.0
+        return np.zeros(3), 0.0, 0.0  # (no triangle: every ray misses)
     c = 0.5 * (v.min(axis=0) + v.max(axis=0))
     r = float(np.sqrt(((v - c) ** 2).sum(axis=1).max()))
     grow = tol.SOLID_BALL_REL * r
     r_out = r + grow
-    if len(tris) > SOLID_MAX_TRIS or not _closed_oriented(v, np.searchsorted(used, tris)):
+    if not _closed_oriented(v, np.searchsorted(used, tris)):
         return c, 0.0, r_out
     a, b, e = (np.asarray(verts[tris[:, k]], np.float64) for k in range(3))
     n = np.cross(b - a, e - a)

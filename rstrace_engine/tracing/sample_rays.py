@@ -25,7 +25,9 @@ seed (interpolated samples).
 The hits' lights are found *per light* (:func:`query_light_bits`) and the world's rays apart
 (:func:`query_world`), at the primary and at the secondary nodes: a sample whose only dirty
 rays are these shadow rays keeps its rays and its other terms, and the incremental frame
-shades just those lights (or the world) again at those nodes (:mod:`.shadow_reshade`).
+shades just those lights (or the world) again at those nodes (:mod:`.shadow_reshade`),
+testing again only the samples the queries found (:class:`SampleCandidates`), exactly
+(:func:`crossing_rows`).
 """
 
 from __future__ import annotations

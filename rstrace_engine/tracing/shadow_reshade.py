@@ -36,6 +36,14 @@ from the bits, with the tracer's arithmetic in its order (the ratio estimator's 
 bits are dropped (re-shaded lights then trace all their samples, as above) when a light's
 shadows may move: a light moved or added (or its extent, kind or links changed), the world
 starting or stopping to light.
+
+**Which samples, against what.** The records' queries keep, per row, the samples they found
+may cross (:class:`~.sample_rays.SampleCandidates`: an area light's, a sun's, the world's;
+a sphere light's rows have none), and only those are tested again exactly. A sample that
+was unblocked is then tested against the objects the edits placed alone (it met nothing
+else), one that was blocked against them first and the whole scene only where they do not
+block it (:func:`_blocked`); most of those rays are answered by proofs on the placed
+object, without its tree (:mod:`.object_rays`).
 """
 
 from __future__ import annotations

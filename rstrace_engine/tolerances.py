@@ -163,6 +163,16 @@ RECORD_DIR_ERROR = 2e-4
 #: the points' quantisation step) to cover spawn offsets and rounding.
 RECORD_SLACK_REL = 1e-6
 
+#: Re-shaded soft samples' rays against one edited object (:mod:`~.tracing.object_rays`):
+#: its vertices' sphere is grown, and the ball its closed surface holds shrunk, by this
+#: fraction of that sphere's radius -- the least angle a proven ray crosses a triangle at
+#: is half of it, ~10^10 times the rounding of the watertight test ...
+SOLID_BALL_REL = 1e-6
+#: ... and each ray's distance to the centre is trusted to this fraction of its object-space
+#: coordinates' magnitude (its origin's distance plus the length to its closest point):
+#: the world -> object transform rounds in proportion to them.
+SOLID_RAY_SLACK_REL = 1e-12
+
 # ----------------------------------------------------------------------------- visibility field
 
 #: Visibility field: triangles are scan-converted into tiles with their projection grown by

@@ -184,7 +184,7 @@ def test_crossing_windows_drop_no_sample():
     region's cone before drawing them: on every point of a soft_room frame, for every
     light and the world, against regions around and between the objects, it finds
     exactly the samples it finds drawing them all."""
-    from rstrace_engine.tracing.sample_rays import crossing_rows
+    from rstrace_engine.tracing.sample_rays import ALL, crossing_rows
     from rstrace_engine.tracing.shadow_reshade import _surfaces
 
     settings = RenderSettings(mode="BASE", max_depth=1, light_samples=16)
@@ -217,7 +217,8 @@ def test_crossing_windows_drop_no_sample():
             count = np.empty(len(pt), np.int64)
             crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat,
                           np.ascontiguousarray(geo["seed"], np.uint64), pt, lj, 16, lo, hi,
-                          cen, rad, tag, old, windows, mask, count)
+                          cen, rad, tag, old, np.full(len(pt), ALL), windows, mask,
+                          count)
             out.append((mask, count))
         np.testing.assert_array_equal(out[0][0], out[1][0])
         np.testing.assert_array_equal(out[0][1], out[1][1])
@@ -254,7 +255,7 @@ def test_sample_windows_hold_every_direction_in_the_cone(form):
             cv[q, :3] = w * dist
             cv[q, 3] = np.cos(h) * dist
         win = np.empty((2, 4))
-        _windows(form, *a, omc, cv, win)
+        _windows(form, *a, omc, cv, win, np.full(2, 3, np.int8), 3)
         for u, v in rng.uniform(0.0, 1.0, size=(500, 2)):
             d = np.array(_cosine_dir(*a, u, v) if form == 1 else _cone_dir(*a, omc, u, v))
             inside = any(d @ w >= np.cos(h) for w, h in hs)

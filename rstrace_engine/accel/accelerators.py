@@ -90,6 +90,7 @@ class BruteForce(Accelerator):
     """Every triangle of every instance, in numba: slow, simple, the test oracle."""
 
     name = "BRUTE_FORCE"
+    any_hit_by_object = True  # (every live object's triangles, one after another)
 
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)
@@ -175,6 +176,9 @@ class BVHAccelerator(Accelerator):
     """
 
     name = "BVH"
+    # (the top level's boxes hold their objects' conservative boxes: the object-space test
+    # of an object whose triangle a ray meets is reached whatever else the tree holds)
+    any_hit_by_object = True
 
     def __init__(self, scene_arrays: SceneArrays, cancel=None,
                  kept: KeptBVHs | None = None) -> None:

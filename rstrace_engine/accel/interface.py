@@ -86,6 +86,13 @@ class Accelerator:
 
     name = "?"
 
+    #: :meth:`any_hit` of a ray is, bit for bit, :meth:`occludes_object` of one of the live
+    #: objects (the same object-space test, whichever tree reaches it): a ray that met
+    #: nothing meets, after an edit, only what the edit placed (tracing/shadow_reshade.py
+    #: tests kept visible samples against the edited objects alone). False where a query
+    #: of the whole scene may differ (Embree's float32 scene)
+    any_hit_by_object = False
+
     #: The stop flag the kernels poll (:mod:`rstrace_engine.cancel`); bound by
     #: :meth:`cancellable`, never set otherwise.
     _stop = bvh.NEVER_STOP

@@ -48,6 +48,9 @@ from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
 from .soft_lights import has_soft_light, world_lights
 
+#: the most placed objects whose rays the re-shade tests one by one (more: the whole scene)
+PLACED_MAX = 8
+
 
 class FrameReuse:
     """The last frame and what the next one may keep of it (see the module doc)."""
@@ -85,6 +88,10 @@ class FrameReuse:
         self.reshade_s_lights: np.ndarray | None = None
         self.reshade_s_world: np.ndarray | None = None
         self.reshade_regions: list = []  # the edited objects since: (lo, hi, c, r, tag)
+        self.reshade_changed: set = set()  # and their instance slots
+        # the samples of those nodes the records' queries found may cross them
+        # (sample_rays.SampleCandidates), or None
+        self.reshade_cand = self.reshade_s_cand = None
 
     def keep_only(self, frame: Frame | None) -> None:
         """A frame without records (RI_TREE, the thickness view): kept for scripts, but the
@@ -268,6 +275,7 @@ class FrameReuse:
             if len(lo):
                 self.reshade_regions.append((lo - margin, hi + margin, c,
                                              r + float(np.linalg.norm(margin)), tag))
+            self.reshade_changed |= fx.geometry
             report.reshade_pixels = int(np.count_nonzero(self.reshade_pixels))
         else:
             dirty = rec.dirty_pixels(old_sa, camera_params(camera), fx)
@@ -315,7 +323,7 @@ class FrameReuse:
         """The dirty pixels of :meth:`~.pixel_records.PixelRecords.dirty_split`'s ``(full,
         lights, world)``: those with a sample dirty in full; the other samples' lights and
         world to shade again are added to the pending ones."""
-        full, lights, world, s_lights, s_world = split
+        full, lights, world, s_lights, s_world, cand, s_cand = split
         rec = self.records
         spp, n = rec.spp, rec.n_pixels
         dirty = full.reshape(spp, n).any(axis=0)
@@ -328,11 +336,14 @@ class FrameReuse:
         if self.reshade_lights is None:
             self.reshade_lights, self.reshade_world = lights, world
             self.reshade_s_lights, self.reshade_s_world = s_lights, s_world
+            self.reshade_cand, self.reshade_s_cand = cand, s_cand
         else:
             self.reshade_lights |= lights
             self.reshade_world |= world
             self.reshade_s_lights |= s_lights
             self.reshade_s_world |= s_world
+            self.reshade_cand = self.reshade_cand.merged(cand)
+            self.reshade_s_cand = self.reshade_s_cand.merged(s_cand)
         return dirty
 
     @property
@@ -366,6 +377,22 @@ class FrameReuse:
         self.reshade_lights = self.reshade_world = None
         self.reshade_s_lights = self.reshade_s_world = None
         self.reshade_regions = []
+        self.reshade_changed = set()
+        self.reshade_cand = self.reshade_s_cand = None
+
+    def _placed(self, sa, accel) -> tuple | None:
+        """The live objects (instance slots of ``sa``) the pending edits placed -- moved,
+        added, re-meshed or shown since the records' frame: a kept sample that was
+        unblocked can meet no other (:func:`~.shadow_reshade._blocked`) -- or None where
+        the whole scene is queried: an accelerator whose scene query is not its objects'
+        (:attr:`~..accel.interface.Accelerator.any_hit_by_object`), shadow linking (a
+        ray's blockers are per light), or more than :data:`PLACED_MAX` objects."""
+        if not getattr(accel, "any_hit_by_object", False) or links_shadows(sa):
+            return None
+        alive = np.asarray(sa.inst_alive, bool)
+        live = tuple(sorted(i for i in self.reshade_changed if 0 <= i < len(alive)
+                            and alive[i]))
+        return live if len(live) <= PLACED_MAX else None
 
     def _relights(self, fx, old_sa, new_sa) -> bool:
         """The batch ``fx`` edits only lights and the world, and the light terms can
@@ -435,11 +462,12 @@ class FrameReuse:
                                 for r in zip(*self.reshade_regions, strict=True))
             elif rec.p_vis is not None:
                 rec.drop_visibility()  # (no region to test the kept samples against)
+            changed = self._placed(sa, accel)
             done = reshade(lr, sa, accel, lights, world, int(settings.light_samples),
                            int(settings.max_depth) > 0,
-                           rec.p_vis if regions is not None else None, regions, counters)
-            for j, (rows, lit) in done.items():
-                rec.set_lit_at(j, rows, lit)
+                           rec.p_vis if regions is not None else None, regions, counters,
+                           changed=changed, cand=self.reshade_cand)
+            rec.set_lit_at(done)
             # and at their secondary nodes (mirror and refraction hits)
             s_keep = keep[rec.secondary_rays()]
             s_lights = np.where(s_keep, self.reshade_s_lights, np.uint64(0))
@@ -448,9 +476,9 @@ class FrameReuse:
                 done = reshade(lr, sa, accel, s_lights, s_world, int(settings.light_samples),
                                rec.secondary_depths() < int(settings.max_depth),
                                rec.s_vis if regions is not None else None, regions,
-                               counters, secondary=True)
-                for j, (rows, lit) in done.items():
-                    rec.set_lit_at(j, rows, lit, secondary=True)
+                               counters, secondary=True, changed=changed,
+                               cand=self.reshade_s_cand)
+                rec.set_lit_at(done, secondary=True)
             split["reshade"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         gain = self._term_samples(settings) if self.term_jobs else None
@@ -481,6 +509,7 @@ class FrameReuse:
                                   relit_lights=moved, reshaded_pixels=reshaded,
                                   relight_shadow_rays=counters.get("shadow", 0),
                                   relight_shadow_skipped=counters.get("shadow_skipped", 0),
+                                  relight_shadow_proven=counters.get("shadow_proven", 0),
                                   relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)

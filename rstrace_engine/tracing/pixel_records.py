@@ -63,6 +63,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.edits import PART_NEW, PART_OLD
+from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from .batches import threads_for
 from .light_linking import links_shadows
 from .light_records import LightRecords
@@ -75,7 +76,7 @@ from .record_codes import (
     light_geometry,
 )
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
-from .sample_rays import query_light_bits, query_world
+from .sample_rays import SampleCandidates, query_light_bits, query_world
 from .soft_lights import world_lights
 
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
@@ -438,26 +439,30 @@ class PixelRecords:
         self.p_vis = self.s_vis = None
         self.vis_off = True
 
-    def set_lit_at(self, j: int, rows: np.ndarray, lit: np.ndarray,
-                   secondary: bool = False) -> None:
-        """Light ``j``'s visibility bit of the primary (``secondary``: the secondary) nodes
-        ``rows`` after it was shaded again there (:mod:`.shadow_reshade`; its traced bit is
-        unchanged: the point and the light are)."""
+    def set_lit_at(self, done: dict, secondary: bool = False) -> None:
+        """Each light ``j``'s visibility bit of the primary (``secondary``: the secondary)
+        nodes ``rows`` after it was shaded again there, ``done[j] = (rows, lit)``
+        (:mod:`.shadow_reshade`; its traced bit is unchanged: the point and the light
+        are); the table compacted once."""
         name = "s_combo" if secondary else "p_combo"
-        combo = getattr(self, name)
-        bit = np.uint64(1) << np.uint64(j)
-        c = combo[rows].astype(np.int64)
-        old = self.t_lit[c].astype(np.uint64)
-        new = np.where(lit, old | bit, old & ~bit)
-        ch = new != old
-        if not ch.any():
-            return
-        ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
-                           self.t_flags[c[ch]])
-        arr = combo.astype(np.uint32)
-        arr[rows[ch]] = ids
-        setattr(self, name, arr)
-        self._compact()
+        arr = getattr(self, name)
+        wide = False
+        for j, (rows, lit) in done.items():
+            bit = np.uint64(1) << np.uint64(j)
+            c = arr[rows].astype(np.int64)
+            old = self.t_lit[c].astype(np.uint64)
+            new = np.where(lit, old | bit, old & ~bit)
+            ch = new != old
+            if not ch.any():
+                continue
+            ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
+                               self.t_flags[c[ch]])
+            if not wide:
+                arr, wide = arr.astype(np.uint32), True
+            arr[rows[ch]] = ids
+        if wide:
+            setattr(self, name, arr)
+            self._compact()
 
     @property
     def nbytes(self) -> int:
@@ -475,7 +480,7 @@ class PixelRecords:
         """(n_rays,) bool: the samples edits ``fx`` (an :class:`~.edits.EditEffects`) may
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
-        full, lights, world, s_lights, s_world = self.dirty_split(sa, cp, fx)
+        full, lights, world, s_lights, s_world, _, _ = self.dirty_split(sa, cp, fx)
         out = full | (lights != 0) | world
         if len(s_lights):
             _mark_rays(self.secondary_rays(), (s_lights != 0) | s_world, out)
@@ -483,14 +488,16 @@ class PixelRecords:
 
     def dirty_split(self, sa, cp, fx) -> tuple:
         """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
-        world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool)`` -- ``full`` the
+        world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool, cand, s_cand)`` --
+        ``full`` the
         samples whose primary ray, reflection or refraction rays, hard lights' shadow rays,
         hit objects, materials or lights the edits may change; for the others, ``lights``
         the lights with an extent (bits) and ``world`` the world's light whose shadow rays
         at the primary hit may cross an edited box, ``s_lights`` and ``s_world`` the same
         at each secondary node (recorded with its normal and seed: :attr:`s_wnorm`; else
         those rays make the sample dirty in full) -- their terms alone may change
-        (:mod:`.shadow_reshade`)."""
+        (:mod:`.shadow_reshade`), ``cand`` and ``s_cand`` which of their samples
+        (:class:`~.sample_rays.SampleCandidates`)."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -583,17 +590,18 @@ class PixelRecords:
                             box, kind, pos, ldir, crossed, primary=view)
                 out |= crossed
             parts = (p_lo, p_hi, p_c, p_r, p_tag)
-            lights, world = self._sampled(sa, self.p_combo, self.p_code, self.p_wnorm,
-                                          self.p_seed, self.p_vis, is_hit, inst64,
-                                          combo_traced, soft, world_rays, parts, pos, out)
+            lights, world, cand = self._sampled(
+                sa, self.p_combo, self.p_code, self.p_wnorm, self.p_seed, self.p_vis,
+                is_hit, inst64, combo_traced, soft, world_rays, parts, pos, out)
             m = len(self.s_parent)
             s_lights, s_world = np.zeros(m, np.uint64), np.zeros(m, np.bool_)
+            s_cand = SampleCandidates.of(len(sa.light_kind) + 1, [])
             if sec_rays:  # the secondary hits' own rays, as the primary hits' (above)
-                s_lights, s_world = self._sampled(
+                s_lights, s_world, s_cand = self._sampled(
                     sa, self.s_combo, self.s_code, self.s_wnorm, self.s_seed, self.s_vis,
                     is_hit, inst64, combo_traced, soft, world_rays, parts, pos,
                     out[self.secondary_rays()])
-        return out, lights, world, s_lights, s_world
+        return out, lights, world, s_lights, s_world, cand, s_cand
 
     def _sampled(self, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_traced,
                  soft, world_rays: bool, parts: tuple, pos, skip) -> tuple:
@@ -602,36 +610,46 @@ class PixelRecords:
         boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
         secondary ones) with their recorded normals, seeds and soft samples' visibility
         ``vis``, the nodes whose sample is in ``skip`` (traced again) left out: ``(lights
-        (k,) uint64, world (k,) bool)``."""
+        (k,) uint64, world (k,) bool, SampleCandidates)``."""
         k = len(combo)
+        L = len(sa.light_kind)
         lights = np.zeros(k, np.uint64)
         world = np.zeros(k, np.bool_)
         p_lo, p_hi, p_c, p_r, p_tag = parts
         skip = np.ascontiguousarray(skip)
+        # the samples' visibility in the records' frame: visible ones tested where
+        # objects came, blocked ones where they went (sample_rays)
+        known = vis is not None and not links_shadows(sa)
+        old = np.ascontiguousarray(vis, np.uint64) if known else np.zeros((0, 0), np.uint64)
+        tag = p_tag if known else np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
+        columns = []
         if soft:
             if wnorm is None:  # (no seeds recorded: the shaft tests)
                 wnorm = np.full((k, 3), np.nan, np.float32)
                 seed = np.zeros(k, np.uint64)
+            per = [j for j in range(L) if soft >> np.uint64(j) & np.uint64(1)
+                   and sa.light_kind[j] in (LIGHT_AREA, LIGHT_SUN)]
+            cols = np.full(L, -1, np.int64)
+            cols[per] = np.arange(len(per))
+            masks = np.zeros((k, max(len(per), 1)), np.uint64)
             query_light_bits(sa, combo, code, inst64, combo_traced, wnorm, seed,
                              self.w_samples, soft, self.lo, self.step, self.levels,
-                             self.shift, p_lo, p_hi, p_c, p_r, pos, skip, lights)
+                             self.shift, p_lo, p_hi, p_c, p_r, tag, pos, old, skip, lights,
+                             cols, masks)
+            columns += [(j, masks[:, cols[j]]) for j in per]
         if world_rays:
             if wnorm is None:
                 world = is_hit[combo.astype(np.int64)] & ~skip
             else:
-                w_out = skip.copy()
-                # the world's samples' visibility in the records' frame: visible ones
-                # tested where objects came, blocked ones where they went (query_world)
-                if vis is not None and not links_shadows(sa):
-                    w_old = np.ascontiguousarray(vis[:, self.w_lights], np.uint64)
-                else:
-                    w_old = np.zeros(k, np.uint64)
-                    p_tag = np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
+                w_old = (np.ascontiguousarray(old[:, self.w_lights]) if known
+                         else np.zeros(k, np.uint64))
+                w_bits = np.empty(k, np.uint64)
                 query_world(combo, code, inst64, wnorm, seed, self.w_samples, self.lo,
-                            self.step, self.levels, self.shift, p_c, p_r, p_tag, w_old,
-                            w_out)
-                world = w_out & ~skip
-        return lights, world
+                            self.step, self.levels, self.shift, p_c, p_r, tag, w_old, skip,
+                            w_bits)
+                world = w_bits != 0
+                columns.append((L, w_bits))
+        return lights, world, SampleCandidates.of(L + 1, columns)
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
                reg_lo, reg_hi, seg, kind, pos, ldir, out, primary: bool = True) -> None:

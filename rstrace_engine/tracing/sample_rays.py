@@ -25,12 +25,15 @@ seed (interpolated samples).
 The hits' lights are found *per light* (:func:`query_light_bits`) and the world's rays apart
 (:func:`query_world`), at the primary and at the secondary nodes: a sample whose only dirty
 rays are these shadow rays keeps its rays and its other terms, and the incremental frame
-shades just those lights (or the world) again at those nodes (:mod:`.shadow_reshade`).
+shades just those lights (or the world) again at those nodes (:mod:`.shadow_reshade`),
+testing again only the samples the queries found (:class:`SampleCandidates`), exactly
+(:func:`crossing_rows`).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -55,13 +58,15 @@ from .soft_lights import (
 
 @njit(cache=True, nogil=True, parallel=True)
 def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, lo, step, levels, shift,
-                reg_c, reg_r, reg_tag, old, out):
+                reg_c, reg_r, reg_tag, old, skip, out):
     """The world's rays of every primary hit against the edited regions (their bounding
     spheres ``reg_c, reg_r``, grown like every region by the quantisation and the spawn
     offset): each of the point's ``n`` cosine-weighted directions, regenerated from its
     shading normal and node seed as the tracer drew them (:func:`~.soft_lights.
     world_row_hash`), is a ray to infinity; a region it may meet
-    dirties the sample. Samples with no recorded normal (NaN) are dirty. Regions wholly
+    dirties the sample. ``out`` (n_rays,) uint64: the bits of those samples (assigned; 0
+    where ``skip``), every bit (:data:`ALL`) where the hit has no recorded normal (NaN) or
+    lies in a region's sphere. Regions wholly
     below the tangent plane of the shading normal are skipped (every world ray leaves above
     it); a sample whose ``(u, v)`` puts its direction outside every region's cone is not
     drawn (:func:`_windows`). As :func:`crossing_rows`, a sample visible in the records'
@@ -74,37 +79,47 @@ def query_world(p_combo, p_code, combo_inst, wnorm, seed, n, lo, step, levels, s
         cv = np.empty((k_reg, 4))
         win = np.empty((k_reg, 4))
         for g in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
-            if not out[g] and combo_inst[p_combo[g]] >= 0:
-                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, lo, step,
-                                        levels, shift, reg_c, reg_r, reg_tag, old[g], cv,
-                                        win)
+            out[g] = np.uint64(0)
+            if not skip[g] and combo_inst[p_combo[g]] >= 0:
+                out[g] = _world_crosses(p_code[g], wnorm, seed[g], g, n, lo, step, levels,
+                                        shift, reg_c, reg_r, reg_tag, old[g], cv, win)
+
+
+#: a row's candidate samples when any may cross (no per-sample answer: every bit)
+ALL = ~np.uint64(0)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_r, reg_tag,
                    old, cv, win):
-    """:func:`query_world` of primary hit ``g``; ``cv``, ``win`` (k_reg, 4) scratch."""
+    """:func:`query_world` of primary hit ``g`` (its samples' bits); ``cv``, ``win`` (k_reg,
+    4) scratch."""
     k_reg = reg_c.shape[0]
     err = tol.RECORD_DIR_ERROR
     sx = float(wnorm[g, 0])
     sy = float(wnorm[g, 1])
     sz = float(wnorm[g, 2])
     if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
-        return True  # unknown, or a normal whose basis could flip side
+        return ALL  # unknown, or a normal whose basis could flip side
     nl = math.sqrt(sx * sx + sy * sy + sz * sz)
     sx /= nl
     sy /= nl
     sz /= nl
     px, py, pz = _decode_point(code, lo, step, levels, shift)
+    full = (np.uint64(1) << np.uint64(n)) - np.uint64(1) if n < 64 else ~np.uint64(0)
+    need = (PART_NEW if old != np.uint64(0) else 0) | (PART_OLD if old & full != full else 0)
     some = False
     for q in range(k_reg):
+        if not reg_tag[q] & need:
+            cv[q, 3] = np.inf  # (no sample tests it)
+            continue
         vx = reg_c[q, 0] - px
         vy = reg_c[q, 1] - py
         vz = reg_c[q, 2] - pz
         dist = math.sqrt(vx * vx + vy * vy + vz * vz)
         r = reg_r[q]
         if dist <= r:
-            return True
+            return ALL
         cv[q, 0] = vx
         cv[q, 1] = vy
         cv[q, 2] = vz
@@ -115,12 +130,13 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
         cv[q, 3] = (math.cos(half) if half < math.pi else -1.0) * dist
         some = True
     if not some:
-        return False
-    _windows(1, sx, sy, sz, 0.0, cv, win)
+        return np.uint64(0)
+    _windows(1, sx, sy, sz, 0.0, cv, win, reg_tag, need)
     for q in range(k_reg):
         if cv[q, 3] == np.inf:
             win[q, 0] = 2.0  # (no sample)
     h = world_row_hash(seed)
+    b = np.uint64(0)
     for s in range(n):
         u, v = row_uv(h, n, s)
         if not _in_window(win, u, v):
@@ -130,16 +146,20 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
         for q in range(k_reg):
             if reg_tag[q] & need and cv[q, 3] < np.inf and \
                     dx * cv[q, 0] + dy * cv[q, 1] + dz * cv[q, 2] >= cv[q, 3]:
-                return True
-    return False
+                b |= np.uint64(1) << np.uint64(s)
+                break
+    return b
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
     """Can a shadow ray from p to light j come within ``r`` of c (a region's sphere)? As
     :func:`~.record_codes._light_hit`: every segment from p to a point within the light's
-    bounding radius g of its centre stays within g of the segment to the centre; a sun's
-    rays are a cone of directions (or one ray)."""
+    bounding radius g of its centre stays within g of the segment to the centre, and its
+    direction within ``asin(g / e)`` of the centre's (``e`` its distance; the sphere's
+    directions within ``asin(r / |c - p|)`` of c's, both widened by
+    :data:`~.tolerances.RECORD_DIR_ERROR` for rounding); a sun's rays are a cone of
+    directions (or one ray)."""
     if light_kind[j] == LIGHT_SUN:
         if lgeo[j, 4] > 0.0:
             return _cone_sphere(px, py, pz, -light_dir[j, 0], -light_dir[j, 1],
@@ -152,8 +172,15 @@ def _shaft_sphere(px, py, pz, j, cx, cy, cz, r, light_kind, lgeo, light_dir):
     e = math.sqrt(dx * dx + dy * dy + dz * dz)
     if e == 0.0:
         return True
-    return _segment_sphere(px, py, pz, dx / e, dy / e, dz / e, e, cx, cy, cz,
-                           r + lgeo[j, 3] + tol.RECORD_SLACK_REL * e)
+    g = lgeo[j, 3] + tol.RECORD_SLACK_REL * e
+    if not _segment_sphere(px, py, pz, dx / e, dy / e, dz / e, e, cx, cy, cz, r + g):
+        return False
+    vx, vy, vz = cx - px, cy - py, cz - pz
+    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if dist <= r or e <= g:
+        return True
+    c = min(1.0, max(-1.0, (vx * dx + vy * dy + vz * dz) / (dist * e)))
+    return math.acos(c) <= math.asin(r / dist) + math.asin(g / e) + tol.RECORD_DIR_ERROR
 
 
 _BitsScene = view_type("_BitsScene", SceneArrays, (
@@ -164,19 +191,26 @@ _BitsScene = view_type("_BitsScene", SceneArrays, (
 
 @njit(cache=True, nogil=True, parallel=True)
 def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
-                     lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r, lgeo, skip, bits):
+                     lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r, reg_tag, lgeo,
+                     vis, skip, bits, cols, masks):
     """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
     with an extent) whose shadow rays there may cross a grown region -- its box ``reg_lo,
     reg_hi`` and its sphere ``reg_c, reg_r`` both (the edited objects, old and new apart:
     :attr:`~.edits.EditEffects.parts`) -- as bits of ``bits`` (n_rays,) uint64 (assigned).
     Area lights and suns with an angle regenerate the point's own samples from its node
-    seed (module doc); sphere lights, and every light of a sample without a recorded seed
-    (NaN normal), get the shaft test of :func:`~.record_codes._light_hit` and
+    seed (module doc), where the light's shaft from the point comes near a region's
+    sphere (:func:`_shaft_sphere`), and give their bits in ``masks[g, cols[j]]`` (left
+    as they are elsewhere); with the samples' visibility ``vis`` (n_rays, L + 1) uint64
+    (empty: unknown), a visible sample is tested against the regions whose ``reg_tag`` is
+    :data:`~.edits.PART_NEW`, a blocked one against :data:`~.edits.PART_OLD` (as
+    :func:`crossing_rows`). Sphere lights, and every light of a sample without a recorded
+    seed (NaN normal), get the shaft test of :func:`~.record_codes._light_hit` and
     :func:`_shaft_sphere` (``lgeo``: :func:`~.record_codes.light_geometry`). ``sa``: the
     packing the records describe."""
     sa = _BitsScene(*fields(sa, _BitsScene))  # the fields its loop reads
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
+    known_vis = vis.shape[0] > 0
     for g in prange(p_combo.shape[0]):
         bits[g] = np.uint64(0)
         c = p_combo[g]
@@ -194,18 +228,27 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
                 continue
             kind = sa.light_kind[j]
             sun = kind == LIGHT_SUN
+            near = False
+            for q in range(k_reg):
+                if _shaft_sphere(px, py, pz, j, reg_c[q, 0], reg_c[q, 1], reg_c[q, 2],
+                                 reg_r[q], sa.light_kind, lgeo, sa.light_dir) and (
+                        (known and (sun or kind == LIGHT_AREA)) or _light_hit(
+                            px, py, pz, j, reg_lo[q], reg_hi[q], sa.light_kind, lgeo,
+                            sa.light_dir)):
+                    near = True
+                    break
+            if not near:
+                continue
             if not known or not (sun or kind == LIGHT_AREA):
-                for q in range(k_reg):
-                    if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], sa.light_kind, lgeo,
-                                  sa.light_dir) and _shaft_sphere(
-                            px, py, pz, j, reg_c[q, 0], reg_c[q, 1], reg_c[q, 2], reg_r[q],
-                            sa.light_kind, lgeo, sa.light_dir):
-                        out |= bit
-                        break
+                out |= bit
                 continue
             h = row_hash(seed[g], j, L)
-            hit = False
+            old = vis[g, j] if known_vis else np.uint64(0)
+            b = np.uint64(0)
             for s in range(n):
+                need = PART_OLD | PART_NEW
+                if known_vis:
+                    need = PART_NEW if (old >> np.uint64(s)) & np.uint64(1) else PART_OLD
                 u, v = row_uv(h, n, s)
                 dx, dy, dz, t, _ = _sample_one(sa, j, px, py, pz, u, v)
                 if not sun:
@@ -214,17 +257,61 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
                 ey = py + dy * (1.0 if sun else t)
                 ez = pz + dz * (1.0 if sun else t)
                 for q in range(k_reg):
-                    if _segment_sphere(px, py, pz, dx, dy, dz, np.inf if sun else t,
-                                       reg_c[q, 0], reg_c[q, 1], reg_c[q, 2], reg_r[q]) \
-                            and _segment_box(px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q],
-                                             sun):
-                        hit = True
+                    if reg_tag[q] & need and _segment_sphere(
+                            px, py, pz, dx, dy, dz, np.inf if sun else t, reg_c[q, 0],
+                            reg_c[q, 1], reg_c[q, 2], reg_r[q]) and _segment_box(
+                                px, py, pz, ex, ey, ez, reg_lo[q], reg_hi[q], sun):
+                        b |= np.uint64(1) << np.uint64(s)
                         break
-                if hit:
-                    break
-            if hit:
+            if b != np.uint64(0):
                 out |= bit
+                if cols[j] >= 0:
+                    masks[g, cols[j]] = b
         bits[g] = out
+
+
+class SampleCandidates(NamedTuple):
+    """Per row of the records' nodes -- a node and a column, a light slot or ``L`` the
+    world -- the soft samples whose rays an edit batch may cross, as the records' queries
+    found them (:func:`query_light_bits`' masks, :func:`query_world`): sorted keys ``node
+    * width + column`` (``width``: ``L + 1``) and their sample bits. A row with none has
+    no per-sample answer (a sphere light's shaft test): :data:`ALL`. The re-shade tests
+    just those samples again, exactly (:func:`crossing_rows`' ``cand``)."""
+
+    key: np.ndarray  # (m,) int64, sorted
+    bits: np.ndarray  # (m,) uint64
+    width: int
+
+    @classmethod
+    def of(cls, width: int, columns: list) -> SampleCandidates:
+        """From ``(column, bits (k,) uint64)`` pairs over the nodes (0: none)."""
+        keys, bits = [np.zeros(0, np.int64)], [np.zeros(0, np.uint64)]
+        for c, m in columns:
+            idx = np.flatnonzero(m)
+            keys.append(idx * width + c)
+            bits.append(np.asarray(m[idx], np.uint64))
+        key, bit = np.concatenate(keys), np.concatenate(bits)
+        order = np.argsort(key, kind="stable")
+        return cls(key[order], bit[order], int(width))
+
+    def merged(self, other: SampleCandidates) -> SampleCandidates:
+        """Both batches' candidates (a row's bits or-ed)."""
+        key = np.concatenate([self.key, other.key])
+        bit = np.concatenate([self.bits, other.bits])
+        order = np.argsort(key, kind="stable")
+        key, bit = key[order], bit[order]
+        first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+        if len(key) == 0:
+            return self
+        return SampleCandidates(key[first], np.bitwise_or.reduceat(bit, first), self.width)
+
+    def of_rows(self, nodes: np.ndarray, column: int) -> np.ndarray:
+        """(len nodes,) uint64: the candidate bits of the nodes' rows of ``column``."""
+        if len(self.key) == 0:
+            return np.full(len(nodes), ALL, np.uint64)
+        q = np.asarray(nodes, np.int64) * self.width + int(column)
+        k = np.minimum(np.searchsorted(self.key, q), len(self.key) - 1)
+        return np.where(self.key[k] == q, self.bits[k], ALL)
 
 
 #: the most samples per (point, light) row whose visibility the records keep as bits
@@ -349,7 +436,7 @@ def _row_axis(sa, j, L, inside, qx, qy, qz, sx, sy, sz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _windows(form, ax, ay, az, omc, cv, win):
+def _windows(form, ax, ay, az, omc, cv, win, reg_tag, need):
     """Per region (its sphere's cone from the point: :func:`crossing_rows`' ``cv``) the
     samples of a row (:func:`_row_axis`) whose direction may lie in that cone, as a window
     of the unit square: ``win[q] = (u_lo, u_hi, phi_c, dphi)`` -- u within [u_lo, u_hi] and
@@ -357,13 +444,17 @@ def _windows(form, ax, ay, az, omc, cv, win):
     cone of half angle h about a direction at polar angle alpha from a holds polar angles
     within h of alpha and (alpha > h) azimuths within ``asin(sin h / sin alpha)`` of its
     own; both widened by :data:`~.tolerances.RECORD_DIR_ERROR` (the rounding of the
-    sample's direction is far below it)."""
+    sample's direction is far below it). A region whose ``reg_tag`` is not in ``need`` has
+    no window (no sample tests it)."""
     err = tol.RECORD_DIR_ERROR
     tx, ty, tz, bx, by, bz = onb(ax, ay, az)
     for q in range(cv.shape[0]):
         win[q, 0] = -1.0
         win[q, 1] = 2.0
         win[q, 3] = -1.0
+        if not reg_tag[q] & need:
+            win[q, 0] = 2.0
+            continue
         if form == 0 or cv[q, 3] == -2.0:
             continue
         vx, vy, vz = cv[q, 0], cv[q, 1], cv[q, 2]
@@ -421,7 +512,7 @@ _CrossingScene = view_type("_CrossingScene", SceneArrays, (
 
 @njit(cache=True, nogil=True, parallel=True)
 def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c, reg_r,
-                  reg_tag, old, windows, mask, count):
+                  reg_tag, old, cand, windows, mask, count):
     """Per (point, light) row (point ``pt``, light ``lj``, ``L`` for the world): the bits of
     its ``n`` samples (drawn as the tracer draws them from the point's seed, from its spawn
     point ``Q`` or, below a rough interface of material ``MAT``, from the far side of its
@@ -432,8 +523,10 @@ def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c
     left (:data:`~.edits.PART_OLD`) -- a ray that met nothing meets something only where
     geometry came, one that met something meets nothing only where geometry went -- by
     the region's box ``reg_lo, reg_hi`` and its sphere ``reg_c, reg_r`` both.
-    ``windows``: skip the samples whose ``(u, v)`` alone puts them outside every region's
-    cone (:func:`_windows`; False only to test that it drops none)."""
+    ``cand`` (m,) uint64: the samples to test (the records' queries' answer,
+    :class:`SampleCandidates`; :data:`ALL`: every one). ``windows``: skip the samples
+    whose ``(u, v)`` alone puts them outside every region's cone (:func:`_windows`; False
+    only to test that it drops none; not drawn for a row with candidates)."""
     sa = _CrossingScene(*fields(sa, _CrossingScene))  # the fields its loop reads
     k_reg = reg_lo.shape[0]
     m = pt.shape[0]
@@ -443,21 +536,27 @@ def crossing_rows(sa, P, Q, NG, NS, MAT, seeds, pt, lj, n, reg_lo, reg_hi, reg_c
         for r in range(ch * _CROSSING_CHUNK, min(m, (ch + 1) * _CROSSING_CHUNK)):
             mask[r], count[r] = _crossing_row(sa, P, Q, NG, NS, MAT, seeds, pt[r], lj[r], n,
                                               reg_lo, reg_hi, reg_c, reg_r, reg_tag, old[r],
-                                              windows, cv, win)
+                                              cand[r], windows, cv, win)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, reg_r,
-                  reg_tag, old, windows, cv, win):
+                  reg_tag, old, cand, windows, cv, win):
     """:func:`crossing_rows` of one row (point ``i``, light ``j``): ``(mask, count)``;
     ``cv``, ``win`` (k_reg, 4) scratch."""
     L = sa.light_kind.shape[0]
     k_reg = reg_lo.shape[0]
     err = tol.RECORD_DIR_ERROR
     qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+    # the regions some sample may need: where objects came if one was visible, where they
+    # went if one was blocked (the others are skipped, their windows empty)
+    full = (np.uint64(1) << np.uint64(n)) - np.uint64(1) if n < 64 else ~np.uint64(0)
+    need = (PART_NEW if old != np.uint64(0) else 0) | (PART_OLD if old & full != full else 0)
     # each region's sphere seen from the point: a cone of directions (a cheap rejection
     # before the sphere and box tests; -2: the point is inside the sphere)
     for q in range(k_reg):
+        if not reg_tag[q] & need:
+            continue
         vx = reg_c[q, 0] - qx
         vy = reg_c[q, 1] - qy
         vz = reg_c[q, 2] - qz
@@ -478,11 +577,14 @@ def _crossing_row(sa, P, Q, NG, NS, MAT, seeds, i, j, n, reg_lo, reg_hi, reg_c, 
     # their cones are seen from Q)
     form, ax, ay, az, omc = _row_axis(sa, j, L, inside, qx, qy, qz, NS[i, 0], NS[i, 1],
                                       NS[i, 2])
-    _windows(0 if far or not windows else form, ax, ay, az, omc, cv, win)
+    _windows(0 if far or not windows or cand != ALL else form, ax, ay, az, omc, cv, win,
+             reg_tag, need)
     h = row_hash(seeds[i], j, L)
     b = np.uint64(0)
     c = 0
     for s in range(n):
+        if not (cand >> np.uint64(s)) & np.uint64(1):
+            continue
         u, v = row_uv(h, n, s)
         if not _in_window(win, u, v):
             continue

@@ -36,6 +36,14 @@ from the bits, with the tracer's arithmetic in its order (the ratio estimator's 
 bits are dropped (re-shaded lights then trace all their samples, as above) when a light's
 shadows may move: a light moved or added (or its extent, kind or links changed), the world
 starting or stopping to light.
+
+**Which samples, against what.** The records' queries keep, per row, the samples they found
+may cross (:class:`~.sample_rays.SampleCandidates`: an area light's, a sun's, the world's;
+a sphere light's rows have none), and only those are tested again exactly. A sample that
+was unblocked is then tested against the objects the edits placed alone (it met nothing
+else), one that was blocked against them first and the whole scene only where they do not
+block it (:func:`_blocked`); most of those rays are answered by proofs on the placed
+object, without its tree (:mod:`.object_rays`).
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from numba import njit
 
 from ..accel.accelerators import Hits
 from ..geometry.edits import PART_NEW, PART_OLD
@@ -51,8 +60,9 @@ from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_records import _GEO
 from .light_reshade import _one_light_states, tick
+from .object_rays import meets_object, prove_rays
 from .record_codes import _secondary_depths as secondary_depths_kernel
-from .sample_rays import crossing_rays, crossing_rows, unpack_bits
+from .sample_rays import ALL, crossing_rays, crossing_rows, unpack_bits
 from .shader import Surfaces
 from .soft_lights import SH_SOFT, soft_rays
 from .whitted import _occluded_by, shade, surfaces
@@ -93,13 +103,14 @@ def _samples(sa, accel, geo: dict, sf: Surfaces, n: int, kept, counters):
     return soft, rows, any_vis
 
 
-def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
-                 counters) -> np.ndarray:
+def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, cand, regions,
+                 changed, counters) -> np.ndarray:
     """New visibility bits of (point, light) rows (points ``pt`` of ``surf``, lights
     ``lj``, ``L`` for the world) whose bits were ``kept``: the samples whose visibility
     the edited objects ``regions`` (lo, hi, centre, radius, tag: grown boxes and spheres,
-    where objects were and are, :func:`~.sample_rays.crossing_rows`) may change traced
-    again, through the edited scene, the others kept."""
+    where objects were and are, :func:`~.sample_rays.crossing_rows`; of the samples
+    ``cand``) may change traced again, through the edited scene (:func:`_blocked`;
+    ``changed``: the edited objects), the others kept."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     m = len(pt)
@@ -116,7 +127,10 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
         tag = np.full(len(tag), PART_OLD | PART_NEW, np.int8)
     with threads_for(m):
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n,
-                      *regions[:4], tag, kept, True, mask, count)
+                      *regions[:4], tag, kept, np.ascontiguousarray(cand, np.uint64), True,
+                      mask, count)
+    tick(split, "crossing", t0)
+    t0 = time.perf_counter()
     start = np.zeros(m + 1, np.int64)
     np.cumsum(count, out=start[1:])
     k = int(start[-1])
@@ -124,18 +138,54 @@ def _traced_bits(sa, accel, surf: Surfaces, seed, pt, lj, n: int, kept, regions,
     row, bit = np.empty(k, np.int64), np.empty(k, np.uint64)
     crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, seed, pt, lj, n, mask, start,
                   o, d, tmax, row, bit)
-    tick(split, "crossing", t0)
-    new = np.asarray(kept, np.uint64) & ~mask
+    tick(split, "rays", t0)
+    new = kept & ~mask
     if k:
         t0 = time.perf_counter()
         L = len(sa.light_kind)
-        prow = np.where(lj[row] < L, pt[row] * L + lj[row], -1 - pt[row])
-        vis = ~np.asarray(_occluded_by(sa, accel)(o, d, tmax, prow), np.bool_)
-        np.bitwise_or.at(new, row[vis], bit[vis])
+        was = (kept[row] & bit) != 0
+
+        def rows_of(i):  # (the rays' rows as the tracer numbers them: light linking)
+            r = row[i]
+            return np.where(lj[r] < L, pt[r] * L + lj[r], -1 - pt[r])
+
+        blocked = _blocked(sa, accel, o, d, tmax, rows_of, was, changed, counters)
+        _set_bits(new, row, bit, blocked)
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + k
         tick(split, "trace", t0)
     return new
+
+
+@njit(cache=True, nogil=True)
+def _set_bits(new, row, bit, blocked):
+    """``new[row[r]] |= bit[r]`` for the rays ``r`` not ``blocked``."""
+    for r in range(row.shape[0]):
+        if not blocked[r]:
+            new[row[r]] |= bit[r]
+
+
+def _blocked(sa, accel, o, d, tmax, rows_of, was, changed, counters) -> np.ndarray:
+    """(k,) bool: the shadow rays ``o, d, tmax`` (``rows_of(i)``: the rows of rays ``i``
+    as :func:`~.whitted._occluded_by` numbers them) are blocked in the edited scene, bit for
+    bit the whole scene's query. ``was``: each was unblocked in the records' frame;
+    ``changed``: the live objects the edits placed since (moved, added, re-meshed, shown),
+    or None to query the whole scene. A ray that met nothing then meets only what was
+    placed (the accelerator's :attr:`~..accel.interface.Accelerator.any_hit_by_object`;
+    most of them proven without its tree, :func:`~.object_rays.meets_object`); one that
+    was blocked stays so where a placed object blocks it, else the whole scene is asked
+    (its blocker may have been an object the edits took away)."""
+    occluded = _occluded_by(sa, accel)
+    if changed is None:
+        return np.asarray(occluded(o, d, tmax, rows_of(slice(None))), np.bool_)
+    blocked = np.zeros(len(o), np.bool_)
+    for i in changed:
+        todo = np.flatnonzero(~blocked)
+        blocked[todo] = meets_object(sa, accel, i, o, d, tmax, todo, counters)
+    rest = np.flatnonzero(~blocked & ~was)
+    if len(rest):
+        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], rows_of(rest))
+    return blocked
 
 
 def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, counters):
@@ -194,23 +244,81 @@ def load_kernels(sa) -> None:
         _one_light_states(sa, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
                           np.empty(0, np.int8), np.empty(0, np.int32))
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, e3,
-                      e3, e3, e1, np.zeros(0, np.int8), u64, True, u64.copy(), i64.copy())
+                      e3, e3, e1, np.zeros(0, np.int8), u64, u64.copy(), True, u64.copy(),
+                      i64.copy())
         crossing_rays(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, u64,
                       np.zeros(1, np.int64), e3, e3.copy(), e1, i64.copy(), u64.copy())
         unpack_bits(u64, 1, np.zeros(0, np.bool_))
+        prove_rays(np.zeros((1, 4, 4)), 0, np.zeros(3), 0.0, 1.0, e3, e3.copy(), e1, i64,
+                   np.zeros(0, np.int8))
+        _set_bits(u64.copy(), i64, u64, np.zeros(0, np.bool_))
+        _set_entries(np.zeros(1, np.int64), np.zeros(0, np.uint8), e3.copy(), i64, 0,
+                     np.zeros(0, np.bool_), e3.copy(), np.zeros(0, np.bool_))
         secondary_depths_kernel(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))
+
+
+@njit(cache=True, nogil=True)
+def _set_entries(start, slot, val, nodes, j, on, new, left):
+    """Slot ``j``'s entry of each node ``nodes[r]`` (CSR ``start``, ``slot``, ``val``) set
+    to ``new[r]`` in place where ``on[r]`` and the node has one; ``left[r]``: the entry
+    comes or goes (for a splice)."""
+    for r in range(nodes.shape[0]):
+        e = -1
+        for k in range(start[nodes[r]], start[nodes[r] + 1]):
+            if slot[k] == j:
+                e = k
+                break
+        left[r] = (e >= 0) != on[r]
+        if e >= 0 and on[r]:
+            val[e, 0] = new[r, 0]
+            val[e, 1] = new[r, 1]
+            val[e, 2] = new[r, 2]
+
+
+def _set_terms(p, nodes, c: int, on, val) -> np.ndarray:
+    """:func:`_set_entries` over the records' nodes ``p``: the positions in ``nodes``
+    whose entry comes or goes."""
+    left = np.empty(len(nodes), np.bool_)
+    _set_entries(p.start, p.slot, p.val, np.ascontiguousarray(nodes, np.int64), int(c),
+                 np.ascontiguousarray(on, np.bool_), np.ascontiguousarray(val, np.float64),
+                 left)
+    return np.flatnonzero(left)
+
+
+def _splice_terms(lr, p, rows, left, changes, secondary: bool) -> None:
+    """The nodes of ``left``'s terms (``(slot, sel, on, val)``: ``sel`` into ``rows``)
+    taken, their entries replaced, and spliced back into the records."""
+    at = np.unique(np.concatenate([sel for _, sel, _, _ in left]))
+    sub = p.take(rows[at])
+    sub.fold()
+    for c, sel, on, val in changes:
+        d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
+        k = np.searchsorted(at, sel)
+        inside = (k < len(at)) & (at[np.minimum(k, len(at) - 1)] == sel)
+        d_on[k[inside]] = on[inside]
+        d_val[k[inside]] = val[inside]
+        sub.replace_slot(c, d_on, d_val)
+    if secondary:
+        lr.s = p.splice(rows[at], sub)
+    else:
+        lr.p = p.splice(rows[at], sub)
 
 
 def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples: int,
             spawn, vis_bits: np.ndarray | None = None, regions=None,
-            counters: dict | None = None, secondary: bool = False) -> dict:
+            counters: dict | None = None, secondary: bool = False,
+            changed=None, cand=None) -> dict:
     """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
     records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
     uint64 per node) name and the world's light where ``world`` (bool per node), through
     ``accel`` over the edited scene ``sa``; their entries replaced, every other term kept.
     Returns ``{j: (rows, lit)}``: each light's nodes and its visibility bit there (for the
     pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
-    a bool, or one per node). ``counters``: adds ``shadow`` and ``split`` seconds."""
+    a bool, or one per node). ``changed``: the live objects the edits placed since the
+    records' frame, the only ones a kept visible sample may now meet (:func:`_blocked`),
+    or None. ``cand``: the samples of each row the records' queries found may cross an
+    edited part (:class:`~.sample_rays.SampleCandidates`: only those are tested again), or
+    None (all). ``counters``: adds ``shadow`` and ``split`` seconds."""
     split = {} if counters is None else counters.setdefault("split", {})
     t0 = time.perf_counter()
     p = lr.s if secondary else lr.p
@@ -234,8 +342,6 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
         if len(sel) == 0:
             continue
         t0 = time.perf_counter()
-        g = {key: x[sel] for key, x in geo.items()}
-        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
         kept = None
         if vis_bits is not None:
             # the samples that may cross an edited box traced again, the others' bits
@@ -243,23 +349,27 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             # (the others' inputs, and so their term, are what they were)
             old = vis_bits[rows[sel], c].astype(np.uint64)
             if c < L:  # (the nodes the light samples: it faces them)
-                state = np.empty(len(sel), np.int8)
-                with threads_for(len(sel)):
-                    _one_light_states(sa, c, s.P, s.NG, s.NS, s.Q, s.mat, g["inst"],
-                                      state, np.empty(len(sel), np.int32))
-                pt = np.flatnonzero(state == SH_SOFT)
+                state = np.empty(len(rows), np.int8)
+                with threads_for(len(rows)):
+                    _one_light_states(sa, c, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                                      geo["inst"], state, np.empty(len(rows), np.int32))
+                pt = np.flatnonzero(state[sel] == SH_SOFT)
             else:
                 pt = np.arange(len(sel))
             kept = old.copy()
-            kept[pt] = _traced_bits(sa, accel, s, g["seed"], pt, np.full(len(pt), c), n,
-                                    old[pt], regions, counters)
+            cb = (np.full(len(pt), ALL, np.uint64) if cand is None
+                  else cand.of_rows(rows[sel[pt]], c))
+            kept[pt] = _traced_bits(sa, accel, surf, geo["seed"], sel[pt],
+                                    np.full(len(pt), c), n, old[pt], cb, regions, changed,
+                                    counters)
             vis_bits[rows[sel], c] = kept
             moved = np.flatnonzero(kept != old)
             tick(split, "shadow_rays", t0)
             t0 = time.perf_counter()
             sel, kept = sel[moved], kept[moved]
-            g = {key: x[moved] for key, x in g.items()}
-            s = Surfaces(*(x[moved] for x in s[:7]), s.sh_state)
+        # (the geometry of the nodes shaded again alone)
+        g = {key: x[sel] for key, x in geo.items()}
+        s = Surfaces(*(x[sel] for x in surf[:7]), surf.sh_state)
         if len(sel) and c < L:
             on, val, lit = _light_term(sa, accel, c, n, g, s, kept, counters)
             changes.append((c, sel, on, val))
@@ -279,20 +389,13 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
         tick(split, "shade", t0)
     t0 = time.perf_counter()
     if changes:
-        # only the nodes where a term changed are taken (a dragged light's term folded),
-        # their entries replaced and spliced back
-        at = np.unique(np.concatenate([sel for _, sel, _, _ in changes]))
-        sub = p.take(rows[at])
-        sub.fold()
-        for c, sel, on, val in changes:
-            d_on, d_val = term_of(sub.start, sub.slot, sub.val, c)
-            k = np.searchsorted(at, sel)
-            d_on[k] = on
-            d_val[k] = val
-            sub.replace_slot(c, d_on, d_val)
-        if secondary:
-            lr.s = p.splice(rows[at], sub)
-        else:
-            lr.p = p.splice(rows[at], sub)
+        # the changed terms written in place where the node keeps an entry for them
+        # (a soft row's term is present whatever its samples see); the nodes where one
+        # comes or goes (or a dragged light's term is apart) taken and spliced back
+        left = [(c, sel[_set_terms(p, rows[sel], c, on, val)], on, val)
+                for c, sel, on, val in changes] if p.dj < 0 else changes
+        left = [x for x in left if len(x[1])]
+        if left:
+            _splice_terms(lr, p, rows, left, changes, secondary)
     tick(split, "terms", t0)
     return out

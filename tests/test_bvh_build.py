@@ -14,6 +14,7 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.attributes import ATTR_VERTEX
 from rstrace_engine.geometry.edits import MeshSet, ObjectTransform
 from rstrace_engine.geometry.scene import Material, Scene, SceneError
 from rstrace_engine.session import Session
@@ -392,13 +393,15 @@ def test_packed_scene_holds_each_mesh_once():
     sa = s.arrays()
     big = s.meshes[s.mesh_id("big")]
     copy = {k: big[k].copy() for k in ("verts", "tris", "normals", "uvs", "slots")}
-    for k, whole in (("verts", sa.verts), ("normals", sa.tri_normals), ("uvs", sa.tri_uvs),
-                     ("slots", sa.tri_slot)):
+    for k, whole in (("verts", sa.verts), ("normals", sa.normals), ("slots", sa.tri_slot)):
         assert big[k].base is whole
     s.set_mesh(s.mesh_id("small"), shapes.icosphere(3, 0.3, name="small"))
     sa2 = s.arrays()
-    assert big["verts"].base is sa2.verts and big["normals"].base is sa2.tri_normals
+    assert big["verts"].base is sa2.verts and big["normals"].base is sa2.normals
     for k, v in copy.items():
         assert np.array_equal(big[k], v)
-    start = int(sa2.mesh_tri_start[s.mesh_id("big")])
-    assert np.array_equal(sa2.tri_normals[start:start + len(copy["tris"])], copy["normals"])
+    k = s.mesh_id("big")
+    assert sa2.mesh_nrm[k, 0] == ATTR_VERTEX  # one normal row per vertex
+    t0, t1 = sa2.mesh_tri_start[k], sa2.mesh_tri_start[k + 1]
+    assert np.array_equal(sa2.normals[sa2.mesh_nrm[k, 1] + sa2.tris[t0:t1]],
+                          copy["normals"][copy["tris"]])

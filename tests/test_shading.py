@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pytest
 
 from rstrace_engine import tolerances
+from rstrace_engine.geometry.attributes import ATTR_CORNER
 from rstrace_engine.geometry.elements import (
     TEX_CLIP,
     TEX_CLOSEST,
@@ -263,24 +265,45 @@ def test_texture_srgb_interpolates_before_decoding():
     assert shading.texture_lookup(data, start, size, 0, 0.75, 0.5)[0] == pytest.approx(1.0)
 
 
+class _Attrs(NamedTuple):
+    """The fields :func:`shading.shading_normal` and :func:`shading.surface_uv` read."""
+
+    normals: np.ndarray
+    mesh_nrm: np.ndarray
+    uvs: np.ndarray
+    mesh_uv: np.ndarray
+    verts: np.ndarray
+    tris: np.ndarray
+
+
+def _corners(normals=None, uvs=None, m=2):
+    """Per-corner normals / uvs of ``m`` triangles held as one CORNER-mode mesh."""
+    normals = np.zeros((m, 3, 3), np.float32) if normals is None else normals
+    uvs = np.zeros((m, 3, 2), np.float32) if uvs is None else uvs
+    return _Attrs(normals.reshape(-1, 3), np.array([[ATTR_CORNER, 0]], np.int64),
+                  uvs.reshape(-1, 2), np.array([[ATTR_CORNER, 0]], np.int64),
+                  np.eye(3), np.zeros((m, 3), np.int32))
+
+
 def test_surface_uv_interpolates_corners():
     uvs = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]]], np.float32)
-    assert shading.surface_uv(uvs, 0, 0.25, 0.5) == pytest.approx((0.25, 1.0))
+    assert shading.surface_uv(_corners(uvs=uvs, m=1), 0, 0, 0.25, 0.5) == pytest.approx(
+        (0.25, 1.0))
 
 
 def test_shading_normal_interpolation_and_fallback():
     nm = np.eye(3)
-    normals = np.array([[[0, 0, 1], [1, 0, 0], [0, 1, 0]],
-                        [[0, 0, 1], [0, 0, -1], [0, 0, 0]]], np.float32)
-    got = shading.shading_normal(normals, nm, 0, 1 / 3, 1 / 3, 9.0, 9.0, 9.0)
+    normals = _corners(np.array([[[0, 0, 1], [1, 0, 0], [0, 1, 0]],
+                                 [[0, 0, 1], [0, 0, -1], [0, 0, 0]]], np.float32))
+    got = shading.shading_normal(normals, 0, nm, 0, 1 / 3, 1 / 3, 9.0, 9.0, 9.0)
     assert got == pytest.approx(tuple(unit((1, 1, 1))), abs=1e-7)
     # opposite corner normals cancel at the midpoint: fall back to the geometric normal
     g = tuple(unit((0.1, 0.2, 0.9)))
-    assert shading.shading_normal(normals, nm, 1, 0.5, 0.0, *g) == g
+    assert shading.shading_normal(normals, 0, nm, 1, 0.5, 0.0, *g) == g
     # normals go through the normal matrix (inverse transpose of a non-uniform scale)
     m = np.diag([2.0, 1.0, 1.0])
     nmat = np.linalg.inv(m).T
-    got = shading.shading_normal(normals, nmat, 0, 1 / 3, 1 / 3, 0.0, 0.0, 1.0)
+    got = shading.shading_normal(normals, 0, nmat, 0, 1 / 3, 1 / 3, 0.0, 0.0, 1.0)
     assert got == pytest.approx(tuple(unit((0.5, 1, 1))), abs=1e-7)
 
 

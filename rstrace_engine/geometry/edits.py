@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .attributes import mesh_corners
 from .cameras import same_camera
 from .lights import seen_extent
 from .scene import Camera, Light, Material, Mesh, Scene, SceneError
@@ -466,7 +467,8 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
 def _same_mesh(a: dict, b: dict) -> bool:
     if a is b:
         return True
-    return all(np.array_equal(a[k], b[k]) for k in ("verts", "tris", "normals", "uvs", "slots"))
+    return all(np.array_equal(a[k], b[k])
+               for k in ("verts", "tris", "normals", "nmode", "uvs", "uvmode", "slots"))
 
 
 def same_material(a: Material | None, b: Material) -> bool:
@@ -486,8 +488,8 @@ def same_material(a: Material | None, b: Material) -> bool:
 
 
 def _as_mesh(d: dict) -> Mesh:
-    return Mesh(d["name"], d["verts"], d["tris"], corner_normals=d["normals"],
-                corner_uvs=d["uvs"], slots=d["slots"])
+    return Mesh(d["name"], d["verts"], d["tris"], corner_normals=mesh_corners(d, "normals"),
+                corner_uvs=mesh_corners(d, "uvs"), slots=d["slots"])
 
 
 def diff_scenes(old: Scene, new: Scene) -> list:

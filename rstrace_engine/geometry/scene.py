@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import tolerances as tol
+from .attributes import ATTR_NONE, ATTR_VERTEX, bias, compact_normals, compact_uvs
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
     AREA_SHAPES,
     LIGHT_AREA,
@@ -74,7 +75,6 @@ from .slot_keys import SlotKeys
 log = logging.getLogger(__name__)
 
 
-
 class SceneArrays(NamedTuple):
     """The scene as flat arrays, for numba kernels. ``T`` triangles, ``I`` instance slots.
 
@@ -86,8 +86,10 @@ class SceneArrays(NamedTuple):
 
     verts: np.ndarray  # (V, 3) float64, object space, all meshes concatenated
     tris: np.ndarray  # (T, 3) int32, global indices into verts
-    tri_normals: np.ndarray  # (T, 3, 3) float32 per-corner shading normals, object space
-    tri_uvs: np.ndarray  # (T, 3, 2) float32 per-corner uvs
+    normals: np.ndarray  # (N, 3) float32 shading normal rows (:mod:`.attributes`), object space
+    mesh_nrm: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's normals
+    uvs: np.ndarray  # (U, 2) float32 uv rows
+    mesh_uv: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's uvs
     tri_slot: np.ndarray  # (T,) int32 material slot
     mesh_tri_start: np.ndarray  # (M + 1,) int32: mesh k owns tris[start[k]:start[k+1]]
     inst_mesh: np.ndarray  # (I,) int32
@@ -398,21 +400,16 @@ class Scene:
             raise SceneError(f"mesh '{n}': vertex coordinates exceed {tol.COORD_MAX:g}")
         tris = np.array(tris, np.int32)  # a copy: the caller may change its array later
         m = len(tris)
-        normals = uvs = slots = None
-        if mesh.corner_normals is not None:
-            normals = _finite_array(n, "mesh normals", mesh.corner_normals, (3, 3), np.float32)
-            if len(normals) != m:
-                raise SceneError(f"mesh '{n}': {len(normals)} corner normal triples for {m} "
-                                 f"triangles")
-        if mesh.corner_uvs is not None:
-            uvs = _finite_array(n, "mesh uvs", mesh.corner_uvs, (3, 2), np.float32)
-            if len(uvs) != m:
-                raise SceneError(f"mesh '{n}': {len(uvs)} corner uv triples for {m} triangles")
+        cn, cu, slots = mesh.corner_normals, mesh.corner_uvs, None
+        normals = None if cn is None else _finite_array(n, "mesh normals", cn, (3, 3), np.float32)
+        uvs = None if cu is None else _finite_array(n, "mesh uvs", cu, (3, 2), np.float32)
+        for what, a in (("corner normal", normals), ("corner uv", uvs)):
+            if a is not None and len(a) != m:
+                raise SceneError(f"mesh '{n}': {len(a)} {what} triples for {m} triangles")
         if mesh.slots is not None:
             slots = np.array(mesh.slots, dtype=np.int32).reshape(-1)
             if len(slots) != m or (m and slots.min() < 0):
                 raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
-
         keep = proper_triangles(verts, tris, cancel)
         dropped = int(m - np.count_nonzero(keep))
         if dropped:
@@ -423,21 +420,16 @@ class Scene:
         if not dropped:  # (the usual case: no copy)
             keep = slice(None)
         tris = tris[keep]
-        if normals is None:
-            if mesh.smooth:
-                vn = vertex_normals(verts, tris)
-                normals = vn[tris].astype(np.float32)
-            else:
-                fv = verts[tris]
-                fn = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
-                fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-                normals = np.repeat(fn[:, None, :], 3, axis=1).astype(np.float32)
-        else:
-            normals = normals[keep]
-        uvs = np.zeros((len(tris), 3, 2), np.float32) if uvs is None else uvs[keep]
+        if normals is not None:
+            nmode, normals = compact_normals(verts, tris, normals[keep])
+        elif mesh.smooth:  # (the vertex normals' float32 rows: what every corner reads)
+            nmode, normals = ATTR_VERTEX, vertex_normals(verts, tris).astype(np.float32)
+        else:  # flat: each corner reads its triangle's own normal, computed
+            nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
+        uvmode, uvs = compact_uvs(tris, len(verts), None if uvs is None else uvs[keep])
         slots = np.zeros(len(tris), np.int32) if slots is None else slots[keep]
-        return dict(name=n, verts=verts, tris=tris, normals=normals, uvs=uvs, slots=slots,
-                    lo=verts.min(axis=0), hi=verts.max(axis=0))
+        return dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
+                    uvmode=uvmode, slots=slots, lo=verts.min(axis=0), hi=verts.max(axis=0))
 
     # objects
 
@@ -569,10 +561,10 @@ class Scene:
         """Every mesh concatenated; a tombstoned slot owns no vertices and no triangles
         (``mesh_tri_start[k] == mesh_tri_start[k + 1]``).
 
-        The meshes are then held once: each live mesh's vertices, corner normals, uvs and
-        slots become views of the concatenation (the same values: mesh data are replaced,
-        never mutated, so scenes sharing a mesh dict see no change); only its triangles,
-        whose indices are its own, stay a separate array.
+        The meshes are then held once: each live mesh's vertices, normal and uv rows
+        (:mod:`.attributes`) and slots become views of the concatenation (the same values:
+        mesh data are replaced, never mutated, so scenes sharing a mesh dict see no
+        change); only its triangles, whose indices are its own, stay a separate array.
         """
         if self._mesh_arrays is None:
             live = [m for m in self.meshes if m is not None]
@@ -582,20 +574,27 @@ class Scene:
             nt = np.cumsum([0] + [len(m["tris"]) for m in live])
             tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
                                       for m in self.meshes]).astype(np.int32)
+            nn = np.cumsum([0] + [len(m["normals"]) for m in live])
+            nu = np.cumsum([0] + [len(m["uvs"]) for m in live])
             packed = dict(
                 verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
-                tri_normals=np.empty((nt[-1], 3, 3), np.float32),
-                tri_uvs=np.empty((nt[-1], 3, 2), np.float32),
-                tri_slot=np.empty(nt[-1], np.int32))
+                normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
+                tri_slot=np.empty(nt[-1], np.int32),
+                mesh_nrm=np.zeros((len(self.meshes), 2), np.int64),
+                mesh_uv=np.zeros((len(self.meshes), 2), np.int64))
+            ids = [k for k, m in enumerate(self.meshes) if m is not None]
             for k, m in enumerate(live):
                 v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+                rn, ru = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1])
                 packed["verts"][v] = m["verts"]
                 np.add(m["tris"], np.int32(nv[k]), out=packed["tris"][t])
-                packed["tri_normals"][t] = m["normals"]
-                packed["tri_uvs"][t] = m["uvs"]
+                packed["normals"][rn] = m["normals"]
+                packed["uvs"][ru] = m["uvs"]
                 packed["tri_slot"][t] = m["slots"]
-                m.update(verts=packed["verts"][v], normals=packed["tri_normals"][t],
-                         uvs=packed["tri_uvs"][t], slots=packed["tri_slot"][t])
+                packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
+                packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])
+                m.update(verts=packed["verts"][v], normals=packed["normals"][rn],
+                         uvs=packed["uvs"][ru], slots=packed["tri_slot"][t])
             packed["mesh_tri_start"] = tstart
             packed["mesh_gen"] = np.stack(
                 [_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3)
@@ -646,8 +645,9 @@ class Scene:
             extent = max(float(np.max(np.abs(hi))), 1.0)
         f64 = np.float64
         self._arrays = SceneArrays(
-            verts=geo["verts"], tris=geo["tris"], tri_normals=geo["tri_normals"],
-            tri_uvs=geo["tri_uvs"], tri_slot=geo["tri_slot"],
+            verts=geo["verts"], tris=geo["tris"], normals=geo["normals"],
+            mesh_nrm=geo["mesh_nrm"], uvs=geo["uvs"], mesh_uv=geo["mesh_uv"],
+            tri_slot=geo["tri_slot"],
             mesh_tri_start=geo["mesh_tri_start"], mesh_gen=geo["mesh_gen"],
             inst_mesh=np.array([0 if i is None else i["mesh"] for i in self.instances],
                                np.int32).reshape(ni),

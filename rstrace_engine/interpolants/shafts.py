@@ -89,7 +89,11 @@ class QueryScene(NamedTuple):
     light_closed: np.ndarray  # (L,) bool the tracer has a closed form for the light's
     # unshadowed diffuse term where it is above the horizon (a sphere that is not a spot,
     # a sun, a rectangle without spread: soft_lights._row_exact)
-    tri_normals: np.ndarray  # (T, 3, 3) float32 per-corner shading normals, object space
+    # the packing's shading normals (:func:`~..geometry.attributes.corner_normals`)
+    normals: np.ndarray  # (N, 3) float32 rows
+    mesh_nrm: np.ndarray  # (M, 2) int64 (mode, bias) per mesh
+    verts: np.ndarray  # (V, 3) float64 the packing's vertices (flat normals)
+    tris: np.ndarray  # (T, 3) int32 the packing's triangles
     inst_nmat: np.ndarray  # (I, 3, 3) float64 normal matrices
     inst_mat_start: np.ndarray  # (I + 1,) int32
     inst_mat: np.ndarray  # (K,) int32
@@ -155,7 +159,7 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-                      closed_forms(sa), sa.tri_normals,
+                      closed_forms(sa), sa.normals, sa.mesh_nrm, sa.verts, sa.tris,
                       np.ascontiguousarray(sa.inst_nmat, np.float64),
                       np.ascontiguousarray(sa.inst_mat_start, np.int32),
                       np.ascontiguousarray(sa.inst_mat, np.int32),

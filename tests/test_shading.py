@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from rstrace_engine.geometry.elements import (
     TEX_SRGB,
     srgb_decode,
 )
+from rstrace_engine.geometry.scene import Material, Mesh, Scene
 from rstrace_engine.tracing import shading
 
 RNG = np.random.default_rng(7)
@@ -265,24 +265,19 @@ def test_texture_srgb_interpolates_before_decoding():
     assert shading.texture_lookup(data, start, size, 0, 0.75, 0.5)[0] == pytest.approx(1.0)
 
 
-class _Attrs(NamedTuple):
-    """The fields :func:`shading.shading_normal` and :func:`shading.surface_uv` read."""
-
-    normals: np.ndarray
-    mesh_nrm: np.ndarray
-    uvs: np.ndarray
-    mesh_uv: np.ndarray
-    verts: np.ndarray
-    tris: np.ndarray
-
-
 def _corners(normals=None, uvs=None, m=2):
-    """Per-corner normals / uvs of ``m`` triangles held as one CORNER-mode mesh."""
-    normals = np.zeros((m, 3, 3), np.float32) if normals is None else normals
-    uvs = np.zeros((m, 3, 2), np.float32) if uvs is None else uvs
-    return _Attrs(normals.reshape(-1, 3), np.array([[ATTR_CORNER, 0]], np.int64),
-                  uvs.reshape(-1, 2), np.array([[ATTR_CORNER, 0]], np.int64),
-                  np.eye(3), np.zeros((m, 3), np.int32))
+    """The packing of ``m`` triangles given per-corner ``normals`` / ``uvs`` (held as one
+    CORNER-mode mesh: mesh 0, triangles 0..m-1)."""
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_mesh(Mesh("corners", verts, np.tile([[0, 1, 2]], (m, 1)), corner_normals=normals,
+                    corner_uvs=uvs))
+    s.add_instance(0, np.eye(4))
+    sa = s.arrays()
+    if normals is not None:
+        assert sa.mesh_nrm[0, 0] == ATTR_CORNER
+    return sa
 
 
 def test_surface_uv_interpolates_corners():

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..geometry.attributes import scene_corners
+from ..geometry.attributes import scene_corners, slots_of
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene
 
 
@@ -32,7 +32,7 @@ def world_triangles(scene: Scene):
         n = normals[t0:t1].reshape(-1, 3).astype(np.float64) @ sa.inst_nmat[i].T
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         mats = sa.inst_mat[sa.inst_mat_start[i]:sa.inst_mat_start[i + 1]]
-        slot = np.minimum(sa.tri_slot[t0:t1], len(mats) - 1)
+        slot = np.minimum(slots_of(sa, np.full(t1 - t0, m), np.arange(t0, t1)), len(mats) - 1)
         for mid in np.unique(mats[slot]):
             sel = np.repeat(mats[slot] == mid, 3)
             groups.setdefault(int(mid), []).append((p[sel], n[sel]))

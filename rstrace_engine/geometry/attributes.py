@@ -86,6 +86,25 @@ def corner_uvs(s, k, tri):
             np.float64(u[r1, 1]), np.float64(u[r2, 0]), np.float64(u[r2, 1]))
 
 
+@njit(cache=True, nogil=True)
+def slot_of(s, k, tri):
+    """Material slot of global triangle ``tri`` of mesh ``k`` (``s``: a struct with
+    ``mesh_slot`` and ``tri_slot``, :mod:`.packing`)."""
+    c = s.mesh_slot[k, 0]
+    if c >= 0:
+        return c
+    return s.tri_slot[s.mesh_slot[k, 1] + tri]
+
+
+def slots_of(sa, meshes: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(n,) int64: :func:`slot_of` over arrays of mesh ids and global triangles."""
+    meshes = np.asarray(meshes, np.int64)
+    out = sa.mesh_slot[meshes, 0].copy()
+    rows = np.flatnonzero(out < 0)
+    out[rows] = sa.tri_slot[sa.mesh_slot[meshes[rows], 1] + np.asarray(tris, np.int64)[rows]]
+    return out
+
+
 # -- kernels: choosing the mode --------------------------------------------------------
 
 
@@ -200,11 +219,12 @@ def expand(mode: int, rows: np.ndarray, tris: np.ndarray, verts: np.ndarray | No
 def mesh_corners(mesh: dict, which: str) -> np.ndarray | None:
     """A scene model mesh's ``(m, 3, 3)`` corner normals (``which="normals"``) or ``(m, 3,
     2)`` corner uvs (``"uvs"``, None where it has none), float32, as given to it."""
+    tris = mesh["tris"] - np.int32(mesh.get("vert0", 0))  # its own vertex indices
     if which == "normals":
-        return expand(mesh["nmode"], mesh["normals"], mesh["tris"], mesh["verts"], 3)
+        return expand(mesh["nmode"], mesh["normals"], tris, mesh["verts"], 3)
     if mesh["uvmode"] == ATTR_NONE:
         return None
-    return expand(mesh["uvmode"], mesh["uvs"], mesh["tris"], None, 2)
+    return expand(mesh["uvmode"], mesh["uvs"], tris, None, 2)
 
 
 def scene_corners(sa, which: str) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import tolerances as tol
-from .attributes import ATTR_NONE, ATTR_VERTEX, bias, compact_normals, compact_uvs
+from .attributes import ATTR_NONE, ATTR_VERTEX, compact_normals, compact_uvs
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
     AREA_SHAPES,
     LIGHT_AREA,
@@ -70,6 +70,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
 from .footprint import check_fits, estimate
 from .lights import checked_light, pack_lights
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
+from .packing import compact_slots, pack_meshes
 from .slot_keys import SlotKeys
 
 log = logging.getLogger(__name__)
@@ -90,7 +91,8 @@ class SceneArrays(NamedTuple):
     mesh_nrm: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's normals
     uvs: np.ndarray  # (U, 2) float32 uv rows
     mesh_uv: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's uvs
-    tri_slot: np.ndarray  # (T,) int32 material slot
+    tri_slot: np.ndarray  # (S,) int32 material slot rows (:mod:`.packing`)
+    mesh_slot: np.ndarray  # (M, 2) int64 (constant slot or -1, row bias) of each mesh
     mesh_tri_start: np.ndarray  # (M + 1,) int32: mesh k owns tris[start[k]:start[k+1]]
     inst_mesh: np.ndarray  # (I,) int32
     inst_xform: np.ndarray  # (I, 4, 4) float64 object -> world
@@ -148,18 +150,6 @@ class SceneArrays(NamedTuple):
     light_spot_frame: np.ndarray  # (L, 3, 3) rows taking a direction into its scaled frame
     light_recv: np.ndarray  # (L, I) uint8 light linking: lights object; (0, 0) no linking
     light_block: np.ndarray  # (L, I) uint8 shadow linking: casts its shadow; (0, 0) none
-
-
-def _texture_space(mesh: dict | None) -> np.ndarray:
-    """``(lo, extent)`` of a mesh's automatic texture space, as Blender computes it (its
-    bounding box; a flat axis gets half-size 1, a tiny one 1e-5), for Generated texture
-    coordinates ``(p - lo) / extent`` in [0, 1]. A tombstone: the unit box."""
-    if mesh is None:
-        return np.array([[0.0] * 3, [1.0] * 3])
-    lo, hi = np.asarray(mesh["lo"], np.float64), np.asarray(mesh["hi"], np.float64)
-    mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-    half = np.where(half == 0.0, 1.0, np.maximum(half, tol.TEXSPACE_HALF_MIN))
-    return np.stack([mid - half, 2.0 * half])
 
 
 def _footprint(mesh: dict) -> int:
@@ -427,9 +417,10 @@ class Scene:
         else:  # flat: each corner reads its triangle's own normal, computed
             nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
         uvmode, uvs = compact_uvs(tris, len(verts), None if uvs is None else uvs[keep])
-        slots = np.zeros(len(tris), np.int32) if slots is None else slots[keep]
+        slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots[keep])
         return dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
-                    uvmode=uvmode, slots=slots, lo=verts.min(axis=0), hi=verts.max(axis=0))
+                    uvmode=uvmode, slots=slots, slot=slot, lo=verts.min(axis=0),
+                    hi=verts.max(axis=0))
 
     # objects
 
@@ -558,47 +549,12 @@ class Scene:
     # -- packing ---------------------------------------------------------------------
 
     def _pack_meshes(self):
-        """Every mesh concatenated; a tombstoned slot owns no vertices and no triangles
-        (``mesh_tri_start[k] == mesh_tri_start[k + 1]``).
-
-        The meshes are then held once: each live mesh's vertices, normal and uv rows
-        (:mod:`.attributes`) and slots become views of the concatenation (the same values:
-        mesh data are replaced, never mutated, so scenes sharing a mesh dict see no
-        change); only its triangles, whose indices are its own, stay a separate array.
-        """
+        """The packing's geometry (:func:`~.packing.pack_meshes`: the meshes then held
+        once, as views of it), kept while the meshes are unchanged."""
         if self._mesh_arrays is None:
-            live = [m for m in self.meshes if m is not None]
-            if not live:
+            if all(m is None for m in self.meshes):
                 raise SceneError("scene has no meshes")
-            nv = np.cumsum([0] + [len(m["verts"]) for m in live])
-            nt = np.cumsum([0] + [len(m["tris"]) for m in live])
-            tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
-                                      for m in self.meshes]).astype(np.int32)
-            nn = np.cumsum([0] + [len(m["normals"]) for m in live])
-            nu = np.cumsum([0] + [len(m["uvs"]) for m in live])
-            packed = dict(
-                verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
-                normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
-                tri_slot=np.empty(nt[-1], np.int32),
-                mesh_nrm=np.zeros((len(self.meshes), 2), np.int64),
-                mesh_uv=np.zeros((len(self.meshes), 2), np.int64))
-            ids = [k for k, m in enumerate(self.meshes) if m is not None]
-            for k, m in enumerate(live):
-                v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
-                rn, ru = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1])
-                packed["verts"][v] = m["verts"]
-                np.add(m["tris"], np.int32(nv[k]), out=packed["tris"][t])
-                packed["normals"][rn] = m["normals"]
-                packed["uvs"][ru] = m["uvs"]
-                packed["tri_slot"][t] = m["slots"]
-                packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
-                packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])
-                m.update(verts=packed["verts"][v], normals=packed["normals"][rn],
-                         uvs=packed["uvs"][ru], slots=packed["tri_slot"][t])
-            packed["mesh_tri_start"] = tstart
-            packed["mesh_gen"] = np.stack(
-                [_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3)
-            self._mesh_arrays = packed
+            self._mesh_arrays = pack_meshes(self.meshes)
         return self._mesh_arrays
 
     def arrays(self) -> SceneArrays:
@@ -647,7 +603,7 @@ class Scene:
         self._arrays = SceneArrays(
             verts=geo["verts"], tris=geo["tris"], normals=geo["normals"],
             mesh_nrm=geo["mesh_nrm"], uvs=geo["uvs"], mesh_uv=geo["mesh_uv"],
-            tri_slot=geo["tri_slot"],
+            tri_slot=geo["tri_slot"], mesh_slot=geo["mesh_slot"],
             mesh_tri_start=geo["mesh_tri_start"], mesh_gen=geo["mesh_gen"],
             inst_mesh=np.array([0 if i is None else i["mesh"] for i in self.instances],
                                np.int32).reshape(ni),

@@ -71,6 +71,7 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
+from ..geometry.attributes import slot_of
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
@@ -331,7 +332,8 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
         gt = qs.tri[t]
         if qs.tri_class[gt] != cls:
             return False
-        if nslot > 0 and qs.mat_glossy[qs.inst_mat[s0 + min(qs.tri_slot[gt], nslot - 1)]]:
+        if nslot > 0 and qs.mat_glossy[qs.inst_mat[
+                s0 + min(slot_of(qs, qs.inst_mesh[inst], gt), nslot - 1)]]:
             for j in range(L):
                 quiet[j] = False  # a glossy lobe: the soft samples estimate it (noise)
         load_tri(qs.tv, t, P)

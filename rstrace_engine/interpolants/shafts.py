@@ -97,7 +97,8 @@ class QueryScene(NamedTuple):
     inst_nmat: np.ndarray  # (I, 3, 3) float64 normal matrices
     inst_mat_start: np.ndarray  # (I + 1,) int32
     inst_mat: np.ndarray  # (K,) int32
-    tri_slot: np.ndarray  # (T,) int32
+    tri_slot: np.ndarray  # (S,) int32 slot rows (:mod:`~..geometry.packing`)
+    mesh_slot: np.ndarray  # (M, 2) int64 (constant slot or -1, row bias) per mesh
     mat_glossy: np.ndarray  # (NM,) bool the BRDF has a glossy lobe that soft samples estimate
 
 
@@ -163,7 +164,8 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.inst_nmat, np.float64),
                       np.ascontiguousarray(sa.inst_mat_start, np.int32),
                       np.ascontiguousarray(sa.inst_mat, np.int32),
-                      np.ascontiguousarray(sa.tri_slot, np.int32), glossy_materials(sa))
+                      np.ascontiguousarray(sa.tri_slot, np.int32), sa.mesh_slot,
+                      glossy_materials(sa))
 
 
 def closed_forms(sa: SceneArrays) -> np.ndarray:

@@ -119,8 +119,8 @@ def line_rays(box, inst, face, abcd, o, d):
 
 _HitScene = view_type("_HitScene", SceneArrays, (
     "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_mirror",
-    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "tri_slot", "tris",
-    "verts"), __name__)
+    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "mesh_slot",
+    "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -188,8 +188,8 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
 _PathScene = view_type("_PathScene", SceneArrays, (
     "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_metal", "mat_metal_tint",
     "mat_metallic", "mat_mirror", "mat_model", "mat_specular", "mat_specular_ior",
-    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "tri_slot", "tris",
-    "verts"), __name__)
+    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "mesh_slot",
+    "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -41,6 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..geometry.attributes import slot_of
 from ..geometry.scene import (
     LIGHT_SPOT,
     LIGHT_SUN,
@@ -149,7 +150,7 @@ def _material_of(sa, inst, tri):
     """Material id of triangle ``tri`` on instance ``inst`` (slot clamped to the list)."""
     s0 = sa.inst_mat_start[inst]
     cnt = sa.inst_mat_start[inst + 1] - s0
-    slot = sa.tri_slot[tri]
+    slot = slot_of(sa, sa.inst_mesh[inst], tri)
     if slot >= cnt:
         slot = cnt - 1
     return sa.inst_mat[s0 + slot]
@@ -229,7 +230,7 @@ _SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
     "light_cos_outer", "light_dir", "light_ext", "light_half", "light_kind",
     "light_pos", "light_recv", "light_spot_frame", "light_spot_scaled", "mat_ior",
     "mat_model", "mat_roughness", "mat_transmission", "scene_aabb", "scene_extent",
-    "inst_mesh", "mesh_nrm", "normals", "tri_slot", "tris", "verts"), __name__)
+    "inst_mesh", "mesh_nrm", "normals", "mesh_slot", "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)

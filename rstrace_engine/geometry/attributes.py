@@ -109,37 +109,38 @@ def slots_of(sa, meshes: np.ndarray, tris: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _vertex_rows(tris, bits, out):
-    """One row per vertex (``out`` (V, c) uint32, zero where no corner names the vertex)
-    when every corner of a vertex holds the same bits; False at the first that does not."""
-    seen = np.zeros(out.shape[0], np.bool_)
-    c = bits.shape[2]
-    for t in range(tris.shape[0]):
+def _coarsest(tris, bits, nverts):
+    """``(mode, rows)`` for corner values ``bits`` (m, 3, c) uint32 (their bit patterns):
+    VERTEX and one row per vertex (zero where no corner names it) when every corner of a
+    vertex holds the same bits, else FACE and one row per triangle when its three corners
+    do, else CORNER and no rows (the corners are the rows)."""
+    m, c = bits.shape[0], bits.shape[2]
+    rows = np.zeros((nverts, c), np.uint32)
+    seen = np.zeros(nverts, np.bool_)
+    ok = True
+    for t in range(m):
         for j in range(3):
             v = tris[t, j]
             if seen[v]:
                 for q in range(c):
-                    if out[v, q] != bits[t, j, q]:
-                        return False
+                    if rows[v, q] != bits[t, j, q]:
+                        ok = False
             else:
                 seen[v] = True
                 for q in range(c):
-                    out[v, q] = bits[t, j, q]
-    return True
-
-
-@njit(cache=True, nogil=True)
-def _face_rows(bits, out):
-    """One row per triangle (``out`` (m, c) uint32) when its three corners hold the same
-    bits; False at the first triangle whose corners differ."""
-    c = bits.shape[2]
-    for t in range(bits.shape[0]):
+                    rows[v, q] = bits[t, j, q]
+        if not ok:
+            break
+    if ok:
+        return ATTR_VERTEX, rows
+    rows = np.empty((m, c), np.uint32)
+    for t in range(m):
         for q in range(c):
             b = bits[t, 0, q]
             if bits[t, 1, q] != b or bits[t, 2, q] != b:
-                return False
-            out[t, q] = b
-    return True
+                return ATTR_CORNER, np.zeros((0, c), np.uint32)
+            rows[t, q] = b
+    return ATTR_FACE, rows
 
 
 @njit(cache=True, nogil=True)
@@ -164,15 +165,10 @@ def _all_flat(verts, tris, corners):
 def _compact(tris: np.ndarray, nverts: int, corners: np.ndarray) -> tuple[int, np.ndarray]:
     """VERTEX, FACE or CORNER rows of ``corners`` (m, 3, c) float32, the coarsest exact."""
     corners = np.ascontiguousarray(corners, np.float32)
-    c = corners.shape[2]
-    bits = corners.view(np.uint32)
-    rows = np.zeros((nverts, c), np.uint32)
-    if _vertex_rows(tris, bits, rows):
-        return ATTR_VERTEX, rows.view(np.float32)
-    rows = np.empty((len(tris), c), np.uint32)
-    if _face_rows(bits, rows):
-        return ATTR_FACE, rows.view(np.float32)
-    return ATTR_CORNER, corners.reshape(-1, c)
+    mode, rows = _coarsest(tris, corners.view(np.uint32), nverts)
+    if mode == ATTR_CORNER:
+        return ATTR_CORNER, corners.reshape(-1, corners.shape[2])
+    return int(mode), rows.view(np.float32)
 
 
 def compact_normals(verts: np.ndarray, tris: np.ndarray,

@@ -468,7 +468,9 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
 def _same_mesh(a: dict, b: dict) -> bool:
     if a is b:
         return True
-    return np.array_equal(mesh_triangles(a), mesh_triangles(b)) and all(
+    same_base = a.get("vert0", 0) == b.get("vert0", 0)  # (no copies to compare then)
+    return (np.array_equal(a["tris"], b["tris"]) if same_base
+            else np.array_equal(mesh_triangles(a), mesh_triangles(b))) and all(
         np.array_equal(a[k], b[k])
         for k in ("verts", "normals", "nmode", "uvs", "uvmode", "slots", "slot"))
 

@@ -1,6 +1,7 @@
 """Corner normals, uvs and material slots held per mesh only as finely as they vary
 (:mod:`rstrace_engine.geometry.attributes`, :mod:`rstrace_engine.geometry.packing`): the
-mode each kind of mesh gets, every corner read back bit for bit, and the bytes saved."""
+mode each kind of mesh gets, every corner read back bit for bit, and the bytes saved; the
+interpolants' query scene reading the packed vertices."""
 
 from __future__ import annotations
 
@@ -24,8 +25,10 @@ from rstrace_engine.geometry.attributes import (
 )
 from rstrace_engine.geometry.edits import _as_mesh
 from rstrace_engine.geometry.mesh_math import flat_triangle_normals, vertex_normals
+from rstrace_engine.geometry.mesh_topology import mesh_topology
 from rstrace_engine.geometry.packing import mesh_slots, mesh_triangles
 from rstrace_engine.geometry.scene import Material, Mesh, Scene
+from rstrace_engine.interpolants.shafts import query_scene, tvx
 
 
 def _sphere():
@@ -184,3 +187,25 @@ def test_bytes_per_triangle_of_a_smooth_mesh():
     mem = scale.memory(s, sa, create_accelerator("BVH", sa))
     assert mem["packed"] < 31.0  # verts 12 + tris 12 + normals ~6 + per-mesh rows
     assert mem["total"] < mem["packed"] + mem["bvh"] + 0.2  # the model's arrays are views
+
+
+@njit(cache=True)
+def _leaf_coords(qs, out):
+    for t in range(out.shape[0]):
+        for k in range(9):
+            out[t, k] = tvx(qs, t, k)
+
+
+def test_query_scene_reads_the_packed_vertices():
+    """The interpolants' query scene holds its leaf triangles as vertex indices into the
+    packing's vertices (12 bytes a triangle, where a float64 copy took 72): every leaf
+    triangle's coordinates are its global triangle's, bit for bit."""
+    s, _ = _scene()
+    sa = s.arrays()
+    qs = query_scene(sa, mesh_topology(sa))
+    assert qs.verts is sa.verts and not hasattr(qs, "tv")
+    assert qs.tvi.dtype == np.int32 and qs.tvi.shape == (len(sa.tris), 3)
+    got = np.empty((len(qs.tri), 9))
+    _leaf_coords(qs, got)
+    want = sa.verts[sa.tris[qs.tri]].reshape(-1, 9)
+    assert np.array_equal(got.view(np.uint64), want.view(np.uint64))

@@ -14,7 +14,9 @@ from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.attributes import ATTR_VERTEX
 from rstrace_engine.geometry.edits import MeshSet, ObjectTransform
+from rstrace_engine.geometry.packing import mesh_triangles
 from rstrace_engine.geometry.scene import Material, Scene, SceneError
 from rstrace_engine.session import Session
 
@@ -380,25 +382,30 @@ def test_scene_construction_stops_at_the_flag_and_leaves_the_scene_as_it_was(mon
     mid = s.add_mesh(shapes.lumpy_sphere(20_000, name="late"), cancel=flag)
     plain = Scene()
     ref = plain.meshes[plain.add_mesh(shapes.lumpy_sphere(20_000, name="late"))]
-    for k in ("verts", "tris", "normals", "uvs", "slots"):
+    for k in ("verts", "normals", "uvs", "slots"):
         assert np.array_equal(s.meshes[mid][k], ref[k])
+    assert np.array_equal(mesh_triangles(s.meshes[mid]), mesh_triangles(ref))
 
 
 def test_packed_scene_holds_each_mesh_once():
-    """After packing, a mesh's vertices, normals, uvs and slots are views of the packed
-    arrays (its triangles, whose indices are its own, are not); repacking after another
-    mesh changes moves them to the new arrays, with the same values."""
+    """After packing, a mesh's vertices, triangles, normal rows, uvs and slots are views of
+    the packed arrays (its triangles the global ones, its own indices less its first
+    vertex); repacking after another mesh changes moves them to the new arrays, with the
+    same values."""
     s = _big_and_small()
     sa = s.arrays()
     big = s.meshes[s.mesh_id("big")]
-    copy = {k: big[k].copy() for k in ("verts", "tris", "normals", "uvs", "slots")}
-    for k, whole in (("verts", sa.verts), ("normals", sa.tri_normals), ("uvs", sa.tri_uvs),
-                     ("slots", sa.tri_slot)):
+    copy = {k: big[k].copy() for k in ("verts", "normals", "uvs", "slots")}
+    copy["tris"] = mesh_triangles(big).copy()
+    for k, whole in (("verts", sa.verts), ("tris", sa.tris), ("normals", sa.normals)):
         assert big[k].base is whole
     s.set_mesh(s.mesh_id("small"), shapes.icosphere(3, 0.3, name="small"))
     sa2 = s.arrays()
-    assert big["verts"].base is sa2.verts and big["normals"].base is sa2.tri_normals
+    assert big["verts"].base is sa2.verts and big["normals"].base is sa2.normals
     for k, v in copy.items():
-        assert np.array_equal(big[k], v)
-    start = int(sa2.mesh_tri_start[s.mesh_id("big")])
-    assert np.array_equal(sa2.tri_normals[start:start + len(copy["tris"])], copy["normals"])
+        assert np.array_equal(mesh_triangles(big) if k == "tris" else big[k], v)
+    k = s.mesh_id("big")
+    assert sa2.mesh_nrm[k, 0] == ATTR_VERTEX  # one normal row per vertex
+    t0, t1 = sa2.mesh_tri_start[k], sa2.mesh_tri_start[k + 1]
+    assert np.array_equal(sa2.normals[sa2.mesh_nrm[k, 1] + sa2.tris[t0:t1]],
+                          copy["normals"][copy["tris"]])

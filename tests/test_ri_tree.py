@@ -13,6 +13,7 @@ from rstrace_engine import image
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.attributes import slots_of
 from rstrace_engine.geometry.edits import ObjectTransform, apply_edits
 from rstrace_engine.geometry.scene import Camera, Light, Material, Scene, SceneError
 from rstrace_engine.ri_tree import tree_cache as ri_cache
@@ -151,8 +152,9 @@ def test_patch_classes_never_cross_sharp_edges_or_material_borders():
     hit2 = np.flatnonzero(q2.status == ST_HIT)
     assert len(hit2) > 200
     h = cache.accel.intersect_object(1, o2[hit2], d2[hit2], 0.0, np.inf)
-    exact_mat = np.where(sa.tri_slot[h.prim] == 1, glass, mirror)
     ok = h.inst >= 0
+    slot = slots_of(sa, sa.inst_mesh[np.maximum(h.inst, 0)], np.maximum(h.prim, 0))
+    exact_mat = np.where(slot == 1, glass, mirror)
     assert np.array_equal(q2.mat[hit2][ok], exact_mat[ok])
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine import tolerances
+from rstrace_engine.geometry.attributes import ATTR_CORNER
 from rstrace_engine.geometry.elements import (
     TEX_CLIP,
     TEX_CLOSEST,
@@ -15,6 +16,7 @@ from rstrace_engine.geometry.elements import (
     TEX_SRGB,
     srgb_decode,
 )
+from rstrace_engine.geometry.scene import Material, Mesh, Scene
 from rstrace_engine.tracing import shading
 
 RNG = np.random.default_rng(7)
@@ -263,24 +265,40 @@ def test_texture_srgb_interpolates_before_decoding():
     assert shading.texture_lookup(data, start, size, 0, 0.75, 0.5)[0] == pytest.approx(1.0)
 
 
+def _corners(normals=None, uvs=None, m=2):
+    """The packing of ``m`` triangles given per-corner ``normals`` / ``uvs`` (held as one
+    CORNER-mode mesh: mesh 0, triangles 0..m-1)."""
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_mesh(Mesh("corners", verts, np.tile([[0, 1, 2]], (m, 1)), corner_normals=normals,
+                    corner_uvs=uvs))
+    s.add_instance(0, np.eye(4))
+    sa = s.arrays()
+    if normals is not None:
+        assert sa.mesh_nrm[0, 0] == ATTR_CORNER
+    return sa
+
+
 def test_surface_uv_interpolates_corners():
     uvs = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]]], np.float32)
-    assert shading.surface_uv(uvs, 0, 0.25, 0.5) == pytest.approx((0.25, 1.0))
+    assert shading.surface_uv(_corners(uvs=uvs, m=1), 0, 0, 0.25, 0.5) == pytest.approx(
+        (0.25, 1.0))
 
 
 def test_shading_normal_interpolation_and_fallback():
     nm = np.eye(3)
-    normals = np.array([[[0, 0, 1], [1, 0, 0], [0, 1, 0]],
-                        [[0, 0, 1], [0, 0, -1], [0, 0, 0]]], np.float32)
-    got = shading.shading_normal(normals, nm, 0, 1 / 3, 1 / 3, 9.0, 9.0, 9.0)
+    normals = _corners(np.array([[[0, 0, 1], [1, 0, 0], [0, 1, 0]],
+                                 [[0, 0, 1], [0, 0, -1], [0, 0, 0]]], np.float32))
+    got = shading.shading_normal(normals, 0, nm, 0, 1 / 3, 1 / 3, 9.0, 9.0, 9.0)
     assert got == pytest.approx(tuple(unit((1, 1, 1))), abs=1e-7)
     # opposite corner normals cancel at the midpoint: fall back to the geometric normal
     g = tuple(unit((0.1, 0.2, 0.9)))
-    assert shading.shading_normal(normals, nm, 1, 0.5, 0.0, *g) == g
+    assert shading.shading_normal(normals, 0, nm, 1, 0.5, 0.0, *g) == g
     # normals go through the normal matrix (inverse transpose of a non-uniform scale)
     m = np.diag([2.0, 1.0, 1.0])
     nmat = np.linalg.inv(m).T
-    got = shading.shading_normal(normals, nmat, 0, 1 / 3, 1 / 3, 0.0, 0.0, 1.0)
+    got = shading.shading_normal(normals, 0, nmat, 0, 1 / 3, 1 / 3, 0.0, 0.0, 1.0)
     assert got == pytest.approx(tuple(unit((0.5, 1, 1))), abs=1e-7)
 
 

@@ -8,6 +8,8 @@ from dataclasses import replace
 import numpy as np
 
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.attributes import mesh_corners
+from rstrace_engine.geometry.packing import mesh_slots, mesh_triangles
 from rstrace_engine.geometry.scene import Camera, Light, Material, Mesh, Scene
 
 
@@ -56,8 +58,9 @@ def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0),
     for m in scene.materials:
         out.add_material(replace(m, emission=tuple(np.asarray(m.emission) * gain)))
     for m in scene.meshes:
-        out.add_mesh(Mesh(m["name"], m["verts"], m["tris"], corner_normals=m["normals"],
-                          corner_uvs=m["uvs"], slots=m["slots"]))
+        out.add_mesh(Mesh(m["name"], m["verts"], mesh_triangles(m),
+                          corner_normals=mesh_corners(m, "normals"),
+                          corner_uvs=mesh_corners(m, "uvs"), slots=mesh_slots(m)))
     for inst in scene.instances:
         out.add_instance(inst["mesh"], g @ inst["matrix"], inst["materials"], inst["name"])
     for li in scene.lights:

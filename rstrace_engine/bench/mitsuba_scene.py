@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from ..geometry.attributes import scene_corners, slots_of
 from ..geometry.scene import LIGHT_SPOT, LIGHT_SUN, Scene
 
 
@@ -20,6 +21,7 @@ def world_triangles(scene: Scene):
     unshared vertices per triangle so per-corner normals survive.
     """
     sa = scene.arrays()
+    normals = scene_corners(sa, "normals")
     groups: dict[int, list] = {}
     for i in range(len(sa.inst_mesh)):
         m = sa.inst_mesh[i]
@@ -27,10 +29,10 @@ def world_triangles(scene: Scene):
         tris = sa.tris[t0:t1]
         xf = sa.inst_xform[i]
         p = sa.verts[tris.reshape(-1)] @ xf[:3, :3].T + xf[:3, 3]
-        n = sa.tri_normals[t0:t1].reshape(-1, 3).astype(np.float64) @ sa.inst_nmat[i].T
+        n = normals[t0:t1].reshape(-1, 3).astype(np.float64) @ sa.inst_nmat[i].T
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         mats = sa.inst_mat[sa.inst_mat_start[i]:sa.inst_mat_start[i + 1]]
-        slot = np.minimum(sa.tri_slot[t0:t1], len(mats) - 1)
+        slot = np.minimum(slots_of(sa, np.full(t1 - t0, m), np.arange(t0, t1)), len(mats) - 1)
         for mid in np.unique(mats[slot]):
             sel = np.repeat(mats[slot] == mid, 3)
             groups.setdefault(int(mid), []).append((p[sel], n[sel]))

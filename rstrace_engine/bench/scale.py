@@ -111,7 +111,8 @@ def memory(scene: Scene, sa, acc) -> dict:
     unique = int(sa.mesh_tri_start[-1])
     model = [m[k] for m in scene.meshes if m is not None
              for k in ("verts", "tris", "normals", "uvs", "slots")]
-    packed = [sa.verts, sa.tris, sa.tri_normals, sa.tri_uvs, sa.tri_slot, sa.mesh_tri_start]
+    packed = [sa.verts, sa.tris, sa.normals, sa.uvs, sa.tri_slot, sa.mesh_tri_start,
+              sa.mesh_nrm, sa.mesh_uv]
     # the BVH's own arrays (its leaves read the packed verts, counted there)
     bvh = [a for f, a in acc.sb._asdict().items() if f != "verts"]
     parts = {"model": _nbytes(model), "packed": _nbytes(packed), "bvh": _nbytes(bvh),

@@ -44,8 +44,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .attributes import mesh_corners
 from .cameras import same_camera
 from .lights import seen_extent
+from .packing import mesh_slots, mesh_triangles
 from .scene import Camera, Light, Material, Mesh, Scene, SceneError
 
 
@@ -466,7 +468,11 @@ def _apply_one(s: Scene, e, fx: EditEffects) -> None:
 def _same_mesh(a: dict, b: dict) -> bool:
     if a is b:
         return True
-    return all(np.array_equal(a[k], b[k]) for k in ("verts", "tris", "normals", "uvs", "slots"))
+    same_base = a.get("vert0", 0) == b.get("vert0", 0)  # (no copies to compare then)
+    return (np.array_equal(a["tris"], b["tris"]) if same_base
+            else np.array_equal(mesh_triangles(a), mesh_triangles(b))) and all(
+        np.array_equal(a[k], b[k])
+        for k in ("verts", "normals", "nmode", "uvs", "uvmode", "slots", "slot"))
 
 
 def same_material(a: Material | None, b: Material) -> bool:
@@ -486,8 +492,9 @@ def same_material(a: Material | None, b: Material) -> bool:
 
 
 def _as_mesh(d: dict) -> Mesh:
-    return Mesh(d["name"], d["verts"], d["tris"], corner_normals=d["normals"],
-                corner_uvs=d["uvs"], slots=d["slots"])
+    return Mesh(d["name"], d["verts"], mesh_triangles(d),
+                corner_normals=mesh_corners(d, "normals"), corner_uvs=mesh_corners(d, "uvs"),
+                slots=mesh_slots(d))
 
 
 def diff_scenes(old: Scene, new: Scene) -> list:

@@ -3,10 +3,11 @@ allocated: a mesh too large for the memory available is refused with a message t
 it, instead of the host running out of memory half way through a build.
 
 Per unique triangle (a mesh's, however many objects use it) rstrace holds the packed scene
-arrays, the validated mesh's own triangles and the BVH, about 145 bytes on a closed mesh
-(``bench scale``, docs/bench-scale.md: 88 + 12 + 45), and a BVH build needs about 190
-bytes more while it runs (primitive boxes, the binary tree and its working arrays): the
-peak is what is checked.
+arrays and the BVH: about 75 bytes on a smooth closed mesh (``bench scale``,
+docs/bench-scale.md: 30 + 45), up to about 145 where its normals and uvs vary per corner
+(:mod:`.attributes`); a BVH build needs about 190 bytes more while it runs (primitive
+boxes, the binary tree and its working arrays), and the host's per-corner arrays are held
+while the mesh is validated: the peak is what is checked.
 """
 
 from __future__ import annotations

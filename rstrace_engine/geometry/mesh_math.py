@@ -55,28 +55,40 @@ def _proper_kernel(v, tris, start, stop, rel, keep):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def flat_normal32(verts, tris, k):
+    """Triangle ``k``'s own unit normal ``cross(b - a, c - a) / |cross(b - a, c - a)|``,
+    each component rounded to float32 and returned as float64 (NaN for a triangle whose
+    cross product has no length: the scene model drops those). ``verts`` (V, 3) float32
+    or float64, ``tris`` (m, 3) int32. The same float64 operations, in the same order,
+    as ``np.cross`` and ``np.linalg.norm`` of the differences in float64 (a test compares
+    them)."""
+    a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
+    ax, ay, az = np.float64(verts[a, 0]), np.float64(verts[a, 1]), np.float64(verts[a, 2])
+    ux = np.float64(verts[b, 0]) - ax
+    uy = np.float64(verts[b, 1]) - ay
+    uz = np.float64(verts[b, 2]) - az
+    vx = np.float64(verts[c, 0]) - ax
+    vy = np.float64(verts[c, 1]) - ay
+    vz = np.float64(verts[c, 2]) - az
+    nx = uy * vz - uz * vy
+    ny = uz * vx - ux * vz
+    nz = ux * vy - uy * vx
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if not length > 0.0:
+        return np.nan, np.nan, np.nan
+    return (np.float64(np.float32(nx / length)), np.float64(np.float32(ny / length)),
+            np.float64(np.float32(nz / length)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def flat_triangle_normals(verts, tris, normals):
-    """Each triangle's own unit normal at its three corners: ``normals`` (m, 3, 3) float32
-    gets, where the triangle has one, ``cross(b - a, c - a) / |cross(b - a, c - a)|``
-    rounded to float32 (a degenerate triangle's rows are left as they are). ``verts``
-    (V, 3) float32 or float64, ``tris`` (m, 3) int32. The same float64 operations, in the
-    same order, as ``np.cross`` and ``np.linalg.norm`` of the differences in float64 (a
-    test compares them), in one pass instead of a dozen (m, 3) temporaries."""
+    """Each triangle's own unit normal (:func:`flat_normal32`) at its three corners:
+    ``normals`` (m, 3, 3) float32 gets it where the triangle has an area (a degenerate
+    triangle's rows are left as they are). One pass instead of a dozen (m, 3)
+    temporaries."""
     for k in range(tris.shape[0]):
-        a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
-        ax, ay, az = np.float64(verts[a, 0]), np.float64(verts[a, 1]), np.float64(verts[a, 2])
-        ux = np.float64(verts[b, 0]) - ax
-        uy = np.float64(verts[b, 1]) - ay
-        uz = np.float64(verts[b, 2]) - az
-        vx = np.float64(verts[c, 0]) - ax
-        vy = np.float64(verts[c, 1]) - ay
-        vz = np.float64(verts[c, 2]) - az
-        nx = uy * vz - uz * vy
-        ny = uz * vx - ux * vz
-        nz = ux * vy - uy * vx
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if length > 0.0:
-            fx, fy, fz = np.float32(nx / length), np.float32(ny / length), np.float32(nz / length)
+        fx, fy, fz = flat_normal32(verts, tris, k)
+        if fx == fx:  # not NaN: the triangle has an area
             for corner in range(3):
                 normals[k, corner, 0] = fx
                 normals[k, corner, 1] = fy

@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from .attributes import scene_corners, slots_of
 from .scene import SceneArrays
 
 #: Meshes with more than sqrt(this) triangles are not tested for convexity (the test is
@@ -127,8 +128,10 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
     parent = np.arange(n_tri, dtype=np.int64)
     boundary = np.zeros(n_tri, np.uint8)
     _edge_pass(order, key_lo, key_hi, e_tri, e_loc, e_dir, tris_w,
-               sa.tri_normals.astype(np.float64), sa.tri_uvs.astype(np.float64),
-               sa.tri_slot, parent, boundary, tol.CLASS_NORMAL_TOL, tol.CLASS_UV_TOL)
+               scene_corners(sa, "normals").astype(np.float64),
+               scene_corners(sa, "uvs").astype(np.float64),
+               slots_of(sa, tri_mesh, np.arange(n_tri)).astype(np.int32), parent, boundary,
+               tol.CLASS_NORMAL_TOL, tol.CLASS_UV_TOL)
     closed = np.ones(n_mesh, bool)
     convex = np.zeros(n_mesh, bool)
     for m in range(n_mesh):

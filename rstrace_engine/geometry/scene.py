@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import tolerances as tol
+from .attributes import ATTR_NONE, ATTR_VERTEX, compact_normals, compact_uvs
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
     AREA_SHAPES,
     LIGHT_AREA,
@@ -69,10 +70,10 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
 from .footprint import check_fits, estimate
 from .lights import checked_light, pack_lights
 from .mesh_math import proper_triangles, transform_aabb, vertex_normals
+from .packing import compact_slots, pack_meshes
 from .slot_keys import SlotKeys
 
 log = logging.getLogger(__name__)
-
 
 
 class SceneArrays(NamedTuple):
@@ -86,9 +87,12 @@ class SceneArrays(NamedTuple):
 
     verts: np.ndarray  # (V, 3) float64, object space, all meshes concatenated
     tris: np.ndarray  # (T, 3) int32, global indices into verts
-    tri_normals: np.ndarray  # (T, 3, 3) float32 per-corner shading normals, object space
-    tri_uvs: np.ndarray  # (T, 3, 2) float32 per-corner uvs
-    tri_slot: np.ndarray  # (T,) int32 material slot
+    normals: np.ndarray  # (N, 3) float32 shading normal rows (:mod:`.attributes`), object space
+    mesh_nrm: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's normals
+    uvs: np.ndarray  # (U, 2) float32 uv rows
+    mesh_uv: np.ndarray  # (M, 2) int64 (ATTR_* mode, row bias) of each mesh's uvs
+    tri_slot: np.ndarray  # (S,) int32 material slot rows (:mod:`.packing`)
+    mesh_slot: np.ndarray  # (M, 2) int64 (constant slot or -1, row bias) of each mesh
     mesh_tri_start: np.ndarray  # (M + 1,) int32: mesh k owns tris[start[k]:start[k+1]]
     inst_mesh: np.ndarray  # (I,) int32
     inst_xform: np.ndarray  # (I, 4, 4) float64 object -> world
@@ -146,18 +150,6 @@ class SceneArrays(NamedTuple):
     light_spot_frame: np.ndarray  # (L, 3, 3) rows taking a direction into its scaled frame
     light_recv: np.ndarray  # (L, I) uint8 light linking: lights object; (0, 0) no linking
     light_block: np.ndarray  # (L, I) uint8 shadow linking: casts its shadow; (0, 0) none
-
-
-def _texture_space(mesh: dict | None) -> np.ndarray:
-    """``(lo, extent)`` of a mesh's automatic texture space, as Blender computes it (its
-    bounding box; a flat axis gets half-size 1, a tiny one 1e-5), for Generated texture
-    coordinates ``(p - lo) / extent`` in [0, 1]. A tombstone: the unit box."""
-    if mesh is None:
-        return np.array([[0.0] * 3, [1.0] * 3])
-    lo, hi = np.asarray(mesh["lo"], np.float64), np.asarray(mesh["hi"], np.float64)
-    mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-    half = np.where(half == 0.0, 1.0, np.maximum(half, tol.TEXSPACE_HALF_MIN))
-    return np.stack([mid - half, 2.0 * half])
 
 
 def _footprint(mesh: dict) -> int:
@@ -398,21 +390,16 @@ class Scene:
             raise SceneError(f"mesh '{n}': vertex coordinates exceed {tol.COORD_MAX:g}")
         tris = np.array(tris, np.int32)  # a copy: the caller may change its array later
         m = len(tris)
-        normals = uvs = slots = None
-        if mesh.corner_normals is not None:
-            normals = _finite_array(n, "mesh normals", mesh.corner_normals, (3, 3), np.float32)
-            if len(normals) != m:
-                raise SceneError(f"mesh '{n}': {len(normals)} corner normal triples for {m} "
-                                 f"triangles")
-        if mesh.corner_uvs is not None:
-            uvs = _finite_array(n, "mesh uvs", mesh.corner_uvs, (3, 2), np.float32)
-            if len(uvs) != m:
-                raise SceneError(f"mesh '{n}': {len(uvs)} corner uv triples for {m} triangles")
+        cn, cu, slots = mesh.corner_normals, mesh.corner_uvs, None
+        normals = None if cn is None else _finite_array(n, "mesh normals", cn, (3, 3), np.float32)
+        uvs = None if cu is None else _finite_array(n, "mesh uvs", cu, (3, 2), np.float32)
+        for what, a in (("corner normal", normals), ("corner uv", uvs)):
+            if a is not None and len(a) != m:
+                raise SceneError(f"mesh '{n}': {len(a)} {what} triples for {m} triangles")
         if mesh.slots is not None:
             slots = np.array(mesh.slots, dtype=np.int32).reshape(-1)
             if len(slots) != m or (m and slots.min() < 0):
                 raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
-
         keep = proper_triangles(verts, tris, cancel)
         dropped = int(m - np.count_nonzero(keep))
         if dropped:
@@ -423,21 +410,17 @@ class Scene:
         if not dropped:  # (the usual case: no copy)
             keep = slice(None)
         tris = tris[keep]
-        if normals is None:
-            if mesh.smooth:
-                vn = vertex_normals(verts, tris)
-                normals = vn[tris].astype(np.float32)
-            else:
-                fv = verts[tris]
-                fn = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
-                fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-                normals = np.repeat(fn[:, None, :], 3, axis=1).astype(np.float32)
-        else:
-            normals = normals[keep]
-        uvs = np.zeros((len(tris), 3, 2), np.float32) if uvs is None else uvs[keep]
-        slots = np.zeros(len(tris), np.int32) if slots is None else slots[keep]
-        return dict(name=n, verts=verts, tris=tris, normals=normals, uvs=uvs, slots=slots,
-                    lo=verts.min(axis=0), hi=verts.max(axis=0))
+        if normals is not None:
+            nmode, normals = compact_normals(verts, tris, normals[keep])
+        elif mesh.smooth:  # (the vertex normals' float32 rows: what every corner reads)
+            nmode, normals = ATTR_VERTEX, vertex_normals(verts, tris).astype(np.float32)
+        else:  # flat: each corner reads its triangle's own normal, computed
+            nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
+        uvmode, uvs = compact_uvs(tris, len(verts), None if uvs is None else uvs[keep])
+        slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots[keep])
+        return dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
+                    uvmode=uvmode, slots=slots, slot=slot, lo=verts.min(axis=0),
+                    hi=verts.max(axis=0))
 
     # objects
 
@@ -566,40 +549,12 @@ class Scene:
     # -- packing ---------------------------------------------------------------------
 
     def _pack_meshes(self):
-        """Every mesh concatenated; a tombstoned slot owns no vertices and no triangles
-        (``mesh_tri_start[k] == mesh_tri_start[k + 1]``).
-
-        The meshes are then held once: each live mesh's vertices, corner normals, uvs and
-        slots become views of the concatenation (the same values: mesh data are replaced,
-        never mutated, so scenes sharing a mesh dict see no change); only its triangles,
-        whose indices are its own, stay a separate array.
-        """
+        """The packing's geometry (:func:`~.packing.pack_meshes`: the meshes then held
+        once, as views of it), kept while the meshes are unchanged."""
         if self._mesh_arrays is None:
-            live = [m for m in self.meshes if m is not None]
-            if not live:
+            if all(m is None for m in self.meshes):
                 raise SceneError("scene has no meshes")
-            nv = np.cumsum([0] + [len(m["verts"]) for m in live])
-            nt = np.cumsum([0] + [len(m["tris"]) for m in live])
-            tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
-                                      for m in self.meshes]).astype(np.int32)
-            packed = dict(
-                verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
-                tri_normals=np.empty((nt[-1], 3, 3), np.float32),
-                tri_uvs=np.empty((nt[-1], 3, 2), np.float32),
-                tri_slot=np.empty(nt[-1], np.int32))
-            for k, m in enumerate(live):
-                v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
-                packed["verts"][v] = m["verts"]
-                np.add(m["tris"], np.int32(nv[k]), out=packed["tris"][t])
-                packed["tri_normals"][t] = m["normals"]
-                packed["tri_uvs"][t] = m["uvs"]
-                packed["tri_slot"][t] = m["slots"]
-                m.update(verts=packed["verts"][v], normals=packed["tri_normals"][t],
-                         uvs=packed["tri_uvs"][t], slots=packed["tri_slot"][t])
-            packed["mesh_tri_start"] = tstart
-            packed["mesh_gen"] = np.stack(
-                [_texture_space(m) for m in self.meshes]).reshape(-1, 2, 3)
-            self._mesh_arrays = packed
+            self._mesh_arrays = pack_meshes(self.meshes)
         return self._mesh_arrays
 
     def arrays(self) -> SceneArrays:
@@ -646,8 +601,9 @@ class Scene:
             extent = max(float(np.max(np.abs(hi))), 1.0)
         f64 = np.float64
         self._arrays = SceneArrays(
-            verts=geo["verts"], tris=geo["tris"], tri_normals=geo["tri_normals"],
-            tri_uvs=geo["tri_uvs"], tri_slot=geo["tri_slot"],
+            verts=geo["verts"], tris=geo["tris"], normals=geo["normals"],
+            mesh_nrm=geo["mesh_nrm"], uvs=geo["uvs"], mesh_uv=geo["mesh_uv"],
+            tri_slot=geo["tri_slot"], mesh_slot=geo["mesh_slot"],
             mesh_tri_start=geo["mesh_tri_start"], mesh_gen=geo["mesh_gen"],
             inst_mesh=np.array([0 if i is None else i["mesh"] for i in self.instances],
                                np.int32).reshape(ni),

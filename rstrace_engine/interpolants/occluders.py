@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import LIGHT_SUN
-from .shafts import instance_candidates, shaft_instances, tri_normal
+from .shafts import instance_candidates, shaft_instances, tri_normal, tvx
 
 #: Seeds tried (triangles whose plane may hold the projection) before giving up.
 MAX_SEEDS = 48
@@ -97,9 +97,9 @@ def _segment_hits(qs, cand, nc, ox, oy, oz, dx, dy, dz, tmax):
     does not count, which only makes the proof more conservative)?"""
     for q in range(nc):
         t = cand[q]
-        v0x, v0y, v0z = qs.tv[t, 0], qs.tv[t, 1], qs.tv[t, 2]
-        e1x, e1y, e1z = qs.tv[t, 3] - v0x, qs.tv[t, 4] - v0y, qs.tv[t, 5] - v0z
-        e2x, e2y, e2z = qs.tv[t, 6] - v0x, qs.tv[t, 7] - v0y, qs.tv[t, 8] - v0z
+        v0x, v0y, v0z = tvx(qs, t, 0), tvx(qs, t, 1), tvx(qs, t, 2)
+        e1x, e1y, e1z = tvx(qs, t, 3) - v0x, tvx(qs, t, 4) - v0y, tvx(qs, t, 5) - v0z
+        e2x, e2y, e2z = tvx(qs, t, 6) - v0x, tvx(qs, t, 7) - v0y, tvx(qs, t, 8) - v0z
         px = dy * e2z - dz * e2y
         py = dz * e2x - dx * e2z
         pz = dx * e2y - dy * e2x
@@ -173,7 +173,7 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
             far = max(far, abs(L[k]))
         for q in range(nc):  # and beyond every candidate triangle
             for k in range(9):
-                far = max(far, abs(qs.tv[cand[q], k]))
+                far = max(far, abs(tvx(qs, cand[q], k)))
         all_in = True
         for c in range(n):
             if sun:  # toward the sun, far beyond the occluder
@@ -205,14 +205,14 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
         scale = max(scale, abs(L[k] - X[0, k]) if not sun else 0.0)
     for s in range(min(nc, MAX_SEEDS)):
         t = cand[s]
-        nx, ny, nz = tri_normal(qs.tv, t)
+        nx, ny, nz = tri_normal(qs, t)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         if ln == 0.0:
             continue
         nx /= ln
         ny /= ln
         nz /= ln
-        d0 = nx * qs.tv[t, 0] + ny * qs.tv[t, 1] + nz * qs.tv[t, 2]
+        d0 = nx * tvx(qs, t, 0) + ny * tvx(qs, t, 1) + nz * tvx(qs, t, 2)
         tolp = tol.COVER_PLANE_REL * (scale + abs(d0)) + qs.slack
         if sun:
             sl = nx * L[0] + ny * L[1] + nz * L[2]
@@ -265,7 +265,7 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
         covered = 0.0
         for q in range(nc):
             t2 = cand[q]
-            mx, my, mz = tri_normal(qs.tv, t2)
+            mx, my, mz = tri_normal(qs, t2)
             lm = math.sqrt(mx * mx + my * my + mz * mz)
             if lm == 0.0:
                 continue
@@ -274,18 +274,18 @@ def occluder_covers(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
                 continue
             off = 0.0
             for v in range(3):
-                off = max(off, abs(nx * qs.tv[t2, 3 * v] + ny * qs.tv[t2, 3 * v + 1]
-                                   + nz * qs.tv[t2, 3 * v + 2] - d0))
+                off = max(off, abs(nx * tvx(qs, t2, 3 * v) + ny * tvx(qs, t2, 3 * v + 1)
+                                   + nz * tvx(qs, t2, 3 * v + 2) - d0))
             if off > tolp:
                 continue
             # the triangle in plane coordinates, counter-clockwise
             tx = np.empty(3)
             ty = np.empty(3)
             for v in range(3):
-                tx[v] = (e1x * qs.tv[t2, 3 * v] + e1y * qs.tv[t2, 3 * v + 1]
-                         + e1z * qs.tv[t2, 3 * v + 2])
-                ty[v] = (e2x * qs.tv[t2, 3 * v] + e2y * qs.tv[t2, 3 * v + 1]
-                         + e2z * qs.tv[t2, 3 * v + 2])
+                tx[v] = (e1x * tvx(qs, t2, 3 * v) + e1y * tvx(qs, t2, 3 * v + 1)
+                         + e1z * tvx(qs, t2, 3 * v + 2))
+                ty[v] = (e2x * tvx(qs, t2, 3 * v) + e2y * tvx(qs, t2, 3 * v + 1)
+                         + e2z * tvx(qs, t2, 3 * v + 2))
             if (tx[1] - tx[0]) * (ty[2] - ty[0]) - (ty[1] - ty[0]) * (tx[2] - tx[0]) < 0.0:
                 tx[1], tx[2] = tx[2], tx[1]
                 ty[1], ty[2] = ty[2], ty[1]
@@ -345,7 +345,7 @@ def cone_umbra(qs, b, j, pts, npts, pl, npl, bb, cand, P, Q):
             far = max(far, abs(X[c, k]))
     for q in range(nc):
         for k in range(9):
-            far = max(far, abs(qs.tv[cand[q], k]))
+            far = max(far, abs(tvx(qs, cand[q], k)))
     # the axis toward the sun and a basis across it (world)
     ax, ay, az = -qs.light_dir[j, 0], -qs.light_dir[j, 1], -qs.light_dir[j, 2]
     la = math.sqrt(ax * ax + ay * ay + az * az)

@@ -71,6 +71,7 @@ from numba import njit, prange
 from .. import image
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
+from ..geometry.attributes import slot_of
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 from ..tracing.soft_lights import OCC_SOFT
 from .linetree import corner_weights, face_frame, line_points
@@ -331,10 +332,11 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
         gt = qs.tri[t]
         if qs.tri_class[gt] != cls:
             return False
-        if nslot > 0 and qs.mat_glossy[qs.inst_mat[s0 + min(qs.tri_slot[gt], nslot - 1)]]:
+        if nslot > 0 and qs.mat_glossy[qs.inst_mat[
+                s0 + min(slot_of(qs, qs.inst_mesh[inst], gt), nslot - 1)]]:
             for j in range(L):
                 quiet[j] = False  # a glossy lobe: the soft samples estimate it (noise)
-        load_tri(qs.tv, t, P)
+        load_tri(qs, t, P)
         nv = clip_polygon(plo, 0, six, P, 3, Q)
         for v in range(nv):
             m_ = nhv[0]
@@ -349,7 +351,7 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
                     hv[m_, k] = w
             if 0 <= m_ < hv.shape[0]:
                 nhv[0] = m_ + 1
-        nx, ny, nz = tri_normal(qs.tv, t)
+        nx, ny, nz = tri_normal(qs, t)
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
         for c in range(16):
             s = nx * do[c, 0] + ny * do[c, 1] + nz * do[c, 2]
@@ -360,7 +362,7 @@ def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind
             return False
         # the end rectangles: clip by the four side planes, then look for a crossing of the
         # z-lo / z-hi planes
-        load_tri(qs.tv, t, P)
+        load_tri(qs, t, P)
         n = clip_polygon(plo, 0, np.int64(4), P, 3, Q)
         for e in range(4, 6):
             lo_s = np.inf
@@ -398,7 +400,7 @@ def _self_shadow(qs, inst, j, pl, npl, bb, cand, P, Q):
         return False
     for q in range(nc):
         t = cand[q]
-        nx, ny, nz = tri_normal(qs.tv, t)
+        nx, ny, nz = tri_normal(qs, t)
         if extent_side(qs, xf, inv, t, j, nx, ny, nz) != 1:
             return False
         if boundary_edge_in(qs, t, plo, npl):

@@ -18,6 +18,7 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..accel.accelerators import Hits
+from ..geometry.attributes import slot_of, slots_of
 from ..geometry.elements import TEX_METAL, TEX_SPECULAR, TEX_TRANSMISSION_SQRT
 from ..geometry.scene import LIGHT_SUN
 from ..tracing.glossy_rays import is_glossy
@@ -458,7 +459,7 @@ def hit_material(sa, inst, prim):
         return -1
     s0 = sa.inst_mat_start[inst]
     cnt = sa.inst_mat_start[inst + 1] - s0
-    slot = sa.tri_slot[prim]
+    slot = slot_of(sa, sa.inst_mesh[inst], prim)
     if slot >= cnt:
         slot = cnt - 1
     return sa.inst_mat[s0 + slot]
@@ -511,7 +512,7 @@ def hit_materials(sa, inst: np.ndarray, prim: np.ndarray) -> np.ndarray:
     hit = np.flatnonzero(np.asarray(inst) >= 0)
     k = np.asarray(inst, np.int64)[hit]
     s0 = sa.inst_mat_start[k]
-    slot = np.minimum(sa.tri_slot[np.asarray(prim, np.int64)[hit]],
+    slot = np.minimum(slots_of(sa, sa.inst_mesh[k], np.asarray(prim, np.int64)[hit]),
                       sa.inst_mat_start[k + 1] - s0 - 1)
     out[hit] = sa.inst_mat[s0 + slot]
     return out

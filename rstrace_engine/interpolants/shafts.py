@@ -54,7 +54,7 @@ class QueryScene(NamedTuple):
     top_inst: np.ndarray  # (I,) int32 instance ids in leaf order
     bounds: np.ndarray  # (N, 12) float64 all mesh BVH nodes (object space)
     child: np.ndarray  # (N, 2) int32
-    tv: np.ndarray  # (T, 9) float64 triangle vertices in leaf order
+    tvi: np.ndarray  # (T, 3) int32 the triangles' vertex indices (into verts), leaf order
     tri: np.ndarray  # (T,) int32 global triangle index
     mesh_root: np.ndarray  # (M,) int32
     inst_mesh: np.ndarray  # (I,) int32
@@ -89,11 +89,16 @@ class QueryScene(NamedTuple):
     light_closed: np.ndarray  # (L,) bool the tracer has a closed form for the light's
     # unshadowed diffuse term where it is above the horizon (a sphere that is not a spot,
     # a sun, a rectangle without spread: soft_lights._row_exact)
-    tri_normals: np.ndarray  # (T, 3, 3) float32 per-corner shading normals, object space
+    # the packing's shading normals (:func:`~..geometry.attributes.corner_normals`)
+    normals: np.ndarray  # (N, 3) float32 rows
+    mesh_nrm: np.ndarray  # (M, 2) int64 (mode, bias) per mesh
+    verts: np.ndarray  # (V, 3) float64 the packing's vertices (flat normals)
+    tris: np.ndarray  # (T, 3) int32 the packing's triangles
     inst_nmat: np.ndarray  # (I, 3, 3) float64 normal matrices
     inst_mat_start: np.ndarray  # (I + 1,) int32
     inst_mat: np.ndarray  # (K,) int32
-    tri_slot: np.ndarray  # (T,) int32
+    tri_slot: np.ndarray  # (S,) int32 slot rows (:mod:`~..geometry.packing`)
+    mesh_slot: np.ndarray  # (M, 2) int64 (constant slot or -1, row bias) per mesh
     mat_glossy: np.ndarray  # (NM,) bool the BRDF has a glossy lobe that soft samples estimate
 
 
@@ -127,7 +132,7 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
         c = np.where(c < 0, ~(((code >> 3) + n_tris) << 3 | (code & 7)), c + n_nodes)
         bounds.append(b)
         childs.append(c.astype(np.int32))
-        tvs.append(tv[perm].reshape(-1, 9))
+        tvs.append(sa.tris[sa.mesh_tri_start[m] + perm])
         tris.append(perm.astype(np.int64) + sa.mesh_tri_start[m])
         roots.append(n_nodes)
         n_nodes += len(b)
@@ -139,7 +144,8 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
     lo_s, hi_s = sa.scene_aabb
     mag = float(sa.scene_extent + np.max(np.abs(sa.scene_aabb)))
     return QueryScene(tb, tc, tperm.astype(np.int32), np.concatenate(bounds),
-                      np.concatenate(childs), np.ascontiguousarray(np.concatenate(tvs)),
+                      np.concatenate(childs),
+                      np.ascontiguousarray(np.concatenate(tvs), np.int32),
                       np.concatenate(tris).astype(np.int32), np.array(roots, np.int32),
                       np.ascontiguousarray(sa.inst_mesh, np.int32), sa.inst_xform, sa.inst_inv,
                       topo.tri_class, topo.tri_boundary, sa.light_kind,
@@ -155,11 +161,12 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
                       np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-                      closed_forms(sa), sa.tri_normals,
+                      closed_forms(sa), sa.normals, sa.mesh_nrm, sa.verts, sa.tris,
                       np.ascontiguousarray(sa.inst_nmat, np.float64),
                       np.ascontiguousarray(sa.inst_mat_start, np.int32),
                       np.ascontiguousarray(sa.inst_mat, np.int32),
-                      np.ascontiguousarray(sa.tri_slot, np.int32), glossy_materials(sa))
+                      np.ascontiguousarray(sa.tri_slot, np.int32), sa.mesh_slot,
+                      glossy_materials(sa))
 
 
 def closed_forms(sa: SceneArrays) -> np.ndarray:
@@ -229,17 +236,25 @@ def segment_in(pl, npl, ax, ay, az, bx, by, bz):
     return True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def tvx(qs, t, k):
+    """Coordinate ``k`` (0-8: vertex ``k // 3``, axis ``k % 3``) of leaf-order triangle
+    ``t``: read from the packing's vertices through the leaf-order indices (a copy of the
+    coordinates took 72 bytes a triangle, the indices take 12)."""
+    return qs.verts[qs.tvi[t, k // 3], k % 3]
+
+
 @njit(cache=True, nogil=True)
-def load_tri(tv, t, P):
+def load_tri(qs, t, P):
     for v in range(3):
-        P[v, 0] = tv[t, 3 * v]
-        P[v, 1] = tv[t, 3 * v + 1]
-        P[v, 2] = tv[t, 3 * v + 2]
+        P[v, 0] = tvx(qs, t, 3 * v)
+        P[v, 1] = tvx(qs, t, 3 * v + 1)
+        P[v, 2] = tvx(qs, t, 3 * v + 2)
 
 
 @njit(cache=True, nogil=True)
-def tri_in(tv, t, plo, npl, P, Q):
-    load_tri(tv, t, P)
+def tri_in(qs, t, plo, npl, P, Q):
+    load_tri(qs, t, P)
     return clip_polygon(plo, 0, npl, P, 3, Q) > 0
 
 
@@ -268,7 +283,7 @@ def mesh_candidates(qs, m, plo, npl, bbo, out, P, Q):
                 code = ~ch
                 start = code >> 3
                 for t in range(start, start + (code & 7)):
-                    if tri_in(qs.tv, t, plo, npl, P, Q):
+                    if tri_in(qs, t, plo, npl, P, Q):
                         if cnt >= out.shape[0]:
                             return -1
                         out[cnt] = t
@@ -359,7 +374,7 @@ def mesh_any(qs, m, plo, npl, bbo, P, Q):
                 code = ~ch
                 start = code >> 3
                 for t in range(start, start + (code & 7)):
-                    if tri_in(qs.tv, t, plo, npl, P, Q):
+                    if tri_in(qs, t, plo, npl, P, Q):
                         return True
     return False
 
@@ -370,25 +385,25 @@ def boundary_edge_in(qs, t, plo, npl):
     mask = qs.tri_boundary[qs.tri[t]]
     if mask == 0:
         return False
-    tv = qs.tv
     for e in range(3):
         if not (mask >> e) & 1:
             continue
         f = (e + 1) % 3
-        if segment_in(plo, npl, tv[t, 3 * e], tv[t, 3 * e + 1], tv[t, 3 * e + 2],
-                      tv[t, 3 * f], tv[t, 3 * f + 1], tv[t, 3 * f + 2]):
+        if segment_in(plo, npl, tvx(qs, t, 3 * e), tvx(qs, t, 3 * e + 1),
+                      tvx(qs, t, 3 * e + 2), tvx(qs, t, 3 * f), tvx(qs, t, 3 * f + 1),
+                      tvx(qs, t, 3 * f + 2)):
             return True
     return False
 
 
 @njit(cache=True, nogil=True, inline="always")
-def tri_normal(tv, t):
-    e1x = tv[t, 3] - tv[t, 0]
-    e1y = tv[t, 4] - tv[t, 1]
-    e1z = tv[t, 5] - tv[t, 2]
-    e2x = tv[t, 6] - tv[t, 0]
-    e2y = tv[t, 7] - tv[t, 1]
-    e2z = tv[t, 8] - tv[t, 2]
+def tri_normal(qs, t):
+    e1x = tvx(qs, t, 3) - tvx(qs, t, 0)
+    e1y = tvx(qs, t, 4) - tvx(qs, t, 1)
+    e1z = tvx(qs, t, 5) - tvx(qs, t, 2)
+    e2x = tvx(qs, t, 6) - tvx(qs, t, 0)
+    e2y = tvx(qs, t, 7) - tvx(qs, t, 1)
+    e2z = tvx(qs, t, 8) - tvx(qs, t, 2)
     return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
 
 
@@ -411,9 +426,9 @@ def light_side(qs, inv, t, j, nx, ny, nz):
     oz = inv[2, 0] * px + inv[2, 1] * py + inv[2, 2] * pz + inv[2, 3]
     side = 2
     for v in range(3):
-        dx = ox - qs.tv[t, 3 * v]
-        dy = oy - qs.tv[t, 3 * v + 1]
-        dz = oz - qs.tv[t, 3 * v + 2]
+        dx = ox - tvx(qs, t, 3 * v)
+        dy = oy - tvx(qs, t, 3 * v + 1)
+        dz = oz - tvx(qs, t, 3 * v + 2)
         s = nx * dx + ny * dy + nz * dz
         lim = tol.FACING_EPS_REL * ln * math.sqrt(dx * dx + dy * dy + dz * dz)
         sv = 1 if s > lim else (-1 if s < -lim else 0)
@@ -461,7 +476,7 @@ def extent_side(qs, xf, inv, t, j, nx, ny, nz):
     wz /= ln
     v = np.empty(3)
     for k in range(3):
-        v[k] = (xf[k, 0] * qs.tv[t, 0] + xf[k, 1] * qs.tv[t, 1] + xf[k, 2] * qs.tv[t, 2]
+        v[k] = (xf[k, 0] * tvx(qs, t, 0) + xf[k, 1] * tvx(qs, t, 1) + xf[k, 2] * tvx(qs, t, 2)
                 + xf[k, 3])
     return extent_plane_side(qs, j, wx, wy, wz, v[0], v[1], v[2], qs.slack)
 

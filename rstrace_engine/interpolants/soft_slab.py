@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..geometry.attributes import corner_normals
 from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
 
 
@@ -27,13 +28,12 @@ def _unit_normals(qs, inst, gt, nx, ny, nz, N):
     (0 where too short to normalise: the tracer's interpolated normal then falls back to
     the geometric one, :func:`~..tracing.shading.shading_normal`, or gets no share of it)."""
     nm = qs.inst_nmat[inst]
+    c = corner_normals(qs, qs.inst_mesh[inst], gt)
     for r in range(4):
         if r == 0:
             ox, oy, oz = nx, ny, nz
         else:
-            ox = float(qs.tri_normals[gt, r - 1, 0])
-            oy = float(qs.tri_normals[gt, r - 1, 1])
-            oz = float(qs.tri_normals[gt, r - 1, 2])
+            ox, oy, oz = c[3 * r - 3], c[3 * r - 2], c[3 * r - 1]
         wx = nm[0, 0] * ox + nm[0, 1] * oy + nm[0, 2] * oz
         wy = nm[1, 0] * ox + nm[1, 1] * oy + nm[1, 2] * oz
         wz = nm[2, 0] * ox + nm[2, 1] * oy + nm[2, 2] * oz

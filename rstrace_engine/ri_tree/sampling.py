@@ -119,7 +119,8 @@ def line_rays(box, inst, face, abcd, o, d):
 
 _HitScene = view_type("_HitScene", SceneArrays, (
     "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_mirror",
-    "mat_transmission", "scene_extent", "tri_normals", "tri_slot", "tris", "verts"), __name__)
+    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "mesh_slot",
+    "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -150,7 +151,7 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
         pz = o[r, 2] + d[r, 2] * t[r]
         nm = sa.inst_nmat[k]
         gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, tri)
-        sx, sy, sz = shading_normal(sa.tri_normals, nm, tri, u[r], v[r], gx, gy, gz)
+        sx, sy, sz = shading_normal(sa, sa.inst_mesh[k], nm, tri, u[r], v[r], gx, gy, gz)
         m = _material_of(sa, k, tri)
         cls[r] = tri_class[tri] * PATH_BITS
         mat[r] = m
@@ -187,7 +188,8 @@ def hit_attributes(sa, tri_class, inst, o, d, t, prim, u, v, cls, mat, P, NS, NG
 _PathScene = view_type("_PathScene", SceneArrays, (
     "inst_mat", "inst_mat_start", "inst_nmat", "mat_ior", "mat_metal", "mat_metal_tint",
     "mat_metallic", "mat_mirror", "mat_model", "mat_specular", "mat_specular_ior",
-    "mat_transmission", "scene_extent", "tri_normals", "tri_slot", "tris", "verts"), __name__)
+    "mat_transmission", "scene_extent", "inst_mesh", "mesh_nrm", "normals", "mesh_slot",
+    "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -217,7 +219,7 @@ def path_step(sa, inst, rows, po, pd, t, prim, u, v, it, OP, OD, gain, nint, cls
         pz = po[q, 2] + pd[q, 2] * t[q]
         nm = sa.inst_nmat[k]
         gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, tri)
-        sx, sy, sz = shading_normal(sa.tri_normals, nm, tri, u[q], v[q], gx, gy, gz)
+        sx, sy, sz = shading_normal(sa, sa.inst_mesh[k], nm, tri, u[q], v[q], gx, gy, gz)
         m = _material_of(sa, k, tri)
         dx, dy, dz = pd[q, 0], pd[q, 1], pd[q, 2]
         enter = dot3(dx, dy, dz, gx, gy, gz) < 0.0

@@ -134,7 +134,7 @@ def _resolve(nd, S, leaf, abcd, status, P, NS, NG, OP, OD, gain, thick, nint, ma
 
 
 _ResolveScene = view_type("_ResolveScene", SceneArrays, (
-    "inst_nmat", "tri_normals", "tris", "verts"), __name__)
+    "inst_nmat", "inst_mesh", "mesh_nrm", "normals", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -168,7 +168,7 @@ def _resolve_tested(sa, nd, S, tri_class, inst, leaf, abcd, rows, o, d, t, prim,
         k = inst[r]
         nm = sa.inst_nmat[k]
         gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, prim[q])
-        sx, sy, sz = shading_normal(sa.tri_normals, nm, prim[q], u[q], v[q], gx, gy, gz)
+        sx, sy, sz = shading_normal(sa, sa.inst_mesh[k], nm, prim[q], u[q], v[q], gx, gy, gz)
         for c in range(3):
             P[r, c] = o[r, c] + d[r, c] * t[q]
         NG[r, 0], NG[r, 1], NG[r, 2] = gx, gy, gz

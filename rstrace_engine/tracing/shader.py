@@ -41,6 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from ..geometry.attributes import slot_of
 from ..geometry.scene import (
     LIGHT_SPOT,
     LIGHT_SUN,
@@ -149,7 +150,7 @@ def _material_of(sa, inst, tri):
     """Material id of triangle ``tri`` on instance ``inst`` (slot clamped to the list)."""
     s0 = sa.inst_mat_start[inst]
     cnt = sa.inst_mat_start[inst + 1] - s0
-    slot = sa.tri_slot[tri]
+    slot = slot_of(sa, sa.inst_mesh[inst], tri)
     if slot >= cnt:
         slot = cnt - 1
     return sa.inst_mat[s0 + slot]
@@ -229,7 +230,7 @@ _SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
     "light_cos_outer", "light_dir", "light_ext", "light_half", "light_kind",
     "light_pos", "light_recv", "light_spot_frame", "light_spot_scaled", "mat_ior",
     "mat_model", "mat_roughness", "mat_transmission", "scene_aabb", "scene_extent",
-    "tri_normals", "tri_slot", "tris", "verts"), __name__)
+    "inst_mesh", "mesh_nrm", "normals", "mesh_slot", "tri_slot", "tris", "verts"), __name__)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -280,7 +281,7 @@ def _surface_kernel(sa, o, d, tmax, hits, surf):
         P[i, 2] = pz
         nm = sa.inst_nmat[k]
         gx, gy, gz = geometric_normal(sa.verts, sa.tris, nm, tri)
-        sx, sy, sz = shading_normal(sa.tri_normals, nm, tri, bu[i], bv[i], gx, gy, gz)
+        sx, sy, sz = shading_normal(sa, sa.inst_mesh[k], nm, tri, bu[i], bv[i], gx, gy, gz)
         enter = dot3(ux, uy, uz, gx, gy, gz) < 0.0
         if not enter:
             gx, gy, gz = -gx, -gy, -gz
@@ -363,7 +364,7 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
     "mat_metal", "mat_metal_tint", "mat_metallic", "mat_mirror", "mat_model",
     "mat_roughness", "mat_specular", "mat_specular_ior", "mat_tex", "mat_tint_max",
     "mat_transmission", "mesh_gen", "mesh_tri_start", "scene_extent", "tex_data",
-    "tex_map", "tex_size", "tex_start", "tri_uvs", "tris", "verts", "world_color",
+    "tex_map", "tex_size", "tex_start", "mesh_uv", "uvs", "tris", "verts", "world_color",
     "world_light"), __name__)
 
 

@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..geometry.attributes import corner_normals, corner_uvs
 from ..geometry.elements import (
     MODEL_PRINCIPLED,
     TEX_CLIP,
@@ -353,16 +354,19 @@ def geometric_normal(verts, tris, nmat, tri):
 
 
 @njit(cache=True, nogil=True)
-def shading_normal(tri_normals, nmat, tri, b1, b2, gx, gy, gz):
-    """Interpolated unit world-space shading normal at barycentrics ``(b1, b2)``.
+def shading_normal(s, k, nmat, tri, b1, b2, gx, gy, gz):
+    """Interpolated unit world-space shading normal at barycentrics ``(b1, b2)`` of global
+    triangle ``tri`` of mesh ``k``.
 
-    tri_normals : (T, 3, 3) float32 per-corner object-space normals. Falls back to the
-    geometric normal ``g`` when the interpolated normal is (near) zero.
+    ``s``: a struct with the packing's ``normals``, ``mesh_nrm``, ``verts`` and ``tris``
+    (the corners' float32 object-space normals, :func:`~..geometry.attributes.corner_normals`).
+    Falls back to the geometric normal ``g`` when the interpolated normal is (near) zero.
     """
+    n = corner_normals(s, k, tri)
     b0 = 1.0 - b1 - b2
-    ox = b0 * tri_normals[tri, 0, 0] + b1 * tri_normals[tri, 1, 0] + b2 * tri_normals[tri, 2, 0]
-    oy = b0 * tri_normals[tri, 0, 1] + b1 * tri_normals[tri, 1, 1] + b2 * tri_normals[tri, 2, 1]
-    oz = b0 * tri_normals[tri, 0, 2] + b1 * tri_normals[tri, 1, 2] + b2 * tri_normals[tri, 2, 2]
+    ox = b0 * n[0] + b1 * n[3] + b2 * n[6]
+    oy = b0 * n[1] + b1 * n[4] + b2 * n[7]
+    oz = b0 * n[2] + b1 * n[5] + b2 * n[8]
     wx = nmat[0, 0] * ox + nmat[0, 1] * oy + nmat[0, 2] * oz
     wy = nmat[1, 0] * ox + nmat[1, 1] * oy + nmat[1, 2] * oz
     wz = nmat[2, 0] * ox + nmat[2, 1] * oy + nmat[2, 2] * oz
@@ -373,11 +377,14 @@ def shading_normal(tri_normals, nmat, tri, b1, b2, gx, gy, gz):
 
 
 @njit(cache=True, nogil=True)
-def surface_uv(tri_uvs, tri, b1, b2):
-    """Texture coordinates ``(u, v)`` interpolated from per-corner uvs (T, 3, 2) float32."""
+def surface_uv(s, k, tri, b1, b2):
+    """Texture coordinates ``(u, v)`` of global triangle ``tri`` of mesh ``k`` interpolated
+    from its corners' float32 uvs (``s``: a struct with ``uvs``, ``mesh_uv`` and ``tris``,
+    :func:`~..geometry.attributes.corner_uvs`)."""
+    c = corner_uvs(s, k, tri)
     b0 = 1.0 - b1 - b2
-    u = b0 * tri_uvs[tri, 0, 0] + b1 * tri_uvs[tri, 1, 0] + b2 * tri_uvs[tri, 2, 0]
-    v = b0 * tri_uvs[tri, 0, 1] + b1 * tri_uvs[tri, 1, 1] + b2 * tri_uvs[tri, 2, 1]
+    u = b0 * c[0] + b1 * c[2] + b2 * c[4]
+    v = b0 * c[1] + b1 * c[3] + b2 * c[5]
     return u, v
 
 
@@ -403,7 +410,8 @@ def texture_uv(sa, tex, tri, b1, b2):
             y = (y - sa.mesh_gen[k, 0, 1]) / sa.mesh_gen[k, 1, 1]
             z = (z - sa.mesh_gen[k, 0, 2]) / sa.mesh_gen[k, 1, 2]
     else:
-        x, y = surface_uv(sa.tri_uvs, tri, b1, b2)
+        k = np.searchsorted(sa.mesh_tri_start, tri, side="right") - 1
+        x, y = surface_uv(sa, k, tri, b1, b2)
         z = 0.0
     m = sa.tex_map[tex]
     return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],

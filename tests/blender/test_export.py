@@ -10,6 +10,9 @@ import bpy
 import numpy as np
 import pytest
 
+from rstrace_engine.geometry.attributes import ATTR_NONE, ATTR_VERTEX, mesh_corners
+from rstrace_engine.geometry.packing import mesh_slots, mesh_triangles
+
 from . import builders as b
 
 
@@ -40,16 +43,17 @@ def test_mesh_arrays_match_blender_geometry():
     me.calc_loop_triangles()
     mesh = ex.scene.meshes[0]
     assert len(mesh["tris"]) == len(me.loop_triangles) == 16 * 8 * 2 - 2 * 16
+    assert mesh["nmode"] == ATTR_VERTEX  # smooth: one normal row per vertex
     v = np.array([tuple(x.co) for x in me.vertices])
     np.testing.assert_allclose(mesh["verts"], v, atol=1e-6)
     t = np.array([tuple(x.vertices) for x in me.loop_triangles])
-    np.testing.assert_array_equal(mesh["tris"], t)
+    np.testing.assert_array_equal(mesh_triangles(mesh), t)
     # smooth shading: corner normals are the vertex normals
     vn = np.array([tuple(x.vector) for x in me.vertex_normals])
-    np.testing.assert_allclose(mesh["normals"], vn[t], atol=1e-6)
+    np.testing.assert_allclose(mesh_corners(mesh, "normals"), vn[t], atol=1e-6)
     uv = np.array([tuple(x.uv) for x in me.uv_layers.active.data])
     loops = np.array([tuple(x.loops) for x in me.loop_triangles])
-    np.testing.assert_allclose(mesh["uvs"], uv[loops], atol=1e-6)
+    np.testing.assert_allclose(mesh_corners(mesh, "uvs"), uv[loops], atol=1e-6)
     np.testing.assert_allclose(ex.scene.instances[0]["matrix"], np.array(ob.matrix_world),
                                atol=1e-6)
 
@@ -59,15 +63,17 @@ def test_flat_and_custom_normals_domains():
     me = bpy.data.objects["Ball"].data
     me.shade_flat()
     ex = _export()
-    n = ex.scene.meshes[0]["normals"]
+    mesh = ex.scene.meshes[0]
+    assert mesh["nmode"] == ATTR_NONE  # flat: every corner its triangle's own normal
+    n = mesh_corners(mesh, "normals")
     np.testing.assert_allclose(n[:, 0], n[:, 1], atol=1e-6)  # one normal per face
-    v = ex.scene.meshes[0]["verts"][ex.scene.meshes[0]["tris"]]
+    v = mesh["verts"][mesh_triangles(mesh)]
     fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     fn /= np.linalg.norm(fn, axis=1, keepdims=True)
     assert np.min(np.einsum("ij,ij->i", fn, n[:, 0])) > 0.99
     me.normals_split_custom_set_from_vertices([(0.0, 0.0, 1.0)] * len(me.vertices))
     assert me.normals_domain == "CORNER"
-    n = _export().scene.meshes[0]["normals"]
+    n = mesh_corners(_export().scene.meshes[0], "normals")
     np.testing.assert_allclose(n.reshape(-1, 3), np.tile((0, 0, 1), (n.size // 3, 1)), atol=1e-4)
 
 
@@ -86,7 +92,7 @@ def test_material_slots_and_indices():
     assert names == ["Red", "Blue"]
     me.calc_loop_triangles()
     poly = np.array([t.polygon_index for t in me.loop_triangles])
-    np.testing.assert_array_equal(ex.scene.meshes[0]["slots"], poly % 2)
+    np.testing.assert_array_equal(mesh_slots(ex.scene.meshes[0]), poly % 2)
 
 
 _GLASS = dict(base=(1.0, 1.0, 1.0), roughness=0.0, **{"Transmission Weight": 1.0, "IOR": 1.5})

@@ -1,0 +1,95 @@
+"""The scene model's meshes concatenated into the packing's geometry arrays, held once.
+
+:func:`pack_meshes` concatenates every live mesh of a :class:`~.scene.Scene` (vertices,
+triangles, the normal and uv rows of :mod:`.attributes`, material slots) and then makes
+each mesh dict's arrays views of the concatenation: the scene model holds no second copy.
+Mesh data are replaced, never mutated, so scenes sharing a mesh dict see the same values.
+
+A mesh dict's triangles become the concatenation's (global vertex indices) with
+``vert0``, the mesh's first vertex there: :func:`mesh_triangles` gives its own indices
+back. Its material slots are one constant (``slot`` >= 0, no rows: the usual case, one
+material for the whole mesh) or one row per triangle (``slot`` -1): the packing's
+``mesh_slot[k]`` is ``(slot, bias)``, the slot of global triangle ``t`` the constant or
+``tri_slot[bias + t]`` (:func:`~.attributes.slot_of`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import tolerances as tol
+from .attributes import bias
+
+
+def mesh_triangles(mesh: dict) -> np.ndarray:
+    """A scene model mesh's triangles, (m, 3) int32 indices into its own vertices."""
+    v0 = mesh.get("vert0", 0)
+    return mesh["tris"] if v0 == 0 else mesh["tris"] - np.int32(v0)
+
+
+def mesh_slots(mesh: dict) -> np.ndarray:
+    """A scene model mesh's material slot per triangle, (m,) int32."""
+    if mesh["slot"] >= 0:
+        return np.full(len(mesh["tris"]), mesh["slot"], np.int32)
+    return mesh["slots"]
+
+
+def compact_slots(slots: np.ndarray) -> tuple[int, np.ndarray]:
+    """``(slot, rows)`` of a mesh's (m,) int32 slots: one constant and no rows, or -1 and
+    the slots."""
+    if len(slots) and np.all(slots == slots[0]):
+        return int(slots[0]), np.zeros(0, np.int32)
+    return -1, slots
+
+
+def texture_space(mesh: dict | None) -> np.ndarray:
+    """``(lo, extent)`` of a mesh's automatic texture space, as Blender computes it (its
+    bounding box; a flat axis gets half-size 1, a tiny one 1e-5), for Generated texture
+    coordinates ``(p - lo) / extent`` in [0, 1]. A tombstone: the unit box."""
+    if mesh is None:
+        return np.array([[0.0] * 3, [1.0] * 3])
+    lo, hi = np.asarray(mesh["lo"], np.float64), np.asarray(mesh["hi"], np.float64)
+    mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+    half = np.where(half == 0.0, 1.0, np.maximum(half, tol.TEXSPACE_HALF_MIN))
+    return np.stack([mid - half, 2.0 * half])
+
+
+def pack_meshes(meshes: list) -> dict:
+    """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
+    which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
+    1]``); every live mesh dict's arrays become views of them (module docstring)."""
+    live = [m for m in meshes if m is not None]
+    ids = [k for k, m in enumerate(meshes) if m is not None]
+
+    def starts(key):
+        return np.cumsum([0] + [len(m[key]) for m in live])
+
+    nv, nt, nn, nu, ns = (starts(k) for k in ("verts", "tris", "normals", "uvs", "slots"))
+    tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
+                              for m in meshes]).astype(np.int32)
+    packed = dict(
+        verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
+        normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
+        tri_slot=np.empty(ns[-1], np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
+        mesh_uv=np.zeros((len(meshes), 2), np.int64),
+        mesh_slot=np.zeros((len(meshes), 2), np.int64))
+    for k, m in enumerate(live):
+        v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+        rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
+        packed["verts"][v] = m["verts"]
+        np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
+        packed["normals"][rn] = m["normals"]
+        packed["uvs"][ru] = m["uvs"]
+        packed["tri_slot"][rs] = m["slots"]
+        packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
+        packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])
+        packed["mesh_slot"][ids[k]] = m["slot"], ns[k] - nt[k]
+    for k, m in enumerate(live):  # (after every copy: a mesh may be in the scene twice)
+        v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+        rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
+        m.update(verts=packed["verts"][v], tris=packed["tris"][t], vert0=int(nv[k]),
+                 normals=packed["normals"][rn], uvs=packed["uvs"][ru],
+                 slots=packed["tri_slot"][rs])
+    packed["mesh_tri_start"] = tstart
+    packed["mesh_gen"] = np.stack([texture_space(m) for m in meshes]).reshape(-1, 2, 3)
+    return packed

@@ -28,7 +28,7 @@ from test_relight_interpolants_add import _new_light
 
 from rstrace_engine import image
 from rstrace_engine.frame import RenderSettings
-from rstrace_engine.geometry.edits import LightDelete, LightSet
+from rstrace_engine.geometry.edits import LightDelete, LightSet, ObjectTransform
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Light
 from rstrace_engine.interpolants import invalidation
@@ -178,3 +178,30 @@ def test_rough_roots_render_again():
     kept = np.isin(pi, np.flatnonzero(cache.pool.live))
     assert (floor_px & kept).any() and dirty[floor_px].all()
     check_bound(sess.render(), sess.scene)
+
+
+def test_cells_freed_after_the_edit_render_their_pixels(monkeypatch):
+    """A light added, then an object moved before the frame: the move frees some of the
+    cells that took the added light's term (their sample ids may point past the compacted
+    sample store). Their pixels are rendered; the frame and the next keep the bound and
+    equal the old code's. (Review find: the term's corners were gathered over the freed
+    cells too, an IndexError at this and every later render of the session.)"""
+    make, key = SCENES["soft_penumbra"]
+
+    def steps(sess):
+        sl = sess.scene.instance_slot("Blocker")
+        m = np.array(sess.scene.instances[sl]["matrix"], float).copy()
+        m[:3, 3] += (0.2, 0.0, 0.0)
+        return [[[LightSet("A", _new_light(sess, "POINT"))], [ObjectTransform("Blocker", m)]],
+                [edit(sess, key, power=0.8)]]
+
+    _compare_frames(monkeypatch, make, steps, samples=4)
+
+
+def _compare_frames(monkeypatch, make, steps, **kw):
+    """Both ways, the frames equal to float32 rounding (each within the bound: ``_run``)."""
+    new = _run(monkeypatch, make, steps, False, **kw)
+    old = _run(monkeypatch, make, steps, True, **kw)
+    for (_, f_new), (_, f_old) in zip(new, old, strict=True):
+        np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=ROUNDING,
+                                   atol=ROUNDING)

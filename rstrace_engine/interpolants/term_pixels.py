@@ -83,12 +83,14 @@ class TermEdit(NamedTuple):
         on = np.flatnonzero(np.any(self.scale != 0.0, axis=1))
         on = on[on < share.shape[1]]
         term = np.einsum("nlc,lc->nc", share[:, on], self.scale[on])
-        alive = pool.live[self.cells] & (pool.serial[self.cells] == self.serial)
-        corner = np.ascontiguousarray(term[pool.samples[self.cells]])  # (c, 16, 3)
+        # only the cells still alive: a cell freed since the edit (a later batch, the
+        # memory cap) may hold sample ids from before the sample store was compacted
+        cells = self.cells[pool.live[self.cells] & (pool.serial[self.cells] == self.serial)]
+        corner = np.ascontiguousarray(term[pool.samples[cells]])  # (c, 16, 3)
         a = cache.trees.arrays
-        node = pool.node[self.cells]
+        node = pool.node[cells]
         at = np.full(len(pool.live), -1, np.int64)
-        at[self.cells[alive]] = np.flatnonzero(alive)
+        at[cells] = np.arange(len(cells))
         q = np.asarray(pi, np.int64)
         at = np.where((q >= 0) & (q < len(at)), at[np.clip(q, 0, len(at) - 1)], -1)
         good = at >= 0

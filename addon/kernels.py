@@ -85,6 +85,7 @@ MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 #: checks that a first F12 after the preload loads none). The rest of the mode's kernels
 #: load after them, while no render runs.
 PRELOAD = ("geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",
+           "geometry.attributes._coarsest", "geometry.attributes._all_flat",
            "accel.bvh_mesh.indexed_boxes", "accel.bvh_build.split_top",
            "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",
            "accel.bvh_build.pack_nodes", "accel.bvh_mesh.collapse4",

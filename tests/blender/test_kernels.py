@@ -97,7 +97,12 @@ FIRST_F12 = textwrap.dedent('''
     st = addon.last_render_stats(bpy.context.scene)
     counts = kernel_cache.counts(since=before)
     print("RESULT " + json.dumps(dict(started=started, triangles=st.get("triangles"),
-                                      loaded=counts["loaded"], compiled=counts["compiled"])))
+                                      loaded=counts["loaded"], compiled=counts["compiled"],
+                                      kernels=sorted(counts["compiled_kernels"]) + [
+                                          f"{d.py_func.__module__}.{d.__name__}"
+                                          for d in kernel_cache.dispatchers("rstrace_engine")
+                                          if sum(d.stats.cache_hits.values())
+                                          > before["hits"].get(id(d), 0)])))
     addon.unregister()
 ''')
 

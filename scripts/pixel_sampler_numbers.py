@@ -9,12 +9,15 @@ Both samplers trace the same number of rays; the reference is the mean of ``--re
 samples per pixel with the new sampler (both are unbiased). RMSE is over all pixels, and
 over the *edge* pixels (those whose reference differs from the 1-sample centre frame by
 more than 0.01: geometry and highlight edges, where the pixel's integral is not smooth).
-``--time`` instead times the sampler itself for a tile of ``TILE_RAYS`` rays.
+``--time`` instead times the sampler itself for a tile of ``TILE_RAYS`` rays; ``--frames N``
+times whole frames (one numba thread, process CPU time) with the two samplers alternated
+(A/B/B/A..., ``N`` pairs per scene and sample count) and reports the per-pair ratios.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
@@ -47,6 +50,11 @@ def grid_jitter(pixels: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
     return np.stack([sx / g, sy / g], axis=-1)
 
 
+def _say(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
 SAMPLERS = {"grid": grid_jitter, "sobol": cameras.pixel_jitter}
 
 
@@ -59,6 +67,27 @@ def render(sc, acc, spp, seed, sampler):
     return np.asarray(f.radiance, np.float64)
 
 
+def frame_times(a):
+    import numba
+    numba.set_num_threads(1)
+    w, h = (int(v) for v in a.size.split("x"))
+    for name in a.scenes.split(","):
+        sc = getattr(scenes, name)(w, h)
+        acc = create_accelerator("BVH", sc.arrays())
+        for spp in (int(v) for v in a.spp.split(",")):
+            render(sc, acc, spp, 0, "grid")  # warm
+            t = {"grid": [], "sobol": []}
+            for p in range(a.frames):
+                for sampler in (("grid", "sobol") if p % 2 == 0 else ("sobol", "grid")):
+                    t0 = time.process_time()
+                    render(sc, acc, spp, p, sampler)
+                    t[sampler].append(time.process_time() - t0)
+            r = np.array(t["sobol"]) / np.array(t["grid"])
+            _say(f"{name} {w}x{h} {spp} spp: grid {np.median(t['grid']):.3f} s, sobol "
+                  f"{np.median(t['sobol']):.3f} s (median CPU); ratio sobol/grid median "
+                  f"{np.median(r):.3f}, range {r.min():.3f} .. {r.max():.3f}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default="three_spheres,museum,studio")
@@ -67,7 +96,11 @@ def main():
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--time", action="store_true")
+    ap.add_argument("--frames", type=int, default=0)
     a = ap.parse_args()
+    if a.frames:
+        frame_times(a)
+        return
     if a.time:
         from rstrace_engine.tracing.batches import TILE_RAYS
         for spp in (4, 16, 64, 256):
@@ -79,7 +112,7 @@ def main():
                     t0 = time.process_time()
                     fn(pix, spp, 1)
                     t.append(time.process_time() - t0)
-                print(f"{name} spp {spp}: {len(pix) * spp} samples, {1e3 * np.median(t):.2f} ms "
+                _say(f"{name} spp {spp}: {len(pix) * spp} samples, {1e3 * np.median(t):.2f} ms "
                       "(median of 20, CPU time)")
         return
     w, h = (int(v) for v in a.size.split("x"))
@@ -89,8 +122,8 @@ def main():
         ref = render(sc, acc, a.ref_spp, 1000, "sobol")
         centre = render(sc, acc, 1, 0, "sobol")
         edge = np.abs(ref - centre).max(axis=-1) > 0.01
-        print(f"{name} {w}x{h}: reference {a.ref_spp} spp; {edge.sum()} edge pixels "
-              f"of {w * h}", flush=True)
+        _say(f"{name} {w}x{h}: reference {a.ref_spp} spp; {edge.sum()} edge pixels "
+              f"of {w * h}")
         for spp in (int(v) for v in a.spp.split(",")):
             row = {}
             for sampler in SAMPLERS:
@@ -98,9 +131,9 @@ def main():
                 row[sampler] = (np.sqrt(np.mean([np.mean(e ** 2) for e in err])),
                                 np.sqrt(np.mean([np.mean(e[edge] ** 2) for e in err])))
             g, s = row["grid"], row["sobol"]
-            print(f"  {spp:4d} spp: RMSE all grid {g[0]:.5f} sobol {s[0]:.5f} "
+            _say(f"  {spp:4d} spp: RMSE all grid {g[0]:.5f} sobol {s[0]:.5f} "
                   f"(ratio {s[0] / g[0]:.3f}); edges grid {g[1]:.5f} sobol {s[1]:.5f} "
-                  f"(ratio {s[1] / g[1]:.3f})", flush=True)
+                  f"(ratio {s[1] / g[1]:.3f})")
 
 
 if __name__ == "__main__":

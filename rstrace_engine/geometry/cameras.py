@@ -131,10 +131,9 @@ def _mix64(x: np.ndarray) -> np.ndarray:
 
 def _reverse32(x: np.ndarray) -> np.ndarray:
     """The bits of a uint32 array in reverse order."""
-    x = ((x >> np.uint32(1)) & np.uint32(0x55555555)) | ((x & np.uint32(0x55555555)) << np.uint32(1))
-    x = ((x >> np.uint32(2)) & np.uint32(0x33333333)) | ((x & np.uint32(0x33333333)) << np.uint32(2))
-    x = ((x >> np.uint32(4)) & np.uint32(0x0F0F0F0F)) | ((x & np.uint32(0x0F0F0F0F)) << np.uint32(4))
-    x = ((x >> np.uint32(8)) & np.uint32(0x00FF00FF)) | ((x & np.uint32(0x00FF00FF)) << np.uint32(8))
+    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+        sh, m = np.uint32(shift), np.uint32(mask)
+        x = ((x >> sh) & m) | ((x & m) << sh)
     return (x >> np.uint32(16)) | (x << np.uint32(16))
 
 

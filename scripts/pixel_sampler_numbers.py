@@ -3,7 +3,8 @@ project used until session 27 against the Owen-scrambled Sobol sampler of
 :func:`rstrace_engine.geometry.cameras.pixel_jitter` (docs/accuracy.md, "Pixel samples").
 
 ``python scripts/pixel_sampler_numbers.py [--scenes three_spheres,museum,studio] [--size 96x72]
-[--spp 4,16,64] [--seeds 4] [--ref-spp 1024] [--time]``
+[--spp 4,16,64] [--seeds 4] [--first-seed 0] [--ref-spp 1024] [--time]
+[--frames N]``
 
 Both samplers trace the same number of rays; the reference is the mean of ``--ref-spp``
 samples per pixel with the new sampler (both are unbiased). RMSE is over all pixels, and
@@ -94,6 +95,7 @@ def main():
     ap.add_argument("--size", default="96x72")
     ap.add_argument("--spp", default="4,16,64")
     ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--time", action="store_true")
     ap.add_argument("--frames", type=int, default=0)
@@ -127,7 +129,8 @@ def main():
         for spp in (int(v) for v in a.spp.split(",")):
             row = {}
             for sampler in SAMPLERS:
-                err = [render(sc, acc, spp, seed, sampler) - ref for seed in range(a.seeds)]
+                seeds = range(a.first_seed, a.first_seed + a.seeds)
+                err = [render(sc, acc, spp, seed, sampler) - ref for seed in seeds]
                 row[sampler] = (np.sqrt(np.mean([np.mean(e ** 2) for e in err])),
                                 np.sqrt(np.mean([np.mean(e[edge] ** 2) for e in err])))
             g, s = row["grid"], row["sobol"]

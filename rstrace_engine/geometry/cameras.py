@@ -137,25 +137,26 @@ def _reverse32(x: np.ndarray) -> np.ndarray:
     return (x >> np.uint32(16)) | (x << np.uint32(16))
 
 
-def _owen32(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """Nested uniform (Owen) scrambling of uint32 values ``x`` by ``seed``, hash-based
-    (Burley 2020, "Practical Hash-based Owen Scrambling", JCGT 9(4)): the Laine-Karras
-    permutation of the reversed bits, with Vegdahl's constants (2021; Cycles'
-    ``reversed_bit_owen``). Each output bit depends on the seed and the bits above it only,
-    so any aligned block of ``2^k`` values is permuted onto an aligned block of ``2^k``."""
-    x = _reverse32(x)
-    x ^= x * np.uint32(0x3D20ADEA)
-    x += seed
-    x *= (seed >> np.uint32(16)) | np.uint32(1)
-    x ^= x * np.uint32(0x05526C56)
-    x ^= x * np.uint32(0x53A22864)
-    return _reverse32(x)
+def _owen_reversed(r: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Nested uniform (Owen) scrambling by ``seed``, hash-based (Burley 2020, "Practical
+    Hash-based Owen Scrambling", JCGT 9(4)), on the *bit-reversed* uint32 values ``r``
+    (result bit-reversed too): the Laine-Karras permutation with Vegdahl's constants (2021;
+    Cycles' ``reversed_bit_owen``). A bit of the (unreversed) result depends on the seed and
+    the bits above it only, so an aligned block of ``2^k`` values is permuted onto an
+    aligned block of ``2^k``."""
+    r = r ^ (r * np.uint32(0x3D20ADEA))
+    r = r + seed
+    r *= (seed >> np.uint32(16)) | np.uint32(1)
+    r ^= r * np.uint32(0x05526C56)
+    r ^= r * np.uint32(0x53A22864)
+    return r
 
 
 def _sobol1_table() -> np.ndarray:
-    """Sobol's second dimension of the indices ``0 .. 2^16 - 1`` (uint32): the XOR of the
-    direction numbers (``v_0 = 2^31``, ``v_k = v_{k-1} ^ (v_{k-1} >> 1)``: Pascal's matrix
-    mod 2) of the index's set bits, shifted by 16 bits for the upper half of an index."""
+    """Sobol's second dimension of the indices ``0 .. 2^16 - 1``, bit-reversed (uint32): the
+    XOR of the direction numbers (``v_0 = 2^31``, ``v_k = v_{k-1} ^ (v_{k-1} >> 1)``:
+    Pascal's matrix mod 2) of the index's set bits, shifted by 16 bits for the upper half
+    of an index (row 1). A full index's value is the XOR of its two halves' entries."""
     v = np.empty(32, np.uint32)
     v[0] = 1 << 31
     for k in range(1, 32):
@@ -167,7 +168,7 @@ def _sobol1_table() -> np.ndarray:
         bit = ((i >> np.uint32(k)) & np.uint32(1)).astype(np.bool_)
         lo[bit] ^= v[k]
         hi[bit] ^= v[k + 16]
-    return np.stack([lo, hi])
+    return _reverse32(np.stack([lo, hi]))
 
 
 _SOBOL1 = _sobol1_table()
@@ -202,8 +203,12 @@ def pixel_jitter(pixels: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
     seed_i = (h1 & lo32).astype(np.uint32)[None, :]
     seed_x = (h1 >> np.uint64(32)).astype(np.uint32)[None, :]
     seed_y = (h2 & lo32).astype(np.uint32)[None, :]
-    idx = _owen32(np.broadcast_to(np.arange(samples, dtype=np.uint32)[:, None],
-                                  (samples, k)).copy(), seed_i)
-    x = _owen32(_reverse32(idx), seed_x)  # Sobol's dimension 0: the index's bits reversed
-    y = _owen32(_SOBOL1[0][idx & np.uint32(0xFFFF)] ^ _SOBOL1[1][idx >> np.uint32(16)], seed_y)
-    return np.stack([x, y], axis=-1).astype(np.float64) * 2.0 ** -32
+    idx = _reverse32(_owen_reversed(_reverse32(np.arange(samples, dtype=np.uint32))[:, None],
+                                    seed_i))
+    out = np.empty((samples, k, 2))
+    # Sobol's dimension 0 is the index's bits reversed: its scramble needs no reversal
+    out[..., 0] = _reverse32(_owen_reversed(idx, seed_x))
+    out[..., 1] = _reverse32(_owen_reversed(
+        _SOBOL1[0][idx & np.uint32(0xFFFF)] ^ _SOBOL1[1][idx >> np.uint32(16)], seed_y))
+    out *= 2.0 ** -32
+    return out

@@ -226,7 +226,7 @@ def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, repro
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
-                 base: Frame | None = None, fallback: bool = True) -> Frame:
+                 base: Frame | None = None, fallback: bool = False) -> Frame:
     """Render ``scene``'s camera with the interpolants of ``cache`` (building what it needs).
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
@@ -243,7 +243,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     which the ray segment trees track.
 
     ``fallback``: trace where cells do not pay, learned from measured costs
-    (:mod:`.fallback`: a build budget per frame, objects traced; ``stats["fallback"]``).
+    (:mod:`.fallback`: the frame's ledger, objects traced; ``stats["fallback"]``); the
+    renderer's :attr:`InterpolantRenderer.auto_fallback`. Off, cells are built wherever
+    the rays need them (what the cache's own tests count).
     """
     settings = settings.validated()
     if cache.epsilon <= 0.0:

@@ -51,9 +51,9 @@ SAVE_SHARE = 0.5
 #: what the budget left affords at the measured cost per cell, at least BUDGET_MIN
 BUDGET_STEP = 64
 BUDGET_MIN = 8
-#: before any is built, a cell is expected to cost this many traced rays (measured: 150-250
-#: on museum_1999, 2026-11-27)
-CELL_RAYS = 300
+#: before any is built, a cell is expected to cost this many traced rays (twice what cells
+#: cost on museum_1999 at 1 spp, 250-300: a first frame's first batch stays in its allowance)
+CELL_RAYS = 600
 #: a frame counts this fraction of its builds against an object (cells are kept)
 BUILD_FRAMES = 4
 #: an object is judged only over at least this many of its rays in one frame

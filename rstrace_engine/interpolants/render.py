@@ -368,12 +368,13 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                     a = b
                 tq = fb_mod.CLOCK()
                 res = vis.res
-                if rem is not None:  # what the next pass and frame reproject from
-                    t = vis.hits.t.copy()
-                    slab_points(cache, res.interpolant, o, d, t,
-                                np.zeros(kt, np.bool_) if rep is None else rep)
-                    rem.add(tpix, res.interpolant, o, d, t)
-                used = _mark_used(used, res.interpolant)
+                if res.interpolated.any():
+                    if rem is not None:  # what the next pass and frame reproject from
+                        t = vis.hits.t.copy()
+                        slab_points(cache, res.interpolant, o, d, t,
+                                    np.zeros(kt, np.bool_) if rep is None else rep)
+                        rem.add(tpix, res.interpolant, o, d, t)
+                    used = _mark_used(used, res.interpolant)
                 if budget is not None:
                     budget.spent += fb_mod.CLOCK() - tq
                 good = np.empty(kt, np.bool_)

@@ -410,7 +410,7 @@ def candidates(view: View | None, cp: CameraParams, splat: bool = True):
     doc, step 1; ``splat``: the view is another camera's, its points are projected into this
     one), or None when nothing can be reprojected."""
     if (not ENABLED or view is None or cp.ortho or view.width != cp.width
-            or view.height != cp.height):
+            or view.height != cp.height or len(view.interp) == 0):
         return None
     cand_pix = view.same_pixel
     if splat:

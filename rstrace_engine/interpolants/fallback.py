@@ -3,18 +3,19 @@ instead ("a user who picks interpolants never loses", issue 20), as the RI-tree'
 fallback (:mod:`..ri_tree.fallback`) does. Tracing is always exact, so whatever is decided
 the frame keeps its bound; only the time changes.
 
-Two mechanisms, both priced by the frame's own timings:
+Three mechanisms, all priced by the frame's own timings:
 
-* **A build budget per frame** (:class:`Budget`). Building cells (tracing their samples, the
-  predicate, the radiance test) may spend at most :data:`ALLOWANCE` of what tracing the
-  frame's rays would cost, plus what the rays interpolated so far in the frame saved (each
-  at the cost of one traced ray). It is checked between batches sized by what it has left
-  (at the cost per cell measured so far; at least :data:`BUDGET_STEP` cells); a cell not
-  built stays empty: its rays are traced now and a later frame builds it. This bounds the
-  first frame, which has no history. The cost of a traced ray is learned from every frame's
-  tracing; a renderer's first frame prices it with a *probe*: every
-  :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is built, timed (those
-  rays are then done: exactly the base tracer's).
+* **A ledger per frame** (:class:`Budget`). A frame's passes go in tiles, and a tile in
+  chunks (:mod:`.render`): a chunk goes through the cells or is traced whole by the base
+  tracer. Everything the mode adds (the chunk's time but its tracing of the rays not
+  interpolated: line coordinates, walk, builds, inserts, the interpolated pixels' own
+  terms) may exceed what its interpolated rays saved (each :data:`SAVE_SHARE` of a traced
+  ray's price) by :data:`ALLOWANCE` of the frame's base cost; once spent, the rest of the
+  frame is traced. Builds are checked between batches sized by what it has left. A cell
+  not built stays empty: its rays are traced now and a later frame builds it. The cost of a
+  traced ray is learned from every frame's tracing; a renderer's first frame prices it by
+  tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
+  :data:`CHUNK_MIN` rays) before any cell is walked.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
@@ -28,8 +29,8 @@ Two mechanisms, both priced by the frame's own timings:
   make its cells win again), and an edit of the object gives it a new chance at once.
 
 The decision is a function of the measured costs alone (:class:`FrameCosts`; the tests inject
-them). ``frame.stats["fallback"]`` reports it: the objects traced, the cells the budget
-deferred, the probe, the price of a ray.
+them). ``frame.stats["fallback"]`` reports it: the objects traced, the ledger (allowance,
+added, saved, rays walked), the cells deferred, the rays traced to price a ray, the price.
 """
 
 from __future__ import annotations

@@ -1,13 +1,16 @@
 """Frames rendered with radiance interpolants (``mode = "INTERPOLANT"``).
 
 A frame goes one sample of every pixel at a time (the same rays and jitter as
-:func:`~.whitted.render`; each pass has the arrays of a 1-sample frame). Per pass: rays whose
+:func:`~.whitted.render`), each pass in tiles of the base tracer's size (cache-sized arrays,
+reused) and each tile in chunks that either go through the cells or are traced whole, as the
+frame's ledger decides (:mod:`.fallback`: what the mode adds may exceed what it saved by a
+small share of the frame's base cost). Per tile: rays whose
 interpolant is found by reprojection (:mod:`.reproject`: from the previous frame's pixels
 after a camera move, from the pixel's first sample for the later samples; proven exact) are
 interpolated at once; the others get their visible hits through the whole scene
 (``closest_hit``) -> for every ray that hits an object, its line in that object's linetree
 -> :meth:`~.interpolants.InterpolantCache.resolve` interpolates what valid interpolants
-cover and builds the cells the pass needs -> every other ray (misses, failed cells, pixels
+cover and builds the cells the chunk needs -> every other ray (misses, failed cells, pixels
 too few to be worth a cell) is traced by the base tracer from the hits already found. Each
 pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0 nothing can be
 interpolated, and the frame is the base tracer's.

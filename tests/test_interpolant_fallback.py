@@ -295,3 +295,46 @@ def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
         assert f.stats["cells_built"] == 0 and f.stats["epsilon"] == EPS
     assert "deferred_cells" in frames[3].stats["fallback"]
     assert frames[3].stats["fallback"]["build_budget_s"] is not None
+
+
+def test_a_frame_the_ledger_cut_short_is_not_judged():
+    # the whole frame's cells did not pay over the one chunk the ledger let them walk
+    small = _costs([5000], [5000], [0], [300], 0.001, 0.5, 1e-6)
+    assert not fallback.frame_pays(small)
+    fb = Fallback(1)
+    fb.learn(small, fb.frame_traced(), cut=True)  # cut short: not judged, cells go on
+    assert not fb.all_traced and not fb.traced.any() and fb.ray_s == 1e-6
+    for _ in range(fallback.CUT_FRAMES - 2):
+        fb.learn(small, fb.frame_traced(), cut=True)
+        assert not fb.all_traced
+    fb.learn(small, fb.frame_traced(), cut=True)  # CUT_FRAMES in a row: judged
+    assert fb.all_traced and fb.whole_frame_traced()
+    ok = Fallback(1)
+    ok.learn(small, ok.frame_traced(), cut=True)
+    ok.learn(small, ok.frame_traced())  # a frame not cut is judged at once
+    assert ok.all_traced
+
+
+def test_a_build_is_paid_over_the_passes_it_serves():
+    b = Budget(rays=4000, ray_s=1e-3, passes=4)  # a limit of ALLOWANCE * 4 s
+    b.start_pass(0)
+    assert b.charge(0.4, 10) == pytest.approx(0.3)  # pass 0 pays a quarter
+    assert b.spent == pytest.approx(0.1) and b.build_s == pytest.approx(0.4)
+    b.start_pass(1)
+    assert b.spent == pytest.approx(0.2) and b.later == pytest.approx(0.2)
+    assert b.charge(0.3, 5) == pytest.approx(0.2)  # pass 1 pays a third
+    b.start_pass(2)
+    b.start_pass(3)  # the last pass pays what is left: the frame has paid all its builds
+    assert b.later == pytest.approx(0.0) and b.spent == pytest.approx(0.7)
+    assert b.charge(0.1, 1) == 0.0 and b.spent == pytest.approx(0.8)
+    one = Budget(rays=4000, ray_s=1e-3)  # one pass: a build is paid at once
+    one.start_pass(0)
+    assert one.charge(0.4, 10) == 0.0 and one.spent == pytest.approx(0.4)
+    # a batch's size: cells at their share of what they cost (CELL_RAYS rays, then measured)
+    four, whole = Budget(10 ** 6, 1e-6, passes=4), Budget(10 ** 6, 1e-6)  # limits of 0.02 s
+    four.start_pass(0)
+    whole.start_pass(0)
+    assert whole.batch(1000, 0) == 33 and four.batch(1000, 0) == fallback.BUDGET_STEP
+    four.charge(0.004, 64)
+    whole.charge(0.004, 64)
+    assert abs(four.batch(10 ** 4, 0) - 1216) <= 1 and abs(whole.batch(10 ** 4, 0) - 256) <= 1

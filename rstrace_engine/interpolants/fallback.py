@@ -72,6 +72,9 @@ CHUNK_MAX = 1 << 15
 PRICE_SHARE = 1 / 16
 #: a frame prices a traced ray only over at least this many traced rays
 MIN_PRICE_RAYS = 256
+#: a frame the ledger cut short (the rest traced once the allowance was spent) is not judged
+#: (its cells were judged over one chunk, its builds not yet served); this many in a row are
+CUT_FRAMES = 2
 #: the clock of every measurement (wall time: what the user waits for)
 CLOCK = time.perf_counter
 
@@ -122,8 +125,12 @@ class Budget:
     the share of the rays that hit (the misses cost the tracer nothing)."""
 
     def __init__(self, rays: int, ray_s: float | None = None, n_inst: int = 0,
-                 vis_s: float = 0.0, hit_share: float = 1.0) -> None:
+                 vis_s: float = 0.0, hit_share: float = 1.0, passes: int = 1) -> None:
         self.rays = int(rays)
+        self.passes = max(int(passes), 1)  # the frame's passes (samples per pixel)
+        self.pass_no = 0  # the pass being rendered
+        self.later = 0.0  # build seconds charged to the passes after this one
+        self.cut = False  # the ledger cut a pass short: the rest of the frame was traced
         self.deferred_inst = np.zeros(n_inst, np.int64)  # cells left unbuilt per object
         self.ray_s: float | None = None
         self.limit = float("inf")
@@ -149,11 +156,28 @@ class Budget:
         inst = inst[inst < len(self.deferred_inst)]
         np.add.at(self.deferred_inst, inst, 1)
 
-    def charge(self, seconds: float, cells: int) -> None:
-        """A batch of ``cells`` cells took ``seconds`` to build."""
-        self.spent += seconds
+    def share(self) -> float:
+        """The share of a build that the current pass pays: a cell built serves this pass
+        and the frame's passes after it, and its cost is spread evenly over them (the
+        last pass pays what is left; a 1-sample frame pays it all at once)."""
+        return 1.0 / (self.passes - min(self.pass_no, self.passes - 1))
+
+    def start_pass(self, s: int) -> None:
+        """Pass ``s`` begins: it pays its share of the builds put off to it."""
+        self.pass_no = int(s)
+        now = self.later * self.share()
+        self.later -= now
+        self.spent += now
+
+    def charge(self, seconds: float, cells: int) -> float:
+        """A batch of ``cells`` cells took ``seconds`` to build: the current pass pays its
+        :meth:`share`, the rest is put off to the passes after it (returned)."""
+        put_off = seconds * (1.0 - self.share())
+        self.spent += seconds - put_off
+        self.later += put_off
         self.build_s += seconds
         self.built += int(cells)
+        return put_off
 
     def left(self, interpolated_now: int = 0) -> float:
         """Seconds the frame may still add (``interpolated_now``: rays interpolated in the
@@ -174,9 +198,11 @@ class Budget:
             return 0
         if self.built == 0:  # at what a cell is expected to cost (CELL_RAYS traced rays)
             return min(step, BUDGET_STEP,
-                       max(1, int(self.left(interpolated_now) / (CELL_RAYS * self.ray_s))))
+                       max(1, int(self.left(interpolated_now)
+                                  / (CELL_RAYS * self.ray_s * self.share()))))
         left = self.left(interpolated_now)
-        return min(step, max(BUDGET_MIN, int(left / (self.build_s / self.built))))
+        return min(step, max(BUDGET_MIN,
+                             int(left / (self.build_s / self.built * self.share()))))
 
     def may_build(self, interpolated_now: int) -> bool:
         """Whether the next batch may be built (``interpolated_now``: rays interpolated in
@@ -192,9 +218,13 @@ class Budget:
             return 0
         left = self.left()
         if self.walked == 0 or self.spent <= 0.0:
-            return min(rest, CHUNK_MIN) if left >= 0.0 else 0
+            if left < 0.0:
+                self.cut |= rest > 0
+                return 0
+            return min(rest, CHUNK_MIN)
         can = int(left / (self.spent / self.walked))
         if can < CHUNK_MIN:
+            self.cut |= rest > 0
             return 0
         return min(rest, can, CHUNK_MAX)
 
@@ -210,6 +240,7 @@ class Fallback:
         self.hit_share = 1.0  # share of a frame's rays that hit, learned
         self.all_traced = False  # the whole frame did not pay: every object traced
         self.frames_all = 0  # frames since the whole frame was last judged
+        self.cuts = 0  # frames in a row the ledger cut short and that were not judged
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -241,14 +272,22 @@ class Fallback:
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
-              deferred: np.ndarray | None = None) -> None:
+              deferred: np.ndarray | None = None, cut: bool = False) -> None:
         """After a full frame that traced the objects ``traced_now`` (its
         :meth:`frame_traced`): objects that went through cells are judged (:func:`cells_pay`)
         unless the budget deferred some of their cells (``deferred`` (I,) counts: they have
-        not had their chance yet), the others count one more frame traced."""
+        not had their chance yet), the others count one more frame traced. A frame the
+        ledger ``cut`` short (:class:`Budget`) is judged only as the :data:`CUT_FRAMES`-th
+        in a row: its cells walked one chunk, and the cells it built have served none of the
+        frames after it (the ledger kept the frame itself within its allowance)."""
         self.last = c
         if c.ray_s > 0.0:
             self.ray_s = float(c.ray_s)
+        self.cuts = self.cuts + 1 if cut else 0
+        if 0 < self.cuts < CUT_FRAMES:
+            self.frames_traced[traced_now] += 1
+            return
+        self.cuts = 0
         judged = ~traced_now
         if deferred is not None:
             judged &= deferred[:len(judged)] == 0

@@ -314,7 +314,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         fb.resize(n_inst)
         run.ledger = fb_mod.FrameLedger(n_inst)
         run.traced_now = fb.frame_traced()
-        run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share)
+        run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
     budget = run.budget
     n_closest = 0
     t_closest = 0.0
@@ -329,6 +329,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             rem = Remember(w, h) if s == 0 and pixels is None else None
             if budget is not None:
                 budget.spent += fb_mod.CLOCK() - tq
+                budget.start_pass(s)
             walked = False
             for tsl in pass_tiles:
                 if run.cancelled:
@@ -410,7 +411,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         led.traced_rays = run.traced_rays
         costs = led.costs(fb) if (pixels is None and not cancelled) else None
         if costs is not None:
-            fb.learn(costs, run.traced_now, budget.deferred_inst)
+            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut)
             if n_closest:
                 fb.vis_s = t_closest / n_closest
     if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
@@ -493,6 +494,7 @@ class _Run:
         budget = self.budget
         t0 = fb_mod.CLOCK()
         spent0 = 0.0 if budget is None else budget.spent
+        later0 = 0.0 if budget is None else budget.later
         o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
         vis = ps.vis
         hits, res = part(vis.hits, sl), part(vis.res, sl)
@@ -575,7 +577,9 @@ class _Run:
             keep_world(lrec, cache.sa, gids, wi, w_coef, w_rest, res.interpolated, hits,
                        self.rough_on, int(settings.max_depth))
         if budget is not None:  # all the mode added: the chunk but its tracing
-            budget.spent = spent0 + (fb_mod.CLOCK() - t0) - trace_s
+            # (less the builds' shares put off to the frame's later passes)
+            budget.spent = (spent0 + (fb_mod.CLOCK() - t0) - trace_s
+                            - (budget.later - later0))
             if cells:
                 budget.walked += len(o)
 

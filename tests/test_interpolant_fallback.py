@@ -338,3 +338,15 @@ def test_a_build_is_paid_over_the_passes_it_serves():
     four.charge(0.004, 64)
     whole.charge(0.004, 64)
     assert abs(four.batch(10 ** 4, 0) - 1216) <= 1 and abs(whole.batch(10 ** 4, 0) - 256) <= 1
+
+
+def test_a_chunk_is_sized_by_the_walk_not_the_builds():
+    b = Budget(rays=10 ** 6, ray_s=1e-6)  # a limit of ALLOWANCE seconds
+    b.start_pass(0)
+    b.charge(0.015, 64)  # the first chunk's builds (they serve the chunks after it)
+    b.spent += 0.001  # its walk
+    b.walked = 4096
+    # the allowance left (0.004 s) at the walk's 0.001 s per 4096 rays: 16384 rays
+    assert abs(b.chunk(10 ** 6) - 16384) <= 1 and not b.cut
+    b.spent += 0.004  # spent: the rest of the pass is traced
+    assert b.chunk(10 ** 6) == 0 and b.cut

@@ -11,15 +11,20 @@ Three mechanisms, all priced by the frame's own timings:
   interpolated: line coordinates, walk, builds, inserts, the interpolated pixels' own
   terms) may exceed what its interpolated rays saved (each :data:`SAVE_SHARE` of a traced
   ray's price) by :data:`ALLOWANCE` of the frame's base cost; once spent, the rest of the
-  frame is traced. Builds are checked between batches sized by what it has left. A cell
-  not built stays empty: its rays are traced now and a later frame builds it. The cost of a
+  frame is traced. Builds are checked between batches sized by what it has left; a build is
+  paid over the frame's passes it serves (a 4-sample frame's first pass pays a quarter),
+  and a chunk is sized by the walk's cost per ray alone (the cells built serve the chunks
+  after it). A cell not built stays empty: its rays are traced now and a later frame
+  builds it. The cost of a
   traced ray is learned from every frame's tracing; a renderer's first frame prices it by
   tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
   :data:`CHUNK_MIN` rays) before any cell is walked.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
-  costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames.
+  costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames. A
+  frame the ledger cut short is not judged (its cells walked a chunk or a pass, their builds
+  served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -137,6 +142,7 @@ class Budget:
         self.spent = 0.0  # seconds the mode added so far (walk, builds, terms, ...)
         self.built = 0  # cells built so far
         self.build_s = 0.0  # seconds of it building them
+        self.build_paid = 0.0  # of them paid so far (in spent: the passes' shares)
         self.saved = 0  # rays interpolated in the chunks before the current one
         self.walked = 0  # rays that went through the cells (chunks with cells)
         self.deferred = 0  # cells left unbuilt
@@ -168,12 +174,14 @@ class Budget:
         now = self.later * self.share()
         self.later -= now
         self.spent += now
+        self.build_paid += now
 
     def charge(self, seconds: float, cells: int) -> float:
         """A batch of ``cells`` cells took ``seconds`` to build: the current pass pays its
         :meth:`share`, the rest is put off to the passes after it (returned)."""
         put_off = seconds * (1.0 - self.share())
         self.spent += seconds - put_off
+        self.build_paid += seconds - put_off
         self.later += put_off
         self.build_s += seconds
         self.built += int(cells)
@@ -212,17 +220,19 @@ class Budget:
     def chunk(self, rest: int) -> int:
         """Rays the next chunk of a pass (``rest`` rays left in it) sends through the cells
         (0: none, the rest is traced): as many as the allowance left affords at what the
-        mode added per ray walked so far, between :data:`CHUNK_MIN` and :data:`CHUNK_MAX`
+        mode added per ray walked so far but its builds (those :meth:`batch` paces: a cell
+        built serves the chunks after it), between :data:`CHUNK_MIN` and :data:`CHUNK_MAX`
         rays; none once it affords fewer than :data:`CHUNK_MIN`. Not priced: 0."""
         if self.ray_s is None:
             return 0
         left = self.left()
-        if self.walked == 0 or self.spent <= 0.0:
+        walk = self.spent - self.build_paid
+        if self.walked == 0 or walk <= 0.0:
             if left < 0.0:
                 self.cut |= rest > 0
                 return 0
             return min(rest, CHUNK_MIN)
-        can = int(left / (self.spent / self.walked))
+        can = int(left / (walk / self.walked))
         if can < CHUNK_MIN:
             self.cut |= rest > 0
             return 0

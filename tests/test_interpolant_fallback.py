@@ -299,7 +299,7 @@ def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
 
 def test_a_frame_the_ledger_cut_short_is_not_judged():
     # the whole frame's cells did not pay over the one chunk the ledger let them walk
-    small = _costs([5000], [5000], [0], [300], 0.001, 0.5, 1e-6)
+    small = _costs([5000], [5000], [4000], [300], 0.001, 0.5, 1e-6)
     assert not fallback.frame_pays(small)
     fb = Fallback(1)
     fb.learn(small, fb.frame_traced(), cut=True)  # cut short: not judged, cells go on
@@ -313,6 +313,12 @@ def test_a_frame_the_ledger_cut_short_is_not_judged():
     ok.learn(small, ok.frame_traced(), cut=True)
     ok.learn(small, ok.frame_traced())  # a frame not cut is judged at once
     assert ok.all_traced
+    # a cut frame whose walk alone (builds left out) did not pay is judged at once
+    walk = small._replace(walk_s=0.01, build_s=0.0)
+    assert not fallback.frame_pays(walk)
+    dear = Fallback(1)
+    dear.learn(walk, dear.frame_traced(), cut=True)
+    assert dear.all_traced
 
 
 def test_a_build_is_paid_over_the_passes_it_serves():

@@ -24,7 +24,8 @@ Three mechanisms, all priced by the frame's own timings:
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
   costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames. A
   frame the ledger cut short is not judged (its cells walked a chunk or a pass, their builds
-  served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row.
+  served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row or its walk
+  alone, builds left out, did not pay.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -288,13 +289,15 @@ class Fallback:
         unless the budget deferred some of their cells (``deferred`` (I,) counts: they have
         not had their chance yet), the others count one more frame traced. A frame the
         ledger ``cut`` short (:class:`Budget`) is judged only as the :data:`CUT_FRAMES`-th
-        in a row: its cells walked one chunk, and the cells it built have served none of the
-        frames after it (the ledger kept the frame itself within its allowance)."""
+        in a row, or when its walk alone (its builds left out) did not pay: its cells walked
+        a chunk or a pass, and the cells it built have served none of the frames after it
+        (the ledger kept the frame itself within its allowance)."""
         self.last = c
         if c.ray_s > 0.0:
             self.ray_s = float(c.ray_s)
         self.cuts = self.cuts + 1 if cut else 0
-        if 0 < self.cuts < CUT_FRAMES:
+        if 0 < self.cuts < CUT_FRAMES and frame_pays(c._replace(build_s=0.0)):
+            # (a cut frame whose walk alone did not pay is judged: builds cannot help it)
             self.frames_traced[traced_now] += 1
             return
         self.cuts = 0

@@ -96,7 +96,8 @@ def test_power_colour_and_world_recombine_without_rays(scene_name):
         assert not np.array_equal(frame.radiance, first.radiance)
     # the world: no shadow ray either; only the pixels the records always trace again
     # (FLAG_ALWAYS: a node that saw a light's own surface, in no light term, or left the
-    # records' grid: which pixels do depends on where their samples fall)
+    # records' grid; here two pixels' reflections of the area light, since the pixel
+    # sampler became a Sobol sequence)
     seen = seen_pixels(sess)
     frame = step(sess, [WorldColor((0.12, 0.2, 0.05))])
     assert frame.stats["traced_pixels"] == seen

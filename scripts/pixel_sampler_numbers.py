@@ -3,13 +3,14 @@ project used until session 27 against the Owen-scrambled Sobol sampler of
 :func:`rstrace_engine.geometry.cameras.pixel_jitter` (docs/accuracy.md, "Pixel samples").
 
 ``python scripts/pixel_sampler_numbers.py [--scenes three_spheres,museum,studio] [--size 96x72]
-[--spp 4,16,64] [--seeds 4] [--first-seed 0] [--ref-spp 1024] [--time]
+[--spp 4,16,64] [--seeds 4] [--first-seed 0] [--ref-spp 1024] [--ref-sampler sobol] [--time]
 [--frames N]``
 
 Both samplers trace the same number of rays; the reference is the mean of ``--ref-spp``
-samples per pixel with the new sampler (both are unbiased). RMSE is over all pixels, and
-over the *edge* pixels (those whose reference differs from the 1-sample centre frame by
-more than 0.01: geometry and highlight edges, where the pixel's integral is not smooth).
+samples per pixel with the new sampler (both are unbiased; ``--ref-sampler grid`` draws it
+with the grid instead). RMSE is over all pixels, and over the *edge* pixels (those whose
+reference differs from the 1-sample centre frame by more than 0.01: geometry and highlight
+edges, where the pixel's integral is not smooth).
 ``--time`` instead times the sampler itself for a tile of ``TILE_RAYS`` rays; ``--frames N``
 times whole frames (one numba thread, process CPU time) with the two samplers alternated
 (A/B/B/A..., ``N`` pairs per scene and sample count) and reports the per-pair ratios.
@@ -97,6 +98,7 @@ def main():
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--ref-sampler", default="sobol", choices=sorted(SAMPLERS))
     ap.add_argument("--time", action="store_true")
     ap.add_argument("--frames", type=int, default=0)
     a = ap.parse_args()
@@ -121,11 +123,11 @@ def main():
     for name in a.scenes.split(","):
         sc = getattr(scenes, name)(w, h)
         acc = create_accelerator("BVH", sc.arrays())
-        ref = render(sc, acc, a.ref_spp, 1000, "sobol")
+        ref = render(sc, acc, a.ref_spp, 1000, a.ref_sampler)
         centre = render(sc, acc, 1, 0, "sobol")
         edge = np.abs(ref - centre).max(axis=-1) > 0.01
-        _say(f"{name} {w}x{h}: reference {a.ref_spp} spp; {edge.sum()} edge pixels "
-              f"of {w * h}")
+        _say(f"{name} {w}x{h}: reference {a.ref_spp} spp ({a.ref_sampler}); {edge.sum()} "
+              f"edge pixels of {w * h}")
         for spp in (int(v) for v in a.spp.split(",")):
             row = {}
             for sampler in SAMPLERS:

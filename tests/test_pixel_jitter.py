@@ -42,6 +42,20 @@ def test_a_pixels_samples_are_a_net_at_every_power_of_two():
     assert len(np.unique(j[0, :, 0])) == len(pix)
 
 
+def test_every_sample_count_covers_the_whole_pixel():
+    """Unbiased at any count, not only at squares or powers of 2: over many pixels the
+    samples' mean is the pixel's centre and each half of the pixel holds half of them. (The
+    jittered grid it replaced filled ``ceil(sqrt(n))^2`` cells row by row, so at a count that
+    is not a square the last rows were left empty: at 2 samples y < 0.5, at 12 y < 0.75, at
+    128 the mean y 0.445, at 2,048 0.484.)"""
+    pix = np.arange(20_000, dtype=np.int64)
+    for n in (2, 3, 5, 8, 12, 32, 128):
+        j = pixel_jitter(pix, n, seed=5)
+        # 20,000 pixels: the mean's sampling sd is about 0.002 at 2 samples, less above
+        assert np.abs(j.mean(axis=(0, 1)) - 0.5).max() < 0.01, (n, j.mean(axis=(0, 1)))
+        assert np.abs((j < 0.5).mean(axis=(0, 1)) - 0.5).max() < 0.01, n
+
+
 def _half_plane_area(nx, ny, c) -> np.ndarray:
     """Exact area of ``{(x, y): x nx + y ny < c}`` in the unit square (the clipped square's
     polygon, shoelace formula)."""

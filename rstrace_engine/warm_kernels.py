@@ -110,17 +110,16 @@ def _flat_shaded(mesh):
 
 
 def _as_exported(mesh):
-    """``mesh`` as the add-on hands a smooth Blender mesh over: float32 vertex normals
-    (Blender's POINT domain) and ``owned`` arrays, so the warm-up reaches the kernels of
-    that path too (:mod:`~.geometry.mesh_check`). The same normals, mode and rows as the
-    engine's own smooth normals."""
+    """``mesh`` as the add-on hands a smooth Blender mesh over: float32 normals per vertex
+    (Blender's POINT domain: each vertex's from the mesh's own corner normals) and
+    ``owned`` arrays, so the warm-up reaches the kernels of that path too
+    (:mod:`~.geometry.mesh_check`)."""
     from dataclasses import replace
 
-    from .geometry.mesh_math import vertex_normals
-
-    vn = vertex_normals(np.asarray(mesh.vertices, np.float64),
-                        np.asarray(mesh.triangles, np.int32)).astype(np.float32)
-    return replace(mesh, vertex_normals=vn, owned=True)
+    tris = np.asarray(mesh.triangles, np.int32)
+    vn = np.zeros((len(mesh.vertices), 3), np.float32)
+    vn[tris.reshape(-1)] = np.asarray(mesh.corner_normals, np.float32).reshape(-1, 3)
+    return replace(mesh, corner_normals=None, vertex_normals=vn, owned=True)
 
 
 def _modes() -> tuple[str, ...]:

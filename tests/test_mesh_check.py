@@ -52,9 +52,10 @@ def test_vertex_normals_give_what_their_corners_give(shape):
 
 def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     """``owned=True``: the arrays of the stored dtype are the scene's own (no copy), and a
-    second scene adding the same Mesh object takes the same mesh dict without a check
-    (the area test is not run again); dropped degenerate triangles are still counted and
-    reported by each scene."""
+    second scene adding the same Mesh object takes its checked arrays without a check (the
+    area test is not run again), in a dict of its own (the first scene's packing is not
+    referenced); dropped degenerate triangles are still counted and reported by each
+    scene."""
     base = shapes.lumpy_sphere(800, name="m")
     v = np.asarray(base.vertices, np.float64)
     t = np.asarray(base.triangles, np.int32)
@@ -71,8 +72,13 @@ def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     monkeypatch.setattr(mesh_check, "proper_triangles",
                         lambda *a, **k: calls.append(1) or pytest.fail("checked again"))
     s2 = Scene()
-    assert s2.meshes[s2.add_mesh(mesh)] is d1 and not calls
-    assert s2.meshes[s2.add_mesh(with_degenerate)] is dd and not calls
+    d2 = s2.meshes[s2.add_mesh(mesh)]
+    dd2 = s2.meshes[s2.add_mesh(with_degenerate)]
+    assert not calls and d2 is not d1 and dd2 is not dd
+    assert d2["tris"] is t and d2["normals"] is vn and d2["verts"] is v
+    assert not any(np.shares_memory(a, packed[k]) for a in (*d2.values(), *dd2.values())
+                   if isinstance(a, np.ndarray) for k in packed
+                   if isinstance(packed[k], np.ndarray))
     for s in (s1, s2):
         assert s.stats["degenerate_triangles"] == 1
         assert any("'d': dropped 1 degenerate" in w for w in s.warnings)

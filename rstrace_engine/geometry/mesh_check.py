@@ -7,7 +7,10 @@ given (no (m, 3, 3) temporaries); the arrays are copied only where the caller ma
 change them: a mesh given with ``owned=True`` (the add-on's exports, fresh arrays it never
 changes) is kept as it is where its dtype is already the stored one, and its validation is
 kept with it, so a later scene adding the same :class:`~.elements.Mesh` object (a new
-session over the add-on's export cache) takes the same mesh dict without checking it again.
+session over the add-on's export cache) takes its checked arrays without checking them
+again (a mesh dict of its own: scenes of different sessions share no dict, and the kept
+result holds only the Mesh's own arrays and its compact rows, no packing and no float64
+vertices).
 """
 
 from __future__ import annotations
@@ -127,13 +130,15 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     with the number of degenerate triangles dropped, when there are any (before a mesh
     with nothing else left is refused). ``cancel``: a ``() -> bool`` polled by the area
     test. A mesh given with ``owned=True`` keeps its result: the same Mesh object checked
-    again gives the same dict at no cost (module docstring)."""
+    again gives a mesh dict of its own, with the same arrays, without a check (module
+    docstring)."""
     keep = bool(getattr(mesh, "owned", False))
     if keep and mesh._checked is not None:
-        out, dropped = mesh._checked
+        kept, dropped = mesh._checked
         if dropped and dropped_fn is not None:
             dropped_fn(dropped)
-        return out
+        # (the vertices as float64 again: the kept result holds no copy of them)
+        return dict(kept, verts=np.ascontiguousarray(mesh.vertices, np.float64))
     n = mesh.name
     verts, lo, hi = _vertices(n, mesh.vertices, keep)
     tris = _triangles(n, mesh.triangles, len(verts), keep)
@@ -177,6 +182,7 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots)
     out = dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
                uvmode=uvmode, slots=slots, slot=slot, lo=lo, hi=hi)
-    if keep:
-        mesh._checked = (out, dropped)
+    if keep:  # (the arrays before packing: the Mesh's own, or compact rows; each scene
+        # gets its own dict, whose arrays its packing replaces by views of itself)
+        mesh._checked = (dict(out, verts=None), dropped)
     return out

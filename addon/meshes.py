@@ -97,8 +97,11 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     (``loop_triangles.loops``, read item by item by ``foreach_get``) are copied in one go
     where the layout allows (:func:`corner_triangles`). The per-triangle
     arrays are gathered (``np.take(..., out=)``) straight into the arrays the Mesh keeps.
-    Normals come from the mesh's normals domain (vertex, face or corner), uvs from the
-    active render UV map. ``raw`` (attribute name -> values) holds the raw arrays
+    Normals come from the mesh's normals domain: per vertex as Blender holds them (POINT,
+    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the engine
+    computes each triangle's own) or per corner (CORNER); uvs from the active render UV
+    map. The Mesh is ``owned``: its arrays are fresh, handed over without a copy.
+    ``raw`` (attribute name -> values) holds the raw arrays
     :func:`mesh_fingerprint` already read, and receives those read here (for it).
     """
     tris_rna = me.loop_triangles

@@ -65,6 +65,8 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.whitted._child_tags",
          "tracing.shaft_skip._prove_groups",
          "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals",
+         "geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_range",
+         "geometry.mesh_check._non_finite32", "geometry.attributes._all_flat_vertex",
          "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
@@ -84,7 +86,9 @@ MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 #: of a 1M-triangle scene loaded at ray depth 0 and 5 (``tests/blender/test_kernels.py``
 #: checks that a first F12 after the preload loads none). The rest of the mode's kernels
 #: load after them, while no render runs.
-PRELOAD = ("geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",
+PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_range",
+           "geometry.mesh_check._non_finite32", "geometry.attributes._all_flat_vertex",
+           "geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",
            "geometry.attributes._coarsest", "geometry.attributes._all_flat",
            "accel.bvh_mesh.indexed_boxes", "accel.bvh_build.split_top",
            "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",

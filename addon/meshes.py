@@ -20,7 +20,6 @@ import hashlib
 
 import numpy as np
 
-from rstrace_engine.geometry.mesh_math import flat_triangle_normals
 from rstrace_engine.geometry.scene import Mesh
 
 #: Raw attributes whose values decide the exported triangles, normals, uvs and slots.
@@ -98,8 +97,11 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     (``loop_triangles.loops``, read item by item by ``foreach_get``) are copied in one go
     where the layout allows (:func:`corner_triangles`). The per-triangle
     arrays are gathered (``np.take(..., out=)``) straight into the arrays the Mesh keeps.
-    Normals come from the mesh's normals domain (vertex, face or corner), uvs from the
-    active render UV map. ``raw`` (attribute name -> values) holds the raw arrays
+    Normals come from the mesh's normals domain: per vertex as Blender holds them (POINT,
+    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the engine
+    computes each triangle's own) or per corner (CORNER); uvs from the active render UV
+    map. The Mesh is ``owned``: its arrays are fresh, handed over without a copy.
+    ``raw`` (attribute name -> values) holds the raw arrays
     :func:`mesh_fingerprint` already read, and receives those read here (for it).
     """
     tris_rna = me.loop_triangles
@@ -126,18 +128,13 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     if face_mat is not None:
         np.take(face_mat, poly, out=slots)
 
-    normals = np.empty((nt, 3, 3), np.float32)
+    normals = vn = None
     domain = me.normals_domain
-    if domain == "POINT":
+    if domain == "POINT":  # (every corner its vertex's normal: handed over per vertex)
         vn = np.empty((nv, 3), np.float32)
         me.vertex_normals.foreach_get("vector", vn.reshape(-1))
-        np.take(vn, tris, axis=0, out=normals)
-    elif domain == "FACE":
-        pn = np.empty((nf, 3), np.float32)
-        me.polygon_normals.foreach_get("vector", pn.reshape(-1))
-        normals[:] = np.take(pn, poly, axis=0)[:, None, :]
-        _flat_triangle_normals(verts.reshape(nv, 3), tris, normals)
-    else:  # CORNER: custom or split normals
+    elif domain != "FACE":  # CORNER: custom or split normals
+        normals = np.empty((nt, 3, 3), np.float32)
         cn = raw.get("corner_normals")
         if cn is None:
             cn = raw["corner_normals"] = np.empty(nl * 3, np.float32)
@@ -161,17 +158,13 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         np.take(uv, loops, axis=0, out=uvs)
     nslots = max(len(me.materials), 1)
     np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices
+    # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
+    # its own normal, as Cycles shades such triangles with their geometric normal (the
+    # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
+    # normal is one for them all); the engine computes it where it reads it. The arrays
+    # are fresh and never changed: handed over (owned), not copied again.
     return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
-                slots=slots)
-
-
-def _flat_triangle_normals(verts: np.ndarray, tris: np.ndarray, normals: np.ndarray) -> None:
-    """Give each triangle of an all-flat mesh (the FACE normals domain) its own face normal
-    at its three corners, as Cycles shades such triangles with their geometric normal: the
-    triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
-    normal is one for them all. A degenerate triangle keeps the polygon's normal. (One
-    kernel pass: ``rstrace_engine.geometry.mesh_math.flat_triangle_normals``.)"""
-    flat_triangle_normals(verts, tris, normals)
+                slots=slots, smooth=domain != "FACE", vertex_normals=vn, owned=True)
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
@@ -220,9 +213,11 @@ def same_mesh(a: Mesh | None, b: Mesh | None) -> bool:
     """True when two reads gave the same triangles, normals, uvs and slots."""
     if a is None or b is None:
         return a is b
-    return all(_same(x, y) for x, y in ((a.vertices, b.vertices), (a.triangles, b.triangles),
-                                         (a.corner_normals, b.corner_normals),
-                                         (a.corner_uvs, b.corner_uvs), (a.slots, b.slots)))
+    return a.smooth == b.smooth and all(
+        _same(x, y) for x, y in ((a.vertices, b.vertices), (a.triangles, b.triangles),
+                                 (a.corner_normals, b.corner_normals),
+                                 (a.vertex_normals, b.vertex_normals),
+                                 (a.corner_uvs, b.corner_uvs), (a.slots, b.slots)))
 
 
 def _same(x, y) -> bool:

@@ -55,7 +55,7 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
                                     transmission=(0.9,) * 3, ior=1.5))
     glow = s.add_material(Material("glow", diffuse=(0.2,) * 3, emission=(2.0, 1.5, 1.0)))
     ground = s.add_mesh(shapes.plane(8.0, divisions=2, name="ground"))
-    sphere = s.add_mesh(shapes.uv_sphere(12, 6, name="sphere"))
+    sphere = s.add_mesh(_as_exported(shapes.uv_sphere(12, 6, name="sphere")))
     ico = s.add_mesh(shapes.icosphere(1, name="ico"))
     box = s.add_mesh(_flat_shaded(shapes.box((0.8, 0.8, 0.8), name="box")))
     torus = s.add_mesh(shapes.torus(0.6, 0.2, 12, 6, name="torus"))
@@ -107,6 +107,19 @@ def _flat_shaded(mesh):
     normals = np.zeros((len(tris), 3, 3), np.float32)
     flat_triangle_normals(verts, tris, normals)
     return replace(mesh, corner_normals=normals)
+
+
+def _as_exported(mesh):
+    """``mesh`` as the add-on hands a smooth Blender mesh over: float32 normals per vertex
+    (Blender's POINT domain: each vertex's from the mesh's own corner normals) and
+    ``owned`` arrays, so the warm-up reaches the kernels of that path too
+    (:mod:`~.geometry.mesh_check`)."""
+    from dataclasses import replace
+
+    tris = np.asarray(mesh.triangles, np.int32)
+    vn = np.zeros((len(mesh.vertices), 3), np.float32)
+    vn[tris.reshape(-1)] = np.asarray(mesh.corner_normals, np.float32).reshape(-1, 3)
+    return replace(mesh, corner_normals=None, vertex_normals=vn, owned=True)
 
 
 def _modes() -> tuple[str, ...]:

@@ -162,6 +162,31 @@ def _all_flat(verts, tris, corners):
     return True
 
 
+@njit(cache=True, nogil=True)
+def _all_flat_vertex(verts, tris, rows):
+    """:func:`_all_flat` of the corners ``rows[tris]`` (per-vertex rows), not gathered."""
+    for t in range(tris.shape[0]):
+        x, y, z = flat_normal32(verts, tris, t)
+        for j in range(3):
+            r = tris[t, j]
+            if not (_same32(rows[r, 0], x) and _same32(rows[r, 1], y)
+                    and _same32(rows[r, 2], z)):
+                return False
+    return True
+
+
+def vertex_rows(verts: np.ndarray, tris: np.ndarray,
+                rows: np.ndarray) -> tuple[int, np.ndarray]:
+    """``(mode, rows)`` of per-vertex normals ``rows`` (V, 3) float32: what
+    :func:`compact_normals` gives for the corners ``rows[tris]`` without gathering them
+    (NONE where every corner is its triangle's flat normal, else VERTEX and ``rows``
+    themselves; rows no triangle names are never read)."""
+    rows = np.ascontiguousarray(rows, np.float32)
+    if _all_flat_vertex(verts, tris, rows):
+        return ATTR_NONE, np.zeros((0, 3), np.float32)
+    return ATTR_VERTEX, rows
+
+
 def _compact(tris: np.ndarray, nverts: int, corners: np.ndarray) -> tuple[int, np.ndarray]:
     """VERTEX, FACE or CORNER rows of ``corners`` (m, 3, c) float32, the coarsest exact."""
     corners = np.ascontiguousarray(corners, np.float32)

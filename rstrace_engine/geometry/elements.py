@@ -240,6 +240,14 @@ class Mesh:
         area-weighted vertex normals are computed (``smooth=False`` gives flat normals)
     corner_uvs : (m, 3, 2) optional per-corner texture coordinates
     slots : (m,) optional material slot per triangle (index into the instance's list)
+    vertex_normals : (n, 3) optional per-vertex shading normals (float32), every corner
+        reading its vertex's (what Blender's POINT normals domain gives): the same as
+        corner normals ``vertex_normals[triangles]``, without that (m, 3, 3) array; not
+        with ``corner_normals``
+    owned : the caller hands the arrays over and never changes them (the add-on's fresh
+        exports): the scene keeps them without copying where their dtype is already the
+        stored one, and keeps the validation with this object, so adding the same Mesh
+        to another scene checks nothing again (:mod:`.mesh_check`)
     """
 
     name: str
@@ -249,6 +257,10 @@ class Mesh:
     corner_uvs: np.ndarray | None = None
     slots: np.ndarray | None = None
     smooth: bool = True
+    vertex_normals: np.ndarray | None = None
+    owned: bool = False
+    #: (mesh dict, dropped triangles) of an ``owned`` mesh's validation
+    _checked: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
 
 @dataclass

@@ -28,7 +28,6 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import tolerances as tol
-from .attributes import ATTR_NONE, ATTR_VERTEX, compact_normals, compact_uvs
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
     AREA_SHAPES,
     LIGHT_AREA,
@@ -69,8 +68,9 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
 )
 from .footprint import check_fits, estimate
 from .lights import checked_light, pack_lights
-from .mesh_math import proper_triangles, transform_aabb, vertex_normals
-from .packing import compact_slots, pack_meshes
+from .mesh_check import checked_mesh
+from .mesh_math import transform_aabb
+from .packing import pack_meshes
 from .slot_keys import SlotKeys
 
 log = logging.getLogger(__name__)
@@ -376,51 +376,12 @@ class Scene:
         check_fits(mesh.name, m, v, others, self.memory_limit)
 
     def _checked_mesh(self, mesh: Mesh, cancel=None) -> dict:
-        n = mesh.name
-        verts = _finite_array(n, "mesh", mesh.vertices, (3,))
-        tris = np.asarray(mesh.triangles)
-        if tris.size == 0 or verts.shape[0] == 0:
-            raise SceneError(f"mesh '{n}': has no triangles")
-        if tris.ndim != 2 or tris.shape[1] != 3 or tris.dtype.kind not in "iu":
-            raise SceneError(f"mesh '{n}': triangles must be (m, 3) integers, got "
-                             f"{tris.shape} {tris.dtype}")
-        if tris.min() < 0 or tris.max() >= len(verts):
-            raise SceneError(f"mesh '{n}': triangle index out of range [0, {len(verts)})")
-        if np.max(np.abs(verts)) > tol.COORD_MAX:
-            raise SceneError(f"mesh '{n}': vertex coordinates exceed {tol.COORD_MAX:g}")
-        tris = np.array(tris, np.int32)  # a copy: the caller may change its array later
-        m = len(tris)
-        cn, cu, slots = mesh.corner_normals, mesh.corner_uvs, None
-        normals = None if cn is None else _finite_array(n, "mesh normals", cn, (3, 3), np.float32)
-        uvs = None if cu is None else _finite_array(n, "mesh uvs", cu, (3, 2), np.float32)
-        for what, a in (("corner normal", normals), ("corner uv", uvs)):
-            if a is not None and len(a) != m:
-                raise SceneError(f"mesh '{n}': {len(a)} {what} triples for {m} triangles")
-        if mesh.slots is not None:
-            slots = np.array(mesh.slots, dtype=np.int32).reshape(-1)
-            if len(slots) != m or (m and slots.min() < 0):
-                raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
-        keep = proper_triangles(verts, tris, cancel)
-        dropped = int(m - np.count_nonzero(keep))
-        if dropped:
-            self.stats["degenerate_triangles"] += dropped
-            self.warn(f"mesh '{n}': dropped {dropped} degenerate triangle(s)")
-        if dropped == m:
-            raise SceneError(f"mesh '{n}': all {m} triangles are degenerate (zero area)")
-        if not dropped:  # (the usual case: no copy)
-            keep = slice(None)
-        tris = tris[keep]
-        if normals is not None:
-            nmode, normals = compact_normals(verts, tris, normals[keep])
-        elif mesh.smooth:  # (the vertex normals' float32 rows: what every corner reads)
-            nmode, normals = ATTR_VERTEX, vertex_normals(verts, tris).astype(np.float32)
-        else:  # flat: each corner reads its triangle's own normal, computed
-            nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
-        uvmode, uvs = compact_uvs(tris, len(verts), None if uvs is None else uvs[keep])
-        slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots[keep])
-        return dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
-                    uvmode=uvmode, slots=slots, slot=slot, lo=verts.min(axis=0),
-                    hi=verts.max(axis=0))
+        """:func:`~.mesh_check.checked_mesh`, its dropped triangles counted and reported."""
+        def dropped(count: int) -> None:
+            self.stats["degenerate_triangles"] += count
+            self.warn(f"mesh '{mesh.name}': dropped {count} degenerate triangle(s)")
+
+        return checked_mesh(mesh, cancel, dropped)
 
     # objects
 

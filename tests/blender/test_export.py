@@ -77,6 +77,41 @@ def test_flat_and_custom_normals_domains():
     np.testing.assert_allclose(n.reshape(-1, 3), np.tile((0, 0, 1), (n.size // 3, 1)), atol=1e-4)
 
 
+def test_normals_are_handed_over_per_vertex_or_not_at_all():
+    """The export hands a smooth mesh's normals over per vertex (Blender's POINT domain)
+    and a flat one's not at all (the engine computes each triangle's own), with no (m, 3,
+    3) corner array, its arrays ``owned``; the scene model then holds the same mode and
+    every corner's bits that the per-corner arrays the export gathered before gave."""
+    import dataclasses
+
+    from addon.meshes import mesh_arrays
+    from rstrace_engine.geometry.mesh_math import flat_triangle_normals
+    from rstrace_engine.geometry.scene import Scene
+
+    _basic_scene()
+    ob = bpy.data.objects["Ball"]
+    for flat in (False, True):
+        if flat:
+            ob.data.shade_flat()
+        me = ob.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+        mesh = mesh_arrays(me, "Ball")
+        assert mesh.owned and mesh.corner_normals is None
+        assert mesh.smooth is not flat and (mesh.vertex_normals is None) is flat
+        t = mesh.triangles
+        if flat:  # (what the export gave before: each triangle's own, at its corners)
+            corners = np.zeros((len(t), 3, 3), np.float32)
+            flat_triangle_normals(mesh.vertices, t, corners)
+        else:
+            corners = mesh.vertex_normals[t]
+        before = dataclasses.replace(mesh, vertex_normals=None, corner_normals=corners,
+                                     smooth=True, owned=False)
+        got = [Scene(), Scene()]
+        got = [s.meshes[s.add_mesh(m)] for s, m in zip(got, (mesh, before), strict=True)]
+        assert got[0]["nmode"] == got[1]["nmode"] == (ATTR_NONE if flat else ATTR_VERTEX)
+        n0, n1 = (mesh_corners(d, "normals") for d in got)
+        assert np.array_equal(n0.view(np.uint32), n1.view(np.uint32))
+
+
 def test_material_slots_and_indices():
     b.setup_render(32, 24)
     me = b.uv_sphere("Two", 1.0, 8, 4)

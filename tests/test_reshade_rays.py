@@ -16,6 +16,8 @@ from rstrace_engine.geometry.edits import ObjectAdd, ObjectDelete, ObjectTransfo
 from rstrace_engine.session import Session
 from rstrace_engine.tracing import shadow_reshade
 from rstrace_engine.tracing.frame_reuse import FrameReuse
+from rstrace_engine.tracing.light_subset import recombine_pixels
+from rstrace_engine.tracing.pixel_records import FLAG_ALWAYS
 from rstrace_engine.tracing.sample_rays import ALL, crossing_rays
 
 
@@ -171,3 +173,37 @@ def test_placed_objects_prove_samples_stay_blocked(monkeypatch):
     assert rows[1] < 0.6 * rows[0], rows
     for c in range(L):  # the sphere light's rows dropped whole, the area light's samples
         assert np.count_nonzero(asked[True][c]) < np.count_nonzero(asked[False][c]), c
+
+
+def test_some_pixels_recombine_as_the_whole_frame():
+    """tracing/light_subset.py: after object edits under soft light (with mirror and glossy
+    secondary nodes), recombining any set of pixels gives their values in the whole
+    frame's recombination bit for bit, which is the frame (but where a light's own surface
+    is seen), and the incremental frame, which recombines only the pixels it shaded again,
+    equals a fresh one."""
+    settings = RenderSettings(mode="BASE", max_depth=3, light_samples=8, samples=2)
+    sess = Session(scenes.studio(64, 48), settings)
+    sess.light_terms = True
+    sess.render()
+    sess.apply([_moved(sess.scene, "MirrorBall", 0.1)])
+    assert sess.reshade_mask.any()
+    frame = sess.render()
+    assert frame.stats["reshaded_pixels"] > 0
+    np.testing.assert_array_equal(
+        frame.radiance, Session(sess.scene.copy(), settings).render().radiance)
+    rec, sa = sess.reuse.records, sess.scene.arrays()
+    lr = rec.light
+    assert len(lr.s) > 0  # (the mirror ball's reflections: secondary nodes)
+    whole = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels)
+    # (but where a light's own surface is seen: in no term, traced by every frame)
+    always = (rec.t_flags[rec.p_combo] & FLAG_ALWAYS) != 0
+    always[rec.secondary_rays()[(rec.t_flags[rec.s_combo] & FLAG_ALWAYS) != 0]] = True
+    own = ~always.reshape(rec.spp, -1).any(axis=0)
+    assert own.mean() > 0.9
+    np.testing.assert_array_equal(whole[own], frame.radiance.reshape(-1, 3)[own])
+    rng = np.random.default_rng(3)
+    for pix in (np.arange(rec.n_pixels), np.sort(rng.choice(rec.n_pixels, 500, False)),
+                np.flatnonzero(sess.reuse.frame.pixel_class.reshape(-1) >= 0)[::7],
+                np.zeros(0, np.int64)):
+        some = recombine_pixels(lr, sa, rec.secondary_rays(), rec.spp, rec.n_pixels, pix)
+        np.testing.assert_array_equal(some, whole[pix])

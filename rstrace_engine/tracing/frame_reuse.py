@@ -42,6 +42,7 @@ from ..geometry.edits import EditEffects
 from .edit_kernels import load_kernels as load_edit_kernels
 from .light_linking import links_shadows
 from .light_records import load_kernels
+from .light_subset import recombine_pixels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .sample_proofs import placed_balls
 from .seen_lights import any_seen
@@ -502,8 +503,16 @@ class FrameReuse:
         gain = self._term_samples(settings) if self.term_jobs else None
         split["terms"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
-                           world=lr.partial, extra=gain)
+        if not (self.relight_due or lr.partial or gain is not None):
+            # an object edit's re-shade alone: the pixels whose samples shaded something
+            # again recombined, every other pixel's value kept (light_subset)
+            pix = np.flatnonzero(self.reshade_pixels)
+            rad = base.radiance.reshape(-1, 3).copy()
+            rad[pix] = recombine_pixels(lr, sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
+                                        pix)
+        else:
+            rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
+                               world=lr.partial, extra=gain)
         took = 0
         if lr.partial:  # (INTERPOLANT: its traced pixels; the others as they were)
             ok = lr.relit_pixels(rec.spp, rec.n_pixels, world=world_lights(sa))

@@ -268,7 +268,7 @@ class Session:
         lost = (inv is not None and inv.restarted and self.settings.mode == "INTERPOLANT")
         self.reuse.take_edits(fx, old_sa, new_sa, self.scene.camera, ids, lost, report,
                               rescaled=None if inv is None else inv.rescaled,
-                              terms=None if inv is None else inv.terms)
+                              terms=None if inv is None else inv.terms, accel=self.accel)
         report.apply_ms = 1e3 * (time.perf_counter() - t0)
         self.last_report = report
         log.info("session: %d edit(s) %s, %d interpolants invalidated, %s dirty pixels, "

@@ -172,6 +172,11 @@ SOLID_BALL_REL = 1e-6
 #: coordinates' magnitude (its origin's distance plus the length to its closest point):
 #: the world -> object transform rounds in proportion to them.
 SOLID_RAY_SLACK_REL = 1e-12
+#: The records' query proves a blocked soft sample stays blocked by a placed object's ball
+#: (:mod:`~.tracing.sample_proofs`) trusting lengths to this fraction of the coordinates'
+#: magnitude (the world balls shrunk and grown by it too): far above the rounding of the
+#: world -> object transform and of the tests, far below the records' own margins.
+PLACED_SLACK_REL = 1e-9
 
 # ----------------------------------------------------------------------------- visibility field
 

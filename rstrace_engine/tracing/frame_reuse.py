@@ -42,7 +42,9 @@ from ..geometry.edits import EditEffects
 from .edit_kernels import load_kernels as load_edit_kernels
 from .light_linking import links_shadows
 from .light_records import load_kernels
+from .light_subset import recombine_pixels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
+from .sample_proofs import placed_balls
 from .seen_lights import any_seen
 from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
@@ -151,7 +153,7 @@ class FrameReuse:
     # -- edits -------------------------------------------------------------------------
 
     def take_edits(self, fx, old_sa, new_sa, camera, ids, interpolants_lost: bool,
-                   report, rescaled=None, terms=None) -> None:
+                   report, rescaled=None, terms=None, accel=None) -> None:
         """Mark the pixels an applied edit batch makes dirty.
 
         fx : the batch's :class:`~..geometry.edits.EditEffects`; old_sa, new_sa : the
@@ -162,7 +164,9 @@ class FrameReuse:
         colour, :mod:`~..interpolants.relight`): their pixels are dirty, not rebuilt;
         terms : the batch's :class:`~..interpolants.term_pixels.TermEdit` or None -- the
         pixels whose samples its kept cells interpolated take its term in the next frame's
-        relight instead (neither dirty nor rendered).
+        relight instead (neither dirty nor rendered). accel : the accelerator over
+        ``new_sa`` (the soft samples the objects the batch placed prove blocked are not
+        re-shaded where its shadow query allows it, :meth:`_placed_balls`).
         Fills ``report``'s ``full_frame``, ``dirty_pixels``, ``dirty_fraction`` and
         ``records_query_ms``.
         """
@@ -267,7 +271,8 @@ class FrameReuse:
             self._flush_reshade()
         t0 = time.perf_counter()
         if reshades:
-            dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx))
+            dirty = self._split(rec.dirty_split(old_sa, camera_params(camera), fx,
+                                                self._placed_balls(fx, old_sa, new_sa, accel)))
             # the edited objects, old and new apart, each by its box and its sphere (grown
             # as the records grow the boxes)
             lo, hi, c, r, tag = fx.part_arrays()
@@ -394,6 +399,20 @@ class FrameReuse:
                             and alive[i]))
         return live if len(live) <= PLACED_MAX else None
 
+    @staticmethod
+    def _placed_balls(fx, old_sa, new_sa, accel) -> tuple | None:
+        """The world balls of the live objects the batch ``fx`` placed (moved, added,
+        re-meshed, shown: :func:`~.sample_proofs.placed_balls` over ``new_sa``), which
+        prove a blocked soft sample stays blocked -- or None where ``accel``'s shadow query
+        is not its objects' watertight test, under shadow linking, or past
+        :data:`PLACED_MAX` objects (as :meth:`_placed`)."""
+        if (not getattr(accel, "any_hit_by_object", False) or links_shadows(old_sa)
+                or links_shadows(new_sa)):
+            return None
+        alive = np.asarray(new_sa.inst_alive, bool)
+        live = sorted(i for i in fx.geometry if 0 <= i < len(alive) and alive[i])
+        return placed_balls(new_sa, live) if 0 < len(live) <= PLACED_MAX else None
+
     def _relights(self, fx, old_sa, new_sa) -> bool:
         """The batch ``fx`` edits only lights and the world, and the light terms can
         follow it: kept, and the world's samples unchanged where it lights (their seeds do
@@ -484,8 +503,16 @@ class FrameReuse:
         gain = self._term_samples(settings) if self.term_jobs else None
         split["terms"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
-                           world=lr.partial, extra=gain)
+        if not (self.relight_due or lr.partial or gain is not None):
+            # an object edit's re-shade alone: the pixels whose samples shaded something
+            # again recombined, every other pixel's value kept (light_subset)
+            pix = np.flatnonzero(self.reshade_pixels)
+            rad = base.radiance.reshape(-1, 3).copy()
+            rad[pix] = recombine_pixels(lr, sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
+                                        pix)
+        else:
+            rad = lr.recombine(sa, rec.secondary_rays(), rec.spp, rec.n_pixels,
+                               world=lr.partial, extra=gain)
         took = 0
         if lr.partial:  # (INTERPOLANT: its traced pixels; the others as they were)
             ok = lr.relit_pixels(rec.spp, rec.n_pixels, world=world_lights(sa))

@@ -163,6 +163,25 @@ def _recombine_secondary(hit, start, slot, val, w, use, scale, dj, d_on, d_val, 
         rad[g, 2] += w[k, 2] * b
 
 
+def light_weights(sa: SceneArrays) -> tuple:
+    """What the recombination kernels weigh the terms by, for the lights of ``sa``: ``(use
+    (256,) int8, scale (256, 3), world colour (3,))`` -- per slot its pass (0 none, 1 a
+    hard light, 2 a sampled one, 3 the world; ``use[EMIT]``: two passes) and its
+    intensity or radiance."""
+    L = len(sa.light_kind)
+    alive = np.asarray(sa.light_kind) >= 0
+    ext = np.asarray(sa.light_ext, bool)
+    use = np.zeros(256, np.int8)
+    use[:L] = np.where(alive, np.where(ext, 2, 1), 0)
+    if world_lights(sa):
+        use[WORLD] = 3
+    use[EMIT] = 1 if (alive & ext).any() else 0  # (read as use[WORLD + 1]: two passes)
+    scale = np.zeros((256, 3))
+    scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
+    scale[WORLD] = sa.world_light
+    return use, scale, np.ascontiguousarray(sa.world_color, np.float64)
+
+
 _loaded = [False]
 
 
@@ -609,19 +628,8 @@ class LightRecords:
         INTERPOLANT frame computes for them). ``extra``: ``(rows, value (m, 3))`` added to
         those samples first (INTERPOLANT: a light edit's term their cells took,
         :mod:`~..interpolants.term_pixels`)."""
-        L = len(sa.light_kind)
-        alive = np.asarray(sa.light_kind) >= 0
-        ext = np.asarray(sa.light_ext, bool)
-        use = np.zeros(256, np.int8)
-        use[:L] = np.where(alive, np.where(ext, 2, 1), 0)
-        if world_lights(sa):
-            use[WORLD] = 3
-        use[EMIT] = 1 if (alive & ext).any() else 0  # (read as use[WORLD + 1]: two passes)
-        scale = np.zeros((256, 3))
-        scale[:L] = np.where(ext[:, None], sa.light_radiance, sa.light_intensity)
-        scale[WORLD] = sa.world_light
         rescale_world = world
-        world = np.ascontiguousarray(sa.world_color, np.float64)
+        use, scale, world = light_weights(sa)
         rad = np.empty((self.n_rays, 3))
         p, s = self.p, self.s
         out = np.empty((n_pixels, 3), np.float32)

@@ -62,10 +62,8 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from ..geometry.edits import PART_NEW, PART_OLD
-from ..geometry.scene import LIGHT_AREA, LIGHT_SUN
+from ..geometry.edits import PART_NEW
 from .batches import threads_for
-from .light_linking import links_shadows
 from .light_records import LightRecords
 from .record_codes import (
     POINT_BITS,
@@ -76,7 +74,8 @@ from .record_codes import (
     light_geometry,
 )
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
-from .sample_rays import SampleCandidates, query_light_bits, query_world
+from .sample_proofs import query_samples
+from .sample_rays import SampleCandidates
 from .soft_lights import world_lights
 
 FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental frame
@@ -486,7 +485,7 @@ class PixelRecords:
             _mark_rays(self.secondary_rays(), (s_lights != 0) | s_world, out)
         return out
 
-    def dirty_split(self, sa, cp, fx) -> tuple:
+    def dirty_split(self, sa, cp, fx, placed=None) -> tuple:
         """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
         world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool, cand, s_cand)`` --
         ``full`` the
@@ -497,7 +496,9 @@ class PixelRecords:
         at each secondary node (recorded with its normal and seed: :attr:`s_wnorm`; else
         those rays make the sample dirty in full) -- their terms alone may change
         (:mod:`.shadow_reshade`), ``cand`` and ``s_cand`` which of their samples
-        (:class:`~.sample_rays.SampleCandidates`)."""
+        (:class:`~.sample_rays.SampleCandidates`). ``placed``: the world balls of the objects the
+        edits placed (:func:`~.sample_proofs.placed_balls`), which prove samples stay
+        blocked (:func:`~.sample_proofs.query_samples`), or None."""
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)
@@ -590,66 +591,20 @@ class PixelRecords:
                             box, kind, pos, ldir, crossed, primary=view)
                 out |= crossed
             parts = (p_lo, p_hi, p_c, p_r, p_tag)
-            lights, world, cand = self._sampled(
-                sa, self.p_combo, self.p_code, self.p_wnorm, self.p_seed, self.p_vis,
-                is_hit, inst64, combo_traced, soft, world_rays, parts, pos, out)
+            if placed is not None:  # (the points' error: as the spheres are grown)
+                placed = (placed, float(np.linalg.norm(margin)))
+            lights, world, cand = query_samples(
+                self, sa, self.p_combo, self.p_code, self.p_wnorm, self.p_seed, self.p_vis,
+                is_hit, inst64, combo_traced, soft, world_rays, parts, pos, out, placed)
             m = len(self.s_parent)
             s_lights, s_world = np.zeros(m, np.uint64), np.zeros(m, np.bool_)
             s_cand = SampleCandidates.of(len(sa.light_kind) + 1, [])
             if sec_rays:  # the secondary hits' own rays, as the primary hits' (above)
-                s_lights, s_world, s_cand = self._sampled(
-                    sa, self.s_combo, self.s_code, self.s_wnorm, self.s_seed, self.s_vis,
-                    is_hit, inst64, combo_traced, soft, world_rays, parts, pos,
-                    out[self.secondary_rays()])
+                s_lights, s_world, s_cand = query_samples(
+                    self, sa, self.s_combo, self.s_code, self.s_wnorm, self.s_seed,
+                    self.s_vis, is_hit, inst64, combo_traced, soft, world_rays, parts, pos,
+                    out[self.secondary_rays()], placed)
         return out, lights, world, s_lights, s_world, cand, s_cand
-
-    def _sampled(self, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_traced,
-                 soft, world_rays: bool, parts: tuple, pos, skip) -> tuple:
-        """The lights with an extent (``soft`` bits) and the world's light (where
-        ``world_rays``) whose sampled rays may cross an edited object (``parts``: grown
-        boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
-        secondary ones) with their recorded normals, seeds and soft samples' visibility
-        ``vis``, the nodes whose sample is in ``skip`` (traced again) left out: ``(lights
-        (k,) uint64, world (k,) bool, SampleCandidates)``."""
-        k = len(combo)
-        L = len(sa.light_kind)
-        lights = np.zeros(k, np.uint64)
-        world = np.zeros(k, np.bool_)
-        p_lo, p_hi, p_c, p_r, p_tag = parts
-        skip = np.ascontiguousarray(skip)
-        # the samples' visibility in the records' frame: visible ones tested where
-        # objects came, blocked ones where they went (sample_rays)
-        known = vis is not None and not links_shadows(sa)
-        old = np.ascontiguousarray(vis, np.uint64) if known else np.zeros((0, 0), np.uint64)
-        tag = p_tag if known else np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
-        columns = []
-        if soft:
-            if wnorm is None:  # (no seeds recorded: the shaft tests)
-                wnorm = np.full((k, 3), np.nan, np.float32)
-                seed = np.zeros(k, np.uint64)
-            per = [j for j in range(L) if soft >> np.uint64(j) & np.uint64(1)
-                   and sa.light_kind[j] in (LIGHT_AREA, LIGHT_SUN)]
-            cols = np.full(L, -1, np.int64)
-            cols[per] = np.arange(len(per))
-            masks = np.zeros((k, max(len(per), 1)), np.uint64)
-            query_light_bits(sa, combo, code, inst64, combo_traced, wnorm, seed,
-                             self.w_samples, soft, self.lo, self.step, self.levels,
-                             self.shift, p_lo, p_hi, p_c, p_r, tag, pos, old, skip, lights,
-                             cols, masks)
-            columns += [(j, masks[:, cols[j]]) for j in per]
-        if world_rays:
-            if wnorm is None:
-                world = is_hit[combo.astype(np.int64)] & ~skip
-            else:
-                w_old = (np.ascontiguousarray(old[:, self.w_lights]) if known
-                         else np.zeros(k, np.uint64))
-                w_bits = np.empty(k, np.uint64)
-                query_world(combo, code, inst64, wnorm, seed, self.w_samples, self.lo,
-                            self.step, self.levels, self.shift, p_c, p_r, tag, w_old, skip,
-                            w_bits)
-                world = w_bits != 0
-                columns.append((L, w_bits))
-        return lights, world, SampleCandidates.of(L + 1, columns)
 
     def _query(self, cp, combo_dirty, sec_dirty, inst64, combo_traced, sec_traced, origins,
                reg_lo, reg_hi, seg, kind, pos, ldir, out, primary: bool = True) -> None:

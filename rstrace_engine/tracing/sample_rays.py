@@ -99,8 +99,11 @@ def _world_crosses(code, wnorm, seed, g, n, lo, step, levels, shift, reg_c, reg_
     sx = float(wnorm[g, 0])
     sy = float(wnorm[g, 1])
     sz = float(wnorm[g, 2])
-    if not (abs(sz) >= 1e-30 and sx == sx and sy == sy):
-        return ALL  # unknown, or a normal whose basis could flip side
+    if not (sx == sx and sy == sy and sz == sz) or (sz == 0.0 and math.copysign(1.0, sz) < 0):
+        # unknown; or -0.0: the tracer's z may have been a negative too small for float32,
+        # and the basis about the normal (shading.onb) follows z's sign (a stored +0.0 or
+        # non-zero z has the sign of the tracer's own)
+        return ALL
     nl = math.sqrt(sx * sx + sy * sy + sz * sz)
     sx /= nl
     sy /= nl

@@ -435,7 +435,7 @@ def test_world_terms_of_samples_traced_again_are_dropped(monkeypatch):
     kept = sess.reuse.light_records.world.ok.copy()
     # (the kept cells' pixels rendered again, not given the term from their cells:
     # interpolants/term_pixels.py; the fallback's verdict is what traces them)
-    monkeypatch.setattr(invalidation, "term_edit", lambda *a: None)
+    monkeypatch.setattr(invalidation, "term_edit", lambda *a, **k: None)
     assert kept.mean() > 0.1
     # the fallback's verdict for the next frame: the base tracer's frame, no cell
     monkeypatch.setattr(sess.interpolants, "auto_fallback", True)

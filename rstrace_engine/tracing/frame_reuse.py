@@ -205,6 +205,8 @@ class FrameReuse:
                 pi = f.pixel_interpolant.reshape(-1)
                 take = None
                 if terms is not None:
+                    if terms.renewed is not None:
+                        self._renewed(terms.renewed)
                     # (samples traced, or re-rendered by every frame, take nothing)
                     traced = lr.ok | ((rec.t_flags[rec.p_combo] & FLAG_ALWAYS) != 0)
                     take, gain = terms.pixels(pi, traced, rec.spp)
@@ -212,8 +214,9 @@ class FrameReuse:
                     lit = rec.dirty_pixels(old_sa, cp, replace(fx, world=False,
                                                                world_lights=False))
                     lit &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
-                    if take is not None and set(fx.lights_moved) <= terms.added:
-                        lit &= ~take  # (an added light dirties every hit: its cells tell)
+                    if take is not None and set(fx.lights_moved) <= terms.added | terms.moved:
+                        # (an added or moved light dirties every hit: its cells tell)
+                        lit &= ~take
                     dirty |= lit
                 if fx.world:
                     dirty |= rec.dirty_pixels(old_sa, cp, EditEffects(
@@ -513,6 +516,20 @@ class FrameReuse:
                                   relight_split_s=split)
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)
+
+    def _renewed(self, renewed) -> None:
+        """Cells a moved light kept, their dependencies recorded again under new serials
+        (``renewed``: ``(ids, old serials, new serials)``, :func:`~..interpolants.
+        moved_light.renew_dependencies`): still tracked, and still taking the terms of the
+        batches before."""
+        for _, te in self.term_jobs:
+            te.follow(renewed)
+        if self.snap is not None:
+            ids, old, new = renewed
+            inside = ids < len(self.snap)
+            ids, old, new = ids[inside], old[inside], new[inside]
+            same = self.snap[ids] == old
+            self.snap[ids[same]] = new[same]
 
     def _term_samples(self, settings):
         """INTERPOLANT: the samples of the kept pixels that take the pending batches' terms

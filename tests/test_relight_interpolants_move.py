@@ -81,6 +81,13 @@ def _live_keys(index, pool) -> dict:
     return out
 
 
+def _live_entries(index, pool) -> int:
+    """Live entries of membership ``index`` (a key listed twice for a cell counts twice)."""
+    a = index.arrays
+    return sum(1 for e in range(index.n)
+               if pool.live[a.q[e]] and pool.serial[a.q[e]] == a.serial[e])
+
+
 CASES = [("spheres", "Key", "move"), ("room", "Lamp", "move"), ("room", "Spot", "rotate"),
          ("room", "Spot", "cone"), ("room", "Sun", "sun")]
 
@@ -137,6 +144,20 @@ def test_a_moved_light_keeps_the_cells_it_is_proven_on(monkeypatch, name, key, s
     for i, q in enumerate(live.tolist()):
         assert objs.get(q, set()) == set(okeys[o0[i]:o0[i + 1]].tolist())
         assert lights.get(q, set()) == set(lkeys[l0[i]:l0[i + 1]].tolist())
+    # ... and its tunnels and entries are as many as recording the kept cells afresh makes
+    # (the old light's shafts and entries are gone, not left beside the new ones)
+    ref = invalidation.Dependencies(cache.sa)
+    ref._set_domain(cache.deps.domain)
+    ref.rst = invalidation.RaySegmentTrees(ref.domain, ref.slack)
+    a_ = cache.trees.arrays
+    tree = a_.tree[p.node[live]].astype(np.int64)
+    ref.add(cache, live.astype(np.int32), tree // 6, tree % 6, a_.depth[p.node[live]],
+            a_.coord[p.node[live]], p.zlo[live], p.zhi[live], cs, ns)
+    assert cache.deps.rst.live_count(p.serial, p.live) == ref.rst.live_count(p.serial, p.live)
+    for idx in ("objects", "lights"):
+        assert (sum(map(len, _live_keys(getattr(cache.deps, idx), p).values()))
+                == _live_entries(getattr(cache.deps, idx), p)
+                == _live_entries(getattr(ref, idx), p))
     # an object put in the moved light's new shaft from a lit kept cell finds it
     j = new.scene.light_slot(key)
     if step == "move":

@@ -199,10 +199,10 @@ def test_shares_over_the_cap_fall_back_to_invalidation(cap_mb):
 def test_a_moved_light_invalidates_by_its_shafts_and_relights_the_traced_pixels(name):
     """A moved (or resized) light: the interpolants its shafts reach are invalidated, as
     before, none rescaled -- a light with an extent; a hard one keeps the cells its new
-    place is proven on (``test_relight_interpolants_move.py``); the frame's traced samples shade that light again alone (as
-    BASE's, ``light_reshade``), so their pixels are relit, not traced again -- a fresh BASE
-    frame's bit for bit -- and the frame keeps the bound. A session without the records
-    re-traces them."""
+    place is proven on (``test_relight_interpolants_move.py``); the frame's traced samples
+    shade that light again alone (as BASE's, ``light_reshade``), so their pixels are relit,
+    not traced again -- a fresh BASE frame's bit for bit -- and the frame keeps the bound.
+    A session without the records re-traces them."""
     make, key = SCENES[name]
     scene = make()
     new, old = session(scene, True), session(scene, False)

@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.cameras import camera_rays, pixel_jitter
-from ..tracing.edit_kernels import LOADERS
+from ..tracing.edit_kernels import register
 from ..tracing.glossy_rays import glossy_materials as rough_materials
 from .glossy_term import rough_roots_possible
 from .linetree import ray_line
@@ -221,14 +221,12 @@ def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights, m
                     renewed)
 
 
-def load_kernels(records, sa) -> None:
+def load_kernels(records, sa, camera) -> None:
     """Load :func:`_deltas` with the end of a session's first INTERPOLANT frame that keeps
     light terms (:data:`~..tracing.edit_kernels.LOADERS`), not on its first light edit."""
-    if not records.light.partial:
-        return
     e3, i64 = np.zeros((0, 3)), np.zeros(0, np.int64)
     _deltas(np.zeros((0, 2, 3)), np.zeros(0, np.int32), i64, np.zeros((0, 4), np.int64),
             np.zeros((0, 16, 3)), i64, e3, e3, np.zeros(0, np.bool_), e3)
 
 
-LOADERS.append(load_kernels)
+register("term_pixels", load_kernels, lambda records, sa: records.light.partial)

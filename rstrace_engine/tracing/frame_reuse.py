@@ -39,12 +39,10 @@ import numpy as np
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
-from .edit_kernels import load_kernels as load_edit_kernels
+from .edit_kernels import load_kernels
 from .light_linking import links_shadows
-from .light_records import load_kernels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .seen_lights import any_seen
-from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
 from .soft_lights import has_soft_light, world_lights
 
@@ -612,11 +610,7 @@ class FrameReuse:
         self.relight_moved = set()
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
-            load_kernels()
-            if sa is not None:
-                load_edit_kernels(records, sa, camera)
-            if sa is not None and not records.light.partial and has_soft_light(sa):
-                load_reshade_kernels(sa)
+            load_kernels(records, sa, camera)  # (once per process each: edit_kernels.py)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

@@ -163,15 +163,10 @@ def _recombine_secondary(hit, start, slot, val, w, use, scale, dj, d_on, d_val, 
         rad[g, 2] += w[k, 2] * b
 
 
-_loaded = [False]
-
-
 def load_kernels() -> None:
-    """Load (or compile) the recombination kernels once per process, after the first
-    frame that keeps light terms, so that the first light edit does not pay it."""
-    if _loaded[0]:
-        return
-    _loaded[0] = True
+    """Load (or compile) the recombination kernels: called once per process, after the
+    first frame that keeps light terms (:data:`~.edit_kernels.LOADERS`), so that the
+    first light edit does not pay it."""
     p = _Part.empty(True, False)
     s = _Part.empty(False, False)
     use, scale = np.zeros(256, np.int8), np.zeros((256, 3))

@@ -3,7 +3,10 @@
 Issue 21, items 3 and 4 in INTERPOLANT mode. A light edit that keeps an interpolant changes
 its corners by a sum of light terms: an added light ``j`` (:mod:`.added_light`) adds
 ``S_j I_j`` to every corner sample, a power or colour change or a deletion
-(:mod:`.relight`) adds ``S_j (I'_j - I_j)`` -- ``S_j`` the sample's share of light ``j``.
+(:mod:`.relight`) adds ``S_j (I'_j - I_j)`` -- ``S_j`` the sample's share of light ``j`` --
+and a moved one (:mod:`.moved_light`) ``S'_j I'_j - S_j I_j``. Each cell's 16 corner terms
+are taken when the batch is applied (a later batch before the frame may move a light and
+change its shares).
 The interpolation is quadrilinear in the corners (:func:`~.linetree.interpolate16`), so an
 interpolated pixel sample changes by the same interpolation of those terms, at the sample's
 own line coordinates in the cell. Before, every pixel of such a cell was rendered again (its

@@ -197,7 +197,7 @@ def _render_again(monkeypatch) -> None:
     rough root's pixels still are): what the kept world and sampled terms are for."""
     from rstrace_engine.interpolants import invalidation
 
-    monkeypatch.setattr(invalidation, "term_edit", lambda *a: None)
+    monkeypatch.setattr(invalidation, "term_edit", lambda *a, **k: None)
 
 
 def test_pixels_rendered_again_keep_their_world_terms(monkeypatch):

@@ -44,7 +44,7 @@ def _run(monkeypatch, make, steps, old: bool, **kw):
     """Render ``make()``'s scene, then each list of batches of ``steps(sess)``, applied
     before one frame; ``old``: the old code's path (the kept cells' pixels rendered again,
     ``term_edit`` switched off). Returns ``[(dirty mask before the frame, frame), ...]``."""
-    monkeypatch.setattr(invalidation, "term_edit", (lambda *a: None) if old else TERM_EDIT)
+    monkeypatch.setattr(invalidation, "term_edit", (lambda *a, **k: None) if old else TERM_EDIT)
     sess = session(make(), True, **kw)
     sess.render()
     out = []

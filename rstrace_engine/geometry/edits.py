@@ -299,7 +299,8 @@ def _light_geometry(li: Light) -> tuple:
     return (li.kind, tuple(li.position), tuple(li.direction), float(li.spot_size),
             float(li.spot_blend), float(li.radius), bool(li.soft_falloff), float(li.angle),
             li.shape, tuple(li.axis), tuple(li.size), float(li.spread), bool(li.diffuse),
-            bool(li.glossy), bool(li.transmission), tuple(li.receivers), tuple(li.blockers))
+            bool(li.glossy), bool(li.transmission), tuple(li.receivers), tuple(li.blockers),
+            tuple(li.spot_frame))
 
 
 def _light_seen(fx: EditEffects, li: Light | None) -> None:

@@ -34,6 +34,7 @@ from ..geometry.scene import LIGHT_SUN
 from .added_light import add_dependencies, add_terms, can_add
 from .linetree import EMPTY, expanded_boxes
 from .membership import Membership
+from .moved_light import movable_lights, move_terms, renew_dependencies
 from .ray_segment_tree import RaySegmentTrees
 from .relight import rescalable_lights, rescale
 from .shafts import light_extents
@@ -72,6 +73,10 @@ class Invalidation(NamedTuple):
     #: invalidated because it could not be proven on them
     terms_added: int = 0
     add_failed: int = 0
+    #: interpolants kept with a moved light's new term (:mod:`.moved_light`), and those
+    #: invalidated because it could not be proven on them
+    terms_moved: int = 0
+    move_failed: int = 0
     #: what the kept interpolants' pixels take instead of being rendered again
     #: (:class:`~.term_pixels.TermEdit`, or None)
     terms: object = None
@@ -138,10 +143,11 @@ class Dependencies:
                 + self.failed.memory_bytes)
 
     def add(self, cache, pids, inst, face, depth, coord, zlo, zhi, cell_samples,
-            nsamp) -> None:
+            nsamp, sa=None) -> None:
         """Record the tunnels and memberships of new interpolants ``pids`` (their cells'
-        data as :meth:`~.cache.InterpolantCache._build` has it)."""
-        sa = cache.sa
+        data as :meth:`~.cache.InterpolantCache._build` has it); ``sa`` the packing whose
+        lights they name (default the cache's)."""
+        sa = cache.sa if sa is None else sa
         sm = cache.samples.view()
         nc = len(pids)
         ids = np.ascontiguousarray(cell_samples, np.int32)
@@ -236,9 +242,10 @@ class Affected(NamedTuple):
 
 
 def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-             light_shading=()) -> Affected:
+             light_shading=(), retry: bool = False) -> Affected:
     """The interpolants an edit may change (the arguments of :func:`invalidate`), and the
-    failed cells it may let pass; changes nothing."""
+    failed cells it may let pass (``retry``: every failed cell that was shaded, as after a
+    light moved); changes nothing."""
     pool = cache.pool
     deps: Dependencies = cache.deps
     hit = np.zeros(pool.cap, np.bool_)
@@ -260,13 +267,14 @@ def affected(cache, regions, objects=(), lights=(), materials=(), world: bool = 
     failed = np.zeros(n, np.bool_)
     if okeys:
         deps.failed.query(okeys, lt.arrays.fstamp[:n], lt.arrays.leaf[:n] < EMPTY, failed)
-    if len(lights):
+    if len(lights) or retry:
         failed |= (lt.arrays.leaf[:n] < EMPTY) & (lt.arrays.fstamp[:n] > 0)
     return Affected(ids, np.flatnonzero(failed).astype(np.int32), visits, tests)
 
 
 def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool = False,
-               light_shading=(), everything: bool = False, extra=None) -> Invalidation:
+               light_shading=(), everything: bool = False, extra=None,
+               retry: bool = False) -> Invalidation:
     """Invalidate every interpolant an edit may change, and free it.
 
     regions : (k, 2, 3) world boxes (old and new box of every object whose geometry,
@@ -278,7 +286,8 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     changed (every interpolant with a ray-tree node that misses); light_shading : lights
     whose power or colour alone changed (only interpolants they shade); everything: every
     interpolant (a world colour change where the world lights); extra: interpolant ids
-    to invalidate as well (a rescale broke their bound, :mod:`.relight`). Camera edits
+    to invalidate as well (a rescale broke their bound, :mod:`.relight`); retry: the failed
+    cells that were shaded are tried again (lights moved, :mod:`.moved_light`). Camera edits
     invalidate nothing (call nothing).
 
     Invalidated interpolants are freed at once (their pool ids are free, their tree and
@@ -290,7 +299,7 @@ def invalidate(cache, regions, objects=(), lights=(), materials=(), world: bool 
     t0 = time.perf_counter()
     pool = cache.pool
     live_before = pool.n_live
-    a = affected(cache, regions, objects, lights, materials, world, light_shading)
+    a = affected(cache, regions, objects, lights, materials, world, light_shading, retry)
     ids, retry = a.ids, a.retry
     if everything:
         ids = np.flatnonzero(pool.live).astype(np.int32)
@@ -350,7 +359,9 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     keep theirs. The number of light slots may grow only by lights added in a batch of
     light and world edits (:func:`.added_light.can_add`: their terms are added where they
     are proven, :func:`.added_light.add_terms`); any other change of it starts a new cache
-    (:class:`~.render.InterpolantRenderer`; the ray trees record a state per light).
+    (:class:`~.render.InterpolantRenderer`; the ray trees record a state per light). Hard
+    lights moved in a batch of light and world edits keep the cells their new place is
+    proven on (:mod:`.moved_light`).
     """
     old = cache.sa
     added = None
@@ -362,6 +373,10 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         # lights added into new slots: one term more where it is proven (added_light.py)
         slots = list(range(len(old.light_kind), len(sa.light_kind)))
         added = add_terms(cache, old, sa, accel, slots)
+    # hard lights moved (not in a batch that adds lights): the old term dropped, the new
+    # one added where it is proven (moved_light.py)
+    moved = [] if slots else movable_lights(cache, old, sa, fx)
+    mv = move_terms(cache, old, sa, accel, moved) if moved else None
     if fx.scene_content_changed:
         # a world that starts or stops lighting shades every surface: all interpolants (its
         # term at the roots was or was not left out of the samples; cells with a surface
@@ -375,11 +390,12 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         # it shades (relight.py)
         resc = rescalable_lights(old, sa, fx.lights_shading) if cache.light_terms else []
         r = rescale(cache, old, sa, resc)
-        extra = [r.broken, r.no_terms] + ([added.failed] if added is not None else [])
+        extra = [r.broken, r.no_terms] + ([added.failed] if added is not None else []) + (
+            [mv.failed] if mv is not None else [])
         inv = invalidate(cache, fx.region_array(), fx.objects,
-                         set(fx.lights_moved) - set(slots), fx.materials, fx.world,
-                         set(fx.lights_shading) - set(resc) - set(slots), everything,
-                         np.concatenate(extra))
+                         set(fx.lights_moved) - set(slots) - set(moved), fx.materials,
+                         fx.world, set(fx.lights_shading) - set(resc) - set(slots),
+                         everything, np.concatenate(extra), retry=bool(moved))
         kept = r.rescaled[cache.pool.live[r.rescaled]]
         inv = inv._replace(rescaled=kept, rescale_broken=len(r.broken),
                            rescale_no_terms=len(r.no_terms))
@@ -393,8 +409,19 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
             quiet = np.setdiff1d(took, changed)
             inv = inv._replace(rescaled=np.union1d(kept, changed).astype(np.int32),
                                terms_added=len(took), add_failed=len(added.failed))
+        renewed = None
+        if mv is not None:
+            live = cache.pool.live
+            took = mv.kept[live[mv.kept]]
+            renewed = renew_dependencies(cache, sa, took)  # (the old shafts and states go)
+            changed = mv.changed[live[mv.changed]]
+            quiet = np.setdiff1d(took, changed)
+            inv = inv._replace(rescaled=np.union1d(kept, changed).astype(np.int32),
+                               terms_moved=len(took), move_failed=len(mv.failed))
         # the pixels of the kept cells take the batch's terms (term_pixels.py)
-        inv = inv._replace(terms=term_edit(cache, old, sa, slots, changed, quiet, kept, resc))
+        inv = inv._replace(terms=term_edit(
+            cache, old, sa, slots, changed, quiet, kept, resc, moved=moved,
+            delta=None if mv is None else mv.delta, renewed=renewed))
     else:
         inv = Invalidation.nothing(cache.pool.n_live)
     n_new = len(sa.inst_mesh)

@@ -23,8 +23,9 @@ Which interpolants a light shades is the membership index's answer (``LIGHT_SHAD
 set the invalidation of a power change took): a cell not in it has ``S_j = 0`` at every
 sample. A deleted light is rescaled to zero (its term dropped; the other lights' proofs
 and the cell's geometry do not depend on it, the radiance test is run again). A light that
-changes anything else but its intensity (moved, reshaped, linked, made invisible to
-diffuse or glossy rays) takes the invalidation path; an added one, :mod:`.added_light`.
+changes anything else but its intensity (reshaped, linked, made invisible to diffuse or
+glossy rays) takes the invalidation path; an added one, :mod:`.added_light`; a hard light
+moved, turned or re-coned, :mod:`.moved_light`.
 """
 
 from __future__ import annotations

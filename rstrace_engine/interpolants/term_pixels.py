@@ -3,7 +3,10 @@
 Issue 21, items 3 and 4 in INTERPOLANT mode. A light edit that keeps an interpolant changes
 its corners by a sum of light terms: an added light ``j`` (:mod:`.added_light`) adds
 ``S_j I_j`` to every corner sample, a power or colour change or a deletion
-(:mod:`.relight`) adds ``S_j (I'_j - I_j)`` -- ``S_j`` the sample's share of light ``j``.
+(:mod:`.relight`) adds ``S_j (I'_j - I_j)`` -- ``S_j`` the sample's share of light ``j`` --
+and a moved one (:mod:`.moved_light`) ``S'_j I'_j - S_j I_j``. Each cell's 16 corner terms
+are taken when the batch is applied (a later batch before the frame may move a light and
+change its shares).
 The interpolation is quadrilinear in the corners (:func:`~.linetree.interpolate16`), so an
 interpolated pixel sample changes by the same interpolation of those terms, at the sample's
 own line coordinates in the cell. Before, every pixel of such a cell was rendered again (its
@@ -37,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from ..geometry.cameras import camera_rays, pixel_jitter
-from ..tracing.edit_kernels import LOADERS
+from ..tracing.edit_kernels import register
 from ..tracing.glossy_rays import glossy_materials as rough_materials
 from .glossy_term import rough_roots_possible
 from .linetree import ray_line
@@ -53,8 +56,12 @@ class TermEdit(NamedTuple):
     cells: np.ndarray  # (k,) int32 interpolants whose corners took the terms
     quiet: np.ndarray  # (u,) int32 interpolants an added light left unchanged
     serial: np.ndarray  # (k,) int64 their serials (a freed and reused id takes nothing)
-    scale: np.ndarray  # (L, 3) the change of each light slot's intensity (dI_j)
+    corner: np.ndarray  # (k, 16, 3) what each of their corners gained in the batch
     added: frozenset  # the light slots added by the batch
+    moved: frozenset = frozenset()  # the light slots moved by it (:mod:`.moved_light`)
+    #: ``(ids, old serials, new serials)`` of the interpolants whose dependencies a moved
+    #: light renewed (:func:`~.moved_light.renew_dependencies`), or None
+    renewed: tuple | None = None
 
     def pixels(self, pi: np.ndarray, traced: np.ndarray, spp: int):
         """``(take, terms)`` (n_pixels,) bool: the pixels whose samples were all interpolated
@@ -67,26 +74,35 @@ class TermEdit(NamedTuple):
         terms = ok & np.isin(pi, self.cells)
         return terms | (ok & np.isin(pi, self.quiet)), terms
 
+    def follow(self, renewed) -> None:
+        """A later batch gave some of :attr:`cells` new serials (``renewed``, ``(ids, old
+        serials, new serials)``: a moved light renewed their dependencies): they are the
+        same cells, still to take this batch's terms."""
+        ids, old, new = renewed
+        at = np.full(int(max(ids.max(initial=-1), self.cells.max(initial=-1))) + 1, -1,
+                     np.int64)
+        at[ids] = np.arange(len(ids))
+        r = at[self.cells]
+        m = np.flatnonzero(r >= 0)
+        m = m[self.serial[m] == old[r[m]]]
+        self.serial[m] = new[r[m]]
+
     def deltas(self, cp, pix: np.ndarray, pi: np.ndarray, spp: int, seed: int):
         """``(delta (spp, k, 3), good (k,) bool)``: what each sample of pixels ``pix`` (their
         interpolants ``pi``) gains, through camera ``cp`` with the frame's jitter
         (``spp``, ``seed``); ``good`` False where a pixel's cell is gone or its line is not
         in it (to render again)."""
         cache = self.cache
-        pool, sm = cache.pool, cache.samples
+        pool = cache.pool
         k = len(pix)
         delta = np.zeros((spp, k, 3))
         if k == 0:
             return delta, np.zeros(0, np.bool_)
-        # each cell's 16 corner terms (its samples' shares times the intensity changes)
-        share, _ = sm.shares()
-        on = np.flatnonzero(np.any(self.scale != 0.0, axis=1))
-        on = on[on < share.shape[1]]
-        term = np.einsum("nlc,lc->nc", share[:, on], self.scale[on])
-        # only the cells still alive: a cell freed since the edit (a later batch, the
-        # memory cap) may hold sample ids from before the sample store was compacted
-        cells = self.cells[pool.live[self.cells] & (pool.serial[self.cells] == self.serial)]
-        corner = np.ascontiguousarray(term[pool.samples[cells]])  # (c, 16, 3)
+        # only the cells still alive (a cell freed since the edit, by a later batch or the
+        # memory cap, takes nothing: its pixels are rendered again)
+        alive = pool.live[self.cells] & (pool.serial[self.cells] == self.serial)
+        cells = self.cells[alive]
+        corner = np.ascontiguousarray(self.corner[alive])  # (c, 16, 3)
         a = cache.trees.arrays
         node = pool.node[cells]
         at = np.full(len(pool.live), -1, np.int64)
@@ -170,11 +186,15 @@ def _recombinable(cache, ids: np.ndarray, sas, ext_lights) -> np.ndarray:
     return ok
 
 
-def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights):
+def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights, moved=(),
+              delta=None, renewed=None):
     """The :class:`TermEdit` of a batch (None: nothing to take): light ``slots`` added
-    (``changed`` the live interpolants whose corners took their term, ``quiet`` those left
-    unchanged), lights ``resc_lights`` rescaled (``rescaled`` the live interpolants kept
-    with their corners rescaled). ``old_sa``, ``sa``: the packings before and after."""
+    or lights ``moved`` (``changed`` the live interpolants whose corners took their term,
+    ``quiet`` those left unchanged; ``delta`` (n, 3) what each sample gained from the moved
+    lights, :class:`~.moved_light.MoveResult`), lights ``resc_lights`` rescaled
+    (``rescaled`` the live interpolants kept with their corners rescaled). ``old_sa``,
+    ``sa``: the packings before and after. Each cell's corner terms are taken now, with
+    the shares of this batch (a later batch may move a light: its shares change)."""
     L = len(sa.light_kind)
     scale = np.zeros((L, 3))
     new, old = light_scale(sa), light_scale(old_sa)
@@ -187,20 +207,29 @@ def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights):
     cells = cells[_recombinable(cache, cells, sas, resc_lights)].astype(np.int32)
     quiet = np.setdiff1d(np.asarray(quiet, np.int32), cells)
     quiet = quiet[_recombinable(cache, quiet, sas, resc_lights)].astype(np.int32)
-    if len(cells) == 0 and len(quiet) == 0:
+    if len(cells) == 0 and len(quiet) == 0 and renewed is None:
         return None
-    return TermEdit(cache, cells, quiet, cache.pool.serial[cells].copy(), scale,
-                    frozenset(int(j) for j in slots))
+    # each cell's 16 corner terms (its samples' shares times the intensity changes, and
+    # what the moved lights changed)
+    sm, pool = cache.samples, cache.pool
+    share, _ = sm.shares()
+    on = np.flatnonzero(np.any(scale != 0.0, axis=1))
+    on = on[on < share.shape[1]]
+    s = pool.samples[cells]
+    corner = np.einsum("cklm,lm->ckm", share[s][:, :, on], scale[on])
+    if delta is not None:
+        corner += delta[s]
+    return TermEdit(cache, cells, quiet, pool.serial[cells].copy(), corner,
+                    frozenset(int(j) for j in slots), frozenset(int(j) for j in moved),
+                    renewed)
 
 
-def load_kernels(records, sa) -> None:
+def load_kernels(records, sa, camera) -> None:
     """Load :func:`_deltas` with the end of a session's first INTERPOLANT frame that keeps
     light terms (:data:`~..tracing.edit_kernels.LOADERS`), not on its first light edit."""
-    if not records.light.partial:
-        return
     e3, i64 = np.zeros((0, 3)), np.zeros(0, np.int64)
     _deltas(np.zeros((0, 2, 3)), np.zeros(0, np.int32), i64, np.zeros((0, 4), np.int64),
             np.zeros((0, 16, 3)), i64, e3, e3, np.zeros(0, np.bool_), e3)
 
 
-LOADERS.append(load_kernels)
+register("term_pixels", load_kernels, lambda records, sa: records.light.partial)

@@ -1,22 +1,27 @@
 """The kernels a session's first edits load, loaded at the end of its first frame instead.
 
 numba keeps compiled kernels on disk (:mod:`~..kernel_cache`), but a process still loads
-each kernel, per argument types, the first time it calls it: 5-20 ms apiece. The
-recombination kernels are loaded at the end of the first frame that keeps light terms
-(:func:`~.light_records.load_kernels`, and :func:`~.shadow_reshade.load_kernels` under soft
-light in BASE). The first light *moved or added* (BASE or INTERPOLANT) and the first records
-query (any edit that is not only a light's power, colour or deletion) still loaded theirs
-on the edit (issue 21; 7 kernels, 40-70 ms wall on the bench scenes at a load of 6):
+each kernel, per argument types, the first time it calls it: 5-20 ms apiece. Every group of
+kernels an edit would load is a loader in :data:`LOADERS`, called once per process by
+:func:`load_kernels` at the end of the first frame that keeps light terms and meets the
+loader's condition (:meth:`~.frame_reuse.FrameReuse.finish`; issue 21):
 
-* the records' dirty query (:mod:`.record_queries`), on the frame's records' own array
-  types (their combo codes are 16 or 32 bits wide);
-* a light's states and shadow rays shaded alone (:func:`~.light_reshade._one_light`'s
-  scene packing: the interpolants' added light shades its samples with it too), its light
-  bits in the pixel records, and the recombination's average of the samples;
-* what other modules register in :data:`LOADERS` (the interpolants' term kernel,
-  :mod:`~..interpolants.term_pixels`): called with the records and the scene packing.
+* the recombination kernels (:func:`~.light_records.load_kernels`): every such frame;
+* the first light *moved or added* (BASE or INTERPOLANT) and the first records query (any
+  edit that is not only a light's power, colour or deletion; :func:`_edit_kernels`):
+  the records' dirty query (:mod:`.record_queries`), on the frame's records' own array
+  types (their combo codes are 16 or 32 bits wide); a light's states and shadow rays shaded
+  alone (:func:`~.light_reshade._one_light`'s scene packing: the interpolants' added and
+  moved lights shade their samples with it too), its light bits in the pixel records, and
+  the recombination's average of the samples -- a frame of a scene with lights;
+* the soft lights' re-shade (:func:`~.shadow_reshade.load_kernels`): a BASE frame under
+  soft light;
+* what other modules register (:func:`register`; the interpolants' term kernel,
+  :mod:`~..interpolants.term_pixels`: an INTERPOLANT frame).
 
-Each is called once per process on empty arrays of the frame's types (no work).
+Each is called on empty arrays of the frame's types (no work). A loader whose condition the
+first frame does not meet (a BASE frame, then an INTERPOLANT one) loads with the first frame
+that does.
 """
 
 from __future__ import annotations
@@ -25,24 +30,41 @@ import numpy as np
 
 from ..geometry.cameras import camera_params
 from .batches import accumulate, threads_for
+from .light_records import load_kernels as recombine_kernels
 from .light_reshade import _one_light, _one_light_states
 from .pixel_records import _light_bit_changes
 from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
 from .shader import _shadow_kernel
+from .shadow_reshade import load_kernels as reshade_kernels
+from .soft_lights import has_soft_light
 
-#: more loaders, ``fn(records, sa)``, registered by the modules that own their kernels
+#: the loaders, ``(name, fn(records, sa, camera), when(records, sa) -> bool)``
 LOADERS: list = []
 
-_loaded = [False]
+_loaded: set = set()  # the names of the loaders run in this process
+
+
+def register(name: str, fn, when=None) -> None:
+    """Add loader ``fn(records, sa, camera)``, run once per process by :func:`load_kernels`
+    at the end of the first frame for which ``when(records, sa)`` holds (default: every
+    frame that keeps light terms)."""
+    LOADERS.append((name, fn, (lambda records, sa: True) if when is None else when))
 
 
 def load_kernels(records, sa, camera) -> None:
-    """Load (or compile) the first light move's or add's and the first records query's
-    kernels once per process, for ``records`` (:class:`~.pixel_records.PixelRecords` of a
-    frame that keeps light terms), its scene packing ``sa`` and its ``camera``."""
-    if _loaded[0] or records is None or records.light is None or len(sa.light_kind) == 0:
+    """Run each loader not yet run in this process whose condition holds, for ``records``
+    (:class:`~.pixel_records.PixelRecords` of a frame that keeps light terms), its scene
+    packing ``sa`` and its ``camera``."""
+    if records is None or records.light is None or sa is None:
         return
-    _loaded[0] = True
+    for name, fn, when in LOADERS:
+        if name not in _loaded and when(records, sa):
+            _loaded.add(name)
+            fn(records, sa, camera)
+
+
+def _edit_kernels(records, sa, camera) -> None:
+    """The first light move's or add's and the first records query's kernels."""
     e3, e1 = np.zeros((0, 3)), np.zeros(0)
     i32, i64 = np.zeros(0, np.int32), np.zeros(0, np.int64)
     u64, b = np.zeros(0, np.uint64), np.zeros(0, np.bool_)
@@ -66,5 +88,10 @@ def load_kernels(records, sa, camera) -> None:
         _query_secondary(r.s_parent[:0], r.s_combo[:0], r.s_code[:0], r.p_combo[:0],
                          r.p_code[:0], 0, b, i64, u64, *tail, b)
         _mark_rays(i32, b, b)
-    for fn in LOADERS:
-        fn(records, sa)
+
+
+register("recombine", lambda records, sa, camera: recombine_kernels())
+register("edit", _edit_kernels, lambda records, sa: len(sa.light_kind) > 0)
+register("reshade", lambda records, sa, camera: reshade_kernels(sa),
+         lambda records, sa: (not records.light.partial and len(sa.light_kind) > 0
+                              and has_soft_light(sa)))

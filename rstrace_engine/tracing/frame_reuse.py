@@ -39,14 +39,12 @@ import numpy as np
 from ..frame import CLASS_INTERPOLATED, CLASS_REBUILT, Frame
 from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
-from .edit_kernels import load_kernels as load_edit_kernels
+from .edit_kernels import load_kernels
 from .light_linking import links_shadows
-from .light_records import load_kernels
 from .light_subset import recombine_pixels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .sample_proofs import placed_balls
 from .seen_lights import any_seen
-from .shadow_reshade import load_kernels as load_reshade_kernels
 from .shadow_reshade import reshade
 from .soft_lights import has_soft_light, world_lights
 
@@ -209,6 +207,8 @@ class FrameReuse:
                 pi = f.pixel_interpolant.reshape(-1)
                 take = None
                 if terms is not None:
+                    if terms.renewed is not None:
+                        self._renewed(terms.renewed)
                     # (samples traced, or re-rendered by every frame, take nothing)
                     traced = lr.ok | ((rec.t_flags[rec.p_combo] & FLAG_ALWAYS) != 0)
                     take, gain = terms.pixels(pi, traced, rec.spp)
@@ -216,8 +216,9 @@ class FrameReuse:
                     lit = rec.dirty_pixels(old_sa, cp, replace(fx, world=False,
                                                                world_lights=False))
                     lit &= ~lr.relit_pixels(rec.spp, rec.n_pixels)
-                    if take is not None and set(fx.lights_moved) <= terms.added:
-                        lit &= ~take  # (an added light dirties every hit: its cells tell)
+                    if take is not None and set(fx.lights_moved) <= terms.added | terms.moved:
+                        # (an added or moved light dirties every hit: its cells tell)
+                        lit &= ~take
                     dirty |= lit
                 if fx.world:
                     dirty |= rec.dirty_pixels(old_sa, cp, EditEffects(
@@ -541,6 +542,20 @@ class FrameReuse:
         return Frame(rad.reshape(base.radiance.shape), base.pixel_class.copy(),
                      dict(base.stats), base.pixel_interpolant)
 
+    def _renewed(self, renewed) -> None:
+        """Cells a moved light kept, their dependencies recorded again under new serials
+        (``renewed``: ``(ids, old serials, new serials)``, :func:`~..interpolants.
+        moved_light.renew_dependencies`): still tracked, and still taking the terms of the
+        batches before."""
+        for _, te in self.term_jobs:
+            te.follow(renewed)
+        if self.snap is not None:
+            ids, old, new = renewed
+            inside = ids < len(self.snap)
+            ids, old, new = ids[inside], old[inside], new[inside]
+            same = self.snap[ids] == old
+            self.snap[ids[same]] = new[same]
+
     def _term_samples(self, settings):
         """INTERPOLANT: the samples of the kept pixels that take the pending batches' terms
         (:attr:`term_jobs`) and what each gains, ``(rows (m,) int64 sample ids, value (m,
@@ -622,11 +637,7 @@ class FrameReuse:
         self.relight_moved = set()
         self._no_reshade()
         if records.light is not None and records.light.p is not None:
-            load_kernels()
-            if sa is not None:
-                load_edit_kernels(records, sa, camera)
-            if sa is not None and not records.light.partial and has_soft_light(sa):
-                load_reshade_kernels(sa)
+            load_kernels(records, sa, camera)  # (once per process each: edit_kernels.py)
         self._track_interpolants(stored, pixels, cache, pool0)
         n = camera.width * camera.height
         self.frame, self.records, self.key, self.camera = stored, records, key, camera

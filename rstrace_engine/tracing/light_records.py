@@ -182,15 +182,10 @@ def light_weights(sa: SceneArrays) -> tuple:
     return use, scale, np.ascontiguousarray(sa.world_color, np.float64)
 
 
-_loaded = [False]
-
-
 def load_kernels() -> None:
-    """Load (or compile) the recombination kernels once per process, after the first
-    frame that keeps light terms, so that the first light edit does not pay it."""
-    if _loaded[0]:
-        return
-    _loaded[0] = True
+    """Load (or compile) the recombination kernels: called once per process, after the
+    first frame that keeps light terms (:data:`~.edit_kernels.LOADERS`), so that the
+    first light edit does not pay it."""
     p = _Part.empty(True, False)
     s = _Part.empty(False, False)
     use, scale = np.zeros(256, np.int8), np.zeros((256, 3))

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from .batches import accumulate, threads_for
-from .edit_kernels import LOADERS
+from .edit_kernels import register
 from .light_records import _node_light, light_weights
 
 
@@ -84,14 +84,12 @@ def recombine_pixels(lr, sa, s_ray: np.ndarray, spp: int, n_pixels: int,
     return out
 
 
-def load_kernels(records, sa) -> None:
+def load_kernels(records, sa, camera=None) -> None:
     """Load (or compile) :func:`recombine_pixels`' kernels after the first frame that keeps
     light terms (:data:`~.edit_kernels.LOADERS`), so that the first object edit under
     soft light does not."""
-    lr = records.light
-    if lr is None or lr.p is None or len(sa.light_kind) == 0:
-        return
-    recombine_pixels(lr, sa, np.zeros(1, np.int64), 1, 1, np.zeros(0, np.int64))
+    recombine_pixels(records.light, sa, np.zeros(1, np.int64), 1, 1, np.zeros(0, np.int64))
 
 
-LOADERS.append(load_kernels)
+register("recombine_pixels", load_kernels,
+         lambda records, sa: records.light.p is not None and len(sa.light_kind) > 0)

@@ -225,17 +225,11 @@ def _world_term(sa, accel, n: int, spawn: bool, geo: dict, surf: Surfaces, kept,
     return tp[:, L], tv[:, L]
 
 
-_loaded = [False]
-
-
 def load_kernels(sa) -> None:
-    """Load (or compile) the re-shade's own kernels once per process, for scene packings
-    like ``sa``, after the first frame that keeps light terms under soft light -- so that
-    the first object edit does not pay it (as :func:`~.light_records.load_kernels`; about
-    0.04 s of CPU on the 2-core machine, studio)."""
-    if _loaded[0] or len(sa.light_kind) == 0:
-        return
-    _loaded[0] = True
+    """Load (or compile) the re-shade's own kernels for scene packings like ``sa``:
+    called once per process, after the first BASE frame that keeps light terms under soft
+    light (:data:`~.edit_kernels.LOADERS`) -- so that the first object edit does not pay
+    it (about 0.04 s of CPU on the 2-core machine, studio)."""
     geo = {key: np.zeros((0,) + sh, dt) for key, (sh, dt) in _GEO.items()}
     surf = _surfaces(sa, geo)
     e3, e1 = np.zeros((0, 3)), np.zeros(0)

@@ -312,6 +312,27 @@ class Fallback:
         self.all_traced = not frame_pays(c)
         self.frames_all = 0
 
+    def notes(self) -> list[str]:
+        """What was decided, for the user (a frame's ``stats["fallback_notes"]``): the whole
+        frame traced, or objects traced, with the costs measured; none while cells are
+        used everywhere."""
+        c = self.last
+        measured = ""
+        if c is not None:
+            cells, traced = object_costs(c)
+            measured = (f" (measured: {cells.sum():.3f} s with cells against "
+                        f"{traced.sum():.3f} s traced)")
+        if self.all_traced:
+            return [f"Interpolants: this scene's frames are traced, its cells cost more than "
+                    f"they save{measured}; tried again every {REPROBE_FRAMES} frames "
+                    f"(setting 'interpolant_fallback' off: cells always)"]
+        n = int(np.count_nonzero(self.traced))
+        if n:
+            return [f"Interpolants: {n} object(s) traced, their cells cost more than "
+                    f"tracing their rays; tried again every {REPROBE_FRAMES} frames "
+                    f"(setting 'interpolant_fallback' off: cells always)"]
+        return []
+
     def stats(self, budget: Budget | None) -> dict:
         """The frame's ``stats["fallback"]``: what was decided (objects traced, the whole
         frame traced) and what the frame's ledger measured (:class:`Budget`: the

@@ -261,7 +261,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         if pixels is None and not frame.stats.get("cancelled"):
             fb.frames_all += 1
         frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
-                           fallback=fb.stats(None))
+                           fallback=fb.stats(None), fallback_notes=fb.notes())
         return frame
     t0 = fb_mod.CLOCK()
     sa = cache.sa
@@ -428,6 +428,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     stats["sampled_s"] = run.t_sampled  # their lights' sampled terms (in resolve_s)
     if fb is not None:
         stats["fallback"] = fb.stats(budget)
+        stats["fallback_notes"] = fb.notes()  # what it decided, for the user
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
@@ -594,7 +595,8 @@ class InterpolantRenderer:
     of light slots but by adding lights (:mod:`.added_light`: a state per light).
     """
 
-    #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`)
+    #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`), where
+    #: the settings' ``interpolant_fallback`` asks for it too
     auto_fallback = True
 
     def __init__(self) -> None:
@@ -645,6 +647,7 @@ class InterpolantRenderer:
         settings = settings.validated()
         c, _ = self.prepare(scene.arrays(), settings, accel)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel,
-                             fallback=self.auto_fallback, **incremental)
+                             fallback=self.auto_fallback and settings.interpolant_fallback,
+                             **incremental)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame

@@ -327,6 +327,9 @@ def test_orbit_reuses_the_interpolants():
 
     sc, vr = _start("INTERPOLANT")
     sc.rstrace.max_ray_depth = 2
+    # cells, to test them: here they do not pay, and the measured fallback would trace
+    # (tests/blender/test_interpolant_mode.py, the note at its top)
+    sc.rstrace.interpolant_fallback = False
     try:
         cam = _camera(_view(160, 120))  # (big enough to interpolate)
         vr.draw_view(cam, None)

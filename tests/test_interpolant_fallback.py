@@ -336,14 +336,19 @@ def test_a_build_is_paid_over_the_passes_it_serves():
     one = Budget(rays=4000, ray_s=1e-3)  # one pass: a build is paid at once
     one.start_pass(0)
     assert one.charge(0.4, 10) == 0.0 and one.spent == pytest.approx(0.4)
-    # a batch's size: cells at their share of what they cost (CELL_RAYS rays, then measured)
+    # but the frame owes a build whole at once, whichever pass pays it: what is left, and a
+    # batch's size (cells at what they cost: CELL_RAYS rays, then measured), are the same
+    # in a 4-pass frame's first pass as in a 1-pass frame (the shares put off counted)
     four, whole = Budget(10 ** 6, 1e-6, passes=4), Budget(10 ** 6, 1e-6)  # limits of 0.02 s
     four.start_pass(0)
     whole.start_pass(0)
-    assert whole.batch(1000, 0) == 33 and four.batch(1000, 0) == fallback.BUDGET_STEP
+    assert whole.batch(1000, 0) == 33 == four.batch(1000, 0)
     four.charge(0.004, 64)
     whole.charge(0.004, 64)
-    assert abs(four.batch(10 ** 4, 0) - 1216) <= 1 and abs(whole.batch(10 ** 4, 0) - 256) <= 1
+    assert four.spent == pytest.approx(0.001) and four.left() == pytest.approx(whole.left())
+    assert abs(four.batch(10 ** 4, 0) - 256) <= 1 and abs(whole.batch(10 ** 4, 0) - 256) <= 1
+    four.charge(0.0161, 1)  # the allowance owed: no more cells, no more walk in any pass
+    assert four.spent < four.limit and not four.may_build(0) and four.chunk(10 ** 6) == 0
 
 
 def test_a_chunk_is_sized_by_the_walk_not_the_builds():

@@ -297,6 +297,30 @@ def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
     assert frames[3].stats["fallback"]["build_budget_s"] is not None
 
 
+def test_the_decision_is_reported_and_the_setting_turns_the_fallback_off(monkeypatch):
+    measured = FrameLedger.costs
+    monkeypatch.setattr(FrameLedger, "costs",
+                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    assert st.interpolant_fallback  # (the default)
+    r = InterpolantRenderer()
+    first = r.render(sc, st, accel)
+    notes = first.stats["fallback_notes"]
+    assert first.stats["fallback"]["all_traced"] and len(notes) == 1
+    assert "cost more than they save" in notes[0] and "interpolant_fallback" in notes[0]
+    assert r.render(sc, st, accel).stats["fallback_notes"] == notes  # (a base frame)
+    off = r.render(sc, replace(st, interpolant_fallback=False), accel)
+    assert "fallback" not in off.stats and "fallback_notes" not in off.stats
+    assert off.stats["interpolated_fraction"] > 0.05
+    fb = Fallback(3)
+    assert fb.notes() == []  # cells everywhere: nothing to say
+    fb.traced[1] = True
+    assert fb.notes() and "1 object(s) traced" in fb.notes()[0]
+
+
 def test_a_frame_the_ledger_cut_short_is_not_judged():
     # the whole frame's cells did not pay over the one chunk the ledger let them walk
     small = _costs([5000], [5000], [4000], [300], 0.001, 0.5, 1e-6)

@@ -83,6 +83,13 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         name="Depth Cap", default=6, min=0, max=12,  # linetree.MAX_DEPTH
         description="Deepest subdivision of a linetree or RI-tree; cells that still fail "
                     "there are traced")
+    interpolant_fallback: BoolProperty(
+        name="Trace Where Cells Don't Pay", default=True,
+        description="Interpolant mode: trace the rays whose cells cost more than they save, "
+                    "learned from each frame's measured costs, so that the mode is never "
+                    "much slower than Base (a small or cheaply lit scene may then interpolate "
+                    "nothing: RSTrace > Last Render says so). Off: cells wherever the rays "
+                    "need them, to see them in the Interpolation pass")
     memory_cap: FloatProperty(
         name="Memory Cap", default=256.0, min=0.0, soft_max=8192.0, precision=0,
         description="Memory for interpolants and RI-tree samples, in MB; the least "
@@ -170,6 +177,7 @@ def render_settings(props: RSTraceSettings):
         thickness_view=bool(props.thickness_view),
         thickness_distance=_typed(props.thickness_distance),
         relight_memory_mb=_typed(props.relight_memory),
+        interpolant_fallback=bool(props.interpolant_fallback),
     ).validated()
 
 

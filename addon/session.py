@@ -243,9 +243,10 @@ class FrameRenderer:
         if dropped:
             self._warn(state, f"{dropped} sample(s) with NaN, infinite or too large radiance "
                               f"(>= 1e30, e.g. emission) were left out of the image")
-        # INTERPOLANT: what is only tested; RI_TREE: objects traced because their tree
-        # did not pay
-        for note in (stats.get("bound_notes") or []) + (stats.get("ri_notes") or []):
+        # INTERPOLANT: what is only tested, and what its fallback traced because cells did
+        # not pay; RI_TREE: objects traced because their tree did not pay
+        for note in ((stats.get("bound_notes") or []) + (stats.get("fallback_notes") or [])
+                     + (stats.get("ri_notes") or [])):
             self._report(state, "INFO", note)
         # BASE: per-light records off or cut by their cap (light edits re-trace)
         for key in ("relight_off", "relight_moves_off"):
@@ -459,6 +460,18 @@ def shadow_rays_text(stats: dict) -> str | None:
     return text
 
 
+def fallback_text(stats: dict) -> str | None:
+    """INTERPOLANT: what the measured fallback decided (``stats["fallback"]``,
+    :mod:`rstrace_engine.interpolants.fallback`) -- the frame traced because its cells cost
+    more than they save, or objects traced -- for the status line and the Last Render panel;
+    None while cells are used wherever they may be."""
+    fb = stats.get("fallback") or {}
+    if fb.get("all_traced"):
+        return "traced: cells did not pay"
+    n = int(fb.get("traced_objects") or 0)
+    return f"{n} object(s) traced: cells did not pay" if n else None
+
+
 def status_line(stats: dict) -> str:
     """The status-line summary of a finished render."""
     parts = [f"RSTrace | {stats.get('mode', '?')} | {stats.get('width')}x{stats.get('height')}",
@@ -472,6 +485,9 @@ def status_line(stats: dict) -> str:
     total = sum(classes.values())
     if total and classes.get("interpolated"):
         parts.append(f"interpolated {100.0 * classes['interpolated'] / total:.1f}%")
+    fallback = fallback_text(stats) if stats.get("mode") == "INTERPOLANT" else None
+    if fallback:
+        parts.append(fallback)
     if stats.get("cancelled"):
         parts.append("cancelled")
     warnings = stats.get("export_warnings") or []

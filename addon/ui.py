@@ -83,6 +83,7 @@ class RSTRACE_PT_interpolation(RSTracePanel, bpy.types.Panel):
         layout.prop(props, "epsilon")
         layout.prop(props, "depth_cap")
         layout.prop(props, "memory_cap", text="Memory Cap (MB)")
+        layout.prop(props, "interpolant_fallback")
 
 
 class RSTRACE_PT_ri_tree(RSTracePanel, bpy.types.Panel):
@@ -140,6 +141,9 @@ class RSTRACE_PT_statistics(RSTracePanel, bpy.types.Panel):
                 col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
                                f", {stats.get('invalidated_interpolants', 0):,} interpolants "
                                f"invalidated")
+                fb = session.fallback_text(stats)
+                if fb:
+                    col.label(text=fb)
             if stats.get("mode") == "RI_TREE":
                 col.label(text=f"Interpolated {100.0 * stats.get('interpolated_fraction', 0):.1f}%"
                                f", {stats.get('ri_objects', 0)} object(s) with an RI-tree, "

@@ -105,6 +105,9 @@ class RenderSettings:
     thickness_view: bool = False  # render distance travelled inside objects (seed 004 3.7)
     thickness_distance: float = 0.0  # 1/e distance of the thickness view; 0: scene / 10
     relight_memory_mb: float = 512.0  # BASE: per-light records cap (MB; 0: none kept)
+    # INTERPOLANT: trace where cells do not pay, learned from the frames' measured costs
+    # (interpolants/fallback.py); off: cells wherever the rays need them (to see them)
+    interpolant_fallback: bool = True
 
     def accelerator_options(self) -> dict:
         """Keyword options of :func:`~rstrace_engine.accel.accelerators.create_accelerator`."""

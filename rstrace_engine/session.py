@@ -299,6 +299,7 @@ class Session:
         s = self.settings
         return (s.mode, s.samples, s.seed, s.max_depth, s.epsilon, s.depth_cap,
                 s.light_samples, s.glossy_samples, s.accelerator,
+                s.interpolant_fallback if s.mode == "INTERPOLANT" else None,
                 tuple(sorted(s.accelerator_options().items())))
 
     def render(self, camera: Camera | None = None, progress=None, cancel=None) -> Frame:

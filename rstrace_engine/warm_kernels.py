@@ -418,6 +418,10 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                 settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
             with held:
                 session = Session(warm_scene(ortho=ortho), settings)
+                # cells wherever the rays need them: which kernels a frame reaches must not
+                # depend on the measured fallback's timings (it traces where its allowance
+                # is spent: a slow machine's warm-up would leave the predicate's cold)
+                session.interpolants.auto_fallback = False
                 _animate(session, ortho, cancel)
             _yield(lock)
         if ("interpolants",) in mine:

@@ -36,6 +36,13 @@ FLOAT_TOL = 1e-6
 
 
 @pytest.fixture(autouse=True)
+def cells_everywhere(monkeypatch):
+    """Cells wherever the rays need them: the bound is theirs to keep (the measured fallback
+    only traces, which is exact; tests/test_interpolant_fallback.py)."""
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
+
+
+@pytest.fixture(autouse=True)
 def small_cells(monkeypatch):
     """At 64 x 48 a cell covers few pixels: build cells from 6 rays on (default 48)."""
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)

@@ -44,21 +44,22 @@ def test_decision_from_given_costs():
     # interpolated (does not pay); object 2: too few rays to judge; object 3: traced, no rays
     c = _costs(rays=[10000, 10000, 100, 0], walked=[8000, 10000, 100, 0],
                interpolated=[9000, 500, 0, 0], cells=[100, 300, 10, 0], walk_s=0.02,
-               build_s=0.41, ray_s=5e-6)
+               build_s=0.041, ray_s=5e-6)
     with_cells, traced = object_costs(c)
     share = 0.02 / 18100
-    assert np.isclose(with_cells[0], 8000 * share + 0.41 * 100 / 410 / fallback.BUILD_FRAMES
-                      + 1000 * 5e-6)
+    saved = fallback.SAVE_SHARE  # an interpolated ray saves this share of a traced one
+    assert np.isclose(with_cells[0], 8000 * share + 0.041 * 100 / 410 / fallback.BUILD_FRAMES
+                      + (10000 - saved * 9000) * 5e-6)
     assert np.isclose(traced[0], 10000 * 5e-6)
-    assert np.isclose(with_cells[1], 10000 * share + 0.41 * 300 / 410 / fallback.BUILD_FRAMES
-                      + 9500 * 5e-6)
+    assert np.isclose(with_cells[1], 10000 * share + 0.041 * 300 / 410 / fallback.BUILD_FRAMES
+                      + (10000 - saved * 500) * 5e-6)
     assert cells_pay(c).tolist() == [True, False, True, True]
 
 
 def test_learning_is_deterministic_reprobes_and_wins_back():
     # object 0: 200 cells, nothing interpolated; object 1: 49000 of 50000 rays interpolated
     # (the frame as a whole pays)
-    dear = _costs([5000, 50000], [5000, 50000], [0, 49000], [200, 0], 0.001, 1.0, 1e-5)
+    dear = _costs([5000, 50000], [5000, 50000], [0, 49000], [200, 0], 0.001, 0.1, 1e-5)
     assert fallback.frame_pays(dear)
     fb = Fallback(2)
     fb.learn(dear, fb.frame_traced())
@@ -88,24 +89,39 @@ def test_learning_is_deterministic_reprobes_and_wins_back():
 
 def test_budget():
     b = Budget(rays=1000, ray_s=None)
-    assert b.may_build(0)  # not priced yet: no limit
+    assert b.may_build(0) and b.chunk(5000) == 0  # not priced: no limit, no walk (priced first)
     b.price(1e-3)  # limit: ALLOWANCE of tracing 1000 rays
     assert np.isclose(b.limit, fallback.ALLOWANCE * 1.0)
+    b.price(1e-3, vis_s=1e-3, hit_share=0.5)  # closest-hit rays for all, half of them traced
+    assert np.isclose(b.limit, fallback.ALLOWANCE * 1000 * (0.5e-3 + 1e-3))
+    b.price(1e-3)
     b.spent = b.limit + 0.01
-    assert not b.may_build(0)
-    assert b.may_build(10)  # ten interpolated rays saved 10 ms
-    b.saved = 10
+    assert not b.may_build(0) and b.chunk(5000) == 0
+    assert b.may_build(30)  # 30 interpolated rays saved 15 ms (half a traced ray each)
+    b.saved = 30
     assert b.may_build(0)
-    # batches: BUDGET_STEP cells first, then what is left at the measured cost per cell
-    c = Budget(rays=1000, ray_s=1e-3)
-    assert c.batch(10000, 0) == fallback.BUDGET_STEP and c.batch(5, 0) == 5
-    c.charge(0.01, 100)  # 0.1 ms a cell, 0.04 s left of 0.05
-    assert 399 <= c.batch(10000, 0) <= 400 and 499 <= c.batch(10000, 10) <= 500
-    c.charge(0.04, 400)
-    assert c.batch(10000, 0) == fallback.BUDGET_STEP  # (at least, while it may build)
+    # batches: the first at CELL_RAYS rays a cell (at most BUDGET_STEP), then what is left at
+    # the measured cost per cell (at least BUDGET_MIN)
+    c = Budget(rays=100000, ray_s=1e-3)  # a limit of ALLOWANCE * 100 s
+    first = min(fallback.BUDGET_STEP, int(c.limit / (fallback.CELL_RAYS * 1e-3)))
+    assert c.batch(10000, 0) == first and c.batch(5, 0) == min(5, first)
+    c.charge(0.01, 100)  # 0.1 ms a cell
+    left = c.limit - 0.01
+    assert abs(c.batch(10 ** 6, 0) - left / 1e-4) <= 1
+    assert abs(c.batch(10 ** 6, 1000) - (left + fallback.SAVE_SHARE) / 1e-4) <= 1
+    c.charge(left - 1e-4, 1)  # a tenth of a millisecond left: one cell's worth
+    assert c.batch(10 ** 6, 0) == fallback.BUDGET_MIN  # (at least, while it may build)
     c.charge(0.001, 1)
     assert c.batch(10000, 0) == 0
     assert Budget(rays=1000).batch(777, 0) == 777  # not priced: the whole step
+    # chunks of a pass: CHUNK_MIN rays first, then as many as the rest affords at what the
+    # mode added per ray walked so far (none under CHUNK_MIN), at most CHUNK_MAX
+    d = Budget(rays=10 ** 6, ray_s=1e-6)  # a limit of ALLOWANCE seconds
+    assert d.chunk(10 ** 6) == fallback.CHUNK_MIN and d.chunk(100) == 100
+    d.walked, d.spent = 1000, 1e-3 * fallback.ALLOWANCE  # 1e-6 ALLOWANCE s a ray walked
+    assert d.chunk(10 ** 6) == min(fallback.CHUNK_MAX, int(0.999 / 1e-6))
+    d.spent = fallback.ALLOWANCE * (1 - fallback.CHUNK_MIN / 2e6)
+    assert d.chunk(10 ** 6) == 0  # affords fewer than CHUNK_MIN rays: the rest is traced
 
 
 def _scene(w=96, h=72):
@@ -171,15 +187,20 @@ def test_the_build_budget_defers_cells_and_traces_them(monkeypatch):
     free = InterpolantRenderer()
     free.auto_fallback = False
     f_free = free.render(sc, st, accel)
-    # a ray priced at nothing: the budget allows one batch of one cell per frame
-    monkeypatch.setattr(fallback, "BUDGET_STEP", 1)
+    # a budget that lets every ray walk and builds one cell per frame (decided by counts,
+    # not timings)
+    monkeypatch.setattr(Budget, "chunk", lambda self, rest: rest)
+    monkeypatch.setattr(Budget, "batch",
+                        lambda self, step, now: min(step, 1) if self.built == 0 else 0)
+    monkeypatch.setattr(Budget, "may_build", lambda self, now: self.built == 0)
     r = InterpolantRenderer()
     r.prepare(sc.arrays(), st, accel)
-    r.cache.fallback.ray_s = 1e-30
+    r.cache.fallback.ray_s = 1e-6  # priced: no ray traced to price one
     f = r.render(sc, st, accel)
     s = f.stats["fallback"]
     assert f.stats["cells_built"] == 1 < f_free.stats["cells_built"]
     assert s["deferred_cells"] > 0 and s["probe_rays"] == 0
+    assert s["walked_rays"] == sc.camera.width * sc.camera.height
     base = _base(sc, accel, st)
     traced = f.pixel_class != CLASS_INTERPOLATED
     np.testing.assert_array_equal(f.radiance[traced], base.radiance[traced])
@@ -187,17 +208,53 @@ def test_the_build_budget_defers_cells_and_traces_them(monkeypatch):
     assert err <= EPS + FLOAT_TOL
 
 
-def test_a_first_frame_probes_the_price_of_a_ray():
+def test_a_frame_whose_allowance_is_spent_traces_the_rest_exactly(monkeypatch):
+    # the allowance spent after the first chunk with cells: the rest of the frame is the
+    # base tracer's (every pass: the ledger is the frame's)
+    calls = []
+
+    def once(self, rest):
+        calls.append(rest)
+        return min(rest, 1000) if len(calls) == 1 else 0
+
+    monkeypatch.setattr(Budget, "chunk", once)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3, samples=2)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    r.cache.fallback.ray_s = 1.0  # a dear ray: the chunk builds what it needs
+    f = r.render(sc, st, accel)
+    s = f.stats["fallback"]
+    assert s["walked_rays"] == 1000 and s["probe_rays"] == 0
+    assert f.stats["cells_built"] > 0
+    base = _base(sc, accel, st)
+    # pixels past the first 1000 of the first pass: traced in both samples, the base frame's
+    rest = np.ones(sc.camera.width * sc.camera.height, bool)
+    rest[:1000] = False
+    rest = rest.reshape(f.pixel_class.shape)
+    assert not (f.pixel_class[rest] == CLASS_INTERPOLATED).any()
+    np.testing.assert_array_equal(f.radiance[rest], base.radiance[rest])
+    err = np.abs(image.to_display(f.radiance) - image.to_display(base.radiance)).max()
+    assert err <= EPS + FLOAT_TOL
+
+
+def test_a_first_frame_prices_a_ray_with_its_first_chunk():
     sc = _scene(128, 96)
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
     r = InterpolantRenderer()
     f0 = r.render(sc, st, accel)
-    hits = int(np.count_nonzero(render(sc, replace(st, mode="BASE"), accel=accel).pixel_class))
+    k = 128 * 96
     s = f0.stats["fallback"]
-    assert s["probe_rays"] == -(-hits // fallback.PROBE_STRIDE) and s["ray_us"] > 0
+    first = min(k, max(fallback.CHUNK_MIN, int(k * fallback.PRICE_SHARE)))
+    assert s["probe_rays"] == first and s["ray_us"] > 0
     assert r.render(sc, st, accel).stats["fallback"]["probe_rays"] == 0  # priced: no probe
     base = _base(sc, accel, st)
+    # the first chunk is the base tracer's: its pixels (the frame's first rows) traced
+    rows = first // 128
+    assert not (f0.pixel_class[:rows] == CLASS_INTERPOLATED).any()
+    np.testing.assert_array_equal(f0.radiance[:rows], base.radiance[:rows])
     err = np.abs(image.to_display(f0.radiance) - image.to_display(base.radiance)).max()
     assert err <= EPS + FLOAT_TOL
 
@@ -238,3 +295,93 @@ def test_a_frame_that_did_not_pay_is_the_base_frame(monkeypatch):
         assert f.stats["cells_built"] == 0 and f.stats["epsilon"] == EPS
     assert "deferred_cells" in frames[3].stats["fallback"]
     assert frames[3].stats["fallback"]["build_budget_s"] is not None
+
+
+def test_the_decision_is_reported_and_the_setting_turns_the_fallback_off(monkeypatch):
+    measured = FrameLedger.costs
+    monkeypatch.setattr(FrameLedger, "costs",
+                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    sc = _scene()
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    assert st.interpolant_fallback  # (the default)
+    r = InterpolantRenderer()
+    first = r.render(sc, st, accel)
+    notes = first.stats["fallback_notes"]
+    assert first.stats["fallback"]["all_traced"] and len(notes) == 1
+    assert "cost more than they save" in notes[0] and "interpolant_fallback" in notes[0]
+    assert r.render(sc, st, accel).stats["fallback_notes"] == notes  # (a base frame)
+    off = r.render(sc, replace(st, interpolant_fallback=False), accel)
+    assert "fallback" not in off.stats and "fallback_notes" not in off.stats
+    assert off.stats["interpolated_fraction"] > 0.05
+    fb = Fallback(3)
+    assert fb.notes() == []  # cells everywhere: nothing to say
+    fb.traced[1] = True
+    assert fb.notes() and "1 object(s) traced" in fb.notes()[0]
+
+
+def test_a_frame_the_ledger_cut_short_is_not_judged():
+    # the whole frame's cells did not pay over the one chunk the ledger let them walk
+    small = _costs([5000], [5000], [4000], [300], 0.001, 0.5, 1e-6)
+    assert not fallback.frame_pays(small)
+    fb = Fallback(1)
+    fb.learn(small, fb.frame_traced(), cut=True)  # cut short: not judged, cells go on
+    assert not fb.all_traced and not fb.traced.any() and fb.ray_s == 1e-6
+    for _ in range(fallback.CUT_FRAMES - 2):
+        fb.learn(small, fb.frame_traced(), cut=True)
+        assert not fb.all_traced
+    fb.learn(small, fb.frame_traced(), cut=True)  # CUT_FRAMES in a row: judged
+    assert fb.all_traced and fb.whole_frame_traced()
+    ok = Fallback(1)
+    ok.learn(small, ok.frame_traced(), cut=True)
+    ok.learn(small, ok.frame_traced())  # a frame not cut is judged at once
+    assert ok.all_traced
+    # a cut frame whose walk alone (builds left out) did not pay is judged at once
+    walk = small._replace(walk_s=0.01, build_s=0.0)
+    assert not fallback.frame_pays(walk)
+    dear = Fallback(1)
+    dear.learn(walk, dear.frame_traced(), cut=True)
+    assert dear.all_traced
+
+
+def test_a_build_is_paid_over_the_passes_it_serves():
+    b = Budget(rays=4000, ray_s=1e-3, passes=4)  # a limit of ALLOWANCE * 4 s
+    b.start_pass(0)
+    assert b.charge(0.4, 10) == pytest.approx(0.3)  # pass 0 pays a quarter
+    assert b.spent == pytest.approx(0.1) and b.build_s == pytest.approx(0.4)
+    b.start_pass(1)
+    assert b.spent == pytest.approx(0.2) and b.later == pytest.approx(0.2)
+    assert b.charge(0.3, 5) == pytest.approx(0.2)  # pass 1 pays a third
+    b.start_pass(2)
+    b.start_pass(3)  # the last pass pays what is left: the frame has paid all its builds
+    assert b.later == pytest.approx(0.0) and b.spent == pytest.approx(0.7)
+    assert b.charge(0.1, 1) == 0.0 and b.spent == pytest.approx(0.8)
+    one = Budget(rays=4000, ray_s=1e-3)  # one pass: a build is paid at once
+    one.start_pass(0)
+    assert one.charge(0.4, 10) == 0.0 and one.spent == pytest.approx(0.4)
+    # but the frame owes a build whole at once, whichever pass pays it: what is left, and a
+    # batch's size (cells at what they cost: CELL_RAYS rays, then measured), are the same
+    # in a 4-pass frame's first pass as in a 1-pass frame (the shares put off counted)
+    four, whole = Budget(10 ** 6, 1e-6, passes=4), Budget(10 ** 6, 1e-6)  # limits of 0.02 s
+    four.start_pass(0)
+    whole.start_pass(0)
+    assert whole.batch(1000, 0) == 33 == four.batch(1000, 0)
+    four.charge(0.004, 64)
+    whole.charge(0.004, 64)
+    assert four.spent == pytest.approx(0.001) and four.left() == pytest.approx(whole.left())
+    assert abs(four.batch(10 ** 4, 0) - 256) <= 1 and abs(whole.batch(10 ** 4, 0) - 256) <= 1
+    four.charge(0.0161, 1)  # the allowance owed: no more cells, no more walk in any pass
+    assert four.spent < four.limit and not four.may_build(0) and four.chunk(10 ** 6) == 0
+
+
+def test_a_chunk_is_sized_by_the_walk_not_the_builds():
+    b = Budget(rays=10 ** 6, ray_s=1e-6)  # a limit of ALLOWANCE seconds
+    b.start_pass(0)
+    b.charge(0.015, 64)  # the first chunk's builds (they serve the chunks after it)
+    b.spent += 0.001  # its walk
+    b.walked = 4096
+    # the allowance left (0.004 s) at the walk's 0.001 s per 4096 rays: 16384 rays
+    assert abs(b.chunk(10 ** 6) - 16384) <= 1 and not b.cut
+    b.spent += 0.004  # spent: the rest of the pass is traced
+    assert b.chunk(10 ** 6) == 0 and b.cut

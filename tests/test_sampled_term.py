@@ -225,10 +225,13 @@ def test_moving_the_roof_invalidates_the_umbra(monkeypatch):
     from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
     from rstrace_engine.geometry.edits import ObjectTransform
     from rstrace_engine.interpolants import interpolant_cache
+    from rstrace_engine.interpolants.render import InterpolantRenderer
     from rstrace_engine.session import Session
     from rstrace_engine.tracing import whitted
 
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    # cells wherever the rays need them (the measured fallback only traces: exact)
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
     eps = 0.02
     scene = _skylight_room(True)
     st = RenderSettings(mode="INTERPOLANT", epsilon=eps, depth_cap=7, light_samples=4,

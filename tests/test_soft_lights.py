@@ -342,6 +342,8 @@ def test_interpolants_keep_the_bound_under_soft_light(world, monkeypatch):
     from rstrace_engine.interpolants.render import InterpolantRenderer
 
     monkeypatch.setattr(interpolant_cache, "MIN_PIXELS", 6)
+    # cells wherever the rays need them (the measured fallback only traces: exact)
+    monkeypatch.setattr(InterpolantRenderer, "auto_fallback", False)
     s = Scene()
     floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6)))
     grey = s.add_material(Material("box", diffuse=(0.4, 0.5, 0.6)))

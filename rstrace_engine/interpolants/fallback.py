@@ -3,22 +3,29 @@ instead ("a user who picks interpolants never loses", issue 20), as the RI-tree'
 fallback (:mod:`..ri_tree.fallback`) does. Tracing is always exact, so whatever is decided
 the frame keeps its bound; only the time changes.
 
-Two mechanisms, both priced by the frame's own timings:
+Three mechanisms, all priced by the frame's own timings:
 
-* **A build budget per frame** (:class:`Budget`). Building cells (tracing their samples, the
-  predicate, the radiance test) may spend at most :data:`ALLOWANCE` of what tracing the
-  frame's rays would cost, plus what the rays interpolated so far in the frame saved (each
-  at the cost of one traced ray). It is checked between batches sized by what it has left
-  (at the cost per cell measured so far; at least :data:`BUDGET_STEP` cells); a cell not
-  built stays empty: its rays are traced now and a later frame builds it. This bounds the
-  first frame, which has no history. The cost of a traced ray is learned from every frame's
-  tracing; a renderer's first frame prices it with a *probe*: every
-  :data:`PROBE_STRIDE`-th ray that hits is traced before any cell is built, timed (those
-  rays are then done: exactly the base tracer's).
+* **A ledger per frame** (:class:`Budget`). A frame's passes go in tiles, and a tile in
+  chunks (:mod:`.render`): a chunk goes through the cells or is traced whole by the base
+  tracer. Everything the mode adds (the chunk's time but its tracing of the rays not
+  interpolated: line coordinates, walk, builds, inserts, the interpolated pixels' own
+  terms) may exceed what its interpolated rays saved (each :data:`SAVE_SHARE` of a traced
+  ray's price) by :data:`ALLOWANCE` of the frame's base cost; once spent, the rest of the
+  frame is traced. Builds are checked between batches sized by what it has left; a build is
+  paid over the frame's passes it serves (a 4-sample frame's first pass pays a quarter), but
+  owed at once: what the frame has left counts it whole (:meth:`Budget.left`); a chunk is
+  sized by the walk's cost per ray alone (the cells built serve the chunks after it). A
+  cell not built stays empty: its rays are traced now and a later frame builds it. The
+  cost of a traced ray is learned from every frame's tracing; a renderer's first frame prices it by
+  tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
+  :data:`CHUNK_MIN` rays) before any cell is walked.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
-  costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames.
+  costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames. A
+  frame the ledger cut short is not judged (its cells walked a chunk or a pass, their builds
+  served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row or its walk
+  alone, builds left out, did not pay.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -28,8 +35,8 @@ Two mechanisms, both priced by the frame's own timings:
   make its cells win again), and an edit of the object gives it a new chance at once.
 
 The decision is a function of the measured costs alone (:class:`FrameCosts`; the tests inject
-them). ``frame.stats["fallback"]`` reports it: the objects traced, the cells the budget
-deferred, the probe, the price of a ray.
+them). ``frame.stats["fallback"]`` reports it: the objects traced, the ledger (allowance,
+added, saved, rays walked), the cells deferred, the rays traced to price a ray, the price.
 """
 
 from __future__ import annotations
@@ -39,23 +46,41 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: building may spend this fraction of what tracing the frame's rays costs (plus what the
-#: rays interpolated so far saved); the rest of the 10% the mode may lose is the walk's
-ALLOWANCE = 0.05
-#: cells built between two looks at the budget
+#: what the mode adds to a frame (walk, line coordinates, builds, inserts, the interpolated
+#: pixels' own terms) may exceed what its interpolated rays saved by this fraction of the
+#: frame's base cost; the rest of the 10% the mode may lose is its fixed bookkeeping and
+#: the overshoot of one chunk (measured 3-6% on museum_1999's first frames, 2026-11-27)
+ALLOWANCE = 0.02
+#: an interpolated ray is counted as saving this share of a traced ray's price: the price is
+#: the average of the rays traced, and the rays cells interpolate are the cheap ones (lights
+#: fully visible or fully hidden over their cell: on `studio` the interpolated floor pixels
+#: cost the base tracer 10.9 us against 16 us for the average ray it traces there)
+SAVE_SHARE = 0.5
+#: cells built between two looks at the budget: the first batch at most BUDGET_STEP, then
+#: what the budget left affords at the measured cost per cell, at least BUDGET_MIN
 BUDGET_STEP = 64
+BUDGET_MIN = 8
+#: before any is built, a cell is expected to cost this many traced rays (twice what cells
+#: cost on museum_1999 at 1 spp, 250-300: a first frame's first batch stays in its allowance)
+CELL_RAYS = 600
 #: a frame counts this fraction of its builds against an object (cells are kept)
 BUILD_FRAMES = 4
 #: an object is judged only over at least this many of its rays in one frame
 MIN_RAYS = 4096
 #: a traced object is tried with cells again after this many frames traced
 REPROBE_FRAMES = 8
-#: the probe of a renderer's first frame: every PROBE_STRIDE-th ray that hits, if at least
-#: PROBE_MIN rays
-PROBE_STRIDE = 64
-PROBE_MIN = 64
+#: a frame's chunks with cells: at least CHUNK_MIN rays (fewer: the rest of the pass is
+#: traced), at most CHUNK_MAX (the base tracer's tile)
+CHUNK_MIN = 4096
+CHUNK_MAX = 1 << 15
+#: a first frame prices a traced ray by tracing its first PRICE_SHARE of a pass (at least
+#: CHUNK_MIN rays) before any cell is walked
+PRICE_SHARE = 1 / 16
 #: a frame prices a traced ray only over at least this many traced rays
 MIN_PRICE_RAYS = 256
+#: a frame the ledger cut short (the rest traced once the allowance was spent) is not judged
+#: (its cells were judged over one chunk, its builds not yet served); this many in a row are
+CUT_FRAMES = 2
 #: the clock of every measurement (wall time: what the user waits for)
 CLOCK = time.perf_counter
 
@@ -73,12 +98,13 @@ class FrameCosts(NamedTuple):
 
 
 def object_costs(c: FrameCosts) -> tuple[np.ndarray, np.ndarray]:
-    """(with cells, traced) seconds per object (module doc)."""
+    """(with cells, traced) seconds per object (module doc): an interpolated ray saves
+    :data:`SAVE_SHARE` of a traced ray's price."""
     w = c.walked.astype(np.float64)
     b = c.cells.astype(np.float64)
     walk = c.walk_s * w / max(w.sum(), 1.0)
     build = c.build_s * b / max(b.sum(), 1.0) / BUILD_FRAMES
-    cells = walk + build + (c.rays - c.interpolated) * c.ray_s
+    cells = walk + build + (c.rays - SAVE_SHARE * c.interpolated) * c.ray_s
     traced = c.rays * c.ray_s
     return cells, traced
 
@@ -99,25 +125,37 @@ def cells_pay(c: FrameCosts) -> np.ndarray:
 
 
 class Budget:
-    """The build budget of one frame (module doc): ``rays`` the frame's rays, ``ray_s`` the
-    price of one traced ray (None: not known yet, no limit until :meth:`price`)."""
+    """What one frame may spend on cells (module doc): ``rays`` the frame's samples,
+    ``ray_s`` the price of one traced ray (None: not known yet -- the frame traces its
+    first chunk to price it, :meth:`price`), ``vis_s`` of one closest-hit ray, ``hit_share``
+    the share of the rays that hit (the misses cost the tracer nothing)."""
 
-    def __init__(self, rays: int, ray_s: float | None = None, n_inst: int = 0) -> None:
+    def __init__(self, rays: int, ray_s: float | None = None, n_inst: int = 0,
+                 vis_s: float = 0.0, hit_share: float = 1.0, passes: int = 1) -> None:
         self.rays = int(rays)
+        self.passes = max(int(passes), 1)  # the frame's passes (samples per pixel)
+        self.pass_no = 0  # the pass being rendered
+        self.later = 0.0  # build seconds charged to the passes after this one
+        self.cut = False  # the ledger cut a pass short: the rest of the frame was traced
         self.deferred_inst = np.zeros(n_inst, np.int64)  # cells left unbuilt per object
         self.ray_s: float | None = None
         self.limit = float("inf")
-        self.spent = 0.0  # seconds of building so far
+        self.spent = 0.0  # seconds the mode added so far (walk, builds, terms, ...)
         self.built = 0  # cells built so far
-        self.saved = 0  # rays interpolated in the passes before the current one
+        self.build_s = 0.0  # seconds of it building them
+        self.build_paid = 0.0  # of them paid so far (in spent: the passes' shares)
+        self.saved = 0  # rays interpolated in the chunks before the current one
+        self.walked = 0  # rays that went through the cells (chunks with cells)
         self.deferred = 0  # cells left unbuilt
+        self.pricing = 0  # rays traced to price a ray (a first frame's first chunk)
         if ray_s is not None:
-            self.price(ray_s)
+            self.price(ray_s, vis_s, hit_share)
 
-    def price(self, ray_s: float) -> None:
-        """Set the price of a traced ray (and so the limit)."""
+    def price(self, ray_s: float, vis_s: float = 0.0, hit_share: float = 1.0) -> None:
+        """Set the price of a traced ray (and so the limit: :data:`ALLOWANCE` of the frame's
+        base cost, ``rays`` closest-hit rays and the ones that hit traced)."""
         self.ray_s = float(ray_s)
-        self.limit = ALLOWANCE * self.rays * self.ray_s
+        self.limit = ALLOWANCE * self.rays * (hit_share * self.ray_s + max(vis_s, 0.0))
 
     def defer(self, inst: np.ndarray) -> None:
         """Cells of objects ``inst`` are left unbuilt."""
@@ -125,30 +163,83 @@ class Budget:
         inst = inst[inst < len(self.deferred_inst)]
         np.add.at(self.deferred_inst, inst, 1)
 
-    def charge(self, seconds: float, cells: int) -> None:
-        """A batch of ``cells`` cells took ``seconds`` to build."""
-        self.spent += seconds
+    def share(self) -> float:
+        """The share of a build that the current pass pays: a cell built serves this pass
+        and the frame's passes after it, and its cost is spread evenly over them (the
+        last pass pays what is left; a 1-sample frame pays it all at once)."""
+        return 1.0 / (self.passes - min(self.pass_no, self.passes - 1))
+
+    def start_pass(self, s: int) -> None:
+        """Pass ``s`` begins: it pays its share of the builds put off to it."""
+        self.pass_no = int(s)
+        now = self.later * self.share()
+        self.later -= now
+        self.spent += now
+        self.build_paid += now
+
+    def charge(self, seconds: float, cells: int) -> float:
+        """A batch of ``cells`` cells took ``seconds`` to build: the current pass pays its
+        :meth:`share`, the rest is put off to the passes after it (returned)."""
+        put_off = seconds * (1.0 - self.share())
+        self.spent += seconds - put_off
+        self.build_paid += seconds - put_off
+        self.later += put_off
+        self.build_s += seconds
         self.built += int(cells)
+        return put_off
+
+    def left(self, interpolated_now: int = 0) -> float:
+        """Seconds the frame may still add (``interpolated_now``: rays interpolated in the
+        current chunk so far, each saving a traced ray); inf while not priced. The builds'
+        shares put off to the passes after this one are owed already: a later pass pays
+        them whether or not its own walk earns them back (``museum_soft`` at 4 spp, world
+        lit, every pass walks again: its first frame built 0.62 s of cells against an
+        allowance of 0.13 s when only the current pass's share counted, and lost 15%)."""
+        if self.ray_s is None:
+            return float("inf")
+        return (self.limit + SAVE_SHARE * (self.saved + interpolated_now) * self.ray_s
+                - self.spent - self.later)
 
     def batch(self, step: int, interpolated_now: int) -> int:
-        """How many cells the next batch may build (0: none), at most ``step``: what the
-        budget left affords at the cost per cell measured so far, at least
-        :data:`BUDGET_STEP` (small batches cost more per cell)."""
+        """How many cells the next batch may build (0: none), at most ``step``: the first
+        at most :data:`BUDGET_STEP` (what the budget affords at :data:`CELL_RAYS` rays a
+        cell), then what the budget left affords at the cost per cell measured so far, at
+        least :data:`BUDGET_MIN` (small batches cost more per cell)."""
         if self.ray_s is None:
             return step
         if not self.may_build(interpolated_now):
             return 0
-        if self.built == 0:
-            return min(step, BUDGET_STEP)
-        left = self.limit + (self.saved + interpolated_now) * self.ray_s - self.spent
-        return min(step, max(BUDGET_STEP, int(left / (self.spent / self.built))))
+        if self.built == 0:  # at what a cell is expected to cost (CELL_RAYS traced rays)
+            return min(step, BUDGET_STEP,
+                       max(1, int(self.left(interpolated_now) / (CELL_RAYS * self.ray_s))))
+        left = self.left(interpolated_now)
+        return min(step, max(BUDGET_MIN, int(left / (self.build_s / self.built))))
 
     def may_build(self, interpolated_now: int) -> bool:
         """Whether the next batch may be built (``interpolated_now``: rays interpolated in
-        the current pass so far)."""
+        the current chunk so far)."""
+        return self.left(interpolated_now) >= 0.0
+
+    def chunk(self, rest: int) -> int:
+        """Rays the next chunk of a pass (``rest`` rays left in it) sends through the cells
+        (0: none, the rest is traced): as many as the allowance left affords at what the
+        mode added per ray walked so far but its builds (those :meth:`batch` paces: a cell
+        built serves the chunks after it), between :data:`CHUNK_MIN` and :data:`CHUNK_MAX`
+        rays; none once it affords fewer than :data:`CHUNK_MIN`. Not priced: 0."""
         if self.ray_s is None:
-            return True
-        return self.spent <= self.limit + (self.saved + interpolated_now) * self.ray_s
+            return 0
+        left = self.left()
+        walk = self.spent - self.build_paid
+        if self.walked == 0 or walk <= 0.0:
+            if left < 0.0:
+                self.cut |= rest > 0
+                return 0
+            return min(rest, CHUNK_MIN)
+        can = int(left / (walk / self.walked))
+        if can < CHUNK_MIN:
+            self.cut |= rest > 0
+            return 0
+        return min(rest, can, CHUNK_MAX)
 
 
 class Fallback:
@@ -158,8 +249,11 @@ class Fallback:
         self.traced = np.zeros(n_inst, np.bool_)  # objects traced instead of cells
         self.frames_traced = np.zeros(n_inst, np.int64)  # frames since last judged
         self.ray_s: float | None = None  # price of one traced ray, learned
+        self.vis_s = 0.0  # price of one closest-hit ray, learned
+        self.hit_share = 1.0  # share of a frame's rays that hit, learned
         self.all_traced = False  # the whole frame did not pay: every object traced
         self.frames_all = 0  # frames since the whole frame was last judged
+        self.cuts = 0  # frames in a row the ledger cut short and that were not judged
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -191,14 +285,24 @@ class Fallback:
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
-              deferred: np.ndarray | None = None) -> None:
+              deferred: np.ndarray | None = None, cut: bool = False) -> None:
         """After a full frame that traced the objects ``traced_now`` (its
         :meth:`frame_traced`): objects that went through cells are judged (:func:`cells_pay`)
         unless the budget deferred some of their cells (``deferred`` (I,) counts: they have
-        not had their chance yet), the others count one more frame traced."""
+        not had their chance yet), the others count one more frame traced. A frame the
+        ledger ``cut`` short (:class:`Budget`) is judged only as the :data:`CUT_FRAMES`-th
+        in a row, or when its walk alone (its builds left out) did not pay: its cells walked
+        a chunk or a pass, and the cells it built have served none of the frames after it
+        (the ledger kept the frame itself within its allowance)."""
         self.last = c
         if c.ray_s > 0.0:
             self.ray_s = float(c.ray_s)
+        self.cuts = self.cuts + 1 if cut else 0
+        if 0 < self.cuts < CUT_FRAMES and frame_pays(c._replace(build_s=0.0)):
+            # (a cut frame whose walk alone did not pay is judged: builds cannot help it)
+            self.frames_traced[traced_now] += 1
+            return
+        self.cuts = 0
         judged = ~traced_now
         if deferred is not None:
             judged &= deferred[:len(judged)] == 0
@@ -210,14 +314,42 @@ class Fallback:
         self.all_traced = not frame_pays(c)
         self.frames_all = 0
 
-    def stats(self, budget: Budget | None, probe_rays: int) -> dict:
-        """The frame's ``stats["fallback"]``."""
+    def notes(self) -> list[str]:
+        """What was decided, for the user (a frame's ``stats["fallback_notes"]``): the whole
+        frame traced, or objects traced, with the costs measured; none while cells are
+        used everywhere."""
+        c = self.last
+        measured = ""
+        if c is not None:
+            cells, traced = object_costs(c)
+            measured = (f" (measured: {cells.sum():.3f} s with cells against "
+                        f"{traced.sum():.3f} s traced)")
+        if self.all_traced:
+            return [f"Interpolants: this scene's frames are traced, its cells cost more than "
+                    f"they save{measured}; tried again every {REPROBE_FRAMES} frames "
+                    f"(setting 'interpolant_fallback' off: cells always)"]
+        n = int(np.count_nonzero(self.traced))
+        if n:
+            return [f"Interpolants: {n} object(s) traced, their cells cost more than "
+                    f"tracing their rays; tried again every {REPROBE_FRAMES} frames "
+                    f"(setting 'interpolant_fallback' off: cells always)"]
+        return []
+
+    def stats(self, budget: Budget | None) -> dict:
+        """The frame's ``stats["fallback"]``: what was decided (objects traced, the whole
+        frame traced) and what the frame's ledger measured (:class:`Budget`: the
+        allowance, what the mode added and saved, rays walked, cells deferred, rays traced
+        to price a ray)."""
+        b = budget
+        priced = b is not None and b.ray_s is not None
         return dict(traced_objects=int(np.count_nonzero(self.traced)),
                     all_traced=bool(self.all_traced),
-                    deferred_cells=0 if budget is None else int(budget.deferred),
-                    build_budget_s=(None if budget is None or budget.ray_s is None
-                                    else budget.limit),
-                    probe_rays=int(probe_rays),
+                    deferred_cells=0 if b is None else int(b.deferred),
+                    build_budget_s=b.limit if priced else None,
+                    added_s=0.0 if b is None else b.spent,
+                    saved_s=SAVE_SHARE * b.saved * b.ray_s if priced else 0.0,
+                    walked_rays=0 if b is None else int(b.walked),
+                    probe_rays=0 if b is None else int(b.pricing),
                     ray_us=None if self.ray_s is None else 1e6 * self.ray_s)
 
 

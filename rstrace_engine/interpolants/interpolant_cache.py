@@ -52,7 +52,8 @@ from ..frame import (
     CLASS_FAIL_SILHOUETTE,
     CLASS_TRACED,
 )
-from ..geometry.mesh_topology import mesh_topology
+from ..geometry.mesh_topology import mesh_topology_cached
+from . import fallback as fb_mod
 from .fallback import Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
 from .line_samples import line_geometry, shade_lines
@@ -118,6 +119,9 @@ O_BOX_MISS = len(REASONS) + 1
 #: Off only to compare (the frames are the same; more samples are shaded).
 CORNERS_FIRST = True
 
+
+#: (packing, :func:`.shafts.query_scene` of it) of the last packing asked for
+_QS_LAST: list = [None]
 
 # ----------------------------------------------------------------------------- kernels
 
@@ -264,8 +268,9 @@ class InterpolantCache:
 
     @cached_property
     def topo(self):
-        """Surface classes, boundary edges, convexity (:func:`.mesh_topology.mesh_topology`)."""
-        return mesh_topology(self.sa)
+        """Surface classes, boundary edges, convexity (:func:`.mesh_topology.mesh_topology`;
+        kept for the last packing: a new cache of the same scene does not compute it again)."""
+        return mesh_topology_cached(self.sa)
 
     @cached_property
     def qs(self):
@@ -273,8 +278,13 @@ class InterpolantCache:
         sampled terms of lights with an extent are traced per pixel
         (:mod:`.sampled_term`), a fully visible light needs no closed form and no
         Lambertian surface over a cell: only the horizon conditions of
-        :func:`.soft_slab.soft_slab` (its closed form's, when it has one)."""
-        qs = query_scene(self.sa, self.topo)
+        :func:`.soft_slab.soft_slab` (its closed form's, when it has one). Kept for the last
+        packing (as its topology): a new cache of the same scene does not build them again."""
+        memo = _QS_LAST[0]
+        if memo is None or memo[0] is not self.sa:
+            memo = (self.sa, query_scene(self.sa, self.topo))
+            _QS_LAST[0] = memo
+        qs = memo[1]
         if sampled_possible(self.sa):
             qs = qs._replace(light_closed=np.ascontiguousarray(qs.light_ext, np.bool_),
                              mat_glossy=np.zeros_like(qs.mat_glossy))
@@ -430,7 +440,7 @@ class InterpolantCache:
         return face, abcd, zp, clsp
 
     def resolve(self, inst, face, abcd, zp, clsp, cancel=None, hits=None,
-                pre=None, budget=None) -> ResolveResult:
+                pre=None, budget=None, finish: bool = True) -> ResolveResult:
         """Interpolate what the linetrees cover, building cells as needed (module doc).
 
         inst (n,) int32 visible object of each ray (-1: a miss, left alone); face, abcd, zp,
@@ -439,6 +449,8 @@ class InterpolantCache:
         ``(radiance, interpolated, pixel_class, interpolant)`` with rays interpolated
         already (reprojected: :mod:`.reproject`; their ``inst`` is -1), filled in place.
         budget: a :class:`.fallback.Budget`, cells are built while it allows (in batches).
+        ``finish``: end with :meth:`finish_resolve` (a frame that resolves its pass in
+        chunks calls it once, after the last).
         """
         texture = TextureApplier(self, hits) if np.any(self.sa.mat_tex >= 0) else None
         n = len(inst)
@@ -503,7 +515,7 @@ class InterpolantCache:
             node_cls[uniq] = 0
             lt.split(uniq[split])
             if np.any(build):
-                tb = time.perf_counter()
+                tb = fb_mod.CLOCK()
                 cells = uniq[build]
                 step = BUILD_STEP_CANCELLABLE if kernel_flag(cancel) is not None else len(cells)
                 lo = 0  # (cells left EMPTY: built by a later frame, or traced when spent)
@@ -511,22 +523,28 @@ class InterpolantCache:
                     nb = step if budget is None else budget.batch(step, np.count_nonzero(done))
                     if nb == 0:
                         break
-                    t1 = time.perf_counter()
+                    t1 = fb_mod.CLOCK()
                     self._build(cells[lo:lo + nb], st)
                     if budget is not None:
-                        budget.charge(time.perf_counter() - t1, nb)
+                        budget.charge(fb_mod.CLOCK() - t1, nb)
                     lo += nb
                 # failed cells with room below go one level down right away
                 again = (lt.arrays.leaf[cells] < EMPTY) & (udepth[build] < self.depth_cap)
                 lt.split(cells[again])
-                st["build_s"] += time.perf_counter() - tb
-        self.enforce_cap()
-        lt.collapse()
-        self.deps.compact(self.pool, lt)
-        self.deps.warm(self)
+                st["build_s"] += fb_mod.CLOCK() - tb
         for k in ("cells_built", "cells_valid", "samples_traced"):
             self.totals[k] += st[k]
+        if finish:
+            self.finish_resolve()
         return ResolveResult(rad, done, pcls, pinterp)
+
+    def finish_resolve(self) -> None:
+        """After a pass's walk: the memory cap, empty blocks of leaves collapsed, the ray
+        segment trees compacted."""
+        self.enforce_cap()
+        self.trees.collapse()
+        self.deps.compact(self.pool, self.trees)
+        self.deps.warm(self)
 
     # -- building ---------------------------------------------------------------------
 

@@ -1,13 +1,16 @@
 """Frames rendered with radiance interpolants (``mode = "INTERPOLANT"``).
 
 A frame goes one sample of every pixel at a time (the same rays and jitter as
-:func:`~.whitted.render`; each pass has the arrays of a 1-sample frame). Per pass: rays whose
+:func:`~.whitted.render`), each pass in tiles of the base tracer's size (cache-sized arrays,
+reused) and each tile in chunks that either go through the cells or are traced whole, as the
+frame's ledger decides (:mod:`.fallback`: what the mode adds may exceed what it saved by a
+small share of the frame's base cost). Per tile: rays whose
 interpolant is found by reprojection (:mod:`.reproject`: from the previous frame's pixels
 after a camera move, from the pixel's first sample for the later samples; proven exact) are
 interpolated at once; the others get their visible hits through the whole scene
 (``closest_hit``) -> for every ray that hits an object, its line in that object's linetree
 -> :meth:`~.interpolants.InterpolantCache.resolve` interpolates what valid interpolants
-cover and builds the cells the pass needs -> every other ray (misses, failed cells, pixels
+cover and builds the cells the chunk needs -> every other ray (misses, failed cells, pixels
 too few to be worth a cell) is traced by the base tracer from the hits already found. Each
 pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0 nothing can be
 interpolated, and the frame is the base tracer's.
@@ -24,14 +27,12 @@ background; with several samples per pixel, -2 where its samples used different 
 from __future__ import annotations
 
 import logging
-import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
-from ..accel.accelerators import Hits
-from ..cancel import bound
 from ..frame import (
     CLASS_BACKGROUND,
     CLASS_INTERPOLATED,
@@ -48,27 +49,32 @@ from ..tracing.seen_lights import (
     SEEN_GLOSSY,
     SEEN_TRANSMISSION,
     any_seen,
-    seen,
     seen_lights,
 )
 from ..tracing.shaft_skip import tile_keys
-from ..tracing.soft_lights import sample_seeds, world_lights
-from ..tracing.whitted import render, trace
+from ..tracing.soft_lights import world_lights
+from ..tracing.whitted import render
 from . import fallback as fb_mod
 from .added_light import keeps_cache
 from .bound import bound_notes
-from .glossy_term import glossy_term, rough_objects, rough_roots, rough_roots_possible
+from .frame_parts import (
+    Visible,
+    camera_seen,
+    count,
+    glossy_rest,
+    part,
+    tiles,
+    trace_rest,
+    visible,
+)
+from .glossy_term import rough_roots_possible
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
-from .reproject import FrameCells, remember, reproject, slab_points
+from .reproject import FrameCells, Remember, candidates, slab_points
 from .sampled_term import add_sampled_terms, sampled_possible
 from .world_term import keep_world, kept_world_term
 
 log = logging.getLogger(__name__)
-
-
-def _take(h: Hits, idx: np.ndarray) -> Hits:
-    return Hits(h.t[idx], h.inst[idx], h.prim[idx], h.u[idx], h.v[idx])
 
 
 @njit(cache=True, nogil=True)
@@ -147,78 +153,6 @@ def _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pi
         pinterp[p] = -1 if hi < 0 else (hi if lo == hi else -2)
 
 
-def _resolve_part(cache, view, cells, splat, cp, pix, o, d, tmin, tmax, exact, cancel,
-                  skip=None, budget=None):
-    """Visible hits (reprojected from ``view`` where proven, else closest-hit rays) and
-    :meth:`~.cache.InterpolantCache.resolve` of one ray per pixel ``pix``. Returns
-    ``(hits, resolve result, reprojected (n,) bool or None, skipped (n,) bool or None)``;
-    ``cache.frame_stats`` gets ``visibility_s``. A reprojected ray's hit is left a miss
-    (with ``exact``, for pixel records: its object, at the far end of its slab).
-    ``skip(hits)``: (n,) bool of the rays left to the tracer (not walked), or None;
-    ``budget``: the frame's build budget (:mod:`.fallback`)."""
-    tv = time.perf_counter()
-    rp = reproject(cache, view, cells, cp, pix, o, d, tmax, splat)
-    pre = exact_hits = None
-    if rp is None:
-        with bound(cache.accel, cancel):  # incomplete when cancelled: resolve polls first
-            hits = cache.accel.closest_hit(o, d, tmin, tmax)
-    else:
-        pre, hi, _ = rp
-        with bound(cache.accel, cancel):
-            hits = cache.accel.closest_hit(o, d, tmin, hi)
-        reprojected = hi < 0.0
-        if exact:
-            # pixel records keep a view segment per sample: the reprojected ones reach the
-            # far end of their slab, past their hit (a longer segment can only make more
-            # pixels dirty after an edit). Before resolve, which may evict (and reuse) the
-            # interpolants used.
-            g = np.flatnonzero(reprojected)
-            t = np.full(len(o), np.inf)
-            slab_points(cache, pre[3], o, d, t, reprojected, 1.0)
-            exact_hits = g, cache.trees.arrays.tree[cache.pool.node[pre[3][g]]] // 6, t[g]
-    tv = time.perf_counter() - tv
-    skipped = None if skip is None else skip(hits)
-    walk_inst = hits.inst if skipped is None else np.where(skipped, -1, hits.inst)
-    face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
-    res = cache.resolve(walk_inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=pre,
-                        budget=budget)
-    if skipped is not None:  # traced, not background
-        res.pixel_class[skipped] = CLASS_TRACED
-    cache.frame_stats["visibility_s"] = tv
-    if rp is None:
-        return hits, res, None, skipped
-    if exact_hits is not None:
-        g, inst, t = exact_hits
-        hits.inst[g] = inst
-        hits.t[g] = t
-    return hits, res, reprojected, skipped
-
-
-def _camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo) -> np.ndarray:
-    """The rays whose camera ray may cross a light the camera sees (anywhere within its
-    bounds, or a sun's cone on a miss: :mod:`~..tracing.seen_lights`) are traced, not
-    interpolated: their hits found again where they were reprojected (left a miss), and
-    added to ``todo``, which is returned."""
-    sa = cache.sa
-    miss = hits.inst < 0
-    if rep is not None:
-        miss &= ~rep
-    one = np.ones((len(o), 3))
-    sel = np.flatnonzero(seen(sa, o, d, tmin, tmax, miss, np.full(len(o), SEEN_CAMERA,
-                                                                   np.int8), one).any(axis=1))
-    if len(sel) == 0:
-        return todo
-    if rep is not None and rep[sel].any():
-        r = sel[rep[sel]]
-        found = cache.accel.closest_hit(o[r], d[r], tmin[r], tmax[r])
-        for a, b in zip(hits, found, strict=True):
-            a[r] = b
-    res.interpolated[sel] = False
-    res.pixel_class[sel] = np.where(hits.inst[sel] >= 0, CLASS_TRACED, CLASS_BACKGROUND)
-    res.interpolant[sel] = -1
-    return np.union1d(todo, sel)
-
-
 def _newly_seen(old_sa, sa) -> bool:
     """Whether mirror or refraction rays see a light in ``sa`` they did not in ``old_sa``
     (the cells' samples are flagged by what they saw: :func:`~.samples.seen_flags`)."""
@@ -256,104 +190,6 @@ def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     return frame
 
 
-def _count(cache, ledger, hits, res, rep, skipped) -> None:
-    """A pass's rays per visible object for the fallback's ledger: walked, interpolated
-    of those, reprojected (interpolated without a walk)."""
-    walked = hits.inst >= 0
-    if skipped is not None:
-        walked &= ~skipped
-    if rep is not None:
-        walked &= ~rep
-    wi = hits.inst[walked]
-    ii = hits.inst[walked & res.interpolated]
-    ri = np.zeros(0, np.int64)
-    if rep is not None and rep.any():
-        ids = res.interpolant[rep]
-        ids = ids[(ids >= 0) & (ids < len(cache.pool.node))]
-        node = cache.pool.node[ids]
-        node = node[(node >= 0) & (node < len(cache.trees.arrays.tree))]
-        ri = cache.trees.arrays.tree[node] // 6
-    ledger.count(wi, ii, ri)
-
-
-def _tiles(n: int):
-    """Slices of ``n`` rays in tiles of about the base tracer's size (its per-level arrays
-    stay cache-sized), split evenly: a small last tile would cost the tracer's per-level
-    overhead alone."""
-    n_tiles = max(1, round(n / TILE_RAYS)) if n else 0
-    for q in range(n_tiles):
-        yield slice(q * n // n_tiles, (q + 1) * n // n_tiles)
-
-
-def _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
-                cancel, settings, keys=None) -> bool:
-    """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
-    found, into ``rad``; their ray trees go to ``records``; soft lights are sampled as the
-    base tracer samples these pixel samples (``gids``, ``settings``' seed and light
-    samples), and their shadow rays skipped where proven per tile as the base tracer does
-    (``keys``: the rays' pixels' tiles, :func:`~..tracing.shaft_skip.tile_keys`). Returns
-    whether ``cancel`` stopped it (the frame is then incomplete)."""
-    sa, accel = cache.sa, cache.accel
-    for sel in _tiles(len(todo)):
-        part = todo[sel]
-        segs: list | None = [] if records is not None else None
-        with bound(accel, cancel):
-            rad[part], _ = trace(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                 max_depth, primary=_take(hits, part), counters=counters,
-                                 segments=segs, cancel=cancel,
-                                 seeds=sample_seeds(gids[part], int(settings.seed)),
-                                 light_samples=int(settings.light_samples),
-                                 glossy_samples=int(settings.glossy_samples),
-                                 terms=records is not None and records.light is not None,
-                                 skip_keys=None if keys is None else keys[part])
-        if cancel is not None and cancel():
-            return True
-        if records is not None:
-            records.add(gids[part], segs)
-    return False
-
-
-def _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits, rep, interpolant, rad,
-                 counters, records, gids, cancel, settings) -> bool:
-    """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
-    bool, but the rows ``skip_rows`` traced whole) whose hit is on a rough surface
-    (:mod:`.glossy_term`); their segments go to ``records``. Returns whether ``cancel``
-    stopped it. A reprojected sample (``rep`` (k,) bool or None) has no hit: where its
-    interpolant (``interpolant`` (k,) pool ids) lies on an object with a rough material,
-    its visibility ray is traced here."""
-    sa, accel = cache.sa, cache.accel
-    rows = np.flatnonzero(interp)
-    rows = np.setdiff1d(rows, skip_rows)
-    h = _take(hits, rows)
-    if rep is not None and rep[rows].any():
-        r = np.flatnonzero(rep[rows])
-        obj = cache.trees.arrays.tree[cache.pool.node[interpolant[rows[r]]]] // 6
-        r = r[rough_objects(sa)[obj]]
-        h.inst[rep[rows]] = -1
-        if len(r):
-            c = rows[r]
-            with bound(accel, cancel):
-                found = accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
-            for dst, src in zip(h, found, strict=True):
-                dst[r] = src
-    rough = rough_roots(sa, h, int(settings.max_depth))
-    rows, h = rows[rough], _take(h, np.flatnonzero(rough))
-    counters["rough_interpolated"] = counters.get("rough_interpolated", 0) + len(rows)
-    for sel in _tiles(len(rows)):
-        part = rows[sel]
-        segs: list | None = [] if records is not None else None
-        with bound(accel, cancel):
-            rad[part] += glossy_term(sa, accel, o[part], d[part], tmin[part], tmax[part],
-                                     _take(h, sel), gids[part], int(settings.seed),
-                                     int(settings.max_depth), int(settings.light_samples),
-                                     int(settings.glossy_samples), counters, segs, cancel)
-        if cancel is not None and cancel():
-            return True
-        if records is not None:
-            records.add(gids[part], segs)
-    return False
-
-
 def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, reprojected,
                  k, n_todo, counters, w, h, spp, max_depth, cancelled, bad_total) -> dict:
     """The statistics of an INTERPOLANT frame."""
@@ -387,14 +223,13 @@ def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, repro
         width=w, height=h, samples=spp, max_depth=max_depth,
         cancelled=bool(cancelled), nonfinite_samples=bad_total,
         accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=[] if cancelled else bound_notes(
-            cache, np.concatenate(used) if used else np.zeros(0, np.int32)),
+        bound_notes=[] if cancelled else bound_notes(cache, used),
     )
 
 
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
-                 base: Frame | None = None, fallback: bool = True) -> Frame:
+                 base: Frame | None = None, fallback: bool = False) -> Frame:
     """Render ``scene``'s camera with the interpolants of ``cache`` (building what it needs).
 
     ``settings``: ``samples``, ``seed`` and ``max_depth`` are used here; epsilon and the caps
@@ -411,7 +246,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     which the ray segment trees track.
 
     ``fallback``: trace where cells do not pay, learned from measured costs
-    (:mod:`.fallback`: a build budget per frame, objects traced; ``stats["fallback"]``).
+    (:mod:`.fallback`: the frame's ledger, objects traced; ``stats["fallback"]``); the
+    renderer's :attr:`InterpolantRenderer.auto_fallback`. Off, cells are built wherever
+    the rays need them (what the cache's own tests count).
     """
     settings = settings.validated()
     if cache.epsilon <= 0.0:
@@ -424,9 +261,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         if pixels is None and not frame.stats.get("cancelled"):
             fb.frames_all += 1
         frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
-                           fallback=fb.stats(None, 0))
+                           fallback=fb.stats(None), fallback_notes=fb.notes())
         return frame
-    t0 = time.perf_counter()
+    t0 = fb_mod.CLOCK()
     sa = cache.sa
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height
@@ -440,7 +277,6 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         pix, jitter = np.zeros(0, np.int64), np.zeros((spp, 0, 2))
     k = len(pix)
     n = k * spp
-    counters: dict = {}
     if base is not None and pixels is not None:
         image = base.radiance.reshape(h * w, 3).copy()
         pclass = base.pixel_class.reshape(h * w).copy()
@@ -458,10 +294,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     counts = np.zeros(len(CLASS_NAMES), np.int64)
     bad_total = 0
     n_rep = 0
-    n_todo = 0
-    used: list = []
-    fs: dict = {}
-    t_res = t_trace = 0.0
+    used = np.zeros(0, np.bool_)  # interpolants used (by pool id)
+    run = _Run(cache, settings, records, cancel, w)
     # a full frame after a full frame of this cache: samples whose interpolant is found by
     # reprojection (reproject.py) need neither a visibility ray nor a walk; an incremental
     # frame keeps its camera. One sample of every pixel at a time (arrays of a 1-sample
@@ -469,167 +303,286 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     # whose line lies in a proven cell costs a look-up, not a ray and a walk).
     # while the world lights, an interpolated pixel traces the world's term at its own hit
     # (world_term.py): it needs the hit, which a reprojected ray does not find
-    world = world_lights(sa)
-    sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
-    # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
-    # reprojected one on a rough object traces its visibility ray for it (_glossy_rest)
-    rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
-    camera_seen = any_seen(sa, (SEEN_CAMERA,))
-    view = cache.view if pixels is None and not world else None
+    view = cache.view if pixels is None and not run.world else None
     cache.view = None
-    t_world = t_sampled = 0.0
     here = None
     cells = FrameCells(cp)
-    cancelled = False
-    # where cells do not pay (fallback.py): objects traced, the build budget, the probe
+    # where cells do not pay (fallback.py): objects traced, the frame's ledger
     n_inst = len(sa.inst_mesh)
-    ledger = traced_now = budget = None
-    probe = dict(rays=0, s=0.0)
     cache.cells_by_inst = np.zeros(n_inst, np.int64)
     if fb is not None:
         fb.resize(n_inst)
-        ledger = fb_mod.FrameLedger(n_inst)
-        traced_now = fb.frame_traced()
-        budget = fb_mod.Budget(n, fb.ray_s, n_inst)
-
-    def skip(hits, o, d, tmin, tmax, gids, rad_probe):
-        """The rays left to the tracer: those of objects traced, and on a first frame the
-        probe's (traced here, timed: the price of a ray for the build budget)."""
-        if fb is None:
-            return None
-        hit = hits.inst >= 0
-        out = hit & traced_now[np.maximum(hits.inst, 0)]
-        if fb.ray_s is None and records is None:
-            cand = np.flatnonzero(hit & ~out)
-            if len(cand) >= fb_mod.PROBE_MIN * fb_mod.PROBE_STRIDE:
-                pr = cand[::fb_mod.PROBE_STRIDE]
-                t = fb_mod.CLOCK()
-                _trace_rest(cache, pr, o, d, tmin, tmax, hits, rad_probe,
-                            int(settings.max_depth), counters, None, gids, None, settings,
-                            keys)
-                dt = fb_mod.CLOCK() - t
-                probe["rays"] += len(pr)
-                probe["s"] += dt
-                probe["idx"] = pr
-                fb.ray_s = max(dt, 1e-9) / len(pr)
-                budget.price(fb.ray_s)
-                out[pr] = True
-        return out if out.any() else None
-
-    keys = tile_keys(pix, w)  # the base tracer's shadow-ray skips, per tile
+        run.ledger = fb_mod.FrameLedger(n_inst)
+        run.traced_now = fb.frame_traced()
+        run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
+    budget = run.budget
+    n_closest = 0
+    t_closest = 0.0
+    pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
             if cancel is not None and cancel():
-                cancelled = True
+                run.cancelled = True
                 break
-            tr = time.perf_counter()
-            o, d, tmin, tmax = camera_rays(cp, pix, jitter[s])
-            gids = s * (w * h) + pix
-            rad_probe = np.zeros((k, 3))
-            probe.pop("idx", None)
-            hits, res, rep, skipped = _resolve_part(
-                cache, None if world else (view if s == 0 else here), cells, s == 0, cp,
-                pix, o, d, tmin, tmax,
-                records is not None, cancel,
-                lambda hh, a=(o, d, tmin, tmax, gids, rad_probe): skip(hh, *a), budget)
-            fs = _add_stats(fs, cache.frame_stats)
-            if rep is not None:
-                n_rep += int(np.count_nonzero(rep))
-            # the per-light records keep the interpolated samples' world terms apart
-            # (world_samples.py: a world colour edit rescales them)
-            lrec = records.light if records is not None else None
-            if lrec is not None and not lrec.partial:
-                lrec = None
-            if sampled:  # the lights' sampled terms, per pixel, where cells interpolated
-                t_sampled += add_sampled_terms(cache, res, probe.get("idx"), o, d, tmin, tmax,
-                                               hits, rep, gids, settings, counters, cancel, lrec)
-            if world:  # the world's term, per pixel, where cells interpolated
-                tw = time.perf_counter()
-                wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
-                if "idx" in probe:
-                    wi = np.setdiff1d(wi, probe["idx"])
-                w_coef = np.empty((len(wi), 3)) if lrec is not None else None
-                w_rest = res.radiance[wi] if lrec is not None else None
-                res.radiance[wi] += kept_world_term(  # (kept from the last frame, or traced)
-                    lrec, sa, cache.accel, o, d, tmax, hits, wi, gids, settings, counters, w_coef)
-                t_world += time.perf_counter() - tw
-            if "idx" in probe:  # traced already: done
-                pr = probe["idx"]
-                res.radiance[pr] = rad_probe[pr]
-                res.interpolated[pr] = True
-            if ledger is not None:
-                _count(cache, ledger, hits, res, rep, skipped)
+            tq = fb_mod.CLOCK()
+            cand = None if run.world else candidates(view if s == 0 else here, cp, s == 0)
+            rem = Remember(w, h) if s == 0 and pixels is None else None
             if budget is not None:
-                budget.saved += int(np.count_nonzero(res.interpolated)) - len(
-                    probe.get("idx", ()))
-            if s == 0 and pixels is None:
-                t = hits.t.copy()
-                slab_points(cache, res.interpolant, o, d, t,
-                            np.zeros(k, np.bool_) if rep is None else rep)
-                here = remember(pix, res.interpolant, o, d, t, w, h)
-            used.append(np.unique(res.interpolant))
-            # a miss is the world colour (exactly what the tracer gives it)
-            rad, ray_class, interp = res.radiance, res.pixel_class, res.interpolated
-            todo = np.empty(k, np.int64)
-            todo = todo[:_to_trace(hits.inst, interp, np.asarray(sa.world_color, np.float64),
-                                   rad, todo)]
-            if camera_seen:
-                todo = _camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo)
-            n_todo += len(todo)
-            tt = time.perf_counter()
-            t_res += tt - tr
-            if cancel is not None and cancel():
-                cancelled = True  # (a cancelled frame's records are dropped)
-            else:
-                if records is not None:
-                    records.add_primary(gids, hits.inst, o, d, hits.t)
-                cancelled = _trace_rest(cache, todo, o, d, tmin, tmax, hits, rad,
-                                        int(settings.max_depth), counters, records, gids,
-                                        cancel, settings, keys)
-                if rough_on and not cancelled:  # rough surfaces' glossy rays, per pixel
-                    skip_rows = probe.get("idx", np.zeros(0, np.int64))
-                    cancelled = _glossy_rest(cache, interp, skip_rows, o, d, tmin, tmax, hits,
-                                             rep, res.interpolant, rad, counters, records,
-                                             gids, cancel, settings)
-            t_trace += time.perf_counter() - tt
-            if lrec is not None and not cancelled:
-                keep_world(lrec, sa, gids, *((wi, w_coef, w_rest) if world else (None,) * 3),
-                           res.interpolated, hits, rough_on, int(settings.max_depth))
-            good = np.empty(k, np.bool_)
-            bad_total += int(_finish(rad, float(tol.RADIANCE_MAX), ray_class, good, counts))
-            _accumulate(rad, good, ray_class, res.interpolant, acc_rad, acc_good, acc_cls,
-                        acc_lo, acc_hi)
+                budget.spent += fb_mod.CLOCK() - tq
+                budget.start_pass(s)
+            walked = False
+            for tsl in pass_tiles:
+                if run.cancelled:
+                    break
+                tp = fb_mod.CLOCK()
+                tpix = pix[tsl]
+                kt = len(tpix)
+                o, d, tmin, tmax = camera_rays(cp, tpix, jitter[s][tsl])
+                gids = s * (w * h) + tpix
+                vis = visible(cache, cand, cells, tpix, o, d, tmin, tmax, records is not None,
+                              cancel)
+                t_closest += vis.closest_s
+                rep = vis.rep
+                n_closest += kt if rep is None else kt - int(np.count_nonzero(rep))
+                if rep is not None:
+                    n_rep += int(np.count_nonzero(rep))
+                # (the tiles' keys: the base tracer's shadow-ray skips)
+                ps = _Pass(o, d, tmin, tmax, gids, vis, tile_keys(tpix, w))
+                if budget is not None:
+                    budget.spent += vis.reproject_s
+                    if budget.ray_s is None:  # what the first chunk's price needs
+                        fb.vis_s = vis.closest_s / max(kt, 1)
+                        fb.hit_share = float(np.count_nonzero(vis.hits.inst >= 0)) / max(kt, 1)
+                a = 0
+                while a < kt and not run.cancelled:
+                    if budget is None:  # cells everywhere
+                        b, on = kt, True
+                    elif budget.ray_s is None:  # a first frame's first chunk prices a ray
+                        b, on = min(kt, a + max(fb_mod.CHUNK_MIN,
+                                                int(k * fb_mod.PRICE_SHARE))), False
+                    else:
+                        m = budget.chunk(kt - a)
+                        b, on = (a + m, True) if m else (kt, False)
+                    run.chunk(ps, slice(a, b), on)
+                    walked |= on
+                    if budget is not None and budget.ray_s is None:
+                        budget.pricing += b - a
+                        if run.traced_rays >= fb_mod.MIN_PRICE_RAYS:
+                            budget.price(run.trace_s / run.traced_rays, fb.vis_s, fb.hit_share)
+                    a = b
+                tq = fb_mod.CLOCK()
+                res = vis.res
+                if res.interpolated.any():
+                    if rem is not None:  # what the next pass and frame reproject from
+                        t = vis.hits.t.copy()
+                        slab_points(cache, res.interpolant, o, d, t,
+                                    np.zeros(kt, np.bool_) if rep is None else rep)
+                        rem.add(tpix, res.interpolant, o, d, t)
+                    used = _mark_used(used, res.interpolant)
+                if budget is not None:
+                    budget.spent += fb_mod.CLOCK() - tq
+                good = np.empty(kt, np.bool_)
+                bad_total += int(_finish(res.radiance, float(tol.RADIANCE_MAX),
+                                         res.pixel_class, good, counts))
+                _accumulate(res.radiance, good, res.pixel_class, res.interpolant,
+                            acc_rad[tsl], acc_good[tsl], acc_cls[tsl], acc_lo[tsl],
+                            acc_hi[tsl])
+                run.t_res += fb_mod.CLOCK() - tp
+            tq = fb_mod.CLOCK()
+            if walked:
+                cache.finish_resolve()
+            if rem is not None:
+                here = rem.view()
+            if budget is not None:
+                budget.spent += fb_mod.CLOCK() - tq
             if progress is not None:
                 progress(0.05 + 0.9 * (s + 1) / spp, "interpolants")
-            if cancelled:
-                break
+    t_res = run.t_res - run.t_trace_all
+    cancelled = run.cancelled
     if pixels is None and not cancelled:
         cache.view = here
-    if ledger is not None:
-        ledger.cells = cache.cells_by_inst.copy()
-        ledger.build_s = fs.get("build_s", 0.0)
-        ledger.walk_s = t_res - fs.get("visibility_s", 0.0) - ledger.build_s - probe["s"]
-        ledger.trace_s = t_trace + probe["s"]
-        ledger.traced_rays = n_todo + probe["rays"]
-        costs = ledger.costs(fb) if (pixels is None and not cancelled) else None
+    fs = run.fs
+    if fb is not None:
+        led = run.ledger
+        led.cells = cache.cells_by_inst.copy()
+        led.build_s = fs.get("build_s", 0.0)
+        led.walk_s = budget.spent - led.build_s
+        led.trace_s = run.trace_s
+        led.traced_rays = run.traced_rays
+        costs = led.costs(fb) if (pixels is None and not cancelled) else None
         if costs is not None:
-            fb.learn(costs, traced_now, budget.deferred_inst)
+            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut)
+            if n_closest:
+                fb.vis_s = t_closest / n_closest
     if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
         _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)
     if progress is not None:
         progress(1.0, "done")
-    elapsed = time.perf_counter() - t0
-    stats = _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace,
-                         n_rep / max(n, 1), k, n_todo, counters, w, h, spp,
-                         int(settings.max_depth), cancelled, bad_total)
-    stats["world_s"] = t_world  # the interpolated pixels' world terms (in resolve_s)
-    stats["sampled_s"] = t_sampled  # their lights' sampled terms (in resolve_s)
+    elapsed = fb_mod.CLOCK() - t0
+    fs = dict(fs, visibility_s=t_closest)
+    stats = _frame_stats(cache, fs, counts, pclass, np.flatnonzero(used), elapsed,
+                         t_res, run.t_trace_all, n_rep / max(n, 1), k, run.n_todo,
+                         run.counters, w, h, spp, int(settings.max_depth), cancelled,
+                         bad_total)
+    stats["world_s"] = run.t_world  # the interpolated pixels' world terms (in resolve_s)
+    stats["sampled_s"] = run.t_sampled  # their lights' sampled terms (in resolve_s)
     if fb is not None:
-        stats["fallback"] = fb.stats(budget, probe["rays"])
+        stats["fallback"] = fb.stats(budget)
+        stats["fallback_notes"] = fb.notes()  # what it decided, for the user
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
                  pixel_interpolant=pinterp.reshape(h, w))
+
+
+def _mark_used(used: np.ndarray, interp: np.ndarray) -> np.ndarray:
+    """``used`` (bool by pool id) with the interpolants ``interp`` (>= 0) marked."""
+    ids = interp[interp >= 0]
+    if len(ids) == 0:
+        return used
+    top = int(ids.max()) + 1
+    if top > len(used):
+        used = np.concatenate([used, np.zeros(top - len(used), np.bool_)])
+    used[ids] = True
+    return used
+
+
+class _Pass(NamedTuple):
+    """One pass's rays (one sample of every pixel) and their visible hits."""
+
+    o: np.ndarray
+    d: np.ndarray
+    tmin: np.ndarray
+    tmax: np.ndarray
+    gids: np.ndarray  # global sample ids
+    vis: Visible
+    keys: np.ndarray  # the pixels' tiles (the base tracer's shadow-ray skips)
+
+
+class _Run:
+    """What the chunks of an INTERPOLANT frame share (:func:`render_frame`): the frame's
+    settings and records, what the scene needs per pixel, the fallback's ledger and
+    budget, and the running times and counts."""
+
+    def __init__(self, cache, settings, records, cancel, width: int) -> None:
+        sa = cache.sa
+        self.cache, self.settings, self.records, self.cancel = cache, settings, records, cancel
+        self.width = width
+        self.world = world_lights(sa)
+        self.sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
+        # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
+        # reprojected one on a rough object traces its visibility ray for it
+        self.rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
+        self.camera_seen = any_seen(sa, (SEEN_CAMERA,))
+        self.ledger = self.budget = self.traced_now = None
+        self.counters: dict = {}
+        self.fs: dict = {}
+        self.cancelled = False
+        self.t_res = 0.0  # the passes' time
+        self.t_trace = 0.0  # of it, tracing what was not interpolated
+        self.t_trace_all = 0.0  # and the glossy rays of interpolated rough pixels
+        self.t_world = self.t_sampled = 0.0
+        self.trace_s = 0.0  # (the ledger's) tracing time, over
+        self.traced_rays = 0  # rays traced
+        self.n_todo = 0
+
+    def chunk(self, ps: _Pass, sl: slice, cells: bool) -> None:
+        """Rays ``sl`` of pass ``ps``: through the cells (``cells``: line coordinates, the
+        walk, the builds the budget allows) or traced whole from their hits; then the
+        interpolated ones' own terms, and the base tracer for the rest. What the mode
+        added goes to the budget (everything but tracing the rays not interpolated)."""
+        cache, settings, records, cancel = self.cache, self.settings, self.records, self.cancel
+        budget = self.budget
+        t0 = fb_mod.CLOCK()
+        spent0 = 0.0 if budget is None else budget.spent
+        later0 = 0.0 if budget is None else budget.later
+        o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
+        vis = ps.vis
+        hits, res = part(vis.hits, sl), part(vis.res, sl)
+        rep = None if vis.rep is None else vis.rep[sl]
+        keys = ps.keys[sl]
+        skipped = None
+        if cells:
+            if self.traced_now is not None:  # objects traced (fallback.py)
+                skipped = (hits.inst >= 0) & self.traced_now[np.maximum(hits.inst, 0)]
+                skipped = skipped if skipped.any() else None
+            walk_inst = hits.inst if skipped is None else np.where(skipped, -1, hits.inst)
+            face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
+            cache.resolve(walk_inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=res,
+                          budget=budget, finish=False)
+            self.fs = _add_stats(self.fs, cache.frame_stats)
+            if skipped is not None:  # traced, not background
+                res.pixel_class[skipped] = CLASS_TRACED
+        else:  # traced whole (the reprojected rays stay interpolated: proven, free)
+            rest = ~res.interpolated
+            res.pixel_class[rest] = np.where(hits.inst[rest] >= 0, CLASS_TRACED,
+                                             CLASS_BACKGROUND)
+        if vis.exact is not None and rep is not None and rep.any():
+            hits.inst[rep] = vis.exact[0][sl][rep]
+            hits.t[rep] = vis.exact[1][sl][rep]
+        # the per-light records keep the interpolated samples' world terms apart
+        # (world_samples.py: a world colour edit rescales them)
+        lrec = records.light if records is not None else None
+        if lrec is not None and not lrec.partial:
+            lrec = None
+        if self.sampled:  # the lights' sampled terms, per pixel, where cells interpolated
+            self.t_sampled += add_sampled_terms(cache, res, None, o, d, tmin, tmax, hits, rep,
+                                                gids, settings, self.counters, cancel, lrec)
+        wi = w_coef = w_rest = None
+        if self.world:  # the world's term, per pixel, where cells interpolated
+            tw = fb_mod.CLOCK()
+            wi = np.flatnonzero(res.interpolated & (hits.inst >= 0))
+            w_coef = np.empty((len(wi), 3)) if lrec is not None else None
+            w_rest = res.radiance[wi] if lrec is not None else None
+            res.radiance[wi] += kept_world_term(  # (kept from the last frame, or traced)
+                lrec, cache.sa, cache.accel, o, d, tmax, hits, wi, gids, settings,
+                self.counters, w_coef)
+            self.t_world += fb_mod.CLOCK() - tw
+        if cells and self.ledger is not None:
+            count(cache, self.ledger, hits, res, rep, skipped)
+        if not cells and (rep is None or not rep.any()):
+            # nothing interpolated: the base tracer's tiles, misses and all (views, no copies)
+            todo = slice(0, len(o))
+            n_traced = int(np.count_nonzero(hits.inst >= 0))
+        else:  # a miss is the world colour (exactly what the tracer gives it)
+            todo = np.empty(len(o), np.int64)
+            todo = todo[:_to_trace(hits.inst, res.interpolated,
+                                   np.asarray(cache.sa.world_color, np.float64),
+                                   res.radiance, todo)]
+            if self.camera_seen:
+                todo = camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo)
+            n_traced = len(todo)
+            if budget is not None:
+                budget.saved += int(np.count_nonzero(res.interpolated))
+        self.n_todo += n_traced
+        tt = fb_mod.CLOCK()
+        trace_s = 0.0
+        if cancel is not None and cancel():
+            self.cancelled = True  # (a cancelled frame's records are dropped)
+        else:
+            if records is not None:
+                records.add_primary(gids, hits.inst, o, d, hits.t)
+            self.cancelled = trace_rest(cache, todo, o, d, tmin, tmax, hits, res.radiance,
+                                        int(settings.max_depth), self.counters, records, gids,
+                                        cancel, settings, keys)
+            trace_s = fb_mod.CLOCK() - tt
+            if self.rough_on and not self.cancelled:  # rough surfaces' glossy rays
+                self.cancelled = glossy_rest(cache, res.interpolated, o, d, tmin, tmax, hits,
+                                             rep, res.interpolant, res.radiance,
+                                             self.counters, records, gids, cancel, settings)
+        self.t_trace_all += fb_mod.CLOCK() - tt
+        self.t_trace += trace_s
+        self.trace_s += trace_s
+        self.traced_rays += n_traced
+        if lrec is not None and not self.cancelled:
+            keep_world(lrec, cache.sa, gids, wi, w_coef, w_rest, res.interpolated, hits,
+                       self.rough_on, int(settings.max_depth))
+        if budget is not None:  # all the mode added: the chunk but its tracing
+            # (less the builds' shares put off to the frame's later passes)
+            budget.spent = (spent0 + (fb_mod.CLOCK() - t0) - trace_s
+                            - (budget.later - later0))
+            if cells:
+                budget.walked += len(o)
 
 
 class InterpolantRenderer:
@@ -642,7 +595,8 @@ class InterpolantRenderer:
     of light slots but by adding lights (:mod:`.added_light`: a state per light).
     """
 
-    #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`)
+    #: trace where cells do not pay, learned from measured costs (:mod:`.fallback`), where
+    #: the settings' ``interpolant_fallback`` asks for it too
     auto_fallback = True
 
     def __init__(self) -> None:
@@ -693,6 +647,7 @@ class InterpolantRenderer:
         settings = settings.validated()
         c, _ = self.prepare(scene.arrays(), settings, accel)
         frame = render_frame(c, scene, settings, progress=progress, cancel=cancel,
-                             fallback=self.auto_fallback, **incremental)
+                             fallback=self.auto_fallback and settings.interpolant_fallback,
+                             **incremental)
         frame.stats["interpolated_pct"] = 100.0 * frame.stats["interpolated_fraction"]
         return frame

@@ -343,16 +343,31 @@ def _slab_points(box, lt, inode, izlo, izhi, pinterp, o, d, t, reprojected, frac
         t[r] = ((front - zm if neg else front + zm) - o[r, kk]) / d[r, kk]
 
 
-def remember(pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
-             t: np.ndarray, width: int, height: int) -> View:
-    """The :class:`View` a full frame leaves (its interpolated samples; ``t`` their hit
-    distances)."""
-    same = np.full(width * height, -1, np.int32)
-    m = min(int(np.count_nonzero(pinterp >= 0)), len(pix))
-    points = np.empty((m, 3), np.float32)
-    pq = np.empty(m, np.int32)
-    m = _remember(np.ascontiguousarray(pix, np.int64), pinterp, o, d, t, same, points, pq)
-    return View(width, height, same, points[:m], pq[:m])
+class Remember:
+    """The :class:`View` a full frame leaves (its interpolated samples), filled tile by tile
+    (:meth:`add`) of its first pass."""
+
+    def __init__(self, width: int, height: int) -> None:
+        self.width, self.height = width, height
+        self.same = np.full(width * height, -1, np.int32)
+        self.points: list = []
+        self.pq: list = []
+
+    def add(self, pix: np.ndarray, pinterp: np.ndarray, o: np.ndarray, d: np.ndarray,
+            t: np.ndarray) -> None:
+        """The rays of one tile (one per pixel ``pix``; ``t`` their hit distances)."""
+        m = min(int(np.count_nonzero(pinterp >= 0)), len(pix))
+        points = np.empty((m, 3), np.float32)
+        pq = np.empty(m, np.int32)
+        m = _remember(np.ascontiguousarray(pix, np.int64), pinterp, o, d, t, self.same,
+                      points, pq)
+        self.points.append(points[:m])
+        self.pq.append(pq[:m])
+
+    def view(self) -> View:
+        pts = np.concatenate(self.points) if self.points else np.zeros((0, 3), np.float32)
+        pq = np.concatenate(self.pq) if self.pq else np.zeros(0, np.int32)
+        return View(self.width, self.height, self.same, pts, pq)
 
 
 def slab_points(cache, pinterp, o, d, t, reprojected, frac: float = 0.5) -> None:
@@ -390,23 +405,31 @@ class FrameCells:
             self.ok = np.concatenate([self.ok, np.zeros(grow, np.bool_)])
 
 
-def reproject(cache, view: View | None, cells: FrameCells, cp: CameraParams, pix: np.ndarray,
-              o, d, tmax, splat: bool = True):
-    """The rays of a frame (one per pixel ``pix``) whose interpolant is found by
-    reprojection from ``view`` (module doc; ``splat``: the view is another camera's, its
-    points are projected into this one). Returns None when nothing can be, else ``(pre,
-    tmax, m)``: ``pre`` the :class:`Reprojected` arrays for
-    :meth:`~.cache.InterpolantCache.resolve` with the reprojected rays filled in, ``tmax``
-    a copy with an empty range for them, ``m`` their number."""
-    n = len(o)
+def candidates(view: View | None, cp: CameraParams, splat: bool = True):
+    """(h * w,) int32 each pixel's candidate interpolant (-1: none) from ``view`` (module
+    doc, step 1; ``splat``: the view is another camera's, its points are projected into this
+    one), or None when nothing can be reprojected."""
     if (not ENABLED or view is None or cp.ortho or view.width != cp.width
-            or view.height != cp.height or n == 0):
+            or view.height != cp.height or len(view.interp) == 0):
         return None
-    p = cache.pool
     cand_pix = view.same_pixel
     if splat:
         cand_pix = cand_pix.copy()
         _splat(cp, view.points, view.interp, cand_pix)
+    return cand_pix
+
+
+def reproject(cache, cand_pix: np.ndarray | None, cells: FrameCells, pix: np.ndarray,
+              o, d, tmax):
+    """The rays (one per pixel ``pix``) whose interpolant is found by reprojection from the
+    candidates ``cand_pix`` (:func:`candidates`; module doc). Returns None when nothing
+    can be, else ``(pre, tmax, m)``: ``pre`` the :class:`Reprojected` arrays for
+    :meth:`~.cache.InterpolantCache.resolve` with the reprojected rays filled in, ``tmax``
+    a copy with an empty range for them, ``m`` their number."""
+    n = len(o)
+    if cand_pix is None or n == 0:
+        return None
+    p = cache.pool
     cells.grow(len(p.serial))
     out = Reprojected(np.zeros((n, 3)), np.zeros(n, np.bool_), np.zeros(n, np.uint8),
                       np.full(n, -1, np.int32))

@@ -78,6 +78,9 @@ def test_chunked_workers_render_the_same_frames_as_one_process(tmp_path, warm_ca
     sc.render.engine = "RSTRACE"  # an RSTrace .blend: no -E needed
     sc.rstrace.mode = "INTERPOLANT"
     sc.rstrace.epsilon = EPSILON
+    # cells, to test them (saved in the .blend): here they do not pay, and the measured
+    # fallback would trace (tests/blender/test_interpolant_mode.py, the note at its top)
+    sc.rstrace.interpolant_fallback = False
     interp_blend = tmp_path / "interp.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(interp_blend), copy=True)
 

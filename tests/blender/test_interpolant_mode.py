@@ -10,6 +10,15 @@ from rstrace_engine.image import to_display
 
 from . import builders as b
 
+# These small scenes are where cells do not pay, and the measured fallback (default on)
+# rightly traces them: with cells forced (the fallback off), process CPU, 1 thread, against
+# the base frame, median of 6 alternated repeats (a loaded 2-core machine):
+# three_spheres 160x120 1 spp depth 2 -- first frame 0.42x, the same camera again 0.80x,
+# orbits of 2 and 4 degrees 0.38x / 0.51x (18-19% interpolated); the image-texture floor
+# below -- 0.16x / 0.76x / 0.09x / 0.24x (57-58% interpolated: its base ray costs 0.3 us).
+# So the tests of the cells turn the fallback off (setting ``interpolant_fallback``), and
+# ``test_f12_reports_what_the_fallback_decided`` tests the fallback itself.
+
 
 def _stats():
     import addon
@@ -26,6 +35,7 @@ def test_f12_interpolant_mode_matches_base_within_epsilon(tmp_path):
     eps = 0.02
     sc.rstrace.mode = "INTERPOLANT"
     sc.rstrace.epsilon = eps
+    sc.rstrace.interpolant_fallback = False  # cells, to test them (they do not pay here: above)
     out = b.render_exr(tmp_path / "interp.exr")
     first = _stats()
     assert first["mode"] == "INTERPOLANT" and first["cells_built"] > 0
@@ -83,9 +93,56 @@ def test_f12_interpolant_mode_fine_image_texture_within_epsilon(tmp_path):
     eps = 0.02
     sc.rstrace.mode = "INTERPOLANT"
     sc.rstrace.epsilon = eps
+    sc.rstrace.interpolant_fallback = False  # cells, to test them (they do not pay here: above)
     out = b.render_exr(tmp_path / "interp.exr")
     err = np.abs(to_display(out["Combined"][..., :3]) - to_display(base)).max(axis=-1)
     assert err.max() <= eps + 1e-6, f"max error {err.max():.5f}, {(err > eps).sum()} over"
     classes = out["Interpolation"].reshape(-1, 3)
     green = np.all(np.isclose(classes, CLASS_COLORS[CLASS_INTERPOLATED]), axis=-1).mean()
     assert green > 0.2, f"only {green:.1%} of pixels interpolated"
+
+
+def test_f12_reports_what_the_fallback_decided(tmp_path, monkeypatch):
+    """The measured fallback (on by default) traces where cells do not pay, and says so: in
+    the frame's statistics, the status line and an INFO message of the render. Its
+    decision is made certain here (an interpolated ray credited with saving nothing, and an
+    allowance that lets the first frame walk every ray: that frame is judged); the frames
+    after it are the base tracer's, bit for bit."""
+    import addon
+    from rstrace_engine.interpolants import fallback
+
+    monkeypatch.setattr(fallback, "SAVE_SHARE", 0.0)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 1e9)
+    sc = b.three_spheres_scene(160, 120)
+    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
+    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
+    assert sc.rstrace.interpolant_fallback  # (the default)
+    b.render_exr(tmp_path / "first.exr")
+    first = _stats()
+    assert first["fallback"]["all_traced"] and first["fallback"]["walked_rays"] > 0
+    assert first["cells_built"] > 0  # (it walked: the decision is the ledger's, measured)
+    assert first["fallback_notes"] and "cost more than they save" in first["fallback_notes"][0]
+    state = addon.session.state_for(sc)
+    info = [text for level, text in state.messages if level == "INFO"]
+    assert first["fallback_notes"][0] in info
+    assert "traced: cells did not pay" in addon.session.status_line(first)
+
+    sc.camera.location.x += 0.05  # a new frame: the base tracer's, as the fallback decided
+    out = b.render_exr(tmp_path / "next.exr")
+    after = _stats()
+    assert after["fallback"]["all_traced"] and after["interpolated_fraction"] == 0.0
+    assert after["fallback_notes"] == first["fallback_notes"]  # (the same measurement)
+    classes = out["Interpolation"].reshape(-1, 3)
+    assert not np.all(np.isclose(classes, CLASS_COLORS[CLASS_INTERPOLATED]), axis=-1).any()
+    sc.rstrace.mode = "BASE"
+    base = b.render_exr(tmp_path / "base.exr")
+    np.testing.assert_array_equal(out["Combined"], base["Combined"])
+
+    # with the setting off, the same scene is interpolated and nothing is reported
+    sc.rstrace.mode, sc.rstrace.interpolant_fallback = "INTERPOLANT", False
+    sc.camera.location.x -= 0.05
+    out = b.render_exr(tmp_path / "cells.exr")
+    cells = _stats()
+    assert "fallback" not in cells and not cells.get("fallback_notes")
+    assert cells["interpolated_fraction"] > 0.05
+    assert "cells did not pay" not in addon.session.status_line(cells)

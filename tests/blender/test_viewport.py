@@ -58,12 +58,15 @@ class FakeEngine:
         self.info.append(info)
 
 
-def _start(mode="BASE"):
-    """A scene, a viewport renderer fed by depsgraph_update_post, and its first image."""
+def _start(mode="BASE", **settings):
+    """A scene, a viewport renderer fed by depsgraph_update_post, and its first image
+    (``settings``: more of the scene's RSTrace settings, set before the viewport starts)."""
     import addon
 
     sc = b.three_spheres_scene(W, H)
     sc.rstrace.mode = mode
+    for key, value in settings.items():
+        setattr(sc.rstrace, key, value)
     sc.rstrace.viewport_samples = 2
     vr = addon.viewport.ViewportRenderer()
     dg = bpy.context.evaluated_depsgraph_get()
@@ -325,7 +328,9 @@ def test_orbit_reuses_the_interpolants():
     from rstrace_engine.image import compare
     from rstrace_engine.session import Session
 
-    sc, vr = _start("INTERPOLANT")
+    # cells, to test them: here they do not pay, and the measured fallback would trace
+    # (tests/blender/test_interpolant_mode.py, the note at its top)
+    sc, vr = _start("INTERPOLANT", interpolant_fallback=False)
     sc.rstrace.max_ray_depth = 2
     try:
         cam = _camera(_view(160, 120))  # (big enough to interpolate)

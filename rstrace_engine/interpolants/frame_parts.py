@@ -1,0 +1,217 @@
+"""The parts of an INTERPOLANT frame's pass (:mod:`.render`) that are not kernels: the
+pass's visible hits (reprojected where proven, else closest-hit rays), the rays traced
+after all (the base tracer from the hits found), the glossy rays of interpolated samples on
+rough surfaces, the rays whose camera ray may cross a light, and the fallback's counts.
+
+A pass goes in *chunks* of its rays (:func:`.render.render_frame`): each chunk either goes
+through the cells (line coordinates, the walk, builds) or is traced whole by the base
+tracer from the hits the pass found -- which one, the frame's ledger decides
+(:class:`.fallback.Budget`). Every function here takes the arrays of one chunk (views of
+the pass's arrays: what it writes lands in the pass).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..accel.accelerators import Hits
+from ..cancel import bound
+from ..frame import CLASS_BACKGROUND, CLASS_TRACED
+from ..tracing.batches import TILE_RAYS
+from ..tracing.seen_lights import SEEN_CAMERA, seen
+from ..tracing.soft_lights import sample_seeds
+from ..tracing.whitted import trace
+from . import fallback
+from .glossy_term import glossy_term, rough_objects, rough_roots
+from .interpolant_cache import ResolveResult
+from .reproject import reproject, slab_points
+
+
+def take(h: Hits, idx: np.ndarray) -> Hits:
+    """The hits of rays ``idx`` (a copy)."""
+    return Hits(h.t[idx], h.inst[idx], h.prim[idx], h.u[idx], h.v[idx])
+
+
+def part(h, sl: slice):
+    """The arrays of a named tuple ``h`` (:class:`Hits`, :class:`ResolveResult`) for the
+    rays ``sl`` (views)."""
+    return type(h)(*(x[sl] for x in h))
+
+
+class Visible(NamedTuple):
+    """A pass's visible hits (:func:`visible`)."""
+
+    hits: Hits
+    res: ResolveResult  # the pass's resolve arrays, the reprojected rays filled in
+    rep: np.ndarray | None  # (n,) bool reprojected rays, or None
+    exact: tuple | None  # (inst (n,), t (n,)) of the reprojected rays, for pixel records
+    reproject_s: float  # seconds reprojecting (the mode's)
+    closest_s: float  # seconds of closest-hit rays (the base tracer's primary rays)
+
+
+def visible(cache, cand, cells, pix, o, d, tmin, tmax, exact, cancel) -> Visible:
+    """Visible hits of one ray per pixel ``pix``: reprojected from the candidates ``cand``
+    where proven (:func:`.reproject.reproject`), closest-hit rays for the others. A
+    reprojected ray's hit is left a miss (it is not walked); with ``exact`` (pixel records)
+    ``Visible.exact`` has its object and the far end of its slab, which
+    :meth:`.render._Run.chunk` puts into its hit after the chunk's walk."""
+    t0 = fallback.CLOCK()
+    rp = reproject(cache, cand, cells, pix, o, d, tmax)
+    t1 = fallback.CLOCK()
+    n = len(o)
+    if rp is None:
+        with bound(cache.accel, cancel):  # incomplete when cancelled: the frame polls
+            hits = cache.accel.closest_hit(o, d, tmin, tmax)
+        res = ResolveResult(np.zeros((n, 3)), np.zeros(n, np.bool_),
+                            np.full(n, CLASS_BACKGROUND, np.uint8), np.full(n, -1, np.int32))
+        return Visible(hits, res, None, None, t1 - t0, fallback.CLOCK() - t1)
+    pre, hi, _ = rp
+    with bound(cache.accel, cancel):
+        hits = cache.accel.closest_hit(o, d, tmin, hi)
+    t2 = fallback.CLOCK()
+    rep = hi < 0.0
+    ex = None
+    if exact:
+        # pixel records keep a view segment per sample: the reprojected ones reach the far
+        # end of their slab, past their hit (a longer segment can only make more pixels
+        # dirty after an edit). Before the walk, which may evict (and reuse) the
+        # interpolants used.
+        g = np.flatnonzero(rep)
+        t = np.full(n, np.inf)
+        slab_points(cache, pre[3], o, d, t, rep, 1.0)
+        inst = np.full(n, -1, np.int32)
+        inst[g] = cache.trees.arrays.tree[cache.pool.node[pre[3][g]]] // 6
+        ex = (inst, t)
+    return Visible(hits, ResolveResult(*pre), rep, ex, t1 - t0 + fallback.CLOCK() - t2,
+                   t2 - t1)
+
+
+def camera_seen(cache, o, d, tmin, tmax, hits, rep, res, todo) -> np.ndarray:
+    """The rays whose camera ray may cross a light the camera sees (anywhere within its
+    bounds, or a sun's cone on a miss: :mod:`~..tracing.seen_lights`) are traced, not
+    interpolated: their hits found again where they were reprojected (left a miss), and
+    added to ``todo``, which is returned."""
+    sa = cache.sa
+    miss = hits.inst < 0
+    if rep is not None:
+        miss &= ~rep
+    one = np.ones((len(o), 3))
+    sel = np.flatnonzero(seen(sa, o, d, tmin, tmax, miss, np.full(len(o), SEEN_CAMERA,
+                                                                   np.int8), one).any(axis=1))
+    if len(sel) == 0:
+        return todo
+    if rep is not None and rep[sel].any():
+        r = sel[rep[sel]]
+        found = cache.accel.closest_hit(o[r], d[r], tmin[r], tmax[r])
+        for a, b in zip(hits, found, strict=True):
+            a[r] = b
+    res.interpolated[sel] = False
+    res.pixel_class[sel] = np.where(hits.inst[sel] >= 0, CLASS_TRACED, CLASS_BACKGROUND)
+    res.interpolant[sel] = -1
+    return np.union1d(todo, sel)
+
+
+def count(cache, ledger, hits, res, rep, skipped) -> None:
+    """A chunk's rays per visible object for the fallback's ledger: walked, interpolated
+    of those, reprojected (interpolated without a walk)."""
+    walked = hits.inst >= 0
+    if skipped is not None:
+        walked &= ~skipped
+    if rep is not None:
+        walked &= ~rep
+    wi = hits.inst[walked]
+    ii = hits.inst[walked & res.interpolated]
+    ri = np.zeros(0, np.int64)
+    if rep is not None and rep.any():
+        ids = res.interpolant[rep]
+        ids = ids[(ids >= 0) & (ids < len(cache.pool.node))]
+        node = cache.pool.node[ids]
+        node = node[(node >= 0) & (node < len(cache.trees.arrays.tree))]
+        ri = cache.trees.arrays.tree[node] // 6
+    ledger.count(wi, ii, ri)
+
+
+def tiles(n: int):
+    """Slices of ``n`` rays in tiles of about the base tracer's size (its per-level arrays
+    stay cache-sized), split evenly: a small last tile would cost the tracer's per-level
+    overhead alone."""
+    n_tiles = max(1, round(n / TILE_RAYS)) if n else 0
+    for q in range(n_tiles):
+        yield slice(q * n // n_tiles, (q + 1) * n // n_tiles)
+
+
+def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
+               cancel, settings, keys=None) -> bool:
+    """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
+    found, into ``rad``; their ray trees go to ``records``; soft lights are sampled as the
+    base tracer samples these pixel samples (``gids``, ``settings``' seed and light
+    samples), and their shadow rays skipped where proven per tile as the base tracer does
+    (``keys``: the rays' pixels' tiles, :func:`~..tracing.shaft_skip.tile_keys`). Returns
+    whether ``cancel`` stopped it (the frame is then incomplete). ``todo`` a slice: every
+    ray of that range (misses too: the tracer gives them the world, as :func:`~.render.
+    _to_trace` does), traced from views of the arrays -- exactly the base tracer's tiles."""
+    sa, accel = cache.sa, cache.accel
+    if isinstance(todo, slice):
+        a, b, _ = todo.indices(len(o))
+        parts = [slice(a + q.start, a + q.stop) for q in tiles(b - a)]
+    else:
+        parts = [todo[q] for q in tiles(len(todo))]
+    for rows in parts:
+        segs: list | None = [] if records is not None else None
+        with bound(accel, cancel):
+            rad[rows], _ = trace(sa, accel, o[rows], d[rows], tmin[rows], tmax[rows],
+                                 max_depth, primary=(part(hits, rows) if isinstance(rows, slice)
+                                                     else take(hits, rows)),
+                                 counters=counters,
+                                 segments=segs, cancel=cancel,
+                                 seeds=sample_seeds(gids[rows], int(settings.seed)),
+                                 light_samples=int(settings.light_samples),
+                                 glossy_samples=int(settings.glossy_samples),
+                                 terms=records is not None and records.light is not None,
+                                 skip_keys=None if keys is None else keys[rows])
+        if cancel is not None and cancel():
+            return True
+        if records is not None:
+            records.add(gids[rows], segs)
+    return False
+
+
+def glossy_rest(cache, interp, o, d, tmin, tmax, hits, rep, interpolant, rad, counters,
+                records, gids, cancel, settings) -> bool:
+    """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
+    bool) whose hit is on a rough surface (:mod:`.glossy_term`); their segments go to
+    ``records``. Returns whether ``cancel`` stopped it. A reprojected sample (``rep`` (k,)
+    bool or None) has no hit: where its interpolant (``interpolant`` (k,) pool ids) lies on
+    an object with a rough material, its visibility ray is traced here."""
+    sa, accel = cache.sa, cache.accel
+    rows = np.flatnonzero(interp)
+    h = take(hits, rows)
+    if rep is not None and rep[rows].any():
+        r = np.flatnonzero(rep[rows])
+        obj = cache.trees.arrays.tree[cache.pool.node[interpolant[rows[r]]]] // 6
+        r = r[rough_objects(sa)[obj]]
+        h.inst[rep[rows]] = -1
+        if len(r):
+            c = rows[r]
+            with bound(accel, cancel):
+                found = accel.closest_hit(o[c], d[c], tmin[c], tmax[c])
+            for dst, src in zip(h, found, strict=True):
+                dst[r] = src
+    rough = rough_roots(sa, h, int(settings.max_depth))
+    rows, h = rows[rough], take(h, np.flatnonzero(rough))
+    counters["rough_interpolated"] = counters.get("rough_interpolated", 0) + len(rows)
+    for sel in tiles(len(rows)):
+        rr = rows[sel]
+        segs: list | None = [] if records is not None else None
+        with bound(accel, cancel):
+            rad[rr] += glossy_term(sa, accel, o[rr], d[rr], tmin[rr], tmax[rr],
+                                   take(h, sel), gids[rr], int(settings.seed),
+                                   int(settings.max_depth), int(settings.light_samples),
+                                   int(settings.glossy_samples), counters, segs, cancel)
+        if cancel is not None and cancel():
+            return True
+        if records is not None:
+            records.add(gids[rr], segs)
+    return False

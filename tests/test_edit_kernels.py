@@ -27,19 +27,20 @@ def test_each_loader_runs_once_with_the_first_frame_it_needs(monkeypatch):
     monkeypatch.setattr(edit_kernels, "LOADERS",
                         [(n, wrap(n, fn), when) for n, fn, when in edit_kernels.LOADERS])
     assert {n for n, _, _ in edit_kernels.LOADERS} == {"recombine", "edit", "reshade",
-                                                      "term_pixels"}
+                                                      "term_pixels", "recombine_pixels"}
     scene = soft_penumbra("PERSP")
     base = Session(scene.copy(), RenderSettings(mode="BASE", max_depth=3))
     base.light_terms = True
     base.render()
-    assert sorted(calls) == ["edit", "recombine", "reshade"]  # (at the frame's end)
+    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade"]  # (at its end)
     base.apply(edit(base, "Area", power=0.5))
     base.render()
-    assert len(calls) == 3
+    assert len(calls) == 4
     interp = Session(scene.copy(), RenderSettings(mode="INTERPOLANT", max_depth=3))
     interp.light_terms = True
     interp.render()
-    assert sorted(calls) == ["edit", "recombine", "reshade", "term_pixels"]
+    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade",
+                           "term_pixels"]
     interp.render()
     Session(scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
-    assert len(calls) == 4
+    assert len(calls) == 5

@@ -93,6 +93,36 @@ def test_sphere_light_ball_or_facing_disk(soft):
     assert got[1] == (0.0 if soft else pytest.approx(want, rel=1e-12))
 
 
+def test_soft_falloff_disk_faces_the_rays_start():
+    """Cycles faces the disk to ``ray->P``, which for a camera ray is on the clip-start
+    plane: the disk faces ``o + t0 d``, not ``o`` (1.2 m from a 0.6 m light, clip start
+    0.1 m: 1004 lit pixels in Cycles where facing the eye gives 1044)."""
+    from rstrace_engine.tracing.seen_lights import SEEN_CAMERA, seen
+
+    r, c = 0.6, np.array([0.0, 0.0, 2.0])
+    li = Light("P", "POINT", power=100.0, position=tuple(c), radius=r, soft_falloff=True,
+               camera=True)
+    sa = plane_scene(GREY, [li]).arrays()
+    o = c + [0.0, 0.0, 1.2]
+    ang = np.radians(np.linspace(25.0, 28.0, 61))  # edges: 25.97 (start), 26.57 (eye)
+    d = np.stack([np.sin(ang), np.zeros_like(ang), -np.cos(ang)], axis=1)
+    n = len(d)
+    t0 = np.full(n, 0.1 / np.cos(ang))  # the clip-start plane, 0.1 along the view axis
+
+    def hits(start):  # the disk of radius r through c facing ``start``, met by each ray
+        nrm = (start - c) / np.linalg.norm(start - c, axis=1)[:, None]
+        t = (nrm @ (c - o)) / np.einsum("ij,ij->i", d, nrm)
+        return np.linalg.norm(o + t[:, None] * d - c, axis=1) <= r
+
+    want = hits(o + t0[:, None] * d)
+    assert (want != hits(np.tile(o, (n, 1)))).sum() >= 5  # the two differ on these rays
+    got = seen(sa, np.tile(o, (n, 1)), d, t0, np.full(n, 10.0), np.ones(n, np.bool_),
+               np.full(n, SEEN_CAMERA, np.int8), np.ones((n, 3)))[:, 0]
+    radiance = 100.0 / (4.0 * math.pi ** 2 * r * r)
+    assert np.array_equal(got > 0.0, want)
+    assert got[want] == pytest.approx(radiance, rel=1e-12)
+
+
 def test_spot_seen_through_its_cone_toward_it_only():
     size, blend = math.radians(60.0), 0.3
     li = Light("S", "SPOT", power=100.0, position=(0.0, 0.0, 2.0), direction=(0.0, 0.0, 1.0),

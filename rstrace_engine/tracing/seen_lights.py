@@ -10,8 +10,9 @@ smooth refraction rays (``visible_transmission``). What a ray sees (checked agai
   (:class:`~..geometry.lights.ExtendedLights`);
 * a **sphere light** (POINT, SPOT with a radius): a ball of radiance ``c P / (4 pi^2
   r^2)``; with soft falloff a disk of radius ``r`` through its centre facing the ray's
-  origin (Cycles' oriented disk); a spot only where the ray comes toward it, times its cone
-  falloff at the direction from the light to the ray's origin (its blend included);
+  start (Cycles' oriented disk; a camera ray starts on the clip-start plane); a spot
+  only where the ray comes toward it, times its cone falloff at the direction from the
+  light to the ray's origin (its blend included);
 * a **sun** with an angle, to rays that hit nothing: ``c S / (pi sin^2(a / 2))`` over its
   cone of directions.
 
@@ -133,10 +134,13 @@ def seen_one(sa, j, ox, oy, oz, dx, dy, dz, t0, t1, miss):
     if kind == LIGHT_SPOT and dx * px + dy * py + dz * pz >= 0.0:
         return 0.0  # a spot is seen only by rays coming toward it (Cycles: one-sided)
     if sa.light_soft[j]:
-        pl = math.sqrt(px * px + py * py + pz * pz)
-        if not pl > 0.0:
+        # the disk faces the ray's start ``o + t0 d`` (Cycles' ray->P: a camera ray starts
+        # on the clip-start plane, which matters for a light a few radii from the eye)
+        qx, qy, qz = px + t0 * dx, py + t0 * dy, pz + t0 * dz
+        ql = math.sqrt(qx * qx + qy * qy + qz * qz)
+        if not ql > 0.0:
             return 0.0
-        t = _disk_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, px / pl, py / pl, pz / pl, r, t0, t1)
+        t = _disk_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, qx / ql, qy / ql, qz / ql, r, t0, t1)
     else:
         t = _sphere_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, t0, t1)
     if t < 0.0:

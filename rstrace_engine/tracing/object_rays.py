@@ -170,7 +170,7 @@ def _plane_excess(v, tris, r, big, ext):
                 lo = min(lo, s)
         l1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
         l2 = math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
-        err = tol.CONVEX_ROUND_REL * (big + 4.0 * r * (big * (l1 + l2) + l1 * l2) / ln
+        err = tol.CONVEX_ROUND_REL * (big + 2.0 * r * (big * (l1 + l2) + l1 * l2) / ln
                                       if ln > 0.0 else 0.0)
         ext[t, 0] = hi + err
         ext[t, 1] = -lo + err

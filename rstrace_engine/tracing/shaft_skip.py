@@ -371,18 +371,27 @@ def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
         return
     n_mesh = len(geo.mesh_tri_start) - 1
     cert = np.full((n_mesh, 3), np.inf)
-    for m in np.unique(np.asarray(geo.inst_mesh)[inst[pts][inst[pts] >= 0]]):
+    ks = np.unique(inst[pts][inst[pts] >= 0])
+    for m in np.unique(np.asarray(geo.inst_mesh)[ks]):
         cert[m] = CONVEX.get(geo, int(m))
-    _own_kernel(geo.verts, geo.tris, xf, np.asarray(geo.mesh_tri_start, np.int64),
+    # each instance's largest stretch (its linear part's spectral norm, past rounding)
+    sig = np.full(len(xf), np.inf)
+    lin = xf[ks, :3, :3]
+    ok = np.isfinite(lin).all(axis=(1, 2))
+    if ok.any():
+        sig[ks[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
+                       * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
+    _own_kernel(geo.verts, geo.tris, xf, sig, np.asarray(geo.mesh_tri_start, np.int64),
                 np.asarray(geo.inst_mesh, np.int64), cert, Q, NG, inst, prim,
                 float(geo.scene_extent), np.asarray(pts, np.int64), out)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _own_kernel(verts, tris, xf, mesh_start, inst_mesh, cert, Q, NG, inst, prim, extent,
-                pts, out):
+def _own_kernel(verts, tris, xf, sig, mesh_start, inst_mesh, cert, Q, NG, inst, prim,
+                extent, pts, out):
     """:func:`own_clear`'s bound per point (``cert`` (M, 3): each mesh's certificate
-    ``out, inn, r``, infinite where it has none)."""
+    ``out, inn, r``, infinite where it has none; ``sig`` (I,) a bound on each instance's
+    largest stretch)."""
     for a in prange(pts.shape[0]):
         i = pts[a]
         k = inst[i]
@@ -418,21 +427,16 @@ def _own_kernel(verts, tris, xf, mesh_start, inst_mesh, cert, Q, NG, inst, prim,
             nx, ny, nz = -nx, -ny, -nz
         if not tau < np.inf:
             continue
-        sig = 0.0
-        for r in range(3):
-            for c in range(3):
-                sig += M[r, c] * M[r, c]
-        sig = math.sqrt(sig)  # (Frobenius: at least the spectral norm)
-        diam = 2.0 * cert[m, 2] * sig
+        diam = 2.0 * cert[m, 2] * sig[k]
         qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
         big = max(abs(ax), abs(ay), abs(az), abs(bx), abs(by), abs(bz), abs(cx), abs(cy),
-                  abs(cz), abs(qx), abs(qy), abs(qz), diam)
+                  abs(cz), abs(qx), abs(qy), abs(qz))
         l1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
         l2 = math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
-        err_n = tol.CONVEX_ROUND_REL * 4.0 * (big * (l1 + l2) + l1 * l2) / ln
+        err_n = tol.CONVEX_ROUND_REL * (big * (l1 + l2) + l1 * l2) / ln
         dn = math.sqrt((gx - nx) ** 2 + (gy - ny) ** 2 + (gz - nz) ** 2)
-        bound = (gx * (ax - qx) + gy * (ay - qy) + gz * (az - qz) + max(tau, 0.0) * sig
-                 + (dn + err_n) * diam + 4.0 * tol.CONVEX_ROUND_REL * big)
+        bound = (gx * (ax - qx) + gy * (ay - qy) + gz * (az - qz) + max(tau, 0.0) * sig[k]
+                 + (dn + err_n) * diam + 4.0 * tol.CONVEX_ROUND_REL * (big + diam))
         out[i] = bound <= -tol.SKIP_SELF_MARGIN_FRAC * spawn_offset(qx, qy, qz, extent)
 
 

@@ -24,8 +24,13 @@ of the group that samples the light:
   between them crosses that plane. Walls, a ceiling behind the light, anything beside the
   shaft.
 
-Any other triangle (an object between the points and the light, a non-convex receiver
-shadowing itself) fails the group's proof for that light, and its samples are traced as
+A group whose points all lie on a convex instance, seen from outside, skips that instance
+altogether (:func:`own_clear`: its mesh's convexity certificate bounds every vertex
+behind each point's plane by the first argument's margin, so every one of its triangles
+would pass it; studio's mirror ball, 5,120 triangles tested against each point of its
+tiles, was nearly all of the proofs' time). Any other triangle (an object between the
+points and the light, a non-convex receiver shadowing itself) fails the group's proof for
+that light, and its samples are traced as
 before. Both arguments leave a margin far above the rounding of the watertight ray-triangle
 test, so a proven sample is exactly one the tracer would have found unoccluded: the skip
 sets its visibility to true where tracing would have, and the image, the ray trees and

@@ -77,6 +77,9 @@ SHAFT_SKIP = True
 #: Pixels on a side of the tiles whose primary hits (per instance) are proven together;
 #: measured in docs/SOFT_LIGHT.md.
 SKIP_TILE = 8
+#: Instances of meshes with fewer triangles are not offered :func:`own_clear`'s skip (a
+#: floor's two triangles cost less to test than the bound): a speed choice, not a proof's.
+OWN_MIN_TRIS = 32
 
 
 def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.ndarray:
@@ -119,6 +122,7 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     proven = np.zeros(n * L, np.bool_)
     if len(todo) == 0:
         return proven
+    inst = np.asarray(inst, np.int64)
     gk = np.asarray(keys, np.int64)[todo] * (len(sa.inst_mesh) + 1) + inst[todo]
     order = np.argsort(gk, kind="stable")
     gk = gk[order]
@@ -130,13 +134,12 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     xf = np.ascontiguousarray(geo.inst_xform, np.float64)
     own = np.zeros(n, np.bool_)
     if prim is not None:
-        own_clear(geo, xf, surf.Q, surf.NG, np.asarray(inst, np.int64),
-                  np.asarray(prim, np.int64), todo, own)
+        own_clear(geo, xf, surf.Q, surf.NG, inst, np.asarray(prim, np.int64), todo, own)
     _prove_groups(accel.sb, xf, sa,
                   np.ascontiguousarray(lo), np.ascontiguousarray(hi), chord,
                   np.ascontiguousarray(0.5 * (geo.scene_aabb[0] + geo.scene_aabb[1])),
                   float(geo.scene_extent), mag, surf.Q, surf.NG, surf.sh_state,
-                  members.astype(np.int64), gstart, np.asarray(inst, np.int64), own, proven)
+                  members.astype(np.int64), gstart, inst, own, proven)
     if counters is not None:
         counters["skip_own"] = counters.get("skip_own", 0) + int(own.sum())
         counters["skip_rows"] = counters.get("skip_rows", 0) + int(soft.sum())
@@ -372,12 +375,17 @@ def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
     passed for every triangle of the instance, so the proof proves the same rows and the
     frames are unchanged bit for bit. ``geo``: the accelerator's geometry, ``xf`` its
     instance matrices."""
+    start = np.asarray(geo.mesh_tri_start, np.int64)
+    inst_mesh = np.asarray(geo.inst_mesh, np.int64)
+    k = inst[pts]
+    worth = (k >= 0) & (np.diff(start)[inst_mesh[np.maximum(k, 0)]] >= OWN_MIN_TRIS)
+    pts, k = pts[worth], k[worth]
     if len(pts) == 0:
         return
-    n_mesh = len(geo.mesh_tri_start) - 1
+    n_mesh = len(start) - 1
     cert = np.full((n_mesh, 3), np.inf)
-    ks = np.unique(inst[pts][inst[pts] >= 0])
-    for m in np.unique(np.asarray(geo.inst_mesh)[ks]):
+    ks = np.flatnonzero(np.bincount(k, minlength=len(inst_mesh)))
+    for m in np.flatnonzero(np.bincount(inst_mesh[ks], minlength=n_mesh)):
         cert[m] = CONVEX.get(geo, int(m))
     # each instance's largest stretch (its linear part's spectral norm, past rounding)
     sig = np.full(len(xf), np.inf)
@@ -386,8 +394,7 @@ def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
     if ok.any():
         sig[ks[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
                        * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
-    _own_kernel(geo.verts, geo.tris, xf, sig, np.asarray(geo.mesh_tri_start, np.int64),
-                np.asarray(geo.inst_mesh, np.int64), cert, Q, NG, inst, prim,
+    _own_kernel(geo.verts, geo.tris, xf, sig, start, inst_mesh, cert, Q, NG, inst, prim,
                 float(geo.scene_extent), np.asarray(pts, np.int64), out)
 
 

@@ -244,6 +244,13 @@ SPOT_FRAME_SLACK = 1e-6
 #: leaves that plane, so half the offset stays between it and the triangle, ~10^4 times
 #: the rounding of the watertight ray-triangle test.
 SKIP_SELF_MARGIN_FRAC = 0.5
+#: ... and a group skips its own instance's triangles altogether
+#: (:func:`~.tracing.shaft_skip.own_clear`) where its mesh is certified convex
+#: (:func:`~.tracing.object_rays.convexity`: ``CONVEX_TOL_REL``) and a bound puts every
+#: vertex behind the point's plane; the bound trusts coordinates, lengths and a triangle's
+#: normal to this fraction of their magnitude (~90 ulps: above the rounding of the float64
+#: transforms and cross products, ~10^3 times below the half offset it must stay under).
+CONVEX_ROUND_REL = 1e-14
 
 #: The RI_TREE continuation check (:mod:`~.ri_tree.recheck`) keys only the ray-tree nodes
 #: whose path weight (largest channel) is at least this: a deeper, dimmer node that meets

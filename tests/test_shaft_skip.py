@@ -146,7 +146,7 @@ def _proofs(scene, light_samples=8, accelerator="BVH"):
     hits = accel.closest_hit(o, d, tmin, tmax)
     surf = whitted.surfaces(sa, o, d, tmax, hits)
     proven = shaft_skip.proven_rows(sa, accel, surf, hits.inst,
-                                    shaft_skip.tile_keys(pixels, cp.width))
+                                    shaft_skip.tile_keys(pixels, cp.width), prim=hits.prim)
     soft, so, st, rows = soft_rays(sa, surf, sample_seeds(pixels, 1), light_samples,
                                    surf.sh_state)
     r = np.repeat(rows, light_samples)

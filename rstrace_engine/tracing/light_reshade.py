@@ -156,7 +156,8 @@ def _drag_proof(part, sa1, accel, j, rows, sf, state, tiles, counters, split):
             center = pos + (0.9 * radius / length) * step  # ahead of the light
             n_pixels, width = tiles
             proven = ball_rows(sa1, accel, 0, center, radius, sf, traced,
-                               part.geo["inst"], tile_keys(rows % n_pixels, width))
+                               part.geo["inst"], tile_keys(rows % n_pixels, width),
+                               prim=part.geo["prim"])
             part.proof = _Proof(j, sb, center, radius, proven, pos)
         else:
             part.proof = _Proof(j, sb, None, 0.0, None, pos)
@@ -308,7 +309,8 @@ def shade_one(sa, accel, j, light_samples, geo, surf, sub, state, counters, keys
             def blocked(o, dd, tmax, r):  # (as whitted._occluded_by: the light's blockers)
                 return occluded(sa, accel, o, dd, tmax, np.where(r >= 0, r % L, -1))
             proven = (None if keys is None else
-                      proven_rows(sa, accel, sf, g["inst"], keys, counters))
+                      proven_rows(sa, accel, sf, g["inst"], keys, counters,
+                                  g["prim"]))
             soft, srows, any_vis = soft_visibility(
                 sa1, sf, g["seed"], int(light_samples), sf.sh_state, blocked, counters,
                 proven)

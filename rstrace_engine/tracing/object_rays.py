@@ -115,6 +115,89 @@ class SolidBalls:
 
 BALLS = SolidBalls()
 
+#: convexity certificates cost (triangles x vertices): meshes past this certify nothing
+CONVEX_MAX_WORK = 200_000_000
+
+
+def convexity(verts: np.ndarray, tris: np.ndarray) -> tuple:
+    """``(out, inn, r)``: a mesh's convexity certificate (``tris`` (T, 3) into ``verts``),
+    in its own space. ``out``: the most any of its vertices lies in front of any of its
+    triangles' planes (unit normal by the winding: ``(b - a) x (c - a)``), ``inn`` the
+    same behind them (the winding reversed); each is infinite unless it is at most
+    :data:`~.tolerances.CONVEX_TOL_REL` of ``2 r`` (the mesh is not convex on that side, or
+    too large to examine: :data:`CONVEX_MAX_WORK`). ``r``: the vertices' radius about
+    their box's centre, grown by ``SOLID_BALL_REL``. Degenerate triangles give no plane
+    (their vertices are still tested). A closed convex mesh wound outward has a small
+    ``out``; a flat one both; a non-convex one neither. Open meshes may be certified:
+    the certificate speaks of the vertices alone (:func:`~.shaft_skip.own_clear`)."""
+    used = np.unique(tris)
+    v = np.ascontiguousarray(verts[used], np.float64)
+    if len(v) == 0:
+        return np.inf, np.inf, 0.0
+    c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    r = float(np.sqrt(((v - c) ** 2).sum(axis=1).max())) * (1.0 + tol.SOLID_BALL_REL)
+    if len(tris) * len(v) > CONVEX_MAX_WORK:
+        return np.inf, np.inf, r
+    ext = np.empty((len(tris), 2))
+    _plane_excess(v, np.ascontiguousarray(np.searchsorted(used, tris), np.int64), r,
+                  float(np.abs(v).max()), ext)
+    lim = tol.CONVEX_TOL_REL * 2.0 * r
+    out, inn = float(ext[:, 0].max()), float(ext[:, 1].max())
+    return (out if out <= lim else np.inf), (inn if inn <= lim else np.inf), r
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _plane_excess(v, tris, r, big, ext):
+    """``ext[t]``: (most in front of, most behind) triangle ``t``'s plane any vertex ``v``
+    lies (unit normal; -inf, -inf for a degenerate triangle), each grown past its
+    rounding (:data:`~.tolerances.CONVEX_ROUND_REL` of the coordinates' magnitude ``big``,
+    and of the normal's direction, over the vertices' diameter ``2 r``)."""
+    for t in prange(tris.shape[0]):
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        hi = -np.inf
+        lo = np.inf
+        if ln > 0.0:
+            for k in range(v.shape[0]):
+                s = (nx * (v[k, 0] - v[a, 0]) + ny * (v[k, 1] - v[a, 1])
+                     + nz * (v[k, 2] - v[a, 2])) / ln
+                hi = max(hi, s)
+                lo = min(lo, s)
+        l1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        l2 = math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
+        err = tol.CONVEX_ROUND_REL * (big + 2.0 * r * (big * (l1 + l2) + l1 * l2) / ln
+                                      if ln > 0.0 else 0.0)
+        ext[t, 0] = hi + err
+        ext[t, 1] = -lo + err
+
+
+class Convexities:
+    """:func:`convexity` per mesh of the last packing asked about (as :class:`SolidBalls`:
+    its ``verts`` and ``tris`` held weakly, so a packing that moves objects keeps them)."""
+
+    def __init__(self) -> None:
+        self._of = None
+        self._certs: dict = {}
+
+    def get(self, sa, mesh: int) -> tuple:
+        of = self._of
+        if of is None or of[0]() is not sa.verts or of[1]() is not sa.tris:
+            self._of = (weakref.ref(sa.verts), weakref.ref(sa.tris))
+            self._certs = {}
+        cert = self._certs.get(mesh)
+        if cert is None:
+            s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
+            cert = self._certs[mesh] = convexity(sa.verts, np.asarray(sa.tris[s:e]))
+        return cert
+
+
+CONVEX = Convexities()
+
 
 @njit(cache=True, nogil=True, parallel=True)
 def prove_rays(inv, i, c, r_in, r_out, o, d, tmax, rows, out):

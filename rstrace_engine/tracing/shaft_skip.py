@@ -24,8 +24,13 @@ of the group that samples the light:
   between them crosses that plane. Walls, a ceiling behind the light, anything beside the
   shaft.
 
-Any other triangle (an object between the points and the light, a non-convex receiver
-shadowing itself) fails the group's proof for that light, and its samples are traced as
+A group whose points all lie on a convex instance, seen from outside, skips that instance
+altogether (:func:`own_clear`: its mesh's convexity certificate bounds every vertex
+behind each point's plane by the first argument's margin, so every one of its triangles
+would pass it; studio's mirror ball, 5,120 triangles tested against each point of its
+tiles, was nearly all of the proofs' time). Any other triangle (an object between the
+points and the light, a non-convex receiver shadowing itself) fails the group's proof for
+that light, and its samples are traced as
 before. Both arguments leave a margin far above the rounding of the watertight ray-triangle
 test, so a proven sample is exactly one the tracer would have found unoccluded: the skip
 sets its visibility to true where tracing would have, and the image, the ray trees and
@@ -62,6 +67,7 @@ from ..geometry.shaft_geometry import (
 )
 from ..views import fields, view_type
 from .glossy_rays import interface_materials
+from .object_rays import CONVEX
 from .shading import spawn_offset
 from .soft_lights import SH_SOFT
 
@@ -71,6 +77,9 @@ SHAFT_SKIP = True
 #: Pixels on a side of the tiles whose primary hits (per instance) are proven together;
 #: measured in docs/SOFT_LIGHT.md.
 SKIP_TILE = 8
+#: Instances of meshes with fewer triangles are not offered :func:`own_clear`'s skip (a
+#: floor's two triangles cost less to test than the bound): a speed choice, not a proof's.
+OWN_MIN_TRIS = 32
 
 
 def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.ndarray:
@@ -83,7 +92,8 @@ def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.nda
 
 
 def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
-                counters: dict | None = None) -> np.ndarray | None:
+                counters: dict | None = None, prim: np.ndarray | None = None
+                ) -> np.ndarray | None:
     """(n L,) bool: the (point, light) rows ``i * L + j`` of the surface points ``surf``
     (:class:`~.shader.Surfaces` of primary hits on instances ``inst``) whose light ``j``
     (sampled there, ``SH_SOFT``) is proven fully visible, the points grouped by ``keys``
@@ -91,7 +101,9 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     light with an extent, an accelerator whose geometry the proof does not read).
     ``counters`` gains ``skip_rows`` (rows of lights with an extent), ``skip_rows_proven``
     and ``skip_s`` (seconds in the proofs); :func:`~.soft_lights.soft_visibility` adds
-    ``shadow_skipped`` (samples not traced)."""
+    ``shadow_skipped`` (samples not traced). ``prim`` (n,): the points' global triangles,
+    with which a group skips its own convex instance (:func:`own_clear`; ``skip_own``
+    counts the points it holds for)."""
     if not SHAFT_SKIP or keys is None or not isinstance(accel, BVHAccelerator):
         return None
     t0 = time.perf_counter()
@@ -110,6 +122,7 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     proven = np.zeros(n * L, np.bool_)
     if len(todo) == 0:
         return proven
+    inst = np.asarray(inst, np.int64)
     gk = np.asarray(keys, np.int64)[todo] * (len(sa.inst_mesh) + 1) + inst[todo]
     order = np.argsort(gk, kind="stable")
     gk = gk[order]
@@ -118,12 +131,17 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     geo = accel.sa  # the geometry the accelerator traces against
     lo, hi, chord = light_extents(sa)
     mag = float(geo.scene_extent + np.max(np.abs(geo.scene_aabb)))
-    _prove_groups(accel.sb, np.ascontiguousarray(geo.inst_xform, np.float64), sa,
+    xf = np.ascontiguousarray(geo.inst_xform, np.float64)
+    own = np.zeros(n, np.bool_)
+    if prim is not None:
+        own_clear(geo, xf, surf.Q, surf.NG, inst, np.asarray(prim, np.int64), todo, own)
+    _prove_groups(accel.sb, xf, sa,
                   np.ascontiguousarray(lo), np.ascontiguousarray(hi), chord,
                   np.ascontiguousarray(0.5 * (geo.scene_aabb[0] + geo.scene_aabb[1])),
                   float(geo.scene_extent), mag, surf.Q, surf.NG, surf.sh_state,
-                  members.astype(np.int64), gstart, proven)
+                  members.astype(np.int64), gstart, inst, own, proven)
     if counters is not None:
+        counters["skip_own"] = counters.get("skip_own", 0) + int(own.sum())
         counters["skip_rows"] = counters.get("skip_rows", 0) + int(soft.sum())
         counters["skip_rows_proven"] = counters.get("skip_rows_proven", 0) + int(
             proven.sum())
@@ -138,14 +156,16 @@ _ProofScene = view_type("_ProofScene", SceneArrays, (
 
 @njit(cache=True, nogil=True, parallel=True)
 def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_state,
-                  members, gstart, proven):
+                  members, gstart, inst, own, proven):
     """Per group ``g`` (points ``members[gstart[g]:gstart[g + 1]]``) and light with an
     extent: set ``proven`` (n L,) at the group's rows of the light when its shaft holds
     only harmless triangles (:func:`_shaft_clear`). ``sb``: the accelerator's
     :class:`~..accel.bvh.SceneBVH`, ``xf`` its instances' object-to-world transforms;
     ``llo``, ``lhi``, ``chord``: :func:`~..geometry.shaft_geometry.light_extents`;
     ``center``, ``extent``: the scene box's centre and diagonal; ``mag`` its coordinates'
-    magnitude (the shafts' slack)."""
+    magnitude (the shafts' slack); ``inst`` (n,) the points' instances, ``own`` (n,)
+    :func:`own_clear`'s answer: a group all of whose points sampling the light hold it
+    skips its own instance."""
     sa = _ProofScene(*fields(sa, _ProofScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
     for g in prange(gstart.shape[0] - 1):
@@ -165,6 +185,7 @@ def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_st
             if not sa.light_ext[j] or sa.light_kind[j] < 0:
                 continue
             cnt = 0
+            skip = inst[members[gstart[g]]]  # (every point of a group is on it)
             for k in range(3):
                 lo[k] = np.inf
                 hi[k] = -np.inf
@@ -173,6 +194,8 @@ def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_st
                 if sh_state[i * L + j] != SH_SOFT:
                     continue
                 cnt += 1
+                if not own[i]:
+                    skip = -1
                 for k in range(3):
                     lo[k] = min(lo[k], Q[i, k])
                     hi[k] = max(hi[k], Q[i, k])
@@ -190,8 +213,8 @@ def _prove_groups(sb, xf, sa, llo, lhi, chord, center, extent, mag, Q, NG, sh_st
             slack = tol.SHAFT_SLACK_REL * big
             npl = hw_shaft(lo, hi, blo, bhi, slack, pl, bb)
             if _shaft_clear(sb, xf, sa, j, pl, npl, bb, slack, lo, hi, extent, Q, NG,
-                            sh_state, members, gstart[g], gstart[g + 1], plo, bbo, P, S,
-                            stack, stack2):
+                            sh_state, members, gstart[g], gstart[g + 1], skip, plo, bbo, P,
+                            S, stack, stack2):
                 for a in range(gstart[g], gstart[g + 1]):
                     i = members[a]
                     if sh_state[i * L + j] == SH_SOFT:
@@ -208,11 +231,12 @@ def _lane_out(pl, npl, bb, bounds, node, c):
 
 @njit(cache=True, nogil=True)
 def _shaft_clear(sb, xf, sa, j, pl, npl, bb, slack, lo, hi, extent, Q, NG, sh_state,
-                 members, a0, a1, plo, bbo, P, S, stack, stack2):
+                 members, a0, a1, skip, plo, bbo, P, S, stack, stack2):
     """Is every triangle of the scene that meets the world shaft ``pl``, ``bb`` harmless
     to light ``j``'s samples from the group's points ``members[a0:a1]`` (box lo, hi)?
-    Walks the top level of ``sb`` and, per instance it meets, the mesh's tree with the
-    shaft taken to object space."""
+    Walks the top level of ``sb`` and, per instance it meets (but ``skip``, whose every
+    triangle :func:`own_clear` proved behind each point's plane), the mesh's tree with
+    the shaft taken to object space."""
     sp = 1
     stack[0] = 0
     while sp > 0:
@@ -229,6 +253,8 @@ def _shaft_clear(sb, xf, sa, j, pl, npl, bb, slack, lo, hi, extent, Q, NG, sh_st
             code = ~ch
             for q in range(code >> 3, (code >> 3) + (code & 7)):
                 inst = sb.top_inst[q]
+                if inst == skip:
+                    continue
                 to_object(xf[inst], sb.inst_inv[inst], pl, npl, bb, plo, bbo)
                 if not _mesh_clear(sb, xf[inst], sb.mesh_root[sb.inst_mesh[inst]], sa, j,
                                    plo, npl, bbo, slack, lo, hi, extent, Q, NG, sh_state,
@@ -327,8 +353,108 @@ def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state,
     return True
 
 
+def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
+    """Set ``out[i]`` (bool) for the points ``pts`` whose own instance (``inst``, hit on
+    global triangle ``prim``; shadow origin ``Q``, geometric normal ``NG``) lies wholly
+    behind the point's own plane, past the half offset :func:`_harmless` asks of each
+    of its triangles: every such triangle is harmless to the point, so a group of such
+    points need not test its own instance at all.
+
+    The proof: the instance's mesh holds a convexity certificate
+    (:func:`~.object_rays.convexity`, in its own space, kept per mesh): every vertex lies
+    at most ``tau`` in front of each triangle's plane, on the side the point's normal
+    takes (the winding's side, or the other one for a flat mesh seen from behind: a point
+    seen from inside a closed convex mesh has no certificate). Under the instance's
+    matrix (linear part ``A``, mirrored or not: the world normal follows the inverse
+    transpose) that distance grows to at most ``tau |A|``; the point's normal differs from
+    its triangle's world normal by a measured angle, over the instance's world diameter
+    ``2 r |A|``; the point lies in front of the triangle's plane by its offset. Their sum,
+    each term grown past its rounding (:data:`~.tolerances.CONVEX_ROUND_REL`), must stay
+    at least half the offset behind (:data:`~.tolerances.SKIP_SELF_MARGIN_FRAC`), as
+    :func:`_harmless`'s own test of each vertex asks: where it does, that test would have
+    passed for every triangle of the instance, so the proof proves the same rows and the
+    frames are unchanged bit for bit. ``geo``: the accelerator's geometry, ``xf`` its
+    instance matrices."""
+    start = np.asarray(geo.mesh_tri_start, np.int64)
+    inst_mesh = np.asarray(geo.inst_mesh, np.int64)
+    k = inst[pts]
+    worth = (k >= 0) & (np.diff(start)[inst_mesh[np.maximum(k, 0)]] >= OWN_MIN_TRIS)
+    pts, k = pts[worth], k[worth]
+    if len(pts) == 0:
+        return
+    n_mesh = len(start) - 1
+    cert = np.full((n_mesh, 3), np.inf)
+    ks = np.flatnonzero(np.bincount(k, minlength=len(inst_mesh)))
+    for m in np.flatnonzero(np.bincount(inst_mesh[ks], minlength=n_mesh)):
+        cert[m] = CONVEX.get(geo, int(m))
+    # each instance's largest stretch (its linear part's spectral norm, past rounding)
+    sig = np.full(len(xf), np.inf)
+    lin = xf[ks, :3, :3]
+    ok = np.isfinite(lin).all(axis=(1, 2))
+    if ok.any():
+        sig[ks[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
+                       * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
+    _own_kernel(geo.verts, geo.tris, xf, sig, start, inst_mesh, cert, Q, NG, inst, prim,
+                float(geo.scene_extent), np.asarray(pts, np.int64), out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _own_kernel(verts, tris, xf, sig, mesh_start, inst_mesh, cert, Q, NG, inst, prim,
+                extent, pts, out):
+    """:func:`own_clear`'s bound per point (``cert`` (M, 3): each mesh's certificate
+    ``out, inn, r``, infinite where it has none; ``sig`` (I,) a bound on each instance's
+    largest stretch)."""
+    for a in prange(pts.shape[0]):
+        i = pts[a]
+        k = inst[i]
+        t = prim[i]
+        out[i] = False
+        if k < 0:
+            continue
+        m = inst_mesh[k]
+        if t < mesh_start[m] or t >= mesh_start[m + 1]:
+            continue
+        M = xf[k]
+        det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+               - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+               + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+        ax, ay, az = _world(M, verts, tris, t, 0)
+        bx, by, bz = _world(M, verts, tris, t, 1)
+        cx, cy, cz = _world(M, verts, tris, t, 2)
+        e1x, e1y, e1z = bx - ax, by - ay, bz - az
+        e2x, e2y, e2z = cx - ax, cy - ay, cz - az
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if not (ln > 0.0 and det != 0.0 and math.isfinite(det)):
+            continue
+        f = (1.0 if det > 0.0 else -1.0) / ln  # outward by the winding, mirrored or not
+        nx, ny, nz = nx * f, ny * f, nz * f
+        gx, gy, gz = NG[i, 0], NG[i, 1], NG[i, 2]
+        if gx * nx + gy * ny + gz * nz > 0.0:
+            tau = cert[m, 0]
+        else:
+            tau = cert[m, 1]
+            nx, ny, nz = -nx, -ny, -nz
+        if not tau < np.inf:
+            continue
+        diam = 2.0 * cert[m, 2] * sig[k]
+        qx, qy, qz = Q[i, 0], Q[i, 1], Q[i, 2]
+        big = max(abs(ax), abs(ay), abs(az), abs(bx), abs(by), abs(bz), abs(cx), abs(cy),
+                  abs(cz), abs(qx), abs(qy), abs(qz))
+        l1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        l2 = math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
+        err_n = tol.CONVEX_ROUND_REL * (big * (l1 + l2) + l1 * l2) / ln
+        dn = math.sqrt((gx - nx) ** 2 + (gy - ny) ** 2 + (gz - nz) ** 2)
+        bound = (gx * (ax - qx) + gy * (ay - qy) + gz * (az - qz) + max(tau, 0.0) * sig[k]
+                 + (dn + err_n) * diam + 4.0 * tol.CONVEX_ROUND_REL * (big + diam))
+        out[i] = bound <= -tol.SKIP_SELF_MARGIN_FRAC * spawn_offset(qx, qy, qz, extent)
+
+
 def ball_rows(sa, accel, j: int, center, radius: float, surf, traced: np.ndarray,
-              inst: np.ndarray, keys: np.ndarray, counters: dict | None = None):
+              inst: np.ndarray, keys: np.ndarray, counters: dict | None = None,
+              prim: np.ndarray | None = None):
     """(n,) bool: the surface points ``surf`` (primary hits on instances ``inst``, grouped
     by tile ``keys``) that see *every* point of the ball (``center``, ``radius``) -- the
     proof above with hard light ``j`` (a point or spot: one shadow ray) taken as a sphere
@@ -337,7 +463,8 @@ def ball_rows(sa, accel, j: int, center, radius: float, surf, traced: np.ndarray
     segments lies in the group's shaft to the ball, and the harmless triangles' arguments
     (behind the point's own plane, which the ray leaves since the light faces the point;
     the point and the whole ball on one side of the triangle's plane) hold for every
-    position in it. None where nothing is tried (as :func:`proven_rows`)."""
+    position in it. None where nothing is tried (as :func:`proven_rows`; ``prim`` as
+    there)."""
     n = len(traced)
     ball = sa._replace(
         light_ext=np.ones(1, np.bool_),
@@ -346,5 +473,6 @@ def ball_rows(sa, accel, j: int, center, radius: float, surf, traced: np.ndarray
         **{f: getattr(sa, f)[j:j + 1] for f in ("light_kind", "light_dir", "light_half",
                                                "light_size", "light_u", "light_v")})
     state = np.where(traced, SH_SOFT, -2).astype(np.int8)
-    proven = proven_rows(ball, accel, surf._replace(sh_state=state), inst, keys, counters)
+    proven = proven_rows(ball, accel, surf._replace(sh_state=state), inst, keys, counters,
+                         prim)
     return None if proven is None else proven.reshape(n)

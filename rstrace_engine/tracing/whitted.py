@@ -491,7 +491,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if glossy_on and level > 0:
                 nseeds ^= front.tag
         if soft_on and own:
-            proven = (proven_rows(sa, accel, surf, hits.inst, skip_keys, counters)
+            proven = (proven_rows(sa, accel, surf, hits.inst, skip_keys, counters,
+                                  hits.prim)
                        if level == 0 else None)
             soft = soft_direct(sa, surf, nseeds, int(light_samples), vis,
                                _occluded_by(sa, accel), counters, occ, proven)

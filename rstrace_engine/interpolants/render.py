@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import heap
 from .. import tolerances as tol
 from ..frame import (
     CLASS_BACKGROUND,
@@ -251,6 +252,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     the rays need them (what the cache's own tests count).
     """
     settings = settings.validated()
+    heap.keep()  # a batch's arrays on pages already touched (heap.py: 0.80x -> 1.00x)
     if cache.epsilon <= 0.0:
         return _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     fb = cache.fallback if fallback else None

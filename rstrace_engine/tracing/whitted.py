@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import heap
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
 from ..frame import (
@@ -597,6 +598,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
     the traced pixels).
     """
     settings = (settings or RenderSettings()).validated()
+    heap.keep()  # a batch's arrays on pages already touched (heap.py)
     t_start = time.perf_counter()
     sa = scene.arrays()
     build_s = 0.0

@@ -517,6 +517,7 @@ def test_f12_world_edits_relight_in_interpolant_mode():
 
     sc = _scene(48, 36)
     sc.rstrace.mode = "INTERPOLANT"
+    sc.rstrace.interpolant_fallback = False  # cells, to test their relight (timed fallback off)
     world = b.set_world((0.2, 0.2, 0.24), lights=True)
     bg = world.node_tree.nodes["Background"]
     _f12()

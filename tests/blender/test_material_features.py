@@ -362,6 +362,9 @@ def test_interpolant_mode_keeps_its_bound_on_new_textures(case):
     base = b.render_exr()["Combined"][..., :3]
     sc.rstrace.mode = "INTERPOLANT"
     sc.rstrace.epsilon = eps = 0.02
+    # cells, to test them: where they do not pay (timed, so under load too) the fallback
+    # would trace the frame (test_interpolant_mode)
+    sc.rstrace.interpolant_fallback = False
     out = b.render_exr()["Combined"][..., :3]
     stats = _state().stats
     assert stats["mode"] == "INTERPOLANT" and stats["cells_built"] > 0, stats

@@ -195,6 +195,22 @@ def add_terms(cache, old_sa, sa, accel, slots) -> AddResult:
     scale = light_scale(sa)[list(slots)]  # (k, 3)
     rad = sm.radiance()
     new_rad = rad + np.einsum("nlc,lc->nc", share, scale)
+    ok = proven_cells(cache, sa, sm, live, good, list(slots), new_rad)
+    # the samples take the term (those of failed cells are dropped with them)
+    rad[:] = new_rad
+    kept = live[ok]
+    pool.rad[kept] = rad[pool.samples[kept]]
+    changed = kept[np.any(reach[pool.samples[kept]], axis=1)]
+    cache.totals["terms_added"] = cache.totals.get("terms_added", 0) + len(kept)
+    return AddResult(kept, changed, live[~ok], list(slots))
+
+
+def proven_cells(cache, sa, sm, live, good, slots, new_rad) -> np.ndarray:
+    """(len live,) bool: which live cells ``live`` keep their interpolant for the lights
+    ``slots`` of ``sa``: every sample and test line shaded ``good``, the predicate proven
+    for those lights (:func:`check_cells` over the samples' states in ``sm``) and the
+    radiance test passed on their new radiance ``new_rad``."""
+    pool = cache.pool
     cs = np.concatenate([pool.samples[live], pool.tests[live]], axis=1)
     nsamp = (16 + np.count_nonzero(pool.tests[live] >= 0, axis=1)).astype(np.int32)
     ok = (pool.tests[live, 0] >= 0) & np.all(good[np.maximum(cs, 0)] | (cs < 0), axis=1)
@@ -208,7 +224,7 @@ def add_terms(cache, old_sa, sa, accel, slots) -> AddResult:
         zlo = np.zeros(len(go))
         zhi = np.zeros(len(go))
         cls = np.zeros(len(go), np.int32)
-        check_cells(_query(cache, sa, list(slots)), cache.box, sm.view(),
+        check_cells(_query(cache, sa, slots), cache.box, sm.view(),
                     (tree // 6).astype(np.int32), (tree % 6).astype(np.int8),
                     a.depth[node].astype(np.int64), a.coord[node].astype(np.int64),
                     np.ascontiguousarray(cs[go]), nsamp[go], status, detail, zlo, zhi, cls)
@@ -219,13 +235,7 @@ def add_terms(cache, old_sa, sa, accel, slots) -> AddResult:
             lin = radiance_ok(new_rad, cs[go], nsamp[go], cache.epsilon, sm.texture_terms(),
                               cache.tex_max)
             ok[go[~lin]] = False
-    # the samples take the term (those of failed cells are dropped with them)
-    rad[:] = new_rad
-    kept = live[ok]
-    pool.rad[kept] = rad[pool.samples[kept]]
-    changed = kept[np.any(reach[pool.samples[kept]], axis=1)]
-    cache.totals["terms_added"] = cache.totals.get("terms_added", 0) + len(kept)
-    return AddResult(kept, changed, live[~ok], list(slots))
+    return ok
 
 
 def _widen(sm, occ, share) -> None:

@@ -35,8 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .added_light import _query, _ramp, _shade_samples
-from .predicate import VALID, check_cells, radiance_ok
+from .added_light import _ramp, _shade_samples, proven_cells
 from .relight import _row_equal, light_scale
 
 #: per-light arrays a moved light may change (the rest must be equal, :func:`movable_lights`)
@@ -102,36 +101,13 @@ def move_terms(cache, old_sa, sa, accel, slots) -> MoveResult:
              - np.einsum("nlc,lc->nc", old_share[:, slots], light_scale(old_sa)[slots]))
     delta[~good] = 0.0
     new_rad = rad + delta
-    cs = np.concatenate([pool.samples[live], pool.tests[live]], axis=1)
-    nsamp = (16 + np.count_nonzero(pool.tests[live] >= 0, axis=1)).astype(np.int32)
-    ok = (pool.tests[live, 0] >= 0) & np.all(good[np.maximum(cs, 0)] | (cs < 0), axis=1)
     # the samples take the moved lights' new states and shares (the proof reads the states)
     g = np.flatnonzero(good)
     cnt = sm._ncount[g].astype(np.int64)
     rows = np.repeat(sm._nstart[g], cnt) + _ramp(cnt)
     sm._nocc[rows[:, None], np.asarray(slots)[None, :]] = occ[rows]
     sm._share[g[:, None], np.asarray(slots)[None, :]] = share[g]
-    go = np.flatnonzero(ok)
-    if len(go):
-        a = cache.trees.arrays
-        node = pool.node[live[go]]
-        tree = a.tree[node].astype(np.int64)
-        status = np.empty(len(go), np.int32)
-        detail = np.empty(len(go), np.int8)
-        z = np.zeros(len(go))
-        cls = np.zeros(len(go), np.int32)
-        check_cells(_query(cache, sa, slots), cache.box, sm.view(),
-                    (tree // 6).astype(np.int32), (tree % 6).astype(np.int8),
-                    a.depth[node].astype(np.int64), a.coord[node].astype(np.int64),
-                    np.ascontiguousarray(cs[go]), nsamp[go], status, detail, z, z.copy(),
-                    cls)
-        valid = status == VALID
-        ok[go[~valid]] = False
-        go = go[valid]
-        if len(go):
-            lin = radiance_ok(new_rad, cs[go], nsamp[go], cache.epsilon, sm.texture_terms(),
-                              cache.tex_max)
-            ok[go[~lin]] = False
+    ok = proven_cells(cache, sa, sm, live, good, slots, new_rad)
     rad[:] = new_rad  # (the samples of failed cells are dropped with them)
     kept = live[ok]
     pool.rad[kept] = rad[pool.samples[kept]]

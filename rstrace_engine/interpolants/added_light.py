@@ -43,15 +43,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..frame import LIGHT_SAMPLES_DEFAULT
 from ..tracing.light_reshade import _one_light
+from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import trace
 from .line_samples import _unpack, front_hits
 from .linetree import lattice_lines
 from .predicate import VALID, check_cells, radiance_ok
 from .relight import light_scale, light_shares
-from .sampled_term import sampled_possible
-from .samples import glossy_flags
-from .shafts import closed_forms, cone_bounds, glossy_materials, light_extents
+from .sampled_term import sampled_possible, sampled_term
+from .samples import glossy_flags, textured_roots
+from .shafts import glossy_materials, light_extents, light_fields
 from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, tunnel_sections
 
 
@@ -98,25 +100,16 @@ def _only(sa, slots):
 def _query(cache, sa, slots):
     """The cache's predicate structures with ``sa``'s lights, all but ``slots`` off (their
     kind ``-1``, skipped by the light tests)."""
-    qs = cache.qs  # (the old packing's: the geometry is the same)
-    lo, hi, chord = light_extents(sa)
-    co, ci = cone_bounds(sa)
+    qs = cache.qs  # (the geometry is the same: a batch of light and world edits)
     kind = np.full(len(sa.light_kind), -1, np.int32)
     kind[slots] = np.asarray(sa.light_kind, np.int32)[slots]
-    ext = np.ascontiguousarray(sa.light_ext, np.bool_)
-    sampled = sampled_possible(sa)
-    return qs._replace(
-        light_kind=kind, light_pos=np.ascontiguousarray(sa.light_pos).reshape(-1, 3),
-        light_dir=np.ascontiguousarray(sa.light_dir).reshape(-1, 3), light_cos_outer=co,
-        light_cos_inner=ci, world_light=bool(np.any(np.asarray(sa.world_light) > 0.0)),
-        light_ext=ext, light_lo=lo, light_hi=hi, light_chord=chord,
-        light_radius=np.ascontiguousarray(sa.light_radius, np.float64),
-        light_half=np.ascontiguousarray(sa.light_half, np.float64),
-        light_u=np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
-        light_v=np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
-        light_size=np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-        light_closed=ext.copy() if sampled else closed_forms(sa),
-        mat_glossy=np.zeros_like(qs.mat_glossy) if sampled else glossy_materials(sa))
+    f = light_fields(sa)
+    f["light_kind"] = kind
+    if sampled_possible(sa):  # (as :attr:`~.interpolant_cache.InterpolantCache.qs`)
+        f.update(light_closed=f["light_ext"].copy(), mat_glossy=np.zeros_like(qs.mat_glossy))
+    else:
+        f.update(mat_glossy=glossy_materials(sa))
+    return qs._replace(**f)
 
 
 def _shade_samples(cache, sa, accel, slots):
@@ -145,6 +138,8 @@ def _shade_samples(cache, sa, accel, slots):
                   segments=segs, terms=True)
     share = light_shares(segs, n, k)
     good = hits.inst == sm._inst[:n]
+    if sampled_possible(one):  # a light with an extent: its sampled term is per pixel
+        good &= _without_sampled(cache, one, accel, o, d, hits, share)
     order = np.argsort(tree.node_ray, kind="stable")
     count = np.bincount(tree.node_ray, minlength=n)[:n]
     good &= count == sm._ncount[:n]
@@ -161,6 +156,27 @@ def _shade_samples(cache, sa, accel, slots):
     occ[rows_old] = tree.node_occluder[rows_new].reshape(-1, k)
     good &= glossy_flags(one, tree, n) == 0  # a rough interface lit from its far side
     return occ, share, good
+
+
+def _without_sampled(cache, one, accel, o, d, hits, share) -> np.ndarray:
+    """Take the sampled terms (:mod:`.sampled_term`) of the lights of ``one`` (the packing
+    with those lights alone) off the shares ``share`` (n, k, 3) of lines ``o, d`` with root
+    ``hits``, as :func:`~.sampled_term.without_sampled` takes them off a new sample's:
+    interpolants hold the closed-form part, every pixel adds its own sampled term. Returns
+    (n,) bool: False where a textured root has a sampled term (its texture split traced
+    other samples: :data:`~.samples.TEX_MISMATCH`)."""
+    n = len(o)
+    coef = np.zeros(share.shape)
+    sampled_term(one, accel, o, d, 1.0, hits, sample_seeds(np.arange(n, dtype=np.int64), 0),
+                 LIGHT_SAMPLES_DEFAULT, cache.max_depth, proven=True, coefficient=coef)
+    share -= coef
+    has = np.any(coef != 0.0, axis=(1, 2))
+    if not has.any():
+        return np.ones(n, np.bool_)
+    tex_root = np.zeros(n, np.bool_)
+    textured_roots(one, np.ascontiguousarray(hits.inst, np.int32),
+                   np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
+    return ~(has & tex_root)
 
 
 def _ramp(cnt):

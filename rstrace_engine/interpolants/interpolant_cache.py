@@ -92,7 +92,7 @@ from .samples import (
     SampleStore,
     TextureApplier,
 )
-from .shafts import query_scene
+from .shafts import light_fields, lights_only, query_scene
 from .walk import group_active, settle, walk_level
 
 log = logging.getLogger(__name__)
@@ -279,10 +279,15 @@ class InterpolantCache:
         (:mod:`.sampled_term`), a fully visible light needs no closed form and no
         Lambertian surface over a cell: only the horizon conditions of
         :func:`.soft_slab.soft_slab` (its closed form's, when it has one). Kept for the last
-        packing (as its topology): a new cache of the same scene does not build them again."""
+        packing (as its topology): a new cache of the same scene does not build them again;
+        a packing that differs from it in its lights and world alone takes its geometry's
+        (:func:`.shafts.lights_only`: a light edit does not build them again either)."""
         memo = _QS_LAST[0]
         if memo is None or memo[0] is not self.sa:
-            memo = (self.sa, query_scene(self.sa, self.topo))
+            if memo is not None and lights_only(memo[0], self.sa):
+                memo = (self.sa, memo[1]._replace(**light_fields(self.sa)))
+            else:
+                memo = (self.sa, query_scene(self.sa, self.topo))
             _QS_LAST[0] = memo
         qs = memo[1]
         if sampled_possible(self.sa):

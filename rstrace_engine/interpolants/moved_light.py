@@ -35,12 +35,15 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..tracing.seen_lights import SEEN_GLOSSY, SEEN_TRANSMISSION, any_seen
 from .added_light import _ramp, _shade_samples, proven_cells
 from .relight import _row_equal, light_scale
 
-#: per-light arrays a moved light may change (the rest must be equal, :func:`movable_lights`)
-_MOVES = ("light_pos", "light_dir", "light_cos_outer", "light_cos_inner", "light_intensity",
-          "light_radiance", "light_spot_scaled", "light_spot_frame")
+#: per-light arrays that must be equal for a light's change to be a move
+#: (:func:`movable_lights`): its kind, what it reaches (ray visibility, light and shadow
+#: linking); everything else -- place, direction, cone, intensity, its extent's size and
+#: shape -- is its new term, shaded again
+_KEEPS = ("light_kind", "light_vis", "light_recv", "light_block")
 
 
 class MoveResult(NamedTuple):
@@ -56,23 +59,25 @@ class MoveResult(NamedTuple):
 def movable_lights(cache, old_sa, sa, fx) -> list[int]:
     """The slots of ``fx.lights_moved`` that :func:`move_terms` can take: a batch of light
     and world edits only, the same light slots, the samples keeping their shares, and each
-    light hard before and after, of the same kind, with the same linking and visibility
-    (only its place, direction, cone, shape of the cone and intensity changed)."""
+    light of the same kind before and after, with the same linking and visibility (its
+    place, direction, cone, intensity, and its extent -- a sphere's radius, an area
+    light's size or shape, a sun's angle -- may change)."""
     L = len(sa.light_kind)
     if (not fx.lights_moved or len(old_sa.light_kind) != L or not cache.light_terms
             or not cache.samples.shares_on):
         return []
     if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
         return []
-    same = [f for f in sa._fields if f.startswith("light_") and f not in _MOVES]
+    seen = (SEEN_GLOSSY, SEEN_TRANSMISSION)
+    if any_seen(sa, seen) and not any_seen(old_sa, seen):
+        # a light's surface newly seen by mirror or refraction rays: the samples were not
+        # flagged for it (:func:`~.samples.seen_flags`)
+        return []
     out = []
     for j in sorted(int(j) for j in fx.lights_moved):
         if not 0 <= j < L or int(old_sa.light_kind[j]) < 0 or int(sa.light_kind[j]) < 0:
             continue
-        if bool(np.asarray(old_sa.light_ext, bool)[j]) or bool(np.asarray(sa.light_ext,
-                                                                           bool)[j]):
-            continue
-        if not all(_row_equal(getattr(old_sa, f), getattr(sa, f), j) for f in same):
+        if not all(_row_equal(getattr(old_sa, f), getattr(sa, f), j) for f in _KEEPS):
             continue
         if np.all(np.isfinite(light_scale(sa)[j])):
             out.append(j)

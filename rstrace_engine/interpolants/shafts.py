@@ -148,25 +148,44 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
                       np.ascontiguousarray(np.concatenate(tvs), np.int32),
                       np.concatenate(tris).astype(np.int32), np.array(roots, np.int32),
                       np.ascontiguousarray(sa.inst_mesh, np.int32), sa.inst_xform, sa.inst_inv,
-                      topo.tri_class, topo.tri_boundary, sa.light_kind,
-                      sa.light_pos.reshape(-1, 3), sa.light_dir.reshape(-1, 3),
-                      0.5 * (lo_s + hi_s), float(sa.scene_extent), tol.SHAFT_SLACK_REL * mag,
-                      *cone_bounds(sa),
-                      np.ascontiguousarray(topo.mesh_convex, np.bool_),
-                      bool(np.any(np.asarray(sa.world_light) > 0.0)),
-                      np.ascontiguousarray(sa.light_ext, np.bool_),
-                      *light_extents(sa),
-                      np.ascontiguousarray(sa.light_radius, np.float64),
-                      np.ascontiguousarray(sa.light_half, np.float64),
-                      np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
-                      np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
-                      np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
-                      closed_forms(sa), sa.normals, sa.mesh_nrm, sa.verts, sa.tris,
-                      np.ascontiguousarray(sa.inst_nmat, np.float64),
-                      np.ascontiguousarray(sa.inst_mat_start, np.int32),
-                      np.ascontiguousarray(sa.inst_mat, np.int32),
-                      np.ascontiguousarray(sa.tri_slot, np.int32), sa.mesh_slot,
-                      glossy_materials(sa))
+                      topo.tri_class, topo.tri_boundary, **light_fields(sa),
+                      scene_center=0.5 * (lo_s + hi_s), extent=float(sa.scene_extent),
+                      slack=tol.SHAFT_SLACK_REL * mag,
+                      mesh_convex=np.ascontiguousarray(topo.mesh_convex, np.bool_),
+                      normals=sa.normals, mesh_nrm=sa.mesh_nrm, verts=sa.verts, tris=sa.tris,
+                      inst_nmat=np.ascontiguousarray(sa.inst_nmat, np.float64),
+                      inst_mat_start=np.ascontiguousarray(sa.inst_mat_start, np.int32),
+                      inst_mat=np.ascontiguousarray(sa.inst_mat, np.int32),
+                      tri_slot=np.ascontiguousarray(sa.tri_slot, np.int32),
+                      mesh_slot=sa.mesh_slot, mat_glossy=glossy_materials(sa))
+
+
+def lights_only(old: SceneArrays, new: SceneArrays) -> bool:
+    """Whether packings ``old`` and ``new`` differ in their lights and world alone: every
+    other field the same object (a light or world edit repacks those alone,
+    :meth:`~..geometry.scene.Scene.repack_lights`; packed arrays are never modified), so
+    their :class:`QueryScene` differ in :func:`light_fields` alone."""
+    return all(getattr(old, f) is getattr(new, f) for f in old._fields
+               if not f.startswith(("light_", "world_")))
+
+
+def light_fields(sa: SceneArrays) -> dict:
+    """The fields of :class:`QueryScene` that ``sa``'s lights and world make (the rest are
+    its geometry's and materials': a light or world edit changes these alone,
+    :meth:`~.interpolant_cache.InterpolantCache.qs`)."""
+    co, ci = cone_bounds(sa)
+    lo, hi, chord = light_extents(sa)
+    return dict(light_kind=sa.light_kind, light_pos=sa.light_pos.reshape(-1, 3),
+                light_dir=sa.light_dir.reshape(-1, 3), light_cos_outer=co,
+                light_cos_inner=ci, world_light=bool(np.any(np.asarray(sa.world_light) > 0.0)),
+                light_ext=np.ascontiguousarray(sa.light_ext, np.bool_), light_lo=lo,
+                light_hi=hi, light_chord=chord,
+                light_radius=np.ascontiguousarray(sa.light_radius, np.float64),
+                light_half=np.ascontiguousarray(sa.light_half, np.float64),
+                light_u=np.ascontiguousarray(sa.light_u, np.float64).reshape(-1, 3),
+                light_v=np.ascontiguousarray(sa.light_v, np.float64).reshape(-1, 3),
+                light_size=np.ascontiguousarray(sa.light_size, np.float64).reshape(-1, 2),
+                light_closed=closed_forms(sa))
 
 
 def closed_forms(sa: SceneArrays) -> np.ndarray:

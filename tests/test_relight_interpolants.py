@@ -197,9 +197,8 @@ def test_shares_over_the_cap_fall_back_to_invalidation(cap_mb):
 
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_a_moved_light_invalidates_by_its_shafts_and_relights_the_traced_pixels(name):
-    """A moved (or resized) light: the interpolants its shafts reach are invalidated, as
-    before, none rescaled -- a light with an extent; a hard one keeps the cells its new
-    place is proven on (``test_relight_interpolants_move.py``); the frame's traced samples
+    """A moved (or resized) light keeps the cells its new place is proven on, the others
+    are invalidated (``test_relight_interpolants_move.py``); the frame's traced samples
     shade that light again alone (as BASE's, ``light_reshade``), so their pixels are relit,
     not traced again -- a fresh BASE frame's bit for bit -- and the frame keeps the bound.
     A session without the records re-traces them."""
@@ -216,10 +215,8 @@ def test_a_moved_light_invalidates_by_its_shafts_and_relights_the_traced_pixels(
                 li, position=tuple(np.asarray(li.position) + offset)))])
         rep, rep_old = new.apply(batch[0]), old.apply(batch[1])
         assert rep.relight and not rep_old.relight
-        if new.scene.arrays().light_ext[new.scene.light_slot(key)]:
-            assert rep.rescaled_interpolants == 0 and rep.invalidated_interpolants > 0
-        else:  # (a hard light: kept with its new term where it is proven)
-            assert rep.rescaled_interpolants > 0
+        # (kept with its new term where it is proven, a light with an extent too)
+        assert rep.rescaled_interpolants > 0
         assert rep.dirty_pixels < rep_old.dirty_pixels
         frame, frame_old = new.render(), old.render()
         assert frame.stats["relit"]

@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from bound_scenes import soft_sun
 from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse fixture)
     EPS,
     SCENES,
@@ -24,25 +25,34 @@ from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse
     edit,
     session,
 )
-from test_relight_interpolants_terms import _compare
+from test_relight_interpolants_terms import _compare, _run
 
-from rstrace_engine.bench.soak import SOAK_SCENES
+from rstrace_engine.bench.soak import SOAK_SCENES, soft_room_unlit_world
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry.edits import LightSet
+from rstrace_engine.geometry.scene import Light
 from rstrace_engine.interpolants import invalidation
 from rstrace_engine.interpolants.invalidation import _members, affected
 from rstrace_engine.interpolants.membership import _entry_keys
 from rstrace_engine.interpolants.predicate import radiance_ok
 from rstrace_engine.session import Session
+from rstrace_engine.tracing.soft_lights import OCC_SOFT
 
 MOVABLE = invalidation.movable_lights
+MOVE_TERMS = invalidation.move_terms
 
 
 def _room():
     return SOAK_SCENES["room"](96, 72)
 
 
-MAKE = {"spheres": SCENES["spheres"][0], "room": _room}
+def _soft_room():
+    return soft_room_unlit_world(96, 72)
+
+
+MAKE = {"spheres": SCENES["spheres"][0], "room": _room,
+        "soft_penumbra": SCENES["soft_penumbra"][0], "soft_room": _soft_room,
+        "soft_sun": lambda: soft_sun("PERSP")}
 
 
 def _moved(sess: Session, key: str, step: str) -> list:
@@ -55,6 +65,14 @@ def _moved(sess: Session, key: str, step: str) -> list:
         new = replace(li, direction=tuple(np.asarray(li.direction) + (0.15, -0.1, 0.0)))
     elif step == "cone":
         new = replace(li, spot_size=0.8 * li.spot_size)
+    elif step == "lift":  # (a sphere light close to the floor: up, away from its horizon)
+        new = replace(li, position=tuple(np.asarray(li.position) + (0.3, 0.2, 0.3)))
+    elif step == "size":  # an area light resized
+        new = replace(li, size=(1.3 * li.size[0], 1.15 * li.size[1]))
+    elif step == "radius":  # a sphere light resized
+        new = replace(li, radius=0.7 * li.radius)
+    elif step == "angle":  # a sun's angle
+        new = replace(li, angle=1.5 * li.angle)
     else:  # "sun"
         new = replace(li, direction=tuple(np.asarray(li.direction) + (0.1, 0.05, 0.0)))
     return [LightSet(key, new)]
@@ -90,9 +108,15 @@ def _live_entries(index, pool) -> int:
 
 CASES = [("spheres", "Key", "move"), ("room", "Lamp", "move"), ("room", "Spot", "rotate"),
          ("room", "Spot", "cone"), ("room", "Sun", "sun")]
+#: lights with an extent: moved, resized (their sampled terms per pixel, their proof the
+#: soft-light shaft to the whole extent)
+SOFT_CASES = [("soft_penumbra", "Area", "move"), ("soft_penumbra", "Area", "size"),
+              ("soft_penumbra", "Near", "lift"), ("soft_penumbra", "Near", "radius"),
+              ("soft_room", "Lamp", "move"), ("soft_room", "Sun", "angle"),
+              ("soft_room", "Sun", "sun"), ("soft_room", "Area", "size")]
 
 
-@pytest.mark.parametrize(("name", "key", "step"), CASES)
+@pytest.mark.parametrize(("name", "key", "step"), CASES + SOFT_CASES)
 def test_a_moved_light_keeps_the_cells_it_is_proven_on(monkeypatch, name, key, step):
     """The same edit with and without the move path (``movable_lights`` switched off: the
     old code's invalidation): fewer cells invalidated and built, fewer pixels rendered;
@@ -160,10 +184,10 @@ def test_a_moved_light_keeps_the_cells_it_is_proven_on(monkeypatch, name, key, s
                 == _live_entries(getattr(ref, idx), p))
     # an object put in the moved light's new shaft from a lit kept cell finds it
     j = new.scene.light_slot(key)
-    if step == "move":
+    if step in ("move", "lift"):
         for q in live:
             s0 = p.samples[q, 0]
-            if sm._nocc[sm._nstart[s0], j] != -1:  # (lit at its root)
+            if sm._nocc[sm._nstart[s0], j] not in (-1, OCC_SOFT):  # (lit at its root)
                 continue
             root = sm._npoint[sm._nstart[s0]]
             mid = 0.5 * (root + np.asarray(new.scene.arrays().light_pos[j]))
@@ -174,12 +198,16 @@ def test_a_moved_light_keeps_the_cells_it_is_proven_on(monkeypatch, name, key, s
             pytest.fail("no kept cell lit by the moved light")
 
 
-@pytest.mark.parametrize(("name", "key", "step"), [CASES[0], CASES[1], CASES[4]])
+@pytest.mark.parametrize(("name", "key", "step"), [
+    CASES[0], CASES[1], CASES[4], SOFT_CASES[0], SOFT_CASES[4], ("soft_sun", "Soft", "move")])
 def test_moved_light_pixels_take_the_term(monkeypatch, name, key, step):
     """The kept cells' pixels take the difference of their corners: the frame equals the
     one that renders them again from the same cells (``term_edit`` off), to float32
     rounding, and renders fewer pixels. (The room's spot, turned or re-coned, changes no
-    kept cell's corners: the cells it lights fail on its cone's edge or were traced.)"""
+    kept cell's corners: the cells it lights fail on its cone's edge or were traced.) A
+    light with an extent: the pixels of kept cells on a glossy root (soft_sun's ball: the
+    light's highlight, its sampled term, is per pixel) are rendered again -- taking the
+    corners' term alone, they would keep the old highlight and differ from that frame."""
     def steps(sess):
         return [[_moved(sess, key, step)]]
 
@@ -220,3 +248,41 @@ def test_a_light_dragged_and_relit_in_batches(monkeypatch):
         np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=1e-6, atol=1e-6)
     assert all(f.stats["term_pixels"] > 0 for f in new)
     assert sess.interpolants.cache.totals["terms_moved"] > 0
+
+
+def _spot_penumbra():
+    """The soft penumbra with a spot with a radius over the floor: a light without a closed
+    form (its whole term is sampled, per pixel, :mod:`~rstrace_engine.interpolants.
+    sampled_term`)."""
+    s = MAKE["soft_penumbra"]()
+    s.add_light(Light("Cone", "SPOT", power=300.0, position=(1.2, 0.5, 2.5),
+                      direction=(0.0, 0.0, -1.0), spot_size=1.0, radius=0.15))
+    return s
+
+
+def test_a_moved_light_without_a_closed_form_renders_its_cells_pixels(monkeypatch):
+    """A spot with a radius moved: the cells its new place is proven on (fully visible over
+    them) are kept, but its term at their pixels is sampled per pixel (none of it is in the
+    corners): those pixels are rendered again, not given the corners' difference -- given
+    it, they would keep the spot's old light (the frame out of the bound). Each frame
+    within the bound, equal to the one that renders every kept cell's pixels again."""
+    kept = []
+
+    def move_terms(*a):
+        r = MOVE_TERMS(*a)
+        kept.append(len(r.kept))
+        return r
+
+    monkeypatch.setattr(invalidation, "move_terms", move_terms)
+
+    def steps(sess):  # (each move from where the last one left the spot)
+        for _ in range(2):
+            yield [_moved(sess, "Cone", "move")]
+
+    new = _run(monkeypatch, _spot_penumbra, steps, False)
+    assert len(kept) == 2 and min(kept) > 0
+    old = _run(monkeypatch, _spot_penumbra, steps, True)
+    for (d_new, f_new), (d_old, f_old) in zip(new, old, strict=True):
+        assert f_new.stats["term_pixels"] == 0
+        np.testing.assert_array_equal(d_new, d_old)
+        np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=1e-6, atol=1e-6)

@@ -29,10 +29,11 @@ spot or sun without an angle):
   lights from its far side, a cell whose test lines were not kept (built before the
   session kept light terms).
 
-A light with an extent (its sampled term is traced per pixel, :mod:`.sampled_term`, and
-its proof needs the slab's soft-light flags) invalidates every interpolant; the cache is
-kept all the same (its failed cells, linetrees), and the frame's traced pixels are relit
-as BASE's. Only batches that edit lights and the world take this path
+An added light with an extent invalidates every interpolant (its sampled term is traced
+per pixel, :mod:`.sampled_term`; a moved one is proven as above, :mod:`.moved_light`,
+with :func:`_shade_samples` taking its sampled term off the shares); the cache is kept
+all the same (its failed cells, linetrees), and the frame's traced pixels are relit as
+BASE's. Only batches that edit lights and the world take this path
 (:func:`can_add`); any other edit with a new light slot starts a new cache as before.
 """
 

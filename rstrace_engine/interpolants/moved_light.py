@@ -1,32 +1,37 @@
 """A moved light is its old term dropped and its new one added, where the new one is proven.
 
-Issue 21, item 3 in INTERPOLANT mode. A hard light (a point, a spot, a sun without an angle)
-moved, turned or re-coned in its slot ``j`` used to invalidate every interpolant with a
-state for it (its ``LIGHT_SHADES`` / ``LIGHT_OCCLUDED`` membership: every cell with a hit),
-so every interpolated pixel was built or traced again. Now, in a batch of light and world
-edits (:func:`movable_lights`), the move is taken as a deletion of the old light and an
-addition of the new one (:mod:`.added_light`):
+Issue 21, item 3 in INTERPOLANT mode. A light moved, turned, re-coned or resized in its
+slot ``j`` used to invalidate every interpolant with a state for it (its ``LIGHT_SHADES``
+/ ``LIGHT_OCCLUDED`` membership: every cell with a hit), so every interpolated pixel was
+built or traced again. Now, in a batch of light and world edits (:func:`movable_lights`),
+the move is taken as a deletion of the old light and an addition of the new one
+(:mod:`.added_light`):
 
 * every kept sample (corners and test lines of the live cells) is shaded again with the
   moved light alone (:func:`~.added_light._shade_samples`: the same tree, the light's new
-  state per node and share ``S'_j``); its ``R`` becomes ``R - S_j I_j + S'_j I'_j`` (the
-  old share kept by the samples, :mod:`.relight`);
+  state per node and share ``S'_j``; for a light with an extent, its sampled term taken
+  off the share as a new sample's is, :mod:`.sampled_term`); its ``R`` becomes
+  ``R - S_j I_j + S'_j I'_j`` (the old share kept by the samples, :mod:`.relight`);
 * every live cell is checked for the light in its new place as a fresh build checks it
-  (:func:`~.predicate.check_cells` with the other lights off), then the radiance test on
-  the new ``R``;
+  (:func:`~.predicate.check_cells` with the other lights off: for a light with an extent
+  the soft-light proof, its shaft to the whole new extent clear and the closed form's
+  horizon conditions over the slab -- or a sun's umbra), then the radiance test on the
+  new ``R``;
 * a cell that passes keeps its interpolant with the new corners; the tunnel sections and
   membership entries it recorded for the old light are dropped and the new ones recorded
   (:func:`renew_dependencies`: its entries die with its old serial, and all of them are
   recorded again under a new one, as a build records them); its pixels take the
-  difference of the corners (:mod:`.term_pixels`);
+  difference of the corners (:mod:`.term_pixels`) -- but where the light, before or
+  after, is sampled per pixel at the cell's root (a glossy lobe under a light with an
+  extent, a light without a closed form): those pixels are rendered again;
 * a cell that fails is invalidated (rebuilt by the next frame that needs it), as is one with
   a sample that keeps no shares (a textured root, over the share cap, built before the
   session kept them), whose tree changed, or that the light now lights from behind at a
   rough interface.
 
-A light with an extent before or after, a changed kind, light or shadow linking or ray
-visibility, or a batch that also edits objects, materials or meshes or adds lights: the
-invalidation path as before.
+A changed kind, light or shadow linking or ray visibility, a light newly seen by mirror or
+refraction rays, or a batch that also edits objects, materials or meshes or adds lights:
+the invalidation path as before.
 """
 
 from __future__ import annotations

@@ -359,7 +359,7 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
     keep theirs. The number of light slots may grow only by lights added in a batch of
     light and world edits (:func:`.added_light.can_add`: their terms are added where they
     are proven, :func:`.added_light.add_terms`); any other change of it starts a new cache
-    (:class:`~.render.InterpolantRenderer`; the ray trees record a state per light). Hard
+    (:class:`~.render.InterpolantRenderer`; the ray trees record a state per light). The
     lights moved in a batch of light and world edits keep the cells their new place is
     proven on (:mod:`.moved_light`).
     """
@@ -373,8 +373,8 @@ def take_edits(cache, fx, sa, accel) -> Invalidation:
         # lights added into new slots: one term more where it is proven (added_light.py)
         slots = list(range(len(old.light_kind), len(sa.light_kind)))
         added = add_terms(cache, old, sa, accel, slots)
-    # hard lights moved (not in a batch that adds lights): the old term dropped, the new
-    # one added where it is proven (moved_light.py)
+    # lights moved or resized (not in a batch that adds lights): the old term dropped, the
+    # new one added where it is proven (moved_light.py)
     moved = [] if slots else movable_lights(cache, old, sa, fx)
     mv = move_terms(cache, old, sa, accel, moved) if moved else None
     if fx.scene_content_changed:

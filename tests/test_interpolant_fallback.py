@@ -389,3 +389,21 @@ def test_a_chunk_is_sized_by_the_walk_not_the_builds():
     assert abs(b.chunk(10 ** 6) - 16384) <= 1 and not b.cut
     b.spent += 0.004  # spent: the rest of the pass is traced
     assert b.chunk(10 ** 6) == 0 and b.cut
+
+
+def test_builds_within_a_chunk_see_its_walk_so_far(monkeypatch):
+    """A chunk's line coordinates and walk count against the budget while it builds (a
+    first frame's first chunk built 20-33 cells on a walk that had spent its allowance)."""
+    now = [0.0]
+    monkeypatch.setattr(fallback, "CLOCK", lambda: now[0])
+    b = Budget(rays=10 ** 6, ray_s=1e-6)  # a limit of ALLOWANCE seconds
+    b.open()
+    now[0] = 0.5 * fallback.ALLOWANCE  # half of it walked: half left, cells may be built
+    assert b.left() == pytest.approx(0.5 * fallback.ALLOWANCE) and b.may_build(0)
+    now[0] = 0.75 * fallback.ALLOWANCE  # a build took a quarter (charged: not counted twice)
+    b.charge(0.25 * fallback.ALLOWANCE, 4)
+    assert b.left() == pytest.approx(0.25 * fallback.ALLOWANCE)
+    now[0] = 1.5 * fallback.ALLOWANCE  # the walk went on past the allowance: no more cells
+    assert not b.may_build(0) and b.batch(64, 0) == 0
+    b.close()  # (the chunk then books its time itself)
+    assert b.left() == pytest.approx(0.75 * fallback.ALLOWANCE)

@@ -509,9 +509,13 @@ class _Run:
                 skipped = (hits.inst >= 0) & self.traced_now[np.maximum(hits.inst, 0)]
                 skipped = skipped if skipped.any() else None
             walk_inst = hits.inst if skipped is None else np.where(skipped, -1, hits.inst)
+            if budget is not None:  # the builds see the walk so far (fallback.Budget.open)
+                budget.open()
             face, abcd, zp, clsp = cache.pixel_lines(hits, o, d)
             cache.resolve(walk_inst, face, abcd, zp, clsp, cancel=cancel, hits=hits, pre=res,
                           budget=budget, finish=False)
+            if budget is not None:
+                budget.close()
             self.fs = _add_stats(self.fs, cache.frame_stats)
             if skipped is not None:  # traced, not background
                 res.pixel_class[skipped] = CLASS_TRACED

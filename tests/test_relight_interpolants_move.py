@@ -30,11 +30,13 @@ from test_relight_interpolants_terms import _compare, _run
 from rstrace_engine.bench.soak import SOAK_SCENES, soft_room_unlit_world
 from rstrace_engine.frame import CLASS_INTERPOLATED, RenderSettings
 from rstrace_engine.geometry.edits import LightSet
-from rstrace_engine.geometry.scene import Light
+from rstrace_engine.geometry.scene import Light, Material
 from rstrace_engine.interpolants import invalidation
 from rstrace_engine.interpolants.invalidation import _members, affected
 from rstrace_engine.interpolants.membership import _entry_keys
 from rstrace_engine.interpolants.predicate import radiance_ok
+from rstrace_engine.interpolants.samples import hit_materials
+from rstrace_engine.interpolants.shafts import glossy_materials
 from rstrace_engine.session import Session
 from rstrace_engine.tracing.soft_lights import OCC_SOFT
 
@@ -205,9 +207,9 @@ def test_moved_light_pixels_take_the_term(monkeypatch, name, key, step):
     one that renders them again from the same cells (``term_edit`` off), to float32
     rounding, and renders fewer pixels. (The room's spot, turned or re-coned, changes no
     kept cell's corners: the cells it lights fail on its cone's edge or were traced.) A
-    light with an extent: the pixels of kept cells on a glossy root (soft_sun's ball: the
-    light's highlight, its sampled term, is per pixel) are rendered again -- taking the
-    corners' term alone, they would keep the old highlight and differ from that frame."""
+    light with an extent: no kept cell of these scenes is on a glossy root (soft_sun's
+    ball keeps none); those are
+    ``test_a_moved_light_with_an_extent_renders_its_glossy_cells_pixels``'s."""
     def steps(sess):
         return [[_moved(sess, key, step)]]
 
@@ -285,4 +287,40 @@ def test_a_moved_light_without_a_closed_form_renders_its_cells_pixels(monkeypatc
     for (d_new, f_new), (d_old, f_old) in zip(new, old, strict=True):
         assert f_new.stats["term_pixels"] == 0
         np.testing.assert_array_equal(d_new, d_old)
+        np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=1e-6, atol=1e-6)
+
+
+def _glossy_floor():
+    """soft_sun with a Ward floor (a glossy lobe, no glossy rays: not a rough root): the
+    sphere light's highlight on it is its sampled term, per pixel, under kept cells."""
+    s = soft_sun("PERSP")
+    slot = s.instance_slot("Floor")
+    s.set_instance_materials(slot, [s.add_material(Material(
+        "ward", diffuse=(0.55, 0.55, 0.5), specular=(0.2,) * 3, roughness=0.3))])
+    return s
+
+
+def test_a_moved_light_with_an_extent_renders_its_glossy_cells_pixels(monkeypatch):
+    """A sphere light moved over a glossy (not rough) floor: cells are kept there, but the
+    light's glossy lobe is its sampled term, per pixel: their pixels are rendered again
+    (given the corners' difference alone they would keep the old highlight); each frame
+    within the bound, equal to the one that renders every kept cell's pixels again."""
+    glossy = []
+
+    def move_terms(cache, old_sa, sa, accel, slots):
+        r = MOVE_TERMS(cache, old_sa, sa, accel, slots)
+        inst = (cache.trees.arrays.tree[cache.pool.node[r.kept]] // 6).astype(np.int64)
+        m = hit_materials(sa, inst, cache.pool.cls[r.kept])
+        glossy.append(int(np.count_nonzero(glossy_materials(sa)[np.maximum(m, 0)])))
+        return r
+
+    monkeypatch.setattr(invalidation, "move_terms", move_terms)
+
+    def steps(sess):
+        return [[_moved(sess, "Soft", "move")]]
+
+    new = _run(monkeypatch, _glossy_floor, steps, False)  # (each frame within the bound)
+    assert glossy and min(glossy) > 0  # (kept cells on the glossy floor)
+    old = _run(monkeypatch, _glossy_floor, steps, True)
+    for (_, f_new), (_, f_old) in zip(new, old, strict=True):
         np.testing.assert_allclose(f_new.radiance, f_old.radiance, rtol=1e-6, atol=1e-6)

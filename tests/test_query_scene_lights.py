@@ -16,6 +16,7 @@ from rstrace_engine.bench.soak import soft_room_unlit_world
 from rstrace_engine.geometry.edits import (
     LightDelete,
     LightSet,
+    MaterialSet,
     ObjectTransform,
     WorldColor,
 )
@@ -85,3 +86,33 @@ def test_light_edits_keep_the_query_structures(monkeypatch):
     sess.render()
     assert len(calls) == 2
     _same(cache.qs, _built(cache.sa))
+
+
+def test_a_light_edit_with_an_object_or_material_edit_builds_them_again(monkeypatch):
+    """A batch that edits a light and an object (or a material) packs the geometry again:
+    the query structures are built again, not taken from the last packing's, and they are
+    a fresh build's (a light drag with an object move in one batch kept no stale BVH)."""
+    calls = []
+
+    def build(sa, topo):
+        calls.append(1)
+        return BUILD(sa, topo)
+
+    monkeypatch.setattr(interpolant_cache, "query_scene", build)
+    sess = session(soft_room_unlit_world(96, 72), True)
+    sess.render()
+    lamp = sess.scene.lights[sess.scene.light_slot("Lamp")]
+    m = sess.scene.instances[sess.scene.instance_slot("Small")]["matrix"].copy()
+    m[0, 3] += 0.1
+    key = next(iter(sess.scene.material_keys.slot))
+    mat = sess.scene.materials[sess.scene.material_id(key)]
+    for n, batch in enumerate((
+            [_light(sess, "Lamp", position=tuple(np.asarray(lamp.position) + 0.3))[0],
+             ObjectTransform("Small", m)],
+            [_light(sess, "Lamp", power=2.0 * lamp.power)[0],
+             MaterialSet(key, replace(mat, roughness=0.5 * mat.roughness + 0.1))],
+            [WorldColor((0.1, 0.1, 0.1)), ObjectTransform("Small", np.eye(4))])):
+        sess.apply(batch)
+        sess.render()
+        assert len(calls) == n + 2
+        _same(sess.interpolants.cache.qs, _built(sess.interpolants.cache.sa))

@@ -6,11 +6,12 @@ its parfor passes turn every field into a parameter of the loop's own function a
 each. The same kernel compiled serially costs a fraction of it, measured (one signature,
 CPU seconds, callees loaded from the cache, the shared 2-core machine at load 7-8):
 ``check_cells`` 22.1 -> 4.0, ``_shade_kernel`` 38.9 -> 5.4, ``_surface_kernel`` 14.9 -> 4.6,
-``_query_tiles`` 8.0 -> 3.0, the BVH traversal 28.1 -> 11.8 (docs/first-render.md).
+``_query_tiles`` 8.0 -> 3.0 (docs/first-render.md). Not the BVH traversal (28.1 -> 11.8 s):
+serial, it cast rays 30-40 % slower (``bench raycast``), so it stays a ``prange`` kernel.
 
 How: a striped kernel takes two more arguments, ``first, step``, and handles the work items
-of blocks ``first, first + step, ...`` (:data:`BLOCK` items a block, or its own unit such
-as the traversal's 64-ray chunks); :func:`run` calls it once per thread, ``step`` threads
+of blocks ``first, first + step, ...`` (:data:`BLOCK` items a block, or its own unit: a cell, a
+screen tile); :func:`run` calls it once per thread, ``step`` threads
 (``numba.get_num_threads()`` of the calling thread, as ``prange`` would use, at most one
 per block), the calling thread taking stripe 0 and a shared pool the others. Blocks dealt in
 turn balance a frame whose cost varies across the image about as well as numba's static

@@ -38,10 +38,10 @@ from __future__ import annotations
 import logging
 from typing import NamedTuple
 
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from .. import stripes
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
 from .bvh_mesh import MeshBVH, place_child, place_tri
@@ -54,6 +54,8 @@ log = logging.getLogger(__name__)
 STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
 #: Rays per parallel work item.
 CHUNK = 64
+#: Work items a thread takes at a time (dynamic scheduling).
+PARALLEL_CHUNKSIZE = 16
 
 
 class SceneBVH(NamedTuple):
@@ -302,26 +304,24 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
     return bi, best, bp, bu, bv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, out_u, out_v,
-                 stop, first, step):
+                 stop):
     """Closest (``anyhit=False``) or any hit of each ray through a :class:`SceneBVH`.
 
     o, d : (n, 3) float64; tmin, tmax : (n,) float64; only : (n,) int32, ``>= 0`` restricts
     a ray to that instance. Outputs (n,): t float64 (inf on miss), inst int32, prim int32
     (global triangle), u, v float64; rows that miss are left untouched (callers pre-fill
-    them). Work items are :data:`CHUNK` consecutive rays, this call's those numbered
-    ``first, first + step, ...``: one thread's stripe (:func:`trace` runs ``step`` of them,
-    :func:`~rstrace_engine.stripes.run`; threads taking the chunks in turn balance the cost
-    per ray, which varies a lot across an image). Serial, not ``prange``: its compile took
-    2.4x the CPU time as a parallel kernel (rstrace_engine/stripes.py).
+    them). Work items are :data:`CHUNK` consecutive rays; call it under
+    ``numba.parallel_chunksize(PARALLEL_CHUNKSIZE)`` (:func:`trace`) so threads take work
+    items dynamically (cost per ray varies a lot across an image).
 
     stop : (1,) int32, read before every work item: once it is non-zero the remaining
     work items are skipped (their rows left as misses) and the result is incomplete, for
     the caller to discard (:mod:`rstrace_engine.cancel`); zero, every ray is traced.
     """
     n = o.shape[0]
-    for c in range(first, (n + CHUNK - 1) // CHUNK, step):
+    for c in prange((n + CHUNK - 1) // CHUNK):
         if stop[0] != 0:
             continue
         st_node = np.empty(STACK_SIZE, np.int32)
@@ -344,8 +344,7 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
 
 def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits,
           stop: np.ndarray = NEVER_STOP) -> None:
-    """Run :func:`trace_kernel` on the calling thread's numba thread count into ``hits`` (t,
-    inst, prim, u, v); ``stop``: its stop flag (a :class:`~rstrace_engine.cancel.CancelFlag`'s
-    ``array``)."""
-    stripes.run(trace_kernel, (len(o) + CHUNK - 1) // CHUNK, sb, o, d, tmin, tmax, only,
-                anyhit, *hits, stop)
+    """Run :func:`trace_kernel` with dynamic scheduling into ``hits`` (t, inst, prim, u, v);
+    ``stop``: its stop flag (a :class:`~rstrace_engine.cancel.CancelFlag`'s ``array``)."""
+    with numba.parallel_chunksize(PARALLEL_CHUNKSIZE):
+        trace_kernel(sb, o, d, tmin, tmax, only, anyhit, *hits, stop)

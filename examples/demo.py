@@ -277,17 +277,19 @@ def stop_warm_cache(proc) -> bool:
     itself); what it cached stays cached."""
     import os
     import signal
+    import subprocess
 
     if proc.poll() is not None:
         return False
+    proc.terminate()  # warm-cache stops its parts and waits for them (a second or two)
     try:
+        proc.wait(timeout=30.0)
+    except subprocess.TimeoutExpired:
         if hasattr(os, "killpg"):
-            os.killpg(proc.pid, signal.SIGTERM)  # its own group: the parts too
+            os.killpg(proc.pid, signal.SIGKILL)  # its own group: the parts too
         else:
-            proc.terminate()
-    except ProcessLookupError:
-        pass
-    proc.wait()
+            proc.kill()
+        proc.wait()
     return True
 
 

@@ -17,6 +17,9 @@ per block), the calling thread taking stripe 0 and a shared pool the others. Blo
 turn balance a frame whose cost varies across the image about as well as numba's static
 schedule, and a block keeps each thread's writes on its own cache lines. Each item is
 computed exactly as before (items are independent), so images are bit for bit the same.
+A striped kernel takes ``error_model="numpy"``, what numba compiles a ``prange`` body with
+(``parfor_lowering``): a division by zero gives inf or nan as before, not an exception, and
+the default model's checks slowed the stages' frames by up to 30 %.
 """
 
 from __future__ import annotations

@@ -80,4 +80,6 @@ def test_costliest_kernels_compile_serially():
               record_queries._query_tiles, predicate.check_cells):
         assert not k.targetoptions.get("parallel"), k.py_func.__name__
         assert k.targetoptions.get("nogil"), k.py_func.__name__
+        # what numba compiles a prange body with: inf / nan on a division by zero, no check
+        assert k.targetoptions.get("error_model") == "numpy", k.py_func.__name__
 

@@ -538,7 +538,7 @@ def corner_trees(sm, corners, out):
         out[c] = r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                 cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
     """Geometric part of the error predicate for a batch of cells: cells ``first, first +

@@ -89,7 +89,7 @@ def query_tile_count(width: int, height: int, n_rays: int, n_pixels: int) -> int
     return ((width + TILE - 1) // TILE) * ((height + TILE - 1) // TILE) * (n_rays // n_pixels)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
                  height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
                  seg_c, seg_r, light_kind, light_pos, light_dir, out, s_first, s_step):

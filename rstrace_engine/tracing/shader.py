@@ -234,7 +234,7 @@ _SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
     "inst_mesh", "mesh_nrm", "normals", "mesh_slot", "tri_slot", "tris", "verts"), __name__)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _surface_kernel(sa, o, d, tmax, hits, surf, first, step):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
 
@@ -325,7 +325,7 @@ _ShadowScene = view_type("_ShadowScene", SceneArrays, (
     "light_dir", "light_kind", "light_pos", "scene_extent"), __name__)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax, first, step):
     """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
 
@@ -375,7 +375,7 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
     "world_light"), __name__)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contrib, out, tv,
                   tp, first, step):
     """Direct light and secondary rays of a batch of ``n`` surface points.

@@ -43,7 +43,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import stripes
 from ..tracing.light_reshade import _one_light
 from ..tracing.whitted import trace
 from .line_samples import _unpack, front_hits
@@ -225,7 +224,7 @@ def proven_cells(cache, sa, sm, live, good, slots, new_rad) -> np.ndarray:
         zlo = np.zeros(len(go))
         zhi = np.zeros(len(go))
         cls = np.zeros(len(go), np.int32)
-        stripes.run(check_cells, len(go), _query(cache, sa, slots), cache.box, sm.view(),
+        check_cells(_query(cache, sa, slots), cache.box, sm.view(),
                     (tree // 6).astype(np.int32), (tree % 6).astype(np.int8),
                     a.depth[node].astype(np.int64), a.coord[node].astype(np.int64),
                     np.ascontiguousarray(cs[go]), nsamp[go], status, detail, zlo, zhi, cls)

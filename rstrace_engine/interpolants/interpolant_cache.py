@@ -43,7 +43,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .. import stripes
 from ..accel.accelerators import Hits
 from ..cancel import kernel_flag
 from ..frame import (
@@ -635,9 +634,9 @@ class InterpolantCache:
             zlo = np.zeros(len(go))
             zhi = np.zeros(len(go))
             cls = np.zeros(len(go), np.int32)
-            stripes.run(check_cells, len(go), self.qs, self.box, self.samples.view(),
-                        inst[go], face[go], depth[go], coord[go], cell_samples, nsamp,
-                        sub_status, detail, zlo, zhi, cls)
+            check_cells(self.qs, self.box, self.samples.view(), inst[go], face[go],
+                        depth[go], coord[go], cell_samples, nsamp, sub_status, detail, zlo,
+                        zhi, cls)
             # rough surfaces in the samples' trees: their radiance is sampled (glossy rays),
             # the cell is traced per pixel (docs/INTERPOLANTS.md, "Rough surfaces")
             sflag = self.samples.texture_terms()[2][np.maximum(cell_samples, 0)]

@@ -66,7 +66,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .. import image
 from .. import tolerances as tol
@@ -538,12 +538,10 @@ def corner_trees(sm, corners, out):
         out[c] = r
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, parallel=True)
 def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
-                cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
-    """Geometric part of the error predicate for a batch of cells: cells ``first, first +
-    step, ...`` (one thread's stripe: call it through :func:`~rstrace_engine.stripes.run`
-    with one block per cell; serial, not ``prange``: a fifth of the compile).
+                cell_nsamp, status, detail, zlo_out, zhi_out, cls_out):
+    """Geometric part of the error predicate for a batch of cells.
 
     cell_samples (nc, S) int32 sample ids: the 16 corners (bit order of
     :func:`~.linetree.corner_weight`) then the test lines; cell_nsamp (nc,) how many.
@@ -551,7 +549,7 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
     into :data:`REASONS`; the slab (zlo, zhi) and the surface class of valid cells.
     """
     L = qs.light_kind.shape[0]
-    for c in range(first, cell_inst.shape[0], step):
+    for c in prange(cell_inst.shape[0]):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],
                        cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out,
                        np.int64(c))  # (c is unsigned in the loop's own function)

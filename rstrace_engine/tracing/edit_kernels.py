@@ -71,7 +71,7 @@ def _edit_kernels(records, sa, camera) -> None:
     one = _one_light(sa, 0)
     with threads_for(0):
         _one_light_states(one, 0, e3, e3, e3, e3, i32, i32, np.zeros(0, np.int8), i32)
-        _shadow_kernel(one, e3, e3, e3, np.zeros(0, np.int8), i64, e3, e3, e1, 0, 1)
+        _shadow_kernel(one, e3, e3, e3, np.zeros(0, np.int8), i64, e3, e3, e1)
         accumulate(e3, i32, 1, np.zeros((0, 3), np.float32), np.zeros(0, np.uint8))
         for combo in (records.p_combo, records.s_combo):
             _light_bit_changes(combo[:0], u64, u64, np.uint64(1), b, b, i64)
@@ -84,7 +84,7 @@ def _edit_kernels(records, sa, camera) -> None:
                            b)
         else:
             _query_tiles(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), 1, 1, 1,
-                         *tail, b, 0, 1)
+                         *tail, b)
         _query_secondary(r.s_parent[:0], r.s_combo[:0], r.s_code[:0], r.p_combo[:0],
                          r.p_code[:0], 0, b, i64, u64, *tail, b)
         _mark_rays(i32, b, b)

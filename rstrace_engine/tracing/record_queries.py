@@ -84,18 +84,11 @@ def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_o
 TILE = 8  # pixels per side of the screen tiles the primary query culls with
 
 
-def query_tile_count(width: int, height: int, n_rays: int, n_pixels: int) -> int:
-    """The tiles :func:`_query_tiles` handles: TILE x TILE pixels of each sample."""
-    return ((width + TILE - 1) // TILE) * ((height + TILE - 1) // TILE) * (n_rays // n_pixels)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, parallel=True)
 def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
                  height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
-                 seg_c, seg_r, light_kind, light_pos, light_dir, out, s_first, s_step):
-    """The primary query, culled by screen tiles (perspective cameras): tiles ``s_first,
-    s_first + s_step, ...`` (one thread's stripe, :func:`~rstrace_engine.stripes.run` with a
-    block per tile, :func:`query_tile_count` of them).
+                 seg_c, seg_r, light_kind, light_pos, light_dir, out):
+    """The primary query, culled by screen tiles (perspective cameras).
 
     Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
     union of its traced lights. A segment from the camera to any point of the box lies
@@ -110,7 +103,7 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
     n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
     k_reg = reg_lo.shape[0]
     k_seg = seg_lo.shape[0]
-    for t in range(s_first, n_tiles, s_step):
+    for t in prange(n_tiles):
         s = t // (tw * th)
         r = t - s * tw * th
         ty = r // tw

@@ -38,7 +38,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .. import tolerances as tol
 from ..geometry.attributes import slot_of
@@ -54,7 +54,6 @@ from ..geometry.scene import (
     TEX_TRANSMISSION_SQRT,
     SceneArrays,
 )
-from ..stripes import stripe_item, stripe_len
 from ..views import fields, view_type
 from .glossy_rays import _glossy_rays, _put, is_glossy
 from .shading import (
@@ -234,8 +233,8 @@ _SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
     "inst_mesh", "mesh_nrm", "normals", "mesh_slot", "tri_slot", "tris", "verts"), __name__)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _surface_kernel(sa, o, d, tmax, hits, surf, first, step):
+@njit(cache=True, nogil=True, parallel=True)
+def _surface_kernel(sa, o, d, tmax, hits, surf):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
 
     Inputs: o, d (n, 3) float64; tmax (n,) float64; hits : :class:`Hits` of the rays.
@@ -252,10 +251,7 @@ def _surface_kernel(sa, o, d, tmax, hits, surf, first, step):
     cx = 0.5 * (sa.scene_aabb[0, 0] + sa.scene_aabb[1, 0])
     cy = 0.5 * (sa.scene_aabb[0, 1] + sa.scene_aabb[1, 1])
     cz = 0.5 * (sa.scene_aabb[0, 2] + sa.scene_aabb[1, 2])
-    for stripe_q in range(stripe_len(n, first, step)):  # stripes.run
-        i = stripe_item(stripe_q, first, step)
-        if i >= n:
-            break
+    for i in prange(n):
         ux, uy, uz, dl = normalize3(d[i, 0], d[i, 1], d[i, 2])
         VD[i, 0] = ux
         VD[i, 1] = uy
@@ -325,8 +321,8 @@ _ShadowScene = view_type("_ShadowScene", SceneArrays, (
     "light_dir", "light_kind", "light_pos", "scene_extent"), __name__)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax, first, step):
+@njit(cache=True, nogil=True, parallel=True)
+def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax):
     """Shadow rays for the (point, light) rows ``todo`` (k,) int64 (row = i * L + j).
 
     P, NG, Q : (n, 3) float64 points, geometric normals and shadow origins, sh_state (n L,)
@@ -336,10 +332,7 @@ def _shadow_kernel(sa, P, NG, Q, sh_state, todo, sh_o, sh_d, sh_tmax, first, ste
     """
     sa = _ShadowScene(*fields(sa, _ShadowScene))  # the fields its loop reads
     L = sa.light_kind.shape[0]
-    for stripe_q in range(stripe_len(todo.shape[0], first, step)):  # stripes.run
-        k = stripe_item(stripe_q, first, step)
-        if k >= todo.shape[0]:
-            break
+    for k in prange(todo.shape[0]):
         i = todo[k] // L
         j = todo[k] - i * L
         if sh_state[todo[k]] == SH_FAR:
@@ -375,9 +368,9 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
     "world_light"), __name__)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, parallel=True)
 def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contrib, out, tv,
-                  tp, first, step):
+                  tp):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -410,10 +403,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     ext = sa.scene_extent
     wmin = tol.PATH_WEIGHT_MIN
     terms = tv.shape[0] > 0
-    for stripe_q in range(stripe_len(n, first, step)):  # stripes.run
-        i = stripe_item(stripe_q, first, step)
-        if i >= n:
-            break
+    for i in prange(n):
         slot = 2 * gstart[i]
         for k in range(slot, 2 * gstart[i + 1]):
             c_ok[k] = False

@@ -13,11 +13,11 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The kernels the demo uses (BASE and INTERPOLANT on the BVH, hard light, a perspective
-# camera) compile first, one process per core, each kernel in one process only (the others
-# wait for it and load it), with progress (kernels done/total); a warm cache only loads them.
+# camera) compile in a background warm-cache, one process per core, while the demo starts
+# and renders; each kernel compiles in one process only (the others wait for it and load
+# it), with progress (kernels done/total); a warm cache only loads them.
 demo: $(STAMP)
-	$(PY) -m rstrace_engine warm-cache --modes BASE INTERPOLANT --accelerators BVH --no-soft-light
-	$(PY) examples/demo.py --out out/demo --no-warmup
+	$(PY) examples/demo.py --out out/demo --warm-cache
 
 # The bpy tests run in their own process: bpy brings its own TBB/Embree and changes which
 # numba threading layer the core tests would get.

@@ -250,6 +250,49 @@ def changed_fraction(bpy, a: Path, b: Path) -> float:
     return float(np.mean(np.abs(pixels(a) - pixels(b)).max(axis=1) > 1.5 / 255))
 
 
+#: What ``--warm-cache`` compiles: the kernels of this scene's renders (BASE and INTERPOLANT on
+#: the BVH, hard lights, a perspective camera).
+WARM_CACHE_ARGS = ("warm-cache", "--modes", "BASE", "INTERPOLANT", "--accelerators", "BVH",
+                   "--no-soft-light")
+
+
+def start_warm_cache(env=None):
+    """``python -m rstrace_engine warm-cache`` of this checkout in the background, in its own
+    process group (its parts with it), printing its progress to this stdout."""
+    import os
+    import subprocess
+
+    env = dict(os.environ if env is None else env)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get(
+        "PYTHONPATH", "").split(os.pathsep) if p])
+    posix = hasattr(os, "killpg")
+    return subprocess.Popen([sys.executable, "-m", "rstrace_engine", *WARM_CACHE_ARGS],
+                            cwd=str(ROOT), env=env, stdin=subprocess.DEVNULL,
+                            start_new_session=posix)
+
+
+def stop_warm_cache(proc) -> bool:
+    """Stop the background warm-up and its parts if still running (True then): the kernels
+    it has not reached are ones this demo did not call (it compiled any it needed first
+    itself); what it cached stays cached."""
+    import os
+    import signal
+    import subprocess
+
+    if proc.poll() is not None:
+        return False
+    proc.terminate()  # warm-cache stops its parts and waits for them (a second or two)
+    try:
+        proc.wait(timeout=30.0)
+    except subprocess.TimeoutExpired:
+        if hasattr(os, "killpg"):
+            os.killpg(proc.pid, signal.SIGKILL)  # its own group: the parts too
+        else:
+            proc.kill()
+        proc.wait()
+    return True
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "demo")
@@ -261,7 +304,23 @@ def main(argv=None) -> int:
                     help="no background kernel warm-up in the add-on (make demo warmed the "
                          "kernels of this scene with warm-cache first; the add-on's warm-up "
                          "would add those of soft light and orthographic cameras)")
+    ap.add_argument("--warm-cache", action="store_true",
+                    help="compile this scene's kernels in a background warm-cache (one process "
+                         "per core) while the demo starts Blender, builds the scene and "
+                         "renders (its renders load what the warm-up compiled and compile what "
+                         "it has not reached yet, each kernel once); stopped when the demo is "
+                         "done (make demo); implies --no-warmup")
     args = ap.parse_args(argv)
+    warming = start_warm_cache() if args.warm_cache else None
+    try:
+        return _demo(args)
+    finally:
+        if warming is not None and stop_warm_cache(warming):
+            print("demo: background warm-up stopped (the demo is done; the kernels it had "
+                  "not reached compile on first use)")
+
+
+def _demo(args) -> int:
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
 
@@ -271,7 +330,7 @@ def main(argv=None) -> int:
     import addon
 
     addon.register()
-    if args.no_warmup:
+    if args.no_warmup or args.warm_cache:
         addon.kernels.skip_warmup()
     try:
         sc = build_scene(bpy, args.width, args.height, args.samples, args.depth)

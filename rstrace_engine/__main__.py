@@ -75,6 +75,20 @@ def render_command(args) -> int:
     return 0
 
 
+def _stop_on_sigterm():
+    """A ``cancel()`` that turns true on SIGTERM (``make demo`` stops its background warm-up
+    so): the parallel warm-up then stops its parts and waits for them, so none is left
+    compiling and their CPU time is their parent's (None off the main thread)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
+    return stop.is_set
+
+
 def warm_cache_command(args) -> int:
     import numba
 
@@ -101,7 +115,8 @@ def warm_cache_command(args) -> int:
     else:
         result = warm_kernels.warm_parallel(args.jobs or None, args.modes, args.accelerators,
                                             progress=progress, soft=args.soft,
-                                            report_unreached=everything and args.soft)
+                                            report_unreached=everything and args.soft,
+                                            cancel=_stop_on_sigterm())
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:
         print(json.dumps(result, indent=2))

@@ -11,7 +11,7 @@ events and writes, at exit, one JSON file per process into ``DIR``: each compile
 signature, start time, wall and CPU time *exclusive* of the compiles nested in it (a callee
 compiled while its caller is typed), and its nesting depth. The report sums them by kernel
 (docs/KERNELS.md, *Cutting the cold compile*). A process killed before it exits writes
-nothing. Loads from the cache are not compiles and are not listed.
+nothing (SIGTERM is an exit: it writes). Loads from the cache are not compiles and are not listed.
 """
 
 from __future__ import annotations
@@ -54,6 +54,9 @@ if os.environ.get("RSTRACE_COMPILE_PROFILE"):
                               signature=", ".join(str(a) for a in args)))
 
     event.register("numba:compile", _Listener())
+    import signal
+    # a process stopped by SIGTERM (make demo's background warm-up) writes its file too
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))
 
     def _dump():
         path = os.path.join(os.environ["RSTRACE_COMPILE_PROFILE"], f"{os.getpid()}.json")

@@ -1,0 +1,72 @@
+"""``make demo``'s background warm-up (``examples/demo.py --warm-cache``): it runs this
+checkout's ``warm-cache`` for the demo's kernels in its own process group, and stopping it
+when the demo is done stops its parts too (no compile left running after ``make demo``)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _demo_module():
+    spec = importlib.util.spec_from_file_location("rstrace_demo", ROOT / "examples" / "demo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _group(pgid: int) -> list[int]:
+    pids = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            pids.append(int(entry))
+    return pids
+
+
+def test_demo_warm_cache_is_the_demo_kernels_warm_up():
+    demo = _demo_module()
+    args = demo.WARM_CACHE_ARGS
+    assert args[0] == "warm-cache" and "--no-soft-light" in args
+    modes = args[args.index("--modes") + 1:args.index("--accelerators")]
+    assert set(modes) == {"BASE", "INTERPOLANT"}  # the demo renders in both
+    from rstrace_engine.__main__ import _parser
+
+    parsed = _parser().parse_args(list(args))
+    assert parsed.accelerators == ["BVH"] and not parsed.soft and parsed.jobs == 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_demo_warm_cache_stops_with_its_parts(tmp_path):
+    demo = _demo_module()
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    proc = demo.start_warm_cache(env)
+    try:
+        deadline = time.monotonic() + 120.0
+        while len(_group(proc.pid)) < 2 and proc.poll() is None:  # the parts started
+            assert time.monotonic() < deadline, "warm-cache started no part"
+            time.sleep(0.2)
+        assert proc.poll() is None
+        assert demo.stop_warm_cache(proc)
+        deadline = time.monotonic() + 30.0
+        while _group(proc.pid):
+            assert time.monotonic() < deadline, f"still running: {_group(proc.pid)}"
+            time.sleep(0.2)
+        assert not demo.stop_warm_cache(proc)  # stopped already
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, 9)
+            proc.wait()

@@ -93,7 +93,7 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "accel.bvh_mesh.indexed_boxes", "accel.bvh_build.split_top",
            "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",
            "accel.bvh_build.pack_nodes", "accel.bvh_mesh.collapse4",
-           "accel.bvh_mesh.pad_outward", "accel.bvh_mesh._gather_rows",
+           "accel.bvh_mesh.pad_outward",
            "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
            "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
            "tracing.shader._surface_kernel", "tracing.whitted._light_masks",

@@ -25,8 +25,8 @@ their four children, so one visit tests four boxes and pushes those hit farthest
   is never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
   over ``count`` (0..7) consecutive primitives in leaf order.
-* The leaves hold no vertices: leaf-order triangle ``p`` has the vertex indices
-  ``tris[p]`` into the scene's own vertex array (:class:`SceneBVH`).
+* The leaves hold no vertices and no vertex indices: leaf-order entry ``p`` is global
+  triangle ``tri[p]``, read from the scene's own triangles and vertices (:class:`SceneBVH`).
 
 The box test is the conservative slab test of pbrt-v4 (``t_far`` scaled by
 :data:`~.tolerances.BOX_TFAR_SCALE`) and the triangle test is watertight (:mod:`.triangle`),
@@ -61,12 +61,12 @@ PARALLEL_CHUNKSIZE = 16
 class SceneBVH(NamedTuple):
     """Everything the traversal kernel reads: both levels, concatenated (what numba takes).
 
-    A leaf's triangles are read through the scene's vertices (``verts``: the
-    :class:`~..geometry.scene.SceneArrays` array itself, not a copy): leaf-order entry
-    ``p`` is global triangle ``tri[p]``, whose vertices are ``verts[tris[p]]`` (``tris``:
-    the scene's vertex indices in leaf order, 12 bytes a triangle where a copy of the
-    vertices took 72; reading ``SceneArrays.tris[tri[p]]`` instead, one more indirection,
-    measured slower)."""
+    A leaf's triangles are read through the scene's own arrays (``verts`` and ``tris``: the
+    :class:`~..geometry.scene.SceneArrays` arrays themselves, not copies): leaf-order entry
+    ``p`` is global triangle ``t = tri[p]``, whose vertices are ``verts[tris[t]]``. The
+    BVH's only per-triangle array is ``tri`` (4 bytes a triangle; a leaf-order copy of the
+    vertex indices took 12 more, and one of the vertices 72 before that: see
+    docs/bench-scale.md, Memory)."""
 
     top_bounds: np.ndarray  # (Nt, 24) float64
     top_child: np.ndarray  # (Nt, 4) int32
@@ -74,8 +74,8 @@ class SceneBVH(NamedTuple):
     bounds: np.ndarray  # (N, 24) float32, all mesh BVH nodes (rounded outward)
     child: np.ndarray  # (N, 4) int32, node and triangle indices already offset
     verts: np.ndarray  # (V, 3) float64, the scene's object-space vertices (SceneArrays')
-    tris: np.ndarray  # (T, 3) int32, vertex indices (into verts) in leaf order
-    tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris), leaf order
+    tris: np.ndarray  # (T, 3) int32, the scene's vertex indices (SceneArrays')
+    tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into tris), leaf order
     mesh_root: np.ndarray  # (M,) int32, root node of each mesh
     inst_mesh: np.ndarray  # (I,) int32
     inst_inv: np.ndarray  # (I, 4, 4) float64 world -> object
@@ -214,9 +214,10 @@ def _cull(best):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _trace_mesh(bounds, child, verts, tris, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
-                st_node, st_t):
-    """Closest (or any) hit in one mesh BVH; the ray is in object space.
+def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t0, best,
+                anyhit, st_node, st_t):
+    """Closest (or any) hit in one mesh BVH; the ray is in object space. Leaf-order entry
+    ``p`` is triangle ``tri[p]`` of ``tris`` (global vertex indices into ``verts``).
 
     Returns ``(found, t, leaf_index, u, v)`` with ``t <= best``.
     """
@@ -242,7 +243,8 @@ def _trace_mesh(bounds, child, verts, tris, root, ox, oy, oz, dx, dy, dz, t0, be
         code = ~c
         s = code >> 3
         for p in range(s, s + (code & 7)):
-            a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
+            g = tri[p]
+            a, b, c = tris[g, 0], tris[g, 1], tris[g, 2]
             hit, t, u, v = intersect_sheared(
                 verts[a, kx], verts[a, ky], verts[a, kz], verts[b, kx], verts[b, ky],
                 verts[b, kz], verts[c, kx], verts[c, ky], verts[c, kz], okx, oky, okz, sx, sy,
@@ -279,7 +281,7 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
             i = only if only >= 0 else top_inst[q]
             q += 1
             lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz, dx, dy, dz)
-            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris,
+            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris, sb.tri,
                                             sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
                                             ex, ey, ez, t0, best, anyhit, st2_node, st2_t)
             # t <= best; an equal distance goes to the highest instance id (the oracle's

@@ -2,12 +2,12 @@
 
 The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
 (:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`) and
-stored in float32, rounded outward; the leaves name triangles, whose vertices the traversal
-reads from the scene's own arrays (:func:`leaf_tris`). Meshes of fewer than
-:data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
-region to start; larger ones through parallel kernels that read the triangles through their
-vertex indices (:func:`build_mesh_bvh_indexed`: no copy of the mesh's triangles in mesh
-order).
+stored in float32, rounded outward; the leaves name triangles (global triangle ids in leaf
+order), whose vertex indices and vertices the traversal reads from the scene's own
+arrays. Meshes of fewer than :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and
+one thread, with no parallel region to start; larger ones through parallel kernels that
+read the triangles through their vertex indices (:func:`build_mesh_bvh_indexed`: no copy
+of the mesh's triangles in mesh order).
 """
 
 from __future__ import annotations
@@ -227,23 +227,6 @@ def indexed_boxes(verts, tris):
             pb[i, q] = min(a, min(b, c))
             pb[i, 3 + q] = max(a, max(b, c))
     return pb
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _gather_rows(tris, order, out):
-    for i in prange(order.shape[0]):
-        t = order[i]
-        out[i, 0], out[i, 1], out[i, 2] = tris[t, 0], tris[t, 1], tris[t, 2]
-
-
-def leaf_tris(tris: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """``tris[order]`` (a scene's vertex indices in a BVH's leaf order), (len(order), 3)
-    int32; in parallel past :data:`.bvh_build.PARALLEL_MIN` rows."""
-    if len(order) < PARALLEL_MIN:
-        return np.ascontiguousarray(tris[order], np.int32)
-    out = np.empty((len(order), 3), np.int32)
-    _gather_rows(tris, order, out)
-    return out
 
 
 def mesh_range(sa, mesh: int) -> tuple[int, int]:

@@ -54,6 +54,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..accel.accelerators import BVHAccelerator
 from ..accel.bvh import STACK_SIZE
+from ..accel.bvh_mesh import leaf_size, leaf_triangle
 from ..geometry.scene import LIGHT_SUN, SceneArrays
 from ..geometry.shaft_geometry import (
     MAX_PLANES,
@@ -282,8 +283,9 @@ def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG
                 sp += 1
                 continue
             code = ~ch
-            for p in range(code >> 3, (code >> 3) + (code & 7)):
-                t = sb.tri[p]  # leaf-order entry p: global triangle t
+            s, k = code >> 3, code & 7
+            for i in range(leaf_size(k)):
+                t = leaf_triangle(sb.tri, s, k, i)  # (global triangle)
                 for v in range(3):
                     P[v, 0] = sb.verts[sb.tris[t, v], 0]
                     P[v, 1] = sb.verts[sb.tris[t, v], 1]

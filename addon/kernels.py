@@ -67,7 +67,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals",
          "geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_range",
          "geometry.mesh_check._non_finite32", "geometry.attributes._all_flat_vertex",
-         "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
+         "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
 _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is_convex",
                 "interpolants.walk.group_active", "interpolants.interpolant_cache._pixel_lines",
                 "interpolants.walk.settle", "interpolants.walk.walk_level",
@@ -94,7 +94,7 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",
            "accel.bvh_build.pack_nodes", "accel.bvh_mesh.collapse4",
            "accel.bvh_mesh.pad_outward",
-           "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
+           "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
            "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
            "tracing.shader._surface_kernel", "tracing.whitted._light_masks",
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",

@@ -48,7 +48,8 @@ BIN_CHUNK = 16384
 #: kernel-cache lists) ...
 BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
                  "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
-                 "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
+                 "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",
+                 "accel.bvh_mesh.place_tri")
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine import warm_first
-from rstrace_engine.accel import accelerators, bvh_build, bvh_mesh
+from rstrace_engine.accel import accelerators, bvh, bvh_build, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
@@ -317,8 +317,7 @@ def test_indexed_build_is_the_build_over_the_gathered_triangles():
 def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
     """A large mesh's tree placed in the scene's concatenation (after a small mesh, so at
     an offset): its nodes and triangle ids there are those of the mesh's own build, and
-    the leaves read the scene's own vertices (no copy of them) through its vertex indices
-    in leaf order."""
+    the leaves read the scene's own vertices and vertex indices (no copy of them)."""
     s = Scene()
     s.add_material(Material("m"))
     small = shapes.icosphere(1, 0.2, name="small")
@@ -330,10 +329,13 @@ def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
     lo, hi = bvh_mesh.mesh_range(sa, 1)
     alone = bvh_mesh.build_mesh_bvh(sa.verts[sa.tris[lo:hi]])
     placed = acc._cache[acc._mesh_keys[1]]
-    assert placed.leaf_base > 0 and placed.tri_base == lo
-    assert np.array_equal(placed.tri, alone.tri + lo)
+    own = bvh.PlacedMesh.built(alone)  # (its leaves as the traversal reads them)
+    assert placed.tri_base == lo and placed.leaf_base == len(acc._cache[acc._mesh_keys[0]].tri)
+    assert np.array_equal(placed.tri, own.tri + lo)
+    assert np.array_equal(bvh_mesh.leaf_order(placed.child, acc.sb.tri),
+                          bvh_mesh.leaf_order(own.child, own.tri) + lo)
     assert np.array_equal(placed.bounds, alone.bvh.bounds)
-    assert acc.sb.verts is sa.verts and np.array_equal(acc.sb.tris, sa.tris[acc.sb.tri])
+    assert acc.sb.verts is sa.verts and acc.sb.tris is sa.tris
 
 
 def test_pad_outward_is_nextafter_outward():

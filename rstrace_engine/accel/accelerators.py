@@ -232,8 +232,6 @@ class BVHAccelerator(Accelerator):
             if stop[0]:
                 raise Cancelled("BVH build cancelled")
             *concat, placed = bvh.concat_meshes([cache[k] for k in keys], sa.mesh_tri_start)
-            # the leaves' vertex indices, in leaf order (the traversal reads sa.verts)
-            concat.append(bvh_mesh.leaf_tris(sa.tris, concat[2]))
             # meshes that left the scene are dropped; the others are kept as views of the
             # concatenation (the arrays of the previous one are then freed)
             self._cache = dict(zip(keys, placed, strict=True))
@@ -258,18 +256,19 @@ class BVHAccelerator(Accelerator):
         live = np.flatnonzero(sa.inst_alive).astype(np.int32)
         top = bvh_mesh.build_top(sa.inst_aabb[live])  # tombstoned / hidden slots are left out
         top_inst = np.ascontiguousarray(live[top.perm], np.int32)
-        bounds, child, tri, mesh_root, ltris = self._concat
+        bounds, child, tri, mesh_root = self._concat
+        # (the leaves read the scene's own triangles and vertices through ``tri``)
         self.sb = bvh.SceneBVH(top.bounds, top.child, top_inst, bounds, child, sa.verts,
-                               ltris, tri, mesh_root,
+                               sa.tris, tri, mesh_root,
                                np.ascontiguousarray(sa.inst_mesh, dtype=np.int32),
                                np.ascontiguousarray(sa.inst_inv, dtype=np.float64))
         self.sa = sa
         self.stats["top_build_s"] = time.perf_counter() - t1
         self.stats["build_s"] = time.perf_counter() - t0
         self.stats["nodes"] = int(len(child) + len(top.child))
-        # (its own arrays: verts is the scene's)
+        # (its own arrays: verts and tris are the scene's)
         self.stats["memory_mb"] = sum(a.nbytes for f, a in self.sb._asdict().items()
-                                      if f != "verts") / 2 ** 20
+                                      if f not in ("verts", "tris")) / 2 ** 20
         self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
                                   for k in self._mesh_keys}
 

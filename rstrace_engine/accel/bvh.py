@@ -23,10 +23,14 @@ their four children, so one visit tests four boxes and pushes those hit farthest
   the nodes' memory, for a few percent of trace time (docs/bench-scale.md, Memory). The
   top level's boxes stay float64. An unused lane has an inverted box (``lo = +inf``) and
   is never entered.
-* ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | count)``
-  over ``count`` (0..7) consecutive primitives in leaf order.
-* The leaves hold no vertices: leaf-order triangle ``p`` has the vertex indices
-  ``tris[p]`` into the scene's own vertex array (:class:`SceneBVH`).
+* ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | kind)``.
+  At the top level ``kind`` (0..7) consecutive instances in leaf order (``top_inst``). In a
+  mesh (:func:`.bvh_mesh.direct_leaves`) a leaf of one triangle, or of two neighbours in the
+  scene's order (a quad's two halves: most leaves), *names* them (``start`` is the global
+  triangle, ``kind`` 5..7 says how many and in which order); the others (``kind`` 1..4)
+  list their global triangle ids at ``tri[start:start + kind]``, in leaf order.
+* The leaves hold no vertices and no vertex indices: a triangle's are read from the
+  scene's own triangles and vertices (:class:`SceneBVH`).
 
 The box test is the conservative slab test of pbrt-v4 (``t_far`` scaled by
 :data:`~.tolerances.BOX_TFAR_SCALE`) and the triangle test is watertight (:mod:`.triangle`),
@@ -44,7 +48,7 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
-from .bvh_mesh import MeshBVH, place_child, place_tri
+from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -61,12 +65,13 @@ PARALLEL_CHUNKSIZE = 16
 class SceneBVH(NamedTuple):
     """Everything the traversal kernel reads: both levels, concatenated (what numba takes).
 
-    A leaf's triangles are read through the scene's vertices (``verts``: the
-    :class:`~..geometry.scene.SceneArrays` array itself, not a copy): leaf-order entry
-    ``p`` is global triangle ``tri[p]``, whose vertices are ``verts[tris[p]]`` (``tris``:
-    the scene's vertex indices in leaf order, 12 bytes a triangle where a copy of the
-    vertices took 72; reading ``SceneArrays.tris[tri[p]]`` instead, one more indirection,
-    measured slower)."""
+    A leaf's triangles are read through the scene's own arrays (``verts`` and ``tris``: the
+    :class:`~..geometry.scene.SceneArrays` arrays themselves, not copies): a leaf names
+    global triangle ``t`` (or lists it in ``tri``), whose vertices are ``verts[tris[t]]``.
+    The BVH's only per-triangle array is ``tri``, the listed leaves' entries (about a tenth
+    of the triangles on a triangulated surface; a leaf-order copy of every triangle's
+    vertex indices and ids took 16 bytes a triangle, one of the vertices 72 before that:
+    docs/bench-scale.md, Memory)."""
 
     top_bounds: np.ndarray  # (Nt, 24) float64
     top_child: np.ndarray  # (Nt, 4) int32
@@ -74,8 +79,8 @@ class SceneBVH(NamedTuple):
     bounds: np.ndarray  # (N, 24) float32, all mesh BVH nodes (rounded outward)
     child: np.ndarray  # (N, 4) int32, node and triangle indices already offset
     verts: np.ndarray  # (V, 3) float64, the scene's object-space vertices (SceneArrays')
-    tris: np.ndarray  # (T, 3) int32, vertex indices (into verts) in leaf order
-    tri: np.ndarray  # (T,) int32, GLOBAL triangle index (into SceneArrays.tris), leaf order
+    tris: np.ndarray  # (T, 3) int32, the scene's vertex indices (SceneArrays')
+    tri: np.ndarray  # (L,) int32, GLOBAL triangle ids of the listed leaves, leaf order
     mesh_root: np.ndarray  # (M,) int32, root node of each mesh
     inst_mesh: np.ndarray  # (I,) int32
     inst_inv: np.ndarray  # (I, 4, 4) float64 world -> object
@@ -87,8 +92,9 @@ class PlacedMesh(NamedTuple):
     (all zero for a BVH just built), so the scene holds each mesh's tree once."""
 
     bounds: np.ndarray  # (N, 24) float32
-    child: np.ndarray  # (N, 4) int32, node indices + node_base, leaf starts + leaf_base
-    tri: np.ndarray  # (m,) int32, mesh triangle index + tri_base, leaf order
+    child: np.ndarray  # (N, 4) int32, node indices + node_base, listing leaves' starts +
+    # leaf_base, naming leaves' triangles + tri_base (:func:`.bvh_mesh.direct_leaves`)
+    tri: np.ndarray  # (L,) int32, listed leaves' mesh triangle index + tri_base, leaf order
     node_base: int
     leaf_base: int
     tri_base: int
@@ -96,8 +102,12 @@ class PlacedMesh(NamedTuple):
 
     @classmethod
     def built(cls, mb: MeshBVH) -> PlacedMesh:
-        """``mb`` as built."""
-        return cls(mb.bvh.bounds, mb.bvh.child, mb.tri, 0, 0, 0, mb.sah_cost)
+        """``mb`` as built, its leaves as the traversal reads them
+        (:func:`.bvh_mesh.direct_leaves`)."""
+        child = np.empty_like(mb.bvh.child)
+        tri = np.empty(len(mb.tri), np.int32)
+        n = direct_leaves(mb.bvh.child, mb.tri, child, tri)
+        return cls(mb.bvh.bounds, child, tri[:n].copy(), 0, 0, 0, mb.sah_cost)
 
 
 def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
@@ -108,13 +118,14 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
     """
     node_base = np.cumsum([0] + [len(m.child) for m in meshes])
     leaf_base = np.cumsum([0] + [len(m.tri) for m in meshes])
-    if leaf_base[-1] >= 1 << 28:
+    if max(leaf_base[-1], int(mesh_tri_start[-1])) >= 1 << 28:
         raise OverflowError("BVH: too many triangles for 32-bit leaf codes")
     child = np.empty((int(node_base[-1]), 4), np.int32)
     tri = np.empty(int(leaf_base[-1]), np.int32)
     for k, (m, nb, lb) in enumerate(zip(meshes, node_base[:-1], leaf_base[:-1], strict=True)):
         # node indices and leaf starts moved to this placement, in one pass each
-        place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base)
+        place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base,
+                    int(mesh_tri_start[k]) - m.tri_base)
         place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
     bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]), np.float32)
     placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tri[lb:le], int(nb), int(lb),
@@ -214,11 +225,13 @@ def _cull(best):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _trace_mesh(bounds, child, verts, tris, root, ox, oy, oz, dx, dy, dz, t0, best, anyhit,
-                st_node, st_t):
-    """Closest (or any) hit in one mesh BVH; the ray is in object space.
+def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t0, best,
+                anyhit, st_node, st_t):
+    """Closest (or any) hit in one mesh BVH; the ray is in object space. A leaf's
+    triangles (:func:`.bvh_mesh.leaf_triangle`) are rows of ``tris`` (global vertex indices
+    into ``verts``).
 
-    Returns ``(found, t, leaf_index, u, v)`` with ``t <= best``.
+    Returns ``(found, t, triangle, u, v)`` with ``t <= best`` (the global triangle).
     """
     kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
     okx = ox if kx == 0 else (oy if kx == 1 else oz)
@@ -240,15 +253,16 @@ def _trace_mesh(bounds, child, verts, tris, root, ox, oy, oz, dx, dy, dz, t0, be
                         st_node, st_t, sp)
             continue
         code = ~c
-        s = code >> 3
-        for p in range(s, s + (code & 7)):
-            a, b, c = tris[p, 0], tris[p, 1], tris[p, 2]
+        s, k = code >> 3, code & 7
+        for i in range(leaf_size(k)):
+            g = leaf_triangle(tri, s, k, i)
+            a, b, c = tris[g, 0], tris[g, 1], tris[g, 2]
             hit, t, u, v = intersect_sheared(
                 verts[a, kx], verts[a, ky], verts[a, kz], verts[b, kx], verts[b, ky],
                 verts[b, kz], verts[c, kx], verts[c, ky], verts[c, kz], okx, oky, okz, sx, sy,
                 sz, t0, best)
             if hit:
-                found, best, bp, bu, bv = True, t, p, u, v
+                found, best, bp, bu, bv = True, t, g, u, v
                 if anyhit:
                     return found, best, bp, bu, bv
     return found, best, bp, bu, bv
@@ -259,7 +273,7 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
                st2_t):
     """One world ray through both levels (or only instance ``only`` when ``only >= 0``).
 
-    Returns ``(inst, t, leaf_index, u, v)``. Each inlined helper has a single call site (the
+    Returns ``(inst, t, triangle, u, v)``. Each inlined helper has a single call site (the
     instance range ``q..q_end`` of a top-level leaf, or ``only``, is drained before the next
     pop), which keeps the kernel's compile time reasonable.
     """
@@ -279,7 +293,7 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
             i = only if only >= 0 else top_inst[q]
             q += 1
             lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz, dx, dy, dz)
-            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris,
+            found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris, sb.tri,
                                             sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
                                             ex, ey, ez, t0, best, anyhit, st2_node, st2_t)
             # t <= best; an equal distance goes to the highest instance id (the oracle's
@@ -337,7 +351,7 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
             if bi >= 0:
                 out_t[r] = t
                 out_inst[r] = bi
-                out_prim[r] = sb.tri[p]
+                out_prim[r] = p
                 out_u[r] = u
                 out_v[r] = v
 

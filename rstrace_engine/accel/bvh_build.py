@@ -48,12 +48,13 @@ BIN_CHUNK = 16384
 #: kernel-cache lists) ...
 BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
                  "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
-                 "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri")
+                 "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",
+                 "accel.bvh_mesh.place_tri")
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
-                       "accel.bvh_mesh.indexed_boxes", "accel.bvh_mesh._gather_rows")
+                       "accel.bvh_mesh.indexed_boxes")
 #: Meshes of fewer triangles are built by one thread, without parallel regions (starting
 #: one costs more than it saves there, and very much more when the cores are
 #: oversubscribed).

@@ -2,12 +2,12 @@
 
 The binary tree (:func:`.bvh_build.build_flat`) is collapsed into 4-wide nodes
 (:func:`collapse4`) whose boxes are widened outward by an ulp (:func:`pad_outward`) and
-stored in float32, rounded outward; the leaves name triangles, whose vertices the traversal
-reads from the scene's own arrays (:func:`leaf_tris`). Meshes of fewer than
-:data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and one thread, with no parallel
-region to start; larger ones through parallel kernels that read the triangles through their
-vertex indices (:func:`build_mesh_bvh_indexed`: no copy of the mesh's triangles in mesh
-order).
+stored in float32, rounded outward; the leaves name triangles (global triangle ids in leaf
+order), whose vertex indices and vertices the traversal reads from the scene's own
+arrays. Meshes of fewer than :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and
+one thread, with no parallel region to start; larger ones through parallel kernels that
+read the triangles through their vertex indices (:func:`build_mesh_bvh_indexed`: no copy
+of the mesh's triangles in mesh order).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from .. import tolerances as tol
 from ..cancel import Cancelled
 from .bvh_build import (
     DEPTH_CAP,
+    MAX_LEAF,
     NEVER_STOP,
     PARALLEL_MIN,
     _half_area,
@@ -229,23 +230,6 @@ def indexed_boxes(verts, tris):
     return pb
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _gather_rows(tris, order, out):
-    for i in prange(order.shape[0]):
-        t = order[i]
-        out[i, 0], out[i, 1], out[i, 2] = tris[t, 0], tris[t, 1], tris[t, 2]
-
-
-def leaf_tris(tris: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """``tris[order]`` (a scene's vertex indices in a BVH's leaf order), (len(order), 3)
-    int32; in parallel past :data:`.bvh_build.PARALLEL_MIN` rows."""
-    if len(order) < PARALLEL_MIN:
-        return np.ascontiguousarray(tris[order], np.int32)
-    out = np.empty((len(order), 3), np.int32)
-    _gather_rows(tris, order, out)
-    return out
-
-
 def mesh_range(sa, mesh: int) -> tuple[int, int]:
     """Mesh ``mesh``'s triangles: ``sa.tris[start:end]``."""
     return int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
@@ -367,18 +351,98 @@ def _step_up32(x):
     return x + np.int32(1) if x > 0 else x - np.int32(1)
 
 
+# ----------------------------------------------------------------------------- leaves
+
+#: A mesh leaf's code is ``~(start << 3 | kind)`` (layout: :mod:`.bvh`). Kinds 1 to
+#: LEAF_LISTED: that many triangles, listed in leaf order at ``tri[start:start + kind]``;
+#: the others name their triangles directly, with no list entry: LEAF_ONE triangle
+#: ``start``, LEAF_PAIR ``start`` then ``start + 1``, LEAF_PAIR_DOWN ``start + 1`` then
+#: ``start`` (most leaves of a triangulated surface: a quad's two triangles are neighbours
+#: in the host's order). Kind 0 (code ``~0``) is the empty leaf.
+LEAF_LISTED = 4
+LEAF_ONE, LEAF_PAIR, LEAF_PAIR_DOWN = 5, 6, 7
+assert MAX_LEAF <= LEAF_LISTED  # (a leaf of more would be read as a direct one)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def leaf_size(kind):
+    """Triangles in a mesh leaf of ``kind`` (``code & 7``)."""
+    if kind <= LEAF_LISTED:
+        return kind
+    return 1 if kind == LEAF_ONE else 2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def leaf_triangle(tri, start, kind, i):
+    """Triangle ``i`` (in leaf order) of the mesh leaf ``~(start << 3 | kind)``."""
+    if kind <= LEAF_LISTED:
+        return tri[start + i]
+    if kind == LEAF_PAIR_DOWN:
+        return start + 1 - i
+    return start + i
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def place_child(src, dst, row0, dn, dl):
+def direct_leaves(child, perm, out_child, out_tri):
+    """A built mesh tree's leaves (``child`` codes ``~(start << 3 | count)`` over ``perm``,
+    the triangles in leaf order) as the traversal reads them: a leaf of one triangle, or
+    of two neighbours in either order, names them (LEAF_ONE, LEAF_PAIR, LEAF_PAIR_DOWN);
+    the others list theirs in ``out_tri``, in leaf order. Writes ``out_child`` (same
+    shape) and returns the number of ``out_tri`` entries used."""
+    n = 0
+    for i in range(child.shape[0]):
+        for j in range(4):
+            c = child[i, j]
+            if c >= 0 or c == -1:
+                out_child[i, j] = c
+                continue
+            code = ~c
+            s, k = code >> 3, code & 7
+            a = perm[s]
+            if k == 1:
+                out_child[i, j] = ~((a << 3) | LEAF_ONE)
+            elif k == 2 and perm[s + 1] == a + 1:
+                out_child[i, j] = ~((a << 3) | LEAF_PAIR)
+            elif k == 2 and perm[s + 1] == a - 1:
+                out_child[i, j] = ~(((a - 1) << 3) | LEAF_PAIR_DOWN)
+            else:
+                out_child[i, j] = ~((n << 3) | k)
+                for q in range(k):
+                    out_tri[n + q] = perm[s + q]
+                n += k
+    return n
+
+
+def leaf_order(child: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Every triangle of a mesh tree in :func:`direct_leaves`' form, leaf by leaf (nodes
+    in order, lanes in order), each leaf's in its order: (m,) int64 (tests, checks)."""
+    out = []
+    for c in child[child < -1]:
+        code = ~int(c)
+        s, k = code >> 3, code & 7
+        if k <= LEAF_LISTED:
+            out.extend(int(x) for x in tri[s:s + k])
+        elif k == LEAF_ONE:
+            out.append(s)
+        else:
+            out.extend([s, s + 1] if k == LEAF_PAIR else [s + 1, s])
+    return np.array(out, np.int64)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def place_child(src, dst, row0, dn, dl, dt):
     """``dst[row0:row0 + len(src)]`` = child codes ``src`` (N, 4) int32 moved by ``dn``
-    nodes and ``dl`` leaf-order triangles (an inner node ``c >= 0`` becomes ``c + dn``, a
-    leaf ``~(start << 3 | count)`` starts ``dl`` later, the empty leaf ``~0`` stays)."""
+    nodes, ``dl`` listed entries and ``dt`` triangles (an inner node ``c >= 0`` becomes
+    ``c + dn``; a leaf ``~(start << 3 | kind)`` starts ``dl`` later when it lists its
+    triangles, ``dt`` later when it names them; the empty leaf ``~0`` stays)."""
     for i in range(src.shape[0]):
         for j in range(4):
             c = src[i, j]
             if c >= 0:
                 c += dn
             elif c != -1:
-                c = ~((~c) + (dl << 3))
+                code = ~c
+                c = ~(code + ((dl if (code & 7) <= LEAF_LISTED else dt) << 3))
             dst[row0 + i, j] = c
 
 

@@ -22,8 +22,9 @@ one run and with the thread count stated:
   the two accelerators), in million rays per second;
 * **memory**: bytes per *unique* triangle (the meshes' own, not counting duplicates) of the
   scene model (the validated meshes), the packed scene arrays (geometry only) and the BVH
-  (both levels as the traversal reads them, but for the packed vertices its leaves read,
-  counted with the packed arrays); a buffer shared by several arrays counts once.
+  (both levels as the traversal reads them, but for the packed vertices and triangles its
+  leaves read, counted with the packed arrays); a buffer shared by several arrays counts
+  once.
 
 ``--quick`` runs small sizes (what the tests run). Results: ``docs/bench-scale.md``.
 """
@@ -113,8 +114,8 @@ def memory(scene: Scene, sa, acc) -> dict:
              for k in ("verts", "tris", "normals", "uvs", "slots")]
     packed = [sa.verts, sa.tris, sa.normals, sa.uvs, sa.tri_slot, sa.mesh_tri_start,
               sa.mesh_nrm, sa.mesh_uv]
-    # the BVH's own arrays (its leaves read the packed verts, counted there)
-    bvh = [a for f, a in acc.sb._asdict().items() if f != "verts"]
+    # the BVH's own arrays (its leaves read the packed verts and tris, counted there)
+    bvh = [a for f, a in acc.sb._asdict().items() if f not in ("verts", "tris")]
     parts = {"model": _nbytes(model), "packed": _nbytes(packed), "bvh": _nbytes(bvh),
              "total": _nbytes(model + packed + bvh)}
     return {k: round(v / unique, 1) for k, v in parts.items()}

@@ -54,6 +54,7 @@ from numba import njit, prange
 from .. import tolerances as tol
 from ..accel.accelerators import BVHAccelerator
 from ..accel.bvh import STACK_SIZE
+from ..accel.bvh_mesh import leaf_size, leaf_triangle
 from ..geometry.scene import LIGHT_SUN, SceneArrays
 from ..geometry.shaft_geometry import (
     MAX_PLANES,
@@ -282,7 +283,9 @@ def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG
                 sp += 1
                 continue
             code = ~ch
-            for t in range(code >> 3, (code >> 3) + (code & 7)):
+            s, k = code >> 3, code & 7
+            for i in range(leaf_size(k)):
+                t = leaf_triangle(sb.tri, s, k, i)  # (global triangle)
                 for v in range(3):
                     P[v, 0] = sb.verts[sb.tris[t, v], 0]
                     P[v, 1] = sb.verts[sb.tris[t, v], 1]
@@ -297,8 +300,8 @@ def _mesh_clear(sb, xf, root, sa, j, plo, npl, bbo, slack, lo, hi, extent, Q, NG
 
 @njit(cache=True, nogil=True, inline="always")
 def _world(xf, verts, tris, t, v):
-    """Vertex ``v`` of leaf-order triangle ``t`` (its vertex indices ``tris[t]``) taken to
-    world space by ``xf``."""
+    """Vertex ``v`` of triangle ``t`` (its vertex indices ``tris[t]``) taken to world space
+    by ``xf``."""
     x, y, z = verts[tris[t, v], 0], verts[tris[t, v], 1], verts[tris[t, v], 2]
     return (xf[0, 0] * x + xf[0, 1] * y + xf[0, 2] * z + xf[0, 3],
             xf[1, 0] * x + xf[1, 1] * y + xf[1, 2] * z + xf[1, 3],
@@ -308,8 +311,8 @@ def _world(xf, verts, tris, t, v):
 @njit(cache=True, nogil=True)
 def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state, members,
               a0, a1):
-    """Can no shadow sample of light ``j`` from the group's points meet leaf-order triangle
-    ``t`` (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the
+    """Can no shadow sample of light ``j`` from the group's points meet triangle ``t``
+    (vertices ``verts[tris[t]]``, object space, transform ``xf``)? Per point: the
     triangle lies behind the point's own plane, or the point and the light's whole extent
     lie on one side of the triangle's plane (see the module's docstring)."""
     L = sa.light_kind.shape[0]

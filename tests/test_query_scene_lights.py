@@ -52,7 +52,9 @@ def _light(sess, key, **kw):
     return [LightSet(key, replace(li, **kw))]
 
 
-def test_light_edits_keep_the_query_structures(monkeypatch):
+def _counted_session(monkeypatch):
+    """A soft room's INTERPOLANT session after its first frame, and the list that grows by
+    one at every build of the query structures."""
     calls = []
 
     def build(sa, topo):
@@ -62,6 +64,11 @@ def test_light_edits_keep_the_query_structures(monkeypatch):
     monkeypatch.setattr(interpolant_cache, "query_scene", build)
     sess = session(soft_room_unlit_world(96, 72), True)
     sess.render()
+    return calls, sess
+
+
+def test_light_edits_keep_the_query_structures(monkeypatch):
+    calls, sess = _counted_session(monkeypatch)
     cache = sess.interpolants.cache
     assert len(calls) == 1
     lamp = sess.scene.lights[sess.scene.light_slot("Lamp")]
@@ -92,15 +99,7 @@ def test_a_light_edit_with_an_object_or_material_edit_builds_them_again(monkeypa
     """A batch that edits a light and an object (or a material) packs the geometry again:
     the query structures are built again, not taken from the last packing's, and they are
     a fresh build's (a light drag with an object move in one batch kept no stale BVH)."""
-    calls = []
-
-    def build(sa, topo):
-        calls.append(1)
-        return BUILD(sa, topo)
-
-    monkeypatch.setattr(interpolant_cache, "query_scene", build)
-    sess = session(soft_room_unlit_world(96, 72), True)
-    sess.render()
+    calls, sess = _counted_session(monkeypatch)
     lamp = sess.scene.lights[sess.scene.light_slot("Lamp")]
     m = sess.scene.instances[sess.scene.instance_slot("Small")]["matrix"].copy()
     m[0, 3] += 0.1

@@ -23,7 +23,9 @@ def _script():
 
 def test_pixel_outcomes_agree_with_the_frame_and_its_cell_counts():
     mod = _script()
-    grid, stats = mod.pixel_outcomes("museum_1999", 0.01, 6, 96, 72)
+    # the measured fallback decides from timings (its ledger may trace a 96x72 frame whole,
+    # building no cell: nothing to compare): off here
+    grid, stats = mod.pixel_outcomes("museum_1999", 0.01, 6, 96, 72, fallback=False)
     names = (*OUTCOMES, *mod.EXTRA)
     assert grid.shape == (72, 96)
     assert grid.min() >= 0 and grid.max() < len(names)

@@ -107,24 +107,6 @@ def test_an_added_light_adds_its_term(name, kind):
             assert q in set(affected(cache, box).ids.tolist())
 
 
-def test_an_added_area_light_keeps_the_cache():
-    """A light with an extent is not proven on the kept cells: every interpolant is
-    invalidated, but the cache (its linetrees) is kept and the traced pixels relit (a
-    light that mirror or refraction rays see would start a new cache, as before:
-    ``render._newly_seen``)."""
-    make, _ = SCENES["spheres"]
-    sess = session(make(), True)
-    sess.render()
-    cache = sess.interpolants.cache
-    n = cache.pool.n_live
-    rep = sess.apply([LightSet("Added", _new_light(sess, "AREA"))])
-    assert sess.interpolants.cache is cache
-    assert rep.invalidated_interpolants == n
-    frame = sess.render()
-    assert frame.stats["relit"]
-    check_bound(frame, sess.scene)
-
-
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_a_deleted_light_drops_its_term(name):
     """Deleting a light rescales what it shaded to zero (the old code invalidated every

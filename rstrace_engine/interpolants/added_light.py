@@ -199,8 +199,7 @@ def add_terms(cache, old_sa, sa, accel, slots) -> AddResult:
     live = np.flatnonzero(pool.live).astype(np.int32)
     L0, L1 = len(old_sa.light_kind), len(sa.light_kind)
     k = L1 - L0
-    if (np.any(np.asarray(sa.light_ext, bool)[slots]) or len(live) == 0
-            or not np.any(pool.tests[live, 0] >= 0)):  # (no test lines kept: none passes)
+    if len(live) == 0 or not np.any(pool.tests[live, 0] >= 0):  # (no test lines: none passes)
         _widen(sm, np.full((sm.n_nodes, k), -2, np.int32), np.zeros((sm.n, k, 3)))
         return AddResult(none, none, live, list(slots))
     occ, share, good = _shade_samples(cache, sa, accel, list(slots))

@@ -50,7 +50,6 @@ from ..tracing.seen_lights import (
     SEEN_GLOSSY,
     SEEN_TRANSMISSION,
     any_seen,
-    seen_lights,
 )
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import world_lights
@@ -155,12 +154,13 @@ def _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pi
 
 
 def _newly_seen(old_sa, sa) -> bool:
-    """Whether mirror or refraction rays see a light in ``sa`` they did not in ``old_sa``
-    (the cells' samples are flagged by what they saw: :func:`~.samples.seen_flags`)."""
-    def below(x):
-        return seen_lights(x, SEEN_GLOSSY) | seen_lights(x, SEEN_TRANSMISSION)
-    new, old = below(sa), below(old_sa)  # (lights added: new slots)
-    return bool(np.any(new[:len(old)] & ~old) or np.any(new[len(old):]))
+    """Whether mirror or refraction rays may see a light's surface in ``sa`` where they
+    could see none in ``old_sa``: the cells' samples were flagged only while some light was
+    seen (:func:`~.samples.seen_flags` flags every sample whose tree goes below its root
+    while any light is, whichever light it is), so a light seen as well as others (moved,
+    added) finds every such sample flagged -- and its cell failed -- already."""
+    seen = (SEEN_GLOSSY, SEEN_TRANSMISSION)
+    return any_seen(sa, seen) and not any_seen(old_sa, seen)
 
 
 def _add_stats(a: dict, b: dict) -> dict:

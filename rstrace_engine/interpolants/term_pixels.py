@@ -204,8 +204,10 @@ def term_edit(cache, old_sa, sa, slots, changed, quiet, rescaled, resc_lights, m
     for j in resc_lights:
         scale[j] += new[j] - old[j]
     sas = (old_sa, sa)
-    # (a moved light with an extent before or after: its sampled terms, per pixel, move too)
-    ext_lights = sorted(set(int(j) for j in resc_lights) | set(int(j) for j in moved))
+    # (a moved light with an extent before or after: its sampled terms, per pixel, move too;
+    # an added one's are new)
+    ext_lights = sorted(set(int(j) for j in resc_lights) | set(int(j) for j in moved)
+                        | set(int(j) for j in slots))
     cells = np.union1d(np.asarray(changed, np.int32), np.asarray(rescaled, np.int32))
     cells = cells[_recombinable(cache, cells, sas, ext_lights)].astype(np.int32)
     quiet = np.setdiff1d(np.asarray(quiet, np.int32), cells)

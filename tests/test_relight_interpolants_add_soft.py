@@ -1,0 +1,105 @@
+"""A light with an extent added in INTERPOLANT mode keeps the cells it is proven on (issue 21
+item 3, ``interpolants/added_light.py``): a sphere light, an area light or a sun with an
+angle is shaded at the kept samples alone (its sampled term taken off, as a build takes it
+off), proven on each live cell by the soft-light proof with the other lights off, and the
+cells that pass keep their interpolants with the new term -- where the old code invalidated
+every cell. Every frame is held to the bound (its maximum display error against a fresh
+BASE frame, and against a fresh INTERPOLANT frame, at most epsilon).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from bound_scenes import soft_sun
+from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse fixture)
+    EPS,
+    FLOAT_TOL,
+    SCENES,
+    cells_always,
+    check_bound,
+    session,
+    settings,
+)
+from test_relight_interpolants_add import _cells, _live
+
+from rstrace_engine import image
+from rstrace_engine.frame import CLASS_INTERPOLATED
+from rstrace_engine.geometry.edits import LightSet
+from rstrace_engine.geometry.scene import Light
+from rstrace_engine.interpolants.invalidation import affected
+from rstrace_engine.interpolants.predicate import radiance_ok
+from rstrace_engine.session import Session
+
+MAKE = {"spheres": SCENES["spheres"][0], "soft_penumbra": SCENES["soft_penumbra"][0],
+        "soft_sun": lambda: soft_sun("PERSP")}
+
+
+def _soft_light(sess: Session, kind: str) -> Light:
+    """An added light with an extent above the scene's middle: a sphere light, an area
+    light or a sun with an angle. Mirror and refraction rays see its surface where they
+    already see another light's (``render._newly_seen``: the samples are flagged), not
+    where they saw none (a new cache)."""
+    sa = sess.scene.arrays()
+    box = sa.scene_aabb
+    c = 0.5 * (box[0] + box[1])
+    top = (c[0] + 0.2 * (box[1][0] - box[0][0]), c[1], box[0][2] + 0.8 * (box[1][2] - box[0][2]))
+    seen = bool(np.any(np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_vis)[:, 1] > 0)))
+    vis = dict(glossy=seen, transmission=seen)
+    if kind == "AREA":
+        return Light("Added", "AREA", power=40.0, position=top, direction=(0.0, 0.0, -1.0),
+                     size=(0.5, 0.4), **vis)
+    if kind == "SUN":
+        return Light("Added", "SUN", power=2.0, direction=(0.2, 0.1, -1.0), angle=0.2, **vis)
+    return Light("Added", "POINT", power=40.0, position=top, radius=0.3, **vis)
+
+
+CASES = [("spheres", "AREA"), ("spheres", "SPHERE"), ("soft_penumbra", "AREA"),
+         ("soft_penumbra", "SPHERE"), ("soft_penumbra", "SUN"), ("soft_sun", "SPHERE")]
+
+
+@pytest.mark.parametrize(("name", "kind"), CASES)
+def test_an_added_soft_light_keeps_the_cells_it_is_proven_on(name, kind):
+    """The cache and the cells the light is proven on are kept (the old code invalidated
+    every cell: ``kept == 0``); the kept cells pass their radiance test, their corners are
+    a fresh build's samples, a later edit of the light finds the cells that took its term;
+    the frame is within epsilon of a fresh BASE frame and of a fresh INTERPOLANT frame."""
+    sess = session(MAKE[name](), True)
+    f0 = sess.render()
+    assert (f0.pixel_class == CLASS_INTERPOLATED).mean() > 0.1
+    cache = sess.interpolants.cache
+    before = _live(cache)
+    rep = sess.apply([LightSet("Added", _soft_light(sess, kind))])
+    assert sess.interpolants.cache is cache, "the cache started over"
+    after = _live(cache)
+    kept = [q for q, (s, _) in after.items() if q in before and before[q][0] == s]
+    changed = [q for q in kept if not np.array_equal(after[q][1], before[q][1])]
+    assert len(kept) > 0, "no cell kept"
+    assert len(kept) + rep.invalidated_interpolants == len(before)
+    assert len(changed) > 0  # (the light reaches kept cells: the term was taken)
+    frame = sess.render()
+    assert frame.stats["relit"] and frame.stats["incremental"]
+    assert frame.stats["dirty_fraction"] < 1.0
+    err = check_bound(frame, sess.scene)
+    assert err <= EPS + FLOAT_TOL
+    # ... and within epsilon of a fresh INTERPOLANT frame (whose kept cells are a fresh
+    # build's: their corners equal the kept cells')
+    fresh = Session(sess.scene.copy(), settings())
+    fresh.light_terms = True
+    ff = fresh.render()
+    m = image.compare(frame.radiance, ff.radiance, EPS)
+    assert m["max_error"] <= EPS + FLOAT_TOL, m
+    p, sm = cache.pool, cache.samples
+    live = np.flatnonzero(p.live)
+    cs = np.concatenate([p.samples[live], p.tests[live]], axis=1)
+    ns = (16 + np.count_nonzero(p.tests[live] >= 0, axis=1)).astype(np.int32)
+    assert radiance_ok(sm.radiance(), cs, ns, EPS, sm.texture_terms(), cache.tex_max).all()
+    a, b = _cells(cache), _cells(fresh.interpolants.cache)
+    common = set(a) & set(b)
+    assert common
+    for key in common:
+        np.testing.assert_allclose(a[key], b[key], rtol=1e-9, atol=1e-12)
+    # a later edit of the added light finds the cells that took its term
+    j = sess.scene.light_slot("Added")
+    hit = set(affected(cache, np.zeros((0, 2, 3)), lights=(j,)).ids.tolist())
+    assert {q for q in changed if p.live[q]} <= hit

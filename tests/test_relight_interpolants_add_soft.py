@@ -37,9 +37,10 @@ MAKE = {"spheres": SCENES["spheres"][0], "soft_penumbra": SCENES["soft_penumbra"
 
 def _soft_light(sess: Session, kind: str) -> Light:
     """An added light with an extent above the scene's middle: a sphere light, an area
-    light (a square, or a disk: no closed form) or a sun with an angle. Mirror and refraction rays see its surface where they
-    already see another light's (``render._newly_seen``: the samples are flagged), not
-    where they saw none (a new cache)."""
+    light (a square, or a disk: no closed form) or a sun with an angle. Mirror and
+    refraction rays see its surface where they already see another light's
+    (``render._newly_seen``: the samples are flagged), not where they saw none (a new
+    cache)."""
     sa = sess.scene.arrays()
     box = sa.scene_aabb
     c = 0.5 * (box[0] + box[1])

@@ -25,6 +25,7 @@ row                museum                                       three_spheres
 ``world_colour``   the world's colour (a background only)       the same
 ``move_light``     move a ceiling light 1 m                     move the fill light 1 m
 ``add_light``      add a point light (a new light slot)         the same
+``add_soft_light`` that light as a sphere light, radius 0.5       the same
 ``delete_light``   delete a ceiling light                       delete the key light
 ``add_object``     add a ball on a plinth                       add a small sphere
 ``camera_step``    camera steps forward (0.5% of the scene)     the same
@@ -93,10 +94,11 @@ from .trade import moved_cameras
 EPSILON = 0.01
 ROWS = ("delete_top", "delete_bottom", "move_cube_in", "move_small", "recolor",
         "recolor_shared", "light_power", "light_colour", "world_colour", "move_light",
-        "resize_area_light", "add_light", "delete_light", "add_object", "camera_step")
+        "resize_area_light", "add_light", "add_soft_light", "delete_light", "add_object",
+        "camera_step")
 #: the rows that edit lights or the world only (BASE relights them)
 LIGHT_ROWS = ("light_power", "light_colour", "world_colour", "move_light",
-              "resize_area_light", "add_light", "delete_light")
+              "resize_area_light", "add_light", "add_soft_light", "delete_light")
 JSON_KEYS = ("scene", "edit", "mode", "rst_query_ms", "records_query_ms", "apply_ms",
              "invalidated_interpolants", "dirty_fraction", "full_frame_s",
              "incremental_frame_s", "speedup", "max_error_vs_fresh", "frac_over_epsilon",
@@ -224,6 +226,10 @@ def _light_edits(s: Scene, light_key: str, moved_light: str, deleted: str) -> di
             ml, position=tuple(np.asarray(ml.position) + (1.0, 0.0, 0.0))))],
         "add_light": [LightSet("BenchLight", Light("BenchLight", "POINT",
                                                    power=2.0 * li.power, position=top))],
+        # the same light with an extent: a sphere light of radius 0.5
+        "add_soft_light": [LightSet("BenchSoft", Light("BenchSoft", "POINT",
+                                                       power=2.0 * li.power, position=top,
+                                                       radius=0.5))],
         "delete_light": [LightDelete(deleted)],
     }
     areas = [k for k, j in s.light_keys.slot.items() if s.lights[j].kind == "AREA"]

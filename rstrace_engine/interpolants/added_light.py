@@ -52,7 +52,7 @@ from .line_samples import _unpack, front_hits
 from .linetree import lattice_lines
 from .predicate import VALID, check_cells, radiance_ok
 from .relight import light_scale, light_shares
-from .sampled_term import sampled_possible, sampled_term
+from .sampled_term import per_pixel_query, sampled_possible, sampled_term
 from .samples import glossy_flags, textured_roots
 from .shafts import glossy_materials, light_extents, light_fields
 from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, tunnel_sections
@@ -101,16 +101,13 @@ def _only(sa, slots):
 def _query(cache, sa, slots):
     """The cache's predicate structures with ``sa``'s lights, all but ``slots`` off (their
     kind ``-1``, skipped by the light tests)."""
-    qs = cache.qs  # (the geometry is the same: a batch of light and world edits)
     kind = np.full(len(sa.light_kind), -1, np.int32)
     kind[slots] = np.asarray(sa.light_kind, np.int32)[slots]
     f = light_fields(sa)
-    f["light_kind"] = kind
-    if sampled_possible(sa):  # (as :attr:`~.interpolant_cache.InterpolantCache.qs`)
-        f.update(light_closed=f["light_ext"].copy(), mat_glossy=np.zeros_like(qs.mat_glossy))
-    else:
-        f.update(mat_glossy=glossy_materials(sa))
-    return qs._replace(**f)
+    f.update(light_kind=kind, mat_glossy=glossy_materials(sa))
+    # (the geometry is the same: a batch of light and world edits; the cache's ``qs`` may
+    # hold its packing's per-pixel adjustment, undone by ``mat_glossy`` above)
+    return per_pixel_query(cache.qs._replace(**f), sa)
 
 
 def _shade_samples(cache, sa, accel, slots):
@@ -165,7 +162,8 @@ def _without_sampled(cache, one, accel, o, d, hits, share) -> np.ndarray:
     ``hits``, as :func:`~.sampled_term.without_sampled` takes them off a new sample's:
     interpolants hold the closed-form part, every pixel adds its own sampled term. Returns
     (n,) bool: False where a textured root has a sampled term (its texture split traced
-    other samples: :data:`~.samples.TEX_MISMATCH`)."""
+    other samples, or a split one: :data:`~.samples.TEX_MISMATCH`, as
+    :func:`~.sampled_term.without_sampled` flags a new sample)."""
     n = len(o)
     coef = np.zeros(share.shape)
     sampled_term(one, accel, o, d, 1.0, hits, sample_seeds(np.arange(n, dtype=np.int64), 0),
@@ -177,7 +175,9 @@ def _without_sampled(cache, one, accel, o, d, hits, share) -> np.ndarray:
     tex_root = np.zeros(n, np.bool_)
     textured_roots(one, np.ascontiguousarray(hits.inst, np.int32),
                    np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
-    return ~(has & tex_root)
+    # (a root whose radiance is split by its texture, ``dif`` != 0, as the build flags it)
+    dif = cache.samples.texture_terms()[0][:n]
+    return ~(has & (tex_root | np.any(dif != 0.0, axis=1)))
 
 
 def _ramp(cnt):

@@ -84,7 +84,7 @@ from .predicate import (
     corner_trees,
     radiance_ok,
 )
-from .sampled_term import sampled_possible
+from .sampled_term import per_pixel_query
 from .samples import (
     GLOSSY,
     SEES_LIGHT,
@@ -289,11 +289,7 @@ class InterpolantCache:
             else:
                 memo = (self.sa, query_scene(self.sa, self.topo))
             _QS_LAST[0] = memo
-        qs = memo[1]
-        if sampled_possible(self.sa):
-            qs = qs._replace(light_closed=np.ascontiguousarray(qs.light_ext, np.bool_),
-                             mat_glossy=np.zeros_like(qs.mat_glossy))
-        return qs
+        return per_pixel_query(memo[1], self.sa)
 
     @property
     def tex_max(self) -> np.ndarray:

@@ -62,6 +62,19 @@ def sampled_possible(sa) -> bool:
     return bool(glossy_materials(sa).any() or (ext & ~closed_forms(sa)).any())
 
 
+def per_pixel_query(qs, sa):
+    """The predicate's query structures ``qs`` (:func:`.shafts.query_scene`, with ``sa``'s
+    light fields) as it reads them while ``sa``'s sampled terms are traced per pixel
+    (:func:`sampled_possible`): a fully visible light needs no closed form and no Lambertian
+    surface over a cell, only the horizon conditions of :func:`.soft_slab.soft_slab` (its
+    closed form's, when it has one) -- ``light_closed`` is ``light_ext`` and no material
+    counts as glossy. ``qs`` itself otherwise."""
+    if not sampled_possible(sa):
+        return qs
+    return qs._replace(light_closed=np.ascontiguousarray(qs.light_ext, np.bool_),
+                       mat_glossy=np.zeros_like(qs.mat_glossy))
+
+
 def sampled_objects(sa) -> np.ndarray:
     """(n_instances,) bool: the objects whose hits may have sampled rows (a material with a
     glossy lobe in one of their slots; every object while a light with an extent has no

@@ -132,8 +132,14 @@ def _shade_samples(cache, sa, accel, slots):
     one = _only(sa, slots)
     segs: list = []
     own = partial(trace, glossy_samples=1, roots="own", camera_lights=False)
+    # (the shadow rays of a light with an extent that a shaft proves unoccluded over a
+    # cell's root points are not traced: the same trees and shares bit for bit, shaft_skip)
+    counters: dict = {}
     _, tree = own(one, accel, o, d, 0.0, 1.0, cache.max_depth, record=True, primary=hits,
-                  segments=segs, terms=True)
+                  segments=segs, terms=True, skip_keys=_cell_keys(cache.pool, n),
+                  counters=counters)
+    for c in ("shadow", "shadow_skipped"):  # (traced and skipped shadow rays, in totals)
+        cache.totals[f"terms_{c}"] = cache.totals.get(f"terms_{c}", 0) + counters.get(c, 0)
     share = light_shares(segs, n, k)
     good = hits.inst == sm._inst[:n]
     if sampled_possible(one):  # a light with an extent: its sampled term is per pixel
@@ -154,6 +160,20 @@ def _shade_samples(cache, sa, accel, slots):
     occ[rows_old] = tree.node_occluder[rows_new].reshape(-1, k)
     good &= glossy_flags(one, tree, n) == 0  # a rough interface lit from its far side
     return occ, share, good
+
+
+def _cell_keys(pool, n: int) -> np.ndarray:
+    """(n,) int64: a live interpolant holding each of the ``n`` stored samples (a corner or
+    a test line; -1 none): the groups whose root points :mod:`~..tracing.shaft_skip`
+    proves a light with an extent fully visible from, one shaft per cell."""
+    live = np.flatnonzero(pool.live)
+    cs = np.concatenate([pool.samples[live], pool.tests[live]], axis=1)
+    owner = np.repeat(live.astype(np.int64), cs.shape[1])
+    flat = cs.reshape(-1)
+    m = (flat >= 0) & (flat < n)
+    keys = np.full(n, -1, np.int64)
+    keys[flat[m]] = owner[m]
+    return keys
 
 
 def _without_sampled(cache, one, accel, o, d, hits, share) -> np.ndarray:

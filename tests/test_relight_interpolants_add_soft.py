@@ -9,6 +9,8 @@ BASE frame, and against a fresh INTERPOLANT frame, at most epsilon).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from bound_scenes import soft_sun
@@ -106,3 +108,37 @@ def test_an_added_soft_light_keeps_the_cells_it_is_proven_on(name, kind):
     j = sess.scene.light_slot("Added")
     hit = set(affected(cache, np.zeros((0, 2, 3)), lights=(j,)).ids.tolist())
     assert {q for q in changed if p.live[q]} <= hit
+
+
+@pytest.mark.parametrize("step", ["add", "move"])
+def test_proven_shadow_rays_are_not_traced(monkeypatch, step):
+    """Shading the kept samples again for an added or moved light with an extent skips the
+    shadow rays a shaft proves unoccluded over each cell's roots (``tracing.shaft_skip``,
+    one group per cell): fewer shadow rays than with the skips off, and the samples'
+    states, shares and radiance, the kept cells and the frame bit for bit the same."""
+    from rstrace_engine.tracing import shaft_skip
+
+    out = []
+    for skip in (True, False):
+        monkeypatch.setattr(shaft_skip, "SHAFT_SKIP", skip)
+        sess = session(MAKE["soft_penumbra"](), True)
+        sess.render()
+        cache = sess.interpolants.cache
+        if step == "add":
+            edits = [LightSet("Added", _soft_light(sess, "AREA"))]
+        else:
+            li = sess.scene.lights[sess.scene.light_slot("Area")]
+            pos = tuple(np.asarray(li.position) + (0.3, 0.0, 0.0))
+            edits = [LightSet("Area", replace(li, position=pos))]
+        sess.apply(edits)
+        sm = cache.samples
+        f = sess.render()
+        out.append((cache.totals.get("terms_shadow", 0),
+                    cache.totals.get("terms_shadow_skipped", 0),
+                    sm._nocc[:sm.n_nodes].copy(), sm.shares()[0].copy(),
+                    sm.radiance().copy(), np.flatnonzero(cache.pool.live), f.radiance))
+    (traced, skipped, *a), (traced0, skipped0, *b) = out
+    assert skipped > 0 and skipped0 == 0
+    assert traced < traced0
+    for x, y in zip(a, b, strict=True):
+        assert np.array_equal(x, y)

@@ -5,7 +5,7 @@ over their ray-tree nodes of each light's term (:mod:`.relight`); a light added 
 slot ``j`` adds ``S_j I_j`` to every sample, ``S_j`` its share (path weight times the shade
 kernel's term over its intensity) and ``I_j`` its intensity. So the cache is kept (it used
 to start over: every cell rebuilt, every pixel traced) and, for a *hard* light (a point,
-spot or sun without an angle):
+spot or sun without an angle; one with an extent below):
 
 * every kept sample (corners and test lines of the live cells) is shaded again with the
   new light alone (the scene packing with its slot only and the world dark, as
@@ -29,11 +29,20 @@ spot or sun without an angle):
   lights from its far side, a cell whose test lines were not kept (built before the
   session kept light terms).
 
-An added light with an extent invalidates every interpolant (its sampled term is traced
-per pixel, :mod:`.sampled_term`; a moved one is proven as above, :mod:`.moved_light`,
-with :func:`_shade_samples` taking its sampled term off the shares); the cache is kept
-all the same (its failed cells, linetrees), and the frame's traced pixels are relit as
-BASE's. Only batches that edit lights and the world take this path
+A light with an extent (a sphere light, an area light, a sun with an angle) is taken the
+same way, as a moved one is (:mod:`.moved_light`): its 16 shadow samples per node shaded
+at the kept samples, its *sampled term* taken off the shares as a build takes it off a new
+sample's (:func:`_without_sampled`: the glossy lobe under it, or all of a light without a
+closed form, is traced per pixel, :mod:`.sampled_term`), then the soft-light proof of
+:func:`~.predicate.check_cells` for it alone (the shaft from the cell's slab to its whole
+extent clear, the closed form's horizon conditions, or a sun's umbra) and the radiance
+test. The shadow rays a shaft proves unoccluded over a cell's roots are not traced
+(:mod:`~..tracing.shaft_skip`, one group per cell, :func:`_cell_keys`: bit for bit the
+same trees and shares). The kept cells' pixels take the term (:mod:`.term_pixels`) but
+where the light is sampled per pixel at their root: those are rendered again, their
+cells kept. A light that mirror or refraction rays see keeps the cache where such rays
+already saw another light (the samples below a root are flagged whichever light it is,
+``render._newly_seen``). Only batches that edit lights and the world take this path
 (:func:`can_add`); any other edit with a new light slot starts a new cache as before.
 """
 

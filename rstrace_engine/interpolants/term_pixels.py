@@ -27,9 +27,9 @@ to float rounding: within the bound of the cell, whose radiance test was run aga
 new corners.
 
 Not taken (rendered again, as before): cells on a rough root (their glossy rays, traced per
-pixel, see the edited light), a rescaled or moved light with an extent that a cell's root
-samples per pixel (its sampled term, :mod:`.sampled_term`, is outside the interpolant:
-moved, it changes), pixels whose samples
+pixel, see the edited light), a rescaled, moved or added light with an extent that a
+cell's root samples per pixel (its sampled term, :mod:`.sampled_term`, is outside the
+interpolant: moved, it changes; added, it is new), pixels whose samples
 used several interpolants, were traced, or are re-rendered by every frame.
 """
 

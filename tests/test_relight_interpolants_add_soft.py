@@ -108,6 +108,14 @@ def test_an_added_soft_light_keeps_the_cells_it_is_proven_on(name, kind):
     j = sess.scene.light_slot("Added")
     hit = set(affected(cache, np.zeros((0, 2, 3)), lights=(j,)).ids.tolist())
     assert {q for q in changed if p.live[q]} <= hit
+    # ... and an object put in its shaft from such a cell (its tunnels were added)
+    lit = [q for q in changed if p.live[q] and kind != "SUN"]
+    if lit:
+        q = lit[0]
+        root = sm._npoint[sm._nstart[p.samples[q, 0]]]
+        mid = 0.5 * (root + np.asarray(sess.scene.arrays().light_pos[j]))
+        box = np.stack([mid - 1e-3, mid + 1e-3])[None]
+        assert q in set(affected(cache, box).ids.tolist())
 
 
 @pytest.mark.parametrize("step", ["add", "move"])

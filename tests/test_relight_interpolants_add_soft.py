@@ -150,3 +150,21 @@ def test_proven_shadow_rays_are_not_traced(monkeypatch, step):
     assert traced < traced0
     for x, y in zip(a, b, strict=True):
         assert np.array_equal(x, y)
+
+
+def test_a_light_mirror_rays_see_first_starts_a_new_cache():
+    """The first light mirror and refraction rays can see (none could before) starts a new
+    cache (``render._newly_seen``): the cells' samples were not flagged below their roots
+    (``samples.seen_flags`` flags them only while some light is seen), so no kept cell may
+    be trusted to hold no node the new light shows in. The loosened condition (any light
+    seen now, none before) is what keeps the cache for a light added beside a seen one."""
+    sess = session(MAKE["spheres"](), True)
+    sess.render()
+    sa = sess.scene.arrays()
+    assert not np.any(np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_vis)[:, 1] > 0))
+    cache = sess.interpolants.cache
+    light = replace(_soft_light(sess, "SPHERE"), glossy=True, transmission=True)
+    sess.apply([LightSet("Added", light)])
+    assert sess.interpolants.cache is not cache, "the cache was kept"
+    frame = sess.render()
+    assert check_bound(frame, sess.scene) <= EPS + FLOAT_TOL

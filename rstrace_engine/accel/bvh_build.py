@@ -14,7 +14,8 @@ that every pass streams through memory:
    the split is exactly the one a single thread finds.
 2. **Subtrees** (:func:`build_subtrees`): the nodes left (at most ``grain`` primitives
    each) are built independently, one thread each, into their own stretch of the node
-   arrays, then packed (:func:`pack_nodes`).
+   arrays, then packed (:func:`pack_nodes`; a mesh BVH is collapsed to 4-wide straight
+   from the unpacked arrays, ``build_flat_boxes(packed=False)``).
 
 ``grain`` depends only on the primitive count, so the tree (nodes, boxes, leaf order) is the
 same whatever the thread count, and it is the tree one sequential build (``grain >= n``)
@@ -47,7 +48,7 @@ BIN_CHUNK = 16384
 #: The kernels every build runs (``module.function`` under rstrace_engine, for the
 #: kernel-cache lists) ...
 BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
-                 "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
+                 "accel.bvh_mesh.collapse4",
                  "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",
                  "accel.bvh_mesh.place_tri")
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)

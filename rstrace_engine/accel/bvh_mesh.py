@@ -271,12 +271,19 @@ def gather_triangles(verts: np.ndarray, tris: np.ndarray, order: np.ndarray) -> 
 KEY_CHUNK = 1 << 24
 
 
-def _hash_chunks(h, a: np.ndarray, stop: np.ndarray) -> None:
-    raw = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
-    for start in range(0, len(raw), KEY_CHUNK):
+def _hash_chunks(h, a: np.ndarray, stop: np.ndarray, less: int = 0) -> None:
+    """Feed ``a`` (``a - less`` where ``less``: an int32 array, each chunk taken from it
+    into one reused buffer, not a whole copy) to ``h`` in :data:`KEY_CHUNK`-byte chunks."""
+    raw = np.ascontiguousarray(a).reshape(-1)
+    step = KEY_CHUNK // raw.itemsize
+    buf = np.empty(min(step, len(raw)), raw.dtype) if less else None
+    for start in range(0, len(raw), step):
         if stop[0]:
             raise Cancelled("BVH build cancelled")
-        h.update(raw[start:start + KEY_CHUNK])
+        part = raw[start:start + step]
+        if less:
+            part = np.subtract(part, raw.dtype.type(less), out=buf[:len(part)])
+        h.update(part)
 
 
 def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP) -> bytes:
@@ -292,7 +299,7 @@ def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP)
     lo, hi = int(tris.min()), int(tris.max())
     h.update(np.array([len(tris), hi + 1 - lo], np.int64).tobytes())
     _hash_chunks(h, np.ascontiguousarray(verts[lo:hi + 1], np.float64), stop)
-    _hash_chunks(h, tris - np.int32(lo) if lo else tris, stop)
+    _hash_chunks(h, tris, stop, lo)
     return h.digest()
 
 

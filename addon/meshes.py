@@ -192,9 +192,11 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     Two reads of an unchanged mesh give the same digest; any change of positions, topology,
     material indices, sharpness, custom normals or the render UV map changes it. ``raw``:
     arrays :func:`mesh_arrays` already read (not read again), and receives those read here.
+    SHA-256 (its first 16 bytes; with the CPU's SHA instructions about twice as fast as
+    BLAKE2b); digests are compared only within the process.
     """
     raw = {} if raw is None else raw
-    h = hashlib.blake2b(digest_size=16)
+    h = hashlib.sha256()
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
     h.update(np.array(counts, np.int64).tobytes())
@@ -225,7 +227,7 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
             raw["uv"] = (layer.name, uv)
         h.update(layer.name.encode())
         h.update(uv)
-    return h.digest()
+    return h.digest()[:16]
 
 
 def same_mesh(a: Mesh | None, b: Mesh | None) -> bool:

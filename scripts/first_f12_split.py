@@ -1,7 +1,7 @@
 """The first F12 of ``bench_scale_bpy.py``'s heavy scene split into its parts, beside
 Cycles' first render of the same scene in the same process.
 
-    python scripts/first_f12_split.py [1M|4M|60k] [--json out.jsonl]
+    python scripts/first_f12_split.py [1M|4M|60k] [--json out.jsonl] [--root CHECKOUT]
 
 Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE,
 ray depth 0), waits for the add-on's background kernel load (``--settle``), then times one
@@ -14,7 +14,8 @@ level), the core render, writing the result, and any kernel load or compile
 whole process (all threads: the build thread and numba's), and for the F12 its wall, CPU
 and system CPU (page faults of fresh memory). Then Cycles (CPU, 1 sample, no bounces, no
 denoising) renders the same scene. Nothing is asserted; the numbers go to
-``docs/bench-scale-bpy.md``. Run it with ``PYTHONPATH`` at each checkout in turn.
+``docs/bench-scale-bpy.md``. ``--root``: the checkout whose add-on, core and
+``bench_scale_bpy.py`` run (default: this script's), for A/B runs against another one.
 """
 
 from __future__ import annotations
@@ -27,8 +28,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
 
 #: (module attribute holder, name, label) of what is timed, in the order printed
 PARTS = (("export", "read_scene", "export (all)"),
@@ -66,7 +65,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("size", nargs="?", default="1M")
     p.add_argument("--json", type=Path, help="append one JSON line")
+    p.add_argument("--root", type=Path, default=ROOT, help="the checkout to time")
     args = p.parse_args(argv)
+    root = args.root.resolve()
+    sys.path[:0] = [str(root / "scripts"), str(root)]
     import bench_scale_bpy as bsb
     import bpy
     import numba.core.dispatcher as dispatcher
@@ -97,7 +99,7 @@ def main(argv=None) -> int:
     parts = {label: acc.get(label, [0.0, 0.0, 0]) for _, _, label in PARTS}
     acc.clear()
     st = addon.last_render_stats(sc)
-    out = dict(size=args.size, root=str(ROOT), f12_wall=wall, f12_cpu=cpu,
+    out = dict(size=args.size, root=str(root), f12_wall=wall, f12_cpu=cpu,
                f12_sys=r1.ru_stime - r0.ru_stime, parts=parts,
                triangles=st.get("triangles"), memory_mb=st.get("memory_mb"),
                cycles=bsb._cycles(sc))

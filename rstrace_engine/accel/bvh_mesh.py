@@ -275,7 +275,7 @@ def _hash_chunks(h, a: np.ndarray, stop: np.ndarray, less: int = 0) -> None:
     """Feed ``a`` (``a - less`` where ``less``: an int32 array, each chunk taken from it
     into one reused buffer, not a whole copy) to ``h`` in :data:`KEY_CHUNK`-byte chunks."""
     raw = np.ascontiguousarray(a).reshape(-1)
-    step = KEY_CHUNK // raw.itemsize
+    step = max(KEY_CHUNK // raw.itemsize, 1)
     buf = np.empty(min(step, len(raw)), raw.dtype) if less else None
     for start in range(0, len(raw), step):
         if stop[0]:

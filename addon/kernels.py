@@ -48,7 +48,7 @@ log = logging.getLogger(__name__)
 #: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
 #: that every name exists); the progress counts these.
 _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
-         "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4", "accel.bvh.trace_kernel",
+         "accel.bvh_mesh.collapse4", "accel.bvh.trace_kernel",
          "geometry.cameras.generate_rays", "tracing.shader._surface_kernel",
          "tracing.shader._shadow_kernel", "tracing.shader._shade_kernel",
          "tracing.whitted._light_masks", "tracing.batches.scatter_add",
@@ -92,9 +92,8 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "geometry.attributes._coarsest", "geometry.attributes._all_flat",
            "accel.bvh_mesh.indexed_boxes", "accel.bvh_build.split_top",
            "accel.bvh_build.build_subtrees", "accel.bvh_build.build_subtree",
-           "accel.bvh_build.pack_nodes", "accel.bvh_mesh.collapse4",
-           "accel.bvh_mesh.pad_outward",
-           "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
+           "accel.bvh_mesh.collapse4", "accel.bvh_mesh.direct_leaves",
+           "accel.bvh_mesh.place_child", "accel.bvh_mesh.place_tri",
            "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
            "tracing.shader._surface_kernel", "tracing.whitted._light_masks",
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",

@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 #: The kernels of the viewport's first (coarse) image, as ``module.function`` under
 #: rstrace_engine; the traversal's compiles in the helper process.
 FIRST_IMAGE_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
-                       "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
+                       "accel.bvh_mesh.collapse4",
                        "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",
                        "accel.bvh_mesh.place_tri",
                        "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",

@@ -34,7 +34,8 @@ def _lanes(b2: np.ndarray, dtype) -> np.ndarray:
     """The 4-wide node (24 bounds) :func:`collapse4` makes of a binary root whose two
     children are leaves with the boxes ``b2`` (12: lo, hi of each)."""
     c2 = np.array([[~(0 << 3 | 1), ~(1 << 3 | 1)]], np.int32)
-    b4, c4, m = bvh_mesh.collapse4(b2.reshape(1, 12).copy(), c2, np.empty((1, 24), dtype))
+    b4, c4, m = bvh_mesh.collapse4(b2.reshape(1, 12).copy(), c2, np.empty((1, 24), dtype),
+                                   False)
     assert m == 1 and np.array_equal(c4[0, :2], c2[0])
     return b4[0]
 

@@ -15,14 +15,14 @@ and collapsed into a 4-wide tree (:func:`.bvh_mesh.collapse4`) whose nodes hold 
 their four children, so one visit tests four boxes and pushes those hit farthest first
 (front-to-back traversal with a small fixed stack).
 
-* ``bounds`` (N, 24), struct-of-arrays over the four lanes: ``lo x[4], lo y[4],
-  lo z[4], hi x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one
-  ulp (:func:`.bvh_mesh.pad_outward`), then for a mesh's nodes rounded *outward* to
-  float32 (:func:`.bvh_mesh.collapse4`: each box contains its float64 one, so no
-  ray that met the float64 box misses it; the slab test itself runs in float64). Half
-  the nodes' memory, for a few percent of trace time (docs/bench-scale.md, Memory). The
-  top level's boxes stay float64. An unused lane has an inverted box (``lo = +inf``) and
-  is never entered.
+* ``bounds`` (N, 24), struct-of-arrays over the four lanes: ``lo x[4], lo y[4], lo z[4], hi
+  x[4], hi y[4], hi z[4]``: min / max of the vertex coordinates widened by one ulp
+  (:func:`.bvh_mesh.pad_outward`, as the collapse reads them), then for a mesh's nodes
+  rounded *outward* to float32 (:func:`.bvh_mesh.collapse4`: each box contains its float64
+  one, so no ray that met the float64 box misses it; the slab test itself runs in float64).
+  Half the nodes' memory, for a few percent of trace time (docs/bench-scale.md, Memory). The
+  top level's boxes stay float64. An unused lane has an inverted box (``lo = +inf``) and is
+  never entered.
 * ``child`` (N, 4) int32: ``>= 0`` an inner node; ``< 0`` a leaf ``~(start << 3 | kind)``.
   At the top level ``kind`` (0..7) consecutive instances in leaf order (``top_inst``). In a
   mesh (:func:`.bvh_mesh.direct_leaves`) a leaf of one triangle, or of two neighbours in the

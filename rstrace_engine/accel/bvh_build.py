@@ -14,7 +14,8 @@ that every pass streams through memory:
    the split is exactly the one a single thread finds.
 2. **Subtrees** (:func:`build_subtrees`): the nodes left (at most ``grain`` primitives
    each) are built independently, one thread each, into their own stretch of the node
-   arrays, then packed (:func:`pack_nodes`).
+   arrays, then packed (:func:`pack_nodes`; a mesh BVH is collapsed to 4-wide straight
+   from the unpacked arrays, ``build_flat_boxes(packed=False)``).
 
 ``grain`` depends only on the primitive count, so the tree (nodes, boxes, leaf order) is the
 same whatever the thread count, and it is the tree one sequential build (``grain >= n``)
@@ -47,7 +48,7 @@ BIN_CHUNK = 16384
 #: The kernels every build runs (``module.function`` under rstrace_engine, for the
 #: kernel-cache lists) ...
 BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
-                 "accel.bvh_mesh.pad_outward", "accel.bvh_mesh.collapse4",
+                 "accel.bvh_mesh.collapse4",
                  "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",
                  "accel.bvh_mesh.place_tri")
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
@@ -603,9 +604,11 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
-                     stop: np.ndarray = NEVER_STOP):
+                     stop: np.ndarray = NEVER_STOP, packed: bool = True):
     """:func:`build_flat` over ``pb`` (n, 6) float64 (lo, hi), which it reorders (leaf
-    order)."""
+    order). ``packed=False``: the node arrays as built, unpacked (``max(n, 2)`` rows, the
+    root row 0, the rows no child index reaches unset: for a walk from the root such as
+    :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
@@ -624,6 +627,8 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
         used, task_sah = build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
                                         nbins, trav_cost, root_area, bounds, child)
+        if not packed:
+            return bounds, child, perm, float(sah + task_sah)
         return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
             sah + task_sah)
     with numba.parallel_chunksize(1):  # subtrees differ in cost: threads take them in turn
@@ -631,5 +636,7 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                                         trav_cost, root_area, bounds, child, stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
+    if not packed:
+        return bounds, child, perm, float(sah + task_sah.sum())
     b, c = pack_nodes(bounds, child, n_top, region, used)
     return b, c, perm, float(sah + task_sah.sum())

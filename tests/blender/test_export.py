@@ -505,3 +505,26 @@ def test_corner_triangles_are_blenders_own_copied_in_one_go():
         assert items.reads == 1
         if me is dart:
             assert want.tolist() == [[0, 1, 3], [1, 2, 3]]  # the flipped diagonal
+
+
+def test_corner_gathers_write_in_place_after_a_range_check():
+    """``meshes._gather`` writes ``values[index]`` (rows) straight into the Mesh's array
+    (``np.take``'s default mode with ``out=`` went through a temporary of its size), on
+    indices ``meshes._in_range`` checked first: an index out of range is refused with a
+    message naming the mesh, before anything is gathered."""
+    from addon.meshes import _gather, _in_range
+    from rstrace_engine.geometry.scene import SceneError
+
+    values = np.arange(20, dtype=np.float32).reshape(10, 2)
+    index = np.array([[0, 9, 3], [4, 4, 1]], np.int32)
+    _in_range(index, 10, "Ball", "triangle corner")
+    out = np.full((2, 3, 2), np.nan, np.float32)
+    _gather(values, index, out)
+    np.testing.assert_array_equal(out, values[index])
+    flat = np.empty((2, 3), np.int32)
+    _gather(np.arange(10, 20, dtype=np.int32), index, flat)
+    np.testing.assert_array_equal(flat, index + 10)
+    for bad in ([0, 10], [-1, 3]):
+        with pytest.raises(SceneError, match=r"mesh 'Ball': a triangle corner index out of "
+                                             r"range 0\.\.9"):
+            _in_range(np.array(bad, np.int32), 10, "Ball", "triangle corner")

@@ -142,15 +142,18 @@ def test_glass_albedo_is_cycles_tables(inside, c):
 @pytest.mark.parametrize("roughness", [0.05, 0.2, 0.5, 1.0])
 def test_white_furnace_rough_glass(roughness):
     """A clear rough glass ball (IOR 1.5) in a white world, no lights: with the glass lobe
-    scaled by 1 / E (Cycles' multiscatter GGX glass) its rays carry back what they take,
-    so the ball nearly disappears. Measured (16 glossy samples, depth 8) mean 0.997 /
-    0.957 / 0.963 / 0.992 at roughness 0.05 / 0.2 / 0.5 / 1.0; single-scattering GGX
-    gave 0.997 / 0.953 / 0.766 / 0.333 (docs/glossy.md). Asserted within 5%."""
+    scaled by 1 / E (Cycles' multiscatter GGX glass) its rays carry back most of what they
+    take, so the ball nearly disappears. Measured (16 glossy samples, depth 8) mean 0.997 /
+    0.957 / 0.944 / 0.969 at roughness 0.05 / 0.2 / 0.5 / 1.0; single-scattering GGX
+    gave 0.997 / 0.953 / 0.766 / 0.333 (docs/glossy.md). Asserted within 6%: Cycles' E
+    (its tables, which ours are) counts the refracted directions that leave on the viewer's
+    side, which the rays drop, so seen from inside at grazing views the lobe is given back
+    less than it loses (with the single-scattering E: 0.963 / 0.992 at 0.5 / 1.0)."""
     mat, _ = principled_material("clear", (1.0, 1.0, 1.0), roughness=roughness, ior=1.5,
                                  transmission=1.0)
     f = whitted.render(_ball(mat), RenderSettings(max_depth=8, glossy_samples=16))
     ball = f.radiance[f.pixel_class > 0]
-    assert ball.size and abs(ball.mean() - 1.0) <= 0.05, ball.mean()
+    assert ball.size and abs(ball.mean() - 1.0) <= 0.06, ball.mean()
 
 
 def test_same_seed_same_image_other_seed_other_noise():

@@ -19,11 +19,24 @@ from rstrace_engine.tracing import whitted
 
 
 @njit(cache=True)
+def _refracts(so, co, lx, ly, lz, eta):
+    """Whether a microfacet facing the viewer ``o = (so, 0, co)`` refracts light direction
+    ``l`` into it: ``h``, the normalised ``o + l / eta`` turned to the normal's side, has
+    ``o . h > 0 > l . h``."""
+    k = 1.0 / eta
+    hx, hy, hz = so + k * lx, k * ly, co + k * lz
+    if hz < 0.0:
+        hx, hy, hz = -hx, -hy, -hz
+    return so * hx + co * hz > 0.0 and lx * hx + ly * hy + lz * hz < 0.0
+
+
+@njit(cache=True)
 def _lobes_over_sphere(co, alpha, eta, n):
     """``int (f_r + f_t) |cos_l| dl`` over the sphere of light directions for the view at
     ``cos_o`` (a midpoint lattice of n x 2n in (cos_l, phi)): the rough interface's
     reflection lobe ``F D G2 / (4 cos cos)`` and its BTDF (:func:`~.shading.ggx_btdf`)
-    where some microfacet refracts the pair (within the critical cone)."""
+    where a microfacet facing the viewer refracts the pair (:func:`_refracts`; Cycles'
+    evaluation, which ours is, lets light through elsewhere too)."""
     so = math.sqrt(1.0 - co * co)
     acc = 0.0
     for a in range(n):
@@ -35,7 +48,7 @@ def _lobes_over_sphere(co, alpha, eta, n):
             if cl > 0.0:
                 lobe, ch = sh.ggx_lobe(0.0, 0.0, 1.0, lx, ly, cl, so, 0.0, co, alpha)
                 f = lobe * sh.fresnel_dielectric(ch, eta)
-            elif so * lx + co * cl < -min(eta, 1.0 / eta):  # a refraction (ggx_btdf)
+            elif _refracts(so, co, lx, ly, cl, eta):
                 f = sh.ggx_btdf(0.0, 0.0, 1.0, lx, ly, cl, so, 0.0, co, alpha, eta)
             else:
                 f = 0.0

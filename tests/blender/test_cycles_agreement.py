@@ -372,13 +372,10 @@ def _rough_scene(kind: str, roughness: float):
 #: Measured (docs/glossy.md): the cases whose measured error misses the issue's goal keep
 #: the goal as their threshold and are marked xfail with the measured value, not loosened.
 GLOSSY_MISSES = {
-    ("glass", 0.5): "measured mean 1.4%, p98 13.8% (goal 2% / 8%; before the light through "
-                    "the rough interface 2.3% / 27.4%): the ball's rim 5-23% brighter than "
-                    "Cycles; half of it is Cycles' Filter Glossy (blur_glossy 1, left on: "
-                    "with 0, 0.7% / 8.3%), which rstrace does not model (docs/glossy.md)",
-    ("glass", 1.0): "measured mean 1.2%, p98 18.4% (goal 2% / 8%; before 3.2% / 28.1%): the "
-                    "ball's rim facing the light up to 30% darker than Cycles (Filter "
-                    "Glossy changes nothing here; docs/glossy.md)",
+    ("glass", 0.5): "measured mean 1.3%, p98 14.1% (goal 2% / 8%): the ball's rim up to 20% "
+                    "brighter than Cycles, most of it Cycles' Filter Glossy (blur_glossy 1, "
+                    "left on; with 0: 0.6% / 8.1%), which rstrace does not model "
+                    "(docs/glossy.md, 'The rim of rough glass')",
 }
 
 

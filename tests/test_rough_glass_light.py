@@ -151,22 +151,30 @@ def _pane(roughness: float, behind: str, blocker: bool = False, n: int = 16) -> 
 _ST = RenderSettings(max_depth=2, samples=4, glossy_samples=64, light_samples=64)
 
 
-@pytest.mark.parametrize("roughness", [0.5, pytest.param(1.0, marks=pytest.mark.xfail(
-    strict=True, reason="the BTDF is Cycles' evaluation (docs/glossy.md, 'The rim of rough "
-    "glass'): the area light's samples pass light for pairs no microfacet refracts, which the "
-    "emitter's sampled refracted rays never reach (Cycles weights those by its MIS weight, "
-    "not modelled); measured at roughness 1: area 3.761, emitter 3.553 (+5.9%)"))])
-def test_area_light_through_the_pane_equals_the_emitter_it_replaces(roughness):
+#: The area light's excess over the emitter that replaces it, as Cycles renders the same
+#: pane (tests/blender/test_cycles_agreement.py, test_light_through_a_rough_pane_agrees_with_
+#: cycles, 1024 samples: area 3.7785, emitter 3.5482 at roughness 1; 2.9226 and 2.9079 at
+#: 0.5; docs/glossy.md): the light its BTDF evaluation passes for pairs no microfacet
+#: refracts, which no sampled refraction reaches.
+PANE_EXCESS = {0.5: 1.0051, 1.0: 1.0649}
+
+
+@pytest.mark.parametrize("roughness", [0.5, 1.0])
+def test_area_light_through_the_pane_is_the_emitter_it_replaces_as_in_cycles(roughness):
     """An area light behind a rough glass pane, lit through the BTDF (shadow rays leaving
-    from the far side), gives what the pane's sampled refracted rays give when they hit a
-    mesh of the light's radiance in its place: two independent estimators of the same
-    light (mean within 2%). Before the BTDF the light gave nothing through the pane."""
+    from the far side), against what the pane's sampled refracted rays give when they hit a
+    mesh of the light's radiance in its place: two independent estimators whose ratio is
+    Cycles' (``PANE_EXCESS``: the BTDF is Cycles' evaluation, which passes light for pairs no
+    sampled refraction reaches; 0.5% of it at roughness 0.5, 6.5% at 1), within 2%.
+    Measured: 3.761 / 3.553 = 1.0586 at roughness 1. Before the BTDF the light gave nothing
+    through the pane; with a BTDF that checks the refraction the ratio was 1.00 at roughness
+    1 (3.5% below Cycles' excess: fails)."""
     area = whitted.render(_pane(roughness, "area"), _ST)
     mesh = whitted.render(_pane(roughness, "mesh"), _ST)
     a, m = area.radiance.mean(), mesh.radiance.mean()
     assert m > 0.1
-    print(f"pane {roughness}: area {a:.5f} emitter {m:.5f}")
-    assert abs(a - m) <= 0.02 * m, (a, m)
+    print(f"pane {roughness}: area {a:.5f} emitter {m:.5f} ratio {a / m:.4f}")
+    assert abs(a / m - PANE_EXCESS[roughness]) <= 0.02 * PANE_EXCESS[roughness], (a, m)
     assert area.stats["shadow_rays"] > 0
 
 

@@ -394,3 +394,56 @@ def test_glossy_agrees_with_cycles(kind, roughness):
     print(f"glossy {kind} {roughness}: {stats}")
     assert stats["mean"] <= 0.02
     assert stats["p98"] <= 0.08
+
+
+def _rough_pane(roughness: float, behind: str):
+    """tests/test_rough_glass_light.py's pane in Blender: a 4 x 4 rough glass sheet (IOR
+    1.5) whose normal faces away from the camera (the viewer on the glass side), 1 behind it
+    a 1 x 1 area light of 100 W facing it (``"area"``) or a mesh emitting that light's
+    radiance (100 / pi) in its place, which Cycles does not sample as a light
+    (``emission_sampling`` 'NONE': only the pane's sampled refractions reach it)."""
+    sc = b.setup_render(32, 32, samples=4, max_depth=2)
+    sc.rstrace.light_samples = 64
+    sc.rstrace.glossy_samples = 64
+    b.set_world((0.0, 0.0, 0.0), lights=False)
+    glass = b.principled("Glass", (1.0, 1.0, 1.0), roughness=roughness,
+                         **{"IOR": 1.5, "Transmission Weight": 1.0})
+    b.add_object("Pane", b.grid("Pane", 4.0), material=glass).rotation_euler = (
+        math.radians(-90.0), 0.0, 0.0)
+    if behind == "area":
+        data = bpy.data.lights.new("Area", "AREA")
+        data.energy, data.size = 100.0, 1.0
+        b.add_object("Area", data, (0.0, 1.0, 0.0)).rotation_euler = (
+            math.radians(-90.0), 0.0, 0.0)
+    else:
+        mat = bpy.data.materials.new("Emitter")
+        nodes = mat.node_tree.nodes
+        nodes.remove(nodes["Principled BSDF"])
+        em = nodes.new("ShaderNodeEmission")
+        em.inputs["Strength"].default_value = 100.0 / math.pi
+        mat.node_tree.links.new(em.outputs["Emission"], nodes["Material Output"].inputs[0])
+        mat.cycles.emission_sampling = "NONE"
+        b.add_object("Emitter", b.grid("Emitter", 1.0), (0.0, 1.0, 0.0),
+                     mat).rotation_euler = (math.radians(90.0), 0.0, 0.0)
+    b.camera((0.0, -3.0, 0.0), (0.0, 0.0, 0.0), lens=50.0)
+
+
+@pytest.mark.parametrize("roughness", [0.5, 1.0])
+@pytest.mark.parametrize("behind", ["area", "mesh"])
+def test_light_through_a_rough_pane_agrees_with_cycles(behind, roughness):
+    """An area light behind a rough glass pane, and an emitter in its place that only the
+    pane's sampled refractions reach: each image's mean within 1% of Cycles' (1024
+    samples). Cycles' next-event estimation passes the area light's light for pairs no
+    microfacet refracts (its BTDF evaluation has no validity check; its MIS weight, near 1
+    here, takes almost none of it away): at roughness 1 its area light is 6.5% brighter than
+    the emitter, as rstrace's (docs/glossy.md, 'Light with an extent through rough glass').
+    Measured: area 3.7743 / 3.7785 (Cycles), emitter 3.5471 / 3.5482 at roughness 1; area
+    2.9188 / 2.9226, emitter 2.9023 / 2.9079 at 0.5. A BTDF that checks the refraction
+    (before session 29) gives the area light about the emitter's 3.55 at roughness 1: 6%
+    below Cycles."""
+    _rough_pane(roughness, behind)
+    cycles = float(np.mean(_cycles(samples=1024, max_bounces=2, transmission_bounces=2)))
+    ours = float(np.mean(_ours()))
+    print(f"pane {behind} {roughness}: ours {ours:.5f} cycles {cycles:.5f}")
+    assert cycles > 1.0
+    assert abs(ours - cycles) <= 0.01 * cycles, (ours, cycles)

@@ -1,4 +1,4 @@
-"""Write ``rstrace_engine/tracing/ggx_glass_tables.py``: the single-scattering albedo ``E`` of
+"""Write ``rstrace_engine/tracing/ggx_glass_tables.py``: the albedo ``E`` of
 a rough dielectric interface (GGX, reflection plus refraction), tabulated over the view
 cosine, the roughness and the index ratio, for both sides of the interface, as Cycles
 tabulates its own (``ggx_glass_E``, ``ggx_glass_inv_E``) for its multiscatter GGX glass.

@@ -74,7 +74,8 @@ def test_white_furnace_rough_metal(roughness):
 def _glass_albedo_dcos(co, alpha, eta, n=400):
     """Independent estimate of the rough dielectric's albedo: microfacet normals drawn from
     ``D cos_h`` (not the visible normals), weight ``|o.h| G2 / (cos_h cos_o)`` for the
-    reflected and the refracted direction alike (Walter et al. 2007, eq. 41)."""
+    reflected and the refracted direction alike (Walter et al. 2007, eq. 41); a refracted
+    direction on the viewer's side counts, as Cycles' tables count it."""
     u, p = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n)
     a2 = alpha * alpha
     ct = np.sqrt((1.0 - u) / (1.0 + (a2 - 1.0) * u))
@@ -96,7 +97,8 @@ def _glass_albedo_dcos(co, alpha, eta, n=400):
     t = -eta * o[None, None, :] + (eta * ch - cost)[..., None] * h  # refracted direction
     tz = t[..., 2]
     acc = np.where(keep & (rz > 0.0), f * base / (1.0 + lo + lam(rz)), 0.0)
-    acc += np.where(keep & ~tir & (tz < 0.0), (1.0 - f) * base / (1.0 + lo + lam(tz)), 0.0)
+    # a refraction counts wherever it goes, as in Cycles' tables (glass_albedo)
+    acc += np.where(keep & ~tir, (1.0 - f) * base / (1.0 + lo + lam(tz)), 0.0)
     return acc.mean()
 
 
@@ -113,18 +115,45 @@ def test_glass_albedo_quadrature(alpha, co, eta):
     assert abs(e - ref) <= 0.03 * ref, (e, ref)
 
 
+#: Entries of Cycles' own tables (intern/cycles/scene/shader.tables, ``table_ggx_glass_E``
+#: and ``table_ggx_glass_inv_E``, index ``z * 256 + cos * 16 + roughness``): roughness 1,
+#: ``z = 7 / 15`` (IOR ``ior_from_F0(z^4)`` = 1.5575), cos ``1 / 15``, ``2 / 15``, ``3 / 15``,
+#: ``10 / 15``; from outside (E) and from inside (inv_E).
+CYCLES_GLASS_E = {(False, 1): 0.7788, (False, 2): 0.7258, (False, 3): 0.7067,
+                  (False, 10): 0.7844, (True, 1): 0.7324, (True, 2): 0.6229,
+                  (True, 3): 0.5649, (True, 10): 0.4878}
+
+
+@pytest.mark.parametrize("inside, c", sorted(CYCLES_GLASS_E))
+def test_glass_albedo_is_cycles_tables(inside, c):
+    """The albedo whose inverse scales the rough glass lobe is the one Cycles tabulates
+    (within 1.5%, its own Monte Carlo and our table's interpolation): from inside at grazing
+    views Cycles' E counts refracted directions that leave on the viewer's side, so it is
+    well above the single-scattering albedo (0.55 at cos 1/15; before, our table held that
+    value and rough glass seen through itself was up to 14% brighter than Cycles)."""
+    z = 7.0 / 15.0
+    f0 = z ** 4
+    ior = (1.0 + math.sqrt(f0)) / (1.0 - math.sqrt(f0))
+    e = sh.ggx_glass_albedo(c / 15.0, 1.0, ior if inside else 1.0 / ior)
+    ref = CYCLES_GLASS_E[(inside, c)]
+    assert abs(e - ref) <= 0.015 * ref, (e, ref)
+
+
 @pytest.mark.parametrize("roughness", [0.05, 0.2, 0.5, 1.0])
 def test_white_furnace_rough_glass(roughness):
     """A clear rough glass ball (IOR 1.5) in a white world, no lights: with the glass lobe
-    scaled by 1 / E (Cycles' multiscatter GGX glass) its rays carry back what they take,
-    so the ball nearly disappears. Measured (16 glossy samples, depth 8) mean 0.997 /
-    0.957 / 0.963 / 0.992 at roughness 0.05 / 0.2 / 0.5 / 1.0; single-scattering GGX
-    gave 0.997 / 0.953 / 0.766 / 0.333 (docs/glossy.md). Asserted within 5%."""
+    scaled by 1 / E (Cycles' multiscatter GGX glass) its rays carry back most of what they
+    take, so the ball nearly disappears. Measured (16 glossy samples, depth 8) mean 0.997 /
+    0.957 / 0.944 / 0.969 at roughness 0.05 / 0.2 / 0.5 / 1.0; single-scattering GGX
+    gave 0.997 / 0.953 / 0.766 / 0.333 (docs/glossy.md). Asserted within 6%: Cycles' E
+    (its tables, which ours are) counts the refracted directions that leave on the viewer's
+    side, which the rays drop, so seen from inside at grazing views the lobe is given back
+    less than it loses (with the single-scattering E: 0.963 / 0.992 at 0.5 / 1.0)."""
     mat, _ = principled_material("clear", (1.0, 1.0, 1.0), roughness=roughness, ior=1.5,
                                  transmission=1.0)
     f = whitted.render(_ball(mat), RenderSettings(max_depth=8, glossy_samples=16))
     ball = f.radiance[f.pixel_class > 0]
-    assert ball.size and abs(ball.mean() - 1.0) <= 0.05, ball.mean()
+    assert ball.size and abs(ball.mean() - 1.0) <= 0.06, ball.mean()
 
 
 def test_same_seed_same_image_other_seed_other_noise():

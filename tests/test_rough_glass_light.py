@@ -19,10 +19,24 @@ from rstrace_engine.tracing import whitted
 
 
 @njit(cache=True)
+def _refracts(so, co, lx, ly, lz, eta):
+    """Whether a microfacet facing the viewer ``o = (so, 0, co)`` refracts light direction
+    ``l`` into it: ``h``, the normalised ``o + l / eta`` turned to the normal's side, has
+    ``o . h > 0 > l . h``."""
+    k = 1.0 / eta
+    hx, hy, hz = so + k * lx, k * ly, co + k * lz
+    if hz < 0.0:
+        hx, hy, hz = -hx, -hy, -hz
+    return so * hx + co * hz > 0.0 and lx * hx + ly * hy + lz * hz < 0.0
+
+
+@njit(cache=True)
 def _lobes_over_sphere(co, alpha, eta, n):
     """``int (f_r + f_t) |cos_l| dl`` over the sphere of light directions for the view at
     ``cos_o`` (a midpoint lattice of n x 2n in (cos_l, phi)): the rough interface's
-    reflection lobe ``F D G2 / (4 cos cos)`` and its BTDF (:func:`~.shading.ggx_btdf`)."""
+    reflection lobe ``F D G2 / (4 cos cos)`` and its BTDF (:func:`~.shading.ggx_btdf`)
+    where a microfacet facing the viewer refracts the pair (:func:`_refracts`; Cycles'
+    evaluation, which ours is, lets light through elsewhere too)."""
     so = math.sqrt(1.0 - co * co)
     acc = 0.0
     for a in range(n):
@@ -34,8 +48,10 @@ def _lobes_over_sphere(co, alpha, eta, n):
             if cl > 0.0:
                 lobe, ch = sh.ggx_lobe(0.0, 0.0, 1.0, lx, ly, cl, so, 0.0, co, alpha)
                 f = lobe * sh.fresnel_dielectric(ch, eta)
-            else:
+            elif _refracts(so, co, lx, ly, cl, eta):
                 f = sh.ggx_btdf(0.0, 0.0, 1.0, lx, ly, cl, so, 0.0, co, alpha, eta)
+            else:
+                f = 0.0
             acc += f * abs(cl)
     return acc * (2.0 / n) * (math.pi / n)
 
@@ -51,6 +67,48 @@ def test_reflection_and_transmission_lobes_integrate_to_the_albedo(alpha, co, et
     total = _lobes_over_sphere(co, alpha, eta, 600)
     e = sh.ggx_glass_albedo(co, alpha, eta)
     assert abs(total - e) <= 0.03 * e, (total, e)
+
+
+def _cycles_glass_eval(wi, wo, alpha, ior):
+    """Cycles' ``bsdf_microfacet_eval`` of its GGX glass for a refraction, written from its
+    source (normal +z, ``wi`` the view, ``wo`` the light below, ``ior`` its ``bsdf->ior``:
+    the far side's index over the viewer's): ``T D / cos_NI |ior / |H||^2 |cos_HI cos_HO|
+    / (1 + Lambda_I + Lambda_O)``, ``H = -(ior wo + wi)``, with no check that the pair is a
+    refraction. Its value includes the light's cosine."""
+    h = -(ior * wo + wi)
+    inv_len = 1.0 / np.linalg.norm(h)
+    h = h * inv_len
+    c_hi = float(h @ wi)
+    t = 1.0 - sh.fresnel_dielectric(abs(c_hi), 1.0 / ior)
+    a2 = alpha * alpha
+    c2 = min(h[2] ** 2, 1.0)
+    d = a2 / (math.pi * (1.0 - c2 + a2 * c2) ** 2)
+    common = d / wi[2] * (ior * inv_len) ** 2 * abs(c_hi * float(h @ wo))
+    return t * common / (1.0 + sh.ggx_lambda(wi[2], a2) + sh.ggx_lambda(abs(wo[2]), a2))
+
+
+@pytest.mark.parametrize("eta", [1.0 / 1.5, 1.5])
+def test_btdf_is_cycles_evaluation_refraction_or_not(eta):
+    """The BTDF is Cycles' evaluation at random pairs of view and light direction across the
+    surface (within 1e-9 relative), including the pairs no microfacet refracts (beyond the
+    critical cone: Cycles does not check them, its source's TODO, and passes light there);
+    before, those pairs gave 0 and a rough glass ball seen through itself was a third as
+    bright as Cycles' (docs/glossy.md, "The rim of rough glass")."""
+    rng = np.random.default_rng(3)
+    beyond = 0
+    for _ in range(400):
+        o = rng.normal(size=3)
+        o[2] = abs(o[2]) + 0.05
+        o /= np.linalg.norm(o)
+        wl = rng.normal(size=3)
+        wl[2] = -abs(wl[2]) - 0.05
+        wl /= np.linalg.norm(wl)
+        for alpha in (0.25, 1.0):
+            ours = sh.ggx_btdf(0.0, 0.0, 1.0, *wl, *o, alpha, eta) * abs(wl[2])
+            ref = _cycles_glass_eval(o, wl, alpha, 1.0 / eta)
+            assert ours == pytest.approx(ref, rel=1e-9, abs=1e-12)
+        beyond += float(o @ wl) >= -min(eta, 1.0 / eta) and ref > 0.0
+    assert beyond > 50  # the pairs no microfacet refracts were among them, and lit
 
 
 _TURN = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float)
@@ -93,17 +151,30 @@ def _pane(roughness: float, behind: str, blocker: bool = False, n: int = 16) -> 
 _ST = RenderSettings(max_depth=2, samples=4, glossy_samples=64, light_samples=64)
 
 
+#: The area light's excess over the emitter that replaces it, as Cycles renders the same
+#: pane (tests/blender/test_cycles_agreement.py, test_light_through_a_rough_pane_agrees_with_
+#: cycles, 1024 samples: area 3.7785, emitter 3.5482 at roughness 1; 2.9226 and 2.9079 at
+#: 0.5; docs/glossy.md): the light its BTDF evaluation passes for pairs no microfacet
+#: refracts, which no sampled refraction reaches.
+PANE_EXCESS = {0.5: 1.0051, 1.0: 1.0649}
+
+
 @pytest.mark.parametrize("roughness", [0.5, 1.0])
-def test_area_light_through_the_pane_equals_the_emitter_it_replaces(roughness):
+def test_area_light_through_the_pane_is_the_emitter_it_replaces_as_in_cycles(roughness):
     """An area light behind a rough glass pane, lit through the BTDF (shadow rays leaving
-    from the far side), gives what the pane's sampled refracted rays give when they hit a
-    mesh of the light's radiance in its place: two independent estimators of the same
-    light (mean within 2%). Before the BTDF the light gave nothing through the pane."""
+    from the far side), against what the pane's sampled refracted rays give when they hit a
+    mesh of the light's radiance in its place: two independent estimators whose ratio is
+    Cycles' (``PANE_EXCESS``: the BTDF is Cycles' evaluation, which passes light for pairs no
+    sampled refraction reaches; 0.5% of it at roughness 0.5, 6.5% at 1), within 2%.
+    Measured: 3.761 / 3.553 = 1.0586 at roughness 1. Before the BTDF the light gave nothing
+    through the pane; with a BTDF that checks the refraction the ratio was 1.00 at roughness
+    1 (3.5% below Cycles' excess: fails)."""
     area = whitted.render(_pane(roughness, "area"), _ST)
     mesh = whitted.render(_pane(roughness, "mesh"), _ST)
     a, m = area.radiance.mean(), mesh.radiance.mean()
     assert m > 0.1
-    assert abs(a - m) <= 0.02 * m, (a, m)
+    print(f"pane {roughness}: area {a:.5f} emitter {m:.5f} ratio {a / m:.4f}")
+    assert abs(a / m - PANE_EXCESS[roughness]) <= 0.02 * PANE_EXCESS[roughness], (a, m)
     assert area.stats["shadow_rays"] > 0
 
 

@@ -14,16 +14,21 @@ from .shading import fresnel_dielectric, ggx_vndf, ggx_weight, refract
 
 @njit(cache=True, nogil=True)
 def ggx_glass_albedo_quadrature(cos_o, alpha, eta, n):
-    """Single-scattering albedo ``E`` of a rough dielectric interface (GGX, reflection plus
-    refraction) seen from ``cos_o``, ``eta = n1 / n2`` (the side the view is on over the
-    other): the mean over visible normals of ``F G2 / G1`` (reflected) and ``(1 - F) G2 /
-    G1`` (refracted), a direction on the wrong side of the macro surface counting 0 -- what
-    the glossy rays carry (:func:`~.glossy_rays._glossy_rays`), by a deterministic
-    quadrature: an ``n`` x ``n`` midpoint lattice over the sampler's unit square. Cycles'
-    multiscatter GGX glass (Principled's default) scales its lobe by ``1 / E``
-    (``microfacet_ggx_preserve_energy``) read from tables; so does the shader, from the
-    tables ``scripts/ggx_glass_tables.py`` computes with this
-    (:func:`~.multiscatter.ggx_glass_albedo`)."""
+    """Albedo ``E`` of a rough dielectric interface (GGX, reflection plus refraction) seen
+    from ``cos_o``, ``eta = n1 / n2`` (the side the view is on over the other), as Cycles
+    tabulates it: the mean over visible normals of ``F G2 / G1`` (reflected; a reflection
+    below the macro surface counts 0) and ``(1 - F) G2 / G1`` (refracted, *wherever it
+    goes*), by a deterministic quadrature: an ``n`` x ``n`` midpoint lattice over the
+    sampler's unit square. Cycles' multiscatter GGX glass (Principled's default) scales its
+    lobe by ``1 / E`` (``microfacet_ggx_preserve_energy``) read from its tables
+    ``ggx_glass_E`` / ``ggx_glass_inv_E``; so does the shader, from the tables
+    ``scripts/ggx_glass_tables.py`` computes with this
+    (:func:`~.multiscatter.ggx_glass_albedo`). Cycles' tables count a refracted direction
+    that leaves on the viewer's side of the macro surface (its sampler drops it now, as
+    the glossy rays do): seen from inside glass at grazing angles such directions are
+    common, and the single-scattering albedo without them is lower (IOR 1.5, roughness 1,
+    cos 1/15: 0.55 against Cycles' 0.73, which this reproduces within 0.001; docs/glossy.md,
+    "The rim of rough glass"). From outside they are rare (the tables agree either way)."""
     co = min(max(cos_o, tol.GGX_COS_MIN), 1.0)
     so = math.sqrt(max(0.0, 1.0 - co * co))
     acc = 0.0
@@ -37,8 +42,9 @@ def ggx_glass_albedo_quadrature(cos_o, alpha, eta, n):
             f = 1.0
             if ok:
                 f = fresnel_dielectric(ch, eta)
-                if tz < 0.0:
-                    acc += (1.0 - f) * ggx_weight(co, tz, alpha)
+                # a refracted direction on the viewer's side counts too, as in Cycles'
+                # tables (module docstring); the glossy rays drop it
+                acc += (1.0 - f) * ggx_weight(co, tz, alpha)
             rz = 2.0 * ch * hz - co  # the reflected direction's cosine
             if rz > 0.0:
                 acc += f * ggx_weight(co, rz, alpha)

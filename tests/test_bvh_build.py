@@ -123,7 +123,9 @@ def test_the_large_build_warm_up_runs_the_parallel_kernels_renders_call(monkeypa
         assert f"accel.{module.__name__.rsplit('.', 1)[1]}.{name}" in \
             bvh_build.LARGE_BUILD_KERNELS
 
-        def counted(*args, _real=getattr(module, name), _name=name):
+        real = getattr(module, name)
+
+        def counted(*args, _real=real, _name=name):
             calls[_name] += 1
             return _real(*args)
 

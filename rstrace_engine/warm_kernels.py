@@ -325,11 +325,15 @@ def _warm_large_bvh(progress=None, cancel=None) -> None:
     Session(s, RenderSettings(mode="BASE", accelerator="BVH", samples=1,
                               max_depth=1)).render(cancel=cancel)
     # the interpolants' query scenes (interpolants/shafts.py) gather such a mesh's
-    # vertices in parallel (bvh_mesh.gather_triangles_into)
-    from .accel import bvh_mesh
+    # vertices in parallel (bvh_mesh.gather_triangles_into) and build its binary tree
+    # packed (bvh_build.pack_nodes, which the mesh BVH above does not run: it collapses
+    # the unpacked nodes)
+    from .accel import bvh_build, bvh_mesh
+    from .interpolants.shafts import binary_bvh
 
     sa = s.arrays()
-    bvh_mesh.mesh_triangles(sa, int(np.argmax(np.diff(sa.mesh_tri_start))))
+    tv = bvh_mesh.mesh_triangles(sa, int(np.argmax(np.diff(sa.mesh_tri_start))))
+    binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
 
 
 def units(modes, accelerators, soft: bool = True) -> list[tuple]:

@@ -107,6 +107,33 @@ def test_build_kernels_are_in_the_first_image_list():
     assert set(bvh_build.BUILD_KERNELS) <= set(warm_first.FIRST_IMAGE_KERNELS)
 
 
+def test_the_large_build_warm_up_runs_the_parallel_kernels_renders_call(monkeypatch):
+    """``warm_kernels._warm_large_bvh`` runs each parallel builder kernel a render calls
+    from Python for a mesh past ``PARALLEL_MIN`` triangles: the mesh BVH's
+    (``indexed_boxes``, ``build_subtrees``) and ``pack_nodes``, which the mesh BVH no longer
+    runs (it collapses the unpacked nodes) but the interpolants' query scene does
+    (``shafts.binary_bvh``: ``build_flat``, packed). A kernel no warm-up step runs is
+    missing from the shipped cache: the user's first such frame compiles it (pack_nodes:
+    about 4 s of CPU)."""
+    from rstrace_engine import warm_kernels
+
+    calls = dict.fromkeys(("pack_nodes", "build_subtrees", "indexed_boxes"), 0)
+    for module, name in ((bvh_build, "pack_nodes"), (bvh_build, "build_subtrees"),
+                         (bvh_mesh, "indexed_boxes")):
+        assert f"accel.{module.__name__.rsplit('.', 1)[1]}.{name}" in \
+            bvh_build.LARGE_BUILD_KERNELS
+
+        real = getattr(module, name)
+
+        def counted(*args, _real=real, _name=name):
+            calls[_name] += 1
+            return _real(*args)
+
+        monkeypatch.setattr(module, name, counted)
+    warm_kernels._warm_large_bvh()
+    assert all(calls.values()), calls
+
+
 # ----------------------------------------------------------------------------- reuse
 
 

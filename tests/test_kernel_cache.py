@@ -243,6 +243,9 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         # the rough glass albedo's quadrature: scripts/ggx_glass_tables.py and tests (the
         # shader reads the tables it wrote)
         "rstrace_engine.tracing.glass_albedo.ggx_glass_albedo_quadrature",
+        # the binary boxes' ulp padding as a pass of its own: tests only (a mesh's collapse
+        # pads each box as it reads it, bvh_mesh.collapse4's ``pad``)
+        "rstrace_engine.accel.bvh_mesh.pad_outward",
         }  # the BVH build's parallel kernels are reached: warm_kernels._warm_large_bvh
 
 

@@ -70,16 +70,20 @@ def test_run_raises_a_stripe_error():
         numba.set_num_threads(old)
 
 
-def test_costliest_kernels_compile_serially():
+def test_costliest_kernels_compile_serially_without_reference_counting():
     """The kernels whose ``parallel=True`` compile was most of a cold start (the NamedTuple
-    fields each a parameter of the parfor) are serial and striped (docs/first-render.md)."""
+    fields each a parameter of the parfor) are serial and striped, and count no references
+    (``_nrt=False``: with numba's reference counting a serial loop was 30-60 % slower than
+    the parfor, docs/KERNELS.md)."""
+    from rstrace_engine.accel import bvh
     from rstrace_engine.interpolants import predicate
-    from rstrace_engine.tracing import record_queries, shader
+    from rstrace_engine.tracing import shader
 
-    for k in (shader._surface_kernel, shader._shadow_kernel, shader._shade_kernel,
-              record_queries._query_tiles, predicate.check_cells):
+    for k in (bvh.trace_kernel, shader._surface_kernel, shader._shade_kernel,
+              predicate._check_cells):
         assert not k.targetoptions.get("parallel"), k.py_func.__name__
         assert k.targetoptions.get("nogil"), k.py_func.__name__
+        assert k.targetoptions.get("_nrt") is False, k.py_func.__name__
         # what numba compiles a prange body with: inf / nan on a division by zero, no check
         assert k.targetoptions.get("error_model") == "numpy", k.py_func.__name__
 

@@ -546,8 +546,7 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
     :func:`~.linetree.corner_weight`) then the test lines; cell_nsamp (nc,) how many.
     Outputs: status (nc,) int32 VALID or a CLASS_FAIL_* code, detail (nc,) int8 an index
     into :data:`REASONS`; the slab (zlo, zhi) and the surface class of valid cells.
-    The cells are dealt in turn to the calling thread's numba thread count
-    (:func:`~rstrace_engine.stripes.run` of :func:`_check_cells`).
+    Cells dealt in turn to numba's thread count (``stripes.run`` of :func:`_check_cells`).
     """
     stripes.run(_check_cells, len(cell_inst), qs, box, sm, cell_inst, cell_face, cell_depth,
                 cell_coord, cell_samples, cell_nsamp, status, detail, zlo_out, zhi_out,
@@ -557,9 +556,8 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                  cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
-    """:func:`check_cells` for cells ``first, first + step, ...`` (one thread's stripe).
-    Serial and without reference counting, not ``prange``: a fraction of the compile
-    (rstrace_engine/stripes.py)."""
+    """:func:`check_cells` for cells ``first, first + step, ...``: serial, no reference
+    counting, not ``prange``: a fraction of the compile (rstrace_engine/stripes.py)."""
     L = qs.light_kind.shape[0]
     for c in range(first, cell_inst.shape[0], step):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],

@@ -561,8 +561,7 @@ def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell
     L = qs.light_kind.shape[0]
     for c in range(first, cell_inst.shape[0], step):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],
-                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out,
-                       np.int64(c))
+                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out, np.int64(c))
         detail[c] = r
         status[c] = VALID if r == R_VALID else (
             _SIL if r == R_MISS or r == R_CLASS or r == R_SLAB else _SHD)

@@ -553,11 +553,11 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
                 cls_out)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                  cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
-    """:func:`check_cells` for cells ``first, first + step, ...``: serial, no reference
-    counting, not ``prange``: a fraction of the compile (rstrace_engine/stripes.py)."""
+    """:func:`check_cells` for cells ``first, first + step, ...``: serial, not ``prange``: a
+    fraction of the compile (rstrace_engine/stripes.py; _check_one allocates: NRT kept)."""
     L = qs.light_kind.shape[0]
     for c in range(first, cell_inst.shape[0], step):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],

@@ -78,7 +78,8 @@ def fields(typingctx, struct, cls):
         value = context.get_constant_undef(out)
         for k, i in enumerate(at):
             member = builder.extract_value(args[0], i)
-            context.nrt.incref(builder, struct.types[i], member)  # the view holds a reference
+            if context.enable_nrt:  # (a kernel compiled with _nrt=False counts no references)
+                context.nrt.incref(builder, struct.types[i], member)  # the view holds one
             value = builder.insert_value(value, member, k)
         return value
 

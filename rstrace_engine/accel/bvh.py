@@ -42,10 +42,10 @@ from __future__ import annotations
 import logging
 from typing import NamedTuple
 
-import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from .. import stripes
 from .. import tolerances as tol
 from .bvh_build import DEPTH_CAP, NEVER_STOP
 from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
@@ -58,8 +58,6 @@ log = logging.getLogger(__name__)
 STACK_SIZE = 3 * (DEPTH_CAP + 31) + 4
 #: Rays per parallel work item.
 CHUNK = 64
-#: Work items a thread takes at a time (dynamic scheduling).
-PARALLEL_CHUNKSIZE = 16
 
 
 class SceneBVH(NamedTuple):
@@ -318,30 +316,38 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
     return bi, best, bp, bu, bv
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, out_u, out_v,
-                 stop):
+                 stop, stacks_node, stacks_t, first, step):
     """Closest (``anyhit=False``) or any hit of each ray through a :class:`SceneBVH`.
 
     o, d : (n, 3) float64; tmin, tmax : (n,) float64; only : (n,) int32, ``>= 0`` restricts
     a ray to that instance. Outputs (n,): t float64 (inf on miss), inst int32, prim int32
     (global triangle), u, v float64; rows that miss are left untouched (callers pre-fill
-    them). Work items are :data:`CHUNK` consecutive rays; call it under
-    ``numba.parallel_chunksize(PARALLEL_CHUNKSIZE)`` (:func:`trace`) so threads take work
-    items dynamically (cost per ray varies a lot across an image).
+    them). Work items are :data:`CHUNK` consecutive rays, this call's those numbered
+    ``first, first + step, ...`` (threads taking the chunks in turn balance the cost per
+    ray, which varies a lot across an image): one thread's stripe (:func:`trace` runs
+    ``step`` of them with :func:`~rstrace_engine.stripes.run`). stacks_node (step, 2,
+    STACK_SIZE) int32 and stacks_t (step, 2, STACK_SIZE) float64: each stripe's two
+    traversal stacks (row ``first``), so that the kernel allocates nothing.
+
+    Serial and without numba's reference counting (``_nrt=False``), not ``prange``: its
+    compile is a third of the parallel kernel's, and it casts rays as fast (within a few %,
+    docs/KERNELS.md); with reference counting a serial loop paid an atomic increment and
+    decrement per array per ray (the scene's eleven arrays passed to the inlined traversal),
+    30-60 % of the time of a ray, which a parfor's hoisting avoided.
 
     stop : (1,) int32, read before every work item: once it is non-zero the remaining
     work items are skipped (their rows left as misses) and the result is incomplete, for
     the caller to discard (:mod:`rstrace_engine.cancel`); zero, every ray is traced.
     """
     n = o.shape[0]
-    for c in prange((n + CHUNK - 1) // CHUNK):
+    chunks = (n + CHUNK - 1) // CHUNK
+    st_node, st2_node = stacks_node[first, 0], stacks_node[first, 1]
+    st_t, st2_t = stacks_t[first, 0], stacks_t[first, 1]
+    for c in range(first, chunks, step):
         if stop[0] != 0:
             continue
-        st_node = np.empty(STACK_SIZE, np.int32)
-        st_t = np.empty(STACK_SIZE)
-        st2_node = np.empty(STACK_SIZE, np.int32)
-        st2_t = np.empty(STACK_SIZE)
         for r in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not tmin[r] <= tmax[r]:
                 continue
@@ -358,7 +364,12 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
 
 def trace(sb: SceneBVH, o, d, tmin, tmax, only, anyhit: bool, hits,
           stop: np.ndarray = NEVER_STOP) -> None:
-    """Run :func:`trace_kernel` with dynamic scheduling into ``hits`` (t, inst, prim, u, v);
-    ``stop``: its stop flag (a :class:`~rstrace_engine.cancel.CancelFlag`'s ``array``)."""
-    with numba.parallel_chunksize(PARALLEL_CHUNKSIZE):
-        trace_kernel(sb, o, d, tmin, tmax, only, anyhit, *hits, stop)
+    """Run :func:`trace_kernel` on the calling thread's numba thread count
+    (:func:`~rstrace_engine.stripes.run`) into ``hits`` (t, inst, prim, u, v); ``stop``: its
+    stop flag (a :class:`~rstrace_engine.cancel.CancelFlag`'s ``array``)."""
+    chunks = (len(o) + CHUNK - 1) // CHUNK
+    k = stripes.threads_for(chunks)
+    stacks_node = np.empty((k, 2, STACK_SIZE), np.int32)
+    stacks_t = np.empty((k, 2, STACK_SIZE))
+    stripes.run(trace_kernel, chunks, sb, o, d, tmin, tmax, only,
+                anyhit, *hits, stop, stacks_node, stacks_t)

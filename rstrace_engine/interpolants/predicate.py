@@ -66,9 +66,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .. import image
+from .. import image, stripes
 from .. import tolerances as tol
 from ..frame import CLASS_FAIL_SHADOW, CLASS_FAIL_SILHOUETTE
 from ..geometry.attributes import slot_of
@@ -538,7 +538,6 @@ def corner_trees(sm, corners, out):
         out[c] = r
 
 
-@njit(cache=True, nogil=True, parallel=True)
 def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                 cell_nsamp, status, detail, zlo_out, zhi_out, cls_out):
     """Geometric part of the error predicate for a batch of cells.
@@ -547,12 +546,22 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
     :func:`~.linetree.corner_weight`) then the test lines; cell_nsamp (nc,) how many.
     Outputs: status (nc,) int32 VALID or a CLASS_FAIL_* code, detail (nc,) int8 an index
     into :data:`REASONS`; the slab (zlo, zhi) and the surface class of valid cells.
+    Cells dealt in turn to numba's thread count (``stripes.run`` of :func:`_check_cells`).
     """
+    stripes.run(_check_cells, len(cell_inst), qs, box, sm, cell_inst, cell_face, cell_depth,
+                cell_coord, cell_samples, cell_nsamp, status, detail, zlo_out, zhi_out,
+                cls_out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
+                 cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
+    """:func:`check_cells` for cells ``first, first + step, ...``: serial, not ``prange``: a
+    fraction of the compile (rstrace_engine/stripes.py; _check_one allocates: NRT kept)."""
     L = qs.light_kind.shape[0]
-    for c in prange(cell_inst.shape[0]):
+    for c in range(first, cell_inst.shape[0], step):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],
-                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out,
-                       np.int64(c))  # (c is unsigned in the loop's own function)
+                       cell_samples[c], cell_nsamp[c], L, zlo_out, zhi_out, cls_out, np.int64(c))
         detail[c] = r
         status[c] = VALID if r == R_VALID else (
             _SIL if r == R_MISS or r == R_CLASS or r == R_SLAB else _SHD)

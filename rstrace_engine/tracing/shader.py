@@ -54,6 +54,7 @@ from ..geometry.scene import (
     TEX_TRANSMISSION_SQRT,
     SceneArrays,
 )
+from ..stripes import stripe_item, stripe_len
 from ..views import fields, view_type
 from .glossy_rays import _glossy_rays, _put, is_glossy
 from .shading import (
@@ -233,8 +234,8 @@ _SurfaceScene = view_type("_SurfaceScene", SceneArrays, (
     "inst_mesh", "mesh_nrm", "normals", "mesh_slot", "tri_slot", "tris", "verts"), __name__)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _surface_kernel(sa, o, d, tmax, hits, surf):
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _surface_kernel(sa, o, d, tmax, hits, surf, first, step):
     """Surface points of a batch of ``n`` rays and their shadow rays (one per light).
 
     Inputs: o, d (n, 3) float64; tmax (n,) float64; hits : :class:`Hits` of the rays.
@@ -251,7 +252,10 @@ def _surface_kernel(sa, o, d, tmax, hits, surf):
     cx = 0.5 * (sa.scene_aabb[0, 0] + sa.scene_aabb[1, 0])
     cy = 0.5 * (sa.scene_aabb[0, 1] + sa.scene_aabb[1, 1])
     cz = 0.5 * (sa.scene_aabb[0, 2] + sa.scene_aabb[1, 2])
-    for i in prange(n):
+    for stripe_q in range(stripe_len(n, first, step)):  # stripes.run
+        i = stripe_item(stripe_q, first, step)
+        if i >= n:
+            break
         ux, uy, uz, dl = normalize3(d[i, 0], d[i, 1], d[i, 2])
         VD[i, 0] = ux
         VD[i, 1] = uy
@@ -368,9 +372,9 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
     "world_light"), __name__)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contrib, out, tv,
-                  tp):
+                  tp, first, step):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -403,7 +407,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     ext = sa.scene_extent
     wmin = tol.PATH_WEIGHT_MIN
     terms = tv.shape[0] > 0
-    for i in prange(n):
+    for stripe_q in range(stripe_len(n, first, step)):  # stripes.run
+        i = stripe_item(stripe_q, first, step)
+        if i >= n:
+            break
         slot = 2 * gstart[i]
         for k in range(slot, 2 * gstart[i + 1]):
             c_ok[k] = False

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .. import heap
+from .. import heap, stripes
 from ..accel.accelerators import Hits, create_accelerator, per_ray
 from ..cancel import bound, cancelled
 from ..frame import (
@@ -113,7 +113,7 @@ def surfaces(sa: SceneArrays, o: np.ndarray, d: np.ndarray, tmax: np.ndarray,
     surf = Surfaces(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty(n, np.bool_), np.empty(n, np.int32), np.empty((n, 3)),
                     np.empty(n * len(sa.light_kind), np.int8))
-    _surface_kernel(sa, o, d, tmax, _as_hits(hits), surf)
+    stripes.run(_surface_kernel, stripes.blocks_of(n), sa, o, d, tmax, _as_hits(hits), surf)
     return surf
 
 
@@ -211,9 +211,9 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     c = len(sa.light_kind) + 2
     tv = np.empty((n if terms else 0, c, 3))
     tp = np.empty((n if terms else 0, c), np.bool_)
-    _shade_kernel(sa, _as_hits(hits), surf, vis, weight, spawn,
-                  no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out, tv,
-                  tp)
+    stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
+                spawn, no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out,
+                tv, tp)
     if terms:
         return contrib, out, (tv, tp), plan
     return contrib, out, plan

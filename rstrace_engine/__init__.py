@@ -8,7 +8,8 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    ``kernel_cache`` (numba's disk cache made safe to share between processes, counted),
    ``shipped_kernels`` (the portable build that ships in the extension, seeding the cache),
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
-   (glibc's heap kept between a frame's batches).
+   (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
+   over serial ``nogil`` kernels).
 2. ``geometry``: the scene model, cameras, shapes, mesh topology.
 3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force,
    visibility field).

@@ -23,14 +23,12 @@ from test_relight_interpolants import (  # noqa: F401 (cells_always: the autouse
     session,
     settings,
 )
-from test_relight_interpolants_add import _cells, _live
+from test_relight_interpolants_add import _live, check_kept_cells
 
 from rstrace_engine import image
 from rstrace_engine.frame import CLASS_INTERPOLATED
 from rstrace_engine.geometry.edits import LightSet
 from rstrace_engine.geometry.scene import Light
-from rstrace_engine.interpolants.invalidation import affected
-from rstrace_engine.interpolants.predicate import radiance_ok
 from rstrace_engine.session import Session
 
 MAKE = {"spheres": SCENES["spheres"][0], "soft_penumbra": SCENES["soft_penumbra"][0],
@@ -94,28 +92,7 @@ def test_an_added_soft_light_keeps_the_cells_it_is_proven_on(name, kind):
     ff = fresh.render()
     m = image.compare(frame.radiance, ff.radiance, EPS)
     assert m["max_error"] <= EPS + FLOAT_TOL, m
-    p, sm = cache.pool, cache.samples
-    live = np.flatnonzero(p.live)
-    cs = np.concatenate([p.samples[live], p.tests[live]], axis=1)
-    ns = (16 + np.count_nonzero(p.tests[live] >= 0, axis=1)).astype(np.int32)
-    assert radiance_ok(sm.radiance(), cs, ns, EPS, sm.texture_terms(), cache.tex_max).all()
-    a, b = _cells(cache), _cells(fresh.interpolants.cache)
-    common = set(a) & set(b)
-    assert common
-    for key in common:
-        np.testing.assert_allclose(a[key], b[key], rtol=1e-9, atol=1e-12)
-    # a later edit of the added light finds the cells that took its term
-    j = sess.scene.light_slot("Added")
-    hit = set(affected(cache, np.zeros((0, 2, 3)), lights=(j,)).ids.tolist())
-    assert {q for q in changed if p.live[q]} <= hit
-    # ... and an object put in its shaft from such a cell (its tunnels were added)
-    lit = [q for q in changed if p.live[q] and kind != "SUN"]
-    if lit:
-        q = lit[0]
-        root = sm._npoint[sm._nstart[p.samples[q, 0]]]
-        mid = 0.5 * (root + np.asarray(sess.scene.arrays().light_pos[j]))
-        box = np.stack([mid - 1e-3, mid + 1e-3])[None]
-        assert q in set(affected(cache, box).ids.tolist())
+    check_kept_cells(sess, fresh.interpolants.cache, changed, kind)
 
 
 @pytest.mark.parametrize("step", ["add", "move"])

@@ -14,6 +14,27 @@ from mathutils import Vector
 from .exr import read_exr, read_pass
 
 
+def _canonical_order(bm) -> None:
+    """Put ``bm``'s edges and faces in an order set by their vertices alone (by index).
+
+    ``bmesh.ops.create_uvsphere`` makes the same vertices (in the same order) and the same
+    faces every time, but its edges and faces come in an order that changes from one
+    process to the next (and for large spheres from one call to the next). Blender's
+    vertex normals (summed in face order) then differ by an ulp, the triangles reach the
+    engine in another order, and the same script renders images that differ in a few
+    pixels by a float32 ulp: no two runs could be compared bit for bit.
+    """
+    bm.verts.index_update()
+    for seq, key in ((bm.edges, lambda e: sorted(v.index for v in e.verts)),
+                     (bm.faces, lambda f: [v.index for v in f.verts])):
+        seq.index_update()
+        keys = [key(x) for x in seq]
+        rank = [0] * len(keys)
+        for r, i in enumerate(sorted(range(len(keys)), key=keys.__getitem__)):
+            rank[i] = r
+        seq.sort(key=lambda x: rank[x.index])  # (bmesh sorts by a number only)
+
+
 def uv_sphere(name: str, radius: float = 1.0, segments: int = 32, rings: int = 16,
               smooth: bool = True):
     me = bpy.data.meshes.new(name)
@@ -21,8 +42,13 @@ def uv_sphere(name: str, radius: float = 1.0, segments: int = 32, rings: int = 1
     bm.loops.layers.uv.new("UVMap")
     bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius,
                               calc_uvs=True)
+    _canonical_order(bm)
     bm.to_mesh(me)
     bm.free()
+    # (an edge's two vertices come either way round as well: stored lower first)
+    ev = np.empty(2 * len(me.edges), np.int32)
+    me.edges.foreach_get("vertices", ev)
+    me.edges.foreach_set("vertices", np.sort(ev.reshape(-1, 2), axis=1).ravel())
     me.shade_smooth() if smooth else me.shade_flat()
     return me
 

@@ -32,8 +32,8 @@ spot or sun without an angle; one with an extent below):
 A light with an extent (a sphere light, an area light, a sun with an angle) is taken the
 same way, as a moved one is (:mod:`.moved_light`): its 16 shadow samples per node shaded
 at the kept samples, its *sampled term* taken off the shares as a build takes it off a new
-sample's (:func:`_without_sampled`: the glossy lobe under it, or all of a light without a
-closed form, is traced per pixel, :mod:`.sampled_term`), then the soft-light proof of
+sample's (:func:`~.sampled_term.without_sampled`: the glossy lobe under it, or all of a
+light without a closed form, is traced per pixel), then the soft-light proof of
 :func:`~.predicate.check_cells` for it alone (the shaft from the cell's slab to its whole
 extent clear, the closed form's horizon conditions, or a sun's umbra) and the radiance
 test. The shadow rays a shaft proves unoccluded over a cell's roots are not traced
@@ -55,14 +55,13 @@ import numpy as np
 
 from ..frame import LIGHT_SAMPLES_DEFAULT
 from ..tracing.light_reshade import _one_light
-from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import trace
 from .line_samples import _unpack, front_hits
 from .linetree import lattice_lines
 from .predicate import VALID, check_cells, radiance_ok
 from .relight import light_scale, light_shares
-from .sampled_term import per_pixel_query, sampled_possible, sampled_term
-from .samples import glossy_flags, textured_roots
+from .sampled_term import per_pixel_query, sampled_possible, without_sampled
+from .samples import TEX_MISMATCH, glossy_flags
 from .shafts import glossy_materials, light_extents, light_fields
 from .tunnels import LIGHT_OCCLUDED, LIGHT_SHADES, OBJ_OCCLUDES, tunnel_sections
 
@@ -151,8 +150,13 @@ def _shade_samples(cache, sa, accel, slots):
         cache.totals[f"terms_{c}"] = cache.totals.get(f"terms_{c}", 0) + counters.get(c, 0)
     share = light_shares(segs, n, k)
     good = hits.inst == sm._inst[:n]
-    if sampled_possible(one):  # a light with an extent: its sampled term is per pixel
-        good &= _without_sampled(cache, one, accel, o, d, hits, share)
+    if sampled_possible(one):  # a light with an extent: its sampled term is per pixel,
+        # taken off the shares as a build takes it off a new sample's (a textured root with
+        # a sampled term flagged: its texture split traced other samples)
+        _, flag = without_sampled(one, accel, o, d, hits, np.zeros((n, 3)),
+                                  sm.texture_terms()[0][:n], np.zeros(n, np.uint8),
+                                  cache.max_depth, LIGHT_SAMPLES_DEFAULT, share=share)
+        good &= (flag & TEX_MISMATCH) == 0
     order = np.argsort(tree.node_ray, kind="stable")
     count = np.bincount(tree.node_ray, minlength=n)[:n]
     good &= count == sm._ncount[:n]
@@ -183,30 +187,6 @@ def _cell_keys(pool, n: int) -> np.ndarray:
     keys = np.full(n, -1, np.int64)
     keys[flat[m]] = owner[m]
     return keys
-
-
-def _without_sampled(cache, one, accel, o, d, hits, share) -> np.ndarray:
-    """Take the sampled terms (:mod:`.sampled_term`) of the lights of ``one`` (the packing
-    with those lights alone) off the shares ``share`` (n, k, 3) of lines ``o, d`` with root
-    ``hits``, as :func:`~.sampled_term.without_sampled` takes them off a new sample's:
-    interpolants hold the closed-form part, every pixel adds its own sampled term. Returns
-    (n,) bool: False where a textured root has a sampled term (its texture split traced
-    other samples, or a split one: :data:`~.samples.TEX_MISMATCH`, as
-    :func:`~.sampled_term.without_sampled` flags a new sample)."""
-    n = len(o)
-    coef = np.zeros(share.shape)
-    sampled_term(one, accel, o, d, 1.0, hits, sample_seeds(np.arange(n, dtype=np.int64), 0),
-                 LIGHT_SAMPLES_DEFAULT, cache.max_depth, proven=True, coefficient=coef)
-    share -= coef
-    has = np.any(coef != 0.0, axis=(1, 2))
-    if not has.any():
-        return np.ones(n, np.bool_)
-    tex_root = np.zeros(n, np.bool_)
-    textured_roots(one, np.ascontiguousarray(hits.inst, np.int32),
-                   np.ascontiguousarray(np.maximum(hits.prim, 0), np.int32), tex_root)
-    # (a root whose radiance is split by its texture, ``dif`` != 0, as the build flags it)
-    dif = cache.samples.texture_terms()[0][:n]
-    return ~(has & (tex_root | np.any(dif != 0.0, axis=1)))
 
 
 def _ramp(cnt):

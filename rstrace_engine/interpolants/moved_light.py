@@ -40,7 +40,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..tracing.seen_lights import SEEN_GLOSSY, SEEN_TRANSMISSION, any_seen
+from ..tracing.seen_lights import first_seen_below
 from .added_light import _ramp, _shade_samples, proven_cells
 from .relight import _row_equal, light_scale
 
@@ -73,8 +73,7 @@ def movable_lights(cache, old_sa, sa, fx) -> list[int]:
         return []
     if fx.regions or fx.objects or fx.geometry or fx.meshes or fx.materials:
         return []
-    seen = (SEEN_GLOSSY, SEEN_TRANSMISSION)
-    if any_seen(sa, seen) and not any_seen(old_sa, seen):
+    if first_seen_below(old_sa, sa):
         # a light's surface newly seen by mirror or refraction rays: the samples were not
         # flagged for it (:func:`~.samples.seen_flags`)
         return []

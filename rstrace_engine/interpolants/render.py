@@ -45,12 +45,7 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
-from ..tracing.seen_lights import (
-    SEEN_CAMERA,
-    SEEN_GLOSSY,
-    SEEN_TRANSMISSION,
-    any_seen,
-)
+from ..tracing.seen_lights import SEEN_CAMERA, any_seen, first_seen_below
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import world_lights
 from ..tracing.whitted import render
@@ -159,8 +154,7 @@ def _newly_seen(old_sa, sa) -> bool:
     seen (:func:`~.samples.seen_flags` flags every sample whose tree goes below its root
     while any light is, whichever light it is), so a light seen as well as others (moved,
     added) finds every such sample flagged -- and its cell failed -- already."""
-    seen = (SEEN_GLOSSY, SEEN_TRANSMISSION)
-    return any_seen(sa, seen) and not any_seen(old_sa, seen)
+    return first_seen_below(old_sa, sa)
 
 
 def _add_stats(a: dict, b: dict) -> dict:

@@ -53,6 +53,13 @@ def any_seen(sa, columns=(SEEN_CAMERA, SEEN_GLOSSY, SEEN_TRANSMISSION)) -> bool:
     return any(bool(seen_lights(sa, c).any()) for c in columns)
 
 
+def first_seen_below(old_sa, sa) -> bool:
+    """Whether mirror or refraction rays can see some light's surface in ``sa`` and none in
+    ``old_sa``."""
+    seen = (SEEN_GLOSSY, SEEN_TRANSMISSION)
+    return any_seen(sa, seen) and not any_seen(old_sa, seen)
+
+
 @njit(cache=True, nogil=True)
 def _sphere_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, t0, t1):
     """First parameter in (t0, t1) where ray ``o + t d`` meets the sphere, else -1."""

@@ -83,3 +83,20 @@ def test_rough_row_runs_and_reports(tmp_path):
     assert row["bias_error"]["block_p50"] < 0.02
     assert row["bias_error_no_glass"]["block_max"] < 0.05
     assert (tmp_path / "rough_materials_reference.png").exists()
+
+
+def test_rough_row_allocation_and_cpu_clock(capsys):
+    # the allocation timed (pixel samples x glossy samples) and the clock are the row's
+    res = bench_frame.run(["rough_materials"], width=32, height=24, depth=2, mitsuba=False,
+                          samples=2, glossy_samples=4, clock="cpu", repeats=2)
+    row = res["frames"][0]
+    assert (row["samples"], row["glossy_samples"]) == (2, 4)
+    assert row["clock"] == "cpu" and row["repeats"] == 2
+    assert row["time_s"] > 0 and row["wall_s"] > 0 and row["primary_rays"] == 2 * 32 * 24
+    assert bench_frame.main(["--scenes", "rough_materials", "--width", "32", "--height", "24",
+                             "--depth", "1", "--no-mitsuba", "--samples", "2",
+                             "--glossy-samples", "3", "--clock", "cpu"]) == 0
+    out = capsys.readouterr().out
+    assert "2 spp, 3 glossy" in out and "s cpu (wall" in out and "median of 3" in out
+    with pytest.raises(ValueError, match="clock 'gpu'"):
+        frame_rough.run_rough(16, 12, 1, mitsuba=False, clock="gpu")

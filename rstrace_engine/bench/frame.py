@@ -37,10 +37,10 @@ import numpy as np
 
 from .. import image, scenes
 from ..accel.accelerators import create_accelerator
-from ..frame import RenderSettings
+from ..frame import GLOSSY_SAMPLES_DEFAULT, RenderSettings
 from ..geometry.scene import Scene
 from ..tracing.whitted import render
-from .frame_rough import ROUGH, run_rough
+from .frame_rough import CLOCKS, ROUGH, run_rough
 from .frame_soft import SOFT_ROWS, run_soft, soft_lines
 from .mitsuba_scene import mitsuba_scene_dict, world_triangles  # noqa: F401 (re-exported)
 
@@ -63,14 +63,20 @@ def run_mitsuba(scene: Scene, width: int, height: int):
 
 
 def run(scene_names, width=640, height=480, depth=5, accelerator="BVH", mitsuba=True,
-        out: Path | None = None, ref_spp: int = 4096, ref_samples: int = 64) -> dict:
+        out: Path | None = None, ref_spp: int = 4096, ref_samples: int = 64,
+        samples: int = 1, glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, clock: str = "wall",
+        repeats: int = 3) -> dict:
     """Measure each scene; returns ``{"frames": [...]}``. ``rough_materials`` is measured by
-    :func:`.frame_rough.run_rough` (``ref_spp``, ``ref_samples``: its references)."""
+    :func:`.frame_rough.run_rough` (``ref_spp``, ``ref_samples``: its references; rstrace
+    at ``samples`` pixel samples and ``glossy_samples``, timed by ``clock``, the median of
+    ``repeats`` frames)."""
     frames = []
     if ROUGH in scene_names:
-        frames.append(run_rough(width, height, depth, accelerator, ref_spp=ref_spp,
-                                ref_samples=ref_samples if mitsuba else 0, out=out,
-                                mitsuba=mitsuba))
+        st = RenderSettings(max_depth=depth, accelerator=accelerator, samples=samples,
+                            glossy_samples=glossy_samples)
+        frames.append(run_rough(width, height, depth, accelerator, settings=st,
+                                ref_spp=ref_spp, ref_samples=ref_samples if mitsuba else 0,
+                                out=out, mitsuba=mitsuba, clock=clock, repeats=repeats))
     for name in [n for n in scene_names if n in SOFT_ROWS]:
         frames.append(run_soft(name, width, height, depth, accelerator, ref_spp=ref_spp,
                                ref_samples=ref_samples if mitsuba else 0, mitsuba=mitsuba))
@@ -114,12 +120,12 @@ def rough_lines(r: dict) -> str:
     """The ``rough_materials`` row as text."""
     lines = [f"{r['scene']:>14} {r['width']}x{r['height']} depth {r['depth']}, "
              f"{r['samples']} spp, {r['glossy_samples']} glossy, {r['light_samples']} light "
-             f"samples: frame {r['time_s']:.2f} s, {r['rays']:,} rays ({r['threads']} "
-             f"threads)"]
+             f"samples: frame {r['time_s']:.3f} s {r['clock']} (wall {r['wall_s']:.3f} s, "
+             f"median of {r['repeats']}), {r['rays']:,} rays ({r['threads']} threads)"]
     if "mitsuba_unavailable" in r:
         return lines[0] + f" | mitsuba: {r['mitsuba_unavailable']}"
     lines[0] += (f" | mitsuba llvm_ad_rgb glossy_whitted: {r['mitsuba_spp']} spp in "
-                 f"{r['mitsuba_s']:.2f} s ({r['mitsuba_threads']} threads); reference "
+                 f"{r['mitsuba_s']:.3f} s {r['clock']} ({r['mitsuba_threads']} threads); reference "
                  f"{r['ref_spp']} spp ({r['ref_s']:.1f} s)")
     for key, label in (("rstrace_error", "rstrace, equal time"),
                        ("mitsuba_error", "mitsuba, equal time"),
@@ -152,9 +158,19 @@ def main(argv: list[str]) -> int:
     p.add_argument("--ref-samples", type=int, default=64,
                    help=f"{ROUGH}: pixel samples of rstrace's converged frame (the models' "
                         f"bias; 0: none)")
+    p.add_argument("--samples", type=int, default=1,
+                   help=f"{ROUGH}: rstrace's pixel samples (the equal-time allocation)")
+    p.add_argument("--glossy-samples", type=int, default=GLOSSY_SAMPLES_DEFAULT,
+                   help=f"{ROUGH}: rstrace's glossy samples at a path's first rough bounce")
+    p.add_argument("--clock", choices=sorted(CLOCKS), default="wall",
+                   help=f"{ROUGH}: equal time by wall time or by the process's CPU time "
+                        f"(all its threads; robust to a loaded machine)")
+    p.add_argument("--repeats", type=int, default=3,
+                   help=f"{ROUGH}: rstrace's time is the median of this many frames")
     a = p.parse_args(argv)
     res = run([s for s in a.scenes.split(",") if s], a.width, a.height, a.depth,
-              a.accelerator, not a.no_mitsuba, a.out, a.ref_spp, a.ref_samples)
+              a.accelerator, not a.no_mitsuba, a.out, a.ref_spp, a.ref_samples, a.samples,
+              a.glossy_samples, a.clock, a.repeats)
     if a.json:
         print(json.dumps(res))
         return 0

@@ -380,19 +380,26 @@ def material_pixels(scene: Scene, material: str, settings: RenderSettings, accel
     return frame.radiance.max(axis=-1) > 0.5
 
 
-def _mitsuba_render(mi, ms, spp: int, seed: int):
-    """(image (h, w, 3) bottom-up float64, seconds)."""
-    t0 = time.perf_counter()
+#: the clocks the row can time both renderers by (``bench frame --clock``): wall time, or
+#: the process's CPU time summed over its threads (robust to other work on a shared machine:
+#: rstrace's numba threads and Mitsuba's Dr.Jit threads are both the process's)
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
+
+
+def _mitsuba_render(mi, ms, spp: int, seed: int, clock=time.perf_counter):
+    """(image (h, w, 3) bottom-up float64, seconds by ``clock``)."""
+    t0 = clock()
     img = np.array(mi.render(ms, spp=int(spp), seed=int(seed)))
-    return img[::-1, :, :3].astype(np.float64), time.perf_counter() - t0
+    return img[::-1, :, :3].astype(np.float64), clock() - t0
 
 
-def mitsuba_equal_time(mi, ms, seconds: float, probe_spp: int = 4, tries: int = 3):
-    """Mitsuba's frame taking about ``seconds``: a render at ``probe_spp`` gives the rate,
-    then up to ``tries`` renders rescale the spp to the time (until within 10%). Returns
-    ``(image, spp, seconds)`` of the last render."""
+def mitsuba_equal_time(mi, ms, seconds: float, probe_spp: int = 4, tries: int = 3,
+                       clock=time.perf_counter):
+    """Mitsuba's frame taking about ``seconds`` by ``clock``: a render at ``probe_spp`` gives
+    the rate, then up to ``tries`` renders rescale the spp to the time (until within 10%).
+    Returns ``(image, spp, seconds)`` of the last render."""
     spp = probe_spp
-    img, t = _mitsuba_render(mi, ms, spp, seed=0)
+    img, t = _mitsuba_render(mi, ms, spp, seed=0, clock=clock)
     for _ in range(tries):
         if abs(t - seconds) <= 0.1 * seconds:
             break
@@ -400,35 +407,52 @@ def mitsuba_equal_time(mi, ms, seconds: float, probe_spp: int = 4, tries: int = 
         if want == spp:
             break
         spp = want
-        img, t = _mitsuba_render(mi, ms, spp, seed=0)
+        img, t = _mitsuba_render(mi, ms, spp, seed=0, clock=clock)
     return img, spp, t
+
+
+def timed_frames(scene: Scene, settings: RenderSettings, accel, clock, repeats: int):
+    """``(frame, median seconds by clock, median wall seconds)`` of ``repeats`` renders of
+    ``scene`` (deterministic: every render gives the same image)."""
+    times, walls = [], []
+    for _ in range(max(1, int(repeats))):
+        c0, w0 = clock(), time.perf_counter()
+        frame = render(scene, settings, accel=accel)
+        times.append(clock() - c0)
+        walls.append(time.perf_counter() - w0)
+    return frame, float(np.median(times)), float(np.median(walls))
 
 
 def run_rough(width: int = 160, height: int = 120, depth: int = 5, accelerator: str = "BVH",
               settings=None, ref_spp: int = 4096, ref_samples: int = 64,
-              out=None, mitsuba: bool = True) -> dict:
+              out=None, mitsuba: bool = True, clock: str = "wall", repeats: int = 3) -> dict:
     """The ``rough_materials`` row: rstrace at ``settings`` (default: the defaults at
-    ``depth``) timed, Mitsuba at equal time, both against Mitsuba's ``ref_spp`` reference;
-    rstrace at ``ref_samples`` pixel samples against it is the models' bias (0: skip).
-    ``mitsuba`` False: rstrace's time only."""
-    st = settings if settings is not None else RenderSettings(max_depth=depth,
-                                                              accelerator=accelerator)
+    ``depth``) timed (the median of ``repeats`` frames by ``clock``, one of
+    :data:`CLOCKS`), Mitsuba at equal time by the same clock, both against Mitsuba's
+    ``ref_spp`` reference; rstrace at ``ref_samples`` pixel samples against it is the
+    models' bias (0: skip). ``mitsuba`` False: rstrace's time only."""
+    if clock not in CLOCKS:
+        raise ValueError(f"rough_materials: clock {clock!r} is not one of {sorted(CLOCKS)}")
+    tick = CLOCKS[clock]
+    st = (settings if settings is not None else RenderSettings(
+        max_depth=depth, accelerator=accelerator)).validated()
     warm = scenes.rough_materials(16, 12)  # compiles / loads the kernels (not timed)
     render(warm, st, accel=create_accelerator(accelerator, warm.arrays()))
     scene = scenes.rough_materials(width, height)
     t0 = time.perf_counter()
     acc = create_accelerator(accelerator, scene.arrays())
     build = time.perf_counter() - t0
-    frame = render(scene, st, accel=acc)
+    frame, secs, wall = timed_frames(scene, st, acc, tick, repeats)
     stats = frame.stats
     row = dict(scene=ROUGH, width=width, height=height, depth=st.max_depth,
                samples=st.samples, glossy_samples=st.glossy_samples,
                light_samples=st.light_samples, triangles=scene.triangle_count,
                instances=len(scene.instances), lights=len(scene.lights),
-               accelerator=acc.name, build_s=build, time_s=stats["time_s"],
-               rays=stats["rays_traced"], primary_rays=stats["primary_rays"],
-               secondary_rays=stats["secondary_rays"], shadow_rays=stats["shadow_rays"],
-               mrays_per_s=stats["rays_per_s"] / 1e6, threads=numba.get_num_threads())
+               accelerator=acc.name, build_s=build, clock=clock, repeats=repeats,
+               time_s=secs, wall_s=wall, rays=stats["rays_traced"],
+               primary_rays=stats["primary_rays"], secondary_rays=stats["secondary_rays"],
+               shadow_rays=stats["shadow_rays"], mrays_per_s=stats["rays_traced"] / secs / 1e6,
+               threads=numba.get_num_threads())
     if out is not None:
         image.write_render_png(Path(out) / "rough_materials_rstrace.png", frame.radiance)
     mi, why = mitsuba_llvm() if mitsuba else (None, "not asked for (--no-mitsuba)")
@@ -442,10 +466,10 @@ def run_rough(width: int = 160, height: int = 120, depth: int = 5, accelerator: 
     row["mitsuba_build_s"] = time.perf_counter() - t0
     row["mitsuba_threads"] = int(dr.thread_count())
     _mitsuba_render(mi, ms, 1, seed=3)  # compiles the kernels (not timed)
-    img, spp, secs = mitsuba_equal_time(mi, ms, stats["time_s"])
+    img, spp, msecs = mitsuba_equal_time(mi, ms, secs, clock=tick)
     ref, ref_s = _mitsuba_render(mi, ms, ref_spp, seed=1)
     glass = material_pixels(scene, "glass", st, acc)
-    row.update(mitsuba_spp=spp, mitsuba_s=secs, ratio=stats["time_s"] / secs,
+    row.update(mitsuba_spp=spp, mitsuba_s=msecs, ratio=secs / msecs,
                ref_spp=ref_spp, ref_s=ref_s, glass_pixels=int(glass.sum()),
                rstrace_error=error_stats(frame.radiance, ref),
                mitsuba_error=error_stats(img, ref),

@@ -28,6 +28,16 @@ closes a circle.
 
 __version__ = "0.1.0"
 
+import os  # noqa: E402
+
+# numba's OpenMP threading layer (libgomp, which reads this when numba first loads it) spins
+# its idle threads between parallel regions: on a machine whose cores are busy (Blender's own
+# threads beside ours, other processes) the spinning threads take the cores from the working
+# ones, and a frame of a few dozen regions took 2-3x its time (docs/bench-frame.md,
+# "Where the rough frame's time and error go"). Passive waiting puts them to sleep; the
+# images are the same bit for bit. A value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
 kernel_cache.install()

@@ -24,13 +24,15 @@ single scattering: at alpha 0.09 about 1%), and rstrace does not light a rough i
 side (light refracted to the viewer through the glass: docs/glossy.md, "Not done").
 
 Equal time: rstrace renders the frame at its default settings (1 pixel sample, 16 glossy
-samples, depth 5), timed after a warm-up; Mitsuba then renders the same frame with the spp
-that takes that wall time (measured in the same run: a render at 4 spp, then the spp
-rescaled by the time until within 10%, at most 3 more renders). Both are compared with a
-converged Mitsuba reference (``ref_spp`` samples per pixel), and rstrace's converged frame
-(``ref_samples`` pixel samples) with the same reference gives the models' bias, the floor
-under rstrace's error; every measure is also given without the pixels that see the glass
-ball (``*_no_glass``: the far-side light above).
+samples, depth 5; ``bench frame --samples/--glossy-samples`` time another allocation), timed
+after a warm-up (the median of ``repeats`` frames); Mitsuba then renders the same frame with
+the spp that takes that time, by the wall clock or by the process's CPU time (``--clock
+cpu``: robust to other work on a shared machine), measured in the same run (a render at 4
+spp, then the spp rescaled by the time until within 10%, at most 3 more renders). Both are
+compared with a converged Mitsuba reference (``ref_spp`` samples per pixel), and rstrace's
+converged frame (``ref_samples`` pixel samples) with the same reference gives the models'
+bias, the floor under rstrace's error; every measure is also given without the pixels that
+see the glass ball (``*_no_glass``: the far-side light above).
 
 Mitsuba's ``llvm_ad_rgb`` variant needs an LLVM that compiles for this CPU: LLVM 14 and 15
 abort the process ("Cannot select: fminimum") on this project's machine, LLVM 22 works.

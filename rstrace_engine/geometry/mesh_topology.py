@@ -228,6 +228,12 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
 _LAST: list = [None]  # (tris, verts, MeshTopology) of the last packing asked for
 
 
+def topology_kept(sa: SceneArrays) -> bool:
+    """Whether :func:`mesh_topology_cached` has ``sa``'s topology already."""
+    memo = _LAST[0]
+    return memo is not None and memo[0] is sa.tris and memo[1] is sa.verts
+
+
 def mesh_topology_cached(sa: SceneArrays) -> MeshTopology:
     """:func:`mesh_topology` of ``sa``, kept for the last packing asked for (its arrays are
     immutable, so the same ``tris`` and ``verts`` objects are the same meshes)."""

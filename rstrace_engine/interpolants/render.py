@@ -311,6 +311,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         run.ledger = fb_mod.FrameLedger(n_inst)
         run.traced_now = fb.frame_traced()
         run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
+        run.budget.owed = fb_mod.structures_owed(cache.structures_missing(), len(sa.tris))
     budget = run.budget
     n_closest = 0
     t_closest = 0.0
@@ -361,6 +362,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                         b, on = (a + m, True) if m else (kt, False)
                     run.chunk(ps, slice(a, b), on)
                     walked |= on
+                    if on and budget is not None and budget.owed:  # (built: paid in spent)
+                        budget.owed = fb_mod.structures_owed(cache.structures_missing(),
+                                                             len(sa.tris))
                     if budget is not None and budget.ray_s is None:
                         budget.pricing += b - a
                         if run.traced_rays >= fb_mod.MIN_PRICE_RAYS:

@@ -30,6 +30,7 @@ def fresh_structures(monkeypatch):
     monkeypatch.setattr(interpolant_cache, "_QS_LAST", [None])
     monkeypatch.setattr(mesh_topology, "_LAST", [None])
     monkeypatch.setattr(fallback, "STRUCTURE_RATE", {"topo": None, "qs": None})
+    monkeypatch.setattr(fallback, "LEARN_STRUCTURES", True)  # (conftest turns it off)
 
 
 def test_a_walk_owes_the_structures_not_built():
@@ -39,6 +40,17 @@ def test_a_walk_owes_the_structures_not_built():
     assert b.chunk(50_000) == fallback.CHUNK_MIN and not b.cut
     b.owed = 2.0 * b.limit  # not: nothing walks, the rest is traced
     assert b.chunk(50_000) == 0 and b.cut
+    # a build owes the query structures where the walk did not (cells kept to find)
+    b = Budget(100_000, ray_s=1e-5)
+    assert b.may_build(0)
+    b.owed_build = 2.0 * b.limit
+    assert not b.may_build(0) and b.batch(64, 0) == 0
+    fallback.STRUCTURE_RATE.update(topo=1e-6, qs=3e-6)
+    assert fallback.owed_at_once(["topo", "qs"], 1000, cells_kept=False) == pytest.approx(
+        (4e-3, 0.0))
+    assert fallback.owed_at_once(["topo", "qs"], 1000, cells_kept=True) == pytest.approx(
+        (1e-3, 3e-3))
+    assert fallback.owed_at_once(["qs"], 1000, cells_kept=True) == pytest.approx((0.0, 3e-3))
     # the rates: learned per kind from the last build, none foreseen before one
     fallback.STRUCTURE_RATE.update(topo=2e-6, qs=None)
     assert structures_owed(["topo", "qs"], 1000) == pytest.approx(2e-3)

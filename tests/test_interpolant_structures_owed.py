@@ -82,6 +82,14 @@ def test_a_frame_that_cannot_pay_the_structures_is_the_base_frame_and_a_later_on
     assert not mesh_topology.topology_kept(sa)
     base0 = render(sc, replace(st, mode="BASE"), accel=accel)
     np.testing.assert_array_equal(f0.radiance, base0.radiance)
+    # a renderer's first frame (no price yet) prices a ray with its first chunk, then
+    # walks nothing either: the rest traced, the base frame's
+    first = InterpolantRenderer()
+    f_first = first.render(sc, st, accel)
+    assert f_first.stats["fallback"]["probe_rays"] > 0
+    assert f_first.stats["fallback"]["walked_rays"] == 0
+    assert first.cache.structures_missing() == ["topo", "qs"]
+    np.testing.assert_array_equal(f_first.radiance, base0.radiance)
     # cheap structures: the next frame (a camera step) builds them and its cells
     fallback.STRUCTURE_RATE.update(topo=0.0, qs=0.0)
     cam = sc.camera

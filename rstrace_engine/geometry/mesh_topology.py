@@ -86,22 +86,102 @@ def _edge_pass(order, key_lo, key_hi, e_tri, e_loc, e_dir, tris_w, normals, uvs,
         parent[t] = _find(parent, t)
 
 
+#: Vertices per box of :func:`vertex_boxes` (the convexity test skips a box behind a plane).
+CONVEX_BOX_VERTS = 16
+
+
+def _spread_bits(x: np.ndarray) -> np.ndarray:
+    """10-bit integers with two zero bits after each bit (one axis of a Morton code)."""
+    x = x.astype(np.int64) & 0x3FF
+    x = (x | (x << 16)) & 0x30000FF
+    x = (x | (x << 8)) & 0x300F00F
+    x = (x | (x << 4)) & 0x30C30C3
+    return (x | (x << 2)) & 0x9249249
+
+
+def vertex_boxes(v: np.ndarray, per: int = CONVEX_BOX_VERTS):
+    """A tree of boxes over vertices ``v (n, 3)``: ``order (n,)`` their indices in Morton
+    order; level 0 boxes each hold a run of ``per`` of them, a box of level ``L > 0`` the
+    boxes ``j * per .. j * per + per - 1`` of level ``L - 1``; ``lo, hi (B, 3)`` the boxes of
+    every level, level ``L`` at rows ``first[L]:first[L + 1]``; ``mag (B, 3)`` their largest
+    absolute coordinate per axis. The top level has at most ``per`` boxes."""
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    q = np.floor((v - lo) / np.maximum(hi - lo, 1e-300) * 1023.0).clip(0, 1023)
+    code = (_spread_bits(q[:, 0]) << 2) | (_spread_bits(q[:, 1]) << 1) | _spread_bits(q[:, 2])
+    order = np.argsort(code, kind="stable")
+    los, his = [v[order]], [v[order]]
+    while len(los) == 1 or len(los[-1]) > per:
+        pad = (-len(los[-1])) % per
+        los.append(np.concatenate([los[-1], np.repeat(los[-1][-1:], pad, axis=0)])
+                   .reshape(-1, per, 3).min(axis=1))
+        his.append(np.concatenate([his[-1], np.repeat(his[-1][-1:], pad, axis=0)])
+                   .reshape(-1, per, 3).max(axis=1))
+    first = np.cumsum([0] + [len(x) for x in los[1:]]).astype(np.int64)
+    blo, bhi = np.concatenate(los[1:]), np.concatenate(his[1:])
+    return (order.astype(np.int64), blo, bhi, np.maximum(np.abs(blo), np.abs(bhi)), first)
+
+
 @njit(cache=True, nogil=True)
-def _is_convex(verts, tris, lo, hi, tol_abs):
+def _is_convex(verts, tris, order, box_lo, box_hi, box_mag, first, per, tol_abs):
+    """No vertex ``verts[order]`` lies more than ``tol_abs`` in front of any triangle's
+    plane (unit normal by the winding), over the box tree of :func:`vertex_boxes`: a box
+    whose farthest corner stays behind the plane by more than the rounding of both
+    computations (``BOX_ROUND_REL`` of the magnitudes) holds no such vertex; the vertices of
+    every other leaf box are tested one by one, by the same formula as without boxes (so the
+    answer is the brute-force test's)."""
+    n = order.shape[0]
+    top = first.shape[0] - 2
+    stack = np.empty((top + 1) * per + 1, np.int64)
     for t in range(tris.shape[0]):
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
         e1 = verts[b] - verts[a]
         e2 = verts[c] - verts[a]
-        n = np.cross(e1, e2)
-        ln = math.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+        nrm = np.cross(e1, e2)
+        ln = math.sqrt(nrm[0] ** 2 + nrm[1] ** 2 + nrm[2] ** 2)
         if ln == 0.0:
             continue
-        for v in range(lo, hi):
-            s = ((verts[v, 0] - verts[a, 0]) * n[0] + (verts[v, 1] - verts[a, 1]) * n[1]
-                 + (verts[v, 2] - verts[a, 2]) * n[2]) / ln
-            if s > tol_abs:
-                return False
+        sp = 0
+        for j in range(first[top], first[top + 1]):
+            stack[sp] = j
+            sp += 1
+        while sp > 0:
+            sp -= 1
+            k = stack[sp]
+            bound = 0.0
+            mag = 0.0
+            for q in range(3):
+                bound += max(nrm[q] * (box_lo[k, q] - verts[a, q]),
+                             nrm[q] * (box_hi[k, q] - verts[a, q]))
+                mag += abs(nrm[q]) * (abs(verts[a, q]) + box_mag[k, q])
+            if (bound + tol.BOX_ROUND_REL * mag) / ln <= tol_abs:
+                continue
+            if k >= first[1]:  # an inner box: its children
+                lev = 0
+                while k >= first[lev + 1]:
+                    lev += 1
+                c0 = first[lev - 1] + (k - first[lev]) * per
+                for j in range(c0, min(c0 + per, first[lev])):
+                    stack[sp] = j
+                    sp += 1
+                continue
+            for i in range(k * per, min((k + 1) * per, n)):
+                v = order[i]
+                s = ((verts[v, 0] - verts[a, 0]) * nrm[0] + (verts[v, 1] - verts[a, 1]) * nrm[1]
+                     + (verts[v, 2] - verts[a, 2]) * nrm[2]) / ln
+                if s > tol_abs:
+                    return False
     return True
+
+
+def is_convex(verts: np.ndarray, tris: np.ndarray, tol_abs: float) -> bool:
+    """Whether no vertex of ``verts`` (all of them: the mesh's range) lies more than
+    ``tol_abs`` in front of the plane of any triangle ``tris`` (into ``verts``)."""
+    v = np.ascontiguousarray(verts, np.float64)
+    if len(v) == 0:
+        return True
+    order, lo, hi, mag, first = vertex_boxes(v)
+    return bool(_is_convex(v, np.ascontiguousarray(tris, np.int64), order, lo, hi, mag, first,
+                           CONVEX_BOX_VERTS, float(tol_abs)))
 
 
 def mesh_topology(sa: SceneArrays) -> MeshTopology:
@@ -141,12 +221,17 @@ def mesh_topology(sa: SceneArrays) -> MeshTopology:
             vids = np.unique(sa.tris[s:e])
             v = sa.verts[vids.min():vids.max() + 1]
             diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-            convex[m] = _is_convex(sa.verts, sa.tris[s:e], int(vids.min()), int(vids.max()) + 1,
-                                   tol.CONVEX_TOL_REL * diag)
+            convex[m] = is_convex(v, sa.tris[s:e] - vids.min(), tol.CONVEX_TOL_REL * diag)
     return MeshTopology(parent.astype(np.int32), boundary, closed, convex)
 
 
 _LAST: list = [None]  # (tris, verts, MeshTopology) of the last packing asked for
+
+
+def topology_kept(sa: SceneArrays) -> bool:
+    """Whether :func:`mesh_topology_cached` has ``sa``'s topology already."""
+    memo = _LAST[0]
+    return memo is not None and memo[0] is sa.tris and memo[1] is sa.verts
 
 
 def mesh_topology_cached(sa: SceneArrays) -> MeshTopology:

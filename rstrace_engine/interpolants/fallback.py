@@ -83,6 +83,39 @@ MIN_PRICE_RAYS = 256
 CUT_FRAMES = 2
 #: the clock of every measurement (wall time: what the user waits for)
 CLOCK = time.perf_counter
+#: seconds per triangle of building a scene's surface topology (``"topo"``: a walk needs
+#: it, for its lines) and the predicate's query structures (``"qs"``: a build needs them),
+#: learned from the last build of each (None: not built yet in this process; the tests
+#: turn the learning off, :data:`LEARN_STRUCTURES`, as they decide by given costs)
+STRUCTURE_RATE: dict = {"topo": None, "qs": None}
+LEARN_STRUCTURES = True
+
+
+def timed_structure(kind: str, n_tris: int, build):
+    """``build()``, its cost per triangle learned as ``kind``'s :data:`STRUCTURE_RATE`."""
+    t0 = CLOCK()
+    out = build()
+    if LEARN_STRUCTURES:
+        STRUCTURE_RATE[kind] = (CLOCK() - t0) / max(int(n_tris), 1)
+    return out
+
+
+def structures_owed(missing, n_tris: int) -> float:
+    """Seconds the scene's structures ``missing`` (kinds of :data:`STRUCTURE_RATE` not
+    built for it) are expected to cost over ``n_tris`` triangles, at the rates learned (0
+    for a kind never built: the first build in a process is not foreseen)."""
+    return sum(STRUCTURE_RATE[k] * int(n_tris) for k in missing
+               if STRUCTURE_RATE.get(k) is not None)
+
+
+def owed_at_once(missing, n_tris: int, cells_kept: bool) -> tuple[float, float]:
+    """``(walk, build)``: seconds of the structures ``missing`` a frame's first walk and
+    its first build owe at once (:attr:`Budget.owed`, :attr:`Budget.owed_build`). A walk
+    needs the topology; with no cell kept it finds nothing to interpolate, so it owes the
+    query structures its builds need too (else a build owes them)."""
+    walk = [k for k in missing if k == "topo" or not cells_kept]
+    return (structures_owed(walk, n_tris),
+            structures_owed([k for k in missing if k not in walk], n_tris))
 
 
 class FrameCosts(NamedTuple):
@@ -148,6 +181,10 @@ class Budget:
         self.walked = 0  # rays that went through the cells (chunks with cells)
         self.deferred = 0  # cells left unbuilt
         self.pricing = 0  # rays traced to price a ray (a first frame's first chunk)
+        #: seconds of the scene's structures (topology, query structures) not built yet
+        #: that the next walk, and the next build, would pay at once (:func:`owed_at_once`)
+        self.owed = 0.0
+        self.owed_build = 0.0
         self.opened: float | None = None  # when the chunk being walked began (:meth:`open`)
         self.open_built = 0.0  # seconds of builds since then (charged as they went)
         if ray_s is not None:
@@ -238,18 +275,22 @@ class Budget:
 
     def may_build(self, interpolated_now: int) -> bool:
         """Whether the next batch may be built (``interpolated_now``: rays interpolated in
-        the current chunk so far)."""
-        return self.left(interpolated_now) >= 0.0
+        the current chunk so far), the query structures it may owe paid (:attr:`owed_build`)."""
+        return self.left(interpolated_now) >= self.owed_build
 
     def chunk(self, rest: int) -> int:
         """Rays the next chunk of a pass (``rest`` rays left in it) sends through the cells
         (0: none, the rest is traced): as many as the allowance left affords at what the
         mode added per ray walked so far but its builds (those :meth:`batch` paces: a cell
         built serves the chunks after it), between :data:`CHUNK_MIN` and :data:`CHUNK_MAX`
-        rays; none once it affords fewer than :data:`CHUNK_MIN`. Not priced: 0."""
+        rays; none once it affords fewer than :data:`CHUNK_MIN`. The scene's structures
+        not built yet (:attr:`owed`) are owed at once: a frame whose allowance cannot pay
+        them walks nothing (its cells could be neither found nor built without them; on
+        ``studio`` at 320x240 and 1 sample they are 20-30 ms against an allowance of ~10).
+        Not priced: 0."""
         if self.ray_s is None:
             return 0
-        left = self.left()
+        left = self.left() - self.owed
         walk = self.spent - self.build_paid
         if self.walked == 0 or walk <= 0.0:
             if left < 0.0:

@@ -52,7 +52,7 @@ from ..frame import (
     CLASS_FAIL_SILHOUETTE,
     CLASS_TRACED,
 )
-from ..geometry.mesh_topology import mesh_topology_cached
+from ..geometry.mesh_topology import mesh_topology_cached, topology_kept
 from . import fallback as fb_mod
 from .fallback import Fallback, count_cells
 from .invalidation import Dependencies, Invalidation, invalidate, take_edits
@@ -270,7 +270,10 @@ class InterpolantCache:
     def topo(self):
         """Surface classes, boundary edges, convexity (:func:`.mesh_topology.mesh_topology`;
         kept for the last packing: a new cache of the same scene does not compute it again)."""
-        return mesh_topology_cached(self.sa)
+        if topology_kept(self.sa):
+            return mesh_topology_cached(self.sa)
+        return fb_mod.timed_structure("topo", len(self.sa.tris),
+                                      lambda: mesh_topology_cached(self.sa))
 
     @cached_property
     def qs(self):
@@ -287,9 +290,18 @@ class InterpolantCache:
             if memo is not None and lights_only(memo[0], self.sa):
                 memo = (self.sa, memo[1]._replace(**light_fields(self.sa)))
             else:
-                memo = (self.sa, query_scene(self.sa, self.topo))
+                topo = self.topo
+                memo = (self.sa, fb_mod.timed_structure(
+                    "qs", len(self.sa.tris), lambda: query_scene(self.sa, topo)))
             _QS_LAST[0] = memo
         return per_pixel_query(memo[1], self.sa)
+
+    def structures_missing(self) -> list[str]:
+        """The structures (:data:`.fallback.STRUCTURE_RATE`) not built for this packing."""
+        m = _QS_LAST[0]
+        qs = "qs" in self.__dict__ or (m is not None and lights_only(m[0], self.sa))
+        return [k for k, kept in (("topo", "topo" in self.__dict__ or topology_kept(self.sa)),
+                                  ("qs", qs)) if not kept]
 
     @property
     def tex_max(self) -> np.ndarray:

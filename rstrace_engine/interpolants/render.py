@@ -311,6 +311,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         run.ledger = fb_mod.FrameLedger(n_inst)
         run.traced_now = fb.frame_traced()
         run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
+        run.budget.owed, run.budget.owed_build = fb_mod.owed_at_once(
+            cache.structures_missing(), len(sa.tris), cache.pool.n_live > 0)
+        if run.budget.owed > run.budget.limit:  # (priced: its walk could never be paid)
+            cache.view = None
+            frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+            frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0,
+                               cell_outcomes={}, fallback=fb.stats(run.budget),
+                               fallback_notes=fb.notes())
+            return frame
     budget = run.budget
     n_closest = 0
     t_closest = 0.0
@@ -361,6 +370,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                         b, on = (a + m, True) if m else (kt, False)
                     run.chunk(ps, slice(a, b), on)
                     walked |= on
+                    if on and budget is not None and budget.owed + budget.owed_build:
+                        budget.owed, budget.owed_build = fb_mod.owed_at_once(  # (paid: spent)
+                            cache.structures_missing(), len(sa.tris), cache.pool.n_live > 0)
                     if budget is not None and budget.ray_s is None:
                         budget.pricing += b - a
                         if run.traced_rays >= fb_mod.MIN_PRICE_RAYS:

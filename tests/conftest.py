@@ -1,0 +1,22 @@
+"""Core tests decide by given costs, not timings: the interpolants' learned cost of a
+scene's structures (:data:`~rstrace_engine.interpolants.fallback.STRUCTURE_RATE`, learned
+from the builds of earlier tests in the process) is not learned, so no test's frames depend
+on which tests ran before it (the bpy tests under ``blender/`` run the add-on as it is)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _no_learned_structure_rate(request, monkeypatch):
+    if "blender" in Path(str(request.node.fspath)).parts:
+        yield
+        return
+    from rstrace_engine.interpolants import fallback
+
+    monkeypatch.setattr(fallback, "LEARN_STRUCTURES", False)
+    monkeypatch.setattr(fallback, "STRUCTURE_RATE", {"topo": None, "qs": None})
+    yield

@@ -362,7 +362,7 @@ def read_scene(depsgraph, cache: ExportCache, dirty: Dirty | None = None,
                 continue
             if len(lights) >= MAX_LIGHTS:
                 notes.skip(f"light '{instance_name(inst)}' skipped: at most {MAX_LIGHTS} "
-                           f"lights are supported")
+                           f"lights are supported (MAX_LIGHTS)")
                 continue
             lights[object_key(inst)] = light
         elif kind in _MESH_VIA_INSTANCES or kind in _NOTHING_TO_RENDER:

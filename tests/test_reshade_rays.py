@@ -16,6 +16,7 @@ from rstrace_engine.geometry.edits import ObjectAdd, ObjectDelete, ObjectTransfo
 from rstrace_engine.session import Session
 from rstrace_engine.tracing import shadow_reshade
 from rstrace_engine.tracing.frame_reuse import FrameReuse
+from rstrace_engine.tracing.light_bits import column
 from rstrace_engine.tracing.light_subset import recombine_pixels
 from rstrace_engine.tracing.pixel_records import FLAG_ALWAYS
 from rstrace_engine.tracing.sample_rays import ALL, crossing_rays
@@ -149,7 +150,7 @@ def test_placed_objects_prove_samples_stay_blocked(monkeypatch):
         L = len(sess.scene.arrays().light_kind)
         per = []  # (L + 1, n_rays) uint64: the samples each row may change (0: none)
         for c in range(L + 1):
-            on = r.reshade_world if c == L else (r.reshade_lights >> np.uint64(c)) & 1 != 0
+            on = r.reshade_world if c == L else column(r.reshade_lights, c)
             bits = np.zeros(len(on), np.uint64)
             nodes = np.flatnonzero(on)
             bits[nodes] = r.reshade_cand.of_rows(nodes, c) & full

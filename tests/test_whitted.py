@@ -134,9 +134,9 @@ def test_hard_shadow_present_and_absent(record):
     if record:
         assert tree_in.node_inst[0] == 0 and tree_out.node_inst[0] == 0
         assert tree_in.node_occluder[0, 0] == 1  # the Blocker
-        assert tree_in.node_light_mask[0] == 0
+        assert tree_in.node_light_mask[0, 0] == 0
         assert tree_out.node_occluder[0, 0] == whitted.OCC_NONE
-        assert tree_out.node_light_mask[0] == 1
+        assert tree_out.node_light_mask[0, 0] == 1
     else:
         assert tree_in is None
 
@@ -332,7 +332,7 @@ def test_ray_tree_shadowed_floor(spheres_traced):
     shadowed = on_floor[(occ >= 0).any(axis=1)]
     assert len(shadowed) > 0
     bits = np.arange(len(sc.lights), dtype=np.uint64)
-    mask_bits = (tree.node_light_mask[on_floor, None] >> bits) & np.uint64(1)
+    mask_bits = (tree.node_light_mask[on_floor, 0, None] >> bits) & np.uint64(1)
     assert np.array_equal(mask_bits.astype(bool), occ == whitted.OCC_NONE)
     for k in shadowed[:20]:
         j = int(np.flatnonzero(tree.node_occluder[k] >= 0)[0])

@@ -35,6 +35,7 @@ from ..geometry.edits import (
     WorldColor,
     apply_edits,
 )
+from ..geometry.elements import MAX_LIGHTS
 from ..geometry.principled import principled_material
 from ..geometry.scene import Camera, Light, Material, Scene
 from ..tracing.whitted import has_glossy
@@ -341,7 +342,7 @@ class EditGenerator:
         if kind == "light_move" and light_keys:
             key = self._pick(light_keys)
             return [LightSet(key, self._light(str(key)))]
-        if kind == "light_add" and s.n_lights < self.max_lights and len(s.lights) < 64:
+        if kind == "light_add" and s.n_lights < self.max_lights and len(s.lights) < MAX_LIGHTS:
             self._serial += 1
             return [LightSet(f"light{self._serial}", self._light(f"light{self._serial}"))]
         if kind == "light_delete" and len(light_keys) > 1:

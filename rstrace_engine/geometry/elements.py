@@ -23,7 +23,10 @@ LIGHT_KINDS = {"POINT": LIGHT_POINT, "SUN": LIGHT_SUN, "SPOT": LIGHT_SPOT,
 #: Area light shapes; SQUARE and RECTANGLE pack as a rectangle, DISK and ELLIPSE as an ellipse.
 AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
 
-MAX_LIGHTS = 64  # light visibility is recorded as a 64-bit mask per ray-tree node
+#: light slots a scene may hold: light sets take a uint64 word per 64 slots
+#: (tracing.light_bits), so the limit is cost, not layout -- every surface point shades every
+#: light, and a frame's batches keep (rays, lights) arrays
+MAX_LIGHTS = 1024
 MAX_LIGHT_POWER = 1e12  # W (W/m2 for a sun): above it a value is taken as broken input
 
 

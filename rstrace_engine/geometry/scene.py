@@ -467,7 +467,8 @@ class Scene:
         li = checked_light(light)
         keys = self.light_keys
         if not keys.free and len(self.lights) >= MAX_LIGHTS:
-            raise SceneError(f"light '{light.name}': at most {MAX_LIGHTS} lights are supported")
+            raise SceneError(f"light '{light.name}': the scene has {len(self.lights)} light "
+                             f"slots, at most {MAX_LIGHTS} (MAX_LIGHTS) are supported")
         key = keys.new_key(key, light.name, len(self.lights))
         slot = keys.place(self.lights, li, key)
         self._arrays = None

@@ -67,14 +67,14 @@ def _edit_kernels(records, sa, camera) -> None:
     """The first light move's or add's and the first records query's kernels."""
     e3, e1 = np.zeros((0, 3)), np.zeros(0)
     i32, i64 = np.zeros(0, np.int32), np.zeros(0, np.int64)
-    u64, b = np.zeros(0, np.uint64), np.zeros(0, np.bool_)
+    u64, b = np.zeros((0, 1), np.uint64), np.zeros(0, np.bool_)  # (light sets: (n, W))
     one = _one_light(sa, 0)
     with threads_for(0):
         _one_light_states(one, 0, e3, e3, e3, e3, i32, i32, np.zeros(0, np.int8), i32)
         _shadow_kernel(one, e3, e3, e3, np.zeros(0, np.int8), i64, e3, e3, e1)
         accumulate(e3, i32, 1, np.zeros((0, 3), np.float32), np.zeros(0, np.uint8))
         for combo in (records.p_combo, records.s_combo):
-            _light_bit_changes(combo[:0], u64, u64, np.uint64(1), b, b, i64)
+            _light_bit_changes(combo[:0], u64, u64, 0, np.uint64(1), b, b, i64)
         r = records
         kind = np.zeros(0, np.int32)
         tail = (r.lo, r.step, r.levels, r.shift, e3, e3, e3, e3, e3, e1, kind, e3, e3)

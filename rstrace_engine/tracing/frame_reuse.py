@@ -334,10 +334,10 @@ class FrameReuse:
         spp, n = rec.spp, rec.n_pixels
         dirty = full.reshape(spp, n).any(axis=0)
         keep = ~np.tile(dirty | self.dirty, spp)
-        lights = np.where(keep, lights, np.uint64(0))
+        lights = np.where(keep[:, None], lights, np.uint64(0))
         world = world & keep
         s_keep = keep[rec.secondary_rays()]
-        s_lights = np.where(s_keep, s_lights, np.uint64(0))
+        s_lights = np.where(s_keep[:, None], s_lights, np.uint64(0))
         s_world = s_world & s_keep
         if self.reshade_lights is None:
             self.reshade_lights, self.reshade_world = lights, world
@@ -358,9 +358,10 @@ class FrameReuse:
         rec = self.records
         if self.reshade_lights is None or rec is None:
             return np.zeros(0 if rec is None else rec.n_pixels, bool)
-        due = (self.reshade_lights != 0) | self.reshade_world
+        due = self.reshade_lights.any(axis=1) | self.reshade_world
         if len(self.reshade_s_lights):
-            due[rec.secondary_rays()[(self.reshade_s_lights != 0) | self.reshade_s_world]] = True
+            s_due = self.reshade_s_lights.any(axis=1) | self.reshade_s_world
+            due[rec.secondary_rays()[s_due]] = True
         return due.reshape(rec.spp, -1).any(axis=0) & ~self.dirty
 
     def _full_frame(self, report) -> None:
@@ -472,7 +473,7 @@ class FrameReuse:
             # soft light: the lights' (and the world's) terms whose shadow rays alone an
             # object edit may cross, at the kept samples' primary nodes
             keep = ~np.tile(self.dirty, rec.spp)
-            lights = np.where(keep, self.reshade_lights, np.uint64(0))
+            lights = np.where(keep[:, None], self.reshade_lights, np.uint64(0))
             world = self.reshade_world & keep
             reshaded = int(np.count_nonzero(self.reshade_pixels))
             t1 = time.perf_counter()
@@ -490,7 +491,7 @@ class FrameReuse:
             rec.set_lit_at(done)
             # and at their secondary nodes (mirror and refraction hits)
             s_keep = keep[rec.secondary_rays()]
-            s_lights = np.where(s_keep, self.reshade_s_lights, np.uint64(0))
+            s_lights = np.where(s_keep[:, None], self.reshade_s_lights, np.uint64(0))
             s_world = self.reshade_s_world & s_keep
             if s_lights.any() or s_world.any():
                 done = reshade(lr, sa, accel, s_lights, s_world, int(settings.light_samples),

@@ -21,9 +21,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-#: slot codes of the world light's and the emission's entries (light slots are < 64)
+#: slot codes of the world light's and the emission's entries (entries' slots are a byte)
 WORLD = 254
 EMIT = 255
+#: the light slots the records keep terms of (a scene with more keeps none:
+#: :meth:`~.light_records.LightRecords.widen`)
+RECORD_SLOTS = WORLD
 
 
 @njit(cache=True, nogil=True)

@@ -53,10 +53,12 @@ import numpy as np
 from numba import njit, prange
 
 from ..accel.accelerators import Hits
+from ..geometry.elements import MAX_LIGHTS
 from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
 from .light_nodes import (
     EMIT,
+    RECORD_SLOTS,
     WORLD,
     count_terms,
     detach_terms,
@@ -427,6 +429,7 @@ class LightRecords:
         self.sampled: TermSamples | None = None
         if self.cap <= 0.0:
             self._drop(0)
+        self.widen(self.L)
 
     @property
     def has_geometry(self) -> bool:
@@ -495,6 +498,8 @@ class LightRecords:
         self.ok[rays] = True
         self._renewed(rays)
         self.widen(levels[0]["t_val"].shape[1] - 2)  # (a light slot added: re-traced)
+        if self.overflow is not None:
+            return
         a = _level_arrays(levels, self.has_geometry)
         first = {key: x[:nb] for key, x in a.items()}
         self._pending_p.append((np.asarray(rays, np.int64),
@@ -610,8 +615,14 @@ class LightRecords:
         self._check_cap()
 
     def widen(self, n_lights: int) -> None:
-        """Light slots were added (the entries name their slots: nothing to move)."""
+        """Light slots were added (the entries name their slots: nothing to move); past
+        :data:`~.light_nodes.RECORD_SLOTS` the records are dropped, and it is said."""
         self.L = max(self.L, int(n_lights))
+        if self.L > RECORD_SLOTS and self.overflow is None:
+            self._drop(0)
+            self.overflow = (f"the scene has {self.L} light slots, over the {RECORD_SLOTS} "
+                             f"the per-light records name in a byte (MAX_LIGHTS "
+                             f"{MAX_LIGHTS}): light edits re-trace the pixels they touch")
 
     # -- relighting ----------------------------------------------------------------------
 

@@ -6,7 +6,7 @@ records keep, for every ray-tree node of every sample of the last frame,
 
 * which *position-independent* part it had -- a row of a small shared table (``combo``):
   the instance hit (-1 a miss), the lights whose shadow rays were traced, the lights that
-  were visible (uint64 bits), and flags;
+  were visible (sets of :mod:`.light_bits`: a uint64 word per 64 light slots), and flags;
 * where it ended: the hit point quantised to 32 bits in the scene box (11 + 11 + 10 bits,
   the finest axes where the box is longest), or, for a miss, its direction in 32-bit
   octahedral coordinates;
@@ -64,6 +64,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..geometry.edits import PART_NEW
 from .batches import threads_for
+from .light_bits import mask_of, set_column
 from .light_records import LightRecords
 from .record_codes import (
     POINT_BITS,
@@ -86,13 +87,15 @@ FLAG_ALWAYS = np.uint64(1)  # this sample is re-rendered by every incremental fr
 
 
 @njit(cache=True, nogil=True)
-def _light_bit_changes(combo, t_traced, t_lit, bit, traced, lit, out):
-    """The nodes (indices into ``out``, returns how many) whose light bit ``bit`` in their
-    table row's traced / lit masks differs from ``traced`` / ``lit`` (k,) bool."""
+def _light_bit_changes(combo, t_traced, t_lit, w, bit, traced, lit, out):
+    """The nodes (indices into ``out``, returns how many) whose light bit ``bit`` of word
+    ``w`` in their table row's traced / lit sets (C, W) differs from ``traced`` / ``lit``
+    (k,) bool."""
     m = 0
     for i in range(combo.shape[0]):
         c = combo[i]
-        if ((t_traced[c] & bit) != 0) != traced[i] or ((t_lit[c] & bit) != 0) != lit[i]:
+        if ((t_traced[c, w] & bit) != 0) != traced[i] or \
+                ((t_lit[c, w] & bit) != 0) != lit[i]:
             out[m] = i
             m += 1
     return m
@@ -134,8 +137,10 @@ class PixelRecords:
         self.step = ext / self.levels
         # the shared table of position-independent parts, one row per distinct part
         self.t_inst = np.zeros(0, np.int32)  # instance hit, -1 a miss
-        self.t_traced = np.zeros(0, np.uint8)  # light bits (as narrow as the lights allow)
-        self.t_lit = np.zeros(0, np.uint8)
+        # the traced and visible lights (C, W) (.light_bits; one word as narrow as the lights
+        # allow)
+        self.t_traced = np.zeros((0, 1), np.uint8)
+        self.t_lit = np.zeros((0, 1), np.uint8)
         self.t_flags = np.zeros(0, np.uint8)
         self.p_combo = np.zeros(self.n_rays, np.uint32)
         self.p_code = np.zeros(self.n_rays, np.uint32)
@@ -174,35 +179,51 @@ class PixelRecords:
 
     # -- building ------------------------------------------------------------------------
 
-    def _wide(self) -> np.ndarray:
-        """The table as (C, 4) uint64 rows (inst bits, traced, lit, flags) for interning."""
-        return np.stack([self.t_inst.astype(np.int64).view(np.uint64),
-                         self.t_traced.astype(np.uint64), self.t_lit.astype(np.uint64),
-                         self.t_flags.astype(np.uint64)], axis=1)
+    @property
+    def n_words(self) -> int:
+        """The uint64 words of the table's light sets (:func:`~.light_bits.words`)."""
+        return self.t_traced.shape[1]
+
+    def _wide(self, width: int | None = None) -> np.ndarray:
+        """The table as (C, 2 + 2 W) uint64 rows (inst bits, traced, lit, flags) for
+        interning, its light sets widened to ``width`` words."""
+        w = self.n_words if width is None else max(int(width), self.n_words)
+        pad = np.zeros((self.n_table, w - self.n_words), np.uint64)
+        return np.concatenate([self.t_inst.astype(np.int64).view(np.uint64)[:, None],
+                               self.t_traced.astype(np.uint64), pad,
+                               self.t_lit.astype(np.uint64), pad,
+                               self.t_flags.astype(np.uint64)[:, None]], axis=1)
 
     def _set_table(self, wide: np.ndarray) -> None:
-        masks = wide[:, 1:3]
-        top = int(masks.max(initial=0))
+        w = (wide.shape[1] - 2) // 2
+        masks = wide[:, 1:1 + 2 * w]
+        top = int(masks.max(initial=0)) if w == 1 else 1 << 64
         dt = (np.uint8 if top < 1 << 8 else np.uint16 if top < 1 << 16
               else np.uint32 if top < 1 << 32 else np.uint64)
         self.t_inst = wide[:, 0].view(np.int64).astype(np.int32)
-        self.t_traced = wide[:, 1].astype(dt)
-        self.t_lit = wide[:, 2].astype(dt)
-        self.t_flags = wide[:, 3].astype(np.uint8)
+        self.t_traced = wide[:, 1:1 + w].astype(dt)
+        self.t_lit = wide[:, 1 + w:1 + 2 * w].astype(dt)
+        self.t_flags = wide[:, -1].astype(np.uint8)
 
     @property
     def n_table(self) -> int:
         return len(self.t_inst)
 
     def _intern(self, inst, traced, lit, flags) -> np.ndarray:
-        """Table ids of rows (inst, traced, lit, flags), adding the rows not there yet."""
-        rows = np.stack([inst.astype(np.int64).view(np.uint64), traced.astype(np.uint64),
-                         lit.astype(np.uint64), flags.astype(np.uint64)], axis=1)
+        """Table ids of rows (inst, traced, lit, flags), adding the rows not there yet
+        (``traced``, ``lit``: (k, W) light sets; the table widened to the wider sets)."""
+        traced = np.asarray(traced).reshape(len(inst), -1)
+        lit = np.asarray(lit).reshape(len(inst), -1)
+        w = max(traced.shape[1], self.n_words)
+        pad = np.zeros((len(inst), w - traced.shape[1]), np.uint64)
+        rows = np.concatenate([inst.astype(np.int64).view(np.uint64)[:, None],
+                               traced.astype(np.uint64), pad, lit.astype(np.uint64), pad,
+                               flags.astype(np.uint64)[:, None]], axis=1)
         if len(rows) == 0:
             return np.zeros(0, np.uint32)
-        old = self._wide()
+        old = self._wide(w)
         c = len(old)
-        void = np.dtype((np.void, 32))
+        void = np.dtype((np.void, 8 * rows.shape[1]))
         both = np.ascontiguousarray(np.concatenate([old, rows])).view(void).reshape(-1)
         uniq, first, inv = np.unique(both, return_index=True, return_inverse=True)
         is_new = first >= c
@@ -405,7 +426,9 @@ class PixelRecords:
         ``(traced, lit)`` (k,) bool pairs for the primary and the secondary nodes. Only the
         nodes whose bits change are interned again (few, from one step of a drag to the
         next)."""
-        bit = np.uint64(1) << np.uint64(j)
+        w, bit = j >> 6, np.uint64(1) << np.uint64(j & 63)
+        if w >= self.n_words:  # (a light slot past the table's sets: widen them)
+            self._set_table(self._wide(w + 1))
         t_traced = self.t_traced.astype(np.uint64)  # (the table: small)
         t_lit = self.t_lit.astype(np.uint64)
         changed = False
@@ -415,13 +438,13 @@ class PixelRecords:
                 continue
             ch = np.empty(len(combo), np.int64)
             with threads_for(0):
-                m = _light_bit_changes(combo, t_traced, t_lit, bit, tr, lit, ch)
+                m = _light_bit_changes(combo, t_traced, t_lit, w, bit, tr, lit, ch)
             if m == 0:
                 continue
             ch = ch[:m]
             c = combo[ch].astype(np.int64)
-            new_t = np.where(tr[ch], t_traced[c] | bit, t_traced[c] & ~bit)
-            new_l = np.where(lit[ch], t_lit[c] | bit, t_lit[c] & ~bit)
+            new_t = set_column(t_traced[c], j, tr[ch])
+            new_l = set_column(t_lit[c], j, lit[ch])
             ids = self._intern(self.t_inst[c], new_t, new_l, self.t_flags[c])
             arr = combo.astype(np.uint32)
             arr[ch] = ids
@@ -447,11 +470,12 @@ class PixelRecords:
         arr = getattr(self, name)
         wide = False
         for j, (rows, lit) in done.items():
-            bit = np.uint64(1) << np.uint64(j)
+            if j >> 6 >= self.n_words:
+                self._set_table(self._wide((j >> 6) + 1))
             c = arr[rows].astype(np.int64)
             old = self.t_lit[c].astype(np.uint64)
-            new = np.where(lit, old | bit, old & ~bit)
-            ch = new != old
+            new = set_column(old, j, lit)
+            ch = (new != old).any(axis=1)
             if not ch.any():
                 continue
             ids = self._intern(self.t_inst[c[ch]], self.t_traced[c[ch]], new[ch],
@@ -480,14 +504,14 @@ class PixelRecords:
         change. ``sa``: the packing of the scene the records describe (before the edits);
         ``cp``: the frame's camera parameters."""
         full, lights, world, s_lights, s_world, _, _ = self.dirty_split(sa, cp, fx)
-        out = full | (lights != 0) | world
+        out = full | lights.any(axis=1) | world
         if len(s_lights):
-            _mark_rays(self.secondary_rays(), (s_lights != 0) | s_world, out)
+            _mark_rays(self.secondary_rays(), s_lights.any(axis=1) | s_world, out)
         return out
 
     def dirty_split(self, sa, cp, fx, placed=None) -> tuple:
-        """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays,) uint64,
-        world (n_rays,) bool, s_lights (m,) uint64, s_world (m,) bool, cand, s_cand)`` --
+        """:meth:`dirty_rays` by cause: ``(full (n_rays,) bool, lights (n_rays, W) uint64,
+        world (n_rays,) bool, s_lights (m, W) uint64, s_world (m,) bool, cand, s_cand)`` --
         ``full`` the
         samples whose primary ray, reflection or refraction rays, hard lights' shadow rays,
         hit objects, materials or lights the edits may change; for the others, ``lights``
@@ -512,11 +536,9 @@ class PixelRecords:
             owner = np.repeat(np.arange(len(counts)), counts)
             hit = np.isin(sa.inst_mat, np.fromiter(fx.materials, np.int64))
             hot[owner[hit]] = True
-        lights = np.uint64(0)
-        for j in fx.lights:
-            lights |= np.uint64(1) << np.uint64(j)
+        lights = mask_of([j for j in fx.lights if j >> 6 < self.n_words], self.n_words)
         is_hit = combo_inst >= 0
-        dirty = ((self.t_flags & np.uint8(FLAG_ALWAYS)) != 0) | ((combo_lit & lights) != 0)
+        dirty = ((self.t_flags & np.uint8(FLAG_ALWAYS)) != 0) | (combo_lit & lights != 0).any(1)
         dirty |= is_hit & hot[np.where(is_hit, combo_inst, n_slots)]
         if fx.lights_moved:
             dirty |= is_hit
@@ -565,11 +587,8 @@ class PixelRecords:
         out = np.zeros(self.n_rays, np.bool_)
         with threads_for(0):  # a few ms of work: one thread beats a parallel region's wake-up
             # the lights with an extent: the primary hits' shadow rays per light (after)
-            soft = np.uint64(0)
-            if len(regions):
-                ext = np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_kind) >= 0)
-                for j in np.flatnonzero(ext):
-                    soft |= np.uint64(1) << np.uint64(j)
+            ext = np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_kind) >= 0)
+            soft = mask_of(np.flatnonzero(ext) if len(regions) else [], self.n_words)
             self._query(cp, combo_dirty, sec_dirty, inst64, combo_traced & ~soft,
                         combo_traced & ~soft if sec_rays else combo_traced, origins,
                         reg_lo, reg_hi, seg, kind, pos, ldir, out)
@@ -583,7 +602,7 @@ class PixelRecords:
                 lo = np.ascontiguousarray(np.stack(seen)[:, 0] - margin)
                 hi = np.ascontiguousarray(np.stack(seen)[:, 1] + margin)
                 none = np.zeros(len(combo_dirty), np.bool_)
-                no_lights = np.zeros(len(combo_traced), np.uint64)
+                no_lights = np.zeros_like(combo_traced)
                 crossed = np.zeros(self.n_rays, np.bool_)  # (the queries assign, not or)
                 box = (lo, hi, np.ascontiguousarray(0.5 * (lo + hi)),
                        np.ascontiguousarray(0.5 * np.linalg.norm(hi - lo, axis=1)))
@@ -597,7 +616,7 @@ class PixelRecords:
                 self, sa, self.p_combo, self.p_code, self.p_wnorm, self.p_seed, self.p_vis,
                 is_hit, inst64, combo_traced, soft, world_rays, parts, pos, out, placed)
             m = len(self.s_parent)
-            s_lights, s_world = np.zeros(m, np.uint64), np.zeros(m, np.bool_)
+            s_lights, s_world = np.zeros((m, self.n_words), np.uint64), np.zeros(m, np.bool_)
             s_cand = SampleCandidates.of(len(sa.light_kind) + 1, [])
             if sec_rays:  # the secondary hits' own rays, as the primary hits' (above)
                 s_lights, s_world, s_cand = query_samples(

@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
+from .light_bits import has
 from .record_codes import _cone_sphere, _decode_point, _light_hit, _oct_decode, _segment_box
 from .sample_rays import _segment_sphere
 
@@ -51,7 +52,7 @@ def _node_dirty(code, origin_x, origin_y, origin_z, inst, traced, lo, step, leve
                 return True
     L = light_kind.shape[0]
     for j in range(L):
-        if not (traced >> np.uint64(j)) & np.uint64(1):
+        if not has(traced, j):
             continue
         for q in range(k_reg):
             if _light_hit(px, py, pz, j, reg_lo[q], reg_hi[q], light_kind, light_pos,
@@ -112,7 +113,7 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
         x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
         blo = np.full(3, np.inf)
         bhi = np.full(3, -np.inf)
-        traced = np.uint64(0)
+        traced = np.zeros(combo_traced.shape[1], np.uint64)
         check = False
         for y in range(y0, y1):
             for x in range(x0, x1):
@@ -121,7 +122,8 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                 if combo_inst[c] < 0:
                     check = True  # misses are tested ray by ray
                     continue
-                traced |= combo_traced[c]
+                for w in range(traced.shape[0]):
+                    traced[w] |= combo_traced[c, w]
                 px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
                 blo[0] = min(blo[0], px)
                 blo[1] = min(blo[1], py)
@@ -152,7 +154,7 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                     glo[k] = reg_lo[q, k] - half
                     ghi[k] = reg_hi[q, k] + half
                 for j in range(light_kind.shape[0]):
-                    if not (traced >> np.uint64(j)) & np.uint64(1):
+                    if not has(traced, j):
                         continue
                     if _light_hit(cx, cy, cz, j, glo, ghi, light_kind, light_pos, light_dir):
                         check = True

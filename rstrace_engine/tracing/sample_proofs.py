@@ -172,8 +172,8 @@ _DropScene = view_type("_DropScene", SceneArrays, (
 @njit(cache=True, nogil=True, parallel=True)
 def drop_lights(sa, p_code, wnorm, seed, n, lo, step, levels, shift, old, lgeo, reg_lo,
                 reg_hi, reg_c, reg_r, reg_tag, delta, pc, prin, prout, lights, cols, masks):
-    """Of :func:`~.sample_rays.query_light_bits`' answer (``lights`` (n_rays,) uint64 light
-    bits, ``masks`` the area lights' and suns' sample bits in their columns ``cols``;
+    """Of :func:`~.sample_rays.query_light_bits`' answer (``lights`` (n_rays, W) uint64
+    light sets, ``masks`` the area lights' and suns' sample bits in their columns ``cols``;
     changed in place), the samples blocked in the records' frame (``old`` (n_rays, L + 1)
     uint64 clear) whose ray provably meets a placed object cleared, and a light's bit where
     none is left; a sphere light's row all of whose samples were blocked dropped where
@@ -183,13 +183,15 @@ def drop_lights(sa, p_code, wnorm, seed, n, lo, step, levels, shift, old, lgeo, 
     L = sa.light_kind.shape[0]
     k_reg = reg_lo.shape[0]
     for g in prange(lights.shape[0]):
-        out = lights[g]
-        if out == np.uint64(0) or not wnorm[g, 0] == wnorm[g, 0]:
+        none = True
+        for w in range(lights.shape[1]):
+            none &= lights[g, w] == np.uint64(0)
+        if none or not wnorm[g, 0] == wnorm[g, 0]:
             continue
         px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
         for j in range(L):
-            lb = np.uint64(1) << np.uint64(j)
-            if not out & lb:
+            lb = np.uint64(1) << np.uint64(j & 63)
+            if not lights[g, j >> 6] & lb:
                 continue
             kind = sa.light_kind[j]
             if kind == LIGHT_AREA or kind == LIGHT_SUN:
@@ -209,7 +211,7 @@ def drop_lights(sa, p_code, wnorm, seed, n, lo, step, levels, shift, old, lgeo, 
                         b &= ~bit
                 masks[g, c] = b
                 if b == np.uint64(0):
-                    out &= ~lb
+                    lights[g, j >> 6] &= ~lb
             elif old[g, j] == np.uint64(0):
                 near = False
                 for q in range(k_reg):
@@ -222,23 +224,22 @@ def drop_lights(sa, p_code, wnorm, seed, n, lo, step, levels, shift, old, lgeo, 
                         break
                 if not near or _cone_through(px, py, pz, lgeo[j, 0], lgeo[j, 1], lgeo[j, 2],
                                              lgeo[j, 3], delta, pc, prin, prout):
-                    out &= ~lb
-        lights[g] = out
+                    lights[g, j >> 6] &= ~lb
 
 
 def query_samples(rec, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_traced,
                   soft, world_rays: bool, parts: tuple, pos, skip, placed=None) -> tuple:
-    """The lights with an extent (``soft`` bits) and the world's light (where
-    ``world_rays``) whose sampled rays may cross an edited object (``parts``: grown
-    boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
+    """The lights with an extent (``soft``: their set (W,), :mod:`.light_bits`) and the
+    world's light (where ``world_rays``) whose sampled rays may cross an edited object
+    (``parts``: grown boxes, spheres, tags), at the nodes ``combo``, ``code`` (the primary or the
     secondary ones of the records ``rec``) with their recorded normals, seeds and soft
     samples' visibility ``vis``, the nodes whose sample is in ``skip`` (traced again) left
-    out: ``(lights (k,) uint64, world (k,) bool, SampleCandidates)``. ``placed``: ``(balls
+    out: ``(lights (k, W) uint64, world (k,) bool, SampleCandidates)``. ``placed``: ``(balls
     (:func:`placed_balls`), delta)`` -- the samples they prove stay blocked dropped
     (module doc) -- or None."""
     k = len(combo)
     L = len(sa.light_kind)
-    lights = np.zeros(k, np.uint64)
+    lights = np.zeros((k, len(soft)), np.uint64)
     world = np.zeros(k, np.bool_)
     p_lo, p_hi, p_c, p_r, p_tag = parts
     skip = np.ascontiguousarray(skip)
@@ -249,11 +250,11 @@ def query_samples(rec, sa, combo, code, wnorm, seed, vis, is_hit, inst64, combo_
     tag = p_tag if known else np.full(len(p_tag), PART_OLD | PART_NEW, np.int8)
     prove = known and placed is not None and len(placed[0][0]) > 0 and wnorm is not None
     columns = []
-    if soft:
+    if soft.any():
         if wnorm is None:  # (no seeds recorded: the shaft tests)
             wnorm = np.full((k, 3), np.nan, np.float32)
             seed = np.zeros(k, np.uint64)
-        per = [j for j in range(L) if soft >> np.uint64(j) & np.uint64(1)
+        per = [j for j in range(L) if j >> 6 < len(soft) and int(soft[j >> 6]) >> (j & 63) & 1
                and sa.light_kind[j] in (LIGHT_AREA, LIGHT_SUN)]
         cols = np.full(L, -1, np.int64)
         cols[per] = np.arange(len(per))

@@ -196,10 +196,11 @@ _BitsScene = view_type("_BitsScene", SceneArrays, (
 def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed, n, mask,
                      lo, step, levels, shift, reg_lo, reg_hi, reg_c, reg_r, reg_tag, lgeo,
                      vis, skip, bits, cols, masks):
-    """Per primary hit not in ``skip``: the lights of ``mask`` (uint64 bits: the lights
-    with an extent) whose shadow rays there may cross a grown region -- its box ``reg_lo,
-    reg_hi`` and its sphere ``reg_c, reg_r`` both (the edited objects, old and new apart:
-    :attr:`~.edits.EditEffects.parts`) -- as bits of ``bits`` (n_rays,) uint64 (assigned).
+    """Per primary hit not in ``skip``: the lights of ``mask`` ((W,) uint64: the set of
+    the lights with an extent, :mod:`.light_bits`) whose shadow rays there may cross a grown
+    region -- its box ``reg_lo, reg_hi`` and its sphere ``reg_c, reg_r`` both (the edited
+    objects, old and new apart: :attr:`~.edits.EditEffects.parts`) -- as sets ``bits``
+    (n_rays, W) uint64 (assigned).
     Area lights and suns with an angle regenerate the point's own samples from its node
     seed (module doc), where the light's shaft from the point comes near a region's
     sphere (:func:`_shaft_sphere`), and give their bits in ``masks[g, cols[j]]`` (left
@@ -214,20 +215,20 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
     k_reg = reg_lo.shape[0]
     L = sa.light_kind.shape[0]
     known_vis = vis.shape[0] > 0
+    W = mask.shape[0]
     for g in prange(p_combo.shape[0]):
-        bits[g] = np.uint64(0)
+        any_todo = False
+        for w in range(W):
+            bits[g, w] = np.uint64(0)
+            any_todo |= (combo_traced[p_combo[g], w] & mask[w]) != 0
         c = p_combo[g]
-        if skip[g] or combo_inst[c] < 0:
-            continue
-        todo = combo_traced[c] & mask
-        if todo == 0:
+        if skip[g] or combo_inst[c] < 0 or not any_todo:
             continue
         px, py, pz = _decode_point(p_code[g], lo, step, levels, shift)
         known = wnorm[g, 0] == wnorm[g, 0]
-        out = np.uint64(0)
         for j in range(L):
-            bit = np.uint64(1) << np.uint64(j)
-            if not todo & bit:
+            bit = np.uint64(1) << np.uint64(j & 63)
+            if not combo_traced[c, j >> 6] & mask[j >> 6] & bit:
                 continue
             kind = sa.light_kind[j]
             sun = kind == LIGHT_SUN
@@ -243,7 +244,7 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
             if not near:
                 continue
             if not known or not (sun or kind == LIGHT_AREA):
-                out |= bit
+                bits[g, j >> 6] |= bit
                 continue
             h = row_hash(seed[g], j, L)
             old = vis[g, j] if known_vis else np.uint64(0)
@@ -267,10 +268,9 @@ def query_light_bits(sa, p_combo, p_code, combo_inst, combo_traced, wnorm, seed,
                         b |= np.uint64(1) << np.uint64(s)
                         break
             if b != np.uint64(0):
-                out |= bit
+                bits[g, j >> 6] |= bit
                 if cols[j] >= 0:
                     masks[g, cols[j]] = b
-        bits[g] = out
 
 
 class SampleCandidates(NamedTuple):

@@ -56,6 +56,7 @@ from numba import njit
 from ..accel.accelerators import Hits
 from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import threads_for
+from .light_bits import column
 from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_records import _GEO
@@ -303,8 +304,8 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             counters: dict | None = None, secondary: bool = False,
             changed=None, cand=None) -> dict:
     """Shade again, at the primary (``secondary``: the secondary) nodes of the per-light
-    records ``lr`` (with geometry), the lights with an extent whose bits ``lights`` (one
-    uint64 per node) name and the world's light where ``world`` (bool per node), through
+    records ``lr`` (with geometry), the lights with an extent in the sets ``lights`` ((n, W)
+    uint64, :mod:`.light_bits`) and the world's light where ``world`` (bool per node), through
     ``accel`` over the edited scene ``sa``; their entries replaced, every other term kept.
     Returns ``{j: (rows, lit)}``: each light's nodes and its visibility bit there (for the
     pixel records). ``spawn``: the nodes spawn rays (their depth is below the ray depth;
@@ -317,7 +318,7 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
     t0 = time.perf_counter()
     p = lr.s if secondary else lr.p
     spawn = np.broadcast_to(np.asarray(spawn, np.bool_), (len(p),))
-    rows = np.flatnonzero(((lights != 0) | world) & p.hit)  # (a miss has no shadow ray)
+    rows = np.flatnonzero((lights.any(axis=1) | world) & p.hit)  # (a miss has no shadow ray)
     out: dict = {}
     if len(rows) == 0:
         return out
@@ -329,8 +330,8 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
     n = int(light_samples)
     L = len(sa.light_kind)
     changes = []
-    jobs = [(c, np.flatnonzero((lights[rows] >> np.uint64(c)) & np.uint64(1)))
-            for c in range(L)]
+    jobs = [(c, np.flatnonzero(column(lights[rows], c))) for c in range(L)
+            if c >> 6 < lights.shape[1]]
     jobs.append((L, np.flatnonzero(world[rows])))  # (column L: the world)
     for c, sel in jobs:
         if len(sel) == 0:

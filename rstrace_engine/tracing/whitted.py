@@ -40,6 +40,7 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .glossy_rays import glossy_counts, has_glossy
+from .light_bits import words
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
 from .sample_rays import VIS_BITS_MAX, soft_bits
@@ -91,7 +92,7 @@ class RayTree(NamedTuple):
     node_tri: np.ndarray  # (Nn,) int32 global triangle, -1 on miss
     node_origin: np.ndarray  # (Nn, 3) float64 segment start
     node_point: np.ndarray  # (Nn, 3) float64 hit point; far beyond the scene on a miss
-    node_light_mask: np.ndarray  # (Nn,) uint64 bit j: light j contributes
+    node_light_mask: np.ndarray  # (Nn, W) uint64 light j contributes (.light_bits)
     node_occluder: np.ndarray  # (Nn, L) int32
 
 
@@ -334,27 +335,29 @@ def _occluded_by(sa, accel):
 
 @njit(cache=True, nogil=True)
 def _light_masks(sh_state, vis, L, traced, lit):
-    """Per point: bit j of ``traced`` when a shadow ray to light j was traced, of ``lit``
-    when light j is visible. sh_state, vis : (n L,); traced, lit : (n,) uint64 outputs."""
+    """Per point: light j in ``traced`` when a shadow ray to it was traced, in ``lit`` when
+    it is visible. sh_state, vis : (n L,); traced, lit : (n, W) uint64 outputs
+    (:mod:`.light_bits`)."""
     for i in range(traced.shape[0]):
-        a = np.uint64(0)
-        b = np.uint64(0)
-        for j in range(L):
-            bit = np.uint64(1) << np.uint64(j)
-            st = sh_state[i * L + j]
-            if st == _SH_TRACE or st == SH_SOFT or st == SH_FAR:
-                a |= bit
-            if vis[i * L + j]:
-                b |= bit
-        traced[i] = a
-        lit[i] = b
+        for w in range(traced.shape[1]):
+            a = np.uint64(0)
+            b = np.uint64(0)
+            for j in range(64 * w, min(L, 64 * w + 64)):
+                bit = np.uint64(1) << np.uint64(j - 64 * w)
+                st = sh_state[i * L + j]
+                if st == _SH_TRACE or st == SH_SOFT or st == SH_FAR:
+                    a |= bit
+                if vis[i * L + j]:
+                    b |= bit
+            traced[i, w] = a
+            lit[i, w] = b
 
 
 def _segments(front: _Front, hits: Hits, surf: Surfaces, vis, L: int, saw) -> dict:
     """The level's compact ray-tree nodes for the pixel records (see :func:`trace`)."""
     nb = len(front.src)
-    traced = np.empty(nb, np.uint64)
-    lit = np.empty(nb, np.uint64)
+    traced = np.empty((nb, words(L)), np.uint64)
+    lit = np.empty((nb, words(L)), np.uint64)
     _light_masks(surf.sh_state, vis, L, traced, lit)
     return dict(ray=front.src, parent=front.parent, inst=hits.inst, point=surf.P,
                 dir=surf.VD, traced=traced, lit=lit,
@@ -372,8 +375,8 @@ def _light_terms(front: _Front, hits: Hits, surf: Surfaces, seeds, tvp) -> dict:
 
 def _tree_level(front: _Front, hits: Hits, surf: Surfaces, vis, occ, L: int) -> dict:
     nb = len(front.src)
-    bits = np.left_shift(np.uint64(1), np.arange(L, dtype=np.uint64))
-    mask = (vis.reshape(nb, L).astype(np.uint64) * bits).sum(axis=1, dtype=np.uint64)
+    mask = np.empty((nb, words(L)), np.uint64)
+    _light_masks(np.full(nb * L, _SH_TRACE, np.int8), vis, L, np.empty_like(mask), mask)
     return dict(ray=front.src, parent=front.parent, path=front.path, inst=hits.inst,
                 tri=hits.prim, origin=front.o, point=surf.P, mask=mask,
                 occ=occ.reshape(nb, L))
@@ -390,7 +393,7 @@ def _ray_tree(levels: list[dict], L: int) -> RayTree:
         node_tri=cat([lv["tri"] for lv in levels]).astype(np.int32),
         node_origin=cat([lv["origin"] for lv in levels]).reshape(total, 3),
         node_point=cat([lv["point"] for lv in levels]).reshape(total, 3),
-        node_light_mask=cat([lv["mask"] for lv in levels]).astype(np.uint64),
+        node_light_mask=cat([lv["mask"] for lv in levels]).reshape(total, words(L)),
         node_occluder=cat([lv["occ"] for lv in levels]).reshape(total, L).astype(np.int32),
     )
 

@@ -39,9 +39,6 @@ from ..cancel import Cancelled
 MAX_LEAF = 4
 #: SAH bins per axis.
 SAH_BINS = 24
-#: ``(count, bins)``: nodes of at most ``count`` primitives are binned into ``bins`` bins
-#: per axis (or one per primitive when fewer), the larger ones into :data:`SAH_BINS`.
-FEW_BINS = (0, SAH_BINS)
 #: SAH cost of one node traversal relative to one primitive test.
 SAH_TRAVERSAL_COST = 1.0
 #: Past this depth the builder splits at the object median (bounds the traversal stack).
@@ -447,17 +444,16 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, few, trav_cost, root_area,
+def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
                    bounds, child):
     """One subtree, depth first, its inner nodes numbered from ``node0`` (a root task's
     root is node ``node0`` itself). Returns ``(nodes used, sah)``."""
     t_int = np.empty((2 * (DEPTH_CAP + 40), 5), np.int64)
     t_box = np.empty((2 * (DEPTH_CAP + 40), 12))
-    most = max(nbins, few[1])
-    bin_n = np.zeros((3, most), np.int64)
-    bin_b = np.empty((3, most, 6))
-    right_a = np.empty(most)
-    right_n = np.empty(most, np.int64)
+    bin_n = np.zeros((3, nbins), np.int64)
+    bin_b = np.empty((3, nbins, 6))
+    right_a = np.empty(nbins)
+    right_n = np.empty(nbins, np.int64)
     box = np.empty(6)
     cb = np.empty(6)
     lbox = np.empty(6)
@@ -485,7 +481,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, few, trav_cost, 
         count = end - start
         area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
         best_cost, best_axis, best_bin = np.inf, -1, -1
-        nb = min(nbins if count > few[0] else few[1], max(count, 2))
+        nb = min(nbins, max(count, 2))
         if count > 1 and depth < DEPTH_CAP:
             _clear_bins(bin_n, bin_b, nb)
             _bin_range(pb, start, end, cmin, cmax, nb, bin_n, bin_b)
@@ -549,8 +545,8 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, few, trav_cost, 
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, few, trav_cost,
-                   root_area, bounds, child, stop):
+def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost, root_area,
+                   bounds, child, stop):
     """Phase 2: task ``t`` (:func:`split_top`) built into nodes from ``region[t]``, one
     thread per task. Returns the nodes each used (T,) and their SAH (T,). ``stop`` (1,)
     int32 is read before each task: once non-zero the others are skipped."""
@@ -561,8 +557,7 @@ def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, few, trav
         if stop[0] != 0:
             continue
         used[t], sah[t] = build_subtree(pb, perm, tasks[t], task_box[t], region[t],
-                                         max_leaf, nbins, few, trav_cost, root_area, bounds,
-                                         child)
+                                         max_leaf, nbins, trav_cost, root_area, bounds, child)
     return used, sah
 
 
@@ -614,13 +609,12 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
-                     stop: np.ndarray = NEVER_STOP, packed: bool = True, few_bins=None):
+                     stop: np.ndarray = NEVER_STOP, packed: bool = True):
     """:func:`build_flat` over ``pb`` (n, 6) float64 (lo, hi), which it reorders (leaf
     order). ``packed=False``: the node arrays as built, unpacked (``max(n, 2)`` rows, the
     root row 0, the rows no child index reaches unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy)."""
     n = pb.shape[0]
-    few = np.array(FEW_BINS if few_bins is None else few_bins, np.int64)
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
     cap = max(n, 2)
@@ -637,14 +631,14 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     region = n_top + np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
     if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
         used, task_sah = build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
-                                        nbins, few, trav_cost, root_area, bounds, child)
+                                        nbins, trav_cost, root_area, bounds, child)
         if not packed:
             return bounds, child, perm, float(sah + task_sah)
         return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
             sah + task_sah)
     with numba.parallel_chunksize(1):  # subtrees differ in cost: threads take them in turn
         used, task_sah = build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins,
-                                        few, trav_cost, root_area, bounds, child, stop)
+                                        trav_cost, root_area, bounds, child, stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     if not packed:

@@ -28,18 +28,6 @@ closes a circle.
 
 __version__ = "0.1.0"
 
-import os as _os
-
-#: numba's parallel kernels run on OpenMP (libgomp) workers, which by default spin for a
-#: while after each parallel region before they sleep. A build or a frame runs many short
-#: regions with serial work between them, and on a machine whose cores are shared (or
-#: oversubscribed) the spinning workers burned up to as much CPU as the work itself: the
-#: 1M-triangle mesh BVH on two threads took 0.83 s of CPU against 0.59 s with idle workers
-#: asleep (``docs/bench-scale-bpy.md``). libgomp reads this when numba first starts its
-#: threads, after this import; a value the user set wins.
-OMP_WAIT_POLICY = "PASSIVE"
-_os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)
-
 from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
 kernel_cache.install()

@@ -121,10 +121,12 @@ def test_large_float32_build_keeps_the_tree_invariants():
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     assert len(tris) >= bvh_build.PARALLEL_MIN
     check_tree(mb, verts[tris])
-    # ... and the check catches a box one step too small, and a triangle listed twice
+    # ... and the check catches a box too small (its lo x two steps in: the boxes are
+    # padded one step out) and a triangle listed twice
     b = mb.bvh.bounds.copy()
     lane = np.flatnonzero(mb.bvh.child[0] != -1)[0]
-    b[0, lane] = np.nextafter(b[0, lane], np.float32(np.inf))  # lo x of the root's lane
+    for _ in range(2):  # lo x of the root's lane
+        b[0, lane] = np.nextafter(b[0, lane], np.float32(np.inf))
     narrowed = mb._replace(bvh=mb.bvh._replace(bounds=b))
     tri = mb.tri.copy()
     tri[0] = tri[1]

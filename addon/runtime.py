@@ -12,11 +12,6 @@ add-on's ``__init__`` calls it first thing.
   or numba's per-user cache where that is not writable. This shares the cache with plain
   Python use of ``rstrace_engine``.
 * ``NUMBA_CACHE_DIR`` in the environment always wins.
-* Numba's OpenMP workers sleep when idle (``OMP_WAIT_POLICY`` :data:`OMP_WAIT_POLICY`,
-  unless the environment sets it): by default they spin after every parallel region, and
-  a first F12's mesh BVH build, many short regions with serial work between them, took
-  0.83 s of CPU on two threads against 0.59 s with them asleep (1M triangles,
-  ``docs/bench-scale-bpy.md``). libgomp reads it when numba first starts its threads.
 * Compiled kernels shipped in the extension (``kernel_cache/`` beside this file, written by
   ``scripts/build_extension.py`` for numba's portable ``generic`` CPU) are copied into that
   cache on first use (``rstrace_engine.shipped_kernels.seed``: only the kernels whose content
@@ -41,9 +36,6 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-#: libgomp's wait policy for numba's OpenMP workers (module doc).
-OMP_WAIT_POLICY = "PASSIVE"
-
 #: Held around every call into rstrace_engine that may run numba kernels.
 RENDER_LOCK = threading.Lock()
 
@@ -61,7 +53,6 @@ def configure(package: str) -> str | None:
     ``package`` is the add-on's ``__package__``: ``bl_ext.<repo>.rstrace`` when installed
     as an extension, ``addon`` when imported from a checkout.
     """
-    os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)  # before numba's threads start
     import numba
 
     if os.environ.get("NUMBA_CACHE_DIR"):

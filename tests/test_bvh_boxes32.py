@@ -156,10 +156,10 @@ def test_large_float32_build_hits_what_brute_force_hits():
         assert np.array_equal(a, w)
 
 
-def test_the_add_on_lets_numba_s_openmp_workers_sleep_when_idle():
-    """``addon.runtime.configure`` sets libgomp's wait policy before numba starts its
+def test_the_benchmarks_let_numba_s_openmp_workers_sleep_when_idle():
+    """``python -m rstrace_engine.bench`` sets libgomp's wait policy before numba starts its
     threads, unless the environment already sets one."""
-    code = ("import os, addon.runtime as r; r.configure('addon'); "
+    code = ("import os, runpy; runpy.run_module('rstrace_engine.bench.__main__'); "
             "print(os.environ['OMP_WAIT_POLICY'])")
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

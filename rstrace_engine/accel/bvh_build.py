@@ -4,8 +4,11 @@ A binary binned-SAH tree is built here (:func:`build_flat`); :mod:`.bvh_mesh` bu
 mesh from its triangles and collapses it into the 4-wide traversal layout.
 
 The binary build runs in two phases over one array of primitive boxes ``pb`` (n, 6)
-(``lo x, lo y, lo z, hi x, hi y, hi z``), reordered in place together with ``perm`` so
-that every pass streams through memory:
+(``lo x, lo y, lo z, hi x, hi y, hi z``; float64, or float32 for a mesh's:
+:func:`.bvh_mesh.indexed_boxes`, whose node boxes are then float32 too -- every value is
+read as float64 before any arithmetic, so float32 boxes give the tree float64 boxes of the
+same values give), reordered in place together with ``perm`` so that every pass streams
+through memory:
 
 1. **Top** (:func:`split_top`): while a node holds more than ``grain`` primitives it is
    split one at a time, its SAH bins filled by all threads (:func:`_bin_chunks`: fixed
@@ -610,9 +613,10 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
                      stop: np.ndarray = NEVER_STOP, packed: bool = True):
-    """:func:`build_flat` over ``pb`` (n, 6) float64 (lo, hi), which it reorders (leaf
-    order). ``packed=False``: the node arrays as built, unpacked (``max(n, 2)`` rows, the
-    root row 0, the rows no child index reaches unset: for a walk from the root such as
+    """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
+    take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
+    built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
+    unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)

@@ -4,8 +4,11 @@ A binary binned-SAH tree is built here (:func:`build_flat`); :mod:`.bvh_mesh` bu
 mesh from its triangles and collapses it into the 4-wide traversal layout.
 
 The binary build runs in two phases over one array of primitive boxes ``pb`` (n, 6)
-(``lo x, lo y, lo z, hi x, hi y, hi z``), reordered in place together with ``perm`` so
-that every pass streams through memory:
+(``lo x, lo y, lo z, hi x, hi y, hi z``; float64, or float32 for a mesh's:
+:func:`.bvh_mesh.indexed_boxes`, whose node boxes are then float32 too -- every value is
+read as float64 before any arithmetic, so float32 boxes give the tree float64 boxes of the
+same values give), reordered in place together with ``perm`` so that every pass streams
+through memory:
 
 1. **Top** (:func:`split_top`): while a node holds more than ``grain`` primitives it is
    split one at a time, its SAH bins filled by all threads (:func:`_bin_chunks`: fixed
@@ -141,7 +144,8 @@ def _bin_range(pb, start, end, cmin, cmax, nbins, bin_n, bin_b):
     s2 = _bin_scale(cmin[2], cmax[2], nbins)
     c0, c1, c2 = cmin[0], cmin[1], cmin[2]
     for j in range(start, end):
-        x0, y0, z0, x1, y1, z1 = pb[j, 0], pb[j, 1], pb[j, 2], pb[j, 3], pb[j, 4], pb[j, 5]
+        x0, y0, z0 = np.float64(pb[j, 0]), np.float64(pb[j, 1]), np.float64(pb[j, 2])
+        x1, y1, z1 = np.float64(pb[j, 3]), np.float64(pb[j, 4]), np.float64(pb[j, 5])
         if s0 > 0.0:
             b = _bin_at(0.5 * (x0 + x1), c0, s0, nbins)
             bin_n[0, b] += 1
@@ -214,7 +218,7 @@ def _bins_box(bin_b, k, b0, b1, box):
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _add_centroid(pb, j, cb):
     for q in range(3):
-        c = 0.5 * (pb[j, q] + pb[j, 3 + q])
+        c = 0.5 * (np.float64(pb[j, q]) + np.float64(pb[j, 3 + q]))
         cb[q] = min(cb[q], c)
         cb[3 + q] = max(cb[3 + q], c)
 
@@ -236,7 +240,8 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
     scale = nbins / ext
     i, j = start, end - 1
     while i <= j:
-        if _bin_at(0.5 * (pb[i, k] + pb[i, 3 + k]), cmin_k, scale, nbins) <= split_bin:
+        if _bin_at(0.5 * (np.float64(pb[i, k]) + np.float64(pb[i, 3 + k])), cmin_k, scale,
+                   nbins) <= split_bin:
             _add_centroid(pb, i, lcb)
             i += 1
         else:
@@ -253,8 +258,8 @@ def _range_bounds(pb, start, end, box, cb):
     _empty6(cb)
     for j in range(start, end):
         for q in range(3):
-            box[q] = min(box[q], pb[j, q])
-            box[3 + q] = max(box[3 + q], pb[j, 3 + q])
+            box[q] = min(box[q], np.float64(pb[j, q]))
+            box[3 + q] = max(box[3 + q], np.float64(pb[j, 3 + q]))
         _add_centroid(pb, j, cb)
 
 
@@ -270,7 +275,7 @@ def _median_split(pb, perm, start, end, cb, lbox, lcb, rbox, rcb):
     if count > 1:
         keys = np.empty(count)
         for j in range(count):
-            keys[j] = 0.5 * (pb[start + j, k] + pb[start + j, 3 + k])
+            keys[j] = 0.5 * (np.float64(pb[start + j, k]) + np.float64(pb[start + j, 3 + k]))
         order = np.argsort(keys, kind="mergesort")
         seg = perm[start:end].copy()
         segb = pb[start:end].copy()
@@ -418,7 +423,8 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
             nn += 1
             if parent >= 0:
                 box[:] = lv_box[e, 0:6]
-                bounds[parent, 6 * slot:6 * slot + 6] = box
+                for q in range(6):
+                    bounds[parent, 6 * slot + q] = box[q]
                 child[parent, slot] = node
                 sah += trav_cost * _half_area(box[0], box[1], box[2], box[3], box[4],
                                               box[5]) / root_area
@@ -504,10 +510,12 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
             nn += 1
             sah += trav_cost
             if count == 1 or make_leaf:  # the whole tree is one leaf: child 1 is empty
-                bounds[node, 0:6] = box
+                for q in range(6):
+                    bounds[node, q] = box[q]
                 child[node, 0] = ~((start << 3) | count)
-                bounds[node, 6:9] = np.inf
-                bounds[node, 9:12] = -np.inf
+                for q in range(3):
+                    bounds[node, 6 + q] = np.inf
+                    bounds[node, 9 + q] = -np.inf
                 child[node, 1] = ~((start << 3) | 1)
                 sah += count * area / root_area
                 continue
@@ -565,7 +573,7 @@ def pack_nodes(bounds, child, n_top, region, used):
     for t in range(nt):
         start[t + 1] = start[t] + used[t]
     total = start[nt]
-    ob = np.empty((max(total, 1), 12))
+    ob = np.empty((max(total, 1), 12), bounds.dtype)
     oc = np.empty((max(total, 1), 2), np.int32)
     for ii in prange(total):
         i = np.int64(ii)  # (a prange index may be unsigned: keep index sums integer)
@@ -605,15 +613,16 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
                      stop: np.ndarray = NEVER_STOP, packed: bool = True):
-    """:func:`build_flat` over ``pb`` (n, 6) float64 (lo, hi), which it reorders (leaf
-    order). ``packed=False``: the node arrays as built, unpacked (``max(n, 2)`` rows, the
-    root row 0, the rows no child index reaches unset: for a walk from the root such as
+    """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
+    take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
+    built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
+    unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
     cap = max(n, 2)
-    bounds = np.empty((cap, 12))
+    bounds = np.empty((cap, 12), pb.dtype)
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,
                                                        bounds, child, stop)

@@ -101,7 +101,8 @@ def collapse4(b2, c2, b4, pad):
         cnt = 0
         for j in range(2):
             if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-                cb[cnt, :] = b2[bn, 6 * j:6 * j + 6]
+                for q in range(6):
+                    cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
                 _padded(cbits, cnt, pad)
                 cc[cnt] = c2[bn, j]
                 cnt += 1
@@ -117,10 +118,11 @@ def collapse4(b2, c2, b4, pad):
             if pick < 0:
                 break
             inner = cc[pick]
-            cb[pick, :] = b2[inner, 0:6]
+            for q in range(6):
+                cb[pick, q] = np.float64(b2[inner, q])
+                cb[cnt, q] = np.float64(b2[inner, 6 + q])
             _padded(cbits, pick, pad)
             cc[pick] = c2[inner, 0]
-            cb[cnt, :] = b2[inner, 6:12]
             _padded(cbits, cnt, pad)
             cc[cnt] = c2[inner, 1]
             cnt += 1
@@ -142,7 +144,7 @@ def collapse4(b2, c2, b4, pad):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _put_outward(b4, bits, k, col, x):
+def _put_outward(b4, bits, k, col, x, n_lo=12):
     """``b4[k, col] = x`` (a lo bound in columns 0..11, a hi one in 12..23), rounded
     outward where ``b4`` is float32: a lo that the cast (to nearest) moved up steps one
     float32 down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the
@@ -152,7 +154,7 @@ def _put_outward(b4, bits, k, col, x):
     b4[k, col] = x
     f = b4[k, col]
     i = b4.shape[1] * k + col
-    if col < 12:
+    if col < n_lo:
         if f > x:
             bits[i] = _step_down32(bits[i])
     elif f < x:
@@ -234,16 +236,30 @@ def gather_triangles_into(verts, tris, order, out, row0):
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def indexed_boxes(verts, tris):
-    """Boxes (m, 6) float64 (lo, hi) of triangles ``verts[tris]``, without gathering their
-    vertices first."""
+    """Boxes (m, 6) float32 (lo, hi) of triangles ``verts[tris]``, rounded outward
+    (:func:`_put_outward`: each contains its float64 box, and equals it where the vertices
+    are float32 values, as Blender's are), without gathering their vertices first."""
     m = tris.shape[0]
-    pb = np.empty((m, 6))
+    pb = np.empty((m, 6), np.float32)
+    bits = pb.reshape(-1).view(np.int32)
     for i in prange(m):
         ia, ib, ic = tris[i, 0], tris[i, 1], tris[i, 2]
         for q in range(3):
             a, b, c = verts[ia, q], verts[ib, q], verts[ic, q]
-            pb[i, q] = min(a, min(b, c))
-            pb[i, 3 + q] = max(a, max(b, c))
+            _put_outward(pb, bits, i, q, min(a, min(b, c)), 3)
+            _put_outward(pb, bits, i, 3 + q, max(a, max(b, c)), 3)
+    return pb
+
+
+def outward32(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Primitive boxes (n, 6) float32 of float64 bounds ``lo``, ``hi`` (n, 3), rounded
+    outward as :func:`indexed_boxes` rounds them (numpy: the bits are the same)."""
+    pb = np.empty((len(lo), 6), np.float32)
+    for q, (x, toward) in enumerate(((lo, -np.inf), (hi, np.inf))):
+        f = x.astype(np.float32)
+        moved = f > x if toward < 0 else f < x
+        np.nextafter(f, np.float32(toward), out=f, where=moved)
+        pb[:, 3 * q:3 * q + 3] = f
     return pb
 
 
@@ -320,7 +336,7 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     # (numpy and one thread: no parallel region to start)
     t0 = time.perf_counter()
     t3 = flat9.reshape(-1, 3, 3)
-    pb = np.concatenate([t3.min(axis=1), t3.max(axis=1)], axis=1)
+    pb = outward32(t3.min(axis=1), t3.max(axis=1))
     flat, sah = _four_wide(_binary(pb, grain, stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 

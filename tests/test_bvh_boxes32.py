@@ -5,10 +5,6 @@ for bit. The checks themselves are shown to fail on broken variants."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -154,20 +150,3 @@ def test_large_float32_build_hits_what_brute_force_hits():
     assert np.count_nonzero(want.prim >= 0) > n  # (most rays hit)
     for a, w in zip(got, want, strict=True):
         assert np.array_equal(a, w)
-
-
-def test_the_benchmarks_let_numba_s_openmp_workers_sleep_when_idle():
-    """``python -m rstrace_engine.bench`` sets libgomp's wait policy before numba starts its
-    threads, unless the environment already sets one."""
-    code = ("import os, runpy; runpy.run_module('rstrace_engine.bench.__main__'); "
-            "print(os.environ['OMP_WAIT_POLICY'])")
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, check=True)
-    assert out.stdout.split() == ["PASSIVE"]
-    env["OMP_WAIT_POLICY"] = "ACTIVE"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, check=True)
-    assert out.stdout.split() == ["ACTIVE"]

@@ -12,7 +12,7 @@ import pytest
 
 @pytest.fixture(autouse=True)
 def _no_learned_structure_rate(request, monkeypatch):
-    if "blender" in Path(str(request.node.fspath)).parts:
+    if (Path(__file__).parent / "blender") in Path(str(request.node.fspath)).parents:
         yield
         return
     from rstrace_engine.interpolants import fallback

@@ -46,6 +46,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import kernel_cache
+
 #: what the mode adds to a frame (walk, line coordinates, builds, inserts, the interpolated
 #: pixels' own terms) may exceed what its interpolated rays saved by this fraction of the
 #: frame's base cost; the rest of the 10% the mode may lose is its fixed bookkeeping and
@@ -93,10 +95,18 @@ LEARN_STRUCTURES = True
 
 def timed_structure(kind: str, n_tris: int, build):
     """``build()``, its cost per triangle learned as ``kind``'s :data:`STRUCTURE_RATE`."""
+    if not LEARN_STRUCTURES:
+        return build()
+    since = kernel_cache.mark()
     t0 = CLOCK()
     out = build()
-    if LEARN_STRUCTURES:
-        STRUCTURE_RATE[kind] = (CLOCK() - t0) / max(int(n_tris), 1)
+    took = CLOCK() - t0
+    c = kernel_cache.counts(since=since)
+    # a build that compiled or loaded a numba kernel timed numba, not the build (a process's
+    # first build: 270-1300x the steady rate), and a rate too high is never corrected (a
+    # frame that cannot pay it builds nothing): such a build is not learned
+    if not (c["compiled"] or c["loaded"]):
+        STRUCTURE_RATE[kind] = took / max(int(n_tris), 1)
     return out
 
 

@@ -194,3 +194,36 @@ def test_lights_past_the_records_slots_re_trace_and_say_so():
     sess.apply(light_edit(sess, j, power=sess.scene.lights[j].power * 3.0))
     st = exact(sess)
     assert not st.get("relit")
+
+
+def test_a_light_added_at_the_records_last_slot_re_traces():
+    """Relit frames at RECORD_SLOTS lights, then one light more: the records cannot name
+    it, so the add re-traces (said), exactly (it crashed: the relight ran on dropped
+    records)."""
+    sess = Session(many_room(RECORD_SLOTS, 8, 6), RenderSettings(mode="BASE", max_depth=1))
+    sess.light_terms = True
+    sess.render()
+    sess.apply(light_edit(sess, 3, power=sess.scene.lights[3].power * 2.0))
+    exact(sess)
+    sess.apply(light_edit(sess, 3, power=sess.scene.lights[3].power * 3.0))
+    assert exact(sess).get("relit")
+    sess.apply([LightSet("extra", Light("extra", "POINT", power=50.0,
+                                        position=(0.5, 0.5, 3.0)))])
+    st = exact(sess)
+    assert not st.get("relit") and "light slots" in st["relight_off"]
+
+
+@pytest.mark.parametrize("light_terms", [False, True])
+def test_edits_between_frames_past_the_records_light_words(light_terms):
+    """A light with an extent added in slot 64 (the records' sets one word wide), then an
+    object moved before the next frame: the records' sets widen for it (an index error
+    before, and the kernels read past the sets)."""
+    sess = Session(many_room(64, 16, 12), RenderSettings(mode="BASE", max_depth=2))
+    sess.light_terms = light_terms
+    sess.render()
+    sess.apply([LightSet("X", Light("X", "POINT", power=300.0, position=(0.3, 0.2, 3.5),
+                                    radius=0.2))])
+    m = sess.scene.instances[sess.scene.instance_slot("Small")]["matrix"].copy()
+    m[0, 3] += 0.25
+    sess.apply([ObjectTransform("Small", m)])
+    exact(sess)

@@ -41,6 +41,7 @@ from ..geometry.cameras import camera_params, same_camera
 from ..geometry.edits import EditEffects
 from .edit_kernels import load_kernels
 from .light_linking import links_shadows
+from .light_nodes import RECORD_SLOTS
 from .light_subset import recombine_pixels
 from .pixel_records import FLAG_ALWAYS, PixelRecords
 from .sample_proofs import placed_balls
@@ -442,6 +443,8 @@ class FrameReuse:
             return False
         if world_lights(new_sa) and not world_lights(old_sa):
             return False
+        if len(new_sa.light_kind) > RECORD_SLOTS:
+            return False  # (the records name slots in a byte: re-traced, LightRecords.widen)
         if fx.lights_moved and not self.light_records.has_geometry:
             return False  # (over the memory cap: moved lights re-trace, see take_edits)
         return True

@@ -64,7 +64,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..geometry.edits import PART_NEW
 from .batches import threads_for
-from .light_bits import mask_of, set_column
+from .light_bits import mask_of, set_column, words
 from .light_records import LightRecords
 from .record_codes import (
     POINT_BITS,
@@ -523,6 +523,8 @@ class PixelRecords:
         (:class:`~.sample_rays.SampleCandidates`). ``placed``: the world balls of the objects the
         edits placed (:func:`~.sample_proofs.placed_balls`), which prove samples stay
         blocked (:func:`~.sample_proofs.query_samples`), or None."""
+        if words(len(sa.light_kind)) > self.n_words:  # (lights added since the records: no
+            self._set_table(self._wide(words(len(sa.light_kind))))  # bit of theirs is set)
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)

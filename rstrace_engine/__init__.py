@@ -9,7 +9,7 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    ``shipped_kernels`` (the portable build that ships in the extension, seeding the cache),
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
    (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
-   over serial ``nogil`` kernels), ``numba_inline`` (numba's inliner copying a callee once).
+   over serial ``nogil`` kernels).
 2. ``geometry``: the scene model, cameras, shapes, mesh topology.
 3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force,
    visibility field).
@@ -28,7 +28,6 @@ closes a circle.
 
 __version__ = "0.1.0"
 
-from . import kernel_cache, numba_inline  # noqa: E402  (before any kernel is compiled)
+from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
-kernel_cache.install()  # the shared-cache lock
-numba_inline.install()  # inlining without the per-block copies (numba_inline.py)
+kernel_cache.install()

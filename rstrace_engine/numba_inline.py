@@ -9,12 +9,14 @@ traversal (30 inlined call sites, some of them large) this was half the compile:
 5.0 s of CPU (docs/first-render.md, *Where the compile goes, kernel by kernel*). The
 problem is known upstream (numba/numba#8989, open; numba-cuda#688).
 
-What: :func:`install` replaces the loop with one ``copy.deepcopy`` of the blocks together
+What: :func:`install` (called by ``kernel_cache.install()``, before any kernel compiles)
+replaces the loop with one ``copy.deepcopy`` of the blocks together
 (one memo: the scope, its variables and the blocks' statements copied once each). The
 copy is the same IR (the same statements and variable names; the blocks share one copy of
 the scope instead of each holding its own, and the inliner sets every inlined block's scope
 to the caller's right after), so the compiled code is the same: ``tests/test_numba_inline.py``
-compares the LLVM IR of kernels compiled with and without it.
+compares the LLVM IR of kernels compiled with and without it (hence no kernel's cache key
+depends on this file).
 
 What it relies on: the exact source text of ``copy_ir`` in numba's
 ``numba/core/inline_closurecall.py`` (numba 0.56 to 0.68 at least). :func:`install`

@@ -205,7 +205,11 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     log.info(message)
     if progress is not None:
         progress(message)
-    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
+    # two samples per pixel: the second pass reprojects from the first (the demo's frames
+    # at 4 samples call reproject._reproject_rays; one sample never did, and a fresh
+    # warm-cache left it for the demo's interpolated frame to compile)
+    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5,
+                              samples=2)
     scene = scenes.three_spheres(128, 96, subdivisions=2)
     # a textured floor: samples of cells whose root hit is textured split their radiance
     # into R + texel * D (the warm scene's floor is textured too, but its cells' samples

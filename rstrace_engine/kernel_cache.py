@@ -92,6 +92,8 @@ import numba
 from numba.core import caching, config, event
 from numba.core.registry import CPUDispatcher
 
+from . import numba_inline
+
 log = logging.getLogger(__name__)
 
 LOCK_NAME = ".rstrace-cache.lock"
@@ -590,6 +592,7 @@ def install(prefix: str | None = None) -> None:
     if prefix:
         _PREFIXES.add(prefix)
     if not _STATE["installed"]:
+        numba_inline.install()  # inlining without numba's per-block copies (same code)
         event.register("numba:compile", _CompileListener())
         event.register("numba:compiler_lock", _LockListener())
         if ContentKeyedLocator not in _CACHE_IMPL._locator_classes:

@@ -22,6 +22,7 @@ did not reach.
 from __future__ import annotations
 
 import contextlib
+import copy
 import logging
 import time
 
@@ -205,7 +206,11 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     log.info(message)
     if progress is not None:
         progress(message)
-    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5)
+    # two samples per pixel: the second pass reprojects from the first (the demo's frames
+    # at 4 samples call reproject._reproject_rays; one sample never did, and a fresh
+    # warm-cache left it for the demo's interpolated frame to compile)
+    settings = RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02, depth_cap=5,
+                              samples=2)
     scene = scenes.three_spheres(128, 96, subdivisions=2)
     # a textured floor: samples of cells whose root hit is textured split their radiance
     # into R + texel * D (the warm scene's floor is textured too, but its cells' samples
@@ -218,6 +223,14 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     # every cell built and checked (the measured fallback could defer them all in a frame
     # this small: the predicate's kernels would stay cold; _animate runs the fallback)
     session.interpolants.auto_fallback = False
+    session.render(cancel=cancel)
+    # a camera step: the next frame splats this one's interpolants into its pixels and
+    # reprojects from them (reproject._splat; the warm scene's steps have none to splat)
+    _check(cancel)
+    moved = copy.copy(scene)
+    moved.set_camera(replace(scene.camera, matrix=shapes.look_at((0.15, -8.5, 3.6),
+                                                                  (0.0, 0.3, 0.8))))
+    session.update_scene(moved)
     session.render(cancel=cancel)
     _check(cancel)
     session.apply([ObjectTransform("RedSphere", shapes.transform((-1.4, 0.5, 1.0)))])

@@ -9,8 +9,11 @@ Every Python process the command starts (``warm-cache``'s parts too: they inheri
 ``PYTHONPATH``) imports a ``sitecustomize`` that listens to numba's ``numba:compile``
 events and writes, at exit, one JSON file per process into ``DIR``: each compile's kernel,
 signature, start time, wall and CPU time *exclusive* of the compiles nested in it (a callee
-compiled while its caller is typed), and its nesting depth. The report sums them by kernel
-(docs/KERNELS.md, *Cutting the cold compile*). A process killed before it exits writes
+compiled while its caller is typed), its nesting depth, the CPU time of it spent in LLVM
+(llvmlite's C calls: optimising, linking and machine code; the rest is numba's Python
+passes) and how many call sites numba inlined into it (``inline="always"`` callees,
+counted at every level of nesting). The report sums them by kernel (docs/KERNELS.md,
+*Cutting the cold compile*; docs/first-render.md). A process killed before it exits writes
 nothing (SIGTERM is an exit: it writes). Loads from the cache are not compiles and are not listed.
 """
 
@@ -33,10 +36,37 @@ if os.environ.get("RSTRACE_COMPILE_PROFILE"):
     from numba.core import event
     _stack, _rows = [], []
     _t0w, _t0c = time.perf_counter(), time.process_time()
+    # [start wall, start CPU, nested wall, nested CPU, LLVM CPU, inlined call sites]
+    try:  # LLVM's share: every llvmlite C call, timed (a few microseconds each)
+        from llvmlite.binding import ffi as _ffi
+        _call = _ffi._lib_fn_wrapper.__call__
+
+        def _timed(self, *a, **k):
+            if not _stack:
+                return _call(self, *a, **k)
+            t = time.process_time()
+            try:
+                return _call(self, *a, **k)
+            finally:
+                _stack[-1][4] += time.process_time() - t
+        _ffi._lib_fn_wrapper.__call__ = _timed
+    except (ImportError, AttributeError):
+        pass
+    try:
+        from numba.core import inline_closurecall as _icc
+        _inline = _icc.InlineWorker.inline_function
+
+        def _counted(self, *a, **k):
+            if _stack:
+                _stack[-1][5] += 1
+            return _inline(self, *a, **k)
+        _icc.InlineWorker.inline_function = _counted
+    except (ImportError, AttributeError):
+        pass
 
     class _Listener(event.Listener):
         def on_start(self, ev):
-            _stack.append([time.perf_counter(), time.process_time(), 0.0, 0.0])
+            _stack.append([time.perf_counter(), time.process_time(), 0.0, 0.0, 0.0, 0])
 
         def on_end(self, ev):
             s = _stack.pop()
@@ -49,7 +79,9 @@ if os.environ.get("RSTRACE_COMPILE_PROFILE"):
                     else "?")
             par = bool(d.targetoptions.get("parallel")) if d is not None else False
             args = (ev.data or {}).get("args") or ()
+            nrt = d.targetoptions.get("_nrt", True) is not False if d is not None else True
             _rows.append(dict(kernel=name, parallel=par, wall=w - s[2], cpu=c - s[3],
+                              llvm=s[4], inlined=s[5], nrt=nrt,
                               depth=len(_stack), at=s[0] - _t0w,
                               signature=", ".join(str(a) for a in args)))
 
@@ -73,8 +105,9 @@ def _say(text: str) -> None:
 
 
 def report(folder: str, top: int) -> None:
-    by_kernel = collections.defaultdict(lambda: [0.0, 0, False])
-    total = 0.0
+    # kernel: [CPU, signatures, parallel, LLVM CPU, inlined sites, NRT]
+    by_kernel = collections.defaultdict(lambda: [0.0, 0, False, 0.0, 0, True])
+    total = llvm = 0.0
     for path in sorted(glob.glob(os.path.join(folder, "*.json"))):
         with open(path) as f:
             d = json.load(f)
@@ -87,10 +120,17 @@ def report(folder: str, top: int) -> None:
             k[0] += r["cpu"]
             k[1] += 1
             k[2] = r["parallel"]
-    _say(f"compile CPU {total:.1f} s in {sum(k[1] for k in by_kernel.values())} "
-          f"signatures of {len(by_kernel)} functions; the largest (P: parallel):")
-    for name, (cpu, n, par) in sorted(by_kernel.items(), key=lambda x: -x[1][0])[:top]:
-        _say(f"  {cpu:7.1f} s  {n:2d} sig  {'P' if par else ' '}  {name}")
+            k[3] += r.get("llvm", 0.0)
+            k[4] += r.get("inlined", 0)
+            k[5] = r.get("nrt", True)
+            llvm += r.get("llvm", 0.0)
+    _say(f"compile CPU {total:.1f} s ({llvm:.1f} s in LLVM) in "
+         f"{sum(k[1] for k in by_kernel.values())} signatures of {len(by_kernel)} functions; "
+         "the largest (P: parallel, N: reference counting off; inl: call sites inlined):")
+    for name, (cpu, n, par, ll, inl, nrt) in sorted(by_kernel.items(),
+                                                    key=lambda x: -x[1][0])[:top]:
+        _say(f"  {cpu:7.1f} s  llvm {ll:5.1f}  {n:2d} sig  inl {inl:3d}  "
+             f"{'P' if par else ' '}{' ' if nrt else 'N'}  {name}")
 
 
 def main(argv: list[str]) -> int:

@@ -70,3 +70,36 @@ def test_demo_warm_cache_stops_with_its_parts(tmp_path):
         if proc.poll() is None:
             os.killpg(proc.pid, 9)
             proc.wait()
+
+
+def test_warm_up_reaches_the_reprojection_of_the_demos_interpolated_frame(monkeypatch):
+    """The demo's interpolated frame (4 samples) reprojects the later samples of a pixel
+    from its first (``reproject._reproject_rays``); the warm-up's interpolants that pass
+    must reach that kernel too, with rays to reproject (before, at one sample, it never
+    called it: a fresh ``make demo`` compiled it in the middle of its interpolated frame);
+    and a camera step's splat (``reproject._splat``), which no warm-up step reached."""
+    from rstrace_engine import warm_kernels
+    from rstrace_engine.interpolants import reproject
+
+    calls = []
+    kernel = reproject._reproject_rays
+
+    def counted(*args):
+        m = kernel(*args)
+        calls.append((len(args[11]), int(m)))  # (rays, reprojected)
+        return m
+
+    splats = []
+    splat = reproject._splat
+
+    def splat_counted(*args):
+        splats.append(len(args[2]))  # the interpolants splatted
+        return splat(*args)
+
+    monkeypatch.setattr(reproject, "_reproject_rays", counted)
+    monkeypatch.setattr(reproject, "_splat", splat_counted)
+    warm_kernels._warm_edited_interpolants()
+    assert calls and sum(m for _, m in calls) > 0, calls
+    # and a camera step splats the frame's interpolants into the next (a camera move)
+    assert splats and max(splats) > 0, splats
+    assert len(kernel.signatures) == 1  # one signature, the one a render at 4 samples uses

@@ -490,6 +490,14 @@ def test_f12_light_edits_relight_and_equal_a_fresh_render():
         ("colour", lambda: setattr(lamp.data, "color", (1.0, 0.7, 0.4))),
         ("move", lambda: setattr(lamp.location, "x", lamp.location.x + 0.5)),
     ]
+    inc = list(_relit_each(sc, changes))[-1][1]
+    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])  # and a fresh export
+
+
+def _relit_each(sc, changes):
+    """Each light edit ``(name, change)`` made through the depsgraph and F12'd: one
+    LightSet, relit with no pixel traced, a fresh core session's frame of the synced scene
+    bit for bit (a fresh F12 would drop this session). Yields ``(name, image)``."""
     import addon
     from rstrace_engine.session import Session
 
@@ -499,11 +507,10 @@ def test_f12_light_edits_relight_and_equal_a_fresh_render():
         inc, stats = _f12()
         assert stats["edit_kinds"] == {"LightSet": 1}, (name, stats["edit_kinds"])
         assert stats.get("relit") and stats["traced_pixels"] == 0, (name, stats)
-        # a fresh core session of the synced scene (a fresh F12 would drop this session)
         core = addon.session.state_for(sc).session
         ref = Session(core.scene.copy(), core.settings).render().radiance
         np.testing.assert_array_equal(inc, ref, err_msg=name)
-    np.testing.assert_array_equal(inc, _f12(fresh=True)[0])  # and a fresh export
+        yield name, inc
 
 
 def test_f12_world_edits_relight_in_interpolant_mode():

@@ -240,7 +240,9 @@ GEO_KEYS = ("o", "d", "t", "inst", "prim", "u", "v", "seed")
 def splice(old, rows: np.ndarray, new) -> tuple:
     """Nodes of ``old`` (a ``_Part``) with the sorted rows ``rows`` replaced by the nodes
     of ``new`` (in that order): ``(hit, start, slot, val, geo)``; ``old``'s detached term
-    (if any) is updated in place for the replaced rows (see the module doc)."""
+    (if any) is updated in place for the replaced rows (see the module doc), and so are its
+    geometry arrays where every replaced node's hit flag is unchanged (then the hit nodes'
+    rows are the same: only the replaced ones are written; ``old`` is spent)."""
     n = len(old.hit)
     rows = np.ascontiguousarray(rows, np.int64)
     out_start = np.empty(n + 1, np.int64)
@@ -257,10 +259,19 @@ def splice(old, rows: np.ndarray, new) -> tuple:
                     new.hit, out_start, out_slot, out_val, geo_src, int(dj), d_on, d_val)
     geo = None
     if old.geo is not None and new.geo is not None:
-        geo = {key: np.empty((h,) + old.geo[key].shape[1:], old.geo[key].dtype)
-               for key in GEO_KEYS}
-        _splice_geo(geo_src, *[old.geo[k] for k in GEO_KEYS], *[new.geo[k] for k in GEO_KEYS],
-                    *[geo[k] for k in GEO_KEYS])
+        if np.array_equal(old.hit[rows], new.hit):
+            # every hit node keeps its geometry row: the replaced ones written over in
+            # place (``old`` gives its rows up, as it does its detached term), the others
+            # not copied
+            geo = old.geo
+            at = np.flatnonzero(geo_src < 0)
+            for key in GEO_KEYS:
+                geo[key][at] = new.geo[key]
+        else:
+            geo = {key: np.empty((h,) + old.geo[key].shape[1:], old.geo[key].dtype)
+                   for key in GEO_KEYS}
+            _splice_geo(geo_src, *[old.geo[k] for k in GEO_KEYS],
+                        *[new.geo[k] for k in GEO_KEYS], *[geo[k] for k in GEO_KEYS])
     return out_hit, out_start, out_slot, out_val, geo
 
 

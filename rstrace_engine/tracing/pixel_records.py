@@ -69,6 +69,7 @@ from .light_records import LightRecords
 from .record_codes import (
     POINT_BITS,
     _encode_nodes,
+    _mark_used,
     _secondary_depths,
     _secondary_rays,
     _secondary_samples,
@@ -393,10 +394,8 @@ class PixelRecords:
 
     def _compact(self) -> None:
         """Drop table rows no node uses any more; keep indices 16-bit where they fit."""
-        used = np.zeros(self.n_table, bool)
-        used[self.p_combo] = True
-        used[self.s_combo] = True
-        n_used = int(np.count_nonzero(used))
+        used = np.zeros(self.n_table, np.bool_)
+        n_used = _mark_used(self.p_combo, used) + _mark_used(self.s_combo, used)
         if self.n_table > min(65535, 2 * n_used + 1024):  # else compact later (amortised)
             remap = np.cumsum(used) - 1
             self._set_table(self._wide()[used])

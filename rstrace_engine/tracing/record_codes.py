@@ -185,3 +185,16 @@ def _secondary_rays(s_parent, n_rays, s_ray):
     for k in range(s_parent.shape[0]):
         p = s_parent[k]
         s_ray[k] = p if p < n_rays else s_ray[p - n_rays]
+
+
+@njit(cache=True, nogil=True)
+def _mark_used(combo, used) -> int:
+    """``used[combo] = True``; returns how many rows it newly marked (the table rows the
+    nodes use: :meth:`~.pixel_records.PixelRecords._compact`, without numpy's scatter)."""
+    n = 0
+    for i in range(combo.shape[0]):
+        c = combo[i]
+        if not used[c]:
+            used[c] = True
+            n += 1
+    return n

@@ -1,12 +1,14 @@
-"""An incremental frame's splice of new nodes into the per-light records
-(:func:`rstrace_engine.tracing.light_nodes.splice`): where every replaced node's hit flag is
-unchanged, the geometry rows are written in place (no copy of the kept rows), and the
-result is the gather of the old and new nodes either way."""
+"""The records' finish after an incremental frame: the splice of new nodes into the
+per-light records (:func:`rstrace_engine.tracing.light_nodes.splice`: where every replaced
+node's hit flag is unchanged, the geometry rows are written in place, no copy of the kept
+rows, and the result is the gather of the old and new nodes either way), and the pixel
+records' count of the table rows their nodes use (``_mark_used``)."""
 
 import numpy as np
 
 from rstrace_engine.tracing.light_nodes import GEO_KEYS
 from rstrace_engine.tracing.light_records import _GEO, _Part
+from rstrace_engine.tracing.record_codes import _mark_used
 
 
 def _part(rng, hit: np.ndarray) -> _Part:
@@ -71,3 +73,18 @@ def test_splice_changed_hits_gathers():
     for key in GEO_KEYS:  # (a gather: the old arrays untouched)
         assert got.geo[key] is not old.geo[key]
         np.testing.assert_array_equal(old.geo[key], before[key])
+
+
+def test_mark_used_counts_the_rows_nodes_use():
+    rng = np.random.default_rng(7)
+    for dt in (np.uint16, np.uint32):
+        p = rng.integers(0, 900, 5000).astype(dt)
+        s = rng.integers(500, 1200, 3000).astype(dt)
+        used = np.zeros(1500, np.bool_)
+        n = _mark_used(p, used) + _mark_used(s, used)
+        ref = np.zeros(1500, np.bool_)
+        ref[p] = True
+        ref[s] = True
+        np.testing.assert_array_equal(used, ref)
+        assert n == len(np.union1d(p, s)) == int(ref.sum())
+    assert _mark_used(np.zeros(0, np.uint16), np.zeros(3, np.bool_)) == 0

@@ -33,7 +33,7 @@ from .batches import accumulate, threads_for
 from .light_records import load_kernels as recombine_kernels
 from .light_reshade import _one_light, _one_light_states
 from .pixel_records import _light_bit_changes
-from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
+from .record_queries import _mark_rays, _query_primary, _query_secondary, query_tiles
 from .shader import _shadow_kernel
 from .shadow_reshade import load_kernels as reshade_kernels
 from .soft_lights import has_soft_light
@@ -83,8 +83,8 @@ def _edit_kernels(records, sa, camera) -> None:
             _query_primary(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), e3, *tail,
                            b)
         else:
-            _query_tiles(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), 1, 1, 1,
-                         *tail, b)
+            query_tiles(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), 1, 1, 1,
+                        *tail, b)
         _query_secondary(r.s_parent[:0], r.s_combo[:0], r.s_code[:0], r.p_combo[:0],
                          r.p_code[:0], 0, b, i64, u64, *tail, b)
         _mark_rays(i32, b, b)

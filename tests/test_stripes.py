@@ -77,10 +77,11 @@ def test_costliest_kernels_compile_serially_without_reference_counting():
     the parfor, docs/KERNELS.md)."""
     from rstrace_engine.accel import bvh
     from rstrace_engine.interpolants import predicate
-    from rstrace_engine.tracing import record_queries, shader
+    from rstrace_engine.tracing import light_reshade, record_queries, shader
 
     for k in (bvh.trace_kernel, shader._surface_kernel, shader._shade_kernel,
-              predicate._check_cells, record_queries._query_tiles):
+              predicate._check_cells, record_queries._query_tiles,
+              light_reshade._one_light_states):
         assert not k.targetoptions.get("parallel"), k.py_func.__name__
         assert k.targetoptions.get("nogil"), k.py_func.__name__
         # (the predicate's cells call _check_one, which allocates: one call per cell)

@@ -141,3 +141,32 @@ def test_tile_query_stripes_equal_the_ray_by_ray_query():
             assert np.array_equal(out, want), threads
     finally:
         numba.set_num_threads(old)
+
+
+def test_light_states_shares_cover_every_point_once():
+    """``light_reshade._one_light_states`` over 1, 2, 3 and 7 shares of the points (each
+    share ``first`` of ``step`` in turn) writes every point, and the same states and
+    materials as one share."""
+    from rstrace_engine import scenes
+    from rstrace_engine.tracing import light_reshade
+
+    sa = scenes.three_spheres(32, 24).arrays()
+    rng = np.random.default_rng(3)
+    n = 1001
+    lo, hi = sa.scene_aabb
+    P = lo + rng.random((n, 3)) * (hi - lo)
+    NG = rng.normal(size=(n, 3))
+    NG /= np.linalg.norm(NG, axis=1)[:, None]
+    MAT = rng.integers(0, len(sa.mat_model), n).astype(np.int32)
+    INST = rng.integers(0, len(sa.inst_mesh), n).astype(np.int32)
+    results = []
+    for step in (1, 2, 3, 7):
+        state, mat = np.full(n, 99, np.int8), np.full(n, -99, np.int32)
+        for first in range(step):
+            light_reshade._one_light_states(sa, 0, P, NG, NG, P + 1e-6 * NG, MAT, INST,
+                                            state, mat, first, step)
+        assert not (state == 99).any() and not (mat == -99).any(), step
+        results.append((state, mat))
+    assert len(np.unique(results[0][0])) > 1  # faced and not faced points both
+    for state, mat in results[1:]:
+        assert np.array_equal(state, results[0][0]) and np.array_equal(mat, results[0][1])

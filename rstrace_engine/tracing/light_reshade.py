@@ -45,17 +45,16 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat, first, step):
     """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points
     on instances ``INST`` (-2 where light linking says it does not light the instance, as
     :func:`~.shader.unlinked_lights`), and their materials where it faces them (-1
-    elsewhere: shaded as misses, no term). Serial over the points of stripe ``first`` of
-    ``step``, without numba's reference counting (:func:`one_light_states` runs the
+    elsewhere: shaded as misses, no term). Serial over share ``first`` of ``step`` of the
+    points, without numba's reference counting (:func:`one_light_states` runs the
     stripes, :func:`~rstrace_engine.stripes.run`; a ``prange`` over ``SceneArrays``' fields
     cost three times the compile, docs/first-render.md)."""
     sa = _ReshadeScene(*fields(sa, _ReshadeScene))  # the fields its loop reads
     linked = sa.light_recv.shape[0] > 0
     n = P.shape[0]
-    for stripe_q in range(stripes.stripe_len(n, first, step)):  # stripes.run
-        i = stripes.stripe_item(stripe_q, first, step)
-        if i >= n:
-            break
+    # a contiguous share of the points (stripes.run): every point costs about the same, and
+    # blocks dealt in turn shared cache lines of ``state`` and ``mat`` between threads
+    for i in range(n * first // step, n * (first + 1) // step):
         if linked and sa.light_recv[j, INST[i]] == 0:
             state[i] = -2
         else:

@@ -607,7 +607,7 @@ def test_a_ball_proof_holds_everywhere_in_the_ball():
     included) every proven node's shadow ray is unoccluded; the proof is not empty, and
     a ball moved to where the Box shadows the floor proves fewer nodes."""
     from rstrace_engine.tracing.light_linking import occluded
-    from rstrace_engine.tracing.light_reshade import _one_light, _one_light_states
+    from rstrace_engine.tracing.light_reshade import _one_light, one_light_states
     from rstrace_engine.tracing.shaft_skip import ball_rows, tile_keys
     from rstrace_engine.tracing.whitted import shadow_rays
 
@@ -627,8 +627,8 @@ def test_a_ball_proof_holds_everywhere_in_the_ball():
     for center in (np.asarray(sa1.light_pos[0]), np.asarray(sa1.light_pos[0]) + (0, 0, -1.5)):
         state = np.empty(len(rows), np.int8)
         mat = np.empty(len(rows), np.int32)
-        _one_light_states(sa1._replace(light_pos=center.reshape(1, 3)), 0, surf.P, surf.NG,
-                          surf.NS, surf.Q, surf.mat, inst, state, mat)
+        one_light_states(sa1._replace(light_pos=center.reshape(1, 3)), 0, surf.P, surf.NG,
+                         surf.NS, surf.Q, surf.mat, inst, state, mat)
         traced = state == 1
         proven = ball_rows(sa1, sess.accel, 0, center, radius, surf, traced, inst, keys)
         assert proven is not None and proven.any() and not (proven & ~traced).any()
@@ -638,8 +638,8 @@ def test_a_ball_proof_holds_everywhere_in_the_ball():
             pos = center + radius * rng.random() ** (1 / 3) * u / np.linalg.norm(u)
             sa_p = sa1._replace(light_pos=pos.reshape(1, 3))
             st = np.empty(len(rows), np.int8)
-            _one_light_states(sa_p, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, inst,
-                              st, mat)
+            one_light_states(sa_p, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, inst,
+                             st, mat)
             # the proven nodes the light faces from there: their rays are unoccluded
             todo, so, sd, tmax = shadow_rays(sa_p, surf._replace(
                 sh_state=np.where(proven & (st == 1), st, np.int8(-2))))

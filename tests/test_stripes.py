@@ -77,10 +77,11 @@ def test_costliest_kernels_compile_serially_without_reference_counting():
     the parfor, docs/KERNELS.md)."""
     from rstrace_engine.accel import bvh
     from rstrace_engine.interpolants import predicate
-    from rstrace_engine.tracing import shader
+    from rstrace_engine.tracing import light_reshade, record_queries, shader
 
     for k in (bvh.trace_kernel, shader._surface_kernel, shader._shade_kernel,
-              predicate._check_cells):
+              predicate._check_cells, record_queries._query_tiles,
+              light_reshade._one_light_states):
         assert not k.targetoptions.get("parallel"), k.py_func.__name__
         assert k.targetoptions.get("nogil"), k.py_func.__name__
         # (the predicate's cells call _check_one, which allocates: one call per cell)
@@ -88,3 +89,84 @@ def test_costliest_kernels_compile_serially_without_reference_counting():
         # what numba compiles a prange body with: inf / nan on a division by zero, no check
         assert k.targetoptions.get("error_model") == "numpy", k.py_func.__name__
 
+
+
+def test_tile_query_stripes_equal_the_ray_by_ray_query():
+    """The records' tile query (``record_queries._query_tiles``, striped): every stripe
+    count and thread count marks exactly the rays the unculled ray-by-ray query marks
+    (``_query_primary``), on an image whose tiles span several blocks (misses, a dirty
+    combination, a hard light and a sun, a moved object's box and a region)."""
+    from rstrace_engine.geometry.elements import LIGHT_POINT, LIGHT_SUN
+    from rstrace_engine.tracing import record_queries as rq
+    from rstrace_engine.tracing.pixel_records import PixelRecords
+
+    rng = np.random.default_rng(7)
+    width, height, spp = 150, 90, 2
+    r = PixelRecords(width, height, spp, np.array([[0.0, 0, 0], [1.0, 1, 1]]))
+    n = width * height * spp
+    combo_inst = np.array([-1, 0, 1, 2, 3, 0], np.int64)
+    combo_traced = np.array([[0], [1], [2], [3], [3], [0]], np.uint64)
+    combo_dirty = np.array([False, False, False, False, False, True])
+    p_combo = rng.choice(6, n, p=[0.05, 0.3, 0.25, 0.2, 0.19, 0.01]).astype(np.uint32)
+    p_combo.reshape(spp, height, width)[:, ::rq.TILE, ::rq.TILE] = 5  # dirty: every tile
+    p_code = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
+    cam = np.array([0.5, 0.5, -2.0])
+    seg_lo, seg_hi = np.array([[0.2, 0.2, 0.5]]), np.array([[0.3, 0.3, 0.6]])
+    seg_c, seg_r = 0.5 * (seg_lo + seg_hi), np.array([0.5 * np.linalg.norm(0.1 * np.ones(3))])
+    reg_lo, reg_hi = np.array([[0.6, 0.55, 0.6]]), np.array([[0.7, 0.65, 0.7]])
+    kind = np.array([LIGHT_POINT, LIGHT_SUN], np.int32)
+    lgeo = np.array([[0.5, 2.0, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]])
+    ldir = np.array([[0.0, 0.0, 0.0], [0.3, -1.0, 0.2]])
+    args = (p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam)
+    tail = (r.lo, r.step, r.levels, r.shift, reg_lo, reg_hi, seg_lo, seg_hi, seg_c, seg_r,
+            kind, lgeo, ldir)
+    want = np.zeros(n, np.bool_)
+    rq._query_primary(*args, np.zeros((0, 3)), *tail, want)
+    assert 0 < np.count_nonzero(want) < n // 2  # both kinds of ray, most culled
+    n_tiles = 19 * 12 * spp
+    assert stripes.blocks_of(n_tiles) > 3
+    for n_stripes in (1, 2, 3, 5):
+        out = np.zeros(n, np.bool_)
+        for first in range(n_stripes):
+            rq._query_tiles(*args, width, height, width * height, *tail, out,
+                            np.empty((n_stripes, 4, 3)),
+                            np.empty((n_stripes, 1), np.uint64), first, n_stripes)
+        assert np.array_equal(out, want), n_stripes
+    old = numba.get_num_threads()
+    try:
+        for threads in {1, min(2, numba.config.NUMBA_NUM_THREADS)}:
+            numba.set_num_threads(threads)
+            out = np.zeros(n, np.bool_)
+            rq.query_tiles(*args, width, height, width * height, *tail, out)
+            assert np.array_equal(out, want), threads
+    finally:
+        numba.set_num_threads(old)
+
+
+def test_light_states_shares_cover_every_point_once():
+    """``light_reshade._one_light_states`` over 1, 2, 3 and 7 shares of the points (each
+    share ``first`` of ``step`` in turn) writes every point, and the same states and
+    materials as one share."""
+    from rstrace_engine import scenes
+    from rstrace_engine.tracing import light_reshade
+
+    sa = scenes.three_spheres(32, 24).arrays()
+    rng = np.random.default_rng(3)
+    n = 1001
+    lo, hi = sa.scene_aabb
+    P = lo + rng.random((n, 3)) * (hi - lo)
+    NG = rng.normal(size=(n, 3))
+    NG /= np.linalg.norm(NG, axis=1)[:, None]
+    MAT = rng.integers(0, len(sa.mat_model), n).astype(np.int32)
+    INST = rng.integers(0, len(sa.inst_mesh), n).astype(np.int32)
+    results = []
+    for step in (1, 2, 3, 7):
+        state, mat = np.full(n, 99, np.int8), np.full(n, -99, np.int32)
+        for first in range(step):
+            light_reshade._one_light_states(sa, 0, P, NG, NG, P + 1e-6 * NG, MAT, INST,
+                                            state, mat, first, step)
+        assert not (state == 99).any() and not (mat == -99).any(), step
+        results.append((state, mat))
+    assert len(np.unique(results[0][0])) > 1  # faced and not faced points both
+    for state, mat in results[1:]:
+        assert np.array_equal(state, results[0][0]) and np.array_equal(mat, results[0][1])

@@ -31,9 +31,9 @@ import numpy as np
 from ..geometry.cameras import camera_params
 from .batches import accumulate, threads_for
 from .light_records import load_kernels as recombine_kernels
-from .light_reshade import _one_light, _one_light_states
+from .light_reshade import _one_light, one_light_states
 from .pixel_records import _light_bit_changes
-from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
+from .record_queries import _mark_rays, _query_primary, _query_secondary, query_tiles
 from .shader import _shadow_kernel
 from .shadow_reshade import load_kernels as reshade_kernels
 from .soft_lights import has_soft_light
@@ -70,7 +70,7 @@ def _edit_kernels(records, sa, camera) -> None:
     u64, b = np.zeros((0, 1), np.uint64), np.zeros(0, np.bool_)  # (light sets: (n, W))
     one = _one_light(sa, 0)
     with threads_for(0):
-        _one_light_states(one, 0, e3, e3, e3, e3, i32, i32, np.zeros(0, np.int8), i32)
+        one_light_states(one, 0, e3, e3, e3, e3, i32, i32, np.zeros(0, np.int8), i32)
         _shadow_kernel(one, e3, e3, e3, np.zeros(0, np.int8), i64, e3, e3, e1)
         accumulate(e3, i32, 1, np.zeros((0, 3), np.float32), np.zeros(0, np.uint8))
         for combo in (records.p_combo, records.s_combo):
@@ -83,8 +83,8 @@ def _edit_kernels(records, sa, camera) -> None:
             _query_primary(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), e3, *tail,
                            b)
         else:
-            _query_tiles(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), 1, 1, 1,
-                         *tail, b)
+            query_tiles(r.p_combo[:0], r.p_code[:0], b, i64, u64, np.zeros(3), 1, 1, 1,
+                        *tail, b)
         _query_secondary(r.s_parent[:0], r.s_combo[:0], r.s_code[:0], r.p_combo[:0],
                          r.p_code[:0], 0, b, i64, u64, *tail, b)
         _mark_rays(i32, b, b)

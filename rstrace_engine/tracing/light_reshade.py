@@ -19,8 +19,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from .. import stripes
 from ..accel.accelerators import Hits
 from ..geometry.scene import LIGHT_POINT, LIGHT_SPOT, SceneArrays
 from ..views import fields, view_type
@@ -39,15 +40,21 @@ _ReshadeScene = view_type("_ReshadeScene", SceneArrays, (
     "scene_extent"), __name__)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat, first, step):
     """Shadow-ray state (:func:`~.shader.light_state`) of light ``j`` at surface points
     on instances ``INST`` (-2 where light linking says it does not light the instance, as
     :func:`~.shader.unlinked_lights`), and their materials where it faces them (-1
-    elsewhere: shaded as misses, no term)."""
+    elsewhere: shaded as misses, no term). Serial over share ``first`` of ``step`` of the
+    points, without numba's reference counting (:func:`one_light_states` runs the
+    stripes, :func:`~rstrace_engine.stripes.run`; a ``prange`` over ``SceneArrays``' fields
+    cost three times the compile, docs/first-render.md)."""
     sa = _ReshadeScene(*fields(sa, _ReshadeScene))  # the fields its loop reads
     linked = sa.light_recv.shape[0] > 0
-    for i in prange(P.shape[0]):
+    n = P.shape[0]
+    # a contiguous share of the points (stripes.run): every point costs about the same, and
+    # blocks dealt in turn shared cache lines of ``state`` and ``mat`` between threads
+    for i in range(n * first // step, n * (first + 1) // step):
         if linked and sa.light_recv[j, INST[i]] == 0:
             state[i] = -2
         else:
@@ -55,6 +62,13 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat):
                                    NG[i, 2], NS[i, 0], NS[i, 1], NS[i, 2], Q[i, 0], Q[i, 1],
                                    Q[i, 2], rough_interface(sa, MAT[i]))
         mat[i] = MAT[i] if state[i] != -2 else -1
+
+
+def one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat) -> None:
+    """:func:`_one_light_states` over the points on the calling thread's numba thread count
+    (:func:`~rstrace_engine.stripes.run`, blocks of points dealt in turn)."""
+    stripes.run(_one_light_states, stripes.blocks_of(len(P)), sa, j, P, NG, NS, Q, MAT, INST,
+                state, mat)
 
 
 def _one_light(sa: SceneArrays, j: int) -> SceneArrays:
@@ -212,8 +226,8 @@ def relight_hard(sa, accel, j, part, rows, surf, faced, lit, counters, split, on
     # this work takes: 45-90 ms against 5-15, docs/RELIGHT.md)
     with threads_for(0):
         # the nodes it does not face are shaded as misses (no material read, no term)
-        _one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
-                          part.geo["inst"], state, mat)
+        one_light_states(sa1, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                         part.geo["inst"], state, mat)
     sf = Surfaces(*surf[:5], mat, surf.Q, state)
     tick(split, "states", t0)
     with threads_for(k):
@@ -260,8 +274,8 @@ def relight_sampled(sa, accel, j, light_samples, part, rows, surf, faced, lit, c
     t0 = time.perf_counter()
     state = np.empty(len(rows), np.int8)
     with threads_for(len(rows)):
-        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
-                          part.geo["inst"], state, np.empty(len(rows), np.int32))
+        one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                         part.geo["inst"], state, np.empty(len(rows), np.int32))
     tick(split, "states", t0)
     faced[rows] = state != -2
     on = np.zeros(len(rows), bool)

@@ -75,7 +75,7 @@ from .record_codes import (
     _secondary_samples,
     light_geometry,
 )
-from .record_queries import _mark_rays, _query_primary, _query_secondary, _query_tiles
+from .record_queries import _mark_rays, _query_primary, _query_secondary, query_tiles
 from .sample_proofs import query_samples
 from .sample_rays import SampleCandidates
 from .soft_lights import world_lights
@@ -639,10 +639,10 @@ class PixelRecords:
                            np.ascontiguousarray(origins), self.lo, self.step, self.levels,
                            self.shift, reg_lo, reg_hi, *seg, kind, pos, ldir, out)
         elif primary:
-            _query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
-                         np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
-                         self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,
-                         reg_hi, *seg, kind, pos, ldir, out)
+            query_tiles(self.p_combo, self.p_code, combo_dirty, inst64, combo_traced,
+                        np.ascontiguousarray(cp.xform[:3, 3]), self.width, self.height,
+                        self.n_pixels, self.lo, self.step, self.levels, self.shift, reg_lo,
+                        reg_hi, *seg, kind, pos, ldir, out)
         m = len(self.s_parent)
         if m:
             s_dirty = np.zeros(m, np.bool_)

@@ -17,6 +17,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .. import stripes
 from .. import tolerances as tol
 from .light_bits import has
 from .record_codes import _cone_sphere, _decode_point, _light_hit, _oct_decode, _segment_box
@@ -85,10 +86,11 @@ def _query_primary(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_o
 TILE = 8  # pixels per side of the screen tiles the primary query culls with
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
                  height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
-                 seg_c, seg_r, light_kind, light_pos, light_dir, out):
+                 seg_c, seg_r, light_kind, light_pos, light_dir, out, box_scratch,
+                 traced_scratch, first, n_stripes):
     """The primary query, culled by screen tiles (perspective cameras).
 
     Per tile of TILE x TILE pixels of one sample: the box of its decoded hit points and the
@@ -98,22 +100,35 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
     conservative; only tiles that fail it (or hold a miss) test their rays one by one
     (the view segments against the places objects came to, ``seg_*``; the shadow
     segments against the regions, ``reg_*``: :func:`_node_dirty`).
+
+    Serial over the tiles of stripe ``first`` of ``n_stripes`` (:func:`query_tiles` runs
+    them with :func:`~rstrace_engine.stripes.run`), without numba's reference counting
+    (``_nrt=False``; a ``prange`` over 23 arrays was the costliest compile of the records'
+    kernels, docs/first-render.md). It allocates nothing: box_scratch (n_stripes, 4, 3)
+    float64 (the tile's box and a grown region) and traced_scratch (n_stripes, W) uint64
+    (the tile's lights), row ``first`` each.
     """
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     n_tiles = tw * th * (p_combo.shape[0] // n_pixels)
     k_reg = reg_lo.shape[0]
     k_seg = seg_lo.shape[0]
-    for t in prange(n_tiles):
+    blo, bhi = box_scratch[first, 0], box_scratch[first, 1]
+    glo, ghi = box_scratch[first, 2], box_scratch[first, 3]
+    traced = traced_scratch[first]
+    for stripe_q in range(stripes.stripe_len(n_tiles, first, n_stripes)):  # stripes.run
+        t = stripes.stripe_item(stripe_q, first, n_stripes)
+        if t >= n_tiles:
+            break
         s = t // (tw * th)
         r = t - s * tw * th
         ty = r // tw
         tx = r - ty * tw
         x0, y0 = tx * TILE, ty * TILE
         x1, y1 = min(x0 + TILE, width), min(y0 + TILE, height)
-        blo = np.full(3, np.inf)
-        bhi = np.full(3, -np.inf)
-        traced = np.zeros(combo_traced.shape[1], np.uint64)
+        blo[:] = np.inf
+        bhi[:] = -np.inf
+        traced[:] = 0
         check = False
         for y in range(y0, y1):
             for x in range(x0, x1):
@@ -135,8 +150,6 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
             cx = 0.5 * (blo[0] + bhi[0])
             cy = 0.5 * (blo[1] + bhi[1])
             cz = 0.5 * (blo[2] + bhi[2])
-            glo = np.empty(3)
-            ghi = np.empty(3)
             for q in range(k_seg):
                 for k in range(3):
                     half = 0.5 * (bhi[k] - blo[k])
@@ -172,6 +185,23 @@ def _query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_ori
                                          cam_origin[2], combo_inst[c], combo_traced[c], lo,
                                          step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
                                          seg_c, seg_r, light_kind, light_pos, light_dir)
+
+
+def query_tiles(p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam_origin, width,
+                height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi, seg_lo, seg_hi,
+                seg_c, seg_r, light_kind, light_pos, light_dir, out) -> None:
+    """:func:`_query_tiles` over its tiles on the calling thread's numba thread count
+    (:func:`~rstrace_engine.stripes.run`, blocks of tiles dealt in turn)."""
+    n_tiles = (((width + TILE - 1) // TILE) * ((height + TILE - 1) // TILE)
+               * (p_combo.shape[0] // max(n_pixels, 1)))
+    blocks = stripes.blocks_of(n_tiles)
+    k = stripes.threads_for(blocks)
+    box_scratch = np.empty((k, 4, 3))
+    traced_scratch = np.empty((k, combo_traced.shape[1]), np.uint64)
+    stripes.run(_query_tiles, blocks, p_combo, p_code, combo_dirty, combo_inst, combo_traced,
+                cam_origin, width, height, n_pixels, lo, step, levels, shift, reg_lo, reg_hi,
+                seg_lo, seg_hi, seg_c, seg_r, light_kind, light_pos, light_dir, out,
+                box_scratch, traced_scratch)
 
 
 @njit(cache=True, nogil=True, parallel=True)

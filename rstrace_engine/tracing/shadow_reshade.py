@@ -60,7 +60,7 @@ from .light_bits import column
 from .light_linking import links_shadows
 from .light_nodes import WORLD, term_of
 from .light_records import _GEO
-from .light_reshade import _one_light_states, tick
+from .light_reshade import one_light_states, tick
 from .object_rays import meets_object, prove_rays
 from .record_codes import _secondary_depths as secondary_depths_kernel
 from .sample_rays import ALL, crossing_rays, crossing_rows, unpack_bits
@@ -196,8 +196,8 @@ def _light_term(sa, accel, j: int, n: int, geo: dict, surf: Surfaces, kept, coun
     L = len(sa.light_kind)
     state = np.empty(k, np.int8)
     with threads_for(k):
-        _one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
-                          state, np.empty(k, np.int32))
+        one_light_states(sa, j, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
+                         state, np.empty(k, np.int32))
         sh_state = np.full((k, L), -2, np.int8)
         sh_state[:, j] = state
         sf = Surfaces(*surf[:7], sh_state.reshape(-1))
@@ -236,8 +236,8 @@ def load_kernels(sa) -> None:
     e3, e1 = np.zeros((0, 3)), np.zeros(0)
     i64, u64 = np.zeros(0, np.int64), np.zeros(0, np.uint64)
     with threads_for(0):
-        _one_light_states(sa, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
-                          np.empty(0, np.int8), np.empty(0, np.int32))
+        one_light_states(sa, 0, surf.P, surf.NG, surf.NS, surf.Q, surf.mat, geo["inst"],
+                         np.empty(0, np.int8), np.empty(0, np.int32))
         crossing_rows(sa, surf.P, surf.Q, surf.NG, surf.NS, surf.mat, u64, i64, i64, 1, e3,
                       e3, e3, e1, np.zeros(0, np.int8), u64, u64.copy(), True, u64.copy(),
                       i64.copy())
@@ -346,8 +346,8 @@ def reshade(lr, sa, accel, lights: np.ndarray, world: np.ndarray, light_samples:
             if c < L:  # (the nodes the light samples: it faces them)
                 state = np.empty(len(rows), np.int8)
                 with threads_for(len(rows)):
-                    _one_light_states(sa, c, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
-                                      geo["inst"], state, np.empty(len(rows), np.int32))
+                    one_light_states(sa, c, surf.P, surf.NG, surf.NS, surf.Q, surf.mat,
+                                     geo["inst"], state, np.empty(len(rows), np.int32))
                 pt = np.flatnonzero(state[sel] == SH_SOFT)
             else:
                 pt = np.arange(len(sel))

@@ -18,33 +18,22 @@ from __future__ import annotations
 import hashlib
 import sys
 import time
+from pathlib import Path
 
 import numba
 import numpy as np
 
 from rstrace_engine import scenes
-from rstrace_engine.geometry.elements import LIGHT_POINT, LIGHT_SUN
 from rstrace_engine.tracing import light_reshade as lr
 from rstrace_engine.tracing import record_queries as rq
-from rstrace_engine.tracing.pixel_records import PixelRecords
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_stripes import light_state_points, tile_query_case  # noqa: E402  (the tests' inputs)
 
 
 def _tiles_call(width, height, spp, rng):
-    r = PixelRecords(width, height, spp, np.array([[0.0, 0, 0], [1.0, 1, 1]]))
-    n = width * height * spp
-    combo_inst = np.array([-1, 0, 1, 2, 3, 0], np.int64)
-    combo_traced = np.array([[0], [1], [2], [3], [3], [0]], np.uint64)
-    combo_dirty = np.array([False, False, False, False, False, True])
-    p_combo = rng.choice(6, n, p=[0.05, 0.3, 0.25, 0.2, 0.19, 0.01]).astype(np.uint32)
-    p_code = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
-    seg_lo, seg_hi = np.array([[0.2, 0.2, 0.5]]), np.array([[0.3, 0.3, 0.6]])
-    reg_lo, reg_hi = np.array([[0.6, 0.55, 0.6]]), np.array([[0.7, 0.65, 0.7]])
-    args = (p_combo, p_code, combo_dirty, combo_inst, combo_traced, np.array([0.5, 0.5, -2.0]),
-            width, height, width * height, r.lo, r.step, r.levels, r.shift, reg_lo, reg_hi,
-            seg_lo, seg_hi, 0.5 * (seg_lo + seg_hi), np.array([0.0866]),
-            np.array([LIGHT_POINT, LIGHT_SUN], np.int32),
-            np.array([[0.5, 2.0, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]]),
-            np.array([[0.0, 0.0, 0.0], [0.3, -1.0, 0.2]]))
+    n, head, tail = tile_query_case(rng, width, height, spp, False)
+    args = (*head, width, height, width * height, *tail)
     fn = getattr(rq, "query_tiles", None) or rq._query_tiles  # striped / base
 
     def call():
@@ -56,12 +45,7 @@ def _tiles_call(width, height, spp, rng):
 
 def _states_call(n, rng):
     sa = scenes.museum(64, 48).arrays()
-    lo, hi = sa.scene_aabb
-    P = lo + rng.random((n, 3)) * (hi - lo)
-    NG = rng.normal(size=(n, 3))
-    NG /= np.linalg.norm(NG, axis=1)[:, None]
-    MAT = rng.integers(0, len(sa.mat_model), n).astype(np.int32)
-    INST = rng.integers(0, len(sa.inst_mesh), n).astype(np.int32)
+    P, NG, MAT, INST = light_state_points(sa, n, rng)
     fn = getattr(lr, "one_light_states", None) or lr._one_light_states
     state, mat = np.empty(n, np.int8), np.empty(n, np.int32)
     NS, Q = NG.copy(), P + 1e-6 * NG

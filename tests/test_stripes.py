@@ -91,24 +91,23 @@ def test_costliest_kernels_compile_serially_without_reference_counting():
 
 
 
-def test_tile_query_stripes_equal_the_ray_by_ray_query():
-    """The records' tile query (``record_queries._query_tiles``, striped): every stripe
-    count and thread count marks exactly the rays the unculled ray-by-ray query marks
-    (``_query_primary``), on an image whose tiles span several blocks (misses, a dirty
-    combination, a hard light and a sun, a moved object's box and a region)."""
+def tile_query_case(rng, width: int, height: int, spp: int, dirty_every_tile: bool):
+    """Synthetic per-pixel records for the tile query (misses, a dirty combination, a hard
+    light and a sun, a moved object's box and a region): ``(n_rays, head, tail)``, the
+    arguments before and after ``width, height, n_pixels`` (scripts/stripe_kernels_ab.py
+    times the kernel on them)."""
     from rstrace_engine.geometry.elements import LIGHT_POINT, LIGHT_SUN
     from rstrace_engine.tracing import record_queries as rq
     from rstrace_engine.tracing.pixel_records import PixelRecords
 
-    rng = np.random.default_rng(7)
-    width, height, spp = 150, 90, 2
     r = PixelRecords(width, height, spp, np.array([[0.0, 0, 0], [1.0, 1, 1]]))
     n = width * height * spp
     combo_inst = np.array([-1, 0, 1, 2, 3, 0], np.int64)
     combo_traced = np.array([[0], [1], [2], [3], [3], [0]], np.uint64)
     combo_dirty = np.array([False, False, False, False, False, True])
     p_combo = rng.choice(6, n, p=[0.05, 0.3, 0.25, 0.2, 0.19, 0.01]).astype(np.uint32)
-    p_combo.reshape(spp, height, width)[:, ::rq.TILE, ::rq.TILE] = 5  # dirty: every tile
+    if dirty_every_tile:
+        p_combo.reshape(spp, height, width)[:, ::rq.TILE, ::rq.TILE] = 5
     p_code = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
     cam = np.array([0.5, 0.5, -2.0])
     seg_lo, seg_hi = np.array([[0.2, 0.2, 0.5]]), np.array([[0.3, 0.3, 0.6]])
@@ -117,9 +116,21 @@ def test_tile_query_stripes_equal_the_ray_by_ray_query():
     kind = np.array([LIGHT_POINT, LIGHT_SUN], np.int32)
     lgeo = np.array([[0.5, 2.0, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]])
     ldir = np.array([[0.0, 0.0, 0.0], [0.3, -1.0, 0.2]])
-    args = (p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam)
+    head = (p_combo, p_code, combo_dirty, combo_inst, combo_traced, cam)
     tail = (r.lo, r.step, r.levels, r.shift, reg_lo, reg_hi, seg_lo, seg_hi, seg_c, seg_r,
             kind, lgeo, ldir)
+    return n, head, tail
+
+
+def test_tile_query_stripes_equal_the_ray_by_ray_query():
+    """The records' tile query (``record_queries._query_tiles``, striped): every stripe
+    count and thread count marks exactly the rays the unculled ray-by-ray query marks
+    (``_query_primary``), on an image whose tiles span several blocks (misses, a dirty
+    combination, a hard light and a sun, a moved object's box and a region)."""
+    from rstrace_engine.tracing import record_queries as rq
+
+    width, height, spp = 150, 90, 2
+    n, args, tail = tile_query_case(np.random.default_rng(7), width, height, spp, True)
     want = np.zeros(n, np.bool_)
     rq._query_primary(*args, np.zeros((0, 3)), *tail, want)
     assert 0 < np.count_nonzero(want) < n // 2  # both kinds of ray, most culled
@@ -143,6 +154,19 @@ def test_tile_query_stripes_equal_the_ray_by_ray_query():
         numba.set_num_threads(old)
 
 
+def light_state_points(sa, n: int, rng):
+    """``n`` random points in ``sa``'s box with random unit normals, materials and
+    instances: ``(P, NG, MAT, INST)`` for a light's states (scripts/stripe_kernels_ab.py
+    too)."""
+    lo, hi = sa.scene_aabb
+    P = lo + rng.random((n, 3)) * (hi - lo)
+    NG = rng.normal(size=(n, 3))
+    NG /= np.linalg.norm(NG, axis=1)[:, None]
+    MAT = rng.integers(0, len(sa.mat_model), n).astype(np.int32)
+    INST = rng.integers(0, len(sa.inst_mesh), n).astype(np.int32)
+    return P, NG, MAT, INST
+
+
 def test_light_states_shares_cover_every_point_once():
     """``light_reshade._one_light_states`` over 1, 2, 3 and 7 shares of the points (each
     share ``first`` of ``step`` in turn) writes every point, and the same states and
@@ -151,14 +175,8 @@ def test_light_states_shares_cover_every_point_once():
     from rstrace_engine.tracing import light_reshade
 
     sa = scenes.three_spheres(32, 24).arrays()
-    rng = np.random.default_rng(3)
     n = 1001
-    lo, hi = sa.scene_aabb
-    P = lo + rng.random((n, 3)) * (hi - lo)
-    NG = rng.normal(size=(n, 3))
-    NG /= np.linalg.norm(NG, axis=1)[:, None]
-    MAT = rng.integers(0, len(sa.mat_model), n).astype(np.int32)
-    INST = rng.integers(0, len(sa.inst_mesh), n).astype(np.int32)
+    P, NG, MAT, INST = light_state_points(sa, n, np.random.default_rng(3))
     results = []
     for step in (1, 2, 3, 7):
         state, mat = np.full(n, 99, np.int8), np.full(n, -99, np.int32)

@@ -88,3 +88,23 @@ def test_mark_used_counts_the_rows_nodes_use():
         np.testing.assert_array_equal(used, ref)
         assert n == len(np.union1d(p, s)) == int(ref.sum())
     assert _mark_used(np.zeros(0, np.uint16), np.zeros(3, np.bool_)) == 0
+
+
+def test_the_warm_up_loads_both_splices():
+    """The in-place splice takes an empty splice's path: the warm-up still reaches the
+    copying one (``_splice_geo``), which a frame whose replaced nodes change hit flags
+    runs (review: it compiled cold in that frame). In a process of its own: other tests
+    run the copying splice."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("from rstrace_engine.tracing import light_nodes as n; "
+            "from rstrace_engine.tracing.light_records import load_kernels; load_kernels(); "
+            "print(bool(n._splice_geo.signatures), bool(n._splice_entries.signatures))")
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True, cwd=root)
+    assert out.stdout.split() == ["True", "True"], out.stdout

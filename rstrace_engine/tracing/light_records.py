@@ -58,8 +58,10 @@ from ..geometry.scene import SceneArrays
 from .batches import accumulate, threads_for
 from .light_nodes import (
     EMIT,
+    GEO_KEYS,
     RECORD_SLOTS,
     WORLD,
+    _splice_geo,
     count_terms,
     detach_terms,
     fill_terms,
@@ -200,6 +202,8 @@ def load_kernels() -> None:
     s.detach(0, np.zeros(0, np.int64), np.zeros((0, 3), bool), np.zeros((0, 3, 3)))
     g = _Part.empty(True, True)  # (an incremental frame's splice)
     g.splice(np.zeros(0, np.int64), _Part.empty(True, True))
+    e = g.geo  # (and the copying splice of a frame whose replaced nodes change hit flags)
+    _splice_geo(np.zeros(0, np.int64), *([e[k] for k in GEO_KEYS] * 3))
     # the samples of the secondary nodes, which every recombination asks for (a kernel
     # that only runs over nodes: an empty frame's records never load it)
     _secondary_rays(np.zeros(0, np.int32), 0, np.zeros(0, np.int32))

@@ -66,7 +66,7 @@ def _one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat, first, step):
 
 def one_light_states(sa, j, P, NG, NS, Q, MAT, INST, state, mat) -> None:
     """:func:`_one_light_states` over the points on the calling thread's numba thread count
-    (:func:`~rstrace_engine.stripes.run`, blocks of points dealt in turn)."""
+    (:func:`~rstrace_engine.stripes.run`, each thread a contiguous share of the points)."""
     stripes.run(_one_light_states, stripes.blocks_of(len(P)), sa, j, P, NG, NS, Q, MAT, INST,
                 state, mat)
 

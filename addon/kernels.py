@@ -55,6 +55,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.batches.accumulate", "tracing.pixel_records._encode_nodes",
          "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
          "tracing.record_queries._query_tiles", "tracing.record_codes._secondary_rays",
+         "tracing.record_codes._mark_used",
          "tracing.light_records._recombine_primary",
          "tracing.light_records._recombine_secondary",
          "tracing.light_reshade._one_light_states", "tracing.light_nodes.count_terms",
@@ -99,7 +100,7 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",
            "tracing.shader._shade_kernel", "tracing.batches.scatter_add",
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
-           "tracing.whitted._child_tags", "tracing.soft_lights._node_seeds")
+           "tracing.record_codes._mark_used", "tracing.whitted._child_tags", "tracing.soft_lights._node_seeds")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

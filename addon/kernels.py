@@ -100,7 +100,8 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",
            "tracing.shader._shade_kernel", "tracing.batches.scatter_add",
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
-           "tracing.record_codes._mark_used", "tracing.whitted._child_tags", "tracing.soft_lights._node_seeds")
+           "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
+           "tracing.soft_lights._node_seeds")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

@@ -195,6 +195,12 @@ class PixelRecords:
                                self.t_lit.astype(np.uint64), pad,
                                self.t_flags.astype(np.uint64)[:, None]], axis=1)
 
+    def _fit(self, width: int) -> None:
+        """Widen the table's light sets to ``width`` words where they are narrower (light
+        slots added since the rows were made: none of their bits is set)."""
+        if width > self.n_words:
+            self._set_table(self._wide(width))
+
     def _set_table(self, wide: np.ndarray) -> None:
         w = (wide.shape[1] - 2) // 2
         masks = wide[:, 1:1 + 2 * w]
@@ -426,8 +432,7 @@ class PixelRecords:
         nodes whose bits change are interned again (few, from one step of a drag to the
         next)."""
         w, bit = j >> 6, np.uint64(1) << np.uint64(j & 63)
-        if w >= self.n_words:  # (a light slot past the table's sets: widen them)
-            self._set_table(self._wide(w + 1))
+        self._fit(w + 1)  # (a light slot past the table's sets)
         t_traced = self.t_traced.astype(np.uint64)  # (the table: small)
         t_lit = self.t_lit.astype(np.uint64)
         changed = False
@@ -469,8 +474,7 @@ class PixelRecords:
         arr = getattr(self, name)
         wide = False
         for j, (rows, lit) in done.items():
-            if j >> 6 >= self.n_words:
-                self._set_table(self._wide((j >> 6) + 1))
+            self._fit((j >> 6) + 1)
             c = arr[rows].astype(np.int64)
             old = self.t_lit[c].astype(np.uint64)
             new = set_column(old, j, lit)
@@ -522,8 +526,7 @@ class PixelRecords:
         (:class:`~.sample_rays.SampleCandidates`). ``placed``: the world balls of the objects the
         edits placed (:func:`~.sample_proofs.placed_balls`), which prove samples stay
         blocked (:func:`~.sample_proofs.query_samples`), or None."""
-        if words(len(sa.light_kind)) > self.n_words:  # (lights added since the records: no
-            self._set_table(self._wide(words(len(sa.light_kind))))  # bit of theirs is set)
+        self._fit(words(len(sa.light_kind)))  # (lights added since the records)
         combo_inst = self.t_inst.astype(np.int64)
         combo_traced = self.t_traced.astype(np.uint64)
         combo_lit = self.t_lit.astype(np.uint64)

@@ -642,3 +642,32 @@ def test_mesh_read_allocates_only_what_the_mesh_keeps():
             np.testing.assert_array_equal(mesh.slots, np.minimum(poly % 3, 1))
         else:
             assert mesh.slots is None, me.name
+
+
+def test_export_checks_refuse_bad_vertices_and_all_degenerate_meshes():
+    """``export._checked`` (the read's own checks, without temporaries of the mesh's size):
+    NaN or infinite coordinates, coordinates past ``COORD_MAX`` and meshes whose every
+    triangle is degenerate are refused with a message naming the mesh; a mesh whose first
+    4,096 triangles are degenerate but one later is not is kept (the probe's vertices are
+    its own triangles', the same float64 values)."""
+    from addon.export import _AREA_PROBE, _checked
+    from rstrace_engine import tolerances as tol
+    from rstrace_engine.geometry.scene import Mesh
+
+    n = _AREA_PROBE + 10
+    v = np.zeros((3 * n, 3), np.float32)  # every triangle a point at the origin...
+    v[-3:] = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)]  # ...but the last
+    tris = np.arange(3 * n, dtype=np.int32).reshape(n, 3)
+    tris[: _AREA_PROBE] = tris[-1]  # (the probe's triangles name the proper one's vertices
+    tris[: _AREA_PROBE, 1] = tris[-1, 0]  # twice: degenerate)
+    assert _checked(Mesh("Late", v, tris, owned=True), "Late", b"", "RENDER").mesh is not None
+    flat = Mesh("Flat", v, tris[: _AREA_PROBE], owned=True)
+    assert "all 4096 triangles are degenerate" in _checked(flat, "Flat", b"", "RENDER").reason
+    for bad, message in ((np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"),
+                         (-np.inf, "NaN or infinite"), (2.0 * tol.COORD_MAX, "exceed"),
+                         (-2.0 * tol.COORD_MAX, "exceed")):
+        w = v.copy()
+        w[5, 1] = bad
+        entry = _checked(Mesh("Bad", w, tris, owned=True), "Bad", b"", "RENDER")
+        assert entry.mesh is None and entry.reason.startswith("mesh 'Bad': ")
+        assert message in entry.reason, (bad, entry.reason)

@@ -125,8 +125,13 @@ _AREA_PROBE = 4096
 
 def _has_area(v: np.ndarray, tris: np.ndarray) -> bool:
     """Whether any triangle has an area (the core's test, ``proper_triangles``), testing
-    the first :data:`_AREA_PROBE` triangles before the rest."""
-    if np.any(proper_triangles(v, tris[:_AREA_PROBE])):
+    the first :data:`_AREA_PROBE` triangles before the rest: on their own vertices only
+    (the same float64 values, so the same answers; the core's test converts every vertex
+    it is given to float64)."""
+    probe = tris[:_AREA_PROBE]
+    corners = v[probe.reshape(-1)]
+    if np.any(proper_triangles(corners, np.arange(len(corners), dtype=np.int32)
+                               .reshape(-1, 3))):
         return True
     return len(tris) > _AREA_PROBE and bool(np.any(proper_triangles(v, tris[_AREA_PROBE:])))
 
@@ -152,10 +157,12 @@ def _checked(mesh, name: str, fingerprint: bytes, source: str) -> MeshEntry:
     if mesh is None:
         return MeshEntry(None, f"its mesh '{name}' {NO_FACES}", fingerprint, source)
     v = mesh.vertices
-    if not np.all(np.isfinite(v)):
+    # (numpy's min and max: two passes, no temporaries; NaN or infinity reach them)
+    lo, hi = float(v.min()), float(v.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
         return MeshEntry(None, f"mesh '{name}': NaN or infinite vertex coordinates",
                          fingerprint, source)
-    if float(np.max(np.abs(v))) > tol.COORD_MAX:
+    if max(-lo, hi) > tol.COORD_MAX:
         return MeshEntry(None, f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}",
                          fingerprint, source)
     if not _has_area(v, mesh.triangles):

@@ -1,14 +1,17 @@
 """Evaluated Blender meshes -> :class:`rstrace_engine.geometry.scene.Mesh`, one datablock at a
 time, and a cheap fingerprint that tells whether a mesh changed since it was last read.
 
-Everything is read with ``foreach_get`` into numpy (no per-vertex Python), except the
-corners of Blender's triangulation, which ``foreach_get`` reads item by item (about 100 ms
-per million triangles): :func:`corner_triangles` copies Blender's own contiguous array of
-them where it can prove the layout (about 15 ms). :func:`mesh_fingerprint` reads only raw
-attribute arrays (about 1 ms per million
-values; those :func:`mesh_arrays` just read are not read again), so an unchanged mesh is
-recognised without re-reading it where the journal (:mod:`.journal`) cannot vouch for it
-(F12 and animation frames, where no ``depsgraph.updates`` say what changed).
+Blender's arrays are read in place where they are one array (:func:`blender_array`: a
+read-only view of Blender's memory, its layout proven from the items' addresses and checked
+against Blender's own per-item answer), else with ``foreach_get`` into numpy (no per-vertex
+Python): the corners of Blender's triangulation, which ``foreach_get`` reads item by item
+(about 100 ms per million triangles), the raw attribute arrays (positions, corner vertices,
+edges, uvs). Only what the Mesh keeps is written: the positions' copy and the per-triangle
+arrays, gathered straight from Blender's arrays (no temporaries of a mesh's size: fresh
+memory is most of a large first read's cost). :func:`mesh_fingerprint` hashes only raw
+attribute arrays (those :func:`mesh_arrays` just read are not read again), so an unchanged
+mesh is recognised without re-reading it where the journal (:mod:`.journal`) cannot vouch
+for it (F12 and animation frames, where no ``depsgraph.updates`` say what changed).
 
 Layer: imported by ``export`` only.
 """
@@ -31,17 +34,65 @@ _FINGERPRINT_ATTRIBUTES = (("position", "vector", 3, np.float32),
                            (".edge_verts", "value", 2, np.int32))
 
 
-def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
-    """A generic attribute's values (``size`` numbers), or None if the mesh lacks it.
+#: Items of a collection whose values :func:`blender_array` compares with Blender's own
+#: per-item answer (spread over it, the first and the last among them) before it trusts
+#: its view.
+_PROBES = 17
 
-    Attribute arrays are read as raw memory (about 1 ms per million values), unlike the
-    per-item RNA path of e.g. ``me.loops.foreach_get("vertex_index")`` (about 100 ms).
+
+def blender_array(items, n: int, width: int, dtype, prop: str) -> np.ndarray | None:
+    """Blender's own array behind the collection ``items`` (``n`` items of ``width``
+    values of ``dtype``, the item property ``prop``) as a read-only numpy view of it, no
+    copy; None where it cannot be proven to be one (then the caller copies it with
+    ``foreach_get``).
+
+    The items' addresses (``as_pointer``) must say one contiguous array -- each item
+    ``width`` values after the last, the last where such an array puts it -- and
+    :data:`_PROBES` items read through the view must equal Blender's own per-item answer.
+    The view is valid only while the mesh is: it is read within one mesh read
+    (:func:`mesh_arrays`, :func:`mesh_fingerprint`) and never kept (what the Mesh keeps
+    is gathered or copied from it into arrays of its own).
     """
+    if n <= 0:
+        return None
+    itemsize = width * np.dtype(dtype).itemsize
+    try:
+        first, last = items[0].as_pointer(), items[n - 1].as_pointer()
+        second = items[1].as_pointer() if n > 1 else first + itemsize
+    except (AttributeError, IndexError, TypeError, ReferenceError):
+        return None
+    if first == 0 or second - first != itemsize or last - first != itemsize * (n - 1):
+        return None
+    view = np.frombuffer((ctypes.c_char * (itemsize * n)).from_address(first), dtype)
+    rows = view.reshape(n, width)
+    for i in np.unique(np.linspace(0, n - 1, _PROBES).astype(np.int64)):
+        try:
+            want = getattr(items[int(i)], prop)
+        except (AttributeError, IndexError, TypeError, ReferenceError):
+            return None
+        if ((want,) if width == 1 else tuple(want)) != tuple(rows[i].tolist()):
+            return None
+    view.flags.writeable = False
+    return view
+
+
+def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
+    """A generic attribute's values (``size`` numbers), or None if the mesh lacks it: a
+    read-only view of Blender's own array where it is one (:func:`blender_array`, no
+    copy), else read as raw memory with ``foreach_get`` (about 1 ms per million values,
+    unlike the per-item RNA path of e.g. ``me.loops.foreach_get("vertex_index")``, about
+    100 ms). Not to be kept beyond the mesh read (the view is Blender's memory)."""
     attr = me.attributes.get(name)
     if attr is None:
         return None
+    data = attr.data
+    n = len(data)
+    if n and size % n == 0:
+        view = blender_array(data, n, size // n, dtype, prop)
+        if view is not None:
+            return view
     out = np.empty(size, dtype)
-    attr.data.foreach_get(prop, out)
+    data.foreach_get(prop, out)
     return out
 
 
@@ -53,39 +104,51 @@ def _raw(me, raw: dict, name: str, prop: str, size: int, dtype) -> np.ndarray | 
     return values
 
 
-#: Triangles whose corners :func:`corner_triangles` compares with Blender's per-item read
-#: (spread over the mesh, the first and the last among them) before it trusts its copy.
-_CORNER_PROBES = 17
+def _uv(me, layer, raw: dict, nl: int) -> np.ndarray:
+    """The corner uvs (nl * 2 float32) of UV map ``layer``, kept in ``raw`` as ``(name,
+    values)``: Blender's own array where it is one (:func:`blender_array`), else a copy."""
+    named = raw.get("uv")
+    if named is not None and named[0] == layer.name:
+        return named[1]
+    uv = blender_array(layer.uv, nl, 2, np.float32, "vector")
+    if uv is None:
+        uv = np.empty(nl * 2, np.float32)
+        layer.uv.foreach_get("vector", uv)
+    raw["uv"] = (layer.name, uv)
+    return uv
+
+
+def _corner_normals(me, raw: dict, nl: int) -> np.ndarray:
+    """The corner normals (nl * 3 float32), kept in ``raw``: Blender's own array where it
+    is one (:func:`blender_array`), else a copy."""
+    cn = raw.get("corner_normals")
+    if cn is None:
+        cn = blender_array(me.corner_normals, nl, 3, np.float32, "vector")
+        if cn is None:
+            cn = np.empty(nl * 3, np.float32)
+            me.corner_normals.foreach_get("vector", cn)
+        raw["corner_normals"] = cn
+    return cn
 
 
 def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     """The corners (indices into the mesh's loops) of each of the ``nt`` triangles of
     ``tris_rna`` (``me.loop_triangles``, Blender's triangulation): (nt, 3) int32, what
-    ``tris_rna.foreach_get("loops", ...)`` gives.
+    ``tris_rna.foreach_get("loops", ...)`` gives (the caller checks that every corner lies
+    in ``0 .. corners - 1``, :func:`_in_range`).
 
     ``foreach_get`` reads this array an item at a time (about 100 ms per million
     triangles). Blender keeps it as one contiguous array of ``int3`` (Blender 4.1 and
-    later); where the items' addresses (``as_pointer``) say so -- 12 bytes apart, the last
-    where a contiguous array puts it -- it is copied in one go, then checked: the corners
-    of :data:`_CORNER_PROBES` triangles (the first and the last among them) must equal
-    Blender's own per-item answer and every corner must lie in ``0 .. corners - 1``.
-    Anything else (another layout, a failed check) reads it with ``foreach_get``.
+    later): where :func:`blender_array` proves it, it is read in place (a read-only view
+    of Blender's array, no copy: valid only within the mesh read), else read with
+    ``foreach_get``.
     """
-    out = np.empty((nt, 3), np.int32)
-    try:
-        first, last = tris_rna[0].as_pointer(), tris_rna[nt - 1].as_pointer()
-        second = tris_rna[1].as_pointer() if nt > 1 else first + 12
-        contiguous = first != 0 and second - first == 12 and last - first == 12 * (nt - 1)
-    except (AttributeError, IndexError, TypeError):
-        contiguous = False
-    if contiguous:
-        out[:] = np.frombuffer((ctypes.c_int32 * (3 * nt)).from_address(first),
-                               np.int32).reshape(nt, 3)
-        probes = np.unique(np.linspace(0, nt - 1, _CORNER_PROBES).astype(np.int64))
-        if all(tuple(out[i]) == tuple(tris_rna[int(i)].loops) for i in probes) \
-                and int(out.min()) >= 0 and int(out.max()) < corners:
-            return out
-    tris_rna.foreach_get("loops", out.reshape(-1))
+    view = blender_array(tris_rna, nt, 3, np.int32, "loops")
+    if view is not None:
+        out = view.reshape(nt, 3)
+    else:
+        out = np.empty((nt, 3), np.int32)
+        tris_rna.foreach_get("loops", out.reshape(-1))
     return out
 
 
@@ -97,29 +160,31 @@ def _in_range(index: np.ndarray, size: int, name: str, what: str) -> None:
                          f"(Blender's mesh data is inconsistent)")
 
 
-def _gather(values: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
-    """``out[...] = values[index]`` (rows of ``values`` along its first axis), written
-    straight into ``out``: ``np.take`` with ``out=`` and its default ``mode="raise"``
-    gathers into a temporary of ``out``'s size and copies it (a 24 MB temporary for a
-    million triangles' uvs, fresh pages each time); ``mode="clip"`` writes in place, and
-    clips nothing here: the caller checked the range (:func:`_in_range`)."""
-    np.take(values, index, axis=0, out=out, mode="clip")
+def _gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``values[index]`` (rows of ``values`` along its first axis) as a fresh array, the
+    one the Mesh keeps. Numpy's indexing casts the int32 ``index`` in small buffered chunks;
+    ``np.take`` converts all of it to int64 first (a temporary of 8 bytes an index: 96 MB
+    for the corners of 4M triangles, twice per mesh). The caller checked the range
+    (:func:`_in_range`)."""
+    return values[index]
 
 
 def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     """Triangles of an evaluated mesh datablock as a :class:`Mesh`, or None if it has none.
 
-    Everything is read once with ``foreach_get`` into numpy arrays allocated for it, from
-    raw attribute arrays where Blender has them; the corners of Blender's own triangulation
-    (``loop_triangles.loops``, read item by item by ``foreach_get``) are copied in one go
-    where the layout allows (:func:`corner_triangles`). The per-triangle
-    arrays are gathered (``np.take(..., out=)``) straight into the arrays the Mesh keeps.
-    Normals come from the mesh's normals domain: per vertex as Blender holds them (POINT,
-    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the engine
-    computes each triangle's own) or per corner (CORNER); uvs from the active render UV
-    map. The Mesh is ``owned``: its arrays are fresh, handed over without a copy.
-    ``raw`` (attribute name -> values) holds the raw arrays
-    :func:`mesh_fingerprint` already read, and receives those read here (for it).
+    Blender's arrays (positions, corner vertices, the corners of its own triangulation,
+    uvs, corner normals) are read in place where they are one array
+    (:func:`blender_array`: a view, no copy), else with ``foreach_get``; the per-triangle
+    arrays the Mesh keeps are gathered straight from them (:func:`_gather`) and the
+    positions copied once: nothing else of a mesh's size is allocated. Normals come from
+    the mesh's normals domain: per vertex as Blender holds them (POINT,
+    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the
+    engine computes each triangle's own) or per corner (CORNER); uvs from the active
+    render UV map; material slots only where the mesh has material indices (else none:
+    every triangle slot 0). The Mesh is ``owned``: its arrays are fresh, handed over
+    without a copy. ``raw`` (attribute name -> values) holds the raw arrays
+    :func:`mesh_fingerprint` already read, and receives those read here (for it); they
+    may be views of Blender's memory, valid only during this read.
     """
     tris_rna = me.loop_triangles
     nt = len(tris_rna)
@@ -131,21 +196,27 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     if verts is None:
         verts = np.empty(nv * 3, np.float32)
         me.vertices.foreach_get("co", verts)
+    elif not verts.flags.owndata:  # Blender's own array: the Mesh keeps a copy
+        verts = verts.copy()
     corner_vert = _raw(me, raw, ".corner_vert", "value", nl, np.int32)
     if corner_vert is None:
         corner_vert = np.empty(nl, np.int32)
         me.loops.foreach_get("vertex_index", corner_vert)
     loops = corner_triangles(tris_rna, nt, nl)
     _in_range(loops, nl, name, "triangle corner")
-    tris = np.empty((nt, 3), np.int32)
-    _gather(corner_vert, loops, tris)
+    tris = _gather(corner_vert, loops)
     face_mat = _raw(me, raw, "material_index", "value", nf, np.int32)
-    slots = np.zeros(nt, np.int32)
+    nslots = max(len(me.materials), 1)
+    slots = None  # (no material indices: every triangle slot 0, no rows)
     if face_mat is not None:
-        poly = np.empty(nt, np.int32)
-        me.loop_triangle_polygons.foreach_get("value", poly)
+        polys = me.loop_triangle_polygons
+        poly = blender_array(polys, nt, 1, np.int32, "value")
+        if poly is None:
+            poly = np.empty(nt, np.int32)
+            polys.foreach_get("value", poly)
         _in_range(poly, nf, name, "triangle face")
-        _gather(face_mat, poly, slots)
+        slots = _gather(face_mat, poly)
+        np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices
 
     normals = vn = None
     domain = me.normals_domain
@@ -153,30 +224,14 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         vn = np.empty((nv, 3), np.float32)
         me.vertex_normals.foreach_get("vector", vn.reshape(-1))
     elif domain != "FACE":  # CORNER: custom or split normals
-        normals = np.empty((nt, 3, 3), np.float32)
-        cn = raw.get("corner_normals")
-        if cn is None:
-            cn = raw["corner_normals"] = np.empty(nl * 3, np.float32)
-            me.corner_normals.foreach_get("vector", cn)
         # (Cycles too shades every triangle with the corner normals here, flat faces with
         # their polygon's normal: no per-triangle normals)
-        _gather(cn.reshape(nl, 3), loops, normals)
+        normals = _gather(_corner_normals(me, raw, nl).reshape(nl, 3), loops)
 
     uvs = None
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        named = raw.get("uv")
-        if named is not None and named[0] == layer.name:
-            uv = named[1]
-        else:
-            uv = np.empty(nl * 2, np.float32)
-            layer.uv.foreach_get("vector", uv)
-            raw["uv"] = (layer.name, uv)
-        uv = uv.reshape(nl, 2)
-        uvs = np.empty((nt, 3, 2), np.float32)
-        _gather(uv, loops, uvs)
-    nslots = max(len(me.materials), 1)
-    np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices
+        uvs = _gather(_uv(me, layer, raw, nl).reshape(nl, 2), loops)
     # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
     # its own normal, as Cycles shades such triangles with their geometric normal (the
     # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
@@ -187,7 +242,8 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
-    """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only.
+    """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only
+    (Blender's own, read in place where they are one array: :func:`blender_array`).
 
     Two reads of an unchanged mesh give the same digest; any change of positions, topology,
     material indices, sharpness, custom normals or the render UV map changes it. ``raw``:
@@ -211,22 +267,11 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
         h.update(name.encode())
         h.update(values)  # (its buffer: no copy, the same bytes)
     if me.normals_domain == "CORNER":  # custom or split normals
-        cn = raw.get("corner_normals")
-        if cn is None:
-            cn = raw["corner_normals"] = np.empty(counts[2] * 3, np.float32)
-            me.corner_normals.foreach_get("vector", cn)
-        h.update(cn)
+        h.update(_corner_normals(me, raw, counts[2]))
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        named = raw.get("uv")
-        if named is not None and named[0] == layer.name:
-            uv = named[1]
-        else:
-            uv = np.empty(counts[2] * 2, np.float32)
-            layer.uv.foreach_get("vector", uv)
-            raw["uv"] = (layer.name, uv)
         h.update(layer.name.encode())
-        h.update(uv)
+        h.update(_uv(me, layer, raw, counts[2]))
     return h.digest()[:16]
 
 

@@ -129,14 +129,28 @@ def test_bad_input_is_named(owned):
 
 
 def test_one_pass_checks_agree_with_numpy():
-    """The checks' kernels: non-finite counts and the largest magnitude of the vertices,
-    the index range of the triangles, the non-finite float32 count."""
+    """The checks' kernels: non-finite counts, the largest magnitude and the box of the
+    vertices (the box numpy's min and max give, signed zeros included: a zero bound is
+    theirs), the index range of the triangles, the non-finite float32 count."""
     rng = np.random.default_rng(5)
     v = rng.normal(size=(1000, 3)) * 7.0
     v[[4, 9], [0, 2]] = [np.inf, np.nan]
-    bad, big = mesh_check._vertex_stats(v)
+    bad, big, lo, hi = mesh_check._vertex_stats(v)
     finite = v[np.isfinite(v)]
     assert bad == 2 and big == np.abs(finite).max()
+    good = np.delete(v, [4, 9], axis=0)
+    np.testing.assert_array_equal(lo, good.min(axis=0))
+    np.testing.assert_array_equal(hi, good.max(axis=0))
+    for flat in (0.0, -0.0):  # a plane at zero: the box's zeros are numpy's, bit for bit
+        w = good.copy()
+        w[:, 2] = flat
+        w[::2, 2] = -flat
+        _, box_lo, box_hi = mesh_check._vertices("w", w, keep=True)
+        want_lo, want_hi = w.min(axis=0), w.max(axis=0)
+        assert box_lo.tobytes() == want_lo.tobytes() and box_hi.tobytes() == want_hi.tobytes()
+        _, box_lo, box_hi = mesh_check._vertices("v", good, keep=True)
+        assert box_lo.tobytes() == good.min(axis=0).tobytes()
+        assert box_hi.tobytes() == good.max(axis=0).tobytes()
     t = rng.integers(-5, 900, size=3000).astype(np.int32)
     assert mesh_check._index_range(t) == (t.min(), t.max())
     f = rng.normal(size=500).astype(np.float32)

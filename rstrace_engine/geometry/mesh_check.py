@@ -27,18 +27,26 @@ from .packing import compact_slots
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _vertex_stats(v):
-    """``(non_finite, max_abs)`` of vertices ``v`` (n, 3) float64 in one pass (the
-    largest magnitude of the finite values)."""
+    """``(non_finite, max_abs, lo, hi)`` of vertices ``v`` (n, 3) float64 in one pass: the
+    largest magnitude of the finite values and the box of the finite values per axis
+    (``lo`` (3,) ``inf`` and ``hi`` ``-inf`` where an axis has none)."""
     bad = 0
     big = 0.0
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
     for i in range(v.shape[0]):
         for q in range(3):
             x = v[i, q]
             if not np.isfinite(x):
                 bad += 1
-            elif abs(x) > big:
+                continue
+            if abs(x) > big:
                 big = abs(x)
-    return bad, big
+            if x < lo[q]:
+                lo[q] = x
+            if x > hi[q]:
+                hi[q] = x
+    return bad, big, lo, hi
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -96,13 +104,16 @@ def _vertices(name: str, value, keep: bool) -> tuple[np.ndarray, np.ndarray, np.
     arr = np.ascontiguousarray(arr)
     if arr.shape[0] == 0:
         raise SceneError(f"mesh '{name}': has no triangles")
-    bad, big = _vertex_stats(arr)
+    bad, big, lo, hi = _vertex_stats(arr)
     if bad:
         raise SceneError(f"mesh '{name}': {bad} NaN or infinite value(s)")
     if big > tol.COORD_MAX:
         raise SceneError(f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}")
-    # (numpy's min and max: which of two signed zeros they keep is theirs)
-    return arr, arr.min(axis=0), arr.max(axis=0)
+    if not (np.all(lo) and np.all(hi)):
+        # a zero bound: which of two signed zeros numpy's min and max keep is theirs (the
+        # box the scene has always had), so they decide it (two more passes, only here)
+        return arr, arr.min(axis=0), arr.max(axis=0)
+    return arr, lo, hi
 
 
 def _triangles(name: str, value, nverts: int, keep: bool) -> np.ndarray:

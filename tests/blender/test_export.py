@@ -454,17 +454,20 @@ def test_export_of_a_million_triangles():
 
 class _Items:
     """``me.loop_triangles`` seen through a test: items' addresses shifted from ``shift_at``
-    on (a layout that is not one array), ``foreach_get`` counted."""
+    on (a layout that is not one array), the item ``wrong_at`` answering other corners
+    than the array holds, ``foreach_get`` counted."""
 
-    def __init__(self, tris, shift_at=None):
+    def __init__(self, tris, shift_at=None, wrong_at=None):
         self.tris, self.shift_at, self.reads = tris, shift_at, 0
+        self.wrong_at = wrong_at  # an item whose loops differ from the array's
 
     def __getitem__(self, i):
         item = self.tris[i]
         shift = 4 if self.shift_at is not None and i >= self.shift_at else 0
+        wrong = i == self.wrong_at
 
         class _Item:
-            loops = item.loops
+            loops = tuple(c + 1 for c in item.loops) if wrong else item.loops
 
             def as_pointer(self):
                 return item.as_pointer() + shift
@@ -476,9 +479,9 @@ class _Items:
         self.tris.foreach_get(prop, out)
 
 
-def test_corner_triangles_are_blenders_own_copied_in_one_go():
-    """``meshes.corner_triangles`` copies Blender's array of triangle corners (about 15 ms
-    per million triangles instead of the ~100 ms of ``foreach_get``'s per-item read) and
+def test_corner_triangles_are_blenders_own_read_in_place():
+    """``meshes.corner_triangles`` reads Blender's array of triangle corners in place (a
+    view, not the ~100 ms per million triangles of ``foreach_get``'s per-item read) and
     gives exactly what ``foreach_get`` gives, on tris, quads (a concave one, which Blender
     splits on its other diagonal) and n-gons; where the items are not one array it reads
     them with ``foreach_get``."""
@@ -499,7 +502,7 @@ def test_corner_triangles_are_blenders_own_copied_in_one_go():
         items = _Items(tris)
         got = corner_triangles(items, nt, len(me.loops))
         np.testing.assert_array_equal(got, want, err_msg=me.name)
-        assert items.reads == 0, me.name  # copied, not read item by item
+        assert items.reads == 0, me.name  # read in place, not item by item
         items = _Items(tris, shift_at=nt // 2)  # two arrays: read with foreach_get
         np.testing.assert_array_equal(corner_triangles(items, nt, len(me.loops)), want)
         assert items.reads == 1
@@ -507,24 +510,164 @@ def test_corner_triangles_are_blenders_own_copied_in_one_go():
             assert want.tolist() == [[0, 1, 3], [1, 2, 3]]  # the flipped diagonal
 
 
-def test_corner_gathers_write_in_place_after_a_range_check():
-    """``meshes._gather`` writes ``values[index]`` (rows) straight into the Mesh's array
-    (``np.take``'s default mode with ``out=`` went through a temporary of its size), on
-    indices ``meshes._in_range`` checked first: an index out of range is refused with a
-    message naming the mesh, before anything is gathered."""
+def test_corner_gathers_after_a_range_check():
+    """``meshes._gather`` gives ``values[index]`` (rows) as a fresh array, on indices
+    ``meshes._in_range`` checked first: an index out of range is refused with a message
+    naming the mesh, before anything is gathered."""
     from addon.meshes import _gather, _in_range
     from rstrace_engine.geometry.scene import SceneError
 
     values = np.arange(20, dtype=np.float32).reshape(10, 2)
     index = np.array([[0, 9, 3], [4, 4, 1]], np.int32)
     _in_range(index, 10, "Ball", "triangle corner")
-    out = np.full((2, 3, 2), np.nan, np.float32)
-    _gather(values, index, out)
-    np.testing.assert_array_equal(out, values[index])
-    flat = np.empty((2, 3), np.int32)
-    _gather(np.arange(10, 20, dtype=np.int32), index, flat)
-    np.testing.assert_array_equal(flat, index + 10)
+    out = _gather(values, index)
+    np.testing.assert_array_equal(out, values[index.astype(np.int64)])
+    assert out.shape == (2, 3, 2) and out.dtype == np.float32 and out.flags.c_contiguous
+    np.testing.assert_array_equal(_gather(np.arange(10, 20, dtype=np.int32), index),
+                                  index + 10)
     for bad in ([0, 10], [-1, 3]):
         with pytest.raises(SceneError, match=r"mesh 'Ball': a triangle corner index out of "
                                              r"range 0\.\.9"):
             _in_range(np.array(bad, np.int32), 10, "Ball", "triangle corner")
+
+
+def _read_scene_meshes():
+    """Meshes of every kind the read handles, evaluated: quads and fans with uvs (POINT
+    normals), a flat one (FACE), one with a sharp face (CORNER), one with material
+    indices, a big grid (131k triangles)."""
+    b.setup_render(32, 24)
+    smooth = b.uv_sphere("Smooth", 1.0, 16, 8)
+    smooth.shade_smooth()
+    flat = b.uv_sphere("Flat", 1.0, 12, 6)
+    flat.shade_flat()
+    split = b.uv_sphere("Split", 1.0, 16, 8)
+    split.shade_smooth()
+    split.polygons[0].use_smooth = False
+    slots = b.uv_sphere("Slots", 1.0, 16, 8)
+    for name in ("A", "B"):
+        slots.materials.append(bpy.data.materials.new(name))
+    slots.polygons.foreach_set("material_index",
+                               np.arange(len(slots.polygons), dtype=np.int32) % 3)
+    big = _big_grid(256)
+    for k, me in enumerate((smooth, flat, split, slots, big)):
+        b.add_object(me.name, me, (3.0 * k, 0.0, 0.0))
+    bpy.context.view_layer.update()
+    dg = bpy.context.evaluated_depsgraph_get()
+    return [bpy.data.objects[me.name].evaluated_get(dg).data
+            for me in (smooth, flat, split, slots, big)]
+
+
+def test_blender_arrays_are_read_in_place_and_equal_foreach_get():
+    """``meshes.blender_array`` views Blender's own attribute arrays (no copy): equal to
+    ``foreach_get``'s copies, read-only; a layout that is not one array, or items whose
+    values differ from the view's, give None (the caller copies with ``foreach_get``)."""
+    from addon.meshes import blender_array
+
+    meshes = _read_scene_meshes()
+    assert [me.normals_domain for me in meshes[:3]] == ["POINT", "FACE", "CORNER"]
+    for me in meshes:
+        for name, prop, width, dtype in (("position", "vector", 3, np.float32),
+                                         (".corner_vert", "value", 1, np.int32),
+                                         (".edge_verts", "value", 2, np.int32)):
+            data = next(a for a in me.attributes if a.name == name).data
+            view = blender_array(data, len(data), width, dtype, prop)
+            want = np.empty(len(data) * width, dtype)
+            data.foreach_get(prop, want)
+            np.testing.assert_array_equal(view, want, err_msg=f"{me.name} {name}")
+            assert not view.flags.writeable and not view.flags.owndata
+        uv = me.uv_layers.active.uv
+        want = np.empty(len(uv) * 2, np.float32)
+        uv.foreach_get("vector", want)
+        np.testing.assert_array_equal(blender_array(uv, len(uv), 2, np.float32, "vector"),
+                                      want)
+        if me.normals_domain == "CORNER":
+            cn = me.corner_normals
+            want = np.empty(len(cn) * 3, np.float32)
+            cn.foreach_get("vector", want)
+            np.testing.assert_array_equal(
+                blender_array(cn, len(cn), 3, np.float32, "vector"), want)
+    tris = meshes[0].loop_triangles
+    nt = len(tris)
+    assert blender_array(_Items(tris), nt, 3, np.int32, "loops") is not None
+    assert blender_array(_Items(tris, shift_at=nt // 2), nt, 3, np.int32, "loops") is None
+    assert blender_array(_Items(tris, wrong_at=nt - 1), nt, 3, np.int32, "loops") is None
+    assert blender_array(tris, nt, 3, np.int32, "loops") is not None
+    assert blender_array(tris, nt, 3, np.int64, "loops") is None  # (another item size)
+
+
+def test_mesh_read_allocates_only_what_the_mesh_keeps():
+    """``meshes.mesh_arrays`` reads Blender's arrays in place and gathers straight into the
+    Mesh's own arrays: numpy allocates no more than the Mesh keeps (no copies of the raw
+    attributes or of the triangles' corners, no int64 index temporaries; fresh memory is
+    most of a large first read's cost), and gives exactly what ``foreach_get``'s copies
+    give. A mesh without material indices keeps no slots (every triangle slot 0)."""
+    import tracemalloc
+
+    import addon
+    from addon.meshes import mesh_arrays
+
+    meshes = _read_scene_meshes()
+    addon.kernels.wait(600)  # (the background kernel load allocates too: traced alike)
+    for me in meshes:
+        nl, nt = len(me.loops), len(me.loop_triangles)
+        mesh_arrays(me, me.name, {})  # (Blender's lazy data and Python's imports, first)
+        tracemalloc.start()
+        try:
+            mesh = mesh_arrays(me, me.name, {})
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        kept = sum(a.nbytes for a in (mesh.vertices, mesh.triangles, mesh.corner_normals,
+                                      mesh.corner_uvs, mesh.slots, mesh.vertex_normals)
+                   if a is not None)
+        # (what numpy's buffered index casts and the probes take: a few buffers of 64 KB)
+        assert peak <= kept + 256 * 1024, (me.name, peak, kept)
+        # what foreach_get's copies give
+        corner_vert = np.empty(nl, np.int32)
+        me.attributes[".corner_vert"].data.foreach_get("value", corner_vert)
+        loops = np.empty(nt * 3, np.int32)
+        me.loop_triangles.foreach_get("loops", loops)
+        loops = loops.reshape(nt, 3).astype(np.int64)
+        np.testing.assert_array_equal(mesh.triangles, corner_vert[loops])
+        uv = np.empty(nl * 2, np.float32)
+        me.uv_layers.active.uv.foreach_get("vector", uv)
+        np.testing.assert_array_equal(mesh.corner_uvs, uv.reshape(nl, 2)[loops])
+        co = np.empty(len(me.vertices) * 3, np.float32)
+        me.vertices.foreach_get("co", co)
+        np.testing.assert_array_equal(mesh.vertices, co.reshape(-1, 3))
+        assert mesh.vertices.flags.writeable  # (a copy: the views of Blender are read-only)
+        if me.name == "Slots":
+            poly = np.empty(nt, np.int32)
+            me.loop_triangle_polygons.foreach_get("value", poly)
+            np.testing.assert_array_equal(mesh.slots, np.minimum(poly % 3, 1))
+        else:
+            assert mesh.slots is None, me.name
+
+
+def test_export_checks_refuse_bad_vertices_and_all_degenerate_meshes():
+    """``export._checked`` (the read's own checks, without temporaries of the mesh's size):
+    NaN or infinite coordinates, coordinates past ``COORD_MAX`` and meshes whose every
+    triangle is degenerate are refused with a message naming the mesh; a mesh whose first
+    4,096 triangles are degenerate but one later is not is kept (the probe's vertices are
+    its own triangles', the same float64 values)."""
+    from addon.export import _AREA_PROBE, _checked
+    from rstrace_engine import tolerances as tol
+    from rstrace_engine.geometry.scene import Mesh
+
+    n = _AREA_PROBE + 10
+    v = np.zeros((3 * n, 3), np.float32)  # every triangle a point at the origin...
+    v[-3:] = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)]  # ...but the last
+    tris = np.arange(3 * n, dtype=np.int32).reshape(n, 3)
+    tris[: _AREA_PROBE] = tris[-1]  # (the probe's triangles name the proper one's vertices
+    tris[: _AREA_PROBE, 1] = tris[-1, 0]  # twice: degenerate)
+    assert _checked(Mesh("Late", v, tris, owned=True), "Late", b"", "RENDER").mesh is not None
+    flat = Mesh("Flat", v, tris[: _AREA_PROBE], owned=True)
+    assert "all 4096 triangles are degenerate" in _checked(flat, "Flat", b"", "RENDER").reason
+    for bad, message in ((np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"),
+                         (-np.inf, "NaN or infinite"), (2.0 * tol.COORD_MAX, "exceed"),
+                         (-2.0 * tol.COORD_MAX, "exceed")):
+        w = v.copy()
+        w[5, 1] = bad
+        entry = _checked(Mesh("Bad", w, tris, owned=True), "Bad", b"", "RENDER")
+        assert entry.mesh is None and entry.reason.startswith("mesh 'Bad': ")
+        assert message in entry.reason, (bad, entry.reason)

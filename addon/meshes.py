@@ -51,7 +51,9 @@ def blender_array(items, n: int, width: int, dtype, prop: str) -> np.ndarray | N
     :data:`_PROBES` items read through the view must equal Blender's own per-item answer.
     The view is valid only while the mesh is: it is read within one mesh read
     (:func:`mesh_arrays`, :func:`mesh_fingerprint`) and never kept (what the Mesh keeps
-    is gathered or copied from it into arrays of its own).
+    is gathered or copied from it into arrays of its own). The check proves the layout, not
+    the lifetime: it relies on these collections being views of the mesh's own layers and
+    caches (checked on Blender 5.0.1), not buffers built at each access.
     """
     if n <= 0:
         return None

@@ -44,3 +44,56 @@ def test_each_loader_runs_once_with_the_first_frame_it_needs(monkeypatch):
     interp.render()
     Session(scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
     assert len(calls) == 5
+
+
+_FIRST_EDIT = """
+import numba
+import numpy as np
+from rstrace_engine import scenes
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry.edits import ObjectTransform
+from rstrace_engine.session import Session
+
+
+def signatures():
+    import sys
+    out = set()
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("rstrace_engine"):
+            for attr, d in list(vars(mod).items()):
+                if isinstance(d, numba.core.registry.CPUDispatcher):
+                    out |= {(name, attr, str(s)) for s in d.signatures}
+    return out
+
+
+scene = scenes.studio(80, 60)
+session = Session(scene, RenderSettings(mode="BASE", max_depth=3, light_samples=4))
+session.light_terms = True
+session.render()
+m = scene.instances[scene.instance_slot("MirrorBall")]["matrix"].copy()
+m[0, 3] += 0.1
+session.apply([ObjectTransform("MirrorBall", m)])
+before = signatures()
+frame = session.render()
+assert frame.stats["incremental"] and frame.stats["reshaded_pixels"] > 0
+for name, attr, sig in sorted(signatures() - before):
+    print(name, attr, sig[:60])
+"""
+
+
+def test_first_object_edit_frame_loads_no_kernel():
+    """The first incremental frame after an object moved under soft light (BASE: pixels
+    traced, others re-shaded, the records compacted) runs kernels the first frame's
+    loaders loaded -- none is loaded (5-20 ms each) inside the frame: the records'
+    compaction counts their 16-bit codes there (``_mark_used``), where the first frame
+    counted 32-bit ones. In a process of its own (other tests load kernels)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", _FIRST_EDIT], env=env, capture_output=True,
+                         text=True, check=True, cwd=root)
+    assert out.stdout.strip() == "", out.stdout

@@ -314,3 +314,35 @@ def test_mirror_hits_soft_shadows_reshade_exactly(edit):
     # mirror pixels re-shaded, not traced, that changed: their reflected hits' terms were
     # shaded again (step compares every pixel with a fresh frame, bit for bit)
     assert (changed & mirror).sum() >= 3, int((changed & mirror).sum())
+
+
+def test_blocked_samples_ask_the_scene_without_the_placed_object(monkeypatch):
+    """A kept sample that was blocked and that the moved object does not block now is asked
+    of the whole scene (its blocker may have been the object's old place), with that object
+    left out of the query: it was just tested against it alone (shadow_reshade._blocked;
+    the mirror ball's tree is not walked again by rays that pass close by it). The frame
+    equals a fresh one bit for bit."""
+    from rstrace_engine.tracing import shadow_reshade
+
+    asked = []
+    occluded_by = shadow_reshade._occluded_by
+
+    def spy(sa, accel):
+        occluded = occluded_by(sa, accel)
+
+        def query(o, d, tmax, rows, skip=None):
+            asked.append((len(o), None if skip is None else set(skip.tolist())))
+            return occluded(o, d, tmax, rows, skip)
+        return query
+
+    monkeypatch.setattr(shadow_reshade, "_occluded_by", spy)
+    scene = scenes.studio(64, 48)
+    sess = Session(scene, RenderSettings(mode="BASE", max_depth=3, light_samples=8))
+    sess.light_terms = True
+    prev = sess.render()
+    slot = scene.instance_slot("MirrorBall")
+    m = scene.instances[slot]["matrix"].copy()
+    m[0, 3] += 0.1
+    step(sess, prev, [ObjectTransform("MirrorBall", m)])
+    assert sum(n for n, _ in asked) > 0
+    assert all(skip == {slot} for n, skip in asked if n)

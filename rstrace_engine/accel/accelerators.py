@@ -272,6 +272,16 @@ class BVHAccelerator(Accelerator):
         self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
                                   for k in self._mesh_keys}
 
+    def any_hit(self, origins, directions, tmin, tmax, skip=None) -> np.ndarray:
+        """As :meth:`~.interface.Accelerator.any_hit`; the instance ``skip[r]`` is left out
+        of ray ``r``'s traversal (:func:`.bvh.trace_kernel`'s ``only <= -2``)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        only = None
+        if skip is not None:
+            s = per_ray(skip, len(o), np.int32)
+            only = np.where(s >= 0, -2 - s, -1).astype(np.int32)
+        return self._trace(o, d, lo, hi, only, True).inst >= 0
+
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)
         hits = empty_hits(n)

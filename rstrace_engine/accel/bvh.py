@@ -269,7 +269,8 @@ def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t, st2_node,
                st2_t):
-    """One world ray through both levels (or only instance ``only`` when ``only >= 0``).
+    """One world ray through both levels (or only instance ``only`` when ``only >= 0``;
+    every instance but ``-2 - only`` when ``only <= -2``).
 
     Returns ``(inst, t, triangle, u, v)``. Each inlined helper has a single call site (the
     instance range ``q..q_end`` of a top-level leaf, or ``only``, is drained before the next
@@ -290,6 +291,8 @@ def _trace_ray(sb, ox, oy, oz, dx, dy, dz, t0, best, anyhit, only, st_node, st_t
         if q < q_end:
             i = only if only >= 0 else top_inst[q]
             q += 1
+            if i == -2 - only:
+                continue  # (the one instance this ray leaves out)
             lx, ly, lz, ex, ey, ez = ray_to_object(sb.inst_inv, i, ox, oy, oz, dx, dy, dz)
             found, t, p, u, v = _trace_mesh(sb.bounds, sb.child, sb.verts, sb.tris, sb.tri,
                                             sb.mesh_root[sb.inst_mesh[i]], lx, ly, lz,
@@ -322,7 +325,8 @@ def trace_kernel(sb, o, d, tmin, tmax, only, anyhit, out_t, out_inst, out_prim, 
     """Closest (``anyhit=False``) or any hit of each ray through a :class:`SceneBVH`.
 
     o, d : (n, 3) float64; tmin, tmax : (n,) float64; only : (n,) int32, ``>= 0`` restricts
-    a ray to that instance. Outputs (n,): t float64 (inf on miss), inst int32, prim int32
+    a ray to that instance, ``<= -2`` leaves instance ``-2 - only`` out of it (-1: every
+    instance). Outputs (n,): t float64 (inf on miss), inst int32, prim int32
     (global triangle), u, v float64; rows that miss are left untouched (callers pre-fill
     them). Work items are :data:`CHUNK` consecutive rays, this call's those numbered
     ``first, first + step, ...`` (threads taking the chunks in turn balance the cost per

@@ -129,7 +129,11 @@ class Accelerator:
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         return self._trace(o, d, lo, hi, None, False)
 
-    def any_hit(self, origins, directions, tmin, tmax) -> np.ndarray:
+    def any_hit(self, origins, directions, tmin, tmax, skip=None) -> np.ndarray:
+        """(n,) bool: ray ``r`` hits something between its bounds. ``skip`` (n,) int32 or
+        None: per ray an instance the caller has proven it cannot meet (-1: none), which
+        the query may leave out (the BVH's does;
+        :func:`~..tracing.shaft_skip.own_instances`): the answer is the same either way."""
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         return self._trace(o, d, lo, hi, None, True).inst >= 0
 

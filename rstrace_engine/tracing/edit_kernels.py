@@ -13,7 +13,10 @@ loader's condition (:meth:`~.frame_reuse.FrameReuse.finish`; issue 21):
   types (their combo codes are 16 or 32 bits wide); a light's states and shadow rays shaded
   alone (:func:`~.light_reshade._one_light`'s scene packing: the interpolants' added and
   moved lights shade their samples with it too), its light bits in the pixel records, and
-  the recombination's average of the samples -- a frame of a scene with lights;
+  the recombination's average of the samples, and the count of the table rows the nodes
+  use (:func:`~.record_codes._mark_used`, for 16- and 32-bit codes: a first frame's
+  compaction counts its 32-bit codes, an incremental frame's its kept 16-bit ones) -- a
+  frame of a scene with lights;
 * the soft lights' re-shade (:func:`~.shadow_reshade.load_kernels`): a BASE frame under
   soft light;
 * what other modules register (:func:`register`; the interpolants' term kernel,
@@ -33,6 +36,7 @@ from .batches import accumulate, threads_for
 from .light_records import load_kernels as recombine_kernels
 from .light_reshade import _one_light, one_light_states
 from .pixel_records import _light_bit_changes
+from .record_codes import _mark_used
 from .record_queries import _mark_rays, _query_primary, _query_secondary, query_tiles
 from .shader import _shadow_kernel
 from .shadow_reshade import load_kernels as reshade_kernels
@@ -88,6 +92,8 @@ def _edit_kernels(records, sa, camera) -> None:
         _query_secondary(r.s_parent[:0], r.s_combo[:0], r.s_code[:0], r.p_combo[:0],
                          r.p_code[:0], 0, b, i64, u64, *tail, b)
         _mark_rays(i32, b, b)
+        for dt in (np.uint16, np.uint32):  # (the records' compaction, every frame)
+            _mark_used(np.zeros(0, dt), b)
 
 
 register("recombine", lambda records, sa, camera: recombine_kernels())

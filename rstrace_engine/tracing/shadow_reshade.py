@@ -185,7 +185,10 @@ def _blocked(sa, accel, o, d, tmax, rows_of, was, changed, counters) -> np.ndarr
         blocked[todo] = meets_object(sa, accel, i, o, d, tmax, todo, counters)
     rest = np.flatnonzero(~blocked & ~was)
     if len(rest):
-        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], rows_of(rest))
+        # (each of these rays met none of the placed objects: the query leaves one out,
+        # its tree not walked again -- they pass close by it, its old place being theirs)
+        skip = np.full(len(rest), changed[0] if changed else -1, np.int32)
+        blocked[rest] = occluded(o[rest], d[rest], tmax[rest], rows_of(rest), skip)
     return blocked
 
 

@@ -78,6 +78,10 @@ SHAFT_SKIP = True
 #: Pixels on a side of the tiles whose primary hits (per instance) are proven together;
 #: measured in docs/SOFT_LIGHT.md.
 SKIP_TILE = 8
+#: Soft shadow rays leave their point's own convex instance out of their traversal
+#: (:func:`own_instances`; a module switch: the tests compare frames with and without it,
+#: the same bit for bit).
+OWN_SKIP = True
 #: Instances of meshes with fewer triangles are not offered :func:`own_clear`'s skip (a
 #: floor's two triangles cost less to test than the bound): a speed choice, not a proof's.
 OWN_MIN_TRIS = 32
@@ -93,8 +97,8 @@ def tile_keys(pixels: np.ndarray, width: int, tile: int | None = None) -> np.nda
 
 
 def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
-                counters: dict | None = None, prim: np.ndarray | None = None
-                ) -> np.ndarray | None:
+                counters: dict | None = None, prim: np.ndarray | None = None,
+                own: np.ndarray | None = None) -> np.ndarray | None:
     """(n L,) bool: the (point, light) rows ``i * L + j`` of the surface points ``surf``
     (:class:`~.shader.Surfaces` of primary hits on instances ``inst``) whose light ``j``
     (sampled there, ``SH_SOFT``) is proven fully visible, the points grouped by ``keys``
@@ -104,7 +108,8 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     and ``skip_s`` (seconds in the proofs); :func:`~.soft_lights.soft_visibility` adds
     ``shadow_skipped`` (samples not traced). ``prim`` (n,): the points' global triangles,
     with which a group skips its own convex instance (:func:`own_clear`; ``skip_own``
-    counts the points it holds for)."""
+    counts the points it holds for); ``own`` (n,) int32: :func:`own_instances`' answer for
+    the points, taken instead of computing it again."""
     if not SHAFT_SKIP or keys is None or not isinstance(accel, BVHAccelerator):
         return None
     t0 = time.perf_counter()
@@ -133,9 +138,12 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     lo, hi, chord = light_extents(sa)
     mag = float(geo.scene_extent + np.max(np.abs(geo.scene_aabb)))
     xf = np.ascontiguousarray(geo.inst_xform, np.float64)
-    own = np.zeros(n, np.bool_)
-    if prim is not None:
-        own_clear(geo, xf, surf.Q, surf.NG, inst, np.asarray(prim, np.int64), todo, own)
+    if own is not None:
+        own = own >= 0
+    else:
+        own = np.zeros(n, np.bool_)
+        if prim is not None:
+            own_clear(geo, xf, surf.Q, surf.NG, inst, np.asarray(prim, np.int64), todo, own)
     _prove_groups(accel.sb, xf, sa,
                   np.ascontiguousarray(lo), np.ascontiguousarray(hi), chord,
                   np.ascontiguousarray(0.5 * (geo.scene_aabb[0] + geo.scene_aabb[1])),
@@ -354,6 +362,39 @@ def _harmless(verts, tris, t, xf, sa, j, slack, lo, hi, extent, Q, NG, sh_state,
             continue  # the triangle behind the point's own plane
         return False
     return True
+
+
+def own_instances(sa, accel, surf, inst: np.ndarray, prim: np.ndarray) -> np.ndarray | None:
+    """(n,) int32: per surface point ``surf`` (hit on instances ``inst``, global triangles
+    ``prim``) the instance its soft shadow samples leave out of their traversal, -1 none;
+    None where none is offered (:data:`OWN_SKIP` off, an accelerator other than the BVH).
+
+    A point's own instance, where :func:`own_clear` holds for it: every triangle of that
+    instance lies behind the plane through the point's shadow origin ``Q`` with its
+    geometric normal, past the half offset :func:`_harmless` asks -- and every soft sample
+    the tracer traces from ``Q`` points into the normal's side (its weight is zero, and no
+    ray traced, otherwise: :func:`~.soft_lights.sample_weight`), so its whole segment stays
+    in front of that plane and the watertight test meets none of those triangles, as the
+    shaft proofs argue. The BVH's query without that instance then answers as the whole
+    one, bit for bit, without walking the instance's tree: a ray leaving a convex
+    object's surface starts inside its box and its tree's boxes near it (the mirror ball's
+    world rays spent 80% of their query there, docs/bench-edit.md). Not at rough interfaces
+    (their samples below the surface leave from the far side), nor for meshes of fewer than
+    :data:`OWN_MIN_TRIS` triangles."""
+    if not OWN_SKIP or not isinstance(accel, BVHAccelerator):
+        return None
+    n = len(surf.P)
+    inst = np.asarray(inst, np.int64)
+    pts = np.flatnonzero(inst >= 0)
+    iface = interface_materials(sa)
+    if iface.any() and len(pts):
+        pts = pts[~iface[np.maximum(surf.mat[pts], 0)]]
+    out = np.zeros(n, np.bool_)
+    if len(pts):
+        geo = accel.sa  # the geometry the accelerator traces against
+        own_clear(geo, np.ascontiguousarray(geo.inst_xform, np.float64), surf.Q, surf.NG,
+                  inst, np.asarray(prim, np.int64), pts, out)
+    return np.where(out, inst, -1).astype(np.int32)
 
 
 def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:

@@ -549,12 +549,15 @@ def soft_rays(sa: SceneArrays, surf, seeds: np.ndarray, n: int, sh_state: np.nda
 
 
 def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
-                    proven: np.ndarray | None = None):
+                    proven: np.ndarray | None = None, own: np.ndarray | None = None):
     """Trace the soft samples of ``surf`` (:func:`soft_rays`) with ``occluded(origins,
     directions, tmax, rows) -> (k,) bool`` (``rows`` the samples' (point, light) rows as
     :func:`soft_rays` numbers them). ``proven`` (n L,) bool: the (point, light) rows whose
     every sample is proven unoccluded (:func:`~.shaft_skip.proven_rows`): their samples
-    are visible without a ray (``counters["shadow_skipped"]`` counts them). Returns
+    are visible without a ray (``counters["shadow_skipped"]`` counts them). ``own`` (nb,)
+    int32: per point an instance its samples' rays leave out (-1: none;
+    :func:`~.shaft_skip.own_instances`), handed to ``occluded(..., skip)``
+    (``counters["shadow_own_skip"]`` counts those rays). Returns
     ``(SoftSamples, lit_rows, any_vis)``: the samples with their visibility, the (point,
     light) rows of the sampled lights and whether each has a visible sample."""
     soft, o, tmax, rows = soft_rays(sa, surf, seeds, n, sh_state)
@@ -569,8 +572,15 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
     if len(go):
         # take, not fancy indexing: half the time for these (k, 3) rows (8% of a glossy
         # frame before); a sample's row is its group's, go // n
-        soft.vis[go] = ~np.asarray(occluded(np.take(o, go, axis=0), np.take(soft.d, go, axis=0),
-                                            np.take(tmax, go), rows[go // n]), np.bool_)
+        r = rows[go // n]
+        ray = (np.take(o, go, axis=0), np.take(soft.d, go, axis=0), np.take(tmax, go), r)
+        if own is not None and (own >= 0).any():
+            L = max(len(sa.light_kind), 1)
+            ray += (own[np.where(r >= 0, r // L, -1 - r)],)
+            if counters is not None:
+                counters["shadow_own_skip"] = (counters.get("shadow_own_skip", 0)
+                                               + int(np.count_nonzero(ray[4] >= 0)))
+        soft.vis[go] = ~np.asarray(occluded(*ray), np.bool_)
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + len(go)
     any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)
@@ -580,17 +590,19 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
 def soft_direct(sa: SceneArrays, surf, seeds: np.ndarray, light_samples: int,
                 vis: np.ndarray, occluded, counters: dict | None = None,
                 occ: np.ndarray | None = None,
-                proven: np.ndarray | None = None) -> SoftSamples:
+                proven: np.ndarray | None = None,
+                own: np.ndarray | None = None) -> SoftSamples:
     """The shadow samples of the lights with an extent and of the world at ``surf`` (the
     base tracer's :class:`~.shader.Surfaces`), traced with ``occluded(origins,
     directions, tmax, rows) -> (k,) bool``; ``seeds`` (n,) uint64 the points' node seeds;
     ``proven`` (n L,) bool the rows whose samples are all proven unoccluded
-    (:func:`~.shaft_skip.proven_rows`: not traced). Sets ``vis`` (n L,) of a sampled
+    (:func:`~.shaft_skip.proven_rows`: not traced); ``own`` as :func:`soft_visibility`'s.
+    Sets ``vis`` (n L,) of a sampled
     light's row when one of its samples reached it, and ``occ`` (when given) to
     :data:`OCC_SOFT` there (its visibility is a fraction). Returns the samples for
     :func:`~.whitted.shade`."""
     soft, rows, any_vis = soft_visibility(sa, surf, seeds, light_samples, surf.sh_state,
-                                          occluded, counters, proven)
+                                          occluded, counters, proven, own)
     lit = rows >= 0
     vis[rows[lit]] = any_vis[lit]
     if occ is not None:

@@ -58,7 +58,7 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     light_state,
     light_states,
 )
-from .shaft_skip import proven_rows, tile_keys
+from .shaft_skip import own_instances, proven_rows, tile_keys
 from .soft_lights import (
     SH_SOFT,
     SoftSamples,
@@ -325,9 +325,11 @@ def _occluded_by(sa, accel):
     or with shadow linking by the light's blockers (:mod:`.light_linking`)."""
     L = len(sa.light_kind)
 
-    def occluded(o, d, tmax, rows):
+    def occluded(o, d, tmax, rows, skip=None):  # (skip: any_hit's)
         if not links_shadows(sa):
-            return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+            if skip is None:
+                return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+            return accel.any_hit(o, d, np.zeros(len(o)), tmax, skip)
         return linked_occluded(sa, accel, o, d, tmax, np.where(rows >= 0, rows % max(L, 1),
                                                                  -1))
     return occluded
@@ -495,11 +497,12 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if glossy_on and level > 0:
                 nseeds ^= front.tag
         if soft_on and own:
+            mine = own_instances(sa, accel, surf, hits.inst, hits.prim)
             proven = (proven_rows(sa, accel, surf, hits.inst, skip_keys, counters,
-                                  hits.prim)
+                                  hits.prim, mine)
                        if level == 0 else None)
             soft = soft_direct(sa, surf, nseeds, int(light_samples), vis,
-                               _occluded_by(sa, accel), counters, occ, proven)
+                               _occluded_by(sa, accel), counters, occ, proven, mine)
             traced = traced or len(soft.w) > 0
         if traced and cancelled(cancel):
             break
@@ -675,6 +678,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         rays_traced=rays, primary_rays=counters.get("primary", 0),
         secondary_rays=counters.get("secondary", 0), shadow_rays=shadow,
         shadow_rays_skipped=counters.get("shadow_skipped", 0), skip_s=counters.get("skip_s", 0.0),
+        shadow_rays_own_skip=counters.get("shadow_own_skip", 0),
         skip_rows=counters.get("skip_rows", 0),
         skip_rows_proven=counters.get("skip_rows_proven", 0),
         rays_per_s=rays / elapsed if elapsed > 0 else 0.0,

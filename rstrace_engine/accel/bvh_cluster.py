@@ -24,7 +24,6 @@ from .bvh_build import (
     SAH_BINS,
     SAH_TRAVERSAL_COST,
     _half_area,
-    _range_bounds,
     build_flat_boxes,
 )
 
@@ -184,9 +183,12 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     leaves = item_leaves(child, n_items)
     rows = np.zeros(n_items, np.int64)  # each item's first row of perm, in leaf order
     np.cumsum(np.diff(starts)[iperm][:-1], out=rows[1:])
-    box = np.empty(6)
-    _range_bounds(pb, 0, m, box, np.empty(6))
-    root_area = max(_half_area(box[0], box[1], box[2], box[3], box[4], box[5]), 1e-300)
+    # the root's box: the union of its two children's (no kernel called from Python here:
+    # each would be one more for the F12's kernel pre-load, addon/kernels.py)
+    root = bounds[0].astype(np.float64)
+    lo, hi = np.minimum(root[0:3], root[6:9]), np.maximum(root[3:6], root[9:12])
+    dx, dy, dz = (float(x) for x in hi - lo)
+    root_area = max(dx * dy + dy * dz + dz * dx, 1e-300)
     perm = np.empty(m, np.int32)
     dsah = open_items(pb, starts, iperm, rows, leaves, region0, trav_cost, root_area, bounds,
                       child, perm)

@@ -107,8 +107,9 @@ def open_items(pb, starts, iperm, rows, leaves, region0, trav_cost, root_area, b
                child, perm):
     """Each item leaf ``leaves[i]`` (:func:`item_leaves`) opened, one thread per leaf: its
     triangles listed in ``perm`` from row ``rows[position]``; an item of two becomes a
-    leaf of both, or an inner node (row ``region0 + rows[position]``) over two leaves of
-    one, by the SAH rule of a two-primitive node (:func:`.bvh_build.build_subtree`).
+    leaf of both, or an inner node over two leaves of
+    one, by the SAH rule of a two-primitive node (:func:`.bvh_build.build_subtree`); the
+    inner node of the item at ``position`` is row ``region0 + position``.
     Returns each opened item's SAH less the SAH of the leaf it replaced (P,)."""
     nl = leaves.shape[0]
     dsah = np.zeros(nl)
@@ -148,7 +149,7 @@ def open_items(pb, starts, iperm, rows, leaves, region0, trav_cost, root_area, b
             child[parent, slot] = ~((row << 3) | 2)
             dsah[i] = area / root_area
             continue
-        node = region0 + row
+        node = region0 + pos  # (one row per item: the rows touched stay few)
         child[parent, slot] = node
         perm[row], perm[row + 1] = a, b
         for q in range(6):
@@ -170,16 +171,12 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     m = len(tris)
     starts, ib = pair_items(verts, tris, pb)
     n_items = len(ib)
-    b_i, c_i, iperm, sah_i = build_flat_boxes(ib, 1, nbins, trav_cost, grain, stop,
-                                              packed=False)
+    # (the item tree's arrays with a row per item after them: the opened items' nodes)
+    bounds, child, iperm, sah_i = build_flat_boxes(ib, 1, nbins, trav_cost, grain, stop,
+                                                   packed=False, spare=n_items)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)
-    bounds = np.empty((region0 + m, 12), pb.dtype)
-    child = np.empty((region0 + m, 2), np.int32)
-    bounds[:region0] = b_i
-    child[:region0] = c_i
-    del b_i, c_i
     leaves = item_leaves(child, n_items)
     rows = np.zeros(n_items, np.int64)  # each item's first row of perm, in leaf order
     np.cumsum(np.diff(starts)[iperm][:-1], out=rows[1:])

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rstrace_engine.accel import bvh_build, bvh_mesh
+from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Material, Mesh, Scene
@@ -64,7 +64,9 @@ def test_float32_vertices_give_the_float64_boxes_tree_bit_for_bit():
     verts, tris = _mesh(float32=True)
     tv = verts[tris]
     pb64 = np.concatenate([tv.min(axis=1), tv.max(axis=1)], 1)
-    b64, c64, p64, sah64 = bvh_build.build_flat_boxes(pb64, packed=False)
+    # (a large mesh: the tree over its quads, bvh_cluster)
+    b64, c64, p64, sah64 = bvh_cluster.build_paired(
+        verts, tris, pb64, grain=bvh_build.subtree_grain(len(tris)))
     want = bvh_mesh.flatten(b64, c64, p64, np.float32)
     got = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     assert np.array_equal(got.bvh.bounds.view(np.int32), want.bounds.view(np.int32))

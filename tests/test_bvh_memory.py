@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rstrace_engine.accel import bvh, bvh_build, bvh_mesh
+from rstrace_engine.accel import bvh, bvh_build, bvh_cluster, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.geometry import shapes
@@ -77,7 +77,8 @@ def test_mesh_bvh_float32_boxes_contain_the_float64_tree():
     mesh = shapes.lumpy_sphere(bvh_build.PARALLEL_MIN + 2_000)
     verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
     pb = bvh_mesh.indexed_boxes(verts, tris)
-    b64, child, perm, _ = bvh_build.build_flat_boxes(pb.copy())
+    # (a large mesh's tree is built over its quads: bvh_cluster)
+    b64, child, perm, _ = bvh_cluster.build_paired(verts, tris, pb.copy())
     f64 = bvh_mesh.flatten(b64, child, perm)  # the same tree, float64 boxes
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     assert np.array_equal(mb.bvh.child, f64.child) and np.array_equal(mb.tri, f64.perm)

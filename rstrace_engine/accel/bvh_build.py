@@ -58,7 +58,8 @@ BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
-                       "accel.bvh_mesh.indexed_boxes")
+                       "accel.bvh_mesh.indexed_boxes", "accel.bvh_cluster.pair_items",
+                       "accel.bvh_cluster.item_leaves", "accel.bvh_cluster.open_items")
 #: Meshes of fewer triangles are built by one thread, without parallel regions (starting
 #: one costs more than it saves there, and very much more when the cores are
 #: oversubscribed).
@@ -612,16 +613,17 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
-                     stop: np.ndarray = NEVER_STOP, packed: bool = True):
+                     stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0):
     """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
     take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
     built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
     unset: for a walk from the root such as
-    :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy)."""
+    :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy), with
+    ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
-    cap = max(n, 2)
+    cap = max(n, 2) + (0 if packed else int(spare))
     bounds = np.empty((cap, 12), pb.dtype)
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,

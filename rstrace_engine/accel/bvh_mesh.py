@@ -7,7 +7,8 @@ order), whose vertex indices and vertices the traversal reads from the scene's o
 arrays. Meshes of fewer than :data:`.bvh_build.PARALLEL_MIN` triangles go through numpy and
 one thread, with no parallel region to start; larger ones through parallel kernels that
 read the triangles through their vertex indices (:func:`build_mesh_bvh_indexed`: no copy
-of the mesh's triangles in mesh order).
+of the mesh's triangles in mesh order) and build the tree over the mesh's quads, two
+triangles that share an edge one item (:mod:`.bvh_cluster`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ from .bvh_build import (
     _half_area,
     build_flat,
     build_flat_boxes,
+    subtree_grain,
 )
+from .bvh_cluster import build_paired
 
 
 class FlatBVH(NamedTuple):
@@ -350,7 +353,8 @@ def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | Non
         return build_mesh_bvh(verts[tris], grain, stop)
     t0 = time.perf_counter()
     # (the primitive boxes are gone before the 4-wide tree is made: a lower peak)
-    flat, sah = _four_wide(_binary(indexed_boxes(verts, tris), grain, stop), stop)
+    flat, sah = _four_wide(_binary_paired(verts, tris, indexed_boxes(verts, tris), grain,
+                                          stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
@@ -358,6 +362,17 @@ def _binary(pb: np.ndarray, grain, stop):
     """The binary tree over primitive boxes ``pb`` (n, 6), which it reorders (the caller
     drops them after: they are not needed for the 4-wide tree, :func:`_four_wide`)."""
     out = build_flat_boxes(pb, grain=grain, stop=stop, packed=False)
+    if stop[0]:
+        raise Cancelled("BVH build cancelled")
+    return out
+
+
+def _binary_paired(verts, tris, pb, grain, stop):
+    """:func:`_binary` of a large mesh, built over its quads (:mod:`.bvh_cluster`); the
+    item build's ``grain`` (items per subtree) is the triangle build's, so a mesh past
+    :data:`.bvh_build.PARALLEL_MIN` triangles runs the parallel phases."""
+    out = build_paired(verts, tris, pb, grain=subtree_grain(len(tris)) if grain is None
+                       else grain, stop=stop)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return out

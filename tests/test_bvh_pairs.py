@@ -1,0 +1,119 @@
+"""A large mesh's BVH built over its quads (:mod:`rstrace_engine.accel.bvh_cluster`): the
+items pair exactly the consecutive triangles that share an edge, each pair is opened by the
+two-primitive SAH rule of the triangle build, and on meshes whose triangles are not in
+quad order (shuffled, a random soup) the tree keeps its invariants and hits what brute
+force hits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.scene import Material, Mesh, Scene
+from tests.test_bvh_boxes32 import check_tree
+
+#: past bvh_build.PARALLEL_MIN: the paired build
+BIG = 70_000
+
+
+def _lumpy():
+    m = shapes.lumpy_sphere(BIG, name="big")
+    return (np.ascontiguousarray(m.vertices, np.float64),
+            np.ascontiguousarray(m.triangles, np.int32))
+
+
+def _soup(rng, m: int):
+    """``m`` random small triangles in a unit cube, every third one followed by a
+    neighbour across one of its edges (a few pairs, most triangles alone)."""
+    centres = rng.random((m, 3))
+    tv = centres[:, None, :] + rng.normal(scale=0.004, size=(m, 3, 3))
+    for i in range(0, m - 1, 3):  # triangle i + 1 shares the edge (0, 1) of triangle i
+        tv[i + 1, 0], tv[i + 1, 1] = tv[i, 1], tv[i, 0]
+        tv[i + 1, 2] = tv[i, 0] + tv[i, 1] - tv[i, 2]
+    return tv.reshape(-1, 3).copy(), np.arange(3 * m, dtype=np.int32).reshape(m, 3)
+
+
+def _shared_positions(verts, tris, i: int, j: int) -> int:
+    a, b = verts[tris[i]], verts[tris[j]]
+    return int(sum(np.any(np.all(b == p, axis=1)) for p in a))
+
+
+def test_items_pair_the_consecutive_triangles_that_share_an_edge():
+    rng = np.random.default_rng(4)
+    verts, tris = _lumpy()
+    shuffled = tris[rng.permutation(len(tris))]
+    for v, t in ((verts, tris), (verts, shuffled), _soup(rng, 20_001)):
+        pb = bvh_mesh.indexed_boxes(v, t)
+        starts, boxes = bvh_cluster.pair_items(v, t, pb)
+        want = []  # the reference: pairs (2h, 2h + 1) with two vertex positions in common
+        for h in range(0, len(t), 2):
+            if h + 1 < len(t) and _shared_positions(v, t, h, h + 1) >= 2:
+                want.append(h)
+            else:
+                want.extend([h, h + 1] if h + 1 < len(t) else [h])
+        assert starts.tolist() == want + [len(t)]
+        for k in range(len(boxes)):
+            a, b = starts[k], starts[k + 1]
+            assert np.array_equal(boxes[k, :3], pb[a:b, :3].min(axis=0))
+            assert np.array_equal(boxes[k, 3:], pb[a:b, 3:].max(axis=0))
+    assert len(bvh_cluster.pair_items(verts, tris, bvh_mesh.indexed_boxes(verts, tris))[1]) \
+        == len(tris) // 2  # a quad mesh: every item a quad
+
+
+def test_each_pair_is_opened_by_the_two_primitive_sah_rule():
+    """An item of two triangles ends as one leaf of both exactly where the triangle
+    build, given those two triangles as a node, makes them one leaf."""
+    verts, tris = _lumpy()
+    pb = bvh_mesh.indexed_boxes(verts, tris)
+    bounds, child, perm, _ = bvh_cluster.build_paired(verts, tris, pb)
+    leaf_of = {}  # triangle -> the size of its leaf
+    stack = [0]
+    while stack:
+        node = stack.pop()
+        for s in range(2):
+            c = int(child[node, s])
+            if c >= 0:
+                stack.append(c)
+            elif (~c) & 7:
+                start, count = (~c) >> 3, (~c) & 7
+                for t in perm[start:start + count]:
+                    leaf_of[int(t)] = count
+    assert sorted(leaf_of) == list(range(len(tris)))
+    rng = np.random.default_rng(2)
+    both = {1: 0, 2: 0}
+    for h in rng.choice(len(tris) // 2, 400, replace=False):
+        a = 2 * int(h)
+        b2, c2, _, _ = bvh_build.build_flat_boxes(pb[a:a + 2].copy(), packed=False)
+        one_leaf = bool(b2[0, 6] > b2[0, 9])  # a root that is one leaf: child 1 empty
+        assert (leaf_of[a] == 2) == one_leaf and leaf_of[a] == leaf_of[a + 1]
+        both[leaf_of[a]] += 1
+    assert both[1] and both[2]  # (both outcomes are checked)
+
+
+@pytest.mark.parametrize("kind", ["shuffled", "soup"])
+def test_unpaired_meshes_keep_the_invariants_and_hit_what_brute_force_hits(kind):
+    rng = np.random.default_rng(9)
+    if kind == "shuffled":
+        verts, tris = _lumpy()
+        tris = tris[rng.permutation(len(tris))]
+    else:
+        verts, tris = _soup(rng, BIG)
+    assert len(tris) >= bvh_build.PARALLEL_MIN
+    mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
+    check_tree(mb, verts[tris])
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_instance(s.add_mesh(Mesh("big", verts, tris), key="big"), np.eye(4), key="Big")
+    sa = s.arrays()
+    n = 3000
+    o = np.concatenate([rng.normal(size=(n, 3)) * 3, rng.random((n, 3)),
+                        verts[rng.integers(0, len(verts), n)] * 1.0001])
+    d = rng.normal(size=(3 * n, 3))
+    got = create_accelerator("BVH", sa).closest_hit(o, d, 0.0, np.inf)
+    want = create_accelerator("BRUTE_FORCE", sa).closest_hit(o, d, 0.0, np.inf)
+    assert np.count_nonzero(want.prim >= 0) > n // 2
+    for a, w in zip(got, want, strict=True):
+        assert np.array_equal(a, w)

@@ -47,6 +47,7 @@ from numba import njit
 
 from .. import stripes
 from .. import tolerances as tol
+from .box4 import lanes4
 from .bvh_build import DEPTH_CAP, NEVER_STOP
 from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
 from .triangle import intersect_sheared, ray_shear
@@ -154,25 +155,19 @@ def ray_to_object(inv, i, ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _lane(bounds, node, j, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1):
-    """Entry distance of the ray into lane ``j`` of a 4-wide node; inf when it misses."""
-    tn = max(max((bounds[node, nx + j] - ox) * ix, (bounds[node, ny + j] - oy) * iy),
-             max((bounds[node, nz + j] - oz) * iz, t0))
-    tf = min(min((bounds[node, 12 - nx + j] - ox) * ix, (bounds[node, 20 - ny + j] - oy) * iy),
-             min((bounds[node, 28 - nz + j] - oz) * iz, t1))
-    if tn <= tf * tol.BOX_TFAR_SCALE:
-        return tn
-    return np.inf
+def _u(i):
+    """``i`` as an unsigned index: numba then emits no wrap-around of negative indices (a
+    select per access) for the node rows and stack slots, which are never negative."""
+    return np.uint64(i)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_node, st_t, sp):
-    """Test the four children of ``node``; push those hit, farthest first. Returns ``sp``."""
-    ta = _lane(bounds, node, 0, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
-    tb = _lane(bounds, node, 1, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
-    tc = _lane(bounds, node, 2, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
-    td = _lane(bounds, node, 3, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
-    ca, cb, cc, cd = child[node, 0], child[node, 1], child[node, 2], child[node, 3]
+    """Test the four children of ``node`` (all four boxes at once, :func:`.box4.lanes4`);
+    push those hit, farthest first. Returns ``sp``."""
+    ta, tb, tc, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    un = _u(node)
+    ca, cb, cc, cd = child[un, _u(0)], child[un, _u(1)], child[un, _u(2)], child[un, _u(3)]
     # sorting network, ascending
     if tb < ta:
         ta, tb, ca, cb = tb, ta, cb, ca
@@ -185,16 +180,16 @@ def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_n
     if tc < tb:
         tb, tc, cb, cc = tc, tb, cc, cb
     if td < np.inf:
-        st_node[sp], st_t[sp] = cd, td
+        st_node[_u(sp)], st_t[_u(sp)] = cd, td
         sp += 1
     if tc < np.inf:
-        st_node[sp], st_t[sp] = cc, tc
+        st_node[_u(sp)], st_t[_u(sp)] = cc, tc
         sp += 1
     if tb < np.inf:
-        st_node[sp], st_t[sp] = cb, tb
+        st_node[_u(sp)], st_t[_u(sp)] = cb, tb
         sp += 1
     if ta < np.inf:
-        st_node[sp], st_t[sp] = ca, ta
+        st_node[_u(sp)], st_t[_u(sp)] = ca, ta
         sp += 1
     return sp
 

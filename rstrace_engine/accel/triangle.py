@@ -92,7 +92,9 @@ def intersect_sheared(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, okx, oky, okz
     """
     a2, b2, c2, U, V, W = _sheared_uvw(akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz,
                                        okx, oky, okz, sx, sy)
-    if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
+    # bitwise, not short-circuit: one branch instead of up to six unpredictable ones
+    # (the same truth value; 20 -> 9 ns a test on random rays, docs/bench-raycast.md)
+    if ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0)):
         return False, 0.0, 0.0, 0.0
     det = U + V + W
     if det == 0.0:

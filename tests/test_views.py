@@ -148,7 +148,7 @@ _ONE_SIGNATURE = textwrap.dedent('''
     from rstrace_engine.tracing import glossy_rays, whitted
     from rstrace_engine.warm_kernels import _warm_edited_interpolants, warm_scene
 
-    kernels = (predicate._check_one, predicate._light_shafts, occluders.occluder_covers,
+    kernels = (predicate._check_cells, predicate._light_shafts, occluders.occluder_covers,
                occluders.cone_umbra, shafts.other_geometry, shafts.shaft_instances,
                shafts.mesh_candidates, shafts.boundary_edge_in, shaft_geometry.to_object,
                glossy_rays._glossy_rays)

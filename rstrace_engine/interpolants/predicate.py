@@ -287,7 +287,7 @@ def _slab(box, inst, face, depth, coord, zmin, zmax, V):
     return zlo, zhi
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _self_slab(qs, inst, cls, dirs, pl, bb, cand, P, Q, fac, bfac, quiet, behind, hb, hv,
                nhv):
     """Geometry test of the slab shaft ``pl`` (6 planes, world) against the object itself.
@@ -466,7 +466,7 @@ def _light_shafts(qs, sm, s0, row, inst, lo, hi, self_ok, fac, bfac, quiet, behi
     return R_VALID
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _soft_light(qs, inst, j, occ, lo, hi, self_ok, fac, bfac, quiet, behind, cand, P, Q, pl,
                 bb, plo, bbo, named, pts, npts):
     """Light ``j`` with an extent at a ray-tree node whose points lie in box (lo, hi) on
@@ -556,8 +556,9 @@ def check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_
 @njit(cache=True, nogil=True, error_model="numpy")
 def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell_samples,
                  cell_nsamp, status, detail, zlo_out, zhi_out, cls_out, first, step):
-    """:func:`check_cells` for cells ``first, first + step, ...``: serial, not ``prange``: a
-    fraction of the compile (rstrace_engine/stripes.py; _check_one allocates: NRT kept)."""
+    """:func:`check_cells` for cells ``first, first + step, ...``: serial (stripes.py; NRT
+    kept: _check_one allocates). _check_one, _self_slab, _soft_light (one call site each)
+    are inlined: a level compiled alone re-optimises and re-emits its callees' chain."""
     L = qs.light_kind.shape[0]
     for c in range(first, cell_inst.shape[0], step):
         r = _check_one(qs, box, sm, cell_inst[c], cell_face[c], cell_depth[c], cell_coord[c],
@@ -567,7 +568,7 @@ def _check_cells(qs, box, sm, cell_inst, cell_face, cell_depth, cell_coord, cell
             _SIL if r == R_MISS or r == R_CLASS or r == R_SLAB else _SHD)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_out, cls_out,
                c):
     s0 = ids[0]
@@ -653,8 +654,7 @@ def _check_one(qs, box, sm, inst, face, depth, coord, ids, ns, L, zlo_out, zhi_o
     # (the row, the flag and the count as variables: constant arguments compile the
     # callees once more, for their literal values)
     r = _light_shafts(qs, sm, s0, np.int64(0), inst, lo, hi, np.bool_(True), fac, bfac, quiet,
-                      behind, cand, P,
-                      Q, spl, sbb, plo, bbo, named, hv, nhv[0])
+                      behind, cand, P, Q, spl, sbb, plo, bbo, named, hv, nhv[0])
     if r != R_VALID:
         return r
     # reflection / refraction tunnels and their lights

@@ -24,6 +24,7 @@ import sys
 import time
 
 import numpy as np
+from frames_dump import compare  # scripts/ is on sys.path when run as a script
 
 SCENES = ("three_spheres", "museum", "studio", "tori", "grid", "bezier_surface", "tomatoes",
           "rough_materials")
@@ -104,24 +105,6 @@ def run(out_path, scenes, size, repeats, n_random):
                     saved[f"{name}/{wl}/{f}"] = np.asarray(getattr(res, f))
     if out_path:
         np.savez(out_path, **saved)
-
-
-def compare(a, b) -> int:
-    fa, fb = np.load(a), np.load(b)
-    bad = 0
-    for k in sorted(set(fa.files) | set(fb.files)):
-        if k not in fa.files or k not in fb.files:
-            sys.stdout.write(f"{k}: only in one file\n")
-            bad += 1
-            continue
-        x, y = fa[k], fb[k]
-        diff = int(np.count_nonzero(x.view(np.uint8).reshape(len(x), -1)
-                                    != y.view(np.uint8).reshape(len(y), -1)))
-        if diff or x.shape != y.shape:
-            sys.stdout.write(f"{k}: {diff} bytes differ of {x.nbytes}\n")
-            bad += 1
-    sys.stdout.write("identical\n" if not bad else f"{bad} arrays differ\n")
-    return 1 if bad else 0
 
 
 def main(argv=None) -> int:

@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_shaft_skip import SCENES, _random_scene
+from test_shaft_skip import SCENES, _random_scene, primary_surfaces
 
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench.soak import SOAK_SCENES
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
-from rstrace_engine.geometry.cameras import camera_params, camera_rays
 from rstrace_engine.geometry.scene import Light, Material, Scene
 from rstrace_engine.tracing import shaft_skip, whitted
 from rstrace_engine.tracing.soft_lights import sample_seeds, soft_rays
@@ -61,14 +60,7 @@ def test_frames_with_and_without_the_own_skip_are_identical(name, monkeypatch):
 def _own_rays(scene, light_samples=8, depth_hits=None):
     """The soft samples the tracer traces from the primary hits (every light with an
     extent and the world) and the instance each leaves out (-1: none)."""
-    sa = scene.arrays()
-    accel = create_accelerator("BVH", sa)
-    cp = camera_params(scene.camera)
-    pixels = np.arange(cp.width * cp.height, dtype=np.int64)
-    rng = np.random.default_rng(0)
-    o, d, tmin, tmax = camera_rays(cp, pixels, rng.uniform(0.0, 1.0, (len(pixels), 2)))
-    hits = accel.closest_hit(o, d, tmin, tmax)
-    surf = whitted.surfaces(sa, o, d, tmax, hits)
+    sa, accel, cp, pixels, hits, surf = primary_surfaces(scene)
     own = shaft_skip.own_instances(sa, accel, surf, hits.inst, hits.prim)
     soft, so, st, rows = soft_rays(sa, surf, sample_seeds(pixels, 1), light_samples,
                                    surf.sh_state)

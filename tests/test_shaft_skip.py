@@ -134,9 +134,9 @@ def test_frames_with_and_without_skips_are_identical(name, monkeypatch):
     assert 0 < on.stats["skip_rows_proven"] < on.stats["skip_rows"]
 
 
-def _proofs(scene, light_samples=8, accelerator="BVH"):
-    """``(proven samples, occluded among them, sampled samples)`` of the primary hits'
-    lights with an extent, every sample traced."""
+def primary_surfaces(scene, accelerator="BVH"):
+    """``(arrays, accelerator, camera params, pixels, hits, surfaces)`` of one jittered
+    camera ray per pixel (seed 0)."""
     sa = scene.arrays()
     accel = create_accelerator(accelerator, sa)
     cp = camera_params(scene.camera)
@@ -144,7 +144,13 @@ def _proofs(scene, light_samples=8, accelerator="BVH"):
     rng = np.random.default_rng(0)
     o, d, tmin, tmax = camera_rays(cp, pixels, rng.uniform(0.0, 1.0, (len(pixels), 2)))
     hits = accel.closest_hit(o, d, tmin, tmax)
-    surf = whitted.surfaces(sa, o, d, tmax, hits)
+    return sa, accel, cp, pixels, hits, whitted.surfaces(sa, o, d, tmax, hits)
+
+
+def _proofs(scene, light_samples=8, accelerator="BVH"):
+    """``(proven samples, occluded among them, sampled samples)`` of the primary hits'
+    lights with an extent, every sample traced."""
+    sa, accel, cp, pixels, hits, surf = primary_surfaces(scene, accelerator)
     proven = shaft_skip.proven_rows(sa, accel, surf, hits.inst,
                                     shaft_skip.tile_keys(pixels, cp.width), prim=hits.prim)
     soft, so, st, rows = soft_rays(sa, surf, sample_seeds(pixels, 1), light_samples,

@@ -89,6 +89,26 @@ def _stop_on_sigterm():
     return stop.is_set
 
 
+def _exit_with_parent(poll_s: float = 0.5):
+    """A part of the parallel warm-up ends when its parent does: a parent killed outright
+    (SIGKILL: a test's timeout, Blender crashing) runs no clean-up, and its parts would
+    otherwise go on compiling, minutes of CPU holding compile claims that a later warm-up
+    waits on. A daemon thread watches the parent's pid (it changes when the part is
+    orphaned) and ends the process at once (its claims' file locks go with it)."""
+    import os
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(3)
+
+    threading.Thread(target=watch, name="rstrace-part-watch", daemon=True).start()
+
+
 def warm_cache_command(args) -> int:
     import numba
 
@@ -99,6 +119,7 @@ def warm_cache_command(args) -> int:
     if args.part:
         from . import warm_first
 
+        _exit_with_parent()
         k, n = (int(x) for x in args.part.split("/"))
         # the two halves of the viewport's first image first: the tracer's stages in part
         # 0, the BVH traversal and build in part 1 (each about half of the CPU time)

@@ -676,3 +676,58 @@ def test_usable_cores_follow_the_affinity(monkeypatch):
     assert kernel_cache.usable_cores() == 1
     monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # (macOS, Windows)
     assert kernel_cache.usable_cores() == 16
+
+
+def _children(pid: int) -> list[int]:
+    """The live processes whose parent is ``pid`` (Linux ``/proc``)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # after the command's name
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_parts_of_a_killed_warm_up_end_with_it(tmp_path):
+    """A parallel ``warm-cache`` killed outright (SIGKILL: no clean-up runs, as when a
+    test's timeout or a crash ends it) leaves no part compiling on: each part watches its
+    parent and ends within seconds. On an empty cache a part compiles for minutes, so a part
+    still alive 30 s after its parent died is one that does not watch."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    parent = subprocess.Popen([sys.executable, "-m", "rstrace_engine", "warm-cache", "--json",
+                               "--jobs", "2", "--modes", "BASE", "--accelerators", "BVH"],
+                              cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        parts = []
+        while len(parts) < 2 and time.monotonic() < deadline and parent.poll() is None:
+            time.sleep(0.2)
+            parts = _children(parent.pid)
+        assert len(parts) == 2, f"the warm-up started {len(parts)} parts"
+        time.sleep(3.0)  # the parts import numba and start compiling
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 30
+    while any(_alive(p) for p in parts) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [p for p in parts if _alive(p)]
+    for p in left:
+        os.kill(p, 9)
+    assert not left, f"parts {left} still compiling after their parent was killed"

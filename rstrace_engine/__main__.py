@@ -94,12 +94,14 @@ def _exit_with_parent(poll_s: float = 0.5):
     (SIGKILL: a test's timeout, Blender crashing) runs no clean-up, and its parts would
     otherwise go on compiling, minutes of CPU holding compile claims that a later warm-up
     waits on. A daemon thread watches the parent's pid (it changes when the part is
-    orphaned) and ends the process at once (its claims' file locks go with it)."""
+    orphaned) and ends the process at once (its claims' file locks go with it). The parent
+    names itself in ``RSTRACE_WARM_PARENT``: a part orphaned while still importing finds
+    another parent already at its first look."""
     import os
     import threading
     import time
 
-    parent = os.getppid()
+    parent = int(os.environ.get("RSTRACE_WARM_PARENT") or os.getppid())
 
     def watch():
         while os.getppid() == parent:

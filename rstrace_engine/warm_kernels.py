@@ -545,6 +545,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
         env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in sys.path if p])
+    env["RSTRACE_WARM_PARENT"] = str(os.getpid())  # the parts end with this process
     # The parts write to files, not pipes: this process reads nothing until they end, and a
     # part whose warnings filled a pipe (64 KiB) would block on it forever.
     logs = [(tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")) for _ in range(jobs)]

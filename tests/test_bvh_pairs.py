@@ -117,3 +117,50 @@ def test_unpaired_meshes_keep_the_invariants_and_hit_what_brute_force_hits(kind)
     assert np.count_nonzero(want.prim >= 0) > n // 2
     for a, w in zip(got, want, strict=True):
         assert np.array_equal(a, w)
+
+
+def _tie_grid(n: int):
+    """A flat grid of n x n unit quads (integer coordinates), each split on its diagonal
+    a-c into triangles 2k, 2k+1 (a quad's pair); with dyadic ray targets every edge and
+    vertex hit is an exact tie between the triangles meeting there."""
+    xs = np.arange(n + 1, dtype=np.float64)
+    X, Y = np.meshgrid(xs, xs, indexing="ij")
+    verts = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(n), np.arange(n), indexing="ij"))
+    a, b = i * (n + 1) + j, (i + 1) * (n + 1) + j
+    c, d = b + 1, a + 1
+    tris = np.stack([np.stack([a, b, c], 1), np.stack([a, c, d], 1)], 1).reshape(-1, 3)
+    return verts, tris.astype(np.int32)
+
+
+@pytest.mark.parametrize("n", [40, 200])  # 3,200 triangles (main's build), 80,000 (paired)
+def test_exact_ties_go_to_the_highest_triangle_in_any_tree(n):
+    """Rays through shared diagonals, edges and vertices hit two or more triangles at the
+    same t: the closest hit is the highest triangle id among them (what the brute-force
+    oracle, testing triangles in id order, reports), whatever the tree tested first -- the
+    paired build (over 65,536 triangles) orders a quad's triangles unlike the triangle
+    build, so a rule of "the last tested" gave another triangle, u and v (review)."""
+    verts, tris = _tie_grid(n)
+    s = Scene()
+    s.add_material(Material("m"))
+    s.add_instance(s.add_mesh(Mesh("grid", verts, tris), key="grid"), np.eye(4), key="Grid")
+    sa = s.arrays()
+    rng = np.random.default_rng(1)
+    m = 3000
+    qi, qj = (rng.integers(0, n, m).astype(np.float64) for _ in range(2))
+    f = rng.integers(1, 8, m) / 8.0
+    z = np.zeros(m)
+    targets = np.concatenate([np.stack([qi + f, qj + f, z], 1),  # on a diagonal
+                              np.stack([qi, qj, z], 1),  # on a vertex
+                              np.stack([qi + f, qj, z], 1)])  # on an axis edge
+    k = len(targets)
+    d = np.concatenate([np.tile([0.0, 0.0, -1.0], (k, 1)),
+                        rng.integers(-4, 5, (k, 3)) / 8.0 + np.array([0.0, 0.0, -1.0])])
+    t = np.concatenate([targets, targets])
+    o = t - 4.0 * d
+    got = create_accelerator("BVH", sa).closest_hit(o, d, 0.0, np.inf)
+    want = create_accelerator("BRUTE_FORCE", sa).closest_hit(o, d, 0.0, np.inf)
+    assert np.count_nonzero(want.prim >= 0) > 0.9 * len(o)
+    for field in ("t", "inst", "prim", "u", "v"):
+        a, b = np.asarray(getattr(got, field)), np.asarray(getattr(want, field))
+        assert np.array_equal(a, b), (field, int(np.count_nonzero(a != b)))

@@ -254,7 +254,11 @@ def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t
                 verts[a, kx], verts[a, ky], verts[a, kz], verts[b, kx], verts[b, ky],
                 verts[b, kz], verts[c, kx], verts[c, ky], verts[c, kz], okx, oky, okz, sx, sy,
                 sz, t0, best)
-            if hit:
+            # t <= best; an equal distance goes to the highest triangle id, whichever the
+            # tree tested first (every triangle at t == best is tested: nodes are culled
+            # only past _cull(best)), so ties resolve the same in any tree, as the oracle
+            # (triangles in id order) resolves them
+            if hit and (t < best or g > bp):
                 found, best, bp, bu, bv = True, t, g, u, v
                 if anyhit:
                     return found, best, bp, bu, bv

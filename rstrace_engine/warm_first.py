@@ -100,7 +100,7 @@ class _FixedHits:
         h.t[:], h.inst[:], h.prim[:], h.u[:], h.v[:] = 1.0, 0, self.tri, 0.25, 0.25
         return h
 
-    def any_hit(self, origins, directions, tmin, tmax):
+    def any_hit(self, origins, directions, tmin, tmax, skip=None):
         from .accel.accelerators import check_rays
 
         return np.zeros(len(check_rays(origins, directions, tmin, tmax)[0]), bool)

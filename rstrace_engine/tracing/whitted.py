@@ -327,8 +327,6 @@ def _occluded_by(sa, accel):
 
     def occluded(o, d, tmax, rows, skip=None):  # (skip: any_hit's)
         if not links_shadows(sa):
-            if skip is None:
-                return accel.any_hit(o, d, np.zeros(len(o)), tmax)
             return accel.any_hit(o, d, np.zeros(len(o)), tmax, skip)
         return linked_occluded(sa, accel, o, d, tmax, np.where(rows >= 0, rows % max(L, 1),
                                                                  -1))

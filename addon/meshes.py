@@ -78,6 +78,18 @@ def blender_array(items, n: int, width: int, dtype, prop: str) -> np.ndarray | N
     return view
 
 
+def read_array(items, n: int, width: int, dtype, prop: str) -> np.ndarray:
+    """The ``n * width`` values of ``items``' property ``prop``, flat: Blender's own array
+    read in place where it is one (:func:`blender_array`: valid only within the mesh
+    read), else a copy with ``foreach_get``."""
+    view = blender_array(items, n, width, dtype, prop)
+    if view is not None:
+        return view
+    out = np.empty(n * width, dtype)
+    items.foreach_get(prop, out)
+    return out
+
+
 def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
     """A generic attribute's values (``size`` numbers), or None if the mesh lacks it: a
     read-only view of Blender's own array where it is one (:func:`blender_array`, no
@@ -90,9 +102,7 @@ def _attribute(me, name: str, prop: str, size: int, dtype) -> np.ndarray | None:
     data = attr.data
     n = len(data)
     if n and size % n == 0:
-        view = blender_array(data, n, size // n, dtype, prop)
-        if view is not None:
-            return view
+        return read_array(data, n, size // n, dtype, prop)
     out = np.empty(size, dtype)
     data.foreach_get(prop, out)
     return out
@@ -112,10 +122,7 @@ def _uv(me, layer, raw: dict, nl: int) -> np.ndarray:
     named = raw.get("uv")
     if named is not None and named[0] == layer.name:
         return named[1]
-    uv = blender_array(layer.uv, nl, 2, np.float32, "vector")
-    if uv is None:
-        uv = np.empty(nl * 2, np.float32)
-        layer.uv.foreach_get("vector", uv)
+    uv = read_array(layer.uv, nl, 2, np.float32, "vector")
     raw["uv"] = (layer.name, uv)
     return uv
 
@@ -125,11 +132,8 @@ def _corner_normals(me, raw: dict, nl: int) -> np.ndarray:
     is one (:func:`blender_array`), else a copy."""
     cn = raw.get("corner_normals")
     if cn is None:
-        cn = blender_array(me.corner_normals, nl, 3, np.float32, "vector")
-        if cn is None:
-            cn = np.empty(nl * 3, np.float32)
-            me.corner_normals.foreach_get("vector", cn)
-        raw["corner_normals"] = cn
+        cn = raw["corner_normals"] = read_array(me.corner_normals, nl, 3, np.float32,
+                                                "vector")
     return cn
 
 
@@ -145,13 +149,7 @@ def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     of Blender's array, no copy: valid only within the mesh read), else read with
     ``foreach_get``.
     """
-    view = blender_array(tris_rna, nt, 3, np.int32, "loops")
-    if view is not None:
-        out = view.reshape(nt, 3)
-    else:
-        out = np.empty((nt, 3), np.int32)
-        tris_rna.foreach_get("loops", out.reshape(-1))
-    return out
+    return read_array(tris_rna, nt, 3, np.int32, "loops").reshape(nt, 3)
 
 
 def _in_range(index: np.ndarray, size: int, name: str, what: str) -> None:
@@ -211,11 +209,7 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     nslots = max(len(me.materials), 1)
     slots = None  # (no material indices: every triangle slot 0, no rows)
     if face_mat is not None:
-        polys = me.loop_triangle_polygons
-        poly = blender_array(polys, nt, 1, np.int32, "value")
-        if poly is None:
-            poly = np.empty(nt, np.int32)
-            polys.foreach_get("value", poly)
+        poly = read_array(me.loop_triangle_polygons, nt, 1, np.int32, "value")
         _in_range(poly, nf, name, "triangle face")
         slots = _gather(face_mat, poly)
         np.clip(slots, 0, nslots - 1, out=slots)  # Blender clamps out-of-range indices

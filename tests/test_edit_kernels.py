@@ -27,23 +27,25 @@ def test_each_loader_runs_once_with_the_first_frame_it_needs(monkeypatch):
     monkeypatch.setattr(edit_kernels, "LOADERS",
                         [(n, wrap(n, fn), when) for n, fn, when in edit_kernels.LOADERS])
     assert {n for n, _, _ in edit_kernels.LOADERS} == {"recombine", "edit", "reshade",
-                                                      "term_pixels", "recombine_pixels"}
+                                                      "samples", "term_pixels",
+                                                      "recombine_pixels"}
     scene = soft_penumbra("PERSP")
     base = Session(scene.copy(), RenderSettings(mode="BASE", max_depth=3))
     base.light_terms = True
     base.render()
-    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade"]  # (at its end)
+    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade",
+                             "samples"]  # (at its end)
     base.apply(edit(base, "Area", power=0.5))
     base.render()
-    assert len(calls) == 4
+    assert len(calls) == 5
     interp = Session(scene.copy(), RenderSettings(mode="INTERPOLANT", max_depth=3))
     interp.light_terms = True
     interp.render()
-    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade",
-                           "term_pixels"]
+    assert sorted(calls) == ["edit", "recombine", "recombine_pixels", "reshade", "samples",
+                             "term_pixels"]
     interp.render()
     Session(scene.copy(), RenderSettings(mode="BASE", max_depth=3)).render()
-    assert len(calls) == 5
+    assert len(calls) == 6
 
 
 _FIRST_EDIT = """
@@ -72,8 +74,8 @@ session.light_terms = True
 session.render()
 m = scene.instances[scene.instance_slot("MirrorBall")]["matrix"].copy()
 m[0, 3] += 0.1
-session.apply([ObjectTransform("MirrorBall", m)])
 before = signatures()
+session.apply([ObjectTransform("MirrorBall", m)])
 frame = session.render()
 assert frame.stats["incremental"] and frame.stats["reshaded_pixels"] > 0
 for name, attr, sig in sorted(signatures() - before):
@@ -81,12 +83,13 @@ for name, attr, sig in sorted(signatures() - before):
 """
 
 
-def test_first_object_edit_frame_loads_no_kernel():
-    """The first incremental frame after an object moved under soft light (BASE: pixels
-    traced, others re-shaded, the records compacted) runs kernels the first frame's
-    loaders loaded -- none is loaded (5-20 ms each) inside the frame: the records'
-    compaction counts their 16-bit codes there (``_mark_used``), where the first frame
-    counted 32-bit ones. In a process of its own (other tests load kernels)."""
+def test_first_object_edit_loads_no_kernel():
+    """The first object move under soft light (BASE), its edit and its incremental frame
+    (the records' sampled-ray queries and proofs, pixels traced, others re-shaded, the
+    records compacted) run kernels the first frame's loaders loaded -- none is loaded (5-20
+    ms each) in them: the records' compaction counts their 16-bit codes there
+    (``_mark_used``), where the first frame counted 32-bit ones. In a process of its own
+    (other tests load kernels)."""
     import os
     import subprocess
     import sys

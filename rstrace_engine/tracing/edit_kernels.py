@@ -19,6 +19,11 @@ loader's condition (:meth:`~.frame_reuse.FrameReuse.finish`; issue 21):
   frame of a scene with lights;
 * the soft lights' re-shade (:func:`~.shadow_reshade.load_kernels`): a BASE frame under
   soft light;
+* the records' sampled-ray queries an object edit runs in :meth:`~.pixel_records.
+  PixelRecords.dirty_split` (:func:`~.sample_proofs.query_samples`: the soft lights' and the
+  world's samples, and the placed objects' proofs; :func:`_sample_kernels`): a frame under
+  soft light whose records keep the samples' normals and seeds (0.04 s of the first edit's
+  ``apply`` on ``studio`` before);
 * what other modules register (:func:`register`; the interpolants' term kernel,
   :mod:`~..interpolants.term_pixels`: an INTERPOLANT frame).
 
@@ -32,15 +37,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.cameras import camera_params
+from ..geometry.edits import PART_NEW, PART_OLD
 from .batches import accumulate, threads_for
+from .light_bits import mask_of
 from .light_records import load_kernels as recombine_kernels
 from .light_reshade import _one_light, one_light_states
 from .pixel_records import _light_bit_changes
-from .record_codes import _mark_used
+from .record_codes import _mark_used, light_geometry
 from .record_queries import _mark_rays, _query_primary, _query_secondary, query_tiles
+from .sample_proofs import query_samples
 from .shader import _shadow_kernel
 from .shadow_reshade import load_kernels as reshade_kernels
-from .soft_lights import has_soft_light
+from .soft_lights import has_soft_light, world_lights
 
 #: the loaders, ``(name, fn(records, sa, camera), when(records, sa) -> bool)``
 LOADERS: list = []
@@ -96,8 +104,34 @@ def _edit_kernels(records, sa, camera) -> None:
             _mark_used(np.zeros(0, dt), b)
 
 
+def _sample_kernels(records, sa, camera) -> None:
+    """The first object edit's sampled-ray queries under soft light, at the primary and the
+    secondary nodes, with a placed object's proof (zero rows: the records' own array
+    types)."""
+    r = records
+    ext = np.asarray(sa.light_ext, bool) & (np.asarray(sa.light_kind) >= 0)
+    soft = mask_of(np.flatnonzero(ext), r.n_words)
+    e3, e1 = np.zeros((1, 3)), np.zeros(1)
+    parts = (e3, e3.copy(), e3.copy(), e1, np.full(1, PART_OLD | PART_NEW, np.int8))
+    placed = ((e3.copy(), np.ones(1), np.ones(1)), 0.0)
+    pos = light_geometry(sa)
+    inst64 = r.t_inst.astype(np.int64)[:0]
+    traced = r.t_traced.astype(np.uint64)[:0]
+    none = np.zeros(0, np.bool_)
+    nodes = [(r.p_combo, r.p_code, r.p_wnorm, r.p_seed, r.p_vis)]
+    if r.s_wnorm is not None:
+        nodes.append((r.s_combo, r.s_code, r.s_wnorm, r.s_seed, r.s_vis))
+    with threads_for(0):
+        for combo, code, wnorm, seed, vis in nodes:
+            query_samples(r, sa, combo[:0], code[:0], wnorm[:0], seed[:0],
+                          None if vis is None else vis[:0], none, inst64, traced, soft,
+                          world_lights(sa), parts, pos, none, placed)
+
+
 register("recombine", lambda records, sa, camera: recombine_kernels())
 register("edit", _edit_kernels, lambda records, sa: len(sa.light_kind) > 0)
 register("reshade", lambda records, sa, camera: reshade_kernels(sa),
          lambda records, sa: (not records.light.partial and len(sa.light_kind) > 0
                               and has_soft_light(sa)))
+register("samples", _sample_kernels,
+         lambda records, sa: records.p_wnorm is not None and has_soft_light(sa))

@@ -426,12 +426,17 @@ def _edit_mode_mesh(r: _Reader, ob):
     the evaluated object is asked: no mode switch, nothing written to the user's mesh. The
     conversion is made on the real evaluated object (an instance's object may be a
     temporary copy) and forgotten by :meth:`_Reader.mesh_key` when freed (the next
-    conversion may get its address)."""
+    conversion may get its address). The journal is not asked about it (a cached read is
+    checked by fingerprint): a script may change the edit mesh with no depsgraph update
+    (``bmesh.from_edit_mesh`` without ``update_edit_mesh``), which a fresh render
+    depsgraph, and so Cycles' F12, shows."""
     real = ob.original.evaluated_get(r.depsgraph)
     converted = real.to_mesh()
+    journal, r.journal = r.journal, False  # (see below)
     try:
         yield _Named(converted, ob.original.data.name)
     finally:
+        r.journal = journal
         r.mesh_by_pointer.pop(converted.as_pointer(), None)
         real.to_mesh_clear()
 

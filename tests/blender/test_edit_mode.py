@@ -62,22 +62,33 @@ def test_f12_renders_objects_in_edit_mode_with_their_edits():
     # (before: both spheres left out, "its mesh 'Mesh' has no faces")
     np.testing.assert_array_equal(unedited, object_mode)
     _move(red, 0.6)
-    _move(blue, -0.2, 0.7)  # (the same vertex count: a freed conversion's address reused)
-    edited = _f12()  # the session's cached meshes, checked against the journal
+    _move(blue, -0.2, 0.7)
+    edited = _f12()  # (the session's cached meshes: checked by fingerprint, re-read)
     assert np.abs(edited - object_mode).max() > 0.1
     np.testing.assert_array_equal(edited, _fresh())
     _move(red, 0.5)  # an edit after an F12 in Edit Mode
     again = _f12()
     assert np.abs(again - edited).max() > 0.1
     np.testing.assert_array_equal(again, _fresh())
+    # an edit that sends no update (a script's bmesh edit without update_edit_mesh):
+    # a fresh render depsgraph (Cycles' F12 too) shows it, so does the cached read
+    bm = bmesh.from_edit_mesh(red.data)
+    for v in bm.verts:
+        v.co.z -= 0.5
+    unsent = _f12()
+    assert np.abs(unsent - again).max() > 0.1
+    np.testing.assert_array_equal(unsent, _fresh())
+    _move(red, 0.5)  # (sent)
+    last = _f12()
+    np.testing.assert_array_equal(last, _fresh())
     # the scene as it was: still in Edit Mode, no datablock added, the object's own mesh
     # not written (leaving Edit Mode writes it)
     assert red.mode == blue.mode == "EDIT" and len(bpy.data.meshes) == meshes
     assert abs(max(v.co.z for v in red.data.vertices) - 1.0) < 1e-6
     bpy.ops.object.mode_set(mode="OBJECT")
     assert abs(max(v.co.z for v in red.data.vertices) - 2.1) < 1e-5
-    np.testing.assert_array_equal(_f12(), again)  # the same shapes in Object Mode
-    np.testing.assert_array_equal(_fresh(), again)
+    np.testing.assert_array_equal(_f12(), last)  # the same shapes in Object Mode
+    np.testing.assert_array_equal(_fresh(), last)
 
 
 def test_each_edit_mode_mesh_keeps_its_own_key():

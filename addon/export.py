@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Hashable
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -198,6 +199,7 @@ class _Reader:
         self.meshes_trusted = 0
         self.notes = Notes()
         self.mesh_by_pointer: dict[int, Hashable] = {}
+        self.depsgraph = depsgraph
         self.materials_seen: set = set()
         self.meshes_read = 0
         self.materials_read = 0
@@ -408,7 +410,51 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
             notes.skip(f"skipped {exc}")
             return None
         cache.matrices[key] = raw
-    me = ob.data
+    if not ob.data.is_editmode:
+        return _mesh_record(r, inst, ob, ob.data, name, matrix, faceless)
+    with _edit_mode_mesh(r, ob) as me:
+        return _mesh_record(r, inst, ob, me, name, matrix, faceless)
+
+
+@contextmanager
+def _edit_mode_mesh(r: _Reader, ob):
+    """The mesh to read of ``ob``, in Edit Mode. Its evaluated mesh is then Blender's
+    wrapper of the edit mesh, which has no vertices or faces of its own (read as it is, the
+    object was skipped as faceless): Blender's conversion of it is read instead
+    (``to_mesh``: the edit mesh as of the last depsgraph update, what Cycles reads there),
+    under the mesh's own name (the conversion is called 'Mesh'), and freed on exit. Only
+    the evaluated object is asked: no mode switch, nothing written to the user's mesh. The
+    conversion is made on the real evaluated object (an instance's object may be a
+    temporary copy) and forgotten by :meth:`_Reader.mesh_key` when freed (the next
+    conversion may get its address). The journal is not asked about it (a cached read is
+    checked by fingerprint): a script may change the edit mesh with no depsgraph update
+    (``bmesh.from_edit_mesh`` without ``update_edit_mesh``), which a fresh render
+    depsgraph, and so Cycles' F12, shows."""
+    real = ob.original.evaluated_get(r.depsgraph)
+    converted = real.to_mesh()
+    journal, r.journal = r.journal, False  # (see below)
+    try:
+        yield _Named(converted, ob.original.data.name)
+    finally:
+        r.journal = journal
+        r.mesh_by_pointer.pop(converted.as_pointer(), None)
+        real.to_mesh_clear()
+
+
+class _Named:
+    """A mesh under another name (everything else is the mesh's own)."""
+
+    def __init__(self, me, name: str) -> None:
+        self._me, self.name = me, name
+
+    def __getattr__(self, attr: str):
+        return getattr(self._me, attr)
+
+
+def _mesh_record(r: _Reader, inst, ob, me, name: str, matrix: np.ndarray,
+                 faceless: list | None) -> ObjectRecord | None:
+    """:func:`_mesh_object`'s record of ``ob`` with its mesh ``me`` (its matrix checked)."""
+    cache, notes = r.cache, r.notes
     mesh_key = r.mesh_key(inst, ob, me)
     entry = cache.meshes[mesh_key]
     if entry.mesh is None:

@@ -161,7 +161,7 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
         kept, dropped = mesh._checked
         if dropped and dropped_fn is not None:
             dropped_fn(dropped)
-        return dict(kept, verts=_stored_vertices(mesh.vertices))
+        return dict(kept, verts=_stored_vertices(mesh.vertices), source=mesh)
     n = mesh.name
     verts, lo, hi = _vertices(n, mesh.vertices, keep)
     tris = _triangles(n, mesh.triangles, len(verts), keep)
@@ -210,4 +210,5 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     if keep:  # (the arrays before packing: the Mesh's own, or compact rows; each scene
         # gets its own dict, whose arrays its packing replaces by views of itself)
         mesh._checked = (dict(out, verts=None), dropped)
+        out["source"] = mesh  # (the packing hands its rows back: packing.share_rows)
     return out

@@ -162,11 +162,20 @@ def _in_range(index: np.ndarray, size: int, name: str, what: str) -> None:
 
 def _gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:
     """``values[index]`` (rows of ``values`` along its first axis) as a fresh array, the
-    one the Mesh keeps. Numpy's indexing casts the int32 ``index`` in small buffered chunks;
-    ``np.take`` converts all of it to int64 first (a temporary of 8 bytes an index: 96 MB
-    for the corners of 4M triangles, twice per mesh). The caller checked the range
-    (:func:`_in_range`)."""
-    return values[index]
+    one the Mesh keeps, bit for bit. Numpy's indexing casts the int32 ``index`` in small
+    buffered chunks; ``np.take`` converts all of it to int64 first (a temporary of 8 bytes
+    an index: 96 MB for the corners of 4M triangles, twice per mesh). A row of several
+    values (a uv, a normal) is moved as one item of the row's bytes (``uint64`` for 8,
+    raw bytes otherwise): numpy's path for one-dimensional items is about 6x faster than
+    its path for rows on the uvs and 2x on the normals (0.1-0.3 s less CPU at 4M
+    triangles). The caller checked the range (:func:`_in_range`)."""
+    if values.ndim == 1:
+        return values[index]
+    shape, width = values.shape, int(np.prod(values.shape[1:]))
+    size = values.dtype.itemsize * width
+    rows = np.ascontiguousarray(values).reshape(shape[0], width)
+    one = rows.view(np.uint64 if size == 8 else np.dtype((np.void, size))).reshape(shape[0])
+    return one[index].view(values.dtype).reshape(*index.shape, *shape[1:])
 
 
 def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:

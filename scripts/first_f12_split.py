@@ -2,6 +2,7 @@
 Cycles' first render of the same scene in the same process.
 
     python scripts/first_f12_split.py [1M|4M|60k] [--json out.jsonl] [--root CHECKOUT]
+                                      [--moves N]
 
 Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE,
 ray depth 0), waits for the add-on's background kernel load (``--settle``), then times one
@@ -10,10 +11,13 @@ F12 (``bpy.ops.render.render()``) with each part wrapped: the export (the mesh r
 fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the
 packing), the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top
 level), the core render, writing the result, and any kernel load or compile
-(``Dispatcher._compile_for_args``); per part the wall seconds and the CPU seconds of the
-whole process (all threads: the build thread and numba's), and for the F12 its wall, CPU
-and system CPU (page faults of fresh memory). Then Cycles (CPU, 1 sample, no bounces, no
-denoising) renders the same scene. Nothing is asserted; the numbers go to
+(``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the
+whole process (all threads: the build thread and numba's), of which system CPU, and the
+minor page faults (system CPU and faults are mostly fresh memory's first touch) and the
+resident memory after it, and for the F12 its wall, CPU, system CPU, faults and the
+process's peak RSS before and after. ``--moves N``: then N F12s after moving the small
+sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no bounces,
+no denoising) renders the same scene. Nothing is asserted; the numbers go to
 ``docs/bench-scale-bpy.md``. ``--root``: the checkout whose add-on, core and
 ``bench_scale_bpy.py`` run (default: this script's), for A/B runs against another one.
 """
@@ -30,10 +34,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 #: (module attribute holder, name, label) of what is timed, in the order printed
-PARTS = (("export", "read_scene", "export (all)"),
+PARTS = (("sync", "sync", "sync (export, scene model, packing, BVH)"),
+         ("export", "read_scene", "export (all)"),
          ("export", "mesh_arrays", "  mesh read (foreach_get, corners, gathers)"),
          ("export", "mesh_fingerprint", "  fingerprint"),
-         ("export", "build_scene", "scene model (add_mesh, checks, packing)"),
+         ("export", "build_scene", "scene model (add_mesh, checks)"),
+         ("scene.Scene", "arrays", "packing (Scene.arrays)"),
          ("accelerators.BVHAccelerator", "_build", "BVH (all)"),
          ("bvh_mesh", "mesh_key", "  mesh keys (hash)"),
          ("bvh_mesh", "build_mesh_bvh_indexed", "  mesh builds"),
@@ -45,18 +51,34 @@ PARTS = (("export", "read_scene", "export (all)"),
          ("dispatcher.Dispatcher", "_compile_for_args", "kernel loads / compiles"))
 
 
+def _usage() -> tuple[float, int]:
+    """(system CPU seconds, minor page faults) of the whole process so far."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_stime, r.ru_minflt
+
+
+def _rss_mb() -> float:
+    """The process's resident memory now (MB)."""
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * resource.getpagesize() / 2 ** 20
+
+
 def _wrap(holder, name: str, label: str, acc: dict) -> None:
     f = getattr(holder, name)
 
     def timed(*a, **k):
-        t, c = time.perf_counter(), time.process_time()
+        t, c, (s, m) = time.perf_counter(), time.process_time(), _usage()
         try:
             return f(*a, **k)
         finally:
-            e = acc.setdefault(label, [0.0, 0.0, 0])
+            s1, m1 = _usage()
+            e = acc.setdefault(label, [0.0, 0.0, 0, 0.0, 0, 0.0])
             e[0] += time.perf_counter() - t
             e[1] += time.process_time() - c
             e[2] += 1
+            e[3] += s1 - s
+            e[4] += m1 - m
+            e[5] = _rss_mb()
 
     setattr(holder, name, timed)
 
@@ -66,6 +88,8 @@ def main(argv=None) -> int:
     p.add_argument("size", nargs="?", default="1M")
     p.add_argument("--json", type=Path, help="append one JSON line")
     p.add_argument("--root", type=Path, default=ROOT, help="the checkout to time")
+    p.add_argument("--moves", type=int, default=0,
+                   help="F12s after moving the small sphere, after the first")
     args = p.parse_args(argv)
     root = args.root.resolve()
     sys.path[:0] = [str(root / "scripts"), str(root)]
@@ -74,42 +98,60 @@ def main(argv=None) -> int:
     import numba.core.dispatcher as dispatcher
 
     import addon
-    from addon import export
+    from addon import export, sync
     from addon import session as frames
     from rstrace_engine import session as core
     from rstrace_engine.accel import accelerators, bvh, bvh_mesh
+    from rstrace_engine.geometry import scene
 
     addon.register()
-    bsb.build(args.size, 0, 0)
+    small = bsb.build(args.size, 0, 0)
     sc = bpy.context.scene
     addon.kernels.wait(600)
-    names = dict(export=export, accelerators=accelerators, bvh_mesh=bvh_mesh, bvh=bvh,
-                 core=core, frames=frames, dispatcher=dispatcher)
+    names = dict(sync=sync, scene=scene, export=export, accelerators=accelerators,
+                 bvh_mesh=bvh_mesh, bvh=bvh, core=core, frames=frames, dispatcher=dispatcher)
     acc: dict = {}
     for path, name, label in PARTS:
         holder = names[path.split(".")[0]]
         for attr in path.split(".")[1:]:
             holder = getattr(holder, attr)
         _wrap(holder, name, label, acc)
-    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    r0, rss0 = resource.getrusage(resource.RUSAGE_SELF), _rss_mb()
     t, c = time.perf_counter(), time.process_time()
     bpy.ops.render.render()
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     r1 = resource.getrusage(resource.RUSAGE_SELF)
-    parts = {label: acc.get(label, [0.0, 0.0, 0]) for _, _, label in PARTS}
+    parts = {label: acc.get(label, [0.0, 0.0, 0, 0.0, 0, 0.0]) for _, _, label in PARTS}
     acc.clear()
     st = addon.last_render_stats(sc)
     out = dict(size=args.size, root=str(root), f12_wall=wall, f12_cpu=cpu,
-               f12_sys=r1.ru_stime - r0.ru_stime, parts=parts,
-               triangles=st.get("triangles"), memory_mb=st.get("memory_mb"),
-               cycles=bsb._cycles(sc))
+               f12_sys=r1.ru_stime - r0.ru_stime, f12_faults=r1.ru_minflt - r0.ru_minflt,
+               peak_rss_mb=(r0.ru_maxrss / 1024.0, r1.ru_maxrss / 1024.0), rss_mb=rss0,
+               parts=parts,
+               triangles=st.get("triangles"), memory_mb=st.get("memory_mb"))
+    out["moves"] = moves = []
+    for _ in range(args.moves):
+        small.location.x += 0.2
+        bpy.context.view_layer.update()
+        t, c = time.perf_counter(), time.process_time()
+        bpy.ops.render.render()
+        mv = addon.last_render_stats(sc)
+        moves.append(dict(wall=time.perf_counter() - t, cpu=time.process_time() - c,
+                          sync=mv.get("sync_seconds"), meshes_read=mv.get("meshes_read")))
+    out["cycles"] = cy = bsb._cycles(sc)
     addon.unregister()
-    for label, (w, cp, n) in parts.items():
-        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  ({n} calls)")
-    cy = out["cycles"]
-    bsb._say(f"first F12: wall {wall:.3f} s, CPU {cpu:.3f} s (system {out['f12_sys']:.3f}) | "
+    bsb._say(f"resident before the F12: {rss0:.0f} MB")
+    for label, (w, cp, n, sy, mf, rss) in parts.items():
+        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  system {sy:6.3f} s  "
+                 f"faults {mf:7d}  resident after {rss:5.0f} MB  ({n} calls)")
+    bsb._say(f"first F12: wall {wall:.3f} s, CPU {cpu:.3f} s (system {out['f12_sys']:.3f}, "
+             f"{out['f12_faults']} faults; peak RSS {out['peak_rss_mb'][0]:.0f} -> "
+             f"{out['peak_rss_mb'][1]:.0f} MB; memory_mb {out['memory_mb']:.1f}) | "
              f"Cycles' first render: wall {cy['wall_seconds']:.3f} s, "
              f"CPU {cy['cpu_seconds']:.3f} s")
+    for mv in moves:
+        bsb._say(f"F12 after a move: wall {mv['wall']:.3f} s, CPU {mv['cpu']:.3f} s (sync "
+                 f"{mv['sync']:.3f} s, meshes read {mv['meshes_read']})")
     if args.json:
         with open(args.json, "a") as fh:
             fh.write(json.dumps(out) + "\n")

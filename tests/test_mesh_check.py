@@ -53,9 +53,12 @@ def test_vertex_normals_give_what_their_corners_give(shape):
 def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     """``owned=True``: the arrays of the stored dtype are the scene's own (no copy), and a
     second scene adding the same Mesh object takes its checked arrays without a check (the
-    area test is not run again), in a dict of its own (the first scene's packing is not
-    referenced); dropped degenerate triangles are still counted and reported by each
-    scene."""
+    area test is not run again), in a dict of its own; dropped degenerate triangles are
+    still counted and reported by each scene. The packing hands its rows back to the Mesh
+    where they are the Mesh's own values (the first mesh's triangles, its vertex normals:
+    the process then holds them once); a mesh whose triangles were dropped keeps its own
+    (the packing's are fewer), and the second scene's dict references no other part of
+    the first packing."""
     base = shapes.lumpy_sphere(800, name="m")
     v = np.asarray(base.vertices, np.float64)
     t = np.asarray(base.triangles, np.int32)
@@ -68,6 +71,11 @@ def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     assert d1["verts"] is v and d1["tris"] is t and d1["normals"] is vn
     dd = s1.meshes[s1.add_mesh(with_degenerate)]
     packed = s1._pack_meshes()  # (the dicts' arrays are now views of the packing)
+    # (handed back: the same values, the packing's memory; the degenerate one's are its own)
+    assert mesh.triangles.base is packed["tris"] and np.array_equal(mesh.triangles, t)
+    assert mesh.vertex_normals.base is packed["normals"]
+    assert np.array_equal(mesh.vertex_normals, vn) and mesh.vertices is v
+    assert with_degenerate.triangles.base is None
     calls = []
     monkeypatch.setattr(mesh_check, "proper_triangles",
                         lambda *a, **k: calls.append(1) or pytest.fail("checked again"))
@@ -75,8 +83,9 @@ def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     d2 = s2.meshes[s2.add_mesh(mesh)]
     dd2 = s2.meshes[s2.add_mesh(with_degenerate)]
     assert not calls and d2 is not d1 and dd2 is not dd
-    assert d2["tris"] is t and d2["normals"] is vn and d2["verts"] is v
-    assert not any(np.shares_memory(a, packed[k]) for a in (*d2.values(), *dd2.values())
+    assert d2["tris"] is mesh.triangles and d2["normals"] is mesh.vertex_normals
+    assert d2["verts"] is v
+    assert not any(np.shares_memory(a, packed[k]) for a in dd2.values()
                    if isinstance(a, np.ndarray) for k in packed
                    if isinstance(packed[k], np.ndarray))
     for s in (s1, s2):
@@ -84,6 +93,82 @@ def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
         assert any("'d': dropped 1 degenerate" in w for w in s.warnings)
     again = s2._pack_meshes()
     assert all(np.array_equal(packed[k], again[k]) for k in ("verts", "tris", "normals"))
+
+
+def test_owned_float32_vertices_are_converted_once_by_the_packing():
+    """An owned mesh of float32 vertices (the add-on's) keeps them as they are in its dict
+    until the packing, which converts them into its own float64 array (exactly: the values
+    of a float64 copy, bit for bit); the check's float64 copy is not kept beside it, and a
+    second scene taking the kept check converts nothing. The scene's box, the packing's
+    other fields and a mesh given as float64 are as before."""
+    given = _exported(shapes.lumpy_sphere(800, name="m"))
+    v32 = given.vertices
+    as64 = dataclasses.replace(given, vertices=v32.astype(np.float64), owned=True)
+    given = dataclasses.replace(given, owned=True)
+    packs = []
+    for scene in (Scene(), Scene()):  # (the second takes the kept check)
+        d = scene.meshes[scene.add_mesh(given)]
+        assert d["verts"] is v32
+        packed = scene._pack_meshes()
+        assert d["verts"].dtype == np.float64 and np.shares_memory(d["verts"],
+                                                                    packed["verts"])
+        packs.append(packed)
+    s64 = Scene()
+    d64 = s64.meshes[s64.add_mesh(as64)]
+    assert d64["verts"] is as64.vertices
+    ref = s64._pack_meshes()
+    for packed in packs:
+        assert packed["verts"].tobytes() == v32.astype(np.float64).tobytes()
+        for k in ("verts", "tris", "normals", "uvs", "mesh_nrm", "mesh_uv", "mesh_gen"):
+            assert packed[k].tobytes() == ref[k].tobytes(), k
+
+
+def test_the_packing_hands_its_rows_back_to_the_owned_mesh():
+    """Where an owned Mesh's corner uvs, corner normals and slot rows are kept as given
+    (CORNER rows, per-triangle slots), the packing hands its copy back: the Mesh and its
+    kept check then hold views of the packing, bit for bit the values they held (the
+    Mesh's own arrays are let go: the process holds them once); its triangles only where
+    its first vertex is the packing's first. A later scene packs the same bits again."""
+    rng = np.random.default_rng(5)
+    base = shapes.lumpy_sphere(800, name="m")
+    v = np.asarray(base.vertices, np.float32)
+    t = np.asarray(base.triangles, np.int32)
+    m = len(t)
+    uv = rng.random((m, 3, 2)).astype(np.float32)
+    cn = rng.standard_normal((m, 3, 3)).astype(np.float32)
+    slots = rng.integers(0, 3, m).astype(np.int32)
+    given = {"corner_uvs": uv, "corner_normals": cn, "slots": slots}
+    small = Mesh("s", v[:3].copy(), np.array([[0, 1, 2]], np.int32), owned=True)
+    for first in (True, False):
+        mesh = Mesh("m", v, t.copy(), corner_normals=cn.copy(), corner_uvs=uv.copy(),
+                    slots=slots.copy(), smooth=True, owned=True)
+        own = {a: getattr(mesh, a) for a in ("triangles", *given)}
+        scene = Scene()
+        if not first:
+            scene.add_mesh(small)
+        d = scene.meshes[scene.add_mesh(mesh)]
+        packed = scene._pack_meshes()
+        for a, f in (("corner_uvs", "uvs"), ("corner_normals", "normals"),
+                     ("slots", "tri_slot")):
+            got = getattr(mesh, a)
+            assert got.base is packed[f] and got.tobytes() == given[a].tobytes(), a
+            assert got.shape == given[a].shape
+        assert (mesh.triangles.base is packed["tris"]) == first
+        assert mesh.triangles is own["triangles"] or first
+        assert np.array_equal(mesh.triangles, t)
+        kept = mesh._checked[0]
+        assert not any(isinstance(x, np.ndarray) and x.ctypes.data == own[a].ctypes.data
+                       for x in kept.values() for a in given)
+        assert d["uvs"] is kept["uvs"] and d["normals"] is kept["normals"]
+        again = Scene()
+        if not first:
+            again.add_mesh(small)
+        again.add_mesh(mesh)
+        repacked = again._pack_meshes()
+        for k in ("verts", "tris", "normals", "uvs", "tri_slot", "mesh_nrm", "mesh_uv",
+                  "mesh_slot"):
+            assert repacked[k].tobytes() == packed[k].tobytes(), k
+        assert mesh.corner_uvs.base is repacked["uvs"]
 
 
 def test_a_mesh_not_owned_is_copied():

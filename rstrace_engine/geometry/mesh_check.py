@@ -10,7 +10,9 @@ kept with it, so a later scene adding the same :class:`~.elements.Mesh` object (
 session over the add-on's export cache) takes its checked arrays without checking them
 again (a mesh dict of its own: scenes of different sessions share no dict, and the kept
 result holds only the Mesh's own arrays and its compact rows, no packing and no float64
-vertices).
+vertices). An owned mesh's dict holds its vertices as given (float32 from the add-on)
+until the packing converts them into its own float64 array: the checks' float64 copy is
+dropped when the check returns, and a kept result is taken with no conversion at all.
 """
 
 from __future__ import annotations
@@ -135,6 +137,17 @@ def _triangles(name: str, value, nverts: int, keep: bool) -> np.ndarray:
     return np.array(tris, np.int32)  # a copy: the caller may change its array later
 
 
+def _stored_vertices(given) -> np.ndarray:
+    """The vertices an ``owned`` mesh's dict holds until the packing: the given (n, 3)
+    array itself where it is a C-contiguous float32 or float64 array (the packing converts
+    float32 to float64 once, as it copies them into its own array: no float64 copy of a
+    mesh's size is made beside it), else a float64 copy. The caller checked them."""
+    arr = np.asarray(given)
+    if arr.dtype in (np.float32, np.float64) and arr.flags.c_contiguous:
+        return arr
+    return np.ascontiguousarray(arr, np.float64)
+
+
 def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     """``mesh`` (a :class:`~.elements.Mesh`) validated (errors name it,
     :class:`SceneError`) into the scene model's mesh dict; ``dropped_fn(count)`` is called
@@ -148,8 +161,7 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
         kept, dropped = mesh._checked
         if dropped and dropped_fn is not None:
             dropped_fn(dropped)
-        # (the vertices as float64 again: the kept result holds no copy of them)
-        return dict(kept, verts=np.ascontiguousarray(mesh.vertices, np.float64))
+        return dict(kept, verts=_stored_vertices(mesh.vertices), source=mesh)
     n = mesh.name
     verts, lo, hi = _vertices(n, mesh.vertices, keep)
     tris = _triangles(n, mesh.triangles, len(verts), keep)
@@ -191,9 +203,12 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
         nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
     uvmode, uvs = compact_uvs(tris, len(verts), uvs)
     slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots)
+    if keep:  # (the float64 copy was for the checks: the packing converts them itself)
+        verts = _stored_vertices(mesh.vertices)
     out = dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
                uvmode=uvmode, slots=slots, slot=slot, lo=lo, hi=hi)
     if keep:  # (the arrays before packing: the Mesh's own, or compact rows; each scene
         # gets its own dict, whose arrays its packing replaces by views of itself)
         mesh._checked = (dict(out, verts=None), dropped)
+        out["source"] = mesh  # (the packing hands its rows back: packing.share_rows)
     return out

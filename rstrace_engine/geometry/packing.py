@@ -11,6 +11,12 @@ back. Its material slots are one constant (``slot`` >= 0, no rows: the usual cas
 material for the whole mesh) or one row per triangle (``slot`` -1): the packing's
 ``mesh_slot[k]`` is ``(slot, bias)``, the slot of global triangle ``t`` the constant or
 ``tri_slot[bias + t]`` (:func:`~.attributes.slot_of`).
+
+A dict checked from an ``owned`` Mesh (the add-on's export cache holds it) names it as
+``source``: where its rows are that Mesh's own arrays (corner uvs or normals kept as
+corners, vertex normals, slot rows, and the triangles of a mesh whose first vertex is the
+packing's first), the packed rows are handed back to the Mesh (:func:`share_rows`), so
+that the process holds those values once.
 """
 
 from __future__ import annotations
@@ -54,6 +60,49 @@ def texture_space(mesh: dict | None) -> np.ndarray:
     return np.stack([mid - half, 2.0 * half])
 
 
+#: (mesh dict field, :class:`~.elements.Mesh` attribute) whose packed rows are handed back
+#: to the owned Mesh a dict was checked from, where they hold its very values
+_SHARED = (("uvs", "corner_uvs"), ("normals", "corner_normals"),
+           ("normals", "vertex_normals"), ("slots", "slots"), ("tris", "triangles"))
+
+
+def _same_array(a, b) -> bool:
+    """Whether ``a`` and ``b`` are the same memory: one start, dtype and size, both
+    C-contiguous (a view of the other's whole buffer, e.g. reshaped)."""
+    return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
+            and a.size == b.size and a.flags.c_contiguous and b.flags.c_contiguous
+            and a.ctypes.data == b.ctypes.data)
+
+
+def _to_share(m: dict, vert0: int) -> list:
+    """The ``(field, attribute)`` of :data:`_SHARED` whose rows in mesh dict ``m``, before
+    it is packed, are its source Mesh's own array (an ``owned`` mesh kept as given: nothing
+    dropped, no coarser mode), so that the packing's copy holds the same bits; triangles
+    only where the mesh's first vertex is the packing's first (``vert0`` 0: the packed
+    indices are its own)."""
+    src = m.get("source")
+    if src is None:
+        return []
+    return [(f, a) for f, a in _SHARED if (f != "tris" or vert0 == 0)
+            and _same_array(m[f], getattr(src, a))]
+
+
+def share_rows(m: dict, shared: list) -> None:
+    """Hand the packed rows of mesh dict ``m`` (views of the packing, after it) back to
+    its source Mesh and to that Mesh's kept check, for the ``(field, attribute)`` pairs
+    :func:`_to_share` chose: the Mesh's own copies (the same bits) are then freed, and the
+    process holds those values once, in the packing (the add-on's export cache held them
+    beside it: 145 MB of uvs and triangles at 4M triangles). Packed arrays are never
+    changed; a later packing hands its own rows back in turn."""
+    src = m["source"]
+    kept = src._checked[0] if src._checked is not None else {}
+    for f, a in shared:
+        old = getattr(src, a)
+        if _same_array(kept.get(f), old):
+            kept[f] = m[f]
+        setattr(src, a, m[f] if m[f].shape == old.shape else m[f].reshape(old.shape))
+
+
 def pack_meshes(meshes: list) -> dict:
     """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
     which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
@@ -73,6 +122,7 @@ def pack_meshes(meshes: list) -> dict:
         tri_slot=np.empty(ns[-1], np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
         mesh_uv=np.zeros((len(meshes), 2), np.int64),
         mesh_slot=np.zeros((len(meshes), 2), np.int64))
+    shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
     for k, m in enumerate(live):
         v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
         rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
@@ -90,6 +140,8 @@ def pack_meshes(meshes: list) -> dict:
         m.update(verts=packed["verts"][v], tris=packed["tris"][t], vert0=int(nv[k]),
                  normals=packed["normals"][rn], uvs=packed["uvs"][ru],
                  slots=packed["tri_slot"][rs])
+        if shared[k]:
+            share_rows(m, shared[k])
     packed["mesh_tri_start"] = tstart
     packed["mesh_gen"] = np.stack([texture_space(m) for m in meshes]).reshape(-1, 2, 3)
     return packed

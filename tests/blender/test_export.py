@@ -531,6 +531,33 @@ def test_corner_gathers_after_a_range_check():
             _in_range(np.array(bad, np.int32), 10, "Ball", "triangle corner")
 
 
+def test_row_gathers_move_each_row_as_one_item_bit_for_bit():
+    """``meshes._gather`` moves a row of several values (a uv: 8 bytes, a normal: 12) as
+    one item of its bytes: the result is ``values[index]`` bit for bit (signed zeros, NaN
+    payloads, subnormals, infinities), for rows of 2 and 3 float32, for a source that is
+    not aligned to its row size (Blender's arrays are read in place) and for none at all.
+    (A guard of the rewritten gather: main's plain indexing passes it too.)"""
+    from addon.meshes import _gather
+
+    rng = np.random.default_rng(7)
+    index = rng.integers(0, 500, (300, 3)).astype(np.int32)
+    special = np.array([0x7FC12345, 0x80000000, 0, 0x7F800000, 0xFF800000, 1, 0x80000001],
+                       np.uint32).view(np.float32)  # (a NaN payload, +-0, +-inf, subnormals)
+    for width in (2, 3):
+        values = rng.standard_normal((500, width)).astype(np.float32)
+        values.reshape(-1)[:len(special)] = special
+        buf = np.zeros(values.nbytes + 4, np.uint8)  # (4 bytes in: not 8-aligned)
+        odd = np.frombuffer(buf[4:], np.float32).reshape(500, width)
+        odd[...] = values
+        want = values[index.astype(np.int64)]
+        for src in (values, odd):
+            got = _gather(src, index)
+            assert got.shape == (300, 3, width) and got.dtype == np.float32
+            assert got.flags.c_contiguous and not np.shares_memory(got, src)
+            assert got.tobytes() == want.tobytes()
+        assert _gather(values[:0], np.zeros((0, 3), np.int32)).shape == (0, 3, width)
+
+
 def _read_scene_meshes():
     """Meshes of every kind the read handles, evaluated: quads and fans with uvs (POINT
     normals), a flat one (FACE), one with a sharp face (CORNER), one with material

@@ -39,7 +39,7 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
-from .glossy_rays import glossy_counts, has_glossy
+from .glossy_rays import glossy_counts, has_glossy, roulette
 from .light_bits import words
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
@@ -215,6 +215,8 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
                 spawn, no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out,
                 tv, tp)
+    if plan.gstart is not None:  # the deeper rough bounces' weak rays
+        roulette(plan.gstart, plan.glossy, fresh, gseeds, weight, out)
     if terms:
         return contrib, out, (tv, tp), plan
     return contrib, out, plan
@@ -275,10 +277,9 @@ def _child_tags(nseeds, which, sample, glossy, tag, out):
 
 def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Plan,
                 nseeds: np.ndarray | None, mine=None, surf=None, counters=None):
-    """The spawned rays, compacted, and the instances they leave out (``own_reflections``
-    of the own instances ``mine`` of points ``surf``); ``rows``: the level's node rows
-    (None: parents not followed); ``plan``: the slots' layout (:func:`_shade_level`),
-    ``nseeds`` the level's node seeds (needed with glossy samples)."""
+    """The spawned rays, compacted, and what they skip (``own_reflections`` of ``mine``
+    at ``surf``); ``rows``: the level's node rows (None: parents not followed); ``plan``:
+    the slots' layout (:func:`_shade_level`), ``nseeds`` the node seeds (glossy samples)."""
     k = np.flatnonzero(kids.ok)
     which, fresh, tag = child_paths(k, plan.gstart, plan.glossy, front.fresh, front.tag,
                                     nseeds)
@@ -300,9 +301,8 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None)
     """Light visibility of the level's points, ``(vis (nb L,) bool, occ (nb L,) int32 or
     None, traced)``: ``occ`` (with ``occluders``, closest-hit shadow rays) names each
     light's occluder (``OCC_NONE``, ``OCC_NOT_FACING``); ``traced``: shadow rays were
-    traced. ``mine`` (nb,) int32 or None: :func:`~.shaft_skip.own_instances`' answer, the
-    instance the any-hit shadow rays of a point leave out (they leave from its shadow
-    origin toward a light facing its geometric normal, as its soft samples do)."""
+    traced. ``mine`` (nb,) int32 or None: the instance a point's any-hit shadow rays leave
+    out (:func:`~.shaft_skip.own_instances`: they leave as its soft samples do)."""
     todo, so, sd, st = shadow_rays(sa, surf)
     vis = np.zeros(len(surf.sh_state), np.bool_)
     occ_inst = None
@@ -488,7 +488,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             hits = _as_hits(primary)
         else:
             hits = _as_hits(accel.closest_hit(front.o, front.d, front.t0, front.t1,
-                                              **({} if skip is None else {"skip": skip})))
+                                              *(() if skip is None else (skip,))))
         _count(counters, "primary" if level == 0 else "secondary", nb)
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         own = level > 0 or roots != "below"  # the roots' own light is wanted

@@ -315,8 +315,8 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None)
             occ_inst = accel.closest_hit(so, sd, zero, st).inst
             vis[todo] = occ_inst < 0
         else:
-            skip = None if mine is None else mine[todo // max(len(sa.light_kind), 1)]
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st, skip), np.bool_)
+            skip = () if mine is None else (mine[todo // max(len(sa.light_kind), 1)],)
+            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st, *skip), np.bool_)
         _count(counters, "shadow", len(todo))
     occ = None
     if occluders:

@@ -63,6 +63,12 @@ SPAWN_OFFSET_EXTENT_FRAC = 1e-3
 #: reflectances along its path) is below this is not spawned: its contribution is invisible.
 PATH_WEIGHT_MIN = 1e-8
 
+#: Russian roulette of a deeper rough bounce's rays (``tracing.glossy_rays.roulette``): a
+#: ray carrying a fraction ``r`` of its point's path weight below this goes on with
+#: probability ``r / GLOSSY_ROULETTE_REL``, its weight divided by that (so a survivor
+#: carries this fraction of the point's weight); measured in docs/glossy.md (session 33)
+GLOSSY_ROULETTE_REL = 0.25
+
 #: Ray/box slab test: the exit distance is scaled by ``1 + 2 * gamma(3)`` for float64
 #: (pbrt-v4, section 6.8.2) so rounding never makes a ray miss a box it touches.
 BOX_TFAR_SCALE = 1.0 + 2.0 * (3.0 * 2.0**-53) / (1.0 - 3.0 * 2.0**-53)

@@ -92,7 +92,7 @@ class _FixedHits:
     def cancellable(self, cancel):
         yield self
 
-    def closest_hit(self, origins, directions, tmin, tmax):
+    def closest_hit(self, origins, directions, tmin, tmax, skip=None):
         from .accel.accelerators import check_rays, empty_hits
 
         o, _, _, _ = check_rays(origins, directions, tmin, tmax)

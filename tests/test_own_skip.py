@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 from test_shaft_skip import SCENES, _random_scene, primary_surfaces
 
+from rstrace_engine import scenes
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench.soak import SOAK_SCENES
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Light, Material, Scene
 from rstrace_engine.tracing import shaft_skip, whitted
 from rstrace_engine.tracing.soft_lights import sample_seeds, soft_rays
@@ -108,3 +110,107 @@ def test_any_hit_leaves_the_skipped_instance_out():
     assert brute.any_hit(o, d, t0, t1, skip).all()
     # the closest hits are the kernel's without a skip
     assert bvh.closest_hit(o, d, t0, t1).inst.tolist() == [a, a, a, a, a, a]
+
+
+def _rough_random(seed, w=48, h=36):
+    """The random scene of every kind of object (convex, non-convex, open, mirrored,
+    stretched) with its materials made rough metals, rough plastics and mirrors, and a
+    point light beside its lights with an extent."""
+    s = _random_scene(seed, w, h)
+    for mid, m in enumerate(s.materials):
+        if m is not None and mid % 3 != 2:
+            rough, _ = principled_material(m.name, m.diffuse, metallic=float(mid % 3 == 0),
+                                           roughness=0.3 + 0.1 * (mid % 4))
+            s.set_material(mid, rough)
+        elif m is not None:
+            s.set_material(mid, Material(m.name, diffuse=(0.1,) * 3, mirror=(0.8,) * 3))
+    s.add_light(Light("Key", "POINT", power=300.0, position=(1.5, -2.0, 4.0)))
+    return s
+
+
+REFLECT_SCENES = {
+    "rough_materials": lambda: scenes.rough_materials(48, 36),
+    "glossy": lambda: scenes.glossy(48, 36),
+    "studio": lambda: scenes.studio(48, 36),
+    "three_spheres": lambda: scenes.three_spheres(48, 36),
+    "rough_random0": lambda: _rough_random(0),
+    "rough_random1": lambda: _rough_random(1),
+}
+
+
+@pytest.mark.parametrize("name", sorted(REFLECT_SCENES))
+def test_reflections_and_hard_shadow_rays_leave_their_own_instance_out(name, monkeypatch):
+    """Mirror and glossy reflections of points on a convex instance (their closest-hit
+    query, ``own_reflections``) and the hard lights' shadow rays from them leave that
+    instance out where the scene has rough surfaces or lights with an extent: the same
+    image, pixel classes and rays with and without, and rays are offered the skip (all of
+    studio's: its only reflections are its mirror ball's). A scene with neither
+    (three_spheres) computes no own instances: nothing offered, as before."""
+    st = RenderSettings(mode="BASE", max_depth=3, samples=2, light_samples=4,
+                        glossy_samples=4, seed=5)
+    scene = REFLECT_SCENES[name]()
+    monkeypatch.setattr(shaft_skip, "OWN_SKIP", True)
+    on = whitted.render(scene, st)
+    monkeypatch.setattr(shaft_skip, "OWN_SKIP", False)
+    off = whitted.render(scene, st)
+    assert np.array_equal(on.radiance, off.radiance)
+    assert np.array_equal(on.pixel_class, off.pixel_class)
+    for k in ("primary_rays", "secondary_rays", "shadow_rays"):
+        assert on.stats[k] == off.stats[k]
+    assert off.stats["secondary_rays_own_skip"] == 0
+    if name == "three_spheres":
+        assert on.stats["secondary_rays_own_skip"] == 0
+    else:
+        assert 0 < on.stats["secondary_rays_own_skip"] <= on.stats["secondary_rays"]
+
+
+@pytest.mark.parametrize("name", ["rough_materials", "rough_random0", "rough_random1",
+                                  "studio"])
+def test_no_skipped_reflection_meets_its_own_instance(name, monkeypatch):
+    """The proof ray by ray, at every level: no reflected ray offered the skip meets its
+    own instance traced alone, and the scene's closest hits (instance, triangle, distance,
+    barycentrics) are the same with and without the skip; mirror and glossy reflections
+    off convex meshes are offered it, refractions never."""
+    scene = REFLECT_SCENES[name]()
+    sa = scene.arrays()
+    accel = create_accelerator("BVH", sa)
+    seen = []
+
+    def keep(mine, slots, which, o, d, surf, counters=None):
+        out = own(mine, slots, which, o, d, surf, counters)
+        seen.append((slots.copy(), o.copy(), d.copy(), out))
+        return out
+
+    own = whitted.own_reflections
+    monkeypatch.setattr(whitted, "own_reflections", keep)
+    whitted.render(scene, RenderSettings(mode="BASE", max_depth=3, light_samples=4,
+                                         glossy_samples=4, seed=2), accel=accel)
+    offered = 0
+    for slots, o, d, skip in seen:
+        mine = np.flatnonzero(skip >= 0)
+        offered += len(mine)
+        assert not (slots[mine] & 1).any()
+        n = len(o)
+        zero, inf = np.zeros(n), np.full(n, np.inf)
+        alone = accel.intersect_object(skip[mine], o[mine], d[mine], zero[mine], inf[mine])
+        assert (alone.inst < 0).all()
+        a, b = accel.closest_hit(o, d, zero, inf, skip), accel.closest_hit(o, d, zero, inf)
+        for f in ("inst", "prim", "t", "u", "v"):
+            assert np.array_equal(getattr(a, f), getattr(b, f))
+    assert offered > 0
+
+
+def test_closest_hit_leaves_the_skipped_instance_out():
+    """``closest_hit``'s ``skip`` as ``any_hit``'s: a ray through two balls hits the far
+    one when the near one is skipped, misses when its only ball is skipped."""
+    s = Scene()
+    grey = s.add_material(Material("grey", diffuse=(0.5, 0.5, 0.5)))
+    ball = s.add_mesh(shapes.icosphere(2, 0.5, name="ball"))
+    a = s.add_instance(ball, shapes.transform((0.0, 0.0, 0.0)), [grey], name="A")
+    b = s.add_instance(ball, shapes.transform((0.0, 3.0, 0.0)), [grey], name="B")
+    o = np.array([[0.0, -5.0, 0.0]] * 3 + [[5.0, 0.0, 0.0]] * 2)
+    d = np.array([[0.0, 1.0, 0.0]] * 3 + [[-1.0, 0.0, 0.0]] * 2)
+    skip = np.array([-1, a, b, -1, a], np.int32)
+    bvh = create_accelerator("BVH", s.arrays())
+    h = bvh.closest_hit(o, d, np.zeros(5), np.full(5, np.inf), skip)
+    assert h.inst.tolist() == [a, b, a, a, -1]

@@ -272,15 +272,16 @@ class BVHAccelerator(Accelerator):
         self.stats["sah_cost"] = {k.hex()[:8]: round(self._cache[k].sah_cost, 2)
                                   for k in self._mesh_keys}
 
+    def closest_hit(self, origins, directions, tmin, tmax, skip=None) -> Hits:
+        """As :meth:`~.interface.Accelerator.closest_hit`; ``skip`` as :meth:`any_hit`'s."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        return self._trace(o, d, lo, hi, _skip_only(skip, len(o)), False)
+
     def any_hit(self, origins, directions, tmin, tmax, skip=None) -> np.ndarray:
         """As :meth:`~.interface.Accelerator.any_hit`; the instance ``skip[r]`` is left out
         of ray ``r``'s traversal (:func:`.bvh.trace_kernel`'s ``only <= -2``)."""
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
-        only = None
-        if skip is not None:
-            s = per_ray(skip, len(o), np.int32)
-            only = np.where(s >= 0, -2 - s, -1).astype(np.int32)
-        return self._trace(o, d, lo, hi, only, True).inst >= 0
+        return self._trace(o, d, lo, hi, _skip_only(skip, len(o)), True).inst >= 0
 
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)
@@ -292,6 +293,15 @@ class BVHAccelerator(Accelerator):
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + n
         return hits
+
+
+def _skip_only(skip, n: int):
+    """The traversal's ``only`` (n,) int32 of per-ray instances to leave out (``skip``, -1
+    none), None without any."""
+    if skip is None:
+        return None
+    s = per_ray(skip, n, np.int32)
+    return np.where(s >= 0, -2 - s, -1).astype(np.int32)
 
 
 # ----------------------------------------------------------------------------- factory

@@ -125,7 +125,10 @@ class Accelerator:
     def _trace(self, o, d, tmin, tmax, only, anyhit: bool) -> Hits:
         raise NotImplementedError
 
-    def closest_hit(self, origins, directions, tmin, tmax) -> Hits:
+    def closest_hit(self, origins, directions, tmin, tmax, skip=None) -> Hits:
+        """The first hit of each ray between its bounds. ``skip`` as :meth:`any_hit`'s:
+        an instance per ray the caller has proven the ray cannot meet, which the query
+        may leave out (:func:`~..tracing.shaft_skip.own_reflections`)."""
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         return self._trace(o, d, lo, hi, None, False)
 

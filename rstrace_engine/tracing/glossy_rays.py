@@ -30,6 +30,11 @@ from .soft_lights import mix64
 
 #: hashed into a node's seed for its glossy samples (the soft lights hash in their light)
 GLOSSY_SALT = np.uint64(0xD1B54A32D192ED03)
+#: hashed into a deeper rough bounce's node seed for its rays' Russian roulette
+ROULETTE_SALT = np.uint64(0x8CB92BA72F3D8DD7)
+#: Russian roulette of the deeper rough bounces' weak rays (:func:`roulette`; a module
+#: switch: tests compare frames with and without it)
+ROULETTE = True
 GOLDEN = 0.6180339887498949
 INV_2_53 = 1.0 / 9007199254740992.0
 
@@ -197,3 +202,48 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
         if max(cr, cg, cb) * ns > wmin:
             _put(c_o, c_d, c_w, c_ok, slot, px + gx * off, py + gy * off, pz + gz * off,
                  qx, qy, qz, cr, cg, cb)
+
+
+def roulette(gstart: np.ndarray, glossy: np.ndarray, fresh: np.ndarray, seeds: np.ndarray,
+             weight: np.ndarray, kids) -> None:
+    """Russian roulette of the rays a level's *deeper* rough bounces spawned (points
+    ``glossy`` (n,) bool whose path is not ``fresh``: one reflected and one refracted ray
+    each, :func:`glossy_counts`), in place on ``kids`` (:class:`~.shader.Spawned`; point
+    i's slots ``2 gstart[i]:2 gstart[i + 1]``): a ray carrying a fraction ``r`` (largest
+    channel) of its point's path weight ``weight`` (n, 3) below
+    :data:`~.tolerances.GLOSSY_ROULETTE_REL` goes on with probability ``p = r /
+    GLOSSY_ROULETTE_REL``, its weight divided by ``p``; the others stop. Unbiased (a ray's
+    expected weight is unchanged), deterministic (the draw hashes the point's node seed
+    ``seeds`` and the slot). What it stops: inside a rough glass ball the internal
+    reflection at each exit carries the interface's Fresnel (a few percent) and costs a
+    whole ray tree below it (rough_materials: ~15k such rays per level down to the depth
+    budget, a third of the frame, for ~4% of the ball's light; docs/glossy.md, session
+    33). A path's first rough bounce (its Glossy Samples) and every smooth surface's rays
+    are untouched: a scene without rough surfaces traces what it traced."""
+    if ROULETTE and len(glossy):
+        _roulette(gstart, glossy, fresh, seeds, weight, kids.w, kids.ok,
+                  float(tol.GLOSSY_ROULETTE_REL))
+
+
+@njit(cache=True, nogil=True)
+def _roulette(gstart, glossy, fresh, seeds, weight, w, ok, rel):
+    for i in range(glossy.shape[0]):
+        if not glossy[i] or fresh[i]:
+            continue
+        wi = max(weight[i, 0], weight[i, 1], weight[i, 2])
+        if not wi > 0.0:
+            continue
+        k0 = 2 * gstart[i]
+        for k in range(k0, 2 * gstart[i + 1]):
+            if not ok[k]:
+                continue
+            p = max(w[k, 0], w[k, 1], w[k, 2]) / (wi * rel)
+            if p >= 1.0:
+                continue
+            h = mix64(seeds[i] ^ ROULETTE_SALT ^ np.uint64(k - k0 + 1))
+            if float(h >> np.uint64(11)) * INV_2_53 < p:
+                w[k, 0] /= p
+                w[k, 1] /= p
+                w[k, 2] /= p
+            else:
+                ok[k] = False

@@ -39,7 +39,7 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
-from .glossy_rays import glossy_counts, has_glossy
+from .glossy_rays import glossy_counts, has_glossy, roulette
 from .light_bits import words
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
@@ -58,7 +58,7 @@ from .shader import (  # (re-exported: the stages' kernels and types)
     light_state,
     light_states,
 )
-from .shaft_skip import own_instances, proven_rows, tile_keys
+from .shaft_skip import own_instances, own_reflections, proven_rows, tile_keys
 from .soft_lights import (
     SH_SOFT,
     SoftSamples,
@@ -215,6 +215,8 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
                 spawn, no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out,
                 tv, tp)
+    if plan.gstart is not None:  # the deeper rough bounces' weak rays
+        roulette(plan.gstart, plan.glossy, fresh, gseeds, weight, out)
     if terms:
         return contrib, out, (tv, tp), plan
     return contrib, out, plan
@@ -274,10 +276,10 @@ def _child_tags(nseeds, which, sample, glossy, tag, out):
 
 
 def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Plan,
-                nseeds: np.ndarray | None) -> _Front:
-    """The spawned rays, compacted; ``rows``: the level's node rows (None: no ray trees
-    kept, parents are not followed); ``plan``: the slots' layout (:func:`_shade_level`),
-    ``nseeds`` the level's node seeds (needed with glossy samples)."""
+                nseeds: np.ndarray | None, mine=None, surf=None, counters=None):
+    """The spawned rays, compacted, and what they skip (``own_reflections`` of ``mine``
+    at ``surf``); ``rows``: the level's node rows (None: parents not followed); ``plan``:
+    the slots' layout (:func:`_shade_level`), ``nseeds`` the node seeds (glossy samples)."""
     k = np.flatnonzero(kids.ok)
     which, fresh, tag = child_paths(k, plan.gstart, plan.glossy, front.fresh, front.tag,
                                     nseeds)
@@ -289,15 +291,18 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
     if rows is not None:
         parent = rows[which]
     path = front.path[which] * 2 + (k & 1)  # also seeds the soft lights' samples
-    return _Front(kids.o[k], kids.d[k], np.zeros(len(k)), np.full(len(k), np.inf),
-                  front.src[which], kids.w[k], parent, path, fresh, tag, sees)
+    o, d = kids.o[k], kids.d[k]
+    skip = None if surf is None else own_reflections(mine, k, which, o, d, surf, counters)
+    return _Front(o, d, np.zeros(len(k)), np.full(len(k), np.inf), front.src[which],
+                  kids.w[k], parent, path, fresh, tag, sees), skip
 
 
-def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
+def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None):
     """Light visibility of the level's points, ``(vis (nb L,) bool, occ (nb L,) int32 or
     None, traced)``: ``occ`` (with ``occluders``, closest-hit shadow rays) names each
     light's occluder (``OCC_NONE``, ``OCC_NOT_FACING``); ``traced``: shadow rays were
-    traced."""
+    traced. ``mine`` (nb,) int32 or None: the instance a point's any-hit shadow rays leave
+    out (:func:`~.shaft_skip.own_instances`: they leave as its soft samples do)."""
     todo, so, sd, st = shadow_rays(sa, surf)
     vis = np.zeros(len(surf.sh_state), np.bool_)
     occ_inst = None
@@ -310,7 +315,8 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters):
             occ_inst = accel.closest_hit(so, sd, zero, st).inst
             vis[todo] = occ_inst < 0
         else:
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st), np.bool_)
+            skip = () if mine is None else (mine[todo // max(len(sa.light_kind), 1)],)
+            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st, *skip), np.bool_)
         _count(counters, "shadow", len(todo))
     occ = None
     if occluders:
@@ -473,6 +479,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             raise ValueError(f"trace: {len(root)} seeds for {len(front.src)} rays")
     levels: list[dict] = []
     n_nodes = 0
+    skip = None  # the front's rays' own instances (own_reflections)
     for level in range(max_depth + 1):
         nb = len(front.src)
         if nb == 0 or cancelled(cancel):
@@ -480,12 +487,15 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         if level == 0 and primary is not None:
             hits = _as_hits(primary)
         else:
-            hits = _as_hits(accel.closest_hit(front.o, front.d, front.t0, front.t1))
+            hits = _as_hits(accel.closest_hit(front.o, front.d, front.t0, front.t1,
+                                              *(() if skip is None else (skip,))))
         _count(counters, "primary" if level == 0 else "secondary", nb)
         surf = surfaces(sa, front.o, front.d, front.t1, hits)
         own = level > 0 or roots != "below"  # the roots' own light is wanted
+        mine = (own_instances(sa, accel, surf, hits.inst, hits.prim) if (soft_on or glossy_on)
+                and (own or level < max_depth) else None)
         if own:
-            vis, occ, traced = _visibility(sa, accel, surf, record, counters)
+            vis, occ, traced = _visibility(sa, accel, surf, record, counters, mine)
         else:
             vis, occ, traced = np.zeros(nb * L, np.bool_), None, False
         soft = None
@@ -495,7 +505,6 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             if glossy_on and level > 0:
                 nseeds ^= front.tag
         if soft_on and own:
-            mine = own_instances(sa, accel, surf, hits.inst, hits.prim)
             proven = (proven_rows(sa, accel, surf, hits.inst, skip_keys, counters,
                                   hits.prim, mine)
                        if level == 0 else None)
@@ -537,7 +546,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         if not spawn:
             break
         rows = np.arange(n_nodes, n_nodes + nb, dtype=np.int32) if nodes else None
-        front = _next_front(front, kids, rows, shaded[-1], nseeds)
+        front, skip = _next_front(front, kids, rows, shaded[-1], nseeds, mine, surf,
+                                  counters)
         n_nodes += nb
     return radiance, (_ray_tree(levels, L) if record else None)
 
@@ -676,8 +686,8 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         rays_traced=rays, primary_rays=counters.get("primary", 0),
         secondary_rays=counters.get("secondary", 0), shadow_rays=shadow,
         shadow_rays_skipped=counters.get("shadow_skipped", 0), skip_s=counters.get("skip_s", 0.0),
-        shadow_rays_own_skip=counters.get("shadow_own_skip", 0),
-        skip_rows=counters.get("skip_rows", 0),
+        shadow_rays_own_skip=counters.get("shadow_own_skip", 0), skip_rows=counters.get(
+            "skip_rows", 0), secondary_rays_own_skip=counters.get("secondary_own_skip", 0),
         skip_rows_proven=counters.get("skip_rows_proven", 0),
         rays_per_s=rays / elapsed if elapsed > 0 else 0.0,
         width=w, height=h, samples=spp, max_depth=depth, rows_done=rows_done,

@@ -103,6 +103,35 @@ def test_mesh_tree_collapsed_from_the_unpacked_nodes_is_the_packed_one():
         assert np.array_equal(ub.view(np.int64), built.view(np.int64))
 
 
+def test_a_two_primitive_split_is_the_binned_one():
+    """``_two_split`` (a node of two primitives, no bins) gives the cost, axis and bin the
+    bins give (``_bin_range`` then ``_best_split``), on random pairs, pairs whose centroids
+    agree on one or two axes, equal boxes, and flat (zero-area) boxes."""
+    rng = np.random.default_rng(5)
+    nb = 2
+    bin_n = np.zeros((3, nb), np.int64)
+    bin_b = np.empty((3, nb, 6))
+    right_a, right_n = np.empty(nb), np.empty(nb, np.int64)
+    cases = 0
+    for trial in range(400):
+        lo = rng.integers(-4, 4, (2, 3)).astype(np.float32)
+        pb = np.concatenate([lo, lo + rng.integers(0, 3, (2, 3))], 1).astype(np.float32)
+        if trial % 4 == 1:  # the same centroid on some axes
+            same = rng.random(3) < 0.6
+            pb[1, :3][same], pb[1, 3:][same] = pb[0, :3][same], pb[0, 3:][same]
+        elif trial % 4 == 2:
+            pb[1] = pb[0]
+        c = 0.5 * (pb[:, :3].astype(np.float64) + pb[:, 3:])
+        cmin, cmax = c.min(axis=0), c.max(axis=0)
+        bvh_build._clear_bins(bin_n, bin_b, nb)
+        bvh_build._bin_range(pb, 0, 2, cmin, cmax, nb, bin_n, bin_b)
+        want = bvh_build._best_split(cmin, cmax, nb, bin_n, bin_b, right_a, right_n)
+        got = bvh_build._two_split(pb, 0, cmin, cmax)
+        assert got == want, (pb, got, want)
+        cases += want[1] >= 0
+    assert 0 < cases < 400  # (both a split and no split are checked)
+
+
 def test_build_kernels_are_in_the_first_image_list():
     assert set(bvh_build.BUILD_KERNELS) <= set(warm_first.FIRST_IMAGE_KERNELS)
 

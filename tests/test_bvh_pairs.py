@@ -47,7 +47,7 @@ def test_items_pair_the_consecutive_triangles_that_share_an_edge():
     shuffled = tris[rng.permutation(len(tris))]
     for v, t in ((verts, tris), (verts, shuffled), _soup(rng, 20_001)):
         pb = bvh_mesh.indexed_boxes(v, t)
-        starts, boxes = bvh_cluster.pair_items(v, t, pb)
+        starts, boxes, _ = bvh_cluster.pair_items(v, t, pb, 1.0)
         want = []  # the reference: pairs (2h, 2h + 1) with two vertex positions in common
         for h in range(0, len(t), 2):
             if h + 1 < len(t) and _shared_positions(v, t, h, h + 1) >= 2:
@@ -59,7 +59,7 @@ def test_items_pair_the_consecutive_triangles_that_share_an_edge():
             a, b = starts[k], starts[k + 1]
             assert np.array_equal(boxes[k, :3], pb[a:b, :3].min(axis=0))
             assert np.array_equal(boxes[k, 3:], pb[a:b, 3:].max(axis=0))
-    assert len(bvh_cluster.pair_items(verts, tris, bvh_mesh.indexed_boxes(verts, tris))[1]) \
+    assert len(bvh_cluster.pair_items(verts, tris, bvh_mesh.indexed_boxes(verts, tris), 1.0)[1]) \
         == len(tris) // 2  # a quad mesh: every item a quad
 
 
@@ -91,6 +91,32 @@ def test_each_pair_is_opened_by_the_two_primitive_sah_rule():
         assert (leaf_of[a] == 2) == one_leaf and leaf_of[a] == leaf_of[a + 1]
         both[leaf_of[a]] += 1
     assert both[1] and both[2]  # (both outcomes are checked)
+
+
+def test_split_pairs_nodes_are_packed_after_the_item_tree():
+    """The inner nodes of the opened pairs are the rows right after the item tree's own,
+    one per pair that ``pair_items`` marks as split, in the order the walk meets them: no
+    row is touched for a pair that stays one leaf (at 4M triangles a row per item made
+    96 MB of fresh pages for about a tenth of them)."""
+    verts, tris = _lumpy()
+    pb = bvh_mesh.indexed_boxes(verts, tris)
+    starts, _, how = bvh_cluster.pair_items(verts, tris, pb, bvh_build.SAH_TRAVERSAL_COST)
+    n_items, n_split = len(starts) - 1, int(np.count_nonzero(how))
+    assert 0 < n_split < n_items // 2
+    assert set(np.unique(how).tolist()) == {bvh_cluster.OPEN_LEAF, bvh_cluster.OPEN_SPLIT,
+                                            bvh_cluster.OPEN_SPLIT_SWAPPED}
+    bounds, child, perm, _ = bvh_cluster.build_paired(verts, tris, pb)
+    assert len(child) <= n_items + n_split
+    inner = child[child >= 0]
+    opened = np.sort(inner[inner >= n_items])
+    assert np.array_equal(opened, np.arange(n_items, n_items + n_split))
+    # each opened node holds two leaves of one triangle, in the order ``how`` says
+    for node in opened[:: max(n_split // 300, 1)]:
+        a, b = (perm[(~int(c)) >> 3] for c in child[node])
+        assert child[node, 0] < 0 and (~int(child[node, 0])) & 7 == 1
+        k = int(np.searchsorted(starts, min(a, b), side="right")) - 1
+        assert starts[k] == min(a, b) and abs(int(a) - int(b)) == 1
+        assert (a > b) == (how[k] == bvh_cluster.OPEN_SPLIT_SWAPPED)
 
 
 @pytest.mark.parametrize("kind", ["shuffled", "soup"])

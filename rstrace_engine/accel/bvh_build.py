@@ -252,6 +252,30 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
     return i
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _centroid(pb, j, k):
+    return 0.5 * (np.float64(pb[j, k]) + np.float64(pb[j, 3 + k]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _two_split(pb, start, cmin, cmax):
+    """:func:`_best_split` of the two primitives ``start``, ``start + 1`` (centroid bounds
+    ``cmin``, ``cmax``) without bins, the same numbers: each is a bin of its own on every
+    axis their centroids spread on, so every such axis costs the sum of their areas and
+    the first one wins (``(cost, axis, 0)``; axis -1: none)."""
+    for k in range(3):
+        if cmax[k] - cmin[k] > 0.0:
+            a = _half_area(np.float64(pb[start, 0]), np.float64(pb[start, 1]),
+                           np.float64(pb[start, 2]), np.float64(pb[start, 3]),
+                           np.float64(pb[start, 4]), np.float64(pb[start, 5]))
+            b = _half_area(np.float64(pb[start + 1, 0]), np.float64(pb[start + 1, 1]),
+                           np.float64(pb[start + 1, 2]), np.float64(pb[start + 1, 3]),
+                           np.float64(pb[start + 1, 4]), np.float64(pb[start + 1, 5]))
+            lo = _centroid(pb, start, k) <= _centroid(pb, start + 1, k)
+            return (a if lo else b) + (b if lo else a), k, 0
+    return np.inf, -1, -1
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _range_bounds(pb, start, end, box, cb):
     """Box ``box`` and centroid bounds ``cb`` (6,) of primitives ``pb[start:end]``."""
@@ -449,7 +473,7 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
-                   bounds, child):
+                  bounds, child):
     """One subtree, depth first, its inner nodes numbered from ``node0`` (a root task's
     root is node ``node0`` itself). Returns ``(nodes used, sah)``."""
     t_int = np.empty((2 * (DEPTH_CAP + 40), 5), np.int64)
@@ -486,7 +510,9 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
         best_cost, best_axis, best_bin = np.inf, -1, -1
         nb = min(nbins, max(count, 2))
-        if count > 1 and depth < DEPTH_CAP:
+        if count == 2 and depth < DEPTH_CAP:
+            best_cost, best_axis, best_bin = _two_split(pb, start, cmin, cmax)
+        elif count > 1 and depth < DEPTH_CAP:
             _clear_bins(bin_n, bin_b, nb)
             _bin_range(pb, start, end, cmin, cmax, nb, bin_n, bin_b)
             best_cost, best_axis, best_bin = _best_split(cmin, cmax, nb, bin_n, bin_b,
@@ -520,6 +546,19 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
                 child[node, 1] = ~((start << 3) | 1)
                 sah += count * area / root_area
                 continue
+        if best_axis >= 0 and not make_leaf and count == 2:
+            # two leaves of one, the lower centroid first (what the bins' partition does)
+            if _centroid(pb, start + 1, best_axis) < _centroid(pb, start, best_axis):
+                _swap(pb, perm, start, start + 1)
+            for s in range(2):
+                j = start + s
+                for q in range(6):
+                    bounds[node, 6 * s + q] = pb[j, q]
+                child[node, s] = ~((j << 3) | 1)
+                sah += _half_area(np.float64(pb[j, 0]), np.float64(pb[j, 1]),
+                                  np.float64(pb[j, 2]), np.float64(pb[j, 3]),
+                                  np.float64(pb[j, 4]), np.float64(pb[j, 5])) / root_area
+            continue
         if best_axis >= 0 and not make_leaf:
             mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],
                              cmax[best_axis] - cmin[best_axis], nb, best_bin, lcb, rcb)

@@ -10,7 +10,11 @@ item's leaf is then opened by the SAH rule the build applies to a node of two
 primitives: one leaf of both, or an inner node over two leaves of one, split on the first
 axis their centroids spread on. The tree differs from the whole-mesh SAH build's where a
 pair would have been split higher up; its SAH cost is within a few tenths of a percent of
-it (docs/bench-scale-bpy.md), and it is the same tree on any thread count.
+it (docs/bench-scale-bpy.md), and it is the same tree on any thread count. How each pair
+opens is decided where its item is made, reading the triangles' boxes in mesh order; the
+leaves are then opened in one walk, and only a split pair reads its boxes again and takes
+a node row (packed after the item tree's): at 4M triangles, fresh pages and random reads
+were most of what the opening cost.
 """
 
 from __future__ import annotations
@@ -27,12 +31,52 @@ from .bvh_build import (
     build_flat_boxes,
 )
 
+#: How an item is opened (:func:`pair_items`' ``how``): one leaf of its triangles (one, or
+#: both in the mesh's order), or an inner node over two leaves of one, the item's first
+#: triangle first or second.
+OPEN_LEAF, OPEN_SPLIT, OPEN_SPLIT_SWAPPED = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _box_area(pb, i):
+    return _half_area(np.float64(pb[i, 0]), np.float64(pb[i, 1]), np.float64(pb[i, 2]),
+                      np.float64(pb[i, 3]), np.float64(pb[i, 4]), np.float64(pb[i, 5]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _opening(pb, i, area, trav_cost):
+    """How the item of triangles ``i``, ``i + 1`` (box half area ``area``) is opened: the
+    SAH rule the triangle build applies to a node of two primitives
+    (:func:`.bvh_build.build_subtree`): split on the first axis their centroids spread on
+    (the bins' first candidate: every spread axis gives the same two sides, the same
+    cost), the lower centroid first, unless one leaf of both costs no more."""
+    axis = -1
+    swapped = False
+    for q in range(3):
+        ca = np.float64(pb[i, q]) + np.float64(pb[i, 3 + q])
+        cb = np.float64(pb[i + 1, q]) + np.float64(pb[i + 1, 3 + q])
+        if ca != cb:
+            axis = q
+            swapped = cb < ca
+            break
+    if axis < 0:
+        return OPEN_LEAF
+    if swapped:  # (the lower centroid's area first, as the bins add them)
+        split_cost = trav_cost + (_box_area(pb, i + 1) + _box_area(pb, i)) / max(area, 1e-300)
+    else:
+        split_cost = trav_cost + (_box_area(pb, i) + _box_area(pb, i + 1)) / max(area, 1e-300)
+    if 2 <= split_cost:
+        return OPEN_LEAF
+    return OPEN_SPLIT_SWAPPED if swapped else OPEN_SPLIT
+
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def pair_items(verts, tris, pb):
-    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6))``, item ``k``
-    the triangles ``starts[k]:starts[k + 1]`` (one, or two consecutive ones with two
-    vertices in common, by position), its box the union of theirs (``pb``'s dtype)."""
+def pair_items(verts, tris, pb, trav_cost):
+    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8)``,
+    item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two consecutive ones with
+    two vertices in common, by position), its box the union of theirs (``pb``'s dtype),
+    ``how`` the way :func:`open_items` opens it (:data:`OPEN_LEAF` ...: decided here, in
+    the mesh's order, where the triangles' boxes are read in order)."""
     m = tris.shape[0]
     half = (m + 1) // 2
     size = np.empty(half, np.int64)
@@ -60,6 +104,7 @@ def pair_items(verts, tris, pb):
     starts = np.empty(n_items + 1, np.int64)
     starts[n_items] = m
     boxes = np.empty((n_items, 6), pb.dtype)
+    how = np.zeros(n_items, np.int8)
     for h in prange(half):
         i, k = 2 * h, first[h]
         if size[h] == 1 and i + 1 < m:  # one item of two triangles
@@ -67,97 +112,89 @@ def pair_items(verts, tris, pb):
             for q in range(3):
                 boxes[k, q] = min(pb[i, q], pb[i + 1, q])
                 boxes[k, 3 + q] = max(pb[i, 3 + q], pb[i + 1, 3 + q])
+            how[k] = _opening(pb, i, _box_area(boxes, k), trav_cost)
         else:
             for j in range(size[h]):
                 starts[k + j] = i + j
                 for q in range(6):
                     boxes[k + j, q] = pb[i + j, q]
-    return starts, boxes
+    return starts, boxes, how
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def item_leaves(child, n_items):
-    """The item tree's leaves, walked from the root: ``(P, 3) int64`` rows ``parent, slot,
-    position`` (the leaf ``~(position << 3 | 1)`` holds the item at ``position`` of the
-    tree's leaf order)."""
-    out = np.empty((n_items, 3), np.int64)
+def item_leaves(starts, iperm):
+    """Where each item leaf's triangles go: ``(P,) int32``, for the item at ``position``
+    of the item tree's leaf order (``iperm``), the first of its rows of the triangle order,
+    after those of the items before it."""
+    n = iperm.shape[0]
+    rows = np.empty(n, np.int32)
+    row = 0
+    for pos in range(n):
+        rows[pos] = row
+        item = iperm[pos]
+        row += starts[item + 1] - starts[item]
+    return rows
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def open_items(pb, starts, how, iperm, rows, region0, trav_cost, root_area, bounds, child,
+               perm):
+    """Each item leaf of the item tree (``child``, from its root) opened in one walk: its
+    triangles listed in ``perm`` from row ``rows[position]`` (:func:`item_leaves`); an item
+    of two becomes a leaf of both, or an inner node over two leaves of one, as ``how``
+    says (:func:`pair_items`: the SAH rule of a two-primitive node,
+    :func:`.bvh_build.build_subtree`), the inner nodes rows ``region0 ..`` in the walk's
+    order (only those items read their triangles' boxes). Returns the opened items' SAH
+    less the SAH of the leaves they replaced."""
     stack = np.empty(256, np.int64)
     stack[0] = 0
     sp = 1
-    k = 0
+    node = region0
+    dsah = 0.0
     while sp > 0:
         sp -= 1
-        node = stack[sp]
-        for s in range(2):
-            c = child[node, s]
+        parent = stack[sp]
+        for slot in range(2):
+            c = child[parent, slot]
             if c >= 0:
                 stack[sp] = c
                 sp += 1
-            else:
-                code = ~np.int64(c)
-                if (code & 7) == 0:  # the empty child of a one-leaf root
-                    continue
-                out[k, 0], out[k, 1], out[k, 2] = node, s, code >> 3
-                k += 1
-    return out[:k]
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def open_items(pb, starts, iperm, rows, leaves, region0, trav_cost, root_area, bounds,
-               child, perm):
-    """Each item leaf ``leaves[i]`` (:func:`item_leaves`) opened, one thread per leaf: its
-    triangles listed in ``perm`` from row ``rows[position]``; an item of two becomes a
-    leaf of both, or an inner node over two leaves of
-    one, by the SAH rule of a two-primitive node (:func:`.bvh_build.build_subtree`); the
-    inner node of the item at ``position`` is row ``region0 + position``.
-    Returns each opened item's SAH less the SAH of the leaf it replaced (P,)."""
-    nl = leaves.shape[0]
-    dsah = np.zeros(nl)
-    for i in prange(nl):
-        parent, slot, pos = leaves[i, 0], leaves[i, 1], leaves[i, 2]
-        k = iperm[pos]
-        a, cnt, row = starts[k], starts[k + 1] - starts[k], rows[pos]
-        area = _half_area(np.float64(bounds[parent, 6 * slot]),
-                          np.float64(bounds[parent, 6 * slot + 1]),
-                          np.float64(bounds[parent, 6 * slot + 2]),
-                          np.float64(bounds[parent, 6 * slot + 3]),
-                          np.float64(bounds[parent, 6 * slot + 4]),
-                          np.float64(bounds[parent, 6 * slot + 5]))
-        if cnt == 1:  # the item's leaf is the triangle's
-            perm[row] = a
-            child[parent, slot] = ~((row << 3) | 1)
-            continue
-        b = a + 1
-        # the first axis the two centroids spread on (the bins' first candidate: every
-        # spread axis gives the same two sides, the same cost)
-        axis = -1
-        for q in range(3):
-            ca = np.float64(pb[a, q]) + np.float64(pb[a, 3 + q])
-            cb = np.float64(pb[b, q]) + np.float64(pb[b, 3 + q])
-            if ca != cb:
-                axis = q
-                if cb < ca:
-                    a, b = b, a
-                break
-        aa = _half_area(np.float64(pb[a, 0]), np.float64(pb[a, 1]), np.float64(pb[a, 2]),
-                        np.float64(pb[a, 3]), np.float64(pb[a, 4]), np.float64(pb[a, 5]))
-        ab = _half_area(np.float64(pb[b, 0]), np.float64(pb[b, 1]), np.float64(pb[b, 2]),
-                        np.float64(pb[b, 3]), np.float64(pb[b, 4]), np.float64(pb[b, 5]))
-        split_cost = trav_cost + (aa + ab) / max(area, 1e-300) if axis >= 0 else np.inf
-        if 2 <= split_cost:  # one leaf of both, in the mesh's order
-            perm[row], perm[row + 1] = starts[k], starts[k] + 1
-            child[parent, slot] = ~((row << 3) | 2)
-            dsah[i] = area / root_area
-            continue
-        node = region0 + pos  # (one row per item: the rows touched stay few)
-        child[parent, slot] = node
-        perm[row], perm[row + 1] = a, b
-        for q in range(6):
-            bounds[node, q] = pb[a, q]
-            bounds[node, 6 + q] = pb[b, q]
-        child[node, 0] = ~((row << 3) | 1)
-        child[node, 1] = ~(((row + 1) << 3) | 1)
-        dsah[i] = (trav_cost * area + aa + ab) / root_area - area / root_area
+                continue
+            code = ~np.int64(c)
+            if (code & 7) == 0:  # the empty child of a one-leaf root
+                continue
+            pos = code >> 3
+            k = iperm[pos]
+            row = np.int64(rows[pos])
+            a, cnt = starts[k], starts[k + 1] - starts[k]
+            if cnt == 1:  # the item's leaf is the triangle's
+                perm[row] = a
+                child[parent, slot] = ~((row << 3) | 1)
+                continue
+            area = _half_area(np.float64(bounds[parent, 6 * slot]),
+                              np.float64(bounds[parent, 6 * slot + 1]),
+                              np.float64(bounds[parent, 6 * slot + 2]),
+                              np.float64(bounds[parent, 6 * slot + 3]),
+                              np.float64(bounds[parent, 6 * slot + 4]),
+                              np.float64(bounds[parent, 6 * slot + 5]))
+            if how[k] == OPEN_LEAF:  # one leaf of both, in the mesh's order
+                perm[row], perm[row + 1] = a, a + 1
+                child[parent, slot] = ~((row << 3) | 2)
+                dsah += area / root_area
+                continue
+            b = a + 1
+            if how[k] == OPEN_SPLIT_SWAPPED:
+                a, b = b, a
+            child[parent, slot] = node
+            perm[row], perm[row + 1] = a, b
+            for q in range(6):
+                bounds[node, q] = pb[a, q]
+                bounds[node, 6 + q] = pb[b, q]
+            child[node, 0] = ~((row << 3) | 1)
+            child[node, 1] = ~(((row + 1) << 3) | 1)
+            node += 1
+            dsah += (trav_cost * area + _box_area(pb, a) + _box_area(pb, b)) / root_area \
+                - area / root_area
     return dsah
 
 
@@ -169,17 +206,17 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     ``build_flat_boxes(packed=False)`` returns them (the root row 0; rows no child index
     reaches unset)."""
     m = len(tris)
-    starts, ib = pair_items(verts, tris, pb)
+    starts, ib, how = pair_items(verts, tris, pb, trav_cost)
     n_items = len(ib)
-    # (the item tree's arrays with a row per item after them: the opened items' nodes)
-    bounds, child, iperm, sah_i = build_flat_boxes(ib, 1, nbins, trav_cost, grain, stop,
-                                                   packed=False, spare=n_items)
+    # (the item tree's arrays with a row per split item after them: the opened items'
+    # nodes)
+    bounds, child, iperm, sah_i = build_flat_boxes(
+        ib, 1, nbins, trav_cost, grain, stop, packed=False,
+        spare=max(int(np.count_nonzero(how)), 1))
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)
-    leaves = item_leaves(child, n_items)
-    rows = np.zeros(n_items, np.int64)  # each item's first row of perm, in leaf order
-    np.cumsum(np.diff(starts)[iperm][:-1], out=rows[1:])
+    rows = item_leaves(starts, iperm)
     # the root's box: the union of its two children's (no kernel called from Python here:
     # each would be one more for the F12's kernel pre-load, addon/kernels.py)
     root = bounds[0].astype(np.float64)
@@ -187,6 +224,6 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     dx, dy, dz = (float(x) for x in hi - lo)
     root_area = max(dx * dy + dy * dz + dz * dx, 1e-300)
     perm = np.empty(m, np.int32)
-    dsah = open_items(pb, starts, iperm, rows, leaves, region0, trav_cost, root_area, bounds,
+    dsah = open_items(pb, starts, how, iperm, rows, region0, trav_cost, root_area, bounds,
                       child, perm)
-    return bounds, child, perm, float(sah_i + dsah.sum())
+    return bounds, child, perm, float(sah_i + dsah)

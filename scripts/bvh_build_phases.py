@@ -1,0 +1,148 @@
+"""A large mesh's BVH build split into its phases, checkouts alternated in one run.
+
+    python scripts/bvh_build_phases.py [1M 4M] [--roots A B] [--rounds 2] [--threads 1]
+                                       [--repeats 3] [--json out.jsonl]
+
+The mesh is ``bench_scale_bpy.py``'s Suzanne (subdivided to level 5 for ``1M``, 6 for
+``4M``: 1.0M / 4.0M triangles, Blender's own triangle order), made once through ``bpy`` and
+kept as ``.npy`` under ``--cache``. Each round runs every size in a fresh process per
+checkout (``--roots``, default main's worktree and this script's; the order flips every
+round: A B, B A, ...), which times ``bvh_mesh.build_mesh_bvh_indexed`` ``--repeats``
+times with each phase wrapped (process CPU seconds, all threads; ``NUMBA_NUM_THREADS``
+``--threads``): the triangle boxes, the items (quads), the top levels, the subtrees, the
+item leaves, the items opened, the collapse to 4-wide, and the rest. The first build of a
+process meets fresh memory, as an F12's does; the later ones reuse freed pages. Each
+line also gives the tree's SAH and 4-wide node count, so a change of tree shows. Nothing
+is asserted; the numbers go to ``docs/bench-scale-bpy.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LEVELS = {"1M": 5, "4M": 6}
+#: (module, function, label) of the phases, in build order
+PHASES = (("bvh_mesh", "indexed_boxes", "boxes"), ("bvh_cluster", "pair_items", "items"),
+          ("bvh_build", "split_top", "top"), ("bvh_build", "build_subtrees", "subtrees"),
+          ("bvh_cluster", "item_leaves", "leaves"), ("bvh_cluster", "open_items", "open"),
+          ("bvh_mesh", "collapse4", "collapse"))
+
+
+def _say(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _suzanne(size: str, cache: Path) -> tuple[Path, Path]:
+    """The cached ``.npy`` vertices (float64) and triangles (int32) of Suzanne at ``size``
+    (made through ``bpy`` in a child process the first time)."""
+    v, t = cache / f"suzanne{size}_v.npy", cache / f"suzanne{size}_t.npy"
+    if not (v.exists() and t.exists()):
+        cache.mkdir(parents=True, exist_ok=True)
+        code = f"""
+import bpy, numpy as np
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.mesh.primitive_monkey_add()
+ob = bpy.context.object
+mod = ob.modifiers.new("Subdivision", "SUBSURF")
+mod.levels = mod.render_levels = {LEVELS[size]}
+me = bpy.data.meshes.new_from_object(ob.evaluated_get(bpy.context.evaluated_depsgraph_get()))
+me.calc_loop_triangles()
+v = np.empty(3 * len(me.vertices), np.float32)
+me.vertices.foreach_get("co", v)
+t = np.empty(3 * len(me.loop_triangles), np.int32)
+me.loop_triangles.foreach_get("vertices", t)
+np.save({str(v)!r}, v.reshape(-1, 3).astype(np.float64))
+np.save({str(t)!r}, t.reshape(-1, 3))
+"""
+        subprocess.run([sys.executable, "-c", code], check=True)
+    return v, t
+
+
+def child(root: Path, size: str, cache: Path, repeats: int) -> dict:
+    """One checkout's builds of one mesh, each phase timed (run in its own process)."""
+    sys.path.insert(0, str(root))
+    import numpy as np
+
+    from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
+
+    mods = dict(bvh_build=bvh_build, bvh_cluster=bvh_cluster, bvh_mesh=bvh_mesh)
+    acc: dict = {}
+    for mod, name, label in PHASES:
+        f = getattr(mods[mod], name)
+
+        def timed(*a, _f=f, _label=label, **k):
+            c = time.process_time()
+            try:
+                return _f(*a, **k)
+            finally:
+                acc[_label] = acc.get(_label, 0.0) + time.process_time() - c
+
+        setattr(mods[mod], name, timed)
+    vp, tp = _suzanne(size, cache)
+    verts, tris = np.load(vp), np.load(tp)
+    runs = []
+    for _ in range(repeats):
+        acc.clear()
+        c = time.process_time()
+        mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
+        total = time.process_time() - c
+        row = {label: acc.get(label, 0.0) for _, _, label in PHASES}
+        row["rest"] = total - sum(row.values())
+        runs.append(dict(total=total, phases=row))
+        del mb
+    mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
+    return dict(root=str(root), size=size, triangles=len(tris), sah=mb.sah_cost,
+                nodes4=len(mb.bvh.child), runs=runs,
+                module=bvh_build.__file__)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("sizes", nargs="*", default=["1M", "4M"])
+    p.add_argument("--roots", nargs="+", type=Path,
+                   default=[Path("/work/main"), ROOT])
+    p.add_argument("--rounds", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--cache", type=Path, default=Path("/tmp/rstrace-suzanne"))
+    p.add_argument("--json", type=Path, help="append one JSON line per process")
+    p.add_argument("--child", nargs=2, metavar=("ROOT", "SIZE"), help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.child:
+        _say(json.dumps(child(Path(args.child[0]), args.child[1], args.cache,
+                              args.repeats)))
+        return 0
+    for size in args.sizes:
+        _suzanne(size, args.cache)
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(args.threads))
+    for r in range(args.rounds):
+        roots = args.roots if r % 2 == 0 else args.roots[::-1]
+        for size in args.sizes:
+            for root in roots:
+                out = subprocess.run(
+                    [sys.executable, __file__, "--child", str(root.resolve()), size,
+                     "--cache", str(args.cache), "--repeats", str(args.repeats)],
+                    env=env, check=True, capture_output=True, text=True).stdout
+                row = json.loads(out.strip().splitlines()[-1])
+                if args.json:
+                    with open(args.json, "a") as fh:
+                        fh.write(json.dumps(row) + "\n")
+                totals = ", ".join(f"{x['total']:.3f}" for x in row["runs"])
+                _say(f"round {r} {size} {root}: builds {totals} s CPU | SAH "
+                     f"{row['sah']:.4f}, {row['nodes4']} nodes")
+                for i, x in enumerate(row["runs"]):
+                    _say(f"    build {i}: " + ", ".join(
+                        f"{k} {v:.3f}" for k, v in x["phases"].items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

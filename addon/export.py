@@ -412,12 +412,12 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
         cache.matrices[key] = raw
     if not ob.data.is_editmode:
         return _mesh_record(r, inst, ob, ob.data, name, matrix, faceless)
-    with _edit_mode_mesh(r, ob) as me:
+    with _edit_mode_mesh(r, inst, ob) as me:
         return _mesh_record(r, inst, ob, me, name, matrix, faceless)
 
 
 @contextmanager
-def _edit_mode_mesh(r: _Reader, ob):
+def _edit_mode_mesh(r: _Reader, inst, ob):
     """The mesh to read of ``ob``, in Edit Mode. Its evaluated mesh is then Blender's
     wrapper of the edit mesh, which has no vertices or faces of its own (read as it is, the
     object was skipped as faceless): Blender's conversion of it is read instead
@@ -425,16 +425,19 @@ def _edit_mode_mesh(r: _Reader, ob):
     under the mesh's own name (the conversion is called 'Mesh'), and freed on exit. Only
     the evaluated object is asked: no mode switch, nothing written to the user's mesh. The
     conversion is made on the real evaluated object (an instance's object may be a
-    temporary copy) and forgotten by :meth:`_Reader.mesh_key` when freed (the next
-    conversion may get its address). The journal is not asked about it (a cached read is
+    temporary copy) -- except for geometry its instancer made (geometry nodes: the
+    object's original is the instancer, whose own mesh is not this one), converted from
+    the instance's own object -- and forgotten by :meth:`_Reader.mesh_key` when freed
+    (the next conversion may get its address). The journal is not asked about it (a cached read is
     checked by fingerprint): a script may change the edit mesh with no depsgraph update
     (``bmesh.from_edit_mesh`` without ``update_edit_mesh``), which a fresh render
     depsgraph, and so Cycles' F12, shows."""
-    real = ob.original.evaluated_get(r.depsgraph)
+    made = inst.is_instance and inst.parent is not None and ob.original == inst.parent.original
+    real = ob if made else ob.original.evaluated_get(r.depsgraph)
     converted = real.to_mesh()
     journal, r.journal = r.journal, False  # (see below)
     try:
-        yield _Named(converted, ob.original.data.name)
+        yield _Named(converted, (ob if made else ob.original).data.name)
     finally:
         r.journal = journal
         r.mesh_by_pointer.pop(converted.as_pointer(), None)

@@ -1,4 +1,4 @@
-"""Review s33-rev1: rows the packing hands back to an owned Mesh (packing.share_rows) must
+"""Rows the packing hands back to an owned Mesh (packing.share_rows) must
 not keep a packing alive that no scene holds any more. An owned Mesh packed first shares
 its triangles with that packing's whole ``tris`` array; packed again where it is not first
 (another scene of the export cache, or its own scene after a mesh took a lower slot) its

@@ -103,6 +103,23 @@ def share_rows(m: dict, shared: list) -> None:
         setattr(src, a, m[f] if m[f].shape == old.shape else m[f].reshape(old.shape))
 
 
+def _unpin_triangles(src) -> None:
+    """An owned Mesh's triangles that an older packing handed back (a view of its whole
+    ``tris``: :func:`share_rows`), not handed back by this one (the mesh's first vertex is
+    no longer the packing's first), copied: the view would keep that packing's triangles of
+    every mesh alive (12 bytes a triangle) beside this one's."""
+    tris = src.triangles
+    root = tris
+    while isinstance(root.base, np.ndarray):
+        root = root.base
+    if root.nbytes > tris.nbytes:
+        own = tris.copy()
+        kept = src._checked[0] if src._checked is not None else {}
+        if kept.get("tris") is tris:
+            kept["tris"] = own
+        src.triangles = own
+
+
 def pack_meshes(meshes: list) -> dict:
     """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
     which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
@@ -142,6 +159,10 @@ def pack_meshes(meshes: list) -> dict:
                  slots=packed["tri_slot"][rs])
         if shared[k]:
             share_rows(m, shared[k])
+    handed = {id(m["source"]) for k, m in enumerate(live) if ("tris", "triangles") in shared[k]}
+    for m in live:
+        if m.get("source") is not None and id(m["source"]) not in handed:
+            _unpin_triangles(m["source"])
     packed["mesh_tri_start"] = tstart
     packed["mesh_gen"] = np.stack([texture_space(m) for m in meshes]).reshape(-1, 2, 3)
     return packed

@@ -1,4 +1,4 @@
-"""Review s33-rev1: a geometry-nodes instance of an Edit Mode object's geometry (Object
+"""A geometry-nodes instance of an Edit Mode object's geometry (Object
 Info, As Instance off, then Geometry to Instance: the instance's geometry is made by the
 instancer, key ``("inst", ...)``) renders with that geometry. Its evaluated mesh says
 ``is_editmode``; the export converts ``ob.original.evaluated_get(...)``, i.e. the

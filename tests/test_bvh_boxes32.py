@@ -152,3 +152,30 @@ def test_large_float32_build_hits_what_brute_force_hits():
     assert np.count_nonzero(want.prim >= 0) > n  # (most rays hit)
     for a, w in zip(got, want, strict=True):
         assert np.array_equal(a, w)
+
+
+def test_small_meshes_build_on_float64_boxes_the_float32_boxes_tree(monkeypatch):
+    """A mesh below PARALLEL_MIN is built over its float32 boxes' values held as float64
+    (the signature the scene's top level builds with: one compile of the builder for a
+    small scene), and that is the tree its float32 boxes give, bit for bit, over float64
+    vertices (where the outward rounding moves the bounds)."""
+    verts, tris = _mesh(3000)
+    tv = verts[tris]
+    seen = []
+
+    def recorded(pb, *args, **kwargs):
+        seen.append(pb.dtype)
+        return bvh_build.build_flat_boxes(pb, *args, **kwargs)
+
+    monkeypatch.setattr(bvh_mesh, "build_flat_boxes", recorded)
+    got = bvh_mesh.build_mesh_bvh(tv)
+    assert seen == [np.dtype(np.float64)]
+    pb32 = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1))
+    assert not np.array_equal(pb32.astype(np.float64),
+                              np.concatenate([tv.min(axis=1), tv.max(axis=1)], 1))
+    b, c, p, sah = bvh_build.build_flat_boxes(pb32, packed=False)
+    want = bvh_mesh.flatten(b, c, p, np.float32)
+    assert np.array_equal(got.bvh.bounds.view(np.int32), want.bounds.view(np.int32))
+    assert np.array_equal(got.bvh.child, want.child)
+    assert np.array_equal(got.tri, want.perm)
+    assert got.sah_cost == sah

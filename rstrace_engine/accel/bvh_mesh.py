@@ -339,7 +339,12 @@ def build_mesh_bvh(tv: np.ndarray, grain: int | None = None,
     # (numpy and one thread: no parallel region to start)
     t0 = time.perf_counter()
     t3 = flat9.reshape(-1, 3, 3)
-    pb = outward32(t3.min(axis=1), t3.max(axis=1))
+    # the float32 boxes' values, held as float64: the builder reads every box as float64,
+    # so the tree is the float32 boxes' bit for bit, and it is built by the signature the
+    # scene's top level and the shafts build with (below PARALLEL_MIN triangles: 3 MB of
+    # boxes and 6 MB of binary nodes at most; the float32 build's kernels are not compiled
+    # for small scenes: ~15 s of a cold start, docs/first-render.md, session 33)
+    pb = outward32(t3.min(axis=1), t3.max(axis=1)).astype(np.float64)
     flat, sah = _four_wide(_binary(pb, grain, stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 

@@ -241,6 +241,32 @@ def test_a_frame_whose_allowance_is_spent_traces_the_rest_exactly(monkeypatch):
     assert err <= EPS + FLOAT_TOL
 
 
+def test_a_cut_first_pass_traces_the_rest_as_the_base_tracer(monkeypatch):
+    # the ledger cuts the first pass (nothing reprojects: the first frame, the world
+    # lights): the rest of the frame is traced in the base tracer's tiles, all samples of a
+    # pixel together -- so its shadow-ray skips are proven over the same groups as the base
+    # frame's, and it traces exactly the base frame's shadow rays (per pass, each pass's
+    # groups held one sample of their pixels: other proofs, other rays, the same image)
+    monkeypatch.setattr(Budget, "chunk", lambda self, rest: 0)
+    sc = scenes.build("studio", 64, 48)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3, samples=4,
+                        light_samples=4)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    r.cache.fallback.ray_s = 1e-6  # priced: no first chunk traced to price a ray
+    f = r.render(sc, st, accel)
+    base = _base(sc, accel, st)
+    assert f.stats["fallback"]["walked_rays"] == 0 and f.stats["cells_built"] == 0
+    np.testing.assert_array_equal(f.radiance, base.radiance)
+    np.testing.assert_array_equal(f.pixel_class, base.pixel_class)
+    assert base.stats["shadow_rays_skipped"] > 0
+    for key in ("shadow_rays", "shadow_rays_skipped", "secondary_rays"):
+        assert f.stats[key] == base.stats[key], key
+    assert f.stats["class_counts"]["traced"] + f.stats["class_counts"]["background"] == (
+        4 * 64 * 48)
+
+
 def test_a_first_frame_prices_a_ray_with_its_first_chunk():
     sc = _scene(128, 96)
     accel = create_accelerator("BVH", sc.arrays())

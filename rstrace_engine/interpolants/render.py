@@ -11,9 +11,12 @@ interpolated at once; the others get their visible hits through the whole scene
 (``closest_hit``) -> for every ray that hits an object, its line in that object's linetree
 -> :meth:`~.interpolants.InterpolantCache.resolve` interpolates what valid interpolants
 cover and builds the cells the chunk needs -> every other ray (misses, failed cells, pixels
-too few to be worth a cell) is traced by the base tracer from the hits already found. Each
-pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0 nothing can be
-interpolated, and the frame is the base tracer's.
+too few to be worth a cell) is traced by the base tracer from the hits already found. When
+the ledger cuts the first pass short and nothing reprojects, the rest of the frame is traced
+in the base tracer's own tiles, every sample of a pixel together
+(:func:`~.frame_parts.trace_tail`: its shadow-ray proofs over the base frame's groups, not
+once per pass). Each pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0
+nothing can be interpolated, and the frame is the base tracer's.
 
 Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
 frames and camera moves; it starts a new cache when epsilon, the depth cap or the ray depth

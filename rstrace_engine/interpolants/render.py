@@ -290,6 +290,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_closest = 0.0
     pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
     tail = k  # pixels from here on: cut from the first pass, the base tracer's (trace_tail)
+    n_interp0 = 0  # rays the first pass interpolated (their later samples may reproject)
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
             if cancel is not None and cancel():
@@ -334,9 +335,12 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                                 int(k * fb_mod.PRICE_SHARE))), False
                     else:
                         m = budget.chunk(kt - a)
-                        if not m and s == 0 and cand is None:
-                            # the ledger cut the first pass and nothing reprojects: the
-                            # rest of the frame is traced as the base tracer traces it
+                        if (not m and s == 0 and cand is None and budget.spent_for_good(
+                                (n_interp0 + int(np.count_nonzero(vis.res.interpolated[:a])))
+                                * (spp - 1))):
+                            # the ledger cut the first pass for good and nothing reprojects
+                            # from another frame: the rest of the frame is traced as the
+                            # base tracer traces it
                             tail = tsl.start + a
                             cut_here = True
                             break
@@ -370,6 +374,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 _accumulate(res.radiance, good, res.pixel_class, res.interpolant,
                             acc_rad[td], acc_good[td], acc_cls[td], acc_lo[td], acc_hi[td])
                 run.t_res += fb_mod.CLOCK() - tp
+                n_interp0 += int(np.count_nonzero(res.interpolated)) if s == 0 else 0
                 if cut_here:
                     break
             pass_tiles = list(tiles(tail))  # (the passes after a cut: the pixels before it)
@@ -418,7 +423,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     stats["world_s"] = run.t_world  # the interpolated pixels' world terms (in resolve_s)
     stats["sampled_s"] = run.t_sampled  # their lights' sampled terms (in resolve_s)
     if fb is not None:
-        stats["fallback"] = fb.stats(budget)
+        # (tail_pixels: pixels the base tracer's tiles traced after a cut, trace_tail)
+        stats["fallback"] = dict(fb.stats(budget), tail_pixels=k - tail)
         stats["fallback_notes"] = fb.notes()  # what it decided, for the user
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])

@@ -241,6 +241,53 @@ def test_a_frame_whose_allowance_is_spent_traces_the_rest_exactly(monkeypatch):
     assert err <= EPS + FLOAT_TOL
 
 
+def test_a_pass_is_cut_for_good_only_when_no_saving_to_come_can_pay_a_walk():
+    b = Budget(100_000, ray_s=1e-5)  # an allowance of ALLOWANCE * 1 s
+    assert not b.spent_for_good(0)  # nothing spent yet
+    b.spent = 2.0 * b.limit  # spent over it, nothing walked: no chunk walks again ...
+    assert b.spent_for_good(0)
+    # ... unless the later passes' reprojected samples may save it back
+    back = int(2.0 * b.limit / (fallback.SAVE_SHARE * b.ray_s)) + 1
+    assert not b.spent_for_good(back) and b.spent_for_good(back // 2)
+    # after a walk: a chunk of CHUNK_MIN rays at the walk's cost per ray must be affordable
+    b = Budget(100_000, ray_s=1e-5)
+    b.walked, b.spent = 4096, 0.6 * b.limit  # 60% of the allowance for 4096 rays walked
+    assert b.spent_for_good(0)  # 40% is left: 4096 more rays cost 60%
+    b.spent = 0.25 * b.limit
+    assert not b.spent_for_good(0)
+    b.owed = 0.6 * b.limit  # the structures still owed count against it
+    assert b.spent_for_good(0)
+    assert not Budget(100_000).spent_for_good(0)  # not priced: never
+
+
+def test_a_cut_first_pass_traces_the_rest_as_the_base_tracer(monkeypatch):
+    # the ledger cuts the first pass (nothing reprojects: the first frame, the world
+    # lights): the rest of the frame is traced in the base tracer's tiles, all samples of a
+    # pixel together -- so its shadow-ray skips are proven over the same groups as the base
+    # frame's, and it traces exactly the base frame's shadow rays (per pass, each pass's
+    # groups held one sample of their pixels: other proofs, other rays, the same image)
+    monkeypatch.setattr(Budget, "chunk", lambda self, rest: 0)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 0.0)  # nothing to spend: cut for good
+    sc = scenes.build("studio", 64, 48)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3, samples=4,
+                        light_samples=4)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    r.cache.fallback.ray_s = 1e-6  # priced: no first chunk traced to price a ray
+    f = r.render(sc, st, accel)
+    base = _base(sc, accel, st)
+    assert f.stats["fallback"]["walked_rays"] == 0 and f.stats["cells_built"] == 0
+    assert f.stats["fallback"]["tail_pixels"] == 64 * 48
+    np.testing.assert_array_equal(f.radiance, base.radiance)
+    np.testing.assert_array_equal(f.pixel_class, base.pixel_class)
+    assert base.stats["shadow_rays_skipped"] > 0
+    for key in ("shadow_rays", "shadow_rays_skipped", "secondary_rays"):
+        assert f.stats[key] == base.stats[key], key
+    assert f.stats["class_counts"]["traced"] + f.stats["class_counts"]["background"] == (
+        4 * 64 * 48)
+
+
 def test_a_first_frame_prices_a_ray_with_its_first_chunk():
     sc = _scene(128, 96)
     accel = create_accelerator("BVH", sc.arrays())

@@ -314,6 +314,23 @@ class Budget:
         return min(rest, can, CHUNK_MAX)
 
 
+    def spent_for_good(self, reprojectable: int) -> bool:
+        """Whether no chunk of the frame can walk again (:meth:`chunk`): what is left, plus
+        the most the frame's later passes can still save (``reprojectable`` rays that may
+        be interpolated without a walk: the later samples of the pixels interpolated so
+        far), affords fewer than :data:`CHUNK_MIN` rays at the walk's cost per ray so far
+        (nothing at all before a walk). Only time spent makes it less: the rest of the
+        frame is then traced whatever comes, and may be traced as the base tracer traces
+        it (:func:`.render.render_frame`). Not priced: False."""
+        if self.ray_s is None:
+            return False
+        left = self.left() - self.owed + SAVE_SHARE * max(int(reprojectable), 0) * self.ray_s
+        walk = self.spent - self.build_paid
+        if self.walked == 0 or walk <= 0.0:
+            return left <= 0.0
+        return left < CHUNK_MIN * (walk / self.walked)
+
+
 class Fallback:
     """What INTERPOLANT mode has learned for one cache (module doc)."""
 

@@ -18,12 +18,21 @@ import numpy as np
 
 from ..accel.accelerators import Hits
 from ..cancel import bound
-from ..frame import CLASS_BACKGROUND, CLASS_TRACED
-from ..tracing.batches import TILE_RAYS
+from ..frame import (
+    CLASS_BACKGROUND,
+    CLASS_INTERPOLATED,
+    CLASS_NAMES,
+    CLASS_REBUILT,
+    CLASS_TRACED,
+)
+from ..geometry.cameras import camera_rays
+from ..tracing.batches import TILE_RAYS, threads_for
 from ..tracing.seen_lights import SEEN_CAMERA, seen
+from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import trace
 from . import fallback
+from .bound import bound_notes
 from .glossy_term import glossy_term, rough_objects, rough_roots
 from .interpolant_cache import ResolveResult
 from .reproject import reproject, slab_points
@@ -178,6 +187,51 @@ def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, re
     return False
 
 
+def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec):
+    """Every sample of the pixels ``pix`` (k,) int64 (``jitter`` (spp, k, 2) theirs) traced
+    by the base tracer in its own tiles: a tile's rows of pixels with all their samples at
+    once (:func:`~..tracing.whitted.trace_pixels`' rays, seeds and shadow-ray skips, so its
+    samples are the base frame's bit for bit), what a pass cut short by the ledger leaves
+    (:func:`.render.render_frame`). Per pass, a tile proved the shadow-ray skips of one sample
+    of its pixels (:mod:`~..tracing.shaft_skip`: four times the proofs at 4 samples) and
+    traced tiles of another size. Yields per tile ``(rows of pix, radiance (spp m, 3),
+    instance (spp m,), closest-hit seconds, tracing seconds)``, sample-major (sample ``s``
+    of the tile's pixel ``p`` at row ``s m + p``); None when ``cancel`` stopped it. Its
+    trees go to ``records``; ``lrec`` (partial per-light records, or None) learns that no
+    sample of it kept a world term."""
+    sa, accel = cache.sa, cache.accel
+    spp = jitter.shape[0]
+    w = cp.width
+    per = max(1, TILE_RAYS // max(1, w * spp)) * w  # the base tracer's tile, in pixels
+    for a in range(0, len(pix), per):
+        tp = pix[a:a + per]
+        m = len(tp)
+        px = np.tile(tp, spp)
+        gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * cp.height) + tp[None, :]).ravel()
+        segs: list | None = [] if records is not None else None
+        t0 = fallback.CLOCK()
+        with threads_for(len(px)), bound(accel, cancel):
+            o, d, tmin, tmax = camera_rays(cp, px, jitter[:, a:a + m].reshape(-1, 2))
+            hits = accel.closest_hit(o, d, tmin, tmax)
+            t1 = fallback.CLOCK()
+            rad, _ = trace(sa, accel, o, d, tmin, tmax, int(settings.max_depth), primary=hits,
+                           counters=counters, segments=segs, cancel=cancel,
+                           seeds=sample_seeds(gids, int(settings.seed)),
+                           light_samples=int(settings.light_samples),
+                           glossy_samples=int(settings.glossy_samples),
+                           terms=records is not None and records.light is not None,
+                           skip_keys=tile_keys(px, w))
+        t2 = fallback.CLOCK()
+        if cancel is not None and cancel():
+            yield None
+            return
+        if records is not None:
+            records.add(gids, segs)
+        if lrec is not None:
+            lrec.set_world(gids, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        yield slice(a, a + m), rad, np.asarray(hits.inst, np.int32), t1 - t0, t2 - t1
+
+
 def glossy_rest(cache, interp, o, d, tmin, tmax, hits, rep, interpolant, rad, counters,
                 records, gids, cancel, settings) -> bool:
     """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
@@ -215,3 +269,40 @@ def glossy_rest(cache, interp, o, d, tmin, tmax, hits, rep, interpolant, rad, co
         if records is not None:
             records.add(gids[rr], segs)
     return False
+
+
+def frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, reprojected,
+                 k, n_todo, counters, w, h, spp, max_depth, cancelled, bad_total) -> dict:
+    """The statistics of an INTERPOLANT frame."""
+    accel = cache.accel
+    return dict(
+        mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
+        resolve_s=t_res - fs.get("visibility_s", 0.0),
+        build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
+        trace_s=t_trace,
+        # samples whose visible hit came from reprojection instead of a closest-hit ray
+        reprojected_fraction=reprojected,
+        # of the whole frame (kept pixels included; a kept pixel "rebuilt after an edit" is
+        # interpolated too: the stat once said 0% with 959 magenta pixels)
+        interpolated_fraction=float(np.count_nonzero((pclass == CLASS_INTERPOLATED)
+                                                     | (pclass == CLASS_REBUILT)))
+        / max(len(pclass), 1),
+        traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
+        shadow_rays_skipped=counters.get("shadow_skipped", 0),
+        secondary_rays=counters.get("secondary", 0),
+        # interpolated samples on rough surfaces, their glossy rays traced (glossy_term.py)
+        rough_interpolated=counters.get("rough_interpolated", 0),
+        cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
+        samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
+        cell_outcomes=dict(fs.get("reasons", {})),
+        interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
+        memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,
+        interpolant_memory_mb=cache.interpolant_bytes / 1e6,
+        epsilon=cache.epsilon, depth_cap=cache.depth_cap,
+        memory_cap_mb=cache.memory_cap_bytes / 1e6,
+        class_counts={CLASS_NAMES[q]: int(counts[q]) for q in range(len(CLASS_NAMES))},
+        width=w, height=h, samples=spp, max_depth=max_depth,
+        cancelled=bool(cancelled), nonfinite_samples=bad_total,
+        accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
+        bound_notes=[] if cancelled else bound_notes(cache, used),
+    )

@@ -11,9 +11,12 @@ interpolated at once; the others get their visible hits through the whole scene
 (``closest_hit``) -> for every ray that hits an object, its line in that object's linetree
 -> :meth:`~.interpolants.InterpolantCache.resolve` interpolates what valid interpolants
 cover and builds the cells the chunk needs -> every other ray (misses, failed cells, pixels
-too few to be worth a cell) is traced by the base tracer from the hits already found. Each
-pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0 nothing can be
-interpolated, and the frame is the base tracer's.
+too few to be worth a cell) is traced by the base tracer from the hits already found. When
+the ledger cuts the first pass short and nothing reprojects, the rest of the frame is traced
+in the base tracer's own tiles, every sample of a pixel together
+(:func:`~.frame_parts.trace_tail`: its shadow-ray proofs over the base frame's groups, not
+once per pass). Each pixel gets a class (:data:`~.frame.CLASS_NAMES`). At epsilon = 0
+nothing can be interpolated, and the frame is the base tracer's.
 
 Interpolants are view-independent, so a :class:`InterpolantRenderer` keeps its cache across
 frames and camera moves; it starts a new cache when epsilon, the depth cap or the ray depth
@@ -36,9 +39,7 @@ from .. import heap
 from .. import tolerances as tol
 from ..frame import (
     CLASS_BACKGROUND,
-    CLASS_INTERPOLATED,
     CLASS_NAMES,
-    CLASS_REBUILT,
     CLASS_TRACED,
     Frame,
     RenderSettings,
@@ -51,15 +52,16 @@ from ..tracing.soft_lights import world_lights
 from ..tracing.whitted import render
 from . import fallback as fb_mod
 from .added_light import keeps_cache
-from .bound import bound_notes
 from .frame_parts import (
     Visible,
     camera_seen,
     count,
+    frame_stats,
     glossy_rest,
     part,
     tiles,
     trace_rest,
+    trace_tail,
     visible,
 )
 from .glossy_term import rough_roots_possible
@@ -185,43 +187,6 @@ def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     return frame
 
 
-def _frame_stats(cache, fs, counts, pclass, used, elapsed, t_res, t_trace, reprojected,
-                 k, n_todo, counters, w, h, spp, max_depth, cancelled, bad_total) -> dict:
-    """The statistics of an INTERPOLANT frame."""
-    accel = cache.accel
-    return dict(
-        mode="INTERPOLANT", time_s=elapsed, visibility_s=fs.get("visibility_s", 0.0),
-        resolve_s=t_res - fs.get("visibility_s", 0.0),
-        build_s=fs.get("build_s", 0.0), rst_insert_s=fs.get("deps_s", 0.0),
-        trace_s=t_trace,
-        # samples whose visible hit came from reprojection instead of a closest-hit ray
-        reprojected_fraction=reprojected,
-        # of the whole frame (kept pixels included; a kept pixel "rebuilt after an edit" is
-        # interpolated too: the stat once said 0% with 959 magenta pixels)
-        interpolated_fraction=float(np.count_nonzero((pclass == CLASS_INTERPOLATED)
-                                                     | (pclass == CLASS_REBUILT)))
-        / max(len(pclass), 1),
-        traced_pixels=k, traced_rays=n_todo, shadow_rays=counters.get("shadow", 0),
-        shadow_rays_skipped=counters.get("shadow_skipped", 0),
-        secondary_rays=counters.get("secondary", 0),
-        # interpolated samples on rough surfaces, their glossy rays traced (glossy_term.py)
-        rough_interpolated=counters.get("rough_interpolated", 0),
-        cells_built=fs.get("cells_built", 0), cells_valid=fs.get("cells_valid", 0),
-        samples_traced=fs.get("samples_traced", 0), levels=fs.get("levels", 0),
-        cell_outcomes=dict(fs.get("reasons", {})),
-        interpolants=cache.pool.n_live, linetree_nodes=cache.trees.live_nodes,
-        memory_mb=cache.memory_bytes / 1e6, rst_memory_mb=cache.rst_memory_bytes() / 1e6,
-        interpolant_memory_mb=cache.interpolant_bytes / 1e6,
-        epsilon=cache.epsilon, depth_cap=cache.depth_cap,
-        memory_cap_mb=cache.memory_cap_bytes / 1e6,
-        class_counts={CLASS_NAMES[q]: int(counts[q]) for q in range(len(CLASS_NAMES))},
-        width=w, height=h, samples=spp, max_depth=max_depth,
-        cancelled=bool(cancelled), nonfinite_samples=bad_total,
-        accelerator=getattr(accel, "name", "?"), cache_setup_s=cache.setup_s,
-        bound_notes=[] if cancelled else bound_notes(cache, used),
-    )
-
-
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
                  base: Frame | None = None, fallback: bool = False) -> Frame:
@@ -324,6 +289,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     n_closest = 0
     t_closest = 0.0
     pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
+    tail = k  # pixels from here on: cut from the first pass, the base tracer's (trace_tail)
+    n_interp0 = 0  # rays the first pass interpolated (their later samples may reproject)
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
             if cancel is not None and cancel():
@@ -359,6 +326,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                         fb.vis_s = vis.closest_s / max(kt, 1)
                         fb.hit_share = float(np.count_nonzero(vis.hits.inst >= 0)) / max(kt, 1)
                 a = 0
+                cut_here = False
                 while a < kt and not run.cancelled:
                     if budget is None:  # cells everywhere
                         b, on = kt, True
@@ -367,6 +335,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                                 int(k * fb_mod.PRICE_SHARE))), False
                     else:
                         m = budget.chunk(kt - a)
+                        if (not m and s == 0 and cand is None and budget.spent_for_good(
+                                (n_interp0 + int(np.count_nonzero(vis.res.interpolated[:a])))
+                                * (spp - 1))):
+                            # the ledger cut the first pass for good and nothing reprojects
+                            # from another frame: the rest of the frame is traced as the
+                            # base tracer traces it
+                            tail = tsl.start + a
+                            cut_here = True
+                            break
                         b, on = (a + m, True) if m else (kt, False)
                     run.chunk(ps, slice(a, b), on)
                     walked |= on
@@ -379,23 +356,28 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                             budget.price(run.trace_s / run.traced_rays, fb.vis_s, fb.hit_share)
                     a = b
                 tq = fb_mod.CLOCK()
-                res = vis.res
+                hd = slice(0, a)  # the rays done (the whole tile but where the tail begins)
+                res = part(vis.res, hd)
                 if res.interpolated.any():
                     if rem is not None:  # what the next pass and frame reproject from
-                        t = vis.hits.t.copy()
-                        slab_points(cache, res.interpolant, o, d, t,
-                                    np.zeros(kt, np.bool_) if rep is None else rep)
-                        rem.add(tpix, res.interpolant, o, d, t)
+                        t = vis.hits.t[hd].copy()
+                        slab_points(cache, res.interpolant, o[hd], d[hd], t,
+                                    np.zeros(a, np.bool_) if rep is None else rep[hd])
+                        rem.add(tpix[hd], res.interpolant, o[hd], d[hd], t)
                     used = _mark_used(used, res.interpolant)
                 if budget is not None:
                     budget.spent += fb_mod.CLOCK() - tq
-                good = np.empty(kt, np.bool_)
+                good = np.empty(a, np.bool_)
                 bad_total += int(_finish(res.radiance, float(tol.RADIANCE_MAX),
                                          res.pixel_class, good, counts))
+                td = slice(tsl.start, tsl.start + a)
                 _accumulate(res.radiance, good, res.pixel_class, res.interpolant,
-                            acc_rad[tsl], acc_good[tsl], acc_cls[tsl], acc_lo[tsl],
-                            acc_hi[tsl])
+                            acc_rad[td], acc_good[td], acc_cls[td], acc_lo[td], acc_hi[td])
                 run.t_res += fb_mod.CLOCK() - tp
+                n_interp0 += int(np.count_nonzero(res.interpolated)) if s == 0 else 0
+                if cut_here:
+                    break
+            pass_tiles = list(tiles(tail))  # (the passes after a cut: the pixels before it)
             tq = fb_mod.CLOCK()
             if walked:
                 cache.finish_resolve()
@@ -405,6 +387,12 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 budget.spent += fb_mod.CLOCK() - tq
             if progress is not None:
                 progress(0.05 + 0.9 * (s + 1) / spp, "interpolants")
+        if tail < k and not run.cancelled:
+            tc = run.tail(cp, pix[tail:], jitter[:, tail:], spp, counts,
+                          (x[tail:] for x in (acc_rad, acc_good, acc_cls, acc_lo, acc_hi)))
+            t_closest += tc
+            n_closest += (k - tail) * spp
+            bad_total += run.bad_tail
     t_res = run.t_res - run.t_trace_all
     cancelled = run.cancelled
     if pixels is None and not cancelled:
@@ -428,14 +416,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         progress(1.0, "done")
     elapsed = fb_mod.CLOCK() - t0
     fs = dict(fs, visibility_s=t_closest)
-    stats = _frame_stats(cache, fs, counts, pclass, np.flatnonzero(used), elapsed,
+    stats = frame_stats(cache, fs, counts, pclass, np.flatnonzero(used), elapsed,
                          t_res, run.t_trace_all, n_rep / max(n, 1), k, run.n_todo,
                          run.counters, w, h, spp, int(settings.max_depth), cancelled,
                          bad_total)
     stats["world_s"] = run.t_world  # the interpolated pixels' world terms (in resolve_s)
     stats["sampled_s"] = run.t_sampled  # their lights' sampled terms (in resolve_s)
     if fb is not None:
-        stats["fallback"] = fb.stats(budget)
+        # (tail_pixels: pixels the base tracer's tiles traced after a cut, trace_tail)
+        stats["fallback"] = dict(fb.stats(budget), tail_pixels=k - tail)
         stats["fallback_notes"] = fb.notes()  # what it decided, for the user
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
@@ -493,6 +482,40 @@ class _Run:
         self.trace_s = 0.0  # (the ledger's) tracing time, over
         self.traced_rays = 0  # rays traced
         self.n_todo = 0
+
+    def tail(self, cp, pix, jitter, spp, counts, acc) -> float:
+        """Every sample of pixels ``pix`` traced by the base tracer in its tiles
+        (:func:`~.frame_parts.trace_tail`) into their sums ``acc`` (:func:`_accumulate`'s,
+        from sample 0 on: as the base frame sums them); returns the closest-hit seconds."""
+        records = self.records
+        lrec = records.light if records is not None else None
+        acc = tuple(acc)
+        closest, self.bad_tail = 0.0, 0
+        t0 = fb_mod.CLOCK()
+        for out in trace_tail(self.cache, cp, pix, jitter, self.settings, self.counters,
+                              records, self.cancel,
+                              lrec if lrec is not None and lrec.partial else None):
+            if out is None:
+                self.cancelled = True
+                break
+            sl, rad, inst, t_hit, t_trace = out
+            m = sl.stop - sl.start
+            cls = np.where(inst >= 0, CLASS_TRACED, CLASS_BACKGROUND).astype(np.uint8)
+            good = np.empty(len(rad), np.bool_)
+            self.bad_tail += int(_finish(rad, float(tol.RADIANCE_MAX), cls, good, counts))
+            none = np.full(m, -1, np.int32)
+            for q in range(spp):
+                r = slice(q * m, (q + 1) * m)
+                _accumulate(rad[r], good[r], cls[r], none, *(x[sl] for x in acc))
+            n_hit = int(np.count_nonzero(inst >= 0))
+            closest += t_hit
+            self.n_todo += n_hit
+            self.traced_rays += n_hit
+            self.trace_s += t_trace
+            self.t_trace += t_trace
+            self.t_trace_all += t_trace
+        self.t_res += fb_mod.CLOCK() - t0
+        return closest
 
     def chunk(self, ps: _Pass, sl: slice, cells: bool) -> None:
         """Rays ``sl`` of pass ``ps``: through the cells (``cells``: line coordinates, the

@@ -35,6 +35,18 @@ OWN_SCENES = dict(SCENES, rough_soft_room=lambda: SOAK_SCENES["rough_soft_room"]
                   rough_balls=_rough_balls)
 
 
+def _on_and_off(scene, st, monkeypatch) -> tuple:
+    """``scene``'s frames with the own-instance skip on and off: the same image and pixel
+    classes (asserted)."""
+    monkeypatch.setattr(shaft_skip, "OWN_SKIP", True)
+    on = whitted.render(scene, st)
+    monkeypatch.setattr(shaft_skip, "OWN_SKIP", False)
+    off = whitted.render(scene, st)
+    assert np.array_equal(on.radiance, off.radiance)
+    assert np.array_equal(on.pixel_class, off.pixel_class)
+    return on, off
+
+
 @pytest.mark.parametrize("name", sorted(OWN_SCENES))
 def test_frames_with_and_without_the_own_skip_are_identical(name, monkeypatch):
     """Convex objects (mirrored and stretched ones too), non-convex ones, rough glass
@@ -43,13 +55,7 @@ def test_frames_with_and_without_the_own_skip_are_identical(name, monkeypatch):
     leave their own instance out wherever a convex mesh of 32 triangles or more is hit
     (the room seen from inside has none, the rough room only its glass ball)."""
     st = RenderSettings(mode="BASE", max_depth=2, samples=2, light_samples=8, seed=3)
-    scene = OWN_SCENES[name]()
-    monkeypatch.setattr(shaft_skip, "OWN_SKIP", True)
-    on = whitted.render(scene, st)
-    monkeypatch.setattr(shaft_skip, "OWN_SKIP", False)
-    off = whitted.render(scene, st)
-    assert np.array_equal(on.radiance, off.radiance)
-    assert np.array_equal(on.pixel_class, off.pixel_class)
+    on, off = _on_and_off(OWN_SCENES[name](), st, monkeypatch)
     assert on.stats["shadow_rays"] == off.stats["shadow_rays"]
     assert on.stats["shadow_rays_skipped"] == off.stats["shadow_rays_skipped"]
     assert off.stats["shadow_rays_own_skip"] == 0
@@ -148,13 +154,7 @@ def test_reflections_and_hard_shadow_rays_leave_their_own_instance_out(name, mon
     (three_spheres) computes no own instances: nothing offered, as before."""
     st = RenderSettings(mode="BASE", max_depth=3, samples=2, light_samples=4,
                         glossy_samples=4, seed=5)
-    scene = REFLECT_SCENES[name]()
-    monkeypatch.setattr(shaft_skip, "OWN_SKIP", True)
-    on = whitted.render(scene, st)
-    monkeypatch.setattr(shaft_skip, "OWN_SKIP", False)
-    off = whitted.render(scene, st)
-    assert np.array_equal(on.radiance, off.radiance)
-    assert np.array_equal(on.pixel_class, off.pixel_class)
+    on, off = _on_and_off(REFLECT_SCENES[name](), st, monkeypatch)
     for k in ("primary_rays", "secondary_rays", "shadow_rays"):
         assert on.stats[k] == off.stats[k]
     assert off.stats["secondary_rays_own_skip"] == 0

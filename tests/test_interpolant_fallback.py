@@ -248,7 +248,7 @@ def test_a_pass_is_cut_for_good_only_when_no_saving_to_come_can_pay_a_walk():
     assert b.spent_for_good(0)
     # ... unless the later passes' reprojected samples may save it back
     back = int(2.0 * b.limit / (fallback.SAVE_SHARE * b.ray_s)) + 1
-    assert not b.spent_for_good(back) and b.spent_for_good(back // 2)
+    assert not b.spent_for_good(back) and b.spent_for_good(back // 4)
     # after a walk: a chunk of CHUNK_MIN rays at the walk's cost per ray must be affordable
     b = Budget(100_000, ray_s=1e-5)
     b.walked, b.spent = 4096, 0.6 * b.limit  # 60% of the allowance for 4096 rays walked
@@ -275,8 +275,14 @@ def test_a_cut_first_pass_traces_the_rest_as_the_base_tracer(monkeypatch):
     r = InterpolantRenderer()
     r.prepare(sc.arrays(), st, accel)
     r.cache.fallback.ray_s = 1e-6  # priced: no first chunk traced to price a ray
-    f = r.render(sc, st, accel)
+    calls: list = []
+    f = r.render(sc, st, accel, progress=lambda q, what: calls.append((q, what)))
     base = _base(sc, accel, st)
+    # the progress follows the pixels: the passes (none of them here) to 0.05, the tail's
+    # tiles on to 0.95 (not 95% for the passes, then the tail unreported)
+    traced = [q for q, what in calls if what == "traced"]
+    assert traced and traced == sorted(traced) and traced[-1] == pytest.approx(0.95)
+    assert max(q for q, what in calls[:calls.index((traced[0], "traced"))]) <= 0.05
     assert f.stats["fallback"]["walked_rays"] == 0 and f.stats["cells_built"] == 0
     assert f.stats["fallback"]["tail_pixels"] == 64 * 48
     np.testing.assert_array_equal(f.radiance, base.radiance)

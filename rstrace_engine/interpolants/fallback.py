@@ -326,8 +326,8 @@ class Budget:
             return False
         left = self.left() - self.owed + SAVE_SHARE * max(int(reprojectable), 0) * self.ray_s
         walk = self.spent - self.build_paid
-        if self.walked == 0 or walk <= 0.0:
-            return left <= 0.0
+        if self.walked == 0 or walk <= 0.0:  # (as chunk: it walks CHUNK_MIN at 0 left)
+            return left < 0.0
         return left < CHUNK_MIN * (walk / self.walked)
 
 

@@ -335,9 +335,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                                 int(k * fb_mod.PRICE_SHARE))), False
                     else:
                         m = budget.chunk(kt - a)
-                        if (not m and s == 0 and cand is None and budget.spent_for_good(
-                                (n_interp0 + int(np.count_nonzero(vis.res.interpolated[:a])))
-                                * (spp - 1))):
+                        # (the later passes reproject only from this pass: never while
+                        # the world lights or in an incremental frame, rem None)
+                        later = (0 if run.world or rem is None else (n_interp0 + int(
+                            np.count_nonzero(vis.res.interpolated[:a]))) * (spp - 1))
+                        if not m and s == 0 and cand is None and budget.spent_for_good(later):
                             # the ledger cut the first pass for good and nothing reprojects
                             # from another frame: the rest of the frame is traced as the
                             # base tracer traces it
@@ -385,11 +387,13 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                 here = rem.view()
             if budget is not None:
                 budget.spent += fb_mod.CLOCK() - tq
-            if progress is not None:
-                progress(0.05 + 0.9 * (s + 1) / spp, "interpolants")
+            if progress is not None:  # (the passes' share of the pixels; the tail's after)
+                progress(0.05 + 0.9 * tail / max(k, 1) * (s + 1) / spp, "interpolants")
         if tail < k and not run.cancelled:
             tc = run.tail(cp, pix[tail:], jitter[:, tail:], spp, counts,
-                          (x[tail:] for x in (acc_rad, acc_good, acc_cls, acc_lo, acc_hi)))
+                          (x[tail:] for x in (acc_rad, acc_good, acc_cls, acc_lo, acc_hi)),
+                          None if progress is None else lambda f: progress(
+                              0.05 + 0.9 * (tail + f * (k - tail)) / k, "traced"))
             t_closest += tc
             n_closest += (k - tail) * spp
             bad_total += run.bad_tail
@@ -483,10 +487,11 @@ class _Run:
         self.traced_rays = 0  # rays traced
         self.n_todo = 0
 
-    def tail(self, cp, pix, jitter, spp, counts, acc) -> float:
+    def tail(self, cp, pix, jitter, spp, counts, acc, progress=None) -> float:
         """Every sample of pixels ``pix`` traced by the base tracer in its tiles
         (:func:`~.frame_parts.trace_tail`) into their sums ``acc`` (:func:`_accumulate`'s,
-        from sample 0 on: as the base frame sums them); returns the closest-hit seconds."""
+        from sample 0 on: as the base frame sums them); returns the closest-hit seconds.
+        ``progress(fraction of pix done)`` after each tile, or None."""
         records = self.records
         lrec = records.light if records is not None else None
         acc = tuple(acc)
@@ -514,6 +519,8 @@ class _Run:
             self.trace_s += t_trace
             self.t_trace += t_trace
             self.t_trace_all += t_trace
+            if progress is not None:
+                progress(sl.stop / max(len(pix), 1))
         self.t_res += fb_mod.CLOCK() - t0
         return closest
 

@@ -1,4 +1,4 @@
-"""Review (session 33, rev3) of the cut first pass's tail (``frame_parts.trace_tail``,
+"""The cut first pass's tail (``frame_parts.trace_tail``,
 ``fallback.Budget.spent_for_good``): the proof that the ledger never walks again credits
 the later passes' reprojections of the pixels interpolated so far -- but while the world
 lights (``render._Run.world``) or in an incremental frame (``pixels``: no ``Remember``),

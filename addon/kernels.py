@@ -64,7 +64,8 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.light_nodes._splice_entries", "tracing.light_nodes._splice_geo",
          "tracing.pixel_records._light_bit_changes",
          "tracing.whitted._child_tags",
-         "tracing.shaft_skip._prove_groups",
+         "tracing.shaft_skip._prove_groups", "tracing.shaft_skip._own_kernel",
+         "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
          "tracing.sample_rays.query_light_bits", "tracing.sample_rays.query_world",
          "tracing.sample_proofs.drop_lights", "tracing.sample_proofs.drop_world",
          "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals",
@@ -105,7 +106,8 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "tracing.shader._shade_kernel", "tracing.batches.scatter_add",
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
            "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
-           "tracing.soft_lights._node_seeds")
+           "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",
+           "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

@@ -32,7 +32,6 @@ from rstrace_engine import scenes
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import frame_rough as fr
 from rstrace_engine.frame import RenderSettings
-from rstrace_engine.geometry.scene import Material
 from rstrace_engine.tracing.whitted import render
 
 
@@ -72,13 +71,7 @@ def main() -> None:
     # a pixel wholly on it is 1.0; take those as its own, the rest are edges
     own, cover = {}, {}
     for n in names:
-        sc = scene.copy()
-        for mid, m in enumerate(sc.materials):
-            if m is not None:
-                sc.set_material(mid, Material(m.name, diffuse=(0.0,) * 3, emission=(
-                    (1.0,) * 3 if m.name == n else (0.0,) * 3)))
-        sc.set_world_color((0.0, 0.0, 0.0), lights=False)
-        cov = render(sc, replace(jit, max_depth=0), accel=acc).radiance[..., 0]
+        cov = fr.material_cover(scene, n, jit, acc)
         own[n] = cov > 1.0 - 1e-6  # (radiance is float32)
         cover[n] = cov
     anything = np.sum(np.stack(list(cover.values())), axis=0) > 0.0

@@ -253,6 +253,13 @@ def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _box_area(pb, i):
+    """The half area of box row ``i`` of ``pb`` (float32 or float64), in float64."""
+    return _half_area(np.float64(pb[i, 0]), np.float64(pb[i, 1]), np.float64(pb[i, 2]),
+                      np.float64(pb[i, 3]), np.float64(pb[i, 4]), np.float64(pb[i, 5]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _centroid(pb, j, k):
     return 0.5 * (np.float64(pb[j, k]) + np.float64(pb[j, 3 + k]))
 
@@ -265,12 +272,7 @@ def _two_split(pb, start, cmin, cmax):
     the first one wins (``(cost, axis, 0)``; axis -1: none)."""
     for k in range(3):
         if cmax[k] - cmin[k] > 0.0:
-            a = _half_area(np.float64(pb[start, 0]), np.float64(pb[start, 1]),
-                           np.float64(pb[start, 2]), np.float64(pb[start, 3]),
-                           np.float64(pb[start, 4]), np.float64(pb[start, 5]))
-            b = _half_area(np.float64(pb[start + 1, 0]), np.float64(pb[start + 1, 1]),
-                           np.float64(pb[start + 1, 2]), np.float64(pb[start + 1, 3]),
-                           np.float64(pb[start + 1, 4]), np.float64(pb[start + 1, 5]))
+            a, b = _box_area(pb, start), _box_area(pb, start + 1)
             lo = _centroid(pb, start, k) <= _centroid(pb, start + 1, k)
             return (a if lo else b) + (b if lo else a), k, 0
     return np.inf, -1, -1
@@ -555,9 +557,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
                 for q in range(6):
                     bounds[node, 6 * s + q] = pb[j, q]
                 child[node, s] = ~((j << 3) | 1)
-                sah += _half_area(np.float64(pb[j, 0]), np.float64(pb[j, 1]),
-                                  np.float64(pb[j, 2]), np.float64(pb[j, 3]),
-                                  np.float64(pb[j, 4]), np.float64(pb[j, 5])) / root_area
+                sah += _box_area(pb, j) / root_area
             continue
         if best_axis >= 0 and not make_leaf:
             mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],

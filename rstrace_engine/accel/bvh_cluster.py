@@ -27,6 +27,7 @@ from .bvh_build import (
     NEVER_STOP,
     SAH_BINS,
     SAH_TRAVERSAL_COST,
+    _box_area,
     _half_area,
     build_flat_boxes,
 )
@@ -35,12 +36,6 @@ from .bvh_build import (
 #: both in the mesh's order), or an inner node over two leaves of one, the item's first
 #: triangle first or second.
 OPEN_LEAF, OPEN_SPLIT, OPEN_SPLIT_SWAPPED = 0, 1, 2
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _box_area(pb, i):
-    return _half_area(np.float64(pb[i, 0]), np.float64(pb[i, 1]), np.float64(pb[i, 2]),
-                      np.float64(pb[i, 3]), np.float64(pb[i, 4]), np.float64(pb[i, 5]))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

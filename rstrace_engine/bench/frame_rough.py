@@ -369,9 +369,14 @@ def error_stats(img: np.ndarray, ref: np.ndarray, skip: np.ndarray | None = None
 
 def material_pixels(scene: Scene, material: str, settings: RenderSettings, accel
                     ) -> np.ndarray:
-    """(h, w) bool: the pixels whose camera ray (the frame's jitter) sees ``material`` (a
-    copy of the scene with that material white-emissive, every other black, no world,
-    depth 0)."""
+    """(h, w) bool: the pixels whose camera ray (the frame's jitter) sees ``material``."""
+    return material_cover(scene, material, settings, accel) > 0.5
+
+
+def material_cover(scene: Scene, material: str, settings: RenderSettings, accel
+                   ) -> np.ndarray:
+    """(h, w) float32: the share of each pixel's samples that see ``material`` (a copy of
+    the scene with that material white-emissive, every other black, no world, depth 0)."""
     sc = scene.copy()
     for mid, m in enumerate(sc.materials):
         if m is not None:
@@ -379,7 +384,7 @@ def material_pixels(scene: Scene, material: str, settings: RenderSettings, accel
                 (1.0,) * 3 if m.name == material else (0.0,) * 3)))
     sc.set_world_color((0.0, 0.0, 0.0), lights=False)
     frame = render(sc, replace(settings, max_depth=0), accel=accel)
-    return frame.radiance.max(axis=-1) > 0.5
+    return frame.radiance.max(axis=-1)
 
 
 #: the clocks the row can time both renderers by (``bench frame --clock``): wall time, or

@@ -87,6 +87,12 @@ def _to_share(m: dict, vert0: int) -> list:
             and _same_array(m[f], getattr(src, a))]
 
 
+def _kept(src) -> dict:
+    """The kept check's arrays of Mesh ``src`` (:func:`~.mesh_check.checked_mesh`), or an
+    empty dict."""
+    return src._checked[0] if src._checked is not None else {}
+
+
 def share_rows(m: dict, shared: list) -> None:
     """Hand the packed rows of mesh dict ``m`` (views of the packing, after it) back to
     its source Mesh and to that Mesh's kept check, for the ``(field, attribute)`` pairs
@@ -95,7 +101,7 @@ def share_rows(m: dict, shared: list) -> None:
     beside it: 145 MB of uvs and triangles at 4M triangles). Packed arrays are never
     changed; a later packing hands its own rows back in turn."""
     src = m["source"]
-    kept = src._checked[0] if src._checked is not None else {}
+    kept = _kept(src)
     for f, a in shared:
         old = getattr(src, a)
         if _same_array(kept.get(f), old):
@@ -114,7 +120,7 @@ def _unpin_triangles(src) -> None:
         root = root.base
     if root.nbytes > tris.nbytes:
         own = tris.copy()
-        kept = src._checked[0] if src._checked is not None else {}
+        kept = _kept(src)
         if kept.get("tris") is tris:
             kept["tris"] = own
         src.triangles = own

@@ -93,11 +93,49 @@ def test_each_pair_is_opened_by_the_two_primitive_sah_rule():
     assert both[1] and both[2]  # (both outcomes are checked)
 
 
-def test_split_pairs_nodes_are_packed_after_the_item_tree():
+def _inner_rows(child) -> np.ndarray:
+    """The inner rows a walk from the root reaches (a row reached twice listed twice),
+    in the order :func:`.bvh_cluster.open_items`' walk meets them (a node's inner
+    children, child 0 first, when the node is taken off the stack): the only rows of an
+    unpacked build that are set (``build_flat_boxes(packed=False)``)."""
+    seen, stack = [0], [0]
+    while stack:
+        for c in child[stack.pop()]:
+            if c >= 0:
+                seen.append(int(c))
+                stack.append(int(c))
+    return np.asarray(seen, np.int64)
+
+
+def _poisoned(monkeypatch, value):
+    """Make every row of the item tree's arrays that no child index reaches hold
+    ``value`` (``bounds`` NaN) when :func:`.bvh_cluster.build_paired` gets them: what
+    ``np.empty`` hands out on pages a freed array left (the rows the opened pairs then
+    write included). Fresh pages are zero, below the opened rows, so only a reused heap
+    shows a read of an unset row (a test that read them failed in the first run after
+    a BVH change, session 33)."""
+    real = bvh_cluster.build_flat_boxes
+
+    def build(*args, **kwargs):
+        bounds, child, perm, sah = real(*args, **kwargs)
+        unset = np.ones(len(child), bool)
+        unset[_inner_rows(child)] = False
+        child[unset] = value
+        bounds[unset] = np.nan
+        return bounds, child, perm, sah
+
+    monkeypatch.setattr(bvh_cluster, "build_flat_boxes", build)
+
+
+@pytest.mark.parametrize("unset", ["as_allocated", "poisoned"])
+def test_split_pairs_nodes_are_packed_after_the_item_tree(monkeypatch, unset):
     """The inner nodes of the opened pairs are the rows right after the item tree's own,
     one per pair that ``pair_items`` marks as split, in the order the walk meets them: no
     row is touched for a pair that stays one leaf (at 4M triangles a row per item made
-    96 MB of fresh pages for about a tenth of them)."""
+    96 MB of fresh pages for about a tenth of them). Only the rows a walk from the root
+    reaches are looked at (the others are unset: ``poisoned`` fills them with a row
+    index of the opened nodes), and the tree they make is the same whatever the unset
+    rows hold."""
     verts, tris = _lumpy()
     pb = bvh_mesh.indexed_boxes(verts, tris)
     starts, _, how = bvh_cluster.pair_items(verts, tris, pb, bvh_build.SAH_TRAVERSAL_COST)
@@ -105,11 +143,26 @@ def test_split_pairs_nodes_are_packed_after_the_item_tree():
     assert 0 < n_split < n_items // 2
     assert set(np.unique(how).tolist()) == {bvh_cluster.OPEN_LEAF, bvh_cluster.OPEN_SPLIT,
                                             bvh_cluster.OPEN_SPLIT_SWAPPED}
-    bounds, child, perm, _ = bvh_cluster.build_paired(verts, tris, pb)
+    clean = bvh_cluster.build_paired(verts, tris, pb)
+    if unset == "poisoned":
+        _poisoned(monkeypatch, n_items)
+    bounds, child, perm, sah = bvh_cluster.build_paired(verts, tris, pb)
     assert len(child) <= n_items + n_split
-    inner = child[child >= 0]
-    opened = np.sort(inner[inner >= n_items])
-    assert np.array_equal(opened, np.arange(n_items, n_items + n_split))
+    rows = _inner_rows(child)
+    # a tree: every row reached once; the item tree (one item a leaf: n_items - 1 inner
+    # nodes) below n_items, the opened pairs' rows n_items .. in the walk's order
+    item_rows, opened = rows[rows < n_items], rows[rows >= n_items]
+    diag = (f"n_items {n_items} n_split {n_split} rows {len(child)} reached {len(rows)} "
+            f"distinct {len(np.unique(rows))} item rows {len(item_rows)} opened "
+            f"{len(opened)} [{opened.min(initial=-1)}, {opened.max(initial=-1)}]")
+    assert len(np.unique(rows)) == len(rows), diag
+    assert len(item_rows) == n_items - 1, diag
+    assert np.array_equal(np.sort(opened), np.arange(n_items, n_items + n_split)), diag
+    assert np.array_equal(opened, np.arange(n_items, n_items + n_split)), diag
+    # the tree is the one built over whatever the unset rows held
+    assert np.array_equal(perm, clean[2]) and sah == clean[3]
+    assert np.array_equal(child[rows], clean[1][rows])
+    assert np.array_equal(bounds[rows].view(np.int32), clean[0][rows].view(np.int32))
     # each opened node holds two leaves of one triangle, in the order ``how`` says
     for node in opened[:: max(n_split // 300, 1)]:
         a, b = (perm[(~int(c)) >> 3] for c in child[node])

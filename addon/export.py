@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Hashable
 from contextlib import contextmanager
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -199,6 +200,8 @@ class _Reader:
         self.meshes_trusted = 0
         self.notes = Notes()
         self.mesh_by_pointer: dict[int, Hashable] = {}
+        # an Edit Mode object's conversion, read once per walk (:func:`_edit_mode_read`)
+        self.edit_reads: dict[int, _EditRead] = {}
         self.depsgraph = depsgraph
         self.materials_seen: set = set()
         self.meshes_read = 0
@@ -412,8 +415,41 @@ def _mesh_object(r: _Reader, inst, faceless: list | None = None) -> ObjectRecord
         cache.matrices[key] = raw
     if not ob.data.is_editmode:
         return _mesh_record(r, inst, ob, ob.data, name, matrix, faceless)
-    with _edit_mode_mesh(r, inst, ob) as me:
-        return _mesh_record(r, inst, ob, me, name, matrix, faceless)
+    read = _edit_mode_read(r, inst, ob)
+    return _mesh_record(r, inst, ob, read, name, matrix, faceless, read.key)
+
+
+def _made(inst, ob) -> bool:
+    """Whether ``ob`` (an instance's object) is geometry its instancer made (geometry
+    nodes: its original is the instancer)."""
+    return inst.is_instance and inst.parent is not None and ob.original == inst.parent.original
+
+
+class _EditRead:
+    """What a walk reads of an Edit Mode object's conversion (:func:`_edit_mode_mesh`):
+    its mesh key (the mesh read, or checked, into the cache) and what the object's record
+    asks of the mesh (name, materials, UV maps); the conversion itself is freed."""
+
+    def __init__(self, key: Hashable, me) -> None:
+        self.key, self.name = key, me.name
+        self.materials = list(me.materials)
+        self.uv_layers = [SimpleNamespace(name=u.name, active_render=u.active_render)
+                          for u in me.uv_layers]
+
+
+def _edit_mode_read(r: _Reader, inst, ob) -> _EditRead:
+    """The read of Edit Mode object ``ob``'s conversion, made once per walk for all the
+    instances of the object (particles, collection or geometry-nodes instances: each
+    converted and fingerprinted the one real evaluated object, whose edit mesh does not
+    change within a walk). Geometry an instancer made is converted per instance."""
+    uid = None if _made(inst, ob) else ob.original.session_uid
+    read = r.edit_reads.get(uid) if uid is not None else None
+    if read is None:
+        with _edit_mode_mesh(r, inst, ob) as me:
+            read = _EditRead(r.mesh_key(inst, ob, me), me)
+        if uid is not None:
+            r.edit_reads[uid] = read
+    return read
 
 
 @contextmanager
@@ -432,7 +468,7 @@ def _edit_mode_mesh(r: _Reader, inst, ob):
     checked by fingerprint): a script may change the edit mesh with no depsgraph update
     (``bmesh.from_edit_mesh`` without ``update_edit_mesh``), which a fresh render
     depsgraph, and so Cycles' F12, shows."""
-    made = inst.is_instance and inst.parent is not None and ob.original == inst.parent.original
+    made = _made(inst, ob)
     real = ob if made else ob.original.evaluated_get(r.depsgraph)
     converted = real.to_mesh()
     journal, r.journal = r.journal, False  # (see below)
@@ -455,10 +491,13 @@ class _Named:
 
 
 def _mesh_record(r: _Reader, inst, ob, me, name: str, matrix: np.ndarray,
-                 faceless: list | None) -> ObjectRecord | None:
-    """:func:`_mesh_object`'s record of ``ob`` with its mesh ``me`` (its matrix checked)."""
+                 faceless: list | None, mesh_key: Hashable | None = None
+                 ) -> ObjectRecord | None:
+    """:func:`_mesh_object`'s record of ``ob`` with its mesh ``me`` (its matrix checked;
+    ``mesh_key``: the mesh already read, an Edit Mode object's)."""
     cache, notes = r.cache, r.notes
-    mesh_key = r.mesh_key(inst, ob, me)
+    if mesh_key is None:
+        mesh_key = r.mesh_key(inst, ob, me)
     entry = cache.meshes[mesh_key]
     if entry.mesh is None:
         message = f"skipped object '{name}': {entry.reason}"

@@ -16,9 +16,24 @@ the heap kept (:func:`keep`) both frames take a handful of faults and the ratio 
 
 :func:`keep` fixes both thresholds (``mallopt``) once per process: blocks below
 :data:`MMAP_THRESHOLD` come from the heap, and trimming it keeps :data:`TOP_PAD` bytes
-free at its top for the next batch. The price: up to that much freed memory stays with the
-process between frames. Elsewhere (no glibc, or another ``malloc`` in front of it) it does
-nothing and says so.
+free at its top for the next batch.
+
+Soft light (session 34): a 32k-ray tile's soft shadow samples (16 per sampled light and
+point, :func:`~.tracing.soft_lights.soft_rays` and the shadow rays traced of them) take
+200-300 MB at once, far past :data:`TOP_PAD`: glibc trimmed its heap back after every tile
+(its trim threshold, 128 KiB by default, is not adapted once the mmap threshold is fixed)
+and grew it again in the next, and the blocks above 32 MiB came from fresh ``mmap`` pages.
+``museum_soft`` 320x240 at 4 spp: 100,000-107,000 minor page faults and 0.6-0.8 s of system
+CPU per frame (of 5-6 s) in BASE and INTERPOLANT frames alike. :data:`TRIM_THRESHOLD` keeps
+the heap at its largest tile: blocks above the mmap threshold are then served from the free
+heap too (glibc maps fresh pages for them only when the heap's top cannot hold them), and
+the frames after a process's first take a handful of faults.
+
+The price: up to :data:`TRIM_THRESHOLD` bytes of freed memory stay with the process between
+frames (the peak of one tile, which the frame needed a moment before). A worker thread's
+frames use their own glibc arena, which these thresholds do not keep the same way (a fresh
+thread's first tiles fault; see docs/bench-trade-first-frames.md, session 34). Elsewhere
+(no glibc, or another ``malloc`` in front of it) it does nothing and says so.
 """
 
 from __future__ import annotations
@@ -30,6 +45,7 @@ import sys
 log = logging.getLogger(__name__)
 
 #: glibc's mallopt parameters (malloc.h)
+M_TRIM_THRESHOLD = -1
 M_TOP_PAD = -2
 M_MMAP_THRESHOLD = -3
 #: blocks of fewer bytes come from the heap, not fresh mmap pages (glibc's largest: 32 MiB on
@@ -38,6 +54,9 @@ MMAP_THRESHOLD = 32 << 20
 #: bytes of free heap kept at its top when glibc trims it (a 32k-ray batch's arrays in all,
 #: a few tens of MB, with room)
 TOP_PAD = 64 << 20
+#: free bytes at the heap's top past which glibc gives them back (its default: 128 KiB): a
+#: soft-lit tile's arrays, 200-300 MB at 16 light samples (module doc), kept between tiles
+TRIM_THRESHOLD = 512 << 20
 
 _kept: bool | None = None
 
@@ -63,7 +82,8 @@ def _set() -> bool:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     ok = (mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
-          and mallopt(M_TOP_PAD, TOP_PAD) == 1)
+          and mallopt(M_TOP_PAD, TOP_PAD) == 1
+          and mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1)
     if not ok:
         log.info("heap: glibc's mallopt refused the thresholds; the heap is not kept")
     return ok

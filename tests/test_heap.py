@@ -44,6 +44,30 @@ for _ in range(4):
 print(json.dumps({"kept": heap.keep(), "faults": faults}))
 """
 
+# a soft-lit tile's arrays (session 34): 240 MB in all, two of them past glibc's 32 MiB mmap
+# threshold, as 2.2M soft shadow samples' origins, directions and the rays traced of them;
+# numpy's huge-page advice off, so that the faults count pages (not 2 MiB huge pages)
+SOFT_CHILD = r"""
+import json, resource
+import numpy as np
+from rstrace_engine import heap
+try:
+    np.core.multiarray._set_madvise_hugepage(False)
+except AttributeError:
+    pass
+kept = heap.keep()
+def tile():
+    big = [np.ones((2_200_000, 3)) for _ in range(2)]            # 50 MiB each
+    small = [np.ones(2_200_000) for _ in range(8)]               # 17 MiB each
+    return sum(float(a[-1].sum()) for a in big + small)
+faults = []
+for _ in range(4):
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    tile()
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+print(json.dumps({"kept": kept, "faults": faults}))
+"""
+
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap (Linux)")
 @pytest.mark.parametrize("mode", ["base", "interpolant"])
@@ -60,3 +84,25 @@ def test_frame_keeps_heap(mode):
     # the rounds after the first reuse the heap's pages (without the frame keeping it:
     # every round faults on all of them, measured 5,600-5,700)
     assert max(r["faults"][1:]) < pages // 10, r
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap (Linux)")
+def test_heap_keeps_a_soft_tiles_arrays():
+    """A soft-lit tile's 240 MB of arrays (past TOP_PAD, two past the mmap threshold) land on
+    pages already touched once the heap has grown to them: it is not trimmed between tiles
+    (before session 34, glibc's 128 KiB trim threshold gave it back after every tile: every
+    round faulted on 43,773 pages, as museum_soft's 100,000 faults a frame). The second round
+    still grows the heap (the first round's two large blocks came from mmap, the second's
+    from the heap's top, measured 25,781 faults); the rounds after it take none."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for k in ("MALLOC_TOP_PAD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_",
+              "MALLOC_MMAP_MAX_"):
+        env.pop(k, None)
+    out = subprocess.run([sys.executable, "-c", SOFT_CHILD], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=600, check=True)
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    if not r["kept"]:
+        pytest.skip("not glibc: the heap's thresholds are the C library's")
+    pages = (2 * 2_200_000 * 3 + 8 * 2_200_000) * 8 // 4096  # one round: 60,000 pages
+    assert r["faults"][0] > pages // 2, r  # (the first round does touch fresh pages)
+    assert max(r["faults"][2:]) < pages // 20, r

@@ -294,6 +294,45 @@ def test_a_cut_first_pass_traces_the_rest_as_the_base_tracer(monkeypatch):
         4 * 64 * 48)
 
 
+
+@pytest.mark.parametrize("priced", [True, False])
+def test_the_cut_tiles_closest_hits_are_not_traced_again(monkeypatch, priced):
+    # the tile where the ledger cuts the first pass for good found the closest hits of all
+    # its rays (one sample of its pixels); the tail traces every sample of the pixels from
+    # the cut on, and takes those hits instead of tracing them again: the frame traces
+    # exactly the base frame's closest-hit rays, and its image is the base frame's bit for
+    # bit. Priced: cut at the tile's first ray (all of it found twice before); not priced:
+    # cut after the first chunk (traced to price a ray), in the middle of the tile.
+    monkeypatch.setattr(Budget, "chunk", lambda self, rest: 0)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 0.0)  # nothing to spend: cut for good
+    monkeypatch.setattr(fallback, "CHUNK_MIN", 1000)
+    sc = scenes.build("studio", 64, 48)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3, samples=4,
+                        light_samples=4)
+    rays = [0]
+    closest = accel.closest_hit
+
+    def counted(o, *rest):
+        rays[0] += len(o)
+        return closest(o, *rest)
+
+    monkeypatch.setattr(accel, "closest_hit", counted)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, accel)
+    if priced:
+        r.cache.fallback.ray_s = 1e-6  # priced: no first chunk traced to price a ray
+    f = r.render(sc, st, accel)
+    n_interp = rays[0]
+    rays[0] = 0
+    base = _base(sc, accel, st)
+    tail = f.stats["fallback"]["tail_pixels"]
+    assert tail == (64 * 48 if priced else 64 * 48 - 1000)
+    np.testing.assert_array_equal(f.radiance, base.radiance)
+    np.testing.assert_array_equal(f.pixel_class, base.pixel_class)
+    # (before: the cut tile's rays after the cut, 3,072 or 2,072, traced twice)
+    assert n_interp == rays[0]
+
 def test_a_first_frame_prices_a_ray_with_its_first_chunk():
     sc = _scene(128, 96)
     accel = create_accelerator("BVH", sc.arrays())

@@ -187,7 +187,8 @@ def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, re
     return False
 
 
-def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec):
+def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec,
+               known: Hits | None = None):
     """Every sample of the pixels ``pix`` (k,) int64 (``jitter`` (spp, k, 2) theirs) traced
     by the base tracer in its own tiles: a tile's rows of pixels with all their samples at
     once (:func:`~..tracing.whitted.trace_pixels`' rays, seeds and shadow-ray skips, so its
@@ -198,7 +199,10 @@ def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec
     instance (spp m,), closest-hit seconds, tracing seconds)``, sample-major (sample ``s``
     of the tile's pixel ``p`` at row ``s m + p``); None when ``cancel`` stopped it. Its
     trees go to ``records``; ``lrec`` (partial per-light records, or None) learns that no
-    sample of it kept a world term."""
+    sample of it kept a world term. ``known``: the hits of sample 0 of the first
+    ``len(known.t)`` pixels, found already (the rays of the tile where the ledger cut the
+    pass, :func:`visible`'s closest hits): not traced again (a ray's closest hit is its own,
+    whatever the batch)."""
     sa, accel = cache.sa, cache.accel
     spp = jitter.shape[0]
     w = cp.width
@@ -212,7 +216,13 @@ def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec
         t0 = fallback.CLOCK()
         with threads_for(len(px)), bound(accel, cancel):
             o, d, tmin, tmax = camera_rays(cp, px, jitter[:, a:a + m].reshape(-1, 2))
-            hits = accel.closest_hit(o, d, tmin, tmax)
+            kn = 0 if known is None else max(0, min(m, len(known.t) - a))
+            if kn:  # (rows 0..kn: sample 0 of the tile's first pixels)
+                rest = accel.closest_hit(o[kn:], d[kn:], tmin[kn:], tmax[kn:])
+                hits = Hits(*(np.concatenate([x[a:a + kn], y])
+                              for x, y in zip(known, rest, strict=True)))
+            else:
+                hits = accel.closest_hit(o, d, tmin, tmax)
             t1 = fallback.CLOCK()
             rad, _ = trace(sa, accel, o, d, tmin, tmax, int(settings.max_depth), primary=hits,
                            counters=counters, segments=segs, cancel=cancel,

@@ -290,6 +290,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     t_closest = 0.0
     pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
     tail = k  # pixels from here on: cut from the first pass, the base tracer's (trace_tail)
+    known = None  # the hits of the cut tile's rays after the cut (its first pixels' sample 0)
     n_interp0 = 0  # rays the first pass interpolated (their later samples may reproject)
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
@@ -345,6 +346,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                             # base tracer traces it
                             tail = tsl.start + a
                             cut_here = True
+                            known = part(vis.hits, slice(a, kt))  # (found: not again)
                             break
                         b, on = (a + m, True) if m else (kt, False)
                     run.chunk(ps, slice(a, b), on)
@@ -393,9 +395,9 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             tc = run.tail(cp, pix[tail:], jitter[:, tail:], spp, counts,
                           (x[tail:] for x in (acc_rad, acc_good, acc_cls, acc_lo, acc_hi)),
                           None if progress is None else lambda f: progress(
-                              0.05 + 0.9 * (tail + f * (k - tail)) / k, "traced"))
+                              0.05 + 0.9 * (tail + f * (k - tail)) / k, "traced"), known)
             t_closest += tc
-            n_closest += (k - tail) * spp
+            n_closest += (k - tail) * spp - (0 if known is None else len(known.t))
             bad_total += run.bad_tail
     t_res = run.t_res - run.t_trace_all
     cancelled = run.cancelled
@@ -487,11 +489,12 @@ class _Run:
         self.traced_rays = 0  # rays traced
         self.n_todo = 0
 
-    def tail(self, cp, pix, jitter, spp, counts, acc, progress=None) -> float:
+    def tail(self, cp, pix, jitter, spp, counts, acc, progress=None, known=None) -> float:
         """Every sample of pixels ``pix`` traced by the base tracer in its tiles
         (:func:`~.frame_parts.trace_tail`) into their sums ``acc`` (:func:`_accumulate`'s,
         from sample 0 on: as the base frame sums them); returns the closest-hit seconds.
-        ``progress(fraction of pix done)`` after each tile, or None."""
+        ``progress(fraction of pix done)`` after each tile, or None; ``known``: the hits of
+        sample 0 of the first pixels, found already (trace_tail's)."""
         records = self.records
         lrec = records.light if records is not None else None
         acc = tuple(acc)
@@ -499,7 +502,7 @@ class _Run:
         t0 = fb_mod.CLOCK()
         for out in trace_tail(self.cache, cp, pix, jitter, self.settings, self.counters,
                               records, self.cancel,
-                              lrec if lrec is not None and lrec.partial else None):
+                              lrec if lrec is not None and lrec.partial else None, known):
             if out is None:
                 self.cancelled = True
                 break

@@ -25,13 +25,16 @@ import numpy as np
 
 from rstrace_engine.geometry.scene import Mesh, SceneError
 
-#: Raw attributes whose values decide the exported triangles, normals, uvs and slots.
+#: Raw attributes whose values decide the exported triangles, normals, uvs and slots (with
+#: the faces' offsets, :func:`mesh_fingerprint`). The edges (``.edge_verts``) are not among
+#: them: no exported value reads them. The faces (their offsets into the corners, the
+#: corners' vertices) decide the triangulation and the vertex normals; where a sharp edge
+#: matters, the normals are per corner and hashed themselves.
 _FINGERPRINT_ATTRIBUTES = (("position", "vector", 3, np.float32),
                            (".corner_vert", "value", 1, np.int32),
                            ("material_index", "value", 1, np.int32),
                            ("sharp_face", "value", 1, np.bool_),
-                           ("sharp_edge", "value", 1, np.bool_),
-                           (".edge_verts", "value", 2, np.int32))
+                           ("sharp_edge", "value", 1, np.bool_))
 
 
 #: Items of a collection whose values :func:`blender_array` compares with Blender's own
@@ -250,8 +253,14 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only
     (Blender's own, read in place where they are one array: :func:`blender_array`).
 
-    Two reads of an unchanged mesh give the same digest; any change of positions, topology,
-    material indices, sharpness, custom normals or the render UV map changes it. ``raw``:
+    Two reads of an unchanged mesh give the same digest; any change of positions, faces
+    (each face's first corner -- Blender's face offsets, read in place: 4 bytes a face --
+    and the corners' vertices), material indices, sharpness, custom normals or the render
+    UV map changes it. The edges are not hashed: the faces decide what is exported (the
+    triangulation, the vertex normals), and a sharp edge's effect is in the corner normals,
+    which are. (The edges' vertices, once hashed in the offsets' place, are 8 bytes an
+    edge, about four times the offsets' bytes, which Blender copied for the read, and they
+    miss a face boundary moved between corners whose edges stay.) ``raw``:
     arrays :func:`mesh_arrays` already read (not read again), and receives those read here.
     SHA-256 (its first 16 bytes; with the CPU's SHA instructions about twice as fast as
     BLAKE2b); digests are compared only within the process.
@@ -264,6 +273,9 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     h.update(me.normals_domain.encode())
     domain_size = {"POINT": counts[0], "EDGE": counts[1], "CORNER": counts[2],
                    "FACE": counts[3]}
+    if counts[3]:
+        h.update(b"faces")
+        h.update(read_array(me.polygons, counts[3], 1, np.int32, "loop_start"))
     for name, prop, width, dtype in _FINGERPRINT_ATTRIBUTES:
         attr = me.attributes.get(name)
         if attr is None:

@@ -17,7 +17,9 @@ minor page faults (system CPU and faults are mostly fresh memory's first touch) 
 resident memory after it, and for the F12 its wall, CPU, system CPU, faults and the
 process's peak RSS before and after. ``--moves N``: then N F12s after moving the small
 sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no bounces,
-no denoising) renders the same scene. Nothing is asserted; the numbers go to
+no denoising) renders the same scene. The JSON line also holds the SHA-1 of each F12's
+radiance and pixel classes (``image_sha1``), to compare checkouts bit for bit. Nothing is
+asserted; the numbers go to
 ``docs/bench-scale-bpy.md``. ``--root``: the checkout whose add-on, core and
 ``bench_scale_bpy.py`` run (default: this script's), for A/B runs against another one.
 """
@@ -25,6 +27,7 @@ no denoising) renders the same scene. Nothing is asserted; the numbers go to
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import resource
 import sys
@@ -61,6 +64,20 @@ def _rss_mb() -> float:
     """The process's resident memory now (MB)."""
     with open("/proc/self/statm") as fh:
         return int(fh.read().split()[1]) * resource.getpagesize() / 2 ** 20
+
+
+def _frame_sha1(sc) -> str | None:
+    """SHA-1 of the last F12's radiance and pixel classes (the session's Frame), for
+    bit-for-bit comparisons between checkouts."""
+    import addon
+
+    state = addon.session.peek_state(sc)
+    frame = None if state is None else state.frame
+    if frame is None:
+        return None
+    h = hashlib.sha1(frame.radiance.tobytes())
+    h.update(frame.pixel_class.tobytes())
+    return h.hexdigest()
 
 
 def _wrap(holder, name: str, label: str, acc: dict) -> None:
@@ -128,7 +145,8 @@ def main(argv=None) -> int:
                f12_sys=r1.ru_stime - r0.ru_stime, f12_faults=r1.ru_minflt - r0.ru_minflt,
                peak_rss_mb=(r0.ru_maxrss / 1024.0, r1.ru_maxrss / 1024.0), rss_mb=rss0,
                parts=parts,
-               triangles=st.get("triangles"), memory_mb=st.get("memory_mb"))
+               triangles=st.get("triangles"), memory_mb=st.get("memory_mb"),
+               image_sha1=_frame_sha1(sc))
     out["moves"] = moves = []
     for _ in range(args.moves):
         small.location.x += 0.2
@@ -137,21 +155,24 @@ def main(argv=None) -> int:
         bpy.ops.render.render()
         mv = addon.last_render_stats(sc)
         moves.append(dict(wall=time.perf_counter() - t, cpu=time.process_time() - c,
-                          sync=mv.get("sync_seconds"), meshes_read=mv.get("meshes_read")))
+                          sync=mv.get("sync_seconds"), meshes_read=mv.get("meshes_read"),
+                          image_sha1=_frame_sha1(sc)))
     out["cycles"] = cy = bsb._cycles(sc)
     addon.unregister()
     bsb._say(f"resident before the F12: {rss0:.0f} MB")
     for label, (w, cp, n, sy, mf, rss) in parts.items():
-        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  system {sy:6.3f} s  "
+        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  user {cp - sy:6.3f} s  "
+                 f"system {sy:6.3f} s  "
                  f"faults {mf:7d}  resident after {rss:5.0f} MB  ({n} calls)")
     bsb._say(f"first F12: wall {wall:.3f} s, CPU {cpu:.3f} s (system {out['f12_sys']:.3f}, "
              f"{out['f12_faults']} faults; peak RSS {out['peak_rss_mb'][0]:.0f} -> "
              f"{out['peak_rss_mb'][1]:.0f} MB; memory_mb {out['memory_mb']:.1f}) | "
              f"Cycles' first render: wall {cy['wall_seconds']:.3f} s, "
-             f"CPU {cy['cpu_seconds']:.3f} s")
+             f"CPU {cy['cpu_seconds']:.3f} s; image {out['image_sha1']}")
     for mv in moves:
         bsb._say(f"F12 after a move: wall {mv['wall']:.3f} s, CPU {mv['cpu']:.3f} s (sync "
-                 f"{mv['sync']:.3f} s, meshes read {mv['meshes_read']})")
+                 f"{mv['sync']:.3f} s, meshes read {mv['meshes_read']}; image "
+                 f"{mv['image_sha1']})")
     if args.json:
         with open(args.json, "a") as fh:
             fh.write(json.dumps(out) + "\n")

@@ -16,7 +16,8 @@ A dict checked from an ``owned`` Mesh (the add-on's export cache holds it) names
 ``source``: where its rows are that Mesh's own arrays (corner uvs or normals kept as
 corners, vertex normals, slot rows, and the triangles of a mesh whose first vertex is the
 packing's first), the packed rows are handed back to the Mesh (:func:`share_rows`), so
-that the process holds those values once.
+that the process holds those values once. The mesh with the most triangles has its
+vertices first (:func:`_vertex_starts`), so that its triangles are among them.
 """
 
 from __future__ import annotations
@@ -126,6 +127,26 @@ def _unpin_triangles(src) -> None:
         src.triangles = own
 
 
+def _vertex_starts(live: list) -> np.ndarray:
+    """Where each live mesh's vertices start in the packing (``vert0``): the mesh with the
+    most triangles first (the first of them on a tie), the others after it in their order.
+    Its packed triangles are then its own (``vert0`` 0), which :func:`share_rows` hands
+    back to an owned source Mesh: the largest mesh's triangles are held once (46 MB at 4M
+    triangles). Only the vertices' order changes: the triangles, the rows and every
+    mesh's range of triangles are the meshes' order, and each mesh's vertices stay one
+    block in their own order, so everything read through the triangles is the same."""
+    starts = np.zeros(len(live), np.int64)
+    if not live:
+        return starts
+    first = max(range(len(live)), key=lambda k: (len(live[k]["tris"]), -k))
+    at = len(live[first]["verts"])
+    for k, m in enumerate(live):
+        if k != first:
+            starts[k] = at
+            at += len(m["verts"])
+    return starts
+
+
 def pack_meshes(meshes: list) -> dict:
     """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
     which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
@@ -136,18 +157,20 @@ def pack_meshes(meshes: list) -> dict:
     def starts(key):
         return np.cumsum([0] + [len(m[key]) for m in live])
 
-    nv, nt, nn, nu, ns = (starts(k) for k in ("verts", "tris", "normals", "uvs", "slots"))
+    nt, nn, nu, ns = (starts(k) for k in ("tris", "normals", "uvs", "slots"))
+    nv = _vertex_starts(live)
     tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
                               for m in meshes]).astype(np.int32)
     packed = dict(
-        verts=np.empty((nv[-1], 3)), tris=np.empty((nt[-1], 3), np.int32),
+        verts=np.empty((sum(len(m["verts"]) for m in live), 3)),
+        tris=np.empty((nt[-1], 3), np.int32),
         normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
         tri_slot=np.empty(ns[-1], np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
         mesh_uv=np.zeros((len(meshes), 2), np.int64),
         mesh_slot=np.zeros((len(meshes), 2), np.int64))
     shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
     for k, m in enumerate(live):
-        v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+        v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
         rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
         packed["verts"][v] = m["verts"]
         np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
@@ -158,7 +181,7 @@ def pack_meshes(meshes: list) -> dict:
         packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])
         packed["mesh_slot"][ids[k]] = m["slot"], ns[k] - nt[k]
     for k, m in enumerate(live):  # (after every copy: a mesh may be in the scene twice)
-        v, t = slice(nv[k], nv[k + 1]), slice(nt[k], nt[k + 1])
+        v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
         rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
         m.update(verts=packed["verts"][v], tris=packed["tris"][t], vert0=int(nv[k]),
                  normals=packed["normals"][rn], uvs=packed["uvs"][ru],

@@ -30,7 +30,10 @@ heap too (glibc maps fresh pages for them only when the heap's top cannot hold t
 the frames after a process's first take a handful of faults.
 
 The price: up to :data:`TRIM_THRESHOLD` bytes of freed memory stay with the process between
-frames (the peak of one tile, which the frame needed a moment before). A worker thread's
+frames (the peak of one tile, which the frame needed a moment before); the setting is the
+process's, so inside Blender its own freed memory is kept the same way. A tile's peak past
+the threshold (32 light samples: the review measured 194k faults a frame against main's
+299k) is trimmed again. A worker thread's
 frames use their own glibc arena, which these thresholds do not keep the same way (a fresh
 thread's first tiles fault; see docs/bench-trade-first-frames.md, session 34). Elsewhere
 (no glibc, or another ``malloc`` in front of it) it does nothing and says so.
@@ -77,7 +80,14 @@ def _set() -> bool:
         libc = ctypes.CDLL(None)
         libc.gnu_get_libc_version  # noqa: B018 (glibc only: musl's mallopt does nothing)
         mallopt = libc.mallopt
+        glibc = ctypes.CDLL("libc.so.6")
     except (OSError, AttributeError):
+        return False
+    if ctypes.cast(libc.malloc, ctypes.c_void_p).value != \
+            ctypes.cast(glibc.malloc, ctypes.c_void_p).value:
+        # another malloc in front of glibc's (LD_PRELOAD'ed jemalloc, tcmalloc): glibc's
+        # thresholds would be set and mean nothing
+        log.info("heap: malloc is not glibc's; the heap is not kept")
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int

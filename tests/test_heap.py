@@ -48,13 +48,16 @@ print(json.dumps({"kept": heap.keep(), "faults": faults}))
 # threshold, as 2.2M soft shadow samples' origins, directions and the rays traced of them;
 # numpy's huge-page advice off, so that the faults count pages (not 2 MiB huge pages)
 SOFT_CHILD = r"""
-import json, resource
+import ctypes, json, resource
 import numpy as np
 from rstrace_engine import heap
 try:
     np.core.multiarray._set_madvise_hugepage(False)
 except AttributeError:
     pass
+# no transparent huge pages for this process (PR_SET_THP_DISABLE): systems that back the heap
+# with them ('always', or glibc.malloc.hugetlb) count 2 MiB faults, not pages
+ctypes.CDLL(None).prctl(41, 1, 0, 0, 0)
 kept = heap.keep()
 def tile():
     big = [np.ones((2_200_000, 3)) for _ in range(2)]            # 50 MiB each
@@ -96,7 +99,7 @@ def test_heap_keeps_a_soft_tiles_arrays():
     from the heap's top, measured 25,781 faults); the rounds after it take none."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     for k in ("MALLOC_TOP_PAD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_",
-              "MALLOC_MMAP_MAX_"):
+              "MALLOC_MMAP_MAX_", "GLIBC_TUNABLES"):
         env.pop(k, None)
     out = subprocess.run([sys.executable, "-c", SOFT_CHILD], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=600, check=True)

@@ -12,7 +12,7 @@ import pytest
 from rstrace_engine import image, scenes
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import CLASS_INTERPOLATED, CLASS_TRACED, RenderSettings
-from rstrace_engine.interpolants import fallback, interpolant_cache
+from rstrace_engine.interpolants import fallback, frame_parts, interpolant_cache
 from rstrace_engine.interpolants.fallback import (
     Budget,
     Fallback,
@@ -294,9 +294,9 @@ def test_a_cut_first_pass_traces_the_rest_as_the_base_tracer(monkeypatch):
         4 * 64 * 48)
 
 
-
+@pytest.mark.parametrize("tile_rays", [None, 1024])
 @pytest.mark.parametrize("priced", [True, False])
-def test_the_cut_tiles_closest_hits_are_not_traced_again(monkeypatch, priced):
+def test_the_cut_tiles_closest_hits_are_not_traced_again(monkeypatch, priced, tile_rays):
     # the tile where the ledger cuts the first pass for good found the closest hits of all
     # its rays (one sample of its pixels); the tail traces every sample of the pixels from
     # the cut on, and takes those hits instead of tracing them again: the frame traces
@@ -306,6 +306,8 @@ def test_the_cut_tiles_closest_hits_are_not_traced_again(monkeypatch, priced):
     monkeypatch.setattr(Budget, "chunk", lambda self, rest: 0)
     monkeypatch.setattr(fallback, "ALLOWANCE", 0.0)  # nothing to spend: cut for good
     monkeypatch.setattr(fallback, "CHUNK_MIN", 1000)
+    if tile_rays is not None:  # tail tiles of 256 pixels: the handed hits span several
+        monkeypatch.setattr(frame_parts, "TILE_RAYS", tile_rays)
     sc = scenes.build("studio", 64, 48)
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3, samples=4,
@@ -332,6 +334,7 @@ def test_the_cut_tiles_closest_hits_are_not_traced_again(monkeypatch, priced):
     np.testing.assert_array_equal(f.pixel_class, base.pixel_class)
     # (before: the cut tile's rays after the cut, 3,072 or 2,072, traced twice)
     assert n_interp == rays[0]
+
 
 def test_a_first_frame_prices_a_ray_with_its_first_chunk():
     sc = _scene(128, 96)

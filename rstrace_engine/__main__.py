@@ -123,9 +123,8 @@ def warm_cache_command(args) -> int:
 
         _exit_with_parent()
         k, n = (int(x) for x in args.part.split("/"))
-        # the two halves of the viewport's first image first: the tracer's stages in part
-        # 0, the BVH traversal and build in part 1 (each about half of the CPU time), and
-        # the error predicate's chain in part 1 (warm_first.PART_HEADS)
+        # first the viewport's first image in part 0, the error predicate's chain (the
+        # longest compile) in part 1 (warm_first.PART_HEADS)
         warm_first.part_head(k, n, args.modes)
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
                                    report_unreached=False, soft=args.soft)

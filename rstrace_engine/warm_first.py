@@ -70,12 +70,13 @@ def compile_traversal() -> None:
 
 
 #: What each of ``warm-cache``'s two parts compiles before its units
-#: (:func:`~.warm_kernels.units`), in this order: the two halves of the viewport's first
-#: image (the tracer's stages; the traversal and the BVH build), and in the second part,
-#: when INTERPOLANT is warmed, the error predicate's chain right after the traversal: the
-#: longest compile starts first and runs beside the first image's and the BASE edits'
-#: kernels (before, it was reached after the interpolants' own kernels, last).
-PART_HEADS = (("tracer",), ("traversal", "predicate", "build"))
+#: (:func:`~.warm_kernels.units`), in this order: the first the viewport's first image (the
+#: traversal, the tracer's stages, the BVH build: ``make demo``'s own first frame compiles
+#: the build meanwhile, the claims share it out), the second, when INTERPOLANT is warmed,
+#: the error predicate's chain (the longest compile, ~80 s of CPU in one process) from the
+#: start, beside them (before: the traversal and the build, then its units, which reached
+#: the chain last, after the interpolants' own kernels).
+PART_HEADS = (("traversal", "tracer", "build"), ("predicate",))
 
 
 def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:
@@ -100,12 +101,19 @@ def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:
     return done
 
 
+def _no_bvh(lo, hi, max_leaf):
+    """:func:`.interpolants.shafts.binary_bvh`'s arrays (types) for no cells: no BVH built,
+    so that the predicate's chain does not wait for the BVH build's compile."""
+    return (np.zeros((0, 12)), np.zeros((0, 2), np.int32),
+            np.arange(len(lo), dtype=np.int32))
+
+
 def compile_predicate(scene) -> None:
     """Compile (or load) the error predicate's chain (``predicate._check_cells`` and its
     callees, the longest single compile of the demo: ~80 s of CPU in one process) for
     ``scene``'s interpolants, with no cells: the argument types of
-    ``InterpolantCache._build``'s call. Its query structures (``shafts.query_scene``) build
-    ``scene``'s mesh topology and binary BVHs (the BVH build's kernels). Without it the
+    ``InterpolantCache._build``'s call. Its query structures (``shafts.query_scene``) have
+    ``scene``'s mesh topology and no BVHs (:func:`_no_bvh`). Without it the
     chain was reached only after the interpolants' own kernels (a render's cells, samples,
     walks), and a ``make demo`` waited for it with one core idle (docs/first-render.md,
     session 34)."""
@@ -117,7 +125,7 @@ def compile_predicate(scene) -> None:
     from .interpolants.shafts import query_scene
 
     sa = scene.arrays()
-    qs = per_pixel_query(query_scene(sa, mesh_topology_cached(sa)), sa)
+    qs = per_pixel_query(query_scene(sa, mesh_topology_cached(sa), _no_bvh), sa)
     i4, i8, f8 = np.int32, np.int64, np.float64
     check_cells(qs, expanded_boxes(sa, float(sa.scene_extent)),
                 SampleStore(len(sa.light_kind)).view(), np.zeros(0, i4), np.zeros(0, np.int8),

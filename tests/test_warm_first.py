@@ -125,20 +125,34 @@ def test_predicate_head_compiles_the_signature_a_render_uses():
     assert len(predicate._check_cells.signatures) == 1, predicate._check_cells.signatures
 
 
-def test_part_heads_start_the_predicate_after_the_traversal(monkeypatch):
-    """The second part's head: the traversal (the first image's), then the predicate's
-    chain (the longest compile), then the BVH build; a warm-up without INTERPOLANT (the
-    add-on's BASE warm-up) leaves the predicate out; one process has no head."""
+def test_part_heads_start_the_predicate_at_once(monkeypatch):
+    """The first part's head: the first image's kernels (the traversal first, the one its
+    stand-in tracer does not compile); the second part's: the predicate's chain (the
+    longest compile) from the start; a warm-up without INTERPOLANT (the add-on's BASE
+    warm-up) leaves it out; one process has no head."""
     calls = []
     monkeypatch.setattr(warm_first, "_compile_tracer", lambda *a, **k: calls.append("tracer"))
     for name in ("traversal", "predicate", "build"):
         monkeypatch.setattr(warm_first, f"compile_{name}",
                             lambda *a, _n=name: calls.append(_n))
-    assert warm_first.part_head(1, 2, ("BASE", "INTERPOLANT")) == [
-        "traversal", "predicate", "build"]
-    assert calls == ["traversal", "predicate", "build"]
+    assert warm_first.part_head(1, 2, ("BASE", "INTERPOLANT")) == ["predicate"]
+    assert warm_first.part_head(0, 2, ("BASE", "INTERPOLANT")) == [
+        "traversal", "tracer", "build"]
+    assert calls == ["predicate", "traversal", "tracer", "build"]
     calls.clear()
-    assert warm_first.part_head(1, 2, ("BASE",)) == ["traversal", "build"]
-    assert warm_first.part_head(0, 2, None) == ["tracer"]
+    assert warm_first.part_head(1, 2, ("BASE",)) == []
+    assert warm_first.part_head(0, 2, None) == ["traversal", "tracer", "build"]
+    assert warm_first.part_head(1, 2, None) == ["predicate"]
     assert warm_first.part_head(0, 1, None) == []
-    assert calls == ["traversal", "build", "tracer"]
+
+
+def test_predicate_head_builds_no_bvh(monkeypatch):
+    """The predicate's head compiles no BVH build (it would wait for ``make demo``'s own
+    first frame compiling it): its query structures take :func:`warm_first._no_bvh`."""
+    from rstrace_engine.accel import bvh_build
+
+    def no_build(*a, **k):
+        raise AssertionError("built a BVH")
+
+    monkeypatch.setattr(bvh_build, "build_flat", no_build)
+    warm_first.compile_predicate(warm_scene())

@@ -71,12 +71,12 @@ def compile_traversal() -> None:
 
 #: What each of ``warm-cache``'s two parts compiles before its units
 #: (:func:`~.warm_kernels.units`), in this order: the first the viewport's first image (the
-#: traversal, the tracer's stages, the BVH build: ``make demo``'s own first frame compiles
-#: the build meanwhile, the claims share it out), the second, when INTERPOLANT is warmed,
-#: the error predicate's chain (the longest compile, ~80 s of CPU in one process) from the
-#: start, beside them (before: the traversal and the build, then its units, which reached
-#: the chain last, after the interpolants' own kernels).
-PART_HEADS = (("traversal", "tracer", "build"), ("predicate",))
+#: tracer's stages, the traversal, the BVH build: ``make demo``'s own first frame compiles
+#: the build meanwhile, the claims share it out, then waits for the stages), the second,
+#: when INTERPOLANT is warmed, the error predicate's chain (the longest compile, ~80 s of
+#: CPU in one process) from the start, beside them (before: the traversal and the build,
+#: then its units, which reached the chain last, after the interpolants' own kernels).
+PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
 
 
 def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:

@@ -126,8 +126,9 @@ def test_predicate_head_compiles_the_signature_a_render_uses():
 
 
 def test_part_heads_start_the_predicate_at_once(monkeypatch):
-    """The first part's head: the first image's kernels (the traversal first, the one its
-    stand-in tracer does not compile); the second part's: the predicate's chain (the
+    """The first part's head: the first image's kernels (the tracer's stages first: make
+    demo's first frame compiles the build meanwhile, then needs them); the second part's:
+    the predicate's chain (the
     longest compile) from the start; a warm-up without INTERPOLANT (the add-on's BASE
     warm-up) leaves it out; one process has no head."""
     calls = []
@@ -137,11 +138,11 @@ def test_part_heads_start_the_predicate_at_once(monkeypatch):
                             lambda *a, _n=name: calls.append(_n))
     assert warm_first.part_head(1, 2, ("BASE", "INTERPOLANT")) == ["predicate"]
     assert warm_first.part_head(0, 2, ("BASE", "INTERPOLANT")) == [
-        "traversal", "tracer", "build"]
-    assert calls == ["predicate", "traversal", "tracer", "build"]
+        "tracer", "traversal", "build"]
+    assert calls == ["predicate", "tracer", "traversal", "build"]
     calls.clear()
     assert warm_first.part_head(1, 2, ("BASE",)) == []
-    assert warm_first.part_head(0, 2, None) == ["traversal", "tracer", "build"]
+    assert warm_first.part_head(0, 2, None) == ["tracer", "traversal", "build"]
     assert warm_first.part_head(1, 2, None) == ["predicate"]
     assert warm_first.part_head(0, 1, None) == []
 

@@ -123,13 +123,9 @@ def warm_cache_command(args) -> int:
 
         _exit_with_parent()
         k, n = (int(x) for x in args.part.split("/"))
-        # the two halves of the viewport's first image first: the tracer's stages in part
-        # 0, the BVH traversal and build in part 1 (each about half of the CPU time)
-        if n > 1 and k == 0:
-            warm_first._compile_tracer(warm_kernels.warm_scene(), build=False)
-        elif n > 1 and k == 1:
-            warm_first.compile_traversal()
-            warm_first.compile_build(warm_kernels.warm_scene())
+        # first the viewport's first image in part 0, the error predicate's chain (the
+        # longest compile) in part 1 (warm_first.PART_HEADS)
+        warm_first.part_head(k, n, args.modes)
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
                                    report_unreached=False, soft=args.soft)
     elif args.jobs == 1:

@@ -352,6 +352,7 @@ CLAIMS = {"on": os.environ.get("RSTRACE_COMPILE_CLAIMS", "1") != "0", "wait_s": 
           "poll_s": 0.05}
 _CLAIMED: dict = {}  # (cache folder, index name, key digest) -> open claim file
 _CLAIM_STATS = Counter()  # "claimed", "waited", "wait_s" (this process)
+CLAIM_WAITS: list = []  # this process's waits: (index name, time.time() at start, s)
 
 
 def _claim_path(folder: str, index_name: str, key) -> tuple[tuple, str]:
@@ -417,6 +418,8 @@ def _claim(folder: str, index_name: str, key) -> bool:
     if waited:
         _CLAIM_STATS["waited"] += 1
         _CLAIM_STATS["wait_s"] += time.perf_counter() - t0
+        CLAIM_WAITS.append((index_name, time.time() - time.perf_counter() + t0,
+                            time.perf_counter() - t0))
     return waited
 
 

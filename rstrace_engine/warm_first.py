@@ -69,6 +69,71 @@ def compile_traversal() -> None:
     acc.any_hit(none, none, np.zeros(0), np.full(0, np.inf))
 
 
+#: What each of ``warm-cache``'s two parts compiles before its units
+#: (:func:`~.warm_kernels.units`), in this order: the first the viewport's first image (the
+#: tracer's stages, the traversal, the BVH build: ``make demo``'s own first frame compiles
+#: the build meanwhile, the claims share it out, then waits for the stages), the second,
+#: when INTERPOLANT is warmed, the error predicate's chain (the longest compile, ~80 s of
+#: CPU in one process) from the start, beside them (before: the traversal and the build,
+#: then its units, which reached the chain last, after the interpolants' own kernels).
+PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
+
+
+def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:
+    """Compile (or load) part ``k`` of ``n``'s :data:`PART_HEADS` (none when ``n`` is 1);
+    the predicate only when ``modes`` has INTERPOLANT. Returns the names done."""
+    from .warm_kernels import warm_scene
+
+    if n < 2 or k >= len(PART_HEADS):
+        return []
+    scene = warm_scene()
+    steps = {"tracer": lambda: _compile_tracer(scene, build=False),
+             "traversal": compile_traversal, "predicate": lambda: compile_predicate(scene),
+             "build": lambda: compile_build(scene)}
+    done = []
+    for name in PART_HEADS[k]:
+        if cancel is not None and cancel():
+            break
+        if name == "predicate" and "INTERPOLANT" not in (modes or ("INTERPOLANT",)):
+            continue
+        steps[name]()
+        done.append(name)
+    return done
+
+
+def _no_bvh(lo, hi, max_leaf):
+    """:func:`.interpolants.shafts.binary_bvh`'s arrays (types) for no cells: no BVH built,
+    so that the predicate's chain does not wait for the BVH build's compile."""
+    return (np.zeros((0, 12)), np.zeros((0, 2), np.int32),
+            np.arange(len(lo), dtype=np.int32))
+
+
+def compile_predicate(scene) -> None:
+    """Compile (or load) the error predicate's chain (``predicate._check_cells`` and its
+    callees, the longest single compile of the demo: ~80 s of CPU in one process) for
+    ``scene``'s interpolants, with no cells: the argument types of
+    ``InterpolantCache._build``'s call. Its query structures (``shafts.query_scene``) have
+    ``scene``'s mesh topology and no BVHs (:func:`_no_bvh`). Without it the
+    chain was reached only after the interpolants' own kernels (a render's cells, samples,
+    walks), and a ``make demo`` waited for it with one core idle (docs/first-render.md,
+    session 34)."""
+    from .geometry.mesh_topology import mesh_topology_cached
+    from .interpolants.linetree import expanded_boxes
+    from .interpolants.predicate import N_TEST_ALL, check_cells
+    from .interpolants.sampled_term import per_pixel_query
+    from .interpolants.samples import SampleStore
+    from .interpolants.shafts import query_scene
+
+    sa = scene.arrays()
+    qs = per_pixel_query(query_scene(sa, mesh_topology_cached(sa), _no_bvh), sa)
+    i4, i8, f8 = np.int32, np.int64, np.float64
+    check_cells(qs, expanded_boxes(sa, float(sa.scene_extent)),
+                SampleStore(len(sa.light_kind)).view(), np.zeros(0, i4), np.zeros(0, np.int8),
+                np.zeros(0, i8), np.zeros((0, 4), i8), np.zeros((0, 16 + N_TEST_ALL), i4),
+                np.zeros(0, i4), np.zeros(0, i4), np.zeros(0, np.int8), np.zeros(0, f8),
+                np.zeros(0, f8), np.zeros(0, i4))
+
+
 def compile_build(scene) -> None:
     """Compile (or load) the BVH build's kernels: build ``scene``'s BVH."""
     from .accel.accelerators import create_accelerator

@@ -356,9 +356,10 @@ def units(modes, accelerators, soft: bool = True) -> list[tuple]:
     i.e. different kernels), then ``("ri_trees",)`` (RI-trees on the first accelerator)
     when their mode is warmed, and ``("large_bvh",)`` (a large mesh's parallel BVH build)
     with the BVH. When INTERPOLANT is warmed, its first step and ``("interpolants",)`` (an
-    edit of interpolants that pass) come first: the first process (the tracer's stages,
-    ``warm-cache --part``) then renders the INTERPOLANT step while the second (the
-    traversal and the BVH build) renders the interpolants that pass, so that the kernels
+    edit of interpolants that pass) come first: the first process (the first image's
+    kernels, ``warm-cache --part``: ``warm_first.PART_HEADS``) then renders the INTERPOLANT
+    step while the second (the error predicate's chain) renders the interpolants that pass,
+    so that the kernels
     both need are shared out by whichever gets to each first (the compile claims), and
     the error predicate's (a fifth of the demo's compile) are compiled beside the BASE
     step's. Before, the first process compiled 229 s of the demo's 287 s of CPU and the
@@ -395,8 +396,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     step (not the whole warm-up), so that a viewport sharing it renders between steps.
     ``part=(k, n)``: only the units (:func:`units`) ``k``, ``k + n``, ... (one of ``n``
     processes of :func:`warm_parallel`; ``python -m
-    rstrace_engine warm-cache --part k/n`` first compiles one half of the viewport's first
-    image, ``warm_first``: the tracer's stages in part 0, the BVH traversal in part 1).
+    rstrace_engine warm-cache --part k/n`` first compiles ``warm_first.PART_HEADS``: the
+    viewport's first image in part 0, the error predicate's chain in part 1).
     ``soft=False``: no orthographic, soft-light steps (:func:`units`).
     """
     from .frame import RenderSettings

@@ -35,7 +35,7 @@ if os.environ.get("RSTRACE_COMPILE_PROFILE"):
     import atexit, json, sys, time
     from numba.core import event
     _stack, _rows = [], []
-    _t0w, _t0c = time.perf_counter(), time.process_time()
+    _t0w, _t0c, _t0abs = time.perf_counter(), time.process_time(), time.time()
     # [start wall, start CPU, nested wall, nested CPU, LLVM CPU, inlined call sites]
     try:  # LLVM's share: every llvmlite C call, timed (a few microseconds each)
         from llvmlite.binding import ffi as _ffi
@@ -92,9 +92,12 @@ if os.environ.get("RSTRACE_COMPILE_PROFILE"):
 
     def _dump():
         path = os.path.join(os.environ["RSTRACE_COMPILE_PROFILE"], f"{os.getpid()}.json")
+        kc = sys.modules.get("rstrace_engine.kernel_cache")  # waits for others' compiles
+        waits = [[n, t - _t0abs, s] for n, t, s in getattr(kc, "CLAIM_WAITS", ())]
         with open(path, "w") as f:
             json.dump(dict(argv=sys.argv, wall=time.perf_counter() - _t0w,
-                           cpu=time.process_time() - _t0c, compiles=_rows), f)
+                           cpu=time.process_time() - _t0c, started=_t0abs,
+                           compiles=_rows, waits=waits), f)
 
     atexit.register(_dump)
 '''
@@ -113,8 +116,11 @@ def report(folder: str, top: int) -> None:
             d = json.load(f)
         mine = sum(r["cpu"] for r in d["compiles"])
         total += mine
+        waits = d.get("waits", [])
         _say(f"process {' '.join(d['argv'])[:90]}: wall {d['wall']:.1f} s, CPU "
-              f"{d['cpu']:.1f} s, compiling {mine:.1f} s ({len(d['compiles'])} compiles)")
+              f"{d['cpu']:.1f} s, compiling {mine:.1f} s ({len(d['compiles'])} compiles), "
+              f"waiting {sum(w[2] for w in waits):.1f} s for {len(waits)} of other "
+              "processes' compiles")
         for r in d["compiles"]:
             k = by_kernel[r["kernel"]]
             k[0] += r["cpu"]

@@ -590,3 +590,29 @@ def test_two_processes_seeding_at_once(tmp_path):
     assert sorted(c["kernels"] + c["current"] for c in counts) == [2, 2]
     r = _run_pkg(installed, cache, NUMBA_CPU_NAME="generic")
     assert (r["compiled"], r["loaded"]) == (0, 2) and r["values"] == [3.0, 12.0]
+
+
+def test_a_wait_for_another_compile_is_recorded(tmp_path):
+    """A claim taken while another holder has it waits, and the wait is recorded
+    (``CLAIM_WAITS``: the index, when, how long; ``scripts/compile_profile.py`` reports each
+    process's waits). The other holder here is a second open file of the same claim, let go
+    after 0.3 s."""
+    import threading
+
+    from rstrace_engine import kernel_cache
+
+    key = ("sig", "target")
+    _, path = kernel_cache._claim_path(str(tmp_path), "mod.kernel-1.py311.nbi", key)
+    other = open(path, "a+b")  # noqa: SIM115
+    assert kernel_cache._try_lock(other)
+    threading.Timer(0.3, other.close).start()
+    before = len(kernel_cache.CLAIM_WAITS)
+    t0 = time.time()
+    try:
+        assert kernel_cache._claim(str(tmp_path), "mod.kernel-1.py311.nbi", key)
+    finally:
+        kernel_cache._release(str(tmp_path), "mod.kernel-1.py311.nbi", key)
+    assert len(kernel_cache.CLAIM_WAITS) == before + 1
+    name, start, seconds = kernel_cache.CLAIM_WAITS[-1]
+    assert name == "mod.kernel-1.py311.nbi" and seconds >= 0.2
+    assert t0 - 1.0 <= start <= t0 + 1.0

@@ -104,3 +104,56 @@ def test_demo_warm_up_parts_share_the_interpolant_kernels():
     assert u[1::2] == [("interpolants",)]
     full = units(("BASE", "INTERPOLANT", "RI_TREE"), ("BVH", "VISIBILITY_FIELD"))
     assert sorted(full) == sorted(set(full)) and len(full) == 2 * 3 * 2 + 3  # each once
+
+
+def test_predicate_head_compiles_the_signature_a_render_uses():
+    """``warm-cache``'s second part compiles the error predicate's chain with no cells
+    (``compile_predicate``) before the interpolants' own kernels: with the argument types
+    of a render's call, so an INTERPOLANT render afterwards compiles no second signature
+    (fails on main: no ``compile_predicate``; the chain was reached last there)."""
+    from rstrace_engine import scenes
+    from rstrace_engine.interpolants import predicate
+
+    warm_first.compile_predicate(warm_scene())
+    assert len(predicate._check_cells.signatures) == 1
+    session = Session(scenes.three_spheres(128, 96, subdivisions=2),
+                      RenderSettings(mode="INTERPOLANT", max_depth=3, epsilon=0.02,
+                                     depth_cap=5, samples=2))
+    session.interpolants.auto_fallback = False
+    session.render()
+    assert session.interpolants.cache.totals["cells_built"] > 0  # the predicate ran
+    assert len(predicate._check_cells.signatures) == 1, predicate._check_cells.signatures
+
+
+def test_part_heads_start_the_predicate_at_once(monkeypatch):
+    """The first part's head: the first image's kernels (the tracer's stages first: make
+    demo's first frame compiles the build meanwhile, then needs them); the second part's:
+    the predicate's chain (the
+    longest compile) from the start; a warm-up without INTERPOLANT (the add-on's BASE
+    warm-up) leaves it out; one process has no head."""
+    calls = []
+    monkeypatch.setattr(warm_first, "_compile_tracer", lambda *a, **k: calls.append("tracer"))
+    for name in ("traversal", "predicate", "build"):
+        monkeypatch.setattr(warm_first, f"compile_{name}",
+                            lambda *a, _n=name: calls.append(_n))
+    assert warm_first.part_head(1, 2, ("BASE", "INTERPOLANT")) == ["predicate"]
+    assert warm_first.part_head(0, 2, ("BASE", "INTERPOLANT")) == [
+        "tracer", "traversal", "build"]
+    assert calls == ["predicate", "tracer", "traversal", "build"]
+    calls.clear()
+    assert warm_first.part_head(1, 2, ("BASE",)) == []
+    assert warm_first.part_head(0, 2, None) == ["tracer", "traversal", "build"]
+    assert warm_first.part_head(1, 2, None) == ["predicate"]
+    assert warm_first.part_head(0, 1, None) == []
+
+
+def test_predicate_head_builds_no_bvh(monkeypatch):
+    """The predicate's head compiles no BVH build (it would wait for ``make demo``'s own
+    first frame compiling it): its query structures take :func:`warm_first._no_bvh`."""
+    from rstrace_engine.accel import bvh_build
+
+    def no_build(*a, **k):
+        raise AssertionError("built a BVH")
+
+    monkeypatch.setattr(bvh_build, "build_flat", no_build)
+    warm_first.compile_predicate(warm_scene())

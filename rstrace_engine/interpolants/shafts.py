@@ -120,13 +120,14 @@ def binary_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf: int):
     return b, c, perm
 
 
-def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
-    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh_build`)."""
+def query_scene(sa: SceneArrays, topo: MeshTopology, bvh=binary_bvh) -> QueryScene:
+    """Build the predicate's query structures over ``sa`` (binary BVHs of :mod:`.bvh_build`;
+    ``bvh``: another builder of :func:`binary_bvh`'s arrays, as the warm-up's stand-in)."""
     bounds, childs, tvs, tris, roots = [], [], [], [], []
     n_nodes = n_tris = 0
     for m in range(len(sa.mesh_tri_start) - 1):
         tv = bvh_mesh.mesh_triangles(sa, m)
-        b, c, perm = binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
+        b, c, perm = bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
         c = c.astype(np.int64)
         code = ~c
         c = np.where(c < 0, ~(((code >> 3) + n_tris) << 3 | (code & 7)), c + n_nodes)
@@ -140,7 +141,7 @@ def query_scene(sa: SceneArrays, topo: MeshTopology) -> QueryScene:
     lo, hi = sa.inst_aabb[:, 0], sa.inst_aabb[:, 1]
     mag = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
     pad = (tol.INSTANCE_BOX_PAD_REL * (mag + np.linalg.norm(hi - lo, axis=1)))[:, None]
-    tb, tc, tperm = binary_bvh(lo - pad, hi + pad, 1)
+    tb, tc, tperm = bvh(lo - pad, hi + pad, 1)
     lo_s, hi_s = sa.scene_aabb
     mag = float(sa.scene_extent + np.max(np.abs(sa.scene_aabb)))
     return QueryScene(tb, tc, tperm.astype(np.int32), np.concatenate(bounds),

@@ -536,7 +536,8 @@ class _Run:
         spent0 = 0.0 if budget is None else budget.spent
         later0 = 0.0 if budget is None else budget.later
         o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
-        strata = pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples))
+        strata = (pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples))
+                  if self.rough_on else None)
         vis = ps.vis
         hits, res = part(vis.hits, sl), part(vis.res, sl)
         rep = None if vis.rep is None else vis.rep[sl]

@@ -573,7 +573,7 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
                        seeds=sample_seeds(gids, seed), light_samples=light_samples,
                        terms=terms, glossy_samples=glossy_samples,
                        skip_keys=tile_keys(pixels, cp.width),
-                       strata=None if spp is None else pixel_strata(
+                       strata=None if spp is None or not has_glossy(sa) else pixel_strata(
                            gids, cp.width * cp.height, seed, spp))
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 

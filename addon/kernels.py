@@ -63,7 +63,8 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.light_nodes.detach_terms", "tracing.light_nodes._splice_start",
          "tracing.light_nodes._splice_entries", "tracing.light_nodes._splice_geo",
          "tracing.pixel_records._light_bit_changes",
-         "tracing.whitted._child_tags",
+         "tracing.whitted._child_tags", "tracing.glossy_strata._pixel_seeds",
+         "tracing.glossy_strata._lattices",
          "tracing.shaft_skip._prove_groups", "tracing.shaft_skip._own_kernel",
          "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
          "tracing.sample_rays.query_light_bits", "tracing.sample_rays.query_world",
@@ -107,7 +108,8 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
            "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
            "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",
-           "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette")
+           "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
+           "tracing.glossy_strata._pixel_seeds", "tracing.glossy_strata._lattices")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

@@ -105,7 +105,7 @@ def trace_view(session, camera: Camera, settings: RenderSettings, cancel=None,
         rad, inst = trace_pixels(sa, accel, cp, pix, jitter[k], int(settings.max_depth), cancel,
                                  gids=k * (w * h) + pix, seed=int(settings.seed),
                                  light_samples=int(settings.light_samples),
-                                 glossy_samples=int(settings.glossy_samples))
+                                 glossy_samples=int(settings.glossy_samples), spp=samples)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             return rgb.reshape(h, w, 3), pclass.reshape(h, w), False
         with threads_for(len(pix)):

@@ -166,17 +166,22 @@ def test_same_seed_same_image_other_seed_other_noise():
 
 
 def test_glossy_image_converges_with_samples():
-    """More glossy samples, less noise: the error against 64 samples falls from 2 to 16
-    samples (deterministic: the same numbers every run)."""
+    """More glossy samples, less noise: the mean absolute error against 64 samples, over
+    seeds 0-3, falls from 2 to 16 samples (deterministic: the same numbers every run;
+    session 34: 0.0354 -> 0.0180, main's sampling 0.0367 -> 0.0179). Not one seed's RMS
+    error: a highlight seen in a rough reflection makes a firefly in some seeds' frames
+    (main's seed 1: 0.046 -> 0.041; seed 0 with the session-34 strata 0.050 -> 0.071)."""
     sc = scenes.glossy(48, 36, roughness=0.4)
 
-    def frame(n):
-        st = RenderSettings(glossy_samples=n, light_samples=4, max_depth=3)
+    def frame(n, seed):
+        st = RenderSettings(glossy_samples=n, light_samples=4, max_depth=3, seed=seed)
         return whitted.render(sc, st).radiance.astype(np.float64)
 
-    ref = frame(64)
-    e2 = np.sqrt(np.mean((frame(2) - ref) ** 2))
-    e16 = np.sqrt(np.mean((frame(16) - ref) ** 2))
+    e2 = e16 = 0.0
+    for seed in range(4):
+        ref = frame(64, seed)
+        e2 += np.mean(np.abs(frame(2, seed) - ref))
+        e16 += np.mean(np.abs(frame(16, seed) - ref))
     assert e16 < 0.6 * e2, (e2, e16)
 
 

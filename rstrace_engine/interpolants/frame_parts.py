@@ -27,6 +27,8 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_rays
 from ..tracing.batches import TILE_RAYS, threads_for
+from ..tracing.glossy_rays import has_glossy
+from ..tracing.glossy_strata import pixel_strata
 from ..tracing.seen_lights import SEEN_CAMERA, seen
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import sample_seeds
@@ -152,7 +154,7 @@ def tiles(n: int):
 
 
 def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, records, gids,
-               cancel, settings, keys=None) -> bool:
+               cancel, settings, keys=None, strata=None) -> bool:
     """Trace rays ``todo`` (not interpolated) with the base tracer from the hits already
     found, into ``rad``; their ray trees go to ``records``; soft lights are sampled as the
     base tracer samples these pixel samples (``gids``, ``settings``' seed and light
@@ -160,7 +162,8 @@ def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, re
     (``keys``: the rays' pixels' tiles, :func:`~..tracing.shaft_skip.tile_keys`). Returns
     whether ``cancel`` stopped it (the frame is then incomplete). ``todo`` a slice: every
     ray of that range (misses too: the tracer gives them the world, as :func:`~.render.
-    _to_trace` does), traced from views of the arrays -- exactly the base tracer's tiles."""
+    _to_trace` does), traced from views of the arrays -- exactly the base tracer's tiles.
+    ``strata``: the rays' :class:`~..tracing.glossy_strata.Strata` (the base frame's)."""
     sa, accel = cache.sa, cache.accel
     if isinstance(todo, slice):
         a, b, _ = todo.indices(len(o))
@@ -179,7 +182,8 @@ def trace_rest(cache, todo, o, d, tmin, tmax, hits, rad, max_depth, counters, re
                                  light_samples=int(settings.light_samples),
                                  glossy_samples=int(settings.glossy_samples),
                                  terms=records is not None and records.light is not None,
-                                 skip_keys=None if keys is None else keys[rows])
+                                 skip_keys=None if keys is None else keys[rows],
+                                 strata=None if strata is None else strata.take(rows))
         if cancel is not None and cancel():
             return True
         if records is not None:
@@ -230,7 +234,9 @@ def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec
                            light_samples=int(settings.light_samples),
                            glossy_samples=int(settings.glossy_samples),
                            terms=records is not None and records.light is not None,
-                           skip_keys=tile_keys(px, w))
+                           skip_keys=tile_keys(px, w),
+                           strata=pixel_strata(gids, w * cp.height, int(settings.seed), spp)
+                           if has_glossy(sa) else None)
         t2 = fallback.CLOCK()
         if cancel is not None and cancel():
             yield None
@@ -243,12 +249,13 @@ def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec
 
 
 def glossy_rest(cache, interp, o, d, tmin, tmax, hits, rep, interpolant, rad, counters,
-                records, gids, cancel, settings) -> bool:
+                records, gids, cancel, settings, strata=None) -> bool:
     """Add to ``rad`` the glossy rays' part of the interpolated samples (``interp`` (k,)
     bool) whose hit is on a rough surface (:mod:`.glossy_term`); their segments go to
     ``records``. Returns whether ``cancel`` stopped it. A reprojected sample (``rep`` (k,)
     bool or None) has no hit: where its interpolant (``interpolant`` (k,) pool ids) lies on
-    an object with a rough material, its visibility ray is traced here."""
+    an object with a rough material, its visibility ray is traced here. ``strata`` as
+    :func:`trace_rest`."""
     sa, accel = cache.sa, cache.accel
     rows = np.flatnonzero(interp)
     h = take(hits, rows)
@@ -273,7 +280,8 @@ def glossy_rest(cache, interp, o, d, tmin, tmax, hits, rep, interpolant, rad, co
             rad[rr] += glossy_term(sa, accel, o[rr], d[rr], tmin[rr], tmax[rr],
                                    take(h, sel), gids[rr], int(settings.seed),
                                    int(settings.max_depth), int(settings.light_samples),
-                                   int(settings.glossy_samples), counters, segs, cancel)
+                                   int(settings.glossy_samples), counters, segs, cancel,
+                                   None if strata is None else strata.take(rr))
         if cancel is not None and cancel():
             return True
         if records is not None:

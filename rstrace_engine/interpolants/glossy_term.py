@@ -54,14 +54,14 @@ def rough_objects(sa) -> np.ndarray:
 def glossy_term(sa, accel, o, d, tmin, tmax, hits: Hits, gids: np.ndarray, seed: int,
                 max_depth: int, light_samples: int, glossy_samples: int,
                 counters: dict | None = None, segments: list | None = None,
-                cancel=None) -> np.ndarray:
+                cancel=None, strata=None) -> np.ndarray:
     """(n, 3) float64: what the rays spawned at rough root hits ``hits`` of pixel samples
     ``gids`` (rays ``o, d`` within ``tmin, tmax``) bring: :func:`~..tracing.whitted.trace`'s
     radiance of those samples less the roots' own light, the same rays and seeds.
     ``segments``: their ray trees' levels for the pixel records (the roots' without shadow
-    rays)."""
+    rays); ``strata``: their :class:`~..tracing.glossy_strata.Strata`."""
     rad, _ = trace(sa, accel, o, d, tmin, tmax, max_depth, primary=hits, counters=counters,
                    segments=segments, cancel=cancel, seeds=sample_seeds(gids, int(seed)),
                    light_samples=int(light_samples), glossy_samples=int(glossy_samples),
-                   roots="below")
+                   roots="below", strata=strata)
     return rad

@@ -46,6 +46,7 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
+from ..tracing.glossy_strata import pixel_strata
 from ..tracing.seen_lights import SEEN_CAMERA, any_seen, first_seen_below
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import world_lights
@@ -256,7 +257,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     bad_total = 0
     n_rep = 0
     used = np.zeros(0, np.bool_)  # interpolants used (by pool id)
-    run = _Run(cache, settings, records, cancel, w)
+    run = _Run(cache, settings, records, cancel, w, h)
     # a full frame after a full frame of this cache: samples whose interpolant is found by
     # reprojection (reproject.py) need neither a visibility ray nor a walk; an incremental
     # frame keeps its camera. One sample of every pixel at a time (arrays of a 1-sample
@@ -467,10 +468,10 @@ class _Run:
     settings and records, what the scene needs per pixel, the fallback's ledger and
     budget, and the running times and counts."""
 
-    def __init__(self, cache, settings, records, cancel, width: int) -> None:
+    def __init__(self, cache, settings, records, cancel, width: int, height: int) -> None:
         sa = cache.sa
         self.cache, self.settings, self.records, self.cancel = cache, settings, records, cancel
-        self.width = width
+        self.width, self.npix = width, width * height  # (npix: glossy_strata.pixel_strata)
         self.world = world_lights(sa)
         self.sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
         # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
@@ -538,6 +539,8 @@ class _Run:
         spent0 = 0.0 if budget is None else budget.spent
         later0 = 0.0 if budget is None else budget.later
         o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
+        strata = (pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples))
+                  if self.rough_on else None)
         vis = ps.vis
         hits, res = part(vis.hits, sl), part(vis.res, sl)
         rep = None if vis.rep is None else vis.rep[sl]
@@ -609,12 +612,13 @@ class _Run:
                 records.add_primary(gids, hits.inst, o, d, hits.t)
             self.cancelled = trace_rest(cache, todo, o, d, tmin, tmax, hits, res.radiance,
                                         int(settings.max_depth), self.counters, records, gids,
-                                        cancel, settings, keys)
+                                        cancel, settings, keys, strata)
             trace_s = fb_mod.CLOCK() - tt
             if self.rough_on and not self.cancelled:  # rough surfaces' glossy rays
                 self.cancelled = glossy_rest(cache, res.interpolated, o, d, tmin, tmax, hits,
                                              rep, res.interpolant, res.radiance,
-                                             self.counters, records, gids, cancel, settings)
+                                             self.counters, records, gids, cancel, settings,
+                                             strata)
         self.t_trace_all += fb_mod.CLOCK() - tt
         self.t_trace += trace_s
         self.trace_s += trace_s

@@ -117,7 +117,7 @@ def retrace(sa, accel, cp, pixels: np.ndarray, spp: int, seed: int, max_depth: i
         gids = (np.arange(spp, dtype=np.int64)[:, None] * (w * h) + pix[None, :]).ravel()
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
                                  max_depth, None, cc, None, gids, seed, light_samples,
-                                 False, glossy_samples)
+                                 False, glossy_samples, spp)
         out = np.empty((len(pix), 3), np.float32)
         cls = np.empty(len(pix), np.uint8)
         accumulate(rad, inst, spp, out, cls)

@@ -51,6 +51,7 @@ from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.glossy_rays import has_glossy
+from ..tracing.glossy_strata import lattices, pixel_strata
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
 from ..tracing.whitted import (
     shade_paths,
@@ -460,7 +461,7 @@ class RITreeRenderer:
 
     def _trace_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds=None,
                     light_samples=LIGHT_SAMPLES_DEFAULT,
-                    glossy_samples=GLOSSY_SAMPLES_DEFAULT):
+                    glossy_samples=GLOSSY_SAMPLES_DEFAULT, strata=None):
         """Radiance of a batch of camera rays; returns (radiance (n, 3), class (n,) uint8,
         primary instance (n,), continuation key (n,) uint64, tainted (n,) bool:
         :mod:`.recheck`).
@@ -474,12 +475,13 @@ class RITreeRenderer:
         :func:`~..tracing.soft_lights.sample_seeds`, and each node's path). With every
         object traced (no tree: all fell back) the tile is the base tracer's own. Rough
         surfaces draw ``glossy_samples`` ray pairs at a path's first rough bounce and one at
-        deeper ones, with the base tracer's seeds (:func:`~..tracing.whitted.shade_paths`)."""
+        deeper ones, with the base tracer's seeds (:func:`~..tracing.whitted.shade_paths`)
+        and lattices (``strata``, :mod:`~..tracing.glossy_strata`)."""
         view = False
         n = len(o)
         if not len(self.ri[view]):
             return self._base_tile(sa, o, d, t0, t1, max_depth, counters, seeds,
-                                   light_samples, glossy_samples) + (
+                                   light_samples, glossy_samples, strata) + (
                 np.zeros(n, np.uint64), np.zeros(n, np.bool_))
         L = len(sa.light_kind)
         ckey = np.zeros(n, np.uint64)
@@ -545,9 +547,11 @@ class RITreeRenderer:
             np.add.at(ckey, src[off], node_keys(path[off], H["inst"][off],
                                                 vis.reshape(nb, L)[off]))
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
+            lat = None if strata is None else (
+                lambda g, s=src, p=path, f=fresh: lattices(strata, s, p, f, g, glossy_samples))
             contrib, kids, gstart, glossy = shade_paths(
                 sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]), surf, vis, weight,
-                soft, nseeds, fresh, glossy_samples)
+                soft, nseeds, fresh, glossy_samples, lat)
             scatter_add(radiance, src, contrib)
             o, d, weight, src, level, self_inst, path, fresh, tag = next_rays(
                 sa, kids, H["inst"], q, interp, qi, src, level, max_depth, path, fresh, tag,
@@ -557,7 +561,7 @@ class RITreeRenderer:
         return radiance, pclass, prim_inst, ckey, taint
 
     def _base_tile(self, sa, o, d, t0, t1, max_depth, counters, seeds, light_samples,
-                   glossy_samples):
+                   glossy_samples, strata=None):
         """:meth:`_trace_tile` with no tree: the base tracer's :func:`trace`, its pixels
         bit for bit."""
         accel = self._sub[False][0]
@@ -565,7 +569,7 @@ class RITreeRenderer:
         cc: dict = {}
         rad, _ = trace(sa, accel, o, d, t0, t1, max_depth, primary=hits, counters=cc,
                        seeds=seeds, light_samples=light_samples,
-                       glossy_samples=glossy_samples)
+                       glossy_samples=glossy_samples, strata=strata)
         for key in ("primary", "secondary"):
             counters["rays"] = counters.get("rays", 0) + cc.get(key, 0)
         counters["shadow"] = counters.get("shadow", 0) + cc.get("shadow", 0)
@@ -614,7 +618,9 @@ class RITreeRenderer:
                                                    int(settings.max_depth), counters,
                                                    sample_seeds(gids, int(settings.seed)),
                                                    int(settings.light_samples),
-                                                   int(settings.glossy_samples))
+                                                   int(settings.glossy_samples),
+                                                   pixel_strata(gids, w * h,
+                                                                int(settings.seed), spp))
                 if cont is not None:
                     cont.store(pix, ckey, taint)
             tile_cls = np.empty(len(pix), np.uint8)

@@ -132,7 +132,8 @@ def camera_passes(scene: Scene, accel, settings: RenderSettings, frame: Frame | 
             gids = s_idx.astype(np.int64) * (w * h) + ppix
             rad, _ = trace_pixels(sa, accel, cp, ppix, np.ascontiguousarray(jit),
                                   int(settings.max_depth), cancel, gids=gids, seed=seed,
-                                  light_samples=int(settings.light_samples))
+                                  light_samples=int(settings.light_samples),
+                                  glossy_samples=int(settings.glossy_samples), spp=spp)
             if cancelled(cancel):
                 return nothing
             good = np.all(np.abs(rad) <= tol.RADIANCE_MAX, axis=1)

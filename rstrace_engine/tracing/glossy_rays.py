@@ -113,14 +113,17 @@ def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
 
 
 @njit(cache=True, nogil=True)
-def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
+def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
                  off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s,
                  metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
     """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission ``t*``
     refracted and ``u*`` reflected): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn
     from GGX's visible normals about the shading normal (the geometric one where the shading
     normal faces away from the viewer), stratified (a Fibonacci lattice rotated by a hash of the
-    node's seed, as the soft lights' samples), each a reflected and a refracted ray. A sample's
+    node's seed, as the soft lights' samples; or, with ``lat`` (n, 4) uint64 rows, points
+    ``lat[i, 1] + s lat[i, 2]`` of a lattice of ``lat[i, 3]`` points rotated by
+    ``lat[i, 0]``, shared by a pixel's samples: :mod:`.glossy_strata`), each a reflected and
+    a refracted ray. A sample's
     reflection carries the layer's Fresnel at ``i . h`` with the direct light's
     multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part, its
     refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
@@ -143,15 +146,21 @@ def _glossy_rays(sa, m, i, gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz, dx
     zd = zr = zg = zb = 1.0
     if refl:  # the layers' multiple-scattering factors, as the direct light's
         zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
-    h = mix64(seeds[i] ^ GLOSSY_SALT)
+    inv = 1.0 / ns
+    if lat.shape[0] and lat[i, 3] > 0:  # a pixel's lattice (glossy_strata.lattices)
+        h = lat[i, 0]
+        j0, jstep, inv_lat = np.int64(lat[i, 1]), np.int64(lat[i, 2]), 1.0 / float(lat[i, 3])
+    else:  # the point's own
+        h = mix64(seeds[i] ^ GLOSSY_SALT)
+        j0, jstep, inv_lat = np.int64(0), np.int64(1), inv
     r1 = float(h >> np.uint64(11)) * INV_2_53
     r2 = float(mix64(h) >> np.uint64(11)) * INV_2_53
-    inv = 1.0 / ns
     for s in range(ns):
         slot = 2 * (k0 + s)
-        u = (s + 0.5) * inv + r1
+        j = j0 + s * jstep
+        u = (j + 0.5) * inv_lat + r1
         u -= math.floor(u)
-        v = (s + 0.5) * GOLDEN + r2
+        v = (j + 0.5) * GOLDEN + r2
         v -= math.floor(v)
         hx, hy, hz = ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u, v)
         ch = dot3(ox, oy, oz, hx, hy, hz)

@@ -373,8 +373,8 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contrib, out, tv,
-                  tp, first, step):
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, contrib, out,
+                  tv, tp, first, step):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -390,7 +390,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
     (its reflection at ``2 s``, its refraction at ``2 s + 1``): one pair for a mirror,
     glass or a matte surface, one per glossy sample where the point is glossy
     (:func:`~.glossy_rays.glossy_counts`); seeds : (n,) uint64 the points' node seeds (the glossy
-    samples'; empty: no glossy rays). Outputs: contrib (n, 3) weighted radiance to add to
+    samples'; empty: no glossy rays); lat : (n, 4) uint64 the glossy samples' lattices
+    (:func:`~.glossy_strata.lattices`; empty: each point's own). Outputs: contrib (n, 3)
+    weighted radiance to add to
     each ray's input ray; out, the :class:`Spawned` rays; with ``tv`` (n, L + 2, 3)
     float64 and ``tp`` (n, L + 2) bool (empty: not kept) each point's *light terms*
     (:mod:`.light_records`), what it adds to its radiance before the path weight without
@@ -641,10 +643,10 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, contr
         off = spawn_offset(px, py, pz, ext)
         if glossy:
             # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice)
-            _glossy_rays(sa, m, np.int64(i), gstart, seeds, px, py, pz, gx, gy, gz, sx, sy, sz,
-                         dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg,
-                         sb, eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w,
-                         c_ok)
+            _glossy_rays(sa, m, np.int64(i), gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy,
+                         sz, dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr,
+                         sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d,
+                         c_w, c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,

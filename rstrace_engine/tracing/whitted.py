@@ -40,6 +40,14 @@ from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
 from .glossy_rays import glossy_counts, has_glossy, roulette
+from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
+    Strata,
+    _child_tags,  # noqa: F401
+    child_paths,
+    lattices,
+    no_strata,
+    pixel_strata,
+)
 from .light_bits import words
 from .light_linking import first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
@@ -63,7 +71,6 @@ from .soft_lights import (
     SH_SOFT,
     SoftSamples,
     has_soft_light,
-    mix64,
     no_samples,
     node_seeds,
     sample_seeds,
@@ -146,40 +153,24 @@ def shade(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray, weight: 
         raise ValueError("shade: rough materials draw glossy rays from the points' seeds: "
                          "give seeds")
     fresh = np.zeros(len(surf.P), np.bool_)
-    res = _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 1)
+    res = _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 1, None)
     return res[:-1]
 
 
 def shade_paths(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray,
                 weight: np.ndarray, soft: SoftSamples | None, seeds: np.ndarray,
-                fresh: np.ndarray, samples: int):
+                fresh: np.ndarray, samples: int, lat=None):
     """:func:`shade` (spawning) for a wavefront that follows paths as :func:`trace` does:
     a rough point whose path has drawn no glossy samples yet (``fresh`` (n,) bool) draws
     ``samples`` ray pairs, any other one (docs/glossy.md). Returns ``(contrib (n, 3),
     Spawned, gstart, glossy)``: point i's ray pairs are ``gstart[i]:gstart[i + 1]``
     (``gstart`` None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool
     which points drew from their lobe (None with ``gstart``); :func:`child_paths` gives
-    the spawned rays' paths."""
+    the spawned rays' paths. ``lat``: a callable ``lat(glossy) -> (n, 4)`` giving the
+    glossy samples' lattices (:func:`~.glossy_strata.lattices`; None: each point's own)."""
     contrib, kids, plan = _shade_level(sa, hits, surf, vis, weight, True, soft, False, seeds,
-                                       fresh, int(samples))
+                                       fresh, int(samples), lat)
     return contrib, kids, plan.gstart, plan.glossy
-
-
-def child_paths(slots: np.ndarray, gstart: np.ndarray | None, glossy: np.ndarray | None,
-                fresh: np.ndarray, tag: np.ndarray, nseeds: np.ndarray | None):
-    """Where spawned rays ``slots`` (indices into a level's :class:`Spawned`) come from and
-    how their paths go on, as :func:`trace` follows them: ``(which (k,) int64 their points,
-    fresh (k,) bool no glossy samples drawn yet on their paths, tag (k,) uint64 hashed into
-    their node seeds: a glossy sample's hashes its point's seed ``nseeds`` and its sample
-    index, any other keeps its point's)``; ``gstart``, ``glossy`` as :func:`shade_paths`
-    returns them, ``fresh``, ``tag`` the points'."""
-    pair = slots // 2
-    if gstart is None:
-        return pair, fresh[pair], tag[pair]
-    which = np.searchsorted(gstart, pair, side="right") - 1
-    out = np.empty(len(slots), np.uint64)
-    _child_tags(nseeds, which, pair - gstart[which], glossy, tag, out)
-    return which, fresh[which] & ~glossy[which], out
 
 
 class _Plan(NamedTuple):
@@ -191,14 +182,15 @@ class _Plan(NamedTuple):
     glossy: np.ndarray | None
 
 
-def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, samples):
+def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, samples, lat):
     """:func:`shade` for the wavefront: ``fresh`` (n,) bool the rays whose paths have not
-    drawn glossy samples yet (they draw ``samples``, the others one). Returns ``(contrib,
-    Spawned[, terms], _Plan)``."""
+    drawn glossy samples yet (they draw ``samples``, the others one); ``lat`` as
+    :func:`shade_paths`. Returns ``(contrib, Spawned[, terms], _Plan)``."""
     n = len(surf.P)
     plan = _Plan(None, None)
     gseeds = np.zeros(0, np.uint64)
     gstart = np.arange(n + 1, dtype=np.int64)
+    rows = no_strata(n)
     if spawn and seeds is not None and has_glossy(sa):
         counts, glossy = glossy_counts(sa, surf.mat, fresh, samples)
         gseeds = np.ascontiguousarray(seeds, np.uint64)
@@ -206,6 +198,8 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
             gstart = np.zeros(n + 1, np.int64)
             np.cumsum(counts, out=gstart[1:])
             plan = _Plan(gstart, glossy)
+            if lat is not None:
+                rows = lat(glossy)
     m = 2 * int(gstart[-1])
     contrib = np.empty((n, 3))
     out = Spawned(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.bool_))
@@ -213,8 +207,8 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     tv = np.empty((n if terms else 0, c, 3))
     tp = np.empty((n if terms else 0, c), np.bool_)
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
-                spawn, no_samples(n) if soft is None else soft, gstart, gseeds, contrib, out,
-                tv, tp)
+                spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, contrib,
+                out, tv, tp)
     if plan.gstart is not None:  # the deeper rough bounces' weak rays
         roulette(plan.gstart, plan.glossy, fresh, gseeds, weight, out)
     if terms:
@@ -261,18 +255,6 @@ def _input_front(origins, directions, tmin, tmax, primary: Hits | None,
                   np.full(n, -1, np.int32), np.ones(n, np.int64), np.ones(n, np.bool_),
                   np.zeros(n, np.uint64),
                   np.full(n, SEEN_CAMERA if camera_lights else SEEN_NONE, np.int8))
-
-
-@njit(cache=True, nogil=True)
-def _child_tags(nseeds, which, sample, glossy, tag, out):
-    """Tags of spawned rays: a glossy sample's hashes its parent's seed and its sample index
-    (its children's seeds differ from its siblings'), any other keeps its parent's."""
-    for k in range(which.shape[0]):
-        p = which[k]
-        if glossy[p]:
-            out[k] = mix64(nseeds[p] ^ mix64(np.uint64(sample[k] + 1)))
-        else:
-            out[k] = tag[p]
 
 
 def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Plan,
@@ -409,7 +391,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
           segments: list | None = None, cancel=None, seeds: np.ndarray | None = None,
           light_samples: int = LIGHT_SAMPLES_DEFAULT, terms: bool = False,
           glossy_samples: int = GLOSSY_SAMPLES_DEFAULT, roots: str = "all",
-          camera_lights: bool = True, skip_keys: np.ndarray | None = None):
+          camera_lights: bool = True, skip_keys: np.ndarray | None = None,
+          strata: Strata | None = None):
     """Whitted radiance of a batch of ``n`` rays, and optionally their ray trees.
 
     sa : the scene's :class:`~.geometry.scene.SceneArrays`; accel : an accelerator over
@@ -452,6 +435,9 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     skip_keys : (n,) int64 group keys of the input rays (their pixels' tiles): the shadow
     rays of lights proven fully visible per key and instance are skipped, the radiance the
     same bit for bit (:mod:`.shaft_skip`, which also says what ``counters`` gains).
+    strata : the input rays' pixels and sample indices (:func:`~.glossy_strata.pixel_strata`):
+    a pixel's rough points draw from one lattice per path (:mod:`.glossy_strata`); None:
+    each point its own.
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """
@@ -514,8 +500,10 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
         if traced and cancelled(cancel):
             break
         spawn = level < max_depth
+        lat = None if strata is None else (
+            lambda g, f=front: lattices(strata, f.src, f.path, f.fresh, g, int(glossy_samples)))
         shaded = _shade_level(sa, hits, surf, vis, front.weight, spawn, soft, terms, nseeds,
-                              front.fresh, int(glossy_samples))
+                              front.fresh, int(glossy_samples), lat)
         contrib, kids = shaded[0], shaded[1]
         if own:
             scatter_add(radiance, front.src, contrib)
@@ -563,7 +551,8 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
                  max_depth: int, cancel=None, counters: dict | None = None,
                  segments: list | None = None, gids: np.ndarray | None = None,
                  seed: int = 0, light_samples: int = LIGHT_SAMPLES_DEFAULT,
-                 terms: bool = False, glossy_samples: int = GLOSSY_SAMPLES_DEFAULT):
+                 terms: bool = False, glossy_samples: int = GLOSSY_SAMPLES_DEFAULT,
+                 spp: int | None = None):
     """Whitted radiance of the camera rays through ``pixels`` (k,) int64 at ``jitter``
     (k, 2) float64 (``cp``: the camera's :class:`~.geometry.cameras.CameraParams`), a
     frame's tile: small tiles run on one thread, and ``cancel`` is bound to ``accel``
@@ -571,7 +560,9 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
     (k, 3) float64, primary instance (k,) int32)``. ``gids`` (k,) int64: the samples'
     global ids (``sample * width * height + pixel``; default: sample 0 of each pixel),
     which with ``seed`` seed the soft lights' samples (:func:`~.soft_lights.sample_seeds`);
-    ``terms``: the segments keep the light terms too (:func:`trace`)."""
+    ``terms``: the segments keep the light terms too (:func:`trace`); ``spp``: the frame's
+    samples per pixel, whose glossy samples are stratified per pixel
+    (:func:`~.glossy_strata.pixel_strata`; None: per sample)."""
     if gids is None:
         gids = pixels
     with threads_for(len(pixels)), bound(accel, cancel):
@@ -581,7 +572,9 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
                        counters=counters, segments=segments, cancel=cancel,
                        seeds=sample_seeds(gids, seed), light_samples=light_samples,
                        terms=terms, glossy_samples=glossy_samples,
-                       skip_keys=tile_keys(pixels, cp.width))
+                       skip_keys=tile_keys(pixels, cp.width),
+                       strata=None if spp is None or not has_glossy(sa) else pixel_strata(
+                           gids, cp.width * cp.height, seed, spp))
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 
@@ -660,7 +653,7 @@ def render(scene: Scene, settings: RenderSettings | None = None, accel=None, pro
         rad, inst = trace_pixels(sa, accel, cp, np.tile(pix, spp), jitter.reshape(-1, 2),
                                  depth, cancel, counters, segs, gids, int(settings.seed),
                                  int(settings.light_samples), terms,
-                                 int(settings.glossy_samples))
+                                 int(settings.glossy_samples), spp)
         if cancelled(cancel):  # the tile is incomplete: keep nothing of it
             cancelled_ = True
             break

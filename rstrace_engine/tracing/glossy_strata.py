@@ -1,0 +1,128 @@
+"""A rough point's glossy samples stratified across its pixel's samples (issue 24, session
+34; docs/glossy.md, "session 34"), and where a level's spawned rays go on (:func:`child_paths`).
+
+Without strata a path's first rough bounce draws its G samples (Glossy Samples) from a
+Fibonacci lattice of G points rotated by a hash of its node's seed
+(:func:`~.glossy_rays._glossy_rays`): the lattices of a pixel's S samples are independent,
+so S x G directions cover the lobe no better than S independent sets of G. With strata (a
+pixel's seed, shared by its samples, and each sample's index ``s`` of S; :func:`pixel_strata`)
+the first rough bounces of a pixel's samples on the same ray-tree path draw from **one
+lattice of N = S x G points**, rotated by a hash of the pixel's seed and the path: sample
+``s`` takes the points ``s, s + S, ..., s + (G - 1) S``, so the pixel's samples cover the
+lobe jointly. A deeper rough bounce (one direction) keeps its own node seed's draw: taking
+a permuted point of a lattice shared by the N paths that reach it was tried and measured
+worse (docs/glossy.md).
+
+Each point stays uniform over the lattice's domain (the rotation is uniform and independent
+of the pixel jitter's scramble), so the estimate is unbiased as before; the strata depend on
+the pixel, the sample's index and the ray-tree path only: deterministic, the same in a full
+frame, an incremental one and a pixel record's re-trace. At one pixel sample the lattice is
+the point's own G points (another rotation).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .soft_lights import mix64, sample_seeds
+
+#: hashed into a path's lattice seed (with the pixel's and the path)
+STRATA_SALT = np.uint64(0x5851F42D4C957F2D)
+#: hashed into a pixel's strata seed (from its sample 0's seed: the pixel's samples share it)
+PIXEL_SALT = np.uint64(0x2545F4914F6CDD1D)
+
+
+class Strata(NamedTuple):
+    """Per input ray: its pixel's strata seed (shared by the pixel's samples) and its
+    sample's index of ``count`` samples per pixel."""
+
+    seed: np.ndarray  # (n,) uint64
+    index: np.ndarray  # (n,) int64 in [0, count)
+    count: int
+
+    def take(self, rows) -> Strata:
+        """The strata of input rays ``rows`` (an index array or a slice)."""
+        return Strata(self.seed[rows], self.index[rows], self.count)
+
+
+def pixel_strata(gids: np.ndarray, npix: int, seed: int, spp: int) -> Strata:
+    """:class:`Strata` of the pixel samples with global ids ``gids`` (``sample * npix +
+    pixel``) of a frame of ``npix`` pixels, ``spp`` samples each, and the frame's ``seed``."""
+    g = np.ascontiguousarray(gids, np.int64)
+    pix = g % npix
+    return Strata(_pixel_seeds(sample_seeds(pix, seed)), g // npix, max(1, int(spp)))
+
+
+@njit(cache=True, nogil=True)
+def _pixel_seeds(s):
+    out = np.empty_like(s)
+    for k in range(s.shape[0]):
+        out[k] = mix64(s[k] ^ PIXEL_SALT)
+    return out
+
+
+def no_strata(n: int) -> np.ndarray:
+    """The shade kernel's lattice rows when nothing is stratified (each point its own)."""
+    return np.zeros((0, 4), np.uint64)
+
+
+@njit(cache=True, nogil=True)
+def _lattices(pseed, index, src, path, fresh, glossy, spp, g, out):
+    n_lat = np.uint64(spp * g)
+    for i in range(src.shape[0]):
+        out[i, 0] = out[i, 1] = out[i, 2] = out[i, 3] = np.uint64(0)
+        if glossy[i] and fresh[i]:  # G points, one every S, from the sample's index
+            r = src[i]
+            out[i, 0] = mix64(pseed[r] ^ mix64(np.uint64(path[i])) ^ STRATA_SALT)
+            out[i, 1] = np.uint64(index[r] % spp)
+            out[i, 2] = np.uint64(spp)
+            out[i, 3] = n_lat
+
+
+def lattices(strata: Strata | None, src, path, fresh, glossy, samples: int):
+    """(n, 4) uint64 rows of a level's points (input rays ``src``, ray-tree paths ``path``,
+    ``fresh`` their paths' first rough bounce, ``glossy`` drawing glossy rays) for
+    :func:`~.glossy_rays._glossy_rays`: the lattice's rotation seed, the point's first
+    lattice index, the step between its samples' indices and the lattice's size (``S x
+    samples``); a zero row (size 0: the point's own lattice) where a point is not a first
+    rough bounce; an empty array where ``strata`` is None (each point its own)."""
+    if strata is None or glossy is None:
+        return no_strata(len(src))
+    out = np.empty((len(src), 4), np.uint64)
+    _lattices(strata.seed, np.ascontiguousarray(strata.index, np.int64),
+              np.ascontiguousarray(src, np.int64), np.ascontiguousarray(path, np.int64),
+              np.ascontiguousarray(fresh, np.bool_), np.ascontiguousarray(glossy, np.bool_),
+              np.int64(strata.count), np.int64(max(1, samples)), out)
+    return out
+
+
+def child_paths(slots: np.ndarray, gstart: np.ndarray | None, glossy: np.ndarray | None,
+                fresh: np.ndarray, tag: np.ndarray, nseeds: np.ndarray | None):
+    """Where spawned rays ``slots`` (indices into a level's :class:`~.shader.Spawned`) come
+    from and how their paths go on, as :func:`~.whitted.trace` follows them: ``(which (k,)
+    int64 their points, fresh (k,) bool no glossy samples drawn yet on their paths, tag (k,)
+    uint64 hashed into their node seeds: a glossy sample's hashes its point's seed
+    ``nseeds`` and its sample index, any other keeps its point's)``; ``gstart``, ``glossy``
+    as :func:`~.whitted.shade_paths` returns them, ``fresh``, ``tag`` the points'."""
+    pair = slots // 2
+    if gstart is None:
+        return pair, fresh[pair], tag[pair]
+    which = np.searchsorted(gstart, pair, side="right") - 1
+    out = np.empty(len(slots), np.uint64)
+    _child_tags(nseeds, which, pair - gstart[which], glossy, tag, out)
+    return which, fresh[which] & ~glossy[which], out
+
+
+@njit(cache=True, nogil=True)
+def _child_tags(nseeds, which, sample, glossy, tag, out):
+    """Tags of spawned rays: a glossy sample's hashes its parent's seed and its sample index
+    (its children's seeds differ from its siblings'), any other keeps its parent's."""
+    for k in range(which.shape[0]):
+        p = which[k]
+        if glossy[p]:
+            out[k] = mix64(nseeds[p] ^ mix64(np.uint64(sample[k] + 1)))
+        else:
+            out[k] = tag[p]

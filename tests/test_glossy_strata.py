@@ -1,0 +1,147 @@
+"""Glossy samples stratified across a pixel's samples and a first rough bounce's siblings
+(issue 24, session 34; tracing/glossy_strata.py, docs/glossy.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rstrace_engine import scenes
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.principled import principled_material
+from rstrace_engine.geometry.scene import Scene
+from rstrace_engine.scenes import _camera
+from rstrace_engine.tracing import glossy_strata as gs
+from rstrace_engine.tracing import whitted
+from rstrace_engine.tracing.soft_lights import sample_seeds
+
+ROUGHNESS = 0.2  # alpha 0.04: a head-on view's reflections all leave above the plane
+
+
+def _plane() -> Scene:
+    s = Scene()
+    mat, _ = principled_material("metal", (0.9, 0.9, 0.9), metallic=1.0, roughness=ROUGHNESS)
+    s.add_instance(s.add_mesh(shapes.plane(40.0)), np.eye(4), [s.add_material(mat)],
+                   name="Plane")
+    s.set_world_color((0.5, 0.5, 0.5), lights=False)
+    s.set_camera(_camera((0.0, -4.0, 3.0), (0.0, 0.0, 0.0), 8, 8))
+    return s
+
+
+def _first_bounce_u(spp: int, glossy: int, strata: bool, pixel: int = 7):
+    """The lattice coordinate ``u1`` (``shading.ggx_vndf``'s radius squared) of every
+    first-bounce ray of one pixel's ``spp`` samples, each looking straight down at a rough
+    metal plane (the local view is the normal: the microfacet normal ``h`` of a reflection
+    gives ``u1 = sin^2 / (alpha^2 cos^2 + sin^2)`` exactly)."""
+    sc = _plane()
+    sa = sc.arrays()
+    acc = create_accelerator("BVH", sa)
+    o = np.tile([[0.0, 0.0, 2.0]], (spp, 1)) + np.arange(spp)[:, None] * [1e-3, 0.0, 0.0]
+    d = np.tile([[0.0, 0.0, -1.0]], (spp, 1))
+    gids = np.arange(spp, dtype=np.int64) * 64 + pixel
+    st = gs.pixel_strata(gids, 64, 5, spp) if strata else None
+    segs: list = []
+    whitted.trace(sa, acc, o, d, 0.0, np.inf, 1, segments=segs, seeds=sample_seeds(gids, 5),
+                  glossy_samples=glossy, strata=st)
+    wi = segs[1]["dir"]
+    h = wi + np.array([0.0, 0.0, 1.0])
+    h /= np.linalg.norm(h, axis=1)[:, None]
+    c2 = h[:, 2] ** 2
+    alpha = ROUGHNESS ** 2
+    return (1.0 - c2) / (alpha * alpha * c2 + 1.0 - c2), segs[1]["ray"]
+
+
+def _spread(x: np.ndarray) -> float:
+    """Circular spread of values in [0, 1): 1 minus the largest gap between neighbours."""
+    x = np.sort(np.mod(x, 1.0))
+    gaps = np.diff(np.concatenate([x, x[:1] + 1.0]))
+    return float(1.0 - gaps.max())
+
+
+@pytest.mark.parametrize("spp,glossy", [(4, 4), (8, 1), (2, 8)])
+def test_a_pixels_samples_draw_one_lattice_jointly(spp, glossy):
+    """A pixel's S samples' G glossy rays each at its first rough bounce are the N = S G
+    points of one rotated lattice: ``u1 N`` has the same fraction for every ray (the u1 lie
+    1 / N apart), and each sample holds G of them. Without strata (main: each sample's own
+    lattice of G, rotated by its own seed) they do not. Fails on main (no strata)."""
+    n = spp * glossy
+    u, ray = _first_bounce_u(spp, glossy, True)
+    assert len(u) == n and np.array_equal(np.bincount(ray, minlength=spp), [glossy] * spp)
+    assert _spread(u * n) < 1e-6
+    u0, _ = _first_bounce_u(spp, glossy, False)
+    assert len(u0) == n and _spread(u0 * n) > 0.05
+
+
+def test_lattice_rows_of_first_bounces_only():
+    """A path's first rough bounce at pixel sample s takes G points of the pixel's lattice
+    of S G, one every S from s, rotated by a hash of the pixel and the path (the pixel's
+    samples share it, another path or pixel has another); a deeper rough bounce and a point
+    that draws no glossy rays get a zero row (their own draw), and no strata no rows."""
+    spp, g = 4, 3
+    st = gs.pixel_strata(np.array([0, 64, 128, 192, 1], np.int64) + 5, 64, 0, spp)
+    assert list(st.index) == [0, 1, 2, 3, 0] and len(set(st.seed[:4])) == 1
+    assert st.seed[4] != st.seed[0]
+    src = np.array([0, 1, 2, 3, 4, 0, 1, 2])
+    path = np.array([1, 1, 1, 1, 1, 3, 2, 1])
+    fresh = np.array([True] * 6 + [False, True])
+    glossy = np.array([True] * 7 + [False])
+    out = gs.lattices(st, src, path, fresh, glossy, g)
+    assert list(out[:6, 1]) == [0, 1, 2, 3, 0, 0] and (out[:6, 2] == spp).all()
+    assert (out[:6, 3] == spp * g).all()
+    assert len(set(out[:4, 0])) == 1 and out[4, 0] != out[0, 0] and out[5, 0] != out[0, 0]
+    assert not out[6:].any()
+    assert gs.lattices(None, src, path, fresh, glossy, g).shape == (0, 4)
+
+
+def _rough(seed, strata, monkeypatch, spp=4, glossy=4, w=40, h=30):
+    if not strata:
+        monkeypatch.setattr(whitted, "pixel_strata", lambda *a: None)
+    sc = scenes.rough_materials(w, h)
+    st = RenderSettings(mode="BASE", max_depth=5, samples=spp, glossy_samples=glossy,
+                        seed=seed)
+    f = whitted.render(sc, st, accel=create_accelerator("BVH", sc.arrays()))
+    monkeypatch.undo()
+    return f
+
+
+def test_strata_are_unbiased_deterministic_and_incremental_equals_fresh(monkeypatch):
+    """rough_materials at 4 x 4: per seed the frame with strata against the one without
+    (each sample its own lattice), the mean difference over 6 seeds within three standard
+    errors of 0 and the means within 1%; the same frame bit for bit again; an incremental
+    frame's traced pixels bit for bit the full frame's (the strata depend on the pixel, the
+    sample and the path, not on the batch)."""
+    on, off = [], []
+    for seed in range(6):
+        on.append(_rough(seed, True, monkeypatch).radiance.astype(np.float64))
+        off.append(_rough(seed, False, monkeypatch).radiance.astype(np.float64))
+    on, off = np.stack(on), np.stack(off)
+    assert abs(on.mean() / off.mean() - 1.0) < 0.01
+    d = (on - off).mean(axis=(1, 2, 3))
+    assert abs(d.mean()) <= 3.0 * d.std(ddof=1) / np.sqrt(len(d)) + 1e-12
+    full = _rough(0, True, monkeypatch)
+    assert np.array_equal(full.radiance, on[0].astype(full.radiance.dtype))
+    sc = scenes.rough_materials(40, 30)
+    st = RenderSettings(mode="BASE", max_depth=5, samples=4, glossy_samples=4, seed=0)
+    acc = create_accelerator("BVH", sc.arrays())
+    dirty = np.zeros(40 * 30, np.bool_)
+    dirty[np.random.default_rng(3).choice(40 * 30, 150, replace=False)] = True
+    base = _rough(1, True, monkeypatch)  # another frame of the camera: its pixels replaced
+    inc = whitted.render(sc, st, accel=acc, pixels=dirty, base=base)
+    got = inc.radiance.reshape(-1, 3)
+    assert np.array_equal(got[dirty], full.radiance.reshape(-1, 3)[dirty])
+
+
+@pytest.mark.parametrize("name", ["three_spheres", "glass_horizon", "studio"])
+def test_scenes_without_rough_surfaces_are_unchanged(name, monkeypatch):
+    """Mirrors, sharp glass and soft light: the strata change no ray (bit for bit, the same
+    ray counts as with each sample its own lattice)."""
+    sc = scenes.build(name, 40, 30)
+    st = RenderSettings(mode="BASE", max_depth=5, samples=2, light_samples=4)
+    a = whitted.render(sc, st)
+    monkeypatch.setattr(whitted, "pixel_strata", lambda *a: None)
+    b = whitted.render(sc, st)
+    assert np.array_equal(a.radiance, b.radiance)
+    for k in ("secondary_rays", "shadow_rays"):
+        assert a.stats[k] == b.stats[k]

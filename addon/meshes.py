@@ -255,8 +255,8 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
 
     Two reads of an unchanged mesh give the same digest; any change of positions, faces
     (each face's first corner -- Blender's face offsets, read in place: 4 bytes a face --
-    and the corners' vertices), material indices, sharpness, custom normals or the render
-    UV map changes it. The edges are not hashed: the faces decide what is exported (the
+    and the corners' vertices), material indices, sharpness, custom normals (per corner, or
+    free per vertex) or the render UV map changes it. The edges are not hashed: the faces decide what is exported (the
     triangulation, the vertex normals), and a sharp edge's effect is in the corner normals,
     which are. (The edges' vertices, once hashed in the offsets' place, are 8 bytes an
     edge, about four times the offsets' bytes, which Blender copied for the read, and they
@@ -285,11 +285,23 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
         h.update(values)  # (its buffer: no copy, the same bytes)
     if me.normals_domain == "CORNER":  # custom or split normals
         h.update(_corner_normals(me, raw, counts[2]))
+    elif me.normals_domain == "POINT" and _free_point_normals(me):
+        # (Blender 4.5+'s free custom normals per vertex: the vertex normals are them)
+        h.update(b"custom_normal")
+        h.update(_raw(me, raw, "custom_normal", "vector", counts[0] * 3, np.float32))
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
         h.update(layer.name.encode())
         h.update(_uv(me, layer, raw, counts[2]))
     return h.digest()[:16]
+
+
+def _free_point_normals(me) -> bool:
+    """Whether ``me`` has free custom normals per vertex (a ``custom_normal`` float vector
+    attribute on points, Blender 4.5+: Set Mesh Normal's Free mode), which
+    ``me.vertex_normals`` returns and nothing else hashed covers."""
+    attr = me.attributes.get("custom_normal")
+    return attr is not None and attr.domain == "POINT" and attr.data_type == "FLOAT_VECTOR"
 
 
 def same_mesh(a: Mesh | None, b: Mesh | None) -> bool:

@@ -95,3 +95,26 @@ def test_the_fingerprint_still_sees_positions_corners_and_uvs():
     uv[3] += 0.25
     me.uv_layers["UV"].uv.foreach_set("vector", uv)
     assert mesh_fingerprint(me) != first
+
+
+def test_the_fingerprint_sees_free_custom_normals_per_vertex():
+    """Blender 4.5+'s free custom normals on points (a ``custom_normal`` float vector
+    attribute, Set Mesh Normal's Free mode): ``me.vertex_normals`` returns them and the
+    export takes them, so changing them must change the digest (main's hashed only the
+    positions, faces and corners in the POINT domain: the same digest, a stale cached read
+    where the journal cannot vouch, an animated normal input in F12 frames)."""
+    from addon.meshes import mesh_arrays, mesh_fingerprint
+
+    me = _heptagon_mesh(((0, 1, 2, 3), (3, 4, 5, 6)))
+    me.shade_smooth()
+    me.attributes.new("custom_normal", "FLOAT_VECTOR", "POINT")
+    me.update()
+    assert me.normals_domain == "POINT"
+    first, read = mesh_fingerprint(me), mesh_arrays(me, me.name)
+    n = np.random.default_rng(1).standard_normal((len(me.vertices), 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    me.attributes["custom_normal"].data.foreach_set("vector", n.reshape(-1))
+    me.update()
+    assert not np.array_equal(mesh_arrays(me, me.name).vertex_normals, read.vertex_normals)
+    assert mesh_fingerprint(me) != first
+    assert mesh_fingerprint(me) == mesh_fingerprint(me)  # (unchanged: the same digest)

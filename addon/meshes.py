@@ -256,12 +256,13 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     Two reads of an unchanged mesh give the same digest; any change of positions, faces
     (each face's first corner -- Blender's face offsets, read in place: 4 bytes a face --
     and the corners' vertices), material indices, sharpness, custom normals (per corner, or
-    free per vertex) or the render UV map changes it. The edges are not hashed: the faces decide what is exported (the
-    triangulation, the vertex normals), and a sharp edge's effect is in the corner normals,
-    which are. (The edges' vertices, once hashed in the offsets' place, are 8 bytes an
-    edge, about four times the offsets' bytes, which Blender copied for the read, and they
-    miss a face boundary moved between corners whose edges stay.) ``raw``:
-    arrays :func:`mesh_arrays` already read (not read again), and receives those read here.
+    free per vertex) or the render UV map changes it. The edges are not hashed: the faces
+    decide what is exported (the triangulation, the vertex normals), and a sharp edge's
+    effect is in the corner normals, which are. (The edges' vertices, once hashed in the
+    offsets' place, are 8 bytes an edge, about four times the offsets' bytes, which Blender
+    copied for the read, and they miss a face boundary moved between corners whose edges
+    stay.) ``raw``: arrays :func:`mesh_arrays` already read (not read again), and receives
+    those read here.
     SHA-256 (its first 16 bytes; with the CPU's SHA instructions about twice as fast as
     BLAKE2b); digests are compared only within the process.
     """

@@ -287,11 +287,10 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
                                fallback_notes=fb.notes())
             return frame
     budget = run.budget
-    n_closest = 0
-    t_closest = 0.0
+    n_closest, t_closest = 0, 0.0
     pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
     tail = k  # pixels from here on: cut from the first pass, the base tracer's (trace_tail)
-    known = None  # the hits of the cut tile's rays after the cut (its first pixels' sample 0)
+    known = None  # the cut tile's hits after the cut (sample 0 of the tail's first pixels)
     n_interp0 = 0  # rays the first pass interpolated (their later samples may reproject)
     with threads_for(n):  # the dirty pixels of an edit: one thread (see batches)
         for s in range(spp):
@@ -471,7 +470,7 @@ class _Run:
     def __init__(self, cache, settings, records, cancel, width: int, height: int) -> None:
         sa = cache.sa
         self.cache, self.settings, self.records, self.cancel = cache, settings, records, cancel
-        self.width, self.npix = width, width * height  # (npix: glossy_strata.pixel_strata)
+        self.width, self.npix = width, width * height  # (npix: for pixel_strata)
         self.world = world_lights(sa)
         self.sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
         # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
@@ -491,11 +490,10 @@ class _Run:
         self.n_todo = 0
 
     def tail(self, cp, pix, jitter, spp, counts, acc, progress=None, known=None) -> float:
-        """Every sample of pixels ``pix`` traced by the base tracer in its tiles
-        (:func:`~.frame_parts.trace_tail`) into their sums ``acc`` (:func:`_accumulate`'s,
-        from sample 0 on: as the base frame sums them); returns the closest-hit seconds.
-        ``progress(fraction of pix done)`` after each tile, or None; ``known``: the hits of
-        sample 0 of the first pixels, found already (trace_tail's)."""
+        """Every sample of pixels ``pix`` traced by the base tracer in its tiles (``known``:
+        :func:`~.frame_parts.trace_tail`'s) into their sums ``acc`` (:func:`_accumulate`'s,
+        from sample 0 on, as the base frame sums them); returns the closest-hit seconds.
+        ``progress(fraction of pix done)`` after each tile, or None."""
         records = self.records
         lrec = records.light if records is not None else None
         acc = tuple(acc)
@@ -539,8 +537,8 @@ class _Run:
         spent0 = 0.0 if budget is None else budget.spent
         later0 = 0.0 if budget is None else budget.later
         o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
-        strata = (pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples))
-                  if self.rough_on else None)
+        strata = pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples)) \
+            if self.rough_on else None
         vis = ps.vis
         hits, res = part(vis.hits, sl), part(vis.res, sl)
         rep = None if vis.rep is None else vis.rep[sl]

@@ -99,3 +99,23 @@ def test_a_cancelled_pass_returns_nothing(spheres):
     p = camera_passes(scene, accel, settings, frame=frame, depth=True,
                       holdout_mats=[scene.material_id("red")], cancel=lambda: True)
     assert p.depth is None and p.alpha is None and p.radiance is None
+
+
+def test_holdouts_on_rough_surfaces_trace_the_frames_glossy_samples():
+    """A partly held-out pixel's other samples are traced again with the frame's own glossy
+    rays (its *Glossy Samples* and the pixel's strata, tracing/glossy_strata.py): holding
+    out one material and then every other gives the frame back, pixel by pixel (before, the
+    re-trace took the default 16 glossy samples, each sample its own lattice)."""
+    scene = scenes.rough_materials(40, 30)
+    accel = create_accelerator("BVH", scene.arrays())
+    settings = RenderSettings(samples=4, glossy_samples=4, max_depth=3)
+    frame = render(scene, settings, accel=accel)
+    red = scene.material_id("red")
+    p = camera_passes(scene, accel, settings, frame=frame, holdout_mats=[red])
+    others = [m for m in range(len(scene.materials)) if m != red]
+    q = camera_passes(scene, accel, settings, frame=frame, holdout_mats=others)
+    part = (p.alpha > 0.0) & (p.alpha < 1.0)
+    both = part & (p.alpha + q.alpha == 1.0)
+    assert both.sum() > 5
+    assert np.allclose(p.radiance[both] + q.radiance[both], frame.radiance[both],
+                       rtol=1e-5, atol=1e-6)

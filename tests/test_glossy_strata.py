@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from rstrace_engine.frame import RenderSettings
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Scene
+from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.scenes import _camera
 from rstrace_engine.tracing import glossy_strata as gs
 from rstrace_engine.tracing import whitted
@@ -134,14 +137,43 @@ def test_strata_are_unbiased_deterministic_and_incremental_equals_fresh(monkeypa
 
 
 @pytest.mark.parametrize("name", ["three_spheres", "glass_horizon", "studio"])
-def test_scenes_without_rough_surfaces_are_unchanged(name, monkeypatch):
-    """Mirrors, sharp glass and soft light: the strata change no ray (bit for bit, the same
-    ray counts as with each sample its own lattice)."""
+def test_scenes_without_rough_surfaces_compute_no_strata(name, monkeypatch):
+    """Mirrors, sharp glass and soft light: no lattice is computed where the scene draws no
+    glossy rays (its cost is the rough scenes' only; before 7db3404 every frame built it),
+    in BASE frames and in the interpolants' passes and tail."""
+    from rstrace_engine.interpolants import frame_parts
+    from rstrace_engine.interpolants import render as interp_render
+
+    def refused(*a, **k):
+        raise AssertionError("strata computed for a scene without rough surfaces")
+
+    for mod in (whitted, frame_parts, interp_render):
+        monkeypatch.setattr(mod, "pixel_strata", refused)
     sc = scenes.build(name, 40, 30)
     st = RenderSettings(mode="BASE", max_depth=5, samples=2, light_samples=4)
-    a = whitted.render(sc, st)
-    monkeypatch.setattr(whitted, "pixel_strata", lambda *a: None)
-    b = whitted.render(sc, st)
-    assert np.array_equal(a.radiance, b.radiance)
-    for k in ("secondary_rays", "shadow_rays"):
-        assert a.stats[k] == b.stats[k]
+    acc = create_accelerator("BVH", sc.arrays())
+    whitted.render(sc, st, accel=acc)
+    InterpolantRenderer().render(sc, replace(st, mode="INTERPOLANT", epsilon=0.05), acc)
+
+
+def test_a_cut_interpolant_frames_tail_is_the_base_frame_on_rough_surfaces(monkeypatch):
+    """An INTERPOLANT frame whose ledger cuts the first pass for good traces the rest in the
+    base tracer's tiles (interpolants/frame_parts.trace_tail): on rough surfaces at 4 pixel
+    samples those pixels take the base frame's strata, so the frame is the base frame bit
+    for bit (the tail without them: each sample its own lattice, another image)."""
+    from rstrace_engine.interpolants import fallback
+    from rstrace_engine.interpolants.fallback import Budget
+
+    monkeypatch.setattr(Budget, "chunk", lambda self, rest: 0)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 0.0)  # nothing to spend: cut for good
+    sc = scenes.rough_materials(40, 30)
+    acc = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=0.05, max_depth=5, samples=4,
+                        glossy_samples=4)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), st, acc)
+    r.cache.fallback.ray_s = 1e-6  # priced: cut at the first ray
+    f = r.render(sc, st, acc)
+    assert f.stats["fallback"]["tail_pixels"] == 40 * 30
+    base = whitted.render(sc, replace(st, mode="BASE"), accel=acc)
+    assert np.array_equal(f.radiance, base.radiance)

@@ -147,3 +147,19 @@ def test_a_cancel_during_the_check_keeps_the_frame_as_traced(volumes):
     r0 = RITreeRenderer()
     r0.recheck = False
     np.testing.assert_array_equal(f.radiance, r0.render(sc, st, accel).radiance)
+
+
+@pytest.mark.usefixtures("_interpolate_all")
+def test_retraced_pixels_on_rough_surfaces_are_the_base_frames(monkeypatch):
+    """Rough surfaces at 4 pixel samples: a re-traced pixel takes the base frame's glossy
+    rays (its Glossy Samples and the pixel's strata, tracing/glossy_strata.py), so with
+    every pixel re-traced the frame is the base frame bit for bit."""
+    sc = scenes.rough_materials(40, 30)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(max_depth=5, samples=4, glossy_samples=4, ri_probe_angle=0.25)
+    base = render(sc, st, accel=accel)
+    monkeypatch.setattr(recheck.Continuations, "flagged",
+                        lambda self: np.arange(self.w * self.h, dtype=np.int64))
+    for _, f in _frames(sc, accel, st, base):
+        assert f.stats["retraced_pixels"] == 40 * 30
+        np.testing.assert_array_equal(f.radiance, base.radiance)

@@ -95,7 +95,8 @@ def kept_world_term(lrec, sa, accel, o, d, tmax, hits: Hits, wi, gids, settings,
                                Hits(hits.t[r], hits.inst[r], hits.prim[r], hits.u[r],
                                     hits.v[r]),
                                sample_seeds(gids[r], int(settings.seed)),
-                               int(settings.light_samples), counters, coefficient=c)
+                               int(settings.light_samples), counters,
+                               max_depth=int(settings.max_depth), coefficient=c)
         if c is not None:
             coefficient[rest] = c
     return out

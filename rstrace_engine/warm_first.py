@@ -79,7 +79,7 @@ def compile_traversal() -> None:
 PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
 
 
-def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:
+def part_head(k: int, n: int, modes=("INTERPOLANT",)) -> list[str]:
     """Compile (or load) part ``k`` of ``n``'s :data:`PART_HEADS` (none when ``n`` is 1);
     the predicate only when ``modes`` has INTERPOLANT. Returns the names done."""
     from .warm_kernels import warm_scene
@@ -92,8 +92,6 @@ def part_head(k: int, n: int, modes=("INTERPOLANT",), cancel=None) -> list[str]:
              "build": lambda: compile_build(scene)}
     done = []
     for name in PART_HEADS[k]:
-        if cancel is not None and cancel():
-            break
         if name == "predicate" and "INTERPOLANT" not in (modes or ("INTERPOLANT",)):
             continue
         steps[name]()

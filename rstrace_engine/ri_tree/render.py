@@ -620,7 +620,8 @@ class RITreeRenderer:
                                                    int(settings.light_samples),
                                                    int(settings.glossy_samples),
                                                    pixel_strata(gids, w * h,
-                                                                int(settings.seed), spp))
+                                                                int(settings.seed), spp)
+                                                   if has_glossy(sa) else None)
                 if cont is not None:
                     cont.store(pix, ckey, taint)
             tile_cls = np.empty(len(pix), np.uint8)

@@ -100,7 +100,7 @@ def test_lattice_rows_of_first_bounces_only():
 
 def _rough(seed, strata, monkeypatch, spp=4, glossy=4, w=40, h=30):
     if not strata:
-        monkeypatch.setattr(whitted, "pixel_strata", lambda *a: None)
+        monkeypatch.setattr(gs, "pixel_strata", lambda *a: None)
     sc = scenes.rough_materials(w, h)
     st = RenderSettings(mode="BASE", max_depth=5, samples=spp, glossy_samples=glossy,
                         seed=seed)
@@ -136,24 +136,51 @@ def test_strata_are_unbiased_deterministic_and_incremental_equals_fresh(monkeypa
     assert np.array_equal(got[dirty], full.radiance.reshape(-1, 3)[dirty])
 
 
-@pytest.mark.parametrize("name", ["three_spheres", "glass_horizon", "studio"])
-def test_scenes_without_rough_surfaces_compute_no_strata(name, monkeypatch):
-    """Mirrors, sharp glass and soft light: no lattice is computed where the scene draws no
-    glossy rays (its cost is the rough scenes' only; before 7db3404 every frame built it),
-    in BASE frames and in the interpolants' passes and tail."""
-    from rstrace_engine.interpolants import frame_parts
-    from rstrace_engine.interpolants import render as interp_render
+@pytest.mark.parametrize("name,depth", [("three_spheres", 5), ("glass_horizon", 5),
+                                        ("studio", 5), ("rough_materials", 0)])
+def test_frames_that_draw_no_glossy_rays_compute_no_strata(name, depth, monkeypatch):
+    """Mirrors, sharp glass and soft light, and rough surfaces at ray depth 0: no lattice
+    is computed where the frame draws no glossy rays (its cost is the rough scenes' only;
+    before 7db3404 every frame built it), in BASE frames, the interpolants' passes and tail
+    and the RI-tree's tiles: all ask :func:`~.glossy_strata.frame_strata`."""
+    from rstrace_engine.ri_tree.render import RITreeRenderer
 
     def refused(*a, **k):
-        raise AssertionError("strata computed for a scene without rough surfaces")
+        raise AssertionError("strata computed for a frame that draws no glossy rays")
 
-    for mod in (whitted, frame_parts, interp_render):
-        monkeypatch.setattr(mod, "pixel_strata", refused)
+    monkeypatch.setattr(gs, "pixel_strata", refused)
     sc = scenes.build(name, 40, 30)
-    st = RenderSettings(mode="BASE", max_depth=5, samples=2, light_samples=4)
+    st = RenderSettings(mode="BASE", max_depth=depth, samples=2, light_samples=4)
     acc = create_accelerator("BVH", sc.arrays())
     whitted.render(sc, st, accel=acc)
     InterpolantRenderer().render(sc, replace(st, mode="INTERPOLANT", epsilon=0.05), acc)
+    RITreeRenderer().render(sc, replace(st, mode="RI_TREE"), acc)
+
+
+def test_a_rough_frame_asks_for_strata_in_every_mode(monkeypatch):
+    """The other side of the test above: a rough scene at ray depth 5 computes its pixels'
+    strata in each mode (a guard that skipped them would render each sample with its own
+    lattice: another image)."""
+    from rstrace_engine.ri_tree.render import RITreeRenderer
+
+    asked = []
+    real = gs.pixel_strata
+
+    def counted(*a, **k):
+        asked.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(gs, "pixel_strata", counted)
+    sc = scenes.build("rough_materials", 24, 18)
+    st = RenderSettings(mode="BASE", max_depth=5, samples=2, glossy_samples=2)
+    acc = create_accelerator("BVH", sc.arrays())
+    for render in (lambda: whitted.render(sc, st, accel=acc),
+                   lambda: InterpolantRenderer().render(
+                       sc, replace(st, mode="INTERPOLANT", epsilon=0.05), acc),
+                   lambda: RITreeRenderer().render(sc, replace(st, mode="RI_TREE"), acc)):
+        asked.clear()
+        render()
+        assert asked, "a rough frame computed no strata"
 
 
 def test_a_cut_interpolant_frames_tail_is_the_base_frame_on_rough_surfaces(monkeypatch):

@@ -200,3 +200,27 @@ def test_worker_takes_the_hosts_thread_count(session, monkeypatch):
         numba.set_num_threads(saved)
         worker.stop()
     assert seen[0] == 1 and seen[-1] == saved
+
+
+
+def test_viewport_samples_share_the_pixels_glossy_strata(monkeypatch):
+    """A rough scene at 4 samples: the viewport's passes (``trace_view(sample=k,
+    samples=4)``, one per sample) take each pixel's glossy strata from the frame's samples
+    per pixel, so their mean is the base tracer's 4-sample frame (to float32 rounding of
+    the sums); passes that each drew their own lattice (strata of one sample, the same
+    jitter) give another image."""
+    from rstrace_engine.tracing import glossy_strata as gs
+
+    scene = scenes.rough_materials(32, 24)
+    st = RenderSettings(max_depth=5, samples=4, glossy_samples=4, seed=3)
+    s = Session(scene, st)
+    ref = render(scene, st, accel=s.accel).radiance
+
+    def passes():
+        return np.mean([trace_view(s, scene.camera, st, sample=k, samples=4)[0]
+                        for k in range(4)], axis=0)
+
+    np.testing.assert_allclose(passes(), ref, rtol=1e-5, atol=1e-6)
+    real = gs.pixel_strata
+    monkeypatch.setattr(gs, "pixel_strata", lambda g, n, seed, spp: real(g, n, seed, 1))
+    assert np.abs(passes() - ref).max() > 1e-3

@@ -27,8 +27,7 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_rays
 from ..tracing.batches import TILE_RAYS, threads_for
-from ..tracing.glossy_rays import has_glossy
-from ..tracing.glossy_strata import pixel_strata
+from ..tracing.glossy_strata import frame_strata
 from ..tracing.seen_lights import SEEN_CAMERA, seen
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import sample_seeds
@@ -235,8 +234,8 @@ def trace_tail(cache, cp, pix, jitter, settings, counters, records, cancel, lrec
                            glossy_samples=int(settings.glossy_samples),
                            terms=records is not None and records.light is not None,
                            skip_keys=tile_keys(px, w),
-                           strata=pixel_strata(gids, w * cp.height, int(settings.seed), spp)
-                           if has_glossy(sa) else None)
+                           strata=frame_strata(sa, int(settings.max_depth), gids,
+                                               w * cp.height, int(settings.seed), spp))
         t2 = fallback.CLOCK()
         if cancel is not None and cancel():
             yield None

@@ -21,22 +21,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..accel.accelerators import Hits
-from ..tracing.glossy_rays import glossy_materials, has_glossy
+from ..tracing.glossy_rays import glossy_materials
+from ..tracing.glossy_strata import draws_glossy
 from ..tracing.soft_lights import sample_seeds
 from ..tracing.whitted import trace
 from .samples import hit_materials
-
-
-def rough_roots_possible(sa, max_depth: int) -> bool:
-    """Whether the scene has rough surfaces whose glossy rays the tracer draws."""
-    return max_depth > 0 and has_glossy(sa)
 
 
 def rough_roots(sa, hits: Hits, max_depth: int) -> np.ndarray:
     """(n,) bool: the hits on rough surfaces whose glossy rays the tracer draws (ray depth
     above 0)."""
     n = len(hits.inst)
-    if not rough_roots_possible(sa, max_depth):
+    if not draws_glossy(sa, max_depth):
         return np.zeros(n, np.bool_)
     m = hit_materials(sa, hits.inst, hits.prim)
     return (m >= 0) & glossy_materials(sa)[np.maximum(m, 0)]

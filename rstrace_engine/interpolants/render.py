@@ -46,7 +46,7 @@ from ..frame import (
 )
 from ..geometry.cameras import camera_params, camera_rays
 from ..tracing.batches import TILE_RAYS, frame_batches, threads_for
-from ..tracing.glossy_strata import pixel_strata
+from ..tracing.glossy_strata import draws_glossy, frame_strata
 from ..tracing.seen_lights import SEEN_CAMERA, any_seen, first_seen_below
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import world_lights
@@ -65,7 +65,6 @@ from .frame_parts import (
     trace_tail,
     visible,
 )
-from .glossy_term import rough_roots_possible
 from .interpolant_cache import InterpolantCache
 from .invalidation import Invalidation
 from .reproject import FrameCells, Remember, candidates, slab_points
@@ -470,12 +469,12 @@ class _Run:
     def __init__(self, cache, settings, records, cancel, width: int, height: int) -> None:
         sa = cache.sa
         self.cache, self.settings, self.records, self.cancel = cache, settings, records, cancel
-        self.width, self.npix = width, width * height  # (npix: for pixel_strata)
+        self.width, self.npix = width, width * height  # (npix: for frame_strata)
         self.world = world_lights(sa)
         self.sampled = sampled_possible(sa)  # and its lights' sampled terms (sampled_term.py)
         # one on a rough surface traces its glossy rays (glossy_term.py) from its hit: a
         # reprojected one on a rough object traces its visibility ray for it
-        self.rough_on = bool(rough_roots_possible(sa, int(settings.max_depth)))
+        self.rough_on = draws_glossy(sa, int(settings.max_depth))
         self.camera_seen = any_seen(sa, (SEEN_CAMERA,))
         self.ledger = self.budget = self.traced_now = None
         self.counters: dict = {}
@@ -537,8 +536,8 @@ class _Run:
         spent0 = 0.0 if budget is None else budget.spent
         later0 = 0.0 if budget is None else budget.later
         o, d, tmin, tmax, gids = (x[sl] for x in ps[:5])
-        strata = pixel_strata(gids, self.npix, int(settings.seed), int(settings.samples)) \
-            if self.rough_on else None
+        strata = frame_strata(cache.sa, int(settings.max_depth), gids, self.npix,
+                              int(settings.seed), int(settings.samples))
         vis = ps.vis
         hits, res = part(vis.hits, sl), part(vis.res, sl)
         rep = None if vis.rep is None else vis.rep[sl]

@@ -43,7 +43,7 @@ from numba import njit
 from ..geometry.cameras import camera_rays, pixel_jitter
 from ..tracing.edit_kernels import register
 from ..tracing.glossy_rays import glossy_materials as rough_materials
-from .glossy_term import rough_roots_possible
+from ..tracing.glossy_strata import draws_glossy
 from .linetree import ray_line
 from .relight import light_scale
 from .samples import hit_materials
@@ -175,7 +175,7 @@ def _recombinable(cache, ids: np.ndarray, sas, ext_lights) -> np.ndarray:
     inst = (cache.trees.arrays.tree[cache.pool.node[ids]] // 6).astype(np.int64)
     m = hit_materials(sa, inst, cache.pool.cls[ids])
     ok = m >= 0
-    if rough_roots_possible(sa, cache.max_depth):
+    if draws_glossy(sa, cache.max_depth):
         ok &= ~rough_materials(sa)[np.maximum(m, 0)]
     for s in sas:
         ext = [j for j in ext_lights if j < len(s.light_kind) and s.light_kind[j] >= 0

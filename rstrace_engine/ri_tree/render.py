@@ -51,7 +51,7 @@ from ..geometry.mesh_topology import mesh_topology_cached
 from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.glossy_rays import has_glossy
-from ..tracing.glossy_strata import lattices, pixel_strata
+from ..tracing.glossy_strata import frame_strata, lattices
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
 from ..tracing.whitted import (
     shade_paths,
@@ -619,9 +619,9 @@ class RITreeRenderer:
                                                    sample_seeds(gids, int(settings.seed)),
                                                    int(settings.light_samples),
                                                    int(settings.glossy_samples),
-                                                   pixel_strata(gids, w * h,
-                                                                int(settings.seed), spp)
-                                                   if has_glossy(sa) else None)
+                                                   frame_strata(sa, int(settings.max_depth),
+                                                                gids, w * h,
+                                                                int(settings.seed), spp))
                 if cont is not None:
                     cont.store(pix, ckey, taint)
             tile_cls = np.empty(len(pix), np.uint8)

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .glossy_rays import has_glossy
 from .soft_lights import mix64, sample_seeds
 
 #: hashed into a path's lattice seed (with the pixel's and the path)
@@ -54,6 +55,25 @@ def pixel_strata(gids: np.ndarray, npix: int, seed: int, spp: int) -> Strata:
     g = np.ascontiguousarray(gids, np.int64)
     pix = g % npix
     return Strata(_pixel_seeds(sample_seeds(pix, seed)), g // npix, max(1, int(spp)))
+
+
+def draws_glossy(sa, max_depth: int) -> bool:
+    """Whether a frame of the scene (its :class:`~.geometry.scene.SceneArrays` ``sa``) at ray
+    depth ``max_depth`` draws glossy rays: a rough surface and a depth above 0. The one
+    place that decides whether a frame computes strata (:func:`frame_strata`) and whether
+    the interpolants look for rough roots."""
+    return int(max_depth) > 0 and has_glossy(sa)
+
+
+def frame_strata(sa, max_depth: int, gids: np.ndarray, npix: int, seed: int,
+                 spp: int) -> Strata | None:
+    """:func:`pixel_strata` of a frame's pixel samples ``gids``, or None where the frame
+    draws no glossy rays (:func:`draws_glossy`): their cost is the rough scenes' only (the
+    base tracer's tiles, the interpolants' passes and tail and the RI-tree's tiles all ask
+    here)."""
+    if not draws_glossy(sa, max_depth):
+        return None
+    return pixel_strata(gids, npix, seed, spp)
 
 
 @njit(cache=True, nogil=True)

@@ -44,9 +44,10 @@ from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
     Strata,
     _child_tags,  # noqa: F401
     child_paths,
+    draws_glossy,
+    frame_strata,
     lattices,
     no_strata,
-    pixel_strata,
 )
 from .light_bits import words
 from .light_linking import first_blocker, links_shadows
@@ -455,7 +456,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     soft_on = has_soft_light(sa)
     seen_on = any_seen(sa, (SEEN_CAMERA,) if max_depth == 0 else
                        (SEEN_CAMERA, SEEN_GLOSSY, SEEN_TRANSMISSION))
-    glossy_on = has_glossy(sa) and max_depth > 0
+    glossy_on = draws_glossy(sa, max_depth)
     terms = terms and segments is not None
     need_seeds = soft_on or terms or glossy_on
     if need_seeds:
@@ -573,8 +574,8 @@ def trace_pixels(sa: SceneArrays, accel, cp, pixels: np.ndarray, jitter: np.ndar
                        seeds=sample_seeds(gids, seed), light_samples=light_samples,
                        terms=terms, glossy_samples=glossy_samples,
                        skip_keys=tile_keys(pixels, cp.width),
-                       strata=None if spp is None or not has_glossy(sa) else pixel_strata(
-                           gids, cp.width * cp.height, seed, spp))
+                       strata=None if spp is None else frame_strata(
+                           sa, max_depth, gids, cp.width * cp.height, seed, spp))
     return rad, np.ascontiguousarray(hits.inst, np.int32)
 
 

@@ -107,6 +107,18 @@ def _wrap(holder, name: str, label: str, acc: dict) -> None:
     setattr(holder, name, timed)
 
 
+def plan(order: str = "ours-first", only: str | None = None) -> tuple[str, ...]:
+    """Which renderers render, in order: ``("ours", "cycles")``, ``("cycles", "ours")``
+    (``order`` "cycles-first") or the one ``only`` names."""
+    if only is not None:
+        if only not in ("ours", "cycles"):
+            raise ValueError(f"only: 'ours' or 'cycles', not {only!r}")
+        return (only,)
+    if order not in ("ours-first", "cycles-first"):
+        raise ValueError(f"order: 'ours-first' or 'cycles-first', not {order!r}")
+    return ("ours", "cycles") if order == "ours-first" else ("cycles", "ours")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("size", nargs="?", default="1M")
@@ -146,14 +158,11 @@ def main(argv=None) -> int:
         _wrap(holder, name, label, acc)
     out: dict = dict(size=args.size, root=str(root), order=args.order, only=args.only,
                      load=list(os.getloadavg()))
-    run_ours = args.only in (None, "ours")
-    run_cycles = args.only in (None, "cycles")
-    if run_cycles and args.order == "cycles-first":
-        out["cycles"] = _cycles(bsb, sc)
-    if run_ours:
-        out.update(_ours(args, addon, bpy, sc, small, acc))
-    if run_cycles and "cycles" not in out:
-        out["cycles"] = _cycles(bsb, sc)
+    for who in plan(args.order, args.only):
+        if who == "cycles":
+            out["cycles"] = _cycles(bsb, sc)
+        else:
+            out.update(_ours(args, addon, bpy, sc, small, acc))
     addon.unregister()
     _report(bsb, out)
     if args.json:

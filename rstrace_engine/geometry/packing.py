@@ -147,86 +147,6 @@ def _vertex_starts(live: list) -> np.ndarray:
     return starts
 
 
-#: the row fields a packing may take over from the export (:func:`_adopted`): (mesh dict
-#: field, :class:`~.elements.Mesh` attributes whose array it may be, packed dtype, width)
-_ROWS = (("uvs", ("corner_uvs",), np.float32, 2),
-         ("normals", ("corner_normals", "vertex_normals"), np.float32, 3),
-         ("slots", ("slots",), np.int32, 1))
-
-
-def _row_starts(live: list, field: str, first: int | None) -> np.ndarray:
-    """Where each live mesh's ``field`` rows start in the packing: mesh ``first`` (if any)
-    at row 0, the others after it in their order (else all in their order). Rows are read
-    through each mesh's ``bias`` (:func:`~.attributes.bias`), so their order is free."""
-    starts, at = np.zeros(len(live), np.int64), 0
-    if first is not None:
-        at = len(live[first][field])
-    for k, m in enumerate(live):
-        if k != first:
-            starts[k] = at
-            at += len(m[field])
-    return starts
-
-
-def _adoptable(m: dict, field: str, attrs: tuple) -> str | None:
-    """The attribute of ``m``'s source Mesh (an ``owned`` one, the export's) whose array
-    is ``m[field]``, when that array is the whole of its own buffer (so that nothing but
-    its views can hold it: :func:`_adopted` proves there are none), else None."""
-    src = m.get("source")
-    rows = m[field]
-    if src is None or len(rows) == 0:
-        return None
-    root = rows.base if isinstance(rows.base, np.ndarray) else rows
-    if not (root.flags.owndata and root.flags.c_contiguous and root.nbytes == rows.nbytes):
-        return None
-    return next((a for a in attrs if _same_array(rows, getattr(src, a))), None)
-
-
-def _adopted(m: dict, field: str, attr: str, total: int, dtype, width: int):
-    """The packing's ``field`` rows (``total`` of ``width`` ``dtype`` values) made of the
-    source Mesh's own array ``m[field]`` grown in place (``ndarray.resize``: ``realloc``,
-    which moves a large buffer's pages without a copy), its rows first; None (nothing
-    changed) where numpy refuses, i.e. where anything else refers to the buffer. The
-    export wrote those rows into fresh memory once; the packing then writes only the
-    other meshes' rows (at 4M triangles, 92 MB of uvs not written to new pages again).
-    The mesh dict, the Mesh and its kept check are handed views of the grown array (the
-    same bits: the packing's own rows, as :func:`share_rows` would hand them)."""
-    src = m["source"]
-    kept = _kept(src)
-    rows = m[field]
-    in_kept = _same_array(kept.get(field), rows)
-    shape_attr, shape_m = getattr(src, attr).shape, rows.shape
-    shape_kept = kept[field].shape if in_kept else None
-    root = rows.base if isinstance(rows.base, np.ndarray) else rows
-    row_bytes = np.dtype(dtype).itemsize * width
-    if total * row_bytes == rows.nbytes:  # (its rows alone: the array itself, unchanged;
-        # never resized to its own size, which numpy does in place without a check)
-        return root.reshape(-1).view(dtype).reshape(total, width)
-    if (total * row_bytes) % root.itemsize:
-        return None
-    # (only the buffer's owner may hold it while it is resized: the views are dropped
-    # and made again from it afterwards, whether numpy resized it or refused)
-    setattr(src, attr, None)
-    m[field] = None
-    if in_kept:
-        kept[field] = None
-    del rows
-    try:
-        root.resize((total * row_bytes // root.itemsize,), refcheck=True)
-        grown = True
-    except ValueError:  # (something else refers to it: the packing copies instead)
-        root = root.reshape(-1)
-        grown = False
-    flat = root.view(dtype)
-    n_own = int(np.prod(shape_m)) // width
-    own = flat[:n_own * width]
-    setattr(src, attr, own.reshape(shape_attr))
-    m[field] = own.reshape(shape_m)
-    if in_kept:
-        kept[field] = own.reshape(shape_kept)
-    return flat.reshape(total, width) if grown else None
-
-
 def pack_meshes(meshes: list) -> dict:
     """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
     which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
@@ -234,51 +154,35 @@ def pack_meshes(meshes: list) -> dict:
     live = [m for m in meshes if m is not None]
     ids = [k for k, m in enumerate(meshes) if m is not None]
 
-    nt = np.cumsum([0] + [len(m["tris"]) for m in live])
+    def starts(key):
+        return np.cumsum([0] + [len(m[key]) for m in live])
+
+    nt, nn, nu, ns = (starts(k) for k in ("tris", "normals", "uvs", "slots"))
     nv = _vertex_starts(live)
     tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
                               for m in meshes]).astype(np.int32)
-    shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
     packed = dict(
         verts=np.empty((sum(len(m["verts"]) for m in live), 3)),
-        tris=np.empty((nt[-1], 3), np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
+        tris=np.empty((nt[-1], 3), np.int32),
+        normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
+        tri_slot=np.empty(ns[-1], np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
         mesh_uv=np.zeros((len(meshes), 2), np.int64),
         mesh_slot=np.zeros((len(meshes), 2), np.int64))
-    # the rows: the largest owned mesh's own array grown in place where it can be (its
-    # rows first), else a fresh array; the other meshes' rows copied after it
-    row0, taken = {}, {}
-    for field, attrs, dtype, width in _ROWS:
-        total = sum(len(m[field]) for m in live)
-        cand = [(len(m[field]), -k, k, a) for k, m in enumerate(live)
-                if (a := _adoptable(m, field, attrs)) is not None]
-        first, rows = None, None
-        if cand:
-            _, _, first, attr = max(cand)
-            rows = _adopted(live[first], field, attr, total, dtype, width)
-        if rows is None:
-            first = None
-            rows = np.empty((total, width) if width > 1 else (total,), dtype)
-        elif width == 1:
-            rows = rows.reshape(total)
-        packed["tri_slot" if field == "slots" else field] = rows
-        row0[field], taken[field] = _row_starts(live, field, first), first
-    nn, nu, ns = row0["normals"], row0["uvs"], row0["slots"]
+    shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
     for k, m in enumerate(live):
         v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
+        rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
         packed["verts"][v] = m["verts"]
         np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
-        for field, _, _, _ in _ROWS:
-            if taken[field] != k:  # (the adopted rows are in place already)
-                at = row0[field][k]
-                packed["tri_slot" if field == "slots" else field][
-                    at:at + len(m[field])] = m[field]
+        packed["normals"][rn] = m["normals"]
+        packed["uvs"][ru] = m["uvs"]
+        packed["tri_slot"][rs] = m["slots"]
         packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
         packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])
         packed["mesh_slot"][ids[k]] = m["slot"], ns[k] - nt[k]
     for k, m in enumerate(live):  # (after every copy: a mesh may be in the scene twice)
         v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
-        rn = slice(nn[k], nn[k] + len(m["normals"]))
-        ru, rs = slice(nu[k], nu[k] + len(m["uvs"])), slice(ns[k], ns[k] + len(m["slots"]))
+        rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
         m.update(verts=packed["verts"][v], tris=packed["tris"][t], vert0=int(nv[k]),
                  normals=packed["normals"][rn], uvs=packed["uvs"][ru],
                  slots=packed["tri_slot"][rs])

@@ -67,8 +67,7 @@ _BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
          "tracing.glossy_strata._lattices",
          "tracing.shaft_skip._prove_groups", "tracing.shaft_skip._own_kernel",
          "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
-         "tracing.glossy_rays._first_choice", "tracing.sample_rays.query_light_bits",
-         "tracing.sample_rays.query_world",
+         "tracing.sample_rays.query_light_bits", "tracing.sample_rays.query_world",
          "tracing.sample_proofs.drop_lights", "tracing.sample_proofs.drop_world",
          "geometry.mesh_math._proper_kernel", "geometry.mesh_math.flat_triangle_normals",
          "geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_range",
@@ -110,8 +109,7 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
            "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",
            "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
-           "tracing.glossy_rays._first_choice", "tracing.glossy_strata._pixel_seeds",
-           "tracing.glossy_strata._lattices")
+           "tracing.glossy_strata._pixel_seeds", "tracing.glossy_strata._lattices")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

@@ -6,7 +6,8 @@ the spp of each side's median time. One curve for both sides: ``scripts/rough_eq
 times Mitsuba once per process, which moved its ratios by 10-15% between runs.
 
 Reproduce: ``DRJIT_LIBLLVM_PATH=<libLLVM.so >= 16> NUMBA_NUM_THREADS=1 PYTHONPATH=.
-python scripts/rough_switch_ab.py 1:16 4:4 4:2 [--switch FIRST_CHOICE]``.
+python scripts/rough_switch_ab.py 1:16 4:4 4:2 [--switch ROULETTE]`` (session 35 ran it with
+``FIRST_CHOICE``, the switch of commit ``dd71928``, dropped: docs/glossy.md).
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("allocations", nargs="+", help="S:G (pixel samples : glossy samples)")
     ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--switch", default="FIRST_CHOICE", help="a glossy_rays module switch")
+    ap.add_argument("--switch", default="ROULETTE", help="a glossy_rays module switch")
     a = ap.parse_args()
     w, h = 160, 120
     scene = scenes.rough_materials(w, h)

@@ -32,15 +32,9 @@ from .soft_lights import mix64
 GLOSSY_SALT = np.uint64(0xD1B54A32D192ED03)
 #: hashed into a deeper rough bounce's node seed for its rays' Russian roulette
 ROULETTE_SALT = np.uint64(0x8CB92BA72F3D8DD7)
-#: hashed into a first rough bounce's lattice seed for its samples' choice of one ray
-#: (:func:`first_choice`)
-CHOICE_SALT = np.uint64(0xA0761D6478BD642F)
 #: Russian roulette of the deeper rough bounces' weak rays (:func:`roulette`; a module
 #: switch: tests compare frames with and without it)
 ROULETTE = True
-#: a path's first rough bounce: each glossy sample that spawned both a reflected and a
-#: refracted ray follows one (:func:`first_choice`; a module switch, as ``ROULETTE``)
-FIRST_CHOICE = True
 GOLDEN = 0.6180339887498949
 INV_2_53 = 1.0 / 9007199254740992.0
 
@@ -262,64 +256,3 @@ def _roulette(gstart, glossy, fresh, seeds, weight, w, ok, rel):
                 w[k, 2] /= p
             else:
                 ok[k] = False
-
-
-def first_choice(gstart: np.ndarray, glossy: np.ndarray, fresh: np.ndarray, seeds: np.ndarray,
-                 lat: np.ndarray, kids) -> None:
-    """At a path's first rough bounce (points ``glossy`` and ``fresh``; their ray pairs
-    ``gstart[i]:gstart[i + 1]`` of ``kids``, :class:`~.shader.Spawned`) each glossy sample
-    that spawned both a reflected and a refracted ray (a rough interface: glass) follows
-    one of them, chosen with probability in proportion to their weights (largest channel:
-    at a clear interface the microfacet's Fresnel, Mitsuba's choice), the survivor's weight
-    divided by it: unbiased, one ray per sample. The choice is a third coordinate of the
-    sample's lattice point: the radical inverse of its index ``j`` in base 2 (with the
-    directions' ``(j + 1/2) / N`` a Hammersley set), rotated by a hash of the lattice's
-    seed (``lat`` rows as :func:`_glossy_rays` reads them, else the node's seed ``seeds``),
-    so a pixel's samples reflect in a stratified share (of 16 samples at a share of 5%, one
-    or none) and the same seed gives the same rays. (``(j + 1/2) a`` for an irrational
-    ``a`` stratifies worse: with the plastic number's ``a = 0.5698`` three of 16 samples
-    fell within 5%.)
-    Deeper rough bounces keep both rays and :func:`roulette` (choosing one there measured
-    worse, docs/glossy.md "session 35")."""
-    if FIRST_CHOICE and len(glossy):
-        _first_choice(gstart, glossy, fresh, seeds, lat, kids.w, kids.ok)
-
-
-@njit(cache=True, nogil=True)
-def _radical_inverse(j):
-    """``j``'s base-2 radical inverse in [0, 1) (its 32 low bits reversed)."""
-    r = np.uint64(0)
-    for _ in range(32):
-        r = (r << np.uint64(1)) | (j & np.uint64(1))
-        j >>= np.uint64(1)
-    return float(r) * (1.0 / 4294967296.0)
-
-
-@njit(cache=True, nogil=True)
-def _first_choice(gstart, glossy, fresh, seeds, lat, w, ok):
-    for i in range(glossy.shape[0]):
-        if not glossy[i] or not fresh[i]:
-            continue
-        if lat.shape[0] and lat[i, 3] > 0:  # a pixel's lattice (glossy_strata.lattices)
-            h = lat[i, 0]
-            j0, jstep = np.int64(lat[i, 1]), np.int64(lat[i, 2])
-        else:  # the point's own
-            h = mix64(seeds[i] ^ GLOSSY_SALT)
-            j0, jstep = np.int64(0), np.int64(1)
-        r3 = float(mix64(mix64(h) ^ CHOICE_SALT) >> np.uint64(11)) * INV_2_53
-        for s in range(gstart[i + 1] - gstart[i]):
-            k0 = 2 * (gstart[i] + s)
-            if not (ok[k0] and ok[k0 + 1]):
-                continue
-            a = max(w[k0, 0], w[k0, 1], w[k0, 2])
-            b = max(w[k0 + 1, 0], w[k0 + 1, 1], w[k0 + 1, 2])
-            pa = a / (a + b)
-            x = _radical_inverse(np.uint64(j0 + s * jstep)) + r3
-            x -= math.floor(x)
-            keep, drop, p = k0, k0 + 1, pa
-            if not x < pa:
-                keep, drop, p = k0 + 1, k0, 1.0 - pa
-            ok[drop] = False
-            w[keep, 0] /= p
-            w[keep, 1] /= p
-            w[keep, 2] /= p

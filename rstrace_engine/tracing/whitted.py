@@ -39,7 +39,7 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
-from .glossy_rays import first_choice, glossy_counts, has_glossy, roulette
+from .glossy_rays import glossy_counts, has_glossy, roulette
 from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
     Strata,
     _child_tags,  # noqa: F401
@@ -209,8 +209,7 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
                 spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, contrib,
                 out, tv, tp)
-    if plan.gstart is not None:  # one ray per glossy sample; the deeper bounces' weak rays
-        first_choice(plan.gstart, plan.glossy, fresh, gseeds, rows, out)
+    if plan.gstart is not None:  # the deeper rough bounces' weak rays
         roulette(plan.gstart, plan.glossy, fresh, gseeds, weight, out)
     if terms:
         return contrib, out, (tv, tp), plan

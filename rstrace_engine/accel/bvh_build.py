@@ -37,7 +37,6 @@ import numpy as np
 from numba import njit, prange
 
 from ..cancel import Cancelled
-from .bvh_partition import partition_stable
 
 #: Most primitives in a leaf (the leaf code keeps the count in 3 bits).
 MAX_LEAF = 4
@@ -493,9 +492,6 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
     rcb = np.empty(6)
     cmin = np.empty(3)
     cmax = np.empty(3)
-    rows = max(task[3] - task[2], 1) if max_leaf == 1 else 1  # (partition_stable's)
-    sc = np.empty((rows, 6), pb.dtype)
-    sperm = np.empty(rows, perm.dtype)
     sah = 0.0
     nn = 0
     sp = 0
@@ -564,17 +560,13 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
                 sah += _box_area(pb, j) / root_area
             continue
         if best_axis >= 0 and not make_leaf:
-            ext = cmax[best_axis] - cmin[best_axis]
-            if max_leaf == 1:
-                mid = partition_stable(pb, perm, start, end, best_axis, cmin[best_axis], ext,
-                                       nb, best_bin, lcb, rcb, sc, sperm)
-            else:
-                mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis], ext, nb,
-                                 best_bin, lcb, rcb)
+            mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],
+                             cmax[best_axis] - cmin[best_axis], nb, best_bin, lcb, rcb)
             _bins_box(bin_b, best_axis, 0, best_bin + 1, lbox)
             _bins_box(bin_b, best_axis, best_bin + 1, nb, rbox)
         else:
-            # no usable SAH split (coincident centroids, depth cap, a one-leaf root)
+            # no usable SAH split (coincident centroids, depth cap, or a root that is one
+            # leaf)
             for q in range(3):
                 cb[q] = cmin[q]
                 cb[3 + q] = cmax[q]

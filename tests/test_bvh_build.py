@@ -58,6 +58,19 @@ def test_parallel_build_is_the_sequential_tree(tv):
     assert sorted(seq.tri.tolist()) == list(range(len(tv)))
 
 
+
+def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
+    """A tree of one-primitive leaves (a large mesh's item tree, the top level) built as one
+    subtree and with many (a small grain: many top levels) is the same tree (session 35: a
+    partition whose order differed between the phases broke this)."""
+    tv = _tv(shapes.lumpy_sphere(20_000))
+    pb = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1))
+    seq, par = (bvh_mesh.flatten(*bvh_build.build_flat_boxes(pb.copy(), 1, grain=g)[:3],
+                                 np.float32) for g in (len(pb), 64))
+    assert np.array_equal(seq.bounds.view(np.int32), par.bounds.view(np.int32))
+    assert np.array_equal(seq.child, par.child)
+    assert np.array_equal(seq.perm, par.perm)
+
 def test_binary_nodes_are_packed():
     """The binary build's nodes are all reachable from the root (none left unused by the
     subtrees' stretches) and every primitive is in one leaf."""

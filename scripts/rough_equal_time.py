@@ -33,6 +33,12 @@ renders); its mean and standard error are over the 6 seeds' curves, rstrace's ov
 of their own (rstrace's 64 x 64: 256 times the glossy rays of 1 x 16; Mitsuba's 4096 spp: 40
 times a ~100 spp frame's), which slightly raises every ``own`` error; the bias row includes
 both references' noise.
+
+``--ref-noise`` renders a second reference of each (rstrace seed 8, Mitsuba seed 2) and
+prints ``rstrace_ref_seeds`` / ``mitsuba_ref_seeds`` (one reference against the other of the
+same renderer: about sqrt 2 times one reference's noise, as mean relative errors add
+roughly in quadrature) and ``bias_of_means`` (the two references' means against each other:
+half the noise of either reference in the bias row).
 """
 
 from __future__ import annotations
@@ -63,6 +69,8 @@ def main() -> None:
     ap.add_argument("--own-reference", action="store_true",
                     help="each renderer against its own converged reference too (docstring)")
     ap.add_argument("--rstrace-ref", default="64:64", help="S:G of rstrace's own reference")
+    ap.add_argument("--ref-noise", action="store_true",
+                    help="with --own-reference: a second reference of each (docstring)")
     ap.add_argument("--cache", default="/tmp/ownref-cache", help="where the references are kept")
     a = ap.parse_args()
     if a.own_reference:
@@ -169,6 +177,16 @@ def own_reference(a) -> None:
 
     say(dict(glass_pixels=int(glass.sum()), rstrace_ref=a.rstrace_ref, ref_spp=a.ref_spp,
              **{"bias" + m: round(rel(rref, mref, k), 5) for m, k in masks.items()}))
+    if a.ref_noise:
+        rref2 = _cached(f"{a.cache}/rstrace_{tag}_{rs}x{rg}_seed8.npy", lambda: render(
+            scene, replace(rst, seed=8), accel=acc).radiance.astype(np.float64))
+        mref2 = _cached(f"{a.cache}/mitsuba_{tag}_{a.ref_spp}_seed2.npy",
+                        lambda: fr._mitsuba_render(mi, ms, a.ref_spp, seed=2)[0])
+        rm, mm = (rref + rref2) / 2, (mref + mref2) / 2
+        say({k + m: round(v, 5) for m, sk in masks.items() for k, v in (
+            ("rstrace_ref_seeds", rel(rref2, rref, sk)),
+            ("mitsuba_ref_seeds", rel(mref2, mref, sk)),
+            ("bias_of_means", rel(rm, mm, sk)))})
     per = []
     for _ in range(3):
         t0 = time.process_time()

@@ -30,9 +30,10 @@ Mitsuba's error at a CPU time is read from power-law curves ``rel = c spp^k`` fi
 rstrace's median CPU time (Mitsuba's CPU time per sample: the median of three 64 spp
 renders); its mean and standard error are over the 6 seeds' curves, rstrace's over its
 ``--seeds`` frames, a ratio's by first-order propagation of both. Both references carry noise
-of their own (rstrace's 64 x 64: 256 times the glossy rays of 1 x 16; Mitsuba's 4096 spp: 40
-times a ~100 spp frame's), which slightly raises every ``own`` error; the bias row includes
-both references' noise.
+of their own (rstrace's 64 x 64: 256 times the glossy rays of 1 x 16; Mitsuba's 4096 spp:
+70-120 times its equal-time frames' 35-60 spp), which slightly raises every ``own`` error
+(session 35: under 2%) and is part of the ``bias`` row (there about a fifth: docs/glossy.md,
+"session 35 (ownref)").
 
 ``--ref-noise`` renders a second reference of each (rstrace seed 8, Mitsuba seed 2) and
 prints ``rstrace_ref_seeds`` / ``mitsuba_ref_seeds`` (one reference against the other of the

@@ -41,3 +41,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
 kernel_cache.install()
+
+from . import numba_overloads_cached  # noqa: E402
+
+numba_overloads_cached.install()  # numba's np.empty & co cached on disk as our kernels are

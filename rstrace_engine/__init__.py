@@ -7,6 +7,8 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    the kernels poll): shared leaves;
    ``kernel_cache`` (numba's disk cache made safe to share between processes, counted),
    ``shipped_kernels`` (the portable build that ships in the extension, seeding the cache),
+   ``numba_inline`` (numba's inliner without its per-block copies), ``numba_overloads_cached``
+   (numba's own ``np.empty`` & co cached on disk too),
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
    (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
    over serial ``nogil`` kernels).
@@ -41,3 +43,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
 kernel_cache.install()
+
+from . import numba_overloads_cached  # noqa: E402
+
+numba_overloads_cached.install()  # numba's np.empty & co cached on disk as our kernels are

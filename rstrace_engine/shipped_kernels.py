@@ -158,8 +158,10 @@ def seed(shipped: str, cache_dir: str, package: str = "rstrace_engine") -> dict:
     base = _base_folder(package, top.__file__) if top is not None else None
     out = Counter(copied=0, kernels=0, current=0, stale=0, bad=0)
     for folder, _, files in os.walk(shipped):
+        rel = os.path.relpath(folder, shipped)
+        if rel.split(os.sep)[0] != package.split(".")[0]:
+            continue  # not ours: numba's own overloads (numba_overloads_cached) are not shipped
         for index_name in sorted(f for f in files if f.endswith(".nbi")):
-            rel = os.path.relpath(folder, shipped)
             src = _read_index(os.path.join(folder, index_name))
             if src is None:
                 out["bad"] += 1

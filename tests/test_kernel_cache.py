@@ -467,6 +467,19 @@ def test_shipped_portable_cache_seeds_a_fresh_one(tmp_path):
     assert _run_pkg(installed, cache)["compiled"] == 0
 
 
+def test_numbas_own_overloads_in_the_build_cache_are_not_shipped(tmp_path):
+    """numba's overloads cached beside our kernels (numba_overloads_cached: a folder per
+    numba package, stamped with numba's file) are left out of the seed, neither copied nor
+    counted stale or bad (on main they counted: a folder outside the package)."""
+    shipped = _shipped(tmp_path)
+    theirs = shipped / "np_0123abcd"
+    theirs.mkdir()
+    (theirs / "arrayobj.ol_np_empty.locals.impl-4470.py311.nbi").write_bytes(b"not ours")
+    counts = _seed(_package(tmp_path / "installed"), shipped, tmp_path / "cache")
+    assert (counts["copied"], counts["stale"], counts["bad"]) == (2, 0, 0)
+    assert not (tmp_path / "cache" / "np_0123abcd").exists()
+
+
 def test_shipped_cache_of_other_sources_or_numba_is_not_used(tmp_path):
     import pickle
 

@@ -1,0 +1,164 @@
+"""numba's own ``@overload`` implementations (``np.empty``, ``np.zeros``, ``arr.copy`` ...)
+cached on disk like our kernels, so that each process does not compile them again.
+
+Why: when one of our kernels is compiled, every numba function it calls that numba
+implements with ``@overload`` (``np.empty(n, np.float64)``, ``np.argsort``, ``arr.sum()``
+...) is compiled too, as a dispatcher of its own (typing, lowering, LLVM module passes and
+machine code), then linked into the kernel. numba makes those dispatchers without
+``cache=True``, so every process compiles its own: 21-31 s of CPU per cold ``make demo``
+over its three compiling processes (docs/first-render.md, sessions 33-35).
+
+What: :func:`install` (called by ``rstrace_engine/__init__.py`` after
+``kernel_cache.install()``) wraps the jit decorator numba's overload templates build their
+implementation with (``_OverloadFunctionTemplate._get_jit_decorator``, used by
+``_build_impl`` only): an implementation defined in a ``numba`` module gets a disk cache,
+numba's own ``FunctionCache`` (numba's own locators: ``NUMBA_CACHE_DIR``, or beside numba,
+or the user-wide folder; stamped with numba's source file; the index key hashes the
+implementation's bytecode and its closure's values, which is how one overload's
+specialisations keep apart), with two changes:
+
+* the index key also holds the compile flags the implementation *inherits* from the
+  kernel that calls it (``nrt``, ``fastmath``, ``error_model``, ``forceinline``: what
+  ``CPUTargetOptions.finalize`` inherits from numba's ``ConfigStack``). numba's disk cache
+  does not key on them: without this, a ``np.empty`` compiled inside an
+  ``error_model="numpy"`` kernel would be loaded into a ``"python"`` one;
+* the cache file is :class:`kernel_cache._LockedCacheFile` (the index written under a lock,
+  compile claims), as for our kernels: three processes compile at once in ``make demo``.
+
+A key that cannot be computed (a closure value that does not pickle) or a cache folder
+that cannot be made leaves that implementation compiled in memory as numba does. The
+compiled code is numba's: a cached implementation's library is its object code and bitcode,
+which the calling kernel links as it links one compiled in the process (our own callees
+are loaded the same way), so no kernel's code changes (``tests/test_numba_overloads_cached``
+compares the LLVM IR of a kernel compiled with a loaded and with a fresh ``np.empty``).
+
+``RSTRACE_NUMBA_OVERLOAD_CACHE=0`` in the environment leaves numba alone (to compare).
+numba internals relied on (0.59-0.68): ``_OverloadFunctionTemplate._get_jit_decorator``
+(returns the jit decorator ``_build_impl`` calls with ``**self._jit_options``),
+``_overload_func``, ``targetconfig.ConfigStack``, ``caching.FunctionCache`` (``_index_key``,
+``load_overload``, ``save_overload``, ``_cache_file``) and a dispatcher's ``_cache``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+
+from numba.core import caching, targetconfig
+from numba.core.typing import templates
+
+log = logging.getLogger(__name__)
+
+#: the flags ``CPUTargetOptions.finalize`` inherits from the calling kernel's compile
+INHERITED = ("nrt", "fastmath", "error_model", "forceinline")
+
+_STATE = {"installed": False, "original": None, "failed": 0}
+
+
+def _flag_value(value):
+    flags = getattr(value, "flags", None)  # FastMathOptions: a set (order varies by process)
+    if isinstance(flags, (set, frozenset)):
+        return tuple(sorted(str(f) for f in flags))
+    return repr(value)
+
+
+def inherited_flags() -> tuple | None:
+    """The flags a dispatcher compiled now would inherit (None: compiled on its own)."""
+    stack = targetconfig.ConfigStack()
+    if not stack:
+        return None
+    top = stack.top()
+    return tuple((name, _flag_value(getattr(top, name))) for name in INHERITED)
+
+
+class FlagKeyedCache(caching.FunctionCache):
+    """numba's function cache, its index key extended with the inherited flags."""
+
+    def __init__(self, py_func, flags):
+        self._inherited = flags
+        super().__init__(py_func)
+
+    def _index_key(self, sig, codegen):
+        return super()._index_key(sig, codegen) + (self._inherited,)
+
+    def load_overload(self, sig, target_context):
+        try:
+            return super().load_overload(sig, target_context)
+        except Exception as exc:  # noqa: BLE001  (an unkeyable closure: compile it)
+            _failed(exc)
+            return None
+
+    def save_overload(self, sig, data):
+        try:
+            super().save_overload(sig, data)
+        except Exception as exc:  # noqa: BLE001
+            _failed(exc)
+
+
+def _failed(exc: Exception) -> None:
+    _STATE["failed"] += 1
+    if _STATE["failed"] == 1:
+        log.info("a numba overload is not cached on disk (compiled in memory): %s", exc)
+
+
+def _numbas(pyfunc) -> bool:
+    module = getattr(pyfunc, "__module__", "") or ""
+    return module == "numba" or module.startswith("numba.")
+
+
+def cache(dispatcher) -> bool:
+    """Give one numba-implementation dispatcher the flag-keyed, locked disk cache."""
+    from . import kernel_cache
+
+    try:
+        dispatcher._cache = FlagKeyedCache(dispatcher.py_func, inherited_flags())
+    except Exception as exc:  # noqa: BLE001  (no locator can write: numba's NullCache stays)
+        _failed(exc)
+        return False
+    kernel_cache.protect(dispatcher)
+    return True
+
+
+def _cached_jitter(jitter):
+    @functools.wraps(jitter)
+    def decorator_maker(*args, **options):
+        decorate = jitter(*args, **options)
+        if options.get("cache"):
+            return decorate
+
+        def decorate_and_cache(pyfunc):
+            disp = decorate(pyfunc)
+            if _numbas(pyfunc) and hasattr(disp, "_cache"):
+                cache(disp)
+            return disp
+
+        return decorate_and_cache
+
+    return decorator_maker
+
+
+def _get_jit_decorator(self):
+    return _cached_jitter(_STATE["original"](self))
+
+
+def installed() -> bool:
+    return _STATE["installed"]
+
+
+def install() -> bool:
+    """Cache numba's overload implementations on disk (module doc); idempotent. False where
+    ``RSTRACE_NUMBA_OVERLOAD_CACHE=0`` or numba lacks the hook."""
+    if _STATE["installed"]:
+        return True
+    if os.environ.get("RSTRACE_NUMBA_OVERLOAD_CACHE", "1") == "0":
+        return False
+    cls = templates._OverloadFunctionTemplate
+    original = getattr(cls, "_get_jit_decorator", None)
+    if original is None or not hasattr(caching.FunctionCache, "_index_key"):
+        log.info("numba's overload templates have no _get_jit_decorator: not cached")
+        return False
+    _STATE["original"] = original
+    cls._get_jit_decorator = _get_jit_decorator
+    _STATE["installed"] = True
+    return True

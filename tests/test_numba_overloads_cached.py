@@ -1,0 +1,103 @@
+"""numba's own overload implementations cached on disk (rstrace_engine/numba_overloads_cached):
+a second process loads them instead of compiling them, the kernel's code is the same as with
+numba's in-memory ones, and an implementation compiled under other inherited flags is not
+loaded in their place."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import rstrace_engine  # noqa: F401  (installs it)
+from rstrace_engine import numba_overloads_cached
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# a kernel (not cached itself: compiled in every process) calling numba's overloads
+SCRIPT = '''
+import json, re, sys
+import numpy as np
+from numba import njit
+from numba.core import event
+import rstrace_engine
+from rstrace_engine import numba_overloads_cached
+
+compiled = []
+
+
+class Listener(event.Listener):
+    def on_start(self, ev):
+        f = ev.data["dispatcher"].py_func
+        compiled.append(f.__module__ + "." + f.__qualname__)
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compile", Listener())
+
+
+@njit(error_model=sys.argv[1])
+def kernel(n):
+    a = np.empty(n, np.float64)
+    for i in range(n):
+        a[i] = (i * 7919) % 13 + 0.5 / (i + 1)
+    b = np.zeros((n, 3), np.int32)
+    order = np.argsort(a)
+    c = a.copy()
+    return c[order[0]] + a.sum() + b.sum()
+
+
+value = kernel(17)
+print(json.dumps({"installed": numba_overloads_cached.installed(), "value": value,
+                  "numba": sorted(c for c in compiled if c.startswith("numba.")),
+                  "llvm": kernel.inspect_llvm(kernel.signatures[0])}))
+'''
+
+
+def _run(cache_dir, error_model="python", on="1") -> dict:
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir), RSTRACE_NUMBA_OVERLOAD_CACHE=on,
+               PYTHONHASHSEED="0", PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+    out = subprocess.run([sys.executable, "-c", SCRIPT, error_model], env=env,
+                         capture_output=True, text=True, check=True, timeout=600).stdout
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["installed"] == (on == "1")
+    # (names that hold a memory address differ between any two processes, and so do the
+    # numbers numba gives each function it compiles, in the order it meets them: ``B3v14``)
+    result["llvm"] = re.sub(r"B\d+v\d+", "Bv", re.sub(r"0x[0-9a-f]+", "", result["llvm"]))
+    return result
+
+
+def test_installed_on_this_numba():
+    assert numba_overloads_cached.installed()
+
+
+def test_a_second_process_loads_numbas_overloads_and_links_the_same_code(tmp_path):
+    fresh = _run(tmp_path / "off", on="0")  # numba as it is: compiled in memory
+    first = _run(tmp_path / "on")
+    second = _run(tmp_path / "on")
+    assert fresh["numba"] and first["numba"], "the kernel compiles numba's overloads"
+    assert second["numba"] == [], second["numba"]  # all loaded from the disk cache
+    assert fresh["value"] == first["value"] == second["value"]
+    assert second["llvm"] == first["llvm"] == fresh["llvm"]
+
+
+def test_an_overload_compiled_under_other_inherited_flags_is_not_loaded(tmp_path):
+    """numba's disk cache keys a function on its types and code, not on the flags it
+    inherits from its caller: the same ``np.empty`` compiled in an ``error_model="numpy"``
+    kernel must not be loaded into a ``"python"`` one."""
+    numpy_model = _run(tmp_path, error_model="numpy")
+    python_model = _run(tmp_path, error_model="python")
+    again = _run(tmp_path, error_model="numpy")
+    assert numpy_model["numba"]
+    assert python_model["numba"], "loaded what was compiled under error_model='numpy'"
+    assert again["numba"] == []
+
+
+def test_the_inherited_flags_are_in_the_key():
+    assert numba_overloads_cached.inherited_flags() is None  # outside any compile
+    assert set(numba_overloads_cached.INHERITED) >= {"nrt", "error_model", "fastmath"}

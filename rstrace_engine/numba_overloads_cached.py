@@ -25,7 +25,9 @@ specialisations keep apart), with two changes:
 * the cache file is :class:`kernel_cache._LockedCacheFile` (the index written under a lock,
   compile claims), as for our kernels: three processes compile at once in ``make demo``.
 
-A key that cannot be computed (a closure value that does not pickle) or a cache folder
+A key that cannot be computed (a closure value that does not pickle), one that holds an
+object pickled under a per-process uuid (a jitted ``key=`` function, an ``@intrinsic``: it
+would never load again, and every process would add entries), or a cache folder
 that cannot be made leaves that implementation compiled in memory as numba does. The
 compiled code is numba's: a cached implementation's library is its object code and bitcode,
 which the calling kernel links as it links one compiled in the process (our own callees
@@ -42,10 +44,11 @@ numba internals relied on (0.59-0.68): ``_OverloadFunctionTemplate._get_jit_deco
 from __future__ import annotations
 
 import functools
+import io
 import logging
 import os
 
-from numba.core import caching, targetconfig
+from numba.core import caching, serialize, targetconfig
 from numba.core.typing import templates
 
 log = logging.getLogger(__name__)
@@ -72,6 +75,31 @@ def inherited_flags() -> tuple | None:
     return tuple((name, _flag_value(getattr(top, name))) for name in INHERITED)
 
 
+class PerProcessKey(Exception):
+    """An index key that holds an object named by a per-process uuid."""
+
+
+class _Probe(serialize.NumbaPickler):
+    """numba's pickler that refuses what pickles under a uuid drawn in this process: a
+    dispatcher (a jitted function passed as an argument: ``list.sort(key=f)``,
+    ``sorted(a, key=f)``) or an ``@intrinsic``. A key holding one differs in every
+    process: it is never loaded again, and each process would add an entry and a data
+    file to the index (which every later load unpickles, rebuilding those dispatchers)."""
+
+    def reducer_override(self, obj):
+        if isinstance(getattr(type(obj), "_uuid", None), property):
+            raise PerProcessKey(type(obj).__name__)
+        return super().reducer_override(obj)
+
+
+def _per_process(obj) -> bool:
+    try:
+        _Probe(io.BytesIO()).dump(obj)
+    except PerProcessKey:
+        return True
+    return False
+
+
 class FlagKeyedCache(caching.FunctionCache):
     """numba's function cache, its index key extended with the inherited flags."""
 
@@ -80,6 +108,9 @@ class FlagKeyedCache(caching.FunctionCache):
         super().__init__(py_func)
 
     def _index_key(self, sig, codegen):
+        closure = self._py_func.__closure__ or ()
+        if _per_process((sig, tuple(c.cell_contents for c in closure))):
+            raise PerProcessKey(f"{self._py_func.__qualname__}{sig}")  # compiled in memory
         return super()._index_key(sig, codegen) + (self._inherited,)
 
     def load_overload(self, sig, target_context):

@@ -101,3 +101,54 @@ def test_an_overload_compiled_under_other_inherited_flags_is_not_loaded(tmp_path
 def test_the_inherited_flags_are_in_the_key():
     assert numba_overloads_cached.inherited_flags() is None  # outside any compile
     assert set(numba_overloads_cached.INHERITED) >= {"nrt", "error_model", "fastmath"}
+
+
+# numba's list.sort / sorted with a jitted key: the key's dispatcher is in the overloads'
+# signatures, and it pickles under a uuid drawn in each process
+KEYED = '''
+import numpy as np
+from numba import njit
+import rstrace_engine
+
+
+@njit
+def key(x):
+    return -x
+
+
+@njit
+def kernel(n):
+    values = [float(i) for i in range(n)]
+    values.sort(key=key)
+    return sorted(values, key=key)[0]
+
+
+print(kernel(5))
+'''
+
+
+def test_an_overload_keyed_on_a_per_process_uuid_does_not_grow_the_cache(tmp_path):
+    """An implementation whose key holds a jitted function (a uuid drawn per process) is
+    compiled in memory: on s35-int every process added three index entries and data files
+    that no later process can load (15, 18, 21 ... files: the cache grew without end)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+    counts = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", KEYED], env=env, capture_output=True,
+                             text=True, check=True, timeout=600).stdout
+        assert out.split()[-1] == "4.0"
+        counts.append(len(list(tmp_path.rglob("*.nbc"))))
+    assert counts[0] > 0  # the key-less implementations are still cached
+    assert counts[1] == counts[0]
+
+
+def test_a_per_process_object_in_a_key_is_found():
+    from numba import njit
+
+    @njit
+    def f(x):
+        return x
+
+    assert numba_overloads_cached._per_process((1, (f,)))
+    assert not numba_overloads_cached._per_process((1.0, ("float64", None)))

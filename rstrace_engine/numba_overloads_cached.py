@@ -22,6 +22,8 @@ specialisations keep apart), with two changes:
   ``CPUTargetOptions.finalize`` inherits from numba's ``ConfigStack``). numba's disk cache
   does not key on them: without this, a ``np.empty`` compiled inside an
   ``error_model="numpy"`` kernel would be loaded into a ``"python"`` one;
+* the index key also holds numpy's version: implementations branch on it in their bodies
+  (``bool(empty array)`` raises from numpy 2.2), and numba stamps only its own;
 * the cache file is :class:`kernel_cache._LockedCacheFile` (the index written under a lock,
   compile claims), as for our kernels: three processes compile at once in ``make demo``.
 
@@ -48,6 +50,7 @@ import io
 import logging
 import os
 
+import numpy
 from numba.core import caching, serialize, targetconfig
 from numba.core.typing import templates
 
@@ -111,7 +114,9 @@ class FlagKeyedCache(caching.FunctionCache):
         closure = self._py_func.__closure__ or ()
         if _per_process((sig, tuple(c.cell_contents for c in closure))):
             raise PerProcessKey(f"{self._py_func.__qualname__}{sig}")  # compiled in memory
-        return super()._index_key(sig, codegen) + (self._inherited,)
+        # numpy's version: numba's implementations read it (``numpy_version`` in
+        # ``bool(array)``, ``np.geomspace`` ...); the index is stamped with numba's only
+        return super()._index_key(sig, codegen) + (self._inherited, numpy.__version__)
 
     def load_overload(self, sig, target_context):
         try:

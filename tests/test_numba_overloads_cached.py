@@ -152,3 +152,46 @@ def test_a_per_process_object_in_a_key_is_found():
 
     assert numba_overloads_cached._per_process((1, (f,)))
     assert not numba_overloads_cached._per_process((1.0, ("float64", None)))
+
+
+# ``bool(array)``'s implementation reads numba's ``numpy_version`` in its body: an empty
+# array is False before numpy 2.2 and raises from 2.2 on
+NUMPY = '''
+import sys
+import numpy as np
+if sys.argv[1] == "other":  # this process plays another numpy (2.2), same numba
+    import numba.np.arrayobj as arrayobj
+    arrayobj.numpy_version = (2, 2)
+    np.__version__ = "2.2.0"
+import rstrace_engine
+from numba import njit
+
+
+@njit
+def truth(a):
+    return bool(a)
+
+
+try:
+    print(truth(np.empty(0)))
+except ValueError:
+    print("raises")
+'''
+
+
+def test_an_overload_compiled_under_another_numpy_is_not_loaded(tmp_path):
+    """On s35-int the index key had numba's version but not numpy's: the implementation
+    compiled under numpy 2.2 (raises) was loaded under this numpy."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+
+    def run(which):
+        return subprocess.run([sys.executable, "-c", NUMPY, which], env=env,
+                              capture_output=True, text=True, check=True,
+                              timeout=600).stdout.split()[-1]
+
+    here = run("this")  # what this numpy compiles, before any other numpy's cache
+    for other in tmp_path.rglob("*.nb[ic]"):
+        other.unlink()
+    assert run("other") == "raises"
+    assert run("this") == here

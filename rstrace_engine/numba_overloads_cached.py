@@ -36,6 +36,13 @@ which the calling kernel links as it links one compiled in the process (our own 
 are loaded the same way), so no kernel's code changes (``tests/test_numba_overloads_cached``
 compares the LLVM IR of a kernel compiled with a loaded and with a fresh ``np.empty``).
 
+Only implementations made while this thread compiles one of our kernels are cached
+(:class:`_OursListener`): another add-on's numba code in Blender's process keeps numba's own
+behaviour, and nothing of it is written to the cache folder the add-on sets for the process.
+Where ``NUMBA_CACHE_DIR`` is unset (a checkout's CLI or ``make demo`` without it) numba's
+locators put these files beside numba's own sources if that folder is writable (a virtual
+environment's), else in the user-wide folder.
+
 ``RSTRACE_NUMBA_OVERLOAD_CACHE=0`` in the environment leaves numba alone (to compare).
 numba internals relied on (0.59-0.68): ``_OverloadFunctionTemplate._get_jit_decorator``
 (returns the jit decorator ``_build_impl`` calls with ``**self._jit_options``),
@@ -49,9 +56,10 @@ import functools
 import io
 import logging
 import os
+import threading
 
 import numpy
-from numba.core import caching, serialize, targetconfig
+from numba.core import caching, event, serialize, targetconfig
 from numba.core.typing import templates
 
 log = logging.getLogger(__name__)
@@ -156,6 +164,37 @@ def cache(dispatcher) -> bool:
     return True
 
 
+#: this thread's compiles of our kernels in progress (:class:`_OursListener`)
+_DEPTH = threading.local()
+
+
+class _OursListener(event.Listener):
+    """Counts this thread's compiles of our own kernels in progress
+    (``kernel_cache._ours``: ``rstrace_engine`` and the prefixes opted in): only numba's
+    implementations made while one of ours compiles are cached, so that another add-on's
+    numba code in Blender's process keeps numba's behaviour (compiled in memory)."""
+
+    def on_start(self, ev):
+        if _ours_event(ev):
+            _DEPTH.n = getattr(_DEPTH, "n", 0) + 1
+
+    def on_end(self, ev):
+        if _ours_event(ev):
+            _DEPTH.n = max(0, getattr(_DEPTH, "n", 0) - 1)
+
+
+def _ours_event(ev) -> bool:
+    from . import kernel_cache
+
+    dispatcher = (ev.data or {}).get("dispatcher")
+    return dispatcher is not None and kernel_cache._ours(dispatcher)
+
+
+def compiling_ours() -> bool:
+    """Whether this thread is compiling one of our kernels now."""
+    return getattr(_DEPTH, "n", 0) > 0
+
+
 def _cached_jitter(jitter):
     @functools.wraps(jitter)
     def decorator_maker(*args, **options):
@@ -165,7 +204,7 @@ def _cached_jitter(jitter):
 
         def decorate_and_cache(pyfunc):
             disp = decorate(pyfunc)
-            if _numbas(pyfunc) and hasattr(disp, "_cache"):
+            if _numbas(pyfunc) and hasattr(disp, "_cache") and compiling_ours():
                 cache(disp)
             return disp
 
@@ -195,6 +234,7 @@ def install() -> bool:
         log.info("numba's overload templates have no _get_jit_decorator: not cached")
         return False
     _STATE["original"] = original
+    event.register("numba:compile", _OursListener())
     cls._get_jit_decorator = _get_jit_decorator
     _STATE["installed"] = True
     return True

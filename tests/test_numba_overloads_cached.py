@@ -24,6 +24,8 @@ import numpy as np
 from numba import njit
 from numba.core import event
 import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
 from rstrace_engine import numba_overloads_cached
 
 compiled = []
@@ -109,6 +111,8 @@ KEYED = '''
 import numpy as np
 from numba import njit
 import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
 
 
 @njit
@@ -164,6 +168,8 @@ if sys.argv[1] == "other":  # this process plays another numpy (2.2), same numba
     arrayobj.numpy_version = (2, 2)
     np.__version__ = "2.2.0"
 import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
 from numba import njit
 
 
@@ -195,3 +201,33 @@ def test_an_overload_compiled_under_another_numpy_is_not_loaded(tmp_path):
         other.unlink()
     assert run("other") == "raises"
     assert run("this") == here
+
+
+# another add-on's numba code in Blender's process: not ours (no prefix opted in)
+OTHERS = '''
+import numpy as np
+from numba import njit
+import rstrace_engine
+
+
+@njit
+def kernel(n):
+    a = np.empty(n, np.float64)
+    a[:] = 2.0
+    return np.argsort(a)[0] + a.copy().sum()
+
+
+print(kernel(9))
+'''
+
+
+def test_numbas_implementations_are_cached_only_for_our_kernels(tmp_path):
+    """A kernel outside rstrace (another add-on's, in Blender's process) keeps numba's
+    behaviour: its np.empty & co are compiled in memory, nothing is written to the cache
+    (the cache dir is the process's: the add-on sets it for every add-on)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+    out = subprocess.run([sys.executable, "-c", OTHERS], env=env, capture_output=True,
+                         text=True, check=True, timeout=600).stdout
+    assert out.split()[-1] == "18.0"
+    assert not list(tmp_path.rglob("*.nb[ic]"))

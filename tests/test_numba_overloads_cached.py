@@ -24,6 +24,8 @@ import numpy as np
 from numba import njit
 from numba.core import event
 import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
 from rstrace_engine import numba_overloads_cached
 
 compiled = []
@@ -101,3 +103,131 @@ def test_an_overload_compiled_under_other_inherited_flags_is_not_loaded(tmp_path
 def test_the_inherited_flags_are_in_the_key():
     assert numba_overloads_cached.inherited_flags() is None  # outside any compile
     assert set(numba_overloads_cached.INHERITED) >= {"nrt", "error_model", "fastmath"}
+
+
+# numba's list.sort / sorted with a jitted key: the key's dispatcher is in the overloads'
+# signatures, and it pickles under a uuid drawn in each process
+KEYED = '''
+import numpy as np
+from numba import njit
+import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
+
+
+@njit
+def key(x):
+    return -x
+
+
+@njit
+def kernel(n):
+    values = [float(i) for i in range(n)]
+    values.sort(key=key)
+    return sorted(values, key=key)[0]
+
+
+print(kernel(5))
+'''
+
+
+def test_an_overload_keyed_on_a_per_process_uuid_does_not_grow_the_cache(tmp_path):
+    """An implementation whose key holds a jitted function (a uuid drawn per process) is
+    compiled in memory: on s35-int every process added three index entries and data files
+    that no later process can load (15, 18, 21 ... files: the cache grew without end)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+    counts = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", KEYED], env=env, capture_output=True,
+                             text=True, check=True, timeout=600).stdout
+        assert out.split()[-1] == "4.0"
+        counts.append(len(list(tmp_path.rglob("*.nbc"))))
+    assert counts[0] > 0  # the key-less implementations are still cached
+    assert counts[1] == counts[0]
+
+
+def test_a_per_process_object_in_a_key_is_found():
+    from numba import njit
+
+    @njit
+    def f(x):
+        return x
+
+    assert numba_overloads_cached._per_process((1, (f,)))
+    assert not numba_overloads_cached._per_process((1.0, ("float64", None)))
+
+
+# ``bool(array)``'s implementation reads numba's ``numpy_version`` in its body: an empty
+# array is False before numpy 2.2 and raises from 2.2 on
+NUMPY = '''
+import sys
+import numpy as np
+if sys.argv[1] == "other":  # this process plays another numpy (2.2), same numba
+    import numba.np.arrayobj as arrayobj
+    arrayobj.numpy_version = (2, 2)
+    np.__version__ = "2.2.0"
+import rstrace_engine
+from rstrace_engine import kernel_cache
+kernel_cache.install(prefix='__main__')  # this script's kernels are ours
+from numba import njit
+
+
+@njit
+def truth(a):
+    return bool(a)
+
+
+try:
+    print(truth(np.empty(0)))
+except ValueError:
+    print("raises")
+'''
+
+
+def test_an_overload_compiled_under_another_numpy_is_not_loaded(tmp_path):
+    """On s35-int the index key had numba's version but not numpy's: the implementation
+    compiled under numpy 2.2 (raises) was loaded under this numpy."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+
+    def run(which):
+        return subprocess.run([sys.executable, "-c", NUMPY, which], env=env,
+                              capture_output=True, text=True, check=True,
+                              timeout=600).stdout.split()[-1]
+
+    here = run("this")  # what this numpy compiles, before any other numpy's cache
+    for other in tmp_path.rglob("*.nb[ic]"):
+        other.unlink()
+    assert run("other") == "raises"
+    assert run("this") == here
+
+
+# another add-on's numba code in Blender's process: not ours (no prefix opted in)
+OTHERS = '''
+import numpy as np
+from numba import njit
+import rstrace_engine
+
+
+@njit
+def kernel(n):
+    a = np.empty(n, np.float64)
+    a[:] = 2.0
+    return np.argsort(a)[0] + a.copy().sum()
+
+
+print(kernel(9))
+'''
+
+
+def test_numbas_implementations_are_cached_only_for_our_kernels(tmp_path):
+    """A kernel outside rstrace (another add-on's, in Blender's process) keeps numba's
+    behaviour: its np.empty & co are compiled in memory, nothing is written to the cache
+    (the cache dir is the process's: the add-on sets it for every add-on)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RSTRACE_NUMBA_OVERLOAD_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT)] + sys.path))
+    out = subprocess.run([sys.executable, "-c", OTHERS], env=env, capture_output=True,
+                         text=True, check=True, timeout=600).stdout
+    assert out.split()[-1] == "18.0"
+    assert not list(tmp_path.rglob("*.nb[ic]"))

@@ -58,7 +58,6 @@ def test_parallel_build_is_the_sequential_tree(tv):
     assert sorted(seq.tri.tolist()) == list(range(len(tv)))
 
 
-
 def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
     """A tree of one-primitive leaves (a large mesh's item tree, the top level) built as one
     subtree and with many (a small grain: many top levels) is the same tree (session 35: a
@@ -70,6 +69,7 @@ def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
     assert np.array_equal(seq.bounds.view(np.int32), par.bounds.view(np.int32))
     assert np.array_equal(seq.child, par.child)
     assert np.array_equal(seq.perm, par.perm)
+
 
 def test_binary_nodes_are_packed():
     """The binary build's nodes are all reachable from the root (none left unused by the

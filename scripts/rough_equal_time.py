@@ -78,11 +78,7 @@ def main() -> None:
         return own_reference(a)
     scene = scenes.rough_materials(a.width, a.height)
     acc = create_accelerator("BVH", scene.arrays())
-    mi, why = fr.mitsuba_llvm()
-    if mi is None:
-        raise SystemExit(why)
-    ms = mi.load_dict(fr.rough_scene_dict(scene, mi, a.width, a.height, 5, 1))
-    fr._mitsuba_render(mi, ms, 4, seed=3)  # compiles
+    mi, ms = fr.mitsuba_rough(scene, a.width, a.height)
     ref, _ = fr._mitsuba_render(mi, ms, a.ref_spp, seed=1)
     lr = fr._luminance(ref)
 
@@ -158,11 +154,7 @@ def own_reference(a) -> None:
     say(dict(load=os.getloadavg()))
     scene = scenes.rough_materials(a.width, a.height)
     acc = create_accelerator("BVH", scene.arrays())
-    mi, why = fr.mitsuba_llvm()
-    if mi is None:
-        raise SystemExit(why)
-    ms = mi.load_dict(fr.rough_scene_dict(scene, mi, a.width, a.height, 5, 1))
-    fr._mitsuba_render(mi, ms, 4, seed=3)  # compiles
+    mi, ms = fr.mitsuba_rough(scene, a.width, a.height)
     tag = f"{a.width}x{a.height}"
     mref = _cached(f"{a.cache}/mitsuba_{tag}_{a.ref_spp}.npy",
                    lambda: fr._mitsuba_render(mi, ms, a.ref_spp, seed=1)[0])
@@ -188,12 +180,7 @@ def own_reference(a) -> None:
             ("rstrace_ref_seeds", rel(rref2, rref, sk)),
             ("mitsuba_ref_seeds", rel(mref2, mref, sk)),
             ("bias_of_means", rel(rm, mm, sk)))})
-    per = []
-    for _ in range(3):
-        t0 = time.process_time()
-        fr._mitsuba_render(mi, ms, 64, seed=99)
-        per.append((time.process_time() - t0) / 64)
-    per_spp = float(np.median(per))
+    per_spp = fr.mitsuba_cpu_per_spp(mi, ms)
     spps = (12, 16, 24, 32, 48, 64, 96)
     errs = {m: np.zeros((6, len(spps))) for m in masks}
     for i, spp in enumerate(spps):

@@ -39,11 +39,7 @@ def main() -> None:
     w, h = 160, 120
     scene = scenes.rough_materials(w, h)
     acc = create_accelerator("BVH", scene.arrays())
-    mi, why = fr.mitsuba_llvm()
-    if mi is None:
-        raise SystemExit(why)
-    ms = mi.load_dict(fr.rough_scene_dict(scene, mi, w, h, 5, 1))
-    fr._mitsuba_render(mi, ms, 4, seed=3)  # compiles
+    mi, ms = fr.mitsuba_rough(scene, w, h)
     os.makedirs(os.path.dirname(REF), exist_ok=True)
     if os.path.exists(REF):
         ref = np.load(REF)
@@ -55,12 +51,7 @@ def main() -> None:
     def rel(img):
         return float(np.mean(np.abs(fr._luminance(img) - lr) / (lr + fr.REL_EPS)))
 
-    per = []
-    for _ in range(3):
-        t0 = time.process_time()
-        fr._mitsuba_render(mi, ms, 64, seed=99)
-        per.append((time.process_time() - t0) / 64)
-    per_spp = float(np.median(per))
+    per_spp = fr.mitsuba_cpu_per_spp(mi, ms)
     curve = [(spp, float(np.mean([rel(fr._mitsuba_render(mi, ms, spp, seed=k)[0])
                                   for k in range(6)])))
              for spp in (12, 16, 24, 32, 48, 64, 96)]

@@ -400,6 +400,29 @@ def _mitsuba_render(mi, ms, spp: int, seed: int, clock=time.perf_counter):
     return img[::-1, :, :3].astype(np.float64), clock() - t0
 
 
+def mitsuba_rough(scene: Scene, width: int, height: int, depth: int = 5):
+    """``(mi, ms)``: Mitsuba and ``scene`` loaded as :func:`rough_scene_dict` makes it, its
+    kernels compiled by a 4-spp render; raises ``SystemExit`` where Mitsuba is unavailable
+    (the scripts' way to say why)."""
+    mi, why = mitsuba_llvm()
+    if mi is None:
+        raise SystemExit(why)
+    ms = mi.load_dict(rough_scene_dict(scene, mi, width, height, depth, 1))
+    _mitsuba_render(mi, ms, 4, seed=3)  # compiles
+    return mi, ms
+
+
+def mitsuba_cpu_per_spp(mi, ms, spp: int = 64, repeats: int = 3) -> float:
+    """Mitsuba's CPU seconds per sample per pixel on ``ms``: the median of ``repeats``
+    ``spp``-sample renders (seed 99)."""
+    per = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        _mitsuba_render(mi, ms, spp, seed=99)
+        per.append((time.process_time() - t0) / spp)
+    return float(np.median(per))
+
+
 def mitsuba_equal_time(mi, ms, seconds: float, probe_spp: int = 4, tries: int = 3,
                        clock=time.perf_counter):
     """Mitsuba's frame taking about ``seconds`` by ``clock``: a render at ``probe_spp`` gives

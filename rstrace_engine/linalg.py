@@ -49,7 +49,6 @@ def controls():
     """OpenBLAS's ``(get_num_threads, set_num_threads)`` as ctypes functions, or None
     where numpy's BLAS is not an OpenBLAS this module can find."""
     if not _found:
-        np.linalg.inv(np.eye(1))  # (numpy's linalg loaded, so its BLAS is mapped)
         found = None
         for path in _openblas_paths():
             try:

@@ -15,7 +15,8 @@ is another one, or the controls are not found, it is ``np.linalg.inv`` as it is)
 4x4 matrix OpenBLAS computes the same values on one thread as on several (30,000 random
 4x4 matrices -- affine, general, rotation and scale -- compared bit for bit, session 35).
 While the one-thread setting holds (the inverse's 0.2 ms), a BLAS call another thread
-starts runs on one thread too.
+starts runs on one thread too (the same values for a matrix product; a threaded reduction,
+such as a long dot product, may round differently on one thread).
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rstrace_engine import linalg
 from rstrace_engine.geometry.scene import Camera, SceneError, check_matrix
 
 from .materials import Notes
@@ -66,7 +67,7 @@ def camera_from_view(view_matrix, window_matrix, width: int, height: int) -> Cam
     if proj[0, 0] == 0.0 or proj[1, 1] == 0.0 or proj[2, 2] == 0.0:
         raise SceneError("viewport: degenerate projection matrix")
     try:
-        cam_to_world = np.linalg.inv(view)
+        cam_to_world = linalg.inv(view)  # (np.linalg.inv, no OpenBLAS threads woken)
     except np.linalg.LinAlgError:
         raise SceneError("viewport: the view matrix is singular") from None
     half_w = 1.0 / proj[0, 0]

@@ -11,7 +11,8 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    (numba's own ``np.empty`` & co cached on disk too),
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
    (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
-   over serial ``nogil`` kernels).
+   over serial ``nogil`` kernels), ``linalg`` (small inverses without waking OpenBLAS's
+   idle threads).
 2. ``geometry``: the scene model, cameras, shapes, mesh topology.
 3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force,
    visibility field).

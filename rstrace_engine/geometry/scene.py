@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import linalg
 from .. import tolerances as tol
 from .elements import (  # noqa: F401 - re-exported, the scene model's public names
     AREA_SHAPES,
@@ -416,7 +417,7 @@ class Scene:
         """Cache an instance's inverse, normal matrix and world box (packing stacks them)."""
         m = inst["matrix"]
         mesh = self.meshes[inst["mesh"]]
-        inv = np.linalg.inv(m)
+        inv = linalg.inv(m)  # (np.linalg.inv's bits, no OpenBLAS threads woken)
         inst["inv"] = inv
         inst["nmat"] = inv[:3, :3].T.copy()
         inst["aabb"] = transform_aabb(mesh["lo"], mesh["hi"], m)

@@ -2,19 +2,12 @@
 each renderer can render first (whichever renders second reuses the pages the first freed)
 or alone, in a process of its own (docs/bench-scale-bpy.md, session 35)."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
+from repo_files import load_module
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "first_f12_split.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("first_f12_split", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)  # (stdlib imports only: bpy comes in main)
-    return mod
+def _script():  # (stdlib imports only: bpy comes in main)
+    return load_module("scripts/first_f12_split.py", "first_f12_split")
 
 
 def test_either_renderer_renders_first_or_alone():

@@ -3,22 +3,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from repo_files import load_module
 
 from rstrace_engine.interpolants.interpolant_cache import OUTCOMES
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "interpolant_outcomes", ROOT / "scripts" / "interpolant_outcomes.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_module("scripts/interpolant_outcomes.py", "interpolant_outcomes")
 
 
 def test_pixel_outcomes_agree_with_the_frame_and_its_cell_counts():

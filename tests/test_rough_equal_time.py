@@ -3,21 +3,13 @@ Mitsuba's error read from a power-law fit, means and ratios with standard errors
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from repo_files import load_module
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "rough_equal_time", ROOT / "scripts" / "rough_equal_time.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_module("scripts/rough_equal_time.py", "rough_equal_time")
 
 
 def test_power_fit_recovers_a_power_law_and_reads_it_between_and_beyond_the_points():

@@ -4,22 +4,16 @@ when the demo is done stops its parts too (no compile left running after ``make 
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import sys
 import time
-from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from repo_files import load_module
 
 
 def _demo_module():
-    spec = importlib.util.spec_from_file_location("rstrace_demo", ROOT / "examples" / "demo.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_module("examples/demo.py", "rstrace_demo")
 
 
 def _group(pgid: int) -> list[int]:

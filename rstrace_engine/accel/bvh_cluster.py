@@ -23,14 +23,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..cancel import Cancelled
-from .bvh_build import (
-    NEVER_STOP,
-    SAH_BINS,
-    SAH_TRAVERSAL_COST,
-    _box_area,
-    _half_area,
-    build_flat_boxes,
-)
+from .bvh_bins import _box_area, _half_area
+from .bvh_build import NEVER_STOP, SAH_BINS, SAH_TRAVERSAL_COST, build_flat_boxes
 
 #: How an item is opened (:func:`pair_items`' ``how``): one leaf of its triangles (one, or
 #: both in the mesh's order), or an inner node over two leaves of one, the item's first

@@ -22,12 +22,12 @@ from numba import njit, prange
 
 from .. import tolerances as tol
 from ..cancel import Cancelled
+from .bvh_bins import _half_area
 from .bvh_build import (
     DEPTH_CAP,
     MAX_LEAF,
     NEVER_STOP,
     PARALLEL_MIN,
-    _half_area,
     build_flat,
     build_flat_boxes,
     subtree_grain,

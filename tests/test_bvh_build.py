@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine import warm_first
-from rstrace_engine.accel import accelerators, bvh, bvh_build, bvh_mesh
+from rstrace_engine.accel import accelerators, bvh, bvh_bins, bvh_build, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
@@ -69,6 +69,22 @@ def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
     assert np.array_equal(seq.bounds.view(np.int32), par.bounds.view(np.int32))
     assert np.array_equal(seq.child, par.child)
     assert np.array_equal(seq.perm, par.perm)
+
+
+def test_small_nodes_are_binned_on_their_long_axes_only():
+    """A node of at most ``CHEAP_MAX`` primitives is binned only on the axes whose
+    centroid extent is at least ``CHEAP_AXIS_FRAC`` of the longest's (session 36: ~13%
+    less subtree CPU for ~0.4% more SAH cost). Two rows of small boxes along x, 4 apart
+    in z (less than half their extent in x): the SAH would split between the rows, but
+    a small node splits across x; a node past the cheap size still splits between them."""
+    assert 200 <= bvh_bins.CHEAP_MAX < 5000
+    for n, between_rows in ((200, False), (5000, True)):
+        x = np.linspace(0.0, 10.0, n // 2)
+        c = np.concatenate([np.stack([x, 0 * x, 0 * x], 1), np.stack([x, 0 * x, 4 + 0 * x], 1)])
+        b, ch, perm, sah = bvh_build.build_flat(c - 0.05, c + 0.05)
+        z_extent = b[0, 5] - b[0, 2], b[0, 11] - b[0, 8]  # the root's two children
+        assert (max(z_extent) < 1.0) == between_rows, (n, z_extent)
+        assert (min(z_extent) > 3.0) == (not between_rows), (n, z_extent)
 
 
 def test_binary_nodes_are_packed():

@@ -11,6 +11,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+#: Nodes of at most this many primitives (most of the build's work: its subtrees') are
+#: split more cheaply (session 36, docs/bench-scale.md): with at most :data:`CHEAP_BINS`
+#: bins per axis, binned only on the axes whose centroid extent is at least
+#: :data:`CHEAP_AXIS_FRAC` of the longest one's (:func:`_node_bins`). The rule depends on
+#: the node alone, so both phases of the build apply it alike (the same tree on any grain).
+CHEAP_MAX = 4096
+CHEAP_BINS = 16
+CHEAP_AXIS_FRAC = 0.5
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _half_area(b0, b1, b2, b3, b4, b5):
@@ -30,6 +39,38 @@ def _clear_bins(bin_n, bin_b, nbins):
             for q in range(3):
                 bin_b[k, b, q] = np.inf
                 bin_b[k, b, 3 + q] = -np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _node_bins(count, nbins, cmin, cmax, bmin, bmax):
+    """How a node of ``count`` primitives with centroid bounds ``cmin``, ``cmax`` (3,) is
+    binned: returns its bins per axis (at most ``nbins``, and at most its primitives), and
+    sets ``bmin``, ``bmax`` (3,) to the bounds the bins are laid over: ``cmin``, ``cmax``
+    with each axis left out made flat (a flat axis is neither binned nor swept:
+    :func:`_bin_range`, :func:`_best_split`)."""
+    emax = max(cmax[0] - cmin[0], max(cmax[1] - cmin[1], cmax[2] - cmin[2]))
+    cheap = count <= CHEAP_MAX
+    for q in range(3):
+        bmin[q] = cmin[q]
+        bmax[q] = cmax[q]
+        if cheap and cmax[q] - cmin[q] < CHEAP_AXIS_FRAC * emax:
+            bmax[q] = cmin[q]
+    if cheap:
+        return min(nbins, CHEAP_BINS, max(count, 2))
+    return min(nbins, max(count, 2))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _clear_axes(bin_n, bin_b, nbins, bmin, bmax):
+    """:func:`_clear_bins` of the axes binned over ``bmin``, ``bmax`` only (those of
+    positive extent: the others are never read)."""
+    for k in range(3):
+        if bmax[k] > bmin[k]:
+            for b in range(nbins):
+                bin_n[k, b] = 0
+                for q in range(3):
+                    bin_b[k, b, q] = np.inf
+                    bin_b[k, b, 3 + q] = -np.inf
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

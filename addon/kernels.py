@@ -47,10 +47,12 @@ log = logging.getLogger(__name__)
 #: viewport session of that mode runs on its first image, its first full frame and its
 #: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
 #: that every name exists); the progress counts these.
-_BASE = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
+_BASE = ("accel.content_hash._nh_blocks", "accel.bvh_build.split_top",
+         "accel.bvh_build.build_subtree",
          "accel.bvh_mesh.collapse4", "accel.bvh.trace_kernel",
          "geometry.cameras.generate_rays", "tracing.shader._surface_kernel",
          "tracing.shader._shadow_kernel", "tracing.shader._shade_kernel",
+         "tracing.dielectric_albedo.dielectric_albedos",
          "tracing.whitted._light_masks", "tracing.batches.scatter_add",
          "tracing.batches.accumulate", "tracing.pixel_records._encode_nodes",
          "tracing.pixel_records._mark_rays", "tracing.pixel_records._query_secondary",
@@ -91,7 +93,8 @@ MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 #: of a 1M-triangle scene loaded at ray depth 0 and 5 (``tests/blender/test_kernels.py``
 #: checks that a first F12 after the preload loads none). The rest of the mode's kernels
 #: load after them, while no render runs.
-PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_range",
+PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_check._vertex_stats",
+           "geometry.mesh_check._index_range",
            "geometry.mesh_check._non_finite32", "geometry.attributes._all_flat_vertex",
            "geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",
            "geometry.attributes._coarsest", "geometry.attributes._all_flat",
@@ -104,7 +107,8 @@ PRELOAD = ("geometry.mesh_check._vertex_stats", "geometry.mesh_check._index_rang
            "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
            "tracing.shader._surface_kernel", "tracing.whitted._light_masks",
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",
-           "tracing.shader._shade_kernel", "tracing.batches.scatter_add",
+           "tracing.dielectric_albedo.dielectric_albedos", "tracing.shader._shade_kernel",
+           "tracing.batches.scatter_add",
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",
            "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
            "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",

@@ -19,10 +19,10 @@ Layer: imported by ``export`` only.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 
 import numpy as np
 
+from rstrace_engine.accel.content_hash import ContentHash
 from rstrace_engine.geometry.scene import Mesh, SceneError
 
 #: Raw attributes whose values decide the exported triangles, normals, uvs and slots (with
@@ -263,11 +263,13 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     copied for the read, and they miss a face boundary moved between corners whose edges
     stay.) ``raw``: arrays :func:`mesh_arrays` already read (not read again), and receives
     those read here.
-    SHA-256 (its first 16 bytes; with the CPU's SHA instructions about twice as fast as
-    BLAKE2b); digests are compared only within the process.
+    :class:`~rstrace_engine.accel.content_hash.ContentHash` (16 bytes: NH under a
+    per-process random key, then SHA-256; two different meshes give equal digests with
+    probability below 2^-128; 4-5x faster than SHA-256 alone); digests are compared only
+    within the process (the key is drawn per process).
     """
     raw = {} if raw is None else raw
-    h = hashlib.sha256()
+    h = ContentHash()
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
     h.update(np.array(counts, np.int64).tobytes())

@@ -46,7 +46,8 @@ FIRST_IMAGE_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtr
                        "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
                        "tracing.whitted._surface_kernel", "tracing.whitted._shadow_kernel",
                        "tracing.whitted._shade_kernel", "tracing.batches.scatter_add",
-                       "tracing.batches.accumulate")
+                       "tracing.batches.accumulate", "accel.content_hash._nh_blocks",
+                       "tracing.dielectric_albedo.dielectric_albedos")
 HELPER_KERNELS = ("accel.bvh.trace_kernel",)
 _HELPER_CODE = "from rstrace_engine.warm_first import compile_traversal; compile_traversal()"
 

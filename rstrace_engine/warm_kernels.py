@@ -111,16 +111,17 @@ def _flat_shaded(mesh):
 
 
 def _as_exported(mesh):
-    """``mesh`` as the add-on hands a smooth Blender mesh over: float32 normals per vertex
-    (Blender's POINT domain: each vertex's from the mesh's own corner normals) and
-    ``owned`` arrays, so the warm-up reaches the kernels of that path too
-    (:mod:`~.geometry.mesh_check`)."""
+    """``mesh`` as the add-on hands a smooth Blender mesh over: float32 vertices, float32
+    normals per vertex (Blender's POINT domain: each vertex's from the mesh's own corner
+    normals) and ``owned`` arrays, so the warm-up reaches the kernels of that path too
+    (:mod:`~.geometry.mesh_check`: its checks read float32 vertices as they are)."""
     from dataclasses import replace
 
     tris = np.asarray(mesh.triangles, np.int32)
     vn = np.zeros((len(mesh.vertices), 3), np.float32)
     vn[tris.reshape(-1)] = np.asarray(mesh.corner_normals, np.float32).reshape(-1, 3)
-    return replace(mesh, corner_normals=None, vertex_normals=vn, owned=True)
+    return replace(mesh, vertices=np.asarray(mesh.vertices, np.float32), corner_normals=None,
+                   vertex_normals=vn, owned=True)
 
 
 def _modes() -> tuple[str, ...]:

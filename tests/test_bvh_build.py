@@ -384,21 +384,29 @@ def test_kept_bvhs_are_bounded(monkeypatch):
     assert len(kept) == 0
 
 
-def test_mesh_key_in_chunks_is_the_one_shot_hash(monkeypatch):
-    import hashlib
+def test_mesh_key_in_chunks_is_the_content_hash_of_its_chunks(monkeypatch):
+    from rstrace_engine.accel.content_hash import ContentHash
 
     mesh = shapes.lumpy_sphere(5_000)
     verts, tris = np.asarray(mesh.vertices, np.float64), mesh.triangles
     whole = bvh_mesh.mesh_key(verts, tris)
-    monkeypatch.setattr(bvh_mesh, "KEY_CHUNK", 4096 + 8)
-    assert bvh_mesh.mesh_key(verts, tris) == whole
+    h = ContentHash()
+    for part in (np.array([len(tris), len(verts)], np.int64), verts, tris):
+        h.update(np.ascontiguousarray(part))
+    assert whole == h.digest()
+    chunk = 4096 + 8
+    monkeypatch.setattr(bvh_mesh, "KEY_CHUNK", chunk)
+    chunked = bvh_mesh.mesh_key(verts, tris)
+    h = ContentHash()
+    h.update(np.array([len(tris), len(verts)], np.int64))
+    for part in (verts.reshape(-1), tris.reshape(-1)):
+        step = chunk // part.itemsize
+        for start in range(0, len(part), step):
+            h.update(part[start:start + step])
+    assert chunked == h.digest()
     # after 7 vertices of another mesh: its triangles hashed less 7, chunk by chunk
     shifted = np.concatenate([np.ones((7, 3)), verts])
-    assert bvh_mesh.mesh_key(shifted, tris + 7) == whole
-    h = hashlib.sha256()
-    for part in (np.array([len(tris), len(verts)], np.int64), verts, tris):
-        h.update(np.ascontiguousarray(part).view(np.uint8))
-    assert whole == h.digest()[:16]
+    assert bvh_mesh.mesh_key(shifted, tris + 7) == chunked
     flag = CancelFlag()
     flag.set()
     with pytest.raises(Cancelled):

@@ -42,7 +42,8 @@ def test_stand_ins_compile_the_signatures_a_render_uses():
     a.any_hit(o, d, np.zeros(1), 10.0)
     a.intersect_object(0, o, d, 0.0, np.inf)
     for k in (bvh.trace_kernel, whitted._surface_kernel, whitted._shadow_kernel,
-              whitted._shade_kernel, batches.accumulate, batches.scatter_add):
+              whitted._shade_kernel, batches.accumulate, batches.scatter_add,
+              whitted.dielectric_albedos):
         assert len(k.signatures) == 1, (k.py_func.__name__, k.signatures)
 
 

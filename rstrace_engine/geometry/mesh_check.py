@@ -11,8 +11,9 @@ session over the add-on's export cache) takes its checked arrays without checkin
 again (a mesh dict of its own: scenes of different sessions share no dict, and the kept
 result holds only the Mesh's own arrays and its compact rows, no packing and no float64
 vertices). An owned mesh's dict holds its vertices as given (float32 from the add-on)
-until the packing converts them into its own float64 array: the checks' float64 copy is
-dropped when the check returns, and a kept result is taken with no conversion at all.
+until the packing converts them into its own float64 array: the checks read float32
+vertices as they are (their kernels convert each value where they read it: no float64 copy
+of a mesh's size), and a kept result is taken with no conversion at all.
 """
 
 from __future__ import annotations
@@ -29,16 +30,17 @@ from .packing import compact_slots
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _vertex_stats(v):
-    """``(non_finite, max_abs, lo, hi)`` of vertices ``v`` (n, 3) float64 in one pass: the
-    largest magnitude of the finite values and the box of the finite values per axis
-    (``lo`` (3,) ``inf`` and ``hi`` ``-inf`` where an axis has none)."""
+    """``(non_finite, max_abs, lo, hi)`` of vertices ``v`` (n, 3) float64 (or float32,
+    each value read as float64) in one pass: the largest magnitude of the finite values and
+    the box of the finite values per axis (``lo`` (3,) ``inf`` and ``hi`` ``-inf`` where
+    an axis has none)."""
     bad = 0
     big = 0.0
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     for i in range(v.shape[0]):
         for q in range(3):
-            x = v[i, q]
+            x = np.float64(v[i, q])
             if not np.isfinite(x):
                 bad += 1
                 continue
@@ -95,10 +97,14 @@ def _rows(name: str, what: str, value, tail: tuple, dtype, keep: bool) -> np.nda
 
 
 def _vertices(name: str, value, keep: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The mesh's vertices as (n, 3) float64 (a copy unless handed over as float64) and
-    their box, checked finite and within :data:`~.tolerances.COORD_MAX`."""
+    """The mesh's vertices as (n, 3) float64 (a copy unless handed over as float64; handed
+    over as C-contiguous float32 -- the add-on's -- they are checked as they are, no float64
+    copy: the checks' kernels read each value as float64) and their box, checked finite and
+    within :data:`~.tolerances.COORD_MAX`."""
     try:
-        arr = np.asarray(value, np.float64) if keep else np.array(value, np.float64)
+        arr = np.asarray(value) if keep else None
+        if arr is None or not (arr.dtype == np.float32 and arr.flags.c_contiguous):
+            arr = np.asarray(value, np.float64) if keep else np.array(value, np.float64)
     except (TypeError, ValueError) as exc:
         raise SceneError(f"mesh '{name}': cannot read as numbers ({exc})") from None
     if arr.ndim != 2 or arr.shape[1:] != (3,):
@@ -113,9 +119,16 @@ def _vertices(name: str, value, keep: bool) -> tuple[np.ndarray, np.ndarray, np.
         raise SceneError(f"mesh '{name}': vertex coordinates exceed {tol.COORD_MAX:g}")
     if not (np.all(lo) and np.all(hi)):
         # a zero bound: which of two signed zeros numpy's min and max keep is theirs (the
-        # box the scene has always had), so they decide it (two more passes, only here)
-        return arr, arr.min(axis=0), arr.max(axis=0)
+        # box the scene has always had), so they decide it (two more passes over float64
+        # values, only here)
+        a64 = np.asarray(arr, np.float64)
+        return arr, a64.min(axis=0), a64.max(axis=0)
     return arr, lo, hi
+
+
+def _as64(verts: np.ndarray) -> np.ndarray:
+    """``verts`` as float64 (the kernels of normals read float64 vertices)."""
+    return np.ascontiguousarray(verts, np.float64)
 
 
 def _triangles(name: str, value, nverts: int, keep: bool) -> np.ndarray:
@@ -194,17 +207,17 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
         tris, normals, uvs, slots = (None if a is None else a[keep_tris]
                                      for a in (tris, normals, uvs, slots))
     if normals is not None:
-        nmode, normals = compact_normals(verts, tris, normals)
+        nmode, normals = compact_normals(_as64(verts), tris, normals)
     elif vn is not None:  # (the same mode and rows the corners vn[tris] would give)
-        nmode, normals = vertex_rows(verts, tris, vn)
+        nmode, normals = vertex_rows(_as64(verts), tris, vn)
     elif mesh.smooth:  # (the vertex normals' float32 rows: what every corner reads)
-        nmode, normals = ATTR_VERTEX, vertex_normals(verts, tris).astype(np.float32)
+        nmode, normals = ATTR_VERTEX, vertex_normals(_as64(verts), tris).astype(np.float32)
     else:  # flat: each corner reads its triangle's own normal, computed
         nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
     uvmode, uvs = compact_uvs(tris, len(verts), uvs)
     slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots)
-    if keep:  # (the float64 copy was for the checks: the packing converts them itself)
-        verts = _stored_vertices(mesh.vertices)
+    if keep:  # (float32 checked as given, or a float64 copy for the checks: the packing
+        verts = _stored_vertices(mesh.vertices)  # converts them itself)
     out = dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,
                uvmode=uvmode, slots=slots, slot=slot, lo=lo, hi=hi)
     if keep:  # (the arrays before packing: the Mesh's own, or compact rows; each scene

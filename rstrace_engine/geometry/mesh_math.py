@@ -21,10 +21,15 @@ def proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None) -> np.nda
     build, and a mesh with none is refused.
 
     ``tris`` must index ``verts`` (checked by the caller). One pass of a kernel over chunks
-    of :data:`PROPER_CHUNK` triangles, no temporaries; ``cancel`` (a ``() -> bool``) is
-    polled between chunks and raises :class:`~rstrace_engine.cancel.Cancelled`.
+    of :data:`PROPER_CHUNK` triangles, no temporaries: C-contiguous float32 vertices (the
+    add-on's) are read as they are, each value converted to float64 where it is read (the
+    same values as a float64 copy's, no copy); anything else as float64. ``cancel`` (a
+    ``() -> bool``) is polled between chunks and raises
+    :class:`~rstrace_engine.cancel.Cancelled`.
     """
-    v = np.ascontiguousarray(verts, np.float64)
+    v = np.asarray(verts)
+    if not (v.dtype == np.float32 and v.flags.c_contiguous):
+        v = np.ascontiguousarray(v, np.float64)
     t = np.ascontiguousarray(tris, np.int32)
     keep = np.empty(len(t), np.bool_)
     for start in range(0, len(t), PROPER_CHUNK):
@@ -39,12 +44,16 @@ def proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None) -> np.nda
 def _proper_kernel(v, tris, start, stop, rel, keep):
     """``keep[start:stop]`` of :func:`proper_triangles`: the same float64 operations, in
     the same order, as ``|cross(b - a, c - a)| > rel * max(|b - a|^2, |c - a|^2,
-    |c - b|^2)`` with a longest edge above zero."""
+    |c - b|^2)`` with a longest edge above zero (``v`` float64, or float32 read as
+    float64)."""
     for k in range(start, stop):
         a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
-        e0x, e0y, e0z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        e1x, e1y, e1z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        e2x, e2y, e2z = v[c, 0] - v[b, 0], v[c, 1] - v[b, 1], v[c, 2] - v[b, 2]
+        ax, ay, az = np.float64(v[a, 0]), np.float64(v[a, 1]), np.float64(v[a, 2])
+        bx, by, bz = np.float64(v[b, 0]), np.float64(v[b, 1]), np.float64(v[b, 2])
+        qx, qy, qz = np.float64(v[c, 0]), np.float64(v[c, 1]), np.float64(v[c, 2])
+        e0x, e0y, e0z = bx - ax, by - ay, bz - az
+        e1x, e1y, e1z = qx - ax, qy - ay, qz - az
+        e2x, e2y, e2z = qx - bx, qy - by, qz - bz
         cx = e0y * e1z - e0z * e1y
         cy = e0z * e1x - e0x * e1z
         cz = e0x * e1y - e0y * e1x

@@ -57,13 +57,13 @@ from ..geometry.scene import (
 from ..stripes import stripe_item, stripe_len
 from ..views import fields, view_type
 from .glossy_rays import _glossy_rays, _put, is_glossy
+from .multiscatter import ggx_e
 from .shading import (
     INV_PI,
     dot3,
     far_origin,
     fresnel_dielectric,
     geometric_normal,
-    ggx_albedo,
     ggx_btdf,
     ggx_glass_albedo,
     ggx_lobe,
@@ -373,8 +373,8 @@ _ShadeScene = view_type("_ShadeScene", SceneArrays, (
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, contrib, out,
-                  tv, tp, first, step):
+def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, ediel, contrib,
+                  out, tv, tp, first, step):
     """Direct light and secondary rays of a batch of ``n`` surface points.
 
     One loop body on purpose: the material's twenty-odd values are read once per point and
@@ -391,7 +391,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
     glass or a matte surface, one per glossy sample where the point is glossy
     (:func:`~.glossy_rays.glossy_counts`); seeds : (n,) uint64 the points' node seeds (the glossy
     samples'; empty: no glossy rays); lat : (n, 4) uint64 the glossy samples' lattices
-    (:func:`~.glossy_strata.lattices`; empty: each point's own). Outputs: contrib (n, 3)
+    (:func:`~.glossy_strata.lattices`; empty: each point's own); ediel (n,) float64 the
+    Principled points' dielectric albedos (:func:`~.dielectric_albedo.dielectric_albedos`:
+    ``ggx_albedo``'s, bit for bit). Outputs: contrib (n, 3)
     weighted radiance to add to
     each ray's input ray; out, the :class:`Spawned` rays; with ``tv`` (n, L + 2, 3)
     float64 and ``tp`` (n, L + 2) bool (empty: not kept) each point's *light terms*
@@ -477,7 +479,9 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
         # world light the diffuse part only (no light counted twice)
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         if principled:
-            e_white, e_diel = ggx_albedo(-dot3(dx, dy, dz, sx, sy, sz), alpha, eta_s)
+            e_white = ggx_e(min(max(-dot3(dx, dy, dz, sx, sy, sz), tol.GGX_COS_MIN), 1.0),
+                            alpha)  # (and e_diel, ggx_albedo's pair: ediel, computed before)
+            e_diel = ediel[i]
             # Cycles: the base under the layer's tinted albedo (the tint's largest channel)
             e_diel *= sa.mat_tint_max[m]
             if tf & TEX_SPECULAR:

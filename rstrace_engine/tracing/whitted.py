@@ -39,6 +39,7 @@ from ..frame import (
 from ..geometry.cameras import camera_params, camera_rays
 from ..geometry.scene import Scene, SceneArrays
 from .batches import TILE_RAYS, accumulate, frame_batches, scatter_add, threads_for
+from .dielectric_albedo import dielectric_albedos
 from .glossy_rays import glossy_counts, has_glossy, roulette
 from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
     Strata,
@@ -207,9 +208,12 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     c = len(sa.light_kind) + 2
     tv = np.empty((n if terms else 0, c, 3))
     tp = np.empty((n if terms else 0, c), np.bool_)
+    ediel = np.empty(n)  # (the Principled points' dielectric albedos, all at once)
+    dielectric_albedos(surf.VD, surf.NS, surf.mat, sa.mat_model, sa.mat_roughness,
+                       sa.mat_specular_ior, ediel)
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
-                spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, contrib,
-                out, tv, tp)
+                spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, ediel,
+                contrib, out, tv, tp)
     if plan.gstart is not None:  # the deeper rough bounces' weak rays
         roulette(plan.gstart, plan.glossy, fresh, gseeds, weight, out)
     if terms:

@@ -1,0 +1,37 @@
+"""The batch's dielectric albedos (``tracing.dielectric_albedo``) are ``ggx_albedo``'s, bit
+for bit, at every Principled point, and nothing else is written."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rstrace_engine.geometry.scene import MODEL_PRINCIPLED
+from rstrace_engine.tracing.dielectric_albedo import dielectric_albedos
+from rstrace_engine.tracing.shading import dot3, ggx_albedo
+
+
+def test_the_batch_gives_ggx_albedos_dielectric_part_bit_for_bit():
+    rng = np.random.default_rng(7)
+    n = 6000
+    vd = rng.normal(size=(n, 3))
+    vd /= np.linalg.norm(vd, axis=1)[:, None]
+    ns = rng.normal(size=(n, 3))
+    ns /= np.linalg.norm(ns, axis=1)[:, None]
+    ns[:50] = -vd[:50]  # head-on (cosine 1), grazing and behind (clamped to GGX_COS_MIN)
+    ns[50:100] = np.cross(vd[50:100], [0.0, 0.0, 1.0])
+    ns[100:150] = vd[100:150]
+    ns[150] = np.nan  # (a NaN normal gives ggx_albedo's NaN)
+    roughness = np.concatenate([[0.0, 1e-8, 1e-3, 1.0, 0.5], rng.uniform(0.0, 1.0, 25)])
+    ior = np.concatenate([[1.0, 1.5, 1.45, 0.7, 2.0, 1.0 / 1.5], rng.uniform(0.3, 3.0, 24)])
+    model = np.full(30, MODEL_PRINCIPLED, np.int32)
+    model[3] = MODEL_PRINCIPLED + 1  # another model: not written
+    mat = rng.integers(-1, 30, n).astype(np.int32)  # (-1: a miss, not written)
+    out = np.full(n, -7.0)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, out)
+    written = (mat >= 0) & (model[np.maximum(mat, 0)] == MODEL_PRINCIPLED)
+    assert np.all(out[~written] == -7.0) and written.sum() > 4000
+    for i in np.flatnonzero(written):
+        m = mat[i]
+        c = -dot3(vd[i, 0], vd[i, 1], vd[i, 2], ns[i, 0], ns[i, 1], ns[i, 2])
+        want = ggx_albedo(c, roughness[m], ior[m])[1]
+        assert np.float64(want).tobytes() == np.float64(out[i]).tobytes(), (i, want, out[i])

@@ -35,7 +35,7 @@ def test_demo_warm_cache_is_the_demo_kernels_warm_up():
     demo = _demo_module()
     args = demo.WARM_CACHE_ARGS
     assert args[0] == "warm-cache" and "--no-soft-light" in args
-    assert "--no-textures" in args  # the demo's scene has none (session 36: ~12 s of CPU)
+    assert "--no-textures" in args  # the demo's scene has none (session 36: 7-12 s of CPU)
     modes = args[args.index("--modes") + 1:args.index("--accelerators")]
     assert set(modes) == {"BASE", "INTERPOLANT"}  # the demo renders in both
     from rstrace_engine.__main__ import _parser

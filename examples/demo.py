@@ -251,9 +251,9 @@ def changed_fraction(bpy, a: Path, b: Path) -> float:
 
 
 #: What ``--warm-cache`` compiles: the kernels of this scene's renders (BASE and INTERPOLANT on
-#: the BVH, hard lights, a perspective camera).
+#: the BVH, hard lights, a perspective camera, no textures).
 WARM_CACHE_ARGS = ("warm-cache", "--modes", "BASE", "INTERPOLANT", "--accelerators", "BVH",
-                   "--no-soft-light")
+                   "--no-soft-light", "--no-textures")
 
 
 def start_warm_cache(env=None):

@@ -49,6 +49,9 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--no-soft-light", dest="soft", action="store_false",
                    help="leave out the orthographic steps with soft light, an area light and "
                         "a lighting world (for scenes of hard lights only, as make demo's)")
+    w.add_argument("--no-textures", dest="textures", action="store_false",
+                   help="leave out textured surfaces (the kernels that texture interpolated "
+                        "rays; for scenes without textures, as make demo's)")
     w.add_argument("--part", default=None, help=argparse.SUPPRESS)  # k/n: one of n workers
     w.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -127,14 +130,19 @@ def warm_cache_command(args) -> int:
         # longest compile) in part 1 (warm_first.PART_HEADS)
         warm_first.part_head(k, n, args.modes)
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
-                                   report_unreached=False, soft=args.soft)
+                                   report_unreached=False, soft=args.soft,
+                                   textures=args.textures)
     elif args.jobs == 1:
         result = warm_kernels.warm(args.modes, args.accelerators, progress=progress,
-                                   report_unreached=everything and args.soft, soft=args.soft)
+                                   report_unreached=everything and args.soft and args.textures,
+                                   soft=args.soft,
+                                   textures=args.textures)
     else:
         result = warm_kernels.warm_parallel(args.jobs or None, args.modes, args.accelerators,
                                             progress=progress, soft=args.soft,
-                                            report_unreached=everything and args.soft,
+                                            textures=args.textures,
+                                            report_unreached=everything and args.soft
+                                            and args.textures,
                                             cancel=_stop_on_sigterm())
     result["cache_dir"] = numba.config.CACHE_DIR or "numba default (beside the sources)"
     if args.json:

@@ -40,15 +40,17 @@ RI_WARM_FRAMES = 8
 
 
 def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
-               eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8)):
-    """A tiny scene with every feature the kernels branch on."""
+               eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8), textured: bool = True):
+    """A tiny scene with every feature the kernels branch on (``textured=False``: its floor
+    without its texture, for ``warm-cache --no-textures``)."""
     from .geometry import shapes
     from .geometry.scene import Camera, Light, Material, Scene
 
     s = Scene()
     checker = np.indices((4, 4)).sum(axis=0) % 2
     texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.6 + 0.2
-    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6), texture=texture))
+    floor = s.add_material(Material("floor", diffuse=(0.6, 0.6, 0.6),
+                                    texture=texture if textured else None))
     glossy = s.add_material(Material("glossy", diffuse=(0.5, 0.2, 0.1), specular=(0.3,) * 3,
                                      roughness=0.2))
     mirror = s.add_material(Material("mirror", diffuse=(0.05,) * 3, mirror=(0.9,) * 3))
@@ -152,7 +154,7 @@ def _check(cancel) -> None:
         raise Cancelled
 
 
-def _animate(session, ortho: bool, cancel=None) -> None:
+def _animate(session, ortho: bool, cancel=None, textured: bool = True) -> None:
     """What the viewport and the frames of an animation do: a coarse view image (the
     viewport's first image, in tiles), render, move the camera, move an object (a full frame
     when the scene box grows, an incremental one when it does not), render."""
@@ -167,7 +169,7 @@ def _animate(session, ortho: bool, cancel=None) -> None:
     for step in steps:
         _check(cancel)
         if step is not None:
-            session.update_scene(warm_scene(ortho=ortho, **step))
+            session.update_scene(warm_scene(ortho=ortho, textured=textured, **step))
         session.render(cancel=cancel)
     # light edits: the first makes BASE keep its per-light terms (a full frame), then it
     # relights (a moved light is shaded again, a power change recombines); between them an
@@ -190,7 +192,7 @@ def _animate(session, ortho: bool, cancel=None) -> None:
         session.render(cancel=cancel)
 
 
-def _warm_edited_interpolants(progress=None, cancel=None) -> None:
+def _warm_edited_interpolants(progress=None, cancel=None, textured: bool = True) -> None:
     """Interpolants that pass the error predicate (their tunnels go into the ray segment
     trees and the membership index), then an edit that queries and invalidates them. The
     warm scene is too small and too hard (textures, a spot, occluders) for any cell to pass."""
@@ -216,10 +218,11 @@ def _warm_edited_interpolants(progress=None, cancel=None) -> None:
     # a textured floor: samples of cells whose root hit is textured split their radiance
     # into R + texel * D (the warm scene's floor is textured too, but its cells' samples
     # never reached texture_split: a fresh warm-cache left _root_texels uncompiled)
-    floor = [m.name for m in scene.materials].index("floor")
-    checker = np.indices((8, 8)).sum(axis=0) % 2
-    texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.5 + 0.3
-    scene.materials[floor] = replace(scene.materials[floor], texture=texture).validated()
+    if textured:
+        floor = [m.name for m in scene.materials].index("floor")
+        checker = np.indices((8, 8)).sum(axis=0) % 2
+        texture = np.repeat(checker[..., None], 3, axis=2).astype(np.float32) * 0.5 + 0.3
+        scene.materials[floor] = replace(scene.materials[floor], texture=texture).validated()
     session = Session(scene, settings)
     # every cell built and checked (the measured fallback could defer them all in a frame
     # this small: the predicate's kernels would stay cold; _animate runs the fallback)
@@ -383,7 +386,7 @@ def units(modes, accelerators, soft: bool = True) -> list[tuple]:
 
 def warm(modes=None, accelerators=None, progress=None, cancel=None,
          report_unreached: bool = True, lock=None, part: tuple[int, int] | None = None,
-         soft: bool = True) -> dict:
+         soft: bool = True, textures: bool = True) -> dict:
     """Compile or load every render kernel; return counts and the time taken.
 
     ``progress(message)`` is called before each step. ``cancel() -> bool`` is polled
@@ -399,7 +402,9 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     processes of :func:`warm_parallel`; ``python -m
     rstrace_engine warm-cache --part k/n`` first compiles ``warm_first.PART_HEADS``: the
     viewport's first image in part 0, the error predicate's chain in part 1).
-    ``soft=False``: no orthographic, soft-light steps (:func:`units`).
+    ``soft=False``: no orthographic, soft-light steps (:func:`units`). ``textures=False``:
+    no textured surfaces (the kernels that apply a texture to interpolated rays or split a
+    sample's radiance by its texel: ``make demo``'s scene has no texture).
     """
     from .frame import RenderSettings
     from .session import Session
@@ -422,7 +427,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
         if part is not None and mine and mine[0] == ("interpolants",):
             _check(cancel)  # this part's first unit: first
             with held:
-                _warm_edited_interpolants(progress, cancel)
+                _warm_edited_interpolants(progress, cancel, textures)
             mine = mine[1:]
         for i, (mode, accel, ortho) in enumerate(steps):
             _check(cancel)
@@ -436,17 +441,17 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
             if ortho:
                 settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
             with held:
-                session = Session(warm_scene(ortho=ortho), settings)
+                session = Session(warm_scene(ortho=ortho, textured=textures), settings)
                 # cells wherever the rays need them: which kernels a frame reaches must not
                 # depend on the measured fallback's timings (it traces where its allowance
                 # is spent: a slow machine's warm-up would leave the predicate's cold)
                 session.interpolants.auto_fallback = False
-                _animate(session, ortho, cancel)
+                _animate(session, ortho, cancel, textures)
             _yield(lock)
         if ("interpolants",) in mine:
             _check(cancel)
             with held:
-                _warm_edited_interpolants(progress, cancel)
+                _warm_edited_interpolants(progress, cancel, textures)
             _yield(lock)
         if ("ri_trees",) in mine:
             _check(cancel)
@@ -515,7 +520,7 @@ def _python() -> str | None:
 
 def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progress=None,
                   cancel=None, report_unreached: bool = True, poll_s: float = 1.0,
-                  soft: bool = True) -> dict:
+                  soft: bool = True, textures: bool = True) -> dict:
     """:func:`warm` in ``jobs`` processes (default: one per core) sharing this process's
     cache (``kernel_cache`` keeps concurrent writers safe), each warming its part of the
     units; this process waits and reports ``progress("kernels 57/180")`` whenever the
@@ -537,8 +542,8 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     jobs = max(1, min(jobs or kernel_cache.usable_cores(), len(units(modes, accelerators, soft))))
     exe = _python()
     if exe is None:
-        return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft),
-                    jobs=1)
+        return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft,
+                         textures=textures), jobs=1)
     env = dict(os.environ)
     if numba.config.CACHE_DIR:
         env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
@@ -554,7 +559,7 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     procs = [subprocess.Popen(
         [exe, "-m", f"{__package__}", "warm-cache", "--json", "--jobs", "1",
          "--part", f"{k}/{jobs}", "--modes", *modes, "--accelerators", *accelerators]
-        + ([] if soft else ["--no-soft-light"]),
+        + ([] if soft else ["--no-soft-light"]) + ([] if textures else ["--no-textures"]),
         env=env, stdin=subprocess.DEVNULL, stdout=logs[k][0], stderr=logs[k][1],
         text=True) for k in range(jobs)]
     kernels, shown, cancelled = render_kernels(), None, False

@@ -35,12 +35,49 @@ def test_demo_warm_cache_is_the_demo_kernels_warm_up():
     demo = _demo_module()
     args = demo.WARM_CACHE_ARGS
     assert args[0] == "warm-cache" and "--no-soft-light" in args
+    assert "--no-textures" in args  # the demo's scene has none (session 36: 7-12 s of CPU)
     modes = args[args.index("--modes") + 1:args.index("--accelerators")]
     assert set(modes) == {"BASE", "INTERPOLANT"}  # the demo renders in both
     from rstrace_engine.__main__ import _parser
 
     parsed = _parser().parse_args(list(args))
     assert parsed.accelerators == ["BVH"] and not parsed.soft and parsed.jobs == 0
+
+
+def test_no_textures_reaches_the_parts_and_the_warm_scene(monkeypatch):
+    """``warm-cache --no-textures`` hands the flag to each part it starts, and its steps'
+    scene has no textured material (the kernels that texture interpolated rays and split a
+    sample's radiance by its texel are never called: ``make demo``'s scene has no
+    texture)."""
+    import subprocess
+
+    from rstrace_engine import warm_kernels
+
+    started = []
+
+    class FakePart:
+        returncode = 0
+
+        def __init__(self, args, stdout=None, **kw):
+            started.append(list(args))
+            stdout.write('{"compiled": 0, "loaded": 0, "compiled_kernels": {}}')
+
+        def poll(self):
+            return 0
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(subprocess, "Popen", FakePart)
+    warm_kernels.warm_parallel(2, ("BASE", "INTERPOLANT"), ("BVH",), report_unreached=False,
+                               soft=False, textures=False)
+    assert len(started) == 2 and all("--no-textures" in a for a in started)
+    started.clear()
+    warm_kernels.warm_parallel(2, ("BASE",), ("BVH",), report_unreached=False)
+    assert started and not any("--no-textures" in a for a in started)
+    plain = warm_kernels.warm_scene(textured=False)
+    assert all(m.texture is None for m in plain.materials)
+    assert any(m.texture is not None for m in warm_kernels.warm_scene().materials)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

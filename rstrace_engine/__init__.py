@@ -8,8 +8,7 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    ``kernel_cache`` (numba's disk cache made safe to share between processes, counted),
    ``shipped_kernels`` (the portable build that ships in the extension, seeding the cache),
    ``numba_inline`` (numba's inliner without its per-block copies), ``numba_overloads_cached``
-   (numba's own ``np.empty`` & co cached on disk too), ``numba_flags`` (numba's compile flags
-   compared without a call per option),
+   (numba's own ``np.empty`` & co cached on disk too),
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
    (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
    over serial ``nogil`` kernels), ``linalg`` (small inverses without waking OpenBLAS's
@@ -45,10 +44,6 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from . import kernel_cache  # noqa: E402  (before any kernel is compiled: shared-cache lock)
 
 kernel_cache.install()
-
-from . import numba_flags  # noqa: E402
-
-numba_flags.install()  # numba's compile flags compared without a call per option (same flags)
 
 from . import numba_overloads_cached  # noqa: E402
 

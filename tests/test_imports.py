@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 LAYERS = {
     "tolerances": 1, "errors": 1, "frame": 1, "image": 1, "cancel": 1, "kernel_cache": 1,
     "shipped_kernels": 1, "views": 1, "heap": 1, "stripes": 1, "numba_inline": 1,
-    "numba_overloads_cached": 1, "numba_flags": 1, "linalg": 1,
+    "numba_overloads_cached": 1, "linalg": 1,
     "geometry": 2,
     "accel": 3,
     "tracing": 4,
@@ -127,8 +127,7 @@ def test_reader_sees_every_kind_of_import():
                    "bpy", f"{PACKAGE}.accel.visibility_field", "addon.engine"}
     graph = import_graph()
     assert f"{PACKAGE}.tolerances" in graph[f"{PACKAGE}.tracing.shader"]
-    assert graph[PACKAGE] == {f"{PACKAGE}.kernel_cache", f"{PACKAGE}.numba_overloads_cached",
-                              f"{PACKAGE}.numba_flags"}
+    assert graph[PACKAGE] == {f"{PACKAGE}.kernel_cache", f"{PACKAGE}.numba_overloads_cached"}
 
 
 def test_finder_finds_a_circle():

@@ -27,7 +27,7 @@ def test_the_batch_gives_ggx_albedos_dielectric_part_bit_for_bit():
     model[3] = MODEL_PRINCIPLED + 1  # another model: not written
     mat = rng.integers(-1, 30, n).astype(np.int32)  # (-1: a miss, not written)
     out = np.full(n, -7.0)
-    dielectric_albedos(vd, ns, mat, model, roughness, ior, out)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, out, 0, 1)
     written = (mat >= 0) & (model[np.maximum(mat, 0)] == MODEL_PRINCIPLED)
     assert np.all(out[~written] == -7.0) and written.sum() > 4000
     for i in np.flatnonzero(written):
@@ -35,3 +35,40 @@ def test_the_batch_gives_ggx_albedos_dielectric_part_bit_for_bit():
         c = -dot3(vd[i, 0], vd[i, 1], vd[i, 2], ns[i, 0], ns[i, 1], ns[i, 2])
         want = ggx_albedo(c, roughness[m], ior[m])[1]
         assert np.float64(want).tobytes() == np.float64(out[i]).tobytes(), (i, want, out[i])
+
+
+def test_the_albedos_are_striped_as_the_shade_kernel_is(monkeypatch):
+    """Each stripe writes its own points' albedos (the same bits as one pass), and the shade
+    level runs the kernel on every stripe's thread (:func:`~rstrace_engine.stripes.run`),
+    not in the calling thread alone: there it added its whole cost to each batch's wall
+    time on a many-core machine, where inside the shade kernel every thread shared it."""
+    from rstrace_engine import stripes
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.scenes import build
+    from rstrace_engine.session import Session
+    from rstrace_engine.tracing import whitted
+
+    rng = np.random.default_rng(9)
+    n = 1000
+    vd = rng.normal(size=(n, 3))
+    vd /= np.linalg.norm(vd, axis=1)[:, None]
+    ns = -vd + 0.3 * rng.normal(size=(n, 3))
+    mat = rng.integers(-1, 3, n).astype(np.int32)
+    model = np.full(3, MODEL_PRINCIPLED, np.int32)
+    roughness, ior = np.array([0.1, 0.4, 0.9]), np.array([1.5, 1.33, 2.2])
+    whole = np.full(n, -7.0)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, whole, 0, 1)
+    parts = np.full(n, -7.0)
+    for first in range(3):
+        part = np.full(n, -7.0)
+        dielectric_albedos(vd, ns, mat, model, roughness, ior, part, first, 3)
+        own = (np.arange(n) // stripes.BLOCK) % 3 == first
+        assert np.all(part[~own] == -7.0)
+        parts[own] = part[own]
+    assert parts.tobytes() == whole.tobytes()
+
+    ran = []
+    real = stripes.run
+    monkeypatch.setattr(stripes, "run", lambda k, *a: ran.append(k) or real(k, *a))
+    Session(build("rough_materials", 16, 12), RenderSettings(max_depth=1)).render()
+    assert whitted.dielectric_albedos in ran and whitted._shade_kernel in ran

@@ -4,9 +4,10 @@
 (about a third of a 320x240 frame's render, whatever the scene's size: session 36 in
 docs/bench-scale-bpy.md). Computed one point at a time its square roots and divisions run
 one after another; :func:`dielectric_albedos` runs each sample of the quadrature over all
-the batch's Principled points in an inner loop that LLVM vectorises, each point's terms
-summed in the same order with the same operations, so every value is ``ggx_albedo``'s bit
-for bit (a test compares them on random cosines, roughnesses and indices, NaN included).
+the batch's Principled points (a stripe's, on each thread of :func:`~..stripes.run`) in an
+inner loop that LLVM vectorises, each point's terms summed in the same order with the same
+operations, so every value is ``ggx_albedo``'s bit for bit (a test compares them on random
+cosines, roughnesses and indices, NaN included).
 :func:`~.shader._shade_kernel` reads them instead of calling ``ggx_albedo``.
 """
 
@@ -19,19 +20,27 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
+from ..stripes import stripe_item, stripe_len
 from .shading import ALBEDO_SAMPLES_PHI, ALBEDO_SAMPLES_THETA, dot3
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, out):
+def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, out, first,
+                       step):
     """``out[i]`` (n,) float64: ``ggx_albedo(-dot(VD[i], NS[i]), roughness, specular
     IOR)[1]`` of point ``i``'s material where it is Principled (``MAT[i] >= 0``), the
     other rows left as they are. VD, NS (n, 3) float64: the surfaces' view directions and
-    shading normals (:class:`~.shader.Surfaces`)."""
+    shading normals (:class:`~.shader.Surfaces`). Striped (:func:`~..stripes.run`: the
+    points of stripe ``first`` of ``step``), as the shade kernel that reads them is: run in
+    one thread, it would add its whole cost to every batch's wall time on a many-core
+    machine, where inside the shade kernel it was shared by every thread."""
     n = VD.shape[0]
-    idx = np.empty(n, np.int64)
+    idx = np.empty(stripe_len(n, first, step), np.int64)
     k = 0
-    for i in range(n):
+    for stripe_q in range(idx.shape[0]):
+        i = stripe_item(stripe_q, first, step)
+        if i >= n:
+            break
         m = MAT[i]
         if m >= 0 and mat_model[m] == MODEL_PRINCIPLED:
             idx[k] = i

@@ -30,15 +30,21 @@ def _half_area(b0, b1, b2, b3, b4, b5):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _clear_axis(bin_n, bin_b, k, nbins):
+    """Empty bins ``0 .. nbins - 1`` of axis ``k`` (scalar stores: a slice per bin cost
+    more than the stores)."""
+    for b in range(nbins):
+        bin_n[k, b] = 0
+        for q in range(3):
+            bin_b[k, b, q] = np.inf
+            bin_b[k, b, 3 + q] = -np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _clear_bins(bin_n, bin_b, nbins):
-    """Empty bins ``0 .. nbins - 1`` of the three axes (scalar stores: a slice per bin
-    cost more than the stores)."""
+    """Empty bins ``0 .. nbins - 1`` of the three axes."""
     for k in range(3):
-        for b in range(nbins):
-            bin_n[k, b] = 0
-            for q in range(3):
-                bin_b[k, b, q] = np.inf
-                bin_b[k, b, 3 + q] = -np.inf
+        _clear_axis(bin_n, bin_b, k, nbins)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -66,11 +72,7 @@ def _clear_axes(bin_n, bin_b, nbins, bmin, bmax):
     positive extent: the others are never read)."""
     for k in range(3):
         if bmax[k] > bmin[k]:
-            for b in range(nbins):
-                bin_n[k, b] = 0
-                for q in range(3):
-                    bin_b[k, b, q] = np.inf
-                    bin_b[k, b, 3 + q] = -np.inf
+            _clear_axis(bin_n, bin_b, k, nbins)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

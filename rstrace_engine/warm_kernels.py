@@ -40,9 +40,12 @@ RI_WARM_FRAMES = 8
 
 
 def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
-               eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8), textured: bool = True):
+               eye=(0.0, -6.0, 3.0), glossy_at=(-1.2, 0.3, 0.8), textured: bool = True,
+               rough: bool | None = None):
     """A tiny scene with every feature the kernels branch on (``textured=False``: its floor
-    without its texture, for ``warm-cache --no-textures``)."""
+    without its texture, for ``warm-cache --no-textures``). ``rough``: with a rough metal
+    (glossy rays; default: the orthographic variant only; :func:`warm` asks it of the
+    perspective one when it leaves the orthographic steps out)."""
     from .geometry import shapes
     from .geometry.scene import Camera, Light, Material, Scene
 
@@ -72,11 +75,11 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     # spot with a radius, an area light, a world that lights): its kernels warm too; the
     # perspective one keeps hard light, whose cells reach the predicate's light tests
     soft = 0.1 if ortho else 0.0
-    if ortho:  # and a rough metal: glossy rays (issue 24)
+    if ortho if rough is None else rough:  # and a rough metal: glossy rays (issue 24)
         from .geometry.principled import principled_material
 
-        rough, _ = principled_material("rough", (0.8, 0.6, 0.4), metallic=1.0, roughness=0.4)
-        s.add_instance(ico, shapes.transform((-0.4, -1.4, 0.3), 0.3), [s.add_material(rough)],
+        metal, _ = principled_material("rough", (0.8, 0.6, 0.4), metallic=1.0, roughness=0.4)
+        s.add_instance(ico, shapes.transform((-0.4, -1.4, 0.3), 0.3), [s.add_material(metal)],
                        name="Rough")
     # (the sphere without soft falloff, the spot's with: both shapes the mirror sees)
     s.add_light(Light("Point", "POINT", power=800.0, position=(-2.0, -3.0, 4.0),
@@ -154,7 +157,8 @@ def _check(cancel) -> None:
         raise Cancelled
 
 
-def _animate(session, ortho: bool, cancel=None, textured: bool = True) -> None:
+def _animate(session, ortho: bool, cancel=None, textured: bool = True,
+             rough: bool | None = None) -> None:
     """What the viewport and the frames of an animation do: a coarse view image (the
     viewport's first image, in tiles), render, move the camera, move an object (a full frame
     when the scene box grows, an incremental one when it does not), render."""
@@ -169,7 +173,8 @@ def _animate(session, ortho: bool, cancel=None, textured: bool = True) -> None:
     for step in steps:
         _check(cancel)
         if step is not None:
-            session.update_scene(warm_scene(ortho=ortho, textured=textured, **step))
+            session.update_scene(warm_scene(ortho=ortho, textured=textured, rough=rough,
+                                            **step))
         session.render(cancel=cancel)
     # light edits: the first makes BASE keep its per-light terms (a full frame), then it
     # relights (a moved light is shaded again, a power change recombines); between them an
@@ -441,12 +446,18 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
             if ortho:
                 settings.samples, settings.memory_cap_mb = 1, 0.01  # the LRU evicts
             with held:
-                session = Session(warm_scene(ortho=ortho, textured=textures), settings)
+                # without the orthographic steps (soft=False: make demo), the perspective
+                # scene has their rough metal: its glossy rays' kernels (the strata, the
+                # roulette, a convex ball's own-instance skip: the demo's rough spheres
+                # call them) compile in the warm-up, beside the demo, not on its own path
+                rough = None if soft else True
+                session = Session(warm_scene(ortho=ortho, textured=textures, rough=rough),
+                                  settings)
                 # cells wherever the rays need them: which kernels a frame reaches must not
                 # depend on the measured fallback's timings (it traces where its allowance
                 # is spent: a slow machine's warm-up would leave the predicate's cold)
                 session.interpolants.auto_fallback = False
-                _animate(session, ortho, cancel, textures)
+                _animate(session, ortho, cancel, textures, rough)
             _yield(lock)
         if ("interpolants",) in mine:
             _check(cancel)

@@ -134,3 +134,34 @@ def test_warm_up_reaches_the_reprojection_of_the_demos_interpolated_frame(monkey
     # and a camera step splats the frame's interpolants into the next (a camera move)
     assert splats and max(splats) > 0, splats
     assert len(kernel.signatures) == 1  # one signature, the one a render at 4 samples uses
+
+
+def test_demo_warm_up_reaches_the_glossy_kernels_of_the_demo(monkeypatch):
+    """``make demo``'s warm-up leaves the orthographic steps out (``soft=False``), and with
+    them the warm scene's rough metal: seven kernels its rough spheres' glossy rays call
+    (the strata, the roulette, the own-instance skip of a convex ball and its reflected
+    rays, a mesh's convexity) were compiled by the demo itself, on its own path (session
+    36). The perspective steps carry the rough metal now; on main none is called."""
+    from rstrace_engine import warm_kernels
+    from rstrace_engine.tracing import glossy_rays, glossy_strata, object_rays, shaft_skip
+
+    kernels = [(shaft_skip, "_own_kernel"), (shaft_skip, "_own_reflections"),
+               (object_rays, "_plane_excess"), (glossy_rays, "_roulette"),
+               (glossy_strata, "_child_tags"), (glossy_strata, "_lattices"),
+               (glossy_strata, "_pixel_seeds")]
+    calls = {}
+
+    def counting(kernel, name):
+        def counted(*args):
+            calls[name] = calls.get(name, 0) + 1
+            return kernel(*args)
+        return counted
+
+    for module, name in kernels:
+        monkeypatch.setattr(module, name, counting(getattr(module, name), name))
+    warm_kernels.warm(("BASE",), ("BVH",), report_unreached=False, soft=False,
+                      textures=False)
+    assert sorted(calls) == sorted(name for _, name in kernels), calls
+    # the add-on's full warm-up keeps the perspective scene as it was (hard light, no metal)
+    assert len(warm_kernels.warm_scene().materials) + 1 == len(
+        warm_kernels.warm_scene(rough=True).materials)

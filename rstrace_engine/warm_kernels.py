@@ -449,7 +449,8 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
                 # without the orthographic steps (soft=False: make demo), the perspective
                 # scene has their rough metal: its glossy rays' kernels (the strata, the
                 # roulette, a convex ball's own-instance skip: the demo's rough spheres
-                # call them) compile in the warm-up, beside the demo, not on its own path
+                # call them) are in the cache the warm-up leaves (in a cold make demo the
+                # demo's first frame still reaches them first: docs/first-render.md)
                 rough = None if soft else True
                 session = Session(warm_scene(ortho=ortho, textured=textures, rough=rough),
                                   settings)

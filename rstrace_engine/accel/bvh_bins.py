@@ -3,7 +3,9 @@ the partition, the split of two primitives without bins.
 
 All of them are inlined into the builder's kernels (``inline="always"``): none is a kernel
 of its own. Boxes are rows ``(lo x, lo y, lo z, hi x, hi y, hi z)`` of float32 or float64,
-read as float64 before any arithmetic.
+read as float64 before any arithmetic. The "centroid bounds" ``cmin``, ``cmax`` a node's
+bins are laid over are its centroids' at the root and under an object-median split, and
+its box under an SAH split (session 37; :mod:`.bvh_build`).
 """
 
 from __future__ import annotations
@@ -204,22 +206,19 @@ def _swap(pb, perm, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb):
+def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin):
     """Reorder ``pb`` / ``perm[start:end]``: primitives whose centroid falls in bins up to
-    ``split_bin`` on axis ``k`` first. Returns where the others start; ``lcb``, ``rcb``
-    (6,) get the centroid bounds (min, max) of the two sides."""
-    _empty6(lcb)
-    _empty6(rcb)
+    ``split_bin`` on axis ``k`` first. Returns where the others start. (No centroid
+    bounds are gathered: the two sides' bins are laid over their boxes, which the bins
+    give, :mod:`.bvh_build`.)"""
     scale = nbins / ext
     i, j = start, end - 1
     while i <= j:
         if _bin_at(0.5 * (np.float64(pb[i, k]) + np.float64(pb[i, 3 + k])), cmin_k, scale,
                    nbins) <= split_bin:
-            _add_centroid(pb, i, lcb)
             i += 1
         else:
             _swap(pb, perm, i, j)
-            _add_centroid(pb, j, rcb)
             j -= 1
     return i
 

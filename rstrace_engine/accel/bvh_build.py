@@ -24,9 +24,12 @@ through memory:
 same whatever the thread count, and it is the tree one sequential build (``grain >= n``)
 makes: the tests compare them.
 
-Each node is split at the best of ``SAH_BINS`` bins per axis over its centroid bounds (the
-children's boxes are unions of bins, the children's centroid bounds come out of the
-partition), or at the object median when no bin boundary separates the centroids or below
+Each node is split at the best of ``SAH_BINS`` bins per axis laid over its bounds -- its
+centroid bounds at the root and under an object-median split, **its box** under an SAH
+split: the children's boxes are unions of bins, so the partition gathers nothing (session
+37, docs/bench-scale.md: about a tenth less subtree CPU for +0.05% SAH cost; both phases
+do it, so the tree is still the same on any grain) --
+or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the
 longest (:func:`.bvh_bins._node_bins`: about 13% less work in the subtrees for about 0.4%
@@ -161,8 +164,9 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
     """Split every node of a level, one thread each: node ``e`` (``ranges[e]``: start,
     end) at ``split[e]`` (axis, bin of ``node_nb[e]``; axis -1: the object median).
     Returns the middles;
-    ``out_box``, ``out_c`` (E, 2, 6) get the children's boxes and centroid bounds (an SAH
-    split's boxes are already there, from the bins)."""
+    ``out_box``, ``out_c`` (E, 2, 6) get the children's boxes and the bounds their bins
+    are laid over (an SAH split's boxes are already there, from the bins, and are its
+    children's bin bounds too; a median split's: their centroid bounds)."""
     ne = ranges.shape[0]
     mid = np.empty(ne, np.int64)
     for e in prange(ne):
@@ -170,8 +174,10 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
         k = split[e, 0]
         if k >= 0:
             mid[e] = _partition(pb, perm, start, end, k, node_c[e, k],
-                                node_c[e, 3 + k] - node_c[e, k], node_nb[e], split[e, 1],
-                                out_c[e, 0], out_c[e, 1])
+                                node_c[e, 3 + k] - node_c[e, k], node_nb[e], split[e, 1])
+            for s in range(2):  # (the bins of each side: over its box)
+                for q in range(6):
+                    out_c[e, s, q] = out_box[e, s, q]
         else:
             mid[e] = _median_split(pb, perm, start, end, node_c[e], out_box[e, 0],
                                    out_c[e, 0], out_box[e, 1], out_c[e, 1])
@@ -392,9 +398,12 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
             continue
         if best_axis >= 0 and not make_leaf:
             mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],
-                             cmax[best_axis] - cmin[best_axis], nb, best_bin, lcb, rcb)
+                             cmax[best_axis] - cmin[best_axis], nb, best_bin)
             _bins_box(bin_b, best_axis, 0, best_bin + 1, lbox)
             _bins_box(bin_b, best_axis, best_bin + 1, nb, rbox)
+            for q in range(6):  # (the bins of each side: over its box)
+                lcb[q] = lbox[q]
+                rcb[q] = rbox[q]
         else:
             # no usable SAH split (coincident centroids, depth cap, or a root that is one
             # leaf)

@@ -21,6 +21,11 @@ from numba import njit
 CHEAP_MAX = 4096
 CHEAP_BINS = 16
 CHEAP_AXIS_FRAC = 0.5
+#: ``cheap_max`` of a large mesh's item build (:mod:`.bvh_cluster`): the cheap rule on
+#: every node, the top levels' too (session 37, docs/bench-scale.md: top levels about a
+#: fifth less CPU, SAH cost no higher on Suzanne 1M / 4M; not the triangle build's: +0.9%
+#: on a 30k lumpy sphere).
+CHEAP_ALL = 1 << 62
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -50,14 +55,16 @@ def _clear_bins(bin_n, bin_b, nbins):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _node_bins(count, nbins, cmin, cmax, bmin, bmax):
+def _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max):
     """How a node of ``count`` primitives with centroid bounds ``cmin``, ``cmax`` (3,) is
-    binned: returns its bins per axis (at most ``nbins``, and at most its primitives), and
+    binned (the cheap rule up to ``cheap_max`` primitives: :data:`CHEAP_MAX`, or
+    :data:`CHEAP_ALL` in a large mesh's item build, :mod:`.bvh_cluster`): returns its
+    bins per axis (at most ``nbins``, and at most its primitives), and
     sets ``bmin``, ``bmax`` (3,) to the bounds the bins are laid over: ``cmin``, ``cmax``
     with each axis left out made flat (a flat axis is neither binned nor swept:
     :func:`_bin_range`, :func:`_best_split`)."""
     emax = max(cmax[0] - cmin[0], max(cmax[1] - cmin[1], cmax[2] - cmin[2]))
-    cheap = count <= CHEAP_MAX
+    cheap = count <= cheap_max
     for q in range(3):
         bmin[q] = cmin[q]
         bmax[q] = cmax[q]

@@ -44,6 +44,7 @@ from numba import njit, prange
 
 from ..cancel import Cancelled
 from .bvh_bins import (
+    CHEAP_MAX,
     _add_centroid,
     _best_split,
     _bin_range,
@@ -185,7 +186,7 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
+def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max):
     """Phase 1: split nodes of more than ``grain`` primitives, a level at a time (numbered
     from 0 in ``bounds`` (., 12) / ``child`` (., 2), breadth first). ``stop`` (1,) int32
     is read before each level: once non-zero the phase returns unfinished.
@@ -238,7 +239,8 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
         node_nb = np.empty(ne, np.int64)
         for e in range(ne):
             node_nb[e] = _node_bins(lv_int[e, 3] - lv_int[e, 2], nbins, node_c[e, 0:3],
-                                    node_c[e, 3:6], node_m[e, 0:3], node_m[e, 3:6])
+                                    node_c[e, 3:6], node_m[e, 0:3], node_m[e, 3:6],
+                                    cheap_max)
         chunks = np.empty((n_chunks, 3), np.int64)
         c = 0
         for e in range(ne):
@@ -309,7 +311,7 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
-                  bounds, child):
+                  bounds, child, cheap_max):
     """One subtree, depth first, its inner nodes numbered from ``node0`` (a root task's
     root is node ``node0`` itself). Returns ``(nodes used, sah)``."""
     t_int = np.empty((2 * (DEPTH_CAP + 40), 5), np.int64)
@@ -351,7 +353,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         if count == 2 and depth < DEPTH_CAP:
             best_cost, best_axis, best_bin = _two_split(pb, start, cmin, cmax)
         elif count > 1 and depth < DEPTH_CAP:
-            nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax)
+            nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max)
             _clear_axes(bin_n, bin_b, nb, bmin, bmax)
             _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
             best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
@@ -429,7 +431,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost, root_area,
-                   bounds, child, stop):
+                   bounds, child, stop, cheap_max):
     """Phase 2: task ``t`` (:func:`split_top`) built into nodes from ``region[t]``, one
     thread per task. Returns the nodes each used (T,) and their SAH (T,). ``stop`` (1,)
     int32 is read before each task: once non-zero the others are skipped."""
@@ -440,7 +442,8 @@ def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost
         if stop[0] != 0:
             continue
         used[t], sah[t] = build_subtree(pb, perm, tasks[t], task_box[t], region[t],
-                                         max_leaf, nbins, trav_cost, root_area, bounds, child)
+                                         max_leaf, nbins, trav_cost, root_area, bounds, child,
+                                         cheap_max)
     return used, sah
 
 
@@ -492,13 +495,15 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
-                     stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0):
+                     stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0,
+                     cheap_max: int = CHEAP_MAX):
     """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
     take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
     built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
     unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy), with
-    ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`)."""
+    ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`);
+    ``cheap_max``: the largest node split by the cheap rule (:func:`.bvh_bins._node_bins`)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
@@ -506,7 +511,7 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     bounds = np.empty((cap, 12), pb.dtype)
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,
-                                                       bounds, child, stop)
+                                                       bounds, child, stop, cheap_max)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     # task t uses at most (its primitives - 1) nodes (a root task of one primitive: one);
@@ -516,14 +521,15 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     region = n_top + np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
     if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
         used, task_sah = build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
-                                        nbins, trav_cost, root_area, bounds, child)
+                                        nbins, trav_cost, root_area, bounds, child,
+                                        cheap_max)
         if not packed:
             return bounds, child, perm, float(sah + task_sah)
         return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
             sah + task_sah)
     with numba.parallel_chunksize(1):  # subtrees differ in cost: threads take them in turn
         used, task_sah = build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins,
-                                        trav_cost, root_area, bounds, child, stop)
+                                        trav_cost, root_area, bounds, child, stop, cheap_max)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     if not packed:

@@ -33,7 +33,8 @@ or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the
 longest (:func:`.bvh_bins._node_bins`: about 13% less work in the subtrees for about 0.4%
-more SAH cost).
+more SAH cost); a large mesh's item build (:mod:`.bvh_cluster`) applies that rule to every
+node (``cheap_max``: :data:`.bvh_bins.CHEAP_ALL`).
 """
 
 from __future__ import annotations

@@ -27,8 +27,8 @@ makes: the tests compare them.
 Each node is split at the best of ``SAH_BINS`` bins per axis laid over its bounds -- its
 centroid bounds at the root and under an object-median split, **its box** under an SAH
 split: the children's boxes are unions of bins, so the partition gathers nothing (session
-37, docs/bench-scale.md: about a tenth less subtree CPU for +0.05% SAH cost; both phases
-do it, so the tree is still the same on any grain) --
+37, docs/bench-scale.md: up to a tenth less subtree CPU; SAH cost the same on Suzanne,
++0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain) --
 or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the

@@ -87,6 +87,26 @@ def test_small_nodes_are_binned_on_their_long_axes_only():
         assert (min(z_extent) > 3.0) == (not between_rows), (n, z_extent)
 
 
+def test_an_sah_splits_children_are_binned_over_their_boxes():
+    """Below an SAH split a node's bins are laid over its box, not its centroid bounds
+    (session 37: the partition gathers nothing, the bins give the boxes). Two rows of
+    boxes along x, 4 apart in z, each box 2 tall in z, beside a far cluster the root
+    splits off: the rows' node spreads its centroids 0.4 as far in z as in x (z not
+    binned, ``CHEAP_AXIS_FRAC``: split across x) but its box 0.59 as far (z binned: split
+    between the rows, the lower SAH cost). Fails on main (centroid bounds)."""
+    x = np.linspace(0.0, 10.0, 50)
+    c = np.concatenate([np.stack([x, 0 * x, 0 * x], 1), np.stack([x, 0 * x, 4 + 0 * x], 1),
+                        [[1000.0, 0, 0], [1001, 0, 0], [1000, 1, 0], [1001, 1, 0]]])
+    half = np.array([0.05, 0.05, 1.0])
+    for grain in (None, 16):
+        b, ch, perm, sah = bvh_build.build_flat(c - half, c + half, grain=grain)
+        rows = [s for s in range(2) if b[0, 6 * s + 3] < 100.0]
+        assert len(rows) == 1 and ch[0, rows[0]] >= 0
+        node = ch[0, rows[0]]
+        z_extent = b[node, 5] - b[node, 2], b[node, 11] - b[node, 8]
+        assert max(z_extent) < 3.0, (grain, z_extent)
+
+
 def test_binary_nodes_are_packed():
     """The binary build's nodes are all reachable from the root (none left unused by the
     subtrees' stretches) and every primitive is in one leaf."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
+from rstrace_engine.accel import bvh_bins, bvh_build, bvh_cluster, bvh_mesh
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.scene import Material, Mesh, Scene
@@ -243,3 +243,29 @@ def test_exact_ties_go_to_the_highest_triangle_in_any_tree(n):
     for field in ("t", "inst", "prim", "u", "v"):
         a, b = np.asarray(getattr(got, field)), np.asarray(getattr(want, field))
         assert np.array_equal(a, b), (field, int(np.count_nonzero(a != b)))
+
+
+def test_a_large_meshs_item_build_bins_every_node_on_its_long_axes():
+    """The item build (:func:`bvh_cluster.build_paired`) applies the cheap rule
+    (``bvh_bins._node_bins``: binned only on the axes whose extent is at least
+    ``CHEAP_AXIS_FRAC`` of the longest's) to every node, not only those of at most
+    ``CHEAP_MAX`` primitives (session 37). Two rows of quads along x, 4 apart in z, more
+    than ``CHEAP_MAX`` items: the root splits across x (z not binned); the triangle
+    build of the same boxes (``build_flat_boxes``) still splits between the rows. Fails
+    on main."""
+    q = bvh_bins.CHEAP_MAX // 2 + 500  # quads per row: > CHEAP_MAX items in all
+    x = np.linspace(0.0, 10.0, q + 1)
+    verts, tris = [], []
+    for z in (0.0, 4.0):
+        v0 = len(verts)
+        verts += [(xi, y, z) for xi in x for y in (0.0, 0.01)]
+        for i in range(q):
+            a, b, c, d = v0 + 2 * i, v0 + 2 * i + 2, v0 + 2 * i + 3, v0 + 2 * i + 1
+            tris += [(a, b, c), (a, c, d)]
+    verts, tris = np.array(verts, np.float64), np.array(tris, np.int32)
+    pb = bvh_mesh.indexed_boxes(verts, tris)
+    b, ch, perm, sah = bvh_cluster.build_paired(verts, tris, pb.copy())
+    z_extent = b[0, 5] - b[0, 2], b[0, 11] - b[0, 8]  # the root's two children
+    assert min(z_extent) > 3.0, z_extent
+    b, ch, perm, sah = bvh_build.build_flat_boxes(pb.astype(np.float64))
+    assert max(b[0, 5] - b[0, 2], b[0, 11] - b[0, 8]) < 1.0

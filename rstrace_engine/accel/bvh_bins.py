@@ -3,7 +3,9 @@ the partition, the split of two primitives without bins.
 
 All of them are inlined into the builder's kernels (``inline="always"``): none is a kernel
 of its own. Boxes are rows ``(lo x, lo y, lo z, hi x, hi y, hi z)`` of float32 or float64,
-read as float64 before any arithmetic.
+read as float64 before any arithmetic. The "centroid bounds" ``cmin``, ``cmax`` a node's
+bins are laid over are its centroids' at the root and under an object-median split, and
+its box under an SAH split (session 37; :mod:`.bvh_build`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,11 @@ from numba import njit
 CHEAP_MAX = 4096
 CHEAP_BINS = 16
 CHEAP_AXIS_FRAC = 0.5
+#: ``cheap_max`` of a large mesh's item build (:mod:`.bvh_cluster`): the cheap rule on
+#: every node, the top levels' too (session 37, docs/bench-scale.md: top levels about a
+#: fifth less CPU, SAH cost no higher on Suzanne 1M / 4M; not the triangle build's: +0.9%
+#: on a 30k lumpy sphere).
+CHEAP_ALL = 1 << 62
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -48,14 +55,16 @@ def _clear_bins(bin_n, bin_b, nbins):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _node_bins(count, nbins, cmin, cmax, bmin, bmax):
+def _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max):
     """How a node of ``count`` primitives with centroid bounds ``cmin``, ``cmax`` (3,) is
-    binned: returns its bins per axis (at most ``nbins``, and at most its primitives), and
+    binned (the cheap rule up to ``cheap_max`` primitives: :data:`CHEAP_MAX`, or
+    :data:`CHEAP_ALL` in a large mesh's item build, :mod:`.bvh_cluster`): returns its
+    bins per axis (at most ``nbins``, and at most its primitives), and
     sets ``bmin``, ``bmax`` (3,) to the bounds the bins are laid over: ``cmin``, ``cmax``
     with each axis left out made flat (a flat axis is neither binned nor swept:
     :func:`_bin_range`, :func:`_best_split`)."""
     emax = max(cmax[0] - cmin[0], max(cmax[1] - cmin[1], cmax[2] - cmin[2]))
-    cheap = count <= CHEAP_MAX
+    cheap = count <= cheap_max
     for q in range(3):
         bmin[q] = cmin[q]
         bmax[q] = cmax[q]
@@ -204,22 +213,19 @@ def _swap(pb, perm, i, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin, lcb, rcb):
+def _partition(pb, perm, start, end, k, cmin_k, ext, nbins, split_bin):
     """Reorder ``pb`` / ``perm[start:end]``: primitives whose centroid falls in bins up to
-    ``split_bin`` on axis ``k`` first. Returns where the others start; ``lcb``, ``rcb``
-    (6,) get the centroid bounds (min, max) of the two sides."""
-    _empty6(lcb)
-    _empty6(rcb)
+    ``split_bin`` on axis ``k`` first. Returns where the others start. (No centroid
+    bounds are gathered: the two sides' bins are laid over their boxes, which the bins
+    give, :mod:`.bvh_build`.)"""
     scale = nbins / ext
     i, j = start, end - 1
     while i <= j:
         if _bin_at(0.5 * (np.float64(pb[i, k]) + np.float64(pb[i, 3 + k])), cmin_k, scale,
                    nbins) <= split_bin:
-            _add_centroid(pb, i, lcb)
             i += 1
         else:
             _swap(pb, perm, i, j)
-            _add_centroid(pb, j, rcb)
             j -= 1
     return i
 

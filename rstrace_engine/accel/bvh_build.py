@@ -24,13 +24,17 @@ through memory:
 same whatever the thread count, and it is the tree one sequential build (``grain >= n``)
 makes: the tests compare them.
 
-Each node is split at the best of ``SAH_BINS`` bins per axis over its centroid bounds (the
-children's boxes are unions of bins, the children's centroid bounds come out of the
-partition), or at the object median when no bin boundary separates the centroids or below
+Each node is split at the best of ``SAH_BINS`` bins per axis laid over its bounds -- its
+centroid bounds at the root and under an object-median split, **its box** under an SAH
+split: the children's boxes are unions of bins, so the partition gathers nothing (session
+37, docs/bench-scale.md: up to a tenth less subtree CPU; SAH cost the same on Suzanne,
++0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain) --
+or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the
 longest (:func:`.bvh_bins._node_bins`: about 13% less work in the subtrees for about 0.4%
-more SAH cost).
+more SAH cost); a large mesh's item build (:mod:`.bvh_cluster`) applies that rule to every
+node (``cheap_max``: :data:`.bvh_bins.CHEAP_ALL`).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from numba import njit, prange
 
 from ..cancel import Cancelled
 from .bvh_bins import (
+    CHEAP_MAX,
     _add_centroid,
     _best_split,
     _bin_range,
@@ -161,8 +166,9 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
     """Split every node of a level, one thread each: node ``e`` (``ranges[e]``: start,
     end) at ``split[e]`` (axis, bin of ``node_nb[e]``; axis -1: the object median).
     Returns the middles;
-    ``out_box``, ``out_c`` (E, 2, 6) get the children's boxes and centroid bounds (an SAH
-    split's boxes are already there, from the bins)."""
+    ``out_box``, ``out_c`` (E, 2, 6) get the children's boxes and the bounds their bins
+    are laid over (an SAH split's boxes are already there, from the bins, and are its
+    children's bin bounds too; a median split's: their centroid bounds)."""
     ne = ranges.shape[0]
     mid = np.empty(ne, np.int64)
     for e in prange(ne):
@@ -170,8 +176,10 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
         k = split[e, 0]
         if k >= 0:
             mid[e] = _partition(pb, perm, start, end, k, node_c[e, k],
-                                node_c[e, 3 + k] - node_c[e, k], node_nb[e], split[e, 1],
-                                out_c[e, 0], out_c[e, 1])
+                                node_c[e, 3 + k] - node_c[e, k], node_nb[e], split[e, 1])
+            for s in range(2):  # (the bins of each side: over its box)
+                for q in range(6):
+                    out_c[e, s, q] = out_box[e, s, q]
         else:
             mid[e] = _median_split(pb, perm, start, end, node_c[e], out_box[e, 0],
                                    out_c[e, 0], out_box[e, 1], out_c[e, 1])
@@ -179,7 +187,7 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
+def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max):
     """Phase 1: split nodes of more than ``grain`` primitives, a level at a time (numbered
     from 0 in ``bounds`` (., 12) / ``child`` (., 2), breadth first). ``stop`` (1,) int32
     is read before each level: once non-zero the phase returns unfinished.
@@ -232,7 +240,8 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
         node_nb = np.empty(ne, np.int64)
         for e in range(ne):
             node_nb[e] = _node_bins(lv_int[e, 3] - lv_int[e, 2], nbins, node_c[e, 0:3],
-                                    node_c[e, 3:6], node_m[e, 0:3], node_m[e, 3:6])
+                                    node_c[e, 3:6], node_m[e, 0:3], node_m[e, 3:6],
+                                    cheap_max)
         chunks = np.empty((n_chunks, 3), np.int64)
         c = 0
         for e in range(ne):
@@ -303,7 +312,7 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_area,
-                  bounds, child):
+                  bounds, child, cheap_max):
     """One subtree, depth first, its inner nodes numbered from ``node0`` (a root task's
     root is node ``node0`` itself). Returns ``(nodes used, sah)``."""
     t_int = np.empty((2 * (DEPTH_CAP + 40), 5), np.int64)
@@ -345,7 +354,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         if count == 2 and depth < DEPTH_CAP:
             best_cost, best_axis, best_bin = _two_split(pb, start, cmin, cmax)
         elif count > 1 and depth < DEPTH_CAP:
-            nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax)
+            nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max)
             _clear_axes(bin_n, bin_b, nb, bmin, bmax)
             _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
             best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
@@ -392,9 +401,12 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
             continue
         if best_axis >= 0 and not make_leaf:
             mid = _partition(pb, perm, start, end, best_axis, cmin[best_axis],
-                             cmax[best_axis] - cmin[best_axis], nb, best_bin, lcb, rcb)
+                             cmax[best_axis] - cmin[best_axis], nb, best_bin)
             _bins_box(bin_b, best_axis, 0, best_bin + 1, lbox)
             _bins_box(bin_b, best_axis, best_bin + 1, nb, rbox)
+            for q in range(6):  # (the bins of each side: over its box)
+                lcb[q] = lbox[q]
+                rcb[q] = rbox[q]
         else:
             # no usable SAH split (coincident centroids, depth cap, or a root that is one
             # leaf)
@@ -420,7 +432,7 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost, root_area,
-                   bounds, child, stop):
+                   bounds, child, stop, cheap_max):
     """Phase 2: task ``t`` (:func:`split_top`) built into nodes from ``region[t]``, one
     thread per task. Returns the nodes each used (T,) and their SAH (T,). ``stop`` (1,)
     int32 is read before each task: once non-zero the others are skipped."""
@@ -431,7 +443,8 @@ def build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins, trav_cost
         if stop[0] != 0:
             continue
         used[t], sah[t] = build_subtree(pb, perm, tasks[t], task_box[t], region[t],
-                                         max_leaf, nbins, trav_cost, root_area, bounds, child)
+                                         max_leaf, nbins, trav_cost, root_area, bounds, child,
+                                         cheap_max)
     return used, sah
 
 
@@ -483,13 +496,15 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
-                     stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0):
+                     stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0,
+                     cheap_max: int = CHEAP_MAX):
     """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
     take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
     built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
     unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy), with
-    ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`)."""
+    ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`);
+    ``cheap_max``: the largest node split by the cheap rule (:func:`.bvh_bins._node_bins`)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
@@ -497,7 +512,7 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     bounds = np.empty((cap, 12), pb.dtype)
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,
-                                                       bounds, child, stop)
+                                                       bounds, child, stop, cheap_max)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     # task t uses at most (its primitives - 1) nodes (a root task of one primitive: one);
@@ -507,14 +522,15 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     region = n_top + np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
     if len(tasks) == 1:  # one subtree (a small mesh): no parallel region to start
         used, task_sah = build_subtree(pb, perm, tasks[0], task_box[0], region[0], max_leaf,
-                                        nbins, trav_cost, root_area, bounds, child)
+                                        nbins, trav_cost, root_area, bounds, child,
+                                        cheap_max)
         if not packed:
             return bounds, child, perm, float(sah + task_sah)
         return bounds[:n_top + used].copy(), child[:n_top + used].copy(), perm, float(
             sah + task_sah)
     with numba.parallel_chunksize(1):  # subtrees differ in cost: threads take them in turn
         used, task_sah = build_subtrees(pb, perm, tasks, task_box, region, max_leaf, nbins,
-                                        trav_cost, root_area, bounds, child, stop)
+                                        trav_cost, root_area, bounds, child, stop, cheap_max)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     if not packed:

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..cancel import Cancelled
-from .bvh_bins import _box_area, _half_area
+from .bvh_bins import CHEAP_ALL, _box_area, _half_area
 from .bvh_build import NEVER_STOP, SAH_BINS, SAH_TRAVERSAL_COST, build_flat_boxes
 
 #: How an item is opened (:func:`pair_items`' ``how``): one leaf of its triangles (one, or
@@ -201,7 +201,7 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     # nodes)
     bounds, child, iperm, sah_i = build_flat_boxes(
         ib, 1, nbins, trav_cost, grain, stop, packed=False,
-        spare=max(int(np.count_nonzero(how)), 1))
+        spare=max(int(np.count_nonzero(how)), 1), cheap_max=CHEAP_ALL)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)

@@ -1,6 +1,7 @@
 """Per-mesh geometry the scene model needs: which triangles have an area, smooth vertex
 normals, flat triangle normals, the world box of a transformed object box (float64; the
-area test and the flat normals kernels)."""
+area test and the flat normals kernels); and the add-on's gather of a host mesh's corners
+into per-triangle arrays (:func:`gather_corners`)."""
 
 from __future__ import annotations
 
@@ -122,3 +123,60 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         np.add.at(acc, triangles[:, k], fn)
     ln = np.linalg.norm(acc, axis=1, keepdims=True)
     return np.divide(acc, ln, out=np.zeros_like(acc), where=ln > 0)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (one kernel signature whether the host's array is a
+    read-only view of its memory or a writable copy)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
+                   corner_uvs: np.ndarray | None = None):
+    """The per-triangle vertex indices ``corner_vert[corners]`` ((m, 3) int32) and, where
+    ``corner_uvs`` (one uv (2,) float32 row per corner) are given, the per-triangle uvs
+    ``corner_uvs[corners]`` ((m, 3, 2) float32, bit for bit: moved as their bits), as
+    fresh arrays; None where a corner lies outside ``0 .. len(corner_vert) - 1``.
+
+    ``corners`` (m, 3) int32: the corners (indices into the host mesh's loops) of each
+    triangle; ``corner_vert`` (n,) int32: each corner's vertex. One pass of a kernel
+    (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
+    what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
+    triangles, ``docs/bench-scale-bpy.md``).
+    """
+    n = len(corner_vert)
+    cv = _read_only(np.ascontiguousarray(corner_vert, np.int32).reshape(n))
+    tri = _read_only(np.ascontiguousarray(corners, np.int32).reshape(-1, 3))
+    m = len(tri)
+    tris = np.empty((m, 3), np.int32)
+    if corner_uvs is None:
+        uv_in, uv_out = np.zeros((0, 2), np.uint32), np.empty((0, 3, 2), np.uint32)
+    else:
+        uv_in = np.ascontiguousarray(corner_uvs, np.float32).reshape(-1, 2)
+        if len(uv_in) != n:
+            raise ValueError(f"{len(uv_in)} corner uvs for {n} corners")
+        uv_in, uv_out = uv_in.view(np.uint32), np.empty((m, 3, 2), np.uint32)
+    if not _gather_corners(cv, tri, _read_only(uv_in), tris, uv_out):
+        return None
+    return tris, (None if corner_uvs is None else uv_out.view(np.float32))
+
+
+@njit(cache=True, nogil=True)
+def _gather_corners(corner_vert, corners, uvs, tris, uvs_out):
+    """:func:`gather_corners`' pass: ``tris[t, j] = corner_vert[c]`` and, where ``uvs``
+    has rows, ``uvs_out[t, j] = uvs[c]`` (uint32 bits) for each corner ``c = corners[t,
+    j]``; False at the first corner out of range (the outputs then partly written)."""
+    n = corner_vert.shape[0]
+    with_uvs = uvs.shape[0] > 0
+    for t in range(corners.shape[0]):
+        for j in range(3):
+            c = corners[t, j]
+            if c < 0 or c >= n:
+                return False
+            tris[t, j] = corner_vert[c]
+            if with_uvs:
+                uvs_out[t, j, 0] = uvs[c, 0]
+                uvs_out[t, j, 1] = uvs[c, 1]
+    return True

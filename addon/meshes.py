@@ -191,10 +191,11 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     (:func:`blender_array`: a view, no copy), else with ``foreach_get``; the per-triangle
     arrays the Mesh keeps are gathered straight from them (the triangles' vertices and uvs
     in one kernel pass, :func:`~rstrace_engine.geometry.mesh_math.gather_corners`; the
-    normals and slots with :func:`_gather`) and the positions copied once: nothing else of a mesh's size is allocated. Normals come from
-    the mesh's normals domain: per vertex as Blender holds them (POINT,
-    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the
-    engine computes each triangle's own) or per corner (CORNER); uvs from the active
+    normals and slots with :func:`_gather`) and the positions copied once: nothing else of
+    a mesh's size is allocated. Normals come from the mesh's normals domain: per vertex
+    as Blender holds them (POINT, ``Mesh.vertex_normals``), none for an all-flat mesh
+    (FACE: ``smooth=False``, the engine computes each triangle's own) or per corner
+    (CORNER); uvs from the active
     render UV map; material slots only where the mesh has material indices (else none:
     every triangle slot 0). The Mesh is ``owned``: its arrays are fresh, handed over
     without a copy. ``raw`` (attribute name -> values) holds the raw arrays

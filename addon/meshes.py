@@ -156,6 +156,24 @@ def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     return read_array(tris_rna, nt, 3, np.int32, "loops").reshape(nt, 3)
 
 
+#: Triangles from which a mesh's gathered triangles and uvs get room around them
+#: (:func:`spare_rows`)
+ROOM_MIN_TRIANGLES = 1 << 16
+#: The room on each side, as a fraction of the mesh's triangles
+ROOM_FRACTION = 1 / 16
+
+
+def spare_rows(nt: int) -> int:
+    """Rows of room left on each side of a mesh's gathered triangles and uvs
+    (``mesh_math.with_room``): a 16th of its ``nt`` triangles for a mesh of 65,536 or
+    more, else none. Where the scene's largest mesh has them and the other meshes' rows
+    fit, the packing lays those beside its rows instead of copying them (the packing's
+    copy of a 1M-triangle mesh's triangles and uvs, 36 MB of fresh memory: session 37 in
+    ``docs/bench-scale-bpy.md``). The room is address space only until the packing writes
+    into it: no page of it is resident before."""
+    return int(nt * ROOM_FRACTION) if nt >= ROOM_MIN_TRIANGLES else 0
+
+
 def _in_range(index: np.ndarray, size: int, name: str, what: str) -> None:
     """Raise a clear error unless every entry of ``index`` lies in ``0 .. size - 1`` (what
     :func:`_gather` then relies on)."""
@@ -222,7 +240,7 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     layer = next((u for u in me.uv_layers if u.active_render), None)
     # (the triangles' vertices and uvs in one pass, which checks the corners' range)
     gathered = gather_corners(corner_vert, loops, None if layer is None else
-                              _uv(me, layer, raw, nl).reshape(nl, 2))
+                              _uv(me, layer, raw, nl).reshape(nl, 2), spare=spare_rows(nt))
     if gathered is None:
         _in_range(loops, nl, name, "triangle corner")  # (raises: says which)
         raise SceneError(f"mesh '{name}': a triangle corner out of range")

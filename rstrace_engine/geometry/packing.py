@@ -17,7 +17,10 @@ A dict checked from an ``owned`` Mesh (the add-on's export cache holds it) names
 corners, vertex normals, slot rows, and the triangles of a mesh whose first vertex is the
 packing's first), the packed rows are handed back to the Mesh (:func:`share_rows`), so
 that the process holds those values once. The mesh with the most triangles has its
-vertices first (:func:`_vertex_starts`), so that its triangles are among them.
+vertices first (:func:`_vertex_starts`), so that its triangles are among them. Where that
+mesh's triangles and uvs were gathered with room around them (the add-on's large meshes:
+``mesh_math.with_room``), the packing claims the room and writes the other meshes' rows
+there, beside them, instead of copying them (:func:`_in_place`).
 """
 
 from __future__ import annotations

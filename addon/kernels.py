@@ -47,7 +47,8 @@ log = logging.getLogger(__name__)
 #: viewport session of that mode runs on its first image, its first full frame and its
 #: first edit. Listed as ``package.module.function`` under rstrace_engine (a test checks
 #: that every name exists); the progress counts these.
-_BASE = ("accel.content_hash._nh_blocks", "accel.bvh_build.split_top",
+_BASE = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners",
+         "accel.bvh_build.split_top",
          "accel.bvh_build.build_subtree",
          "accel.bvh_mesh.collapse4", "accel.bvh.trace_kernel",
          "geometry.cameras.generate_rays", "tracing.shader._surface_kernel",
@@ -93,7 +94,8 @@ MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 #: of a 1M-triangle scene loaded at ray depth 0 and 5 (``tests/blender/test_kernels.py``
 #: checks that a first F12 after the preload loads none). The rest of the mode's kernels
 #: load after them, while no render runs.
-PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_check._vertex_stats",
+PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners",
+           "geometry.mesh_check._vertex_stats",
            "geometry.mesh_check._index_range",
            "geometry.mesh_check._non_finite32", "geometry.attributes._all_flat_vertex",
            "geometry.mesh_math.flat_triangle_normals", "geometry.mesh_math._proper_kernel",

@@ -23,6 +23,7 @@ import ctypes
 import numpy as np
 
 from rstrace_engine.accel.content_hash import ContentHash
+from rstrace_engine.geometry.mesh_math import gather_corners
 from rstrace_engine.geometry.scene import Mesh, SceneError
 
 #: Raw attributes whose values decide the exported triangles, normals, uvs and slots (with
@@ -155,6 +156,24 @@ def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     return read_array(tris_rna, nt, 3, np.int32, "loops").reshape(nt, 3)
 
 
+#: Triangles from which a mesh's gathered triangles and uvs get room around them
+#: (:func:`spare_rows`)
+ROOM_MIN_TRIANGLES = 1 << 16
+#: The room on each side, as a fraction of the mesh's triangles
+ROOM_FRACTION = 1 / 16
+
+
+def spare_rows(nt: int) -> int:
+    """Rows of room left on each side of a mesh's gathered triangles and uvs
+    (``mesh_math.with_room``): a 16th of its ``nt`` triangles for a mesh of 65,536 or
+    more, else none. Where the scene's largest mesh has them and the other meshes' rows
+    fit, the packing lays those beside its rows instead of copying them (the packing's
+    copy of a 1M-triangle mesh's triangles and uvs, 36 MB of fresh memory: session 37 in
+    ``docs/bench-scale-bpy.md``). The room is address space only until the packing writes
+    into it: no page of it is resident before."""
+    return int(nt * ROOM_FRACTION) if nt >= ROOM_MIN_TRIANGLES else 0
+
+
 def _in_range(index: np.ndarray, size: int, name: str, what: str) -> None:
     """Raise a clear error unless every entry of ``index`` lies in ``0 .. size - 1`` (what
     :func:`_gather` then relies on)."""
@@ -168,10 +187,11 @@ def _gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:
     one the Mesh keeps, bit for bit. Numpy's indexing casts the int32 ``index`` in small
     buffered chunks; ``np.take`` converts all of it to int64 first (a temporary of 8 bytes
     an index: 96 MB for the corners of 4M triangles, twice per mesh). A row of several
-    values (a uv, a normal) is moved as one item of the row's bytes (``uint64`` for 8,
-    raw bytes otherwise): numpy's path for one-dimensional items is about 6x faster than
-    its path for rows on the uvs and 2x on the normals (0.1-0.3 s less CPU at 4M
-    triangles). The caller checked the range (:func:`_in_range`)."""
+    values (a corner normal) is moved as one item of the row's bytes (``uint64`` for 8,
+    raw bytes otherwise): numpy's path for one-dimensional items is about 2x faster than
+    its path for rows on the normals. The caller checked the range (:func:`_in_range`).
+    (The triangles' vertices and uvs are gathered by one kernel pass instead:
+    :func:`~rstrace_engine.geometry.mesh_math.gather_corners`.)"""
     if values.ndim == 1:
         return values[index]
     shape, width = values.shape, int(np.prod(values.shape[1:]))
@@ -187,11 +207,13 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     Blender's arrays (positions, corner vertices, the corners of its own triangulation,
     uvs, corner normals) are read in place where they are one array
     (:func:`blender_array`: a view, no copy), else with ``foreach_get``; the per-triangle
-    arrays the Mesh keeps are gathered straight from them (:func:`_gather`) and the
-    positions copied once: nothing else of a mesh's size is allocated. Normals come from
-    the mesh's normals domain: per vertex as Blender holds them (POINT,
-    ``Mesh.vertex_normals``), none for an all-flat mesh (FACE: ``smooth=False``, the
-    engine computes each triangle's own) or per corner (CORNER); uvs from the active
+    arrays the Mesh keeps are gathered straight from them (the triangles' vertices and uvs
+    in one kernel pass, :func:`~rstrace_engine.geometry.mesh_math.gather_corners`; the
+    normals and slots with :func:`_gather`) and the positions copied once: nothing else of
+    a mesh's size is allocated. Normals come from the mesh's normals domain: per vertex
+    as Blender holds them (POINT, ``Mesh.vertex_normals``), none for an all-flat mesh
+    (FACE: ``smooth=False``, the engine computes each triangle's own) or per corner
+    (CORNER); uvs from the active
     render UV map; material slots only where the mesh has material indices (else none:
     every triangle slot 0). The Mesh is ``owned``: its arrays are fresh, handed over
     without a copy. ``raw`` (attribute name -> values) holds the raw arrays
@@ -215,8 +237,14 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         corner_vert = np.empty(nl, np.int32)
         me.loops.foreach_get("vertex_index", corner_vert)
     loops = corner_triangles(tris_rna, nt, nl)
-    _in_range(loops, nl, name, "triangle corner")
-    tris = _gather(corner_vert, loops)
+    layer = next((u for u in me.uv_layers if u.active_render), None)
+    # (the triangles' vertices and uvs in one pass, which checks the corners' range)
+    gathered = gather_corners(corner_vert, loops, None if layer is None else
+                              _uv(me, layer, raw, nl).reshape(nl, 2), spare=spare_rows(nt))
+    if gathered is None:
+        _in_range(loops, nl, name, "triangle corner")  # (raises: says which)
+        raise SceneError(f"mesh '{name}': a triangle corner out of range")
+    tris, uvs = gathered
     face_mat = _raw(me, raw, "material_index", "value", nf, np.int32)
     nslots = max(len(me.materials), 1)
     slots = None  # (no material indices: every triangle slot 0, no rows)
@@ -236,10 +264,6 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         # their polygon's normal: no per-triangle normals)
         normals = _gather(_corner_normals(me, raw, nl).reshape(nl, 3), loops)
 
-    uvs = None
-    layer = next((u for u in me.uv_layers if u.active_render), None)
-    if layer is not None:
-        uvs = _gather(_uv(me, layer, raw, nl).reshape(nl, 2), loops)
     # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
     # its own normal, as Cycles shades such triangles with their geometric normal (the
     # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon

@@ -122,11 +122,15 @@ def _as_exported(mesh):
     (:mod:`~.geometry.mesh_check`: its checks read float32 vertices as they are)."""
     from dataclasses import replace
 
-    tris = np.asarray(mesh.triangles, np.int32)
+    from .geometry.mesh_math import gather_corners
+
+    # (the export gathers its triangles' vertices from their corners: that kernel too)
+    flat = np.asarray(mesh.triangles, np.int32).reshape(-1)
+    tris, _ = gather_corners(flat, np.arange(len(flat), dtype=np.int32).reshape(-1, 3))
     vn = np.zeros((len(mesh.vertices), 3), np.float32)
     vn[tris.reshape(-1)] = np.asarray(mesh.corner_normals, np.float32).reshape(-1, 3)
-    return replace(mesh, vertices=np.asarray(mesh.vertices, np.float32), corner_normals=None,
-                   vertex_normals=vn, owned=True)
+    return replace(mesh, vertices=np.asarray(mesh.vertices, np.float32), triangles=tris,
+                   corner_normals=None, vertex_normals=vn, owned=True)
 
 
 def _modes() -> tuple[str, ...]:

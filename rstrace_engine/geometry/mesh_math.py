@@ -1,8 +1,12 @@
 """Per-mesh geometry the scene model needs: which triangles have an area, smooth vertex
 normals, flat triangle normals, the world box of a transformed object box (float64; the
-area test and the flat normals kernels)."""
+area test and the flat normals kernels); and the add-on's gather of a host mesh's corners
+into per-triangle arrays (:func:`gather_corners`)."""
 
 from __future__ import annotations
+
+import threading
+import weakref
 
 import numpy as np
 from numba import njit
@@ -122,3 +126,136 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         np.add.at(acc, triangles[:, k], fn)
     ln = np.linalg.norm(acc, axis=1, keepdims=True)
     return np.divide(acc, ln, out=np.zeros_like(acc), where=ln > 0)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (one kernel signature whether the host's array is a
+    read-only view of its memory or a writable copy)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+#: Arrays allocated with spare rows around their values (:func:`with_room`), by ``id``,
+#: until a packing claims their room (:func:`claim_room`); weak: gone with the array
+_ROOMY: dict = {}
+_ROOMY_LOCK = threading.Lock()
+
+
+def _root(a: np.ndarray) -> np.ndarray:
+    """The array that owns ``a``'s memory (``a`` itself, or the last ndarray base)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
+
+
+def with_room(rows: int, tail: tuple, dtype, spare: int) -> np.ndarray:
+    """A fresh C-contiguous ``(rows, *tail)`` array of ``dtype`` (uninitialised), with
+    ``spare`` uninitialised rows before and after it in the same allocation (its base)
+    when ``spare`` > 0: room a packing may claim once (:func:`claim_room`) to lay the
+    other meshes' rows beside these, instead of copying these (numbers in
+    ``docs/bench-scale-bpy.md``). The spare rows are never touched unless claimed (fresh
+    memory: no page of them is resident until written)."""
+    if spare <= 0:
+        return np.empty((rows, *tail), dtype)
+    root = np.empty((spare + rows + spare, *tail), dtype)
+    key = id(root)
+
+    def gone(ref, key=key):
+        with _ROOMY_LOCK:
+            if _ROOMY.get(key) is ref:
+                del _ROOMY[key]
+
+    with _ROOMY_LOCK:
+        _ROOMY[key] = weakref.ref(root, gone)
+    return root[spare:spare + rows]
+
+
+def _room(a: np.ndarray, root: np.ndarray) -> tuple[int, int, int]:
+    """``(row bytes, bytes before, bytes after)`` of C-contiguous ``a`` within ``root``'s
+    memory."""
+    row = a.nbytes // len(a)
+    before = a.ctypes.data - root.ctypes.data
+    return row, before, root.ctypes.data + root.nbytes - (a.ctypes.data + a.nbytes)
+
+
+def has_room(a: np.ndarray) -> bool:
+    """Whether ``a`` lies in an array of :func:`with_room` whose room no packing claimed
+    (its memory beyond ``a`` is unused: it holds no other array's values)."""
+    root = _root(a)
+    with _ROOMY_LOCK:
+        ref = _ROOMY.get(id(root))
+        return ref is not None and ref() is root
+
+
+def claim_room(a: np.ndarray, before: int, after: int) -> np.ndarray | None:
+    """The ``(before + len(a) + after, *a.shape[1:])`` array of ``a``'s dtype whose rows
+    ``before .. before + len(a) - 1`` are ``a`` itself (its memory: no copy), the others
+    the spare rows around it, where ``a`` (C-contiguous, rows along its first axis) lies
+    in an array of :func:`with_room` with that much room on each side that no one claimed
+    yet; then the room is this caller's (no later claim gets it: two packings sharing
+    a mesh never write the same spare rows). Else None (the caller copies ``a``)."""
+    if not (isinstance(a, np.ndarray) and a.ndim >= 1 and len(a) and a.flags.c_contiguous):
+        return None
+    root = _root(a)
+    row, lo, hi = _room(a, root)
+    if (not root.flags.c_contiguous or lo % row or hi % row or lo < before * row
+            or hi < after * row):
+        return None
+    with _ROOMY_LOCK:
+        ref = _ROOMY.get(id(root))
+        if ref is None or ref() is not root:
+            return None
+        del _ROOMY[id(root)]
+    return np.ndarray((before + len(a) + after, *a.shape[1:]), a.dtype, buffer=root,
+                      offset=lo - before * row)
+
+
+def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
+                   corner_uvs: np.ndarray | None = None, spare: int = 0):
+    """The per-triangle vertex indices ``corner_vert[corners]`` ((m, 3) int32) and, where
+    ``corner_uvs`` (one uv (2,) float32 row per corner) are given, the per-triangle uvs
+    ``corner_uvs[corners]`` ((m, 3, 2) float32, bit for bit: moved as their bits), as
+    fresh arrays; None where a corner lies outside ``0 .. len(corner_vert) - 1``.
+
+    ``corners`` (m, 3) int32: the corners (indices into the host mesh's loops) of each
+    triangle; ``corner_vert`` (n,) int32: each corner's vertex. ``spare``: rows of room
+    around each result for the packing (:func:`with_room`). One pass of a kernel
+    (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
+    what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
+    triangles, ``docs/bench-scale-bpy.md``).
+    """
+    n = len(corner_vert)
+    cv = _read_only(np.ascontiguousarray(corner_vert, np.int32).reshape(n))
+    tri = _read_only(np.ascontiguousarray(corners, np.int32).reshape(-1, 3))
+    m = len(tri)
+    if corner_uvs is None:
+        uv_in, uv_out = np.zeros((0, 2), np.uint32), np.empty((0, 3, 2), np.uint32)
+    else:
+        uv_in = np.ascontiguousarray(corner_uvs, np.float32).reshape(-1, 2)
+        if len(uv_in) != n:
+            raise ValueError(f"{len(uv_in)} corner uvs for {n} corners")
+        uv_in, uv_out = uv_in.view(np.uint32), with_room(m, (3, 2), np.float32, spare)
+    tris = with_room(m, (3,), np.int32, spare)
+    if not _gather_corners(cv, tri, _read_only(uv_in), tris, uv_out.view(np.uint32)):
+        return None
+    return tris, (None if corner_uvs is None else uv_out)
+
+
+@njit(cache=True, nogil=True)
+def _gather_corners(corner_vert, corners, uvs, tris, uvs_out):
+    """:func:`gather_corners`' pass: ``tris[t, j] = corner_vert[c]`` and, where ``uvs``
+    has rows, ``uvs_out[t, j] = uvs[c]`` (uint32 bits) for each corner ``c = corners[t,
+    j]``; False at the first corner out of range (the outputs then partly written)."""
+    n = corner_vert.shape[0]
+    with_uvs = uvs.shape[0] > 0
+    for t in range(corners.shape[0]):
+        for j in range(3):
+            c = corners[t, j]
+            if c < 0 or c >= n:
+                return False
+            tris[t, j] = corner_vert[c]
+            if with_uvs:
+                uvs_out[t, j, 0] = uvs[c, 0]
+                uvs_out[t, j, 1] = uvs[c, 1]
+    return True

@@ -17,7 +17,10 @@ A dict checked from an ``owned`` Mesh (the add-on's export cache holds it) names
 corners, vertex normals, slot rows, and the triangles of a mesh whose first vertex is the
 packing's first), the packed rows are handed back to the Mesh (:func:`share_rows`), so
 that the process holds those values once. The mesh with the most triangles has its
-vertices first (:func:`_vertex_starts`), so that its triangles are among them.
+vertices first (:func:`_vertex_starts`), so that its triangles are among them. Where that
+mesh's triangles and uvs were gathered with room around them (the add-on's large meshes:
+``mesh_math.with_room``), the packing claims the room and writes the other meshes' rows
+there, beside them, instead of copying them (:func:`_in_place`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from .attributes import bias
+from .mesh_math import claim_room, has_room
 
 
 def mesh_triangles(mesh: dict) -> np.ndarray:
@@ -119,7 +123,7 @@ def _unpin_triangles(src) -> None:
     root = tris
     while isinstance(root.base, np.ndarray):
         root = root.base
-    if root.nbytes > tris.nbytes:
+    if root.nbytes > tris.nbytes and not has_room(tris):  # (unclaimed room: its own)
         own = tris.copy()
         kept = _kept(src)
         if kept.get("tris") is tris:
@@ -138,13 +142,45 @@ def _vertex_starts(live: list) -> np.ndarray:
     starts = np.zeros(len(live), np.int64)
     if not live:
         return starts
-    first = max(range(len(live)), key=lambda k: (len(live[k]["tris"]), -k))
+    first = _largest(live)
     at = len(live[first]["verts"])
     for k, m in enumerate(live):
         if k != first:
             starts[k] = at
             at += len(m["verts"])
     return starts
+
+
+def _largest(live: list) -> int:
+    """The live mesh with the most triangles (the first of them on a tie)."""
+    return max(range(len(live)), key=lambda k: (len(live[k]["tris"]), -k))
+
+
+def _in_place(live: list, nv, starts: dict) -> tuple[int, dict]:
+    """``(k, {field: packed array})``: the packing's arrays (``tris``, ``uvs``) laid in
+    the room around the rows of the largest live mesh ``k`` (:func:`~.mesh_check`'s dict
+    of an owned Mesh: the add-on's, whose gathers leave room, ``mesh_math.with_room``),
+    where it has that room and no one claimed it (``mesh_math.claim_room``): its rows
+    are then already the packing's (its triangles where its first vertex is the
+    packing's first, as the largest mesh's is), and only the other meshes' rows are
+    written, beside them. The largest mesh's rows are no longer copied (36 MB of fresh
+    memory at 1M triangles: ``docs/bench-scale-bpy.md``, session 37). ``starts``: field
+    -> the rows' starts per live mesh (their cumulative sums)."""
+    if not live:
+        return -1, {}
+    k = _largest(live)
+    m = live[k]
+    if m.get("source") is None:
+        return k, {}
+    out = {}
+    for f in ("tris", "uvs"):
+        at = starts[f]
+        if len(m[f]) == 0 or (f == "tris" and nv[k] != m.get("vert0", 0)):
+            continue
+        room = claim_room(m[f], int(at[k]), int(at[-1] - at[k + 1]))
+        if room is not None:
+            out[f] = room
+    return k, out
 
 
 def pack_meshes(meshes: list) -> dict:
@@ -161,21 +197,25 @@ def pack_meshes(meshes: list) -> dict:
     nv = _vertex_starts(live)
     tstart = np.cumsum([0] + [0 if m is None else len(m["tris"])
                               for m in meshes]).astype(np.int32)
+    shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
+    big, rooms = _in_place(live, nv, {"tris": nt, "uvs": nu})
     packed = dict(
         verts=np.empty((sum(len(m["verts"]) for m in live), 3)),
-        tris=np.empty((nt[-1], 3), np.int32),
-        normals=np.empty((nn[-1], 3), np.float32), uvs=np.empty((nu[-1], 2), np.float32),
+        tris=rooms["tris"] if "tris" in rooms else np.empty((nt[-1], 3), np.int32),
+        normals=np.empty((nn[-1], 3), np.float32),
+        uvs=rooms["uvs"] if "uvs" in rooms else np.empty((nu[-1], 2), np.float32),
         tri_slot=np.empty(ns[-1], np.int32), mesh_nrm=np.zeros((len(meshes), 2), np.int64),
         mesh_uv=np.zeros((len(meshes), 2), np.int64),
         mesh_slot=np.zeros((len(meshes), 2), np.int64))
-    shared = [_to_share(m, int(nv[k])) for k, m in enumerate(live)]
     for k, m in enumerate(live):
         v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
         rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
         packed["verts"][v] = m["verts"]
-        np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
+        if not (k == big and "tris" in rooms):  # (else its rows are there already)
+            np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
         packed["normals"][rn] = m["normals"]
-        packed["uvs"][ru] = m["uvs"]
+        if not (k == big and "uvs" in rooms):
+            packed["uvs"][ru] = m["uvs"]
         packed["tri_slot"][rs] = m["slots"]
         packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
         packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])

@@ -1,0 +1,127 @@
+"""The packing laid in the room around the largest mesh's rows (``packing._in_place``): the
+add-on's gathers leave spare rows around a large mesh's triangles and uvs
+(``mesh_math.with_room``), and the packing writes the other meshes' rows there instead of
+copying the largest mesh's (36 MB of fresh memory at 1M triangles). The packed values are
+those of a packing that copies, bit for bit; the room is claimed once (two scenes sharing the
+mesh never write the same rows), and memory that was not left as room is never written."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry.mesh_math import gather_corners, has_room
+from rstrace_engine.geometry.scene import Mesh, Scene
+
+
+def _uvs(m: int, seed: int) -> np.ndarray:
+    """Per-corner uvs with no coarser mode (each corner its own)."""
+    return np.random.default_rng(seed).random((m, 3, 2)).astype(np.float32)
+
+
+def _exported(base: Mesh, name: str, spare: int, seed: int) -> Mesh:
+    """``base`` as the add-on exports it: triangles and uvs gathered from its corners
+    (with ``spare`` rows of room), float32 vertices, owned."""
+    t = np.asarray(base.triangles, np.int32)
+    uv = _uvs(len(t), seed)
+    tris, uvs = gather_corners(t.reshape(-1), np.arange(t.size, dtype=np.int32).reshape(-1, 3),
+                               uv.reshape(-1, 2), spare=spare)
+    return Mesh(name, np.asarray(base.vertices, np.float32), tris, corner_uvs=uvs,
+                smooth=False, owned=True)
+
+
+def _copy(mesh: Mesh) -> Mesh:
+    """The same mesh with arrays of its own (no room)."""
+    return Mesh(mesh.name, mesh.vertices.copy(), mesh.triangles.copy(),
+                corner_uvs=mesh.corner_uvs.copy(), smooth=False, owned=True)
+
+
+def _root(a: np.ndarray) -> np.ndarray:
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
+
+
+def _scene(meshes) -> tuple[Scene, dict]:
+    s = Scene()
+    for m in meshes:
+        s.add_mesh(m)
+    return s, s._pack_meshes()
+
+
+def _same_packing(a: dict, b: dict) -> None:
+    for f in ("verts", "tris", "normals", "uvs", "tri_slot", "mesh_nrm", "mesh_uv",
+              "mesh_slot", "mesh_tri_start", "mesh_gen"):
+        assert a[f].dtype == b[f].dtype and a[f].shape == b[f].shape, f
+        assert a[f].tobytes() == b[f].tobytes(), f
+
+
+def _meshes(spare: int):
+    small = _exported(shapes.lumpy_sphere(20, name="s"), "small", spare, 1)
+    big = _exported(shapes.lumpy_sphere(3000, name="b"), "big", spare, 2)
+    other = _exported(shapes.lumpy_sphere(60, name="o"), "other", spare, 3)
+    return small, big, other
+
+
+def test_the_largest_meshs_rows_are_the_packings_bit_for_bit():
+    """The largest mesh (in the middle: other meshes' rows before and after it) keeps its
+    triangles and uvs where the export wrote them: the packing's arrays are laid around
+    them (the same memory) and hold what a packing of copies holds, bit for bit; the
+    smaller meshes' rows are copied as before. (Fails on main: no room, no claim.)"""
+    small, big, other = _meshes(spare=500)
+    t0, uv0 = big.triangles, big.corner_uvs
+    _, packed = _scene((small, big, other))
+    _, want = _scene([_copy(m) for m in _meshes(spare=0)])
+    _same_packing(packed, want)
+    assert np.shares_memory(packed["tris"], t0) and np.shares_memory(packed["uvs"], uv0)
+    assert _root(packed["tris"]) is _root(t0) and _root(packed["uvs"]) is _root(uv0)
+    assert not has_room(t0) and not has_room(uv0)  # (claimed: no one else writes there)
+    # the Mesh holds its values once (handed back: views of the packing)
+    assert np.shares_memory(big.triangles, packed["tris"])
+    np.testing.assert_array_equal(big.triangles, want["tris"][len(small.triangles):][
+        :len(t0)])
+
+
+def test_a_second_scene_sharing_the_mesh_copies_and_the_first_is_unchanged():
+    """The room is claimed once: a second scene over the same meshes (another session
+    over the export cache) copies, and the first scene's packing keeps its values."""
+    small, big, other = _meshes(spare=500)
+    _, first = _scene((small, big, other))
+    before = {f: first[f].copy() for f in ("tris", "uvs")}
+    extra = _exported(shapes.lumpy_sphere(40, name="e"), "extra", 0, 4)
+    _, second = _scene((extra, big, small))  # (other rows around it than the first's)
+    for f in ("tris", "uvs"):
+        assert first[f].tobytes() == before[f].tobytes(), f
+        assert not np.shares_memory(second[f], first[f]), f
+    _, want = _scene([_copy(m) for m in (extra, big, small)])
+    _same_packing(second, want)
+
+
+def test_too_little_room_or_none_is_copied_and_memory_beyond_a_mesh_never_written():
+    """Where the other meshes' rows do not fit in the room, or the largest mesh's rows lie
+    in a larger array that was not left as room (a caller's own memory), the packing
+    copies them: nothing outside the mesh's own rows is written."""
+    small, big, other = _meshes(spare=5)  # (less room than the others' rows)
+    t0, uv0 = big.triangles, big.corner_uvs
+    _, packed = _scene((small, big, other))
+    assert not np.shares_memory(packed["tris"], t0) and has_room(t0)  # (left unclaimed)
+    assert not np.shares_memory(packed["uvs"], uv0) and has_room(uv0)
+    _, want = _scene([_copy(m) for m in _meshes(spare=0)])
+    _same_packing(packed, want)
+    s, b, o = (_copy(m) for m in _meshes(spare=0))
+    host = np.full((len(b.triangles) + 2000, 3), 7, np.int32)  # (a caller's larger array)
+    host[1000:1000 + len(b.triangles)] = b.triangles
+    b.triangles = host[1000:1000 + len(b.triangles)]
+    _, packed = _scene((s, b, o))
+    _same_packing(packed, want)
+    assert (host[:1000] == 7).all() and (host[1000 + len(b.triangles):] == 7).all()
+
+
+def test_an_unclaimed_room_does_not_count_as_an_old_packing():
+    """A mesh with room that is not the largest keeps its triangles as they are (its room
+    is its own, unwritten: not an older packing's rows to let go of by copying)."""
+    small, big, other = _meshes(spare=500)
+    bigger = _exported(shapes.lumpy_sphere(6000, name="B"), "bigger", 500, 5)
+    t0 = big.triangles
+    _scene((small, bigger, big, other))
+    assert big.triangles is t0 and has_room(t0)

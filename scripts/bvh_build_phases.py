@@ -1,7 +1,7 @@
 """A large mesh's BVH build split into its phases, checkouts alternated in one run.
 
     python scripts/bvh_build_phases.py [1M 4M] [--roots A B] [--rounds 2] [--threads 1]
-                                       [--repeats 3] [--json out.jsonl]
+                                       [--repeats 3] [--json out.jsonl] [--tbb]
 
 The mesh is ``bench_scale_bpy.py``'s Suzanne (subdivided to level 5 for ``1M``, 6 for
 ``4M``: 1.0M / 4.0M triangles, Blender's own triangle order), made once through ``bpy`` and
@@ -14,6 +14,13 @@ item leaves, the items opened, the collapse to 4-wide, and the rest. The first b
 process meets fresh memory, as an F12's does; the later ones reuse freed pages. Each
 line also gives the tree's SAH and 4-wide node count, so a change of tree shows. Nothing
 is asserted; the numbers go to ``docs/bench-scale-bpy.md``.
+
+Threads: each phase also gets the CPU of its busiest thread (``busiest``, from
+``/proc/self/task/*/schedstat``): on an idle machine the phase's wall is about that, so the
+wall the threads buy can be read off a loaded one. Outside Blender numba picks its OpenMP
+layer here; an F12 runs on TBB (``bpy`` ships it): ``--tbb`` imports ``bpy`` in each child
+first, so that numba picks TBB as in Blender (the layer is in each line; session 37,
+docs/bench-scale.md "Session 37 (threads)").
 """
 
 from __future__ import annotations
@@ -66,24 +73,43 @@ np.save({str(t)!r}, t.reshape(-1, 3))
     return v, t
 
 
-def child(root: Path, size: str, cache: Path, repeats: int) -> dict:
+def _thread_cpu() -> dict:
+    """CPU seconds of each thread of this process so far (``/proc/self/task``)."""
+    out = {}
+    for t in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{t}/schedstat") as fh:
+                out[t] = int(fh.read().split()[0]) * 1e-9
+        except OSError:  # (a thread that ended)
+            pass
+    return out
+
+
+def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False) -> dict:
     """One checkout's builds of one mesh, each phase timed (run in its own process)."""
     sys.path.insert(0, str(root))
+    if tbb:
+        import bpy  # noqa: F401  (numba then picks the TBB layer, as inside Blender)
+    import numba
     import numpy as np
 
     from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
 
     mods = dict(bvh_build=bvh_build, bvh_cluster=bvh_cluster, bvh_mesh=bvh_mesh)
     acc: dict = {}
+    busy: dict = {}
     for mod, name, label in PHASES:
         f = getattr(mods[mod], name)
 
         def timed(*a, _f=f, _label=label, **k):
-            c = time.process_time()
+            c, t0 = time.process_time(), _thread_cpu()
             try:
                 return _f(*a, **k)
             finally:
                 acc[_label] = acc.get(_label, 0.0) + time.process_time() - c
+                t1 = _thread_cpu()
+                busy[_label] = busy.get(_label, 0.0) + max(
+                    (t1[t] - t0.get(t, 0.0) for t in t1), default=0.0)
 
         setattr(mods[mod], name, timed)
     vp, tp = _suzanne(size, cache)
@@ -91,17 +117,20 @@ def child(root: Path, size: str, cache: Path, repeats: int) -> dict:
     runs = []
     for _ in range(repeats):
         acc.clear()
-        c = time.process_time()
+        busy.clear()
+        c, w = time.process_time(), time.perf_counter()
         mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
-        total = time.process_time() - c
+        total, wall = time.process_time() - c, time.perf_counter() - w
         row = {label: acc.get(label, 0.0) for _, _, label in PHASES}
         row["rest"] = total - sum(row.values())
-        runs.append(dict(total=total, phases=row))
+        runs.append(dict(total=total, wall=wall, phases=row,
+                         busiest={label: busy.get(label, 0.0) for _, _, label in PHASES}))
         del mb
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     return dict(root=str(root), size=size, triangles=len(tris), sah=mb.sah_cost,
-                nodes4=len(mb.bvh.child), runs=runs,
-                module=bvh_build.__file__)
+                nodes4=len(mb.bvh.child), runs=runs, module=bvh_build.__file__,
+                layer=numba.threading_layer(), threads=numba.get_num_threads(),
+                load=os.getloadavg()[0])
 
 
 def main(argv=None) -> int:
@@ -114,11 +143,13 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--cache", type=Path, default=Path("/tmp/rstrace-suzanne"))
     p.add_argument("--json", type=Path, help="append one JSON line per process")
+    p.add_argument("--tbb", action="store_true",
+                   help="import bpy in each child first: numba's TBB layer, as in Blender")
     p.add_argument("--child", nargs=2, metavar=("ROOT", "SIZE"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
         _say(json.dumps(child(Path(args.child[0]), args.child[1], args.cache,
-                              args.repeats)))
+                              args.repeats, args.tbb)))
         return 0
     for size in args.sizes:
         _suzanne(size, args.cache)
@@ -129,7 +160,8 @@ def main(argv=None) -> int:
             for root in roots:
                 out = subprocess.run(
                     [sys.executable, __file__, "--child", str(root.resolve()), size,
-                     "--cache", str(args.cache), "--repeats", str(args.repeats)],
+                     "--cache", str(args.cache), "--repeats", str(args.repeats)]
+                    + (["--tbb"] if args.tbb else []),
                     env=env, check=True, capture_output=True, text=True).stdout
                 row = json.loads(out.strip().splitlines()[-1])
                 if args.json:
@@ -137,10 +169,13 @@ def main(argv=None) -> int:
                         fh.write(json.dumps(row) + "\n")
                 totals = ", ".join(f"{x['total']:.3f}" for x in row["runs"])
                 _say(f"round {r} {size} {root}: builds {totals} s CPU | SAH "
-                     f"{row['sah']:.4f}, {row['nodes4']} nodes")
+                     f"{row['sah']:.4f}, {row['nodes4']} nodes | {row['layer']}, "
+                     f"{row['threads']} threads, load {row['load']:.2f}")
                 for i, x in enumerate(row["runs"]):
                     _say(f"    build {i}: " + ", ".join(
-                        f"{k} {v:.3f}" for k, v in x["phases"].items()))
+                        f"{k} {v:.3f}" for k, v in x["phases"].items())
+                        + f" | wall {x['wall']:.3f}, busiest thread " + ", ".join(
+                        f"{k} {v:.3f}" for k, v in x["busiest"].items()))
     return 0
 
 

@@ -125,3 +125,41 @@ def test_an_unclaimed_room_does_not_count_as_an_old_packing():
     t0 = big.triangles
     _scene((small, bigger, big, other))
     assert big.triangles is t0 and has_room(t0)
+
+
+_FREED_UNDER_THE_LOCK = """
+import gc, threading
+from rstrace_engine.geometry import mesh_math as mm
+gc.disable()
+cycle = [mm.with_room(10, (3,), "int32", 4)]
+cycle.append(cycle)  # (garbage only a collection frees)
+del cycle
+
+def collect_under_the_lock():
+    with mm._ROOMY_LOCK:  # (as with_room holds it while it allocates the weakref)
+        gc.collect()
+
+t = threading.Thread(target=collect_under_the_lock, daemon=True)
+t.start()
+t.join(10)
+print("DEADLOCK" if t.is_alive() else "ok", len(mm._ROOMY))
+"""
+
+
+def test_a_room_freed_by_a_collection_under_the_registrys_lock_does_not_deadlock():
+    """A collection may start inside the registry's locked region (``with_room`` allocates
+    its weakref there: a collection starts at that allocation once the count is due), and
+    may free an array with room that sat in cyclic garbage (a traceback's frames, say): its
+    weakref callback then takes the lock again on the same thread. It must not hang that
+    thread (the render's) forever. Own process: a hung thread would keep the lock."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    proc = subprocess.run([sys.executable, "-c", _FREED_UNDER_THE_LOCK], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["ok", "0"], proc.stdout + proc.stderr[-2000:]

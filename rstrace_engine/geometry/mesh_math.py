@@ -139,7 +139,9 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 #: Arrays allocated with spare rows around their values (:func:`with_room`), by ``id``,
 #: until a packing claims their room (:func:`claim_room`); weak: gone with the array
 _ROOMY: dict = {}
-_ROOMY_LOCK = threading.Lock()
+#: Reentrant: a collection may start inside its locked region (at an allocation there) and
+#: free an array with room, whose weakref callback then takes it again on the same thread
+_ROOMY_LOCK = threading.RLock()
 
 
 def _root(a: np.ndarray) -> np.ndarray:

@@ -156,8 +156,9 @@ def with_room(rows: int, tail: tuple, dtype, spare: int) -> np.ndarray:
     ``spare`` uninitialised rows before and after it in the same allocation (its base)
     when ``spare`` > 0: room a packing may claim once (:func:`claim_room`) to lay the
     other meshes' rows beside these, instead of copying these (numbers in
-    ``docs/bench-scale-bpy.md``). The spare rows are never touched unless claimed (fresh
-    memory: no page of them is resident until written)."""
+    ``docs/bench-scale-bpy.md``). The spare rows are never written unless claimed (fresh
+    memory: mostly unbacked until written, but for the transparent huge pages at the rows'
+    edges: ``docs/bench-scale-bpy.md``, session 37)."""
     if spare <= 0:
         return np.empty((rows, *tail), dtype)
     root = np.empty((spare + rows + spare, *tail), dtype)

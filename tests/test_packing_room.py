@@ -11,6 +11,7 @@ import numpy as np
 
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.mesh_math import gather_corners, has_room
+from rstrace_engine.geometry.packing import pack_meshes
 from rstrace_engine.geometry.scene import Mesh, Scene
 
 
@@ -125,3 +126,90 @@ def test_an_unclaimed_room_does_not_count_as_an_old_packing():
     t0 = big.triangles
     _scene((small, bigger, big, other))
     assert big.triangles is t0 and has_room(t0)
+
+
+_FREED_UNDER_THE_LOCK = """
+import gc, threading
+from rstrace_engine.geometry import mesh_math as mm
+gc.disable()
+cycle = [mm.with_room(10, (3,), "int32", 4)]
+cycle.append(cycle)  # (garbage only a collection frees)
+del cycle
+
+def collect_under_the_lock():
+    with mm._ROOMY_LOCK:  # (as with_room holds it while it allocates the weakref)
+        gc.collect()
+
+t = threading.Thread(target=collect_under_the_lock, daemon=True)
+t.start()
+t.join(10)
+print("DEADLOCK" if t.is_alive() else "ok", len(mm._ROOMY))
+"""
+
+
+def test_a_room_freed_by_a_collection_under_the_registrys_lock_does_not_deadlock():
+    """A collection may start inside the registry's locked region (``with_room`` allocates
+    its weakref there: a collection starts at that allocation once the count is due), and
+    may free an array with room that sat in cyclic garbage (a traceback's frames, say): its
+    weakref callback then takes the lock again on the same thread. It must not hang that
+    thread (the render's) forever. Own process: a hung thread would keep the lock."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    proc = subprocess.run([sys.executable, "-c", _FREED_UNDER_THE_LOCK], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["ok", "0"], proc.stdout + proc.stderr[-2000:]
+
+
+def _copies(meshes: list) -> list:
+    """Scene model mesh dicts with copies of their arrays and no source (a packing of them
+    copies every row and hands nothing back)."""
+    return [None if m is None else {k: v.copy() if isinstance(v, np.ndarray) else v
+                                    for k, v in m.items() if k != "source"} for m in meshes]
+
+
+def test_random_edits_over_a_claimed_room_stay_exact():
+    """Seeded random edits of every kind (meshes added, replaced and deleted included) on a
+    scene whose largest mesh is exported with room that its first packing claims: every
+    incremental frame equals a fresh session's bit for bit (each re-packing copies: the
+    room is claimed once), and the claimed rows are never written again."""
+    from rstrace_engine.bench.soak import SOAK_SCENES, EditGenerator
+    from rstrace_engine.frame import RenderSettings
+    from rstrace_engine.session import Session
+    from tests.test_incremental import H, W, check_base_step
+
+    scene = SOAK_SCENES["room"](W, H)
+    big = _exported(shapes.lumpy_sphere(4000, name="big"), "big", 800, 7)
+    t0, uv0 = big.triangles, big.corner_uvs
+    rows = (t0.copy(), uv0.copy())
+    scene.add_instance(scene.add_mesh(big), np.diag([0.4, 0.4, 0.4, 1.0]), name="big")
+    settings = RenderSettings(mode="BASE", max_depth=3)
+    want = pack_meshes(_copies(scene.meshes))  # (before any packing: the meshes' own rows)
+    gen = EditGenerator(scene, seed=11, extra=("mesh_delete",))  # (packs: the claim)
+    assert not has_room(t0) and not has_room(uv0)
+    packed = scene._mesh_arrays
+    _same_packing(packed, want)
+    claimed = (packed["tris"].copy(), packed["uvs"].copy())
+    assert np.shares_memory(packed["tris"], t0) and np.shares_memory(packed["uvs"], uv0)
+    sess = Session(gen.scene.copy(), settings)
+    prev = sess.render()
+    seen = {}  # (every packing the session made, as it was made: none is written again)
+    for _ in range(16):
+        sess.apply(gen.step())
+        prev, _ = check_base_step(sess, prev, settings)
+        geo = sess.scene._mesh_arrays
+        seen.setdefault(id(geo), (geo, geo["tris"].tobytes(), geo["uvs"].tobytes()))
+        # (what a packing of copies holds: no room, nothing handed back)
+        _same_packing(geo, pack_meshes(_copies(sess.scene.meshes)))
+    assert {"mesh_set", "mesh_delete", "geometry", "add", "delete"} <= set(gen.kinds_done)
+    assert t0.tobytes() == rows[0].tobytes() and uv0.tobytes() == rows[1].tobytes()
+    assert packed["tris"].tobytes() == claimed[0].tobytes()
+    assert packed["uvs"].tobytes() == claimed[1].tobytes()
+    assert len(seen) >= 2, len(seen)
+    for geo, tris, uvs in seen.values():
+        assert geo["tris"].tobytes() == tris and geo["uvs"].tobytes() == uvs

@@ -139,7 +139,9 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 #: Arrays allocated with spare rows around their values (:func:`with_room`), by ``id``,
 #: until a packing claims their room (:func:`claim_room`); weak: gone with the array
 _ROOMY: dict = {}
-_ROOMY_LOCK = threading.Lock()
+#: Reentrant: a collection may start inside its locked region (at an allocation there) and
+#: free an array with room, whose weakref callback then takes it again on the same thread
+_ROOMY_LOCK = threading.RLock()
 
 
 def _root(a: np.ndarray) -> np.ndarray:
@@ -154,8 +156,9 @@ def with_room(rows: int, tail: tuple, dtype, spare: int) -> np.ndarray:
     ``spare`` uninitialised rows before and after it in the same allocation (its base)
     when ``spare`` > 0: room a packing may claim once (:func:`claim_room`) to lay the
     other meshes' rows beside these, instead of copying these (numbers in
-    ``docs/bench-scale-bpy.md``). The spare rows are never touched unless claimed (fresh
-    memory: no page of them is resident until written)."""
+    ``docs/bench-scale-bpy.md``). The spare rows are never written unless claimed (fresh
+    memory: mostly unbacked until written, but for the transparent huge pages at the rows'
+    edges: ``docs/bench-scale-bpy.md``, session 37)."""
     if spare <= 0:
         return np.empty((rows, *tail), dtype)
     root = np.empty((spare + rows + spare, *tail), dtype)

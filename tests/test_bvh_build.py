@@ -58,13 +58,16 @@ def test_parallel_build_is_the_sequential_tree(tv):
     assert sorted(seq.tri.tolist()) == list(range(len(tv)))
 
 
-def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
+@pytest.mark.parametrize("cheap_max", [bvh_bins.CHEAP_MAX, bvh_bins.CHEAP_ALL])
+def test_one_primitive_leaf_trees_are_the_same_on_any_grain(cheap_max):
     """A tree of one-primitive leaves (a large mesh's item tree, the top level) built as one
     subtree and with many (a small grain: many top levels) is the same tree (session 35: a
-    partition whose order differed between the phases broke this)."""
+    partition whose order differed between the phases broke this), with the cheap rule
+    up to ``CHEAP_MAX`` primitives and on every node (the item build's, session 37)."""
     tv = _tv(shapes.lumpy_sphere(20_000))
     pb = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1))
-    seq, par = (bvh_mesh.flatten(*bvh_build.build_flat_boxes(pb.copy(), 1, grain=g)[:3],
+    seq, par = (bvh_mesh.flatten(*bvh_build.build_flat_boxes(pb.copy(), 1, grain=g,
+                                                              cheap_max=cheap_max)[:3],
                                  np.float32) for g in (len(pb), 64))
     assert np.array_equal(seq.bounds.view(np.int32), par.bounds.view(np.int32))
     assert np.array_equal(seq.child, par.child)

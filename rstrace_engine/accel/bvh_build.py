@@ -28,7 +28,9 @@ Each node is split at the best of ``SAH_BINS`` bins per axis laid over its bound
 centroid bounds at the root and under an object-median split, **its box** under an SAH
 split: the children's boxes are unions of bins, so the partition gathers nothing (session
 37, docs/bench-scale.md: up to a tenth less subtree CPU; SAH cost the same on Suzanne,
-+0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain) --
++0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain;
+a node whose bins over its box hold every centroid in one bin is binned again over its
+centroid bounds, :func:`_to_centroid_bounds`) --
 or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the

@@ -58,13 +58,16 @@ def test_parallel_build_is_the_sequential_tree(tv):
     assert sorted(seq.tri.tolist()) == list(range(len(tv)))
 
 
-def test_one_primitive_leaf_trees_are_the_same_on_any_grain():
+@pytest.mark.parametrize("cheap_max", [bvh_bins.CHEAP_MAX, bvh_bins.CHEAP_ALL])
+def test_one_primitive_leaf_trees_are_the_same_on_any_grain(cheap_max):
     """A tree of one-primitive leaves (a large mesh's item tree, the top level) built as one
     subtree and with many (a small grain: many top levels) is the same tree (session 35: a
-    partition whose order differed between the phases broke this)."""
+    partition whose order differed between the phases broke this), with the cheap rule
+    up to ``CHEAP_MAX`` primitives and on every node (the item build's, session 37)."""
     tv = _tv(shapes.lumpy_sphere(20_000))
     pb = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1))
-    seq, par = (bvh_mesh.flatten(*bvh_build.build_flat_boxes(pb.copy(), 1, grain=g)[:3],
+    seq, par = (bvh_mesh.flatten(*bvh_build.build_flat_boxes(pb.copy(), 1, grain=g,
+                                                              cheap_max=cheap_max)[:3],
                                  np.float32) for g in (len(pb), 64))
     assert np.array_equal(seq.bounds.view(np.int32), par.bounds.view(np.int32))
     assert np.array_equal(seq.child, par.child)
@@ -105,6 +108,35 @@ def test_an_sah_splits_children_are_binned_over_their_boxes():
         node = ch[0, rows[0]]
         z_extent = b[node, 5] - b[node, 2], b[node, 11] - b[node, 8]
         assert max(z_extent) < 3.0, (grain, z_extent)
+
+
+def _long_cylinder(n: int) -> np.ndarray:
+    """A cylinder 10 long along x, radius 1, of ``n`` full-length triangles (its quads
+    split), in a shuffled order."""
+    a = np.linspace(0.0, 2 * np.pi, n // 2 + 1)
+    ring = np.stack([0 * a, np.cos(a), np.sin(a)], 1)
+    q0, q1, length = ring[:-1], ring[1:], np.array([10.0, 0.0, 0.0])
+    tv = np.concatenate([np.stack([q0, q0 + length, q1 + length], 1),
+                         np.stack([q0, q1 + length, q1], 1)])
+    return tv[np.random.default_rng(3).permutation(len(tv))]
+
+
+def test_a_node_whose_centroids_share_one_bin_of_its_box_is_binned_over_its_centroids():
+    """Bins laid over a node's box (below an SAH split, session 37) can hold all its
+    centroids in one bin: a long cylinder's full-length triangles all have their
+    centroid in the middle of the box along x, the only axis the cheap rule bins. Such a
+    node is binned again over its centroid bounds (as on main), not split at an object
+    median along x, where every centroid is equal (the shuffled mesh order: SAH cost 142
+    instead of main's 21.9). The same tree on any grain."""
+    tv = _long_cylinder(3000)
+    seq = bvh_mesh.build_mesh_bvh(tv, grain=len(tv))
+    assert seq.sah_cost < 30.0, seq.sah_cost
+    _same_tree(bvh_mesh.build_mesh_bvh(tv, grain=16), seq)
+    pb = tv.min(axis=1), tv.max(axis=1)
+    for grain in (len(tv), 16):  # the item build's rule (the cheap rule on every node)
+        b, c, perm, sah = bvh_build.build_flat_boxes(np.concatenate(pb, 1), 1, grain=grain,
+                                                     cheap_max=bvh_bins.CHEAP_ALL)
+        assert sah < 30.0, (grain, sah)
 
 
 def test_binary_nodes_are_packed():

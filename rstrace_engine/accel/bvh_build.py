@@ -28,7 +28,9 @@ Each node is split at the best of ``SAH_BINS`` bins per axis laid over its bound
 centroid bounds at the root and under an object-median split, **its box** under an SAH
 split: the children's boxes are unions of bins, so the partition gathers nothing (session
 37, docs/bench-scale.md: up to a tenth less subtree CPU; SAH cost the same on Suzanne,
-+0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain) --
++0.4% on a 30k lumpy sphere; both phases do it, so the tree is the same on any grain;
+a node whose bins over its box hold every centroid in one bin is binned again over its
+centroid bounds, :func:`_to_centroid_bounds`) --
 or at the object median when no bin boundary separates the centroids or below
 :data:`DEPTH_CAP`. A node of at most :data:`.bvh_bins.CHEAP_MAX` primitives gets fewer bins
 and only the axes along which its centroids spread at least half as far as along the
@@ -114,6 +116,22 @@ def _range_bounds(pb, start, end, box, cb):
             box[q] = min(box[q], np.float64(pb[j, q]))
             box[3 + q] = max(box[3 + q], np.float64(pb[j, 3 + q]))
         _add_centroid(pb, j, cb)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _to_centroid_bounds(pb, start, end, cmin, cmax, box, cb):
+    """Set ``cmin``, ``cmax`` (3,) to the centroid bounds of ``pb[start:end]`` (``box``,
+    ``cb`` (6,): scratch); returns whether they changed: the bounds were a box (below an
+    SAH split), whose bins held every centroid in one bin (a long cylinder's full-length
+    triangles along its axis), so the node is binned again over its centroids."""
+    _range_bounds(pb, start, end, box, cb)
+    changed = False
+    for q in range(3):
+        if cb[q] != cmin[q] or cb[3 + q] != cmax[q]:
+            changed = True
+        cmin[q] = cb[q]
+        cmax[q] = cb[3 + q]
+    return changed
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -273,6 +291,17 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max)
             c0 = c1
             _, axis, sbin = _best_split(node_m[e, 0:3], node_m[e, 3:6], node_nb[e], bin_n,
                                         bin_b, right_a, right_n)
+            start, end = lv_int[e, 2], lv_int[e, 3]
+            if axis < 0 and _to_centroid_bounds(pb, start, end, node_c[e, 0:3],
+                                                node_c[e, 3:6], box, cb):
+                # (as build_subtree: the same bins, one thread)
+                node_nb[e] = _node_bins(end - start, nbins, node_c[e, 0:3], node_c[e, 3:6],
+                                        node_m[e, 0:3], node_m[e, 3:6], cheap_max)
+                _clear_bins(bin_n, bin_b, nbins)
+                _bin_range(pb, start, end, node_m[e, 0:3], node_m[e, 3:6], node_nb[e], bin_n,
+                           bin_b)
+                _, axis, sbin = _best_split(node_m[e, 0:3], node_m[e, 3:6], node_nb[e], bin_n,
+                                            bin_b, right_a, right_n)
             if axis >= 0:
                 split[e, 0], split[e, 1] = axis, sbin
                 _bins_box(bin_b, axis, 0, sbin + 1, out_box[e, 0])
@@ -359,6 +388,12 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
             _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
             best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
                                                          right_a, right_n)
+            if best_axis < 0 and _to_centroid_bounds(pb, start, end, cmin, cmax, lbox, cb):
+                nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max)
+                _clear_axes(bin_n, bin_b, nb, bmin, bmax)
+                _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
+                best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
+                                                             right_a, right_n)
         split_cost = trav_cost + best_cost / max(area, 1e-300)
         make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
         if make_leaf and parent >= 0:

@@ -75,7 +75,8 @@ def warm_scene(width: int = 64, height: int = 48, ortho: bool = False,
     # spot with a radius, an area light, a world that lights): its kernels warm too; the
     # perspective one keeps hard light, whose cells reach the predicate's light tests
     soft = 0.1 if ortho else 0.0
-    if ortho if rough is None else rough:  # and a rough metal: glossy rays (issue 24)
+    rough = ortho if rough is None else rough
+    if rough:  # and a rough metal: glossy rays (issue 24)
         from .geometry.principled import principled_material
 
         metal, _ = principled_material("rough", (0.8, 0.6, 0.4), metallic=1.0, roughness=0.4)

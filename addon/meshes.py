@@ -23,6 +23,7 @@ import ctypes
 import numpy as np
 
 from rstrace_engine.accel.content_hash import ContentHash
+from rstrace_engine.beside import Beside
 from rstrace_engine.geometry.mesh_math import gather_corners
 from rstrace_engine.geometry.scene import Mesh, SceneError
 
@@ -276,7 +277,8 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only
-    (Blender's own, read in place where they are one array: :func:`blender_array`).
+    (Blender's own, read in place where they are one array: :func:`blender_array`):
+    :func:`fingerprint_digest` of :func:`fingerprint_parts`.
 
     Two reads of an unchanged mesh give the same digest; any change of positions, faces
     (each face's first corner -- Blender's face offsets, read in place: 4 bytes a face --
@@ -293,35 +295,82 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     probability below 2^-128; 4-5x faster than SHA-256 alone); digests are compared only
     within the process (the key is drawn per process).
     """
+    return fingerprint_digest(fingerprint_parts(me, raw))
+
+
+def fingerprint_parts(me, raw: dict | None = None) -> list:
+    """What :func:`mesh_fingerprint` hashes, in order (bytes and arrays: the arrays may be
+    views of Blender's memory, valid only during the mesh read): everything read from
+    ``me`` (the Blender API, this thread), nothing hashed yet, so that the hashing
+    (:func:`fingerprint_digest`, no Blender call) can run beside the mesh read."""
     raw = {} if raw is None else raw
-    h = ContentHash()
+    parts: list = []
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
-    h.update(np.array(counts, np.int64).tobytes())
-    h.update(me.normals_domain.encode())
+    parts.append(np.array(counts, np.int64).tobytes())
+    parts.append(me.normals_domain.encode())
     domain_size = {"POINT": counts[0], "EDGE": counts[1], "CORNER": counts[2],
                    "FACE": counts[3]}
     if counts[3]:
-        h.update(b"faces")
-        h.update(read_array(me.polygons, counts[3], 1, np.int32, "loop_start"))
+        parts.append(b"faces")
+        parts.append(read_array(me.polygons, counts[3], 1, np.int32, "loop_start"))
     for name, prop, width, dtype in _FINGERPRINT_ATTRIBUTES:
         attr = me.attributes.get(name)
         if attr is None:
             continue
         values = _raw(me, raw, name, prop, domain_size.get(attr.domain, 0) * width, dtype)
-        h.update(name.encode())
-        h.update(values)  # (its buffer: no copy, the same bytes)
+        parts.append(name.encode())
+        parts.append(values)  # (its buffer: no copy, the same bytes)
     if me.normals_domain == "CORNER":  # custom or split normals
-        h.update(_corner_normals(me, raw, counts[2]))
+        parts.append(_corner_normals(me, raw, counts[2]))
     elif me.normals_domain == "POINT" and _free_point_normals(me):
         # (Blender 4.5+'s free custom normals per vertex: the vertex normals are them)
-        h.update(b"custom_normal")
-        h.update(_raw(me, raw, "custom_normal", "vector", counts[0] * 3, np.float32))
+        parts.append(b"custom_normal")
+        parts.append(_raw(me, raw, "custom_normal", "vector", counts[0] * 3, np.float32))
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        h.update(layer.name.encode())
-        h.update(_uv(me, layer, raw, counts[2]))
+        parts.append(layer.name.encode())
+        parts.append(_uv(me, layer, raw, counts[2]))
+    return parts
+
+
+def fingerprint_digest(parts: list) -> bytes:
+    """The 16-byte digest of :func:`fingerprint_parts` (no Blender call: any thread)."""
+    h = ContentHash()
+    for p in parts:
+        h.update(p)
     return h.digest()[:16]
+
+
+def parts_bytes(parts: list) -> int:
+    """The bytes :func:`fingerprint_digest` hashes for ``parts``."""
+    return sum(len(p) if isinstance(p, bytes) else p.nbytes for p in parts)
+
+
+#: Bytes from which a mesh's fingerprint is hashed beside its read (:func:`read_mesh`):
+#: below, handing the hash to another thread costs more than it saves.
+BESIDE_BYTES = 1 << 20
+
+
+def read_mesh(me, name: str, raw: dict, fingerprint: bytes | None = None
+              ) -> tuple[Mesh | None, bytes]:
+    """``(mesh_arrays(me, name, raw), fingerprint)``: the fingerprint as given, else
+    :func:`mesh_fingerprint` of the same arrays, whose hashing (:func:`fingerprint_digest`:
+    no Blender call) runs on a second thread while this one reads the mesh
+    (:class:`~rstrace_engine.beside.Beside`, from :data:`BESIDE_BYTES` hashed): the same
+    digest, its time off the first render's serial read (``docs/bench-scale-bpy.md``,
+    session 38). The hashed arrays may be views of Blender's memory: the hash is joined
+    before this returns or raises, within the mesh read."""
+    if fingerprint is not None:
+        return mesh_arrays(me, name, raw), fingerprint
+    parts = fingerprint_parts(me, raw)
+    job = Beside(fingerprint_digest, parts, when=parts_bytes(parts) >= BESIDE_BYTES)
+    try:
+        mesh = mesh_arrays(me, name, raw)
+    except BaseException:
+        job.wait()
+        raise
+    return mesh, job.result()
 
 
 def _free_point_normals(me) -> bool:

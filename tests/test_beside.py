@@ -1,0 +1,82 @@
+"""``rstrace_engine.beside``: one call run on a pool thread beside the caller, joined."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import pytest
+
+from rstrace_engine import beside
+from rstrace_engine.beside import Beside
+
+
+def _thread() -> int:
+    return threading.get_ident()
+
+
+@pytest.fixture
+def two_threads():
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread only here")
+    yield
+    numba.set_num_threads(before)
+
+
+def test_the_call_runs_on_another_thread_and_its_value_comes_back(two_threads):
+    job = Beside(_thread)
+    assert job.started
+    assert job.result() != threading.get_ident()
+    assert job.result() == job.result()  # (joined once; the value kept)
+
+
+def test_one_thread_or_a_small_call_runs_here():
+    job = Beside(_thread, when=False)
+    assert not job.started
+    assert job.result() == threading.get_ident()
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        job = Beside(_thread)
+        assert not job.started and job.result() == threading.get_ident()
+    finally:
+        numba.set_num_threads(before)
+
+
+def test_its_exception_is_raised_by_result_and_dropped_by_wait(two_threads):
+    def fail():
+        raise ValueError("inside")
+
+    with pytest.raises(ValueError, match="inside"):
+        Beside(fail).result()
+    Beside(fail).wait()  # (the caller is raising something else already)
+    with Beside(fail):
+        pass
+
+
+def test_a_call_queued_behind_a_busy_pool_thread_is_taken_back_and_run_here(two_threads):
+    """Nested or concurrent calls never wait on the queue: the one pool thread is busy with
+    the outer call, so the inner one runs on the outer call's own thread."""
+    release = threading.Event()
+
+    def outer():
+        inner = Beside(_thread)
+        got = inner.result()
+        release.wait(5)
+        return got, threading.get_ident()
+
+    job = Beside(outer)
+    blocked = Beside(_thread)  # (queued behind ``outer``, taken back by this thread)
+    assert blocked.result() == threading.get_ident()
+    release.set()
+    inner, outer_thread = job.result()
+    assert inner == outer_thread != threading.get_ident()
+
+
+def test_the_pool_is_one_thread_made_once(two_threads):
+    Beside(_thread).result()
+    pool = beside._POOL["pool"]
+    Beside(_thread).result()
+    assert beside._POOL["pool"] is pool and pool._max_workers == 1

@@ -368,7 +368,7 @@ def read_mesh(me, name: str, raw: dict, fingerprint: bytes | None = None
     try:
         mesh = mesh_arrays(me, name, raw)
     except BaseException:
-        job.wait()
+        job.drop()
         raise
     return mesh, job.result()
 

@@ -44,9 +44,9 @@ def _pool() -> ThreadPoolExecutor:
 class Beside:
     """``fn(*args)`` started on the pool thread (unless ``when`` is False or the calling
     thread may use one thread only); :meth:`result` joins it and returns its value or
-    raises its exception; :meth:`wait` joins it ignoring both (for a caller that is already
-    raising). Exactly one of them must be called (``with Beside(...) as job`` calls
-    :meth:`wait` on leaving, a no-op after :meth:`result`)."""
+    raises its exception (running it here where the pool thread had not started it);
+    :meth:`drop` is for a caller that is raising. One of them must be called before the
+    caller leaves what ``fn`` reads."""
 
     def __init__(self, fn, *args, when: bool = True) -> None:
         self._fn, self._args = fn, args
@@ -82,18 +82,13 @@ class Beside:
             raise self._error
         return self._value
 
-    def wait(self) -> None:
-        """Join the call, ignoring its value and any exception."""
-        if self._future is not None and self._future.cancel():
-            self._future = None
-            self._joined = True  # (not run: nothing to wait for)
+    def drop(self) -> None:
+        """For a caller that is raising: join the call if the pool thread runs it (it may
+        read the caller's arrays), else never run it; its value and exception ignored."""
+        if not self._joined:
+            future, self._future = self._future, None
+            if future is not None and not future.cancel():
+                future.exception()  # (waits for it to end)
+            self._joined = True
             self._fn = self._args = None
-            return
-        self._join()
-
-    def __enter__(self) -> Beside:
-        return self
-
-    def __exit__(self, *_exc) -> None:
-        self.wait()
 

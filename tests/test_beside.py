@@ -26,8 +26,15 @@ def two_threads():
 
 
 def test_the_call_runs_on_another_thread_and_its_value_comes_back(two_threads):
-    job = Beside(_thread)
+    began = threading.Event()
+
+    def call():
+        began.set()
+        return _thread()
+
+    job = Beside(call)
     assert job.started
+    assert began.wait(5)  # (else result() would take it back: run here)
     assert job.result() != threading.get_ident()
     assert job.result() == job.result()  # (joined once; the value kept)
 
@@ -45,29 +52,50 @@ def test_one_thread_or_a_small_call_runs_here():
         numba.set_num_threads(before)
 
 
-def test_its_exception_is_raised_by_result_and_dropped_by_wait(two_threads):
+def test_its_exception_is_raised_by_result_and_dropped_by_drop(two_threads):
     def fail():
         raise ValueError("inside")
 
     with pytest.raises(ValueError, match="inside"):
         Beside(fail).result()
-    Beside(fail).wait()  # (the caller is raising something else already)
-    with Beside(fail):
-        pass
+    with pytest.raises(ValueError, match="inside"):
+        Beside(fail, when=False).result()  # (run here: the same exception)
+    Beside(fail).drop()  # (the caller is raising something else already)
+
+
+def test_drop_joins_a_running_call_and_never_runs_one_not_started(two_threads):
+    ran, began, release = [], threading.Event(), threading.Event()
+
+    def slow():
+        began.set()
+        release.wait(5)
+        ran.append("slow")
+
+    job = Beside(slow)
+    assert began.wait(5)
+    queued = Beside(ran.append, "queued")  # (behind ``slow`` on the one pool thread)
+    here = Beside(ran.append, "here", when=False)
+    queued.drop()
+    here.drop()
+    threading.Timer(0.05, release.set).start()
+    job.drop()  # (waits for ``slow`` to end)
+    assert ran == ["slow"]
 
 
 def test_a_call_queued_behind_a_busy_pool_thread_is_taken_back_and_run_here(two_threads):
     """Nested or concurrent calls never wait on the queue: the one pool thread is busy with
     the outer call, so the inner one runs on the outer call's own thread."""
-    release = threading.Event()
+    began, release = threading.Event(), threading.Event()
 
     def outer():
+        began.set()
         inner = Beside(_thread)
         got = inner.result()
         release.wait(5)
         return got, threading.get_ident()
 
     job = Beside(outer)
+    assert began.wait(5)
     blocked = Beside(_thread)  # (queued behind ``outer``, taken back by this thread)
     assert blocked.result() == threading.get_ident()
     release.set()
@@ -78,5 +106,6 @@ def test_a_call_queued_behind_a_busy_pool_thread_is_taken_back_and_run_here(two_
 def test_the_pool_is_one_thread_made_once(two_threads):
     Beside(_thread).result()
     pool = beside._POOL["pool"]
+    assert pool is not None
     Beside(_thread).result()
     assert beside._POOL["pool"] is pool and pool._max_workers == 1

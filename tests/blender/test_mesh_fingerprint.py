@@ -127,8 +127,6 @@ def test_a_large_meshs_fingerprint_is_hashed_beside_its_read(monkeypatch):
     digest as ``mesh_fingerprint`` and the same Mesh as ``mesh_arrays``; a small mesh's is
     hashed here; a given fingerprint is taken as it is. (Main has no ``read_mesh``: it
     hashed after the read, on the same thread.)"""
-    import threading
-
     import numba
 
     from addon import meshes
@@ -137,24 +135,25 @@ def test_a_large_meshs_fingerprint_is_hashed_beside_its_read(monkeypatch):
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     if numba.get_num_threads() < 2:
         pytest.skip("one thread only here")
-    seen = []
-    digest = meshes.fingerprint_digest
+    handed = []
 
-    def recorded(parts):
-        seen.append(threading.get_ident())
-        return digest(parts)
+    class Recorded(meshes.Beside):
+        def __init__(self, fn, *args, when=True):
+            super().__init__(fn, *args, when=when)
+            handed.append((fn, self.started))
 
-    monkeypatch.setattr(meshes, "fingerprint_digest", recorded)
+    monkeypatch.setattr(meshes, "Beside", Recorded)
     bpy.ops.mesh.primitive_grid_add(x_subdivisions=260, y_subdivisions=260)
     me = bpy.context.object.data
     raw: dict = {}
     mesh, fp = meshes.read_mesh(me, me.name, raw)
     assert meshes.parts_bytes(meshes.fingerprint_parts(me)) >= meshes.BESIDE_BYTES
-    assert seen == [seen[0]] and seen[0] != threading.get_ident()
+    assert handed == [(meshes.fingerprint_digest, True)]  # (on the pool thread)
     assert fp == meshes.mesh_fingerprint(me)
     assert meshes.same_mesh(mesh, meshes.mesh_arrays(me, me.name))
     assert meshes.read_mesh(me, me.name, {}, b"given")[1] == b"given"
-    seen.clear()
+    handed.clear()
     small = _heptagon_mesh()
     mesh, fp = meshes.read_mesh(small, small.name, {})
-    assert seen == [threading.get_ident()] and fp == meshes.mesh_fingerprint(small)
+    assert handed == [(meshes.fingerprint_digest, False)]  # (hashed here)
+    assert fp == meshes.mesh_fingerprint(small)

@@ -157,6 +157,11 @@ def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     return read_array(tris_rna, nt, 3, np.int32, "loops").reshape(nt, 3)
 
 
+#: Bytes from which a mesh's fingerprint is hashed, and its positions copied, beside its
+#: read (:func:`read_mesh`, :func:`mesh_arrays`): below, handing the work to another
+#: thread costs more than it saves.
+BESIDE_BYTES = 1 << 20
+
 #: Triangles from which a mesh's gathered triangles and uvs get room around them
 #: (:func:`spare_rows`)
 ROOM_MIN_TRIANGLES = 1 << 16
@@ -229,11 +234,35 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     raw = {} if raw is None else raw
     nv, nl, nf = len(me.vertices), len(me.loops), len(me.polygons)
     verts = _raw(me, raw, "position", "vector", nv * 3, np.float32)
+    copied = None
     if verts is None:
         verts = np.empty(nv * 3, np.float32)
         me.vertices.foreach_get("co", verts)
-    elif not verts.flags.owndata:  # Blender's own array: the Mesh keeps a copy
-        verts = verts.copy()
+    elif not verts.flags.owndata:  # Blender's own array: the Mesh keeps a copy, made
+        # beside the per-triangle gathers (the fresh memory's first touch on another core)
+        copied = Beside(np.copy, verts, when=verts.nbytes >= BESIDE_BYTES)
+    try:
+        tris, uvs, slots, normals, vn = _per_triangle(me, name, raw, tris_rna, nv, nl, nf)
+    except BaseException:
+        if copied is not None:
+            copied.drop()
+        raise
+    if copied is not None:
+        verts = copied.result()
+    domain = me.normals_domain
+    # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
+    # its own normal, as Cycles shades such triangles with their geometric normal (the
+    # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
+    # normal is one for them all); the engine computes it where it reads it. The arrays
+    # are fresh and never changed: handed over (owned), not copied again.
+    return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
+                slots=slots, smooth=domain != "FACE", vertex_normals=vn, owned=True)
+
+
+def _per_triangle(me, name: str, raw: dict, tris_rna, nv: int, nl: int, nf: int) -> tuple:
+    """``(tris, uvs, slots, corner normals, vertex normals)`` of :func:`mesh_arrays`: the
+    per-triangle arrays gathered from Blender's (None where the mesh has none)."""
+    nt = len(tris_rna)
     corner_vert = _raw(me, raw, ".corner_vert", "value", nl, np.int32)
     if corner_vert is None:
         corner_vert = np.empty(nl, np.int32)
@@ -265,14 +294,7 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         # (Cycles too shades every triangle with the corner normals here, flat faces with
         # their polygon's normal: no per-triangle normals)
         normals = _gather(_corner_normals(me, raw, nl).reshape(nl, 3), loops)
-
-    # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
-    # its own normal, as Cycles shades such triangles with their geometric normal (the
-    # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
-    # normal is one for them all); the engine computes it where it reads it. The arrays
-    # are fresh and never changed: handed over (owned), not copied again.
-    return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
-                slots=slots, smooth=domain != "FACE", vertex_normals=vn, owned=True)
+    return tris, uvs, slots, normals, vn
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
@@ -345,11 +367,6 @@ def fingerprint_digest(parts: list) -> bytes:
 def parts_bytes(parts: list) -> int:
     """The bytes :func:`fingerprint_digest` hashes for ``parts``."""
     return sum(len(p) if isinstance(p, bytes) else p.nbytes for p in parts)
-
-
-#: Bytes from which a mesh's fingerprint is hashed beside its read (:func:`read_mesh`):
-#: below, handing the hash to another thread costs more than it saves.
-BESIDE_BYTES = 1 << 20
 
 
 def read_mesh(me, name: str, raw: dict, fingerprint: bytes | None = None

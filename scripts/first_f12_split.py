@@ -5,31 +5,31 @@ Cycles' first render of the same scene in the same process.
                                       [--moves N] [--order ours-first|cycles-first]
                                       [--only ours|cycles]
 
-Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE,
-ray depth 0), waits for the add-on's background kernel load (``--settle``), then times one
-F12 (``bpy.ops.render.render()``) with each part wrapped: the export (the mesh reads --
+Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE, ray
+depth 0), waits for the add-on's background kernel load (``--settle``), then times one F12
+(``bpy.ops.render.render()``) with each part wrapped: the export (the mesh reads --
 ``foreach_get``, Blender's triangle corners, the per-corner gathers -- and the
-fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the
-packing), the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top
-level), the core render, writing the result, and any kernel load or compile
-(``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the
-whole process (all threads: the build thread and numba's) and of the calling thread alone
-(a part run beside other work, e.g. the fingerprint's hash beside the mesh read), of which
-system CPU, and the
-minor page faults (system CPU and faults are mostly fresh memory's first touch) and the
-resident memory after it, and for the F12 its wall, CPU, system CPU, faults and the
-process's peak RSS before and after. ``--moves N``: then N F12s after moving the small
-sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no bounces,
-no denoising) renders the same scene (``--order cycles-first``: Cycles first, then the
-F12; ``--only ours|cycles``: one of them alone, in its own process: whichever renders
+fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the packing),
+the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top level; from
+session 38 the leaves of the trees just built are made inside the concatenation, whose time
+then includes theirs), the core render, writing the result, and any kernel load or compile
+(``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the whole
+process (all threads: the build thread and numba's) and of the calling thread alone (a part
+run beside other work, e.g. the fingerprint's hash beside the mesh read), of which system
+CPU, and the minor page faults (system CPU and faults are mostly fresh memory's first
+touch) and the resident memory after it, and for the F12 its wall, CPU, system CPU, faults
+and the process's peak RSS before and after. ``--moves N``: then N F12s after moving the
+small sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no
+bounces, no denoising) renders the same scene (``--order cycles-first``: Cycles first, then
+the F12; ``--only ours|cycles``: one of them alone, in its own process: whichever renders
 second reuses the pages the first one freed -- no first-touch faults -- so a fair
-comparison alternates the order or runs each in a fresh process; the add-on is
-registered, the scene built and the kernel load waited for in every mode, so the
-process before the render is the same whichever renders). The JSON line also holds the
-SHA-1 of each F12's radiance and pixel classes (``image_sha1``), to compare checkouts bit
-for bit, and the load average. Nothing is asserted; the numbers go to
-``docs/bench-scale-bpy.md``. ``--root``: the checkout whose add-on, core and
-``bench_scale_bpy.py`` run (default: this script's), for A/B runs against another one.
+comparison alternates the order or runs each in a fresh process; the add-on is registered,
+the scene built and the kernel load waited for in every mode, so the process before the
+render is the same whichever renders). The JSON line also holds the SHA-1 of each F12's
+radiance and pixel classes (``image_sha1``), to compare checkouts bit for bit, and the load
+average. Nothing is asserted; the numbers go to ``docs/bench-scale-bpy.md``. ``--root``:
+the checkout whose add-on, core and ``bench_scale_bpy.py`` run (default: this script's),
+for A/B runs against another one.
 """
 
 from __future__ import annotations

@@ -52,14 +52,16 @@ class Beside:
         self._fn, self._args = fn, args
         self._future = (_pool().submit(fn, *args)
                         if when and numba.get_num_threads() > 1 else None)
+        self._handed = self._future is not None
         self._joined = False
         self._value = None
         self._error: BaseException | None = None
 
     @property
     def started(self) -> bool:
-        """Whether the call was handed to the pool thread (it may still be queued)."""
-        return self._future is not None
+        """Whether the call was handed to the pool thread (it may have been queued, then
+        taken back by :meth:`result`)."""
+        return self._handed
 
     def _join(self) -> None:
         if self._joined:

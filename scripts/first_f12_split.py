@@ -10,9 +10,8 @@ depth 0), waits for the add-on's background kernel load (``--settle``), then tim
 (``bpy.ops.render.render()``) with each part wrapped: the export (the mesh reads --
 ``foreach_get``, Blender's triangle corners, the per-corner gathers -- and the
 fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the packing),
-the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top level; from
-session 38 the leaves of the trees just built are made inside the concatenation, whose time
-then includes theirs), the core render, writing the result, and any kernel load or compile
+the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top level), the core
+render, writing the result, and any kernel load or compile
 (``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the whole
 process (all threads: the build thread and numba's) and of the calling thread alone (a part
 run beside other work, e.g. the fingerprint's hash beside the mesh read), of which system

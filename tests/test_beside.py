@@ -37,6 +37,7 @@ def test_the_call_runs_on_another_thread_and_its_value_comes_back(two_threads):
     assert began.wait(5)  # (else result() would take it back: run here)
     assert job.result() != threading.get_ident()
     assert job.result() == job.result()  # (joined once; the value kept)
+    assert job.started  # (still says where it went)
 
 
 def test_one_thread_or_a_small_call_runs_here():

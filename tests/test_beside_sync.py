@@ -1,9 +1,8 @@
 """The first render's serial work outside the BVH builds, on two threads where it is
 independent (``rstrace_engine.beside``; docs/bench-scale-bpy.md, session 38): a large
-mesh's checks, the packing's copies, the BVH's concatenation. Each gives what one thread
-gives, bit for bit, and the first error one thread raised. Main ran them on one thread:
-no ``BESIDE_TRIANGLES`` / ``BESIDE_ROWS`` / ``BESIDE_NODES``, and its concatenation took
-no tree just built."""
+mesh's checks, the packing's copies. Each gives what one thread gives, bit for bit, and
+the first error one thread raised. Main ran them on one thread: no ``BESIDE_TRIANGLES`` /
+``BESIDE_ROWS``."""
 
 from __future__ import annotations
 
@@ -14,7 +13,6 @@ import numpy as np
 import pytest
 
 from rstrace_engine import beside
-from rstrace_engine.accel import bvh, bvh_mesh
 from rstrace_engine.cancel import Cancelled
 from rstrace_engine.geometry import mesh_check, packing, shapes
 from rstrace_engine.geometry.scene import Mesh, Scene, SceneError
@@ -30,7 +28,7 @@ def handed(monkeypatch):
             super().__init__(fn, *args, when=when)
             seen.append((getattr(fn, "__name__", fn), self.started))
 
-    for module in (mesh_check, packing, bvh):
+    for module in (mesh_check, packing):
         monkeypatch.setattr(module, "Beside", Recorded)
     before = numba.get_num_threads()
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
@@ -131,21 +129,3 @@ def test_the_packing_writes_a_large_meshs_rows_in_halves(handed):
     want = _one_thread(packed)
     for k in want:
         assert got[k].dtype == want[k].dtype and got[k].tobytes() == want[k].tobytes(), k
-
-
-def test_the_concatenation_makes_the_leaves_of_trees_just_built(handed):
-    """Trees just built (``MeshBVH``) are given to the concatenation, which makes their
-    leaves (a tree given twice, once) while the boxes are copied beside: the arrays of
-    the concatenation of their ``PlacedMesh.built`` trees."""
-    a, b = shapes.icosphere(2), shapes.lumpy_sphere(2 * bvh.BESIDE_NODES)
-    ta, tb = (np.asarray(m.vertices, np.float64)[np.asarray(m.triangles)] for m in (a, b))
-    ma, mb = bvh_mesh.build_mesh_bvh(ta), bvh_mesh.build_mesh_bvh(tb)
-    assert len(ma.bvh.child) + 2 * len(mb.bvh.child) >= bvh.BESIDE_NODES
-    start = np.array([0, len(ta), len(ta) + len(tb), len(ta) + 2 * len(tb)], np.int32)
-    got = bvh.concat_meshes([ma, mb, mb], start)
-    assert handed == [("_copy_bounds", True)]
-    placed = [bvh.PlacedMesh.built(m) for m in (ma, mb)]
-    want = _one_thread(bvh.concat_meshes, [placed[0], placed[1], placed[1]], start)
-    for x, y in zip(got[:4], want[:4], strict=True):
-        assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
-    assert [p.tri_base for p in got[4]] == [p.tri_base for p in want[4]]

@@ -207,7 +207,7 @@ class BVHAccelerator(Accelerator):
                          and np.array_equal(self._geometry[2], sa.mesh_tri_start))
         if not same_geometry:
             keys, built, reused, kept = [], 0, 0, 0
-            cache: dict[bytes, bvh.PlacedMesh | bvh_mesh.MeshBVH] = {}
+            cache: dict[bytes, bvh.PlacedMesh] = {}
             for m in range(len(sa.mesh_tri_start) - 1):
                 if stop[0]:
                     raise Cancelled("BVH build cancelled")
@@ -222,7 +222,7 @@ class BVHAccelerator(Accelerator):
                     if stop[0]:
                         raise Cancelled("BVH build cancelled")
                     mb = bvh_mesh.build_mesh_bvh_indexed(sa.verts, tris, stop=stop)
-                    pm = mb  # (its leaves made by the concatenation, beside the boxes' copy)
+                    pm = bvh.PlacedMesh.built(mb)
                     built += 1
                     self.stats["mesh_build_s"] += mb.build_s
                 else:

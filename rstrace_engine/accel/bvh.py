@@ -47,7 +47,6 @@ from numba import njit
 
 from .. import stripes
 from .. import tolerances as tol
-from ..beside import Beside
 from .box4 import lanes4
 from .bvh_build import DEPTH_CAP, NEVER_STOP
 from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
@@ -110,57 +109,12 @@ class PlacedMesh(NamedTuple):
         return cls(mb.bvh.bounds, child, tri[:n].copy(), 0, 0, 0, mb.sah_cost)
 
 
-#: Nodes from which the concatenation copies the boxes beside its leaves and placement
-BESIDE_NODES = 1 << 14
-
-
-def _copy_bounds(parts: list, out: np.ndarray) -> None:
-    """``out`` = the ``parts`` (N_k, 24) one after the other (numpy copies: the GIL is
-    released)."""
-    at = 0
-    for b in parts:
-        np.copyto(out[at:at + len(b)], b, casting="unsafe")
-        at += len(b)
-
-
-def concat_meshes(meshes: list, mesh_tri_start: np.ndarray):
-    """Concatenate mesh BVHs (mesh ``k`` owns global triangles from ``mesh_tri_start[k]``):
-    :class:`PlacedMesh` es, or :class:`~.bvh_mesh.MeshBVH` s just built, whose leaves are
-    made here (:meth:`PlacedMesh.built`; a tree given twice, once).
+def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
+    """Concatenate mesh BVHs (mesh ``k`` owns global triangles from ``mesh_tri_start[k]``).
 
     Returns ``bounds, child, tri (global), mesh_root`` and the meshes placed there
-    (views: keep those, not the arguments, so nothing is held twice). The boxes (float32,
-    most of the bytes) are copied beside the leaves and the placement from
-    :data:`BESIDE_NODES` nodes (:class:`~rstrace_engine.beside.Beside`): the same arrays.
+    (views: keep those, not the arguments, so nothing is held twice).
     """
-    parts = [m.bvh.bounds if isinstance(m, MeshBVH) else m.bounds for m in meshes]
-    total = sum(len(b) for b in parts)
-    bounds = np.empty((total, 24), np.float32)
-    job = Beside(_copy_bounds, parts, bounds, when=total >= BESIDE_NODES)
-    try:
-        out = _place(meshes, mesh_tri_start)
-    except BaseException:
-        job.drop()
-        raise
-    job.result()
-    node_base, leaf_base, child, tri = out
-    placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tri[lb:le], int(nb), int(lb),
-                         int(mesh_tri_start[k]), m.sah_cost)
-              for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],
-                                                          node_base[1:], leaf_base[:-1],
-                                                          leaf_base[1:], strict=True))]
-    return bounds, child, tri, node_base[:-1].astype(np.int32), placed
-
-
-def _place(meshes: list, mesh_tri_start: np.ndarray):
-    """``(node_base, leaf_base, child, tri)`` of :func:`concat_meshes`: the leaves of the
-    trees just built made, every tree's child codes and listed triangles moved to their
-    place."""
-    made: dict[int, PlacedMesh] = {}
-    for m in meshes:
-        if isinstance(m, MeshBVH) and id(m) not in made:
-            made[id(m)] = PlacedMesh.built(m)
-    meshes = [made.get(id(m), m) for m in meshes]
     node_base = np.cumsum([0] + [len(m.child) for m in meshes])
     leaf_base = np.cumsum([0] + [len(m.tri) for m in meshes])
     if max(leaf_base[-1], int(mesh_tri_start[-1])) >= 1 << 28:
@@ -172,7 +126,13 @@ def _place(meshes: list, mesh_tri_start: np.ndarray):
         place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base,
                     int(mesh_tri_start[k]) - m.tri_base)
         place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
-    return node_base, leaf_base, child, tri
+    bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]), np.float32)
+    placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tri[lb:le], int(nb), int(lb),
+                         int(mesh_tri_start[k]), m.sah_cost)
+              for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],
+                                                          node_base[1:], leaf_base[:-1],
+                                                          leaf_base[1:], strict=True))]
+    return bounds, child, tri, node_base[:-1].astype(np.int32), placed
 
 
 # ----------------------------------------------------------------------------- traversal

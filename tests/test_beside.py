@@ -110,3 +110,18 @@ def test_the_pool_is_one_thread_made_once(two_threads):
     assert pool is not None
     Beside(_thread).result()
     assert beside._POOL["pool"] is pool and pool._max_workers == 1
+
+
+def test_the_kernels_run_beside_launch_no_parallel_region():
+    """What the sync runs on the pool thread (the content hash's NH blocks, the scene
+    model's vertex pass and area test) must be serial ``nogil`` kernels: a ``parallel=True``
+    one there could launch a parallel region while another thread launches one, which
+    numba's ``workqueue`` layer does not survive (``addon/runtime.py``); ``nogil``, else
+    the two threads take turns. A guard for a later edit of these kernels."""
+    from rstrace_engine.accel import content_hash
+    from rstrace_engine.geometry import mesh_check, mesh_math
+
+    for kernel in (content_hash._nh_blocks, mesh_math._proper_kernel,
+                   mesh_check._vertex_stats):
+        opts = kernel.targetoptions
+        assert opts.get("nogil") and not opts.get("parallel"), kernel.py_func.__name__

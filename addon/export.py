@@ -51,7 +51,7 @@ from . import journal
 from .cameras import camera_from_object
 from .lights import read_light, world_colour, world_lights
 from .materials import MaterialReader, Notes, default_material
-from .meshes import mesh_arrays, mesh_fingerprint, same_mesh
+from .meshes import mesh_fingerprint, read_mesh, same_mesh
 from .snapshot import (
     DEFAULT_MATERIAL_KEY,
     Dirty,
@@ -144,12 +144,10 @@ class Cancelled(Exception):  # noqa: N818 (a request, not an error)
 
 def _read_mesh(me, name: str, source: str, fingerprint: bytes | None = None,
                raw: dict | None = None) -> MeshEntry:
-    """Read ``me`` once (its fingerprint from the same arrays, unless given; ``raw``: the
-    raw arrays already read for it)."""
+    """Read ``me`` once (its fingerprint from the same arrays, unless given, hashed beside
+    the read: :func:`.meshes.read_mesh`; ``raw``: the raw arrays already read for it)."""
     raw = {} if raw is None else raw
-    mesh = mesh_arrays(me, name, raw)
-    if fingerprint is None:
-        fingerprint = mesh_fingerprint(me, raw)
+    mesh, fingerprint = read_mesh(me, name, raw, fingerprint)
     entry = _checked(mesh, name, fingerprint, source)
     entry.vertex_count = len(me.vertices)
     return entry

@@ -23,6 +23,7 @@ import ctypes
 import numpy as np
 
 from rstrace_engine.accel.content_hash import ContentHash
+from rstrace_engine.beside import Beside
 from rstrace_engine.geometry.mesh_math import gather_corners
 from rstrace_engine.geometry.scene import Mesh, SceneError
 
@@ -156,6 +157,11 @@ def corner_triangles(tris_rna, nt: int, corners: int) -> np.ndarray:
     return read_array(tris_rna, nt, 3, np.int32, "loops").reshape(nt, 3)
 
 
+#: Bytes from which a mesh's fingerprint is hashed, and its positions copied, beside its
+#: read (:func:`read_mesh`, :func:`mesh_arrays`): below, handing the work to another
+#: thread costs more than it saves.
+BESIDE_BYTES = 1 << 20
+
 #: Triangles from which a mesh's gathered triangles and uvs get room around them
 #: (:func:`spare_rows`)
 ROOM_MIN_TRIANGLES = 1 << 16
@@ -228,11 +234,35 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
     raw = {} if raw is None else raw
     nv, nl, nf = len(me.vertices), len(me.loops), len(me.polygons)
     verts = _raw(me, raw, "position", "vector", nv * 3, np.float32)
+    copied = None
     if verts is None:
         verts = np.empty(nv * 3, np.float32)
         me.vertices.foreach_get("co", verts)
-    elif not verts.flags.owndata:  # Blender's own array: the Mesh keeps a copy
-        verts = verts.copy()
+    elif not verts.flags.owndata:  # Blender's own array: the Mesh keeps a copy, made
+        # beside the per-triangle gathers (the fresh memory's first touch on another core)
+        copied = Beside(np.copy, verts, when=verts.nbytes >= BESIDE_BYTES)
+    try:
+        tris, uvs, slots, normals, vn = _per_triangle(me, name, raw, tris_rna, nv, nl, nf)
+    except BaseException:
+        if copied is not None:
+            copied.drop()
+        raise
+    if copied is not None:
+        verts = copied.result()
+    domain = me.normals_domain
+    # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
+    # its own normal, as Cycles shades such triangles with their geometric normal (the
+    # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
+    # normal is one for them all); the engine computes it where it reads it. The arrays
+    # are fresh and never changed: handed over (owned), not copied again.
+    return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
+                slots=slots, smooth=domain != "FACE", vertex_normals=vn, owned=True)
+
+
+def _per_triangle(me, name: str, raw: dict, tris_rna, nv: int, nl: int, nf: int) -> tuple:
+    """``(tris, uvs, slots, corner normals, vertex normals)`` of :func:`mesh_arrays`: the
+    per-triangle arrays gathered from Blender's (None where the mesh has none)."""
+    nt = len(tris_rna)
     corner_vert = _raw(me, raw, ".corner_vert", "value", nl, np.int32)
     if corner_vert is None:
         corner_vert = np.empty(nl, np.int32)
@@ -264,19 +294,13 @@ def mesh_arrays(me, name: str, raw: dict | None = None) -> Mesh | None:
         # (Cycles too shades every triangle with the corner normals here, flat faces with
         # their polygon's normal: no per-triangle normals)
         normals = _gather(_corner_normals(me, raw, nl).reshape(nl, 3), loops)
-
-    # FACE (all flat): no normals and smooth=False, so that each triangle is shaded with
-    # its own normal, as Cycles shades such triangles with their geometric normal (the
-    # triangles of a non-planar quad or n-gon each have their own, where Blender's polygon
-    # normal is one for them all); the engine computes it where it reads it. The arrays
-    # are fresh and never changed: handed over (owned), not copied again.
-    return Mesh(name, verts.reshape(nv, 3), tris, corner_normals=normals, corner_uvs=uvs,
-                slots=slots, smooth=domain != "FACE", vertex_normals=vn, owned=True)
+    return tris, uvs, slots, normals, vn
 
 
 def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     """A digest of everything :func:`mesh_arrays` reads, from raw attribute arrays only
-    (Blender's own, read in place where they are one array: :func:`blender_array`).
+    (Blender's own, read in place where they are one array: :func:`blender_array`):
+    :func:`fingerprint_digest` of :func:`fingerprint_parts`.
 
     Two reads of an unchanged mesh give the same digest; any change of positions, faces
     (each face's first corner -- Blender's face offsets, read in place: 4 bytes a face --
@@ -293,35 +317,77 @@ def mesh_fingerprint(me, raw: dict | None = None) -> bytes:
     probability below 2^-128; 4-5x faster than SHA-256 alone); digests are compared only
     within the process (the key is drawn per process).
     """
+    return fingerprint_digest(fingerprint_parts(me, raw))
+
+
+def fingerprint_parts(me, raw: dict | None = None) -> list:
+    """What :func:`mesh_fingerprint` hashes, in order (bytes and arrays: the arrays may be
+    views of Blender's memory, valid only during the mesh read): everything read from
+    ``me`` (the Blender API, this thread), nothing hashed yet, so that the hashing
+    (:func:`fingerprint_digest`, no Blender call) can run beside the mesh read."""
     raw = {} if raw is None else raw
-    h = ContentHash()
+    parts: list = []
     counts = (len(me.vertices), len(me.edges), len(me.loops), len(me.polygons),
               len(me.materials))
-    h.update(np.array(counts, np.int64).tobytes())
-    h.update(me.normals_domain.encode())
+    parts.append(np.array(counts, np.int64).tobytes())
+    parts.append(me.normals_domain.encode())
     domain_size = {"POINT": counts[0], "EDGE": counts[1], "CORNER": counts[2],
                    "FACE": counts[3]}
     if counts[3]:
-        h.update(b"faces")
-        h.update(read_array(me.polygons, counts[3], 1, np.int32, "loop_start"))
+        parts.append(b"faces")
+        parts.append(read_array(me.polygons, counts[3], 1, np.int32, "loop_start"))
     for name, prop, width, dtype in _FINGERPRINT_ATTRIBUTES:
         attr = me.attributes.get(name)
         if attr is None:
             continue
         values = _raw(me, raw, name, prop, domain_size.get(attr.domain, 0) * width, dtype)
-        h.update(name.encode())
-        h.update(values)  # (its buffer: no copy, the same bytes)
+        parts.append(name.encode())
+        parts.append(values)  # (its buffer: no copy, the same bytes)
     if me.normals_domain == "CORNER":  # custom or split normals
-        h.update(_corner_normals(me, raw, counts[2]))
+        parts.append(_corner_normals(me, raw, counts[2]))
     elif me.normals_domain == "POINT" and _free_point_normals(me):
         # (Blender 4.5+'s free custom normals per vertex: the vertex normals are them)
-        h.update(b"custom_normal")
-        h.update(_raw(me, raw, "custom_normal", "vector", counts[0] * 3, np.float32))
+        parts.append(b"custom_normal")
+        parts.append(_raw(me, raw, "custom_normal", "vector", counts[0] * 3, np.float32))
     layer = next((u for u in me.uv_layers if u.active_render), None)
     if layer is not None:
-        h.update(layer.name.encode())
-        h.update(_uv(me, layer, raw, counts[2]))
+        parts.append(layer.name.encode())
+        parts.append(_uv(me, layer, raw, counts[2]))
+    return parts
+
+
+def fingerprint_digest(parts: list) -> bytes:
+    """The 16-byte digest of :func:`fingerprint_parts` (no Blender call: any thread)."""
+    h = ContentHash()
+    for p in parts:
+        h.update(p)
     return h.digest()[:16]
+
+
+def parts_bytes(parts: list) -> int:
+    """The bytes :func:`fingerprint_digest` hashes for ``parts``."""
+    return sum(len(p) if isinstance(p, bytes) else p.nbytes for p in parts)
+
+
+def read_mesh(me, name: str, raw: dict, fingerprint: bytes | None = None
+              ) -> tuple[Mesh | None, bytes]:
+    """``(mesh_arrays(me, name, raw), fingerprint)``: the fingerprint as given, else
+    :func:`mesh_fingerprint` of the same arrays, whose hashing (:func:`fingerprint_digest`:
+    no Blender call) runs on a second thread while this one reads the mesh
+    (:class:`~rstrace_engine.beside.Beside`, from :data:`BESIDE_BYTES` hashed): the same
+    digest, its time off the first render's serial read (``docs/bench-scale-bpy.md``,
+    session 38). The hashed arrays may be views of Blender's memory: the hash is joined
+    before this returns or raises, within the mesh read."""
+    if fingerprint is not None:
+        return mesh_arrays(me, name, raw), fingerprint
+    parts = fingerprint_parts(me, raw)
+    job = Beside(fingerprint_digest, parts, when=parts_bytes(parts) >= BESIDE_BYTES)
+    try:
+        mesh = mesh_arrays(me, name, raw)
+    except BaseException:
+        job.drop()
+        raise
+    return mesh, job.result()
 
 
 def _free_point_normals(me) -> bool:

@@ -158,6 +158,8 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
     """
     import threading
 
+    import numba
+
     from rstrace_engine.cancel import CancelFlag, Cancelled
 
     if cancel is None:
@@ -171,9 +173,11 @@ def build(make, triangles: int = 0, cancel=None, progress=None,
     abandoned = [False]
 
     flag = CancelFlag()
+    threads = numba.get_num_threads()  # (the render's setting: thread-local in numba)
 
     def run() -> None:
         try:
+            numba.set_num_threads(threads)  # (a new thread starts at NUMBA_NUM_THREADS)
             session = make(flag)
             if flag():
                 raise Cancelled

@@ -5,29 +5,30 @@ Cycles' first render of the same scene in the same process.
                                       [--moves N] [--order ours-first|cycles-first]
                                       [--only ours|cycles]
 
-Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE,
-ray depth 0), waits for the add-on's background kernel load (``--settle``), then times one
-F12 (``bpy.ops.render.render()``) with each part wrapped: the export (the mesh reads --
+Builds the scene (Suzanne subdivided beside a small sphere and a floor, 320x240, BASE, ray
+depth 0), waits for the add-on's background kernel load (``--settle``), then times one F12
+(``bpy.ops.render.render()``) with each part wrapped: the export (the mesh reads --
 ``foreach_get``, Blender's triangle corners, the per-corner gathers -- and the
-fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the
-packing), the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top
-level), the core render, writing the result, and any kernel load or compile
-(``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the
-whole process (all threads: the build thread and numba's), of which system CPU, and the
-minor page faults (system CPU and faults are mostly fresh memory's first touch) and the
-resident memory after it, and for the F12 its wall, CPU, system CPU, faults and the
-process's peak RSS before and after. ``--moves N``: then N F12s after moving the small
-sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no bounces,
-no denoising) renders the same scene (``--order cycles-first``: Cycles first, then the
-F12; ``--only ours|cycles``: one of them alone, in its own process: whichever renders
+fingerprints), the scene model (``build_scene``: ``Scene.add_mesh``'s checks, the packing),
+the BVH (mesh keys, mesh builds, their leaves, the concatenation, the top level), the core
+render, writing the result, and any kernel load or compile
+(``Dispatcher._compile_for_args``); per part the wall seconds, the CPU seconds of the whole
+process (all threads: the build thread and numba's) and of the calling thread alone (a part
+run beside other work, e.g. the fingerprint's hash beside the mesh read), of which system
+CPU, and the minor page faults (system CPU and faults are mostly fresh memory's first
+touch) and the resident memory after it, and for the F12 its wall, CPU, system CPU, faults
+and the process's peak RSS before and after. ``--moves N``: then N F12s after moving the
+small sphere (wall, CPU, sync: the edit loop's goal). Then Cycles (CPU, 1 sample, no
+bounces, no denoising) renders the same scene (``--order cycles-first``: Cycles first, then
+the F12; ``--only ours|cycles``: one of them alone, in its own process: whichever renders
 second reuses the pages the first one freed -- no first-touch faults -- so a fair
-comparison alternates the order or runs each in a fresh process; the add-on is
-registered, the scene built and the kernel load waited for in every mode, so the
-process before the render is the same whichever renders). The JSON line also holds the
-SHA-1 of each F12's radiance and pixel classes (``image_sha1``), to compare checkouts bit
-for bit, and the load average. Nothing is asserted; the numbers go to
-``docs/bench-scale-bpy.md``. ``--root``: the checkout whose add-on, core and
-``bench_scale_bpy.py`` run (default: this script's), for A/B runs against another one.
+comparison alternates the order or runs each in a fresh process; the add-on is registered,
+the scene built and the kernel load waited for in every mode, so the process before the
+render is the same whichever renders). The JSON line also holds the SHA-1 of each F12's
+radiance and pixel classes (``image_sha1``), to compare checkouts bit for bit, and the load
+average. Nothing is asserted; the numbers go to ``docs/bench-scale-bpy.md``. ``--root``:
+the checkout whose add-on, core and ``bench_scale_bpy.py`` run (default: this script's),
+for A/B runs against another one.
 """
 
 from __future__ import annotations
@@ -43,11 +44,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: (module attribute holder, name, label) of what is timed, in the order printed
+#: (module attribute holder, name, label) of what is timed, in the order printed (a label
+#: may wrap several holders' names: a function another module imports by name, in one
+#: checkout or the other; a name a checkout lacks is left out)
 PARTS = (("sync", "sync", "sync (export, scene model, packing, BVH)"),
          ("export", "read_scene", "export (all)"),
          ("export", "mesh_arrays", "  mesh read (foreach_get, corners, gathers)"),
+         ("meshes", "mesh_arrays", "  mesh read (foreach_get, corners, gathers)"),
          ("export", "mesh_fingerprint", "  fingerprint"),
+         ("meshes", "fingerprint_parts", "  fingerprint"),
+         ("meshes", "fingerprint_digest", "  fingerprint"),
          ("export", "build_scene", "scene model (add_mesh, checks)"),
          ("scene.Scene", "arrays", "packing (Scene.arrays)"),
          ("accelerators.BVHAccelerator", "_build", "BVH (all)"),
@@ -87,22 +93,33 @@ def _frame_sha1(sc) -> str | None:
     return h.hexdigest()
 
 
+def _empty() -> list:
+    """A part's totals: wall, process CPU, calls, system CPU, faults, resident MB after
+    it, CPU of the thread that called it (a part run beside another thread's work: its own
+    CPU; process CPU counts both threads)."""
+    return [0.0, 0.0, 0, 0.0, 0, 0.0, 0.0]
+
+
 def _wrap(holder, name: str, label: str, acc: dict) -> None:
-    f = getattr(holder, name)
+    f = getattr(holder, name, None)
+    if f is None:
+        return
 
     def timed(*a, **k):
         t, c, (s, m) = time.perf_counter(), time.process_time(), _usage()
+        tc = time.thread_time()
         try:
             return f(*a, **k)
         finally:
             s1, m1 = _usage()
-            e = acc.setdefault(label, [0.0, 0.0, 0, 0.0, 0, 0.0])
+            e = acc.setdefault(label, _empty())
             e[0] += time.perf_counter() - t
             e[1] += time.process_time() - c
             e[2] += 1
             e[3] += s1 - s
             e[4] += m1 - m
             e[5] = _rss_mb()
+            e[6] += time.thread_time() - tc
 
     setattr(holder, name, timed)
 
@@ -138,7 +155,7 @@ def main(argv=None) -> int:
     import numba.core.dispatcher as dispatcher
 
     import addon
-    from addon import export, sync
+    from addon import export, meshes, sync
     from addon import session as frames
     from rstrace_engine import session as core
     from rstrace_engine.accel import accelerators, bvh, bvh_mesh
@@ -148,7 +165,8 @@ def main(argv=None) -> int:
     small = bsb.build(args.size, 0, 0)
     sc = bpy.context.scene
     addon.kernels.wait(600)
-    names = dict(sync=sync, scene=scene, export=export, accelerators=accelerators,
+    names = dict(sync=sync, scene=scene, export=export, meshes=meshes,
+                 accelerators=accelerators,
                  bvh_mesh=bvh_mesh, bvh=bvh, core=core, frames=frames, dispatcher=dispatcher)
     acc: dict = {}
     for path, name, label in PARTS:
@@ -188,7 +206,7 @@ def _ours(args, addon, bpy, sc, small, acc: dict) -> dict:
     bpy.ops.render.render()
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     r1 = resource.getrusage(resource.RUSAGE_SELF)
-    parts = {label: acc.get(label, [0.0, 0.0, 0, 0.0, 0, 0.0]) for _, _, label in PARTS}
+    parts = {label: acc.get(label, _empty()) for _, _, label in PARTS}
     acc.clear()
     st = addon.last_render_stats(sc)
     out = dict(f12_wall=wall, f12_cpu=cpu,
@@ -221,9 +239,9 @@ def _report(bsb, out: dict) -> None:
         return
     wall, cpu = out["f12_wall"], out["f12_cpu"]
     bsb._say(f"resident before the F12: {out['rss_mb']:.0f} MB")
-    for label, (w, cp, n, sy, mf, rss) in out["parts"].items():
-        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  user {cp - sy:6.3f} s  "
-                 f"system {sy:6.3f} s  "
+    for label, (w, cp, n, sy, mf, rss, tc) in out["parts"].items():
+        bsb._say(f"{label:44s} wall {w:7.3f} s  CPU {cp:7.3f} s  thread {tc:6.3f} s  "
+                 f"user {cp - sy:6.3f} s  system {sy:6.3f} s  "
                  f"faults {mf:7d}  resident after {rss:5.0f} MB  ({n} calls)")
     bsb._say(f"first F12: wall {wall:.3f} s, CPU {cpu:.3f} s (system {out['f12_sys']:.3f}, "
              f"{out['f12_faults']} faults; peak RSS {out['peak_rss_mb'][0]:.0f} -> "

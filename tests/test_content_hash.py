@@ -83,3 +83,47 @@ def test_each_update_is_a_record_of_its_own():
 def test_any_dtype_is_hashed_by_its_bytes(dtype):
     a = (np.arange(4099) % 7).astype(dtype)
     assert _digest(a) == _digest(a.reshape(-1).view(np.uint8).copy())
+
+
+def test_a_large_update_hashes_its_halves_on_two_threads_to_the_same_digest(monkeypatch):
+    """From ``SPLIT_BLOCKS`` blocks an update hashes the second half of its blocks beside
+    (``rstrace_engine.beside``): the NH rows and the digest are the one-thread ones (main
+    hashed every block on the calling thread: no ``SPLIT_BLOCKS``)."""
+    import threading
+
+    import numba
+
+    rng = np.random.default_rng(11)
+    a = rng.integers(0, 2 ** 32, ch.SPLIT_BLOCKS * ch.BLOCK_WORDS + 1001, dtype=np.uint64
+                     ).astype(np.uint32)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)  # (Beside runs inline: every block on this thread)
+    try:
+        one = _digest(a)
+    finally:
+        numba.set_num_threads(before)
+    calls = []
+    kernel = ch._nh_blocks
+
+    def recorded(words, key, out):
+        calls.append((len(out), threading.get_ident()))
+        kernel(words, key, out)
+
+    monkeypatch.setattr(ch, "_nh_blocks", recorded)
+    handed = []
+
+    class Recorded(ch.Beside):
+        def __init__(self, fn, *args, when=True):
+            super().__init__(fn, *args, when=when)
+            handed.append(self.started)
+
+    monkeypatch.setattr(ch, "Beside", Recorded)
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread only here")
+    assert _digest(a) == one
+    blocks = ch.SPLIT_BLOCKS + 1
+    assert sorted(n for n, _ in calls) == [blocks // 2, blocks - blocks // 2]
+    assert handed == [True]
+    calls.clear()
+    _digest(a[:(ch.SPLIT_BLOCKS - 1) * ch.BLOCK_WORDS])  # (below: one call, here)
+    assert calls == [(ch.SPLIT_BLOCKS - 1, threading.get_ident())] and handed == [True]

@@ -31,7 +31,10 @@ most: the chance of a wrong "same mesh" is below 10^-30.
 
 Speed: the kernel reads each 8 bytes once and does :data:`LANES` multiplies (vectorised
 by LLVM); SHA-256 sees 32 bytes per :data:`BLOCK_WORDS` words (0.05 %): 5-7 GB/s here
-against SHA-256's 1.4 (32 MB, one thread).
+against SHA-256's 1.4 (32 MB, one thread). The blocks are independent: an update of
+:data:`SPLIT_BLOCKS` blocks or more hashes its second half on another thread
+(:class:`~rstrace_engine.beside.Beside`) while this one hashes the first, into the same
+rows of NH values: the same digest.
 """
 
 from __future__ import annotations
@@ -42,11 +45,17 @@ import secrets
 import numpy as np
 from numba import njit
 
+from ..beside import Beside
+
 #: 32-bit words per NH block (64 KB): :data:`LANES` 64-bit NH values per block go to SHA-256.
 BLOCK_WORDS = 1 << 14
 #: NH values per block (keys shifted by :data:`SHIFT` words): collision bound 2^-32 each.
 LANES = 4
 SHIFT = 4
+
+#: Blocks from which an update hashes its two halves on two threads (2 MB: below, the
+#: hand-off costs more than half the hash)
+SPLIT_BLOCKS = 32
 
 #: The process's NH key: BLOCK_WORDS + SHIFT * (LANES - 1) random 32-bit words.
 _KEY = np.frombuffer(secrets.token_bytes(4 * (BLOCK_WORDS + SHIFT * (LANES - 1))),
@@ -97,6 +106,24 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return v
 
 
+def _nh_halves(words: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_nh_blocks` of ``words`` into ``out``, the second half of the blocks on
+    another thread from :data:`SPLIT_BLOCKS` blocks (each block's value is computed
+    alone: the same rows whichever thread computes them)."""
+    nb = len(out)
+    if nb < SPLIT_BLOCKS:
+        _nh_blocks(words, _KEY, out)
+        return
+    half = nb // 2
+    job = Beside(_nh_blocks, words[half * BLOCK_WORDS:], _KEY, out[half:])
+    try:
+        _nh_blocks(words[:half * BLOCK_WORDS], _KEY, out[:half])
+    except BaseException:
+        job.drop()
+        raise
+    job.result()
+
+
 class ContentHash:
     """hashlib-like: ``update(array or bytes)``, ``digest()`` (16 bytes). Module
     docstring: what it hashes and why equal digests mean equal inputs."""
@@ -116,7 +143,7 @@ class ContentHash:
                 u8 = u8.copy()
             words = _read_only(u8[:bulk].view(np.uint32))
             out = np.empty(((len(words) + BLOCK_WORDS - 1) // BLOCK_WORDS, LANES), np.uint64)
-            _nh_blocks(words, _KEY, out)
+            _nh_halves(words, out)
             self._sha.update(out)
         self._sha.update(u8[bulk:].tobytes())
 

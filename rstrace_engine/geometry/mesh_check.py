@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..beside import Beside
 from ..errors import SceneError
 from .attributes import ATTR_NONE, ATTR_VERTEX, compact_normals, compact_uvs, vertex_rows
 from .mesh_math import proper_triangles, vertex_normals
@@ -150,6 +151,31 @@ def _triangles(name: str, value, nverts: int, keep: bool) -> np.ndarray:
     return np.array(tris, np.int32)  # a copy: the caller may change its array later
 
 
+def _attribute_rows(n: str, mesh, m: int, nverts: int, keep: bool) -> tuple:
+    """``(normals, uvs, vertex normals, slots)`` of ``mesh`` (``m`` triangles, ``nverts``
+    vertices) as arrays of their stored dtypes, checked (shapes, counts, finite values,
+    slots not negative); None where it has none."""
+    cn, cu, vn = mesh.corner_normals, mesh.corner_uvs, mesh.vertex_normals
+    if cn is not None and vn is not None:
+        raise SceneError(f"mesh '{n}': give corner normals or vertex normals, not both")
+    normals = None if cn is None else _rows(n, "mesh normals", cn, (3, 3), np.float32, keep)
+    uvs = None if cu is None else _rows(n, "mesh uvs", cu, (3, 2), np.float32, keep)
+    if vn is not None:
+        vn = _rows(n, "mesh vertex normals", vn, (3,), np.float32, keep)
+        if len(vn) != nverts:
+            raise SceneError(f"mesh '{n}': {len(vn)} vertex normals for {nverts} "
+                             f"vertices")
+    for what, a in (("corner normal", normals), ("corner uv", uvs)):
+        if a is not None and len(a) != m:
+            raise SceneError(f"mesh '{n}': {len(a)} {what} triples for {m} triangles")
+    slots = None
+    if mesh.slots is not None:
+        slots = (np.asarray if keep else np.array)(mesh.slots, dtype=np.int32).reshape(-1)
+        if len(slots) != m or (m and slots.min() < 0):
+            raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
+    return normals, uvs, vn, slots
+
+
 def _stored_vertices(given) -> np.ndarray:
     """The vertices an ``owned`` mesh's dict holds until the packing: the given (n, 3)
     array itself where it is a C-contiguous float32 or float64 array (the packing converts
@@ -161,6 +187,52 @@ def _stored_vertices(given) -> np.ndarray:
     return np.ascontiguousarray(arr, np.float64)
 
 
+#: Triangles from which a mesh's checks run on two threads (:func:`checked_mesh`)
+BESIDE_TRIANGLES = 1 << 16
+
+
+def _large(mesh) -> bool:
+    """Whether ``mesh``'s checks run on two threads: arrays of vertices and triangles
+    (not lists: their length is known before they are read), :data:`BESIDE_TRIANGLES`
+    triangles or more."""
+    v, t = mesh.vertices, mesh.triangles
+    return (isinstance(v, np.ndarray) and isinstance(t, np.ndarray) and v.ndim == 2
+            and t.ndim == 2 and len(t) >= BESIDE_TRIANGLES)
+
+
+def _vertices_and_triangles(n: str, mesh, keep: bool):
+    """``(verts, lo, hi, tris)``: :func:`_vertices` and :func:`_triangles`, the vertices'
+    pass beside the triangles' for a large mesh; a vertex error is raised before a
+    triangle error, as when they ran one after the other."""
+    if not _large(mesh):
+        verts, lo, hi = _vertices(n, mesh.vertices, keep)
+        return verts, lo, hi, _triangles(n, mesh.triangles, len(verts), keep)
+    job = Beside(_vertices, n, mesh.vertices, keep)
+    try:
+        tris = _triangles(n, mesh.triangles, len(mesh.vertices), keep)
+    except BaseException:
+        job.result()  # (raises a vertex error first)
+        raise
+    verts, lo, hi = job.result()
+    return verts, lo, hi, tris
+
+
+def _attributes(verts, tris, normals, vn, uvs, slots, smooth: bool) -> tuple:
+    """``(nmode, normals, uvmode, uvs, slot, slots)``: a checked mesh's rows in their
+    coarsest exact modes (:mod:`.attributes`) for its kept triangles ``tris``."""
+    if normals is not None:
+        nmode, normals = compact_normals(_as64(verts), tris, normals)
+    elif vn is not None:  # (the same mode and rows the corners vn[tris] would give)
+        nmode, normals = vertex_rows(_as64(verts), tris, vn)
+    elif smooth:  # (the vertex normals' float32 rows: what every corner reads)
+        nmode, normals = ATTR_VERTEX, vertex_normals(_as64(verts), tris).astype(np.float32)
+    else:  # flat: each corner reads its triangle's own normal, computed
+        nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
+    uvmode, uvs = compact_uvs(tris, len(verts), uvs)
+    slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots)
+    return nmode, normals, uvmode, uvs, slot, slots
+
+
 def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     """``mesh`` (a :class:`~.elements.Mesh`) validated (errors name it,
     :class:`SceneError`) into the scene model's mesh dict; ``dropped_fn(count)`` is called
@@ -168,7 +240,14 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     with nothing else left is refused). ``cancel``: a ``() -> bool`` polled by the area
     test. A mesh given with ``owned=True`` keeps its result: the same Mesh object checked
     again gives a mesh dict of its own, with the same arrays, without a check (module
-    docstring)."""
+    docstring).
+
+    A large mesh (:data:`BESIDE_TRIANGLES`) is checked on two threads
+    (:class:`~rstrace_engine.beside.Beside`): the vertices' pass beside the triangles'
+    index range, then the area test beside the attributes' checks and their modes,
+    computed for every triangle (those of the kept triangles instead where the area test
+    drops some, the rare case). The same results and the same first error as one thread:
+    the checks that ran first on one thread are raised first."""
     keep = bool(getattr(mesh, "owned", False))
     if keep and mesh._checked is not None:
         kept, dropped = mesh._checked
@@ -176,28 +255,18 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
             dropped_fn(dropped)
         return dict(kept, verts=_stored_vertices(mesh.vertices), source=mesh)
     n = mesh.name
-    verts, lo, hi = _vertices(n, mesh.vertices, keep)
-    tris = _triangles(n, mesh.triangles, len(verts), keep)
+    verts, lo, hi, tris = _vertices_and_triangles(n, mesh, keep)
     m = len(tris)
-    cn, cu, vn = mesh.corner_normals, mesh.corner_uvs, mesh.vertex_normals
-    if cn is not None and vn is not None:
-        raise SceneError(f"mesh '{n}': give corner normals or vertex normals, not both")
-    normals = None if cn is None else _rows(n, "mesh normals", cn, (3, 3), np.float32, keep)
-    uvs = None if cu is None else _rows(n, "mesh uvs", cu, (3, 2), np.float32, keep)
-    if vn is not None:
-        vn = _rows(n, "mesh vertex normals", vn, (3,), np.float32, keep)
-        if len(vn) != len(verts):
-            raise SceneError(f"mesh '{n}': {len(vn)} vertex normals for {len(verts)} "
-                             f"vertices")
-    for what, a in (("corner normal", normals), ("corner uv", uvs)):
-        if a is not None and len(a) != m:
-            raise SceneError(f"mesh '{n}': {len(a)} {what} triples for {m} triangles")
-    slots = None
-    if mesh.slots is not None:
-        slots = (np.asarray if keep else np.array)(mesh.slots, dtype=np.int32).reshape(-1)
-        if len(slots) != m or (m and slots.min() < 0):
-            raise SceneError(f"mesh '{n}': material slots must be {m} non-negative ints")
-    keep_tris = proper_triangles(verts, tris, cancel)
+    # (the area test reads checked vertices and triangles only)
+    area = Beside(proper_triangles, verts, tris, cancel, when=_large(mesh))
+    try:
+        normals, uvs, vn, slots = _attribute_rows(n, mesh, m, len(verts), keep)
+        ahead = (_attributes(verts, tris, normals, vn, uvs, slots, mesh.smooth)
+                 if area.started else None)
+    except BaseException:
+        area.drop()
+        raise
+    keep_tris = area.result()
     dropped = int(m - np.count_nonzero(keep_tris))
     if dropped and dropped_fn is not None:
         dropped_fn(dropped)
@@ -206,16 +275,9 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     if dropped:  # (not the usual case: otherwise no gather, no copy)
         tris, normals, uvs, slots = (None if a is None else a[keep_tris]
                                      for a in (tris, normals, uvs, slots))
-    if normals is not None:
-        nmode, normals = compact_normals(_as64(verts), tris, normals)
-    elif vn is not None:  # (the same mode and rows the corners vn[tris] would give)
-        nmode, normals = vertex_rows(_as64(verts), tris, vn)
-    elif mesh.smooth:  # (the vertex normals' float32 rows: what every corner reads)
-        nmode, normals = ATTR_VERTEX, vertex_normals(_as64(verts), tris).astype(np.float32)
-    else:  # flat: each corner reads its triangle's own normal, computed
-        nmode, normals = ATTR_NONE, np.zeros((0, 3), np.float32)
-    uvmode, uvs = compact_uvs(tris, len(verts), uvs)
-    slot, slots = (0, np.zeros(0, np.int32)) if slots is None else compact_slots(slots)
+    if dropped or ahead is None:
+        ahead = _attributes(verts, tris, normals, vn, uvs, slots, mesh.smooth)
+    nmode, normals, uvmode, uvs, slot, slots = ahead
     if keep:  # (float32 checked as given, or a float64 copy for the checks: the packing
         verts = _stored_vertices(mesh.vertices)  # converts them itself)
     out = dict(name=n, verts=verts, tris=tris, normals=normals, nmode=nmode, uvs=uvs,

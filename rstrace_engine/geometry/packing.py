@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import tolerances as tol
+from ..beside import Beside
 from .attributes import bias
 from .mesh_math import claim_room, has_room
 
@@ -183,6 +184,40 @@ def _in_place(live: list, nv, starts: dict) -> tuple[int, dict]:
     return k, out
 
 
+#: Rows from which the packing writes a mesh's rows in two halves on two threads
+BESIDE_ROWS = 1 << 16
+
+
+def _in_halves(fn, n: int) -> None:
+    """``fn(0, h)`` here and ``fn(h, n)`` beside (:class:`~rstrace_engine.beside.Beside`)
+    from :data:`BESIDE_ROWS` rows; ``fn(0, n)`` below. ``fn`` writes rows ``[a, b)`` with
+    a numpy copy or cast, which releases the GIL: the same values, the fresh memory's
+    first touch (most of a large mesh's packing: its float64 vertices) on two cores."""
+    if n < BESIDE_ROWS:
+        fn(0, n)
+        return
+    h = n // 2
+    job = Beside(fn, h, n)
+    try:
+        fn(0, h)
+    except BaseException:
+        job.drop()
+        raise
+    job.result()
+
+
+def _copy(dst: np.ndarray, src: np.ndarray, add=None) -> None:
+    """``dst[:] = src`` (``src + add`` where ``add``: an int32 offset), in halves
+    (:func:`_in_halves`)."""
+    def rows(a: int, b: int) -> None:
+        if add is None:
+            np.copyto(dst[a:b], src[a:b], casting="unsafe")
+        else:
+            np.add(src[a:b], add, out=dst[a:b])
+
+    _in_halves(rows, len(src))
+
+
 def pack_meshes(meshes: list) -> dict:
     """The packing's geometry fields of ``meshes`` (mesh dicts, None for a tombstoned slot,
     which owns no vertices and no triangles: ``mesh_tri_start[k] == mesh_tri_start[k +
@@ -210,12 +245,12 @@ def pack_meshes(meshes: list) -> dict:
     for k, m in enumerate(live):
         v, t = slice(nv[k], nv[k] + len(m["verts"])), slice(nt[k], nt[k + 1])
         rn, ru, rs = slice(nn[k], nn[k + 1]), slice(nu[k], nu[k + 1]), slice(ns[k], ns[k + 1])
-        packed["verts"][v] = m["verts"]
+        _copy(packed["verts"][v], m["verts"])  # (float32 -> float64 for the add-on's)
         if not (k == big and "tris" in rooms):  # (else its rows are there already)
-            np.add(m["tris"], np.int32(nv[k] - m.get("vert0", 0)), out=packed["tris"][t])
-        packed["normals"][rn] = m["normals"]
+            _copy(packed["tris"][t], m["tris"], np.int32(nv[k] - m.get("vert0", 0)))
+        _copy(packed["normals"][rn], m["normals"])
         if not (k == big and "uvs" in rooms):
-            packed["uvs"][ru] = m["uvs"]
+            _copy(packed["uvs"][ru], m["uvs"])
         packed["tri_slot"][rs] = m["slots"]
         packed["mesh_nrm"][ids[k]] = m["nmode"], bias(m["nmode"], nn[k], nv[k], nt[k])
         packed["mesh_uv"][ids[k]] = m["uvmode"], bias(m["uvmode"], nu[k], nv[k], nt[k])

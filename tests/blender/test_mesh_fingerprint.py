@@ -9,6 +9,7 @@ import math
 
 import bpy
 import numpy as np
+import pytest
 
 
 def _heptagon_mesh(faces=((0, 1, 2), (3, 4, 5, 6))):
@@ -118,3 +119,44 @@ def test_the_fingerprint_sees_free_custom_normals_per_vertex():
     assert not np.array_equal(mesh_arrays(me, me.name).vertex_normals, read.vertex_normals)
     assert mesh_fingerprint(me) != first
     assert mesh_fingerprint(me) == mesh_fingerprint(me)  # (unchanged: the same digest)
+
+
+def test_a_large_meshs_fingerprint_is_hashed_beside_its_read(monkeypatch):
+    """``meshes.read_mesh`` (the export's first read of a mesh) hashes the fingerprint on
+    a second thread while it reads the mesh, whose positions are copied there too, beside
+    the per-triangle gathers (from ``BESIDE_BYTES``): the same digest as
+    ``mesh_fingerprint`` and the same Mesh as ``mesh_arrays``; a small mesh's are hashed
+    and copied here; a given fingerprint is taken as it is. (Main has no ``read_mesh``: it
+    hashed after the read, on the same thread, and copied the positions there.)"""
+    import numba
+
+    from addon import meshes
+
+    if numba.get_num_threads() < 2:
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread only here")
+    handed = []
+
+    class Recorded(meshes.Beside):
+        def __init__(self, fn, *args, when=True):
+            super().__init__(fn, *args, when=when)
+            handed.append((fn, self.started))
+
+    monkeypatch.setattr(meshes, "Beside", Recorded)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=300, y_subdivisions=300)
+    me = bpy.context.object.data
+    raw: dict = {}
+    mesh, fp = meshes.read_mesh(me, me.name, raw)
+    assert meshes.parts_bytes(meshes.fingerprint_parts(me)) >= meshes.BESIDE_BYTES
+    assert 12 * len(me.vertices) >= meshes.BESIDE_BYTES
+    assert handed == [(meshes.fingerprint_digest, True), (np.copy, True)]  # (pool thread)
+    assert fp == meshes.mesh_fingerprint(me)
+    assert meshes.same_mesh(mesh, meshes.mesh_arrays(me, me.name))
+    assert meshes.read_mesh(me, me.name, {}, b"given")[1] == b"given"
+    handed.clear()
+    small = _heptagon_mesh()
+    mesh, fp = meshes.read_mesh(small, small.name, {})
+    assert handed in ([(meshes.fingerprint_digest, False), (np.copy, False)],
+                      [(meshes.fingerprint_digest, False)])  # (here; positions maybe ours)
+    assert fp == meshes.mesh_fingerprint(small)

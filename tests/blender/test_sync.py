@@ -166,3 +166,36 @@ def test_f12_starts_afresh_after_a_failed_viewport_session():
     finally:
         vr.free()
 
+
+
+def test_the_f12_build_thread_keeps_the_renders_thread_count():
+    """``sync.build`` runs the scene's construction and its BVH build on a thread of its
+    own; numba's thread count is thread-local (a new thread starts at
+    ``NUMBA_NUM_THREADS``), so the render's Threads setting (``runtime.set_threads``, on
+    the render thread) must be carried over: else a Fixed 1 would still run the builds'
+    parallel loops and ``rstrace_engine.beside`` on two threads (main: this fails)."""
+    import numba
+    import pytest
+
+    from addon import sync
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one thread only here")
+    seen = []
+
+    class Made:
+        def apply(self, cancel=None):
+            seen.append(("apply", numba.get_num_threads()))
+
+    def make(flag):
+        seen.append(("make", numba.get_num_threads(), threading.get_ident()))
+        return Made()
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        sync.build(make, 0, cancel=lambda: False)
+    finally:
+        numba.set_num_threads(before)
+    assert seen[0][2] != threading.get_ident()  # (the build's own thread)
+    assert [s[:2] for s in seen] == [("make", 1), ("apply", 1)]

@@ -70,7 +70,8 @@ def _padded(cbits, j, pad):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _open4(b2, c2, bn, pad, cb, cc, cbits):
-    """The lanes of the 4-wide node made from binary node ``bn``: its two children, then
+    """The lanes of the 4-wide node made from binary node ``bn`` (the top levels of
+    :func:`collapse4_par`; :func:`_collapse_from` does the same): its two children, then
     repeatedly the inner lane of largest surface area opened into its two, until there
     are four (or no inner lane is left). Writes the lanes' boxes (float64, read widened
     when ``pad``) into ``cb`` (4, 6) (int64 view ``cbits``) and their binary children
@@ -138,6 +139,8 @@ def _collapse_from(b2, c2, b4, bits, c4, pad, bn0, parent0, lane0, m0):
     todo[0, 0], todo[0, 1], todo[0, 2] = bn0, parent0, lane0
     sp = 1
     m = m0
+    # (the lanes opened and written here, not through _open4 and _write4: inlined, they
+    # made the loop 1.4-2x slower, session 38)
     while sp > 0:
         sp -= 1
         bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
@@ -145,8 +148,44 @@ def _collapse_from(b2, c2, b4, bits, c4, pad, bn0, parent0, lane0, m0):
         m += 1
         if parent >= 0:
             c4[parent, lane] = k
-        cnt = _open4(b2, c2, bn, pad, cb, cc, cbits)
-        _write4(b4, bits, c4, k, cb, cc, cnt)
+        cnt = 0
+        for j in range(2):
+            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
+                for q in range(6):
+                    cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
+                _padded(cbits, cnt, pad)
+                cc[cnt] = c2[bn, j]
+                cnt += 1
+        while cnt < 4:
+            pick = -1
+            best = -1.0
+            for j in range(cnt):
+                if cc[j] >= 0:
+                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
+                                      cb[j, 5])
+                    if area > best:
+                        best, pick = area, j
+            if pick < 0:
+                break
+            inner = cc[pick]
+            for q in range(6):
+                cb[pick, q] = np.float64(b2[inner, q])
+                cb[cnt, q] = np.float64(b2[inner, 6 + q])
+            _padded(cbits, pick, pad)
+            cc[pick] = c2[inner, 0]
+            _padded(cbits, cnt, pad)
+            cc[cnt] = c2[inner, 1]
+            cnt += 1
+        for j in range(4):
+            if j < cnt:
+                for q in range(6):
+                    _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
+                c4[k, j] = cc[j]
+            else:
+                for q in range(3):
+                    b4[k, 4 * q + j] = np.inf
+                    b4[k, 12 + 4 * q + j] = -np.inf
+                c4[k, j] = -1  # ~0: a leaf of no triangles
         for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
             if cc[j] >= 0:
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
@@ -155,60 +194,21 @@ def _collapse_from(b2, c2, b4, bits, c4, pad, bn0, parent0, lane0, m0):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _lane_area(b2, row, j, pad, box, bbits):
-    """Half the surface area of binary node ``row``'s child ``j`` box as :func:`_open4`
-    reads it (widened when ``pad``; ``box`` (6,) scratch, ``bbits`` its int64 view)."""
-    for q in range(6):
-        box[q] = np.float64(b2[row, 6 * j + q])
-    if pad:
-        for q in range(3):
-            bbits[q] = _step_down(bbits[q])
-            bbits[3 + q] = _step_up(bbits[3 + q])
-    return _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _count_from(b2, c2, pad, bn0):
-    """The number of 4-wide nodes :func:`_collapse_from` makes from binary node ``bn0``:
-    the same lanes opened in the same order (:func:`_open4`'s rule), reading only the
-    inner lanes' boxes (a leaf lane is never opened) and writing nothing."""
+def _inner_nodes(c2, bn0):
+    """The inner nodes of the binary subtree of ``bn0`` (itself included)."""
     todo = np.empty(_TODO, np.int64)
-    cc = np.empty(4, np.int64)
-    ar = np.empty(4)
-    box = np.empty(6)
-    bbits = box.view(np.int64)
     todo[0] = bn0
     sp = 1
-    m = 0
+    n = 0
     while sp > 0:
         sp -= 1
         bn = todo[sp]
-        m += 1
-        cnt = 0
+        n += 1
         for j in range(2):
-            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:
-                cc[cnt] = c2[bn, j]
-                ar[cnt] = _lane_area(b2, bn, j, pad, box, bbits) if cc[cnt] >= 0 else -1.0
-                cnt += 1
-        while cnt < 4:
-            pick = -1
-            best = -1.0
-            for j in range(cnt):
-                if cc[j] >= 0 and ar[j] > best:
-                    best, pick = ar[j], j
-            if pick < 0:
-                break
-            inner = cc[pick]
-            cc[pick] = c2[inner, 0]
-            ar[pick] = _lane_area(b2, inner, 0, pad, box, bbits) if cc[pick] >= 0 else -1.0
-            cc[cnt] = c2[inner, 1]
-            ar[cnt] = _lane_area(b2, inner, 1, pad, box, bbits) if cc[cnt] >= 0 else -1.0
-            cnt += 1
-        for j in range(cnt - 1, -1, -1):
-            if cc[j] >= 0:
-                todo[sp] = cc[j]
+            if c2[bn, j] >= 0:
+                todo[sp] = c2[bn, j]
                 sp += 1
-    return m
+    return n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -245,12 +245,13 @@ def collapse4_par(b2, c2, b4, pad, ntask=COLLAPSE_TASKS):
 
     The 4-wide levels nearest the root are made one at a time (one thread) until their
     inner lanes number at least ``ntask`` (or :data:`COLLAPSE_TOP_LEVELS` levels are made);
-    the subtrees under those lanes are then counted (rows each, all threads), the top
-    nodes numbered depth first around them (one thread: each subtree's first row is the
-    count of the rows before it in that order), and the subtrees written at their rows
-    (all threads, one subtree a task: a subtree's rows are one contiguous run)."""
-    n2 = c2.shape[0]
-    c4 = np.empty((n2, 4), np.int32)
+    the subtrees under those lanes are then written (all threads, one subtree a task)
+    into stretches of ``b4``, used as scratch, each as long as its binary subtree's
+    inner nodes; the top nodes are numbered depth first around them (one thread: a
+    subtree's rows are one run, after the rows before it in that order) and the
+    subtrees moved to their rows (all threads). Returns new arrays of ``M`` rows (a
+    subtree's rows are not known before it is made: counting them first cost half of
+    the collapse, session 38)."""
     bits = b4.reshape(-1).view(np.int32)
     cap = COLLAPSE_TOP_LEVELS * ntask + 1
     t_bn = np.empty(cap, np.int64)  # top nodes: binary node, lanes, their links
@@ -285,13 +286,26 @@ def collapse4_par(b2, c2, b4, pad, ntask=COLLAPSE_TASKS):
         if last or inner == 0:
             break
         lv0, lv1 = lv1, n_top
+    # each subtree written into its own stretch of ``b4`` (scratch: as many rows as its
+    # binary inner nodes, which bound its 4-wide nodes), numbered from the stretch's start
+    base = np.zeros(nt + 1, np.int64)
+    for t in prange(nt):
+        base[t + 1] = _inner_nodes(c2, task_bn[t])
+    for t in range(nt):
+        base[t + 1] += base[t]
+    c4s = np.empty((base[nt], 4), np.int32)
     size = np.empty(nt, np.int64)
     for t in prange(nt):
-        size[t] = _count_from(b2, c2, pad, task_bn[t])
+        size[t] = _collapse_from(b2, c2, b4, bits, c4s, pad, task_bn[t], -1, 0,
+                                 base[t]) - base[t]
     # the top nodes numbered depth first, each subtree's rows where its root lane lies
+    m = n_top
+    for t in range(nt):
+        m += size[t]
+    o4 = np.empty((max(m, 1), 24), b4.dtype)
+    obits = o4.reshape(-1).view(np.int32)
+    c4 = np.empty((max(m, 1), 4), np.int32)
     first = np.empty(nt, np.int64)
-    task_parent = np.empty(nt, np.int64)
-    task_lane = np.empty(nt, np.int64)
     stack = np.empty((4 * cap, 3), np.int64)  # link, parent row, lane
     stack[0, 0], stack[0, 1], stack[0, 2] = 0, -1, 0
     sp = 1
@@ -299,24 +313,29 @@ def collapse4_par(b2, c2, b4, pad, ntask=COLLAPSE_TASKS):
     while sp > 0:
         sp -= 1
         link, parent, lane = stack[sp, 0], stack[sp, 1], stack[sp, 2]
+        if parent >= 0:
+            c4[parent, lane] = m
         if link < 0:
             t = ~link
-            first[t], task_parent[t], task_lane[t] = m, parent, lane
+            first[t] = m
             m += size[t]
             continue
         k = m
         m += 1
-        if parent >= 0:
-            c4[parent, lane] = k
-        _write4(b4, bits, c4, k, t_cb[link], t_cc[link], t_cnt[link])
+        _write4(o4, obits, c4, k, t_cb[link], t_cc[link], t_cnt[link])
         for j in range(t_cnt[link] - 1, -1, -1):
             if t_cc[link, j] >= 0:
                 stack[sp, 0], stack[sp, 1], stack[sp, 2] = t_link[link, j], k, j
                 sp += 1
+    # the subtrees moved to their rows (inner children renumbered)
     for t in prange(nt):
-        _collapse_from(b2, c2, b4, bits, c4, pad, task_bn[t], task_parent[t], task_lane[t],
-                       first[t])
-    return b4, c4, m
+        shift = first[t] - base[t]
+        for i in range(base[t], base[t] + size[t]):
+            o4[i + shift] = b4[i]
+            for j in range(4):
+                c = c4s[i, j]
+                c4[i + shift, j] = c + shift if c >= 0 else c
+    return o4, c4, m
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")

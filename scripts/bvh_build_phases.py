@@ -10,8 +10,7 @@ checkout (``--roots``, default main's worktree and this script's; the order flip
 round: A B, B A, ...), which times ``bvh_mesh.build_mesh_bvh_indexed`` ``--repeats``
 times with each phase wrapped (process CPU seconds, all threads; ``NUMBA_NUM_THREADS``
 ``--threads``): the triangle boxes, the items (quads), the top levels, the subtrees, the
-item leaves, the items opened, the collapse to 4-wide (``collapse4``, or ``collapse4_par``
-since session 38), and the rest. The first build of a
+item leaves, the items opened, the collapse to 4-wide, and the rest. The first build of a
 process meets fresh memory, as an F12's does; the later ones reuse freed pages. It also
 loads each kernel from numba's cache, which an F12 does before (``addon/kernels.py``):
 ``--warm`` first builds the mesh's first 70,000 triangles, untimed, so that the first
@@ -43,7 +42,7 @@ LEVELS = {"1M": 5, "4M": 6}
 PHASES = (("bvh_mesh", "indexed_boxes", "boxes"), ("bvh_cluster", "pair_items", "items"),
           ("bvh_build", "split_top", "top"), ("bvh_build", "build_subtrees", "subtrees"),
           ("bvh_cluster", "item_leaves", "leaves"), ("bvh_cluster", "open_items", "open"),
-          ("bvh_mesh", "collapse4", "collapse"), ("bvh_mesh", "collapse4_par", "collapse"))
+          ("bvh_mesh", "collapse4", "collapse"))
 
 
 def _say(text: str) -> None:
@@ -104,9 +103,7 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
     acc: dict = {}
     busy: dict = {}
     for mod, name, label in PHASES:
-        f = getattr(mods[mod], name, None)
-        if f is None:  # (a checkout without it: collapse4_par, session 38)
-            continue
+        f = getattr(mods[mod], name)
 
         def timed(*a, _f=f, _label=label, **k):
             c, t0 = time.process_time(), _thread_cpu()
@@ -130,7 +127,7 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
         c, w = time.process_time(), time.perf_counter()
         mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
         total, wall = time.process_time() - c, time.perf_counter() - w
-        row = {label: acc.get(label, 0.0) for _, _, label in PHASES}  # (labels: once)
+        row = {label: acc.get(label, 0.0) for _, _, label in PHASES}
         row["rest"] = total - sum(row.values())
         runs.append(dict(total=total, wall=wall, phases=row,
                          busiest={label: busy.get(label, 0.0) for _, _, label in PHASES}))

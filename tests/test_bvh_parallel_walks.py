@@ -1,7 +1,7 @@
-"""The mesh build's walks on every thread (session 38): :func:`.bvh_mesh.collapse4_par` makes
-:func:`.bvh_mesh.collapse4`'s 4-wide rows bit for bit, and :func:`.bvh_cluster.open_items`
-opens the items as one walk from the root did, on any thread count and any split of the
-tree into tasks. Both fail on main (no ``collapse4_par``; ``item_leaves`` gave no node rows)."""
+"""A large mesh's items opened on every thread (session 38): :func:`.bvh_cluster.open_items`
+opens them as one walk from the root did (main's, in Python here), on any thread count and
+any split of the tree into tasks. Fails on main (``item_leaves`` gave no node rows,
+``open_items`` took no ``nodes``)."""
 
 from __future__ import annotations
 
@@ -23,105 +23,6 @@ def _threads(n: int):
         def __exit__(self, *exc):
             numba.set_num_threads(self.old)
     return _Ctx()
-
-
-def _random_tree(rng, n_leaves: int, skew: float, dtype, ties: bool = False):
-    """A binary tree of ``n_leaves`` leaves (node 0 the root; child codes as the builder
-    writes them, ``~(start << 3 | count)``), split ``skew`` of the way (1.0: a caterpillar,
-    every node one leaf and the rest), its rows shuffled, random boxes (``ties``: a few
-    sizes only, so that lanes tie on area). Rows no child reaches are left unset (NaN)."""
-    rows = max(n_leaves - 1, 1)
-    order = np.concatenate([[0], 1 + rng.permutation(rows - 1)])  # row of node i
-    b2 = np.full((rows + 3, 12), np.nan, dtype)
-    c2 = np.full((rows + 3, 2), 12345, np.int32)
-    nxt, leaf = [1], [0]
-
-    def box():
-        lo = rng.integers(-4, 4, 3) if ties else rng.normal(size=3)
-        ext = rng.integers(1, 3, 3) if ties else rng.random(3) * 2.0
-        return np.concatenate([lo, lo + ext])
-
-    stack = [(0, n_leaves)]
-    while stack:
-        node, count = stack.pop()
-        r = order[node]
-        for s, part in enumerate(_halves(rng, count, skew)):
-            b2[r, 6 * s:6 * s + 6] = box()
-            if part == 1:
-                c2[r, s] = ~((leaf[0] << 3) | int(rng.integers(1, 5)))
-                leaf[0] += 1
-            else:
-                c2[r, s] = order[nxt[0]]
-                stack.append((nxt[0], part))
-                nxt[0] += 1
-    return b2, c2
-
-
-def _halves(rng, count: int, skew: float):
-    if skew >= 1.0:
-        return (1, count - 1) if rng.random() < 0.5 else (count - 1, 1)
-    left = int(np.clip(round(count * (0.5 + skew * (rng.random() - 0.5))), 1, count - 1))
-    return left, count - left
-
-
-def _same(b2, c2, pad, ntask):
-    want = bvh_mesh.collapse4(b2, c2, np.empty((len(c2), 24), np.float32), pad)
-    got = bvh_mesh.collapse4_par(b2, c2, np.empty((len(c2), 24), np.float32), pad, ntask)
-    m = want[2]
-    assert got[2] == m
-    assert np.array_equal(got[1][:m], want[1][:m])
-    assert np.array_equal(got[0][:m].view(np.int32), want[0][:m].view(np.int32))
-    return m
-
-
-@pytest.mark.parametrize("threads", [1, 2])
-def test_the_parallel_collapse_makes_the_serial_collapses_rows(threads):
-    """Random trees (balanced, lopsided, caterpillars deeper than the top levels it
-    walks alone, tied areas, float32 and float64 boxes, padded or not), every split into
-    tasks from one to more than the tree has nodes."""
-    rng = np.random.default_rng(38)
-    with _threads(threads):
-        for n_leaves in (2, 3, 5, 9, 40, 300, 3000):
-            for skew in (0.0, 0.6, 1.0):
-                for dtype in (np.float32, np.float64):
-                    b2, c2 = _random_tree(rng, n_leaves, skew, dtype, ties=n_leaves % 2 == 1)
-                    for ntask in (1, 2, 7, 64, 4096):
-                        _same(b2, c2, bool(rng.random() < 0.7), ntask)
-
-
-@pytest.mark.parametrize("threads", [1, 2])
-def test_the_parallel_collapse_of_degenerate_trees(threads):
-    """One item (the root one leaf, child 1 the empty box), every item in one leaf, and a
-    caterpillar of 2,000 levels (one node a level: the walk's top levels end without
-    finding tasks enough)."""
-    rng = np.random.default_rng(1)
-    with _threads(threads):
-        for pb in (np.array([[0.0, 0, 0, 1, 1, 1]]), np.tile([0.0, 0, 0, 1, 1, 1], (4, 1))):
-            b2, c2, _, _ = bvh_build.build_flat_boxes(pb, packed=False)
-            assert c2[0, 0] < 0 and b2[0, 6] > b2[0, 9]  # one leaf at the root
-            for ntask in (1, 128):
-                assert _same(b2, c2, True, ntask) == 1
-        b2, c2 = _random_tree(rng, 2000, 1.0, np.float32)
-        for ntask in (1, 3, 128):
-            assert _same(b2, c2, True, ntask) > 600
-
-
-@pytest.mark.parametrize("threads", [1, 2])
-def test_built_meshes_collapse_alike(threads):
-    """A large mesh's tree (the paired build) and a small one's, shuffled or not."""
-    m = shapes.lumpy_sphere(70_000, name="x")
-    verts = np.ascontiguousarray(m.vertices, np.float64)
-    tris = np.ascontiguousarray(m.triangles, np.int32)
-    rng = np.random.default_rng(3)
-    with _threads(threads):
-        for t in (tris, tris[rng.permutation(len(tris))], tris[:5000]):
-            pb = bvh_mesh.indexed_boxes(verts, t)
-            if len(t) >= bvh_build.PARALLEL_MIN:
-                b2, c2, _, _ = bvh_cluster.build_paired(verts, t, pb)
-            else:
-                b2, c2, _, _ = bvh_build.build_flat_boxes(pb, packed=False)
-            for ntask in (1, 16, bvh_mesh.COLLAPSE_TASKS):
-                _same(b2, c2, True, ntask)
 
 
 def _inner_rows(child) -> np.ndarray:
@@ -203,7 +104,7 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
             sahs.append(bvh_cluster.open_items(pb, starts, how, iperm, rows, nodes, region0,
                                                trav, 1.0, b, c, perm, ntask))
             assert np.array_equal(perm, want_perm)
-            got = bvh_mesh.flatten(b, c, perm, np.float32, parallel=True)
+            got = bvh_mesh.flatten(b, c, perm, np.float32)
             assert np.array_equal(got.child, want.child)
             assert np.array_equal(got.bounds.view(np.int32), want.bounds.view(np.int32))
             # the split items' rows: region0 .. in leaf order (of their first triangle)

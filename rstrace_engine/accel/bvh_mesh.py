@@ -16,7 +16,6 @@ from __future__ import annotations
 import time
 from typing import NamedTuple
 
-import numba
 import numpy as np
 from numba import njit, prange
 
@@ -68,79 +67,33 @@ def _padded(cbits, j, pad):
             cbits[6 * j + 3 + q] = _step_up(cbits[6 * j + 3 + q])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _open4(b2, c2, bn, pad, cb, cc, cbits):
-    """The lanes of the 4-wide node made from binary node ``bn`` (the top levels of
-    :func:`collapse4_par`; :func:`_collapse_from` does the same): its two children, then
-    repeatedly the inner lane of largest surface area opened into its two, until there
-    are four (or no inner lane is left). Writes the lanes' boxes (float64, read widened
-    when ``pad``) into ``cb`` (4, 6) (int64 view ``cbits``) and their binary children
-    into ``cc`` (4,); returns how many lanes are used."""
-    cnt = 0
-    for j in range(2):
-        if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-            for q in range(6):
-                cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
-            _padded(cbits, cnt, pad)
-            cc[cnt] = c2[bn, j]
-            cnt += 1
-    while cnt < 4:
-        pick = -1
-        best = -1.0
-        for j in range(cnt):
-            if cc[j] >= 0:
-                area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4], cb[j, 5])
-                if area > best:
-                    best, pick = area, j
-        if pick < 0:
-            break
-        inner = cc[pick]
-        for q in range(6):
-            cb[pick, q] = np.float64(b2[inner, q])
-            cb[cnt, q] = np.float64(b2[inner, 6 + q])
-        _padded(cbits, pick, pad)
-        cc[pick] = c2[inner, 0]
-        _padded(cbits, cnt, pad)
-        cc[cnt] = c2[inner, 1]
-        cnt += 1
-    return cnt
+@njit(cache=True, nogil=True, error_model="numpy")
+def collapse4(b2, c2, b4, pad):
+    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
 
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _write4(b4, bits, c4, k, cb, cc, cnt):
-    """Row ``k`` of the 4-wide arrays: the lanes ``cb``, ``cc`` (:func:`_open4`), an unused
-    lane an inverted box and the empty leaf ``~0``."""
-    for j in range(4):
-        if j < cnt:
-            for q in range(6):
-                _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
-            c4[k, j] = cc[j]
-        else:
-            for q in range(3):
-                b4[k, 4 * q + j] = np.inf
-                b4[k, 12 + 4 * q + j] = -np.inf
-            c4[k, j] = -1  # ~0: a leaf of no triangles
-
-
-#: Entries of a collapse's stack: a 4-wide node opens up to 3 binary nodes and pushes its
-#: (<= 4) inner children, so the stack holds at most 3 entries per level of the binary tree.
-_TODO = 3 * (DEPTH_CAP + 40) + 4
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _collapse_from(b2, c2, b4, bits, c4, pad, bn0, parent0, lane0, m0):
-    """The 4-wide subtree of binary node ``bn0`` (a 4-wide node's root) written, numbered
-    depth first from row ``m0`` (lane 0's subtree first), its root hung at ``c4[parent0,
-    lane0]`` (``parent0`` -1: none); returns the row after its last."""
-    todo = np.empty((_TODO, 3), np.int64)  # binary node, parent, lane
+    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
+    child of largest surface area until it has four. Writes ``bounds`` into ``b4`` (N, 24)
+    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each),
+    float64 as they are, or float32 rounded *outward* (:func:`_put_outward`: every float32
+    box contains its float64 one), and returns it with ``child (N, 4) int32`` and the
+    number ``M`` of nodes (rows) used; an unused lane has an inverted box and the empty
+    leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering, from
+    binary node 0 (rows no child reaches are never read: the builder's unpacked arrays
+    serve). ``pad``: every binary box is read widened as :func:`pad_outward` widens it
+    (the same bits, without a pass over ``b2`` or a change to it).
+    """
+    n2 = c2.shape[0]
+    # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
+    # stack holds at most 3 entries per level of the binary tree
+    todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
+    bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
+    c4 = np.empty((n2, 4), np.int32)
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
     cbits = cb.reshape(-1).view(np.int64)
-    todo[0, 0], todo[0, 1], todo[0, 2] = bn0, parent0, lane0
+    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
     sp = 1
-    m = m0
-    # (the lanes opened and written here, not through _open4 and _write4: inlined, they
-    # made the loop 1.4-2x slower, session 38)
+    m = 0
     while sp > 0:
         sp -= 1
         bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
@@ -190,152 +143,7 @@ def _collapse_from(b2, c2, b4, bits, c4, pad, bn0, parent0, lane0, m0):
             if cc[j] >= 0:
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
-    return m
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _inner_nodes(c2, bn0):
-    """The inner nodes of the binary subtree of ``bn0`` (itself included)."""
-    todo = np.empty(_TODO, np.int64)
-    todo[0] = bn0
-    sp = 1
-    n = 0
-    while sp > 0:
-        sp -= 1
-        bn = todo[sp]
-        n += 1
-        for j in range(2):
-            if c2[bn, j] >= 0:
-                todo[sp] = c2[bn, j]
-                sp += 1
-    return n
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2, b4, pad):
-    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
-
-    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Writes ``bounds`` into ``b4`` (N, 24)
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each),
-    float64 as they are, or float32 rounded *outward* (:func:`_put_outward`: every float32
-    box contains its float64 one), and returns it with ``child (N, 4) int32`` and the
-    number ``M`` of nodes (rows) used; an unused lane has an inverted box and the empty
-    leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering, from
-    binary node 0 (rows no child reaches are never read: the builder's unpacked arrays
-    serve). ``pad``: every binary box is read widened as :func:`pad_outward` widens it
-    (the same bits, without a pass over ``b2`` or a change to it). One thread: a large
-    mesh's tree is collapsed by :func:`collapse4_par`, the same arrays.
-    """
-    c4 = np.empty((c2.shape[0], 4), np.int32)
-    bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
-    m = _collapse_from(b2, c2, b4, bits, c4, pad, 0, -1, 0, 0)
     return b4, c4, m
-
-
-#: Subtrees a parallel collapse aims to share among its threads (:func:`collapse4_par`) ...
-COLLAPSE_TASKS = 128
-#: ... found within this many 4-wide levels from the root (a deep, thin tree: fewer).
-COLLAPSE_TOP_LEVELS = 12
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def collapse4_par(b2, c2, b4, pad, ntask=COLLAPSE_TASKS):
-    """:func:`collapse4` on every thread, the same rows bit for bit (the same numbering).
-
-    The 4-wide levels nearest the root are made one at a time (one thread) until their
-    inner lanes number at least ``ntask`` (or :data:`COLLAPSE_TOP_LEVELS` levels are made);
-    the subtrees under those lanes are then written (all threads, one subtree a task)
-    into stretches of ``b4``, used as scratch, each as long as its binary subtree's
-    inner nodes; the top nodes are numbered depth first around them (one thread: a
-    subtree's rows are one run, after the rows before it in that order) and the
-    subtrees moved to their rows (all threads). Returns new arrays of ``M`` rows (a
-    subtree's rows are not known before it is made: counting them first cost half of
-    the collapse, session 38)."""
-    bits = b4.reshape(-1).view(np.int32)
-    cap = COLLAPSE_TOP_LEVELS * ntask + 1
-    t_bn = np.empty(cap, np.int64)  # top nodes: binary node, lanes, their links
-    t_cb = np.empty((cap, 4, 6))
-    t_cc = np.empty((cap, 4), np.int64)
-    t_cnt = np.empty(cap, np.int64)
-    t_link = np.zeros((cap, 4), np.int64)  # top node i > 0, or ~task (0: a leaf lane)
-    task_bn = np.empty(4 * cap, np.int64)
-    cbits = t_cb.reshape(-1).view(np.int64)
-    t_bn[0] = 0
-    lv0, lv1, n_top, nt = 0, 1, 1, 0
-    for level in range(COLLAPSE_TOP_LEVELS):
-        inner = 0
-        for i in range(lv0, lv1):
-            t_cnt[i] = _open4(b2, c2, t_bn[i], pad, t_cb[i], t_cc[i],
-                              cbits[24 * i:24 * i + 24])
-            for j in range(t_cnt[i]):
-                if t_cc[i, j] >= 0:
-                    inner += 1
-        last = inner >= ntask or level == COLLAPSE_TOP_LEVELS - 1
-        for i in range(lv0, lv1):
-            for j in range(t_cnt[i]):
-                if t_cc[i, j] >= 0:
-                    if last:
-                        task_bn[nt] = t_cc[i, j]
-                        t_link[i, j] = ~nt
-                        nt += 1
-                    else:
-                        t_bn[n_top] = t_cc[i, j]
-                        t_link[i, j] = n_top
-                        n_top += 1
-        if last or inner == 0:
-            break
-        lv0, lv1 = lv1, n_top
-    # each subtree written into its own stretch of ``b4`` (scratch: as many rows as its
-    # binary inner nodes, which bound its 4-wide nodes), numbered from the stretch's start
-    base = np.zeros(nt + 1, np.int64)
-    for t in prange(nt):
-        base[t + 1] = _inner_nodes(c2, task_bn[t])
-    for t in range(nt):
-        base[t + 1] += base[t]
-    c4s = np.empty((base[nt], 4), np.int32)
-    size = np.empty(nt, np.int64)
-    for t in prange(nt):
-        size[t] = _collapse_from(b2, c2, b4, bits, c4s, pad, task_bn[t], -1, 0,
-                                 base[t]) - base[t]
-    # the top nodes numbered depth first, each subtree's rows where its root lane lies
-    m = n_top
-    for t in range(nt):
-        m += size[t]
-    o4 = np.empty((max(m, 1), 24), b4.dtype)
-    obits = o4.reshape(-1).view(np.int32)
-    c4 = np.empty((max(m, 1), 4), np.int32)
-    first = np.empty(nt, np.int64)
-    stack = np.empty((4 * cap, 3), np.int64)  # link, parent row, lane
-    stack[0, 0], stack[0, 1], stack[0, 2] = 0, -1, 0
-    sp = 1
-    m = 0
-    while sp > 0:
-        sp -= 1
-        link, parent, lane = stack[sp, 0], stack[sp, 1], stack[sp, 2]
-        if parent >= 0:
-            c4[parent, lane] = m
-        if link < 0:
-            t = ~link
-            first[t] = m
-            m += size[t]
-            continue
-        k = m
-        m += 1
-        _write4(o4, obits, c4, k, t_cb[link], t_cc[link], t_cnt[link])
-        for j in range(t_cnt[link] - 1, -1, -1):
-            if t_cc[link, j] >= 0:
-                stack[sp, 0], stack[sp, 1], stack[sp, 2] = t_link[link, j], k, j
-                sp += 1
-    # the subtrees moved to their rows (inner children renumbered)
-    for t in prange(nt):
-        shift = first[t] - base[t]
-        for i in range(base[t], base[t] + size[t]):
-            o4[i + shift] = b4[i]
-            for j in range(4):
-                c = c4s[i, j]
-                c4[i + shift, j] = c + shift if c >= 0 else c
-    return o4, c4, m
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -404,20 +212,14 @@ def _step_up(x):
 
 
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
-            dtype=np.float64, parallel: bool = False) -> FlatBVH:
+            dtype=np.float64) -> FlatBVH:
     """Binary build output (packed, or the builder's unpacked arrays:
     ``build_flat_boxes(packed=False)``) -> the traversal layout (4-wide), its boxes
     padded (:func:`pad_outward`, as they are read: ``b64`` is not changed) and ``dtype``
     (float32: rounded outward, :func:`collapse4`). The nodes are views of arrays sized for
     the binary arrays (a few times the rows used): the scene's concatenation
-    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree.
-    ``parallel``: on every thread (:func:`collapse4_par`, a large mesh's: the same arrays)."""
-    b4 = np.empty((len(child), 24), dtype)
-    if parallel:
-        with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take turns)
-            b4, c4, m = collapse4_par(b64, child, b4, True)
-    else:
-        b4, c4, m = collapse4(b64, child, b4, True)
+    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree."""
+    b4, c4, m = collapse4(b64, child, np.empty((len(child), 24), dtype), True)
     return FlatBVH(b4[:m], c4[:m], perm)
 
 
@@ -558,7 +360,7 @@ def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | Non
     t0 = time.perf_counter()
     # (the primitive boxes are gone before the 4-wide tree is made: a lower peak)
     flat, sah = _four_wide(_binary_paired(verts, tris, indexed_boxes(verts, tris), grain,
-                                          stop), stop, True)
+                                          stop), stop)
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
@@ -582,12 +384,11 @@ def _binary_paired(verts, tris, pb, grain, stop):
     return out
 
 
-def _four_wide(binary, stop, parallel: bool = False) -> tuple[FlatBVH, float]:
+def _four_wide(binary, stop) -> tuple[FlatBVH, float]:
     """The 4-wide tree of :func:`_binary`'s output, its boxes in float32 rounded outward
-    (:func:`collapse4`; ``parallel``: :func:`collapse4_par`, a large mesh's), and its SAH
-    cost."""
+    (:func:`collapse4`), and its SAH cost."""
     b64, child, perm, sah = binary
-    flat = flatten(b64, child, perm, np.float32, parallel)
+    flat = flatten(b64, child, perm, np.float32)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return flat, sah

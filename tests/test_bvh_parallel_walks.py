@@ -114,3 +114,59 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
             first_row = (~c[opened, 0].astype(np.int64)) >> 3
             assert np.all(np.diff(first_row) > 0)
     assert np.allclose(sahs, sahs[0], rtol=1e-12, atol=0.0)
+
+
+def _bounds_inputs():
+    """Primitive boxes of many shapes: tiny, a chunk's edge, all one box, long and thin
+    (one axis only), the extremes in the last chunk, float32 and float64."""
+    rng = np.random.default_rng(38)
+    chunk = bvh_build.BIN_CHUNK
+    for n in (1, 2, 7, chunk - 1, chunk, chunk + 1, 3 * chunk + 5):
+        lo = rng.normal(size=(n, 3))
+        yield np.concatenate([lo, lo + rng.random((n, 3))], axis=1)
+    same = np.tile([1.0, 2.0, 3.0, 1.5, 2.5, 3.5], (2 * chunk + 3, 1))
+    yield same
+    t = np.linspace(-1e6, 1e6, 3 * chunk + 1)
+    thin = np.zeros((len(t), 6))
+    thin[:, 0], thin[:, 3] = t, t + 1e-9
+    yield thin
+    last = rng.random((4 * chunk, 6))
+    last[:, 3:] += 1.0
+    last[-1] = [-5.0, -6.0, -7.0, 9.0, 8.0, 7.0]
+    yield last
+    yield last.astype(np.float32)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_roots_bounds_in_chunks_are_one_threads(threads):
+    """The root's box and centroid bounds of the top levels, per chunk on every thread
+    (``_bounds_chunks``, session 38), are the values one pass finds, bit for bit. Fails on
+    main (no ``_bounds_chunks``: the root's bounds were one serial pass)."""
+    for pb in _bounds_inputs():
+        want_box, want_cb = np.empty(6), np.empty(6)
+        bvh_build._range_bounds(pb, 0, len(pb), want_box, want_cb)
+        box, cb = np.empty(6), np.empty(6)
+        with _threads(threads):
+            bvh_build._bounds_chunks(pb, box, cb)
+        assert box.tobytes() == want_box.tobytes()
+        assert cb.tobytes() == want_cb.tobytes()
+
+
+def test_the_top_levels_are_the_same_on_one_and_two_threads_and_any_grain():
+    """``split_top`` past one level (the root's bounds in chunks) gives the same top nodes,
+    tasks and SAH on 1 and 2 threads, and the whole tree is the one-thread build's
+    (``grain >= n``: the root's bounds in one pass) on long thin and tied inputs too."""
+    for pb in _bounds_inputs():
+        n = len(pb)
+        if n < 64:
+            continue
+        seq = bvh_build.build_flat_boxes(pb.copy(), grain=n)
+        ref = bvh_mesh.flatten(*seq[:3])
+        for threads in (1, 2):
+            with _threads(threads):
+                got = bvh_build.build_flat_boxes(pb.copy(), grain=max(n // 8, 8))
+            par = bvh_mesh.flatten(*got[:3])  # (numbered depth first, as ref)
+            assert par.bounds.tobytes() == ref.bounds.tobytes()
+            assert np.array_equal(par.child, ref.child)
+            assert np.array_equal(par.perm, ref.perm)
+            assert got[3] == pytest.approx(seq[3], rel=1e-12)

@@ -83,6 +83,7 @@ BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
+                       "accel.bvh_build._bounds_chunks",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
                        "accel.bvh_mesh.indexed_boxes", "accel.bvh_cluster.pair_items",
                        "accel.bvh_cluster.item_leaves", "accel.bvh_cluster.open_items")
@@ -163,6 +164,29 @@ def _median_split(pb, perm, start, end, cb, lbox, lcb, rbox, rcb):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _bounds_chunks(pb, box, cb):
+    """:func:`_range_bounds` of all of ``pb``, all threads: each chunk of
+    :data:`BIN_CHUNK` primitives its own bounds, then combined in chunk order (minima and
+    maxima: the same values one thread finds; session 38, the root's bounds were the
+    top levels' first serial pass)."""
+    n = pb.shape[0]
+    nc = (n + BIN_CHUNK - 1) // BIN_CHUNK
+    part = np.empty((nc, 12))
+    for cc in prange(nc):
+        c = np.int64(cc)  # (a prange index may be unsigned: keep index sums integer)
+        _range_bounds(pb, c * BIN_CHUNK, min(n, (c + 1) * BIN_CHUNK), part[c, 0:6],
+                      part[c, 6:12])
+    _empty6(box)
+    _empty6(cb)
+    for c in range(nc):
+        for q in range(3):
+            box[q] = min(box[q], part[c, q])
+            box[3 + q] = max(box[3 + q], part[c, 3 + q])
+            cb[q] = min(cb[q], part[c, 6 + q])
+            cb[3 + q] = max(cb[3 + q], part[c, 9 + q])
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _bin_level(pb, chunks, node_c, node_nb, nbins):
     """Bins of every chunk ``(node, start, end)`` of a level, all threads: per chunk
     ``(C, 3, nbins)`` counts and ``(C, 3, nbins, 6)`` boxes (node ``node``'s bins:
@@ -217,7 +241,10 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max)
     n = pb.shape[0]
     box = np.empty(6)
     cb = np.empty(6)
-    _range_bounds(pb, 0, n, box, cb)
+    if n > grain:  # (the levels below run parallel regions too; a smaller tree none)
+        _bounds_chunks(pb, box, cb)
+    else:
+        _range_bounds(pb, 0, n, box, cb)
     root_area = max(_half_area(box[0], box[1], box[2], box[3], box[4], box[5]), 1e-300)
     # a level's nodes are disjoint: < n / grain of them are split, and 2 children each
     cap = 2 * (n // max(grain, 1)) + 2

@@ -47,7 +47,7 @@ def test_items_pair_the_consecutive_triangles_that_share_an_edge():
     shuffled = tris[rng.permutation(len(tris))]
     for v, t in ((verts, tris), (verts, shuffled), _soup(rng, 20_001)):
         pb = bvh_mesh.indexed_boxes(v, t)
-        starts, boxes, _ = bvh_cluster.pair_items(v, t, pb, 1.0)
+        starts, boxes, _, _ = bvh_cluster.pair_items(v, t, pb, 1.0)
         want = []  # the reference: pairs (2h, 2h + 1) with two vertex positions in common
         for h in range(0, len(t), 2):
             if h + 1 < len(t) and _shared_positions(v, t, h, h + 1) >= 2:
@@ -137,7 +137,7 @@ def test_split_pairs_nodes_are_packed_after_the_item_tree(monkeypatch, unset):
     rows hold."""
     verts, tris = _lumpy()
     pb = bvh_mesh.indexed_boxes(verts, tris)
-    starts, _, how = bvh_cluster.pair_items(verts, tris, pb, bvh_build.SAH_TRAVERSAL_COST)
+    starts, _, how, _ = bvh_cluster.pair_items(verts, tris, pb, bvh_build.SAH_TRAVERSAL_COST)
     n_items, n_split = len(starts) - 1, int(np.count_nonzero(how))
     assert 0 < n_split < n_items // 2
     assert set(np.unique(how).tolist()) == {bvh_cluster.OPEN_LEAF, bvh_cluster.OPEN_SPLIT,

@@ -85,7 +85,7 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
     tris = np.ascontiguousarray(m.triangles, np.int32)
     pb = bvh_mesh.indexed_boxes(verts, tris)
     trav = bvh_build.SAH_TRAVERSAL_COST
-    starts, ib, how = bvh_cluster.pair_items(verts, tris, pb, trav)
+    starts, ib, how, _ = bvh_cluster.pair_items(verts, tris, pb, trav)
     n_items, n_split = len(ib), int(np.count_nonzero(how))
     b0, c0, iperm, _ = bvh_build.build_flat_boxes(
         ib, 1, grain=bvh_build.subtree_grain(len(tris)), packed=False, spare=n_split,
@@ -170,3 +170,32 @@ def test_the_top_levels_are_the_same_on_one_and_two_threads_and_any_grain():
             assert np.array_equal(par.child, ref.child)
             assert np.array_equal(par.perm, ref.perm)
             assert got[3] == pytest.approx(seq[3], rel=1e-12)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_items_root_bounds_are_one_pass_over_their_boxes(threads):
+    """``pair_items`` gives the items' box and centroid bounds (per chunk of pairs, session
+    38: the item build's root then needs no pass of its own), the values one pass over the
+    items' boxes finds bit for bit, on 1, 2, 3 triangles, an odd count across chunks,
+    shuffled, long thin and all-coincident meshes, on 1 and 2 threads. Fails on main
+    (``pair_items`` gave three arrays)."""
+    rng = np.random.default_rng(26)
+    chunk = 2 * bvh_cluster.PAIR_CHUNK
+    mesh = shapes.lumpy_sphere(40_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
+    cases = [(verts, tris[:k]) for k in (1, 2, 3, chunk - 1, chunk + 3)]
+    cases.append((verts, tris[rng.permutation(len(tris))]))
+    t = np.linspace(-1e6, 1e6, chunk + 5)
+    thin = np.stack([t, 0 * t, 0 * t], 1)
+    cases.append((np.concatenate([thin, thin + [1e-9, 1e-9, 0.0]]),
+                  np.stack([np.arange(len(t) - 1), np.arange(1, len(t)),
+                            len(t) + np.arange(len(t) - 1)], 1).astype(np.int32)))
+    cases.append((np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+                  np.zeros((2 * chunk + 1, 3), np.int32) + [0, 1, 2]))
+    for v, tr in cases:
+        pb = bvh_mesh.indexed_boxes(v, tr)
+        with _threads(threads):
+            _, ib, _, root = bvh_cluster.pair_items(v, tr, pb, 1.0)
+        box, cb = np.empty(6), np.empty(6)
+        bvh_build._range_bounds(ib, 0, len(ib), box, cb)
+        assert root.tobytes() == np.concatenate([box, cb]).tobytes()

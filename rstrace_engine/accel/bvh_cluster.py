@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..cancel import Cancelled
-from .bvh_bins import CHEAP_ALL, _box_area, _half_area
+from .bvh_bins import CHEAP_ALL, _add_centroid, _box_area, _empty6, _half_area
 from .bvh_build import NEVER_STOP, SAH_BINS, SAH_TRAVERSAL_COST, build_flat_boxes
 
 #: How an item is opened (:func:`pair_items`' ``how``): one leaf of its triangles (one, or
@@ -60,13 +60,21 @@ def _opening(pb, i, area, trav_cost):
     return OPEN_SPLIT_SWAPPED if swapped else OPEN_SPLIT
 
 
+#: Pairs of triangles per chunk of :func:`pair_items`' items (each chunk its own bounds).
+PAIR_CHUNK = 8192
+
+
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def pair_items(verts, tris, pb, trav_cost):
-    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8)``,
-    item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two consecutive ones with
-    two vertices in common, by position), its box the union of theirs (``pb``'s dtype),
-    ``how`` the way :func:`open_items` opens it (:data:`OPEN_LEAF` ...: decided here, in
-    the mesh's order, where the triangles' boxes are read in order)."""
+    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8,
+    root (12,))``, item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two
+    consecutive ones with two vertices in common, by position), its box the union of
+    theirs (``pb``'s dtype), ``how`` the way :func:`open_items` opens it
+    (:data:`OPEN_LEAF` ...: decided here, in the mesh's order, where the triangles' boxes
+    are read in order), ``root`` the items' box and centroid bounds, what
+    :func:`.bvh_build._range_bounds` finds over ``boxes`` (minima and maxima per chunk of
+    :data:`PAIR_CHUNK` pairs, combined in chunk order: the same values; the item build's
+    root needs no pass of its own, session 38)."""
     m = tris.shape[0]
     half = (m + 1) // 2
     size = np.empty(half, np.int64)
@@ -95,20 +103,40 @@ def pair_items(verts, tris, pb, trav_cost):
     starts[n_items] = m
     boxes = np.empty((n_items, 6), pb.dtype)
     how = np.zeros(n_items, np.int8)
-    for h in prange(half):
-        i, k = 2 * h, first[h]
-        if size[h] == 1 and i + 1 < m:  # one item of two triangles
-            starts[k] = i
-            for q in range(3):
-                boxes[k, q] = min(pb[i, q], pb[i + 1, q])
-                boxes[k, 3 + q] = max(pb[i, 3 + q], pb[i + 1, 3 + q])
-            how[k] = _opening(pb, i, _box_area(boxes, k), trav_cost)
-        else:
-            for j in range(size[h]):
-                starts[k + j] = i + j
-                for q in range(6):
-                    boxes[k + j, q] = pb[i + j, q]
-    return starts, boxes, how
+    n_chunks = (half + PAIR_CHUNK - 1) // PAIR_CHUNK
+    part = np.empty((n_chunks, 12))
+    for cc in prange(n_chunks):
+        c = np.int64(cc)  # (a prange index may be unsigned: keep index sums integer)
+        _empty6(part[c, 0:6])
+        _empty6(part[c, 6:12])
+        for h in range(c * PAIR_CHUNK, min(half, (c + 1) * PAIR_CHUNK)):
+            i, k = 2 * h, first[h]
+            if size[h] == 1 and i + 1 < m:  # one item of two triangles
+                starts[k] = i
+                for q in range(3):
+                    boxes[k, q] = min(pb[i, q], pb[i + 1, q])
+                    boxes[k, 3 + q] = max(pb[i, 3 + q], pb[i + 1, 3 + q])
+                how[k] = _opening(pb, i, _box_area(boxes, k), trav_cost)
+            else:
+                for j in range(size[h]):
+                    starts[k + j] = i + j
+                    for q in range(6):
+                        boxes[k + j, q] = pb[i + j, q]
+            for j in range(k, k + size[h]):  # (its items: their bounds)
+                for q in range(3):
+                    part[c, q] = min(part[c, q], np.float64(boxes[j, q]))
+                    part[c, 3 + q] = max(part[c, 3 + q], np.float64(boxes[j, 3 + q]))
+                _add_centroid(boxes, j, part[c, 6:12])
+    root = np.empty(12)
+    _empty6(root[0:6])
+    _empty6(root[6:12])
+    for c in range(n_chunks):
+        for q in range(3):
+            root[q] = min(root[q], part[c, q])
+            root[3 + q] = max(root[3 + q], part[c, 3 + q])
+            root[6 + q] = min(root[6 + q], part[c, 6 + q])
+            root[9 + q] = max(root[9 + q], part[c, 9 + q])
+    return starts, boxes, how, root
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -245,13 +273,13 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     ``build_flat_boxes(packed=False)`` returns them (the root row 0; rows no child index
     reaches unset)."""
     m = len(tris)
-    starts, ib, how = pair_items(verts, tris, pb, trav_cost)
+    starts, ib, how, root_bounds = pair_items(verts, tris, pb, trav_cost)
     n_items = len(ib)
     # (the item tree's arrays with a row per split item after them: the opened items'
     # nodes)
     bounds, child, iperm, sah_i = build_flat_boxes(
         ib, 1, nbins, trav_cost, grain, stop, packed=False,
-        spare=max(int(np.count_nonzero(how)), 1), cheap_max=CHEAP_ALL)
+        spare=max(int(np.count_nonzero(how)), 1), cheap_max=CHEAP_ALL, root=root_bounds)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)

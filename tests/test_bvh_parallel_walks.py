@@ -199,3 +199,24 @@ def test_the_items_root_bounds_are_one_pass_over_their_boxes(threads):
         box, cb = np.empty(6), np.empty(6)
         bvh_build._range_bounds(ib, 0, len(ib), box, cb)
         assert root.tobytes() == np.concatenate([box, cb]).tobytes()
+
+
+def test_the_item_tree_over_pair_items_root_is_the_one_split_top_bounds_itself():
+    """The item tree built with ``pair_items``' root bounds (session 38) is the tree
+    ``split_top`` builds finding them itself (``root=None``), bit for bit, shuffled too,
+    on 1 and 2 threads."""
+    mesh = shapes.lumpy_sphere(70_000)
+    verts, tris = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
+    rng = np.random.default_rng(38)
+    for tr in (tris, tris[rng.permutation(len(tris))]):
+        pb = bvh_mesh.indexed_boxes(verts, tr)
+        _, ib, _, root = bvh_cluster.pair_items(verts, tr, pb, 1.0)
+        grain = bvh_build.subtree_grain(len(tr))
+        ref = bvh_mesh.flatten(*bvh_build.build_flat_boxes(ib.copy(), 1, grain=grain)[:3])
+        for threads in (1, 2):
+            with _threads(threads):
+                got = bvh_build.build_flat_boxes(ib.copy(), 1, grain=grain, root=root)
+            par = bvh_mesh.flatten(*got[:3])
+            assert par.bounds.tobytes() == ref.bounds.tobytes()
+            assert np.array_equal(par.child, ref.child)
+            assert np.array_equal(par.perm, ref.perm)

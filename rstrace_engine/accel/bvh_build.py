@@ -83,6 +83,7 @@ BUILD_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
 #: ... and those only a mesh past :data:`PARALLEL_MIN` triangles (or of several subtrees)
 #: runs, compiled by the first such build.
 LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_level",
+                       "accel.bvh_build._bounds_chunks",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
                        "accel.bvh_mesh.indexed_boxes", "accel.bvh_cluster.pair_items",
                        "accel.bvh_cluster.item_leaves", "accel.bvh_cluster.open_items")
@@ -96,6 +97,8 @@ SUBTREE_MIN = 4096
 SUBTREE_SPLIT = 256
 
 
+#: :func:`split_top`'s ``root`` when the caller has no bounds: found there.
+_NO_ROOT = np.empty(0)
 #: The stop flag of builds and queries nobody cancels (:mod:`rstrace_engine.cancel`).
 NEVER_STOP = np.zeros(1, np.int32)
 
@@ -163,6 +166,29 @@ def _median_split(pb, perm, start, end, cb, lbox, lcb, rbox, rcb):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _bounds_chunks(pb, box, cb):
+    """:func:`_range_bounds` of all of ``pb``, all threads: each chunk of
+    :data:`BIN_CHUNK` primitives its own bounds, then combined in chunk order (minima and
+    maxima: the same values one thread finds; session 38, the root's bounds were the
+    top levels' first serial pass)."""
+    n = pb.shape[0]
+    nc = (n + BIN_CHUNK - 1) // BIN_CHUNK
+    part = np.empty((nc, 12))
+    for cc in prange(nc):
+        c = np.int64(cc)  # (a prange index may be unsigned: keep index sums integer)
+        _range_bounds(pb, c * BIN_CHUNK, min(n, (c + 1) * BIN_CHUNK), part[c, 0:6],
+                      part[c, 6:12])
+    _empty6(box)
+    _empty6(cb)
+    for c in range(nc):
+        for q in range(3):
+            box[q] = min(box[q], part[c, q])
+            box[3 + q] = max(box[3 + q], part[c, 3 + q])
+            cb[q] = min(cb[q], part[c, 6 + q])
+            cb[3 + q] = max(cb[3 + q], part[c, 9 + q])
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _bin_level(pb, chunks, node_c, node_nb, nbins):
     """Bins of every chunk ``(node, start, end)`` of a level, all threads: per chunk
     ``(C, 3, nbins)`` counts and ``(C, 3, nbins, 6)`` boxes (node ``node``'s bins:
@@ -205,10 +231,13 @@ def _split_level(pb, perm, ranges, node_c, split, node_nb, out_box, out_c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max):
+def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max, root):
     """Phase 1: split nodes of more than ``grain`` primitives, a level at a time (numbered
     from 0 in ``bounds`` (., 12) / ``child`` (., 2), breadth first). ``stop`` (1,) int32
-    is read before each level: once non-zero the phase returns unfinished.
+    is read before each level: once non-zero the phase returns unfinished. ``root``
+    (12,): the primitives' box and centroid bounds, as :func:`_range_bounds` finds them
+    (the caller's, from a pass it makes anyway: :func:`.bvh_cluster.pair_items`), or
+    (0,): found here.
 
     Returns ``(n_top, tasks (T, 5) int64, task_box (T, 12), sah, root_area)``: the nodes
     left for :func:`build_subtrees`, each ``parent, slot, start, end, depth`` with its box
@@ -217,7 +246,13 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max)
     n = pb.shape[0]
     box = np.empty(6)
     cb = np.empty(6)
-    _range_bounds(pb, 0, n, box, cb)
+    if root.shape[0] == 12:
+        box[:] = root[0:6]
+        cb[:] = root[6:12]
+    elif n > grain:  # (the levels below run parallel regions too; a smaller tree none)
+        _bounds_chunks(pb, box, cb)
+    else:
+        _range_bounds(pb, 0, n, box, cb)
     root_area = max(_half_area(box[0], box[1], box[2], box[3], box[4], box[5]), 1e-300)
     # a level's nodes are disjoint: < n / grain of them are split, and 2 children each
     cap = 2 * (n // max(grain, 1)) + 2
@@ -532,14 +567,16 @@ def build_flat(lo, hi, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
 def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
                      trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
                      stop: np.ndarray = NEVER_STOP, packed: bool = True, spare: int = 0,
-                     cheap_max: int = CHEAP_MAX):
+                     cheap_max: int = CHEAP_MAX, root: np.ndarray | None = None):
     """:func:`build_flat` over ``pb`` (n, 6) float64 or float32 (lo, hi; the node boxes
     take its dtype), which it reorders (leaf order). ``packed=False``: the node arrays as
     built, unpacked (``max(n, 2)`` rows, the root row 0, the rows no child index reaches
     unset: for a walk from the root such as
     :func:`.bvh_mesh.collapse4`, which then needs no :func:`pack_nodes` copy), with
     ``spare`` rows more after them (for the caller's nodes: :mod:`.bvh_cluster`);
-    ``cheap_max``: the largest node split by the cheap rule (:func:`.bvh_bins._node_bins`)."""
+    ``cheap_max``: the largest node split by the cheap rule (:func:`.bvh_bins._node_bins`);
+    ``root``: ``pb``'s box and centroid bounds (12,) if the caller has them
+    (:func:`split_top`)."""
     n = pb.shape[0]
     grain = subtree_grain(n) if grain is None else max(int(grain), 8)
     perm = np.arange(n, dtype=np.int32)
@@ -547,7 +584,8 @@ def build_flat_boxes(pb, max_leaf: int = MAX_LEAF, nbins: int = SAH_BINS,
     bounds = np.empty((cap, 12), pb.dtype)
     child = np.empty((cap, 2), np.int32)
     n_top, tasks, task_box, sah, root_area = split_top(pb, perm, grain, nbins, trav_cost,
-                                                       bounds, child, stop, cheap_max)
+                                                       bounds, child, stop, cheap_max,
+                                                       _NO_ROOT if root is None else root)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     # task t uses at most (its primitives - 1) nodes (a root task of one primitive: one);

@@ -12,18 +12,19 @@ axis their centroids spread on. The tree differs from the whole-mesh SAH build's
 pair would have been split higher up; its SAH cost is within a few tenths of a percent of
 it (docs/bench-scale-bpy.md), and it is the same tree on any thread count. How each pair
 opens is decided where its item is made, reading the triangles' boxes in mesh order; the
-leaves are then opened in one walk, and only a split pair reads its boxes again and takes
-a node row (packed after the item tree's): at 4M triangles, fresh pages and random reads
-were most of what the opening cost.
+leaves are then opened in a walk (its subtrees on every thread), and only a split pair
+reads its boxes again and takes a node row (packed after the item tree's, in leaf order):
+at 4M triangles, fresh pages and random reads were most of what the opening cost.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from ..cancel import Cancelled
-from .bvh_bins import CHEAP_ALL, _box_area, _half_area
+from .bvh_bins import CHEAP_ALL, _add_centroid, _box_area, _empty6, _half_area
 from .bvh_build import NEVER_STOP, SAH_BINS, SAH_TRAVERSAL_COST, build_flat_boxes
 
 #: How an item is opened (:func:`pair_items`' ``how``): one leaf of its triangles (one, or
@@ -59,13 +60,21 @@ def _opening(pb, i, area, trav_cost):
     return OPEN_SPLIT_SWAPPED if swapped else OPEN_SPLIT
 
 
+#: Pairs of triangles per chunk of :func:`pair_items`' items (each chunk its own bounds).
+PAIR_CHUNK = 8192
+
+
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def pair_items(verts, tris, pb, trav_cost):
-    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8)``,
-    item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two consecutive ones with
-    two vertices in common, by position), its box the union of theirs (``pb``'s dtype),
-    ``how`` the way :func:`open_items` opens it (:data:`OPEN_LEAF` ...: decided here, in
-    the mesh's order, where the triangles' boxes are read in order)."""
+    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8,
+    root (12,))``, item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two
+    consecutive ones with two vertices in common, by position), its box the union of
+    theirs (``pb``'s dtype), ``how`` the way :func:`open_items` opens it
+    (:data:`OPEN_LEAF` ...: decided here, in the mesh's order, where the triangles' boxes
+    are read in order), ``root`` the items' box and centroid bounds, what
+    :func:`.bvh_build._range_bounds` finds over ``boxes`` (minima and maxima per chunk of
+    :data:`PAIR_CHUNK` pairs, combined in chunk order: the same values; the item build's
+    root needs no pass of its own, session 38)."""
     m = tris.shape[0]
     half = (m + 1) // 2
     size = np.empty(half, np.int64)
@@ -94,96 +103,165 @@ def pair_items(verts, tris, pb, trav_cost):
     starts[n_items] = m
     boxes = np.empty((n_items, 6), pb.dtype)
     how = np.zeros(n_items, np.int8)
-    for h in prange(half):
-        i, k = 2 * h, first[h]
-        if size[h] == 1 and i + 1 < m:  # one item of two triangles
-            starts[k] = i
-            for q in range(3):
-                boxes[k, q] = min(pb[i, q], pb[i + 1, q])
-                boxes[k, 3 + q] = max(pb[i, 3 + q], pb[i + 1, 3 + q])
-            how[k] = _opening(pb, i, _box_area(boxes, k), trav_cost)
-        else:
-            for j in range(size[h]):
-                starts[k + j] = i + j
-                for q in range(6):
-                    boxes[k + j, q] = pb[i + j, q]
-    return starts, boxes, how
+    n_chunks = (half + PAIR_CHUNK - 1) // PAIR_CHUNK
+    part = np.empty((n_chunks, 12))
+    for cc in prange(n_chunks):
+        c = np.int64(cc)  # (a prange index may be unsigned: keep index sums integer)
+        _empty6(part[c, 0:6])
+        _empty6(part[c, 6:12])
+        for h in range(c * PAIR_CHUNK, min(half, (c + 1) * PAIR_CHUNK)):
+            i, k = 2 * h, first[h]
+            if size[h] == 1 and i + 1 < m:  # one item of two triangles
+                starts[k] = i
+                for q in range(3):
+                    boxes[k, q] = min(pb[i, q], pb[i + 1, q])
+                    boxes[k, 3 + q] = max(pb[i, 3 + q], pb[i + 1, 3 + q])
+                how[k] = _opening(pb, i, _box_area(boxes, k), trav_cost)
+            else:
+                for j in range(size[h]):
+                    starts[k + j] = i + j
+                    for q in range(6):
+                        boxes[k + j, q] = pb[i + j, q]
+            for j in range(k, k + size[h]):  # (its items: their bounds)
+                for q in range(3):
+                    part[c, q] = min(part[c, q], np.float64(boxes[j, q]))
+                    part[c, 3 + q] = max(part[c, 3 + q], np.float64(boxes[j, 3 + q]))
+                _add_centroid(boxes, j, part[c, 6:12])
+    root = np.empty(12)
+    _empty6(root[0:6])
+    _empty6(root[6:12])
+    for c in range(n_chunks):
+        for q in range(3):
+            root[q] = min(root[q], part[c, q])
+            root[3 + q] = max(root[3 + q], part[c, 3 + q])
+            root[6 + q] = min(root[6 + q], part[c, 6 + q])
+            root[9 + q] = max(root[9 + q], part[c, 9 + q])
+    return starts, boxes, how, root
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def item_leaves(starts, iperm):
-    """Where each item leaf's triangles go: ``(P,) int32``, for the item at ``position``
-    of the item tree's leaf order (``iperm``), the first of its rows of the triangle order,
-    after those of the items before it."""
+def item_leaves(starts, iperm, how):
+    """Where each item leaf's triangles and node go: ``rows (P,) int32``, for the item at
+    ``position`` of the item tree's leaf order (``iperm``), the first of its rows of the
+    triangle order, after those of the items before it; ``nodes (P,) int32``, the number
+    of split items (``how`` non-zero: each takes a node row, :func:`open_items`) before
+    it. (One thread: a prefix sum in chunks on two threads, each chunk read twice, took
+    as long, session 38.)"""
     n = iperm.shape[0]
     rows = np.empty(n, np.int32)
-    row = 0
+    nodes = np.empty(n, np.int32)
+    row, k = 0, 0
     for pos in range(n):
-        rows[pos] = row
+        rows[pos], nodes[pos] = row, k
         item = iperm[pos]
         row += starts[item + 1] - starts[item]
-    return rows
+        k += how[item] != 0
+    return rows, nodes
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def open_items(pb, starts, how, iperm, rows, region0, trav_cost, root_area, bounds, child,
-               perm):
-    """Each item leaf of the item tree (``child``, from its root) opened in one walk: its
-    triangles listed in ``perm`` from row ``rows[position]`` (:func:`item_leaves`); an item
-    of two becomes a leaf of both, or an inner node over two leaves of one, as ``how``
-    says (:func:`pair_items`: the SAH rule of a two-primitive node,
-    :func:`.bvh_build.build_subtree`), the inner nodes rows ``region0 ..`` in the walk's
-    order (only those items read their triangles' boxes). Returns the opened items' SAH
-    less the SAH of the leaves they replaced."""
-    stack = np.empty(256, np.int64)
-    stack[0] = 0
-    sp = 1
-    node = region0
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _open_leaf(pb, starts, how, iperm, rows, nodes, region0, trav_cost, root_area, bounds,
+               child, perm, parent, slot, code):
+    """Item leaf ``code`` (``~child[parent, slot]``) opened (:func:`open_items`); returns
+    its SAH less the item leaf's."""
+    pos = code >> 3
+    k = iperm[pos]
+    row = np.int64(rows[pos])
+    a, cnt = starts[k], starts[k + 1] - starts[k]
+    if cnt == 1:  # the item's leaf is the triangle's
+        perm[row] = a
+        child[parent, slot] = ~((row << 3) | 1)
+        return 0.0
+    area = _half_area(np.float64(bounds[parent, 6 * slot]),
+                      np.float64(bounds[parent, 6 * slot + 1]),
+                      np.float64(bounds[parent, 6 * slot + 2]),
+                      np.float64(bounds[parent, 6 * slot + 3]),
+                      np.float64(bounds[parent, 6 * slot + 4]),
+                      np.float64(bounds[parent, 6 * slot + 5]))
+    if how[k] == OPEN_LEAF:  # one leaf of both, in the mesh's order
+        perm[row], perm[row + 1] = a, a + 1
+        child[parent, slot] = ~((row << 3) | 2)
+        return area / root_area
+    b = a + 1
+    if how[k] == OPEN_SPLIT_SWAPPED:
+        a, b = b, a
+    node = region0 + np.int64(nodes[pos])
+    child[parent, slot] = node
+    perm[row], perm[row + 1] = a, b
+    for q in range(6):
+        bounds[node, q] = pb[a, q]
+        bounds[node, 6 + q] = pb[b, q]
+    child[node, 0] = ~((row << 3) | 1)
+    child[node, 1] = ~(((row + 1) << 3) | 1)
+    return (trav_cost * area + _box_area(pb, a) + _box_area(pb, b)) / root_area \
+        - area / root_area
+
+
+#: Subtrees :func:`open_items` aims to share among its threads (found within
+#: :data:`OPEN_TOP_LEVELS` levels of the root).
+OPEN_TASKS = 128
+OPEN_TOP_LEVELS = 24
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def open_items(pb, starts, how, iperm, rows, nodes, region0, trav_cost, root_area, bounds,
+               child, perm, ntask=OPEN_TASKS):
+    """Each item leaf of the item tree (``child``, from its root) opened: its triangles
+    listed in ``perm`` from row ``rows[position]`` (:func:`item_leaves`); an item of two
+    becomes a leaf of both, or an inner node over two leaves of one, as ``how`` says
+    (:func:`pair_items`: the SAH rule of a two-primitive node,
+    :func:`.bvh_build.build_subtree`), its inner node row ``region0 + nodes[position]``
+    (the split items' rows in leaf order; only those items read their triangles' boxes).
+    The levels nearest the root are walked one at a time until one holds ``ntask`` inner
+    nodes (or :data:`OPEN_TOP_LEVELS` are walked), the subtrees under them on every
+    thread (one a task). Returns the opened items' SAH less the SAH of the leaves they
+    replaced (summed per subtree, then in the subtrees' order: the same on any thread
+    count; not main's serial walk's order, so the last bits of the SAH cost may differ
+    from session 37's, the tree does not)."""
+    cap = 2 * ntask + 2
+    lv = np.empty(cap, np.int64)
+    nx = np.empty(cap, np.int64)
+    lv[0] = 0
+    n_lv = 1
     dsah = 0.0
-    while sp > 0:
-        sp -= 1
-        parent = stack[sp]
-        for slot in range(2):
-            c = child[parent, slot]
-            if c >= 0:
-                stack[sp] = c
-                sp += 1
-                continue
-            code = ~np.int64(c)
-            if (code & 7) == 0:  # the empty child of a one-leaf root
-                continue
-            pos = code >> 3
-            k = iperm[pos]
-            row = np.int64(rows[pos])
-            a, cnt = starts[k], starts[k + 1] - starts[k]
-            if cnt == 1:  # the item's leaf is the triangle's
-                perm[row] = a
-                child[parent, slot] = ~((row << 3) | 1)
-                continue
-            area = _half_area(np.float64(bounds[parent, 6 * slot]),
-                              np.float64(bounds[parent, 6 * slot + 1]),
-                              np.float64(bounds[parent, 6 * slot + 2]),
-                              np.float64(bounds[parent, 6 * slot + 3]),
-                              np.float64(bounds[parent, 6 * slot + 4]),
-                              np.float64(bounds[parent, 6 * slot + 5]))
-            if how[k] == OPEN_LEAF:  # one leaf of both, in the mesh's order
-                perm[row], perm[row + 1] = a, a + 1
-                child[parent, slot] = ~((row << 3) | 2)
-                dsah += area / root_area
-                continue
-            b = a + 1
-            if how[k] == OPEN_SPLIT_SWAPPED:
-                a, b = b, a
-            child[parent, slot] = node
-            perm[row], perm[row + 1] = a, b
-            for q in range(6):
-                bounds[node, q] = pb[a, q]
-                bounds[node, 6 + q] = pb[b, q]
-            child[node, 0] = ~((row << 3) | 1)
-            child[node, 1] = ~(((row + 1) << 3) | 1)
-            node += 1
-            dsah += (trav_cost * area + _box_area(pb, a) + _box_area(pb, b)) / root_area \
-                - area / root_area
+    for _ in range(OPEN_TOP_LEVELS):
+        if n_lv == 0 or n_lv >= ntask:
+            break
+        n_nx = 0
+        for e in range(n_lv):
+            parent = lv[e]
+            for slot in range(2):
+                c = child[parent, slot]
+                if c >= 0:
+                    nx[n_nx] = c
+                    n_nx += 1
+                elif (~np.int64(c) & 7) != 0:  # (not the empty child of a one-leaf root)
+                    dsah += _open_leaf(pb, starts, how, iperm, rows, nodes, region0,
+                                       trav_cost, root_area, bounds, child, perm, parent,
+                                       slot, ~np.int64(c))
+        lv, nx = nx, lv
+        n_lv = n_nx
+    part = np.zeros(n_lv)
+    for t in prange(n_lv):
+        stack = np.empty(256, np.int64)
+        stack[0] = lv[t]
+        sp = 1
+        d = 0.0
+        while sp > 0:
+            sp -= 1
+            parent = stack[sp]
+            for slot in range(2):
+                c = child[parent, slot]
+                if c >= 0:
+                    stack[sp] = c
+                    sp += 1
+                elif (~np.int64(c) & 7) != 0:
+                    d += _open_leaf(pb, starts, how, iperm, rows, nodes, region0, trav_cost,
+                                    root_area, bounds, child, perm, parent, slot,
+                                    ~np.int64(c))
+        part[t] = d
+    for t in range(n_lv):
+        dsah += part[t]
     return dsah
 
 
@@ -195,17 +273,17 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     ``build_flat_boxes(packed=False)`` returns them (the root row 0; rows no child index
     reaches unset)."""
     m = len(tris)
-    starts, ib, how = pair_items(verts, tris, pb, trav_cost)
+    starts, ib, how, root_bounds = pair_items(verts, tris, pb, trav_cost)
     n_items = len(ib)
     # (the item tree's arrays with a row per split item after them: the opened items'
     # nodes)
     bounds, child, iperm, sah_i = build_flat_boxes(
         ib, 1, nbins, trav_cost, grain, stop, packed=False,
-        spare=max(int(np.count_nonzero(how)), 1), cheap_max=CHEAP_ALL)
+        spare=max(int(np.count_nonzero(how)), 1), cheap_max=CHEAP_ALL, root=root_bounds)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)
-    rows = item_leaves(starts, iperm)
+    rows, nodes = item_leaves(starts, iperm, how)
     # the root's box: the union of its two children's (no kernel called from Python here:
     # each would be one more for the F12's kernel pre-load, addon/kernels.py)
     root = bounds[0].astype(np.float64)
@@ -213,6 +291,7 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     dx, dy, dz = (float(x) for x in hi - lo)
     root_area = max(dx * dy + dy * dz + dz * dx, 1e-300)
     perm = np.empty(m, np.int32)
-    dsah = open_items(pb, starts, how, iperm, rows, region0, trav_cost, root_area, bounds,
-                      child, perm)
+    with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take them in turn)
+        dsah = open_items(pb, starts, how, iperm, rows, nodes, region0, trav_cost, root_area,
+                          bounds, child, perm)
     return bounds, child, perm, float(sah_i + dsah)

@@ -118,7 +118,8 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
 
 def _bounds_inputs():
     """Primitive boxes of many shapes: tiny, a chunk's edge, all one box, long and thin
-    (one axis only), the extremes in the last chunk, float32 and float64."""
+    (one axis only), the extremes in the last chunk, float32 and float64, signed zeros
+    in several chunks (:func:`_signed_zeros`)."""
     rng = np.random.default_rng(38)
     chunk = bvh_build.BIN_CHUNK
     for n in (1, 2, 7, chunk - 1, chunk, chunk + 1, 3 * chunk + 5):
@@ -135,6 +136,20 @@ def _bounds_inputs():
     last[-1] = [-5.0, -6.0, -7.0, 9.0, 8.0, 7.0]
     yield last
     yield last.astype(np.float32)
+    yield from _signed_zeros(chunk)
+
+
+def _signed_zeros(chunk: int):
+    """Boxes whose least (greatest) corner and centroid are 0.0 in one chunk and -0.0 in
+    a later one (and the other way round): ``min`` / ``max`` keep the first of equal
+    values, so only the one pass's order of combining gives one pass's bits."""
+    for first, later in ((0.0, -0.0), (-0.0, 0.0)):
+        pos = np.random.default_rng(5).random((3 * chunk, 6)) + 1.0
+        pos[:, 3:] += 1.0
+        pos[5], pos[chunk + 7], pos[2 * chunk + 1] = first, later, later
+        yield pos
+        neg = -pos[:, [3, 4, 5, 0, 1, 2]]  # (the greatest corner and centroid: zeros)
+        yield neg
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -177,7 +192,8 @@ def test_the_items_root_bounds_are_one_pass_over_their_boxes(threads):
     """``pair_items`` gives the items' box and centroid bounds (per chunk of pairs, session
     38: the item build's root then needs no pass of its own), the values one pass over the
     items' boxes finds bit for bit, on 1, 2, 3 triangles, an odd count across chunks,
-    shuffled, long thin and all-coincident meshes, on 1 and 2 threads. Fails on main
+    shuffled, long thin, all-coincident meshes and signed zeros in several chunks, on 1
+    and 2 threads. Fails on main
     (``pair_items`` gave three arrays)."""
     rng = np.random.default_rng(26)
     chunk = 2 * bvh_cluster.PAIR_CHUNK
@@ -192,13 +208,23 @@ def test_the_items_root_bounds_are_one_pass_over_their_boxes(threads):
                             len(t) + np.arange(len(t) - 1)], 1).astype(np.int32)))
     cases.append((np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
                   np.zeros((2 * chunk + 1, 3), np.int32) + [0, 1, 2]))
-    for v, tr in cases:
+    # the items' least corner (and centroid) 0.0 in one chunk of pairs, -0.0 in a later one
+    # (and the other way round): one pass's bits only from combining in chunk order
+    far = np.concatenate([verts + 10.0, [[0.0, 0.0, 0.0], [-0.0, -0.0, -0.0]]])
+    for first in (0, 1):
+        tr = tris[np.arange(2 * chunk + 9) % len(tris)].copy()
+        for row, z in ((3, first), (chunk + 11, 1 - first), (2 * chunk + 1, 1 - first)):
+            tr[row] = len(verts) + z  # (a point at that zero)
+        cases.append((far, tr))
+    for e, (v, tr) in enumerate(cases):
         pb = bvh_mesh.indexed_boxes(v, tr)
         with _threads(threads):
             _, ib, _, root = bvh_cluster.pair_items(v, tr, pb, 1.0)
         box, cb = np.empty(6), np.empty(6)
         bvh_build._range_bounds(ib, 0, len(ib), box, cb)
         assert root.tobytes() == np.concatenate([box, cb]).tobytes()
+        if v is far:  # (the zeros are the items' least corner: the first one's sign)
+            assert root[0] == 0.0 and np.signbit(root[0]) == (e == len(cases) - 1)
 
 
 def test_the_item_tree_over_pair_items_root_is_the_one_split_top_bounds_itself():

@@ -18,6 +18,9 @@ timed build is an F12's (kernels loaded, fresh memory; session 38). Each
 line also gives the tree's SAH and 4-wide node count, so a change of tree shows. Nothing
 is asserted; the numbers go to ``docs/bench-scale-bpy.md``.
 
+Each phase also gets its system CPU and minor page faults (``getrusage``: first touches
+of fresh memory; session 39).
+
 Threads: each phase also gets the CPU of its busiest thread (``busiest``, from
 ``/proc/self/task/*/schedstat``): on an idle machine the phase's wall is about that, so the
 wall the threads buy can be read off a loaded one. Outside Blender numba picks its OpenMP
@@ -31,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -102,15 +106,20 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
     mods = dict(bvh_build=bvh_build, bvh_cluster=bvh_cluster, bvh_mesh=bvh_mesh)
     acc: dict = {}
     busy: dict = {}
+    sysf: dict = {}
     for mod, name, label in PHASES:
         f = getattr(mods[mod], name)
 
         def timed(*a, _f=f, _label=label, **k):
             c, t0 = time.process_time(), _thread_cpu()
+            r0 = resource.getrusage(resource.RUSAGE_SELF)
             try:
                 return _f(*a, **k)
             finally:
                 acc[_label] = acc.get(_label, 0.0) + time.process_time() - c
+                r1 = resource.getrusage(resource.RUSAGE_SELF)  # (system CPU, minor faults)
+                sysf[_label] = (sysf.get(_label, (0.0, 0))[0] + r1.ru_stime - r0.ru_stime,
+                                sysf.get(_label, (0.0, 0))[1] + r1.ru_minflt - r0.ru_minflt)
                 t1 = _thread_cpu()
                 busy[_label] = busy.get(_label, 0.0) + max(
                     (t1[t] - t0.get(t, 0.0) for t in t1), default=0.0)
@@ -124,13 +133,18 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
     for _ in range(repeats):
         acc.clear()
         busy.clear()
+        sysf.clear()
         c, w = time.process_time(), time.perf_counter()
+        r0 = resource.getrusage(resource.RUSAGE_SELF)
         mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
         total, wall = time.process_time() - c, time.perf_counter() - w
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+        sysf["all"] = (r1.ru_stime - r0.ru_stime, r1.ru_minflt - r0.ru_minflt)
         row = {label: acc.get(label, 0.0) for _, _, label in PHASES}
         row["rest"] = total - sum(row.values())
         runs.append(dict(total=total, wall=wall, phases=row,
-                         busiest={label: busy.get(label, 0.0) for _, _, label in PHASES}))
+                         busiest={label: busy.get(label, 0.0) for _, _, label in PHASES},
+                         sys_faults=dict(sysf)))
         del mb
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     return dict(root=str(root), size=size, triangles=len(tris), sah=mb.sah_cost,
@@ -184,6 +198,8 @@ def main(argv=None) -> int:
                         f"{k} {v:.3f}" for k, v in x["phases"].items())
                         + f" | wall {x['wall']:.3f}, busiest thread " + ", ".join(
                         f"{k} {v:.3f}" for k, v in x["busiest"].items()))
+                    _say("        system s / minor faults: " + ", ".join(
+                        f"{k} {v[0]:.3f}/{v[1]}" for k, v in x.get("sys_faults", {}).items()))
     return 0
 
 

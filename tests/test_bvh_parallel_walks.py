@@ -94,7 +94,8 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
     rb, rc = b0.copy(), c0.copy()
     want_perm = _open_reference(pb, starts, how, iperm, region0, trav, 1.0, rb, rc)
     want = bvh_mesh.flatten(rb, rc, want_perm, np.float32)
-    rows, nodes = bvh_cluster.item_leaves(starts, iperm, how)
+    rows, nodes = bvh_cluster.item_leaves(starts, iperm, how, np.empty(len(iperm), np.int32),
+                                          np.empty(len(iperm), np.int32))
     assert np.array_equal(rows, np.concatenate([[0], np.cumsum(np.diff(starts)[iperm])])[:-1])
     assert np.array_equal(nodes, np.concatenate([[0], np.cumsum(how[iperm] != 0)])[:-1])
     sahs = []

@@ -66,7 +66,7 @@ PAIR_CHUNK = 8192
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def pair_items(verts, tris, pb, trav_cost):
-    """Items of the paired build: ``(starts (P + 1,) int64, boxes (P, 6), how (P,) int8,
+    """Items of the paired build: ``(starts (P + 1,) int32, boxes (P, 6), how (P,) int8,
     root (12,))``, item ``k`` the triangles ``starts[k]:starts[k + 1]`` (one, or two
     consecutive ones with two vertices in common, by position), its box the union of
     theirs (``pb``'s dtype), ``how`` the way :func:`open_items` opens it
@@ -77,40 +77,47 @@ def pair_items(verts, tris, pb, trav_cost):
     root needs no pass of its own, session 38)."""
     m = tris.shape[0]
     half = (m + 1) // 2
-    size = np.empty(half, np.int64)
-    for h in prange(half):
-        i = 2 * h
-        size[h] = 2  # two items of one, or one of two
-        if i + 1 < m:
-            shared = 0
-            for a in range(3):
-                va = tris[i, a]
-                for b in range(3):
-                    vb = tris[i + 1, b]
-                    if (verts[va, 0] == verts[vb, 0] and verts[va, 1] == verts[vb, 1]
-                            and verts[va, 2] == verts[vb, 2]):
-                        shared += 1
-                        break
-            size[h] = 1 if shared >= 2 else 2
-        else:
-            size[h] = 1
-    first = np.empty(half + 1, np.int64)  # the first item of each pair of triangles
-    first[0] = 0
-    for h in range(half):
-        first[h + 1] = first[h] + size[h]
-    n_items = first[half]
-    starts = np.empty(n_items + 1, np.int64)
-    starts[n_items] = m
-    boxes = np.empty((n_items, 6), pb.dtype)
-    how = np.zeros(n_items, np.int8)
     n_chunks = (half + PAIR_CHUNK - 1) // PAIR_CHUNK
-    part = np.empty((n_chunks, 12))
+    # (session 39: the sizes int8 and no (half,) int64 prefix sum, each chunk's first item
+    # from the chunks' counts: ~30 MB less fresh memory at 4M triangles)
+    size = np.empty(half, np.int8)
+    first = np.empty(n_chunks + 1, np.int64)  # the first item of each chunk of pairs
     for cc in prange(n_chunks):
         c = np.int64(cc)  # (a prange index may be unsigned: keep index sums integer)
+        cnt = 0
+        for h in range(c * PAIR_CHUNK, min(half, (c + 1) * PAIR_CHUNK)):
+            i = 2 * h
+            s = 1  # one item of two, or (the last triangle alone) one of one
+            if i + 1 < m:
+                shared = 0
+                for a in range(3):
+                    va = tris[i, a]
+                    for b in range(3):
+                        vb = tris[i + 1, b]
+                        if (verts[va, 0] == verts[vb, 0] and verts[va, 1] == verts[vb, 1]
+                                and verts[va, 2] == verts[vb, 2]):
+                            shared += 1
+                            break
+                s = 1 if shared >= 2 else 2  # one item of two, or two items of one
+            size[h] = s
+            cnt += s
+        first[c + 1] = cnt
+    first[0] = 0
+    for c in range(n_chunks):
+        first[c + 1] += first[c]
+    n_items = first[n_chunks]
+    starts = np.empty(n_items + 1, np.int32)  # (triangle ids: perm's int32)
+    starts[n_items] = m
+    boxes = np.empty((n_items, 6), pb.dtype)
+    how = np.empty(n_items, np.int8)  # (every item's written below: no zero fill)
+    part = np.empty((n_chunks, 12))
+    for cc in prange(n_chunks):
+        c = np.int64(cc)
         _empty6(part[c, 0:6])
         _empty6(part[c, 6:12])
+        k = first[c]
         for h in range(c * PAIR_CHUNK, min(half, (c + 1) * PAIR_CHUNK)):
-            i, k = 2 * h, first[h]
+            i = 2 * h
             if size[h] == 1 and i + 1 < m:  # one item of two triangles
                 starts[k] = i
                 for q in range(3):
@@ -120,6 +127,7 @@ def pair_items(verts, tris, pb, trav_cost):
             else:
                 for j in range(size[h]):
                     starts[k + j] = i + j
+                    how[k + j] = OPEN_LEAF
                     for q in range(6):
                         boxes[k + j, q] = pb[i + j, q]
             for j in range(k, k + size[h]):  # (its items: their bounds)
@@ -127,6 +135,7 @@ def pair_items(verts, tris, pb, trav_cost):
                     part[c, q] = min(part[c, q], np.float64(boxes[j, q]))
                     part[c, 3 + q] = max(part[c, 3 + q], np.float64(boxes[j, 3 + q]))
                 _add_centroid(boxes, j, part[c, 6:12])
+            k += size[h]
     root = np.empty(12)
     _empty6(root[0:6])
     _empty6(root[6:12])
@@ -140,16 +149,16 @@ def pair_items(verts, tris, pb, trav_cost):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def item_leaves(starts, iperm, how):
-    """Where each item leaf's triangles and node go: ``rows (P,) int32``, for the item at
-    ``position`` of the item tree's leaf order (``iperm``), the first of its rows of the
-    triangle order, after those of the items before it; ``nodes (P,) int32``, the number
-    of split items (``how`` non-zero: each takes a node row, :func:`open_items`) before
-    it. (One thread: a prefix sum in chunks on two threads, each chunk read twice, took
-    as long, session 38.)"""
+def item_leaves(starts, iperm, how, rows, nodes):
+    """Where each item leaf's triangles and node go, written into ``rows``, ``nodes`` (P,)
+    int32 (returned): for the item at ``position`` of the item tree's leaf order
+    (``iperm``), ``rows`` the first of its rows of the triangle order, after those of the
+    items before it; ``nodes`` the number of split items (``how`` non-zero: each takes a
+    node row, :func:`open_items`) before it. (One thread: a prefix sum in chunks on two
+    threads, each chunk read twice, took as long, session 38. :func:`build_paired` passes
+    the item boxes' memory, dead once the item tree is built: no fresh pages, session
+    39.)"""
     n = iperm.shape[0]
-    rows = np.empty(n, np.int32)
-    nodes = np.empty(n, np.int32)
     row, k = 0, 0
     for pos in range(n):
         rows[pos], nodes[pos] = row, k
@@ -265,6 +274,14 @@ def open_items(pb, starts, how, iperm, rows, nodes, region0, trav_cost, root_are
     return dsah
 
 
+def item_scratch(ib: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two (P,) int32 arrays in the memory of the item boxes ``ib`` (P, 6) (float32 or
+    float64, C-contiguous: 24 or 48 bytes an item, 8 needed), for :func:`item_leaves`."""
+    n = len(ib)
+    flat = ib.reshape(-1).view(np.int32)  # (a view: raises if ``ib`` is not contiguous)
+    return flat[:n], flat[n:2 * n]
+
+
 def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int = SAH_BINS,
                  trav_cost: float = SAH_TRAVERSAL_COST, grain: int | None = None,
                  stop: np.ndarray = NEVER_STOP):
@@ -283,7 +300,9 @@ def build_paired(verts: np.ndarray, tris: np.ndarray, pb: np.ndarray, nbins: int
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     region0 = max(n_items, 2)
-    rows, nodes = item_leaves(starts, iperm, how)
+    # (the item boxes ``ib`` (P, 6) are dead once the item tree is built -- reordered, not
+    # returned: their memory, already touched, takes the item leaves' rows and nodes)
+    rows, nodes = item_leaves(starts, iperm, how, *item_scratch(ib))
     # the root's box: the union of its two children's (no kernel called from Python here:
     # each would be one more for the F12's kernel pre-load, addon/kernels.py)
     root = bounds[0].astype(np.float64)

@@ -209,3 +209,33 @@ def test_query_scene_reads_the_packed_vertices():
     _leaf_coords(qs, got)
     want = sa.verts[sa.tris[qs.tri]].reshape(-1, 9)
     assert np.array_equal(got.view(np.uint64), want.view(np.uint64))
+
+
+def test_uv_modes_at_the_edges_of_their_shortcuts():
+    """:func:`~.attributes.compact_uvs`' shortcuts give the exact mode: uvs that are zero
+    but for one bit past the first words looked at are not NONE (the rest is looked at),
+    all-zero uvs are, and a VERTEX answer's rows of vertices no corner names are zero
+    (they are written at the end, not zero-filled first), whatever memory held before."""
+    from rstrace_engine.geometry.attributes import HEAD_WORDS, compact_uvs
+
+    m = HEAD_WORDS  # (m, 3, 2) float32: 6 words a triangle, past the head from m // 6
+    tris = np.arange(3 * m, dtype=np.int32).reshape(m, 3)
+    uvs = np.zeros((m, 3, 2), np.float32)
+    assert compact_uvs(tris, 3 * m, uvs)[0] == ATTR_NONE
+    uvs[-1, 2, 1] = -0.0  # (the sign bit alone, in the last word)
+    mode, rows = compact_uvs(tris, 3 * m, uvs)
+    assert mode == ATTR_VERTEX and np.array_equal(_bits(rows), _bits(uvs.reshape(-1, 2)))
+    # vertices 0 and the odd ones past the triangles' name nothing: zero rows, though
+    # the memory the kernel took may have held other bits (dirty it first)
+    for _ in range(3):
+        junk = np.full((4 * m, 2), 7.5, np.float32)
+        compact_uvs(np.arange(3, 3 * m + 3, dtype=np.int32).reshape(m, 3), 3 * m + 3,
+                    junk[:3 * m].reshape(m, 3, 2))
+        del junk
+        few = np.arange(3, 9, dtype=np.int32).reshape(2, 3) * 2
+        vals = np.arange(1, 13, dtype=np.float32).reshape(2, 3, 2)
+        mode, rows = compact_uvs(few, 40, vals)
+        assert mode == ATTR_VERTEX and rows.shape == (40, 2)
+        named = few.reshape(-1)
+        assert np.array_equal(rows[named], vals.reshape(-1, 2))
+        assert not np.any(_bits(np.delete(rows, named, axis=0)))

@@ -113,9 +113,12 @@ def _coarsest(tris, bits, nverts):
     """``(mode, rows)`` for corner values ``bits`` (m, 3, c) uint32 (their bit patterns):
     VERTEX and one row per vertex (zero where no corner names it) when every corner of a
     vertex holds the same bits, else FACE and one row per triangle when its three corners
-    do, else CORNER and no rows (the corners are the rows)."""
+    do, else CORNER and no rows (the corners are the rows). A vertex's row is written when
+    a corner first names it and the rows no corner names are zeroed at the end, only for a
+    VERTEX answer: no zero-fill of the rows first (fresh memory of a mesh's vertices, most
+    of it never read where a seam ends the pass early, as on a mesh with uv seams)."""
     m, c = bits.shape[0], bits.shape[2]
-    rows = np.zeros((nverts, c), np.uint32)
+    rows = np.empty((nverts, c), np.uint32)
     seen = np.zeros(nverts, np.bool_)
     ok = True
     for t in range(m):
@@ -132,6 +135,10 @@ def _coarsest(tris, bits, nverts):
         if not ok:
             break
     if ok:
+        for v in range(nverts):
+            if not seen[v]:
+                for q in range(c):
+                    rows[v, q] = np.uint32(0)
         return ATTR_VERTEX, rows
     rows = np.empty((m, c), np.uint32)
     for t in range(m):
@@ -210,9 +217,21 @@ def compact_normals(verts: np.ndarray, tris: np.ndarray,
 def compact_uvs(tris: np.ndarray, nverts: int, corners) -> tuple[int, np.ndarray]:
     """``(mode, rows)`` of a mesh's corner uvs (m, 3, 2) float32 or None: NONE where there
     are none or every bit is zero, else the coarsest of VERTEX, FACE, CORNER that is exact."""
-    if corners is None or not np.any(np.ascontiguousarray(corners).view(np.uint32)):
+    if corners is None or not _any_bit(corners):
         return ATTR_NONE, np.zeros((0, 2), np.float32)
     return _compact(tris, nverts, corners)
+
+
+#: Words :func:`_any_bit` looks at first
+HEAD_WORDS = 1 << 12
+
+
+def _any_bit(a) -> bool:
+    """Whether any bit of the array ``a`` is set: its first :data:`HEAD_WORDS` 32-bit
+    words first, the rest only where those are all zero (a mesh's uvs hold a non-zero
+    value at once: no pass over all of them, 0.05 s at 4M triangles)."""
+    words = np.ascontiguousarray(a).reshape(-1).view(np.uint32)
+    return bool(words[:HEAD_WORDS].any() or words[HEAD_WORDS:].any())
 
 
 # -- host: the per-corner arrays back ----------------------------------------------------

@@ -46,6 +46,8 @@ def test_item_scratch_is_two_disjoint_int32_arrays_in_the_item_boxes(dtype):
     assert rows.dtype == nodes.dtype == np.int32 and len(rows) == len(nodes) == len(ib)
     assert np.shares_memory(rows, ib) and np.shares_memory(nodes, ib)
     assert not np.shares_memory(rows, nodes)
+    with pytest.raises(ValueError, match="C-contiguous"):  # (a copy would not be ib's)
+        bvh_cluster.item_scratch(np.empty((1001, 12), dtype)[:, :6])
 
 
 def test_the_tree_over_reused_item_boxes_is_the_tree_over_fresh_arrays(monkeypatch):

@@ -277,8 +277,10 @@ def open_items(pb, starts, how, iperm, rows, nodes, region0, trav_cost, root_are
 def item_scratch(ib: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two (P,) int32 arrays in the memory of the item boxes ``ib`` (P, 6) (float32 or
     float64, C-contiguous: 24 or 48 bytes an item, 8 needed), for :func:`item_leaves`."""
+    if not ib.flags.c_contiguous:  # (reshape would copy: fresh memory, not ``ib``'s)
+        raise ValueError("item_scratch: the item boxes must be C-contiguous")
     n = len(ib)
-    flat = ib.reshape(-1).view(np.int32)  # (a view: raises if ``ib`` is not contiguous)
+    flat = ib.reshape(-1).view(np.int32)
     return flat[:n], flat[n:2 * n]
 
 

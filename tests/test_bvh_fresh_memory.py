@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
-from tests.test_bvh_pairs import _lumpy, _shared_positions, _soup
+from tests.test_bvh_pairs import _lumpy, _pair_starts, _soup
 
 
 def test_pair_items_starts_are_int32_and_every_how_is_written_across_chunks():
@@ -22,13 +22,7 @@ def test_pair_items_starts_are_int32_and_every_how_is_written_across_chunks():
     pb = bvh_mesh.indexed_boxes(verts, tris)
     starts, boxes, how, _ = bvh_cluster.pair_items(verts, tris, pb, 1.0)
     assert starts.dtype == np.int32 and how.dtype == np.int8
-    want = []
-    for h in range(0, len(tris), 2):
-        if h + 1 < len(tris) and _shared_positions(verts, tris, h, h + 1) >= 2:
-            want.append(h)
-        else:
-            want.extend([h, h + 1] if h + 1 < len(tris) else [h])
-    assert starts.tolist() == want + [len(tris)]
+    assert starts.tolist() == _pair_starts(verts, tris)
     cnt = np.diff(starts)
     assert np.all(how[cnt == 1] == bvh_cluster.OPEN_LEAF)
     assert set(np.unique(how[cnt == 2]).tolist()) <= {

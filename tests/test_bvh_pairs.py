@@ -41,6 +41,18 @@ def _shared_positions(verts, tris, i: int, j: int) -> int:
     return int(sum(np.any(np.all(b == p, axis=1)) for p in a))
 
 
+def _pair_starts(verts, tris) -> list[int]:
+    """The reference item starts of :func:`.bvh_cluster.pair_items`: pairs (2h, 2h + 1)
+    with two vertex positions in common are one item, other triangles one item each."""
+    want = []
+    for h in range(0, len(tris), 2):
+        if h + 1 < len(tris) and _shared_positions(verts, tris, h, h + 1) >= 2:
+            want.append(h)
+        else:
+            want.extend([h, h + 1] if h + 1 < len(tris) else [h])
+    return want + [len(tris)]
+
+
 def test_items_pair_the_consecutive_triangles_that_share_an_edge():
     rng = np.random.default_rng(4)
     verts, tris = _lumpy()
@@ -48,13 +60,7 @@ def test_items_pair_the_consecutive_triangles_that_share_an_edge():
     for v, t in ((verts, tris), (verts, shuffled), _soup(rng, 20_001)):
         pb = bvh_mesh.indexed_boxes(v, t)
         starts, boxes, _, _ = bvh_cluster.pair_items(v, t, pb, 1.0)
-        want = []  # the reference: pairs (2h, 2h + 1) with two vertex positions in common
-        for h in range(0, len(t), 2):
-            if h + 1 < len(t) and _shared_positions(v, t, h, h + 1) >= 2:
-                want.append(h)
-            else:
-                want.extend([h, h + 1] if h + 1 < len(t) else [h])
-        assert starts.tolist() == want + [len(t)]
+        assert starts.tolist() == _pair_starts(v, t)
         for k in range(len(boxes)):
             a, b = starts[k], starts[k + 1]
             assert np.array_equal(boxes[k, :3], pb[a:b, :3].min(axis=0))

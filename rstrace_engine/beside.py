@@ -24,6 +24,7 @@ same whichever thread computes them.
 
 from __future__ import annotations
 
+import itertools
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -94,3 +95,61 @@ class Beside:
             self._joined = True
             self._fn = self._args = None
 
+
+
+class Shared:
+    """``fn(start, stop)`` over consecutive ranges of ``0 .. n`` (``chunk`` items each),
+    shared by the pool thread and the calling thread: the pool thread starts taking ranges
+    now; :meth:`result` has the caller take the ones left (after whatever it did
+    meanwhile), then joins and returns the ranges' values in range order.
+
+    Each range is taken once, from a shared counter, by whichever thread is free: where the
+    pool thread is busy (a :class:`Beside` call before this one) or the other core is taken
+    by another process, the caller takes more of them, and waits at most for the range the
+    pool thread is in. ``fn`` must launch no parallel region (as for :class:`Beside`), and
+    two ranges' work must not overlap (each writes its own rows). An exception in a range
+    stops both threads taking more and is raised by :meth:`result` (the caller's own
+    first); ``when`` False (or one range, or the caller may use one thread only): every
+    range runs on the caller in :meth:`result`, in order."""
+
+    def __init__(self, fn, n: int, chunk: int, when: bool = True) -> None:
+        step = max(int(chunk), 1)
+        self._fn = fn
+        self._bounds = [(s, min(s + step, n)) for s in range(0, n, step)]
+        self._values: list = [None] * len(self._bounds)
+        self._next = itertools.count()  # (its next() is atomic: one C call under the GIL)
+        self._stop = False
+        self._job = Beside(self._take, when=when and len(self._bounds) > 1)
+
+    @property
+    def started(self) -> bool:
+        """Whether the pool thread was asked to take ranges too."""
+        return self._job.started
+
+    def _take(self) -> None:
+        """Run the ranges not taken yet, one at a time, until none is left or one failed."""
+        bounds = self._bounds
+        for i in self._next:
+            if i >= len(bounds) or self._stop:
+                return
+            try:
+                self._values[i] = self._fn(*bounds[i])
+            except BaseException:
+                self._stop = True
+                raise
+
+    def result(self) -> list:
+        """Take the ranges left here, join the pool thread's; the values in range order."""
+        try:
+            self._take()
+        except BaseException:
+            self._job.drop()
+            raise
+        self._job.result()
+        return self._values
+
+    def drop(self) -> None:
+        """For a caller that is raising: no range is started after this; the one the pool
+        thread is in is waited for."""
+        self._stop = True
+        self._job.drop()

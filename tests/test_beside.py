@@ -125,3 +125,72 @@ def test_the_kernels_run_beside_launch_no_parallel_region():
                    mesh_check._vertex_stats):
         opts = kernel.targetoptions
         assert opts.get("nogil") and not opts.get("parallel"), kernel.py_func.__name__
+
+
+def test_shared_ranges_are_taken_once_by_both_threads_in_range_order(two_threads):
+    """``Shared``: the pool thread starts taking ranges at once, the caller takes the rest
+    in ``result()``; every range runs once, the values come back in range order."""
+    took: list = []
+    pool_began, caller_took = threading.Event(), threading.Event()
+    here = threading.get_ident()
+
+    def run(start, stop):
+        took.append((start, threading.get_ident()))
+        if threading.get_ident() != here:
+            pool_began.set()
+            caller_took.wait(5)  # (the pool thread's first range lasts until the caller's)
+        else:
+            caller_took.set()
+        return list(range(start, stop))
+
+    job = beside.Shared(run, 103, 10)
+    assert job.started
+    assert pool_began.wait(5)
+    values = job.result()
+    assert [x for v in values for x in v] == list(range(103))
+    assert sorted(s for s, _ in took) == list(range(0, 103, 10))
+    assert len({t for _, t in took}) == 2
+
+
+def test_shared_does_not_wait_on_a_busy_pool_thread_and_runs_here_on_one_thread(
+        two_threads):
+    """The pool thread busy with another call: the caller takes every range (the queued
+    take is taken back, nothing waits); ``when=False`` or one thread: every range here, in
+    order."""
+    began, release = threading.Event(), threading.Event()
+    busy = Beside(lambda: (began.set(), release.wait(5)))
+    assert began.wait(5)
+    here = threading.get_ident()
+    took: list = []
+    values = beside.Shared(lambda a, b: took.append(threading.get_ident()) or a, 50,
+                           7).result()
+    assert values == list(range(0, 50, 7)) and set(took) == {here}
+    release.set()
+    busy.result()
+    assert beside.Shared(lambda a, b: threading.get_ident(), 9, 2, when=False).result() \
+        == [here] * 5
+    numba.set_num_threads(1)
+    job = beside.Shared(lambda a, b: (a, threading.get_ident()), 9, 4)
+    assert not job.started and job.result() == [(0, here), (4, here), (8, here)]
+    assert beside.Shared(lambda a, b: a, 0, 4).result() == []
+
+
+def test_shared_raises_a_ranges_exception_and_stops_taking_ranges(two_threads):
+    took: list = []
+
+    def run(start, stop):
+        took.append(start)
+        if start == 20:
+            raise ValueError("range 20")
+
+    with pytest.raises(ValueError, match="range 20"):
+        beside.Shared(run, 1000, 10, when=False).result()
+    assert took == [0, 10, 20]  # (none after it)
+    took.clear()
+    with pytest.raises(ValueError, match="range 20"):
+        beside.Shared(run, 1000, 10).result()
+    assert len(took) < 100  # (both stopped soon after the failing range)
+    job = beside.Shared(lambda a, b: took.append(a), 1000, 10)
+    job.drop()  # (a raising caller: no range is started after it)
+    n = len(took)
+    assert job.result() is not None and len(took) == n

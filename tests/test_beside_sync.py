@@ -14,7 +14,7 @@ import pytest
 
 from rstrace_engine import beside
 from rstrace_engine.cancel import Cancelled
-from rstrace_engine.geometry import mesh_check, packing, shapes
+from rstrace_engine.geometry import mesh_check, mesh_math, packing, shapes
 from rstrace_engine.geometry.scene import Mesh, Scene, SceneError
 
 
@@ -28,8 +28,14 @@ def handed(monkeypatch):
             super().__init__(fn, *args, when=when)
             seen.append((getattr(fn, "__name__", fn), self.started))
 
+    class Shared(beside.Shared):
+        def __init__(self, fn, *args, when=True):
+            super().__init__(fn, *args, when=when)
+            seen.append((getattr(fn, "__name__", fn), self.started))
+
     for module in (mesh_check, packing):
         monkeypatch.setattr(module, "Beside", Recorded)
+    monkeypatch.setattr(mesh_math, "Shared", Shared)
     before = numba.get_num_threads()
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     if numba.get_num_threads() < 2:
@@ -71,18 +77,19 @@ def _same_dict(a: dict, b: dict) -> None:
 @pytest.mark.parametrize("smooth,degenerate", [(False, False), (True, False), (True, True)])
 def test_a_large_meshs_checks_run_beside_and_give_the_one_thread_dict(handed, smooth,
                                                                       degenerate):
-    """The vertices' pass beside the triangles', the area test beside the attributes'
-    checks and modes (computed again on the kept triangles where some are dropped)."""
+    """The vertices' pass beside the triangles', the area test's chunks taken by the pool
+    thread while this one checks the attributes and computes their modes (again on the
+    kept triangles where some are dropped), then by both (``beside.Shared``)."""
     counts: list = []
     got = mesh_check.checked_mesh(_large(smooth, degenerate), dropped_fn=counts.append)
-    assert handed == [("_vertices", True), ("proper_triangles", True)]
+    assert handed == [("_vertices", True), ("proper_chunk", True)]
     want = _one_thread(mesh_check.checked_mesh, _large(smooth, degenerate))
     _same_dict(got, want)
     assert counts == ([len(_large(smooth).triangles[::1000])] if degenerate else [])
     handed.clear()
     small = shapes.lumpy_sphere(500, name="small")
     mesh_check.checked_mesh(Mesh("small", np.asarray(small.vertices), small.triangles))
-    assert handed == [("proper_triangles", False)]  # (run here)
+    assert handed == [("proper_chunk", False)]  # (run here)
 
 
 def test_a_large_meshs_first_error_is_the_one_thread_ones(handed):

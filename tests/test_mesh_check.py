@@ -77,7 +77,7 @@ def test_an_owned_mesh_is_kept_without_copies_and_checked_once(monkeypatch):
     assert np.array_equal(mesh.vertex_normals, vn) and mesh.vertices is v
     assert with_degenerate.triangles.base is None
     calls = []
-    monkeypatch.setattr(mesh_check, "proper_triangles",
+    monkeypatch.setattr(mesh_check, "start_proper_triangles",
                         lambda *a, **k: calls.append(1) or pytest.fail("checked again"))
     s2 = Scene()
     d2 = s2.meshes[s2.add_mesh(mesh)]
@@ -259,8 +259,8 @@ def test_owned_float32_vertices_are_checked_without_a_float64_copy(monkeypatch):
     given = []
     real = mesh_check._vertex_stats
     monkeypatch.setattr(mesh_check, "_vertex_stats", lambda a: given.append(a) or real(a))
-    proper = mesh_math.proper_triangles
-    monkeypatch.setattr(mesh_check, "proper_triangles",
+    proper = mesh_math.start_proper_triangles
+    monkeypatch.setattr(mesh_check, "start_proper_triangles",
                         lambda a, *r, **k: given.append(a) or proper(a, *r, **k))
     d = mesh_check.checked_mesh(Mesh("m", v, t, smooth=False, owned=True))
     assert len(given) == 2 and all(a is v for a in given)
@@ -275,7 +275,7 @@ def test_owned_float32_vertices_are_checked_without_a_float64_copy(monkeypatch):
     w = (rng.normal(size=(300, 3)) * rng.choice([1e-30, 1e-3, 1.0, 1e6], size=(300, 1))
          ).astype(np.float32)
     u = rng.integers(0, 300, size=(5000, 3)).astype(np.int32)
-    assert np.array_equal(proper(w, u), proper(w.astype(np.float64), u))
+    assert np.array_equal(proper(w, u).result(), proper(w.astype(np.float64), u).result())
     w[0, 0] = np.inf
     with pytest.raises(SceneError, match="NaN or infinite"):
         mesh_check.checked_mesh(Mesh("bad", w, u, owned=True))

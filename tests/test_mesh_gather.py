@@ -4,9 +4,11 @@ for bit, in one kernel pass that checks the corners' range."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
+from rstrace_engine.geometry import mesh_math
 from rstrace_engine.geometry.mesh_math import gather_corners
 
 
@@ -72,3 +74,37 @@ def test_uvs_must_match_the_corners_and_empty_meshes_gather_nothing():
         gather_corners(corner_vert, corners, uvs[:399])
     tris, got = gather_corners(corner_vert, corners[:0], uvs)
     assert tris.shape == (0, 3) and got.shape == (0, 3, 2)
+
+
+def test_a_large_gather_is_shared_by_two_threads_and_gives_one_threads_bits(monkeypatch):
+    """Ranges of ``GATHER_CHUNK`` triangles taken by the calling thread and the pool's
+    (``beside.Shared``): the same bits as one thread; a corner out of range in any range
+    (the last one's last corner too) gives None."""
+    monkeypatch.setattr(mesh_math, "GATHER_CHUNK", 16)
+    corner_vert, corners, uvs = _case(11, n=400, m=1000)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        want_t, want_uv = gather_corners(corner_vert, corners, uvs, spare=3)
+    finally:
+        numba.set_num_threads(before)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    started: list = []
+
+    class Seen(mesh_math.Shared):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            started.append(self.started)
+
+    monkeypatch.setattr(mesh_math, "Shared", Seen)
+    try:
+        tris, got = gather_corners(corner_vert, corners, uvs, spare=3)
+        assert tris.tobytes() == want_t.tobytes() and got.tobytes() == want_uv.tobytes()
+        for at in ((0, 0), (500, 1), (999, 2)):
+            c = corners.copy()
+            c[at] = 400
+            assert gather_corners(corner_vert, c, uvs) is None
+            assert gather_corners(corner_vert, c) is None
+    finally:
+        numba.set_num_threads(before)
+    assert started[0] is (numba.config.NUMBA_NUM_THREADS > 1)

@@ -25,7 +25,7 @@ from .. import tolerances as tol
 from ..beside import Beside
 from ..errors import SceneError
 from .attributes import ATTR_NONE, ATTR_VERTEX, compact_normals, compact_uvs, vertex_rows
-from .mesh_math import proper_triangles, vertex_normals
+from .mesh_math import start_proper_triangles, vertex_normals
 from .packing import compact_slots
 
 
@@ -244,10 +244,11 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
 
     A large mesh (:data:`BESIDE_TRIANGLES`) is checked on two threads
     (:class:`~rstrace_engine.beside.Beside`): the vertices' pass beside the triangles'
-    index range, then the area test beside the attributes' checks and their modes,
-    computed for every triangle (those of the kept triangles instead where the area test
-    drops some, the rare case). The same results and the same first error as one thread:
-    the checks that ran first on one thread are raised first."""
+    index range, then the area test's chunks on the pool thread while this one checks the
+    attributes and computes their modes for every triangle (those of the kept triangles
+    instead where the area test drops some, the rare case), then on both
+    (:class:`~rstrace_engine.beside.Shared`). The same results and the same first error
+    as one thread: the checks that ran first on one thread are raised first."""
     keep = bool(getattr(mesh, "owned", False))
     if keep and mesh._checked is not None:
         kept, dropped = mesh._checked
@@ -257,8 +258,9 @@ def checked_mesh(mesh, cancel=None, dropped_fn=None) -> dict:
     n = mesh.name
     verts, lo, hi, tris = _vertices_and_triangles(n, mesh, keep)
     m = len(tris)
-    # (the area test reads checked vertices and triangles only)
-    area = Beside(proper_triangles, verts, tris, cancel, when=_large(mesh))
+    # (the area test reads checked vertices and triangles only; a large mesh's chunks are
+    # taken by the pool thread now, and by this one once its attributes are done)
+    area = start_proper_triangles(verts, tris, cancel, shared=_large(mesh))
     try:
         normals, uvs, vn, slots = _attribute_rows(n, mesh, m, len(verts), keep)
         ahead = (_attributes(verts, tris, normals, vn, uvs, slots, mesh.smooth)

@@ -12,11 +12,13 @@ import numpy as np
 from numba import njit
 
 from .. import tolerances as tol
+from ..beside import Shared
 from ..cancel import Cancelled
 
 #: Triangles tested per kernel call by :func:`proper_triangles`: ``cancel`` is polled
-#: between chunks (a chunk takes a few milliseconds).
-PROPER_CHUNK = 1 << 18
+#: between chunks (a chunk takes about a millisecond), and a large mesh's chunks are shared
+#: by two threads (:func:`start_proper_triangles`).
+PROPER_CHUNK = 1 << 16
 
 
 def proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None) -> np.ndarray:
@@ -31,17 +33,50 @@ def proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None) -> np.nda
     ``() -> bool``) is polled between chunks and raises
     :class:`~rstrace_engine.cancel.Cancelled`.
     """
-    v = np.asarray(verts)
-    if not (v.dtype == np.float32 and v.flags.c_contiguous):
-        v = np.ascontiguousarray(v, np.float64)
-    t = np.ascontiguousarray(tris, np.int32)
-    keep = np.empty(len(t), np.bool_)
-    for start in range(0, len(t), PROPER_CHUNK):
-        if cancel is not None and cancel():
-            raise Cancelled
-        _proper_kernel(v, t, start, min(start + PROPER_CHUNK, len(t)),
-                       tol.DEGENERATE_AREA_REL, keep)
-    return keep
+    return start_proper_triangles(verts, tris, cancel, shared=False).result()
+
+
+class _Proper:
+    """:func:`start_proper_triangles`' answer: :meth:`result` joins it."""
+
+    def __init__(self, verts, tris, cancel, shared: bool) -> None:
+        v = np.asarray(verts)
+        if not (v.dtype == np.float32 and v.flags.c_contiguous):
+            v = np.ascontiguousarray(v, np.float64)
+        t = np.ascontiguousarray(tris, np.int32)
+        self.keep = keep = np.empty(len(t), np.bool_)
+        rel = tol.DEGENERATE_AREA_REL
+
+        def proper_chunk(start: int, stop: int) -> None:
+            if cancel is not None and cancel():
+                raise Cancelled
+            _proper_kernel(v, t, start, stop, rel, keep)
+
+        self._chunks = Shared(proper_chunk, len(t), PROPER_CHUNK, when=shared)
+
+    @property
+    def started(self) -> bool:
+        """Whether the pool thread takes chunks too."""
+        return self._chunks.started
+
+    def result(self) -> np.ndarray:
+        """The (m,) bool answer: the chunks left taken here, the pool thread's joined."""
+        self._chunks.result()
+        return self.keep
+
+    def drop(self) -> None:
+        """For a caller that is raising (:meth:`~rstrace_engine.beside.Shared.drop`)."""
+        self._chunks.drop()
+
+
+def start_proper_triangles(verts: np.ndarray, tris: np.ndarray, cancel=None,
+                           shared: bool = True) -> _Proper:
+    """:func:`proper_triangles`, its chunks started on the pool thread where ``shared``
+    (:class:`~rstrace_engine.beside.Shared`): the caller does other work, then ``result()``
+    has it take the chunks left and returns the answer, the same bits whichever thread
+    tested which chunk (each chunk writes its own rows). ``drop()`` for a caller that is
+    raising. ``verts`` and ``tris`` must not change until then."""
+    return _Proper(verts, tris, cancel, shared)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -214,6 +249,11 @@ def claim_room(a: np.ndarray, before: int, after: int) -> np.ndarray | None:
                       offset=lo - before * row)
 
 
+#: Triangles per range of :func:`gather_corners`' pass; a mesh of two ranges or more is
+#: gathered by two threads (:class:`~rstrace_engine.beside.Shared`)
+GATHER_CHUNK = 1 << 17
+
+
 def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
                    corner_uvs: np.ndarray | None = None, spare: int = 0):
     """The per-triangle vertex indices ``corner_vert[corners]`` ((m, 3) int32) and, where
@@ -226,7 +266,11 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     around each result for the packing (:func:`with_room`). One pass of a kernel
     (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
     what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
-    triangles, ``docs/bench-scale-bpy.md``).
+    triangles, ``docs/bench-scale-bpy.md``). The pass runs over ranges of
+    :data:`GATHER_CHUNK` triangles taken by two threads (the calling thread and the pool's,
+    :class:`~rstrace_engine.beside.Shared`): most of its time is the first touch of the
+    fresh results (0.24 s on one thread at 4M triangles, ``docs/bench-scale-bpy.md``,
+    session 40); each range writes its own rows, the same bits.
     """
     n = len(corner_vert)
     cv = _read_only(np.ascontiguousarray(corner_vert, np.int32).reshape(n))
@@ -240,19 +284,25 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
             raise ValueError(f"{len(uv_in)} corner uvs for {n} corners")
         uv_in, uv_out = uv_in.view(np.uint32), with_room(m, (3, 2), np.float32, spare)
     tris = with_room(m, (3,), np.int32, spare)
-    if not _gather_corners(cv, tri, _read_only(uv_in), tris, uv_out.view(np.uint32)):
+    uv_in, uv_bits = _read_only(uv_in), uv_out.view(np.uint32)
+
+    def gather(start: int, stop: int) -> bool:
+        return _gather_corners(cv, tri, uv_in, tris, uv_bits, start, stop)
+
+    if not all(Shared(gather, m, GATHER_CHUNK).result()):
         return None
     return tris, (None if corner_uvs is None else uv_out)
 
 
 @njit(cache=True, nogil=True)
-def _gather_corners(corner_vert, corners, uvs, tris, uvs_out):
-    """:func:`gather_corners`' pass: ``tris[t, j] = corner_vert[c]`` and, where ``uvs``
-    has rows, ``uvs_out[t, j] = uvs[c]`` (uint32 bits) for each corner ``c = corners[t,
-    j]``; False at the first corner out of range (the outputs then partly written)."""
+def _gather_corners(corner_vert, corners, uvs, tris, uvs_out, start, stop):
+    """:func:`gather_corners`' pass over triangles ``start .. stop - 1``: ``tris[t, j] =
+    corner_vert[c]`` and, where ``uvs`` has rows, ``uvs_out[t, j] = uvs[c]`` (uint32 bits)
+    for each corner ``c = corners[t, j]``; False at the first corner out of range (the
+    outputs then partly written)."""
     n = corner_vert.shape[0]
     with_uvs = uvs.shape[0] > 0
-    for t in range(corners.shape[0]):
+    for t in range(start, stop):
         for j in range(3):
             c = corners[t, j]
             if c < 0 or c >= n:

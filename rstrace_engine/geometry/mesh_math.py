@@ -222,12 +222,16 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     fresh arrays; None where a corner lies outside ``0 .. len(corner_vert) - 1``.
 
     ``corners`` (m, 3) int32: the corners (indices into the host mesh's loops) of each
-    triangle; ``corner_vert`` (n,) int32: each corner's vertex. ``spare``: rows of room
+    triangle; ``corner_vert`` (n,) int32: each corner's vertex (an integer dtype that
+    does not fit int32 raises TypeError: its cast would wrap indices past 2^31 into others
+    silently). ``spare``: rows of room
     around each result for the packing (:func:`with_room`). One pass of a kernel
     (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
     what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
     triangles, ``docs/bench-scale-bpy.md``).
     """
+    _int32_indices(corner_vert, "corner vertices")
+    _int32_indices(corners, "corners")
     n = len(corner_vert)
     cv = _read_only(np.ascontiguousarray(corner_vert, np.int32).reshape(n))
     tri = _read_only(np.ascontiguousarray(corners, np.int32).reshape(-1, 3))
@@ -243,6 +247,15 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     if not _gather_corners(cv, tri, _read_only(uv_in), tris, uv_out.view(np.uint32)):
         return None
     return tris, (None if corner_uvs is None else uv_out)
+
+
+def _int32_indices(a, what: str) -> None:
+    """Raise TypeError unless ``a``'s dtype casts to int32 without a loss (the dtype
+    alone: no pass over the values)."""
+    dtype = np.asarray(a).dtype
+    if not np.can_cast(dtype, np.int32, "safe"):
+        raise TypeError(f"gather_corners: {what} must be int32 (or a narrower integer "
+                        f"type), not {dtype}")
 
 
 @njit(cache=True, nogil=True)

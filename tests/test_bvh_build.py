@@ -13,7 +13,7 @@ from rstrace_engine.accel import accelerators, bvh, bvh_bins, bvh_build, bvh_mes
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.bench import scale
 from rstrace_engine.cancel import CancelFlag, Cancelled
-from rstrace_engine.geometry import shapes
+from rstrace_engine.geometry import footprint, shapes
 from rstrace_engine.geometry.attributes import ATTR_VERTEX
 from rstrace_engine.geometry.edits import MeshSet, ObjectTransform
 from rstrace_engine.geometry.packing import mesh_triangles
@@ -369,6 +369,34 @@ def test_mesh_too_large_for_the_memory_is_refused_before_it_is_copied():
     # without a limit, the memory available decides: an ordinary mesh fits
     s.memory_limit = None
     s.add_mesh(big)
+
+
+def test_meshes_past_the_bvhs_triangle_limit_are_refused_before_anything_is_built(
+        monkeypatch):
+    """The scene's meshes hold at most :data:`.footprint.MAX_TRIANGLES` in all (the BVH's
+    leaf codes hold 28-bit triangle ids): a mesh past it is refused by name when added or
+    set, before it is copied or any BVH built, whatever the memory (main: refused only by
+    ``concat_meshes``' OverflowError, after every mesh's BVH was built). A small limit
+    stands in for 2^28 - 1."""
+    assert footprint.MAX_TRIANGLES == (1 << 28) - 1 == bvh.MAX_TRIANGLES
+    monkeypatch.setattr(footprint, "MAX_TRIANGLES", 1_000)
+    s = Scene()
+    s.add_material(Material("m"))
+    mid = s.add_mesh(shapes.icosphere(2, name="pebble"))  # 320 triangles
+    s.add_instance(mid, np.eye(4))
+    with pytest.raises(SceneError, match=r"mesh 'Boulder': 1,280 triangles \(with the "
+                                         r"scene's other meshes 1,600\) are more than the "
+                                         r"1,000 a scene can hold"):
+        s.add_mesh(shapes.icosphere(3, name="Boulder"))
+    assert len(s.meshes) == 1 and s._mesh_tris == 320
+    with pytest.raises(SceneError, match=r"mesh 'Boulder': 1,280 triangles are more than"):
+        s.set_mesh(mid, shapes.icosphere(3, name="Boulder"))  # (its own 320 are replaced)
+    assert s.meshes[mid]["name"] == "pebble"
+    grain = s.add_mesh(shapes.icosphere(2, name="grain"))  # 640 in all: fits
+    s.delete_mesh(grain)  # its triangles are given back
+    s.copy().add_mesh(shapes.icosphere(2, name="grain"))  # (copied with the count)
+    s.set_mesh(mid, shapes.icosphere(2, name="pebble2"))
+    assert s._mesh_tris == 320
 
 
 # ----------------------------------------------------------------------------- bench

@@ -6,21 +6,61 @@ The tree stays the one fresh arrays give."""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+
+import numba
 import numpy as np
 import pytest
 
 from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
 from tests.test_bvh_pairs import _lumpy, _pair_starts, _soup
 
+#: glibc's ``mallopt`` option: memory ``malloc`` returns (numba's ``np.empty`` too) is
+#: filled with the given byte ^ 0xFF, so an unwritten element reads that, never a zero
+#: a fresh page happened to hold.
+_M_PERTURB = -6
+_PERTURB = 0xA5  # (fresh bytes then read 0x5A = 90: no OPEN_* value)
+
+
+@numba.njit
+def _fresh(n):
+    return np.empty(n, np.int8)
+
+
+@contextlib.contextmanager
+def _dirty_fresh_memory():
+    """Yields True while every fresh allocation of this process is filled with
+    ``_PERTURB ^ 0xFF`` (glibc's ``M_PERTURB``: checked on a numba ``np.empty``); False
+    where the C library has no such option (nothing changed)."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        yield False
+        return
+    if not mallopt(_M_PERTURB, _PERTURB):
+        yield False
+        return
+    try:
+        assert np.all(_fresh(1 << 20) == (_PERTURB ^ 0xFF))  # (a 1 MiB mmap'd block too)
+        assert np.all(_fresh(3000) == (_PERTURB ^ 0xFF))
+        yield True
+    finally:
+        mallopt(_M_PERTURB, 0)
+
 
 def test_pair_items_starts_are_int32_and_every_how_is_written_across_chunks():
     """Over several chunks of pairs (:data:`.bvh_cluster.PAIR_CHUNK`), odd count, pairs
     and lone triangles mixed: the starts are the reference's, int32 (fails on main: int64),
-    and a lone triangle's item is :data:`OPEN_LEAF`, a pair's one of the three ways."""
+    and a lone triangle's item is :data:`OPEN_LEAF`, a pair's one of the three ways. The
+    items' fresh memory is filled with a byte no ``how`` takes (glibc), so a dropped
+    write of any item's ``how`` fails here whatever the pages held (:data:`OPEN_LEAF` is
+    0: fresh zero pages passed it before)."""
     rng = np.random.default_rng(39)
     verts, tris = _soup(rng, 3 * 2 * bvh_cluster.PAIR_CHUNK + 7)
     pb = bvh_mesh.indexed_boxes(verts, tris)
-    starts, boxes, how, _ = bvh_cluster.pair_items(verts, tris, pb, 1.0)
+    with _dirty_fresh_memory():
+        starts, boxes, how, _ = bvh_cluster.pair_items(verts, tris, pb, 1.0)
     assert starts.dtype == np.int32 and how.dtype == np.int8
     assert starts.tolist() == _pair_starts(verts, tris)
     cnt = np.diff(starts)

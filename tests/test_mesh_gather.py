@@ -108,3 +108,23 @@ def test_a_large_gather_is_shared_by_two_threads_and_gives_one_threads_bits(monk
     finally:
         numba.set_num_threads(before)
     assert started[0] is (numba.config.NUMBA_NUM_THREADS > 1)
+
+
+@pytest.mark.parametrize("which", ["corner_vert", "corners"])
+@pytest.mark.parametrize("dtype", [np.int64, np.uint32, np.float64])
+def test_indices_of_a_dtype_wider_than_int32_are_refused(which, dtype):
+    """The int32 contract is checked on the dtype (no pass over the values): an int64
+    corner 2^32 + 5 would wrap to corner 5 in the cast and gather a wrong triangle (main:
+    gathered silently); int16 and other narrower integers are accepted."""
+    corner_vert, corners, uvs = _case()
+    args = {"corner_vert": corner_vert, "corners": corners}
+    wide = args[which].astype(dtype)
+    if which == "corners" and dtype == np.int64:
+        wide[0, 0] = (1 << 32) + 5
+    args[which] = wide
+    what = "corner vertices" if which == "corner_vert" else "corners"
+    with pytest.raises(TypeError, match=f"{what} must be int32 .* not {np.dtype(dtype)}"):
+        gather_corners(args["corner_vert"], args["corners"], uvs)
+    narrow = _case()[:2]
+    tris, _ = gather_corners(narrow[0].astype(np.int16), narrow[1].astype(np.int16))
+    np.testing.assert_array_equal(tris, narrow[0][narrow[1].astype(np.int64)])

@@ -47,6 +47,7 @@ from numba import njit
 
 from .. import stripes
 from .. import tolerances as tol
+from ..geometry.footprint import MAX_TRIANGLES
 from .box4 import lanes4
 from .bvh_build import DEPTH_CAP, NEVER_STOP
 from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
@@ -117,7 +118,8 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
     """
     node_base = np.cumsum([0] + [len(m.child) for m in meshes])
     leaf_base = np.cumsum([0] + [len(m.tri) for m in meshes])
-    if max(leaf_base[-1], int(mesh_tri_start[-1])) >= 1 << 28:
+    # (a Scene refuses such meshes before anything is built: .footprint.check_count)
+    if max(leaf_base[-1], int(mesh_tri_start[-1])) > MAX_TRIANGLES:
         raise OverflowError("BVH: too many triangles for 32-bit leaf codes")
     child = np.empty((int(node_base[-1]), 4), np.int32)
     tri = np.empty(int(leaf_base[-1]), np.int32)

@@ -8,6 +8,9 @@ docs/bench-scale.md: 30 + 45), up to about 145 where its normals and uvs vary pe
 (:mod:`.attributes`); a BVH build needs about 190 bytes more while it runs (primitive
 boxes, the binary tree and its working arrays), and the host's per-corner arrays are held
 while the mesh is validated: the peak is what is checked.
+
+The scene's meshes also hold at most :data:`MAX_TRIANGLES` triangles in all, whatever the
+memory (:func:`check_count`): the BVH's leaf codes hold a triangle id in 28 bits.
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ from .elements import SceneError
 BYTES_PER_TRIANGLE = 600
 #: Bytes per vertex (the validated mesh and the packed copy, float64 xyz each).
 BYTES_PER_VERTEX = 48
+#: Most triangles the scene's meshes may hold in all (each mesh's once, however many
+#: objects use it): a BVH leaf code is ``~(start << 3 | kind)`` in an int32, its ``start``
+#: a global triangle id or a row of the leaves' triangle list (:mod:`..accel.bvh`), so
+#: both stay below 2^28 (the paired build's int32 item starts, 2^31, are then safe too).
+MAX_TRIANGLES = (1 << 28) - 1
 
 
 def available_memory() -> int | None:
@@ -65,3 +73,15 @@ def check_fits(name: str, triangles: int, vertices: int, others: int,
             + (f" (with the scene's other meshes {_gib(need + others)})" if others else "")
             + f", more than the {_gib(limit)} of memory available: decimate it, lower its "
             f"subdivision level, or render it in parts")
+
+
+def check_count(name: str, triangles: int, others: int) -> None:
+    """Raise :class:`SceneError` naming mesh ``name`` when its ``triangles``, with the
+    ``others`` the scene's other meshes hold, are more than :data:`MAX_TRIANGLES` (read
+    when called)."""
+    if triangles + others > MAX_TRIANGLES:
+        raise SceneError(
+            f"mesh '{name}': {triangles:,} triangles"
+            + (f" (with the scene's other meshes {triangles + others:,})" if others else "")
+            + f" are more than the {MAX_TRIANGLES:,} a scene can hold (the BVH's 28-bit "
+            f"triangle ids): decimate it, lower its subdivision level, or render it in parts")

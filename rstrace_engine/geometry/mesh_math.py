@@ -262,7 +262,9 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     fresh arrays; None where a corner lies outside ``0 .. len(corner_vert) - 1``.
 
     ``corners`` (m, 3) int32: the corners (indices into the host mesh's loops) of each
-    triangle; ``corner_vert`` (n,) int32: each corner's vertex. ``spare``: rows of room
+    triangle; ``corner_vert`` (n,) int32: each corner's vertex (an integer dtype that
+    does not fit int32 raises TypeError: its cast would wrap indices past 2^31 into others
+    silently). ``spare``: rows of room
     around each result for the packing (:func:`with_room`). One pass of a kernel
     (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
     what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
@@ -272,6 +274,8 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     fresh results (0.24 s on one thread at 4M triangles, ``docs/bench-scale-bpy.md``,
     session 40); each range writes its own rows, the same bits.
     """
+    _int32_indices(corner_vert, "corner vertices")
+    _int32_indices(corners, "corners")
     n = len(corner_vert)
     cv = _read_only(np.ascontiguousarray(corner_vert, np.int32).reshape(n))
     tri = _read_only(np.ascontiguousarray(corners, np.int32).reshape(-1, 3))
@@ -292,6 +296,15 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     if not all(Shared(gather, m, GATHER_CHUNK).result()):
         return None
     return tris, (None if corner_uvs is None else uv_out)
+
+
+def _int32_indices(a, what: str) -> None:
+    """Raise TypeError unless ``a``'s dtype casts to int32 without a loss (the dtype
+    alone: no pass over the values)."""
+    dtype = np.asarray(a).dtype
+    if not np.can_cast(dtype, np.int32, "safe"):
+        raise TypeError(f"gather_corners: {what} must be int32 (or a narrower integer "
+                        f"type), not {dtype}")
 
 
 @njit(cache=True, nogil=True)

@@ -67,7 +67,7 @@ from .elements import (  # noqa: F401 - re-exported, the scene model's public na
     check_matrix,
     checked_camera,
 )
-from .footprint import check_fits, estimate
+from .footprint import check_count, check_fits, estimate
 from .lights import checked_light, pack_lights
 from .mesh_check import checked_mesh
 from .mesh_math import transform_aabb
@@ -203,6 +203,7 @@ class Scene:
         #: when a mesh is added.
         self.memory_limit: int | None = None
         self._mesh_bytes = 0  # the meshes' estimated footprint, in all
+        self._mesh_tris = 0  # the meshes' triangles, in all (:func:`.footprint.check_count`)
 
     def copy(self) -> Scene:
         """An independent copy (item data are shared: they are replaced, never mutated)."""
@@ -225,6 +226,7 @@ class Scene:
         c._mesh_arrays = self._mesh_arrays
         c.memory_limit = self.memory_limit
         c._mesh_bytes = self._mesh_bytes
+        c._mesh_tris = self._mesh_tris
         return c
 
     # -- lookups -----------------------------------------------------------------------
@@ -316,6 +318,7 @@ class Scene:
         self._check_footprint(mesh, None)
         checked = self._checked_mesh(mesh, cancel)
         self._mesh_bytes += _footprint(checked)
+        self._mesh_tris += len(checked["tris"])
         key = self.mesh_keys.new_key(key, mesh.name, len(self.meshes))
         mid = self.mesh_keys.place(self.meshes, checked, key)
         self._arrays = None
@@ -342,6 +345,7 @@ class Scene:
                              f"'{self.instances[users[0]]['name']}' (delete or re-mesh "
                              f"its {len(users)} user(s) first)")
         self._mesh_bytes -= _footprint(self.meshes[mesh_id])
+        self._mesh_tris -= len(self.meshes[mesh_id]["tris"])
         self.meshes[mesh_id] = None
         key = next(k for k, v in self.mesh_keys.slot.items() if v == mesh_id)
         del self.mesh_keys.slot[key]
@@ -357,6 +361,7 @@ class Scene:
         self._check_footprint(mesh, mesh_id)
         checked = self._checked_mesh(mesh, cancel)
         self._mesh_bytes += _footprint(checked) - _footprint(self.meshes[mesh_id])
+        self._mesh_tris += len(checked["tris"]) - len(self.meshes[mesh_id]["tris"])
         self.meshes[mesh_id] = checked
         for i in self.instances:
             if i is not None and i["mesh"] == mesh_id:
@@ -365,15 +370,18 @@ class Scene:
         self._mesh_arrays = None
 
     def _check_footprint(self, mesh: Mesh, replaced: int | None) -> None:
-        """Refuse (before anything is copied) a mesh the memory cannot hold
-        (:func:`~.footprint.check_fits`, counting the other meshes but ``replaced``)."""
+        """Refuse (before anything is copied) a mesh past the scene's triangle limit or the
+        memory (:func:`~.footprint.check_count`, :func:`~.footprint.check_fits`, counting
+        the other meshes but ``replaced``)."""
         try:
             m, v = int(np.shape(mesh.triangles)[0]), int(np.shape(mesh.vertices)[0])
         except (TypeError, ValueError, IndexError):
             return  # not arrays of rows: validation says what is wrong
-        others = self._mesh_bytes
+        others, tris = self._mesh_bytes, self._mesh_tris
         if replaced is not None:
             others -= _footprint(self.meshes[replaced])
+            tris -= len(self.meshes[replaced]["tris"])
+        check_count(mesh.name, m, tris)
         check_fits(mesh.name, m, v, others, self.memory_limit)
 
     def _checked_mesh(self, mesh: Mesh, cancel=None) -> dict:

@@ -151,6 +151,26 @@ def test_broken_camera_is_a_clean_error(tmp_path):
         b.render_exr(tmp_path / "nancam.exr")
 
 
+def test_a_mesh_past_the_triangle_limit_is_a_clean_error_before_any_build(tmp_path,
+                                                                           monkeypatch):
+    """A mesh past the scene's triangle limit (the BVH's 28-bit triangle ids: a small
+    limit stands in) is refused by name through the render's report, before any BVH is
+    built (main: no such check; ``concat_meshes`` raised an OverflowError after every
+    mesh's build); with the limit back, the same scene renders."""
+    from rstrace_engine.geometry import footprint
+
+    _scene()
+    real = footprint.MAX_TRIANGLES
+    monkeypatch.setattr(footprint, "MAX_TRIANGLES", 100)  # the Ball has 224 triangles
+    with pytest.raises(RuntimeError, match=r"RSTrace: mesh 'Ball': 224 triangles .*more "
+                                           r"than the 100 a scene can hold"):
+        b.render_exr(tmp_path / "big.exr")
+    assert "a scene can hold" in (_state().error or "")
+    monkeypatch.setattr(footprint, "MAX_TRIANGLES", real)
+    out = b.render_exr(tmp_path / "fits.exr")
+    assert _state().error is None and np.isfinite(out["Combined"]).all()
+
+
 def test_nothing_visible_is_a_clean_error(tmp_path):
     sc = b.setup_render(16, 12)
     b.camera()

@@ -142,8 +142,8 @@ class Shared:
         """Take the ranges left here, join the pool thread's; the values in range order."""
         try:
             self._take()
-        except BaseException:
-            self._job.drop()
+        except BaseException:  # (a range's, or an interrupt between ranges: the pool
+            self.drop()        # thread starts no range after it either)
             raise
         self._job.result()
         return self._values

@@ -166,7 +166,7 @@ def test_shared_does_not_wait_on_a_busy_pool_thread_and_runs_here_on_one_thread(
                            7).result()
     assert values == list(range(0, 50, 7)) and set(took) == {here}
     release.set()
-    busy.result()
+    assert busy.result() == (None, True)  # (not timed out: the caller never waited on it)
     assert beside.Shared(lambda a, b: threading.get_ident(), 9, 2, when=False).result() \
         == [here] * 5
     numba.set_num_threads(1)
@@ -194,3 +194,48 @@ def test_shared_raises_a_ranges_exception_and_stops_taking_ranges(two_threads):
     job.drop()  # (a raising caller: no range is started after it)
     n = len(took)
     assert job.result() is not None and len(took) == n
+
+
+class _Interrupting:
+    """A range counter whose caller-side ``next`` raises ``KeyboardInterrupt`` once the
+    caller has taken ``after`` ranges: an interrupt that lands between two ranges."""
+
+    def __init__(self, counter, here: int, after: int) -> None:
+        self._counter, self._here, self._left = counter, here, after
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        if threading.get_ident() == self._here:
+            if self._left == 0:
+                raise KeyboardInterrupt
+            self._left -= 1
+        return next(self._counter)
+
+
+def test_an_interrupt_between_the_callers_ranges_stops_the_pool_thread_too(two_threads):
+    """An exception raised on the caller outside a range's call (a KeyboardInterrupt
+    between two ranges) stops the pool thread taking ranges as a range's exception does:
+    ``result()`` waits for the range it is in, not for the rest of the pass."""
+    import time
+
+    took: list = []
+    pool_began = threading.Event()
+    here = threading.get_ident()
+
+    def run(start, stop):
+        took.append(start)
+        if threading.get_ident() != here:
+            pool_began.set()
+            time.sleep(0.002)
+
+    job = beside.Shared(run, 1000, 1)
+    job._next = _Interrupting(job._next, here, after=2)
+    assert pool_began.wait(5)
+    with pytest.raises(KeyboardInterrupt):
+        job.result()
+    n = len(took)
+    assert n < 100  # (without the stop: all 1000 ranges but the caller's lost one, ~2 s)
+    time.sleep(0.05)
+    assert len(took) == n  # (joined: nothing runs after result() raised)

@@ -100,6 +100,9 @@ def test_a_large_gather_is_shared_by_two_threads_and_gives_one_threads_bits(monk
     try:
         tris, got = gather_corners(corner_vert, corners, uvs, spare=3)
         assert tris.tobytes() == want_t.tobytes() and got.tobytes() == want_uv.tobytes()
+        # (and numpy's indexing: each range's rows where they belong, on either thread)
+        assert tris.tobytes() == corner_vert[corners.astype(np.int64)].tobytes()
+        assert got.tobytes() == uvs[corners.astype(np.int64)].tobytes()
         for at in ((0, 0), (500, 1), (999, 2)):
             c = corners.copy()
             c[at] = 400

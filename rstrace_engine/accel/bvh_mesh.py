@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -67,6 +68,70 @@ def _padded(cbits, j, pad):
             cbits[6 * j + 3 + q] = _step_up(cbits[6 * j + 3 + q])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lanes(b2, c2, bn, cb, cc, cbits, pad):
+    """The (up to) four lanes of the 4-wide node made of binary node ``bn``: its two
+    children, the inner child of largest surface area opened until there are four. Fills
+    ``cb`` (4, 6) float64 boxes (padded as :func:`collapse4` reads them: ``cbits`` is its
+    int64 view) and ``cc`` (4,) binary child codes; returns the number of lanes used."""
+    cnt = 0
+    for j in range(2):
+        if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
+            for q in range(6):
+                cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
+            _padded(cbits, cnt, pad)
+            cc[cnt] = c2[bn, j]
+            cnt += 1
+    while cnt < 4:
+        pick = -1
+        best = -1.0
+        for j in range(cnt):
+            if cc[j] >= 0:
+                area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4], cb[j, 5])
+                if area > best:
+                    best, pick = area, j
+        if pick < 0:
+            break
+        inner = cc[pick]
+        for q in range(6):
+            cb[pick, q] = np.float64(b2[inner, q])
+            cb[cnt, q] = np.float64(b2[inner, 6 + q])
+        _padded(cbits, pick, pad)
+        cc[pick] = c2[inner, 0]
+        _padded(cbits, cnt, pad)
+        cc[cnt] = c2[inner, 1]
+        cnt += 1
+    return cnt
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _put_node(b4, bits, c4, k, cb, cc, cnt):
+    """Row ``k`` of the 4-wide tree: the lanes :func:`_lanes` made (boxes rounded outward
+    where ``b4`` is float32); an unused lane gets an inverted box and the empty leaf."""
+    for j in range(4):
+        if j < cnt:
+            for q in range(6):
+                _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
+            c4[k, j] = cc[j]
+        else:
+            for q in range(3):
+                b4[k, 4 * q + j] = np.inf
+                b4[k, 12 + 4 * q + j] = -np.inf
+            c4[k, j] = -1  # ~0: a leaf of no triangles
+
+
+#: binary nodes from which :func:`flatten` collapses on all threads (a mesh of
+#: :data:`.bvh_build.PARALLEL_MIN` triangles has about half as many: two a quad), and into
+#: how many subtrees (:func:`collapse_tasks`: enough that two threads end together, few
+#: enough that the nodes above them, made on one thread, stay a few hundred)
+COLLAPSE_PARALLEL_MIN = PARALLEL_MIN // 2
+COLLAPSE_TASKS = 128
+
+#: the depth-first stack of a collapse: a 4-wide node opens up to 3 binary nodes and
+#: pushes its (<= 4) inner children, so the stack holds at most 3 entries per binary level
+_TODO_ROWS = 3 * (DEPTH_CAP + 40) + 4
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def collapse4(b2, c2, b4, pad):
     """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
@@ -80,69 +145,111 @@ def collapse4(b2, c2, b4, pad):
     leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering, from
     binary node 0 (rows no child reaches are never read: the builder's unpacked arrays
     serve). ``pad``: every binary box is read widened as :func:`pad_outward` widens it
-    (the same bits, without a pass over ``b2`` or a change to it).
+    (the same bits, without a pass over ``b2`` or a change to it). One thread; the same
+    tree, row for row, on both: :func:`collapse4_parallel`.
     """
-    n2 = c2.shape[0]
-    # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
-    # stack holds at most 3 entries per level of the binary tree
-    todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
+    c4 = np.empty((c2.shape[0], 4), np.int32)
+    no = np.empty(0, np.int64)
+    m = _collapse_from(b2, c2, b4, c4, 0, 0, pad, no, no, no)
+    return b4, c4, m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row):
+    """:func:`collapse4`'s depth-first walk from binary node ``root``, numbered from row
+    ``k0``; returns the row after the last. A binary node listed in ``task_bn`` (sorted)
+    is not opened: its subtree's ``task_size`` rows are reserved (from ``task_row``, set
+    here) and its parent's lane points at them, for :func:`collapse4_parallel`'s threads."""
+    todo = np.empty((_TODO_ROWS, 3), np.int64)  # binary node, parent, lane
     bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
-    c4 = np.empty((n2, 4), np.int32)
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
     cbits = cb.reshape(-1).view(np.int64)
-    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
+    todo[0, 0], todo[0, 1], todo[0, 2] = root, -1, 0
     sp = 1
-    m = 0
+    m = k0
     while sp > 0:
         sp -= 1
         bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
         k = m
-        m += 1
         if parent >= 0:
             c4[parent, lane] = k
-        cnt = 0
-        for j in range(2):
-            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-                for q in range(6):
-                    cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
-                _padded(cbits, cnt, pad)
-                cc[cnt] = c2[bn, j]
-                cnt += 1
-        while cnt < 4:
-            pick = -1
-            best = -1.0
-            for j in range(cnt):
-                if cc[j] >= 0:
-                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
-                                      cb[j, 5])
-                    if area > best:
-                        best, pick = area, j
-            if pick < 0:
-                break
-            inner = cc[pick]
-            for q in range(6):
-                cb[pick, q] = np.float64(b2[inner, q])
-                cb[cnt, q] = np.float64(b2[inner, 6 + q])
-            _padded(cbits, pick, pad)
-            cc[pick] = c2[inner, 0]
-            _padded(cbits, cnt, pad)
-            cc[cnt] = c2[inner, 1]
-            cnt += 1
-        for j in range(4):
-            if j < cnt:
-                for q in range(6):
-                    _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
-                c4[k, j] = cc[j]
-            else:
-                for q in range(3):
-                    b4[k, 4 * q + j] = np.inf
-                    b4[k, 12 + 4 * q + j] = -np.inf
-                c4[k, j] = -1  # ~0: a leaf of no triangles
+        if len(task_bn):
+            t = np.searchsorted(task_bn, bn)
+            if t < len(task_bn) and task_bn[t] == bn:
+                task_row[t] = k
+                m += task_size[t]
+                continue
+        m += 1
+        cnt = _lanes(b2, c2, bn, cb, cc, cbits, pad)
+        _put_node(b4, bits, c4, k, cb, cc, cnt)
         for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
             if cc[j] >= 0:
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
+    return m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _count4(b2, c2, root, pad):
+    """The number of 4-wide nodes :func:`collapse4` makes of binary node ``root``'s
+    subtree (the same picks, nothing written)."""
+    todo = np.empty(_TODO_ROWS, np.int64)
+    cb = np.empty((4, 6))
+    cc = np.empty(4, np.int64)
+    cbits = cb.reshape(-1).view(np.int64)
+    todo[0] = root
+    sp = 1
+    m = 0
+    while sp > 0:
+        sp -= 1
+        m += 1
+        cnt = _lanes(b2, c2, todo[sp], cb, cc, cbits, pad)
+        for j in range(cnt):
+            if cc[j] >= 0:
+                todo[sp] = cc[j]
+                sp += 1
+    return m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def collapse_tasks(b2, c2, pad, want):
+    """The binary roots of (about) ``want`` disjoint 4-wide subtrees that, with the nodes
+    above them, make :func:`collapse4`'s tree: the 4-wide nodes opened breadth first from
+    the root until ``want`` are pending (sorted; fewer when the tree has fewer)."""
+    q = np.empty(8 * want + 8, np.int64)
+    cb = np.empty((4, 6))
+    cc = np.empty(4, np.int64)
+    cbits = cb.reshape(-1).view(np.int64)
+    q[0] = 0
+    head, tail = 0, 1
+    while head < tail and tail - head < want and tail + 4 <= len(q):
+        cnt = _lanes(b2, c2, q[head], cb, cc, cbits, pad)
+        head += 1
+        for j in range(cnt):
+            if cc[j] >= 0:
+                q[tail] = cc[j]
+                tail += 1
+    return np.sort(q[head:tail])
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def collapse4_parallel(b2, c2, b4, pad, task_bn):
+    """:func:`collapse4` on all threads, the same rows: the subtrees under ``task_bn``
+    (:func:`collapse_tasks`) are counted (:func:`_count4`), the nodes above them made on
+    one thread with each subtree's rows reserved in :func:`collapse4`'s numbering, then
+    the subtrees made, one task each (run under ``numba.parallel_chunksize(1)``: they
+    differ in size)."""
+    n = len(task_bn)
+    size = np.empty(n, np.int64)
+    for t in prange(n):
+        size[t] = _count4(b2, c2, task_bn[t], pad)
+    c4 = np.empty((c2.shape[0], 4), np.int32)
+    row = np.empty(n, np.int64)
+    m = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, size, row)
+    no = np.empty(0, np.int64)
+    for t in prange(n):
+        _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no)
     return b4, c4, m
 
 
@@ -212,14 +319,27 @@ def _step_up(x):
 
 
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
-            dtype=np.float64) -> FlatBVH:
+            dtype=np.float64, tasks: int | None = None) -> FlatBVH:
     """Binary build output (packed, or the builder's unpacked arrays:
     ``build_flat_boxes(packed=False)``) -> the traversal layout (4-wide), its boxes
     padded (:func:`pad_outward`, as they are read: ``b64`` is not changed) and ``dtype``
     (float32: rounded outward, :func:`collapse4`). The nodes are views of arrays sized for
     the binary arrays (a few times the rows used): the scene's concatenation
-    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree."""
-    b4, c4, m = collapse4(b64, child, np.empty((len(child), 24), dtype), True)
+    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree.
+
+    The collapse runs on all threads (:func:`collapse4_parallel`, the same rows) for a
+    tree of :data:`COLLAPSE_PARALLEL_MIN` binary nodes or more when numba has more than
+    one; ``tasks`` (tests) sets the number of its subtrees instead (0: one thread)."""
+    b4 = np.empty((len(child), 24), dtype)
+    if tasks is None:
+        tasks = (COLLAPSE_TASKS if len(child) >= COLLAPSE_PARALLEL_MIN
+                 and numba.get_num_threads() > 1 else 0)
+    if tasks <= 0:
+        b4, c4, m = collapse4(b64, child, b4, True)
+    else:
+        task_bn = collapse_tasks(b64, child, True, tasks)
+        with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take turns)
+            b4, c4, m = collapse4_parallel(b64, child, b4, True, task_bn)
     return FlatBVH(b4[:m], c4[:m], perm)
 
 

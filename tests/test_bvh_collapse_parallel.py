@@ -1,0 +1,118 @@
+"""The 4-wide collapse on every thread (session 40, issue 26): :func:`.bvh_mesh.collapse4_parallel`
+makes :func:`.bvh_mesh.collapse4`'s tree row for row (the same boxes, bit for bit, the same
+child codes, the same numbering), whatever the split into subtrees and the thread count,
+on tiny, degenerate and large trees. Fails on main (no ``collapse4_parallel``, ``flatten``
+took no ``tasks``)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
+from rstrace_engine.geometry import shapes
+
+
+def _threads(n: int):
+    """Run with ``n`` numba threads (at most the process's)."""
+    class _Ctx:
+        def __enter__(self):
+            self.old = numba.get_num_threads()
+            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+
+        def __exit__(self, *exc):
+            numba.set_num_threads(self.old)
+    return _Ctx()
+
+
+def _boxes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return np.concatenate([lo, hi], 1).astype(np.float64)
+
+
+def _cases():
+    rng = np.random.default_rng(40)
+    out = {}
+    for n in (1, 2, 3, 5, 17):
+        lo = rng.normal(size=(n, 3))
+        out[f"random{n}"] = _boxes(lo, lo + rng.random((n, 3)))
+    same = np.tile([[0.5, -1.0, 2.0]], (40, 1))
+    out["one box 40 times"] = _boxes(same, same + 1.0)
+    out["points"] = _boxes(same, same)  # zero-size boxes, all at one place
+    flat = rng.normal(size=(300, 3))
+    flat[:, 2] = 0.0
+    out["flat"] = _boxes(flat, flat + [0.1, 0.1, 0.0])  # zero thickness in z
+    lo = rng.normal(size=(5000, 3)) * 100
+    out["random5000"] = _boxes(lo, lo + rng.random((5000, 3)))
+    return out
+
+
+CASES = _cases()
+
+
+def _same(a: bvh_mesh.FlatBVH, b: bvh_mesh.FlatBVH) -> None:
+    assert a.bounds.dtype == b.bounds.dtype and a.bounds.shape == b.bounds.shape
+    assert np.array_equal(a.bounds.view(np.int32 if a.bounds.dtype == np.float32
+                                        else np.int64),
+                          b.bounds.view(np.int32 if b.bounds.dtype == np.float32
+                                        else np.int64))
+    assert np.array_equal(a.child, b.child)
+    assert np.array_equal(a.perm, b.perm)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_the_parallel_collapse_makes_the_serial_ones_rows(name, threads):
+    pb = CASES[name]
+    for packed in (False, True):
+        b, c, p, _ = bvh_build.build_flat_boxes(pb.copy(), packed=packed)
+        for dtype in (np.float32, np.float64):
+            want = bvh_mesh.flatten(b, c, p, dtype, tasks=0)
+            with _threads(threads):
+                for tasks in (1, 2, 3, 8, 64, 1000):
+                    _same(bvh_mesh.flatten(b, c, p, dtype, tasks=tasks), want)
+
+
+def test_the_tasks_are_disjoint_subtrees_below_the_root():
+    """:func:`.bvh_mesh.collapse_tasks`: about as many 4-wide roots as asked, each an inner
+    binary node, none inside another's subtree (else rows would be made twice)."""
+    b, c, p, _ = bvh_build.build_flat_boxes(CASES["random5000"].copy(), packed=False)
+    for want in (1, 4, 64, 256):
+        t = bvh_mesh.collapse_tasks(b, c, True, want)
+        assert len(t) >= min(want, 4) and np.all(np.diff(t) > 0) and np.all(t >= 0)
+        seen = set()
+        for r in t:  # the binary nodes under each task
+            stack = [int(r)]
+            while stack:
+                n = stack.pop()
+                assert n not in seen
+                seen.add(n)
+                stack.extend(int(x) for x in c[n] if x >= 0)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_large_mesh_takes_the_parallel_collapse_and_gets_the_serial_tree(threads,
+                                                                          monkeypatch):
+    m = shapes.lumpy_sphere(70_000, name="x")
+    verts = np.ascontiguousarray(m.vertices, np.float64)
+    tris = np.ascontiguousarray(m.triangles, np.int32)
+    pb = bvh_mesh.indexed_boxes(verts, tris)
+    b, c, p, _ = bvh_cluster.build_paired(verts, tris, pb,
+                                          grain=bvh_build.subtree_grain(len(tris)))
+    assert len(c) >= bvh_mesh.COLLAPSE_PARALLEL_MIN
+    want = bvh_mesh.flatten(b, c, p, np.float32, tasks=0)
+    calls = []
+    real = bvh_mesh.collapse4_parallel
+
+    def spy(*args):
+        calls.append(len(args[-1]))
+        return real(*args)
+
+    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)
+    with _threads(threads):
+        got = bvh_mesh.flatten(b, c, p, np.float32)
+        _same(got, want)
+        built = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
+    _same(built.bvh, want)
+    # two threads: the parallel collapse, in tasks; one: the serial one
+    assert (calls and min(calls) > 1) if threads == 2 else not calls

@@ -191,28 +191,6 @@ def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _count4(b2, c2, root, pad):
-    """The number of 4-wide nodes :func:`collapse4` makes of binary node ``root``'s
-    subtree (the same picks, nothing written)."""
-    todo = np.empty(_TODO_ROWS, np.int64)
-    cb = np.empty((4, 6))
-    cc = np.empty(4, np.int64)
-    cbits = cb.reshape(-1).view(np.int64)
-    todo[0] = root
-    sp = 1
-    m = 0
-    while sp > 0:
-        sp -= 1
-        m += 1
-        cnt = _lanes(b2, c2, todo[sp], cb, cc, cbits, pad)
-        for j in range(cnt):
-            if cc[j] >= 0:
-                todo[sp] = cc[j]
-                sp += 1
-    return m
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def collapse_tasks(b2, c2, pad, want):
     """The binary roots of (about) ``want`` disjoint 4-wide subtrees that, with the nodes
     above them, make :func:`collapse4`'s tree: the 4-wide nodes opened breadth first from
@@ -233,23 +211,88 @@ def collapse_tasks(b2, c2, pad, want):
     return np.sort(q[head:tail])
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _inner_count(c2, root):
+    """The number of inner binary nodes in ``root``'s subtree: at least the number of
+    4-wide nodes :func:`collapse4` makes of it (each opens one or more), read off the
+    child codes alone (8 bytes a node, not the boxes' 96)."""
+    stack = np.empty(_TODO_ROWS, np.int64)
+    stack[0] = root
+    sp = 1
+    n = 0
+    while sp > 0:
+        sp -= 1
+        bn = stack[sp]
+        n += 1
+        for j in range(2):
+            if c2[bn, j] >= 0:
+                stack[sp] = c2[bn, j]
+                sp += 1
+    return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _close_gaps(b4, c4, end, task_row, task_room, task_size):
+    """Rows ``0..end`` of a collapse whose task ``t`` had ``task_room[t]`` rows from
+    ``task_row[t]`` and used ``task_size[t]``: the unused rows dropped in place (rows move
+    down, in order, so none is overwritten before it is read), every inner child code
+    moved with the row it names. Returns the number of rows left: :func:`collapse4`'s
+    rows, numbered as it numbers them (the depth-first order, less the gaps)."""
+    order = np.argsort(task_row)
+    n = len(order)
+    ends = np.empty(n, np.int64)  # each task's room's end, in row order ...
+    gone = np.zeros(n + 1, np.int64)  # ... and the unused rows before it, with it
+    for i in range(n):
+        t = order[i]
+        ends[i] = task_row[t] + task_room[t]
+        gone[i + 1] = gone[i] + task_room[t] - task_size[t]
+    row = 0
+    for i in range(n + 1):
+        top_end = task_row[order[i]] if i < n else end
+        shift = gone[i]
+        for r in range(row, top_end):  # nodes above the tasks: children anywhere
+            for j in range(4):
+                c = c4[r, j]
+                if c >= 0:
+                    c -= gone[np.searchsorted(ends, c, side="right")]
+                c4[r - shift, j] = c
+            if shift:
+                for q in range(24):
+                    b4[r - shift, q] = b4[r, q]
+        if i == n:
+            break
+        t = order[i]
+        if shift:  # a task's nodes: children in the task
+            for r in range(task_row[t], task_row[t] + task_size[t]):
+                for j in range(4):
+                    c = c4[r, j]
+                    c4[r - shift, j] = c - shift if c >= 0 else c
+                for q in range(24):
+                    b4[r - shift, q] = b4[r, q]
+        row = ends[i]
+    return end - gone[n]
+
+
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def collapse4_parallel(b2, c2, b4, pad, task_bn):
-    """:func:`collapse4` on all threads, the same rows: the subtrees under ``task_bn``
-    (:func:`collapse_tasks`) are counted (:func:`_count4`), the nodes above them made on
-    one thread with each subtree's rows reserved in :func:`collapse4`'s numbering, then
-    the subtrees made, one task each (run under ``numba.parallel_chunksize(1)``: they
-    differ in size)."""
+    """:func:`collapse4` on all threads, the same rows: the nodes above the subtrees under
+    ``task_bn`` (:func:`collapse_tasks`) are made on one thread, each subtree given room
+    for as many rows as it has inner binary nodes (:func:`_inner_count`, counted in
+    parallel); the subtrees are then made, one task each (run under
+    ``numba.parallel_chunksize(1)``: they differ in size), and the unused rows dropped
+    (:func:`_close_gaps`, one thread)."""
     n = len(task_bn)
-    size = np.empty(n, np.int64)
+    room = np.empty(n, np.int64)
     for t in prange(n):
-        size[t] = _count4(b2, c2, task_bn[t], pad)
+        room[t] = _inner_count(c2, task_bn[t])
     c4 = np.empty((c2.shape[0], 4), np.int32)
     row = np.empty(n, np.int64)
-    m = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, size, row)
+    end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row)
+    size = np.empty(n, np.int64)
     no = np.empty(0, np.int64)
     for t in prange(n):
-        _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no)
+        size[t] = _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no) - row[t]
+    m = _close_gaps(b4, c4, end, row, room, size)
     return b4, c4, m
 
 

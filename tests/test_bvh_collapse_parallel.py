@@ -50,14 +50,41 @@ def _cases():
 CASES = _cases()
 
 
+def _walk(f: bvh_mesh.FlatBVH) -> tuple[np.ndarray, np.ndarray]:
+    """The tree as a walk from the root reads it (depth first, lanes in order): each
+    reached node's bounds' bits and child codes, inner ones as the walk's numbering."""
+    order, stack = [], [0]
+    while stack:
+        r = stack.pop()
+        order.append(r)
+        stack.extend(int(c) for c in f.child[r][::-1] if c >= 0)
+    order = np.asarray(order, np.int64)
+    at = np.full(len(f.child), -1, np.int64)
+    at[order] = np.arange(len(order))
+    child = f.child[order].astype(np.int64)
+    child[child >= 0] = at[child[child >= 0]]
+    bits = f.bounds.view(np.int32 if f.bounds.dtype == np.float32 else np.int64)
+    return bits[order], child
+
+
 def _same(a: bvh_mesh.FlatBVH, b: bvh_mesh.FlatBVH) -> None:
-    assert a.bounds.dtype == b.bounds.dtype and a.bounds.shape == b.bounds.shape
-    assert np.array_equal(a.bounds.view(np.int32 if a.bounds.dtype == np.float32
-                                        else np.int64),
-                          b.bounds.view(np.int32 if b.bounds.dtype == np.float32
-                                        else np.int64))
-    assert np.array_equal(a.child, b.child)
+    """The same tree: the same boxes (bit for bit), lanes and leaves, walked from the
+    root (rows may differ: the parallel collapse leaves unreached rows)."""
+    assert a.bounds.dtype == b.bounds.dtype
+    (ba, ca), (bb, cb) = _walk(a), _walk(b)
+    assert np.array_equal(ba, bb) and np.array_equal(ca, cb)
     assert np.array_equal(a.perm, b.perm)
+    for f in (a, b):  # rows no child reaches: empty nodes
+        unreached = np.ones(len(f.child), bool)
+        unreached[_reached(f.child)] = False
+        assert np.all(f.child[unreached] == -1)
+        assert np.all(f.bounds[unreached][:, :12] == np.inf)
+        assert np.all(f.bounds[unreached][:, 12:] == -np.inf)
+
+
+def _reached(child: np.ndarray) -> np.ndarray:
+    inner = child[child >= 0]
+    return np.concatenate([[0], inner]).astype(np.int64)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -116,3 +143,48 @@ def test_a_large_mesh_takes_the_parallel_collapse_and_gets_the_serial_tree(threa
     _same(built.bvh, want)
     # two threads: the parallel collapse, in tasks; one: the serial one
     assert (calls and min(calls) > 1) if threads == 2 else not calls
+
+
+def _complete_tree(depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A complete binary tree of ``depth`` inner levels over one-box leaves (numbered
+    breadth first, left to right): the 4-wide nodes open two levels at a time, those of
+    an odd depth's last level one binary node each: 1.5 inner binary nodes a 4-wide node,
+    far fewer than a mesh's tree has (about 2)."""
+    n = (1 << depth) - 1
+    leaf_lo = np.zeros((n + 1, 3))  # unit boxes in a row: a node's area halves a level
+    leaf_lo[:, 0] = np.arange(n + 1)
+    leaf_hi = leaf_lo + 1.0
+    child = np.empty((n, 2), np.int32)
+    b2 = np.empty((n, 12))
+    lo = np.empty((2 * n + 1, 3))
+    hi = np.empty((2 * n + 1, 3))
+    for i in range(n, 2 * n + 1):  # heap numbering: node i's children 2i+1, 2i+2
+        lo[i], hi[i] = leaf_lo[i - n], leaf_hi[i - n]
+    for i in range(n - 1, -1, -1):
+        for j, c in enumerate((2 * i + 1, 2 * i + 2)):
+            child[i, j] = c if c < n else ~((c - n) << 3 | 1)
+            b2[i, 6 * j:6 * j + 3], b2[i, 6 * j + 3:6 * j + 6] = lo[c], hi[c]
+        lo[i], hi[i] = np.minimum(lo[2 * i + 1], lo[2 * i + 2]), np.maximum(
+            hi[2 * i + 1], hi[2 * i + 2])
+    return b2, child, np.arange(n + 1, dtype=np.int32)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_subtree_past_its_room_falls_back_to_the_serial_collapse(threads):
+    """A tree the rooms (:func:`.bvh_mesh._room`: a mesh's ratio) are too small for: the
+    parallel collapse says so (``M = -1``) and ``flatten`` makes the serial tree."""
+    b2, c2, perm = _complete_tree(11)
+    want = bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0)
+    with _threads(threads):
+        tb = bvh_mesh.collapse_tasks(b2, c2, True, 8)
+        *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32),
+                                            True, tb)
+        assert m == -1
+        _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8), want)
+    # depth 10 (the last level even: three binary nodes a 4-wide one) fits
+    b2, c2, perm = _complete_tree(10)
+    *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32), True,
+                                        bvh_mesh.collapse_tasks(b2, c2, True, 8))
+    assert m > 0
+    _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8),
+          bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0))

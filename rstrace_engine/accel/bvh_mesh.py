@@ -150,16 +150,17 @@ def collapse4(b2, c2, b4, pad):
     """
     c4 = np.empty((c2.shape[0], 4), np.int32)
     no = np.empty(0, np.int64)
-    m = _collapse_from(b2, c2, b4, c4, 0, 0, pad, no, no, no)
+    m = _collapse_from(b2, c2, b4, c4, 0, 0, pad, no, no, no, c2.shape[0] + 1)
     return b4, c4, m
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row):
+def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row, limit):
     """:func:`collapse4`'s depth-first walk from binary node ``root``, numbered from row
-    ``k0``; returns the row after the last. A binary node listed in ``task_bn`` (sorted)
-    is not opened: its subtree's ``task_size`` rows are reserved (from ``task_row``, set
-    here) and its parent's lane points at them, for :func:`collapse4_parallel`'s threads."""
+    ``k0``; returns the row after the last, or -1 (rows written up to ``limit`` only)
+    when it would need row ``limit``. A binary node listed in ``task_bn`` (sorted) is not
+    opened: ``task_size`` rows are reserved for its subtree (from ``task_row``, set here)
+    and its parent's lane points at them, for :func:`collapse4_parallel`'s threads."""
     todo = np.empty((_TODO_ROWS, 3), np.int64)  # binary node, parent, lane
     bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
     cb = np.empty((4, 6))
@@ -172,6 +173,8 @@ def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row):
         sp -= 1
         bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
         k = m
+        if k >= limit:
+            return -1
         if parent >= 0:
             c4[parent, lane] = k
         if len(task_bn):
@@ -231,69 +234,45 @@ def _inner_count(c2, root):
     return n
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _close_gaps(b4, c4, end, task_row, task_room, task_size):
-    """Rows ``0..end`` of a collapse whose task ``t`` had ``task_room[t]`` rows from
-    ``task_row[t]`` and used ``task_size[t]``: the unused rows dropped in place (rows move
-    down, in order, so none is overwritten before it is read), every inner child code
-    moved with the row it names. Returns the number of rows left: :func:`collapse4`'s
-    rows, numbered as it numbers them (the depth-first order, less the gaps)."""
-    order = np.argsort(task_row)
-    n = len(order)
-    ends = np.empty(n, np.int64)  # each task's room's end, in row order ...
-    gone = np.zeros(n + 1, np.int64)  # ... and the unused rows before it, with it
-    for i in range(n):
-        t = order[i]
-        ends[i] = task_row[t] + task_room[t]
-        gone[i + 1] = gone[i] + task_room[t] - task_size[t]
-    row = 0
-    for i in range(n + 1):
-        top_end = task_row[order[i]] if i < n else end
-        shift = gone[i]
-        for r in range(row, top_end):  # nodes above the tasks: children anywhere
-            for j in range(4):
-                c = c4[r, j]
-                if c >= 0:
-                    c -= gone[np.searchsorted(ends, c, side="right")]
-                c4[r - shift, j] = c
-            if shift:
-                for q in range(24):
-                    b4[r - shift, q] = b4[r, q]
-        if i == n:
-            break
-        t = order[i]
-        if shift:  # a task's nodes: children in the task
-            for r in range(task_row[t], task_row[t] + task_size[t]):
-                for j in range(4):
-                    c = c4[r, j]
-                    c4[r - shift, j] = c - shift if c >= 0 else c
-                for q in range(24):
-                    b4[r - shift, q] = b4[r, q]
-        row = ends[i]
-    return end - gone[n]
-
-
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def collapse4_parallel(b2, c2, b4, pad, task_bn):
-    """:func:`collapse4` on all threads, the same rows: the nodes above the subtrees under
-    ``task_bn`` (:func:`collapse_tasks`) are made on one thread, each subtree given room
-    for as many rows as it has inner binary nodes (:func:`_inner_count`, counted in
-    parallel); the subtrees are then made, one task each (run under
-    ``numba.parallel_chunksize(1)``: they differ in size), and the unused rows dropped
-    (:func:`_close_gaps`, one thread)."""
+    """:func:`collapse4` on all threads: the nodes above the subtrees under ``task_bn``
+    (:func:`collapse_tasks`) are made on one thread, each subtree given :func:`_room`
+    rows; then the subtrees, one task each (run under ``numba.parallel_chunksize(1)``:
+    they differ in size). The same tree (boxes, lanes, leaves) numbered as
+    :func:`collapse4` numbers it, but for the room each subtree left unused: rows no
+    child reaches, each an empty node (inverted boxes, empty leaves; written, so that
+    the arrays are the same bytes on every run). Returns ``M = -1`` when a subtree did
+    not fit its room (then nothing made is of use: :func:`flatten` runs
+    :func:`collapse4`)."""
     n = len(task_bn)
     room = np.empty(n, np.int64)
     for t in prange(n):
-        room[t] = _inner_count(c2, task_bn[t])
+        room[t] = _room(_inner_count(c2, task_bn[t]))
     c4 = np.empty((c2.shape[0], 4), np.int32)
     row = np.empty(n, np.int64)
-    end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row)
-    size = np.empty(n, np.int64)
+    end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row, c2.shape[0] + 1)
+    fits = np.empty(n, np.bool_)
     no = np.empty(0, np.int64)
     for t in prange(n):
-        size[t] = _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no) - row[t]
-    m = _close_gaps(b4, c4, end, row, room, size)
-    return b4, c4, m
+        stop = row[t] + room[t]
+        got = _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no, stop)
+        fits[t] = got >= 0
+        for k in range(got if got >= 0 else stop, stop):
+            for j in range(4):
+                for q in range(3):
+                    b4[k, 4 * q + j] = np.inf
+                    b4[k, 12 + 4 * q + j] = -np.inf
+                c4[k, j] = -1
+    return b4, c4, end if fits.all() else -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _room(inner):
+    """Rows given to a subtree of ``inner`` inner binary nodes: each 4-wide node opens one
+    to three of them, about two in a mesh's tree (2.01 at 4M triangles, session 40), so
+    a little over half, and never more than ``inner`` (which always fits)."""
+    return min(inner, inner // 2 + inner // 16 + 16)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -370,7 +349,8 @@ def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
     the binary arrays (a few times the rows used): the scene's concatenation
     (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree.
 
-    The collapse runs on all threads (:func:`collapse4_parallel`, the same rows) for a
+    The collapse runs on all threads (:func:`collapse4_parallel`: the same tree, with a few
+    rows no child reaches) for a
     tree of :data:`COLLAPSE_PARALLEL_MIN` binary nodes or more when numba has more than
     one; ``tasks`` (tests) sets the number of its subtrees instead (0: one thread)."""
     b4 = np.empty((len(child), 24), dtype)
@@ -383,6 +363,8 @@ def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
         task_bn = collapse_tasks(b64, child, True, tasks)
         with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take turns)
             b4, c4, m = collapse4_parallel(b64, child, b4, True, task_bn)
+        if m < 0:  # a subtree outgrew its room (none in the meshes measured)
+            b4, c4, m = collapse4(b64, child, b4, True)
     return FlatBVH(b4[:m], c4[:m], perm)
 
 

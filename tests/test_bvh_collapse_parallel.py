@@ -105,7 +105,8 @@ def test_the_tasks_are_disjoint_subtrees_below_the_root():
     binary node, none inside another's subtree (else rows would be made twice)."""
     b, c, p, _ = bvh_build.build_flat_boxes(CASES["random5000"].copy(), packed=False)
     for want in (1, 4, 64, 256):
-        t = bvh_mesh.collapse_tasks(b, c, True, want)
+        t, n_top = bvh_mesh.collapse_tasks(b, c, True, want)
+        assert n_top >= (0 if want == 1 else 1)
         assert len(t) >= min(want, 4) and np.all(np.diff(t) > 0) and np.all(t >= 0)
         seen = set()
         for r in t:  # the binary nodes under each task
@@ -132,7 +133,7 @@ def test_a_large_mesh_takes_the_parallel_collapse_and_gets_the_serial_tree(threa
     real = bvh_mesh.collapse4_parallel
 
     def spy(*args):
-        calls.append(len(args[-1]))
+        calls.append(len(args[-2]))
         return real(*args)
 
     monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)
@@ -176,15 +177,14 @@ def test_a_subtree_past_its_room_falls_back_to_the_serial_collapse(threads):
     b2, c2, perm = _complete_tree(11)
     want = bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0)
     with _threads(threads):
-        tb = bvh_mesh.collapse_tasks(b2, c2, True, 8)
         *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32),
-                                            True, tb)
+                                            True, *bvh_mesh.collapse_tasks(b2, c2, True, 8))
         assert m == -1
         _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8), want)
     # depth 10 (the last level even: three binary nodes a 4-wide one) fits
     b2, c2, perm = _complete_tree(10)
     *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32), True,
-                                        bvh_mesh.collapse_tasks(b2, c2, True, 8))
+                                        *bvh_mesh.collapse_tasks(b2, c2, True, 8))
     assert m > 0
     _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8),
           bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0))

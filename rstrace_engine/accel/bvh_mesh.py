@@ -155,12 +155,14 @@ def collapse4(b2, c2, b4, pad):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row, limit):
+def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row, limit,
+                   task_k0=0):
     """:func:`collapse4`'s depth-first walk from binary node ``root``, numbered from row
     ``k0``; returns the row after the last, or -1 (rows written up to ``limit`` only)
     when it would need row ``limit``. A binary node listed in ``task_bn`` (sorted) is not
-    opened: ``task_size`` rows are reserved for its subtree (from ``task_row``, set here)
-    and its parent's lane points at them, for :func:`collapse4_parallel`'s threads."""
+    opened: ``task_size`` rows are reserved for its subtree, in turn from row ``task_k0``
+    (``task_row``, set here; the row after the last reserved is then returned), and its
+    parent's lane points at them, for :func:`collapse4_parallel`'s threads."""
     todo = np.empty((_TODO_ROWS, 3), np.int64)  # binary node, parent, lane
     bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
     cb = np.empty((4, 6))
@@ -169,20 +171,23 @@ def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row, 
     todo[0, 0], todo[0, 1], todo[0, 2] = root, -1, 0
     sp = 1
     m = k0
+    mt = task_k0
     while sp > 0:
         sp -= 1
         bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
+        if len(task_bn):
+            t = np.searchsorted(task_bn, bn)
+            if t < len(task_bn) and task_bn[t] == bn:
+                task_row[t] = mt
+                if parent >= 0:
+                    c4[parent, lane] = mt
+                mt += task_size[t]
+                continue
         k = m
         if k >= limit:
             return -1
         if parent >= 0:
             c4[parent, lane] = k
-        if len(task_bn):
-            t = np.searchsorted(task_bn, bn)
-            if t < len(task_bn) and task_bn[t] == bn:
-                task_row[t] = k
-                m += task_size[t]
-                continue
         m += 1
         cnt = _lanes(b2, c2, bn, cb, cc, cbits, pad)
         _put_node(b4, bits, c4, k, cb, cc, cnt)
@@ -190,14 +195,15 @@ def _collapse_from(b2, c2, b4, c4, root, k0, pad, task_bn, task_size, task_row, 
             if cc[j] >= 0:
                 todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
                 sp += 1
-    return m
+    return mt if len(task_bn) else m
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def collapse_tasks(b2, c2, pad, want):
     """The binary roots of (about) ``want`` disjoint 4-wide subtrees that, with the nodes
     above them, make :func:`collapse4`'s tree: the 4-wide nodes opened breadth first from
-    the root until ``want`` are pending (sorted; fewer when the tree has fewer)."""
+    the root until ``want`` are pending (sorted; fewer when the tree has fewer), and the
+    number of nodes above them."""
     q = np.empty(8 * want + 8, np.int64)
     cb = np.empty((4, 6))
     cc = np.empty(4, np.int64)
@@ -211,7 +217,7 @@ def collapse_tasks(b2, c2, pad, want):
             if cc[j] >= 0:
                 q[tail] = cc[j]
                 tail += 1
-    return np.sort(q[head:tail])
+    return np.sort(q[head:tail]), head
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -235,14 +241,15 @@ def _inner_count(c2, root):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def collapse4_parallel(b2, c2, b4, pad, task_bn):
-    """:func:`collapse4` on all threads: the nodes above the subtrees under ``task_bn``
-    (:func:`collapse_tasks`) are made on one thread, each subtree given :func:`_room`
-    rows; then the subtrees, one task each (run under ``numba.parallel_chunksize(1)``:
-    they differ in size). The same tree (boxes, lanes, leaves) numbered as
-    :func:`collapse4` numbers it, but for the room each subtree left unused: rows no
-    child reaches, each an empty node (inverted boxes, empty leaves; written, so that
-    the arrays are the same bytes on every run). Returns ``M = -1`` when a subtree did
+def collapse4_parallel(b2, c2, b4, pad, task_bn, n_top):
+    """:func:`collapse4` on all threads: the ``n_top`` nodes above the subtrees under
+    ``task_bn`` (:func:`collapse_tasks`) are made on one thread (rows 0 to ``n_top``: a
+    few pages), each subtree given :func:`_room` rows after them; then the subtrees, one
+    task each (run under ``numba.parallel_chunksize(1)``: they differ in size). The same
+    tree (boxes, lanes, leaves), in other rows: the nodes above the subtrees first, each
+    subtree's in :func:`collapse4`'s order, then the room it left unused: rows no child
+    reaches, each an empty node (inverted boxes, empty leaves; written, so that the
+    arrays are the same bytes on every run). Returns ``M = -1`` when a subtree did
     not fit its room (then nothing made is of use: :func:`flatten` runs
     :func:`collapse4`)."""
     n = len(task_bn)
@@ -251,7 +258,9 @@ def collapse4_parallel(b2, c2, b4, pad, task_bn):
         room[t] = _room(_inner_count(c2, task_bn[t]))
     c4 = np.empty((c2.shape[0], 4), np.int32)
     row = np.empty(n, np.int64)
-    end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row, c2.shape[0] + 1)
+    end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row, n_top, n_top)
+    if end < 0:  # (not collapse_tasks' n_top)
+        return b4, c4, -1
     fits = np.empty(n, np.bool_)
     no = np.empty(0, np.int64)
     for t in prange(n):
@@ -272,7 +281,7 @@ def _room(inner):
     """Rows given to a subtree of ``inner`` inner binary nodes: each 4-wide node opens one
     to three of them, about two in a mesh's tree (2.01 at 4M triangles, session 40), so
     a little over half, and never more than ``inner`` (which always fits)."""
-    return min(inner, inner // 2 + inner // 16 + 16)
+    return min(inner, inner // 2 + inner // 8 + 16)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -360,9 +369,9 @@ def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
     if tasks <= 0:
         b4, c4, m = collapse4(b64, child, b4, True)
     else:
-        task_bn = collapse_tasks(b64, child, True, tasks)
+        task_bn, n_top = collapse_tasks(b64, child, True, tasks)
         with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take turns)
-            b4, c4, m = collapse4_parallel(b64, child, b4, True, task_bn)
+            b4, c4, m = collapse4_parallel(b64, child, b4, True, task_bn, n_top)
         if m < 0:  # a subtree outgrew its room (none in the meshes measured)
             b4, c4, m = collapse4(b64, child, b4, True)
     return FlatBVH(b4[:m], c4[:m], perm)

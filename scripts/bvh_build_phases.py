@@ -19,8 +19,8 @@ timed build is an F12's (kernels loaded, fresh memory; session 38). Each
 line also gives the tree's SAH and 4-wide node count, so a change of tree shows. Nothing
 is asserted; the numbers go to ``docs/bench-scale-bpy.md``.
 
-Each phase also gets its wall (session 40), its system CPU and minor page faults (``getrusage``: first touches
-of fresh memory; session 39).
+Each phase also gets its wall (session 40), its system CPU and minor page faults
+(``getrusage``: first touches of fresh memory; session 39).
 
 Threads: each phase also gets the CPU of its busiest thread (``busiest``, from
 ``/proc/self/task/*/schedstat``): on an idle machine the phase's wall is about that, so the

@@ -170,21 +170,38 @@ def _complete_tree(depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return b2, child, np.arange(n + 1, dtype=np.int32)
 
 
+def _two_trees(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A root over :func:`_complete_tree` ``a`` (left) and ``b`` (right, its leaves
+    further along x)."""
+    (b2a, ca, _), (b2b, cb, _) = _complete_tree(a), _complete_tree(b)
+    na, nb = len(ca), len(cb)
+    b2b = b2b.copy()
+    b2b[:, [0, 3, 6, 9]] += na + 1
+    shift = lambda c, rows, leaves: np.where(c >= 0, c + rows, ~((~c) + (leaves << 3)))  # noqa: E731
+    child = np.concatenate([[[1, 1 + na]], shift(ca, 1, 0), shift(cb, 1 + na, na + 1)])
+    root = np.concatenate([b2a[0, :3].clip(max=b2a[0, 6:9]), b2a[0, 9:12]]), \
+        np.concatenate([b2b[0, :3].clip(max=b2b[0, 6:9]), b2b[0, 9:12]])
+    b2 = np.concatenate([[np.concatenate(root)], b2a, b2b])
+    return b2, child.astype(np.int32), np.arange(na + nb + 2, dtype=np.int32)
+
+
 @pytest.mark.parametrize("threads", [1, 2])
-def test_a_subtree_past_its_room_falls_back_to_the_serial_collapse(threads):
-    """A tree the rooms (:func:`.bvh_mesh._room`: a mesh's ratio) are too small for: the
-    parallel collapse says so (``M = -1``) and ``flatten`` makes the serial tree."""
-    b2, c2, perm = _complete_tree(11)
-    want = bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0)
-    with _threads(threads):
-        *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32),
-                                            True, *bvh_mesh.collapse_tasks(b2, c2, True, 8))
-        assert m == -1
-        _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8), want)
-    # depth 10 (the last level even: three binary nodes a 4-wide one) fits
-    b2, c2, perm = _complete_tree(10)
-    *_, m = bvh_mesh.collapse4_parallel(b2, c2, np.empty((len(c2), 24), np.float32), True,
-                                        *bvh_mesh.collapse_tasks(b2, c2, True, 8))
-    assert m > 0
-    _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=8),
-          bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0))
+def test_a_subtree_past_its_room_is_made_again_after_the_others(threads):
+    """Subtrees the first rooms (:func:`.bvh_mesh._room`: a mesh's ratio) are too small
+    for (complete trees of odd depth: 1.5 binary nodes a 4-wide one) are made again in
+    rooms after the others'; the tree is the serial one. Where even that would not fit
+    (every subtree past its room), the serial collapse makes it."""
+    for b2, c2, perm, want_tasks, redone in (_two_trees(8, 9) + (4, True),
+                                             _complete_tree(11) + (8, False)):
+        want = bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0)
+        with _threads(threads):
+            tb, n_top = bvh_mesh.collapse_tasks(b2, c2, True, want_tasks)
+            room = np.array([bvh_mesh._room(bvh_mesh._inner_count(c2, t)) for t in tb])
+            fits = bvh_mesh._subtrees(b2, c2, np.empty((len(c2), 24), np.float32),
+                                      np.empty((len(c2), 4), np.int32), True, tb,
+                                      np.zeros(len(tb), np.int64), room) >= 0
+            assert not fits.all()
+            *_, m = bvh_mesh.collapse4_parallel(
+                b2, c2, np.empty((len(c2), 24), np.float32), True, tb, n_top)
+            assert (m > 0) if redone else (m == -1)
+            _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=want_tasks), want)

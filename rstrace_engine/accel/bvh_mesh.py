@@ -245,43 +245,72 @@ def collapse4_parallel(b2, c2, b4, pad, task_bn, n_top):
     """:func:`collapse4` on all threads: the ``n_top`` nodes above the subtrees under
     ``task_bn`` (:func:`collapse_tasks`) are made on one thread (rows 0 to ``n_top``: a
     few pages), each subtree given :func:`_room` rows after them; then the subtrees, one
-    task each (run under ``numba.parallel_chunksize(1)``: they differ in size). The same
-    tree (boxes, lanes, leaves), in other rows: the nodes above the subtrees first, each
-    subtree's in :func:`collapse4`'s order, then the room it left unused: rows no child
-    reaches, each an empty node (inverted boxes, empty leaves; written, so that the
-    arrays are the same bytes on every run). Returns ``M = -1`` when a subtree did
-    not fit its room (then nothing made is of use: :func:`flatten` runs
-    :func:`collapse4`)."""
+    task each (run under ``numba.parallel_chunksize(1)``: they differ in size). A
+    subtree that outgrew its room is made again after the others' rooms, in a room as
+    large as its inner binary nodes (always enough), again in parallel. The same tree
+    (boxes, lanes, leaves), in other rows: the nodes above the subtrees first, each
+    subtree's in :func:`collapse4`'s order; the rooms' unused rows no child reaches,
+    each an empty node (inverted boxes, empty leaves; written, so that the arrays are
+    the same bytes on every run). Returns ``M = -1`` when the rows would not fit ``b4``
+    (then nothing made is of use: :func:`flatten` runs :func:`collapse4`)."""
     n = len(task_bn)
+    inner = np.empty(n, np.int64)
     room = np.empty(n, np.int64)
     for t in prange(n):
-        room[t] = _room(_inner_count(c2, task_bn[t]))
+        inner[t] = _inner_count(c2, task_bn[t])
+        # (the root's subtree has no parent row to point at a second room)
+        room[t] = _room(inner[t]) if n_top > 0 else inner[t]
     c4 = np.empty((c2.shape[0], 4), np.int32)
     row = np.empty(n, np.int64)
     end = _collapse_from(b2, c2, b4, c4, 0, 0, pad, task_bn, room, row, n_top, n_top)
     if end < 0:  # (not collapse_tasks' n_top)
         return b4, c4, -1
-    fits = np.empty(n, np.bool_)
+    got = _subtrees(b2, c2, b4, c4, pad, task_bn, row, room)
+    redo = np.flatnonzero(got < 0)
+    if len(redo) == 0:
+        return b4, c4, end
+    row2 = np.empty(len(redo), np.int64)
+    for i in range(len(redo)):  # a second room each, after the others', and its parent
+        t = redo[i]  # lane pointed at it
+        row2[i] = end
+        end += inner[t]
+        for k in range(n_top):
+            for j in range(4):
+                if c4[k, j] == row[t]:
+                    c4[k, j] = end - inner[t]
+    if end > c4.shape[0]:
+        return b4, c4, -1
+    _subtrees(b2, c2, b4, c4, pad, task_bn[redo], row2, inner[redo])
+    return b4, c4, end
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _subtrees(b2, c2, b4, c4, pad, task_bn, row, room):
+    """:func:`collapse4_parallel`'s subtrees, each in its room (from ``row``), its unused
+    rows (all of them when it did not fit) made empty nodes; the rows after each made,
+    -1 where it did not fit."""
+    n = len(task_bn)
+    got = np.empty(n, np.int64)
     no = np.empty(0, np.int64)
     for t in prange(n):
         stop = row[t] + room[t]
-        got = _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no, stop)
-        fits[t] = got >= 0
-        for k in range(got if got >= 0 else stop, stop):
+        got[t] = _collapse_from(b2, c2, b4, c4, task_bn[t], row[t], pad, no, no, no, stop)
+        for k in range(got[t] if got[t] >= 0 else row[t], stop):
             for j in range(4):
                 for q in range(3):
                     b4[k, 4 * q + j] = np.inf
                     b4[k, 12 + 4 * q + j] = -np.inf
                 c4[k, j] = -1
-    return b4, c4, end if fits.all() else -1
+    return got
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _room(inner):
-    """Rows given to a subtree of ``inner`` inner binary nodes: each 4-wide node opens one
-    to three of them, about two in a mesh's tree (2.01 at 4M triangles, session 40), so
-    a little over half, and never more than ``inner`` (which always fits)."""
-    return min(inner, inner // 2 + inner // 8 + 16)
+    """Rows first given to a subtree of ``inner`` inner binary nodes: each 4-wide node
+    opens one to three of them, about two in a mesh's tree (4M triangles, session 40:
+    2.02 in the median subtree, 1.76 to 2.26), so a little over half (the few subtrees
+    past it are made again: :func:`collapse4_parallel`)."""
+    return min(inner, inner // 2 + inner // 32 + 16)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")

@@ -308,9 +308,9 @@ def _subtrees(b2, c2, b4, c4, pad, task_bn, row, room):
 def _room(inner):
     """Rows first given to a subtree of ``inner`` inner binary nodes: each 4-wide node
     opens one to three of them, about two in a mesh's tree (4M triangles, session 40:
-    2.02 in the median subtree, 1.76 to 2.26), so a little over half (the few subtrees
+    2.02 in the median subtree, 1.76 to 2.26), so 0.56 of them (the few subtrees
     past it are made again: :func:`collapse4_parallel`)."""
-    return min(inner, inner // 2 + inner // 32 + 16)
+    return min(inner, inner // 2 + inner // 16 + 16)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")

@@ -1,8 +1,9 @@
-"""The 4-wide collapse on every thread (session 40, issue 26): :func:`.bvh_mesh.collapse4_parallel`
-makes :func:`.bvh_mesh.collapse4`'s tree row for row (the same boxes, bit for bit, the same
-child codes, the same numbering), whatever the split into subtrees and the thread count,
-on tiny, degenerate and large trees. Fails on main (no ``collapse4_parallel``, ``flatten``
-took no ``tasks``)."""
+"""The 4-wide collapse on every thread (session 40, issue 26):
+:func:`.bvh_collapse.collapse4_parallel` makes :func:`.bvh_mesh.collapse4`'s tree (the same
+boxes bit for bit, lanes and leaves, walked from the root; other rows, the unused ones
+empty nodes), whatever the split into subtrees and the thread count, on tiny, degenerate
+and large trees, and on trees whose subtrees outgrow their rooms. Fails on main (no
+``bvh_collapse``, ``flatten`` took no ``tasks``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numba
 import numpy as np
 import pytest
 
-from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_mesh
+from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_collapse, bvh_mesh
 from rstrace_engine.geometry import shapes
 
 
@@ -89,7 +90,7 @@ def _reached(child: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_the_parallel_collapse_makes_the_serial_ones_rows(name, threads):
+def test_the_parallel_collapse_makes_the_serial_ones_tree(name, threads):
     pb = CASES[name]
     for packed in (False, True):
         b, c, p, _ = bvh_build.build_flat_boxes(pb.copy(), packed=packed)
@@ -101,11 +102,11 @@ def test_the_parallel_collapse_makes_the_serial_ones_rows(name, threads):
 
 
 def test_the_tasks_are_disjoint_subtrees_below_the_root():
-    """:func:`.bvh_mesh.collapse_tasks`: about as many 4-wide roots as asked, each an inner
+    """:func:`.bvh_collapse.collapse_tasks`: about as many 4-wide roots as asked, each an inner
     binary node, none inside another's subtree (else rows would be made twice)."""
     b, c, p, _ = bvh_build.build_flat_boxes(CASES["random5000"].copy(), packed=False)
     for want in (1, 4, 64, 256):
-        t, n_top = bvh_mesh.collapse_tasks(b, c, True, want)
+        t, n_top = bvh_collapse.collapse_tasks(b, c, True, want)
         assert n_top >= (0 if want == 1 else 1)
         assert len(t) >= min(want, 4) and np.all(np.diff(t) > 0) and np.all(t >= 0)
         seen = set()
@@ -127,16 +128,16 @@ def test_a_large_mesh_takes_the_parallel_collapse_and_gets_the_serial_tree(threa
     pb = bvh_mesh.indexed_boxes(verts, tris)
     b, c, p, _ = bvh_cluster.build_paired(verts, tris, pb,
                                           grain=bvh_build.subtree_grain(len(tris)))
-    assert len(c) >= bvh_mesh.COLLAPSE_PARALLEL_MIN
+    assert len(c) >= bvh_collapse.COLLAPSE_PARALLEL_MIN
     want = bvh_mesh.flatten(b, c, p, np.float32, tasks=0)
     calls = []
-    real = bvh_mesh.collapse4_parallel
+    real = bvh_collapse.collapse4_parallel
 
     def spy(*args):
         calls.append(len(args[-2]))
         return real(*args)
 
-    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)
+    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)  # (flatten calls it)
     with _threads(threads):
         got = bvh_mesh.flatten(b, c, p, np.float32)
         _same(got, want)
@@ -187,21 +188,21 @@ def _two_trees(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_a_subtree_past_its_room_is_made_again_after_the_others(threads):
-    """Subtrees the first rooms (:func:`.bvh_mesh._room`: a mesh's ratio) are too small
+    """Subtrees the first rooms (:func:`.bvh_collapse._room`: a mesh's ratio) are too small
     for (complete trees of odd depth: 1.5 binary nodes a 4-wide one) are made again in
     rooms after the others'; the tree is the serial one. Where even that would not fit
     (every subtree past its room), the serial collapse makes it."""
-    for b2, c2, perm, want_tasks, redone in (_two_trees(8, 9) + (4, True),
+    for b2, c2, perm, want_tasks, redone in (_two_trees(10, 9) + (8, True),
                                              _complete_tree(11) + (8, False)):
         want = bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=0)
         with _threads(threads):
-            tb, n_top = bvh_mesh.collapse_tasks(b2, c2, True, want_tasks)
-            room = np.array([bvh_mesh._room(bvh_mesh._inner_count(c2, t)) for t in tb])
-            fits = bvh_mesh._subtrees(b2, c2, np.empty((len(c2), 24), np.float32),
+            tb, n_top = bvh_collapse.collapse_tasks(b2, c2, True, want_tasks)
+            room = np.array([bvh_collapse._room(bvh_collapse._inner_count(c2, t)) for t in tb])
+            fits = bvh_collapse._subtrees(b2, c2, np.empty((len(c2), 24), np.float32),
                                       np.empty((len(c2), 4), np.int32), True, tb,
                                       np.zeros(len(tb), np.int64), room) >= 0
             assert not fits.all()
-            *_, m = bvh_mesh.collapse4_parallel(
+            *_, m = bvh_collapse.collapse4_parallel(
                 b2, c2, np.empty((len(c2), 24), np.float32), True, tb, n_top)
             assert (m > 0) if redone else (m == -1)
             _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=want_tasks), want)

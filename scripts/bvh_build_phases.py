@@ -10,7 +10,8 @@ checkout (``--roots``, default main's worktree and this script's; the order flip
 round: A B, B A, ...), which times ``bvh_mesh.build_mesh_bvh_indexed`` ``--repeats``
 times with each phase wrapped (process CPU seconds, all threads; ``NUMBA_NUM_THREADS``
 ``--threads``): the triangle boxes, the items (quads), the top levels, the subtrees, the
-item leaves, the items opened, the collapse to 4-wide, and the rest. The first build of a
+item leaves, the items opened, the collapse to 4-wide (``flatten``: on every thread
+from session 40), and the rest. The first build of a
 process meets fresh memory, as an F12's does; the later ones reuse freed pages. It also
 loads each kernel from numba's cache, which an F12 does before (``addon/kernels.py``):
 ``--warm`` first builds the mesh's first 70,000 triangles, untimed, so that the first
@@ -18,8 +19,8 @@ timed build is an F12's (kernels loaded, fresh memory; session 38). Each
 line also gives the tree's SAH and 4-wide node count, so a change of tree shows. Nothing
 is asserted; the numbers go to ``docs/bench-scale-bpy.md``.
 
-Each phase also gets its system CPU and minor page faults (``getrusage``: first touches
-of fresh memory; session 39).
+Each phase also gets its wall (session 40), its system CPU and minor page faults
+(``getrusage``: first touches of fresh memory; session 39).
 
 Threads: each phase also gets the CPU of its busiest thread (``busiest``, from
 ``/proc/self/task/*/schedstat``): on an idle machine the phase's wall is about that, so the
@@ -46,7 +47,7 @@ LEVELS = {"1M": 5, "4M": 6}
 PHASES = (("bvh_mesh", "indexed_boxes", "boxes"), ("bvh_cluster", "pair_items", "items"),
           ("bvh_build", "split_top", "top"), ("bvh_build", "build_subtrees", "subtrees"),
           ("bvh_cluster", "item_leaves", "leaves"), ("bvh_cluster", "open_items", "open"),
-          ("bvh_mesh", "collapse4", "collapse"))
+          ("bvh_mesh", "flatten", "collapse"))
 
 
 def _say(text: str) -> None:
@@ -107,16 +108,18 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
     acc: dict = {}
     busy: dict = {}
     sysf: dict = {}
+    walls: dict = {}
     for mod, name, label in PHASES:
         f = getattr(mods[mod], name)
 
         def timed(*a, _f=f, _label=label, **k):
-            c, t0 = time.process_time(), _thread_cpu()
+            c, t0, w0 = time.process_time(), _thread_cpu(), time.perf_counter()
             r0 = resource.getrusage(resource.RUSAGE_SELF)
             try:
                 return _f(*a, **k)
             finally:
                 acc[_label] = acc.get(_label, 0.0) + time.process_time() - c
+                walls[_label] = walls.get(_label, 0.0) + time.perf_counter() - w0
                 r1 = resource.getrusage(resource.RUSAGE_SELF)  # (system CPU, minor faults)
                 sysf[_label] = (sysf.get(_label, (0.0, 0))[0] + r1.ru_stime - r0.ru_stime,
                                 sysf.get(_label, (0.0, 0))[1] + r1.ru_minflt - r0.ru_minflt)
@@ -134,6 +137,7 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
         acc.clear()
         busy.clear()
         sysf.clear()
+        walls.clear()
         c, w = time.process_time(), time.perf_counter()
         r0 = resource.getrusage(resource.RUSAGE_SELF)
         mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
@@ -144,7 +148,8 @@ def child(root: Path, size: str, cache: Path, repeats: int, tbb: bool = False,
         row["rest"] = total - sum(row.values())
         runs.append(dict(total=total, wall=wall, phases=row,
                          busiest={label: busy.get(label, 0.0) for _, _, label in PHASES},
-                         sys_faults=dict(sysf)))
+                         sys_faults=dict(sysf),
+                         walls={label: walls.get(label, 0.0) for _, _, label in PHASES}))
         del mb
     mb = bvh_mesh.build_mesh_bvh_indexed(verts, tris)
     return dict(root=str(root), size=size, triangles=len(tris), sah=mb.sah_cost,
@@ -198,6 +203,8 @@ def main(argv=None) -> int:
                         f"{k} {v:.3f}" for k, v in x["phases"].items())
                         + f" | wall {x['wall']:.3f}, busiest thread " + ", ".join(
                         f"{k} {v:.3f}" for k, v in x["busiest"].items()))
+                    _say("        wall s: " + ", ".join(
+                        f"{k} {v:.3f}" for k, v in x.get("walls", {}).items()))
                     _say("        system s / minor faults: " + ", ".join(
                         f"{k} {v[0]:.3f}/{v[1]}" for k, v in x.get("sys_faults", {}).items()))
     return 0

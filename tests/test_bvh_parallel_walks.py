@@ -93,7 +93,7 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
     region0 = max(n_items, 2)
     rb, rc = b0.copy(), c0.copy()
     want_perm = _open_reference(pb, starts, how, iperm, region0, trav, 1.0, rb, rc)
-    want = bvh_mesh.flatten(rb, rc, want_perm, np.float32)
+    want = bvh_mesh.flatten(rb, rc, want_perm, np.float32, tasks=0)
     rows, nodes = bvh_cluster.item_leaves(starts, iperm, how, np.empty(len(iperm), np.int32),
                                           np.empty(len(iperm), np.int32))
     assert np.array_equal(rows, np.concatenate([[0], np.cumsum(np.diff(starts)[iperm])])[:-1])
@@ -105,7 +105,7 @@ def test_items_open_as_one_walk_from_the_root_opened_them(threads):
             sahs.append(bvh_cluster.open_items(pb, starts, how, iperm, rows, nodes, region0,
                                                trav, 1.0, b, c, perm, ntask))
             assert np.array_equal(perm, want_perm)
-            got = bvh_mesh.flatten(b, c, perm, np.float32)
+            got = bvh_mesh.flatten(b, c, perm, np.float32, tasks=0)
             assert np.array_equal(got.child, want.child)
             assert np.array_equal(got.bounds.view(np.int32), want.bounds.view(np.int32))
             # the split items' rows: region0 .. in leaf order (of their first triangle)
@@ -177,11 +177,11 @@ def test_the_top_levels_are_the_same_on_one_and_two_threads_and_any_grain():
         if n < 64:
             continue
         seq = bvh_build.build_flat_boxes(pb.copy(), grain=n)
-        ref = bvh_mesh.flatten(*seq[:3])
+        ref = bvh_mesh.flatten(*seq[:3], tasks=0)
         for threads in (1, 2):
             with _threads(threads):
                 got = bvh_build.build_flat_boxes(pb.copy(), grain=max(n // 8, 8))
-            par = bvh_mesh.flatten(*got[:3])  # (numbered depth first, as ref)
+            par = bvh_mesh.flatten(*got[:3], tasks=0)  # (numbered depth first, as ref)
             assert par.bounds.tobytes() == ref.bounds.tobytes()
             assert np.array_equal(par.child, ref.child)
             assert np.array_equal(par.perm, ref.perm)
@@ -239,11 +239,12 @@ def test_the_item_tree_over_pair_items_root_is_the_one_split_top_bounds_itself()
         pb = bvh_mesh.indexed_boxes(verts, tr)
         _, ib, _, root = bvh_cluster.pair_items(verts, tr, pb, 1.0)
         grain = bvh_build.subtree_grain(len(tr))
-        ref = bvh_mesh.flatten(*bvh_build.build_flat_boxes(ib.copy(), 1, grain=grain)[:3])
+        ref = bvh_mesh.flatten(*bvh_build.build_flat_boxes(ib.copy(), 1, grain=grain)[:3],
+                               tasks=0)
         for threads in (1, 2):
             with _threads(threads):
                 got = bvh_build.build_flat_boxes(ib.copy(), 1, grain=grain, root=root)
-            par = bvh_mesh.flatten(*got[:3])
+            par = bvh_mesh.flatten(*got[:3], tasks=0)
             assert par.bounds.tobytes() == ref.bounds.tobytes()
             assert np.array_equal(par.child, ref.child)
             assert np.array_equal(par.perm, ref.perm)

@@ -86,7 +86,9 @@ LARGE_BUILD_KERNELS = ("accel.bvh_build._bin_level", "accel.bvh_build._split_lev
                        "accel.bvh_build._bounds_chunks",
                        "accel.bvh_build.build_subtrees", "accel.bvh_build.pack_nodes",
                        "accel.bvh_mesh.indexed_boxes", "accel.bvh_cluster.pair_items",
-                       "accel.bvh_cluster.item_leaves", "accel.bvh_cluster.open_items")
+                       "accel.bvh_cluster.item_leaves", "accel.bvh_cluster.open_items",
+                       "accel.bvh_collapse.collapse_tasks",
+                       "accel.bvh_collapse.collapse4_parallel")
 #: Meshes of fewer triangles are built by one thread, without parallel regions (starting
 #: one costs more than it saves there, and very much more when the cores are
 #: oversubscribed).

@@ -16,14 +16,13 @@ from __future__ import annotations
 import time
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from .. import tolerances as tol
 from ..cancel import Cancelled
-from .bvh_bins import _half_area
 from .bvh_build import (
-    DEPTH_CAP,
     MAX_LEAF,
     NEVER_STOP,
     PARALLEL_MIN,
@@ -32,6 +31,15 @@ from .bvh_build import (
     subtree_grain,
 )
 from .bvh_cluster import build_paired
+from .bvh_collapse import (  # (collapse4, pad_outward: this module's names before session 40)
+    COLLAPSE_PARALLEL_MIN,
+    COLLAPSE_TASKS,
+    _put_outward,
+    collapse4,
+    collapse4_parallel,
+    collapse_tasks,
+    pad_outward,  # noqa: F401
+)
 from .content_hash import ContentHash
 
 
@@ -57,169 +65,31 @@ class MeshBVH(NamedTuple):
 # ----------------------------------------------------------------------------- 4-wide
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _padded(cbits, j, pad):
-    """Row ``j`` of the (4, 6) float64 boxes whose int64 view is ``cbits``, widened by one
-    ulp on every side when ``pad`` (what :func:`pad_outward` does to a binary box)."""
-    if pad:
-        for q in range(3):
-            cbits[6 * j + q] = _step_down(cbits[6 * j + q])
-            cbits[6 * j + 3 + q] = _step_up(cbits[6 * j + 3 + q])
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def collapse4(b2, c2, b4, pad):
-    """Binary BVH (child boxes (N, 12) float64, children (N, 2) int32) -> 4-wide BVH.
-
-    Each 4-wide node takes its binary node's two children and repeatedly opens the inner
-    child of largest surface area until it has four. Writes ``bounds`` into ``b4`` (N, 24)
-    (SoA over the four lanes: lo x, lo y, lo z, hi x, hi y, hi z, four values each),
-    float64 as they are, or float32 rounded *outward* (:func:`_put_outward`: every float32
-    box contains its float64 one), and returns it with ``child (N, 4) int32`` and the
-    number ``M`` of nodes (rows) used; an unused lane has an inverted box and the empty
-    leaf ``~0``. The nodes are numbered depth first, whatever the binary numbering, from
-    binary node 0 (rows no child reaches are never read: the builder's unpacked arrays
-    serve). ``pad``: every binary box is read widened as :func:`pad_outward` widens it
-    (the same bits, without a pass over ``b2`` or a change to it).
-    """
-    n2 = c2.shape[0]
-    # a 4-wide node opens up to 3 binary nodes and pushes its (<= 4) inner children: the
-    # stack holds at most 3 entries per level of the binary tree
-    todo = np.empty((3 * (DEPTH_CAP + 40) + 4, 3), np.int64)  # binary node, parent, lane
-    bits = b4.reshape(-1).view(np.int32)  # (float32 b4: the bits of each bound)
-    c4 = np.empty((n2, 4), np.int32)
-    cb = np.empty((4, 6))
-    cc = np.empty(4, np.int64)
-    cbits = cb.reshape(-1).view(np.int64)
-    todo[0, 0], todo[0, 1], todo[0, 2] = 0, -1, 0
-    sp = 1
-    m = 0
-    while sp > 0:
-        sp -= 1
-        bn, parent, lane = todo[sp, 0], todo[sp, 1], todo[sp, 2]
-        k = m
-        m += 1
-        if parent >= 0:
-            c4[parent, lane] = k
-        cnt = 0
-        for j in range(2):
-            if b2[bn, 6 * j] <= b2[bn, 6 * j + 3]:  # drop the empty child of a 1-leaf root
-                for q in range(6):
-                    cb[cnt, q] = np.float64(b2[bn, 6 * j + q])
-                _padded(cbits, cnt, pad)
-                cc[cnt] = c2[bn, j]
-                cnt += 1
-        while cnt < 4:
-            pick = -1
-            best = -1.0
-            for j in range(cnt):
-                if cc[j] >= 0:
-                    area = _half_area(cb[j, 0], cb[j, 1], cb[j, 2], cb[j, 3], cb[j, 4],
-                                      cb[j, 5])
-                    if area > best:
-                        best, pick = area, j
-            if pick < 0:
-                break
-            inner = cc[pick]
-            for q in range(6):
-                cb[pick, q] = np.float64(b2[inner, q])
-                cb[cnt, q] = np.float64(b2[inner, 6 + q])
-            _padded(cbits, pick, pad)
-            cc[pick] = c2[inner, 0]
-            _padded(cbits, cnt, pad)
-            cc[cnt] = c2[inner, 1]
-            cnt += 1
-        for j in range(4):
-            if j < cnt:
-                for q in range(6):
-                    _put_outward(b4, bits, k, 4 * q + j, cb[j, q])
-                c4[k, j] = cc[j]
-            else:
-                for q in range(3):
-                    b4[k, 4 * q + j] = np.inf
-                    b4[k, 12 + 4 * q + j] = -np.inf
-                c4[k, j] = -1  # ~0: a leaf of no triangles
-        for j in range(cnt - 1, -1, -1):  # lane 0 is numbered first
-            if cc[j] >= 0:
-                todo[sp, 0], todo[sp, 1], todo[sp, 2] = cc[j], k, j
-                sp += 1
-    return b4, c4, m
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _put_outward(b4, bits, k, col, x, n_lo=12):
-    """``b4[k, col] = x`` (a lo bound in columns 0..11, a hi one in 12..23), rounded
-    outward where ``b4`` is float32: a lo that the cast (to nearest) moved up steps one
-    float32 down, a hi moved down steps up (``np.nextafter`` toward -inf / +inf, on the
-    bits ``bits``, ``b4``'s int32 view). A float64 ``b4`` takes ``x`` exactly (the
-    branches never run). Infinite bounds stay infinite; a finite bound beyond float32's
-    range becomes the largest finite float32 on the inner side, an infinity outside."""
-    b4[k, col] = x
-    f = b4[k, col]
-    i = b4.shape[1] * k + col
-    if col < n_lo:
-        if f > x:
-            bits[i] = _step_down32(bits[i])
-    elif f < x:
-        bits[i] = _step_up32(bits[i])
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def pad_outward(b64):
-    """Child boxes (N, 12) float64 widened by one ulp on every side, in place (returned).
-
-    A ray with a zero direction component has a huge finite reciprocal (``bvh._inv_dir``);
-    if its origin lay exactly on a box face, ``(face - o) * inv`` would be 0 instead of
-    +-inf and the slab would wrongly shrink to ``t = 0``. With the faces one ulp outside the
-    geometry, an origin on a face is outside the geometry, so culling it is right. The
-    inverted (+inf, -inf) box of an empty child stays as is. (``np.nextafter`` toward -inf
-    / +inf, done on the bits: a finite float's neighbour is its bit pattern +-1.)
-    """
-    bits = b64.reshape(-1).view(np.int64)
-    for i in range(b64.shape[0]):
-        for s in range(2):
-            for q in range(3):
-                j = 12 * i + 6 * s + q
-                bits[j] = _step_down(bits[j])
-                bits[j + 3] = _step_up(bits[j + 3])
-    return b64
-
-
-#: bit patterns of IEEE doubles
-_SIGN = np.int64(-0x8000000000000000)
-_EXP_ALL = np.int64(0x7FF0000000000000)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _step_down(x):
-    """The bits of ``nextafter(f, -inf)`` for the double ``f`` of bits ``x`` (inf and NaN
-    as they are)."""
-    if (x & _EXP_ALL) == _EXP_ALL:  # inf, nan
-        return x
-    if x == 0 or x == _SIGN:  # +-0 -> the smallest negative subnormal
-        return _SIGN | 1
-    return x - 1 if x > 0 else x + 1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _step_up(x):
-    """The bits of ``nextafter(f, +inf)`` (inf and NaN as they are)."""
-    if (x & _EXP_ALL) == _EXP_ALL:
-        return x
-    if x == 0 or x == _SIGN:
-        return np.int64(1)
-    return x + 1 if x > 0 else x - 1
-
-
 def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
-            dtype=np.float64) -> FlatBVH:
+            dtype=np.float64, tasks: int | None = None) -> FlatBVH:
     """Binary build output (packed, or the builder's unpacked arrays:
     ``build_flat_boxes(packed=False)``) -> the traversal layout (4-wide), its boxes
     padded (:func:`pad_outward`, as they are read: ``b64`` is not changed) and ``dtype``
     (float32: rounded outward, :func:`collapse4`). The nodes are views of arrays sized for
     the binary arrays (a few times the rows used): the scene's concatenation
-    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree."""
-    b4, c4, m = collapse4(b64, child, np.empty((len(child), 24), dtype), True)
+    (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree.
+
+    The collapse runs on all threads (:func:`.bvh_collapse.collapse4_parallel`: the same
+    tree, with rows no child reaches) for a tree of
+    :data:`.bvh_collapse.COLLAPSE_PARALLEL_MIN` binary nodes or more when numba has more
+    than one; ``tasks`` (tests) sets the number of its subtrees instead (0: one thread)."""
+    b4 = np.empty((len(child), 24), dtype)
+    if tasks is None:
+        tasks = (COLLAPSE_TASKS if len(child) >= COLLAPSE_PARALLEL_MIN
+                 and numba.get_num_threads() > 1 else 0)
+    if tasks <= 0:
+        b4, c4, m = collapse4(b64, child, b4, True)
+    else:
+        task_bn, n_top = collapse_tasks(b64, child, True, tasks)
+        with numba.parallel_chunksize(1):  # (subtrees differ in size: threads take turns)
+            b4, c4, m = collapse4_parallel(b64, child, b4, True, task_bn, n_top)
+        if m < 0:  # a subtree outgrew its room (none in the meshes measured)
+            b4, c4, m = collapse4(b64, child, b4, True)
     return FlatBVH(b4[:m], c4[:m], perm)
 
 
@@ -392,26 +262,6 @@ def _four_wide(binary, stop) -> tuple[FlatBVH, float]:
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return flat, sah
-
-
-_SIGN32 = np.int32(-0x80000000)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _step_down32(x):
-    """The bits of ``nextafter(f, -inf)`` for the float32 ``f`` of bits ``x``, where ``f``
-    is above some double (so not -inf or NaN; +inf steps to the largest finite)."""
-    if x == 0 or x == _SIGN32:
-        return _SIGN32 | np.int32(1)
-    return x - np.int32(1) if x > 0 else x + np.int32(1)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _step_up32(x):
-    """The bits of ``nextafter(f, +inf)``, where ``f`` is below some double."""
-    if x == 0 or x == _SIGN32:
-        return np.int32(1)
-    return x + np.int32(1) if x > 0 else x - np.int32(1)
 
 
 # ----------------------------------------------------------------------------- leaves

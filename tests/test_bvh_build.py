@@ -532,8 +532,59 @@ def test_scene_bvh_holds_each_built_mesh_tree_as_built_alone():
     assert np.array_equal(placed.tri, own.tri + lo)
     assert np.array_equal(bvh_mesh.leaf_order(placed.child, acc.sb.tri),
                           bvh_mesh.leaf_order(own.child, own.tri) + lo)
-    assert np.array_equal(placed.bounds, alone.bvh.bounds)
+    # (the rows the tree uses: a parallel collapse leaves unused ones, not placed)
+    assert np.array_equal(placed.bounds, np.concatenate(
+        [alone.bvh.bounds[a:b] for a, b in bvh_mesh.used_runs(alone.bvh.child)]))
     assert acc.sb.verts is sa.verts and acc.sb.tris is sa.tris
+
+
+def test_a_parallel_collapses_unused_rows_are_dropped_when_placed():
+    """The rooms of :func:`.bvh_collapse.collapse4_parallel` leave rows no child reaches
+    (empty nodes); placing the tree (:meth:`.bvh.PlacedMesh.built`, then the scene's
+    concatenation) keeps only the rows reached from the root, renumbered: the same tree
+    walked from the root as the serial collapse's, and as many rows as it has nodes."""
+    big = shapes.lumpy_sphere(bvh_build.PARALLEL_MIN + 5_000, name="big")
+    tv = np.asarray(big.vertices, np.float64)[big.triangles]
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        mb = bvh_mesh.build_mesh_bvh(tv)
+    finally:
+        numba.set_num_threads(before)
+    reached = _reached(mb.bvh.child)
+    if numba.config.NUMBA_NUM_THREADS > 1:  # (one thread: the serial collapse, no rooms)
+        assert len(reached) < len(mb.bvh.child)
+    pm = bvh.PlacedMesh.built(mb)
+    assert len(pm.child) == len(reached)
+    assert sum(b - a for a, b in pm.rows or ((0, len(pm.bounds)),)) == len(reached)
+    bounds, child, tri, root, (placed,) = bvh.concat_meshes([pm], np.array([0, len(tv)]))
+    assert len(child) == len(bounds) == len(reached)
+    numba.set_num_threads(1)  # (the same binary tree, collapsed on one thread)
+    try:
+        serial = bvh.PlacedMesh.built(bvh_mesh.build_mesh_bvh(tv))
+    finally:
+        numba.set_num_threads(before)
+    assert serial.rows == () and len(serial.child) == len(reached)
+    assert _walked(bounds, child) == _walked(serial.bounds, serial.child)
+    assert np.array_equal(bvh_mesh.leaf_order(child, tri),
+                          bvh_mesh.leaf_order(serial.child, serial.tri))
+
+
+def _reached(child, node=0):
+    """The rows reached from ``node`` (depth first)."""
+    out, todo = [], [node]
+    while todo:
+        n = todo.pop()
+        out.append(n)
+        todo.extend(int(c) for c in child[n] if c >= 0)
+    return out
+
+
+def _walked(bounds, child, node=0):
+    """A tree's boxes and lane codes walked from ``node`` (leaf codes as they are, inner
+    nodes replaced by their walk): equal for the same tree in any row order."""
+    return [(bounds[node].tobytes(), tuple(
+        _walked(bounds, child, int(c)) if c >= 0 else int(c) for c in child[node]))]
 
 
 def test_pad_outward_is_nextafter_outward():

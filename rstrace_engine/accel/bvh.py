@@ -50,7 +50,15 @@ from .. import tolerances as tol
 from ..geometry.footprint import MAX_TRIANGLES
 from .box4 import lanes4
 from .bvh_build import DEPTH_CAP, NEVER_STOP
-from .bvh_mesh import MeshBVH, direct_leaves, leaf_size, leaf_triangle, place_child, place_tri
+from .bvh_mesh import (
+    MeshBVH,
+    direct_leaves,
+    leaf_size,
+    leaf_triangle,
+    place_child,
+    place_tri,
+    used_runs,
+)
 from .triangle import intersect_sheared, ray_shear
 
 log = logging.getLogger(__name__)
@@ -99,15 +107,20 @@ class PlacedMesh(NamedTuple):
     leaf_base: int
     tri_base: int
     sah_cost: float
+    #: the ``(start, stop)`` runs of ``bounds``' rows that ``child``'s rows are, in order,
+    #: where a tree just built leaves rows no child reaches (:func:`.bvh_mesh.used_runs`):
+    #: the concatenation copies those only; () when ``bounds`` and ``child`` row up
+    rows: tuple = ()
 
     @classmethod
     def built(cls, mb: MeshBVH) -> PlacedMesh:
-        """``mb`` as built, its leaves as the traversal reads them
-        (:func:`.bvh_mesh.direct_leaves`)."""
+        """``mb`` as built, its leaves as the traversal reads them and its unused rows
+        dropped (:func:`.bvh_mesh.direct_leaves`)."""
         child = np.empty_like(mb.bvh.child)
         tri = np.empty(len(mb.tri), np.int32)
-        n = direct_leaves(mb.bvh.child, mb.tri, child, tri)
-        return cls(mb.bvh.bounds, child, tri[:n].copy(), 0, 0, 0, mb.sah_cost)
+        n, r = direct_leaves(mb.bvh.child, mb.tri, child, tri)
+        rows = () if r == len(child) else used_runs(mb.bvh.child)
+        return cls(mb.bvh.bounds, child[:r], tri[:n].copy(), 0, 0, 0, mb.sah_cost, rows)
 
 
 def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
@@ -128,7 +141,9 @@ def concat_meshes(meshes: list[PlacedMesh], mesh_tri_start: np.ndarray):
         place_child(m.child, child, int(nb), int(nb) - m.node_base, int(lb) - m.leaf_base,
                     int(mesh_tri_start[k]) - m.tri_base)
         place_tri(m.tri, tri, int(lb), int(mesh_tri_start[k]) - m.tri_base)
-    bounds = np.ascontiguousarray(np.concatenate([m.bounds for m in meshes]), np.float32)
+    bounds = np.ascontiguousarray(np.concatenate(
+        [m.bounds[a:b] for m in meshes for a, b in (m.rows or ((0, len(m.bounds)),))]),
+        np.float32)
     placed = [PlacedMesh(bounds[nb:ne], child[nb:ne], tri[lb:le], int(nb), int(lb),
                          int(mesh_tri_start[k]), m.sah_cost)
               for k, (m, nb, ne, lb, le) in enumerate(zip(meshes, node_base[:-1],

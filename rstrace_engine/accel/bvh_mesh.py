@@ -300,30 +300,62 @@ def direct_leaves(child, perm, out_child, out_tri):
     """A built mesh tree's leaves (``child`` codes ``~(start << 3 | count)`` over ``perm``,
     the triangles in leaf order) as the traversal reads them: a leaf of one triangle, or
     of two neighbours in either order, names them (LEAF_ONE, LEAF_PAIR, LEAF_PAIR_DOWN);
-    the others list theirs in ``out_tri``, in leaf order. Writes ``out_child`` (same
-    shape) and returns the number of ``out_tri`` entries used."""
+    the others list theirs in ``out_tri``, in leaf order. Writes ``out_child`` (``child``'s
+    shape) and returns the number of ``out_tri`` entries used and of ``out_child`` rows.
+
+    Rows no child reaches (:func:`.bvh_collapse.collapse4_parallel`'s rooms leave them,
+    each an empty node: lane 0 the empty leaf ``~0``, which a node's lane 0 never is) are
+    dropped, the others renumbered in their order (:func:`used_runs` gives their boxes'
+    rows); the root, row 0, is kept whatever it holds."""
+    rows = child.shape[0]
+    used = 0
+    for i in range(rows):
+        used += i == 0 or child[i, 0] != -1
+    gaps = used < rows
+    new = np.empty(rows if gaps else 0, np.int32)  # (old row -> new, where rows drop)
+    if gaps:
+        r = 0
+        for i in range(rows):
+            new[i] = r
+            r += i == 0 or child[i, 0] != -1
     n = 0
-    for i in range(child.shape[0]):
+    r = 0
+    for i in range(rows):
+        if i > 0 and child[i, 0] == -1:
+            continue
         for j in range(4):
             c = child[i, j]
             if c >= 0 or c == -1:
-                out_child[i, j] = c
+                out_child[r, j] = new[c] if gaps and c >= 0 else c
                 continue
             code = ~c
             s, k = code >> 3, code & 7
             a = perm[s]
             if k == 1:
-                out_child[i, j] = ~((a << 3) | LEAF_ONE)
+                out_child[r, j] = ~((a << 3) | LEAF_ONE)
             elif k == 2 and perm[s + 1] == a + 1:
-                out_child[i, j] = ~((a << 3) | LEAF_PAIR)
+                out_child[r, j] = ~((a << 3) | LEAF_PAIR)
             elif k == 2 and perm[s + 1] == a - 1:
-                out_child[i, j] = ~(((a - 1) << 3) | LEAF_PAIR_DOWN)
+                out_child[r, j] = ~(((a - 1) << 3) | LEAF_PAIR_DOWN)
             else:
-                out_child[i, j] = ~((n << 3) | k)
+                out_child[r, j] = ~((n << 3) | k)
                 for q in range(k):
                     out_tri[n + q] = perm[s + q]
                 n += k
-    return n
+        r += 1
+    return n, r
+
+
+def used_runs(child: np.ndarray) -> tuple[tuple[int, int], ...]:
+    """The ``(start, stop)`` runs of a built tree's rows that :func:`direct_leaves` keeps,
+    in order: ``((0, len(child)),)`` when it keeps every row."""
+    live = child[:, 0] != -1
+    live[:1] = True
+    if live.all():
+        return ((0, len(child)),)
+    edge = np.flatnonzero(np.diff(live.astype(np.int8), prepend=np.int8(0),
+                                  append=np.int8(0)))
+    return tuple((int(a), int(b)) for a, b in zip(edge[0::2], edge[1::2], strict=True))
 
 
 def leaf_order(child: np.ndarray, tri: np.ndarray) -> np.ndarray:

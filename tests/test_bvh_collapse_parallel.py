@@ -7,24 +7,12 @@ and large trees, and on trees whose subtrees outgrow their rooms. Fails on main 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
 from rstrace_engine.accel import bvh_build, bvh_cluster, bvh_collapse, bvh_mesh
 from rstrace_engine.geometry import shapes
-
-
-def _threads(n: int):
-    """Run with ``n`` numba threads (at most the process's)."""
-    class _Ctx:
-        def __enter__(self):
-            self.old = numba.get_num_threads()
-            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-
-        def __exit__(self, *exc):
-            numba.set_num_threads(self.old)
-    return _Ctx()
+from tests.test_bvh_parallel_walks import _threads
 
 
 def _boxes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ and large trees, and on trees whose subtrees outgrow their rooms. Fails on main 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
@@ -194,3 +195,35 @@ def test_a_subtree_past_its_room_is_made_again_after_the_others(threads):
                 b2, c2, np.empty((len(c2), 24), np.float32), True, tb, n_top)
             assert (m > 0) if redone else (m == -1)
             _same(bvh_mesh.flatten(b2, c2, perm, np.float32, tasks=want_tasks), want)
+
+
+def test_a_build_below_parallel_min_starts_no_parallel_collapse(monkeypatch):
+    """Below :data:`.bvh_build.PARALLEL_MIN` primitives a build runs on one thread with no
+    parallel region (:func:`.bvh_mesh.build_mesh_bvh`, :func:`.bvh_mesh.build_top`; the
+    parallel collapse's kernels are :data:`.bvh_build.LARGE_BUILD_KERNELS`, not the first
+    image's), though the builder's unpacked arrays there have a row a primitive: a mesh of
+    40,000 triangles (or a top level of 40,000 objects) has 40,000 rows, past
+    :data:`.bvh_collapse.COLLAPSE_PARALLEL_MIN`. Fails on s40-int (flatten counted rows)."""
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one numba thread: the collapse is serial whatever the size")
+    m = shapes.lumpy_sphere(40_000, name="x")
+    tv = np.asarray(m.vertices, np.float64)[m.triangles]
+    assert bvh_collapse.COLLAPSE_PARALLEL_MIN <= len(tv) < bvh_build.PARALLEL_MIN
+    rng = np.random.default_rng(7)
+    lo = rng.normal(size=(40_000, 3)) * 50
+    boxes = np.stack([lo, lo + rng.random((40_000, 3))], axis=1)
+    calls = []
+    real = bvh_collapse.collapse4_parallel
+
+    def spy(*args):
+        calls.append(len(args[-2]))
+        return real(*args)
+
+    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)  # (flatten calls it)
+    with _threads(2):
+        mb = bvh_mesh.build_mesh_bvh(tv)
+        top = bvh_mesh.build_top(boxes)
+    assert not calls
+    # (one thread's tree: every row reached from the root, none left empty)
+    for f in (mb.bvh, top):
+        assert len(_reached(f.child)) == len(f.child)

@@ -75,12 +75,17 @@ def flatten(b64: np.ndarray, child: np.ndarray, perm: np.ndarray,
     (:func:`.bvh.concat_meshes`) copies them, and the arrays go with the built tree.
 
     The collapse runs on all threads (:func:`.bvh_collapse.collapse4_parallel`: the same
-    tree, with rows no child reaches) for a tree of
-    :data:`.bvh_collapse.COLLAPSE_PARALLEL_MIN` binary nodes or more when numba has more
-    than one; ``tasks`` (tests) sets the number of its subtrees instead (0: one thread)."""
+    tree, with rows no child reaches) for a tree over :data:`.bvh_build.PARALLEL_MIN`
+    primitives or more (``perm``: below it a build starts no parallel region, as
+    :func:`build_mesh_bvh` and :func:`build_top` promise; ``len(child)`` alone is no node
+    count: the builder's unpacked arrays have a row a primitive) and of
+    :data:`.bvh_collapse.COLLAPSE_PARALLEL_MIN` binary rows or more, when numba has more
+    than one thread; ``tasks`` (tests) sets the number of its subtrees instead (0: one
+    thread)."""
     b4 = np.empty((len(child), 24), dtype)
     if tasks is None:
-        tasks = (COLLAPSE_TASKS if len(child) >= COLLAPSE_PARALLEL_MIN
+        tasks = (COLLAPSE_TASKS if len(perm) >= PARALLEL_MIN
+                 and len(child) >= COLLAPSE_PARALLEL_MIN
                  and numba.get_num_threads() > 1 else 0)
     if tasks <= 0:
         b4, c4, m = collapse4(b64, child, b4, True)

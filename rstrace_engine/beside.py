@@ -96,7 +96,6 @@ class Beside:
             self._fn = self._args = None
 
 
-
 class Shared:
     """``fn(start, stop)`` over consecutive ranges of ``0 .. n`` (``chunk`` items each),
     shared by the pool thread and the calling thread: the pool thread starts taking ranges

@@ -16,6 +16,20 @@ from rstrace_engine.geometry import shapes
 from tests.test_bvh_parallel_walks import _threads
 
 
+def _spy_parallel_collapse(monkeypatch) -> list:
+    """Record each call :func:`.bvh_mesh.flatten` makes of
+    :func:`.bvh_collapse.collapse4_parallel` (its number of subtrees), and run it."""
+    calls = []
+    real = bvh_collapse.collapse4_parallel
+
+    def spy(*args):
+        calls.append(len(args[-2]))
+        return real(*args)
+
+    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)
+    return calls
+
+
 def _boxes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.concatenate([lo, hi], 1).astype(np.float64)
 
@@ -119,14 +133,7 @@ def test_a_large_mesh_takes_the_parallel_collapse_and_gets_the_serial_tree(threa
                                           grain=bvh_build.subtree_grain(len(tris)))
     assert len(c) >= bvh_collapse.COLLAPSE_PARALLEL_MIN
     want = bvh_mesh.flatten(b, c, p, np.float32, tasks=0)
-    calls = []
-    real = bvh_collapse.collapse4_parallel
-
-    def spy(*args):
-        calls.append(len(args[-2]))
-        return real(*args)
-
-    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)  # (flatten calls it)
+    calls = _spy_parallel_collapse(monkeypatch)
     with _threads(threads):
         got = bvh_mesh.flatten(b, c, p, np.float32)
         _same(got, want)
@@ -212,14 +219,7 @@ def test_a_build_below_parallel_min_starts_no_parallel_collapse(monkeypatch):
     rng = np.random.default_rng(7)
     lo = rng.normal(size=(40_000, 3)) * 50
     boxes = np.stack([lo, lo + rng.random((40_000, 3))], axis=1)
-    calls = []
-    real = bvh_collapse.collapse4_parallel
-
-    def spy(*args):
-        calls.append(len(args[-2]))
-        return real(*args)
-
-    monkeypatch.setattr(bvh_mesh, "collapse4_parallel", spy)  # (flatten calls it)
+    calls = _spy_parallel_collapse(monkeypatch)
     with _threads(2):
         mb = bvh_mesh.build_mesh_bvh(tv)
         top = bvh_mesh.build_top(boxes)

@@ -262,10 +262,10 @@ def gather_corners(corner_vert: np.ndarray, corners: np.ndarray,
     fresh arrays; None where a corner lies outside ``0 .. len(corner_vert) - 1``.
 
     ``corners`` (m, 3) int32: the corners (indices into the host mesh's loops) of each
-    triangle; ``corner_vert`` (n,) int32: each corner's vertex (an integer dtype that
-    does not fit int32 raises TypeError: its cast would wrap indices past 2^31 into others
-    silently). ``spare``: rows of room
-    around each result for the packing (:func:`with_room`). One pass of a kernel
+    triangle; ``corner_vert`` (n,) int32: each corner's vertex (an integer dtype of
+    either that does not fit int32 raises TypeError: its cast would wrap indices past 2^31
+    into others silently). ``spare``: rows of room around each result for the packing
+    (:func:`with_room`). One pass of a kernel
     (:func:`_gather_corners`) over the corners, which checks their range as it reads them:
     what numpy's two gathers and a range check did in four passes (about 3x the CPU at 1M
     triangles, ``docs/bench-scale-bpy.md``). The pass runs over ranges of

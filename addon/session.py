@@ -100,7 +100,8 @@ def last_render_stats(scene) -> dict:
     (what changed since the previous render), ``meshes_read``, ``meshes_trusted`` (taken
     from the cache on the journal's word, neither read nor fingerprinted); ``incremental``
     (only dirty pixels re-rendered), ``dirty_fraction`` (of the pixels), ``interpolated_fraction``
-    (INTERPOLANT mode), ``invalidated_interpolants``; ``memory_mb``; ``renders`` (count).
+    (INTERPOLANT mode), ``invalidated_interpolants``; ``memory_mb`` (the session's: scene
+    arrays, accelerator, the mode's cache, per-pixel records); ``renders`` (count).
     """
     state = peek_state(scene)
     return dict(state.stats) if state is not None else {}
@@ -428,13 +429,16 @@ def _class_counts(frame: Frame) -> dict:
 
 
 def _memory_mb(stats: dict, scene) -> float:
-    """Memory of the session in MB: scene arrays + interpolant cache + per-pixel records."""
+    """Memory of the session in MB: scene arrays + accelerator (``accel_memory_mb``) + the
+    mode's cache (INTERPOLANT's interpolants and ray segment trees, RI_TREE's trees: the
+    frame's ``memory_mb``) + per-pixel records."""
     try:
         arrays = sum(getattr(a, "nbytes", 0) for a in scene.arrays()) / 1e6
     except SceneError:
         arrays = 0.0
-    cache = stats.get("memory_mb", 0.0) if stats.get("mode") == "INTERPOLANT" else 0.0
-    return float(arrays + (cache or 0.0) + (stats.get("records_mb") or 0.0))
+    cache = stats.get("memory_mb") if stats.get("mode") in ("INTERPOLANT", "RI_TREE") else 0.0
+    return float(arrays + (stats.get("accel_memory_mb") or 0.0) + (cache or 0.0)
+                 + (stats.get("records_mb") or 0.0))
 
 
 def shadow_rays_per_pixel(stats: dict) -> float | None:

@@ -295,6 +295,25 @@ def test_last_render_stats_is_documented_and_filled():
     assert stats["memory_mb"] > 0.0
 
 
+@pytest.mark.parametrize("mode", ["BASE", "INTERPOLANT", "RI_TREE"])
+def test_memory_stat_counts_the_accelerator_and_the_mode_s_cache(mode):
+    """Blender's memory figure is the session's whole: scene arrays, the accelerator (the
+    BVH was left out in every mode) and the mode's own cache (RI_TREE's was left out)."""
+    import addon
+
+    sc = _scene(16, 12)
+    sc.rstrace.mode = mode
+    _, stats = _f12(fresh=True)
+    state = addon.session.state_for(sc)
+    arrays = sum(getattr(a, "nbytes", 0) for a in state.session.scene.arrays()) / 1e6
+    accel = stats["accel_memory_mb"]
+    assert accel > 0.0
+    cache = stats["memory_mb"] - arrays - accel - (stats.get("records_mb") or 0.0)
+    assert cache >= -1e-9
+    if mode == "RI_TREE":
+        assert cache > 0.0  # its trees
+
+
 def test_f12_after_a_camera_edit_and_file_load():
     """The camera object moved or its lens changed: a CameraChange (a full frame, equal to
     a fresh render); loading a file drops every session (no stale ID or key survives)."""

@@ -238,6 +238,20 @@ def _box_area(pb, i):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bin_split(pb, start, end, nbins, cmin, cmax, bmin, bmax, cheap_max, bin_n, bin_b,
+               right_a, right_n):
+    """One node's bin-and-split step: primitives ``start .. end - 1`` of ``pb`` (centroid
+    bounds ``cmin``, ``cmax``) binned as :func:`_node_bins` says, over ``bmin``, ``bmax``
+    (set here), and the best split of the bins: ``(nb, cost, axis, bin)`` (the bins per
+    axis, then :func:`_best_split`'s)."""
+    nb = _node_bins(end - start, nbins, cmin, cmax, bmin, bmax, cheap_max)
+    _clear_axes(bin_n, bin_b, nb, bmin, bmax)
+    _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
+    cost, axis, sbin = _best_split(bmin, bmax, nb, bin_n, bin_b, right_a, right_n)
+    return nb, cost, axis, sbin
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _centroid(pb, j, k):
     return 0.5 * (np.float64(pb[j, k]) + np.float64(pb[j, 3 + k]))
 

@@ -51,10 +51,10 @@ from .bvh_bins import (
     _add_centroid,
     _best_split,
     _bin_range,
+    _bin_split,
     _bins_box,
     _box_area,
     _centroid,
-    _clear_axes,
     _clear_bins,
     _empty6,
     _half_area,
@@ -332,13 +332,9 @@ def split_top(pb, perm, grain, nbins, trav_cost, bounds, child, stop, cheap_max,
             if axis < 0 and _to_centroid_bounds(pb, start, end, node_c[e, 0:3],
                                                 node_c[e, 3:6], box, cb):
                 # (as build_subtree: the same bins, one thread)
-                node_nb[e] = _node_bins(end - start, nbins, node_c[e, 0:3], node_c[e, 3:6],
-                                        node_m[e, 0:3], node_m[e, 3:6], cheap_max)
-                _clear_bins(bin_n, bin_b, nbins)
-                _bin_range(pb, start, end, node_m[e, 0:3], node_m[e, 3:6], node_nb[e], bin_n,
-                           bin_b)
-                _, axis, sbin = _best_split(node_m[e, 0:3], node_m[e, 3:6], node_nb[e], bin_n,
-                                            bin_b, right_a, right_n)
+                node_nb[e], _, axis, sbin = _bin_split(
+                    pb, start, end, nbins, node_c[e, 0:3], node_c[e, 3:6], node_m[e, 0:3],
+                    node_m[e, 3:6], cheap_max, bin_n, bin_b, right_a, right_n)
             if axis >= 0:
                 split[e, 0], split[e, 1] = axis, sbin
                 _bins_box(bin_b, axis, 0, sbin + 1, out_box[e, 0])
@@ -420,17 +416,13 @@ def build_subtree(pb, perm, task, tbox, node0, max_leaf, nbins, trav_cost, root_
         if count == 2 and depth < DEPTH_CAP:
             best_cost, best_axis, best_bin = _two_split(pb, start, cmin, cmax)
         elif count > 1 and depth < DEPTH_CAP:
-            nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max)
-            _clear_axes(bin_n, bin_b, nb, bmin, bmax)
-            _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
-            best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
-                                                         right_a, right_n)
+            nb, best_cost, best_axis, best_bin = _bin_split(
+                pb, start, end, nbins, cmin, cmax, bmin, bmax, cheap_max, bin_n, bin_b,
+                right_a, right_n)
             if best_axis < 0 and _to_centroid_bounds(pb, start, end, cmin, cmax, lbox, cb):
-                nb = _node_bins(count, nbins, cmin, cmax, bmin, bmax, cheap_max)
-                _clear_axes(bin_n, bin_b, nb, bmin, bmax)
-                _bin_range(pb, start, end, bmin, bmax, nb, bin_n, bin_b)
-                best_cost, best_axis, best_bin = _best_split(bmin, bmax, nb, bin_n, bin_b,
-                                                             right_a, right_n)
+                nb, best_cost, best_axis, best_bin = _bin_split(
+                    pb, start, end, nbins, cmin, cmax, bmin, bmax, cheap_max, bin_n, bin_b,
+                    right_a, right_n)
         split_cost = trav_cost + best_cost / max(area, 1e-300)
         make_leaf = count <= max_leaf and (count == 1 or count <= split_cost)
         if make_leaf and parent >= 0:

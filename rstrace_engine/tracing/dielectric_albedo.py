@@ -29,7 +29,8 @@ def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, 
                        step):
     """``out[i]`` (n,) float64: ``ggx_albedo(-dot(VD[i], NS[i]), roughness, specular
     IOR)[1]`` of point ``i``'s material where it is Principled (``MAT[i] >= 0``), the
-    other rows left as they are. VD, NS (n, 3) float64: the surfaces' view directions and
+    other rows left as they are. A specular IOR of 1 (Specular 0: no dielectric layer)
+    gives 0 without the quadrature (a matte floor or wall: most of a frame's points). VD, NS (n, 3) float64: the surfaces' view directions and
     shading normals (:class:`~.shader.Surfaces`). Striped (:func:`~..stripes.run`: the
     points of stripe ``first`` of ``step``), as the shade kernel that reads them is: run in
     one thread, it would add its whole cost to every batch's wall time on a many-core
@@ -43,6 +44,9 @@ def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, 
             break
         m = MAT[i]
         if m >= 0 and mat_model[m] == MODEL_PRINCIPLED:
+            if mat_specular_ior[m] == 1.0:  # no dielectric layer: 0, whatever the cosine
+                out[i] = 0.0
+                continue
             idx[k] = i
             k += 1
     co = np.empty(k)
@@ -92,4 +96,4 @@ def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, 
                 ed[q] += 0.0 if (voh <= 0.0 or nol <= 0.0) else w * f
     for q in range(k):
         i = idx[q]
-        out[i] = 0.0 if mat_specular_ior[MAT[i]] == 1.0 else min(ed[q] / (nu * nphi), 1.0)
+        out[i] = min(ed[q] / (nu * nphi), 1.0)

@@ -1,5 +1,6 @@
 """The batch's dielectric albedos (``tracing.dielectric_albedo``) are ``ggx_albedo``'s, bit
-for bit, at every Principled point, and nothing else is written."""
+for bit, at every Principled point with a diffuse albedo (0 where it has none), and nothing
+else is written."""
 
 from __future__ import annotations
 
@@ -26,11 +27,16 @@ def test_the_batch_gives_ggx_albedos_dielectric_part_bit_for_bit():
     model = np.full(30, MODEL_PRINCIPLED, np.int32)
     model[3] = MODEL_PRINCIPLED + 1  # another model: not written
     mat = rng.integers(-1, 30, n).astype(np.int32)  # (-1: a miss, not written)
+    diffuse = rng.uniform(0.0, 1.0, (30, 3))
+    diffuse[[7, 8]] = 0.0  # a metal's or a glass's: no diffuse part, the albedo never read
+    diffuse[9] = (0.0, 0.0, 0.3)
     out = np.full(n, -7.0)
-    dielectric_albedos(vd, ns, mat, model, roughness, ior, out, 0, 1)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, diffuse, out, 0, 1)
     written = (mat >= 0) & (model[np.maximum(mat, 0)] == MODEL_PRINCIPLED)
     assert np.all(out[~written] == -7.0) and written.sum() > 4000
-    for i in np.flatnonzero(written):
+    dark = written & np.isin(mat, [7, 8])
+    assert dark.sum() > 200 and np.all(out[dark] == 0.0)
+    for i in np.flatnonzero(written & ~dark):
         m = mat[i]
         c = -dot3(vd[i, 0], vd[i, 1], vd[i, 2], ns[i, 0], ns[i, 1], ns[i, 2])
         want = ggx_albedo(c, roughness[m], ior[m])[1]
@@ -56,12 +62,13 @@ def test_the_albedos_are_striped_as_the_shade_kernel_is(monkeypatch):
     mat = rng.integers(-1, 3, n).astype(np.int32)
     model = np.full(3, MODEL_PRINCIPLED, np.int32)
     roughness, ior = np.array([0.1, 0.4, 0.9]), np.array([1.5, 1.33, 2.2])
+    diffuse = np.array([[0.5, 0.5, 0.5], [0.0, 0.0, 0.0], [0.1, 0.2, 0.3]])
     whole = np.full(n, -7.0)
-    dielectric_albedos(vd, ns, mat, model, roughness, ior, whole, 0, 1)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, diffuse, whole, 0, 1)
     parts = np.full(n, -7.0)
     for first in range(3):
         part = np.full(n, -7.0)
-        dielectric_albedos(vd, ns, mat, model, roughness, ior, part, first, 3)
+        dielectric_albedos(vd, ns, mat, model, roughness, ior, diffuse, part, first, 3)
         own = (np.arange(n) // stripes.BLOCK) % 3 == first
         assert np.all(part[~own] == -7.0)
         parts[own] = part[own]
@@ -72,3 +79,25 @@ def test_the_albedos_are_striped_as_the_shade_kernel_is(monkeypatch):
     monkeypatch.setattr(stripes, "run", lambda k, *a: ran.append(k) or real(k, *a))
     Session(build("rough_materials", 16, 12), RenderSettings(max_depth=1)).render()
     assert whitted.dielectric_albedos in ran and whitted._shade_kernel in ran
+
+
+def test_points_without_a_dielectric_layer_or_a_diffuse_part_skip_the_quadrature():
+    """A specular IOR of 1 or a diffuse albedo of 0 (rough_materials' floor, box, metal and
+    glass) skips the 8 x 4 quadrature and writes 0 (the shade kernel reads the albedo only
+    as ``(1 - E)`` times the diffuse albedo); the same points with a diffuse part get their
+    albedo. On main every Principled point with a specular IOR other than 1 ran it."""
+    rng = np.random.default_rng(3)
+    n = 200_000
+    vd = rng.normal(size=(n, 3))
+    vd /= np.linalg.norm(vd, axis=1)[:, None]
+    ns = -vd
+    mat = rng.integers(0, 3, n).astype(np.int32)
+    model = np.full(3, MODEL_PRINCIPLED, np.int32)
+    roughness, ior = np.array([0.3, 0.3, 0.3]), np.array([1.0, 1.5, 1.5])
+    out = np.full(n, -7.0)
+    dark = np.array([[0.6, 0.6, 0.6], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    lit = np.array([[0.6, 0.6, 0.6], [0.2, 0.2, 0.2], [0.2, 0.2, 0.2]])
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, dark, out, 0, 1)
+    assert np.all(out == 0.0)
+    dielectric_albedos(vd, ns, mat, model, roughness, ior, lit, out, 0, 1)
+    assert np.all(out[mat == 0] == 0.0) and np.all(out[mat > 0] > 0.0)

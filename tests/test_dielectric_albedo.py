@@ -6,7 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from rstrace_engine import scenes, stripes
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.geometry.elements import TEX_SPECULAR
+from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import MODEL_PRINCIPLED
+from rstrace_engine.session import Session
+from rstrace_engine.tracing import whitted
 from rstrace_engine.tracing.dielectric_albedo import dielectric_albedos
 from rstrace_engine.tracing.shading import dot3, ggx_albedo
 
@@ -101,3 +107,35 @@ def test_points_without_a_dielectric_layer_or_a_diffuse_part_skip_the_quadrature
     assert np.all(out == 0.0)
     dielectric_albedos(vd, ns, mat, model, roughness, ior, lit, out, 0, 1)
     assert np.all(out[mat == 0] == 0.0) and np.all(out[mat > 0] > 0.0)
+
+
+def test_a_frame_is_the_same_with_the_skipped_albedos_computed(monkeypatch):
+    """The skip's premise, on a whole frame: the shade kernel reads the albedo only times
+    the diffuse albedo. With every skipped point's albedo computed anyway (a white diffuse
+    given to the quadrature) the frame is the same bit for bit: a rough metal and glass, a
+    black plastic under its dielectric layer, a textured specular tint above 1 on a black
+    base, lights with an extent and a world that lights (the diffuse part's closed form)."""
+    scene = scenes.glossy(24, 18)
+    ids = {m.name: i for i, m in enumerate(scene.materials) if m is not None}
+    scene.set_material(ids["plastic"], principled_material("plastic", (0.0, 0.0, 0.0))[0])
+    hdr = np.full((4, 4, 3), 3.0)
+    hdr[0, 0] = 0.0
+    scene.set_material(ids["green"], principled_material(
+        "green", (0.0, 0.0, 0.0), roughness=0.05, texture=hdr, texture_flags=TEX_SPECULAR)[0])
+    st = RenderSettings(samples=2, glossy_samples=2, max_depth=3)
+    skipped = Session(scene.copy(), st).render()
+    real = whitted.dielectric_albedos
+    read = []
+
+    def every_point(VD, NS, MAT, model, rough, ior, diffuse, out, first, step):
+        real(VD, NS, MAT, model, rough, ior, np.ones_like(diffuse), out, first, step)
+        own = (np.arange(len(MAT)) // stripes.BLOCK) % step == first
+        m = np.maximum(MAT, 0)
+        dark = own & (MAT >= 0) & (model[m] == MODEL_PRINCIPLED) & (ior[m] != 1.0) & np.all(
+            diffuse[m] == 0.0, axis=1)
+        read.append(out[dark])
+
+    monkeypatch.setattr(whitted, "dielectric_albedos", every_point)
+    full = Session(scene.copy(), st).render()
+    assert np.concatenate(read).max() > 0.1  # (what the skip writes 0 for)
+    assert full.radiance.tobytes() == skipped.radiance.tobytes()

@@ -42,15 +42,20 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=None)
     ap.add_argument("--height", type=int, default=None)
     ap.add_argument("--top", type=int, default=18)
+    ap.add_argument("--samples", type=int, default=None, help="pixel samples")
+    ap.add_argument("--glossy-samples", type=int, default=None)
+    ap.add_argument("--max-depth", type=int, default=None)
     a = ap.parse_args()
     size = [v for v in (a.width, a.height) if v is not None]
     scene = getattr(scenes, a.scene)(*size)
-    st = RenderSettings().validated()
+    given = {"samples": a.samples, "glossy_samples": a.glossy_samples, "max_depth": a.max_depth}
+    st = RenderSettings(**{k: v for k, v in given.items() if v is not None}).validated()
     accel = create_accelerator(st.accelerator, scene.arrays(), **st.accelerator_options())
     whitted.render(scene, st, accel=accel)  # warm: kernels loaded, caches filled
 
     spent: dict = defaultdict(float)
     calls: dict = defaultdict(int)
+    rays: dict = defaultdict(int)  # the accelerator queries' rays
     level = [-1]
 
     def timed(f, name, bump=False):
@@ -59,6 +64,8 @@ def main() -> None:
             if bump:
                 level[0] += 1
             t = time.process_time()
+            if name in ("closest_hit", "any_hit"):
+                rays[name, level[0]] += len(args[0])
             try:
                 return f(*args, **kw)
             finally:
@@ -89,7 +96,8 @@ def main() -> None:
     for key in sorted(spent, key=lambda k: -spent[k]):
         if spent[key] >= 0.005 * cpu:
             lines.append(f"  {key[0]:>14} L{key[1]:<2} {spent[key]:8.3f} s "
-                         f"{100 * spent[key] / cpu:5.1f}%  ({calls[key]} calls)")
+                         f"{100 * spent[key] / cpu:5.1f}%  ({calls[key]} calls"
+                         + (f", {rays[key]} rays)" if key in rays else ")"))
     out = io.StringIO()
     pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(a.top)
     lines.append(out.getvalue()[out.getvalue().find("   ncalls"):])

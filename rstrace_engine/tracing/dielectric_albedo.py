@@ -25,15 +25,20 @@ from .shading import ALBEDO_SAMPLES_PHI, ALBEDO_SAMPLES_THETA, dot3
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, out, first,
-                       step):
+def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, mat_diffuse,
+                       out, first, step):
     """``out[i]`` (n,) float64: ``ggx_albedo(-dot(VD[i], NS[i]), roughness, specular
     IOR)[1]`` of point ``i``'s material where it is Principled (``MAT[i] >= 0``), the
-    other rows left as they are. VD, NS (n, 3) float64: the surfaces' view directions and
-    shading normals (:class:`~.shader.Surfaces`). Striped (:func:`~..stripes.run`: the
-    points of stripe ``first`` of ``step``), as the shade kernel that reads them is: run in
-    one thread, it would add its whole cost to every batch's wall time on a many-core
-    machine, where inside the shade kernel it was shared by every thread."""
+    other rows left as they are. A specular IOR of 1 (Specular 0: no dielectric layer)
+    gives 0 without the quadrature (a matte floor or wall: most of a frame's points), and so
+    does a diffuse albedo of 0 (``mat_diffuse`` (NM, 3): a metal, a glass), where the shade
+    kernel reads the albedo only as ``(1 - E)`` times that albedo (times a texel), whose
+    bits it leaves as they are (``+0`` times a finite factor, a NaN texel's NaN). VD, NS
+    (n, 3) float64: the surfaces' view directions and shading normals
+    (:class:`~.shader.Surfaces`). Striped (:func:`~..stripes.run`: the points of stripe
+    ``first`` of ``step``), as the shade kernel that reads them is: run in one thread, it
+    would add its whole cost to every batch's wall time on a many-core machine, where inside
+    the shade kernel it was shared by every thread."""
     n = VD.shape[0]
     idx = np.empty(stripe_len(n, first, step), np.int64)
     k = 0
@@ -43,6 +48,13 @@ def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, 
             break
         m = MAT[i]
         if m >= 0 and mat_model[m] == MODEL_PRINCIPLED:
+            if mat_specular_ior[m] == 1.0:  # no dielectric layer: 0, whatever the cosine
+                out[i] = 0.0
+                continue
+            if (mat_diffuse[m, 0] == 0.0 and mat_diffuse[m, 1] == 0.0
+                    and mat_diffuse[m, 2] == 0.0):
+                out[i] = 0.0  # (read only as (1 - E) times the diffuse albedo: 0 either way)
+                continue
             idx[k] = i
             k += 1
     co = np.empty(k)
@@ -92,4 +104,4 @@ def dielectric_albedos(VD, NS, MAT, mat_model, mat_roughness, mat_specular_ior, 
                 ed[q] += 0.0 if (voh <= 0.0 or nol <= 0.0) else w * f
     for q in range(k):
         i = idx[q]
-        out[i] = 0.0 if mat_specular_ior[MAT[i]] == 1.0 else min(ed[q] / (nu * nphi), 1.0)
+        out[i] = min(ed[q] / (nu * nphi), 1.0)

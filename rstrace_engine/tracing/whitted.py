@@ -210,7 +210,7 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     tp = np.empty((n if terms else 0, c), np.bool_)
     ediel = np.empty(n)  # (the Principled points' dielectric albedos, each stripe's at once)
     stripes.run(dielectric_albedos, stripes.blocks_of(n), surf.VD, surf.NS, surf.mat,
-                sa.mat_model, sa.mat_roughness, sa.mat_specular_ior, ediel)
+                sa.mat_model, sa.mat_roughness, sa.mat_specular_ior, sa.mat_diffuse, ediel)
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
                 spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, ediel,
                 contrib, out, tv, tp)

@@ -30,7 +30,7 @@ from numba import njit, prange
 from ..cancel import Cancelled
 from ..frame import ACCELERATORS
 from ..geometry.scene import SceneArrays
-from . import bvh, bvh_mesh
+from . import bvh, bvh_mesh, bvh_occlusion
 from .bvh import ray_to_object
 from .interface import (  # noqa: F401 - re-exported: the interface's public names
     Accelerator,
@@ -282,6 +282,20 @@ class BVHAccelerator(Accelerator):
         of ray ``r``'s traversal (:func:`.bvh.trace_kernel`'s ``only <= -2``)."""
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         return self._trace(o, d, lo, hi, _skip_only(skip, len(o)), True).inst >= 0
+
+    def occluded_samples(self, o, d, tmax, w, n: int, row_skip, row_proven):
+        """The visibility of sampled shadow rays where they were drawn, ``n`` a row
+        (:func:`.bvh_occlusion.occluded_samples`: each sample with ``w > 0`` of a row not
+        ``row_proven`` traced from ``o`` along ``d`` to ``tmax``, leaving instance
+        ``row_skip`` of its row out): what :meth:`any_hit` of those rays answers, bit for
+        bit, without gathering them. Returns ``(vis (k,) bool, counts)``: rays traced,
+        proven samples, rays that left an instance out."""
+        t0 = time.perf_counter()
+        vis, counts = bvh_occlusion.occluded_samples(self.sb, o, d, tmax, w, n, row_skip,
+                                                     row_proven, self._stop)
+        self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
+        self.stats["rays"] = self.stats.get("rays", 0) + int(counts[0])
+        return vis, counts
 
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)

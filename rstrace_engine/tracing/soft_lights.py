@@ -561,6 +561,42 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
     ``(SoftSamples, lit_rows, any_vis)``: the samples with their visibility, the (point,
     light) rows of the sampled lights and whether each has a visible sample."""
     soft, o, tmax, rows = soft_rays(sa, surf, seeds, n, sh_state)
+    samples = getattr(occluded, "samples", None)
+    if samples is not None and len(rows):
+        _trace_in_place(sa, soft, o, tmax, rows, n, samples, counters, proven, own)
+    else:
+        _trace_gathered(sa, soft, o, tmax, rows, n, occluded, counters, proven, own)
+    any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)
+    return soft, rows, any_vis
+
+
+def _add(counters, key: str, k: int) -> None:
+    if counters is not None:
+        counters[key] = counters.get(key, 0) + int(k)
+
+
+def _trace_in_place(sa, soft, o, tmax, rows, n: int, samples, counters, proven, own):
+    """:func:`soft_visibility`'s rays traced where :func:`soft_rays` drew them, row by
+    row (``samples``: an accelerator's ``occluded_samples``, the plain any-hit query's
+    answer bit for bit), instead of gathered into new arrays for ``occluded``."""
+    world = rows < 0
+    pt = np.where(world, -1 - rows, rows // max(len(sa.light_kind), 1))
+    skip = np.full(len(rows), -1, np.int32) if own is None else own[pt].astype(np.int32)
+    row_proven = np.zeros(len(rows), np.bool_)
+    if proven is not None:
+        row_proven = proven[np.maximum(rows, 0)] & ~world
+    vis, counts = samples(o, soft.d, tmax, soft.w, n, skip, row_proven)
+    soft.vis[:] = vis
+    if proven is not None:
+        _add(counters, "shadow_skipped", counts[1])
+    if counts[0]:
+        if own is not None and (own >= 0).any():
+            _add(counters, "shadow_own_skip", counts[2])
+        _add(counters, "shadow", counts[0])
+
+
+def _trace_gathered(sa, soft, o, tmax, rows, n: int, occluded, counters, proven, own):
+    """:func:`soft_visibility`'s rays gathered and traced with ``occluded``."""
     go = soft.w > 0.0
     if proven is not None and len(rows):
         skip = go & np.repeat(proven[np.maximum(rows, 0)] & (rows >= 0), n)
@@ -583,8 +619,6 @@ def soft_visibility(sa, surf, seeds, n: int, sh_state, occluded, counters=None,
         soft.vis[go] = ~np.asarray(occluded(*ray), np.bool_)
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + len(go)
-    any_vis = soft.vis.reshape(len(rows), n).any(axis=1) if len(rows) else np.zeros(0, bool)
-    return soft, rows, any_vis
 
 
 def soft_direct(sa: SceneArrays, surf, seeds: np.ndarray, light_samples: int,

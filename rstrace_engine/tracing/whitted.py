@@ -323,6 +323,9 @@ def _occluded_by(sa, accel):
             return accel.any_hit(o, d, np.zeros(len(o)), tmax, skip)
         return linked_occluded(sa, accel, o, d, tmax, np.where(rows >= 0, rows % max(L, 1),
                                                                  -1))
+    if not links_shadows(sa) and hasattr(accel, "occluded_samples"):
+        # the plain any-hit query: soft_visibility may trace the samples where they lie
+        occluded.samples = accel.occluded_samples
     return occluded
 
 

@@ -1,0 +1,93 @@
+"""The soft samples' shadow rays traced where they were drawn (accel/bvh_occlusion.py):
+the BVH's any-hit answer bit for bit, per sample, with a row's instance left out, proven
+rows and samples without weight; and a frame traced so equals the frame traced through the
+gathered any-hit query, image and counters."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from rstrace_engine import scenes
+from rstrace_engine.accel.accelerators import create_accelerator
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.tracing import whitted
+
+
+def _rays(sa, n_rows, n, rng):
+    """Rays from points inside the scene's box in random directions, ``n`` a row, some
+    bounded short of the scene, some without weight, some rows leaving an instance out."""
+    lo, hi = np.asarray(sa.scene_aabb, np.float64)
+    k = n_rows * n
+    o = lo + (hi - lo) * rng.random((k, 3))
+    d = rng.normal(size=(k, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    tmax = np.where(rng.random(k) < 0.3, rng.random(k) * 2.0, np.inf)
+    w = np.where(rng.random(k) < 0.1, 0.0, 1.0)
+    n_inst = len(sa.inst_mesh)
+    skip = np.where(rng.random(n_rows) < 0.4, rng.integers(0, n_inst, n_rows), -1)
+    proven = rng.random(n_rows) < 0.1
+    return o, d, tmax, w, skip.astype(np.int32), proven
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_occluded_samples_is_any_hit(threads):
+    s = scenes.studio(32, 24)
+    sa = s.arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(5)
+    n = 16
+    o, d, tmax, w, skip, proven = _rays(sa, 700, n, rng)
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        vis, counts = acc.occluded_samples(o, d, tmax, w, n, skip, proven)
+    finally:
+        numba.set_num_threads(old)
+    row = np.arange(len(o)) // n
+    go = (w > 0) & ~proven[row]
+    blocked = acc.any_hit(o[go], d[go], np.zeros(go.sum()), tmax[go], skip[row[go]])
+    want = np.zeros(len(o), np.bool_)
+    want[go] = ~blocked
+    want[(w > 0) & proven[row]] = True
+    assert 0.1 < blocked.mean() < 0.9  # both outcomes exercised
+    np.testing.assert_array_equal(vis, want)
+    assert counts[0] == go.sum()
+    assert counts[1] == ((w > 0) & proven[row]).sum()
+    assert counts[2] == (go & (skip[row] >= 0)).sum()
+
+
+def test_occluded_samples_refuses_a_non_finite_ray():
+    sa = scenes.studio(32, 24).arrays()
+    acc = create_accelerator("BVH", sa)
+    o = np.zeros((4, 3))
+    d = np.tile([0.0, 0.0, 1.0], (4, 1))
+    d[2, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        acc.occluded_samples(o, d, np.full(4, np.inf), np.ones(4), 2,
+                             np.full(2, -1, np.int32), np.zeros(2, np.bool_))
+
+
+@pytest.mark.parametrize("name", ["studio", "museum_soft"])
+def test_frame_traced_in_place_equals_the_gathered_query(name, monkeypatch):
+    """The base frame (world, area, sphere, spot and sun samples; proven rows and own
+    instances left out) with the samples traced in place equals, bit for bit, the frame
+    whose samples go through the accelerator's any-hit query."""
+    s = getattr(scenes, name)(48, 36)
+    st = RenderSettings(max_depth=3)
+    fast = whitted.render(s, st, accel=create_accelerator("BVH", s.arrays()))
+    plain = whitted._occluded_by
+
+    def gathered(sa, accel):
+        f = plain(sa, accel)
+        assert hasattr(f, "samples")  # the fast path was taken above
+        del f.samples
+        return f
+
+    monkeypatch.setattr(whitted, "_occluded_by", gathered)
+    slow = whitted.render(s, st, accel=create_accelerator("BVH", s.arrays()))
+    assert np.array_equal(fast.radiance, slow.radiance)
+    for key in ("shadow_rays", "shadow_rays_skipped", "shadow_rays_own_skip", "rays_traced"):
+        assert fast.stats[key] == slow.stats[key], key
+    assert fast.stats["shadow_rays_own_skip"] > 0

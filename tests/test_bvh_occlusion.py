@@ -91,3 +91,33 @@ def test_frame_traced_in_place_equals_the_gathered_query(name, monkeypatch):
     for key in ("shadow_rays", "shadow_rays_skipped", "shadow_rays_own_skip", "rays_traced"):
         assert fast.stats[key] == slow.stats[key], key
     assert fast.stats["shadow_rays_own_skip"] > 0
+
+
+@pytest.mark.parametrize("name", ["studio", "museum_soft"])
+def test_a_ray_ending_at_its_hit_is_answered_as_any_hit(name):
+    """Rays whose far end lies on (or a few ulps past) the surface they meet: a box is
+    entered within :func:`.bvh._cull` of ``tmax`` there, as any_hit (and occludes_object,
+    the shadow re-shade's per-object test) enters it; a box test against ``tmax`` itself
+    lost hits at ``t == tmax`` (1-2% of these rays answered visible)."""
+    sa = getattr(scenes, name)(32, 24).arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(1)
+    lo, hi = np.asarray(sa.scene_aabb, np.float64)
+    k = 20000
+    o = lo + (hi - lo) * rng.random((k, 3))
+    d = rng.normal(size=(k, 3))
+    ax = rng.random(k) < 0.3  # axis-aligned directions: faces lying on box planes
+    d[ax] = np.eye(3)[rng.integers(0, 3, ax.sum())] * rng.choice([-1.0, 1.0], (ax.sum(), 1))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    h = acc.closest_hit(o, d, np.zeros(k), np.full(k, np.inf))
+    o, d, t = o[h.inst >= 0], d[h.inst >= 0], h.t[h.inst >= 0]
+    m = len(o)
+    for ulps in (0, 2, 8):
+        tmax = t.copy()
+        for _ in range(ulps):
+            tmax = np.nextafter(tmax, np.inf)
+        blocked = acc.any_hit(o, d, np.zeros(m), tmax)
+        vis, _ = acc.occluded_samples(o, d, tmax, np.ones(m), 1, np.full(m, -1, np.int32),
+                                      np.zeros(m, np.bool_))
+        assert blocked.mean() > 0.9
+        np.testing.assert_array_equal(vis, ~blocked)

@@ -91,3 +91,88 @@ def test_frame_traced_in_place_equals_the_gathered_query(name, monkeypatch):
     for key in ("shadow_rays", "shadow_rays_skipped", "shadow_rays_own_skip", "rays_traced"):
         assert fast.stats[key] == slow.stats[key], key
     assert fast.stats["shadow_rays_own_skip"] > 0
+
+
+@pytest.mark.parametrize("name", ["studio", "museum_soft"])
+def test_a_ray_ending_at_its_hit_is_answered_as_any_hit(name):
+    """Rays whose far end lies on (or a few ulps past) the surface they meet: a box is
+    entered within :func:`.bvh._cull` of ``tmax`` there, as any_hit (and occludes_object,
+    the shadow re-shade's per-object test) enters it; a box test against ``tmax`` itself
+    lost hits at ``t == tmax`` (1-2% of these rays answered visible)."""
+    sa = getattr(scenes, name)(32, 24).arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(1)
+    lo, hi = np.asarray(sa.scene_aabb, np.float64)
+    k = 20000
+    o = lo + (hi - lo) * rng.random((k, 3))
+    d = rng.normal(size=(k, 3))
+    ax = rng.random(k) < 0.3  # axis-aligned directions: faces lying on box planes
+    d[ax] = np.eye(3)[rng.integers(0, 3, ax.sum())] * rng.choice([-1.0, 1.0], (ax.sum(), 1))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    h = acc.closest_hit(o, d, np.zeros(k), np.full(k, np.inf))
+    o, d, t = o[h.inst >= 0], d[h.inst >= 0], h.t[h.inst >= 0]
+    m = len(o)
+    for ulps in (0, 2, 8):
+        tmax = t.copy()
+        for _ in range(ulps):
+            tmax = np.nextafter(tmax, np.inf)
+        blocked = acc.any_hit(o, d, np.zeros(m), tmax)
+        vis, _ = acc.occluded_samples(o, d, tmax, np.ones(m), 1, np.full(m, -1, np.int32),
+                                      np.zeros(m, np.bool_))
+        assert blocked.mean() > 0.9
+        np.testing.assert_array_equal(vis, ~blocked)
+
+
+def _instanced_scene():
+    """Shared meshes under non-uniform, mirrored and rotated transforms, small meshes (a
+    box: fewer than ``shaft_skip.OWN_MIN_TRIS`` triangles) and a large one."""
+    from rstrace_engine.geometry import shapes
+    from rstrace_engine.geometry.scene import Material, Scene
+
+    s = Scene()
+    a = s.add_material(Material("a"))
+    s.add_instance(s.add_mesh(shapes.plane(10.0, name="ground")), np.eye(4), [a])
+    sph = s.add_mesh(shapes.icosphere(3, name="sphere"))
+    box = s.add_mesh(shapes.box((1.0, 1.0, 1.0), name="box"))
+    tor = s.add_mesh(shapes.torus(0.6, 0.2, 48, 24, name="torus"))
+    s.add_instance(sph, shapes.transform((-1.5, 0.0, 0.6), (1.6, 0.5, 0.9), 30, 20), [a])
+    s.add_instance(sph, shapes.transform((1.2, 0.5, 0.5), (-0.7, 0.7, 0.7), 15), [a])
+    s.add_instance(tor, shapes.transform((0.0, 1.5, 0.4), (1.0, -1.3, 0.6), 40, 70), [a])
+    s.add_instance(box, shapes.transform((0.3, -1.0, 0.3), (0.6, 1.4, 0.6), 25), [a])
+    s.add_instance(box, shapes.transform((-0.2, 2.8, 1.0), (3.0, 0.2, 2.0)), [a])
+    return s
+
+
+def test_hard_rays_through_mirrored_and_squashed_instances():
+    """Origins on the surfaces they left, axis-aligned directions and directions with a
+    zero component, far ends on (or an ulp or two past) a surface, an instance left out per
+    row: the any-hit answer, ray for ray."""
+    sa = _instanced_scene().arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(7)
+    lo, hi = np.asarray(sa.scene_aabb, np.float64)
+    k, n = 40000, 8
+    o = lo + (hi - lo) * rng.random((k, 3))
+    d = rng.normal(size=(k, 3))
+    ax = rng.random(k) < 0.3
+    d[ax] = np.eye(3)[rng.integers(0, 3, ax.sum())] * rng.choice([-1.0, 1.0], (ax.sum(), 1))
+    z = (rng.random(k) < 0.1) & ~ax
+    d[z, rng.integers(0, 3, z.sum())] = 0.0
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    h = acc.closest_hit(o, d, np.zeros(k), np.full(k, np.inf))
+    on = (h.inst >= 0) & (rng.random(k) < 0.5)  # start on the surface met, leave anywhere
+    o[on] += d[on] * h.t[on, None]
+    d2 = rng.normal(size=(k, 3))
+    d[on] = d2[on] / np.linalg.norm(d2[on], axis=1)[:, None]
+    h = acc.closest_hit(o, d, np.zeros(k), np.full(k, np.inf))
+    tmax = np.where(rng.random(k) < 0.5, np.inf, np.where(h.inst >= 0, h.t, 1.0))
+    up = rng.integers(0, 3, k)
+    for i in range(2):
+        tmax = np.where(up > i, np.nextafter(tmax, np.inf), tmax)
+    skip = np.where(rng.random(k // n) < 0.5, rng.integers(0, len(sa.inst_mesh), k // n), -1)
+    skip = skip.astype(np.int32)
+    vis, counts = acc.occluded_samples(o, d, tmax, np.ones(k), n, skip,
+                                       np.zeros(k // n, np.bool_))
+    blocked = acc.any_hit(o, d, np.zeros(k), tmax, np.repeat(skip, n))
+    assert 0.1 < blocked.mean() < 0.9 and counts[0] == k
+    np.testing.assert_array_equal(vis, ~blocked)

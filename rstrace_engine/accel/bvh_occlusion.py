@@ -14,8 +14,11 @@ Its traversal is the any-hit query of :func:`.bvh.trace_kernel` less what only a
 hit needs: no box distances kept on the stack nor sorted (a ray stops at its first hit,
 any order finds one when there is one), no distance or barycentrics carried. Whether a
 ray is blocked -- a triangle met at ``0 <= t <= tmax`` by the same watertight float64 test
-on the same boxes -- is the closest-hit query's answer bit for bit (a node is entered when
-its box test passes against ``tmax``, as there before any hit), so images are unchanged.
+on the same boxes -- is the any-hit query's answer bit for bit: a node is entered, as there,
+when the ray enters its box no farther than :func:`.bvh._cull` of ``tmax`` (``tmax`` itself
+lost hits at ``t == tmax`` to a box entry rounded past it; the shadow re-shade's per-object
+test, :meth:`~.interface.Accelerator.occludes_object`, culls so too), so images are
+unchanged.
 """
 
 from __future__ import annotations
@@ -25,28 +28,34 @@ from numba import njit
 
 from .. import stripes
 from .box4 import lanes4
-from .bvh import STACK_SIZE, SceneBVH, _inv_dir, _near, _u, ray_to_object
+from .bvh import STACK_SIZE, SceneBVH, _cull, _inv_dir, _near, _u, ray_to_object
 from .bvh_build import NEVER_STOP
 from .bvh_mesh import leaf_size, leaf_triangle
 from .triangle import intersect_sheared, ray_shear
 
+#: The largest float64: a box entry no greater is a box entered (a miss is inf).
+_FINITE = np.finfo(np.float64).max
+
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _push_hit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st, sp):
-    """Push the children of ``node`` whose box the ray enters within ``[t0, t1]``, in lane
-    order (no distances: any order finds a hit). Returns ``sp``."""
-    ta, tb, tc, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+def _push_hit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc, st, sp):
+    """Push the children of ``node`` whose box the ray enters within ``[t0, tc]`` (``tc``:
+    :func:`.bvh._cull` of the ray's ``tmax``; :func:`.bvh._visit` pushes a box entered up to
+    ``tc`` times the slab test's far scale, and its pop skips those entered past ``tc``), in
+    lane order (no distances: any order finds a hit). Returns ``sp``."""
+    ta, tb, tc4, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc)
+    lim = min(tc, _FINITE)  # (a miss is inf)
     un = _u(node)
-    if td < np.inf:
+    if td <= lim:
         st[_u(sp)] = child[un, _u(3)]
         sp += 1
-    if tc < np.inf:
+    if tc4 <= lim:
         st[_u(sp)] = child[un, _u(2)]
         sp += 1
-    if tb < np.inf:
+    if tb <= lim:
         st[_u(sp)] = child[un, _u(1)]
         sp += 1
-    if ta < np.inf:
+    if ta <= lim:
         st[_u(sp)] = child[un, _u(0)]
         sp += 1
     return sp
@@ -55,20 +64,21 @@ def _push_hit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, s
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _mesh_blocks(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t0, t1, st):
     """Whether the object-space ray meets a triangle of the mesh tree at ``root`` within
-    ``[t0, t1]`` (:func:`.bvh._trace_mesh`'s any hit)."""
+    ``[t0, t1]`` (:func:`.bvh._trace_mesh`'s any hit; its boxes to ``_cull(t1)``)."""
     kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
     okx = ox if kx == 0 else (oy if kx == 1 else oz)
     oky = ox if ky == 0 else (oy if ky == 1 else oz)
     okz = ox if kz == 0 else (oy if kz == 1 else oz)
     ix, iy, iz = _inv_dir(dx), _inv_dir(dy), _inv_dir(dz)
     nx, ny, nz = _near(ix, iy, iz)
+    tc = _cull(t1)
     st[0] = root
     sp = 1
     while sp > 0:
         sp -= 1
         c = st[_u(sp)]
         if c >= 0:
-            sp = _push_hit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st, sp)
+            sp = _push_hit(bounds, child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc, st, sp)
             continue
         code = ~c
         s, k = code >> 3, code & 7
@@ -110,7 +120,7 @@ def _blocked(sb, ox, oy, oz, dx, dy, dz, t0, t1, skip, st, st2):
         c = st[_u(sp)]
         if c >= 0:
             sp = _push_hit(sb.top_bounds, sb.top_child, c, nx, ny, nz, ox, oy, oz, ix, iy, iz,
-                           t0, t1, st, sp)
+                           t0, _cull(t1), st, sp)
         else:
             q = (~c) >> 3
             q_end = q + ((~c) & 7)

@@ -69,7 +69,6 @@ _BASE = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners",
          "tracing.pixel_records._light_bit_changes",
          "tracing.whitted._child_tags", "tracing.glossy_strata._pixel_seeds",
          "tracing.glossy_strata._lattices", "tracing.glossy_strata._next_paths",
-         "tracing.soft_lights._soft_go",
          "tracing.shaft_skip._prove_groups", "tracing.shaft_skip._own_kernel",
          "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
          "tracing.sample_rays.query_light_bits", "tracing.sample_rays.query_world",
@@ -119,7 +118,7 @@ PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners"
            "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",
            "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
            "tracing.glossy_strata._pixel_seeds", "tracing.glossy_strata._lattices",
-           "tracing.glossy_strata._next_paths", "tracing.soft_lights._soft_go")
+           "tracing.glossy_strata._next_paths")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

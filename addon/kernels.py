@@ -69,7 +69,7 @@ _BASE = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners",
          "tracing.light_nodes._splice_entries", "tracing.light_nodes._splice_geo",
          "tracing.pixel_records._light_bit_changes",
          "tracing.whitted._child_tags", "tracing.glossy_strata._pixel_seeds",
-         "tracing.glossy_strata._lattices",
+         "tracing.glossy_strata._lattices", "tracing.glossy_strata._next_paths",
          "tracing.shaft_skip._prove_groups", "tracing.shaft_skip._own_kernel",
          "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
          "tracing.sample_rays.query_light_bits", "tracing.sample_rays.query_world",
@@ -118,7 +118,8 @@ PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners"
            "tracing.record_codes._mark_used", "tracing.whitted._child_tags",
            "tracing.soft_lights._node_seeds", "tracing.shaft_skip._own_kernel",
            "tracing.shaft_skip._own_reflections", "tracing.glossy_rays._roulette",
-           "tracing.glossy_strata._pixel_seeds", "tracing.glossy_strata._lattices")
+           "tracing.glossy_strata._pixel_seeds", "tracing.glossy_strata._lattices",
+           "tracing.glossy_strata._next_paths")
 
 _state = {"thread": None, "modes_done": set(), "mode": None, "stop": False,
           "started_at": None, "seconds": {}, "error": None}

@@ -268,3 +268,31 @@ def test_rough_surface_without_specular_is_not_reported():
     _, notes = principled_material("Matte", (0.8, 0.8, 0.8), roughness=0.5,
                                    specular_level=0.0, model="WARD")
     assert ROUGH_REFLECTION_NOTE not in notes
+
+
+def test_the_shade_kernels_brdf_with_its_points_factors_is_principled_brdfs_bit_for_bit():
+    """The shade kernel evaluates a point's lights and soft samples with its multiple-
+    scattering factors computed once (``principled_brdf_z``): the same bits as
+    ``principled_brdf``, which computes them per call (the light records re-shade with it),
+    for metals and non-metals (``principled_fresnel``'s non-metal path) alike."""
+    from rstrace_engine.tracing.multiscatter import multiscatter_factors
+
+    rng = np.random.default_rng(41)
+    for _ in range(400):
+        n = np.array([0.0, 0.0, 1.0])
+        li = rng.normal(size=3)
+        li /= np.linalg.norm(li)
+        vo = rng.normal(size=3)
+        vo /= np.linalg.norm(vo)
+        d, s, m, t = rng.uniform(0, 1, 3), rng.uniform(0, 0.5, 3), rng.uniform(0, 1, 3), \
+            rng.uniform(0, 1, 3)
+        metallic = float(rng.choice([0.0, 0.0, 0.4, 1.0]))
+        alpha = float(rng.choice([0.0005, 0.05, 0.3, 0.8]))
+        eta_s = float(rng.choice([1.0, 1.45, 1.5]))
+        e_white, e_diel = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0.0, 0.2))
+        a = sh.principled_brdf(*n, *li, *vo, *d, *s, eta_s, metallic, *m, alpha, e_white,
+                               e_diel, *t)
+        z = multiscatter_factors(alpha, e_white, eta_s, *m, *t)
+        b = sh.principled_brdf_z(*n, *li, *vo, *d, *s, eta_s, metallic, *m, alpha, e_diel,
+                                 *t, *z)
+        assert np.array(a).tobytes() == np.array(b).tobytes()

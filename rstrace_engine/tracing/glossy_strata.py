@@ -146,3 +146,61 @@ def _child_tags(nseeds, which, sample, glossy, tag, out):
             out[k] = mix64(nseeds[p] ^ mix64(np.uint64(sample[k] + 1)))
         else:
             out[k] = tag[p]
+
+
+def next_paths(ok, gstart, glossy, src, path, fresh, tag, nseeds, ko, kd, kw, sees_lobe,
+               sees_mirror, sees_refract):
+    """A level's spawned rays in one pass (what :func:`child_paths`, a ``np.flatnonzero`` of
+    ``ok`` and the gathers of the rays and their points' values gave, the same values):
+    ``(slots, which, src, path, fresh, tag, sees, o, d, w)`` of the slots where ``ok``
+    (2m,) bool, ``ko, kd, kw`` (2m, 3) the spawned rays, ``src, path, fresh, tag`` (n,) the
+    points' (``path`` the child's: ``2 path + slot & 1``), ``sees`` (int8): ``sees_lobe``
+    below a glossy point, else ``sees_refract`` for a refraction slot, ``sees_mirror`` for
+    a reflection; ``gstart, glossy`` as :func:`child_paths` (None: one pair a point)."""
+    n = len(fresh)
+    if gstart is None:
+        gstart = np.arange(n + 1, dtype=np.int64)
+        glossy = np.zeros(n, np.bool_)
+    if nseeds is None:
+        nseeds = np.zeros(0, np.uint64)
+    c = int(np.count_nonzero(ok))
+    out = (np.empty(c, np.int64), np.empty(c, np.int64), np.empty(c, src.dtype),
+           np.empty(c, np.int64), np.empty(c, np.bool_), np.empty(c, np.uint64),
+           np.empty(c, np.int8), np.empty((c, 3)), np.empty((c, 3)), np.empty((c, 3)))
+    _next_paths(ok, gstart, glossy, src, path, fresh, tag, nseeds, ko, kd, kw,
+                np.int8(sees_lobe), np.int8(sees_mirror), np.int8(sees_refract), *out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _next_paths(ok, gstart, glossy, src, path, fresh, tag, nseeds, ko, kd, kw, s_lobe,
+                s_mirror, s_refract, slots, which, c_src, c_path, c_fresh, c_tag, c_sees, o,
+                d, w):
+    """:func:`next_paths`' pass: ``which`` by a merge of the ascending slots with
+    ``gstart`` (``searchsorted(gstart, slot // 2, "right") - 1``), the tags as
+    :func:`_child_tags`'."""
+    c = 0
+    p = 0
+    for s in range(ok.shape[0]):
+        if not ok[s]:
+            continue
+        pair = s // 2
+        while gstart[p + 1] <= pair:
+            p += 1
+        slots[c] = s
+        which[c] = p
+        c_src[c] = src[p]
+        c_path[c] = path[p] * 2 + (s & 1)
+        if glossy[p]:
+            c_fresh[c] = False
+            c_tag[c] = mix64(nseeds[p] ^ mix64(np.uint64(pair - gstart[p] + 1)))
+            c_sees[c] = s_lobe
+        else:
+            c_fresh[c] = fresh[p]
+            c_tag[c] = tag[p]
+            c_sees[c] = s_refract if s & 1 else s_mirror
+        for a in range(3):
+            o[c, a] = ko[s, a]
+            d[c, a] = kd[s, a]
+            w[c, a] = kw[s, a]
+        c += 1

@@ -57,7 +57,7 @@ from ..geometry.scene import (
 from ..stripes import stripe_item, stripe_len
 from ..views import fields, view_type
 from .glossy_rays import _glossy_rays, _put, is_glossy
-from .multiscatter import ggx_e
+from .multiscatter import ggx_e, multiscatter_factors
 from .shading import (
     INV_PI,
     dot3,
@@ -69,7 +69,7 @@ from .shading import (
     ggx_lobe,
     mirror_dir,
     normalize3,
-    principled_brdf,
+    principled_brdf_z,
     principled_fresnel,
     rough_interface,
     shading_normal,
@@ -121,14 +121,15 @@ class Spawned(NamedTuple):
 
 @njit(cache=True, nogil=True, inline="always")
 def _brdf(principled, sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
-          metallic, mr, mg, mb, alpha, e_white, e_diel, kr, kg, kb):
+          metallic, mr, mg, mb, alpha, z, e_diel, kr, kg, kb):
     """The material's BRDF (Principled-like or Ward) for light direction ``l`` and view
     direction ``o`` about shading normal ``s``: the hard lights' and the soft samples' one
-    evaluation (``k*``: the metal's F82 tint)."""
+    evaluation (``k*``: the metal's F82 tint, ``z`` the point's
+    :func:`~.multiscatter.multiscatter_factors`: :func:`principled_brdf`'s)."""
     if principled:
-        return principled_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
-                               eta_s, metallic, mr, mg, mb, alpha, e_white, e_diel, kr, kg,
-                               kb)
+        return principled_brdf_z(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb,
+                                 eta_s, metallic, mr, mg, mb, alpha, e_diel, kr, kg, kb, z[0],
+                                 z[1], z[2], z[3])
     return ward_brdf(sx, sy, sz, lx, ly, lz, ox, oy, oz, dr, dg, db, sr, sg, sb, alpha)
 
 
@@ -478,9 +479,13 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
         # a glossy point's rays carry the world's glossy reflection: its samples of the
         # world light the diffuse part only (no light counted twice)
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
+        z = (1.0, 1.0, 1.0, 1.0)
         if principled:
             e_white = ggx_e(min(max(-dot3(dx, dy, dz, sx, sy, sz), tol.GGX_COS_MIN), 1.0),
                             alpha)  # (and e_diel, ggx_albedo's pair: ediel, computed before)
+            if alpha >= tol.GLOSSY_ALPHA_MIN and (sr > 0.0 or sg > 0.0 or sb > 0.0
+                                                  or metallic > 0.0):  # (a lobe: the BRDF's)
+                z = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
             e_diel = ediel[i]
             # Cycles: the base under the layer's tinted albedo (the tint's largest channel)
             e_diel *= sa.mat_tint_max[m]
@@ -544,7 +549,7 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
             else:
                 fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
                                    dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
-                                   eta_s, metallic * vg, mr, mg, mb, alpha, e_white, e_diel,
+                                   eta_s, metallic * vg, mr, mg, mb, alpha, z, e_diel,
                                    qr, qg, qb)
                 q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g, ke) * vi
                 fr += q * ur
@@ -601,8 +606,8 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
                 else:
                     fr, fg, fb = _brdf(principled, sx, sy, sz, lx, ly, lz, -dx, -dy, -dz,
                                        dr * vd, dg * vd, db * vd, sr * vg, sg * vg, sb * vg,
-                                       eta_s, metallic * vg, mr, mg, mb, alpha, e_white,
-                                       e_diel, qr, qg, qb)
+                                       eta_s, metallic * vg, mr, mg, mb, alpha, z, e_diel,
+                                       qr, qg, qb)
                     q = _glass_lobe(sx, sy, sz, lx, ly, lz, -dx, -dy, -dz, alpha, eta_g,
                                     ke) * vi
                     fr += q * ur

@@ -217,6 +217,8 @@ def principled_fresnel(c, sr, sg, sb, eta_s, metallic, mr, mg, mb, tr=1.0, tg=1.
     fd = 0.0
     if eta_s != 1.0:
         fd = fresnel_dielectric(c, 1.0 / eta_s)
+    if metallic == 0.0:  # no conductor: its terms are (+)0 (F82 and z* are not negative)
+        return sr * fd + 0.0, sg * fd + 0.0, sb * fd + 0.0
     return (sr * fd + metallic * zr * f82_metal(c, mr, tr),
             sg * fd + metallic * zg * f82_metal(c, mg, tg),
             sb * fd + metallic * zb * f82_metal(c, mb, tb))
@@ -246,6 +248,26 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     if lobe <= 0.0:
         return r, g, bl
     zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, tr, tg, tb)
+    fr, fg, fb = principled_fresnel(ch, sr * zd, sg * zd, sb * zd, eta_s, metallic, mr, mg, mb,
+                                    tr, tg, tb, zr, zg, zb)
+    return r + lobe * fr, g + lobe * fg, bl + lobe * fb
+
+
+@njit(cache=True, nogil=True)
+def principled_brdf_z(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
+                      metallic, mr, mg, mb, alpha, e_diel, tr, tg, tb, zd, zr, zg, zb):
+    """:func:`principled_brdf` (the same values) with the point's
+    :func:`multiscatter_factors` ``z*`` given: a point's lights and samples share them."""
+    kd = (1.0 - e_diel) * INV_PI
+    r = dr * kd
+    g = dg * kd
+    bl = db * kd
+    if alpha < tol.GLOSSY_ALPHA_MIN or not (sr > 0.0 or sg > 0.0 or sb > 0.0
+                                            or metallic > 0.0):
+        return r, g, bl
+    lobe, ch = ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
+    if lobe <= 0.0:
+        return r, g, bl
     fr, fg, fb = principled_fresnel(ch, sr * zd, sg * zd, sb * zd, eta_s, metallic, mr, mg, mb,
                                     tr, tg, tb, zr, zg, zb)
     return r + lobe * fr, g + lobe * fg, bl + lobe * fb

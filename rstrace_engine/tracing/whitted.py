@@ -48,6 +48,7 @@ from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
     draws_glossy,
     frame_strata,
     lattices,
+    next_paths,
     no_strata,
 )
 from .light_bits import words
@@ -267,21 +268,15 @@ def _next_front(front: _Front, kids: Spawned, rows: np.ndarray | None, plan: _Pl
     """The spawned rays, compacted, and what they skip (``own_reflections`` of ``mine``
     at ``surf``); ``rows``: the level's node rows (None: parents not followed); ``plan``:
     the slots' layout (:func:`_shade_level`), ``nseeds`` the node seeds (glossy samples)."""
-    k = np.flatnonzero(kids.ok)
-    which, fresh, tag = child_paths(k, plan.gstart, plan.glossy, front.fresh, front.tag,
-                                    nseeds)
-    # mirror rays see lights as glossy rays, smooth refraction as transmission, rough lobes none
-    sees = np.where(k & 1, SEEN_TRANSMISSION, SEEN_GLOSSY).astype(np.int8)
-    if plan.gstart is not None:
-        sees[plan.glossy[which]] = SEEN_NONE
-    parent = front.parent
-    if rows is not None:
-        parent = rows[which]
-    path = front.path[which] * 2 + (k & 1)  # also seeds the soft lights' samples
-    o, d = kids.o[k], kids.d[k]
+    k, which, src, path, fresh, tag, sees, o, d, w = next_paths(
+        kids.ok, plan.gstart, plan.glossy, front.src, front.path, front.fresh, front.tag,
+        nseeds, kids.o, kids.d, kids.w, SEEN_NONE, SEEN_GLOSSY, SEEN_TRANSMISSION)
+    # (mirror rays see lights as glossy rays, smooth refraction as transmission, rough
+    # lobes none; path also seeds the soft lights' samples)
+    parent = front.parent if rows is None else rows[which]
     skip = None if surf is None else own_reflections(mine, k, which, o, d, surf, counters)
-    return _Front(o, d, np.zeros(len(k)), np.full(len(k), np.inf), front.src[which],
-                  kids.w[k], parent, path, fresh, tag, sees), skip
+    return _Front(o, d, np.zeros(len(k)), np.full(len(k), np.inf), src, w, parent, path,
+                  fresh, tag, sees), skip
 
 
 def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None):

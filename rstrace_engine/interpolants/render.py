@@ -199,7 +199,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         fb.resize(n_inst)
         run.ledger = fb_mod.FrameLedger(n_inst)
         run.traced_now = fb.frame_traced()
-        run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
+        run.budget = fb.budget(n, n_inst, spp, cache.pool.n_live == 0)
         run.budget.owed, run.budget.owed_build = fb_mod.owed_at_once(
             cache.structures_missing(), len(sa.tris), cache.pool.n_live > 0)
         if run.budget.owed > run.budget.limit:  # (priced: its walk could never be paid)
@@ -335,6 +335,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         led.trace_s = run.trace_s
         led.traced_rays = run.traced_rays
         costs = led.costs(fb) if (pixels is None and not cancelled) else None
+        fb.declined = fb.declined + 1 if budget.declined else 0
         if costs is not None:
             fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut)
             if n_closest:
@@ -551,8 +552,8 @@ class _Run:
             # (less the builds' shares put off to the frame's later passes)
             budget.spent = (spent0 + (fb_mod.CLOCK() - t0) - trace_s
                             - (budget.later - later0))
-            if cells:
-                budget.walked += len(o)
+            if cells:  # (its builds whole: what a first walk is priced at, fallback.py)
+                budget.walked_chunk(len(o), budget.spent - spent0 + budget.later - later0)
 
 
 class InterpolantRenderer:

@@ -98,18 +98,26 @@ def test_a_declined_frame_is_the_base_frame_and_a_reprobe_walks(monkeypatch):
     # a first chunk that costs 1,000 traced rays a ray walked: no allowance pays it
     monkeypatch.setattr(fallback, "FIRST_WALK", [1000.0])
     r = InterpolantRenderer()
+    r.prepare(sa, st, accel)
+
+    def frame(r):
+        r.cache.fallback.ray_s = 1.0  # a dear ray: a large allowance (whatever the load)
+        return r.render(sc, st, accel)
+
     for i in range(fallback.REPROBE_FRAMES):
-        f = r.render(sc, st, accel)
+        f = frame(r)
         s = f.stats["fallback"]
         assert s["walked_rays"] == 0 and f.stats["cells_built"] == 0, i
         assert r.cache.fallback.declined == i + 1
         np.testing.assert_array_equal(f.radiance, base.radiance)
         np.testing.assert_array_equal(f.pixel_class, base.pixel_class)
     # the REPROBE_FRAMES-th declined frame in a row: this one walks (and prices it again)
-    f = r.render(sc, st, accel)
+    f = frame(r)
     assert f.stats["fallback"]["walked_rays"] > 0
     assert r.cache.fallback.declined == 0
     # unpriced (conftest: None), a fresh renderer's first frame walks a first chunk
     monkeypatch.setattr(fallback, "FIRST_WALK", [None])
-    f = InterpolantRenderer().render(sc, st, accel)
+    fresh = InterpolantRenderer()
+    fresh.prepare(sa, st, accel)
+    f = frame(fresh)
     assert f.stats["fallback"]["walked_rays"] > 0

@@ -45,6 +45,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
+from numba.core import event
 
 from .. import kernel_cache
 
@@ -91,9 +92,23 @@ CLOCK = time.perf_counter
 #: turn the learning off, :data:`LEARN_STRUCTURES`, as they decide by given costs)
 STRUCTURE_RATE: dict = {"topo": None, "qs": None}
 LEARN_STRUCTURES = True
-#: structures built so far in this process (:func:`timed_structure`: a chunk that built one
-#: does not teach :data:`FIRST_WALK`)
+#: structures built so far in this process (:func:`timed_structure`), and numba's compiler
+#: lock taken (every compile and every cache load takes it; a call of a loaded kernel does
+#: not): a chunk that did either does not teach :data:`FIRST_WALK` (counters, not
+#: :func:`.kernel_cache.mark`: that walks every dispatcher, 7 ms a frame measured)
 STRUCTURES_BUILT = [0]
+NUMBA_LOCKS = [0]
+
+
+class _LockCounter(event.Listener):
+    def on_start(self, ev):
+        NUMBA_LOCKS[0] += 1
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compiler_lock", _LockCounter())
 #: a cache's first walked chunk (no cell kept: its rays find nothing before its builds) is
 #: expected to add this many traced rays' prices per ray walked (line coordinates, the walk,
 #: its builds whole: their shares put off to later passes included); a frame whose
@@ -236,7 +251,7 @@ class Budget:
         self.opened = CLOCK()
         self.open_built = 0.0
         if self.walked == 0 and self.empty and LEARN_STRUCTURES:
-            self.first_marks = (kernel_cache.mark(), STRUCTURES_BUILT[0])
+            self.first_marks = (NUMBA_LOCKS[0], STRUCTURES_BUILT[0])
 
     def first_cost(self) -> float:
         """Seconds the frame's first walked chunk is expected to add (:data:`FIRST_WALK`'s
@@ -255,8 +270,7 @@ class Budget:
         self.walked += int(rays)
         if not (first and marks is not None and rays >= CHUNK_MIN and self.ray_s):
             return
-        c = kernel_cache.counts(since=marks[0])
-        if STRUCTURES_BUILT[0] == marks[1] and not (c["compiled"] or c["loaded"]):
+        if (NUMBA_LOCKS[0], STRUCTURES_BUILT[0]) == marks:
             FIRST_WALK[0] = max(float(added), 0.0) / (rays * self.ray_s)
 
     def close(self) -> None:

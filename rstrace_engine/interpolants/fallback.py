@@ -18,7 +18,9 @@ Three mechanisms, all priced by the frame's own timings:
   cell not built stays empty: its rays are traced now and a later frame builds it. The
   cost of a traced ray is learned from every frame's tracing; a renderer's first frame prices it by
   tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
-  :data:`CHUNK_MIN` rays) before any cell is walked.
+  :data:`CHUNK_MIN` rays) before any cell is walked. On a cache with no cell the first
+  walked chunk is priced before it is walked (:data:`FIRST_WALK`, learned from the last
+  such chunk): a frame that cannot pay it walks nothing.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects

@@ -204,3 +204,43 @@ def test_a_cut_interpolant_frames_tail_is_the_base_frame_on_rough_surfaces(monke
     assert f.stats["fallback"]["tail_pixels"] == 40 * 30
     base = whitted.render(sc, replace(st, mode="BASE"), accel=acc)
     assert np.array_equal(f.radiance, base.radiance)
+
+
+def test_next_paths_is_the_old_compaction_bit_for_bit():
+    """``next_paths`` (one numba pass) gives what ``_next_front`` built before with
+    ``flatnonzero``, ``child_paths``, ``np.where`` and fancy-index gathers: the same values,
+    dtypes and C-contiguous arrays, for empty levels, levels where every ray dies or none
+    does, points with no pairs (repeated ``gstart`` entries), one pair a point (no
+    ``gstart``) and paths near int64's limit (both wrap)."""
+    from rstrace_engine.tracing.seen_lights import SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION
+
+    rng = np.random.default_rng(41)
+    for it in range(600):
+        n = int(rng.integers(0, 7))
+        if it % 3 == 0 or n == 0:
+            gstart = glossy = None
+            pairs = n
+        else:
+            counts = rng.integers(0, 4, n) * (it % 7 != 1)
+            glossy = rng.random(n) < 0.5
+            gstart = np.zeros(n + 1, np.int64)
+            np.cumsum(counts, out=gstart[1:])
+            pairs = int(gstart[-1])
+        ok = rng.random(2 * pairs) < (0.0, 0.5, 1.0)[it % 3 if it % 5 else 1]
+        src = rng.integers(0, 100, n).astype(np.int32)
+        path = rng.integers(1, 2**62 if it % 4 == 0 else 50, n).astype(np.int64)
+        fresh = rng.random(n) < 0.5
+        tag, nseeds = (rng.integers(0, 2**63, n).astype(np.uint64) for _ in range(2))
+        ko, kd, kw = (rng.normal(size=(2 * pairs, 3)) for _ in range(3))
+        k = np.flatnonzero(ok)
+        which, f, t = gs.child_paths(k, gstart, glossy, fresh, tag, nseeds)
+        sees = np.where(k & 1, SEEN_TRANSMISSION, SEEN_GLOSSY).astype(np.int8)
+        if gstart is not None:
+            sees[glossy[which]] = SEEN_NONE
+        old = (k, which, src[which], path[which] * 2 + (k & 1), f, t, sees, ko[k], kd[k],
+               kw[k])
+        new = gs.next_paths(ok, gstart, glossy, src, path, fresh, tag, nseeds, ko, kd, kw,
+                            SEEN_NONE, SEEN_GLOSSY, SEEN_TRANSMISSION)
+        for a, b in zip(old, new, strict=True):
+            assert a.dtype == b.dtype and a.shape == b.shape and b.flags.c_contiguous
+            assert a.tobytes() == b.tobytes()

@@ -296,3 +296,20 @@ def test_the_shade_kernels_brdf_with_its_points_factors_is_principled_brdfs_bit_
         b = sh.principled_brdf_z(*n, *li, *vo, *d, *s, eta_s, metallic, *m, alpha, e_diel,
                                  *t, *z)
         assert np.array(a).tobytes() == np.array(b).tobytes()
+
+
+def test_principled_fresnels_non_metal_path_is_the_full_sums_bits():
+    """``principled_fresnel`` of a non-metal (``metallic`` 0) skips the conductor's terms:
+    the same bits as the full sum ``s fd + metallic z F82`` (its terms +0), with F82 tints
+    and colours over 1; a metallic of 1e-300 still takes the full sum."""
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        c = float(rng.uniform(-0.2, 1.0))
+        s, m, t = rng.uniform(0, 1, 3), rng.uniform(0, 1.5, 3), rng.uniform(0, 1, 3)
+        z = rng.uniform(1.0, 3.0, 3)
+        eta_s = float(rng.choice([1.0, 1.33, 1.5]))
+        for metallic in (0.0, 1e-300):
+            got = sh.principled_fresnel(c, *s, eta_s, metallic, *m, *t, *z)
+            fd = sh.fresnel_dielectric(c, 1.0 / eta_s) if eta_s != 1.0 else 0.0
+            want = [s[a] * fd + metallic * z[a] * sh.f82_metal(c, m[a], t[a]) for a in range(3)]
+            assert np.array(got).tobytes() == np.array(want).tobytes()

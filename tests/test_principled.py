@@ -10,6 +10,7 @@ import pytest
 from numba import njit
 from tracer_scenes import ortho_down, plane_scene, point_intensity
 
+from rstrace_engine import tolerances as tol
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.principled import ROUGH_REFLECTION_NOTE, principled_material
@@ -270,11 +271,30 @@ def test_rough_surface_without_specular_is_not_reported():
     assert ROUGH_REFLECTION_NOTE not in notes
 
 
+def _brdf_reference(n, li, vo, d, s, eta_s, metallic, m, alpha, e_white, e_diel, t):
+    """``principled_brdf`` as it was written before the factors were given (session 40):
+    the diffuse base, then the lobe with the factors computed where it is positive."""
+    from rstrace_engine.tracing.multiscatter import multiscatter_factors
+
+    kd = (1.0 - e_diel) * sh.INV_PI
+    out = [d[0] * kd, d[1] * kd, d[2] * kd]
+    if alpha < tol.GLOSSY_ALPHA_MIN or not (s > 0.0).any() and not metallic > 0.0:
+        return tuple(out)
+    lobe, ch = sh.ggx_lobe(*n, *li, *vo, alpha)
+    if lobe <= 0.0:
+        return tuple(out)
+    zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, *m, *t)
+    f = sh.principled_fresnel(ch, s[0] * zd, s[1] * zd, s[2] * zd, eta_s, metallic, *m, *t,
+                              zr, zg, zb)
+    return tuple(out[k] + lobe * f[k] for k in range(3))
+
+
 def test_the_shade_kernels_brdf_with_its_points_factors_is_principled_brdfs_bit_for_bit():
     """The shade kernel evaluates a point's lights and soft samples with its multiple-
-    scattering factors computed once (``principled_brdf_z``): the same bits as
-    ``principled_brdf``, which computes them per call (the light records re-shade with it),
-    for metals and non-metals (``principled_fresnel``'s non-metal path) alike."""
+    scattering factors computed once (``principled_brdf_z``), and ``principled_brdf``
+    computes them and calls it: both the bits of the function as it was before
+    (:func:`_brdf_reference`), for metals and non-metals (``principled_fresnel``'s non-metal
+    path) alike."""
     from rstrace_engine.tracing.multiscatter import multiscatter_factors
 
     rng = np.random.default_rng(41)
@@ -295,7 +315,9 @@ def test_the_shade_kernels_brdf_with_its_points_factors_is_principled_brdfs_bit_
         z = multiscatter_factors(alpha, e_white, eta_s, *m, *t)
         b = sh.principled_brdf_z(*n, *li, *vo, *d, *s, eta_s, metallic, *m, alpha, e_diel,
                                  *t, *z)
-        assert np.array(a).tobytes() == np.array(b).tobytes()
+        ref = _brdf_reference(n, li, vo, d, s, eta_s, metallic, m, alpha, e_white, e_diel, t)
+        assert np.array(a).tobytes() == np.array(ref).tobytes()
+        assert np.array(b).tobytes() == np.array(ref).tobytes()
 
 
 def test_principled_fresnels_non_metal_path_is_the_full_sums_bits():

@@ -237,20 +237,11 @@ def principled_brdf(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, 
     energy). ``e_white, e_diel`` come from :func:`ggx_albedo` for the viewer. No
     lobe below ``tolerances.GLOSSY_ALPHA_MIN``: a (near) mirror reflects through mirror rays.
     """
-    kd = (1.0 - e_diel) * INV_PI
-    r = dr * kd
-    g = dg * kd
-    bl = db * kd
-    if alpha < tol.GLOSSY_ALPHA_MIN or not (sr > 0.0 or sg > 0.0 or sb > 0.0
-                                            or metallic > 0.0):
-        return r, g, bl
-    lobe, ch = ggx_lobe(nx, ny, nz, ix, iy, iz, ox, oy, oz, alpha)
-    if lobe <= 0.0:
-        return r, g, bl
-    zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, tr, tg, tb)
-    fr, fg, fb = principled_fresnel(ch, sr * zd, sg * zd, sb * zd, eta_s, metallic, mr, mg, mb,
-                                    tr, tg, tb, zr, zg, zb)
-    return r + lobe * fr, g + lobe * fg, bl + lobe * fb
+    zd = zr = zg = zb = 0.0  # (no lobe: not read)
+    if alpha >= tol.GLOSSY_ALPHA_MIN and (sr > 0.0 or sg > 0.0 or sb > 0.0 or metallic > 0.0):
+        zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, tr, tg, tb)
+    return principled_brdf_z(nx, ny, nz, ix, iy, iz, ox, oy, oz, dr, dg, db, sr, sg, sb, eta_s,
+                             metallic, mr, mg, mb, alpha, e_diel, tr, tg, tb, zd, zr, zg, zb)
 
 
 @njit(cache=True, nogil=True)

@@ -1,10 +1,7 @@
 """Core tests decide by given costs, not timings: the interpolants' learned cost of a
 scene's structures (:data:`~rstrace_engine.interpolants.fallback.STRUCTURE_RATE`, learned
 from the builds of earlier tests in the process) is not learned, so no test's frames depend
-on which tests ran before it, and a cache's first walk is not priced before it is walked
-(:data:`~rstrace_engine.interpolants.fallback.FIRST_WALK` None: its start would make small
-test frames walk nothing; its tests set it). The bpy tests under ``blender/`` run the add-on
-as it is."""
+on which tests ran before it (the bpy tests under ``blender/`` run the add-on as it is)."""
 
 from __future__ import annotations
 
@@ -22,5 +19,4 @@ def _no_learned_structure_rate(request, monkeypatch):
 
     monkeypatch.setattr(fallback, "LEARN_STRUCTURES", False)
     monkeypatch.setattr(fallback, "STRUCTURE_RATE", {"topo": None, "qs": None})
-    monkeypatch.setattr(fallback, "FIRST_WALK", [None])
     yield

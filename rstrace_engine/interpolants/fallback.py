@@ -18,9 +18,7 @@ Three mechanisms, all priced by the frame's own timings:
   cell not built stays empty: its rays are traced now and a later frame builds it. The
   cost of a traced ray is learned from every frame's tracing; a renderer's first frame prices it by
   tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
-  :data:`CHUNK_MIN` rays) before any cell is walked. On a cache with no cell the first
-  walked chunk is priced before it is walked (:data:`FIRST_WALK`, learned from the last
-  such chunk): a frame that cannot pay it walks nothing.
+  :data:`CHUNK_MIN` rays) before any cell is walked.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
@@ -47,7 +45,6 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from numba.core import event
 
 from .. import kernel_cache
 
@@ -94,39 +91,10 @@ CLOCK = time.perf_counter
 #: turn the learning off, :data:`LEARN_STRUCTURES`, as they decide by given costs)
 STRUCTURE_RATE: dict = {"topo": None, "qs": None}
 LEARN_STRUCTURES = True
-#: structures built so far in this process (:func:`timed_structure`), and numba's compiler
-#: lock taken (every compile and every cache load takes it; a call of a loaded kernel does
-#: not): a chunk that did either does not teach :data:`FIRST_WALK` (counters, not
-#: :func:`.kernel_cache.mark`: that walks every dispatcher, 7 ms a frame measured)
-STRUCTURES_BUILT = [0]
-NUMBA_LOCKS = [0]
-
-
-class _LockCounter(event.Listener):
-    def on_start(self, ev):
-        NUMBA_LOCKS[0] += 1
-
-    def on_end(self, ev):
-        pass
-
-
-event.register("numba:compiler_lock", _LockCounter())
-#: a cache's first walked chunk (no cell kept: its rays find nothing before its builds) is
-#: expected to add this many traced rays' prices per ray walked (line coordinates, the walk,
-#: its builds whole: their shares put off to later passes included); a frame whose
-#: allowance cannot pay a :data:`CHUNK_MIN` chunk at it walks nothing, as the ledger would
-#: have cut it after that chunk (:meth:`Budget.first_cost`). Learned from the last such
-#: chunk that built no structure and loaded no kernel (:data:`LEARN_STRUCTURES`; the tests
-#: set it). The start, 0.5: the least measured (session 41, process CPU, 1 thread, first
-#: chunks of 4,096 rays): ``museum_soft`` 320x240 4 spp 0.55-0.6 (its cells pay), ``museum``
-#: 640x480 1 spp 1.5, ``museum_1999`` 640x480 1 spp 2-6 (they do not). At 0.5 a frame of
-#: fewer than CHUNK_MIN / (2 ALLOWANCE) = 102,400 rays walks nothing until it is learned.
-FIRST_WALK: list = [0.5]
 
 
 def timed_structure(kind: str, n_tris: int, build):
     """``build()``, its cost per triangle learned as ``kind``'s :data:`STRUCTURE_RATE`."""
-    STRUCTURES_BUILT[0] += 1
     if not LEARN_STRUCTURES:
         return build()
     since = kernel_cache.mark()
@@ -229,13 +197,6 @@ class Budget:
         self.owed_build = 0.0
         self.opened: float | None = None  # when the chunk being walked began (:meth:`open`)
         self.open_built = 0.0  # seconds of builds since then (charged as they went)
-        #: the cache kept no cell when the frame began: its first walked chunk is priced
-        #: before it is walked (:data:`FIRST_WALK`, :meth:`first_cost`) and teaches the
-        #: price (``first_walk`` None: not priced, the fallback's re-probe)
-        self.empty = False
-        self.first_walk: float | None = None
-        self.declined = False  # the first walk's price declined the frame's walk
-        self.first_marks = None  # (kernel marks, structures built) when the first walk began
         if ray_s is not None:
             self.price(ray_s, vis_s, hit_share)
 
@@ -252,28 +213,6 @@ class Budget:
         spent the allowance already, ``museum_1999``: 10-18 ms added against 1.5 ms)."""
         self.opened = CLOCK()
         self.open_built = 0.0
-        if self.walked == 0 and self.empty and LEARN_STRUCTURES:
-            self.first_marks = (NUMBA_LOCKS[0], STRUCTURES_BUILT[0])
-
-    def first_cost(self) -> float:
-        """Seconds the frame's first walked chunk is expected to add (:data:`FIRST_WALK`'s
-        price of a :data:`CHUNK_MIN` chunk; 0 after a walk, or where it is not priced)."""
-        if self.walked or self.first_walk is None or self.ray_s is None:
-            return 0.0
-        return self.first_walk * CHUNK_MIN * self.ray_s
-
-    def walked_chunk(self, rays: int, added: float) -> None:
-        """A chunk walked ``rays`` rays and added ``added`` seconds (its builds whole). The
-        first of a frame on a cache with no cell, of at least :data:`CHUNK_MIN` rays, that
-        built no structure and loaded no kernel (:meth:`open` marked them), teaches
-        :data:`FIRST_WALK` its price per ray walked (in traced rays' prices)."""
-        marks, self.first_marks = self.first_marks, None
-        first = self.walked == 0
-        self.walked += int(rays)
-        if not (first and marks is not None and rays >= CHUNK_MIN and self.ray_s):
-            return
-        if (NUMBA_LOCKS[0], STRUCTURES_BUILT[0]) == marks:
-            FIRST_WALK[0] = max(float(added), 0.0) / (rays * self.ray_s)
 
     def close(self) -> None:
         """The chunk's walk and builds are over (the chunk then books all it added)."""
@@ -364,10 +303,8 @@ class Budget:
         left = self.left() - self.owed
         walk = self.spent - self.build_paid
         if self.walked == 0 or walk <= 0.0:
-            first = self.first_cost()
-            if left < first:  # (first: what a first walk on an empty cache is priced at)
+            if left < 0.0:
                 self.cut |= rest > 0
-                self.declined |= rest > 0 and left >= 0.0
                 return 0
             return min(rest, CHUNK_MIN)
         can = int(left / (walk / self.walked))
@@ -390,7 +327,7 @@ class Budget:
         left = self.left() - self.owed + SAVE_SHARE * max(int(reprojectable), 0) * self.ray_s
         walk = self.spent - self.build_paid
         if self.walked == 0 or walk <= 0.0:  # (as chunk: it walks CHUNK_MIN at 0 left)
-            return left < self.first_cost()
+            return left < 0.0
         return left < CHUNK_MIN * (walk / self.walked)
 
 
@@ -406,7 +343,6 @@ class Fallback:
         self.all_traced = False  # the whole frame did not pay: every object traced
         self.frames_all = 0  # frames since the whole frame was last judged
         self.cuts = 0  # frames in a row the ledger cut short and that were not judged
-        self.declined = 0  # frames in a row whose first walk's price declined their walk
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -424,17 +360,6 @@ class Fallback:
         idx = np.asarray([int(k) for k in objects if 0 <= int(k) < len(self.traced)], np.int64)
         self.traced[idx] = False
         self.frames_traced[idx] = 0
-
-    def budget(self, rays: int, n_inst: int, passes: int, empty: bool) -> Budget:
-        """A frame's :class:`Budget` (``empty``: the cache keeps no cell). Its first walk
-        is priced before it is walked (:data:`FIRST_WALK`) but in every
-        :data:`REPROBE_FRAMES`-th frame in a row that it declined: that frame walks, and
-        its first chunk prices it again (a price too high is corrected)."""
-        b = Budget(rays, self.ray_s, n_inst, self.vis_s, self.hit_share, passes)
-        b.empty = bool(empty)
-        if empty and self.declined < REPROBE_FRAMES:
-            b.first_walk = FIRST_WALK[0]
-        return b
 
     def whole_frame_traced(self) -> bool:
         """Whether this frame is the base tracer's (the whole frame did not pay; not due

@@ -84,8 +84,8 @@ _INTERPOLANT = ("geometry.mesh_topology._edge_pass", "geometry.mesh_topology._is
                 "interpolants.linetree._assign_roots", "interpolants.linetree._collapse_pass",
                 "interpolants.linetree._free_subtrees", "interpolants.linetree._init_children",
                 "interpolants.membership._valid", "interpolants.ray_segment_tree.live_tunnels",
-                "interpolants.ray_segment_tree.query_list", "interpolants.render._finish",
-                "interpolants.render._to_trace", "interpolants.samples._glossy_nodes",
+                "interpolants.ray_segment_tree.query_list", "interpolants.pixel_sums._finish",
+                "interpolants.pixel_sums._to_trace", "interpolants.samples._glossy_nodes",
                 "interpolants.samples._far_lit_roots")
 MODE_KERNELS = {"BASE": _BASE, "INTERPOLANT": _BASE + _INTERPOLANT}
 

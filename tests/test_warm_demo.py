@@ -141,13 +141,14 @@ def test_demo_warm_up_reaches_the_glossy_kernels_of_the_demo(monkeypatch):
     them the warm scene's rough metal: seven kernels its rough spheres' glossy rays call
     (the strata, the roulette, the own-instance skip of a convex ball and its reflected
     rays, a mesh's convexity) were compiled by the demo itself, on its own path (session
-    36). The perspective steps carry the rough metal now; on main none is called."""
+    36). The perspective steps carry the rough metal now; on main none is called. (The
+    glossy fronts' tags: ``_next_paths`` since session 41, ``_child_tags`` before.)"""
     from rstrace_engine import warm_kernels
     from rstrace_engine.tracing import glossy_rays, glossy_strata, object_rays, shaft_skip
 
     kernels = [(shaft_skip, "_own_kernel"), (shaft_skip, "_own_reflections"),
                (object_rays, "_plane_excess"), (glossy_rays, "_roulette"),
-               (glossy_strata, "_child_tags"), (glossy_strata, "_lattices"),
+               (glossy_strata, "_next_paths"), (glossy_strata, "_lattices"),
                (glossy_strata, "_pixel_seeds")]
     calls = {}
 

@@ -136,14 +136,21 @@ def child_paths(slots: np.ndarray, gstart: np.ndarray | None, glossy: np.ndarray
     return which, fresh[which] & ~glossy[which], out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _glossy_tag(nseed, sample):
+    """A glossy sample's tag: its point's node seed hashed with its sample index (its
+    children's seeds differ from its siblings')."""
+    return mix64(nseed ^ mix64(np.uint64(sample + 1)))
+
+
 @njit(cache=True, nogil=True)
 def _child_tags(nseeds, which, sample, glossy, tag, out):
-    """Tags of spawned rays: a glossy sample's hashes its parent's seed and its sample index
-    (its children's seeds differ from its siblings'), any other keeps its parent's."""
+    """Tags of spawned rays: a glossy sample's :func:`_glossy_tag`, any other keeps its
+    parent's."""
     for k in range(which.shape[0]):
         p = which[k]
         if glossy[p]:
-            out[k] = mix64(nseeds[p] ^ mix64(np.uint64(sample[k] + 1)))
+            out[k] = _glossy_tag(nseeds[p], sample[k])
         else:
             out[k] = tag[p]
 
@@ -193,7 +200,7 @@ def _next_paths(ok, gstart, glossy, src, path, fresh, tag, nseeds, ko, kd, kw, s
         c_path[c] = path[p] * 2 + (s & 1)
         if glossy[p]:
             c_fresh[c] = False
-            c_tag[c] = mix64(nseeds[p] ^ mix64(np.uint64(pair - gstart[p] + 1)))
+            c_tag[c] = _glossy_tag(nseeds[p], pair - gstart[p])
             c_sees[c] = s_lobe
         else:
             c_fresh[c] = fresh[p]

@@ -244,6 +244,7 @@ def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t
     Returns ``(found, t, triangle, u, v)`` with ``t <= best`` (the global triangle).
     """
     kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+    ux, uy, uz = _u(kx), _u(ky), _u(kz)  # (indices never negative: no wrap-around code)
     okx = ox if kx == 0 else (oy if kx == 1 else oz)
     oky = ox if ky == 0 else (oy if ky == 1 else oz)
     okz = ox if kz == 0 else (oy if kz == 1 else oz)
@@ -266,10 +267,11 @@ def _trace_mesh(bounds, child, verts, tris, tri, root, ox, oy, oz, dx, dy, dz, t
         s, k = code >> 3, code & 7
         for i in range(leaf_size(k)):
             g = leaf_triangle(tri, s, k, i)
-            a, b, c = tris[g, 0], tris[g, 1], tris[g, 2]
+            ug = _u(g)
+            a, b, c = _u(tris[ug, _u(0)]), _u(tris[ug, _u(1)]), _u(tris[ug, _u(2)])
             hit, t, u, v = intersect_sheared(
-                verts[a, kx], verts[a, ky], verts[a, kz], verts[b, kx], verts[b, ky],
-                verts[b, kz], verts[c, kx], verts[c, ky], verts[c, kz], okx, oky, okz, sx, sy,
+                verts[a, ux], verts[a, uy], verts[a, uz], verts[b, ux], verts[b, uy],
+                verts[b, uz], verts[c, ux], verts[c, uy], verts[c, uz], okx, oky, okz, sx, sy,
                 sz, t0, best)
             # t <= best; an equal distance goes to the highest triangle id, whichever the
             # tree tested first (every triangle at t == best is tested: nodes are culled

@@ -19,6 +19,12 @@ when the ray enters its box no farther than :func:`.bvh._cull` of ``tmax`` (``tm
 lost hits at ``t == tmax`` to a box entry rounded past it; the shadow re-shade's per-object
 test, :meth:`~.interface.Accelerator.occludes_object`, culls so too), so images are
 unchanged.
+
+Hard lights' shadow rays (a point, a spot, a sun without an angle, a light radius of 0:
+one ray a (point, light) row, :func:`~..tracing.whitted.shadow_rays`) are the same plain
+query: :func:`occluded_rays` traces them with :func:`occluded_kernel`, each ray a row of
+one sample, instead of :func:`.bvh.trace_kernel`'s any hit (its box sort and distance
+stack, its five outputs).
 """
 
 from __future__ import annotations
@@ -197,3 +203,19 @@ def occluded_samples(sb: SceneBVH, o, d, tmax, w, n: int, row_skip, row_proven,
     if total[3]:
         raise ValueError("rays: NaN or infinite origin or direction")
     return vis, total
+
+
+def occluded_rays(sb: SceneBVH, o, d, tmax, skip=None, stop: np.ndarray = NEVER_STOP):
+    """Whether each ray ``o[r] + t d[r]``, ``0 <= t <= tmax[r]``, meets a triangle
+    (leaving instance ``skip[r]`` out, -1: none; None: none left out): what
+    :func:`.bvh.trace_kernel`'s any hit from ``tmin = 0`` answers, bit for bit, by
+    :func:`occluded_kernel` (a row of one sample per ray; no new signature). Returns
+    ``(blocked (n,) bool, counts (4,) int64)`` as :func:`occluded_samples`."""
+    n = len(tmax)
+    o = np.ascontiguousarray(o, np.float64).reshape(n, 3)
+    d = np.ascontiguousarray(d, np.float64).reshape(n, 3)
+    tmax = np.ascontiguousarray(tmax, np.float64)
+    skip = np.full(n, -1, np.int32) if skip is None else skip
+    vis, counts = occluded_samples(sb, o, d, tmax, np.ones(n), 1, skip, np.zeros(n, np.bool_),
+                                   stop)
+    return ~vis, counts

@@ -11,8 +11,12 @@ they lie, row by row, skips those without weight and the rows proven visible, an
 each sample's visibility.
 
 Its traversal is the any-hit query of :func:`.bvh.trace_kernel` less what only a closest
-hit needs: no box distances kept on the stack nor sorted (a ray stops at its first hit,
-any order finds one when there is one), no distance or barycentrics carried. Whether a
+hit needs: no box distances kept on the stack nor culled against on the way back (a ray
+stops at its first hit, any order finds one when there is one), no distance or
+barycentrics carried. A node's children are visited farthest entry first: a shadow ray
+leaves a surface, and the boxes it enters first hold that surface and its neighbours,
+which it has just left; what blocks it lies farther on (session 42: blocked rays 25%
+cheaper on rough_materials than in lane order, visible ones ~4% dearer). Whether a
 ray is blocked -- a triangle met at ``0 <= t <= tmax`` by the same watertight float64 test
 on the same boxes -- is the any-hit query's answer bit for bit: a node is entered, as there,
 when the ray enters its box no farther than :func:`.bvh._cull` of ``tmax`` (``tmax`` itself
@@ -44,25 +48,46 @@ _FINITE = np.finfo(np.float64).max
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _ascending(ta, tb, tc, td, ca, cb, cc, cd):
+    """Four entry distances and their children, sorted by distance (a sorting network:
+    :func:`.bvh._visit` sorts its four so too)."""
+    if tb < ta:
+        ta, tb, ca, cb = tb, ta, cb, ca
+    if td < tc:
+        tc, td, cc, cd = td, tc, cd, cc
+    if tc < ta:
+        ta, tc, ca, cc = tc, ta, cc, ca
+    if td < tb:
+        tb, td, cb, cd = td, tb, cd, cb
+    if tc < tb:
+        tb, tc, cb, cc = tc, tb, cc, cb
+    return ta, tb, tc, td, ca, cb, cc, cd
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _push_hit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc, st, sp):
     """Push the children of ``node`` whose box the ray enters within ``[t0, tc]`` (``tc``:
     :func:`.bvh._cull` of the ray's ``tmax``; :func:`.bvh._visit` pushes a box entered up to
-    ``tc`` times the slab test's far scale, and its pop skips those entered past ``tc``), in
-    lane order (no distances: any order finds a hit). Returns ``sp``."""
+    ``tc`` times the slab test's far scale, and its pop skips those entered past ``tc``),
+    the farthest entry popped first (module doc; any order finds a hit, so the answer is
+    the same). Returns ``sp``."""
     ta, tb, tc4, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc)
     lim = min(tc, _FINITE)  # (a miss is inf)
     un = _u(node)
-    if td <= lim:
-        st[_u(sp)] = child[un, _u(3)]
-        sp += 1
-    if tc4 <= lim:
-        st[_u(sp)] = child[un, _u(2)]
+    ta, tb, tc4, td, ca, cb, cc, cd = _ascending(
+        ta, tb, tc4, td, child[un, _u(0)], child[un, _u(1)], child[un, _u(2)],
+        child[un, _u(3)])
+    if ta <= lim:
+        st[_u(sp)] = ca
         sp += 1
     if tb <= lim:
-        st[_u(sp)] = child[un, _u(1)]
+        st[_u(sp)] = cb
         sp += 1
-    if ta <= lim:
-        st[_u(sp)] = child[un, _u(0)]
+    if tc4 <= lim:
+        st[_u(sp)] = cc
+        sp += 1
+    if td <= lim:
+        st[_u(sp)] = cd
         sp += 1
     return sp
 

@@ -38,30 +38,13 @@ from numba import njit
 
 from .. import stripes
 from .box4 import lanes4
-from .bvh import STACK_SIZE, SceneBVH, _cull, _inv_dir, _near, _u, ray_to_object
+from .bvh import STACK_SIZE, SceneBVH, _ascending, _cull, _inv_dir, _near, _u, ray_to_object
 from .bvh_build import NEVER_STOP
 from .bvh_mesh import leaf_size, leaf_triangle
 from .triangle import intersect_sheared, ray_shear
 
 #: The largest float64: a box entry no greater is a box entered (a miss is inf).
 _FINITE = np.finfo(np.float64).max
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _ascending(ta, tb, tc, td, ca, cb, cc, cd):
-    """Four entry distances and their children, sorted by distance (a sorting network:
-    :func:`.bvh._visit` sorts its four so too)."""
-    if tb < ta:
-        ta, tb, ca, cb = tb, ta, cb, ca
-    if td < tc:
-        tc, td, cc, cd = td, tc, cd, cc
-    if tc < ta:
-        ta, tc, ca, cc = tc, ta, cc, ca
-    if td < tb:
-        tb, td, cb, cd = td, tb, cd, cb
-    if tc < tb:
-        tb, tc, cb, cc = tc, tb, cc, cb
-    return ta, tb, tc, td, ca, cb, cc, cd
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")

@@ -12,7 +12,7 @@ so the viewport's own frames interleave with it.
 Two processes: the traversal kernel alone is about as long to compile as all the other
 first-image kernels together (numba compiles one kernel at a time, on one core), so
 :func:`first_image` starts a helper process (``sys.executable``, Blender's own Python in
-the add-on) that compiles it (and the hard shadow rays' sort-free any hit) into the shared
+the add-on) that compiles it (and the hard shadow rays' occlusion kernel) into the shared
 numba cache (:mod:`.kernel_cache` makes that safe across processes) while this process
 compiles the rest, then loads them. The helper's kernels are compiled from zero-length
 calls whose argument types are exactly those of a render's (a test checks that a render
@@ -57,7 +57,7 @@ _HELPER_CODE = "from rstrace_engine.warm_first import compile_traversal; compile
 def compile_traversal() -> None:
     """Compile (or load) the BVH traversal kernels for the argument types of every query
     (closest and any hit, all rays or one instance; hard lights' shadow rays, the
-    sort-free any hit), with zero rays: the helper's part."""
+    occlusion kernel), with zero rays: the helper's part."""
     from .accel import bvh
     from .accel.accelerators import BVHAccelerator
 

@@ -189,8 +189,8 @@ def test_hard_rays_through_mirrored_and_squashed_instances():
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("name", ["instanced", "studio"])
 def test_hard_shadow_query_is_any_hit(name, threads):
-    """The hard lights' shadow query (:meth:`BVHAccelerator.occluded`, the sort-free any
-    hit, one ray a row) answers as :meth:`any_hit` from ``tmin = 0``, ray for ray: through
+    """The hard lights' shadow query (:meth:`BVHAccelerator.occluded`, the occlusion
+    kernel, one ray a row) answers as :meth:`any_hit` from ``tmin = 0``, ray for ray: through
     mirrored and squashed instances, far ends on a surface, an instance left out per ray
     or none."""
     sa = (_instanced_scene() if name == "instanced" else scenes.studio(32, 24)).arrays()
@@ -220,7 +220,7 @@ def _plain_any_hit(accel, o, d, tmax, skip=None):
 
 
 @pytest.mark.parametrize("name", ["rough_materials", "three_spheres"])
-def test_hard_lit_frame_takes_the_sort_free_query(name, monkeypatch):
+def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
     """A hard-lit base frame (a point light at camera hits and at every level of the rough
     paths) traces its shadow rays through :meth:`BVHAccelerator.occluded`, every one of
     them, and equals bit for bit the frame whose shadow rays go through ``any_hit``."""
@@ -247,8 +247,8 @@ def test_hard_lit_frame_takes_the_sort_free_query(name, monkeypatch):
         assert fast.stats[key] == slow.stats[key], key
 
 
-def test_ri_tree_frame_takes_the_sort_free_query(monkeypatch):
-    """The RI_TREE frame's shadow rays from traced points go through the sort-free query,
+def test_ri_tree_frame_takes_the_occlusion_query(monkeypatch):
+    """The RI_TREE frame's shadow rays from traced points go through the occlusion query,
     and its image is the one through ``any_hit``."""
     from rstrace_engine.accel.accelerators import BVHAccelerator
     from rstrace_engine.ri_tree import render as ri_render

@@ -299,7 +299,7 @@ class BVHAccelerator(Accelerator):
 
     def occluded(self, o, d, tmax, skip=None) -> np.ndarray:
         """(n,) bool: :meth:`any_hit` of the rays from ``tmin = 0`` (``skip`` as its), bit
-        for bit, traced where they lie by the sort-free any hit
+        for bit, traced where they lie by the occlusion kernel
         (:func:`.bvh_occlusion.occluded_rays`): hard lights' shadow rays."""
         t0 = time.perf_counter()
         blocked, counts = bvh_occlusion.occluded_rays(

@@ -71,7 +71,7 @@ def occluded(sa, accel, o, d, tmax, lights) -> np.ndarray:
 
 def any_hit_shadows(accel, o, d, tmax, skip=None) -> np.ndarray:
     """The plain any-hit query of shadow rays from ``t = 0``, (k,) bool: the accelerator's
-    ``occluded`` where it has one (the BVH's sort-free any hit, the same answer bit for bit:
+    ``occluded`` where it has one (the BVH's occlusion kernel, the same answer bit for bit:
     :func:`~..accel.bvh_occlusion.occluded_rays`), else its ``any_hit``. ``skip`` as
     ``any_hit``'s."""
     f = getattr(accel, "occluded", None)

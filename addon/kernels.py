@@ -112,6 +112,7 @@ PRELOAD = ("accel.content_hash._nh_blocks", "geometry.mesh_math._gather_corners"
            "geometry.cameras.generate_rays", "accel.bvh.trace_kernel",
            "tracing.shader._surface_kernel", "tracing.whitted._light_masks",
            "tracing.soft_lights._sample_seeds", "tracing.shader._shadow_kernel",
+           "accel.bvh_occlusion.occluded_kernel",
            "tracing.dielectric_albedo.dielectric_albedos", "tracing.shader._shade_kernel",
            "tracing.batches.scatter_add",
            "tracing.batches.accumulate", "tracing.record_codes._encode_nodes",

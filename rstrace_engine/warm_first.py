@@ -12,13 +12,14 @@ so the viewport's own frames interleave with it.
 Two processes: the traversal kernel alone is about as long to compile as all the other
 first-image kernels together (numba compiles one kernel at a time, on one core), so
 :func:`first_image` starts a helper process (``sys.executable``, Blender's own Python in
-the add-on) that compiles it into the shared numba cache (:mod:`.kernel_cache` makes that
-safe across processes) while this process compiles the rest, then loads it. The helper's
-kernel is compiled from zero-length calls whose argument types are exactly those of a
-render's (a test checks that a render afterwards compiles no new signature), and this
-process compiles the tracer's stages against a stand-in for the traversal
-(:class:`_FixedHits`), so neither waits for the other. Without a helper (``processes=1``,
-or it cannot start) this process compiles everything itself.
+the add-on) that compiles it (and the hard shadow rays' occlusion kernel) into the shared
+numba cache (:mod:`.kernel_cache` makes that safe across processes) while this process
+compiles the rest, then loads them. The helper's kernels are compiled from zero-length
+calls whose argument types are exactly those of a render's (a test checks that a render
+afterwards compiles no new signature), and this process compiles the tracer's stages
+against a stand-in for the traversal (:class:`_FixedHits`), so neither waits for the
+other. Without a helper (``processes=1``, or it cannot start) this process compiles
+everything itself.
 """
 
 from __future__ import annotations
@@ -47,14 +48,16 @@ FIRST_IMAGE_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtr
                        "tracing.whitted._surface_kernel", "tracing.whitted._shadow_kernel",
                        "tracing.whitted._shade_kernel", "tracing.batches.scatter_add",
                        "tracing.batches.accumulate", "accel.content_hash._nh_blocks",
-                       "tracing.dielectric_albedo.dielectric_albedos")
-HELPER_KERNELS = ("accel.bvh.trace_kernel",)
+                       "tracing.dielectric_albedo.dielectric_albedos",
+                       "accel.bvh_occlusion.occluded_kernel")
+HELPER_KERNELS = ("accel.bvh.trace_kernel", "accel.bvh_occlusion.occluded_kernel")
 _HELPER_CODE = "from rstrace_engine.warm_first import compile_traversal; compile_traversal()"
 
 
 def compile_traversal() -> None:
-    """Compile (or load) the BVH traversal kernel for the argument types of every query
-    (closest and any hit, all rays or one instance), with zero rays: the helper's part."""
+    """Compile (or load) the BVH traversal kernels for the argument types of every query
+    (closest and any hit, all rays or one instance; hard lights' shadow rays, the
+    occlusion kernel), with zero rays: the helper's part."""
     from .accel import bvh
     from .accel.accelerators import BVHAccelerator
 
@@ -68,6 +71,7 @@ def compile_traversal() -> None:
     none = np.zeros((0, 3))
     acc.closest_hit(none, none, 0.0, np.inf)
     acc.any_hit(none, none, np.zeros(0), np.full(0, np.inf))
+    acc.occluded(none, none, np.zeros(0))
 
 
 #: What each of ``warm-cache``'s two parts compiles before its units
@@ -203,8 +207,8 @@ def first_image_cached() -> bool:
 
 
 def _helper_needed() -> bool:
-    """True when the traversal kernel is neither in memory nor in the disk cache."""
-    return not any(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
+    """True when a traversal kernel is neither in memory nor in the disk cache."""
+    return not all(_kernel(k).signatures or kernel_cache.cached_signatures(_kernel(k))
                    for k in HELPER_KERNELS)
 
 

@@ -143,15 +143,11 @@ def _instanced_scene():
     return s
 
 
-def test_hard_rays_through_mirrored_and_squashed_instances():
-    """Origins on the surfaces they left, axis-aligned directions and directions with a
-    zero component, far ends on (or an ulp or two past) a surface, an instance left out per
-    row: the any-hit answer, ray for ray."""
-    sa = _instanced_scene().arrays()
-    acc = create_accelerator("BVH", sa)
-    rng = np.random.default_rng(7)
+def _hard_rays(sa, acc, k, rng):
+    """``k`` rays: origins on the surfaces they left, axis-aligned directions and
+    directions with a zero component, far ends on (or an ulp or two past) a surface or
+    infinite."""
     lo, hi = np.asarray(sa.scene_aabb, np.float64)
-    k, n = 40000, 8
     o = lo + (hi - lo) * rng.random((k, 3))
     d = rng.normal(size=(k, 3))
     ax = rng.random(k) < 0.3
@@ -169,6 +165,18 @@ def test_hard_rays_through_mirrored_and_squashed_instances():
     up = rng.integers(0, 3, k)
     for i in range(2):
         tmax = np.where(up > i, np.nextafter(tmax, np.inf), tmax)
+    return o, d, tmax
+
+
+def test_hard_rays_through_mirrored_and_squashed_instances():
+    """Origins on the surfaces they left, axis-aligned directions and directions with a
+    zero component, far ends on (or an ulp or two past) a surface, an instance left out per
+    row: the any-hit answer, ray for ray."""
+    sa = _instanced_scene().arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(7)
+    k, n = 40000, 8
+    o, d, tmax = _hard_rays(sa, acc, k, rng)
     skip = np.where(rng.random(k // n) < 0.5, rng.integers(0, len(sa.inst_mesh), k // n), -1)
     skip = skip.astype(np.int32)
     vis, counts = acc.occluded_samples(o, d, tmax, np.ones(k), n, skip,
@@ -176,3 +184,88 @@ def test_hard_rays_through_mirrored_and_squashed_instances():
     blocked = acc.any_hit(o, d, np.zeros(k), tmax, np.repeat(skip, n))
     assert 0.1 < blocked.mean() < 0.9 and counts[0] == k
     np.testing.assert_array_equal(vis, ~blocked)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("name", ["instanced", "studio"])
+def test_hard_shadow_query_is_any_hit(name, threads):
+    """The hard lights' shadow query (:meth:`BVHAccelerator.occluded`, the occlusion
+    kernel, one ray a row) answers as :meth:`any_hit` from ``tmin = 0``, ray for ray: through
+    mirrored and squashed instances, far ends on a surface, an instance left out per ray
+    or none."""
+    sa = (_instanced_scene() if name == "instanced" else scenes.studio(32, 24)).arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(11)
+    k = 30000
+    o, d, tmax = _hard_rays(sa, acc, k, rng)
+    skip = np.where(rng.random(k) < 0.5, rng.integers(0, len(sa.inst_mesh), k), -1)
+    skip = skip.astype(np.int32)
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        got = acc.occluded(o, d, tmax, skip)
+        got_all = acc.occluded(o, d, tmax)
+    finally:
+        numba.set_num_threads(old)
+    want = acc.any_hit(o, d, np.zeros(k), tmax, skip)
+    want_all = acc.any_hit(o, d, np.zeros(k), tmax)
+    assert 0.1 < want.mean() < 0.9 and (want != want_all).any()
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got_all, want_all)
+
+
+def _plain_any_hit(accel, o, d, tmax, skip=None):
+    extra = () if skip is None else (skip,)
+    return np.asarray(accel.any_hit(o, d, np.zeros(len(o)), tmax, *extra), np.bool_)
+
+
+@pytest.mark.parametrize("name", ["rough_materials", "three_spheres"])
+def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
+    """A hard-lit base frame (a point light at camera hits and at every level of the rough
+    paths) traces its shadow rays through :meth:`BVHAccelerator.occluded`, every one of
+    them, and equals bit for bit the frame whose shadow rays go through ``any_hit``."""
+    from rstrace_engine.accel.accelerators import BVHAccelerator
+
+    s = scenes.build(name, 40, 30)
+    st = RenderSettings(max_depth=5, samples=2, glossy_samples=4)
+    calls = []
+    query = BVHAccelerator.occluded
+
+    def counted(self, o, d, tmax, skip=None):
+        calls.append(len(o))
+        return query(self, o, d, tmax, skip)
+
+    monkeypatch.setattr(BVHAccelerator, "occluded", counted)
+    fast = whitted.render(s, st, accel=create_accelerator("BVH", s.arrays()))
+    assert len(calls) > 1 and sum(calls) == fast.stats["shadow_rays"] > 0
+    monkeypatch.setattr(whitted, "any_hit_shadows", _plain_any_hit)
+    calls.clear()
+    slow = whitted.render(s, st, accel=create_accelerator("BVH", s.arrays()))
+    assert not calls
+    assert np.array_equal(fast.radiance, slow.radiance)
+    for key in ("shadow_rays", "rays_traced"):
+        assert fast.stats[key] == slow.stats[key], key
+
+
+def test_ri_tree_frame_takes_the_occlusion_query(monkeypatch):
+    """The RI_TREE frame's shadow rays from traced points go through the occlusion query,
+    and its image is the one through ``any_hit``."""
+    from rstrace_engine.accel.accelerators import BVHAccelerator
+    from rstrace_engine.ri_tree import render as ri_render
+    from rstrace_engine.session import Session
+
+    s = scenes.build("three_spheres", 40, 30)
+    calls = []
+    query = BVHAccelerator.occluded
+
+    def counted(self, o, d, tmax, skip=None):
+        calls.append(len(o))
+        return query(self, o, d, tmax, skip)
+
+    monkeypatch.setattr(BVHAccelerator, "occluded", counted)
+    fast = Session(s, RenderSettings(mode="RI_TREE")).render()
+    assert sum(calls) > 0
+    monkeypatch.setattr(ri_render, "any_hit_shadows", _plain_any_hit)
+    monkeypatch.setattr(whitted, "any_hit_shadows", _plain_any_hit)
+    slow = Session(s, RenderSettings(mode="RI_TREE")).render()
+    assert np.array_equal(fast.radiance, slow.radiance)

@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 from rstrace_engine import warm_first
-from rstrace_engine.accel import bvh
+from rstrace_engine.accel import bvh, bvh_occlusion
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.interactive import coarse_camera, trace_view
 from rstrace_engine.session import Session
@@ -43,7 +43,7 @@ def test_stand_ins_compile_the_signatures_a_render_uses():
     a.intersect_object(0, o, d, 0.0, np.inf)
     for k in (bvh.trace_kernel, whitted._surface_kernel, whitted._shadow_kernel,
               whitted._shade_kernel, batches.accumulate, batches.scatter_add,
-              whitted.dielectric_albedos):
+              whitted.dielectric_albedos, bvh_occlusion.occluded_kernel):
         assert len(k.signatures) == 1, (k.py_func.__name__, k.signatures)
 
 
@@ -57,6 +57,7 @@ def test_helper_process_fills_the_cache(tmp_path, monkeypatch):
     helper.stderr.close()
     assert list(tmp_path.rglob("bvh.trace_kernel-*.nbi"))
     assert list(tmp_path.rglob("bvh.trace_kernel-*.nbc"))
+    assert list(tmp_path.rglob("bvh_occlusion.occluded_kernel-*.nbc"))
 
 
 def test_viewport_gets_the_lock_after_the_first_image(monkeypatch):

@@ -297,6 +297,18 @@ class BVHAccelerator(Accelerator):
         self.stats["rays"] = self.stats.get("rays", 0) + int(counts[0])
         return vis, counts
 
+    def occluded(self, o, d, tmax, skip=None) -> np.ndarray:
+        """(n,) bool: :meth:`any_hit` of the rays from ``tmin = 0`` (``skip`` as its), bit
+        for bit, traced where they lie by the occlusion kernel
+        (:func:`.bvh_occlusion.occluded_rays`): hard lights' shadow rays."""
+        t0 = time.perf_counter()
+        blocked, counts = bvh_occlusion.occluded_rays(
+            self.sb, o, d, tmax, None if skip is None else per_ray(skip, len(tmax), np.int32),
+            self._stop)
+        self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
+        self.stats["rays"] = self.stats.get("rays", 0) + int(counts[0])
+        return blocked
+
     def _trace(self, o, d, tmin, tmax, only, anyhit):
         n = len(o)
         hits = empty_hits(n)

@@ -179,13 +179,9 @@ def _u(i):
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_node, st_t, sp):
-    """Test the four children of ``node`` (all four boxes at once, :func:`.box4.lanes4`);
-    push those hit, farthest first. Returns ``sp``."""
-    ta, tb, tc, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
-    un = _u(node)
-    ca, cb, cc, cd = child[un, _u(0)], child[un, _u(1)], child[un, _u(2)], child[un, _u(3)]
-    # sorting network, ascending
+def _ascending(ta, tb, tc, td, ca, cb, cc, cd):
+    """Four entry distances and their children, sorted by distance (a sorting network;
+    :func:`_visit`'s and :func:`.bvh_occlusion._push_hit`'s)."""
     if tb < ta:
         ta, tb, ca, cb = tb, ta, cb, ca
     if td < tc:
@@ -196,6 +192,18 @@ def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_n
         tb, td, cb, cd = td, tb, cd, cb
     if tc < tb:
         tb, tc, cb, cc = tc, tb, cc, cb
+    return ta, tb, tc, td, ca, cb, cc, cd
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _visit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1, st_node, st_t, sp):
+    """Test the four children of ``node`` (all four boxes at once, :func:`.box4.lanes4`);
+    push those hit, farthest first. Returns ``sp``."""
+    ta, tb, tc, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, t1)
+    un = _u(node)
+    ta, tb, tc, td, ca, cb, cc, cd = _ascending(
+        ta, tb, tc, td, child[un, _u(0)], child[un, _u(1)], child[un, _u(2)],
+        child[un, _u(3)])
     if td < np.inf:
         st_node[_u(sp)], st_t[_u(sp)] = cd, td
         sp += 1

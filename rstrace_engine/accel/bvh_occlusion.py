@@ -11,14 +11,24 @@ they lie, row by row, skips those without weight and the rows proven visible, an
 each sample's visibility.
 
 Its traversal is the any-hit query of :func:`.bvh.trace_kernel` less what only a closest
-hit needs: no box distances kept on the stack nor sorted (a ray stops at its first hit,
-any order finds one when there is one), no distance or barycentrics carried. Whether a
+hit needs: no box distances kept on the stack nor culled against on the way back (a ray
+stops at its first hit, any order finds one when there is one), no distance or
+barycentrics carried. A node's children are visited farthest entry first: a shadow ray
+leaves a surface, and the boxes it enters first hold that surface and its neighbours,
+which it has just left; what blocks it lies farther on (session 42: blocked rays 25%
+cheaper on rough_materials than in lane order, visible ones ~4% dearer). Whether a
 ray is blocked -- a triangle met at ``0 <= t <= tmax`` by the same watertight float64 test
 on the same boxes -- is the any-hit query's answer bit for bit: a node is entered, as there,
 when the ray enters its box no farther than :func:`.bvh._cull` of ``tmax`` (``tmax`` itself
 lost hits at ``t == tmax`` to a box entry rounded past it; the shadow re-shade's per-object
 test, :meth:`~.interface.Accelerator.occludes_object`, culls so too), so images are
 unchanged.
+
+Hard lights' shadow rays (a point, a spot, a sun without an angle, a light radius of 0:
+one ray a (point, light) row, :func:`~..tracing.whitted.shadow_rays`) are the same plain
+query: :func:`occluded_rays` traces them with :func:`occluded_kernel`, each ray a row of
+one sample, instead of :func:`.bvh.trace_kernel`'s any hit (its box sort and distance
+stack, its five outputs).
 """
 
 from __future__ import annotations
@@ -28,7 +38,7 @@ from numba import njit
 
 from .. import stripes
 from .box4 import lanes4
-from .bvh import STACK_SIZE, SceneBVH, _cull, _inv_dir, _near, _u, ray_to_object
+from .bvh import STACK_SIZE, SceneBVH, _ascending, _cull, _inv_dir, _near, _u, ray_to_object
 from .bvh_build import NEVER_STOP
 from .bvh_mesh import leaf_size, leaf_triangle
 from .triangle import intersect_sheared, ray_shear
@@ -41,22 +51,26 @@ _FINITE = np.finfo(np.float64).max
 def _push_hit(bounds, child, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc, st, sp):
     """Push the children of ``node`` whose box the ray enters within ``[t0, tc]`` (``tc``:
     :func:`.bvh._cull` of the ray's ``tmax``; :func:`.bvh._visit` pushes a box entered up to
-    ``tc`` times the slab test's far scale, and its pop skips those entered past ``tc``), in
-    lane order (no distances: any order finds a hit). Returns ``sp``."""
+    ``tc`` times the slab test's far scale, and its pop skips those entered past ``tc``),
+    the farthest entry popped first (module doc; any order finds a hit, so the answer is
+    the same). Returns ``sp``."""
     ta, tb, tc4, td = lanes4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t0, tc)
     lim = min(tc, _FINITE)  # (a miss is inf)
     un = _u(node)
-    if td <= lim:
-        st[_u(sp)] = child[un, _u(3)]
-        sp += 1
-    if tc4 <= lim:
-        st[_u(sp)] = child[un, _u(2)]
+    ta, tb, tc4, td, ca, cb, cc, cd = _ascending(
+        ta, tb, tc4, td, child[un, _u(0)], child[un, _u(1)], child[un, _u(2)],
+        child[un, _u(3)])
+    if ta <= lim:
+        st[_u(sp)] = ca
         sp += 1
     if tb <= lim:
-        st[_u(sp)] = child[un, _u(1)]
+        st[_u(sp)] = cb
         sp += 1
-    if ta <= lim:
-        st[_u(sp)] = child[un, _u(0)]
+    if tc4 <= lim:
+        st[_u(sp)] = cc
+        sp += 1
+    if td <= lim:
+        st[_u(sp)] = cd
         sp += 1
     return sp
 
@@ -197,3 +211,19 @@ def occluded_samples(sb: SceneBVH, o, d, tmax, w, n: int, row_skip, row_proven,
     if total[3]:
         raise ValueError("rays: NaN or infinite origin or direction")
     return vis, total
+
+
+def occluded_rays(sb: SceneBVH, o, d, tmax, skip=None, stop: np.ndarray = NEVER_STOP):
+    """Whether each ray ``o[r] + t d[r]``, ``0 <= t <= tmax[r]``, meets a triangle
+    (leaving instance ``skip[r]`` out, -1: none; None: none left out): what
+    :func:`.bvh.trace_kernel`'s any hit from ``tmin = 0`` answers, bit for bit, by
+    :func:`occluded_kernel` (a row of one sample per ray; no new signature). Returns
+    ``(blocked (n,) bool, counts (4,) int64)`` as :func:`occluded_samples`."""
+    n = len(tmax)
+    o = np.ascontiguousarray(o, np.float64).reshape(n, 3)
+    d = np.ascontiguousarray(d, np.float64).reshape(n, 3)
+    tmax = np.ascontiguousarray(tmax, np.float64)
+    skip = np.full(n, -1, np.int32) if skip is None else skip
+    vis, counts = occluded_samples(sb, o, d, tmax, np.ones(n), 1, skip, np.zeros(n, np.bool_),
+                                   stop)
+    return ~vis, counts

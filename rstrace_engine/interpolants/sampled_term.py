@@ -39,6 +39,7 @@ import numpy as np
 from ..accel.accelerators import Hits
 from ..cancel import bound
 from ..geometry.scene import LIGHT_SUN
+from ..tracing.light_linking import any_hit_shadows
 from ..tracing.soft_lights import SH_SOFT, node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
 from ..tracing.world_samples import TermSamples
@@ -136,7 +137,7 @@ def sampled_term(sa, accel, o: np.ndarray, d: np.ndarray, tmax, hits: Hits,
     def occluded(oo, dd, tt, which):
         if counters is not None:
             counters["shadow"] = counters.get("shadow", 0) + len(oo)
-        return accel.any_hit(oo, dd, np.zeros(len(oo)), tt)
+        return any_hit_shadows(accel, oo, dd, tt)
 
     prov = None
     if proven:  # a sun's rows are traced: a cell may prove it hidden instead (an umbra)

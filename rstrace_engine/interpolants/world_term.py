@@ -20,6 +20,7 @@ import numpy as np
 
 from ..accel.accelerators import Hits
 from ..frame import LIGHT_SAMPLES_DEFAULT
+from ..tracing.light_linking import any_hit_shadows
 from ..tracing.soft_lights import node_seeds, sample_seeds, soft_visibility
 from ..tracing.whitted import shade, surfaces
 from .glossy_term import rough_roots
@@ -123,7 +124,7 @@ def keep_world(lrec, sa, gids, wi, coef, rest, interp, hits: Hits, rough_on: boo
 def _any_hit(accel):
     """The tracer's occlusion query of soft samples (any hit up to each sample's end)."""
     def occluded(o, d, tmax, rows):
-        return accel.any_hit(o, d, np.zeros(len(o)), tmax)
+        return any_hit_shadows(accel, o, d, tmax)
     return occluded
 
 

@@ -52,6 +52,7 @@ from ..interpolants.linetree import expanded_boxes
 from ..tracing.batches import TILE_RAYS, accumulate, frame_batches, scatter_add
 from ..tracing.glossy_rays import has_glossy
 from ..tracing.glossy_strata import frame_strata, lattices
+from ..tracing.light_linking import any_hit_shadows
 from ..tracing.soft_lights import has_soft_light, node_seeds, sample_seeds
 from ..tracing.whitted import (
     shade_paths,
@@ -433,18 +434,18 @@ class RITreeRenderer:
         vis = np.zeros(n, np.bool_)
         plain = self_inst < 0
         if plain.all():
-            return np.asarray(self._accel.any_hit(o, d, zero, t1), np.bool_)
+            return any_hit_shadows(self._accel, o, d, t1)
         if SHADOW_QUERIES:
             return self._intersect(False, o, d, zero, t1, self_inst)["t"] < np.inf
         k = np.flatnonzero(plain)
         if len(k):
-            vis[k] = self._accel.any_hit(o[k], d[k], zero[k], t1[k])
+            vis[k] = any_hit_shadows(self._accel, o[k], d[k], t1[k])
         k = np.flatnonzero(~plain)
         ok, dk, t1k, sk = o[k], d[k], t1[k], self_inst[k]
         blocked = np.zeros(len(k), np.bool_)
         sub, _ = self._sub[False]
         if sub is not None:
-            blocked = np.asarray(sub.any_hit(ok, dk, zero[k], t1k), np.bool_)
+            blocked = any_hit_shadows(sub, ok, dk, t1k)
         ri = self.ri[False]
         if len(ri):
             best = np.where(blocked, -np.inf, np.inf)

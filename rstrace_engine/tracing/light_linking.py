@@ -63,7 +63,19 @@ def first_blocker(sa, accel, o, d, tmax, lights) -> np.ndarray:
 
 def occluded(sa, accel, o, d, tmax, lights) -> np.ndarray:
     """Whether each shadow ray is stopped (:func:`first_blocker`), (k,) bool; the plain
-    any-hit query where no light has blockers."""
+    any-hit query (:func:`any_hit_shadows`) where no light has blockers."""
     if not links_shadows(sa):
-        return np.asarray(accel.any_hit(o, d, np.zeros(len(o)), tmax), np.bool_)
+        return any_hit_shadows(accel, o, d, tmax)
     return first_blocker(sa, accel, o, d, tmax, lights) >= 0
+
+
+def any_hit_shadows(accel, o, d, tmax, skip=None) -> np.ndarray:
+    """The plain any-hit query of shadow rays from ``t = 0``, (k,) bool: the accelerator's
+    ``occluded`` where it has one (the BVH's occlusion kernel, the same answer bit for bit:
+    :func:`~..accel.bvh_occlusion.occluded_rays`), else its ``any_hit``. ``skip`` as
+    ``any_hit``'s."""
+    f = getattr(accel, "occluded", None)
+    if f is not None:
+        return f(o, d, tmax, skip)
+    extra = () if skip is None else (skip,)
+    return np.asarray(accel.any_hit(o, d, np.zeros(len(o)), tmax, *extra), np.bool_)

@@ -52,7 +52,7 @@ from .glossy_strata import (  # (child_paths, _child_tags: re-exported)
     no_strata,
 )
 from .light_bits import words
-from .light_linking import first_blocker, links_shadows
+from .light_linking import any_hit_shadows, first_blocker, links_shadows
 from .light_linking import occluded as linked_occluded
 from .sample_rays import VIS_BITS_MAX, soft_bits
 from .seen_lights import SEEN_CAMERA, SEEN_GLOSSY, SEEN_NONE, SEEN_TRANSMISSION, any_seen, seen
@@ -297,8 +297,8 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None)
             occ_inst = accel.closest_hit(so, sd, zero, st).inst
             vis[todo] = occ_inst < 0
         else:
-            skip = () if mine is None else (mine[todo // max(len(sa.light_kind), 1)],)
-            vis[todo] = ~np.asarray(accel.any_hit(so, sd, zero, st, *skip), np.bool_)
+            skip = None if mine is None else mine[todo // max(len(sa.light_kind), 1)]
+            vis[todo] = ~any_hit_shadows(accel, so, sd, st, skip)
         _count(counters, "shadow", len(todo))
     occ = None
     if occluders:
@@ -315,7 +315,7 @@ def _occluded_by(sa, accel):
 
     def occluded(o, d, tmax, rows, skip=None):  # (skip: any_hit's)
         if not links_shadows(sa):
-            return accel.any_hit(o, d, np.zeros(len(o)), tmax, skip)
+            return any_hit_shadows(accel, o, d, tmax, skip)
         return linked_occluded(sa, accel, o, d, tmax, np.where(rows >= 0, rows % max(L, 1),
                                                                  -1))
     if not links_shadows(sa) and hasattr(accel, "occluded_samples"):

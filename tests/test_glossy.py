@@ -16,6 +16,7 @@ from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Scene, SceneError
 from rstrace_engine.scenes import _camera
+from rstrace_engine.tracing import ggx_sampling as gs
 from rstrace_engine.tracing import shading as sh
 from rstrace_engine.tracing import whitted
 
@@ -28,12 +29,12 @@ def _vndf_mean(co, alpha, n):
     least = 1.0
     for a in range(n):
         for b in range(n):
-            hx, hy, hz = sh.ggx_vndf(so, 0.0, co, alpha, (a + 0.5) / n, (b + 0.5) / n)
+            hx, hy, hz = gs.ggx_vndf(so, 0.0, co, alpha, (a + 0.5) / n, (b + 0.5) / n)
             c = so * hx + co * hz
             least = min(least, c)
             ci = 2.0 * c * hz - co  # the reflected direction's cosine
             if ci > 0.0:
-                acc += sh.ggx_weight(co, ci, alpha)
+                acc += gs.ggx_weight(co, ci, alpha)
     return acc / (n * n), least
 
 
@@ -569,16 +570,16 @@ def test_glossy_samples_share_their_view_frame_bit_for_bit():
         if o @ n < 0.0:
             o = -o
         alpha = float(rng.choice([0.0025, 0.09, 0.25, 1.0]))
-        frame = sh.ggx_sample_frame(*n, *o, alpha)
+        frame = gs.ggx_sample_frame(*n, *o, alpha)
         for u1, u2 in rng.random((4, 2)):
             want = _sample_normal_per_sample(*n, *o, alpha, u1, u2)
-            assert sh.ggx_sample_at(frame, *n, alpha, u1, u2) == want
-            assert sh.ggx_sample_normal(*n, *o, alpha, u1, u2) == want
+            assert gs.ggx_sample_at(frame, *n, alpha, u1, u2) == want
+            assert gs.ggx_sample_normal(*n, *o, alpha, u1, u2) == want
         co, ci, a2 = float(o @ n), float(rng.uniform(-1.0, 1.0)), alpha * alpha
         lo = 0.5 * (math.sqrt(1.0 + a2 * (max(1.0 - co * co, 0.0) / (co * co))) - 1.0)
         li = 0.5 * (math.sqrt(1.0 + a2 * (max(1.0 - ci * ci, 0.0) / (ci * ci))) - 1.0)
-        assert sh.ggx_weight_lo(sh.ggx_lambda(co, a2), ci, a2) == (1.0 + lo) / (1.0 + lo + li)
-        assert sh.ggx_weight(co, ci, alpha) == (1.0 + lo) / (1.0 + lo + li)
+        assert gs.ggx_weight_lo(sh.ggx_lambda(co, a2), ci, a2) == (1.0 + lo) / (1.0 + lo + li)
+        assert gs.ggx_weight(co, ci, alpha) == (1.0 + lo) / (1.0 + lo + li)
 
 
 def test_glossy_rays_without_a_lobe_do_not_read_the_multiscatter_factors():

@@ -16,13 +16,11 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
+from .ggx_sampling import ggx_sample_at, ggx_sample_frame, ggx_weight_lo
 from .shading import (
     dot3,
     fresnel_dielectric,
     ggx_lambda,
-    ggx_sample_at,
-    ggx_sample_frame,
-    ggx_weight_lo,
     principled_fresnel,
     reflect,
     refract,
@@ -129,7 +127,7 @@ def _glossy_rays(i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz, dx, 
     :func:`~.multiscatter.multiscatter_factors` of the point, where the layer has a lobe;
     ``(1, 1, 1, 1)`` where not, whose Fresnel is 0 then) plus the dielectric Fresnel ``F``
     of the transmissive part, its refraction ``(1 - F)`` of it, each times ``G2 / G1`` and
-    ``1 / ns`` (:func:`~.shading.ggx_weight`); a direction below the geometric surface
+    ``1 / ns`` (:func:`~.ggx_sampling.ggx_weight`); a direction below the geometric surface
     (reflection) or above it (refraction) is dropped, a microfacet with total internal
     reflection reflects all
     of the transmissive part. What the samples share (the lobe's frame about the view,

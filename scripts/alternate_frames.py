@@ -1,11 +1,12 @@
 """Frame time of this checkout against another (an older commit's worktree), alternating.
 
 ``python scripts/alternate_frames.py --base DIR [--scenes three_spheres,museum] [--pairs 12]
-[--width 320] [--height 240] [--depth 5] [--samples S --glossy-samples G]``
+[--width 320] [--height 240] [--depth 5] [--samples S] [--glossy-samples G]``
 
 Two warm worker processes, one importing ``rstrace_engine`` from ``DIR`` (e.g. ``git -C
 /work/main worktree add --detach DIR <commit>``) and one from this checkout, render the same
-base-tracer frame (BVH, default settings at ``--depth``) in turn, ``--pairs`` times per scene
+base-tracer frame (BVH, default settings at ``--depth``, and ``--samples`` pixel samples and
+``--glossy-samples`` where given) in turn, ``--pairs`` times per scene
 (the order swapped every pair), so that both see the same load on a shared machine. Prints per
 scene the median frame times, the median of the per-pair ratios (this / base: wall and process
 CPU time) with its quartiles, and whether the two frames are bit-identical with the same ray
@@ -30,8 +31,8 @@ from rstrace_engine.frame import RenderSettings
 from rstrace_engine.tracing.whitted import render
 
 W, H, DEPTH, S, G = map(int, sys.argv[1:6])
-st = RenderSettings(max_depth=DEPTH, **({"samples": S} if S else {}),
-                    **({"glossy_samples": G} if G else {})).validated()
+st = RenderSettings(max_depth=DEPTH, **({"samples": S} if S > 0 else {}),
+                    **({"glossy_samples": G} if G > 0 else {}))
 cache = {}
 print("ready", flush=True)
 for line in sys.stdin:
@@ -84,6 +85,7 @@ def main(argv: list[str]) -> int:
             for k in workers:
                 ask(k, name)
             times = {k: [] for k in workers}
+            cpu_s = {k: [] for k in workers}
             digests = {k: set() for k in workers}
             rays = {}
             wall, cpu = [], []
@@ -92,18 +94,22 @@ def main(argv: list[str]) -> int:
                 got = {k: ask(k, name) for k in order}
                 for k in workers:
                     times[k].append(float(got[k][0]))
+                    cpu_s[k].append(float(got[k][1]))
                     digests[k].add(got[k][2])
                     rays[k] = int(got[k][3])
                 wall.append(float(got["this"][0]) / float(got["base"][0]))
                 cpu.append(float(got["this"][1]) / float(got["base"][1]))
             q = statistics.quantiles(wall, n=4)
+            qc = statistics.quantiles(cpu, n=4)
             sys.stdout.write(
-                f"{name}: {a.width}x{a.height} depth {a.depth} samples {a.samples or '-'} x "
-                f"{a.glossy_samples or '-'}, {a.pairs} pairs: base "
+                f"{name}: {a.width}x{a.height} depth {a.depth} samples {a.samples or 'default'}"
+                f" x {a.glossy_samples or 'default'}, {a.pairs} pairs: base "
                 f"{statistics.median(times['base']):.3f} s, this "
                 f"{statistics.median(times['this']):.3f} s; this/base wall "
                 f"{statistics.median(wall):.3f} (quartiles {q[0]:.3f}-{q[2]:.3f}), cpu "
-                f"{statistics.median(cpu):.3f}; images identical "
+                f"{statistics.median(cpu):.3f} (quartiles {qc[0]:.3f}-{qc[2]:.3f}, base "
+                f"{statistics.median(cpu_s['base']):.3f} s, this "
+                f"{statistics.median(cpu_s['this']):.3f} s); images identical "
                 f"{digests['base'] == digests['this']}, rays {rays['base']:,} / "
                 f"{rays['this']:,}\n")
             sys.stdout.flush()

@@ -16,6 +16,7 @@ from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Scene, SceneError
 from rstrace_engine.scenes import _camera
+from rstrace_engine.tracing import ggx_sampling as gs
 from rstrace_engine.tracing import shading as sh
 from rstrace_engine.tracing import whitted
 
@@ -28,12 +29,12 @@ def _vndf_mean(co, alpha, n):
     least = 1.0
     for a in range(n):
         for b in range(n):
-            hx, hy, hz = sh.ggx_vndf(so, 0.0, co, alpha, (a + 0.5) / n, (b + 0.5) / n)
+            hx, hy, hz = gs.ggx_vndf(so, 0.0, co, alpha, (a + 0.5) / n, (b + 0.5) / n)
             c = so * hx + co * hz
             least = min(least, c)
             ci = 2.0 * c * hz - co  # the reflected direction's cosine
             if ci > 0.0:
-                acc += sh.ggx_weight(co, ci, alpha)
+                acc += gs.ggx_weight(co, ci, alpha)
     return acc / (n * n), least
 
 
@@ -516,3 +517,104 @@ def test_coloured_rough_metal_loses_what_cycles_loses(roughness):
             fss = f0 + (1.0 - f0) / 21.0
             assert z == pytest.approx(1.0 + fss * ea / (1.0 - fss * (1.0 - ea)) * (1 - e) / e)
             assert 1.0 <= z < 1.0 / e
+
+
+def _sample_normal_per_sample(nx, ny, nz, ox, oy, oz, alpha, u1, u2):
+    """``ggx_sample_normal`` as every sample computed it before its view frame was computed
+    once per point (session 42), in Python floats (IEEE doubles, as numba's)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    t1 = (1.0 + sign * nx * nx * a, sign * b, -sign * nx)
+    t2 = (b, sign + ny * ny * a, -ny)
+    lx = ox * t1[0] + oy * t1[1] + oz * t1[2]
+    ly = ox * t2[0] + oy * t2[1] + oz * t2[2]
+    lz = ox * nx + oy * ny + oz * nz
+    vx, vy, vz = alpha * lx, alpha * ly, lz
+    ln = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / ln, vy / ln, vz / ln
+    lensq = vx * vx + vy * vy
+    if lensq > 0.0:
+        il = 1.0 / math.sqrt(lensq)
+        s1 = (-vy * il, vx * il, 0.0)
+    else:
+        s1 = (1.0, 0.0, 0.0)
+    s2 = (vy * s1[2] - vz * s1[1], vz * s1[0] - vx * s1[2], vx * s1[1] - vy * s1[0])
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    p1 = r * math.cos(phi)
+    p2 = r * math.sin(phi)
+    s = 0.5 * (1.0 + vz)
+    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
+    p3 = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
+    mx = p1 * s1[0] + p2 * s2[0] + p3 * vx
+    my = p1 * s1[1] + p2 * s2[1] + p3 * vy
+    mz = p1 * s1[2] + p2 * s2[2] + p3 * vz
+    hx, hy, hz = alpha * mx, alpha * my, max(mz, 0.0)
+    hl = math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx / hl, hy / hl, hz / hl
+    return (hx * t1[0] + hy * t2[0] + hz * nx, hx * t1[1] + hy * t2[1] + hz * ny,
+            hx * t1[2] + hy * t2[2] + hz * nz)
+
+
+def test_glossy_samples_share_their_view_frame_bit_for_bit():
+    """A point's glossy samples compute the lobe's frame about the view and Smith's Lambda
+    of the view once (``ggx_sample_frame``, ``ggx_weight_lo``): every normal and weight is
+    the per-sample computation's, bit for bit."""
+    rng = np.random.default_rng(42)
+    for _ in range(300):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        o = rng.normal(size=3)
+        o /= np.linalg.norm(o)
+        if o @ n < 0.0:
+            o = -o
+        alpha = float(rng.choice([0.0025, 0.09, 0.25, 1.0]))
+        frame = gs.ggx_sample_frame(*n, *o, alpha)
+        for u1, u2 in rng.random((4, 2)):
+            want = _sample_normal_per_sample(*n, *o, alpha, u1, u2)
+            assert gs.ggx_sample_at(frame, *n, alpha, u1, u2) == want
+            assert gs.ggx_sample_normal(*n, *o, alpha, u1, u2) == want
+        co, ci, a2 = float(o @ n), float(rng.uniform(-1.0, 1.0)), alpha * alpha
+        lo = 0.5 * (math.sqrt(1.0 + a2 * (max(1.0 - co * co, 0.0) / (co * co))) - 1.0)
+        li = 0.5 * (math.sqrt(1.0 + a2 * (max(1.0 - ci * ci, 0.0) / (ci * ci))) - 1.0)
+        assert gs.ggx_weight_lo(sh.ggx_lambda(co, a2), ci, a2) == (1.0 + lo) / (1.0 + lo + li)
+        assert gs.ggx_weight(co, ci, alpha) == (1.0 + lo) / (1.0 + lo + li)
+
+
+def test_glossy_rays_without_a_lobe_do_not_read_the_multiscatter_factors():
+    """The shade kernel hands a glossy point's rays its multiscatter factors ``z`` where
+    its layer has a lobe (specular or metallic) and ``(1, 1, 1, 1)`` where not; before
+    session 42 the rays computed them again wherever the mirror share was not 0. Without
+    a lobe the factors multiply a zero Fresnel: the rays are the same bits either way."""
+    from rstrace_engine.tracing.glossy_rays import _glossy_rays
+    from rstrace_engine.tracing.multiscatter import ggx_e, multiscatter_factors
+    rng = np.random.default_rng(7)
+    ns = 4
+    for _ in range(40):
+        g = rng.normal(size=3)
+        g /= np.linalg.norm(g)
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        if d @ g > 0.0:
+            d = -d
+        alpha = float(rng.choice([0.09, 0.25, 0.5]))
+        eta = float(rng.choice([1.0 / 1.5, 1.5, 1.0]))
+        seeds = rng.integers(0, 2 ** 63, 1).astype(np.uint64)
+        outs = []
+        for real in (True, False):
+            e = ggx_e(min(max(-float(d @ g), 0.0), 1.0), alpha)
+            z = (multiscatter_factors(alpha, e, 1.5, 0.9, 0.8, 0.7, 1.0, 1.0, 1.0) if real
+                 else (1.0, 1.0, 1.0, 1.0))
+            out = (np.zeros((2 * ns, 3)), np.zeros((2 * ns, 3)), np.zeros((2 * ns, 3)),
+                   np.zeros(2 * ns, np.bool_))
+            # mirror share and transmission, specular 0 and metallic 0: no lobe
+            _glossy_rays(np.int64(0), np.array([0, ns], np.int64), seeds,
+                         np.zeros((0, 4), np.uint64), 0.1, 0.2, 0.3, *g, *g, *d, 1e-6,
+                         1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.9, 0.9, 0.9, 0.4, 0.4, 0.4, 0.0, 0.0,
+                         0.0, 1.5, 0.0, 0.9, 0.8, 0.7, 1.0, 1.0, 1.0, z, alpha, eta, 1.2,
+                         *out)
+            outs.append(out)
+        for a, b in zip(*outs, strict=True):
+            assert np.array_equal(a, b)
+        assert outs[0][3].any()

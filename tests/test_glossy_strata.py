@@ -34,7 +34,7 @@ def _plane() -> Scene:
 
 
 def _first_bounce_u(spp: int, glossy: int, strata: bool, pixel: int = 7):
-    """The lattice coordinate ``u1`` (``shading.ggx_vndf``'s radius squared) of every
+    """The lattice coordinate ``u1`` (``ggx_sampling.ggx_vndf``'s radius squared) of every
     first-bounce ray of one pixel's ``spp`` samples, each looking straight down at a rough
     metal plane (the local view is the normal: the microfacet normal ``h`` of a reflection
     gives ``u1 = sin^2 / (alpha^2 cos^2 + sin^2)`` exactly)."""

@@ -17,6 +17,7 @@ from rstrace_engine.geometry import shapes
 from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Light, Material, Scene
 from rstrace_engine.tracing import shaft_skip, whitted
+from rstrace_engine.tracing.glossy_rays import interface_materials
 from rstrace_engine.tracing.soft_lights import sample_seeds, soft_rays
 
 
@@ -214,3 +215,22 @@ def test_closest_hit_leaves_the_skipped_instance_out():
     bvh = create_accelerator("BVH", s.arrays())
     h = bvh.closest_hit(o, d, np.zeros(5), np.full(5, np.inf), skip)
     assert h.inst.tolist() == [a, b, a, a, -1]
+
+
+def test_own_instances_looks_at_the_points_own_clear_would():
+    """``own_instances`` hands ``own_clear`` only the hits on meshes of ``OWN_MIN_TRIS``
+    triangles or more away from rough interfaces (session 42: a few passes over the level
+    instead of own_clear's filter over every hit): the answer is own_clear's over every
+    hit, point for point (misses, the floor's few triangles and the rough glass included)."""
+    sa, accel, _, _, hits, surf = primary_surfaces(_rough_balls(64, 48))
+    mine = shaft_skip.own_instances(sa, accel, surf, hits.inst, hits.prim)
+    inst = np.asarray(hits.inst, np.int64)
+    pts = np.flatnonzero(inst >= 0)
+    pts = pts[~interface_materials(sa)[surf.mat[pts]]]
+    out = np.zeros(len(inst), np.bool_)
+    shaft_skip.own_clear(accel.sa, np.ascontiguousarray(accel.sa.inst_xform), surf.Q,
+                         surf.NG, inst, np.asarray(hits.prim, np.int64), pts, out)
+    assert mine.dtype == np.int32
+    assert np.array_equal(mine, np.where(out, inst, -1))
+    assert (mine >= 0).any() and (mine < 0).any()
+    assert (inst < 0).any() and (inst[mine < 0] >= 0).any()

@@ -9,7 +9,8 @@ import math
 from numba import njit
 
 from .. import tolerances as tol
-from .shading import fresnel_dielectric, ggx_vndf, ggx_weight, refract
+from .ggx_sampling import ggx_vndf, ggx_weight
+from .shading import fresnel_dielectric, refract
 
 
 @njit(cache=True, nogil=True)

@@ -16,12 +16,11 @@ from numba import njit
 
 from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
+from .ggx_sampling import ggx_sample_at, ggx_sample_frame, ggx_weight_lo
 from .shading import (
     dot3,
     fresnel_dielectric,
-    ggx_sample_normal,
-    ggx_weight,
-    multiscatter_factors,
+    ggx_lambda,
     principled_fresnel,
     reflect,
     refract,
@@ -113,23 +112,26 @@ def _put(c_o, c_d, c_w, c_ok, k, ox, oy, oz, dx, dy, dz, wr, wg, wb):
 
 
 @njit(cache=True, nogil=True)
-def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz,
-                 off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s,
-                 metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d, c_w, c_ok):
-    """The glossy rays of point ``i`` (material ``m``, mirror share ``r*``, transmission ``t*``
-    refracted and ``u*`` reflected): ``ns = gstart[i + 1] - gstart[i]`` microfacet normals drawn
-    from GGX's visible normals about the shading normal (the geometric one where the shading
-    normal faces away from the viewer), stratified (a Fibonacci lattice rotated by a hash of the
-    node's seed, as the soft lights' samples; or, with ``lat`` (n, 4) uint64 rows, points
-    ``lat[i, 1] + s lat[i, 2]`` of a lattice of ``lat[i, 3]`` points rotated by
+def _glossy_rays(i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz, dx, dy, dz, off,
+                 w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg, sb, eta_s, metallic,
+                 mr, mg, mb, qr, qg, qb, z, alpha, eta, ke, c_o, c_d, c_w, c_ok):
+    """The glossy rays of point ``i`` (mirror share ``r*``, transmission ``t*`` refracted and
+    ``u*`` reflected, the metal's tint ``q*``): ``ns = gstart[i + 1] - gstart[i]`` microfacet
+    normals drawn from GGX's visible normals about the shading normal (the geometric one where
+    the shading normal faces away from the viewer), stratified (a Fibonacci lattice rotated by
+    a hash of the node's seed, as the soft lights' samples; or, with ``lat`` (n, 4) uint64
+    rows, points ``lat[i, 1] + s lat[i, 2]`` of a lattice of ``lat[i, 3]`` points rotated by
     ``lat[i, 0]``, shared by a pixel's samples: :mod:`.glossy_strata`), each a reflected and
-    a refracted ray. A sample's
-    reflection carries the layer's Fresnel at ``i . h`` with the direct light's
-    multiple-scattering factor plus the dielectric Fresnel ``F`` of the transmissive part, its
-    refraction ``(1 - F)`` of it, each times ``G2 / G1`` and ``1 / ns``
-    (:func:`~.shading.ggx_weight`); a direction below the geometric surface (reflection) or
-    above it (refraction) is dropped, a microfacet with total internal reflection reflects all
-    of the transmissive part."""
+    a refracted ray. A sample's reflection carries the layer's Fresnel at ``i . h`` with the
+    direct light's multiple-scattering factors ``z`` (the shade kernel's
+    :func:`~.multiscatter.multiscatter_factors` of the point, where the layer has a lobe;
+    ``(1, 1, 1, 1)`` where not, whose Fresnel is 0 then) plus the dielectric Fresnel ``F``
+    of the transmissive part, its refraction ``(1 - F)`` of it, each times ``G2 / G1`` and
+    ``1 / ns`` (:func:`~.ggx_sampling.ggx_weight`); a direction below the geometric surface
+    (reflection) or above it (refraction) is dropped, a microfacet with total internal
+    reflection reflects all
+    of the transmissive part. What the samples share (the lobe's frame about the view,
+    Smith's Lambda of the view) is computed once: the same bits as per sample."""
     k0 = gstart[i]
     ns = gstart[i + 1] - k0
     wmin = tol.PATH_WEIGHT_MIN
@@ -140,12 +142,9 @@ def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, s
         nx, ny, nz = gx, gy, gz
         co = dot3(ox, oy, oz, nx, ny, nz)
     co = max(co, tol.GGX_COS_MIN)
-    qr, qg, qb = sa.mat_metal_tint[m, 0], sa.mat_metal_tint[m, 1], sa.mat_metal_tint[m, 2]
     refl = rr > 0.0 or rg > 0.0 or rb > 0.0
     trans = ur > 0.0 or ug > 0.0 or ub > 0.0
-    zd = zr = zg = zb = 1.0
-    if refl:  # the layers' multiple-scattering factors, as the direct light's
-        zd, zr, zg, zb = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
+    zd, zr, zg, zb = z
     inv = 1.0 / ns
     if lat.shape[0] and lat[i, 3] > 0:  # a pixel's lattice (glossy_strata.lattices)
         h = lat[i, 0]
@@ -155,6 +154,10 @@ def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, s
         j0, jstep, inv_lat = np.int64(0), np.int64(1), inv
     r1 = float(h >> np.uint64(11)) * INV_2_53
     r2 = float(mix64(h) >> np.uint64(11)) * INV_2_53
+    # what every sample's normal and weight share (ggx_sample_normal's, ggx_weight's)
+    frame = ggx_sample_frame(nx, ny, nz, ox, oy, oz, alpha)
+    a2 = alpha * alpha
+    lo = ggx_lambda(co, a2)
     for s in range(ns):
         slot = 2 * (k0 + s)
         j = j0 + s * jstep
@@ -162,7 +165,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, s
         u -= math.floor(u)
         v = (j + 0.5) * GOLDEN + r2
         v -= math.floor(v)
-        hx, hy, hz = ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u, v)
+        hx, hy, hz = ggx_sample_at(frame, nx, ny, nz, alpha, u, v)
         ch = dot3(ox, oy, oz, hx, hy, hz)
         if ch <= 0.0:
             continue
@@ -189,7 +192,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, s
                 ab += f * ub
                 ci = dot3(tx, ty, tz, nx, ny, nz)
                 if ci < 0.0 and dot3(tx, ty, tz, gx, gy, gz) < 0.0:
-                    q = (ke - f) * ggx_weight(co, ci, alpha) * inv
+                    q = (ke - f) * ggx_weight_lo(lo, ci, a2) * inv
                     cr = w0 * tr * q
                     cg = w1 * tg * q
                     cb = w2 * tb * q
@@ -204,7 +207,7 @@ def _glossy_rays(sa, m, i, gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, s
         ci = dot3(qx, qy, qz, nx, ny, nz)
         if ci <= 0.0 or dot3(qx, qy, qz, gx, gy, gz) <= 0.0:
             continue
-        q = ggx_weight(co, ci, alpha) * inv
+        q = ggx_weight_lo(lo, ci, a2) * inv
         cr = w0 * ar * q
         cg = w1 * ag * q
         cb = w2 * ab * q

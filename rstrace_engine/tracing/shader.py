@@ -474,17 +474,16 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
         mr, mg, mb = texel_weight(tf, TEX_METAL, sa.mat_metal[m, 0], sa.mat_metal[m, 1],
                                   sa.mat_metal[m, 2], xr, xg, xb)
         qr, qg, qb = sa.mat_metal_tint[m, 0], sa.mat_metal_tint[m, 1], sa.mat_metal_tint[m, 2]
-        e_white = 1.0
         e_diel = 0.0
         # a glossy point's rays carry the world's glossy reflection: its samples of the
         # world light the diffuse part only (no light counted twice)
         glossy = spawn and seeds.shape[0] > 0 and is_glossy(sa, m)
         z = (1.0, 1.0, 1.0, 1.0)
         if principled:
-            e_white = ggx_e(min(max(-dot3(dx, dy, dz, sx, sy, sz), tol.GGX_COS_MIN), 1.0),
-                            alpha)  # (and e_diel, ggx_albedo's pair: ediel, computed before)
             if alpha >= tol.GLOSSY_ALPHA_MIN and (sr > 0.0 or sg > 0.0 or sb > 0.0
                                                   or metallic > 0.0):  # (a lobe: the BRDF's)
+                e_white = ggx_e(min(max(-dot3(dx, dy, dz, sx, sy, sz), tol.GGX_COS_MIN),
+                                    1.0), alpha)  # (e_diel, ggx_albedo's pair: ediel)
                 z = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
             e_diel = ediel[i]
             # Cycles: the base under the layer's tinted albedo (the tint's largest channel)
@@ -651,11 +650,13 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
         rb = sa.mat_mirror[m, 2]
         off = spawn_offset(px, py, pz, ext)
         if glossy:
-            # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice)
-            _glossy_rays(sa, m, np.int64(i), gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy,
-                         sz, dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr,
-                         sg, sb, eta_s, metallic, mr, mg, mb, alpha, e_white, eta, ke, c_o, c_d,
-                         c_w, c_ok)
+            # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice;
+            # the point's values passed, not ``sa``: its ~40 arrays as arguments, and the
+            # factors z computed again there, were ~40% of a glossy point's cost)
+            _glossy_rays(np.int64(i), gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz,
+                         dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg,
+                         sb, eta_s, metallic, mr, mg, mb, qr, qg, qb, z, alpha, eta, ke, c_o,
+                         c_d, c_w, c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):
             fr, fg, fb = principled_fresnel(-dot3(dx, dy, dz, sx, sy, sz), sr, sg, sb, eta_s,

@@ -546,61 +546,6 @@ def onb(ax, ay, az):
 
 
 @njit(cache=True, nogil=True)
-def ggx_vndf(ox, oy, oz, alpha, u1, u2):
-    """A microfacet normal drawn from GGX's distribution of visible normals (Heitz 2018).
-
-    ``o`` the unit view direction in the local frame (normal ``+z``, ``oz > 0``), ``alpha``
-    GGX's roughness, ``u1, u2`` in [0, 1). Returns the local unit normal ``h``; its density
-    is ``G1(o) max(o . h, 0) D(h) / oz``.
-    """
-    vx, vy, vz, _ = normalize3(alpha * ox, alpha * oy, oz)
-    lensq = vx * vx + vy * vy
-    if lensq > 0.0:
-        il = 1.0 / math.sqrt(lensq)
-        t1x, t1y, t1z = -vy * il, vx * il, 0.0
-    else:
-        t1x, t1y, t1z = 1.0, 0.0, 0.0
-    t2x = vy * t1z - vz * t1y
-    t2y = vz * t1x - vx * t1z
-    t2z = vx * t1y - vy * t1x
-    r = math.sqrt(u1)
-    phi = 2.0 * math.pi * u2
-    p1 = r * math.cos(phi)
-    p2 = r * math.sin(phi)
-    s = 0.5 * (1.0 + vz)
-    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
-    p3 = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
-    nx = p1 * t1x + p2 * t2x + p3 * vx
-    ny = p1 * t1y + p2 * t2y + p3 * vy
-    nz = p1 * t1z + p2 * t2z + p3 * vz
-    hx, hy, hz, _ = normalize3(alpha * nx, alpha * ny, max(nz, 0.0))
-    return hx, hy, hz
-
-
-@njit(cache=True, nogil=True)
-def ggx_sample_normal(nx, ny, nz, ox, oy, oz, alpha, u1, u2):
-    """World-space microfacet normal about unit normal ``n`` for the unit view direction
-    ``o`` (``n . o > 0``) drawn by :func:`ggx_vndf`."""
-    t1x, t1y, t1z, t2x, t2y, t2z = onb(nx, ny, nz)
-    lx = dot3(ox, oy, oz, t1x, t1y, t1z)
-    ly = dot3(ox, oy, oz, t2x, t2y, t2z)
-    lz = dot3(ox, oy, oz, nx, ny, nz)
-    hx, hy, hz = ggx_vndf(lx, ly, lz, alpha, u1, u2)
-    return (hx * t1x + hy * t2x + hz * nx, hx * t1y + hy * t2y + hz * ny,
-            hx * t1z + hy * t2z + hz * nz)
-
-
-@njit(cache=True, nogil=True)
-def ggx_weight(cos_o, cos_i, alpha):
-    """The weight ``f cos_i / pdf`` of a direction drawn through :func:`ggx_vndf`, without
-    its Fresnel factor: ``G2(o, i) / G1(o)`` with the height-correlated Smith ``G2`` (the
-    same for reflection and refraction; ``cos_i`` taken as ``|cos_i|``)."""
-    a2 = alpha * alpha
-    lo = ggx_lambda(cos_o, a2)
-    return (1.0 + lo) / (1.0 + lo + ggx_lambda(abs(cos_i), a2))
-
-
-@njit(cache=True, nogil=True)
 def rough_interface(sa, m):
     """Whether material ``m`` is a rough dielectric interface (a Principled-like material at
     GGX alpha ``>= tolerances.GLOSSY_ALPHA_MIN`` with transmission and an IOR other than 1):

@@ -385,16 +385,25 @@ def own_instances(sa, accel, surf, inst: np.ndarray, prim: np.ndarray) -> np.nda
         return None
     n = len(surf.P)
     inst = np.asarray(inst, np.int64)
-    pts = np.flatnonzero(inst >= 0)
+    geo = accel.sa  # the geometry the accelerator traces against
+    # the points own_clear would look at, in a few passes over the level: hits on
+    # instances of meshes of OWN_MIN_TRIS triangles or more (own_clear's own filter, per
+    # instance; the appended False: -1, a miss), not at rough interfaces
+    big = np.append(np.diff(np.asarray(geo.mesh_tri_start, np.int64))[
+        np.asarray(geo.inst_mesh, np.int64)] >= OWN_MIN_TRIS, False)
+    keep = big[inst]
     iface = interface_materials(sa)
-    if iface.any() and len(pts):
-        pts = pts[~iface[np.maximum(surf.mat[pts], 0)]]
-    out = np.zeros(n, np.bool_)
+    if iface.any():
+        keep &= ~np.append(iface, False)[surf.mat]
+    pts = np.flatnonzero(keep)
+    out = np.full(n, -1, np.int32)
     if len(pts):
-        geo = accel.sa  # the geometry the accelerator traces against
+        clear = np.zeros(n, np.bool_)
         own_clear(geo, np.ascontiguousarray(geo.inst_xform, np.float64), surf.Q, surf.NG,
-                  inst, np.asarray(prim, np.int64), pts, out)
-    return np.where(out, inst, -1).astype(np.int32)
+                  inst, np.asarray(prim, np.int64), pts, clear)
+        mine = pts[clear[pts]]
+        out[mine] = inst[mine]
+    return out
 
 
 def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:

@@ -269,3 +269,25 @@ def test_ri_tree_frame_takes_the_occlusion_query(monkeypatch):
     monkeypatch.setattr(whitted, "any_hit_shadows", _plain_any_hit)
     slow = Session(s, RenderSettings(mode="RI_TREE")).render()
     assert np.array_equal(fast.radiance, slow.radiance)
+
+
+def test_hard_shadow_query_takes_any_hits_bounds():
+    """``occluded`` takes ``tmax`` as :meth:`any_hit` does: a scalar, or a read-only
+    array, answered as ``any_hit`` answers them, and a read-only ``tmax`` compiles no
+    second signature of the occlusion kernel (``per_ray``'s copy, as ``check_rays``)."""
+    from rstrace_engine.accel import bvh_occlusion
+
+    sa = _instanced_scene().arrays()
+    acc = create_accelerator("BVH", sa)
+    rng = np.random.default_rng(3)
+    o, d, tmax = _hard_rays(sa, acc, 2000, rng)
+    acc.occluded(o, d, tmax)
+    sigs = len(bvh_occlusion.occluded_kernel.signatures)
+    frozen = tmax.copy()
+    frozen.setflags(write=False)
+    np.testing.assert_array_equal(acc.occluded(o, d, frozen),
+                                  acc.any_hit(o, d, np.zeros(len(o)), frozen))
+    assert len(bvh_occlusion.occluded_kernel.signatures) == sigs
+    for t in (0.5, np.inf, 0.0):
+        np.testing.assert_array_equal(acc.occluded(o, d, t),
+                                      acc.any_hit(o, d, np.zeros(len(o)), t))

@@ -302,9 +302,12 @@ class BVHAccelerator(Accelerator):
         for bit, traced where they lie by the occlusion kernel
         (:func:`.bvh_occlusion.occluded_rays`): hard lights' shadow rays."""
         t0 = time.perf_counter()
+        n = len(o)
+        # (tmax as any_hit's: a scalar, or a read-only array -- another signature of the
+        # kernel -- copied; the tracer's contiguous arrays are taken as they are)
         blocked, counts = bvh_occlusion.occluded_rays(
-            self.sb, o, d, tmax, None if skip is None else per_ray(skip, len(tmax), np.int32),
-            self._stop)
+            self.sb, o, d, per_ray(tmax, n, np.float64),
+            None if skip is None else per_ray(skip, n, np.int32), self._stop)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + int(counts[0])
         return blocked

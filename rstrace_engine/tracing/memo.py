@@ -20,18 +20,16 @@ class Memo:
     def __init__(self, fields: tuple, compute) -> None:
         self._fields = tuple(fields)
         self._compute = compute
-        self._of: tuple | None = None
-        self._value = None
+        self._kept: tuple | None = None  # (weak references to the arrays, value): one slot
 
     def get(self, sa):
         arrays = [getattr(sa, f) for f in self._fields]
-        of = self._of
-        if of is None or any(r() is not a for r, a in zip(of, arrays, strict=True)):
-            value = self._compute(sa)
-            try:
-                self._of = tuple(weakref.ref(a) for a in arrays)
-            except TypeError:  # not an array (a list, a scalar): computed every time
-                self._of = None
-                return value
-            self._value = value
-        return self._value
+        kept = self._kept  # read once: another thread may replace it (never change it)
+        if kept is not None and all(r() is a for r, a in zip(kept[0], arrays, strict=True)):
+            return kept[1]
+        value = self._compute(sa)
+        try:
+            self._kept = (tuple(weakref.ref(a) for a in arrays), value)
+        except TypeError:  # not an array (a list, a scalar): computed every time
+            self._kept = None
+        return value

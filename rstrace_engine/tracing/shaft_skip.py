@@ -425,39 +425,38 @@ class _OwnBounds:
     filled for the instances the points hit as they come (each level asks for a few)."""
 
     def __init__(self) -> None:
-        self._of: tuple | None = None
+        self._kept: tuple | None = None  # (weak references, cert, have_mesh, sig, have_inst)
 
     def get(self, geo, xf, ks: np.ndarray) -> tuple:
         """``(cert (M, 3), sig (I,))`` with the rows of the instances ``ks`` (unique,
         int64) filled (infinite elsewhere, as the kernel reads only those)."""
         arrays = (geo.verts, geo.tris, geo.mesh_tri_start, geo.inst_mesh, xf)
-        of = self._of
-        if of is None or any(r() is not a for r, a in zip(of, arrays, strict=True)):
-            start, inst_mesh = _OWN_MESHES.get(geo)[:2]
-            self.cert = np.full((len(start) - 1, 3), np.inf)
-            self.have_mesh = np.zeros(len(start) - 1, np.bool_)
-            self.sig = np.full(len(xf), np.inf)
-            self.have_inst = np.zeros(len(xf), np.bool_)
+        kept = self._kept  # read once: another thread may replace it
+        if kept is None or any(r() is not a for r, a in zip(kept[0], arrays, strict=True)):
+            n_mesh = len(_OWN_MESHES.get(geo)[0]) - 1
+            kept = (None, np.full((n_mesh, 3), np.inf), np.zeros(n_mesh, np.bool_),
+                    np.full(len(xf), np.inf), np.zeros(len(xf), np.bool_))
             try:
-                self._of = tuple(weakref.ref(a) for a in arrays)
+                self._kept = (tuple(weakref.ref(a) for a in arrays),) + kept[1:]
             except TypeError:  # not arrays: nothing kept
-                self._of = None
-        new = ks[~self.have_inst[ks]]
+                self._kept = None
+        _, cert, have_mesh, sig, have_inst = kept
+        new = ks[~have_inst[ks]]
         if len(new):
             inst_mesh = _OWN_MESHES.get(geo)[1]
             for m in np.unique(inst_mesh[new]):
-                if not self.have_mesh[m]:
-                    self.cert[m] = CONVEX.get(geo, int(m))
-                    self.have_mesh[m] = True
+                if not have_mesh[m]:
+                    cert[m] = CONVEX.get(geo, int(m))
+                    have_mesh[m] = True
             # each instance's largest stretch (its linear part's spectral norm, past
             # rounding)
             lin = xf[new, :3, :3]
             ok = np.isfinite(lin).all(axis=(1, 2))
             if ok.any():
-                self.sig[new[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
-                                     * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
-            self.have_inst[new] = True
-        return self.cert, self.sig
+                sig[new[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
+                                * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
+            have_inst[new] = True
+        return cert, sig
 
 
 _OWN_BOUNDS = _OwnBounds()

@@ -234,3 +234,52 @@ def test_own_instances_looks_at_the_points_own_clear_would():
     assert np.array_equal(mine, np.where(out, inst, -1))
     assert (mine >= 0).any() and (mine < 0).any()
     assert (inst < 0).any() and (inst[mine < 0] >= 0).any()
+
+
+def test_own_instances_keeps_its_per_packing_data_across_levels(monkeypatch):
+    """``own_clear``'s per-instance stretches (a singular value decomposition) and its
+    per-mesh flags are computed once per packing, not at every depth level (session 42,
+    wave2): a second level over the same geometry decomposes nothing; a packing that
+    moved an instance (new matrices) computes them again, and the answer is the one
+    fresh caches give."""
+    calls = []
+    svd = np.linalg.svd
+    monkeypatch.setattr(np.linalg, "svd", lambda *a, **k: calls.append(1) or svd(*a, **k))
+    scene = _rough_balls(48, 36)
+    sa, accel, _, _, hits, surf = primary_surfaces(scene)
+    first = shaft_skip.own_instances(sa, accel, surf, hits.inst, hits.prim)
+    n = len(calls)
+    again = shaft_skip.own_instances(sa, accel, surf, hits.inst, hits.prim)
+    assert np.array_equal(first, again)
+    assert len(calls) == n  # nothing decomposed again
+    # the edit: the opaque ball moved and stretched (new arrays, as every edit gives)
+    k = scene.instance_slot("Opaque")
+    scene.set_instance_matrix(k, shapes.transform((-1.0, 0.9, 0.6), (0.3, -1.0, 0.2), 35.0,
+                                                  5.0))
+    sa2, accel2, _, _, hits2, surf2 = primary_surfaces(scene)
+    assert accel2.sa.inst_xform is not accel.sa.inst_xform
+    moved = shaft_skip.own_instances(sa2, accel2, surf2, hits2.inst, hits2.prim)
+    assert len(calls) > n
+    monkeypatch.setattr(shaft_skip, "_OWN_BOUNDS", shaft_skip._OwnBounds())
+    monkeypatch.setattr(shaft_skip, "_OWN_MESHES", shaft_skip.Memo(
+        ("mesh_tri_start", "inst_mesh"), shaft_skip._own_meshes))
+    assert np.array_equal(moved, shaft_skip.own_instances(sa2, accel2, surf2, hits2.inst,
+                                                          hits2.prim))
+
+
+def test_material_flags_follow_an_edit_of_the_materials():
+    """``has_glossy`` and the glossy counts read per-materials flags kept per set of
+    material arrays (:class:`~rstrace_engine.tracing.memo.Memo`): materials edited (new
+    arrays) are read anew."""
+    from rstrace_engine.tracing import glossy_rays
+
+    sa = _rough_balls(16, 12).arrays()
+    assert glossy_rays.has_glossy(sa)
+    flat = sa._replace(mat_roughness=np.zeros_like(sa.mat_roughness))
+    assert not glossy_rays.has_glossy(flat)
+    counts, glossy = glossy_rays.glossy_counts(flat, np.arange(len(sa.mat_model)),
+                                               np.ones(len(sa.mat_model), np.bool_), 4)
+    assert not glossy.any() and (counts == 1).all()
+    assert glossy_rays.has_glossy(sa)
+    assert glossy_rays.MATERIAL_FLAGS.get(sa)[0][:-1].tolist() == (
+        glossy_rays.glossy_materials(sa).tolist())

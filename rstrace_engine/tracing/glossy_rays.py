@@ -17,6 +17,7 @@ from numba import njit
 from .. import tolerances as tol
 from ..geometry.scene import MODEL_PRINCIPLED
 from .ggx_sampling import ggx_sample_at, ggx_sample_frame, ggx_weight_lo
+from .memo import Memo
 from .shading import (
     dot3,
     fresnel_dielectric,
@@ -80,9 +81,21 @@ def glossy_materials(sa) -> np.ndarray:
             & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
 
 
+#: the material fields :func:`glossy_materials` and :func:`interface_materials` read
+_MAT_FIELDS = ("mat_model", "mat_roughness", "mat_ior", "mat_transmission", "mat_mirror",
+               "mat_metallic", "mat_specular")
+#: per scene's materials: ``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy,
+#: any interface)``, the flags with a False appended (index -1: a miss); asked for at every
+#: depth level, computed once per set of material arrays (:class:`~.memo.Memo`)
+MATERIAL_FLAGS = Memo(_MAT_FIELDS, lambda sa: (
+    np.append(glossy_materials(sa), False), np.append(interface_materials(sa), False),
+    bool(len(sa.mat_model) and np.any(glossy_materials(sa))),
+    bool(np.any(interface_materials(sa)))))
+
+
 def has_glossy(sa) -> bool:
     """Whether any material of ``sa`` draws glossy rays (:func:`is_glossy`)."""
-    return bool(len(sa.mat_model) and np.any(glossy_materials(sa)))
+    return MATERIAL_FLAGS.get(sa)[2]
 
 
 def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int):
@@ -92,7 +105,7 @@ def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int):
     Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
     level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
     on one thread, a quarter of a rough_materials frame (docs/bench-frame.md)."""
-    glossy = np.append(glossy_materials(sa), False)[mat]  # the appended False: -1, a miss
+    glossy = MATERIAL_FLAGS.get(sa)[0][mat]  # the appended False: -1, a miss
     return np.where(glossy & fresh, np.int64(samples), np.int64(1)), glossy
 
 

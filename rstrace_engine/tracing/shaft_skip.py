@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 
 import numpy as np
 from numba import njit, prange
@@ -67,7 +68,8 @@ from ..geometry.shaft_geometry import (
     to_object,
 )
 from ..views import fields, view_type
-from .glossy_rays import interface_materials
+from .glossy_rays import MATERIAL_FLAGS, interface_materials
+from .memo import Memo
 from .object_rays import CONVEX
 from .shading import spawn_offset
 from .soft_lights import SH_SOFT
@@ -388,13 +390,11 @@ def own_instances(sa, accel, surf, inst: np.ndarray, prim: np.ndarray) -> np.nda
     geo = accel.sa  # the geometry the accelerator traces against
     # the points own_clear would look at, in a few passes over the level: hits on
     # instances of meshes of OWN_MIN_TRIS triangles or more (own_clear's own filter, per
-    # instance; the appended False: -1, a miss), not at rough interfaces
-    big = np.append(np.diff(np.asarray(geo.mesh_tri_start, np.int64))[
-        np.asarray(geo.inst_mesh, np.int64)] >= OWN_MIN_TRIS, False)
-    keep = big[inst]
-    iface = interface_materials(sa)
-    if iface.any():
-        keep &= ~np.append(iface, False)[surf.mat]
+    # instance, kept per packing), not at rough interfaces
+    keep = _OWN_MESHES.get(geo)[2][inst]
+    flags = MATERIAL_FLAGS.get(sa)
+    if flags[3]:
+        keep &= ~flags[1][surf.mat]
     pts = np.flatnonzero(keep)
     out = np.full(n, -1, np.int32)
     if len(pts):
@@ -404,6 +404,62 @@ def own_instances(sa, accel, surf, inst: np.ndarray, prim: np.ndarray) -> np.nda
         mine = pts[clear[pts]]
         out[mine] = inst[mine]
     return out
+
+
+def _own_meshes(geo) -> tuple:
+    """``(mesh_tri_start (M + 1,), inst_mesh (I,) int64, big (I + 1,) bool)``: whether each
+    instance's mesh has :data:`OWN_MIN_TRIS` triangles or more (the appended False: -1, a
+    miss)."""
+    start = np.asarray(geo.mesh_tri_start, np.int64)
+    inst_mesh = np.asarray(geo.inst_mesh, np.int64)
+    return start, inst_mesh, np.append(np.diff(start)[inst_mesh] >= OWN_MIN_TRIS, False)
+
+
+#: :func:`_own_meshes` per packing
+_OWN_MESHES = Memo(("mesh_tri_start", "inst_mesh"), _own_meshes)
+
+
+class _OwnBounds:
+    """:func:`own_clear`'s certificates per mesh and stretches per instance, for the last
+    packing and instance matrices asked about (held weakly, as :class:`~.memo.Memo`),
+    filled for the instances the points hit as they come (each level asks for a few)."""
+
+    def __init__(self) -> None:
+        self._kept: tuple | None = None  # (weak references, cert, have_mesh, sig, have_inst)
+
+    def get(self, geo, xf, ks: np.ndarray) -> tuple:
+        """``(cert (M, 3), sig (I,))`` with the rows of the instances ``ks`` (unique,
+        int64) filled (infinite elsewhere, as the kernel reads only those)."""
+        arrays = (geo.verts, geo.tris, geo.mesh_tri_start, geo.inst_mesh, xf)
+        kept = self._kept  # read once: another thread may replace it
+        if kept is None or any(r() is not a for r, a in zip(kept[0], arrays, strict=True)):
+            n_mesh = len(_OWN_MESHES.get(geo)[0]) - 1
+            kept = (None, np.full((n_mesh, 3), np.inf), np.zeros(n_mesh, np.bool_),
+                    np.full(len(xf), np.inf), np.zeros(len(xf), np.bool_))
+            try:
+                self._kept = (tuple(weakref.ref(a) for a in arrays),) + kept[1:]
+            except TypeError:  # not arrays: nothing kept
+                self._kept = None
+        _, cert, have_mesh, sig, have_inst = kept
+        new = ks[~have_inst[ks]]
+        if len(new):
+            inst_mesh = _OWN_MESHES.get(geo)[1]
+            for m in np.unique(inst_mesh[new]):
+                if not have_mesh[m]:
+                    cert[m] = CONVEX.get(geo, int(m))
+                    have_mesh[m] = True
+            # each instance's largest stretch (its linear part's spectral norm, past
+            # rounding)
+            lin = xf[new, :3, :3]
+            ok = np.isfinite(lin).all(axis=(1, 2))
+            if ok.any():
+                sig[new[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
+                                * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
+            have_inst[new] = True
+        return cert, sig
+
+
+_OWN_BOUNDS = _OwnBounds()
 
 
 def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
@@ -428,25 +484,15 @@ def own_clear(geo, xf, Q, NG, inst, prim, pts, out) -> None:
     passed for every triangle of the instance, so the proof proves the same rows and the
     frames are unchanged bit for bit. ``geo``: the accelerator's geometry, ``xf`` its
     instance matrices."""
-    start = np.asarray(geo.mesh_tri_start, np.int64)
-    inst_mesh = np.asarray(geo.inst_mesh, np.int64)
+    start, inst_mesh, big = _OWN_MESHES.get(geo)
     k = inst[pts]
-    worth = (k >= 0) & (np.diff(start)[inst_mesh[np.maximum(k, 0)]] >= OWN_MIN_TRIS)
+    worth = big[k]
     pts, k = pts[worth], k[worth]
     if len(pts) == 0:
         return
-    n_mesh = len(start) - 1
-    cert = np.full((n_mesh, 3), np.inf)
-    ks = np.flatnonzero(np.bincount(k, minlength=len(inst_mesh)))
-    for m in np.flatnonzero(np.bincount(inst_mesh[ks], minlength=n_mesh)):
-        cert[m] = CONVEX.get(geo, int(m))
-    # each instance's largest stretch (its linear part's spectral norm, past rounding)
-    sig = np.full(len(xf), np.inf)
-    lin = xf[ks, :3, :3]
-    ok = np.isfinite(lin).all(axis=(1, 2))
-    if ok.any():
-        sig[ks[ok]] = (np.linalg.svd(lin[ok], compute_uv=False)[:, 0]
-                       * (1.0 + 1e3 * tol.CONVEX_ROUND_REL))
+    hit = np.zeros(len(inst_mesh), np.bool_)
+    hit[k] = True
+    cert, sig = _OWN_BOUNDS.get(geo, xf, np.flatnonzero(hit))
     _own_kernel(geo.verts, geo.tris, xf, sig, start, inst_mesh, cert, Q, NG, inst, prim,
                 float(geo.scene_extent), np.asarray(pts, np.int64), out)
 

@@ -618,3 +618,30 @@ def test_glossy_rays_without_a_lobe_do_not_read_the_multiscatter_factors():
         for a, b in zip(*outs, strict=True):
             assert np.array_equal(a, b)
         assert outs[0][3].any()
+
+
+def test_glossy_rays_of_a_negative_specular_texel_keep_the_layer_factor():
+    """A specular texture (``TEX_SPECULAR``; the engine takes any finite texel, the add-on
+    clips them to [0, 1]) may make a channel's specular weight negative where the others
+    are 0: no lobe (the shade kernel's ``z`` stays 1) yet a non-zero Fresnel, which the
+    glossy rays carry with the layer's multiple-scattering factor, as before session 42.
+    The same ball with a subnormal green texel (a lobe: ``z`` computed; its green weight
+    too small to change a bit) renders the same bits."""
+    from rstrace_engine.geometry.elements import TEX_NO_BASE, TEX_SPECULAR
+    from rstrace_engine.geometry.scene import Material
+
+    frames = []
+    for green in (0.0, 1e-44):
+        tex = np.zeros((4, 4, 3), np.float32)
+        tex[..., 0] = -0.5
+        tex[..., 1] = green
+        mat = Material("negative_specular", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4),
+                       roughness=0.2, mirror=(1.0, 1.0, 1.0), transmission=(0.4, 0.4, 0.4),
+                       ior=1.5, model="PRINCIPLED", specular_ior=1.5, texture=tex,
+                       texture_flags=TEX_SPECULAR | TEX_NO_BASE)
+        assert (tex[..., 1] > 0).all() == (green > 0)
+        f = whitted.render(_ball(mat, world=(0.6, 0.7, 0.9), size=16),
+                           RenderSettings(max_depth=3, glossy_samples=4))
+        frames.append(f.radiance)
+    assert (frames[0][..., 1:] > 0).any()
+    assert np.array_equal(frames[0], frames[1])

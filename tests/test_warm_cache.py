@@ -50,6 +50,11 @@ def test_warm_cache_command_reports_compiled_and_loaded_kernels():
         # the rough glass albedo's quadrature: scripts/ggx_glass_tables.py and tests (the
         # shader reads the tables it wrote)
         "rstrace_engine.tracing.glass_albedo.ggx_glass_albedo_quadrature",
+        # GGX's whole-sample functions, which that quadrature and the tests call: the
+        # glossy rays take their halves (ggx_sample_frame/_at, ggx_weight_lo; session 42)
+        "rstrace_engine.tracing.ggx_sampling.ggx_vndf",
+        "rstrace_engine.tracing.ggx_sampling.ggx_sample_normal",
+        "rstrace_engine.tracing.ggx_sampling.ggx_weight",
         # the binary boxes' ulp padding as a pass of its own: tests only (a mesh's collapse
         # pads each box as it reads it, bvh_mesh.collapse4's ``pad``)
         "rstrace_engine.accel.bvh_mesh.pad_outward",

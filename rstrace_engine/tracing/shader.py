@@ -653,9 +653,20 @@ def _shade_kernel(sa, hits, surf, vis, weight, spawn, soft, gstart, seeds, lat, 
             # (i is unsigned in the loop's own function: as it is, _glossy_rays compiled twice;
             # the point's values passed, not ``sa``: its ~40 arrays as arguments, and the
             # factors z computed again there, were ~40% of a glossy point's cost)
+            zq = z
+            if ((sr < 0.0 or sg < 0.0 or sb < 0.0)
+                    and not (sr > 0.0 or sg > 0.0 or sb > 0.0 or metallic > 0.0)
+                    and (rr > 0.0 or rg > 0.0 or rb > 0.0)):
+                # no lobe, yet a negative specular texel (TEX_SPECULAR; the engine takes
+                # any finite texel): its Fresnel is not 0, and the rays' reflection carries
+                # the layer's factor as before session 42 (z = 1 multiplies a zero Fresnel
+                # only where every specular weight is +-0)
+                e_white = ggx_e(min(max(-dot3(dx, dy, dz, sx, sy, sz), tol.GGX_COS_MIN),
+                                    1.0), alpha)
+                zq = multiscatter_factors(alpha, e_white, eta_s, mr, mg, mb, qr, qg, qb)
             _glossy_rays(np.int64(i), gstart, seeds, lat, px, py, pz, gx, gy, gz, sx, sy, sz,
                          dx, dy, dz, off, w0, w1, w2, rr, rg, rb, tr, tg, tb, ur, ug, ub, sr, sg,
-                         sb, eta_s, metallic, mr, mg, mb, qr, qg, qb, z, alpha, eta, ke, c_o,
+                         sb, eta_s, metallic, mr, mg, mb, qr, qg, qb, zq, alpha, eta, ke, c_o,
                          c_d, c_w, c_ok)
             continue
         if principled and (rr > 0.0 or rg > 0.0 or rb > 0.0):

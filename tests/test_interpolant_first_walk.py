@@ -180,3 +180,18 @@ def test_a_declined_reprobe_keeps_the_whole_frame_traced():
     assert f.stats["fallback"]["declined"]
     assert fb.all_traced and fb.frames_all == 0  # judged nothing: traced frames again
     assert fb.whole_frame_traced()
+
+
+def test_an_incremental_frame_does_not_teach_the_price():
+    """An edit's dirty pixels (``pixels``) are not a frame's first walk: clustered rays, and
+    under ``SERIAL_BELOW`` rays on one thread (``threads_for``) against the ray price of
+    full frames (a price learned there, inflated by the threads, declined full frames whose
+    cells pay); like the fallback's judgements (``costs``), only full frames teach it."""
+    sc, accel = _scene()
+    full = _frame(InterpolantRenderer(), sc, accel)  # (kernels loaded, structures built)
+    r = InterpolantRenderer()
+    r.prepare(sc.arrays(), ST, accel)
+    assert r.cache.pool.n_live == 0
+    f = _frame(r, sc, accel, pixels=np.ones(96 * 72, np.bool_), base=full)
+    assert f.stats["fallback"]["walked_rays"] >= CHUNK_MIN  # it walked a first chunk
+    assert r.cache.fallback.first_walk is None  # and taught nothing

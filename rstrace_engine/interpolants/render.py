@@ -335,6 +335,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         led.trace_s = run.trace_s
         led.traced_rays = run.traced_rays
         costs = led.costs(fb) if (pixels is None and not cancelled) else None
+        if pixels is not None:  # (an edit's pixels: clustered, on one thread under
+            budget.learned = None  # SERIAL_BELOW rays; as costs, only full frames teach)
         fb.walked_or_declined(budget)  # (a first walk priced: fallback.PRICE_FIRST_WALK)
         if costs is not None:
             fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut, budget.declined)

@@ -1,7 +1,10 @@
 """Core tests decide by given costs, not timings: the interpolants' learned cost of a
 scene's structures (:data:`~rstrace_engine.interpolants.fallback.STRUCTURE_RATE`, learned
 from the builds of earlier tests in the process) is not learned, so no test's frames depend
-on which tests ran before it (the bpy tests under ``blender/`` run the add-on as it is)."""
+on which tests ran before it, and a cache's first walk is not priced before it is walked
+(:data:`~rstrace_engine.interpolants.fallback.PRICE_FIRST_WALK` off: a price learned in
+one frame would decline a test's later frames; its tests turn it on). The bpy tests under
+``blender/`` run the add-on as it is."""
 
 from __future__ import annotations
 
@@ -19,4 +22,5 @@ def _no_learned_structure_rate(request, monkeypatch):
 
     monkeypatch.setattr(fallback, "LEARN_STRUCTURES", False)
     monkeypatch.setattr(fallback, "STRUCTURE_RATE", {"topo": None, "qs": None})
+    monkeypatch.setattr(fallback, "PRICE_FIRST_WALK", False)
     yield

@@ -45,6 +45,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
+from numba.core import event
 
 from .. import kernel_cache
 
@@ -91,10 +92,40 @@ CLOCK = time.perf_counter
 #: turn the learning off, :data:`LEARN_STRUCTURES`, as they decide by given costs)
 STRUCTURE_RATE: dict = {"topo": None, "qs": None}
 LEARN_STRUCTURES = True
+#: structures built so far in this process (:func:`timed_structure`), and numba's compiler
+#: lock taken (every compile and every cache load takes it; a call of a loaded kernel does
+#: not): a chunk that did either does not price a first walk (:data:`PRICE_FIRST_WALK`;
+#: counters, not :func:`.kernel_cache.mark`: that walks every dispatcher, 7 ms a frame)
+STRUCTURES_BUILT = [0]
+NUMBA_LOCKS = [0]
+
+
+class _LockCounter(event.Listener):
+    def on_start(self, ev):
+        NUMBA_LOCKS[0] += 1
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compiler_lock", _LockCounter())
+#: a cache's first walked chunk (no cell kept: its rays find nothing before its builds) is
+#: priced before it is walked, at what the cache's last such chunk added per ray walked in
+#: traced rays' prices (line coordinates, the walk, its builds whole: their shares put off
+#: to later passes included; :attr:`Fallback.first_walk`, :meth:`Budget.first_cost`): a
+#: frame whose allowance cannot pay a :data:`CHUNK_MIN` chunk at it walks nothing, as the
+#: ledger would have cut it after that chunk. The price is the cache's (its scene's: it
+#: dies with it), None until a first chunk that built no structure and loaded no kernel
+#: measured it: a new scene's first frame walks. Measured (session 41, process CPU, 1
+#: thread, first chunks of 4,096 rays): ``museum_soft`` 320x240 4 spp 0.55-0.6 (its cells
+#: pay), ``museum`` 640x480 1 spp 1.5-1.8, ``museum_1999`` 640x480 1 spp 2-6 (they do not).
+#: The core tests turn it off (``conftest.py``, as :data:`LEARN_STRUCTURES`)
+PRICE_FIRST_WALK = True
 
 
 def timed_structure(kind: str, n_tris: int, build):
     """``build()``, its cost per triangle learned as ``kind``'s :data:`STRUCTURE_RATE`."""
+    STRUCTURES_BUILT[0] += 1
     if not LEARN_STRUCTURES:
         return build()
     since = kernel_cache.mark()
@@ -197,6 +228,14 @@ class Budget:
         self.owed_build = 0.0
         self.opened: float | None = None  # when the chunk being walked began (:meth:`open`)
         self.open_built = 0.0  # seconds of builds since then (charged as they went)
+        #: the cache kept no cell when the frame began: its first walked chunk is priced
+        #: before it is walked at ``first_walk`` (:data:`PRICE_FIRST_WALK`, :meth:`first_cost`;
+        #: None: not priced) and teaches the price (``learned``, :meth:`walked_chunk`)
+        self.empty = False
+        self.first_walk: float | None = None
+        self.learned: float | None = None
+        self.declined = False  # the first walk's price declined the frame's walk
+        self.first_marks = None  # (compiler locks, structures built) when it began
         if ray_s is not None:
             self.price(ray_s, vis_s, hit_share)
 
@@ -213,6 +252,29 @@ class Budget:
         spent the allowance already, ``museum_1999``: 10-18 ms added against 1.5 ms)."""
         self.opened = CLOCK()
         self.open_built = 0.0
+        if self.walked == 0 and self.empty and PRICE_FIRST_WALK:
+            self.first_marks = (NUMBA_LOCKS[0], STRUCTURES_BUILT[0])
+
+    def first_cost(self) -> float:
+        """Seconds the frame's first walked chunk is expected to add (``first_walk``'s
+        price of a :data:`CHUNK_MIN` chunk; 0 after a walk, or where it is not priced)."""
+        if self.walked or self.first_walk is None or self.ray_s is None:
+            return 0.0
+        return self.first_walk * CHUNK_MIN * self.ray_s
+
+    def walked_chunk(self, rays: int, added: float) -> None:
+        """A chunk walked ``rays`` rays and added ``added`` seconds (its builds whole). The
+        first of a frame on a cache with no cell, of at least :data:`CHUNK_MIN` rays, that
+        built no structure and loaded no kernel (:meth:`open` marked them), measures its
+        price per ray walked in traced rays' prices (``learned``: the cache's
+        :attr:`Fallback.first_walk` from then on)."""
+        marks, self.first_marks = self.first_marks, None
+        first = self.walked == 0
+        self.walked += int(rays)
+        if not (first and marks is not None and rays >= CHUNK_MIN and self.ray_s):
+            return
+        if (NUMBA_LOCKS[0], STRUCTURES_BUILT[0]) == marks:
+            self.learned = max(float(added), 0.0) / (rays * self.ray_s)
 
     def close(self) -> None:
         """The chunk's walk and builds are over (the chunk then books all it added)."""
@@ -303,8 +365,10 @@ class Budget:
         left = self.left() - self.owed
         walk = self.spent - self.build_paid
         if self.walked == 0 or walk <= 0.0:
-            if left < 0.0:
+            first = self.first_cost()
+            if left < first:  # (first: what a first walk on an empty cache is priced at)
                 self.cut |= rest > 0
+                self.declined |= rest > 0 and left >= 0.0
                 return 0
             return min(rest, CHUNK_MIN)
         can = int(left / (walk / self.walked))
@@ -327,7 +391,7 @@ class Budget:
         left = self.left() - self.owed + SAVE_SHARE * max(int(reprojectable), 0) * self.ray_s
         walk = self.spent - self.build_paid
         if self.walked == 0 or walk <= 0.0:  # (as chunk: it walks CHUNK_MIN at 0 left)
-            return left < 0.0
+            return left < self.first_cost()
         return left < CHUNK_MIN * (walk / self.walked)
 
 
@@ -343,6 +407,10 @@ class Fallback:
         self.all_traced = False  # the whole frame did not pay: every object traced
         self.frames_all = 0  # frames since the whole frame was last judged
         self.cuts = 0  # frames in a row the ledger cut short and that were not judged
+        #: what a first walked chunk on this cache emptied of cells adds per ray walked, in
+        #: traced rays' prices (:data:`PRICE_FIRST_WALK`; None: not measured yet)
+        self.first_walk: float | None = None
+        self.declined = 0  # frames in a row whose first walk's price declined their walk
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -361,6 +429,28 @@ class Fallback:
         self.traced[idx] = False
         self.frames_traced[idx] = 0
 
+    def budget(self, rays: int, n_inst: int, passes: int, empty: bool) -> Budget:
+        """A frame's :class:`Budget` (``empty``: the cache keeps no cell). Its first walk
+        is priced before it is walked (:attr:`first_walk`) but after
+        :data:`REPROBE_FRAMES` frames in a row that it declined: that frame walks, and its
+        first chunk prices it again (a price too high is corrected)."""
+        b = Budget(rays, self.ray_s, n_inst, self.vis_s, self.hit_share, passes)
+        b.empty = bool(empty) and PRICE_FIRST_WALK
+        if b.empty and self.declined < REPROBE_FRAMES:
+            b.first_walk = self.first_walk
+        return b
+
+    def walked_or_declined(self, b: Budget) -> None:
+        """After a frame's ledger ``b``: its first chunk's price learned, the frames
+        declined in a row counted (a frame that walked starts them over; one that did
+        neither, cancelled before its first chunk or all reprojected, keeps the count)."""
+        if b.learned is not None:
+            self.first_walk = b.learned
+        if b.declined:
+            self.declined += 1
+        elif b.walked:
+            self.declined = 0
+
     def whole_frame_traced(self) -> bool:
         """Whether this frame is the base tracer's (the whole frame did not pay; not due
         for a re-probe)."""
@@ -374,7 +464,8 @@ class Fallback:
         return self.traced & (self.frames_traced < REPROBE_FRAMES)
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
-              deferred: np.ndarray | None = None, cut: bool = False) -> None:
+              deferred: np.ndarray | None = None, cut: bool = False,
+              declined: bool = False) -> None:
         """After a full frame that traced the objects ``traced_now`` (its
         :meth:`frame_traced`): objects that went through cells are judged (:func:`cells_pay`)
         unless the budget deferred some of their cells (``deferred`` (I,) counts: they have
@@ -382,10 +473,16 @@ class Fallback:
         ledger ``cut`` short (:class:`Budget`) is judged only as the :data:`CUT_FRAMES`-th
         in a row, or when its walk alone (its builds left out) did not pay: its cells walked
         a chunk or a pass, and the cells it built have served none of the frames after it
-        (the ledger kept the frame itself within its allowance)."""
-        self.last = c
+        (the ledger kept the frame itself within its allowance). A frame whose first walk
+        was ``declined`` (:meth:`budget`) walked nothing: nothing is judged (a frame
+        re-probing the whole frame waits :data:`REPROBE_FRAMES` frames again)."""
         if c.ray_s > 0.0:
             self.ray_s = float(c.ray_s)
+        if declined:
+            self.frames_traced[traced_now] += 1
+            self.frames_all = 0
+            return
+        self.last = c
         self.cuts = self.cuts + 1 if cut else 0
         if 0 < self.cuts < CUT_FRAMES and frame_pays(c._replace(build_s=0.0)):
             # (a cut frame whose walk alone did not pay is judged: builds cannot help it)
@@ -403,10 +500,20 @@ class Fallback:
         self.all_traced = not frame_pays(c)
         self.frames_all = 0
 
-    def notes(self) -> list[str]:
+    def notes(self, budget: Budget | None = None) -> list[str]:
         """What was decided, for the user (a frame's ``stats["fallback_notes"]``): the whole
-        frame traced, or objects traced, with the costs measured; none while cells are
-        used everywhere."""
+        frame traced, or objects traced, with the costs measured, and the frame's first
+        walk declined (``budget``: its ledger); none while cells are used everywhere."""
+        out = []
+        if budget is not None and budget.declined:
+            out.append(f"Interpolants: this frame walked no cell, the cache keeps none and a "
+                       f"first walk here cost {self.first_walk:.1f} traced rays a ray, more "
+                       f"than the frame may add; walked again after {REPROBE_FRAMES} such "
+                       f"frames in a row ({self.declined} so far; setting "
+                       f"'interpolant_fallback' off: cells always)")
+        return out + self._decided()
+
+    def _decided(self) -> list[str]:
         c = self.last
         measured = ""
         if c is not None:
@@ -439,7 +546,9 @@ class Fallback:
                     saved_s=SAVE_SHARE * b.saved * b.ray_s if priced else 0.0,
                     walked_rays=0 if b is None else int(b.walked),
                     probe_rays=0 if b is None else int(b.pricing),
-                    ray_us=None if self.ray_s is None else 1e6 * self.ray_s)
+                    ray_us=None if self.ray_s is None else 1e6 * self.ray_s,
+                    first_walk=self.first_walk, declined=bool(b is not None and b.declined),
+                    declined_in_row=self.declined)
 
 
 def count_cells(counts: np.ndarray, inst: np.ndarray, n_inst: int) -> np.ndarray:

@@ -199,7 +199,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         fb.resize(n_inst)
         run.ledger = fb_mod.FrameLedger(n_inst)
         run.traced_now = fb.frame_traced()
-        run.budget = fb_mod.Budget(n, fb.ray_s, n_inst, fb.vis_s, fb.hit_share, spp)
+        run.budget = fb.budget(n, n_inst, spp, cache.pool.n_live == 0)
         run.budget.owed, run.budget.owed_build = fb_mod.owed_at_once(
             cache.structures_missing(), len(sa.tris), cache.pool.n_live > 0)
         if run.budget.owed > run.budget.limit:  # (priced: its walk could never be paid)
@@ -335,8 +335,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         led.trace_s = run.trace_s
         led.traced_rays = run.traced_rays
         costs = led.costs(fb) if (pixels is None and not cancelled) else None
+        if pixels is not None:  # (an edit's pixels: clustered, on one thread under
+            budget.learned = None  # SERIAL_BELOW rays; as costs, only full frames teach)
+        fb.walked_or_declined(budget)  # (a first walk priced: fallback.PRICE_FIRST_WALK)
         if costs is not None:
-            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut)
+            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut, budget.declined)
             if n_closest:
                 fb.vis_s = t_closest / n_closest
     if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
@@ -354,7 +357,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if fb is not None:
         # (tail_pixels: pixels the base tracer's tiles traced after a cut, trace_tail)
         stats["fallback"] = dict(fb.stats(budget), tail_pixels=k - tail)
-        stats["fallback_notes"] = fb.notes()  # what it decided, for the user
+        stats["fallback_notes"] = fb.notes(budget)  # what it decided, for the user
     log.debug("interpolant frame: %.3f s, %d pixels, %.1f%% interpolated, %d cells built",
               elapsed, k, 100 * stats["interpolated_fraction"], stats["cells_built"])
     return Frame(image.reshape(h, w, 3), pclass.reshape(h, w), stats,
@@ -551,8 +554,8 @@ class _Run:
             # (less the builds' shares put off to the frame's later passes)
             budget.spent = (spent0 + (fb_mod.CLOCK() - t0) - trace_s
                             - (budget.later - later0))
-            if cells:
-                budget.walked += len(o)
+            if cells:  # (its builds whole: what a first walk is priced at, fallback.py)
+                budget.walked_chunk(len(o), budget.spent - spent0 + budget.later - later0)
 
 
 class InterpolantRenderer:

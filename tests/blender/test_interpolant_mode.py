@@ -146,3 +146,34 @@ def test_f12_reports_what_the_fallback_decided(tmp_path, monkeypatch):
     assert "fallback" not in cells and not cells.get("fallback_notes")
     assert cells["interpolated_fraction"] > 0.05
     assert "cells did not pay" not in addon.session.status_line(cells)
+
+
+def test_f12_says_why_its_first_walk_was_declined(tmp_path, monkeypatch):
+    """A frame on an empty cache whose first walk its scene priced above its allowance
+    walks nothing (:data:`~rstrace_engine.interpolants.fallback.PRICE_FIRST_WALK`): the
+    base frame, and an INFO message of the render says why. The price is given (as if
+    learned on this scene: 1e6 traced rays a ray walked), the allowance made large enough
+    that the scene's structures owed do not turn the frame away first."""
+    import addon
+    from rstrace_engine.interpolants import fallback
+
+    init = fallback.Fallback.__init__
+
+    def priced(self, n_inst):
+        init(self, n_inst)
+        self.first_walk = 1e6
+
+    monkeypatch.setattr(fallback.Fallback, "__init__", priced)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 10.0)
+    sc = b.three_spheres_scene(160, 120)
+    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
+    base = b.render_exr(tmp_path / "base.exr")
+    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
+    out = b.render_exr(tmp_path / "declined.exr")
+    st = _stats()
+    assert st["fallback"]["declined"] and st["fallback"]["walked_rays"] == 0
+    note = st["fallback_notes"][0]
+    assert "walked no cell" in note and "after 8 such frames" in note
+    info = [text for level, text in addon.session.state_for(sc).messages if level == "INFO"]
+    assert note in info
+    np.testing.assert_array_equal(out["Combined"], base["Combined"])

@@ -219,15 +219,10 @@ def _plain_any_hit(accel, o, d, tmax, skip=None):
     return np.asarray(accel.any_hit(o, d, np.zeros(len(o)), tmax, *extra), np.bool_)
 
 
-@pytest.mark.parametrize("name", ["rough_materials", "three_spheres"])
-def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
-    """A hard-lit base frame (a point light at camera hits and at every level of the rough
-    paths) traces its shadow rays through :meth:`BVHAccelerator.occluded`, every one of
-    them, and equals bit for bit the frame whose shadow rays go through ``any_hit``."""
+def _count_occluded(monkeypatch) -> list:
+    """The batch sizes of every :meth:`BVHAccelerator.occluded` call from now on."""
     from rstrace_engine.accel.accelerators import BVHAccelerator
 
-    s = scenes.build(name, 40, 30)
-    st = RenderSettings(max_depth=5, samples=2, glossy_samples=4)
     calls = []
     query = BVHAccelerator.occluded
 
@@ -236,6 +231,18 @@ def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
         return query(self, o, d, tmax, skip)
 
     monkeypatch.setattr(BVHAccelerator, "occluded", counted)
+    return calls
+
+
+@pytest.mark.parametrize("name", ["rough_materials", "three_spheres"])
+def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
+    """A hard-lit base frame (a point light at camera hits and at every level of the rough
+    paths) traces its shadow rays through :meth:`BVHAccelerator.occluded`, every one of
+    them, and equals bit for bit the frame whose shadow rays go through ``any_hit``."""
+
+    s = scenes.build(name, 40, 30)
+    st = RenderSettings(max_depth=5, samples=2, glossy_samples=4)
+    calls = _count_occluded(monkeypatch)
     fast = whitted.render(s, st, accel=create_accelerator("BVH", s.arrays()))
     assert len(calls) > 1 and sum(calls) == fast.stats["shadow_rays"] > 0
     monkeypatch.setattr(whitted, "any_hit_shadows", _plain_any_hit)
@@ -250,19 +257,11 @@ def test_hard_lit_frame_takes_the_occlusion_query(name, monkeypatch):
 def test_ri_tree_frame_takes_the_occlusion_query(monkeypatch):
     """The RI_TREE frame's shadow rays from traced points go through the occlusion query,
     and its image is the one through ``any_hit``."""
-    from rstrace_engine.accel.accelerators import BVHAccelerator
     from rstrace_engine.ri_tree import render as ri_render
     from rstrace_engine.session import Session
 
     s = scenes.build("three_spheres", 40, 30)
-    calls = []
-    query = BVHAccelerator.occluded
-
-    def counted(self, o, d, tmax, skip=None):
-        calls.append(len(o))
-        return query(self, o, d, tmax, skip)
-
-    monkeypatch.setattr(BVHAccelerator, "occluded", counted)
+    calls = _count_occluded(monkeypatch)
     fast = Session(s, RenderSettings(mode="RI_TREE")).render()
     assert sum(calls) > 0
     monkeypatch.setattr(ri_render, "any_hit_shadows", _plain_any_hit)

@@ -3,9 +3,10 @@
 A cold start (a fresh install, or a numba cache of other sources) compiles every kernel a
 session touches. The viewport's first image is the base tracer's *coarse* frame
 (:func:`~rstrace_engine.interactive.trace_view`, in every mode), which needs only
-:data:`FIRST_IMAGE_KERNELS`: the BVH build, the camera rays, the BVH traversal and the
-tracer's surface, shadow and shade stages. :func:`warm_viewport` compiles those first, then
-lets a waiting viewport render, then compiles (or loads) the rest of the mode's kernels
+:data:`FIRST_IMAGE_KERNELS`: the BVH build, the camera rays, the BVH traversal (and the
+hard shadow rays' occlusion kernel) and the tracer's surface, shadow and shade stages.
+:func:`warm_viewport` compiles those first, then lets a waiting viewport render, then
+compiles (or loads) the rest of the mode's kernels
 through :func:`~rstrace_engine.warm_kernels.warm`, one step at a time under the render lock,
 so the viewport's own frames interleave with it.
 
@@ -39,7 +40,7 @@ from . import kernel_cache
 log = logging.getLogger(__name__)
 
 #: The kernels of the viewport's first (coarse) image, as ``module.function`` under
-#: rstrace_engine; the traversal's compiles in the helper process.
+#: rstrace_engine; the traversal's (:data:`HELPER_KERNELS`) compile in the helper process.
 FIRST_IMAGE_KERNELS = ("accel.bvh_build.split_top", "accel.bvh_build.build_subtree",
                        "accel.bvh_mesh.collapse4",
                        "accel.bvh_mesh.direct_leaves", "accel.bvh_mesh.place_child",

@@ -122,7 +122,8 @@ def keep_world(lrec, sa, gids, wi, coef, rest, interp, hits: Hits, rough_on: boo
 
 
 def _any_hit(accel):
-    """The tracer's occlusion query of soft samples (any hit up to each sample's end)."""
+    """The tracer's occlusion query of soft samples (any hit up to each sample's end:
+    :func:`~..tracing.light_linking.any_hit_shadows`)."""
     def occluded(o, d, tmax, rows):
         return any_hit_shadows(accel, o, d, tmax)
     return occluded

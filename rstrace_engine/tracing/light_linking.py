@@ -1,8 +1,9 @@
 """Shadow linking: shadow rays that only a light's blockers stop (Cycles' blocker
 collection, ``SceneArrays.light_block``).
 
-Without shadow linking in the scene a shadow ray is the accelerator's any-hit query, as
-before. With it, the rays of a light that has blockers are traced hit by hit: the closest
+Without shadow linking in the scene a shadow ray is the plain any-hit query
+(:func:`any_hit_shadows`: the BVH's occlusion kernel, else the accelerator's ``any_hit``),
+as before. With it, the rays of a light that has blockers are traced hit by hit: the closest
 hit either belongs to one of the light's blockers (the ray is stopped there) or the ray goes
 on from just past it (``tolerances.LINK_SKIP_REL``), batched, every pass over the rays still
 going. Light linking's other half (which objects a light lights, ``light_recv``) is a mask

@@ -309,8 +309,9 @@ def _visibility(sa, accel, surf: Surfaces, occluders: bool, counters, mine=None)
 
 
 def _occluded_by(sa, accel):
-    """``occluded(origins, directions, tmax, rows)`` of :func:`soft_direct`: by any hit,
-    or with shadow linking by the light's blockers (:mod:`.light_linking`)."""
+    """``occluded(origins, directions, tmax, rows)`` of :func:`soft_direct`: by any hit
+    (:func:`~.light_linking.any_hit_shadows`), or with shadow linking by the light's
+    blockers (:mod:`.light_linking`)."""
     L = len(sa.light_kind)
 
     def occluded(o, d, tmax, rows, skip=None):  # (skip: any_hit's)

@@ -1,4 +1,5 @@
-"""Occlusion of a frame's sampled shadow rays, straight from the arrays they were drawn in.
+"""Occlusion of shadow rays: a frame's sampled ones straight from the arrays they were
+drawn in, and hard lights' one ray a row (:func:`occluded_rays`).
 
 A soft light's and the world's samples (:func:`~..tracing.soft_lights.soft_rays`: ``n``
 a (point, light) row, 16 by default) were traced through the accelerator's general

@@ -5,7 +5,9 @@ from (:func:`~.glossy_rays._glossy_rays`) and the weight of a direction drawn th
 normal and the view alone, computed once for a point's samples, and :func:`ggx_sample_at`,
 one sample's normal from it (the same operations in the same order: the same bits as the
 whole; session 42, docs/glossy.md). :func:`ggx_weight_lo` is :func:`ggx_weight` from Smith's
-Lambda of the view, which a point's samples share.
+Lambda of the view, which a point's samples share. The glossy rays call the halves;
+:func:`ggx_vndf` and :func:`ggx_weight` serve :mod:`.glass_albedo`'s quadrature, and
+:func:`ggx_sample_normal` (the whole) is kept for the tests (no render calls it).
 """
 
 from __future__ import annotations

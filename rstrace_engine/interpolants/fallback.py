@@ -18,7 +18,11 @@ Three mechanisms, all priced by the frame's own timings:
   cell not built stays empty: its rays are traced now and a later frame builds it. The
   cost of a traced ray is learned from every frame's tracing; a renderer's first frame prices it by
   tracing its first chunk whole (:data:`PRICE_SHARE` of a pass, at least
-  :data:`CHUNK_MIN` rays) before any cell is walked.
+  :data:`CHUNK_MIN` rays) before any cell is walked. On a cache that keeps no cell, the
+  first walked chunk is priced before it is walked, at what the cache's last such chunk
+  added (:data:`PRICE_FIRST_WALK`, :attr:`Fallback.first_walk`): a frame that cannot pay
+  it walks nothing; after :data:`REPROBE_FRAMES` such frames in a row one walks and prices
+  it again.
 * **Per frame** (:func:`frame_pays`): when the frame's cells together cost more than
   tracing all its rays, the next frames are the base tracer's, as fast (objects too small to
   be judged alone included: on a scene of cheap pixels, the walk of a thousand small objects
@@ -36,7 +40,8 @@ Three mechanisms, all priced by the frame's own timings:
 
 The decision is a function of the measured costs alone (:class:`FrameCosts`; the tests inject
 them). ``frame.stats["fallback"]`` reports it: the objects traced, the ledger (allowance,
-added, saved, rays walked), the cells deferred, the rays traced to price a ray, the price.
+added, saved, rays walked), the cells deferred, the rays traced to price a ray, the price,
+the first walk's price and whether it declined the frame's walk.
 """
 
 from __future__ import annotations

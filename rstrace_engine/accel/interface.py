@@ -82,7 +82,13 @@ def instance_array(inst, n: int, n_instances: int) -> np.ndarray:
 
 
 class Accelerator:
-    """Common batch interface; subclasses implement ``_trace`` and ``update``."""
+    """Common batch interface; subclasses implement ``_trace`` and ``update``.
+
+    Optional (the BVH's, :class:`~.accelerators.BVHAccelerator`): ``occluded_samples``
+    and ``occluded``, the soft samples' and the hard shadow rays' occlusion queries,
+    :meth:`any_hit`'s answer bit for bit; callers look them up by name and fall back to
+    :meth:`any_hit` (:func:`~..tracing.whitted._occluded_by`,
+    :func:`~..tracing.light_linking.any_hit_shadows`)."""
 
     name = "?"
 

@@ -76,7 +76,8 @@ def test_float32_vertices_give_the_float64_boxes_tree_bit_for_bit():
     # the small meshes' path (numpy boxes, one thread) likewise
     small = tris[:5000]
     pbs = np.concatenate([verts[small].min(axis=1), verts[small].max(axis=1)], 1)
-    b, c, p, _ = bvh_build.build_flat_boxes(pbs, packed=False)
+    b, c, p, _ = bvh_build.build_flat_boxes(pbs, bvh_mesh.SMALL_MAX_LEAF,
+                                            trav_cost=bvh_mesh.SMALL_TRAV_COST, packed=False)
     want = bvh_mesh.flatten(b, c, p, np.float32)
     got = bvh_mesh.build_mesh_bvh(verts[small])
     assert np.array_equal(got.bvh.bounds.view(np.int32), want.bounds.view(np.int32))
@@ -173,7 +174,8 @@ def test_small_meshes_build_on_float64_boxes_the_float32_boxes_tree(monkeypatch)
     pb32 = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1))
     assert not np.array_equal(pb32.astype(np.float64),
                               np.concatenate([tv.min(axis=1), tv.max(axis=1)], 1))
-    b, c, p, sah = bvh_build.build_flat_boxes(pb32, packed=False)
+    b, c, p, sah = bvh_build.build_flat_boxes(pb32, bvh_mesh.SMALL_MAX_LEAF,
+                                              trav_cost=bvh_mesh.SMALL_TRAV_COST, packed=False)
     want = bvh_mesh.flatten(b, c, p, np.float32)
     assert np.array_equal(got.bvh.bounds.view(np.int32), want.bounds.view(np.int32))
     assert np.array_equal(got.bvh.child, want.child)

@@ -127,10 +127,11 @@ def test_a_node_whose_centroids_share_one_bin_of_its_box_is_binned_over_its_cent
     centroid in the middle of the box along x, the only axis the cheap rule bins. Such a
     node is binned again over its centroid bounds (as on main), not split at an object
     median along x, where every centroid is equal (the shuffled mesh order: SAH cost 142
-    instead of main's 21.9). The same tree on any grain."""
+    instead of main's 21.9; 40.3 at a mesh's :data:`.bvh_mesh.SMALL_TRAV_COST` 2, session
+    42). The same tree on any grain."""
     tv = _long_cylinder(3000)
     seq = bvh_mesh.build_mesh_bvh(tv, grain=len(tv))
-    assert seq.sah_cost < 30.0, seq.sah_cost
+    assert seq.sah_cost < 60.0, seq.sah_cost
     _same_tree(bvh_mesh.build_mesh_bvh(tv, grain=16), seq)
     pb = tv.min(axis=1), tv.max(axis=1)
     for grain in (len(tv), 16):  # the item build's rule (the cheap rule on every node)

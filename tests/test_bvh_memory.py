@@ -111,9 +111,10 @@ def test_bytes_per_unique_triangle_stay_bounded():
     assert mem["bvh"] <= 31.0, mem
     assert mem["total"] <= 64.0, mem
     # the same from the arrays themselves: the leaves read the scene's vertices and
-    # vertex indices (no copy) and list the ids of a few triangles only
+    # vertex indices (no copy) and list the ids of a few triangles only (the leaves of
+    # three of a small mesh's tree, session 42: 28% of them, for 10% fewer BVH bytes)
     assert acc.sb.verts is sa.verts and acc.sb.tris is sa.tris
-    assert len(acc.sb.tri) <= 0.2 * unique, len(acc.sb.tri)
+    assert len(acc.sb.tri) <= 0.3 * unique, len(acc.sb.tri)
     own = _own_bytes(acc, sa)
     assert own <= 31.0 * unique, own / unique
     packed = sum(a.nbytes for a in (sa.verts, sa.tris, sa.normals, sa.uvs, sa.tri_slot))
@@ -164,7 +165,7 @@ def test_leaves_name_their_triangles_in_the_build_leaf_order():
             # each naming kind occurs on a triangulated surface, listing ones too, and
             # most triangles are named
             assert {5, 6, 7} <= set(kinds.tolist()) and np.any(kinds <= 4), set(kinds.tolist())
-            assert len(pm.tri) < 0.2 * len(tv)
+            assert len(pm.tri) < 0.3 * len(tv)  # (0.2 before the leaves of three)
 
 
 def test_placed_leaves_move_with_their_mesh():
@@ -180,3 +181,21 @@ def test_placed_leaves_move_with_their_mesh():
     want = [[t + len(tva) for t in leaf] for leaf in _walk(pb.child, pb.tri)]
     assert got == want and placed[1].tri_base == len(tva)
     assert sorted(t for leaf in got for t in leaf) == list(range(len(tva), start[-1]))
+
+
+def test_a_small_mesh_tree_has_leaves_of_up_to_three_and_fewer_nodes():
+    """A mesh below PARALLEL_MIN triangles is built at SAH node cost 2 with leaves of at
+    most 3 (session 42, docs/bench-raycast.md "session 42 (tree)"): the rough frame's
+    sphere (5120 triangles) has about a sixth fewer 4-wide nodes than the defaults' tree
+    (leaves of 1-2), so its rays visit fewer nodes and enter fewer leaves."""
+    mesh = shapes.icosphere(4)
+    tv = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.triangles)]
+    assert len(tv) == 5120
+    mb = bvh_mesh.build_mesh_bvh(tv)
+    pb = bvh_mesh.outward32(tv.min(axis=1), tv.max(axis=1)).astype(np.float64)
+    b, c, p, _ = bvh_build.build_flat_boxes(pb, packed=False)  # the defaults: 1.0, 4
+    default = bvh_mesh.flatten(b, c, p, np.float32)
+    assert len(mb.bvh.child) < 0.9 * len(default.child), (len(mb.bvh.child),
+                                                          len(default.child))
+    sizes = ((~mb.bvh.child[mb.bvh.child < -1]) & 7)
+    assert sizes.max() == 3 and np.count_nonzero(sizes == 3) > 0.2 * len(sizes)

@@ -239,10 +239,25 @@ def build_mesh_bvh_indexed(verts: np.ndarray, tris: np.ndarray, grain: int | Non
     return MeshBVH(flat, flat.perm, float(sah), time.perf_counter() - t0)
 
 
+#: A mesh of fewer than :data:`.bvh_build.PARALLEL_MIN` triangles is built with this SAH
+#: cost of a binary node (against one triangle test) and leaves of at most this many
+#: triangles (session 42, docs/bench-raycast.md "session 42 (tree)": leaves of 2-3 where
+#: the defaults, 1.0 and 4, make 1-2; on the rough frame's rays 3% fewer node visits and
+#: leaves entered for 29% more triangles tested, about 2% less closest-hit and shadow CPU;
+#: leaves of 4 at 2.0 cost museum's rays 4-9%: its small meshes' 4-triangle leaves doubled
+#: the triangles tested). A large mesh's build (:func:`_binary_paired`) keeps the
+#: defaults: its build time is issue 26's.
+SMALL_TRAV_COST = 2.0
+SMALL_MAX_LEAF = 3
+
+
 def _binary(pb: np.ndarray, grain, stop):
     """The binary tree over primitive boxes ``pb`` (n, 6), which it reorders (the caller
-    drops them after: they are not needed for the 4-wide tree, :func:`_four_wide`)."""
-    out = build_flat_boxes(pb, grain=grain, stop=stop, packed=False)
+    drops them after: they are not needed for the 4-wide tree, :func:`_four_wide`); with
+    :data:`SMALL_TRAV_COST` and :data:`SMALL_MAX_LEAF` (a mesh below
+    :data:`.bvh_build.PARALLEL_MIN` triangles)."""
+    out = build_flat_boxes(pb, SMALL_MAX_LEAF, trav_cost=SMALL_TRAV_COST, grain=grain,
+                           stop=stop, packed=False)
     if stop[0]:
         raise Cancelled("BVH build cancelled")
     return out

@@ -283,3 +283,49 @@ def test_material_flags_follow_an_edit_of_the_materials():
     assert glossy_rays.has_glossy(sa)
     assert glossy_rays.MATERIAL_FLAGS.get(sa)[0][:-1].tolist() == (
         glossy_rays.glossy_materials(sa).tolist())
+
+
+@pytest.mark.parametrize("which", ["CONVEX", "BALLS"])
+def test_per_mesh_slots_never_hand_one_packing_another_packings_value(monkeypatch, which):
+    """``object_rays.CONVEX`` / ``BALLS`` (read by ``own_clear``'s per-packing bounds,
+    session 42 wave2) keep one packing's per-mesh values: a call for another packing made
+    while one computes (what a second thread does between two bytecodes) must not leave
+    that packing's dict holding the first packing's value. (Its references and its dict
+    were two attributes set one after the other: the first call's value landed in the
+    second packing's dict, which then answered with it.)"""
+    from collections import namedtuple
+
+    from rstrace_engine.tracing import object_rays
+
+    P = namedtuple("P", "verts tris mesh_tri_start")
+
+    def packing(scale):
+        mesh = shapes.icosphere(1)
+        v = np.asarray(mesh.vertices, np.float64) * scale
+        t = np.asarray(mesh.triangles, np.int32)
+        return P(v, t, np.array([0, len(t)], np.int32))
+
+    small, large = packing(1.0), packing(3.0)
+    slot = type(getattr(object_rays, which))()  # (a fresh slot: nothing kept)
+    monkeypatch.setattr(object_rays, which, slot)
+    name = "convexity" if which == "CONVEX" else "solid_ball"
+    fn = getattr(object_rays, name)
+    inner = []
+
+    def interleaved(verts, tris):
+        if not inner:  # the other thread's call, between this one's look and its store
+            inner.append(None)
+            inner[0] = slot.get(large, 0)
+        return fn(verts, tris)
+
+    monkeypatch.setattr(object_rays, name, interleaved)
+    got_small = slot.get(small, 0)
+    monkeypatch.setattr(object_rays, name, fn)
+
+    def flat(value):
+        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in value])
+
+    assert np.array_equal(flat(got_small), flat(fn(small.verts, small.tris)))
+    assert np.array_equal(flat(inner[0]), flat(fn(large.verts, large.tris)))
+    # the large packing asked again: its own value, not the small one's
+    assert np.array_equal(flat(slot.get(large, 0)), flat(fn(large.verts, large.tris)))

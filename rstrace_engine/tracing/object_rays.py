@@ -93,24 +93,36 @@ def _closed_oriented(v: np.ndarray, tris: np.ndarray) -> bool:
     return bool(np.array_equal(fwd, np.sort(b * w + a)))
 
 
+def _slot_get(holder, sa, mesh: int, compute):
+    """``compute(verts, tris)`` of mesh ``mesh`` of packing ``sa``, kept in ``holder``'s
+    one slot ``_kept`` (weak references to ``sa.verts`` and ``sa.tris``, {mesh: value}):
+    the slot is read once and a new one put whole, and the value goes into the dict read
+    with its references, so a packing's dict holds that packing's values only (an earlier
+    ``_of`` and dict set one after the other let a call for another packing, from another
+    thread, swap the dict between them and receive this packing's value)."""
+    kept = holder._kept
+    if kept is None or kept[0]() is not sa.verts or kept[1]() is not sa.tris:
+        kept = (weakref.ref(sa.verts), weakref.ref(sa.tris), {})
+        holder._kept = kept
+    got = kept[2].get(mesh)
+    if got is None:
+        s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
+        got = kept[2][mesh] = compute(sa.verts, np.asarray(sa.tris[s:e]))
+    return got
+
+
 class SolidBalls:
     """:func:`solid_ball` per mesh of the last packing asked about (its ``verts`` and
     ``tris`` arrays, held weakly: a packing that moves objects shares them)."""
 
     def __init__(self) -> None:
-        self._of = None
-        self._balls: dict = {}
+        # (weak references to verts and tris, {mesh: ball}): one slot, read once and
+        # replaced whole, so that a packing's dict never receives another packing's
+        # values (two threads, or a call made while one computes: session 42 review)
+        self._kept: tuple | None = None
 
     def get(self, sa, mesh: int) -> tuple:
-        of = self._of
-        if of is None or of[0]() is not sa.verts or of[1]() is not sa.tris:
-            self._of = (weakref.ref(sa.verts), weakref.ref(sa.tris))
-            self._balls = {}
-        ball = self._balls.get(mesh)
-        if ball is None:
-            s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
-            ball = self._balls[mesh] = solid_ball(sa.verts, np.asarray(sa.tris[s:e]))
-        return ball
+        return _slot_get(self, sa, mesh, solid_ball)
 
 
 BALLS = SolidBalls()
@@ -181,19 +193,10 @@ class Convexities:
     its ``verts`` and ``tris`` held weakly, so a packing that moves objects keeps them)."""
 
     def __init__(self) -> None:
-        self._of = None
-        self._certs: dict = {}
+        self._kept: tuple | None = None  # (as SolidBalls': one slot, replaced whole)
 
     def get(self, sa, mesh: int) -> tuple:
-        of = self._of
-        if of is None or of[0]() is not sa.verts or of[1]() is not sa.tris:
-            self._of = (weakref.ref(sa.verts), weakref.ref(sa.tris))
-            self._certs = {}
-        cert = self._certs.get(mesh)
-        if cert is None:
-            s, e = int(sa.mesh_tri_start[mesh]), int(sa.mesh_tri_start[mesh + 1])
-            cert = self._certs[mesh] = convexity(sa.verts, np.asarray(sa.tris[s:e]))
-        return cert
+        return _slot_get(self, sa, mesh, convexity)
 
 
 CONVEX = Convexities()

@@ -294,7 +294,8 @@ def _four_wide(binary, stop) -> tuple[FlatBVH, float]:
 #: in the host's order). Kind 0 (code ``~0``) is the empty leaf.
 LEAF_LISTED = 4
 LEAF_ONE, LEAF_PAIR, LEAF_PAIR_DOWN = 5, 6, 7
-assert max(MAX_LEAF, SMALL_MAX_LEAF) <= LEAF_LISTED  # (a leaf of more would be read as a direct one)
+# (a leaf of more would be read as a direct one)
+assert max(MAX_LEAF, SMALL_MAX_LEAF) <= LEAF_LISTED
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -84,13 +84,19 @@ def glossy_materials(sa) -> np.ndarray:
 #: the material fields :func:`glossy_materials` and :func:`interface_materials` read
 _MAT_FIELDS = ("mat_model", "mat_roughness", "mat_ior", "mat_transmission", "mat_mirror",
                "mat_metallic", "mat_specular")
-#: per scene's materials: ``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy,
-#: any interface)``, the flags with a False appended (index -1: a miss); asked for at every
-#: depth level, computed once per set of material arrays (:class:`~.memo.Memo`)
-MATERIAL_FLAGS = Memo(_MAT_FIELDS, lambda sa: (
-    np.append(glossy_materials(sa), False), np.append(interface_materials(sa), False),
-    bool(len(sa.mat_model) and np.any(glossy_materials(sa))),
-    bool(np.any(interface_materials(sa)))))
+
+
+def _material_flags(sa) -> tuple:
+    """``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy, any interface)``: the
+    flags with a False appended (index -1: a miss)."""
+    glossy, iface = glossy_materials(sa), interface_materials(sa)
+    return (np.append(glossy, False), np.append(iface, False), bool(np.any(glossy)),
+            bool(np.any(iface)))
+
+
+#: :func:`_material_flags` per scene's materials: asked for at every depth level, computed
+#: once per set of material arrays (:class:`~.memo.Memo`)
+MATERIAL_FLAGS = Memo(_MAT_FIELDS, _material_flags)
 
 
 def has_glossy(sa) -> bool:

@@ -68,7 +68,7 @@ from ..geometry.shaft_geometry import (
     to_object,
 )
 from ..views import fields, view_type
-from .glossy_rays import MATERIAL_FLAGS, interface_materials
+from .glossy_rays import MATERIAL_FLAGS
 from .memo import Memo
 from .object_rays import CONVEX
 from .shading import spawn_offset
@@ -123,9 +123,9 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     soft = surf.sh_state.reshape(n, L)[:, ext] == SH_SOFT
     # a rough interface's samples may leave through its far side: the proofs cover the
     # shadow origins on the viewer's side alone
-    iface = interface_materials(sa)
-    if iface.any():
-        soft &= ~(iface[np.maximum(surf.mat, 0)] & (surf.mat >= 0))[:, None]
+    flags = MATERIAL_FLAGS.get(sa)
+    if flags[3]:
+        soft &= ~flags[1][surf.mat][:, None]
     todo = np.flatnonzero(soft.any(axis=1))
     proven = np.zeros(n * L, np.bool_)
     if len(todo) == 0:

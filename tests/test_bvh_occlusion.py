@@ -290,3 +290,19 @@ def test_hard_shadow_query_takes_any_hits_bounds():
     for t in (0.5, np.inf, 0.0):
         np.testing.assert_array_equal(acc.occluded(o, d, t),
                                       acc.any_hit(o, d, np.zeros(len(o)), t))
+
+
+def test_hard_shadow_query_refuses_nan_bounds_as_any_hit():
+    """A NaN ``tmax`` is refused by ``occluded`` with ``any_hit``'s message (the kernel
+    alone would answer such a ray visible: a silently lit pixel)."""
+    sa = _instanced_scene().arrays()
+    acc = create_accelerator("BVH", sa)
+    o, d, tmax = _hard_rays(sa, acc, 50, np.random.default_rng(5))
+    tmax[7] = np.nan
+    with pytest.raises(ValueError, match="NaN tmin or tmax") as want:
+        acc.any_hit(o, d, np.zeros(len(o)), tmax)
+    with pytest.raises(ValueError, match="NaN tmin or tmax") as got:
+        acc.occluded(o, d, tmax)
+    assert str(got.value) == str(want.value)
+    with pytest.raises(ValueError, match="NaN tmin or tmax"):
+        acc.occluded(o, d, np.nan)

@@ -304,10 +304,14 @@ class BVHAccelerator(Accelerator):
         t0 = time.perf_counter()
         n = len(o)
         # (tmax as any_hit's: a scalar, or a read-only array -- another signature of the
-        # kernel -- copied; the tracer's contiguous arrays are taken as they are)
+        # kernel -- copied; the tracer's contiguous arrays are taken as they are; a NaN
+        # refused as check_rays refuses it: the kernel would answer such a ray visible)
+        hi = per_ray(tmax, n, np.float64)
+        if np.isnan(hi).any():
+            raise ValueError("rays: NaN tmin or tmax")
         blocked, counts = bvh_occlusion.occluded_rays(
-            self.sb, o, d, per_ray(tmax, n, np.float64),
-            None if skip is None else per_ray(skip, n, np.int32), self._stop)
+            self.sb, o, d, hi, None if skip is None else per_ray(skip, n, np.int32),
+            self._stop)
         self.stats["trace_s"] = self.stats.get("trace_s", 0.0) + time.perf_counter() - t0
         self.stats["rays"] = self.stats.get("rays", 0) + int(counts[0])
         return blocked

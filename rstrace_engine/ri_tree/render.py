@@ -549,7 +549,7 @@ class RITreeRenderer:
                                                 vis.reshape(nb, L)[off]))
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
             lat = None if strata is None else (
-                lambda g, s=src, p=path, f=fresh: lattices(strata, s, p, f, g, glossy_samples))
+                lambda g, c, s=src, p=path, f=fresh: lattices(strata, s, p, f, g, c))
             contrib, kids, gstart, glossy = shade_paths(
                 sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]), surf, vis, weight,
                 soft, nseeds, fresh, glossy_samples, lat)

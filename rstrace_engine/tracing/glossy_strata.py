@@ -90,8 +90,7 @@ def no_strata(n: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _lattices(pseed, index, src, path, fresh, glossy, spp, g, out):
-    n_lat = np.uint64(spp * g)
+def _lattices(pseed, index, src, path, fresh, glossy, spp, counts, out):
     for i in range(src.shape[0]):
         out[i, 0] = out[i, 1] = out[i, 2] = out[i, 3] = np.uint64(0)
         if glossy[i] and fresh[i]:  # G points, one every S, from the sample's index
@@ -99,23 +98,28 @@ def _lattices(pseed, index, src, path, fresh, glossy, spp, g, out):
             out[i, 0] = mix64(pseed[r] ^ mix64(np.uint64(path[i])) ^ STRATA_SALT)
             out[i, 1] = np.uint64(index[r] % spp)
             out[i, 2] = np.uint64(spp)
-            out[i, 3] = n_lat
+            out[i, 3] = np.uint64(spp * max(1, counts[i]))
 
 
-def lattices(strata: Strata | None, src, path, fresh, glossy, samples: int):
+def lattices(strata: Strata | None, src, path, fresh, glossy, counts):
     """(n, 4) uint64 rows of a level's points (input rays ``src``, ray-tree paths ``path``,
-    ``fresh`` their paths' first rough bounce, ``glossy`` drawing glossy rays) for
-    :func:`~.glossy_rays._glossy_rays`: the lattice's rotation seed, the point's first
+    ``fresh`` their paths' first rough bounce, ``glossy`` drawing glossy rays, ``counts``
+    (n,) int64 their glossy samples, or one int for all: :func:`~.glossy_rays.glossy_counts`)
+    for :func:`~.glossy_rays._glossy_rays`: the lattice's rotation seed, the point's first
     lattice index, the step between its samples' indices and the lattice's size (``S x
-    samples``); a zero row (size 0: the point's own lattice) where a point is not a first
-    rough bounce; an empty array where ``strata`` is None (each point its own)."""
+    count``); a zero row (size 0: the point's own lattice) where a point is not a first
+    rough bounce; an empty array where ``strata`` is None (each point its own). A pixel's
+    samples that hit a material at the same path with the same count cover one lattice
+    jointly; with different counts (a layer's, which follows the view) each sample's points
+    are still spread over the lobe, and every point is uniform: unbiased either way."""
     if strata is None or glossy is None:
         return no_strata(len(src))
     out = np.empty((len(src), 4), np.uint64)
+    c = np.ascontiguousarray(np.broadcast_to(np.asarray(counts, np.int64), (len(src),)))
     _lattices(strata.seed, np.ascontiguousarray(strata.index, np.int64),
               np.ascontiguousarray(src, np.int64), np.ascontiguousarray(path, np.int64),
               np.ascontiguousarray(fresh, np.bool_), np.ascontiguousarray(glossy, np.bool_),
-              np.int64(strata.count), np.int64(max(1, samples)), out)
+              np.int64(strata.count), c, out)
     return out
 
 

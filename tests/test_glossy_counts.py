@@ -49,7 +49,7 @@ def test_counts_by_lobe(lobes, monkeypatch):
 def test_lattices_of_per_point_counts():
     """A first bounce drawing n samples at pixel sample s of S takes the points s, s + S,
     ..., s + (n - 1) S of a lattice of S n (each count its own lattice size); one int for
-    all is the count of every point."""
+    all is the count of every point; either way one kernel signature."""
     st = glossy_strata.pixel_strata(np.array([0, 64, 128, 192], np.int64) + 5, 64, 0, 4)
     src = np.arange(4)
     path = np.ones(4, np.int64)
@@ -59,6 +59,9 @@ def test_lattices_of_per_point_counts():
     assert list(out[:, 3]) == [4, 12, 32, 8]
     same = glossy_strata.lattices(st, src, path, yes, yes, 3)
     assert (same[:, 3] == 12).all() and np.array_equal(same[:, :3], out[:, :3])
+    # one compiled signature whatever the counts came as (an array passed on as it is,
+    # never a read-only view: a second signature, a compile the warm-up does not make)
+    assert len(glossy_strata._lattices.signatures) == 1
 
 
 def _frame(seed, lobes, monkeypatch, size=(40, 30), samples=2, glossy_samples=4):

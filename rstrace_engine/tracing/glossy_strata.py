@@ -115,7 +115,8 @@ def lattices(strata: Strata | None, src, path, fresh, glossy, counts):
     if strata is None or glossy is None:
         return no_strata(len(src))
     out = np.empty((len(src), 4), np.uint64)
-    c = np.ascontiguousarray(np.broadcast_to(np.asarray(counts, np.int64), (len(src),)))
+    c = (np.full(len(src), counts, np.int64) if np.ndim(counts) == 0  # (one writable
+         else np.require(counts, np.int64, ("C", "W")))  # signature: not a read-only view)
     _lattices(strata.seed, np.ascontiguousarray(strata.index, np.int64),
               np.ascontiguousarray(src, np.int64), np.ascontiguousarray(path, np.int64),
               np.ascontiguousarray(fresh, np.bool_), np.ascontiguousarray(glossy, np.bool_),

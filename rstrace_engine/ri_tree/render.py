@@ -475,7 +475,8 @@ class RITreeRenderer:
         (``seeds`` (n,) uint64 of the camera rays,
         :func:`~..tracing.soft_lights.sample_seeds`, and each node's path). With every
         object traced (no tree: all fell back) the tile is the base tracer's own. Rough
-        surfaces draw ``glossy_samples`` ray pairs at a path's first rough bounce and one at
+        surfaces draw the base tracer's glossy samples at a path's first rough bounce
+        (``glossy_samples`` by lobe, :func:`~..tracing.glossy_rays.glossy_counts`) and one at
         deeper ones, with the base tracer's seeds (:func:`~..tracing.whitted.shade_paths`)
         and lattices (``strata``, :mod:`~..tracing.glossy_strata`)."""
         view = False

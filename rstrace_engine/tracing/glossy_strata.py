@@ -9,7 +9,11 @@ pixel's seed, shared by its samples, and each sample's index ``s`` of S; :func:`
 the first rough bounces of a pixel's samples on the same ray-tree path draw from **one
 lattice of N = S x G points**, rotated by a hash of the pixel's seed and the path: sample
 ``s`` takes the points ``s, s + S, ..., s + (G - 1) S``, so the pixel's samples cover the
-lobe jointly. A deeper rough bounce (one direction) keeps its own node seed's draw: taking
+lobe jointly. (Since session 43 G is the point's own count,
+:func:`~.glossy_rays.glossy_counts`: 2 G on a metal, by the view on a plastic; the lattice
+is ``S x`` that count, so samples whose counts differ draw from lattices of other sizes
+under the same rotation: each sample's points still 1 / n apart and uniform, not one joint
+lattice.) A deeper rough bounce (one direction) keeps its own node seed's draw: taking
 a permuted point of a lattice shared by the N paths that reach it was tried and measured
 worse (docs/glossy.md).
 
@@ -93,7 +97,7 @@ def no_strata(n: int) -> np.ndarray:
 def _lattices(pseed, index, src, path, fresh, glossy, spp, counts, out):
     for i in range(src.shape[0]):
         out[i, 0] = out[i, 1] = out[i, 2] = out[i, 3] = np.uint64(0)
-        if glossy[i] and fresh[i]:  # G points, one every S, from the sample's index
+        if glossy[i] and fresh[i]:  # n points, one every S, from the sample's index
             r = src[i]
             out[i, 0] = mix64(pseed[r] ^ mix64(np.uint64(path[i])) ^ STRATA_SALT)
             out[i, 1] = np.uint64(index[r] % spp)

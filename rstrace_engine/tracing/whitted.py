@@ -423,8 +423,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     light_samples : shadow samples per such light and point. terms : with ``segments``, its
     dicts also hold each node's light terms and what re-shading one light needs
     (:func:`_light_terms`, for :mod:`.light_records`). glossy_samples : rays a path draws
-    at its first rough reflection or refraction (deeper ones draw one; docs/glossy.md),
-    seeded like the soft lights' samples.
+    at its first rough reflection or refraction, by lobe (:func:`~.glossy_rays.glossy_counts`;
+    deeper ones draw one; docs/glossy.md), seeded like the soft lights' samples.
     roots : which part of the radiance: ``"all"``; ``"own"``, a root on a rough surface
     spawns no rays (the root's own light, and what its mirror and refraction rays bring
     where it is not rough: the part radiance interpolants hold); ``"below"``, the roots'

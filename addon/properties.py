@@ -72,7 +72,8 @@ class RSTraceSettings(bpy.types.PropertyGroup):
         soft_max=64,
         description="Reflected and refracted rays a rough surface (Principled above "
                     "roughness 0.05, Glossy and Glass nodes) spreads over its lobe at a "
-                    "path's first rough bounce; deeper rough bounces take one, a mirror one")
+                    "path's first rough bounce (an opaque lobe up to twice as many "
+                    "reflections); deeper rough bounces take one, a mirror one")
     viewport_samples: IntProperty(
         name="Viewport Samples", default=4, min=1, max=1024, soft_max=64,
         description="Samples per pixel the rendered viewport refines to while idle (a coarse "

@@ -17,8 +17,8 @@ from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Scene, SceneError
 from rstrace_engine.scenes import _camera
 from rstrace_engine.tracing import ggx_sampling as gs
+from rstrace_engine.tracing import glossy_rays, whitted
 from rstrace_engine.tracing import shading as sh
-from rstrace_engine.tracing import whitted
 
 
 @njit(cache=True)
@@ -210,9 +210,13 @@ def _two_mirrors(roughness: float) -> Scene:
     return s
 
 
-def test_depth_budget_splits_only_the_first_glossy_bounce():
+@pytest.mark.parametrize("lobes", [True, False])
+def test_depth_budget_splits_only_the_first_glossy_bounce(lobes, monkeypatch):
     """N glossy samples at a path's first rough bounce, one at every deeper one: level 1
-    holds N rays per pixel, every deeper level at most as many as the one before."""
+    holds N rays per pixel (2 N on these rough metal walls with ``LOBE_COUNTS``: a lobe
+    without transmission draws twice Glossy Samples), every deeper level at most as many
+    as the one before."""
+    monkeypatch.setattr(glossy_rays, "LOBE_COUNTS", lobes)
     sc = _two_mirrors(0.3)
     sa = sc.arrays()
     segs: list = []
@@ -224,7 +228,8 @@ def test_depth_budget_splits_only_the_first_glossy_bounce():
                          np.full((n, 2), 0.5), 4, segments=segs, glossy_samples=8)
     sizes = [len(lv["ray"]) for lv in segs]
     assert sizes[0] == n
-    assert n * 8 * 0.9 <= sizes[1] <= n * 8
+    k = 16 if lobes else 8
+    assert n * k * 0.9 <= sizes[1] <= n * k
     for a, b in zip(sizes[1:], sizes[2:], strict=False):
         assert b <= a
 

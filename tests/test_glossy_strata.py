@@ -16,8 +16,8 @@ from rstrace_engine.geometry.principled import principled_material
 from rstrace_engine.geometry.scene import Scene
 from rstrace_engine.interpolants.render import InterpolantRenderer
 from rstrace_engine.scenes import _camera
+from rstrace_engine.tracing import glossy_rays, whitted
 from rstrace_engine.tracing import glossy_strata as gs
-from rstrace_engine.tracing import whitted
 from rstrace_engine.tracing.soft_lights import sample_seeds
 
 ROUGHNESS = 0.2  # alpha 0.04: a head-on view's reflections all leave above the plane
@@ -63,15 +63,19 @@ def _spread(x: np.ndarray) -> float:
     return float(1.0 - gaps.max())
 
 
+@pytest.mark.parametrize("lobes", [True, False])
 @pytest.mark.parametrize("spp,glossy", [(4, 4), (8, 1), (2, 8)])
-def test_a_pixels_samples_draw_one_lattice_jointly(spp, glossy):
+def test_a_pixels_samples_draw_one_lattice_jointly(spp, glossy, lobes, monkeypatch):
     """A pixel's S samples' G glossy rays each at its first rough bounce are the N = S G
     points of one rotated lattice: ``u1 N`` has the same fraction for every ray (the u1 lie
-    1 / N apart), and each sample holds G of them. Without strata (main: each sample's own
-    lattice of G, rotated by its own seed) they do not. Fails on main (no strata)."""
-    n = spp * glossy
+    1 / N apart), and each sample holds G of them (2 G on this rough metal plane with
+    ``LOBE_COUNTS``, N = 2 S G). Without strata (main: each sample's own lattice of G,
+    rotated by its own seed) they do not. Fails on main (no strata)."""
+    monkeypatch.setattr(glossy_rays, "LOBE_COUNTS", lobes)
+    k = 2 * glossy if lobes else glossy  # each sample's reflections
+    n = spp * k
     u, ray = _first_bounce_u(spp, glossy, True)
-    assert len(u) == n and np.array_equal(np.bincount(ray, minlength=spp), [glossy] * spp)
+    assert len(u) == n and np.array_equal(np.bincount(ray, minlength=spp), [k] * spp)
     assert _spread(u * n) < 1e-6
     u0, _ = _first_bounce_u(spp, glossy, False)
     assert len(u0) == n and _spread(u0 * n) > 0.05

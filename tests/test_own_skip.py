@@ -277,8 +277,9 @@ def test_material_flags_follow_an_edit_of_the_materials():
     assert glossy_rays.has_glossy(sa)
     flat = sa._replace(mat_roughness=np.zeros_like(sa.mat_roughness))
     assert not glossy_rays.has_glossy(flat)
-    counts, glossy = glossy_rays.glossy_counts(flat, np.arange(len(sa.mat_model)),
-                                               np.ones(len(sa.mat_model), np.bool_), 4)
+    nm = len(sa.mat_model)
+    counts, glossy = glossy_rays.glossy_counts(flat, np.arange(nm), np.ones(nm, np.bool_), 4,
+                                               np.zeros(nm))
     assert not glossy.any() and (counts == 1).all()
     assert glossy_rays.has_glossy(sa)
     assert glossy_rays.MATERIAL_FLAGS.get(sa)[0][:-1].tolist() == (

@@ -475,7 +475,8 @@ class RITreeRenderer:
         (``seeds`` (n,) uint64 of the camera rays,
         :func:`~..tracing.soft_lights.sample_seeds`, and each node's path). With every
         object traced (no tree: all fell back) the tile is the base tracer's own. Rough
-        surfaces draw ``glossy_samples`` ray pairs at a path's first rough bounce and one at
+        surfaces draw the base tracer's glossy samples at a path's first rough bounce
+        (``glossy_samples`` by lobe, :func:`~..tracing.glossy_rays.glossy_counts`) and one at
         deeper ones, with the base tracer's seeds (:func:`~..tracing.whitted.shade_paths`)
         and lattices (``strata``, :mod:`~..tracing.glossy_strata`)."""
         view = False
@@ -549,7 +550,7 @@ class RITreeRenderer:
                                                 vis.reshape(nb, L)[off]))
             prim_safe = np.maximum(H["prim"], 0).astype(np.int32)
             lat = None if strata is None else (
-                lambda g, s=src, p=path, f=fresh: lattices(strata, s, p, f, g, glossy_samples))
+                lambda g, c, s=src, p=path, f=fresh: lattices(strata, s, p, f, g, c))
             contrib, kids, gstart, glossy = shade_paths(
                 sa, Hits(H["t"], H["inst"], prim_safe, H["u"], H["v"]), surf, vis, weight,
                 soft, nseeds, fresh, glossy_samples, lat)

@@ -35,6 +35,10 @@ ROULETTE_SALT = np.uint64(0x8CB92BA72F3D8DD7)
 #: Russian roulette of the deeper rough bounces' weak rays (:func:`roulette`; a module
 #: switch: tests compare frames with and without it)
 ROULETTE = True
+#: a path's first rough bounce on a lobe without transmission draws twice Glossy Samples
+#: reflections, times the square root of a dielectric layer's share of the albedo
+#: (:func:`glossy_counts`; a module switch: tests compare both sides)
+LOBE_COUNTS = True
 GOLDEN = 0.6180339887498949
 INV_2_53 = 1.0 / 9007199254740992.0
 
@@ -81,17 +85,37 @@ def glossy_materials(sa) -> np.ndarray:
             & (refl | ((sa.mat_transmission > 0).any(axis=1) & (sa.mat_ior != 1.0))))
 
 
-#: the material fields :func:`glossy_materials` and :func:`interface_materials` read
+def layer_materials(sa) -> np.ndarray:
+    """(NM,) bool: the glossy materials (:func:`glossy_materials`) whose lobe is a
+    dielectric layer over a diffuse base alone (no metal, no transmission, some diffuse
+    albedo: a plastic), whose glossy rays carry the layer's albedo, a few percent."""
+    return (glossy_materials(sa) & ~(sa.mat_metallic > 0)
+            & ~(sa.mat_transmission > 0).any(axis=1) & (sa.mat_diffuse > 0).any(axis=1))
+
+
+def reflecting_materials(sa) -> np.ndarray:
+    """(NM,) bool: the glossy materials (:func:`glossy_materials`) without transmission:
+    each glossy sample one reflected ray (a metal, a plastic), where a transmissive one's
+    is a reflected and a refracted ray."""
+    return glossy_materials(sa) & ~(sa.mat_transmission > 0).any(axis=1)
+
+
+#: the material fields :func:`glossy_materials`, :func:`interface_materials`,
+#: :func:`layer_materials` and :func:`reflecting_materials` read
 _MAT_FIELDS = ("mat_model", "mat_roughness", "mat_ior", "mat_transmission", "mat_mirror",
-               "mat_metallic", "mat_specular")
+               "mat_metallic", "mat_specular", "mat_diffuse")
 
 
 def _material_flags(sa) -> tuple:
-    """``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy, any interface)``: the
-    flags with a False appended (index -1: a miss)."""
+    """``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy, any interface, layers
+    (NM + 1,) bool, diffuse (NM + 1,) float64 the largest channel of the diffuse albedo,
+    reflecting (NM + 1,) bool)``: the flags with a False (a 0) appended (index -1: a
+    miss)."""
     glossy, iface = glossy_materials(sa), interface_materials(sa)
     return (np.append(glossy, False), np.append(iface, False), bool(np.any(glossy)),
-            bool(np.any(iface)))
+            bool(np.any(iface)), np.append(layer_materials(sa), False),
+            np.append(np.asarray(sa.mat_diffuse, np.float64).max(axis=1, initial=0.0), 0.0),
+            np.append(reflecting_materials(sa), False))
 
 
 #: :func:`_material_flags` per scene's materials: asked for at every depth level, computed
@@ -104,15 +128,42 @@ def has_glossy(sa) -> bool:
     return MATERIAL_FLAGS.get(sa)[2]
 
 
-def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int):
+def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int, ediel: np.ndarray):
     """Ray pairs per point of a level (:func:`~.shader._shade_kernel`'s ``gstart``): ``samples``
     at a glossy point (``mat`` (n,) its material, -1 a miss) whose path has not been split
     yet (``fresh`` (n,) bool), 1 elsewhere (a deeper glossy bounce draws one direction).
     Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
     level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
-    on one thread, a quarter of a rough_materials frame (docs/bench-frame.md)."""
-    glossy = MATERIAL_FLAGS.get(sa)[0][mat]  # the appended False: -1, a miss
-    return np.where(glossy & fresh, np.int64(samples), np.int64(1)), glossy
+    on one thread, a quarter of a rough_materials frame (docs/bench-frame.md).
+
+    With :data:`LOBE_COUNTS` a fresh point of a lobe without transmission
+    (:func:`reflecting_materials`: one reflected ray a sample, where a glass's sample is a
+    reflected and a refracted ray) draws ``max(1, ceil(2 samples sqrt(w)))``: twice
+    ``samples`` (a glass point's rays) where ``w`` is 1, a metal's lobe; for a dielectric
+    layer over a diffuse base (:func:`layer_materials`: a plastic) ``w = E / (E + (1 - E)
+    d)``, the layer's share of the point's albedo (``E`` its dielectric albedo toward the
+    viewer, ``ediel`` (n,) float64 as the shade kernel reads it, times the specular tint's
+    largest channel; ``d`` the base's largest diffuse channel). Measured at equal time
+    (docs/glossy.md, "session 43 (lobes)"): a metal's rays were the cheapest error to
+    buy, a plastic's few percent were at their balance already. Each of a point's ``n``
+    samples weighs ``1 / n`` (:func:`_glossy_rays`): unbiased whatever ``n``; ``n`` is a
+    function of the point alone (deterministic, the same in every mode)."""
+    flags = MATERIAL_FLAGS.get(sa)
+    glossy = flags[0][mat]  # the appended False: -1, a miss
+    counts = np.where(glossy & fresh, np.int64(samples), np.int64(1))
+    if LOBE_COUNTS:
+        part = np.flatnonzero(flags[6][mat] & fresh)
+        if len(part):
+            m = mat[part]
+            w = np.ones(len(part))
+            lay = flags[4][m]
+            if lay.any():
+                ml = m[lay]
+                e = ediel[part[lay]] * sa.mat_tint_max[ml]
+                wl = e / (e + (1.0 - e) * flags[5][ml])
+                w[lay] = np.where(wl >= 0.0, np.minimum(wl, 1.0), 1.0)  # (a NaN: as 1)
+            counts[part] = np.maximum(np.ceil(2.0 * samples * np.sqrt(w)), 1.0).astype(np.int64)
+    return counts, glossy
 
 
 @njit(cache=True, nogil=True)

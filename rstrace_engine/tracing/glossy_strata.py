@@ -9,7 +9,11 @@ pixel's seed, shared by its samples, and each sample's index ``s`` of S; :func:`
 the first rough bounces of a pixel's samples on the same ray-tree path draw from **one
 lattice of N = S x G points**, rotated by a hash of the pixel's seed and the path: sample
 ``s`` takes the points ``s, s + S, ..., s + (G - 1) S``, so the pixel's samples cover the
-lobe jointly. A deeper rough bounce (one direction) keeps its own node seed's draw: taking
+lobe jointly. (Since session 43 G is the point's own count,
+:func:`~.glossy_rays.glossy_counts`: 2 G on a metal, by the view on a plastic; the lattice
+is ``S x`` that count, so samples whose counts differ draw from lattices of other sizes
+under the same rotation: each sample's points still 1 / n apart and uniform, not one joint
+lattice.) A deeper rough bounce (one direction) keeps its own node seed's draw: taking
 a permuted point of a lattice shared by the N paths that reach it was tried and measured
 worse (docs/glossy.md).
 
@@ -90,32 +94,37 @@ def no_strata(n: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _lattices(pseed, index, src, path, fresh, glossy, spp, g, out):
-    n_lat = np.uint64(spp * g)
+def _lattices(pseed, index, src, path, fresh, glossy, spp, counts, out):
     for i in range(src.shape[0]):
         out[i, 0] = out[i, 1] = out[i, 2] = out[i, 3] = np.uint64(0)
-        if glossy[i] and fresh[i]:  # G points, one every S, from the sample's index
+        if glossy[i] and fresh[i]:  # n points, one every S, from the sample's index
             r = src[i]
             out[i, 0] = mix64(pseed[r] ^ mix64(np.uint64(path[i])) ^ STRATA_SALT)
             out[i, 1] = np.uint64(index[r] % spp)
             out[i, 2] = np.uint64(spp)
-            out[i, 3] = n_lat
+            out[i, 3] = np.uint64(spp * max(1, counts[i]))
 
 
-def lattices(strata: Strata | None, src, path, fresh, glossy, samples: int):
+def lattices(strata: Strata | None, src, path, fresh, glossy, counts):
     """(n, 4) uint64 rows of a level's points (input rays ``src``, ray-tree paths ``path``,
-    ``fresh`` their paths' first rough bounce, ``glossy`` drawing glossy rays) for
-    :func:`~.glossy_rays._glossy_rays`: the lattice's rotation seed, the point's first
+    ``fresh`` their paths' first rough bounce, ``glossy`` drawing glossy rays, ``counts``
+    (n,) int64 their glossy samples, or one int for all: :func:`~.glossy_rays.glossy_counts`)
+    for :func:`~.glossy_rays._glossy_rays`: the lattice's rotation seed, the point's first
     lattice index, the step between its samples' indices and the lattice's size (``S x
-    samples``); a zero row (size 0: the point's own lattice) where a point is not a first
-    rough bounce; an empty array where ``strata`` is None (each point its own)."""
+    count``); a zero row (size 0: the point's own lattice) where a point is not a first
+    rough bounce; an empty array where ``strata`` is None (each point its own). A pixel's
+    samples that hit a material at the same path with the same count cover one lattice
+    jointly; with different counts (a layer's, which follows the view) each sample's points
+    are still spread over the lobe, and every point is uniform: unbiased either way."""
     if strata is None or glossy is None:
         return no_strata(len(src))
     out = np.empty((len(src), 4), np.uint64)
+    c = (np.full(len(src), counts, np.int64) if np.ndim(counts) == 0  # (one writable
+         else np.require(counts, np.int64, ("C", "W")))  # signature: not a read-only view)
     _lattices(strata.seed, np.ascontiguousarray(strata.index, np.int64),
               np.ascontiguousarray(src, np.int64), np.ascontiguousarray(path, np.int64),
               np.ascontiguousarray(fresh, np.bool_), np.ascontiguousarray(glossy, np.bool_),
-              np.int64(strata.count), np.int64(max(1, samples)), out)
+              np.int64(strata.count), c, out)
     return out
 
 

@@ -169,8 +169,8 @@ def shade_paths(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray,
     Spawned, gstart, glossy)``: point i's ray pairs are ``gstart[i]:gstart[i + 1]``
     (``gstart`` None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool
     which points drew from their lobe (None with ``gstart``); :func:`child_paths` gives
-    the spawned rays' paths. ``lat``: a callable ``lat(glossy) -> (n, 4)`` giving the
-    glossy samples' lattices (:func:`~.glossy_strata.lattices`; None: each point's own)."""
+    the spawned rays' paths. ``lat``: a callable ``lat(glossy, counts) -> (n, 4)`` giving
+    the glossy samples' lattices (:func:`~.glossy_strata.lattices`; None: each point's own)."""
     contrib, kids, plan = _shade_level(sa, hits, surf, vis, weight, True, soft, False, seeds,
                                        fresh, int(samples), lat)
     return contrib, kids, plan.gstart, plan.glossy
@@ -194,24 +194,24 @@ def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, 
     gseeds = np.zeros(0, np.uint64)
     gstart = np.arange(n + 1, dtype=np.int64)
     rows = no_strata(n)
+    ediel = np.empty(n)  # (the Principled points' dielectric albedos, each stripe's at once)
+    stripes.run(dielectric_albedos, stripes.blocks_of(n), surf.VD, surf.NS, surf.mat,
+                sa.mat_model, sa.mat_roughness, sa.mat_specular_ior, sa.mat_diffuse, ediel)
     if spawn and seeds is not None and has_glossy(sa):
-        counts, glossy = glossy_counts(sa, surf.mat, fresh, samples)
+        counts, glossy = glossy_counts(sa, surf.mat, fresh, samples, ediel)
         gseeds = np.ascontiguousarray(seeds, np.uint64)
         if glossy.any():
             gstart = np.zeros(n + 1, np.int64)
             np.cumsum(counts, out=gstart[1:])
             plan = _Plan(gstart, glossy)
             if lat is not None:
-                rows = lat(glossy)
+                rows = lat(glossy, counts)
     m = 2 * int(gstart[-1])
     contrib = np.empty((n, 3))
     out = Spawned(np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.bool_))
     c = len(sa.light_kind) + 2
     tv = np.empty((n if terms else 0, c, 3))
     tp = np.empty((n if terms else 0, c), np.bool_)
-    ediel = np.empty(n)  # (the Principled points' dielectric albedos, each stripe's at once)
-    stripes.run(dielectric_albedos, stripes.blocks_of(n), surf.VD, surf.NS, surf.mat,
-                sa.mat_model, sa.mat_roughness, sa.mat_specular_ior, sa.mat_diffuse, ediel)
     stripes.run(_shade_kernel, stripes.blocks_of(n), sa, _as_hits(hits), surf, vis, weight,
                 spawn, no_samples(n) if soft is None else soft, gstart, gseeds, rows, ediel,
                 contrib, out, tv, tp)
@@ -423,8 +423,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     light_samples : shadow samples per such light and point. terms : with ``segments``, its
     dicts also hold each node's light terms and what re-shading one light needs
     (:func:`_light_terms`, for :mod:`.light_records`). glossy_samples : rays a path draws
-    at its first rough reflection or refraction (deeper ones draw one; docs/glossy.md),
-    seeded like the soft lights' samples.
+    at its first rough reflection or refraction, by lobe (:func:`~.glossy_rays.glossy_counts`;
+    deeper ones draw one; docs/glossy.md), seeded like the soft lights' samples.
     roots : which part of the radiance: ``"all"``; ``"own"``, a root on a rough surface
     spawns no rays (the root's own light, and what its mirror and refraction rays bring
     where it is not rough: the part radiance interpolants hold); ``"below"``, the roots'
@@ -505,7 +505,7 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
             break
         spawn = level < max_depth
         lat = None if strata is None else (
-            lambda g, f=front: lattices(strata, f.src, f.path, f.fresh, g, int(glossy_samples)))
+            lambda g, c, f=front: lattices(strata, f.src, f.path, f.fresh, g, c))
         shaded = _shade_level(sa, hits, surf, vis, front.weight, spawn, soft, terms, nseeds,
                               front.fresh, int(glossy_samples), lat)
         contrib, kids = shaded[0], shaded[1]

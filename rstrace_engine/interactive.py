@@ -324,7 +324,8 @@ class ViewportWorker:
                 # between)
                 cam = coarse_camera(camera, self.coarse_factor)
                 cb = _coarse_border(border, self.coarse_factor, cam.width, cam.height)
-                # one light and one glossy sample: the preview is shown once, never
+                # one light and one glossy sample (a metal's first rough bounce draws
+                # two: glossy_rays.LOBE_COUNTS): the preview is shown once, never
                 # averaged in, and soft lights and rough surfaces would multiply its cost by
                 # their samples (the full image and the refinement take the scene's counts:
                 # n passes give F12's n samples)

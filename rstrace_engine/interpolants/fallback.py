@@ -29,7 +29,8 @@ Three mechanisms, all priced by the frame's own timings:
   costs more than their pixels), until a re-probe every :data:`REPROBE_FRAMES` frames. A
   frame the ledger cut short is not judged (its cells walked a chunk or a pass, their builds
   served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row or its walk
-  alone, builds left out, did not pay.
+  alone, builds left out, did not pay. Nor is a frame during which numba compiled or loaded
+  a kernel (:data:`SKIP_COMPILED`: its costs timed the compiler).
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -126,6 +127,14 @@ event.register("numba:compiler_lock", _LockCounter())
 #: pay), ``museum`` 640x480 1 spp 1.5-1.8, ``museum_1999`` 640x480 1 spp 2-6 (they do not).
 #: The core tests turn it off (``conftest.py``, as :data:`LEARN_STRUCTURES`)
 PRICE_FIRST_WALK = True
+#: a frame during which numba's compiler lock was taken (:data:`NUMBA_LOCKS`: a kernel
+#: compiled or loaded, by the frame or by another thread -- the add-on's warm-up) is not
+#: judged and teaches no price (:meth:`Fallback.learn`): its costs timed numba (``make
+#: demo`` from an empty cache: 7.9 s "with cells" against 0.016 s traced, 0.083 s warm) and
+#: its compile time cannot be told apart from its own (the lock's hold misses the typing
+#: and first calls, and a warm-up's loads run beside the frame). The core tests turn it off
+#: (``conftest.py``: whether a test's frame loads a kernel depends on the tests before it)
+SKIP_COMPILED = True
 
 
 def timed_structure(kind: str, n_tris: int, build):
@@ -241,6 +250,8 @@ class Budget:
         self.learned: float | None = None
         self.declined = False  # the first walk's price declined the frame's walk
         self.first_marks = None  # (compiler locks, structures built) when it began
+        self.locks = NUMBA_LOCKS[0]  # compiler locks taken before the frame's ledger
+        self.compiled = False  # one was taken since (:meth:`seal`: the frame not judged)
         if ray_s is not None:
             self.price(ray_s, vis_s, hit_share)
 
@@ -259,6 +270,13 @@ class Budget:
         self.open_built = 0.0
         if self.walked == 0 and self.empty and PRICE_FIRST_WALK:
             self.first_marks = (NUMBA_LOCKS[0], STRUCTURES_BUILT[0])
+
+    def seal(self) -> bool:
+        """The frame's costs are measured: whether numba's compiler lock was taken since the
+        ledger began (``compiled``: a kernel compiled or loaded, the frame is not judged,
+        :data:`SKIP_COMPILED`)."""
+        self.compiled = SKIP_COMPILED and NUMBA_LOCKS[0] != self.locks
+        return self.compiled
 
     def first_cost(self) -> float:
         """Seconds the frame's first walked chunk is expected to add (``first_walk``'s
@@ -470,7 +488,7 @@ class Fallback:
 
     def learn(self, c: FrameCosts, traced_now: np.ndarray,
               deferred: np.ndarray | None = None, cut: bool = False,
-              declined: bool = False) -> None:
+              declined: bool = False, compiled: bool = False) -> None:
         """After a full frame that traced the objects ``traced_now`` (its
         :meth:`frame_traced`): objects that went through cells are judged (:func:`cells_pay`)
         unless the budget deferred some of their cells (``deferred`` (I,) counts: they have
@@ -480,12 +498,14 @@ class Fallback:
         a chunk or a pass, and the cells it built have served none of the frames after it
         (the ledger kept the frame itself within its allowance). A frame whose first walk
         was ``declined`` (:meth:`budget`) walked nothing: nothing is judged (a frame
-        re-probing the whole frame waits :data:`REPROBE_FRAMES` frames again)."""
-        if c.ray_s > 0.0:
+        re-probing the whole frame waits :data:`REPROBE_FRAMES` frames again). A frame that
+        ``compiled`` (:meth:`Budget.seal`) timed numba: nothing is judged or learned, not
+        even the price of a ray (a whole-frame re-probe stays due: the next frame is one)."""
+        if c.ray_s > 0.0 and not compiled:
             self.ray_s = float(c.ray_s)
-        if declined:
+        if declined or compiled:
             self.frames_traced[traced_now] += 1
-            self.frames_all = 0
+            self.frames_all = 0 if declined else self.frames_all
             return
         self.last = c
         self.cuts = self.cuts + 1 if cut else 0
@@ -510,6 +530,9 @@ class Fallback:
         frame traced, or objects traced, with the costs measured, and the frame's first
         walk declined (``budget``: its ledger); none while cells are used everywhere."""
         out = []
+        if budget is not None and budget.compiled:
+            out.append("Interpolants: this frame compiled or loaded numba kernels, its costs "
+                       "timed them: not judged (the next frame's are)")
         if budget is not None and budget.declined:
             out.append(f"Interpolants: this frame walked no cell, the cache keeps none and a "
                        f"first walk here cost {self.first_walk:.1f} traced rays a ray, more "
@@ -553,7 +576,8 @@ class Fallback:
                     probe_rays=0 if b is None else int(b.pricing),
                     ray_us=None if self.ray_s is None else 1e6 * self.ray_s,
                     first_walk=self.first_walk, declined=bool(b is not None and b.declined),
-                    declined_in_row=self.declined)
+                    declined_in_row=self.declined,
+                    compiled=bool(b is not None and b.compiled))
 
 
 def count_cells(counts: np.ndarray, inst: np.ndarray, n_inst: int) -> np.ndarray:

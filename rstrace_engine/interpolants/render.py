@@ -338,9 +338,11 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         if pixels is not None:  # (an edit's pixels: clustered, on one thread under
             budget.learned = None  # SERIAL_BELOW rays; as costs, only full frames teach)
         fb.walked_or_declined(budget)  # (a first walk priced: fallback.PRICE_FIRST_WALK)
+        compiled = budget.seal()  # (a kernel compiled or loaded: not judged)
         if costs is not None:
-            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut, budget.declined)
-            if n_closest:
+            fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut, budget.declined,
+                     compiled)
+            if n_closest and not compiled:
                 fb.vis_s = t_closest / n_closest
     if not cancelled:  # (an incomplete frame keeps its base: nobody shows it, fast out)
         _assemble(acc_rad, acc_good, acc_cls, acc_lo, acc_hi, pix, image, pclass, pinterp)

@@ -115,17 +115,3 @@ def test_lobe_counts_lower_the_metal_balls_noise(monkeypatch):
         var[lobes] = (v[metal].mean(), v[glass].mean())
     assert var[True][0] < 0.75 * var[False][0]
     assert var[True][1] > 0.7 * var[False][1]
-
-
-@pytest.mark.parametrize("name", ["three_spheres", "glass_horizon", "studio"])
-def test_scenes_without_rough_surfaces_trace_what_they_traced(name, monkeypatch):
-    """Mirrors, sharp glass and soft light only: the counts touch none of their rays."""
-    sc = scenes.build(name, 40, 30)
-    st = RenderSettings(mode="BASE", max_depth=5, samples=2, light_samples=4)
-    frames = []
-    for on in (True, False):
-        monkeypatch.setattr(glossy_rays, "LOBE_COUNTS", on)
-        frames.append(whitted.render(sc, st))
-    assert np.array_equal(frames[0].radiance, frames[1].radiance)
-    for k in ("secondary_rays", "shadow_rays"):
-        assert frames[0].stats[k] == frames[1].stats[k]

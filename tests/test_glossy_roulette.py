@@ -84,15 +84,16 @@ def test_roulette_is_unbiased_and_cheaper(monkeypatch):
     assert np.array_equal(again.radiance, on[0].astype(again.radiance.dtype))
 
 
+@pytest.mark.parametrize("switch", ["ROULETTE", "LOBE_COUNTS"])
 @pytest.mark.parametrize("name", ["three_spheres", "glass_horizon", "studio"])
-def test_scenes_without_rough_surfaces_trace_what_they_traced(name, monkeypatch):
-    """Mirrors, sharp glass and soft light only: the roulette touches none of their rays
-    (it takes a deeper rough bounce's)."""
+def test_scenes_without_rough_surfaces_trace_what_they_traced(name, switch, monkeypatch):
+    """Mirrors, sharp glass and soft light only: neither the roulette (it takes a deeper
+    rough bounce's rays) nor the counts by lobe (a first rough bounce's) touch their rays."""
     sc = scenes.build(name, 40, 30)
     st = RenderSettings(mode="BASE", max_depth=5, samples=2, light_samples=4)
     frames = []
     for on in (True, False):
-        monkeypatch.setattr(glossy_rays, "ROULETTE", on)
+        monkeypatch.setattr(glossy_rays, switch, on)
         frames.append(whitted.render(sc, st))
     assert np.array_equal(frames[0].radiance, frames[1].radiance)
     for k in ("secondary_rays", "shadow_rays"):

@@ -3,6 +3,7 @@
 ::
 
     python scripts/trade_frames.py studio --spp 1,4 [--no-world] [--width 320 --height 240]
+    python scripts/trade_frames.py glossy --width 640 --height 480 --fallback-only --rounds 3
 
 For each count of samples per pixel and each of ``fallback`` off (cells built wherever they
 may be) and on (the mode's default), renders ``bench trade``'s cameras (first frame from an
@@ -12,7 +13,11 @@ per camera the speedup, the base frame's seconds, the interpolated percentage, t
 display error against that base frame and the pixels over epsilon + 1e-6. Unlike ``bench
 trade`` it reports the frames without the fallback too (interpolated share and error), and
 it runs unchanged on older checkouts (to compare a detached worktree of main with a branch,
-run it in each, one after the other).
+run it in each, one after the other). ``--fallback-only --rounds R``: the fallback on only, its
+kernels loaded by an untimed frame first, then ``R`` rounds of a fresh renderer each (the
+fallback's decisions and ledger, ``added_s`` / ``saved_s`` / ``all_traced`` / ``compiled``,
+in each camera's row): several rounds in one process, to be alternated with another
+checkout's processes.
 """
 
 from __future__ import annotations
@@ -48,6 +53,9 @@ def main(argv=None) -> int:
     p.add_argument("--height", type=int, default=240)
     p.add_argument("--no-world", action="store_true",
                    help="the world's colour as a background only (the world does not light)")
+    p.add_argument("--fallback-only", action="store_true",
+                   help="the fallback on only (its kernels loaded by an untimed frame first)")
+    p.add_argument("--rounds", type=int, default=1, help="fresh renderers per setting")
     args = p.parse_args(argv)
     numba.set_num_threads(1)
     clock = time.process_time
@@ -60,7 +68,13 @@ def main(argv=None) -> int:
         bs = RenderSettings(samples=spp)
         st = RenderSettings(mode="INTERPOLANT", epsilon=args.epsilon, samples=spp)
         render(sc, bs, accel)  # compile / cache load, not timed
-        for fallback in (False, True):
+        settings = (True,) if args.fallback_only else (False, True)
+        if args.fallback_only:
+            for fallback in (False, True):  # both paths' kernels, not timed
+                r = InterpolantRenderer()
+                r.auto_fallback = fallback
+                r.render(sc, st, accel)
+        for fallback, rnd in ((f, k) for f in settings for k in range(args.rounds)):
             r = InterpolantRenderer()
             r.auto_fallback = fallback
             row = {}
@@ -78,8 +92,14 @@ def main(argv=None) -> int:
                                 interp=round(100 * f.stats["interpolated_fraction"], 1),
                                 max_err=round(float(err.max()), 4),
                                 over=int(np.count_nonzero(err > args.epsilon + FLOAT_TOL)))
+                fb = f.stats.get("fallback", {})
+                if fallback:
+                    row[key].update(added=round(fb.get("added_s", 0.0), 3),
+                                    saved=round(fb.get("saved_s", 0.0), 3),
+                                    all=fb.get("all_traced"), comp=fb.get("compiled"))
             sys.stdout.write(json.dumps(dict(scene=args.scene, world=not args.no_world,
-                                             spp=spp, fallback=fallback, cameras=row)) + "\n")
+                                             spp=spp, fallback=fallback, round=rnd,
+                                             cameras=row)) + "\n")
             sys.stdout.flush()
     return 0
 

@@ -546,7 +546,7 @@ class Fallback:
         out = []
         if budget is not None and budget.compiled:
             out.append("Interpolants: this frame compiled or loaded numba kernels, its costs "
-                       "timed them: not judged (the next frame's are)")
+                       "timed them: not judged (a later frame's are)")
         if budget is not None and budget.declined:
             out.append(f"Interpolants: this frame walked no cell, the cache keeps none and a "
                        f"first walk here cost {self.first_walk:.1f} traced rays a ray, more "

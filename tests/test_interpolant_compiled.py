@@ -15,7 +15,13 @@ from rstrace_engine import scenes
 from rstrace_engine.accel.accelerators import create_accelerator
 from rstrace_engine.frame import RenderSettings
 from rstrace_engine.interpolants import fallback, interpolant_cache
-from rstrace_engine.interpolants.fallback import REPROBE_FRAMES, Budget, Fallback, FrameCosts
+from rstrace_engine.interpolants.fallback import (
+    COMPILED_FRAMES,
+    REPROBE_FRAMES,
+    Budget,
+    Fallback,
+    FrameCosts,
+)
 from rstrace_engine.interpolants.render import InterpolantRenderer
 
 EPS = 0.05
@@ -91,3 +97,43 @@ def test_a_frame_that_compiled_in_its_walk_is_not_judged_and_says_so(monkeypatch
     assert not s["compiled"] and s["all_traced"]
     assert not any("not judged" in n for n in second.stats["fallback_notes"])
     assert "cost more than they save" in second.stats["fallback_notes"][0]
+
+
+def test_a_kernel_loaded_every_frame_does_not_keep_cells_that_do_not_pay():
+    # (review: a warm-up loading beside every frame, or a signature new every frame, would
+    # leave every frame unjudged: after COMPILED_FRAMES such frames in a row one is judged)
+    fb = Fallback(2)
+    for i in range(COMPILED_FRAMES + 1):
+        b = Budget(1000, ray_s=1e-6)
+        fallback.NUMBA_LOCKS[0] += 1  # (a kernel loaded during every frame)
+        compiled = b.seal(fb.compiled)
+        assert compiled == (i < COMPILED_FRAMES) and not fb.all_traced
+        fb.learn(_dear(), fb.frame_traced(), compiled=compiled)
+    assert fb.all_traced and fb.compiled == 0 and fb.ray_s == 1e-6
+    fb.frames_all = REPROBE_FRAMES  # a re-probe that compiles is not judged (the count anew)
+    b = Budget(1000, ray_s=1e-6)
+    fallback.NUMBA_LOCKS[0] += 1
+    assert b.seal(fb.compiled)
+
+
+def test_rendered_frames_that_all_compile_are_judged_in_the_end(monkeypatch):
+    measured = fallback.FrameLedger.costs
+    monkeypatch.setattr(fallback.FrameLedger, "costs",
+                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
+    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 1e9)
+    monkeypatch.setattr(fallback, "COMPILED_FRAMES", 2)
+    resolve = interpolant_cache.InterpolantCache.resolve
+
+    def compiling(self, *a, **kw):  # every frame compiles a new function in its walk
+        numba.njit(lambda x: x + 1)(1)
+        return resolve(self, *a, **kw)
+
+    monkeypatch.setattr(interpolant_cache.InterpolantCache, "resolve", compiling)
+    sc = scenes.three_spheres(96, 72, subdivisions=3)
+    accel = create_accelerator("BVH", sc.arrays())
+    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
+    r = InterpolantRenderer()
+    seen = [r.render(sc, st, accel).stats["fallback"] for _ in range(3)]
+    assert [s["compiled"] for s in seen] == [True, True, False]
+    assert [s["all_traced"] for s in seen] == [False, False, True]

@@ -30,7 +30,8 @@ Three mechanisms, all priced by the frame's own timings:
   frame the ledger cut short is not judged (its cells walked a chunk or a pass, their builds
   served nothing yet) unless it is the :data:`CUT_FRAMES`-th such frame in a row or its walk
   alone, builds left out, did not pay. Nor is a frame during which numba compiled or loaded
-  a kernel (:data:`SKIP_COMPILED`: its costs timed the compiler).
+  a kernel (:data:`SKIP_COMPILED`: its costs timed the compiler), up to
+  :data:`COMPILED_FRAMES` in a row.
 * **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
@@ -47,6 +48,7 @@ the first walk's price and whether it declined the frame's walk.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import NamedTuple
 
@@ -104,11 +106,13 @@ LEARN_STRUCTURES = True
 #: counters, not :func:`.kernel_cache.mark`: that walks every dispatcher, 7 ms a frame)
 STRUCTURES_BUILT = [0]
 NUMBA_LOCKS = [0]
+_COUNTING = threading.Lock()  # (numba fires the event before it takes its lock: threads race)
 
 
 class _LockCounter(event.Listener):
     def on_start(self, ev):
-        NUMBA_LOCKS[0] += 1
+        with _COUNTING:
+            NUMBA_LOCKS[0] += 1
 
     def on_end(self, ev):
         pass
@@ -135,6 +139,12 @@ PRICE_FIRST_WALK = True
 #: and first calls, and a warm-up's loads run beside the frame). The core tests turn it off
 #: (``conftest.py``: whether a test's frame loads a kernel depends on the tests before it)
 SKIP_COMPILED = True
+#: frames in a row not judged for compiling (:data:`SKIP_COMPILED`) after which one that
+#: compiled is judged anyway (a kernel loaded every frame -- a warm-up beside every frame, a
+#: new signature each frame -- must not keep cells that do not pay forever): as many as a
+#: misjudged frame traces before its re-probe (measured, session 43 review: ``glossy``
+#: 120x90 in a warm process loads kernels in its first 5 frames, the others in 1-2)
+COMPILED_FRAMES = REPROBE_FRAMES
 
 
 def timed_structure(kind: str, n_tris: int, build):
@@ -271,11 +281,13 @@ class Budget:
         if self.walked == 0 and self.empty and PRICE_FIRST_WALK:
             self.first_marks = (NUMBA_LOCKS[0], STRUCTURES_BUILT[0])
 
-    def seal(self) -> bool:
+    def seal(self, in_row: int = 0) -> bool:
         """The frame's costs are measured: whether numba's compiler lock was taken since the
         ledger began (``compiled``: a kernel compiled or loaded, the frame is not judged,
-        :data:`SKIP_COMPILED`)."""
-        self.compiled = SKIP_COMPILED and NUMBA_LOCKS[0] != self.locks
+        :data:`SKIP_COMPILED`), unless the ``in_row`` frames before it were not judged for
+        that (:attr:`Fallback.compiled`: :data:`COMPILED_FRAMES` of them, it is)."""
+        self.compiled = (SKIP_COMPILED and NUMBA_LOCKS[0] != self.locks
+                         and in_row < COMPILED_FRAMES)
         return self.compiled
 
     def first_cost(self) -> float:
@@ -434,6 +446,7 @@ class Fallback:
         #: traced rays' prices (:data:`PRICE_FIRST_WALK`; None: not measured yet)
         self.first_walk: float | None = None
         self.declined = 0  # frames in a row whose first walk's price declined their walk
+        self.compiled = 0  # frames in a row not judged as they compiled (COMPILED_FRAMES)
         self.last: FrameCosts | None = None
 
     def resize(self, n_inst: int) -> None:
@@ -501,6 +514,7 @@ class Fallback:
         re-probing the whole frame waits :data:`REPROBE_FRAMES` frames again). A frame that
         ``compiled`` (:meth:`Budget.seal`) timed numba: nothing is judged or learned, not
         even the price of a ray (a whole-frame re-probe stays due: the next frame is one)."""
+        self.compiled = self.compiled + 1 if compiled else 0
         if c.ray_s > 0.0 and not compiled:
             self.ray_s = float(c.ray_s)
         if declined or compiled:
@@ -532,7 +546,7 @@ class Fallback:
         out = []
         if budget is not None and budget.compiled:
             out.append("Interpolants: this frame compiled or loaded numba kernels, its costs "
-                       "timed them: not judged (the next frame's are)")
+                       "timed them: not judged (a later frame's are)")
         if budget is not None and budget.declined:
             out.append(f"Interpolants: this frame walked no cell, the cache keeps none and a "
                        f"first walk here cost {self.first_walk:.1f} traced rays a ray, more "

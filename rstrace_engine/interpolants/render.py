@@ -338,7 +338,8 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         if pixels is not None:  # (an edit's pixels: clustered, on one thread under
             budget.learned = None  # SERIAL_BELOW rays; as costs, only full frames teach)
         fb.walked_or_declined(budget)  # (a first walk priced: fallback.PRICE_FIRST_WALK)
-        compiled = budget.seal()  # (a kernel compiled or loaded: not judged)
+        # (a full frame that compiled or loaded a kernel: not judged)
+        compiled = costs is not None and budget.seal(fb.compiled)
         if costs is not None:
             fb.learn(costs, run.traced_now, budget.deferred_inst, budget.cut, budget.declined,
                      compiled)

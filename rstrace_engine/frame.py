@@ -31,7 +31,7 @@ LINETREE_MAX_DEPTH = 12
 LIGHT_SAMPLES_DEFAULT = 16
 LIGHT_SAMPLES_MAX = 4096
 #: Glossy rays a path draws at its first rough (glossy) bounce (RenderSettings.glossy_samples;
-#: deeper rough bounces draw one), docs/glossy.md
+#: by lobe, tracing.glossy_rays.glossy_counts; deeper rough bounces draw one), docs/glossy.md
 GLOSSY_SAMPLES_DEFAULT = 16
 GLOSSY_SAMPLES_MAX = 1024
 #: Visibility field: most directions (the tetrahedron subdivided to

@@ -43,7 +43,8 @@ Three mechanisms, all priced by the frame's own timings:
 The decision is a function of the measured costs alone (:class:`FrameCosts`; the tests inject
 them). ``frame.stats["fallback"]`` reports it: the objects traced, the ledger (allowance,
 added, saved, rays walked), the cells deferred, the rays traced to price a ray, the price,
-the first walk's price and whether it declined the frame's walk.
+the first walk's price and whether it declined the frame's walk, and whether the frame
+compiled or loaded a kernel (``compiled``: not judged).
 """
 
 from __future__ import annotations
@@ -577,7 +578,7 @@ class Fallback:
         """The frame's ``stats["fallback"]``: what was decided (objects traced, the whole
         frame traced) and what the frame's ledger measured (:class:`Budget`: the
         allowance, what the mode added and saved, rays walked, cells deferred, rays traced
-        to price a ray)."""
+        to price a ray, whether the frame compiled or loaded a kernel: not judged)."""
         b = budget
         priced = b is not None and b.ray_s is not None
         return dict(traced_objects=int(np.count_nonzero(self.traced)),

@@ -1,8 +1,9 @@
 """Glossy rays: a rough surface's reflected and refracted rays drawn from its GGX lobe
 (issue 24, docs/glossy.md), for the shade kernel (:mod:`.shader`).
 
-Which materials draw them (:func:`is_glossy`; how many per point, Glossy Samples at a
-path's first rough bounce and one deeper, :func:`glossy_counts`), and the rays themselves
+Which materials draw them (:func:`is_glossy`; how many per point, by lobe at a path's
+first rough bounce -- Glossy Samples pairs on a transmissive lobe, up to twice as many
+reflections on one without -- and one deeper, :func:`glossy_counts`), and the rays themselves
 (:func:`_glossy_rays`): microfacet normals from GGX's visible normals, stratified like the
 soft lights' samples, weighted as Cycles' microfacet GGX weights them.
 """
@@ -130,8 +131,9 @@ def has_glossy(sa) -> bool:
 
 def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int, ediel: np.ndarray):
     """Ray pairs per point of a level (:func:`~.shader._shade_kernel`'s ``gstart``): ``samples``
-    at a glossy point (``mat`` (n,) its material, -1 a miss) whose path has not been split
-    yet (``fresh`` (n,) bool), 1 elsewhere (a deeper glossy bounce draws one direction).
+    (by lobe with :data:`LOBE_COUNTS`, below) at a glossy point (``mat`` (n,) its material,
+    -1 a miss) whose path has not been split yet (``fresh`` (n,) bool), 1 elsewhere (a
+    deeper glossy bounce draws one direction).
     Returns ``(counts (n,) int64, glossy (n,) bool)``. From the materials' flags, once per
     level: a parallel kernel calling ``is_glossy`` at every point took ~17 ms per 50k points
     on one thread, a quarter of a rough_materials frame (docs/bench-frame.md).
@@ -300,7 +302,8 @@ def roulette(gstart: np.ndarray, glossy: np.ndarray, fresh: np.ndarray, seeds: n
     reflection at each exit carries the interface's Fresnel (a few percent) and costs a
     whole ray tree below it (rough_materials: ~15k such rays per level down to the depth
     budget, a third of the frame, for ~4% of the ball's light; docs/glossy.md, session
-    33). A path's first rough bounce (its Glossy Samples) and every smooth surface's rays
+    33). A path's first rough bounce (its glossy samples, :func:`glossy_counts`) and every
+    smooth surface's rays
     are untouched: a scene without rough surfaces traces what it traced."""
     if ROULETTE and len(glossy):
         _roulette(gstart, glossy, fresh, seeds, weight, kids.w, kids.ok,

@@ -165,7 +165,8 @@ def shade_paths(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray,
                 fresh: np.ndarray, samples: int, lat=None):
     """:func:`shade` (spawning) for a wavefront that follows paths as :func:`trace` does:
     a rough point whose path has drawn no glossy samples yet (``fresh`` (n,) bool) draws
-    ``samples`` ray pairs, any other one (docs/glossy.md). Returns ``(contrib (n, 3),
+    ``samples`` ray pairs by its lobe (:func:`~.glossy_rays.glossy_counts`), any other one
+    (docs/glossy.md). Returns ``(contrib (n, 3),
     Spawned, gstart, glossy)``: point i's ray pairs are ``gstart[i]:gstart[i + 1]``
     (``gstart`` None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool
     which points drew from their lobe (None with ``gstart``); :func:`child_paths` gives
@@ -187,7 +188,8 @@ class _Plan(NamedTuple):
 
 def _shade_level(sa, hits, surf, vis, weight, spawn, soft, terms, seeds, fresh, samples, lat):
     """:func:`shade` for the wavefront: ``fresh`` (n,) bool the rays whose paths have not
-    drawn glossy samples yet (they draw ``samples``, the others one); ``lat`` as
+    drawn glossy samples yet (they draw ``samples`` by lobe,
+    :func:`~.glossy_rays.glossy_counts`, the others one); ``lat`` as
     :func:`shade_paths`. Returns ``(contrib, Spawned[, terms], _Plan)``."""
     n = len(surf.P)
     plan = _Plan(None, None)
@@ -440,8 +442,8 @@ def trace(sa: SceneArrays, accel, origins, directions, tmin, tmax, max_depth: in
     rays of lights proven fully visible per key and instance are skipped, the radiance the
     same bit for bit (:mod:`.shaft_skip`, which also says what ``counters`` gains).
     strata : the input rays' pixels and sample indices (:func:`~.glossy_strata.pixel_strata`):
-    a pixel's rough points draw from one lattice per path (:mod:`.glossy_strata`); None:
-    each point its own.
+    a pixel's rough points draw from one lattice per path and count
+    (:mod:`.glossy_strata`); None: each point its own.
 
     Returns ``(radiance (n, 3) float64, RayTree or None)``.
     """

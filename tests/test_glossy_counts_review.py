@@ -31,10 +31,12 @@ def test_random_edits_at_several_samples_stay_exact(scene_name):
         assert np.array_equal(frame.radiance, fresh.radiance)
 
 
-def test_a_pixels_samples_with_different_counts_stay_stratified_and_uniform():
-    """Four samples of a pixel at one path with counts 1, 3, 2, 5: each sample's lattice
-    points (``(j + 0.5) / size``, j = s, s + S, ...) lie 1 / n apart (stratified within the
-    sample), and over the lattice's rotation each is uniform (the estimate unbiased)."""
+def test_a_pixels_samples_with_different_counts_stay_stratified_under_one_rotation():
+    """Four samples of a pixel at one path with counts 1, 3, 2, 5 share one rotation, and
+    each sample's lattice points (``(j + 0.5) / size``, j = s, s + S, ..., before the
+    rotation) lie 1 / n apart, the first within ``(0, 1 / n]``: stratified within the
+    sample. (That each point is uniform follows from the rotation being uniform; not
+    checked here.)"""
     S = 4
     st = glossy_strata.pixel_strata(np.arange(S, dtype=np.int64) * 16 + 3, 16, 7, S)
     counts = np.array([1, 3, 2, 5])

@@ -68,13 +68,13 @@ def main(argv=None) -> int:
         bs = RenderSettings(samples=spp)
         st = RenderSettings(mode="INTERPOLANT", epsilon=args.epsilon, samples=spp)
         render(sc, bs, accel)  # compile / cache load, not timed
-        settings = (True,) if args.fallback_only else (False, True)
+        fallbacks = (True,) if args.fallback_only else (False, True)
         if args.fallback_only:
             for fallback in (False, True):  # both paths' kernels, not timed
                 r = InterpolantRenderer()
                 r.auto_fallback = fallback
                 r.render(sc, st, accel)
-        for fallback, rnd in ((f, k) for f in settings for k in range(args.rounds)):
+        for fallback, rnd in ((f, k) for f in fallbacks for k in range(args.rounds)):
             r = InterpolantRenderer()
             r.auto_fallback = fallback
             row = {}

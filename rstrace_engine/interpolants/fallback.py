@@ -32,7 +32,7 @@ Three mechanisms, all priced by the frame's own timings:
   alone, builds left out, did not pay. Nor is a frame during which numba compiled or loaded
   a kernel (:data:`SKIP_COMPILED`: its costs timed the compiler), up to
   :data:`COMPILED_FRAMES` in a row.
-* **Per object** (:func:`cells_pay`). After every full frame, an object whose rays cost
+* **Per object** (:func:`cells_pay`). After every full frame judged, an object whose rays cost
   more with cells than tracing them all would have -- its share of the walk (by rays
   walked), of the builds (by cells built, counted at ``1 / BUILD_FRAMES``: a cell built
   serves the frames after it) and its rays traced after all -- over at least

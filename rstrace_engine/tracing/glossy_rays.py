@@ -303,8 +303,8 @@ def roulette(gstart: np.ndarray, glossy: np.ndarray, fresh: np.ndarray, seeds: n
     whole ray tree below it (rough_materials: ~15k such rays per level down to the depth
     budget, a third of the frame, for ~4% of the ball's light; docs/glossy.md, session
     33). A path's first rough bounce (its glossy samples, :func:`glossy_counts`) and every
-    smooth surface's rays
-    are untouched: a scene without rough surfaces traces what it traced."""
+    smooth surface's rays are untouched: a scene without rough surfaces traces what it
+    traced."""
     if ROULETTE and len(glossy):
         _roulette(gstart, glossy, fresh, seeds, weight, kids.w, kids.ok,
                   float(tol.GLOSSY_ROULETTE_REL))

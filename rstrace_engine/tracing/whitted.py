@@ -166,12 +166,12 @@ def shade_paths(sa: SceneArrays, hits: Hits, surf: Surfaces, vis: np.ndarray,
     """:func:`shade` (spawning) for a wavefront that follows paths as :func:`trace` does:
     a rough point whose path has drawn no glossy samples yet (``fresh`` (n,) bool) draws
     ``samples`` ray pairs by its lobe (:func:`~.glossy_rays.glossy_counts`), any other one
-    (docs/glossy.md). Returns ``(contrib (n, 3),
-    Spawned, gstart, glossy)``: point i's ray pairs are ``gstart[i]:gstart[i + 1]``
-    (``gstart`` None: one pair each, slots ``2 i``, ``2 i + 1``), ``glossy`` (n,) bool
-    which points drew from their lobe (None with ``gstart``); :func:`child_paths` gives
-    the spawned rays' paths. ``lat``: a callable ``lat(glossy, counts) -> (n, 4)`` giving
-    the glossy samples' lattices (:func:`~.glossy_strata.lattices`; None: each point's own)."""
+    (docs/glossy.md). Returns ``(contrib (n, 3), Spawned, gstart, glossy)``: point i's ray
+    pairs are ``gstart[i]:gstart[i + 1]`` (``gstart`` None: one pair each, slots ``2 i``,
+    ``2 i + 1``), ``glossy`` (n,) bool which points drew from their lobe (None with
+    ``gstart``); :func:`child_paths` gives the spawned rays' paths. ``lat``: a callable
+    ``lat(glossy, counts) -> (n, 4)`` giving the glossy samples' lattices
+    (:func:`~.glossy_strata.lattices`; None: each point's own)."""
     contrib, kids, plan = _shade_level(sa, hits, surf, vis, weight, True, soft, False, seeds,
                                        fresh, int(samples), lat)
     return contrib, kids, plan.gstart, plan.glossy

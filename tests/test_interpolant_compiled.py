@@ -64,16 +64,16 @@ def test_the_ledger_sees_the_compiler_lock(monkeypatch):
     assert not c.seal()
 
 
-def test_a_frame_that_compiled_in_its_walk_is_not_judged_and_says_so(monkeypatch):
-    # every frame's costs say its cells do not pay (a walk of a second); the first compiles
-    # a kernel inside its cells' timed work (as a cold cache's first INTERPOLANT frame)
+def _dear_frames(monkeypatch, compiles: list):
+    """A renderer of ``three_spheres`` frames whose costs say their cells do not pay (a
+    walk of a second, no wall-clock cut), the first ``compiles[0]`` of them compiling a new
+    function inside their cells' timed work (as a cold cache's first INTERPOLANT frame)."""
     measured = fallback.FrameLedger.costs
     monkeypatch.setattr(fallback.FrameLedger, "costs",
                         lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
     monkeypatch.setattr(fallback, "MIN_RAYS", 1)
-    monkeypatch.setattr(fallback, "ALLOWANCE", 1e9)  # (no wall-clock cut)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 1e9)
     resolve = interpolant_cache.InterpolantCache.resolve
-    compiles = [1]
 
     def compiling(self, *a, **kw):
         if compiles[0]:
@@ -86,13 +86,19 @@ def test_a_frame_that_compiled_in_its_walk_is_not_judged_and_says_so(monkeypatch
     accel = create_accelerator("BVH", sc.arrays())
     st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
     r = InterpolantRenderer()
-    first = r.render(sc, st, accel)
+    return lambda: r.render(sc, st, accel)
+
+
+def test_a_frame_that_compiled_in_its_walk_is_not_judged_and_says_so(monkeypatch):
+    compiles = [1]
+    render = _dear_frames(monkeypatch, compiles)
+    first = render()
     assert compiles == [0] and first.stats["fallback"]["walked_rays"] > 0
     s = first.stats["fallback"]
     assert s["compiled"] and not s["all_traced"] and s["traced_objects"] == 0
     notes = first.stats["fallback_notes"]
     assert len(notes) == 1 and "not judged" in notes[0] and "measured" not in notes[0]
-    second = r.render(sc, st, accel)  # no kernel loaded: judged on its costs
+    second = render()  # no kernel loaded: judged on its costs
     s = second.stats["fallback"]
     assert not s["compiled"] and s["all_traced"]
     assert not any("not judged" in n for n in second.stats["fallback_notes"])
@@ -117,23 +123,8 @@ def test_a_kernel_loaded_every_frame_does_not_keep_cells_that_do_not_pay():
 
 
 def test_rendered_frames_that_all_compile_are_judged_in_the_end(monkeypatch):
-    measured = fallback.FrameLedger.costs
-    monkeypatch.setattr(fallback.FrameLedger, "costs",
-                        lambda self, fb: measured(self, fb)._replace(walk_s=1.0, ray_s=1e-9))
-    monkeypatch.setattr(fallback, "MIN_RAYS", 1)
-    monkeypatch.setattr(fallback, "ALLOWANCE", 1e9)
     monkeypatch.setattr(fallback, "COMPILED_FRAMES", 2)
-    resolve = interpolant_cache.InterpolantCache.resolve
-
-    def compiling(self, *a, **kw):  # every frame compiles a new function in its walk
-        numba.njit(lambda x: x + 1)(1)
-        return resolve(self, *a, **kw)
-
-    monkeypatch.setattr(interpolant_cache.InterpolantCache, "resolve", compiling)
-    sc = scenes.three_spheres(96, 72, subdivisions=3)
-    accel = create_accelerator("BVH", sc.arrays())
-    st = RenderSettings(mode="INTERPOLANT", epsilon=EPS, max_depth=3)
-    r = InterpolantRenderer()
-    seen = [r.render(sc, st, accel).stats["fallback"] for _ in range(3)]
+    render = _dear_frames(monkeypatch, [3])  # every frame compiles a new function in its walk
+    seen = [render().stats["fallback"] for _ in range(3)]
     assert [s["compiled"] for s in seen] == [True, True, False]
     assert [s["all_traced"] for s in seen] == [False, False, True]

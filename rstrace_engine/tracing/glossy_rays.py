@@ -11,6 +11,7 @@ soft lights' samples, weighted as Cycles' microfacet GGX weights them.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -107,16 +108,26 @@ _MAT_FIELDS = ("mat_model", "mat_roughness", "mat_ior", "mat_transmission", "mat
                "mat_metallic", "mat_specular", "mat_diffuse")
 
 
-def _material_flags(sa) -> tuple:
-    """``(glossy (NM + 1,), interfaces (NM + 1,) bool, any glossy, any interface, layers
-    (NM + 1,) bool, diffuse (NM + 1,) float64 the largest channel of the diffuse albedo,
-    reflecting (NM + 1,) bool)``: the flags with a False (a 0) appended (index -1: a
-    miss)."""
+class MaterialFlags(NamedTuple):
+    """A scene's material flags, each (NM + 1,) with a False (a 0) appended (index -1: a
+    miss), and whether any material is glossy or an interface."""
+
+    glossy: np.ndarray  # bool, glossy_materials
+    interface: np.ndarray  # bool, interface_materials
+    any_glossy: bool
+    any_interface: bool
+    layer: np.ndarray  # bool, layer_materials
+    diffuse_max: np.ndarray  # float64, the largest channel of the diffuse albedo
+    reflecting: np.ndarray  # bool, reflecting_materials
+
+
+def _material_flags(sa) -> MaterialFlags:
     glossy, iface = glossy_materials(sa), interface_materials(sa)
-    return (np.append(glossy, False), np.append(iface, False), bool(np.any(glossy)),
-            bool(np.any(iface)), np.append(layer_materials(sa), False),
-            np.append(np.asarray(sa.mat_diffuse, np.float64).max(axis=1, initial=0.0), 0.0),
-            np.append(reflecting_materials(sa), False))
+    return MaterialFlags(
+        np.append(glossy, False), np.append(iface, False), bool(np.any(glossy)),
+        bool(np.any(iface)), np.append(layer_materials(sa), False),
+        np.append(np.asarray(sa.mat_diffuse, np.float64).max(axis=1, initial=0.0), 0.0),
+        np.append(reflecting_materials(sa), False))
 
 
 #: :func:`_material_flags` per scene's materials: asked for at every depth level, computed
@@ -126,7 +137,7 @@ MATERIAL_FLAGS = Memo(_MAT_FIELDS, _material_flags)
 
 def has_glossy(sa) -> bool:
     """Whether any material of ``sa`` draws glossy rays (:func:`is_glossy`)."""
-    return MATERIAL_FLAGS.get(sa)[2]
+    return MATERIAL_FLAGS.get(sa).any_glossy
 
 
 def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int, ediel: np.ndarray):
@@ -151,18 +162,18 @@ def glossy_counts(sa, mat: np.ndarray, fresh: np.ndarray, samples: int, ediel: n
     samples weighs ``1 / n`` (:func:`_glossy_rays`): unbiased whatever ``n``; ``n`` is a
     function of the point alone (deterministic, the same in every mode)."""
     flags = MATERIAL_FLAGS.get(sa)
-    glossy = flags[0][mat]  # the appended False: -1, a miss
+    glossy = flags.glossy[mat]  # the appended False: -1, a miss
     counts = np.where(glossy & fresh, np.int64(samples), np.int64(1))
     if LOBE_COUNTS:
-        part = np.flatnonzero(flags[6][mat] & fresh)
+        part = np.flatnonzero(flags.reflecting[mat] & fresh)
         if len(part):
             m = mat[part]
             w = np.ones(len(part))
-            lay = flags[4][m]
+            lay = flags.layer[m]
             if lay.any():
                 ml = m[lay]
                 e = ediel[part[lay]] * sa.mat_tint_max[ml]
-                wl = e / (e + (1.0 - e) * flags[5][ml])
+                wl = e / (e + (1.0 - e) * flags.diffuse_max[ml])
                 w[lay] = np.where(wl >= 0.0, np.minimum(wl, 1.0), 1.0)  # (a NaN: as 1)
             counts[part] = np.maximum(np.ceil(2.0 * samples * np.sqrt(w)), 1.0).astype(np.int64)
     return counts, glossy

@@ -124,8 +124,8 @@ def proven_rows(sa, accel, surf, inst: np.ndarray, keys: np.ndarray | None,
     # a rough interface's samples may leave through its far side: the proofs cover the
     # shadow origins on the viewer's side alone
     flags = MATERIAL_FLAGS.get(sa)
-    if flags[3]:
-        soft &= ~flags[1][surf.mat][:, None]
+    if flags.any_interface:
+        soft &= ~flags.interface[surf.mat][:, None]
     todo = np.flatnonzero(soft.any(axis=1))
     proven = np.zeros(n * L, np.bool_)
     if len(todo) == 0:
@@ -393,8 +393,8 @@ def own_instances(sa, accel, surf, inst: np.ndarray, prim: np.ndarray) -> np.nda
     # instance, kept per packing), not at rough interfaces
     keep = _OWN_MESHES.get(geo)[2][inst]
     flags = MATERIAL_FLAGS.get(sa)
-    if flags[3]:
-        keep &= ~flags[1][surf.mat]
+    if flags.any_interface:
+        keep &= ~flags.interface[surf.mat]
     pts = np.flatnonzero(keep)
     out = np.full(n, -1, np.int32)
     if len(pts):

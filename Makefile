@@ -12,10 +12,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e ".[test,bench]"
 	touch $(STAMP)
 
-# The kernels the demo uses (BASE and INTERPOLANT on the BVH, hard light, a perspective
-# camera) compile in a background warm-cache, one process per core, while the demo starts
-# and renders; each kernel compiles in one process only (the others wait for it and load
-# it), with progress (kernels done/total); a warm cache only loads them.
+# The kernels the demo's BASE frames use (the BVH, hard light, a perspective camera) compile
+# in a background warm-cache, one process per core, while the demo starts and renders; each
+# kernel compiles in one process only (the others wait for it and load it), with progress
+# (kernels done/total); a warm cache only loads them. On a cold cache the interpolated frame
+# is the base tracer's while the cell build's kernels compile beside it (build_beside.py).
 demo: $(STAMP)
 	$(PY) examples/demo.py --out out/demo --warm-cache
 

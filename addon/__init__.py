@@ -75,5 +75,8 @@ def unregister() -> None:
         bpy.app.timers.unregister(_warm_if_selected)
     kernels.stop()
     runtime.stop_host_compile()
+    from rstrace_engine.interpolants import build_beside
+
+    build_beside.stop()  # the cell build's background compile
     for module in reversed(_MODULES):
         module.unregister()

@@ -467,9 +467,13 @@ def shadow_rays_text(stats: dict) -> str | None:
 def fallback_text(stats: dict) -> str | None:
     """INTERPOLANT: what the measured fallback decided (``stats["fallback"]``,
     :mod:`rstrace_engine.interpolants.fallback`) -- the frame traced because its cells cost
-    more than they save, or objects traced -- for the status line and the Last Render panel;
-    None while cells are used wherever they may be."""
+    more than they save, or objects traced, or the frame traced while the cell build's
+    kernels compile in the background (:mod:`rstrace_engine.interpolants.build_beside`) --
+    for the status line and the Last Render panel; None while cells are used wherever they
+    may be."""
     fb = stats.get("fallback") or {}
+    if fb.get("build_compiling"):
+        return "traced: cell build compiling in the background"
     if fb.get("all_traced"):
         return "traced: cells did not pay"
     n = int(fb.get("traced_objects") or 0)

@@ -83,23 +83,32 @@ def compile_traversal() -> None:
 #: CPU in one process) from the start, beside them (before: the traversal and the build,
 #: then its units, which reached the chain last, after the interpolants' own kernels).
 PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
+#: :data:`PART_HEADS` when INTERPOLANT is not warmed (no predicate; ``make demo``: its
+#: INTERPOLANT frame on a cold cache is the base tracer's, ``interpolants.build_beside``):
+#: the second part compiles the traversal, the first image's longest compile, while the
+#: first compiles the tracer's stages and the build
+BASE_PART_HEADS = (("tracer", "build"), ("traversal",))
+
+
+def part_heads(modes=("INTERPOLANT",)) -> tuple:
+    """The heads of ``warm-cache``'s parts for ``modes``."""
+    return PART_HEADS if "INTERPOLANT" in (modes or ("INTERPOLANT",)) else BASE_PART_HEADS
 
 
 def part_head(k: int, n: int, modes=("INTERPOLANT",)) -> list[str]:
-    """Compile (or load) part ``k`` of ``n``'s :data:`PART_HEADS` (none when ``n`` is 1);
-    the predicate only when ``modes`` has INTERPOLANT. Returns the names done."""
+    """Compile (or load) part ``k`` of ``n``'s :func:`part_heads` (none when ``n`` is 1).
+    Returns the names done."""
     from .warm_kernels import warm_scene
 
-    if n < 2 or k >= len(PART_HEADS):
+    heads = part_heads(modes)
+    if n < 2 or k >= len(heads):
         return []
     scene = warm_scene()
     steps = {"tracer": lambda: _compile_tracer(scene, build=False),
              "traversal": compile_traversal, "predicate": lambda: compile_predicate(scene),
              "build": lambda: compile_build(scene)}
     done = []
-    for name in PART_HEADS[k]:
-        if name == "predicate" and "INTERPOLANT" not in (modes or ("INTERPOLANT",)):
-            continue
+    for name in heads[k]:
         steps[name]()
         done.append(name)
     return done
@@ -213,9 +222,9 @@ def _helper_needed() -> bool:
                    for k in HELPER_KERNELS)
 
 
-def start_helper() -> subprocess.Popen | None:
-    """Start the helper process compiling :data:`HELPER_KERNELS` into this process's numba
-    cache (None when no Python interpreter can be started)."""
+def start_helper(code: str = _HELPER_CODE, stderr=subprocess.PIPE) -> subprocess.Popen | None:
+    """Start the helper process compiling :data:`HELPER_KERNELS` (or running ``code``) into
+    this process's numba cache (None when no Python interpreter can be started)."""
     import numba
 
     exe = sys.executable
@@ -230,9 +239,8 @@ def start_helper() -> subprocess.Popen | None:
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join([package_root] + [p for p in sys.path if p])
     try:
-        return subprocess.Popen([exe, "-c", _HELPER_CODE], env=env,
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.PIPE)
+        return subprocess.Popen([exe, "-c", code], env=env, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=stderr)
     except OSError as exc:
         log.info("kernel warm-up: no helper process (%s)", exc)
         return None

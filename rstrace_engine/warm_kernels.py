@@ -556,7 +556,10 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    jobs = max(1, min(jobs or kernel_cache.usable_cores(), len(units(modes, accelerators, soft))))
+    from .warm_first import part_heads
+
+    jobs = max(1, min(jobs or kernel_cache.usable_cores(),
+                      max(len(units(modes, accelerators, soft)), len(part_heads(modes)))))
     exe = _python()
     if exe is None:
         return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft,

@@ -131,8 +131,9 @@ def test_part_heads_start_the_predicate_at_once(monkeypatch):
     """The first part's head: the first image's kernels (the tracer's stages first: make
     demo's first frame compiles the build meanwhile, then needs them); the second part's:
     the predicate's chain (the
-    longest compile) from the start; a warm-up without INTERPOLANT (the add-on's BASE
-    warm-up) leaves it out; one process has no head."""
+    longest compile) from the start; a warm-up without INTERPOLANT (``make demo``) leaves
+    it out and compiles the traversal in the second part instead; one process has no
+    head."""
     calls = []
     monkeypatch.setattr(warm_first, "_compile_tracer", lambda *a, **k: calls.append("tracer"))
     for name in ("traversal", "predicate", "build"):
@@ -143,7 +144,9 @@ def test_part_heads_start_the_predicate_at_once(monkeypatch):
         "tracer", "traversal", "build"]
     assert calls == ["predicate", "tracer", "traversal", "build"]
     calls.clear()
-    assert warm_first.part_head(1, 2, ("BASE",)) == []
+    # without INTERPOLANT (make demo): the traversal in the second part, from the start
+    assert warm_first.part_head(1, 2, ("BASE",)) == ["traversal"]
+    assert warm_first.part_head(0, 2, ("BASE",)) == ["tracer", "build"]
     assert warm_first.part_head(0, 2, None) == ["tracer", "traversal", "build"]
     assert warm_first.part_head(1, 2, None) == ["predicate"]
     assert warm_first.part_head(0, 1, None) == []

@@ -578,7 +578,9 @@ class Fallback:
         """The frame's ``stats["fallback"]``: what was decided (objects traced, the whole
         frame traced) and what the frame's ledger measured (:class:`Budget`: the
         allowance, what the mode added and saved, rays walked, cells deferred, rays traced
-        to price a ray, whether the frame compiled or loaded a kernel: not judged)."""
+        to price a ray, whether the frame compiled or loaded a kernel: not judged; and
+        ``build_compiling``: the frame was the base tracer's while the cell build's kernels
+        compiled beside it, :mod:`.build_beside`)."""
         b = budget
         priced = b is not None and b.ray_s is not None
         return dict(traced_objects=int(np.count_nonzero(self.traced)),
@@ -592,7 +594,8 @@ class Fallback:
                     ray_us=None if self.ray_s is None else 1e6 * self.ray_s,
                     first_walk=self.first_walk, declined=bool(b is not None and b.declined),
                     declined_in_row=self.declined,
-                    compiled=bool(b is not None and b.compiled))
+                    compiled=bool(b is not None and b.compiled),
+                    build_compiling=False)
 
 
 def count_cells(counts: np.ndarray, inst: np.ndarray, n_inst: int) -> np.ndarray:

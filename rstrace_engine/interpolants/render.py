@@ -50,6 +50,7 @@ from ..tracing.seen_lights import SEEN_CAMERA, any_seen, first_seen_below
 from ..tracing.shaft_skip import tile_keys
 from ..tracing.soft_lights import world_lights
 from ..tracing.whitted import render
+from . import build_beside
 from . import fallback as fb_mod
 from .added_light import keeps_cache
 from .frame_parts import (
@@ -147,6 +148,15 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
             fb.frames_all += 1
         frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
                            fallback=fb.stats(None), fallback_notes=fb.notes())
+        return frame
+    if fb is not None and cache.pool.n_live == 0 and build_beside.compiling():
+        # no cell yet and the build's kernels not compiled: they compile in a background
+        # process (build_beside.py), this frame is the base tracer's, exact
+        cache.view = None
+        frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+        frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
+                           fallback=dict(fb.stats(None), build_compiling=True),
+                           fallback_notes=[build_beside.note()] + fb.notes())
         return frame
     t0 = fb_mod.CLOCK()
     sa = cache.sa

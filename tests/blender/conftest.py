@@ -1,6 +1,6 @@
 """bpy test harness: the add-on imported from the repository root as the package ``addon``
 and registered once; a fresh empty factory scene for every test; handlers added by a test
-removed after it."""
+removed after it; frames compile the cell build's kernels themselves (:func:`_build_in_frame`)."""
 
 from __future__ import annotations
 
@@ -33,6 +33,18 @@ def rstrace_addon():
 
 def _handlers() -> dict[str, list]:
     return {name: list(getattr(bpy.app.handlers, name)) for name in _HANDLER_LISTS}
+
+
+@pytest.fixture(autouse=True)
+def _build_in_frame(monkeypatch):
+    """A frame compiles the cell build's kernels itself, as the core tests' frames do
+    (``rstrace_engine.interpolants.build_beside``: off; on a cold kernel cache a frame
+    with the fallback would otherwise be the base tracer's while a background process
+    compiles them, and what a test sees would depend on the cache it runs on); the tests
+    of that path turn it on."""
+    from rstrace_engine.interpolants import build_beside
+
+    monkeypatch.setattr(build_beside, "BESIDE", False)
 
 
 @pytest.fixture(autouse=True)

@@ -179,3 +179,38 @@ def test_f12_says_why_its_first_walk_was_declined(tmp_path, monkeypatch):
     info = [text for level, text in addon.session.state_for(sc).messages if level == "INFO"]
     assert note in info
     np.testing.assert_array_equal(out["Combined"], base["Combined"])
+
+
+def test_f12_with_the_cell_build_compiling_beside_is_the_base_tracers(tmp_path, monkeypatch):
+    """A first INTERPOLANT F12 while the cell build's kernels are not compiled (a cold
+    kernel cache: ``rstrace_engine.interpolants.build_beside``, stood in for here: "not
+    compiled", and a compile that sleeps) is the base tracer's frame, bit for bit, and says
+    why in its statistics, the status line and an INFO message; unregistering the add-on
+    stops the background compile (none outlives the Blender session)."""
+    import addon
+    from rstrace_engine.interpolants import build_beside
+
+    monkeypatch.setattr(build_beside, "BESIDE", True)
+    monkeypatch.setattr(build_beside, "ready", lambda: False)
+    monkeypatch.setattr(build_beside, "_CODE", "import time; time.sleep(120)")
+    monkeypatch.setattr(build_beside, "_STATE", {"proc": None, "since": None,
+                                                 "failed": False})
+    sc = b.three_spheres_scene(96, 72)
+    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
+    base = b.render_exr(tmp_path / "base.exr")
+    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
+    out = b.render_exr(tmp_path / "interp.exr")
+    stats = _stats()
+    assert stats["fallback"]["build_compiling"] and stats["cells_built"] == 0
+    np.testing.assert_array_equal(out["Combined"], base["Combined"])
+    state = addon.session.state_for(sc)
+    info = [text for level, text in state.messages if level == "INFO"]
+    assert any("compiling in the background" in t for t in info), info
+    assert "cell build compiling" in addon.session.status_line(stats)
+    proc = build_beside._STATE["proc"]
+    assert proc is not None and proc.poll() is None
+    try:
+        addon.unregister()
+        assert proc.poll() is not None  # stopped with the add-on
+    finally:
+        addon.register()

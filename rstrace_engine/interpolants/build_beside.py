@@ -1,0 +1,107 @@
+"""The cell build's kernels compile beside the frames, never inside one (issue 25).
+
+The error predicate's chain (:func:`.predicate._check_cells` and its callees: the occluder,
+shaft and soft-light tests) is INTERPOLANT mode's longest compile, ~37 s of CPU on the
+project's 2-core machine, and a cache with no cell reaches it in its first frame. A frame
+that compiled it took ~40 s where the base tracer's took ~0.1 s, to build cells that a
+fallback frame (:mod:`.fallback`) may then not even use.
+
+So, where the measured fallback decides (:attr:`.render.InterpolantRenderer.auto_fallback`,
+the default): a frame whose cache keeps no cell, while the chain is neither in memory nor in
+the kernel cache (:func:`ready`), is the base tracer's frame (exact; ``stats["fallback"]
+["build_compiling"]`` and a note say why) and one background Python process compiles the
+chain into the kernel cache (:func:`.warm_first.compile_predicate`: the argument types of a
+render's build). The first frame after it is done loads the chain from the cache (a second
+or less) and builds cells. Where no process can be started, or it failed, or its kernels are
+not found afterwards (a cache that cannot be written), the frame compiles the chain itself,
+as before. With the fallback off, cells are built wherever the rays need them, compile
+included (what the cache's tests count).
+
+:func:`stop` ends the process (the add-on's unregister: a compile must not outlive the
+Blender session that started it; a stopped compile is started again by the next frame that
+needs it). What this relies on: numba's cache index (``kernel_cache.cached_signatures``)
+lists the chain once a process has written it, and concurrent compiles of one signature are
+claimed by one process (``kernel_cache``: the add-on's own warm-up may be compiling it too).
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import time
+
+from .. import kernel_cache
+
+log = logging.getLogger(__name__)
+
+#: off: a frame that needs the chain compiles it (the tests turn it off, tests/conftest.py:
+#: what they count must not depend on a background process's timing)
+BESIDE = True
+_CODE = ("from rstrace_engine.warm_first import compile_predicate; "
+         "from rstrace_engine.warm_kernels import warm_scene; compile_predicate(warm_scene())")
+#: the compiling process while it runs; when it started; whether one failed (then frames
+#: compile the chain themselves for the rest of the process)
+_STATE: dict = {"proc": None, "since": None, "failed": False}
+
+
+def _kernel():
+    from .predicate import _check_cells
+
+    return _check_cells
+
+
+def ready() -> bool:
+    """Whether the chain is in memory or in the kernel cache (a build only loads it)."""
+    k = _kernel()
+    return bool(k.signatures) or kernel_cache.cached_signatures(k) > 0
+
+
+def compiling() -> bool:
+    """Whether a frame should leave the build to the background process: :data:`BESIDE`,
+    the chain not :func:`ready`, and the process running (started here if it is not). False
+    once it is ready, or where the process cannot run (the frame then compiles it)."""
+    if not BESIDE or _STATE["failed"] or ready():
+        return False
+    proc = _STATE["proc"]
+    if proc is not None:
+        if proc.poll() is None:
+            return True
+        # ended and the chain still not in the cache: failed, or a cache that cannot be
+        # written; the frames compile it themselves from now on
+        log.warning("RSTrace: the cell build's background compile ended (rc %s) and left no "
+                    "kernel in the cache; frames compile it themselves", proc.returncode)
+        _STATE["proc"], _STATE["failed"] = None, True
+        return False
+    from ..warm_first import start_helper
+
+    proc = start_helper(_CODE, stderr=subprocess.DEVNULL)
+    if proc is None:
+        _STATE["failed"] = True
+        return False
+    _STATE["proc"], _STATE["since"] = proc, time.perf_counter()
+    log.info("RSTrace: compiling the cell build's kernels in the background")
+    return True
+
+
+def seconds() -> float:
+    """How long the background compile has run (0: none running)."""
+    return 0.0 if _STATE["proc"] is None else time.perf_counter() - _STATE["since"]
+
+
+def note() -> str:
+    """The frame's note while the chain compiles beside it."""
+    return (f"Interpolants: the cell build's kernels are compiling in the background (first "
+            f"use, {seconds():.0f} s so far): this frame is the base tracer's, exact; cells "
+            f"are built once they are ready")
+
+
+def stop() -> None:
+    """End the background compile if it runs (the next frame that needs it starts it again)."""
+    proc, _STATE["proc"] = _STATE["proc"], None
+    if proc is not None and proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

@@ -1,0 +1,137 @@
+"""The cell build's kernels compile beside the frames, never inside one (issue 25,
+:mod:`rstrace_engine.interpolants.build_beside`): a frame whose cache keeps no cell while the
+error predicate's chain is not compiled is the base tracer's (exact) and one background
+process compiles the chain; once it is in the cache, frames build cells. The core tests turn
+it off (``conftest.py``); these turn it on, with a stand-in for the compile (a process that
+sleeps, or ends at once) and a stand-in for "compiled" (:func:`build_beside.ready`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numba import njit
+
+from rstrace_engine import scenes
+from rstrace_engine.frame import RenderSettings
+from rstrace_engine.interpolants import build_beside, fallback
+from rstrace_engine.session import Session
+
+SLEEP = "import time; time.sleep(120)"
+
+
+@pytest.fixture(autouse=True)
+def _beside(monkeypatch):
+    monkeypatch.setattr(build_beside, "BESIDE", True)
+    # the ledger never cuts (cells would not pay on this small scene: the frames that may
+    # build must build, whatever this machine's timings)
+    monkeypatch.setattr(fallback, "ALLOWANCE", 1e6)
+    monkeypatch.setattr(build_beside, "_STATE", {"proc": None, "since": None, "failed": False})
+    yield
+    build_beside.stop()
+
+
+def _session(mode: str = "INTERPOLANT", fallback: bool = True) -> Session:
+    s = Session(scenes.three_spheres(128, 96, subdivisions=2),
+                RenderSettings(mode=mode, max_depth=2, epsilon=0.05, samples=1))
+    s.interpolants.auto_fallback = fallback
+    return s
+
+
+def _cold(monkeypatch, code: str = SLEEP) -> list:
+    """The chain not compiled (until ``state[0]`` is set); the compile a process running
+    ``code``."""
+    state = [False]
+    monkeypatch.setattr(build_beside, "ready", lambda: state[0])
+    monkeypatch.setattr(build_beside, "_CODE", code)
+    return state
+
+
+def test_a_cold_chain_is_compiled_beside_and_the_frame_is_the_base_tracers(monkeypatch):
+    ready = _cold(monkeypatch)
+    base = _session("BASE").render()
+    s = _session()
+    frame = s.render()
+    proc = build_beside._STATE["proc"]
+    assert proc is not None and proc.poll() is None  # the compile runs beside
+    fb = frame.stats["fallback"]
+    assert fb["build_compiling"] and frame.stats["cells_built"] == 0
+    assert frame.stats["interpolated_fraction"] == 0.0
+    assert any("compiling in the background" in n for n in frame.stats["fallback_notes"])
+    np.testing.assert_array_equal(frame.radiance, base.radiance)  # exact: the base tracer's
+    # a second frame while it compiles: the same process, the base tracer again
+    s.settings.seed += 1
+    assert s.render().stats["fallback"]["build_compiling"]
+    assert build_beside._STATE["proc"] is proc
+    # compiled (in the cache): the next frame builds cells and walks them
+    ready[0] = True
+    s.settings.seed += 1
+    frame = s.render()
+    assert not frame.stats["fallback"]["build_compiling"]
+    assert s.interpolants.cache.totals["cells_built"] > 0
+    build_beside.stop()
+    assert proc.poll() is not None  # stopped: no compile outlives its owner
+
+
+def test_a_compile_that_leaves_no_kernel_leaves_the_build_to_the_frames(monkeypatch):
+    """A background process that ends with the chain still not in the cache (failed, or a
+    cache that cannot be written): the frames compile it themselves from then on."""
+    _cold(monkeypatch, code="pass")
+    s = _session()
+    assert s.render().stats["fallback"]["build_compiling"]
+    build_beside._STATE["proc"].wait(60)
+    s.settings.seed += 1
+    frame = s.render()
+    assert not frame.stats["fallback"]["build_compiling"]
+    assert build_beside._STATE["failed"] and build_beside._STATE["proc"] is None
+    assert s.interpolants.cache.totals["cells_built"] > 0
+    assert not build_beside.compiling()  # and no process is started again
+
+
+def test_no_process_to_start_leaves_the_build_to_the_frame(monkeypatch):
+    from rstrace_engine import warm_first
+
+    _cold(monkeypatch)
+    monkeypatch.setattr(warm_first, "start_helper", lambda *a, **k: None)
+    s = _session()
+    frame = s.render()
+    assert not frame.stats["fallback"]["build_compiling"]
+    assert s.interpolants.cache.totals["cells_built"] > 0
+
+
+def test_without_the_fallback_cells_are_built_wherever_the_rays_need_them(monkeypatch):
+    _cold(monkeypatch)
+    s = _session(fallback=False)
+    frame = s.render()
+    assert "build_compiling" not in frame.stats.get("fallback", {})
+    assert s.interpolants.cache.totals["cells_built"] > 0
+    assert build_beside._STATE["proc"] is None  # nothing started
+
+
+def test_a_cache_with_cells_keeps_walking_them(monkeypatch):
+    """Only a cache with no cell leaves its frame to the base tracer: one that keeps cells
+    (the chain was compiled when they were built) walks them."""
+    ready = _cold(monkeypatch)
+    ready[0] = True
+    s = _session()
+    s.interpolants.auto_fallback = False  # cells built whatever they cost (this scene)
+    s.render()
+    assert s.interpolants.cache.pool.n_live > 0
+    ready[0] = False
+    s.interpolants.auto_fallback = True
+    s.settings.seed += 1
+    frame = s.render()
+    assert not frame.stats["fallback"]["build_compiling"]
+    assert build_beside._STATE["proc"] is None
+
+
+def test_ready_is_in_memory_or_in_the_kernel_cache(monkeypatch):
+    """:func:`build_beside.ready` of a kernel neither compiled nor cached, then compiled."""
+
+    @njit(cache=False)
+    def kernel(x):
+        return x + 1
+
+    monkeypatch.setattr(build_beside, "_kernel", lambda: kernel)
+    assert not build_beside.ready()
+    kernel(1)
+    assert build_beside.ready()

@@ -26,6 +26,16 @@ def _stats():
     return addon.session.state_for(bpy.context.scene).stats
 
 
+def _base_then_interpolant(tmp_path, width: int, height: int):
+    """``three_spheres`` (1 sample, depth 2) by F12 in BASE, then INTERPOLANT (epsilon 0.02):
+    the scene and both EXRs."""
+    sc = b.three_spheres_scene(width, height)
+    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
+    base = b.render_exr(tmp_path / "base.exr")
+    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
+    return sc, base, b.render_exr(tmp_path / "interpolant.exr")
+
+
 def test_f12_interpolant_mode_matches_base_within_epsilon(tmp_path):
     sc = b.three_spheres_scene(160, 120)
     sc.rstrace.samples = 1
@@ -167,11 +177,7 @@ def test_f12_says_why_its_first_walk_was_declined(tmp_path, monkeypatch):
 
     monkeypatch.setattr(fallback.Fallback, "__init__", priced)
     monkeypatch.setattr(fallback, "ALLOWANCE", 10.0)
-    sc = b.three_spheres_scene(160, 120)
-    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
-    base = b.render_exr(tmp_path / "base.exr")
-    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
-    out = b.render_exr(tmp_path / "declined.exr")
+    sc, base, out = _base_then_interpolant(tmp_path, 160, 120)
     st = _stats()
     assert st["fallback"]["declined"] and st["fallback"]["walked_rays"] == 0
     note = st["fallback_notes"][0]
@@ -195,11 +201,7 @@ def test_f12_with_the_cell_build_compiling_beside_is_the_base_tracers(tmp_path, 
     monkeypatch.setattr(build_beside, "_CODE", "import time; time.sleep(120)")
     monkeypatch.setattr(build_beside, "_STATE", {"proc": None, "since": None,
                                                  "failed": False})
-    sc = b.three_spheres_scene(96, 72)
-    sc.rstrace.samples, sc.rstrace.max_ray_depth = 1, 2
-    base = b.render_exr(tmp_path / "base.exr")
-    sc.rstrace.mode, sc.rstrace.epsilon = "INTERPOLANT", 0.02
-    out = b.render_exr(tmp_path / "interp.exr")
+    sc, base, out = _base_then_interpolant(tmp_path, 96, 72)
     stats = _stats()
     assert stats["fallback"]["build_compiling"] and stats["cells_built"] == 0
     np.testing.assert_array_equal(out["Combined"], base["Combined"])

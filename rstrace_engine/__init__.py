@@ -12,7 +12,7 @@ Subpackages, in import order (a module imports only from its own layer or lower 
    ``views`` (a parallel kernel's loop reads only the struct fields it needs), ``heap``
    (glibc's heap kept between a frame's batches), ``stripes`` (parallel loops as threads
    over serial ``nogil`` kernels), ``linalg`` (small inverses without waking OpenBLAS's
-   idle threads).
+   idle threads), ``child_python`` (a Python process sharing this one's kernel cache).
 2. ``geometry``: the scene model, cameras, shapes, mesh topology.
 3. ``accel``: the batch ray-query interface and its accelerators (BVH, Embree, brute force,
    visibility field).

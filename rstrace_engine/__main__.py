@@ -127,7 +127,7 @@ def warm_cache_command(args) -> int:
         _exit_with_parent()
         k, n = (int(x) for x in args.part.split("/"))
         # first the viewport's first image in part 0, the error predicate's chain (the
-        # longest compile) in part 1 (warm_first.PART_HEADS)
+        # longest compile) in part 1 (warm_kernels.PART_HEADS)
         warm_first.part_head(k, n, args.modes)
         result = warm_kernels.warm(args.modes, args.accelerators, part=(k, n),
                                    report_unreached=False, soft=args.soft,

@@ -27,15 +27,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import subprocess
-import sys
 import time
 from types import SimpleNamespace
 
 import numpy as np
 
-from . import kernel_cache
+from . import child_python, kernel_cache
 
 log = logging.getLogger(__name__)
 
@@ -75,30 +73,10 @@ def compile_traversal() -> None:
     acc.occluded(none, none, np.zeros(0))
 
 
-#: What each of ``warm-cache``'s two parts compiles before its units
-#: (:func:`~.warm_kernels.units`), in this order: the first the viewport's first image (the
-#: tracer's stages, the traversal, the BVH build: ``make demo``'s own first frame compiles
-#: the build meanwhile, the claims share it out, then waits for the stages), the second,
-#: when INTERPOLANT is warmed, the error predicate's chain (the longest compile, ~80 s of
-#: CPU in one process) from the start, beside them (before: the traversal and the build,
-#: then its units, which reached the chain last, after the interpolants' own kernels).
-PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
-#: :data:`PART_HEADS` when INTERPOLANT is not warmed (no predicate; ``make demo``: its
-#: INTERPOLANT frame on a cold cache is the base tracer's, ``interpolants.build_beside``):
-#: the second part compiles the traversal, the first image's longest compile, while the
-#: first compiles the tracer's stages and the build
-BASE_PART_HEADS = (("tracer", "build"), ("traversal",))
-
-
-def part_heads(modes=("INTERPOLANT",)) -> tuple:
-    """The heads of ``warm-cache``'s parts for ``modes``."""
-    return PART_HEADS if "INTERPOLANT" in (modes or ("INTERPOLANT",)) else BASE_PART_HEADS
-
-
 def part_head(k: int, n: int, modes=("INTERPOLANT",)) -> list[str]:
     """Compile (or load) part ``k`` of ``n``'s :func:`part_heads` (none when ``n`` is 1).
     Returns the names done."""
-    from .warm_kernels import warm_scene
+    from .warm_kernels import part_heads, warm_scene
 
     heads = part_heads(modes)
     if n < 2 or k >= len(heads):
@@ -222,28 +200,10 @@ def _helper_needed() -> bool:
                    for k in HELPER_KERNELS)
 
 
-def start_helper(code: str = _HELPER_CODE, stderr=subprocess.PIPE) -> subprocess.Popen | None:
-    """Start the helper process compiling :data:`HELPER_KERNELS` (or running ``code``) into
-    this process's numba cache (None when no Python interpreter can be started)."""
-    import numba
-
-    exe = sys.executable
-    if not exe or not os.path.basename(exe).lower().startswith("python"):
-        return None  # e.g. an embedding host whose executable is not a Python
-    env = dict(os.environ)
-    if numba.config.CACHE_DIR:
-        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
-    if numba.config.CPU_NAME:  # the portable target of shipped kernels (kernel_cache)
-        env["NUMBA_CPU_NAME"] = numba.config.CPU_NAME
-        env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
-    package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env["PYTHONPATH"] = os.pathsep.join([package_root] + [p for p in sys.path if p])
-    try:
-        return subprocess.Popen([exe, "-c", code], env=env, stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=stderr)
-    except OSError as exc:
-        log.info("kernel warm-up: no helper process (%s)", exc)
-        return None
+def start_helper() -> subprocess.Popen | None:
+    """Start the helper process compiling :data:`HELPER_KERNELS` into this process's numba
+    cache (None when no Python interpreter can be started)."""
+    return child_python.start(_HELPER_CODE)
 
 
 def _wait_helper(helper, cancel) -> bool:

@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from . import kernel_cache
+from . import child_python, kernel_cache
 
 log = logging.getLogger(__name__)
 
@@ -363,6 +363,26 @@ def _warm_large_bvh(progress=None, cancel=None) -> None:
     binary_bvh(tv.min(axis=1), tv.max(axis=1), bvh_build.MAX_LEAF)
 
 
+#: What each of ``warm-cache``'s two parts compiles before its units
+#: (:func:`~.warm_kernels.units`), in this order: the first the viewport's first image (the
+#: tracer's stages, the traversal, the BVH build: ``make demo``'s own first frame compiles
+#: the build meanwhile, the claims share it out, then waits for the stages), the second,
+#: when INTERPOLANT is warmed, the error predicate's chain (the longest compile, ~80 s of
+#: CPU in one process) from the start, beside them (before: the traversal and the build,
+#: then its units, which reached the chain last, after the interpolants' own kernels).
+PART_HEADS = (("tracer", "traversal", "build"), ("predicate",))
+#: :data:`PART_HEADS` when INTERPOLANT is not warmed (no predicate; ``make demo``: its
+#: INTERPOLANT frame on a cold cache is the base tracer's, ``interpolants.build_beside``):
+#: the second part compiles the traversal, the first image's longest compile, while the
+#: first compiles the tracer's stages and the build
+BASE_PART_HEADS = (("tracer", "build"), ("traversal",))
+
+
+def part_heads(modes=("INTERPOLANT",)) -> tuple:
+    """The heads of ``warm-cache``'s parts for ``modes``."""
+    return PART_HEADS if "INTERPOLANT" in (modes or ("INTERPOLANT",)) else BASE_PART_HEADS
+
+
 def units(modes, accelerators, soft: bool = True) -> list[tuple]:
     """The warm-up's steps in the order :func:`warm_parallel` deals them out to its
     processes: ``("step", mode, accelerator, orthographic)`` accelerator by accelerator,
@@ -371,7 +391,7 @@ def units(modes, accelerators, soft: bool = True) -> list[tuple]:
     when their mode is warmed, and ``("large_bvh",)`` (a large mesh's parallel BVH build)
     with the BVH. When INTERPOLANT is warmed, its first step and ``("interpolants",)`` (an
     edit of interpolants that pass) come first: the first process (the first image's
-    kernels, ``warm-cache --part``: ``warm_first.PART_HEADS``) then renders the INTERPOLANT
+    kernels, ``warm-cache --part``: :data:`PART_HEADS`) then renders the INTERPOLANT
     step while the second (the error predicate's chain) renders the interpolants that pass,
     so that the kernels
     both need are shared out by whichever gets to each first (the compile claims), and
@@ -410,7 +430,7 @@ def warm(modes=None, accelerators=None, progress=None, cancel=None,
     step (not the whole warm-up), so that a viewport sharing it renders between steps.
     ``part=(k, n)``: only the units (:func:`units`) ``k``, ``k + n``, ... (one of ``n``
     processes of :func:`warm_parallel`; ``python -m
-    rstrace_engine warm-cache --part k/n`` first compiles ``warm_first.PART_HEADS``: the
+    rstrace_engine warm-cache --part k/n`` first compiles :data:`PART_HEADS`: the
     viewport's first image in part 0, the error predicate's chain in part 1).
     ``soft=False``: no orthographic, soft-light steps (:func:`units`). ``textures=False``:
     no textured surfaces (the kernels that apply a texture to interpolated rays or split a
@@ -525,16 +545,6 @@ def cache_progress(kernels=None) -> tuple[int, int]:
     return done, len(kernels)
 
 
-def _python() -> str | None:
-    import os
-    import sys
-
-    exe = sys.executable
-    if not exe or not os.path.basename(exe).lower().startswith("python"):
-        return None  # an embedding host whose executable is not a Python
-    return exe
-
-
 def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progress=None,
                   cancel=None, report_unreached: bool = True, poll_s: float = 1.0,
                   soft: bool = True, textures: bool = True) -> dict:
@@ -548,30 +558,19 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     import json
     import os
     import subprocess
-    import sys
     import tempfile
 
-    import numba
 
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
-    from .warm_first import part_heads
-
     jobs = max(1, min(jobs or kernel_cache.usable_cores(),
                       max(len(units(modes, accelerators, soft)), len(part_heads(modes)))))
-    exe = _python()
+    exe = child_python.python()
     if exe is None:
         return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft,
                          textures=textures), jobs=1)
-    env = dict(os.environ)
-    if numba.config.CACHE_DIR:
-        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
-    if numba.config.CPU_NAME:
-        env["NUMBA_CPU_NAME"] = numba.config.CPU_NAME
-        env["NUMBA_CPU_FEATURES"] = numba.config.CPU_FEATURES or ""
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in sys.path if p])
+    env = child_python.environment()
     env["RSTRACE_WARM_PARENT"] = str(os.getpid())  # the parts end with this process
     # The parts write to files, not pipes: this process reads nothing until they end, and a
     # part whose warnings filled a pipe (64 KiB) would block on it forever.

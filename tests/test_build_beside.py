@@ -88,10 +88,10 @@ def test_a_compile_that_leaves_no_kernel_leaves_the_build_to_the_frames(monkeypa
 
 
 def test_no_process_to_start_leaves_the_build_to_the_frame(monkeypatch):
-    from rstrace_engine import warm_first
+    from rstrace_engine import child_python
 
     _cold(monkeypatch)
-    monkeypatch.setattr(warm_first, "start_helper", lambda *a, **k: None)
+    monkeypatch.setattr(child_python, "python", lambda: None)  # an embedding host
     s = _session()
     frame = s.render()
     assert not frame.stats["fallback"]["build_compiling"]

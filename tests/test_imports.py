@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 LAYERS = {
     "tolerances": 1, "errors": 1, "frame": 1, "image": 1, "cancel": 1, "kernel_cache": 1,
     "shipped_kernels": 1, "views": 1, "heap": 1, "stripes": 1, "numba_inline": 1,
-    "numba_overloads_cached": 1, "linalg": 1, "beside": 1,
+    "numba_overloads_cached": 1, "linalg": 1, "beside": 1, "child_python": 1,
     "geometry": 2,
     "accel": 3,
     "tracing": 4,

@@ -77,7 +77,7 @@ def test_no_textures_reaches_the_parts_and_the_warm_scene(monkeypatch):
     started.clear()
     warm_kernels.warm_parallel(2, ("BASE",), ("BVH",), report_unreached=False)
     assert started and not any("--no-textures" in a for a in started)
-    # BASE alone has one unit but two part heads (warm_first.BASE_PART_HEADS: make demo's
+    # BASE alone has one unit but two part heads (warm_kernels.BASE_PART_HEADS: make demo's
     # warm-up): two processes, the second compiling the traversal
     assert [a[a.index("--part") + 1] for a in started] == ["0/2", "1/2"]
     plain = warm_kernels.warm_scene(textured=False)

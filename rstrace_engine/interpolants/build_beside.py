@@ -11,11 +11,11 @@ the default): a frame whose cache keeps no cell, while the chain is neither in m
 the kernel cache (:func:`ready`), is the base tracer's frame (exact; ``stats["fallback"]
 ["build_compiling"]`` and a note say why) and one background Python process compiles the
 chain into the kernel cache (:func:`.warm_first.compile_predicate`: the argument types of a
-render's build). The first frame after it is done loads the chain from the cache (a second
-or less) and builds cells. Where no process can be started, or it failed, or its kernels are
-not found afterwards (a cache that cannot be written), the frame compiles the chain itself,
-as before. With the fallback off, cells are built wherever the rays need them, compile
-included (what the cache's tests count).
+render's build; :mod:`..child_python`). The first frame after it is done loads the chain
+from the cache (a second or less) and builds cells. Where no process can be started, or it
+ended without the chain in the cache (it failed, or a cache that cannot be written), the
+frames compile the chain themselves, as before. With the fallback off, cells are built
+wherever the rays need them, compile included (what the cache's tests count).
 
 :func:`stop` ends the process (the add-on's unregister: a compile must not outlive the
 Blender session that started it; a stopped compile is started again by the next frame that
@@ -30,7 +30,7 @@ import logging
 import subprocess
 import time
 
-from .. import kernel_cache
+from .. import child_python, kernel_cache
 
 log = logging.getLogger(__name__)
 
@@ -72,9 +72,7 @@ def compiling() -> bool:
                     "kernel in the cache; frames compile it themselves", proc.returncode)
         _STATE["proc"], _STATE["failed"] = None, True
         return False
-    from ..warm_first import start_helper
-
-    proc = start_helper(_CODE, stderr=subprocess.DEVNULL)
+    proc = child_python.start(_CODE, stderr=subprocess.DEVNULL)
     if proc is None:
         _STATE["failed"] = True
         return False

@@ -77,7 +77,7 @@ def test_parallel_warm_up_reads_parts_whose_report_outgrows_a_pipe(tmp_path, mon
     200 KiB; the warm-up must finish and sum the parts."""
     import signal
 
-    from rstrace_engine import warm_kernels
+    from rstrace_engine import child_python, warm_kernels
 
     report = {"compiled": 3, "loaded": 2,
               "compiled_kernels": {f"k{i}": ["x" * 200] for i in range(1000)}}
@@ -87,7 +87,7 @@ def test_parallel_warm_up_reads_parts_whose_report_outgrows_a_pipe(tmp_path, mon
     exe = tmp_path / "python-part"  # stands for the Python that runs `-m rstrace_engine ...`
     exe.write_text(f"#!/bin/sh\nexec {sys.executable} {part}\n")
     exe.chmod(0o755)
-    monkeypatch.setattr(warm_kernels, "_python", lambda: str(exe))
+    monkeypatch.setattr(child_python, "python", lambda: str(exe))
 
     def hang(*_):
         raise TimeoutError("the warm-up waited on parts blocked on their output")

@@ -625,15 +625,31 @@ def dispatchers(prefix: str = "rstrace_engine") -> list:
     return sorted(out, key=lambda d: _name(d))
 
 
-def cached_signatures(dispatcher) -> int:
-    """How many compiled signatures of ``dispatcher`` the disk cache holds (fresh ones)."""
-    cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
-    if cache_file is None:
-        return 0
+def _index(dispatcher, ours: bool) -> list:
+    """The signatures in ``dispatcher``'s disk cache index (fresh ones); ``ours``: only
+    those this process would load (this CPU or target, the kernel's current code)."""
+    cache = getattr(dispatcher, "_cache", None)
+    cache_file = getattr(cache, "_cache_file", None)
+    if cache_file is None or ours and not hasattr(cache, "_index_key"):
+        return []
     try:
-        return len(cache_file._load_index())
+        keys = list(cache_file._load_index())
     except Exception:  # noqa: BLE001  (a corrupt index holds nothing)
-        return 0
+        return []
+    codegen, out = dispatcher.targetctx.codegen() if ours else None, []
+    for key in keys:
+        sig = key[0] if isinstance(key, tuple) and key else None
+        with contextlib.suppress(Exception):  # (an entry of another numba: not ours)
+            if not ours or isinstance(sig, tuple) and cache._index_key(sig, codegen) == key:
+                out.append(sig)
+    return out
+
+
+def cached_signatures(dispatcher, ours: bool = False) -> int:
+    """How many compiled signatures of ``dispatcher`` the disk cache holds (fresh ones);
+    ``ours``: only those this process would load (:func:`load_cached`; an index also lists
+    another CPU's, e.g. the portable kernels a shipped cache seeded)."""
+    return len(_index(dispatcher, ours))
 
 
 def load_cached(dispatcher, stop=None) -> int:
@@ -645,27 +661,11 @@ def load_cached(dispatcher, stop=None) -> int:
 
     A signature whose data file turns out unreadable is compiled (what the first call
     would do too; the file is rewritten)."""
-    cache = getattr(dispatcher, "_cache", None)
-    cache_file = getattr(cache, "_cache_file", None)
-    if cache_file is None or not hasattr(cache, "_index_key"):
-        return 0
-    try:
-        keys = list(cache_file._load_index())
-    except Exception:  # noqa: BLE001  (a corrupt index holds nothing)
-        return 0
-    codegen = dispatcher.targetctx.codegen()
     loaded = 0
-    for key in keys:
+    for sig in _index(dispatcher, True):
         if stop is not None and stop():
             break
-        sig = key[0] if isinstance(key, tuple) and key else None
-        if not isinstance(sig, tuple) or tuple(sig) in dispatcher.overloads:
-            continue
-        try:
-            ours = cache._index_key(sig, codegen) == key
-        except Exception:  # noqa: BLE001  (an entry of another numba: not ours)
-            ours = False
-        if ours:
+        if tuple(sig) not in dispatcher.overloads:
             dispatcher.compile(sig)
             loaded += 1
     return loaded

@@ -7,6 +7,8 @@ sleeps, or ends at once) and a stand-in for "compiled" (:func:`build_beside.read
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from numba import njit
@@ -134,4 +136,81 @@ def test_ready_is_in_memory_or_in_the_kernel_cache(monkeypatch):
     monkeypatch.setattr(build_beside, "_kernel", lambda: kernel)
     assert not build_beside.ready()
     kernel(1)
+    assert build_beside.ready()
+
+
+def test_a_compile_that_is_done_leaves_no_zombie(monkeypatch):
+    """Once the chain is ready, the ended background process is collected (before: it
+    stayed a zombie in ``_STATE`` until :func:`build_beside.stop`, e.g. a Blender session's
+    whole life)."""
+    import os
+
+    ready = _cold(monkeypatch, code="pass")
+    assert build_beside.compiling()
+    proc = build_beside._STATE["proc"]
+    os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOWAIT)  # ended, not collected
+    ready[0] = True
+    assert not build_beside.compiling()
+    assert proc.returncode == 0 and build_beside._STATE["proc"] is None
+
+
+def test_the_compile_ends_with_the_process_that_started_it(tmp_path):
+    """A script (no add-on, no unregister) that ends while the chain compiles beside its
+    frames leaves no orphan process compiling on (before: it ran on, reparented)."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    code = ("from rstrace_engine.interpolants import build_beside as b; "
+            "b.ready = lambda: False; b._CODE = 'import time; time.sleep(120)'; "
+            "assert b.compiling(); print(b._STATE['proc'].pid)")
+    root = str(Path(__file__).parent.parent)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + sys.path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120, check=True).stdout
+    pid = int(out.split()[-1])
+    try:
+        time.sleep(0.2)
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+    finally:
+        try:
+            os.kill(pid, 9)
+        except ProcessLookupError:
+            pass
+
+
+def _plus_one(x):
+    return x + 1
+
+
+def test_ready_wants_a_kernel_compiled_for_this_process(monkeypatch):
+    """An index entry this process would not load (compiled for another CPU or target:
+    the portable kernels a shipped cache seeded, in a process that compiles for its host)
+    is not :func:`build_beside.ready` (before: counted, and the frame compiled the chain
+    after all)."""
+    njit(cache=True)(_plus_one)(1)  # in the disk cache
+    kernel = njit(cache=True)(_plus_one)  # not in memory
+    monkeypatch.setattr(build_beside, "_kernel", lambda: kernel)
+    assert build_beside.ready()
+    index_key = kernel._cache._index_key
+
+    def other_cpu(sig, codegen):
+        key = index_key(sig, codegen)
+        return (key[0], (key[1][0], "another-cpu", ""), *key[2:])
+
+    monkeypatch.setattr(kernel._cache, "_index_key", other_cpu)
+    assert not build_beside.ready()
+
+
+def test_the_background_code_compiles_the_chain():
+    """The process's own code (not a stand-in) runs and leaves the chain where
+    :func:`build_beside.ready` finds it (a renamed import would fail silently there: its
+    output is not read, and every frame would compile the chain itself)."""
+    from rstrace_engine.warm_first import start_helper
+
+    proc = start_helper(build_beside._CODE)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err.decode()[-2000:]
     assert build_beside.ready()

@@ -17,15 +17,17 @@ ended without the chain in the cache (it failed, or a cache that cannot be writt
 frames compile the chain themselves, as before. With the fallback off, cells are built
 wherever the rays need them, compile included (what the cache's tests count).
 
-:func:`stop` ends the process (the add-on's unregister: a compile must not outlive the
-Blender session that started it; a stopped compile is started again by the next frame that
-needs it). What this relies on: numba's cache index (``kernel_cache.cached_signatures``)
-lists the chain once a process has written it, and concurrent compiles of one signature are
-claimed by one process (``kernel_cache``: the add-on's own warm-up may be compiling it too).
+:func:`stop` ends the process (the add-on's unregister, and this process's exit: a compile
+must not outlive the Blender session or the script that started it; a stopped compile is
+started again by the next frame that needs it). What this relies on: numba's cache index
+(``kernel_cache.cached_signatures``, the entries this process would load) lists the chain
+once a process has written it, and concurrent compiles of one signature are claimed by one
+process (``kernel_cache``: the add-on's own warm-up may be compiling it too).
 """
 
 from __future__ import annotations
 
+import atexit
 import logging
 import subprocess
 import time
@@ -42,6 +44,7 @@ _CODE = ("from rstrace_engine.warm_first import compile_predicate; "
 #: the compiling process while it runs; when it started; whether one failed (then frames
 #: compile the chain themselves for the rest of the process)
 _STATE: dict = {"proc": None, "since": None, "failed": False}
+_AT_EXIT: list = []  # stop() registered to run when this process exits
 
 
 def _kernel():
@@ -51,16 +54,21 @@ def _kernel():
 
 
 def ready() -> bool:
-    """Whether the chain is in memory or in the kernel cache (a build only loads it)."""
+    """Whether the chain is in memory or in the kernel cache for this process (a build only
+    loads it; an entry for another CPU or target, e.g. the portable kernels a shipped cache
+    seeded in a process that compiles for its host, would be compiled in the frame)."""
     k = _kernel()
-    return bool(k.signatures) or kernel_cache.cached_signatures(k) > 0
+    return bool(k.signatures) or kernel_cache.cached_signatures(k, ours=True) > 0
 
 
 def compiling() -> bool:
     """Whether a frame should leave the build to the background process: :data:`BESIDE`,
     the chain not :func:`ready`, and the process running (started here if it is not). False
     once it is ready, or where the process cannot run (the frame then compiles it)."""
-    if not BESIDE or _STATE["failed"] or ready():
+    if not BESIDE or _STATE["failed"]:
+        return False
+    if ready():
+        _reap()
         return False
     proc = _STATE["proc"]
     if proc is not None:
@@ -77,8 +85,18 @@ def compiling() -> bool:
         _STATE["failed"] = True
         return False
     _STATE["proc"], _STATE["since"] = proc, time.perf_counter()
+    if not _AT_EXIT:  # a process that ends mid-compile (a script) leaves no orphan
+        atexit.register(stop)
+        _AT_EXIT.append(stop)
     log.info("RSTrace: compiling the cell build's kernels in the background")
     return True
+
+
+def _reap() -> None:
+    """Forget a process that has ended (its exit status collected: no zombie)."""
+    proc = _STATE["proc"]
+    if proc is not None and proc.poll() is not None:
+        _STATE["proc"] = None
 
 
 def seconds() -> float:

@@ -125,6 +125,20 @@ def compile_predicate(scene) -> None:
                 np.zeros(0, f8), np.zeros(0, i4))
 
 
+def compile_cell_build() -> None:
+    """What :mod:`.interpolants.build_beside`'s background process runs: the error
+    predicate's chain (:func:`compile_predicate`), then interpolants built, walked and
+    edited for real (``warm_kernels._warm_edited_interpolants``: cells built and checked, a
+    camera step that splats and reprojects them, an object edit, an added light), so that
+    the first frame with cells after it only loads its kernels (with the chain alone it
+    still compiled 53 signatures, 15.8 s of CPU: the walk, the linetrees, the ray segment
+    trees, the samples, reprojection; docs/first-render.md, session 44 (review))."""
+    from .warm_kernels import _warm_edited_interpolants, warm_scene
+
+    compile_predicate(warm_scene())
+    _warm_edited_interpolants()
+
+
 def compile_build(scene) -> None:
     """Compile (or load) the BVH build's kernels: build ``scene``'s BVH."""
     from .accel.accelerators import create_accelerator

@@ -48,8 +48,11 @@ def _cold(monkeypatch, code: str = SLEEP) -> list:
     return state
 
 
-def test_a_cold_chain_is_compiled_beside_and_the_frame_is_the_base_tracers(monkeypatch):
-    ready = _cold(monkeypatch)
+def test_a_cold_chain_is_compiled_beside_and_the_frame_is_the_base_tracers(monkeypatch,
+                                                                          tmp_path):
+    done = tmp_path / "done"  # the stand-in compile ends when this file is there
+    ready = _cold(monkeypatch, code=f"import os, time\nwhile not os.path.exists({str(done)!r}):"
+                                    f"\n    time.sleep(0.02)")
     base = _session("BASE").render()
     s = _session()
     frame = s.render()
@@ -64,14 +67,27 @@ def test_a_cold_chain_is_compiled_beside_and_the_frame_is_the_base_tracers(monke
     s.settings.seed += 1
     assert s.render().stats["fallback"]["build_compiling"]
     assert build_beside._STATE["proc"] is proc
-    # compiled (in the cache): the next frame builds cells and walks them
+    # the chain in the cache but the process still at the rest of the build's kernels: the
+    # frames wait for it (the first frame with cells then only loads them)
     ready[0] = True
+    s.settings.seed += 1
+    assert s.render().stats["fallback"]["build_compiling"]
+    done.write_text("")
+    proc.wait(60)
+    # done: the next frame builds cells and walks them; the process collected (no zombie)
     s.settings.seed += 1
     frame = s.render()
     assert not frame.stats["fallback"]["build_compiling"]
     assert s.interpolants.cache.totals["cells_built"] > 0
+    assert build_beside._STATE["proc"] is None and not build_beside._STATE["failed"]
+
+
+def test_stop_ends_the_compile(monkeypatch):
+    _cold(monkeypatch)
+    assert build_beside.compiling()
+    proc = build_beside._STATE["proc"]
     build_beside.stop()
-    assert proc.poll() is not None  # stopped: no compile outlives its owner
+    assert proc.poll() is not None and build_beside._STATE["proc"] is None  # none outlives
 
 
 def test_a_compile_that_leaves_no_kernel_leaves_the_build_to_the_frames(monkeypatch):
@@ -205,12 +221,13 @@ def test_ready_wants_a_kernel_compiled_for_this_process(monkeypatch):
 
 
 def test_the_background_code_compiles_the_chain():
-    """The process's own code (not a stand-in) runs and leaves the chain where
-    :func:`build_beside.ready` finds it (a renamed import would fail silently there: its
-    output is not read, and every frame would compile the chain itself)."""
-    from rstrace_engine.warm_first import start_helper
+    """The process's own code (not a stand-in: the chain, then interpolants built, walked and
+    edited) runs and leaves the chain where :func:`build_beside.ready` finds it (a renamed
+    import would fail silently there: its output is not read, and every frame would compile
+    the chain itself)."""
+    from rstrace_engine import child_python
 
-    proc = start_helper(build_beside._CODE)
+    proc = child_python.start(build_beside._CODE)
     _, err = proc.communicate(timeout=600)
     assert proc.returncode == 0, err.decode()[-2000:]
     assert build_beside.ready()

@@ -10,11 +10,12 @@ So, where the measured fallback decides (:attr:`.render.InterpolantRenderer.auto
 the default): a frame whose cache keeps no cell, while the chain is neither in memory nor in
 the kernel cache (:func:`ready`), is the base tracer's frame (exact; ``stats["fallback"]
 ["build_compiling"]`` and a note say why) and one background Python process compiles the
-chain into the kernel cache (:func:`.warm_first.compile_predicate`: the argument types of a
-render's build; :mod:`..child_python`). The first frame after it is done loads the chain
-from the cache (a second or less) and builds cells. Where no process can be started, or it
-ended without the chain in the cache (it failed, or a cache that cannot be written), the
-frames compile the chain themselves, as before. With the fallback off, cells are built
+build's kernels into the kernel cache (:func:`.warm_first.compile_cell_build`: the chain for
+the argument types of a render's build, then cells built, walked and edited for real;
+:mod:`..child_python`). Until it ends, such frames stay the base tracer's; the first frame
+after it loads the kernels from the cache and builds cells. Where no process can be started,
+or it ended without the chain in the cache (it failed, or a cache that cannot be written),
+the frames compile the chain themselves, as before. With the fallback off, cells are built
 wherever the rays need them, compile included (what the cache's tests count).
 
 :func:`stop` ends the process (the add-on's unregister, and this process's exit: a compile
@@ -39,8 +40,7 @@ log = logging.getLogger(__name__)
 #: off: a frame that needs the chain compiles it (the tests turn it off, tests/conftest.py:
 #: what they count must not depend on a background process's timing)
 BESIDE = True
-_CODE = ("from rstrace_engine.warm_first import compile_predicate; "
-         "from rstrace_engine.warm_kernels import warm_scene; compile_predicate(warm_scene())")
+_CODE = "from rstrace_engine.warm_first import compile_cell_build; compile_cell_build()"
 #: the compiling process while it runs; when it started; whether one failed (then frames
 #: compile the chain themselves for the rest of the process)
 _STATE: dict = {"proc": None, "since": None, "failed": False}
@@ -62,23 +62,28 @@ def ready() -> bool:
 
 
 def compiling() -> bool:
-    """Whether a frame should leave the build to the background process: :data:`BESIDE`,
-    the chain not :func:`ready`, and the process running (started here if it is not). False
-    once it is ready, or where the process cannot run (the frame then compiles it)."""
+    """Whether a frame should leave the build to the background process: :data:`BESIDE`
+    and the process running (it compiles the chain, then the rest of the build's kernels:
+    :func:`.warm_first.compile_cell_build`), or the chain not :func:`ready` (the process
+    is started here). False once it has ended with the chain ready (its exit status
+    collected: no zombie), or where it cannot run or failed (the frames then compile what
+    they need themselves)."""
     if not BESIDE or _STATE["failed"]:
-        return False
-    if ready():
-        _reap()
         return False
     proc = _STATE["proc"]
     if proc is not None:
         if proc.poll() is None:
             return True
-        # ended and the chain still not in the cache: failed, or a cache that cannot be
-        # written; the frames compile it themselves from now on
-        log.warning("RSTrace: the cell build's background compile ended (rc %s) and left no "
-                    "kernel in the cache; frames compile it themselves", proc.returncode)
-        _STATE["proc"], _STATE["failed"] = None, True
+        _STATE["proc"] = None
+        if proc.returncode != 0 or not ready():
+            # failed, stopped from outside, or a cache that cannot be written: the frames
+            # compile it themselves from now on
+            log.warning("RSTrace: the cell build's background compile ended (rc %s) %s; "
+                        "frames compile it themselves", proc.returncode,
+                        "and left no kernel in the cache" if proc.returncode == 0 else "")
+            _STATE["failed"] = True
+        return False
+    if ready():
         return False
     proc = child_python.start(_CODE, stderr=subprocess.DEVNULL)
     if proc is None:
@@ -90,13 +95,6 @@ def compiling() -> bool:
         _AT_EXIT.append(stop)
     log.info("RSTrace: compiling the cell build's kernels in the background")
     return True
-
-
-def _reap() -> None:
-    """Forget a process that has ended (its exit status collected: no zombie)."""
-    proc = _STATE["proc"]
-    if proc is not None and proc.poll() is not None:
-        _STATE["proc"] = None
 
 
 def seconds() -> float:

@@ -45,9 +45,10 @@ from rstrace_engine.geometry.cameras import camera_params, camera_rays  # noqa: 
 from rstrace_engine.tracing.whitted import render  # noqa: E402
 
 
-def edge_pixels(scene, acc, ring: int = 1) -> np.ndarray:
-    """(h, w) bool: the pixels whose centre key (hit instance, point light visible) differs
-    from a 4-neighbour's ``ring`` pixels away (the frame's border counts as an edge)."""
+def centre_keys(scene, acc) -> np.ndarray:
+    """(h, w) int64: each pixel centre's key, ``2 instance + lit`` (the instance its camera
+    ray hits, -1 a miss; lit: the centre's depth-0 radiance is above 0, the direct light
+    where it hits, the background's colour where it misses)."""
     cp = camera_params(scene.camera)
     w, h = cp.width, cp.height
     pix = np.arange(w * h, dtype=np.int64)
@@ -55,8 +56,13 @@ def edge_pixels(scene, acc, ring: int = 1) -> np.ndarray:
     inst = acc.closest_hit(o, d, tmin, tmax).inst.reshape(h, w).astype(np.int64)
     lit = fr._luminance(render(scene, RenderSettings(max_depth=0, samples=1).validated(),
                                accel=acc).radiance) > 1e-6
-    key = inst * 2 + lit
-    edge = np.zeros((h, w), bool)
+    return inst * 2 + lit
+
+
+def edges_of(key: np.ndarray, ring: int = 1) -> np.ndarray:
+    """(h, w) bool: the pixels whose ``key`` differs from a 4-neighbour's ``ring`` pixels
+    away; the frame's border (``ring`` pixels wide) counts as an edge."""
+    edge = np.zeros(key.shape, bool)
     edge[ring:, :] |= key[ring:, :] != key[:-ring, :]
     edge[:-ring, :] |= key[:-ring, :] != key[ring:, :]
     edge[:, ring:] |= key[:, ring:] != key[:, :-ring]
@@ -64,6 +70,11 @@ def edge_pixels(scene, acc, ring: int = 1) -> np.ndarray:
     edge[:ring, :] = edge[-ring:, :] = True
     edge[:, :ring] = edge[:, -ring:] = True
     return edge
+
+
+def edge_pixels(scene, acc, ring: int = 1) -> np.ndarray:
+    """(h, w) bool: :func:`edges_of` the :func:`centre_keys`."""
+    return edges_of(centre_keys(scene, acc), ring)
 
 
 def main() -> None:

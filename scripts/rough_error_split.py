@@ -16,13 +16,22 @@ region, each its share of the frame's ``rel`` (the shares sum to the row):
 * ``noise`` (rms over ``--seeds`` seeds of the relative deviation from their mean, its
   share the mean over the region's pixels / n): the glossy lobe's sampling noise.
 
+With ``--own-reference`` (session 44) the reference is rstrace's own converged frame (64 x
+64, seed 7, cached as ``rough_equal_time.py --own-reference`` caches it), so each share is
+rstrace's sampling error alone, the error that the equal-time ratio measures; Mitsuba is not
+needed then. ``floor shadow edge``: floor pixels whose direct light over 16 jittered samples
+differs from the pixel centre's by over 10% (a hard shadow's edge; a lit floor varies by
+under 1% across a pixel), ``floor lit`` the other lit ones.
+
 Reproduce: ``DRJIT_LIBLLVM_PATH=<libLLVM.so >= 16> NUMBA_NUM_THREADS=1 PYTHONPATH=.
-python scripts/rough_error_split.py [--samples 1 --glossy 16 --seeds 4 --ref-spp 4096]``.
+python scripts/rough_error_split.py [--samples 1 --glossy 16 --seeds 4 --ref-spp 4096]
+[--own-reference]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import replace
 
@@ -47,17 +56,16 @@ def main() -> None:
     ap.add_argument("--glossy", type=int, default=16)
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--ref-spp", type=int, default=4096)
+    ap.add_argument("--own-reference", action="store_true",
+                    help="against rstrace's own converged frame (docstring)")
+    ap.add_argument("--cache", default="/tmp/ownref-cache", help="where it is kept")
     a = ap.parse_args()
     scene = scenes.rough_materials(a.width, a.height)
     acc = create_accelerator("BVH", scene.arrays())
     st = RenderSettings(max_depth=5, samples=a.samples, glossy_samples=a.glossy).validated()
     frames = [render(scene, replace(st, seed=s), accel=acc).radiance for s in range(a.seeds)]
     conv = render(scene, replace(st, glossy_samples=256), accel=acc).radiance
-    mi, why = fr.mitsuba_llvm()
-    if mi is None:
-        raise SystemExit(why)
-    ms = mi.load_dict(fr.rough_scene_dict(scene, mi, a.width, a.height, 5, 1))
-    ref, _ = fr._mitsuba_render(mi, ms, a.ref_spp, seed=1)
+    ref = own_reference(scene, acc, a) if a.own_reference else mitsuba_reference(scene, a)
     lum = fr._luminance
     lr = lum(ref)
 
@@ -79,8 +87,13 @@ def main() -> None:
     direct = render(scene, replace(st, max_depth=0), accel=acc).radiance
     lit = lum(direct) > 1e-6
     high = lum(direct) >= 0.5 * lum(conv)
-    regions = {"edges": edges, "floor lit": own["floor"] & lit,
-               "floor shadow": own["floor"] & ~lit, "box": own["red"]}
+    # the floor's pixels whose 16 jittered samples disagree with the centre (a shadow edge)
+    dl = lum(render(scene, replace(jit, max_depth=0), accel=acc).radiance)
+    dl_centre = lum(render(scene, replace(jit, samples=1, max_depth=0), accel=acc).radiance)
+    shadow_edge = own["floor"] & (dl > 1e-6) & (np.abs(dl - dl_centre) > 0.1 * dl)
+    regions = {"edges": edges, "floor shadow edge": shadow_edge,
+               "floor lit": own["floor"] & lit & ~shadow_edge,
+               "floor shadow": own["floor"] & ~lit & ~shadow_edge, "box": own["red"]}
     for n in ("metal", "glass", "plastic"):
         regions[f"{n} highlight"] = own[n] & high
         regions[f"{n} reflected"] = own[n] & ~high
@@ -91,7 +104,8 @@ def main() -> None:
                     / max(a.seeds - 1, 1)) / (lr + fr.REL_EPS)
     e_def, e_conv = rel(frames[0]), rel(conv)
     say(f"rough_materials {a.width}x{a.height}, rstrace {a.samples} x {a.glossy}, "
-          f"{a.seeds} seeds, Mitsuba reference {a.ref_spp} spp")
+          f"{a.seeds} seeds, " + ("rstrace's own reference (64 x 64)" if a.own_reference
+                                  else f"Mitsuba reference {a.ref_spp} spp"))
     say(f"{'region':16s} {'pixels':>6s} {'defaults':>9s} {'glossy conv.':>12s} "
           f"{'noise':>7s} {'noise/px':>8s}")
     tot = np.zeros(3)
@@ -102,6 +116,27 @@ def main() -> None:
         say(f"{name:16s} {int(m.sum()):6d} {v[0]:9.4f} {v[1]:12.4f} {v[2]:7.4f} "
               f"{per:8.4f}")
     say(f"{'all':16s} {npx:6d} {tot[0]:9.4f} {tot[1]:12.4f} {tot[2]:7.4f}")
+
+
+def mitsuba_reference(scene, a) -> np.ndarray:
+    mi, why = fr.mitsuba_llvm()
+    if mi is None:
+        raise SystemExit(why)
+    ms = mi.load_dict(fr.rough_scene_dict(scene, mi, a.width, a.height, 5, 1))
+    return fr._mitsuba_render(mi, ms, a.ref_spp, seed=1)[0]
+
+
+def own_reference(scene, acc, a) -> np.ndarray:
+    """rstrace's 64 x 64 frame, seed 7 (``rough_equal_time.py --own-reference``'s, from its
+    cache when there)."""
+    path = f"{a.cache}/rstrace_{a.width}x{a.height}_64x64.npy"
+    if os.path.exists(path):
+        return np.load(path)
+    st = RenderSettings(max_depth=5, samples=64, glossy_samples=64, seed=7).validated()
+    img = render(scene, st, accel=acc).radiance.astype(np.float64)
+    os.makedirs(a.cache, exist_ok=True)
+    np.save(path, img)
+    return img
 
 
 if __name__ == "__main__":

@@ -546,8 +546,8 @@ class Fallback:
         walk declined (``budget``: its ledger); none while cells are used everywhere."""
         out = []
         if budget is not None and budget.compiled:
-            out.append("Interpolants: this frame compiled or loaded numba kernels, its costs "
-                       "timed them: not judged (a later frame's are)")
+            out.append("Interpolants: kernels were compiled or loaded during this frame, so "
+                       "its timings are not judged; the next frame's decide where cells pay")
         if budget is not None and budget.declined:
             out.append(f"Interpolants: this frame walked no cell, the cache keeps none and a "
                        f"first walk here cost {self.first_walk:.1f} traced rays a ray, more "

@@ -564,8 +564,11 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())
+    # as many parts as units, or as heads where they serve (the BASE heads compile the BVH's
+    # kernels: a warm-up of other accelerators has no use for a part that only does that)
+    heads = len(part_heads(modes)) if "INTERPOLANT" in modes or "BVH" in accelerators else 0
     jobs = max(1, min(jobs or kernel_cache.usable_cores(),
-                      max(len(units(modes, accelerators, soft)), len(part_heads(modes)))))
+                      max(len(units(modes, accelerators, soft)), heads)))
     exe = child_python.python()
     if exe is None:
         return dict(warm(modes, accelerators, progress, cancel, report_unreached, soft=soft,

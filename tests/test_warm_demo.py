@@ -80,6 +80,11 @@ def test_no_textures_reaches_the_parts_and_the_warm_scene(monkeypatch):
     # BASE alone has one unit but two part heads (warm_kernels.BASE_PART_HEADS: make demo's
     # warm-up): two processes, the second compiling the traversal
     assert [a[a.index("--part") + 1] for a in started] == ["0/2", "1/2"]
+    # ... but not for another accelerator: those heads compile the BVH's kernels
+    started.clear()
+    out = warm_kernels.warm_parallel(2, ("BASE",), ("VISIBILITY_FIELD",), report_unreached=False,
+                                     soft=False)
+    assert out["jobs"] == 1 and len(started) == 1
     plain = warm_kernels.warm_scene(textured=False)
     assert all(m.texture is None for m in plain.materials)
     assert any(m.texture is not None for m in warm_kernels.warm_scene().materials)

@@ -560,7 +560,6 @@ def warm_parallel(jobs: int | None = None, modes=None, accelerators=None, progre
     import subprocess
     import tempfile
 
-
     t0 = time.perf_counter()
     modes = tuple(modes or _modes())
     accelerators = tuple(accelerators or _accelerators())

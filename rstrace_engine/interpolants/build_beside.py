@@ -44,7 +44,6 @@ _CODE = "from rstrace_engine.warm_first import compile_cell_build; compile_cell_
 #: the compiling process while it runs; when it started; whether one failed (then frames
 #: compile the chain themselves for the rest of the process)
 _STATE: dict = {"proc": None, "since": None, "failed": False}
-_AT_EXIT: list = []  # stop() registered to run when this process exits
 
 
 def _kernel():
@@ -78,9 +77,9 @@ def compiling() -> bool:
         if proc.returncode != 0 or not ready():
             # failed, stopped from outside, or a cache that cannot be written: the frames
             # compile it themselves from now on
-            log.warning("RSTrace: the cell build's background compile ended (rc %s) %s; "
-                        "frames compile it themselves", proc.returncode,
-                        "and left no kernel in the cache" if proc.returncode == 0 else "")
+            log.warning("RSTrace: the cell build's background compile ended (rc %s) without "
+                        "the chain in the cache; frames compile it themselves",
+                        proc.returncode)
             _STATE["failed"] = True
         return False
     if ready():
@@ -90,9 +89,6 @@ def compiling() -> bool:
         _STATE["failed"] = True
         return False
     _STATE["proc"], _STATE["since"] = proc, time.perf_counter()
-    if not _AT_EXIT:  # a process that ends mid-compile (a script) leaves no orphan
-        atexit.register(stop)
-        _AT_EXIT.append(stop)
     log.info("RSTrace: compiling the cell build's kernels in the background")
     return True
 
@@ -119,3 +115,7 @@ def stop() -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+# a process that ends mid-compile (a script: no add-on unregister) leaves no orphan
+atexit.register(stop)

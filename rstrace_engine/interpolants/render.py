@@ -112,6 +112,18 @@ def _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     return frame
 
 
+def _traced_frame(cache, scene, settings, progress, cancel, records, pixels, base,
+                  fallback: dict, notes: list) -> Frame:
+    """The base tracer's frame where the measured fallback traces the whole frame
+    (:mod:`.fallback`, :mod:`.build_beside`): no reprojection from it, and what was decided
+    (``fallback``, ``notes``) in its statistics."""
+    cache.view = None
+    frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+    frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
+                       fallback=fallback, fallback_notes=notes)
+    return frame
+
+
 def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progress=None,
                  cancel=None, records=None, pixels: np.ndarray | None = None,
                  base: Frame | None = None, fallback: bool = False) -> Frame:
@@ -140,24 +152,18 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
     if cache.epsilon <= 0.0:
         return _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
     fb = cache.fallback if fallback else None
+    traced = (cache, scene, settings, progress, cancel, records, pixels, base)
     if fb is not None and fb.whole_frame_traced():
         # the frame's cells did not pay (fallback.py): the base tracer's frame, as fast
-        cache.view = None
-        frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
+        frame = _traced_frame(*traced, fb.stats(None), fb.notes())
         if pixels is None and not frame.stats.get("cancelled"):
             fb.frames_all += 1
-        frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
-                           fallback=fb.stats(None), fallback_notes=fb.notes())
         return frame
     if fb is not None and cache.pool.n_live == 0 and build_beside.compiling():
         # no cell yet and the build's kernels not compiled: they compile in a background
         # process (build_beside.py), this frame is the base tracer's, exact
-        cache.view = None
-        frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
-        frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0, cell_outcomes={},
-                           fallback=dict(fb.stats(None), build_compiling=True),
-                           fallback_notes=[build_beside.note()] + fb.notes())
-        return frame
+        return _traced_frame(*traced, dict(fb.stats(None), build_compiling=True),
+                             [build_beside.note()] + fb.notes())
     t0 = fb_mod.CLOCK()
     sa = cache.sa
     cp = camera_params(scene.camera)
@@ -213,12 +219,7 @@ def render_frame(cache: InterpolantCache, scene, settings: RenderSettings, progr
         run.budget.owed, run.budget.owed_build = fb_mod.owed_at_once(
             cache.structures_missing(), len(sa.tris), cache.pool.n_live > 0)
         if run.budget.owed > run.budget.limit:  # (priced: its walk could never be paid)
-            cache.view = None
-            frame = _base_frame(cache, scene, settings, progress, cancel, records, pixels, base)
-            frame.stats.update(epsilon=cache.epsilon, reprojected_fraction=0.0,
-                               cell_outcomes={}, fallback=fb.stats(run.budget),
-                               fallback_notes=fb.notes())
-            return frame
+            return _traced_frame(*traced, fb.stats(run.budget), fb.notes())
     budget = run.budget
     n_closest, t_closest = 0, 0.0
     pass_tiles = list(tiles(k))  # a pass goes in tiles of the base tracer's size
